@@ -1,14 +1,32 @@
-pub fn add(left: u64, right: u64) -> u64 {
-    left + right
-}
+//! g1viz: replay, identify and diagnose the electrical power of the Unitree G1 arm.
+//!
+//! Data flows one way through one module per stage:
+//!
+//! ```text
+//! read (MCAP, ROS 2 .db3, ROS 1 .bag; schema-driven decoding)
+//!   → signals (named arm signals: q, dq, tau, temperature, IMU, MBS/BMS power)
+//!   → robot (URDF, forward kinematics, inverse dynamics)
+//!   → power (the paper's 49-parameter model)
+//!   → identify (segmentation, regressors, filters, constrained fit, metrics, report)
+//!   → diagnose (sim-to-real mismatch: locate, name, model)
+//!   → viz (Rerun recording)
+//! sim (digital twin) writes the same MCAP format that `read` reads.
+//! ```
+#![warn(missing_docs)]
 
-#[cfg(test)]
-mod tests {
-    use super::*;
+pub mod diagnose;
+pub mod identify;
+pub mod power;
+pub mod read;
+pub mod robot;
+pub mod signals;
+pub mod sim;
+pub mod util;
+#[cfg(feature = "viz")]
+pub mod viz;
 
-    #[test]
-    fn it_works() {
-        let result = add(2, 2);
-        assert_eq!(result, 4);
-    }
-}
+/// Number of arm joints the power model covers (one arm: shoulder pitch/roll/yaw, elbow, wrist roll/pitch/yaw).
+pub const N_JOINTS: usize = 7;
+
+/// Number of power-model parameters: 4 per joint plus 21 pairwise interactions.
+pub const N_PARAMS: usize = 4 * N_JOINTS + N_JOINTS * (N_JOINTS - 1) / 2;

@@ -1,0 +1,1 @@
+//! (stage diagnose: to be written)

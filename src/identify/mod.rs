@@ -1,0 +1,1 @@
+//! (stage identify: to be written)

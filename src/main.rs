@@ -1,0 +1,2 @@
+//! `g1viz` command line.
+fn main() {}

@@ -1,0 +1,1 @@
+//! (stage robot: to be written)

@@ -1,0 +1,1 @@
+//! (stage sim: to be written)

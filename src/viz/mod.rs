@@ -1,0 +1,1 @@
+//! (stage viz: to be written)
