@@ -147,10 +147,12 @@ pub struct TrialPrediction {
     pub joints_moved: Vec<usize>,
     /// Peak commanded speed [rad/s].
     pub qdot_max_cmd: f64,
-    /// Mean measured net power [W].
+    /// Mean measured net power of the readings inside the trajectory window [W].
     pub measured_w: f64,
-    /// Predicted net power [W].
+    /// Predicted net power averaged over those readings' own windows [W] (like for like with `measured_w`).
     pub predicted_w: f64,
+    /// Predicted mean net power over the whole trajectory window [W] (the paper's aggregate).
+    pub predicted_window_w: f64,
     /// σ_ω [rad/s].
     pub sigma_omega: f64,
     /// Rejected by a filter (identification) or flagged by the IMU criterion (validation).
@@ -187,8 +189,12 @@ pub struct Identification {
     pub trials_used: usize,
     /// Fit quality of the final fit on its rows (mode of the options).
     pub fit: Metrics,
-    /// Fit quality at trial level (trajectory means) of the final model on the retained trials.
-    pub fit_trial_level: Metrics,
+    /// The final model at trial level on the retained trials, the paper's way: φ averaged over
+    /// the whole trajectory window vs the mean of the readings in it.
+    pub trial_level: Metrics,
+    /// The final model at trial level on the retained trials, like for like: prediction averaged
+    /// over the readings' own windows vs the mean of the readings.
+    pub trial_level_aligned: Metrics,
     /// Trial, reading and sample pairings fitted on the retained trials (κ, R²).
     pub modes: Vec<ModeFit>,
     /// Dominant term per joint.
@@ -206,10 +212,13 @@ pub struct Validation {
     pub session: SessionSummary,
     /// Sensor timing used.
     pub alignment: Alignment,
-    /// Per-trial (trajectory means) metrics over all usable trials — the paper's hold-out table.
+    /// Per-trial metrics over all usable trials, the paper's way (φ averaged over the trajectory
+    /// window vs the mean of its readings) — the paper's hold-out table.
     pub trial_level: Metrics,
-    /// Per-trial metrics over the trials the IMU criterion keeps (None when the filter is off).
-    pub trial_level_imu_kept: Option<Metrics>,
+    /// Per-trial metrics, like for like (prediction averaged over the readings' own windows).
+    pub trial_level_aligned: Metrics,
+    /// `trial_level_aligned` over the trials the IMU criterion keeps (None when the filter is off).
+    pub trial_level_aligned_imu_kept: Option<Metrics>,
     /// Per-reading metrics over all usable trials.
     pub reading_level: Metrics,
     /// Per-trial measured vs predicted.
@@ -561,25 +570,34 @@ pub fn identify(recs: &[Recording], opts: &IdentifyOptions) -> Result<Identifica
             trial_rows = rows;
         }
     }
-    let fit_trial_level = quality(&theta, &trial_rows);
     let shares = TermShares::of(&model, &trial_rows);
 
     // Per-trial table over every trial with rows, rejected ones flagged.
     let mut per_trial = Vec::new();
     for (s, p) in prepared.iter().enumerate() {
-        let d = dataset::build(
-            p.rec,
-            &p.seg.trials,
-            &DatasetOptions {
-                mode: Mode::Trial,
-                target: opts.target,
-                alignment,
-            },
-        );
-        per_trial.extend(trial_predictions(s, &p.seg, &d, &theta, |t| {
-            is_rejected(&rejections, s, t)
-        }));
+        let set = |mode| {
+            dataset::build(
+                p.rec,
+                &p.seg.trials,
+                &DatasetOptions {
+                    mode,
+                    target: opts.target,
+                    alignment,
+                },
+            )
+        };
+        per_trial.extend(trial_predictions(
+            s,
+            &p.seg,
+            &set(Mode::Reading),
+            &set(Mode::Trial),
+            &theta,
+            |t| is_rejected(&rejections, s, t),
+        ));
     }
+    let retained_table: Vec<&TrialPrediction> = per_trial.iter().filter(|p| !p.rejected).collect();
+    let trial_level = trial_metrics(&retained_table, |p| p.predicted_window_w);
+    let trial_level_aligned = trial_metrics(&retained_table, |p| p.predicted_w);
     let sessions = prepared
         .iter()
         .zip(&main_sets)
@@ -598,7 +616,8 @@ pub fn identify(recs: &[Recording], opts: &IdentifyOptions) -> Result<Identifica
         rejections,
         trials_used: retained.iter().map(Vec::len).sum(),
         fit,
-        fit_trial_level,
+        trial_level,
+        trial_level_aligned,
         modes,
         dominant: dominant_terms(&model)
             .into_iter()
@@ -609,31 +628,53 @@ pub fn identify(recs: &[Recording], opts: &IdentifyOptions) -> Result<Identifica
     })
 }
 
+/// Per-trial measured vs predicted from a trial's reading rows (like for like) and its trial row
+/// (the paper's whole-window aggregate).
 fn trial_predictions(
     session: usize,
     seg: &Segmentation,
-    trial_set: &Dataset,
+    readings: &Dataset,
+    windows: &Dataset,
     theta: &[f64; N_PARAMS],
     rejected: impl Fn(usize) -> bool,
 ) -> Vec<TrialPrediction> {
-    trial_set
-        .rows
-        .iter()
-        .filter_map(|row| {
-            let trial = seg.trials.iter().find(|t| t.index == row.trial)?;
-            Some(TrialPrediction {
-                session,
-                trial: row.trial,
-                window: (row.t0, row.t1),
-                joints_moved: trial.joints_moved.clone(),
-                qdot_max_cmd: trial.qdot_max_cmd,
-                measured_w: row.y,
-                predicted_w: predict(theta, &row.phi),
-                sigma_omega: row.sigma_omega,
-                rejected: rejected(row.trial),
-            })
-        })
-        .collect()
+    let mut out: Vec<TrialPrediction> = Vec::new();
+    for basis in &readings.trials {
+        let rows: Vec<&Row> = readings
+            .rows
+            .iter()
+            .filter(|r| r.trial == basis.trial)
+            .collect();
+        let (Some(trial), Some(window_row)) = (
+            seg.trials.iter().find(|t| t.index == basis.trial),
+            windows.rows.iter().find(|r| r.trial == basis.trial),
+        ) else {
+            continue;
+        };
+        let n = rows.len().max(1) as f64;
+        out.push(TrialPrediction {
+            session,
+            trial: basis.trial,
+            window: basis.window,
+            joints_moved: trial.joints_moved.clone(),
+            qdot_max_cmd: trial.qdot_max_cmd,
+            measured_w: rows.iter().map(|r| r.y).sum::<f64>() / n,
+            predicted_w: rows.iter().map(|r| predict(theta, &r.phi)).sum::<f64>() / n,
+            predicted_window_w: predict(theta, &window_row.phi),
+            sigma_omega: basis.sigma_omega,
+            rejected: rejected(basis.trial),
+        });
+    }
+    out
+}
+
+fn trial_metrics(
+    table: &[&TrialPrediction],
+    predicted: impl Fn(&TrialPrediction) -> f64,
+) -> Metrics {
+    let y: Vec<f64> = table.iter().map(|p| p.measured_w).collect();
+    let yhat: Vec<f64> = table.iter().map(|p| predicted(p)).collect();
+    Metrics::compute(&y, &yhat)
 }
 
 /// Apply `model` to a hold-out session. No filter removes trials (the paper's hold-out set is
@@ -683,19 +724,15 @@ pub fn validate(model: &PowerModel, rec: &Recording, opts: &IdentifyOptions) -> 
             .as_ref()
             .is_some_and(|f| f.iter().any(|r| r.trial == t))
     };
-    let per_trial = trial_predictions(0, &seg, &trial_set, &theta, is_flagged);
-    let trial_level_imu_kept = flagged.as_ref().map(|_| {
-        let kept: Vec<Row> = trial_set
-            .rows
-            .iter()
-            .filter(|r| !is_flagged(r.trial))
-            .cloned()
-            .collect();
-        quality(&theta, &kept)
-    });
+    let per_trial = trial_predictions(0, &seg, &reading_set, &trial_set, &theta, is_flagged);
+    let all: Vec<&TrialPrediction> = per_trial.iter().collect();
+    let kept: Vec<&TrialPrediction> = per_trial.iter().filter(|p| !p.rejected).collect();
     Ok(Validation {
-        trial_level: quality(&theta, &trial_set.rows),
-        trial_level_imu_kept,
+        trial_level: trial_metrics(&all, |p| p.predicted_window_w),
+        trial_level_aligned: trial_metrics(&all, |p| p.predicted_w),
+        trial_level_aligned_imu_kept: flagged
+            .as_ref()
+            .map(|_| trial_metrics(&kept, |p| p.predicted_w)),
         reading_level: quality(&theta, &reading_set.rows),
         shares: TermShares::of(model, &trial_set.rows),
         per_trial,
