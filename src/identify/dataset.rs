@@ -323,7 +323,7 @@ pub fn build(rec: &Recording, trials: &[Trial], opts: &DatasetOptions) -> Datase
                 let s = &rec.state;
                 let n = s.t.len().min(s.tau.len()).min(s.dq.len());
                 let (i0, i1) = (
-                    s.t[..n].partition_point(|&x| x < a),
+                    s.t[..n].partition_point(|&x| x <= a),
                     s.t[..n].partition_point(|&x| x <= b),
                 );
                 let mut phi = [0.0; N_PARAMS];

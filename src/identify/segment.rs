@@ -179,20 +179,23 @@ fn command_reference(rec: &Recording) -> Reference<'_> {
     // A float32 command at rest repeats exactly; the first sample of a smooth step already moves
     // by ~1e-5 rad, far above float32 rounding (~1e-7 rad), so 1e-3 rad/s separates the two.
     const SPEED_EPS: f64 = 1e-3;
-    let mut moving = vec![false; n];
-    for k in 1..n {
+    let step = |k: usize| {
         let dt = (c.t[k] - c.t[k - 1]).max(1e-6);
-        let dq_cmd =
-            c.dq.get(k)
-                .map_or(0.0, |d| d.iter().fold(0.0f64, |m, v| m.max(v.abs())));
-        let step = (0..N_JOINTS).fold(0.0f64, |m, j| m.max((c.q[k][j] - c.q[k - 1][j]).abs())) / dt;
-        moving[k] = step > SPEED_EPS || dq_cmd > SPEED_EPS;
-    }
-    // The sample before the first change is the last idle one; the first sample counts as idle
-    // unless its own velocity command says otherwise.
-    if let Some(d) = c.dq.first() {
-        moving[0] = d.iter().any(|v| v.abs() > SPEED_EPS);
-    }
+        (0..N_JOINTS).fold(0.0f64, |m, j| m.max((c.q[k][j] - c.q[k - 1][j]).abs())) / dt
+    };
+    // A sample moves when its velocity command is non-zero or it differs from both neighbours
+    // (a sample equal to the next one is where the reference came to rest, even if it differs
+    // from the previous one; at a waypoint junction both differences are non-zero).
+    let moving = (0..n)
+        .map(|k| {
+            let dq_cmd =
+                c.dq.get(k)
+                    .map_or(0.0, |d| d.iter().fold(0.0f64, |m, v| m.max(v.abs())));
+            let before = k == 0 || step(k) > SPEED_EPS;
+            let after = k + 1 == n || step(k + 1) > SPEED_EPS;
+            dq_cmd > SPEED_EPS || (before && after && n > 1)
+        })
+        .collect();
     Reference {
         t: &c.t[..n],
         q: &c.q[..n],
