@@ -530,23 +530,34 @@ pub fn identify(recs: &[Recording], opts: &IdentifyOptions) -> Result<Identifica
                 .collect()
         })
         .collect();
+    // Sample rows of a paper-scale session would take ~0.5 GB (1e6 × 49 f64): the comparison
+    // thins them trial by trial to at most SAMPLE_ROWS_MAX, which keeps the zero-order-hold
+    // structure that makes them degenerate.
+    const SAMPLE_ROWS_MAX: f64 = 100_000.0;
+    let traj_seconds: f64 = retained
+        .iter()
+        .flatten()
+        .map(|t| t.t_post_end - t.t_traj_start)
+        .sum();
+    let stride = ((traj_seconds * 100.0 / SAMPLE_ROWS_MAX).ceil() as usize).max(1);
     let mode_rows = |mode: Mode| -> Vec<Row> {
-        prepared
-            .iter()
-            .zip(&retained)
-            .flat_map(|(p, ts)| {
-                dataset::build(
+        let mut rows = Vec::new();
+        for (p, ts) in prepared.iter().zip(&retained) {
+            for trial in ts {
+                let set = dataset::build(
                     p.rec,
-                    ts,
+                    std::slice::from_ref(trial),
                     &DatasetOptions {
                         mode,
                         target: opts.target,
                         alignment,
                     },
-                )
-                .rows
-            })
-            .collect()
+                );
+                let step = if mode == Mode::Sample { stride } else { 1 };
+                rows.extend(set.rows.into_iter().step_by(step));
+            }
+        }
+        rows
     };
     let mut modes = Vec::new();
     let mut trial_rows = Vec::new();

@@ -29,7 +29,7 @@ pub fn fit_constrained(phi: &[[f64; N_PARAMS]], y: &[f64], lower: &[f64; N_PARAM
     let ata = a.transpose() * &a;
     let atb = a.transpose() * &b;
     let mut x = DVector::zeros(N_PARAMS);
-    let mut passive = vec![false; N_PARAMS];
+    let mut passive = [false; N_PARAMS];
     for _ in 0..500 {
         let w = &atb - &ata * &x;
         let cand = (0..N_PARAMS)
