@@ -332,6 +332,14 @@ fn regressors_and_targets_on_hand_computed_samples() {
     assert!((row.phi[21] - 0.625).abs() < 1e-12, "{}", row.phi[21]); // (0.25 + 1)/2
     assert!((row.y - 7.0).abs() < 1e-12, "{}", row.y); // (125 + 131)/2 − 121
 
+    // A NaN reading (damaged file) drops its own row only; a NaN baseline reading is ignored.
+    let mut damaged = rec.clone();
+    damaged.mbs.watts[3] = f64::NAN;
+    damaged.mbs.watts[0] = f64::NAN;
+    let rows = dataset::build(&damaged, std::slice::from_ref(&trial), &opts(Mode::Reading)).rows;
+    assert_eq!(rows.len(), 1);
+    assert!((rows[0].y - 3.0).abs() < 1e-12, "{}", rows[0].y); // 125 − 122
+
     // BMS target: no BMS readings → the trial is skipped with a reason naming the sensor.
     let bms = dataset::build(
         &rec,

@@ -242,6 +242,7 @@ fn trial_basis(
     let (pre0, pre1) = (trial.t_pre_start, trial.t_traj_start);
     let pre: Vec<f64> = readings_within(power, align, pre0, pre1)
         .map(|(_, w)| w)
+        .filter(|w| w.is_finite())
         .collect();
     if pre.is_empty() {
         return Err(format!(
@@ -260,6 +261,13 @@ fn trial_basis(
         sigma_omega: sigma_omega(rec, window.0, window.1),
         window,
     })
+}
+
+/// Keep a row only when all its numbers are finite (a NaN in a damaged file must not poison the fit).
+fn push_finite(rows: &mut Vec<Row>, row: Row) {
+    if row.y.is_finite() && row.phi.iter().all(|v| v.is_finite()) {
+        rows.push(row);
+    }
 }
 
 /// Build the rows of one recording's trials.
@@ -308,14 +316,14 @@ pub fn build(rec: &Recording, trials: &[Trial], opts: &DatasetOptions) -> Datase
                 if let (false, Some(phi)) = (inside.is_empty(), phi_mean(rec, a, b, &basis.tau0_sq))
                 {
                     let mean = inside.iter().sum::<f64>() / inside.len() as f64;
-                    out.rows.push(row(a, a, b, phi, mean));
+                    push_finite(&mut out.rows, row(a, a, b, phi, mean));
                 }
             }
             Mode::Reading => {
                 for (t, w) in readings_within(power, &opts.alignment, a, b) {
                     let (t0, t1) = opts.alignment.window_of(t);
                     if let Some(phi) = phi_mean(rec, t0, t1, &basis.tau0_sq) {
-                        out.rows.push(row(t, t0, t1, phi, w));
+                        push_finite(&mut out.rows, row(t, t0, t1, phi, w));
                     }
                 }
             }
@@ -334,7 +342,7 @@ pub fn build(rec: &Recording, trials: &[Trial], opts: &DatasetOptions) -> Datase
                         continue;
                     };
                     regressor_into(&s.tau[k], &s.dq[k], &basis.tau0_sq, &mut phi);
-                    out.rows.push(row(s.t[k], s.t[k], s.t[k], phi, w));
+                    push_finite(&mut out.rows, row(s.t[k], s.t[k], s.t[k], phi, w));
                 }
             }
         }
@@ -342,7 +350,7 @@ pub fn build(rec: &Recording, trials: &[Trial], opts: &DatasetOptions) -> Datase
             out.skipped.push(Skipped {
                 trial: trial.index,
                 reason: format!(
-                    "no {} reading (or no joint-state sample) in the trajectory window {a:.2}–{b:.2} s",
+                    "no {} reading with finite joint-state samples in the trajectory window {a:.2}–{b:.2} s",
                     opts.target.name().to_uppercase()
                 ),
             });
