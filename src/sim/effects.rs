@@ -96,8 +96,9 @@ impl SensorLatency {
     pub const DEFAULT: SensorLatency = SensorLatency { seconds: 0.3 };
 }
 impl HarnessDrag {
-    /// 2 W·s/rad: ~2 W extra at full elbow flexion and 1 rad/s.
-    pub const DEFAULT: HarnessDrag = HarnessDrag { w_per_rad_s: 2.0 };
+    /// 4 W·s/rad: a drag torque of k·(1 − cos q) = 1.8 Nm at 1 rad elbow flexion
+    /// (1.8 W at 1 rad/s) — a stiff cable bundle.
+    pub const DEFAULT: HarnessDrag = HarnessDrag { w_per_rad_s: 4.0 };
 }
 /// Default payload: a 0.5 kg tool held 10 cm beyond the wrist-yaw link origin.
 pub const DEFAULT_PAYLOAD: Payload = Payload { mass_kg: 0.5, com_m: [0.10, 0.0, 0.0] };
