@@ -54,8 +54,6 @@ pub(crate) struct TrialMeta {
     pub extra0: [f64; N_EXTRA],
     /// σ of the body angular-velocity magnitude over the trajectory window [rad/s].
     pub sigma_omega: f64,
-    /// Mean winding temperature over the trajectory window, averaged over joints [°C].
-    pub temp_mean: f64,
 }
 
 /// Rows of one lag.
@@ -134,14 +132,12 @@ pub(crate) fn trial_meta(rec: &Recording, windows: &[TrialWindow]) -> (Vec<Trial
         let traj = sample_range(t, w.t_traj, w.t_post_end);
         let mut wsum = 0.0;
         let mut wsq = 0.0;
-        let mut tsum = 0.0;
         let mut m = 0usize;
         for k in traj {
-            let (Some(g), Some(temp)) = (rec.state.gyro.get(k), rec.state.temp.get(k)) else { continue };
+            let Some(g) = rec.state.gyro.get(k) else { continue };
             let omega = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
             wsum += omega;
             wsq += omega * omega;
-            tsum += temp.iter().sum::<f64>() / N_JOINTS as f64;
             m += 1;
         }
         if m < 3 {
@@ -150,7 +146,7 @@ pub(crate) fn trial_meta(rec: &Recording, windows: &[TrialWindow]) -> (Vec<Trial
         }
         let mean = wsum / m as f64;
         let sigma_omega = (wsq / m as f64 - mean * mean).max(0.0).sqrt();
-        out.push(TrialMeta { window: w.clone(), tau0_sq, extra0, sigma_omega, temp_mean: tsum / m as f64 });
+        out.push(TrialMeta { window: w.clone(), tau0_sq, extra0, sigma_omega });
     }
     (out, skipped)
 }
