@@ -9,7 +9,9 @@
 use super::data::{Phase, Rows, TrialMeta};
 use super::hypotheses::{N_LOCATE, locate_name};
 use super::stats::{pearson, t_upper_tail};
-use crate::N_JOINTS;
+use nalgebra::DMatrix;
+
+use crate::{N_JOINTS, N_PARAMS};
 
 /// Residual statistics of one group of readings.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
@@ -245,7 +247,9 @@ pub(crate) fn trial_residuals(rows: &Rows, trials: &[TrialMeta], resid: &[f64]) 
 }
 
 /// Correlate per-trial mean residuals with per-trial mean descriptor features (plus session
-/// time, body sway and speed level). Returns the strongest `top` correlates, most significant first.
+/// time, body sway and speed level). Each feature is first made orthogonal (per reading) to the
+/// base regressors φ, so what the base model can already absorb does not hide or fake a
+/// correlate (a partial correlation). Returns the strongest `top` correlates, most significant first.
 pub(crate) fn correlates(
     rows: &Rows,
     trials: &[TrialMeta],
@@ -256,27 +260,45 @@ pub(crate) fn correlates(
 ) -> Vec<Correlate> {
     let nt = trials.len();
     let nf = N_LOCATE + 3;
+    let n = rows.len();
+    // Row-level features, then their part orthogonal to φ.
+    let mut f = DMatrix::zeros(n, nf);
+    for r in 0..n {
+        if let Some(l) = rows.locate.get(r) {
+            for k in 0..N_LOCATE {
+                f[(r, k)] = l[k];
+            }
+        }
+        f[(r, N_LOCATE)] = rows.t[r];
+        f[(r, N_LOCATE + 1)] = trials[rows.trial[r]].sigma_omega;
+        f[(r, N_LOCATE + 2)] = trials[rows.trial[r]].window.qdot_max;
+    }
+    let x = DMatrix::from_fn(n, N_PARAMS + 1, |r, c| if c < N_PARAMS { rows.x[r][c] } else { 1.0 });
+    let mut g = x.transpose() * &x;
+    let ridge = 1e-9 * (0..g.nrows()).map(|i| g[(i, i)]).fold(0.0, f64::max);
+    for i in 0..g.nrows() {
+        g[(i, i)] += ridge.max(1e-300);
+    }
+    if let Some(ch) = g.cholesky() {
+        let b = ch.solve(&(x.transpose() * &f));
+        f -= &x * b;
+    }
     let mut feat = vec![vec![0.0; nf]; nt];
     let mut res = vec![0.0; nt];
     let mut cnt = vec![0usize; nt];
-    for r in 0..rows.len() {
+    for r in 0..n {
         let t = rows.trial[r];
         res[t] += resid[r];
         cnt[t] += 1;
-        if let Some(l) = rows.locate.get(r) {
-            for k in 0..N_LOCATE {
-                feat[t][k] += l[k];
-            }
+        for k in 0..nf {
+            feat[t][k] += f[(r, k)];
         }
-        feat[t][N_LOCATE] += rows.t[r];
     }
     let keep: Vec<usize> = (0..nt).filter(|&t| cnt[t] > 0).collect();
     for &t in &keep {
         let c = cnt[t] as f64;
         res[t] /= c;
-        feat[t].iter_mut().take(N_LOCATE + 1).for_each(|v| *v /= c);
-        feat[t][N_LOCATE + 1] = trials[t].sigma_omega;
-        feat[t][N_LOCATE + 2] = trials[t].window.qdot_max;
+        feat[t].iter_mut().for_each(|v| *v /= c);
     }
     let y: Vec<f64> = keep.iter().map(|&t| res[t]).collect();
     let names = |k: usize| match k {

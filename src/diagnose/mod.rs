@@ -17,6 +17,8 @@ pub mod select;
 pub mod stats;
 pub mod summary;
 pub mod torque;
+#[cfg(test)]
+mod testkit;
 
 use std::path::PathBuf;
 
@@ -529,4 +531,51 @@ fn model_file_quality(path: &std::path::Path, rows: &Rows) -> Result<Quality> {
     let pred: Vec<f64> = rows.x.iter().map(|x| x[..N_PARAMS].iter().zip(&theta).map(|(a, b)| a * b).sum()).collect();
     let (r2, rmse_w) = r2_rmse(&rows.y, &pred);
     Ok(Quality { r2, rmse_w })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::testkit::{Effects, session};
+    use super::*;
+
+    fn run(fx: Effects, seed: u64) -> Diagnosis {
+        let (rec, windows) = session(60, seed, fx);
+        let d = diagnose_trials(&rec, &windows, None, &DiagnoseOptions::default()).unwrap();
+        eprintln!("{}", d.summary);
+        for h in &d.hypotheses {
+            eprintln!("  {:>14} {:>10.4} p={:.1e} dBIC={:7.1} rel={:+.3} {}", h.id, h.params[0].value, h.p_value, h.delta_bic, h.rel_improvement, h.verdict);
+        }
+        d
+    }
+
+    #[test]
+    fn null_session_accepts_nothing() {
+        let d = run(Effects::default(), 1);
+        assert!(d.accepted.is_empty());
+        assert!(d.unexplained.iter().all(|c| !c.significant));
+    }
+
+    #[test]
+    fn braking_session_names_braking() {
+        let d = run(Effects { braking_r: Some(0.4), ..Default::default() }, 2);
+        assert_eq!(d.hypotheses[0].id, "braking");
+        let r = d.final_model.params.iter().find(|p| p.symbol == "r").unwrap().value;
+        assert!((r - 0.4).abs() < 0.04, "r = {r}");
+        assert!(d.final_model.after.r2 > d.final_model.before.r2);
+    }
+
+    #[test]
+    fn latency_session_finds_the_lag() {
+        let d = run(Effects { latency_s: Some(0.3), ..Default::default() }, 3);
+        assert_eq!(d.hypotheses[0].id, "latency");
+        let l = d.final_model.params.iter().find(|p| p.symbol == "L").unwrap().value;
+        assert!((l - 0.3).abs() < 0.03, "L = {l}");
+    }
+
+    #[test]
+    fn harness_drag_is_located_at_the_elbow() {
+        let d = run(Effects { harness_k: Some(4.0), ..Default::default() }, 4);
+        let top = &d.unexplained[0];
+        assert!(top.significant && top.feature.starts_with("j3"), "{top:?}");
+    }
 }

@@ -1,6 +1,6 @@
 //! Scoring and greedy selection of hypotheses with validation that adding parameters cannot game:
 //! k-fold cross-validation by TRIAL (all readings of a trial are held out together), a one-sided
-//! paired t-test of the per-trial held-out squared error (base vs base + hypothesis), the
+//! Wilcoxon signed-rank test of the per-trial held-out squared error (base vs base + hypothesis), the
 //! Bayesian information criterion on the full data, and a physical-plausibility check.
 //!
 //! All fits of all subsets of hypotheses come from one Gram matrix per fold (the extra regressors
@@ -13,7 +13,7 @@ use rand::seq::SliceRandom;
 
 use super::data::Rows;
 use super::hypotheses::{Combine, Hypothesis, LATENCY_ID, N_RAW};
-use super::stats::paired_t_positive;
+use super::stats::signed_rank_positive;
 use crate::{N_JOINTS, N_PARAMS};
 
 /// Least-squares sufficient statistics of a set of rows over the raw layout.
@@ -289,7 +289,7 @@ pub struct HypothesisScore {
     pub level: String,
     /// The physical parameter(s), first = the headline parameter.
     pub params: Vec<Param>,
-    /// One-sided p-value of the paired test (held-out per-trial squared error improves).
+    /// One-sided p-value of the paired signed-rank test (held-out per-trial squared error improves).
     pub p_value: f64,
     /// BIC(with hypothesis) − BIC(without), full data; negative favours the hypothesis.
     pub delta_bic: f64,
@@ -431,7 +431,7 @@ fn compare(data: &PowerData, cur: &State, next_pred: &[f64], next_lag: usize) ->
     let before = trial_sse(y, &cur.cv.pred, trial, data.n_trials);
     let after = trial_sse(&data.rows[next_lag].y, next_pred, &data.rows[next_lag].trial, data.n_trials);
     let d: Vec<f64> = before.iter().zip(&after).map(|(a, b)| a - b).collect();
-    let (_, p) = paired_t_positive(&d);
+    let (_, p) = signed_rank_positive(&d);
     let (r2b, rmseb) = r2_rmse(y, &cur.cv.pred);
     let (r2a, rmsea) = r2_rmse(&data.rows[next_lag].y, next_pred);
     (p, r2b, r2a, rmseb, rmsea, 1.0 - rmsea / rmseb.max(1e-300))

@@ -76,7 +76,7 @@ pub fn summarise(d: &Diagnosis) -> String {
     if let Some((by, g)) = &d.worst {
         if g.p_value < 1e-3 {
             let dir = if g.bias_w > 0.0 { "under-predicted" } else { "over-predicted" };
-            let mut where_ = format!("{by}: {}", g.label);
+            let mut where_ = format!("in the {by} group \"{}\"", g.label);
             let bj = braking_joints(d);
             if by.starts_with("braking") || by == "regime" && g.label.starts_with("braking") {
                 if !bj.is_empty() {
@@ -85,7 +85,7 @@ pub fn summarise(d: &Diagnosis) -> String {
             }
             let _ = writeln!(
                 s,
-                "Where: power is {dir} most clearly in {where_} (mean residual {:+.2} W over {} trials, p = {:.1e}).",
+                "Where: power is {dir} most clearly {where_} (mean residual {:+.2} W over {} trials, p = {:.1e}).",
                 g.bias_w, g.n_trials, g.p_value
             );
         } else {
