@@ -20,8 +20,6 @@ pub mod torque;
 #[cfg(test)]
 mod testkit;
 
-use std::path::PathBuf;
-
 use anyhow::{Result, bail};
 
 pub use data::{Phase, TrialWindow};
@@ -30,6 +28,7 @@ pub use select::{HypothesisScore, Param};
 pub use torque::{ArmModel, TorqueComparison};
 
 use crate::N_PARAMS;
+use crate::power::PowerModel;
 use crate::signals::{PowerSeries, Recording};
 use data::{Rows, TrialMeta, build_rows, trial_meta};
 use hypotheses::{LATENCY_ID, POWER_HYPOTHESES};
@@ -50,9 +49,12 @@ pub enum Target {
 /// Settings of a diagnosis.
 #[derive(Debug, Clone)]
 pub struct DiagnoseOptions {
-    /// An identified model (model.json) to compare with; the hypotheses are always scored
-    /// against a base model refitted on the training trials of each fold.
-    pub model: Option<PathBuf>,
+    /// The twin's power model (e.g. a model.json identified earlier, or the paper's model). When
+    /// given, the base model is held at it and the hypotheses explain the recording's departure
+    /// from the twin (an effect that shifts every reading, like a warm motor, is visible). When
+    /// absent, the base model is refitted on the training trials of every fold and the hypotheses
+    /// must explain structure the 49 base parameters cannot absorb.
+    pub reference: Option<PowerModel>,
     /// Power target.
     pub target: Target,
     /// Number of cross-validation folds (by trial).
@@ -78,7 +80,7 @@ pub struct DiagnoseOptions {
 impl Default for DiagnoseOptions {
     fn default() -> Self {
         DiagnoseOptions {
-            model: None,
+            reference: None,
             target: Target::Mbs,
             folds: 5,
             alpha: 1e-3,
@@ -177,8 +179,8 @@ pub struct Diagnosis {
     pub rejected: Vec<RejectedTrial>,
     /// Torque level (absent without a robot model or torque data).
     pub torque: Option<TorqueComparison>,
-    /// The given model.json's quality on these readings (no refit), when one was given.
-    pub model_file: Option<Quality>,
+    /// How the base model was obtained: `reference` (held at the twin's model) or `refit` (per fold).
+    pub base_model: String,
     /// Sensor-lag scan of the base model.
     pub lag_scan: Vec<LagPoint>,
     /// Residual breakdowns of the base model (held out).
@@ -232,9 +234,14 @@ fn imu_filter(metas: Vec<TrialMeta>, k: f64, rejected: &mut Vec<RejectedTrial>) 
 }
 
 /// Per-trial mean in-sample residual of the base model fitted to `rows`.
-fn base_trial_residuals(rows: &Rows, n_trials: usize, folds: usize) -> Result<Vec<Option<f64>>> {
-    let data = PowerData::new(vec![0.0], vec![rows.clone()], n_trials, folds);
-    let fit = select::fit(&[], &data.grams[0].total)?;
+fn base_trial_residuals(
+    rows: &Rows,
+    n_trials: usize,
+    folds: usize,
+    reference: Option<Vec<f64>>,
+) -> Result<Vec<Option<f64>>> {
+    let data = PowerData::new(vec![0.0], vec![rows.clone()], n_trials, folds, reference);
+    let fit = data.fit_all(&[], 0)?;
     let mut sum = vec![0.0; n_trials];
     let mut cnt = vec![0usize; n_trials];
     for r in 0..rows.len() {
@@ -257,6 +264,7 @@ pub fn diagnose_trials(
         bail!("{}: no {:?} power readings to diagnose", rec.source.display(), opts.target);
     }
     let w = opts.sensor_window_s;
+    let reference: Option<Vec<f64>> = opts.reference.map(|m| m.to_vector().to_vec());
     let mut rejected = Vec::new();
     let (metas, skipped) = trial_meta(rec, windows);
     rejected.extend(skipped.into_iter().map(|(trial, reason)| RejectedTrial { trial, reason }));
@@ -265,7 +273,7 @@ pub fn diagnose_trials(
     // 3σ passes on per-trial mean residuals of the base model (hardware-event outliers).
     for _ in 0..opts.outlier_passes {
         let rows = build_rows(rec, power, &metas, 0.0, w, false);
-        let res = base_trial_residuals(&rows, metas.len(), opts.folds)?;
+        let res = base_trial_residuals(&rows, metas.len(), opts.folds, reference.clone())?;
         let vals: Vec<f64> = res.iter().flatten().copied().collect();
         if vals.len() < 10 {
             break;
@@ -308,9 +316,9 @@ pub fn diagnose_trials(
     let mut all_rows: Vec<Rows> = lags.iter().map(|&l| build_rows(rec, power, &metas, l, w, l == 0.0)).collect();
     // Fine scan (0.01 s) around the base model's best coarse lag.
     if lags.len() >= 3 {
-        let data = PowerData::new(lags.clone(), all_rows.clone(), metas.len(), opts.folds);
+        let data = PowerData::new(lags.clone(), all_rows.clone(), metas.len(), opts.folds, reference.clone());
         let sse: Vec<f64> = (0..lags.len())
-            .map(|l| select::fit(&[], &data.grams[l].total).map(|f| data.grams[l].total.sse(&f.beta)))
+            .map(|l| data.fit_all(&[], l).map(|f| data.grams[l].total.sse(&f.beta)))
             .collect::<Result<_>>()?;
         let best = (0..lags.len()).min_by(|&a, &b| sse[a].total_cmp(&sse[b])).unwrap_or(0);
         let centre = lags[best];
@@ -334,7 +342,7 @@ pub fn diagnose_trials(
             all_rows[0].len()
         );
     }
-    let data = PowerData::new(lags.clone(), all_rows, metas.len(), opts.folds);
+    let data = PowerData::new(lags.clone(), all_rows, metas.len(), opts.folds, reference);
     let rule = Rule { alpha: opts.alpha, bic_threshold: opts.bic_threshold, min_improvement: opts.min_improvement };
     let candidates: Vec<&'static hypotheses::Hypothesis> = POWER_HYPOTHESES.iter().collect();
     let sel = select::select(&data, &candidates, &rule)?;
@@ -424,14 +432,9 @@ pub fn diagnose_trials(
     let lag_scan = (0..lags.len())
         .map(|l| {
             let g = &data.grams[l].total;
-            select::fit(&[], g).map(|f| LagPoint { lag_s: lags[l], rmse_w: (g.sse(&f.beta) / g.n.max(1) as f64).sqrt() })
+            data.fit_all(&[], l).map(|f| LagPoint { lag_s: lags[l], rmse_w: (g.sse(&f.beta) / g.n.max(1) as f64).sqrt() })
         })
         .collect::<Result<Vec<_>>>()?;
-
-    let model_file = match &opts.model {
-        Some(path) => Some(model_file_quality(path, rows0)?),
-        None => None,
-    };
 
     let mut highlighted: Vec<(usize, String)> = worst_trials
         .iter()
@@ -463,7 +466,7 @@ pub fn diagnose_trials(
         n_readings: rows0.len(),
         rejected,
         torque: torque.map(|t| t.comparison),
-        model_file,
+        base_model: if data.reference.is_some() { "reference".into() } else { "refit".into() },
         lag_scan,
         breakdowns,
         worst,
@@ -514,33 +517,18 @@ fn common_readings(all: &mut [Rows]) {
     }
 }
 
-/// Quality of a given model file's θ on the rows (no refit).
-fn model_file_quality(path: &std::path::Path, rows: &Rows) -> Result<Quality> {
-    let text = std::fs::read_to_string(path).map_err(|e| anyhow::anyhow!("reading {}: {e}", path.display()))?;
-    let v: serde_json::Value =
-        serde_json::from_str(&text).map_err(|e| anyhow::anyhow!("{}: not JSON: {e}", path.display()))?;
-    let theta: Vec<f64> = v
-        .pointer("/theta/vector")
-        .or_else(|| v.get("theta"))
-        .and_then(|t| t.as_array())
-        .map(|a| a.iter().filter_map(|x| x.as_f64()).collect())
-        .unwrap_or_default();
-    if theta.len() != N_PARAMS {
-        bail!("{}: expected a {N_PARAMS}-value θ at `theta` or `theta.vector`", path.display());
-    }
-    let pred: Vec<f64> = rows.x.iter().map(|x| x[..N_PARAMS].iter().zip(&theta).map(|(a, b)| a * b).sum()).collect();
-    let (r2, rmse_w) = r2_rmse(&rows.y, &pred);
-    Ok(Quality { r2, rmse_w })
-}
-
 #[cfg(test)]
 mod tests {
     use super::testkit::{Effects, session};
     use super::*;
 
     fn run(fx: Effects, seed: u64) -> Diagnosis {
+        run_with(fx, seed, &DiagnoseOptions::default())
+    }
+
+    fn run_with(fx: Effects, seed: u64, opts: &DiagnoseOptions) -> Diagnosis {
         let (rec, windows) = session(60, seed, fx);
-        let d = diagnose_trials(&rec, &windows, None, &DiagnoseOptions::default()).unwrap();
+        let d = diagnose_trials(&rec, &windows, None, opts).unwrap();
         eprintln!("{}", d.summary);
         for h in &d.hypotheses {
             eprintln!("  {:>14} {:>10.4} p={:.1e} dBIC={:7.1} rel={:+.3} {}", h.id, h.params[0].value, h.p_value, h.delta_bic, h.rel_improvement, h.verdict);
@@ -577,5 +565,32 @@ mod tests {
         let d = run(Effects { harness_k: Some(4.0), ..Default::default() }, 4);
         let top = &d.unexplained[0];
         assert!(top.significant && top.feature.starts_with("j3"), "{top:?}");
+    }
+}
+
+#[cfg(test)]
+mod twin_tests {
+    use super::testkit::{Effects, session};
+    use super::*;
+
+    fn twin() -> DiagnoseOptions {
+        DiagnoseOptions { reference: Some(PowerModel::PAPER), ..Default::default() }
+    }
+
+    #[test]
+    fn twin_mode_recovers_thermal_drift_and_accepts_nothing_on_null() {
+        let (rec, w) = session(60, 5, Effects { thermal_alpha: Some(0.00393), ..Default::default() });
+        let d = diagnose_trials(&rec, &w, None, &twin()).unwrap();
+        eprintln!("{}", d.summary);
+        for h in &d.hypotheses {
+            eprintln!("  {:>14} {:>10.5} ± {:.5} p={:.1e} dBIC={:7.1} rel={:+.3}", h.id, h.params[0].value, h.params[0].std_err, h.p_value, h.delta_bic, h.rel_improvement);
+        }
+        assert_eq!(d.hypotheses[0].id, "thermal");
+        let a = d.final_model.params.iter().find(|p| p.symbol == "α").unwrap().value;
+        assert!((a - 0.00393).abs() < 0.1 * 0.00393, "α = {a}");
+        let (rec, w) = session(60, 6, Effects::default());
+        let d = diagnose_trials(&rec, &w, None, &twin()).unwrap();
+        eprintln!("{}", d.summary);
+        assert!(d.accepted.is_empty());
     }
 }

@@ -4,8 +4,8 @@
 use anyhow::{Result, bail};
 use nalgebra::{DMatrix, DVector};
 
-/// Minimise ½θᵀGθ − hᵀθ subject to lo ≤ θ ≤ hi (infinite bounds allowed). G must be symmetric
-/// positive definite. Exact (finite active-set iterations, each a Cholesky solve of the free block).
+/// Minimise ½θᵀGθ − hᵀθ subject to lo ≤ θ ≤ hi (infinite bounds allowed; lo = hi fixes a
+/// variable). G must be symmetric positive definite. Exact (finite active-set iterations, each a Cholesky solve of the free block).
 pub(crate) fn bounded_quadratic(g: &DMatrix<f64>, h: &DVector<f64>, lo: &[f64], hi: &[f64]) -> Result<Vec<f64>> {
     let p = h.len();
     // Feasible start: 0 clamped into the box; variables starting on a finite bound are held there.
@@ -51,7 +51,7 @@ pub(crate) fn bounded_quadratic(g: &DMatrix<f64>, h: &DVector<f64>, lo: &[f64], 
         let scale = (0..p).map(|i| h[i].abs()).fold(0.0, f64::max).max(1e-300);
         let mut worst = None;
         let mut worst_v = 1e-12 * scale;
-        for i in (0..p).filter(|&i| !free[i]) {
+        for i in (0..p).filter(|&i| !free[i] && lo[i] < hi[i]) {
             let at_lo = x[i] <= lo[i];
             let v = if at_lo { -grad[i] } else { grad[i] };
             if v > worst_v {

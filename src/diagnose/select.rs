@@ -1,6 +1,6 @@
 //! Scoring and greedy selection of hypotheses with validation that adding parameters cannot game:
 //! k-fold cross-validation by TRIAL (all readings of a trial are held out together), a one-sided
-//! Wilcoxon signed-rank test of the per-trial held-out squared error (base vs base + hypothesis), the
+//! paired test (t and signed-rank) of the per-trial held-out squared error (base vs base + hypothesis), the
 //! Bayesian information criterion on the full data, and a physical-plausibility check.
 //!
 //! All fits of all subsets of hypotheses come from one Gram matrix per fold (the extra regressors
@@ -13,7 +13,7 @@ use rand::seq::SliceRandom;
 
 use super::data::Rows;
 use super::hypotheses::{Combine, Hypothesis, LATENCY_ID, N_RAW};
-use super::stats::signed_rank_positive;
+use super::stats::improvement_p_value;
 use crate::{N_JOINTS, N_PARAMS};
 
 /// Least-squares sufficient statistics of a set of rows over the raw layout.
@@ -139,13 +139,21 @@ fn design_map(spec: &[&Hypothesis], theta: &[f64]) -> DMatrix<f64> {
     m
 }
 
-/// Bounds of the base model (a ≥ 1, all other base parameters ≥ 0); hypothesis coefficients are
-/// free (their physical plausibility is judged after the fit, so a wrong-signed fit is visible).
-fn bounds(p: usize) -> (Vec<f64>, Vec<f64>) {
+/// Bounds of the base model: the paper's constraints (a ≥ 1, all other base parameters ≥ 0), or
+/// lo = hi = the reference θ when the base is held at a reference (twin) model. Hypothesis
+/// coefficients are free (their physical plausibility is judged after the fit, so a wrong-signed
+/// fit is visible).
+fn bounds(p: usize, reference: Option<&[f64]>) -> (Vec<f64>, Vec<f64>) {
     let mut lo = vec![f64::NEG_INFINITY; p];
-    let hi = vec![f64::INFINITY; p];
-    for (i, l) in lo.iter_mut().enumerate().take(N_PARAMS) {
-        *l = if i < N_JOINTS { 1.0 } else { 0.0 };
+    let mut hi = vec![f64::INFINITY; p];
+    for i in 0..N_PARAMS {
+        match reference {
+            Some(r) => {
+                lo[i] = r[i];
+                hi[i] = r[i];
+            }
+            None => lo[i] = if i < N_JOINTS { 1.0 } else { 0.0 },
+        }
     }
     (lo, hi)
 }
@@ -172,26 +180,27 @@ fn solve_bounded(g: &DMatrix<f64>, h: &DVector<f64>, lo: &[f64], hi: &[f64]) -> 
     Ok(DVector::from_fn(p, |i, _| z[i] / s[i]))
 }
 
-fn fit_once(spec: &[&Hypothesis], gram: &Gram, weights: &[f64]) -> Result<Fitted> {
+fn fit_once(spec: &[&Hypothesis], gram: &Gram, weights: &[f64], reference: Option<&[f64]>) -> Result<Fitted> {
     let m = design_map(spec, weights);
     let g = m.transpose() * &gram.g * &m;
     let h = m.transpose() * &gram.h;
-    let (lo, hi) = bounds(m.ncols());
+    let (lo, hi) = bounds(m.ncols(), reference);
     let theta = solve_bounded(&g, &h, &lo, &hi)?;
     let beta = &m * &theta;
     Ok(Fitted { theta: theta.iter().copied().collect(), beta })
 }
 
-/// Fit `spec` to the rows summarised by `gram`. Pooled per-joint terms are refitted until their
-/// weights (the base parameters they scale) are self-consistent.
-pub(crate) fn fit(spec: &[&'static Hypothesis], gram: &Gram) -> Result<Fitted> {
+/// Fit `spec` to the rows summarised by `gram` (base refitted, or held at `reference`). Pooled
+/// per-joint terms are refitted until their weights (the base parameters they scale) are
+/// self-consistent.
+pub(crate) fn fit(spec: &[&'static Hypothesis], gram: &Gram, reference: Option<&[f64]>) -> Result<Fitted> {
     let pooled = spec.iter().any(|h| matches!(h.combine, Combine::WeightedByBase(_)));
     if !pooled {
-        return fit_once(spec, gram, &[]);
+        return fit_once(spec, gram, &[], reference);
     }
     let plain: Vec<&Hypothesis> = spec.iter().copied().filter(|h| h.combine == Combine::Single).collect();
-    let mut weights = fit_once(&plain, gram, &[])?.theta;
-    let mut fitted = fit_once(spec, gram, &weights)?;
+    let mut weights = fit_once(&plain, gram, &[], reference)?.theta;
+    let mut fitted = fit_once(spec, gram, &weights, reference)?;
     for _ in 0..8 {
         let change = fitted.theta[..N_PARAMS]
             .iter()
@@ -202,7 +211,7 @@ pub(crate) fn fit(spec: &[&'static Hypothesis], gram: &Gram) -> Result<Fitted> {
             break;
         }
         weights = fitted.theta.clone();
-        fitted = fit_once(spec, gram, &weights)?;
+        fitted = fit_once(spec, gram, &weights, reference)?;
     }
     Ok(fitted)
 }
@@ -215,10 +224,16 @@ pub(crate) struct CvOut {
 }
 
 /// K-fold cross-validation by trial of `spec` on `rows`.
-pub(crate) fn cross_validate(spec: &[&'static Hypothesis], rows: &Rows, folds: &Folds, fg: &FoldGrams) -> Result<CvOut> {
+pub(crate) fn cross_validate(
+    spec: &[&'static Hypothesis],
+    rows: &Rows,
+    folds: &Folds,
+    fg: &FoldGrams,
+    reference: Option<&[f64]>,
+) -> Result<CvOut> {
     let mut fitted = Vec::with_capacity(folds.k);
     for f in 0..folds.k {
-        fitted.push(fit(spec, &fg.train(f))?);
+        fitted.push(fit(spec, &fg.train(f), reference)?);
     }
     let pred = (0..rows.len())
         .map(|r| {
@@ -289,7 +304,7 @@ pub struct HypothesisScore {
     pub level: String,
     /// The physical parameter(s), first = the headline parameter.
     pub params: Vec<Param>,
-    /// One-sided p-value of the paired signed-rank test (held-out per-trial squared error improves).
+    /// One-sided p-value that the held-out per-trial squared error improves ([`super::stats::improvement_p_value`]).
     pub p_value: f64,
     /// BIC(with hypothesis) − BIC(without), full data; negative favours the hypothesis.
     pub delta_bic: f64,
@@ -359,20 +374,36 @@ impl Rule {
     }
 }
 
-/// Power-level data: rows and Gram matrices at each scanned sensor lag (index 0 = no lag).
+/// Power-level data: rows and Gram matrices at each scanned sensor lag (index 0 = no lag), and
+/// the reference θ when the base model is held at the twin's model instead of refitted.
 pub(crate) struct PowerData {
     pub lags: Vec<f64>,
     pub rows: Vec<Rows>,
     pub grams: Vec<FoldGrams>,
     pub folds: Folds,
     pub n_trials: usize,
+    pub reference: Option<Vec<f64>>,
 }
 
 impl PowerData {
-    pub fn new(lags: Vec<f64>, rows: Vec<Rows>, n_trials: usize, k: usize) -> PowerData {
+    pub fn new(lags: Vec<f64>, rows: Vec<Rows>, n_trials: usize, k: usize, reference: Option<Vec<f64>>) -> PowerData {
         let folds = Folds::new(n_trials, k, 0x6731_7669_7a);
         let grams = rows.iter().map(|r| FoldGrams::new(r, &folds)).collect();
-        PowerData { lags, rows, grams, folds, n_trials }
+        PowerData { lags, rows, grams, folds, n_trials, reference }
+    }
+
+    fn reference(&self) -> Option<&[f64]> {
+        self.reference.as_deref()
+    }
+
+    /// Number of free base parameters (0 when held at the reference).
+    fn base_params(&self) -> usize {
+        if self.reference.is_some() { 0 } else { N_PARAMS }
+    }
+
+    /// Fit `spec` on all rows of lag index `lag`.
+    pub fn fit_all(&self, spec: &[&'static Hypothesis], lag: usize) -> Result<Fitted> {
+        fit(spec, &self.grams[lag].total, self.reference())
     }
 }
 
@@ -387,10 +418,10 @@ pub(crate) struct State {
 }
 
 fn state(data: &PowerData, spec: Spec, lag: usize) -> Result<State> {
-    let cv = cross_validate(&spec, &data.rows[lag], &data.folds, &data.grams[lag])?;
-    let full = fit(&spec, &data.grams[lag].total)?;
+    let cv = cross_validate(&spec, &data.rows[lag], &data.folds, &data.grams[lag], data.reference())?;
+    let full = data.fit_all(&spec, lag)?;
     let g = &data.grams[lag].total;
-    let p = N_PARAMS + spec.len() + usize::from(lag != 0);
+    let p = data.base_params() + spec.len() + usize::from(lag != 0);
     let bic = bic(g.sse(&full.beta), g.n, p);
     Ok(State { spec, lag, cv, full, bic })
 }
@@ -431,7 +462,7 @@ fn compare(data: &PowerData, cur: &State, next_pred: &[f64], next_lag: usize) ->
     let before = trial_sse(y, &cur.cv.pred, trial, data.n_trials);
     let after = trial_sse(&data.rows[next_lag].y, next_pred, &data.rows[next_lag].trial, data.n_trials);
     let d: Vec<f64> = before.iter().zip(&after).map(|(a, b)| a - b).collect();
-    let (_, p) = signed_rank_positive(&d);
+    let p = improvement_p_value(&d);
     let (r2b, rmseb) = r2_rmse(y, &cur.cv.pred);
     let (r2a, rmsea) = r2_rmse(&data.rows[next_lag].y, next_pred);
     (p, r2b, r2a, rmseb, rmsea, 1.0 - rmsea / rmseb.max(1e-300))
@@ -480,7 +511,7 @@ fn score_latency(data: &PowerData, cur: &State, step: usize) -> Result<Candidate
     for fg in &data.grams {
         let mut per = Vec::with_capacity(data.folds.k);
         for f in 0..data.folds.k {
-            per.push(fit(&cur.spec, &fg.train(f))?);
+            per.push(fit(&cur.spec, &fg.train(f), data.reference())?);
         }
         fold_fits.push(per);
     }
@@ -499,7 +530,7 @@ fn score_latency(data: &PowerData, cur: &State, step: usize) -> Result<Candidate
         pred[r] = data.rows[l].x[r].iter().zip(fold_fits[l][f].beta.iter()).map(|(a, b)| a * b).sum();
     }
     let full_sse: Vec<f64> = (0..nl)
-        .map(|l| fit(&cur.spec, &data.grams[l].total).map(|f| data.grams[l].total.sse(&f.beta)))
+        .map(|l| data.fit_all(&cur.spec, l).map(|f| data.grams[l].total.sse(&f.beta)))
         .collect::<Result<_>>()?;
     let (best, lag) = refine_lag(&data.lags, &full_sse);
     let next = state(data, cur.spec.clone(), best)?;
@@ -629,7 +660,7 @@ mod tests {
                 rows.x.push(x);
             }
         }
-        PowerData::new(vec![0.0], vec![rows], n_trials, 5)
+        PowerData::new(vec![0.0], vec![rows], n_trials, 5, None)
     }
 
     pub(super) const RULE: Rule = Rule { alpha: 1e-3, bic_threshold: -10.0, min_improvement: 0.01 };

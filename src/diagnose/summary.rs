@@ -65,14 +65,12 @@ pub fn summarise(d: &Diagnosis) -> String {
         let _ = writeln!(s, "Torque: URDF inverse dynamics + fitted joint friction vs tau_est; worst joint {worst}.");
     }
     let f = &d.final_model;
+    let base = if d.base_model == "reference" { "the twin's power model" } else { "the base model (refitted per fold)" };
     let _ = writeln!(
         s,
-        "Power: the base model predicts held-out readings with R² = {:.3}, RMSE = {:.2} W (per trial R² = {:.3}).",
+        "Power: {base} predicts held-out readings with R² = {:.3}, RMSE = {:.2} W (per trial R² = {:.3}).",
         f.before.r2, f.before.rmse_w, f.before_per_trial.r2
     );
-    if let Some(m) = &d.model_file {
-        let _ = writeln!(s, "The given model file, unchanged, gives R² = {:.3}, RMSE = {:.2} W on the same readings.", m.r2, m.rmse_w);
-    }
     if let Some((by, g)) = &d.worst {
         if g.p_value < 1e-3 {
             let dir = if g.bias_w > 0.0 { "under-predicted" } else { "over-predicted" };

@@ -16,6 +16,7 @@ pub(crate) struct Effects {
     pub braking_r: Option<f64>,
     pub latency_s: Option<f64>,
     pub harness_k: Option<f64>,
+    pub thermal_alpha: Option<f64>,
 }
 
 const RATE: f64 = 100.0;
@@ -99,10 +100,14 @@ pub(crate) fn session(n_trials: usize, seed: u64, fx: Effects) -> (Recording, Ve
                 put(&last, &[0.0; 7], t_ret, t - t_post_end);
             }
             let tau = tau_of(&q, &ddq, &dq);
-            let temp: [f64; 7] = std::array::from_fn(|_| (30.0 + 20.0 * t / (n_trials as f64 * 14.0)).round());
+            let temp: [f64; 7] = std::array::from_fn(|_| (70.0 - 20.0 * t / (n_trials as f64 * 14.0)).round());
             let mut p = 120.0 + PowerModel::PAPER.predict(&tau, &dq, &tau0_sq);
             if let Some(r) = fx.braking_r {
                 p += (r - 1.0) * (0..7).map(|j| (tau[j] * dq[j]).min(0.0)).sum::<f64>();
+            }
+            if let Some(a) = fx.thermal_alpha {
+                let b = PowerModel::PAPER.b;
+                p += (0..7).map(|j| b[j] * a * (temp[j] - 25.0) * (tau[j] * tau[j] - tau0_sq[j])).sum::<f64>();
             }
             if let Some(k) = fx.harness_k {
                 p += k * (1.0 - q[3].cos()) * dq[3].abs();

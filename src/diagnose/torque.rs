@@ -9,7 +9,7 @@ use nalgebra::{DMatrix, DVector, SMatrix};
 
 use super::data::TrialMeta;
 use super::select::{Folds, HypothesisScore, Param, bic, jackknife_se, r2_rmse, trial_sse};
-use super::stats::signed_rank_positive;
+use super::stats::improvement_p_value;
 use crate::N_JOINTS;
 use crate::signals::Recording;
 
@@ -219,7 +219,7 @@ pub(crate) fn torque_level(
     let before = trial_sse(&y, &pb, &trial_of, n_trials);
     let after = trial_sse(&y, &pp, &trial_of, n_trials);
     let d: Vec<f64> = before.iter().zip(&after).map(|(a, b)| a - b).collect();
-    let (_, p_value) = signed_rank_positive(&d);
+    let p_value = improvement_p_value(&d);
     let (r2_before, rmse_before) = r2_rmse(&y, &pb);
     let (r2_after, rmse_after) = r2_rmse(&y, &pp);
 
