@@ -13,6 +13,7 @@ pub mod data;
 pub mod hypotheses;
 pub mod locate;
 mod qp;
+pub mod report;
 pub mod select;
 pub mod stats;
 pub mod summary;
@@ -550,6 +551,15 @@ mod tests {
         let r = d.final_model.params.iter().find(|p| p.symbol == "r").unwrap().value;
         assert!((r - 0.4).abs() < 0.04, "r = {r}");
         assert!(d.final_model.after.r2 > d.final_model.before.r2);
+        let dir = std::env::var("DIAG_REPORT_DIR").map(std::path::PathBuf::from).unwrap_or_else(|_| std::env::temp_dir().join(format!("g1viz-diag-{}", std::process::id())));
+        report::write_report(&dir, &d).unwrap();
+        let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
+        assert!(md.contains("| 1 | braking |"));
+        for f in report::FIGURES.iter().take(4) {
+            assert!(dir.join(f).metadata().unwrap().len() > 1000, "{f}");
+        }
+        let back: Diagnosis = serde_json::from_str(&std::fs::read_to_string(dir.join("diagnosis.json")).unwrap()).unwrap();
+        assert_eq!(back.accepted.len(), d.accepted.len());
     }
 
     #[test]
