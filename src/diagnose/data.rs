@@ -99,14 +99,20 @@ fn sample_at<'a>(rec: &'a Recording, k: usize, tau0_sq: &'a [f64; N_JOINTS]) -> 
 }
 
 /// Compute the per-trial quantities; trials without pre-idle samples are returned in `skipped`.
-pub(crate) fn trial_meta(rec: &Recording, windows: &[TrialWindow]) -> (Vec<TrialMeta>, Vec<(usize, String)>) {
+pub(crate) fn trial_meta(
+    rec: &Recording,
+    windows: &[TrialWindow],
+) -> (Vec<TrialMeta>, Vec<(usize, String)>) {
     let t = &rec.state.t;
     let mut out = Vec::new();
     let mut skipped = Vec::new();
     for w in windows {
         let pre = sample_range(t, w.t_pre, w.t_traj);
         if pre.len() < 3 {
-            skipped.push((w.index, format!("only {} joint samples in the pre-idle window", pre.len())));
+            skipped.push((
+                w.index,
+                format!("only {} joint samples in the pre-idle window", pre.len()),
+            ));
             continue;
         }
         let mut tau0_sq = [0.0; N_JOINTS];
@@ -134,19 +140,29 @@ pub(crate) fn trial_meta(rec: &Recording, windows: &[TrialWindow]) -> (Vec<Trial
         let mut wsq = 0.0;
         let mut m = 0usize;
         for k in traj {
-            let Some(g) = rec.state.gyro.get(k) else { continue };
+            let Some(g) = rec.state.gyro.get(k) else {
+                continue;
+            };
             let omega = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
             wsum += omega;
             wsq += omega * omega;
             m += 1;
         }
         if m < 3 {
-            skipped.push((w.index, format!("only {m} joint samples in the trajectory window")));
+            skipped.push((
+                w.index,
+                format!("only {m} joint samples in the trajectory window"),
+            ));
             continue;
         }
         let mean = wsum / m as f64;
         let sigma_omega = (wsq / m as f64 - mean * mean).max(0.0).sqrt();
-        out.push(TrialMeta { window: w.clone(), tau0_sq, extra0, sigma_omega });
+        out.push(TrialMeta {
+            window: w.clone(),
+            tau0_sq,
+            extra0,
+            sigma_omega,
+        });
     }
     (out, skipped)
 }
@@ -212,19 +228,26 @@ pub(crate) fn build_rows(
     for (ti, meta) in trials.iter().enumerate() {
         let w = &meta.window;
         let base = sample_range(pt, w.t_pre + width, w.t_traj + 1e-9);
-        let vals: Vec<f64> = base.filter_map(|k| power.watts.get(k).copied()).filter(|v| v.is_finite()).collect();
+        let vals: Vec<f64> = base
+            .filter_map(|k| power.watts.get(k).copied())
+            .filter(|v| v.is_finite())
+            .collect();
         if vals.is_empty() {
             continue;
         }
         let baseline = vals.iter().sum::<f64>() / vals.len() as f64;
         for k in sample_range(pt, w.t_traj + width, w.t_return_end + 1e-9) {
-            let (Some(&tk), Some(&p)) = (pt.get(k), power.watts.get(k)) else { continue };
+            let (Some(&tk), Some(&p)) = (pt.get(k), power.watts.get(k)) else {
+                continue;
+            };
             if !p.is_finite() {
                 continue;
             }
             let (a, b) = (tk - lag - width, tk - lag);
             let l = if with_locate { Some(&mut loc) } else { None };
-            if window_mean(rec, meta, a, b, &mut x, l).is_none() {
+            // A gap in the joint stream, or non-finite samples (damaged file): no row.
+            if window_mean(rec, meta, a, b, &mut x, l).is_none() || x.iter().any(|v| !v.is_finite())
+            {
                 continue;
             }
             let mid = tk - 0.5 * width;

@@ -233,7 +233,10 @@ pub fn locate_name(k: usize, joint_names: &[String]) -> String {
         return "body angular velocity |ω| (IMU)".into();
     }
     let j = k / 5;
-    let joint = joint_names.get(j).cloned().unwrap_or_else(|| format!("joint {j}"));
+    let joint = joint_names
+        .get(j)
+        .cloned()
+        .unwrap_or_else(|| format!("joint {j}"));
     let what = match k % 5 {
         0 => "position q",
         1 => "speed |q̇|",
@@ -256,7 +259,14 @@ mod tests {
         let temp = [35.0, 25.0, 25.0, 25.0, 25.0, 25.0, 45.0];
         let gyro = [0.1, 0.2, 0.0];
         let tau0_sq = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
-        let s = Sample { q: &q, dq: &dq, tau: &tau, temp: &temp, gyro: &gyro, tau0_sq: &tau0_sq };
+        let s = Sample {
+            q: &q,
+            dq: &dq,
+            tau: &tau,
+            temp: &temp,
+            gyro: &gyro,
+            tau0_sq: &tau0_sq,
+        };
         let mut out = [0.0; N_EXTRA];
         extras_into(&s, &mut out);
         // (35 − 25)·(4 − 1) = 30; (45 − 25)·0.49 = 9.8

@@ -66,7 +66,13 @@ pub struct Correlate {
 }
 
 /// A row's selectors for the breakdowns.
-fn group_stats(label: String, rows: &Rows, resid: &[f64], members: &[usize], n_trials: usize) -> Group {
+fn group_stats(
+    label: String,
+    rows: &Rows,
+    resid: &[f64],
+    members: &[usize],
+    n_trials: usize,
+) -> Group {
     let mut sum = vec![0.0; n_trials];
     let mut cnt = vec![0usize; n_trials];
     let mut sq = 0.0;
@@ -75,9 +81,18 @@ fn group_stats(label: String, rows: &Rows, resid: &[f64], members: &[usize], n_t
         cnt[rows.trial[r]] += 1;
         sq += resid[r] * resid[r];
     }
-    let means: Vec<f64> = sum.iter().zip(&cnt).filter(|(_, c)| **c > 0).map(|(s, c)| s / *c as f64).collect();
+    let means: Vec<f64> = sum
+        .iter()
+        .zip(&cnt)
+        .filter(|(_, c)| **c > 0)
+        .map(|(s, c)| s / *c as f64)
+        .collect();
     let n = members.len();
-    let bias = if n > 0 { members.iter().map(|&r| resid[r]).sum::<f64>() / n as f64 } else { 0.0 };
+    let bias = if n > 0 {
+        members.iter().map(|&r| resid[r]).sum::<f64>() / n as f64
+    } else {
+        0.0
+    };
     let p_value = if means.len() >= 3 {
         let m = means.iter().sum::<f64>() / means.len() as f64;
         let var = means.iter().map(|v| (v - m).powi(2)).sum::<f64>() / (means.len() - 1) as f64;
@@ -118,7 +133,14 @@ fn split3(
     let (a, b) = terciles(value);
     let mut members = [Vec::new(), Vec::new(), Vec::new()];
     for (r, v) in value.iter().enumerate() {
-        members[if *v < a { 0 } else if *v < b { 1 } else { 2 }].push(r);
+        members[if *v < a {
+            0
+        } else if *v < b {
+            1
+        } else {
+            2
+        }]
+        .push(r);
     }
     let labels = [
         format!("{} (< {a:.1} {unit})", names[0]),
@@ -127,26 +149,49 @@ fn split3(
     ];
     Breakdown {
         by: by.into(),
-        groups: labels.into_iter().zip(&members).map(|(l, m)| group_stats(l, rows, resid, m, n_trials)).collect(),
+        groups: labels
+            .into_iter()
+            .zip(&members)
+            .map(|(l, m)| group_stats(l, rows, resid, m, n_trials))
+            .collect(),
     }
 }
 
 /// All breakdowns of the residuals `resid` (measured − predicted, held out) of `rows`.
-pub(crate) fn breakdowns(rows: &Rows, trials: &[TrialMeta], resid: &[f64], joint_names: &[String]) -> Vec<Breakdown> {
+pub(crate) fn breakdowns(
+    rows: &Rows,
+    trials: &[TrialMeta],
+    resid: &[f64],
+    joint_names: &[String],
+) -> Vec<Breakdown> {
     let n_trials = trials.len();
     let n = rows.len();
-    let name = |j: usize| joint_names.get(j).cloned().unwrap_or_else(|| format!("joint {j}"));
+    let name = |j: usize| {
+        joint_names
+            .get(j)
+            .cloned()
+            .unwrap_or_else(|| format!("joint {j}"))
+    };
     let mut out = Vec::new();
 
     let joint_groups = (0..N_JOINTS)
         .map(|j| {
-            let m: Vec<usize> = (0..n).filter(|&r| trials[rows.trial[r]].window.joints_moved.contains(&j)).collect();
+            let m: Vec<usize> = (0..n)
+                .filter(|&r| trials[rows.trial[r]].window.joints_moved.contains(&j))
+                .collect();
             group_stats(format!("{} moved", name(j)), rows, resid, &m, n_trials)
         })
         .collect();
-    out.push(Breakdown { by: "joint".into(), groups: joint_groups });
+    out.push(Breakdown {
+        by: "joint".into(),
+        groups: joint_groups,
+    });
 
-    let phases = [(Phase::Trajectory, "trajectory"), (Phase::PostIdle, "post-idle"), (Phase::Return, "return")];
+    let phases = [
+        (Phase::Trajectory, "trajectory"),
+        (Phase::PostIdle, "post-idle"),
+        (Phase::Return, "return"),
+    ];
     out.push(Breakdown {
         by: "phase".into(),
         groups: phases
@@ -160,39 +205,96 @@ pub(crate) fn breakdowns(rows: &Rows, trials: &[TrialMeta], resid: &[f64], joint
 
     // Driving vs braking by the sign of the window's total mechanical power Σ τ_i q̇_i.
     let mech: Vec<f64> = rows.x.iter().map(|x| x[..N_JOINTS].iter().sum()).collect();
-    let moving: Vec<bool> = rows.x.iter().map(|x| x[2 * N_JOINTS..3 * N_JOINTS].iter().sum::<f64>() > 0.05).collect();
+    let moving: Vec<bool> = rows
+        .x
+        .iter()
+        .map(|x| x[2 * N_JOINTS..3 * N_JOINTS].iter().sum::<f64>() > 0.05)
+        .collect();
     let sel = |f: &dyn Fn(usize) -> bool| -> Vec<usize> { (0..n).filter(|&r| f(r)).collect() };
     out.push(Breakdown {
         by: "regime".into(),
         groups: vec![
-            group_stats("driving (Σ τq̇ > 0)".into(), rows, resid, &sel(&|r| moving[r] && mech[r] > 0.0), n_trials),
-            group_stats("braking (Σ τq̇ < 0)".into(), rows, resid, &sel(&|r| moving[r] && mech[r] <= 0.0), n_trials),
-            group_stats("holding (no motion)".into(), rows, resid, &sel(&|r| !moving[r]), n_trials),
+            group_stats(
+                "driving (Σ τq̇ > 0)".into(),
+                rows,
+                resid,
+                &sel(&|r| moving[r] && mech[r] > 0.0),
+                n_trials,
+            ),
+            group_stats(
+                "braking (Σ τq̇ < 0)".into(),
+                rows,
+                resid,
+                &sel(&|r| moving[r] && mech[r] <= 0.0),
+                n_trials,
+            ),
+            group_stats(
+                "holding (no motion)".into(),
+                rows,
+                resid,
+                &sel(&|r| !moving[r]),
+                n_trials,
+            ),
         ],
     });
     out.push(Breakdown {
         by: "braking joint".into(),
         groups: (0..N_JOINTS)
-            .map(|j| group_stats(format!("{} braking", name(j)), rows, resid, &sel(&|r| rows.x[r][j] < -0.2), n_trials))
+            .map(|j| {
+                group_stats(
+                    format!("{} braking", name(j)),
+                    rows,
+                    resid,
+                    &sel(&|r| rows.x[r][j] < -0.2),
+                    n_trials,
+                )
+            })
             .collect(),
     });
 
     if !rows.locate.is_empty() {
-        let temp: Vec<f64> =
-            rows.locate.iter().map(|l| (0..N_JOINTS).map(|j| l[5 * j + 3]).sum::<f64>() / N_JOINTS as f64).collect();
-        out.push(split3("temperature", ["cold", "warm", "hot"], "°C", &temp, rows, resid, n_trials));
+        let temp: Vec<f64> = rows
+            .locate
+            .iter()
+            .map(|l| (0..N_JOINTS).map(|j| l[5 * j + 3]).sum::<f64>() / N_JOINTS as f64)
+            .collect();
+        out.push(split3(
+            "temperature",
+            ["cold", "warm", "hot"],
+            "°C",
+            &temp,
+            rows,
+            resid,
+            n_trials,
+        ));
     }
-    let speed: Vec<f64> = rows.trial.iter().map(|&t| trials[t].window.qdot_max).collect();
-    out.push(split3("speed", ["slow", "medium", "fast"], "rad/s", &speed, rows, resid, n_trials));
+    let speed: Vec<f64> = rows
+        .trial
+        .iter()
+        .map(|&t| trials[t].window.qdot_max)
+        .collect();
+    out.push(split3(
+        "speed",
+        ["slow", "medium", "fast"],
+        "rad/s",
+        &speed,
+        rows,
+        resid,
+        n_trials,
+    ));
     out.push(Breakdown {
         by: "joints moving".into(),
-        groups: [(1usize, 1usize, "single joint"), (2, 2, "two joints"), (3, N_JOINTS, "three or more joints")]
-            .iter()
-            .map(|&(lo, hi, l)| {
-                let m = sel(&|r| (lo..=hi).contains(&trials[rows.trial[r]].window.joints_moved.len()));
-                group_stats(l.into(), rows, resid, &m, n_trials)
-            })
-            .collect(),
+        groups: [
+            (1usize, 1usize, "single joint"),
+            (2, 2, "two joints"),
+            (3, N_JOINTS, "three or more joints"),
+        ]
+        .iter()
+        .map(|&(lo, hi, l)| {
+            let m = sel(&|r| (lo..=hi).contains(&trials[rows.trial[r]].window.joints_moved.len()));
+            group_stats(l.into(), rows, resid, &m, n_trials)
+        })
+        .collect(),
     });
     let mut sig: Vec<f64> = trials.iter().map(|t| t.sigma_omega).collect();
     sig.sort_by(f64::total_cmp);
@@ -216,7 +318,15 @@ pub(crate) fn breakdowns(rows: &Rows, trials: &[TrialMeta], resid: &[f64], joint
             ),
         ],
     });
-    out.push(split3("session time", ["early", "middle", "late"], "s", &rows.t, rows, resid, n_trials));
+    out.push(split3(
+        "session time",
+        ["early", "middle", "late"],
+        "s",
+        &rows.t,
+        rows,
+        resid,
+        n_trials,
+    ));
     out
 }
 
@@ -227,11 +337,19 @@ pub(crate) fn worst(breakdowns: &[Breakdown]) -> Option<(String, Group)> {
         .iter()
         .flat_map(|b| b.groups.iter().map(move |g| (b.by.clone(), g.clone())))
         .filter(|(_, g)| g.n_trials >= 3)
-        .min_by(|a, b| a.1.p_value.total_cmp(&b.1.p_value).then(b.1.bias_w.abs().total_cmp(&a.1.bias_w.abs())))
+        .min_by(|a, b| {
+            a.1.p_value
+                .total_cmp(&b.1.p_value)
+                .then(b.1.bias_w.abs().total_cmp(&a.1.bias_w.abs()))
+        })
 }
 
 /// Per-trial mean residuals, largest magnitude first.
-pub(crate) fn trial_residuals(rows: &Rows, trials: &[TrialMeta], resid: &[f64]) -> Vec<TrialResidual> {
+pub(crate) fn trial_residuals(
+    rows: &Rows,
+    trials: &[TrialMeta],
+    resid: &[f64],
+) -> Vec<TrialResidual> {
     let mut sum = vec![0.0; trials.len()];
     let mut cnt = vec![0usize; trials.len()];
     for (r, e) in resid.iter().enumerate() {
@@ -240,7 +358,11 @@ pub(crate) fn trial_residuals(rows: &Rows, trials: &[TrialMeta], resid: &[f64]) 
     }
     let mut out: Vec<TrialResidual> = (0..trials.len())
         .filter(|&t| cnt[t] > 0)
-        .map(|t| TrialResidual { trial: trials[t].window.index, mean_w: sum[t] / cnt[t] as f64, n_rows: cnt[t] })
+        .map(|t| TrialResidual {
+            trial: trials[t].window.index,
+            mean_w: sum[t] / cnt[t] as f64,
+            n_rows: cnt[t],
+        })
         .collect();
     out.sort_by(|a, b| b.mean_w.abs().total_cmp(&a.mean_w.abs()));
     out
@@ -273,7 +395,9 @@ pub(crate) fn correlates(
         f[(r, N_LOCATE + 1)] = trials[rows.trial[r]].sigma_omega;
         f[(r, N_LOCATE + 2)] = trials[rows.trial[r]].window.qdot_max;
     }
-    let x = DMatrix::from_fn(n, N_PARAMS + 1, |r, c| if c < N_PARAMS { rows.x[r][c] } else { 1.0 });
+    let x = DMatrix::from_fn(n, N_PARAMS + 1, |r, c| {
+        if c < N_PARAMS { rows.x[r][c] } else { 1.0 }
+    });
     let mut g = x.transpose() * &x;
     let ridge = 1e-9 * (0..g.nrows()).map(|i| g[(i, i)]).fold(0.0, f64::max);
     for i in 0..g.nrows() {
@@ -315,11 +439,18 @@ pub(crate) fn correlates(
             let p_adjusted = (p * nf as f64).min(1.0);
             let mx = x.iter().sum::<f64>() / x.len().max(1) as f64;
             let my = y.iter().sum::<f64>() / y.len().max(1) as f64;
-            let mut contrib: Vec<(f64, usize)> =
-                keep.iter().enumerate().map(|(i, &t)| ((x[i] - mx) * (y[i] - my) * r.signum(), t)).collect();
+            let mut contrib: Vec<(f64, usize)> = keep
+                .iter()
+                .enumerate()
+                .map(|(i, &t)| ((x[i] - mx) * (y[i] - my) * r.signum(), t))
+                .collect();
             contrib.sort_by(|a, b| b.0.total_cmp(&a.0));
-            let trials_carrying =
-                contrib.iter().take(5).filter(|c| c.0 > 0.0).map(|c| trials[c.1].window.index).collect();
+            let trials_carrying = contrib
+                .iter()
+                .take(5)
+                .filter(|c| c.0 > 0.0)
+                .map(|c| trials[c.1].window.index)
+                .collect();
             Correlate {
                 feature: names(k),
                 r,
@@ -329,7 +460,11 @@ pub(crate) fn correlates(
             }
         })
         .collect();
-    out.sort_by(|a, b| a.p_adjusted.total_cmp(&b.p_adjusted).then(b.r.abs().total_cmp(&a.r.abs())));
+    out.sort_by(|a, b| {
+        a.p_adjusted
+            .total_cmp(&b.p_adjusted)
+            .then(b.r.abs().total_cmp(&a.r.abs()))
+    });
     out.truncate(top);
     out
 }

@@ -17,9 +17,9 @@ pub mod report;
 pub mod select;
 pub mod stats;
 pub mod summary;
-pub mod torque;
 #[cfg(test)]
 mod testkit;
+pub mod torque;
 
 use anyhow::{Result, bail};
 
@@ -212,7 +212,7 @@ impl Diagnosis {
     }
 }
 
-fn power_series<'a>(rec: &'a Recording, target: Target) -> &'a PowerSeries {
+fn power_series(rec: &Recording, target: Target) -> &PowerSeries {
     match target {
         Target::Mbs => &rec.mbs,
         Target::Bms => &rec.bms,
@@ -228,7 +228,10 @@ fn imu_filter(metas: Vec<TrialMeta>, k: f64, rejected: &mut Vec<RejectedTrial>) 
     for m in out {
         rejected.push(RejectedTrial {
             trial: m.window.index,
-            reason: format!("IMU: σ_ω = {:.4} rad/s > {k} × median {:.4}", m.sigma_omega, med),
+            reason: format!(
+                "IMU: σ_ω = {:.4} rad/s > {k} × median {:.4}",
+                m.sigma_omega, med
+            ),
         });
     }
     keep
@@ -246,11 +249,17 @@ fn base_trial_residuals(
     let mut sum = vec![0.0; n_trials];
     let mut cnt = vec![0usize; n_trials];
     for r in 0..rows.len() {
-        let p: f64 = rows.x[r].iter().zip(fit.beta.iter()).map(|(a, b)| a * b).sum();
+        let p: f64 = rows.x[r]
+            .iter()
+            .zip(fit.beta.iter())
+            .map(|(a, b)| a * b)
+            .sum();
         sum[rows.trial[r]] += rows.y[r] - p;
         cnt[rows.trial[r]] += 1;
     }
-    Ok((0..n_trials).map(|t| (cnt[t] > 0).then(|| sum[t] / cnt[t] as f64)).collect())
+    Ok((0..n_trials)
+        .map(|t| (cnt[t] > 0).then(|| sum[t] / cnt[t] as f64))
+        .collect())
 }
 
 /// Diagnose a recording whose trials are already segmented. `arm` enables the torque level.
@@ -262,13 +271,21 @@ pub fn diagnose_trials(
 ) -> Result<Diagnosis> {
     let power = power_series(rec, opts.target);
     if power.t.is_empty() {
-        bail!("{}: no {:?} power readings to diagnose", rec.source.display(), opts.target);
+        bail!(
+            "{}: no {:?} power readings to diagnose",
+            rec.source.display(),
+            opts.target
+        );
     }
     let w = opts.sensor_window_s;
     let reference: Option<Vec<f64>> = opts.reference.map(|m| m.to_vector().to_vec());
     let mut rejected = Vec::new();
     let (metas, skipped) = trial_meta(rec, windows);
-    rejected.extend(skipped.into_iter().map(|(trial, reason)| RejectedTrial { trial, reason }));
+    rejected.extend(
+        skipped
+            .into_iter()
+            .map(|(trial, reason)| RejectedTrial { trial, reason }),
+    );
     let mut metas = imu_filter(metas, opts.imu_threshold, &mut rejected);
 
     // 3σ passes on per-trial mean residuals of the base model (hardware-event outliers).
@@ -280,7 +297,8 @@ pub fn diagnose_trials(
             break;
         }
         let mean = vals.iter().sum::<f64>() / vals.len() as f64;
-        let sd = (vals.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (vals.len() - 1) as f64).sqrt();
+        let sd =
+            (vals.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (vals.len() - 1) as f64).sqrt();
         let before = metas.len();
         let mut keep = Vec::new();
         for (m, r) in metas.into_iter().zip(&res) {
@@ -289,7 +307,10 @@ pub fn diagnose_trials(
                     trial: m.window.index,
                     reason: format!("3σ: mean residual {r:+.2} W, |r − mean| > 3 × {sd:.2} W"),
                 }),
-                None => rejected.push(RejectedTrial { trial: m.window.index, reason: "no power readings in the trial".into() }),
+                None => rejected.push(RejectedTrial {
+                    trial: m.window.index,
+                    reason: "no power readings in the trial".into(),
+                }),
                 _ => keep.push(m),
             }
         }
@@ -314,14 +335,28 @@ pub fn diagnose_trials(
         let coarse = (opts.max_lag_s / 0.05).round() as usize;
         lags.extend((1..=coarse).map(|k| k as f64 * 0.05));
     }
-    let mut all_rows: Vec<Rows> = lags.iter().map(|&l| build_rows(rec, power, &metas, l, w, l == 0.0)).collect();
+    let mut all_rows: Vec<Rows> = lags
+        .iter()
+        .map(|&l| build_rows(rec, power, &metas, l, w, l == 0.0))
+        .collect();
     // Fine scan (0.01 s) around the base model's best coarse lag.
     if lags.len() >= 3 {
-        let data = PowerData::new(lags.clone(), all_rows.clone(), metas.len(), opts.folds, reference.clone());
+        let data = PowerData::new(
+            lags.clone(),
+            all_rows.clone(),
+            metas.len(),
+            opts.folds,
+            reference.clone(),
+        );
         let sse: Vec<f64> = (0..lags.len())
-            .map(|l| data.fit_all(&[], l).map(|f| data.grams[l].total.sse(&f.beta)))
+            .map(|l| {
+                data.fit_all(&[], l)
+                    .map(|f| data.grams[l].total.sse(&f.beta))
+            })
             .collect::<Result<_>>()?;
-        let best = (0..lags.len()).min_by(|&a, &b| sse[a].total_cmp(&sse[b])).unwrap_or(0);
+        let best = (0..lags.len())
+            .min_by(|&a, &b| sse[a].total_cmp(&sse[b]))
+            .unwrap_or(0);
         let centre = lags[best];
         for k in -4i32..=4 {
             let l = centre + 0.01 * k as f64;
@@ -344,7 +379,11 @@ pub fn diagnose_trials(
         );
     }
     let data = PowerData::new(lags.clone(), all_rows, metas.len(), opts.folds, reference);
-    let rule = Rule { alpha: opts.alpha, bic_threshold: opts.bic_threshold, min_improvement: opts.min_improvement };
+    let rule = Rule {
+        alpha: opts.alpha,
+        bic_threshold: opts.bic_threshold,
+        min_improvement: opts.min_improvement,
+    };
     let candidates: Vec<&'static hypotheses::Hypothesis> = POWER_HYPOTHESES.iter().collect();
     let sel = select::select(&data, &candidates, &rule)?;
 
@@ -366,7 +405,9 @@ pub fn diagnose_trials(
         ranked.push(p);
     }
     ranked.sort_by(|a, b| {
-        (b.accepted, b.rel_improvement).partial_cmp(&(a.accepted, a.rel_improvement)).unwrap_or(std::cmp::Ordering::Equal)
+        (b.accepted, b.rel_improvement)
+            .partial_cmp(&(a.accepted, a.rel_improvement))
+            .unwrap_or(std::cmp::Ordering::Equal)
     });
     for (i, s) in ranked.iter_mut().enumerate() {
         s.rank = i + 1;
@@ -378,7 +419,12 @@ pub fn diagnose_trials(
     let mut params = Vec::new();
     for (j, h) in last.spec.iter().enumerate() {
         let c = N_PARAMS + j;
-        let per_fold: Vec<f64> = last.cv.fold_theta.iter().map(|t| (h.to_physical)(t[c])).collect();
+        let per_fold: Vec<f64> = last
+            .cv
+            .fold_theta
+            .iter()
+            .map(|t| (h.to_physical)(t[c]))
+            .collect();
         params.push(Param {
             name: h.title.into(),
             symbol: h.symbol.into(),
@@ -390,7 +436,10 @@ pub fn diagnose_trials(
     if let Some(lat) = accepted.iter().find(|s| s.id == LATENCY_ID) {
         params.extend(lat.params.iter().cloned());
     }
-    if let Some(t) = torque.as_ref().filter(|t| accepted.iter().any(|s| s.id == t.payload.id)) {
+    if let Some(t) = torque
+        .as_ref()
+        .filter(|t| accepted.iter().any(|s| s.id == t.payload.id))
+    {
         params.extend(t.payload.params.iter().cloned());
     }
     let y = &rows0.y;
@@ -424,16 +473,31 @@ pub fn diagnose_trials(
     };
 
     // Locate with the base model's held-out residuals; correlate what the final model leaves.
-    let resid_base: Vec<f64> = y.iter().zip(&sel.base.cv.pred).map(|(a, b)| a - b).collect();
-    let resid_final: Vec<f64> = data.rows[last.lag].y.iter().zip(&last.cv.pred).map(|(a, b)| a - b).collect();
+    let resid_base: Vec<f64> = y
+        .iter()
+        .zip(&sel.base.cv.pred)
+        .map(|(a, b)| a - b)
+        .collect();
+    let resid_final: Vec<f64> = data.rows[last.lag]
+        .y
+        .iter()
+        .zip(&last.cv.pred)
+        .map(|(a, b)| a - b)
+        .collect();
     let breakdowns = locate::breakdowns(rows0, &metas, &resid_base, &rec.joint_names);
     let worst = locate::worst(&breakdowns);
-    let worst_trials: Vec<TrialResidual> = locate::trial_residuals(rows0, &metas, &resid_base).into_iter().take(10).collect();
+    let worst_trials: Vec<TrialResidual> = locate::trial_residuals(rows0, &metas, &resid_base)
+        .into_iter()
+        .take(10)
+        .collect();
     let unexplained = locate::correlates(rows0, &metas, &resid_final, &rec.joint_names, 0.01, 6);
     let lag_scan = (0..lags.len())
         .map(|l| {
             let g = &data.grams[l].total;
-            data.fit_all(&[], l).map(|f| LagPoint { lag_s: lags[l], rmse_w: (g.sse(&f.beta) / g.n.max(1) as f64).sqrt() })
+            data.fit_all(&[], l).map(|f| LagPoint {
+                lag_s: lags[l],
+                rmse_w: (g.sse(&f.beta) / g.n.max(1) as f64).sqrt(),
+            })
         })
         .collect::<Result<Vec<_>>>()?;
 
@@ -456,7 +520,10 @@ pub fn diagnose_trials(
         before_w: sel.base.cv.pred.clone(),
         after_w: last.cv.pred.clone(),
         highlighted,
-        trials: metas.iter().map(|m| (m.window.index, m.window.t_traj, m.window.t_return_end)).collect(),
+        trials: metas
+            .iter()
+            .map(|m| (m.window.index, m.window.t_traj, m.window.t_return_end))
+            .collect(),
     };
     let mut diag = Diagnosis {
         schema_version: SCHEMA_VERSION,
@@ -467,7 +534,11 @@ pub fn diagnose_trials(
         n_readings: rows0.len(),
         rejected,
         torque: torque.map(|t| t.comparison),
-        base_model: if data.reference.is_some() { "reference".into() } else { "refit".into() },
+        base_model: if data.reference.is_some() {
+            "reference".into()
+        } else {
+            "refit".into()
+        },
         lag_scan,
         breakdowns,
         worst,
@@ -494,7 +565,11 @@ fn common_readings(all: &mut [Rows]) {
     }
     let n = all.len();
     for rows in all.iter_mut() {
-        let keep: Vec<bool> = rows.t.iter().map(|t| count.get(&t.to_bits()) == Some(&n)).collect();
+        let keep: Vec<bool> = rows
+            .t
+            .iter()
+            .map(|t| count.get(&t.to_bits()) == Some(&n))
+            .collect();
         if keep.iter().all(|k| *k) {
             continue;
         }
@@ -532,7 +607,10 @@ mod tests {
         let d = diagnose_trials(&rec, &windows, None, opts).unwrap();
         eprintln!("{}", d.summary);
         for h in &d.hypotheses {
-            eprintln!("  {:>14} {:>10.4} p={:.1e} dBIC={:7.1} rel={:+.3} {}", h.id, h.params[0].value, h.p_value, h.delta_bic, h.rel_improvement, h.verdict);
+            eprintln!(
+                "  {:>14} {:>10.4} p={:.1e} dBIC={:7.1} rel={:+.3} {}",
+                h.id, h.params[0].value, h.p_value, h.delta_bic, h.rel_improvement, h.verdict
+            );
         }
         d
     }
@@ -546,33 +624,69 @@ mod tests {
 
     #[test]
     fn braking_session_names_braking() {
-        let d = run(Effects { braking_r: Some(0.4), ..Default::default() }, 2);
+        let d = run(
+            Effects {
+                braking_r: Some(0.4),
+                ..Default::default()
+            },
+            2,
+        );
         assert_eq!(d.hypotheses[0].id, "braking");
-        let r = d.final_model.params.iter().find(|p| p.symbol == "r").unwrap().value;
+        let r = d
+            .final_model
+            .params
+            .iter()
+            .find(|p| p.symbol == "r")
+            .unwrap()
+            .value;
         assert!((r - 0.4).abs() < 0.04, "r = {r}");
         assert!(d.final_model.after.r2 > d.final_model.before.r2);
-        let dir = std::env::var("DIAG_REPORT_DIR").map(std::path::PathBuf::from).unwrap_or_else(|_| std::env::temp_dir().join(format!("g1viz-diag-{}", std::process::id())));
+        let dir = std::env::var("DIAG_REPORT_DIR")
+            .map(std::path::PathBuf::from)
+            .unwrap_or_else(|_| {
+                std::env::temp_dir().join(format!("g1viz-diag-{}", std::process::id()))
+            });
         report::write_report(&dir, &d).unwrap();
         let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
         assert!(md.contains("| 1 | braking |"));
         for f in report::FIGURES.iter().take(4) {
             assert!(dir.join(f).metadata().unwrap().len() > 1000, "{f}");
         }
-        let back: Diagnosis = serde_json::from_str(&std::fs::read_to_string(dir.join("diagnosis.json")).unwrap()).unwrap();
+        let back: Diagnosis =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("diagnosis.json")).unwrap())
+                .unwrap();
         assert_eq!(back.accepted.len(), d.accepted.len());
     }
 
     #[test]
     fn latency_session_finds_the_lag() {
-        let d = run(Effects { latency_s: Some(0.3), ..Default::default() }, 3);
+        let d = run(
+            Effects {
+                latency_s: Some(0.3),
+                ..Default::default()
+            },
+            3,
+        );
         assert_eq!(d.hypotheses[0].id, "latency");
-        let l = d.final_model.params.iter().find(|p| p.symbol == "L").unwrap().value;
+        let l = d
+            .final_model
+            .params
+            .iter()
+            .find(|p| p.symbol == "L")
+            .unwrap()
+            .value;
         assert!((l - 0.3).abs() < 0.03, "L = {l}");
     }
 
     #[test]
     fn harness_drag_is_located_at_the_elbow() {
-        let d = run(Effects { harness_k: Some(4.0), ..Default::default() }, 4);
+        let d = run(
+            Effects {
+                harness_k: Some(4.0),
+                ..Default::default()
+            },
+            4,
+        );
         let top = &d.unexplained[0];
         assert!(top.significant && top.feature.starts_with("j3"), "{top:?}");
     }
@@ -584,19 +698,43 @@ mod twin_tests {
     use super::*;
 
     fn twin() -> DiagnoseOptions {
-        DiagnoseOptions { reference: Some(PowerModel::PAPER), ..Default::default() }
+        DiagnoseOptions {
+            reference: Some(PowerModel::PAPER),
+            ..Default::default()
+        }
     }
 
     #[test]
     fn twin_mode_recovers_thermal_drift_and_accepts_nothing_on_null() {
-        let (rec, w) = session(60, 5, Effects { thermal_alpha: Some(0.00393), ..Default::default() });
+        let (rec, w) = session(
+            60,
+            5,
+            Effects {
+                thermal_alpha: Some(0.00393),
+                ..Default::default()
+            },
+        );
         let d = diagnose_trials(&rec, &w, None, &twin()).unwrap();
         eprintln!("{}", d.summary);
         for h in &d.hypotheses {
-            eprintln!("  {:>14} {:>10.5} ± {:.5} p={:.1e} dBIC={:7.1} rel={:+.3}", h.id, h.params[0].value, h.params[0].std_err, h.p_value, h.delta_bic, h.rel_improvement);
+            eprintln!(
+                "  {:>14} {:>10.5} ± {:.5} p={:.1e} dBIC={:7.1} rel={:+.3}",
+                h.id,
+                h.params[0].value,
+                h.params[0].std_err,
+                h.p_value,
+                h.delta_bic,
+                h.rel_improvement
+            );
         }
         assert_eq!(d.hypotheses[0].id, "thermal");
-        let a = d.final_model.params.iter().find(|p| p.symbol == "α").unwrap().value;
+        let a = d
+            .final_model
+            .params
+            .iter()
+            .find(|p| p.symbol == "α")
+            .unwrap()
+            .value;
         assert!((a - 0.00393).abs() < 0.1 * 0.00393, "α = {a}");
         let (rec, w) = session(60, 6, Effects::default());
         let d = diagnose_trials(&rec, &w, None, &twin()).unwrap();

@@ -6,7 +6,12 @@ use nalgebra::{DMatrix, DVector};
 
 /// Minimise ½θᵀGθ − hᵀθ subject to lo ≤ θ ≤ hi (infinite bounds allowed; lo = hi fixes a
 /// variable). G must be symmetric positive definite. Exact (finite active-set iterations, each a Cholesky solve of the free block).
-pub(crate) fn bounded_quadratic(g: &DMatrix<f64>, h: &DVector<f64>, lo: &[f64], hi: &[f64]) -> Result<Vec<f64>> {
+pub(crate) fn bounded_quadratic(
+    g: &DMatrix<f64>,
+    h: &DVector<f64>,
+    lo: &[f64],
+    hi: &[f64],
+) -> Result<Vec<f64>> {
     let p = h.len();
     // Feasible start: 0 clamped into the box; variables starting on a finite bound are held there.
     let mut x: Vec<f64> = (0..p).map(|i| 0.0f64.clamp(lo[i], hi[i])).collect();
@@ -19,9 +24,14 @@ pub(crate) fn bounded_quadratic(g: &DMatrix<f64>, h: &DVector<f64>, lo: &[f64], 
             let gff = DMatrix::from_fn(idx.len(), idx.len(), |a, b| g[(idx[a], idx[b])]);
             let rhs = DVector::from_fn(idx.len(), |a, _| {
                 let i = idx[a];
-                h[i] - (0..p).filter(|&j| !free[j]).map(|j| g[(i, j)] * x[j]).sum::<f64>()
+                h[i] - (0..p)
+                    .filter(|&j| !free[j])
+                    .map(|j| g[(i, j)] * x[j])
+                    .sum::<f64>()
             });
-            let Some(ch) = gff.cholesky() else { bail!("normal equations are not positive definite") };
+            let Some(ch) = gff.cholesky() else {
+                bail!("normal equations are not positive definite")
+            };
             let sol = ch.solve(&rhs);
             for (a, &i) in idx.iter().enumerate() {
                 target[i] = sol[a];
@@ -32,7 +42,13 @@ pub(crate) fn bounded_quadratic(g: &DMatrix<f64>, h: &DVector<f64>, lo: &[f64], 
         let mut blocking = None;
         for &i in &idx {
             let d = target[i] - x[i];
-            let room = if d < 0.0 { (lo[i] - x[i]) / d } else if d > 0.0 { (hi[i] - x[i]) / d } else { f64::INFINITY };
+            let room = if d < 0.0 {
+                (lo[i] - x[i]) / d
+            } else if d > 0.0 {
+                (hi[i] - x[i]) / d
+            } else {
+                f64::INFINITY
+            };
             if room < step {
                 step = room.max(0.0);
                 blocking = Some((i, d < 0.0));
@@ -47,7 +63,9 @@ pub(crate) fn bounded_quadratic(g: &DMatrix<f64>, h: &DVector<f64>, lo: &[f64], 
             continue;
         }
         // Optimal on the free set: release the bound variable whose gradient most wants inside.
-        let grad: Vec<f64> = (0..p).map(|i| (0..p).map(|j| g[(i, j)] * x[j]).sum::<f64>() - h[i]).collect();
+        let grad: Vec<f64> = (0..p)
+            .map(|i| (0..p).map(|j| g[(i, j)] * x[j]).sum::<f64>() - h[i])
+            .collect();
         let scale = (0..p).map(|i| h[i].abs()).fold(0.0, f64::max).max(1e-300);
         let mut worst = None;
         let mut worst_v = 1e-12 * scale;

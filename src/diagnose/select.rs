@@ -27,7 +27,12 @@ pub(crate) struct Gram {
 
 impl Gram {
     fn zeros(p: usize) -> Self {
-        Gram { g: DMatrix::zeros(p, p), h: DVector::zeros(p), yy: 0.0, n: 0 }
+        Gram {
+            g: DMatrix::zeros(p, p),
+            h: DVector::zeros(p),
+            yy: 0.0,
+            n: 0,
+        }
     }
 
     fn add_row(&mut self, x: &[f64], y: f64) {
@@ -50,7 +55,12 @@ impl Gram {
     }
 
     fn minus(&self, other: &Gram) -> Gram {
-        Gram { g: &self.g - &other.g, h: &self.h - &other.h, yy: self.yy - other.yy, n: self.n - other.n }
+        Gram {
+            g: &self.g - &other.g,
+            h: &self.h - &other.h,
+            yy: self.yy - other.yy,
+            n: self.n - other.n,
+        }
     }
 
     /// Sum of squared residuals of coefficients `beta` (raw layout).
@@ -166,9 +176,22 @@ const BASE_RIDGE: f64 = 1e-4;
 
 /// Bounded least squares on normal equations: minimise θᵀGθ − 2θᵀh subject to lo ≤ θ ≤ hi,
 /// with the relative ridge on the first [`N_PARAMS`] (base) coefficients.
-fn solve_bounded(g: &DMatrix<f64>, h: &DVector<f64>, lo: &[f64], hi: &[f64]) -> Result<DVector<f64>> {
+fn solve_bounded(
+    g: &DMatrix<f64>,
+    h: &DVector<f64>,
+    lo: &[f64],
+    hi: &[f64],
+) -> Result<DVector<f64>> {
     let p = h.len();
-    let s: Vec<f64> = (0..p).map(|i| if g[(i, i)] > 0.0 { g[(i, i)].sqrt() } else { 1.0 }).collect();
+    let s: Vec<f64> = (0..p)
+        .map(|i| {
+            if g[(i, i)] > 0.0 {
+                g[(i, i)].sqrt()
+            } else {
+                1.0
+            }
+        })
+        .collect();
     let mut gs = DMatrix::from_fn(p, p, |i, j| g[(i, j)] / (s[i] * s[j]));
     for i in 0..p {
         gs[(i, i)] += if i < N_PARAMS { BASE_RIDGE } else { 1e-12 };
@@ -180,25 +203,43 @@ fn solve_bounded(g: &DMatrix<f64>, h: &DVector<f64>, lo: &[f64], hi: &[f64]) -> 
     Ok(DVector::from_fn(p, |i, _| z[i] / s[i]))
 }
 
-fn fit_once(spec: &[&Hypothesis], gram: &Gram, weights: &[f64], reference: Option<&[f64]>) -> Result<Fitted> {
+fn fit_once(
+    spec: &[&Hypothesis],
+    gram: &Gram,
+    weights: &[f64],
+    reference: Option<&[f64]>,
+) -> Result<Fitted> {
     let m = design_map(spec, weights);
     let g = m.transpose() * &gram.g * &m;
     let h = m.transpose() * &gram.h;
     let (lo, hi) = bounds(m.ncols(), reference);
     let theta = solve_bounded(&g, &h, &lo, &hi)?;
     let beta = &m * &theta;
-    Ok(Fitted { theta: theta.iter().copied().collect(), beta })
+    Ok(Fitted {
+        theta: theta.iter().copied().collect(),
+        beta,
+    })
 }
 
 /// Fit `spec` to the rows summarised by `gram` (base refitted, or held at `reference`). Pooled
 /// per-joint terms are refitted until their weights (the base parameters they scale) are
 /// self-consistent.
-pub(crate) fn fit(spec: &[&'static Hypothesis], gram: &Gram, reference: Option<&[f64]>) -> Result<Fitted> {
-    let pooled = spec.iter().any(|h| matches!(h.combine, Combine::WeightedByBase(_)));
+pub(crate) fn fit(
+    spec: &[&'static Hypothesis],
+    gram: &Gram,
+    reference: Option<&[f64]>,
+) -> Result<Fitted> {
+    let pooled = spec
+        .iter()
+        .any(|h| matches!(h.combine, Combine::WeightedByBase(_)));
     if !pooled {
         return fit_once(spec, gram, &[], reference);
     }
-    let plain: Vec<&Hypothesis> = spec.iter().copied().filter(|h| h.combine == Combine::Single).collect();
+    let plain: Vec<&Hypothesis> = spec
+        .iter()
+        .copied()
+        .filter(|h| h.combine == Combine::Single)
+        .collect();
     let mut weights = fit_once(&plain, gram, &[], reference)?.theta;
     let mut fitted = fit_once(spec, gram, &weights, reference)?;
     for _ in 0..8 {
@@ -241,7 +282,10 @@ pub(crate) fn cross_validate(
             rows.x[r].iter().zip(beta.iter()).map(|(a, b)| a * b).sum()
         })
         .collect();
-    Ok(CvOut { pred, fold_theta: fitted.into_iter().map(|f| f.theta).collect() })
+    Ok(CvOut {
+        pred,
+        fold_theta: fitted.into_iter().map(|f| f.theta).collect(),
+    })
 }
 
 /// Per-trial sum of squared errors.
@@ -259,7 +303,10 @@ pub(crate) fn r2_rmse(y: &[f64], pred: &[f64]) -> (f64, f64) {
     let mean = y.iter().sum::<f64>() / n;
     let sst: f64 = y.iter().map(|v| (v - mean).powi(2)).sum();
     let sse: f64 = y.iter().zip(pred).map(|(a, b)| (a - b).powi(2)).sum();
-    (if sst > 0.0 { 1.0 - sse / sst } else { 0.0 }, (sse / n).sqrt())
+    (
+        if sst > 0.0 { 1.0 - sse / sst } else { 0.0 },
+        (sse / n).sqrt(),
+    )
 }
 
 /// Bayesian information criterion of a Gaussian least-squares fit.
@@ -343,10 +390,16 @@ impl Rule {
     pub fn judge(&self, s: &HypothesisScore) -> (bool, String) {
         let mut fails = Vec::new();
         if s.p_value >= self.alpha {
-            fails.push(format!("held-out improvement not significant (p = {:.2e} ≥ {:.0e})", s.p_value, self.alpha));
+            fails.push(format!(
+                "held-out improvement not significant (p = {:.2e} ≥ {:.0e})",
+                s.p_value, self.alpha
+            ));
         }
         if s.delta_bic >= self.bic_threshold {
-            fails.push(format!("ΔBIC = {:.1} ≥ {:.0}", s.delta_bic, self.bic_threshold));
+            fails.push(format!(
+                "ΔBIC = {:.1} ≥ {:.0}",
+                s.delta_bic, self.bic_threshold
+            ));
         }
         if s.rel_improvement < self.min_improvement {
             fails.push(format!(
@@ -386,10 +439,23 @@ pub(crate) struct PowerData {
 }
 
 impl PowerData {
-    pub fn new(lags: Vec<f64>, rows: Vec<Rows>, n_trials: usize, k: usize, reference: Option<Vec<f64>>) -> PowerData {
-        let folds = Folds::new(n_trials, k, 0x6731_7669_7a);
+    pub fn new(
+        lags: Vec<f64>,
+        rows: Vec<Rows>,
+        n_trials: usize,
+        k: usize,
+        reference: Option<Vec<f64>>,
+    ) -> PowerData {
+        let folds = Folds::new(n_trials, k, 0x67_3176_697a);
         let grams = rows.iter().map(|r| FoldGrams::new(r, &folds)).collect();
-        PowerData { lags, rows, grams, folds, n_trials, reference }
+        PowerData {
+            lags,
+            rows,
+            grams,
+            folds,
+            n_trials,
+            reference,
+        }
     }
 
     fn reference(&self) -> Option<&[f64]> {
@@ -398,7 +464,11 @@ impl PowerData {
 
     /// Number of free base parameters (0 when held at the reference).
     fn base_params(&self) -> usize {
-        if self.reference.is_some() { 0 } else { N_PARAMS }
+        if self.reference.is_some() {
+            0
+        } else {
+            N_PARAMS
+        }
     }
 
     /// Fit `spec` on all rows of lag index `lag`.
@@ -418,12 +488,24 @@ pub(crate) struct State {
 }
 
 fn state(data: &PowerData, spec: Spec, lag: usize) -> Result<State> {
-    let cv = cross_validate(&spec, &data.rows[lag], &data.folds, &data.grams[lag], data.reference())?;
+    let cv = cross_validate(
+        &spec,
+        &data.rows[lag],
+        &data.folds,
+        &data.grams[lag],
+        data.reference(),
+    )?;
     let full = data.fit_all(&spec, lag)?;
     let g = &data.grams[lag].total;
     let p = data.base_params() + spec.len() + usize::from(lag != 0);
     let bic = bic(g.sse(&full.beta), g.n, p);
-    Ok(State { spec, lag, cv, full, bic })
+    Ok(State {
+        spec,
+        lag,
+        cv,
+        full,
+        bic,
+    })
 }
 
 /// Vertex of the parabola through three points (x sorted), clamped to their span.
@@ -439,7 +521,9 @@ fn parabola_vertex(x: [f64; 3], y: [f64; 3]) -> f64 {
 
 /// Refine the lag of minimal `sse` (indexed like `lags`, sorted ascending) by a parabola.
 fn refine_lag(lags: &[f64], sse: &[f64]) -> (usize, f64) {
-    let best = (0..lags.len()).min_by(|&a, &b| sse[a].total_cmp(&sse[b])).unwrap_or(0);
+    let best = (0..lags.len())
+        .min_by(|&a, &b| sse[a].total_cmp(&sse[b]))
+        .unwrap_or(0);
     if best == 0 || best + 1 >= lags.len() {
         return (best, lags[best]);
     }
@@ -456,11 +540,21 @@ struct Candidate {
     next: State,
 }
 
-fn compare(data: &PowerData, cur: &State, next_pred: &[f64], next_lag: usize) -> (f64, f64, f64, f64, f64, f64) {
+fn compare(
+    data: &PowerData,
+    cur: &State,
+    next_pred: &[f64],
+    next_lag: usize,
+) -> (f64, f64, f64, f64, f64, f64) {
     let y = &data.rows[cur.lag].y;
     let trial = &data.rows[cur.lag].trial;
     let before = trial_sse(y, &cur.cv.pred, trial, data.n_trials);
-    let after = trial_sse(&data.rows[next_lag].y, next_pred, &data.rows[next_lag].trial, data.n_trials);
+    let after = trial_sse(
+        &data.rows[next_lag].y,
+        next_pred,
+        &data.rows[next_lag].trial,
+        data.n_trials,
+    );
     let d: Vec<f64> = before.iter().zip(&after).map(|(a, b)| a - b).collect();
     let p = improvement_p_value(&d);
     let (r2b, rmseb) = r2_rmse(y, &cur.cv.pred);
@@ -468,14 +562,25 @@ fn compare(data: &PowerData, cur: &State, next_pred: &[f64], next_lag: usize) ->
     (p, r2b, r2a, rmseb, rmsea, 1.0 - rmsea / rmseb.max(1e-300))
 }
 
-fn score_term(data: &PowerData, cur: &State, h: &'static Hypothesis, step: usize) -> Result<Candidate> {
+fn score_term(
+    data: &PowerData,
+    cur: &State,
+    h: &'static Hypothesis,
+    step: usize,
+) -> Result<Candidate> {
     let mut spec = cur.spec.clone();
     spec.push(h);
     let next = state(data, spec, cur.lag)?;
     let j = N_PARAMS + next.spec.len() - 1;
     let value = (h.to_physical)(next.full.theta[j]);
-    let per_fold: Vec<f64> = next.cv.fold_theta.iter().map(|t| (h.to_physical)(t[j])).collect();
-    let (p_value, r2_before, r2_after, rmse_before, rmse_after, rel) = compare(data, cur, &next.cv.pred, cur.lag);
+    let per_fold: Vec<f64> = next
+        .cv
+        .fold_theta
+        .iter()
+        .map(|t| (h.to_physical)(t[j]))
+        .collect();
+    let (p_value, r2_before, r2_after, rmse_before, rmse_after, rel) =
+        compare(data, cur, &next.cv.pred, cur.lag);
     let score = HypothesisScore {
         id: h.id.into(),
         title: h.title.into(),
@@ -519,18 +624,27 @@ fn score_latency(data: &PowerData, cur: &State, step: usize) -> Result<Candidate
     let mut fold_lag = Vec::with_capacity(data.folds.k);
     let mut chosen = vec![0usize; data.folds.k];
     for f in 0..data.folds.k {
-        let sse: Vec<f64> = (0..nl).map(|l| data.grams[l].train(f).sse(&fold_fits[l][f].beta)).collect();
+        let sse: Vec<f64> = (0..nl)
+            .map(|l| data.grams[l].train(f).sse(&fold_fits[l][f].beta))
+            .collect();
         let (best, refined) = refine_lag(&data.lags, &sse);
         chosen[f] = best;
         fold_lag.push(refined);
     }
-    for r in 0..pred.len() {
+    for (r, p) in pred.iter_mut().enumerate() {
         let f = data.folds.of_trial[data.rows[0].trial[r]];
         let l = chosen[f];
-        pred[r] = data.rows[l].x[r].iter().zip(fold_fits[l][f].beta.iter()).map(|(a, b)| a * b).sum();
+        *p = data.rows[l].x[r]
+            .iter()
+            .zip(fold_fits[l][f].beta.iter())
+            .map(|(a, b)| a * b)
+            .sum();
     }
     let full_sse: Vec<f64> = (0..nl)
-        .map(|l| data.fit_all(&cur.spec, l).map(|f| data.grams[l].total.sse(&f.beta)))
+        .map(|l| {
+            data.fit_all(&cur.spec, l)
+                .map(|f| data.grams[l].total.sse(&f.beta))
+        })
         .collect::<Result<_>>()?;
     let (best, lag) = refine_lag(&data.lags, &full_sse);
     let next = state(data, cur.spec.clone(), best)?;
@@ -577,10 +691,15 @@ pub(crate) struct Selection {
 
 /// Greedy forward selection: at each step score every remaining candidate against the current
 /// model, add the best one that passes the rule, stop when none passes.
-pub(crate) fn select(data: &PowerData, candidates: &[&'static Hypothesis], rule: &Rule) -> Result<Selection> {
+pub(crate) fn select(
+    data: &PowerData,
+    candidates: &[&'static Hypothesis],
+    rule: &Rule,
+) -> Result<Selection> {
     let base = state(data, Vec::new(), 0)?;
     let mut cur = base.clone();
-    let mut remaining: Vec<Option<&'static Hypothesis>> = candidates.iter().map(|&h| Some(h)).collect();
+    let mut remaining: Vec<Option<&'static Hypothesis>> =
+        candidates.iter().map(|&h| Some(h)).collect();
     if data.lags.len() >= 3 {
         remaining.push(None); // None = latency
     }
@@ -599,12 +718,16 @@ pub(crate) fn select(data: &PowerData, candidates: &[&'static Hypothesis], rule:
             scored.push((i, cand));
         }
         scored.sort_by(|a, b| {
-            (b.1.score.accepted, b.1.score.rel_improvement).partial_cmp(&(a.1.score.accepted, a.1.score.rel_improvement)).unwrap_or(std::cmp::Ordering::Equal)
+            (b.1.score.accepted, b.1.score.rel_improvement)
+                .partial_cmp(&(a.1.score.accepted, a.1.score.rel_improvement))
+                .unwrap_or(std::cmp::Ordering::Equal)
         });
         if step == 1 {
             first_step = scored.iter().map(|(_, c)| c.score.clone()).collect();
         }
-        let Some((idx, best)) = scored.into_iter().next().filter(|(_, c)| c.score.accepted) else { break };
+        let Some((idx, best)) = scored.into_iter().next().filter(|(_, c)| c.score.accepted) else {
+            break;
+        };
         accepted.push(best.score);
         cur = best.next;
         remaining.remove(idx);
@@ -612,7 +735,12 @@ pub(crate) fn select(data: &PowerData, candidates: &[&'static Hypothesis], rule:
             break;
         }
     }
-    Ok(Selection { first_step, accepted, base, last: cur })
+    Ok(Selection {
+        first_step,
+        accepted,
+        base,
+        last: cur,
+    })
 }
 
 #[cfg(test)]
@@ -631,7 +759,9 @@ mod tests {
         let mut rows = Rows::default();
         for t in 0..n_trials {
             let temp_level = 30.0 + 30.0 * t as f64 / n_trials as f64;
-            let moved: Vec<usize> = (0..rng.random_range(1..4)).map(|_| rng.random_range(0..7)).collect();
+            let moved: Vec<usize> = (0..rng.random_range(1..4))
+                .map(|_| rng.random_range(0..7))
+                .collect();
             let tau0_sq = [1.0; 7];
             for _ in 0..8 {
                 let mut q = [0.0; 7];
@@ -644,7 +774,14 @@ mod tests {
                 }
                 let temp = [temp_level; 7];
                 let gyro = [0.0; 3];
-                let s = Sample { q: &q, dq: &dq, tau: &tau, temp: &temp, gyro: &gyro, tau0_sq: &tau0_sq };
+                let s = Sample {
+                    q: &q,
+                    dq: &dq,
+                    tau: &tau,
+                    temp: &temp,
+                    gyro: &gyro,
+                    tau0_sq: &tau0_sq,
+                };
                 let mut phi = [0.0; N_PARAMS];
                 regressor_into(&tau, &dq, &tau0_sq, &mut phi);
                 let mut ex = [0.0; super::super::hypotheses::N_EXTRA];
@@ -652,7 +789,9 @@ mod tests {
                 let mut x = [0.0; N_RAW];
                 x[..N_PARAMS].copy_from_slice(&phi);
                 x[N_PARAMS..].copy_from_slice(&ex);
-                let y = PowerModel::PAPER.predict(&tau, &dq, &tau0_sq) + effect(&s) + noise.sample(&mut rng);
+                let y = PowerModel::PAPER.predict(&tau, &dq, &tau0_sq)
+                    + effect(&s)
+                    + noise.sample(&mut rng);
                 rows.trial.push(t);
                 rows.t.push(t as f64);
                 rows.phase.push(super::super::data::Phase::Trajectory);
@@ -663,7 +802,11 @@ mod tests {
         PowerData::new(vec![0.0], vec![rows], n_trials, 5, None)
     }
 
-    pub(super) const RULE: Rule = Rule { alpha: 1e-3, bic_threshold: -10.0, min_improvement: 0.01 };
+    pub(super) const RULE: Rule = Rule {
+        alpha: 1e-3,
+        bic_threshold: -10.0,
+        min_improvement: 0.01,
+    };
 
     fn all() -> Vec<&'static Hypothesis> {
         POWER_HYPOTHESES.iter().collect()
@@ -673,7 +816,11 @@ mod tests {
     fn null_data_accepts_nothing() {
         for seed in 0..3 {
             let sel = select(&synth(seed, 60, &|_| 0.0), &all(), &RULE).unwrap();
-            assert!(sel.accepted.is_empty(), "seed {seed}: accepted {:?}", sel.accepted.iter().map(|s| &s.id).collect::<Vec<_>>());
+            assert!(
+                sel.accepted.is_empty(),
+                "seed {seed}: accepted {:?}",
+                sel.accepted.iter().map(|s| &s.id).collect::<Vec<_>>()
+            );
         }
     }
 
@@ -681,7 +828,9 @@ mod tests {
     fn braking_return_fraction_is_recovered() {
         // mech_i = r·τq̇ when braking: P += (r − 1)·Σ min(τ_i q̇_i, 0), r = 0.3 (a_i = 1 in the paper).
         let r = 0.3;
-        let effect = move |s: &Sample| (r - 1.0) * (0..7).map(|i| (s.tau[i] * s.dq[i]).min(0.0)).sum::<f64>();
+        let effect = move |s: &Sample| {
+            (r - 1.0) * (0..7).map(|i| (s.tau[i] * s.dq[i]).min(0.0)).sum::<f64>()
+        };
         let sel = select(&synth(7, 60, &effect), &all(), &RULE).unwrap();
         assert_eq!(sel.first_step[0].id, "braking");
         assert_eq!(sel.accepted.len(), 1);
@@ -696,16 +845,25 @@ mod tests {
         let b = PowerModel::PAPER.b;
         let effect = move |s: &Sample| {
             let i: f64 = (0..7).map(|j| s.tau[j].abs() / k[j]).sum();
-            let thermal: f64 = (0..7).map(|j| b[j] * alpha * (s.temp[j] - 25.0) * (s.tau[j] * s.tau[j] - s.tau0_sq[j])).sum();
+            let thermal: f64 = (0..7)
+                .map(|j| b[j] * alpha * (s.temp[j] - 25.0) * (s.tau[j] * s.tau[j] - s.tau0_sq[j]))
+                .sum();
             rb * i * i + thermal
         };
         let sel = select(&synth(11, 80, &effect), &all(), &RULE).unwrap();
         let ids: Vec<&str> = sel.accepted.iter().map(|s| s.id.as_str()).collect();
-        assert!(ids.contains(&"bus_loss") && ids.contains(&"thermal"), "accepted {ids:?}");
+        assert!(
+            ids.contains(&"bus_loss") && ids.contains(&"thermal"),
+            "accepted {ids:?}"
+        );
         let final_theta = &sel.last.full.theta;
         let pos = |id: &str| sel.last.spec.iter().position(|h| h.id == id).unwrap() + N_PARAMS;
         assert!((final_theta[pos("bus_loss")] - rb).abs() < 0.1 * rb);
-        assert!((final_theta[pos("thermal")] - alpha).abs() < 0.1 * alpha, "α = {}", final_theta[pos("thermal")]);
+        assert!(
+            (final_theta[pos("thermal")] - alpha).abs() < 0.1 * alpha,
+            "α = {}",
+            final_theta[pos("thermal")]
+        );
         assert!(power_hypothesis("thermal").is_some());
     }
 }

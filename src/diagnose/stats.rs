@@ -84,15 +84,22 @@ pub fn t_upper_tail(t: f64, df: f64) -> f64 {
 pub fn normal_upper_tail(z: f64) -> f64 {
     let x = z.abs() / std::f64::consts::SQRT_2;
     let t = 1.0 / (1.0 + 0.5 * x);
-    let erfc = t * (-x * x - 1.265_512_23
-        + t * (1.000_023_68
-            + t * (0.374_091_96
-                + t * (0.096_784_18
-                    + t * (-0.186_288_06
-                        + t * (0.278_868_07
-                            + t * (-1.135_203_98 + t * (1.488_515_87 + t * (-0.822_152_23 + t * 0.170_872_77)))))))))
-        .exp();
-    if z >= 0.0 { 0.5 * erfc } else { 1.0 - 0.5 * erfc }
+    let erfc = t
+        * (-x * x - 1.265_512_23
+            + t * (1.000_023_68
+                + t * (0.374_091_96
+                    + t * (0.096_784_18
+                        + t * (-0.186_288_06
+                            + t * (0.278_868_07
+                                + t * (-1.135_203_98
+                                    + t * (1.488_515_87
+                                        + t * (-0.822_152_23 + t * 0.170_872_77)))))))))
+            .exp();
+    if z >= 0.0 {
+        0.5 * erfc
+    } else {
+        1.0 - 0.5 * erfc
+    }
 }
 
 /// One-sided Wilcoxon signed-rank test that the paired differences `d` are shifted above zero
@@ -100,7 +107,11 @@ pub fn normal_upper_tail(z: f64) -> f64 {
 /// fewer than 6 non-zero differences give p = 1. Rank-based, so a few trials with huge
 /// improvements neither dominate nor hide a consistent shift.
 pub fn signed_rank_positive(d: &[f64]) -> (f64, f64) {
-    let mut v: Vec<f64> = d.iter().copied().filter(|x| *x != 0.0 && x.is_finite()).collect();
+    let mut v: Vec<f64> = d
+        .iter()
+        .copied()
+        .filter(|x| *x != 0.0 && x.is_finite())
+        .collect();
     let n = v.len();
     if n < 6 {
         return (0.0, 1.0);
@@ -141,7 +152,11 @@ pub fn paired_t_positive(d: &[f64]) -> (f64, f64) {
     let mean = d.iter().sum::<f64>() / n as f64;
     let var = d.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
     if var <= 0.0 {
-        return if mean > 0.0 { (f64::INFINITY, 0.0) } else { (0.0, 1.0) };
+        return if mean > 0.0 {
+            (f64::INFINITY, 0.0)
+        } else {
+            (0.0, 1.0)
+        };
     }
     let t = mean / (var / n as f64).sqrt();
     (t, t_upper_tail(t, (n - 1) as f64))
@@ -225,7 +240,9 @@ mod tests {
         assert!((z - 27.0 / 96.25f64.sqrt()).abs() < 1e-9);
         assert!((p - normal_upper_tail(z)).abs() < 1e-15 && p < 0.003);
         // Symmetric differences: no evidence.
-        let d: Vec<f64> = (1..=20).map(|k| if k % 2 == 0 { k as f64 } else { -(k as f64) }).collect();
+        let d: Vec<f64> = (1..=20)
+            .map(|k| if k % 2 == 0 { k as f64 } else { -(k as f64) })
+            .collect();
         assert!(signed_rank_positive(&d).1 > 0.2);
     }
 }

@@ -15,9 +15,16 @@ fn fmt_param(p: &Param) -> String {
             (2 - a.log10().floor() as i32).clamp(0, 6) as usize
         }
     };
-    let d = digits(if p.std_err.is_finite() && p.std_err > 0.0 { p.std_err } else { p.value });
+    let d = digits(if p.std_err.is_finite() && p.std_err > 0.0 {
+        p.std_err
+    } else {
+        p.value
+    });
     if p.std_err.is_finite() {
-        format!("{} = {:.*} ± {:.*} {}", p.symbol, d, p.value, d, p.std_err, p.unit)
+        format!(
+            "{} = {:.*} ± {:.*} {}",
+            p.symbol, d, p.value, d, p.std_err, p.unit
+        )
     } else {
         format!("{} = {:.*} {}", p.symbol, d, p.value, p.unit)
     }
@@ -25,9 +32,13 @@ fn fmt_param(p: &Param) -> String {
 
 fn assumption(s: &HypothesisScore) -> &'static str {
     match s.id.as_str() {
-        LATENCY_ID => "the model assumes each power reading describes the window just before its time stamp",
+        LATENCY_ID => {
+            "the model assumes each power reading describes the window just before its time stamp"
+        }
         PAYLOAD_ID => "the URDF has no load at the hand",
-        id => power_hypothesis(id).map(|h| h.model_assumes).unwrap_or("the model lacks this effect"),
+        id => power_hypothesis(id)
+            .map(|h| h.model_assumes)
+            .unwrap_or("the model lacks this effect"),
     }
 }
 
@@ -60,12 +71,24 @@ pub fn summarise(d: &Diagnosis) -> String {
             .iter()
             .enumerate()
             .max_by(|a, b| a.1.total_cmp(b.1))
-            .map(|(j, v)| format!("{} ({v:.2} Nm)", t.joints.get(j).cloned().unwrap_or_default()))
+            .map(|(j, v)| {
+                format!(
+                    "{} ({v:.2} Nm)",
+                    t.joints.get(j).cloned().unwrap_or_default()
+                )
+            })
             .unwrap_or_default();
-        let _ = writeln!(s, "Torque: URDF inverse dynamics + fitted joint friction vs tau_est; worst joint {worst}.");
+        let _ = writeln!(
+            s,
+            "Torque: URDF inverse dynamics + fitted joint friction vs tau_est; worst joint {worst}."
+        );
     }
     let f = &d.final_model;
-    let base = if d.base_model == "reference" { "the twin's power model" } else { "the base model (refitted per fold)" };
+    let base = if d.base_model == "reference" {
+        "the twin's power model"
+    } else {
+        "the base model (refitted per fold)"
+    };
     let _ = writeln!(
         s,
         "Power: {base} predicts held-out readings with R² = {:.3}, RMSE = {:.2} W (per trial R² = {:.3}).",
@@ -73,13 +96,17 @@ pub fn summarise(d: &Diagnosis) -> String {
     );
     if let Some((by, g)) = &d.worst {
         if g.p_value < 1e-3 {
-            let dir = if g.bias_w > 0.0 { "under-predicted" } else { "over-predicted" };
+            let dir = if g.bias_w > 0.0 {
+                "under-predicted"
+            } else {
+                "over-predicted"
+            };
             let mut where_ = format!("in the {by} group \"{}\"", g.label);
             let bj = braking_joints(d);
-            if by.starts_with("braking") || by == "regime" && g.label.starts_with("braking") {
-                if !bj.is_empty() {
-                    where_ = format!("while braking on {}", bj.join(", "));
-                }
+            if (by.starts_with("braking") || by == "regime" && g.label.starts_with("braking"))
+                && !bj.is_empty()
+            {
+                where_ = format!("while braking on {}", bj.join(", "));
             }
             let _ = writeln!(
                 s,
@@ -87,13 +114,24 @@ pub fn summarise(d: &Diagnosis) -> String {
                 g.bias_w, g.n_trials, g.p_value
             );
         } else {
-            let _ = writeln!(s, "Where: no group of readings has a significant residual bias (best p = {:.2}).", g.p_value);
+            let _ = writeln!(
+                s,
+                "Where: no group of readings has a significant residual bias (best p = {:.2}).",
+                g.p_value
+            );
         }
     }
-    if let Some(best) = d.lag_scan.iter().min_by(|a, b| a.rmse_w.total_cmp(&b.rmse_w)) {
-        if best.lag_s > 0.0 {
-            let _ = writeln!(s, "Time alignment: the base model fits best if readings lag the kinematics by {:.2} s.", best.lag_s);
-        }
+    if let Some(best) = d
+        .lag_scan
+        .iter()
+        .min_by(|a, b| a.rmse_w.total_cmp(&b.rmse_w))
+        .filter(|b| b.lag_s > 0.0)
+    {
+        let _ = writeln!(
+            s,
+            "Time alignment: the base model fits best if readings lag the kinematics by {:.2} s.",
+            best.lag_s
+        );
     }
     if d.accepted.is_empty() {
         match d.hypotheses.first() {
@@ -113,7 +151,12 @@ pub fn summarise(d: &Diagnosis) -> String {
         }
     }
     for h in &d.accepted {
-        let shown = d.final_model.params.iter().find(|p| h.params.first().map(|q| q.symbol == p.symbol).unwrap_or(false));
+        let shown = d.final_model.params.iter().find(|p| {
+            h.params
+                .first()
+                .map(|q| q.symbol == p.symbol)
+                .unwrap_or(false)
+        });
         let p = shown.or(h.params.first());
         let _ = writeln!(
             s,
@@ -147,7 +190,10 @@ pub fn summarise(d: &Diagnosis) -> String {
     }
     let sig: Vec<_> = d.unexplained.iter().filter(|c| c.significant).collect();
     if sig.is_empty() {
-        let _ = writeln!(s, "Unexplained: no significant correlation of the remaining residual with any recorded signal.");
+        let _ = writeln!(
+            s,
+            "Unexplained: no significant correlation of the remaining residual with any recorded signal."
+        );
     } else {
         for c in sig.iter().take(3) {
             let trials: Vec<String> = c.trials.iter().map(|t| t.to_string()).collect();

@@ -32,7 +32,10 @@ pub(crate) fn session(n_trials: usize, seed: u64, fx: Effects) -> (Recording, Ve
     let inertia = [0.3, 0.3, 0.1, 0.1, 0.02, 0.02, 0.01];
     let speeds = [0.5, 1.0, 1.5, 2.0, 2.5];
     let noise_tau = Normal::new(0.0, 0.05).unwrap();
-    let mut rec = Recording { joint_names: (0..7).map(|j| format!("j{j}")).collect(), ..Default::default() };
+    let mut rec = Recording {
+        joint_names: (0..7).map(|j| format!("j{j}")).collect(),
+        ..Default::default()
+    };
     let mut windows = Vec::new();
     let mut t = 0.0;
     let mut power_t = Vec::new(); // (t, instantaneous power)
@@ -62,7 +65,9 @@ pub(crate) fn session(n_trials: usize, seed: u64, fx: Effects) -> (Recording, Ve
         }
         let mut segs: Vec<([f64; 7], [f64; 7], f64)> = Vec::new();
         for p in waypoints.windows(2) {
-            let dmax = (0..7).map(|j| (p[1][j] - p[0][j]).abs()).fold(0.0, f64::max);
+            let dmax = (0..7)
+                .map(|j| (p[1][j] - p[0][j]).abs())
+                .fold(0.0, f64::max);
             segs.push((p[0], p[1], (1.5 * dmax / qdot_max).max(0.3)));
         }
         let last = *waypoints.last().unwrap();
@@ -100,14 +105,17 @@ pub(crate) fn session(n_trials: usize, seed: u64, fx: Effects) -> (Recording, Ve
                 put(&last, &[0.0; 7], t_ret, t - t_post_end);
             }
             let tau = tau_of(&q, &ddq, &dq);
-            let temp: [f64; 7] = std::array::from_fn(|_| (70.0 - 20.0 * t / (n_trials as f64 * 14.0)).round());
+            let temp: [f64; 7] =
+                std::array::from_fn(|_| (70.0 - 20.0 * t / (n_trials as f64 * 14.0)).round());
             let mut p = 120.0 + PowerModel::PAPER.predict(&tau, &dq, &tau0_sq);
             if let Some(r) = fx.braking_r {
                 p += (r - 1.0) * (0..7).map(|j| (tau[j] * dq[j]).min(0.0)).sum::<f64>();
             }
             if let Some(a) = fx.thermal_alpha {
                 let b = PowerModel::PAPER.b;
-                p += (0..7).map(|j| b[j] * a * (temp[j] - 25.0) * (tau[j] * tau[j] - tau0_sq[j])).sum::<f64>();
+                p += (0..7)
+                    .map(|j| b[j] * a * (temp[j] - 25.0) * (tau[j] * tau[j] - tau0_sq[j]))
+                    .sum::<f64>();
             }
             if let Some(k) = fx.harness_k {
                 p += k * (1.0 - q[3].cos()) * dq[3].abs();
@@ -116,13 +124,26 @@ pub(crate) fn session(n_trials: usize, seed: u64, fx: Effects) -> (Recording, Ve
             rec.state.t.push(t);
             rec.state.q.push(q);
             rec.state.dq.push(dq);
-            rec.state.tau.push(std::array::from_fn(|j| tau[j] + noise_tau.sample(&mut rng)));
+            rec.state
+                .tau
+                .push(std::array::from_fn(|j| tau[j] + noise_tau.sample(&mut rng)));
             rec.state.temp.push(temp);
-            rec.state.gyro.push([0.002 * rng.random_range(-1.0..1.0), 0.0, 0.0]);
+            rec.state
+                .gyro
+                .push([0.002 * rng.random_range(-1.0..1.0), 0.0, 0.0]);
             rec.state.quat.push([1.0, 0.0, 0.0, 0.0]);
             t += 1.0 / RATE;
         }
-        windows.push(TrialWindow { index, t_pre, t_traj, t_traj_end, t_post_end, t_return_end, joints_moved: moved, qdot_max });
+        windows.push(TrialWindow {
+            index,
+            t_pre,
+            t_traj,
+            t_traj_end,
+            t_post_end,
+            t_return_end,
+            joints_moved: moved,
+            qdot_max,
+        });
     }
     // 1 Hz sensor on its own clock: mean power over [ts − L − 0.2, ts − L] plus noise.
     let lag = fx.latency_s.unwrap_or(0.0);

@@ -22,7 +22,12 @@ const N_TORQUE: usize = N_FRICTION + 4;
 /// Rigid-body model used at the torque level.
 pub trait ArmModel {
     /// Inverse dynamics τ(q, q̇, q̈) of the URDF arm [Nm].
-    fn inverse_dynamics(&self, q: &[f64; N_JOINTS], dq: &[f64; N_JOINTS], ddq: &[f64; N_JOINTS]) -> [f64; N_JOINTS];
+    fn inverse_dynamics(
+        &self,
+        q: &[f64; N_JOINTS],
+        dq: &[f64; N_JOINTS],
+        ddq: &[f64; N_JOINTS],
+    ) -> [f64; N_JOINTS];
     /// ∂τ/∂[m, m·cx, m·cy, m·cz] of a point payload at the hand.
     fn payload_regressor(
         &self,
@@ -58,13 +63,20 @@ struct TorqueRow {
     x: [[f64; N_TORQUE]; N_JOINTS],
 }
 
-fn rows(rec: &Recording, trials: &[TrialMeta], model: &dyn ArmModel, stride: usize) -> Vec<TorqueRow> {
+fn rows(
+    rec: &Recording,
+    trials: &[TrialMeta],
+    model: &dyn ArmModel,
+    stride: usize,
+) -> Vec<TorqueRow> {
     let s = &rec.state;
     let mut out = Vec::new();
     for (ti, meta) in trials.iter().enumerate() {
         let w = &meta.window;
         let i0 = s.t.partition_point(|&t| t < w.t_pre).max(2);
-        let i1 = s.t.partition_point(|&t| t < w.t_return_end).min(s.t.len().saturating_sub(2));
+        let i1 =
+            s.t.partition_point(|&t| t < w.t_return_end)
+                .min(s.t.len().saturating_sub(2));
         let mut k = i0;
         while k < i1 {
             let (Some(q), Some(dq), Some(tau), Some(a), Some(b), Some(ta), Some(tb)) = (
@@ -86,7 +98,11 @@ fn rows(rec: &Recording, trials: &[TrialMeta], model: &dyn ArmModel, stride: usi
             let ddq: [f64; N_JOINTS] = std::array::from_fn(|i| (b[i] - a[i]) / dt);
             let tau_id = model.inverse_dynamics(q, dq, &ddq);
             let y = model.payload_regressor(q, dq, &ddq);
-            let mut row = TorqueRow { trial: ti, r: [0.0; N_JOINTS], x: [[0.0; N_TORQUE]; N_JOINTS] };
+            let mut row = TorqueRow {
+                trial: ti,
+                r: [0.0; N_JOINTS],
+                x: [[0.0; N_TORQUE]; N_JOINTS],
+            };
             for j in 0..N_JOINTS {
                 row.r[j] = tau[j] - tau_id[j];
                 row.x[j][2 * j] = (dq[j] / COULOMB_VELOCITY).tanh();
@@ -95,7 +111,14 @@ fn rows(rec: &Recording, trials: &[TrialMeta], model: &dyn ArmModel, stride: usi
                     row.x[j][N_FRICTION + c] = y[(j, c)];
                 }
             }
-            out.push(row);
+            if row
+                .r
+                .iter()
+                .chain(row.x.iter().flatten())
+                .all(|v| v.is_finite())
+            {
+                out.push(row);
+            }
         }
     }
     out
@@ -110,7 +133,12 @@ struct Gram {
 
 impl Gram {
     fn zeros() -> Gram {
-        Gram { g: DMatrix::zeros(N_TORQUE, N_TORQUE), h: DVector::zeros(N_TORQUE), yy: 0.0, n: 0 }
+        Gram {
+            g: DMatrix::zeros(N_TORQUE, N_TORQUE),
+            h: DVector::zeros(N_TORQUE),
+            yy: 0.0,
+            n: 0,
+        }
     }
 
     fn add(&mut self, row: &TorqueRow) {
@@ -131,7 +159,12 @@ impl Gram {
     }
 
     fn minus(&self, o: &Gram) -> Gram {
-        Gram { g: &self.g - &o.g, h: &self.h - &o.h, yy: self.yy - o.yy, n: self.n - o.n }
+        Gram {
+            g: &self.g - &o.g,
+            h: &self.h - &o.h,
+            yy: self.yy - o.yy,
+            n: self.n - o.n,
+        }
     }
 }
 
@@ -144,7 +177,10 @@ fn solve(gr: &Gram, p: usize) -> DVector<f64> {
         gr2[(i, i)] += 1e-9 * scale;
     }
     let h = gr.h.rows(0, p).into_owned();
-    let sol = gr2.cholesky().map(|c| c.solve(&h)).unwrap_or_else(|| DVector::zeros(p));
+    let sol = gr2
+        .cholesky()
+        .map(|c| c.solve(&h))
+        .unwrap_or_else(|| DVector::zeros(p));
     let mut full = DVector::zeros(N_TORQUE);
     full.rows_mut(0, p).copy_from(&sol);
     full
@@ -176,7 +212,8 @@ pub(crate) fn torque_level(
         .iter()
         .map(|m| {
             let t = &rec.state.t;
-            t.partition_point(|&x| x < m.window.t_return_end) - t.partition_point(|&x| x < m.window.t_pre)
+            t.partition_point(|&x| x < m.window.t_return_end)
+                - t.partition_point(|&x| x < m.window.t_pre)
         })
         .sum();
     let stride = in_trials.div_ceil(max_samples.max(1)).max(1);
@@ -199,8 +236,8 @@ pub(crate) fn torque_level(
     let mut pred_base = vec![[0.0; N_JOINTS]; rows.len()];
     let mut pred_pay = vec![[0.0; N_JOINTS]; rows.len()];
     let mut fold_pay: Vec<[f64; 4]> = Vec::new();
-    for f in 0..folds.k {
-        let train = total.minus(&fold_grams[f]);
+    for (f, fold) in fold_grams.iter().enumerate() {
+        let train = total.minus(fold);
         let b0 = solve(&train, N_FRICTION);
         let b1 = solve(&train, N_TORQUE);
         fold_pay.push(std::array::from_fn(|c| b1[N_FRICTION + c]));
@@ -212,9 +249,13 @@ pub(crate) fn torque_level(
         }
     }
     // Flatten per joint-equation for errors.
-    let flat = |p: &[[f64; N_JOINTS]]| -> Vec<f64> { p.iter().flat_map(|a| a.iter().copied()).collect() };
+    let flat =
+        |p: &[[f64; N_JOINTS]]| -> Vec<f64> { p.iter().flat_map(|a| a.iter().copied()).collect() };
     let y: Vec<f64> = rows.iter().flat_map(|r| r.r.iter().copied()).collect();
-    let trial_of: Vec<usize> = rows.iter().flat_map(|r| std::iter::repeat_n(r.trial, N_JOINTS)).collect();
+    let trial_of: Vec<usize> = rows
+        .iter()
+        .flat_map(|r| std::iter::repeat_n(r.trial, N_JOINTS))
+        .collect();
     let (pb, pp) = (flat(&pred_base), flat(&pred_pay));
     let before = trial_sse(&y, &pb, &trial_of, n_trials);
     let after = trial_sse(&y, &pp, &trial_of, n_trials);
@@ -225,12 +266,14 @@ pub(crate) fn torque_level(
 
     let b0 = solve(&total, N_FRICTION);
     let b1 = solve(&total, N_TORQUE);
-    let delta_bic = bic(sse(&total, &b1), total.n, N_TORQUE) - bic(sse(&total, &b0), total.n, N_FRICTION);
+    let delta_bic =
+        bic(sse(&total, &b1), total.n, N_TORQUE) - bic(sse(&total, &b0), total.n, N_FRICTION);
     let m = b1[N_FRICTION];
     let com: [f64; 3] = std::array::from_fn(|c| b1[N_FRICTION + 1 + c] / m);
     let m_se = jackknife_se(&fold_pay.iter().map(|p| p[0]).collect::<Vec<_>>());
-    let com_se: Vec<f64> =
-        (0..3).map(|c| jackknife_se(&fold_pay.iter().map(|p| p[1 + c] / p[0]).collect::<Vec<_>>())).collect();
+    let com_se: Vec<f64> = (0..3)
+        .map(|c| jackknife_se(&fold_pay.iter().map(|p| p[1 + c] / p[0]).collect::<Vec<_>>()))
+        .collect();
     let plausible = (0.02..=5.0).contains(&m) && com.iter().all(|c| c.abs() <= 0.3);
     let mut params = vec![Param {
         name: "payload mass at the hand".into(),
@@ -268,9 +311,9 @@ pub(crate) fn torque_level(
     };
 
     let n = rows.len() as f64;
-    let mut bias = vec![0.0; N_JOINTS];
-    let mut ms = vec![0.0; N_JOINTS];
-    let mut ms_f = vec![0.0; N_JOINTS];
+    let mut bias = [0.0; N_JOINTS];
+    let mut ms = [0.0; N_JOINTS];
+    let mut ms_f = [0.0; N_JOINTS];
     for row in &rows {
         let fr = predict(row, &b0);
         for j in 0..N_JOINTS {
@@ -282,11 +325,14 @@ pub(crate) fn torque_level(
     let comparison = TorqueComparison {
         joints: rec.joint_names.clone(),
         n_samples: rows.len(),
-        bias_urdf: bias,
+        bias_urdf: bias.to_vec(),
         rmse_urdf: ms.iter().map(|v| v.sqrt()).collect(),
         rmse_with_friction: ms_f.iter().map(|v| v.sqrt()).collect(),
         coulomb_nm: (0..N_JOINTS).map(|j| b0[2 * j]).collect(),
         viscous_nms: (0..N_JOINTS).map(|j| b0[2 * j + 1]).collect(),
     };
-    Ok(Some(TorqueLevel { comparison, payload }))
+    Ok(Some(TorqueLevel {
+        comparison,
+        payload,
+    }))
 }
