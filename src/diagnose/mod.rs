@@ -155,10 +155,21 @@ pub struct ReplayData {
     pub before_w: Vec<f64>,
     /// Held-out prediction with the accepted hypotheses [W].
     pub after_w: Vec<f64>,
-    /// Trials to highlight (worst residuals, carriers of unexplained structure), with the reason.
-    pub highlighted: Vec<(usize, String)>,
-    /// Trial windows (index, trajectory start, return end) [s].
-    pub trials: Vec<(usize, f64, f64)>,
+    /// Trials to highlight (worst residuals, carriers of unexplained structure).
+    pub highlighted: Vec<HighlightedTrial>,
+}
+
+/// A trial the replay should point the user to.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct HighlightedTrial {
+    /// Trial index (segmentation numbering).
+    pub trial: usize,
+    /// Trajectory start [s, Recording time].
+    pub t_start: f64,
+    /// Return end [s].
+    pub t_end: f64,
+    /// Why it is highlighted.
+    pub reason: String,
 }
 
 /// Everything a diagnosis found (serialised as diagnosis.json).
@@ -501,15 +512,24 @@ pub fn diagnose_trials(
         })
         .collect::<Result<Vec<_>>>()?;
 
-    let mut highlighted: Vec<(usize, String)> = worst_trials
+    let mark = |trial: usize, reason: String| {
+        let w = metas.iter().find(|m| m.window.index == trial).map(|m| &m.window);
+        HighlightedTrial {
+            trial,
+            t_start: w.map_or(0.0, |w| w.t_traj),
+            t_end: w.map_or(0.0, |w| w.t_return_end),
+            reason,
+        }
+    };
+    let mut highlighted: Vec<HighlightedTrial> = worst_trials
         .iter()
         .take(5)
-        .map(|t| (t.trial, format!("held-out residual {:+.2} W", t.mean_w)))
+        .map(|t| mark(t.trial, format!("largest held-out residual of the base model: {:+.2} W", t.mean_w)))
         .collect();
     for c in unexplained.iter().filter(|c| c.significant) {
         for &t in &c.trials {
-            if !highlighted.iter().any(|h| h.0 == t) {
-                highlighted.push((t, format!("carries unexplained structure ({})", c.feature)));
+            if !highlighted.iter().any(|h| h.trial == t) {
+                highlighted.push(mark(t, format!("carries unexplained structure ({})", c.feature)));
             }
         }
     }
@@ -520,10 +540,6 @@ pub fn diagnose_trials(
         before_w: sel.base.cv.pred.clone(),
         after_w: last.cv.pred.clone(),
         highlighted,
-        trials: metas
-            .iter()
-            .map(|m| (m.window.index, m.window.t_traj, m.window.t_return_end))
-            .collect(),
     };
     let mut diag = Diagnosis {
         schema_version: SCHEMA_VERSION,
