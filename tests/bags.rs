@@ -441,10 +441,11 @@ fn not_a_bag_is_a_format_error() {
     assert!(Ros2BagSource::open(&db, &OpenOptions::default()).is_err());
 }
 
-/// Compressed variants written by the Python `rosbags` library (bz2 and lz4 ROS 1 chunks,
-/// overlapping chunks, zstd file- and message-compressed rosbag2) read like their sources.
+/// Variants written by the Python `rosbags` library (bz2 and lz4 ROS 1 chunks, overlapping
+/// chunks, zstd file- and message-compressed rosbag2) read like their sources; a connection of
+/// an unknown type without definition is a clear error until `--msg-path` supplies it.
 #[test]
-fn compressed_bags_written_by_rosbags() {
+fn bags_written_by_rosbags_at_run_time() {
     let Some(shared) = shared() else { return };
     let importable = Command::new("python3")
         .args(["-c", "import rosbags"])
@@ -492,6 +493,41 @@ fn compressed_bags_written_by_rosbags() {
         assert!(msgs == first_n, "{name} differs from its source");
         assert_eq!(source.info().unwrap().messages as usize, n);
     }
+
+    // A connection without definition and of a type that is not built in.
+    let unknown = tmp.path().join("unknown.bag");
+    let mut source = Ros1BagSource::open(&unknown, &OpenOptions::default()).unwrap();
+    let err = read_all_err(&mut source, Some(&["/lf/bmsstate"]));
+    for needle in ["acme_msgs/BatteryState", "/lf/bmsstate", "--msg-path", "acme_msgs/msg/BatteryState.msg"] {
+        assert!(err.contains(needle), "{needle:?} missing in: {err}");
+    }
+    let (msgs, summary) = read_all(&mut source, None);
+    assert!(summary.warnings.iter().any(|w| w.contains("acme_msgs/BatteryState")));
+    let known: Vec<&Msg> = first_n.iter().filter(|m| m.0 != "/lf/bmsstate").collect();
+    assert_eq!(msgs.iter().collect::<Vec<_>>(), known);
+    let msg_dir = tmp.path().join("msgs");
+    std::fs::create_dir_all(msg_dir.join("acme_msgs/msg")).unwrap();
+    std::fs::copy(
+        shared.join("msg/unitree_hg/BmsState.msg"),
+        msg_dir.join("acme_msgs/msg/BatteryState.msg"),
+    )
+    .unwrap();
+    let opts = OpenOptions {
+        msg_paths: vec![msg_dir],
+    };
+    let mut source = Ros1BagSource::open(&unknown, &opts).unwrap();
+    let mut volts = Vec::new();
+    source
+        .read(Some(&["/lf/bmsstate"]), &mut |m| {
+            let v = g1viz::read::decode::decode(&m.channel.schema, Encoding::Ros1, m.data)
+                .map_err(|e| ReadError::Other(e.to_string()))?;
+            let path = g1viz::read::FieldPath::parse("bmsvoltage[0]").unwrap();
+            volts.push(v.get(&path).and_then(|x| x.as_f64()).unwrap());
+            Ok(())
+        })
+        .unwrap();
+    assert_eq!(volts.len(), first_n.iter().filter(|m| m.0 == "/lf/bmsstate").count());
+    assert!(volts.iter().all(|mv| (40_000.0..60_000.0).contains(mv)), "{volts:?}");
 
     let (db3_all, _) = read_all(
         &mut Ros2BagSource::open(
@@ -546,6 +582,22 @@ def ros1_copy(dst, compression=None, reorder=False):
             for c, t, d in msgs:
                 w.write(conns[c.id], t, d)
 
+def ros1_unknown_type(dst):
+    # /lf/bmsstate as a type nobody knows, without a message definition
+    with Reader1(bag1) as r:
+        with Writer1(dst) as w:
+            conns = {}
+            for c in r.connections:
+                unknown = c.topic == '/lf/bmsstate'
+                conns[c.id] = w.add_connection(
+                    c.topic, 'acme_msgs/msg/BatteryState' if unknown else c.msgtype,
+                    msgdef='' if unknown else c.msgdef.data, md5sum=c.digest)
+            for i, (c, t, d) in enumerate(r.messages()):
+                if i >= n:
+                    break
+                w.write(conns[c.id], t, d)
+
+ros1_unknown_type(out / 'unknown.bag')
 ros1_copy(out / 'bz2.bag', Writer1.CompressionFormat.BZ2)
 ros1_copy(out / 'lz4.bag', Writer1.CompressionFormat.LZ4)
 ros1_copy(out / 'overlap.bag', reorder=True)
