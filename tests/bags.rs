@@ -341,8 +341,7 @@ fn definitions_from_msg_path_builtin_or_a_clear_error() {
 fn read_all_err(source: &mut dyn MessageSource, topics: Option<&[&str]>) -> String {
     source
         .read(topics, &mut |_| Ok(()))
-        .err()
-        .expect("expected an error")
+        .expect_err("expected an error")
         .to_string()
 }
 
