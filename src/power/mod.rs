@@ -91,7 +91,13 @@ impl PowerModel {
 
     /// Build a model from θ in the documented order.
     pub fn from_vector(v: &[f64; N_PARAMS]) -> Self {
-        let mut m = PowerModel { a: [0.0; N_JOINTS], b: [0.0; N_JOINTS], c: [0.0; N_JOINTS], d: [0.0; N_JOINTS], e: [0.0; N_PAIRS] };
+        let mut m = PowerModel {
+            a: [0.0; N_JOINTS],
+            b: [0.0; N_JOINTS],
+            c: [0.0; N_JOINTS],
+            d: [0.0; N_JOINTS],
+            e: [0.0; N_PAIRS],
+        };
         m.a.copy_from_slice(&v[..N_JOINTS]);
         m.b.copy_from_slice(&v[N_JOINTS..2 * N_JOINTS]);
         m.c.copy_from_slice(&v[2 * N_JOINTS..3 * N_JOINTS]);
@@ -102,7 +108,12 @@ impl PowerModel {
 
     /// Predicted net arm power [W] for one sample. No allocation: cheap enough for an RL reward loop.
     #[inline]
-    pub fn predict(&self, tau: &[f64; N_JOINTS], dq: &[f64; N_JOINTS], tau0_sq: &[f64; N_JOINTS]) -> f64 {
+    pub fn predict(
+        &self,
+        tau: &[f64; N_JOINTS],
+        dq: &[f64; N_JOINTS],
+        tau0_sq: &[f64; N_JOINTS],
+    ) -> f64 {
         let mut p = 0.0;
         for i in 0..N_JOINTS {
             p += self.a[i] * tau[i] * dq[i]
