@@ -31,7 +31,7 @@ enum Inner {
     /// size or duration, so the files follow each other in time).
     Mcap {
         bag: PathBuf,
-        files: Vec<Box<dyn MessageSource>>,
+        files: Vec<super::mcap::McapSource>,
     },
 }
 
@@ -138,7 +138,7 @@ impl Ros2BagSource {
                 }
                 let files = files
                     .iter()
-                    .map(|f| open_mcap(f, opts))
+                    .map(|f| super::mcap::McapSource::open(f, opts))
                     .collect::<Result<Vec<_>, _>>()?;
                 Ok(Ros2BagSource {
                     inner: Inner::Mcap { bag: dir, files },
@@ -240,14 +240,6 @@ impl MessageSource for Ros2BagSource {
             }
         }
     }
-}
-
-fn open_mcap(path: &Path, _opts: &OpenOptions) -> Result<Box<dyn MessageSource>, ReadError> {
-    // TODO(merge): super::mcap::McapSource::open once the MCAP reader lands on main.
-    Err(ReadError::Other(format!(
-        "{}: MCAP reader not available yet",
-        path.display()
-    )))
 }
 
 /// Combine the infos of consecutive split files into one.
