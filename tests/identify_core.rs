@@ -667,3 +667,29 @@ fn report_writes_markdown_and_readable_pngs() {
         .collect();
     assert!(leftovers.is_empty(), "temporary files left behind");
 }
+
+#[test]
+fn collinear_columns_reach_the_same_objective() {
+    // The paper's collinearity: when two joints share a velocity profile, |q̇_i||q̇_j| ≡ q̇_i² (up to scale), so
+    // θ is not unique. Both solvers must still terminate at the same minimum and satisfy the KKT conditions.
+    let (mut phi, y) = random_problem(80, 10, 21);
+    let dup = phi.column(3).clone_owned() * 2.0;
+    phi.column_mut(7).copy_from(&dup);
+    let bounds = Bounds::lower(&[0.0; 10]);
+    let c = fit_general(&phi, &y, &bounds, Method::Clarabel).unwrap();
+    let b = fit_general(&phi, &y, &bounds, Method::Bvls).unwrap();
+    assert!(
+        close(c.rss, b.rss, 1e-7),
+        "objectives {} vs {}",
+        c.rss,
+        b.rss
+    );
+    assert!(
+        kkt_check(&phi, &y, &b.theta, &bounds)
+            .unwrap()
+            .max_violation()
+            < 1e-8
+    );
+    // The identifiable combination θ3 + 2θ7 agrees.
+    assert!((c.theta[3] + 2.0 * c.theta[7] - b.theta[3] - 2.0 * b.theta[7]).abs() < 1e-5);
+}
