@@ -68,6 +68,10 @@ pub struct FieldExtractor {
 }
 
 /// Decode a whole payload into a [`Value`] tree.
-pub fn decode(_schema: &MsgSchema, _encoding: Encoding, _data: &[u8]) -> Result<Value, DecodeError> {
+pub fn decode(
+    _schema: &MsgSchema,
+    _encoding: Encoding,
+    _data: &[u8],
+) -> Result<Value, DecodeError> {
     Err(DecodeError::Invalid("decoder not implemented yet".into()))
 }
