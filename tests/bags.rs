@@ -705,3 +705,44 @@ fn mcap_storage_bag_is_delegated() {
     assert!(got == want, "MCAP-storage bag differs from the MCAP");
     assert_eq!(bag.info().unwrap().messages as usize, want.len());
 }
+
+/// A damaged chunk in an indexed bag stops the read there with a warning naming its offset;
+/// the chunks before it are delivered.
+#[test]
+fn damaged_chunk_stops_the_read_with_its_offset() {
+    let Some(shared) = shared() else { return };
+    let path = shared.join("recordings/g1_smoke.bag");
+    let mut bytes = std::fs::read(&path).unwrap();
+    let (full, _) = read_all(
+        &mut Ros1BagSource::open(&path, &OpenOptions::default()).unwrap(),
+        None,
+    );
+    // Spoil the compression field of the 4th chunk record.
+    let needle = b"compression=none";
+    let at = bytes
+        .windows(needle.len())
+        .enumerate()
+        .filter(|(_, w)| *w == needle)
+        .nth(3)
+        .unwrap()
+        .0;
+    bytes[at + 12..at + 16].copy_from_slice(b"zzzz");
+    let tmp = tempfile::tempdir().unwrap();
+    let bad = tmp.path().join("bad.bag");
+    std::fs::write(&bad, &bytes).unwrap();
+    let mut source = Ros1BagSource::open(&bad, &OpenOptions::default()).unwrap();
+    let (msgs, summary) = read_all(&mut source, None);
+    assert!(!summary.complete);
+    let warning = summary.warnings.join("\n");
+    assert!(
+        warning.contains("zzzz") && warning.contains("byte offset"),
+        "{warning}"
+    );
+    // Three whole chunks (~350 messages each) came through, in order.
+    assert!(
+        msgs.len() > 900 && msgs.len() < full.len(),
+        "{}",
+        msgs.len()
+    );
+    assert_eq!(msgs[..], full[..msgs.len()]);
+}
