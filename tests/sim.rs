@@ -8,7 +8,13 @@ use std::path::{Path, PathBuf};
 use g1viz::sim::{Artefacts, Preset, SimConfig, simulate};
 
 fn tiny(seed: u64) -> SimConfig {
-    SimConfig { preset: Preset::Tiny, seed, progress: false, artefacts: Artefacts::NONE, ..SimConfig::default() }
+    SimConfig {
+        preset: Preset::Tiny,
+        seed,
+        progress: false,
+        artefacts: Artefacts::NONE,
+        ..SimConfig::default()
+    }
 }
 
 fn tmp() -> tempfile::TempDir {
@@ -73,8 +79,14 @@ fn decode(path: &Path) -> Decoded {
 }
 
 /// Mean of `f(sample)` over the state samples in (end − 0.2 s, end].
-fn window_mean(state: &[(f64, [f64; 7], [f64; 7], [f64; 7], [f64; 7])], end: f64, f: impl Fn(usize) -> f64) -> f64 {
-    let idx: Vec<usize> = (0..state.len()).filter(|&k| state[k].0 > end - 0.2 && state[k].0 <= end).collect();
+fn window_mean(
+    state: &[(f64, [f64; 7], [f64; 7], [f64; 7], [f64; 7])],
+    end: f64,
+    f: impl Fn(usize) -> f64,
+) -> f64 {
+    let idx: Vec<usize> = (0..state.len())
+        .filter(|&k| state[k].0 > end - 0.2 && state[k].0 <= end)
+        .collect();
     idx.iter().map(|&k| f(k)).sum::<f64>() / idx.len().max(1) as f64
 }
 
@@ -88,7 +100,11 @@ fn pair(effect: &str, tweak: impl Fn(&mut SimConfig)) -> (Decoded, Decoded, temp
     with.effects.enable(effect).unwrap();
     simulate(&base, &dir.path().join("a.mcap")).unwrap();
     simulate(&with, &dir.path().join("b.mcap")).unwrap();
-    (decode(&dir.path().join("a.mcap")), decode(&dir.path().join("b.mcap")), dir)
+    (
+        decode(&dir.path().join("a.mcap")),
+        decode(&dir.path().join("b.mcap")),
+        dir,
+    )
 }
 
 /// Compare the MBS differences (with − without) to the test's own prediction per reading.
@@ -106,9 +122,23 @@ fn assert_diff_matches(a: &Decoded, b: &Decoded, predicted: impl Fn(f64) -> f64,
     }
     let n = a.mbs.len() as f64;
     let rmse = (sum_err2 / n).sqrt();
-    eprintln!("effect: measured mean {:.4} W, predicted mean {:.4} W, rmse {:.4} W", sum_d / n, sum_p / n, rmse);
-    assert!(sum_p.abs() / n > 0.05, "the effect must be visible (predicted mean {:.4} W)", sum_p / n);
-    assert!(((sum_d - sum_p) / sum_p).abs() < rel_tol, "mean {:.4} W vs predicted {:.4} W", sum_d / n, sum_p / n);
+    eprintln!(
+        "effect: measured mean {:.4} W, predicted mean {:.4} W, rmse {:.4} W",
+        sum_d / n,
+        sum_p / n,
+        rmse
+    );
+    assert!(
+        sum_p.abs() / n > 0.05,
+        "the effect must be visible (predicted mean {:.4} W)",
+        sum_p / n
+    );
+    assert!(
+        ((sum_d - sum_p) / sum_p).abs() < rel_tol,
+        "mean {:.4} W vs predicted {:.4} W",
+        sum_d / n,
+        sum_p / n
+    );
 }
 
 #[test]
@@ -130,10 +160,17 @@ fn same_seed_gives_identical_bytes() {
 fn official_python_reader_decodes_the_file() {
     let dir = tmp();
     let out = dir.path().join("s.mcap");
-    let cfg = SimConfig { artefacts: Artefacts::default(), ..tiny(3) };
+    let cfg = SimConfig {
+        artefacts: Artefacts::default(),
+        ..tiny(3)
+    };
     simulate(&cfg, &out).unwrap();
     let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/py/check_sim_mcap.py");
-    let run = std::process::Command::new("python3").arg(&script).arg(&out).arg(out.with_extension("truth.json")).output();
+    let run = std::process::Command::new("python3")
+        .arg(&script)
+        .arg(&out)
+        .arg(out.with_extension("truth.json"))
+        .output();
     let Ok(run) = run else {
         eprintln!("note: python3 not available; independent-reader check skipped");
         return;
@@ -141,10 +178,15 @@ fn official_python_reader_decodes_the_file() {
     let stdout = String::from_utf8_lossy(&run.stdout);
     let stderr = String::from_utf8_lossy(&run.stderr);
     if run.status.code() == Some(2) {
-        eprintln!("note: python modules mcap / mcap-ros2-support missing ({stderr}); check skipped");
+        eprintln!(
+            "note: python modules mcap / mcap-ros2-support missing ({stderr}); check skipped"
+        );
         return;
     }
-    assert!(run.status.success(), "python check failed:\n{stdout}\n{stderr}");
+    assert!(
+        run.status.success(),
+        "python check failed:\n{stdout}\n{stderr}"
+    );
 }
 
 #[test]
@@ -155,14 +197,28 @@ fn rates_rest_power_and_protocol() {
     let d = decode(&out);
     let dur = d.state.last().unwrap().0 - d.state[0].0;
     assert!((d.state.len() as f64 / dur - 100.0).abs() < 0.5);
-    assert!((d.mbs.len() as f64 / dur - 1.0).abs() < 0.06, "{} MBS readings in {dur} s", d.mbs.len());
+    assert!(
+        (d.mbs.len() as f64 / dur - 1.0).abs() < 0.06,
+        "{} MBS readings in {dur} s",
+        d.mbs.len()
+    );
     assert_eq!(d.n_cmd, d.state.len());
     // MBS ≈ 120 W and BMS ≈ 135 W before the first motion (the paper's rest figures).
     let t_first = (truth.trials[0].t_traj_start_ns - truth.session.start_ns) as f64 * 1e-9;
-    let rest: Vec<f64> = d.mbs.iter().filter(|r| r.0 < t_first).map(|r| r.1).collect();
+    let rest: Vec<f64> = d
+        .mbs
+        .iter()
+        .filter(|r| r.0 < t_first)
+        .map(|r| r.1)
+        .collect();
     let mean = rest.iter().sum::<f64>() / rest.len() as f64;
     assert!((mean - 120.0).abs() < 1.5, "MBS rest {mean}");
-    let rest_b: Vec<f64> = d.bms.iter().filter(|r| r.0 < t_first).map(|r| r.1).collect();
+    let rest_b: Vec<f64> = d
+        .bms
+        .iter()
+        .filter(|r| r.0 < t_first)
+        .map(|r| r.1)
+        .collect();
     let mean_b = rest_b.iter().sum::<f64>() / rest_b.len() as f64;
     assert!((mean_b - 135.0).abs() < 6.0, "BMS rest {mean_b}");
     // q follows the protocol: at home in pre-idle, at the last waypoint in post-idle (10 ms lag,
@@ -170,24 +226,44 @@ fn rates_rest_power_and_protocol() {
     let s0 = truth.session.start_ns;
     for tr in &truth.trials {
         let at = |ns: u64| (ns - s0) as f64 * 1e-9;
-        let (pre0, traj0, traj1, post1) =
-            (at(tr.t_trial_start_ns), at(tr.t_traj_start_ns), at(tr.t_traj_end_ns), at(tr.t_post_idle_end_ns));
+        let (pre0, traj0, traj1, post1) = (
+            at(tr.t_trial_start_ns),
+            at(tr.t_traj_start_ns),
+            at(tr.t_traj_end_ns),
+            at(tr.t_post_idle_end_ns),
+        );
         let last = tr.waypoints_rad.last().unwrap();
         let mut peak: f64 = 0.0;
         for (t, q, dq, _, _) in &d.state {
             if *t > pre0 + 0.05 && *t < traj0 {
-                assert!(q.iter().all(|v| v.abs() < 1e-3), "not at home in pre-idle at {t}");
+                assert!(
+                    q.iter().all(|v| v.abs() < 1e-3),
+                    "not at home in pre-idle at {t}"
+                );
             }
             if *t > traj1 + 0.1 && *t < post1 {
                 for i in 0..7 {
-                    assert!((q[i] - last[i]).abs() < 1e-3, "joint {i} off the final waypoint at {t}");
+                    assert!(
+                        (q[i] - last[i]).abs() < 1e-3,
+                        "joint {i} off the final waypoint at {t}"
+                    );
                 }
             }
             if *t > traj0 && *t < traj1 {
-                peak = peak.max(tr.joints_moved.iter().map(|&j| dq[j].abs()).fold(0.0, f64::max));
+                peak = peak.max(
+                    tr.joints_moved
+                        .iter()
+                        .map(|&j| dq[j].abs())
+                        .fold(0.0, f64::max),
+                );
             }
         }
-        assert!((peak - tr.qdot_max).abs() < 0.03, "trial {}: peak {peak} vs level {}", tr.index, tr.qdot_max);
+        assert!(
+            (peak - tr.qdot_max).abs() < 0.03,
+            "trial {}: peak {peak} vs level {}",
+            tr.index,
+            tr.qdot_max
+        );
     }
 }
 
@@ -249,7 +325,9 @@ fn thermal_drift_scales_the_copper_term_with_winding_temperature() {
     let predicted = |end: f64| {
         window_mean(&b.state, end, |s| {
             let (_, _, _, tau, temp) = &b.state[s];
-            (0..7).map(|i| model.b[i] * alpha * (temp[i] - 25.0) * (tau[i] * tau[i] - tau0_sq[i])).sum()
+            (0..7)
+                .map(|i| model.b[i] * alpha * (temp[i] - 25.0) * (tau[i] * tau[i] - tau0_sq[i]))
+                .sum()
         })
     };
     // Temperatures are recorded in 1 °C steps: ±0.5 K of ~45 K.
@@ -279,7 +357,12 @@ fn latency_shifts_the_power_readings() {
         cov / (vx * vy).sqrt()
     };
     let (a0, a_l, b0, b_l) = (corr(&a, 0.0), corr(&a, lat), corr(&b, 0.0), corr(&b, lat));
-    eprintln!("corr without latency: {a0:.3} (unshifted) {a_l:.3} (shifted); with: {b0:.3} {b_l:.3}");
-    assert!(a0 > a_l && b_l > b0, "latency must move the best-matching window");
+    eprintln!(
+        "corr without latency: {a0:.3} (unshifted) {a_l:.3} (shifted); with: {b0:.3} {b_l:.3}"
+    );
+    assert!(
+        a0 > a_l && b_l > b0,
+        "latency must move the best-matching window"
+    );
     assert!(b_l > 0.9);
 }

@@ -49,7 +49,9 @@ impl ArmDynamics {
     }
     /// With a point mass at the hand.
     pub fn with_payload(&self, p: &Payload) -> Self {
-        ArmDynamics { extra_mass: self.extra_mass + p.mass_kg }
+        ArmDynamics {
+            extra_mass: self.extra_mass + p.mass_kg,
+        }
     }
     /// Gravity torque.
     pub fn gravity_torque(&self, q: &[f64; 7]) -> [f64; 7] {
