@@ -414,6 +414,19 @@ fn identify_reports_no_usable_trials_clearly() {
         err.starts_with("no usable trials in synthetic.mcap"),
         "{err}"
     );
+    // Motion, but never at home: not the protocol, and the error says why.
+    let away = synth_recording(
+        &[
+            Piece::Hold(3.0),
+            Piece::Move(posture(&[(1, 0.5)]), 1.0),
+            Piece::Hold(3.0),
+        ],
+        posture(&[(1, 0.3)]),
+    );
+    let err = pipeline::identify(&[away], &IdentifyOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("never at rest at home"), "{err}");
     // Trials but no power readings: the reason names the missing baseline.
     let (rec, _) = protocol_session();
     let opts = IdentifyOptions {
