@@ -446,41 +446,37 @@ impl Walker<'_, '_> {
         ty: &FieldType,
         count: usize,
         mut pos: usize,
-        path: &str,
+        name: &str,
     ) -> Result<(Vec<Value>, usize), DecodeError> {
-        let what = || path.to_string();
+        let what = || name.to_string();
         self.check_within(pos.saturating_add(count.min(1)), &what)?;
         let mut out = Vec::with_capacity(count.min(4096));
         for _ in 0..count {
-            let (v, p) = self.decode_one(ty, pos, path)?;
+            let (v, p) = self.decode_one(ty, pos, name)?;
             out.push(v);
             pos = p;
         }
         Ok((out, pos))
     }
 
+    /// Decode one element; `name` is the field being decoded (for error messages).
     fn decode_one(
         &self,
         ty: &FieldType,
         pos: usize,
-        path: &str,
+        name: &str,
     ) -> Result<(Value, usize), DecodeError> {
         match ty {
-            FieldType::Primitive(p) => self.read_prim(*p, pos, &|| path.to_string()),
-            FieldType::Message(name) => {
+            FieldType::Primitive(p) => self.read_prim(*p, pos, &|| name.to_string()),
+            FieldType::Message(type_name) => {
                 let msg = self
                     .schema
-                    .get(name)
+                    .get(type_name)
                     .map_err(|e| DecodeError::Invalid(e.to_string()))?;
                 let mut fields = Vec::with_capacity(msg.fields.len());
                 let mut p = pos;
                 for f in &msg.fields {
-                    let sub = if path.is_empty() {
-                        f.name.clone()
-                    } else {
-                        format!("{path}.{}", f.name)
-                    };
-                    let (v, next) = self.decode_field(f, p, &sub)?;
+                    let (v, next) = self.decode_field(f, p)?;
                     fields.push((f.name.clone(), v));
                     p = next;
                 }
@@ -489,24 +485,19 @@ impl Walker<'_, '_> {
         }
     }
 
-    fn decode_field(
-        &self,
-        f: &Field,
-        pos: usize,
-        path: &str,
-    ) -> Result<(Value, usize), DecodeError> {
-        let what = || path.to_string();
+    fn decode_field(&self, f: &Field, pos: usize) -> Result<(Value, usize), DecodeError> {
+        let what = || f.name.clone();
         match f.array {
-            ArrayKind::Single => self.decode_one(&f.ty, pos, path),
+            ArrayKind::Single => self.decode_one(&f.ty, pos, &f.name),
             ArrayKind::Fixed(n) => {
-                let (v, p) = self.decode_elements(&f.ty, n, pos, path)?;
+                let (v, p) = self.decode_elements(&f.ty, n, pos, &f.name)?;
                 Ok((Value::Array(v), p))
             }
             ArrayKind::Unbounded | ArrayKind::Bounded(_) => {
                 let (n, after) = self
                     .length(pos, &what)?
                     .ok_or_else(|| DecodeError::Invalid("layout walk".into()))?;
-                let (v, p) = self.decode_elements(&f.ty, n, after, path)?;
+                let (v, p) = self.decode_elements(&f.ty, n, after, &f.name)?;
                 Ok((Value::Array(v), p))
             }
         }
@@ -532,7 +523,7 @@ pub fn decode(schema: &MsgSchema, encoding: Encoding, data: &[u8]) -> Result<Val
     schema
         .root_type()
         .map_err(|e| DecodeError::Invalid(e.to_string()))?;
-    Ok(walker.decode_one(&root, base, "")?.0)
+    Ok(walker.decode_one(&root, base, &schema.root)?.0)
 }
 
 impl Value {
