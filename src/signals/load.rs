@@ -4,14 +4,13 @@
 use std::collections::HashMap;
 use std::io::IsTerminal;
 use std::path::Path;
-use std::sync::Arc;
 
 use anyhow::bail;
 
 use super::Recording;
 use super::map::{GROUPS, Group, SignalMap, group_signals};
 use crate::N_JOINTS;
-use crate::read::{Channel, FieldExtractor, FieldPath, OpenOptions, ReadError, Session};
+use crate::read::{FieldExtractor, FieldPath, OpenOptions, ReadError, Session};
 
 /// Detailed warnings of one kind before they are only counted.
 const MAX_DETAILED_WARNINGS: usize = 10;
@@ -62,8 +61,10 @@ pub fn load_recording(
 
     let progress = progress_bar(&mut session);
     let mut warnings = Vec::new();
-    // Per channel (by identity): (group index, extractor) for each group reading its topic.
-    let mut extractors: HashMap<*const Channel, Vec<(usize, FieldExtractor)>> = HashMap::new();
+    // Per topic: the type the extractors were compiled for, and (group index, extractor) for
+    // each group reading the topic.
+    type Compiled = (String, Vec<(usize, FieldExtractor)>);
+    let mut extractors: HashMap<String, Compiled> = HashMap::new();
     let mut row = Vec::new();
     // Samples go straight into the typed series (no intermediate copy); times are set at the end.
     let mut rec = Recording {
@@ -75,26 +76,27 @@ pub fn load_recording(
     let file = path.display().to_string();
     let summary = session.read(Some(&topics), &mut |msg| {
         count += 1;
-        if count % 4096 == 0 {
-            if let Some(pb) = &progress {
-                pb.set_position(count);
-            }
+        if count.is_multiple_of(4096)
+            && let Some(pb) = &progress
+        {
+            pb.set_position(count);
         }
-        let key = Arc::as_ptr(msg.channel);
-        if !extractors.contains_key(&key) {
+        let topic = msg.channel.topic.as_str();
+        let known = extractors.get(topic).is_some_and(|(ty, _)| *ty == msg.channel.type_name);
+        if !known {
             let mut list = Vec::new();
-            for (gi, plan) in plans.iter().enumerate().filter(|(_, p)| p.topic == msg.channel.topic) {
+            for (gi, plan) in plans.iter().enumerate().filter(|(_, p)| p.topic == topic) {
                 let ex = FieldExtractor::compile(&msg.channel.schema, msg.channel.encoding, &plan.paths).map_err(|e| {
                     ReadError::Other(format!(
-                        "{file}: topic {} ({}): schema does not match the signal map ({:?} signals): {e}",
-                        msg.channel.topic, msg.channel.type_name, plan.group
+                        "{file}: topic {topic} ({}): schema does not match the signal map ({:?} signals): {e}",
+                        msg.channel.type_name, plan.group
                     ))
                 })?;
                 list.push((gi, ex));
             }
-            extractors.insert(key, list);
+            extractors.insert(topic.to_string(), (msg.channel.type_name.clone(), list));
         }
-        for (gi, ex) in extractors.get(&key).map(Vec::as_slice).unwrap_or(&[]) {
+        for (gi, ex) in extractors.get(topic).map(|(_, l)| l.as_slice()).unwrap_or(&[]) {
             let plan = &mut plans[*gi];
             row.resize(ex.len(), 0.0);
             if let Err(e) = ex.extract(msg.data, &mut row) {
