@@ -1,1 +1,760 @@
-//! (stage diagnose: to be written)
+//! Sim-to-real mismatch diagnosis: compare the twin (URDF dynamics + identified power model)
+//! with a recording at the torque and power levels, locate where they disagree, name the
+//! missing physics from a library of hypotheses scored by trial-wise cross-validation, model it
+//! (refit with the accepted hypotheses), and report it in words, figures and JSON.
+//!
+//! Pipeline of [`diagnose_trials`]: trial windows → per-reading rows (φ, hypothesis features,
+//! descriptors over each reading's own sensor window) → IMU and 3σ trial filters → rows at every
+//! scanned sensor lag → greedy forward selection at the power level ([`select`]) and the payload
+//! hypothesis at the torque level ([`torque`]) → final refit → breakdowns and correlates of
+//! the held-out residuals ([`locate`]) → plain-language summary ([`summary`]).
+
+pub mod data;
+pub mod hypotheses;
+pub mod locate;
+mod qp;
+pub mod report;
+pub mod select;
+pub mod stats;
+pub mod summary;
+#[cfg(test)]
+mod testkit;
+pub mod torque;
+
+use anyhow::{Result, bail};
+
+pub use data::{Phase, TrialWindow};
+pub use locate::{Breakdown, Correlate, Group, TrialResidual};
+pub use select::{HypothesisScore, Param};
+pub use torque::{ArmModel, TorqueComparison};
+
+use crate::N_PARAMS;
+use crate::power::PowerModel;
+use crate::signals::{PowerSeries, Recording};
+use data::{Rows, TrialMeta, build_rows, trial_meta};
+use hypotheses::{LATENCY_ID, POWER_HYPOTHESES};
+use select::{PowerData, Rule, r2_rmse};
+
+/// Version of the `diagnosis.json` layout.
+pub const SCHEMA_VERSION: u32 = 1;
+
+/// Which power sensor is the target.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum Target {
+    /// Main-board sensor (arm/upper-body rail): the paper's target.
+    Mbs,
+    /// Battery management system (whole robot).
+    Bms,
+}
+
+/// Settings of a diagnosis.
+#[derive(Debug, Clone)]
+pub struct DiagnoseOptions {
+    /// The twin's power model (e.g. a model.json identified earlier, or the paper's model). When
+    /// given, the base model is held at it and the hypotheses explain the recording's departure
+    /// from the twin (an effect that shifts every reading, like a warm motor, is visible). When
+    /// absent, the base model is refitted on the training trials of every fold and the hypotheses
+    /// must explain structure the 49 base parameters cannot absorb.
+    pub reference: Option<PowerModel>,
+    /// Power target.
+    pub target: Target,
+    /// Number of cross-validation folds (by trial).
+    pub folds: usize,
+    /// Significance level of the paired held-out test.
+    pub alpha: f64,
+    /// ΔBIC a hypothesis must beat (negative).
+    pub bic_threshold: f64,
+    /// Minimum relative held-out RMSE improvement.
+    pub min_improvement: f64,
+    /// Power sensor averaging window W [s] (a reading stamped t averages [t − W, t]).
+    pub sensor_window_s: f64,
+    /// Largest sensor latency scanned [s] (0 disables the latency hypothesis).
+    pub max_lag_s: f64,
+    /// IMU filter: reject trials whose σ_ω exceeds this multiple of the median.
+    pub imu_threshold: f64,
+    /// Passes of 3σ per-trial residual rejection.
+    pub outlier_passes: usize,
+    /// Cap on torque samples used at the torque level (evenly thinned beyond it).
+    pub max_torque_samples: usize,
+}
+
+impl Default for DiagnoseOptions {
+    fn default() -> Self {
+        DiagnoseOptions {
+            reference: None,
+            target: Target::Mbs,
+            folds: 5,
+            alpha: 1e-3,
+            bic_threshold: -10.0,
+            min_improvement: 0.01,
+            sensor_window_s: 0.2,
+            max_lag_s: 1.0,
+            imu_threshold: 2.5,
+            outlier_passes: 2,
+            max_torque_samples: 60_000,
+        }
+    }
+}
+
+/// Held-out quality of a model.
+#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
+pub struct Quality {
+    /// Coefficient of determination.
+    pub r2: f64,
+    /// Root-mean-square error [W].
+    pub rmse_w: f64,
+}
+
+/// One point of the sensor-lag scan.
+#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
+pub struct LagPoint {
+    /// Assumed latency [s].
+    pub lag_s: f64,
+    /// In-sample RMSE of the base model refitted at this lag [W].
+    pub rmse_w: f64,
+}
+
+/// A trial left out of the diagnosis and why.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct RejectedTrial {
+    /// Trial index (segmentation numbering).
+    pub trial: usize,
+    /// Reason with its statistic.
+    pub reason: String,
+}
+
+/// The model refitted with the accepted hypotheses.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct FinalModel {
+    /// Accepted hypotheses, in the order they were added.
+    pub hypotheses: Vec<String>,
+    /// Their physical parameters with standard errors (jackknife over the folds).
+    pub params: Vec<Param>,
+    /// Base power-model θ (49) of the final refit (a, b, c, d, e order).
+    pub theta: Vec<f64>,
+    /// Held-out quality of the base model (per reading).
+    pub before: Quality,
+    /// Held-out quality with the accepted hypotheses (per reading).
+    pub after: Quality,
+    /// The same per trial (mean of each trial's readings), before.
+    pub before_per_trial: Quality,
+    /// The same per trial, after.
+    pub after_per_trial: Quality,
+}
+
+/// Data for the replay: per power reading, measured and predicted net power.
+#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
+pub struct ReplayData {
+    /// Reading time stamp [s, Recording time].
+    pub t: Vec<f64>,
+    /// Trial index of each reading (segmentation numbering).
+    pub trial: Vec<usize>,
+    /// Measured net power [W].
+    pub measured_w: Vec<f64>,
+    /// Held-out prediction of the base model [W].
+    pub before_w: Vec<f64>,
+    /// Held-out prediction with the accepted hypotheses [W].
+    pub after_w: Vec<f64>,
+    /// Trials to highlight (worst residuals, carriers of unexplained structure).
+    pub highlighted: Vec<HighlightedTrial>,
+}
+
+/// A trial the replay should point the user to.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct HighlightedTrial {
+    /// Trial index (segmentation numbering).
+    pub trial: usize,
+    /// Trajectory start [s, Recording time].
+    pub t_start: f64,
+    /// Return end [s].
+    pub t_end: f64,
+    /// Why it is highlighted.
+    pub reason: String,
+}
+
+/// Everything a diagnosis found (serialised as diagnosis.json).
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct Diagnosis {
+    /// Layout version ([`SCHEMA_VERSION`]).
+    pub schema_version: u32,
+    /// Recording diagnosed.
+    pub source: String,
+    /// Power target.
+    pub target: Target,
+    /// URDF joint names.
+    pub joint_names: Vec<String>,
+    /// Trials used.
+    pub n_trials: usize,
+    /// Power readings used.
+    pub n_readings: usize,
+    /// Trials left out, with reasons.
+    pub rejected: Vec<RejectedTrial>,
+    /// Torque level (absent without a robot model or torque data).
+    pub torque: Option<TorqueComparison>,
+    /// How the base model was obtained: `reference` (held at the twin's model) or `refit` (per fold).
+    pub base_model: String,
+    /// Sensor-lag scan of the base model.
+    pub lag_scan: Vec<LagPoint>,
+    /// Residual breakdowns of the base model (held out).
+    pub breakdowns: Vec<Breakdown>,
+    /// Where the base model is worst: (breakdown, group).
+    pub worst: Option<(String, Group)>,
+    /// Trials with the largest held-out base residual.
+    pub worst_trials: Vec<TrialResidual>,
+    /// Every hypothesis scored against the base model, ranked (1 = best).
+    pub hypotheses: Vec<HypothesisScore>,
+    /// Accepted hypotheses in selection order, scored at their step.
+    pub accepted: Vec<HypothesisScore>,
+    /// The refit with the accepted hypotheses.
+    pub final_model: FinalModel,
+    /// Residual structure left after the final model: strongest correlates.
+    pub unexplained: Vec<Correlate>,
+    /// Plain-language summary.
+    pub summary: String,
+    /// Per-reading data for the replay.
+    pub replay: ReplayData,
+}
+
+impl Diagnosis {
+    /// Write diagnosis.json (atomic).
+    pub fn save_json(&self, path: &std::path::Path) -> Result<()> {
+        let text = serde_json::to_string_pretty(self)?;
+        crate::util::write_atomic(path, text.as_bytes())
+    }
+}
+
+fn power_series(rec: &Recording, target: Target) -> &PowerSeries {
+    match target {
+        Target::Mbs => &rec.mbs,
+        Target::Bms => &rec.bms,
+    }
+}
+
+/// Reject balance-contaminated trials (σ_ω above `k` × median), as the identification does.
+fn imu_filter(metas: Vec<TrialMeta>, k: f64, rejected: &mut Vec<RejectedTrial>) -> Vec<TrialMeta> {
+    let mut s: Vec<f64> = metas.iter().map(|m| m.sigma_omega).collect();
+    s.sort_by(f64::total_cmp);
+    let med = s.get(s.len() / 2).copied().unwrap_or(0.0);
+    let (keep, out): (Vec<_>, Vec<_>) = metas.into_iter().partition(|m| m.sigma_omega <= k * med);
+    for m in out {
+        rejected.push(RejectedTrial {
+            trial: m.window.index,
+            reason: format!(
+                "IMU: σ_ω = {:.4} rad/s > {k} × median {:.4}",
+                m.sigma_omega, med
+            ),
+        });
+    }
+    keep
+}
+
+/// Per-trial mean in-sample residual of the base model fitted to `rows`.
+fn base_trial_residuals(
+    rows: &Rows,
+    n_trials: usize,
+    folds: usize,
+    reference: Option<Vec<f64>>,
+) -> Result<Vec<Option<f64>>> {
+    let data = PowerData::new(vec![0.0], vec![rows.clone()], n_trials, folds, reference);
+    let fit = data.fit_all(&[], 0)?;
+    let mut sum = vec![0.0; n_trials];
+    let mut cnt = vec![0usize; n_trials];
+    for r in 0..rows.len() {
+        let p: f64 = rows.x[r]
+            .iter()
+            .zip(fit.beta.iter())
+            .map(|(a, b)| a * b)
+            .sum();
+        sum[rows.trial[r]] += rows.y[r] - p;
+        cnt[rows.trial[r]] += 1;
+    }
+    Ok((0..n_trials)
+        .map(|t| (cnt[t] > 0).then(|| sum[t] / cnt[t] as f64))
+        .collect())
+}
+
+/// Diagnose a recording whose trials are already segmented. `arm` enables the torque level.
+pub fn diagnose_trials(
+    rec: &Recording,
+    windows: &[TrialWindow],
+    arm: Option<&dyn ArmModel>,
+    opts: &DiagnoseOptions,
+) -> Result<Diagnosis> {
+    let power = power_series(rec, opts.target);
+    if power.t.is_empty() {
+        bail!(
+            "{}: no {:?} power readings to diagnose",
+            rec.source.display(),
+            opts.target
+        );
+    }
+    let w = opts.sensor_window_s;
+    let reference: Option<Vec<f64>> = opts.reference.map(|m| m.to_vector().to_vec());
+    let mut rejected = Vec::new();
+    let (metas, skipped) = trial_meta(rec, windows);
+    rejected.extend(
+        skipped
+            .into_iter()
+            .map(|(trial, reason)| RejectedTrial { trial, reason }),
+    );
+    let mut metas = imu_filter(metas, opts.imu_threshold, &mut rejected);
+
+    // 3σ passes on per-trial mean residuals of the base model (hardware-event outliers).
+    for _ in 0..opts.outlier_passes {
+        let rows = build_rows(rec, power, &metas, 0.0, w, false);
+        let res = base_trial_residuals(&rows, metas.len(), opts.folds, reference.clone())?;
+        let vals: Vec<f64> = res.iter().flatten().copied().collect();
+        if vals.len() < 10 {
+            break;
+        }
+        let mean = vals.iter().sum::<f64>() / vals.len() as f64;
+        let sd =
+            (vals.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (vals.len() - 1) as f64).sqrt();
+        let before = metas.len();
+        let mut keep = Vec::new();
+        for (m, r) in metas.into_iter().zip(&res) {
+            match r {
+                Some(r) if (r - mean).abs() > 3.0 * sd => rejected.push(RejectedTrial {
+                    trial: m.window.index,
+                    reason: format!("3σ: mean residual {r:+.2} W, |r − mean| > 3 × {sd:.2} W"),
+                }),
+                None => rejected.push(RejectedTrial {
+                    trial: m.window.index,
+                    reason: "no power readings in the trial".into(),
+                }),
+                _ => keep.push(m),
+            }
+        }
+        metas = keep;
+        if metas.len() == before {
+            break;
+        }
+    }
+    if metas.len() < 2 * opts.folds.max(2) {
+        bail!(
+            "{}: only {} usable trials (need at least {} for {}-fold cross-validation by trial)",
+            rec.source.display(),
+            metas.len(),
+            2 * opts.folds.max(2),
+            opts.folds
+        );
+    }
+
+    // Rows at every scanned lag; keep only readings present at all lags (same readings everywhere).
+    let mut lags = vec![0.0];
+    if opts.max_lag_s > 0.0 {
+        let coarse = (opts.max_lag_s / 0.05).round() as usize;
+        lags.extend((1..=coarse).map(|k| k as f64 * 0.05));
+    }
+    let mut all_rows: Vec<Rows> = lags
+        .iter()
+        .map(|&l| build_rows(rec, power, &metas, l, w, l == 0.0))
+        .collect();
+    // Fine scan (0.01 s) around the base model's best coarse lag.
+    if lags.len() >= 3 {
+        let data = PowerData::new(
+            lags.clone(),
+            all_rows.clone(),
+            metas.len(),
+            opts.folds,
+            reference.clone(),
+        );
+        let sse: Vec<f64> = (0..lags.len())
+            .map(|l| {
+                data.fit_all(&[], l)
+                    .map(|f| data.grams[l].total.sse(&f.beta))
+            })
+            .collect::<Result<_>>()?;
+        let best = (0..lags.len())
+            .min_by(|&a, &b| sse[a].total_cmp(&sse[b]))
+            .unwrap_or(0);
+        let centre = lags[best];
+        for k in -4i32..=4 {
+            let l = centre + 0.01 * k as f64;
+            if l > 0.0 && l <= opts.max_lag_s && lags.iter().all(|x| (x - l).abs() > 1e-6) {
+                lags.push(l);
+                all_rows.push(build_rows(rec, power, &metas, l, w, false));
+            }
+        }
+        let mut order: Vec<usize> = (0..lags.len()).collect();
+        order.sort_by(|&a, &b| lags[a].total_cmp(&lags[b]));
+        lags = order.iter().map(|&i| lags[i]).collect();
+        all_rows = order.iter().map(|&i| all_rows[i].clone()).collect();
+    }
+    common_readings(&mut all_rows);
+    if all_rows[0].len() < 3 * (N_PARAMS + 10) / 2 {
+        bail!(
+            "{}: only {} power readings inside usable trials; too few to diagnose a {N_PARAMS}-parameter model",
+            rec.source.display(),
+            all_rows[0].len()
+        );
+    }
+    let data = PowerData::new(lags.clone(), all_rows, metas.len(), opts.folds, reference);
+    let rule = Rule {
+        alpha: opts.alpha,
+        bic_threshold: opts.bic_threshold,
+        min_improvement: opts.min_improvement,
+    };
+    let candidates: Vec<&'static hypotheses::Hypothesis> = POWER_HYPOTHESES.iter().collect();
+    let sel = select::select(&data, &candidates, &rule)?;
+
+    // Torque level.
+    let torque = match arm {
+        Some(a) => torque::torque_level(rec, &metas, a, &data.folds, opts.max_torque_samples)?,
+        None => None,
+    };
+    let mut ranked = sel.first_step.clone();
+    let mut accepted = sel.accepted.clone();
+    if let Some(t) = &torque {
+        let mut p = t.payload.clone();
+        let (ok, why) = rule.judge(&p);
+        p.accepted = ok;
+        p.verdict = why;
+        if ok {
+            accepted.push(p.clone());
+        }
+        ranked.push(p);
+    }
+    ranked.sort_by(|a, b| {
+        (b.accepted, b.rel_improvement)
+            .partial_cmp(&(a.accepted, a.rel_improvement))
+            .unwrap_or(std::cmp::Ordering::Equal)
+    });
+    for (i, s) in ranked.iter_mut().enumerate() {
+        s.rank = i + 1;
+    }
+
+    // Final model and held-out quality.
+    let last = &sel.last;
+    let rows0 = &data.rows[0];
+    let mut params = Vec::new();
+    for (j, h) in last.spec.iter().enumerate() {
+        let c = N_PARAMS + j;
+        let per_fold: Vec<f64> = last
+            .cv
+            .fold_theta
+            .iter()
+            .map(|t| (h.to_physical)(t[c]))
+            .collect();
+        params.push(Param {
+            name: h.title.into(),
+            symbol: h.symbol.into(),
+            value: (h.to_physical)(last.full.theta[c]),
+            std_err: select::jackknife_se(&per_fold),
+            unit: h.unit.into(),
+        });
+    }
+    if let Some(lat) = accepted.iter().find(|s| s.id == LATENCY_ID) {
+        params.extend(lat.params.iter().cloned());
+    }
+    if let Some(t) = torque
+        .as_ref()
+        .filter(|t| accepted.iter().any(|s| s.id == t.payload.id))
+    {
+        params.extend(t.payload.params.iter().cloned());
+    }
+    let y = &rows0.y;
+    let quality = |pred: &[f64]| {
+        let (r2, rmse_w) = r2_rmse(y, pred);
+        Quality { r2, rmse_w }
+    };
+    let per_trial = |pred: &[f64]| {
+        let n = metas.len();
+        let (mut ys, mut ps, mut c) = (vec![0.0; n], vec![0.0; n], vec![0usize; n]);
+        for r in 0..y.len() {
+            let t = rows0.trial[r];
+            ys[t] += y[r];
+            ps[t] += pred[r];
+            c[t] += 1;
+        }
+        let keep: Vec<usize> = (0..n).filter(|&t| c[t] > 0).collect();
+        let yt: Vec<f64> = keep.iter().map(|&t| ys[t] / c[t] as f64).collect();
+        let pt: Vec<f64> = keep.iter().map(|&t| ps[t] / c[t] as f64).collect();
+        let (r2, rmse_w) = r2_rmse(&yt, &pt);
+        Quality { r2, rmse_w }
+    };
+    let final_model = FinalModel {
+        hypotheses: accepted.iter().map(|s| s.id.clone()).collect(),
+        params,
+        theta: last.full.theta[..N_PARAMS].to_vec(),
+        before: quality(&sel.base.cv.pred),
+        after: quality(&last.cv.pred),
+        before_per_trial: per_trial(&sel.base.cv.pred),
+        after_per_trial: per_trial(&last.cv.pred),
+    };
+
+    // Locate with the base model's held-out residuals; correlate what the final model leaves.
+    let resid_base: Vec<f64> = y
+        .iter()
+        .zip(&sel.base.cv.pred)
+        .map(|(a, b)| a - b)
+        .collect();
+    let resid_final: Vec<f64> = data.rows[last.lag]
+        .y
+        .iter()
+        .zip(&last.cv.pred)
+        .map(|(a, b)| a - b)
+        .collect();
+    let breakdowns = locate::breakdowns(rows0, &metas, &resid_base, &rec.joint_names);
+    let worst = locate::worst(&breakdowns);
+    let worst_trials: Vec<TrialResidual> = locate::trial_residuals(rows0, &metas, &resid_base)
+        .into_iter()
+        .take(10)
+        .collect();
+    let unexplained = locate::correlates(rows0, &metas, &resid_final, &rec.joint_names, 0.01, 6);
+    let lag_scan = (0..lags.len())
+        .map(|l| {
+            let g = &data.grams[l].total;
+            data.fit_all(&[], l).map(|f| LagPoint {
+                lag_s: lags[l],
+                rmse_w: (g.sse(&f.beta) / g.n.max(1) as f64).sqrt(),
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
+
+    let mark = |trial: usize, reason: String| {
+        let w = metas.iter().find(|m| m.window.index == trial).map(|m| &m.window);
+        HighlightedTrial {
+            trial,
+            t_start: w.map_or(0.0, |w| w.t_traj),
+            t_end: w.map_or(0.0, |w| w.t_return_end),
+            reason,
+        }
+    };
+    let mut highlighted: Vec<HighlightedTrial> = worst_trials
+        .iter()
+        .take(5)
+        .map(|t| mark(t.trial, format!("largest held-out residual of the base model: {:+.2} W", t.mean_w)))
+        .collect();
+    for c in unexplained.iter().filter(|c| c.significant) {
+        for &t in &c.trials {
+            if !highlighted.iter().any(|h| h.trial == t) {
+                highlighted.push(mark(t, format!("carries unexplained structure ({})", c.feature)));
+            }
+        }
+    }
+    let replay = ReplayData {
+        t: rows0.t.clone(),
+        trial: rows0.trial.iter().map(|&t| metas[t].window.index).collect(),
+        measured_w: y.clone(),
+        before_w: sel.base.cv.pred.clone(),
+        after_w: last.cv.pred.clone(),
+        highlighted,
+    };
+    let mut diag = Diagnosis {
+        schema_version: SCHEMA_VERSION,
+        source: rec.source.display().to_string(),
+        target: opts.target,
+        joint_names: rec.joint_names.clone(),
+        n_trials: metas.len(),
+        n_readings: rows0.len(),
+        rejected,
+        torque: torque.map(|t| t.comparison),
+        base_model: if data.reference.is_some() {
+            "reference".into()
+        } else {
+            "refit".into()
+        },
+        lag_scan,
+        breakdowns,
+        worst,
+        worst_trials,
+        hypotheses: ranked,
+        accepted,
+        final_model,
+        unexplained,
+        summary: String::new(),
+        replay,
+    };
+    diag.summary = summary::summarise(&diag);
+    Ok(diag)
+}
+
+/// Keep, at every lag, only the readings present at all lags (a gap can drop a window at one lag).
+fn common_readings(all: &mut [Rows]) {
+    use std::collections::HashMap;
+    let mut count: HashMap<u64, usize> = HashMap::new();
+    for rows in all.iter() {
+        for t in &rows.t {
+            *count.entry(t.to_bits()).or_default() += 1;
+        }
+    }
+    let n = all.len();
+    for rows in all.iter_mut() {
+        let keep: Vec<bool> = rows
+            .t
+            .iter()
+            .map(|t| count.get(&t.to_bits()) == Some(&n))
+            .collect();
+        if keep.iter().all(|k| *k) {
+            continue;
+        }
+        let mut i = 0;
+        let mut filt = Rows::default();
+        for (r, k) in keep.iter().enumerate() {
+            if *k {
+                filt.trial.push(rows.trial[r]);
+                filt.t.push(rows.t[r]);
+                filt.phase.push(rows.phase[r]);
+                filt.y.push(rows.y[r]);
+                filt.x.push(rows.x[r]);
+                if let Some(l) = rows.locate.get(r) {
+                    filt.locate.push(*l);
+                }
+                i += 1;
+            }
+        }
+        debug_assert_eq!(i, filt.len());
+        *rows = filt;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::testkit::{Effects, session};
+    use super::*;
+
+    fn run(fx: Effects, seed: u64) -> Diagnosis {
+        run_with(fx, seed, &DiagnoseOptions::default())
+    }
+
+    fn run_with(fx: Effects, seed: u64, opts: &DiagnoseOptions) -> Diagnosis {
+        let (rec, windows) = session(60, seed, fx);
+        let d = diagnose_trials(&rec, &windows, None, opts).unwrap();
+        eprintln!("{}", d.summary);
+        for h in &d.hypotheses {
+            eprintln!(
+                "  {:>14} {:>10.4} p={:.1e} dBIC={:7.1} rel={:+.3} {}",
+                h.id, h.params[0].value, h.p_value, h.delta_bic, h.rel_improvement, h.verdict
+            );
+        }
+        d
+    }
+
+    #[test]
+    fn null_session_accepts_nothing() {
+        let d = run(Effects::default(), 1);
+        assert!(d.accepted.is_empty());
+        assert!(d.unexplained.iter().all(|c| !c.significant));
+    }
+
+    #[test]
+    fn braking_session_names_braking() {
+        let d = run(
+            Effects {
+                braking_r: Some(0.4),
+                ..Default::default()
+            },
+            2,
+        );
+        assert_eq!(d.hypotheses[0].id, "braking");
+        let r = d
+            .final_model
+            .params
+            .iter()
+            .find(|p| p.symbol == "r")
+            .unwrap()
+            .value;
+        assert!((r - 0.4).abs() < 0.04, "r = {r}");
+        assert!(d.final_model.after.r2 > d.final_model.before.r2);
+        let dir = std::env::var("DIAG_REPORT_DIR")
+            .map(std::path::PathBuf::from)
+            .unwrap_or_else(|_| {
+                std::env::temp_dir().join(format!("g1viz-diag-{}", std::process::id()))
+            });
+        report::write_report(&dir, &d).unwrap();
+        let md = std::fs::read_to_string(dir.join("report.md")).unwrap();
+        assert!(md.contains("| 1 | braking |"));
+        for f in report::FIGURES.iter().take(4) {
+            assert!(dir.join(f).metadata().unwrap().len() > 1000, "{f}");
+        }
+        let back: Diagnosis =
+            serde_json::from_str(&std::fs::read_to_string(dir.join("diagnosis.json")).unwrap())
+                .unwrap();
+        assert_eq!(back.accepted.len(), d.accepted.len());
+    }
+
+    #[test]
+    fn latency_session_finds_the_lag() {
+        let d = run(
+            Effects {
+                latency_s: Some(0.3),
+                ..Default::default()
+            },
+            3,
+        );
+        assert_eq!(d.hypotheses[0].id, "latency");
+        let l = d
+            .final_model
+            .params
+            .iter()
+            .find(|p| p.symbol == "L")
+            .unwrap()
+            .value;
+        assert!((l - 0.3).abs() < 0.03, "L = {l}");
+    }
+
+    #[test]
+    fn harness_drag_is_located_at_the_elbow() {
+        let d = run(
+            Effects {
+                harness_k: Some(4.0),
+                ..Default::default()
+            },
+            4,
+        );
+        let top = &d.unexplained[0];
+        assert!(top.significant && top.feature.starts_with("j3"), "{top:?}");
+    }
+}
+
+#[cfg(test)]
+mod twin_tests {
+    use super::testkit::{Effects, session};
+    use super::*;
+
+    fn twin() -> DiagnoseOptions {
+        DiagnoseOptions {
+            reference: Some(PowerModel::PAPER),
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn twin_mode_recovers_thermal_drift_and_accepts_nothing_on_null() {
+        let (rec, w) = session(
+            60,
+            5,
+            Effects {
+                thermal_alpha: Some(0.00393),
+                ..Default::default()
+            },
+        );
+        let d = diagnose_trials(&rec, &w, None, &twin()).unwrap();
+        eprintln!("{}", d.summary);
+        for h in &d.hypotheses {
+            eprintln!(
+                "  {:>14} {:>10.5} ± {:.5} p={:.1e} dBIC={:7.1} rel={:+.3}",
+                h.id,
+                h.params[0].value,
+                h.params[0].std_err,
+                h.p_value,
+                h.delta_bic,
+                h.rel_improvement
+            );
+        }
+        assert_eq!(d.hypotheses[0].id, "thermal");
+        let a = d
+            .final_model
+            .params
+            .iter()
+            .find(|p| p.symbol == "α")
+            .unwrap()
+            .value;
+        assert!((a - 0.00393).abs() < 0.1 * 0.00393, "α = {a}");
+        let (rec, w) = session(60, 6, Effects::default());
+        let d = diagnose_trials(&rec, &w, None, &twin()).unwrap();
+        eprintln!("{}", d.summary);
+        assert!(d.accepted.is_empty());
+    }
+}

@@ -7,6 +7,12 @@
 
 use crate::{N_JOINTS, N_PARAMS};
 
+mod model_file;
+pub use model_file::{
+    DatasetMetrics, DominantTerm, FilterRecord, ModelFile, ModelMetrics, Provenance, RejectedTrial,
+    SCHEMA_VERSION, SessionRef, SolverRecord, TrialCounts,
+};
+
 /// Number of pairwise interaction terms.
 pub const N_PAIRS: usize = N_JOINTS * (N_JOINTS - 1) / 2;
 
@@ -106,7 +112,33 @@ impl PowerModel {
         m
     }
 
-    /// Predicted net arm power [W] for one sample. No allocation: cheap enough for an RL reward loop.
+    /// Predicted net arm power [W] for one sample. No allocation: cheap enough for an RL reward loop
+    /// (`examples/bench_solve.rs` times it; tens of millions of calls per second).
+    ///
+    /// `tau0_sq` is the per-joint mean squared torque at rest in the reference posture (the trial's
+    /// pre-idle window in the paper); pass the squared gravity torques of the home posture when the
+    /// episode has no recorded idle window.
+    ///
+    /// An energy penalty for an RL reward, one call per control step:
+    ///
+    /// ```
+    /// use g1viz::power::PowerModel;
+    ///
+    /// let model = PowerModel::PAPER; // or ModelFile::load(path)?.model()
+    /// let tau0_sq = [4.0, 0.25, 0.1, 1.0, 0.0, 0.01, 0.0]; // (N·m)² at the home posture
+    /// let dt = 0.01; // 100 Hz control
+    /// let mut energy_j = 0.0;
+    /// for step in 0..100 {
+    ///     let t = step as f64 * dt;
+    ///     let tau = [2.0, 0.5, 0.3, 1.0 + t, 0.0, 0.1, 0.0]; // joint torques [N·m]
+    ///     let dq = [0.5, 0.0, 0.0, 1.0, 0.0, 0.0, 0.2]; // joint speeds [rad/s]
+    ///     let watts = model.predict(&tau, &dq, &tau0_sq);
+    ///     energy_j += watts * dt;
+    ///     let reward_energy_term = -0.01 * watts * dt;
+    ///     assert!(reward_energy_term.is_finite());
+    /// }
+    /// assert!(energy_j > 0.0);
+    /// ```
     #[inline]
     pub fn predict(
         &self,
@@ -134,3 +166,179 @@ impl PowerModel {
 /// the simulator's plant and the diagnosis hypotheses both use these so their physical
 /// parameters (e.g. bus resistance in Ω) mean the same thing.
 pub const JOINT_TORQUE_CONSTANT: [f64; N_JOINTS] = [1.3, 1.3, 1.3, 1.3, 0.7, 0.7, 0.7];
+
+/// The model's terms for one sample (or one averaged regressor row), in watts. Sums to the prediction.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct TermBreakdown {
+    /// Mechanical power a_i τ_i q̇_i per joint.
+    pub mechanical: [f64; N_JOINTS],
+    /// Copper loss b_i (τ_i² − τ̄0_i²) per joint (negative when the posture needs less holding torque).
+    pub copper: [f64; N_JOINTS],
+    /// Coulomb friction c_i |q̇_i| per joint.
+    pub coulomb: [f64; N_JOINTS],
+    /// Viscous friction d_i q̇_i² per joint.
+    pub viscous: [f64; N_JOINTS],
+    /// Interaction e_ij |q̇_i||q̇_j| per pair, in [`PAIRS`] order.
+    pub interaction: [f64; N_PAIRS],
+}
+
+/// Names of the five term categories, in the order of [`TermBreakdown::categories`].
+pub const TERM_NAMES: [&str; 5] = ["mechanical", "copper", "Coulomb", "viscous", "interaction"];
+
+impl TermBreakdown {
+    /// Sum of the interaction terms [W].
+    pub fn interaction_total(&self) -> f64 {
+        self.interaction.iter().sum()
+    }
+
+    /// Sum of one joint's own four terms [W] (interaction excluded).
+    pub fn joint_total(&self, joint: usize) -> f64 {
+        self.mechanical[joint] + self.copper[joint] + self.coulomb[joint] + self.viscous[joint]
+    }
+
+    /// Per-category totals over joints: [mechanical, copper, Coulomb, viscous, interaction] ([`TERM_NAMES`]).
+    pub fn categories(&self) -> [f64; 5] {
+        [
+            self.mechanical.iter().sum(),
+            self.copper.iter().sum(),
+            self.coulomb.iter().sum(),
+            self.viscous.iter().sum(),
+            self.interaction_total(),
+        ]
+    }
+
+    /// Total predicted net power [W] (equals [`PowerModel::predict`] for the same inputs).
+    pub fn total(&self) -> f64 {
+        self.categories().iter().sum()
+    }
+}
+
+/// Running mean of the five term categories over a dataset (samples or trajectory rows).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct TermMeans {
+    sums: [f64; 5],
+    n: usize,
+}
+
+impl TermMeans {
+    /// Add one breakdown.
+    pub fn add(&mut self, b: &TermBreakdown) {
+        for (s, v) in self.sums.iter_mut().zip(b.categories()) {
+            *s += v;
+        }
+        self.n += 1;
+    }
+
+    /// Number of breakdowns added.
+    pub fn count(&self) -> usize {
+        self.n
+    }
+
+    /// Mean of each category [W] ([`TERM_NAMES`] order); zeros when empty.
+    pub fn means(&self) -> [f64; 5] {
+        let n = self.n.max(1) as f64;
+        self.sums.map(|s| s / n)
+    }
+
+    /// Each category's mean as a percentage of the mean total predicted power (the paper's "mean
+    /// contribution": copper 42.4 %, viscous 38.2 %, … on its hold-out set). Signed terms (mechanical power
+    /// while braking, copper below the home-posture load) can make a share negative. NaN when the mean total
+    /// is zero.
+    pub fn shares_percent(&self) -> [f64; 5] {
+        let means = self.means();
+        let total: f64 = means.iter().sum();
+        means.map(|m| {
+            if total != 0.0 {
+                100.0 * m / total
+            } else {
+                f64::NAN
+            }
+        })
+    }
+}
+
+/// The loss mechanisms the paper ranks per joint (mechanical power is not a loss).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum LossTerm {
+    /// Copper loss b_i.
+    Copper,
+    /// Coulomb friction c_i.
+    Coulomb,
+    /// Viscous friction d_i.
+    Viscous,
+}
+
+impl LossTerm {
+    /// Lower-case name as in the paper's table.
+    pub fn name(self) -> &'static str {
+        match self {
+            LossTerm::Copper => "copper",
+            LossTerm::Coulomb => "Coulomb",
+            LossTerm::Viscous => "viscous",
+        }
+    }
+}
+
+impl PowerModel {
+    /// Per-term breakdown of [`PowerModel::predict`] for one sample. No allocation.
+    #[inline]
+    pub fn breakdown(
+        &self,
+        tau: &[f64; N_JOINTS],
+        dq: &[f64; N_JOINTS],
+        tau0_sq: &[f64; N_JOINTS],
+    ) -> TermBreakdown {
+        let mut phi = [0.0; N_PARAMS];
+        regressor_into(tau, dq, tau0_sq, &mut phi);
+        self.breakdown_from_regressor(&phi)
+    }
+
+    /// Per-term breakdown of an (averaged) regressor row φ: the model is linear, so the breakdown of a
+    /// trajectory's mean regressor is the mean of its per-sample breakdowns.
+    #[inline]
+    pub fn breakdown_from_regressor(&self, phi: &[f64; N_PARAMS]) -> TermBreakdown {
+        let mut out = TermBreakdown::default();
+        for i in 0..N_JOINTS {
+            out.mechanical[i] = self.a[i] * phi[i];
+            out.copper[i] = self.b[i] * phi[N_JOINTS + i];
+            out.coulomb[i] = self.c[i] * phi[2 * N_JOINTS + i];
+            out.viscous[i] = self.d[i] * phi[3 * N_JOINTS + i];
+        }
+        for k in 0..N_PAIRS {
+            out.interaction[k] = self.e[k] * phi[4 * N_JOINTS + k];
+        }
+        out
+    }
+
+    /// The paper's "dominant term" of a joint: argmax(b_i, c_i, d_i) (first on ties); `None` when all three
+    /// are zero (the joint shows no loss in the data).
+    pub fn dominant_term(&self, joint: usize) -> Option<LossTerm> {
+        let candidates = [
+            (LossTerm::Copper, self.b[joint]),
+            (LossTerm::Coulomb, self.c[joint]),
+            (LossTerm::Viscous, self.d[joint]),
+        ];
+        let mut best: Option<(LossTerm, f64)> = None;
+        for (term, v) in candidates {
+            if v > 0.0 && best.is_none_or(|(_, bv)| v > bv) {
+                best = Some((term, v));
+            }
+        }
+        best.map(|(t, _)| t)
+    }
+
+    /// Name of parameter `p` of θ: `a0`…`a6`, `b0`…, `c0`…, `d0`…, `e01`…`e56`.
+    pub fn param_name(p: usize) -> String {
+        match p / N_JOINTS {
+            0 => format!("a{p}"),
+            1 => format!("b{}", p - N_JOINTS),
+            2 => format!("c{}", p - 2 * N_JOINTS),
+            3 => format!("d{}", p - 3 * N_JOINTS),
+            _ => match PAIRS.get(p - 4 * N_JOINTS) {
+                Some((i, j)) => format!("e{i}{j}"),
+                None => format!("θ{p}"),
+            },
+        }
+    }
+}

@@ -9,6 +9,8 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
+pub mod bag1;
+pub mod db3;
 pub mod decode;
 pub mod mcap;
 pub mod msgdef;

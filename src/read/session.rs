@@ -141,9 +141,7 @@ fn open_source(
 ) -> Result<Box<dyn MessageSource>, ReadError> {
     match format {
         Format::Mcap => Ok(Box::new(McapSource::open(path, opts)?)),
-        Format::Ros2Bag | Format::Ros1Bag => Err(ReadError::Other(format!(
-            "{}: ROS 2 bag directories / ROS 1 bags: reader not available in this build",
-            path.display()
-        ))),
+        Format::Ros2Bag => Ok(Box::new(super::db3::Ros2BagSource::open(path, opts)?)),
+        Format::Ros1Bag => Ok(Box::new(super::bag1::Ros1BagSource::open(path, opts)?)),
     }
 }

@@ -1,1 +1,537 @@
-//! (stage sim: to be written)
+//! Digital twin of the G1 left arm: simulates recording sessions of the paper's protocol (or
+//! re-runs a real recording's trajectory) through URDF rigid-body dynamics, joint friction, a
+//! thermal model and the paper's power model with switchable extra physics, and writes them in
+//! the robot's own format (MCAP, `unitree_hg` CDR messages) plus a ground-truth JSON sidecar.
+//!
+//! ```no_run
+//! use g1viz::sim::{SimConfig, Preset, simulate};
+//! let mut cfg = SimConfig { preset: Preset::Smoke, seed: 7, ..SimConfig::default() };
+//! cfg.effects.enable("braking=0.25")?;
+//! let truth = simulate(&cfg, std::path::Path::new("smoke.mcap"))?; // + smoke.truth.json
+//! println!("{} trials", truth.trials.len());
+//! # anyhow::Ok(())
+//! ```
+
+pub mod effects;
+pub mod plant;
+pub mod protocol;
+pub mod thermal;
+pub mod truth;
+pub mod writer;
+
+use std::collections::BTreeMap;
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use rand::{RngExt, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+pub use effects::{BrakingAsymmetry, BusLoss, Effects, HarnessDrag, SensorLatency, ThermalDrift};
+pub use protocol::Preset;
+pub use truth::Truth;
+
+use crate::N_JOINTS;
+use crate::robot::{ArmDynamics, JointFriction, RobotModel};
+use crate::power::{PAIRS, PowerModel};
+use crate::signals::Recording;
+use plant::{Engine, OutlierStep, Reference, Sampled, Sway, Timeline, TrialPlan};
+use protocol::Schedule;
+use thermal::ThermalModel;
+use truth::Noise;
+
+/// URDF joint names of the left arm, model order.
+pub const JOINT_NAMES: [&str; N_JOINTS] = [
+    "left_shoulder_pitch_joint",
+    "left_shoulder_roll_joint",
+    "left_shoulder_yaw_joint",
+    "left_elbow_joint",
+    "left_wrist_roll_joint",
+    "left_wrist_pitch_joint",
+    "left_wrist_yaw_joint",
+];
+/// Short joint names, model order.
+pub const JOINT_SHORT: [&str; N_JOINTS] = ["sh_pitch", "sh_roll", "sh_yaw", "elbow", "wr_roll", "wr_pitch", "wr_yaw"];
+
+/// Session epoch: the start time is this plus a seed-dependent offset of up to 3 h.
+const EPOCH_NS: u64 = 1_773_482_400_000_000_000; // 2026-03-14T10:00:00Z
+const EPOCH_ISO: &str = "2026-03-14T10:00:00+00:00";
+
+/// Balance contamination and hardware-event outliers (artefacts of every session, not effects).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Artefacts {
+    /// Target fraction of contaminated trials; the probability grows with speed^1.5 and joint
+    /// count^0.8 (0 = off).
+    pub contamination_fraction: f64,
+    /// Sway amplitude range [rad/s].
+    pub sway_amplitude_rad_s: [f64; 2],
+    /// Sway frequency range [Hz].
+    pub sway_freq_hz: [f64; 2],
+    /// MBS leak gain: leak = k·|sway|² [W/(rad/s)²].
+    pub k_leak: f64,
+    /// Probability of a hardware-event outlier per trial (0 = off).
+    pub outlier_fraction: f64,
+    /// Outlier step range [W].
+    pub outlier_step_w: [f64; 2],
+    /// Outlier duration range [s].
+    pub outlier_duration_s: [f64; 2],
+}
+
+impl Default for Artefacts {
+    fn default() -> Self {
+        Artefacts {
+            contamination_fraction: 0.1,
+            sway_amplitude_rad_s: [0.05, 0.3],
+            sway_freq_hz: [1.0, 2.0],
+            k_leak: 500.0 / 9.0,
+            outlier_fraction: 0.015,
+            outlier_step_w: [10.0, 20.0],
+            outlier_duration_s: [2.0, 5.0],
+        }
+    }
+}
+
+impl Artefacts {
+    /// No contamination and no outliers (clean sessions for tests).
+    pub const NONE: Artefacts = Artefacts {
+        contamination_fraction: 0.0,
+        sway_amplitude_rad_s: [0.05, 0.3],
+        sway_freq_hz: [1.0, 2.0],
+        k_leak: 500.0 / 9.0,
+        outlier_fraction: 0.0,
+        outlier_step_w: [10.0, 20.0],
+        outlier_duration_s: [2.0, 5.0],
+    };
+}
+
+/// Joint friction inside the measured torque, as in the shared recordings' truth
+/// (`plant.joint_friction_in_tau`).
+pub const DEFAULT_FRICTION: JointFriction = JointFriction {
+    coulomb_nm: [0.45, 0.4, 0.3, 0.35, 0.22, 0.2, 0.2],
+    viscous_nms: [0.18, 0.15, 0.12, 0.12, 0.07, 0.06, 0.05],
+};
+
+/// Everything a simulated session depends on.
+#[derive(Debug, Clone)]
+pub struct SimConfig {
+    /// Which trials.
+    pub preset: Preset,
+    /// RNG seed: same seed, same bytes.
+    pub seed: u64,
+    /// Extra physics switched on (default: none — the paper's plant).
+    pub effects: Effects,
+    /// True power-model parameters (default: the paper's tables).
+    pub truth: PowerModel,
+    /// URDF for the dynamics (default: the shipped one).
+    pub urdf: Option<PathBuf>,
+    /// Dex3-1 hand mounted (its inertia in the wrist).
+    pub with_hand: bool,
+    /// Seed of the route library (waypoints); the hold-out preset reuses the identification
+    /// routes when both use the same route seed.
+    pub route_seed: u64,
+    /// Winding temperature at session start [°C] (a warm robot: 50–70 °C).
+    pub t_start_c: f64,
+    /// Motor thermal constants.
+    pub thermal: ThermalModel,
+    /// Joint friction inside τ.
+    pub friction: JointFriction,
+    /// Measurement noise.
+    pub noise: Noise,
+    /// Contamination and outliers.
+    pub artefacts: Artefacts,
+    /// Lag of the measured joints behind the command (the PD loop, kp = 400, kd = 12) [s].
+    pub tracking_lag_s: f64,
+    /// Show a progress bar on stderr (only drawn when stderr is a terminal).
+    pub progress: bool,
+}
+
+impl Default for SimConfig {
+    fn default() -> Self {
+        SimConfig {
+            preset: Preset::Smoke,
+            seed: 1,
+            effects: Effects::default(),
+            truth: PowerModel::PAPER,
+            urdf: None,
+            with_hand: true,
+            route_seed: 0,
+            t_start_c: 30.0,
+            thermal: ThermalModel::default(),
+            friction: DEFAULT_FRICTION,
+            noise: Noise::default(),
+            artefacts: Artefacts::default(),
+            tracking_lag_s: 0.01,
+            progress: true,
+        }
+    }
+}
+
+/// The truth sidecar path of an output file: `x.mcap` → `x.truth.json`.
+pub fn truth_path(out: &Path) -> PathBuf {
+    out.with_extension("truth.json")
+}
+
+/// The true plant's dynamics (with the payload when that effect is on) and, with a payload, the
+/// URDF-only dynamics the payload's share of the power is measured against.
+fn dynamics(cfg: &SimConfig) -> Result<(ArmDynamics, Option<ArmDynamics>)> {
+    let model = match &cfg.urdf {
+        Some(path) => RobotModel::from_urdf_file(path)?,
+        None if cfg.with_hand => RobotModel::builtin(),
+        None => RobotModel::builtin_no_hand(),
+    };
+    let arm = model.arm(&JOINT_NAMES.map(String::from))?;
+    let urdf = ArmDynamics::new(&model, &arm).context("building the arm dynamics for the simulator")?;
+    Ok(match &cfg.effects.payload {
+        Some(p) => (urdf.with_payload(p), Some(urdf)),
+        None => (urdf, None),
+    })
+}
+
+fn progress_bar(cfg: &SimConfig, len: u64) -> indicatif::ProgressBar {
+    if cfg.progress && std::io::stderr().is_terminal() {
+        let pb = indicatif::ProgressBar::new(len);
+        pb.set_style(
+            indicatif::ProgressStyle::with_template("simulating {bar:40} {percent}% ({eta} left)")
+                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        );
+        pb
+    } else {
+        indicatif::ProgressBar::hidden()
+    }
+}
+
+/// Pick contaminated and outlier trials and their parameters.
+fn draw_artefacts(trials: &[protocol::PlannedTrial], a: &Artefacts, rng: &mut ChaCha8Rng) -> Vec<(Option<Sway>, Option<(f64, f64, f64)>)> {
+    let weight = |t: &protocol::PlannedTrial| (t.qdot_max / 2.5).powf(1.5) * (t.route.joints.len() as f64).powf(0.8);
+    let total: f64 = trials.iter().map(weight).sum::<f64>().max(1e-12);
+    trials
+        .iter()
+        .map(|t| {
+            let p = (a.contamination_fraction * trials.len() as f64 * weight(t) / total).min(0.9);
+            let (u_c, amp, freq, axis) = (rng.random::<f64>(), rng.random::<f64>(), rng.random::<f64>(), rng.random::<f64>());
+            let sway = (u_c < p).then(|| Sway {
+                amplitude: a.sway_amplitude_rad_s[0] + amp * (a.sway_amplitude_rad_s[1] - a.sway_amplitude_rad_s[0]),
+                freq_hz: a.sway_freq_hz[0] + freq * (a.sway_freq_hz[1] - a.sway_freq_hz[0]),
+                axis: axis * std::f64::consts::TAU,
+            });
+            let (u_o, start, dur, step) = (rng.random::<f64>(), rng.random::<f64>(), rng.random::<f64>(), rng.random::<f64>());
+            let outlier = (u_o < a.outlier_fraction).then(|| {
+                (
+                    start,
+                    a.outlier_duration_s[0] + dur * (a.outlier_duration_s[1] - a.outlier_duration_s[0]),
+                    a.outlier_step_w[0] + step * (a.outlier_step_w[1] - a.outlier_step_w[0]),
+                )
+            });
+            (sway, outlier)
+        })
+        .collect()
+}
+
+/// Free-running 1 Hz sensor clock from `t0` to `end` [s]: period 1 s ± 30 ms (uniform).
+fn sensor_clock(start_ns: u64, end_s: f64, rng: &mut ChaCha8Rng) -> Vec<u64> {
+    let (period, jitter) = plant::SENSOR_PERIOD;
+    let mut t = rng.random_range(0.3..1.0);
+    let mut out = Vec::with_capacity(end_s as usize + 2);
+    while t < end_s {
+        out.push(start_ns + (t * 1e9).round() as u64);
+        t += period + rng.random_range(-jitter..jitter);
+    }
+    out
+}
+
+/// Simulate a session of `cfg.preset` and write it to `out` (MCAP) and `truth_path(out)` (JSON).
+pub fn simulate(cfg: &SimConfig, out: &Path) -> Result<Truth> {
+    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
+    let planned = protocol::plan(cfg.preset, cfg.seed, cfg.route_seed);
+    let schedule = Schedule::build(&planned, &mut rng);
+    let start_ns = EPOCH_NS + rng.random_range(0..3 * 3600 * 1_000_000_000u64);
+
+    // Message clocks: /lowstate at 100 Hz with ~0.1 ms jitter, /arm_sdk 3 ms later.
+    let n = (schedule.duration / 0.01).ceil() as u64;
+    let mut lowstate = Vec::with_capacity(n as usize);
+    let mut arm_sdk = Vec::with_capacity(n as usize);
+    for k in 0..n {
+        let j: f64 = rng.random_range(-250_000.0..250_000.0);
+        let ns = start_ns + k * 10_000_000;
+        lowstate.push((ns as i64 + j as i64) as u64);
+        let j2: f64 = rng.random_range(-150_000.0..150_000.0);
+        arm_sdk.push((ns as i64 + 3_000_000 + j2 as i64) as u64);
+    }
+    let end_s = (n as f64 - 1.0) * 0.01;
+    let mbs = sensor_clock(start_ns, end_s, &mut rng);
+    let bms = sensor_clock(start_ns, end_s, &mut rng);
+    let timeline = Timeline { start_ns, lowstate, arm_sdk, mbs, bms };
+
+    let drawn = draw_artefacts(&planned, &cfg.artefacts, &mut rng);
+    let plans: Vec<TrialPlan> = schedule
+        .trials
+        .iter()
+        .zip(&drawn)
+        .map(|(tt, (sway, outlier))| TrialPlan {
+            pre_start: tt.trial_start,
+            traj_start: tt.traj_start,
+            window_end: tt.post_idle_end,
+            sway: *sway,
+            outlier: outlier.map(|(u, duration, step_w)| OutlierStep {
+                start: tt.traj_start + u * (tt.post_idle_end - tt.traj_start - 1.0).max(0.0),
+                duration,
+                step_w,
+            }),
+        })
+        .collect();
+
+    let (dyn_true, dyn_urdf) = dynamics(cfg)?;
+    let engine = Engine {
+        cfg,
+        dyn_true: &dyn_true,
+        dyn_urdf: dyn_urdf.as_ref(),
+        friction: &cfg.friction,
+        timeline: &timeline,
+        reference: Reference::Protocol(&schedule),
+        trials: &plans,
+    };
+    let stats = run_to_file(cfg, &engine, &mut rng, out)?;
+
+    let ns = |t: f64| start_ns + (t * 1e9).round() as u64;
+    let trials = planned
+        .iter()
+        .zip(&schedule.trials)
+        .zip(plans.iter().zip(&stats.trials))
+        .enumerate()
+        .map(|(index, ((pt, tt), (plan, sums)))| {
+            let pre = |s: f64| if sums.n_pre > 0 { s / sums.n_pre as f64 } else { 0.0 };
+            let traj = |s: f64| if sums.n_traj > 0 { s / sums.n_traj as f64 } else { 0.0 };
+            truth::TrialTruth {
+                index,
+                route_id: pt.route.id.clone(),
+                route_kind: pt.route.kind.clone(),
+                joints_moved: pt.route.joints.clone(),
+                joints_moved_names: pt.route.joints.iter().map(|&j| JOINT_SHORT[j].to_string()).collect(),
+                qdot_max: pt.qdot_max,
+                waypoints_rad: pt.route.waypoints.clone(),
+                t_trial_start_ns: ns(tt.trial_start),
+                t_traj_start_ns: ns(tt.traj_start),
+                t_traj_end_ns: ns(tt.traj_end),
+                t_post_idle_end_ns: ns(tt.post_idle_end),
+                t_return_end_ns: ns(tt.return_end),
+                contaminated: plan.sway.is_some(),
+                sway_amplitude_rad_s: plan.sway.map(|s| round4(s.amplitude)),
+                sway_freq_hz: plan.sway.map(|s| round4(s.freq_hz)),
+                outlier: plan.outlier.is_some(),
+                outlier_step_w: plan.outlier.map(|o| round4(o.step_w)),
+                outlier_start_ns: plan.outlier.map(|o| ns(o.start)),
+                outlier_duration_s: plan.outlier.map(|o| round4(o.duration)),
+                true_net_arm_power_traj_mean_w: round4(traj(sums.arm_traj) - pre(sums.arm_pre)),
+                effect_power_traj_mean_w: round4(traj(sums.eff_traj) - pre(sums.eff_pre)),
+                leak_power_traj_mean_w: round4(traj(sums.leak_traj)),
+                winding_temp_traj_mean_c: sums.temp_traj.map(|s| (traj(s) * 100.0).round() / 100.0),
+            }
+        })
+        .collect();
+    let truth = build_truth(cfg, cfg.preset.name(), &timeline, &stats, trials, out);
+    write_truth(&truth, out)?;
+    Ok(truth)
+}
+
+fn round4(v: f64) -> f64 {
+    (v * 1e4).round() / 1e4
+}
+
+fn run_to_file(cfg: &SimConfig, engine: &Engine, rng: &mut ChaCha8Rng, out: &Path) -> Result<plant::RunStats> {
+    let pb = progress_bar(cfg, engine.timeline.lowstate.len() as u64);
+    let mut stats = None;
+    crate::util::write_atomic_with(out, |w| {
+        let mut mcap = writer::McapOut::new(&mut *w)?;
+        let s = engine.run(&mut mcap, rng, &|k| pb.set_position(k))?;
+        mcap.finish()?;
+        stats = Some(s);
+        Ok(())
+    })
+    .with_context(|| format!("writing simulated session {}", out.display()))?;
+    pb.finish_and_clear();
+    stats.context("simulation produced no statistics")
+}
+
+fn write_truth(truth: &Truth, out: &Path) -> Result<()> {
+    let path = truth_path(out);
+    let text = serde_json::to_string_pretty(truth).context("serialising truth")?;
+    crate::util::write_atomic(&path, text.as_bytes()).with_context(|| format!("writing {}", path.display()))
+}
+
+fn build_truth(
+    cfg: &SimConfig,
+    preset: &str,
+    tl: &Timeline,
+    stats: &plant::RunStats,
+    trials: Vec<truth::TrialTruth>,
+    out: &Path,
+) -> Truth {
+    let first = [tl.lowstate.first(), tl.arm_sdk.first(), tl.mbs.first(), tl.bms.first()].into_iter().flatten().min();
+    let last = [tl.lowstate.last(), tl.arm_sdk.last(), tl.mbs.last(), tl.bms.last()].into_iter().flatten().max();
+    let start_ns = first.copied().unwrap_or(tl.start_ns);
+    let end_ns = last.copied().unwrap_or(tl.start_ns);
+    let m = &cfg.truth;
+    let mut e = BTreeMap::new();
+    for (k, &(i, j)) in PAIRS.iter().enumerate() {
+        e.insert(format!("{i},{j}"), m.e[k]);
+    }
+    let topic = |t: &str, ty: &str| truth::TopicEntry { topic: t.into(), type_name: ty.into() };
+    let n_contaminated = trials.iter().filter(|t| t.contaminated).count();
+    let n_outliers = trials.iter().filter(|t| t.outlier).count();
+    let terms = ["mech", "copper", "coulomb", "viscous", "interaction"];
+    Truth {
+        generator: truth::Generator {
+            name: "g1viz".into(),
+            version: env!("CARGO_PKG_VERSION").into(),
+            libraries: BTreeMap::from([("mcap".to_string(), "0.26".to_string())]),
+        },
+        preset: preset.into(),
+        seed: cfg.seed,
+        rate_hz: 100.0,
+        urdf: match (&cfg.urdf, cfg.with_hand) {
+            (Some(p), _) => p.display().to_string(),
+            (None, true) => "builtin:urdf/g1_left_arm.urdf".into(),
+            (None, false) => "builtin:urdf/g1_left_arm_no_hand.urdf".into(),
+        },
+        session: truth::SessionTimes {
+            start_ns,
+            end_ns,
+            duration_s: (end_ns - start_ns) as f64 * 1e-9,
+            epoch: EPOCH_ISO.into(),
+            n_trials: trials.len(),
+        },
+        files: BTreeMap::from([(
+            "mcap".to_string(),
+            serde_json::json!({ "path": out.file_name().map(|n| n.to_string_lossy().into_owned()), "end_ns": null }),
+        )]),
+        topics: BTreeMap::from([
+            ("lowstate".into(), topic("/lowstate", "unitree_hg/msg/LowState")),
+            ("arm_sdk".into(), topic("/arm_sdk", "unitree_hg/msg/LowCmd")),
+            ("bms".into(), topic("/lf/bmsstate", "unitree_hg/msg/BmsState")),
+            ("mbs".into(), topic("/lf/mainboardstate", "unitree_hg/msg/MainBoardState")),
+        ]),
+        joints: truth::Joints {
+            names: JOINT_NAMES.iter().map(|s| s.to_string()).collect(),
+            short: JOINT_SHORT.iter().map(|s| s.to_string()).collect(),
+            sdk_index: (0..N_JOINTS).map(|i| plant::ARM_BASE + i).collect(),
+        },
+        effects: cfg.effects,
+        artefacts: truth::ArtefactsTruth {
+            contamination: truth::Contamination {
+                enabled: cfg.artefacts.contamination_fraction > 0.0,
+                target_fraction: cfg.artefacts.contamination_fraction,
+                amplitude_range_rad_s: cfg.artefacts.sway_amplitude_rad_s,
+                freq_range_hz: cfg.artefacts.sway_freq_hz,
+                k_leak: cfg.artefacts.k_leak,
+                n_trials: n_contaminated,
+                model: "sway gyro = A*env(t)*sin(2 pi f t); MBS leak = k_leak*|sway|^2; probability grows with speed^1.5 and joint count^0.8".into(),
+            },
+            outliers: truth::Outliers {
+                enabled: cfg.artefacts.outlier_fraction > 0.0,
+                target_fraction: cfg.artefacts.outlier_fraction,
+                step_w: cfg.artefacts.outlier_step_w,
+                duration_s: cfg.artefacts.outlier_duration_s,
+                n_trials: n_outliers,
+            },
+        },
+        theta: truth::Theta {
+            order: "a0..a6, b0..b6, c0..c6, d0..d6, e_ij for i<j lexicographic (e01, e02, ..., e56)".into(),
+            vector: m.to_vector().to_vec(),
+            a: m.a,
+            b: m.b,
+            c: m.c,
+            d: m.d,
+            e,
+            source: if *m == PowerModel::PAPER { "paper tables".into() } else { "user model".into() },
+        },
+        plant: truth::PlantTruth {
+            rail_power: "P_mbs = P_rest + drift + sum_i[a_i tau_i qd_i + b_i (tau_i^2 - tau_home_i^2) + c_i|qd_i| + d_i qd_i^2] + sum_{i<j} e_ij |qd_i||qd_j| + effects + contamination leak + outlier steps; tau, qd = true joint torque/velocity".into(),
+            p_rest_w: plant::P_REST_W,
+            rest_drift: format!("OU sigma {} W, tau {} s", plant::REST_DRIFT.0, plant::REST_DRIFT.1),
+            bms: format!("P_bms = P_mbs + {} W + OU(sigma {} W, tau {} s)", plant::BMS_OFFSET_W, plant::BMS_OU.0, plant::BMS_OU.1),
+            tau_home_nm: stats.tau_home,
+            joint_friction_in_tau: truth::FrictionTruth {
+                coulomb_nm: cfg.friction.coulomb_nm,
+                viscous_nms: cfg.friction.viscous_nms,
+                form: "Fc*tanh(qd/0.01) + Fv*qd".into(),
+            },
+            tracking_lag_s: cfg.tracking_lag_s,
+            noise: cfg.noise,
+            sensor: truth::SensorTruth {
+                avg_window_s: plant::SENSOR_WINDOW_S,
+                period_s: plant::SENSOR_PERIOD.0,
+                jitter_s: plant::SENSOR_PERIOD.1,
+                quantisation: "MBS V 0.01 V, A 0.001 A; BMS 10 mV, 1 mA".into(),
+            },
+            thermal: truth::ThermalTruth {
+                model: cfg.thermal,
+                t_start_c: cfg.t_start_c,
+                winding_temp_range_c: stats.temp_range.map(|v| (v * 100.0).round() / 100.0),
+                affects_power: cfg.effects.thermal.is_some(),
+            },
+            payload: cfg.effects.payload,
+            mean_power_components_w: terms.iter().zip(stats.mean_terms).map(|(k, v)| (k.to_string(), v)).collect(),
+            battery_soc_range: stats.soc_range,
+        },
+        protocol: truth::ProtocolTruth {
+            pre_idle_s: protocol::PRE_IDLE_S,
+            post_idle_s: protocol::POST_IDLE_S,
+            return_speed_rad_s: protocol::RETURN_SPEED,
+            segment: "s=3t^2-2t^3, T=max(0.3, 1.5*max|dq|/qdot_max)".into(),
+            id_speeds: protocol::ID_SPEEDS.to_vec(),
+            holdout_speeds: protocol::HOLDOUT_SPEEDS.to_vec(),
+            kp: 400.0,
+            kd: 12.0,
+            inter_trial_gap_s: protocol::GAP_S,
+        },
+        trials,
+        message_counts: truth::MessageCounts {
+            lowstate: stats.counts[writer::Topic::LowState as usize],
+            arm_sdk: stats.counts[writer::Topic::ArmSdk as usize],
+            bms: stats.counts[writer::Topic::Bms as usize],
+            mbs: stats.counts[writer::Topic::Mbs as usize],
+        },
+    }
+}
+
+/// Re-run a recording's trajectory through the twin on the same timeline (same start and message
+/// times): the commanded `/arm_sdk` trajectory when the recording has one (the twin's arm then lags
+/// it like the robot's), otherwise the measured one (no extra lag). Artefacts tied to trials
+/// (contamination, outliers) are not added: the recording's trials are not known here.
+pub fn simulate_like(rec: &Recording, cfg: &SimConfig, out: &Path) -> Result<Truth> {
+    anyhow::ensure!(
+        !rec.state.t.is_empty(),
+        "{}: the recording has no joint states to re-run",
+        rec.source.display()
+    );
+    let (sampled, lag) = if rec.command.t.is_empty() {
+        (Sampled { t: rec.state.t.clone(), q: rec.state.q.clone(), dq: rec.state.dq.clone() }, 0.0)
+    } else {
+        (Sampled { t: rec.command.t.clone(), q: rec.command.q.clone(), dq: rec.command.dq.clone() }, cfg.tracking_lag_s)
+    };
+    let to_ns = |t: &f64| (rec.start_ns as i128 + (t * 1e9).round() as i128).max(0) as u64;
+    let timeline = Timeline {
+        start_ns: rec.start_ns,
+        lowstate: rec.state.t.iter().map(to_ns).collect(),
+        arm_sdk: rec.command.t.iter().map(to_ns).collect(),
+        mbs: rec.mbs.t.iter().map(to_ns).collect(),
+        bms: rec.bms.t.iter().map(to_ns).collect(),
+    };
+    let cfg_like = SimConfig { tracking_lag_s: lag, ..cfg.clone() };
+    let (dyn_true, dyn_urdf) = dynamics(&cfg_like)?;
+    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
+    let engine = Engine {
+        cfg: &cfg_like,
+        dyn_true: &dyn_true,
+        dyn_urdf: dyn_urdf.as_ref(),
+        friction: &cfg.friction,
+        timeline: &timeline,
+        reference: Reference::Sampled(&sampled),
+        trials: &[],
+    };
+    let stats = run_to_file(&cfg_like, &engine, &mut rng, out)?;
+    let truth = build_truth(&cfg_like, "like", &timeline, &stats, Vec::new(), out);
+    write_truth(&truth, out)?;
+    Ok(truth)
+}

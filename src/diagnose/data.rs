@@ -1,0 +1,272 @@
+//! Diagnosis rows: one row per power reading that falls inside a trial, holding the base
+//! regressors φ, the hypotheses' extra features and descriptor features, each averaged over
+//! the reading's own sensor window [t − lag − W, t − lag], and the net power target (reading
+//! minus the trial's pre-idle mean reading).
+//!
+//! The set of readings is fixed by their time stamps (not by the lag), so rows built at two
+//! lags describe the same readings and their errors can be compared trial by trial.
+
+use crate::N_JOINTS;
+use crate::power::regressor_into;
+use crate::signals::{PowerSeries, Recording};
+
+use super::hypotheses::{N_EXTRA, N_LOCATE, N_RAW, Sample, extras_into, locate_into};
+
+/// The time windows of one trial (Recording time, s) and what moved in it.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct TrialWindow {
+    /// Trial index as numbered by the segmentation.
+    pub index: usize,
+    /// Pre-idle start.
+    pub t_pre: f64,
+    /// Trajectory start (= pre-idle end).
+    pub t_traj: f64,
+    /// Trajectory end (= post-idle start).
+    pub t_traj_end: f64,
+    /// Post-idle end (= return start).
+    pub t_post_end: f64,
+    /// Return end.
+    pub t_return_end: f64,
+    /// Model indices of the joints that moved.
+    pub joints_moved: Vec<usize>,
+    /// Peak speed of the trial (its speed level) [rad/s].
+    pub qdot_max: f64,
+}
+
+/// Where in a trial a reading's window lies.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum Phase {
+    /// Moving through the route.
+    Trajectory,
+    /// Holding the final posture.
+    PostIdle,
+    /// Returning home.
+    Return,
+}
+
+/// Per-trial quantities computed once from the kinematic side.
+#[derive(Debug, Clone)]
+pub(crate) struct TrialMeta {
+    pub window: TrialWindow,
+    /// Mean squared torque over pre-idle [Nm²].
+    pub tau0_sq: [f64; N_JOINTS],
+    /// Mean extra features over pre-idle (subtracted: the target is net of the pre-idle baseline).
+    pub extra0: [f64; N_EXTRA],
+    /// σ of the body angular-velocity magnitude over the trajectory window [rad/s].
+    pub sigma_omega: f64,
+}
+
+/// Rows of one lag.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Rows {
+    /// Position of each row's trial in the trial list.
+    pub trial: Vec<usize>,
+    /// Reading time stamp [s].
+    pub t: Vec<f64>,
+    /// Phase of the reading's window.
+    pub phase: Vec<Phase>,
+    /// Net power [W].
+    pub y: Vec<f64>,
+    /// Base regressors + extra features (window means).
+    pub x: Vec<[f64; N_RAW]>,
+    /// Descriptor features (window means), empty unless requested.
+    pub locate: Vec<[f64; N_LOCATE]>,
+}
+
+impl Rows {
+    pub fn len(&self) -> usize {
+        self.y.len()
+    }
+}
+
+/// Index range of state samples with time in [a, b).
+fn sample_range(t: &[f64], a: f64, b: f64) -> std::ops::Range<usize> {
+    let i0 = t.partition_point(|&x| x < a);
+    let i1 = t.partition_point(|&x| x < b);
+    i0..i1.max(i0)
+}
+
+fn sample_at<'a>(rec: &'a Recording, k: usize, tau0_sq: &'a [f64; N_JOINTS]) -> Option<Sample<'a>> {
+    let s = &rec.state;
+    Some(Sample {
+        q: s.q.get(k)?,
+        dq: s.dq.get(k)?,
+        tau: s.tau.get(k)?,
+        temp: s.temp.get(k)?,
+        gyro: s.gyro.get(k)?,
+        tau0_sq,
+    })
+}
+
+/// Compute the per-trial quantities; trials without pre-idle samples are returned in `skipped`.
+pub(crate) fn trial_meta(
+    rec: &Recording,
+    windows: &[TrialWindow],
+) -> (Vec<TrialMeta>, Vec<(usize, String)>) {
+    let t = &rec.state.t;
+    let mut out = Vec::new();
+    let mut skipped = Vec::new();
+    for w in windows {
+        let pre = sample_range(t, w.t_pre, w.t_traj);
+        if pre.len() < 3 {
+            skipped.push((
+                w.index,
+                format!("only {} joint samples in the pre-idle window", pre.len()),
+            ));
+            continue;
+        }
+        let mut tau0_sq = [0.0; N_JOINTS];
+        for k in pre.clone() {
+            if let Some(tau) = rec.state.tau.get(k) {
+                for i in 0..N_JOINTS {
+                    tau0_sq[i] += tau[i] * tau[i];
+                }
+            }
+        }
+        tau0_sq.iter_mut().for_each(|v| *v /= pre.len() as f64);
+        let mut extra0 = [0.0; N_EXTRA];
+        let mut buf = [0.0; N_EXTRA];
+        let mut n = 0usize;
+        for k in pre {
+            if let Some(s) = sample_at(rec, k, &tau0_sq) {
+                extras_into(&s, &mut buf);
+                extra0.iter_mut().zip(&buf).for_each(|(a, b)| *a += b);
+                n += 1;
+            }
+        }
+        extra0.iter_mut().for_each(|v| *v /= n.max(1) as f64);
+        let traj = sample_range(t, w.t_traj, w.t_post_end);
+        let mut wsum = 0.0;
+        let mut wsq = 0.0;
+        let mut m = 0usize;
+        for k in traj {
+            let Some(g) = rec.state.gyro.get(k) else {
+                continue;
+            };
+            let omega = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
+            wsum += omega;
+            wsq += omega * omega;
+            m += 1;
+        }
+        if m < 3 {
+            skipped.push((
+                w.index,
+                format!("only {m} joint samples in the trajectory window"),
+            ));
+            continue;
+        }
+        let mean = wsum / m as f64;
+        let sigma_omega = (wsq / m as f64 - mean * mean).max(0.0).sqrt();
+        out.push(TrialMeta {
+            window: w.clone(),
+            tau0_sq,
+            extra0,
+            sigma_omega,
+        });
+    }
+    (out, skipped)
+}
+
+/// Mean of φ and the extras (and optionally the descriptors) over state samples in [a, b).
+/// `None` when the window holds fewer than 2 samples (a gap in the joint stream).
+fn window_mean(
+    rec: &Recording,
+    meta: &TrialMeta,
+    a: f64,
+    b: f64,
+    x: &mut [f64; N_RAW],
+    loc: Option<&mut [f64; N_LOCATE]>,
+) -> Option<()> {
+    let range = sample_range(&rec.state.t, a, b);
+    if range.len() < 2 {
+        return None;
+    }
+    let n = range.len() as f64;
+    x.fill(0.0);
+    let mut phi = [0.0; crate::N_PARAMS];
+    let mut ex = [0.0; N_EXTRA];
+    let mut lbuf = [0.0; N_LOCATE];
+    let mut lsum = [0.0; N_LOCATE];
+    for k in range {
+        let s = sample_at(rec, k, &meta.tau0_sq)?;
+        regressor_into(s.tau, s.dq, s.tau0_sq, &mut phi);
+        extras_into(&s, &mut ex);
+        for (xi, v) in x.iter_mut().zip(phi.iter().chain(ex.iter())) {
+            *xi += v;
+        }
+        if loc.is_some() {
+            locate_into(&s, &mut lbuf);
+            lsum.iter_mut().zip(&lbuf).for_each(|(a, b)| *a += b);
+        }
+    }
+    x.iter_mut().for_each(|v| *v /= n);
+    for (v, b0) in x[crate::N_PARAMS..].iter_mut().zip(&meta.extra0) {
+        *v -= b0;
+    }
+    if let Some(l) = loc {
+        for (o, s) in l.iter_mut().zip(&lsum) {
+            *o = s / n;
+        }
+    }
+    Some(())
+}
+
+/// Build the rows for one sensor lag. Readings are assigned to trials by their stamps:
+/// baseline readings have stamps in [t_pre + W, t_traj], row readings in [t_traj + W, t_return_end].
+pub(crate) fn build_rows(
+    rec: &Recording,
+    power: &PowerSeries,
+    trials: &[TrialMeta],
+    lag: f64,
+    width: f64,
+    with_locate: bool,
+) -> Rows {
+    let mut rows = Rows::default();
+    let pt = &power.t;
+    let mut x = [0.0; N_RAW];
+    let mut loc = [0.0; N_LOCATE];
+    for (ti, meta) in trials.iter().enumerate() {
+        let w = &meta.window;
+        let base = sample_range(pt, w.t_pre + width, w.t_traj + 1e-9);
+        let vals: Vec<f64> = base
+            .filter_map(|k| power.watts.get(k).copied())
+            .filter(|v| v.is_finite())
+            .collect();
+        if vals.is_empty() {
+            continue;
+        }
+        let baseline = vals.iter().sum::<f64>() / vals.len() as f64;
+        for k in sample_range(pt, w.t_traj + width, w.t_return_end + 1e-9) {
+            let (Some(&tk), Some(&p)) = (pt.get(k), power.watts.get(k)) else {
+                continue;
+            };
+            if !p.is_finite() {
+                continue;
+            }
+            let (a, b) = (tk - lag - width, tk - lag);
+            let l = if with_locate { Some(&mut loc) } else { None };
+            // A gap in the joint stream, or non-finite samples (damaged file): no row.
+            if window_mean(rec, meta, a, b, &mut x, l).is_none() || x.iter().any(|v| !v.is_finite())
+            {
+                continue;
+            }
+            let mid = tk - 0.5 * width;
+            let phase = if mid < w.t_traj_end {
+                Phase::Trajectory
+            } else if mid < w.t_post_end {
+                Phase::PostIdle
+            } else {
+                Phase::Return
+            };
+            rows.trial.push(ti);
+            rows.t.push(tk);
+            rows.phase.push(phase);
+            rows.y.push(p - baseline);
+            rows.x.push(x);
+            if with_locate {
+                rows.locate.push(loc);
+            }
+        }
+    }
+    rows
+}

@@ -1,0 +1,287 @@
+//! The library of candidate physical explanations for a power-model mismatch.
+//!
+//! Each power-level hypothesis is a set of extra regressors, computed per sample from the
+//! recording and averaged over exactly the same window as the base regressors φ, with one
+//! physical parameter and unit. The per-sample features of all hypotheses live in one fixed
+//! layout ([`N_EXTRA`] values after the 49 base regressors) so a fit of any subset of
+//! hypotheses is a linear map of one pre-computed Gram matrix.
+//!
+//! Two hypotheses are not extra power regressors: power-sensor latency (a window shift,
+//! scanned in `select`) and payload at the hand (torque level, in `torque`).
+
+use crate::power::JOINT_TORQUE_CONSTANT;
+use crate::{N_JOINTS, N_PARAMS};
+
+/// Reference temperature [°C] of the winding-resistance drift (R(T) = R0[1 + α(T − 25 °C)]).
+pub const T_REF_C: f64 = 25.0;
+
+/// Stribeck velocity [rad/s] of the Stribeck-friction hypothesis (friction excess that decays as exp(−(q̇/v_s)²)).
+pub const STRIBECK_VELOCITY: f64 = 0.1;
+
+/// One sample of arm signals plus the trial's pre-idle squared torque, the input of every feature.
+#[derive(Debug, Clone, Copy)]
+pub struct Sample<'a> {
+    /// Joint positions [rad].
+    pub q: &'a [f64; N_JOINTS],
+    /// Joint velocities [rad/s].
+    pub dq: &'a [f64; N_JOINTS],
+    /// Joint torques [Nm].
+    pub tau: &'a [f64; N_JOINTS],
+    /// Winding temperatures [°C].
+    pub temp: &'a [f64; N_JOINTS],
+    /// Body angular velocity [rad/s].
+    pub gyro: &'a [f64; 3],
+    /// Mean squared torque of the trial's pre-idle window [Nm²].
+    pub tau0_sq: &'a [f64; N_JOINTS],
+}
+
+// Offsets of each hypothesis' raw features in the extra-feature layout.
+const THERMAL: usize = 0;
+const BRAKING: usize = THERMAL + N_JOINTS;
+const BUS: usize = BRAKING + N_JOINTS;
+const GEAR: usize = BUS + 1;
+const DRIVE: usize = GEAR + 1;
+const STRIBECK: usize = DRIVE + 1;
+const LEAK: usize = STRIBECK + 1;
+
+/// Number of per-sample extra features of the power-level hypotheses.
+pub const N_EXTRA: usize = LEAK + 1;
+
+/// Width of a raw row: the 49 base regressors followed by the extra features.
+pub const N_RAW: usize = N_PARAMS + N_EXTRA;
+
+/// Fill the extra features of one sample (layout documented on each [`Hypothesis`]).
+pub fn extras_into(s: &Sample, out: &mut [f64; N_EXTRA]) {
+    let mut current = 0.0;
+    let mut gear = 0.0;
+    let mut stribeck = 0.0;
+    for i in 0..N_JOINTS {
+        let p = s.tau[i] * s.dq[i];
+        out[THERMAL + i] = (s.temp[i] - T_REF_C) * (s.tau[i] * s.tau[i] - s.tau0_sq[i]);
+        out[BRAKING + i] = p.min(0.0);
+        current += s.tau[i].abs() / JOINT_TORQUE_CONSTANT[i];
+        gear += p.abs();
+        let v = s.dq[i] / STRIBECK_VELOCITY;
+        stribeck += s.dq[i].abs() * (-v * v).exp();
+    }
+    out[BUS] = current * current;
+    out[GEAR] = gear;
+    out[DRIVE] = current;
+    out[STRIBECK] = stribeck;
+    out[LEAK] = s.gyro.iter().map(|w| w * w).sum();
+}
+
+/// How a hypothesis' raw features enter the model.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Combine {
+    /// One coefficient on a single raw feature.
+    Single,
+    /// One coefficient on Σ_i w_i·raw_i, with w_i = the current fit's base parameters starting at
+    /// this index of θ (the pooled form of a per-joint effect, refitted until consistent).
+    WeightedByBase(usize),
+}
+
+/// A candidate physical effect the base model lacks.
+#[derive(Debug)]
+pub struct Hypothesis {
+    /// Short identifier (also the simulator's effect name where it has one).
+    pub id: &'static str,
+    /// What it is, in words.
+    pub title: &'static str,
+    /// Symbol of the physical parameter.
+    pub symbol: &'static str,
+    /// Unit of the physical parameter.
+    pub unit: &'static str,
+    /// What the base model gets wrong when this effect is real (for the plain-language summary).
+    pub model_assumes: &'static str,
+    /// Offset and length of its raw features in the extra layout.
+    pub raw: (usize, usize),
+    /// How the raw features become one regressor.
+    pub combine: Combine,
+    /// Coefficient of the regressor → physical parameter.
+    pub to_physical: fn(f64) -> f64,
+    /// Derivative of [`Hypothesis::to_physical`] (for the uncertainty).
+    pub physical_slope: f64,
+    /// Physically plausible range of the parameter (inclusive).
+    pub plausible: (f64, f64),
+}
+
+fn identity(c: f64) -> f64 {
+    c
+}
+
+fn return_fraction(c: f64) -> f64 {
+    1.0 + c
+}
+
+/// The power-level hypotheses (extra regressors).
+pub static POWER_HYPOTHESES: [Hypothesis; 7] = [
+    Hypothesis {
+        id: "thermal",
+        title: "winding-resistance temperature drift",
+        symbol: "α",
+        unit: "1/K",
+        model_assumes: "the copper loss b_i·Δτ_i² does not depend on motor temperature",
+        raw: (THERMAL, N_JOINTS),
+        combine: Combine::WeightedByBase(N_JOINTS),
+        to_physical: identity,
+        physical_slope: 1.0,
+        plausible: (0.0005, 0.01),
+    },
+    Hypothesis {
+        id: "braking",
+        title: "braking asymmetry (regenerated power only partly returned)",
+        symbol: "r",
+        unit: "-",
+        model_assumes: "regenerated (braking) mechanical power is fully returned to the bus",
+        raw: (BRAKING, N_JOINTS),
+        combine: Combine::WeightedByBase(0),
+        to_physical: return_fraction,
+        physical_slope: 1.0,
+        plausible: (0.0, 0.98),
+    },
+    Hypothesis {
+        id: "bus_loss",
+        title: "shared DC-bus loss ∝ (total drive current)²",
+        symbol: "R_bus",
+        unit: "Ω",
+        model_assumes: "joints share no resistive path: there is no loss in the total current",
+        raw: (BUS, 1),
+        combine: Combine::Single,
+        to_physical: identity,
+        physical_slope: 1.0,
+        plausible: (0.001, 2.0),
+    },
+    Hypothesis {
+        id: "gear_friction",
+        title: "load-dependent gear friction ∝ Σ|τ_i q̇_i|",
+        symbol: "μ",
+        unit: "-",
+        model_assumes: "gear friction does not grow with the transmitted load",
+        raw: (GEAR, 1),
+        combine: Combine::Single,
+        to_physical: identity,
+        physical_slope: 1.0,
+        plausible: (0.005, 1.0),
+    },
+    Hypothesis {
+        id: "drive_loss",
+        title: "current-proportional drive-electronics loss ∝ Σ|τ_i|/K_i",
+        symbol: "V_drop",
+        unit: "V",
+        model_assumes: "the drives have no loss proportional to their current (switch/diode drop)",
+        raw: (DRIVE, 1),
+        combine: Combine::Single,
+        to_physical: identity,
+        physical_slope: 1.0,
+        plausible: (0.01, 10.0),
+    },
+    Hypothesis {
+        id: "stribeck",
+        title: "Stribeck friction Σ|q̇_i|·exp(−(q̇_i/v_s)²), v_s = 0.1 rad/s",
+        symbol: "F_s",
+        unit: "Nm",
+        model_assumes: "friction is pure Coulomb + viscous (no extra breakaway friction at low speed)",
+        raw: (STRIBECK, 1),
+        combine: Combine::Single,
+        to_physical: identity,
+        physical_slope: 1.0,
+        plausible: (0.01, 20.0),
+    },
+    Hypothesis {
+        id: "balance_leak",
+        title: "balance-compensation leakage ∝ |ω_body|²",
+        symbol: "k_leak",
+        unit: "W/(rad/s)²",
+        model_assumes: "leg power for balance does not leak into the arm power reading",
+        raw: (LEAK, 1),
+        combine: Combine::Single,
+        to_physical: identity,
+        physical_slope: 1.0,
+        plausible: (0.1, 1.0e5),
+    },
+];
+
+/// Identifier of the power-sensor latency hypothesis (window shift, not an extra regressor).
+pub const LATENCY_ID: &str = "latency";
+/// Identifier of the payload-at-the-hand hypothesis (torque level).
+pub const PAYLOAD_ID: &str = "payload";
+
+/// Look a power hypothesis up by identifier.
+pub fn power_hypothesis(id: &str) -> Option<&'static Hypothesis> {
+    POWER_HYPOTHESES.iter().find(|h| h.id == id)
+}
+
+/// Number of per-sample descriptor features used to locate unexplained structure.
+pub const N_LOCATE: usize = 5 * N_JOINTS + 1;
+
+/// Fill the descriptor features of one sample: per joint q, |q̇|, |τ|, T, |q|·|q̇|, then |ω_body|.
+pub fn locate_into(s: &Sample, out: &mut [f64; N_LOCATE]) {
+    for i in 0..N_JOINTS {
+        out[5 * i] = s.q[i];
+        out[5 * i + 1] = s.dq[i].abs();
+        out[5 * i + 2] = s.tau[i].abs();
+        out[5 * i + 3] = s.temp[i];
+        out[5 * i + 4] = s.q[i].abs() * s.dq[i].abs();
+    }
+    out[5 * N_JOINTS] = s.gyro.iter().map(|w| w * w).sum::<f64>().sqrt();
+}
+
+/// Human-readable name of descriptor feature `k` given the arm's joint names.
+pub fn locate_name(k: usize, joint_names: &[String]) -> String {
+    if k >= 5 * N_JOINTS {
+        return "body angular velocity |ω| (IMU)".into();
+    }
+    let j = k / 5;
+    let joint = joint_names
+        .get(j)
+        .cloned()
+        .unwrap_or_else(|| format!("joint {j}"));
+    let what = match k % 5 {
+        0 => "position q",
+        1 => "speed |q̇|",
+        2 => "torque |τ|",
+        3 => "motor temperature T",
+        _ => "position × speed |q|·|q̇|",
+    };
+    format!("{joint} {what}")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn extras_match_hand_computed_values() {
+        let q = [0.0; 7];
+        let dq = [1.0, -2.0, 0.0, 0.0, 0.0, 0.0, 0.5];
+        let tau = [2.0, 3.0, 0.0, -1.3, 0.0, 0.0, 0.7];
+        let temp = [35.0, 25.0, 25.0, 25.0, 25.0, 25.0, 45.0];
+        let gyro = [0.1, 0.2, 0.0];
+        let tau0_sq = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        let s = Sample {
+            q: &q,
+            dq: &dq,
+            tau: &tau,
+            temp: &temp,
+            gyro: &gyro,
+            tau0_sq: &tau0_sq,
+        };
+        let mut out = [0.0; N_EXTRA];
+        extras_into(&s, &mut out);
+        // (35 − 25)·(4 − 1) = 30; (45 − 25)·0.49 = 9.8
+        assert!((out[THERMAL] - 30.0).abs() < 1e-12);
+        assert!((out[THERMAL + 6] - 9.8).abs() < 1e-12);
+        // τq̇: 2, −6, …, 0.35 → braking keeps only −6
+        assert_eq!(out[BRAKING + 1], -6.0);
+        assert_eq!(out[BRAKING], 0.0);
+        // current: (2 + 3 + 1.3)/1.3 + 0.7/0.7
+        let i = 6.3 / 1.3 + 1.0;
+        assert!((out[DRIVE] - i).abs() < 1e-12);
+        assert!((out[BUS] - i * i).abs() < 1e-12);
+        assert!((out[GEAR] - (2.0 + 6.0 + 0.35)).abs() < 1e-12);
+        assert!((out[LEAK] - 0.05).abs() < 1e-12);
+        // Stribeck vanishes at high speed, equals |q̇| for q̇ ≪ v_s.
+        assert!(out[STRIBECK] < 1e-6);
+    }
+}

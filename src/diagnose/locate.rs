@@ -1,0 +1,470 @@
+//! Locate the mismatch: held-out power residuals broken down by joint, phase and regime
+//! (driving vs braking, cold vs hot, slow vs fast, single vs multi-joint, calm vs swaying body,
+//! early vs late), the sensor-lag scan, and the correlation of what no hypothesis explains with
+//! recorded signals and derived features (per trial, with a Bonferroni guard).
+//!
+//! Groups are tested at trial level (each trial contributes the mean residual of its rows in
+//! the group), because readings of one trial share the trial's baseline and are not independent.
+
+use super::data::{Phase, Rows, TrialMeta};
+use super::hypotheses::{N_LOCATE, locate_name};
+use super::stats::{pearson, t_upper_tail};
+use nalgebra::DMatrix;
+
+use crate::{N_JOINTS, N_PARAMS};
+
+/// Residual statistics of one group of readings.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct Group {
+    /// What the group holds.
+    pub label: String,
+    /// Number of readings.
+    pub n_rows: usize,
+    /// Number of trials contributing.
+    pub n_trials: usize,
+    /// Mean residual (measured − predicted) [W]; positive = power under-predicted.
+    pub bias_w: f64,
+    /// RMS residual [W].
+    pub rmse_w: f64,
+    /// Two-sided p-value of "mean residual = 0" over the contributing trials.
+    pub p_value: f64,
+}
+
+/// Residuals split one way.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct Breakdown {
+    /// The dimension of the split (`joint`, `phase`, `regime`, …).
+    pub by: String,
+    /// Its groups.
+    pub groups: Vec<Group>,
+}
+
+/// One trial's held-out residual.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct TrialResidual {
+    /// Trial index (segmentation numbering).
+    pub trial: usize,
+    /// Mean residual of the trial's readings [W].
+    pub mean_w: f64,
+    /// Number of readings.
+    pub n_rows: usize,
+}
+
+/// A signal the unexplained residual correlates with.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct Correlate {
+    /// Feature name (joint + quantity).
+    pub feature: String,
+    /// Pearson correlation of per-trial mean residual and per-trial mean feature.
+    pub r: f64,
+    /// Bonferroni-adjusted two-sided p-value (over all features tried).
+    pub p_adjusted: f64,
+    /// Significant at the diagnosis' level.
+    pub significant: bool,
+    /// Trials that carry it most (largest contribution to the correlation), segmentation numbering.
+    pub trials: Vec<usize>,
+}
+
+/// A row's selectors for the breakdowns.
+fn group_stats(
+    label: String,
+    rows: &Rows,
+    resid: &[f64],
+    members: &[usize],
+    n_trials: usize,
+) -> Group {
+    let mut sum = vec![0.0; n_trials];
+    let mut cnt = vec![0usize; n_trials];
+    let mut sq = 0.0;
+    for &r in members {
+        sum[rows.trial[r]] += resid[r];
+        cnt[rows.trial[r]] += 1;
+        sq += resid[r] * resid[r];
+    }
+    let means: Vec<f64> = sum
+        .iter()
+        .zip(&cnt)
+        .filter(|(_, c)| **c > 0)
+        .map(|(s, c)| s / *c as f64)
+        .collect();
+    let n = members.len();
+    let bias = if n > 0 {
+        members.iter().map(|&r| resid[r]).sum::<f64>() / n as f64
+    } else {
+        0.0
+    };
+    let p_value = if means.len() >= 3 {
+        let m = means.iter().sum::<f64>() / means.len() as f64;
+        let var = means.iter().map(|v| (v - m).powi(2)).sum::<f64>() / (means.len() - 1) as f64;
+        let t = m / (var / means.len() as f64).sqrt().max(1e-300);
+        (2.0 * t_upper_tail(t.abs(), (means.len() - 1) as f64)).min(1.0)
+    } else {
+        1.0
+    };
+    Group {
+        label,
+        n_rows: n,
+        n_trials: means.len(),
+        bias_w: bias,
+        rmse_w: if n > 0 { (sq / n as f64).sqrt() } else { 0.0 },
+        p_value,
+    }
+}
+
+/// Tercile cut points of `values`.
+fn terciles(values: &[f64]) -> (f64, f64) {
+    let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
+    v.sort_by(f64::total_cmp);
+    if v.is_empty() {
+        return (0.0, 0.0);
+    }
+    (v[v.len() / 3], v[2 * v.len() / 3])
+}
+
+fn split3(
+    by: &str,
+    names: [&str; 3],
+    unit: &str,
+    value: &[f64],
+    rows: &Rows,
+    resid: &[f64],
+    n_trials: usize,
+) -> Breakdown {
+    let (a, b) = terciles(value);
+    let mut members = [Vec::new(), Vec::new(), Vec::new()];
+    for (r, v) in value.iter().enumerate() {
+        members[if *v < a {
+            0
+        } else if *v < b {
+            1
+        } else {
+            2
+        }]
+        .push(r);
+    }
+    let labels = [
+        format!("{} (< {a:.1} {unit})", names[0]),
+        format!("{} ({a:.1}–{b:.1} {unit})", names[1]),
+        format!("{} (≥ {b:.1} {unit})", names[2]),
+    ];
+    Breakdown {
+        by: by.into(),
+        groups: labels
+            .into_iter()
+            .zip(&members)
+            .map(|(l, m)| group_stats(l, rows, resid, m, n_trials))
+            .collect(),
+    }
+}
+
+/// All breakdowns of the residuals `resid` (measured − predicted, held out) of `rows`.
+pub(crate) fn breakdowns(
+    rows: &Rows,
+    trials: &[TrialMeta],
+    resid: &[f64],
+    joint_names: &[String],
+) -> Vec<Breakdown> {
+    let n_trials = trials.len();
+    let n = rows.len();
+    let name = |j: usize| {
+        joint_names
+            .get(j)
+            .cloned()
+            .unwrap_or_else(|| format!("joint {j}"))
+    };
+    let mut out = Vec::new();
+
+    let joint_groups = (0..N_JOINTS)
+        .map(|j| {
+            let m: Vec<usize> = (0..n)
+                .filter(|&r| trials[rows.trial[r]].window.joints_moved.contains(&j))
+                .collect();
+            group_stats(format!("{} moved", name(j)), rows, resid, &m, n_trials)
+        })
+        .collect();
+    out.push(Breakdown {
+        by: "joint".into(),
+        groups: joint_groups,
+    });
+
+    let phases = [
+        (Phase::Trajectory, "trajectory"),
+        (Phase::PostIdle, "post-idle"),
+        (Phase::Return, "return"),
+    ];
+    out.push(Breakdown {
+        by: "phase".into(),
+        groups: phases
+            .iter()
+            .map(|(p, l)| {
+                let m: Vec<usize> = (0..n).filter(|&r| rows.phase[r] == *p).collect();
+                group_stats((*l).into(), rows, resid, &m, n_trials)
+            })
+            .collect(),
+    });
+
+    // Driving vs braking by the sign of the window's total mechanical power Σ τ_i q̇_i.
+    let mech: Vec<f64> = rows.x.iter().map(|x| x[..N_JOINTS].iter().sum()).collect();
+    let moving: Vec<bool> = rows
+        .x
+        .iter()
+        .map(|x| x[2 * N_JOINTS..3 * N_JOINTS].iter().sum::<f64>() > 0.05)
+        .collect();
+    let sel = |f: &dyn Fn(usize) -> bool| -> Vec<usize> { (0..n).filter(|&r| f(r)).collect() };
+    out.push(Breakdown {
+        by: "regime".into(),
+        groups: vec![
+            group_stats(
+                "driving (Σ τq̇ > 0)".into(),
+                rows,
+                resid,
+                &sel(&|r| moving[r] && mech[r] > 0.0),
+                n_trials,
+            ),
+            group_stats(
+                "braking (Σ τq̇ < 0)".into(),
+                rows,
+                resid,
+                &sel(&|r| moving[r] && mech[r] <= 0.0),
+                n_trials,
+            ),
+            group_stats(
+                "holding (no motion)".into(),
+                rows,
+                resid,
+                &sel(&|r| !moving[r]),
+                n_trials,
+            ),
+        ],
+    });
+    out.push(Breakdown {
+        by: "braking joint".into(),
+        groups: (0..N_JOINTS)
+            .map(|j| {
+                group_stats(
+                    format!("{} braking", name(j)),
+                    rows,
+                    resid,
+                    &sel(&|r| rows.x[r][j] < -0.2),
+                    n_trials,
+                )
+            })
+            .collect(),
+    });
+
+    if !rows.locate.is_empty() {
+        let temp: Vec<f64> = rows
+            .locate
+            .iter()
+            .map(|l| (0..N_JOINTS).map(|j| l[5 * j + 3]).sum::<f64>() / N_JOINTS as f64)
+            .collect();
+        out.push(split3(
+            "temperature",
+            ["cold", "warm", "hot"],
+            "°C",
+            &temp,
+            rows,
+            resid,
+            n_trials,
+        ));
+    }
+    let speed: Vec<f64> = rows
+        .trial
+        .iter()
+        .map(|&t| trials[t].window.qdot_max)
+        .collect();
+    out.push(split3(
+        "speed",
+        ["slow", "medium", "fast"],
+        "rad/s",
+        &speed,
+        rows,
+        resid,
+        n_trials,
+    ));
+    out.push(Breakdown {
+        by: "joints moving".into(),
+        groups: [
+            (1usize, 1usize, "single joint"),
+            (2, 2, "two joints"),
+            (3, N_JOINTS, "three or more joints"),
+        ]
+        .iter()
+        .map(|&(lo, hi, l)| {
+            let m = sel(&|r| (lo..=hi).contains(&trials[rows.trial[r]].window.joints_moved.len()));
+            group_stats(l.into(), rows, resid, &m, n_trials)
+        })
+        .collect(),
+    });
+    let mut sig: Vec<f64> = trials.iter().map(|t| t.sigma_omega).collect();
+    sig.sort_by(f64::total_cmp);
+    let med = sig.get(sig.len() / 2).copied().unwrap_or(0.0);
+    out.push(Breakdown {
+        by: "body (IMU)".into(),
+        groups: vec![
+            group_stats(
+                format!("calm (σ_ω ≤ 1.5 × median = {:.3} rad/s)", 1.5 * med),
+                rows,
+                resid,
+                &sel(&|r| trials[rows.trial[r]].sigma_omega <= 1.5 * med),
+                n_trials,
+            ),
+            group_stats(
+                "swaying (σ_ω above)".into(),
+                rows,
+                resid,
+                &sel(&|r| trials[rows.trial[r]].sigma_omega > 1.5 * med),
+                n_trials,
+            ),
+        ],
+    });
+    out.push(split3(
+        "session time",
+        ["early", "middle", "late"],
+        "s",
+        &rows.t,
+        rows,
+        resid,
+        n_trials,
+    ));
+    out
+}
+
+/// The most significant group over all breakdowns (at least 3 trials; the one-group "joint"
+/// splits overlap, so they compete like the others).
+pub(crate) fn worst(breakdowns: &[Breakdown]) -> Option<(String, Group)> {
+    breakdowns
+        .iter()
+        .flat_map(|b| b.groups.iter().map(move |g| (b.by.clone(), g.clone())))
+        .filter(|(_, g)| g.n_trials >= 3)
+        .min_by(|a, b| {
+            a.1.p_value
+                .total_cmp(&b.1.p_value)
+                .then(b.1.bias_w.abs().total_cmp(&a.1.bias_w.abs()))
+        })
+}
+
+/// Per-trial mean residuals, largest magnitude first.
+pub(crate) fn trial_residuals(
+    rows: &Rows,
+    trials: &[TrialMeta],
+    resid: &[f64],
+) -> Vec<TrialResidual> {
+    let mut sum = vec![0.0; trials.len()];
+    let mut cnt = vec![0usize; trials.len()];
+    for (r, e) in resid.iter().enumerate() {
+        sum[rows.trial[r]] += e;
+        cnt[rows.trial[r]] += 1;
+    }
+    let mut out: Vec<TrialResidual> = (0..trials.len())
+        .filter(|&t| cnt[t] > 0)
+        .map(|t| TrialResidual {
+            trial: trials[t].window.index,
+            mean_w: sum[t] / cnt[t] as f64,
+            n_rows: cnt[t],
+        })
+        .collect();
+    out.sort_by(|a, b| b.mean_w.abs().total_cmp(&a.mean_w.abs()));
+    out
+}
+
+/// Correlate per-trial mean residuals with per-trial mean descriptor features (plus session
+/// time, body sway and speed level). Each feature is first made orthogonal (per reading) to the
+/// base regressors φ, so what the base model can already absorb does not hide or fake a
+/// correlate (a partial correlation). Returns the strongest `top` correlates, most significant first.
+pub(crate) fn correlates(
+    rows: &Rows,
+    trials: &[TrialMeta],
+    resid: &[f64],
+    joint_names: &[String],
+    level: f64,
+    top: usize,
+) -> Vec<Correlate> {
+    let nt = trials.len();
+    let nf = N_LOCATE + 3;
+    let n = rows.len();
+    // Row-level features, then their part orthogonal to φ.
+    let mut f = DMatrix::zeros(n, nf);
+    for r in 0..n {
+        if let Some(l) = rows.locate.get(r) {
+            for k in 0..N_LOCATE {
+                f[(r, k)] = l[k];
+            }
+        }
+        f[(r, N_LOCATE)] = rows.t[r];
+        f[(r, N_LOCATE + 1)] = trials[rows.trial[r]].sigma_omega;
+        f[(r, N_LOCATE + 2)] = trials[rows.trial[r]].window.qdot_max;
+    }
+    let x = DMatrix::from_fn(n, N_PARAMS + 1, |r, c| {
+        if c < N_PARAMS { rows.x[r][c] } else { 1.0 }
+    });
+    let mut g = x.transpose() * &x;
+    let ridge = 1e-9 * (0..g.nrows()).map(|i| g[(i, i)]).fold(0.0, f64::max);
+    for i in 0..g.nrows() {
+        g[(i, i)] += ridge.max(1e-300);
+    }
+    if let Some(ch) = g.cholesky() {
+        let b = ch.solve(&(x.transpose() * &f));
+        f -= &x * b;
+    }
+    let mut feat = vec![vec![0.0; nf]; nt];
+    let mut res = vec![0.0; nt];
+    let mut cnt = vec![0usize; nt];
+    for r in 0..n {
+        let t = rows.trial[r];
+        res[t] += resid[r];
+        cnt[t] += 1;
+        for k in 0..nf {
+            feat[t][k] += f[(r, k)];
+        }
+    }
+    let keep: Vec<usize> = (0..nt).filter(|&t| cnt[t] > 0).collect();
+    for &t in &keep {
+        let c = cnt[t] as f64;
+        res[t] /= c;
+        feat[t].iter_mut().for_each(|v| *v /= c);
+    }
+    let y: Vec<f64> = keep.iter().map(|&t| res[t]).collect();
+    let names = |k: usize| match k {
+        k if k < N_LOCATE => locate_name(k, joint_names),
+        k if k == N_LOCATE => "session time".to_string(),
+        k if k == N_LOCATE + 1 => "body sway σ_ω (IMU)".to_string(),
+        _ => "trial speed level".to_string(),
+    };
+    let mut out: Vec<Correlate> = (0..nf)
+        .filter(|&k| !(rows.locate.is_empty() && k < N_LOCATE))
+        .map(|k| {
+            let x: Vec<f64> = keep.iter().map(|&t| feat[t][k]).collect();
+            let (r, p) = pearson(&x, &y);
+            let p_adjusted = (p * nf as f64).min(1.0);
+            let mx = x.iter().sum::<f64>() / x.len().max(1) as f64;
+            let my = y.iter().sum::<f64>() / y.len().max(1) as f64;
+            let mut contrib: Vec<(f64, usize)> = keep
+                .iter()
+                .enumerate()
+                .map(|(i, &t)| ((x[i] - mx) * (y[i] - my) * r.signum(), t))
+                .collect();
+            contrib.sort_by(|a, b| b.0.total_cmp(&a.0));
+            let trials_carrying = contrib
+                .iter()
+                .take(5)
+                .filter(|c| c.0 > 0.0)
+                .map(|c| trials[c.1].window.index)
+                .collect();
+            Correlate {
+                feature: names(k),
+                r,
+                p_adjusted,
+                significant: p_adjusted < level,
+                trials: trials_carrying,
+            }
+        })
+        .collect();
+    out.sort_by(|a, b| {
+        a.p_adjusted
+            .total_cmp(&b.p_adjusted)
+            .then(b.r.abs().total_cmp(&a.r.abs()))
+    });
+    out.truncate(top);
+    out
+}

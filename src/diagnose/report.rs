@@ -1,0 +1,563 @@
+//! Diagnosis report: `report.md` with tables (torque level, residual breakdowns, hypothesis
+//! ranking, final model, unexplained structure), PNG figures (residual by the located regime,
+//! hypothesis ranking, per-trial fit before/after, residual over session time, sensor-lag scan)
+//! and `diagnosis.json`. Every file is written atomically.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use anyhow::{Context, Result};
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+use super::Diagnosis;
+
+// Plot helpers: the same font and atomic PNG writing as the identification report.
+const FONT: &str = "sans-serif";
+static FONT_BYTES: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
+
+fn register_font() -> Result<()> {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    let mut ok = true;
+    ONCE.call_once(|| {
+        ok = plotters::style::register_font(FONT, FontStyle::Normal, FONT_BYTES).is_ok()
+    });
+    anyhow::ensure!(ok, "the bundled DejaVu Sans font could not be loaded");
+    Ok(())
+}
+
+fn plot_err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
+    anyhow::anyhow!("plotting failed: {e:?}")
+}
+
+fn write_png(path: &Path, size: (u32, u32), draw: impl FnOnce(&Area) -> Result<()>) -> Result<()> {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let tmp = path.with_file_name(format!(
+        ".{}.tmp{}.png",
+        name.trim_end_matches(".png"),
+        std::process::id()
+    ));
+    let result = (|| {
+        {
+            let root = BitMapBackend::new(&tmp, size).into_drawing_area();
+            root.fill(&WHITE).map_err(plot_err)?;
+            draw(&root)?;
+            root.present().map_err(plot_err)?;
+        }
+        std::fs::rename(&tmp, path)
+            .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result.with_context(|| format!("drawing {}", path.display()))
+}
+
+/// Figure file names, relative to the report directory.
+pub const FIGURES: [&str; 5] = [
+    "regime.png",
+    "hypotheses.png",
+    "before_after.png",
+    "residual_time.png",
+    "lag_scan.png",
+];
+
+type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
+
+fn sig(v: f64) -> String {
+    if v.abs() >= 0.01 && v.abs() < 1e4 {
+        format!("{v:.3}")
+    } else {
+        format!("{v:.2e}")
+    }
+}
+
+/// Write `dir/report.md`, its figures and `dir/diagnosis.json`.
+pub fn write_report(dir: &Path, d: &Diagnosis) -> Result<()> {
+    register_font()?;
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("creating report directory {}", dir.display()))?;
+    let mut md = String::new();
+    let _ = writeln!(md, "# Sim-to-real diagnosis: {}\n", d.source);
+    let _ = writeln!(md, "```text\n{}```\n", d.summary);
+    let _ = writeln!(
+        md,
+        "{} trials, {} {:?} readings; base model: {}; {} trials left out.\n",
+        d.n_trials,
+        d.n_readings,
+        d.target,
+        if d.base_model == "reference" {
+            "held at the twin's model"
+        } else {
+            "refitted on the training trials of each fold"
+        },
+        d.rejected.len()
+    );
+
+    if let Some(t) = &d.torque {
+        let _ = writeln!(md, "## Torque level (tau_est vs URDF inverse dynamics)\n");
+        let _ = writeln!(md, "{} samples.\n", t.n_samples);
+        let _ = writeln!(
+            md,
+            "| joint | bias [Nm] | RMS [Nm] | RMS after friction [Nm] | Fc [Nm] | Fv [Nm·s/rad] |"
+        );
+        let _ = writeln!(md, "|---|---|---|---|---|---|");
+        for j in 0..t.rmse_urdf.len() {
+            let _ = writeln!(
+                md,
+                "| {} | {:+.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
+                t.joints.get(j).cloned().unwrap_or_default(),
+                t.bias_urdf[j],
+                t.rmse_urdf[j],
+                t.rmse_with_friction[j],
+                t.coulomb_nm[j],
+                t.viscous_nms[j]
+            );
+        }
+        md.push('\n');
+    }
+
+    let _ = writeln!(
+        md,
+        "## Where the model is wrong (held-out residuals of the base model)\n"
+    );
+    if let Some((by, g)) = &d.worst {
+        let _ = writeln!(
+            md,
+            "Most significant: **{by} / {}**: mean residual {:+.3} W over {} trials (p = {}).\n",
+            g.label,
+            g.bias_w,
+            g.n_trials,
+            sig(g.p_value)
+        );
+    }
+    for b in &d.breakdowns {
+        let _ = writeln!(
+            md,
+            "**{}**\n\n| group | readings | trials | mean residual [W] | RMS [W] | p |\n|---|---|---|---|---|---|",
+            b.by
+        );
+        for g in &b.groups {
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} | {:+.3} | {:.3} | {} |",
+                g.label,
+                g.n_rows,
+                g.n_trials,
+                g.bias_w,
+                g.rmse_w,
+                sig(g.p_value)
+            );
+        }
+        md.push('\n');
+    }
+    write_png(&dir.join(FIGURES[0]), (900, 500), |a| draw_regime(a, d))?;
+    let _ = writeln!(md, "![Residual by the located regime]({})\n", FIGURES[0]);
+    let _ = writeln!(
+        md,
+        "Worst trials: {}\n",
+        d.worst_trials
+            .iter()
+            .map(|t| format!("{} ({:+.2} W)", t.trial, t.mean_w))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+
+    let _ = writeln!(
+        md,
+        "## Hypotheses (scored against the base model; accepted first)\n"
+    );
+    let _ = writeln!(
+        md,
+        "| rank | hypothesis | level | parameter | p | ΔBIC | held-out RMSE before → after | verdict |"
+    );
+    let _ = writeln!(md, "|---|---|---|---|---|---|---|---|");
+    for h in &d.hypotheses {
+        let p = h
+            .params
+            .first()
+            .map(|p| {
+                format!(
+                    "{} = {} ± {} {}",
+                    p.symbol,
+                    sig(p.value),
+                    sig(p.std_err),
+                    p.unit
+                )
+            })
+            .unwrap_or_default();
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} | {:.1} | {:.4} → {:.4} ({:+.1} %) | {} |",
+            h.rank,
+            h.id,
+            h.level,
+            p,
+            sig(h.p_value),
+            h.delta_bic,
+            h.rmse_before,
+            h.rmse_after,
+            -100.0 * h.rel_improvement,
+            h.verdict
+        );
+    }
+    md.push('\n');
+    write_png(&dir.join(FIGURES[1]), (900, 450), |a| draw_hypotheses(a, d))?;
+    let _ = writeln!(
+        md,
+        "![Held-out improvement per hypothesis]({})\n",
+        FIGURES[1]
+    );
+
+    let f = &d.final_model;
+    let _ = writeln!(md, "## Model with the accepted hypotheses\n");
+    if f.hypotheses.is_empty() {
+        let _ = writeln!(md, "No hypothesis accepted: the model is unchanged.\n");
+    } else {
+        let _ = writeln!(
+            md,
+            "| parameter | value | std. error | unit |\n|---|---|---|---|"
+        );
+        for p in &f.params {
+            let _ = writeln!(
+                md,
+                "| {} ({}) | {} | {} | {} |",
+                p.name,
+                p.symbol,
+                sig(p.value),
+                sig(p.std_err),
+                p.unit
+            );
+        }
+        md.push('\n');
+    }
+    let _ = writeln!(
+        md,
+        "| held out | R² before | R² after | RMSE before [W] | RMSE after [W] |\n|---|---|---|---|---|\n| per reading | {:.4} | {:.4} | {:.4} | {:.4} |\n| per trial | {:.4} | {:.4} | {:.4} | {:.4} |\n",
+        f.before.r2,
+        f.after.r2,
+        f.before.rmse_w,
+        f.after.rmse_w,
+        f.before_per_trial.r2,
+        f.after_per_trial.r2,
+        f.before_per_trial.rmse_w,
+        f.after_per_trial.rmse_w
+    );
+    write_png(&dir.join(FIGURES[2]), (1000, 520), |a| {
+        draw_before_after(a, d)
+    })?;
+    let _ = writeln!(
+        md,
+        "![Per-trial net power, measured vs predicted before and after]({})\n",
+        FIGURES[2]
+    );
+    write_png(&dir.join(FIGURES[3]), (1000, 420), |a| {
+        draw_residual_time(a, d)
+    })?;
+    let _ = writeln!(
+        md,
+        "![Held-out residual over the session, before and after]({})\n",
+        FIGURES[3]
+    );
+
+    let _ = writeln!(md, "## Residual structure no hypothesis explains\n");
+    let _ = writeln!(
+        md,
+        "Per-trial mean residual of the final model vs per-trial mean feature (feature made orthogonal to the base regressors), Bonferroni-adjusted.\n"
+    );
+    let _ = writeln!(
+        md,
+        "| feature | r | adjusted p | significant | trials carrying it |\n|---|---|---|---|---|"
+    );
+    for c in &d.unexplained {
+        let trials: Vec<String> = c.trials.iter().map(|t| t.to_string()).collect();
+        let _ = writeln!(
+            md,
+            "| {} | {:+.3} | {} | {} | {} |",
+            c.feature,
+            c.r,
+            sig(c.p_adjusted),
+            if c.significant { "yes" } else { "no" },
+            trials.join(", ")
+        );
+    }
+    md.push('\n');
+    if d.lag_scan.len() > 1 {
+        write_png(&dir.join(FIGURES[4]), (800, 420), |a| draw_lag_scan(a, d))?;
+        let _ = writeln!(md, "![Sensor-lag scan of the base model]({})\n", FIGURES[4]);
+    }
+    if !d.rejected.is_empty() {
+        let _ = writeln!(md, "## Trials left out\n\n| trial | reason |\n|---|---|");
+        for r in &d.rejected {
+            let _ = writeln!(md, "| {} | {} |", r.trial, r.reason);
+        }
+        md.push('\n');
+    }
+    crate::util::write_atomic(&dir.join("report.md"), md.as_bytes())?;
+    d.save_json(&dir.join("diagnosis.json"))
+}
+
+fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
+    let (lo, hi) = values
+        .filter(|v| v.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+            (a.min(v), b.max(v))
+        });
+    if !lo.is_finite() {
+        return (-1.0, 1.0);
+    }
+    let pad = ((hi - lo) * 0.08).max(1e-6);
+    (lo - pad, hi + pad)
+}
+
+fn draw_bars(a: &Area, caption: &str, y_desc: &str, bars: &[(String, f64, bool)]) -> Result<()> {
+    let n = bars.len().max(1);
+    let (lo, hi) = range(bars.iter().map(|b| b.1).chain([0.0]));
+    let mut chart = ChartBuilder::on(a)
+        .caption(caption, (FONT, 18))
+        .margin(10)
+        .x_label_area_size(90)
+        .y_label_area_size(60)
+        .build_cartesian_2d((0..n - 1).into_segmented(), lo..hi)
+        .map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .disable_x_mesh()
+        .x_labels(n)
+        .y_desc(y_desc)
+        .x_label_formatter(&|v| match v {
+            SegmentValue::CenterOf(i) => bars
+                .get(*i)
+                .map(|b| b.0.chars().take(22).collect())
+                .unwrap_or_default(),
+            _ => String::new(),
+        })
+        .x_label_style((FONT, 11).into_font().transform(FontTransform::Rotate90))
+        .label_style((FONT, 12))
+        .draw()
+        .map_err(plot_err)?;
+    chart
+        .draw_series(bars.iter().enumerate().map(|(i, b)| {
+            let color = if b.2 {
+                RGBColor(214, 96, 77)
+            } else {
+                RGBColor(150, 150, 150)
+            };
+            let mut r = Rectangle::new(
+                [
+                    (SegmentValue::Exact(i), 0.0),
+                    (SegmentValue::Exact(i + 1), b.1),
+                ],
+                color.filled(),
+            );
+            r.set_margin(0, 0, 6, 6);
+            r
+        }))
+        .map_err(plot_err)?;
+    Ok(())
+}
+
+fn draw_regime(a: &Area, d: &Diagnosis) -> Result<()> {
+    let Some((by, _)) = &d.worst else {
+        return Ok(());
+    };
+    let Some(b) = d.breakdowns.iter().find(|b| &b.by == by) else {
+        return Ok(());
+    };
+    let bars: Vec<(String, f64, bool)> = b
+        .groups
+        .iter()
+        .map(|g| (g.label.clone(), g.bias_w, g.p_value < 1e-3))
+        .collect();
+    draw_bars(
+        a,
+        &format!("Mean held-out residual by {by} (red: p < 0.001)"),
+        "measured − predicted [W]",
+        &bars,
+    )
+}
+
+fn draw_hypotheses(a: &Area, d: &Diagnosis) -> Result<()> {
+    let bars: Vec<(String, f64, bool)> = d
+        .hypotheses
+        .iter()
+        .map(|h| {
+            (
+                format!("{} ({})", h.id, h.level),
+                100.0 * h.rel_improvement,
+                h.accepted,
+            )
+        })
+        .collect();
+    draw_bars(
+        a,
+        "Held-out RMSE improvement per hypothesis (red: accepted)",
+        "improvement [%]",
+        &bars,
+    )
+}
+
+/// Per-trial means of measured, before and after (replay data), sorted by measured.
+fn per_trial(d: &Diagnosis) -> Vec<(f64, f64, f64)> {
+    let r = &d.replay;
+    let mut acc: std::collections::BTreeMap<usize, (f64, f64, f64, usize)> = Default::default();
+    for k in 0..r.t.len() {
+        let e = acc.entry(r.trial[k]).or_default();
+        e.0 += r.measured_w[k];
+        e.1 += r.before_w[k];
+        e.2 += r.after_w[k];
+        e.3 += 1;
+    }
+    let mut v: Vec<(f64, f64, f64)> = acc
+        .values()
+        .map(|e| (e.0 / e.3 as f64, e.1 / e.3 as f64, e.2 / e.3 as f64))
+        .collect();
+    v.sort_by(|a, b| a.0.total_cmp(&b.0));
+    v
+}
+
+fn draw_before_after(a: &Area, d: &Diagnosis) -> Result<()> {
+    let v = per_trial(d);
+    let n = v.len();
+    let (lo, hi) = range(v.iter().flat_map(|p| [p.0, p.1, p.2]));
+    let f = &d.final_model;
+    let mut chart = ChartBuilder::on(a)
+        .caption(
+            format!(
+                "Per-trial net power, held out: R² {:.3} → {:.3}, RMSE {:.2} → {:.2} W",
+                f.before_per_trial.r2,
+                f.after_per_trial.r2,
+                f.before_per_trial.rmse_w,
+                f.after_per_trial.rmse_w
+            ),
+            (FONT, 18),
+        )
+        .margin(10)
+        .x_label_area_size(36)
+        .y_label_area_size(60)
+        .build_cartesian_2d(-0.5..(n as f64 - 0.5).max(0.5), lo..hi)
+        .map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .x_desc("trial (sorted by measured)")
+        .y_desc("net power [W]")
+        .label_style((FONT, 13))
+        .draw()
+        .map_err(plot_err)?;
+    chart
+        .draw_series(
+            v.iter()
+                .enumerate()
+                .map(|(k, p)| Circle::new((k as f64, p.0), 3, BLUE.stroke_width(1))),
+        )
+        .map_err(plot_err)?
+        .label("measured")
+        .legend(|(x, y)| Circle::new((x + 10, y), 4, BLUE.stroke_width(1)));
+    chart
+        .draw_series(
+            v.iter().enumerate().map(|(k, p)| {
+                Cross::new((k as f64, p.1), 3, RGBColor(140, 140, 140).stroke_width(1))
+            }),
+        )
+        .map_err(plot_err)?
+        .label("before")
+        .legend(|(x, y)| Cross::new((x + 10, y), 4, RGBColor(140, 140, 140).stroke_width(1)));
+    chart
+        .draw_series(LineSeries::new(
+            v.iter().enumerate().map(|(k, p)| (k as f64, p.2)),
+            RED.stroke_width(2),
+        ))
+        .map_err(plot_err)?
+        .label("after")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED.stroke_width(2)));
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperLeft)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font((FONT, 14))
+        .draw()
+        .map_err(plot_err)?;
+    Ok(())
+}
+
+fn draw_residual_time(a: &Area, d: &Diagnosis) -> Result<()> {
+    let r = &d.replay;
+    let before: Vec<(f64, f64)> = (0..r.t.len())
+        .map(|k| (r.t[k], r.measured_w[k] - r.before_w[k]))
+        .collect();
+    let after: Vec<(f64, f64)> = (0..r.t.len())
+        .map(|k| (r.t[k], r.measured_w[k] - r.after_w[k]))
+        .collect();
+    let (t0, t1) = range(r.t.iter().copied());
+    let (lo, hi) = range(before.iter().chain(&after).map(|p| p.1));
+    let mut chart = ChartBuilder::on(a)
+        .caption("Held-out residual per reading over the session", (FONT, 18))
+        .margin(10)
+        .x_label_area_size(36)
+        .y_label_area_size(60)
+        .build_cartesian_2d(t0..t1, lo..hi)
+        .map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .x_desc("session time [s]")
+        .y_desc("measured − predicted [W]")
+        .label_style((FONT, 13))
+        .draw()
+        .map_err(plot_err)?;
+    chart
+        .draw_series(
+            before
+                .iter()
+                .map(|p| Circle::new(*p, 2, RGBColor(140, 140, 140).filled())),
+        )
+        .map_err(plot_err)?
+        .label("before")
+        .legend(|(x, y)| Circle::new((x + 10, y), 3, RGBColor(140, 140, 140).filled()));
+    chart
+        .draw_series(after.iter().map(|p| Circle::new(*p, 2, RED.filled())))
+        .map_err(plot_err)?
+        .label("after")
+        .legend(|(x, y)| Circle::new((x + 10, y), 3, RED.filled()));
+    chart
+        .configure_series_labels()
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font((FONT, 14))
+        .draw()
+        .map_err(plot_err)?;
+    Ok(())
+}
+
+fn draw_lag_scan(a: &Area, d: &Diagnosis) -> Result<()> {
+    let pts: Vec<(f64, f64)> = d.lag_scan.iter().map(|p| (p.lag_s, p.rmse_w)).collect();
+    let (x0, x1) = range(pts.iter().map(|p| p.0));
+    let (y0, y1) = range(pts.iter().map(|p| p.1));
+    let mut chart = ChartBuilder::on(a)
+        .caption(
+            "Base-model RMSE vs assumed power-sensor latency",
+            (FONT, 18),
+        )
+        .margin(10)
+        .x_label_area_size(36)
+        .y_label_area_size(60)
+        .build_cartesian_2d(x0..x1, y0..y1)
+        .map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .x_desc("latency [s]")
+        .y_desc("RMSE [W]")
+        .label_style((FONT, 13))
+        .draw()
+        .map_err(plot_err)?;
+    chart
+        .draw_series(LineSeries::new(pts.iter().copied(), BLUE.stroke_width(2)))
+        .map_err(plot_err)?;
+    chart
+        .draw_series(pts.iter().map(|p| Circle::new(*p, 3, BLUE.filled())))
+        .map_err(plot_err)?;
+    Ok(())
+}

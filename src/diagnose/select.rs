@@ -1,0 +1,869 @@
+//! Scoring and greedy selection of hypotheses with validation that adding parameters cannot game:
+//! k-fold cross-validation by TRIAL (all readings of a trial are held out together), a one-sided
+//! paired test (t and signed-rank) of the per-trial held-out squared error (base vs base + hypothesis), the
+//! Bayesian information criterion on the full data, and a physical-plausibility check.
+//!
+//! All fits of all subsets of hypotheses come from one Gram matrix per fold (the extra regressors
+//! are linear maps of the pre-computed raw features), so scoring the whole library is cheap.
+
+use anyhow::Result;
+use nalgebra::{DMatrix, DVector};
+use rand::SeedableRng;
+use rand::seq::SliceRandom;
+
+use super::data::Rows;
+use super::hypotheses::{Combine, Hypothesis, LATENCY_ID, N_RAW};
+use super::stats::improvement_p_value;
+use crate::{N_JOINTS, N_PARAMS};
+
+/// Least-squares sufficient statistics of a set of rows over the raw layout.
+#[derive(Debug, Clone)]
+pub(crate) struct Gram {
+    pub g: DMatrix<f64>,
+    pub h: DVector<f64>,
+    pub yy: f64,
+    pub n: usize,
+}
+
+impl Gram {
+    fn zeros(p: usize) -> Self {
+        Gram {
+            g: DMatrix::zeros(p, p),
+            h: DVector::zeros(p),
+            yy: 0.0,
+            n: 0,
+        }
+    }
+
+    fn add_row(&mut self, x: &[f64], y: f64) {
+        let p = x.len();
+        let g = self.g.as_mut_slice();
+        for (c, &xc) in x.iter().enumerate() {
+            if xc == 0.0 {
+                continue;
+            }
+            let col = &mut g[c * p..(c + 1) * p];
+            for (gv, &xr) in col.iter_mut().zip(x) {
+                *gv += xr * xc;
+            }
+        }
+        for (hv, &xr) in self.h.iter_mut().zip(x) {
+            *hv += xr * y;
+        }
+        self.yy += y * y;
+        self.n += 1;
+    }
+
+    fn minus(&self, other: &Gram) -> Gram {
+        Gram {
+            g: &self.g - &other.g,
+            h: &self.h - &other.h,
+            yy: self.yy - other.yy,
+            n: self.n - other.n,
+        }
+    }
+
+    /// Sum of squared residuals of coefficients `beta` (raw layout).
+    pub fn sse(&self, beta: &DVector<f64>) -> f64 {
+        (self.yy - 2.0 * beta.dot(&self.h) + beta.dot(&(&self.g * beta))).max(0.0)
+    }
+}
+
+/// Assignment of trials to cross-validation folds (shuffled with a fixed seed: reproducible).
+#[derive(Debug, Clone)]
+pub(crate) struct Folds {
+    pub of_trial: Vec<usize>,
+    pub k: usize,
+}
+
+impl Folds {
+    pub fn new(n_trials: usize, k: usize, seed: u64) -> Folds {
+        let k = k.clamp(2, n_trials.max(2));
+        let mut order: Vec<usize> = (0..n_trials).collect();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        order.shuffle(&mut rng);
+        let mut of_trial = vec![0; n_trials];
+        for (pos, &t) in order.iter().enumerate() {
+            of_trial[t] = pos % k;
+        }
+        Folds { of_trial, k }
+    }
+}
+
+/// Per-fold and total Gram matrices of one set of rows.
+#[derive(Debug, Clone)]
+pub(crate) struct FoldGrams {
+    pub total: Gram,
+    pub fold: Vec<Gram>,
+}
+
+impl FoldGrams {
+    pub fn new(rows: &Rows, folds: &Folds) -> FoldGrams {
+        let mut fold: Vec<Gram> = (0..folds.k).map(|_| Gram::zeros(N_RAW)).collect();
+        for r in 0..rows.len() {
+            fold[folds.of_trial[rows.trial[r]]].add_row(&rows.x[r], rows.y[r]);
+        }
+        let mut total = Gram::zeros(N_RAW);
+        for f in &fold {
+            total.g += &f.g;
+            total.h += &f.h;
+            total.yy += f.yy;
+            total.n += f.n;
+        }
+        FoldGrams { total, fold }
+    }
+
+    fn train(&self, f: usize) -> Gram {
+        self.total.minus(&self.fold[f])
+    }
+}
+
+/// A model: the base regressors plus these hypotheses' regressors.
+pub(crate) type Spec = Vec<&'static Hypothesis>;
+
+/// A fitted model: coefficients θ (base 49, then one per hypothesis) and the equivalent
+/// coefficients on the raw layout (for predictions).
+#[derive(Debug, Clone)]
+pub(crate) struct Fitted {
+    pub theta: Vec<f64>,
+    pub beta: DVector<f64>,
+}
+
+/// Raw layout → model coefficients map for `spec`, weights of pooled terms from `theta`.
+fn design_map(spec: &[&Hypothesis], theta: &[f64]) -> DMatrix<f64> {
+    let p = N_PARAMS + spec.len();
+    let mut m = DMatrix::zeros(N_RAW, p);
+    for i in 0..N_PARAMS {
+        m[(i, i)] = 1.0;
+    }
+    for (j, h) in spec.iter().enumerate() {
+        let (off, len) = h.raw;
+        for i in 0..len {
+            let w = match h.combine {
+                Combine::Single => 1.0,
+                Combine::WeightedByBase(base) => theta.get(base + i).copied().unwrap_or(1.0),
+            };
+            m[(N_PARAMS + off + i, N_PARAMS + j)] = w;
+        }
+    }
+    m
+}
+
+/// Bounds of the base model: the paper's constraints (a ≥ 1, all other base parameters ≥ 0), or
+/// lo = hi = the reference θ when the base is held at a reference (twin) model. Hypothesis
+/// coefficients are free (their physical plausibility is judged after the fit, so a wrong-signed
+/// fit is visible).
+fn bounds(p: usize, reference: Option<&[f64]>) -> (Vec<f64>, Vec<f64>) {
+    let mut lo = vec![f64::NEG_INFINITY; p];
+    let mut hi = vec![f64::INFINITY; p];
+    for i in 0..N_PARAMS {
+        match reference {
+            Some(r) => {
+                lo[i] = r[i];
+                hi[i] = r[i];
+            }
+            None => lo[i] = if i < N_JOINTS { 1.0 } else { 0.0 },
+        }
+    }
+    (lo, hi)
+}
+
+/// Relative ridge on the base parameters (columns scaled to unit norm). The protocol makes the
+/// base regressors nearly collinear (joints moving together share one velocity profile, so
+/// |q̇_i||q̇_j| ∝ q̇_i²); without it a direction barely excited by the training trials can take
+/// any value and wreck the held-out prediction. Hypothesis coefficients are not penalised.
+const BASE_RIDGE: f64 = 1e-4;
+
+/// Bounded least squares on normal equations: minimise θᵀGθ − 2θᵀh subject to lo ≤ θ ≤ hi,
+/// with the relative ridge on the first [`N_PARAMS`] (base) coefficients.
+fn solve_bounded(
+    g: &DMatrix<f64>,
+    h: &DVector<f64>,
+    lo: &[f64],
+    hi: &[f64],
+) -> Result<DVector<f64>> {
+    let p = h.len();
+    let s: Vec<f64> = (0..p)
+        .map(|i| {
+            if g[(i, i)] > 0.0 {
+                g[(i, i)].sqrt()
+            } else {
+                1.0
+            }
+        })
+        .collect();
+    let mut gs = DMatrix::from_fn(p, p, |i, j| g[(i, j)] / (s[i] * s[j]));
+    for i in 0..p {
+        gs[(i, i)] += if i < N_PARAMS { BASE_RIDGE } else { 1e-12 };
+    }
+    let hs = DVector::from_fn(p, |i, _| h[i] / s[i]);
+    let los: Vec<f64> = lo.iter().zip(&s).map(|(l, si)| l * si).collect();
+    let his: Vec<f64> = hi.iter().zip(&s).map(|(u, si)| u * si).collect();
+    let z = super::qp::bounded_quadratic(&gs, &hs, &los, &his)?;
+    Ok(DVector::from_fn(p, |i, _| z[i] / s[i]))
+}
+
+fn fit_once(
+    spec: &[&Hypothesis],
+    gram: &Gram,
+    weights: &[f64],
+    reference: Option<&[f64]>,
+) -> Result<Fitted> {
+    let m = design_map(spec, weights);
+    let g = m.transpose() * &gram.g * &m;
+    let h = m.transpose() * &gram.h;
+    let (lo, hi) = bounds(m.ncols(), reference);
+    let theta = solve_bounded(&g, &h, &lo, &hi)?;
+    let beta = &m * &theta;
+    Ok(Fitted {
+        theta: theta.iter().copied().collect(),
+        beta,
+    })
+}
+
+/// Fit `spec` to the rows summarised by `gram` (base refitted, or held at `reference`). Pooled
+/// per-joint terms are refitted until their weights (the base parameters they scale) are
+/// self-consistent.
+pub(crate) fn fit(
+    spec: &[&'static Hypothesis],
+    gram: &Gram,
+    reference: Option<&[f64]>,
+) -> Result<Fitted> {
+    let pooled = spec
+        .iter()
+        .any(|h| matches!(h.combine, Combine::WeightedByBase(_)));
+    if !pooled {
+        return fit_once(spec, gram, &[], reference);
+    }
+    let plain: Vec<&Hypothesis> = spec
+        .iter()
+        .copied()
+        .filter(|h| h.combine == Combine::Single)
+        .collect();
+    let mut weights = fit_once(&plain, gram, &[], reference)?.theta;
+    let mut fitted = fit_once(spec, gram, &weights, reference)?;
+    for _ in 0..8 {
+        let change = fitted.theta[..N_PARAMS]
+            .iter()
+            .zip(&weights[..N_PARAMS])
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        if change < 1e-9 {
+            break;
+        }
+        weights = fitted.theta.clone();
+        fitted = fit_once(spec, gram, &weights, reference)?;
+    }
+    Ok(fitted)
+}
+
+/// Held-out predictions of every row and the per-fold coefficient vectors.
+#[derive(Debug, Clone)]
+pub(crate) struct CvOut {
+    pub pred: Vec<f64>,
+    pub fold_theta: Vec<Vec<f64>>,
+}
+
+/// K-fold cross-validation by trial of `spec` on `rows`.
+pub(crate) fn cross_validate(
+    spec: &[&'static Hypothesis],
+    rows: &Rows,
+    folds: &Folds,
+    fg: &FoldGrams,
+    reference: Option<&[f64]>,
+) -> Result<CvOut> {
+    let mut fitted = Vec::with_capacity(folds.k);
+    for f in 0..folds.k {
+        fitted.push(fit(spec, &fg.train(f), reference)?);
+    }
+    let pred = (0..rows.len())
+        .map(|r| {
+            let beta = &fitted[folds.of_trial[rows.trial[r]]].beta;
+            rows.x[r].iter().zip(beta.iter()).map(|(a, b)| a * b).sum()
+        })
+        .collect();
+    Ok(CvOut {
+        pred,
+        fold_theta: fitted.into_iter().map(|f| f.theta).collect(),
+    })
+}
+
+/// Per-trial sum of squared errors.
+pub(crate) fn trial_sse(y: &[f64], pred: &[f64], trial: &[usize], n_trials: usize) -> Vec<f64> {
+    let mut out = vec![0.0; n_trials];
+    for ((yv, pv), &t) in y.iter().zip(pred).zip(trial) {
+        out[t] += (yv - pv).powi(2);
+    }
+    out
+}
+
+/// R² and RMSE of predictions.
+pub(crate) fn r2_rmse(y: &[f64], pred: &[f64]) -> (f64, f64) {
+    let n = y.len().max(1) as f64;
+    let mean = y.iter().sum::<f64>() / n;
+    let sst: f64 = y.iter().map(|v| (v - mean).powi(2)).sum();
+    let sse: f64 = y.iter().zip(pred).map(|(a, b)| (a - b).powi(2)).sum();
+    (
+        if sst > 0.0 { 1.0 - sse / sst } else { 0.0 },
+        (sse / n).sqrt(),
+    )
+}
+
+/// Bayesian information criterion of a Gaussian least-squares fit.
+pub(crate) fn bic(sse: f64, n: usize, p: usize) -> f64 {
+    let n = n.max(1) as f64;
+    n * (sse.max(1e-300) / n).ln() + p as f64 * n.ln()
+}
+
+/// Delete-a-group jackknife standard error from the per-fold estimates.
+pub(crate) fn jackknife_se(values: &[f64]) -> f64 {
+    let k = values.len();
+    if k < 2 {
+        return f64::NAN;
+    }
+    let mean = values.iter().sum::<f64>() / k as f64;
+    ((k - 1) as f64 / k as f64 * values.iter().map(|v| (v - mean).powi(2)).sum::<f64>()).sqrt()
+}
+
+/// A named physical parameter with its uncertainty.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct Param {
+    /// What it is.
+    pub name: String,
+    /// Symbol.
+    pub symbol: String,
+    /// Estimate.
+    pub value: f64,
+    /// Standard error (delete-a-fold jackknife over the cross-validation folds).
+    pub std_err: f64,
+    /// Unit.
+    pub unit: String,
+}
+
+/// How one hypothesis scored.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct HypothesisScore {
+    /// Identifier (`thermal`, `braking`, `bus_loss`, `payload`, `latency`, …).
+    pub id: String,
+    /// What it is, in words.
+    pub title: String,
+    /// `power` or `torque`: the comparison level it is scored on.
+    pub level: String,
+    /// The physical parameter(s), first = the headline parameter.
+    pub params: Vec<Param>,
+    /// One-sided p-value that the held-out per-trial squared error improves ([`super::stats::improvement_p_value`]).
+    pub p_value: f64,
+    /// BIC(with hypothesis) − BIC(without), full data; negative favours the hypothesis.
+    pub delta_bic: f64,
+    /// Held-out RMSE without → with the hypothesis (W at power level, Nm at torque level).
+    pub rmse_before: f64,
+    /// Held-out RMSE with the hypothesis.
+    pub rmse_after: f64,
+    /// Held-out R² without the hypothesis.
+    pub r2_before: f64,
+    /// Held-out R² with the hypothesis.
+    pub r2_after: f64,
+    /// 1 − rmse_after / rmse_before.
+    pub rel_improvement: f64,
+    /// Parameter inside its physically plausible range.
+    pub plausible: bool,
+    /// Accepted by the significance rule (at the selection step it was scored in).
+    pub accepted: bool,
+    /// Rank among all hypotheses at the first selection step (1 = best).
+    pub rank: usize,
+    /// Selection step it was scored at (1 = against the base model).
+    pub step: usize,
+    /// Why it was accepted or rejected.
+    pub verdict: String,
+}
+
+/// Thresholds of the significance rule.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Rule {
+    pub alpha: f64,
+    pub bic_threshold: f64,
+    pub min_improvement: f64,
+}
+
+impl Rule {
+    /// Apply the rule: accepted or not, and why.
+    pub fn judge(&self, s: &HypothesisScore) -> (bool, String) {
+        let mut fails = Vec::new();
+        if s.p_value >= self.alpha {
+            fails.push(format!(
+                "held-out improvement not significant (p = {:.2e} ≥ {:.0e})",
+                s.p_value, self.alpha
+            ));
+        }
+        if s.delta_bic >= self.bic_threshold {
+            fails.push(format!(
+                "ΔBIC = {:.1} ≥ {:.0}",
+                s.delta_bic, self.bic_threshold
+            ));
+        }
+        if s.rel_improvement < self.min_improvement {
+            fails.push(format!(
+                "held-out RMSE improves by {:.2} % < {:.1} %",
+                100.0 * s.rel_improvement,
+                100.0 * self.min_improvement
+            ));
+        }
+        if !s.plausible {
+            fails.push("parameter outside its physically plausible range".into());
+        }
+        if fails.is_empty() {
+            (
+                true,
+                format!(
+                    "accepted: held-out RMSE −{:.1} % (p = {:.1e}), ΔBIC = {:.1}, plausible parameter",
+                    100.0 * s.rel_improvement,
+                    s.p_value,
+                    s.delta_bic
+                ),
+            )
+        } else {
+            (false, format!("rejected: {}", fails.join("; ")))
+        }
+    }
+}
+
+/// Power-level data: rows and Gram matrices at each scanned sensor lag (index 0 = no lag), and
+/// the reference θ when the base model is held at the twin's model instead of refitted.
+pub(crate) struct PowerData {
+    pub lags: Vec<f64>,
+    pub rows: Vec<Rows>,
+    pub grams: Vec<FoldGrams>,
+    pub folds: Folds,
+    pub n_trials: usize,
+    pub reference: Option<Vec<f64>>,
+}
+
+impl PowerData {
+    pub fn new(
+        lags: Vec<f64>,
+        rows: Vec<Rows>,
+        n_trials: usize,
+        k: usize,
+        reference: Option<Vec<f64>>,
+    ) -> PowerData {
+        let folds = Folds::new(n_trials, k, 0x67_3176_697a);
+        let grams = rows.iter().map(|r| FoldGrams::new(r, &folds)).collect();
+        PowerData {
+            lags,
+            rows,
+            grams,
+            folds,
+            n_trials,
+            reference,
+        }
+    }
+
+    fn reference(&self) -> Option<&[f64]> {
+        self.reference.as_deref()
+    }
+
+    /// Number of free base parameters (0 when held at the reference).
+    fn base_params(&self) -> usize {
+        if self.reference.is_some() {
+            0
+        } else {
+            N_PARAMS
+        }
+    }
+
+    /// Fit `spec` on all rows of lag index `lag`.
+    pub fn fit_all(&self, spec: &[&'static Hypothesis], lag: usize) -> Result<Fitted> {
+        fit(spec, &self.grams[lag].total, self.reference())
+    }
+}
+
+/// The current model during selection.
+#[derive(Debug, Clone)]
+pub(crate) struct State {
+    pub spec: Spec,
+    pub lag: usize,
+    pub cv: CvOut,
+    pub full: Fitted,
+    pub bic: f64,
+}
+
+fn state(data: &PowerData, spec: Spec, lag: usize) -> Result<State> {
+    let cv = cross_validate(
+        &spec,
+        &data.rows[lag],
+        &data.folds,
+        &data.grams[lag],
+        data.reference(),
+    )?;
+    let full = data.fit_all(&spec, lag)?;
+    let g = &data.grams[lag].total;
+    let p = data.base_params() + spec.len() + usize::from(lag != 0);
+    let bic = bic(g.sse(&full.beta), g.n, p);
+    Ok(State {
+        spec,
+        lag,
+        cv,
+        full,
+        bic,
+    })
+}
+
+/// Vertex of the parabola through three points (x sorted), clamped to their span.
+fn parabola_vertex(x: [f64; 3], y: [f64; 3]) -> f64 {
+    let d1 = (y[1] - y[0]) / (x[1] - x[0]);
+    let d2 = (y[2] - y[1]) / (x[2] - x[1]);
+    let curv = (d2 - d1) / (x[2] - x[0]);
+    if curv <= 0.0 {
+        return x[1];
+    }
+    (0.5 * (x[0] + x[1]) - d1 / (2.0 * curv)).clamp(x[0], x[2])
+}
+
+/// Refine the lag of minimal `sse` (indexed like `lags`, sorted ascending) by a parabola.
+fn refine_lag(lags: &[f64], sse: &[f64]) -> (usize, f64) {
+    let best = (0..lags.len())
+        .min_by(|&a, &b| sse[a].total_cmp(&sse[b]))
+        .unwrap_or(0);
+    if best == 0 || best + 1 >= lags.len() {
+        return (best, lags[best]);
+    }
+    let v = parabola_vertex(
+        [lags[best - 1], lags[best], lags[best + 1]],
+        [sse[best - 1], sse[best], sse[best + 1]],
+    );
+    (best, v)
+}
+
+/// The outcome of the comparison of a candidate with the current model.
+struct Candidate {
+    score: HypothesisScore,
+    next: State,
+}
+
+fn compare(
+    data: &PowerData,
+    cur: &State,
+    next_pred: &[f64],
+    next_lag: usize,
+) -> (f64, f64, f64, f64, f64, f64) {
+    let y = &data.rows[cur.lag].y;
+    let trial = &data.rows[cur.lag].trial;
+    let before = trial_sse(y, &cur.cv.pred, trial, data.n_trials);
+    let after = trial_sse(
+        &data.rows[next_lag].y,
+        next_pred,
+        &data.rows[next_lag].trial,
+        data.n_trials,
+    );
+    let d: Vec<f64> = before.iter().zip(&after).map(|(a, b)| a - b).collect();
+    let p = improvement_p_value(&d);
+    let (r2b, rmseb) = r2_rmse(y, &cur.cv.pred);
+    let (r2a, rmsea) = r2_rmse(&data.rows[next_lag].y, next_pred);
+    (p, r2b, r2a, rmseb, rmsea, 1.0 - rmsea / rmseb.max(1e-300))
+}
+
+fn score_term(
+    data: &PowerData,
+    cur: &State,
+    h: &'static Hypothesis,
+    step: usize,
+) -> Result<Candidate> {
+    let mut spec = cur.spec.clone();
+    spec.push(h);
+    let next = state(data, spec, cur.lag)?;
+    let j = N_PARAMS + next.spec.len() - 1;
+    let value = (h.to_physical)(next.full.theta[j]);
+    let per_fold: Vec<f64> = next
+        .cv
+        .fold_theta
+        .iter()
+        .map(|t| (h.to_physical)(t[j]))
+        .collect();
+    let (p_value, r2_before, r2_after, rmse_before, rmse_after, rel) =
+        compare(data, cur, &next.cv.pred, cur.lag);
+    let score = HypothesisScore {
+        id: h.id.into(),
+        title: h.title.into(),
+        level: "power".into(),
+        params: vec![Param {
+            name: h.title.into(),
+            symbol: h.symbol.into(),
+            value,
+            std_err: jackknife_se(&per_fold),
+            unit: h.unit.into(),
+        }],
+        p_value,
+        delta_bic: next.bic - cur.bic,
+        rmse_before,
+        rmse_after,
+        r2_before,
+        r2_after,
+        rel_improvement: rel,
+        plausible: value >= h.plausible.0 && value <= h.plausible.1,
+        accepted: false,
+        rank: 0,
+        step,
+        verdict: String::new(),
+    };
+    Ok(Candidate { score, next })
+}
+
+/// Latency: in each fold the lag is chosen on the training trials only (nested), then judged on
+/// the held-out trials, so the scan itself cannot buy a better held-out score.
+fn score_latency(data: &PowerData, cur: &State, step: usize) -> Result<Candidate> {
+    let nl = data.lags.len();
+    let mut fold_fits: Vec<Vec<Fitted>> = Vec::with_capacity(nl);
+    for fg in &data.grams {
+        let mut per = Vec::with_capacity(data.folds.k);
+        for f in 0..data.folds.k {
+            per.push(fit(&cur.spec, &fg.train(f), data.reference())?);
+        }
+        fold_fits.push(per);
+    }
+    let mut pred = vec![0.0; data.rows[0].len()];
+    let mut fold_lag = Vec::with_capacity(data.folds.k);
+    let mut chosen = vec![0usize; data.folds.k];
+    for f in 0..data.folds.k {
+        let sse: Vec<f64> = (0..nl)
+            .map(|l| data.grams[l].train(f).sse(&fold_fits[l][f].beta))
+            .collect();
+        let (best, refined) = refine_lag(&data.lags, &sse);
+        chosen[f] = best;
+        fold_lag.push(refined);
+    }
+    for (r, p) in pred.iter_mut().enumerate() {
+        let f = data.folds.of_trial[data.rows[0].trial[r]];
+        let l = chosen[f];
+        *p = data.rows[l].x[r]
+            .iter()
+            .zip(fold_fits[l][f].beta.iter())
+            .map(|(a, b)| a * b)
+            .sum();
+    }
+    let full_sse: Vec<f64> = (0..nl)
+        .map(|l| {
+            data.fit_all(&cur.spec, l)
+                .map(|f| data.grams[l].total.sse(&f.beta))
+        })
+        .collect::<Result<_>>()?;
+    let (best, lag) = refine_lag(&data.lags, &full_sse);
+    let next = state(data, cur.spec.clone(), best)?;
+    // Rows are the same readings at every lag, so per-trial errors compare directly.
+    let (p_value, r2_before, r2_after, rmse_before, rmse_after, rel) = compare(data, cur, &pred, 0);
+    let score = HypothesisScore {
+        id: LATENCY_ID.into(),
+        title: "power-sensor latency (reading averages an earlier window)".into(),
+        level: "power".into(),
+        params: vec![Param {
+            name: "sensor latency".into(),
+            symbol: "L".into(),
+            value: lag,
+            std_err: jackknife_se(&fold_lag),
+            unit: "s".into(),
+        }],
+        p_value,
+        delta_bic: next.bic - cur.bic,
+        rmse_before,
+        rmse_after,
+        r2_before,
+        r2_after,
+        rel_improvement: rel,
+        plausible: best > 0 && lag <= 2.0,
+        accepted: false,
+        rank: 0,
+        step,
+        verdict: String::new(),
+    };
+    Ok(Candidate { score, next })
+}
+
+/// The result of greedy forward selection at the power level.
+pub(crate) struct Selection {
+    /// Every candidate scored against the base model (step 1), ranked.
+    pub first_step: Vec<HypothesisScore>,
+    /// The accepted hypotheses in the order they were added, with their score at that step.
+    pub accepted: Vec<HypothesisScore>,
+    /// Base model state (no hypothesis, no lag).
+    pub base: State,
+    /// Final model state.
+    pub last: State,
+}
+
+/// Greedy forward selection: at each step score every remaining candidate against the current
+/// model, add the best one that passes the rule, stop when none passes.
+pub(crate) fn select(
+    data: &PowerData,
+    candidates: &[&'static Hypothesis],
+    rule: &Rule,
+) -> Result<Selection> {
+    let base = state(data, Vec::new(), 0)?;
+    let mut cur = base.clone();
+    let mut remaining: Vec<Option<&'static Hypothesis>> =
+        candidates.iter().map(|&h| Some(h)).collect();
+    if data.lags.len() >= 3 {
+        remaining.push(None); // None = latency
+    }
+    let mut first_step = Vec::new();
+    let mut accepted = Vec::new();
+    for step in 1.. {
+        let mut scored: Vec<(usize, Candidate)> = Vec::new();
+        for (i, c) in remaining.iter().enumerate() {
+            let mut cand = match c {
+                Some(h) => score_term(data, &cur, h, step)?,
+                None => score_latency(data, &cur, step)?,
+            };
+            let (ok, why) = rule.judge(&cand.score);
+            cand.score.accepted = ok;
+            cand.score.verdict = why;
+            scored.push((i, cand));
+        }
+        scored.sort_by(|a, b| {
+            (b.1.score.accepted, b.1.score.rel_improvement)
+                .partial_cmp(&(a.1.score.accepted, a.1.score.rel_improvement))
+                .unwrap_or(std::cmp::Ordering::Equal)
+        });
+        if step == 1 {
+            first_step = scored.iter().map(|(_, c)| c.score.clone()).collect();
+        }
+        let Some((idx, best)) = scored.into_iter().next().filter(|(_, c)| c.score.accepted) else {
+            break;
+        };
+        accepted.push(best.score);
+        cur = best.next;
+        remaining.remove(idx);
+        if remaining.is_empty() {
+            break;
+        }
+    }
+    Ok(Selection {
+        first_step,
+        accepted,
+        base,
+        last: cur,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::diagnose::hypotheses::{POWER_HYPOTHESES, Sample, extras_into, power_hypothesis};
+    use crate::power::{PowerModel, regressor_into};
+    use rand::RngExt;
+    use rand_distr::{Distribution, Normal};
+
+    /// Synthetic rows: each row one random arm state of 1–3 moving joints; the truth is the
+    /// paper's model plus `effect(sample)`; trials heat up from 30 to 60 °C.
+    pub(super) fn synth(seed: u64, n_trials: usize, effect: &dyn Fn(&Sample) -> f64) -> PowerData {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let noise = Normal::new(0.0, 0.3).unwrap();
+        let mut rows = Rows::default();
+        for t in 0..n_trials {
+            let temp_level = 30.0 + 30.0 * t as f64 / n_trials as f64;
+            let moved: Vec<usize> = (0..rng.random_range(1..4))
+                .map(|_| rng.random_range(0..7))
+                .collect();
+            let tau0_sq = [1.0; 7];
+            for _ in 0..8 {
+                let mut q = [0.0; 7];
+                let mut dq = [0.0; 7];
+                let mut tau = [1.0; 7];
+                for &j in &moved {
+                    q[j] = rng.random_range(-1.0..1.0);
+                    dq[j] = rng.random_range(-2.5..2.5);
+                    tau[j] = rng.random_range(-6.0..6.0);
+                }
+                let temp = [temp_level; 7];
+                let gyro = [0.0; 3];
+                let s = Sample {
+                    q: &q,
+                    dq: &dq,
+                    tau: &tau,
+                    temp: &temp,
+                    gyro: &gyro,
+                    tau0_sq: &tau0_sq,
+                };
+                let mut phi = [0.0; N_PARAMS];
+                regressor_into(&tau, &dq, &tau0_sq, &mut phi);
+                let mut ex = [0.0; super::super::hypotheses::N_EXTRA];
+                extras_into(&s, &mut ex);
+                let mut x = [0.0; N_RAW];
+                x[..N_PARAMS].copy_from_slice(&phi);
+                x[N_PARAMS..].copy_from_slice(&ex);
+                let y = PowerModel::PAPER.predict(&tau, &dq, &tau0_sq)
+                    + effect(&s)
+                    + noise.sample(&mut rng);
+                rows.trial.push(t);
+                rows.t.push(t as f64);
+                rows.phase.push(super::super::data::Phase::Trajectory);
+                rows.y.push(y);
+                rows.x.push(x);
+            }
+        }
+        PowerData::new(vec![0.0], vec![rows], n_trials, 5, None)
+    }
+
+    pub(super) const RULE: Rule = Rule {
+        alpha: 1e-3,
+        bic_threshold: -10.0,
+        min_improvement: 0.01,
+    };
+
+    fn all() -> Vec<&'static Hypothesis> {
+        POWER_HYPOTHESES.iter().collect()
+    }
+
+    #[test]
+    fn null_data_accepts_nothing() {
+        for seed in 0..3 {
+            let sel = select(&synth(seed, 60, &|_| 0.0), &all(), &RULE).unwrap();
+            assert!(
+                sel.accepted.is_empty(),
+                "seed {seed}: accepted {:?}",
+                sel.accepted.iter().map(|s| &s.id).collect::<Vec<_>>()
+            );
+        }
+    }
+
+    #[test]
+    fn braking_return_fraction_is_recovered() {
+        // mech_i = r·τq̇ when braking: P += (r − 1)·Σ min(τ_i q̇_i, 0), r = 0.3 (a_i = 1 in the paper).
+        let r = 0.3;
+        let effect = move |s: &Sample| {
+            (r - 1.0) * (0..7).map(|i| (s.tau[i] * s.dq[i]).min(0.0)).sum::<f64>()
+        };
+        let sel = select(&synth(7, 60, &effect), &all(), &RULE).unwrap();
+        assert_eq!(sel.first_step[0].id, "braking");
+        assert_eq!(sel.accepted.len(), 1);
+        let v = sel.accepted[0].params[0].value;
+        assert!((v - r).abs() < 0.1 * r, "r = {v}");
+    }
+
+    #[test]
+    fn bus_loss_and_thermal_together_are_both_found() {
+        let (rb, alpha) = (0.05, 0.004);
+        let k = crate::power::JOINT_TORQUE_CONSTANT;
+        let b = PowerModel::PAPER.b;
+        let effect = move |s: &Sample| {
+            let i: f64 = (0..7).map(|j| s.tau[j].abs() / k[j]).sum();
+            let thermal: f64 = (0..7)
+                .map(|j| b[j] * alpha * (s.temp[j] - 25.0) * (s.tau[j] * s.tau[j] - s.tau0_sq[j]))
+                .sum();
+            rb * i * i + thermal
+        };
+        let sel = select(&synth(11, 80, &effect), &all(), &RULE).unwrap();
+        let ids: Vec<&str> = sel.accepted.iter().map(|s| s.id.as_str()).collect();
+        assert!(
+            ids.contains(&"bus_loss") && ids.contains(&"thermal"),
+            "accepted {ids:?}"
+        );
+        let final_theta = &sel.last.full.theta;
+        let pos = |id: &str| sel.last.spec.iter().position(|h| h.id == id).unwrap() + N_PARAMS;
+        assert!((final_theta[pos("bus_loss")] - rb).abs() < 0.1 * rb);
+        assert!(
+            (final_theta[pos("thermal")] - alpha).abs() < 0.1 * alpha,
+            "α = {}",
+            final_theta[pos("thermal")]
+        );
+        assert!(power_hypothesis("thermal").is_some());
+    }
+}

@@ -1,0 +1,248 @@
+//! Small statistics the significance rules need: Student-t tail probabilities (via the
+//! regularised incomplete beta function), a one-sided paired t-test and Pearson correlation.
+
+/// ln Γ(x) for x > 0 (Lanczos approximation, |error| < 2e-10).
+fn ln_gamma(x: f64) -> f64 {
+    const C: [f64; 6] = [
+        76.180_091_729_471_46,
+        -86.505_320_329_416_77,
+        24.014_098_240_830_91,
+        -1.231_739_572_450_155,
+        0.001_208_650_973_866_179,
+        -0.000_005_395_239_384_953,
+    ];
+    let tmp = x + 5.5 - (x + 0.5) * (x + 5.5).ln();
+    let mut ser = 1.000_000_000_190_015;
+    for (j, c) in C.iter().enumerate() {
+        ser += c / (x + 1.0 + j as f64);
+    }
+    -tmp + (2.506_628_274_631_000_5 * ser / x).ln()
+}
+
+/// Continued fraction of the incomplete beta function (modified Lentz).
+fn beta_cf(a: f64, b: f64, x: f64) -> f64 {
+    const TINY: f64 = 1e-300;
+    let (qab, qap, qam) = (a + b, a + 1.0, a - 1.0);
+    let mut c = 1.0;
+    let mut d = 1.0 - qab * x / qap;
+    if d.abs() < TINY {
+        d = TINY;
+    }
+    d = 1.0 / d;
+    let mut h = d;
+    for m in 1..300 {
+        let m = m as f64;
+        let m2 = 2.0 * m;
+        let aa = m * (b - m) * x / ((qam + m2) * (a + m2));
+        d = 1.0 + aa * d;
+        d = if d.abs() < TINY { TINY } else { d };
+        c = 1.0 + aa / c;
+        c = if c.abs() < TINY { TINY } else { c };
+        d = 1.0 / d;
+        h *= d * c;
+        let aa = -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2));
+        d = 1.0 + aa * d;
+        d = if d.abs() < TINY { TINY } else { d };
+        c = 1.0 + aa / c;
+        c = if c.abs() < TINY { TINY } else { c };
+        d = 1.0 / d;
+        let del = d * c;
+        h *= del;
+        if (del - 1.0).abs() < 1e-14 {
+            break;
+        }
+    }
+    h
+}
+
+/// Regularised incomplete beta function I_x(a, b).
+pub fn inc_beta(a: f64, b: f64, x: f64) -> f64 {
+    if x <= 0.0 {
+        return 0.0;
+    }
+    if x >= 1.0 {
+        return 1.0;
+    }
+    let ln_front = ln_gamma(a + b) - ln_gamma(a) - ln_gamma(b) + a * x.ln() + b * (1.0 - x).ln();
+    if x < (a + 1.0) / (a + b + 2.0) {
+        ln_front.exp() * beta_cf(a, b, x) / a
+    } else {
+        1.0 - ln_front.exp() * beta_cf(b, a, 1.0 - x) / b
+    }
+}
+
+/// P(T > t) for Student's t with `df` degrees of freedom.
+pub fn t_upper_tail(t: f64, df: f64) -> f64 {
+    if !t.is_finite() {
+        return if t > 0.0 { 0.0 } else { 1.0 };
+    }
+    let half = 0.5 * inc_beta(0.5 * df, 0.5, df / (df + t * t));
+    if t >= 0.0 { half } else { 1.0 - half }
+}
+
+/// Standard normal upper tail P(Z > z) (complementary error function, |error| < 1.2e-7).
+pub fn normal_upper_tail(z: f64) -> f64 {
+    let x = z.abs() / std::f64::consts::SQRT_2;
+    let t = 1.0 / (1.0 + 0.5 * x);
+    let erfc = t
+        * (-x * x - 1.265_512_23
+            + t * (1.000_023_68
+                + t * (0.374_091_96
+                    + t * (0.096_784_18
+                        + t * (-0.186_288_06
+                            + t * (0.278_868_07
+                                + t * (-1.135_203_98
+                                    + t * (1.488_515_87
+                                        + t * (-0.822_152_23 + t * 0.170_872_77)))))))))
+            .exp();
+    if z >= 0.0 {
+        0.5 * erfc
+    } else {
+        1.0 - 0.5 * erfc
+    }
+}
+
+/// One-sided Wilcoxon signed-rank test that the paired differences `d` are shifted above zero
+/// (normal approximation with tie and continuity corrections): (z, p-value). Zeros are dropped;
+/// fewer than 6 non-zero differences give p = 1. Rank-based, so a few trials with huge
+/// improvements neither dominate nor hide a consistent shift.
+pub fn signed_rank_positive(d: &[f64]) -> (f64, f64) {
+    let mut v: Vec<f64> = d
+        .iter()
+        .copied()
+        .filter(|x| *x != 0.0 && x.is_finite())
+        .collect();
+    let n = v.len();
+    if n < 6 {
+        return (0.0, 1.0);
+    }
+    v.sort_by(|a, b| a.abs().total_cmp(&b.abs()));
+    let mut w_plus = 0.0;
+    let mut tie_term = 0.0;
+    let mut i = 0;
+    while i < n {
+        let mut j = i;
+        while j + 1 < n && v[j + 1].abs() == v[i].abs() {
+            j += 1;
+        }
+        let rank = 0.5 * ((i + 1) + (j + 1)) as f64;
+        let m = (j - i + 1) as f64;
+        tie_term += m * m * m - m;
+        for x in &v[i..=j] {
+            if *x > 0.0 {
+                w_plus += rank;
+            }
+        }
+        i = j + 1;
+    }
+    let nf = n as f64;
+    let mean = nf * (nf + 1.0) / 4.0;
+    let var = nf * (nf + 1.0) * (2.0 * nf + 1.0) / 24.0 - tie_term / 48.0;
+    let z = (w_plus - mean - 0.5) / var.sqrt();
+    (z, normal_upper_tail(z))
+}
+
+/// One-sided paired t-test that the differences `d` have a positive mean: (t, p-value).
+/// Fewer than 3 differences give p = 1.
+pub fn paired_t_positive(d: &[f64]) -> (f64, f64) {
+    let n = d.len();
+    if n < 3 {
+        return (0.0, 1.0);
+    }
+    let mean = d.iter().sum::<f64>() / n as f64;
+    let var = d.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1) as f64;
+    if var <= 0.0 {
+        return if mean > 0.0 {
+            (f64::INFINITY, 0.0)
+        } else {
+            (0.0, 1.0)
+        };
+    }
+    let t = mean / (var / n as f64).sqrt();
+    (t, t_upper_tail(t, (n - 1) as f64))
+}
+
+/// p-value that per-trial held-out improvements `d` are positive: the smaller of the paired
+/// t-test (efficient when the evidence is spread thinly over many trials) and the signed-rank
+/// test (robust when a few trials carry huge improvements), Bonferroni-corrected for taking two.
+pub fn improvement_p_value(d: &[f64]) -> f64 {
+    (2.0 * paired_t_positive(d).1.min(signed_rank_positive(d).1)).min(1.0)
+}
+
+/// Pearson correlation of `x` and `y` and its two-sided p-value (t test with n − 2 df).
+pub fn pearson(x: &[f64], y: &[f64]) -> (f64, f64) {
+    let n = x.len().min(y.len());
+    if n < 4 {
+        return (0.0, 1.0);
+    }
+    let mx = x[..n].iter().sum::<f64>() / n as f64;
+    let my = y[..n].iter().sum::<f64>() / n as f64;
+    let (mut sxy, mut sxx, mut syy) = (0.0, 0.0, 0.0);
+    for k in 0..n {
+        let (a, b) = (x[k] - mx, y[k] - my);
+        sxy += a * b;
+        sxx += a * a;
+        syy += b * b;
+    }
+    if sxx <= 0.0 || syy <= 0.0 {
+        return (0.0, 1.0);
+    }
+    let r = (sxy / (sxx * syy).sqrt()).clamp(-1.0, 1.0);
+    let df = (n - 2) as f64;
+    let t = r * (df / (1.0 - r * r).max(1e-300)).sqrt();
+    (r, 2.0 * t_upper_tail(t.abs(), df))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn t_tail_matches_tables() {
+        // Textbook critical values: t_{0.975, 10} = 2.228, t_{0.999, 30} = 3.385, t_{0.95, 1} = 6.314.
+        assert!((t_upper_tail(2.228, 10.0) - 0.025).abs() < 2e-4);
+        assert!((t_upper_tail(3.385, 30.0) - 0.001).abs() < 2e-5);
+        assert!((t_upper_tail(6.314, 1.0) - 0.05).abs() < 2e-4);
+        assert!((t_upper_tail(0.0, 7.0) - 0.5).abs() < 1e-12);
+        assert!((t_upper_tail(-2.228, 10.0) - 0.975).abs() < 2e-4);
+    }
+
+    #[test]
+    fn pearson_of_a_line_is_one_and_of_orthogonal_data_zero() {
+        let x = [1.0, 2.0, 3.0, 4.0, 5.0];
+        let (r, p) = pearson(&x, &[2.0, 4.0, 6.0, 8.0, 10.0]);
+        assert!((r - 1.0).abs() < 1e-12 && p < 1e-6);
+        let (r, p) = pearson(&[1.0, -1.0, 1.0, -1.0], &[1.0, 1.0, -1.0, -1.0]);
+        assert!(r.abs() < 1e-12 && (p - 1.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn paired_t_matches_hand_computed_statistic() {
+        // d = 1, 2, 3, 4, 5: mean 3, s = √2.5, t = 3/(√2.5/√5) = 3√2 = 4.243, df 4.
+        let (t, p) = paired_t_positive(&[1.0, 2.0, 3.0, 4.0, 5.0]);
+        assert!((t - 3.0 * 2f64.sqrt()).abs() < 1e-12);
+        assert!((p - t_upper_tail(t, 4.0)).abs() < 1e-15 && p < 0.01 && p > 0.001);
+        assert!((improvement_p_value(&[1.0, 2.0, 3.0, 4.0, 5.0]) - 2.0 * p).abs() < 1e-15);
+    }
+
+    #[test]
+    fn normal_tail_matches_tables() {
+        assert!((normal_upper_tail(1.959_964) - 0.025).abs() < 1e-6);
+        assert!((normal_upper_tail(3.090_232) - 0.001).abs() < 1e-7);
+        assert!((normal_upper_tail(-1.0) - 0.841_345).abs() < 1e-6);
+    }
+
+    #[test]
+    fn signed_rank_matches_hand_computed_statistic() {
+        // d = 1..10 all positive: W+ = 55, mean 27.5, var = 10·11·21/24 = 96.25 → z = 27/9.811 = 2.752.
+        let d: Vec<f64> = (1..=10).map(f64::from).collect();
+        let (z, p) = signed_rank_positive(&d);
+        assert!((z - 27.0 / 96.25f64.sqrt()).abs() < 1e-9);
+        assert!((p - normal_upper_tail(z)).abs() < 1e-15 && p < 0.003);
+        // Symmetric differences: no evidence.
+        let d: Vec<f64> = (1..=20)
+            .map(|k| if k % 2 == 0 { k as f64 } else { -(k as f64) })
+            .collect();
+        assert!(signed_rank_positive(&d).1 > 0.2);
+    }
+}

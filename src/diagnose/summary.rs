@@ -1,0 +1,211 @@
+//! Plain-language summary of a [`Diagnosis`] for the terminal: where the model is wrong, what
+//! physics is missing (with its parameter and the held-out improvement), and what remains.
+
+use std::fmt::Write;
+
+use super::hypotheses::{LATENCY_ID, PAYLOAD_ID, power_hypothesis};
+use super::{Diagnosis, HypothesisScore, Param};
+
+fn fmt_param(p: &Param) -> String {
+    let digits = |x: f64| {
+        let a = x.abs();
+        if a == 0.0 || !a.is_finite() {
+            2
+        } else {
+            (2 - a.log10().floor() as i32).clamp(0, 6) as usize
+        }
+    };
+    let d = digits(if p.std_err.is_finite() && p.std_err > 0.0 {
+        p.std_err
+    } else {
+        p.value
+    });
+    if p.std_err.is_finite() {
+        format!(
+            "{} = {:.*} ± {:.*} {}",
+            p.symbol, d, p.value, d, p.std_err, p.unit
+        )
+    } else {
+        format!("{} = {:.*} {}", p.symbol, d, p.value, p.unit)
+    }
+}
+
+fn assumption(s: &HypothesisScore) -> &'static str {
+    match s.id.as_str() {
+        LATENCY_ID => {
+            "the model assumes each power reading describes the window just before its time stamp"
+        }
+        PAYLOAD_ID => "the URDF has no load at the hand",
+        id => power_hypothesis(id)
+            .map(|h| h.model_assumes)
+            .unwrap_or("the model lacks this effect"),
+    }
+}
+
+/// Joints whose braking readings show significantly under-predicted power.
+fn braking_joints(d: &Diagnosis) -> Vec<String> {
+    d.breakdowns
+        .iter()
+        .filter(|b| b.by == "braking joint")
+        .flat_map(|b| b.groups.iter())
+        .filter(|g| g.p_value < 1e-3 && g.bias_w > 0.0 && g.n_trials >= 3)
+        .map(|g| g.label.trim_end_matches(" braking").to_string())
+        .collect()
+}
+
+/// The summary text.
+pub fn summarise(d: &Diagnosis) -> String {
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "Diagnosis of {}: {} trials, {} {:?} power readings ({} trials left out).",
+        d.source,
+        d.n_trials,
+        d.n_readings,
+        d.target,
+        d.rejected.len()
+    );
+    if let Some(t) = &d.torque {
+        let worst = t
+            .rmse_with_friction
+            .iter()
+            .enumerate()
+            .max_by(|a, b| a.1.total_cmp(b.1))
+            .map(|(j, v)| {
+                format!(
+                    "{} ({v:.2} Nm)",
+                    t.joints.get(j).cloned().unwrap_or_default()
+                )
+            })
+            .unwrap_or_default();
+        let _ = writeln!(
+            s,
+            "Torque: URDF inverse dynamics + fitted joint friction vs tau_est; worst joint {worst}."
+        );
+    }
+    let f = &d.final_model;
+    let base = if d.base_model == "reference" {
+        "the twin's power model"
+    } else {
+        "the base model (refitted per fold)"
+    };
+    let _ = writeln!(
+        s,
+        "Power: {base} predicts held-out readings with R² = {:.3}, RMSE = {:.2} W (per trial R² = {:.3}).",
+        f.before.r2, f.before.rmse_w, f.before_per_trial.r2
+    );
+    if let Some((by, g)) = &d.worst {
+        if g.p_value < 1e-3 {
+            let dir = if g.bias_w > 0.0 {
+                "under-predicted"
+            } else {
+                "over-predicted"
+            };
+            let mut where_ = format!("in the {by} group \"{}\"", g.label);
+            let bj = braking_joints(d);
+            if (by.starts_with("braking") || by == "regime" && g.label.starts_with("braking"))
+                && !bj.is_empty()
+            {
+                where_ = format!("while braking on {}", bj.join(", "));
+            }
+            let _ = writeln!(
+                s,
+                "Where: power is {dir} most clearly {where_} (mean residual {:+.2} W over {} trials, p = {:.1e}).",
+                g.bias_w, g.n_trials, g.p_value
+            );
+        } else {
+            let _ = writeln!(
+                s,
+                "Where: no group of readings has a significant residual bias (best p = {:.2}).",
+                g.p_value
+            );
+        }
+    }
+    if let Some(best) = d
+        .lag_scan
+        .iter()
+        .min_by(|a, b| a.rmse_w.total_cmp(&b.rmse_w))
+        .filter(|b| b.lag_s > 0.0)
+    {
+        let _ = writeln!(
+            s,
+            "Time alignment: the base model fits best if readings lag the kinematics by {:.2} s.",
+            best.lag_s
+        );
+    }
+    if d.accepted.is_empty() {
+        match d.hypotheses.first() {
+            Some(h) => {
+                let _ = writeln!(
+                    s,
+                    "Named: no hypothesis in the library is supported (best candidate {}: held-out RMSE {:+.1} %, p = {:.1e}, ΔBIC = {:.1}); no missing physics is claimed.",
+                    h.id,
+                    -100.0 * h.rel_improvement,
+                    h.p_value,
+                    h.delta_bic
+                );
+            }
+            None => {
+                let _ = writeln!(s, "Named: no hypothesis was scored.");
+            }
+        }
+    }
+    for h in &d.accepted {
+        let shown = d.final_model.params.iter().find(|p| {
+            h.params
+                .first()
+                .map(|q| q.symbol == p.symbol)
+                .unwrap_or(false)
+        });
+        let p = shown.or(h.params.first());
+        let _ = writeln!(
+            s,
+            "Named: {}; adding {} with {} improves held-out {} R² from {:.3} to {:.3} (RMSE {:.3} → {:.3}).",
+            assumption(h),
+            h.title,
+            p.map(fmt_param).unwrap_or_default(),
+            h.level,
+            h.r2_before,
+            h.r2_after,
+            h.rmse_before,
+            h.rmse_after
+        );
+        if h.id == PAYLOAD_ID {
+            let com: Vec<String> = h.params.iter().skip(1).map(fmt_param).collect();
+            let _ = writeln!(s, "       payload centre of mass: {}.", com.join(", "));
+        }
+    }
+    if !d.accepted.is_empty() {
+        let _ = writeln!(
+            s,
+            "Model: with {} the held-out power R² goes {:.3} → {:.3}, RMSE {:.2} → {:.2} W (per trial R² {:.3} → {:.3}).",
+            d.final_model.hypotheses.join(" + "),
+            f.before.r2,
+            f.after.r2,
+            f.before.rmse_w,
+            f.after.rmse_w,
+            f.before_per_trial.r2,
+            f.after_per_trial.r2
+        );
+    }
+    let sig: Vec<_> = d.unexplained.iter().filter(|c| c.significant).collect();
+    if sig.is_empty() {
+        let _ = writeln!(
+            s,
+            "Unexplained: no significant correlation of the remaining residual with any recorded signal."
+        );
+    } else {
+        for c in sig.iter().take(3) {
+            let trials: Vec<String> = c.trials.iter().map(|t| t.to_string()).collect();
+            let _ = writeln!(
+                s,
+                "Unexplained: the remaining residual correlates with {} (r = {:+.2}, p = {:.1e}); look at trials {}.",
+                c.feature,
+                c.r,
+                c.p_adjusted,
+                trials.join(", ")
+            );
+        }
+    }
+    s
+}

@@ -1,0 +1,338 @@
+//! Torque-level comparison: recorded tau_est vs URDF inverse dynamics, per joint, and the
+//! payload-at-the-hand hypothesis. The residual τ_rec − τ_URDF is modelled per joint as joint
+//! friction Fc·tanh(q̇/0.01) + Fv·q̇ (fitted: the friction inside tau_est is unknown); the payload
+//! hypothesis adds the linear payload regressor Y(q, q̇, q̈)·[m, m·cx, m·cy, m·cz] shared by
+//! all joints. Scored like the power hypotheses: cross-validation by trial, paired test, BIC.
+
+use anyhow::Result;
+use nalgebra::{DMatrix, DVector, SMatrix};
+
+use super::data::TrialMeta;
+use super::select::{Folds, HypothesisScore, Param, bic, jackknife_se, r2_rmse, trial_sse};
+use super::stats::improvement_p_value;
+use crate::N_JOINTS;
+use crate::signals::Recording;
+
+/// Velocity scale [rad/s] of the smooth Coulomb friction sign (the form of `robot::JointFriction`).
+const COULOMB_VELOCITY: f64 = 0.01;
+/// Friction columns (Coulomb, viscous per joint) then the 4 payload columns.
+const N_FRICTION: usize = 2 * N_JOINTS;
+const N_TORQUE: usize = N_FRICTION + 4;
+
+/// Rigid-body model used at the torque level.
+pub trait ArmModel {
+    /// Inverse dynamics τ(q, q̇, q̈) of the URDF arm [Nm].
+    fn inverse_dynamics(
+        &self,
+        q: &[f64; N_JOINTS],
+        dq: &[f64; N_JOINTS],
+        ddq: &[f64; N_JOINTS],
+    ) -> [f64; N_JOINTS];
+    /// ∂τ/∂[m, m·cx, m·cy, m·cz] of a point payload at the hand.
+    fn payload_regressor(
+        &self,
+        q: &[f64; N_JOINTS],
+        dq: &[f64; N_JOINTS],
+        ddq: &[f64; N_JOINTS],
+    ) -> SMatrix<f64, N_JOINTS, 4>;
+}
+
+/// Per-joint agreement of recorded and modelled torque.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct TorqueComparison {
+    /// URDF joint names.
+    pub joints: Vec<String>,
+    /// Number of samples compared.
+    pub n_samples: usize,
+    /// Mean of τ_rec − τ_URDF per joint [Nm].
+    pub bias_urdf: Vec<f64>,
+    /// RMS of τ_rec − τ_URDF per joint [Nm].
+    pub rmse_urdf: Vec<f64>,
+    /// RMS after subtracting the fitted joint friction [Nm].
+    pub rmse_with_friction: Vec<f64>,
+    /// Fitted Coulomb friction per joint [Nm].
+    pub coulomb_nm: Vec<f64>,
+    /// Fitted viscous friction per joint [Nm·s/rad].
+    pub viscous_nms: Vec<f64>,
+}
+
+/// One torque sample's residual and columns.
+struct TorqueRow {
+    trial: usize,
+    r: [f64; N_JOINTS],
+    x: [[f64; N_TORQUE]; N_JOINTS],
+}
+
+fn rows(
+    rec: &Recording,
+    trials: &[TrialMeta],
+    model: &dyn ArmModel,
+    stride: usize,
+) -> Vec<TorqueRow> {
+    let s = &rec.state;
+    let mut out = Vec::new();
+    for (ti, meta) in trials.iter().enumerate() {
+        let w = &meta.window;
+        let i0 = s.t.partition_point(|&t| t < w.t_pre).max(2);
+        let i1 =
+            s.t.partition_point(|&t| t < w.t_return_end)
+                .min(s.t.len().saturating_sub(2));
+        let mut k = i0;
+        while k < i1 {
+            let (Some(q), Some(dq), Some(tau), Some(a), Some(b), Some(ta), Some(tb)) = (
+                s.q.get(k),
+                s.dq.get(k),
+                s.tau.get(k),
+                s.dq.get(k - 2),
+                s.dq.get(k + 2),
+                s.t.get(k - 2),
+                s.t.get(k + 2),
+            ) else {
+                break;
+            };
+            k += stride;
+            let dt = tb - ta;
+            if dt <= 0.0 || dt > 0.2 {
+                continue; // a gap in the stream: no derivative here
+            }
+            let ddq: [f64; N_JOINTS] = std::array::from_fn(|i| (b[i] - a[i]) / dt);
+            let tau_id = model.inverse_dynamics(q, dq, &ddq);
+            let y = model.payload_regressor(q, dq, &ddq);
+            let mut row = TorqueRow {
+                trial: ti,
+                r: [0.0; N_JOINTS],
+                x: [[0.0; N_TORQUE]; N_JOINTS],
+            };
+            for j in 0..N_JOINTS {
+                row.r[j] = tau[j] - tau_id[j];
+                row.x[j][2 * j] = (dq[j] / COULOMB_VELOCITY).tanh();
+                row.x[j][2 * j + 1] = dq[j];
+                for c in 0..4 {
+                    row.x[j][N_FRICTION + c] = y[(j, c)];
+                }
+            }
+            if row
+                .r
+                .iter()
+                .chain(row.x.iter().flatten())
+                .all(|v| v.is_finite())
+            {
+                out.push(row);
+            }
+        }
+    }
+    out
+}
+
+struct Gram {
+    g: DMatrix<f64>,
+    h: DVector<f64>,
+    yy: f64,
+    n: usize,
+}
+
+impl Gram {
+    fn zeros() -> Gram {
+        Gram {
+            g: DMatrix::zeros(N_TORQUE, N_TORQUE),
+            h: DVector::zeros(N_TORQUE),
+            yy: 0.0,
+            n: 0,
+        }
+    }
+
+    fn add(&mut self, row: &TorqueRow) {
+        for j in 0..N_JOINTS {
+            let x = &row.x[j];
+            for a in 0..N_TORQUE {
+                if x[a] == 0.0 {
+                    continue;
+                }
+                self.h[a] += x[a] * row.r[j];
+                for b in 0..N_TORQUE {
+                    self.g[(a, b)] += x[a] * x[b];
+                }
+            }
+            self.yy += row.r[j] * row.r[j];
+            self.n += 1;
+        }
+    }
+
+    fn minus(&self, o: &Gram) -> Gram {
+        Gram {
+            g: &self.g - &o.g,
+            h: &self.h - &o.h,
+            yy: self.yy - o.yy,
+            n: self.n - o.n,
+        }
+    }
+}
+
+/// Unconstrained least squares on the first `p` columns (tiny relative ridge for joints that never moved).
+fn solve(gr: &Gram, p: usize) -> DVector<f64> {
+    let g = gr.g.view((0, 0), (p, p)).into_owned();
+    let scale = (0..p).map(|i| g[(i, i)]).fold(0.0, f64::max).max(1e-300);
+    let mut gr2 = g.clone();
+    for i in 0..p {
+        gr2[(i, i)] += 1e-9 * scale;
+    }
+    let h = gr.h.rows(0, p).into_owned();
+    let sol = gr2
+        .cholesky()
+        .map(|c| c.solve(&h))
+        .unwrap_or_else(|| DVector::zeros(p));
+    let mut full = DVector::zeros(N_TORQUE);
+    full.rows_mut(0, p).copy_from(&sol);
+    full
+}
+
+fn predict(row: &TorqueRow, beta: &DVector<f64>) -> [f64; N_JOINTS] {
+    std::array::from_fn(|j| row.x[j].iter().zip(beta.iter()).map(|(a, b)| a * b).sum())
+}
+
+fn sse(gr: &Gram, beta: &DVector<f64>) -> f64 {
+    (gr.yy - 2.0 * beta.dot(&gr.h) + beta.dot(&(&gr.g * beta))).max(0.0)
+}
+
+/// Result of the torque level: the comparison and the payload hypothesis' score.
+pub(crate) struct TorqueLevel {
+    pub comparison: TorqueComparison,
+    pub payload: HypothesisScore,
+}
+
+/// Compare torques and score the payload hypothesis with the power level's trial folds.
+pub(crate) fn torque_level(
+    rec: &Recording,
+    trials: &[TrialMeta],
+    model: &dyn ArmModel,
+    folds: &Folds,
+    max_samples: usize,
+) -> Result<Option<TorqueLevel>> {
+    let in_trials: usize = trials
+        .iter()
+        .map(|m| {
+            let t = &rec.state.t;
+            t.partition_point(|&x| x < m.window.t_return_end)
+                - t.partition_point(|&x| x < m.window.t_pre)
+        })
+        .sum();
+    let stride = in_trials.div_ceil(max_samples.max(1)).max(1);
+    let rows = rows(rec, trials, model, stride);
+    if rows.len() < 50 {
+        return Ok(None);
+    }
+    let n_trials = trials.len();
+    let mut fold_grams: Vec<Gram> = (0..folds.k).map(|_| Gram::zeros()).collect();
+    for row in &rows {
+        fold_grams[folds.of_trial[row.trial]].add(row);
+    }
+    let mut total = Gram::zeros();
+    for g in &fold_grams {
+        total.g += &g.g;
+        total.h += &g.h;
+        total.yy += g.yy;
+        total.n += g.n;
+    }
+    let mut pred_base = vec![[0.0; N_JOINTS]; rows.len()];
+    let mut pred_pay = vec![[0.0; N_JOINTS]; rows.len()];
+    let mut fold_pay: Vec<[f64; 4]> = Vec::new();
+    for (f, fold) in fold_grams.iter().enumerate() {
+        let train = total.minus(fold);
+        let b0 = solve(&train, N_FRICTION);
+        let b1 = solve(&train, N_TORQUE);
+        fold_pay.push(std::array::from_fn(|c| b1[N_FRICTION + c]));
+        for (k, row) in rows.iter().enumerate() {
+            if folds.of_trial[row.trial] == f {
+                pred_base[k] = predict(row, &b0);
+                pred_pay[k] = predict(row, &b1);
+            }
+        }
+    }
+    // Flatten per joint-equation for errors.
+    let flat =
+        |p: &[[f64; N_JOINTS]]| -> Vec<f64> { p.iter().flat_map(|a| a.iter().copied()).collect() };
+    let y: Vec<f64> = rows.iter().flat_map(|r| r.r.iter().copied()).collect();
+    let trial_of: Vec<usize> = rows
+        .iter()
+        .flat_map(|r| std::iter::repeat_n(r.trial, N_JOINTS))
+        .collect();
+    let (pb, pp) = (flat(&pred_base), flat(&pred_pay));
+    let before = trial_sse(&y, &pb, &trial_of, n_trials);
+    let after = trial_sse(&y, &pp, &trial_of, n_trials);
+    let d: Vec<f64> = before.iter().zip(&after).map(|(a, b)| a - b).collect();
+    let p_value = improvement_p_value(&d);
+    let (r2_before, rmse_before) = r2_rmse(&y, &pb);
+    let (r2_after, rmse_after) = r2_rmse(&y, &pp);
+
+    let b0 = solve(&total, N_FRICTION);
+    let b1 = solve(&total, N_TORQUE);
+    let delta_bic =
+        bic(sse(&total, &b1), total.n, N_TORQUE) - bic(sse(&total, &b0), total.n, N_FRICTION);
+    let m = b1[N_FRICTION];
+    let com: [f64; 3] = std::array::from_fn(|c| b1[N_FRICTION + 1 + c] / m);
+    let m_se = jackknife_se(&fold_pay.iter().map(|p| p[0]).collect::<Vec<_>>());
+    let com_se: Vec<f64> = (0..3)
+        .map(|c| jackknife_se(&fold_pay.iter().map(|p| p[1 + c] / p[0]).collect::<Vec<_>>()))
+        .collect();
+    let plausible = (0.02..=5.0).contains(&m) && com.iter().all(|c| c.abs() <= 0.3);
+    let mut params = vec![Param {
+        name: "payload mass at the hand".into(),
+        symbol: "m".into(),
+        value: m,
+        std_err: m_se,
+        unit: "kg".into(),
+    }];
+    for (c, axis) in ["x", "y", "z"].iter().enumerate() {
+        params.push(Param {
+            name: format!("payload centre of mass {axis} (wrist-yaw link frame)"),
+            symbol: format!("c{axis}"),
+            value: com[c],
+            std_err: com_se[c],
+            unit: "m".into(),
+        });
+    }
+    let payload = HypothesisScore {
+        id: super::hypotheses::PAYLOAD_ID.into(),
+        title: "payload at the hand the URDF lacks (point mass)".into(),
+        level: "torque".into(),
+        params,
+        p_value,
+        delta_bic,
+        rmse_before,
+        rmse_after,
+        r2_before,
+        r2_after,
+        rel_improvement: 1.0 - rmse_after / rmse_before.max(1e-300),
+        plausible,
+        accepted: false,
+        rank: 0,
+        step: 1,
+        verdict: String::new(),
+    };
+
+    let n = rows.len() as f64;
+    let mut bias = [0.0; N_JOINTS];
+    let mut ms = [0.0; N_JOINTS];
+    let mut ms_f = [0.0; N_JOINTS];
+    for row in &rows {
+        let fr = predict(row, &b0);
+        for j in 0..N_JOINTS {
+            bias[j] += row.r[j] / n;
+            ms[j] += row.r[j] * row.r[j] / n;
+            ms_f[j] += (row.r[j] - fr[j]).powi(2) / n;
+        }
+    }
+    let comparison = TorqueComparison {
+        joints: rec.joint_names.clone(),
+        n_samples: rows.len(),
+        bias_urdf: bias.to_vec(),
+        rmse_urdf: ms.iter().map(|v| v.sqrt()).collect(),
+        rmse_with_friction: ms_f.iter().map(|v| v.sqrt()).collect(),
+        coulomb_nm: (0..N_JOINTS).map(|j| b0[2 * j]).collect(),
+        viscous_nms: (0..N_JOINTS).map(|j| b0[2 * j + 1]).collect(),
+    };
+    Ok(Some(TorqueLevel {
+        comparison,
+        payload,
+    }))
+}

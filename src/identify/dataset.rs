@@ -1,0 +1,468 @@
+//! Regression rows (φ, y) for the power model from segmented trials.
+//!
+//! Per state sample the regressor φ (49) is [`crate::power::regressor_into`] of the measured
+//! torque (`tau_est`) and velocity, with Δτ² taken against the trial's pre-idle mean τ² per joint.
+//! The target is net power: the power reading (MBS by default, BMS on request) minus the mean of
+//! the readings in the trial's pre-idle window.
+//!
+//! Three ways to pair the ~1 Hz power readings with the 100 Hz regressors:
+//! * [`Mode::Trial`] — the paper's trajectory-level aggregation: one row per trial, φ averaged over
+//!   the trajectory window (trajectory start → post-idle end) and y the mean of the readings whose
+//!   averaging window is centred in it.
+//! * [`Mode::Sample`] — one row per state sample, y the latest reading at or before the sample
+//!   (zero-order hold): each reading repeats ~100 times, the degenerate setup the paper warns about.
+//! * [`Mode::Reading`] — beyond the paper: one row per reading inside the trajectory window, φ
+//!   averaged over the reading's own averaging window [t − lag − W, t − lag]. The sensor window W
+//!   and lag are estimated from the data by [`estimate_alignment`].
+
+use anyhow::{Result, bail};
+use nalgebra::{DMatrix, DVector};
+
+use super::filters::sigma_omega;
+use super::segment::Trial;
+use crate::power::regressor_into;
+use crate::signals::{PowerSeries, Recording};
+use crate::{N_JOINTS, N_PARAMS};
+
+/// Which power sensor is the regression target.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum Target {
+    /// Main-board sensor: the arm/upper-body rail (the paper's choice, lower noise).
+    Mbs,
+    /// Battery management system: whole-robot power.
+    Bms,
+}
+
+impl Target {
+    /// The recording's power series for this target.
+    pub fn series<'a>(&self, rec: &'a Recording) -> &'a PowerSeries {
+        match self {
+            Target::Mbs => &rec.mbs,
+            Target::Bms => &rec.bms,
+        }
+    }
+
+    /// Lower-case name ("mbs" / "bms").
+    pub fn name(&self) -> &'static str {
+        match self {
+            Target::Mbs => "mbs",
+            Target::Bms => "bms",
+        }
+    }
+}
+
+/// How readings and regressors are paired into rows (see the module docs).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum Mode {
+    /// One row per trial (the paper's aggregation).
+    Trial,
+    /// One row per power reading, regressors averaged over the reading's window.
+    Reading,
+    /// One row per state sample, zero-order-held power (degenerate; for comparison).
+    Sample,
+}
+
+impl Mode {
+    /// Lower-case name ("trial" / "reading" / "sample").
+    pub fn name(&self) -> &'static str {
+        match self {
+            Mode::Trial => "trial",
+            Mode::Reading => "reading",
+            Mode::Sample => "sample",
+        }
+    }
+}
+
+/// Timing of a power reading: it is the average power over [t − lag − window, t − lag].
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Alignment {
+    /// Averaging window W [s].
+    pub window_s: f64,
+    /// Lag of the window's end behind the reading's timestamp [s].
+    pub lag_s: f64,
+}
+
+impl Alignment {
+    /// The window of a reading stamped `t`.
+    pub fn window_of(&self, t: f64) -> (f64, f64) {
+        (t - self.lag_s - self.window_s, t - self.lag_s)
+    }
+
+    fn centre_of(&self, t: f64) -> f64 {
+        t - self.lag_s - 0.5 * self.window_s
+    }
+}
+
+/// One regression row.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Row {
+    /// Index of the trial (in its [`super::segment::Segmentation`]).
+    pub trial: usize,
+    /// Time the row stands for [s]: reading stamp (reading mode), sample time (sample mode),
+    /// trajectory start (trial mode).
+    pub t: f64,
+    /// Start of the interval φ was averaged over [s] (= `t` for a sample row).
+    pub t0: f64,
+    /// End of that interval [s].
+    pub t1: f64,
+    /// Regressor (mean over the interval).
+    pub phi: [f64; N_PARAMS],
+    /// Net power [W].
+    pub y: f64,
+    /// The trial's IMU statistic σ_ω = std(|ω_body|) over its trajectory window [rad/s].
+    pub sigma_omega: f64,
+    /// The trial's pre-idle mean squared torque per joint [Nm²].
+    pub tau0_sq: [f64; N_JOINTS],
+}
+
+/// Per-trial quantities shared by its rows.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct TrialBasis {
+    /// Trial index.
+    pub trial: usize,
+    /// Pre-idle mean power [W] (subtracted from every reading of the trial).
+    pub baseline_w: f64,
+    /// Number of readings the baseline averages.
+    pub baseline_readings: usize,
+    /// Pre-idle mean τ² per joint [Nm²].
+    pub tau0_sq: [f64; N_JOINTS],
+    /// σ_ω over the trajectory window [rad/s].
+    pub sigma_omega: f64,
+    /// Trajectory window [s] (trajectory start → post-idle end).
+    pub window: (f64, f64),
+}
+
+/// A trial that yields no rows, with the reason.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Skipped {
+    /// Trial index.
+    pub trial: usize,
+    /// Why.
+    pub reason: String,
+}
+
+/// Rows of one recording.
+#[derive(Debug, Clone)]
+pub struct Dataset {
+    /// Pairing used.
+    pub mode: Mode,
+    /// Power sensor used.
+    pub target: Target,
+    /// Reading timing used.
+    pub alignment: Alignment,
+    /// The rows, grouped by trial in time order.
+    pub rows: Vec<Row>,
+    /// Per-trial baselines and statistics of every trial that has rows.
+    pub trials: Vec<TrialBasis>,
+    /// Trials without rows.
+    pub skipped: Vec<Skipped>,
+}
+
+/// Options of [`build`].
+#[derive(Debug, Clone, Copy)]
+pub struct DatasetOptions {
+    /// Pairing.
+    pub mode: Mode,
+    /// Power sensor.
+    pub target: Target,
+    /// Reading timing.
+    pub alignment: Alignment,
+}
+
+/// Sum of φ (with Δτ² against zero) and count over the state samples with t in (t0, t1].
+fn phi_sum(rec: &Recording, t0: f64, t1: f64) -> ([f64; N_PARAMS], usize) {
+    let s = &rec.state;
+    let n = s.t.len().min(s.tau.len()).min(s.dq.len());
+    let (i0, i1) = (
+        s.t[..n].partition_point(|&x| x <= t0),
+        s.t[..n].partition_point(|&x| x <= t1),
+    );
+    let mut sum = [0.0; N_PARAMS];
+    let mut phi = [0.0; N_PARAMS];
+    for k in i0..i1 {
+        regressor_into(&s.tau[k], &s.dq[k], &[0.0; N_JOINTS], &mut phi);
+        for (acc, v) in sum.iter_mut().zip(&phi) {
+            *acc += v;
+        }
+    }
+    (sum, i1 - i0)
+}
+
+/// Mean φ over (t0, t1] with Δτ² against `tau0_sq`; None when no sample falls inside.
+fn phi_mean(
+    rec: &Recording,
+    t0: f64,
+    t1: f64,
+    tau0_sq: &[f64; N_JOINTS],
+) -> Option<[f64; N_PARAMS]> {
+    let (mut sum, count) = phi_sum(rec, t0, t1);
+    if count == 0 {
+        return None;
+    }
+    for v in &mut sum {
+        *v /= count as f64;
+    }
+    for j in 0..N_JOINTS {
+        sum[N_JOINTS + j] -= tau0_sq[j];
+    }
+    Some(sum)
+}
+
+/// Per-joint mean τ² over the state samples in (t0, t1].
+fn mean_tau_sq(rec: &Recording, t0: f64, t1: f64) -> Option<[f64; N_JOINTS]> {
+    let (sum, count) = phi_sum(rec, t0, t1);
+    (count > 0).then(|| std::array::from_fn(|j| sum[N_JOINTS + j] / count as f64))
+}
+
+/// Readings whose averaging window lies inside [a, b]: (stamp, watts).
+fn readings_within<'a>(
+    p: &'a PowerSeries,
+    align: &Alignment,
+    a: f64,
+    b: f64,
+) -> impl Iterator<Item = (f64, f64)> + 'a {
+    let (lo, hi) = (a + align.lag_s + align.window_s, b + align.lag_s);
+    let i0 = p.t.partition_point(|&x| x < lo);
+    let watts = p.watts.get(i0..).unwrap_or(&[]);
+    p.t[i0..]
+        .iter()
+        .zip(watts)
+        .take_while(move |(t, _)| **t <= hi)
+        .map(|(t, w)| (*t, *w))
+}
+
+/// Baseline and statistics of one trial; Err(reason) when the trial cannot give rows.
+fn trial_basis(
+    rec: &Recording,
+    trial: &Trial,
+    target: Target,
+    align: &Alignment,
+) -> Result<TrialBasis, String> {
+    let power = target.series(rec);
+    let (pre0, pre1) = (trial.t_pre_start, trial.t_traj_start);
+    let pre: Vec<f64> = readings_within(power, align, pre0, pre1)
+        .map(|(_, w)| w)
+        .filter(|w| w.is_finite())
+        .collect();
+    if pre.is_empty() {
+        return Err(format!(
+            "no {} reading inside the pre-idle window {pre0:.2}–{pre1:.2} s (no baseline)",
+            target.name().to_uppercase()
+        ));
+    }
+    let tau0_sq = mean_tau_sq(rec, pre0, pre1)
+        .ok_or_else(|| format!("no joint-state sample in the pre-idle {pre0:.2}–{pre1:.2} s"))?;
+    let window = (trial.t_traj_start, trial.t_post_end);
+    Ok(TrialBasis {
+        trial: trial.index,
+        baseline_w: pre.iter().sum::<f64>() / pre.len() as f64,
+        baseline_readings: pre.len(),
+        tau0_sq,
+        sigma_omega: sigma_omega(rec, window.0, window.1),
+        window,
+    })
+}
+
+/// Keep a row only when all its numbers are finite (a NaN in a damaged file must not poison the fit).
+fn push_finite(rows: &mut Vec<Row>, row: Row) {
+    if row.y.is_finite() && row.phi.iter().all(|v| v.is_finite()) {
+        rows.push(row);
+    }
+}
+
+/// Build the rows of one recording's trials.
+pub fn build(rec: &Recording, trials: &[Trial], opts: &DatasetOptions) -> Dataset {
+    let mut out = Dataset {
+        mode: opts.mode,
+        target: opts.target,
+        alignment: opts.alignment,
+        rows: Vec::new(),
+        trials: Vec::new(),
+        skipped: Vec::new(),
+    };
+    let power = opts.target.series(rec);
+    for trial in trials {
+        let basis = match trial_basis(rec, trial, opts.target, &opts.alignment) {
+            Ok(b) => b,
+            Err(reason) => {
+                out.skipped.push(Skipped {
+                    trial: trial.index,
+                    reason,
+                });
+                continue;
+            }
+        };
+        let (a, b) = basis.window;
+        let before = out.rows.len();
+        let row = |t: f64, t0: f64, t1: f64, phi: [f64; N_PARAMS], watts: f64| Row {
+            trial: trial.index,
+            t,
+            t0,
+            t1,
+            phi,
+            y: watts - basis.baseline_w,
+            sigma_omega: basis.sigma_omega,
+            tau0_sq: basis.tau0_sq,
+        };
+        match opts.mode {
+            Mode::Trial => {
+                let inside: Vec<f64> = power
+                    .t
+                    .iter()
+                    .zip(&power.watts)
+                    .filter(|(t, _)| (a..=b).contains(&opts.alignment.centre_of(**t)))
+                    .map(|(_, w)| *w)
+                    .collect();
+                if let (false, Some(phi)) = (inside.is_empty(), phi_mean(rec, a, b, &basis.tau0_sq))
+                {
+                    let mean = inside.iter().sum::<f64>() / inside.len() as f64;
+                    push_finite(&mut out.rows, row(a, a, b, phi, mean));
+                }
+            }
+            Mode::Reading => {
+                for (t, w) in readings_within(power, &opts.alignment, a, b) {
+                    let (t0, t1) = opts.alignment.window_of(t);
+                    if let Some(phi) = phi_mean(rec, t0, t1, &basis.tau0_sq) {
+                        push_finite(&mut out.rows, row(t, t0, t1, phi, w));
+                    }
+                }
+            }
+            Mode::Sample => {
+                let s = &rec.state;
+                let n = s.t.len().min(s.tau.len()).min(s.dq.len());
+                let (i0, i1) = (
+                    s.t[..n].partition_point(|&x| x <= a),
+                    s.t[..n].partition_point(|&x| x <= b),
+                );
+                let mut phi = [0.0; N_PARAMS];
+                for k in i0..i1 {
+                    // Zero-order hold: the latest reading stamped at or before the sample.
+                    let r = power.t.partition_point(|&x| x <= s.t[k]);
+                    let Some(&w) = r.checked_sub(1).and_then(|r| power.watts.get(r)) else {
+                        continue;
+                    };
+                    regressor_into(&s.tau[k], &s.dq[k], &basis.tau0_sq, &mut phi);
+                    push_finite(&mut out.rows, row(s.t[k], s.t[k], s.t[k], phi, w));
+                }
+            }
+        }
+        if out.rows.len() == before {
+            out.skipped.push(Skipped {
+                trial: trial.index,
+                reason: format!(
+                    "no {} reading with finite joint-state samples in the trajectory window {a:.2}–{b:.2} s",
+                    opts.target.name().to_uppercase()
+                ),
+            });
+        } else {
+            out.trials.push(basis);
+        }
+    }
+    out
+}
+
+/// One point of the alignment search.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct AlignmentScore {
+    /// Candidate timing.
+    pub alignment: Alignment,
+    /// Rows the fit used.
+    pub rows: usize,
+    /// R² of the least-squares fit of the per-reading rows.
+    pub r2: f64,
+}
+
+/// Result of [`estimate_alignment`].
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct AlignmentEstimate {
+    /// Best timing (highest R²).
+    pub best: Alignment,
+    /// R² at the best timing.
+    pub r2: f64,
+    /// Every candidate tried (coarse grid, then a finer grid around the best).
+    pub grid: Vec<AlignmentScore>,
+}
+
+/// Estimate the sensor's averaging window W and lag from the data: the per-reading rows are
+/// built for each candidate (W, lag) and fitted by (lightly ridge-regularised) least squares; the
+/// candidate with the highest R² wins. Regressors averaged over the wrong window are a noisy
+/// version of the right ones, so the fit degrades away from the true timing. Coarse grid
+/// (W 0.05–1.0 s, lag −0.3–0.5 s), then a 0.025 s grid around the best.
+pub fn estimate_alignment(
+    sessions: &[(&Recording, &[Trial])],
+    target: Target,
+) -> Result<AlignmentEstimate> {
+    let mut grid = Vec::new();
+    let score = |w: f64, lag: f64, grid: &mut Vec<AlignmentScore>| -> Option<AlignmentScore> {
+        let alignment = Alignment {
+            window_s: w,
+            lag_s: lag,
+        };
+        let opts = DatasetOptions {
+            mode: Mode::Reading,
+            target,
+            alignment,
+        };
+        let rows: Vec<Row> = sessions
+            .iter()
+            .flat_map(|(rec, trials)| build(rec, trials, &opts).rows)
+            .collect();
+        let r2 = ridge_r2(&rows)?;
+        let s = AlignmentScore {
+            alignment,
+            rows: rows.len(),
+            r2,
+        };
+        grid.push(s);
+        Some(s)
+    };
+    let best_of = |g: &[AlignmentScore]| g.iter().copied().max_by(|a, b| a.r2.total_cmp(&b.r2));
+    for w in [0.05, 0.1, 0.2, 0.3, 0.5, 0.75, 1.0] {
+        for lag in [-0.3, -0.2, -0.1, 0.0, 0.1, 0.2, 0.3, 0.5] {
+            score(w, lag, &mut grid);
+        }
+    }
+    let Some(coarse) = best_of(&grid) else {
+        bail!(
+            "too few power readings inside trajectory windows to estimate the sensor window and lag"
+        )
+    };
+    const STEP: f64 = 0.025;
+    for dw in -4..=4 {
+        for dl in -4..=4 {
+            let (w, lag) = (
+                coarse.alignment.window_s + dw as f64 * STEP,
+                coarse.alignment.lag_s + dl as f64 * STEP,
+            );
+            if w > 0.0 && (dw != 0 || dl != 0) {
+                score(w, lag, &mut grid);
+            }
+        }
+    }
+    let best = best_of(&grid).unwrap_or(coarse);
+    Ok(AlignmentEstimate {
+        best: best.alignment,
+        r2: best.r2,
+        grid,
+    })
+}
+
+/// R² of an unconstrained least-squares fit with a tiny ridge (unexcited columns, e.g. joint
+/// pairs that never move together, make ΦᵀΦ singular). None with fewer rows than parameters.
+fn ridge_r2(rows: &[Row]) -> Option<f64> {
+    if rows.len() <= N_PARAMS {
+        return None;
+    }
+    let phi = DMatrix::from_fn(rows.len(), N_PARAMS, |r, c| rows[r].phi[c]);
+    let y = DVector::from_iterator(rows.len(), rows.iter().map(|r| r.y));
+    let mut normal = phi.transpose() * &phi;
+    let scale = normal.diagonal().max().max(1e-12);
+    for k in 0..N_PARAMS {
+        normal[(k, k)] += 1e-9 * scale;
+    }
+    let theta = normal.cholesky()?.solve(&(phi.transpose() * &y));
+    let residual = &y - &phi * theta;
+    let mean = y.mean();
+    let total: f64 = y.iter().map(|v| (v - mean).powi(2)).sum();
+    (total > 0.0).then(|| 1.0 - residual.norm_squared() / total)
+}

@@ -1,0 +1,776 @@
+//! Markdown report with PNG figures like the paper's: coefficient bars per joint (b, c, d), measured vs
+//! predicted net power sorted by measured value (identification and validation), residual histogram with a
+//! fitted normal, and the mean term contributions (mechanical, copper, Coulomb, viscous, interaction).
+//!
+//! Text is drawn with the DejaVu Sans font shipped in `assets/fonts/` (Bitstream Vera licence, see
+//! `assets/fonts/DejaVuSans-LICENSE.txt`), registered with plotters at first use, so figures render the same on
+//! every machine. Each file is written to a temporary name in the output directory and renamed into place.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::sync::Once;
+
+use anyhow::{Context, Result, anyhow, ensure};
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
+
+use crate::N_JOINTS;
+use crate::identify::metrics::Metrics;
+use crate::power::{DatasetMetrics, ModelFile, N_PAIRS, PAIRS, PowerModel, TERM_NAMES, TermMeans};
+
+const FONT: &str = "sans-serif";
+static FONT_BYTES: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
+
+/// Everything the report shows. Fill what you have; absent parts are left out of the report.
+#[derive(Debug, Clone)]
+pub struct ReportInput {
+    /// Report title.
+    pub title: String,
+    /// The identified model with its metrics and provenance (rejected trials come from its provenance).
+    pub model: ModelFile,
+    /// Per-row measured and predicted net power of the identification rows.
+    pub identification: Option<PredictionSet>,
+    /// Per-row measured and predicted net power of a hold-out session.
+    pub validation: Option<PredictionSet>,
+    /// Mean term contributions over a dataset.
+    pub terms: Option<TermShares>,
+    /// The paper's aggregation comparison: κ(ΦᵀΦ) and R² for per-sample vs trajectory-averaged rows.
+    pub aggregation: Vec<AggregationRow>,
+    /// Truth parameters when the session is simulated: adds a per-parameter error table.
+    pub truth: Option<PowerModel>,
+    /// Free-form remarks (one paragraph each).
+    pub notes: Vec<String>,
+}
+
+/// Measured vs predicted values of one dataset, one entry per row (trajectory or sample).
+#[derive(Debug, Clone, PartialEq)]
+pub struct PredictionSet {
+    /// Dataset name for captions.
+    pub label: String,
+    /// Measured net power [W].
+    pub measured: Vec<f64>,
+    /// Predicted net power [W].
+    pub predicted: Vec<f64>,
+}
+
+/// Mean term contributions over a dataset.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TermShares {
+    /// Dataset name.
+    pub dataset: String,
+    /// Accumulated breakdowns.
+    pub means: TermMeans,
+}
+
+/// One row construction in the aggregation comparison.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AggregationRow {
+    /// e.g. `per-sample` or `trajectory-averaged`.
+    pub rows: String,
+    /// Number of rows.
+    pub n: usize,
+    /// κ(ΦᵀΦ).
+    pub condition_number: f64,
+    /// R² of the constrained fit on these rows.
+    pub r2: f64,
+}
+
+/// File names of the figures, relative to the report directory.
+pub const FIGURES: [&str; 6] = [
+    "coefficients.png",
+    "fit_identification.png",
+    "residuals_identification.png",
+    "fit_validation.png",
+    "residuals_validation.png",
+    "terms.png",
+];
+
+/// Write `dir/report.md` and its PNG figures (creating `dir`).
+pub fn write_report(dir: &Path, r: &ReportInput) -> Result<()> {
+    register_font()?;
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("creating report directory {}", dir.display()))?;
+    let names = short_joint_names(&r.model.joint_names);
+    let mut md = String::new();
+    let _ = writeln!(md, "# {}\n", r.title);
+    write_provenance(&mut md, &r.model);
+    write_metrics(&mut md, r);
+    write_parameters(&mut md, r, &names);
+    write_png(&dir.join(FIGURES[0]), (900, 900), |root| {
+        draw_coefficients(root, &r.model, &names)
+    })?;
+    let _ = writeln!(md, "![Coefficients b, c, d per joint]({})\n", FIGURES[0]);
+    for (set, fit_png, res_png) in [
+        (&r.identification, FIGURES[1], FIGURES[2]),
+        (&r.validation, FIGURES[3], FIGURES[4]),
+    ] {
+        let Some(set) = set else { continue };
+        ensure!(
+            set.measured.len() == set.predicted.len() && !set.measured.is_empty(),
+            "prediction set `{}` needs equally many measured and predicted values (got {} and {})",
+            set.label,
+            set.measured.len(),
+            set.predicted.len()
+        );
+        let m = Metrics::compute(&set.measured, &set.predicted);
+        write_png(&dir.join(fit_png), (1000, 560), |root| {
+            draw_sorted_fit(root, set, &m)
+        })?;
+        write_png(&dir.join(res_png), (700, 480), |root| {
+            draw_residuals(root, set, &m)
+        })?;
+        let _ = writeln!(md, "## Measured vs predicted: {}\n", set.label);
+        let _ = writeln!(
+            md,
+            "![Measured and predicted net power sorted by measured value]({fit_png})\n"
+        );
+        let _ = writeln!(md, "![Residual histogram with fitted normal]({res_png})\n");
+    }
+    if let Some(t) = &r.terms {
+        write_terms(&mut md, t);
+        write_png(&dir.join(FIGURES[5]), (800, 480), |root| {
+            draw_terms(root, t)
+        })?;
+        let _ = writeln!(md, "![Mean term contributions]({})\n", FIGURES[5]);
+    }
+    write_rejected(&mut md, &r.model);
+    for note in &r.notes {
+        let _ = writeln!(md, "{note}\n");
+    }
+    crate::util::write_atomic(&dir.join("report.md"), md.as_bytes())
+}
+
+fn register_font() -> Result<()> {
+    static ONCE: Once = Once::new();
+    let mut ok = true;
+    ONCE.call_once(|| {
+        ok = plotters::style::register_font(FONT, FontStyle::Normal, FONT_BYTES).is_ok()
+    });
+    ensure!(ok, "the bundled DejaVu Sans font could not be loaded");
+    Ok(())
+}
+
+/// `left_shoulder_pitch_joint` → `shoulder pitch`.
+fn short_joint_names(names: &[String]) -> Vec<String> {
+    names
+        .iter()
+        .map(|n| {
+            let s = n.strip_suffix("_joint").unwrap_or(n);
+            let s = s
+                .strip_prefix("left_")
+                .or_else(|| s.strip_prefix("right_"))
+                .unwrap_or(s);
+            s.replace('_', " ")
+        })
+        .collect()
+}
+
+fn fmt_num(v: f64, digits: usize) -> String {
+    if v.is_finite() {
+        format!("{v:.digits$}")
+    } else {
+        "–".to_string()
+    }
+}
+
+fn fmt_sci(v: f64) -> String {
+    if v.is_finite() {
+        format!("{v:.2e}")
+    } else {
+        "∞ / n.a.".to_string()
+    }
+}
+
+fn write_provenance(md: &mut String, m: &ModelFile) {
+    let p = &m.provenance;
+    let _ = writeln!(
+        md,
+        "Tool: {}. Created: {}.\n",
+        p.tool,
+        if p.created.is_empty() {
+            "–"
+        } else {
+            &p.created
+        }
+    );
+    if !p.sessions.is_empty() {
+        let _ = writeln!(md, "| session | role | size [bytes] |\n|---|---|---:|");
+        for s in &p.sessions {
+            let _ = writeln!(md, "| `{}` | {} | {} |", s.path, s.role, s.size_bytes);
+        }
+        md.push('\n');
+    }
+    let _ = writeln!(
+        md,
+        "Target: {}. Rows: {}. Trials segmented {}, used {}, rejected {}.\n",
+        if p.target.is_empty() {
+            "–"
+        } else {
+            &p.target
+        },
+        if p.rows.is_empty() { "–" } else { &p.rows },
+        p.trials.segmented,
+        p.trials.used,
+        p.trials.rejected
+    );
+    for f in &p.filters {
+        let params: Vec<String> = f
+            .parameters
+            .iter()
+            .map(|(k, v)| format!("{k} = {v}"))
+            .collect();
+        let _ = writeln!(
+            md,
+            "- filter `{}` ({}): {} trials rejected",
+            f.name,
+            params.join(", "),
+            f.rejected
+        );
+    }
+    if let Some(s) = &p.solver {
+        let _ = writeln!(
+            md,
+            "- solver {}: {} after {} iterations",
+            s.method, s.status, s.iterations
+        );
+    }
+    md.push('\n');
+}
+
+fn metrics_row(md: &mut String, name: &str, d: &DatasetMetrics) {
+    let f = &d.fit;
+    let _ = writeln!(
+        md,
+        "| {name} ({}) | {} | {} | {} | {} | {} | {} | {} | {} |",
+        d.dataset,
+        f.n,
+        fmt_num(f.r2, 3),
+        fmt_num(f.rmse, 2),
+        fmt_num(f.mae, 2),
+        fmt_num(f.bias, 2),
+        fmt_num(f.skewness, 2),
+        fmt_num(f.kurtosis, 2),
+        fmt_sci(d.condition_number)
+    );
+}
+
+fn write_metrics(md: &mut String, r: &ReportInput) {
+    let _ = writeln!(md, "## Fit quality\n");
+    let _ = writeln!(
+        md,
+        "| dataset | n | R² | RMSE [W] | MAE [W] | bias [W] | skewness | kurtosis | κ(ΦᵀΦ) |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|"
+    );
+    if let Some(d) = &r.model.metrics.identification {
+        metrics_row(md, "identification", d);
+    }
+    if let Some(d) = &r.model.metrics.validation {
+        metrics_row(md, "validation", d);
+    }
+    let _ = writeln!(
+        md,
+        "\nbias = mean(predicted − measured); kurtosis is Pearson's (3 for a normal distribution).\n"
+    );
+    if !r.aggregation.is_empty() {
+        let _ = writeln!(
+            md,
+            "### Per-sample vs aggregated rows\n\n| rows | n | κ(ΦᵀΦ) | R² |\n|---|---:|---:|---:|"
+        );
+        for a in &r.aggregation {
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} | {} |",
+                a.rows,
+                a.n,
+                fmt_sci(a.condition_number),
+                fmt_num(a.r2, 3)
+            );
+        }
+        md.push('\n');
+    }
+}
+
+fn with_se(v: f64, se: Option<f64>) -> String {
+    match se {
+        Some(s) => format!("{v:.4} ± {s:.4}"),
+        None => format!("{v:.4}"),
+    }
+}
+
+fn write_parameters(md: &mut String, r: &ReportInput, names: &[String]) {
+    let m = r.model.model();
+    let se = |p: usize| {
+        r.model
+            .theta_std_err
+            .as_ref()
+            .and_then(|v| v.get(p).copied().flatten())
+    };
+    let _ = writeln!(md, "## Identified parameters\n");
+    let _ = writeln!(
+        md,
+        "| joint | a | b [W/(N·m)²] | c [W·s/rad] | d [W·s²/rad²] | dominant |\n|---|---:|---:|---:|---:|---|"
+    );
+    for i in 0..N_JOINTS {
+        let dom = m.dominant_term(i).map_or("–", |t| t.name());
+        let _ = writeln!(
+            md,
+            "| {i} {} | {} | {} | {} | {} | {dom} |",
+            names.get(i).map_or("", |s| s.as_str()),
+            with_se(m.a[i], se(i)),
+            with_se(m.b[i], se(N_JOINTS + i)),
+            with_se(m.c[i], se(2 * N_JOINTS + i)),
+            with_se(m.d[i], se(3 * N_JOINTS + i))
+        );
+    }
+    let _ = writeln!(
+        md,
+        "\nPairwise interaction e_ij [W·s²/rad²] (± standard error when estimated):\n"
+    );
+    let _ = writeln!(
+        md,
+        "| pair | e_ij | pair | e_ij | pair | e_ij |\n|---|---:|---|---:|---|---:|"
+    );
+    let per_col = N_PAIRS.div_ceil(3);
+    for row in 0..per_col {
+        let cells: Vec<String> = (0..3)
+            .filter_map(|col| {
+                let k = col * per_col + row;
+                PAIRS
+                    .get(k)
+                    .map(|&(i, j)| format!("({i},{j}) | {}", with_se(m.e[k], se(4 * N_JOINTS + k))))
+            })
+            .collect();
+        let _ = writeln!(md, "| {} |", cells.join(" | "));
+    }
+    md.push('\n');
+    if let Some(truth) = &r.truth {
+        let (est, tv) = (m.to_vector(), truth.to_vector());
+        let _ = writeln!(
+            md,
+            "### Recovery of the truth parameters\n\n| parameter | truth | estimate | error |\n|---|---:|---:|---:|"
+        );
+        for p in 0..est.len() {
+            let _ = writeln!(
+                md,
+                "| {} | {:.4} | {:.4} | {:+.4} |",
+                PowerModel::param_name(p),
+                tv[p],
+                est[p],
+                est[p] - tv[p]
+            );
+        }
+        let worst = est
+            .iter()
+            .zip(&tv)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max);
+        let _ = writeln!(md, "\nLargest absolute error: {worst:.4}.\n");
+    }
+}
+
+fn write_terms(md: &mut String, t: &TermShares) {
+    let _ = writeln!(
+        md,
+        "## Term contributions ({}, {} rows)\n",
+        t.dataset,
+        t.means.count()
+    );
+    let _ = writeln!(md, "| term | mean [W] | share [%] |\n|---|---:|---:|");
+    for ((name, mean), share) in TERM_NAMES
+        .iter()
+        .zip(t.means.means())
+        .zip(t.means.shares_percent())
+    {
+        let _ = writeln!(md, "| {name} | {mean:.3} | {} |", fmt_num(share, 1));
+    }
+    md.push('\n');
+}
+
+fn write_rejected(md: &mut String, m: &ModelFile) {
+    let rej = &m.provenance.rejected_trials;
+    if rej.is_empty() {
+        return;
+    }
+    let _ = writeln!(md, "## Rejected trials ({})\n", rej.len());
+    let _ = writeln!(
+        md,
+        "| session | trial | filter | statistic | threshold | reason |\n|---|---:|---|---:|---:|---|"
+    );
+    for t in rej {
+        let _ = writeln!(
+            md,
+            "| `{}` | {} | {} | {} | {} | {} |",
+            t.session,
+            t.trial,
+            t.filter,
+            fmt_num(t.statistic, 3),
+            fmt_num(t.threshold, 3),
+            t.reason
+        );
+    }
+    md.push('\n');
+}
+
+/// Render with plotters into a temporary `.png` beside `path`, then rename into place.
+fn write_png(
+    path: &Path,
+    size: (u32, u32),
+    draw: impl FnOnce(&DrawingArea<BitMapBackend<'_>, Shift>) -> Result<()>,
+) -> Result<()> {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let tmp: PathBuf = path.with_file_name(format!(
+        ".{}.tmp{}.png",
+        name.trim_end_matches(".png"),
+        std::process::id()
+    ));
+    let result = (|| {
+        {
+            let root = BitMapBackend::new(&tmp, size).into_drawing_area();
+            root.fill(&WHITE).map_err(plot_err)?;
+            draw(&root)?;
+            root.present().map_err(plot_err)?;
+        }
+        std::fs::rename(&tmp, path)
+            .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result.with_context(|| format!("drawing {}", path.display()))
+}
+
+fn plot_err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
+    anyhow!("plotting failed: {e:?}")
+}
+
+fn draw_coefficients(
+    root: &DrawingArea<BitMapBackend<'_>, Shift>,
+    model: &ModelFile,
+    names: &[String],
+) -> Result<()> {
+    let m = model.model();
+    let se = |p: usize| {
+        model
+            .theta_std_err
+            .as_ref()
+            .and_then(|v| v.get(p).copied().flatten())
+            .unwrap_or(0.0)
+    };
+    let panels = [
+        (
+            "b_i copper loss [W/(N·m)²]",
+            m.b,
+            N_JOINTS,
+            RGBColor(214, 96, 77),
+        ),
+        (
+            "c_i Coulomb friction [W·s/rad]",
+            m.c,
+            2 * N_JOINTS,
+            RGBColor(67, 147, 195),
+        ),
+        (
+            "d_i viscous friction [W·s²/rad²]",
+            m.d,
+            3 * N_JOINTS,
+            RGBColor(90, 174, 97),
+        ),
+    ];
+    for (area, (title, values, offset, color)) in root.split_evenly((3, 1)).iter().zip(panels) {
+        let top = (0..N_JOINTS)
+            .map(|i| values[i] + se(offset + i))
+            .fold(0.0f64, f64::max)
+            .max(1e-3)
+            * 1.15;
+        let mut chart = ChartBuilder::on(area)
+            .caption(title, (FONT, 20))
+            .margin(8)
+            .x_label_area_size(28)
+            .y_label_area_size(60)
+            .build_cartesian_2d((0..N_JOINTS - 1).into_segmented(), 0.0..top)
+            .map_err(plot_err)?;
+        chart
+            .configure_mesh()
+            .disable_x_mesh()
+            .x_labels(N_JOINTS)
+            .x_label_formatter(&|v| match v {
+                SegmentValue::CenterOf(i) => names.get(*i).cloned().unwrap_or_default(),
+                _ => String::new(),
+            })
+            .label_style((FONT, 13))
+            .draw()
+            .map_err(plot_err)?;
+        chart
+            .draw_series((0..N_JOINTS).map(|i| {
+                let mut bar = Rectangle::new(
+                    [
+                        (SegmentValue::Exact(i), 0.0),
+                        (SegmentValue::Exact(i + 1), values[i]),
+                    ],
+                    color.filled(),
+                );
+                bar.set_margin(0, 0, 18, 18);
+                bar
+            }))
+            .map_err(plot_err)?;
+        chart
+            .draw_series((0..N_JOINTS).filter(|&i| se(offset + i) > 0.0).map(|i| {
+                let s = se(offset + i);
+                let x = SegmentValue::CenterOf(i);
+                PathElement::new(
+                    vec![(x.clone(), (values[i] - s).max(0.0)), (x, values[i] + s)],
+                    BLACK.stroke_width(2),
+                )
+            }))
+            .map_err(plot_err)?;
+        chart
+            .draw_series((0..N_JOINTS).map(|i| {
+                let y = values[i] + se(offset + i) + top * 0.02;
+                Text::new(
+                    format!("{:.3}", values[i]),
+                    (SegmentValue::CenterOf(i), y),
+                    centered_above(13),
+                )
+            }))
+            .map_err(plot_err)?;
+    }
+    Ok(())
+}
+
+/// Text anchored at its bottom centre, to label the top of a bar.
+fn centered_above(size: u32) -> TextStyle<'static> {
+    TextStyle::from((FONT, size).into_font()).pos(Pos::new(HPos::Center, VPos::Bottom))
+}
+
+fn range_of(values: impl Iterator<Item = f64>) -> (f64, f64) {
+    let (lo, hi) = values
+        .filter(|v| v.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+            (a.min(v), b.max(v))
+        });
+    if !lo.is_finite() {
+        return (-1.0, 1.0);
+    }
+    let pad = ((hi - lo) * 0.05).max(1e-6);
+    (lo - pad, hi + pad)
+}
+
+fn draw_sorted_fit(
+    root: &DrawingArea<BitMapBackend<'_>, Shift>,
+    set: &PredictionSet,
+    m: &Metrics,
+) -> Result<()> {
+    let mut order: Vec<usize> = (0..set.measured.len()).collect();
+    order.sort_by(|&a, &b| set.measured[a].total_cmp(&set.measured[b]));
+    let (lo, hi) = range_of(set.measured.iter().chain(&set.predicted).copied());
+    let n = order.len();
+    let caption = format!(
+        "{}: {} rows sorted by measured power — R² = {}, RMSE = {} W",
+        set.label,
+        n,
+        fmt_num(m.r2, 3),
+        fmt_num(m.rmse, 2)
+    );
+    let mut chart = ChartBuilder::on(root)
+        .caption(caption, (FONT, 20))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(-0.5..(n as f64 - 0.5).max(0.5), lo..hi)
+        .map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .x_desc("row (sorted by measured net power)")
+        .x_label_formatter(&|x| format!("{x:.0}"))
+        .y_desc("net power [W]")
+        .label_style((FONT, 14))
+        .draw()
+        .map_err(plot_err)?;
+    let radius = if n > 300 { 2 } else { 3 };
+    chart
+        .draw_series(
+            order.iter().enumerate().map(|(k, &i)| {
+                Circle::new((k as f64, set.measured[i]), radius, BLUE.stroke_width(1))
+            }),
+        )
+        .map_err(plot_err)?
+        .label("measured")
+        .legend(|(x, y)| Circle::new((x + 10, y), 4, BLUE.stroke_width(1)));
+    chart
+        .draw_series(LineSeries::new(
+            order
+                .iter()
+                .enumerate()
+                .map(|(k, &i)| (k as f64, set.predicted[i])),
+            RED.stroke_width(1),
+        ))
+        .map_err(plot_err)?
+        .label("predicted")
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED.stroke_width(1)));
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperLeft)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font((FONT, 15))
+        .draw()
+        .map_err(plot_err)?;
+    Ok(())
+}
+
+fn draw_residuals(
+    root: &DrawingArea<BitMapBackend<'_>, Shift>,
+    set: &PredictionSet,
+    m: &Metrics,
+) -> Result<()> {
+    let res: Vec<f64> = set
+        .measured
+        .iter()
+        .zip(&set.predicted)
+        .map(|(y, p)| y - p)
+        .filter(|v| v.is_finite())
+        .collect();
+    let n = res.len().max(1) as f64;
+    let mean = res.iter().sum::<f64>() / n;
+    let sd = (res.iter().map(|r| (r - mean).powi(2)).sum::<f64>() / n)
+        .sqrt()
+        .max(1e-9);
+    let (lo, hi) = range_of(
+        res.iter()
+            .copied()
+            .chain([mean - 3.5 * sd, mean + 3.5 * sd]),
+    );
+    let bins = ((n.sqrt().ceil() as usize).clamp(8, 50)) as f64;
+    let width = (hi - lo) / bins;
+    let mut counts = vec![0usize; bins as usize];
+    for r in &res {
+        let k = (((r - lo) / width) as usize).min(counts.len() - 1);
+        counts[k] += 1;
+    }
+    let pdf_peak = n * width / (sd * (2.0 * std::f64::consts::PI).sqrt());
+    let top = (counts.iter().copied().max().unwrap_or(1) as f64).max(pdf_peak) * 1.15;
+    let caption = format!(
+        "{} residuals (measured − predicted): skewness {}, kurtosis {}",
+        set.label,
+        fmt_num(m.skewness, 2),
+        fmt_num(m.kurtosis, 2)
+    );
+    let mut chart = ChartBuilder::on(root)
+        .caption(caption, (FONT, 16))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(50)
+        .build_cartesian_2d(lo..hi, 0.0..top)
+        .map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .x_desc("residual [W]")
+        .y_desc("rows")
+        .y_label_formatter(&|y| format!("{y:.0}"))
+        .label_style((FONT, 14))
+        .draw()
+        .map_err(plot_err)?;
+    chart
+        .draw_series(counts.iter().enumerate().map(|(k, &c)| {
+            let x0 = lo + k as f64 * width;
+            Rectangle::new(
+                [(x0, 0.0), (x0 + width, c as f64)],
+                RGBColor(120, 150, 200).filled(),
+            )
+        }))
+        .map_err(plot_err)?
+        .label("residuals")
+        .legend(|(x, y)| {
+            Rectangle::new(
+                [(x, y - 5), (x + 15, y + 5)],
+                RGBColor(120, 150, 200).filled(),
+            )
+        });
+    let curve = (0..=200).map(|k| {
+        let x = lo + (hi - lo) * k as f64 / 200.0;
+        (x, pdf_peak * (-0.5 * ((x - mean) / sd).powi(2)).exp())
+    });
+    chart
+        .draw_series(LineSeries::new(curve, RED.stroke_width(2)))
+        .map_err(plot_err)?
+        .label(format!("normal μ = {mean:.2} W, σ = {sd:.2} W"))
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED.stroke_width(2)));
+    chart
+        .configure_series_labels()
+        .position(SeriesLabelPosition::UpperRight)
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font((FONT, 14))
+        .draw()
+        .map_err(plot_err)?;
+    Ok(())
+}
+
+fn draw_terms(root: &DrawingArea<BitMapBackend<'_>, Shift>, t: &TermShares) -> Result<()> {
+    let shares = t.means.shares_percent();
+    let (lo, hi) = range_of(shares.iter().copied().chain([0.0]));
+    let (lo, hi) = (lo.min(0.0), hi * 1.1);
+    let colors = [
+        RGBColor(150, 150, 150),
+        RGBColor(214, 96, 77),
+        RGBColor(67, 147, 195),
+        RGBColor(90, 174, 97),
+        RGBColor(153, 112, 171),
+    ];
+    let mut chart = ChartBuilder::on(root)
+        .caption(
+            format!(
+                "Mean term contributions ({}, {} rows)",
+                t.dataset,
+                t.means.count()
+            ),
+            (FONT, 18),
+        )
+        .margin(12)
+        .x_label_area_size(34)
+        .y_label_area_size(60)
+        .build_cartesian_2d((0..TERM_NAMES.len() - 1).into_segmented(), lo..hi)
+        .map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .disable_x_mesh()
+        .x_labels(TERM_NAMES.len())
+        .x_label_formatter(&|v| match v {
+            SegmentValue::CenterOf(i) => TERM_NAMES
+                .get(*i)
+                .map(|s| s.to_string())
+                .unwrap_or_default(),
+            _ => String::new(),
+        })
+        .y_desc("share of mean predicted power [%]")
+        .label_style((FONT, 14))
+        .draw()
+        .map_err(plot_err)?;
+    chart
+        .draw_series(shares.iter().enumerate().map(|(k, &s)| {
+            let mut bar = Rectangle::new(
+                [
+                    (SegmentValue::Exact(k), 0.0),
+                    (
+                        SegmentValue::Exact(k + 1),
+                        if s.is_finite() { s } else { 0.0 },
+                    ),
+                ],
+                colors[k].filled(),
+            );
+            bar.set_margin(0, 0, 25, 25);
+            bar
+        }))
+        .map_err(plot_err)?;
+    chart
+        .draw_series(shares.iter().enumerate().map(|(k, &s)| {
+            let y = if s.is_finite() { s.max(0.0) } else { 0.0 };
+            let at = (SegmentValue::CenterOf(k), y + (hi - lo) * 0.01);
+            Text::new(format!("{} %", fmt_num(s, 1)), at, centered_above(15))
+        }))
+        .map_err(plot_err)?;
+    Ok(())
+}

@@ -1,0 +1,683 @@
+//! Bound-constrained linear least squares: min ‖Φθ − y‖² subject to lower ≤ θ ≤ upper.
+//!
+//! Two independent solvers share one problem preparation:
+//! - [`Method::Clarabel`]: the interior-point QP solver clarabel on P = ΦᵀΦ, q = −Φᵀy with the bounds as a
+//!   nonnegative cone (the paper solved the same QP with IPOPT);
+//! - [`Method::Bvls`]: an exact active-set method (Stark–Parker BVLS, which is Lawson–Hanson NNLS on the
+//!   shifted variable θ − lower when only lower bounds are finite), written here to cross-check clarabel.
+//!
+//! Both solve in scaled variables: every column of Φ is scaled to unit norm and y to unit norm, so solver
+//! tolerances mean the same thing whatever the units of the regressors. Columns that are identically zero
+//! carry no information; their parameter is pinned to the feasible value closest to 0 and reported as
+//! unidentifiable. [`kkt_check`] verifies any solution against the optimality conditions.
+
+use std::time::Instant;
+
+use anyhow::{Result, anyhow, bail, ensure};
+use nalgebra::{DMatrix, DVector};
+
+use crate::N_PARAMS;
+use crate::power::PowerModel;
+
+/// Which solver to use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Method {
+    /// clarabel interior-point QP.
+    Clarabel,
+    /// Exact active-set bounded-variable least squares (this module's own implementation).
+    Bvls,
+}
+
+/// A bound-constrained least-squares problem's constraints and regularisation.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Bounds {
+    /// Lower bound per column (`f64::NEG_INFINITY` = unbounded below).
+    pub lower: Vec<f64>,
+    /// Upper bound per column (`f64::INFINITY` = unbounded above).
+    pub upper: Vec<f64>,
+    /// Ridge weight λ ≥ 0: adds λ Σ_j ‖φ_j‖² θ_j² to the objective (‖φ_j‖ = column norm), i.e. λ‖x‖² in the
+    /// unit-column scaled variables, so λ is dimensionless and independent of the regressors' units.
+    pub ridge: f64,
+}
+
+impl Bounds {
+    /// Lower bounds only, no ridge.
+    pub fn lower(lower: &[f64]) -> Self {
+        Bounds {
+            lower: lower.to_vec(),
+            upper: vec![f64::INFINITY; lower.len()],
+            ridge: 0.0,
+        }
+    }
+}
+
+/// How the solver ran.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SolverInfo {
+    /// `"clarabel"` or `"bvls"`.
+    pub method: &'static str,
+    /// Final status as the solver names it (`Solved`, `AlmostSolved`, … for clarabel; `Solved` for BVLS).
+    pub status: String,
+    /// Interior-point iterations (clarabel) or least-squares subproblem solves (BVLS).
+    pub iterations: u32,
+    /// Wall time of the whole fit including preparation [s].
+    pub time_s: f64,
+}
+
+/// Result of a constrained fit.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Fit {
+    /// Estimated parameters θ, one per column of Φ.
+    pub theta: Vec<f64>,
+    /// Standard error of each parameter from the residual variance and (Φ_FᵀΦ_F)⁻¹ on the free set F;
+    /// `None` for parameters held at a bound (or pinned because their column is zero).
+    pub std_err: Vec<Option<f64>>,
+    /// True where the parameter sits at one of its bounds (an active constraint).
+    pub at_bound: Vec<bool>,
+    /// Columns that are identically zero (no data excites them); their θ is pinned, not estimated.
+    pub unidentifiable: Vec<usize>,
+    /// Residual sum of squares ‖Φθ − y‖² (without the ridge term).
+    pub rss: f64,
+    /// Number of rows used.
+    pub n_rows: usize,
+    /// Solver status, iterations and time.
+    pub solver: SolverInfo,
+}
+
+impl Fit {
+    /// θ as the 49-vector of the power model (errors if the fit had another number of columns).
+    pub fn theta49(&self) -> Result<[f64; N_PARAMS]> {
+        self.theta.as_slice().try_into().map_err(|_| {
+            anyhow!(
+                "fit has {} parameters, the power model needs {N_PARAMS}",
+                self.theta.len()
+            )
+        })
+    }
+
+    /// The fitted power model (errors if the fit had another number of columns).
+    pub fn model(&self) -> Result<PowerModel> {
+        Ok(PowerModel::from_vector(&self.theta49()?))
+    }
+}
+
+/// The paper's constraints: a_i ≥ 1 (inverse gear efficiency), every other parameter ≥ 0.
+pub fn paper_lower_bounds() -> [f64; N_PARAMS] {
+    let mut lower = [0.0; N_PARAMS];
+    lower[..crate::N_JOINTS].fill(1.0);
+    lower
+}
+
+/// Stack 49-wide regressor rows into a matrix.
+pub fn rows_to_matrix(phi: &[[f64; N_PARAMS]]) -> DMatrix<f64> {
+    DMatrix::from_fn(phi.len(), N_PARAMS, |i, j| phi[i][j])
+}
+
+/// The paper's fit: min ‖Φθ − y‖² s.t. θ ≥ lower, solved with clarabel.
+pub fn fit_constrained(phi: &[[f64; N_PARAMS]], y: &[f64], lower: &[f64; N_PARAMS]) -> Result<Fit> {
+    fit_general(
+        &rows_to_matrix(phi),
+        &DVector::from_column_slice(y),
+        &Bounds::lower(lower),
+        Method::Clarabel,
+    )
+}
+
+/// The same problem as [`fit_constrained`] solved by the independent exact active-set method.
+pub fn fit_bvls(phi: &[[f64; N_PARAMS]], y: &[f64], lower: &[f64; N_PARAMS]) -> Result<Fit> {
+    fit_general(
+        &rows_to_matrix(phi),
+        &DVector::from_column_slice(y),
+        &Bounds::lower(lower),
+        Method::Bvls,
+    )
+}
+
+/// Any number of columns with lower/upper bounds (infinite = free), solved with clarabel; returns θ only.
+pub fn fit_constrained_general(
+    phi: &DMatrix<f64>,
+    y: &DVector<f64>,
+    lower: &[f64],
+    upper: &[f64],
+) -> Result<DVector<f64>> {
+    let bounds = Bounds {
+        lower: lower.to_vec(),
+        upper: upper.to_vec(),
+        ridge: 0.0,
+    };
+    Ok(DVector::from_vec(
+        fit_general(phi, y, &bounds, Method::Clarabel)?.theta,
+    ))
+}
+
+/// The general fit: any number of columns, lower/upper bounds, optional ridge, either solver.
+pub fn fit_general(
+    phi: &DMatrix<f64>,
+    y: &DVector<f64>,
+    bounds: &Bounds,
+    method: Method,
+) -> Result<Fit> {
+    let start = Instant::now();
+    let prep = Prepared::new(phi, y, bounds)?;
+    let (x, free, status, iterations) = match method {
+        Method::Clarabel => solve_clarabel(&prep)?,
+        Method::Bvls => {
+            let (x, free, it) = solve_bvls(&prep.r, &prep.c, &prep.lo, &prep.hi)?;
+            (x, free, "Solved".to_string(), it)
+        }
+    };
+    let theta = prep.unscale(&x);
+    let rss = (phi * DVector::from_column_slice(&theta) - y).norm_squared();
+    let n = phi.ncols();
+    let mut at_bound = vec![false; n];
+    let mut std_err = vec![None; n];
+    let dof = phi
+        .nrows()
+        .saturating_sub(free.iter().filter(|&&f| f).count());
+    let se_scaled = if dof > 0 {
+        std_errors_scaled(&prep.r, &free, prep.rss_scaled(&x) / dof as f64)
+    } else {
+        None
+    };
+    for (k, &col) in prep.cols.iter().enumerate() {
+        at_bound[col] = !free[k];
+        if free[k] {
+            std_err[col] = se_scaled
+                .as_ref()
+                .and_then(|se| se[k])
+                .map(|s| s * prep.y_norm / prep.col_norm[k]);
+        }
+    }
+    for &col in &prep.zero_cols {
+        at_bound[col] = theta[col] == bounds.lower[col] || theta[col] == bounds.upper[col];
+    }
+    Ok(Fit {
+        theta,
+        std_err,
+        at_bound,
+        unidentifiable: prep.zero_cols.clone(),
+        rss,
+        n_rows: phi.nrows(),
+        solver: SolverInfo {
+            method: match method {
+                Method::Clarabel => "clarabel",
+                Method::Bvls => "bvls",
+            },
+            status,
+            iterations,
+            time_s: start.elapsed().as_secs_f64(),
+        },
+    })
+}
+
+/// The problem in scaled variables x_k = ‖φ_k‖ θ_k / ‖y‖ over the non-zero columns, reduced by a thin QR of
+/// the (ridge-augmented) scaled matrix to the square-ish system ‖R x − c‖ (same minimiser, same conditioning
+/// as Φ rather than the squared conditioning of the normal equations).
+struct Prepared {
+    /// Columns of Φ that take part (non-zero).
+    cols: Vec<usize>,
+    /// Columns of Φ that are identically zero.
+    zero_cols: Vec<usize>,
+    /// Norm of each participating column.
+    col_norm: Vec<f64>,
+    /// ‖y‖ (1 when y = 0).
+    y_norm: f64,
+    /// Scaled bounds of the participating columns.
+    lo: Vec<f64>,
+    hi: Vec<f64>,
+    /// Scaled ridge weight.
+    ridge: f64,
+    r: DMatrix<f64>,
+    c: DVector<f64>,
+    /// ‖b‖² − ‖c‖²: the part of the scaled objective no x can reduce.
+    rss_floor: f64,
+    /// Full θ with the pinned values of zero columns (the rest is overwritten by `unscale`).
+    pinned: Vec<f64>,
+}
+
+impl Prepared {
+    fn new(phi: &DMatrix<f64>, y: &DVector<f64>, bounds: &Bounds) -> Result<Self> {
+        let (m, n) = phi.shape();
+        ensure!(
+            m > 0 && n > 0,
+            "empty least-squares problem ({m} rows, {n} columns)"
+        );
+        ensure!(y.len() == m, "y has {} values but Φ has {m} rows", y.len());
+        ensure!(
+            bounds.lower.len() == n && bounds.upper.len() == n,
+            "bounds have {} lower and {} upper values for {n} columns",
+            bounds.lower.len(),
+            bounds.upper.len()
+        );
+        ensure!(
+            bounds.ridge.is_finite() && bounds.ridge >= 0.0,
+            "ridge weight {} must be finite and ≥ 0",
+            bounds.ridge
+        );
+        for j in 0..n {
+            let (lo, hi) = (bounds.lower[j], bounds.upper[j]);
+            ensure!(
+                !lo.is_nan()
+                    && !hi.is_nan()
+                    && lo <= hi
+                    && lo < f64::INFINITY
+                    && hi > f64::NEG_INFINITY,
+                "invalid bounds for column {j}: [{lo}, {hi}]"
+            );
+        }
+        if let Some(i) = y.iter().position(|v| !v.is_finite()) {
+            bail!("target y[{i}] = {} is not finite", y[i]);
+        }
+        let mut cols = Vec::new();
+        let mut zero_cols = Vec::new();
+        let mut col_norm = Vec::new();
+        let mut pinned = vec![0.0; n];
+        for (j, pin) in pinned.iter_mut().enumerate() {
+            let col = phi.column(j);
+            if let Some(i) = col.iter().position(|v| !v.is_finite()) {
+                bail!("regressor Φ[{i}][{j}] = {} is not finite", col[i]);
+            }
+            let norm = col.norm();
+            if norm > 0.0 {
+                cols.push(j);
+                col_norm.push(norm);
+            } else {
+                zero_cols.push(j);
+                *pin = 0.0f64.clamp(bounds.lower[j], bounds.upper[j]);
+            }
+        }
+        ensure!(
+            !cols.is_empty(),
+            "every regressor column is zero: nothing to fit"
+        );
+        let y_norm = if y.norm() > 0.0 { y.norm() } else { 1.0 };
+        let k = cols.len();
+        let ridge_rows = if bounds.ridge > 0.0 { k } else { 0 };
+        let mut a = DMatrix::zeros(m + ridge_rows, k);
+        for (kk, &j) in cols.iter().enumerate() {
+            for i in 0..m {
+                a[(i, kk)] = phi[(i, j)] / col_norm[kk];
+            }
+            if ridge_rows > 0 {
+                a[(m + kk, kk)] = bounds.ridge.sqrt();
+            }
+        }
+        let mut b = DVector::zeros(m + ridge_rows);
+        for i in 0..m {
+            b[i] = y[i] / y_norm;
+        }
+        let scale = |v: f64, kk: usize| {
+            if v.is_finite() {
+                v * col_norm[kk] / y_norm
+            } else {
+                v
+            }
+        };
+        let lo = cols
+            .iter()
+            .enumerate()
+            .map(|(kk, &j)| scale(bounds.lower[j], kk))
+            .collect();
+        let hi = cols
+            .iter()
+            .enumerate()
+            .map(|(kk, &j)| scale(bounds.upper[j], kk))
+            .collect();
+        let qr = a.qr();
+        let c = qr.q().transpose() * &b;
+        let r = qr.r();
+        let rss_floor = (b.norm_squared() - c.norm_squared()).max(0.0);
+        Ok(Prepared {
+            cols,
+            zero_cols,
+            col_norm,
+            y_norm,
+            lo,
+            hi,
+            ridge: bounds.ridge,
+            r,
+            c,
+            rss_floor,
+            pinned,
+        })
+    }
+
+    fn unscale(&self, x: &[f64]) -> Vec<f64> {
+        let mut theta = self.pinned.clone();
+        for (kk, &j) in self.cols.iter().enumerate() {
+            theta[j] = x[kk] * self.y_norm / self.col_norm[kk];
+        }
+        theta
+    }
+
+    /// Scaled residual sum of squares of the data rows only (ridge excluded).
+    fn rss_scaled(&self, x: &[f64]) -> f64 {
+        let xv = DVector::from_column_slice(x);
+        let total = (&self.r * &xv - &self.c).norm_squared() + self.rss_floor;
+        (total - self.ridge * xv.norm_squared()).max(0.0)
+    }
+}
+
+/// clarabel on ½xᵀ(RᵀR)x − (Rᵀc)ᵀx with each finite bound as one row of a nonnegative cone.
+fn solve_clarabel(p: &Prepared) -> Result<(Vec<f64>, Vec<bool>, String, u32)> {
+    use clarabel::algebra::CscMatrix;
+    use clarabel::solver::{
+        DefaultSettings, DefaultSolver, IPSolver, SolverStatus, SupportedConeT,
+    };
+
+    let k = p.r.ncols();
+    let gram = p.r.transpose() * &p.r;
+    let q: Vec<f64> = (-(p.r.transpose() * &p.c)).iter().copied().collect();
+    // Upper triangle of P in compressed-column form.
+    let mut colptr = vec![0usize];
+    let mut rowval = Vec::with_capacity(k * (k + 1) / 2);
+    let mut nzval = Vec::with_capacity(k * (k + 1) / 2);
+    for j in 0..k {
+        for i in 0..=j {
+            rowval.push(i);
+            nzval.push(gram[(i, j)]);
+        }
+        colptr.push(rowval.len());
+    }
+    let pmat = CscMatrix::new(k, k, colptr, rowval, nzval);
+    // A x + s = b, s ≥ 0: −x_j ≤ −lo_j and x_j ≤ hi_j. `rows` remembers (variable, is_lower) per row.
+    let mut triplets = (Vec::new(), Vec::new(), Vec::new());
+    let mut bvec = Vec::new();
+    let mut rows = Vec::new();
+    for j in 0..k {
+        if p.lo[j].is_finite() {
+            triplets.0.push(bvec.len());
+            triplets.1.push(j);
+            triplets.2.push(-1.0);
+            bvec.push(-p.lo[j]);
+            rows.push((j, true));
+        }
+        if p.hi[j].is_finite() {
+            triplets.0.push(bvec.len());
+            triplets.1.push(j);
+            triplets.2.push(1.0);
+            bvec.push(p.hi[j]);
+            rows.push((j, false));
+        }
+    }
+    let amat = CscMatrix::new_from_triplets(bvec.len(), k, triplets.0, triplets.1, triplets.2);
+    let cones = if bvec.is_empty() {
+        vec![]
+    } else {
+        vec![SupportedConeT::NonnegativeConeT(bvec.len())]
+    };
+    let settings = DefaultSettings::<f64> {
+        verbose: false,
+        tol_gap_abs: 1e-12,
+        tol_gap_rel: 1e-12,
+        tol_feas: 1e-12,
+        tol_ktratio: 1e-9,
+        max_iter: 100,
+        ..DefaultSettings::default()
+    };
+    let mut solver = DefaultSolver::new(&pmat, &q, &amat, &bvec, &cones, settings)
+        .map_err(|e| anyhow!("clarabel rejected the problem: {e:?}"))?;
+    solver.solve();
+    let sol = &solver.solution;
+    match sol.status {
+        SolverStatus::Solved | SolverStatus::AlmostSolved => {}
+        // Iteration/progress limits still leave a usable point when the gap is already small.
+        SolverStatus::MaxIterations | SolverStatus::InsufficientProgress
+            if sol.r_prim < 1e-6 && sol.r_dual < 1e-6 => {}
+        other => bail!("clarabel did not solve the least-squares problem: status {other:?}"),
+    }
+    // A bound is active when its slack is smaller than its multiplier (the interior-point iterate's
+    // complementarity pairs s·z → 0 from opposite sides).
+    let mut free = vec![true; k];
+    let mut x = sol.x.clone();
+    for (row, &(j, is_lower)) in rows.iter().enumerate() {
+        if sol.s[row] < sol.z[row] {
+            free[j] = false;
+            x[j] = if is_lower { p.lo[j] } else { p.hi[j] };
+        }
+    }
+    Ok((x, free, format!("{:?}", sol.status), sol.iterations))
+}
+
+/// Stark–Parker bounded-variable least squares on min ‖R x − c‖, lo ≤ x ≤ hi.
+/// Returns x, the free set and the number of least-squares subproblem solves.
+fn solve_bvls(
+    r: &DMatrix<f64>,
+    c: &DVector<f64>,
+    lo: &[f64],
+    hi: &[f64],
+) -> Result<(Vec<f64>, Vec<bool>, u32)> {
+    let n = r.ncols();
+    // Gradient components below this (in unit-scaled variables) count as zero.
+    let tol = 1e-12 * c.norm().max(1e-300);
+    let mut x = vec![0.0; n];
+    let mut free = vec![false; n];
+    for j in 0..n {
+        if lo[j].is_finite() {
+            x[j] = lo[j];
+        } else if hi[j].is_finite() {
+            x[j] = hi[j];
+        } else {
+            free[j] = true;
+        }
+    }
+    let max_solves = 100 * n as u32 + 100;
+    let mut solves = 0u32;
+    let mut blocked = vec![false; n];
+    let mut just_freed: Option<usize> = None;
+    let mut settle = free.iter().any(|&f| f);
+    loop {
+        while settle {
+            solves += 1;
+            if solves > max_solves {
+                bail!("BVLS did not converge within {max_solves} subproblem solves");
+            }
+            let z = solve_free_subproblem(r, c, &x, &free)?;
+            if let Some(j) = just_freed.take() {
+                // The variable just released must move into the interior; if rounding says otherwise,
+                // keep it bound and try the next candidate (Lawson–Hanson's safeguard against cycling).
+                let moves_inward = if x[j] == lo[j] {
+                    z[j] > lo[j]
+                } else {
+                    z[j] < hi[j]
+                };
+                if !moves_inward {
+                    free[j] = false;
+                    blocked[j] = true;
+                    break;
+                }
+            }
+            let mut alpha = 1.0;
+            let mut blocking = None;
+            for j in (0..n).filter(|&j| free[j]) {
+                let step = if z[j] < lo[j] {
+                    (lo[j] - x[j]) / (z[j] - x[j])
+                } else if z[j] > hi[j] {
+                    (hi[j] - x[j]) / (z[j] - x[j])
+                } else {
+                    continue;
+                };
+                if step < alpha {
+                    alpha = step.max(0.0);
+                    blocking = Some(j);
+                }
+            }
+            match blocking {
+                None => {
+                    for j in (0..n).filter(|&j| free[j]) {
+                        x[j] = z[j];
+                    }
+                    blocked.fill(false);
+                    settle = false;
+                }
+                Some(jb) => {
+                    let free_idx: Vec<usize> = (0..n).filter(|&j| free[j]).collect();
+                    for j in free_idx {
+                        x[j] += alpha * (z[j] - x[j]);
+                        let span = 1e-14 * (1.0 + x[j].abs());
+                        if j == jb || x[j] <= lo[j] + span || x[j] >= hi[j] - span {
+                            free[j] = false;
+                            x[j] = if z[j] < lo[j] || x[j] <= lo[j] + span {
+                                lo[j]
+                            } else {
+                                hi[j]
+                            };
+                        }
+                    }
+                }
+            }
+        }
+        // Optimality: w = Rᵀ(c − Rx) is minus half the gradient; a bound variable may leave its lower
+        // bound only if w_j > 0 and its upper bound only if w_j < 0.
+        let xv = DVector::from_column_slice(&x);
+        let w = r.transpose() * (c - r * xv);
+        let mut best: Option<(usize, f64)> = None;
+        for j in (0..n).filter(|&j| !free[j] && !blocked[j] && lo[j] < hi[j]) {
+            let score = if x[j] == lo[j] { w[j] } else { -w[j] };
+            if score > tol && best.is_none_or(|(_, s)| score > s) {
+                best = Some((j, score));
+            }
+        }
+        match best {
+            None => return Ok((x, free, solves)),
+            Some((j, _)) => {
+                free[j] = true;
+                just_freed = Some(j);
+                settle = true;
+            }
+        }
+    }
+}
+
+/// Least squares over the free variables with the bound ones held: min ‖R_F z_F − (c − R_B x_B)‖.
+/// Returns the full vector (bound entries copied from x).
+fn solve_free_subproblem(
+    r: &DMatrix<f64>,
+    c: &DVector<f64>,
+    x: &[f64],
+    free: &[bool],
+) -> Result<Vec<f64>> {
+    let free_idx: Vec<usize> = (0..x.len()).filter(|&j| free[j]).collect();
+    let mut rhs = c.clone();
+    for j in (0..x.len()).filter(|&j| !free[j]) {
+        rhs.axpy(-x[j], &r.column(j), 1.0);
+    }
+    let rf = r.select_columns(free_idx.iter());
+    let svd = rf.svd(true, true);
+    let eps = 1e-13 * svd.singular_values.max();
+    let zf = svd
+        .solve(&rhs, eps)
+        .map_err(|e| anyhow!("BVLS subproblem: {e}"))?;
+    let mut z = x.to_vec();
+    for (k, &j) in free_idx.iter().enumerate() {
+        z[j] = zf[k];
+    }
+    Ok(z)
+}
+
+/// Standard errors of the free variables in scaled units: sqrt(σ² [(R_FᵀR_F)⁻¹]_jj). `None` per variable when
+/// the free columns are rank deficient (that parameter is not identifiable from these rows).
+fn std_errors_scaled(r: &DMatrix<f64>, free: &[bool], sigma2: f64) -> Option<Vec<Option<f64>>> {
+    let free_idx: Vec<usize> = (0..free.len()).filter(|&j| free[j]).collect();
+    let mut out = vec![None; free.len()];
+    if free_idx.is_empty() {
+        return Some(out);
+    }
+    let svd = r.select_columns(free_idx.iter()).svd(false, true);
+    let v_t = svd.v_t.as_ref()?;
+    let smax = svd.singular_values.max();
+    for (k, &j) in free_idx.iter().enumerate() {
+        // [(RᵀR)⁻¹]_kk = Σ_i V_ki² / s_i²; a (numerically) zero singular value with weight on k makes it unbounded.
+        let mut var = 0.0;
+        let mut bounded = true;
+        for (i, &s) in svd.singular_values.iter().enumerate() {
+            let v = v_t[(i, k)];
+            if s <= 1e-13 * smax {
+                if v.abs() > 1e-8 {
+                    bounded = false;
+                }
+            } else {
+                var += v * v / (s * s);
+            }
+        }
+        if bounded {
+            out[j] = Some((sigma2 * var).sqrt());
+        }
+    }
+    Some(out)
+}
+
+/// How far a candidate θ is from satisfying the optimality (KKT) conditions of the bound-constrained
+/// problem, in the unit-column, unit-y scaling (so 1e-8 means the same for any units).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct KktReport {
+    /// Largest bound violation.
+    pub primal_infeasibility: f64,
+    /// Largest gradient of the wrong sign: positive gradient where the lower bound is −∞ or the variable is
+    /// not at it, negative where the upper bound is +∞ (unbounded directions must have zero gradient).
+    pub dual_infeasibility: f64,
+    /// Largest multiplier × slack product (a bound with a nonzero multiplier must be active).
+    pub complementarity: f64,
+    /// Largest component of the natural residual x − clip(x − ∇, lo, hi); zero exactly at the optimum.
+    pub natural_residual: f64,
+}
+
+impl KktReport {
+    /// The largest of the four measures.
+    pub fn max_violation(&self) -> f64 {
+        self.primal_infeasibility
+            .max(self.dual_infeasibility)
+            .max(self.complementarity)
+            .max(self.natural_residual)
+    }
+}
+
+/// Check θ against the KKT conditions of min ‖Φθ − y‖² + ridge term s.t. bounds.
+pub fn kkt_check(
+    phi: &DMatrix<f64>,
+    y: &DVector<f64>,
+    theta: &[f64],
+    bounds: &Bounds,
+) -> Result<KktReport> {
+    let n = phi.ncols();
+    ensure!(
+        theta.len() == n && bounds.lower.len() == n && bounds.upper.len() == n,
+        "dimension mismatch in kkt_check"
+    );
+    let y_norm = if y.norm() > 0.0 { y.norm() } else { 1.0 };
+    let th = DVector::from_column_slice(theta);
+    let grad_raw = phi.transpose() * (phi * &th - y);
+    let mut rep = KktReport {
+        primal_infeasibility: 0.0,
+        dual_infeasibility: 0.0,
+        complementarity: 0.0,
+        natural_residual: 0.0,
+    };
+    for j in 0..n {
+        let norm = phi.column(j).norm();
+        if norm == 0.0 {
+            continue;
+        }
+        // Scaled variable x = ‖φ_j‖θ/‖y‖; gradient of the scaled objective ½‖Ax − b‖² + ½λ‖x‖².
+        let s = norm / y_norm;
+        let x = theta[j] * s;
+        let (lo, hi) = (bounds.lower[j] * s, bounds.upper[j] * s);
+        let g = grad_raw[j] / (norm * y_norm) + bounds.ridge * x;
+        rep.primal_infeasibility = rep.primal_infeasibility.max(lo - x).max(x - hi);
+        let (mult_lo, mult_hi) = (g.max(0.0), (-g).max(0.0));
+        let slack_lo = x - lo;
+        let slack_hi = hi - x;
+        if !lo.is_finite() {
+            rep.dual_infeasibility = rep.dual_infeasibility.max(mult_lo);
+        } else {
+            rep.complementarity = rep.complementarity.max(mult_lo * slack_lo.max(0.0));
+        }
+        if !hi.is_finite() {
+            rep.dual_infeasibility = rep.dual_infeasibility.max(mult_hi);
+        } else {
+            rep.complementarity = rep.complementarity.max(mult_hi * slack_hi.max(0.0));
+        }
+        rep.natural_residual = rep.natural_residual.max((x - (x - g).clamp(lo, hi)).abs());
+    }
+    Ok(rep)
+}

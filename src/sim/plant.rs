@@ -1,0 +1,574 @@
+//! The twin's plant and session engine: joint tracking (the measured arm lags the command by
+//! the PD loop's ~10 ms), true torques from rigid-body inverse dynamics + joint friction (+ payload),
+//! winding temperatures, the arm rail's true power (paper model + effects + rest drift + artefacts),
+//! the two 1 Hz power sensors on their own clocks, the standing rest of the robot and the IMU —
+//! written message by message, in time order, to the MCAP output.
+
+use std::collections::VecDeque;
+use std::io::{Seek, Write};
+
+use anyhow::Result;
+use rand::RngExt;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+
+use super::effects::{Effects, arm_power};
+use super::protocol::Schedule;
+use super::thermal::ThermalState;
+use super::truth::Noise;
+use super::writer::{BmsFields, Cdr, ImuState, McapOut, MotorState, N_MOTORS, Topic};
+use super::SimConfig;
+use crate::robot::{ArmDynamics, JointFriction};
+use crate::N_JOINTS;
+use crate::power::{PAIRS, PowerModel};
+
+/// SDK index of the first left-arm motor.
+pub const ARM_BASE: usize = 15;
+/// MBS rest power [W].
+pub const P_REST_W: f64 = 120.0;
+/// BMS minus MBS at rest [W].
+pub const BMS_OFFSET_W: f64 = 15.0;
+/// Rest drift of the MBS rail: OU standard deviation [W] and time constant [s].
+pub const REST_DRIFT: (f64, f64) = (0.3, 300.0);
+/// Extra BMS noise (legs, computers): OU standard deviation [W] and time constant [s].
+pub const BMS_OU: (f64, f64) = (2.0, 30.0);
+/// Power-sensor averaging window [s].
+pub const SENSOR_WINDOW_S: f64 = 0.2;
+/// Power-sensor period [s] and uniform jitter [s].
+pub const SENSOR_PERIOD: (f64, f64) = (1.0, 0.03);
+/// Usable battery energy [Wh] (9 Ah pack, 13 cells).
+const BATTERY_WH: f64 = 450.0;
+/// Leg, waist and right-arm standing posture (SDK 0..=14 and 22..=28): q [rad], τ [Nm].
+const STANDING: [(f64, f64); 22] = [
+    (-0.1, -2.4),
+    (0.0, 0.5),
+    (0.0, 0.1),
+    (0.3, 6.0),
+    (-0.2, -3.0),
+    (0.0, 0.2),
+    (-0.1, -2.52),
+    (0.0, -0.5),
+    (0.0, -0.1),
+    (0.3, 6.05),
+    (-0.2, -3.0),
+    (0.0, -0.2),
+    (0.0, 0.0),
+    (0.0, 0.0),
+    (0.0, 0.0),
+    // right arm at rest (mirror of the left arm's home torques)
+    (0.0, -3.6),
+    (0.0, -0.2),
+    (0.0, 0.0),
+    (0.0, -3.4),
+    (0.0, 0.04),
+    (0.0, -1.22),
+    (0.0, 0.0),
+];
+/// Quantisation of the standing motors: q one 15-bit encoder step, dq, τ.
+const STANDING_QUANT: (f64, f64, f64) = (std::f64::consts::TAU / 32768.0, 0.002, 0.01);
+
+/// Message timestamps of a session [ns since the Unix epoch], each stream sorted.
+#[derive(Debug, Clone, Default)]
+pub struct Timeline {
+    /// Time zero of the session [ns].
+    pub start_ns: u64,
+    /// `/lowstate` stamps.
+    pub lowstate: Vec<u64>,
+    /// `/arm_sdk` stamps (may be empty).
+    pub arm_sdk: Vec<u64>,
+    /// `/lf/mainboardstate` stamps.
+    pub mbs: Vec<u64>,
+    /// `/lf/bmsstate` stamps.
+    pub bms: Vec<u64>,
+}
+
+/// Sampled joint reference (a recording's command or measured trajectory), linearly interpolated.
+#[derive(Debug, Clone, Default)]
+pub struct Sampled {
+    /// Time [s].
+    pub t: Vec<f64>,
+    /// Position [rad].
+    pub q: Vec<[f64; N_JOINTS]>,
+    /// Velocity [rad/s].
+    pub dq: Vec<[f64; N_JOINTS]>,
+}
+
+/// What the arm is commanded to do.
+pub enum Reference<'a> {
+    /// The protocol's analytic smooth steps.
+    Protocol(&'a Schedule),
+    /// A sampled trajectory.
+    Sampled(&'a Sampled),
+}
+
+impl Reference<'_> {
+    /// q, q̇, q̈ at `t`; `hint` is a cursor for monotone queries.
+    pub fn eval(&self, t: f64, hint: &mut usize) -> ([f64; N_JOINTS], [f64; N_JOINTS], [f64; N_JOINTS]) {
+        match self {
+            Reference::Protocol(s) => s.eval(t, hint),
+            Reference::Sampled(s) => {
+                let zero = [0.0; N_JOINTS];
+                let n = s.t.len();
+                if n == 0 {
+                    return (zero, zero, zero);
+                }
+                while *hint + 1 < n && s.t[*hint + 1] <= t {
+                    *hint += 1;
+                }
+                while *hint > 0 && s.t[*hint] > t {
+                    *hint -= 1;
+                }
+                let k = *hint;
+                if k + 1 >= n || t <= s.t[0] {
+                    let k = if t <= s.t[0] { 0 } else { n - 1 };
+                    return (s.q[k], s.dq[k], zero);
+                }
+                let h = s.t[k + 1] - s.t[k];
+                let u = if h > 0.0 { ((t - s.t[k]) / h).clamp(0.0, 1.0) } else { 0.0 };
+                let mut q = zero;
+                let mut dq = zero;
+                let mut ddq = zero;
+                for j in 0..N_JOINTS {
+                    q[j] = s.q[k][j] + u * (s.q[k + 1][j] - s.q[k][j]);
+                    dq[j] = s.dq[k][j] + u * (s.dq[k + 1][j] - s.dq[k][j]);
+                    ddq[j] = if h > 0.0 { (s.dq[k + 1][j] - s.dq[k][j]) / h } else { 0.0 };
+                }
+                (q, dq, ddq)
+            }
+        }
+    }
+}
+
+/// Body sway of a balance-contaminated trial.
+#[derive(Debug, Clone, Copy)]
+pub struct Sway {
+    /// Amplitude [rad/s].
+    pub amplitude: f64,
+    /// Frequency [Hz].
+    pub freq_hz: f64,
+    /// Direction of the sway axis in the body x-y plane [rad].
+    pub axis: f64,
+}
+
+/// A hardware-event step on the MBS rail.
+#[derive(Debug, Clone, Copy)]
+pub struct OutlierStep {
+    /// Start [s].
+    pub start: f64,
+    /// Duration [s].
+    pub duration: f64,
+    /// Step [W].
+    pub step_w: f64,
+}
+
+/// Phase windows and artefacts of one trial [s since session start].
+#[derive(Debug, Clone, Copy)]
+pub struct TrialPlan {
+    /// Pre-idle start.
+    pub pre_start: f64,
+    /// Trajectory start = pre-idle end.
+    pub traj_start: f64,
+    /// Post-idle end = end of the trajectory window.
+    pub window_end: f64,
+    /// Balance contamination (over the trajectory window).
+    pub sway: Option<Sway>,
+    /// Hardware-event outlier.
+    pub outlier: Option<OutlierStep>,
+}
+
+/// Sway envelope: 0.5 s smooth ramps in and out of the trajectory window, 1 between.
+fn sway_envelope(t: f64, t0: f64, t1: f64) -> f64 {
+    if t <= t0 || t >= t1 {
+        return 0.0;
+    }
+    let ramp = 0.5f64.min(0.5 * (t1 - t0));
+    let u = ((t - t0) / ramp).min((t1 - t) / ramp).min(1.0);
+    3.0 * u * u - 2.0 * u * u * u
+}
+
+/// Per-trial sums over the pre-idle and trajectory windows.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct TrialSums {
+    /// Samples in the pre-idle window.
+    pub n_pre: u64,
+    /// Σ arm power (base + effects) in pre-idle.
+    pub arm_pre: f64,
+    /// Σ effect power in pre-idle.
+    pub eff_pre: f64,
+    /// Samples in the trajectory window.
+    pub n_traj: u64,
+    /// Σ arm power in the trajectory window.
+    pub arm_traj: f64,
+    /// Σ effect power in the trajectory window.
+    pub eff_traj: f64,
+    /// Σ leak power in the trajectory window.
+    pub leak_traj: f64,
+    /// Σ winding temperature in the trajectory window.
+    pub temp_traj: [f64; N_JOINTS],
+}
+
+/// What the engine reports besides the file.
+#[derive(Debug, Clone, Default)]
+pub struct RunStats {
+    /// Messages per topic (by [`Topic`] index).
+    pub counts: [u64; 4],
+    /// Per-trial sums (same order as the plans).
+    pub trials: Vec<TrialSums>,
+    /// Home torque of the true plant [Nm].
+    pub tau_home: [f64; N_JOINTS],
+    /// Winding temperature range [°C].
+    pub temp_range: [f64; 2],
+    /// State-of-charge range.
+    pub soc_range: [f64; 2],
+    /// Session means of the base model's terms [W]: mech, copper, coulomb, viscous, interaction.
+    pub mean_terms: [f64; 5],
+}
+
+/// Exact discretisation of an Ornstein–Uhlenbeck process step.
+fn ou_step(x: f64, dt: f64, (sigma, tau): (f64, f64), rng: &mut ChaCha8Rng) -> f64 {
+    let k = (-dt / tau).exp();
+    x * k + sigma * (1.0 - k * k).max(0.0).sqrt() * gauss(rng)
+}
+
+fn gauss(rng: &mut ChaCha8Rng) -> f64 {
+    StandardNormal.sample(rng)
+}
+
+fn quant(v: f64, step: f64) -> f64 {
+    (v / step).round() * step
+}
+
+/// Pack open-circuit voltage [V] at state of charge `soc` (13 Li-ion cells).
+fn pack_volts(soc: f64) -> f64 {
+    13.0 * (3.3 + 0.85 * soc)
+}
+
+/// Everything the engine needs besides the output.
+pub struct Engine<'a> {
+    /// Configuration.
+    pub cfg: &'a SimConfig,
+    /// True plant dynamics (with payload when the effect is on).
+    pub dyn_true: &'a ArmDynamics,
+    /// URDF-only dynamics (for the payload's effect accounting); `None` without payload.
+    pub dyn_urdf: Option<&'a ArmDynamics>,
+    /// Joint friction inside τ.
+    pub friction: &'a JointFriction,
+    /// Message stamps.
+    pub timeline: &'a Timeline,
+    /// The command.
+    pub reference: Reference<'a>,
+    /// Trials (empty for `simulate_like`).
+    pub trials: &'a [TrialPlan],
+}
+
+impl Engine<'_> {
+    /// Run the session, writing every message to `out` in time order.
+    pub fn run<W: Write + Seek>(
+        &self,
+        out: &mut McapOut<W>,
+        rng: &mut ChaCha8Rng,
+        progress: &dyn Fn(u64),
+    ) -> Result<RunStats> {
+        let cfg = self.cfg;
+        let effects: &Effects = &cfg.effects;
+        let model: &PowerModel = &cfg.truth;
+        let noise: Noise = cfg.noise;
+        let tl = self.timeline;
+        let t_of = |ns: u64| (ns as i128 - tl.start_ns as i128) as f64 * 1e-9;
+
+        let zero = [0.0; N_JOINTS];
+        let tau_home = self.dyn_true.gravity_torque(&zero);
+        let tau_home_urdf = self.dyn_urdf.map(|d| d.gravity_torque(&zero));
+        let tau0_sq = tau_home.map(|v| v * v);
+        let latency = effects.latency.map_or(0.0, |l| l.seconds);
+        let keep_s = latency + SENSOR_WINDOW_S + 2.0;
+
+        let mut thermal = ThermalState::new(cfg.thermal, cfg.t_start_c);
+        let mut stats = RunStats {
+            trials: vec![TrialSums::default(); self.trials.len()],
+            tau_home,
+            temp_range: [f64::INFINITY, f64::NEG_INFINITY],
+            soc_range: [f64::INFINITY, f64::NEG_INFINITY],
+            ..Default::default()
+        };
+        let mut cdr = Cdr::default();
+        let mut power_hist: VecDeque<(f64, f64)> = VecDeque::with_capacity(1024);
+        let mut drift = 0.0;
+        let mut bms_ou = 0.0;
+        let mut t_bms_prev = 0.0;
+        let mut soc = 0.98 - 0.02 * rng.random::<f64>();
+        let yaw0 = rng.random_range(-0.5..0.5);
+        let mut tick: u32 = rng.random_range(1_000_000..9_000_000);
+        let mut ref_hint = 0usize;
+        let mut cmd_hint = 0usize;
+        let mut trial_cursor = 0usize;
+        let mut t_prev: Option<f64> = None;
+        let mut sway_angle = [0.0f64; 2];
+        let mut term_sums = [0.0f64; 5];
+        let mut motors = [MotorState::default(); N_MOTORS];
+        let (mut i_ls, mut i_cmd, mut i_mbs, mut i_bms) = (0usize, 0usize, 0usize, 0usize);
+
+        loop {
+            // Next event in time order; ties: lowstate, arm_sdk, bms, mbs.
+            let candidates = [
+                tl.lowstate.get(i_ls).copied(),
+                tl.arm_sdk.get(i_cmd).copied(),
+                tl.bms.get(i_bms).copied(),
+                tl.mbs.get(i_mbs).copied(),
+            ];
+            let Some((which, ns)) =
+                candidates.iter().enumerate().filter_map(|(k, v)| v.map(|v| (k, v))).min_by_key(|&(k, v)| (v, k))
+            else {
+                break;
+            };
+            let t = t_of(ns);
+            match which {
+                0 => {
+                    i_ls += 1;
+                    let dt = t_prev.map_or(0.01, |p| (t - p).max(0.0));
+                    t_prev = Some(t);
+                    let (q, dq, ddq) = self.reference.eval(t - cfg.tracking_lag_s, &mut ref_hint);
+                    let fr = self.friction.torque(&dq);
+                    let rigid = self.dyn_true.inverse_dynamics(&q, &dq, &ddq);
+                    let mut tau = [0.0; N_JOINTS];
+                    for i in 0..N_JOINTS {
+                        tau[i] = rigid[i] + fr[i];
+                    }
+                    thermal.step(t, dt, &tau);
+                    let p = arm_power(model, effects, &q, &tau, &dq, &tau_home, &thermal.winding_c);
+                    let mut eff = p.effects;
+                    if let (Some(d), Some(th_u)) = (self.dyn_urdf, tau_home_urdf) {
+                        // The payload's share: the base model on true minus URDF-only torques.
+                        let rigid_u = d.inverse_dynamics(&q, &dq, &ddq);
+                        let mut tau_u = [0.0; N_JOINTS];
+                        for i in 0..N_JOINTS {
+                            tau_u[i] = rigid_u[i] + fr[i];
+                        }
+                        eff += p.base - model.predict(&tau_u, &dq, &th_u.map(|v| v * v));
+                    }
+                    accumulate_terms(model, &tau, &dq, &tau0_sq, &mut term_sums);
+
+                    // Trial artefacts.
+                    while trial_cursor + 1 < self.trials.len() && self.trials[trial_cursor + 1].pre_start <= t {
+                        trial_cursor += 1;
+                    }
+                    let mut sway = 0.0;
+                    let mut sway_axis = 0.0;
+                    let mut step_w = 0.0;
+                    let mut trial_here = None;
+                    if let Some(tp) = self.trials.get(trial_cursor) {
+                        if let Some(s) = tp.sway {
+                            sway = s.amplitude
+                                * sway_envelope(t, tp.traj_start, tp.window_end)
+                                * (std::f64::consts::TAU * s.freq_hz * (t - tp.traj_start)).sin();
+                            sway_axis = s.axis;
+                        }
+                        if let Some(o) = tp.outlier
+                            && t >= o.start
+                            && t < o.start + o.duration
+                        {
+                            step_w = o.step_w;
+                        }
+                        if t >= tp.pre_start && t < tp.window_end {
+                            trial_here = Some(trial_cursor);
+                        }
+                    }
+                    let leak = cfg.artefacts.k_leak * sway * sway;
+                    drift = ou_step(drift, dt, REST_DRIFT, rng);
+                    let p_arm = p.base + p.effects;
+                    let p_rail = P_REST_W + drift + p.base + p.effects + leak + step_w;
+                    while power_hist.front().is_some_and(|&(tf, _)| tf < t - keep_s) {
+                        power_hist.pop_front();
+                    }
+                    power_hist.push_back((t, p_rail));
+                    soc -= (p_rail + BMS_OFFSET_W) * dt / 3600.0 / BATTERY_WH;
+                    stats.soc_range = [stats.soc_range[0].min(soc), stats.soc_range[1].max(soc)];
+                    for &w in &thermal.winding_c {
+                        stats.temp_range = [stats.temp_range[0].min(w), stats.temp_range[1].max(w)];
+                    }
+                    if let Some(k) = trial_here {
+                        let tp = &self.trials[k];
+                        let s = &mut stats.trials[k];
+                        if t < tp.traj_start {
+                            s.n_pre += 1;
+                            s.arm_pre += p_arm;
+                            s.eff_pre += eff;
+                        } else {
+                            s.n_traj += 1;
+                            s.arm_traj += p_arm;
+                            s.eff_traj += eff;
+                            s.leak_traj += leak;
+                            for i in 0..N_JOINTS {
+                                s.temp_traj[i] += thermal.winding_c[i];
+                            }
+                        }
+                    }
+
+                    // Message.
+                    let vol = quant(pack_volts(soc) - 0.15 + 0.03 * gauss(rng), 0.1) as f32;
+                    for (slot, &(q0, tau0)) in STANDING.iter().enumerate() {
+                        let k = if slot < 15 { slot } else { slot + N_JOINTS };
+                        motors[k] = MotorState {
+                            mode: 1,
+                            q: quant(q0 + noise.q_rad * gauss(rng), STANDING_QUANT.0) as f32,
+                            dq: quant(noise.dq_rad_s * gauss(rng), STANDING_QUANT.1) as f32,
+                            tau_est: quant(tau0 + noise.tau_nm * gauss(rng), STANDING_QUANT.2) as f32,
+                            temperature: [30, 28],
+                            vol,
+                        };
+                    }
+                    for i in 0..N_JOINTS {
+                        motors[ARM_BASE + i] = MotorState {
+                            mode: 1,
+                            q: (q[i] + noise.q_rad * gauss(rng)) as f32,
+                            dq: (dq[i] + noise.dq_rad_s * gauss(rng)) as f32,
+                            tau_est: (tau[i] + noise.tau_nm * gauss(rng)) as f32,
+                            temperature: [
+                                thermal.winding_c[i].round() as i16,
+                                thermal.housing_c(i, t).round() as i16,
+                            ],
+                            vol,
+                        };
+                    }
+                    sway_angle[0] += sway * sway_axis.cos() * dt;
+                    sway_angle[1] += sway * sway_axis.sin() * dt;
+                    let imu = imu_state(t, yaw0, sway, sway_axis, sway_angle, noise.gyro_rad_s, rng);
+                    out.write(Topic::LowState, ns, cdr.low_state(tick, &imu, &motors))?;
+                    tick = tick.wrapping_add(10);
+                    if i_ls % 4096 == 0 {
+                        progress(i_ls as u64);
+                    }
+                }
+                1 => {
+                    i_cmd += 1;
+                    let (q, dq, _) = self.reference.eval(t, &mut cmd_hint);
+                    out.write(Topic::ArmSdk, ns, cdr.low_cmd(ARM_BASE, &q, &dq, 400.0, 12.0))?;
+                }
+                2 => {
+                    i_bms += 1;
+                    let p = window_mean(&power_hist, t - latency, SENSOR_WINDOW_S);
+                    bms_ou = ou_step(bms_ou, (t - t_bms_prev).max(0.0), BMS_OU, rng);
+                    t_bms_prev = t;
+                    let p_bms = p + BMS_OFFSET_W + bms_ou + noise.bms_w * gauss(rng);
+                    let volts = quant(pack_volts(soc), 0.01);
+                    let cell = (volts / 13.0 * 1000.0).round();
+                    let mut cell_mv = [0u16; 13];
+                    for (c, v) in cell_mv.iter_mut().enumerate() {
+                        *v = (cell + [-2.0, 0.0, 2.0, -1.0, 1.0][c % 5]).clamp(0.0, 65535.0) as u16;
+                    }
+                    let temp = 28.0 + 2.0 * t / 3600.0;
+                    let b = BmsFields {
+                        pack_mv: (volts * 1000.0).round() as u32,
+                        current_ma: (p_bms / volts * 1000.0).round() as i32,
+                        soc_pct: (soc * 100.0).round().clamp(0.0, 100.0) as u8,
+                        temps_c: [temp as i16, temp as i16 + 1, temp as i16 - 1, temp as i16],
+                        cell_mv,
+                    };
+                    out.write(Topic::Bms, ns, cdr.bms_state(&b))?;
+                }
+                _ => {
+                    i_mbs += 1;
+                    let p = window_mean(&power_hist, t - latency, SENSOR_WINDOW_S) + noise.mbs_w * gauss(rng);
+                    let volts = quant(pack_volts(soc) - 0.4 + 0.005 * gauss(rng), 0.01);
+                    let amps = quant(p / volts, 0.001);
+                    let fan = 2085.0 + 10.0 * gauss(rng);
+                    out.write(
+                        Topic::Mbs,
+                        ns,
+                        cdr.main_board_state(volts as f32, amps as f32, [fan as u16, (fan - 30.0) as u16], [39, 36]),
+                    )?;
+                }
+            }
+        }
+        let n = i_ls.max(1) as f64;
+        stats.mean_terms = term_sums.map(|s| s / n);
+        stats.counts = out.counts();
+        if !stats.temp_range[0].is_finite() {
+            stats.temp_range = [cfg.t_start_c; 2];
+            stats.soc_range = [soc; 2];
+        }
+        Ok(stats)
+    }
+}
+
+/// Mean of the power samples with time in (end − window, end]; the nearest sample when none is
+/// inside (a reading before the first state sample).
+fn window_mean(hist: &VecDeque<(f64, f64)>, end: f64, window: f64) -> f64 {
+    let mut sum = 0.0;
+    let mut n = 0u32;
+    for &(t, p) in hist.iter().rev() {
+        if t > end {
+            continue;
+        }
+        if t <= end - window {
+            break;
+        }
+        sum += p;
+        n += 1;
+    }
+    if n > 0 {
+        return sum / n as f64;
+    }
+    let nearest = hist.iter().min_by(|a, b| (a.0 - end).abs().total_cmp(&(b.0 - end).abs()));
+    nearest.map_or(P_REST_W, |&(_, p)| p)
+}
+
+fn accumulate_terms(
+    m: &PowerModel,
+    tau: &[f64; N_JOINTS],
+    dq: &[f64; N_JOINTS],
+    tau0_sq: &[f64; N_JOINTS],
+    sums: &mut [f64; 5],
+) {
+    for i in 0..N_JOINTS {
+        sums[0] += m.a[i] * tau[i] * dq[i];
+        sums[1] += m.b[i] * (tau[i] * tau[i] - tau0_sq[i]);
+        sums[2] += m.c[i] * dq[i].abs();
+        sums[3] += m.d[i] * dq[i] * dq[i];
+    }
+    for (k, &(i, j)) in PAIRS.iter().enumerate() {
+        sums[4] += m.e[k] * dq[i].abs() * dq[j].abs();
+    }
+}
+
+/// Pelvis IMU of the standing robot: fixed small roll/pitch, slowly drifting yaw, plus the
+/// balance sway (angular rate `sway` about a horizontal axis, its integral in roll/pitch).
+fn imu_state(
+    t: f64,
+    yaw0: f64,
+    sway: f64,
+    axis: f64,
+    sway_angle: [f64; 2],
+    gyro_noise: f64,
+    rng: &mut ChaCha8Rng,
+) -> ImuState {
+    let roll = 0.004 + sway_angle[0];
+    let pitch = 0.015 + sway_angle[1];
+    let yaw = yaw0 + 1.7e-5 * t;
+    let (sr, cr) = (0.5 * roll).sin_cos();
+    let (sp, cp) = (0.5 * pitch).sin_cos();
+    let (sy, cy) = (0.5 * yaw).sin_cos();
+    let quat = [
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    ];
+    let g = 9.81;
+    let acc = [-g * pitch.sin(), g * roll.sin() * pitch.cos(), g * roll.cos() * pitch.cos()];
+    ImuState {
+        quaternion: quat.map(|v| v as f32),
+        gyroscope: [
+            (sway * axis.cos() + gyro_noise * gauss(rng)) as f32,
+            (sway * axis.sin() + gyro_noise * gauss(rng)) as f32,
+            (gyro_noise * gauss(rng)) as f32,
+        ],
+        accelerometer: [
+            (acc[0] + 0.02 * gauss(rng)) as f32,
+            (acc[1] + 0.02 * gauss(rng)) as f32,
+            (acc[2] + 0.02 * gauss(rng)) as f32,
+        ],
+        rpy: [roll as f32, pitch as f32, yaw as f32],
+        temperature: 38,
+    }
+}

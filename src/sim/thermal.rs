@@ -1,0 +1,110 @@
+//! First-order thermal model of each arm motor: the winding temperature T follows
+//! C·dT/dt = P_heat − (T − T_amb)/R_th with P_heat = idle loss + copper heating b_heat·τ², C = τ_th/R_th.
+//! The housing sits between winding and ambient. Constants as in the shared truth files
+//! (`plant.thermal`): with them a session's windings warm by a few K over several minutes.
+
+use serde::{Deserialize, Serialize};
+
+use crate::N_JOINTS;
+
+/// Thermal constants of the seven arm motors.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ThermalModel {
+    /// Winding-to-ambient thermal resistance [K/W].
+    #[serde(rename = "R_K_per_W")]
+    pub r_k_per_w: [f64; N_JOINTS],
+    /// Thermal time constant [s].
+    pub tau_s: [f64; N_JOINTS],
+    /// Heat at standstill without torque (iron/drive losses) [W].
+    pub idle_w: [f64; N_JOINTS],
+    /// Copper heating coefficient [W/(Nm)²] (heat = b_heat·τ²).
+    pub b_heat: [f64; N_JOINTS],
+    /// Ambient temperature at session start [°C].
+    pub ambient_c: f64,
+    /// Ambient warming rate [K/h].
+    pub ambient_rate_k_per_h: f64,
+}
+
+impl Default for ThermalModel {
+    fn default() -> Self {
+        ThermalModel {
+            r_k_per_w: [5.5, 5.3, 6.0, 5.5, 8.4, 7.2, 8.4],
+            tau_s: [1500.0, 1500.0, 1300.0, 1300.0, 900.0, 900.0, 900.0],
+            idle_w: [1.6, 1.5, 1.3, 1.4, 1.0, 1.1, 1.0],
+            b_heat: [0.42, 0.36, 0.28, 0.39, 0.15, 0.38, 0.15],
+            ambient_c: 23.0,
+            ambient_rate_k_per_h: 1.5,
+        }
+    }
+}
+
+/// Winding temperatures of the seven motors, integrated step by step.
+#[derive(Debug, Clone)]
+pub struct ThermalState {
+    model: ThermalModel,
+    /// Current winding temperature [°C].
+    pub winding_c: [f64; N_JOINTS],
+}
+
+impl ThermalState {
+    /// All windings at `t_start_c` [°C].
+    pub fn new(model: ThermalModel, t_start_c: f64) -> Self {
+        ThermalState { winding_c: [t_start_c; N_JOINTS], model }
+    }
+
+    /// Ambient temperature at session time `t` [s].
+    pub fn ambient(&self, t: f64) -> f64 {
+        self.model.ambient_c + self.model.ambient_rate_k_per_h * t / 3600.0
+    }
+
+    /// Advance by `dt` [s] at session time `t` with joint torques `tau` [Nm] (exact exponential
+    /// step for a constant input over dt, stable for any dt).
+    pub fn step(&mut self, t: f64, dt: f64, tau: &[f64; N_JOINTS]) {
+        let amb = self.ambient(t);
+        for i in 0..N_JOINTS {
+            let heat = self.model.idle_w[i] + self.model.b_heat[i] * tau[i] * tau[i];
+            let t_eq = amb + heat * self.model.r_k_per_w[i];
+            let k = (-dt / self.model.tau_s[i]).exp();
+            self.winding_c[i] = t_eq + (self.winding_c[i] - t_eq) * k;
+        }
+    }
+
+    /// Housing temperature [°C]: ambient + 70 % of the winding's rise above ambient.
+    pub fn housing_c(&self, i: usize, t: f64) -> f64 {
+        let amb = self.ambient(t);
+        amb + 0.7 * (self.winding_c[i] - amb)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn settles_at_ambient_plus_heat_times_resistance() {
+        let m = ThermalModel { ambient_rate_k_per_h: 0.0, ..Default::default() };
+        let mut s = ThermalState::new(m, 30.0);
+        let tau = [2.0; N_JOINTS];
+        for k in 0..100_000 {
+            s.step(k as f64, 1.0, &tau);
+        }
+        for i in 0..N_JOINTS {
+            let expected = 23.0 + (m.idle_w[i] + m.b_heat[i] * 4.0) * m.r_k_per_w[i];
+            assert!((s.winding_c[i] - expected).abs() < 1e-6);
+        }
+    }
+
+    #[test]
+    fn time_constant_by_hand() {
+        // After one time constant a step response covers 1 − 1/e of the way.
+        let m = ThermalModel { ambient_rate_k_per_h: 0.0, ..Default::default() };
+        let mut s = ThermalState::new(m, 30.0);
+        let t_eq = 23.0 + m.idle_w[0] * m.r_k_per_w[0];
+        let steps = 1500 * 100;
+        for k in 0..steps {
+            s.step(k as f64 * 0.01, 0.01, &[0.0; N_JOINTS]);
+        }
+        let expected = t_eq + (30.0 - t_eq) * (-1.0f64).exp();
+        assert!((s.winding_c[0] - expected).abs() < 1e-6);
+    }
+}
