@@ -77,7 +77,7 @@ fn main() -> Result<()> {
 
     if let Some(truth) = truth_theta(session) {
         let theta = id.model.to_vector();
-        let names = pipeline::parameter_names();
+        let names: Vec<String> = (0..N_PARAMS).map(PowerModel::param_name).collect();
         println!("parameter  identified  truth   error");
         for p in 0..N_PARAMS {
             println!(

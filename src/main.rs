@@ -1,2 +1,2 @@
-//! `g1viz` command line.
+//! `g1viz` command line (being wired).
 fn main() {}

@@ -707,6 +707,29 @@ fn identified_on_smoke_validates_on_holdout() {
         reference.trial_level_aligned.r2
     );
 
+    // model.json round trip and the markdown report from this identification.
+    let dir = tempfile::tempdir().expect("tempdir");
+    let file = reading
+        .model_file(&smoke.joint_names, Some(&v), "test")
+        .expect("model file");
+    let path = dir.path().join("model.json");
+    file.save(&path).expect("save model.json");
+    let back = g1viz::power::ModelFile::load(&path).expect("load model.json");
+    assert_eq!(back.model(), reading.model);
+    assert_eq!(back.provenance.trials.used, reading.trials_used);
+    assert_eq!(
+        back.provenance.rejected_trials.len(),
+        reading.rejections.len()
+    );
+    assert_eq!(back.provenance.target, "mbs");
+    let report = dir.path().join("report");
+    g1viz::identify::report::write_report(
+        &report,
+        &reading.report_input(back, Some(&v), Some(truth_model)),
+    )
+    .expect("report");
+    assert!(report.join("report.md").exists());
+
     // Per-sample rows (zero-order-held power) are the degenerate setup: far lower R².
     let modes = |mode| {
         reading
@@ -726,4 +749,100 @@ fn identified_on_smoke_validates_on_holdout() {
     }
     assert!(modes(Mode::Sample).quality.r2 < modes(Mode::Reading).quality.r2 - 0.3);
     assert!(modes(Mode::Sample).quality.r2 < modes(Mode::Trial).quality.r2 - 0.3);
+}
+
+#[test]
+#[ignore = "paper scale: simulates ≈1000 trials (≈1 min) then identifies; run with --ignored"]
+fn paper_scale_simulated_session_recovers_the_paper_parameters() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let out = dir.path().join("paper.mcap");
+    let cfg = g1viz::sim::SimConfig {
+        preset: g1viz::sim::Preset::Paper,
+        seed: 7,
+        progress: false,
+        ..Default::default()
+    };
+    let truth = g1viz::sim::simulate(&cfg, &out).expect("simulate paper preset");
+    let rec = g1viz::signals::load_recording(
+        &out,
+        &g1viz::signals::SignalMap::g1_left_arm(),
+        &Default::default(),
+    )
+    .expect("read the simulated session");
+
+    let seg = segment::segment(&rec, &SegmentOptions::default());
+    assert_eq!(
+        seg.trials.len(),
+        truth.trials.len(),
+        "{:?}",
+        seg.unmatched.first()
+    );
+
+    let id = pipeline::identify(std::slice::from_ref(&rec), &IdentifyOptions::default())
+        .expect("identify");
+    let contaminated: Vec<bool> = truth.trials.iter().map(|t| t.contaminated).collect();
+    let flagged = |k: usize| {
+        id.rejections
+            .iter()
+            .any(|r| r.trial == k && r.reason == RejectReason::ImuSway)
+    };
+    let missed = (0..contaminated.len())
+        .filter(|&k| contaminated[k] && !flagged(k))
+        .count();
+    let false_alarms = (0..contaminated.len())
+        .filter(|&k| !contaminated[k] && flagged(k))
+        .count();
+    println!(
+        "{} trials, {} contaminated: IMU filter missed {missed}, false alarms {false_alarms}; window {:.3} s, lag {:.3} s",
+        contaminated.len(),
+        contaminated.iter().filter(|&&c| c).count(),
+        id.alignment.window_s,
+        id.alignment.lag_s
+    );
+    let theta = id.model.to_vector();
+    let want = PowerModel::PAPER.to_vector();
+    let mut worst = (0.0f64, 0usize);
+    for p in 0..N_PARAMS {
+        let err = theta[p] - want[p];
+        println!(
+            "  {:>4} identified {:>8.4} paper {:>8.4} error {:>+8.4}",
+            PowerModel::param_name(p),
+            theta[p],
+            want[p],
+            err
+        );
+        if err.abs() > worst.0 {
+            worst = (err.abs(), p);
+        }
+    }
+    let rms = (theta
+        .iter()
+        .zip(&want)
+        .map(|(a, b)| (a - b).powi(2))
+        .sum::<f64>()
+        / N_PARAMS as f64)
+        .sqrt();
+    println!(
+        "rms parameter error {rms:.4}, worst {:.4} ({})",
+        worst.0,
+        PowerModel::param_name(worst.1)
+    );
+    for m in &id.modes {
+        println!(
+            "  {:>7} rows: n {:>6}, κ(ΦᵀΦ) {:.3e}, R² {:.4}",
+            m.mode.name(),
+            m.quality.n,
+            m.kappa,
+            m.quality.r2
+        );
+    }
+    assert_eq!(missed + false_alarms, 0);
+    assert!(rms < 0.1, "rms parameter error {rms}");
+    // The paper's finding: per-sample rows are degenerate (R² < 0.04 there), aggregation is essential.
+    let sample = id
+        .modes
+        .iter()
+        .find(|m| m.mode == Mode::Sample)
+        .expect("sample rows");
+    assert!(sample.quality.r2 < 0.15, "{}", sample.quality.r2);
 }

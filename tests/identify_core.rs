@@ -386,3 +386,310 @@ fn condition_numbers_match_known_values() {
     assert!(close(condition_number(&rows), 49.0 * 49.0, 1e-10));
     assert!(condition_number(&rows[..48]).is_infinite());
 }
+
+#[test]
+fn breakdown_matches_hand_computed_terms_and_sums_to_predict() {
+    let m = PowerModel::PAPER;
+    let tau = [1.0, 0.0, 0.0, -2.0, 0.0, 0.0, 0.0];
+    let dq = [2.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
+    let tau0_sq = [0.5, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
+    let b = m.breakdown(&tau, &dq, &tau0_sq);
+    // Joint 0: a τq̇ = 1·1·2, b Δτ² = 0.4184·(1 − 0.5), c|q̇| = 0, d q̇² = 0.6467·4.
+    assert!(close(b.mechanical[0], 2.0, 1e-15));
+    assert!(close(b.copper[0], 0.2092, 1e-12));
+    assert_eq!(b.coulomb[0], 0.0);
+    assert!(close(b.viscous[0], 2.5868, 1e-12));
+    // Joint 3 (elbow): τq̇ = −2 (braking), Δτ² = 4 − 1 → 0.3942·3, c = 0.0324·1, d = 0.
+    assert!(close(b.mechanical[3], -2.0, 1e-15));
+    assert!(close(b.copper[3], 1.1826, 1e-12));
+    assert!(close(b.coulomb[3], 0.0324, 1e-12));
+    // Only pair (0,3) moves together: e03 = 0.9090 · 2 · 1.
+    assert!(close(b.interaction_total(), 1.818, 1e-12));
+    let hand = 2.0 + 0.2092 + 2.5868 - 2.0 + 1.1826 + 0.0324 + 1.818;
+    assert!(close(b.total(), hand, 1e-12));
+    assert!(close(m.predict(&tau, &dq, &tau0_sq), hand, 1e-12));
+    let mut means = g1viz::power::TermMeans::default();
+    means.add(&b);
+    means.add(&g1viz::power::TermBreakdown::default());
+    let shares = means.shares_percent();
+    assert!(close(means.means()[1], (0.2092 + 1.1826) / 2.0, 1e-12));
+    assert!(close(shares.iter().sum::<f64>(), 100.0, 1e-12));
+    assert!(close(shares[4], 100.0 * 1.818 / hand, 1e-12));
+}
+
+#[test]
+fn dominant_terms_reproduce_the_papers_table() {
+    use g1viz::power::LossTerm::{Copper, Coulomb, Viscous};
+    // Table "Identified Power Model Parameters": viscous, Coulomb, copper, copper, viscous, viscous, viscous.
+    let expected = [Viscous, Coulomb, Copper, Copper, Viscous, Viscous, Viscous];
+    for (i, e) in expected.iter().enumerate() {
+        assert_eq!(PowerModel::PAPER.dominant_term(i), Some(*e), "joint {i}");
+    }
+    let zero = PowerModel::from_vector(&[0.0; N_PARAMS]);
+    assert_eq!(zero.dominant_term(0), None);
+}
+
+fn joint_names() -> Vec<String> {
+    [
+        "shoulder_pitch",
+        "shoulder_roll",
+        "shoulder_yaw",
+        "elbow",
+        "wrist_roll",
+        "wrist_pitch",
+        "wrist_yaw",
+    ]
+    .iter()
+    .map(|n| format!("left_{n}_joint"))
+    .collect()
+}
+
+fn sample_model_file() -> g1viz::power::ModelFile {
+    use g1viz::power::*;
+    let metrics = ModelMetrics {
+        identification: Some(DatasetMetrics {
+            dataset: "trajectory-averaged, filtered".into(),
+            fit: Metrics::compute(&[1.0, 2.0, 3.0, 4.0], &[1.1, 1.9, 3.2, 3.8]),
+            condition_number: 1.5e6,
+        }),
+        validation: Some(DatasetMetrics {
+            dataset: "hold-out".into(),
+            fit: Metrics::compute(&[1.0, 1.0], &[1.0, 1.5]),
+            condition_number: f64::INFINITY,
+        }),
+    };
+    let provenance = Provenance {
+        created: "2026-01-01T00:00:00Z".into(),
+        sessions: vec![SessionRef {
+            path: "paper.mcap".into(),
+            size_bytes: 1234,
+            role: "identification".into(),
+        }],
+        target: "mbs".into(),
+        rows: "trajectory".into(),
+        filters: vec![FilterRecord {
+            name: "imu_sigma".into(),
+            parameters: [("k_median".to_string(), 2.5)].into_iter().collect(),
+            rejected: 1,
+        }],
+        trials: TrialCounts {
+            segmented: 10,
+            used: 9,
+            rejected: 1,
+        },
+        rejected_trials: vec![RejectedTrial {
+            session: "paper.mcap".into(),
+            trial: 4,
+            filter: "imu_sigma".into(),
+            statistic: 0.31,
+            threshold: 0.12,
+            reason: "body sway σ_ω 0.31 rad/s > 2.5 × median".into(),
+        }],
+        solver: Some(SolverRecord {
+            method: "clarabel".into(),
+            status: "Solved".into(),
+            iterations: 12,
+        }),
+        ..Provenance::default()
+    };
+    let mut file = ModelFile::new(&PowerModel::PAPER, &joint_names(), metrics, provenance).unwrap();
+    file.theta_std_err = Some(
+        (0..N_PARAMS)
+            .map(|p| {
+                if p % 3 == 0 {
+                    None
+                } else {
+                    Some(0.01 * p as f64)
+                }
+            })
+            .collect(),
+    );
+    file
+}
+
+#[test]
+fn model_file_round_trips_and_is_deterministic() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("model.json");
+    let file = sample_model_file();
+    file.save(&path).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    let back = g1viz::power::ModelFile::load(&path).unwrap();
+    // NaN ≠ NaN, so compare through the JSON text (validation skewness of 2 rows is defined; κ = ∞ → null).
+    assert_eq!(back.model(), PowerModel::PAPER);
+    assert_eq!(back.theta_std_err, file.theta_std_err);
+    assert_eq!(back.provenance, file.provenance);
+    assert!(
+        back.metrics
+            .validation
+            .as_ref()
+            .unwrap()
+            .condition_number
+            .is_nan()
+    );
+    assert_eq!(back.metrics.identification, file.metrics.identification);
+    back.save(&path).unwrap();
+    assert_eq!(
+        std::fs::read(&path).unwrap(),
+        bytes,
+        "save → load → save changes the bytes"
+    );
+    let text = String::from_utf8(bytes).unwrap();
+    // The named copies are readable by people: spot-check against the paper's tables.
+    let json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(json["schema_version"], 1);
+    assert_eq!(json["e"]["1,3"], 1.1053);
+    assert_eq!(json["d"][6], 1.7848);
+    assert_eq!(json["theta_names"][48], "e56");
+    assert_eq!(json["dominant_term"][1]["term"], "coulomb");
+    assert_eq!(json["metrics"]["identification"]["r2"], 0.98);
+}
+
+#[test]
+fn model_file_errors_name_file_and_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let good = sample_model_file().to_json().unwrap();
+    let cases: Vec<(&str, String, &str)> = vec![
+        (
+            "version.json",
+            good.replace("\"schema_version\": 1", "\"schema_version\": 7"),
+            "schema_version",
+        ),
+        (
+            "short.json",
+            good.replacen("\"theta\": [\n    1.0,", "\"theta\": [", 1),
+            "`theta` has 48",
+        ),
+        (
+            "edited.json",
+            good.replace("\"0,1\": 0.0", "\"0,1\": 0.5"),
+            "e[\"0,1\"]",
+        ),
+        (
+            "null.json",
+            good.replacen("\"theta\": [\n    1.0,", "\"theta\": [\n    null,", 1),
+            "schema",
+        ),
+        ("broken.json", good[..good.len() / 2].to_string(), "JSON"),
+    ];
+    for (name, text, needle) in cases {
+        assert_ne!(text, good, "{name}: the test edit did not apply");
+        let path = dir.path().join(name);
+        std::fs::write(&path, text).unwrap();
+        let err = format!("{:#}", g1viz::power::ModelFile::load(&path).unwrap_err());
+        assert!(err.contains(name) && err.contains(needle), "{name}: {err}");
+    }
+    let missing = dir.path().join("absent.json");
+    assert!(
+        format!("{:#}", g1viz::power::ModelFile::load(&missing).unwrap_err())
+            .contains("absent.json")
+    );
+}
+
+#[test]
+fn report_writes_markdown_and_readable_pngs() {
+    use g1viz::identify::report::*;
+    let (rows, y) = paper_shaped(120, 0.3, &PowerModel::PAPER, 11);
+    let fit = fit_constrained(&rows, &y, &paper_lower_bounds()).unwrap();
+    let model = fit.model().unwrap();
+    let predicted: Vec<f64> = rows
+        .iter()
+        .map(|r| model.breakdown_from_regressor(r).total())
+        .collect();
+    let mut means = g1viz::power::TermMeans::default();
+    for r in &rows {
+        means.add(&model.breakdown_from_regressor(r));
+    }
+    let mut file = sample_model_file();
+    file.theta_std_err = Some(fit.std_err.clone());
+    let input = ReportInput {
+        title: "Test identification".into(),
+        model: file,
+        identification: Some(PredictionSet {
+            label: "identification".into(),
+            measured: y.clone(),
+            predicted: predicted.clone(),
+        }),
+        validation: Some(PredictionSet {
+            label: "hold-out".into(),
+            measured: y[..40].to_vec(),
+            predicted: predicted[..40].to_vec(),
+        }),
+        terms: Some(TermShares {
+            dataset: "identification".into(),
+            means,
+        }),
+        aggregation: vec![
+            AggregationRow {
+                rows: "per-sample".into(),
+                n: 120_000,
+                condition_number: 7.8e11,
+                r2: 0.03,
+            },
+            AggregationRow {
+                rows: "trajectory-averaged".into(),
+                n: 120,
+                condition_number: 2.0e5,
+                r2: 0.93,
+            },
+        ],
+        truth: Some(PowerModel::PAPER),
+        notes: vec!["Synthetic data.".into()],
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("report");
+    write_report(&out, &input).unwrap();
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    for needle in [
+        "| identification (trajectory-averaged, filtered) | 4 | 0.980 |",
+        "7.80e11",
+        "| 1 shoulder roll |",
+        "Coulomb",
+        "| `paper.mcap` | 4 | imu_sigma |",
+        "e56",
+    ] {
+        assert!(md.contains(needle), "report.md lacks {needle:?}:\n{md}");
+    }
+    for fig in FIGURES {
+        let bytes = std::fs::read(out.join(fig)).unwrap();
+        assert_eq!(&bytes[..8], b"\x89PNG\r\n\x1a\n", "{fig} is not a PNG");
+        assert!(
+            bytes.len() > 10_000,
+            "{fig} is suspiciously small ({} bytes)",
+            bytes.len()
+        );
+        assert!(md.contains(fig), "report.md does not link {fig}");
+    }
+    let leftovers: Vec<_> = std::fs::read_dir(&out)
+        .unwrap()
+        .filter_map(|e| e.ok())
+        .filter(|e| e.file_name().to_string_lossy().starts_with('.'))
+        .collect();
+    assert!(leftovers.is_empty(), "temporary files left behind");
+}
+
+#[test]
+fn collinear_columns_reach_the_same_objective() {
+    // The paper's collinearity: when two joints share a velocity profile, |q̇_i||q̇_j| ≡ q̇_i² (up to scale), so
+    // θ is not unique. Both solvers must still terminate at the same minimum and satisfy the KKT conditions.
+    let (mut phi, y) = random_problem(80, 10, 21);
+    let dup = phi.column(3).clone_owned() * 2.0;
+    phi.column_mut(7).copy_from(&dup);
+    let bounds = Bounds::lower(&[0.0; 10]);
+    let c = fit_general(&phi, &y, &bounds, Method::Clarabel).unwrap();
+    let b = fit_general(&phi, &y, &bounds, Method::Bvls).unwrap();
+    assert!(
+        close(c.rss, b.rss, 1e-7),
+        "objectives {} vs {}",
+        c.rss,
+        b.rss
+    );
+    assert!(
+        kkt_check(&phi, &y, &b.theta, &bounds)
+            .unwrap()
+            .max_violation()
+            < 1e-8
+    );
+    // The identifiable combination θ3 + 2θ7 agrees.
+    assert!((c.theta[3] + 2.0 * c.theta[7] - b.theta[3] - 2.0 * b.theta[7]).abs() < 1e-5);
+}

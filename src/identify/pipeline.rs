@@ -11,7 +11,7 @@
 //! [`validate`] applies a model to a hold-out session: metrics on per-trial rows (the paper's
 //! hold-out table) and per-reading rows, per-trial predicted vs measured, term breakdown.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 use nalgebra::{DMatrix, SymmetricEigen};
@@ -19,11 +19,15 @@ use nalgebra::{DMatrix, SymmetricEigen};
 use super::dataset::{
     self, Alignment, AlignmentEstimate, Dataset, DatasetOptions, Mode, Row, Skipped, Target,
 };
-use super::filters::{self, Rejection, TrialStat};
+use super::filters::{self, RejectReason, Rejection, TrialStat};
 use super::metrics::{self, Metrics};
+use super::report::{AggregationRow, PredictionSet, ReportInput, TermShares as ReportTerms};
 use super::segment::{self, SegmentOptions, Segmentation};
 use super::solve;
-use crate::power::{PAIRS, PowerModel};
+use crate::power::{
+    DatasetMetrics, FilterRecord, LossTerm, ModelFile, ModelMetrics, PowerModel, Provenance,
+    RejectedTrial, SessionRef, SolverRecord, TermMeans, TrialCounts,
+};
 use crate::signals::Recording;
 use crate::{N_JOINTS, N_PARAMS};
 
@@ -80,58 +84,14 @@ pub struct ModeFit {
     pub quality: Metrics,
 }
 
-/// Mean contribution of each term family, in % of the total predicted net power (the paper's
-/// breakdown figure: mechanical, copper, Coulomb, viscous, interaction).
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct TermShares {
-    /// a·τq̇ [%].
-    pub mechanical: f64,
-    /// b·Δτ² [%].
-    pub copper: f64,
-    /// c·|q̇| [%].
-    pub coulomb: f64,
-    /// d·q̇² [%].
-    pub viscous: f64,
-    /// e·|q̇_i||q̇_j| [%].
-    pub interaction: f64,
-}
-
-impl TermShares {
-    /// Shares over a set of rows: each family's mean contribution over the sum of the means.
-    pub fn of(model: &PowerModel, rows: &[Row]) -> TermShares {
-        let theta = model.to_vector();
-        let mut sums = [0.0; 5];
-        for row in rows {
-            for (p, (t, v)) in theta.iter().zip(&row.phi).enumerate() {
-                sums[(p / N_JOINTS).min(4)] += t * v;
-            }
-        }
-        let total: f64 = sums.iter().sum();
-        let pct = |v: f64| 100.0 * v / total;
-        TermShares {
-            mechanical: pct(sums[0]),
-            copper: pct(sums[1]),
-            coulomb: pct(sums[2]),
-            viscous: pct(sums[3]),
-            interaction: pct(sums[4]),
-        }
+/// Mean term contributions of a model over rows (the model is linear, so the breakdown of an
+/// averaged row is the mean of its samples' breakdowns).
+pub fn term_means(model: &PowerModel, rows: &[Row]) -> TermMeans {
+    let mut means = TermMeans::default();
+    for row in rows {
+        means.add(&model.breakdown_from_regressor(&row.phi));
     }
-}
-
-/// The dominant loss mechanism of a joint: argmax(b_i, c_i, d_i) as in the paper's table.
-pub fn dominant_terms(model: &PowerModel) -> Vec<&'static str> {
-    (0..N_JOINTS)
-        .map(|i| {
-            let (b, c, d) = (model.b[i], model.c[i], model.d[i]);
-            if b >= c && b >= d {
-                "copper"
-            } else if c >= d {
-                "Coulomb"
-            } else {
-                "viscous"
-            }
-        })
-        .collect()
+    means
 }
 
 /// Per-trial measured vs predicted mean net power over the trajectory window.
@@ -197,10 +157,17 @@ pub struct Identification {
     pub trial_level_aligned: Metrics,
     /// Trial, reading and sample pairings fitted on the retained trials (κ, R²).
     pub modes: Vec<ModeFit>,
-    /// Dominant term per joint.
-    pub dominant: Vec<String>,
-    /// Term shares on the retained trials' trajectory windows.
-    pub shares: TermShares,
+    /// Dominant loss term per joint (argmax of b, c, d; None when all are zero).
+    pub dominant: Vec<Option<LossTerm>>,
+    /// Mean term contributions on the retained trials' trajectory windows.
+    #[serde(skip)]
+    pub terms: TermMeans,
+    /// The same as % of the mean total predicted power (mechanical, copper, Coulomb, viscous, interaction).
+    pub shares_percent: [f64; 5],
+    /// Standard error of each parameter of the final fit (None: at a bound or not excited).
+    pub std_err: Vec<Option<f64>>,
+    /// Solver of the final fit: method, status, iterations.
+    pub solver: (String, String, u32),
     /// Per-trial measured vs predicted (all trials with rows, rejected ones flagged).
     pub per_trial: Vec<TrialPrediction>,
 }
@@ -223,8 +190,11 @@ pub struct Validation {
     pub reading_level: Metrics,
     /// Per-trial measured vs predicted.
     pub per_trial: Vec<TrialPrediction>,
-    /// Term shares on the session's trajectory windows.
-    pub shares: TermShares,
+    /// Mean term contributions on the session's trajectory windows.
+    #[serde(skip)]
+    pub terms: TermMeans,
+    /// The same as % of the mean total predicted power.
+    pub shares_percent: [f64; 5],
 }
 
 fn predict(theta: &[f64; N_PARAMS], phi: &[f64; N_PARAMS]) -> f64 {
@@ -258,9 +228,10 @@ fn normal_matrix(rows: &[Row]) -> DMatrix<f64> {
 
 /// Constrained fit of any number of rows. Large row sets are first compressed to 49 rows with
 /// the same normal equations (ΦᵀΦ = RᵀR, Φᵀy = Rᵀz from the eigen-decomposition), which leaves
-/// the least-squares objective unchanged up to a constant.
-fn fit_rows(rows: &[Row]) -> Result<[f64; N_PARAMS]> {
-    const COMPRESS_ABOVE: usize = 2000;
+/// the least-squares objective unchanged up to a constant (standard errors of a compressed fit
+/// are meaningless; only the degenerate sample-row comparison is that large).
+fn fit_rows(rows: &[Row]) -> Result<solve::Fit> {
+    const COMPRESS_ABOVE: usize = 20_000;
     let lower = solve::paper_lower_bounds();
     let fit = if rows.len() <= COMPRESS_ABOVE {
         let phi: Vec<[f64; N_PARAMS]> = rows.iter().map(|r| r.phi).collect();
@@ -288,7 +259,7 @@ fn fit_rows(rows: &[Row]) -> Result<[f64; N_PARAMS]> {
         }
         solve::fit_constrained(&phi, &y, &lower)?
     };
-    fit.theta49()
+    Ok(fit)
 }
 
 fn quality(theta: &[f64; N_PARAMS], rows: &[Row]) -> Metrics {
@@ -481,7 +452,8 @@ pub fn identify(recs: &[Recording], opts: &IdentifyOptions) -> Result<Identifica
     } else {
         N_PARAMS
     };
-    let mut theta = fit_rows(&rows_kept(&rejections)).context("constrained least squares")?;
+    let mut final_fit = fit_rows(&rows_kept(&rejections)).context("constrained least squares")?;
+    let mut theta = final_fit.theta49()?;
     for pass in 1..=opts.sigma_passes {
         let sets: Vec<(usize, Vec<Row>)> = main_sets
             .iter()
@@ -510,7 +482,8 @@ pub fn identify(recs: &[Recording], opts: &IdentifyOptions) -> Result<Identifica
                 rows.len()
             );
         }
-        theta = fit_rows(&rows).context("constrained least squares")?;
+        final_fit = fit_rows(&rows).context("constrained least squares")?;
+        theta = final_fit.theta49()?;
     }
     let final_rows = rows_kept(&rejections);
     if final_rows.is_empty() {
@@ -570,7 +543,7 @@ pub fn identify(recs: &[Recording], opts: &IdentifyOptions) -> Result<Identifica
         let theta_mode = if mode == opts.mode {
             theta
         } else {
-            fit_rows(&rows)?
+            fit_rows(&rows)?.theta49()?
         };
         modes.push(ModeFit {
             mode,
@@ -581,7 +554,7 @@ pub fn identify(recs: &[Recording], opts: &IdentifyOptions) -> Result<Identifica
             trial_rows = rows;
         }
     }
-    let shares = TermShares::of(&model, &trial_rows);
+    let terms = term_means(&model, &trial_rows);
 
     // Per-trial table over every trial with rows, rejected ones flagged.
     let mut per_trial = Vec::new();
@@ -630,11 +603,15 @@ pub fn identify(recs: &[Recording], opts: &IdentifyOptions) -> Result<Identifica
         trial_level,
         trial_level_aligned,
         modes,
-        dominant: dominant_terms(&model)
-            .into_iter()
-            .map(String::from)
-            .collect(),
-        shares,
+        dominant: (0..N_JOINTS).map(|j| model.dominant_term(j)).collect(),
+        terms,
+        shares_percent: terms.shares_percent(),
+        std_err: final_fit.std_err.clone(),
+        solver: (
+            final_fit.solver.method.to_string(),
+            final_fit.solver.status.clone(),
+            final_fit.solver.iterations,
+        ),
         per_trial,
     })
 }
@@ -745,7 +722,8 @@ pub fn validate(model: &PowerModel, rec: &Recording, opts: &IdentifyOptions) -> 
             .as_ref()
             .map(|_| trial_metrics(&kept, |p| p.predicted_w)),
         reading_level: quality(&theta, &reading_set.rows),
-        shares: TermShares::of(model, &trial_set.rows),
+        terms: term_means(model, &trial_set.rows),
+        shares_percent: term_means(model, &trial_set.rows).shares_percent(),
         per_trial,
         alignment,
         session: SessionSummary {
@@ -756,12 +734,218 @@ pub fn validate(model: &PowerModel, rec: &Recording, opts: &IdentifyOptions) -> 
     })
 }
 
-/// Names of the 49 parameters in θ order (a0..a6, b0..b6, c0..c6, d0..d6, e01..e56).
-pub fn parameter_names() -> Vec<String> {
-    let mut names = Vec::with_capacity(N_PARAMS);
-    for family in ["a", "b", "c", "d"] {
-        names.extend((0..N_JOINTS).map(|i| format!("{family}{i}")));
+impl Identification {
+    /// The model file (`model.json`) of this identification: θ, metrics on the fitted rows (with
+    /// their κ), optional hold-out metrics, and provenance (sessions, target, rows, filters with
+    /// their settings, trial counts, every rejected trial, solver). `joint_names` are the URDF
+    /// names in model order (the recording's); `created` is written as given (reproducible output).
+    pub fn model_file(
+        &self,
+        joint_names: &[String],
+        validation: Option<&Validation>,
+        created: &str,
+    ) -> Result<ModelFile> {
+        let rows = match self.options.mode {
+            Mode::Trial => "trajectory",
+            Mode::Reading => "per_reading",
+            Mode::Sample => "per_sample",
+        };
+        let kappa = self
+            .modes
+            .iter()
+            .find(|m| m.mode == self.options.mode)
+            .map_or(f64::NAN, |m| m.kappa);
+        let identification = DatasetMetrics {
+            dataset: format!(
+                "{} rows of {} retained trials (filtered)",
+                rows.replace('_', "-"),
+                self.trials_used
+            ),
+            fit: self.fit,
+            condition_number: kappa,
+        };
+        let validation_metrics = validation.map(|v| DatasetMetrics {
+            dataset: format!(
+                "{}: per-reading rows, all usable trials",
+                v.session.source.display()
+            ),
+            fit: v.reading_level,
+            condition_number: f64::NAN,
+        });
+        let mut sessions: Vec<SessionRef> = self
+            .sessions
+            .iter()
+            .map(|s| session_ref(&s.source, "identification"))
+            .collect();
+        if let Some(v) = validation {
+            sessions.push(session_ref(&v.session.source, "validation"));
+        }
+        let count = |reason: RejectReason| {
+            self.rejections
+                .iter()
+                .filter(|r| r.reason == reason)
+                .count()
+        };
+        let mut filters = Vec::new();
+        if let Some(k) = self.options.imu_k {
+            filters.push(FilterRecord {
+                name: "imu_sigma".into(),
+                parameters: [("k_median".to_string(), k)].into(),
+                rejected: count(RejectReason::ImuSway),
+            });
+        }
+        if self.options.sigma_passes > 0 {
+            filters.push(FilterRecord {
+                name: "residual_3sigma".into(),
+                parameters: [
+                    ("k_sigma".to_string(), self.options.n_sigma),
+                    ("passes".to_string(), self.options.sigma_passes as f64),
+                ]
+                .into(),
+                rejected: count(RejectReason::Residual),
+            });
+        }
+        let rejected_trials = self
+            .rejections
+            .iter()
+            .map(|r| RejectedTrial {
+                session: self
+                    .sessions
+                    .get(r.session)
+                    .map_or_else(String::new, |s| s.source.display().to_string()),
+                trial: r.trial,
+                filter: match r.reason {
+                    RejectReason::ImuSway => "imu_sigma".into(),
+                    RejectReason::Residual => "residual_3sigma".into(),
+                },
+                statistic: r.statistic,
+                threshold: r.threshold,
+                reason: r.describe(),
+            })
+            .collect();
+        let mut notes = vec![format!(
+            "power readings treated as averages over [t − {:.3} s − {:.3} s, t − {:.3} s]{}",
+            self.alignment.lag_s,
+            self.alignment.window_s,
+            self.alignment.lag_s,
+            if self.alignment_estimate.is_some() {
+                " (window and lag estimated from the data)"
+            } else {
+                ""
+            }
+        )];
+        notes.extend(self.modes.iter().map(|m| {
+            format!(
+                "{} rows: n = {}, κ(ΦᵀΦ) = {:.3e}, R² = {:.4}",
+                m.mode.name(),
+                m.quality.n,
+                m.kappa,
+                m.quality.r2
+            )
+        }));
+        let provenance = Provenance {
+            created: created.to_string(),
+            sessions,
+            target: self.options.target.name().into(),
+            rows: rows.into(),
+            filters,
+            trials: TrialCounts {
+                segmented: self
+                    .sessions
+                    .iter()
+                    .map(|s| s.segmentation.trials.len())
+                    .sum(),
+                used: self.trials_used,
+                rejected: self.rejections.len(),
+            },
+            rejected_trials,
+            solver: Some(SolverRecord {
+                method: self.solver.0.clone(),
+                status: self.solver.1.clone(),
+                iterations: self.solver.2,
+            }),
+            notes,
+            ..Provenance::default()
+        };
+        let mut file = ModelFile::new(
+            &self.model,
+            joint_names,
+            ModelMetrics {
+                identification: Some(identification),
+                validation: validation_metrics,
+            },
+            provenance,
+        )?;
+        file.theta_std_err = Some(self.std_err.clone());
+        Ok(file)
     }
-    names.extend(PAIRS.iter().map(|(i, j)| format!("e{i}{j}")));
-    names
+
+    /// Everything the markdown report shows: the model file, per-trial measured vs predicted on
+    /// the retained trials (and on the hold-out session), term contributions (hold-out set when
+    /// given, as in the paper), the row-pairing comparison, and the truth θ for simulated sessions.
+    pub fn report_input(
+        &self,
+        model_file: ModelFile,
+        validation: Option<&Validation>,
+        truth: Option<PowerModel>,
+    ) -> ReportInput {
+        let set = |label: String, table: &[TrialPrediction]| PredictionSet {
+            label,
+            measured: table.iter().map(|p| p.measured_w).collect(),
+            predicted: table.iter().map(|p| p.predicted_w).collect(),
+        };
+        let retained: Vec<TrialPrediction> = self
+            .per_trial
+            .iter()
+            .filter(|p| !p.rejected)
+            .cloned()
+            .collect();
+        let terms = match validation {
+            Some(v) => ReportTerms {
+                dataset: format!("hold-out trajectories ({})", v.session.source.display()),
+                means: v.terms,
+            },
+            None => ReportTerms {
+                dataset: "identification trajectories (retained)".into(),
+                means: self.terms,
+            },
+        };
+        ReportInput {
+            title: "Arm power model identification".into(),
+            model: model_file,
+            identification: Some(set(
+                format!("identification: {} retained trials", retained.len()),
+                &retained,
+            )),
+            validation: validation.map(|v| {
+                set(
+                    format!("hold-out: {} trials", v.per_trial.len()),
+                    &v.per_trial,
+                )
+            }),
+            terms: Some(terms),
+            aggregation: self
+                .modes
+                .iter()
+                .map(|m| AggregationRow {
+                    rows: m.mode.name().into(),
+                    n: m.quality.n,
+                    condition_number: m.kappa,
+                    r2: m.quality.r2,
+                })
+                .collect(),
+            truth,
+            notes: Vec::new(),
+        }
+    }
+}
+
+/// A session reference for provenance; a path that cannot be read (e.g. an in-memory recording)
+/// is recorded with size 0 rather than failing the model file.
+fn session_ref(path: &Path, role: &str) -> SessionRef {
+    SessionRef::from_path(path, role).unwrap_or_else(|_| SessionRef {
+        path: path.display().to_string(),
+        size_bytes: 0,
+        role: role.into(),
+    })
 }

@@ -13,6 +13,7 @@ use std::sync::Once;
 use anyhow::{Context, Result, anyhow, ensure};
 use plotters::coord::Shift;
 use plotters::prelude::*;
+use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use crate::N_JOINTS;
 use crate::identify::metrics::Metrics;
@@ -527,15 +528,21 @@ fn draw_coefficients(
             .map_err(plot_err)?;
         chart
             .draw_series((0..N_JOINTS).map(|i| {
+                let y = values[i] + se(offset + i) + top * 0.02;
                 Text::new(
                     format!("{:.3}", values[i]),
-                    (SegmentValue::CenterOf(i), values[i] + top * 0.02),
-                    (FONT, 12),
+                    (SegmentValue::CenterOf(i), y),
+                    centered_above(13),
                 )
             }))
             .map_err(plot_err)?;
     }
     Ok(())
+}
+
+/// Text anchored at its bottom centre, to label the top of a bar.
+fn centered_above(size: u32) -> TextStyle<'static> {
+    TextStyle::from((FONT, size).into_font()).pos(Pos::new(HPos::Center, VPos::Bottom))
 }
 
 fn range_of(values: impl Iterator<Item = f64>) -> (f64, f64) {
@@ -577,6 +584,7 @@ fn draw_sorted_fit(
     chart
         .configure_mesh()
         .x_desc("row (sorted by measured net power)")
+        .x_label_formatter(&|x| format!("{x:.0}"))
         .y_desc("net power [W]")
         .label_style((FONT, 14))
         .draw()
@@ -597,11 +605,11 @@ fn draw_sorted_fit(
                 .iter()
                 .enumerate()
                 .map(|(k, &i)| (k as f64, set.predicted[i])),
-            RED.stroke_width(2),
+            RED.stroke_width(1),
         ))
         .map_err(plot_err)?
         .label("predicted")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED.stroke_width(2)));
+        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED.stroke_width(1)));
     chart
         .configure_series_labels()
         .position(SeriesLabelPosition::UpperLeft)
@@ -661,6 +669,7 @@ fn draw_residuals(
         .configure_mesh()
         .x_desc("residual [W]")
         .y_desc("rows")
+        .y_label_formatter(&|y| format!("{y:.0}"))
         .label_style((FONT, 14))
         .draw()
         .map_err(plot_err)?;
@@ -759,11 +768,8 @@ fn draw_terms(root: &DrawingArea<BitMapBackend<'_>, Shift>, t: &TermShares) -> R
     chart
         .draw_series(shares.iter().enumerate().map(|(k, &s)| {
             let y = if s.is_finite() { s.max(0.0) } else { 0.0 };
-            Text::new(
-                format!("{} %", fmt_num(s, 1)),
-                (SegmentValue::CenterOf(k), y + (hi - lo) * 0.04),
-                (FONT, 15),
-            )
+            let at = (SegmentValue::CenterOf(k), y + (hi - lo) * 0.01);
+            Text::new(format!("{} %", fmt_num(s, 1)), at, centered_above(15))
         }))
         .map_err(plot_err)?;
     Ok(())

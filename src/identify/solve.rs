@@ -272,7 +272,7 @@ impl Prepared {
         let mut zero_cols = Vec::new();
         let mut col_norm = Vec::new();
         let mut pinned = vec![0.0; n];
-        for j in 0..n {
+        for (j, pin) in pinned.iter_mut().enumerate() {
             let col = phi.column(j);
             if let Some(i) = col.iter().position(|v| !v.is_finite()) {
                 bail!("regressor Φ[{i}][{j}] = {} is not finite", col[i]);
@@ -283,7 +283,7 @@ impl Prepared {
                 col_norm.push(norm);
             } else {
                 zero_cols.push(j);
-                pinned[j] = 0.0f64.clamp(bounds.lower[j], bounds.upper[j]);
+                *pin = 0.0f64.clamp(bounds.lower[j], bounds.upper[j]);
             }
         }
         ensure!(

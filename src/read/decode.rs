@@ -3,10 +3,8 @@
 //! Two ways in: [`decode`] builds a full [`Value`] tree (for `info`, tests and odd topics);
 //! [`FieldExtractor`] compiles a list of field paths once per channel and pulls just those
 //! numbers out of each payload, which is what the signal pipeline uses on the hot path.
-//!
-//! CONTRACT (owned by the reader work): the types and signatures below are used by the other
-//! stages; their bodies are to be implemented.
 
+use super::msgdef::{ArrayKind, Field, FieldType, Primitive};
 use super::{Encoding, MsgSchema};
 
 /// A decoded value.
@@ -62,16 +60,844 @@ pub enum DecodeError {
 }
 
 /// Compiled extraction of several numeric fields from payloads of one channel.
+///
+/// Paths whose position does not depend on the payload (every field before them has a fixed
+/// size, as in all unitree_hg types) become constant byte offsets; the others are found by
+/// walking the payload. [`FieldExtractor::extract`] checks the payload length once.
 #[derive(Debug, Clone)]
 pub struct FieldExtractor {
-    _private: (),
+    encoding: Encoding,
+    leaves: Vec<Leaf>,
+    /// Path texts, for error messages.
+    names: Vec<String>,
+    /// Smallest payload length that holds every constant-offset field.
+    min_len: usize,
+    /// Needed by walked paths only.
+    schema: Option<MsgSchema>,
+}
+
+#[derive(Debug, Clone)]
+enum Leaf {
+    /// Constant byte offset from the start of the payload (including any CDR header).
+    Offset(usize, Primitive),
+    /// Walk the payload: (field index, optional element index) per segment.
+    Walk(Vec<Step>, Primitive),
+    /// JSON: look the path up by name.
+    Json(FieldPath),
+}
+
+#[derive(Debug, Clone)]
+struct Step {
+    type_name: String,
+    field: usize,
+    index: Option<usize>,
+}
+
+/// Serialisation rules for the binary encodings.
+#[derive(Debug, Clone, Copy)]
+enum Rules {
+    /// CDR: primitives aligned to their size relative to the start of the body; `le` = little endian.
+    Cdr { le: bool },
+    /// ROS 1: packed little endian.
+    Ros1,
+}
+
+impl Rules {
+    fn align(self, pos: usize, prim: Primitive) -> usize {
+        match self {
+            Rules::Ros1 => pos,
+            Rules::Cdr { .. } => {
+                let a = alignment(prim);
+                pos.div_ceil(a) * a
+            }
+        }
+    }
+    fn little_endian(self) -> bool {
+        match self {
+            Rules::Ros1 => true,
+            Rules::Cdr { le } => le,
+        }
+    }
+    /// Bytes before the body (the CDR encapsulation header).
+    fn header_len(self) -> usize {
+        match self {
+            Rules::Ros1 => 0,
+            Rules::Cdr { .. } => 4,
+        }
+    }
+}
+
+/// CDR alignment of a primitive (and of length prefixes: 4).
+fn alignment(prim: Primitive) -> usize {
+    match prim {
+        Primitive::Bool | Primitive::I8 | Primitive::U8 => 1,
+        Primitive::I16 | Primitive::U16 => 2,
+        Primitive::I32 | Primitive::U32 | Primitive::F32 | Primitive::String => 4,
+        Primitive::Time | Primitive::Duration => 4,
+        Primitive::I64 | Primitive::U64 | Primitive::F64 => 8,
+    }
+}
+
+/// Size of a fixed-size primitive (`None` for strings).
+fn prim_size(prim: Primitive) -> Option<usize> {
+    match prim {
+        Primitive::String => None,
+        Primitive::Time | Primitive::Duration => Some(8),
+        p => Some(alignment(p)),
+    }
+}
+
+/// Check the CDR encapsulation header and return the body's byte order.
+fn cdr_rules(data: &[u8]) -> Result<Rules, DecodeError> {
+    match data.get(..4) {
+        None => Err(DecodeError::Truncated { field: "CDR header".into(), needed: 4, len: data.len() }),
+        Some([0, 0, _, _]) => Ok(Rules::Cdr { le: false }),
+        Some([0, 1, _, _]) => Ok(Rules::Cdr { le: true }),
+        Some([0, 2 | 3, _, _]) => Err(DecodeError::Invalid(
+            "parameter-list CDR (PL_CDR encapsulation 0x0002/0x0003) is not supported; record with plain CDR".into(),
+        )),
+        Some(h) => Err(DecodeError::Invalid(format!(
+            "unsupported CDR encapsulation 0x{:02x}{:02x} (supported: 0x0000/0x0001 plain CDR)",
+            h.first().copied().unwrap_or(0),
+            h.get(1).copied().unwrap_or(0)
+        ))),
+    }
+}
+
+fn rules_for(encoding: Encoding, data: &[u8]) -> Result<Rules, DecodeError> {
+    match encoding {
+        Encoding::Cdr => cdr_rules(data),
+        Encoding::Ros1 => Ok(Rules::Ros1),
+        Encoding::Json => Err(DecodeError::Invalid(
+            "JSON payloads have no binary layout".into(),
+        )),
+    }
+}
+
+/// Where bytes come from while walking: nowhere (layout only, fails on variable sizes) or a payload.
+#[derive(Clone, Copy)]
+enum Src<'a> {
+    Layout,
+    Payload(&'a [u8]),
+}
+
+/// Reads with bounds checks; positions are absolute in the payload, alignment relative to `base`.
+struct Walker<'s, 'a> {
+    schema: &'s MsgSchema,
+    rules: Rules,
+    base: usize,
+    src: Src<'a>,
+}
+
+impl Walker<'_, '_> {
+    fn align(&self, pos: usize, prim: Primitive) -> usize {
+        self.base + self.rules.align(pos - self.base, prim)
+    }
+
+    fn bytes<const N: usize>(
+        &self,
+        pos: usize,
+        what: &dyn Fn() -> String,
+    ) -> Result<[u8; N], DecodeError> {
+        let Src::Payload(data) = self.src else {
+            return Err(DecodeError::Invalid("layout walk reads no bytes".into()));
+        };
+        data.get(pos..pos + N)
+            .and_then(|b| b.try_into().ok())
+            .ok_or_else(|| DecodeError::Truncated {
+                field: what(),
+                needed: pos + N,
+                len: data.len(),
+            })
+    }
+
+    fn u32_at(&self, pos: usize, what: &dyn Fn() -> String) -> Result<u32, DecodeError> {
+        let b = self.bytes::<4>(pos, what)?;
+        Ok(if self.rules.little_endian() {
+            u32::from_le_bytes(b)
+        } else {
+            u32::from_be_bytes(b)
+        })
+    }
+
+    /// Read a length prefix at `pos` (aligned); returns (length, position after it), or `None` in layout mode.
+    fn length(
+        &self,
+        pos: usize,
+        what: &dyn Fn() -> String,
+    ) -> Result<Option<(usize, usize)>, DecodeError> {
+        if let Src::Layout = self.src {
+            return Ok(None);
+        }
+        let pos = self.align(pos, Primitive::U32);
+        let n = self.u32_at(pos, what)? as usize;
+        Ok(Some((n, pos + 4)))
+    }
+
+    /// Position after `count` elements of `ty` starting at `pos`; `None` when the size is not
+    /// known without the payload (layout mode only).
+    fn skip_elements(
+        &self,
+        ty: &FieldType,
+        count: usize,
+        pos: usize,
+        what: &dyn Fn() -> String,
+    ) -> Result<Option<usize>, DecodeError> {
+        if count == 0 {
+            return Ok(Some(pos));
+        }
+        match ty {
+            FieldType::Primitive(Primitive::String) => {
+                let mut p = pos;
+                for _ in 0..count {
+                    let Some((n, after)) = self.length(p, what)? else {
+                        return Ok(None);
+                    };
+                    p = after.checked_add(n).ok_or_else(|| {
+                        DecodeError::Invalid(format!("{}: bad string length {n}", what()))
+                    })?;
+                }
+                self.check_within(p, what)?;
+                Ok(Some(p))
+            }
+            FieldType::Primitive(prim) => {
+                let size = prim_size(*prim).unwrap_or(1);
+                let end = count
+                    .checked_mul(size)
+                    .and_then(|b| self.align(pos, *prim).checked_add(b))
+                    .ok_or_else(|| {
+                        DecodeError::Invalid(format!("{}: bad array length {count}", what()))
+                    })?;
+                self.check_within(end, what)?;
+                Ok(Some(end))
+            }
+            FieldType::Message(name) => {
+                let msg = self
+                    .schema
+                    .get(name)
+                    .map_err(|e| DecodeError::Invalid(e.to_string()))?;
+                let mut p = pos;
+                for _ in 0..count {
+                    for f in &msg.fields {
+                        match self.skip_field(f, p, what)? {
+                            Some(next) => p = next,
+                            None => return Ok(None),
+                        }
+                    }
+                }
+                Ok(Some(p))
+            }
+        }
+    }
+
+    /// In payload mode, fail when `end` lies beyond the payload (stops absurd lengths early).
+    fn check_within(&self, end: usize, what: &dyn Fn() -> String) -> Result<(), DecodeError> {
+        match self.src {
+            Src::Payload(data) if end > data.len() => Err(DecodeError::Truncated {
+                field: what(),
+                needed: end,
+                len: data.len(),
+            }),
+            _ => Ok(()),
+        }
+    }
+
+    fn skip_field(
+        &self,
+        f: &Field,
+        pos: usize,
+        what: &dyn Fn() -> String,
+    ) -> Result<Option<usize>, DecodeError> {
+        match f.array {
+            ArrayKind::Single => self.skip_elements(&f.ty, 1, pos, what),
+            ArrayKind::Fixed(n) => self.skip_elements(&f.ty, n, pos, what),
+            ArrayKind::Unbounded | ArrayKind::Bounded(_) => {
+                let Some((n, after)) = self.length(pos, what)? else {
+                    return Ok(None);
+                };
+                self.skip_elements(&f.ty, n, after, what)
+            }
+        }
+    }
+
+    /// Follow `steps` from `pos`; returns the position of the leaf element (before alignment).
+    fn follow(
+        &self,
+        steps: &[Step],
+        mut pos: usize,
+        what: &dyn Fn() -> String,
+    ) -> Result<Option<usize>, DecodeError> {
+        for step in steps {
+            let msg = self
+                .schema
+                .get(&step.type_name)
+                .map_err(|e| DecodeError::Invalid(e.to_string()))?;
+            let Some(fields) = msg.fields.get(..step.field) else {
+                return Err(DecodeError::Invalid(format!("{}: schema changed", what())));
+            };
+            for f in fields {
+                match self.skip_field(f, pos, what)? {
+                    Some(p) => pos = p,
+                    None => return Ok(None),
+                }
+            }
+            let Some(field) = msg.fields.get(step.field) else {
+                return Err(DecodeError::Invalid(format!("{}: schema changed", what())));
+            };
+            if let Some(i) = step.index {
+                let (len, start) = match field.array {
+                    ArrayKind::Fixed(n) => (n, pos),
+                    _ => match self.length(pos, what)? {
+                        Some(v) => v,
+                        None => return Ok(None),
+                    },
+                };
+                if i >= len {
+                    return Err(DecodeError::Invalid(format!(
+                        "{}: index {i} out of range, array has {len} elements",
+                        what()
+                    )));
+                }
+                match self.skip_elements(&field.ty, i, start, what)? {
+                    Some(p) => pos = p,
+                    None => return Ok(None),
+                }
+            }
+        }
+        Ok(Some(pos))
+    }
+
+    fn read_prim(
+        &self,
+        prim: Primitive,
+        pos: usize,
+        what: &dyn Fn() -> String,
+    ) -> Result<(Value, usize), DecodeError> {
+        let pos = self.align(pos, prim);
+        let le = self.rules.little_endian();
+        macro_rules! num {
+            ($t:ty, $n:literal, $variant:ident, $conv:ty) => {{
+                let b = self.bytes::<$n>(pos, what)?;
+                let v = if le {
+                    <$t>::from_le_bytes(b)
+                } else {
+                    <$t>::from_be_bytes(b)
+                };
+                (Value::$variant(v as $conv), pos + $n)
+            }};
+        }
+        Ok(match prim {
+            Primitive::Bool => (Value::Bool(self.bytes::<1>(pos, what)?[0] != 0), pos + 1),
+            Primitive::I8 => num!(i8, 1, Int, i64),
+            Primitive::U8 => num!(u8, 1, UInt, u64),
+            Primitive::I16 => num!(i16, 2, Int, i64),
+            Primitive::U16 => num!(u16, 2, UInt, u64),
+            Primitive::I32 => num!(i32, 4, Int, i64),
+            Primitive::U32 => num!(u32, 4, UInt, u64),
+            Primitive::I64 => num!(i64, 8, Int, i64),
+            Primitive::U64 => num!(u64, 8, UInt, u64),
+            Primitive::F32 => num!(f32, 4, Float, f64),
+            Primitive::F64 => num!(f64, 8, Float, f64),
+            Primitive::Time | Primitive::Duration => {
+                let sec = self.u32_at(pos, what)?;
+                let nsec = self.u32_at(pos + 4, what)?;
+                let value = if prim == Primitive::Time {
+                    vec![
+                        ("sec".to_string(), Value::UInt(sec.into())),
+                        ("nsec".to_string(), Value::UInt(nsec.into())),
+                    ]
+                } else {
+                    vec![
+                        ("sec".to_string(), Value::Int((sec as i32).into())),
+                        ("nsec".to_string(), Value::Int((nsec as i32).into())),
+                    ]
+                };
+                (Value::Struct(value), pos + 8)
+            }
+            Primitive::String => {
+                let n = self.u32_at(pos, what)? as usize;
+                let start = pos + 4;
+                let end = start.checked_add(n).ok_or_else(|| {
+                    DecodeError::Invalid(format!("{}: bad string length", what()))
+                })?;
+                let Src::Payload(data) = self.src else {
+                    return Err(DecodeError::Invalid("layout walk reads no bytes".into()));
+                };
+                let bytes = data.get(start..end).ok_or_else(|| DecodeError::Truncated {
+                    field: what(),
+                    needed: end,
+                    len: data.len(),
+                })?;
+                // CDR counts the terminating NUL; ROS 1 does not have one.
+                let text = match self.rules {
+                    Rules::Cdr { .. } => bytes.strip_suffix(&[0]).unwrap_or(bytes),
+                    Rules::Ros1 => bytes,
+                };
+                let s = std::str::from_utf8(text).map_err(|_| {
+                    DecodeError::Invalid(format!("{}: string is not UTF-8", what()))
+                })?;
+                (Value::String(s.to_string()), end)
+            }
+        })
+    }
+
+    fn decode_elements(
+        &self,
+        ty: &FieldType,
+        count: usize,
+        mut pos: usize,
+        path: &str,
+    ) -> Result<(Vec<Value>, usize), DecodeError> {
+        let what = || path.to_string();
+        self.check_within(pos.saturating_add(count.min(1)), &what)?;
+        let mut out = Vec::with_capacity(count.min(4096));
+        for _ in 0..count {
+            let (v, p) = self.decode_one(ty, pos, path)?;
+            out.push(v);
+            pos = p;
+        }
+        Ok((out, pos))
+    }
+
+    fn decode_one(
+        &self,
+        ty: &FieldType,
+        pos: usize,
+        path: &str,
+    ) -> Result<(Value, usize), DecodeError> {
+        match ty {
+            FieldType::Primitive(p) => self.read_prim(*p, pos, &|| path.to_string()),
+            FieldType::Message(name) => {
+                let msg = self
+                    .schema
+                    .get(name)
+                    .map_err(|e| DecodeError::Invalid(e.to_string()))?;
+                let mut fields = Vec::with_capacity(msg.fields.len());
+                let mut p = pos;
+                for f in &msg.fields {
+                    let sub = if path.is_empty() {
+                        f.name.clone()
+                    } else {
+                        format!("{path}.{}", f.name)
+                    };
+                    let (v, next) = self.decode_field(f, p, &sub)?;
+                    fields.push((f.name.clone(), v));
+                    p = next;
+                }
+                Ok((Value::Struct(fields), p))
+            }
+        }
+    }
+
+    fn decode_field(
+        &self,
+        f: &Field,
+        pos: usize,
+        path: &str,
+    ) -> Result<(Value, usize), DecodeError> {
+        let what = || path.to_string();
+        match f.array {
+            ArrayKind::Single => self.decode_one(&f.ty, pos, path),
+            ArrayKind::Fixed(n) => {
+                let (v, p) = self.decode_elements(&f.ty, n, pos, path)?;
+                Ok((Value::Array(v), p))
+            }
+            ArrayKind::Unbounded | ArrayKind::Bounded(_) => {
+                let (n, after) = self
+                    .length(pos, &what)?
+                    .ok_or_else(|| DecodeError::Invalid("layout walk".into()))?;
+                let (v, p) = self.decode_elements(&f.ty, n, after, path)?;
+                Ok((Value::Array(v), p))
+            }
+        }
+    }
 }
 
 /// Decode a whole payload into a [`Value`] tree.
-pub fn decode(
-    _schema: &MsgSchema,
-    _encoding: Encoding,
-    _data: &[u8],
-) -> Result<Value, DecodeError> {
-    Err(DecodeError::Invalid("decoder not implemented yet".into()))
+pub fn decode(schema: &MsgSchema, encoding: Encoding, data: &[u8]) -> Result<Value, DecodeError> {
+    if encoding == Encoding::Json {
+        let json: serde_json::Value = serde_json::from_slice(data)
+            .map_err(|e| DecodeError::Invalid(format!("bad JSON: {e}")))?;
+        return Ok(Value::from_json(&json));
+    }
+    let rules = rules_for(encoding, data)?;
+    let base = rules.header_len();
+    let walker = Walker {
+        schema,
+        rules,
+        base,
+        src: Src::Payload(data),
+    };
+    let root = FieldType::Message(schema.root.clone());
+    schema
+        .root_type()
+        .map_err(|e| DecodeError::Invalid(e.to_string()))?;
+    Ok(walker.decode_one(&root, base, "")?.0)
+}
+
+impl Value {
+    /// Convert parsed JSON (objects keep their key order; `null` becomes NaN so that missing
+    /// numbers are reported like NaN values).
+    fn from_json(json: &serde_json::Value) -> Value {
+        match json {
+            serde_json::Value::Null => Value::Float(f64::NAN),
+            serde_json::Value::Bool(b) => Value::Bool(*b),
+            serde_json::Value::Number(n) => {
+                if let Some(u) = n.as_u64() {
+                    Value::UInt(u)
+                } else if let Some(i) = n.as_i64() {
+                    Value::Int(i)
+                } else {
+                    Value::Float(n.as_f64().unwrap_or(f64::NAN))
+                }
+            }
+            serde_json::Value::String(s) => Value::String(s.clone()),
+            serde_json::Value::Array(a) => Value::Array(a.iter().map(Value::from_json).collect()),
+            serde_json::Value::Object(o) => Value::Struct(
+                o.iter()
+                    .map(|(k, v)| (k.clone(), Value::from_json(v)))
+                    .collect(),
+            ),
+        }
+    }
+
+    /// The value at `path` (field names and element indices), if present.
+    pub fn get(&self, path: &FieldPath) -> Option<&Value> {
+        let mut v = self;
+        for (name, index) in &path.segments {
+            let Value::Struct(fields) = v else {
+                return None;
+            };
+            v = &fields.iter().find(|(n, _)| n == name)?.1;
+            if let Some(i) = index {
+                let Value::Array(items) = v else { return None };
+                v = items.get(*i)?;
+            }
+        }
+        Some(v)
+    }
+
+    /// The value as a number (bools as 0/1); `None` for strings, arrays and structs.
+    pub fn as_f64(&self) -> Option<f64> {
+        match self {
+            Value::Bool(b) => Some(f64::from(u8::from(*b))),
+            Value::Int(i) => Some(*i as f64),
+            Value::UInt(u) => Some(*u as f64),
+            Value::Float(f) => Some(*f),
+            _ => None,
+        }
+    }
+}
+
+impl FieldPath {
+    /// Parse `name[index].name…`, e.g. `motor_state[17].tau_est` or `bmsvoltage[0]`.
+    pub fn parse(s: &str) -> Result<FieldPath, DecodeError> {
+        let bad = |what: &str| DecodeError::Invalid(format!("bad field path {s:?}: {what}"));
+        let mut segments = Vec::new();
+        for part in s.trim().split('.') {
+            let (name, index) = match part.split_once('[') {
+                None => (part, None),
+                Some((name, rest)) => {
+                    let digits = rest.strip_suffix(']').ok_or_else(|| bad("missing `]`"))?;
+                    let i = digits
+                        .trim()
+                        .parse::<usize>()
+                        .map_err(|_| bad("index is not a number"))?;
+                    (name, Some(i))
+                }
+            };
+            if name.is_empty() || !name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
+                return Err(bad("empty or invalid field name"));
+            }
+            segments.push((name.to_string(), index));
+        }
+        Ok(FieldPath { segments })
+    }
+}
+
+impl std::fmt::Display for FieldPath {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        for (i, (name, index)) in self.segments.iter().enumerate() {
+            if i > 0 {
+                f.write_str(".")?;
+            }
+            f.write_str(name)?;
+            if let Some(i) = index {
+                write!(f, "[{i}]")?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Resolve `path` against the schema: the walk steps and the leaf primitive.
+fn resolve(schema: &MsgSchema, path: &FieldPath) -> Result<(Vec<Step>, Primitive), DecodeError> {
+    let no_field = |why: String| DecodeError::NoSuchField {
+        path: format!("{path} ({why})"),
+        type_name: schema.root.clone(),
+    };
+    let mut type_name = schema.root.clone();
+    let mut steps = Vec::new();
+    let n = path.segments.len();
+    for (k, (name, index)) in path.segments.iter().enumerate() {
+        let msg = schema
+            .get(&type_name)
+            .map_err(|e| no_field(e.to_string()))?;
+        let (fi, field) = msg
+            .fields
+            .iter()
+            .enumerate()
+            .find(|(_, f)| &f.name == name)
+            .ok_or_else(|| no_field(format!("{type_name} has no field {name}")))?;
+        match (field.array, index) {
+            (ArrayKind::Single, Some(_)) => {
+                return Err(no_field(format!("{name} is not an array")));
+            }
+            (ArrayKind::Fixed(len), Some(i)) if *i >= len => {
+                return Err(no_field(format!("{name} has {len} elements")));
+            }
+            (ArrayKind::Bounded(len), Some(i)) if *i >= len => {
+                return Err(no_field(format!("{name} holds at most {len} elements")));
+            }
+            (ArrayKind::Single, None) => {}
+            (_, None) => return Err(no_field(format!("{name} is an array; give an index"))),
+            _ => {}
+        }
+        steps.push(Step {
+            type_name: type_name.clone(),
+            field: fi,
+            index: *index,
+        });
+        match (&field.ty, k + 1 == n) {
+            (FieldType::Primitive(p), true) => {
+                if matches!(p, Primitive::String | Primitive::Time | Primitive::Duration) {
+                    return Err(no_field(format!("{name} is not a number")));
+                }
+                return Ok((steps, *p));
+            }
+            (FieldType::Primitive(_), false) => {
+                return Err(no_field(format!("{name} has no sub-fields")));
+            }
+            (FieldType::Message(t), false) => type_name = t.clone(),
+            (FieldType::Message(_), true) => {
+                return Err(no_field(format!("{name} is a message, not a number")));
+            }
+        }
+    }
+    Err(no_field("empty path".into()))
+}
+
+impl FieldExtractor {
+    /// Compile extraction of `paths` (each must end at a numeric or bool field) for payloads of
+    /// `schema` in `encoding`. Fails with [`DecodeError::NoSuchField`] when a path is not in the schema.
+    /// For JSON channels without a message definition (empty root type) paths are checked per message.
+    pub fn compile(
+        schema: &MsgSchema,
+        encoding: Encoding,
+        paths: &[FieldPath],
+    ) -> Result<FieldExtractor, DecodeError> {
+        let names = paths.iter().map(ToString::to_string).collect();
+        let schemaless = schema
+            .root_type()
+            .map(|t| t.fields.is_empty())
+            .unwrap_or(true);
+        if encoding == Encoding::Json {
+            if !schemaless {
+                for p in paths {
+                    resolve(schema, p)?;
+                }
+            }
+            let leaves = paths.iter().cloned().map(Leaf::Json).collect();
+            return Ok(FieldExtractor {
+                encoding,
+                leaves,
+                names,
+                min_len: 0,
+                schema: None,
+            });
+        }
+        let rules = match encoding {
+            Encoding::Ros1 => Rules::Ros1,
+            _ => Rules::Cdr { le: true }, // offsets do not depend on byte order
+        };
+        let base = rules.header_len();
+        let layout = Walker {
+            schema,
+            rules,
+            base,
+            src: Src::Layout,
+        };
+        let mut leaves = Vec::with_capacity(paths.len());
+        let mut min_len = base;
+        let mut needs_schema = false;
+        for p in paths {
+            let (steps, prim) = resolve(schema, p)?;
+            let what = || p.to_string();
+            match layout.follow(&steps, base, &what)? {
+                Some(pos) => {
+                    let off = layout.align(pos, prim);
+                    min_len = min_len.max(off + prim_size(prim).unwrap_or(0));
+                    leaves.push(Leaf::Offset(off, prim));
+                }
+                None => {
+                    needs_schema = true;
+                    leaves.push(Leaf::Walk(steps, prim));
+                }
+            }
+        }
+        Ok(FieldExtractor {
+            encoding,
+            leaves,
+            names,
+            min_len,
+            schema: needs_schema.then(|| schema.clone()),
+        })
+    }
+
+    /// Number of paths (the length `out` must have).
+    pub fn len(&self) -> usize {
+        self.leaves.len()
+    }
+
+    /// True when no paths were compiled.
+    pub fn is_empty(&self) -> bool {
+        self.leaves.is_empty()
+    }
+
+    /// True when every path has a constant byte offset (the fast path).
+    pub fn is_constant_offset(&self) -> bool {
+        self.leaves.iter().all(|l| matches!(l, Leaf::Offset(..)))
+    }
+
+    /// Read every compiled field of one payload into `out` (same order as the paths). NaN and
+    /// infinite values are returned as they are; the caller decides what to do with them.
+    pub fn extract(&self, data: &[u8], out: &mut [f64]) -> Result<(), DecodeError> {
+        if out.len() != self.leaves.len() {
+            return Err(DecodeError::Invalid(format!(
+                "output has {} slots for {} fields",
+                out.len(),
+                self.leaves.len()
+            )));
+        }
+        if self.encoding == Encoding::Json {
+            return self.extract_json(data, out);
+        }
+        let rules = rules_for(self.encoding, data)?;
+        if data.len() < self.min_len {
+            let first_missing = self
+                .leaves
+                .iter()
+                .zip(&self.names)
+                .find(|(l, _)| matches!(l, Leaf::Offset(o, p) if o + prim_size(*p).unwrap_or(0) > data.len()))
+                .map_or_else(String::new, |(_, n)| n.clone());
+            return Err(DecodeError::Truncated {
+                field: first_missing,
+                needed: self.min_len,
+                len: data.len(),
+            });
+        }
+        let le = rules.little_endian();
+        for ((leaf, slot), name) in self.leaves.iter().zip(out.iter_mut()).zip(&self.names) {
+            *slot = match leaf {
+                Leaf::Offset(off, prim) => {
+                    read_number(data, *off, *prim, le).ok_or_else(|| DecodeError::Truncated {
+                        field: name.clone(),
+                        needed: off + 8,
+                        len: data.len(),
+                    })?
+                }
+                Leaf::Walk(steps, prim) => {
+                    let schema = self
+                        .schema
+                        .as_ref()
+                        .ok_or_else(|| DecodeError::Invalid("extractor has no schema".into()))?;
+                    let base = rules.header_len();
+                    let walker = Walker {
+                        schema,
+                        rules,
+                        base,
+                        src: Src::Payload(data),
+                    };
+                    let what = || name.clone();
+                    let pos = walker
+                        .follow(steps, base, &what)?
+                        .ok_or_else(|| DecodeError::Invalid("walk failed".into()))?;
+                    walker
+                        .read_prim(*prim, pos, &what)?
+                        .0
+                        .as_f64()
+                        .unwrap_or(f64::NAN)
+                }
+                Leaf::Json(_) => {
+                    return Err(DecodeError::Invalid("JSON path on a binary channel".into()));
+                }
+            };
+        }
+        Ok(())
+    }
+
+    fn extract_json(&self, data: &[u8], out: &mut [f64]) -> Result<(), DecodeError> {
+        let json: serde_json::Value = serde_json::from_slice(data)
+            .map_err(|e| DecodeError::Invalid(format!("bad JSON: {e}")))?;
+        for ((leaf, slot), name) in self.leaves.iter().zip(out.iter_mut()).zip(&self.names) {
+            let Leaf::Json(path) = leaf else {
+                return Err(DecodeError::Invalid("binary path on a JSON channel".into()));
+            };
+            let mut v = &json;
+            for (field, index) in &path.segments {
+                v = v
+                    .get(field.as_str())
+                    .ok_or_else(|| DecodeError::NoSuchField {
+                        path: name.clone(),
+                        type_name: "JSON message".into(),
+                    })?;
+                if let Some(i) = index {
+                    v = v.get(*i).ok_or_else(|| DecodeError::NoSuchField {
+                        path: name.clone(),
+                        type_name: "JSON message".into(),
+                    })?;
+                }
+            }
+            *slot = match v {
+                serde_json::Value::Null => f64::NAN,
+                serde_json::Value::Bool(b) => f64::from(u8::from(*b)),
+                serde_json::Value::Number(n) => n.as_f64().unwrap_or(f64::NAN),
+                _ => {
+                    return Err(DecodeError::Invalid(format!(
+                        "{name} is not a number in the JSON message"
+                    )));
+                }
+            };
+        }
+        Ok(())
+    }
+}
+
+/// Read one fixed-size primitive at `off` as f64 (`None` when out of bounds).
+#[inline]
+fn read_number(data: &[u8], off: usize, prim: Primitive, le: bool) -> Option<f64> {
+    macro_rules! rd {
+        ($t:ty, $n:literal) => {{
+            let b: [u8; $n] = data.get(off..off + $n)?.try_into().ok()?;
+            (if le {
+                <$t>::from_le_bytes(b)
+            } else {
+                <$t>::from_be_bytes(b)
+            }) as f64
+        }};
+    }
+    Some(match prim {
+        Primitive::Bool => f64::from(u8::from(*data.get(off)? != 0)),
+        Primitive::I8 => rd!(i8, 1),
+        Primitive::U8 => rd!(u8, 1),
+        Primitive::I16 => rd!(i16, 2),
+        Primitive::U16 => rd!(u16, 2),
+        Primitive::I32 => rd!(i32, 4),
+        Primitive::U32 => rd!(u32, 4),
+        Primitive::I64 => rd!(i64, 8),
+        Primitive::U64 => rd!(u64, 8),
+        Primitive::F32 => rd!(f32, 4),
+        Primitive::F64 => rd!(f64, 8),
+        Primitive::String | Primitive::Time | Primitive::Duration => return None,
+    })
 }

@@ -9,11 +9,16 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
+pub mod bag1;
+pub mod db3;
 pub mod decode;
+pub mod mcap;
 pub mod msgdef;
+pub mod session;
 
 pub use decode::{DecodeError, FieldExtractor, FieldPath, Value};
 pub use msgdef::{MsgSchema, SchemaError};
+pub use session::Session;
 
 /// How message payloads are serialised.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -1,11 +1,9 @@
 //! Message definitions: ROS 2 `.msg` text (with the concatenated `MSG:` dependency sections
 //! MCAP and rosbag2 embed), ROS 1 `.msg` text, and OMG IDL (`ros2idl`), parsed into one
 //! [`MsgSchema`] type registry that the decoders walk.
-//!
-//! CONTRACT (owned by the reader work): the types and constructor signatures below are
-//! used by the other readers; their bodies are to be implemented.
 
 use std::collections::HashMap;
+use std::path::PathBuf;
 
 /// A primitive field type.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -112,4 +110,800 @@ pub enum SchemaError {
     /// Unsupported schema encoding.
     #[error("unsupported schema encoding {0:?} (supported: ros2msg, ros2idl, ros1msg)")]
     UnsupportedEncoding(String),
+}
+
+/// Built-in ROS 2 definitions of the standard types the tool needs and of the Unitree G1
+/// (`unitree_hg`) messages, so files and bags that do not carry definitions still decode.
+const BUILTIN_DEFINITIONS: &[(&str, &str)] = &[
+    ("builtin_interfaces/msg/Time", "int32 sec\nuint32 nanosec\n"),
+    (
+        "builtin_interfaces/msg/Duration",
+        "int32 sec\nuint32 nanosec\n",
+    ),
+    (
+        "std_msgs/msg/Header",
+        "builtin_interfaces/Time stamp\nstring frame_id\n",
+    ),
+    (
+        "unitree_hg/msg/BmsCmd",
+        include_str!("msg/unitree_hg/BmsCmd.msg"),
+    ),
+    (
+        "unitree_hg/msg/BmsState",
+        include_str!("msg/unitree_hg/BmsState.msg"),
+    ),
+    (
+        "unitree_hg/msg/HandCmd",
+        include_str!("msg/unitree_hg/HandCmd.msg"),
+    ),
+    (
+        "unitree_hg/msg/HandState",
+        include_str!("msg/unitree_hg/HandState.msg"),
+    ),
+    (
+        "unitree_hg/msg/IMUState",
+        include_str!("msg/unitree_hg/IMUState.msg"),
+    ),
+    (
+        "unitree_hg/msg/LowCmd",
+        include_str!("msg/unitree_hg/LowCmd.msg"),
+    ),
+    (
+        "unitree_hg/msg/LowState",
+        include_str!("msg/unitree_hg/LowState.msg"),
+    ),
+    (
+        "unitree_hg/msg/MainBoardState",
+        include_str!("msg/unitree_hg/MainBoardState.msg"),
+    ),
+    (
+        "unitree_hg/msg/MotorCmd",
+        include_str!("msg/unitree_hg/MotorCmd.msg"),
+    ),
+    (
+        "unitree_hg/msg/MotorState",
+        include_str!("msg/unitree_hg/MotorState.msg"),
+    ),
+    (
+        "unitree_hg/msg/PressSensorState",
+        include_str!("msg/unitree_hg/PressSensorState.msg"),
+    ),
+];
+
+/// ROS 1's `std_msgs/Header` (differs from ROS 2's: a sequence number and a `time` stamp).
+const ROS1_HEADER: &str = "uint32 seq\ntime stamp\nstring frame_id\n";
+
+/// The built-in ROS 2 `.msg` text of a type (`pkg/Type` or `pkg/msg/Type`): the unitree_hg
+/// messages and `builtin_interfaces/Time`, `builtin_interfaces/Duration`, `std_msgs/Header`.
+pub fn builtin_definition(type_name: &str) -> Option<&'static str> {
+    let name = normalize_type_name(type_name, "");
+    BUILTIN_DEFINITIONS
+        .iter()
+        .find(|(n, _)| *n == name)
+        .map(|(_, text)| *text)
+}
+
+/// Normalise a type name to `pkg/msg/Type`: accepts `pkg/Type`, `pkg/msg/Type`, `pkg::msg::Type`
+/// and, with a non-empty `default_pkg`, an unqualified `Type`.
+pub fn normalize_type_name(name: &str, default_pkg: &str) -> String {
+    let name = name.trim().replace("::", "/");
+    let parts: Vec<&str> = name.split('/').filter(|p| !p.is_empty()).collect();
+    match parts.as_slice() {
+        [ty] if !default_pkg.is_empty() => format!("{default_pkg}/msg/{ty}"),
+        [pkg, ty] => format!("{pkg}/msg/{ty}"),
+        [pkg, _, ty] => format!("{pkg}/msg/{ty}"),
+        _ => name,
+    }
+}
+
+/// Package part of a normalised or `pkg/Type` name (empty when unqualified).
+fn package_of(name: &str) -> &str {
+    match name.split_once('/') {
+        Some((pkg, _)) => pkg,
+        None => "",
+    }
+}
+
+/// Which `.msg` dialect a text is written in.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Dialect {
+    Ros1,
+    Ros2,
+}
+
+impl MsgSchema {
+    /// Parse a schema given its encoding name as MCAP spells it (`ros2msg`, `ros2idl`, `ros1msg`).
+    pub fn parse(encoding: &str, type_name: &str, text: &str) -> Result<MsgSchema, SchemaError> {
+        match encoding {
+            "ros2msg" => Self::parse_ros2msg(type_name, text),
+            "ros2idl" => Self::parse_idl(type_name, text),
+            "ros1msg" => Self::parse_ros1msg(type_name, text),
+            other => Err(SchemaError::UnsupportedEncoding(other.to_string())),
+        }
+    }
+
+    /// Parse ROS 2 `.msg` text, including the concatenated dependency sections
+    /// (`=====` line, then `MSG: pkg/Type`) that MCAP and rosbag2 embed. Types still missing
+    /// afterwards are taken from [`builtin_definition`].
+    pub fn parse_ros2msg(type_name: &str, text: &str) -> Result<MsgSchema, SchemaError> {
+        Self::parse_msg(type_name, text, Dialect::Ros2)
+    }
+
+    /// Parse ROS 1 `.msg` text (concatenated `MSG:` sections as in bag connection records;
+    /// `time`, `duration`, `byte`, `char`, `Header` → `std_msgs/Header`).
+    pub fn parse_ros1msg(type_name: &str, text: &str) -> Result<MsgSchema, SchemaError> {
+        Self::parse_msg(type_name, text, Dialect::Ros1)
+    }
+
+    /// Load `type_name` and its dependencies from `.msg` files under `search_dirs`
+    /// (`DIR/<pkg>/msg/<Type>.msg` or `DIR/<pkg>/<Type>.msg`), falling back to the built-in
+    /// definitions.
+    pub fn from_msg_files(
+        type_name: &str,
+        search_dirs: &[PathBuf],
+    ) -> Result<MsgSchema, SchemaError> {
+        let root = normalize_type_name(type_name, "");
+        let mut schema = MsgSchema {
+            root: root.clone(),
+            types: HashMap::new(),
+        };
+        let mut pending = vec![root];
+        while let Some(name) = pending.pop() {
+            if schema.types.contains_key(&name) {
+                continue;
+            }
+            let text = find_msg_file(&name, search_dirs)
+                .or_else(|| builtin_definition(&name).map(str::to_string))
+                .ok_or_else(|| SchemaError::MissingType(name.clone()))?;
+            let ty = parse_msg_section(&name, &text, 0, Dialect::Ros2)?;
+            pending.extend(ty.fields.iter().filter_map(|f| match &f.ty {
+                FieldType::Message(n) => Some(n.clone()),
+                FieldType::Primitive(_) => None,
+            }));
+            schema.types.insert(name, ty);
+        }
+        Ok(schema)
+    }
+
+    /// The root type's definition.
+    pub fn root_type(&self) -> Result<&MsgType, SchemaError> {
+        self.get(&self.root)
+    }
+
+    /// A type's definition by fully qualified name.
+    pub fn get(&self, name: &str) -> Result<&MsgType, SchemaError> {
+        self.types
+            .get(name)
+            .ok_or_else(|| SchemaError::MissingType(name.to_string()))
+    }
+
+    fn parse_msg(type_name: &str, text: &str, dialect: Dialect) -> Result<MsgSchema, SchemaError> {
+        let root = normalize_type_name(type_name, "");
+        let mut types = HashMap::new();
+        let mut current = root.clone();
+        let mut section = String::new();
+        let mut section_line = 0;
+        for (i, line) in text.lines().enumerate() {
+            let trimmed = line.trim();
+            if trimmed.len() >= 3 && trimmed.chars().all(|c| c == '=') {
+                let ty = parse_msg_section(&current, &section, section_line, dialect)?;
+                types.insert(current.clone(), ty);
+                section.clear();
+                current = String::new();
+                section_line = i + 1;
+                continue;
+            }
+            if let Some(name) = trimmed.strip_prefix("MSG:") {
+                current = normalize_type_name(name, package_of(&root));
+                section_line = i + 1;
+                continue;
+            }
+            section.push_str(line);
+            section.push('\n');
+        }
+        if current.is_empty() {
+            return Err(SchemaError::Syntax {
+                type_name: root,
+                line: section_line,
+                what: "dependency section without a `MSG: pkg/Type` line".into(),
+            });
+        }
+        let ty = parse_msg_section(&current, &section, section_line, dialect)?;
+        types.insert(current, ty);
+        let mut schema = MsgSchema { root, types };
+        schema.resolve_missing(dialect)?;
+        Ok(schema)
+    }
+
+    /// Add built-in definitions for referenced types the text did not carry; fail on the rest.
+    fn resolve_missing(&mut self, dialect: Dialect) -> Result<(), SchemaError> {
+        if !self.types.contains_key(&self.root) {
+            return Err(SchemaError::MissingType(self.root.clone()));
+        }
+        loop {
+            let missing: Vec<String> = self
+                .types
+                .values()
+                .flat_map(|t| t.fields.iter())
+                .filter_map(|f| match &f.ty {
+                    FieldType::Message(n) if !self.types.contains_key(n) => Some(n.clone()),
+                    _ => None,
+                })
+                .collect();
+            let Some(name) = missing.into_iter().next() else {
+                return Ok(());
+            };
+            let text = if dialect == Dialect::Ros1 && name == "std_msgs/msg/Header" {
+                ROS1_HEADER
+            } else {
+                builtin_definition(&name).ok_or_else(|| SchemaError::MissingType(name.clone()))?
+            };
+            let ty = parse_msg_section(&name, text, 0, dialect)?;
+            self.types.insert(name, ty);
+        }
+    }
+}
+
+fn find_msg_file(name: &str, dirs: &[PathBuf]) -> Option<String> {
+    let mut parts = name.split('/');
+    let (pkg, ty) = (parts.next()?, parts.next_back()?);
+    dirs.iter()
+        .flat_map(|d| {
+            [
+                d.join(pkg).join("msg").join(format!("{ty}.msg")),
+                d.join(pkg).join(format!("{ty}.msg")),
+            ]
+        })
+        .find_map(|p| std::fs::read_to_string(p).ok())
+}
+
+/// Parse one type's `.msg` lines (no section separators). `first_line` is the 0-based line
+/// of the section in the whole text, for error messages.
+fn parse_msg_section(
+    type_name: &str,
+    text: &str,
+    first_line: usize,
+    dialect: Dialect,
+) -> Result<MsgType, SchemaError> {
+    let pkg = package_of(type_name).to_string();
+    let mut fields = Vec::new();
+    for (i, raw) in text.lines().enumerate() {
+        let line = raw.split('#').next().unwrap_or("").trim();
+        if line.is_empty() {
+            continue;
+        }
+        let err = |what: String| SchemaError::Syntax {
+            type_name: type_name.to_string(),
+            line: first_line + i + 1,
+            what,
+        };
+        let (ty_tok, rest) = line
+            .split_once(char::is_whitespace)
+            .ok_or_else(|| err(format!("expected `TYPE NAME`, found {line:?}")))?;
+        let rest = rest.trim_start();
+        let name_end = rest
+            .find(|c: char| c.is_whitespace() || c == '=')
+            .unwrap_or(rest.len());
+        let name = &rest[..name_end];
+        if name.is_empty() {
+            return Err(err(format!("field without a name: {line:?}")));
+        }
+        if rest[name_end..].trim_start().starts_with('=') {
+            continue; // a constant: not serialised
+        }
+        let (base, array) = split_array(ty_tok).map_err(&err)?;
+        let ty = field_type(base, &pkg, dialect).map_err(&err)?;
+        fields.push(Field {
+            name: name.to_string(),
+            ty,
+            array,
+        });
+    }
+    Ok(MsgType {
+        name: type_name.to_string(),
+        fields,
+    })
+}
+
+/// Split `T[]`, `T[N]`, `T[<=N]` into the element type and the array kind.
+fn split_array(tok: &str) -> Result<(&str, ArrayKind), String> {
+    let Some(open) = tok.find('[') else {
+        return Ok((tok, ArrayKind::Single));
+    };
+    let inner = tok[open + 1..]
+        .strip_suffix(']')
+        .ok_or_else(|| format!("unterminated array bracket in {tok:?}"))?;
+    let parse_n = |s: &str| {
+        s.trim()
+            .parse::<usize>()
+            .map_err(|_| format!("bad array size in {tok:?}"))
+    };
+    let kind = if inner.trim().is_empty() {
+        ArrayKind::Unbounded
+    } else if let Some(n) = inner.trim().strip_prefix("<=") {
+        ArrayKind::Bounded(parse_n(n)?)
+    } else {
+        ArrayKind::Fixed(parse_n(inner)?)
+    };
+    Ok((&tok[..open], kind))
+}
+
+/// Resolve a `.msg` element type name.
+fn field_type(base: &str, pkg: &str, dialect: Dialect) -> Result<FieldType, String> {
+    let base = match base.split_once("<=") {
+        Some((b, _)) => b, // bounded string `string<=N`
+        None => base,
+    };
+    let prim = match base {
+        "bool" => Primitive::Bool,
+        "int8" => Primitive::I8,
+        "uint8" => Primitive::U8,
+        "byte" if dialect == Dialect::Ros1 => Primitive::I8,
+        "byte" | "char" => Primitive::U8,
+        "int16" => Primitive::I16,
+        "uint16" => Primitive::U16,
+        "int32" => Primitive::I32,
+        "uint32" => Primitive::U32,
+        "int64" => Primitive::I64,
+        "uint64" => Primitive::U64,
+        "float32" => Primitive::F32,
+        "float64" => Primitive::F64,
+        "string" => Primitive::String,
+        "time" if dialect == Dialect::Ros1 => Primitive::Time,
+        "duration" if dialect == Dialect::Ros1 => Primitive::Duration,
+        "wstring" => return Err("wstring fields are not supported".into()),
+        "Header" if dialect == Dialect::Ros1 => {
+            return Ok(FieldType::Message("std_msgs/msg/Header".into()));
+        }
+        other => {
+            if other.is_empty()
+                || !other
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '/')
+            {
+                return Err(format!("bad type name {other:?}"));
+            }
+            return Ok(FieldType::Message(normalize_type_name(other, pkg)));
+        }
+    };
+    Ok(FieldType::Primitive(prim))
+}
+
+// ---------------------------------------------------------------------------------------------
+// OMG IDL (`ros2idl`)
+
+#[derive(Debug, Clone, PartialEq)]
+enum Tok {
+    Ident(String),
+    Number(String),
+    Str,
+    Punct(char),
+    Scope,
+}
+
+fn tokenize_idl(type_name: &str, text: &str) -> Result<Vec<(Tok, usize)>, SchemaError> {
+    let mut toks = Vec::new();
+    let chars: Vec<char> = text.chars().collect();
+    let mut i = 0;
+    let mut line = 1;
+    let mut at_line_start = true;
+    while i < chars.len() {
+        let c = chars[i];
+        if c == '\n' {
+            line += 1;
+            at_line_start = true;
+            i += 1;
+            continue;
+        }
+        if c.is_whitespace() {
+            i += 1;
+            continue;
+        }
+        let starts_line = at_line_start;
+        at_line_start = false;
+        if c == '#' && starts_line {
+            // Preprocessor line (#include, #pragma …): ignored.
+            while i < chars.len() && chars[i] != '\n' {
+                i += 1;
+            }
+        } else if c == '/' && chars.get(i + 1) == Some(&'/') {
+            while i < chars.len() && chars[i] != '\n' {
+                i += 1;
+            }
+        } else if c == '/' && chars.get(i + 1) == Some(&'*') {
+            i += 2;
+            while i < chars.len() && !(chars[i] == '*' && chars.get(i + 1) == Some(&'/')) {
+                if chars[i] == '\n' {
+                    line += 1;
+                }
+                i += 1;
+            }
+            i += 2;
+        } else if c == '"' {
+            i += 1;
+            while i < chars.len() && chars[i] != '"' {
+                if chars[i] == '\\' {
+                    i += 1;
+                }
+                if chars.get(i) == Some(&'\n') {
+                    line += 1;
+                }
+                i += 1;
+            }
+            i += 1;
+            toks.push((Tok::Str, line));
+        } else if c == ':' && chars.get(i + 1) == Some(&':') {
+            toks.push((Tok::Scope, line));
+            i += 2;
+        } else if c.is_ascii_alphabetic() || c == '_' {
+            let start = i;
+            while i < chars.len() && (chars[i].is_ascii_alphanumeric() || chars[i] == '_') {
+                i += 1;
+            }
+            toks.push((Tok::Ident(chars[start..i].iter().collect()), line));
+        } else if c.is_ascii_digit()
+            || (c == '-' && chars.get(i + 1).is_some_and(|d| d.is_ascii_digit()))
+        {
+            let start = i;
+            i += 1;
+            while i < chars.len() && (chars[i].is_ascii_alphanumeric() || chars[i] == '.') {
+                i += 1;
+            }
+            toks.push((Tok::Number(chars[start..i].iter().collect()), line));
+        } else if "{}[]<>;,()=@:+-*/|&~.'".contains(c) {
+            toks.push((Tok::Punct(c), line));
+            i += 1;
+        } else {
+            return Err(SchemaError::Syntax {
+                type_name: type_name.to_string(),
+                line,
+                what: format!("unexpected character {c:?} in IDL"),
+            });
+        }
+    }
+    Ok(toks)
+}
+
+struct IdlParser<'a> {
+    type_name: &'a str,
+    toks: Vec<(Tok, usize)>,
+    pos: usize,
+    /// Enclosing module names.
+    scope: Vec<String>,
+    /// typedef name (qualified) → (element type, array kind).
+    typedefs: HashMap<String, (FieldType, ArrayKind)>,
+    /// Enum names (qualified): serialised as uint32.
+    enums: Vec<String>,
+    types: HashMap<String, MsgType>,
+}
+
+impl IdlParser<'_> {
+    fn err(&self, what: impl Into<String>) -> SchemaError {
+        let line = self
+            .toks
+            .get(self.pos)
+            .or(self.toks.last())
+            .map_or(0, |t| t.1);
+        SchemaError::Syntax {
+            type_name: self.type_name.to_string(),
+            line,
+            what: what.into(),
+        }
+    }
+    fn peek(&self) -> Option<&Tok> {
+        self.toks.get(self.pos).map(|t| &t.0)
+    }
+    fn next(&mut self) -> Result<Tok, SchemaError> {
+        let t = self
+            .toks
+            .get(self.pos)
+            .map(|t| t.0.clone())
+            .ok_or_else(|| self.err("unexpected end of IDL"))?;
+        self.pos += 1;
+        Ok(t)
+    }
+    fn expect(&mut self, c: char) -> Result<(), SchemaError> {
+        match self.next()? {
+            Tok::Punct(p) if p == c => Ok(()),
+            other => Err(self.err(format!("expected `{c}`, found {other:?}"))),
+        }
+    }
+    fn eat(&mut self, c: char) -> bool {
+        if self.peek() == Some(&Tok::Punct(c)) {
+            self.pos += 1;
+            true
+        } else {
+            false
+        }
+    }
+    fn ident(&mut self) -> Result<String, SchemaError> {
+        match self.next()? {
+            Tok::Ident(s) => Ok(s),
+            other => Err(self.err(format!("expected a name, found {other:?}"))),
+        }
+    }
+    fn number(&mut self) -> Result<usize, SchemaError> {
+        match self.next()? {
+            Tok::Number(n) => n.parse().map_err(|_| self.err(format!("bad number {n}"))),
+            other => Err(self.err(format!("expected a number, found {other:?}"))),
+        }
+    }
+    /// Skip tokens up to and including the `;` that ends the current declaration, stepping over
+    /// nested braces.
+    fn skip_declaration(&mut self) -> Result<(), SchemaError> {
+        let mut depth = 0usize;
+        loop {
+            match self.next()? {
+                Tok::Punct('{') => depth += 1,
+                Tok::Punct('}') => depth = depth.saturating_sub(1),
+                Tok::Punct(';') if depth == 0 => return Ok(()),
+                _ => {}
+            }
+        }
+    }
+    /// Skip annotations such as `@key`, `@default (value=0)`, `@verbatim (…)`.
+    fn skip_annotations(&mut self) -> Result<(), SchemaError> {
+        while self.eat('@') {
+            self.ident()?;
+            while self.peek() == Some(&Tok::Scope) {
+                self.pos += 1;
+                self.ident()?;
+            }
+            if self.eat('(') {
+                let mut depth = 1;
+                while depth > 0 {
+                    match self.next()? {
+                        Tok::Punct('(') => depth += 1,
+                        Tok::Punct(')') => depth -= 1,
+                        _ => {}
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+    fn qualified(&self, name: &str) -> String {
+        let mut parts = self.scope.clone();
+        parts.push(name.to_string());
+        parts.join("/")
+    }
+
+    fn definitions(&mut self, until_brace: bool) -> Result<(), SchemaError> {
+        loop {
+            self.skip_annotations()?;
+            match self.peek() {
+                None if !until_brace => return Ok(()),
+                None => return Err(self.err("missing `}`")),
+                Some(Tok::Punct('}')) if until_brace => {
+                    self.pos += 1;
+                    self.eat(';');
+                    return Ok(());
+                }
+                Some(Tok::Punct(';')) => self.pos += 1,
+                _ => {
+                    let kw = self.ident()?;
+                    match kw.as_str() {
+                        "module" => {
+                            let name = self.ident()?;
+                            self.expect('{')?;
+                            self.scope.push(name);
+                            self.definitions(true)?;
+                            self.scope.pop();
+                        }
+                        "struct" => self.structure()?,
+                        "typedef" => {
+                            let (ty, array) = self.type_spec()?;
+                            let (name, decl_array) = self.declarator()?;
+                            let array =
+                                combine_arrays(array, decl_array).map_err(|w| self.err(w))?;
+                            self.expect(';')?;
+                            self.typedefs.insert(self.qualified(&name), (ty, array));
+                        }
+                        "enum" => {
+                            let name = self.ident()?;
+                            self.enums.push(self.qualified(&name));
+                            self.skip_declaration()?;
+                        }
+                        _ => self.skip_declaration()?, // const, union …
+                    }
+                }
+            }
+        }
+    }
+
+    fn structure(&mut self) -> Result<(), SchemaError> {
+        let short = self.ident()?;
+        let name = self.qualified(&short);
+        if self.eat(';') {
+            return Ok(()); // forward declaration
+        }
+        self.expect('{')?;
+        let mut fields = Vec::new();
+        loop {
+            self.skip_annotations()?;
+            if self.eat('}') {
+                break;
+            }
+            let (ty, array) = self.type_spec()?;
+            loop {
+                let (fname, decl_array) = self.declarator()?;
+                let array = combine_arrays(array, decl_array).map_err(|w| self.err(w))?;
+                fields.push(Field {
+                    name: fname,
+                    ty: ty.clone(),
+                    array,
+                });
+                if !self.eat(',') {
+                    break;
+                }
+            }
+            self.expect(';')?;
+        }
+        self.eat(';');
+        let key = normalize_type_name(&name, "");
+        self.types
+            .insert(key.clone(), MsgType { name: key, fields });
+        Ok(())
+    }
+
+    /// `name` or `name[N]` (multi-dimensional arrays flattened).
+    fn declarator(&mut self) -> Result<(String, ArrayKind), SchemaError> {
+        let name = self.ident()?;
+        let mut total: Option<usize> = None;
+        while self.eat('[') {
+            let n = self.number()?;
+            self.expect(']')?;
+            total = Some(total.unwrap_or(1) * n);
+        }
+        Ok((name, total.map_or(ArrayKind::Single, ArrayKind::Fixed)))
+    }
+
+    fn scoped_name(&mut self, first: String) -> Result<String, SchemaError> {
+        let mut parts = vec![first];
+        while self.peek() == Some(&Tok::Scope) {
+            self.pos += 1;
+            parts.push(self.ident()?);
+        }
+        Ok(parts.join("/"))
+    }
+
+    fn type_spec(&mut self) -> Result<(FieldType, ArrayKind), SchemaError> {
+        if self.peek() == Some(&Tok::Scope) {
+            self.pos += 1; // leading `::`
+        }
+        let first = self.ident()?;
+        let prim = |p| Ok((FieldType::Primitive(p), ArrayKind::Single));
+        match first.as_str() {
+            "sequence" => {
+                self.expect('<')?;
+                let (ty, inner) = self.type_spec()?;
+                if inner != ArrayKind::Single {
+                    return Err(self.err("sequences of arrays are not supported"));
+                }
+                let kind = if self.eat(',') {
+                    ArrayKind::Bounded(self.number()?)
+                } else {
+                    ArrayKind::Unbounded
+                };
+                self.expect('>')?;
+                Ok((ty, kind))
+            }
+            "string" => {
+                if self.eat('<') {
+                    self.number()?;
+                    self.expect('>')?;
+                }
+                prim(Primitive::String)
+            }
+            "wstring" | "wchar" => Err(self.err("wide strings/chars are not supported")),
+            "boolean" => prim(Primitive::Bool),
+            "octet" | "uint8" | "char" => prim(Primitive::U8),
+            "int8" => prim(Primitive::I8),
+            "int16" | "short" => prim(Primitive::I16),
+            "uint16" => prim(Primitive::U16),
+            "int32" => prim(Primitive::I32),
+            "uint32" => prim(Primitive::U32),
+            "int64" => prim(Primitive::I64),
+            "uint64" => prim(Primitive::U64),
+            "float" => prim(Primitive::F32),
+            "double" => prim(Primitive::F64),
+            "long" => {
+                if self.peek() == Some(&Tok::Ident("long".into())) {
+                    self.pos += 1;
+                    return prim(Primitive::I64);
+                }
+                if self.peek() == Some(&Tok::Ident("double".into())) {
+                    return Err(self.err("long double is not supported"));
+                }
+                prim(Primitive::I32)
+            }
+            "unsigned" => match self.ident()?.as_str() {
+                "short" => prim(Primitive::U16),
+                "long" => {
+                    if self.peek() == Some(&Tok::Ident("long".into())) {
+                        self.pos += 1;
+                        return prim(Primitive::U64);
+                    }
+                    prim(Primitive::U32)
+                }
+                other => Err(self.err(format!("unknown type unsigned {other}"))),
+            },
+            _ => {
+                let name = self.scoped_name(first)?;
+                Ok(self.resolve_named(&name))
+            }
+        }
+    }
+
+    /// A named type: a typedef or enum (looked up from the innermost scope outwards) or a struct.
+    fn resolve_named(&self, name: &str) -> (FieldType, ArrayKind) {
+        for depth in (0..=self.scope.len()).rev() {
+            let mut parts = self.scope[..depth].to_vec();
+            parts.push(name.to_string());
+            let q = parts.join("/");
+            if let Some(t) = self.typedefs.get(&q) {
+                return t.clone();
+            }
+            if self.enums.contains(&q) {
+                return (FieldType::Primitive(Primitive::U32), ArrayKind::Single);
+            }
+        }
+        let qualified = if name.contains('/') {
+            name.to_string()
+        } else {
+            self.qualified(name)
+        };
+        (
+            FieldType::Message(normalize_type_name(&qualified, "")),
+            ArrayKind::Single,
+        )
+    }
+}
+
+fn combine_arrays(outer: ArrayKind, decl: ArrayKind) -> Result<ArrayKind, String> {
+    match (outer, decl) {
+        (a, ArrayKind::Single) => Ok(a),
+        (ArrayKind::Single, d) => Ok(d),
+        _ => Err("arrays of arrays/sequences are not supported".into()),
+    }
+}
+
+impl MsgSchema {
+    /// Parse OMG IDL (`ros2idl`): nested `module`s, `struct`s, `typedef`s, `sequence<T>`, fixed
+    /// arrays, enums (as uint32); `#include`/`#pragma` lines, constants and annotations are
+    /// ignored. Several IDL files concatenated with `=====` + `IDL: pkg/msg/Type` headers are
+    /// accepted. Types still missing are taken from [`builtin_definition`].
+    pub fn parse_idl(type_name: &str, text: &str) -> Result<MsgSchema, SchemaError> {
+        let root = normalize_type_name(type_name, "");
+        let cleaned: String = text
+            .lines()
+            .map(|l| {
+                let t = l.trim();
+                let separator = t.len() >= 3 && t.chars().all(|c| c == '=');
+                if separator || t.starts_with("IDL:") {
+                    ""
+                } else {
+                    l
+                }
+            })
+            .collect::<Vec<_>>()
+            .join("\n");
+        let toks = tokenize_idl(&root, &cleaned)?;
+        let mut parser = IdlParser {
+            type_name: type_name,
+            toks,
+            pos: 0,
+            scope: Vec::new(),
+            typedefs: HashMap::new(),
+            enums: Vec::new(),
+            types: HashMap::new(),
+        };
+        parser.definitions(false)?;
+        let mut schema = MsgSchema {
+            root,
+            types: parser.types,
+        };
+        schema.resolve_missing(Dialect::Ros2)?;
+        Ok(schema)
+    }
 }

@@ -54,6 +54,11 @@ impl JointFriction {
 struct Body {
     /// Orientation of the joint frame (at q = 0) in the previous body's frame.
     rot0: Matrix3<f64>,
+    /// Orientation at q as rot_const + sin q · rot_sin + cos q · rot_cos (Rodrigues' formula
+    /// premultiplied by rot0), so a call costs no matrix product.
+    rot_const: Matrix3<f64>,
+    rot_sin: Matrix3<f64>,
+    rot_cos: Matrix3<f64>,
     /// Position of the joint frame origin (at q = 0) in the previous body's frame.
     pos0: Vector3<f64>,
     /// Unit joint axis in this body's frame.
@@ -74,9 +79,10 @@ impl Body {
             (self.rot0, self.pos0 + self.rot0 * (self.axis * q))
         } else {
             let (s, c) = q.sin_cos();
-            let k = self.axis.cross_matrix();
-            let rot = Matrix3::identity() + k * s + k * k * (1.0 - c);
-            (self.rot0 * rot, self.pos0)
+            (
+                self.rot_const + self.rot_sin * s + self.rot_cos * c,
+                self.pos0,
+            )
         }
     }
 }
@@ -121,6 +127,9 @@ impl ArmDynamics {
 
         let mut bodies = [Body {
             rot0: Matrix3::identity(),
+            rot_const: Matrix3::identity(),
+            rot_sin: Matrix3::zeros(),
+            rot_cos: Matrix3::zeros(),
             pos0: Vector3::zeros(),
             axis: Vector3::z(),
             prismatic: false,
@@ -145,7 +154,13 @@ impl ArmDynamics {
                 zero_pose[joints[arm.joints[e]].child_link]
             });
             let joint_frame = prev_frame.inverse() * zero_pose[joint.parent_link] * joint.origin;
-            bodies[k].rot0 = *joint_frame.rotation.to_rotation_matrix().matrix();
+            let rot0 = *joint_frame.rotation.to_rotation_matrix().matrix();
+            // Rodrigues: Rot(a, q) = 1 + sin q·[a]× + (1 − cos q)·[a]×².
+            let skew = joint.axis.cross_matrix();
+            bodies[k].rot0 = rot0;
+            bodies[k].rot_const = rot0 * (Matrix3::identity() + skew * skew);
+            bodies[k].rot_sin = rot0 * skew;
+            bodies[k].rot_cos = -(rot0 * skew * skew);
             bodies[k].pos0 = joint_frame.translation.vector;
             bodies[k].axis = joint.axis.into_inner();
             bodies[k].prismatic = joint.kind == JointKind::Prismatic;

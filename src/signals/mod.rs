@@ -64,3 +64,12 @@ pub struct Recording {
     /// Problems met while reading (damage, NaNs, missing topics), each naming file/topic/offset.
     pub warnings: Vec<String>,
 }
+
+mod load;
+mod map;
+
+pub use load::load_recording;
+pub use map::{
+    G1_LEFT_ARM_BASE, G1_RIGHT_ARM_BASE, GROUPS, Group, JOINT_SHORT, SignalMap, SignalSpec,
+    group_signals,
+};

@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::N_JOINTS;
 use crate::power::JOINT_TORQUE_CONSTANT;
-use super::Payload;
+use crate::robot::Payload;
 
 /// Reference temperature of the winding resistance R0 [°C].
 pub const THERMAL_REFERENCE_C: f64 = 25.0;

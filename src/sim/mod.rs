@@ -15,7 +15,6 @@
 pub mod effects;
 pub mod plant;
 pub mod protocol;
-mod standin;
 pub mod thermal;
 pub mod truth;
 pub mod writer;
@@ -31,10 +30,10 @@ use serde::{Deserialize, Serialize};
 
 pub use effects::{BrakingAsymmetry, BusLoss, Effects, HarnessDrag, SensorLatency, ThermalDrift};
 pub use protocol::Preset;
-pub use standin::{ArmDynamics, JointFriction, Payload};
 pub use truth::Truth;
 
 use crate::N_JOINTS;
+use crate::robot::{ArmDynamics, JointFriction, RobotModel};
 use crate::power::{PAIRS, PowerModel};
 use crate::signals::Recording;
 use plant::{Engine, OutlierStep, Reference, Sampled, Sway, Timeline, TrialPlan};
@@ -173,8 +172,16 @@ pub fn truth_path(out: &Path) -> PathBuf {
     out.with_extension("truth.json")
 }
 
+/// The true plant's dynamics (with the payload when that effect is on) and, with a payload, the
+/// URDF-only dynamics the payload's share of the power is measured against.
 fn dynamics(cfg: &SimConfig) -> Result<(ArmDynamics, Option<ArmDynamics>)> {
-    let urdf = ArmDynamics::standin();
+    let model = match &cfg.urdf {
+        Some(path) => RobotModel::from_urdf_file(path)?,
+        None if cfg.with_hand => RobotModel::builtin(),
+        None => RobotModel::builtin_no_hand(),
+    };
+    let arm = model.arm(&JOINT_NAMES.map(String::from))?;
+    let urdf = ArmDynamics::new(&model, &arm).context("building the arm dynamics for the simulator")?;
     Ok(match &cfg.effects.payload {
         Some(p) => (urdf.with_payload(p), Some(urdf)),
         None => (urdf, None),
@@ -382,7 +389,11 @@ fn build_truth(
         preset: preset.into(),
         seed: cfg.seed,
         rate_hz: 100.0,
-        urdf: cfg.urdf.as_ref().map_or_else(|| "builtin:urdf/g1_left_arm.urdf".into(), |p| p.display().to_string()),
+        urdf: match (&cfg.urdf, cfg.with_hand) {
+            (Some(p), _) => p.display().to_string(),
+            (None, true) => "builtin:urdf/g1_left_arm.urdf".into(),
+            (None, false) => "builtin:urdf/g1_left_arm_no_hand.urdf".into(),
+        },
         session: truth::SessionTimes {
             start_ns,
             end_ns,

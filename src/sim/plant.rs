@@ -17,7 +17,8 @@ use super::protocol::Schedule;
 use super::thermal::ThermalState;
 use super::truth::Noise;
 use super::writer::{BmsFields, Cdr, ImuState, McapOut, MotorState, N_MOTORS, Topic};
-use super::{ArmDynamics, JointFriction, SimConfig};
+use super::SimConfig;
+use crate::robot::{ArmDynamics, JointFriction};
 use crate::N_JOINTS;
 use crate::power::{PAIRS, PowerModel};
 

@@ -217,7 +217,7 @@ pub struct PlantTruth {
     /// Thermal model.
     pub thermal: ThermalTruth,
     /// Payload at the hand (when the payload effect is on).
-    pub payload: Option<super::Payload>,
+    pub payload: Option<crate::robot::Payload>,
     /// Session-mean power of each base-model term over all samples [W].
     #[serde(rename = "mean_power_components_W")]
     pub mean_power_components_w: BTreeMap<String, f64>,

@@ -54,30 +54,37 @@ impl Cdr {
         self.buf.clear();
         self.buf.extend_from_slice(&Self::HEADER);
     }
+    #[inline(always)]
     fn align(&mut self, n: usize) {
         let body = self.buf.len() - 4;
         let pad = (n - body % n) % n;
         self.buf.resize(self.buf.len() + pad, 0);
     }
+    #[inline(always)]
     fn u8(&mut self, v: u8) {
         self.buf.push(v);
     }
+    #[inline(always)]
     fn u16(&mut self, v: u16) {
         self.align(2);
         self.buf.extend_from_slice(&v.to_le_bytes());
     }
+    #[inline(always)]
     fn i16(&mut self, v: i16) {
         self.align(2);
         self.buf.extend_from_slice(&v.to_le_bytes());
     }
+    #[inline(always)]
     fn u32(&mut self, v: u32) {
         self.align(4);
         self.buf.extend_from_slice(&v.to_le_bytes());
     }
+    #[inline(always)]
     fn i32(&mut self, v: i32) {
         self.align(4);
         self.buf.extend_from_slice(&v.to_le_bytes());
     }
+    #[inline(always)]
     fn f32(&mut self, v: f32) {
         self.align(4);
         self.buf.extend_from_slice(&v.to_le_bytes());

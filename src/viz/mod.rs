@@ -1,1 +1,253 @@
-//! (stage viz: to be written)
+//! Rerun output: a recorded (or simulated) session as a Rerun recording — animated arm, joint
+//! signals, power, and whatever identification/diagnosis add — written to an `.rrd` file or
+//! streamed to a viewer.
+//!
+//! Determinism: everything we log goes through [`ChunkWriter`], which builds the Rerun chunks
+//! itself with row and chunk ids derived from a counter (the SDK's own `log`/`send_columns` stamp
+//! wall-clock ids and `log_time`). The recording id is derived from the input
+//! ([`recording_id_for`]), the blueprint uses fixed ids ([`blueprint`]), and `.rrd` files are
+//! encoded by our own sink ([`rrd_sink`]), which also replaces the random row id the SDK puts on
+//! the store-info message. The one remaining difference between two runs is the order of the
+//! per-store manifests in the RRD footer (the SDK keeps them in a `HashMap`), so two files agree
+//! message for message when decoded but may differ in their last few hundred bytes.
+
+pub mod blueprint;
+pub mod replay;
+mod robot3d;
+mod rrd_sink;
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use rerun::external::re_log_types::external::re_tuid::Tuid;
+use rerun::log::{Chunk, ChunkComponents, ChunkId, RowId};
+use rerun::{AsComponents, RecordingStream, SerializedComponentColumn, TimeColumn};
+
+/// Where a Rerun recording goes.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Sink {
+    /// Write an `.rrd` file (atomically: a temporary file beside it, renamed by [`VizStream::finish`]).
+    Save(PathBuf),
+    /// Stream to a running viewer; `None` = the default `rerun+http://127.0.0.1:9876/proxy`.
+    Connect(Option<String>),
+    /// Start a viewer (`rerun` on PATH, e.g. `pip install rerun-sdk==0.36.3`) and stream to it.
+    Spawn {
+        /// Viewer memory limit, e.g. `"2GB"` or `"25%"`; the viewer drops the oldest data beyond it.
+        memory_limit: String,
+    },
+}
+
+/// Default viewer memory limit for [`Sink::Spawn`]: a quarter of RAM leaves room for the rest
+/// of the desktop while holding several hours of 100 Hz arm data.
+pub const DEFAULT_SPAWN_MEMORY_LIMIT: &str = "25%";
+
+/// An open Rerun output. Call [`VizStream::finish`] when done: it flushes and, for
+/// [`Sink::Save`], moves the finished file into place. Dropping it without `finish` leaves no
+/// output file (the temporary file is removed).
+pub struct VizStream {
+    stream: RecordingStream,
+    file: Option<rrd_sink::PendingFile>,
+}
+
+impl VizStream {
+    /// The stream to log into.
+    pub fn stream(&self) -> &RecordingStream {
+        &self.stream
+    }
+
+    /// Flushes everything; for a saved file, writes the footer and renames the temporary file to
+    /// the target. Errors (disk full, viewer gone) are reported here.
+    pub fn finish(self) -> Result<()> {
+        let VizStream { stream, file } = self;
+        stream.flush_blocking().context("flushing the Rerun stream")?;
+        match file {
+            Some(file) => {
+                drop(stream);
+                file.commit()
+            }
+            None => Ok(()),
+        }
+    }
+}
+
+/// Opens a Rerun output for application `app_id` with a fixed `recording_id` (see
+/// [`recording_id_for`]). `inputs` are the files the recording is made from: saving onto one of
+/// them is refused (canonical paths compared).
+pub fn open_stream(app_id: &str, recording_id: &str, sink: &Sink, inputs: &[&Path]) -> Result<VizStream> {
+    let builder = rerun::RecordingStreamBuilder::new(app_id).recording_id(recording_id);
+    match sink {
+        Sink::Save(path) => {
+            refuse_overwrite(path, inputs)?;
+            let (sink, file) = rrd_sink::RrdFileSink::create(path)?;
+            let (_enabled, store_info, _props, batcher, hooks, _blueprint) = builder.into_args();
+            let stream = RecordingStream::new(store_info, None, batcher, hooks, Box::new(sink))
+                .context("creating the Rerun recording stream")?;
+            Ok(VizStream { stream, file: Some(file) })
+        }
+        Sink::Connect(url) => {
+            let url = url.clone().unwrap_or_else(|| rerun::DEFAULT_CONNECT_URL.to_owned());
+            let stream = builder
+                .connect_grpc_opts(url.clone())
+                .with_context(|| format!("connecting to the Rerun viewer at {url}"))?;
+            Ok(VizStream { stream, file: None })
+        }
+        Sink::Spawn { memory_limit } => {
+            let opts = rerun::SpawnOptions { memory_limit: memory_limit.clone(), ..Default::default() };
+            let stream = builder.spawn_opts(&opts).context(
+                "starting the Rerun viewer (needs `rerun` on PATH: pip install rerun-sdk==0.36.3)",
+            )?;
+            Ok(VizStream { stream, file: None })
+        }
+    }
+}
+
+/// Refuses a target that is (after resolving symlinks and `..`) one of the input files.
+fn refuse_overwrite(target: &Path, inputs: &[&Path]) -> Result<()> {
+    let resolved_target = canonical_target(target);
+    for input in inputs {
+        if let Ok(input_c) = input.canonicalize()
+            && Some(&input_c) == resolved_target.as_ref()
+        {
+            bail!(
+                "refusing to write the Rerun output {} over the input file {}",
+                target.display(),
+                input.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Canonical form of a path that may not exist yet (canonical parent + file name).
+fn canonical_target(path: &Path) -> Option<PathBuf> {
+    if let Ok(p) = path.canonicalize() {
+        return Some(p);
+    }
+    let parent = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    Some(parent.canonicalize().ok()?.join(path.file_name()?))
+}
+
+/// FNV-1a, 64 bit: a stable hash (std's hashers are randomly seeded or not guaranteed stable).
+pub(crate) fn stable_hash(parts: &[&[u8]]) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for part in parts {
+        for &b in *part {
+            h ^= u64::from(b);
+            h = h.wrapping_mul(0x0000_0100_0000_01b3);
+        }
+        // Separator so that ("ab","c") and ("a","bc") differ.
+        h ^= 0xff;
+        h = h.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    h
+}
+
+/// Recording id derived from the input: file name, file size, start time and sample count —
+/// the same input gives the same id (so repeated runs produce comparable files), a different
+/// session a different one. The directory is left out so that a copied file replays the same.
+pub fn recording_id_for(rec: &crate::signals::Recording) -> String {
+    let name = rec.source.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let size = std::fs::metadata(&rec.source).map(|m| m.len()).unwrap_or(0);
+    let h = stable_hash(&[
+        name.as_bytes(),
+        &size.to_le_bytes(),
+        &rec.start_ns.to_le_bytes(),
+        &(rec.state.t.len() as u64).to_le_bytes(),
+    ]);
+    format!("g1viz-{h:016x}")
+}
+
+/// The two timelines every temporal row carries: `time` (absolute timestamp, the robot's clock:
+/// `Recording::start_ns` + t) and `session` (duration since the start of the session, handy for
+/// comparing sessions). Both are built from the same seconds-since-start values.
+pub(crate) fn time_columns(start_ns: u64, t: &[f64]) -> [TimeColumn; 2] {
+    let rel: Vec<i64> = t.iter().map(|&s| (s * 1e9).round() as i64).collect();
+    let abs: Vec<i64> = rel.iter().map(|&r| (start_ns as i64).saturating_add(r)).collect();
+    [
+        TimeColumn::new_timestamp_nanos_since_epoch("time", abs),
+        TimeColumn::new_duration_nanos("session", rel),
+    ]
+}
+
+/// Builds Rerun chunks with deterministic row and chunk ids and sends them to a stream.
+///
+/// Ids are `Tuid(namespace, counter)`: give every writer on one stream its own `namespace`
+/// (e.g. replay, identify, diagnose) so their ids never collide.
+pub struct ChunkWriter<'a> {
+    stream: &'a RecordingStream,
+    namespace: u64,
+    counter: u64,
+    start_ns: u64,
+}
+
+impl<'a> ChunkWriter<'a> {
+    /// A writer for the session starting at `start_ns` (the timeline origin).
+    pub fn new(stream: &'a RecordingStream, namespace: u64, start_ns: u64) -> Self {
+        ChunkWriter { stream, namespace, counter: 0, start_ns }
+    }
+
+    fn next_tuid(&mut self) -> Tuid {
+        self.counter += 1;
+        Tuid::from_nanos_and_inc(self.namespace, self.counter)
+    }
+
+    fn row_ids(&mut self, n: usize) -> Vec<RowId> {
+        (0..n).map(|_| RowId::from_tuid(self.next_tuid())).collect()
+    }
+
+    /// Sends `n` rows at times `t` [s since start] on `path`; `columns` must have `t.len()` rows.
+    pub fn send_columns(
+        &mut self,
+        path: &str,
+        t: &[f64],
+        columns: impl IntoIterator<Item = SerializedComponentColumn>,
+    ) -> Result<()> {
+        let chunk_id = ChunkId::from_tuid(self.next_tuid());
+        let row_ids = self.row_ids(t.len());
+        let timelines = time_columns(self.start_ns, t).into_iter().map(|c| (*c.timeline().name(), c)).collect();
+        let components: ChunkComponents = columns.into_iter().map(|c| (c.descriptor, c.list_array)).collect();
+        let chunk = Chunk::from_native_row_ids(chunk_id, path.into(), None, &row_ids, timelines, components)
+            .with_context(|| format!("building the Rerun chunk for {path}"))?;
+        self.stream.send_chunk(chunk);
+        Ok(())
+    }
+
+    /// Sends one row of `data` on `path` at time `t` [s since start].
+    pub fn send_row(&mut self, path: &str, t: f64, data: &dyn AsComponents) -> Result<()> {
+        let columns = data.as_serialized_batches().into_iter().map(|b| b.partitioned([1])).collect::<Result<Vec<_>, _>>()?;
+        self.send_columns(path, &[t], columns)
+    }
+
+    /// Sends `data` as static (timeless) on `path`.
+    pub fn send_static(&mut self, path: &str, data: &dyn AsComponents) -> Result<()> {
+        let chunk_id = ChunkId::from_tuid(self.next_tuid());
+        let row_ids = self.row_ids(1);
+        let components: ChunkComponents = data
+            .as_serialized_batches()
+            .into_iter()
+            .map(|b| b.partitioned([1]).map(|c| (c.descriptor, c.list_array)))
+            .collect::<Result<_, _>>()?;
+        let chunk = Chunk::from_native_row_ids(chunk_id, path.into(), Some(true), &row_ids, Default::default(), components)
+            .with_context(|| format!("building the static Rerun chunk for {path}"))?;
+        self.stream.send_chunk(chunk);
+        Ok(())
+    }
+}
+
+/// Short, path-friendly joint name: side prefix and `_joint` dropped, `shoulder` → `sh`,
+/// `wrist` → `wr` (`left_shoulder_pitch_joint` → `sh_pitch`); anything else kept, with characters
+/// that are not `[A-Za-z0-9_]` replaced by `_`.
+pub fn short_joint_name(urdf_name: &str) -> String {
+    let mut s = urdf_name;
+    for prefix in ["left_", "right_"] {
+        if let Some(rest) = s.strip_prefix(prefix) {
+            s = rest;
+        }
+    }
+    let s = s.strip_suffix("_joint").unwrap_or(s);
+    let s = s.replace("shoulder", "sh").replace("wrist", "wr");
+    s.chars().map(|c| if c.is_ascii_alphanumeric() || c == '_' { c } else { '_' }).collect()
+}

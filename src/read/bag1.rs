@@ -1,0 +1,870 @@
+//! ROS 1 bag files (format 2.0): connection records carry each topic's message definition,
+//! messages live in chunks (uncompressed, bz2 or lz4), and an index at the end of the file lists
+//! connections and chunks.
+//!
+//! The index is used when present; a bag that was not closed properly (no index, or an index
+//! past the end of a truncated file) is scanned record by record instead. Reading streams chunk
+//! by chunk: each chunk's messages are sorted by time and chunks whose time ranges overlap are
+//! merged, so messages come out in time order while only the overlapping chunks are in memory.
+//! A damaged or truncated file is read up to the damage, with a warning naming the byte offset.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::{Read, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use super::db3::{rate_hz, resolve_schema, session_info};
+use super::msgdef::MsgSchema;
+use super::{
+    Channel, Encoding, MessageRef, MessageSource, OpenOptions, ReadError, ReadSummary, SessionInfo,
+    TopicInfo,
+};
+
+const MAGIC: &[u8] = b"#ROSBAG V2.0\n";
+const OP_MESSAGE_DATA: u8 = 0x02;
+const OP_BAG_HEADER: u8 = 0x03;
+const OP_INDEX_DATA: u8 = 0x04;
+const OP_CHUNK: u8 = 0x05;
+const OP_CHUNK_INFO: u8 = 0x06;
+const OP_CONNECTION: u8 = 0x07;
+
+/// A ROS 1 bag opened for reading.
+pub struct Ros1BagSource {
+    path: PathBuf,
+    file: File,
+    file_len: u64,
+    connections: BTreeMap<u32, Connection>,
+    /// Chunks sorted by start time.
+    chunks: Vec<ChunkMeta>,
+    /// Exact per-connection statistics, known after a scan (the index gives them on demand).
+    scanned_stats: Option<BTreeMap<u32, TopicStat>>,
+    /// Damage and fallbacks found while opening, repeated in every read's summary.
+    open_warnings: Vec<String>,
+    /// The scan stopped at damage: reads cannot be complete.
+    damaged: bool,
+    opts: OpenOptions,
+}
+
+struct Connection {
+    topic: String,
+    type_name: String,
+    channel: Result<Arc<Channel>, String>,
+}
+
+#[derive(Debug, Clone)]
+struct ChunkMeta {
+    /// Offset of the chunk record.
+    pos: u64,
+    start_ns: u64,
+    end_ns: u64,
+    /// Messages per connection id.
+    counts: Vec<(u32, u32)>,
+    /// For a chunk cut off by the end of the file: how many data bytes are present.
+    available: Option<u64>,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct TopicStat {
+    count: u64,
+    first_ns: u64,
+    last_ns: u64,
+}
+
+impl TopicStat {
+    fn add(&mut self, t: u64, n: u64) {
+        self.count += n;
+        self.first_ns = self.first_ns.min(t);
+        self.last_ns = self.last_ns.max(t);
+    }
+}
+
+impl Default for TopicStat {
+    fn default() -> Self {
+        TopicStat {
+            count: 0,
+            first_ns: u64::MAX,
+            last_ns: 0,
+        }
+    }
+}
+
+/// A record's header fields (`name=value`) and where its data lies in the file.
+struct RecordAt {
+    header: Vec<u8>,
+    data_offset: u64,
+    data_len: u64,
+}
+
+impl RecordAt {
+    fn end(&self) -> u64 {
+        self.data_offset + self.data_len
+    }
+}
+
+/// Why a record could not be read.
+enum RecordError {
+    /// The file ends inside the record header.
+    Truncated,
+    /// An I/O error.
+    Io(std::io::Error),
+}
+
+/// Iterate the `name=value` fields of a record header.
+fn header_fields(header: &[u8]) -> impl Iterator<Item = Result<(&[u8], &[u8]), String>> {
+    let mut rest = header;
+    std::iter::from_fn(move || {
+        if rest.is_empty() {
+            return None;
+        }
+        let Some((len, tail)) = rest.split_first_chunk::<4>() else {
+            rest = &[];
+            return Some(Err("header field length cut off".into()));
+        };
+        let len = u32::from_le_bytes(*len) as usize;
+        let Some((field, tail)) = tail.split_at_checked(len) else {
+            rest = &[];
+            return Some(Err(format!(
+                "header field of {len} bytes overruns the header"
+            )));
+        };
+        rest = tail;
+        Some(match field.iter().position(|&b| b == b'=') {
+            Some(eq) => Ok((&field[..eq], &field[eq + 1..])),
+            None => Err("header field without '='".into()),
+        })
+    })
+}
+
+/// Parsed header fields with typed lookups.
+struct Fields<'a>(Vec<(&'a [u8], &'a [u8])>);
+
+impl<'a> Fields<'a> {
+    fn parse(header: &'a [u8]) -> Result<Fields<'a>, String> {
+        header_fields(header)
+            .collect::<Result<Vec<_>, _>>()
+            .map(Fields)
+    }
+
+    fn bytes(&self, name: &str) -> Result<&'a [u8], String> {
+        self.0
+            .iter()
+            .find(|(n, _)| *n == name.as_bytes())
+            .map(|(_, v)| *v)
+            .ok_or_else(|| format!("record has no field {name:?}"))
+    }
+
+    fn string(&self, name: &str) -> Result<String, String> {
+        Ok(String::from_utf8_lossy(self.bytes(name)?).into_owned())
+    }
+
+    fn op(&self) -> Result<u8, String> {
+        match self.bytes("op")? {
+            [op] => Ok(*op),
+            other => Err(format!("op field has {} bytes, expected 1", other.len())),
+        }
+    }
+
+    fn u32(&self, name: &str) -> Result<u32, String> {
+        let b = self.bytes(name)?;
+        b.try_into()
+            .map(u32::from_le_bytes)
+            .map_err(|_| format!("field {name:?} has {} bytes, expected 4", b.len()))
+    }
+
+    fn u64(&self, name: &str) -> Result<u64, String> {
+        let b = self.bytes(name)?;
+        b.try_into()
+            .map(u64::from_le_bytes)
+            .map_err(|_| format!("field {name:?} has {} bytes, expected 8", b.len()))
+    }
+
+    /// A ROS 1 `time` (u32 seconds, u32 nanoseconds) as nanoseconds.
+    fn time_ns(&self, name: &str) -> Result<u64, String> {
+        let b = self.bytes(name)?;
+        time_ns(b).ok_or_else(|| format!("field {name:?} has {} bytes, expected 8", b.len()))
+    }
+}
+
+fn time_ns(b: &[u8]) -> Option<u64> {
+    let (sec, nsec) = b.split_first_chunk::<4>()?;
+    let nsec: [u8; 4] = nsec.try_into().ok()?;
+    Some(u32::from_le_bytes(*sec) as u64 * 1_000_000_000 + u32::from_le_bytes(nsec) as u64)
+}
+
+impl Ros1BagSource {
+    /// Open a ROS 1 bag (format 2.0). Fails only when the file is not a bag or its bag header
+    /// is unreadable; later damage becomes warnings.
+    pub fn open(path: &Path, opts: &OpenOptions) -> Result<Ros1BagSource, ReadError> {
+        let io = |source| ReadError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        let mut file = File::open(path).map_err(io)?;
+        let file_len = file.metadata().map_err(io)?.len();
+        let mut magic = [0u8; 13];
+        let got = read_up_to(&mut file, &mut magic).map_err(io)?;
+        if magic[..got] != *MAGIC {
+            let what = if magic.starts_with(b"#ROSBAG V") {
+                let version = String::from_utf8_lossy(&magic[9..got]).trim().to_string();
+                format!("ROS bag format version {version} is not supported (supported: 2.0)")
+            } else {
+                "not a ROS 1 bag (no `#ROSBAG V2.0` line)".to_string()
+            };
+            return Err(ReadError::Format {
+                path: path.to_path_buf(),
+                offset: 0,
+                what,
+            });
+        }
+        let mut bag = Ros1BagSource {
+            path: path.to_path_buf(),
+            file,
+            file_len,
+            connections: BTreeMap::new(),
+            chunks: Vec::new(),
+            scanned_stats: None,
+            open_warnings: Vec::new(),
+            damaged: false,
+            opts: opts.clone(),
+        };
+        let header_pos = MAGIC.len() as u64;
+        let format_error = |what: String| ReadError::Format {
+            path: path.to_path_buf(),
+            offset: header_pos,
+            what,
+        };
+        let header = match bag.record_at(header_pos) {
+            Ok(r) => r,
+            Err(RecordError::Io(e)) => return Err(io(e)),
+            Err(RecordError::Truncated) => {
+                return Err(format_error(
+                    "file ends inside the bag header record".into(),
+                ));
+            }
+        };
+        let fields = Fields::parse(&header.header).map_err(&format_error)?;
+        if fields.op().map_err(&format_error)? != OP_BAG_HEADER {
+            return Err(format_error("first record is not a bag header".into()));
+        }
+        let index_pos = fields.u64("index_pos").map_err(&format_error)?;
+        let conn_count = fields.u32("conn_count").map_err(&format_error)?;
+        let chunk_count = fields.u32("chunk_count").map_err(&format_error)?;
+        let first_record = header.end();
+
+        let indexed = if index_pos == 0 {
+            bag.open_warnings.push(format!(
+                "{}: bag was not closed properly (no index); scanned the whole file",
+                path.display()
+            ));
+            false
+        } else if index_pos >= file_len {
+            bag.open_warnings.push(format!(
+                "{}: index position {index_pos} is beyond the end of the file ({file_len} bytes): \
+                 file truncated? scanned the file instead",
+                path.display()
+            ));
+            false
+        } else {
+            match bag.read_index(index_pos, conn_count, chunk_count) {
+                Ok(()) => true,
+                Err(e) => {
+                    bag.open_warnings.push(format!(
+                        "{}: index at offset {index_pos} is unreadable ({e}); scanned the file instead",
+                        path.display()
+                    ));
+                    bag.connections.clear();
+                    bag.chunks.clear();
+                    false
+                }
+            }
+        };
+        if !indexed {
+            bag.scan(first_record).map_err(io)?;
+        }
+        bag.chunks.sort_by_key(|c| (c.start_ns, c.pos));
+        Ok(bag)
+    }
+
+    /// Read the record starting at `offset` (its header; the data is left in the file).
+    fn record_at(&mut self, offset: u64) -> Result<RecordAt, RecordError> {
+        let mut len = [0u8; 4];
+        self.read_exact_at(offset, &mut len)?;
+        let header_len = u32::from_le_bytes(len) as u64;
+        if offset + 8 + header_len > self.file_len {
+            return Err(RecordError::Truncated);
+        }
+        let mut header = vec![0u8; header_len as usize];
+        self.read_exact_at(offset + 4, &mut header)?;
+        self.read_exact_at(offset + 4 + header_len, &mut len)?;
+        Ok(RecordAt {
+            header,
+            data_offset: offset + 8 + header_len,
+            data_len: u32::from_le_bytes(len) as u64,
+        })
+    }
+
+    fn read_exact_at(&mut self, offset: u64, buf: &mut [u8]) -> Result<(), RecordError> {
+        if offset + buf.len() as u64 > self.file_len {
+            return Err(RecordError::Truncated);
+        }
+        self.file
+            .seek(SeekFrom::Start(offset))
+            .and_then(|_| self.file.read_exact(buf))
+            .map_err(RecordError::Io)
+    }
+
+    /// Read `len` bytes at `offset` (bounded by the file length, so a damaged length cannot
+    /// allocate more than the file holds).
+    fn read_data(&mut self, offset: u64, len: u64) -> Result<Vec<u8>, RecordError> {
+        if offset + len > self.file_len {
+            return Err(RecordError::Truncated);
+        }
+        let mut buf = vec![0u8; len as usize];
+        self.read_exact_at(offset, &mut buf)?;
+        Ok(buf)
+    }
+
+    /// Read the connection and chunk-info records at the end of a closed bag.
+    fn read_index(
+        &mut self,
+        index_pos: u64,
+        conn_count: u32,
+        chunk_count: u32,
+    ) -> Result<(), String> {
+        let mut offset = index_pos;
+        for _ in 0..(conn_count as u64 + chunk_count as u64) {
+            let record = self
+                .record_at(offset)
+                .map_err(|e| record_error_text(e, offset))?;
+            let fields =
+                Fields::parse(&record.header).map_err(|e| format!("{e} at offset {offset}"))?;
+            match fields.op()? {
+                OP_CONNECTION => {
+                    let data = self
+                        .read_data(record.data_offset, record.data_len)
+                        .map_err(|e| record_error_text(e, offset))?;
+                    self.add_connection(&fields, &data)?;
+                }
+                OP_CHUNK_INFO => {
+                    let data = self
+                        .read_data(record.data_offset, record.data_len)
+                        .map_err(|e| record_error_text(e, offset))?;
+                    let pos = fields.u64("chunk_pos")?;
+                    if pos >= self.file_len {
+                        return Err(format!(
+                            "chunk position {pos} is beyond the end of the file"
+                        ));
+                    }
+                    let counts = data
+                        .chunks_exact(8)
+                        .map(|c| {
+                            (
+                                u32::from_le_bytes([c[0], c[1], c[2], c[3]]),
+                                u32::from_le_bytes([c[4], c[5], c[6], c[7]]),
+                            )
+                        })
+                        .collect();
+                    self.chunks.push(ChunkMeta {
+                        pos,
+                        start_ns: fields.time_ns("start_time")?,
+                        end_ns: fields.time_ns("end_time")?,
+                        counts,
+                        available: None,
+                    });
+                }
+                op => return Err(format!("unexpected record op {op:#04x} at offset {offset}")),
+            }
+            offset = record.end();
+        }
+        Ok(())
+    }
+
+    /// Register a connection record (header `conn`, `topic`; data = fields with `type` and
+    /// `message_definition`) and resolve its definition. Repeated records are ignored.
+    fn add_connection(&mut self, fields: &Fields, data: &[u8]) -> Result<(), String> {
+        let id = fields.u32("conn")?;
+        if self.connections.contains_key(&id) {
+            return Ok(());
+        }
+        let topic = fields.string("topic")?;
+        let info = Fields::parse(data)?;
+        let type_name = info.string("type")?;
+        let definition = info.string("message_definition").unwrap_or_default();
+        let embedded = (!definition.trim().is_empty())
+            .then(|| MsgSchema::parse_ros1msg(&type_name, &definition));
+        let channel =
+            resolve_schema(&self.path, &topic, &type_name, embedded, &self.opts).map(|schema| {
+                Arc::new(Channel {
+                    topic: topic.clone(),
+                    type_name: type_name.clone(),
+                    encoding: Encoding::Ros1,
+                    schema: Arc::new(schema),
+                })
+            });
+        self.connections.insert(
+            id,
+            Connection {
+                topic,
+                type_name,
+                channel,
+            },
+        );
+        Ok(())
+    }
+
+    /// Walk every record from `offset` (bag not closed, or index unusable): collect connections,
+    /// chunk time ranges and per-connection statistics; stop at the first damage with a warning.
+    fn scan(&mut self, mut offset: u64) -> Result<(), std::io::Error> {
+        let mut stats: BTreeMap<u32, TopicStat> = BTreeMap::new();
+        while offset < self.file_len {
+            let record = match self.record_at(offset) {
+                Ok(r) => r,
+                Err(RecordError::Io(e)) => return Err(e),
+                Err(RecordError::Truncated) => {
+                    self.warn_truncated(offset, "record header");
+                    break;
+                }
+            };
+            let fields = match Fields::parse(&record.header).and_then(|f| f.op().map(|op| (f, op)))
+            {
+                Ok(f) => f,
+                Err(e) => {
+                    self.warn_damaged(offset, &e);
+                    break;
+                }
+            };
+            let (fields, op) = fields;
+            let cut = record.end() > self.file_len;
+            match op {
+                OP_CHUNK => {
+                    let available = record.data_len.min(self.file_len - record.data_offset);
+                    let chunk = ChunkMeta {
+                        pos: offset,
+                        start_ns: u64::MAX,
+                        end_ns: 0,
+                        counts: Vec::new(),
+                        available: cut.then_some(available),
+                    };
+                    match self.load_chunk(&chunk, None) {
+                        Ok(loaded) => {
+                            let mut counts: BTreeMap<u32, u32> = BTreeMap::new();
+                            let mut meta = chunk;
+                            for m in &loaded.messages {
+                                *counts.entry(m.conn).or_default() += 1;
+                                stats.entry(m.conn).or_default().add(m.time_ns, 1);
+                                meta.start_ns = meta.start_ns.min(m.time_ns);
+                                meta.end_ns = meta.end_ns.max(m.time_ns);
+                            }
+                            meta.counts = counts.into_iter().collect();
+                            if cut {
+                                self.damaged = true;
+                                self.open_warnings.push(format!(
+                                    "{}: file truncated inside the chunk at byte offset {offset} \
+                                     ({available} of its {} bytes present): {} messages recovered from it, \
+                                     the rest of the file is lost",
+                                    self.path.display(),
+                                    record.data_len,
+                                    loaded.messages.len()
+                                ));
+                            }
+                            if !loaded.messages.is_empty() {
+                                self.chunks.push(meta);
+                            }
+                        }
+                        Err(e) => {
+                            self.warn_damaged(offset, &e);
+                            break;
+                        }
+                    }
+                }
+                OP_CONNECTION if !cut => {
+                    let data = match self.read_data(record.data_offset, record.data_len) {
+                        Ok(d) => d,
+                        Err(RecordError::Io(e)) => return Err(e),
+                        Err(RecordError::Truncated) => Vec::new(),
+                    };
+                    if let Err(e) = self.add_connection(&fields, &data) {
+                        self.warn_damaged(offset, &e);
+                        break;
+                    }
+                }
+                OP_INDEX_DATA | OP_CHUNK_INFO | OP_CONNECTION | OP_MESSAGE_DATA | OP_BAG_HEADER => {
+                }
+                other => {
+                    self.warn_damaged(offset, &format!("unknown record op {other:#04x}"));
+                    break;
+                }
+            }
+            if cut {
+                if op != OP_CHUNK {
+                    self.warn_truncated(offset, "record");
+                }
+                break;
+            }
+            offset = record.end();
+        }
+        self.scanned_stats = Some(stats);
+        Ok(())
+    }
+
+    fn warn_truncated(&mut self, offset: u64, what: &str) {
+        self.damaged = true;
+        self.open_warnings.push(format!(
+            "{}: file truncated: {what} at byte offset {offset} is cut off by the end of the file \
+             ({} bytes); messages before it were read",
+            self.path.display(),
+            self.file_len
+        ));
+    }
+
+    fn warn_damaged(&mut self, offset: u64, what: &str) {
+        self.damaged = true;
+        self.open_warnings.push(format!(
+            "{}: damaged record at byte offset {offset} ({what}); messages before it were read, \
+             the rest of the file ({} bytes) is skipped",
+            self.path.display(),
+            self.file_len.saturating_sub(offset)
+        ));
+    }
+
+    /// Read, decompress and parse one chunk: its connection records are registered, its
+    /// messages (of `wanted` connections, or all) returned sorted by time.
+    fn load_chunk(
+        &mut self,
+        meta: &ChunkMeta,
+        wanted: Option<&[u32]>,
+    ) -> Result<LoadedChunk, String> {
+        let record = self
+            .record_at(meta.pos)
+            .map_err(|e| record_error_text(e, meta.pos))?;
+        let fields = Fields::parse(&record.header)?;
+        if fields.op()? != OP_CHUNK {
+            return Err(format!("record at offset {} is not a chunk", meta.pos));
+        }
+        let compression = fields.string("compression")?;
+        let size = fields.u32("size")? as usize;
+        let len = meta.available.unwrap_or(record.data_len);
+        let raw = self
+            .read_data(record.data_offset, len)
+            .map_err(|e| record_error_text(e, record.data_offset))?;
+        let truncated = meta.available.is_some();
+        let data = match compression.as_str() {
+            "none" => raw,
+            "bz2" => decompress(bzip2::read::BzDecoder::new(&raw[..]), size, truncated)
+                .map_err(|e| format!("bz2 chunk does not decompress: {e}"))?,
+            "lz4" => decompress(
+                lz4_flex::frame::FrameDecoder::new(&raw[..]),
+                size,
+                truncated,
+            )
+            .map_err(|e| format!("lz4 chunk does not decompress: {e}"))?,
+            other => {
+                return Err(format!(
+                    "unsupported chunk compression {other:?} (supported: none, bz2, lz4)"
+                ));
+            }
+        };
+        if !truncated && data.len() != size {
+            return Err(format!(
+                "chunk decompressed to {} bytes, its header says {size}",
+                data.len()
+            ));
+        }
+        // Offsets of uncompressed chunks point at the message record itself.
+        let base = (compression == "none").then_some(record.data_offset);
+        let mut messages = Vec::new();
+        let mut at = 0usize;
+        while let Some(header_len) = data.get(at..at + 4) {
+            let header_len =
+                u32::from_le_bytes([header_len[0], header_len[1], header_len[2], header_len[3]])
+                    as usize;
+            let header_end = at + 4 + header_len;
+            let Some(data_len) = data.get(header_end..header_end + 4) else {
+                break;
+            };
+            let data_len =
+                u32::from_le_bytes([data_len[0], data_len[1], data_len[2], data_len[3]]) as usize;
+            let data_start = header_end + 4;
+            let data_end = data_start + data_len;
+            if data_end > data.len() {
+                if truncated {
+                    break;
+                }
+                return Err(format!(
+                    "record at byte {at} of the chunk overruns the chunk ({} bytes)",
+                    data.len()
+                ));
+            }
+            let fields = Fields::parse(&data[at + 4..header_end])
+                .map_err(|e| format!("record at byte {at} of the chunk: {e}"))?;
+            match fields.op()? {
+                OP_MESSAGE_DATA => {
+                    let conn = fields.u32("conn")?;
+                    if wanted.is_none_or(|w| w.contains(&conn)) {
+                        messages.push(ChunkMessage {
+                            time_ns: fields.time_ns("time")?,
+                            conn,
+                            start: data_start,
+                            end: data_end,
+                            file_offset: base.map_or(meta.pos, |b| b + at as u64),
+                        });
+                    }
+                }
+                OP_CONNECTION => self.add_connection(&fields, &data[data_start..data_end])?,
+                _ => {}
+            }
+            at = data_end;
+        }
+        // Stable: messages with equal stamps keep their recorded order.
+        messages.sort_by_key(|m| m.time_ns);
+        Ok(LoadedChunk {
+            data,
+            messages,
+            next: 0,
+        })
+    }
+
+    /// Per-connection first/last stamps from the index data records that follow each chunk.
+    fn indexed_stats(&mut self) -> Result<BTreeMap<u32, TopicStat>, String> {
+        let mut stats: BTreeMap<u32, TopicStat> = BTreeMap::new();
+        for c in self.chunks.clone() {
+            let chunk = self
+                .record_at(c.pos)
+                .map_err(|e| record_error_text(e, c.pos))?;
+            let mut offset = chunk.end();
+            for _ in 0..c.counts.len() {
+                let record = self
+                    .record_at(offset)
+                    .map_err(|e| record_error_text(e, offset))?;
+                let fields = Fields::parse(&record.header)?;
+                if fields.op()? != OP_INDEX_DATA {
+                    return Err(format!("expected an index data record at offset {offset}"));
+                }
+                let conn = fields.u32("conn")?;
+                let entries = self
+                    .read_data(record.data_offset, record.data_len)
+                    .map_err(|e| record_error_text(e, offset))?;
+                let stat = stats.entry(conn).or_default();
+                for e in entries.chunks_exact(12) {
+                    if let Some(t) = time_ns(&e[..8]) {
+                        stat.add(t, 1);
+                    }
+                }
+                offset = record.end();
+            }
+        }
+        Ok(stats)
+    }
+
+    /// Connection ids to deliver for `wanted` topics; errors for an explicitly requested topic
+    /// without a definition, warnings for those that only come along with "all topics".
+    fn select(
+        &self,
+        wanted: Option<&[&str]>,
+        warnings: &mut Vec<String>,
+    ) -> Result<Vec<u32>, ReadError> {
+        let mut ids = Vec::new();
+        for (id, c) in &self.connections {
+            if !wanted.is_none_or(|w| w.contains(&c.topic.as_str())) {
+                continue;
+            }
+            match &c.channel {
+                Ok(_) => ids.push(*id),
+                Err(e) if wanted.is_some() => return Err(ReadError::Other(e.clone())),
+                Err(e) => {
+                    let w = format!("{e}; topic skipped");
+                    if !warnings.contains(&w) {
+                        warnings.push(w);
+                    }
+                }
+            }
+        }
+        Ok(ids)
+    }
+}
+
+struct ChunkMessage {
+    time_ns: u64,
+    conn: u32,
+    start: usize,
+    end: usize,
+    file_offset: u64,
+}
+
+struct LoadedChunk {
+    data: Vec<u8>,
+    messages: Vec<ChunkMessage>,
+    next: usize,
+}
+
+impl LoadedChunk {
+    fn head_time(&self) -> Option<u64> {
+        self.messages.get(self.next).map(|m| m.time_ns)
+    }
+}
+
+/// Decompress a whole chunk; for a chunk cut off by the end of the file keep what came out.
+fn decompress(
+    mut reader: impl Read,
+    size: usize,
+    truncated: bool,
+) -> Result<Vec<u8>, std::io::Error> {
+    // The header's size is only a hint for the allocation: it comes from the file.
+    let mut out = Vec::with_capacity(size.min(64 << 20));
+    match reader.read_to_end(&mut out) {
+        Ok(_) => Ok(out),
+        Err(_) if truncated => Ok(out),
+        Err(e) => Err(e),
+    }
+}
+
+fn record_error_text(e: RecordError, offset: u64) -> String {
+    match e {
+        RecordError::Truncated => {
+            format!("record at offset {offset} is cut off by the end of the file")
+        }
+        RecordError::Io(e) => format!("read error at offset {offset}: {e}"),
+    }
+}
+
+/// Like `read_exact` but returns how much was read when the file is shorter.
+fn read_up_to(file: &mut File, buf: &mut [u8]) -> std::io::Result<usize> {
+    let mut got = 0;
+    while got < buf.len() {
+        match file.read(&mut buf[got..])? {
+            0 => break,
+            n => got += n,
+        }
+    }
+    Ok(got)
+}
+
+impl MessageSource for Ros1BagSource {
+    fn format(&self) -> &'static str {
+        "ros1-bag"
+    }
+
+    fn info(&mut self) -> Result<SessionInfo, ReadError> {
+        let mut warnings = self.open_warnings.clone();
+        let stats = match &self.scanned_stats {
+            Some(s) => s.clone(),
+            None => match self.indexed_stats() {
+                Ok(s) => s,
+                Err(e) => {
+                    // Fall back to chunk time ranges: counts stay exact, first/last approximate.
+                    warnings.push(format!(
+                        "{}: index data unreadable ({e}); topic time ranges are chunk ranges",
+                        self.path.display()
+                    ));
+                    let mut s: BTreeMap<u32, TopicStat> = BTreeMap::new();
+                    for c in &self.chunks {
+                        for &(conn, n) in &c.counts {
+                            let st = s.entry(conn).or_default();
+                            st.add(c.start_ns, n as u64);
+                            st.add(c.end_ns, 0);
+                        }
+                    }
+                    s
+                }
+            },
+        };
+        let mut by_topic: BTreeMap<&str, (&str, TopicStat)> = BTreeMap::new();
+        for (id, c) in &self.connections {
+            if let Err(e) = &c.channel {
+                warnings.push(e.clone());
+            }
+            let entry = by_topic
+                .entry(&c.topic)
+                .or_insert((&c.type_name, TopicStat::default()));
+            if let Some(s) = stats.get(id) {
+                entry.1.add(s.first_ns, s.count);
+                entry.1.add(s.last_ns, 0);
+            }
+        }
+        let topics = by_topic
+            .into_iter()
+            .map(|(topic, (type_name, s))| {
+                let first = if s.count == 0 { 0 } else { s.first_ns };
+                TopicInfo {
+                    topic: topic.to_string(),
+                    type_name: type_name.to_string(),
+                    encoding: "ros1".into(),
+                    count: s.count,
+                    first_ns: first,
+                    last_ns: s.last_ns,
+                    rate_hz: rate_hz(s.count, first, s.last_ns),
+                }
+            })
+            .collect();
+        Ok(session_info(&self.path, "ros1-bag", topics, warnings))
+    }
+
+    fn read(
+        &mut self,
+        topics: Option<&[&str]>,
+        visit: &mut dyn FnMut(MessageRef<'_>) -> Result<(), ReadError>,
+    ) -> Result<ReadSummary, ReadError> {
+        let mut summary = ReadSummary {
+            warnings: self.open_warnings.clone(),
+            complete: !self.damaged,
+            messages: 0,
+        };
+        let wanted = self.select(topics, &mut summary.warnings)?;
+        let chunks: Vec<ChunkMeta> = self
+            .chunks
+            .iter()
+            .filter(|c| c.counts.iter().any(|(id, n)| *n > 0 && wanted.contains(id)))
+            .cloned()
+            .collect();
+        let mut next_chunk = 0;
+        let mut loaded: Vec<LoadedChunk> = Vec::new();
+        loop {
+            // The loaded chunk with the earliest pending message.
+            let head = loaded
+                .iter()
+                .enumerate()
+                .filter_map(|(i, c)| c.head_time().map(|t| (t, i)))
+                .min();
+            // Load the next chunk first if it may hold a message at or before that one.
+            if let Some(c) = chunks.get(next_chunk)
+                && head.is_none_or(|(t, _)| c.start_ns <= t)
+            {
+                next_chunk += 1;
+                match self.load_chunk(c, Some(&wanted)) {
+                    Ok(chunk) => loaded.push(chunk),
+                    Err(e) => {
+                        summary.warnings.push(format!(
+                            "{}: damaged chunk at byte offset {} ({e}); read stopped there, \
+                             messages before it were delivered",
+                            self.path.display(),
+                            c.pos
+                        ));
+                        summary.complete = false;
+                        next_chunk = chunks.len();
+                    }
+                }
+                continue;
+            }
+            let Some((_, i)) = head else { break };
+            let chunk = &mut loaded[i];
+            let m = &chunk.messages[chunk.next];
+            chunk.next += 1;
+            if let Some(Ok(channel)) = self.connections.get(&m.conn).map(|c| &c.channel) {
+                visit(MessageRef {
+                    channel,
+                    log_time_ns: m.time_ns,
+                    publish_time_ns: m.time_ns,
+                    data: &chunk.data[m.start..m.end],
+                    file_offset: m.file_offset,
+                })?;
+                summary.messages += 1;
+            }
+            if chunk.head_time().is_none() {
+                // `remove`, not `swap_remove`: equal stamps go to the earlier chunk first.
+                loaded.remove(i);
+            }
+        }
+        Ok(summary)
+    }
+}

@@ -1,0 +1,147 @@
+//! One entry point for every recording format: [`Session::open`] looks at the path (magic
+//! bytes, extension, `metadata.yaml`) and boxes the matching [`MessageSource`].
+
+use std::fs::File;
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+use super::mcap::{MAGIC as MCAP_MAGIC, McapSource};
+use super::{MessageRef, MessageSource, OpenOptions, ReadError, ReadSummary, SessionInfo};
+
+/// First bytes of a ROS 1 bag (format 2.0).
+const ROS1_MAGIC: &[u8] = b"#ROSBAG V2.0\n";
+
+/// Container formats [`Session::open`] recognises.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Format {
+    /// MCAP file.
+    Mcap,
+    /// ROS 2 bag directory (`metadata.yaml` + `.db3` files), or its yaml / a `.db3` inside it.
+    Ros2Bag,
+    /// ROS 1 bag file (format 2.0).
+    Ros1Bag,
+}
+
+/// A recording opened for reading, whatever its container format.
+pub struct Session {
+    path: PathBuf,
+    source: Box<dyn MessageSource>,
+}
+
+impl std::fmt::Debug for Session {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Session")
+            .field("path", &self.path)
+            .field("format", &self.source.format())
+            .finish()
+    }
+}
+
+/// Decide the container format of `path` from magic bytes, extension or directory contents.
+pub fn detect_format(path: &Path) -> Result<Format, ReadError> {
+    let io = |source| ReadError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    if path.is_dir() {
+        if path.join("metadata.yaml").is_file() {
+            return Ok(Format::Ros2Bag);
+        }
+        return Err(ReadError::Other(format!(
+            "{}: directory without metadata.yaml; expected a ROS 2 bag directory",
+            path.display()
+        )));
+    }
+    let mut head = [0u8; 16];
+    let mut file = File::open(path).map_err(io)?;
+    let n = read_up_to(&mut file, &mut head).map_err(io)?;
+    let head = &head[..n];
+    if head.starts_with(MCAP_MAGIC) {
+        return Ok(Format::Mcap);
+    }
+    if head.starts_with(ROS1_MAGIC) {
+        return Ok(Format::Ros1Bag);
+    }
+    if head.starts_with(b"SQLite format 3\0") {
+        return Ok(Format::Ros2Bag);
+    }
+    match path.extension().and_then(|e| e.to_str()) {
+        Some("yaml" | "yml" | "db3") => Ok(Format::Ros2Bag),
+        Some("mcap") => Err(ReadError::Format {
+            path: path.to_path_buf(),
+            offset: 0,
+            what: "not an MCAP file (bad magic bytes)".into(),
+        }),
+        Some("bag") => Err(ReadError::Format {
+            path: path.to_path_buf(),
+            offset: 0,
+            what: "not a ROS 1 bag (expected `#ROSBAG V2.0`)".into(),
+        }),
+        _ => Err(ReadError::Format {
+            path: path.to_path_buf(),
+            offset: 0,
+            what: "unknown recording format (expected MCAP, a ROS 1 .bag or a ROS 2 bag directory)"
+                .into(),
+        }),
+    }
+}
+
+fn read_up_to(file: &mut File, buf: &mut [u8]) -> std::io::Result<usize> {
+    let mut n = 0;
+    while n < buf.len() {
+        match file.read(&mut buf[n..])? {
+            0 => break,
+            k => n += k,
+        }
+    }
+    Ok(n)
+}
+
+impl Session {
+    /// Open a recording: an MCAP file, a ROS 2 bag (directory, its `metadata.yaml` or a `.db3`)
+    /// or a ROS 1 `.bag`.
+    pub fn open(path: &Path, opts: &OpenOptions) -> Result<Session, ReadError> {
+        let format = detect_format(path)?;
+        Ok(Session {
+            path: path.to_path_buf(),
+            source: open_source(format, path, opts)?,
+        })
+    }
+
+    /// Path that was opened.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Container format name (`mcap`, `ros2-sqlite3`, `ros1-bag`).
+    pub fn format(&self) -> &'static str {
+        self.source.format()
+    }
+
+    /// Topics, types, counts, rates, duration and time range.
+    pub fn info(&mut self) -> Result<SessionInfo, ReadError> {
+        self.source.info()
+    }
+
+    /// Stream messages (all, or those of `topics`) in log-time order to `visit`.
+    pub fn read(
+        &mut self,
+        topics: Option<&[&str]>,
+        visit: &mut dyn FnMut(MessageRef<'_>) -> Result<(), ReadError>,
+    ) -> Result<ReadSummary, ReadError> {
+        self.source.read(topics, visit)
+    }
+}
+
+/// The one place that maps a format to its reader.
+fn open_source(
+    format: Format,
+    path: &Path,
+    opts: &OpenOptions,
+) -> Result<Box<dyn MessageSource>, ReadError> {
+    match format {
+        Format::Mcap => Ok(Box::new(McapSource::open(path, opts)?)),
+        Format::Ros2Bag => Ok(Box::new(super::db3::Ros2BagSource::open(path, opts)?)),
+        Format::Ros1Bag => Ok(Box::new(super::bag1::Ros1BagSource::open(path, opts)?)),
+    }
+}

@@ -1,0 +1,468 @@
+//! `g1viz replay`: a [`Recording`] (plus whatever identification and diagnosis add, as
+//! [`ReplayExtras`]) logged to Rerun.
+//!
+//! Entity paths (all scalars are `Scalars` with a static `SeriesLines`/`SeriesPoints` style):
+//! - `robot/<link>` (+ `/visual<k>`): the arm, see [`super::robot3d`]
+//! - `joints/<j>/{q, q_cmd, dq, tau, temperature}`, `<j>` = [`super::short_joint_name`]
+//! - `power/{mbs,bms}/{raw,net}` [W] (net = minus the mean of the readings before the arm first
+//!   moves), `imu/gyro_norm` [rad/s]
+//! - `model/power/{measured_net,predicted}`, `model/error/{sample,trajectory}`,
+//!   `model/terms/<j>/{mechanical,copper,coulomb,viscous}`, `model/terms/interaction/total`
+//! - `trials/log` (TextLog per trial, WARN for rejected ones), `trials/{active,rejected}` (0/1 bands)
+//! - `diagnosis/power/{before,after}`, `diagnosis/error/{before,after}`, `diagnosis/trials`,
+//!   `diagnosis/summary` (TextDocument)
+//!
+//! Timelines: `time` (timestamp: recording start + t) and `session` (duration since start).
+//! Long series are sent column-wise in chunks of [`ReplayOptions::chunk_rows`] samples, so memory
+//! stays bounded whatever the session length.
+
+use anyhow::{Result, bail};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use rerun::components::TextLogLevel;
+use rerun::{Color, RecordingStream, Scalars, SeriesLines, SeriesPoints, TextDocument, TextLog};
+
+use super::blueprint::{self, LayoutParts};
+use super::{ChunkWriter, robot3d, short_joint_name};
+use crate::N_JOINTS;
+use crate::robot::{ArmJoints, RobotModel};
+use crate::signals::{PowerSeries, Recording};
+
+/// How to log a replay.
+#[derive(Debug, Clone)]
+pub struct ReplayOptions {
+    /// Samples per Rerun chunk (bounds memory; a few thousand keeps chunks near 100 kB).
+    pub chunk_rows: usize,
+    /// Log arm poses at most this often [Hz]; `None` = every recorded sample.
+    pub pose_rate_hz: Option<f64>,
+    /// The arm counts as moving once any joint is this far [rad] from its first sample; power
+    /// readings before that are the idle baseline.
+    pub motion_threshold_rad: f64,
+    /// Progress bar on stderr (shown only when stderr is a terminal).
+    pub progress: bool,
+    /// Also send the viewer layout (blueprint).
+    pub blueprint: bool,
+}
+
+impl Default for ReplayOptions {
+    fn default() -> Self {
+        ReplayOptions {
+            chunk_rows: 4096,
+            pose_rate_hz: None,
+            motion_threshold_rad: 0.02,
+            progress: true,
+            blueprint: true,
+        }
+    }
+}
+
+/// Per-sample predictions of the identified power model (filled by identify/validate).
+#[derive(Debug, Clone, Default)]
+pub struct PowerPrediction {
+    /// Time [s since recording start].
+    pub t: Vec<f64>,
+    /// Measured net power [W] (the model's target).
+    pub measured_net: Vec<f64>,
+    /// Predicted net power [W].
+    pub predicted: Vec<f64>,
+}
+
+/// Per-trajectory (aggregated) prediction, one per trial.
+#[derive(Debug, Clone)]
+pub struct TrajectoryPoint {
+    /// Trial index.
+    pub trial: usize,
+    /// Where to show it [s since recording start] (e.g. trajectory end).
+    pub t: f64,
+    /// Measured mean net power over the trajectory window [W].
+    pub measured: f64,
+    /// Predicted mean net power [W].
+    pub predicted: f64,
+}
+
+/// Per-joint loss-term time series [W] (the model's breakdown per sample).
+#[derive(Debug, Clone, Default)]
+pub struct TermSeries {
+    /// Time [s since recording start].
+    pub t: Vec<f64>,
+    /// a_i τ_i q̇_i.
+    pub mechanical: Vec<[f64; N_JOINTS]>,
+    /// b_i (τ_i² − τ̄0_i²).
+    pub copper: Vec<[f64; N_JOINTS]>,
+    /// c_i |q̇_i|.
+    pub coulomb: Vec<[f64; N_JOINTS]>,
+    /// d_i q̇_i².
+    pub viscous: Vec<[f64; N_JOINTS]>,
+    /// Σ e_ij |q̇_i||q̇_j|.
+    pub interaction: Vec<f64>,
+}
+
+/// Why a trial was rejected.
+#[derive(Debug, Clone)]
+pub struct Rejection {
+    /// Filter name, e.g. `"imu"` or `"3sigma"`.
+    pub filter: String,
+    /// Human-readable statistic, e.g. `"σ|ω| = 0.41 rad/s > 2.5 × median 0.12"`.
+    pub detail: String,
+    /// The statistic's value.
+    pub statistic: f64,
+}
+
+/// A trial's time window and status.
+#[derive(Debug, Clone)]
+pub struct TrialMark {
+    /// Trial index.
+    pub index: usize,
+    /// Window start [s since recording start].
+    pub t_start: f64,
+    /// Window end [s].
+    pub t_end: f64,
+    /// Free text shown in the log (joints moved, speed…).
+    pub label: String,
+    /// Set when a filter rejected the trial.
+    pub rejected: Option<Rejection>,
+}
+
+/// Diagnosis overlay: the power prediction before and after adding the accepted hypotheses.
+#[derive(Debug, Clone, Default)]
+pub struct DiagnosisOverlay {
+    /// Time [s since recording start].
+    pub t: Vec<f64>,
+    /// Measured net power [W].
+    pub measured: Vec<f64>,
+    /// Base-model prediction [W].
+    pub before: Vec<f64>,
+    /// Prediction with the accepted hypotheses [W].
+    pub after: Vec<f64>,
+    /// Trials where the mismatch is located (shown as WARN lines).
+    pub highlighted: Vec<TrialMark>,
+    /// Plain-language summary (markdown).
+    pub summary: String,
+}
+
+/// What later stages add to a replay. Plain data so identify/diagnose need no Rerun types.
+#[derive(Debug, Clone, Default)]
+pub struct ReplayExtras {
+    /// Identified-model predictions per sample.
+    pub prediction: Option<PowerPrediction>,
+    /// Identified-model predictions per trajectory.
+    pub trajectories: Vec<TrajectoryPoint>,
+    /// Loss terms per joint.
+    pub terms: Option<TermSeries>,
+    /// Trial windows with rejection marks.
+    pub trials: Vec<TrialMark>,
+    /// Diagnosis before/after.
+    pub diagnosis: Option<DiagnosisOverlay>,
+}
+
+/// What a replay logged.
+#[derive(Debug, Clone, Default)]
+pub struct ReplaySummary {
+    /// Joint-state samples logged.
+    pub samples: usize,
+    /// Idle baselines subtracted for the net power [W] (MBS, BMS), when there were readings before motion.
+    pub baseline_w: [Option<f64>; 2],
+    /// Problems that did not stop the replay (missing meshes, no idle readings…).
+    pub warnings: Vec<String>,
+}
+
+/// Tuid namespace of the replay's own rows (other writers on the same stream use others).
+const REPLAY_NAMESPACE: u64 = 0x0001_0000_0000_0000;
+
+/// Eight distinguishable colours (one per joint, then reused).
+const PALETTE: [[u8; 3]; 8] = [
+    [31, 119, 180],
+    [255, 127, 14],
+    [44, 160, 44],
+    [214, 39, 40],
+    [148, 103, 189],
+    [140, 86, 75],
+    [227, 119, 194],
+    [127, 127, 127],
+];
+
+fn color(i: usize) -> Color {
+    let [r, g, b] = PALETTE[i % PALETTE.len()];
+    Color::from_rgb(r, g, b)
+}
+
+/// Logs `rec` (and `extras`) to `stream`: arm animation, joint and power series, model/diagnosis
+/// overlays, and the viewer layout.
+pub fn log_replay(
+    rec: &Recording,
+    robot: &RobotModel,
+    arm: &ArmJoints,
+    extras: &ReplayExtras,
+    opts: &ReplayOptions,
+    stream: &RecordingStream,
+) -> Result<ReplaySummary> {
+    check_lengths(rec)?;
+    let joints: Vec<String> = rec.joint_names.iter().map(|n| short_joint_name(n)).collect();
+    if joints.len() != N_JOINTS {
+        bail!("{}: expected {N_JOINTS} arm joint names, got {}", rec.source.display(), joints.len());
+    }
+    let mut summary = ReplaySummary { samples: rec.state.t.len(), ..Default::default() };
+    let mut w = ChunkWriter::new(stream, REPLAY_NAMESPACE, rec.start_ns);
+
+    if opts.blueprint {
+        let parts = LayoutParts {
+            model: extras.prediction.is_some() || extras.terms.is_some() || !extras.trajectories.is_empty(),
+            diagnosis: extras.diagnosis.is_some(),
+            trials: !extras.trials.is_empty(),
+        };
+        blueprint::send_blueprint(stream, &blueprint::replay_layout(&joints, parts))?;
+    }
+    let scene = robot3d::log_static_robot(&mut w, robot, arm, &mut summary.warnings)?;
+    log_styles(&mut w, &joints, !rec.command.t.is_empty())?;
+
+    let chunk = opts.chunk_rows.max(1);
+    let progress = progress_bar(opts.progress, rec.state.t.len() as u64);
+    let st = &rec.state;
+    let mut next_pose_t = f64::NEG_INFINITY;
+    let mut pose_idx: Vec<usize> = Vec::with_capacity(chunk);
+    for start in (0..st.t.len()).step_by(chunk) {
+        let end = (start + chunk).min(st.t.len());
+        let t = &st.t[start..end];
+        for (j, name) in joints.iter().enumerate() {
+            for (signal, data) in [("q", &st.q), ("dq", &st.dq), ("tau", &st.tau), ("temperature", &st.temp)] {
+                scalars(&mut w, &format!("joints/{name}/{signal}"), t, data[start..end].iter().map(|v| v[j]))?;
+            }
+        }
+        scalars(&mut w, "imu/gyro_norm", t, st.gyro[start..end].iter().map(|g| (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt()))?;
+
+        // Poses: every sample, or decimated to pose_rate_hz.
+        pose_idx.clear();
+        for (k, &ti) in t.iter().enumerate() {
+            if ti >= next_pose_t {
+                pose_idx.push(start + k);
+                if let Some(rate) = opts.pose_rate_hz.filter(|r| *r > 0.0) {
+                    next_pose_t = ti + 1.0 / rate;
+                }
+            }
+        }
+        let pose_t: Vec<f64> = pose_idx.iter().map(|&i| st.t[i]).collect();
+        let pose_q: Vec<[f64; N_JOINTS]> = pose_idx.iter().map(|&i| st.q[i]).collect();
+        robot3d::log_link_poses(&mut w, robot, arm, &scene, &pose_t, &pose_q)?;
+        progress.inc((end - start) as u64);
+    }
+    progress.finish_and_clear();
+
+    let cmd = &rec.command;
+    for start in (0..cmd.t.len()).step_by(chunk) {
+        let end = (start + chunk).min(cmd.t.len());
+        for (j, name) in joints.iter().enumerate() {
+            scalars(&mut w, &format!("joints/{name}/q_cmd"), &cmd.t[start..end], cmd.q[start..end].iter().map(|v| v[j]))?;
+        }
+    }
+
+    let motion_t = motion_start(rec, opts.motion_threshold_rad);
+    for (k, (label, series)) in [("mbs", &rec.mbs), ("bms", &rec.bms)].into_iter().enumerate() {
+        if series.t.is_empty() {
+            continue;
+        }
+        scalars_chunked(&mut w, &format!("power/{label}/raw"), &series.t, &series.watts, chunk)?;
+        match idle_baseline(series, motion_t) {
+            Some(base) => {
+                summary.baseline_w[k] = Some(base);
+                let net: Vec<f64> = series.watts.iter().map(|p| p - base).collect();
+                scalars_chunked(&mut w, &format!("power/{label}/net"), &series.t, &net, chunk)?;
+            }
+            None => summary.warnings.push(format!(
+                "{}: no {} power reading before the arm first moves (t = {motion_t:.2} s); net power not logged",
+                rec.source.display(),
+                label.to_uppercase()
+            )),
+        }
+    }
+
+    log_extras(&mut w, &joints, extras, chunk)?;
+    Ok(summary)
+}
+
+/// Every per-sample vector of a series must be as long as its time vector.
+fn check_lengths(rec: &Recording) -> Result<()> {
+    let s = &rec.state;
+    let n = s.t.len();
+    for (field, len) in [("q", s.q.len()), ("dq", s.dq.len()), ("tau", s.tau.len()), ("temp", s.temp.len()), ("gyro", s.gyro.len())] {
+        if len != n {
+            bail!("{}: state.{field} has {len} samples but state.t has {n}", rec.source.display());
+        }
+    }
+    if rec.command.q.len() != rec.command.t.len() {
+        bail!("{}: command.q and command.t differ in length", rec.source.display());
+    }
+    for (label, p) in [("mbs", &rec.mbs), ("bms", &rec.bms)] {
+        if p.watts.len() != p.t.len() {
+            bail!("{}: {label}.watts and {label}.t differ in length", rec.source.display());
+        }
+    }
+    Ok(())
+}
+
+/// Time [s] of the first sample where any joint is more than `threshold` from its first value
+/// (`+∞` when the arm never moves).
+pub fn motion_start(rec: &Recording, threshold: f64) -> f64 {
+    let Some(q0) = rec.state.q.first() else { return f64::INFINITY };
+    rec.state
+        .q
+        .iter()
+        .zip(&rec.state.t)
+        .find(|(q, _)| q.iter().zip(q0).any(|(a, b)| (a - b).abs() > threshold))
+        .map_or(f64::INFINITY, |(_, &t)| t)
+}
+
+/// Mean of the finite readings stamped before `motion_t`; `None` when there are none.
+pub fn idle_baseline(series: &PowerSeries, motion_t: f64) -> Option<f64> {
+    let idle: Vec<f64> = series
+        .t
+        .iter()
+        .zip(&series.watts)
+        .filter(|(t, w)| **t < motion_t && w.is_finite())
+        .map(|(_, &w)| w)
+        .collect();
+    (!idle.is_empty()).then(|| idle.iter().sum::<f64>() / idle.len() as f64)
+}
+
+fn scalars(w: &mut ChunkWriter<'_>, path: &str, t: &[f64], values: impl Iterator<Item = f64>) -> Result<()> {
+    if t.is_empty() {
+        return Ok(());
+    }
+    w.send_columns(path, t, Scalars::new(values).columns_of_unit_batches()?)
+}
+
+fn scalars_chunked(w: &mut ChunkWriter<'_>, path: &str, t: &[f64], v: &[f64], chunk: usize) -> Result<()> {
+    let n = t.len().min(v.len());
+    for start in (0..n).step_by(chunk) {
+        let end = (start + chunk).min(n);
+        scalars(w, path, &t[start..end], v[start..end].iter().copied())?;
+    }
+    Ok(())
+}
+
+fn line(w: &mut ChunkWriter<'_>, path: &str, name: &str, c: Color) -> Result<()> {
+    w.send_static(path, &SeriesLines::new().with_names([name]).with_colors([c]))
+}
+
+/// Static legend names and colours of every series.
+fn log_styles(w: &mut ChunkWriter<'_>, joints: &[String], has_command: bool) -> Result<()> {
+    for (j, name) in joints.iter().enumerate() {
+        for signal in ["q", "dq", "tau", "temperature"] {
+            line(w, &format!("joints/{name}/{signal}"), name, color(j))?;
+        }
+        if has_command {
+            let style = SeriesLines::new().with_names([format!("{name} cmd")]).with_colors([color(j)]).with_widths([0.5]);
+            w.send_static(&format!("joints/{name}/q_cmd"), &style)?;
+        }
+    }
+    line(w, "imu/gyro_norm", "|ω| body", color(7))?;
+    line(w, "power/mbs/raw", "MBS raw", color(0))?;
+    line(w, "power/mbs/net", "MBS net", color(1))?;
+    line(w, "power/bms/raw", "BMS raw", color(2))?;
+    line(w, "power/bms/net", "BMS net", color(3))
+}
+
+fn log_extras(w: &mut ChunkWriter<'_>, joints: &[String], extras: &ReplayExtras, chunk: usize) -> Result<()> {
+    if let Some(p) = &extras.prediction {
+        line(w, "model/power/measured_net", "measured net", color(1))?;
+        line(w, "model/power/predicted", "predicted", color(4))?;
+        line(w, "model/error/sample", "error (measured − predicted)", color(3))?;
+        scalars_chunked(w, "model/power/measured_net", &p.t, &p.measured_net, chunk)?;
+        scalars_chunked(w, "model/power/predicted", &p.t, &p.predicted, chunk)?;
+        let err: Vec<f64> = p.measured_net.iter().zip(&p.predicted).map(|(m, q)| m - q).collect();
+        scalars_chunked(w, "model/error/sample", &p.t, &err, chunk)?;
+    }
+    if !extras.trajectories.is_empty() {
+        w.send_static(
+            "model/error/trajectory",
+            &SeriesPoints::new().with_names(["error per trajectory"]).with_colors([color(6)]).with_marker_sizes([4.0]),
+        )?;
+        let t: Vec<f64> = extras.trajectories.iter().map(|p| p.t).collect();
+        let e: Vec<f64> = extras.trajectories.iter().map(|p| p.measured - p.predicted).collect();
+        scalars_chunked(w, "model/error/trajectory", &t, &e, chunk)?;
+    }
+    if let Some(terms) = &extras.terms {
+        for (j, name) in joints.iter().enumerate() {
+            for (k, (term, data)) in
+                [("mechanical", &terms.mechanical), ("copper", &terms.copper), ("coulomb", &terms.coulomb), ("viscous", &terms.viscous)]
+                    .into_iter()
+                    .enumerate()
+            {
+                let path = format!("model/terms/{name}/{term}");
+                line(w, &path, term, color(k))?;
+                let n = terms.t.len().min(data.len());
+                for start in (0..n).step_by(chunk) {
+                    let end = (start + chunk).min(n);
+                    scalars(w, &path, &terms.t[start..end], data[start..end].iter().map(|v| v[j]))?;
+                }
+            }
+        }
+        line(w, "model/terms/interaction/total", "interaction total", color(4))?;
+        scalars_chunked(w, "model/terms/interaction/total", &terms.t, &terms.interaction, chunk)?;
+    }
+    log_trials(w, "trials", &extras.trials)?;
+    if let Some(d) = &extras.diagnosis {
+        line(w, "diagnosis/power/measured", "measured net", color(1))?;
+        line(w, "diagnosis/power/before", "base model", color(7))?;
+        line(w, "diagnosis/power/after", "with accepted hypotheses", color(2))?;
+        line(w, "diagnosis/error/before", "error base model", color(7))?;
+        line(w, "diagnosis/error/after", "error with hypotheses", color(2))?;
+        scalars_chunked(w, "diagnosis/power/measured", &d.t, &d.measured, chunk)?;
+        scalars_chunked(w, "diagnosis/power/before", &d.t, &d.before, chunk)?;
+        scalars_chunked(w, "diagnosis/power/after", &d.t, &d.after, chunk)?;
+        let eb: Vec<f64> = d.measured.iter().zip(&d.before).map(|(m, p)| m - p).collect();
+        let ea: Vec<f64> = d.measured.iter().zip(&d.after).map(|(m, p)| m - p).collect();
+        scalars_chunked(w, "diagnosis/error/before", &d.t, &eb, chunk)?;
+        scalars_chunked(w, "diagnosis/error/after", &d.t, &ea, chunk)?;
+        log_trials(w, "diagnosis/trials", &d.highlighted)?;
+        w.send_static("diagnosis/summary", &TextDocument::from_markdown(d.summary.clone()))?;
+    }
+    Ok(())
+}
+
+/// A log line per trial at its start and 0/1 bands (`<prefix>/active`, `<prefix>/rejected`).
+fn log_trials(w: &mut ChunkWriter<'_>, prefix: &str, trials: &[TrialMark]) -> Result<()> {
+    if trials.is_empty() {
+        return Ok(());
+    }
+    let mut order: Vec<&TrialMark> = trials.iter().collect();
+    order.sort_by(|a, b| a.t_start.total_cmp(&b.t_start).then(a.index.cmp(&b.index)));
+    let t: Vec<f64> = order.iter().map(|m| m.t_start).collect();
+    let texts: Vec<String> = order
+        .iter()
+        .map(|m| match &m.rejected {
+            Some(r) => format!("trial {}: REJECTED by {} ({}, statistic {:.4}) {}", m.index, r.filter, r.detail, r.statistic, m.label),
+            None => format!("trial {}: {}", m.index, m.label),
+        })
+        .collect();
+    let levels: Vec<TextLogLevel> =
+        order.iter().map(|m| if m.rejected.is_some() { TextLogLevel::WARN.into() } else { TextLogLevel::INFO.into() }).collect();
+    let columns = TextLog::update_fields().with_many_text(texts).with_many_level(levels).columns_of_unit_batches()?;
+    w.send_columns(&format!("{prefix}/log"), &t, columns)?;
+
+    // Bands: 1 inside a window, 0 outside (two points per edge so the step is sharp).
+    for (band, keep) in [("active", false), ("rejected", true)] {
+        let mut bt = Vec::new();
+        let mut bv = Vec::new();
+        for m in order.iter().filter(|m| !keep || m.rejected.is_some()) {
+            bt.extend([m.t_start, m.t_start, m.t_end, m.t_end]);
+            bv.extend([0.0, 1.0, 1.0, 0.0]);
+        }
+        if bt.is_empty() {
+            continue;
+        }
+        let path = format!("{prefix}/{band}");
+        line(w, &path, band, if keep { color(3) } else { color(7) })?;
+        w.send_columns(&path, &bt, Scalars::new(bv).columns_of_unit_batches()?)?;
+    }
+    Ok(())
+}
+
+fn progress_bar(enabled: bool, len: u64) -> ProgressBar {
+    if !enabled || !std::io::IsTerminal::is_terminal(&std::io::stderr()) {
+        return ProgressBar::hidden();
+    }
+    let bar = ProgressBar::with_draw_target(Some(len), ProgressDrawTarget::stderr());
+    if let Ok(style) = ProgressStyle::with_template("replay {bar:40} {pos}/{len} samples ({eta})") {
+        bar.set_style(style);
+    }
+    bar
+}

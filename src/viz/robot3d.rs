@@ -1,0 +1,143 @@
+//! The robot in 3D: static link geometry (URDF meshes via `Asset3D`, primitives otherwise) and
+//! link poses animated from the recorded joint positions.
+//!
+//! Layout (flat): `robot/<link>` carries the link's world pose (relative to `robot`, which is the
+//! model root) as a `Transform3D`; `robot/<link>/visual<k>` carries the visual's origin in the link
+//! frame (static `Transform3D`, with the mesh scale) and its shape. Links whose pose does not
+//! depend on the arm joints get one static pose; the others one pose per logged sample.
+
+use anyhow::Result;
+use nalgebra::Isometry3;
+use rerun::components::FillMode;
+use rerun::{Asset3D, Boxes3D, Color, Cylinders3D, Ellipsoids3D, Quaternion, Transform3D, ViewCoordinates};
+
+use super::ChunkWriter;
+use crate::N_JOINTS;
+use crate::robot::{ArmJoints, Geometry, RobotModel};
+
+/// Which links move with the arm, and their entity paths.
+pub(super) struct ArmScene {
+    /// Entity path of every link (same order as `RobotModel::links`).
+    pub paths: Vec<String>,
+    /// Indices of links whose pose depends on the arm joints.
+    pub moving: Vec<usize>,
+}
+
+fn to_transform(pose: &Isometry3<f64>) -> Transform3D {
+    let t = pose.translation.vector;
+    let q = pose.rotation.quaternion();
+    Transform3D::from_translation_rotation(
+        [t.x as f32, t.y as f32, t.z as f32],
+        Quaternion::from_xyzw([q.i as f32, q.j as f32, q.k as f32, q.w as f32]),
+    )
+}
+
+fn poses_differ(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
+    (a.translation.vector - b.translation.vector).norm() > 1e-9 || a.rotation.angle_to(&b.rotation) > 1e-9
+}
+
+/// Entity-path-safe link name.
+fn link_path(name: &str) -> String {
+    let clean: String = name.chars().map(|c| if c.is_ascii_alphanumeric() || c == '_' || c == '-' { c } else { '_' }).collect();
+    format!("robot/{clean}")
+}
+
+/// Logs the static parts: view coordinates, geometry, the pose of every link that never moves.
+/// Meshes that cannot be read are skipped with a warning (the rest of the robot still shows).
+pub(super) fn log_static_robot(
+    w: &mut ChunkWriter<'_>,
+    robot: &RobotModel,
+    arm: &ArmJoints,
+    warnings: &mut Vec<String>,
+) -> Result<ArmScene> {
+    w.send_static("robot", &ViewCoordinates::RIGHT_HAND_Z_UP())?;
+    // Two different joint vectors: a link moves with the arm iff its pose changes between them
+    // (exact for the tree-structured FK; no joint happens to map both vectors to the same pose).
+    let home = robot.link_poses(arm, &[0.0; N_JOINTS]);
+    let probe = robot.link_poses(arm, &[0.5, -0.4, 0.3, -0.6, 0.7, -0.5, 0.4]);
+    let mut scene = ArmScene { paths: Vec::new(), moving: Vec::new() };
+    for (i, link) in robot.links().iter().enumerate() {
+        let path = link_path(&link.name);
+        let moving = match (home.get(i), probe.get(i)) {
+            (Some(a), Some(b)) => poses_differ(a, b),
+            _ => false,
+        };
+        if moving {
+            scene.moving.push(i);
+        } else if let Some(pose) = home.get(i) {
+            w.send_static(&path, &to_transform(pose))?;
+        }
+        for (k, visual) in link.visuals.iter().enumerate() {
+            let vpath = format!("{path}/visual{k}");
+            let color = visual.rgba.map_or(Color::from_rgb(180, 180, 190), |c| {
+                let u = |x: f32| (x.clamp(0.0, 1.0) * 255.0).round() as u8;
+                Color::from_unmultiplied_rgba(u(c[0]), u(c[1]), u(c[2]), u(c[3]))
+            });
+            let mut origin = to_transform(&visual.origin);
+            match &visual.geometry {
+                Geometry::Mesh { path: mesh, scale } => match Asset3D::from_file_path(mesh) {
+                    Ok(asset) => {
+                        origin = origin.with_scale([scale[0] as f32, scale[1] as f32, scale[2] as f32]);
+                        w.send_static(&vpath, &origin)?;
+                        w.send_static(&vpath, &asset.with_albedo_factor(color.0))?;
+                    }
+                    Err(err) => warnings.push(format!("link {}: mesh {}: {err}; not shown", link.name, mesh.display())),
+                },
+                Geometry::Box { size } => {
+                    w.send_static(&vpath, &origin)?;
+                    let half = [size[0] as f32 / 2.0, size[1] as f32 / 2.0, size[2] as f32 / 2.0];
+                    let shape = Boxes3D::from_half_sizes([half]).with_colors([color]).with_fill_mode(FillMode::Solid);
+                    w.send_static(&vpath, &shape)?;
+                }
+                Geometry::Cylinder { radius, length } => {
+                    w.send_static(&vpath, &origin)?;
+                    let shape = Cylinders3D::from_lengths_and_radii([*length as f32], [*radius as f32])
+                        .with_colors([color])
+                        .with_fill_mode(FillMode::Solid);
+                    w.send_static(&vpath, &shape)?;
+                }
+                Geometry::Sphere { radius } => {
+                    w.send_static(&vpath, &origin)?;
+                    let shape = Ellipsoids3D::from_radii([*radius as f32]).with_colors([color]).with_fill_mode(FillMode::Solid);
+                    w.send_static(&vpath, &shape)?;
+                }
+            }
+        }
+        scene.paths.push(path);
+    }
+    Ok(scene)
+}
+
+/// Logs the poses of the moving links for the samples `t`/`q`, one chunk per link.
+pub(super) fn log_link_poses(
+    w: &mut ChunkWriter<'_>,
+    robot: &RobotModel,
+    arm: &ArmJoints,
+    scene: &ArmScene,
+    t: &[f64],
+    q: &[[f64; N_JOINTS]],
+) -> Result<()> {
+    if scene.moving.is_empty() || t.is_empty() {
+        return Ok(());
+    }
+    let mut translations: Vec<Vec<[f32; 3]>> = vec![Vec::with_capacity(t.len()); scene.moving.len()];
+    let mut rotations: Vec<Vec<Quaternion>> = vec![Vec::with_capacity(t.len()); scene.moving.len()];
+    for qi in q {
+        let poses = robot.link_poses(arm, qi);
+        for (k, &link) in scene.moving.iter().enumerate() {
+            let Some(p) = poses.get(link) else { continue };
+            let v = p.translation.vector;
+            let r = p.rotation.quaternion();
+            translations[k].push([v.x as f32, v.y as f32, v.z as f32]);
+            rotations[k].push(Quaternion::from_xyzw([r.i as f32, r.j as f32, r.k as f32, r.w as f32]));
+        }
+    }
+    for (k, &link) in scene.moving.iter().enumerate() {
+        let columns = Transform3D::update_fields()
+            .with_many_translation(std::mem::take(&mut translations[k]))
+            .with_many_quaternion(std::mem::take(&mut rotations[k]))
+            .columns_of_unit_batches()?;
+        w.send_columns(&scene.paths[link], t, columns)?;
+    }
+    Ok(())
+}

@@ -1,0 +1,265 @@
+//! Rerun output: `.rrd` files written by the replay are read back with rerun's own decoder (and
+//! `rerun rrd verify` when the stock CLI is on PATH) and checked against the input recording.
+#![cfg(feature = "viz")]
+
+use std::collections::BTreeMap;
+use std::io::BufReader;
+use std::path::{Path, PathBuf};
+
+use g1viz::N_JOINTS;
+use g1viz::robot::RobotModel;
+use g1viz::signals::{CommandSeries, PowerSeries, Recording, StateSeries};
+use g1viz::viz::replay::{ReplayExtras, ReplayOptions, Rejection, TrialMark, log_replay};
+use g1viz::viz::{Sink, open_stream, recording_id_for};
+use rerun::external::re_log_encoding::DecoderApp;
+use rerun::external::re_log_types::StoreKind;
+use rerun::log::{Chunk, LogMsg};
+
+const ARM: [&str; N_JOINTS] = [
+    "left_shoulder_pitch_joint",
+    "left_shoulder_roll_joint",
+    "left_shoulder_yaw_joint",
+    "left_elbow_joint",
+    "left_wrist_roll_joint",
+    "left_wrist_pitch_joint",
+    "left_wrist_yaw_joint",
+];
+const START_NS: u64 = 1_700_000_000_000_000_000;
+const N: usize = 500; // 5 s at 100 Hz
+
+/// Synthetic session: still for 1 s, then joint j follows 0.3·sin(2π·0.5·(t−1))·(j+1)/7.
+/// MBS reads 120 W at 0.5 s (idle) and 150, 160, 170, 180 W at 1.5..4.5 s; BMS 135 W + 10 W·k.
+fn synthetic(source: &Path) -> Recording {
+    let mut state = StateSeries::default();
+    for i in 0..N {
+        let t = i as f64 * 0.01;
+        let q: [f64; N_JOINTS] = std::array::from_fn(|j| joint_q(j, t));
+        state.t.push(t);
+        state.q.push(q);
+        state.dq.push([0.1; N_JOINTS]);
+        state.tau.push(std::array::from_fn(|j| j as f64));
+        state.temp.push([30.0; N_JOINTS]);
+        state.gyro.push([0.3, 0.4, 0.0]);
+        state.quat.push([1.0, 0.0, 0.0, 0.0]);
+    }
+    let mut command = CommandSeries::default();
+    for i in 0..(N / 2) {
+        let t = i as f64 * 0.02;
+        command.t.push(t);
+        command.q.push(std::array::from_fn(|j| joint_q(j, t)));
+        command.dq.push([0.0; N_JOINTS]);
+    }
+    let times = vec![0.5, 1.5, 2.5, 3.5, 4.5];
+    Recording {
+        source: source.to_path_buf(),
+        start_ns: START_NS,
+        joint_names: ARM.map(String::from).to_vec(),
+        state,
+        command,
+        mbs: PowerSeries { t: times.clone(), watts: vec![120.0, 150.0, 160.0, 170.0, 180.0] },
+        bms: PowerSeries { t: times, watts: vec![135.0, 145.0, 155.0, 165.0, 175.0] },
+        warnings: vec![],
+    }
+}
+
+fn joint_q(j: usize, t: f64) -> f64 {
+    if t < 1.0 { 0.0 } else { 0.3 * (std::f64::consts::PI * (t - 1.0)).sin() * (j + 1) as f64 / 7.0 }
+}
+
+fn extras() -> ReplayExtras {
+    ReplayExtras {
+        trials: vec![
+            TrialMark { index: 0, t_start: 1.0, t_end: 2.5, label: "joints 0-6".into(), rejected: None },
+            TrialMark {
+                index: 1,
+                t_start: 2.5,
+                t_end: 4.0,
+                label: "joints 0-6".into(),
+                rejected: Some(Rejection { filter: "imu".into(), detail: "σ|ω| = 0.4 > 2.5 × median".into(), statistic: 0.4 }),
+            },
+        ],
+        ..Default::default()
+    }
+}
+
+fn write_rrd(rec: &Recording, out: &Path) -> anyhow::Result<()> {
+    let robot = RobotModel::builtin();
+    let arm = robot.arm(&rec.joint_names)?;
+    let viz = open_stream("g1viz_test", &recording_id_for(rec), &Sink::Save(out.to_path_buf()), &[&rec.source])?;
+    let opts = ReplayOptions { chunk_rows: 128, progress: false, ..Default::default() };
+    log_replay(rec, &robot, &arm, &extras(), &opts, viz.stream())?;
+    viz.finish()
+}
+
+fn decode(path: &Path) -> Vec<LogMsg> {
+    let file = std::fs::File::open(path).expect("open rrd");
+    DecoderApp::decode_lazy(BufReader::new(file)).map(|m| m.expect("decodable rrd message")).collect()
+}
+
+/// Rows per (store kind, entity path, static?) and the chunks of the recording store.
+#[derive(Default)]
+struct Contents {
+    rows: BTreeMap<(bool, String, bool), usize>,
+    chunks: Vec<Chunk>,
+}
+
+fn contents(msgs: &[LogMsg]) -> Contents {
+    let mut c = Contents::default();
+    for msg in msgs {
+        if let LogMsg::ArrowMsg(store, arrow) = msg {
+            let chunk = Chunk::from_arrow_msg(arrow).expect("valid chunk");
+            let blueprint = store.kind() == StoreKind::Blueprint;
+            *c.rows.entry((blueprint, chunk.entity_path().to_string(), chunk.is_static())).or_default() += chunk.num_rows();
+            if !blueprint {
+                c.chunks.push(chunk);
+            }
+        }
+    }
+    c
+}
+
+fn rows(c: &Contents, path: &str) -> usize {
+    c.rows.get(&(false, path.to_owned(), false)).copied().unwrap_or(0)
+}
+
+fn input_file(dir: &Path) -> PathBuf {
+    let p = dir.join("session.mcap");
+    std::fs::write(&p, b"not really an mcap; only its name and size matter here").unwrap();
+    p
+}
+
+#[test]
+fn rrd_has_expected_entities_and_rows() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = synthetic(&input_file(dir.path()));
+    let out = dir.path().join("out.rrd");
+    write_rrd(&rec, &out).unwrap();
+    let msgs = decode(&out);
+    let c = contents(&msgs);
+
+    for j in ["sh_pitch", "sh_roll", "sh_yaw", "elbow", "wr_roll", "wr_pitch", "wr_yaw"] {
+        for s in ["q", "dq", "tau", "temperature"] {
+            assert_eq!(rows(&c, &format!("/joints/{j}/{s}")), N, "joints/{j}/{s}");
+        }
+        assert_eq!(rows(&c, &format!("/joints/{j}/q_cmd")), N / 2, "joints/{j}/q_cmd");
+    }
+    assert_eq!(rows(&c, "/imu/gyro_norm"), N);
+    for p in ["mbs", "bms"] {
+        assert_eq!(rows(&c, &format!("/power/{p}/raw")), 5);
+        assert_eq!(rows(&c, &format!("/power/{p}/net")), 5);
+    }
+    // Every arm link is animated once per sample; the torso is static.
+    assert_eq!(rows(&c, "/robot/left_wrist_yaw_link"), N);
+    assert_eq!(rows(&c, "/robot/left_shoulder_pitch_link"), N);
+    assert_eq!(rows(&c, "/robot/torso_link"), 0);
+    assert_eq!(c.rows.get(&(false, "/robot/torso_link".into(), true)), Some(&1));
+    assert_eq!(rows(&c, "/trials/log"), 2);
+    // The blueprint went into its own store, with a viewport.
+    assert!(c.rows.contains_key(&(true, "/viewport".into(), false)), "no blueprint viewport: {:?}", c.rows.keys());
+    assert!(msgs.iter().any(|m| matches!(m, LogMsg::BlueprintActivationCommand(_))));
+}
+
+/// Values read back through rerun's decoder equal the input (formula above) and the hand-computed net power.
+#[test]
+fn rrd_values_match_input() {
+    use rerun::external::arrow::array::{Array, AsArray};
+    use rerun::external::arrow::datatypes::Float64Type;
+    let dir = tempfile::tempdir().unwrap();
+    let rec = synthetic(&input_file(dir.path()));
+    let out = dir.path().join("out.rrd");
+    write_rrd(&rec, &out).unwrap();
+    let c = contents(&decode(&out));
+
+    let series = |path: &str| -> Vec<(i64, f64)> {
+        let mut v = Vec::new();
+        for chunk in c.chunks.iter().filter(|ch| ch.entity_path().to_string() == path) {
+            let times = chunk.timelines().iter().find(|(name, _)| name.as_str() == "time").expect("time timeline").1.times_raw().to_vec();
+            let (_, list) = chunk.components().iter().next().expect("one component");
+            let values = list.values().as_primitive::<Float64Type>();
+            assert_eq!(values.len(), chunk.num_rows());
+            v.extend(times.into_iter().zip(values.values().iter().copied()));
+        }
+        v.sort_by_key(|p| p.0);
+        v
+    };
+    let elbow = series("/joints/elbow/q");
+    assert_eq!(elbow.len(), N);
+    for (i, (t_ns, q)) in elbow.iter().enumerate() {
+        assert_eq!(*t_ns, START_NS as i64 + i as i64 * 10_000_000);
+        assert!((q - joint_q(3, i as f64 * 0.01)).abs() < 1e-12);
+    }
+    // Baseline = the single reading before the arm moves (120 W at 0.5 s): net = raw − 120.
+    let net: Vec<f64> = series("/power/mbs/net").into_iter().map(|p| p.1).collect();
+    assert_eq!(net, vec![0.0, 30.0, 40.0, 50.0, 60.0]);
+    let gyro: Vec<f64> = series("/imu/gyro_norm").into_iter().map(|p| p.1).collect();
+    assert!(gyro.iter().all(|g| (g - 0.5).abs() < 1e-12));
+}
+
+/// Two runs on the same input decode to the same messages (ids, timelines, data, blueprint).
+#[test]
+fn rrd_is_deterministic() {
+    let dir = tempfile::tempdir().unwrap();
+    let rec = synthetic(&input_file(dir.path()));
+    let (a, b) = (dir.path().join("a.rrd"), dir.path().join("b.rrd"));
+    write_rrd(&rec, &a).unwrap();
+    write_rrd(&rec, &b).unwrap();
+    let (ma, mb) = (decode(&a), decode(&b));
+    assert_eq!(ma.len(), mb.len());
+    assert!(ma == mb, "decoded messages differ between two runs");
+    // Byte level: everything but the footer (whose per-store manifests the SDK orders by a
+    // HashMap) is identical, and so is the length.
+    let (ba, bb) = (std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
+    assert_eq!(ba.len(), bb.len());
+    let first_diff = ba.iter().zip(&bb).position(|(x, y)| x != y);
+    if let Some(pos) = first_diff {
+        assert!(ba.len() - pos < 4096, "files differ at byte {pos} of {}, before the footer", ba.len());
+    }
+}
+
+#[test]
+fn refuses_to_overwrite_input() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = input_file(dir.path());
+    let before = std::fs::read(&input).unwrap();
+    let rec = synthetic(&input);
+    // Same file, spelled differently.
+    let sneaky = dir.path().join(".").join("session.mcap");
+    let err = open_stream("g1viz_test", "x", &Sink::Save(sneaky), &[&input]).err().expect("must refuse");
+    assert!(err.to_string().contains("refusing"), "{err}");
+    assert_eq!(std::fs::read(&input).unwrap(), before);
+    // And no temporary file was left behind.
+    let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert_eq!(names.len(), 1, "{names:?}");
+    drop(rec);
+}
+
+#[test]
+fn unfinished_output_leaves_no_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("never.rrd");
+    let viz = open_stream("g1viz_test", "x", &Sink::Save(out.clone()), &[]).unwrap();
+    drop(viz);
+    assert!(std::fs::read_dir(dir.path()).unwrap().next().is_none(), "leftover files");
+}
+
+/// The stock CLI of the pinned version accepts the file (skipped when `rerun` is not on PATH).
+#[test]
+fn stock_cli_verifies_rrd() {
+    let Ok(version) = std::process::Command::new("rerun").arg("--version").output() else {
+        eprintln!("note: `rerun` not on PATH (pip install rerun-sdk==0.36.3); skipping `rerun rrd verify`");
+        return;
+    };
+    let version = String::from_utf8_lossy(&version.stdout);
+    assert!(version.contains("0.36.3"), "stock CLI is not the pinned version: {version}");
+    let dir = tempfile::tempdir().unwrap();
+    let rec = synthetic(&input_file(dir.path()));
+    let out = dir.path().join("out.rrd");
+    write_rrd(&rec, &out).unwrap();
+    let status = std::process::Command::new("rerun").args(["rrd", "verify"]).arg(&out).output().unwrap();
+    assert!(
+        status.status.success(),
+        "rerun rrd verify failed:\n{}\n{}",
+        String::from_utf8_lossy(&status.stdout),
+        String::from_utf8_lossy(&status.stderr)
+    );
+}
