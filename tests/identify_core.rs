@@ -615,10 +615,7 @@ fn report_writes_markdown_and_readable_pngs() {
             measured: y[..40].to_vec(),
             predicted: predicted[..40].to_vec(),
         }),
-        terms: Some(TermShares {
-            dataset: "identification".into(),
-            means,
-        }),
+        terms: Some(TermContributions::from_means("identification", &means)),
         aggregation: vec![
             AggregationRow {
                 rows: "per-sample".into(),
@@ -692,4 +689,140 @@ fn collinear_columns_reach_the_same_objective() {
     );
     // The identifiable combination θ3 + 2θ7 agrees.
     assert!((c.theta[3] + 2.0 * c.theta[7] - b.theta[3] - 2.0 * b.theta[7]).abs() < 1e-5);
+}
+
+#[test]
+fn model_file_and_report_from_a_pipeline_result() {
+    use g1viz::identify::dataset::{Alignment, Mode};
+    use g1viz::identify::filters::{RejectReason, Rejection};
+    use g1viz::identify::pipeline::*;
+    use g1viz::identify::report::{model_file_from, report_input_from, write_report};
+    use g1viz::identify::segment::{Segmentation, Trial};
+    let dir = tempfile::tempdir().unwrap();
+    let session = dir.path().join("session.mcap");
+    std::fs::write(&session, vec![0u8; 1234]).unwrap();
+    let trial = |index| Trial {
+        index,
+        t_pre_start: 0.0,
+        t_traj_start: 2.0,
+        t_traj_end: 3.0,
+        t_post_end: 5.0,
+        t_return_end: 6.0,
+        joints_moved: vec![3],
+        qdot_max_cmd: 1.0,
+        qdot_max_meas: 1.0,
+    };
+    let prediction = |trial, measured_w: f64, rejected| TrialPrediction {
+        session: 0,
+        trial,
+        window: (2.0, 5.0),
+        joints_moved: vec![3],
+        qdot_max_cmd: 1.0,
+        measured_w,
+        predicted_w: measured_w + 0.1,
+        predicted_window_w: measured_w - 0.1,
+        sigma_omega: 0.01,
+        rejected,
+    };
+    let rejection = |trial, reason, pass| Rejection {
+        session: 0,
+        trial,
+        reason,
+        statistic: 0.5,
+        threshold: 0.2,
+        pass,
+    };
+    let fit = Metrics::compute(&[1.0, 2.0, 3.0, 4.0], &[1.1, 1.9, 3.2, 3.8]);
+    let shares = TermShares {
+        mechanical: 10.0,
+        copper: 40.0,
+        coulomb: 5.0,
+        viscous: 40.0,
+        interaction: 5.0,
+    };
+    let ident = Identification {
+        model: PowerModel::PAPER,
+        options: IdentifyOptions::default(),
+        sessions: vec![SessionSummary {
+            source: session.clone(),
+            segmentation: Segmentation {
+                trials: (0..6).map(trial).collect(),
+                unmatched: vec![],
+                source: "command".into(),
+            },
+            skipped: vec![],
+        }],
+        alignment: Alignment {
+            window_s: 0.2,
+            lag_s: 0.0,
+        },
+        alignment_estimate: None,
+        rejections: vec![
+            rejection(1, RejectReason::ImuSway, 0),
+            rejection(4, RejectReason::Residual, 1),
+            rejection(5, RejectReason::Residual, 2),
+        ],
+        trials_used: 3,
+        fit,
+        trial_level: fit,
+        trial_level_aligned: fit,
+        modes: vec![
+            ModeFit {
+                mode: Mode::Sample,
+                kappa: 7.8e11,
+                quality: Metrics { r2: 0.03, ..fit },
+            },
+            ModeFit {
+                mode: Mode::Reading,
+                kappa: 3.0e5,
+                quality: fit,
+            },
+        ],
+        dominant: vec![],
+        shares,
+        per_trial: vec![
+            prediction(0, 1.0, false),
+            prediction(1, 5.0, true),
+            prediction(2, 2.0, false),
+            prediction(3, 3.0, false),
+        ],
+    };
+    let file = model_file_from(&ident, None, &joint_names(), "2026-01-01T00:00:00Z").unwrap();
+    let p = &file.provenance;
+    assert_eq!(p.sessions[0].size_bytes, 1234);
+    assert_eq!(
+        (p.trials.segmented, p.trials.used, p.trials.rejected),
+        (6, 3, 3)
+    );
+    assert_eq!(p.filters.len(), 2);
+    assert_eq!(
+        (p.filters[0].name.as_str(), p.filters[0].rejected),
+        ("imu_sigma", 1)
+    );
+    assert_eq!(p.filters[0].parameters["k_median"], 2.5);
+    assert_eq!(
+        (p.filters[1].rejected, p.filters[1].parameters["passes"]),
+        (2, 2.0)
+    );
+    assert_eq!(p.rejected_trials[2].filter, "residual_sigma pass 2");
+    assert_eq!((p.target.as_str(), p.rows.as_str()), ("mbs", "reading"));
+    let id = file.metrics.identification.as_ref().unwrap();
+    assert_eq!(id.condition_number, 3.0e5, "κ of the options' row mode");
+    assert!(file.metrics.validation.is_none());
+    let input = report_input_from("pipeline", file, &ident, None, None);
+    let set = input.identification.as_ref().unwrap();
+    assert_eq!(
+        set.measured,
+        vec![1.0, 2.0, 3.0],
+        "rejected trials are left out of the fit figure"
+    );
+    assert_eq!(set.predicted, vec![0.9, 1.9, 2.9]);
+    assert_eq!(
+        input.terms.as_ref().unwrap().shares_percent,
+        [10.0, 40.0, 5.0, 40.0, 5.0]
+    );
+    assert_eq!(input.aggregation.len(), 2);
+    write_report(&dir.path().join("report"), &input).unwrap();
+    let md = std::fs::read_to_string(dir.path().join("report/report.md")).unwrap();
+    assert!(md.contains("| sample | 4 | 7.80e11 | 0.030 |"), "{md}");
 }

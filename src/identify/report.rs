@@ -16,8 +16,13 @@ use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use crate::N_JOINTS;
+use crate::identify::filters::RejectReason;
 use crate::identify::metrics::Metrics;
-use crate::power::{DatasetMetrics, ModelFile, N_PAIRS, PAIRS, PowerModel, TERM_NAMES, TermMeans};
+use crate::identify::pipeline::{Identification, TermShares, Validation};
+use crate::power::{
+    DatasetMetrics, FilterRecord, ModelFile, ModelMetrics, N_PAIRS, PAIRS, PowerModel, Provenance,
+    RejectedTrial, SessionRef, TERM_NAMES, TermMeans, TrialCounts,
+};
 
 const FONT: &str = "sans-serif";
 static FONT_BYTES: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
@@ -34,7 +39,7 @@ pub struct ReportInput {
     /// Per-row measured and predicted net power of a hold-out session.
     pub validation: Option<PredictionSet>,
     /// Mean term contributions over a dataset.
-    pub terms: Option<TermShares>,
+    pub terms: Option<TermContributions>,
     /// The paper's aggregation comparison: κ(ΦᵀΦ) and R² for per-sample vs trajectory-averaged rows.
     pub aggregation: Vec<AggregationRow>,
     /// Truth parameters when the session is simulated: adds a per-parameter error table.
@@ -54,13 +59,39 @@ pub struct PredictionSet {
     pub predicted: Vec<f64>,
 }
 
-/// Mean term contributions over a dataset.
+/// Mean term contributions over a dataset ([`TERM_NAMES`] order).
 #[derive(Debug, Clone, PartialEq)]
-pub struct TermShares {
+pub struct TermContributions {
     /// Dataset name.
     pub dataset: String,
-    /// Accumulated breakdowns.
-    pub means: TermMeans,
+    /// Rows averaged.
+    pub rows: usize,
+    /// Share of each category in the mean total predicted power [%].
+    pub shares_percent: [f64; 5],
+    /// Mean of each category [W], when known.
+    pub means_w: Option<[f64; 5]>,
+}
+
+impl TermContributions {
+    /// From accumulated breakdowns.
+    pub fn from_means(dataset: &str, means: &TermMeans) -> Self {
+        TermContributions {
+            dataset: dataset.to_string(),
+            rows: means.count(),
+            shares_percent: means.shares_percent(),
+            means_w: Some(means.means()),
+        }
+    }
+
+    /// From the pipeline's shares (percentages only).
+    pub fn from_shares(dataset: &str, rows: usize, s: &TermShares) -> Self {
+        TermContributions {
+            dataset: dataset.to_string(),
+            rows,
+            shares_percent: [s.mechanical, s.copper, s.coulomb, s.viscous, s.interaction],
+            means_w: None,
+        }
+    }
 }
 
 /// One row construction in the aggregation comparison.
@@ -85,6 +116,176 @@ pub const FIGURES: [&str; 6] = [
     "residuals_validation.png",
     "terms.png",
 ];
+
+/// `model.json` contents for an identification run and, optionally, its hold-out validation.
+/// `created` is the caller's timestamp (the library reads no clock, so output is reproducible).
+pub fn model_file_from(
+    ident: &Identification,
+    validation: Option<&Validation>,
+    joint_names: &[String],
+    created: &str,
+) -> Result<ModelFile> {
+    let session_path = |i: usize| {
+        ident
+            .sessions
+            .get(i)
+            .map_or(format!("session {i}"), |s| s.source.display().to_string())
+    };
+    let session_ref = |path: &Path, role: &str| {
+        // A recording built in memory has no file: record the path with size 0 rather than fail.
+        SessionRef::from_path(path, role).unwrap_or(SessionRef {
+            path: path.display().to_string(),
+            size_bytes: 0,
+            role: role.to_string(),
+        })
+    };
+    let mut sessions: Vec<SessionRef> = ident
+        .sessions
+        .iter()
+        .map(|s| session_ref(&s.source, "identification"))
+        .collect();
+    if let Some(v) = validation {
+        sessions.push(session_ref(&v.session.source, "validation"));
+    }
+    let count = |reason: RejectReason| {
+        ident
+            .rejections
+            .iter()
+            .filter(|r| r.reason == reason)
+            .count()
+    };
+    let opts = &ident.options;
+    let mut filters = Vec::new();
+    if let Some(k) = opts.imu_k {
+        filters.push(FilterRecord {
+            name: "imu_sigma".into(),
+            parameters: [("k_median".to_string(), k)].into_iter().collect(),
+            rejected: count(RejectReason::ImuSway),
+        });
+    }
+    if opts.sigma_passes > 0 {
+        filters.push(FilterRecord {
+            name: "residual_sigma".into(),
+            parameters: [
+                ("n_sigma".to_string(), opts.n_sigma),
+                ("passes".to_string(), opts.sigma_passes as f64),
+            ]
+            .into_iter()
+            .collect(),
+            rejected: count(RejectReason::Residual),
+        });
+    }
+    let rejected_trials = ident
+        .rejections
+        .iter()
+        .map(|r| RejectedTrial {
+            session: session_path(r.session),
+            trial: r.trial,
+            filter: match r.reason {
+                RejectReason::ImuSway => "imu_sigma".into(),
+                RejectReason::Residual => format!("residual_sigma pass {}", r.pass),
+            },
+            statistic: r.statistic,
+            threshold: r.threshold,
+            reason: r.describe(),
+        })
+        .collect();
+    let provenance = Provenance {
+        created: created.to_string(),
+        sessions,
+        target: opts.target.name().to_string(),
+        rows: opts.mode.name().to_string(),
+        filters,
+        trials: TrialCounts {
+            segmented: ident
+                .sessions
+                .iter()
+                .map(|s| s.segmentation.trials.len())
+                .sum(),
+            used: ident.trials_used,
+            rejected: ident.rejections.len(),
+        },
+        rejected_trials,
+        solver: None,
+        notes: vec![format!(
+            "power readings paired with regressors averaged over a {:.3} s window ending {:.3} s before each reading",
+            ident.alignment.window_s, ident.alignment.lag_s
+        )],
+        ..Provenance::default()
+    };
+    let kappa = ident
+        .modes
+        .iter()
+        .find(|m| m.mode == opts.mode)
+        .map_or(f64::NAN, |m| m.kappa);
+    let metrics = ModelMetrics {
+        identification: Some(DatasetMetrics {
+            dataset: format!("{} rows, filtered", opts.mode.name()),
+            fit: ident.fit,
+            condition_number: kappa,
+        }),
+        validation: validation.map(|v| DatasetMetrics {
+            dataset: format!("hold-out {}, per trial", v.session.source.display()),
+            fit: v.trial_level,
+            condition_number: f64::NAN,
+        }),
+    };
+    ModelFile::new(&ident.model, joint_names, metrics, provenance)
+}
+
+/// Report input for an identification run and, optionally, its hold-out validation: per-trial measured vs
+/// predicted (the paper's figures), term shares (on the hold-out set when given, as in the paper), and the
+/// per-sample vs aggregated comparison.
+pub fn report_input_from(
+    title: &str,
+    model: ModelFile,
+    ident: &Identification,
+    validation: Option<&Validation>,
+    truth: Option<PowerModel>,
+) -> ReportInput {
+    let kept: Vec<_> = ident.per_trial.iter().filter(|t| !t.rejected).collect();
+    let identification = (!kept.is_empty()).then(|| PredictionSet {
+        label: "identification (per trial, retained)".into(),
+        measured: kept.iter().map(|t| t.measured_w).collect(),
+        predicted: kept.iter().map(|t| t.predicted_window_w).collect(),
+    });
+    let validation_set = validation
+        .filter(|v| !v.per_trial.is_empty())
+        .map(|v| PredictionSet {
+            label: "hold-out (per trial)".into(),
+            measured: v.per_trial.iter().map(|t| t.measured_w).collect(),
+            predicted: v.per_trial.iter().map(|t| t.predicted_window_w).collect(),
+        });
+    let terms = match validation {
+        Some(v) => {
+            TermContributions::from_shares("hold-out trajectories", v.per_trial.len(), &v.shares)
+        }
+        None => TermContributions::from_shares(
+            "retained trajectories",
+            ident.trials_used,
+            &ident.shares,
+        ),
+    };
+    ReportInput {
+        title: title.to_string(),
+        model,
+        identification,
+        validation: validation_set,
+        terms: Some(terms),
+        aggregation: ident
+            .modes
+            .iter()
+            .map(|m| AggregationRow {
+                rows: m.mode.name().to_string(),
+                n: m.quality.n,
+                condition_number: m.kappa,
+                r2: m.quality.r2,
+            })
+            .collect(),
+        truth,
+        notes: Vec::new(),
+    }
+}
 
 /// Write `dir/report.md` and its PNG figures (creating `dir`).
 pub fn write_report(dir: &Path, r: &ReportInput) -> Result<()> {
@@ -368,20 +569,19 @@ fn write_parameters(md: &mut String, r: &ReportInput, names: &[String]) {
     }
 }
 
-fn write_terms(md: &mut String, t: &TermShares) {
+fn write_terms(md: &mut String, t: &TermContributions) {
     let _ = writeln!(
         md,
         "## Term contributions ({}, {} rows)\n",
-        t.dataset,
-        t.means.count()
+        t.dataset, t.rows
     );
     let _ = writeln!(md, "| term | mean [W] | share [%] |\n|---|---:|---:|");
-    for ((name, mean), share) in TERM_NAMES
-        .iter()
-        .zip(t.means.means())
-        .zip(t.means.shares_percent())
-    {
-        let _ = writeln!(md, "| {name} | {mean:.3} | {} |", fmt_num(share, 1));
+    for (k, name) in TERM_NAMES.iter().enumerate() {
+        let mean = t
+            .means_w
+            .map_or("–".to_string(), |m| format!("{:.3}", m[k]));
+        let share = fmt_num(t.shares_percent[k], 1);
+        let _ = writeln!(md, "| {name} | {mean} | {share} |");
     }
     md.push('\n');
 }
@@ -709,8 +909,8 @@ fn draw_residuals(
     Ok(())
 }
 
-fn draw_terms(root: &DrawingArea<BitMapBackend<'_>, Shift>, t: &TermShares) -> Result<()> {
-    let shares = t.means.shares_percent();
+fn draw_terms(root: &DrawingArea<BitMapBackend<'_>, Shift>, t: &TermContributions) -> Result<()> {
+    let shares = t.shares_percent;
     let (lo, hi) = range_of(shares.iter().copied().chain([0.0]));
     let (lo, hi) = (lo.min(0.0), hi * 1.1);
     let colors = [
@@ -722,11 +922,7 @@ fn draw_terms(root: &DrawingArea<BitMapBackend<'_>, Shift>, t: &TermShares) -> R
     ];
     let mut chart = ChartBuilder::on(root)
         .caption(
-            format!(
-                "Mean term contributions ({}, {} rows)",
-                t.dataset,
-                t.means.count()
-            ),
+            format!("Mean term contributions ({}, {} rows)", t.dataset, t.rows),
             (FONT, 18),
         )
         .margin(12)
