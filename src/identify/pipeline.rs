@@ -21,7 +21,7 @@ use super::dataset::{
 };
 use super::filters::{self, RejectReason, Rejection, TrialStat};
 use super::metrics::{self, Metrics};
-use super::report::{AggregationRow, PredictionSet, ReportInput, TermShares as ReportTerms};
+use super::report::{AggregationRow, PredictionSet, ReportInput, TermContributions};
 use super::segment::{self, SegmentOptions, Segmentation};
 use super::solve;
 use crate::power::{
@@ -901,14 +901,13 @@ impl Identification {
             .cloned()
             .collect();
         let terms = match validation {
-            Some(v) => ReportTerms {
-                dataset: format!("hold-out trajectories ({})", v.session.source.display()),
-                means: v.terms,
-            },
-            None => ReportTerms {
-                dataset: "identification trajectories (retained)".into(),
-                means: self.terms,
-            },
+            Some(v) => TermContributions::from_means(
+                &format!("hold-out trajectories ({})", v.session.source.display()),
+                &v.terms,
+            ),
+            None => {
+                TermContributions::from_means("identification trajectories (retained)", &self.terms)
+            }
         };
         ReportInput {
             title: "Arm power model identification".into(),

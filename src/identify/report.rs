@@ -18,7 +18,7 @@ use plotters::style::text_anchor::{HPos, Pos, VPos};
 use crate::N_JOINTS;
 use crate::identify::filters::RejectReason;
 use crate::identify::metrics::Metrics;
-use crate::identify::pipeline::{Identification, TermShares, Validation};
+use crate::identify::pipeline::{Identification, Validation};
 use crate::power::{
     DatasetMetrics, FilterRecord, ModelFile, ModelMetrics, N_PAIRS, PAIRS, PowerModel, Provenance,
     RejectedTrial, SessionRef, TERM_NAMES, TermMeans, TrialCounts,
@@ -80,16 +80,6 @@ impl TermContributions {
             rows: means.count(),
             shares_percent: means.shares_percent(),
             means_w: Some(means.means()),
-        }
-    }
-
-    /// From the pipeline's shares (percentages only).
-    pub fn from_shares(dataset: &str, rows: usize, s: &TermShares) -> Self {
-        TermContributions {
-            dataset: dataset.to_string(),
-            rows,
-            shares_percent: [s.mechanical, s.copper, s.coulomb, s.viscous, s.interaction],
-            means_w: None,
         }
     }
 }
@@ -257,14 +247,8 @@ pub fn report_input_from(
             predicted: v.per_trial.iter().map(|t| t.predicted_window_w).collect(),
         });
     let terms = match validation {
-        Some(v) => {
-            TermContributions::from_shares("hold-out trajectories", v.per_trial.len(), &v.shares)
-        }
-        None => TermContributions::from_shares(
-            "retained trajectories",
-            ident.trials_used,
-            &ident.shares,
-        ),
+        Some(v) => TermContributions::from_means("hold-out trajectories", &v.terms),
+        None => TermContributions::from_means("retained trajectories", &ident.terms),
     };
     ReportInput {
         title: title.to_string(),
