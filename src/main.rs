@@ -159,7 +159,8 @@ struct InfoArgs {
 struct ReplayArgs {
     /// Recording to replay.
     session: PathBuf,
-    /// Identified model (model.json): adds predicted vs measured power, error and loss terms.
+    /// Identified model (model.json, or `paper` for the paper's parameters): adds predicted vs
+    /// measured power, error and loss terms.
     #[arg(long, value_name = "M")]
     model: Option<PathBuf>,
     /// Robot description (default: the shipped G1 left-arm URDF; Unitree's official URDF shows its meshes).
@@ -361,7 +362,11 @@ fn signal_summary(rec: &Recording) -> serde_json::Value {
     })
 }
 
+/// A model.json, or `paper` for the paper's tabulated parameters.
 fn load_model(path: &Path) -> Result<PowerModel> {
+    if path.as_os_str() == "paper" && !path.exists() {
+        return Ok(PowerModel::PAPER);
+    }
     Ok(ModelFile::load(path)?.model())
 }
 
@@ -401,7 +406,7 @@ fn replay(a: ReplayArgs) -> Result<()> {
         bail!("say where the replay goes: --save OUT.rrd, --connect [ADDR] or --spawn");
     };
     let mut inputs: Vec<&Path> = vec![&a.session];
-    if let Some(m) = &a.model {
+    if let Some(m) = a.model.as_deref().filter(|m| m.exists()) {
         inputs.push(m);
     }
     let out = viz::open_stream("g1viz", &viz::recording_id_for(&rec), &sink, &inputs)?;

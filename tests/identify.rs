@@ -720,6 +720,18 @@ fn identified_on_smoke_validates_on_holdout() {
         reference.trial_level_aligned.r2
     );
 
+    // Terminal summaries carry the numbers a user needs.
+    let text = reading.summary();
+    println!("{text}\n{}", v.summary());
+    assert!(
+        text.contains("24 trials (command stream)") && text.contains("rejected session 0 trial 11"),
+        "{text}"
+    );
+    assert!(
+        v.summary()
+            .contains(&format!("R² {:.4}", v.reading_level.r2))
+    );
+
     // model.json round trip and the markdown report from this identification.
     let dir = tempfile::tempdir().expect("tempdir");
     let file = reading
