@@ -435,13 +435,7 @@ fn identify(a: IdentifyArgs) -> Result<()> {
         None => None,
     };
     let names = recs.first().map(|r| r.joint_names.clone()).unwrap_or_default();
-    let mut file = id.model_file(&names, validation.as_ref(), "")?;
-    for p in a.sessions.iter() {
-        file.provenance.sessions.push(g1viz::power::SessionRef::from_path(p, "identification")?);
-    }
-    if let Some(p) = &a.holdout {
-        file.provenance.sessions.push(g1viz::power::SessionRef::from_path(p, "validation")?);
-    }
+    let file = id.model_file(&names, validation.as_ref(), "")?;
     file.save(&a.output)?;
 
     println!(
@@ -465,7 +459,8 @@ fn identify(a: IdentifyArgs) -> Result<()> {
         println!("  {:<8} rows: κ(ΦᵀΦ) = {:.2e}, R² = {:.3}", m.mode.name(), m.kappa, m.quality.r2);
     }
     for (i, d) in id.dominant.iter().enumerate() {
-        println!("  {:<28} dominant loss: {d}", names.get(i).map_or("", |s| s.as_str()));
+        let term = d.map_or("none (no loss identified)", |t| t.name());
+        println!("  {:<28} dominant loss: {term}", names.get(i).map_or("", |s| s.as_str()));
     }
     if let Some(v) = &validation {
         println!(
@@ -475,12 +470,22 @@ fn identify(a: IdentifyArgs) -> Result<()> {
     }
     println!("wrote {}", a.output.display());
     if let Some(dir) = &a.report {
-        let truth = a.sessions.first().and_then(|p| g1viz::sim::Truth::load(&g1viz::sim::truth_path(p)).ok());
-        let input = id.report_input(file, validation.as_ref(), truth.map(|t| t.model()));
+        let truth = a.sessions.first().and_then(|p| truth_model(p));
+        let input = id.report_input(file, validation.as_ref(), truth);
         g1viz::identify::report::write_report(dir, &input)?;
         println!("wrote {}", dir.join("report.md").display());
     }
     Ok(())
+}
+
+/// The true parameters of a simulated session, from its truth sidecar (ours or the shared
+/// generator's: both carry `theta.vector`), when there is one.
+fn truth_model(session: &Path) -> Option<PowerModel> {
+    let text = std::fs::read_to_string(g1viz::sim::truth_path(session)).ok()?;
+    let json: serde_json::Value = serde_json::from_str(&text).ok()?;
+    let v: Vec<f64> = serde_json::from_value(json["theta"]["vector"].clone()).ok()?;
+    let v: [f64; g1viz::N_PARAMS] = v.try_into().ok()?;
+    Some(PowerModel::from_vector(&v))
 }
 
 fn validate(a: ValidateArgs) -> Result<()> {
