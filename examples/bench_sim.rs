@@ -16,19 +16,35 @@ fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let preset: Preset = args.first().map_or(Ok(Preset::Paper), |s| s.parse())?;
     let tmp = tempfile::tempdir()?;
-    let out = args.get(1).map_or_else(|| tmp.path().join("bench.mcap"), std::path::PathBuf::from);
-    let mut cfg = SimConfig { preset, seed: 1, ..SimConfig::default() };
+    let out = args
+        .get(1)
+        .map_or_else(|| tmp.path().join("bench.mcap"), std::path::PathBuf::from);
+    let mut cfg = SimConfig {
+        preset,
+        seed: 1,
+        ..SimConfig::default()
+    };
     for e in args.iter().skip(2) {
         cfg.effects.enable(e)?;
     }
     let t0 = Instant::now();
     let truth = simulate(&cfg, &out)?;
     let secs = t0.elapsed().as_secs_f64();
-    let bytes = std::fs::metadata(&out).with_context(|| format!("reading size of {}", out.display()))?.len();
+    let bytes = std::fs::metadata(&out)
+        .with_context(|| format!("reading size of {}", out.display()))?
+        .len();
     let c = truth.message_counts;
     let msgs = c.lowstate + c.arm_sdk + c.bms + c.mbs;
-    println!("preset {}: {} trials, {:.0} s of robot time", preset.name(), truth.trials.len(), truth.session.duration_s);
-    println!("  messages: {} (/lowstate {}, /arm_sdk {}, MBS {}, BMS {})", msgs, c.lowstate, c.arm_sdk, c.mbs, c.bms);
+    println!(
+        "preset {}: {} trials, {:.0} s of robot time",
+        preset.name(),
+        truth.trials.len(),
+        truth.session.duration_s
+    );
+    println!(
+        "  messages: {} (/lowstate {}, /arm_sdk {}, MBS {}, BMS {})",
+        msgs, c.lowstate, c.arm_sdk, c.mbs, c.bms
+    );
     println!(
         "  generation {secs:.2} s ({:.0} robot-s per s, {:.0} k msgs/s), file {:.1} MB",
         truth.session.duration_s / secs,

@@ -497,11 +497,21 @@ fn bags_written_by_rosbags_at_run_time() {
     let unknown = tmp.path().join("unknown.bag");
     let mut source = Ros1BagSource::open(&unknown, &OpenOptions::default()).unwrap();
     let err = read_all_err(&mut source, Some(&["/lf/bmsstate"]));
-    for needle in ["acme_msgs/BatteryState", "/lf/bmsstate", "--msg-path", "acme_msgs/msg/BatteryState.msg"] {
+    for needle in [
+        "acme_msgs/BatteryState",
+        "/lf/bmsstate",
+        "--msg-path",
+        "acme_msgs/msg/BatteryState.msg",
+    ] {
         assert!(err.contains(needle), "{needle:?} missing in: {err}");
     }
     let (msgs, summary) = read_all(&mut source, None);
-    assert!(summary.warnings.iter().any(|w| w.contains("acme_msgs/BatteryState")));
+    assert!(
+        summary
+            .warnings
+            .iter()
+            .any(|w| w.contains("acme_msgs/BatteryState"))
+    );
     let known: Vec<&Msg> = first_n.iter().filter(|m| m.0 != "/lf/bmsstate").collect();
     assert_eq!(msgs.iter().collect::<Vec<_>>(), known);
     let msg_dir = tmp.path().join("msgs");
@@ -525,8 +535,14 @@ fn bags_written_by_rosbags_at_run_time() {
             Ok(())
         })
         .unwrap();
-    assert_eq!(volts.len(), first_n.iter().filter(|m| m.0 == "/lf/bmsstate").count());
-    assert!(volts.iter().all(|mv| (40_000.0..60_000.0).contains(mv)), "{volts:?}");
+    assert_eq!(
+        volts.len(),
+        first_n.iter().filter(|m| m.0 == "/lf/bmsstate").count()
+    );
+    assert!(
+        volts.iter().all(|mv| (40_000.0..60_000.0).contains(mv)),
+        "{volts:?}"
+    );
 
     let (db3_all, _) = read_all(
         &mut Ros2BagSource::open(

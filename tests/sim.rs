@@ -8,7 +8,13 @@ use std::path::{Path, PathBuf};
 use g1viz::sim::{Artefacts, Preset, SimConfig, simulate};
 
 fn tiny(seed: u64) -> SimConfig {
-    SimConfig { preset: Preset::Tiny, seed, progress: false, artefacts: Artefacts::NONE, ..SimConfig::default() }
+    SimConfig {
+        preset: Preset::Tiny,
+        seed,
+        progress: false,
+        artefacts: Artefacts::NONE,
+        ..SimConfig::default()
+    }
 }
 
 fn tmp() -> tempfile::TempDir {
@@ -87,8 +93,14 @@ fn decode(path: &Path) -> Decoded {
 }
 
 /// Mean of `f(sample)` over the state samples in (end − 0.2 s, end].
-fn window_mean(state: &[(f64, [f64; 7], [f64; 7], [f64; 7], [f64; 7])], end: f64, f: impl Fn(usize) -> f64) -> f64 {
-    let idx: Vec<usize> = (0..state.len()).filter(|&k| state[k].0 > end - 0.2 && state[k].0 <= end).collect();
+fn window_mean(
+    state: &[(f64, [f64; 7], [f64; 7], [f64; 7], [f64; 7])],
+    end: f64,
+    f: impl Fn(usize) -> f64,
+) -> f64 {
+    let idx: Vec<usize> = (0..state.len())
+        .filter(|&k| state[k].0 > end - 0.2 && state[k].0 <= end)
+        .collect();
     idx.iter().map(|&k| f(k)).sum::<f64>() / idx.len().max(1) as f64
 }
 
@@ -102,7 +114,11 @@ fn pair(effect: &str, tweak: impl Fn(&mut SimConfig)) -> (Decoded, Decoded, temp
     with.effects.enable(effect).unwrap();
     simulate(&base, &dir.path().join("a.mcap")).unwrap();
     simulate(&with, &dir.path().join("b.mcap")).unwrap();
-    (decode(&dir.path().join("a.mcap")), decode(&dir.path().join("b.mcap")), dir)
+    (
+        decode(&dir.path().join("a.mcap")),
+        decode(&dir.path().join("b.mcap")),
+        dir,
+    )
 }
 
 /// Compare the MBS differences (with − without) to the test's own prediction per reading.
@@ -120,9 +136,23 @@ fn assert_diff_matches(a: &Decoded, b: &Decoded, predicted: impl Fn(f64) -> f64,
     }
     let n = a.mbs.len() as f64;
     let rmse = (sum_err2 / n).sqrt();
-    eprintln!("effect: measured mean {:.4} W, predicted mean {:.4} W, rmse {:.4} W", sum_d / n, sum_p / n, rmse);
-    assert!(sum_p.abs() / n > 0.05, "the effect must be visible (predicted mean {:.4} W)", sum_p / n);
-    assert!(((sum_d - sum_p) / sum_p).abs() < rel_tol, "mean {:.4} W vs predicted {:.4} W", sum_d / n, sum_p / n);
+    eprintln!(
+        "effect: measured mean {:.4} W, predicted mean {:.4} W, rmse {:.4} W",
+        sum_d / n,
+        sum_p / n,
+        rmse
+    );
+    assert!(
+        sum_p.abs() / n > 0.05,
+        "the effect must be visible (predicted mean {:.4} W)",
+        sum_p / n
+    );
+    assert!(
+        ((sum_d - sum_p) / sum_p).abs() < rel_tol,
+        "mean {:.4} W vs predicted {:.4} W",
+        sum_d / n,
+        sum_p / n
+    );
 }
 
 #[test]
@@ -144,10 +174,17 @@ fn same_seed_gives_identical_bytes() {
 fn official_python_reader_decodes_the_file() {
     let dir = tmp();
     let out = dir.path().join("s.mcap");
-    let cfg = SimConfig { artefacts: Artefacts::default(), ..tiny(3) };
+    let cfg = SimConfig {
+        artefacts: Artefacts::default(),
+        ..tiny(3)
+    };
     simulate(&cfg, &out).unwrap();
     let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/py/check_sim_mcap.py");
-    let run = std::process::Command::new("python3").arg(&script).arg(&out).arg(out.with_extension("truth.json")).output();
+    let run = std::process::Command::new("python3")
+        .arg(&script)
+        .arg(&out)
+        .arg(out.with_extension("truth.json"))
+        .output();
     let Ok(run) = run else {
         eprintln!("note: python3 not available; independent-reader check skipped");
         return;
@@ -155,10 +192,15 @@ fn official_python_reader_decodes_the_file() {
     let stdout = String::from_utf8_lossy(&run.stdout);
     let stderr = String::from_utf8_lossy(&run.stderr);
     if run.status.code() == Some(2) {
-        eprintln!("note: python modules mcap / mcap-ros2-support missing ({stderr}); check skipped");
+        eprintln!(
+            "note: python modules mcap / mcap-ros2-support missing ({stderr}); check skipped"
+        );
         return;
     }
-    assert!(run.status.success(), "python check failed:\n{stdout}\n{stderr}");
+    assert!(
+        run.status.success(),
+        "python check failed:\n{stdout}\n{stderr}"
+    );
 }
 
 #[test]
@@ -169,14 +211,28 @@ fn rates_rest_power_and_protocol() {
     let d = decode(&out);
     let dur = d.state.last().unwrap().0 - d.state[0].0;
     assert!((d.state.len() as f64 / dur - 100.0).abs() < 0.5);
-    assert!((d.mbs.len() as f64 / dur - 1.0).abs() < 0.06, "{} MBS readings in {dur} s", d.mbs.len());
+    assert!(
+        (d.mbs.len() as f64 / dur - 1.0).abs() < 0.06,
+        "{} MBS readings in {dur} s",
+        d.mbs.len()
+    );
     assert_eq!(d.n_cmd, d.state.len());
     // MBS ≈ 120 W and BMS ≈ 135 W before the first motion (the paper's rest figures).
     let t_first = (truth.trials[0].t_traj_start_ns - truth.session.start_ns) as f64 * 1e-9;
-    let rest: Vec<f64> = d.mbs.iter().filter(|r| r.0 < t_first).map(|r| r.1).collect();
+    let rest: Vec<f64> = d
+        .mbs
+        .iter()
+        .filter(|r| r.0 < t_first)
+        .map(|r| r.1)
+        .collect();
     let mean = rest.iter().sum::<f64>() / rest.len() as f64;
     assert!((mean - 120.0).abs() < 1.5, "MBS rest {mean}");
-    let rest_b: Vec<f64> = d.bms.iter().filter(|r| r.0 < t_first).map(|r| r.1).collect();
+    let rest_b: Vec<f64> = d
+        .bms
+        .iter()
+        .filter(|r| r.0 < t_first)
+        .map(|r| r.1)
+        .collect();
     let mean_b = rest_b.iter().sum::<f64>() / rest_b.len() as f64;
     assert!((mean_b - 135.0).abs() < 6.0, "BMS rest {mean_b}");
     // q follows the protocol: at home in pre-idle, at the last waypoint in post-idle (10 ms lag,
@@ -184,24 +240,44 @@ fn rates_rest_power_and_protocol() {
     let s0 = truth.session.start_ns;
     for tr in &truth.trials {
         let at = |ns: u64| (ns - s0) as f64 * 1e-9;
-        let (pre0, traj0, traj1, post1) =
-            (at(tr.t_trial_start_ns), at(tr.t_traj_start_ns), at(tr.t_traj_end_ns), at(tr.t_post_idle_end_ns));
+        let (pre0, traj0, traj1, post1) = (
+            at(tr.t_trial_start_ns),
+            at(tr.t_traj_start_ns),
+            at(tr.t_traj_end_ns),
+            at(tr.t_post_idle_end_ns),
+        );
         let last = tr.waypoints_rad.last().unwrap();
         let mut peak: f64 = 0.0;
         for (t, q, dq, _, _) in &d.state {
             if *t > pre0 + 0.05 && *t < traj0 {
-                assert!(q.iter().all(|v| v.abs() < 1e-3), "not at home in pre-idle at {t}");
+                assert!(
+                    q.iter().all(|v| v.abs() < 1e-3),
+                    "not at home in pre-idle at {t}"
+                );
             }
             if *t > traj1 + 0.1 && *t < post1 {
                 for i in 0..7 {
-                    assert!((q[i] - last[i]).abs() < 1e-3, "joint {i} off the final waypoint at {t}");
+                    assert!(
+                        (q[i] - last[i]).abs() < 1e-3,
+                        "joint {i} off the final waypoint at {t}"
+                    );
                 }
             }
             if *t > traj0 && *t < traj1 {
-                peak = peak.max(tr.joints_moved.iter().map(|&j| dq[j].abs()).fold(0.0, f64::max));
+                peak = peak.max(
+                    tr.joints_moved
+                        .iter()
+                        .map(|&j| dq[j].abs())
+                        .fold(0.0, f64::max),
+                );
             }
         }
-        assert!((peak - tr.qdot_max).abs() < 0.03, "trial {}: peak {peak} vs level {}", tr.index, tr.qdot_max);
+        assert!(
+            (peak - tr.qdot_max).abs() < 0.03,
+            "trial {}: peak {peak} vs level {}",
+            tr.index,
+            tr.qdot_max
+        );
     }
 }
 
@@ -263,7 +339,9 @@ fn thermal_drift_scales_the_copper_term_with_winding_temperature() {
     let predicted = |end: f64| {
         window_mean(&b.state, end, |s| {
             let (_, _, _, tau, temp) = &b.state[s];
-            (0..7).map(|i| model.b[i] * alpha * (temp[i] - 25.0) * (tau[i] * tau[i] - tau0_sq[i])).sum()
+            (0..7)
+                .map(|i| model.b[i] * alpha * (temp[i] - 25.0) * (tau[i] * tau[i] - tau0_sq[i]))
+                .sum()
         })
     };
     // Temperatures are recorded in 1 °C steps: ±0.5 K of ~45 K.
@@ -293,8 +371,13 @@ fn latency_shifts_the_power_readings() {
         cov / (vx * vy).sqrt()
     };
     let (a0, a_l, b0, b_l) = (corr(&a, 0.0), corr(&a, lat), corr(&b, 0.0), corr(&b, lat));
-    eprintln!("corr without latency: {a0:.3} (unshifted) {a_l:.3} (shifted); with: {b0:.3} {b_l:.3}");
-    assert!(a0 > a_l && b_l > b0, "latency must move the best-matching window");
+    eprintln!(
+        "corr without latency: {a0:.3} (unshifted) {a_l:.3} (shifted); with: {b0:.3} {b_l:.3}"
+    );
+    assert!(
+        a0 > a_l && b_l > b0,
+        "latency must move the best-matching window"
+    );
     assert!(b_l > 0.9);
 }
 
@@ -307,7 +390,10 @@ fn simulate_like_reruns_a_recording_on_its_timeline() {
     let rec = g1viz::signals::Recording {
         source: a_path.clone(),
         start_ns: a.start_ns,
-        joint_names: g1viz::sim::JOINT_NAMES.iter().map(|s| s.to_string()).collect(),
+        joint_names: g1viz::sim::JOINT_NAMES
+            .iter()
+            .map(|s| s.to_string())
+            .collect(),
         state: g1viz::signals::StateSeries {
             t: a.state.iter().map(|s| s.0).collect(),
             q: a.state.iter().map(|s| s.1).collect(),
@@ -321,16 +407,30 @@ fn simulate_like_reruns_a_recording_on_its_timeline() {
             q: a.cmd.iter().map(|c| c.1).collect(),
             dq: a.cmd.iter().map(|c| c.2).collect(),
         },
-        mbs: g1viz::signals::PowerSeries { t: a.mbs.iter().map(|r| r.0).collect(), watts: a.mbs.iter().map(|r| r.1).collect() },
-        bms: g1viz::signals::PowerSeries { t: a.bms.iter().map(|r| r.0).collect(), watts: a.bms.iter().map(|r| r.1).collect() },
+        mbs: g1viz::signals::PowerSeries {
+            t: a.mbs.iter().map(|r| r.0).collect(),
+            watts: a.mbs.iter().map(|r| r.1).collect(),
+        },
+        bms: g1viz::signals::PowerSeries {
+            t: a.bms.iter().map(|r| r.0).collect(),
+            watts: a.bms.iter().map(|r| r.1).collect(),
+        },
         warnings: Vec::new(),
     };
     let b_path = dir.path().join("b.mcap");
     g1viz::sim::simulate_like(&rec, &tiny(99), &b_path).unwrap();
     let b = decode(&b_path);
     assert_eq!(b.start_ns, a.start_ns);
-    assert_eq!((b.state.len(), b.cmd.len(), b.mbs.len(), b.bms.len()), (a.state.len(), a.cmd.len(), a.mbs.len(), a.bms.len()));
-    let max_dt = a.state.iter().zip(&b.state).map(|(x, y)| (x.0 - y.0).abs()).fold(0.0, f64::max);
+    assert_eq!(
+        (b.state.len(), b.cmd.len(), b.mbs.len(), b.bms.len()),
+        (a.state.len(), a.cmd.len(), a.mbs.len(), a.bms.len())
+    );
+    let max_dt = a
+        .state
+        .iter()
+        .zip(&b.state)
+        .map(|(x, y)| (x.0 - y.0).abs())
+        .fold(0.0, f64::max);
     assert!(max_dt < 2e-9, "message times differ by {max_dt} s");
     // Same trajectory and torques up to the measurement noise (different seed), same power.
     let mut max_dq: f64 = 0.0;
@@ -344,7 +444,13 @@ fn simulate_like_reruns_a_recording_on_its_timeline() {
     let mean_dtau = sum_dtau / (7 * a.state.len()) as f64;
     assert!(max_dq < 1e-3, "q differs by {max_dq}");
     assert!(mean_dtau < 0.1, "tau differs by {mean_dtau} Nm on average");
-    let mean_dp = a.mbs.iter().zip(&b.mbs).map(|(x, y)| (x.1 - y.1).abs()).sum::<f64>() / a.mbs.len() as f64;
+    let mean_dp = a
+        .mbs
+        .iter()
+        .zip(&b.mbs)
+        .map(|(x, y)| (x.1 - y.1).abs())
+        .sum::<f64>()
+        / a.mbs.len() as f64;
     assert!(mean_dp < 1.5, "MBS differs by {mean_dp} W on average");
 }
 
@@ -355,23 +461,46 @@ fn payload_adds_its_gravity_torque_and_changes_power() {
     // Independent expectation at home: τ_i = m·g·∂z_p/∂q_i, z_p = height of the payload point from
     // forward kinematics (finite differences), not from the inverse dynamics under test.
     let model = g1viz::robot::RobotModel::builtin();
-    let arm = model.arm(&g1viz::sim::JOINT_NAMES.map(String::from)).unwrap();
-    let hand = model.links().iter().position(|l| l.name == "left_wrist_yaw_link").unwrap();
+    let arm = model
+        .arm(&g1viz::sim::JOINT_NAMES.map(String::from))
+        .unwrap();
+    let hand = model
+        .links()
+        .iter()
+        .position(|l| l.name == "left_wrist_yaw_link")
+        .unwrap();
     let z = |q: &[f64; 7]| {
         let pose = model.link_poses(&arm, q)[hand];
         (pose * nalgebra::Point3::from(payload.com_m)).z
     };
     let h = 1e-6;
-    let home: Vec<usize> = (0..a.state.len()).filter(|&k| a.state[k].0 > 0.5 && a.state[k].0 < 4.9).collect();
+    let home: Vec<usize> = (0..a.state.len())
+        .filter(|&k| a.state[k].0 > 0.5 && a.state[k].0 < 4.9)
+        .collect();
     for i in 0..7 {
         let mut qp = [0.0; 7];
         qp[i] = h;
         let mut qm = [0.0; 7];
         qm[i] = -h;
         let expected = payload.mass_kg * 9.81 * (z(&qp) - z(&qm)) / (2.0 * h);
-        let measured = home.iter().map(|&k| b.state[k].3[i] - a.state[k].3[i]).sum::<f64>() / home.len() as f64;
-        assert!((measured - expected).abs() < 0.02, "joint {i}: Δτ {measured:.4} Nm vs m·g·∂z/∂q {expected:.4} Nm");
+        let measured = home
+            .iter()
+            .map(|&k| b.state[k].3[i] - a.state[k].3[i])
+            .sum::<f64>()
+            / home.len() as f64;
+        assert!(
+            (measured - expected).abs() < 0.02,
+            "joint {i}: Δτ {measured:.4} Nm vs m·g·∂z/∂q {expected:.4} Nm"
+        );
     }
-    let moved = a.mbs.iter().zip(&b.mbs).filter(|(x, y)| (x.1 - y.1).abs() > 0.2).count();
-    assert!(moved > 0, "the payload must change the measured power somewhere");
+    let moved = a
+        .mbs
+        .iter()
+        .zip(&b.mbs)
+        .filter(|(x, y)| (x.1 - y.1).abs() > 0.2)
+        .count();
+    assert!(
+        moved > 0,
+        "the payload must change the measured power somewhere"
+    );
 }

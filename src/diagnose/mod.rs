@@ -513,7 +513,10 @@ pub fn diagnose_trials(
         .collect::<Result<Vec<_>>>()?;
 
     let mark = |trial: usize, reason: String| {
-        let w = metas.iter().find(|m| m.window.index == trial).map(|m| &m.window);
+        let w = metas
+            .iter()
+            .find(|m| m.window.index == trial)
+            .map(|m| &m.window);
         HighlightedTrial {
             trial,
             t_start: w.map_or(0.0, |w| w.t_traj),
@@ -524,12 +527,23 @@ pub fn diagnose_trials(
     let mut highlighted: Vec<HighlightedTrial> = worst_trials
         .iter()
         .take(5)
-        .map(|t| mark(t.trial, format!("largest held-out residual of the base model: {:+.2} W", t.mean_w)))
+        .map(|t| {
+            mark(
+                t.trial,
+                format!(
+                    "largest held-out residual of the base model: {:+.2} W",
+                    t.mean_w
+                ),
+            )
+        })
         .collect();
     for c in unexplained.iter().filter(|c| c.significant) {
         for &t in &c.trials {
             if !highlighted.iter().any(|h| h.trial == t) {
-                highlighted.push(mark(t, format!("carries unexplained structure ({})", c.feature)));
+                highlighted.push(mark(
+                    t,
+                    format!("carries unexplained structure ({})", c.feature),
+                ));
             }
         }
     }

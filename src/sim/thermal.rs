@@ -49,7 +49,10 @@ pub struct ThermalState {
 impl ThermalState {
     /// All windings at `t_start_c` [°C].
     pub fn new(model: ThermalModel, t_start_c: f64) -> Self {
-        ThermalState { winding_c: [t_start_c; N_JOINTS], model }
+        ThermalState {
+            winding_c: [t_start_c; N_JOINTS],
+            model,
+        }
     }
 
     /// Ambient temperature at session time `t` [s].
@@ -82,7 +85,10 @@ mod tests {
 
     #[test]
     fn settles_at_ambient_plus_heat_times_resistance() {
-        let m = ThermalModel { ambient_rate_k_per_h: 0.0, ..Default::default() };
+        let m = ThermalModel {
+            ambient_rate_k_per_h: 0.0,
+            ..Default::default()
+        };
         let mut s = ThermalState::new(m, 30.0);
         let tau = [2.0; N_JOINTS];
         for k in 0..100_000 {
@@ -97,7 +103,10 @@ mod tests {
     #[test]
     fn time_constant_by_hand() {
         // After one time constant a step response covers 1 − 1/e of the way.
-        let m = ThermalModel { ambient_rate_k_per_h: 0.0, ..Default::default() };
+        let m = ThermalModel {
+            ambient_rate_k_per_h: 0.0,
+            ..Default::default()
+        };
         let mut s = ThermalState::new(m, 30.0);
         let t_eq = 23.0 + m.idle_w[0] * m.r_k_per_w[0];
         let steps = 1500 * 100;

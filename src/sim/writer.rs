@@ -18,8 +18,10 @@ mod msg {
     pub const IMU_STATE: &str = "float32[4] quaternion\nfloat32[3] gyroscope\nfloat32[3] accelerometer\nfloat32[3] rpy\nint16 temperature";
     pub const MOTOR_STATE: &str = "uint8 mode\nfloat32 q\nfloat32 dq\nfloat32 ddq\nfloat32 tau_est\n\nint16[2] temperature\nfloat32 vol\nuint32[2] sensor\nuint32 motorstate\nuint32[4] reserve";
     pub const LOW_CMD: &str = "uint8 mode_pr\nuint8 mode_machine\n\nMotorCmd[35] motor_cmd\n\nuint32[4] reserve\nuint32 crc";
-    pub const MOTOR_CMD: &str = "uint8 mode\nfloat32 q\nfloat32 dq\nfloat32 tau\nfloat32 kp\nfloat32 kd\nuint32 reserve";
-    pub const MAIN_BOARD_STATE: &str = "uint16[6] fan_state\nint16[6] temperature\nfloat32[6] value\nuint32[6] state";
+    pub const MOTOR_CMD: &str =
+        "uint8 mode\nfloat32 q\nfloat32 dq\nfloat32 tau\nfloat32 kp\nfloat32 kd\nuint32 reserve";
+    pub const MAIN_BOARD_STATE: &str =
+        "uint16[6] fan_state\nint16[6] temperature\nfloat32[6] value\nuint32[6] state";
     pub const BMS_STATE: &str = "uint8 version_high\nuint8 version_low\nuint8 fn\nuint16[40] cell_vol\nuint32[3] bmsvoltage\nint32 current\nuint8 soc\nuint8 soh\nint16[12] temperature\nuint16 cycle\nuint16 manufacturer_date\nuint32[5] bmsstate\nuint32[3] reserve";
 }
 
@@ -135,14 +137,25 @@ pub struct ImuState {
 
 impl Cdr {
     /// Encode a `unitree_hg/msg/LowState`.
-    pub fn low_state(&mut self, tick: u32, imu: &ImuState, motors: &[MotorState; N_MOTORS]) -> &[u8] {
+    pub fn low_state(
+        &mut self,
+        tick: u32,
+        imu: &ImuState,
+        motors: &[MotorState; N_MOTORS],
+    ) -> &[u8] {
         self.start();
         self.u32(0); // version[0]
         self.u32(1); // version[1]
         self.u8(0); // mode_pr
         self.u8(5); // mode_machine (G1 29-DoF)
         self.u32(tick);
-        for v in imu.quaternion.iter().chain(&imu.gyroscope).chain(&imu.accelerometer).chain(&imu.rpy) {
+        for v in imu
+            .quaternion
+            .iter()
+            .chain(&imu.gyroscope)
+            .chain(&imu.accelerometer)
+            .chain(&imu.rpy)
+        {
             self.f32(*v);
         }
         self.i16(imu.temperature);
@@ -169,7 +182,14 @@ impl Cdr {
 
     /// Encode a `unitree_hg/msg/LowCmd` for the arm SDK: the 7 slots starting at `arm_base` carry
     /// `q`/`dq` with the PD gains, slot 29 carries the arm_sdk weight 1.0.
-    pub fn low_cmd(&mut self, arm_base: usize, q: &[f64; 7], dq: &[f64; 7], kp: f32, kd: f32) -> &[u8] {
+    pub fn low_cmd(
+        &mut self,
+        arm_base: usize,
+        q: &[f64; 7],
+        dq: &[f64; 7],
+        kp: f32,
+        kd: f32,
+    ) -> &[u8] {
         self.start();
         self.u8(0);
         self.u8(5);
@@ -202,7 +222,13 @@ impl Cdr {
     }
 
     /// Encode a `unitree_hg/msg/MainBoardState` (value[0] = rail voltage [V], value[1] = current [A]).
-    pub fn main_board_state(&mut self, volts: f32, amps: f32, fan_rpm: [u16; 2], temps: [i16; 2]) -> &[u8] {
+    pub fn main_board_state(
+        &mut self,
+        volts: f32,
+        amps: f32,
+        fan_rpm: [u16; 2],
+        temps: [i16; 2],
+    ) -> &[u8] {
         self.start();
         for k in 0..6 {
             self.u16(if k < 2 { fan_rpm[k] } else { 0 });
@@ -301,7 +327,11 @@ impl<W: Write + Seek> McapOut<W> {
     pub fn new(w: W) -> Result<Self> {
         let opts = mcap::WriteOptions::new()
             .profile("ros2")
-            .library(concat!("g1viz/", env!("CARGO_PKG_VERSION"), "; mcap-rs 0.26"))
+            .library(concat!(
+                "g1viz/",
+                env!("CARGO_PKG_VERSION"),
+                "; mcap-rs 0.26"
+            ))
             .compression(Some(mcap::Compression::Zstd))
             .compression_level(3)
             // One background zstd worker: overlaps compression with simulation, and zstd's
@@ -312,7 +342,10 @@ impl<W: Write + Seek> McapOut<W> {
         let schemas = [
             ros2msg_schema(
                 msg::LOW_STATE,
-                &[("unitree_hg/IMUState", msg::IMU_STATE), ("unitree_hg/MotorState", msg::MOTOR_STATE)],
+                &[
+                    ("unitree_hg/IMUState", msg::IMU_STATE),
+                    ("unitree_hg/MotorState", msg::MOTOR_STATE),
+                ],
             ),
             ros2msg_schema(msg::LOW_CMD, &[("unitree_hg/MotorCmd", msg::MOTOR_CMD)]),
             ros2msg_schema(msg::BMS_STATE, &[]),
@@ -320,10 +353,18 @@ impl<W: Write + Seek> McapOut<W> {
         ];
         let mut channels = [0u16; 4];
         for (k, ((topic, ty), text)) in TOPICS.iter().zip(&schemas).enumerate() {
-            let sid = inner.add_schema(ty, "ros2msg", text.as_bytes()).context("writing MCAP schema")?;
-            channels[k] = inner.add_channel(sid, topic, "cdr", &BTreeMap::new()).context("writing MCAP channel")?;
+            let sid = inner
+                .add_schema(ty, "ros2msg", text.as_bytes())
+                .context("writing MCAP schema")?;
+            channels[k] = inner
+                .add_channel(sid, topic, "cdr", &BTreeMap::new())
+                .context("writing MCAP channel")?;
         }
-        Ok(McapOut { inner, channels, counts: [0; 4] })
+        Ok(McapOut {
+            inner,
+            channels,
+            counts: [0; 4],
+        })
     }
 
     /// Write one message with log_time = publish_time = `time_ns`.
@@ -335,7 +376,9 @@ impl<W: Write + Seek> McapOut<W> {
             log_time: time_ns,
             publish_time: time_ns,
         };
-        self.inner.write_to_known_channel(&header, data).context("writing MCAP message")?;
+        self.inner
+            .write_to_known_channel(&header, data)
+            .context("writing MCAP message")?;
         self.counts[k] += 1;
         Ok(())
     }
@@ -360,10 +403,20 @@ mod tests {
     fn message_sizes_match_the_shared_recordings() {
         // Sizes of the messages in shared/recordings/g1_smoke.mcap (written by an independent CDR encoder).
         let mut c = Cdr::default();
-        assert_eq!(c.low_state(1, &ImuState::default(), &[MotorState::default(); N_MOTORS]).len(), 2092);
+        assert_eq!(
+            c.low_state(1, &ImuState::default(), &[MotorState::default(); N_MOTORS])
+                .len(),
+            2092
+        );
         assert_eq!(c.low_cmd(15, &[0.0; 7], &[0.0; 7], 400.0, 12.0).len(), 1004);
         assert_eq!(c.main_board_state(53.0, 2.0, [0, 0], [0, 0]).len(), 76);
-        let b = BmsFields { pack_mv: 0, current_ma: 0, soc_pct: 0, temps_c: [0; 4], cell_mv: [0; 13] };
+        let b = BmsFields {
+            pack_mv: 0,
+            current_ma: 0,
+            soc_pct: 0,
+            temps_c: [0; 4],
+            cell_mv: [0; 13],
+        };
         assert_eq!(c.bms_state(&b).len(), 168);
     }
 
