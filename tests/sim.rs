@@ -17,6 +17,11 @@ fn tiny(seed: u64) -> SimConfig {
     }
 }
 
+fn load(path: &Path) -> g1viz::signals::Recording {
+    let map = g1viz::signals::SignalMap::g1_left_arm();
+    g1viz::signals::load_recording(path, &map, &g1viz::read::OpenOptions::default()).unwrap()
+}
+
 fn tmp() -> tempfile::TempDir {
     tempfile::tempdir().expect("temp dir")
 }
@@ -386,36 +391,7 @@ fn simulate_like_reruns_a_recording_on_its_timeline() {
     let a_path = dir.path().join("a.mcap");
     simulate(&tiny(4), &a_path).unwrap();
     let a = decode(&a_path);
-    let rec = g1viz::signals::Recording {
-        source: a_path.clone(),
-        start_ns: a.start_ns,
-        joint_names: g1viz::sim::JOINT_NAMES
-            .iter()
-            .map(|s| s.to_string())
-            .collect(),
-        state: g1viz::signals::StateSeries {
-            t: a.state.iter().map(|s| s.0).collect(),
-            q: a.state.iter().map(|s| s.1).collect(),
-            dq: a.state.iter().map(|s| s.2).collect(),
-            tau: a.state.iter().map(|s| s.3).collect(),
-            temp: a.state.iter().map(|s| s.4).collect(),
-            ..Default::default()
-        },
-        command: g1viz::signals::CommandSeries {
-            t: a.cmd.iter().map(|c| c.0).collect(),
-            q: a.cmd.iter().map(|c| c.1).collect(),
-            dq: a.cmd.iter().map(|c| c.2).collect(),
-        },
-        mbs: g1viz::signals::PowerSeries {
-            t: a.mbs.iter().map(|r| r.0).collect(),
-            watts: a.mbs.iter().map(|r| r.1).collect(),
-        },
-        bms: g1viz::signals::PowerSeries {
-            t: a.bms.iter().map(|r| r.0).collect(),
-            watts: a.bms.iter().map(|r| r.1).collect(),
-        },
-        warnings: Vec::new(),
-    };
+    let rec = load(&a_path);
     let b_path = dir.path().join("b.mcap");
     g1viz::sim::simulate_like(&rec, &tiny(99), &b_path).unwrap();
     let b = decode(&b_path);
@@ -501,5 +477,55 @@ fn payload_adds_its_gravity_torque_and_changes_power() {
     assert!(
         moved > 0,
         "the payload must change the measured power somewhere"
+    );
+}
+
+#[test]
+fn project_reader_loads_the_session() {
+    let dir = tmp();
+    let out = dir.path().join("s.mcap");
+    let truth = simulate(&tiny(8), &out).unwrap();
+    let rec = load(&out);
+    assert!(rec.warnings.is_empty(), "{:?}", rec.warnings);
+    let c = truth.message_counts;
+    assert_eq!(rec.state.t.len() as u64, c.lowstate);
+    assert_eq!(rec.command.t.len() as u64, c.arm_sdk);
+    assert_eq!(rec.mbs.t.len() as u64, c.mbs);
+    assert_eq!(rec.bms.t.len() as u64, c.bms);
+    let dur = rec.state.t.last().unwrap() - rec.state.t[0];
+    assert!((rec.state.t.len() as f64 / dur - 100.0).abs() < 0.5);
+    // Values equal those of the fixed-layout decoder (two independent decoders of the same bytes).
+    let d = decode(&out);
+    for (k, row) in d.state.iter().enumerate().step_by(97) {
+        assert!((rec.state.t[k] - row.0).abs() < 1e-9);
+        for i in 0..7 {
+            assert_eq!(rec.state.q[k][i], row.1[i]);
+            assert_eq!(rec.state.tau[k][i], row.3[i]);
+            assert_eq!(rec.state.temp[k][i], row.4[i]);
+        }
+    }
+    for (r, (t, w)) in rec.mbs.t.iter().zip(&rec.mbs.watts).zip(&d.mbs) {
+        assert!((r.0 - t).abs() < 1e-9 && (r.1 - w).abs() < 1e-9);
+    }
+    // Rest power before the first trajectory: MBS ≈ 120 W, BMS ≈ 135 W.
+    let t_first = (truth.trials[0].t_traj_start_ns - rec.start_ns) as f64 * 1e-9;
+    let rest = |p: &g1viz::signals::PowerSeries| {
+        let v: Vec<f64> =
+            p.t.iter()
+                .zip(&p.watts)
+                .filter(|(t, _)| **t < t_first)
+                .map(|(_, w)| *w)
+                .collect();
+        v.iter().sum::<f64>() / v.len() as f64
+    };
+    assert!(
+        (rest(&rec.mbs) - 120.0).abs() < 1.5,
+        "MBS rest {}",
+        rest(&rec.mbs)
+    );
+    assert!(
+        (rest(&rec.bms) - 135.0).abs() < 6.0,
+        "BMS rest {}",
+        rest(&rec.bms)
     );
 }
