@@ -529,3 +529,78 @@ fn project_reader_loads_the_session() {
         rest(&rec.bms)
     );
 }
+
+#[test]
+fn artefacts_show_in_imu_and_power() {
+    let dir = tmp();
+    let out = dir.path().join("s.mcap");
+    let artefacts = Artefacts {
+        contamination_fraction: 1.0,
+        outlier_fraction: 1.0,
+        ..Artefacts::default()
+    };
+    let cfg = SimConfig {
+        artefacts,
+        ..tiny(21)
+    };
+    let truth = simulate(&cfg, &out).unwrap();
+    let rec = load(&out);
+    let s0 = rec.start_ns;
+    let at = |ns: u64| (ns - s0) as f64 * 1e-9;
+    let gyro_std = |t0: f64, t1: f64| {
+        let v: Vec<f64> = (0..rec.state.t.len())
+            .filter(|&k| rec.state.t[k] >= t0 && rec.state.t[k] < t1)
+            .map(|k| rec.state.gyro[k].iter().map(|g| g * g).sum::<f64>().sqrt())
+            .collect();
+        let m = v.iter().sum::<f64>() / v.len() as f64;
+        (v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / v.len() as f64).sqrt()
+    };
+    let mut n_cont = 0;
+    for tr in &truth.trials {
+        let (pre0, traj0, post1) = (
+            at(tr.t_trial_start_ns),
+            at(tr.t_traj_start_ns),
+            at(tr.t_post_idle_end_ns),
+        );
+        let calm = gyro_std(pre0, traj0);
+        let window = gyro_std(traj0, post1);
+        if tr.contaminated {
+            n_cont += 1;
+            // Sway of A ≥ 0.05 rad/s against 0.002 rad/s sensor noise.
+            assert!(
+                window > 5.0 * calm,
+                "trial {}: σ {window} vs calm {calm}",
+                tr.index
+            );
+            assert!(tr.leak_power_traj_mean_w > 0.0);
+        } else {
+            assert!(
+                window < 2.0 * calm,
+                "trial {}: σ {window} vs calm {calm}",
+                tr.index
+            );
+        }
+        if tr.outlier {
+            // The MBS readings inside the step exceed the pre-idle level by about the step.
+            let (o0, o1) = (
+                at(tr.outlier_start_ns.unwrap()),
+                at(tr.outlier_start_ns.unwrap()) + tr.outlier_duration_s.unwrap(),
+            );
+            let mean = |a: f64, b: f64| {
+                let v: Vec<f64> = (0..rec.mbs.t.len())
+                    .filter(|&k| rec.mbs.t[k] > a && rec.mbs.t[k] <= b)
+                    .map(|k| rec.mbs.watts[k])
+                    .collect();
+                v.iter().sum::<f64>() / v.len().max(1) as f64
+            };
+            let jump = mean(o0 + 0.25, o1) - mean(pre0, traj0);
+            let step = tr.outlier_step_w.unwrap();
+            assert!(
+                jump > 0.6 * step,
+                "trial {}: jump {jump} W for a {step} W step",
+                tr.index
+            );
+        }
+    }
+    assert!(n_cont > 0 && truth.trials.iter().any(|t| t.outlier));
+}
