@@ -615,10 +615,7 @@ fn report_writes_markdown_and_readable_pngs() {
             measured: y[..40].to_vec(),
             predicted: predicted[..40].to_vec(),
         }),
-        terms: Some(TermShares {
-            dataset: "identification".into(),
-            means,
-        }),
+        terms: Some(TermContributions::from_means("identification", &means)),
         aggregation: vec![
             AggregationRow {
                 rows: "per-sample".into(),
@@ -693,3 +690,4 @@ fn collinear_columns_reach_the_same_objective() {
     // The identifiable combination θ3 + 2θ7 agrees.
     assert!((c.theta[3] + 2.0 * c.theta[7] - b.theta[3] - 2.0 * b.theta[7]).abs() < 1e-5);
 }
+

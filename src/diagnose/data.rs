@@ -7,6 +7,7 @@
 //! lags describe the same readings and their errors can be compared trial by trial.
 
 use crate::N_JOINTS;
+use crate::identify::filters::sigma_omega;
 use crate::power::regressor_into;
 use crate::signals::{PowerSeries, Recording};
 
@@ -135,28 +136,8 @@ pub(crate) fn trial_meta(
             }
         }
         extra0.iter_mut().for_each(|v| *v /= n.max(1) as f64);
-        let traj = sample_range(t, w.t_traj, w.t_post_end);
-        let mut wsum = 0.0;
-        let mut wsq = 0.0;
-        let mut m = 0usize;
-        for k in traj {
-            let Some(g) = rec.state.gyro.get(k) else {
-                continue;
-            };
-            let omega = (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt();
-            wsum += omega;
-            wsq += omega * omega;
-            m += 1;
-        }
-        if m < 3 {
-            skipped.push((
-                w.index,
-                format!("only {m} joint samples in the trajectory window"),
-            ));
-            continue;
-        }
-        let mean = wsum / m as f64;
-        let sigma_omega = (wsq / m as f64 - mean * mean).max(0.0).sqrt();
+        // The identification's IMU statistic over the same trajectory window.
+        let sigma_omega = sigma_omega(rec, w.t_traj, w.t_post_end);
         out.push(TrialMeta {
             window: w.clone(),
             tau0_sq,

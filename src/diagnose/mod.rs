@@ -21,7 +21,9 @@ pub mod summary;
 mod testkit;
 pub mod torque;
 
-use anyhow::{Result, bail};
+use std::path::PathBuf;
+
+use anyhow::{Context, Result, bail};
 
 pub use data::{Phase, TrialWindow};
 pub use locate::{Breakdown, Correlate, Group, TrialResidual};
@@ -30,22 +32,16 @@ pub use torque::{ArmModel, TorqueComparison};
 
 use crate::N_PARAMS;
 use crate::power::PowerModel;
-use crate::signals::{PowerSeries, Recording};
+use crate::robot::{ArmDynamics, RobotModel};
+pub use crate::identify::dataset::Target;
+use crate::identify::filters::{self, TrialStat};
+use crate::signals::Recording;
 use data::{Rows, TrialMeta, build_rows, trial_meta};
 use hypotheses::{LATENCY_ID, POWER_HYPOTHESES};
 use select::{PowerData, Rule, r2_rmse};
 
 /// Version of the `diagnosis.json` layout.
 pub const SCHEMA_VERSION: u32 = 1;
-
-/// Which power sensor is the target.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-pub enum Target {
-    /// Main-board sensor (arm/upper-body rail): the paper's target.
-    Mbs,
-    /// Battery management system (whole robot).
-    Bms,
-}
 
 /// Settings of a diagnosis.
 #[derive(Debug, Clone)]
@@ -76,6 +72,10 @@ pub struct DiagnoseOptions {
     pub outlier_passes: usize,
     /// Cap on torque samples used at the torque level (evenly thinned beyond it).
     pub max_torque_samples: usize,
+    /// URDF for the torque level (default: the shipped G1 left arm with hand).
+    pub urdf: Option<PathBuf>,
+    /// Compare torques and score the payload hypothesis.
+    pub torque_level: bool,
 }
 
 impl Default for DiagnoseOptions {
@@ -92,6 +92,8 @@ impl Default for DiagnoseOptions {
             imu_threshold: 2.5,
             outlier_passes: 2,
             max_torque_samples: 60_000,
+            urdf: None,
+            torque_level: true,
         }
     }
 }
@@ -223,29 +225,17 @@ impl Diagnosis {
     }
 }
 
-fn power_series(rec: &Recording, target: Target) -> &PowerSeries {
-    match target {
-        Target::Mbs => &rec.mbs,
-        Target::Bms => &rec.bms,
-    }
-}
-
-/// Reject balance-contaminated trials (σ_ω above `k` × median), as the identification does.
-fn imu_filter(metas: Vec<TrialMeta>, k: f64, rejected: &mut Vec<RejectedTrial>) -> Vec<TrialMeta> {
-    let mut s: Vec<f64> = metas.iter().map(|m| m.sigma_omega).collect();
-    s.sort_by(f64::total_cmp);
-    let med = s.get(s.len() / 2).copied().unwrap_or(0.0);
-    let (keep, out): (Vec<_>, Vec<_>) = metas.into_iter().partition(|m| m.sigma_omega <= k * med);
-    for m in out {
-        rejected.push(RejectedTrial {
-            trial: m.window.index,
-            reason: format!(
-                "IMU: σ_ω = {:.4} rad/s > {k} × median {:.4}",
-                m.sigma_omega, med
-            ),
-        });
-    }
-    keep
+/// Reject balance-contaminated trials with the identification's IMU filter.
+fn imu_filter(
+    mut metas: Vec<TrialMeta>,
+    k: f64,
+    rejected: &mut Vec<RejectedTrial>,
+) -> Vec<TrialMeta> {
+    let stats: Vec<TrialStat> = metas.iter().map(|m| (0, m.window.index, m.sigma_omega)).collect();
+    let out = filters::imu_sway(&stats, k);
+    rejected.extend(out.iter().map(|r| RejectedTrial { trial: r.trial, reason: r.describe() }));
+    metas.retain(|m| !out.iter().any(|r| r.trial == m.window.index));
+    metas
 }
 
 /// Per-trial mean in-sample residual of the base model fitted to `rows`.
@@ -273,6 +263,41 @@ fn base_trial_residuals(
         .collect())
 }
 
+/// Diagnose a recording: segment its trials from the data (the identification's segmentation),
+/// load the robot model for the torque level, and run [`diagnose_trials`].
+pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis> {
+    let seg = crate::identify::segment::segment(rec, &crate::identify::segment::SegmentOptions::default());
+    if seg.trials.is_empty() {
+        let why: Vec<String> = seg.unmatched.iter().take(5).map(|s| format!("{:.1}–{:.1} s: {}", s.t0, s.t1, s.reason)).collect();
+        bail!("{}: no protocol trials found ({})", rec.source.display(), why.join("; "));
+    }
+    let windows: Vec<TrialWindow> = seg
+        .trials
+        .iter()
+        .map(|t| TrialWindow {
+            index: t.index,
+            t_pre: t.t_pre_start,
+            t_traj: t.t_traj_start,
+            t_traj_end: t.t_traj_end,
+            t_post_end: t.t_post_end,
+            t_return_end: t.t_return_end,
+            joints_moved: t.joints_moved.clone(),
+            qdot_max: if t.qdot_max_cmd.is_finite() { t.qdot_max_cmd } else { t.qdot_max_meas },
+        })
+        .collect();
+    let arm = if opts.torque_level && rec.state.tau.iter().any(|t| t.iter().any(|v| *v != 0.0)) {
+        let model = match &opts.urdf {
+            Some(p) => RobotModel::from_urdf_file(p).with_context(|| format!("loading URDF {}", p.display()))?,
+            None => RobotModel::builtin(),
+        };
+        let joints = model.arm(&rec.joint_names)?;
+        Some(ArmDynamics::new(&model, &joints)?)
+    } else {
+        None
+    };
+    diagnose_trials(rec, &windows, arm.as_ref().map(|a| a as &dyn ArmModel), opts)
+}
+
 /// Diagnose a recording whose trials are already segmented. `arm` enables the torque level.
 pub fn diagnose_trials(
     rec: &Recording,
@@ -280,7 +305,7 @@ pub fn diagnose_trials(
     arm: Option<&dyn ArmModel>,
     opts: &DiagnoseOptions,
 ) -> Result<Diagnosis> {
-    let power = power_series(rec, opts.target);
+    let power = opts.target.series(rec);
     if power.t.is_empty() {
         bail!(
             "{}: no {:?} power readings to diagnose",
@@ -300,29 +325,30 @@ pub fn diagnose_trials(
     let mut metas = imu_filter(metas, opts.imu_threshold, &mut rejected);
 
     // 3σ passes on per-trial mean residuals of the base model (hardware-event outliers).
-    for _ in 0..opts.outlier_passes {
+    for pass in 0..opts.outlier_passes {
         let rows = build_rows(rec, power, &metas, 0.0, w, false);
         let res = base_trial_residuals(&rows, metas.len(), opts.folds, reference.clone())?;
-        let vals: Vec<f64> = res.iter().flatten().copied().collect();
-        if vals.len() < 10 {
+        let stats: Vec<TrialStat> = metas
+            .iter()
+            .zip(&res)
+            .filter_map(|(m, r)| r.map(|r| (0, m.window.index, r)))
+            .collect();
+        if stats.len() < 10 {
             break;
         }
-        let mean = vals.iter().sum::<f64>() / vals.len() as f64;
-        let sd =
-            (vals.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (vals.len() - 1) as f64).sqrt();
+        let out = filters::three_sigma(&stats, 3.0, pass + 1);
         let before = metas.len();
         let mut keep = Vec::new();
         for (m, r) in metas.into_iter().zip(&res) {
-            match r {
-                Some(r) if (r - mean).abs() > 3.0 * sd => rejected.push(RejectedTrial {
-                    trial: m.window.index,
-                    reason: format!("3σ: mean residual {r:+.2} W, |r − mean| > 3 × {sd:.2} W"),
-                }),
-                None => rejected.push(RejectedTrial {
+            if r.is_none() {
+                rejected.push(RejectedTrial {
                     trial: m.window.index,
                     reason: "no power readings in the trial".into(),
-                }),
-                _ => keep.push(m),
+                });
+            } else if let Some(o) = out.iter().find(|o| o.trial == m.window.index) {
+                rejected.push(RejectedTrial { trial: m.window.index, reason: o.describe() });
+            } else {
+                keep.push(m);
             }
         }
         metas = keep;
@@ -756,5 +782,49 @@ mod twin_tests {
         let d = diagnose_trials(&rec, &w, None, &twin()).unwrap();
         eprintln!("{}", d.summary);
         assert!(d.accepted.is_empty());
+    }
+}
+
+#[cfg(test)]
+mod torque_tests {
+    use super::testkit::{Effects, session};
+    use super::*;
+    use crate::robot::Payload;
+
+    /// Replace the miniature session's torques by the shipped URDF's inverse dynamics (with an
+    /// optional payload) plus joint friction and noise.
+    fn with_urdf_torques(rec: &mut Recording, payload: Option<Payload>) -> ArmDynamics {
+        let model = RobotModel::builtin();
+        let joints = model.g1_left_arm().unwrap();
+        let urdf = ArmDynamics::new(&model, &joints).unwrap();
+        let plant = payload.map_or_else(|| urdf.clone(), |p| urdf.with_payload(&p));
+        let s = &mut rec.state;
+        let n = s.t.len();
+        for k in 0..n {
+            let (a, b) = (k.saturating_sub(1), (k + 1).min(n - 1));
+            let ddq: [f64; 7] = std::array::from_fn(|j| (s.dq[b][j] - s.dq[a][j]) / (s.t[b] - s.t[a]).max(1e-9));
+            let tau = plant.inverse_dynamics(&s.q[k], &s.dq[k], &ddq);
+            let noise = ((k * 7919) % 1000) as f64 / 1000.0 - 0.5;
+            s.tau[k] = std::array::from_fn(|j| tau[j] + 0.3 * (s.dq[k][j] / 0.01).tanh() + 0.1 * s.dq[k][j] + 0.05 * noise);
+        }
+        urdf
+    }
+
+    #[test]
+    fn payload_is_recovered_at_the_torque_level_and_absent_when_there_is_none() {
+        let (mut rec, w) = session(40, 8, Effects::default());
+        let urdf = with_urdf_torques(&mut rec, Some(Payload { mass_kg: 0.5, com_m: [0.1, 0.0, 0.0] }));
+        let d = diagnose_trials(&rec, &w, Some(&urdf), &DiagnoseOptions::default()).unwrap();
+        eprintln!("{}", d.summary);
+        let p = d.hypotheses.iter().find(|h| h.id == "payload").unwrap();
+        assert!(p.accepted && p.rank == 1, "{p:?}");
+        assert!((p.params[0].value - 0.5).abs() < 0.05, "m = {}", p.params[0].value);
+        assert!((p.params[1].value - 0.1).abs() < 0.01, "cx = {}", p.params[1].value);
+
+        let (mut rec, w) = session(40, 9, Effects::default());
+        let urdf = with_urdf_torques(&mut rec, None);
+        let d = diagnose_trials(&rec, &w, Some(&urdf), &DiagnoseOptions::default()).unwrap();
+        let p = d.hypotheses.iter().find(|h| h.id == "payload").unwrap();
+        assert!(!p.accepted, "{p:?}");
     }
 }

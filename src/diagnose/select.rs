@@ -12,6 +12,7 @@ use rand::SeedableRng;
 use rand::seq::SliceRandom;
 
 use super::data::Rows;
+use crate::identify::metrics::Metrics;
 use super::hypotheses::{Combine, Hypothesis, LATENCY_ID, N_RAW};
 use super::stats::improvement_p_value;
 use crate::{N_JOINTS, N_PARAMS};
@@ -175,7 +176,9 @@ fn bounds(p: usize, reference: Option<&[f64]>) -> (Vec<f64>, Vec<f64>) {
 const BASE_RIDGE: f64 = 1e-4;
 
 /// Bounded least squares on normal equations: minimise θᵀGθ − 2θᵀh subject to lo ≤ θ ≤ hi,
-/// with the relative ridge on the first [`N_PARAMS`] (base) coefficients.
+/// with the relative ridge on the first [`N_PARAMS`] (base) coefficients. Solved in Gram space
+/// by [`super::qp`] (thousands of small fits per diagnosis; checked against the
+/// identification's row-space BVLS in the tests).
 fn solve_bounded(
     g: &DMatrix<f64>,
     h: &DVector<f64>,
@@ -184,13 +187,7 @@ fn solve_bounded(
 ) -> Result<DVector<f64>> {
     let p = h.len();
     let s: Vec<f64> = (0..p)
-        .map(|i| {
-            if g[(i, i)] > 0.0 {
-                g[(i, i)].sqrt()
-            } else {
-                1.0
-            }
-        })
+        .map(|i| if g[(i, i)] > 0.0 { g[(i, i)].sqrt() } else { 1.0 })
         .collect();
     let mut gs = DMatrix::from_fn(p, p, |i, j| g[(i, j)] / (s[i] * s[j]));
     for i in 0..p {
@@ -297,16 +294,10 @@ pub(crate) fn trial_sse(y: &[f64], pred: &[f64], trial: &[usize], n_trials: usiz
     out
 }
 
-/// R² and RMSE of predictions.
+/// R² and RMSE of predictions (the identification's metrics).
 pub(crate) fn r2_rmse(y: &[f64], pred: &[f64]) -> (f64, f64) {
-    let n = y.len().max(1) as f64;
-    let mean = y.iter().sum::<f64>() / n;
-    let sst: f64 = y.iter().map(|v| (v - mean).powi(2)).sum();
-    let sse: f64 = y.iter().zip(pred).map(|(a, b)| (a - b).powi(2)).sum();
-    (
-        if sst > 0.0 { 1.0 - sse / sst } else { 0.0 },
-        (sse / n).sqrt(),
-    )
+    let m = Metrics::compute(y, pred);
+    (m.r2, m.rmse)
 }
 
 /// Bayesian information criterion of a Gaussian least-squares fit.

@@ -175,11 +175,12 @@ pub fn summarise(d: &Diagnosis) -> String {
             let _ = writeln!(s, "       payload centre of mass: {}.", com.join(", "));
         }
     }
-    if !d.accepted.is_empty() {
+    let power_accepted: Vec<&str> = d.accepted.iter().filter(|h| h.level == "power").map(|h| h.id.as_str()).collect();
+    if !power_accepted.is_empty() {
         let _ = writeln!(
             s,
             "Model: with {} the held-out power R² goes {:.3} → {:.3}, RMSE {:.2} → {:.2} W (per trial R² {:.3} → {:.3}).",
-            d.final_model.hypotheses.join(" + "),
+            power_accepted.join(" + "),
             f.before.r2,
             f.after.r2,
             f.before.rmse_w,

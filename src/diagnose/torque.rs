@@ -37,6 +37,21 @@ pub trait ArmModel {
     ) -> SMatrix<f64, N_JOINTS, 4>;
 }
 
+impl ArmModel for crate::robot::ArmDynamics {
+    fn inverse_dynamics(&self, q: &[f64; N_JOINTS], dq: &[f64; N_JOINTS], ddq: &[f64; N_JOINTS]) -> [f64; N_JOINTS] {
+        crate::robot::ArmDynamics::inverse_dynamics(self, q, dq, ddq)
+    }
+
+    fn payload_regressor(
+        &self,
+        q: &[f64; N_JOINTS],
+        dq: &[f64; N_JOINTS],
+        ddq: &[f64; N_JOINTS],
+    ) -> SMatrix<f64, N_JOINTS, 4> {
+        crate::robot::ArmDynamics::payload_regressor(self, q, dq, ddq)
+    }
+}
+
 /// Per-joint agreement of recorded and modelled torque.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct TorqueComparison {

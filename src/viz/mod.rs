@@ -12,6 +12,7 @@
 //! message for message when decoded but may differ in their last few hundred bytes.
 
 pub mod blueprint;
+pub mod overlay;
 pub mod replay;
 mod robot3d;
 mod rrd_sink;
