@@ -604,3 +604,53 @@ fn artefacts_show_in_imu_and_power() {
     }
     assert!(n_cont > 0 && truth.trials.iter().any(|t| t.outlier));
 }
+
+#[test]
+fn twin_of_the_shared_smoke_session_matches_it() {
+    // g1_smoke.mcap was written by an independent generator (python mcap, pinocchio dynamics).
+    let shared = Path::new("/work/shared/recordings/g1_smoke.mcap");
+    if !shared.exists() {
+        eprintln!(
+            "note: {} not found; shared-recording twin test skipped",
+            shared.display()
+        );
+        return;
+    }
+    let real = load(shared);
+    let dir = tmp();
+    let out = dir.path().join("twin.mcap");
+    g1viz::sim::simulate_like(&real, &tiny(1), &out).unwrap();
+    let twin = load(&out);
+    assert_eq!(twin.start_ns, real.start_ns);
+    assert_eq!(twin.state.t.len(), real.state.t.len());
+    assert_eq!(twin.mbs.t, real.mbs.t);
+    // Torques agree to the two files' measurement noise (0.05 Nm each → √2·0.05 rms).
+    for i in 0..7 {
+        let ms = real
+            .state
+            .tau
+            .iter()
+            .zip(&twin.state.tau)
+            .map(|(a, b)| (a[i] - b[i]).powi(2))
+            .sum::<f64>()
+            / real.state.tau.len() as f64;
+        assert!(
+            ms.sqrt() < 0.09,
+            "joint {i}: τ rms difference {:.3} Nm",
+            ms.sqrt()
+        );
+    }
+    // Power readings: same rest level and the same motion power up to noise, drift and the
+    // shared file's balance leak.
+    let n = real.mbs.watts.len() as f64;
+    let rms = (real
+        .mbs
+        .watts
+        .iter()
+        .zip(&twin.mbs.watts)
+        .map(|(a, b)| (a - b).powi(2))
+        .sum::<f64>()
+        / n)
+        .sqrt();
+    assert!(rms < 1.5, "MBS rms difference {rms:.2} W");
+}
