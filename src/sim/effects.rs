@@ -1,6 +1,13 @@
 //! Switchable physics the paper's power model lacks. Each effect is an `Option` with physical
 //! parameters and units; the definitions are shared with the diagnosis hypotheses
 //! (CONTRACTS.md). New effects are new fields: every consumer matches on them by name.
+//!
+//! How visible the defaults are (hold-out preset, the true base model validated per effect,
+//! `bench_sim effects`): bus loss and payload change the trial-level fit most; braking and a
+//! warm-start thermal drift double the like-for-like RMSE; latency shows as a shifted best
+//! reading window (a pipeline that estimates the lag absorbs most of it); the payload changes
+//! power only through the measured torques, so it is seen at the torque level (URDF inverse
+//! dynamics vs `tau_est`); harness drag needs elbow motions (a few % of RMSE on the hold-out set).
 
 use serde::{Deserialize, Serialize};
 

@@ -456,6 +456,37 @@ mod tests {
     }
 
     #[test]
+    fn holdout_reuses_identification_waypoints() {
+        let paper = plan(Preset::Paper, 1, 0);
+        for t in plan(Preset::Holdout, 2, 0) {
+            assert!(HOLDOUT_SPEEDS.contains(&t.qdot_max));
+            let same = paper
+                .iter()
+                .find(|p| p.route.id == t.route.id)
+                .expect("route in the paper set");
+            assert_eq!(same.route.waypoints, t.route.waypoints);
+        }
+    }
+
+    #[test]
+    fn waypoints_stay_in_the_safe_ranges() {
+        for t in plan(Preset::Paper, 1, 0) {
+            assert!((3..=5).contains(&t.route.waypoints.len()));
+            for wp in &t.route.waypoints {
+                for j in 0..N_JOINTS {
+                    let [lo, hi] = SAFE_RANGE[j];
+                    let moved = t.route.joints.contains(&j);
+                    assert!(if moved {
+                        wp[j] >= lo && wp[j] <= hi
+                    } else {
+                        wp[j] == 0.0
+                    });
+                }
+            }
+        }
+    }
+
+    #[test]
     fn preset_sizes() {
         assert_eq!(plan(Preset::Holdout, 1, 0).len(), 46);
         assert_eq!(plan(Preset::Paper, 1, 0).len(), 1000);

@@ -11,27 +11,19 @@ use anyhow::{Context, Result};
 /// Number of motor slots in `LowState.motor_state` / `LowCmd.motor_cmd`.
 pub const N_MOTORS: usize = 35;
 
-/// The .msg texts of the `unitree_hg` types the twin writes (same field lists as Unitree's
-/// `unitree_hg` package).
-mod msg {
-    pub const LOW_STATE: &str = "uint32[2] version\nuint8 mode_pr\nuint8 mode_machine\nuint32 tick\nIMUState imu_state\nMotorState[35] motor_state\nuint8[40] wireless_remote\nuint32[4] reserve\nuint32 crc";
-    pub const IMU_STATE: &str = "float32[4] quaternion\nfloat32[3] gyroscope\nfloat32[3] accelerometer\nfloat32[3] rpy\nint16 temperature";
-    pub const MOTOR_STATE: &str = "uint8 mode\nfloat32 q\nfloat32 dq\nfloat32 ddq\nfloat32 tau_est\n\nint16[2] temperature\nfloat32 vol\nuint32[2] sensor\nuint32 motorstate\nuint32[4] reserve";
-    pub const LOW_CMD: &str = "uint8 mode_pr\nuint8 mode_machine\n\nMotorCmd[35] motor_cmd\n\nuint32[4] reserve\nuint32 crc";
-    pub const MOTOR_CMD: &str =
-        "uint8 mode\nfloat32 q\nfloat32 dq\nfloat32 tau\nfloat32 kp\nfloat32 kd\nuint32 reserve";
-    pub const MAIN_BOARD_STATE: &str =
-        "uint16[6] fan_state\nint16[6] temperature\nfloat32[6] value\nuint32[6] state";
-    pub const BMS_STATE: &str = "uint8 version_high\nuint8 version_low\nuint8 fn\nuint16[40] cell_vol\nuint32[3] bmsvoltage\nint32 current\nuint8 soc\nuint8 soh\nint16[12] temperature\nuint16 cycle\nuint16 manufacturer_date\nuint32[5] bmsstate\nuint32[3] reserve";
-}
-
 /// The standard ROS 2 concatenated schema text: the root type's .msg text, then for each
 /// dependency a line of 80 `=`, `MSG: pkg/Type` and its text.
-fn ros2msg_schema(root: &str, deps: &[(&str, &str)]) -> String {
-    let mut s = String::with_capacity(1024);
-    s.push_str(root.trim_end());
+/// Texts come from the definitions built into the reader (`read::msgdef::builtin_definition`).
+fn ros2msg_schema(root: &str, deps: &[&str]) -> Result<String> {
+    let text = |ty: &str| {
+        crate::read::msgdef::builtin_definition(ty)
+            .with_context(|| format!("no built-in message definition for {ty}"))
+    };
+    let mut s = String::with_capacity(2048);
+    s.push_str(text(root)?.trim_end());
     s.push('\n');
-    for (name, text) in deps {
+    for name in deps {
+        let text = text(name)?;
         s.push_str(&"=".repeat(80));
         s.push_str("\nMSG: ");
         s.push_str(name);
@@ -39,7 +31,7 @@ fn ros2msg_schema(root: &str, deps: &[(&str, &str)]) -> String {
         s.push_str(text.trim_end());
         s.push('\n');
     }
-    s
+    Ok(s)
 }
 
 /// Little-endian XCDR1 serializer into a reusable fixed buffer (the four message types are at
@@ -353,15 +345,12 @@ impl<W: Write + Seek> McapOut<W> {
         let mut inner = opts.create(w).context("starting MCAP output")?;
         let schemas = [
             ros2msg_schema(
-                msg::LOW_STATE,
-                &[
-                    ("unitree_hg/IMUState", msg::IMU_STATE),
-                    ("unitree_hg/MotorState", msg::MOTOR_STATE),
-                ],
-            ),
-            ros2msg_schema(msg::LOW_CMD, &[("unitree_hg/MotorCmd", msg::MOTOR_CMD)]),
-            ros2msg_schema(msg::BMS_STATE, &[]),
-            ros2msg_schema(msg::MAIN_BOARD_STATE, &[]),
+                TOPICS[0].1,
+                &["unitree_hg/IMUState", "unitree_hg/MotorState"],
+            )?,
+            ros2msg_schema(TOPICS[1].1, &["unitree_hg/MotorCmd"])?,
+            ros2msg_schema(TOPICS[2].1, &[])?,
+            ros2msg_schema(TOPICS[3].1, &[])?,
         ];
         let mut channels = [0u16; 4];
         for (k, ((topic, ty), text)) in TOPICS.iter().zip(&schemas).enumerate() {
