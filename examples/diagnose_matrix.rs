@@ -49,6 +49,7 @@ const CASES: &[Case] = &[
         seeds: &[4],
     },
     Case { name: "harness", effects: &["harness_drag=4"], truth: &[], t_start_c: 30.0, seeds: &[5] },
+    Case { name: "harness15", effects: &["harness_drag=15"], truth: &[], t_start_c: 30.0, seeds: &[5] },
 ];
 
 fn session(effects: &Effects, seed: u64, parts: u64, t_start_c: f64, dir: &std::path::Path) -> Result<g1viz::signals::Recording> {
@@ -85,7 +86,7 @@ fn row(case: &Case, seed: u64, mode: &str, d: &Diagnosis) -> String {
         });
         ranks.push(d.hypotheses.iter().find(|h| h.id == *id).map_or("—".into(), |h| h.rank.to_string()));
     }
-    if case.name == "harness" {
+    if case.name.starts_with("harness") {
         let c = d.unexplained.first();
         found.push(c.map_or("—".into(), |c| {
             format!("top correlate: {} (r = {:+.2}, p = {:.1e}{}), trials {:?}", c.feature, c.r, c.p_adjusted, if c.significant { "" } else { ", n.s." }, c.trials)

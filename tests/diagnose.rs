@@ -151,10 +151,14 @@ fn null_sessions_accept_nothing() {
 
 #[test]
 fn harness_drag_outside_the_library_is_located() {
+    // A stiff harness (15 W·s/rad): the simulator's default 4 W·s/rad adds ~0.1 W to an elbow
+    // trial's mean power, below what ~70 trials resolve (the README's matrix reports both).
     let mut e = Effects::default();
-    e.enable("harness_drag=4").unwrap();
+    e.enable("harness_drag=15").unwrap();
     let (rec, truth) = session(&e, 5, 3, 30.0);
-    let d = diagnose::diagnose(&rec, &refit()).unwrap();
+    // Against the twin: a refitted base model absorbs most of the drag into the elbow's Coulomb
+    // and interaction terms (the matrix shows both).
+    let d = diagnose::diagnose(&rec, &twin()).unwrap();
     show("harness_drag", &d);
     let top = d.unexplained.first().expect("a correlate");
     assert!(top.significant, "{top:?}");

@@ -555,7 +555,15 @@ pub fn diagnose_trials(
         .into_iter()
         .take(10)
         .collect();
-    let unexplained = locate::correlates(rows0, &metas, &resid_final, &rec.joint_names, 0.01, 6);
+    let unexplained = locate::correlates(
+        rows0,
+        &metas,
+        &resid_final,
+        &rec.joint_names,
+        data.reference.is_none(),
+        0.01,
+        6,
+    );
     let lag_scan = (0..lags.len())
         .map(|l| {
             let g = &data.grams[l].total;
