@@ -369,14 +369,17 @@ pub(crate) fn trial_residuals(
 }
 
 /// Correlate per-trial mean residuals with per-trial mean descriptor features (plus session
-/// time, body sway and speed level). Each feature is first made orthogonal (per reading) to the
-/// base regressors φ, so what the base model can already absorb does not hide or fake a
-/// correlate (a partial correlation). Returns the strongest `top` correlates, most significant first.
+/// time, body sway and speed level). When the base model was refitted (`base_fitted`), each
+/// feature is first made orthogonal (per reading) to the base regressors φ, so what the refit
+/// already absorbed neither hides nor fakes a correlate (a partial correlation); against a fixed
+/// twin model the residual still holds that part, so the raw features are used. Returns the
+/// strongest `top` correlates, most significant first.
 pub(crate) fn correlates(
     rows: &Rows,
     trials: &[TrialMeta],
     resid: &[f64],
     joint_names: &[String],
+    base_fitted: bool,
     level: f64,
     top: usize,
 ) -> Vec<Correlate> {
@@ -395,8 +398,9 @@ pub(crate) fn correlates(
         f[(r, N_LOCATE + 1)] = trials[rows.trial[r]].sigma_omega;
         f[(r, N_LOCATE + 2)] = trials[rows.trial[r]].window.qdot_max;
     }
-    let x = DMatrix::from_fn(n, N_PARAMS + 1, |r, c| {
-        if c < N_PARAMS { rows.x[r][c] } else { 1.0 }
+    let width = if base_fitted { N_PARAMS + 1 } else { 1 };
+    let x = DMatrix::from_fn(n, width, |r, c| {
+        if c + 1 < width { rows.x[r][c] } else { 1.0 }
     });
     let mut g = x.transpose() * &x;
     let ridge = 1e-9 * (0..g.nrows()).map(|i| g[(i, i)]).fold(0.0, f64::max);

@@ -263,6 +263,34 @@ fn base_trial_residuals(
         .collect())
 }
 
+/// Join recordings end to end into one (e.g. several short sessions of one robot, to diagnose
+/// them together): each part's times are shifted to start `gap_s` after the previous part's last
+/// joint sample. Warnings are kept, the first part's source and start time are used.
+pub fn join_recordings(parts: Vec<Recording>, gap_s: f64) -> Recording {
+    let mut parts = parts.into_iter();
+    let Some(mut out) = parts.next() else { return Recording::default() };
+    for r in parts {
+        let offset = out.state.t.last().copied().unwrap_or(0.0) + gap_s - r.state.t.first().copied().unwrap_or(0.0);
+        let shift = |v: &[f64]| v.iter().map(|t| t + offset).collect::<Vec<_>>();
+        out.state.t.extend(shift(&r.state.t));
+        out.state.q.extend(r.state.q);
+        out.state.dq.extend(r.state.dq);
+        out.state.tau.extend(r.state.tau);
+        out.state.temp.extend(r.state.temp);
+        out.state.gyro.extend(r.state.gyro);
+        out.state.quat.extend(r.state.quat);
+        out.command.t.extend(shift(&r.command.t));
+        out.command.q.extend(r.command.q);
+        out.command.dq.extend(r.command.dq);
+        out.mbs.t.extend(shift(&r.mbs.t));
+        out.mbs.watts.extend(r.mbs.watts);
+        out.bms.t.extend(shift(&r.bms.t));
+        out.bms.watts.extend(r.bms.watts);
+        out.warnings.extend(r.warnings);
+    }
+    out
+}
+
 /// Diagnose a recording: segment its trials from the data (the identification's segmentation),
 /// load the robot model for the torque level, and run [`diagnose_trials`].
 pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis> {
@@ -527,7 +555,15 @@ pub fn diagnose_trials(
         .into_iter()
         .take(10)
         .collect();
-    let unexplained = locate::correlates(rows0, &metas, &resid_final, &rec.joint_names, 0.01, 6);
+    let unexplained = locate::correlates(
+        rows0,
+        &metas,
+        &resid_final,
+        &rec.joint_names,
+        data.reference.is_none(),
+        0.01,
+        6,
+    );
     let lag_scan = (0..lags.len())
         .map(|l| {
             let g = &data.grams[l].total;
