@@ -61,7 +61,9 @@ struct ReadArgs {
 
 impl ReadArgs {
     fn open_options(&self) -> OpenOptions {
-        OpenOptions { msg_paths: self.msg_paths.clone() }
+        OpenOptions {
+            msg_paths: self.msg_paths.clone(),
+        }
     }
 
     fn signal_map(&self) -> Result<SignalMap> {
@@ -225,7 +227,7 @@ struct SimulateArgs {
     /// Output MCAP file (the truth sidecar goes beside it as NAME.truth.json).
     #[arg(short, long, value_name = "OUT")]
     output: PathBuf,
-    /// Trial set: tiny, smoke, paper, holdout.
+    /// Trial set: tiny, example, smoke, paper, holdout.
     #[arg(long, default_value = "smoke")]
     preset: String,
     /// Random seed (same seed, same file).
@@ -340,7 +342,9 @@ fn info(a: InfoArgs) -> Result<()> {
                 }
             }
         }
-        None => println!("signals:    (the arm signals could not be resolved; `g1viz replay` says why)"),
+        None => {
+            println!("signals:    (the arm signals could not be resolved; `g1viz replay` says why)")
+        }
     }
     Ok(())
 }
@@ -385,6 +389,9 @@ fn replay(a: ReplayArgs) -> Result<()> {
         Some(m) => {
             let model = load_model(m)?;
             let (extras, v) = viz::overlay::model_extras(&rec, &model, &a.fit.options())?;
+            for n in &v.notes {
+                eprintln!("note: {n}");
+            }
             eprintln!(
                 "model {}: per-trajectory R² {:.3}, RMSE {:.2} W on {} trials",
                 m.display(),
@@ -401,7 +408,9 @@ fn replay(a: ReplayArgs) -> Result<()> {
     } else if let Some(addr) = &a.connect {
         Sink::Connect((!addr.is_empty()).then(|| addr.clone()))
     } else if a.spawn {
-        Sink::Spawn { memory_limit: a.memory_limit.clone() }
+        Sink::Spawn {
+            memory_limit: a.memory_limit.clone(),
+        }
     } else {
         bail!("say where the replay goes: --save OUT.rrd, --connect [ADDR] or --spawn");
     };
@@ -410,7 +419,14 @@ fn replay(a: ReplayArgs) -> Result<()> {
         inputs.push(m);
     }
     let out = viz::open_stream("g1viz", &viz::recording_id_for(&rec), &sink, &inputs)?;
-    let summary = viz::replay::log_replay(&rec, &robot, &arm, &extras, &Default::default(), out.stream())?;
+    let summary = viz::replay::log_replay(
+        &rec,
+        &robot,
+        &arm,
+        &extras,
+        &Default::default(),
+        out.stream(),
+    )?;
     out.finish()?;
     for w in &summary.warnings {
         eprintln!("warning: {w}");
@@ -423,18 +439,27 @@ fn replay(a: ReplayArgs) -> Result<()> {
 
 #[cfg(not(feature = "viz"))]
 fn replay(_: ReplayArgs) -> Result<()> {
-    bail!("this g1viz was built without the `viz` feature (Rerun output); rebuild with default features")
+    bail!(
+        "this g1viz was built without the `viz` feature (Rerun output); rebuild with default features"
+    )
 }
 
 fn identify(a: IdentifyArgs) -> Result<()> {
     let opts = a.fit.options();
-    let recs = a.sessions.iter().map(|p| a.read.load(p)).collect::<Result<Vec<_>>>()?;
+    let recs = a
+        .sessions
+        .iter()
+        .map(|p| a.read.load(p))
+        .collect::<Result<Vec<_>>>()?;
     let id = pipeline::identify(&recs, &opts)?;
     let validation = match &a.holdout {
         Some(p) => Some(pipeline::validate(&id.model, &a.read.load(p)?, &opts)?),
         None => None,
     };
-    let names = recs.first().map(|r| r.joint_names.clone()).unwrap_or_default();
+    let names = recs
+        .first()
+        .map(|r| r.joint_names.clone())
+        .unwrap_or_default();
     let file = id.model_file(&names, validation.as_ref(), "")?;
     file.save(&a.output)?;
 
@@ -453,19 +478,36 @@ fn identify(a: IdentifyArgs) -> Result<()> {
         id.alignment.window_s, id.alignment.lag_s
     );
     for r in &id.rejections {
-        println!("  rejected trial {} of session {}: {}", r.trial, r.session, r.describe());
+        println!(
+            "  rejected trial {} of session {}: {}",
+            r.trial,
+            r.session,
+            r.describe()
+        );
     }
     for m in &id.modes {
-        println!("  {:<8} rows: κ(ΦᵀΦ) = {:.2e}, R² = {:.3}", m.mode.name(), m.kappa, m.quality.r2);
+        println!(
+            "  {:<8} rows: κ(ΦᵀΦ) = {:.2e}, R² = {:.3}",
+            m.mode.name(),
+            m.kappa,
+            m.quality.r2
+        );
     }
     for (i, d) in id.dominant.iter().enumerate() {
         let term = d.map_or("none (no loss identified)", |t| t.name());
-        println!("  {:<28} dominant loss: {term}", names.get(i).map_or("", |s| s.as_str()));
+        println!(
+            "  {:<28} dominant loss: {term}",
+            names.get(i).map_or("", |s| s.as_str())
+        );
     }
     if let Some(v) = &validation {
         println!(
             "hold-out: R² {:.3}, RMSE {:.2} W, MAE {:.2} W, bias {:+.2} W on {} trials",
-            v.trial_level.r2, v.trial_level.rmse, v.trial_level.mae, v.trial_level.bias, v.per_trial.len()
+            v.trial_level.r2,
+            v.trial_level.rmse,
+            v.trial_level.mae,
+            v.trial_level.bias,
+            v.per_trial.len()
         );
     }
     println!("wrote {}", a.output.display());
@@ -492,6 +534,9 @@ fn validate(a: ValidateArgs) -> Result<()> {
     let model = load_model(&a.model)?;
     let rec = a.read.load(&a.session)?;
     let v = pipeline::validate(&model, &rec, &a.fit.options())?;
+    for n in &v.notes {
+        eprintln!("note: {n}");
+    }
     if a.json {
         println!("{}", serde_json::to_string_pretty(&v)?);
         return Ok(());
@@ -506,7 +551,10 @@ fn validate(a: ValidateArgs) -> Result<()> {
         m.bias
     );
     let m = &v.reading_level;
-    println!("per reading: R² {:.3}, RMSE {:.2} W on {} readings", m.r2, m.rmse, m.n);
+    println!(
+        "per reading: R² {:.3}, RMSE {:.2} W on {} readings",
+        m.r2, m.rmse, m.n
+    );
     let s = &v.shares_percent;
     println!(
         "term shares: mechanical {:.1} %, copper {:.1} %, Coulomb {:.1} %, viscous {:.1} %, interaction {:.1} %",
@@ -517,7 +565,12 @@ fn validate(a: ValidateArgs) -> Result<()> {
 
 fn simulate(a: SimulateArgs) -> Result<()> {
     use g1viz::sim::{Artefacts, SimConfig};
-    let mut cfg = SimConfig { preset: a.preset.parse()?, seed: a.seed, with_hand: !a.no_hand, ..SimConfig::default() };
+    let mut cfg = SimConfig {
+        preset: a.preset.parse()?,
+        seed: a.seed,
+        with_hand: !a.no_hand,
+        ..SimConfig::default()
+    };
     for e in &a.effects {
         cfg.effects.enable(e)?;
     }
@@ -534,7 +587,10 @@ fn simulate(a: SimulateArgs) -> Result<()> {
     let truth = match &a.like {
         Some(p) => {
             if same_file(p, &a.output) {
-                bail!("refusing to overwrite the input {} with the simulated twin", p.display());
+                bail!(
+                    "refusing to overwrite the input {} with the simulated twin",
+                    p.display()
+                );
             }
             g1viz::sim::simulate_like(&a.read.load(p)?, &cfg, &a.output)?
         }
@@ -586,7 +642,12 @@ fn diagnose(a: DiagnoseArgs) -> Result<()> {
 }
 
 #[cfg(feature = "viz")]
-fn save_diagnosis_rrd(rec: &Recording, a: &DiagnoseArgs, d: &g1viz::diagnose::Diagnosis, out: &Path) -> Result<()> {
+fn save_diagnosis_rrd(
+    rec: &Recording,
+    a: &DiagnoseArgs,
+    d: &g1viz::diagnose::Diagnosis,
+    out: &Path,
+) -> Result<()> {
     use g1viz::robot::RobotModel;
     use g1viz::viz::{self, Sink};
     let robot = match &a.urdf {
@@ -595,12 +656,29 @@ fn save_diagnosis_rrd(rec: &Recording, a: &DiagnoseArgs, d: &g1viz::diagnose::Di
     };
     let arm = robot.arm(&rec.joint_names)?;
     let extras = viz::overlay::diagnosis_extras(d);
-    let stream = viz::open_stream("g1viz", &viz::recording_id_for(rec), &Sink::Save(out.to_path_buf()), &[&a.session])?;
-    viz::replay::log_replay(rec, &robot, &arm, &extras, &Default::default(), stream.stream())?;
+    let stream = viz::open_stream(
+        "g1viz",
+        &viz::recording_id_for(rec),
+        &Sink::Save(out.to_path_buf()),
+        &[&a.session],
+    )?;
+    viz::replay::log_replay(
+        rec,
+        &robot,
+        &arm,
+        &extras,
+        &Default::default(),
+        stream.stream(),
+    )?;
     stream.finish()
 }
 
 #[cfg(not(feature = "viz"))]
-fn save_diagnosis_rrd(_: &Recording, _: &DiagnoseArgs, _: &g1viz::diagnose::Diagnosis, _: &Path) -> Result<()> {
+fn save_diagnosis_rrd(
+    _: &Recording,
+    _: &DiagnoseArgs,
+    _: &g1viz::diagnose::Diagnosis,
+    _: &Path,
+) -> Result<()> {
     bail!("--save needs the `viz` feature (Rerun output); rebuild with default features")
 }

@@ -690,4 +690,3 @@ fn collinear_columns_reach_the_same_objective() {
     // The identifiable combination θ3 + 2θ7 agrees.
     assert!((c.theta[3] + 2.0 * c.theta[7] - b.theta[3] - 2.0 * b.theta[7]).abs() < 1e-5);
 }
-

@@ -527,8 +527,12 @@ fn inverse_dynamics_reproduces_recorded_torques_of_the_smoke_session() {
     )
     .unwrap();
     let fr = &truth["plant"]["joint_friction_in_tau"];
-    let arr = |v: &serde_json::Value| -> [f64; N] { std::array::from_fn(|i| v[i].as_f64().unwrap()) };
-    let friction = JointFriction { coulomb_nm: arr(&fr["coulomb_Nm"]), viscous_nms: arr(&fr["viscous_Nms"]) };
+    let arr =
+        |v: &serde_json::Value| -> [f64; N] { std::array::from_fn(|i| v[i].as_f64().unwrap()) };
+    let friction = JointFriction {
+        coulomb_nm: arr(&fr["coulomb_Nm"]),
+        viscous_nms: arr(&fr["viscous_Nms"]),
+    };
     let rec = g1viz::signals::load_recording(
         &mcap,
         &g1viz::signals::SignalMap::g1_left_arm(),
@@ -569,7 +573,10 @@ fn inverse_dynamics_reproduces_recorded_torques_of_the_smoke_session() {
         let rms = (sq[j] / count).sqrt();
         let b = bias[j] / count;
         println!("joint {j}: torque residual RMS {rms:.3} Nm, bias {b:+.4} Nm");
-        assert!(rms < 0.10, "joint {j}: RMS residual {rms} Nm (noise is 0.05 Nm)");
+        assert!(
+            rms < 0.10,
+            "joint {j}: RMS residual {rms} Nm (noise is 0.05 Nm)"
+        );
         assert!(b.abs() < 0.01, "joint {j}: bias {b} Nm");
     }
 }

@@ -175,7 +175,12 @@ pub fn summarise(d: &Diagnosis) -> String {
             let _ = writeln!(s, "       payload centre of mass: {}.", com.join(", "));
         }
     }
-    let power_accepted: Vec<&str> = d.accepted.iter().filter(|h| h.level == "power").map(|h| h.id.as_str()).collect();
+    let power_accepted: Vec<&str> = d
+        .accepted
+        .iter()
+        .filter(|h| h.level == "power")
+        .map(|h| h.id.as_str())
+        .collect();
     if !power_accepted.is_empty() {
         let _ = writeln!(
             s,

@@ -195,6 +195,8 @@ pub struct Validation {
     pub terms: TermMeans,
     /// The same as % of the mean total predicted power.
     pub shares_percent: [f64; 5],
+    /// Remarks on how the validation was done (e.g. nominal sensor timing for a short session).
+    pub notes: Vec<String>,
 }
 
 fn predict(theta: &[f64; N_PARAMS], phi: &[f64; N_PARAMS]) -> f64 {
@@ -673,11 +675,24 @@ pub fn validate(model: &PowerModel, rec: &Recording, opts: &IdentifyOptions) -> 
         return Err(no_usable_trials(rec, &seg, &[]));
     }
     let prepared = [Prepared { rec, seg }];
-    let (alignment, _) = resolve_alignment(
+    let mut notes = Vec::new();
+    // A model is being applied, not fitted: a session too short to estimate the sensor timing
+    // from still validates, at the sensor's nominal timing (said in the notes).
+    let alignment = match resolve_alignment(
         &prepared,
         std::slice::from_ref(&prepared[0].seg.trials),
         opts,
-    )?;
+    ) {
+        Ok((a, _)) => a,
+        Err(e) => {
+            notes.push(format!(
+                "sensor timing not estimated ({e:#}); using the nominal window {} s, lag {} s",
+                Alignment::NOMINAL.window_s,
+                Alignment::NOMINAL.lag_s
+            ));
+            Alignment::NOMINAL
+        }
+    };
     let [Prepared { seg, .. }] = prepared;
     let theta = model.to_vector();
     let trial_set = dataset::build(
@@ -716,6 +731,7 @@ pub fn validate(model: &PowerModel, rec: &Recording, opts: &IdentifyOptions) -> 
     let all: Vec<&TrialPrediction> = per_trial.iter().collect();
     let kept: Vec<&TrialPrediction> = per_trial.iter().filter(|p| !p.rejected).collect();
     Ok(Validation {
+        notes,
         trial_level: trial_metrics(&all, |p| p.predicted_window_w),
         trial_level_aligned: trial_metrics(&all, |p| p.predicted_w),
         trial_level_aligned_imu_kept: flagged

@@ -4,7 +4,9 @@
 
 use anyhow::Result;
 
-use super::replay::{PowerPrediction, Rejection, ReplayExtras, TermSeries, TrajectoryPoint, TrialMark};
+use super::replay::{
+    PowerPrediction, Rejection, ReplayExtras, TermSeries, TrajectoryPoint, TrialMark,
+};
 use crate::identify::dataset::{self, DatasetOptions, Mode};
 use crate::identify::filters::{self, TrialStat};
 use crate::identify::pipeline::{IdentifyOptions, Validation, validate};
@@ -13,13 +15,21 @@ use crate::signals::Recording;
 
 /// Replay extras of `model` applied to `rec` (segmented and filtered as `opts` says), plus the
 /// hold-out validation it is built on.
-pub fn model_extras(rec: &Recording, model: &PowerModel, opts: &IdentifyOptions) -> Result<(ReplayExtras, Validation)> {
+pub fn model_extras(
+    rec: &Recording,
+    model: &PowerModel,
+    opts: &IdentifyOptions,
+) -> Result<(ReplayExtras, Validation)> {
     let v = validate(model, rec, opts)?;
     let seg = &v.session.segmentation;
     let bases = dataset::build(
         rec,
         &seg.trials,
-        &DatasetOptions { mode: Mode::Trial, target: opts.target, alignment: v.alignment },
+        &DatasetOptions {
+            mode: Mode::Trial,
+            target: opts.target,
+            alignment: v.alignment,
+        },
     )
     .trials;
     let power = opts.target.series(rec);
@@ -27,7 +37,9 @@ pub fn model_extras(rec: &Recording, model: &PowerModel, opts: &IdentifyOptions)
     let mut prediction = PowerPrediction::default();
     let mut terms = TermSeries::default();
     for basis in &bases {
-        let Some(trial) = seg.trials.iter().find(|t| t.index == basis.trial) else { continue };
+        let Some(trial) = seg.trials.iter().find(|t| t.index == basis.trial) else {
+            continue;
+        };
         let s = &rec.state;
         let first = s.t.partition_point(|&t| t < trial.t_pre_start);
         let last = s.t.partition_point(|&t| t <= trial.t_return_end);
@@ -35,11 +47,17 @@ pub fn model_extras(rec: &Recording, model: &PowerModel, opts: &IdentifyOptions)
             let t = s.t[k];
             // Zero-order hold of the latest reading: what the sensor said at that moment.
             let r = power.t.partition_point(|&tp| tp <= t);
-            let measured = if r == 0 { f64::NAN } else { power.watts[r - 1] - basis.baseline_w };
+            let measured = if r == 0 {
+                f64::NAN
+            } else {
+                power.watts[r - 1] - basis.baseline_w
+            };
             let b = model.breakdown(&s.tau[k], &s.dq[k], &basis.tau0_sq);
             prediction.t.push(t);
             prediction.measured_net.push(measured);
-            prediction.predicted.push(model.predict(&s.tau[k], &s.dq[k], &basis.tau0_sq));
+            prediction
+                .predicted
+                .push(model.predict(&s.tau[k], &s.dq[k], &basis.tau0_sq));
             terms.t.push(t);
             terms.mechanical.push(b.mechanical);
             terms.copper.push(b.copper);
@@ -52,7 +70,12 @@ pub fn model_extras(rec: &Recording, model: &PowerModel, opts: &IdentifyOptions)
     let trajectories = v
         .per_trial
         .iter()
-        .map(|p| TrajectoryPoint { trial: p.trial, t: p.window.1, measured: p.measured_w, predicted: p.predicted_w })
+        .map(|p| TrajectoryPoint {
+            trial: p.trial,
+            t: p.window.1,
+            measured: p.measured_w,
+            predicted: p.predicted_w,
+        })
         .collect();
 
     let rejections = filter_marks(&v, opts);
@@ -60,17 +83,35 @@ pub fn model_extras(rec: &Recording, model: &PowerModel, opts: &IdentifyOptions)
         .trials
         .iter()
         .map(|t| {
-            let joints: Vec<String> = t.joints_moved.iter().map(|&j| rec.joint_names.get(j).cloned().unwrap_or_default()).collect();
+            let joints: Vec<String> = t
+                .joints_moved
+                .iter()
+                .map(|&j| rec.joint_names.get(j).cloned().unwrap_or_default())
+                .collect();
             TrialMark {
                 index: t.index,
                 t_start: t.t_traj_start,
                 t_end: t.t_post_end,
-                label: format!("trial {} · {} · {:.2} rad/s", t.index, joints.join("+"), t.qdot_max_cmd),
-                rejected: rejections.iter().find(|(trial, _)| *trial == t.index).map(|(_, r)| r.clone()),
+                label: format!(
+                    "trial {} · {} · {:.2} rad/s",
+                    t.index,
+                    joints.join("+"),
+                    t.qdot_max_cmd
+                ),
+                rejected: rejections
+                    .iter()
+                    .find(|(trial, _)| *trial == t.index)
+                    .map(|(_, r)| r.clone()),
             }
         })
         .collect();
-    let extras = ReplayExtras { prediction: Some(prediction), trajectories, terms: Some(terms), trials, diagnosis: None };
+    let extras = ReplayExtras {
+        prediction: Some(prediction),
+        trajectories,
+        terms: Some(terms),
+        trials,
+        diagnosis: None,
+    };
     Ok((extras, v))
 }
 
@@ -79,13 +120,20 @@ pub fn model_extras(rec: &Recording, model: &PowerModel, opts: &IdentifyOptions)
 fn filter_marks(v: &Validation, opts: &IdentifyOptions) -> Vec<(usize, Rejection)> {
     let mut out = Vec::new();
     if let Some(k) = opts.imu_k {
-        let sigmas: Vec<TrialStat> = v.per_trial.iter().map(|p| (0, p.trial, p.sigma_omega)).collect();
+        let sigmas: Vec<TrialStat> = v
+            .per_trial
+            .iter()
+            .map(|p| (0, p.trial, p.sigma_omega))
+            .collect();
         for r in filters::imu_sway(&sigmas, k) {
             out.push((
                 r.trial,
                 Rejection {
                     filter: "imu".into(),
-                    detail: format!("σ|ω| = {:.3} rad/s > {k} × median = {:.3} rad/s", r.statistic, r.threshold),
+                    detail: format!(
+                        "σ|ω| = {:.3} rad/s > {k} × median = {:.3} rad/s",
+                        r.statistic, r.threshold
+                    ),
                     statistic: r.statistic,
                 },
             ));
@@ -131,7 +179,11 @@ pub fn diagnosis_extras(d: &crate::diagnose::Diagnosis) -> ReplayExtras {
             t_start: h.t_start,
             t_end: h.t_end,
             label: format!("trial {}", h.trial),
-            rejected: Some(Rejection { filter: "diagnosis".into(), detail: h.reason.clone(), statistic: f64::NAN }),
+            rejected: Some(Rejection {
+                filter: "diagnosis".into(),
+                detail: h.reason.clone(),
+                statistic: f64::NAN,
+            }),
         })
         .collect();
     ReplayExtras {
