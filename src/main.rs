@@ -463,52 +463,9 @@ fn identify(a: IdentifyArgs) -> Result<()> {
     let file = id.model_file(&names, validation.as_ref(), "")?;
     file.save(&a.output)?;
 
-    println!(
-        "identified on {} trials ({} rejected): R² {:.3}, RMSE {:.2} W ({} rows); per trajectory R² {:.3}, RMSE {:.2} W",
-        id.trials_used,
-        id.rejections.len(),
-        id.fit.r2,
-        id.fit.rmse,
-        id.fit.n,
-        id.trial_level_aligned.r2,
-        id.trial_level_aligned.rmse
-    );
-    println!(
-        "sensor window {:.2} s, lag {:.2} s",
-        id.alignment.window_s, id.alignment.lag_s
-    );
-    for r in &id.rejections {
-        println!(
-            "  rejected trial {} of session {}: {}",
-            r.trial,
-            r.session,
-            r.describe()
-        );
-    }
-    for m in &id.modes {
-        println!(
-            "  {:<8} rows: κ(ΦᵀΦ) = {:.2e}, R² = {:.3}",
-            m.mode.name(),
-            m.kappa,
-            m.quality.r2
-        );
-    }
-    for (i, d) in id.dominant.iter().enumerate() {
-        let term = d.map_or("none (no loss identified)", |t| t.name());
-        println!(
-            "  {:<28} dominant loss: {term}",
-            names.get(i).map_or("", |s| s.as_str())
-        );
-    }
+    println!("identification:\n{}", id.summary());
     if let Some(v) = &validation {
-        println!(
-            "hold-out: R² {:.3}, RMSE {:.2} W, MAE {:.2} W, bias {:+.2} W on {} trials",
-            v.trial_level.r2,
-            v.trial_level.rmse,
-            v.trial_level.mae,
-            v.trial_level.bias,
-            v.per_trial.len()
-        );
+        println!("hold-out {}:\n{}", v.session.source.display(), v.summary());
     }
     println!("wrote {}", a.output.display());
     if let Some(dir) = &a.report {
@@ -541,25 +498,7 @@ fn validate(a: ValidateArgs) -> Result<()> {
         println!("{}", serde_json::to_string_pretty(&v)?);
         return Ok(());
     }
-    let m = &v.trial_level;
-    println!(
-        "{} trials: R² {:.3}, RMSE {:.2} W, MAE {:.2} W, bias {:+.2} W (per trajectory, paper's way)",
-        v.per_trial.len(),
-        m.r2,
-        m.rmse,
-        m.mae,
-        m.bias
-    );
-    let m = &v.reading_level;
-    println!(
-        "per reading: R² {:.3}, RMSE {:.2} W on {} readings",
-        m.r2, m.rmse, m.n
-    );
-    let s = &v.shares_percent;
-    println!(
-        "term shares: mechanical {:.1} %, copper {:.1} %, Coulomb {:.1} %, viscous {:.1} %, interaction {:.1} %",
-        s[0], s[1], s[2], s[3], s[4]
-    );
+    println!("{}", v.summary());
     Ok(())
 }
 
