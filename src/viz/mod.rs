@@ -7,9 +7,10 @@
 //! wall-clock ids and `log_time`). The recording id is derived from the input
 //! ([`recording_id_for`]), the blueprint uses fixed ids ([`blueprint`]), and `.rrd` files are
 //! encoded by our own sink ([`rrd_sink`]), which also replaces the random row id the SDK puts on
-//! the store-info message. The one remaining difference between two runs is the order of the
-//! per-store manifests in the RRD footer (the SDK keeps them in a `HashMap`), so two files agree
-//! message for message when decoded but may differ in their last few hundred bytes.
+//! the store-info message. Two runs give byte-identical data sections (stream header and every
+//! message, checked in tests/viz.rs); only the RRD footer differs, because the SDK builds its
+//! per-store chunk manifests from `HashMap`s (store order and manifest column order vary).
+//! The footer is an index the viewer can rebuild; decoded, the two files are equal.
 
 pub mod blueprint;
 pub mod overlay;

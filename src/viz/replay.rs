@@ -16,7 +16,7 @@
 //! Long series are sent column-wise in chunks of [`ReplayOptions::chunk_rows`] samples, so memory
 //! stays bounded whatever the session length.
 
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use rerun::components::TextLogLevel;
 use rerun::{Color, RecordingStream, Scalars, SeriesLines, SeriesPoints, TextDocument, TextLog};
@@ -223,6 +223,11 @@ pub fn log_replay(
             trials: !extras.trials.is_empty(),
         };
         blueprint::send_blueprint(stream, &blueprint::replay_layout(&joints, parts))?;
+        // The blueprint bypasses the batcher: flush so it reaches the sink before any data chunk
+        // (a fixed message order is part of the reproducible output).
+        stream
+            .flush_blocking()
+            .context("sending the viewer layout")?;
     }
     let scene = robot3d::log_static_robot(&mut w, robot, arm, &mut summary.warnings)?;
     log_styles(&mut w, &joints, !rec.command.t.is_empty())?;
