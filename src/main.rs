@@ -180,6 +180,13 @@ struct ReplayArgs {
     /// Memory limit of the spawned viewer (e.g. 2GB or 25%).
     #[arg(long, default_value = "25%")]
     memory_limit: String,
+    /// Arm poses per second in the 3D view (0 = every recorded sample). Joint and power series
+    /// are always logged at full rate; 30 Hz keeps hour-long .rrd files a fraction of the size.
+    #[arg(long, value_name = "HZ", default_value_t = 30.0)]
+    pose_rate: f64,
+    /// Do not send the viewer layout (keep the viewer's own).
+    #[arg(long)]
+    no_blueprint: bool,
     #[command(flatten)]
     fit: FitArgs,
     #[command(flatten)]
@@ -419,14 +426,12 @@ fn replay(a: ReplayArgs) -> Result<()> {
         inputs.push(m);
     }
     let out = viz::open_stream("g1viz", &viz::recording_id_for(&rec), &sink, &inputs)?;
-    let summary = viz::replay::log_replay(
-        &rec,
-        &robot,
-        &arm,
-        &extras,
-        &Default::default(),
-        out.stream(),
-    )?;
+    let opts = viz::replay::ReplayOptions {
+        pose_rate_hz: (a.pose_rate > 0.0).then_some(a.pose_rate),
+        blueprint: !a.no_blueprint,
+        ..Default::default()
+    };
+    let summary = viz::replay::log_replay(&rec, &robot, &arm, &extras, &opts, out.stream())?;
     out.finish()?;
     for w in &summary.warnings {
         eprintln!("warning: {w}");
