@@ -36,13 +36,25 @@ fn main() -> Result<()> {
         None => {
             let out = dir.path().join("paper.mcap");
             let t = Instant::now();
-            let cfg = SimConfig { preset: Preset::Paper, seed: 21, effects, progress: false, ..SimConfig::default() };
+            let cfg = SimConfig {
+                preset: Preset::Paper,
+                seed: 21,
+                effects,
+                progress: false,
+                ..SimConfig::default()
+            };
             sim::simulate(&cfg, &out)?;
-            eprintln!("simulated a paper-scale session in {:.1} s (not part of the benchmark)", t.elapsed().as_secs_f64());
+            eprintln!(
+                "simulated a paper-scale session in {:.1} s (not part of the benchmark)",
+                t.elapsed().as_secs_f64()
+            );
             out
         }
     };
-    let opts = DiagnoseOptions { reference: twin.then_some(PowerModel::PAPER), ..DiagnoseOptions::default() };
+    let opts = DiagnoseOptions {
+        reference: twin.then_some(PowerModel::PAPER),
+        ..DiagnoseOptions::default()
+    };
     let t0 = Instant::now();
     let rec = load_recording(&path, &SignalMap::g1_left_arm(), &Default::default())?;
     let t_read = t0.elapsed().as_secs_f64();
@@ -66,7 +78,11 @@ fn main() -> Result<()> {
     );
     println!(
         "read {t_read:.2} s, diagnose {t_diag:.2} s (segment, rows, filters, selection, torque level, locate){}, total {:.2} s",
-        if report.is_some() { format!(", report {t_report:.2} s") } else { String::new() },
+        if report.is_some() {
+            format!(", report {t_report:.2} s")
+        } else {
+            String::new()
+        },
         t0.elapsed().as_secs_f64()
     );
     Ok(())

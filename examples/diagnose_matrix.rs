@@ -28,12 +28,48 @@ struct Case {
 }
 
 const CASES: &[Case] = &[
-    Case { name: "null", effects: &[], truth: &[], t_start_c: 30.0, seeds: &[11, 12, 13, 14, 15] },
-    Case { name: "thermal", effects: &["thermal=0.00393"], truth: &[("thermal", "α", 0.00393)], t_start_c: 70.0, seeds: &[3] },
-    Case { name: "braking", effects: &["braking=0.25"], truth: &[("braking", "r", 0.25)], t_start_c: 30.0, seeds: &[3] },
-    Case { name: "bus_loss", effects: &["bus_loss=0.05"], truth: &[("bus_loss", "R_bus", 0.05)], t_start_c: 30.0, seeds: &[3] },
-    Case { name: "latency", effects: &["latency=0.3"], truth: &[("latency", "L", 0.3)], t_start_c: 30.0, seeds: &[3] },
-    Case { name: "payload", effects: &["payload=0.5"], truth: &[("payload", "m", 0.5)], t_start_c: 30.0, seeds: &[3] },
+    Case {
+        name: "null",
+        effects: &[],
+        truth: &[],
+        t_start_c: 30.0,
+        seeds: &[11, 12, 13, 14, 15],
+    },
+    Case {
+        name: "thermal",
+        effects: &["thermal=0.00393"],
+        truth: &[("thermal", "α", 0.00393)],
+        t_start_c: 70.0,
+        seeds: &[3],
+    },
+    Case {
+        name: "braking",
+        effects: &["braking=0.25"],
+        truth: &[("braking", "r", 0.25)],
+        t_start_c: 30.0,
+        seeds: &[3],
+    },
+    Case {
+        name: "bus_loss",
+        effects: &["bus_loss=0.05"],
+        truth: &[("bus_loss", "R_bus", 0.05)],
+        t_start_c: 30.0,
+        seeds: &[3],
+    },
+    Case {
+        name: "latency",
+        effects: &["latency=0.3"],
+        truth: &[("latency", "L", 0.3)],
+        t_start_c: 30.0,
+        seeds: &[3],
+    },
+    Case {
+        name: "payload",
+        effects: &["payload=0.5"],
+        truth: &[("payload", "m", 0.5)],
+        t_start_c: 30.0,
+        seeds: &[3],
+    },
     Case {
         name: "braking+latency",
         effects: &["braking=0.25", "latency=0.3"],
@@ -48,24 +84,46 @@ const CASES: &[Case] = &[
         t_start_c: 30.0,
         seeds: &[4],
     },
-    Case { name: "harness", effects: &["harness_drag=4"], truth: &[], t_start_c: 30.0, seeds: &[5] },
-    Case { name: "harness15", effects: &["harness_drag=15"], truth: &[], t_start_c: 30.0, seeds: &[5] },
+    Case {
+        name: "harness",
+        effects: &["harness_drag=4"],
+        truth: &[],
+        t_start_c: 30.0,
+        seeds: &[5],
+    },
+    Case {
+        name: "harness15",
+        effects: &["harness_drag=15"],
+        truth: &[],
+        t_start_c: 30.0,
+        seeds: &[5],
+    },
 ];
 
-fn session(effects: &Effects, seed: u64, parts: u64, t_start_c: f64, dir: &std::path::Path) -> Result<g1viz::signals::Recording> {
+fn session(
+    effects: &Effects,
+    seed: u64,
+    parts: u64,
+    t_start_c: f64,
+    dir: &std::path::Path,
+) -> Result<g1viz::signals::Recording> {
     let mut recs = Vec::new();
     for part in 0..parts {
         let cfg = SimConfig {
             preset: Preset::Smoke,
             seed: seed * 100 + part,
-            effects: effects.clone(),
+            effects: *effects,
             t_start_c,
             progress: false,
             ..SimConfig::default()
         };
         let out = dir.join(format!("s{seed}_{part}.mcap"));
         sim::simulate(&cfg, &out)?;
-        recs.push(load_recording(&out, &SignalMap::g1_left_arm(), &Default::default())?);
+        recs.push(load_recording(
+            &out,
+            &SignalMap::g1_left_arm(),
+            &Default::default(),
+        )?);
     }
     Ok(diagnose::join_recordings(recs, 5.0))
 }
@@ -77,29 +135,70 @@ fn row(case: &Case, seed: u64, mode: &str, d: &Diagnosis) -> String {
     let mut ranks = Vec::new();
     for (id, symbol, value) in case.truth {
         truth.push(format!("{symbol} = {value}"));
-        let p = d.final_model.params.iter().find(|p| p.symbol == *symbol).or_else(|| {
-            d.hypotheses.iter().find(|h| h.id == *id).and_then(|h| h.params.iter().find(|p| p.symbol == *symbol))
-        });
+        let p = d
+            .final_model
+            .params
+            .iter()
+            .find(|p| p.symbol == *symbol)
+            .or_else(|| {
+                d.hypotheses
+                    .iter()
+                    .find(|h| h.id == *id)
+                    .and_then(|h| h.params.iter().find(|p| p.symbol == *symbol))
+            });
         found.push(match p {
-            Some(p) => format!("{:.4} ± {:.4} ({:+.1} %)", p.value, p.std_err, 100.0 * (p.value - value) / value),
+            Some(p) => format!(
+                "{:.4} ± {:.4} ({:+.1} %)",
+                p.value,
+                p.std_err,
+                100.0 * (p.value - value) / value
+            ),
             None => "—".into(),
         });
-        ranks.push(d.hypotheses.iter().find(|h| h.id == *id).map_or("—".into(), |h| h.rank.to_string()));
+        ranks.push(
+            d.hypotheses
+                .iter()
+                .find(|h| h.id == *id)
+                .map_or("—".into(), |h| h.rank.to_string()),
+        );
     }
     if case.name.starts_with("harness") {
         let c = d.unexplained.first();
         found.push(c.map_or("—".into(), |c| {
-            format!("top correlate: {} (r = {:+.2}, p = {:.1e}{}), trials {:?}", c.feature, c.r, c.p_adjusted, if c.significant { "" } else { ", n.s." }, c.trials)
+            format!(
+                "top correlate: {} (r = {:+.2}, p = {:.1e}{}), trials {:?}",
+                c.feature,
+                c.r,
+                c.p_adjusted,
+                if c.significant { "" } else { ", n.s." },
+                c.trials
+            )
         }));
     }
     let f = &d.final_model;
     format!(
         "| {} (seed {seed}) | {mode} | {} | {} | {} | {} | {:.3} → {:.3} | {} / {} |",
         case.name,
-        if truth.is_empty() { "—".into() } else { truth.join(", ") },
-        if found.is_empty() { "—".into() } else { found.join("; ") },
-        if ranks.is_empty() { "—".into() } else { ranks.join(", ") },
-        if accepted.is_empty() { "none".into() } else { accepted.join(", ") },
+        if truth.is_empty() {
+            "—".into()
+        } else {
+            truth.join(", ")
+        },
+        if found.is_empty() {
+            "—".into()
+        } else {
+            found.join("; ")
+        },
+        if ranks.is_empty() {
+            "—".into()
+        } else {
+            ranks.join(", ")
+        },
+        if accepted.is_empty() {
+            "none".into()
+        } else {
+            accepted.join(", ")
+        },
         f.before.r2,
         f.after.r2,
         d.n_trials,
@@ -120,9 +219,14 @@ fn main() -> Result<()> {
         }
     }
     let dir = tempfile::tempdir()?;
-    println!("| session | base model | truth | recovered ± s.e. (error) | rank | accepted | held-out R² before → after | trials used / found |");
+    println!(
+        "| session | base model | truth | recovered ± s.e. (error) | rank | accepted | held-out R² before → after | trials used / found |"
+    );
     println!("|---|---|---|---|---|---|---|---|");
-    for case in CASES.iter().filter(|c| only.is_empty() || only.iter().any(|o| o == c.name)) {
+    for case in CASES
+        .iter()
+        .filter(|c| only.is_empty() || only.iter().any(|o| o == c.name))
+    {
         let mut effects = Effects::default();
         for e in case.effects {
             effects.enable(e)?;
@@ -132,16 +236,30 @@ fn main() -> Result<()> {
             let rec = session(&effects, seed, parts, case.t_start_c, dir.path())?;
             for (mode, opts) in [
                 ("refit", DiagnoseOptions::default()),
-                ("twin (paper θ)", DiagnoseOptions { reference: Some(PowerModel::PAPER), ..DiagnoseOptions::default() }),
+                (
+                    "twin (paper θ)",
+                    DiagnoseOptions {
+                        reference: Some(PowerModel::PAPER),
+                        ..DiagnoseOptions::default()
+                    },
+                ),
             ] {
                 let d = diagnose::diagnose(&rec, &opts)?;
                 println!("{}", row(case, seed, mode, &d));
                 if let Some(r) = &report {
-                    let sub = r.join(format!("{}_{seed}_{}", case.name, if mode == "refit" { "refit" } else { "twin" }));
+                    let sub = r.join(format!(
+                        "{}_{seed}_{}",
+                        case.name,
+                        if mode == "refit" { "refit" } else { "twin" }
+                    ));
                     diagnose::report::write_report(&sub, &d)?;
                 }
             }
-            eprintln!("{} seed {seed}: {:.1} s", case.name, t0.elapsed().as_secs_f64());
+            eprintln!(
+                "{} seed {seed}: {:.1} s",
+                case.name,
+                t0.elapsed().as_secs_f64()
+            );
         }
     }
     Ok(())

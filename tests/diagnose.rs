@@ -18,7 +18,12 @@ use g1viz::sim::{self, Effects, Preset, SimConfig};
 
 /// Simulate `parts` smoke sessions with `effects` and join them into one recording; also return
 /// the truth trial windows (joined timeline) as (joints moved, traj start, return end).
-fn session(effects: &Effects, seed: u64, parts: u64, t_start_c: f64) -> (Recording, Vec<(Vec<usize>, f64, f64)>) {
+fn session(
+    effects: &Effects,
+    seed: u64,
+    parts: u64,
+    t_start_c: f64,
+) -> (Recording, Vec<(Vec<usize>, f64, f64)>) {
     let dir = tempfile::tempdir().unwrap();
     let mut recs = Vec::new();
     let mut truth_trials = Vec::new();
@@ -27,20 +32,25 @@ fn session(effects: &Effects, seed: u64, parts: u64, t_start_c: f64) -> (Recordi
         let cfg = SimConfig {
             preset: Preset::Smoke,
             seed: seed * 100 + part,
-            effects: effects.clone(),
+            effects: *effects,
             t_start_c,
             progress: false,
             ..SimConfig::default()
         };
         let out = dir.path().join(format!("s{part}.mcap"));
         let truth = sim::simulate(&cfg, &out).unwrap();
-        let rec = signals::load_recording(&out, &SignalMap::g1_left_arm(), &OpenOptions::default()).unwrap();
+        let rec = signals::load_recording(&out, &SignalMap::g1_left_arm(), &OpenOptions::default())
+            .unwrap();
         // The same shift join_recordings applies.
         let first = rec.state.t.first().copied().unwrap_or(0.0);
         let offset = end.map_or(0.0, |e| e + GAP_S - first);
         for t in &truth.trials {
             let s = |ns: u64| (ns as f64 - rec.start_ns as f64) * 1e-9 + offset;
-            truth_trials.push((t.joints_moved.clone(), s(t.t_traj_start_ns), s(t.t_return_end_ns)));
+            truth_trials.push((
+                t.joints_moved.clone(),
+                s(t.t_traj_start_ns),
+                s(t.t_return_end_ns),
+            ));
         }
         end = Some(rec.state.t.last().copied().unwrap_or(0.0) + offset);
         recs.push(rec);
@@ -56,7 +66,10 @@ fn refit() -> DiagnoseOptions {
 
 /// The twin: the simulator's base plant is the paper's model.
 fn twin() -> DiagnoseOptions {
-    DiagnoseOptions { reference: Some(PowerModel::PAPER), ..DiagnoseOptions::default() }
+    DiagnoseOptions {
+        reference: Some(PowerModel::PAPER),
+        ..DiagnoseOptions::default()
+    }
 }
 
 fn show(name: &str, d: &Diagnosis) {
@@ -65,26 +78,58 @@ fn show(name: &str, d: &Diagnosis) {
         let p = &h.params[0];
         eprintln!(
             "  {:>2} {:>13} {}={:.5}±{:.5} p={:.1e} dBIC={:.1} rmse {:.4}→{:.4} {}",
-            h.rank, h.id, p.symbol, p.value, p.std_err, h.p_value, h.delta_bic, h.rmse_before, h.rmse_after, h.accepted
+            h.rank,
+            h.id,
+            p.symbol,
+            p.value,
+            p.std_err,
+            h.p_value,
+            h.delta_bic,
+            h.rmse_before,
+            h.rmse_after,
+            h.accepted
         );
     }
 }
 
 fn param(d: &Diagnosis, symbol: &str) -> f64 {
-    d.final_model.params.iter().find(|p| p.symbol == symbol).map(|p| p.value).unwrap_or(f64::NAN)
+    d.final_model
+        .params
+        .iter()
+        .find(|p| p.symbol == symbol)
+        .map(|p| p.value)
+        .unwrap_or(f64::NAN)
 }
 
 /// One concealed effect: top-ranked = it, accepted, parameter within 10 %, held-out fit improves.
-fn check_single(name: &str, effects: Effects, opts: &DiagnoseOptions, t_start_c: f64, id: &str, symbol: &str, truth: f64) {
+fn check_single(
+    name: &str,
+    effects: Effects,
+    opts: &DiagnoseOptions,
+    t_start_c: f64,
+    id: &str,
+    symbol: &str,
+    truth: f64,
+) {
     let (rec, _) = session(&effects, 3, 3, t_start_c);
     let d = diagnose::diagnose(&rec, opts).unwrap();
     show(name, &d);
     assert_eq!(d.hypotheses[0].id, id, "{name}: top-ranked hypothesis");
-    assert!(d.hypotheses[0].accepted, "{name}: not accepted: {}", d.hypotheses[0].verdict);
+    assert!(
+        d.hypotheses[0].accepted,
+        "{name}: not accepted: {}",
+        d.hypotheses[0].verdict
+    );
     let v = param(&d, symbol);
-    assert!((v - truth).abs() <= 0.1 * truth.abs(), "{name}: {symbol} = {v}, truth {truth}");
+    assert!(
+        (v - truth).abs() <= 0.1 * truth.abs(),
+        "{name}: {symbol} = {v}, truth {truth}"
+    );
     let top = &d.hypotheses[0];
-    assert!(top.rmse_after < top.rmse_before && top.r2_after > top.r2_before, "{name}: held-out fit does not improve");
+    assert!(
+        top.rmse_after < top.rmse_before && top.r2_after > top.r2_before,
+        "{name}: held-out fit does not improve"
+    );
 }
 
 #[test]
@@ -118,7 +163,13 @@ fn sensor_latency_is_found() {
 
 #[test]
 fn payload_is_found_at_the_torque_level() {
-    let e = Effects { payload: Some(Payload { mass_kg: 0.5, com_m: [0.1, 0.0, 0.0] }), ..Effects::default() };
+    let e = Effects {
+        payload: Some(Payload {
+            mass_kg: 0.5,
+            com_m: [0.1, 0.0, 0.0],
+        }),
+        ..Effects::default()
+    };
     check_single("payload", e, &refit(), 30.0, "payload", "m", 0.5);
 }
 
@@ -131,9 +182,20 @@ fn two_effects_at_once_are_both_found() {
     let d = diagnose::diagnose(&rec, &refit()).unwrap();
     show("braking + latency", &d);
     let ids: Vec<&str> = d.accepted.iter().map(|h| h.id.as_str()).collect();
-    assert!(ids.contains(&"braking") && ids.contains(&"latency"), "accepted {ids:?}");
-    assert!((param(&d, "r") - 0.25).abs() <= 0.025, "r = {}", param(&d, "r"));
-    assert!((param(&d, "L") - 0.3).abs() <= 0.03, "L = {}", param(&d, "L"));
+    assert!(
+        ids.contains(&"braking") && ids.contains(&"latency"),
+        "accepted {ids:?}"
+    );
+    assert!(
+        (param(&d, "r") - 0.25).abs() <= 0.025,
+        "r = {}",
+        param(&d, "r")
+    );
+    assert!(
+        (param(&d, "L") - 0.3).abs() <= 0.03,
+        "L = {}",
+        param(&d, "L")
+    );
     assert!(d.final_model.after.r2 > d.final_model.before.r2);
 }
 
@@ -144,7 +206,11 @@ fn null_sessions_accept_nothing() {
         for (mode, opts) in [("refit", refit()), ("twin", twin())] {
             let d = diagnose::diagnose(&rec, &opts).unwrap();
             show(&format!("null seed {seed} {mode}"), &d);
-            assert!(d.accepted.is_empty(), "seed {seed} {mode}: accepted {:?}", d.accepted.iter().map(|h| &h.id).collect::<Vec<_>>());
+            assert!(
+                d.accepted.is_empty(),
+                "seed {seed} {mode}: accepted {:?}",
+                d.accepted.iter().map(|h| &h.id).collect::<Vec<_>>()
+            );
         }
     }
 }
@@ -163,23 +229,34 @@ fn harness_drag_outside_the_library_is_located() {
     let top = d.unexplained.first().expect("a correlate");
     assert!(top.significant, "{top:?}");
     assert!(
-        top.feature.starts_with("left_elbow_joint") && (top.feature.contains("position") || top.feature.contains("speed")),
+        top.feature.starts_with("left_elbow_joint")
+            && (top.feature.contains("position") || top.feature.contains("speed")),
         "top correlate {top:?}"
     );
     // The trials it names moved the elbow (truth windows, matched by time).
     for &t in &top.trials {
-        let h = d.replay.highlighted.iter().find(|h| h.trial == t).expect("named trial is highlighted");
+        let h = d
+            .replay
+            .highlighted
+            .iter()
+            .find(|h| h.trial == t)
+            .expect("named trial is highlighted");
         let moved = truth
             .iter()
             .find(|w| (w.1 - h.t_start).abs() < 0.5)
             .map(|w| w.0.contains(&3))
             .unwrap_or(false);
-        assert!(moved, "trial {t} named for the elbow correlate did not move the elbow");
+        assert!(
+            moved,
+            "trial {t} named for the elbow correlate did not move the elbow"
+        );
     }
 }
 
 fn shared(name: &str) -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/recordings").join(name);
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/recordings")
+        .join(name);
     let alt = Path::new("/work/shared/recordings").join(name);
     [p, alt].into_iter().find(|p| p.exists())
 }
@@ -191,14 +268,26 @@ fn shared_recordings_claim_no_missing_physics() {
             eprintln!("note: shared recording {name} not found; skipped");
             continue;
         };
-        let rec = signals::load_recording(&path, &SignalMap::g1_left_arm(), &OpenOptions::default()).unwrap();
+        let rec =
+            signals::load_recording(&path, &SignalMap::g1_left_arm(), &OpenOptions::default())
+                .unwrap();
         // The independent generator used Unitree's official URDF with hands.
-        let urdf = path.parent().unwrap().join("../g1_description/g1_29dof_with_hand_rev_1_0.urdf");
+        let urdf = path
+            .parent()
+            .unwrap()
+            .join("../g1_description/g1_29dof_with_hand_rev_1_0.urdf");
         for (mode, opts) in [("refit", refit()), ("twin", twin())] {
-            let opts = DiagnoseOptions { urdf: urdf.exists().then(|| urdf.clone()), ..opts };
+            let opts = DiagnoseOptions {
+                urdf: urdf.exists().then(|| urdf.clone()),
+                ..opts
+            };
             let d = diagnose::diagnose(&rec, &opts).unwrap();
             show(&format!("{name} {mode}"), &d);
-            assert!(d.accepted.is_empty(), "{name} {mode}: accepted {:?}", d.accepted.iter().map(|h| &h.id).collect::<Vec<_>>());
+            assert!(
+                d.accepted.is_empty(),
+                "{name} {mode}: accepted {:?}",
+                d.accepted.iter().map(|h| &h.id).collect::<Vec<_>>()
+            );
         }
     }
 }

@@ -399,9 +399,13 @@ pub(crate) fn correlates(
         f[(r, N_LOCATE + 2)] = trials[rows.trial[r]].window.qdot_max;
     }
     let width = if base_fitted { N_PARAMS + 1 } else { 1 };
-    let x = DMatrix::from_fn(n, width, |r, c| {
-        if c + 1 < width { rows.x[r][c] } else { 1.0 }
-    });
+    let x = DMatrix::from_fn(
+        n,
+        width,
+        |r, c| {
+            if c + 1 < width { rows.x[r][c] } else { 1.0 }
+        },
+    );
     let mut g = x.transpose() * &x;
     let ridge = 1e-9 * (0..g.nrows()).map(|i| g[(i, i)]).fold(0.0, f64::max);
     for i in 0..g.nrows() {

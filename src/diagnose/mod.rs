@@ -31,10 +31,10 @@ pub use select::{HypothesisScore, Param};
 pub use torque::{ArmModel, TorqueComparison};
 
 use crate::N_PARAMS;
-use crate::power::PowerModel;
-use crate::robot::{ArmDynamics, RobotModel};
 pub use crate::identify::dataset::Target;
 use crate::identify::filters::{self, TrialStat};
+use crate::power::PowerModel;
+use crate::robot::{ArmDynamics, RobotModel};
 use crate::signals::Recording;
 use data::{Rows, TrialMeta, build_rows, trial_meta};
 use hypotheses::{LATENCY_ID, POWER_HYPOTHESES};
@@ -217,6 +217,33 @@ pub struct Diagnosis {
     pub replay: ReplayData,
 }
 
+#[cfg(feature = "viz")]
+impl Diagnosis {
+    /// The replay overlay (`viz::replay::ReplayExtras::diagnosis`): measured and held-out
+    /// predicted net power before/after per reading, the highlighted trials, the summary.
+    pub fn overlay(&self) -> crate::viz::replay::DiagnosisOverlay {
+        let r = &self.replay;
+        crate::viz::replay::DiagnosisOverlay {
+            t: r.t.clone(),
+            measured: r.measured_w.clone(),
+            before: r.before_w.clone(),
+            after: r.after_w.clone(),
+            highlighted: r
+                .highlighted
+                .iter()
+                .map(|h| crate::viz::replay::TrialMark {
+                    index: h.trial,
+                    t_start: h.t_start,
+                    t_end: h.t_end,
+                    label: h.reason.clone(),
+                    rejected: None,
+                })
+                .collect(),
+            summary: self.summary.clone(),
+        }
+    }
+}
+
 impl Diagnosis {
     /// Write diagnosis.json (atomic).
     pub fn save_json(&self, path: &std::path::Path) -> Result<()> {
@@ -231,9 +258,15 @@ fn imu_filter(
     k: f64,
     rejected: &mut Vec<RejectedTrial>,
 ) -> Vec<TrialMeta> {
-    let stats: Vec<TrialStat> = metas.iter().map(|m| (0, m.window.index, m.sigma_omega)).collect();
+    let stats: Vec<TrialStat> = metas
+        .iter()
+        .map(|m| (0, m.window.index, m.sigma_omega))
+        .collect();
     let out = filters::imu_sway(&stats, k);
-    rejected.extend(out.iter().map(|r| RejectedTrial { trial: r.trial, reason: r.describe() }));
+    rejected.extend(out.iter().map(|r| RejectedTrial {
+        trial: r.trial,
+        reason: r.describe(),
+    }));
     metas.retain(|m| !out.iter().any(|r| r.trial == m.window.index));
     metas
 }
@@ -268,9 +301,12 @@ fn base_trial_residuals(
 /// joint sample. Warnings are kept, the first part's source and start time are used.
 pub fn join_recordings(parts: Vec<Recording>, gap_s: f64) -> Recording {
     let mut parts = parts.into_iter();
-    let Some(mut out) = parts.next() else { return Recording::default() };
+    let Some(mut out) = parts.next() else {
+        return Recording::default();
+    };
     for r in parts {
-        let offset = out.state.t.last().copied().unwrap_or(0.0) + gap_s - r.state.t.first().copied().unwrap_or(0.0);
+        let offset = out.state.t.last().copied().unwrap_or(0.0) + gap_s
+            - r.state.t.first().copied().unwrap_or(0.0);
         let shift = |v: &[f64]| v.iter().map(|t| t + offset).collect::<Vec<_>>();
         out.state.t.extend(shift(&r.state.t));
         out.state.q.extend(r.state.q);
@@ -294,10 +330,22 @@ pub fn join_recordings(parts: Vec<Recording>, gap_s: f64) -> Recording {
 /// Diagnose a recording: segment its trials from the data (the identification's segmentation),
 /// load the robot model for the torque level, and run [`diagnose_trials`].
 pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis> {
-    let seg = crate::identify::segment::segment(rec, &crate::identify::segment::SegmentOptions::default());
+    let seg = crate::identify::segment::segment(
+        rec,
+        &crate::identify::segment::SegmentOptions::default(),
+    );
     if seg.trials.is_empty() {
-        let why: Vec<String> = seg.unmatched.iter().take(5).map(|s| format!("{:.1}–{:.1} s: {}", s.t0, s.t1, s.reason)).collect();
-        bail!("{}: no protocol trials found ({})", rec.source.display(), why.join("; "));
+        let why: Vec<String> = seg
+            .unmatched
+            .iter()
+            .take(5)
+            .map(|s| format!("{:.1}–{:.1} s: {}", s.t0, s.t1, s.reason))
+            .collect();
+        bail!(
+            "{}: no protocol trials found ({})",
+            rec.source.display(),
+            why.join("; ")
+        );
     }
     let windows: Vec<TrialWindow> = seg
         .trials
@@ -310,12 +358,17 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis> {
             t_post_end: t.t_post_end,
             t_return_end: t.t_return_end,
             joints_moved: t.joints_moved.clone(),
-            qdot_max: if t.qdot_max_cmd.is_finite() { t.qdot_max_cmd } else { t.qdot_max_meas },
+            qdot_max: if t.qdot_max_cmd.is_finite() {
+                t.qdot_max_cmd
+            } else {
+                t.qdot_max_meas
+            },
         })
         .collect();
     let arm = if opts.torque_level && rec.state.tau.iter().any(|t| t.iter().any(|v| *v != 0.0)) {
         let model = match &opts.urdf {
-            Some(p) => RobotModel::from_urdf_file(p).with_context(|| format!("loading URDF {}", p.display()))?,
+            Some(p) => RobotModel::from_urdf_file(p)
+                .with_context(|| format!("loading URDF {}", p.display()))?,
             None => RobotModel::builtin(),
         };
         let joints = model.arm(&rec.joint_names)?;
@@ -323,7 +376,12 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis> {
     } else {
         None
     };
-    diagnose_trials(rec, &windows, arm.as_ref().map(|a| a as &dyn ArmModel), opts)
+    diagnose_trials(
+        rec,
+        &windows,
+        arm.as_ref().map(|a| a as &dyn ArmModel),
+        opts,
+    )
 }
 
 /// Diagnose a recording whose trials are already segmented. `arm` enables the torque level.
@@ -374,7 +432,10 @@ pub fn diagnose_trials(
                     reason: "no power readings in the trial".into(),
                 });
             } else if let Some(o) = out.iter().find(|o| o.trial == m.window.index) {
-                rejected.push(RejectedTrial { trial: m.window.index, reason: o.describe() });
+                rejected.push(RejectedTrial {
+                    trial: m.window.index,
+                    reason: o.describe(),
+                });
             } else {
                 keep.push(m);
             }
@@ -575,7 +636,10 @@ pub fn diagnose_trials(
         .collect::<Result<Vec<_>>>()?;
 
     let mark = |trial: usize, reason: String| {
-        let w = metas.iter().find(|m| m.window.index == trial).map(|m| &m.window);
+        let w = metas
+            .iter()
+            .find(|m| m.window.index == trial)
+            .map(|m| &m.window);
         HighlightedTrial {
             trial,
             t_start: w.map_or(0.0, |w| w.t_traj),
@@ -586,12 +650,23 @@ pub fn diagnose_trials(
     let mut highlighted: Vec<HighlightedTrial> = worst_trials
         .iter()
         .take(5)
-        .map(|t| mark(t.trial, format!("largest held-out residual of the base model: {:+.2} W", t.mean_w)))
+        .map(|t| {
+            mark(
+                t.trial,
+                format!(
+                    "largest held-out residual of the base model: {:+.2} W",
+                    t.mean_w
+                ),
+            )
+        })
         .collect();
     for c in unexplained.iter().filter(|c| c.significant) {
         for &t in &c.trials {
             if !highlighted.iter().any(|h| h.trial == t) {
-                highlighted.push(mark(t, format!("carries unexplained structure ({})", c.feature)));
+                highlighted.push(mark(
+                    t,
+                    format!("carries unexplained structure ({})", c.feature),
+                ));
             }
         }
     }
@@ -838,10 +913,13 @@ mod torque_tests {
         let n = s.t.len();
         for k in 0..n {
             let (a, b) = (k.saturating_sub(1), (k + 1).min(n - 1));
-            let ddq: [f64; 7] = std::array::from_fn(|j| (s.dq[b][j] - s.dq[a][j]) / (s.t[b] - s.t[a]).max(1e-9));
+            let ddq: [f64; 7] =
+                std::array::from_fn(|j| (s.dq[b][j] - s.dq[a][j]) / (s.t[b] - s.t[a]).max(1e-9));
             let tau = plant.inverse_dynamics(&s.q[k], &s.dq[k], &ddq);
             let noise = ((k * 7919) % 1000) as f64 / 1000.0 - 0.5;
-            s.tau[k] = std::array::from_fn(|j| tau[j] + 0.3 * (s.dq[k][j] / 0.01).tanh() + 0.1 * s.dq[k][j] + 0.05 * noise);
+            s.tau[k] = std::array::from_fn(|j| {
+                tau[j] + 0.3 * (s.dq[k][j] / 0.01).tanh() + 0.1 * s.dq[k][j] + 0.05 * noise
+            });
         }
         urdf
     }
@@ -849,13 +927,27 @@ mod torque_tests {
     #[test]
     fn payload_is_recovered_at_the_torque_level_and_absent_when_there_is_none() {
         let (mut rec, w) = session(40, 8, Effects::default());
-        let urdf = with_urdf_torques(&mut rec, Some(Payload { mass_kg: 0.5, com_m: [0.1, 0.0, 0.0] }));
+        let urdf = with_urdf_torques(
+            &mut rec,
+            Some(Payload {
+                mass_kg: 0.5,
+                com_m: [0.1, 0.0, 0.0],
+            }),
+        );
         let d = diagnose_trials(&rec, &w, Some(&urdf), &DiagnoseOptions::default()).unwrap();
         eprintln!("{}", d.summary);
         let p = d.hypotheses.iter().find(|h| h.id == "payload").unwrap();
         assert!(p.accepted && p.rank == 1, "{p:?}");
-        assert!((p.params[0].value - 0.5).abs() < 0.05, "m = {}", p.params[0].value);
-        assert!((p.params[1].value - 0.1).abs() < 0.01, "cx = {}", p.params[1].value);
+        assert!(
+            (p.params[0].value - 0.5).abs() < 0.05,
+            "m = {}",
+            p.params[0].value
+        );
+        assert!(
+            (p.params[1].value - 0.1).abs() < 0.01,
+            "cx = {}",
+            p.params[1].value
+        );
 
         let (mut rec, w) = session(40, 9, Effects::default());
         let urdf = with_urdf_torques(&mut rec, None);

@@ -117,15 +117,28 @@ mod tests {
             let (m, p) = (40, 12);
             let phi = DMatrix::from_fn(m, p, |_, _| rng.random_range(-1.0..1.0));
             let y = DVector::from_fn(m, |_, _| rng.random_range(-2.0..2.0));
-            let lo: Vec<f64> = (0..p).map(|j| if j % 3 == 0 { f64::NEG_INFINITY } else { 0.0 }).collect();
-            let hi: Vec<f64> = (0..p).map(|j| if j % 4 == 0 { 0.2 } else { f64::INFINITY }).collect();
+            let lo: Vec<f64> = (0..p)
+                .map(|j| if j % 3 == 0 { f64::NEG_INFINITY } else { 0.0 })
+                .collect();
+            let hi: Vec<f64> = (0..p)
+                .map(|j| if j % 4 == 0 { 0.2 } else { f64::INFINITY })
+                .collect();
             let g = phi.transpose() * &phi;
             let h = phi.transpose() * &y;
             let ours = bounded_quadratic(&g, &h, &lo, &hi).unwrap();
-            let bounds = Bounds { lower: lo.clone(), upper: hi.clone(), ridge: 0.0 };
+            let bounds = Bounds {
+                lower: lo.clone(),
+                upper: hi.clone(),
+                ridge: 0.0,
+            };
             let theirs = fit_general(&phi, &y, &bounds, Method::Bvls).unwrap().theta;
             for j in 0..p {
-                assert!((ours[j] - theirs[j]).abs() < 1e-8, "θ{j}: {} vs {}", ours[j], theirs[j]);
+                assert!(
+                    (ours[j] - theirs[j]).abs() < 1e-8,
+                    "θ{j}: {} vs {}",
+                    ours[j],
+                    theirs[j]
+                );
             }
         }
     }

@@ -12,10 +12,10 @@ use rand::SeedableRng;
 use rand::seq::SliceRandom;
 
 use super::data::Rows;
-use crate::identify::metrics::Metrics;
-use crate::power::PowerModel;
 use super::hypotheses::{Combine, Hypothesis, LATENCY_ID, N_RAW};
 use super::stats::improvement_p_value;
+use crate::identify::metrics::Metrics;
+use crate::power::PowerModel;
 use crate::{N_JOINTS, N_PARAMS};
 
 /// Least-squares sufficient statistics of a set of rows over the raw layout.
@@ -200,7 +200,13 @@ fn solve_bounded(
         h[i] += BASE_PRIOR_WEIGHT * prior[i];
     }
     let s: Vec<f64> = (0..p)
-        .map(|i| if g[(i, i)] > 0.0 { g[(i, i)].sqrt() } else { 1.0 })
+        .map(|i| {
+            if g[(i, i)] > 0.0 {
+                g[(i, i)].sqrt()
+            } else {
+                1.0
+            }
+        })
         .collect();
     let mut gs = DMatrix::from_fn(p, p, |i, j| g[(i, j)] / (s[i] * s[j]));
     for i in 0..p {

@@ -38,7 +38,12 @@ pub trait ArmModel {
 }
 
 impl ArmModel for crate::robot::ArmDynamics {
-    fn inverse_dynamics(&self, q: &[f64; N_JOINTS], dq: &[f64; N_JOINTS], ddq: &[f64; N_JOINTS]) -> [f64; N_JOINTS] {
+    fn inverse_dynamics(
+        &self,
+        q: &[f64; N_JOINTS],
+        dq: &[f64; N_JOINTS],
+        ddq: &[f64; N_JOINTS],
+    ) -> [f64; N_JOINTS] {
         crate::robot::ArmDynamics::inverse_dynamics(self, q, dq, ddq)
     }
 
