@@ -32,7 +32,7 @@ fn session(
         let cfg = SimConfig {
             preset: Preset::Smoke,
             seed: seed * 100 + part,
-            effects: effects.clone(),
+            effects: *effects,
             t_start_c,
             progress: false,
             ..SimConfig::default()

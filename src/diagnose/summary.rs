@@ -7,27 +7,27 @@ use super::hypotheses::{LATENCY_ID, PAYLOAD_ID, power_hypothesis};
 use super::{Diagnosis, HypothesisScore, Param};
 
 fn fmt_param(p: &Param) -> String {
-    let digits = |x: f64| {
-        let a = x.abs();
-        if a == 0.0 || !a.is_finite() {
-            2
-        } else {
-            (2 - a.log10().floor() as i32).clamp(0, 6) as usize
-        }
-    };
-    let d = digits(if p.std_err.is_finite() && p.std_err > 0.0 {
+    // Two significant digits of the uncertainty (or of the value when there is none).
+    let scale = if p.std_err.is_finite() && p.std_err > 0.0 {
         p.std_err
     } else {
-        p.value
-    });
-    if p.std_err.is_finite() {
+        p.value.abs()
+    };
+    let d = if scale > 0.0 && scale.is_finite() {
+        (1 - scale.log10().floor() as i32).clamp(0, 6) as usize
+    } else {
+        2
+    };
+    let unit = if p.unit == "-" { "" } else { p.unit.as_str() };
+    let text = if p.std_err.is_finite() {
         format!(
-            "{} = {:.*} ± {:.*} {}",
-            p.symbol, d, p.value, d, p.std_err, p.unit
+            "{} = {:.*} ± {:.*} {unit}",
+            p.symbol, d, p.value, d, p.std_err
         )
     } else {
-        format!("{} = {:.*} {}", p.symbol, d, p.value, p.unit)
-    }
+        format!("{} = {:.*} {unit}", p.symbol, d, p.value)
+    };
+    text.trim_end().to_string()
 }
 
 fn assumption(s: &HypothesisScore) -> &'static str {
@@ -160,7 +160,7 @@ pub fn summarise(d: &Diagnosis) -> String {
         let p = shown.or(h.params.first());
         let _ = writeln!(
             s,
-            "Named: {}; adding {} with {} improves held-out {} R² from {:.3} to {:.3} (RMSE {:.3} → {:.3}).",
+            "Named: {}; adding {} with {} improves held-out {} R² from {:.3} to {:.3} (RMSE {:.3} → {:.3} {}).",
             assumption(h),
             h.title,
             p.map(fmt_param).unwrap_or_default(),
@@ -168,7 +168,8 @@ pub fn summarise(d: &Diagnosis) -> String {
             h.r2_before,
             h.r2_after,
             h.rmse_before,
-            h.rmse_after
+            h.rmse_after,
+            if h.level == "torque" { "Nm" } else { "W" }
         );
         if h.id == PAYLOAD_ID {
             let com: Vec<String> = h.params.iter().skip(1).map(fmt_param).collect();
