@@ -5,6 +5,8 @@
 //! Shared data: `$G1VIZ_SHARED` or `<crate>/../shared`; tests print a note and return when it is
 //! absent. Inputs are never modified: tests fingerprint them before and after.
 
+mod common;
+
 use std::collections::BTreeMap;
 use std::hash::{Hash, Hasher};
 use std::path::{Path, PathBuf};
@@ -15,17 +17,7 @@ use g1viz::read::db3::Ros2BagSource;
 use g1viz::read::{Encoding, MessageSource, OpenOptions, ReadError, ReadSummary};
 
 fn shared() -> Option<PathBuf> {
-    let dir = std::env::var_os("G1VIZ_SHARED")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared"));
-    let ok = dir.join("recordings/g1_smoke.mcap").is_file();
-    if !ok {
-        eprintln!(
-            "note: shared recordings not found at {}; test skipped",
-            dir.display()
-        );
-    }
-    ok.then_some(dir)
+    common::shared_dir()
 }
 
 /// Size, mtime and content hash of every file under `path`, and the list of names (so a

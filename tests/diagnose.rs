@@ -7,7 +7,9 @@
 //! end to end (≈ 72 trials), small enough for CI. Expected values come from the simulator's
 //! configuration (the concealed parameters), never from the code under test.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use std::path::PathBuf;
 
 use g1viz::diagnose::{self, DiagnoseOptions, Diagnosis};
 use g1viz::power::PowerModel;
@@ -254,11 +256,7 @@ fn harness_drag_outside_the_library_is_located() {
 }
 
 fn shared(name: &str) -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/recordings")
-        .join(name);
-    let alt = Path::new("/work/shared/recordings").join(name);
-    [p, alt].into_iter().find(|p| p.exists())
+    common::shared_recording(name)
 }
 
 #[test]

@@ -4,6 +4,8 @@
 //! read `../shared/recordings` (env `G1VIZ_SHARED` overrides the folder) and compare against the
 //! independent generator's truth JSON; they print a note and return when the data is absent.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 
 use g1viz::identify::dataset::{self, Alignment, DatasetOptions, Mode, Target};
@@ -451,20 +453,9 @@ fn identify_reports_no_usable_trials_clearly() {
 
 // ---------------------------------------------------------------- shared recordings
 
+/// The shared `recordings/` folder.
 fn shared_dir() -> Option<PathBuf> {
-    let dir = std::env::var_os("G1VIZ_SHARED")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared"));
-    let dir = dir.join("recordings");
-    if dir.join("g1_smoke.mcap").exists() && dir.join("g1_holdout.mcap").exists() {
-        Some(dir)
-    } else {
-        println!(
-            "note: shared recordings not found at {} — test skipped",
-            dir.display()
-        );
-        None
-    }
+    common::shared_dir().map(|d| d.join("recordings"))
 }
 
 fn load(dir: &Path, name: &str) -> Recording {

@@ -1,6 +1,8 @@
 //! Reader and signal tests: the shared smoke recording (written by the Python mcap-ros2 library)
 //! against its truth JSON and an independent Python read, and damaged/odd inputs.
 
+mod common;
+
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -10,19 +12,8 @@ use g1viz::read::mcap::McapSource;
 use g1viz::read::{Encoding, FieldExtractor, FieldPath, MessageSource, OpenOptions, Session};
 use g1viz::signals::{SignalMap, load_recording};
 
-/// The shared folder (`G1VIZ_SHARED` or `<crate>/../shared`), if present.
 fn shared() -> Option<PathBuf> {
-    let dir = std::env::var_os("G1VIZ_SHARED")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared"));
-    let ok = dir.join("recordings/g1_smoke.mcap").is_file();
-    if !ok {
-        eprintln!(
-            "note: {} not found; skipping test that needs the shared recordings",
-            dir.display()
-        );
-    }
-    ok.then_some(dir)
+    common::shared_dir()
 }
 
 fn smoke() -> Option<(PathBuf, serde_json::Value)> {

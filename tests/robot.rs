@@ -2,7 +2,9 @@
 //! values, and rigid-body dynamics checked against independent relations (energy, finite
 //! differences) and against the shared recordings' generator (pinocchio on the official URDF).
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use std::path::PathBuf;
 
 use g1viz::robot::{ArmDynamics, ArmJoints, Geometry, JointFriction, Payload, RobotModel};
 use nalgebra::{Isometry3, Vector3};
@@ -11,20 +13,8 @@ use rand_chacha::ChaCha8Rng;
 
 const N: usize = 7;
 
-/// The shared read-only data folder, or None (the caller prints a note and skips).
 fn shared_dir() -> Option<PathBuf> {
-    let dir = std::env::var_os("G1VIZ_SHARED")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared"));
-    if dir.join("g1_description").is_dir() {
-        Some(dir)
-    } else {
-        eprintln!(
-            "note: shared data not found at {} (set G1VIZ_SHARED); skipping",
-            dir.display()
-        );
-        None
-    }
+    common::shared_dir()
 }
 
 fn official_model() -> Option<RobotModel> {

@@ -3,6 +3,8 @@
 //! switchable effect's change of the recorded power/torque against an expectation the test
 //! computes itself from the recorded signals.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 
 use g1viz::sim::{Artefacts, Preset, SimConfig, simulate};
@@ -608,14 +610,10 @@ fn artefacts_show_in_imu_and_power() {
 #[test]
 fn twin_of_the_shared_smoke_session_matches_it() {
     // g1_smoke.mcap was written by an independent generator (python mcap, pinocchio dynamics).
-    let shared = Path::new("/work/shared/recordings/g1_smoke.mcap");
-    if !shared.exists() {
-        eprintln!(
-            "note: {} not found; shared-recording twin test skipped",
-            shared.display()
-        );
+    let Some(shared) = common::shared_recording("g1_smoke.mcap") else {
         return;
-    }
+    };
+    let shared = shared.as_path();
     let real = load(shared);
     let dir = tmp();
     let out = dir.path().join("twin.mcap");

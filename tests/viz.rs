@@ -2,6 +2,8 @@
 //! `rerun rrd verify` when the stock CLI is on PATH) and checked against the input recording.
 #![cfg(feature = "viz")]
 
+mod common;
+
 use std::collections::BTreeMap;
 use std::io::BufReader;
 use std::path::{Path, PathBuf};
@@ -378,18 +380,16 @@ fn stock_cli_verifies_rrd() {
     );
 }
 
-const SHARED: &str = "/work/shared";
-
 /// The shared smoke session (independent generator): one row per `/lowstate` message on every
 /// joint series, one per power message, counts taken from the truth JSON.
 #[test]
 fn smoke_session_rrd_rows_match_truth() {
-    let mcap = Path::new(SHARED).join("recordings/g1_smoke.mcap");
-    let truth_path = Path::new(SHARED).join("recordings/g1_smoke.truth.json");
-    if !mcap.exists() || !truth_path.exists() {
-        eprintln!("note: {} not found; skipping", mcap.display());
+    let (Some(mcap), Some(truth_path)) = (
+        common::shared_recording("g1_smoke.mcap"),
+        common::shared_recording("g1_smoke.truth.json"),
+    ) else {
         return;
-    }
+    };
     let truth: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&truth_path).unwrap()).unwrap();
     let count = |topic: &str| {
@@ -451,11 +451,10 @@ fn smoke_session_rrd_rows_match_truth() {
 /// Unitree's official URDF: links with STL meshes come out as `Asset3D` entities.
 #[test]
 fn official_urdf_meshes_become_assets() {
-    let urdf = Path::new(SHARED).join("g1_description/g1_29dof_with_hand_rev_1_0.urdf");
-    if !urdf.exists() {
-        eprintln!("note: {} not found; skipping", urdf.display());
+    let Some(shared) = common::shared_dir() else {
         return;
-    }
+    };
+    let urdf = shared.join("g1_description/g1_29dof_with_hand_rev_1_0.urdf");
     let robot = RobotModel::from_urdf_file(&urdf).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let mut rec = synthetic(&input_file(dir.path()));
@@ -518,4 +517,89 @@ fn official_urdf_meshes_become_assets() {
     let c = contents(&msgs);
     assert_eq!(rows(&c, "/robot/left_wrist_yaw_link"), 20);
     assert_eq!(rows(&c, "/robot/pelvis"), 0);
+}
+
+/// `replay --model`: the model overlay on the shared smoke session marks exactly the truth's
+/// balance-contaminated trials as IMU-rejected, predicts the independent generator's power (its
+/// plant is the paper's model), and lands in the .rrd as per-joint loss-term series.
+#[test]
+fn model_overlay_marks_contaminated_trials_and_logs_loss_terms() {
+    let (Some(mcap), Some(truth_path)) = (
+        common::shared_recording("g1_smoke.mcap"),
+        common::shared_recording("g1_smoke.truth.json"),
+    ) else {
+        return;
+    };
+    let truth: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&truth_path).unwrap()).unwrap();
+    let contaminated: Vec<usize> = truth["trials"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|t| t["contaminated"].as_bool() == Some(true))
+        .map(|t| t["index"].as_u64().unwrap() as usize)
+        .collect();
+    assert!(
+        !contaminated.is_empty(),
+        "the smoke session has contaminated trials"
+    );
+    let rec = g1viz::signals::load_recording(
+        &mcap,
+        &g1viz::signals::SignalMap::g1_left_arm(),
+        &g1viz::read::OpenOptions::default(),
+    )
+    .unwrap();
+    let opts = g1viz::identify::pipeline::IdentifyOptions::default();
+    let (extras, _) =
+        g1viz::viz::overlay::model_extras(&rec, &g1viz::power::PowerModel::PAPER, &opts).unwrap();
+
+    let mut imu: Vec<usize> = extras
+        .trials
+        .iter()
+        .filter(|m| m.rejected.as_ref().is_some_and(|r| r.filter == "imu"))
+        .map(|m| m.index)
+        .collect();
+    imu.sort_unstable();
+    assert_eq!(
+        imu, contaminated,
+        "IMU-rejected trials = the truth's contaminated trials"
+    );
+
+    // Per trajectory, the paper's parameters predict the generator's clean trials closely.
+    let clean: Vec<_> = extras
+        .trajectories
+        .iter()
+        .filter(|p| !contaminated.contains(&p.trial))
+        .collect();
+    let mean = clean.iter().map(|p| p.measured).sum::<f64>() / clean.len() as f64;
+    let ss_res: f64 = clean
+        .iter()
+        .map(|p| (p.measured - p.predicted).powi(2))
+        .sum();
+    let ss_tot: f64 = clean.iter().map(|p| (p.measured - mean).powi(2)).sum();
+    let r2 = 1.0 - ss_res / ss_tot;
+    assert!(r2 > 0.95, "per-trajectory R² of the true model {r2}");
+
+    let terms = extras.terms.as_ref().unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("smoke_model.rrd");
+    let robot = RobotModel::builtin();
+    let arm = robot.arm(&rec.joint_names).unwrap();
+    let viz = open_stream(
+        "g1viz_test",
+        &recording_id_for(&rec),
+        &Sink::Save(out.clone()),
+        &[&mcap],
+    )
+    .unwrap();
+    let ropts = ReplayOptions {
+        progress: false,
+        ..Default::default()
+    };
+    log_replay(&rec, &robot, &arm, &extras, &ropts, viz.stream()).unwrap();
+    viz.finish().unwrap();
+    let c = contents(&decode(&out));
+    assert_eq!(rows(&c, "/model/terms/elbow/copper"), terms.t.len());
+    assert_eq!(rows(&c, "/model/power/predicted"), terms.t.len());
+    assert!(rows(&c, "/model/error/trajectory") >= clean.len());
 }
