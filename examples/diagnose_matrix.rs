@@ -176,8 +176,14 @@ fn row(case: &Case, seed: u64, mode: &str, d: &Diagnosis) -> String {
         }));
     }
     let f = &d.final_model;
+    let torque = d
+        .accepted
+        .iter()
+        .find(|h| h.level == "torque")
+        .map(|h| format!("; torque {:.3} → {:.3}", h.r2_before, h.r2_after))
+        .unwrap_or_default();
     format!(
-        "| {} (seed {seed}) | {mode} | {} | {} | {} | {} | {:.3} → {:.3} | {} / {} |",
+        "| {} (seed {seed}) | {mode} | {} | {} | {} | {} | {:.3} → {:.3}{torque} | {} / {} |",
         case.name,
         if truth.is_empty() {
             "—".into()

@@ -86,7 +86,7 @@ impl Default for DiagnoseOptions {
             folds: 5,
             alpha: 1e-3,
             bic_threshold: -10.0,
-            min_improvement: 0.01,
+            min_improvement: 0.02,
             sensor_window_s: 0.2,
             max_lag_s: 1.0,
             imu_threshold: 2.5,
