@@ -17,16 +17,33 @@ fn main() -> anyhow::Result<()> {
     let mut args = std::env::args().skip(1);
     let minutes: f64 = args.next().map(|s| s.parse()).transpose()?.unwrap_or(60.0);
     let keep = args.next().map(std::path::PathBuf::from);
-    let out = keep.clone().unwrap_or_else(|| std::env::temp_dir().join(format!("g1viz_bench_{}.rrd", std::process::id())));
+    let out = keep.clone().unwrap_or_else(|| {
+        std::env::temp_dir().join(format!("g1viz_bench_{}.rrd", std::process::id()))
+    });
 
     let rec = synthetic(minutes);
     let rss_input = peak_rss_mb();
     let robot = RobotModel::builtin();
     let arm = robot.arm(&rec.joint_names)?;
     let t0 = Instant::now();
-    let viz = open_stream("g1viz_bench", &recording_id_for(&rec), &Sink::Save(out.clone()), &[])?;
-    let opts = ReplayOptions { progress: false, ..Default::default() };
-    log_replay(&rec, &robot, &arm, &ReplayExtras::default(), &opts, viz.stream())?;
+    let viz = open_stream(
+        "g1viz_bench",
+        &recording_id_for(&rec),
+        &Sink::Save(out.clone()),
+        &[],
+    )?;
+    let opts = ReplayOptions {
+        progress: false,
+        ..Default::default()
+    };
+    log_replay(
+        &rec,
+        &robot,
+        &arm,
+        &ReplayExtras::default(),
+        &opts,
+        viz.stream(),
+    )?;
     viz.finish()?;
     let secs = t0.elapsed().as_secs_f64();
     let size = std::fs::metadata(&out)?.len();
@@ -70,7 +87,9 @@ fn synthetic(minutes: f64) -> Recording {
     let secs = (minutes * 60.0) as usize;
     let power = |base: f64| PowerSeries {
         t: (0..secs).map(|k| k as f64 + 0.5).collect(),
-        watts: (0..secs).map(|k| base + 10.0 * (k as f64 * 0.1).sin()).collect(),
+        watts: (0..secs)
+            .map(|k| base + 10.0 * (k as f64 * 0.1).sin())
+            .collect(),
     };
     Recording {
         source: "synthetic-1h.mcap".into(),

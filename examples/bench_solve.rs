@@ -202,10 +202,7 @@ fn main() -> anyhow::Result<()> {
                 predicted,
             }),
             validation: None,
-            terms: Some(TermShares {
-                dataset: "identification rows".into(),
-                means,
-            }),
+            terms: Some(TermContributions::from_means("identification rows", &means)),
             aggregation: Vec::new(),
             truth: Some(PowerModel::PAPER),
             notes: Vec::new(),

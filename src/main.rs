@@ -1,2 +1,628 @@
-//! `g1viz` command line (being wired).
-fn main() {}
+//! `g1viz` command line: replay, identify, validate, simulate and diagnose G1 arm sessions.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result, bail};
+use clap::{Args, Parser, Subcommand, ValueEnum};
+
+use g1viz::identify::dataset::{Mode, Target};
+use g1viz::identify::pipeline::{self, IdentifyOptions};
+use g1viz::power::{ModelFile, PowerModel};
+use g1viz::read::{OpenOptions, Session};
+use g1viz::signals::{Recording, SignalMap, load_recording};
+
+const EXAMPLES: &str = "\
+Examples:
+  g1viz info examples/g1_example.mcap
+  g1viz replay examples/g1_example.mcap --save example.rrd
+  g1viz replay session.mcap --urdf ../shared/g1_description/g1_29dof_with_hand_rev_1_0.urdf --spawn
+  g1viz identify smoke.mcap -o model.json --report report/
+  g1viz validate --model model.json holdout.mcap
+  g1viz replay holdout.mcap --model model.json --save holdout.rrd
+  g1viz simulate --preset smoke --seed 1 -o sim.mcap --effect braking=0.3
+  g1viz simulate --like session.mcap -o twin.mcap
+  g1viz diagnose session.mcap --model model.json --report diag/ --save diag.rrd";
+
+/// Replay, identify and diagnose the electrical power of the Unitree G1 arm.
+#[derive(Parser)]
+#[command(name = "g1viz", version, about, after_help = EXAMPLES)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Print what a recording holds: topics, types, counts, rates, time range and the resolved arm signals.
+    Info(InfoArgs),
+    /// Replay a session in the Rerun viewer (or to an .rrd file): animated arm, joint signals, power,
+    /// and with --model the identified model's prediction and loss terms.
+    Replay(ReplayArgs),
+    /// Identify the 49-parameter arm power model from one or more sessions (writes model.json).
+    Identify(IdentifyArgs),
+    /// Validate a model on a hold-out session.
+    Validate(ValidateArgs),
+    /// Simulate a session with the digital twin (MCAP + truth JSON), optionally with concealed effects.
+    Simulate(SimulateArgs),
+    /// Diagnose sim-to-real mismatch: locate it, name the missing physics, model it.
+    Diagnose(DiagnoseArgs),
+}
+
+/// Options for reading a session, shared by every subcommand that reads one.
+#[derive(Args, Clone)]
+struct ReadArgs {
+    /// Signal mapping override (TOML: topics, field paths, scales; e.g. `arm = "right"`).
+    #[arg(long, value_name = "FILE")]
+    signals: Option<PathBuf>,
+    /// Folder with .msg definitions for bags that do not carry them (repeatable).
+    #[arg(long = "msg-path", value_name = "DIR")]
+    msg_paths: Vec<PathBuf>,
+}
+
+impl ReadArgs {
+    fn open_options(&self) -> OpenOptions {
+        OpenOptions {
+            msg_paths: self.msg_paths.clone(),
+        }
+    }
+
+    fn signal_map(&self) -> Result<SignalMap> {
+        match &self.signals {
+            Some(path) => SignalMap::from_toml_file(path),
+            None => Ok(SignalMap::g1_left_arm()),
+        }
+    }
+
+    fn load(&self, path: &Path) -> Result<Recording> {
+        let rec = load_recording(path, &self.signal_map()?, &self.open_options())
+            .with_context(|| format!("reading {}", path.display()))?;
+        for w in &rec.warnings {
+            eprintln!("warning: {w}");
+        }
+        Ok(rec)
+    }
+}
+
+/// Power sensor used as the regression target.
+#[derive(Clone, Copy, ValueEnum)]
+enum TargetArg {
+    /// Main-board sensor (arm/upper-body rail; the paper's choice).
+    Mbs,
+    /// Battery management system (whole robot).
+    Bms,
+}
+
+/// How power readings are paired with the kinematics.
+#[derive(Clone, Copy, ValueEnum)]
+enum ModeArg {
+    /// One row per power reading, regressors averaged over the reading's own window (default).
+    Reading,
+    /// One row per trajectory (the paper's aggregation).
+    Trial,
+    /// One row per 100 Hz sample with the reading held (degenerate; for comparison).
+    Sample,
+}
+
+/// Identification/validation options shared by identify, validate and replay --model.
+#[derive(Args, Clone)]
+struct FitArgs {
+    /// Power sensor to model.
+    #[arg(long, value_enum, default_value = "mbs")]
+    target: TargetArg,
+    /// Row pairing.
+    #[arg(long, value_enum, default_value = "reading")]
+    mode: ModeArg,
+    /// IMU balance-contamination filter: reject trials with σ(|ω|) > K × median.
+    #[arg(long, value_name = "K", default_value_t = 2.5)]
+    imu_threshold: f64,
+    /// Switch the IMU filter off.
+    #[arg(long)]
+    no_imu_filter: bool,
+    /// Passes of n·σ residual rejection (0 = off).
+    #[arg(long, default_value_t = 2)]
+    sigma_passes: usize,
+    /// Width of the residual rejection in σ.
+    #[arg(long, default_value_t = 3.0)]
+    n_sigma: f64,
+}
+
+impl FitArgs {
+    fn options(&self) -> IdentifyOptions {
+        IdentifyOptions {
+            target: match self.target {
+                TargetArg::Mbs => Target::Mbs,
+                TargetArg::Bms => Target::Bms,
+            },
+            mode: match self.mode {
+                ModeArg::Reading => Mode::Reading,
+                ModeArg::Trial => Mode::Trial,
+                ModeArg::Sample => Mode::Sample,
+            },
+            imu_k: (!self.no_imu_filter).then_some(self.imu_threshold),
+            sigma_passes: self.sigma_passes,
+            n_sigma: self.n_sigma,
+            ..IdentifyOptions::default()
+        }
+    }
+}
+
+#[derive(Args)]
+struct InfoArgs {
+    /// Recording: .mcap, ROS 2 bag directory (or its metadata.yaml / .db3), or ROS 1 .bag.
+    session: PathBuf,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    json: bool,
+    #[command(flatten)]
+    read: ReadArgs,
+}
+
+#[derive(Args)]
+struct ReplayArgs {
+    /// Recording to replay.
+    session: PathBuf,
+    /// Identified model (model.json, or `paper` for the paper's parameters): adds predicted vs
+    /// measured power, error and loss terms.
+    #[arg(long, value_name = "M")]
+    model: Option<PathBuf>,
+    /// Robot description (default: the shipped G1 left-arm URDF; Unitree's official URDF shows its meshes).
+    #[arg(long, value_name = "URDF")]
+    urdf: Option<PathBuf>,
+    /// Write an .rrd file (atomically; refuses to overwrite the input).
+    #[arg(long, value_name = "OUT", group = "sink")]
+    save: Option<PathBuf>,
+    /// Stream to a running viewer (default address rerun+http://127.0.0.1:9876/proxy).
+    #[arg(long, value_name = "ADDR", group = "sink", num_args = 0..=1, default_missing_value = "")]
+    connect: Option<String>,
+    /// Start a viewer (`rerun` on PATH: pip install rerun-sdk==0.36.3) and stream to it.
+    #[arg(long, group = "sink")]
+    spawn: bool,
+    /// Memory limit of the spawned viewer (e.g. 2GB or 25%).
+    #[arg(long, default_value = "25%")]
+    memory_limit: String,
+    /// Arm poses per second in the 3D view (0 = every recorded sample). Joint and power series
+    /// are always logged at full rate; 30 Hz keeps hour-long .rrd files a fraction of the size.
+    #[arg(long, value_name = "HZ", default_value_t = 30.0)]
+    pose_rate: f64,
+    /// Do not send the viewer layout (keep the viewer's own).
+    #[arg(long)]
+    no_blueprint: bool,
+    #[command(flatten)]
+    fit: FitArgs,
+    #[command(flatten)]
+    read: ReadArgs,
+}
+
+#[derive(Args)]
+struct IdentifyArgs {
+    /// Identification session(s).
+    #[arg(required = true)]
+    sessions: Vec<PathBuf>,
+    /// Where to write the model.
+    #[arg(short, long, value_name = "FILE", default_value = "model.json")]
+    output: PathBuf,
+    /// Hold-out session validated with the identified model (metrics go into model.json).
+    #[arg(long, value_name = "SESSION")]
+    holdout: Option<PathBuf>,
+    /// Write a markdown report with figures into DIR.
+    #[arg(long, value_name = "DIR")]
+    report: Option<PathBuf>,
+    #[command(flatten)]
+    fit: FitArgs,
+    #[command(flatten)]
+    read: ReadArgs,
+}
+
+#[derive(Args)]
+struct ValidateArgs {
+    /// The model to validate (model.json).
+    #[arg(long, value_name = "M")]
+    model: PathBuf,
+    /// Hold-out session.
+    session: PathBuf,
+    /// Print JSON instead of text.
+    #[arg(long)]
+    json: bool,
+    #[command(flatten)]
+    fit: FitArgs,
+    #[command(flatten)]
+    read: ReadArgs,
+}
+
+#[derive(Args)]
+struct SimulateArgs {
+    /// Output MCAP file (the truth sidecar goes beside it as NAME.truth.json).
+    #[arg(short, long, value_name = "OUT")]
+    output: PathBuf,
+    /// Trial set: tiny, example, smoke, paper, holdout.
+    #[arg(long, default_value = "smoke")]
+    preset: String,
+    /// Random seed (same seed, same file).
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Switch on a concealed effect, e.g. braking=0.3, thermal=0.00393, bus_loss=0.05, latency=0.3,
+    /// payload=0.5, harness_drag=4 (repeatable).
+    #[arg(long = "effect", value_name = "NAME=VALUE")]
+    effects: Vec<String>,
+    /// Re-run this recording's commanded trajectory through the twin (same timeline).
+    #[arg(long, value_name = "SESSION")]
+    like: Option<PathBuf>,
+    /// True power model (default: the paper's tables).
+    #[arg(long, value_name = "M")]
+    model: Option<PathBuf>,
+    /// URDF for the dynamics (default: the shipped one).
+    #[arg(long, value_name = "URDF")]
+    urdf: Option<PathBuf>,
+    /// Simulate without the Dex3-1 hand.
+    #[arg(long)]
+    no_hand: bool,
+    /// Winding temperature at session start [°C].
+    #[arg(long, value_name = "C")]
+    t_start: Option<f64>,
+    /// No balance contamination and no hardware-event outliers.
+    #[arg(long)]
+    clean: bool,
+    #[command(flatten)]
+    read: ReadArgs,
+}
+
+#[derive(Args)]
+struct DiagnoseArgs {
+    /// Recording to diagnose.
+    session: PathBuf,
+    /// The twin's power model (model.json); without it the model is refitted inside each fold.
+    #[arg(long, value_name = "M")]
+    model: Option<PathBuf>,
+    /// URDF for the torque-level comparison (default: the shipped one).
+    #[arg(long, value_name = "URDF")]
+    urdf: Option<PathBuf>,
+    /// Power sensor.
+    #[arg(long, value_enum, default_value = "mbs")]
+    target: TargetArg,
+    /// Write a markdown report with figures into DIR.
+    #[arg(long, value_name = "DIR")]
+    report: Option<PathBuf>,
+    /// Write the machine-readable diagnosis here.
+    #[arg(long, value_name = "FILE")]
+    json: Option<PathBuf>,
+    /// Write an .rrd with before/after predictions, residuals and the located trials.
+    #[arg(long, value_name = "OUT")]
+    save: Option<PathBuf>,
+    #[command(flatten)]
+    read: ReadArgs,
+}
+
+fn main() {
+    let cli = Cli::parse();
+    if let Err(err) = run(cli) {
+        eprintln!("error: {err:#}");
+        std::process::exit(1);
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Info(a) => info(a),
+        Command::Replay(a) => replay(a),
+        Command::Identify(a) => identify(a),
+        Command::Validate(a) => validate(a),
+        Command::Simulate(a) => simulate(a),
+        Command::Diagnose(a) => diagnose(a),
+    }
+}
+
+fn info(a: InfoArgs) -> Result<()> {
+    let mut session = Session::open(&a.session, &a.read.open_options())?;
+    let info = session.info()?;
+    let rec = a.read.load(&a.session).ok();
+    if a.json {
+        let signals = rec.as_ref().map(signal_summary);
+        let out = serde_json::json!({ "container": info, "signals": signals });
+        println!("{}", serde_json::to_string_pretty(&out)?);
+        return Ok(());
+    }
+    let span = (info.end_ns.saturating_sub(info.start_ns)) as f64 * 1e-9;
+    println!("file:       {}", info.path.display());
+    println!("format:     {}", info.format);
+    println!("messages:   {}", info.messages);
+    println!("duration:   {span:.3} s");
+    println!("start:      {} ns", info.start_ns);
+    println!("end:        {} ns", info.end_ns);
+    println!("topics:");
+    for t in &info.topics {
+        println!(
+            "  {:<24} {:>8} msgs  {:>8.2} Hz  {} [{}]",
+            t.topic, t.count, t.rate_hz, t.type_name, t.encoding
+        );
+    }
+    for w in &info.warnings {
+        println!("warning: {w}");
+    }
+    match rec {
+        Some(rec) => {
+            let s = signal_summary(&rec);
+            println!("signals:");
+            println!("  arm joints:  {}", rec.joint_names.join(", "));
+            for (name, v) in s.as_object().into_iter().flatten() {
+                if name != "joints" {
+                    println!("  {name:<12} {v}");
+                }
+            }
+        }
+        None => {
+            println!("signals:    (the arm signals could not be resolved; `g1viz replay` says why)")
+        }
+    }
+    Ok(())
+}
+
+fn rate(t: &[f64]) -> f64 {
+    match (t.first(), t.last()) {
+        (Some(a), Some(b)) if t.len() > 1 && b > a => (t.len() - 1) as f64 / (b - a),
+        _ => 0.0,
+    }
+}
+
+fn signal_summary(rec: &Recording) -> serde_json::Value {
+    serde_json::json!({
+        "joints": rec.joint_names,
+        "state": { "samples": rec.state.t.len(), "rate_hz": rate(&rec.state.t) },
+        "command": { "samples": rec.command.t.len(), "rate_hz": rate(&rec.command.t) },
+        "mbs_power": { "readings": rec.mbs.t.len(), "rate_hz": rate(&rec.mbs.t) },
+        "bms_power": { "readings": rec.bms.t.len(), "rate_hz": rate(&rec.bms.t) },
+    })
+}
+
+/// A model.json, or `paper` for the paper's tabulated parameters.
+fn load_model(path: &Path) -> Result<PowerModel> {
+    if path.as_os_str() == "paper" && !path.exists() {
+        return Ok(PowerModel::PAPER);
+    }
+    Ok(ModelFile::load(path)?.model())
+}
+
+#[cfg(feature = "viz")]
+fn replay(a: ReplayArgs) -> Result<()> {
+    use g1viz::robot::RobotModel;
+    use g1viz::viz::{self, Sink, replay::ReplayExtras};
+
+    let rec = a.read.load(&a.session)?;
+    let robot = match &a.urdf {
+        Some(p) => RobotModel::from_urdf_file(p)?,
+        None => RobotModel::builtin(),
+    };
+    let arm = robot.arm(&rec.joint_names)?;
+    let extras = match &a.model {
+        Some(m) => {
+            let model = load_model(m)?;
+            let (extras, v) = viz::overlay::model_extras(&rec, &model, &a.fit.options())?;
+            for n in &v.notes {
+                eprintln!("note: {n}");
+            }
+            eprintln!(
+                "model {}: per-trajectory R² {:.3}, RMSE {:.2} W on {} trials",
+                m.display(),
+                v.trial_level_aligned.r2,
+                v.trial_level_aligned.rmse,
+                v.per_trial.len()
+            );
+            extras
+        }
+        None => ReplayExtras::default(),
+    };
+    let sink = if let Some(out) = &a.save {
+        Sink::Save(out.clone())
+    } else if let Some(addr) = &a.connect {
+        Sink::Connect((!addr.is_empty()).then(|| addr.clone()))
+    } else if a.spawn {
+        Sink::Spawn {
+            memory_limit: a.memory_limit.clone(),
+        }
+    } else {
+        bail!("say where the replay goes: --save OUT.rrd, --connect [ADDR] or --spawn");
+    };
+    let mut inputs: Vec<&Path> = vec![&a.session];
+    if let Some(m) = a.model.as_deref().filter(|m| m.exists()) {
+        inputs.push(m);
+    }
+    let out = viz::open_stream("g1viz", &viz::recording_id_for(&rec), &sink, &inputs)?;
+    let opts = viz::replay::ReplayOptions {
+        pose_rate_hz: (a.pose_rate > 0.0).then_some(a.pose_rate),
+        blueprint: !a.no_blueprint,
+        ..Default::default()
+    };
+    let summary = viz::replay::log_replay(&rec, &robot, &arm, &extras, &opts, out.stream())?;
+    out.finish()?;
+    for w in &summary.warnings {
+        eprintln!("warning: {w}");
+    }
+    if let Some(path) = &a.save {
+        eprintln!("wrote {} ({} samples)", path.display(), summary.samples);
+    }
+    Ok(())
+}
+
+#[cfg(not(feature = "viz"))]
+fn replay(_: ReplayArgs) -> Result<()> {
+    bail!(
+        "this g1viz was built without the `viz` feature (Rerun output); rebuild with default features"
+    )
+}
+
+fn identify(a: IdentifyArgs) -> Result<()> {
+    let opts = a.fit.options();
+    let recs = a
+        .sessions
+        .iter()
+        .map(|p| a.read.load(p))
+        .collect::<Result<Vec<_>>>()?;
+    let id = pipeline::identify(&recs, &opts)?;
+    let validation = match &a.holdout {
+        Some(p) => Some(pipeline::validate(&id.model, &a.read.load(p)?, &opts)?),
+        None => None,
+    };
+    let names = recs
+        .first()
+        .map(|r| r.joint_names.clone())
+        .unwrap_or_default();
+    let file = id.model_file(&names, validation.as_ref(), "")?;
+    file.save(&a.output)?;
+
+    println!("identification:\n{}", id.summary());
+    if let Some(v) = &validation {
+        println!("hold-out {}:\n{}", v.session.source.display(), v.summary());
+    }
+    println!("wrote {}", a.output.display());
+    if let Some(dir) = &a.report {
+        let truth = a.sessions.first().and_then(|p| truth_model(p));
+        let input = id.report_input(file, validation.as_ref(), truth);
+        g1viz::identify::report::write_report(dir, &input)?;
+        println!("wrote {}", dir.join("report.md").display());
+    }
+    Ok(())
+}
+
+/// The true parameters of a simulated session, from its truth sidecar (ours or the shared
+/// generator's: both carry `theta.vector`), when there is one.
+fn truth_model(session: &Path) -> Option<PowerModel> {
+    let text = std::fs::read_to_string(g1viz::sim::truth_path(session)).ok()?;
+    let json: serde_json::Value = serde_json::from_str(&text).ok()?;
+    let v: Vec<f64> = serde_json::from_value(json["theta"]["vector"].clone()).ok()?;
+    let v: [f64; g1viz::N_PARAMS] = v.try_into().ok()?;
+    Some(PowerModel::from_vector(&v))
+}
+
+fn validate(a: ValidateArgs) -> Result<()> {
+    let model = load_model(&a.model)?;
+    let rec = a.read.load(&a.session)?;
+    let v = pipeline::validate(&model, &rec, &a.fit.options())?;
+    for n in &v.notes {
+        eprintln!("note: {n}");
+    }
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&v)?);
+        return Ok(());
+    }
+    println!("{}", v.summary());
+    Ok(())
+}
+
+fn simulate(a: SimulateArgs) -> Result<()> {
+    use g1viz::sim::{Artefacts, SimConfig};
+    let mut cfg = SimConfig {
+        preset: a.preset.parse()?,
+        seed: a.seed,
+        with_hand: !a.no_hand,
+        ..SimConfig::default()
+    };
+    for e in &a.effects {
+        cfg.effects.enable(e)?;
+    }
+    if let Some(m) = &a.model {
+        cfg.truth = load_model(m)?;
+    }
+    cfg.urdf = a.urdf.clone();
+    if let Some(t) = a.t_start {
+        cfg.t_start_c = t;
+    }
+    if a.clean {
+        cfg.artefacts = Artefacts::NONE;
+    }
+    let truth = match &a.like {
+        Some(p) => {
+            if same_file(p, &a.output) {
+                bail!(
+                    "refusing to overwrite the input {} with the simulated twin",
+                    p.display()
+                );
+            }
+            g1viz::sim::simulate_like(&a.read.load(p)?, &cfg, &a.output)?
+        }
+        None => g1viz::sim::simulate(&cfg, &a.output)?,
+    };
+    println!(
+        "wrote {} and {} ({} trials)",
+        a.output.display(),
+        g1viz::sim::truth_path(&a.output).display(),
+        truth.trials.len()
+    );
+    Ok(())
+}
+
+fn same_file(a: &Path, b: &Path) -> bool {
+    match (a.canonicalize(), b.canonicalize()) {
+        (Ok(x), Ok(y)) => x == y,
+        _ => false,
+    }
+}
+
+fn diagnose(a: DiagnoseArgs) -> Result<()> {
+    use g1viz::diagnose::{self, DiagnoseOptions};
+    let rec = a.read.load(&a.session)?;
+    let opts = DiagnoseOptions {
+        reference: a.model.as_deref().map(load_model).transpose()?,
+        target: match a.target {
+            TargetArg::Mbs => Target::Mbs,
+            TargetArg::Bms => Target::Bms,
+        },
+        urdf: a.urdf.clone(),
+        ..DiagnoseOptions::default()
+    };
+    let d = diagnose::diagnose(&rec, &opts)?;
+    println!("{}", d.summary);
+    if let Some(p) = &a.json {
+        d.save_json(p)?;
+        println!("wrote {}", p.display());
+    }
+    if let Some(dir) = &a.report {
+        diagnose::report::write_report(dir, &d)?;
+        println!("wrote {}", dir.join("report.md").display());
+    }
+    if let Some(out) = &a.save {
+        save_diagnosis_rrd(&rec, &a, &d, out)?;
+        println!("wrote {}", out.display());
+    }
+    Ok(())
+}
+
+#[cfg(feature = "viz")]
+fn save_diagnosis_rrd(
+    rec: &Recording,
+    a: &DiagnoseArgs,
+    d: &g1viz::diagnose::Diagnosis,
+    out: &Path,
+) -> Result<()> {
+    use g1viz::robot::RobotModel;
+    use g1viz::viz::{self, Sink};
+    let robot = match &a.urdf {
+        Some(p) => RobotModel::from_urdf_file(p)?,
+        None => RobotModel::builtin(),
+    };
+    let arm = robot.arm(&rec.joint_names)?;
+    let extras = viz::overlay::diagnosis_extras(d);
+    let stream = viz::open_stream(
+        "g1viz",
+        &viz::recording_id_for(rec),
+        &Sink::Save(out.to_path_buf()),
+        &[&a.session],
+    )?;
+    viz::replay::log_replay(
+        rec,
+        &robot,
+        &arm,
+        &extras,
+        &Default::default(),
+        stream.stream(),
+    )?;
+    stream.finish()
+}
+
+#[cfg(not(feature = "viz"))]
+fn save_diagnosis_rrd(
+    _: &Recording,
+    _: &DiagnoseArgs,
+    _: &g1viz::diagnose::Diagnosis,
+    _: &Path,
+) -> Result<()> {
+    bail!("--save needs the `viz` feature (Rerun output); rebuild with default features")
+}

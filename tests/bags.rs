@@ -497,11 +497,21 @@ fn bags_written_by_rosbags_at_run_time() {
     let unknown = tmp.path().join("unknown.bag");
     let mut source = Ros1BagSource::open(&unknown, &OpenOptions::default()).unwrap();
     let err = read_all_err(&mut source, Some(&["/lf/bmsstate"]));
-    for needle in ["acme_msgs/BatteryState", "/lf/bmsstate", "--msg-path", "acme_msgs/msg/BatteryState.msg"] {
+    for needle in [
+        "acme_msgs/BatteryState",
+        "/lf/bmsstate",
+        "--msg-path",
+        "acme_msgs/msg/BatteryState.msg",
+    ] {
         assert!(err.contains(needle), "{needle:?} missing in: {err}");
     }
     let (msgs, summary) = read_all(&mut source, None);
-    assert!(summary.warnings.iter().any(|w| w.contains("acme_msgs/BatteryState")));
+    assert!(
+        summary
+            .warnings
+            .iter()
+            .any(|w| w.contains("acme_msgs/BatteryState"))
+    );
     let known: Vec<&Msg> = first_n.iter().filter(|m| m.0 != "/lf/bmsstate").collect();
     assert_eq!(msgs.iter().collect::<Vec<_>>(), known);
     let msg_dir = tmp.path().join("msgs");
@@ -525,8 +535,14 @@ fn bags_written_by_rosbags_at_run_time() {
             Ok(())
         })
         .unwrap();
-    assert_eq!(volts.len(), first_n.iter().filter(|m| m.0 == "/lf/bmsstate").count());
-    assert!(volts.iter().all(|mv| (40_000.0..60_000.0).contains(mv)), "{volts:?}");
+    assert_eq!(
+        volts.len(),
+        first_n.iter().filter(|m| m.0 == "/lf/bmsstate").count()
+    );
+    assert!(
+        volts.iter().all(|mv| (40_000.0..60_000.0).contains(mv)),
+        "{volts:?}"
+    );
 
     let (db3_all, _) = read_all(
         &mut Ros2BagSource::open(
@@ -617,3 +633,116 @@ def ros2_copy(dst, mode):
 ros2_copy(out / 'zstd_file', CompressionMode.FILE)
 ros2_copy(out / 'zstd_message', CompressionMode.MESSAGE)
 "#;
+
+/// The arm signals (`signals::load_recording` through `Session`) of the db3 and the ROS 1 bag
+/// equal those of the MCAP over the prefix both hold.
+#[test]
+fn signals_equal_the_mcap_ones() {
+    let Some(shared) = shared() else { return };
+    let map = g1viz::signals::SignalMap::g1_left_arm();
+    let opts = OpenOptions::default();
+    let rec = |p: &str| g1viz::signals::load_recording(&shared.join(p), &map, &opts).unwrap();
+    let mcap = rec("recordings/g1_smoke.mcap");
+    let end_s = (prefix_end_ns(&shared) - mcap.start_ns) as f64 * 1e-9;
+    let n = |t: &[f64]| t.iter().take_while(|&&t| t <= end_s + 1e-9).count();
+    for bag in ["recordings/g1_smoke_db3", "recordings/g1_smoke.bag"] {
+        let r = rec(bag);
+        assert!(r.warnings.is_empty(), "{bag}: {:?}", r.warnings);
+        assert_eq!(r.start_ns, mcap.start_ns, "{bag}");
+        assert_eq!(r.joint_names, mcap.joint_names);
+        let ns = n(&mcap.state.t);
+        assert_eq!(r.state.t.len(), ns, "{bag}: /lowstate samples");
+        assert_eq!(r.state.t[..], mcap.state.t[..ns]);
+        assert_eq!(r.state.q[..], mcap.state.q[..ns], "{bag}: q");
+        assert_eq!(r.state.dq[..], mcap.state.dq[..ns], "{bag}: dq");
+        assert_eq!(r.state.tau[..], mcap.state.tau[..ns], "{bag}: tau");
+        assert_eq!(
+            r.state.temp[..],
+            mcap.state.temp[..ns],
+            "{bag}: temperature"
+        );
+        assert_eq!(r.state.gyro[..], mcap.state.gyro[..ns], "{bag}: gyro");
+        assert_eq!(r.state.quat[..], mcap.state.quat[..ns], "{bag}: quaternion");
+        let nc = n(&mcap.command.t);
+        assert_eq!(r.command.t[..], mcap.command.t[..nc], "{bag}: /arm_sdk");
+        assert_eq!(r.command.q[..], mcap.command.q[..nc]);
+        assert_eq!(r.command.dq[..], mcap.command.dq[..nc]);
+        for (got, want, name) in [(&r.mbs, &mcap.mbs, "MBS"), (&r.bms, &mcap.bms, "BMS")] {
+            let np = n(&want.t);
+            assert!(np > 30, "{name}: {np} readings");
+            assert_eq!(got.t[..], want.t[..np], "{bag}: {name} times");
+            assert_eq!(got.watts[..], want.watts[..np], "{bag}: {name} power");
+        }
+    }
+}
+
+/// A rosbag2 folder whose metadata names MCAP storage is read by the MCAP reader.
+#[test]
+fn mcap_storage_bag_is_delegated() {
+    let Some(shared) = shared() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    std::fs::copy(
+        shared.join("recordings/g1_smoke.mcap"),
+        tmp.path().join("smoke_0.mcap"),
+    )
+    .unwrap();
+    std::fs::write(
+        tmp.path().join("metadata.yaml"),
+        "rosbag2_bagfile_information:\n  version: 9\n  storage_identifier: mcap\n  \
+         relative_file_paths:\n  - smoke_0.mcap\n  compression_format: ''\n  compression_mode: ''\n",
+    )
+    .unwrap();
+    let mut bag = Ros2BagSource::open(tmp.path(), &OpenOptions::default()).unwrap();
+    assert_eq!(bag.format(), "ros2-mcap");
+    let mut direct = g1viz::read::mcap::McapSource::open(
+        &shared.join("recordings/g1_smoke.mcap"),
+        &OpenOptions::default(),
+    )
+    .unwrap();
+    let (want, _) = read_all(&mut direct, None);
+    let (got, summary) = read_all(&mut bag, None);
+    assert!(summary.complete);
+    assert!(got == want, "MCAP-storage bag differs from the MCAP");
+    assert_eq!(bag.info().unwrap().messages as usize, want.len());
+}
+
+/// A damaged chunk in an indexed bag stops the read there with a warning naming its offset;
+/// the chunks before it are delivered.
+#[test]
+fn damaged_chunk_stops_the_read_with_its_offset() {
+    let Some(shared) = shared() else { return };
+    let path = shared.join("recordings/g1_smoke.bag");
+    let mut bytes = std::fs::read(&path).unwrap();
+    let (full, _) = read_all(
+        &mut Ros1BagSource::open(&path, &OpenOptions::default()).unwrap(),
+        None,
+    );
+    // Spoil the compression field of the 4th chunk record.
+    let needle = b"compression=none";
+    let at = bytes
+        .windows(needle.len())
+        .enumerate()
+        .filter(|(_, w)| *w == needle)
+        .nth(3)
+        .unwrap()
+        .0;
+    bytes[at + 12..at + 16].copy_from_slice(b"zzzz");
+    let tmp = tempfile::tempdir().unwrap();
+    let bad = tmp.path().join("bad.bag");
+    std::fs::write(&bad, &bytes).unwrap();
+    let mut source = Ros1BagSource::open(&bad, &OpenOptions::default()).unwrap();
+    let (msgs, summary) = read_all(&mut source, None);
+    assert!(!summary.complete);
+    let warning = summary.warnings.join("\n");
+    assert!(
+        warning.contains("zzzz") && warning.contains("byte offset"),
+        "{warning}"
+    );
+    // Three whole chunks (~350 messages each) came through, in order.
+    assert!(
+        msgs.len() > 900 && msgs.len() < full.len(),
+        "{}",
+        msgs.len()
+    );
+    assert_eq!(msgs[..], full[..msgs.len()]);
+}

@@ -414,6 +414,19 @@ fn identify_reports_no_usable_trials_clearly() {
         err.starts_with("no usable trials in synthetic.mcap"),
         "{err}"
     );
+    // Motion, but never at home: not the protocol, and the error says why.
+    let away = synth_recording(
+        &[
+            Piece::Hold(3.0),
+            Piece::Move(posture(&[(1, 0.5)]), 1.0),
+            Piece::Hold(3.0),
+        ],
+        posture(&[(1, 0.3)]),
+    );
+    let err = pipeline::identify(&[away], &IdentifyOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("never at rest at home"), "{err}");
     // Trials but no power readings: the reason names the missing baseline.
     let (rec, _) = protocol_session();
     let opts = IdentifyOptions {
@@ -707,6 +720,18 @@ fn identified_on_smoke_validates_on_holdout() {
         reference.trial_level_aligned.r2
     );
 
+    // Terminal summaries carry the numbers a user needs.
+    let text = reading.summary();
+    println!("{text}\n{}", v.summary());
+    assert!(
+        text.contains("24 trials (command stream)") && text.contains("rejected session 0 trial 11"),
+        "{text}"
+    );
+    assert!(
+        v.summary()
+            .contains(&format!("R² {:.4}", v.reading_level.r2))
+    );
+
     // model.json round trip and the markdown report from this identification.
     let dir = tempfile::tempdir().expect("tempdir");
     let file = reading
@@ -838,11 +863,17 @@ fn paper_scale_simulated_session_recovers_the_paper_parameters() {
     }
     assert_eq!(missed + false_alarms, 0);
     assert!(rms < 0.1, "rms parameter error {rms}");
-    // The paper's finding: per-sample rows are degenerate (R² < 0.04 there), aggregation is essential.
-    let sample = id
-        .modes
-        .iter()
-        .find(|m| m.mode == Mode::Sample)
-        .expect("sample rows");
-    assert!(sample.quality.r2 < 0.15, "{}", sample.quality.r2);
+    // The paper's finding: per-sample rows are degenerate, aggregation is essential. The paper saw
+    // R² < 0.04 per sample; this simulator gives ≈ 0.05–0.3 depending on the plant, so the bound is
+    // relative: far below both aggregated pairings.
+    let r2 = |mode| {
+        id.modes
+            .iter()
+            .find(|m| m.mode == mode)
+            .expect("mode fitted")
+            .quality
+            .r2
+    };
+    assert!(r2(Mode::Sample) < 0.5, "{}", r2(Mode::Sample));
+    assert!(r2(Mode::Sample) < r2(Mode::Reading) - 0.5 && r2(Mode::Sample) < r2(Mode::Trial) - 0.3);
 }

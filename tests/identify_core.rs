@@ -615,10 +615,7 @@ fn report_writes_markdown_and_readable_pngs() {
             measured: y[..40].to_vec(),
             predicted: predicted[..40].to_vec(),
         }),
-        terms: Some(TermShares {
-            dataset: "identification".into(),
-            means,
-        }),
+        terms: Some(TermContributions::from_means("identification", &means)),
         aggregation: vec![
             AggregationRow {
                 rows: "per-sample".into(),

@@ -812,3 +812,43 @@ fn big_endian_cdr_and_sequences_by_hand() {
             .contains("PL_CDR")
     );
 }
+
+#[test]
+fn signal_map_toml_overrides_and_right_arm() {
+    let m = SignalMap::from_toml_str(
+        "arm = \"right\"\n[[signal]]\nname = \"tau.elbow\"\nfield = \"motor_state[25].tau_est\"\nscale = 2.0\n",
+    )
+    .unwrap();
+    assert_eq!(m.joint_names[0], "right_shoulder_pitch_joint");
+    assert_eq!(
+        m.signals["q.sh_pitch"].field.to_string(),
+        "motor_state[22].q"
+    );
+    assert_eq!(m.signals["q.wr_yaw"].field.to_string(), "motor_state[28].q");
+    assert_eq!(m.signals["tau.elbow"].scale, 2.0);
+    assert_eq!(m.signals["bms.voltage"].scale, 1e-3);
+    let err = SignalMap::from_toml_str("[[signal]]\nname = \"q.nope\"\n")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("q.nope") && err.contains("q.sh_pitch"),
+        "{err}"
+    );
+    let err = format!(
+        "{:#}",
+        SignalMap::from_toml_str("[[signal]]\nname = \"q.elbow\"\ntopic = \"/other\"\n")
+            .unwrap_err()
+    );
+    assert!(err.contains("share a topic"), "{err}");
+    // Right arm on the smoke file: right-arm joints are at rest (standing posture).
+    let Some((path, _)) = smoke() else { return };
+    let rec = load_recording(&path, &m, &OpenOptions::default()).unwrap();
+    let q0 = rec.state.q[0];
+    assert!(
+        rec.state
+            .q
+            .iter()
+            .take(3000)
+            .all(|q| (q[0] - q0[0]).abs() < 0.05)
+    );
+}

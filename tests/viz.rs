@@ -9,9 +9,10 @@ use std::path::{Path, PathBuf};
 use g1viz::N_JOINTS;
 use g1viz::robot::RobotModel;
 use g1viz::signals::{CommandSeries, PowerSeries, Recording, StateSeries};
-use g1viz::viz::replay::{ReplayExtras, ReplayOptions, Rejection, TrialMark, log_replay};
+use g1viz::viz::replay::{Rejection, ReplayExtras, ReplayOptions, TrialMark, log_replay};
 use g1viz::viz::{Sink, open_stream, recording_id_for};
-use rerun::external::re_log_encoding::DecoderApp;
+use rerun::external::re_build_info::CrateVersion;
+use rerun::external::re_log_encoding::{DecoderApp, Encoder, EncodingOptions};
 use rerun::external::re_log_types::StoreKind;
 use rerun::log::{Chunk, LogMsg};
 
@@ -56,26 +57,46 @@ fn synthetic(source: &Path) -> Recording {
         joint_names: ARM.map(String::from).to_vec(),
         state,
         command,
-        mbs: PowerSeries { t: times.clone(), watts: vec![120.0, 150.0, 160.0, 170.0, 180.0] },
-        bms: PowerSeries { t: times, watts: vec![135.0, 145.0, 155.0, 165.0, 175.0] },
+        mbs: PowerSeries {
+            t: times.clone(),
+            watts: vec![120.0, 150.0, 160.0, 170.0, 180.0],
+        },
+        bms: PowerSeries {
+            t: times,
+            watts: vec![135.0, 145.0, 155.0, 165.0, 175.0],
+        },
         warnings: vec![],
     }
 }
 
 fn joint_q(j: usize, t: f64) -> f64 {
-    if t < 1.0 { 0.0 } else { 0.3 * (std::f64::consts::PI * (t - 1.0)).sin() * (j + 1) as f64 / 7.0 }
+    if t < 1.0 {
+        0.0
+    } else {
+        0.3 * (std::f64::consts::PI * (t - 1.0)).sin() * (j + 1) as f64 / 7.0
+    }
 }
 
 fn extras() -> ReplayExtras {
     ReplayExtras {
         trials: vec![
-            TrialMark { index: 0, t_start: 1.0, t_end: 2.5, label: "joints 0-6".into(), rejected: None },
+            TrialMark {
+                index: 0,
+                t_start: 1.0,
+                t_end: 2.5,
+                label: "joints 0-6".into(),
+                rejected: None,
+            },
             TrialMark {
                 index: 1,
                 t_start: 2.5,
                 t_end: 4.0,
                 label: "joints 0-6".into(),
-                rejected: Some(Rejection { filter: "imu".into(), detail: "σ|ω| = 0.4 > 2.5 × median".into(), statistic: 0.4 }),
+                rejected: Some(Rejection {
+                    filter: "imu".into(),
+                    detail: "σ|ω| = 0.4 > 2.5 × median".into(),
+                    statistic: 0.4,
+                }),
             },
         ],
         ..Default::default()
@@ -85,15 +106,26 @@ fn extras() -> ReplayExtras {
 fn write_rrd(rec: &Recording, out: &Path) -> anyhow::Result<()> {
     let robot = RobotModel::builtin();
     let arm = robot.arm(&rec.joint_names)?;
-    let viz = open_stream("g1viz_test", &recording_id_for(rec), &Sink::Save(out.to_path_buf()), &[&rec.source])?;
-    let opts = ReplayOptions { chunk_rows: 128, progress: false, ..Default::default() };
+    let viz = open_stream(
+        "g1viz_test",
+        &recording_id_for(rec),
+        &Sink::Save(out.to_path_buf()),
+        &[&rec.source],
+    )?;
+    let opts = ReplayOptions {
+        chunk_rows: 128,
+        progress: false,
+        ..Default::default()
+    };
     log_replay(rec, &robot, &arm, &extras(), &opts, viz.stream())?;
     viz.finish()
 }
 
 fn decode(path: &Path) -> Vec<LogMsg> {
     let file = std::fs::File::open(path).expect("open rrd");
-    DecoderApp::decode_lazy(BufReader::new(file)).map(|m| m.expect("decodable rrd message")).collect()
+    DecoderApp::decode_lazy(BufReader::new(file))
+        .map(|m| m.expect("decodable rrd message"))
+        .collect()
 }
 
 /// Rows per (store kind, entity path, static?) and the chunks of the recording store.
@@ -109,7 +141,13 @@ fn contents(msgs: &[LogMsg]) -> Contents {
         if let LogMsg::ArrowMsg(store, arrow) = msg {
             let chunk = Chunk::from_arrow_msg(arrow).expect("valid chunk");
             let blueprint = store.kind() == StoreKind::Blueprint;
-            *c.rows.entry((blueprint, chunk.entity_path().to_string(), chunk.is_static())).or_default() += chunk.num_rows();
+            *c.rows
+                .entry((
+                    blueprint,
+                    chunk.entity_path().to_string(),
+                    chunk.is_static(),
+                ))
+                .or_default() += chunk.num_rows();
             if !blueprint {
                 c.chunks.push(chunk);
             }
@@ -119,12 +157,19 @@ fn contents(msgs: &[LogMsg]) -> Contents {
 }
 
 fn rows(c: &Contents, path: &str) -> usize {
-    c.rows.get(&(false, path.to_owned(), false)).copied().unwrap_or(0)
+    c.rows
+        .get(&(false, path.to_owned(), false))
+        .copied()
+        .unwrap_or(0)
 }
 
 fn input_file(dir: &Path) -> PathBuf {
     let p = dir.join("session.mcap");
-    std::fs::write(&p, b"not really an mcap; only its name and size matter here").unwrap();
+    std::fs::write(
+        &p,
+        b"not really an mcap; only its name and size matter here",
+    )
+    .unwrap();
     p
 }
 
@@ -137,11 +182,17 @@ fn rrd_has_expected_entities_and_rows() {
     let msgs = decode(&out);
     let c = contents(&msgs);
 
-    for j in ["sh_pitch", "sh_roll", "sh_yaw", "elbow", "wr_roll", "wr_pitch", "wr_yaw"] {
+    for j in [
+        "sh_pitch", "sh_roll", "sh_yaw", "elbow", "wr_roll", "wr_pitch", "wr_yaw",
+    ] {
         for s in ["q", "dq", "tau", "temperature"] {
             assert_eq!(rows(&c, &format!("/joints/{j}/{s}")), N, "joints/{j}/{s}");
         }
-        assert_eq!(rows(&c, &format!("/joints/{j}/q_cmd")), N / 2, "joints/{j}/q_cmd");
+        assert_eq!(
+            rows(&c, &format!("/joints/{j}/q_cmd")),
+            N / 2,
+            "joints/{j}/q_cmd"
+        );
     }
     assert_eq!(rows(&c, "/imu/gyro_norm"), N);
     for p in ["mbs", "bms"] {
@@ -152,17 +203,27 @@ fn rrd_has_expected_entities_and_rows() {
     assert_eq!(rows(&c, "/robot/left_wrist_yaw_link"), N);
     assert_eq!(rows(&c, "/robot/left_shoulder_pitch_link"), N);
     assert_eq!(rows(&c, "/robot/torso_link"), 0);
-    assert_eq!(c.rows.get(&(false, "/robot/torso_link".into(), true)), Some(&1));
+    assert_eq!(
+        c.rows.get(&(false, "/robot/torso_link".into(), true)),
+        Some(&1)
+    );
     assert_eq!(rows(&c, "/trials/log"), 2);
     // The blueprint went into its own store, with a viewport.
-    assert!(c.rows.contains_key(&(true, "/viewport".into(), false)), "no blueprint viewport: {:?}", c.rows.keys());
-    assert!(msgs.iter().any(|m| matches!(m, LogMsg::BlueprintActivationCommand(_))));
+    assert!(
+        c.rows.contains_key(&(true, "/viewport".into(), false)),
+        "no blueprint viewport: {:?}",
+        c.rows.keys()
+    );
+    assert!(
+        msgs.iter()
+            .any(|m| matches!(m, LogMsg::BlueprintActivationCommand(_)))
+    );
 }
 
 /// Values read back through rerun's decoder equal the input (formula above) and the hand-computed net power.
 #[test]
 fn rrd_values_match_input() {
-    use rerun::external::arrow::array::{Array, AsArray};
+    use rerun::external::arrow::array::AsArray;
     use rerun::external::arrow::datatypes::Float64Type;
     let dir = tempfile::tempdir().unwrap();
     let rec = synthetic(&input_file(dir.path()));
@@ -172,10 +233,21 @@ fn rrd_values_match_input() {
 
     let series = |path: &str| -> Vec<(i64, f64)> {
         let mut v = Vec::new();
-        for chunk in c.chunks.iter().filter(|ch| ch.entity_path().to_string() == path) {
-            let times = chunk.timelines().iter().find(|(name, _)| name.as_str() == "time").expect("time timeline").1.times_raw().to_vec();
+        for chunk in c
+            .chunks
+            .iter()
+            .filter(|ch| !ch.is_static() && ch.entity_path().to_string() == path)
+        {
+            let times = chunk
+                .timelines()
+                .iter()
+                .find(|(name, _)| name.as_str() == "time")
+                .expect("time timeline")
+                .1
+                .times_raw()
+                .to_vec();
             let (_, list) = chunk.components().iter().next().expect("one component");
-            let values = list.values().as_primitive::<Float64Type>();
+            let values = list.list_array.values().as_primitive::<Float64Type>();
             assert_eq!(values.len(), chunk.num_rows());
             v.extend(times.into_iter().zip(values.values().iter().copied()));
         }
@@ -205,15 +277,37 @@ fn rrd_is_deterministic() {
     write_rrd(&rec, &b).unwrap();
     let (ma, mb) = (decode(&a), decode(&b));
     assert_eq!(ma.len(), mb.len());
-    assert!(ma == mb, "decoded messages differ between two runs");
-    // Byte level: everything but the footer (whose per-store manifests the SDK orders by a
-    // HashMap) is identical, and so is the length.
-    let (ba, bb) = (std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
-    assert_eq!(ba.len(), bb.len());
-    let first_diff = ba.iter().zip(&bb).position(|(x, y)| x != y);
-    if let Some(pos) = first_diff {
-        assert!(ba.len() - pos < 4096, "files differ at byte {pos} of {}, before the footer", ba.len());
+    for (i, (x, y)) in ma.iter().zip(&mb).enumerate() {
+        assert!(x == y, "message {i} differs between two runs");
     }
+    // Byte level: the data section (stream header + every message) is identical. The footer
+    // (per-store manifests, whose order and column order the SDK takes from HashMaps) is not.
+    let (ba, bb) = (std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
+    let mut encoder = Encoder::new_eager(
+        CrateVersion::LOCAL,
+        EncodingOptions::PROTOBUF_COMPRESSED,
+        Vec::new(),
+    )
+    .unwrap();
+    encoder.do_not_emit_footer();
+    for msg in &ma {
+        encoder.append(msg).unwrap();
+    }
+    let data_section = encoder.into_inner().unwrap();
+    assert!(
+        data_section.len() > ba.len() / 2,
+        "data section {} of {} bytes",
+        data_section.len(),
+        ba.len()
+    );
+    assert!(
+        ba.starts_with(&data_section),
+        "first file's data section differs from its re-encoding"
+    );
+    assert!(
+        bb.starts_with(&data_section),
+        "second file's data section differs from the first's"
+    );
 }
 
 #[test]
@@ -224,11 +318,16 @@ fn refuses_to_overwrite_input() {
     let rec = synthetic(&input);
     // Same file, spelled differently.
     let sneaky = dir.path().join(".").join("session.mcap");
-    let err = open_stream("g1viz_test", "x", &Sink::Save(sneaky), &[&input]).err().expect("must refuse");
+    let err = open_stream("g1viz_test", "x", &Sink::Save(sneaky), &[&input])
+        .err()
+        .expect("must refuse");
     assert!(err.to_string().contains("refusing"), "{err}");
     assert_eq!(std::fs::read(&input).unwrap(), before);
     // And no temporary file was left behind.
-    let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    let names: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .collect();
     assert_eq!(names.len(), 1, "{names:?}");
     drop(rec);
 }
@@ -239,27 +338,184 @@ fn unfinished_output_leaves_no_file() {
     let out = dir.path().join("never.rrd");
     let viz = open_stream("g1viz_test", "x", &Sink::Save(out.clone()), &[]).unwrap();
     drop(viz);
-    assert!(std::fs::read_dir(dir.path()).unwrap().next().is_none(), "leftover files");
+    assert!(
+        std::fs::read_dir(dir.path()).unwrap().next().is_none(),
+        "leftover files"
+    );
 }
 
 /// The stock CLI of the pinned version accepts the file (skipped when `rerun` is not on PATH).
 #[test]
 fn stock_cli_verifies_rrd() {
-    let Ok(version) = std::process::Command::new("rerun").arg("--version").output() else {
-        eprintln!("note: `rerun` not on PATH (pip install rerun-sdk==0.36.3); skipping `rerun rrd verify`");
+    let Ok(version) = std::process::Command::new("rerun")
+        .arg("--version")
+        .output()
+    else {
+        eprintln!(
+            "note: `rerun` not on PATH (pip install rerun-sdk==0.36.3); skipping `rerun rrd verify`"
+        );
         return;
     };
     let version = String::from_utf8_lossy(&version.stdout);
-    assert!(version.contains("0.36.3"), "stock CLI is not the pinned version: {version}");
+    assert!(
+        version.contains("0.36.3"),
+        "stock CLI is not the pinned version: {version}"
+    );
     let dir = tempfile::tempdir().unwrap();
     let rec = synthetic(&input_file(dir.path()));
     let out = dir.path().join("out.rrd");
     write_rrd(&rec, &out).unwrap();
-    let status = std::process::Command::new("rerun").args(["rrd", "verify"]).arg(&out).output().unwrap();
+    let status = std::process::Command::new("rerun")
+        .args(["rrd", "verify"])
+        .arg(&out)
+        .output()
+        .unwrap();
     assert!(
         status.status.success(),
         "rerun rrd verify failed:\n{}\n{}",
         String::from_utf8_lossy(&status.stdout),
         String::from_utf8_lossy(&status.stderr)
     );
+}
+
+const SHARED: &str = "/work/shared";
+
+/// The shared smoke session (independent generator): one row per `/lowstate` message on every
+/// joint series, one per power message, counts taken from the truth JSON.
+#[test]
+fn smoke_session_rrd_rows_match_truth() {
+    let mcap = Path::new(SHARED).join("recordings/g1_smoke.mcap");
+    let truth_path = Path::new(SHARED).join("recordings/g1_smoke.truth.json");
+    if !mcap.exists() || !truth_path.exists() {
+        eprintln!("note: {} not found; skipping", mcap.display());
+        return;
+    }
+    let truth: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&truth_path).unwrap()).unwrap();
+    let count = |topic: &str| {
+        truth["message_counts"][topic]
+            .as_u64()
+            .expect("message count") as usize
+    };
+    let rec = g1viz::signals::load_recording(
+        &mcap,
+        &g1viz::signals::SignalMap::g1_left_arm(),
+        &g1viz::read::OpenOptions::default(),
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("smoke.rrd");
+    let robot = RobotModel::builtin();
+    let arm = robot.arm(&rec.joint_names).unwrap();
+    let viz = open_stream(
+        "g1viz_test",
+        &recording_id_for(&rec),
+        &Sink::Save(out.clone()),
+        &[&mcap],
+    )
+    .unwrap();
+    let opts = ReplayOptions {
+        progress: false,
+        ..Default::default()
+    };
+    log_replay(
+        &rec,
+        &robot,
+        &arm,
+        &ReplayExtras::default(),
+        &opts,
+        viz.stream(),
+    )
+    .unwrap();
+    viz.finish().unwrap();
+    let c = contents(&decode(&out));
+    for j in truth["joints"]["short"].as_array().unwrap() {
+        let j = j.as_str().unwrap();
+        assert_eq!(
+            rows(&c, &format!("/joints/{j}/q")),
+            count("lowstate"),
+            "{j}"
+        );
+        assert_eq!(
+            rows(&c, &format!("/joints/{j}/q_cmd")),
+            count("arm_sdk"),
+            "{j}"
+        );
+    }
+    assert_eq!(rows(&c, "/power/mbs/raw"), count("mbs"));
+    assert_eq!(rows(&c, "/power/bms/raw"), count("bms"));
+    assert_eq!(rows(&c, "/power/mbs/net"), count("mbs"));
+    assert_eq!(rows(&c, "/robot/left_elbow_link"), count("lowstate"));
+}
+
+/// Unitree's official URDF: links with STL meshes come out as `Asset3D` entities.
+#[test]
+fn official_urdf_meshes_become_assets() {
+    let urdf = Path::new(SHARED).join("g1_description/g1_29dof_with_hand_rev_1_0.urdf");
+    if !urdf.exists() {
+        eprintln!("note: {} not found; skipping", urdf.display());
+        return;
+    }
+    let robot = RobotModel::from_urdf_file(&urdf).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let mut rec = synthetic(&input_file(dir.path()));
+    rec.state.t.truncate(20);
+    for v in [
+        &mut rec.state.q,
+        &mut rec.state.dq,
+        &mut rec.state.tau,
+        &mut rec.state.temp,
+    ] {
+        v.truncate(20);
+    }
+    rec.state.gyro.truncate(20);
+    rec.state.quat.truncate(20);
+    let arm = robot.arm(&rec.joint_names).unwrap();
+    let out = dir.path().join("mesh.rrd");
+    let viz = open_stream("g1viz_test", "mesh", &Sink::Save(out.clone()), &[]).unwrap();
+    let opts = ReplayOptions {
+        progress: false,
+        blueprint: false,
+        ..Default::default()
+    };
+    let summary = log_replay(
+        &rec,
+        &robot,
+        &arm,
+        &ReplayExtras::default(),
+        &opts,
+        viz.stream(),
+    )
+    .unwrap();
+    viz.finish().unwrap();
+    assert!(summary.warnings.is_empty(), "{:?}", summary.warnings);
+    let msgs = decode(&out);
+    let mut assets = 0;
+    for msg in &msgs {
+        if let LogMsg::ArrowMsg(_, arrow) = msg {
+            let chunk = Chunk::from_arrow_msg(arrow).unwrap();
+            if chunk.components().values().any(|c| {
+                c.descriptor
+                    .archetype
+                    .is_some_and(|a| a.to_string().contains("Asset3D"))
+            }) {
+                assets += 1;
+            }
+        }
+    }
+    let mesh_visuals: usize = robot
+        .links()
+        .iter()
+        .flat_map(|l| &l.visuals)
+        .filter(|v| matches!(v.geometry, g1viz::robot::Geometry::Mesh { .. }))
+        .count();
+    assert!(
+        mesh_visuals > 30,
+        "official URDF should have meshes, found {mesh_visuals}"
+    );
+    assert_eq!(assets, mesh_visuals);
+    // The moving arm links are animated: 20 poses each.
+    let c = contents(&msgs);
+    assert_eq!(rows(&c, "/robot/left_wrist_yaw_link"), 20);
+    assert_eq!(rows(&c, "/robot/pelvis"), 0);
 }

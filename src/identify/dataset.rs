@@ -83,6 +83,12 @@ pub struct Alignment {
 }
 
 impl Alignment {
+    /// The G1 power sensors' nominal timing: each reading averages the 0.2 s before its stamp.
+    pub const NOMINAL: Alignment = Alignment {
+        window_s: 0.2,
+        lag_s: 0.0,
+    };
+
     /// The window of a reading stamped `t`.
     pub fn window_of(&self, t: f64) -> (f64, f64) {
         (t - self.lag_s - self.window_s, t - self.lag_s)

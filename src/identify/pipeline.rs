@@ -21,12 +21,12 @@ use super::dataset::{
 };
 use super::filters::{self, RejectReason, Rejection, TrialStat};
 use super::metrics::{self, Metrics};
-use super::report::{AggregationRow, PredictionSet, ReportInput, TermShares as ReportTerms};
+use super::report::{AggregationRow, PredictionSet, ReportInput, TermContributions};
 use super::segment::{self, SegmentOptions, Segmentation};
 use super::solve;
 use crate::power::{
     DatasetMetrics, FilterRecord, LossTerm, ModelFile, ModelMetrics, PowerModel, Provenance,
-    RejectedTrial, SessionRef, SolverRecord, TermMeans, TrialCounts,
+    RejectedTrial, SessionRef, SolverRecord, TERM_NAMES, TermMeans, TrialCounts,
 };
 use crate::signals::Recording;
 use crate::{N_JOINTS, N_PARAMS};
@@ -195,6 +195,8 @@ pub struct Validation {
     pub terms: TermMeans,
     /// The same as % of the mean total predicted power.
     pub shares_percent: [f64; 5],
+    /// Remarks on how the validation was done (e.g. nominal sensor timing for a short session).
+    pub notes: Vec<String>,
 }
 
 fn predict(theta: &[f64; N_PARAMS], phi: &[f64; N_PARAMS]) -> f64 {
@@ -673,11 +675,24 @@ pub fn validate(model: &PowerModel, rec: &Recording, opts: &IdentifyOptions) -> 
         return Err(no_usable_trials(rec, &seg, &[]));
     }
     let prepared = [Prepared { rec, seg }];
-    let (alignment, _) = resolve_alignment(
+    let mut notes = Vec::new();
+    // A model is being applied, not fitted: a session too short to estimate the sensor timing
+    // from still validates, at the sensor's nominal timing (said in the notes).
+    let alignment = match resolve_alignment(
         &prepared,
         std::slice::from_ref(&prepared[0].seg.trials),
         opts,
-    )?;
+    ) {
+        Ok((a, _)) => a,
+        Err(e) => {
+            notes.push(format!(
+                "sensor timing not estimated ({e:#}); using the nominal window {} s, lag {} s",
+                Alignment::NOMINAL.window_s,
+                Alignment::NOMINAL.lag_s
+            ));
+            Alignment::NOMINAL
+        }
+    };
     let [Prepared { seg, .. }] = prepared;
     let theta = model.to_vector();
     let trial_set = dataset::build(
@@ -716,6 +731,7 @@ pub fn validate(model: &PowerModel, rec: &Recording, opts: &IdentifyOptions) -> 
     let all: Vec<&TrialPrediction> = per_trial.iter().collect();
     let kept: Vec<&TrialPrediction> = per_trial.iter().filter(|p| !p.rejected).collect();
     Ok(Validation {
+        notes,
         trial_level: trial_metrics(&all, |p| p.predicted_window_w),
         trial_level_aligned: trial_metrics(&all, |p| p.predicted_w),
         trial_level_aligned_imu_kept: flagged
@@ -901,14 +917,13 @@ impl Identification {
             .cloned()
             .collect();
         let terms = match validation {
-            Some(v) => ReportTerms {
-                dataset: format!("hold-out trajectories ({})", v.session.source.display()),
-                means: v.terms,
-            },
-            None => ReportTerms {
-                dataset: "identification trajectories (retained)".into(),
-                means: self.terms,
-            },
+            Some(v) => TermContributions::from_means(
+                &format!("hold-out trajectories ({})", v.session.source.display()),
+                &v.terms,
+            ),
+            None => {
+                TermContributions::from_means("identification trajectories (retained)", &self.terms)
+            }
         };
         ReportInput {
             title: "Arm power model identification".into(),
@@ -948,4 +963,124 @@ fn session_ref(path: &Path, role: &str) -> SessionRef {
         size_bytes: 0,
         role: role.into(),
     })
+}
+
+fn metrics_line(label: &str, m: &Metrics) -> String {
+    format!(
+        "{label}: n {}, R² {:.4}, RMSE {:.3} W, MAE {:.3} W, bias {:+.3} W, skewness {:.2}, kurtosis {:.2}",
+        m.n, m.r2, m.rmse, m.mae, m.bias, m.skewness, m.kurtosis
+    )
+}
+
+fn shares_line(shares: &[f64; 5]) -> String {
+    let parts: Vec<String> = TERM_NAMES
+        .iter()
+        .zip(shares)
+        .map(|(name, v)| format!("{name} {v:.1} %"))
+        .collect();
+    format!("term shares: {}", parts.join(", "))
+}
+
+fn segmentation_lines(out: &mut Vec<String>, s: &SessionSummary) {
+    out.push(format!(
+        "{}: {} trials ({} stream), {} stretches not matching the protocol",
+        s.source.display(),
+        s.segmentation.trials.len(),
+        s.segmentation.source,
+        s.segmentation.unmatched.len()
+    ));
+    out.extend(
+        s.segmentation
+            .unmatched
+            .iter()
+            .map(|u| format!("  {:.2}–{:.2} s: {}", u.t0, u.t1, u.reason)),
+    );
+    out.extend(
+        s.skipped
+            .iter()
+            .map(|k| format!("  trial {} skipped: {}", k.trial, k.reason)),
+    );
+}
+
+impl Identification {
+    /// Plain-text summary for the terminal: sessions and segmentation, rejected trials, sensor
+    /// timing, fit quality, the row-pairing comparison, dominant terms and term shares.
+    pub fn summary(&self) -> String {
+        let mut out = Vec::new();
+        for s in &self.sessions {
+            segmentation_lines(&mut out, s);
+        }
+        out.extend(
+            self.rejections
+                .iter()
+                .map(|r| format!("rejected {}", r.describe())),
+        );
+        out.push(format!(
+            "power readings = averages over [t − {:.3} s − {:.3} s, t − {:.3} s]{}",
+            self.alignment.lag_s,
+            self.alignment.window_s,
+            self.alignment.lag_s,
+            if self.alignment_estimate.is_some() {
+                " (estimated)"
+            } else {
+                ""
+            }
+        ));
+        out.push(format!(
+            "{} trials used, target {}, {} rows",
+            self.trials_used,
+            self.options.target.name(),
+            self.options.mode.name()
+        ));
+        out.push(metrics_line("fit", &self.fit));
+        out.push(metrics_line(
+            "trial level (like for like)",
+            &self.trial_level_aligned,
+        ));
+        out.push(metrics_line(
+            "trial level (paper: whole-window regressors)",
+            &self.trial_level,
+        ));
+        out.extend(self.modes.iter().map(|m| {
+            format!(
+                "{:>7} rows: n {:>7}, κ(ΦᵀΦ) {:.3e}, R² {:.4}",
+                m.mode.name(),
+                m.quality.n,
+                m.kappa,
+                m.quality.r2
+            )
+        }));
+        let dominant: Vec<String> = self
+            .dominant
+            .iter()
+            .enumerate()
+            .map(|(j, d)| format!("{j}: {}", d.map_or("none", LossTerm::name)))
+            .collect();
+        out.push(format!("dominant term per joint: {}", dominant.join(", ")));
+        out.push(shares_line(&self.shares_percent));
+        out.join("\n")
+    }
+}
+
+impl Validation {
+    /// Plain-text summary for the terminal: segmentation, metrics at reading and trial level,
+    /// term shares.
+    pub fn summary(&self) -> String {
+        let mut out = Vec::new();
+        segmentation_lines(&mut out, &self.session);
+        out.push(metrics_line("per reading", &self.reading_level));
+        out.push(metrics_line(
+            "per trial (like for like)",
+            &self.trial_level_aligned,
+        ));
+        if let Some(m) = &self.trial_level_aligned_imu_kept {
+            out.push(metrics_line("per trial, IMU-calm trials only", m));
+        }
+        out.push(metrics_line(
+            "per trial (paper: whole-window regressors)",
+            &self.trial_level,
+        ));
+        out.push(shares_line(&self.shares_percent));
+        out.join("\n")
+    }
 }

@@ -34,7 +34,7 @@ pub struct ReportInput {
     /// Per-row measured and predicted net power of a hold-out session.
     pub validation: Option<PredictionSet>,
     /// Mean term contributions over a dataset.
-    pub terms: Option<TermShares>,
+    pub terms: Option<TermContributions>,
     /// The paper's aggregation comparison: κ(ΦᵀΦ) and R² for per-sample vs trajectory-averaged rows.
     pub aggregation: Vec<AggregationRow>,
     /// Truth parameters when the session is simulated: adds a per-parameter error table.
@@ -54,13 +54,29 @@ pub struct PredictionSet {
     pub predicted: Vec<f64>,
 }
 
-/// Mean term contributions over a dataset.
+/// Mean term contributions over a dataset ([`TERM_NAMES`] order).
 #[derive(Debug, Clone, PartialEq)]
-pub struct TermShares {
+pub struct TermContributions {
     /// Dataset name.
     pub dataset: String,
-    /// Accumulated breakdowns.
-    pub means: TermMeans,
+    /// Rows averaged.
+    pub rows: usize,
+    /// Share of each category in the mean total predicted power [%].
+    pub shares_percent: [f64; 5],
+    /// Mean of each category [W], when known.
+    pub means_w: Option<[f64; 5]>,
+}
+
+impl TermContributions {
+    /// From accumulated breakdowns.
+    pub fn from_means(dataset: &str, means: &TermMeans) -> Self {
+        TermContributions {
+            dataset: dataset.to_string(),
+            rows: means.count(),
+            shares_percent: means.shares_percent(),
+            means_w: Some(means.means()),
+        }
+    }
 }
 
 /// One row construction in the aggregation comparison.
@@ -368,20 +384,19 @@ fn write_parameters(md: &mut String, r: &ReportInput, names: &[String]) {
     }
 }
 
-fn write_terms(md: &mut String, t: &TermShares) {
+fn write_terms(md: &mut String, t: &TermContributions) {
     let _ = writeln!(
         md,
         "## Term contributions ({}, {} rows)\n",
-        t.dataset,
-        t.means.count()
+        t.dataset, t.rows
     );
     let _ = writeln!(md, "| term | mean [W] | share [%] |\n|---|---:|---:|");
-    for ((name, mean), share) in TERM_NAMES
-        .iter()
-        .zip(t.means.means())
-        .zip(t.means.shares_percent())
-    {
-        let _ = writeln!(md, "| {name} | {mean:.3} | {} |", fmt_num(share, 1));
+    for (k, name) in TERM_NAMES.iter().enumerate() {
+        let mean = t
+            .means_w
+            .map_or("–".to_string(), |m| format!("{:.3}", m[k]));
+        let share = fmt_num(t.shares_percent[k], 1);
+        let _ = writeln!(md, "| {name} | {mean} | {share} |");
     }
     md.push('\n');
 }
@@ -709,8 +724,8 @@ fn draw_residuals(
     Ok(())
 }
 
-fn draw_terms(root: &DrawingArea<BitMapBackend<'_>, Shift>, t: &TermShares) -> Result<()> {
-    let shares = t.means.shares_percent();
+fn draw_terms(root: &DrawingArea<BitMapBackend<'_>, Shift>, t: &TermContributions) -> Result<()> {
+    let shares = t.shares_percent;
     let (lo, hi) = range_of(shares.iter().copied().chain([0.0]));
     let (lo, hi) = (lo.min(0.0), hi * 1.1);
     let colors = [
@@ -722,11 +737,7 @@ fn draw_terms(root: &DrawingArea<BitMapBackend<'_>, Shift>, t: &TermShares) -> R
     ];
     let mut chart = ChartBuilder::on(root)
         .caption(
-            format!(
-                "Mean term contributions ({}, {} rows)",
-                t.dataset,
-                t.means.count()
-            ),
+            format!("Mean term contributions ({}, {} rows)", t.dataset, t.rows),
             (FONT, 18),
         )
         .margin(12)

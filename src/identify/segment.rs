@@ -360,8 +360,19 @@ fn match_trials(runs: &[Run], opts: &SegmentOptions) -> Segmentation {
     if runs[..first_home].iter().any(|r| r.moving) {
         seg.unmatched.push(Stretch {
             t0: runs[0].t0,
-            t1: runs[first_home.min(n - 1)].t0.max(runs[0].t0),
-            reason: "session starts mid-trial (motion before the first rest at home)".into(),
+            t1: if first_home < n {
+                runs[first_home].t0
+            } else {
+                runs[n - 1].t1
+            },
+            reason: if first_home < n {
+                "session starts mid-trial (motion before the first rest at home)".into()
+            } else {
+                format!(
+                    "motion but never at rest at home (|q| ≤ {} rad): not the protocol",
+                    opts.home_tol_rad
+                )
+            },
         });
     }
     let mut w = first_home;

@@ -446,41 +446,37 @@ impl Walker<'_, '_> {
         ty: &FieldType,
         count: usize,
         mut pos: usize,
-        path: &str,
+        name: &str,
     ) -> Result<(Vec<Value>, usize), DecodeError> {
-        let what = || path.to_string();
+        let what = || name.to_string();
         self.check_within(pos.saturating_add(count.min(1)), &what)?;
         let mut out = Vec::with_capacity(count.min(4096));
         for _ in 0..count {
-            let (v, p) = self.decode_one(ty, pos, path)?;
+            let (v, p) = self.decode_one(ty, pos, name)?;
             out.push(v);
             pos = p;
         }
         Ok((out, pos))
     }
 
+    /// Decode one element; `name` is the field being decoded (for error messages).
     fn decode_one(
         &self,
         ty: &FieldType,
         pos: usize,
-        path: &str,
+        name: &str,
     ) -> Result<(Value, usize), DecodeError> {
         match ty {
-            FieldType::Primitive(p) => self.read_prim(*p, pos, &|| path.to_string()),
-            FieldType::Message(name) => {
+            FieldType::Primitive(p) => self.read_prim(*p, pos, &|| name.to_string()),
+            FieldType::Message(type_name) => {
                 let msg = self
                     .schema
-                    .get(name)
+                    .get(type_name)
                     .map_err(|e| DecodeError::Invalid(e.to_string()))?;
                 let mut fields = Vec::with_capacity(msg.fields.len());
                 let mut p = pos;
                 for f in &msg.fields {
-                    let sub = if path.is_empty() {
-                        f.name.clone()
-                    } else {
-                        format!("{path}.{}", f.name)
-                    };
-                    let (v, next) = self.decode_field(f, p, &sub)?;
+                    let (v, next) = self.decode_field(f, p)?;
                     fields.push((f.name.clone(), v));
                     p = next;
                 }
@@ -489,24 +485,19 @@ impl Walker<'_, '_> {
         }
     }
 
-    fn decode_field(
-        &self,
-        f: &Field,
-        pos: usize,
-        path: &str,
-    ) -> Result<(Value, usize), DecodeError> {
-        let what = || path.to_string();
+    fn decode_field(&self, f: &Field, pos: usize) -> Result<(Value, usize), DecodeError> {
+        let what = || f.name.clone();
         match f.array {
-            ArrayKind::Single => self.decode_one(&f.ty, pos, path),
+            ArrayKind::Single => self.decode_one(&f.ty, pos, &f.name),
             ArrayKind::Fixed(n) => {
-                let (v, p) = self.decode_elements(&f.ty, n, pos, path)?;
+                let (v, p) = self.decode_elements(&f.ty, n, pos, &f.name)?;
                 Ok((Value::Array(v), p))
             }
             ArrayKind::Unbounded | ArrayKind::Bounded(_) => {
                 let (n, after) = self
                     .length(pos, &what)?
                     .ok_or_else(|| DecodeError::Invalid("layout walk".into()))?;
-                let (v, p) = self.decode_elements(&f.ty, n, after, path)?;
+                let (v, p) = self.decode_elements(&f.ty, n, after, &f.name)?;
                 Ok((Value::Array(v), p))
             }
         }
@@ -532,7 +523,7 @@ pub fn decode(schema: &MsgSchema, encoding: Encoding, data: &[u8]) -> Result<Val
     schema
         .root_type()
         .map_err(|e| DecodeError::Invalid(e.to_string()))?;
-    Ok(walker.decode_one(&root, base, "")?.0)
+    Ok(walker.decode_one(&root, base, &schema.root)?.0)
 }
 
 impl Value {
@@ -900,4 +891,92 @@ fn read_number(data: &[u8], off: usize, prim: Primitive, le: bool) -> Option<f64
         Primitive::F64 => rd!(f64, 8),
         Primitive::String | Primitive::Time | Primitive::Duration => return None,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ros1_packed_layout_by_hand() {
+        let schema =
+            MsgSchema::parse_ros1msg("p/T", "uint8 a\nfloat64 x\nstring s\ntime t\nint16[] v\n")
+                .unwrap();
+        let mut d = vec![9u8];
+        d.extend(1.25f64.to_le_bytes());
+        d.extend(2u32.to_le_bytes());
+        d.extend(b"ok");
+        d.extend(5u32.to_le_bytes());
+        d.extend(6u32.to_le_bytes());
+        d.extend(2u32.to_le_bytes());
+        d.extend((-3i16).to_le_bytes());
+        d.extend(4i16.to_le_bytes());
+        let v = decode(&schema, Encoding::Ros1, &d).unwrap();
+        let get = |p: &str| v.get(&FieldPath::parse(p).unwrap()).cloned();
+        assert_eq!(get("a"), Some(Value::UInt(9)));
+        assert_eq!(get("x"), Some(Value::Float(1.25)));
+        assert_eq!(get("s"), Some(Value::String("ok".into())));
+        assert_eq!(get("t.nsec"), Some(Value::UInt(6)));
+        assert_eq!(get("v[1]"), Some(Value::Int(4)));
+        let paths: Vec<FieldPath> = ["a", "x", "v[0]"]
+            .iter()
+            .map(|p| FieldPath::parse(p).unwrap())
+            .collect();
+        let ex = FieldExtractor::compile(&schema, Encoding::Ros1, &paths).unwrap();
+        let mut out = [0.0; 3];
+        ex.extract(&d, &mut out).unwrap();
+        assert_eq!(out, [9.0, 1.25, -3.0]);
+    }
+
+    #[test]
+    fn field_paths_and_bad_paths() {
+        let p = FieldPath::parse("motor_state[17].tau_est").unwrap();
+        assert_eq!(
+            p.segments,
+            vec![
+                ("motor_state".to_string(), Some(17)),
+                ("tau_est".to_string(), None)
+            ]
+        );
+        assert_eq!(p.to_string(), "motor_state[17].tau_est");
+        for bad in ["", "a[", "a[x]", "a..b", "a b"] {
+            assert!(FieldPath::parse(bad).is_err(), "{bad}");
+        }
+        let schema = MsgSchema::parse_ros2msg("p/T", "float32[2] a\n").unwrap();
+        for bad in ["a", "a[2]", "b", "a[0].c"] {
+            let e =
+                FieldExtractor::compile(&schema, Encoding::Cdr, &[FieldPath::parse(bad).unwrap()])
+                    .unwrap_err();
+            assert!(matches!(e, DecodeError::NoSuchField { .. }), "{bad}: {e}");
+        }
+    }
+
+    #[test]
+    fn json_by_field_name_null_is_nan() {
+        let schema = MsgSchema {
+            root: "j".into(),
+            types: [(
+                "j".to_string(),
+                crate::read::msgdef::MsgType {
+                    name: "j".into(),
+                    fields: vec![],
+                },
+            )]
+            .into_iter()
+            .collect(),
+        };
+        let paths: Vec<FieldPath> = ["value[1]", "n", "b"]
+            .iter()
+            .map(|p| FieldPath::parse(p).unwrap())
+            .collect();
+        let ex = FieldExtractor::compile(&schema, Encoding::Json, &paths).unwrap();
+        let mut out = [0.0; 3];
+        ex.extract(br#"{"value":[1,2.5],"n":null,"b":true}"#, &mut out)
+            .unwrap();
+        assert_eq!(out[0], 2.5);
+        assert!(out[1].is_nan());
+        assert_eq!(out[2], 1.0);
+        assert!(ex.extract(br#"{"value":[1]}"#, &mut out).is_err());
+        assert!(ex.extract(b"not json", &mut out).is_err());
+    }
 }

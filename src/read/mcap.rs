@@ -112,6 +112,9 @@ struct RawMsg {
     file_offset: u64,
 }
 
+/// Receives each wanted message with the source (for channel lookups) and its payload.
+type RawSink<'a> = dyn FnMut(&mut McapSource, &RawMsg, &[u8]) -> Result<(), ReadError> + 'a;
+
 /// An MCAP file opened for streaming.
 pub struct McapSource {
     path: PathBuf,
@@ -290,7 +293,7 @@ impl McapSource {
     fn walk(
         &mut self,
         topics: Option<&[&str]>,
-        sink: &mut dyn FnMut(&mut McapSource, &RawMsg, &[u8]) -> Result<(), ReadError>,
+        sink: &mut RawSink<'_>,
     ) -> Result<ReadSummary, ReadError> {
         let mut summary = ReadSummary {
             messages: 0,
@@ -317,7 +320,7 @@ impl McapSource {
     fn walk_indexed(
         &mut self,
         topics: Option<&[&str]>,
-        sink: &mut dyn FnMut(&mut McapSource, &RawMsg, &[u8]) -> Result<(), ReadError>,
+        sink: &mut RawSink<'_>,
     ) -> Result<Result<(), Damage>, ReadError> {
         let mut chunks = self
             .summary
@@ -432,7 +435,7 @@ impl McapSource {
     fn walk_linear(
         &mut self,
         topics: Option<&[&str]>,
-        sink: &mut dyn FnMut(&mut McapSource, &RawMsg, &[u8]) -> Result<(), ReadError>,
+        sink: &mut RawSink<'_>,
     ) -> Result<Result<(), Damage>, ReadError> {
         let path = self.path.clone();
         let io = |e: std::io::Error| ReadError::Io {

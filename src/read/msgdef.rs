@@ -890,7 +890,7 @@ impl MsgSchema {
             .join("\n");
         let toks = tokenize_idl(&root, &cleaned)?;
         let mut parser = IdlParser {
-            type_name: type_name,
+            type_name,
             toks,
             pos: 0,
             scope: Vec::new(),
@@ -905,5 +905,119 @@ impl MsgSchema {
         };
         schema.resolve_missing(Dialect::Ros2)?;
         Ok(schema)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn field<'a>(s: &'a MsgSchema, ty: &str, name: &str) -> &'a Field {
+        s.types[ty].fields.iter().find(|f| f.name == name).unwrap()
+    }
+
+    #[test]
+    fn ros2msg_constants_defaults_bounds_and_sections() {
+        let text = "# header comment\nint32 MODE_A=1\nstring NAME = \"x # y\"\nint32 a 5 # default\n\
+                    string<=10 s\nfloat64[<=3] b\nuint8[] c\nPoint[2] p\nbuiltin_interfaces/Time t\n\
+                    ================================================================================\n\
+                    MSG: my_pkg/Point\nfloat32 x\nfloat32 y\n";
+        let s = MsgSchema::parse_ros2msg("my_pkg/msg/Thing", text).unwrap();
+        assert_eq!(s.root, "my_pkg/msg/Thing");
+        let names: Vec<&str> = s.types["my_pkg/msg/Thing"]
+            .fields
+            .iter()
+            .map(|f| f.name.as_str())
+            .collect();
+        assert_eq!(names, ["a", "s", "b", "c", "p", "t"]);
+        assert_eq!(
+            field(&s, "my_pkg/msg/Thing", "s").ty,
+            FieldType::Primitive(Primitive::String)
+        );
+        assert_eq!(
+            field(&s, "my_pkg/msg/Thing", "b").array,
+            ArrayKind::Bounded(3)
+        );
+        assert_eq!(
+            field(&s, "my_pkg/msg/Thing", "c").array,
+            ArrayKind::Unbounded
+        );
+        let p = field(&s, "my_pkg/msg/Thing", "p");
+        assert_eq!(
+            (p.ty.clone(), p.array),
+            (
+                FieldType::Message("my_pkg/msg/Point".into()),
+                ArrayKind::Fixed(2)
+            )
+        );
+        // builtin_interfaces/Time came from the built-in definitions.
+        assert_eq!(s.types["builtin_interfaces/msg/Time"].fields.len(), 2);
+    }
+
+    #[test]
+    fn ros1msg_header_time_byte_char() {
+        let text = "Header header\ntime stamp\nduration d\nbyte b\nchar c\n";
+        let s = MsgSchema::parse_ros1msg("pkg/T", text).unwrap();
+        let t = &s.types["pkg/msg/T"];
+        assert_eq!(
+            t.fields[0].ty,
+            FieldType::Message("std_msgs/msg/Header".into())
+        );
+        assert_eq!(t.fields[1].ty, FieldType::Primitive(Primitive::Time));
+        assert_eq!(t.fields[2].ty, FieldType::Primitive(Primitive::Duration));
+        assert_eq!(t.fields[3].ty, FieldType::Primitive(Primitive::I8));
+        assert_eq!(t.fields[4].ty, FieldType::Primitive(Primitive::U8));
+        // ROS 1 header: seq, time stamp, frame_id.
+        assert_eq!(
+            s.types["std_msgs/msg/Header"].fields[1].ty,
+            FieldType::Primitive(Primitive::Time)
+        );
+    }
+
+    #[test]
+    fn missing_dependency_is_reported() {
+        let err = MsgSchema::parse_ros2msg("a/B", "Unknown x\n").unwrap_err();
+        assert!(
+            err.to_string().contains("a/msg/Unknown") && err.to_string().contains("--msg-path"),
+            "{err}"
+        );
+        let err = MsgSchema::parse_ros2msg("a/B", "int32[x y\n").unwrap_err();
+        assert!(matches!(err, SchemaError::Syntax { line: 1, .. }), "{err}");
+    }
+
+    #[test]
+    fn idl_modules_typedefs_sequences_enums() {
+        let text = "#include <x.idl>\nmodule p { module msg {\n typedef double d3[3];\n enum Color { RED, GREEN };\n\
+                    /* block */ struct S { sequence<int16> v; sequence<string, 4> names; d3 xyz; Color c; unsigned long long big; string<8> s; };\n}; };";
+        let s = MsgSchema::parse_idl("p/msg/S", text).unwrap();
+        let f = &s.types["p/msg/S"].fields;
+        assert_eq!(f[0].array, ArrayKind::Unbounded);
+        assert_eq!(f[1].array, ArrayKind::Bounded(4));
+        assert_eq!(
+            (f[2].ty.clone(), f[2].array),
+            (FieldType::Primitive(Primitive::F64), ArrayKind::Fixed(3))
+        );
+        assert_eq!(f[3].ty, FieldType::Primitive(Primitive::U32));
+        assert_eq!(f[4].ty, FieldType::Primitive(Primitive::U64));
+        assert_eq!(f[5].ty, FieldType::Primitive(Primitive::String));
+    }
+
+    #[test]
+    fn builtin_unitree_definitions_and_msg_files() {
+        assert!(
+            builtin_definition("unitree_hg/LowState")
+                .unwrap()
+                .contains("MotorState[35] motor_state")
+        );
+        assert!(builtin_definition("unitree_hg/msg/BmsState").is_some());
+        let s = MsgSchema::from_msg_files("unitree_hg/msg/LowState", &[]).unwrap();
+        assert_eq!(s.types.len(), 3); // LowState, IMUState, MotorState
+        let dir = std::env::temp_dir().join(format!("g1viz_msgdef_{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("q/msg")).unwrap();
+        std::fs::write(dir.join("q/msg/A.msg"), "B b\nint8 z\n").unwrap();
+        std::fs::write(dir.join("q/msg/B.msg"), "float32 w\n").unwrap();
+        let s = MsgSchema::from_msg_files("q/A", std::slice::from_ref(&dir)).unwrap();
+        assert_eq!(s.types["q/msg/B"].fields[0].name, "w");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -4,31 +4,24 @@
 use std::collections::HashMap;
 use std::io::IsTerminal;
 use std::path::Path;
-use std::sync::Arc;
 
-use anyhow::{Context, bail};
+use anyhow::bail;
 
+use super::Recording;
 use super::map::{GROUPS, Group, SignalMap, group_signals};
-use super::{CommandSeries, PowerSeries, Recording, StateSeries};
 use crate::N_JOINTS;
-use crate::read::{Channel, FieldExtractor, FieldPath, OpenOptions, ReadError, Session};
+use crate::read::{FieldExtractor, FieldPath, OpenOptions, ReadError, Session};
 
 /// Detailed warnings of one kind before they are only counted.
 const MAX_DETAILED_WARNINGS: usize = 10;
-
-/// Samples of one group: absolute times and row-major values (one row per message).
-#[derive(Default)]
-struct Columns {
-    t_ns: Vec<u64>,
-    values: Vec<f64>,
-}
 
 struct GroupPlan {
     group: Group,
     topic: String,
     paths: Vec<FieldPath>,
     scales: Vec<f64>,
-    columns: Columns,
+    /// Absolute log time of every kept sample (converted to relative seconds at the end).
+    t_ns: Vec<u64>,
     /// Dropped (non-finite) and undecodable samples.
     non_finite: usize,
     undecodable: usize,
@@ -55,7 +48,7 @@ pub fn load_recording(
                 topic: specs.first().map(|s| s.topic.clone()).unwrap_or_default(),
                 paths: specs.iter().map(|s| s.field.clone()).collect(),
                 scales: specs.iter().map(|s| s.scale).collect(),
-                columns: Columns::default(),
+                t_ns: Vec::new(),
                 non_finite: 0,
                 undecodable: 0,
             }
@@ -68,33 +61,42 @@ pub fn load_recording(
 
     let progress = progress_bar(&mut session);
     let mut warnings = Vec::new();
-    // Per channel (by identity): (group index, extractor) for each group reading its topic.
-    let mut extractors: HashMap<*const Channel, Vec<(usize, FieldExtractor)>> = HashMap::new();
+    // Per topic: the type the extractors were compiled for, and (group index, extractor) for
+    // each group reading the topic.
+    type Compiled = (String, Vec<(usize, FieldExtractor)>);
+    let mut extractors: HashMap<String, Compiled> = HashMap::new();
     let mut row = Vec::new();
+    // Samples go straight into the typed series (no intermediate copy); times are set at the end.
+    let mut rec = Recording {
+        source: path.to_path_buf(),
+        joint_names: map.joint_names.clone(),
+        ..Recording::default()
+    };
     let mut count = 0u64;
     let file = path.display().to_string();
     let summary = session.read(Some(&topics), &mut |msg| {
         count += 1;
-        if count % 4096 == 0 {
-            if let Some(pb) = &progress {
-                pb.set_position(count);
-            }
+        if count.is_multiple_of(4096)
+            && let Some(pb) = &progress
+        {
+            pb.set_position(count);
         }
-        let key = Arc::as_ptr(msg.channel);
-        if !extractors.contains_key(&key) {
+        let topic = msg.channel.topic.as_str();
+        let known = extractors.get(topic).is_some_and(|(ty, _)| *ty == msg.channel.type_name);
+        if !known {
             let mut list = Vec::new();
-            for (gi, plan) in plans.iter().enumerate().filter(|(_, p)| p.topic == msg.channel.topic) {
+            for (gi, plan) in plans.iter().enumerate().filter(|(_, p)| p.topic == topic) {
                 let ex = FieldExtractor::compile(&msg.channel.schema, msg.channel.encoding, &plan.paths).map_err(|e| {
                     ReadError::Other(format!(
-                        "{file}: topic {} ({}): schema does not match the signal map ({:?} signals): {e}",
-                        msg.channel.topic, msg.channel.type_name, plan.group
+                        "{file}: topic {topic} ({}): schema does not match the signal map ({:?} signals): {e}",
+                        msg.channel.type_name, plan.group
                     ))
                 })?;
                 list.push((gi, ex));
             }
-            extractors.insert(key, list);
+            extractors.insert(topic.to_string(), (msg.channel.type_name.clone(), list));
         }
-        for (gi, ex) in extractors.get(&key).map(Vec::as_slice).unwrap_or(&[]) {
+        for (gi, ex) in extractors.get(topic).map(|(_, l)| l.as_slice()).unwrap_or(&[]) {
             let plan = &mut plans[*gi];
             row.resize(ex.len(), 0.0);
             if let Err(e) = ex.extract(msg.data, &mut row) {
@@ -120,8 +122,11 @@ pub fn load_recording(
                 }
                 continue;
             }
-            plan.columns.t_ns.push(msg.log_time_ns);
-            plan.columns.values.extend(row.iter().zip(&plan.scales).map(|(v, s)| v * s));
+            plan.t_ns.push(msg.log_time_ns);
+            for (v, s) in row.iter_mut().zip(&plan.scales) {
+                *v *= s;
+            }
+            push_row(&mut rec, plan.group, &row);
         }
         Ok(())
     })?;
@@ -138,7 +143,7 @@ pub fn load_recording(
         }
     }
 
-    let state_empty = plans.first().is_none_or(|p| p.columns.t_ns.is_empty());
+    let state_empty = plans.first().is_none_or(|p| p.t_ns.is_empty());
     if state_empty {
         let state_topic = map.group_topic(Group::State).unwrap_or("");
         let present = session
@@ -156,29 +161,22 @@ pub fn load_recording(
         );
     }
     for plan in plans.iter().skip(1) {
-        if plan.columns.t_ns.is_empty() {
+        if plan.t_ns.is_empty() {
             warnings.push(format!(
                 "{file}: optional topic {} has no messages: {:?} series left empty",
                 plan.topic, plan.group
             ));
         }
     }
-    let start_ns = plans
+    rec.start_ns = plans
         .iter()
-        .filter_map(|p| p.columns.t_ns.iter().min())
+        .filter_map(|p| p.t_ns.iter().min())
         .min()
         .copied()
         .unwrap_or(0);
-    let mut rec = Recording {
-        source: path.to_path_buf(),
-        start_ns,
-        joint_names: map.joint_names.clone(),
-        warnings,
-        ..Recording::default()
-    };
-    for plan in &mut plans {
-        sort_by_time(&mut plan.columns, plan.paths.len());
-        fill(&mut rec, plan).with_context(|| format!("{file}: topic {}", plan.topic))?;
+    rec.warnings = warnings;
+    for plan in &plans {
+        set_times(&mut rec, plan.group, &plan.t_ns);
     }
     Ok(rec)
 }
@@ -197,67 +195,78 @@ fn progress_bar(session: &mut Session) -> Option<indicatif::ProgressBar> {
     Some(pb)
 }
 
-/// Sort rows by time when the source delivered them out of order (unindexed files).
-fn sort_by_time(c: &mut Columns, width: usize) {
-    if c.t_ns.is_sorted() || width == 0 {
-        return;
-    }
-    let mut order: Vec<usize> = (0..c.t_ns.len()).collect();
-    order.sort_by_key(|&i| c.t_ns[i]);
-    let t = order.iter().map(|&i| c.t_ns[i]).collect();
-    let values = order
-        .iter()
-        .flat_map(|&i| c.values[i * width..(i + 1) * width].iter().copied())
-        .collect();
-    *c = Columns { t_ns: t, values };
-}
-
 fn joints(row: &[f64], block: usize) -> [f64; N_JOINTS] {
-    std::array::from_fn(|j| row[block * N_JOINTS + j])
+    std::array::from_fn(|j| row.get(block * N_JOINTS + j).copied().unwrap_or(f64::NAN))
 }
 
-fn fill(rec: &mut Recording, plan: &GroupPlan) -> anyhow::Result<()> {
-    let width = plan.paths.len();
-    let rel = |t: u64| t.saturating_sub(rec.start_ns) as f64 * 1e-9;
-    let t: Vec<f64> = plan.columns.t_ns.iter().map(|&t| rel(t)).collect();
-    let rows = plan.columns.values.chunks_exact(width.max(1));
-    match plan.group {
+/// Append one scaled sample of `group` (values in [`group_signals`] order) to its series.
+fn push_row(rec: &mut Recording, group: Group, r: &[f64]) {
+    let at = |i: usize| r.get(i).copied().unwrap_or(f64::NAN);
+    match group {
         Group::State => {
-            let mut s = StateSeries {
-                t,
-                ..StateSeries::default()
-            };
-            for r in rows {
-                s.q.push(joints(r, 0));
-                s.dq.push(joints(r, 1));
-                s.tau.push(joints(r, 2));
-                s.temp.push(joints(r, 3));
-                let o = 4 * N_JOINTS;
-                s.gyro.push([r[o], r[o + 1], r[o + 2]]);
-                s.quat.push([r[o + 3], r[o + 4], r[o + 5], r[o + 6]]);
-            }
-            rec.state = s;
+            let s = &mut rec.state;
+            s.q.push(joints(r, 0));
+            s.dq.push(joints(r, 1));
+            s.tau.push(joints(r, 2));
+            s.temp.push(joints(r, 3));
+            let o = 4 * N_JOINTS;
+            s.gyro.push([at(o), at(o + 1), at(o + 2)]);
+            s.quat.push([at(o + 3), at(o + 4), at(o + 5), at(o + 6)]);
         }
         Group::Command => {
-            let mut c = CommandSeries {
-                t,
-                ..CommandSeries::default()
-            };
-            for r in rows {
-                c.q.push(joints(r, 0));
-                c.dq.push(joints(r, 1));
-            }
-            rec.command = c;
+            rec.command.q.push(joints(r, 0));
+            rec.command.dq.push(joints(r, 1));
         }
-        Group::Mbs | Group::Bms => {
-            let watts = rows.map(|r| r[0] * r[1]).collect();
-            let p = PowerSeries { t, watts };
-            if plan.group == Group::Mbs {
-                rec.mbs = p;
-            } else {
-                rec.bms = p;
-            }
+        Group::Mbs => rec.mbs.watts.push(at(0) * at(1)),
+        Group::Bms => rec.bms.watts.push(at(0) * at(1)),
+    }
+}
+
+/// Reorder `v` by `order` (when the source delivered samples out of time order).
+fn permute<T: Copy>(v: &mut Vec<T>, order: Option<&[usize]>) {
+    if let Some(o) = order {
+        *v = o.iter().filter_map(|&i| v.get(i).copied()).collect();
+    }
+}
+
+/// Set a group's time axis (seconds since `rec.start_ns`), sorting its samples by time when
+/// the source delivered them out of order (files without an index).
+fn set_times(rec: &mut Recording, group: Group, t_ns: &[u64]) {
+    let start = rec.start_ns;
+    let mut t: Vec<f64> = t_ns
+        .iter()
+        .map(|&t| t.saturating_sub(start) as f64 * 1e-9)
+        .collect();
+    let order: Option<Vec<usize>> = (!t_ns.is_sorted()).then(|| {
+        let mut o: Vec<usize> = (0..t_ns.len()).collect();
+        o.sort_by_key(|&i| t_ns.get(i).copied().unwrap_or(0));
+        o
+    });
+    let order = order.as_deref();
+    permute(&mut t, order);
+    match group {
+        Group::State => {
+            let s = &mut rec.state;
+            s.t = t;
+            permute(&mut s.q, order);
+            permute(&mut s.dq, order);
+            permute(&mut s.tau, order);
+            permute(&mut s.temp, order);
+            permute(&mut s.gyro, order);
+            permute(&mut s.quat, order);
+        }
+        Group::Command => {
+            rec.command.t = t;
+            permute(&mut rec.command.q, order);
+            permute(&mut rec.command.dq, order);
+        }
+        Group::Mbs => {
+            rec.mbs.t = t;
+            permute(&mut rec.mbs.watts, order);
+        }
+        Group::Bms => {
+            rec.bms.t = t;
+            permute(&mut rec.bms.watts, order);
         }
     }
-    Ok(())
 }

@@ -1,6 +1,13 @@
 //! Switchable physics the paper's power model lacks. Each effect is an `Option` with physical
 //! parameters and units; the definitions are shared with the diagnosis hypotheses
 //! (CONTRACTS.md). New effects are new fields: every consumer matches on them by name.
+//!
+//! How visible the defaults are (hold-out preset, the true base model validated per effect,
+//! `bench_sim effects`): bus loss and payload change the trial-level fit most; braking and a
+//! warm-start thermal drift double the like-for-like RMSE; latency shows as a shifted best
+//! reading window (a pipeline that estimates the lag absorbs most of it); the payload changes
+//! power only through the measured torques, so it is seen at the torque level (URDF inverse
+//! dynamics vs `tau_est`); harness drag needs elbow motions (a few % of RMSE on the hold-out set).
 
 use serde::{Deserialize, Serialize};
 
@@ -77,19 +84,32 @@ pub struct Effects {
 }
 
 /// Names accepted by [`Effects::enable`], in documentation order.
-pub const EFFECT_NAMES: [&str; 6] = ["thermal", "braking", "bus_loss", "payload", "latency", "harness_drag"];
+pub const EFFECT_NAMES: [&str; 6] = [
+    "thermal",
+    "braking",
+    "bus_loss",
+    "payload",
+    "latency",
+    "harness_drag",
+];
 
 impl ThermalDrift {
     /// Copper's temperature coefficient.
-    pub const DEFAULT: ThermalDrift = ThermalDrift { alpha_per_k: 0.00393 };
+    pub const DEFAULT: ThermalDrift = ThermalDrift {
+        alpha_per_k: 0.00393,
+    };
 }
 impl BrakingAsymmetry {
     /// A quarter of the regenerated power comes back (drive and gear losses eat the rest).
-    pub const DEFAULT: BrakingAsymmetry = BrakingAsymmetry { return_fraction: 0.25 };
+    pub const DEFAULT: BrakingAsymmetry = BrakingAsymmetry {
+        return_fraction: 0.25,
+    };
 }
 impl BusLoss {
     /// 50 mΩ: battery internal resistance share plus harness and connectors of the arm rail.
-    pub const DEFAULT: BusLoss = BusLoss { resistance_ohm: 0.05 };
+    pub const DEFAULT: BusLoss = BusLoss {
+        resistance_ohm: 0.05,
+    };
 }
 impl SensorLatency {
     /// 0.3 s: a slow sensor pipeline (several 100 ms buffers are common on BMS/MBS links).
@@ -101,7 +121,10 @@ impl HarnessDrag {
     pub const DEFAULT: HarnessDrag = HarnessDrag { w_per_rad_s: 4.0 };
 }
 /// Default payload: a 0.5 kg tool held 10 cm beyond the wrist-yaw link origin.
-pub const DEFAULT_PAYLOAD: Payload = Payload { mass_kg: 0.5, com_m: [0.10, 0.0, 0.0] };
+pub const DEFAULT_PAYLOAD: Payload = Payload {
+    mass_kg: 0.5,
+    com_m: [0.10, 0.0, 0.0],
+};
 
 impl Effects {
     /// Switch on effect `spec` = `name` or `name=value` (value in the effect's unit: thermal α [1/K],
@@ -110,27 +133,59 @@ impl Effects {
     pub fn enable(&mut self, spec: &str) -> anyhow::Result<()> {
         let (name, value) = match spec.split_once('=') {
             Some((n, v)) => {
-                let v: f64 = v.trim().parse().map_err(|_| anyhow::anyhow!("effect {spec:?}: value is not a number"))?;
-                anyhow::ensure!(v.is_finite() && v >= 0.0, "effect {spec:?}: value must be finite and ≥ 0");
+                let v: f64 = v
+                    .trim()
+                    .parse()
+                    .map_err(|_| anyhow::anyhow!("effect {spec:?}: value is not a number"))?;
+                anyhow::ensure!(
+                    v.is_finite() && v >= 0.0,
+                    "effect {spec:?}: value must be finite and ≥ 0"
+                );
                 (n.trim(), Some(v))
             }
             None => (spec.trim(), None),
         };
         match name {
-            "thermal" => self.thermal = Some(value.map_or(ThermalDrift::DEFAULT, |alpha_per_k| ThermalDrift { alpha_per_k })),
+            "thermal" => {
+                self.thermal =
+                    Some(
+                        value.map_or(ThermalDrift::DEFAULT, |alpha_per_k| ThermalDrift {
+                            alpha_per_k,
+                        }),
+                    )
+            }
             "braking" => {
-                self.braking =
-                    Some(value.map_or(BrakingAsymmetry::DEFAULT, |return_fraction| BrakingAsymmetry { return_fraction }))
+                self.braking = Some(value.map_or(BrakingAsymmetry::DEFAULT, |return_fraction| {
+                    BrakingAsymmetry { return_fraction }
+                }))
             }
-            "bus_loss" => self.bus_loss = Some(value.map_or(BusLoss::DEFAULT, |resistance_ohm| BusLoss { resistance_ohm })),
+            "bus_loss" => {
+                self.bus_loss = Some(value.map_or(BusLoss::DEFAULT, |resistance_ohm| BusLoss {
+                    resistance_ohm,
+                }))
+            }
             "payload" => {
-                self.payload = Some(value.map_or(DEFAULT_PAYLOAD, |mass_kg| Payload { mass_kg, ..DEFAULT_PAYLOAD }))
+                self.payload = Some(value.map_or(DEFAULT_PAYLOAD, |mass_kg| Payload {
+                    mass_kg,
+                    ..DEFAULT_PAYLOAD
+                }))
             }
-            "latency" => self.latency = Some(value.map_or(SensorLatency::DEFAULT, |seconds| SensorLatency { seconds })),
+            "latency" => {
+                self.latency =
+                    Some(value.map_or(SensorLatency::DEFAULT, |seconds| SensorLatency { seconds }))
+            }
             "harness_drag" => {
-                self.harness_drag = Some(value.map_or(HarnessDrag::DEFAULT, |w_per_rad_s| HarnessDrag { w_per_rad_s }))
+                self.harness_drag =
+                    Some(
+                        value.map_or(HarnessDrag::DEFAULT, |w_per_rad_s| HarnessDrag {
+                            w_per_rad_s,
+                        }),
+                    )
             }
-            _ => anyhow::bail!("unknown effect {name:?} (known: {})", EFFECT_NAMES.join(", ")),
+            _ => anyhow::bail!(
+                "unknown effect {name:?} (known: {})",
+                EFFECT_NAMES.join(", ")
+            ),
         }
         Ok(())
     }
@@ -169,7 +224,10 @@ pub fn arm_power(
     let mut extra = 0.0;
     for i in 0..N_JOINTS {
         if let Some(th) = effects.thermal {
-            extra += model.b[i] * th.alpha_per_k * (temp_c[i] - THERMAL_REFERENCE_C) * (tau[i] * tau[i] - tau0_sq[i]);
+            extra += model.b[i]
+                * th.alpha_per_k
+                * (temp_c[i] - THERMAL_REFERENCE_C)
+                * (tau[i] * tau[i] - tau0_sq[i]);
         }
         if let Some(br) = effects.braking {
             let mech = model.a[i] * tau[i] * dq[i];
@@ -179,13 +237,18 @@ pub fn arm_power(
         }
     }
     if let Some(bus) = effects.bus_loss {
-        let current: f64 = (0..N_JOINTS).map(|i| tau[i].abs() / JOINT_TORQUE_CONSTANT[i]).sum();
+        let current: f64 = (0..N_JOINTS)
+            .map(|i| tau[i].abs() / JOINT_TORQUE_CONSTANT[i])
+            .sum();
         extra += bus.resistance_ohm * current * current;
     }
     if let Some(h) = effects.harness_drag {
         extra += h.w_per_rad_s * (1.0 - q[3].cos()) * dq[3].abs();
     }
-    ArmPower { base, effects: extra }
+    ArmPower {
+        base,
+        effects: extra,
+    }
 }
 
 #[cfg(test)]
@@ -197,22 +260,45 @@ mod tests {
     fn braking_loses_the_unreturned_fraction() {
         // Elbow braking: τ = 2 Nm, q̇ = −1 rad/s → regenerated 2 W; r = 0.25 returns 0.5 W, so the
         // plant draws 1.5 W more than the symmetric model (hand computed).
-        let e = Effects { braking: Some(BrakingAsymmetry { return_fraction: 0.25 }), ..Default::default() };
+        let e = Effects {
+            braking: Some(BrakingAsymmetry {
+                return_fraction: 0.25,
+            }),
+            ..Default::default()
+        };
         let mut tau = [0.0; N_JOINTS];
         let mut dq = [0.0; N_JOINTS];
         tau[3] = 2.0;
         dq[3] = -1.0;
-        let p = arm_power(&PowerModel::PAPER, &e, &[0.0; 7], &tau, &dq, &[0.0; 7], &[25.0; 7]);
+        let p = arm_power(
+            &PowerModel::PAPER,
+            &e,
+            &[0.0; 7],
+            &tau,
+            &dq,
+            &[0.0; 7],
+            &[25.0; 7],
+        );
         assert!((p.effects - 1.5).abs() < 1e-12);
         dq[3] = 1.0;
-        let p = arm_power(&PowerModel::PAPER, &e, &[0.0; 7], &tau, &dq, &[0.0; 7], &[25.0; 7]);
+        let p = arm_power(
+            &PowerModel::PAPER,
+            &e,
+            &[0.0; 7],
+            &tau,
+            &dq,
+            &[0.0; 7],
+            &[25.0; 7],
+        );
         assert_eq!(p.effects, 0.0);
     }
 
     #[test]
     fn bus_loss_and_harness_by_hand() {
         let e = Effects {
-            bus_loss: Some(BusLoss { resistance_ohm: 0.1 }),
+            bus_loss: Some(BusLoss {
+                resistance_ohm: 0.1,
+            }),
             harness_drag: Some(HarnessDrag { w_per_rad_s: 2.0 }),
             ..Default::default()
         };

@@ -33,8 +33,8 @@ pub use protocol::Preset;
 pub use truth::Truth;
 
 use crate::N_JOINTS;
-use crate::robot::{ArmDynamics, JointFriction, RobotModel};
 use crate::power::{PAIRS, PowerModel};
+use crate::robot::{ArmDynamics, JointFriction, RobotModel};
 use crate::signals::Recording;
 use plant::{Engine, OutlierStep, Reference, Sampled, Sway, Timeline, TrialPlan};
 use protocol::Schedule;
@@ -52,7 +52,9 @@ pub const JOINT_NAMES: [&str; N_JOINTS] = [
     "left_wrist_yaw_joint",
 ];
 /// Short joint names, model order.
-pub const JOINT_SHORT: [&str; N_JOINTS] = ["sh_pitch", "sh_roll", "sh_yaw", "elbow", "wr_roll", "wr_pitch", "wr_yaw"];
+pub const JOINT_SHORT: [&str; N_JOINTS] = [
+    "sh_pitch", "sh_roll", "sh_yaw", "elbow", "wr_roll", "wr_pitch", "wr_yaw",
+];
 
 /// Session epoch: the start time is this plus a seed-dependent offset of up to 3 h.
 const EPOCH_NS: u64 = 1_773_482_400_000_000_000; // 2026-03-14T10:00:00Z
@@ -181,7 +183,8 @@ fn dynamics(cfg: &SimConfig) -> Result<(ArmDynamics, Option<ArmDynamics>)> {
         None => RobotModel::builtin_no_hand(),
     };
     let arm = model.arm(&JOINT_NAMES.map(String::from))?;
-    let urdf = ArmDynamics::new(&model, &arm).context("building the arm dynamics for the simulator")?;
+    let urdf =
+        ArmDynamics::new(&model, &arm).context("building the arm dynamics for the simulator")?;
     Ok(match &cfg.effects.payload {
         Some(p) => (urdf.with_payload(p), Some(urdf)),
         None => (urdf, None),
@@ -201,29 +204,44 @@ fn progress_bar(cfg: &SimConfig, len: u64) -> indicatif::ProgressBar {
     }
 }
 
-/// Pick contaminated and outlier trials and their parameters.
-fn draw_artefacts(trials: &[protocol::PlannedTrial], a: &Artefacts, rng: &mut ChaCha8Rng) -> Vec<(Option<Sway>, Option<(f64, f64, f64)>)> {
-    let weight = |t: &protocol::PlannedTrial| (t.qdot_max / 2.5).powf(1.5) * (t.route.joints.len() as f64).powf(0.8);
+/// Phase windows of each trial plus its artefacts: contamination with a probability growing
+/// with speed^1.5 and joint count^0.8 (scaled to the target fraction), outliers uniformly.
+fn trial_plans(
+    trials: &[protocol::PlannedTrial],
+    schedule: &Schedule,
+    a: &Artefacts,
+    rng: &mut ChaCha8Rng,
+) -> Vec<TrialPlan> {
+    let weight = |t: &protocol::PlannedTrial| {
+        (t.qdot_max / 2.5).powf(1.5) * (t.route.joints.len() as f64).powf(0.8)
+    };
     let total: f64 = trials.iter().map(weight).sum::<f64>().max(1e-12);
+    let lerp = |r: [f64; 2], u: f64| r[0] + u * (r[1] - r[0]);
     trials
         .iter()
-        .map(|t| {
+        .zip(&schedule.trials)
+        .map(|(t, tt)| {
             let p = (a.contamination_fraction * trials.len() as f64 * weight(t) / total).min(0.9);
-            let (u_c, amp, freq, axis) = (rng.random::<f64>(), rng.random::<f64>(), rng.random::<f64>(), rng.random::<f64>());
-            let sway = (u_c < p).then(|| Sway {
-                amplitude: a.sway_amplitude_rad_s[0] + amp * (a.sway_amplitude_rad_s[1] - a.sway_amplitude_rad_s[0]),
-                freq_hz: a.sway_freq_hz[0] + freq * (a.sway_freq_hz[1] - a.sway_freq_hz[0]),
-                axis: axis * std::f64::consts::TAU,
+            // Always draw the same numbers per trial so the artefact settings do not shift the
+            // random streams of everything after them.
+            let u: [f64; 8] = std::array::from_fn(|_| rng.random::<f64>());
+            let sway = (u[0] < p).then(|| Sway {
+                amplitude: lerp(a.sway_amplitude_rad_s, u[1]),
+                freq_hz: lerp(a.sway_freq_hz, u[2]),
+                axis: u[3] * std::f64::consts::TAU,
             });
-            let (u_o, start, dur, step) = (rng.random::<f64>(), rng.random::<f64>(), rng.random::<f64>(), rng.random::<f64>());
-            let outlier = (u_o < a.outlier_fraction).then(|| {
-                (
-                    start,
-                    a.outlier_duration_s[0] + dur * (a.outlier_duration_s[1] - a.outlier_duration_s[0]),
-                    a.outlier_step_w[0] + step * (a.outlier_step_w[1] - a.outlier_step_w[0]),
-                )
+            let outlier = (u[4] < a.outlier_fraction).then(|| OutlierStep {
+                start: tt.traj_start + u[5] * (tt.post_idle_end - tt.traj_start - 1.0).max(0.0),
+                duration: lerp(a.outlier_duration_s, u[6]),
+                step_w: lerp(a.outlier_step_w, u[7]),
             });
-            (sway, outlier)
+            TrialPlan {
+                pre_start: tt.trial_start,
+                traj_start: tt.traj_start,
+                window_end: tt.post_idle_end,
+                sway,
+                outlier,
+            }
         })
         .collect()
 }
@@ -261,25 +279,15 @@ pub fn simulate(cfg: &SimConfig, out: &Path) -> Result<Truth> {
     let end_s = (n as f64 - 1.0) * 0.01;
     let mbs = sensor_clock(start_ns, end_s, &mut rng);
     let bms = sensor_clock(start_ns, end_s, &mut rng);
-    let timeline = Timeline { start_ns, lowstate, arm_sdk, mbs, bms };
+    let timeline = Timeline {
+        start_ns,
+        lowstate,
+        arm_sdk,
+        mbs,
+        bms,
+    };
 
-    let drawn = draw_artefacts(&planned, &cfg.artefacts, &mut rng);
-    let plans: Vec<TrialPlan> = schedule
-        .trials
-        .iter()
-        .zip(&drawn)
-        .map(|(tt, (sway, outlier))| TrialPlan {
-            pre_start: tt.trial_start,
-            traj_start: tt.traj_start,
-            window_end: tt.post_idle_end,
-            sway: *sway,
-            outlier: outlier.map(|(u, duration, step_w)| OutlierStep {
-                start: tt.traj_start + u * (tt.post_idle_end - tt.traj_start - 1.0).max(0.0),
-                duration,
-                step_w,
-            }),
-        })
-        .collect();
+    let plans = trial_plans(&planned, &schedule, &cfg.artefacts, &mut rng);
 
     let (dyn_true, dyn_urdf) = dynamics(cfg)?;
     let engine = Engine {
@@ -300,14 +308,31 @@ pub fn simulate(cfg: &SimConfig, out: &Path) -> Result<Truth> {
         .zip(plans.iter().zip(&stats.trials))
         .enumerate()
         .map(|(index, ((pt, tt), (plan, sums)))| {
-            let pre = |s: f64| if sums.n_pre > 0 { s / sums.n_pre as f64 } else { 0.0 };
-            let traj = |s: f64| if sums.n_traj > 0 { s / sums.n_traj as f64 } else { 0.0 };
+            let pre = |s: f64| {
+                if sums.n_pre > 0 {
+                    s / sums.n_pre as f64
+                } else {
+                    0.0
+                }
+            };
+            let traj = |s: f64| {
+                if sums.n_traj > 0 {
+                    s / sums.n_traj as f64
+                } else {
+                    0.0
+                }
+            };
             truth::TrialTruth {
                 index,
                 route_id: pt.route.id.clone(),
                 route_kind: pt.route.kind.clone(),
                 joints_moved: pt.route.joints.clone(),
-                joints_moved_names: pt.route.joints.iter().map(|&j| JOINT_SHORT[j].to_string()).collect(),
+                joints_moved_names: pt
+                    .route
+                    .joints
+                    .iter()
+                    .map(|&j| JOINT_SHORT[j].to_string())
+                    .collect(),
                 qdot_max: pt.qdot_max,
                 waypoints_rad: pt.route.waypoints.clone(),
                 t_trial_start_ns: ns(tt.trial_start),
@@ -338,7 +363,12 @@ fn round4(v: f64) -> f64 {
     (v * 1e4).round() / 1e4
 }
 
-fn run_to_file(cfg: &SimConfig, engine: &Engine, rng: &mut ChaCha8Rng, out: &Path) -> Result<plant::RunStats> {
+fn run_to_file(
+    cfg: &SimConfig,
+    engine: &Engine,
+    rng: &mut ChaCha8Rng,
+    out: &Path,
+) -> Result<plant::RunStats> {
     let pb = progress_bar(cfg, engine.timeline.lowstate.len() as u64);
     let mut stats = None;
     crate::util::write_atomic_with(out, |w| {
@@ -356,7 +386,8 @@ fn run_to_file(cfg: &SimConfig, engine: &Engine, rng: &mut ChaCha8Rng, out: &Pat
 fn write_truth(truth: &Truth, out: &Path) -> Result<()> {
     let path = truth_path(out);
     let text = serde_json::to_string_pretty(truth).context("serialising truth")?;
-    crate::util::write_atomic(&path, text.as_bytes()).with_context(|| format!("writing {}", path.display()))
+    crate::util::write_atomic(&path, text.as_bytes())
+        .with_context(|| format!("writing {}", path.display()))
 }
 
 fn build_truth(
@@ -367,8 +398,24 @@ fn build_truth(
     trials: Vec<truth::TrialTruth>,
     out: &Path,
 ) -> Truth {
-    let first = [tl.lowstate.first(), tl.arm_sdk.first(), tl.mbs.first(), tl.bms.first()].into_iter().flatten().min();
-    let last = [tl.lowstate.last(), tl.arm_sdk.last(), tl.mbs.last(), tl.bms.last()].into_iter().flatten().max();
+    let first = [
+        tl.lowstate.first(),
+        tl.arm_sdk.first(),
+        tl.mbs.first(),
+        tl.bms.first(),
+    ]
+    .into_iter()
+    .flatten()
+    .min();
+    let last = [
+        tl.lowstate.last(),
+        tl.arm_sdk.last(),
+        tl.mbs.last(),
+        tl.bms.last(),
+    ]
+    .into_iter()
+    .flatten()
+    .max();
     let start_ns = first.copied().unwrap_or(tl.start_ns);
     let end_ns = last.copied().unwrap_or(tl.start_ns);
     let m = &cfg.truth;
@@ -376,7 +423,10 @@ fn build_truth(
     for (k, &(i, j)) in PAIRS.iter().enumerate() {
         e.insert(format!("{i},{j}"), m.e[k]);
     }
-    let topic = |t: &str, ty: &str| truth::TopicEntry { topic: t.into(), type_name: ty.into() };
+    let topic = |t: &str, ty: &str| truth::TopicEntry {
+        topic: t.into(),
+        type_name: ty.into(),
+    };
     let n_contaminated = trials.iter().filter(|t| t.contaminated).count();
     let n_outliers = trials.iter().filter(|t| t.outlier).count();
     let terms = ["mech", "copper", "coulomb", "viscous", "interaction"];
@@ -506,9 +556,23 @@ pub fn simulate_like(rec: &Recording, cfg: &SimConfig, out: &Path) -> Result<Tru
         rec.source.display()
     );
     let (sampled, lag) = if rec.command.t.is_empty() {
-        (Sampled { t: rec.state.t.clone(), q: rec.state.q.clone(), dq: rec.state.dq.clone() }, 0.0)
+        (
+            Sampled {
+                t: rec.state.t.clone(),
+                q: rec.state.q.clone(),
+                dq: rec.state.dq.clone(),
+            },
+            0.0,
+        )
     } else {
-        (Sampled { t: rec.command.t.clone(), q: rec.command.q.clone(), dq: rec.command.dq.clone() }, cfg.tracking_lag_s)
+        (
+            Sampled {
+                t: rec.command.t.clone(),
+                q: rec.command.q.clone(),
+                dq: rec.command.dq.clone(),
+            },
+            cfg.tracking_lag_s,
+        )
     };
     let to_ns = |t: &f64| (rec.start_ns as i128 + (t * 1e9).round() as i128).max(0) as u64;
     let timeline = Timeline {
@@ -518,7 +582,10 @@ pub fn simulate_like(rec: &Recording, cfg: &SimConfig, out: &Path) -> Result<Tru
         mbs: rec.mbs.t.iter().map(to_ns).collect(),
         bms: rec.bms.t.iter().map(to_ns).collect(),
     };
-    let cfg_like = SimConfig { tracking_lag_s: lag, ..cfg.clone() };
+    let cfg_like = SimConfig {
+        tracking_lag_s: lag,
+        ..cfg.clone()
+    };
     let (dyn_true, dyn_urdf) = dynamics(&cfg_like)?;
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
     let engine = Engine {

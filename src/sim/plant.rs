@@ -12,15 +12,15 @@ use rand::RngExt;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 
+use super::SimConfig;
 use super::effects::{Effects, arm_power};
 use super::protocol::Schedule;
 use super::thermal::ThermalState;
 use super::truth::Noise;
 use super::writer::{BmsFields, Cdr, ImuState, McapOut, MotorState, N_MOTORS, Topic};
-use super::SimConfig;
-use crate::robot::{ArmDynamics, JointFriction};
 use crate::N_JOINTS;
 use crate::power::{PAIRS, PowerModel};
+use crate::robot::{ArmDynamics, JointFriction};
 
 /// SDK index of the first left-arm motor.
 pub const ARM_BASE: usize = 15;
@@ -103,7 +103,11 @@ pub enum Reference<'a> {
 
 impl Reference<'_> {
     /// q, q̇, q̈ at `t`; `hint` is a cursor for monotone queries.
-    pub fn eval(&self, t: f64, hint: &mut usize) -> ([f64; N_JOINTS], [f64; N_JOINTS], [f64; N_JOINTS]) {
+    pub fn eval(
+        &self,
+        t: f64,
+        hint: &mut usize,
+    ) -> ([f64; N_JOINTS], [f64; N_JOINTS], [f64; N_JOINTS]) {
         match self {
             Reference::Protocol(s) => s.eval(t, hint),
             Reference::Sampled(s) => {
@@ -124,14 +128,22 @@ impl Reference<'_> {
                     return (s.q[k], s.dq[k], zero);
                 }
                 let h = s.t[k + 1] - s.t[k];
-                let u = if h > 0.0 { ((t - s.t[k]) / h).clamp(0.0, 1.0) } else { 0.0 };
+                let u = if h > 0.0 {
+                    ((t - s.t[k]) / h).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                };
                 let mut q = zero;
                 let mut dq = zero;
                 let mut ddq = zero;
                 for j in 0..N_JOINTS {
                     q[j] = s.q[k][j] + u * (s.q[k + 1][j] - s.q[k][j]);
                     dq[j] = s.dq[k][j] + u * (s.dq[k + 1][j] - s.dq[k][j]);
-                    ddq[j] = if h > 0.0 { (s.dq[k + 1][j] - s.dq[k][j]) / h } else { 0.0 };
+                    ddq[j] = if h > 0.0 {
+                        (s.dq[k + 1][j] - s.dq[k][j]) / h
+                    } else {
+                        0.0
+                    };
                 }
                 (q, dq, ddq)
             }
@@ -316,8 +328,11 @@ impl Engine<'_> {
                 tl.bms.get(i_bms).copied(),
                 tl.mbs.get(i_mbs).copied(),
             ];
-            let Some((which, ns)) =
-                candidates.iter().enumerate().filter_map(|(k, v)| v.map(|v| (k, v))).min_by_key(|&(k, v)| (v, k))
+            let Some((which, ns)) = candidates
+                .iter()
+                .enumerate()
+                .filter_map(|(k, v)| v.map(|v| (k, v)))
+                .min_by_key(|&(k, v)| (v, k))
             else {
                 break;
             };
@@ -349,7 +364,9 @@ impl Engine<'_> {
                     accumulate_terms(model, &tau, &dq, &tau0_sq, &mut term_sums);
 
                     // Trial artefacts.
-                    while trial_cursor + 1 < self.trials.len() && self.trials[trial_cursor + 1].pre_start <= t {
+                    while trial_cursor + 1 < self.trials.len()
+                        && self.trials[trial_cursor + 1].pre_start <= t
+                    {
                         trial_cursor += 1;
                     }
                     let mut sway = 0.0;
@@ -412,7 +429,8 @@ impl Engine<'_> {
                             mode: 1,
                             q: quant(q0 + noise.q_rad * gauss(rng), STANDING_QUANT.0) as f32,
                             dq: quant(noise.dq_rad_s * gauss(rng), STANDING_QUANT.1) as f32,
-                            tau_est: quant(tau0 + noise.tau_nm * gauss(rng), STANDING_QUANT.2) as f32,
+                            tau_est: quant(tau0 + noise.tau_nm * gauss(rng), STANDING_QUANT.2)
+                                as f32,
                             temperature: [30, 28],
                             vol,
                         };
@@ -432,7 +450,8 @@ impl Engine<'_> {
                     }
                     sway_angle[0] += sway * sway_axis.cos() * dt;
                     sway_angle[1] += sway * sway_axis.sin() * dt;
-                    let imu = imu_state(t, yaw0, sway, sway_axis, sway_angle, noise.gyro_rad_s, rng);
+                    let imu =
+                        imu_state(t, yaw0, sway, sway_axis, sway_angle, noise.gyro_rad_s, rng);
                     out.write(Topic::LowState, ns, cdr.low_state(tick, &imu, &motors))?;
                     tick = tick.wrapping_add(10);
                     if i_ls % 4096 == 0 {
@@ -442,7 +461,11 @@ impl Engine<'_> {
                 1 => {
                     i_cmd += 1;
                     let (q, dq, _) = self.reference.eval(t, &mut cmd_hint);
-                    out.write(Topic::ArmSdk, ns, cdr.low_cmd(ARM_BASE, &q, &dq, 400.0, 12.0))?;
+                    out.write(
+                        Topic::ArmSdk,
+                        ns,
+                        cdr.low_cmd(ARM_BASE, &q, &dq, 400.0, 12.0),
+                    )?;
                 }
                 2 => {
                     i_bms += 1;
@@ -468,14 +491,20 @@ impl Engine<'_> {
                 }
                 _ => {
                     i_mbs += 1;
-                    let p = window_mean(&power_hist, t - latency, SENSOR_WINDOW_S) + noise.mbs_w * gauss(rng);
+                    let p = window_mean(&power_hist, t - latency, SENSOR_WINDOW_S)
+                        + noise.mbs_w * gauss(rng);
                     let volts = quant(pack_volts(soc) - 0.4 + 0.005 * gauss(rng), 0.01);
                     let amps = quant(p / volts, 0.001);
                     let fan = 2085.0 + 10.0 * gauss(rng);
                     out.write(
                         Topic::Mbs,
                         ns,
-                        cdr.main_board_state(volts as f32, amps as f32, [fan as u16, (fan - 30.0) as u16], [39, 36]),
+                        cdr.main_board_state(
+                            volts as f32,
+                            amps as f32,
+                            [fan as u16, (fan - 30.0) as u16],
+                            [39, 36],
+                        ),
                     )?;
                 }
             }
@@ -509,7 +538,9 @@ fn window_mean(hist: &VecDeque<(f64, f64)>, end: f64, window: f64) -> f64 {
     if n > 0 {
         return sum / n as f64;
     }
-    let nearest = hist.iter().min_by(|a, b| (a.0 - end).abs().total_cmp(&(b.0 - end).abs()));
+    let nearest = hist
+        .iter()
+        .min_by(|a, b| (a.0 - end).abs().total_cmp(&(b.0 - end).abs()));
     nearest.map_or(P_REST_W, |&(_, p)| p)
 }
 
@@ -555,7 +586,11 @@ fn imu_state(
         cr * cp * sy - sr * sp * cy,
     ];
     let g = 9.81;
-    let acc = [-g * pitch.sin(), g * roll.sin() * pitch.cos(), g * roll.cos() * pitch.cos()];
+    let acc = [
+        -g * pitch.sin(),
+        g * roll.sin() * pitch.cos(),
+        g * roll.cos() * pitch.cos(),
+    ];
     ImuState {
         quaternion: quat.map(|v| v as f32),
         gyroscope: [

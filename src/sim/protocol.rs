@@ -31,8 +31,15 @@ pub const HOLDOUT_SPEEDS: [f64; 4] = [0.75, 1.25, 1.75, 2.25];
 
 /// Waypoint ranges [rad] per joint: inside the URDF limits of `g1_29dof_with_hand_rev_1_0.urdf`
 /// and away from the body (shoulder roll positive = abduction for the left arm).
-pub const SAFE_RANGE: [[f64; 2]; N_JOINTS] =
-    [[-1.25, 0.5], [0.2, 1.3], [-0.4, 0.85], [-1.0, 1.0], [-1.25, 1.25], [-1.1, 0.9], [-1.0, 0.9]];
+pub const SAFE_RANGE: [[f64; 2]; N_JOINTS] = [
+    [-1.25, 0.5],
+    [0.2, 1.3],
+    [-0.4, 0.85],
+    [-1.0, 1.0],
+    [-1.25, 1.25],
+    [-1.1, 0.9],
+    [-1.0, 0.9],
+];
 
 /// Smallest waypoint-to-waypoint step of a moved joint [rad], so every segment is a real motion.
 const MIN_STEP: f64 = 0.3;
@@ -76,7 +83,9 @@ impl std::str::FromStr for Preset {
             "paper" => Preset::Paper,
             "holdout" => Preset::Holdout,
             "example" => Preset::Example,
-            _ => anyhow::bail!("unknown preset {s:?} (expected tiny, smoke, paper, holdout or example)"),
+            _ => anyhow::bail!(
+                "unknown preset {s:?} (expected tiny, smoke, paper, holdout or example)"
+            ),
         })
     }
 }
@@ -129,7 +138,12 @@ pub fn route(joints: &[usize], variant: usize, route_seed: u64) -> Route {
         2 => ("p", "pair".to_string()),
         n => ("c", format!("combo{n}")),
     };
-    Route { id: format!("{prefix}{names}_{variant}"), kind, joints: joints.to_vec(), waypoints }
+    Route {
+        id: format!("{prefix}{names}_{variant}"),
+        kind,
+        joints: joints.to_vec(),
+        waypoints,
+    }
 }
 
 /// All k-joint combinations of the 7 joints, in lexicographic order.
@@ -202,7 +216,11 @@ pub fn plan(preset: Preset, seed: u64, route_seed: u64) -> Vec<PlannedTrial> {
             routes.push(r(&pairs[rng.random_range(0..pairs.len())], 1));
             routes.push(r(&[0], 1));
             let offset = rng.random_range(0..ID_SPEEDS.len());
-            routes.into_iter().enumerate().map(|(k, route)| t(route, ID_SPEEDS[(k + offset) % ID_SPEEDS.len()])).collect()
+            routes
+                .into_iter()
+                .enumerate()
+                .map(|(k, route)| t(route, ID_SPEEDS[(k + offset) % ID_SPEEDS.len()]))
+                .collect()
         }
         Preset::Paper => {
             // 7×4 single sweeps, 21×3 pairs, 35×2 triples, 35 quads, 2 five-, 1 six-, 1 seven-joint
@@ -220,8 +238,10 @@ pub fn plan(preset: Preset, seed: u64, route_seed: u64) -> Vec<PlannedTrial> {
             routes.push(r(&fives[fives.len() - 1], 0));
             routes.push(r(&[0, 1, 2, 3, 4, 5], 0));
             routes.push(r(&[0, 1, 2, 3, 4, 5, 6], 0));
-            let mut trials: Vec<PlannedTrial> =
-                routes.iter().flat_map(|route| ID_SPEEDS.iter().map(move |&s| t(route.clone(), s))).collect();
+            let mut trials: Vec<PlannedTrial> = routes
+                .iter()
+                .flat_map(|route| ID_SPEEDS.iter().map(move |&s| t(route.clone(), s)))
+                .collect();
             trials.shuffle(&mut rng);
             trials
         }
@@ -312,9 +332,16 @@ impl Schedule {
             let traj_start = t;
             let mut q = [0.0; N_JOINTS];
             for wp in &tr.route.waypoints {
-                let max_dq = (0..N_JOINTS).map(|j| (wp[j] - q[j]).abs()).fold(0.0, f64::max);
+                let max_dq = (0..N_JOINTS)
+                    .map(|j| (wp[j] - q[j]).abs())
+                    .fold(0.0, f64::max);
                 let dur = segment_duration(max_dq, tr.qdot_max);
-                segments.push(Segment { t0: t, dur, q0: q, q1: *wp });
+                segments.push(Segment {
+                    t0: t,
+                    dur,
+                    q0: q,
+                    q1: *wp,
+                });
                 t += dur;
                 q = *wp;
             }
@@ -323,17 +350,37 @@ impl Schedule {
             let post_idle_end = t;
             let max_q = q.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             let dur = segment_duration(max_q, RETURN_SPEED);
-            segments.push(Segment { t0: t, dur, q0: q, q1: [0.0; N_JOINTS] });
+            segments.push(Segment {
+                t0: t,
+                dur,
+                q0: q,
+                q1: [0.0; N_JOINTS],
+            });
             t += dur;
-            times.push(TrialTimes { trial_start, traj_start, traj_end, post_idle_end, return_end: t });
+            times.push(TrialTimes {
+                trial_start,
+                traj_start,
+                traj_end,
+                post_idle_end,
+                return_end: t,
+            });
         }
-        Schedule { segments, trials: times, duration: t + TAIL_S }
+        Schedule {
+            segments,
+            trials: times,
+            duration: t + TAIL_S,
+        }
     }
 
     /// Commanded position, velocity and acceleration at time `t` [s]. `hint` is a segment cursor
     /// for monotone queries (start at 0).
-    pub fn eval(&self, t: f64, hint: &mut usize) -> ([f64; N_JOINTS], [f64; N_JOINTS], [f64; N_JOINTS]) {
-        while *hint < self.segments.len() && self.segments[*hint].t0 + self.segments[*hint].dur <= t {
+    pub fn eval(
+        &self,
+        t: f64,
+        hint: &mut usize,
+    ) -> ([f64; N_JOINTS], [f64; N_JOINTS], [f64; N_JOINTS]) {
+        while *hint < self.segments.len() && self.segments[*hint].t0 + self.segments[*hint].dur <= t
+        {
             *hint += 1;
         }
         while *hint > 0 && self.segments[*hint - 1].t0 + self.segments[*hint - 1].dur > t {
@@ -346,7 +393,11 @@ impl Schedule {
             Some(s) if t < s.t0 => (s.q0, zero, zero),
             Some(s) => {
                 let u = ((t - s.t0) / s.dur).clamp(0.0, 1.0);
-                let (p, v, a) = (3.0 * u * u - 2.0 * u * u * u, (6.0 * u - 6.0 * u * u) / s.dur, (6.0 - 12.0 * u) / (s.dur * s.dur));
+                let (p, v, a) = (
+                    3.0 * u * u - 2.0 * u * u * u,
+                    (6.0 * u - 6.0 * u * u) / s.dur,
+                    (6.0 - 12.0 * u) / (s.dur * s.dur),
+                );
                 let mut q = zero;
                 let mut dq = zero;
                 let mut ddq = zero;
@@ -387,7 +438,10 @@ mod tests {
 
     #[test]
     fn peak_speed_equals_the_level() {
-        let tr = PlannedTrial { route: route(&[3], 0, 0), qdot_max: 1.5 };
+        let tr = PlannedTrial {
+            route: route(&[3], 0, 0),
+            qdot_max: 1.5,
+        };
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let s = Schedule::build(&[tr], &mut rng);
         let tt = s.trials[0];
@@ -399,6 +453,37 @@ mod tests {
             t += 1e-3;
         }
         assert!((peak - 1.5).abs() < 1e-3, "{peak}");
+    }
+
+    #[test]
+    fn holdout_reuses_identification_waypoints() {
+        let paper = plan(Preset::Paper, 1, 0);
+        for t in plan(Preset::Holdout, 2, 0) {
+            assert!(HOLDOUT_SPEEDS.contains(&t.qdot_max));
+            let same = paper
+                .iter()
+                .find(|p| p.route.id == t.route.id)
+                .expect("route in the paper set");
+            assert_eq!(same.route.waypoints, t.route.waypoints);
+        }
+    }
+
+    #[test]
+    fn waypoints_stay_in_the_safe_ranges() {
+        for t in plan(Preset::Paper, 1, 0) {
+            assert!((3..=5).contains(&t.route.waypoints.len()));
+            for wp in &t.route.waypoints {
+                for j in 0..N_JOINTS {
+                    let [lo, hi] = SAFE_RANGE[j];
+                    let moved = t.route.joints.contains(&j);
+                    assert!(if moved {
+                        wp[j] >= lo && wp[j] <= hi
+                    } else {
+                        wp[j] == 0.0
+                    });
+                }
+            }
+        }
     }
 
     #[test]

@@ -49,7 +49,10 @@ pub struct ThermalState {
 impl ThermalState {
     /// All windings at `t_start_c` [°C].
     pub fn new(model: ThermalModel, t_start_c: f64) -> Self {
-        ThermalState { winding_c: [t_start_c; N_JOINTS], model }
+        ThermalState {
+            winding_c: [t_start_c; N_JOINTS],
+            model,
+        }
     }
 
     /// Ambient temperature at session time `t` [s].
@@ -61,11 +64,11 @@ impl ThermalState {
     /// step for a constant input over dt, stable for any dt).
     pub fn step(&mut self, t: f64, dt: f64, tau: &[f64; N_JOINTS]) {
         let amb = self.ambient(t);
-        for i in 0..N_JOINTS {
-            let heat = self.model.idle_w[i] + self.model.b_heat[i] * tau[i] * tau[i];
+        for (i, (w, tq)) in self.winding_c.iter_mut().zip(tau).enumerate() {
+            let heat = self.model.idle_w[i] + self.model.b_heat[i] * tq * tq;
             let t_eq = amb + heat * self.model.r_k_per_w[i];
             let k = (-dt / self.model.tau_s[i]).exp();
-            self.winding_c[i] = t_eq + (self.winding_c[i] - t_eq) * k;
+            *w = t_eq + (*w - t_eq) * k;
         }
     }
 
@@ -82,7 +85,10 @@ mod tests {
 
     #[test]
     fn settles_at_ambient_plus_heat_times_resistance() {
-        let m = ThermalModel { ambient_rate_k_per_h: 0.0, ..Default::default() };
+        let m = ThermalModel {
+            ambient_rate_k_per_h: 0.0,
+            ..Default::default()
+        };
         let mut s = ThermalState::new(m, 30.0);
         let tau = [2.0; N_JOINTS];
         for k in 0..100_000 {
@@ -97,7 +103,10 @@ mod tests {
     #[test]
     fn time_constant_by_hand() {
         // After one time constant a step response covers 1 − 1/e of the way.
-        let m = ThermalModel { ambient_rate_k_per_h: 0.0, ..Default::default() };
+        let m = ThermalModel {
+            ambient_rate_k_per_h: 0.0,
+            ..Default::default()
+        };
         let mut s = ThermalState::new(m, 30.0);
         let t_eq = 23.0 + m.idle_w[0] * m.r_k_per_w[0];
         let steps = 1500 * 100;

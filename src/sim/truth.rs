@@ -145,7 +145,14 @@ pub struct Noise {
 
 impl Default for Noise {
     fn default() -> Self {
-        Noise { q_rad: 1e-4, dq_rad_s: 0.003, tau_nm: 0.05, mbs_w: 0.3, bms_w: 1.5, gyro_rad_s: 0.002 }
+        Noise {
+            q_rad: 1e-4,
+            dq_rad_s: 0.003,
+            tau_nm: 0.05,
+            mbs_w: 0.3,
+            bms_w: 1.5,
+            gyro_rad_s: 0.002,
+        }
     }
 }
 
@@ -286,7 +293,11 @@ pub struct TrialTruth {
     /// Hardware-event outlier in this trial.
     pub outlier: bool,
     /// Outlier step [W].
-    #[serde(rename = "outlier_step_W", skip_serializing_if = "Option::is_none", default)]
+    #[serde(
+        rename = "outlier_step_W",
+        skip_serializing_if = "Option::is_none",
+        default
+    )]
     pub outlier_step_w: Option<f64>,
     /// Outlier start [ns].
     #[serde(skip_serializing_if = "Option::is_none", default)]
@@ -363,7 +374,9 @@ impl Truth {
     /// Read a truth sidecar (ours; the shared ones have extra fields and are read as JSON values).
     pub fn load(path: &std::path::Path) -> anyhow::Result<Truth> {
         use anyhow::Context;
-        let text = std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
-        serde_json::from_str(&text).with_context(|| format!("parsing truth file {}", path.display()))
+        let text =
+            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        serde_json::from_str(&text)
+            .with_context(|| format!("parsing truth file {}", path.display()))
     }
 }

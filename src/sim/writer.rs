@@ -11,25 +11,19 @@ use anyhow::{Context, Result};
 /// Number of motor slots in `LowState.motor_state` / `LowCmd.motor_cmd`.
 pub const N_MOTORS: usize = 35;
 
-/// The .msg texts of the `unitree_hg` types the twin writes (same field lists as Unitree's
-/// `unitree_hg` package).
-mod msg {
-    pub const LOW_STATE: &str = "uint32[2] version\nuint8 mode_pr\nuint8 mode_machine\nuint32 tick\nIMUState imu_state\nMotorState[35] motor_state\nuint8[40] wireless_remote\nuint32[4] reserve\nuint32 crc";
-    pub const IMU_STATE: &str = "float32[4] quaternion\nfloat32[3] gyroscope\nfloat32[3] accelerometer\nfloat32[3] rpy\nint16 temperature";
-    pub const MOTOR_STATE: &str = "uint8 mode\nfloat32 q\nfloat32 dq\nfloat32 ddq\nfloat32 tau_est\n\nint16[2] temperature\nfloat32 vol\nuint32[2] sensor\nuint32 motorstate\nuint32[4] reserve";
-    pub const LOW_CMD: &str = "uint8 mode_pr\nuint8 mode_machine\n\nMotorCmd[35] motor_cmd\n\nuint32[4] reserve\nuint32 crc";
-    pub const MOTOR_CMD: &str = "uint8 mode\nfloat32 q\nfloat32 dq\nfloat32 tau\nfloat32 kp\nfloat32 kd\nuint32 reserve";
-    pub const MAIN_BOARD_STATE: &str = "uint16[6] fan_state\nint16[6] temperature\nfloat32[6] value\nuint32[6] state";
-    pub const BMS_STATE: &str = "uint8 version_high\nuint8 version_low\nuint8 fn\nuint16[40] cell_vol\nuint32[3] bmsvoltage\nint32 current\nuint8 soc\nuint8 soh\nint16[12] temperature\nuint16 cycle\nuint16 manufacturer_date\nuint32[5] bmsstate\nuint32[3] reserve";
-}
-
 /// The standard ROS 2 concatenated schema text: the root type's .msg text, then for each
 /// dependency a line of 80 `=`, `MSG: pkg/Type` and its text.
-fn ros2msg_schema(root: &str, deps: &[(&str, &str)]) -> String {
-    let mut s = String::with_capacity(1024);
-    s.push_str(root.trim_end());
+/// Texts come from the definitions built into the reader (`read::msgdef::builtin_definition`).
+fn ros2msg_schema(root: &str, deps: &[&str]) -> Result<String> {
+    let text = |ty: &str| {
+        crate::read::msgdef::builtin_definition(ty)
+            .with_context(|| format!("no built-in message definition for {ty}"))
+    };
+    let mut s = String::with_capacity(2048);
+    s.push_str(text(root)?.trim_end());
     s.push('\n');
-    for (name, text) in deps {
+    for name in deps {
+        let text = text(name)?;
         s.push_str(&"=".repeat(80));
         s.push_str("\nMSG: ");
         s.push_str(name);
@@ -37,67 +31,83 @@ fn ros2msg_schema(root: &str, deps: &[(&str, &str)]) -> String {
         s.push_str(text.trim_end());
         s.push('\n');
     }
-    s
+    Ok(s)
 }
 
-/// Little-endian XCDR1 serializer into a reusable buffer. Alignment is relative to the start of
-/// the body (after the 4-byte encapsulation header), as CDR requires.
-#[derive(Default)]
+/// Little-endian XCDR1 serializer into a reusable fixed buffer (the four message types are at
+/// most 2092 bytes). Alignment is relative to the start of the body (after the 4-byte
+/// encapsulation header), as CDR requires.
 pub struct Cdr {
-    buf: Vec<u8>,
+    buf: Box<[u8; Cdr::CAPACITY]>,
+    len: usize,
+}
+
+impl Default for Cdr {
+    fn default() -> Self {
+        Cdr {
+            buf: Box::new([0; Cdr::CAPACITY]),
+            len: 0,
+        }
+    }
 }
 
 impl Cdr {
     const HEADER: [u8; 4] = [0x00, 0x01, 0x00, 0x00];
+    const CAPACITY: usize = 4096;
 
     fn start(&mut self) {
-        self.buf.clear();
-        self.buf.extend_from_slice(&Self::HEADER);
+        self.buf[..4].copy_from_slice(&Self::HEADER);
+        self.len = 4;
+    }
+    #[inline(always)]
+    fn put<const N: usize>(&mut self, bytes: [u8; N]) {
+        self.buf[self.len..self.len + N].copy_from_slice(&bytes);
+        self.len += N;
     }
     #[inline(always)]
     fn align(&mut self, n: usize) {
-        let body = self.buf.len() - 4;
-        let pad = (n - body % n) % n;
-        self.buf.resize(self.buf.len() + pad, 0);
+        let pad = (n - (self.len - 4) % n) % n;
+        self.buf[self.len..self.len + pad].fill(0);
+        self.len += pad;
     }
     #[inline(always)]
     fn u8(&mut self, v: u8) {
-        self.buf.push(v);
+        self.put([v]);
     }
     #[inline(always)]
     fn u16(&mut self, v: u16) {
         self.align(2);
-        self.buf.extend_from_slice(&v.to_le_bytes());
+        self.put(v.to_le_bytes());
     }
     #[inline(always)]
     fn i16(&mut self, v: i16) {
         self.align(2);
-        self.buf.extend_from_slice(&v.to_le_bytes());
+        self.put(v.to_le_bytes());
     }
     #[inline(always)]
     fn u32(&mut self, v: u32) {
         self.align(4);
-        self.buf.extend_from_slice(&v.to_le_bytes());
+        self.put(v.to_le_bytes());
     }
     #[inline(always)]
     fn i32(&mut self, v: i32) {
         self.align(4);
-        self.buf.extend_from_slice(&v.to_le_bytes());
+        self.put(v.to_le_bytes());
     }
     #[inline(always)]
     fn f32(&mut self, v: f32) {
         self.align(4);
-        self.buf.extend_from_slice(&v.to_le_bytes());
+        self.put(v.to_le_bytes());
     }
     /// Append the CRC field: zlib CRC-32 of the body before it (the shared files' convention).
     fn crc(&mut self) {
         self.align(4);
-        let crc = crc32fast::hash(&self.buf[4..]);
-        self.buf.extend_from_slice(&crc.to_le_bytes());
+        let crc = crc32fast::hash(&self.buf[4..self.len]);
+        self.put(crc.to_le_bytes());
     }
     /// The encoded message (header + body).
     pub fn bytes(&self) -> &[u8] {
-        &self.buf
+        &self.buf[..self.len]
     }
 }
 
@@ -135,14 +145,25 @@ pub struct ImuState {
 
 impl Cdr {
     /// Encode a `unitree_hg/msg/LowState`.
-    pub fn low_state(&mut self, tick: u32, imu: &ImuState, motors: &[MotorState; N_MOTORS]) -> &[u8] {
+    pub fn low_state(
+        &mut self,
+        tick: u32,
+        imu: &ImuState,
+        motors: &[MotorState; N_MOTORS],
+    ) -> &[u8] {
         self.start();
         self.u32(0); // version[0]
         self.u32(1); // version[1]
         self.u8(0); // mode_pr
         self.u8(5); // mode_machine (G1 29-DoF)
         self.u32(tick);
-        for v in imu.quaternion.iter().chain(&imu.gyroscope).chain(&imu.accelerometer).chain(&imu.rpy) {
+        for v in imu
+            .quaternion
+            .iter()
+            .chain(&imu.gyroscope)
+            .chain(&imu.accelerometer)
+            .chain(&imu.rpy)
+        {
             self.f32(*v);
         }
         self.i16(imu.temperature);
@@ -159,17 +180,24 @@ impl Cdr {
                 self.u32(0); // sensor[2], motorstate, reserve[4]
             }
         }
-        self.buf.extend_from_slice(&[0u8; 40]); // wireless_remote
+        self.put([0u8; 40]); // wireless_remote
         for _ in 0..4 {
             self.u32(0);
         }
         self.crc();
-        &self.buf
+        self.bytes()
     }
 
     /// Encode a `unitree_hg/msg/LowCmd` for the arm SDK: the 7 slots starting at `arm_base` carry
     /// `q`/`dq` with the PD gains, slot 29 carries the arm_sdk weight 1.0.
-    pub fn low_cmd(&mut self, arm_base: usize, q: &[f64; 7], dq: &[f64; 7], kp: f32, kd: f32) -> &[u8] {
+    pub fn low_cmd(
+        &mut self,
+        arm_base: usize,
+        q: &[f64; 7],
+        dq: &[f64; 7],
+        kp: f32,
+        kd: f32,
+    ) -> &[u8] {
         self.start();
         self.u8(0);
         self.u8(5);
@@ -198,29 +226,31 @@ impl Cdr {
             self.u32(0);
         }
         self.crc();
-        &self.buf
+        self.bytes()
     }
 
     /// Encode a `unitree_hg/msg/MainBoardState` (value[0] = rail voltage [V], value[1] = current [A]).
-    pub fn main_board_state(&mut self, volts: f32, amps: f32, fan_rpm: [u16; 2], temps: [i16; 2]) -> &[u8] {
+    pub fn main_board_state(
+        &mut self,
+        volts: f32,
+        amps: f32,
+        fan_rpm: [u16; 2],
+        temps: [i16; 2],
+    ) -> &[u8] {
         self.start();
-        for k in 0..6 {
-            self.u16(if k < 2 { fan_rpm[k] } else { 0 });
+        for v in [fan_rpm[0], fan_rpm[1], 0, 0, 0, 0] {
+            self.u16(v);
         }
-        for k in 0..6 {
-            self.i16(if k < 2 { temps[k] } else { 0 });
+        for v in [temps[0], temps[1], 0, 0, 0, 0] {
+            self.i16(v);
         }
-        for k in 0..6 {
-            self.f32(match k {
-                0 => volts,
-                1 => amps,
-                _ => 0.0,
-            });
+        for v in [volts, amps, 0.0, 0.0, 0.0, 0.0] {
+            self.f32(v);
         }
         for _ in 0..6 {
             self.u32(0);
         }
-        &self.buf
+        self.bytes()
     }
 
     /// Encode a `unitree_hg/msg/BmsState` (pack voltage [mV], discharge current [mA]).
@@ -246,7 +276,7 @@ impl Cdr {
         for _ in 0..5 + 3 {
             self.u32(0);
         }
-        &self.buf
+        self.bytes()
     }
 }
 
@@ -301,9 +331,13 @@ impl<W: Write + Seek> McapOut<W> {
     pub fn new(w: W) -> Result<Self> {
         let opts = mcap::WriteOptions::new()
             .profile("ros2")
-            .library(concat!("g1viz/", env!("CARGO_PKG_VERSION"), "; mcap-rs 0.26"))
+            .library(concat!(
+                "g1viz/",
+                env!("CARGO_PKG_VERSION"),
+                "; mcap-rs 0.26"
+            ))
             .compression(Some(mcap::Compression::Zstd))
-            .compression_level(3)
+            .compression_level(1)
             // One background zstd worker: overlaps compression with simulation, and zstd's
             // multi-threaded output is identical for any worker count ≥ 1 (deterministic files).
             .compression_threads(1)
@@ -311,19 +345,27 @@ impl<W: Write + Seek> McapOut<W> {
         let mut inner = opts.create(w).context("starting MCAP output")?;
         let schemas = [
             ros2msg_schema(
-                msg::LOW_STATE,
-                &[("unitree_hg/IMUState", msg::IMU_STATE), ("unitree_hg/MotorState", msg::MOTOR_STATE)],
-            ),
-            ros2msg_schema(msg::LOW_CMD, &[("unitree_hg/MotorCmd", msg::MOTOR_CMD)]),
-            ros2msg_schema(msg::BMS_STATE, &[]),
-            ros2msg_schema(msg::MAIN_BOARD_STATE, &[]),
+                TOPICS[0].1,
+                &["unitree_hg/IMUState", "unitree_hg/MotorState"],
+            )?,
+            ros2msg_schema(TOPICS[1].1, &["unitree_hg/MotorCmd"])?,
+            ros2msg_schema(TOPICS[2].1, &[])?,
+            ros2msg_schema(TOPICS[3].1, &[])?,
         ];
         let mut channels = [0u16; 4];
         for (k, ((topic, ty), text)) in TOPICS.iter().zip(&schemas).enumerate() {
-            let sid = inner.add_schema(ty, "ros2msg", text.as_bytes()).context("writing MCAP schema")?;
-            channels[k] = inner.add_channel(sid, topic, "cdr", &BTreeMap::new()).context("writing MCAP channel")?;
+            let sid = inner
+                .add_schema(ty, "ros2msg", text.as_bytes())
+                .context("writing MCAP schema")?;
+            channels[k] = inner
+                .add_channel(sid, topic, "cdr", &BTreeMap::new())
+                .context("writing MCAP channel")?;
         }
-        Ok(McapOut { inner, channels, counts: [0; 4] })
+        Ok(McapOut {
+            inner,
+            channels,
+            counts: [0; 4],
+        })
     }
 
     /// Write one message with log_time = publish_time = `time_ns`.
@@ -335,7 +377,9 @@ impl<W: Write + Seek> McapOut<W> {
             log_time: time_ns,
             publish_time: time_ns,
         };
-        self.inner.write_to_known_channel(&header, data).context("writing MCAP message")?;
+        self.inner
+            .write_to_known_channel(&header, data)
+            .context("writing MCAP message")?;
         self.counts[k] += 1;
         Ok(())
     }
@@ -360,10 +404,20 @@ mod tests {
     fn message_sizes_match_the_shared_recordings() {
         // Sizes of the messages in shared/recordings/g1_smoke.mcap (written by an independent CDR encoder).
         let mut c = Cdr::default();
-        assert_eq!(c.low_state(1, &ImuState::default(), &[MotorState::default(); N_MOTORS]).len(), 2092);
+        assert_eq!(
+            c.low_state(1, &ImuState::default(), &[MotorState::default(); N_MOTORS])
+                .len(),
+            2092
+        );
         assert_eq!(c.low_cmd(15, &[0.0; 7], &[0.0; 7], 400.0, 12.0).len(), 1004);
         assert_eq!(c.main_board_state(53.0, 2.0, [0, 0], [0, 0]).len(), 76);
-        let b = BmsFields { pack_mv: 0, current_ma: 0, soc_pct: 0, temps_c: [0; 4], cell_mv: [0; 13] };
+        let b = BmsFields {
+            pack_mv: 0,
+            current_ma: 0,
+            soc_pct: 0,
+            temps_c: [0; 4],
+            cell_mv: [0; 13],
+        };
         assert_eq!(c.bms_state(&b).len(), 168);
     }
 

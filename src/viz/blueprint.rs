@@ -8,10 +8,12 @@
 //! (activated and made the default), which works for files and live viewers alike.
 
 use anyhow::{Context, Result};
-use rerun::blueprint::components::{ContainerKind, IncludedContent, QueryExpression, RootContainer, ViewClass};
+use rerun::blueprint::components::{
+    ContainerKind, IncludedContent, QueryExpression, RootContainer, ViewClass,
+};
 use rerun::external::re_log_types::{
-    BlueprintActivationCommand, RecordingId, SetStoreInfo, StoreId, StoreInfo, StoreKind, StoreSource,
-    external::re_tuid::Tuid,
+    BlueprintActivationCommand, RecordingId, SetStoreInfo, StoreId, StoreInfo, StoreKind,
+    StoreSource, external::re_tuid::Tuid,
 };
 use rerun::external::re_sdk_types::blueprint::archetypes::{
     ContainerBlueprint, ViewBlueprint, ViewContents, ViewportBlueprint,
@@ -49,13 +51,33 @@ pub enum Node {
 
 impl Node {
     /// A view node.
-    pub fn view(class: &'static str, name: impl Into<String>, origin: impl Into<String>, contents: Vec<String>) -> Node {
-        Node::View { class, name: name.into(), origin: origin.into(), contents }
+    pub fn view(
+        class: &'static str,
+        name: impl Into<String>,
+        origin: impl Into<String>,
+        contents: Vec<String>,
+    ) -> Node {
+        Node::View {
+            class,
+            name: name.into(),
+            origin: origin.into(),
+            contents,
+        }
     }
 
     /// A container node.
-    pub fn container(kind: ContainerKind, name: impl Into<String>, children: Vec<Node>, shares: Vec<f32>) -> Node {
-        Node::Container { kind, name: name.into(), children, shares }
+    pub fn container(
+        kind: ContainerKind,
+        name: impl Into<String>,
+        children: Vec<Node>,
+        shares: Vec<f32>,
+    ) -> Node {
+        Node::Container {
+            kind,
+            name: name.into(),
+            children,
+            shares,
+        }
     }
 
     fn name(&self) -> &str {
@@ -87,7 +109,14 @@ fn stable_uuid(name: &str) -> [u8; 16] {
 
 fn uuid_string(b: &[u8; 16]) -> String {
     let hex: String = b.iter().map(|x| format!("{x:02x}")).collect();
-    format!("{}-{}-{}-{}-{}", &hex[0..8], &hex[8..12], &hex[12..16], &hex[16..20], &hex[20..32])
+    format!(
+        "{}-{}-{}-{}-{}",
+        &hex[0..8],
+        &hex[8..12],
+        &hex[12..16],
+        &hex[16..20],
+        &hex[20..32]
+    )
 }
 
 /// Collects blueprint chunks with deterministic ids.
@@ -103,7 +132,8 @@ const BLUEPRINT_NAMESPACE: u64 = 0x0B1E_0000_0000_0000;
 impl BlueprintChunks {
     fn log(&mut self, path: &str, data: &dyn AsComponents) -> Result<()> {
         self.counter += 1;
-        let chunk_id = ChunkId::from_tuid(Tuid::from_nanos_and_inc(BLUEPRINT_NAMESPACE, self.counter));
+        let chunk_id =
+            ChunkId::from_tuid(Tuid::from_nanos_and_inc(BLUEPRINT_NAMESPACE, self.counter));
         self.counter += 1;
         let row_id = RowId::from_tuid(Tuid::from_nanos_and_inc(BLUEPRINT_NAMESPACE, self.counter));
         let timeline = TimeColumn::new_sequence("blueprint", [0]);
@@ -121,20 +151,32 @@ impl BlueprintChunks {
             components,
         )
         .with_context(|| format!("building blueprint chunk {path}"))?;
-        self.msgs.push(LogMsg::ArrowMsg(self.store_id.clone(), chunk.to_arrow_msg()?));
+        self.msgs.push(LogMsg::ArrowMsg(
+            self.store_id.clone(),
+            chunk.to_arrow_msg()?,
+        ));
         Ok(())
     }
 
     fn node(&mut self, node: &Node) -> Result<()> {
         let path = node.blueprint_path();
         match node {
-            Node::Container { kind, name, children, shares } => {
+            Node::Container {
+                kind,
+                name,
+                children,
+                shares,
+            } => {
                 for child in children {
                     self.node(child)?;
                 }
                 let mut arch = ContainerBlueprint::new(*kind)
                     .with_display_name(name.as_str())
-                    .with_contents(children.iter().map(|c| IncludedContent(format!("/{}", c.blueprint_path()).into())));
+                    .with_contents(
+                        children
+                            .iter()
+                            .map(|c| IncludedContent(format!("/{}", c.blueprint_path()).into())),
+                    );
                 if !shares.is_empty() {
                     arch = match kind {
                         ContainerKind::Vertical => arch.with_row_shares(shares.iter().copied()),
@@ -143,11 +185,19 @@ impl BlueprintChunks {
                 }
                 self.log(&path, &arch)
             }
-            Node::View { class, name, origin, contents } => {
+            Node::View {
+                class,
+                name,
+                origin,
+                contents,
+            } => {
                 let queries: Vec<QueryExpression> = if contents.is_empty() {
                     vec![QueryExpression("$origin/**".into())]
                 } else {
-                    contents.iter().map(|q| QueryExpression(q.as_str().into())).collect()
+                    contents
+                        .iter()
+                        .map(|q| QueryExpression(q.as_str().into()))
+                        .collect()
                 };
                 self.log(&format!("{path}/ViewContents"), &ViewContents::new(queries))?;
                 let arch = ViewBlueprint::new(ViewClass((*class).into()))
@@ -165,18 +215,35 @@ pub fn send_blueprint(stream: &RecordingStream, root: &Node) -> Result<()> {
         return Ok(()); // disabled stream: nothing to configure
     };
     let app_id = info.application_id().clone();
-    let store_id = StoreId::new(StoreKind::Blueprint, app_id, RecordingId::from("g1viz-blueprint"));
+    let store_id = StoreId::new(
+        StoreKind::Blueprint,
+        app_id,
+        RecordingId::from("g1viz-blueprint"),
+    );
     let set_info = SetStoreInfo {
         row_id: Tuid::from_nanos_and_inc(BLUEPRINT_NAMESPACE, 0),
         info: StoreInfo::new(store_id.clone(), StoreSource::Other("g1viz".into())),
     };
-    let mut chunks = BlueprintChunks { store_id: store_id.clone(), counter: 0, msgs: vec![LogMsg::SetStoreInfo(set_info)] };
+    let mut chunks = BlueprintChunks {
+        store_id: store_id.clone(),
+        counter: 0,
+        msgs: vec![LogMsg::SetStoreInfo(set_info)],
+    };
     chunks.node(root)?;
-    let root_id = Uuid { bytes: stable_uuid(root.name()) };
-    chunks.log("viewport", &ViewportBlueprint::new().with_root_container(RootContainer(root_id)))?;
+    let root_id = Uuid {
+        bytes: stable_uuid(root.name()),
+    };
+    chunks.log(
+        "viewport",
+        &ViewportBlueprint::new().with_root_container(RootContainer(root_id)),
+    )?;
     stream.send_blueprint(
         chunks.msgs,
-        BlueprintActivationCommand { blueprint_id: store_id, make_active: true, make_default: true },
+        BlueprintActivationCommand {
+            blueprint_id: store_id,
+            make_active: true,
+            make_default: true,
+        },
     );
     Ok(())
 }
@@ -197,7 +264,12 @@ pub struct LayoutParts {
 /// and the trial log.
 pub fn replay_layout(joints: &[String], parts: LayoutParts) -> Node {
     use ContainerKind::{Horizontal, Tabs, Vertical};
-    let each = |signal: &str| joints.iter().map(|j| format!("+ /joints/{j}/{signal}")).collect::<Vec<_>>();
+    let each = |signal: &str| {
+        joints
+            .iter()
+            .map(|j| format!("+ /joints/{j}/{signal}"))
+            .collect::<Vec<_>>()
+    };
     let mut q = each("q");
     q.extend(each("q_cmd"));
 
@@ -221,13 +293,28 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts) -> Node {
         Node::view("TimeSeries", "Joint position q [rad]", "/", q),
         Node::view("TimeSeries", "Joint velocity dq [rad/s]", "/", each("dq")),
         Node::view("TimeSeries", "Joint torque tau [Nm]", "/", each("tau")),
-        Node::view("TimeSeries", "Motor temperature [°C]", "/", each("temperature")),
+        Node::view(
+            "TimeSeries",
+            "Motor temperature [°C]",
+            "/",
+            each("temperature"),
+        ),
     ];
     if parts.model {
         for j in joints {
-            tabs.push(Node::view("TimeSeries", format!("Loss terms {j} [W]"), format!("/model/terms/{j}"), vec![]));
+            tabs.push(Node::view(
+                "TimeSeries",
+                format!("Loss terms {j} [W]"),
+                format!("/model/terms/{j}"),
+                vec![],
+            ));
         }
-        tabs.push(Node::view("TimeSeries", "Interaction losses [W]", "/model/terms/interaction", vec![]));
+        tabs.push(Node::view(
+            "TimeSeries",
+            "Interaction losses [W]",
+            "/model/terms/interaction",
+            vec![],
+        ));
     }
     tabs.push(Node::view("TimeSeries", "IMU |ω| [rad/s]", "/imu", vec![]));
     if parts.trials || parts.diagnosis {
@@ -238,7 +325,12 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts) -> Node {
         tabs.push(Node::view("TextLog", "Trials", "/", logs));
     }
     if parts.diagnosis {
-        tabs.push(Node::view("TextDocument", "Diagnosis summary", "/diagnosis/summary", vec![]));
+        tabs.push(Node::view(
+            "TextDocument",
+            "Diagnosis summary",
+            "/diagnosis/summary",
+            vec![],
+        ));
     }
     right.push(Node::container(Tabs, "Signals", tabs, vec![]));
     let n = right.len();

@@ -7,11 +7,13 @@
 //! wall-clock ids and `log_time`). The recording id is derived from the input
 //! ([`recording_id_for`]), the blueprint uses fixed ids ([`blueprint`]), and `.rrd` files are
 //! encoded by our own sink ([`rrd_sink`]), which also replaces the random row id the SDK puts on
-//! the store-info message. The one remaining difference between two runs is the order of the
-//! per-store manifests in the RRD footer (the SDK keeps them in a `HashMap`), so two files agree
-//! message for message when decoded but may differ in their last few hundred bytes.
+//! the store-info message. Two runs give byte-identical data sections (stream header and every
+//! message, checked in tests/viz.rs); only the RRD footer differs, because the SDK builds its
+//! per-store chunk manifests from `HashMap`s (store order and manifest column order vary).
+//! The footer is an index the viewer can rebuild; decoded, the two files are equal.
 
 pub mod blueprint;
+pub mod overlay;
 pub mod replay;
 mod robot3d;
 mod rrd_sink;
@@ -59,7 +61,9 @@ impl VizStream {
     /// the target. Errors (disk full, viewer gone) are reported here.
     pub fn finish(self) -> Result<()> {
         let VizStream { stream, file } = self;
-        stream.flush_blocking().context("flushing the Rerun stream")?;
+        stream
+            .flush_blocking()
+            .context("flushing the Rerun stream")?;
         match file {
             Some(file) => {
                 drop(stream);
@@ -73,8 +77,15 @@ impl VizStream {
 /// Opens a Rerun output for application `app_id` with a fixed `recording_id` (see
 /// [`recording_id_for`]). `inputs` are the files the recording is made from: saving onto one of
 /// them is refused (canonical paths compared).
-pub fn open_stream(app_id: &str, recording_id: &str, sink: &Sink, inputs: &[&Path]) -> Result<VizStream> {
-    let builder = rerun::RecordingStreamBuilder::new(app_id).recording_id(recording_id);
+pub fn open_stream(
+    app_id: &str,
+    recording_id: &str,
+    sink: &Sink,
+    inputs: &[&Path],
+) -> Result<VizStream> {
+    let app = rerun::ApplicationId::try_new(app_id)
+        .with_context(|| format!("invalid Rerun application id {app_id:?}"))?;
+    let builder = rerun::RecordingStreamBuilder::new(app).recording_id(recording_id.to_owned());
     match sink {
         Sink::Save(path) => {
             refuse_overwrite(path, inputs)?;
@@ -82,17 +93,25 @@ pub fn open_stream(app_id: &str, recording_id: &str, sink: &Sink, inputs: &[&Pat
             let (_enabled, store_info, _props, batcher, hooks, _blueprint) = builder.into_args();
             let stream = RecordingStream::new(store_info, None, batcher, hooks, Box::new(sink))
                 .context("creating the Rerun recording stream")?;
-            Ok(VizStream { stream, file: Some(file) })
+            Ok(VizStream {
+                stream,
+                file: Some(file),
+            })
         }
         Sink::Connect(url) => {
-            let url = url.clone().unwrap_or_else(|| rerun::DEFAULT_CONNECT_URL.to_owned());
+            let url = url
+                .clone()
+                .unwrap_or_else(|| rerun::DEFAULT_CONNECT_URL.to_owned());
             let stream = builder
                 .connect_grpc_opts(url.clone())
                 .with_context(|| format!("connecting to the Rerun viewer at {url}"))?;
             Ok(VizStream { stream, file: None })
         }
         Sink::Spawn { memory_limit } => {
-            let opts = rerun::SpawnOptions { memory_limit: memory_limit.clone(), ..Default::default() };
+            let opts = rerun::SpawnOptions {
+                memory_limit: memory_limit.clone(),
+                ..Default::default()
+            };
             let stream = builder.spawn_opts(&opts).context(
                 "starting the Rerun viewer (needs `rerun` on PATH: pip install rerun-sdk==0.36.3)",
             )?;
@@ -149,7 +168,11 @@ pub(crate) fn stable_hash(parts: &[&[u8]]) -> u64 {
 /// the same input gives the same id (so repeated runs produce comparable files), a different
 /// session a different one. The directory is left out so that a copied file replays the same.
 pub fn recording_id_for(rec: &crate::signals::Recording) -> String {
-    let name = rec.source.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let name = rec
+        .source
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
     let size = std::fs::metadata(&rec.source).map(|m| m.len()).unwrap_or(0);
     let h = stable_hash(&[
         name.as_bytes(),
@@ -165,7 +188,10 @@ pub fn recording_id_for(rec: &crate::signals::Recording) -> String {
 /// comparing sessions). Both are built from the same seconds-since-start values.
 pub(crate) fn time_columns(start_ns: u64, t: &[f64]) -> [TimeColumn; 2] {
     let rel: Vec<i64> = t.iter().map(|&s| (s * 1e9).round() as i64).collect();
-    let abs: Vec<i64> = rel.iter().map(|&r| (start_ns as i64).saturating_add(r)).collect();
+    let abs: Vec<i64> = rel
+        .iter()
+        .map(|&r| (start_ns as i64).saturating_add(r))
+        .collect();
     [
         TimeColumn::new_timestamp_nanos_since_epoch("time", abs),
         TimeColumn::new_duration_nanos("session", rel),
@@ -186,7 +212,12 @@ pub struct ChunkWriter<'a> {
 impl<'a> ChunkWriter<'a> {
     /// A writer for the session starting at `start_ns` (the timeline origin).
     pub fn new(stream: &'a RecordingStream, namespace: u64, start_ns: u64) -> Self {
-        ChunkWriter { stream, namespace, counter: 0, start_ns }
+        ChunkWriter {
+            stream,
+            namespace,
+            counter: 0,
+            start_ns,
+        }
     }
 
     fn next_tuid(&mut self) -> Tuid {
@@ -207,17 +238,34 @@ impl<'a> ChunkWriter<'a> {
     ) -> Result<()> {
         let chunk_id = ChunkId::from_tuid(self.next_tuid());
         let row_ids = self.row_ids(t.len());
-        let timelines = time_columns(self.start_ns, t).into_iter().map(|c| (*c.timeline().name(), c)).collect();
-        let components: ChunkComponents = columns.into_iter().map(|c| (c.descriptor, c.list_array)).collect();
-        let chunk = Chunk::from_native_row_ids(chunk_id, path.into(), None, &row_ids, timelines, components)
-            .with_context(|| format!("building the Rerun chunk for {path}"))?;
+        let timelines = time_columns(self.start_ns, t)
+            .into_iter()
+            .map(|c| (*c.timeline().name(), c))
+            .collect();
+        let components: ChunkComponents = columns
+            .into_iter()
+            .map(|c| (c.descriptor, c.list_array))
+            .collect();
+        let chunk = Chunk::from_native_row_ids(
+            chunk_id,
+            path.into(),
+            None,
+            &row_ids,
+            timelines,
+            components,
+        )
+        .with_context(|| format!("building the Rerun chunk for {path}"))?;
         self.stream.send_chunk(chunk);
         Ok(())
     }
 
     /// Sends one row of `data` on `path` at time `t` [s since start].
     pub fn send_row(&mut self, path: &str, t: f64, data: &dyn AsComponents) -> Result<()> {
-        let columns = data.as_serialized_batches().into_iter().map(|b| b.partitioned([1])).collect::<Result<Vec<_>, _>>()?;
+        let columns = data
+            .as_serialized_batches()
+            .into_iter()
+            .map(|b| b.partitioned([1]))
+            .collect::<Result<Vec<_>, _>>()?;
         self.send_columns(path, &[t], columns)
     }
 
@@ -230,8 +278,15 @@ impl<'a> ChunkWriter<'a> {
             .into_iter()
             .map(|b| b.partitioned([1]).map(|c| (c.descriptor, c.list_array)))
             .collect::<Result<_, _>>()?;
-        let chunk = Chunk::from_native_row_ids(chunk_id, path.into(), Some(true), &row_ids, Default::default(), components)
-            .with_context(|| format!("building the static Rerun chunk for {path}"))?;
+        let chunk = Chunk::from_native_row_ids(
+            chunk_id,
+            path.into(),
+            Some(true),
+            &row_ids,
+            Default::default(),
+            components,
+        )
+        .with_context(|| format!("building the static Rerun chunk for {path}"))?;
         self.stream.send_chunk(chunk);
         Ok(())
     }
@@ -249,5 +304,13 @@ pub fn short_joint_name(urdf_name: &str) -> String {
     }
     let s = s.strip_suffix("_joint").unwrap_or(s);
     let s = s.replace("shoulder", "sh").replace("wrist", "wr");
-    s.chars().map(|c| if c.is_ascii_alphanumeric() || c == '_' { c } else { '_' }).collect()
+    s.chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '_' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect()
 }

@@ -16,7 +16,7 @@
 //! Long series are sent column-wise in chunks of [`ReplayOptions::chunk_rows`] samples, so memory
 //! stays bounded whatever the session length.
 
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use rerun::components::TextLogLevel;
 use rerun::{Color, RecordingStream, Scalars, SeriesLines, SeriesPoints, TextDocument, TextLog};
@@ -196,20 +196,38 @@ pub fn log_replay(
     stream: &RecordingStream,
 ) -> Result<ReplaySummary> {
     check_lengths(rec)?;
-    let joints: Vec<String> = rec.joint_names.iter().map(|n| short_joint_name(n)).collect();
+    let joints: Vec<String> = rec
+        .joint_names
+        .iter()
+        .map(|n| short_joint_name(n))
+        .collect();
     if joints.len() != N_JOINTS {
-        bail!("{}: expected {N_JOINTS} arm joint names, got {}", rec.source.display(), joints.len());
+        bail!(
+            "{}: expected {N_JOINTS} arm joint names, got {}",
+            rec.source.display(),
+            joints.len()
+        );
     }
-    let mut summary = ReplaySummary { samples: rec.state.t.len(), ..Default::default() };
+    let mut summary = ReplaySummary {
+        samples: rec.state.t.len(),
+        ..Default::default()
+    };
     let mut w = ChunkWriter::new(stream, REPLAY_NAMESPACE, rec.start_ns);
 
     if opts.blueprint {
         let parts = LayoutParts {
-            model: extras.prediction.is_some() || extras.terms.is_some() || !extras.trajectories.is_empty(),
+            model: extras.prediction.is_some()
+                || extras.terms.is_some()
+                || !extras.trajectories.is_empty(),
             diagnosis: extras.diagnosis.is_some(),
             trials: !extras.trials.is_empty(),
         };
         blueprint::send_blueprint(stream, &blueprint::replay_layout(&joints, parts))?;
+        // The blueprint bypasses the batcher: flush so it reaches the sink before any data chunk
+        // (a fixed message order is part of the reproducible output).
+        stream
+            .flush_blocking()
+            .context("sending the viewer layout")?;
     }
     let scene = robot3d::log_static_robot(&mut w, robot, arm, &mut summary.warnings)?;
     log_styles(&mut w, &joints, !rec.command.t.is_empty())?;
@@ -223,11 +241,28 @@ pub fn log_replay(
         let end = (start + chunk).min(st.t.len());
         let t = &st.t[start..end];
         for (j, name) in joints.iter().enumerate() {
-            for (signal, data) in [("q", &st.q), ("dq", &st.dq), ("tau", &st.tau), ("temperature", &st.temp)] {
-                scalars(&mut w, &format!("joints/{name}/{signal}"), t, data[start..end].iter().map(|v| v[j]))?;
+            for (signal, data) in [
+                ("q", &st.q),
+                ("dq", &st.dq),
+                ("tau", &st.tau),
+                ("temperature", &st.temp),
+            ] {
+                scalars(
+                    &mut w,
+                    &format!("joints/{name}/{signal}"),
+                    t,
+                    data[start..end].iter().map(|v| v[j]),
+                )?;
             }
         }
-        scalars(&mut w, "imu/gyro_norm", t, st.gyro[start..end].iter().map(|g| (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt()))?;
+        scalars(
+            &mut w,
+            "imu/gyro_norm",
+            t,
+            st.gyro[start..end]
+                .iter()
+                .map(|g| (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt()),
+        )?;
 
         // Poses: every sample, or decimated to pose_rate_hz.
         pose_idx.clear();
@@ -250,16 +285,30 @@ pub fn log_replay(
     for start in (0..cmd.t.len()).step_by(chunk) {
         let end = (start + chunk).min(cmd.t.len());
         for (j, name) in joints.iter().enumerate() {
-            scalars(&mut w, &format!("joints/{name}/q_cmd"), &cmd.t[start..end], cmd.q[start..end].iter().map(|v| v[j]))?;
+            scalars(
+                &mut w,
+                &format!("joints/{name}/q_cmd"),
+                &cmd.t[start..end],
+                cmd.q[start..end].iter().map(|v| v[j]),
+            )?;
         }
     }
 
     let motion_t = motion_start(rec, opts.motion_threshold_rad);
-    for (k, (label, series)) in [("mbs", &rec.mbs), ("bms", &rec.bms)].into_iter().enumerate() {
+    for (k, (label, series)) in [("mbs", &rec.mbs), ("bms", &rec.bms)]
+        .into_iter()
+        .enumerate()
+    {
         if series.t.is_empty() {
             continue;
         }
-        scalars_chunked(&mut w, &format!("power/{label}/raw"), &series.t, &series.watts, chunk)?;
+        scalars_chunked(
+            &mut w,
+            &format!("power/{label}/raw"),
+            &series.t,
+            &series.watts,
+            chunk,
+        )?;
         match idle_baseline(series, motion_t) {
             Some(base) => {
                 summary.baseline_w[k] = Some(base);
@@ -282,17 +331,32 @@ pub fn log_replay(
 fn check_lengths(rec: &Recording) -> Result<()> {
     let s = &rec.state;
     let n = s.t.len();
-    for (field, len) in [("q", s.q.len()), ("dq", s.dq.len()), ("tau", s.tau.len()), ("temp", s.temp.len()), ("gyro", s.gyro.len())] {
+    for (field, len) in [
+        ("q", s.q.len()),
+        ("dq", s.dq.len()),
+        ("tau", s.tau.len()),
+        ("temp", s.temp.len()),
+        ("gyro", s.gyro.len()),
+    ] {
         if len != n {
-            bail!("{}: state.{field} has {len} samples but state.t has {n}", rec.source.display());
+            bail!(
+                "{}: state.{field} has {len} samples but state.t has {n}",
+                rec.source.display()
+            );
         }
     }
     if rec.command.q.len() != rec.command.t.len() {
-        bail!("{}: command.q and command.t differ in length", rec.source.display());
+        bail!(
+            "{}: command.q and command.t differ in length",
+            rec.source.display()
+        );
     }
     for (label, p) in [("mbs", &rec.mbs), ("bms", &rec.bms)] {
         if p.watts.len() != p.t.len() {
-            bail!("{}: {label}.watts and {label}.t differ in length", rec.source.display());
+            bail!(
+                "{}: {label}.watts and {label}.t differ in length",
+                rec.source.display()
+            );
         }
     }
     Ok(())
@@ -301,7 +365,9 @@ fn check_lengths(rec: &Recording) -> Result<()> {
 /// Time [s] of the first sample where any joint is more than `threshold` from its first value
 /// (`+∞` when the arm never moves).
 pub fn motion_start(rec: &Recording, threshold: f64) -> f64 {
-    let Some(q0) = rec.state.q.first() else { return f64::INFINITY };
+    let Some(q0) = rec.state.q.first() else {
+        return f64::INFINITY;
+    };
     rec.state
         .q
         .iter()
@@ -322,14 +388,25 @@ pub fn idle_baseline(series: &PowerSeries, motion_t: f64) -> Option<f64> {
     (!idle.is_empty()).then(|| idle.iter().sum::<f64>() / idle.len() as f64)
 }
 
-fn scalars(w: &mut ChunkWriter<'_>, path: &str, t: &[f64], values: impl Iterator<Item = f64>) -> Result<()> {
+fn scalars(
+    w: &mut ChunkWriter<'_>,
+    path: &str,
+    t: &[f64],
+    values: impl Iterator<Item = f64>,
+) -> Result<()> {
     if t.is_empty() {
         return Ok(());
     }
     w.send_columns(path, t, Scalars::new(values).columns_of_unit_batches()?)
 }
 
-fn scalars_chunked(w: &mut ChunkWriter<'_>, path: &str, t: &[f64], v: &[f64], chunk: usize) -> Result<()> {
+fn scalars_chunked(
+    w: &mut ChunkWriter<'_>,
+    path: &str,
+    t: &[f64],
+    v: &[f64],
+    chunk: usize,
+) -> Result<()> {
     let n = t.len().min(v.len());
     for start in (0..n).step_by(chunk) {
         let end = (start + chunk).min(n);
@@ -339,7 +416,10 @@ fn scalars_chunked(w: &mut ChunkWriter<'_>, path: &str, t: &[f64], v: &[f64], ch
 }
 
 fn line(w: &mut ChunkWriter<'_>, path: &str, name: &str, c: Color) -> Result<()> {
-    w.send_static(path, &SeriesLines::new().with_names([name]).with_colors([c]))
+    w.send_static(
+        path,
+        &SeriesLines::new().with_names([name]).with_colors([c]),
+    )
 }
 
 /// Static legend names and colours of every series.
@@ -349,7 +429,10 @@ fn log_styles(w: &mut ChunkWriter<'_>, joints: &[String], has_command: bool) -> 
             line(w, &format!("joints/{name}/{signal}"), name, color(j))?;
         }
         if has_command {
-            let style = SeriesLines::new().with_names([format!("{name} cmd")]).with_colors([color(j)]).with_widths([0.5]);
+            let style = SeriesLines::new()
+                .with_names([format!("{name} cmd")])
+                .with_colors([color(j)])
+                .with_widths([0.5]);
             w.send_static(&format!("joints/{name}/q_cmd"), &style)?;
         }
     }
@@ -360,60 +443,125 @@ fn log_styles(w: &mut ChunkWriter<'_>, joints: &[String], has_command: bool) -> 
     line(w, "power/bms/net", "BMS net", color(3))
 }
 
-fn log_extras(w: &mut ChunkWriter<'_>, joints: &[String], extras: &ReplayExtras, chunk: usize) -> Result<()> {
+fn log_extras(
+    w: &mut ChunkWriter<'_>,
+    joints: &[String],
+    extras: &ReplayExtras,
+    chunk: usize,
+) -> Result<()> {
     if let Some(p) = &extras.prediction {
         line(w, "model/power/measured_net", "measured net", color(1))?;
         line(w, "model/power/predicted", "predicted", color(4))?;
-        line(w, "model/error/sample", "error (measured − predicted)", color(3))?;
+        line(
+            w,
+            "model/error/sample",
+            "error (measured − predicted)",
+            color(3),
+        )?;
         scalars_chunked(w, "model/power/measured_net", &p.t, &p.measured_net, chunk)?;
         scalars_chunked(w, "model/power/predicted", &p.t, &p.predicted, chunk)?;
-        let err: Vec<f64> = p.measured_net.iter().zip(&p.predicted).map(|(m, q)| m - q).collect();
+        let err: Vec<f64> = p
+            .measured_net
+            .iter()
+            .zip(&p.predicted)
+            .map(|(m, q)| m - q)
+            .collect();
         scalars_chunked(w, "model/error/sample", &p.t, &err, chunk)?;
     }
     if !extras.trajectories.is_empty() {
         w.send_static(
             "model/error/trajectory",
-            &SeriesPoints::new().with_names(["error per trajectory"]).with_colors([color(6)]).with_marker_sizes([4.0]),
+            &SeriesPoints::new()
+                .with_names(["error per trajectory"])
+                .with_colors([color(6)])
+                .with_marker_sizes([4.0]),
         )?;
         let t: Vec<f64> = extras.trajectories.iter().map(|p| p.t).collect();
-        let e: Vec<f64> = extras.trajectories.iter().map(|p| p.measured - p.predicted).collect();
+        let e: Vec<f64> = extras
+            .trajectories
+            .iter()
+            .map(|p| p.measured - p.predicted)
+            .collect();
         scalars_chunked(w, "model/error/trajectory", &t, &e, chunk)?;
     }
     if let Some(terms) = &extras.terms {
         for (j, name) in joints.iter().enumerate() {
-            for (k, (term, data)) in
-                [("mechanical", &terms.mechanical), ("copper", &terms.copper), ("coulomb", &terms.coulomb), ("viscous", &terms.viscous)]
-                    .into_iter()
-                    .enumerate()
+            for (k, (term, data)) in [
+                ("mechanical", &terms.mechanical),
+                ("copper", &terms.copper),
+                ("coulomb", &terms.coulomb),
+                ("viscous", &terms.viscous),
+            ]
+            .into_iter()
+            .enumerate()
             {
                 let path = format!("model/terms/{name}/{term}");
                 line(w, &path, term, color(k))?;
                 let n = terms.t.len().min(data.len());
                 for start in (0..n).step_by(chunk) {
                     let end = (start + chunk).min(n);
-                    scalars(w, &path, &terms.t[start..end], data[start..end].iter().map(|v| v[j]))?;
+                    scalars(
+                        w,
+                        &path,
+                        &terms.t[start..end],
+                        data[start..end].iter().map(|v| v[j]),
+                    )?;
                 }
             }
         }
-        line(w, "model/terms/interaction/total", "interaction total", color(4))?;
-        scalars_chunked(w, "model/terms/interaction/total", &terms.t, &terms.interaction, chunk)?;
+        line(
+            w,
+            "model/terms/interaction/total",
+            "interaction total",
+            color(4),
+        )?;
+        scalars_chunked(
+            w,
+            "model/terms/interaction/total",
+            &terms.t,
+            &terms.interaction,
+            chunk,
+        )?;
     }
     log_trials(w, "trials", &extras.trials)?;
     if let Some(d) = &extras.diagnosis {
         line(w, "diagnosis/power/measured", "measured net", color(1))?;
         line(w, "diagnosis/power/before", "base model", color(7))?;
-        line(w, "diagnosis/power/after", "with accepted hypotheses", color(2))?;
+        line(
+            w,
+            "diagnosis/power/after",
+            "with accepted hypotheses",
+            color(2),
+        )?;
         line(w, "diagnosis/error/before", "error base model", color(7))?;
-        line(w, "diagnosis/error/after", "error with hypotheses", color(2))?;
+        line(
+            w,
+            "diagnosis/error/after",
+            "error with hypotheses",
+            color(2),
+        )?;
         scalars_chunked(w, "diagnosis/power/measured", &d.t, &d.measured, chunk)?;
         scalars_chunked(w, "diagnosis/power/before", &d.t, &d.before, chunk)?;
         scalars_chunked(w, "diagnosis/power/after", &d.t, &d.after, chunk)?;
-        let eb: Vec<f64> = d.measured.iter().zip(&d.before).map(|(m, p)| m - p).collect();
-        let ea: Vec<f64> = d.measured.iter().zip(&d.after).map(|(m, p)| m - p).collect();
+        let eb: Vec<f64> = d
+            .measured
+            .iter()
+            .zip(&d.before)
+            .map(|(m, p)| m - p)
+            .collect();
+        let ea: Vec<f64> = d
+            .measured
+            .iter()
+            .zip(&d.after)
+            .map(|(m, p)| m - p)
+            .collect();
         scalars_chunked(w, "diagnosis/error/before", &d.t, &eb, chunk)?;
         scalars_chunked(w, "diagnosis/error/after", &d.t, &ea, chunk)?;
         log_trials(w, "diagnosis/trials", &d.highlighted)?;
-        w.send_static("diagnosis/summary", &TextDocument::from_markdown(d.summary.clone()))?;
+        w.send_static(
+            "diagnosis/summary",
+            &TextDocument::from_markdown(d.summary.clone()),
+        )?;
     }
     Ok(())
 }
@@ -429,13 +577,27 @@ fn log_trials(w: &mut ChunkWriter<'_>, prefix: &str, trials: &[TrialMark]) -> Re
     let texts: Vec<String> = order
         .iter()
         .map(|m| match &m.rejected {
-            Some(r) => format!("trial {}: REJECTED by {} ({}, statistic {:.4}) {}", m.index, r.filter, r.detail, r.statistic, m.label),
+            Some(r) => format!(
+                "trial {}: REJECTED by {} ({}, statistic {:.4}) {}",
+                m.index, r.filter, r.detail, r.statistic, m.label
+            ),
             None => format!("trial {}: {}", m.index, m.label),
         })
         .collect();
-    let levels: Vec<TextLogLevel> =
-        order.iter().map(|m| if m.rejected.is_some() { TextLogLevel::WARN.into() } else { TextLogLevel::INFO.into() }).collect();
-    let columns = TextLog::update_fields().with_many_text(texts).with_many_level(levels).columns_of_unit_batches()?;
+    let levels: Vec<TextLogLevel> = order
+        .iter()
+        .map(|m| {
+            if m.rejected.is_some() {
+                TextLogLevel::WARN.into()
+            } else {
+                TextLogLevel::INFO.into()
+            }
+        })
+        .collect();
+    let columns = TextLog::update_fields()
+        .with_many_text(texts)
+        .with_many_level(levels)
+        .columns_of_unit_batches()?;
     w.send_columns(&format!("{prefix}/log"), &t, columns)?;
 
     // Bands: 1 inside a window, 0 outside (two points per edge so the step is sharp).

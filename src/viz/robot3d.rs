@@ -9,7 +9,9 @@
 use anyhow::Result;
 use nalgebra::Isometry3;
 use rerun::components::FillMode;
-use rerun::{Asset3D, Boxes3D, Color, Cylinders3D, Ellipsoids3D, Quaternion, Transform3D, ViewCoordinates};
+use rerun::{
+    Asset3D, Boxes3D, Color, Cylinders3D, Ellipsoids3D, Quaternion, Transform3D, ViewCoordinates,
+};
 
 use super::ChunkWriter;
 use crate::N_JOINTS;
@@ -33,12 +35,22 @@ fn to_transform(pose: &Isometry3<f64>) -> Transform3D {
 }
 
 fn poses_differ(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
-    (a.translation.vector - b.translation.vector).norm() > 1e-9 || a.rotation.angle_to(&b.rotation) > 1e-9
+    (a.translation.vector - b.translation.vector).norm() > 1e-9
+        || a.rotation.angle_to(&b.rotation) > 1e-9
 }
 
 /// Entity-path-safe link name.
 fn link_path(name: &str) -> String {
-    let clean: String = name.chars().map(|c| if c.is_ascii_alphanumeric() || c == '_' || c == '-' { c } else { '_' }).collect();
+    let clean: String = name
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '_' || c == '-' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
     format!("robot/{clean}")
 }
 
@@ -55,7 +67,10 @@ pub(super) fn log_static_robot(
     // (exact for the tree-structured FK; no joint happens to map both vectors to the same pose).
     let home = robot.link_poses(arm, &[0.0; N_JOINTS]);
     let probe = robot.link_poses(arm, &[0.5, -0.4, 0.3, -0.6, 0.7, -0.5, 0.4]);
-    let mut scene = ArmScene { paths: Vec::new(), moving: Vec::new() };
+    let mut scene = ArmScene {
+        paths: Vec::new(),
+        moving: Vec::new(),
+    };
     for (i, link) in robot.links().iter().enumerate() {
         let path = link_path(&link.name);
         let moving = match (home.get(i), probe.get(i)) {
@@ -77,28 +92,42 @@ pub(super) fn log_static_robot(
             match &visual.geometry {
                 Geometry::Mesh { path: mesh, scale } => match Asset3D::from_file_path(mesh) {
                     Ok(asset) => {
-                        origin = origin.with_scale([scale[0] as f32, scale[1] as f32, scale[2] as f32]);
+                        origin =
+                            origin.with_scale([scale[0] as f32, scale[1] as f32, scale[2] as f32]);
                         w.send_static(&vpath, &origin)?;
                         w.send_static(&vpath, &asset.with_albedo_factor(color.0))?;
                     }
-                    Err(err) => warnings.push(format!("link {}: mesh {}: {err}; not shown", link.name, mesh.display())),
+                    Err(err) => warnings.push(format!(
+                        "link {}: mesh {}: {err}; not shown",
+                        link.name,
+                        mesh.display()
+                    )),
                 },
                 Geometry::Box { size } => {
                     w.send_static(&vpath, &origin)?;
-                    let half = [size[0] as f32 / 2.0, size[1] as f32 / 2.0, size[2] as f32 / 2.0];
-                    let shape = Boxes3D::from_half_sizes([half]).with_colors([color]).with_fill_mode(FillMode::Solid);
-                    w.send_static(&vpath, &shape)?;
-                }
-                Geometry::Cylinder { radius, length } => {
-                    w.send_static(&vpath, &origin)?;
-                    let shape = Cylinders3D::from_lengths_and_radii([*length as f32], [*radius as f32])
+                    let half = [
+                        size[0] as f32 / 2.0,
+                        size[1] as f32 / 2.0,
+                        size[2] as f32 / 2.0,
+                    ];
+                    let shape = Boxes3D::from_half_sizes([half])
                         .with_colors([color])
                         .with_fill_mode(FillMode::Solid);
                     w.send_static(&vpath, &shape)?;
                 }
+                Geometry::Cylinder { radius, length } => {
+                    w.send_static(&vpath, &origin)?;
+                    let shape =
+                        Cylinders3D::from_lengths_and_radii([*length as f32], [*radius as f32])
+                            .with_colors([color])
+                            .with_fill_mode(FillMode::Solid);
+                    w.send_static(&vpath, &shape)?;
+                }
                 Geometry::Sphere { radius } => {
                     w.send_static(&vpath, &origin)?;
-                    let shape = Ellipsoids3D::from_radii([*radius as f32]).with_colors([color]).with_fill_mode(FillMode::Solid);
+                    let shape = Ellipsoids3D::from_radii([*radius as f32])
+                        .with_colors([color])
+                        .with_fill_mode(FillMode::Solid);
                     w.send_static(&vpath, &shape)?;
                 }
             }
@@ -120,16 +149,20 @@ pub(super) fn log_link_poses(
     if scene.moving.is_empty() || t.is_empty() {
         return Ok(());
     }
-    let mut translations: Vec<Vec<[f32; 3]>> = vec![Vec::with_capacity(t.len()); scene.moving.len()];
+    let mut translations: Vec<Vec<[f32; 3]>> =
+        vec![Vec::with_capacity(t.len()); scene.moving.len()];
     let mut rotations: Vec<Vec<Quaternion>> = vec![Vec::with_capacity(t.len()); scene.moving.len()];
+    let mut poses = Vec::new();
     for qi in q {
-        let poses = robot.link_poses(arm, qi);
+        robot.link_poses_into(arm, qi, &mut poses);
         for (k, &link) in scene.moving.iter().enumerate() {
             let Some(p) = poses.get(link) else { continue };
             let v = p.translation.vector;
             let r = p.rotation.quaternion();
             translations[k].push([v.x as f32, v.y as f32, v.z as f32]);
-            rotations[k].push(Quaternion::from_xyzw([r.i as f32, r.j as f32, r.k as f32, r.w as f32]));
+            rotations[k].push(Quaternion::from_xyzw([
+                r.i as f32, r.j as f32, r.k as f32, r.w as f32,
+            ]));
         }
     }
     for (k, &link) in scene.moving.iter().enumerate() {

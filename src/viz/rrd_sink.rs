@@ -27,7 +27,9 @@ type Shared = Arc<Mutex<State>>;
 fn lock(state: &Shared) -> MutexGuard<'_, State> {
     // A panic while holding the lock cannot leave the encoder half-written in a way that matters:
     // the error path deletes the temporary file anyway.
-    state.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+    state
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner())
 }
 
 /// The `LogSink` half, owned by the `RecordingStream`.
@@ -50,9 +52,16 @@ impl RrdFileSink {
             Some(p) if !p.as_os_str().is_empty() => p,
             _ => Path::new("."),
         };
-        std::fs::create_dir_all(dir).with_context(|| format!("creating directory {}", dir.display()))?;
-        let name = target.file_name().ok_or_else(|| anyhow!("output path {} has no file name", target.display()))?;
-        let tmp = dir.join(format!(".{}.tmp{}", name.to_string_lossy(), std::process::id()));
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("creating directory {}", dir.display()))?;
+        let name = target
+            .file_name()
+            .ok_or_else(|| anyhow!("output path {} has no file name", target.display()))?;
+        let tmp = dir.join(format!(
+            ".{}.tmp{}",
+            name.to_string_lossy(),
+            std::process::id()
+        ));
         let file = File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
         let encoder = Encoder::new_eager(
             CrateVersion::LOCAL,
@@ -63,11 +72,22 @@ impl RrdFileSink {
             Ok(e) => e,
             Err(err) => {
                 let _ = std::fs::remove_file(&tmp);
-                return Err(anyhow!("writing the RRD header to {}: {err}", tmp.display()));
+                return Err(anyhow!(
+                    "writing the RRD header to {}: {err}",
+                    tmp.display()
+                ));
             }
         };
-        let state = Arc::new(Mutex::new(State { encoder: Some(encoder), error: None }));
-        let pending = PendingFile { state: state.clone(), tmp, target: target.to_path_buf(), committed: false };
+        let state = Arc::new(Mutex::new(State {
+            encoder: Some(encoder),
+            error: None,
+        }));
+        let pending = PendingFile {
+            state: state.clone(),
+            tmp,
+            target: target.to_path_buf(),
+            committed: false,
+        };
         Ok((RrdFileSink { state }, pending))
     }
 }
@@ -96,7 +116,9 @@ impl LogSink for RrdFileSink {
     fn flush_blocking(&self, _timeout: Duration) -> Result<(), SinkFlushError> {
         let mut state = lock(&self.state);
         if let Some(err) = &state.error {
-            return Err(SinkFlushError::Failed { message: err.clone() });
+            return Err(SinkFlushError::Failed {
+                message: err.clone(),
+            });
         }
         if let Some(encoder) = state.encoder.as_mut()
             && let Err(err) = encoder.flush_blocking()
@@ -124,15 +146,33 @@ impl PendingFile {
         if let Some(err) = state.error.take() {
             return Err(anyhow!("writing {}: {err}", self.tmp.display()));
         }
-        let mut encoder = state.encoder.take().ok_or_else(|| anyhow!("{} already finished", self.tmp.display()))?;
+        let mut encoder = state
+            .encoder
+            .take()
+            .ok_or_else(|| anyhow!("{} already finished", self.tmp.display()))?;
         drop(state);
-        encoder.finish().map_err(|e| anyhow!("writing the RRD footer to {}: {e}", self.tmp.display()))?;
-        let mut writer = encoder.into_inner().map_err(|e| anyhow!("closing {}: {e}", self.tmp.display()))?;
-        writer.flush().with_context(|| format!("writing {}", self.tmp.display()))?;
-        let file = writer.into_inner().map_err(|e| e.into_error()).with_context(|| format!("writing {}", self.tmp.display()))?;
-        file.sync_all().with_context(|| format!("syncing {}", self.tmp.display()))?;
-        std::fs::rename(&self.tmp, &self.target)
-            .with_context(|| format!("renaming {} to {}", self.tmp.display(), self.target.display()))
+        encoder
+            .finish()
+            .map_err(|e| anyhow!("writing the RRD footer to {}: {e}", self.tmp.display()))?;
+        let mut writer = encoder
+            .into_inner()
+            .map_err(|e| anyhow!("closing {}: {e}", self.tmp.display()))?;
+        writer
+            .flush()
+            .with_context(|| format!("writing {}", self.tmp.display()))?;
+        let file = writer
+            .into_inner()
+            .map_err(|e| e.into_error())
+            .with_context(|| format!("writing {}", self.tmp.display()))?;
+        file.sync_all()
+            .with_context(|| format!("syncing {}", self.tmp.display()))?;
+        std::fs::rename(&self.tmp, &self.target).with_context(|| {
+            format!(
+                "renaming {} to {}",
+                self.tmp.display(),
+                self.target.display()
+            )
+        })
     }
 }
 
