@@ -217,33 +217,6 @@ pub struct Diagnosis {
     pub replay: ReplayData,
 }
 
-#[cfg(feature = "viz")]
-impl Diagnosis {
-    /// The replay overlay (`viz::replay::ReplayExtras::diagnosis`): measured and held-out
-    /// predicted net power before/after per reading, the highlighted trials, the summary.
-    pub fn overlay(&self) -> crate::viz::replay::DiagnosisOverlay {
-        let r = &self.replay;
-        crate::viz::replay::DiagnosisOverlay {
-            t: r.t.clone(),
-            measured: r.measured_w.clone(),
-            before: r.before_w.clone(),
-            after: r.after_w.clone(),
-            highlighted: r
-                .highlighted
-                .iter()
-                .map(|h| crate::viz::replay::TrialMark {
-                    index: h.trial,
-                    t_start: h.t_start,
-                    t_end: h.t_end,
-                    label: h.reason.clone(),
-                    rejected: None,
-                })
-                .collect(),
-            summary: self.summary.clone(),
-        }
-    }
-}
-
 impl Diagnosis {
     /// Write diagnosis.json (atomic).
     pub fn save_json(&self, path: &std::path::Path) -> Result<()> {
