@@ -83,7 +83,7 @@ impl Default for DiagnoseOptions {
         DiagnoseOptions {
             reference: None,
             target: Target::Mbs,
-            folds: 5,
+            folds: 10,
             alpha: 1e-3,
             bic_threshold: -10.0,
             min_improvement: 0.02,
