@@ -16,6 +16,7 @@
 
 pub mod diagnose;
 pub mod identify;
+mod plot;
 pub mod power;
 pub mod read;
 pub mod robot;

@@ -7,54 +7,10 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use anyhow::{Context, Result};
-use plotters::coord::Shift;
 use plotters::prelude::*;
 
 use super::Diagnosis;
-
-// Plot helpers: the same font and atomic PNG writing as the identification report.
-const FONT: &str = "sans-serif";
-static FONT_BYTES: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
-
-fn register_font() -> Result<()> {
-    static ONCE: std::sync::Once = std::sync::Once::new();
-    let mut ok = true;
-    ONCE.call_once(|| {
-        ok = plotters::style::register_font(FONT, FontStyle::Normal, FONT_BYTES).is_ok()
-    });
-    anyhow::ensure!(ok, "the bundled DejaVu Sans font could not be loaded");
-    Ok(())
-}
-
-fn plot_err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
-    anyhow::anyhow!("plotting failed: {e:?}")
-}
-
-fn write_png(path: &Path, size: (u32, u32), draw: impl FnOnce(&Area) -> Result<()>) -> Result<()> {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let tmp = path.with_file_name(format!(
-        ".{}.tmp{}.png",
-        name.trim_end_matches(".png"),
-        std::process::id()
-    ));
-    let result = (|| {
-        {
-            let root = BitMapBackend::new(&tmp, size).into_drawing_area();
-            root.fill(&WHITE).map_err(plot_err)?;
-            draw(&root)?;
-            root.present().map_err(plot_err)?;
-        }
-        std::fs::rename(&tmp, path)
-            .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result.with_context(|| format!("drawing {}", path.display()))
-}
+use crate::plot::{Area, FONT, padded_range, plot_err, register_font, write_png};
 
 /// Figure file names, relative to the report directory.
 pub const FIGURES: [&str; 5] = [
@@ -64,8 +20,6 @@ pub const FIGURES: [&str; 5] = [
     "residual_time.png",
     "lag_scan.png",
 ];
-
-type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
 
 fn sig(v: f64) -> String {
     if v.abs() >= 0.01 && v.abs() < 1e4 {
@@ -301,16 +255,7 @@ pub fn write_report(dir: &Path, d: &Diagnosis) -> Result<()> {
 }
 
 fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
-    let (lo, hi) = values
-        .filter(|v| v.is_finite())
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
-            (a.min(v), b.max(v))
-        });
-    if !lo.is_finite() {
-        return (-1.0, 1.0);
-    }
-    let pad = ((hi - lo) * 0.08).max(1e-6);
-    (lo - pad, hi + pad)
+    padded_range(values, 0.08)
 }
 
 fn draw_bars(a: &Area, caption: &str, y_desc: &str, bars: &[(String, f64, bool)]) -> Result<()> {

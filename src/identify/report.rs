@@ -7,20 +7,17 @@
 //! every machine. Each file is written to a temporary name in the output directory and renamed into place.
 
 use std::fmt::Write as _;
-use std::path::{Path, PathBuf};
-use std::sync::Once;
+use std::path::Path;
 
-use anyhow::{Context, Result, anyhow, ensure};
+use anyhow::{Context, Result, ensure};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use crate::N_JOINTS;
 use crate::identify::metrics::Metrics;
+use crate::plot::{FONT, padded_range, plot_err, register_font, write_png};
 use crate::power::{DatasetMetrics, ModelFile, N_PAIRS, PAIRS, PowerModel, TERM_NAMES, TermMeans};
-
-const FONT: &str = "sans-serif";
-static FONT_BYTES: &[u8] = include_bytes!("../../assets/fonts/DejaVuSans.ttf");
 
 /// Everything the report shows. Fill what you have; absent parts are left out of the report.
 #[derive(Debug, Clone)]
@@ -155,16 +152,6 @@ pub fn write_report(dir: &Path, r: &ReportInput) -> Result<()> {
         let _ = writeln!(md, "{note}\n");
     }
     crate::util::write_atomic(&dir.join("report.md"), md.as_bytes())
-}
-
-fn register_font() -> Result<()> {
-    static ONCE: Once = Once::new();
-    let mut ok = true;
-    ONCE.call_once(|| {
-        ok = plotters::style::register_font(FONT, FontStyle::Normal, FONT_BYTES).is_ok()
-    });
-    ensure!(ok, "the bundled DejaVu Sans font could not be loaded");
-    Ok(())
 }
 
 /// `left_shoulder_pitch_joint` → `shoulder pitch`.
@@ -426,41 +413,6 @@ fn write_rejected(md: &mut String, m: &ModelFile) {
     md.push('\n');
 }
 
-/// Render with plotters into a temporary `.png` beside `path`, then rename into place.
-fn write_png(
-    path: &Path,
-    size: (u32, u32),
-    draw: impl FnOnce(&DrawingArea<BitMapBackend<'_>, Shift>) -> Result<()>,
-) -> Result<()> {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let tmp: PathBuf = path.with_file_name(format!(
-        ".{}.tmp{}.png",
-        name.trim_end_matches(".png"),
-        std::process::id()
-    ));
-    let result = (|| {
-        {
-            let root = BitMapBackend::new(&tmp, size).into_drawing_area();
-            root.fill(&WHITE).map_err(plot_err)?;
-            draw(&root)?;
-            root.present().map_err(plot_err)?;
-        }
-        std::fs::rename(&tmp, path)
-            .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result.with_context(|| format!("drawing {}", path.display()))
-}
-
-fn plot_err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
-    anyhow!("plotting failed: {e:?}")
-}
-
 fn draw_coefficients(
     root: &DrawingArea<BitMapBackend<'_>, Shift>,
     model: &ModelFile,
@@ -561,16 +513,7 @@ fn centered_above(size: u32) -> TextStyle<'static> {
 }
 
 fn range_of(values: impl Iterator<Item = f64>) -> (f64, f64) {
-    let (lo, hi) = values
-        .filter(|v| v.is_finite())
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
-            (a.min(v), b.max(v))
-        });
-    if !lo.is_finite() {
-        return (-1.0, 1.0);
-    }
-    let pad = ((hi - lo) * 0.05).max(1e-6);
-    (lo - pad, hi + pad)
+    padded_range(values, 0.05)
 }
 
 fn draw_sorted_fit(

@@ -1,0 +1,78 @@
+//! Figure output shared by the identification and diagnosis reports: the bundled font and
+//! atomic PNG writing with plotters.
+
+use std::path::Path;
+use std::sync::Once;
+
+use anyhow::{Context, Result, ensure};
+use plotters::coord::Shift;
+use plotters::prelude::*;
+
+/// Font family name the figures use (registered from the bundled DejaVu Sans).
+pub(crate) const FONT: &str = "sans-serif";
+static FONT_BYTES: &[u8] = include_bytes!("../assets/fonts/DejaVuSans.ttf");
+
+/// A bitmap drawing area.
+pub(crate) type Area<'a> = DrawingArea<BitMapBackend<'a>, Shift>;
+
+/// Register the bundled font once (plotters' ab_glyph backend has no system fonts).
+pub(crate) fn register_font() -> Result<()> {
+    static ONCE: Once = Once::new();
+    let mut ok = true;
+    ONCE.call_once(|| {
+        ok = plotters::style::register_font(FONT, FontStyle::Normal, FONT_BYTES).is_ok()
+    });
+    ensure!(ok, "the bundled DejaVu Sans font could not be loaded");
+    Ok(())
+}
+
+/// A plotters error as an anyhow error.
+pub(crate) fn plot_err<E: std::fmt::Debug>(e: E) -> anyhow::Error {
+    anyhow::anyhow!("plotting failed: {e:?}")
+}
+
+/// Draw a `size` PNG at `path` atomically: into a temporary file beside it, renamed when complete.
+pub(crate) fn write_png(
+    path: &Path,
+    size: (u32, u32),
+    draw: impl FnOnce(&Area) -> Result<()>,
+) -> Result<()> {
+    register_font()?;
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let tmp = path.with_file_name(format!(
+        ".{}.tmp{}.png",
+        name.trim_end_matches(".png"),
+        std::process::id()
+    ));
+    let result = (|| {
+        {
+            let root = BitMapBackend::new(&tmp, size).into_drawing_area();
+            root.fill(&WHITE).map_err(plot_err)?;
+            draw(&root)?;
+            root.present().map_err(plot_err)?;
+        }
+        std::fs::rename(&tmp, path)
+            .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result.with_context(|| format!("drawing {}", path.display()))
+}
+
+/// Axis range of the finite `values`, padded by `pad` of the span; (−1, 1) when there are none.
+pub(crate) fn padded_range(values: impl Iterator<Item = f64>, pad: f64) -> (f64, f64) {
+    let (lo, hi) = values
+        .filter(|v| v.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+            (a.min(v), b.max(v))
+        });
+    if !lo.is_finite() {
+        return (-1.0, 1.0);
+    }
+    let pad = ((hi - lo) * pad).max(1e-6);
+    (lo - pad, hi + pad)
+}
