@@ -42,19 +42,9 @@ use thermal::ThermalModel;
 use truth::Noise;
 
 /// URDF joint names of the left arm, model order.
-pub const JOINT_NAMES: [&str; N_JOINTS] = [
-    "left_shoulder_pitch_joint",
-    "left_shoulder_roll_joint",
-    "left_shoulder_yaw_joint",
-    "left_elbow_joint",
-    "left_wrist_roll_joint",
-    "left_wrist_pitch_joint",
-    "left_wrist_yaw_joint",
-];
+pub use crate::robot::G1_LEFT_ARM_JOINTS as JOINT_NAMES;
 /// Short joint names, model order.
-pub const JOINT_SHORT: [&str; N_JOINTS] = [
-    "sh_pitch", "sh_roll", "sh_yaw", "elbow", "wr_roll", "wr_pitch", "wr_yaw",
-];
+pub use crate::signals::JOINT_SHORT;
 
 /// Session epoch: the start time is this plus a seed-dependent offset of up to 3 h.
 const EPOCH_NS: u64 = 1_773_482_400_000_000_000; // 2026-03-14T10:00:00Z
