@@ -314,9 +314,9 @@ fn run(cli: Cli) -> Result<()> {
 fn info(a: InfoArgs) -> Result<()> {
     let mut session = Session::open(&a.session, &a.read.open_options())?;
     let info = session.info()?;
-    let rec = a.read.load(&a.session).ok();
+    let rec = a.read.load(&a.session);
     if a.json {
-        let signals = rec.as_ref().map(signal_summary);
+        let signals = rec.as_ref().ok().map(signal_summary);
         let out = serde_json::json!({ "container": info, "signals": signals });
         println!("{}", serde_json::to_string_pretty(&out)?);
         return Ok(());
@@ -339,19 +339,23 @@ fn info(a: InfoArgs) -> Result<()> {
         println!("warning: {w}");
     }
     match rec {
-        Some(rec) => {
-            let s = signal_summary(&rec);
+        Ok(rec) => {
             println!("signals:");
-            println!("  arm joints:  {}", rec.joint_names.join(", "));
-            for (name, v) in s.as_object().into_iter().flatten() {
-                if name != "joints" {
-                    println!("  {name:<12} {v}");
-                }
-            }
+            println!("  arm joints: {}", rec.joint_names.join(", "));
+            let line = |name: &str, n: usize, t: &[f64], unit: &str| {
+                println!("  {name:<22} {n:>8} {unit} at {:.2} Hz", rate(t));
+            };
+            line("joint states", rec.state.t.len(), &rec.state.t, "samples");
+            line("commands", rec.command.t.len(), &rec.command.t, "samples");
+            line(
+                "MBS power (arm rail)",
+                rec.mbs.t.len(),
+                &rec.mbs.t,
+                "readings",
+            );
+            line("BMS power (robot)", rec.bms.t.len(), &rec.bms.t, "readings");
         }
-        None => {
-            println!("signals:    (the arm signals could not be resolved; `g1viz replay` says why)")
-        }
+        Err(e) => println!("signals: not resolved: {e:#}"),
     }
     Ok(())
 }
