@@ -222,6 +222,63 @@ fn rrd_has_expected_entities_and_rows() {
     );
 }
 
+/// The blueprint is a complete tree: every view and container but the root is some container's
+/// child, each container row holds all its children (a stock viewer otherwise shows only the
+/// first one), and the 3D view has a starting camera.
+#[test]
+fn blueprint_layout_is_complete() {
+    use rerun::external::arrow::array::{Array, AsArray};
+    use std::collections::BTreeSet;
+    let dir = tempfile::tempdir().unwrap();
+    let rec = synthetic(&input_file(dir.path()));
+    let out = dir.path().join("out.rrd");
+    write_rrd(&rec, &out).unwrap();
+
+    let mut nodes = BTreeSet::new();
+    let mut children = Vec::new();
+    let mut eye = false;
+    for msg in decode(&out) {
+        let LogMsg::ArrowMsg(store, arrow) = &msg else {
+            continue;
+        };
+        if store.kind() != StoreKind::Blueprint {
+            continue;
+        }
+        let chunk = Chunk::from_arrow_msg(arrow).expect("valid chunk");
+        let path = chunk.entity_path().to_string();
+        let parts: Vec<&str> = path.trim_start_matches('/').split('/').collect();
+        match parts.as_slice() {
+            ["view" | "container", _] => {
+                nodes.insert(path.clone());
+            }
+            ["view", _, "EyeControls3D"] => eye = true,
+            _ => {}
+        }
+        for column in chunk.components().0.values() {
+            if column.descriptor.component != "ContainerBlueprint:contents" {
+                continue;
+            }
+            let list = &column.list_array;
+            assert_eq!(list.len(), 1, "{path}: one row");
+            let values = list.values().as_string::<i32>();
+            assert_eq!(list.value_length(0) as usize, values.len(), "{path}");
+            assert!(values.len() >= 2, "{path}: {} children", values.len());
+            children.extend(values.iter().map(|v| v.unwrap().to_owned()));
+        }
+    }
+    let referenced: BTreeSet<String> = children.iter().cloned().collect();
+    assert_eq!(referenced.len(), children.len(), "a node is listed twice");
+    assert!(referenced.is_subset(&nodes), "{referenced:?} vs {nodes:?}");
+    let unreferenced: Vec<_> = nodes.difference(&referenced).collect();
+    assert_eq!(
+        unreferenced.len(),
+        1,
+        "more than one root: {unreferenced:?}"
+    );
+    assert!(nodes.len() >= 8, "{nodes:?}");
+    assert!(eye, "no EyeControls3D for the 3D view");
+}
+
 /// Values read back through rerun's decoder equal the input (formula above) and the hand-computed net power.
 #[test]
 fn rrd_values_match_input() {

@@ -16,8 +16,9 @@ use rerun::external::re_log_types::{
     StoreSource, external::re_tuid::Tuid,
 };
 use rerun::external::re_sdk_types::blueprint::archetypes::{
-    ContainerBlueprint, ViewBlueprint, ViewContents, ViewportBlueprint,
+    ContainerBlueprint, EyeControls3D, ViewBlueprint, ViewContents, ViewportBlueprint,
 };
+use rerun::external::re_sdk_types::blueprint::components::Eye3DKind;
 use rerun::external::re_sdk_types::datatypes::Uuid;
 use rerun::log::{Chunk, ChunkId, LogMsg, RowId};
 use rerun::{AsComponents, RecordingStream, TimeColumn};
@@ -46,7 +47,37 @@ pub enum Node {
         origin: String,
         /// Entity-path query expressions (`+ /power/**`, `- /x`); empty = `$origin/**`.
         contents: Vec<String>,
+        /// Initial camera of a 3D view (ignored for other classes).
+        eye: Option<Eye>,
     },
+}
+
+/// The initial camera of a 3D view (an orbit eye), in the view's origin frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Eye {
+    /// Eye position.
+    pub position: [f32; 3],
+    /// The point the eye looks at (and orbits around).
+    pub look_target: [f32; 3],
+    /// The up direction.
+    pub up: [f32; 3],
+}
+
+impl Eye {
+    /// An eye `distance` away from `target` along `direction` (normalised), Z up.
+    pub fn looking_at(target: [f32; 3], direction: [f32; 3], distance: f32) -> Eye {
+        let norm = direction
+            .iter()
+            .map(|x| x * x)
+            .sum::<f32>()
+            .sqrt()
+            .max(1e-6);
+        Eye {
+            position: std::array::from_fn(|i| target[i] + direction[i] / norm * distance),
+            look_target: target,
+            up: [0.0, 0.0, 1.0],
+        }
+    }
 }
 
 impl Node {
@@ -62,7 +93,16 @@ impl Node {
             name: name.into(),
             origin: origin.into(),
             contents,
+            eye: None,
         }
+    }
+
+    /// Sets the initial camera (3D views only; no effect on containers).
+    pub fn with_eye(mut self, new_eye: Eye) -> Node {
+        if let Node::View { eye, .. } = &mut self {
+            *eye = Some(new_eye);
+        }
+        self
     }
 
     /// A container node.
@@ -137,10 +177,16 @@ impl BlueprintChunks {
         self.counter += 1;
         let row_id = RowId::from_tuid(Tuid::from_nanos_and_inc(BLUEPRINT_NAMESPACE, self.counter));
         let timeline = TimeColumn::new_sequence("blueprint", [0]);
+        // One row holding each component's whole batch: the row's length must be the batch's
+        // length (`partitioned` does not check it; `[1]` silently cut every list to its first
+        // element, e.g. a container's contents to its first child).
         let components = data
             .as_serialized_batches()
             .into_iter()
-            .map(|b| b.partitioned([1]).map(|c| (c.descriptor, c.list_array)))
+            .map(|b| {
+                let n = b.array.len();
+                b.partitioned([n]).map(|c| (c.descriptor, c.list_array))
+            })
             .collect::<Result<_, _>>()?;
         let chunk = Chunk::from_native_row_ids(
             chunk_id,
@@ -190,6 +236,7 @@ impl BlueprintChunks {
                 name,
                 origin,
                 contents,
+                eye,
             } => {
                 let queries: Vec<QueryExpression> = if contents.is_empty() {
                     vec![QueryExpression("$origin/**".into())]
@@ -200,6 +247,15 @@ impl BlueprintChunks {
                         .collect()
                 };
                 self.log(&format!("{path}/ViewContents"), &ViewContents::new(queries))?;
+                if let Some(eye) = eye {
+                    // A view property, like the SDKs' `Spatial3DView(eye_controls=...)`.
+                    let controls = EyeControls3D::new()
+                        .with_kind(Eye3DKind::Orbital)
+                        .with_position(eye.position)
+                        .with_look_target(eye.look_target)
+                        .with_eye_up(eye.up);
+                    self.log(&format!("{path}/EyeControls3D"), &controls)?;
+                }
                 let arch = ViewBlueprint::new(ViewClass((*class).into()))
                     .with_display_name(name.as_str())
                     .with_space_origin(origin.as_str());
@@ -261,8 +317,9 @@ pub struct LayoutParts {
 
 /// The replay layout: the 3D arm on the left; on the right power (measured vs predicted), the
 /// prediction error, and tabs of joint plots (q, dq, τ, temperature), per-joint loss terms, IMU
-/// and the trial log.
-pub fn replay_layout(joints: &[String], parts: LayoutParts) -> Node {
+/// and the trial log. The 3D view's camera starts on the front left of the arm, ~1.5 m from
+/// `arm_center` (a point on the arm in the `/robot` frame, X forward, Y left, Z up).
+pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]) -> Node {
     use ContainerKind::{Horizontal, Tabs, Vertical};
     let each = |signal: &str| {
         joints
@@ -342,7 +399,11 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts) -> Node {
         Horizontal,
         "g1viz replay",
         vec![
-            Node::view("3D", "Arm", "/robot", vec![]),
+            Node::view("3D", "Arm", "/robot", vec![]).with_eye(Eye::looking_at(
+                arm_center,
+                [1.0, 0.8, 0.45],
+                1.5,
+            )),
             Node::container(Vertical, "Plots", right, shares),
         ],
         vec![1.0, 1.3],

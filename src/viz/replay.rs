@@ -185,6 +185,24 @@ fn color(i: usize) -> Color {
     Color::from_rgb(r, g, b)
 }
 
+/// Where the 3D camera looks: the mean position of the links that move with the arm, at the
+/// zero pose (the model root if none moves).
+fn arm_center(robot: &RobotModel, arm: &ArmJoints) -> [f32; 3] {
+    let home = robot.link_poses(arm, &[0.0; N_JOINTS]);
+    let probe = robot.link_poses(arm, &[0.5, -0.4, 0.3, -0.6, 0.7, -0.5, 0.4]);
+    let moving: Vec<_> = home
+        .iter()
+        .zip(&probe)
+        .filter(|(a, b)| (a.translation.vector - b.translation.vector).norm() > 1e-6)
+        .map(|(a, _)| a.translation.vector)
+        .collect();
+    if moving.is_empty() {
+        return [0.0; 3];
+    }
+    let mean = moving.iter().sum::<nalgebra::Vector3<f64>>() / moving.len() as f64;
+    [mean.x as f32, mean.y as f32, mean.z as f32]
+}
+
 /// Logs `rec` (and `extras`) to `stream`: arm animation, joint and power series, model/diagnosis
 /// overlays, and the viewer layout.
 pub fn log_replay(
@@ -222,7 +240,8 @@ pub fn log_replay(
             diagnosis: extras.diagnosis.is_some(),
             trials: !extras.trials.is_empty(),
         };
-        blueprint::send_blueprint(stream, &blueprint::replay_layout(&joints, parts))?;
+        let layout = blueprint::replay_layout(&joints, parts, arm_center(robot, arm));
+        blueprint::send_blueprint(stream, &layout)?;
         // The blueprint bypasses the batcher: flush so it reaches the sink before any data chunk
         // (a fixed message order is part of the reproducible output).
         stream
