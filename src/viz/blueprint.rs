@@ -330,14 +330,21 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
     let mut q = each("q");
     q.extend(each("q_cmd"));
 
-    let mut power_contents = vec!["+ /power/**".to_owned()];
+    // Net power (a few W) beside net predictions; the raw rail readings (~120 W) get their own
+    // tab so they do not flatten the net traces.
+    let mut power_contents = vec!["+ /power/mbs/net".to_owned(), "+ /power/bms/net".to_owned()];
     if parts.model {
         power_contents.push("+ /model/power/**".into());
     }
     if parts.diagnosis {
         power_contents.push("+ /diagnosis/power/**".into());
     }
-    let mut right = vec![Node::view("TimeSeries", "Power [W]", "/", power_contents)];
+    let mut right = vec![Node::view(
+        "TimeSeries",
+        "Net power [W]",
+        "/",
+        power_contents,
+    )];
     if parts.model || parts.diagnosis {
         let mut error = vec!["+ /model/error/**".to_owned()];
         if parts.diagnosis {
@@ -373,6 +380,12 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
             vec![],
         ));
     }
+    tabs.push(Node::view(
+        "TimeSeries",
+        "Raw power MBS/BMS [W]",
+        "/",
+        vec!["+ /power/mbs/raw".to_owned(), "+ /power/bms/raw".to_owned()],
+    ));
     tabs.push(Node::view("TimeSeries", "IMU |ω| [rad/s]", "/imu", vec![]));
     if parts.trials || parts.diagnosis {
         let mut logs = vec!["+ /trials/**".to_owned()];
