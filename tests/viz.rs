@@ -165,6 +165,25 @@ fn rows(c: &Contents, path: &str) -> usize {
         .unwrap_or(0)
 }
 
+/// Replay `rec` (with `extras`) on the builtin robot into `out`, as `g1viz replay --save` does.
+fn save_replay(rec: &Recording, extras: &ReplayExtras, out: &Path, input: &Path) {
+    let robot = RobotModel::builtin();
+    let arm = robot.arm(&rec.joint_names).unwrap();
+    let viz = open_stream(
+        "g1viz_test",
+        &recording_id_for(rec),
+        &Sink::Save(out.to_path_buf()),
+        &[input],
+    )
+    .unwrap();
+    let opts = ReplayOptions {
+        progress: false,
+        ..Default::default()
+    };
+    log_replay(rec, &robot, &arm, extras, &opts, viz.stream()).unwrap();
+    viz.finish().unwrap();
+}
+
 fn input_file(dir: &Path) -> PathBuf {
     let p = dir.join("session.mcap");
     std::fs::write(
@@ -462,29 +481,7 @@ fn smoke_session_rrd_rows_match_truth() {
     .unwrap();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("smoke.rrd");
-    let robot = RobotModel::builtin();
-    let arm = robot.arm(&rec.joint_names).unwrap();
-    let viz = open_stream(
-        "g1viz_test",
-        &recording_id_for(&rec),
-        &Sink::Save(out.clone()),
-        &[&mcap],
-    )
-    .unwrap();
-    let opts = ReplayOptions {
-        progress: false,
-        ..Default::default()
-    };
-    log_replay(
-        &rec,
-        &robot,
-        &arm,
-        &ReplayExtras::default(),
-        &opts,
-        viz.stream(),
-    )
-    .unwrap();
-    viz.finish().unwrap();
+    save_replay(&rec, &ReplayExtras::default(), &out, &mcap);
     let c = contents(&decode(&out));
     for j in truth["joints"]["short"].as_array().unwrap() {
         let j = j.as_str().unwrap();
@@ -640,21 +637,7 @@ fn model_overlay_marks_contaminated_trials_and_logs_loss_terms() {
     let terms = extras.terms.as_ref().unwrap();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("smoke_model.rrd");
-    let robot = RobotModel::builtin();
-    let arm = robot.arm(&rec.joint_names).unwrap();
-    let viz = open_stream(
-        "g1viz_test",
-        &recording_id_for(&rec),
-        &Sink::Save(out.clone()),
-        &[&mcap],
-    )
-    .unwrap();
-    let ropts = ReplayOptions {
-        progress: false,
-        ..Default::default()
-    };
-    log_replay(&rec, &robot, &arm, &extras, &ropts, viz.stream()).unwrap();
-    viz.finish().unwrap();
+    save_replay(&rec, &extras, &out, &mcap);
     let c = contents(&decode(&out));
     assert_eq!(rows(&c, "/model/terms/elbow/copper"), terms.t.len());
     assert_eq!(rows(&c, "/model/power/predicted"), terms.t.len());
