@@ -6,8 +6,10 @@
 //! ```text
 //! cargo run --release --no-default-features --example diagnose_matrix -- [--parts N] [--report DIR] [CASE…]
 //! ```
-//! Cases: null, thermal, braking, bus_loss, latency, payload, braking+latency, bus_loss+payload,
-//! harness (default: all). `--parts N` joins N smoke sessions (≈ 24 trials each; default 3).
+//! Cases: null, thermal, thermal_refit, braking, bus_loss, latency, payload, gear_friction,
+//! drive_loss, stribeck, balance_leak, braking+latency, bus_loss+payload, harness, harness15
+//! (default: all). `--parts N` joins N smoke sessions (≈ 24 trials each) for every case
+//! instead of the case's own count (3, or 6 for the faint effects).
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -23,8 +25,11 @@ struct Case {
     effects: &'static [&'static str],
     /// (hypothesis id, parameter symbol, true value) for each concealed effect in the library.
     truth: &'static [(&'static str, &'static str, f64)],
-    t_start_c: f64,
+    /// Winding temperature at the start of each part (cycled over the parts).
+    t_start_c: &'static [f64],
     seeds: &'static [u64],
+    /// Smoke sessions joined per seed (`--parts` overrides): faint effects need more trials.
+    parts: u64,
 }
 
 const CASES: &[Case] = &[
@@ -32,70 +37,122 @@ const CASES: &[Case] = &[
         name: "null",
         effects: &[],
         truth: &[],
-        t_start_c: 30.0,
+        t_start_c: &[30.0],
+        parts: 3,
         seeds: &[11, 12, 13, 14, 15],
     },
     Case {
         name: "thermal",
         effects: &["thermal=0.00393"],
         truth: &[("thermal", "α", 0.00393)],
-        t_start_c: 70.0,
+        t_start_c: &[70.0],
+        parts: 3,
         seeds: &[3, 6, 7],
     },
     Case {
         name: "braking",
         effects: &["braking=0.25"],
         truth: &[("braking", "r", 0.25)],
-        t_start_c: 30.0,
+        t_start_c: &[30.0],
+        parts: 6,
         seeds: &[3, 6, 7],
     },
     Case {
         name: "bus_loss",
         effects: &["bus_loss=0.05"],
         truth: &[("bus_loss", "R_bus", 0.05)],
-        t_start_c: 30.0,
+        t_start_c: &[30.0],
+        parts: 3,
         seeds: &[3, 6, 7],
     },
     Case {
         name: "latency",
         effects: &["latency=0.3"],
         truth: &[("latency", "L", 0.3)],
-        t_start_c: 30.0,
+        t_start_c: &[30.0],
+        parts: 3,
         seeds: &[3, 6, 7],
     },
     Case {
         name: "payload",
         effects: &["payload=0.5"],
         truth: &[("payload", "m", 0.5)],
-        t_start_c: 30.0,
+        t_start_c: &[30.0],
+        parts: 3,
+        seeds: &[3, 6, 7],
+    },
+    Case {
+        name: "thermal_refit",
+        effects: &["thermal=0.00393"],
+        truth: &[("thermal", "α", 0.00393)],
+        // A refitted b_i absorbs a constant temperature offset; parts started at different
+        // temperatures make the drift identifiable without the twin.
+        t_start_c: &[30.0, 50.0, 70.0],
+        parts: 6,
+        seeds: &[3, 6, 7],
+    },
+    Case {
+        name: "gear_friction",
+        effects: &["gear_friction=0.15"],
+        truth: &[("gear_friction", "μ", 0.15)],
+        t_start_c: &[30.0],
+        parts: 6,
+        seeds: &[3, 6, 7],
+    },
+    Case {
+        name: "drive_loss",
+        effects: &["drive_loss=0.5"],
+        truth: &[("drive_loss", "V_drop", 0.5)],
+        t_start_c: &[30.0],
+        parts: 3,
+        seeds: &[3, 6, 7],
+    },
+    Case {
+        name: "stribeck",
+        effects: &["stribeck=10"],
+        truth: &[("stribeck", "F_s", 10.0)],
+        t_start_c: &[30.0],
+        parts: 6,
+        seeds: &[3, 6, 7],
+    },
+    Case {
+        name: "balance_leak",
+        effects: &["balance_leak"],
+        truth: &[("balance_leak", "k_leak", 500.0 / 9.0)],
+        t_start_c: &[30.0],
+        parts: 6,
         seeds: &[3, 6, 7],
     },
     Case {
         name: "braking+latency",
         effects: &["braking=0.25", "latency=0.3"],
         truth: &[("braking", "r", 0.25), ("latency", "L", 0.3)],
-        t_start_c: 30.0,
+        t_start_c: &[30.0],
+        parts: 3,
         seeds: &[4, 9],
     },
     Case {
         name: "bus_loss+payload",
         effects: &["bus_loss=0.05", "payload=0.5"],
         truth: &[("bus_loss", "R_bus", 0.05), ("payload", "m", 0.5)],
-        t_start_c: 30.0,
+        t_start_c: &[30.0],
+        parts: 3,
         seeds: &[4, 9],
     },
     Case {
         name: "harness",
         effects: &["harness_drag=4"],
         truth: &[],
-        t_start_c: 30.0,
+        t_start_c: &[30.0],
+        parts: 3,
         seeds: &[5, 8],
     },
     Case {
         name: "harness15",
         effects: &["harness_drag=15"],
         truth: &[],
-        t_start_c: 30.0,
+        t_start_c: &[30.0],
+        parts: 3,
         seeds: &[5, 8],
     },
 ];
@@ -104,7 +161,7 @@ fn session(
     effects: &Effects,
     seed: u64,
     parts: u64,
-    t_start_c: f64,
+    t_start_c: &[f64],
     dir: &std::path::Path,
 ) -> Result<g1viz::signals::Recording> {
     let mut recs = Vec::new();
@@ -113,7 +170,7 @@ fn session(
             preset: Preset::Smoke,
             seed: seed * 100 + part,
             effects: *effects,
-            t_start_c,
+            t_start_c: t_start_c[part as usize % t_start_c.len()],
             progress: false,
             ..SimConfig::default()
         };
@@ -134,7 +191,9 @@ fn row(case: &Case, seed: u64, mode: &str, d: &Diagnosis) -> String {
     let mut found = Vec::new();
     let mut ranks = Vec::new();
     for (id, symbol, value) in case.truth {
-        truth.push(format!("{symbol} = {value}"));
+        let shown = format!("{value:.4}");
+        let shown = shown.trim_end_matches('0').trim_end_matches('.');
+        truth.push(format!("{symbol} = {shown}"));
         let p = d
             .final_model
             .params
@@ -214,12 +273,12 @@ fn row(case: &Case, seed: u64, mode: &str, d: &Diagnosis) -> String {
 
 fn main() -> Result<()> {
     let mut args = std::env::args().skip(1);
-    let mut parts = 3u64;
+    let mut parts: Option<u64> = None;
     let mut report: Option<PathBuf> = None;
     let mut only = Vec::new();
     while let Some(a) = args.next() {
         match a.as_str() {
-            "--parts" => parts = args.next().context("--parts N")?.parse()?,
+            "--parts" => parts = Some(args.next().context("--parts N")?.parse()?),
             "--report" => report = Some(args.next().context("--report DIR")?.into()),
             _ => only.push(a),
         }
@@ -239,7 +298,8 @@ fn main() -> Result<()> {
         }
         for &seed in case.seeds {
             let t0 = Instant::now();
-            let rec = session(&effects, seed, parts, case.t_start_c, dir.path())?;
+            let n = parts.unwrap_or(case.parts);
+            let rec = session(&effects, seed, n, case.t_start_c, dir.path())?;
             for (mode, opts) in [
                 ("refit", DiagnoseOptions::default()),
                 (
@@ -252,6 +312,13 @@ fn main() -> Result<()> {
             ] {
                 let d = diagnose::diagnose(&rec, &opts)?;
                 println!("{}", row(case, seed, mode, &d));
+                // Why a concealed effect was not accepted, for whoever reads the table.
+                for (id, _, _) in case.truth {
+                    let accepted = d.accepted.iter().any(|h| h.id == *id);
+                    if let Some(h) = d.hypotheses.iter().find(|h| h.id == *id && !accepted) {
+                        eprintln!("  {} {mode}: {id} {}", case.name, h.verdict);
+                    }
+                }
                 if let Some(r) = &report {
                     let sub = r.join(format!(
                         "{}_{seed}_{}",

@@ -241,7 +241,8 @@ struct SimulateArgs {
     #[arg(long, default_value_t = 1)]
     seed: u64,
     /// Switch on a concealed effect, e.g. braking=0.3, thermal=0.00393, bus_loss=0.05, latency=0.3,
-    /// payload=0.5, harness_drag=4 (repeatable).
+    /// payload=0.5, gear_friction=0.15, drive_loss=0.5, stribeck=10, balance_leak=55,
+    /// harness_drag=4 (repeatable; a bare NAME uses the default value).
     #[arg(long = "effect", value_name = "NAME=VALUE")]
     effects: Vec<String>,
     /// Re-run this recording's commanded trajectory through the twin (same timeline).

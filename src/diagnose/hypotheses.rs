@@ -10,13 +10,11 @@
 //! scanned in `select`) and payload at the hand (torque level, in `torque`).
 
 use crate::power::JOINT_TORQUE_CONSTANT;
+pub use crate::power::STRIBECK_VELOCITY;
 use crate::{N_JOINTS, N_PARAMS};
 
 /// Reference temperature [°C] of the winding-resistance drift (R(T) = R0[1 + α(T − 25 °C)]).
 pub const T_REF_C: f64 = 25.0;
-
-/// Stribeck velocity [rad/s] of the Stribeck-friction hypothesis (friction excess that decays as exp(−(q̇/v_s)²)).
-pub const STRIBECK_VELOCITY: f64 = 0.1;
 
 /// One sample of arm signals plus the trial's pre-idle squared torque, the input of every feature.
 #[derive(Debug, Clone, Copy)]

@@ -168,6 +168,11 @@ impl PowerModel {
 /// parameters (e.g. bus resistance in Ω) mean the same thing.
 pub const JOINT_TORQUE_CONSTANT: [f64; N_JOINTS] = [1.3, 1.3, 1.3, 1.3, 0.7, 0.7, 0.7];
 
+/// Stribeck velocity v_s [rad/s] at the joint output: the speed scale over which breakaway
+/// friction decays (excess ∝ exp(−(q̇/v_s)²)). Shared by the simulator's Stribeck effect and
+/// the diagnosis hypothesis so the fitted F_s [Nm] means the same thing in both.
+pub const STRIBECK_VELOCITY: f64 = 0.1;
+
 /// The model's terms for one sample (or one averaged regressor row), in watts. Sums to the prediction.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct TermBreakdown {

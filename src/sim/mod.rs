@@ -28,7 +28,10 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
-pub use effects::{BrakingAsymmetry, BusLoss, Effects, HarnessDrag, SensorLatency, ThermalDrift};
+pub use effects::{
+    BalanceLeak, BrakingAsymmetry, BusLoss, DriveLoss, Effects, GearFriction, HarnessDrag,
+    SensorLatency, StribeckFriction, ThermalDrift,
+};
 pub use protocol::Preset;
 pub use truth::Truth;
 

@@ -8,12 +8,12 @@ use std::collections::VecDeque;
 use std::io::{Seek, Write};
 
 use anyhow::Result;
-use rand::RngExt;
+use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 
 use super::SimConfig;
-use super::effects::{Effects, arm_power};
+use super::effects::{Effects, SWAY_CORRELATION_S, arm_power};
 use super::protocol::Schedule;
 use super::thermal::ThermalState;
 use super::truth::Noise;
@@ -316,6 +316,10 @@ impl Engine<'_> {
         let mut trial_cursor = 0usize;
         let mut t_prev: Option<f64> = None;
         let mut sway_angle = [0.0f64; 2];
+        // Ambient sway of the balance-leak effect: its own random stream, so switching the
+        // effect on leaves every other random draw of the session unchanged.
+        let mut ambient = [0.0f64; 2];
+        let mut sway_rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x005a_1a4c_e000_u64);
         let mut term_sums = [0.0f64; 5];
         let mut motors = [MotorState::default(); N_MOTORS];
         let (mut i_ls, mut i_cmd, mut i_mbs, mut i_bms) = (0usize, 0usize, 0usize, 0usize);
@@ -390,7 +394,28 @@ impl Engine<'_> {
                             trial_here = Some(trial_cursor);
                         }
                     }
-                    let leak = cfg.artefacts.k_leak * sway * sway;
+                    // Body rate about the two horizontal axes: contamination sway plus, with the
+                    // balance-leak effect, the ambient sway; the legs' balancing power leaks in ∝ |ω|².
+                    let mut rate = [sway * sway_axis.cos(), sway * sway_axis.sin()];
+                    let leak = match effects.balance_leak {
+                        None => cfg.artefacts.k_leak * sway * sway,
+                        Some(b) => {
+                            for (r, a) in rate.iter_mut().zip(ambient.iter_mut()) {
+                                *a = ou_step(
+                                    *a,
+                                    dt,
+                                    (b.sway_rad_s, SWAY_CORRELATION_S),
+                                    &mut sway_rng,
+                                );
+                                *r += *a;
+                            }
+                            b.w_per_rad2_s2 * (rate[0] * rate[0] + rate[1] * rate[1])
+                        }
+                    };
+                    if effects.balance_leak.is_some() {
+                        // With the effect on, all of the leak is the concealed effect's power.
+                        eff += leak;
+                    }
                     drift = ou_step(drift, dt, REST_DRIFT, rng);
                     let p_arm = p.base + p.effects;
                     let p_rail = P_REST_W + drift + p.base + p.effects + leak + step_w;
@@ -448,10 +473,14 @@ impl Engine<'_> {
                             vol,
                         };
                     }
-                    sway_angle[0] += sway * sway_axis.cos() * dt;
-                    sway_angle[1] += sway * sway_axis.sin() * dt;
-                    let imu =
-                        imu_state(t, yaw0, sway, sway_axis, sway_angle, noise.gyro_rad_s, rng);
+                    for (angle, r) in sway_angle.iter_mut().zip(rate) {
+                        *angle += r * dt;
+                        if effects.balance_leak.is_some() {
+                            // The balance controller pulls the body back (2 s time constant).
+                            *angle -= *angle * dt / 2.0;
+                        }
+                    }
+                    let imu = imu_state(t, yaw0, rate, sway_angle, noise.gyro_rad_s, rng);
                     out.write(Topic::LowState, ns, cdr.low_state(tick, &imu, &motors))?;
                     tick = tick.wrapping_add(10);
                     if i_ls % 4096 == 0 {
@@ -563,12 +592,11 @@ fn accumulate_terms(
 }
 
 /// Pelvis IMU of the standing robot: fixed small roll/pitch, slowly drifting yaw, plus the
-/// balance sway (angular rate `sway` about a horizontal axis, its integral in roll/pitch).
+/// balance sway (body rate `rate` about the horizontal axes, its integral in roll/pitch).
 fn imu_state(
     t: f64,
     yaw0: f64,
-    sway: f64,
-    axis: f64,
+    rate: [f64; 2],
     sway_angle: [f64; 2],
     gyro_noise: f64,
     rng: &mut ChaCha8Rng,
@@ -594,8 +622,8 @@ fn imu_state(
     ImuState {
         quaternion: quat.map(|v| v as f32),
         gyroscope: [
-            (sway * axis.cos() + gyro_noise * gauss(rng)) as f32,
-            (sway * axis.sin() + gyro_noise * gauss(rng)) as f32,
+            (rate[0] + gyro_noise * gauss(rng)) as f32,
+            (rate[1] + gyro_noise * gauss(rng)) as f32,
             (gyro_noise * gauss(rng)) as f32,
         ],
         accelerometer: [
