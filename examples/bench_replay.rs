@@ -4,8 +4,16 @@
 //! output in the temp dir, removed afterwards unless OUT is given). The session is synthetic
 //! (smooth joint motion, 1 Hz power readings); the replay cost does not depend on the values.
 //! Targets (issue 2): < 20 s on 2 cores, peak RSS < 500 MB.
+//!
+//! `cargo run --release --example bench_replay -- --file SESSION.mcap [OUT.rrd]` measures what
+//! `g1viz replay SESSION --save OUT.rrd` does: the file streamed (read, decoded and logged in
+//! batches), so peak RSS should not depend on the session's length. Long sessions to feed it:
+//! `cargo run --release --no-default-features --example bench_read -- --generate one_hour.mcap`
+//! and `g1viz simulate --preset paper -o paper.mcap` (3.4 h).
 
 use std::time::Instant;
+
+use anyhow::Context;
 
 use g1viz::N_JOINTS;
 use g1viz::robot::RobotModel;
@@ -14,7 +22,12 @@ use g1viz::viz::replay::{ReplayExtras, ReplayOptions, log_replay};
 use g1viz::viz::{Sink, open_stream, recording_id_for};
 
 fn main() -> anyhow::Result<()> {
-    let mut args = std::env::args().skip(1);
+    let mut args = std::env::args().skip(1).peekable();
+    if args.peek().is_some_and(|a| a == "--file") {
+        args.next();
+        let session = std::path::PathBuf::from(args.next().context("--file SESSION")?);
+        return streamed(&session, args.next().map(std::path::PathBuf::from));
+    }
     let minutes: f64 = args.next().map(|s| s.parse()).transpose()?.unwrap_or(60.0);
     let keep = args.next().map(std::path::PathBuf::from);
     let out = keep.clone().unwrap_or_else(|| {
@@ -56,6 +69,53 @@ fn main() -> anyhow::Result<()> {
         size as f64 / 1e6,
         peak_rss_mb(),
         rss_input,
+    );
+    if keep.is_none() {
+        std::fs::remove_file(&out)?;
+    }
+    Ok(())
+}
+
+/// Stream `session` into an `.rrd`, as `g1viz replay SESSION --save OUT` does.
+fn streamed(session: &std::path::Path, keep: Option<std::path::PathBuf>) -> anyhow::Result<()> {
+    use g1viz::read::OpenOptions;
+    use g1viz::signals::SignalMap;
+    use g1viz::viz::recording_id_for_source;
+    use g1viz::viz::replay::replay_file;
+    let out = keep.clone().unwrap_or_else(|| {
+        std::env::temp_dir().join(format!("g1viz_bench_{}.rrd", std::process::id()))
+    });
+    let map = SignalMap::g1_left_arm();
+    let robot = RobotModel::builtin();
+    let arm = robot.arm(&map.joint_names)?;
+    let t0 = Instant::now();
+    let id = recording_id_for_source(session).context("unreadable session")?;
+    let viz = open_stream("g1viz_bench", &id, &Sink::Save(out.clone()), &[session])?;
+    let opts = ReplayOptions {
+        progress: false,
+        ..Default::default()
+    };
+    let summary = replay_file(
+        session,
+        &map,
+        &OpenOptions::default(),
+        &robot,
+        &arm,
+        &opts,
+        viz.stream(),
+    )?;
+    viz.finish()?;
+    let secs = t0.elapsed().as_secs_f64();
+    let size = std::fs::metadata(&out)?.len();
+    println!(
+        "{}: {:.1} MB, {} LowState samples ({:.2} h) streamed -> {:.1} MB .rrd in {secs:.2} s ({:.0} samples/s); peak RSS {:.0} MB",
+        session.display(),
+        std::fs::metadata(session)?.len() as f64 / 1e6,
+        summary.samples,
+        summary.samples as f64 / 100.0 / 3600.0,
+        size as f64 / 1e6,
+        summary.samples as f64 / secs,
+        peak_rss_mb(),
     );
     if keep.is_none() {
         std::fs::remove_file(&out)?;

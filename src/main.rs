@@ -389,31 +389,11 @@ fn load_model(path: &Path) -> Result<PowerModel> {
 #[cfg(feature = "viz")]
 fn replay(a: ReplayArgs) -> Result<()> {
     use g1viz::robot::RobotModel;
-    use g1viz::viz::{self, Sink, replay::ReplayExtras};
+    use g1viz::viz::{self, Sink};
 
-    let rec = a.read.load(&a.session)?;
     let robot = match &a.urdf {
         Some(p) => RobotModel::from_urdf_file(p)?,
         None => RobotModel::builtin(),
-    };
-    let arm = robot.arm(&rec.joint_names)?;
-    let extras = match &a.model {
-        Some(m) => {
-            let model = load_model(m)?;
-            let (extras, v) = viz::overlay::model_extras(&rec, &model, &a.fit.options())?;
-            for n in &v.notes {
-                eprintln!("note: {n}");
-            }
-            eprintln!(
-                "model {}: per-trajectory R² {:.3}, RMSE {:.2} W on {} trials",
-                m.display(),
-                v.trial_level_aligned.r2,
-                v.trial_level_aligned.rmse,
-                v.per_trial.len()
-            );
-            extras
-        }
-        None => ReplayExtras::default(),
     };
     let sink = if let Some(out) = &a.save {
         Sink::Save(out.clone())
@@ -430,14 +410,55 @@ fn replay(a: ReplayArgs) -> Result<()> {
     if let Some(m) = a.model.as_deref().filter(|m| m.exists()) {
         inputs.push(m);
     }
-    let out = viz::open_stream("g1viz", &viz::recording_id_for(&rec), &sink, &inputs)?;
     let opts = viz::replay::ReplayOptions {
         pose_rate_hz: (a.pose_rate > 0.0).then_some(a.pose_rate),
         blueprint: !a.no_blueprint,
         ..Default::default()
     };
-    let summary = viz::replay::log_replay(&rec, &robot, &arm, &extras, &opts, out.stream())?;
-    out.finish()?;
+    let summary = match &a.model {
+        // The model overlay needs the whole session (trial segmentation, fitted windows).
+        Some(m) => {
+            let rec = a.read.load(&a.session)?;
+            let arm = robot.arm(&rec.joint_names)?;
+            let model = load_model(m)?;
+            let (extras, v) = viz::overlay::model_extras(&rec, &model, &a.fit.options())?;
+            for n in &v.notes {
+                eprintln!("note: {n}");
+            }
+            eprintln!(
+                "model {}: per-trajectory R² {:.3}, RMSE {:.2} W on {} trials",
+                m.display(),
+                v.trial_level_aligned.r2,
+                v.trial_level_aligned.rmse,
+                v.per_trial.len()
+            );
+            let out = viz::open_stream("g1viz", &viz::recording_id_for(&rec), &sink, &inputs)?;
+            let summary =
+                viz::replay::log_replay(&rec, &robot, &arm, &extras, &opts, out.stream())?;
+            out.finish()?;
+            summary
+        }
+        // A plain replay streams the file: memory does not grow with its length.
+        None => {
+            let map = a.read.signal_map()?;
+            let arm = robot.arm(&map.joint_names)?;
+            let id = viz::recording_id_for_source(&a.session)
+                .with_context(|| format!("cannot read {}", a.session.display()))?;
+            let out = viz::open_stream("g1viz", &id, &sink, &inputs)?;
+            let summary = viz::replay::replay_file(
+                &a.session,
+                &map,
+                &a.read.open_options(),
+                &robot,
+                &arm,
+                &opts,
+                out.stream(),
+            )
+            .with_context(|| format!("replaying {}", a.session.display()))?;
+            out.finish()?;
+            summary
+        }
+    };
     for w in &summary.warnings {
         eprintln!("warning: {w}");
     }

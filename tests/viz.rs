@@ -165,6 +165,33 @@ fn rows(c: &Contents, path: &str) -> usize {
         .unwrap_or(0)
 }
 
+/// The `(time [ns], value)` pairs of the scalar series at `path`, sorted by time.
+fn series(c: &Contents, path: &str) -> Vec<(i64, f64)> {
+    use rerun::external::arrow::array::AsArray;
+    use rerun::external::arrow::datatypes::Float64Type;
+    let mut v = Vec::new();
+    for chunk in c
+        .chunks
+        .iter()
+        .filter(|ch| !ch.is_static() && ch.entity_path().to_string() == path)
+    {
+        let times = chunk
+            .timelines()
+            .iter()
+            .find(|(name, _)| name.as_str() == "time")
+            .expect("time timeline")
+            .1
+            .times_raw()
+            .to_vec();
+        let (_, list) = chunk.components().iter().next().expect("one component");
+        let values = list.list_array.values().as_primitive::<Float64Type>();
+        assert_eq!(values.len(), chunk.num_rows());
+        v.extend(times.into_iter().zip(values.values().iter().copied()));
+    }
+    v.sort_by_key(|p| p.0);
+    v
+}
+
 /// Replay `rec` (with `extras`) on the builtin robot into `out`, as `g1viz replay --save` does.
 fn save_replay(rec: &Recording, extras: &ReplayExtras, out: &Path, input: &Path) {
     let robot = RobotModel::builtin();
@@ -301,37 +328,13 @@ fn blueprint_layout_is_complete() {
 /// Values read back through rerun's decoder equal the input (formula above) and the hand-computed net power.
 #[test]
 fn rrd_values_match_input() {
-    use rerun::external::arrow::array::AsArray;
-    use rerun::external::arrow::datatypes::Float64Type;
     let dir = tempfile::tempdir().unwrap();
     let rec = synthetic(&input_file(dir.path()));
     let out = dir.path().join("out.rrd");
     write_rrd(&rec, &out).unwrap();
     let c = contents(&decode(&out));
 
-    let series = |path: &str| -> Vec<(i64, f64)> {
-        let mut v = Vec::new();
-        for chunk in c
-            .chunks
-            .iter()
-            .filter(|ch| !ch.is_static() && ch.entity_path().to_string() == path)
-        {
-            let times = chunk
-                .timelines()
-                .iter()
-                .find(|(name, _)| name.as_str() == "time")
-                .expect("time timeline")
-                .1
-                .times_raw()
-                .to_vec();
-            let (_, list) = chunk.components().iter().next().expect("one component");
-            let values = list.list_array.values().as_primitive::<Float64Type>();
-            assert_eq!(values.len(), chunk.num_rows());
-            v.extend(times.into_iter().zip(values.values().iter().copied()));
-        }
-        v.sort_by_key(|p| p.0);
-        v
-    };
+    let series = |path: &str| series(&c, path);
     let elbow = series("/joints/elbow/q");
     assert_eq!(elbow.len(), N);
     for (i, (t_ns, q)) in elbow.iter().enumerate() {
@@ -642,4 +645,117 @@ fn model_overlay_marks_contaminated_trials_and_logs_loss_terms() {
     assert_eq!(rows(&c, "/model/terms/elbow/copper"), terms.t.len());
     assert_eq!(rows(&c, "/model/power/predicted"), terms.t.len());
     assert!(rows(&c, "/model/error/trajectory") >= clean.len());
+}
+
+/// `g1viz replay` without a model streams the file (`replay_file`, bounded memory): in many small
+/// batches it logs the same rows and values as the in-memory replay of the whole recording.
+#[test]
+fn streamed_replay_matches_the_in_memory_replay() {
+    use g1viz::read::OpenOptions;
+    use g1viz::signals::SignalMap;
+    use g1viz::viz::recording_id_for_source;
+    use g1viz::viz::replay::replay_file;
+    let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/g1_example.mcap");
+    let mut sessions = vec![example];
+    sessions.extend(common::shared_recording("g1_smoke.mcap"));
+    for mcap in sessions {
+        let dir = tempfile::tempdir().unwrap();
+        let map = SignalMap::g1_left_arm();
+        let rec = g1viz::signals::load_recording(&mcap, &map, &OpenOptions::default()).unwrap();
+        let whole = dir.path().join("whole.rrd");
+        save_replay(&rec, &ReplayExtras::default(), &whole, &mcap);
+
+        let streamed = dir.path().join("streamed.rrd");
+        let robot = RobotModel::builtin();
+        let arm = robot.arm(&map.joint_names).unwrap();
+        let id = recording_id_for_source(&mcap).unwrap();
+        assert_eq!(id, recording_id_for(&rec), "one id for both paths");
+        let viz = open_stream("g1viz_test", &id, &Sink::Save(streamed.clone()), &[&mcap]).unwrap();
+        let opts = ReplayOptions {
+            chunk_rows: 300, // many batches
+            progress: false,
+            ..Default::default()
+        };
+        let summary = replay_file(
+            &mcap,
+            &map,
+            &OpenOptions::default(),
+            &robot,
+            &arm,
+            &opts,
+            viz.stream(),
+        )
+        .unwrap();
+        viz.finish().unwrap();
+        assert_eq!(summary.samples, rec.state.t.len());
+
+        let (a, b) = (contents(&decode(&whole)), contents(&decode(&streamed)));
+        assert_eq!(a.rows, b.rows, "{}: rows per entity", mcap.display());
+        let scalar_paths: Vec<&String> = a
+            .rows
+            .keys()
+            .filter(|(bp, p, st)| {
+                !bp && !st
+                    && ["/joints/", "/power/", "/imu/"]
+                        .iter()
+                        .any(|x| p.starts_with(x))
+            })
+            .map(|(_, p, _)| p)
+            .collect();
+        assert!(scalar_paths.len() > 30, "{scalar_paths:?}");
+        for p in scalar_paths {
+            assert_eq!(series(&a, p), series(&b, p), "{}: {p}", mcap.display());
+        }
+    }
+}
+
+/// A truncated file streams up to the damage, with a warning naming the file.
+#[test]
+fn streamed_replay_of_a_truncated_file_keeps_what_was_read() {
+    use g1viz::read::OpenOptions;
+    use g1viz::signals::SignalMap;
+    use g1viz::viz::replay::replay_file;
+    let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/g1_example.mcap");
+    let bytes = std::fs::read(&example).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let cut = dir.path().join("cut.mcap");
+    std::fs::write(&cut, &bytes[..bytes.len() * 3 / 5]).unwrap();
+    let map = SignalMap::g1_left_arm();
+    let full = g1viz::signals::load_recording(&example, &map, &OpenOptions::default())
+        .unwrap()
+        .state
+        .t
+        .len();
+    let robot = RobotModel::builtin();
+    let arm = robot.arm(&map.joint_names).unwrap();
+    let out = dir.path().join("cut.rrd");
+    let viz = open_stream("g1viz_test", "cut", &Sink::Save(out.clone()), &[&cut]).unwrap();
+    let opts = ReplayOptions {
+        chunk_rows: 500,
+        progress: false,
+        ..Default::default()
+    };
+    let summary = replay_file(
+        &cut,
+        &map,
+        &OpenOptions::default(),
+        &robot,
+        &arm,
+        &opts,
+        viz.stream(),
+    )
+    .unwrap();
+    viz.finish().unwrap();
+    assert!(
+        summary.samples > full / 4 && summary.samples < full,
+        "{} of {full} samples",
+        summary.samples
+    );
+    assert!(
+        summary.warnings.iter().any(|w| w.contains("cut.mcap")),
+        "{:?}",
+        summary.warnings
+    );
+    let c = contents(&decode(&out));
+    assert_eq!(rows(&c, "/joints/elbow/q"), summary.samples);
 }

@@ -27,6 +27,17 @@ struct GroupPlan {
     undecodable: usize,
 }
 
+/// What a streamed read found besides the samples: the time origin, sample counts and problems.
+#[derive(Debug, Clone, Default)]
+pub struct StreamSummary {
+    /// Absolute time [ns since the Unix epoch] all batch times are relative to.
+    pub start_ns: u64,
+    /// Samples delivered per group: state, command, MBS, BMS.
+    pub samples: [usize; 4],
+    /// Problems met while reading (damage, NaNs, missing topics), each naming file/topic/offset.
+    pub warnings: Vec<String>,
+}
+
 /// Load the arm signals of `path` (MCAP, ROS 2 bag or ROS 1 bag) as `map` describes them.
 ///
 /// Times are relative to the earliest message read. A damaged file yields the data up to the
@@ -36,9 +47,87 @@ pub fn load_recording(
     map: &SignalMap,
     opts: &OpenOptions,
 ) -> anyhow::Result<Recording> {
+    let mut out = None;
+    let summary = read_batches(path, map, opts, usize::MAX, &mut |batch| {
+        out = Some(std::mem::take(batch));
+        Ok(())
+    })?;
+    let mut rec = out.unwrap_or_default();
+    rec.source = path.to_path_buf();
+    rec.joint_names = map.joint_names.clone();
+    rec.start_ns = summary.start_ns;
+    rec.warnings = summary.warnings;
+    Ok(rec)
+}
+
+/// Stream the arm signals of `path` in batches of at most `batch_samples` state (or command)
+/// samples, so memory stays bounded whatever the file length. Each batch is a [`Recording`]
+/// holding only that stretch (times relative to [`StreamSummary::start_ns`], which is fixed by
+/// the first batch: the earliest sample of an indexed file, read in log-time order). Files
+/// without an index are delivered in file order, sorted within each batch only.
+///
+/// Errors are those of [`load_recording`], plus any error `on_batch` returns (reading stops).
+/// The missing-state-topic error comes at the end, after the batches that were read.
+pub fn stream_recording(
+    path: &Path,
+    map: &SignalMap,
+    opts: &OpenOptions,
+    batch_samples: usize,
+    on_batch: &mut dyn FnMut(&Recording) -> anyhow::Result<()>,
+) -> anyhow::Result<StreamSummary> {
+    read_batches(path, map, opts, batch_samples.max(1), &mut |batch| {
+        on_batch(batch)
+    })
+}
+
+/// Per-group read plans plus the batch being filled.
+struct Batcher {
+    plans: Vec<GroupPlan>,
+    batch: Recording,
+    start_ns: Option<u64>,
+    samples: [usize; 4],
+}
+
+impl Batcher {
+    fn len(&self) -> usize {
+        self.batch.state.q.len().max(self.batch.command.q.len())
+    }
+
+    /// Give the filled batch (times set, each group sorted) to `on_batch` and start a new one.
+    fn flush(
+        &mut self,
+        on_batch: &mut dyn FnMut(&mut Recording) -> anyhow::Result<()>,
+    ) -> anyhow::Result<()> {
+        let first = self.plans.iter().filter_map(|p| p.t_ns.iter().min()).min();
+        let Some(&first) = first else {
+            return Ok(());
+        };
+        let start = *self.start_ns.get_or_insert(first);
+        self.batch.start_ns = start;
+        for plan in &mut self.plans {
+            set_times(&mut self.batch, plan.group, &plan.t_ns);
+            plan.t_ns.clear();
+        }
+        on_batch(&mut self.batch)?;
+        let b = &mut self.batch;
+        b.state = Default::default();
+        b.command = Default::default();
+        b.mbs = Default::default();
+        b.bms = Default::default();
+        Ok(())
+    }
+}
+
+fn read_batches(
+    path: &Path,
+    map: &SignalMap,
+    opts: &OpenOptions,
+    batch_samples: usize,
+    on_batch: &mut dyn FnMut(&mut Recording) -> anyhow::Result<()>,
+) -> anyhow::Result<StreamSummary> {
     map.validate()?;
     let mut session = Session::open(path, opts)?;
-    let mut plans: Vec<GroupPlan> = GROUPS
+    let plans: Vec<GroupPlan> = GROUPS
         .iter()
         .map(|&group| {
             let names = group_signals(group);
@@ -66,15 +155,22 @@ pub fn load_recording(
     type Compiled = (String, Vec<(usize, FieldExtractor)>);
     let mut extractors: HashMap<String, Compiled> = HashMap::new();
     let mut row = Vec::new();
-    // Samples go straight into the typed series (no intermediate copy); times are set at the end.
-    let mut rec = Recording {
-        source: path.to_path_buf(),
-        joint_names: map.joint_names.clone(),
-        ..Recording::default()
+    // Samples go straight into the typed series (no intermediate copy); times are set per batch.
+    let mut b = Batcher {
+        plans,
+        batch: Recording {
+            source: path.to_path_buf(),
+            joint_names: map.joint_names.clone(),
+            ..Recording::default()
+        },
+        start_ns: None,
+        samples: [0; 4],
     };
+    // An error of `on_batch` stops the read; it is returned as is, not as a read error.
+    let mut sink_error: Option<anyhow::Error> = None;
     let mut count = 0u64;
     let file = path.display().to_string();
-    let summary = session.read(Some(&topics), &mut |msg| {
+    let read = session.read(Some(&topics), &mut |msg| {
         count += 1;
         if count.is_multiple_of(4096)
             && let Some(pb) = &progress
@@ -85,7 +181,7 @@ pub fn load_recording(
         let known = extractors.get(topic).is_some_and(|(ty, _)| *ty == msg.channel.type_name);
         if !known {
             let mut list = Vec::new();
-            for (gi, plan) in plans.iter().enumerate().filter(|(_, p)| p.topic == topic) {
+            for (gi, plan) in b.plans.iter().enumerate().filter(|(_, p)| p.topic == topic) {
                 let ex = FieldExtractor::compile(&msg.channel.schema, msg.channel.encoding, &plan.paths).map_err(|e| {
                     ReadError::Other(format!(
                         "{file}: topic {topic} ({}): schema does not match the signal map ({:?} signals): {e}",
@@ -97,7 +193,7 @@ pub fn load_recording(
             extractors.insert(topic.to_string(), (msg.channel.type_name.clone(), list));
         }
         for (gi, ex) in extractors.get(topic).map(|(_, l)| l.as_slice()).unwrap_or(&[]) {
-            let plan = &mut plans[*gi];
+            let plan = &mut b.plans[*gi];
             row.resize(ex.len(), 0.0);
             if let Err(e) = ex.extract(msg.data, &mut row) {
                 plan.undecodable += 1;
@@ -126,15 +222,27 @@ pub fn load_recording(
             for (v, s) in row.iter_mut().zip(&plan.scales) {
                 *v *= s;
             }
-            push_row(&mut rec, plan.group, &row);
+            let group = plan.group;
+            push_row(&mut b.batch, group, &row);
+            b.samples[group_index(group)] += 1;
+        }
+        if b.len() >= batch_samples
+            && let Err(e) = b.flush(on_batch)
+        {
+            sink_error = Some(e);
+            return Err(ReadError::Other("stopped by the batch consumer".into()));
         }
         Ok(())
-    })?;
+    });
+    if let Some(e) = sink_error {
+        return Err(e);
+    }
+    let summary = read?;
     if let Some(pb) = progress {
         pb.finish_and_clear();
     }
     warnings.extend(summary.warnings);
-    for plan in &plans {
+    for plan in &b.plans {
         if plan.non_finite > MAX_DETAILED_WARNINGS || plan.undecodable > MAX_DETAILED_WARNINGS {
             warnings.push(format!(
                 "{file}: topic {}: {} samples with non-finite values and {} undecodable messages dropped in all",
@@ -143,8 +251,7 @@ pub fn load_recording(
         }
     }
 
-    let state_empty = plans.first().is_none_or(|p| p.t_ns.is_empty());
-    if state_empty {
+    if b.samples[0] == 0 {
         let state_topic = map.group_topic(Group::State).unwrap_or("");
         let present = session
             .info()
@@ -160,25 +267,30 @@ pub fn load_recording(
             "{file}: required topic {state_topic} has no readable messages; topics in the file: {present}"
         );
     }
-    for plan in plans.iter().skip(1) {
-        if plan.t_ns.is_empty() {
+    for plan in b.plans.iter().skip(1) {
+        if b.samples[group_index(plan.group)] == 0 {
             warnings.push(format!(
                 "{file}: optional topic {} has no messages: {:?} series left empty",
                 plan.topic, plan.group
             ));
         }
     }
-    rec.start_ns = plans
-        .iter()
-        .filter_map(|p| p.t_ns.iter().min())
-        .min()
-        .copied()
-        .unwrap_or(0);
-    rec.warnings = warnings;
-    for plan in &plans {
-        set_times(&mut rec, plan.group, &plan.t_ns);
+    b.flush(on_batch)?;
+    Ok(StreamSummary {
+        start_ns: b.start_ns.unwrap_or(0),
+        samples: b.samples,
+        warnings,
+    })
+}
+
+/// Position of `group` in [`StreamSummary::samples`].
+fn group_index(group: Group) -> usize {
+    match group {
+        Group::State => 0,
+        Group::Command => 1,
+        Group::Mbs => 2,
+        Group::Bms => 3,
     }
-    Ok(rec)
 }
 
 fn progress_bar(session: &mut Session) -> Option<indicatif::ProgressBar> {
@@ -233,9 +345,10 @@ fn permute<T: Copy>(v: &mut Vec<T>, order: Option<&[usize]>) {
 /// the source delivered them out of order (files without an index).
 fn set_times(rec: &mut Recording, group: Group, t_ns: &[u64]) {
     let start = rec.start_ns;
+    // Signed: a later batch of an unindexed file may hold samples earlier than the origin.
     let mut t: Vec<f64> = t_ns
         .iter()
-        .map(|&t| t.saturating_sub(start) as f64 * 1e-9)
+        .map(|&t| (i128::from(t) - i128::from(start)) as f64 * 1e-9)
         .collect();
     let order: Option<Vec<usize>> = (!t_ns.is_sorted()).then(|| {
         let mut o: Vec<usize> = (0..t_ns.len()).collect();

@@ -68,7 +68,7 @@ pub struct Recording {
 mod load;
 mod map;
 
-pub use load::load_recording;
+pub use load::{StreamSummary, load_recording, stream_recording};
 pub use map::{
     G1_LEFT_ARM_BASE, G1_RIGHT_ARM_BASE, GROUPS, Group, JOINT_SHORT, SignalMap, SignalSpec,
     group_signals,

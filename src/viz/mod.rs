@@ -164,23 +164,64 @@ pub(crate) fn stable_hash(parts: &[&[u8]]) -> u64 {
     h
 }
 
-/// Recording id derived from the input: file name, file size, start time and sample count —
-/// the same input gives the same id (so repeated runs produce comparable files), a different
-/// session a different one. The directory is left out so that a copied file replays the same.
+/// Recording id derived from the input file (or bag directory): see [`recording_id_for_source`].
+/// A recording that does not come from a readable file (synthetic, in tests and benchmarks) is
+/// identified by its name, start time and sample count instead.
 pub fn recording_id_for(rec: &crate::signals::Recording) -> String {
-    let name = rec
-        .source
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let size = std::fs::metadata(&rec.source).map(|m| m.len()).unwrap_or(0);
+    if let Some(id) = recording_id_for_source(&rec.source) {
+        return id;
+    }
+    let name = rec.source.to_string_lossy();
     let h = stable_hash(&[
         name.as_bytes(),
-        &size.to_le_bytes(),
         &rec.start_ns.to_le_bytes(),
         &(rec.state.t.len() as u64).to_le_bytes(),
     ]);
     format!("g1viz-{h:016x}")
+}
+
+/// Recording id of the session at `path`, known before reading it (so a streamed replay can
+/// open its output first): a stable hash of the file name, its size and its first and last
+/// 64 KiB (for a ROS 2 bag directory: the name and size of every file in it). The same input
+/// gives the same id, so repeated runs produce comparable files, and a copied file replays the
+/// same; `None` when the path cannot be read.
+pub fn recording_id_for_source(path: &Path) -> Option<String> {
+    use std::io::{Read, Seek, SeekFrom};
+    const EDGE: u64 = 64 * 1024;
+    let name = path.file_name()?.to_string_lossy().into_owned();
+    let meta = std::fs::metadata(path).ok()?;
+    let mut parts: Vec<Vec<u8>> = vec![name.into_bytes()];
+    if meta.is_dir() {
+        let mut entries: Vec<(String, u64)> = std::fs::read_dir(path)
+            .ok()?
+            .filter_map(|e| {
+                let e = e.ok()?;
+                let size = e.metadata().ok()?.len();
+                Some((e.file_name().to_string_lossy().into_owned(), size))
+            })
+            .collect();
+        entries.sort();
+        for (n, size) in entries {
+            parts.push(n.into_bytes());
+            parts.push(size.to_le_bytes().to_vec());
+        }
+    } else {
+        let size = meta.len();
+        parts.push(size.to_le_bytes().to_vec());
+        let mut f = std::fs::File::open(path).ok()?;
+        let mut head = Vec::new();
+        (&mut f).take(EDGE).read_to_end(&mut head).ok()?;
+        parts.push(head);
+        if size > EDGE {
+            // The last 64 KiB, without re-reading bytes the head already covered.
+            f.seek(SeekFrom::Start((size - EDGE).max(EDGE))).ok()?;
+            let mut tail = Vec::new();
+            f.take(EDGE).read_to_end(&mut tail).ok()?;
+            parts.push(tail);
+        }
+    }
+    let refs: Vec<&[u8]> = parts.iter().map(Vec::as_slice).collect();
+    Some(format!("g1viz-{:016x}", stable_hash(&refs)))
 }
 
 /// The two timelines every temporal row carries: `time` (absolute timestamp, the robot's clock:

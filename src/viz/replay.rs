@@ -204,7 +204,8 @@ fn arm_center(robot: &RobotModel, arm: &ArmJoints) -> [f32; 3] {
 }
 
 /// Logs `rec` (and `extras`) to `stream`: arm animation, joint and power series, model/diagnosis
-/// overlays, and the viewer layout.
+/// overlays, and the viewer layout. The recording is already in memory; to replay a file of any
+/// length in bounded memory use [`replay_file`].
 pub fn log_replay(
     rec: &Recording,
     robot: &RobotModel,
@@ -214,136 +215,313 @@ pub fn log_replay(
     stream: &RecordingStream,
 ) -> Result<ReplaySummary> {
     check_lengths(rec)?;
-    let joints: Vec<String> = rec
-        .joint_names
-        .iter()
-        .map(|n| short_joint_name(n))
-        .collect();
-    if joints.len() != N_JOINTS {
-        bail!(
-            "{}: expected {N_JOINTS} arm joint names, got {}",
-            rec.source.display(),
-            joints.len()
-        );
-    }
-    let mut summary = ReplaySummary {
-        samples: rec.state.t.len(),
-        ..Default::default()
+    let mut logger = ReplayLogger::begin(
+        stream,
+        robot,
+        arm,
+        &rec.source,
+        &rec.joint_names,
+        rec.start_ns,
+        extras,
+        opts,
+        rec.state.t.len() as u64,
+    )?;
+    logger.add(rec)?;
+    logger.finish(extras)
+}
+
+/// Streams the recording at `path` into `stream` in batches of [`ReplayOptions::chunk_rows`]
+/// samples: memory stays bounded whatever the file length (the ~1 Hz power readings are kept
+/// until the end, where the idle baseline is known). No model or diagnosis overlay (those need
+/// the whole session; see [`log_replay`]). Returns the replay summary with the reader's warnings.
+pub fn replay_file(
+    path: &std::path::Path,
+    map: &crate::signals::SignalMap,
+    read_opts: &crate::read::OpenOptions,
+    robot: &RobotModel,
+    arm: &ArmJoints,
+    opts: &ReplayOptions,
+    stream: &RecordingStream,
+) -> Result<ReplaySummary> {
+    let extras = ReplayExtras::default();
+    // The reader shows its own progress bar (messages read); one bar is enough.
+    let quiet = ReplayOptions {
+        progress: false,
+        ..opts.clone()
     };
-    let mut w = ChunkWriter::new(stream, REPLAY_NAMESPACE, rec.start_ns);
-
-    if opts.blueprint {
-        let parts = LayoutParts {
-            model: extras.prediction.is_some()
-                || extras.terms.is_some()
-                || !extras.trajectories.is_empty(),
-            diagnosis: extras.diagnosis.is_some(),
-            trials: !extras.trials.is_empty(),
-        };
-        let layout = blueprint::replay_layout(&joints, parts, arm_center(robot, arm));
-        blueprint::send_blueprint(stream, &layout)?;
-        // The blueprint bypasses the batcher: flush so it reaches the sink before any data chunk
-        // (a fixed message order is part of the reproducible output).
-        stream
-            .flush_blocking()
-            .context("sending the viewer layout")?;
-    }
-    let scene = robot3d::log_static_robot(&mut w, robot, arm, &mut summary.warnings)?;
-    log_styles(&mut w, &joints, !rec.command.t.is_empty())?;
-
-    let chunk = opts.chunk_rows.max(1);
-    let progress = progress_bar(opts.progress, rec.state.t.len() as u64);
-    let st = &rec.state;
-    let mut next_pose_t = f64::NEG_INFINITY;
-    let mut pose_idx: Vec<usize> = Vec::with_capacity(chunk);
-    for start in (0..st.t.len()).step_by(chunk) {
-        let end = (start + chunk).min(st.t.len());
-        let t = &st.t[start..end];
-        for (j, name) in joints.iter().enumerate() {
-            for (signal, data) in [
-                ("q", &st.q),
-                ("dq", &st.dq),
-                ("tau", &st.tau),
-                ("temperature", &st.temp),
-            ] {
-                scalars(
-                    &mut w,
-                    &format!("joints/{name}/{signal}"),
-                    t,
-                    data[start..end].iter().map(|v| v[j]),
-                )?;
+    let mut logger: Option<ReplayLogger<'_>> = None;
+    let read = crate::signals::stream_recording(
+        path,
+        map,
+        read_opts,
+        opts.chunk_rows.max(1),
+        &mut |batch| {
+            check_lengths(batch)?;
+            if logger.is_none() {
+                logger = Some(ReplayLogger::begin(
+                    stream,
+                    robot,
+                    arm,
+                    path,
+                    &batch.joint_names,
+                    batch.start_ns,
+                    &extras,
+                    &quiet,
+                    0,
+                )?);
             }
-        }
-        scalars(
-            &mut w,
-            "imu/gyro_norm",
-            t,
-            st.gyro[start..end]
-                .iter()
-                .map(|g| (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt()),
-        )?;
+            match logger.as_mut() {
+                Some(l) => l.add(batch),
+                None => Ok(()),
+            }
+        },
+    )?;
+    let logger = logger.context("the recording delivered no samples")?;
+    let mut summary = logger.finish(&extras)?;
+    let mut warnings = read.warnings;
+    warnings.append(&mut summary.warnings);
+    summary.warnings = warnings;
+    Ok(summary)
+}
 
-        // Poses: every sample, or decimated to pose_rate_hz.
-        pose_idx.clear();
-        for (k, &ti) in t.iter().enumerate() {
-            if ti >= next_pose_t {
-                pose_idx.push(start + k);
-                if let Some(rate) = opts.pose_rate_hz.filter(|r| *r > 0.0) {
-                    next_pose_t = ti + 1.0 / rate;
+/// Incremental replay: [`ReplayLogger::begin`] sends the layout and the static robot,
+/// [`ReplayLogger::add`] logs one stretch of samples (any number of times, in time order),
+/// [`ReplayLogger::finish`] logs the power series (net of the idle baseline, known only once the
+/// arm has moved) and the overlays.
+pub struct ReplayLogger<'a> {
+    w: ChunkWriter<'a>,
+    robot: &'a RobotModel,
+    arm: &'a ArmJoints,
+    source: std::path::PathBuf,
+    joints: Vec<String>,
+    scene: robot3d::ArmScene,
+    chunk: usize,
+    pose_rate_hz: Option<f64>,
+    motion_threshold_rad: f64,
+    next_pose_t: f64,
+    /// First joint sample, and the time the arm first moved away from it.
+    q0: Option<[f64; N_JOINTS]>,
+    motion_t: f64,
+    command_style_sent: bool,
+    /// The ~1 Hz power readings (≈ 60 kB per hour), logged by `finish`.
+    mbs: PowerSeries,
+    bms: PowerSeries,
+    progress: ProgressBar,
+    summary: ReplaySummary,
+}
+
+impl<'a> ReplayLogger<'a> {
+    /// Sends the viewer layout (when [`ReplayOptions::blueprint`]), the static robot and the
+    /// series styles. `joint_names` are the 7 arm joints' URDF names; `expected_samples` sizes the
+    /// progress bar (0: no bar).
+    #[allow(clippy::too_many_arguments)]
+    pub fn begin(
+        stream: &'a RecordingStream,
+        robot: &'a RobotModel,
+        arm: &'a ArmJoints,
+        source: &std::path::Path,
+        joint_names: &[String],
+        start_ns: u64,
+        extras: &ReplayExtras,
+        opts: &ReplayOptions,
+        expected_samples: u64,
+    ) -> Result<Self> {
+        let joints: Vec<String> = joint_names.iter().map(|n| short_joint_name(n)).collect();
+        if joints.len() != N_JOINTS {
+            bail!(
+                "{}: expected {N_JOINTS} arm joint names, got {}",
+                source.display(),
+                joints.len()
+            );
+        }
+        let mut summary = ReplaySummary::default();
+        let mut w = ChunkWriter::new(stream, REPLAY_NAMESPACE, start_ns);
+        if opts.blueprint {
+            let parts = LayoutParts {
+                model: extras.prediction.is_some()
+                    || extras.terms.is_some()
+                    || !extras.trajectories.is_empty(),
+                diagnosis: extras.diagnosis.is_some(),
+                trials: !extras.trials.is_empty(),
+            };
+            let layout = blueprint::replay_layout(&joints, parts, arm_center(robot, arm));
+            blueprint::send_blueprint(stream, &layout)?;
+            // The blueprint bypasses the batcher: flush so it reaches the sink before any data
+            // chunk (a fixed message order is part of the reproducible output).
+            stream
+                .flush_blocking()
+                .context("sending the viewer layout")?;
+        }
+        let scene = robot3d::log_static_robot(&mut w, robot, arm, &mut summary.warnings)?;
+        log_styles(&mut w, &joints)?;
+        let progress = if expected_samples > 0 {
+            progress_bar(opts.progress, expected_samples)
+        } else {
+            ProgressBar::hidden()
+        };
+        Ok(ReplayLogger {
+            w,
+            robot,
+            arm,
+            source: source.to_path_buf(),
+            joints,
+            scene,
+            chunk: opts.chunk_rows.max(1),
+            pose_rate_hz: opts.pose_rate_hz.filter(|r| *r > 0.0),
+            motion_threshold_rad: opts.motion_threshold_rad,
+            next_pose_t: f64::NEG_INFINITY,
+            q0: None,
+            motion_t: f64::INFINITY,
+            command_style_sent: false,
+            mbs: PowerSeries::default(),
+            bms: PowerSeries::default(),
+            progress,
+            summary,
+        })
+    }
+
+    /// Logs the joint, IMU, pose and command samples of `part` (the next stretch of the session,
+    /// times relative to the same start) and keeps its power readings for [`Self::finish`].
+    pub fn add(&mut self, part: &Recording) -> Result<()> {
+        let st = &part.state;
+        let n = st.t.len().min(st.q.len());
+        // Motion start: the first sample any joint is more than the threshold from the first.
+        if self.motion_t.is_infinite() {
+            for (q, &t) in st.q.iter().zip(&st.t) {
+                let q0 = *self.q0.get_or_insert(*q);
+                if q.iter()
+                    .zip(&q0)
+                    .any(|(a, b)| (a - b).abs() > self.motion_threshold_rad)
+                {
+                    self.motion_t = t;
+                    break;
                 }
             }
         }
-        let pose_t: Vec<f64> = pose_idx.iter().map(|&i| st.t[i]).collect();
-        let pose_q: Vec<[f64; N_JOINTS]> = pose_idx.iter().map(|&i| st.q[i]).collect();
-        robot3d::log_link_poses(&mut w, robot, arm, &scene, &pose_t, &pose_q)?;
-        progress.inc((end - start) as u64);
-    }
-    progress.finish_and_clear();
-
-    let cmd = &rec.command;
-    for start in (0..cmd.t.len()).step_by(chunk) {
-        let end = (start + chunk).min(cmd.t.len());
-        for (j, name) in joints.iter().enumerate() {
-            scalars(
-                &mut w,
-                &format!("joints/{name}/q_cmd"),
-                &cmd.t[start..end],
-                cmd.q[start..end].iter().map(|v| v[j]),
-            )?;
-        }
-    }
-
-    let motion_t = motion_start(rec, opts.motion_threshold_rad);
-    for (k, (label, series)) in [("mbs", &rec.mbs), ("bms", &rec.bms)]
-        .into_iter()
-        .enumerate()
-    {
-        if series.t.is_empty() {
-            continue;
-        }
-        scalars_chunked(
-            &mut w,
-            &format!("power/{label}/raw"),
-            &series.t,
-            &series.watts,
-            chunk,
-        )?;
-        match idle_baseline(series, motion_t) {
-            Some(base) => {
-                summary.baseline_w[k] = Some(base);
-                let net: Vec<f64> = series.watts.iter().map(|p| p - base).collect();
-                scalars_chunked(&mut w, &format!("power/{label}/net"), &series.t, &net, chunk)?;
+        let mut pose_idx: Vec<usize> = Vec::with_capacity(self.chunk);
+        for start in (0..n).step_by(self.chunk) {
+            let end = (start + self.chunk).min(n);
+            let t = &st.t[start..end];
+            for (j, name) in self.joints.iter().enumerate() {
+                for (signal, data) in [
+                    ("q", &st.q),
+                    ("dq", &st.dq),
+                    ("tau", &st.tau),
+                    ("temperature", &st.temp),
+                ] {
+                    scalars(
+                        &mut self.w,
+                        &format!("joints/{name}/{signal}"),
+                        t,
+                        data[start..end].iter().map(|v| v[j]),
+                    )?;
+                }
             }
-            None => summary.warnings.push(format!(
-                "{}: no {} power reading before the arm first moves (t = {motion_t:.2} s); net power not logged",
-                rec.source.display(),
-                label.to_uppercase()
-            )),
+            scalars(
+                &mut self.w,
+                "imu/gyro_norm",
+                t,
+                st.gyro[start..end]
+                    .iter()
+                    .map(|g| (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt()),
+            )?;
+
+            // Poses: every sample, or decimated to pose_rate_hz.
+            pose_idx.clear();
+            for (k, &ti) in t.iter().enumerate() {
+                if ti >= self.next_pose_t {
+                    pose_idx.push(start + k);
+                    if let Some(rate) = self.pose_rate_hz {
+                        self.next_pose_t = ti + 1.0 / rate;
+                    }
+                }
+            }
+            let pose_t: Vec<f64> = pose_idx.iter().map(|&i| st.t[i]).collect();
+            let pose_q: Vec<[f64; N_JOINTS]> = pose_idx.iter().map(|&i| st.q[i]).collect();
+            robot3d::log_link_poses(
+                &mut self.w,
+                self.robot,
+                self.arm,
+                &self.scene,
+                &pose_t,
+                &pose_q,
+            )?;
+            self.progress.inc((end - start) as u64);
         }
+        self.summary.samples += n;
+
+        let cmd = &part.command;
+        if !cmd.t.is_empty() && !self.command_style_sent {
+            for (j, name) in self.joints.iter().enumerate() {
+                let style = SeriesLines::new()
+                    .with_names([format!("{name} cmd")])
+                    .with_colors([color(j)])
+                    .with_widths([0.5]);
+                self.w
+                    .send_static(&format!("joints/{name}/q_cmd"), &style)?;
+            }
+            self.command_style_sent = true;
+        }
+        for start in (0..cmd.t.len()).step_by(self.chunk) {
+            let end = (start + self.chunk).min(cmd.t.len());
+            for (j, name) in self.joints.iter().enumerate() {
+                scalars(
+                    &mut self.w,
+                    &format!("joints/{name}/q_cmd"),
+                    &cmd.t[start..end],
+                    cmd.q[start..end].iter().map(|v| v[j]),
+                )?;
+            }
+        }
+        for (mine, theirs) in [(&mut self.mbs, &part.mbs), (&mut self.bms, &part.bms)] {
+            mine.t.extend_from_slice(&theirs.t);
+            mine.watts.extend_from_slice(&theirs.watts);
+        }
+        Ok(())
     }
 
-    log_extras(&mut w, &joints, extras, chunk)?;
-    Ok(summary)
+    /// Logs the power series (raw, and net of the readings before the arm first moved) and
+    /// `extras`; returns what was logged.
+    pub fn finish(mut self, extras: &ReplayExtras) -> Result<ReplaySummary> {
+        self.progress.finish_and_clear();
+        let w = &mut self.w;
+        for (k, (label, series)) in [("mbs", &self.mbs), ("bms", &self.bms)]
+            .into_iter()
+            .enumerate()
+        {
+            if series.t.is_empty() {
+                continue;
+            }
+            scalars_chunked(
+                w,
+                &format!("power/{label}/raw"),
+                &series.t,
+                &series.watts,
+                self.chunk,
+            )?;
+            match idle_baseline(series, self.motion_t) {
+                Some(base) => {
+                    self.summary.baseline_w[k] = Some(base);
+                    let net: Vec<f64> = series.watts.iter().map(|p| p - base).collect();
+                    scalars_chunked(
+                        w,
+                        &format!("power/{label}/net"),
+                        &series.t,
+                        &net,
+                        self.chunk,
+                    )?;
+                }
+                None => self.summary.warnings.push(format!(
+                    "{}: no {} power reading before the arm first moves (t = {:.2} s); net power not logged",
+                    self.source.display(),
+                    label.to_uppercase(),
+                    self.motion_t
+                )),
+            }
+        }
+        log_extras(w, &self.joints, extras, self.chunk)?;
+        Ok(self.summary)
+    }
 }
 
 /// Every per-sample vector of a series must be as long as its time vector.
@@ -379,20 +557,6 @@ fn check_lengths(rec: &Recording) -> Result<()> {
         }
     }
     Ok(())
-}
-
-/// Time [s] of the first sample where any joint is more than `threshold` from its first value
-/// (`+∞` when the arm never moves).
-pub fn motion_start(rec: &Recording, threshold: f64) -> f64 {
-    let Some(q0) = rec.state.q.first() else {
-        return f64::INFINITY;
-    };
-    rec.state
-        .q
-        .iter()
-        .zip(&rec.state.t)
-        .find(|(q, _)| q.iter().zip(q0).any(|(a, b)| (a - b).abs() > threshold))
-        .map_or(f64::INFINITY, |(_, &t)| t)
 }
 
 /// Mean of the finite readings stamped before `motion_t`; `None` when there are none.
@@ -441,18 +605,12 @@ fn line(w: &mut ChunkWriter<'_>, path: &str, name: &str, c: Color) -> Result<()>
     )
 }
 
-/// Static legend names and colours of every series.
-fn log_styles(w: &mut ChunkWriter<'_>, joints: &[String], has_command: bool) -> Result<()> {
+/// Static legend names and colours of every series (the command's are sent with its first
+/// samples, since a streamed session only shows whether it has any when they arrive).
+fn log_styles(w: &mut ChunkWriter<'_>, joints: &[String]) -> Result<()> {
     for (j, name) in joints.iter().enumerate() {
         for signal in ["q", "dq", "tau", "temperature"] {
             line(w, &format!("joints/{name}/{signal}"), name, color(j))?;
-        }
-        if has_command {
-            let style = SeriesLines::new()
-                .with_names([format!("{name} cmd")])
-                .with_colors([color(j)])
-                .with_widths([0.5]);
-            w.send_static(&format!("joints/{name}/q_cmd"), &style)?;
         }
     }
     line(w, "imu/gyro_norm", "|ω| body", color(7))?;
