@@ -647,47 +647,63 @@ fn model_overlay_marks_contaminated_trials_and_logs_loss_terms() {
     assert!(rows(&c, "/model/error/trajectory") >= clean.len());
 }
 
+/// Stream `mcap` into `out` as `g1viz replay SESSION --save OUT` does, in batches of `chunk_rows`.
+fn stream_replay(mcap: &Path, out: &Path, chunk_rows: usize) -> g1viz::viz::replay::ReplaySummary {
+    use g1viz::read::OpenOptions;
+    use g1viz::signals::SignalMap;
+    use g1viz::viz::recording_id_for_source;
+    let map = SignalMap::g1_left_arm();
+    let robot = RobotModel::builtin();
+    let arm = robot.arm(&map.joint_names).unwrap();
+    let id = recording_id_for_source(mcap).unwrap();
+    let viz = open_stream("g1viz_test", &id, &Sink::Save(out.to_path_buf()), &[mcap]).unwrap();
+    let opts = ReplayOptions {
+        chunk_rows,
+        progress: false,
+        ..Default::default()
+    };
+    let summary = g1viz::viz::replay::replay_file(
+        mcap,
+        &map,
+        &OpenOptions::default(),
+        &robot,
+        &arm,
+        &opts,
+        viz.stream(),
+    )
+    .unwrap();
+    viz.finish().unwrap();
+    summary
+}
+
+fn example_session() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/g1_example.mcap")
+}
+
 /// `g1viz replay` without a model streams the file (`replay_file`, bounded memory): in many small
 /// batches it logs the same rows and values as the in-memory replay of the whole recording.
 #[test]
 fn streamed_replay_matches_the_in_memory_replay() {
-    use g1viz::read::OpenOptions;
-    use g1viz::signals::SignalMap;
-    use g1viz::viz::recording_id_for_source;
-    use g1viz::viz::replay::replay_file;
-    let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/g1_example.mcap");
-    let mut sessions = vec![example];
+    let mut sessions = vec![example_session()];
     sessions.extend(common::shared_recording("g1_smoke.mcap"));
     for mcap in sessions {
         let dir = tempfile::tempdir().unwrap();
-        let map = SignalMap::g1_left_arm();
-        let rec = g1viz::signals::load_recording(&mcap, &map, &OpenOptions::default()).unwrap();
-        let whole = dir.path().join("whole.rrd");
-        save_replay(&rec, &ReplayExtras::default(), &whole, &mcap);
-
-        let streamed = dir.path().join("streamed.rrd");
-        let robot = RobotModel::builtin();
-        let arm = robot.arm(&map.joint_names).unwrap();
-        let id = recording_id_for_source(&mcap).unwrap();
-        assert_eq!(id, recording_id_for(&rec), "one id for both paths");
-        let viz = open_stream("g1viz_test", &id, &Sink::Save(streamed.clone()), &[&mcap]).unwrap();
-        let opts = ReplayOptions {
-            chunk_rows: 300, // many batches
-            progress: false,
-            ..Default::default()
-        };
-        let summary = replay_file(
+        let rec = g1viz::signals::load_recording(
             &mcap,
-            &map,
-            &OpenOptions::default(),
-            &robot,
-            &arm,
-            &opts,
-            viz.stream(),
+            &g1viz::signals::SignalMap::g1_left_arm(),
+            &Default::default(),
         )
         .unwrap();
-        viz.finish().unwrap();
+        let whole = dir.path().join("whole.rrd");
+        save_replay(&rec, &ReplayExtras::default(), &whole, &mcap);
+        let streamed = dir.path().join("streamed.rrd");
+        let summary = stream_replay(&mcap, &streamed, 300); // many batches
         assert_eq!(summary.samples, rec.state.t.len());
+        assert_eq!(
+            g1viz::viz::recording_id_for_source(&mcap).unwrap(),
+            recording_id_for(&rec),
+            "one recording id for both paths"
+        );
 
         let (a, b) = (contents(&decode(&whole)), contents(&decode(&streamed)));
         assert_eq!(a.rows, b.rows, "{}: rows per entity", mcap.display());
@@ -712,40 +728,21 @@ fn streamed_replay_matches_the_in_memory_replay() {
 /// A truncated file streams up to the damage, with a warning naming the file.
 #[test]
 fn streamed_replay_of_a_truncated_file_keeps_what_was_read() {
-    use g1viz::read::OpenOptions;
-    use g1viz::signals::SignalMap;
-    use g1viz::viz::replay::replay_file;
-    let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/g1_example.mcap");
-    let bytes = std::fs::read(&example).unwrap();
+    let bytes = std::fs::read(example_session()).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let cut = dir.path().join("cut.mcap");
     std::fs::write(&cut, &bytes[..bytes.len() * 3 / 5]).unwrap();
-    let map = SignalMap::g1_left_arm();
-    let full = g1viz::signals::load_recording(&example, &map, &OpenOptions::default())
-        .unwrap()
-        .state
-        .t
-        .len();
-    let robot = RobotModel::builtin();
-    let arm = robot.arm(&map.joint_names).unwrap();
-    let out = dir.path().join("cut.rrd");
-    let viz = open_stream("g1viz_test", "cut", &Sink::Save(out.clone()), &[&cut]).unwrap();
-    let opts = ReplayOptions {
-        chunk_rows: 500,
-        progress: false,
-        ..Default::default()
-    };
-    let summary = replay_file(
-        &cut,
-        &map,
-        &OpenOptions::default(),
-        &robot,
-        &arm,
-        &opts,
-        viz.stream(),
+    let full = g1viz::signals::load_recording(
+        &example_session(),
+        &g1viz::signals::SignalMap::g1_left_arm(),
+        &Default::default(),
     )
-    .unwrap();
-    viz.finish().unwrap();
+    .unwrap()
+    .state
+    .t
+    .len();
+    let out = dir.path().join("cut.rrd");
+    let summary = stream_replay(&cut, &out, 500);
     assert!(
         summary.samples > full / 4 && summary.samples < full,
         "{} of {full} samples",
