@@ -756,3 +756,51 @@ fn streamed_replay_of_a_truncated_file_keeps_what_was_read() {
     let c = contents(&decode(&out));
     assert_eq!(rows(&c, "/joints/elbow/q"), summary.samples);
 }
+
+/// The recording id is known before reading: stable for the same input, blind to files that are
+/// not part of a bag directory (an `.rrd` saved into it), and defined for a path like `dir/..`.
+#[test]
+fn recording_id_comes_from_the_input_alone() {
+    use g1viz::viz::recording_id_for_source;
+    let dir = tempfile::tempdir().unwrap();
+    let bag = dir.path().join("bag");
+    std::fs::create_dir(&bag).unwrap();
+    std::fs::write(
+        bag.join("metadata.yaml"),
+        "rosbag2_bagfile_information:\n  version: 5\n",
+    )
+    .unwrap();
+    std::fs::write(bag.join("bag_0.db3"), vec![7u8; 4096]).unwrap();
+    let id = recording_id_for_source(&bag).unwrap();
+    std::fs::write(bag.join("replay.rrd"), b"output of an earlier run").unwrap();
+    assert_eq!(
+        recording_id_for_source(&bag).unwrap(),
+        id,
+        ".rrd beside the bag"
+    );
+    std::fs::create_dir(bag.join("sub")).unwrap();
+    assert_eq!(
+        recording_id_for_source(&bag.join("sub/..")).unwrap(),
+        id,
+        "bag/sub/.. is the bag"
+    );
+    // Same sizes, different metadata: a different session.
+    std::fs::write(
+        bag.join("metadata.yaml"),
+        "rosbag2_bagfile_information:\n  version: 6\n",
+    )
+    .unwrap();
+    assert_ne!(
+        recording_id_for_source(&bag).unwrap(),
+        id,
+        "metadata content counts"
+    );
+    // A file: a change in its last bytes changes the id.
+    let f = dir.path().join("s.mcap");
+    let mut bytes = vec![1u8; 200_000];
+    std::fs::write(&f, &bytes).unwrap();
+    let a = recording_id_for_source(&f).unwrap();
+    bytes[199_999] = 2;
+    std::fs::write(&f, &bytes).unwrap();
+    assert_ne!(recording_id_for_source(&f).unwrap(), a);
+}

@@ -234,13 +234,13 @@ fn read_batches(
         }
         Ok(())
     });
+    if let Some(pb) = progress {
+        pb.finish_and_clear();
+    }
     if let Some(e) = sink_error {
         return Err(e);
     }
     let summary = read?;
-    if let Some(pb) = progress {
-        pb.finish_and_clear();
-    }
     warnings.extend(summary.warnings);
     for plan in &b.plans {
         if plan.non_finite > MAX_DETAILED_WARNINGS || plan.undecodable > MAX_DETAILED_WARNINGS {

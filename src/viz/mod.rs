@@ -182,13 +182,22 @@ pub fn recording_id_for(rec: &crate::signals::Recording) -> String {
 
 /// Recording id of the session at `path`, known before reading it (so a streamed replay can
 /// open its output first): a stable hash of the file name, its size and its first and last
-/// 64 KiB (for a ROS 2 bag directory: the name and size of every file in it). The same input
-/// gives the same id, so repeated runs produce comparable files, and a copied file replays the
-/// same; `None` when the path cannot be read.
+/// 64 KiB; for a ROS 2 bag directory, of its name, its `metadata.yaml` and the name and size of
+/// each of its `.db3`/`.mcap` files (other files, such as an `.rrd` saved beside them, do not
+/// count). The same input gives the same id, so repeated runs produce comparable files, and a
+/// copied file replays the same; `None` when the path cannot be read.
 pub fn recording_id_for_source(path: &Path) -> Option<String> {
     use std::io::{Read, Seek, SeekFrom};
     const EDGE: u64 = 64 * 1024;
-    let name = path.file_name()?.to_string_lossy().into_owned();
+    // `.` or `dir/..` have no file name of their own: use the resolved one.
+    let name = match path.file_name() {
+        Some(n) => n.to_string_lossy().into_owned(),
+        None => path
+            .canonicalize()
+            .ok()?
+            .file_name()
+            .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
+    };
     let meta = std::fs::metadata(path).ok()?;
     let mut parts: Vec<Vec<u8>> = vec![name.into_bytes()];
     if meta.is_dir() {
@@ -196,12 +205,16 @@ pub fn recording_id_for_source(path: &Path) -> Option<String> {
             .ok()?
             .filter_map(|e| {
                 let e = e.ok()?;
-                let size = e.metadata().ok()?.len();
-                Some((e.file_name().to_string_lossy().into_owned(), size))
+                let n = e.file_name().to_string_lossy().into_owned();
+                let bag_file = n == "metadata.yaml" || n.ends_with(".db3") || n.ends_with(".mcap");
+                bag_file.then_some((n, e.metadata().ok()?.len()))
             })
             .collect();
         entries.sort();
         for (n, size) in entries {
+            if n == "metadata.yaml" {
+                parts.push(std::fs::read(path.join(&n)).ok()?);
+            }
             parts.push(n.into_bytes());
             parts.push(size.to_le_bytes().to_vec());
         }

@@ -214,7 +214,6 @@ pub fn log_replay(
     opts: &ReplayOptions,
     stream: &RecordingStream,
 ) -> Result<ReplaySummary> {
-    check_lengths(rec)?;
     let mut logger = ReplayLogger::begin(
         stream,
         robot,
@@ -256,7 +255,6 @@ pub fn replay_file(
         read_opts,
         opts.chunk_rows.max(1),
         &mut |batch| {
-            check_lengths(batch)?;
             if logger.is_none() {
                 logger = Some(ReplayLogger::begin(
                     stream,
@@ -382,7 +380,9 @@ impl<'a> ReplayLogger<'a> {
 
     /// Logs the joint, IMU, pose and command samples of `part` (the next stretch of the session,
     /// times relative to the same start) and keeps its power readings for [`Self::finish`].
+    /// Series of unequal lengths are an error naming the field.
     pub fn add(&mut self, part: &Recording) -> Result<()> {
+        check_lengths(part)?;
         let st = &part.state;
         let n = st.t.len().min(st.q.len());
         // Motion start: the first sample any joint is more than the threshold from the first.
