@@ -154,17 +154,7 @@ fn synthetic(minutes: f64) -> Recording {
     Recording {
         source: "synthetic-1h.mcap".into(),
         start_ns: 1_700_000_000_000_000_000,
-        joint_names: [
-            "left_shoulder_pitch_joint",
-            "left_shoulder_roll_joint",
-            "left_shoulder_yaw_joint",
-            "left_elbow_joint",
-            "left_wrist_roll_joint",
-            "left_wrist_pitch_joint",
-            "left_wrist_yaw_joint",
-        ]
-        .map(String::from)
-        .to_vec(),
+        joint_names: g1viz::robot::G1_LEFT_ARM_JOINTS.map(String::from).to_vec(),
         state: s,
         command,
         mbs: power(120.0),
