@@ -21,7 +21,8 @@ Examples:
   g1viz replay holdout.mcap --model model.json --save holdout.rrd
   g1viz simulate --preset smoke --seed 1 -o sim.mcap --effect braking=0.3
   g1viz simulate --like session.mcap -o twin.mcap
-  g1viz diagnose session.mcap --model model.json --report diag/ --save diag.rrd";
+  g1viz diagnose session.mcap --model model.json --report diag/ --save diag.rrd
+  g1viz diagnose session.mcap --model model.json --counterpart twin.mcap";
 
 /// Replay, identify and diagnose the electrical power of the Unitree G1 arm.
 #[derive(Parser)]
@@ -289,6 +290,10 @@ struct DiagnoseArgs {
     /// Write an .rrd with before/after predictions, residuals and the located trials.
     #[arg(long, value_name = "OUT")]
     save: Option<PathBuf>,
+    /// Also compare sample by sample with the twin driven by the same commands on the same
+    /// timeline (made with `g1viz simulate --like SESSION -o TWIN`).
+    #[arg(long, value_name = "TWIN")]
+    counterpart: Option<PathBuf>,
     #[command(flatten)]
     read: ReadArgs,
 }
@@ -594,7 +599,11 @@ fn diagnose(a: DiagnoseArgs) -> Result<()> {
         urdf: a.urdf.clone(),
         ..DiagnoseOptions::default()
     };
-    let d = diagnose::diagnose(&rec, &opts)?;
+    let mut d = diagnose::diagnose(&rec, &opts)?;
+    if let Some(p) = &a.counterpart {
+        let twin = a.read.load(p)?;
+        d.attach_counterpart(diagnose::counterpart::compare(&rec, &twin, &d)?);
+    }
     println!("{}", d.summary);
     if let Some(p) = &a.json {
         d.save_json(p)?;

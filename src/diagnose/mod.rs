@@ -9,6 +9,7 @@
 //! hypothesis at the torque level ([`torque`]) → final refit → breakdowns and correlates of
 //! the held-out residuals ([`locate`]) → plain-language summary ([`summary`]).
 
+pub mod counterpart;
 pub mod data;
 pub mod hypotheses;
 pub mod locate;
@@ -215,6 +216,9 @@ pub struct Diagnosis {
     pub summary: String,
     /// Per-reading data for the replay.
     pub replay: ReplayData,
+    /// Sample-by-sample comparison with a simulated counterpart, when one was given.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub counterpart: Option<counterpart::CounterpartComparison>,
 }
 
 impl Diagnosis {
@@ -675,6 +679,7 @@ pub fn diagnose_trials(
         unexplained,
         summary: String::new(),
         replay,
+        counterpart: None,
     };
     diag.summary = summary::summarise(&diag);
     Ok(diag)

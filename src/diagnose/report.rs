@@ -51,6 +51,10 @@ pub fn write_report(dir: &Path, d: &Diagnosis) -> Result<()> {
         d.rejected.len()
     );
 
+    if let Some(c) = &d.counterpart {
+        counterpart_section(&mut md, c);
+    }
+
     if let Some(t) = &d.torque {
         let _ = writeln!(md, "## Torque level (tau_est vs URDF inverse dynamics)\n");
         let _ = writeln!(md, "{} samples.\n", t.n_samples);
@@ -505,4 +509,43 @@ fn draw_lag_scan(a: &Area, d: &Diagnosis) -> Result<()> {
         .draw_series(pts.iter().map(|p| Circle::new(*p, 3, BLUE.filled())))
         .map_err(plot_err)?;
     Ok(())
+}
+
+/// The counterpart comparison as markdown tables.
+fn counterpart_section(md: &mut String, c: &super::counterpart::CounterpartComparison) {
+    let _ = writeln!(
+        md,
+        "## Counterpart: the twin driven by the same commands ({})\n",
+        c.source
+    );
+    let _ = writeln!(
+        md,
+        "{} joint samples and {} power readings on the same timeline. Net power, recording − twin: \
+         {:.2} W rms, {:+.2} W on average; R² of the twin's power {:.3}.\n",
+        c.matched_samples, c.matched_readings, c.power_rms_w, c.power_bias_w, c.power_r2
+    );
+    let _ = writeln!(md, "| joint | τ RMS [Nm] | τ bias [Nm] | q RMS [rad] |");
+    let _ = writeln!(md, "|---|---:|---:|---:|");
+    for j in &c.joints {
+        let _ = writeln!(
+            md,
+            "| {} | {:.3} | {:+.3} | {:.4} |",
+            j.joint, j.tau_rms_nm, j.tau_bias_nm, j.q_rms_rad
+        );
+    }
+    if !c.worst_trials.is_empty() {
+        let _ = writeln!(
+            md,
+            "\n| trial | readings | from [s] | to [s] | mean net power difference [W] |"
+        );
+        let _ = writeln!(md, "|---:|---:|---:|---:|---:|");
+        for t in &c.worst_trials {
+            let _ = writeln!(
+                md,
+                "| {} | {} | {:.1} | {:.1} | {:+.2} |",
+                t.trial, t.readings, t.t_start, t.t_end, t.power_mean_w
+            );
+        }
+    }
+    let _ = writeln!(md);
 }
