@@ -371,7 +371,6 @@ fn shared(name: &str) -> Option<PathBuf> {
 fn shared_recordings_claim_no_missing_physics() {
     for name in ["g1_smoke.mcap", "g1_holdout.mcap"] {
         let Some(path) = shared(name) else {
-            eprintln!("note: shared recording {name} not found; skipped");
             continue;
         };
         let rec =

@@ -12,17 +12,13 @@ use g1viz::read::mcap::McapSource;
 use g1viz::read::{Encoding, FieldExtractor, FieldPath, MessageSource, OpenOptions, Session};
 use g1viz::signals::{SignalMap, load_recording};
 
-fn shared() -> Option<PathBuf> {
-    common::shared_dir()
-}
-
 fn smoke() -> Option<(PathBuf, serde_json::Value)> {
-    let dir = shared()?;
+    let truth_path = common::shared_recording("g1_smoke.truth.json")?;
     let truth: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(dir.join("recordings/g1_smoke.truth.json")).ok()?,
+        &std::fs::read_to_string(&truth_path).expect("g1_smoke.truth.json readable"),
     )
-    .ok()?;
-    Some((dir.join("recordings/g1_smoke.mcap"), truth))
+    .expect("g1_smoke.truth.json is JSON");
+    Some((common::shared_recording("g1_smoke.mcap")?, truth))
 }
 
 /// Truth `message_counts` keyed by topic name.
@@ -167,15 +163,21 @@ fn python_dump(
         Ok(o) if o.status.success() => {
             Some(serde_json::from_slice(&o.stdout).expect("python JSON"))
         }
-        Ok(o) => {
-            eprintln!(
-                "note: python reference read skipped: {}",
+        // Exit status 3: the python packages are missing; anything else is a failed read.
+        Ok(o) if o.status.code() == Some(3) => {
+            common::skip(&format!(
+                "python reference read: {}",
                 String::from_utf8_lossy(&o.stderr).trim()
-            );
+            ));
             None
         }
+        Ok(o) => panic!(
+            "python reference read of {} failed: {}",
+            path.display(),
+            String::from_utf8_lossy(&o.stderr).trim()
+        ),
         Err(e) => {
-            eprintln!("note: python3 not runnable ({e}); reference read skipped");
+            common::skip(&format!("python3 not runnable ({e}): reference read"));
             None
         }
     }

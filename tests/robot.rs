@@ -468,7 +468,7 @@ fn shipped_and_official_urdfs_give_the_same_inverse_dynamics() {
 fn truth_json() -> Option<serde_json::Value> {
     let path = shared_dir()?.join("recordings/g1_smoke.truth.json");
     let Ok(text) = std::fs::read_to_string(&path) else {
-        eprintln!("note: {} not found; skipping", path.display());
+        common::skip(&format!("{} not found", path.display()));
         return None;
     };
     Some(serde_json::from_str(&text).unwrap())

@@ -192,15 +192,15 @@ fn official_python_reader_decodes_the_file() {
         .arg(out.with_extension("truth.json"))
         .output();
     let Ok(run) = run else {
-        eprintln!("note: python3 not available; independent-reader check skipped");
+        common::skip("python3 not available: independent-reader check");
         return;
     };
     let stdout = String::from_utf8_lossy(&run.stdout);
     let stderr = String::from_utf8_lossy(&run.stderr);
     if run.status.code() == Some(2) {
-        eprintln!(
-            "note: python modules mcap / mcap-ros2-support missing ({stderr}); check skipped"
-        );
+        common::skip(&format!(
+            "python modules mcap / mcap-ros2-support missing ({stderr})"
+        ));
         return;
     }
     assert!(

@@ -432,9 +432,7 @@ fn stock_cli_verifies_rrd() {
         .arg("--version")
         .output()
     else {
-        eprintln!(
-            "note: `rerun` not on PATH (pip install rerun-sdk==0.36.3); skipping `rerun rrd verify`"
-        );
+        common::skip("`rerun` not on PATH (pip install rerun-sdk==0.36.3): `rerun rrd verify`");
         return;
     };
     let version = String::from_utf8_lossy(&version.stdout);

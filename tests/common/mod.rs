@@ -11,18 +11,33 @@ pub fn shared_dir() -> Option<PathBuf> {
     if dir.join("recordings").is_dir() {
         Some(dir)
     } else {
-        eprintln!(
-            "note: shared data not found at {} (set G1VIZ_SHARED); skipping",
+        skip(&format!(
+            "shared data not found at {} (set G1VIZ_SHARED)",
             dir.display()
-        );
+        ));
         None
     }
+}
+
+/// Note on stderr that a test (or part of it) is skipped because something outside the crate is
+/// missing — the shared data, python3 with its packages, the stock `rerun` CLI. With
+/// `G1VIZ_REQUIRE_ALL=1` (set by `.ci/run`, which installs all of it) a skip is a failure, so a
+/// missing install step cannot turn into a green run that checked nothing.
+pub fn skip(reason: &str) {
+    if std::env::var_os("G1VIZ_REQUIRE_ALL").is_some_and(|v| !v.is_empty() && v != "0") {
+        panic!("G1VIZ_REQUIRE_ALL is set but a check would be skipped: {reason}");
+    }
+    eprintln!("note: skipping: {reason}");
 }
 
 /// A file under the shared `recordings/` folder, if the folder is there.
 #[allow(dead_code)] // not every test binary uses every helper
 pub fn shared_recording(name: &str) -> Option<PathBuf> {
-    shared_dir()
-        .map(|d| d.join("recordings").join(name))
-        .filter(|p| p.exists())
+    let path = shared_dir()?.join("recordings").join(name);
+    if path.exists() {
+        Some(path)
+    } else {
+        skip(&format!("{} not found", path.display()));
+        None
+    }
 }
