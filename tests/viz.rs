@@ -802,3 +802,142 @@ fn recording_id_comes_from_the_input_alone() {
     std::fs::write(&f, &bytes).unwrap();
     assert_ne!(recording_id_for_source(&f).unwrap(), a);
 }
+
+/// Every string value in the blueprint store (view and container names, query expressions…).
+fn blueprint_strings(msgs: &[LogMsg]) -> Vec<String> {
+    use rerun::external::arrow::array::{Array, AsArray};
+    use rerun::external::arrow::datatypes::DataType;
+    let mut out = Vec::new();
+    for msg in msgs {
+        let LogMsg::ArrowMsg(store, arrow) = msg else {
+            continue;
+        };
+        if store.kind() != StoreKind::Blueprint {
+            continue;
+        }
+        let chunk = Chunk::from_arrow_msg(arrow).expect("valid chunk");
+        for column in chunk.components().0.values() {
+            let values = column.list_array.values();
+            if values.data_type() == &DataType::Utf8 {
+                out.extend(
+                    values
+                        .as_string::<i32>()
+                        .iter()
+                        .flatten()
+                        .map(str::to_owned),
+                );
+            }
+        }
+    }
+    out
+}
+
+/// `g1viz diagnose --save diag.rrd [--counterpart TWIN]`: the measured power, the base-model and
+/// refitted predictions and their errors at every reading the diagnosis used, a log line per
+/// located trial, the summary, and with a counterpart the twin's power and the per-joint torque
+/// difference — read back through rerun's decoder, row for row and value for value.
+#[test]
+fn diagnosis_rrd_has_before_after_located_trials_and_counterpart() {
+    use g1viz::diagnose::{self, DiagnoseOptions, counterpart};
+    use g1viz::power::PowerModel;
+    use g1viz::read::OpenOptions;
+    use g1viz::signals::{SignalMap, load_recording};
+    use g1viz::sim::{self, Effects, Preset, SimConfig};
+
+    let dir = tempfile::tempdir().unwrap();
+    let real_path = dir.path().join("real.mcap");
+    let mut effects = Effects::default();
+    effects.enable("latency=0.3").unwrap();
+    let cfg = SimConfig {
+        preset: Preset::Smoke,
+        seed: 31,
+        effects,
+        progress: false,
+        ..SimConfig::default()
+    };
+    sim::simulate(&cfg, &real_path).unwrap();
+    let load = |p: &Path| load_recording(p, &SignalMap::g1_left_arm(), &OpenOptions::default());
+    let real = load(&real_path).unwrap();
+    let twin_path = dir.path().join("twin.mcap");
+    let twin_cfg = SimConfig {
+        seed: 32,
+        progress: false,
+        ..SimConfig::default()
+    };
+    sim::simulate_like(&real, &twin_cfg, &twin_path).unwrap();
+    let twin = load(&twin_path).unwrap();
+
+    let opts = DiagnoseOptions {
+        reference: Some(PowerModel::PAPER),
+        folds: 5, // one smoke session has ≈ 20 trials
+        ..DiagnoseOptions::default()
+    };
+    let mut d = diagnose::diagnose(&real, &opts).unwrap();
+    assert!(
+        d.accepted.iter().any(|h| h.id == "latency"),
+        "a 0.3 s sensor latency is found: {}",
+        d.summary
+    );
+    let comparison = counterpart::compare(&real, &twin, &d).unwrap();
+    d.attach_counterpart(comparison);
+
+    let out = dir.path().join("diag.rrd");
+    save_replay(
+        &real,
+        &g1viz::viz::overlay::diagnosis_extras(&d),
+        &out,
+        &real_path,
+    );
+    let msgs = decode(&out);
+    let c = contents(&msgs);
+
+    let r = &d.replay;
+    let n = r.t.len();
+    assert!(n > 100, "{n} readings");
+    let values = |path: &str| -> Vec<f64> { series(&c, path).into_iter().map(|p| p.1).collect() };
+    // The replay's readings are in time order; the decoded series are sorted by time.
+    let close = |a: &[f64], b: &[f64]| {
+        a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-9)
+    };
+    assert!(close(&values("/diagnosis/power/measured"), &r.measured_w));
+    assert!(close(&values("/diagnosis/power/before"), &r.before_w));
+    assert!(close(&values("/diagnosis/power/after"), &r.after_w));
+    let err_after: Vec<f64> = r
+        .measured_w
+        .iter()
+        .zip(&r.after_w)
+        .map(|(m, p)| m - p)
+        .collect();
+    assert!(close(&values("/diagnosis/error/after"), &err_after));
+    assert_eq!(rows(&c, "/diagnosis/error/before"), n);
+    // The refit explains the latency: the error shrinks.
+    let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
+    let before = rms(&values("/diagnosis/error/before"));
+    let after = rms(&values("/diagnosis/error/after"));
+    assert!(after < 0.5 * before, "rms error {before} → {after}");
+
+    assert!(!r.highlighted.is_empty(), "located trials");
+    assert_eq!(rows(&c, "/diagnosis/trials/log"), r.highlighted.len());
+    assert!(
+        c.rows
+            .contains_key(&(false, "/diagnosis/summary".to_owned(), true)),
+        "static summary document"
+    );
+
+    let cp = d.counterpart.as_ref().unwrap();
+    assert_eq!(rows(&c, "/diagnosis/power/twin"), cp.matched_readings);
+    let elbow: Vec<f64> = cp.series.tau_diff.iter().map(|x| x[3]).collect();
+    assert_eq!(elbow.len(), cp.matched_samples);
+    assert!(close(&values("/diagnosis/torque/elbow"), &elbow));
+    // Nothing but sensor noise between the twin and its own plant's torques.
+    assert!(
+        rms(&elbow) < 0.15,
+        "elbow τ difference {} Nm rms",
+        rms(&elbow)
+    );
+
+    let names = blueprint_strings(&msgs);
+    for view in ["Torque recording − twin [Nm]", "Diagnosis summary"] {
+        assert!(names.iter().any(|s| s == view), "no view {view:?}");
+    }
+}

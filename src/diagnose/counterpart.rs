@@ -47,6 +47,20 @@ pub struct TrialDifference {
     pub readings: usize,
 }
 
+/// The compared series themselves, for the viewer (`diagnose --save`); not stored in
+/// diagnosis.json.
+#[derive(Debug, Clone, Default)]
+pub struct CounterpartSeries {
+    /// Times of the readings found in both [s, recording time].
+    pub power_t: Vec<f64>,
+    /// The counterpart's net power at those readings [W].
+    pub power_w: Vec<f64>,
+    /// Times of the joint samples found in both [s, recording time].
+    pub tau_t: Vec<f64>,
+    /// Torque difference recording − counterpart per joint at those samples [Nm].
+    pub tau_diff: Vec<[f64; N_JOINTS]>,
+}
+
 /// The comparison (recording − counterpart), stored in diagnosis.json.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct CounterpartComparison {
@@ -66,6 +80,9 @@ pub struct CounterpartComparison {
     pub power_r2: f64,
     /// Trials with the largest mean power difference (at most five), largest first.
     pub worst_trials: Vec<TrialDifference>,
+    /// The per-sample series behind these figures (not serialized).
+    #[serde(skip)]
+    pub series: CounterpartSeries,
 }
 
 fn abs_ns(rec: &Recording, t: f64) -> i128 {
@@ -133,11 +150,15 @@ pub fn compare(real: &Recording, sim: &Recording, d: &Diagnosis) -> Result<Count
             real.source.display()
         );
     }
+    let tau_diff: Vec<[f64; N_JOINTS]> = pairs
+        .iter()
+        .map(|&(a, b)| std::array::from_fn(|j| real.state.tau[a][j] - sim.state.tau[b][j]))
+        .collect();
     let mut joints = Vec::with_capacity(N_JOINTS);
     for j in 0..N_JOINTS {
         let (mut s2, mut s1, mut q2) = (0.0, 0.0, 0.0);
-        for &(a, b) in &pairs {
-            let dt = real.state.tau[a][j] - sim.state.tau[b][j];
+        for (&(a, b), d) in pairs.iter().zip(&tau_diff) {
+            let dt = d[j];
             let dq = real.state.q[a][j] - sim.state.q[b][j];
             s2 += dt * dt;
             s1 += dt;
@@ -225,6 +246,12 @@ pub fn compare(real: &Recording, sim: &Recording, d: &Diagnosis) -> Result<Count
         power_bias_w: bias,
         power_r2: if sst > 0.0 { 1.0 - sse / sst } else { f64::NAN },
         worst_trials: worst,
+        series: CounterpartSeries {
+            power_t: diffs.iter().map(|x| x.0).collect(),
+            power_w: diffs.iter().map(|x| x.2).collect(),
+            tau_t: pairs.iter().map(|&(a, _)| real.state.t[a]).collect(),
+            tau_diff,
+        },
     })
 }
 

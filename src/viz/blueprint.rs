@@ -311,6 +311,8 @@ pub struct LayoutParts {
     pub model: bool,
     /// Diagnosis before/after predictions are logged.
     pub diagnosis: bool,
+    /// The diagnosis carries a counterpart (torque difference recording − twin per joint).
+    pub counterpart: bool,
     /// Trial marks are logged.
     pub trials: bool,
 }
@@ -393,6 +395,14 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
             logs.push("+ /diagnosis/**".into());
         }
         tabs.push(Node::view("TextLog", "Trials", "/", logs));
+    }
+    if parts.counterpart {
+        tabs.push(Node::view(
+            "TimeSeries",
+            "Torque recording − twin [Nm]",
+            "/diagnosis/torque",
+            vec![],
+        ));
     }
     if parts.diagnosis {
         tabs.push(Node::view(

@@ -194,6 +194,7 @@ pub fn diagnosis_extras(d: &crate::diagnose::Diagnosis) -> ReplayExtras {
             after: r.after_w.clone(),
             highlighted,
             summary: d.summary.clone(),
+            counterpart: d.counterpart.as_ref().map(|c| c.series.clone()),
         }),
         ..ReplayExtras::default()
     }

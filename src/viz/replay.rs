@@ -9,8 +9,9 @@
 //! - `model/power/{measured_net,predicted}`, `model/error/{sample,trajectory}`,
 //!   `model/terms/<j>/{mechanical,copper,coulomb,viscous}`, `model/terms/interaction/total`
 //! - `trials/log` (TextLog per trial, WARN for rejected ones), `trials/{active,rejected}` (0/1 bands)
-//! - `diagnosis/power/{before,after}`, `diagnosis/error/{before,after}`, `diagnosis/trials`,
-//!   `diagnosis/summary` (TextDocument)
+//! - `diagnosis/power/{measured,before,after}`, `diagnosis/error/{before,after}`,
+//!   `diagnosis/trials`, `diagnosis/summary` (TextDocument); with a counterpart
+//!   `diagnosis/power/twin` and `diagnosis/torque/<j>` (τ recording − twin)
 //!
 //! Timelines: `time` (timestamp: recording start + t) and `session` (duration since start).
 //! Long series are sent column-wise in chunks of [`ReplayOptions::chunk_rows`] samples, so memory
@@ -137,6 +138,8 @@ pub struct DiagnosisOverlay {
     pub highlighted: Vec<TrialMark>,
     /// Plain-language summary (markdown).
     pub summary: String,
+    /// The twin re-run on the recording's commands (`diagnose --counterpart`).
+    pub counterpart: Option<crate::diagnose::counterpart::CounterpartSeries>,
 }
 
 /// What later stages add to a replay. Plain data so identify/diagnose need no Rerun types.
@@ -340,6 +343,10 @@ impl<'a> ReplayLogger<'a> {
                     || extras.terms.is_some()
                     || !extras.trajectories.is_empty(),
                 diagnosis: extras.diagnosis.is_some(),
+                counterpart: extras
+                    .diagnosis
+                    .as_ref()
+                    .is_some_and(|d| d.counterpart.is_some()),
                 trials: !extras.trials.is_empty(),
             };
             let layout = blueprint::replay_layout(&joints, parts, arm_center(robot, arm));
@@ -735,6 +742,21 @@ fn log_extras(
         scalars_chunked(w, "diagnosis/error/before", &d.t, &eb, chunk)?;
         scalars_chunked(w, "diagnosis/error/after", &d.t, &ea, chunk)?;
         log_trials(w, "diagnosis/trials", &d.highlighted)?;
+        if let Some(cp) = &d.counterpart {
+            line(
+                w,
+                "diagnosis/power/twin",
+                "twin on the same commands",
+                color(4),
+            )?;
+            scalars_chunked(w, "diagnosis/power/twin", &cp.power_t, &cp.power_w, chunk)?;
+            for (j, name) in joints.iter().enumerate() {
+                let path = format!("diagnosis/torque/{name}");
+                line(w, &path, &format!("{name} τ recording − twin"), color(j))?;
+                let v: Vec<f64> = cp.tau_diff.iter().map(|x| x[j]).collect();
+                scalars_chunked(w, &path, &cp.tau_t, &v, chunk)?;
+            }
+        }
         w.send_static(
             "diagnosis/summary",
             &TextDocument::from_markdown(d.summary.clone()),
