@@ -299,6 +299,13 @@ struct DiagnoseArgs {
 }
 
 fn main() {
+    // Rust ignores SIGPIPE, so printing into a closed pipe (`g1viz info … | head`) would panic;
+    // a command-line tool should just stop, as `cat` does.
+    #[cfg(unix)]
+    // SAFETY: called first thing in main, before any thread exists; SIG_DFL is a valid handler.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let cli = Cli::parse();
     if let Err(err) = run(cli) {
         eprintln!("error: {err:#}");
@@ -571,11 +578,15 @@ fn simulate(a: SimulateArgs) -> Result<()> {
         }
         None => g1viz::sim::simulate(&cfg, &a.output)?,
     };
+    let what = match &a.like {
+        // The twin follows the recording's commands; it knows no trial windows.
+        Some(p) => format!("the twin of {} on its timeline", p.display()),
+        None => format!("{} trials", truth.trials.len()),
+    };
     println!(
-        "wrote {} and {} ({} trials)",
+        "wrote {} and {} ({what})",
         a.output.display(),
         g1viz::sim::truth_path(&a.output).display(),
-        truth.trials.len()
     );
     Ok(())
 }

@@ -263,8 +263,19 @@ fn read_batches(
                     .join(", ")
             })
             .unwrap_or_else(|e| format!("(could not list topics: {e})"));
+        let present = if present.is_empty() {
+            "none readable".to_owned()
+        } else {
+            present
+        };
+        // A file damaged before its first state message: say where, not just that nothing came.
+        let damage = if warnings.is_empty() {
+            String::new()
+        } else {
+            format!("; {}", warnings.join("; "))
+        };
         bail!(
-            "{file}: required topic {state_topic} has no readable messages; topics in the file: {present}"
+            "{file}: required topic {state_topic} has no readable messages; topics in the file: {present}{damage}"
         );
     }
     for plan in b.plans.iter().skip(1) {

@@ -1,0 +1,478 @@
+//! The `g1viz` binary end to end, as a user runs it: the README's commands (the main job on the
+//! shipped example, and the diagnosis example whose output the README quotes), the
+//! simulate → identify → validate → diagnose workflow with its output files, the shared session
+//! written by an independent generator, and bad input that must end in a clear error (exit
+//! status 1, the file named, no panic).
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+
+fn crate_dir() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn run(dir: &Path, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_g1viz"))
+        .current_dir(dir)
+        .args(args)
+        .stdin(Stdio::null())
+        .output()
+        .expect("g1viz runs")
+}
+
+fn text(o: &Output) -> (String, String) {
+    (
+        String::from_utf8_lossy(&o.stdout).into_owned(),
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
+/// Run and expect success; returns (stdout, stderr).
+fn ok(dir: &Path, args: &[&str]) -> (String, String) {
+    let o = run(dir, args);
+    let (out, err) = text(&o);
+    assert!(
+        o.status.success() && !err.contains("panicked"),
+        "g1viz {args:?} failed ({}):\n{out}\n{err}",
+        o.status
+    );
+    (out, err)
+}
+
+/// Run and expect the error path: exit status 1, a one-line `error:` on stderr, no panic.
+fn fails(dir: &Path, args: &[&str]) -> String {
+    let o = run(dir, args);
+    let (out, err) = text(&o);
+    assert_eq!(
+        o.status.code(),
+        Some(1),
+        "g1viz {args:?} should fail:\n{out}\n{err}"
+    );
+    assert!(!err.contains("panicked"), "g1viz {args:?} panicked:\n{err}");
+    assert!(err.contains("error: "), "g1viz {args:?}: {err}");
+    err
+}
+
+fn json(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+fn example() -> PathBuf {
+    crate_dir().join("examples/g1_example.mcap")
+}
+
+/// The fenced ```sh / ```text blocks of the README, in order.
+fn readme_blocks() -> Vec<Vec<String>> {
+    let readme = std::fs::read_to_string(crate_dir().join("README.md")).unwrap();
+    let mut blocks = Vec::new();
+    let mut current: Option<Vec<String>> = None;
+    for line in readme.lines() {
+        if line.starts_with("```") {
+            match current.take() {
+                Some(b) => blocks.push(b),
+                None => current = Some(Vec::new()),
+            }
+        } else if let Some(b) = current.as_mut() {
+            b.push(line.to_owned());
+        }
+    }
+    blocks
+}
+
+#[test]
+fn help_lists_every_subcommand_with_examples() {
+    let (out, _) = ok(&crate_dir(), &["--help"]);
+    for sub in [
+        "info", "replay", "identify", "validate", "simulate", "diagnose",
+    ] {
+        assert!(out.contains(sub), "--help lacks {sub}:\n{out}");
+        assert!(
+            out.contains(&format!("g1viz {sub} ")),
+            "--help has no example of {sub}:\n{out}"
+        );
+    }
+}
+
+/// The README's main command (first `cargo run -- …` line), run by the built binary on the
+/// shipped example with its output redirected to a scratch folder: an .rrd with one arm sample
+/// per `/lowstate` message, which the stock CLI verifies when it is installed.
+#[cfg(feature = "viz")]
+#[test]
+fn readme_main_command_replays_the_shipped_example() {
+    let line = readme_blocks()
+        .into_iter()
+        .flatten()
+        .find(|l| l.starts_with("cargo run -- "))
+        .expect("README has a `cargo run -- …` main command");
+    let mut args: Vec<String> = line["cargo run -- ".len()..]
+        .split_whitespace()
+        .map(str::to_owned)
+        .collect();
+    assert_eq!(args[0], "replay", "{line}");
+    let tmp = tempfile::tempdir().unwrap();
+    let save = args
+        .iter()
+        .position(|a| a == "--save")
+        .expect("the main command saves an .rrd");
+    let out = tmp.path().join(&args[save + 1]);
+    args[save + 1] = out.display().to_string();
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let (_, err) = ok(&crate_dir(), &args);
+
+    let (info, _) = ok(
+        &crate_dir(),
+        &["info", "examples/g1_example.mcap", "--json"],
+    );
+    let info: serde_json::Value = serde_json::from_str(&info).unwrap();
+    let lowstate = info["container"]["topics"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|t| t["topic"] == "/lowstate")
+        .unwrap()["count"]
+        .as_u64()
+        .unwrap();
+    assert!(
+        err.contains(&format!("({lowstate} samples)")),
+        "one sample per /lowstate message ({lowstate}):\n{err}"
+    );
+    let bytes = std::fs::read(&out).unwrap();
+    assert!(bytes.starts_with(b"RRF2"), "not an .rrd stream");
+    assert!(bytes.len() > 100_000, "{} bytes", bytes.len());
+
+    match Command::new("rerun").arg("--version").output() {
+        Ok(_) => {
+            let v = Command::new("rerun")
+                .args(["rrd", "verify"])
+                .arg(&out)
+                .output()
+                .unwrap();
+            assert!(
+                v.status.success(),
+                "rerun rrd verify: {}",
+                String::from_utf8_lossy(&v.stderr)
+            );
+        }
+        Err(_) => {
+            common::skip("`rerun` not on PATH: `rerun rrd verify` of the main command's output")
+        }
+    }
+}
+
+/// The README's diagnosis example, run as printed: every output line it quotes is what the
+/// command prints today.
+#[test]
+fn readme_diagnosis_example_prints_what_the_readme_quotes() {
+    let block = readme_blocks()
+        .into_iter()
+        .find(|b| b.iter().any(|l| l.starts_with("$ g1viz diagnose")))
+        .expect("README quotes a diagnosis");
+    let tmp = tempfile::tempdir().unwrap();
+    let mut quoted = Vec::new();
+    let mut last_out = String::new();
+    for line in &block {
+        if let Some(cmd) = line.strip_prefix("$ g1viz ") {
+            let args: Vec<&str> = cmd.split_whitespace().collect();
+            last_out = ok(tmp.path(), &args).0;
+        } else if !line.trim().is_empty() {
+            quoted.push(line.as_str());
+        }
+    }
+    assert!(quoted.len() >= 2, "{block:?}");
+    for q in quoted {
+        assert!(
+            last_out.lines().any(|l| l == q),
+            "README quotes a line the command no longer prints:\n  {q}\nactual output:\n{last_out}"
+        );
+    }
+}
+
+/// The whole workflow through the binary: simulate an identification and a hold-out session,
+/// identify (with hold-out and report), validate, simulate the hold-out's twin, diagnose it
+/// against the identified model with every output.
+#[test]
+fn workflow_simulate_identify_validate_diagnose() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    ok(
+        d,
+        &[
+            "simulate", "--preset", "smoke", "--seed", "5", "-o", "id.mcap",
+        ],
+    );
+    ok(
+        d,
+        &[
+            "simulate", "--preset", "holdout", "--seed", "6", "-o", "ho.mcap",
+        ],
+    );
+    let truth = json(&d.join("ho.truth.json"));
+    assert_eq!(truth["trials"].as_array().unwrap().len(), 46);
+
+    ok(
+        d,
+        &[
+            "identify",
+            "id.mcap",
+            "-o",
+            "model.json",
+            "--holdout",
+            "ho.mcap",
+            "--report",
+            "id_report",
+        ],
+    );
+    let model = json(&d.join("model.json"));
+    assert_eq!(model["schema_version"], 1);
+    let theta: Vec<f64> = model["theta"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    assert_eq!(theta.len(), 49);
+    // The constraints of the paper's least squares hold in the written model.
+    assert!(theta[..7].iter().all(|a| *a >= 1.0 - 1e-9), "a: {theta:?}");
+    assert!(theta[7..].iter().all(|x| *x >= -1e-9), "b..e: {theta:?}");
+    let report = std::fs::read_to_string(d.join("id_report/report.md")).unwrap();
+    for img in report
+        .lines()
+        .filter_map(|l| l.split("](").nth(1))
+        .filter_map(|rest| rest.split(')').next())
+        .filter(|p| p.ends_with(".png"))
+    {
+        assert!(
+            d.join("id_report").join(img).is_file(),
+            "report links missing {img}"
+        );
+    }
+    assert!(report.contains(".png"), "identification report has figures");
+
+    let (out, _) = ok(
+        d,
+        &["validate", "--model", "model.json", "ho.mcap", "--json"],
+    );
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let r2 = v["trial_level_aligned"]["r2"].as_f64().unwrap();
+    assert!(r2 > 0.9, "hold-out per-trajectory R² {r2}");
+
+    ok(d, &["simulate", "--like", "ho.mcap", "-o", "twin.mcap"]);
+    let mut args = vec![
+        "diagnose",
+        "ho.mcap",
+        "--model",
+        "model.json",
+        "--json",
+        "diag.json",
+        "--report",
+        "diag_report",
+        "--counterpart",
+        "twin.mcap",
+    ];
+    if cfg!(feature = "viz") {
+        args.extend(["--save", "diag.rrd"]);
+    }
+    let (out, _) = ok(d, &args);
+    assert!(out.contains("Counterpart (twin.mcap"), "{out}");
+    let diag = json(&d.join("diag.json"));
+    // Every hypothesis of the library is scored; nothing was concealed, so nothing is claimed.
+    assert!(diag["hypotheses"].as_array().unwrap().len() >= 9, "{diag}");
+    assert_eq!(
+        diag["accepted"].as_array().unwrap().len(),
+        0,
+        "null session: {out}"
+    );
+    assert!(diag["counterpart"]["matched_samples"].as_u64().unwrap() > 10_000);
+    assert!(d.join("diag_report/report.md").is_file());
+    if cfg!(feature = "viz") {
+        assert!(
+            std::fs::read(d.join("diag.rrd"))
+                .unwrap()
+                .starts_with(b"RRF2")
+        );
+    }
+    // Inputs are never modified; outputs do not leave temporary files behind.
+    let names: Vec<String> = std::fs::read_dir(d)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(
+        names.iter().all(|n| !n.contains(".tmp")),
+        "leftover temporary files: {names:?}"
+    );
+}
+
+/// `info --json` on the shared session (written by the independent Python generator): message
+/// counts per topic as its truth file states them.
+#[test]
+fn info_json_counts_match_the_independent_generator() {
+    let (Some(mcap), Some(truth)) = (
+        common::shared_recording("g1_smoke.mcap"),
+        common::shared_recording("g1_smoke.truth.json"),
+    ) else {
+        return;
+    };
+    let truth = json(&truth);
+    let (out, _) = ok(&crate_dir(), &["info", mcap.to_str().unwrap(), "--json"]);
+    let info: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let count = |topic: &str| {
+        info["container"]["topics"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|t| t["topic"] == topic)
+            .unwrap_or_else(|| panic!("{topic} listed"))["count"]
+            .as_u64()
+            .unwrap()
+    };
+    let counts = &truth["message_counts"];
+    for (topic, key) in [
+        ("/lowstate", "lowstate"),
+        ("/arm_sdk", "arm_sdk"),
+        ("/lf/bmsstate", "bms"),
+        ("/lf/mainboardstate", "mbs"),
+    ] {
+        assert_eq!(Some(count(topic)), counts[key].as_u64(), "{topic}");
+    }
+}
+
+#[test]
+fn bad_input_ends_in_a_clear_error() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+
+    let err = fails(d, &["info", "missing.mcap"]);
+    assert!(err.contains("missing.mcap"), "{err}");
+
+    std::fs::write(d.join("garbage.mcap"), b"this is not a recording at all").unwrap();
+    let err = fails(d, &["replay", "garbage.mcap", "--save", "g.rrd"]);
+    assert!(
+        err.contains("garbage.mcap") && err.contains("byte offset 0"),
+        "{err}"
+    );
+    assert!(!d.join("g.rrd").exists(), "no output from a failed replay");
+
+    // Cut inside the first chunk: nothing is readable. `info` reports the empty file and the
+    // damage; a replay fails and says where the damage is.
+    let bytes = std::fs::read(example()).unwrap();
+    std::fs::write(d.join("cut.mcap"), &bytes[..bytes.len() / 10]).unwrap();
+    let (out, _) = ok(d, &["info", "cut.mcap"]);
+    assert!(
+        out.contains("messages:   0") && out.contains("warning: cut.mcap: damaged at byte offset"),
+        "{out}"
+    );
+    let err = fails(d, &["replay", "cut.mcap", "--save", "cut.rrd"]);
+    assert!(
+        err.contains("cut.mcap") && err.contains("byte offset"),
+        "{err}"
+    );
+    assert!(!d.join("cut.rrd").exists());
+
+    let err = fails(d, &["replay", example().to_str().unwrap()]);
+    assert!(err.contains("--save"), "no sink named: {err}");
+
+    let err = fails(
+        d,
+        &[
+            "simulate", "--preset", "tiny", "--effect", "bogus=1", "-o", "x.mcap",
+        ],
+    );
+    assert!(err.contains("bogus") && err.contains("braking"), "{err}");
+
+    std::fs::write(
+        d.join("bad.toml"),
+        "[[signal]]\nname = \"tau.elbow\"\ntopic = \"/lowstate\"\nfield = \"motor_state[18].no_such_field\"\n",
+    )
+    .unwrap();
+    let err = fails(
+        d,
+        &[
+            "identify",
+            example().to_str().unwrap(),
+            "--signals",
+            "bad.toml",
+            "-o",
+            "m.json",
+        ],
+    );
+    assert!(
+        err.contains("no_such_field") && err.contains("/lowstate"),
+        "{err}"
+    );
+    assert!(!d.join("m.json").exists());
+
+    let err = fails(
+        d,
+        &[
+            "validate",
+            "--model",
+            "missing.json",
+            example().to_str().unwrap(),
+        ],
+    );
+    assert!(err.contains("missing.json"), "{err}");
+}
+
+/// A damaged recording replays up to the damage with a warning naming the byte offset; a replay
+/// never overwrites its input.
+#[cfg(feature = "viz")]
+#[test]
+fn damaged_recording_replays_up_to_the_damage_and_input_is_protected() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let bytes = std::fs::read(example()).unwrap();
+    std::fs::write(d.join("half.mcap"), &bytes[..bytes.len() / 2]).unwrap();
+    let (_, err) = ok(d, &["replay", "half.mcap", "--save", "half.rrd"]);
+    assert!(
+        err.contains("warning: ") && err.contains("half.mcap") && err.contains("byte offset"),
+        "{err}"
+    );
+    let samples: usize = err
+        .split("half.rrd (")
+        .nth(1)
+        .and_then(|s| s.split(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("sample count in {err}"));
+    assert!(samples > 1000 && samples < 8248, "{samples} samples");
+
+    let before = std::fs::read(d.join("half.mcap")).unwrap();
+    let err = fails(d, &["replay", "half.mcap", "--save", "./half.mcap"]);
+    assert!(err.contains("half.mcap"), "{err}");
+    assert_eq!(std::fs::read(d.join("half.mcap")).unwrap(), before);
+}
+
+/// `diagnose --counterpart` with a session that is not the recording's twin is refused.
+#[test]
+fn counterpart_of_another_session_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    ok(
+        d,
+        &[
+            "simulate", "--preset", "holdout", "--seed", "8", "-o", "a.mcap",
+        ],
+    );
+    ok(
+        d,
+        &[
+            "simulate", "--preset", "tiny", "--seed", "9", "-o", "b.mcap",
+        ],
+    );
+    let err = fails(
+        d,
+        &[
+            "diagnose",
+            "a.mcap",
+            "--model",
+            "paper",
+            "--counterpart",
+            "b.mcap",
+        ],
+    );
+    assert!(
+        err.contains("b.mcap") && err.contains("simulate --like"),
+        "{err}"
+    );
+}
