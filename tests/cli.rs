@@ -347,15 +347,17 @@ fn bad_input_ends_in_a_clear_error() {
     assert!(err.contains("missing.mcap"), "{err}");
 
     std::fs::write(d.join("garbage.mcap"), b"this is not a recording at all").unwrap();
-    let err = fails(d, &["replay", "garbage.mcap", "--save", "g.rrd"]);
+    let err = fails(d, &["info", "garbage.mcap"]);
     assert!(
         err.contains("garbage.mcap") && err.contains("byte offset 0"),
         "{err}"
     );
-    assert!(!d.join("g.rrd").exists(), "no output from a failed replay");
+    let err = fails(d, &["identify", "garbage.mcap", "-o", "g.json"]);
+    assert!(err.contains("garbage.mcap"), "{err}");
+    assert!(!d.join("g.json").exists(), "no output from a failed run");
 
     // Cut inside the first chunk: nothing is readable. `info` reports the empty file and the
-    // damage; a replay fails and says where the damage is.
+    // damage; reading it for a job fails and says where the damage is.
     let bytes = std::fs::read(example()).unwrap();
     std::fs::write(d.join("cut.mcap"), &bytes[..bytes.len() / 10]).unwrap();
     let (out, _) = ok(d, &["info", "cut.mcap"]);
@@ -363,15 +365,29 @@ fn bad_input_ends_in_a_clear_error() {
         out.contains("messages:   0") && out.contains("warning: cut.mcap: damaged at byte offset"),
         "{out}"
     );
-    let err = fails(d, &["replay", "cut.mcap", "--save", "cut.rrd"]);
+    let err = fails(d, &["identify", "cut.mcap", "-o", "cut.json"]);
     assert!(
         err.contains("cut.mcap") && err.contains("byte offset"),
         "{err}"
     );
-    assert!(!d.join("cut.rrd").exists());
-
-    let err = fails(d, &["replay", example().to_str().unwrap()]);
-    assert!(err.contains("--save"), "no sink named: {err}");
+    if cfg!(feature = "viz") {
+        let err = fails(d, &["replay", "cut.mcap", "--save", "cut.rrd"]);
+        assert!(
+            err.contains("cut.mcap") && err.contains("byte offset"),
+            "{err}"
+        );
+        assert!(!d.join("cut.rrd").exists());
+        let err = fails(d, &["replay", example().to_str().unwrap()]);
+        assert!(err.contains("--save"), "no sink named: {err}");
+        std::fs::write(d.join("garbage.rrd"), b"old").unwrap();
+        let err = fails(d, &["replay", "garbage.mcap", "--save", "garbage.rrd"]);
+        assert!(err.contains("byte offset 0"), "{err}");
+        assert_eq!(
+            std::fs::read(d.join("garbage.rrd")).unwrap(),
+            b"old",
+            "a failed replay leaves an existing output alone"
+        );
+    }
 
     let err = fails(
         d,
