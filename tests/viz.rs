@@ -941,3 +941,93 @@ fn diagnosis_rrd_has_before_after_located_trials_and_counterpart() {
         assert!(names.iter().any(|s| s == view), "no view {view:?}");
     }
 }
+
+/// `g1viz replay --connect ADDR` against the stock server of the pinned version (`rerun --port P
+/// --save FILE`, no window): the server receives the same rows per entity as `--save` writes.
+#[test]
+fn connect_streams_to_a_stock_rerun_server() {
+    use std::net::{TcpListener, TcpStream};
+    use std::process::{Command, Stdio};
+    use std::time::{Duration, Instant};
+
+    if Command::new("rerun").arg("--version").output().is_err() {
+        common::skip("`rerun` not on PATH (pip install rerun-sdk==0.36.3): --connect test");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/g1_example.mcap");
+    let saved = dir.path().join("saved.rrd");
+    let received = dir.path().join("received.rrd");
+    let g1viz = |args: &[&str]| {
+        let o = Command::new(env!("CARGO_BIN_EXE_g1viz"))
+            .arg("replay")
+            .arg(&example)
+            .args(args)
+            .output()
+            .unwrap();
+        assert!(
+            o.status.success(),
+            "g1viz replay {args:?}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    };
+    g1viz(&["--save", saved.to_str().unwrap()]);
+
+    let port = TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let mut server = Command::new("rerun")
+        .args(["--port", &port.to_string(), "--save"])
+        .arg(&received)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while TcpStream::connect(("127.0.0.1", port)).is_err() {
+        assert!(
+            Instant::now() < deadline,
+            "rerun server did not listen on {port}"
+        );
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    g1viz(&["--connect", &format!("rerun+http://127.0.0.1:{port}/proxy")]);
+    // The server writes what it receives as it arrives; wait until the file stops growing.
+    let mut last = 0;
+    loop {
+        std::thread::sleep(Duration::from_millis(500));
+        let len = std::fs::metadata(&received).map_or(0, |m| m.len());
+        if len > 0 && len == last {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline + Duration::from_secs(30),
+            "server file still growing"
+        );
+        last = len;
+    }
+    // SAFETY: plain kill(2) of our own child process.
+    unsafe {
+        libc::kill(server.id() as libc::pid_t, libc::SIGINT);
+    }
+    let _ = server.wait();
+
+    let (a, b) = (contents(&decode(&saved)), contents(&decode(&received)));
+    let recording_rows = |c: &Contents| -> BTreeMap<(String, bool), usize> {
+        c.rows
+            .iter()
+            .filter(|((blueprint, _, _), _)| !blueprint)
+            .map(|((_, path, stat), n)| ((path.clone(), *stat), *n))
+            .collect()
+    };
+    let (ra, rb) = (recording_rows(&a), recording_rows(&b));
+    assert!(ra.len() > 20, "{ra:?}");
+    assert_eq!(ra, rb, "rows per entity: --save vs received over --connect");
+    assert_eq!(
+        series(&a, "/power/mbs/net"),
+        series(&b, "/power/mbs/net"),
+        "values"
+    );
+}
