@@ -444,9 +444,11 @@ pub fn diagnose_trials(
         .collect();
     // Fine scan (0.01 s) around the base model's best coarse lag.
     if lags.len() >= 3 {
+        // The rows move into the scan and back out of it: at paper scale one copy of all lags'
+        // rows is ~100 MB.
         let data = PowerData::new(
             lags.clone(),
-            all_rows.clone(),
+            std::mem::take(&mut all_rows),
             metas.len(),
             opts.folds,
             reference.clone(),
@@ -460,6 +462,7 @@ pub fn diagnose_trials(
         let best = (0..lags.len())
             .min_by(|&a, &b| sse[a].total_cmp(&sse[b]))
             .unwrap_or(0);
+        all_rows = data.rows;
         let centre = lags[best];
         for k in -4i32..=4 {
             let l = centre + 0.01 * k as f64;
@@ -468,10 +471,9 @@ pub fn diagnose_trials(
                 all_rows.push(build_rows(rec, power, &metas, l, w, false));
             }
         }
-        let mut order: Vec<usize> = (0..lags.len()).collect();
-        order.sort_by(|&a, &b| lags[a].total_cmp(&lags[b]));
-        lags = order.iter().map(|&i| lags[i]).collect();
-        all_rows = order.iter().map(|&i| all_rows[i].clone()).collect();
+        let mut by_lag: Vec<(f64, Rows)> = lags.into_iter().zip(all_rows).collect();
+        by_lag.sort_by(|a, b| a.0.total_cmp(&b.0));
+        (lags, all_rows) = by_lag.into_iter().unzip();
     }
     common_readings(&mut all_rows);
     if all_rows[0].len() < 3 * (N_PARAMS + 10) / 2 {
