@@ -489,6 +489,23 @@ fn replay(_: ReplayArgs) -> Result<()> {
 
 fn identify(a: IdentifyArgs) -> Result<()> {
     let opts = a.fit.options();
+    let mut sessions: Vec<&Path> = a.sessions.iter().map(PathBuf::as_path).collect();
+    if let Some(h) = &a.holdout {
+        sessions.push(h);
+    }
+    check_distinct_sessions(
+        &sessions,
+        "its trials would count twice (or be validated on themselves)",
+    )?;
+    let mut inputs: Vec<Option<&Path>> = sessions.iter().map(|p| Some(*p)).collect();
+    inputs.push(a.read.signals.as_deref());
+    check_outputs(
+        &[
+            ("model file", Some(&a.output)),
+            ("report folder", a.report.as_deref()),
+        ],
+        &inputs,
+    )?;
     let recs = a
         .sessions
         .iter()
@@ -547,6 +564,19 @@ fn validate(a: ValidateArgs) -> Result<()> {
 
 fn simulate(a: SimulateArgs) -> Result<()> {
     use g1viz::sim::{Artefacts, SimConfig};
+    let truth_out = g1viz::sim::truth_path(&a.output);
+    check_outputs(
+        &[
+            ("simulated session", Some(&a.output)),
+            ("truth file", Some(&truth_out)),
+        ],
+        &[
+            a.like.as_deref(),
+            a.model.as_deref(),
+            a.urdf.as_deref(),
+            a.read.signals.as_deref(),
+        ],
+    )?;
     let mut cfg = SimConfig {
         preset: a.preset.parse()?,
         seed: a.seed,
@@ -567,15 +597,7 @@ fn simulate(a: SimulateArgs) -> Result<()> {
         cfg.artefacts = Artefacts::NONE;
     }
     let truth = match &a.like {
-        Some(p) => {
-            if same_file(p, &a.output) {
-                bail!(
-                    "refusing to overwrite the input {} with the simulated twin",
-                    p.display()
-                );
-            }
-            g1viz::sim::simulate_like(&a.read.load(p)?, &cfg, &a.output)?
-        }
+        Some(p) => g1viz::sim::simulate_like(&a.read.load(p)?, &cfg, &a.output)?,
         None => g1viz::sim::simulate(&cfg, &a.output)?,
     };
     let what = match &a.like {
@@ -591,6 +613,54 @@ fn simulate(a: SimulateArgs) -> Result<()> {
     Ok(())
 }
 
+/// Refuses outputs that would overwrite an input (a file read, a bag folder, or a simulated
+/// session's truth sidecar) or each other — checked before any work is done.
+fn check_outputs(outputs: &[(&str, Option<&Path>)], inputs: &[Option<&Path>]) -> Result<()> {
+    let sidecars: Vec<PathBuf> = inputs
+        .iter()
+        .flatten()
+        .map(|p| g1viz::sim::truth_path(p))
+        .collect();
+    let mut all: Vec<&Path> = inputs.iter().flatten().copied().collect();
+    all.extend(sidecars.iter().map(PathBuf::as_path));
+    let outputs: Vec<(&str, &Path)> = outputs
+        .iter()
+        .filter_map(|(what, p)| p.map(|p| (*what, p)))
+        .collect();
+    for (k, (what, out)) in outputs.iter().enumerate() {
+        g1viz::util::refuse_to_overwrite_inputs(what, out, &all)?;
+        for (other, o) in &outputs[..k] {
+            let (x, y) = (
+                g1viz::util::canonical_target(out),
+                g1viz::util::canonical_target(o),
+            );
+            if x.is_some() && x == y {
+                bail!(
+                    "the {what} and the {other} are the same file {}",
+                    out.display()
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Refuses a session given twice; `why` says what that would spoil.
+fn check_distinct_sessions(sessions: &[&Path], why: &str) -> Result<()> {
+    for (k, a) in sessions.iter().enumerate() {
+        for b in &sessions[..k] {
+            if same_file(a, b) {
+                bail!(
+                    "{} and {} are the same recording: {why}",
+                    b.display(),
+                    a.display()
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
 fn same_file(a: &Path, b: &Path) -> bool {
     match (a.canonicalize(), b.canonicalize()) {
         (Ok(x), Ok(y)) => x == y,
@@ -600,6 +670,26 @@ fn same_file(a: &Path, b: &Path) -> bool {
 
 fn diagnose(a: DiagnoseArgs) -> Result<()> {
     use g1viz::diagnose::{self, DiagnoseOptions};
+    if let Some(c) = &a.counterpart {
+        check_distinct_sessions(
+            &[&a.session, c],
+            "the counterpart must be its twin (`g1viz simulate --like`)",
+        )?;
+    }
+    check_outputs(
+        &[
+            ("diagnosis JSON", a.json.as_deref()),
+            ("report folder", a.report.as_deref()),
+            ("Rerun output", a.save.as_deref()),
+        ],
+        &[
+            Some(&a.session),
+            a.model.as_deref(),
+            a.counterpart.as_deref(),
+            a.urdf.as_deref(),
+            a.read.signals.as_deref(),
+        ],
+    )?;
     let rec = a.read.load(&a.session)?;
     let opts = DiagnoseOptions {
         reference: a.model.as_deref().map(load_model).transpose()?,

@@ -45,3 +45,49 @@ pub fn write_atomic_with(
     }
     result
 }
+
+/// Canonical form of a path that may not exist yet (canonical parent + file name).
+pub fn canonical_target(path: &Path) -> Option<std::path::PathBuf> {
+    if let Ok(p) = path.canonicalize() {
+        return Some(p);
+    }
+    let parent = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    Some(canonical_target(parent)?.join(path.file_name()?))
+}
+
+/// Refuses an output `target` (a file, or a folder a report is written into) that would
+/// overwrite an input: the same file after resolving symlinks and `..`, a path inside an input
+/// folder (a ROS 2 bag), or an input folder itself. `what` names the output in the error.
+pub fn refuse_to_overwrite_inputs(what: &str, target: &Path, inputs: &[&Path]) -> Result<()> {
+    let Some(t) = canonical_target(target) else {
+        return Ok(());
+    };
+    for input in inputs {
+        let Ok(i) = input.canonicalize() else {
+            continue;
+        };
+        // A file of a ROS 2 bag folder: the folder's metadata and bag files are inputs too.
+        let bag_dir = i
+            .parent()
+            .filter(|d| i.is_file() && d.join("metadata.yaml").is_file());
+        let bag_file = |d: &Path| {
+            let named = t.file_name().is_some_and(|n| n == "metadata.yaml");
+            let bag = t
+                .extension()
+                .is_some_and(|e| ["db3", "mcap", "zstd"].iter().any(|x| e == *x));
+            t.parent() == Some(d) && (named || bag)
+        };
+        let clash = t == i || (i.is_dir() && t.starts_with(&i)) || bag_dir.is_some_and(bag_file);
+        if clash {
+            anyhow::bail!(
+                "refusing to write the {what} {} over the input {}",
+                target.display(),
+                input.display()
+            );
+        }
+    }
+    Ok(())
+}

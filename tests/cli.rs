@@ -429,6 +429,114 @@ fn bad_input_ends_in_a_clear_error() {
         ],
     );
     assert!(err.contains("missing.json"), "{err}");
+
+    std::fs::write(
+        d.join("base.toml"),
+        "sdk_index_base = 18446744073709551615\n",
+    )
+    .unwrap();
+    let err = fails(
+        d,
+        &[
+            "identify",
+            example().to_str().unwrap(),
+            "--signals",
+            "base.toml",
+        ],
+    );
+    assert!(err.contains("sdk_index_base"), "{err}");
+}
+
+/// No command writes over what it reads: a session, a model, a bag folder's files, another
+/// output of the same run; a session given twice is refused (it would count double).
+#[test]
+fn outputs_never_overwrite_inputs() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    std::fs::copy(example(), d.join("s.mcap")).unwrap();
+    std::fs::write(d.join("m.json"), "not read before the check").unwrap();
+    let before = std::fs::read(d.join("s.mcap")).unwrap();
+    for (args, said) in [
+        (
+            &["identify", "s.mcap", "-o", "s.mcap"][..],
+            "model file s.mcap",
+        ),
+        (
+            &["identify", "s.mcap", "-o", "x.json", "--report", "./s.mcap"],
+            "report folder",
+        ),
+        (
+            &["identify", "s.mcap", "./s.mcap", "-o", "x.json"],
+            "same recording",
+        ),
+        (
+            &["identify", "s.mcap", "--holdout", "s.mcap", "-o", "x.json"],
+            "same recording",
+        ),
+        (
+            &[
+                "diagnose", "s.mcap", "--model", "m.json", "--json", "m.json",
+            ],
+            "diagnosis JSON m.json",
+        ),
+        (
+            &["diagnose", "s.mcap", "--json", "o.json", "--save", "o.json"],
+            "same file",
+        ),
+        (
+            &["diagnose", "s.mcap", "--counterpart", "s.mcap"],
+            "same recording",
+        ),
+        (
+            &[
+                "simulate", "--preset", "tiny", "--model", "m.json", "-o", "m.json",
+            ],
+            "simulated session m.json",
+        ),
+        (
+            &["simulate", "--like", "s.mcap", "-o", "s.mcap"],
+            "over the input",
+        ),
+    ] {
+        let err = fails(d, args);
+        assert!(err.contains(said), "{args:?}: {err}");
+    }
+    assert_eq!(std::fs::read(d.join("s.mcap")).unwrap(), before);
+    assert_eq!(
+        std::fs::read_to_string(d.join("m.json")).unwrap(),
+        "not read before the check"
+    );
+    assert!(!d.join("x.json").exists() && !d.join("o.json").exists());
+
+    // A ROS 2 bag folder: its metadata.yaml and .db3 files are inputs too.
+    let Some(db3) = common::shared_recording("g1_smoke_db3") else {
+        return;
+    };
+    let bag = d.join("bag");
+    std::fs::create_dir(&bag).unwrap();
+    for e in std::fs::read_dir(&db3).unwrap() {
+        let e = e.unwrap();
+        std::fs::copy(e.path(), bag.join(e.file_name())).unwrap();
+    }
+    let metadata = std::fs::read(bag.join("metadata.yaml")).unwrap();
+    let db3_file = std::fs::read_dir(&bag)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|x| x == "db3"))
+        .unwrap();
+    for input in [bag.clone(), db3_file] {
+        let err = fails(
+            d,
+            &[
+                "identify",
+                input.to_str().unwrap(),
+                "-o",
+                "bag/metadata.yaml",
+            ],
+        );
+        assert!(err.contains("over the input"), "{err}");
+    }
+    assert_eq!(std::fs::read(bag.join("metadata.yaml")).unwrap(), metadata);
 }
 
 /// A damaged recording replays up to the damage with a warning naming the byte offset; a replay

@@ -766,10 +766,10 @@ fn resolve_channel(
             path.display()
         ))
     })?;
-    let schema_err = |source| ReadError::Schema {
+    let schema_err = |error| ReadError::Schema {
         path: path.to_path_buf(),
         topic: rec.topic.clone(),
-        source,
+        error,
     };
     let encoding = match rec.message_encoding.as_str() {
         "cdr" => Encoding::Cdr,

@@ -132,7 +132,8 @@ pub enum ReadError {
         what: String,
     },
     /// A message could not be decoded with its definition.
-    #[error("{path}: topic {topic}: {source} (record at byte offset {offset})")]
+    // The inner error is part of the message, not a `source`: `{:#}` would print it twice.
+    #[error("{path}: topic {topic}: {error} (record at byte offset {offset})")]
     Decode {
         /// File.
         path: PathBuf,
@@ -141,17 +142,17 @@ pub enum ReadError {
         /// Byte offset of the record.
         offset: u64,
         /// Decoder error.
-        source: DecodeError,
+        error: DecodeError,
     },
     /// A message definition could not be parsed or is missing.
-    #[error("{path}: topic {topic}: {source}")]
+    #[error("{path}: topic {topic}: {error}")]
     Schema {
         /// File.
         path: PathBuf,
         /// Topic.
         topic: String,
         /// Schema error.
-        source: SchemaError,
+        error: SchemaError,
     },
     /// Anything else, already worded with its context.
     #[error("{0}")]

@@ -262,6 +262,7 @@ impl MsgSchema {
             }));
             schema.types.insert(name, ty);
         }
+        schema.check_acyclic()?;
         Ok(schema)
     }
 
@@ -331,7 +332,7 @@ impl MsgSchema {
                 })
                 .collect();
             let Some(name) = missing.into_iter().next() else {
-                return Ok(());
+                return self.check_acyclic();
             };
             let text = if dialect == Dialect::Ros1 && name == "std_msgs/msg/Header" {
                 ROS1_HEADER
@@ -341,6 +342,54 @@ impl MsgSchema {
             let ty = parse_msg_section(&name, text, 0, dialect)?;
             self.types.insert(name, ty);
         }
+    }
+
+    /// A message type that contains itself (directly or through others) has no finite layout;
+    /// decoding it would recurse without end.
+    fn check_acyclic(&self) -> Result<(), SchemaError> {
+        // Depth-first over the type graph with an explicit stack; 1 = on the path, 2 = done.
+        let mut state: HashMap<&str, u8> = HashMap::new();
+        let mut names: Vec<&String> = self.types.keys().collect();
+        names.sort();
+        for start in names {
+            if state.contains_key(start.as_str()) {
+                continue;
+            }
+            let mut path: Vec<(&str, usize)> = vec![(start.as_str(), 0)];
+            state.insert(start.as_str(), 1);
+            while let Some((name, next)) = path.last_mut() {
+                let fields = self.types.get(*name).map_or(&[][..], |t| &t.fields[..]);
+                let Some(field) = fields.get(*next) else {
+                    state.insert(name, 2);
+                    path.pop();
+                    continue;
+                };
+                *next += 1;
+                let FieldType::Message(child) = &field.ty else {
+                    continue;
+                };
+                match state.get(child.as_str()) {
+                    Some(1) => {
+                        let from = path.iter().position(|(n, _)| *n == child).unwrap_or(0);
+                        let chain: Vec<&str> = path[from..].iter().map(|(n, _)| *n).collect();
+                        return Err(SchemaError::Syntax {
+                            type_name: child.clone(),
+                            line: 0,
+                            what: format!(
+                                "the message contains itself ({} → {child}): no finite layout",
+                                chain.join(" → ")
+                            ),
+                        });
+                    }
+                    Some(_) => {}
+                    None => {
+                        state.insert(child.as_str(), 1);
+                        path.push((child.as_str(), 0));
+                    }
+                }
+            }
+        }
+        Ok(())
     }
 }
 
@@ -972,6 +1021,23 @@ mod tests {
             s.types["std_msgs/msg/Header"].fields[1].ty,
             FieldType::Primitive(Primitive::Time)
         );
+    }
+
+    #[test]
+    fn recursive_definitions_are_refused() {
+        let direct = "uint32 x\nNode[2] children\n================\nMSG: pkg/Node\nuint32 y\nNode[2] children\n";
+        let err = MsgSchema::parse_ros2msg("pkg/msg/Root", direct).unwrap_err();
+        assert!(err.to_string().contains("contains itself"), "{err}");
+        let mutual = "pkg/A a\n================\nMSG: pkg/A\npkg/B b\n================\nMSG: pkg/B\npkg/A[] a\n";
+        let err = MsgSchema::parse_ros2msg("pkg/msg/Root", mutual).unwrap_err();
+        assert!(
+            err.to_string()
+                .contains("pkg/msg/A → pkg/msg/B → pkg/msg/A"),
+            "{err}"
+        );
+        // A type used twice side by side is not a cycle.
+        let diamond = "pkg/A a1\npkg/A a2\n================\nMSG: pkg/A\nuint8 v\n";
+        MsgSchema::parse_ros2msg("pkg/msg/Root", diamond).unwrap();
     }
 
     #[test]

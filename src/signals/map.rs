@@ -125,6 +125,9 @@ struct TomlSignal {
     scale: Option<f64>,
 }
 
+/// Largest `sdk_index_base` a signal map accepts.
+const MAX_SDK_INDEX_BASE: usize = 4096;
+
 impl SignalMap {
     /// The G1 default for the left arm (SDK indices 15–21): `/lowstate` motor states and IMU,
     /// `/arm_sdk` commands, `/lf/mainboardstate` value[0]·value[1] W, `/lf/bmsstate`
@@ -231,7 +234,15 @@ impl SignalMap {
             "right" => G1_RIGHT_ARM_BASE,
             other => bail!("arm = {other:?}: expected \"left\" or \"right\""),
         };
-        let mut map = Self::g1_arm(side, t.sdk_index_base.unwrap_or(default_base));
+        let base = t.sdk_index_base.unwrap_or(default_base);
+        // Whether the indices exist is checked against the message definition when a file is
+        // read; this only keeps the arithmetic finite.
+        if base > MAX_SDK_INDEX_BASE {
+            bail!(
+                "sdk_index_base = {base} is out of range (at most {MAX_SDK_INDEX_BASE}; the G1 has 35 motor slots)"
+            );
+        }
+        let mut map = Self::g1_arm(side, base);
         if let Some(names) = t.joint_names {
             if names.len() != N_JOINTS {
                 bail!(

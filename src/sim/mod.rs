@@ -538,6 +538,9 @@ fn build_truth(
     }
 }
 
+/// Longest pause between joint states a `simulate_like` recording may have [s].
+const MAX_LIKE_GAP_S: f64 = 3600.0;
+
 /// Re-run a recording's trajectory through the twin on the same timeline (same start and message
 /// times): the commanded `/arm_sdk` trajectory when the recording has one (the twin's arm then lags
 /// it like the robot's), otherwise the measured one (no extra lag). Artefacts tied to trials
@@ -548,6 +551,22 @@ pub fn simulate_like(rec: &Recording, cfg: &SimConfig, out: &Path) -> Result<Tru
         "{}: the recording has no joint states to re-run",
         rec.source.display()
     );
+    // A clock jump (one message stamped at 0, a reset) would make the twin simulate the gap.
+    if let Some((k, gap)) = rec
+        .state
+        .t
+        .windows(2)
+        .map(|w| w[1] - w[0])
+        .enumerate()
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .filter(|(_, gap)| *gap > MAX_LIKE_GAP_S)
+    {
+        anyhow::bail!(
+            "{}: joint states jump by {gap:.0} s after sample {k} (t = {:.3} s): a bad timestamp or a clock reset; cut the recording there before re-running it",
+            rec.source.display(),
+            rec.state.t[k]
+        );
+    }
     let (sampled, lag) = if rec.command.t.is_empty() {
         (
             Sampled {

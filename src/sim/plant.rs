@@ -513,7 +513,12 @@ impl Engine<'_> {
                         pack_mv: (volts * 1000.0).round() as u32,
                         current_ma: (p_bms / volts * 1000.0).round() as i32,
                         soc_pct: (soc * 100.0).round().clamp(0.0, 100.0) as u8,
-                        temps_c: [temp as i16, temp as i16 + 1, temp as i16 - 1, temp as i16],
+                        temps_c: [
+                            temp as i16,
+                            (temp as i16).saturating_add(1),
+                            (temp as i16).saturating_sub(1),
+                            temp as i16,
+                        ],
                         cell_mv,
                     };
                     out.write(Topic::Bms, ns, cdr.bms_state(&b))?;

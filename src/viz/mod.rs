@@ -20,7 +20,7 @@ mod rrd_sink;
 
 use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Context, Result};
 use rerun::external::re_log_types::external::re_tuid::Tuid;
 use rerun::log::{Chunk, ChunkComponents, ChunkId, RowId};
 use rerun::{AsComponents, RecordingStream, SerializedComponentColumn, TimeColumn};
@@ -120,33 +120,10 @@ pub fn open_stream(
     }
 }
 
-/// Refuses a target that is (after resolving symlinks and `..`) one of the input files.
+/// Refuses a target that is (after resolving symlinks and `..`) one of the input files or lies
+/// inside an input folder.
 fn refuse_overwrite(target: &Path, inputs: &[&Path]) -> Result<()> {
-    let resolved_target = canonical_target(target);
-    for input in inputs {
-        if let Ok(input_c) = input.canonicalize()
-            && Some(&input_c) == resolved_target.as_ref()
-        {
-            bail!(
-                "refusing to write the Rerun output {} over the input file {}",
-                target.display(),
-                input.display()
-            );
-        }
-    }
-    Ok(())
-}
-
-/// Canonical form of a path that may not exist yet (canonical parent + file name).
-fn canonical_target(path: &Path) -> Option<PathBuf> {
-    if let Ok(p) = path.canonicalize() {
-        return Some(p);
-    }
-    let parent = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    Some(parent.canonicalize().ok()?.join(path.file_name()?))
+    crate::util::refuse_to_overwrite_inputs("Rerun output", target, inputs)
 }
 
 /// FNV-1a, 64 bit: a stable hash (std's hashers are randomly seeded or not guaranteed stable).
