@@ -114,7 +114,7 @@ struct FitArgs {
     #[arg(long, value_enum, default_value = "reading")]
     mode: ModeArg,
     /// IMU balance-contamination filter: reject trials with σ(|ω|) > K × median.
-    #[arg(long, value_name = "K", default_value_t = 2.5)]
+    #[arg(long, value_name = "K", default_value_t = 2.5, value_parser = positive)]
     imu_threshold: f64,
     /// Switch the IMU filter off.
     #[arg(long)]
@@ -123,7 +123,7 @@ struct FitArgs {
     #[arg(long, default_value_t = 2)]
     sigma_passes: usize,
     /// Width of the residual rejection in σ.
-    #[arg(long, default_value_t = 3.0)]
+    #[arg(long, default_value_t = 3.0, value_parser = positive)]
     n_sigma: f64,
 }
 
@@ -183,7 +183,7 @@ struct ReplayArgs {
     memory_limit: String,
     /// Arm poses per second in the 3D view (0 = every recorded sample). Joint and power series
     /// are always logged at full rate; 30 Hz keeps hour-long .rrd files a fraction of the size.
-    #[arg(long, value_name = "HZ", default_value_t = 30.0)]
+    #[arg(long, value_name = "HZ", default_value_t = 30.0, value_parser = non_negative)]
     pose_rate: f64,
     /// Do not send the viewer layout (keep the viewer's own).
     #[arg(long)]
@@ -259,7 +259,7 @@ struct SimulateArgs {
     #[arg(long)]
     no_hand: bool,
     /// Winding temperature at session start [°C].
-    #[arg(long, value_name = "C")]
+    #[arg(long, value_name = "C", value_parser = winding_temperature)]
     t_start: Option<f64>,
     /// No balance contamination and no hardware-event outliers.
     #[arg(long)]
@@ -296,6 +296,30 @@ struct DiagnoseArgs {
     counterpart: Option<PathBuf>,
     #[command(flatten)]
     read: ReadArgs,
+}
+
+/// A finite number > 0 (clap value parser).
+fn positive(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        _ => Err(format!("{s:?} is not a finite number > 0")),
+    }
+}
+
+/// A finite number ≥ 0 (clap value parser).
+fn non_negative(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v >= 0.0 => Ok(v),
+        _ => Err(format!("{s:?} is not a finite number ≥ 0")),
+    }
+}
+
+/// A motor winding temperature a robot can start a session at [°C] (clap value parser).
+fn winding_temperature(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if (-40.0..=150.0).contains(&v) => Ok(v),
+        _ => Err(format!("{s:?} is not a temperature between -40 and 150 °C")),
+    }
 }
 
 fn main() {
@@ -540,7 +564,7 @@ fn identify(a: IdentifyArgs) -> Result<()> {
 /// The true parameters of a simulated session, from its truth sidecar (ours or the shared
 /// generator's: both carry `theta.vector`), when there is one.
 fn truth_model(session: &Path) -> Option<PowerModel> {
-    let text = std::fs::read_to_string(g1viz::sim::truth_path(session)).ok()?;
+    let text = g1viz::util::read_text_input(&g1viz::sim::truth_path(session)).ok()?;
     let json: serde_json::Value = serde_json::from_str(&text).ok()?;
     let v: Vec<f64> = serde_json::from_value(json["theta"]["vector"].clone()).ok()?;
     let v: [f64; g1viz::N_PARAMS] = v.try_into().ok()?;

@@ -91,3 +91,27 @@ pub fn refuse_to_overwrite_inputs(what: &str, target: &Path, inputs: &[&Path]) -
     }
     Ok(())
 }
+
+/// Largest text input (model JSON, signal map, URDF, bag metadata, truth file) read whole [bytes].
+pub const MAX_TEXT_INPUT_BYTES: u64 = 256 << 20;
+
+/// Read a small text input whole, refusing what is not a regular file (a FIFO, a device such as
+/// `/dev/zero`) or larger than [`MAX_TEXT_INPUT_BYTES`], instead of blocking or exhausting memory.
+pub fn read_text_input(path: &Path) -> std::io::Result<String> {
+    use std::io::{Error, ErrorKind};
+    let meta = std::fs::metadata(path)?;
+    if !meta.is_file() {
+        return Err(Error::new(ErrorKind::InvalidInput, "not a regular file"));
+    }
+    if meta.len() > MAX_TEXT_INPUT_BYTES {
+        return Err(Error::new(
+            ErrorKind::InvalidInput,
+            format!(
+                "{} bytes; a text input of more than {} MB is not what this expects",
+                meta.len(),
+                MAX_TEXT_INPUT_BYTES >> 20
+            ),
+        ));
+    }
+    std::fs::read_to_string(path)
+}

@@ -600,3 +600,61 @@ fn counterpart_of_another_session_is_refused() {
         "{err}"
     );
 }
+
+/// Inputs that are not regular files (a device, a FIFO) are refused at once instead of being read
+/// without end; option values outside their physical range are refused by the parser (exit 2).
+#[cfg(unix)]
+#[test]
+fn devices_and_out_of_range_options_are_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let ex = example();
+    let ex = ex.to_str().unwrap();
+    let err = fails(d, &["validate", "--model", "/dev/zero", ex]);
+    assert!(
+        err.contains("/dev/zero") && err.contains("not a regular file"),
+        "{err}"
+    );
+    let err = fails(d, &["info", "/dev/null"]);
+    assert!(err.contains("not a regular file"), "{err}");
+    for args in [
+        &[
+            "simulate",
+            "--preset",
+            "tiny",
+            "-o",
+            "x.mcap",
+            "--t-start=NaN",
+        ][..],
+        &[
+            "simulate",
+            "--preset",
+            "tiny",
+            "-o",
+            "x.mcap",
+            "--t-start=-300",
+        ],
+        &["replay", ex, "--save", "x.rrd", "--pose-rate=-5"],
+        &["identify", ex, "--imu-threshold=NaN"],
+        &["identify", ex, "--n-sigma=0"],
+    ] {
+        let o = run(d, args);
+        let (_, err) = text(&o);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {err}");
+        assert!(err.contains("invalid value"), "{args:?}: {err}");
+    }
+    let err = fails(
+        d,
+        &[
+            "simulate",
+            "--preset",
+            "tiny",
+            "--effect",
+            "braking=5",
+            "-o",
+            "x.mcap",
+        ],
+    );
+    assert!(err.contains("at most 1"), "{err}");
+    assert!(!d.join("x.mcap").exists() && !d.join("x.rrd").exists());
+}

@@ -344,7 +344,7 @@ impl ModelFile {
 
     /// Read and validate a model file. Errors name the file and the offending field.
     pub fn load(path: &Path) -> Result<ModelFile> {
-        let text = std::fs::read_to_string(path)
+        let text = crate::util::read_text_input(path)
             .with_context(|| format!("reading model file {}", path.display()))?;
         Self::from_json(&text).with_context(|| format!("invalid model file {}", path.display()))
     }

@@ -91,7 +91,7 @@ impl Ros2BagSource {
             let dir = dir_or_yaml.parent().unwrap_or(Path::new(".")).to_path_buf();
             (dir, dir_or_yaml.to_path_buf())
         };
-        let text = std::fs::read_to_string(&yaml_path).map_err(|source| ReadError::Io {
+        let text = crate::util::read_text_input(&yaml_path).map_err(|source| ReadError::Io {
             path: yaml_path.clone(),
             source,
         })?;

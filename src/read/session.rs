@@ -52,6 +52,13 @@ pub fn detect_format(path: &Path) -> Result<Format, ReadError> {
             path.display()
         )));
     }
+    // A FIFO or device would block or never end: recordings are regular files.
+    if !std::fs::metadata(path).map_err(io)?.is_file() {
+        return Err(ReadError::Other(format!(
+            "{}: not a regular file (a recording is an MCAP, .db3 or .bag file, or a bag directory)",
+            path.display()
+        )));
+    }
     let mut head = [0u8; 16];
     let mut file = File::open(path).map_err(io)?;
     let n = read_up_to(&mut file, &mut head).map_err(io)?;

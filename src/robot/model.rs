@@ -160,7 +160,7 @@ impl RobotModel {
     /// Loads a URDF file; mesh paths (`package://pkg/…`, relative, `file://`) are resolved against
     /// the file's folder.
     pub fn from_urdf_file(path: &Path) -> anyhow::Result<RobotModel> {
-        let text = std::fs::read_to_string(path)
+        let text = crate::util::read_text_input(path)
             .with_context(|| format!("cannot read URDF file {}", path.display()))?;
         let base = path.parent().unwrap_or(Path::new("."));
         Self::from_urdf_str(&text, base).with_context(|| format!("in URDF file {}", path.display()))

@@ -220,7 +220,7 @@ impl SignalMap {
     /// scale = 1.0
     /// ```
     pub fn from_toml_file(path: &Path) -> anyhow::Result<SignalMap> {
-        let text = std::fs::read_to_string(path)
+        let text = crate::util::read_text_input(path)
             .with_context(|| format!("reading signal map {}", path.display()))?;
         Self::from_toml_str(&text).with_context(|| format!("signal map {}", path.display()))
     }

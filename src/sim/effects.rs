@@ -234,6 +234,10 @@ impl Effects {
                     )
             }
             "braking" => {
+                anyhow::ensure!(
+                    value.is_none_or(|v| v <= 1.0),
+                    "effect {spec:?}: the braking fraction is at most 1"
+                );
                 self.braking = Some(value.map_or(BrakingAsymmetry::DEFAULT, |return_fraction| {
                     BrakingAsymmetry { return_fraction }
                 }))

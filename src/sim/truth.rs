@@ -374,8 +374,8 @@ impl Truth {
     /// Read a truth sidecar (ours; the shared ones have extra fields and are read as JSON values).
     pub fn load(path: &std::path::Path) -> anyhow::Result<Truth> {
         use anyhow::Context;
-        let text =
-            std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?;
+        let text = crate::util::read_text_input(path)
+            .with_context(|| format!("reading {}", path.display()))?;
         serde_json::from_str(&text)
             .with_context(|| format!("parsing truth file {}", path.display()))
     }
