@@ -7,19 +7,20 @@
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::{Command, Output};
 
 fn crate_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
 }
 
 fn run(dir: &Path, args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_g1viz"))
-        .current_dir(dir)
-        .args(args)
-        .stdin(Stdio::null())
-        .output()
-        .expect("g1viz runs")
+    common::output_within(
+        Command::new(env!("CARGO_BIN_EXE_g1viz"))
+            .current_dir(dir)
+            .args(args),
+        common::G1VIZ_LIMIT,
+    )
+    .expect("g1viz runs")
 }
 
 fn text(o: &Output) -> (String, String) {
@@ -142,13 +143,13 @@ fn readme_main_command_replays_the_shipped_example() {
     assert!(bytes.starts_with(b"RRF2"), "not an .rrd stream");
     assert!(bytes.len() > 100_000, "{} bytes", bytes.len());
 
-    match Command::new("rerun").arg("--version").output() {
+    match common::output_within(Command::new("rerun").arg("--version"), common::TOOL_LIMIT) {
         Ok(_) => {
-            let v = Command::new("rerun")
-                .args(["rrd", "verify"])
-                .arg(&out)
-                .output()
-                .unwrap();
+            let v = common::output_within(
+                Command::new("rerun").args(["rrd", "verify"]).arg(&out),
+                common::TOOL_LIMIT,
+            )
+            .unwrap();
             assert!(
                 v.status.success(),
                 "rerun rrd verify: {}",
@@ -657,4 +658,35 @@ fn devices_and_out_of_range_options_are_refused() {
     );
     assert!(err.contains("at most 1"), "{err}");
     assert!(!d.join("x.mcap").exists() && !d.join("x.rrd").exists());
+}
+
+/// README: "The example session was made with `g1viz simulate --preset example --seed 1 -o
+/// examples/g1_example.mcap` and is reproduced byte for byte by that command" — the command as
+/// printed, into a scratch folder: the session and its truth sidecar equal the shipped files.
+#[test]
+fn readme_example_session_is_reproduced_byte_for_byte() {
+    let readme = std::fs::read_to_string(crate_dir().join("README.md")).unwrap();
+    let command = "g1viz simulate --preset example --seed 1 -o examples/g1_example.mcap";
+    assert!(
+        readme.contains(&format!("`{command}`")),
+        "README no longer names {command:?}"
+    );
+    let tmp = tempfile::tempdir().unwrap();
+    std::fs::create_dir(tmp.path().join("examples")).unwrap();
+    let args: Vec<&str> = command.split_whitespace().skip(1).collect();
+    ok(tmp.path(), &args);
+    for name in ["g1_example.mcap", "g1_example.truth.json"] {
+        let (made, shipped) = (
+            std::fs::read(tmp.path().join("examples").join(name)).unwrap(),
+            std::fs::read(crate_dir().join("examples").join(name)).unwrap(),
+        );
+        let first_difference = made.iter().zip(&shipped).position(|(a, b)| a != b);
+        assert!(
+            made == shipped,
+            "examples/{name}: regenerated {} bytes vs shipped {}, first difference at byte {:?}",
+            made.len(),
+            shipped.len(),
+            first_difference
+        );
+    }
 }
