@@ -690,3 +690,40 @@ fn readme_example_session_is_reproduced_byte_for_byte() {
         );
     }
 }
+
+/// The README's identification table through the binary, as a user runs it on the shared files:
+/// `identify g1_smoke.mcap --holdout g1_holdout.mcap`, then `validate --json` of the written model
+/// on the hold-out — per reading R² 0.987, per trajectory like for like R² 0.973, the paper's way
+/// R² 0.826 (tests/identify.rs holds the same figures through the library).
+#[test]
+fn readme_identification_figures_through_the_binary() {
+    let (Some(smoke), Some(holdout)) = (
+        common::shared_recording("g1_smoke.mcap"),
+        common::shared_recording("g1_holdout.mcap"),
+    ) else {
+        return;
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let (smoke, holdout) = (smoke.to_str().unwrap(), holdout.to_str().unwrap());
+    ok(
+        tmp.path(),
+        &["identify", smoke, "-o", "model.json", "--holdout", holdout],
+    );
+    let (out, _) = ok(
+        tmp.path(),
+        &["validate", "--model", "model.json", holdout, "--json"],
+    );
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let r2 = |level: &str| {
+        v[level]["r2"]
+            .as_f64()
+            .unwrap_or_else(|| panic!("{level}: {v}"))
+    };
+    common::assert_figure("hold-out R² per reading", r2("reading_level"), "0.987");
+    common::assert_figure(
+        "hold-out R² like for like",
+        r2("trial_level_aligned"),
+        "0.973",
+    );
+    common::assert_figure("hold-out R² the paper's way", r2("trial_level"), "0.826");
+}

@@ -747,3 +747,59 @@ fn presets_follow_the_protocol_the_readme_states() {
         assert_eq!(levels.len(), speeds.len(), "{preset:?}: levels {levels:?}");
     }
 }
+
+/// README (Digital twin): a bare `--effect NAME` switches the effect on at the default the README
+/// names for it (the list above the effect table and the table's first column).
+#[test]
+fn bare_effect_names_use_the_readme_defaults() {
+    let on = |name: &str| {
+        let mut e = g1viz::sim::Effects::default();
+        e.enable(name).unwrap();
+        e
+    };
+    let fig = common::assert_figure;
+    fig(
+        "thermal α [1/K]",
+        on("thermal").thermal.unwrap().alpha_per_k,
+        "0.00393",
+    );
+    fig(
+        "braking r",
+        on("braking").braking.unwrap().return_fraction,
+        "0.25",
+    );
+    fig(
+        "bus_loss R_bus [Ω]",
+        on("bus_loss").bus_loss.unwrap().resistance_ohm,
+        "0.05",
+    );
+    fig(
+        "payload [kg]",
+        on("payload").payload.unwrap().mass_kg,
+        "0.5",
+    );
+    fig("latency [s]", on("latency").latency.unwrap().seconds, "0.3");
+    fig(
+        "gear_friction μ",
+        on("gear_friction").gear_friction.unwrap().mu,
+        "0.15",
+    );
+    fig(
+        "drive_loss V_drop [V]",
+        on("drive_loss").drive_loss.unwrap().volts,
+        "0.5",
+    );
+    fig(
+        "stribeck F_s [Nm]",
+        on("stribeck").stribeck.unwrap().newton_m,
+        "10",
+    );
+    let leak = on("balance_leak").balance_leak.unwrap();
+    fig("balance_leak k [W/(rad/s)²]", leak.w_per_rad2_s2, "55.6");
+    fig("balance_leak sway [rad/s]", leak.sway_rad_s, "0.05");
+    fig(
+        "harness_drag k [W·s/rad]",
+        on("harness_drag").harness_drag.unwrap().w_per_rad_s,
+        "4",
+    );
+}
