@@ -639,7 +639,9 @@ fn shared_sessions_segment_like_the_truth_file() {
 #[test]
 fn imu_filter_agrees_with_the_truth_contamination_flags() {
     let Some(dir) = shared_dir() else { return };
-    // README: "flags exactly the truth's contaminated trials — 4/4 on smoke, 7/7 on hold-out".
+    // README: "IMU balance-contamination filter (σ|ω| > 2.5 × median): flags exactly the truth's
+    // contaminated trials — 4/4 on smoke, 7/7 on hold-out".
+    assert_eq!(IdentifyOptions::default().filters.imu_k, Some(2.5));
     for (name, stated) in [("g1_smoke", 4), ("g1_holdout", 7)] {
         let rec = load(&dir, name);
         let truth = truth(&dir, name, &rec);
