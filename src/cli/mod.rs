@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 
-use g1viz::identify::{IdentifyOptions, Mode, Target};
+use g1viz::identify::{Alignment, AlignmentChoice, IdentifyOptions, Mode, Target};
 use g1viz::read::OpenOptions;
 use g1viz::signals::{Recording, SignalMap, load_recording};
 use g1viz::trial::Cascade;
@@ -144,6 +144,12 @@ pub struct FitArgs {
     /// Width of the residual rejection in σ.
     #[arg(long, default_value_t = 3.0, value_parser = positive)]
     n_sigma: f64,
+    /// Power-sensor averaging window [s] (default: estimated from the data together with the lag).
+    #[arg(long, value_name = "SECONDS", value_parser = positive, requires = "lag")]
+    window: Option<f64>,
+    /// Power-sensor lag [s] (with --window).
+    #[arg(long, value_name = "SECONDS", requires = "window", allow_hyphen_values = true, value_parser = finite)]
+    lag: Option<f64>,
 }
 
 impl FitArgs {
@@ -161,6 +167,12 @@ impl FitArgs {
                 n_sigma: self.n_sigma,
                 ..Cascade::default()
             },
+            alignment: match (self.window, self.lag) {
+                (Some(window_s), Some(lag_s)) => {
+                    AlignmentChoice::Given(Alignment { window_s, lag_s })
+                }
+                _ => AlignmentChoice::Auto,
+            },
             ..IdentifyOptions::default()
         }
     }
@@ -171,6 +183,14 @@ pub fn positive(s: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
         Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
         _ => Err(format!("{s:?} is not a finite number > 0")),
+    }
+}
+
+/// A finite number (clap value parser).
+pub fn finite(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() => Ok(v),
+        _ => Err(format!("{s:?} is not a finite number")),
     }
 }
 

@@ -402,8 +402,23 @@ pub fn estimate_alignment(
         }
     }
     let Some(coarse) = best_of(&grid) else {
+        let nominal = DatasetOptions {
+            mode: Mode::Reading,
+            target,
+            alignment: Alignment::NOMINAL,
+        };
+        let readings: usize = sessions
+            .iter()
+            .map(|(rec, trials)| build(rec, trials, &nominal).rows.len())
+            .sum();
+        let trials: usize = sessions.iter().map(|(_, t)| t.len()).sum();
         bail!(
-            "too few power readings inside trajectory windows to estimate the sensor window and lag"
+            "only {readings} {} power readings inside the {trials} trajectory windows; estimating \
+             the sensor window and lag needs more than {N_PARAMS} (one per model parameter): record \
+             more trials, or give the timing (--window SECONDS --lag SECONDS; the G1's sensor \
+             averages about {} s with no lag)",
+            target.name().to_uppercase(),
+            Alignment::NOMINAL.window_s
         )
     };
     const STEP: f64 = 0.025;

@@ -62,31 +62,7 @@ impl Identification {
         if let Some(v) = validation {
             sessions.push(session_ref(&v.session.source, "validation"));
         }
-        let count = |reason: RejectReason| {
-            self.rejections
-                .iter()
-                .filter(|r| r.reason == reason)
-                .count()
-        };
-        let mut filters = Vec::new();
-        if let Some(k) = self.options.filters.imu_k {
-            filters.push(FilterRecord {
-                name: "imu_sigma".into(),
-                parameters: [("k_median".to_string(), k)].into(),
-                rejected: count(RejectReason::ImuSway),
-            });
-        }
-        if self.options.filters.passes > 0 {
-            filters.push(FilterRecord {
-                name: "residual_3sigma".into(),
-                parameters: [
-                    ("k_sigma".to_string(), self.options.filters.n_sigma),
-                    ("passes".to_string(), self.options.filters.passes as f64),
-                ]
-                .into(),
-                rejected: count(RejectReason::Residual),
-            });
-        }
+        let filters = self.filter_records();
         let rejected_trials = self.rejections.clone();
         let mut notes = vec![format!(
             "power readings treated as averages over [t − {:.3} s − {:.3} s, t − {:.3} s]{}",
@@ -143,6 +119,36 @@ impl Identification {
         )?;
         file.theta_std_err = Some(self.std_err.clone());
         Ok(file)
+    }
+
+    /// The filters with their settings and how many trials each rejected.
+    fn filter_records(&self) -> Vec<FilterRecord> {
+        let count = |reason: RejectReason| {
+            self.rejections
+                .iter()
+                .filter(|r| r.reason == reason)
+                .count()
+        };
+        let mut filters = Vec::new();
+        if let Some(k) = self.options.filters.imu_k {
+            filters.push(FilterRecord {
+                name: "imu_sigma".into(),
+                parameters: [("k_median".to_string(), k)].into(),
+                rejected: count(RejectReason::ImuSway),
+            });
+        }
+        if self.options.filters.passes > 0 {
+            filters.push(FilterRecord {
+                name: "residual_3sigma".into(),
+                parameters: [
+                    ("k_sigma".to_string(), self.options.filters.n_sigma),
+                    ("passes".to_string(), self.options.filters.passes as f64),
+                ]
+                .into(),
+                rejected: count(RejectReason::Residual),
+            });
+        }
+        filters
     }
 
     /// Everything the markdown report shows: the model file, per-trial measured vs predicted on
