@@ -642,7 +642,8 @@ fn mutate_mcap(input: &mut Input, rng: &mut Rng) -> String {
             format!("mcap:len(op{opcode:#x}@{pos}={v})")
         }
         1 => {
-            let copies = 1 + rng.below(if rng.chance(0.2) { 3000 } else { 4 });
+            let many = rng.chance(0.2);
+            let copies = 1 + rng.below(if many { 3000 } else { 4 });
             let rec = b[pos..end].to_vec();
             let at = end;
             b.splice(
@@ -832,7 +833,8 @@ fn mutate_bag1(input: &mut Input, rng: &mut Rng) -> String {
             format!("bag1:field@{at}")
         }
         2 => {
-            let copies = 1 + rng.below(if rng.chance(0.2) { 3000 } else { 4 });
+            let many = rng.chance(0.2);
+            let copies = 1 + rng.below(if many { 3000 } else { 4 });
             let rec = b[pos..end].to_vec();
             b.splice(
                 end..end,
