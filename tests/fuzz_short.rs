@@ -39,8 +39,10 @@ fn seeds_read_cleanly_in_every_container() {
                 Ok(())
             })
             .unwrap();
+        // The unindexed bag says so (and is scanned); nothing else may warn.
+        let expected = usize::from(seed.label == "bag1-unindexed");
         assert!(
-            summary.complete && summary.warnings.is_empty(),
+            summary.complete && summary.warnings.len() == expected,
             "{}: {summary:?}",
             seed.label
         );
