@@ -9,8 +9,8 @@
 //! ```
 //!
 //! Classes: `panic` (keyed by its source location), `crash` (killed by a signal: stack
-//! overflow, abort on a failed allocation under the limit), `hang` (no exit within the
-//! watchdog), `oom-rss` (peak RSS above the budget), `disk` (scratch file beyond the file-size
+//! overflow, abort on a failed allocation under the limit), `hang` (out of CPU time, or no exit
+//! within 20× that in wall-clock time), `oom-rss` (peak RSS above the budget), `disk` (scratch file beyond the file-size
 //! limit). Clean errors and warnings are not findings.
 
 #[path = "../tests/support/fuzz_engine.rs"]
@@ -127,16 +127,17 @@ fn classify(
         .collect::<Vec<_>>()
         .join("\n");
     let Some(status) = status else {
-        return Some(("hang".into(), String::new(), tail));
+        return Some(("hang".into(), String::new(), format!("wall clock\n{tail}")));
     };
     if let Some(sig) = status.signal() {
         let class = match sig {
+            24 | 9 => "hang", // SIGXCPU / SIGKILL at the hard limit: out of CPU time
             25 => "disk",
             6 if stderr.contains("overflowed its stack") => "stack-overflow",
             6 if stderr.contains("memory allocation") => "alloc-abort",
             _ => "crash",
         };
-        return Some((class.into(), format!("signal {sig}"), tail));
+        return Some((class.into(), String::new(), format!("signal {sig}\n{tail}")));
     }
     match status.code() {
         Some(0) => None,
@@ -154,11 +155,15 @@ fn classify(
     }
 }
 
+/// Run one input in a child. `cpu` is the watchdog in CPU time (RLIMIT_CPU: a busy machine does
+/// not turn slow inputs into hangs); a wall-clock backstop of 20× catches a child that blocks.
 fn run_child(
     exe: &Path,
     path: &Path,
-    timeout: Duration,
+    cpu: Duration,
 ) -> std::io::Result<(Option<std::process::ExitStatus>, String)> {
+    let cpu_s = cpu.as_secs().max(1);
+    let timeout = cpu * 20;
     let mut cmd = Command::new(exe);
     cmd.arg("--worker")
         .arg(path)
@@ -166,15 +171,16 @@ fn run_child(
         .stderr(Stdio::piped());
     // SAFETY: only async-signal-safe setrlimit calls between fork and exec.
     unsafe {
-        cmd.pre_exec(|| {
-            for (res, v) in [
-                (libc::RLIMIT_AS, LIMIT_AS_BYTES),
-                (libc::RLIMIT_FSIZE, LIMIT_FSIZE_BYTES),
-                (libc::RLIMIT_CORE, 0),
+        cmd.pre_exec(move || {
+            for (res, v, hard) in [
+                (libc::RLIMIT_AS, LIMIT_AS_BYTES, LIMIT_AS_BYTES),
+                (libc::RLIMIT_FSIZE, LIMIT_FSIZE_BYTES, LIMIT_FSIZE_BYTES),
+                (libc::RLIMIT_CORE, 0, 0),
+                (libc::RLIMIT_CPU, cpu_s, cpu_s + 1),
             ] {
                 let lim = libc::rlimit {
                     rlim_cur: v,
-                    rlim_max: v,
+                    rlim_max: hard,
                 };
                 if libc::setrlimit(res, &lim) != 0 {
                     return Err(std::io::Error::last_os_error());
@@ -228,7 +234,10 @@ fn campaign(args: &Args) -> Result<(), String> {
         let dir = work.path().join(format!("i{}", n % 4));
         let _ = std::fs::remove_dir_all(&dir);
         let path = input.write_to(&dir).map_err(|e| e.to_string())?;
-        let (status, stderr) = run_child(&exe, &path, args.timeout).map_err(|e| e.to_string())?;
+        // The watchdog allows linear work on big inputs: +1 s per MB.
+        let size: usize = input.files.values().map(Vec::len).sum();
+        let timeout = args.timeout + Duration::from_secs((size >> 20) as u64);
+        let (status, stderr) = run_child(&exe, &path, timeout).map_err(|e| e.to_string())?;
         n += 1;
         *per_kind.entry(format!("{:?}", input.kind)).or_default() += 1;
         if let Some((class, location, detail)) = classify(status, &stderr) {

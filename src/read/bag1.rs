@@ -1079,6 +1079,7 @@ impl MessageSource for Ros1BagSource {
                     publish_time_ns: m.time_ns,
                     data: &chunk.data[m.start..m.end],
                     file_offset: m.file_offset,
+                    row_id: false,
                 })?;
                 state.summary.messages += 1;
             }

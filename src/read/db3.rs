@@ -51,6 +51,8 @@ struct SqliteBag {
     message_compression: bool,
     /// Decompressed copies of `compression_mode: FILE` databases; removed on drop.
     _scratch: Option<tempfile::TempDir>,
+    /// Damage found when opening (truncated databases), repeated in info and every read.
+    notes: Vec<String>,
 }
 
 struct DbFile {
@@ -109,11 +111,10 @@ impl Ros2BagSource {
             )));
         }
         let mut listed = std::collections::HashSet::new();
-        if let Some(twice) = meta
-            .relative_file_paths
-            .iter()
-            .find(|f| !listed.insert(Path::new(f.as_str()).components().collect::<PathBuf>()))
-        {
+        if let Some(twice) = meta.relative_file_paths.iter().find(|f| {
+            let path = dir.join(f.as_str());
+            !listed.insert(std::fs::canonicalize(&path).unwrap_or(path))
+        }) {
             return Err(ReadError::Other(format!(
                 "{}: storage file {twice} is listed twice in relative_file_paths (its messages would be read twice)",
                 yaml_path.display()
@@ -238,8 +239,10 @@ impl MessageSource for Ros2BagSource {
                     }
                     decompress_message(m.data, &mut scratch).map_err(|e| {
                         ReadError::Other(format!(
-                            "topic {}: message at log time {} ns (record at byte offset {}): {e}",
-                            m.channel.topic, m.log_time_ns, m.file_offset
+                            "topic {}: message at log time {} ns ({}): {e}",
+                            m.channel.topic,
+                            m.log_time_ns,
+                            m.location()
                         ))
                     })?;
                     visit(MessageRef {
@@ -347,13 +350,41 @@ fn open_db(path: &Path) -> Result<Connection, ReadError> {
         }
     }
     uri.push_str("?immutable=1");
-    Connection::open_with_flags(
+    let conn = Connection::open_with_flags(
         &uri,
         OpenFlags::SQLITE_OPEN_READ_ONLY
             | OpenFlags::SQLITE_OPEN_URI
             | OpenFlags::SQLITE_OPEN_NO_MUTEX,
     )
-    .map_err(|e| sql_error(path, e))
+    .map_err(|e| sql_error(path, e))?;
+    if truncation(path).is_some() {
+        // sqlite refuses a file shorter than its header says outright; with this (read-only)
+        // flag it reads the pages that are there and reports the missing ones when reached.
+        conn.execute_batch("PRAGMA writable_schema = ON")
+            .map_err(|e| sql_error(path, e))?;
+    }
+    Ok(conn)
+}
+
+/// For a database file shorter than its header says (a truncated copy, a recorder that died):
+/// a warning with how many pages are present.
+fn truncation(path: &Path) -> Option<String> {
+    let mut header = [0u8; 100];
+    let mut file = std::fs::File::open(path).ok()?;
+    std::io::Read::read_exact(&mut file, &mut header).ok()?;
+    let len = file.metadata().ok()?.len();
+    let page_size = match u16::from_be_bytes([header[16], header[17]]) {
+        1 => 65536,
+        n => u64::from(n),
+    };
+    let pages = u64::from(u32::from_be_bytes(header[28..32].try_into().ok()?));
+    (page_size > 0 && pages * page_size > len).then(|| {
+        format!(
+            "{}: database truncated: {} of its {pages} pages present; messages are read up to the damage",
+            path.display(),
+            len / page_size
+        )
+    })
 }
 
 fn has_table(conn: &Connection, table: &str) -> rusqlite::Result<bool> {
@@ -375,12 +406,18 @@ impl SqliteBag {
         let scratch = scratch_dir(compression)?;
         let mut topics: Vec<BagTopic> = Vec::new();
         let mut db_files = Vec::with_capacity(files.len());
+        let mut notes = Vec::new();
         for (index, path) in files.into_iter().enumerate() {
             let db_path = match &scratch {
                 Some(dir) => decompress_file(&path, &dir.path().join(format!("{index}.db3")))?,
                 None => path.clone(),
             };
             let conn = open_db(&db_path)?;
+            notes.extend(
+                truncation(&db_path).map(|w| {
+                    w.replace(&db_path.display().to_string(), &path.display().to_string())
+                }),
+            );
             let topic_ids = read_topics(&conn, &path, &mut topics, opts)?;
             db_files.push(DbFile {
                 path,
@@ -394,12 +431,13 @@ impl SqliteBag {
             topics,
             message_compression: compression == Compression::MessageZstd,
             _scratch: scratch,
+            notes,
         })
     }
 
     fn info(&mut self) -> Result<SessionInfo, ReadError> {
         let mut stats: Vec<(u64, u64, u64)> = vec![(0, u64::MAX, 0); self.topics.len()];
-        let mut notes = Vec::new();
+        let mut notes = self.notes.clone();
         for f in &self.files {
             let conn = open_db(&f.db_path)?;
             let rows = match topic_counts(&conn) {
@@ -478,7 +516,8 @@ impl SqliteBag {
         visit: &mut dyn FnMut(MessageRef<'_>) -> Result<(), ReadError>,
     ) -> Result<ReadSummary, ReadError> {
         let mut summary = ReadSummary {
-            complete: true,
+            complete: self.notes.is_empty(),
+            warnings: self.notes.clone(),
             ..ReadSummary::default()
         };
         let selected = self.select(wanted, &mut summary.warnings)?;
@@ -572,6 +611,7 @@ impl SqliteBag {
                         publish_time_ns: time,
                         data: payload,
                         file_offset: cur.rowid.max(0) as u64,
+                        row_id: true,
                     })?;
                     summary.messages += 1;
                 }
@@ -955,7 +995,7 @@ impl BagMetadata {
         let doc = super::yaml::parse(text)?;
         let info = doc
             .get("rosbag2_bagfile_information")
-            .ok_or("metadata.yaml has no rosbag2_bagfile_information section")?;
+            .ok_or("no rosbag2_bagfile_information section")?;
         let scalar = |key: &str| {
             info.get(key)
                 .and_then(super::yaml::Yaml::as_str)
@@ -963,18 +1003,16 @@ impl BagMetadata {
         };
         let version = scalar("version");
         if version.is_empty() {
-            return Err(
-                "metadata.yaml has no version: a pre-release (2018) rosbag2 bag or not \
+            return Err("no version: a pre-release (2018) rosbag2 bag or not \
                         rosbag2 metadata; supported: rosbag2 metadata versions 1 to 9"
-                    .into(),
-            );
+                .into());
         }
         let version: u32 = version
             .parse()
-            .map_err(|_| format!("metadata.yaml: version {version:?} is not a number"))?;
+            .map_err(|_| format!("version {version:?} is not a number"))?;
         if !(1..=9).contains(&version) {
             return Err(format!(
-                "metadata.yaml: rosbag2 metadata version {version} is not supported (supported: up to 9)"
+                "rosbag2 metadata version {version} is not supported (supported: up to 9)"
             ));
         }
         let relative_file_paths = match info.get("relative_file_paths") {
@@ -982,9 +1020,7 @@ impl BagMetadata {
                 .iter()
                 .map(|i| i.as_str().map(str::to_string))
                 .collect::<Option<Vec<_>>>()
-                .ok_or(
-                    "metadata.yaml: relative_file_paths holds something other than file names",
-                )?,
+                .ok_or("relative_file_paths holds something other than file names")?,
             _ => Vec::new(),
         };
         Ok(BagMetadata {

@@ -1038,6 +1038,7 @@ impl<R: Read + Seek> MessageSource for McapSource<R> {
                 publish_time_ns: m.publish_time,
                 data,
                 file_offset: m.file_offset,
+                row_id: false,
             })
         })?;
         summary.messages = delivered;

@@ -59,8 +59,23 @@ pub struct MessageRef<'a> {
     /// Serialised payload.
     pub data: &'a [u8],
     /// Byte offset in the file of the record holding this message, for error messages
-    /// (for compressed chunks: the chunk's offset).
+    /// (for compressed chunks: the chunk's offset); for rosbag2 sqlite storage, the message's
+    /// row id (see `row_id`).
     pub file_offset: u64,
+    /// True when `file_offset` is a database row id, not a byte offset.
+    pub row_id: bool,
+}
+
+impl MessageRef<'_> {
+    /// Where the message is, for messages to the user: `record at byte offset N` or
+    /// `message row id N`.
+    pub fn location(&self) -> String {
+        if self.row_id {
+            format!("message row id {}", self.file_offset)
+        } else {
+            format!("record at byte offset {}", self.file_offset)
+        }
+    }
 }
 
 /// What a full read produced besides the messages.

@@ -43,7 +43,7 @@ fn too_deep(lines: &[Line], i: usize, depth: usize) -> Result<(), String> {
     if depth > MAX_DEPTH {
         let line = lines.get(i).map_or(0, |l| l.number);
         return Err(format!(
-            "metadata.yaml line {line}: mappings/sequences nested more than {MAX_DEPTH} levels deep"
+            "line {line}: mappings/sequences nested more than {MAX_DEPTH} levels deep"
         ));
     }
     Ok(())
@@ -69,7 +69,7 @@ pub fn parse(text: &str) -> Result<Yaml, String> {
             break;
         }
         if raw.starts_with('\t') {
-            return Err(format!("metadata.yaml line {}: tab indentation", n + 1));
+            return Err(format!("line {}: tab indentation", n + 1));
         }
         lines.push(Line {
             indent: trimmed.len() - content.len(),
@@ -81,10 +81,7 @@ pub fn parse(text: &str) -> Result<Yaml, String> {
     let indent = lines.first().map_or(0, |l| l.indent);
     let node = parse_node(&mut lines, &mut i, indent, 0)?;
     if let Some(l) = lines.get(i) {
-        return Err(format!(
-            "metadata.yaml line {}: unexpected indentation",
-            l.number
-        ));
+        return Err(format!("line {}: unexpected indentation", l.number));
     }
     Ok(node)
 }
@@ -108,8 +105,9 @@ fn parse_node(
     } else {
         let first = line.text.clone();
         let parent = line.indent.saturating_sub(1);
+        let number = line.number;
         *i += 1;
-        scalar(&first, lines, i, parent)
+        scalar(&first, lines, i, parent).map_err(|e| format!("line {number}: {e}"))
     }
 }
 
@@ -160,18 +158,12 @@ fn parse_map(
     while let Some(line) = lines.get(*i) {
         if line.indent != indent {
             if line.indent > indent {
-                return Err(format!(
-                    "metadata.yaml line {}: unexpected indentation",
-                    line.number
-                ));
+                return Err(format!("line {}: unexpected indentation", line.number));
             }
             break;
         }
         let Some((key, rest)) = split_key(&line.text) else {
-            return Err(format!(
-                "metadata.yaml line {}: expected `key: value`",
-                line.number
-            ));
+            return Err(format!("line {}: expected `key: value`", line.number));
         };
         *i += 1;
         let value = if rest.is_empty() {
@@ -187,7 +179,8 @@ fn parse_map(
                 _ => Yaml::Null,
             }
         } else {
-            scalar(&rest, lines, i, indent)?
+            let number = line.number;
+            scalar(&rest, lines, i, indent).map_err(|e| format!("line {number}: {e}"))?
         };
         entries.push((key, value));
     }

@@ -633,7 +633,10 @@ fn mutate_mcap(input: &mut Input, rng: &mut Rng) -> String {
         return "mcap:none".into();
     }
     let (pos, opcode, len) = recs[rng.below(recs.len())];
-    let end = (pos + 9 + len as usize).min(b.len());
+    let end = usize::try_from(len)
+        .ok()
+        .and_then(|l| (pos + 9).checked_add(l))
+        .map_or(b.len(), |e| e.min(b.len()));
     let file_len = b.len() as u64;
     match rng.below(6) {
         0 => {
@@ -644,6 +647,8 @@ fn mutate_mcap(input: &mut Input, rng: &mut Rng) -> String {
         1 => {
             let many = rng.chance(0.2);
             let copies = 1 + rng.below(if many { 3000 } else { 4 });
+            // At most 8 MB more: the watchdog is for hangs, not for big inputs.
+            let copies = copies.min((8 << 20) / (end - pos).max(1));
             let rec = b[pos..end].to_vec();
             let at = end;
             b.splice(
@@ -800,7 +805,7 @@ fn mutate_bag1(input: &mut Input, rng: &mut Rng) -> String {
         return "bag1:none".into();
     }
     let (pos, hl, dl) = recs[rng.below(recs.len())];
-    let end = (pos + 8 + hl + dl).min(b.len());
+    let end = (pos + 8 + hl).saturating_add(dl).min(b.len());
     let file_len = b.len() as u64;
     match rng.below(5) {
         0 => {
@@ -835,6 +840,8 @@ fn mutate_bag1(input: &mut Input, rng: &mut Rng) -> String {
         2 => {
             let many = rng.chance(0.2);
             let copies = 1 + rng.below(if many { 3000 } else { 4 });
+            // At most 8 MB more: the watchdog is for hangs, not for big inputs.
+            let copies = copies.min((8 << 20) / (end - pos).max(1));
             let rec = b[pos..end].to_vec();
             b.splice(
                 end..end,
