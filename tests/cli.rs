@@ -770,3 +770,117 @@ fn readme_identification_figures_through_the_binary() {
     );
     common::assert_figure("hold-out R² the paper's way", r2("trial_level"), "0.826");
 }
+
+/// Several sessions of one robot as one data set: a folder stands for the recordings in it;
+/// identify gives the same model from the folder as from the files listed, and diagnose joins
+/// the sessions keeping every trial (the truth files' 2 × 24 trials are all accounted for).
+#[test]
+fn a_folder_of_sessions_is_one_data_set() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    std::fs::create_dir(d.join("robot")).unwrap();
+    for seed in ["11", "12"] {
+        let out = format!("robot/s{seed}.mcap");
+        ok(
+            d,
+            &["simulate", "--preset", "smoke", "--seed", seed, "-o", &out],
+        );
+    }
+    let (from_folder, _) = ok(d, &["identify", "robot", "-o", "a.json"]);
+    let (from_files, _) = ok(
+        d,
+        &[
+            "identify",
+            "robot/s11.mcap",
+            "robot/s12.mcap",
+            "-o",
+            "b.json",
+        ],
+    );
+    assert_eq!(
+        json(&d.join("a.json"))["theta"],
+        json(&d.join("b.json"))["theta"]
+    );
+    assert!(from_folder.contains("robot/s11.mcap") && from_folder.contains("robot/s12.mcap"));
+    assert_eq!(
+        from_folder
+            .lines()
+            .filter(|l| l.contains("trials ("))
+            .count(),
+        from_files
+            .lines()
+            .filter(|l| l.contains("trials ("))
+            .count()
+    );
+
+    ok(d, &["diagnose", "robot", "--json", "diag.json"]);
+    let diag = json(&d.join("diag.json"));
+    let truth_trials: usize = ["s11", "s12"]
+        .iter()
+        .map(|s| {
+            json(&d.join(format!("robot/{s}.truth.json")))["trials"]
+                .as_array()
+                .unwrap()
+                .len()
+        })
+        .sum();
+    assert_eq!(truth_trials, 48);
+    let used = diag["n_trials"].as_u64().unwrap() as usize;
+    let left_out = diag["rejected"].as_array().unwrap().len();
+    assert_eq!(used + left_out, truth_trials, "{diag}");
+
+    std::fs::create_dir(d.join("empty")).unwrap();
+    let err = fails(d, &["identify", "empty"]);
+    assert!(err.contains("no recordings in it"), "{err}");
+}
+
+/// `examples/predict_power.rs`, the library's front door, runs on the shipped example with the
+/// paper's model: one prediction per `/lowstate` message (the container's own count), a finite,
+/// positive mean net power; a missing model is a clean error.
+#[test]
+fn predict_power_example_runs() {
+    let exe = std::env::current_exe().unwrap();
+    let example = exe
+        .parent()
+        .and_then(Path::parent)
+        .map(|d| d.join("examples").join("predict_power"))
+        .unwrap();
+    if !example.exists() {
+        // `cargo test` builds the examples; a run of this test binary alone may not have.
+        common::skip("examples/predict_power not built (run `cargo test`)");
+        return;
+    }
+    let o = Command::new(&example)
+        .current_dir(crate_dir())
+        .args(["paper", "examples/g1_example.mcap"])
+        .output()
+        .unwrap();
+    let (out, err) = text(&o);
+    assert!(o.status.success(), "{out}\n{err}");
+    let (info, _) = ok(
+        &crate_dir(),
+        &["info", "examples/g1_example.mcap", "--json"],
+    );
+    let info: serde_json::Value = serde_json::from_str(&info).unwrap();
+    let lowstate = info["container"]["topics"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|t| t["topic"] == "/lowstate")
+        .unwrap()["count"]
+        .as_u64()
+        .unwrap();
+    assert!(out.starts_with(&format!("{lowstate} samples")), "{out}");
+    let mean: f64 = out
+        .split("mean ")
+        .nth(1)
+        .and_then(|m| m.trim().trim_end_matches('W').trim().parse().ok())
+        .unwrap_or_else(|| panic!("no mean in {out}"));
+    assert!(mean.is_finite() && mean > 0.0, "{out}");
+    let o = Command::new(&example)
+        .current_dir(crate_dir())
+        .args(["absent.json", "examples/g1_example.mcap"])
+        .output()
+        .unwrap();
+    assert!(!o.status.success() && text(&o).1.contains("absent.json"));
+}

@@ -3,20 +3,21 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::Result;
-#[cfg(not(feature = "viz"))]
-use anyhow::bail;
+use anyhow::{Result, bail};
 use clap::Args;
 
-use super::{ReadArgs, TargetArg};
+use super::{ReadArgs, TargetArg, expand_sessions};
 use g1viz::power::load_model;
-use g1viz::signals::Recording;
+use g1viz::signals::{Recording, join_recordings};
 use g1viz::util::{check_distinct_sessions, check_outputs};
 
 #[derive(Args)]
 pub struct DiagnoseArgs {
-    /// Recording to diagnose.
-    session: PathBuf,
+    /// Recording(s) to diagnose: files, bag folders, or folders of recordings. Several sessions
+    /// of one robot are diagnosed as one data set (joined end to end on one clock; each keeps its
+    /// own trials and baselines).
+    #[arg(required = true, value_name = "SESSION")]
+    sessions: Vec<PathBuf>,
     /// The twin's power model (model.json); without it the model is refitted inside each fold.
     #[arg(long, value_name = "M")]
     model: Option<PathBuf>,
@@ -46,9 +47,16 @@ pub struct DiagnoseArgs {
 /// Diagnose and write what was asked for.
 pub fn run(a: DiagnoseArgs) -> Result<()> {
     use g1viz::diagnose::{self, DiagnoseOptions};
+    let sessions = expand_sessions(&a.sessions)?;
+    let mut all: Vec<&Path> = sessions.iter().map(PathBuf::as_path).collect();
+    check_distinct_sessions(&all, "its trials would count twice")?;
     if let Some(c) = &a.counterpart {
+        if sessions.len() > 1 {
+            bail!("--counterpart compares one session with its twin; give one session");
+        }
+        all.push(c);
         check_distinct_sessions(
-            &[&a.session, c],
+            &all,
             "the counterpart must be its twin (`g1viz simulate --like`)",
         )?;
     }
@@ -59,14 +67,25 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
             ("Rerun output", a.save.as_deref()),
         ],
         &[
-            Some(&a.session),
-            a.model.as_deref(),
-            a.counterpart.as_deref(),
-            a.urdf.as_deref(),
-            a.read.signals.as_deref(),
-        ],
+            sessions
+                .iter()
+                .map(|p| Some(p.as_path()))
+                .collect::<Vec<_>>(),
+            vec![
+                a.model.as_deref(),
+                a.counterpart.as_deref(),
+                a.urdf.as_deref(),
+                a.read.signals.as_deref(),
+            ],
+        ]
+        .concat(),
     )?;
-    let rec = a.read.load(&a.session)?;
+    let parts = sessions
+        .iter()
+        .map(|p| a.read.load(p))
+        .collect::<Result<Vec<_>>>()?;
+    // Each part starts 5 s after the previous one ends: trials and their baselines stay apart.
+    let rec = join_recordings(parts, 5.0);
     let opts = DiagnoseOptions {
         reference: a.model.as_deref().map(load_model).transpose()?,
         target: a.target.into(),
@@ -88,7 +107,7 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
         println!("wrote {}", dir.join("report.md").display());
     }
     if let Some(out) = &a.save {
-        save_diagnosis_rrd(&rec, &a, &d, out)?;
+        save_diagnosis_rrd(&rec, &a, &sessions, &d, out)?;
         println!("wrote {}", out.display());
     }
     Ok(())
@@ -98,6 +117,7 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
 fn save_diagnosis_rrd(
     rec: &Recording,
     a: &DiagnoseArgs,
+    sessions: &[PathBuf],
     d: &g1viz::diagnose::Diagnosis,
     out: &Path,
 ) -> Result<()> {
@@ -110,7 +130,7 @@ fn save_diagnosis_rrd(
         "g1viz",
         &viz::recording_id_for(rec),
         &Sink::Save(out.to_path_buf()),
-        &[&a.session],
+        &sessions.iter().map(PathBuf::as_path).collect::<Vec<_>>(),
     )?;
     viz::replay::log_replay(
         rec,
@@ -127,6 +147,7 @@ fn save_diagnosis_rrd(
 fn save_diagnosis_rrd(
     _: &Recording,
     _: &DiagnoseArgs,
+    _: &[PathBuf],
     _: &g1viz::diagnose::Diagnosis,
     _: &Path,
 ) -> Result<()> {
