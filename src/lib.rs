@@ -10,7 +10,7 @@
 //!   → power (the paper's 49-parameter model)
 //!   → identify (regressors, constrained fit, validation, report)
 //!   → diagnose (sim-to-real mismatch: locate, name, model)
-//!   → viz (Rerun recording)
+//!   → viz (Rerun recording); rows (per-reading rows as Parquet, for many sessions and robots)
 //! sim (digital twin) writes the same MCAP format that `read` reads.
 //! lsq (least squares: normal equations, bounded solvers, metrics) and util sit under all of them.
 //! ```
@@ -23,6 +23,7 @@ mod plot;
 pub mod power;
 pub mod read;
 pub mod robot;
+pub mod rows;
 pub mod signals;
 pub mod sim;
 pub mod trial;

@@ -884,3 +884,98 @@ fn predict_power_example_runs() {
         .unwrap();
     assert!(!o.status.success() && text(&o).1.contains("absent.json"));
 }
+
+/// Fleet rows: `export rows` of two robots' sessions, read back by the independent Python
+/// `pyarrow` (schema, row counts, an aggregation across robots equal to ours), and
+/// `identify --rows` gives the model `identify` gives from the sessions themselves (same rows,
+/// same rejected trials).
+#[test]
+fn exported_rows_are_read_by_pyarrow_and_refit_to_the_same_model() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    for (robot, seed) in [("a", "11"), ("b", "12")] {
+        std::fs::create_dir(d.join(robot)).unwrap();
+        let out = format!("{robot}/s{seed}.mcap");
+        ok(
+            d,
+            &["simulate", "--preset", "smoke", "--seed", seed, "-o", &out],
+        );
+        let (said, _) = ok(
+            d,
+            &[
+                "export",
+                "rows",
+                robot,
+                "-o",
+                &format!("{robot}.parquet"),
+                "--robot",
+                robot,
+            ],
+        );
+        assert!(said.contains(&format!("robot {robot}")), "{said}");
+    }
+    ok(d, &["identify", "a", "-o", "from_session.json"]);
+    ok(
+        d,
+        &["identify", "--rows", "a.parquet", "-o", "from_rows.json"],
+    );
+    let theta = |f: &str| -> Vec<f64> {
+        serde_json::from_value(json(&d.join(f))["theta"].clone()).unwrap()
+    };
+    for (s, r) in theta("from_session.json")
+        .iter()
+        .zip(theta("from_rows.json"))
+    {
+        assert!((s - r).abs() <= 1e-9 * s.abs().max(1.0), "{s} vs {r}");
+    }
+
+    let ours: Vec<(String, usize, f64)> = ["a", "b"]
+        .iter()
+        .map(|robot| {
+            let rows = g1viz::rows::read_parquet(&d.join(format!("{robot}.parquet"))).unwrap();
+            let kept: Vec<_> = rows.iter().filter(|r| r.rejected_by.is_none()).collect();
+            let mean = kept.iter().map(|r| r.row.y).sum::<f64>() / kept.len() as f64;
+            (robot.to_string(), kept.len(), mean)
+        })
+        .collect();
+    let script = r#"
+import sys
+try:
+    import pyarrow as pa, pyarrow.parquet as pq, pyarrow.compute as pc
+except ImportError:
+    sys.exit(3)
+t = pa.concat_tables([pq.read_table(p) for p in sys.argv[1:]])
+for name in ["robot", "session", "trial", "t_s", "y_w", "phi_a0", "phi_e56", "temp_c_3", "sigma_omega", "rejected"]:
+    assert name in t.column_names, name
+kept = t.filter(pc.invert(t["rejected"]))
+g = kept.group_by("robot").aggregate([("y_w", "count"), ("y_w", "mean")]).sort_by("robot")
+for r, n, m in zip(g["robot"].to_pylist(), g["y_w_count"].to_pylist(), g["y_w_mean"].to_pylist()):
+    print(f"{r} {n} {m!r}")
+"#;
+    let mut cmd = Command::new("python3");
+    cmd.current_dir(d)
+        .args(["-c", script, "a.parquet", "b.parquet"]);
+    let o = common::output_within(&mut cmd, common::TOOL_LIMIT).unwrap();
+    if o.status.code() == Some(3) {
+        common::skip("python3 has no pyarrow (pip install pyarrow)");
+        return;
+    }
+    let (out, err) = text(&o);
+    assert!(o.status.success(), "{out}\n{err}");
+    let theirs: Vec<(String, usize, f64)> = out
+        .lines()
+        .map(|l| {
+            let f: Vec<&str> = l.split_whitespace().collect();
+            (
+                f[0].to_string(),
+                f[1].parse().unwrap(),
+                f[2].parse().unwrap(),
+            )
+        })
+        .collect();
+    assert_eq!(theirs.len(), 2, "{out}");
+    for ((r1, n1, m1), (r2, n2, m2)) in ours.iter().zip(&theirs) {
+        assert_eq!((r1, n1), (r2, n2));
+        assert!((m1 - m2).abs() < 1e-9, "{r1}: {m1} vs {m2}");
+    }
+}

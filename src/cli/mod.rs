@@ -14,6 +14,7 @@ use g1viz::signals::{Recording, SignalMap, load_recording};
 use g1viz::trial::Cascade;
 
 pub mod diagnose;
+pub mod export;
 pub mod identify;
 pub mod info;
 pub mod replay;
@@ -31,7 +32,9 @@ Examples:
   g1viz simulate --preset smoke --seed 1 -o sim.mcap --effect braking=0.3
   g1viz simulate --like session.mcap -o twin.mcap
   g1viz diagnose session.mcap --model model.json --report diag/ --save diag.rrd
-  g1viz diagnose session.mcap --model model.json --counterpart twin.mcap";
+  g1viz diagnose session.mcap --model model.json --counterpart twin.mcap
+  g1viz export rows robot_a/ robot_b/ -o rows.parquet
+  g1viz identify --rows rows.parquet -o model.json";
 
 /// Replay, identify and diagnose the electrical power of the Unitree G1 arm.
 #[derive(Parser)]
@@ -57,6 +60,8 @@ pub enum Command {
     Simulate(simulate::SimulateArgs),
     /// Diagnose sim-to-real mismatch: locate it, name the missing physics, model it.
     Diagnose(diagnose::DiagnoseArgs),
+    /// Export data for other tools: `export rows` writes the per-reading rows as Parquet.
+    Export(export::ExportArgs),
 }
 
 /// Options for reading a session, shared by every subcommand that reads one.
@@ -250,5 +255,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Validate(a) => validate::run(a),
         Command::Simulate(a) => simulate::run(a),
         Command::Diagnose(a) => diagnose::run(a),
+        Command::Export(a) => export::run(a),
     }
 }

@@ -16,7 +16,8 @@ mod validate;
 pub use dataset::{Alignment, AlignmentEstimate, Mode, Target};
 pub use fit::{kappa, term_means};
 pub use pipeline::{
-    AlignmentChoice, Identification, IdentifyOptions, ModeFit, SessionSummary, identify,
+    AlignmentChoice, Identification, IdentifyOptions, ModeFit, RowsFit, SessionSummary,
+    fit_given_rows, identify,
 };
 pub use table::TrialPrediction;
 pub use validate::{Validation, validate};

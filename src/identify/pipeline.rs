@@ -472,3 +472,39 @@ pub fn identify(recs: &[Recording], opts: &IdentifyOptions) -> Result<Identifica
         per_trial,
     })
 }
+
+/// A fit of rows that were built elsewhere (e.g. read back from a row table): the paper's
+/// constrained fit and its quality on those rows.
+#[derive(Debug, Clone)]
+pub struct RowsFit {
+    /// The fitted model.
+    pub model: PowerModel,
+    /// Fit quality on the rows.
+    pub fit: Metrics,
+    /// κ(ΦᵀΦ) of the rows.
+    pub kappa: f64,
+    /// Standard error of each parameter (None: at a bound or not excited).
+    pub std_err: Vec<Option<f64>>,
+    /// Solver run.
+    pub solver: SolverInfo,
+}
+
+/// Fit the power model to given rows (no segmentation or filtering: the rows are taken as they
+/// are; leave out rejected trials before calling).
+pub fn fit_given_rows(rows: &[Row]) -> Result<RowsFit> {
+    if rows.len() < N_PARAMS {
+        bail!(
+            "{} rows, fewer than the {N_PARAMS} parameters of the model",
+            rows.len()
+        );
+    }
+    let fit = fit_rows(rows).context("constrained least squares")?;
+    let theta = fit.theta49()?;
+    Ok(RowsFit {
+        model: PowerModel::from_vector(&theta),
+        fit: quality(&theta, rows),
+        kappa: kappa(rows),
+        std_err: fit.std_err.clone(),
+        solver: fit.solver,
+    })
+}
