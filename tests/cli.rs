@@ -337,6 +337,20 @@ fn info_json_counts_match_the_independent_generator() {
     ] {
         assert_eq!(Some(count(topic)), counts[key].as_u64(), "{topic}");
     }
+    // The arm signals, counted in one streamed pass: one per message of each topic.
+    for (series, key) in [
+        ("state", "lowstate"),
+        ("command", "arm_sdk"),
+        ("mbs_power", "mbs"),
+        ("bms_power", "bms"),
+    ] {
+        assert_eq!(
+            info["signals"][series]["count"].as_u64(),
+            counts[key].as_u64(),
+            "{series}"
+        );
+    }
+    assert!((info["signals"]["state"]["rate_hz"].as_f64().unwrap() - 100.0).abs() < 0.5);
 }
 
 #[test]
@@ -658,6 +672,35 @@ fn devices_and_out_of_range_options_are_refused() {
     );
     assert!(err.contains("at most 1"), "{err}");
     assert!(!d.join("x.mcap").exists() && !d.join("x.rrd").exists());
+}
+
+/// A session too short to estimate the power sensor's timing (the shipped example: 6 trials)
+/// says how many readings it found and what it needs; given the timing it identifies, and says
+/// the model is not identifiable from so few rows.
+#[test]
+fn identify_on_a_short_session_names_counts_and_a_way_out() {
+    let dir = tempfile::tempdir().unwrap();
+    let example = crate_dir().join("examples/g1_example.mcap");
+    let example = example.to_str().unwrap();
+    let err = fails(dir.path(), &["identify", example, "-o", "m.json"]);
+    assert!(
+        err.contains("only 42 MBS power readings inside the 6 trajectory windows")
+            && err.contains("needs more than 49")
+            && err.contains("--window"),
+        "{err}"
+    );
+    assert!(!dir.path().join("m.json").exists());
+    let (out, _) = ok(
+        dir.path(),
+        &[
+            "identify", example, "-o", "m.json", "--window", "0.2", "--lag", "0",
+        ],
+    );
+    assert!(out.contains("42 rows for 49 parameters"), "{out}");
+    assert_eq!(json(&dir.path().join("m.json"))["schema_version"], 1);
+    // Half the timing is refused by the parser.
+    let o = run(dir.path(), &["identify", example, "--window", "0.2"]);
+    assert_eq!(o.status.code(), Some(2));
 }
 
 /// README: "The example session was made with `g1viz simulate --preset example --seed 1 -o
