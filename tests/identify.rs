@@ -641,7 +641,9 @@ fn imu_filter_agrees_with_the_truth_contamination_flags() {
     let Some(dir) = shared_dir() else { return };
     // README: "IMU balance-contamination filter (σ|ω| > 2.5 × median): flags exactly the truth's
     // contaminated trials — 4/4 on smoke, 7/7 on hold-out".
+    // (And the model paragraph's "3σ" residual filter.)
     assert_eq!(IdentifyOptions::default().filters.imu_k, Some(2.5));
+    assert_eq!(IdentifyOptions::default().filters.n_sigma, 3.0);
     for (name, stated) in [("g1_smoke", 4), ("g1_holdout", 7)] {
         let rec = load(&dir, name);
         let truth = truth(&dir, name, &rec);
