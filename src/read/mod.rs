@@ -12,6 +12,7 @@ use std::sync::Arc;
 pub mod bag1;
 pub mod db3;
 pub mod decode;
+pub mod fingerprint;
 pub mod mcap;
 pub mod msgdef;
 pub mod session;
