@@ -47,6 +47,8 @@ pub enum Node {
         shares: Vec<f32>,
         /// The child shown first in a tab container (by name; `None`: the first).
         active: Option<String>,
+        /// Columns of a grid container (`None`: the viewer decides).
+        columns: Option<u32>,
     },
     /// A view.
     View {
@@ -167,7 +169,16 @@ impl Node {
             children,
             shares,
             active: None,
+            columns: None,
         }
+    }
+
+    /// Sets the number of columns of a grid container.
+    pub fn with_columns(mut self, n: u32) -> Node {
+        if let Node::Container { columns, .. } = &mut self {
+            *columns = Some(n);
+        }
+        self
     }
 
     /// Makes the tab named `tab` the one its tab container opens on; false when no tab
@@ -301,6 +312,7 @@ impl BlueprintChunks {
                 children,
                 shares,
                 active,
+                columns,
             } => {
                 for child in children {
                     self.node(child)?;
@@ -319,6 +331,9 @@ impl BlueprintChunks {
                     arch = arch.with_active_tab(ActiveTab(
                         format!("/{}", tab.blueprint_path()).as_str().into(),
                     ));
+                }
+                if let Some(n) = columns {
+                    arch = arch.with_grid_columns(*n);
                 }
                 if !shares.is_empty() {
                     arch = match kind {
@@ -432,6 +447,9 @@ pub struct LayoutParts {
     pub trials: bool,
     /// The IMU filter's statistic and threshold are logged.
     pub imu_filter: bool,
+    /// The diagnosis found terms following recorded fields (plotted beside its summary,
+    /// time-aligned with the prediction error).
+    pub located: bool,
 }
 
 fn plot(name: impl Into<String>, contents: Vec<String>) -> Node {
@@ -493,13 +511,15 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
         Grid,
         "Joints",
         vec![
-            plot("Joint position q [rad] (command lighter)", q).with_legend(Legend::LeftBottom),
-            plot("Joint velocity q̇ [rad/s]", each("dq")).with_legend(Legend::LeftBottom),
-            plot("Joint torque τ [Nm]", each("tau")).with_legend(Legend::LeftBottom),
-            plot("Motor temperature [°C]", each("temperature")).with_legend(Legend::LeftBottom),
+            // One legend for the four plots (same colour per joint everywhere).
+            plot("Joint position q [rad] (command: lighter)", q).with_legend(Legend::Hidden),
+            plot("Joint velocity q̇ [rad/s]", each("dq")).with_legend(Legend::Hidden),
+            plot("Joint torque τ [Nm]", each("tau")).with_legend(Legend::LeftTop),
+            plot("Motor temperature [°C]", each("temperature")).with_legend(Legend::Hidden),
         ],
         vec![],
-    );
+    )
+    .with_columns(2);
     let mut tabs = Vec::new();
     if parts.model {
         tabs.push(breakdown_tab(joints));
@@ -540,6 +560,14 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
             paths::DIAG_SUMMARY,
             vec![],
         )];
+        if parts.located {
+            diag.push(Node::view(
+                "TimeSeries",
+                "Fields the found terms follow",
+                paths::DIAG_LOCATED,
+                vec![],
+            ));
+        }
         if parts.counterpart {
             diag.push(Node::view(
                 "TimeSeries",
@@ -650,12 +678,19 @@ fn breakdown_tab(joints: &[String]) -> Node {
 fn loss_terms_tab(joints: &[String]) -> Node {
     let mut views: Vec<Node> = joints
         .iter()
-        .map(|j| {
+        .enumerate()
+        .map(|(k, j)| {
             let terms = paths::TERMS
                 .iter()
                 .map(|t| paths::include(&paths::term(j, t)))
                 .collect();
-            plot(format!("{j} [W]"), terms).with_legend(Legend::LeftTop)
+            // The terms have the same colours in every cell: one legend is enough.
+            let legend = if k == 0 {
+                Legend::LeftTop
+            } else {
+                Legend::Hidden
+            };
+            plot(format!("{j} [W]"), terms).with_legend(legend)
         })
         .collect();
     views.push(
@@ -663,7 +698,7 @@ fn loss_terms_tab(joints: &[String]) -> Node {
             "Interaction [W]",
             vec![paths::include(paths::TERM_INTERACTION)],
         )
-        .with_legend(Legend::LeftTop),
+        .with_legend(Legend::Hidden),
     );
-    Node::container(ContainerKind::Grid, "Loss terms per joint", views, vec![])
+    Node::container(ContainerKind::Grid, "Loss terms per joint", views, vec![]).with_columns(4)
 }

@@ -504,6 +504,30 @@ fn log_diagnosis(
     scalars_chunked(w, paths::DIAG_ERROR_BEFORE, &d.t, &err(&d.before), chunk)?;
     scalars_chunked(w, paths::DIAG_ERROR_AFTER, &d.t, &err(&d.after), chunk)?;
     log_trials(w, paths::DIAG_TRIALS, &d.highlighted, "located", false)?;
+    if d.found.len() == d.t.len() && !d.found.is_empty() {
+        style::line(
+            w,
+            paths::DIAG_FOUND,
+            "with terms found beyond the library",
+            style::WARNING,
+            1.5,
+        )?;
+        style::points(
+            w,
+            paths::DIAG_ERROR_FOUND,
+            "error with found terms",
+            style::WARNING,
+            MarkerShape::Circle,
+            2.5,
+        )?;
+        scalars_chunked(w, paths::DIAG_FOUND, &d.t, &d.found, chunk)?;
+        scalars_chunked(w, paths::DIAG_ERROR_FOUND, &d.t, &err(&d.found), chunk)?;
+    }
+    for (k, (name, values)) in d.located.iter().enumerate() {
+        let path = paths::diag_located(k);
+        style::line(w, &path, name, style::joint(k), 1.5)?;
+        scalars_chunked(w, &path, &d.t, values, chunk)?;
+    }
     if let Some(cp) = &d.counterpart {
         style::line(
             w,
@@ -528,8 +552,23 @@ fn log_diagnosis(
     }
     w.send_static(
         paths::DIAG_SUMMARY,
-        &TextDocument::from_markdown(d.summary.clone()),
+        &TextDocument::from_markdown(hard_line_breaks(&d.summary)),
     )
+}
+
+/// Plain text as markdown that keeps its line breaks (markdown joins consecutive lines into one
+/// paragraph): every line ends in a hard break.
+fn hard_line_breaks(text: &str) -> String {
+    text.lines()
+        .map(|l| {
+            if l.trim().is_empty() {
+                String::new()
+            } else {
+                format!("{}  ", l.trim_end())
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
 }
 
 /// Per-joint predicted power (the joint's four terms summed) of every sample, in time order.

@@ -209,8 +209,10 @@ pub(crate) fn time_columns(start_ns: u64, t: &[f64]) -> [TimeColumn; 2] {
 
 /// Builds Rerun chunks with deterministic row and chunk ids and sends them to a stream.
 ///
-/// Ids are `Tuid(namespace, counter)`: give every writer on one stream its own `namespace`
-/// (e.g. replay, identify, diagnose) so their ids never collide.
+/// Ids are `Tuid(session start, namespace + counter)`: their time part is the session's start
+/// (what the viewer shows as the recording's "modified" time, instead of 1970), and every writer
+/// on one stream gets its own `namespace` (a multiple of 2⁴⁸: replay, identify, diagnose…) so
+/// their ids never collide.
 pub struct ChunkWriter<'a> {
     stream: &'a RecordingStream,
     namespace: u64,
@@ -231,7 +233,7 @@ impl<'a> ChunkWriter<'a> {
 
     fn next_tuid(&mut self) -> Tuid {
         self.counter += 1;
-        Tuid::from_nanos_and_inc(self.namespace, self.counter)
+        Tuid::from_nanos_and_inc(self.start_ns, self.namespace.wrapping_add(self.counter))
     }
 
     fn row_ids(&mut self, n: usize) -> Vec<RowId> {

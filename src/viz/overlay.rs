@@ -256,6 +256,8 @@ pub fn diagnosis_extras(d: &crate::diagnose::Diagnosis) -> ReplayExtras {
             highlighted,
             summary: d.summary.clone(),
             counterpart: d.counterpart.as_ref().map(|c| c.series.clone()),
+            found: Vec::new(),
+            located: Vec::new(),
         }),
         ..ReplayExtras::default()
     }

@@ -90,6 +90,16 @@ pub const DIAG_MEASURED: &str = "diagnosis/power/measured";
 pub const DIAG_BEFORE: &str = "diagnosis/power/before";
 /// Prediction with the accepted hypotheses [W].
 pub const DIAG_AFTER: &str = "diagnosis/power/after";
+/// Prediction with the terms found beyond the library [W].
+pub const DIAG_FOUND: &str = "diagnosis/power/found";
+/// Error with the found terms [W].
+pub const DIAG_ERROR_FOUND: &str = "diagnosis/error/found";
+/// Below this: the recorded fields the found terms follow.
+pub const DIAG_LOCATED: &str = "diagnosis/located";
+/// The `k`-th recorded field a found term follows, per reading.
+pub fn diag_located(k: usize) -> String {
+    format!("diagnosis/located/{k}")
+}
 /// The twin's net power on the recording's commands [W].
 pub const DIAG_TWIN: &str = "diagnosis/power/twin";
 /// Error of the base model [W].

@@ -172,6 +172,10 @@ pub struct DiagnosisOverlay {
     pub summary: String,
     /// The twin re-run on the recording's commands (`diagnose --counterpart`).
     pub counterpart: Option<crate::diagnose::counterpart::CounterpartSeries>,
+    /// Prediction with the terms found beyond the library [W], per reading (empty when none).
+    pub found: Vec<f64>,
+    /// The recorded fields the found terms follow, per reading: (field name, values).
+    pub located: Vec<(String, Vec<f64>)>,
 }
 
 /// What later stages add to a replay. Plain data so identify/diagnose need no Rerun types.
@@ -247,6 +251,10 @@ pub fn layout(
             .is_some_and(|d| d.counterpart.is_some()),
         trials: !extras.trials.is_empty(),
         imu_filter: extras.imu_filter.is_some(),
+        located: extras
+            .diagnosis
+            .as_ref()
+            .is_some_and(|d| !d.located.is_empty()),
     };
     blueprint::replay_layout(joints, parts, arm_center(robot, arm))
 }

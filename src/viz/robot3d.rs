@@ -70,6 +70,11 @@ pub(super) fn log_static_robot(
     // (exact for the tree-structured FK; no joint happens to map both vectors to the same pose).
     let home = robot.link_poses(arm, &[0.0; N_JOINTS]);
     let probe = robot.link_poses(arm, &[0.5, -0.4, 0.3, -0.6, 0.7, -0.5, 0.4]);
+    let arm_links: Vec<usize> = arm
+        .joints
+        .iter()
+        .filter_map(|&j| robot.joints().get(j).map(|jt| jt.child_link))
+        .collect();
     let mut scene = ArmScene {
         paths: Vec::new(),
         moving: Vec::new(),
@@ -82,8 +87,10 @@ pub(super) fn log_static_robot(
         };
         if moving {
             scene.moving.push(i);
-            // The joint frame: short axes at the link's origin (its parent joint).
-            w.send_static(&path, &TransformAxes3D::new(0.06))?;
+            if arm_links.contains(&i) {
+                // The joint frame: short axes at the arm link's origin (its joint).
+                w.send_static(&path, &TransformAxes3D::new(0.06))?;
+            }
         } else if let Some(pose) = home.get(i) {
             w.send_static(&path, &to_transform(pose))?;
         }
