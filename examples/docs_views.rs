@@ -77,3 +77,13 @@ fn main() -> Result<()> {
     }
     Ok(())
 }
+
+/// `Raw power MBS/BMS [W]` → `raw-power-mbs-bms-w`.
+fn slug(name: &str) -> String {
+    let words: Vec<String> = name
+        .split(|c: char| !c.is_ascii_alphanumeric())
+        .filter(|w| !w.is_empty())
+        .map(str::to_ascii_lowercase)
+        .collect();
+    words.join("-")
+}

@@ -9,11 +9,13 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use g1viz::identify::dataset::{self, Alignment, DatasetOptions, Mode, Target};
-use g1viz::identify::filters::{self, RejectReason};
-use g1viz::identify::pipeline::{self, AlignmentChoice, IdentifyOptions};
-use g1viz::identify::segment::{self, SegmentOptions, SegmentSource, Trial};
+use g1viz::identify::{self as pipeline, AlignmentChoice, IdentifyOptions};
 use g1viz::power::PowerModel;
 use g1viz::signals::{PowerSeries, Recording};
+use g1viz::trial::{self as segment};
+use g1viz::trial::{
+    self as filters, RejectReason, SegmentOptions, SegmentSource, TrialStat, TrialWindow as Trial,
+};
 use g1viz::{N_JOINTS, N_PARAMS};
 
 // ---------------------------------------------------------------- constructed data
@@ -373,7 +375,8 @@ fn imu_filter_on_constructed_statistics() {
         (0, 3, 1.1),
         (0, 4, 5.0),
         (1, 0, 2.6),
-    ];
+    ]
+    .map(|(s, t, v)| TrialStat::new(s, t, v));
     let rejected = filters::imu_sway(&sigmas, 2.5);
     assert_eq!(rejected.len(), 1);
     assert_eq!((rejected[0].session, rejected[0].trial), (0, 4));
@@ -388,11 +391,11 @@ fn imu_filter_on_constructed_statistics() {
 #[test]
 fn residual_filter_on_constructed_residuals() {
     // 20 residuals alternating ±0.1 and one of 5: mean = 5/21, σ̂ = sample std.
-    let mut residuals: Vec<(usize, usize, f64)> = (0..20)
-        .map(|t| (0, t, if t % 2 == 0 { 0.1 } else { -0.1 }))
+    let mut residuals: Vec<TrialStat> = (0..20)
+        .map(|t| TrialStat::new(0, t, if t % 2 == 0 { 0.1 } else { -0.1 }))
         .collect();
-    residuals.push((0, 20, 5.0));
-    let values: Vec<f64> = residuals.iter().map(|r| r.2).collect();
+    residuals.push(TrialStat::new(0, 20, 5.0));
+    let values: Vec<f64> = residuals.iter().map(|r| r.value).collect();
     let mean = values.iter().sum::<f64>() / 21.0;
     let sd = (values.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / 20.0).sqrt();
     let rejected = filters::three_sigma(&residuals, 3.0, 1);
@@ -605,11 +608,11 @@ fn imu_filter_agrees_with_the_truth_contamination_flags() {
         let rec = load(&dir, name);
         let truth = truth(&dir, name, &rec);
         let seg = segment::segment(&rec, &SegmentOptions::default());
-        let sigmas: Vec<(usize, usize, f64)> = seg
+        let sigmas: Vec<TrialStat> = seg
             .trials
             .iter()
             .map(|t| {
-                (
+                TrialStat::new(
                     0,
                     t.index,
                     filters::sigma_omega(&rec, t.t_traj_start, t.t_post_end),
@@ -667,7 +670,7 @@ fn identified_on_smoke_validates_on_holdout() {
         reading.alignment
     );
     for r in &reading.rejections {
-        println!("  rejected {}", r.describe());
+        println!("  rejected {}", r);
     }
     let trial_mode = pipeline::identify(
         std::slice::from_ref(&smoke),

@@ -11,7 +11,8 @@ use std::path::{Path, PathBuf};
 use g1viz::N_JOINTS;
 use g1viz::robot::RobotModel;
 use g1viz::signals::{CommandSeries, PowerSeries, Recording, StateSeries};
-use g1viz::viz::replay::{Rejection, ReplayExtras, ReplayOptions, TrialMark, log_replay};
+use g1viz::trial::{RejectReason, Rejection};
+use g1viz::viz::replay::{ReplayExtras, ReplayOptions, TrialMark, log_replay};
 use g1viz::viz::{Sink, open_stream, recording_id_for};
 use rerun::external::re_build_info::CrateVersion;
 use rerun::external::re_log_encoding::{DecoderApp, Encoder, EncodingOptions};
@@ -88,6 +89,7 @@ fn extras() -> ReplayExtras {
                 t_end: 2.5,
                 label: "joints 0-6".into(),
                 rejected: None,
+                highlight: None,
             },
             TrialMark {
                 index: 1,
@@ -95,10 +97,15 @@ fn extras() -> ReplayExtras {
                 t_end: 4.0,
                 label: "joints 0-6".into(),
                 rejected: Some(Rejection {
-                    filter: "imu".into(),
-                    detail: "σ|ω| = 0.4 > 2.5 × median".into(),
+                    session: 0,
+                    trial: 1,
+                    reason: RejectReason::ImuSway,
                     statistic: 0.4,
+                    threshold: 0.16,
+                    pass: 0,
+                    detail: String::new(),
                 }),
+                highlight: None,
             },
         ],
         ..Default::default()
@@ -755,14 +762,18 @@ fn model_overlay_marks_contaminated_trials_and_logs_loss_terms() {
         &g1viz::read::OpenOptions::default(),
     )
     .unwrap();
-    let opts = g1viz::identify::pipeline::IdentifyOptions::default();
+    let opts = g1viz::identify::IdentifyOptions::default();
     let (extras, validation) =
         g1viz::viz::overlay::model_extras(&rec, &g1viz::power::PowerModel::PAPER, &opts).unwrap();
 
     let mut imu: Vec<usize> = extras
         .trials
         .iter()
-        .filter(|m| m.rejected.as_ref().is_some_and(|r| r.filter == "imu"))
+        .filter(|m| {
+            m.rejected
+                .as_ref()
+                .is_some_and(|r| r.reason == RejectReason::ImuSway)
+        })
         .map(|m| m.index)
         .collect();
     imu.sort_unstable();
@@ -811,10 +822,7 @@ fn model_overlay_marks_contaminated_trials_and_logs_loss_terms() {
 /// the smoke session, not the ±20 W of a 1 Hz window average minus a 100 Hz prediction), and
 /// each plotted prediction is the mean of the plotted instantaneous prediction over the
 /// reading's own window — recomputed here from the decoded series.
-fn assert_error_at_readings_is_like_for_like(
-    c: &Contents,
-    v: &g1viz::identify::pipeline::Validation,
-) {
+fn assert_error_at_readings_is_like_for_like(c: &Contents, v: &g1viz::identify::Validation) {
     let mut err: Vec<f64> = series(c, "/model/error/reading")
         .into_iter()
         .chain(series(c, "/model/error/reading_rejected"))

@@ -387,16 +387,19 @@ fn log_imu_filter(w: &mut ChunkWriter<'_>, imu: &ImuFilterMarks) -> Result<()> {
     Ok(())
 }
 
-/// The text of a trial's log line.
+/// The text of a trial's log line: its label, and why it was rejected (filter, statistic,
+/// threshold) or where a diagnosis located its mismatch.
 fn trial_text(m: &TrialMark) -> String {
-    match &m.rejected {
-        Some(r) if r.statistic.is_finite() => format!(
-            "{} — REJECTED by the {} filter: {} (statistic {:.4})",
-            m.label, r.filter, r.detail, r.statistic
-        ),
-        Some(r) => format!("{} — {}: {}", m.label, r.filter, r.detail),
-        None => m.label.clone(),
+    match (&m.rejected, &m.highlight) {
+        (Some(r), _) => format!("{} — REJECTED by {}: {r}", m.label, r.reason.name()),
+        (None, Some(why)) => format!("{} — {why}", m.label),
+        (None, None) => m.label.clone(),
     }
+}
+
+/// Whether the trial is marked (rejected by a filter, or located by a diagnosis).
+fn marked(m: &TrialMark) -> bool {
+    m.rejected.is_some() || m.highlight.is_some()
 }
 
 /// A log line per trial at its start; with `index`, the trial track `trials/index` (the trial
@@ -419,7 +422,7 @@ fn log_trials(
     let levels: Vec<TextLogLevel> = order
         .iter()
         .map(|m| {
-            if m.rejected.is_some() {
+            if marked(m) {
                 TextLogLevel::WARN.into()
             } else {
                 TextLogLevel::INFO.into()
@@ -444,7 +447,7 @@ fn log_trials(
         let idx = order.iter().map(|m| m.index as f64);
         scalars(w, paths::TRIAL_INDEX, &t, idx)?;
     }
-    for m in order.iter().filter(|m| m.rejected.is_some()) {
+    for m in order.iter().filter(|m| marked(m)) {
         let path = paths::trial_span(prefix, kind, m.index);
         style::line(w, &path, &trial_text(m), style::WARNING, 6.0)?;
         scalars(

@@ -2,17 +2,17 @@
 //! prediction averaged over that reading's own window (like for like, as `validate` scores it),
 //! the instantaneous prediction as context, per-joint loss-term series, per-trajectory errors,
 //! the IMU filter's statistic and threshold, and the trials the IMU and 3σ filters reject (with
-//! their statistics), so contaminated trajectories can be found in the viewer.
+//! their statistics, as `validate` records them), so contaminated trajectories can be found in
+//! the viewer.
 
 use anyhow::Result;
 
 use super::replay::{
-    ImuFilterMarks, PowerPrediction, ReadingPrediction, Rejection, ReplayExtras, TermSeries,
-    TrajectoryPoint, TrialMark,
+    ImuFilterMarks, PowerPrediction, ReadingPrediction, ReplayExtras, TermSeries, TrajectoryPoint,
+    TrialMark,
 };
 use crate::identify::dataset::{self, DatasetOptions, Mode};
-use crate::identify::filters::{self, TrialStat};
-use crate::identify::pipeline::{IdentifyOptions, Validation, validate};
+use crate::identify::{IdentifyOptions, Validation, validate};
 use crate::power::PowerModel;
 use crate::signals::Recording;
 
@@ -35,6 +35,7 @@ pub fn model_extras(
         },
     )
     .trials;
+
     let mut prediction = PowerPrediction::default();
     let mut terms = TermSeries::default();
     for basis in &bases {
@@ -60,8 +61,7 @@ pub fn model_extras(
         }
     }
 
-    let rejections = filter_marks(&v, opts);
-    let is_rejected = |trial: usize| rejections.iter().any(|(t, _)| *t == trial);
+    let is_rejected = |trial: usize| crate::trial::is_rejected(&v.rejections, 0, trial);
     let readings = reading_predictions(rec, model, &v, opts, &is_rejected);
     let trajectories = v
         .per_trial
@@ -71,10 +71,11 @@ pub fn model_extras(
             t: p.window.1,
             measured: p.measured_w,
             predicted: p.predicted_w,
-            rejected: is_rejected(p.trial),
+            rejected: p.rejected,
         })
         .collect();
     let imu_filter = imu_marks(&v, opts);
+
     let trials = seg
         .trials
         .iter()
@@ -94,10 +95,8 @@ pub fn model_extras(
                     joints.join("+"),
                     t.qdot_max_cmd
                 ),
-                rejected: rejections
-                    .iter()
-                    .find(|(trial, _)| *trial == t.index)
-                    .map(|(_, r)| r.clone()),
+                rejected: v.rejections.iter().find(|r| r.trial == t.index).cloned(),
+                highlight: None,
             }
         })
         .collect();
@@ -114,7 +113,7 @@ pub fn model_extras(
 }
 
 /// Every power reading inside a trial's trajectory window, paired with the model's prediction
-/// averaged over the reading's own window (the sensor timing `validate` estimated): the rows
+/// averaged over the reading's own window (the sensor timing `validate` used): the rows
 /// `validate` scores per reading, so their error is its per-reading error.
 fn reading_predictions(
     rec: &Recording,
@@ -150,9 +149,10 @@ fn reading_predictions(
     out
 }
 
-/// The IMU filter's statistic per trial (over its trajectory window) and its threshold.
+/// The IMU filter's statistic per trial (over its trajectory window) and its threshold
+/// (k × the median σ|ω| of the session's trials, as the filter computes it).
 fn imu_marks(v: &Validation, opts: &IdentifyOptions) -> Option<ImuFilterMarks> {
-    let k = opts.imu_k?;
+    let k = opts.filters.imu_k?;
     let mut sigmas: Vec<f64> = v.per_trial.iter().map(|p| p.sigma_omega).collect();
     sigmas.retain(|s| s.is_finite());
     if sigmas.is_empty() {
@@ -176,58 +176,6 @@ fn imu_marks(v: &Validation, opts: &IdentifyOptions) -> Option<ImuFilterMarks> {
     })
 }
 
-/// The identification filters replayed on this session: IMU sway, then `opts.sigma_passes` passes
-/// of n·σ rejection on the per-trial residuals of the trials still kept.
-fn filter_marks(v: &Validation, opts: &IdentifyOptions) -> Vec<(usize, Rejection)> {
-    let mut out = Vec::new();
-    if let Some(k) = opts.imu_k {
-        let sigmas: Vec<TrialStat> = v
-            .per_trial
-            .iter()
-            .map(|p| (0, p.trial, p.sigma_omega))
-            .collect();
-        for r in filters::imu_sway(&sigmas, k) {
-            out.push((
-                r.trial,
-                Rejection {
-                    filter: "imu".into(),
-                    detail: format!(
-                        "σ|ω| = {:.3} rad/s > {k} × median = {:.3} rad/s",
-                        r.statistic, r.threshold
-                    ),
-                    statistic: r.statistic,
-                },
-            ));
-        }
-    }
-    for pass in 1..=opts.sigma_passes {
-        let residuals: Vec<TrialStat> = v
-            .per_trial
-            .iter()
-            .filter(|p| !out.iter().any(|(t, _)| *t == p.trial))
-            .map(|p| (0, p.trial, p.measured_w - p.predicted_w))
-            .collect();
-        let rejected = filters::three_sigma(&residuals, opts.n_sigma, pass);
-        if rejected.is_empty() {
-            break;
-        }
-        for r in rejected {
-            out.push((
-                r.trial,
-                Rejection {
-                    filter: "3sigma".into(),
-                    detail: format!(
-                        "pass {pass}: residual {:+.2} W beyond {} σ̂ = {:.2} W",
-                        r.statistic, opts.n_sigma, r.threshold
-                    ),
-                    statistic: r.statistic,
-                },
-            ));
-        }
-    }
-    out
-}
-
 /// Replay extras of a diagnosis: measured vs before/after predictions per reading, and the trials
 /// where the mismatch was located, highlighted with the reason.
 pub fn diagnosis_extras(d: &crate::diagnose::Diagnosis) -> ReplayExtras {
@@ -240,11 +188,8 @@ pub fn diagnosis_extras(d: &crate::diagnose::Diagnosis) -> ReplayExtras {
             t_start: h.t_start,
             t_end: h.t_end,
             label: format!("trial {}", h.trial),
-            rejected: Some(Rejection {
-                filter: "diagnosis".into(),
-                detail: h.reason.clone(),
-                statistic: f64::NAN,
-            }),
+            rejected: None,
+            highlight: Some(h.reason.clone()),
         })
         .collect();
     ReplayExtras {

@@ -129,17 +129,6 @@ pub struct TermSeries {
     pub interaction: Vec<f64>,
 }
 
-/// Why a trial was rejected.
-#[derive(Debug, Clone)]
-pub struct Rejection {
-    /// Filter name, e.g. `"imu"` or `"3sigma"`.
-    pub filter: String,
-    /// Human-readable statistic, e.g. `"σ|ω| = 0.41 rad/s > 2.5 × median 0.12"`.
-    pub detail: String,
-    /// The statistic's value.
-    pub statistic: f64,
-}
-
 /// A trial's time window and status.
 #[derive(Debug, Clone)]
 pub struct TrialMark {
@@ -152,7 +141,9 @@ pub struct TrialMark {
     /// Free text shown in the log (joints moved, speed…).
     pub label: String,
     /// Set when a filter rejected the trial.
-    pub rejected: Option<Rejection>,
+    pub rejected: Option<crate::trial::Rejection>,
+    /// Set when a diagnosis located its mismatch in the trial: why.
+    pub highlight: Option<String>,
 }
 
 /// Diagnosis overlay: the power prediction before and after adding the accepted hypotheses.
