@@ -3,22 +3,29 @@
 
 use std::path::{Path, PathBuf};
 
-use anyhow::Result;
-#[cfg(not(feature = "viz"))]
-use anyhow::bail;
+use anyhow::{Result, bail};
 use clap::Args;
 
-use super::{ReadArgs, TargetArg};
+use super::{ReadArgs, TargetArg, expand_sessions};
 use g1viz::power::load_model;
-use g1viz::signals::Recording;
+use g1viz::signals::{Recording, join_recordings};
 use g1viz::util::{check_distinct_sessions, check_outputs};
 
 #[derive(Args)]
 pub struct DiagnoseArgs {
+<<<<<<< HEAD
     /// Recording to diagnose.
     session: PathBuf,
     /// The twin's power model (model.json, or `paper` for the paper's parameters); without it
     /// the model is refitted inside each fold.
+=======
+    /// Recording(s) to diagnose: files, bag folders, or folders of recordings. Several sessions
+    /// of one robot are diagnosed as one data set (joined end to end on one clock; each keeps its
+    /// own trials and baselines).
+    #[arg(required = true, value_name = "SESSION")]
+    sessions: Vec<PathBuf>,
+    /// The twin's power model (model.json); without it the model is refitted inside each fold.
+>>>>>>> main
     #[arg(long, value_name = "M")]
     model: Option<PathBuf>,
     /// URDF for the torque-level comparison (default: the shipped one).
@@ -47,9 +54,16 @@ pub struct DiagnoseArgs {
 /// Diagnose and write what was asked for.
 pub fn run(a: DiagnoseArgs) -> Result<()> {
     use g1viz::diagnose::{self, DiagnoseOptions};
+    let sessions = expand_sessions(&a.sessions)?;
+    let mut all: Vec<&Path> = sessions.iter().map(PathBuf::as_path).collect();
+    check_distinct_sessions(&all, "its trials would count twice")?;
     if let Some(c) = &a.counterpart {
+        if sessions.len() > 1 {
+            bail!("--counterpart compares one session with its twin; give one session");
+        }
+        all.push(c);
         check_distinct_sessions(
-            &[&a.session, c],
+            &all,
             "the counterpart must be its twin (`g1viz simulate --like`)",
         )?;
     }
@@ -60,14 +74,25 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
             ("Rerun output", a.save.as_deref()),
         ],
         &[
-            Some(&a.session),
-            a.model.as_deref(),
-            a.counterpart.as_deref(),
-            a.urdf.as_deref(),
-            a.read.signals.as_deref(),
-        ],
+            sessions
+                .iter()
+                .map(|p| Some(p.as_path()))
+                .collect::<Vec<_>>(),
+            vec![
+                a.model.as_deref(),
+                a.counterpart.as_deref(),
+                a.urdf.as_deref(),
+                a.read.signals.as_deref(),
+            ],
+        ]
+        .concat(),
     )?;
-    let rec = a.read.load(&a.session)?;
+    let parts = sessions
+        .iter()
+        .map(|p| a.read.load(p))
+        .collect::<Result<Vec<_>>>()?;
+    // Each part starts 5 s after the previous one ends: trials and their baselines stay apart.
+    let rec = join_recordings(parts, 5.0);
     let opts = DiagnoseOptions {
         reference: a.model.as_deref().map(load_model).transpose()?,
         target: a.target.into(),
@@ -92,7 +117,7 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
         println!("wrote {}", dir.join("report.md").display());
     }
     if let Some(out) = &a.save {
-        save_diagnosis_rrd(&rec, &a, &d, out)?;
+        save_diagnosis_rrd(&rec, &a, &sessions, &d, out)?;
         println!("wrote {}", out.display());
     }
     Ok(())
@@ -102,6 +127,7 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
 fn save_diagnosis_rrd(
     rec: &Recording,
     a: &DiagnoseArgs,
+    sessions: &[PathBuf],
     d: &g1viz::diagnose::Diagnosis,
     out: &Path,
 ) -> Result<()> {
@@ -115,7 +141,7 @@ fn save_diagnosis_rrd(
         &kind.app_id(),
         &kind.recording_id(&viz::recording_id_for(rec)),
         &Sink::Save(out.to_path_buf()),
-        &[&a.session],
+        &sessions.iter().map(PathBuf::as_path).collect::<Vec<_>>(),
     )?;
     let mut properties = vec![("command".to_owned(), super::command_line())];
     if let Some(m) = &a.model {
@@ -133,6 +159,7 @@ fn save_diagnosis_rrd(
 fn save_diagnosis_rrd(
     _: &Recording,
     _: &DiagnoseArgs,
+    _: &[PathBuf],
     _: &g1viz::diagnose::Diagnosis,
     _: &Path,
 ) -> Result<()> {

@@ -6,13 +6,14 @@ use std::path::{Path, PathBuf};
 use anyhow::Result;
 use clap::Args;
 
-use super::{FitArgs, ReadArgs};
+use super::{FitArgs, ReadArgs, expand_sessions};
 use g1viz::identify;
 use g1viz::util::{check_distinct_sessions, check_outputs};
 
 #[derive(Args)]
 pub struct IdentifyArgs {
-    /// Identification session(s).
+    /// Identification session(s): files, bag folders, or folders of recordings (one robot;
+    /// each session keeps its own trials).
     #[arg(required = true)]
     sessions: Vec<PathBuf>,
     /// Where to write the model.
@@ -33,7 +34,8 @@ pub struct IdentifyArgs {
 /// Identify, validate, write the model file and the report.
 pub fn run(a: IdentifyArgs) -> Result<()> {
     let opts = a.fit.options();
-    let mut sessions: Vec<&Path> = a.sessions.iter().map(PathBuf::as_path).collect();
+    let fit_sessions = expand_sessions(&a.sessions)?;
+    let mut sessions: Vec<&Path> = fit_sessions.iter().map(PathBuf::as_path).collect();
     if let Some(h) = &a.holdout {
         sessions.push(h);
     }
@@ -50,8 +52,7 @@ pub fn run(a: IdentifyArgs) -> Result<()> {
         ],
         &inputs,
     )?;
-    let recs = a
-        .sessions
+    let recs = fit_sessions
         .iter()
         .map(|p| a.read.load(p))
         .collect::<Result<Vec<_>>>()?;
@@ -76,7 +77,9 @@ pub fn run(a: IdentifyArgs) -> Result<()> {
     }
     println!("wrote {}", a.output.display());
     if let Some(dir) = &a.report {
-        let truth = a.sessions.first().and_then(|p| g1viz::sim::truth_model(p));
+        let truth = fit_sessions
+            .first()
+            .and_then(|p| g1viz::sim::truth_model(p));
         let input = id.report_input(file, validation.as_ref(), truth);
         g1viz::identify::report::write_report(dir, &input)?;
         println!("wrote {}", dir.join("report.md").display());

@@ -3,12 +3,12 @@
 
 use std::path::PathBuf;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use clap::Args;
 
 use super::ReadArgs;
 use g1viz::read::Session;
-use g1viz::signals::{Recording, rate_hz};
+use g1viz::signals::{SeriesStats, signal_stats};
 
 #[derive(Args)]
 pub struct InfoArgs {
@@ -21,14 +21,23 @@ pub struct InfoArgs {
     read: ReadArgs,
 }
 
-/// Print the summary (text or JSON).
+/// Print the summary (text or JSON). The signals are counted in one streamed pass, so memory
+/// does not grow with the session.
 pub fn run(a: InfoArgs) -> Result<()> {
     let mut session = Session::open(&a.session, &a.read.open_options())?;
     let info = session.info()?;
-    let rec = a.read.load(&a.session);
+    let stats = a.read.signal_map().and_then(|map| {
+        signal_stats(&a.session, &map, &a.read.open_options())
+            .with_context(|| format!("reading {}", a.session.display()))
+    });
+    if let Ok(s) = &stats {
+        for w in &s.warnings {
+            eprintln!("warning: {w}");
+        }
+    }
     if a.json {
-        let (signals, why) = match &rec {
-            Ok(rec) => (Some(signal_summary(rec)), None),
+        let (signals, why) = match &stats {
+            Ok(s) => (Some(s), None),
             Err(e) => (None, Some(format!("{e:#}"))),
         };
         let out = serde_json::json!({
@@ -56,34 +65,19 @@ pub fn run(a: InfoArgs) -> Result<()> {
     for w in &info.warnings {
         println!("warning: {w}");
     }
-    match rec {
-        Ok(rec) => {
+    match stats {
+        Ok(s) => {
             println!("signals:");
-            println!("  arm joints: {}", rec.joint_names.join(", "));
-            let line = |name: &str, n: usize, t: &[f64], unit: &str| {
-                println!("  {name:<22} {n:>8} {unit} at {:.2} Hz", rate_hz(t));
+            println!("  arm joints: {}", s.joints.join(", "));
+            let line = |name: &str, x: &SeriesStats, unit: &str| {
+                println!("  {name:<22} {:>8} {unit} at {:.2} Hz", x.count, x.rate_hz);
             };
-            line("joint states", rec.state.t.len(), &rec.state.t, "samples");
-            line("commands", rec.command.t.len(), &rec.command.t, "samples");
-            line(
-                "MBS power (arm rail)",
-                rec.mbs.t.len(),
-                &rec.mbs.t,
-                "readings",
-            );
-            line("BMS power (robot)", rec.bms.t.len(), &rec.bms.t, "readings");
+            line("joint states", &s.state, "samples");
+            line("commands", &s.command, "samples");
+            line("MBS power (arm rail)", &s.mbs_power, "readings");
+            line("BMS power (robot)", &s.bms_power, "readings");
         }
         Err(e) => println!("signals: not resolved: {e:#}"),
     }
     Ok(())
-}
-
-fn signal_summary(rec: &Recording) -> serde_json::Value {
-    serde_json::json!({
-        "joints": rec.joint_names,
-        "state": { "samples": rec.state.t.len(), "rate_hz": rate_hz(&rec.state.t) },
-        "command": { "samples": rec.command.t.len(), "rate_hz": rate_hz(&rec.command.t) },
-        "mbs_power": { "readings": rec.mbs.t.len(), "rate_hz": rate_hz(&rec.mbs.t) },
-        "bms_power": { "readings": rec.bms.t.len(), "rate_hz": rate_hz(&rec.bms.t) },
-    })
 }

@@ -272,6 +272,37 @@ pub fn winding_temperature(s: &str) -> Result<f64, String> {
     }
 }
 
+/// The recordings named on the command line: a file or a bag folder as given; any other folder
+/// stands for the recordings inside it (`.mcap` and `.bag` files and bag folders, in name order).
+pub fn expand_sessions(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
+    let is_bag_dir = |p: &Path| p.join("metadata.yaml").is_file();
+    let mut out = Vec::new();
+    for p in paths {
+        if !p.is_dir() || is_bag_dir(p) {
+            out.push(p.clone());
+            continue;
+        }
+        let mut found: Vec<PathBuf> = std::fs::read_dir(p)
+            .with_context(|| format!("listing {}", p.display()))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|e| {
+                is_bag_dir(e)
+                    || (e.is_file()
+                        && matches!(e.extension().and_then(|x| x.to_str()), Some("mcap" | "bag")))
+            })
+            .collect();
+        if found.is_empty() {
+            anyhow::bail!(
+                "{}: a folder with no recordings in it (.mcap, .bag or ROS 2 bag folders)",
+                p.display()
+            );
+        }
+        found.sort();
+        out.extend(found);
+    }
+    Ok(out)
+}
+
 /// Run the parsed command.
 pub fn run(cli: Cli) -> Result<()> {
     match cli.command {

@@ -69,6 +69,14 @@ impl Identification {
             self.options.mode.name()
         ));
         out.push(metrics_line("fit", &self.fit));
+        if self.fit.n < crate::N_PARAMS {
+            out.push(format!(
+                "warning: {} rows for {} parameters — the model is not identifiable from these \
+                 sessions (record more trials); the fit is one of many that match them",
+                self.fit.n,
+                crate::N_PARAMS
+            ));
+        }
         out.push(metrics_line(
             "trial level (like for like)",
             &self.trial_level_aligned,

@@ -497,17 +497,17 @@ impl ModelFile {
                 Some(_) => {}
             }
         }
-        if let Some(se) = &self.theta_std_err {
-            if se.len() != N_PARAMS {
-                return Err(field(
-                    "theta_std_err",
-                    format!("{} values", se.len()),
-                    format!(
-                        "field `theta_std_err` has {} values, expected {N_PARAMS}",
-                        se.len()
-                    ),
-                ));
-            }
+        if let Some(se) = &self.theta_std_err
+            && se.len() != N_PARAMS
+        {
+            return Err(field(
+                "theta_std_err",
+                format!("{} values", se.len()),
+                format!(
+                    "field `theta_std_err` has {} values, expected {N_PARAMS}",
+                    se.len()
+                ),
+            ));
         }
         Ok(())
     }

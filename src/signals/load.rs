@@ -80,6 +80,74 @@ pub fn stream_recording(
     })
 }
 
+/// Count and rate of one signal series, from a streamed read.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct SeriesStats {
+    /// Samples (or readings).
+    pub count: usize,
+    /// Mean rate [Hz]: (count − 1) / (last − first stamp); 0 below two samples.
+    pub rate_hz: f64,
+    #[serde(skip)]
+    first: Option<f64>,
+    #[serde(skip)]
+    last: Option<f64>,
+}
+
+impl SeriesStats {
+    fn add(&mut self, t: &[f64]) {
+        for &v in t {
+            self.first = Some(self.first.map_or(v, |f| f.min(v)));
+            self.last = Some(self.last.map_or(v, |l| l.max(v)));
+        }
+        self.count += t.len();
+        self.rate_hz = match (self.first, self.last) {
+            (Some(a), Some(b)) if self.count > 1 && b > a => (self.count - 1) as f64 / (b - a),
+            _ => 0.0,
+        };
+    }
+}
+
+/// What the arm signals of a recording amount to, read in one streamed pass (memory does not
+/// grow with the file): the joints and each series' count and rate.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct SignalStats {
+    /// URDF joint names of the arm, in model order.
+    pub joints: Vec<String>,
+    /// Joint states.
+    pub state: SeriesStats,
+    /// Commands.
+    pub command: SeriesStats,
+    /// Main-board power readings.
+    pub mbs_power: SeriesStats,
+    /// Battery power readings.
+    pub bms_power: SeriesStats,
+    /// Problems met while reading.
+    #[serde(skip)]
+    pub warnings: Vec<String>,
+}
+
+/// Stream `path` once and count its arm signals (what `g1viz info` prints), holding one batch at
+/// a time. Errors as [`load_recording`].
+pub fn signal_stats(
+    path: &Path,
+    map: &SignalMap,
+    opts: &OpenOptions,
+) -> anyhow::Result<SignalStats> {
+    let mut stats = SignalStats {
+        joints: map.joint_names.clone(),
+        ..SignalStats::default()
+    };
+    let summary = read_batches(path, map, opts, 4096, &mut |batch| {
+        stats.state.add(&batch.state.t);
+        stats.command.add(&batch.command.t);
+        stats.mbs_power.add(&batch.mbs.t);
+        stats.bms_power.add(&batch.bms.t);
+        Ok(())
+    })?;
+    stats.warnings = summary.warnings;
+    Ok(stats)
+}
+
 /// Per-group read plans plus the batch being filled.
 struct Batcher {
     plans: Vec<GroupPlan>,
@@ -183,8 +251,11 @@ impl Decoder {
                 plan.undecodable += 1;
                 if plan.undecodable <= MAX_DETAILED_WARNINGS {
                     self.warnings.push(format!(
-                        "{}: topic {} at log time {} ns (record at byte offset {}): {e}; message skipped",
-                        self.file, plan.topic, msg.log_time_ns, msg.file_offset
+                        "{}: topic {} at log time {} ns ({}): {e}; message skipped",
+                        self.file,
+                        plan.topic,
+                        msg.log_time_ns,
+                        msg.location()
                     ));
                 }
                 continue;

@@ -134,7 +134,9 @@ pub fn rate_hz(t: &[f64]) -> f64 {
 mod load;
 mod map;
 
-pub use load::{StreamSummary, load_recording, stream_recording};
+pub use load::{
+    SeriesStats, SignalStats, StreamSummary, load_recording, signal_stats, stream_recording,
+};
 pub use map::{
     G1_LEFT_ARM_BASE, G1_RIGHT_ARM_BASE, GROUPS, Group, JOINT_SHORT, SignalMap, SignalSpec,
     group_signals,
