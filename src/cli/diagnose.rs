@@ -13,19 +13,13 @@ use g1viz::util::{check_distinct_sessions, check_outputs};
 
 #[derive(Args)]
 pub struct DiagnoseArgs {
-<<<<<<< HEAD
-    /// Recording to diagnose.
-    session: PathBuf,
-    /// The twin's power model (model.json, or `paper` for the paper's parameters); without it
-    /// the model is refitted inside each fold.
-=======
     /// Recording(s) to diagnose: files, bag folders, or folders of recordings. Several sessions
     /// of one robot are diagnosed as one data set (joined end to end on one clock; each keeps its
     /// own trials and baselines).
     #[arg(required = true, value_name = "SESSION")]
     sessions: Vec<PathBuf>,
-    /// The twin's power model (model.json); without it the model is refitted inside each fold.
->>>>>>> main
+    /// The twin's power model (model.json, or `paper` for the paper's parameters); without it
+    /// the model is refitted inside each fold.
     #[arg(long, value_name = "M")]
     model: Option<PathBuf>,
     /// URDF for the torque-level comparison (default: the shipped one).
