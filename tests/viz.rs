@@ -332,6 +332,157 @@ fn blueprint_layout_is_complete() {
     assert!(eye, "no EyeControls3D for the 3D view");
 }
 
+/// The recording names itself after the input file, carries the session's real start time and
+/// its provenance (input, g1viz version, and what the caller adds: command, model) as recording
+/// properties; the robot's root follows the recorded IMU orientation.
+#[test]
+fn recording_identifies_itself() {
+    use rerun::external::arrow::array::AsArray;
+    use rerun::external::arrow::datatypes::Int64Type;
+    let dir = tempfile::tempdir().unwrap();
+    let rec = synthetic(&input_file(dir.path()));
+    let out = dir.path().join("out.rrd");
+    let robot = RobotModel::builtin();
+    let arm = robot.arm(&rec.joint_names).unwrap();
+    let viz = open_stream("g1viz_test", "id", &Sink::Save(out.clone()), &[]).unwrap();
+    let opts = ReplayOptions {
+        progress: false,
+        properties: vec![
+            ("command".into(), "replay".into()),
+            ("model".into(), "paper".into()),
+        ],
+        ..Default::default()
+    };
+    log_replay(&rec, &robot, &arm, &extras(), &opts, viz.stream()).unwrap();
+    viz.finish().unwrap();
+
+    let mut texts: BTreeMap<String, String> = BTreeMap::new();
+    let mut start = None;
+    for msg in decode(&out) {
+        let LogMsg::ArrowMsg(store, arrow) = &msg else {
+            continue;
+        };
+        if store.kind() != StoreKind::Recording {
+            continue;
+        }
+        let chunk = Chunk::from_arrow_msg(arrow).unwrap();
+        if !chunk.entity_path().to_string().starts_with("/__properties") {
+            continue;
+        }
+        assert!(chunk.is_static());
+        for column in chunk.components().0.values() {
+            let values = column.list_array.values();
+            let field = column.descriptor.component.to_string();
+            if let Some(strings) = values.as_string_opt::<i32>() {
+                texts.insert(field, strings.value(0).to_owned());
+            } else if field.ends_with("start_time") {
+                start = Some(values.as_primitive::<Int64Type>().value(0));
+            }
+        }
+    }
+    assert_eq!(
+        texts.get("RecordingInfo:name").map(String::as_str),
+        Some("session.mcap"),
+        "{texts:?}"
+    );
+    assert_eq!(start, Some(START_NS as i64), "start time");
+    let input = rec.source.display().to_string();
+    assert_eq!(texts.get("input"), Some(&input), "{texts:?}");
+    assert_eq!(texts.get("command").map(String::as_str), Some("replay"));
+    assert_eq!(texts.get("model").map(String::as_str), Some("paper"));
+    assert!(
+        texts
+            .get("version")
+            .is_some_and(|v| v.starts_with("g1viz "))
+    );
+    // One body orientation per arm pose.
+    let c = contents(&decode(&out));
+    assert_eq!(rows(&c, "/robot"), N);
+}
+
+/// The layout a person can hold in their head: at most 8 tabs, the time panel on the session
+/// timeline, every plot's time axis linked to the others.
+#[test]
+fn blueprint_has_few_tabs_linked_axes_and_session_time() {
+    use rerun::external::arrow::array::AsArray;
+    let dir = tempfile::tempdir().unwrap();
+    let rec = synthetic(&input_file(dir.path()));
+    let out = dir.path().join("out.rrd");
+    write_rrd(&rec, &out).unwrap();
+    let msgs = decode(&out);
+    let mut tab_containers = Vec::new();
+    let mut time_axes = 0;
+    let mut time_series = 0;
+    let mut timeline = None;
+    for msg in &msgs {
+        let LogMsg::ArrowMsg(store, arrow) = msg else {
+            continue;
+        };
+        if store.kind() != StoreKind::Blueprint {
+            continue;
+        }
+        let chunk = Chunk::from_arrow_msg(arrow).unwrap();
+        let path = chunk.entity_path().to_string();
+        if path.ends_with("/TimeAxis") {
+            time_axes += 1;
+        }
+        for column in chunk.components().0.values() {
+            let d = column.descriptor.component.to_string();
+            let values = column.list_array.values();
+            match d.as_str() {
+                "ContainerBlueprint:container_kind" => {
+                    if values
+                        .as_primitive::<rerun::external::arrow::datatypes::UInt8Type>()
+                        .value(0)
+                        == 1
+                    {
+                        tab_containers.push(path.clone());
+                    }
+                }
+                "ViewBlueprint:class_identifier" => {
+                    if values.as_string::<i32>().value(0) == "TimeSeries" {
+                        time_series += 1;
+                    }
+                }
+                "TimePanelBlueprint:timeline" => {
+                    timeline = Some(values.as_string::<i32>().value(0).to_owned());
+                }
+                _ => {}
+            }
+        }
+    }
+    assert_eq!(timeline.as_deref(), Some("session"));
+    assert!(time_series >= 5, "{time_series} plots");
+    assert_eq!(time_axes, time_series, "every plot links its time axis");
+    assert_eq!(tab_containers.len(), 1, "{tab_containers:?}");
+    let names = blueprint_strings(&msgs);
+    let tabs = blueprint_children(&msgs, &tab_containers[0]);
+    assert!((3..=8).contains(&tabs), "{tabs} tabs; {names:?}");
+}
+
+/// Number of children of the blueprint container at `path`.
+fn blueprint_children(msgs: &[LogMsg], path: &str) -> usize {
+    use rerun::external::arrow::array::Array;
+    for msg in msgs {
+        let LogMsg::ArrowMsg(store, arrow) = msg else {
+            continue;
+        };
+        if store.kind() != StoreKind::Blueprint {
+            continue;
+        }
+        let chunk = Chunk::from_arrow_msg(arrow).unwrap();
+        if chunk.entity_path().to_string() != path {
+            continue;
+        }
+        for column in chunk.components().0.values() {
+            if column.descriptor.component == "ContainerBlueprint:contents" {
+                return column.list_array.values().len();
+            }
+        }
+    }
+    0
+}
+
 /// Values read back through rerun's decoder equal the input (formula above) and the hand-computed net power.
 #[test]
 fn rrd_values_match_input() {
@@ -614,7 +765,7 @@ fn model_overlay_marks_contaminated_trials_and_logs_loss_terms() {
     )
     .unwrap();
     let opts = g1viz::identify::IdentifyOptions::default();
-    let (extras, _) =
+    let (extras, validation) =
         g1viz::viz::overlay::model_extras(&rec, &g1viz::power::PowerModel::PAPER, &opts).unwrap();
 
     let mut imu: Vec<usize> = extras
@@ -655,7 +806,66 @@ fn model_overlay_marks_contaminated_trials_and_logs_loss_terms() {
     let c = contents(&decode(&out));
     assert_eq!(rows(&c, "/model/terms/elbow/copper"), terms.t.len());
     assert_eq!(rows(&c, "/model/power/predicted"), terms.t.len());
-    assert!(rows(&c, "/model/error/trajectory") >= clean.len());
+    assert_eq!(
+        rows(&c, "/model/error/trajectory") + rows(&c, "/model/error/trajectory_rejected"),
+        extras.trajectories.len()
+    );
+    // The IMU statistic and threshold are on the IMU plot's entities; the trial track holds one
+    // step per trial and a span per rejected trial, named after it.
+    assert_eq!(rows(&c, "/imu/threshold"), 2);
+    assert_eq!(rows(&c, "/trials/index"), extras.trials.len());
+    for m in extras.trials.iter().filter(|m| m.rejected.is_some()) {
+        assert_eq!(rows(&c, &format!("/trials/rejected/{}", m.index)), 2);
+    }
+    assert_error_at_readings_is_like_for_like(&c, &validation);
+}
+
+/// The error plotted at the readings is the per-reading error `validate` reports (0.3 W order on
+/// the smoke session, not the ±20 W of a 1 Hz window average minus a 100 Hz prediction), and
+/// each plotted prediction is the mean of the plotted instantaneous prediction over the
+/// reading's own window — recomputed here from the decoded series.
+fn assert_error_at_readings_is_like_for_like(c: &Contents, v: &g1viz::identify::Validation) {
+    let mut err: Vec<f64> = series(c, "/model/error/reading")
+        .into_iter()
+        .chain(series(c, "/model/error/reading_rejected"))
+        .map(|p| p.1)
+        .collect();
+    assert_eq!(err.len(), rows(c, "/model/power/reading_measured"));
+    assert!(err.len() > 100, "{} readings", err.len());
+    err.iter_mut().for_each(|e| *e = *e * *e);
+    let rmse = (err.iter().sum::<f64>() / err.len() as f64).sqrt();
+    let reported = v.reading_level.rmse;
+    assert!(
+        (rmse - reported).abs() < 1e-6 * reported.max(1.0),
+        "plotted per-reading RMSE {rmse} vs validate's {reported}"
+    );
+    assert!(rmse < 1.0, "per-reading RMSE {rmse} W");
+
+    let instantaneous = series(c, "/model/power/predicted");
+    let (w_ns, lag_ns) = (
+        (v.alignment.window_s * 1e9).round() as i64,
+        (v.alignment.lag_s * 1e9).round() as i64,
+    );
+    let mut checked = 0;
+    for (t, predicted) in series(c, "/model/power/reading_predicted") {
+        let (lo, hi) = (t - lag_ns - w_ns, t - lag_ns);
+        let inside: Vec<f64> = instantaneous
+            .iter()
+            .filter(|(ts, _)| *ts > lo && *ts <= hi)
+            .map(|p| p.1)
+            .collect();
+        assert!(
+            !inside.is_empty(),
+            "no prediction sample in the window of {t}"
+        );
+        let mean = inside.iter().sum::<f64>() / inside.len() as f64;
+        assert!(
+            (mean - predicted).abs() < 1e-6,
+            "reading at {t}: window mean {mean} vs plotted {predicted}"
+        );
+        checked += 1;
+    }
+    assert!(checked > 100);
 }
 
 /// Stream `mcap` into `out` as `g1viz replay SESSION --save OUT` does, in batches of `chunk_rows`.

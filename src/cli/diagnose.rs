@@ -18,7 +18,8 @@ pub struct DiagnoseArgs {
     /// own trials and baselines).
     #[arg(required = true, value_name = "SESSION")]
     sessions: Vec<PathBuf>,
-    /// The twin's power model (model.json); without it the model is refitted inside each fold.
+    /// The twin's power model (model.json, or `paper` for the paper's parameters); without it
+    /// the model is refitted inside each fold.
     #[arg(long, value_name = "M")]
     model: Option<PathBuf>,
     /// URDF for the torque-level comparison (default: the shipped one).
@@ -92,7 +93,10 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
         urdf: a.urdf.clone(),
         ..DiagnoseOptions::default()
     };
-    let mut d = diagnose::diagnose(&rec, &opts)?;
+    let busy = super::spinner("diagnosing");
+    let d = diagnose::diagnose(&rec, &opts);
+    busy.finish_and_clear();
+    let mut d = d?;
     if let Some(p) = &a.counterpart {
         let twin = a.read.load(p)?;
         d.attach_counterpart(diagnose::counterpart::compare(&rec, &twin, &d)?);
@@ -122,24 +126,26 @@ fn save_diagnosis_rrd(
     out: &Path,
 ) -> Result<()> {
     use g1viz::robot::RobotModel;
-    use g1viz::viz::{self, Sink};
+    use g1viz::viz::{self, OutputKind, Sink};
     let robot = RobotModel::load(a.urdf.as_deref())?;
     let arm = robot.arm(&rec.joint_names)?;
     let extras = viz::overlay::diagnosis_extras(d);
+    let kind = OutputKind::Diagnosis;
     let stream = viz::open_stream(
-        "g1viz",
-        &viz::recording_id_for(rec),
+        &kind.app_id(),
+        &kind.recording_id(&viz::recording_id_for(rec)),
         &Sink::Save(out.to_path_buf()),
         &sessions.iter().map(PathBuf::as_path).collect::<Vec<_>>(),
     )?;
-    viz::replay::log_replay(
-        rec,
-        &robot,
-        &arm,
-        &extras,
-        &Default::default(),
-        stream.stream(),
-    )?;
+    let mut properties = vec![("command".to_owned(), super::command_line())];
+    if let Some(m) = &a.model {
+        properties.push(("model".to_owned(), m.display().to_string()));
+    }
+    let opts = viz::replay::ReplayOptions {
+        properties,
+        ..Default::default()
+    };
+    viz::replay::log_replay(rec, &robot, &arm, &extras, &opts, stream.stream())?;
     stream.finish()
 }
 

@@ -63,7 +63,10 @@ pub fn run(a: IdentifyArgs) -> Result<()> {
         .iter()
         .map(|p| a.read.load(p))
         .collect::<Result<Vec<_>>>()?;
-    let id = identify::identify(&recs, &opts)?;
+    let busy = super::spinner("identifying");
+    let id = identify::identify(&recs, &opts);
+    busy.finish_and_clear();
+    let id = id?;
     let validation = match &a.holdout {
         Some(p) => Some(identify::validate(&id.model, &a.read.load(p)?, &opts)?),
         None => None,

@@ -48,20 +48,82 @@ pub struct Cli {
 #[derive(Subcommand)]
 pub enum Command {
     /// Print what a recording holds: topics, types, counts, rates, time range and the resolved arm signals.
+    #[command(after_help = "\
+Examples:
+  g1viz info examples/g1_example.mcap
+  g1viz info bag_folder/ --json > info.json
+  g1viz info session.bag --signals right_arm.toml")]
     Info(info::InfoArgs),
     /// Replay a session in the Rerun viewer (or to an .rrd file): animated arm, joint signals, power,
     /// and with --model the identified model's prediction and loss terms.
+    #[command(after_help = "\
+Examples:
+  g1viz replay examples/g1_example.mcap --model paper --save example.rrd   # then: rerun example.rrd
+  g1viz replay session.mcap --spawn                                         # opens a viewer
+  g1viz replay session.mcap --model model.json --connect                    # to a running viewer
+  g1viz replay session.mcap --urdf g1_29dof_with_hand_rev_1_0.urdf --save meshes.rrd
+  g1viz replay session.mcap --model paper --open-tab 'IMU and trials' --save imu.rrd")]
     Replay(replay::ReplayArgs),
     /// Identify the 49-parameter arm power model from one or more sessions (writes model.json).
+    #[command(after_help = "\
+Examples:
+  g1viz identify smoke.mcap -o model.json
+  g1viz identify a.mcap b.mcap -o model.json --holdout holdout.mcap --report report/
+  g1viz identify smoke.mcap --mode trial -o paper_rows.json       # the paper's aggregation
+  g1viz identify short.mcap --window 0.2 --lag 0 -o model.json    # too short to estimate the timing")]
     Identify(identify::IdentifyArgs),
     /// Validate a model on a hold-out session.
+    #[command(after_help = "\
+Examples:
+  g1viz validate --model model.json holdout.mcap
+  g1viz validate --model paper holdout.mcap --json > metrics.json")]
     Validate(validate::ValidateArgs),
     /// Simulate a session with the digital twin (MCAP + truth JSON), optionally with concealed effects.
+    #[command(after_help = "\
+Examples:
+  g1viz simulate --preset smoke --seed 1 -o sim.mcap
+  g1viz simulate --preset holdout -o holdout.mcap --effect braking=0.3 --effect latency
+  g1viz simulate --like session.mcap -o twin.mcap                 # the twin on a recording's commands")]
     Simulate(simulate::SimulateArgs),
     /// Diagnose sim-to-real mismatch: locate it, name the missing physics, model it.
+    #[command(after_help = "\
+Examples:
+  g1viz diagnose session.mcap --report diag/
+  g1viz diagnose session.mcap --model model.json --report diag/ --json diagnosis.json --save diag.rrd
+  g1viz diagnose session.mcap --model model.json --counterpart twin.mcap   # twin from simulate --like")]
     Diagnose(diagnose::DiagnoseArgs),
     /// Export data for other tools: `export rows` writes the per-reading rows as Parquet.
     Export(export::ExportArgs),
+}
+
+/// A spinner with `message` and the elapsed time on stderr, for a job that can take seconds
+/// (hidden when stderr is not a terminal). Call `finish_and_clear` when the job is done.
+pub fn spinner(message: &str) -> indicatif::ProgressBar {
+    use std::io::IsTerminal;
+    if !std::io::stderr().is_terminal() {
+        return indicatif::ProgressBar::hidden();
+    }
+    let bar = indicatif::ProgressBar::new_spinner();
+    if let Ok(style) = indicatif::ProgressStyle::with_template("{spinner} {msg} ({elapsed})") {
+        bar.set_style(style);
+    }
+    bar.set_message(message.to_owned());
+    bar.enable_steady_tick(std::time::Duration::from_millis(120));
+    bar
+}
+
+/// The command line as typed (program name first), for provenance in outputs.
+pub fn command_line() -> String {
+    std::env::args()
+        .map(|a| {
+            if a.contains(char::is_whitespace) {
+                format!("'{a}'")
+            } else {
+                a
+            }
+        })
+        .collect::<Vec<_>>()
+        .join(" ")
 }
 
 /// Options for reading a session, shared by every subcommand that reads one.

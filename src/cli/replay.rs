@@ -40,6 +40,9 @@ pub struct ReplayArgs {
     /// Do not send the viewer layout (keep the viewer's own).
     #[arg(long)]
     no_blueprint: bool,
+    /// Open the layout on this tab (e.g. "Joints", "IMU and trials"; default: the first).
+    #[arg(long, value_name = "TAB")]
+    open_tab: Option<String>,
     #[command(flatten)]
     fit: FitArgs,
     #[command(flatten)]
@@ -51,7 +54,7 @@ pub struct ReplayArgs {
 pub fn run(a: ReplayArgs) -> Result<()> {
     use g1viz::power::load_model;
     use g1viz::robot::RobotModel;
-    use g1viz::viz::{self, Sink};
+    use g1viz::viz::{self, OutputKind, Sink};
     use std::path::Path;
 
     let robot = RobotModel::load(a.urdf.as_deref())?;
@@ -70,9 +73,15 @@ pub fn run(a: ReplayArgs) -> Result<()> {
     if let Some(m) = a.model.as_deref().filter(|m| m.exists()) {
         inputs.push(m);
     }
+    let mut properties = vec![("command".to_owned(), super::command_line())];
+    if let Some(m) = &a.model {
+        properties.push(("model".to_owned(), m.display().to_string()));
+    }
     let opts = viz::replay::ReplayOptions {
         pose_rate_hz: (a.pose_rate > 0.0).then_some(a.pose_rate),
         blueprint: !a.no_blueprint,
+        properties,
+        open_tab: a.open_tab.clone(),
         ..Default::default()
     };
     let summary = match &a.model {
@@ -81,7 +90,10 @@ pub fn run(a: ReplayArgs) -> Result<()> {
             let rec = a.read.load(&a.session)?;
             let arm = robot.arm(&rec.joint_names)?;
             let model = load_model(m)?;
-            let (extras, v) = viz::overlay::model_extras(&rec, &model, &a.fit.options())?;
+            let busy = super::spinner("applying the model");
+            let extras = viz::overlay::model_extras(&rec, &model, &a.fit.options());
+            busy.finish_and_clear();
+            let (extras, v) = extras?;
             for n in &v.notes {
                 eprintln!("note: {n}");
             }
@@ -92,7 +104,9 @@ pub fn run(a: ReplayArgs) -> Result<()> {
                 v.trial_level_aligned.rmse,
                 v.per_trial.len()
             );
-            let out = viz::open_stream("g1viz", &viz::recording_id_for(&rec), &sink, &inputs)?;
+            let kind = OutputKind::ModelReplay;
+            let id = kind.recording_id(&viz::recording_id_for(&rec));
+            let out = viz::open_stream(&kind.app_id(), &id, &sink, &inputs)?;
             let summary =
                 viz::replay::log_replay(&rec, &robot, &arm, &extras, &opts, out.stream())?;
             out.finish()?;
@@ -102,9 +116,10 @@ pub fn run(a: ReplayArgs) -> Result<()> {
         None => {
             let map = a.read.signal_map()?;
             let arm = robot.arm(&map.joint_names)?;
+            let kind = OutputKind::Replay;
             let id = viz::recording_id_for_source(&a.session)
                 .with_context(|| format!("cannot read {}", a.session.display()))?;
-            let out = viz::open_stream("g1viz", &id, &sink, &inputs)?;
+            let out = viz::open_stream(&kind.app_id(), &kind.recording_id(&id), &sink, &inputs)?;
             let summary = viz::replay::replay_file(
                 &a.session,
                 &map,

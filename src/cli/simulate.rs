@@ -29,7 +29,7 @@ pub struct SimulateArgs {
     /// Re-run this recording's commanded trajectory through the twin (same timeline).
     #[arg(long, value_name = "SESSION")]
     like: Option<PathBuf>,
-    /// True power model (default: the paper's tables).
+    /// True power model (model.json, or `paper`; default: the paper's tables).
     #[arg(long, value_name = "M")]
     model: Option<PathBuf>,
     /// URDF for the dynamics (default: the shipped one).

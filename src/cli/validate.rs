@@ -10,7 +10,7 @@ use g1viz::power::load_model;
 
 #[derive(Args)]
 pub struct ValidateArgs {
-    /// The model to validate (model.json).
+    /// The model to validate (model.json, or `paper` for the paper's parameters).
     #[arg(long, value_name = "M")]
     model: PathBuf,
     /// Hold-out session.

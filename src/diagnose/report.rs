@@ -21,6 +21,11 @@ pub const FIGURES: [&str; 5] = [
     "lag_scan.png",
 ];
 
+/// `text` safe inside a markdown table cell: the `|` of `|q̇|`, `|τ|`, `|ω|` would end the cell.
+fn md_cell(text: &str) -> String {
+    text.replace('|', "\\|")
+}
+
 fn sig(v: f64) -> String {
     if v.abs() >= 0.01 && v.abs() < 1e4 {
         format!("{v:.3}")
@@ -102,7 +107,7 @@ pub fn write_report(dir: &Path, d: &Diagnosis) -> Result<()> {
             let _ = writeln!(
                 md,
                 "| {} | {} | {} | {:+.3} | {:.3} | {} |",
-                g.label,
+                md_cell(&g.label),
                 g.n_rows,
                 g.n_trials,
                 g.bias_w,
@@ -235,7 +240,7 @@ pub fn write_report(dir: &Path, d: &Diagnosis) -> Result<()> {
         let _ = writeln!(
             md,
             "| {} | {:+.3} | {} | {} | {} |",
-            c.feature,
+            md_cell(&c.feature),
             c.r,
             sig(c.p_adjusted),
             if c.significant { "yes" } else { "no" },
@@ -250,7 +255,7 @@ pub fn write_report(dir: &Path, d: &Diagnosis) -> Result<()> {
     if !d.rejected.is_empty() {
         let _ = writeln!(md, "## Trials left out\n\n| trial | reason |\n|---|---|");
         for r in &d.rejected {
-            let _ = writeln!(md, "| {} | {} |", r.trial, r);
+            let _ = writeln!(md, "| {} | {} |", r.trial, md_cell(&r.to_string()));
         }
         md.push('\n');
     }

@@ -116,7 +116,7 @@ pub fn summarise(d: &Diagnosis) -> String {
         } else {
             let _ = writeln!(
                 s,
-                "Where: no group of readings has a significant residual bias (best p = {:.2}).",
+                "Where: no group of readings has a significant residual bias (best p = {:.1e}).",
                 g.p_value
             );
         }

@@ -1,5 +1,5 @@
-//! Markdown report with PNG figures like the paper's: coefficient bars per joint (b, c, d), measured vs
-//! predicted net power sorted by measured value (identification and validation), residual histogram with a
+//! Markdown report with PNG figures like the paper's: coefficient bars per joint (b, c, d), predicted
+//! against measured net power, one point per row (identification and validation), residual histogram with a
 //! fitted normal, and the mean term contributions (mechanical, copper, Coulomb, viscous, interaction).
 //!
 //! Text is drawn with the DejaVu Sans font shipped in `assets/fonts/` (Bitstream Vera licence, see
@@ -127,8 +127,8 @@ pub fn write_report(dir: &Path, r: &ReportInput) -> Result<()> {
             set.predicted.len()
         );
         let m = Metrics::compute(&set.measured, &set.predicted);
-        write_png(&dir.join(fit_png), (1000, 560), |root| {
-            draw_sorted_fit(root, set, &m)
+        write_png(&dir.join(fit_png), (760, 700), |root| {
+            draw_parity(root, set, &m)
         })?;
         write_png(&dir.join(res_png), (700, 480), |root| {
             draw_residuals(root, set, &m)
@@ -136,7 +136,7 @@ pub fn write_report(dir: &Path, r: &ReportInput) -> Result<()> {
         let _ = writeln!(md, "## Measured vs predicted: {}\n", set.label);
         let _ = writeln!(
             md,
-            "![Measured and predicted net power sorted by measured value]({fit_png})\n"
+            "![Predicted against measured net power, one point per row]({fit_png})\n"
         );
         let _ = writeln!(md, "![Residual histogram with fitted normal]({res_png})\n");
     }
@@ -521,17 +521,18 @@ fn range_of(values: impl Iterator<Item = f64>) -> (f64, f64) {
     padded_range(values, 0.05)
 }
 
-fn draw_sorted_fit(
+/// Predicted against measured, one point per row, with the y = x line: rows stay separate points
+/// (no line joins rows that were sorted by value, which invents a curve and hides which row is
+/// off).
+fn draw_parity(
     root: &DrawingArea<BitMapBackend<'_>, Shift>,
     set: &PredictionSet,
     m: &Metrics,
 ) -> Result<()> {
-    let mut order: Vec<usize> = (0..set.measured.len()).collect();
-    order.sort_by(|&a, &b| set.measured[a].total_cmp(&set.measured[b]));
     let (lo, hi) = range_of(set.measured.iter().chain(&set.predicted).copied());
-    let n = order.len();
+    let n = set.measured.len();
     let caption = format!(
-        "{}: {} rows sorted by measured power — R² = {}, RMSE = {} W",
+        "{}: {} rows — R² = {}, RMSE = {} W",
         set.label,
         n,
         fmt_num(m.r2, 3),
@@ -540,39 +541,41 @@ fn draw_sorted_fit(
     let mut chart = ChartBuilder::on(root)
         .caption(caption, (FONT, 20))
         .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
-        .build_cartesian_2d(-0.5..(n as f64 - 0.5).max(0.5), lo..hi)
+        .x_label_area_size(44)
+        .y_label_area_size(64)
+        .build_cartesian_2d(lo..hi, lo..hi)
         .map_err(plot_err)?;
     chart
         .configure_mesh()
-        .x_desc("row (sorted by measured net power)")
-        .x_label_formatter(&|x| format!("{x:.0}"))
-        .y_desc("net power [W]")
+        .x_desc("measured net power [W]")
+        .y_desc("predicted net power [W]")
         .label_style((FONT, 14))
         .draw()
         .map_err(plot_err)?;
-    let radius = if n > 300 { 2 } else { 3 };
-    chart
-        .draw_series(
-            order.iter().enumerate().map(|(k, &i)| {
-                Circle::new((k as f64, set.measured[i]), radius, BLUE.stroke_width(1))
-            }),
-        )
-        .map_err(plot_err)?
-        .label("measured")
-        .legend(|(x, y)| Circle::new((x + 10, y), 4, BLUE.stroke_width(1)));
     chart
         .draw_series(LineSeries::new(
-            order
-                .iter()
-                .enumerate()
-                .map(|(k, &i)| (k as f64, set.predicted[i])),
-            RED.stroke_width(1),
+            [(lo, lo), (hi, hi)],
+            RGBColor(120, 120, 120).stroke_width(1),
         ))
         .map_err(plot_err)?
-        .label("predicted")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED.stroke_width(1)));
+        .label("predicted = measured")
+        .legend(|(x, y)| {
+            PathElement::new(
+                vec![(x, y), (x + 20, y)],
+                RGBColor(120, 120, 120).stroke_width(1),
+            )
+        });
+    let radius = if n > 300 { 2 } else { 4 };
+    chart
+        .draw_series(
+            set.measured
+                .iter()
+                .zip(&set.predicted)
+                .map(|(&x, &y)| Circle::new((x, y), radius, BLUE.stroke_width(1))),
+        )
+        .map_err(plot_err)?
+        .label("one row (trajectory or reading)")
+        .legend(|(x, y)| Circle::new((x + 10, y), 4, BLUE.stroke_width(1)));
     chart
         .configure_series_labels()
         .position(SeriesLabelPosition::UpperLeft)

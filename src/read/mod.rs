@@ -12,6 +12,7 @@ use std::sync::Arc;
 pub mod bag1;
 pub mod db3;
 pub mod decode;
+pub mod fingerprint;
 mod idl;
 pub mod mcap;
 mod mcap_records;

@@ -6,6 +6,10 @@
 //! `container/<id>`, `view/<id>`, `view/<id>/ViewContents`, on the `blueprint` timeline at 0)
 //! with ids hashed from the view names, and send them with `RecordingStream::send_blueprint`
 //! (activated and made the default), which works for files and live viewers alike.
+//!
+//! Every time-series view links its time axis to the others (zoom one, all follow) and the time
+//! panel opens on the `session` timeline (seconds since the session start, as the reports and
+//! the CLI count them).
 
 use anyhow::{Context, Result};
 use rerun::blueprint::components::{
@@ -16,12 +20,17 @@ use rerun::external::re_log_types::{
     StoreSource, external::re_tuid::Tuid,
 };
 use rerun::external::re_sdk_types::blueprint::archetypes::{
-    ContainerBlueprint, EyeControls3D, ViewBlueprint, ViewContents, ViewportBlueprint,
+    ContainerBlueprint, EyeControls3D, PlotLegend, TimeAxis, TimePanelBlueprint, ViewBlueprint,
+    ViewContents, ViewportBlueprint,
 };
-use rerun::external::re_sdk_types::blueprint::components::Eye3DKind;
+use rerun::external::re_sdk_types::blueprint::components::{
+    ActiveTab, Corner2D, Eye3DKind, LinkAxis, TimelineName,
+};
 use rerun::external::re_sdk_types::datatypes::Uuid;
 use rerun::log::{Chunk, ChunkId, LogMsg, RowId};
 use rerun::{AsComponents, RecordingStream, TimeColumn};
+
+use super::paths;
 
 /// A node of the layout tree.
 #[derive(Debug, Clone)]
@@ -36,6 +45,10 @@ pub enum Node {
         children: Vec<Node>,
         /// Relative sizes of the children along the container's axis (empty = equal).
         shares: Vec<f32>,
+        /// The child shown first in a tab container (by name; `None`: the first).
+        active: Option<String>,
+        /// Columns of a grid container (`None`: the viewer decides).
+        columns: Option<u32>,
     },
     /// A view.
     View {
@@ -49,7 +62,22 @@ pub enum Node {
         contents: Vec<String>,
         /// Initial camera of a 3D view (ignored for other classes).
         eye: Option<Eye>,
+        /// Where a plot's legend goes (time series only; `None`: the viewer's default).
+        legend: Option<Legend>,
     },
+}
+
+/// A plot legend's place.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Legend {
+    /// In the top-left corner.
+    LeftTop,
+    /// In the top-right corner.
+    RightTop,
+    /// In the bottom-left corner.
+    LeftBottom,
+    /// Not shown (hovering still names the series).
+    Hidden,
 }
 
 /// The initial camera of a 3D view (an orbit eye), in the view's origin frame.
@@ -94,7 +122,30 @@ impl Node {
             origin: origin.into(),
             contents,
             eye: None,
+            legend: None,
         }
+    }
+
+    /// Sets where a plot's legend goes (time series only).
+    pub fn with_legend(mut self, new_legend: Legend) -> Node {
+        if let Node::View { legend, .. } = &mut self {
+            *legend = Some(new_legend);
+        }
+        self
+    }
+
+    /// `children` in a container, or the only child itself when there is just one (a container
+    /// of one view adds a tab strip and nothing else).
+    pub fn group(
+        kind: ContainerKind,
+        name: impl Into<String>,
+        mut children: Vec<Node>,
+        shares: Vec<f32>,
+    ) -> Node {
+        if children.len() == 1 {
+            return children.remove(0);
+        }
+        Node::container(kind, name, children, shares)
     }
 
     /// Sets the initial camera (3D views only; no effect on containers).
@@ -117,10 +168,58 @@ impl Node {
             name: name.into(),
             children,
             shares,
+            active: None,
+            columns: None,
         }
     }
 
-    fn name(&self) -> &str {
+    /// Sets the number of columns of a grid container.
+    pub fn with_columns(mut self, n: u32) -> Node {
+        if let Node::Container { columns, .. } = &mut self {
+            *columns = Some(n);
+        }
+        self
+    }
+
+    /// Makes the tab named `tab` the one its tab container opens on; false when no tab
+    /// container in this tree has a child of that name.
+    pub fn open_tab(&mut self, tab: &str) -> bool {
+        match self {
+            Node::View { .. } => false,
+            Node::Container {
+                kind,
+                children,
+                active,
+                ..
+            } => {
+                if *kind == ContainerKind::Tabs && children.iter().any(|c| c.name() == tab) {
+                    *active = Some(tab.to_owned());
+                    return true;
+                }
+                children.iter_mut().any(|c| c.open_tab(tab))
+            }
+        }
+    }
+
+    /// Names of the tabs of every tab container in this tree, in display order.
+    pub fn tab_names(&self) -> Vec<String> {
+        match self {
+            Node::View { .. } => Vec::new(),
+            Node::Container { kind, children, .. } => {
+                let mut out = Vec::new();
+                if *kind == ContainerKind::Tabs {
+                    out.extend(children.iter().map(|c| c.name().to_owned()));
+                }
+                for c in children {
+                    out.extend(c.tab_names());
+                }
+                out
+            }
+        }
+    }
+
+    /// Display name.
+    pub fn name(&self) -> &str {
         match self {
             Node::Container { name, .. } | Node::View { name, .. } => name,
         }
@@ -137,8 +236,8 @@ impl Node {
 
 /// A UUID (version 4 layout) hashed from a name, so the same layout always gets the same ids.
 fn stable_uuid(name: &str) -> [u8; 16] {
-    let hi = super::stable_hash(&[b"g1viz-blueprint-hi", name.as_bytes()]);
-    let lo = super::stable_hash(&[b"g1viz-blueprint-lo", name.as_bytes()]);
+    let hi = crate::read::fingerprint::stable_hash(&[b"g1viz-blueprint-hi", name.as_bytes()]);
+    let lo = crate::read::fingerprint::stable_hash(&[b"g1viz-blueprint-lo", name.as_bytes()]);
     let mut b = [0u8; 16];
     b[..8].copy_from_slice(&hi.to_be_bytes());
     b[8..].copy_from_slice(&lo.to_be_bytes());
@@ -212,6 +311,8 @@ impl BlueprintChunks {
                 name,
                 children,
                 shares,
+                active,
+                columns,
             } => {
                 for child in children {
                     self.node(child)?;
@@ -223,6 +324,17 @@ impl BlueprintChunks {
                             .iter()
                             .map(|c| IncludedContent(format!("/{}", c.blueprint_path()).into())),
                     );
+                if let Some(tab) = children
+                    .iter()
+                    .find(|c| Some(c.name()) == active.as_deref())
+                {
+                    arch = arch.with_active_tab(ActiveTab(
+                        format!("/{}", tab.blueprint_path()).as_str().into(),
+                    ));
+                }
+                if let Some(n) = columns {
+                    arch = arch.with_grid_columns(*n);
+                }
                 if !shares.is_empty() {
                     arch = match kind {
                         ContainerKind::Vertical => arch.with_row_shares(shares.iter().copied()),
@@ -237,6 +349,7 @@ impl BlueprintChunks {
                 origin,
                 contents,
                 eye,
+                legend,
             } => {
                 let queries: Vec<QueryExpression> = if contents.is_empty() {
                     vec![QueryExpression("$origin/**".into())]
@@ -255,6 +368,19 @@ impl BlueprintChunks {
                         .with_look_target(eye.look_target)
                         .with_eye_up(eye.up);
                     self.log(&format!("{path}/EyeControls3D"), &controls)?;
+                }
+                if *class == "TimeSeries" {
+                    let axis = TimeAxis::new().with_link(LinkAxis::LinkToGlobal);
+                    self.log(&format!("{path}/TimeAxis"), &axis)?;
+                }
+                if let Some(legend) = legend {
+                    let arch = match legend {
+                        Legend::LeftTop => PlotLegend::new().with_corner(Corner2D::LeftTop),
+                        Legend::RightTop => PlotLegend::new().with_corner(Corner2D::RightTop),
+                        Legend::LeftBottom => PlotLegend::new().with_corner(Corner2D::LeftBottom),
+                        Legend::Hidden => PlotLegend::new().with_visible(false),
+                    };
+                    self.log(&format!("{path}/PlotLegend"), &arch)?;
                 }
                 let arch = ViewBlueprint::new(ViewClass((*class).into()))
                     .with_display_name(name.as_str())
@@ -286,6 +412,10 @@ pub fn send_blueprint(stream: &RecordingStream, root: &Node) -> Result<()> {
         msgs: vec![LogMsg::SetStoreInfo(set_info)],
     };
     chunks.node(root)?;
+    chunks.log(
+        "time_panel",
+        &TimePanelBlueprint::new().with_timeline(TimelineName("session".into())),
+    )?;
     let root_id = Uuid {
         bytes: stable_uuid(root.name()),
     };
@@ -315,120 +445,260 @@ pub struct LayoutParts {
     pub counterpart: bool,
     /// Trial marks are logged.
     pub trials: bool,
+    /// The IMU filter's statistic and threshold are logged.
+    pub imu_filter: bool,
+    /// The diagnosis found terms following recorded fields (plotted beside its summary,
+    /// time-aligned with the prediction error).
+    pub located: bool,
 }
 
-/// The replay layout: the 3D arm on the left; on the right power (measured vs predicted), the
-/// prediction error, and tabs of joint plots (q, dq, τ, temperature), per-joint loss terms, IMU
-/// and the trial log. The 3D view's camera starts on the front left of the arm, ~1.5 m from
-/// `arm_center` (a point on the arm in the `/robot` frame, X forward, Y left, Z up).
+fn plot(name: impl Into<String>, contents: Vec<String>) -> Node {
+    Node::view("TimeSeries", name, "/", contents)
+}
+
+fn include(paths: &[&str]) -> Vec<String> {
+    paths.iter().map(|p| paths::include(p)).collect()
+}
+
+/// The replay layout. Left: the 3D arm (body oriented by the IMU). Right, top to bottom: power
+/// at the readings (measured vs the prediction averaged over each reading's window, the
+/// instantaneous prediction as a thin context line), the trial track (rejected trials as red
+/// bars), the error at the readings, and at most six tabs: where the power goes (per term, per
+/// joint, per-trial bars, what the copper term is relative to), the loss terms per joint (one
+/// grid), the joints (q with its command, q̇, τ, temperature), IMU and trials (|ω|, the filter's
+/// statistic and threshold, the trial log), raw power, diagnosis. The 3D view's camera starts on
+/// the front left of the arm, ~1.5 m from `arm_center` (a point on the arm in the `/robot` frame,
+/// X forward, Y left, Z up).
 pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]) -> Node {
-    use ContainerKind::{Horizontal, Tabs, Vertical};
-    let each = |signal: &str| {
+    use ContainerKind::{Grid, Horizontal, Tabs, Vertical};
+    let each = |signal: &str| -> Vec<String> {
         joints
             .iter()
-            .map(|j| format!("+ /joints/{j}/{signal}"))
-            .collect::<Vec<_>>()
+            .map(|j| paths::include(&paths::joint(j, signal)))
+            .collect()
     };
+    let mut right = vec![power_view(parts)];
+    let mut shares = vec![1.0];
+    if parts.trials || parts.diagnosis {
+        right.push(
+            plot(
+                "Trials (index; red: rejected or located)",
+                vec![
+                    paths::include(paths::TRIAL_INDEX),
+                    paths::include_tree(&paths::trial_spans(paths::TRIALS, "rejected")),
+                    paths::include_tree(&paths::trial_spans(paths::DIAG_TRIALS, "located")),
+                ],
+            )
+            .with_legend(Legend::Hidden),
+        );
+        shares.push(0.4);
+    }
+    if parts.model || parts.diagnosis {
+        let mut error = vec![paths::include_tree("model/error")];
+        if parts.diagnosis {
+            error.push(paths::include_tree("diagnosis/error"));
+        }
+        right.push(
+            plot("Error at the readings, measured − predicted [W]", error)
+                .with_legend(Legend::LeftTop),
+        );
+        shares.push(0.8);
+    }
+
     let mut q = each("q");
     q.extend(each("q_cmd"));
-
-    // Net power (a few W) beside net predictions; the raw rail readings (~120 W) get their own
-    // tab so they do not flatten the net traces.
-    let mut power_contents = vec!["+ /power/mbs/net".to_owned(), "+ /power/bms/net".to_owned()];
+    let joint_views = Node::container(
+        Grid,
+        "Joints",
+        vec![
+            // One legend for the four plots (same colour per joint everywhere).
+            plot("Joint position q [rad] (command: lighter)", q).with_legend(Legend::Hidden),
+            plot("Joint velocity q̇ [rad/s]", each("dq")).with_legend(Legend::Hidden),
+            plot("Joint torque τ [Nm]", each("tau")).with_legend(Legend::LeftTop),
+            plot("Motor temperature [°C]", each("temperature")).with_legend(Legend::Hidden),
+        ],
+        vec![],
+    )
+    .with_columns(2);
+    let mut tabs = Vec::new();
     if parts.model {
-        power_contents.push("+ /model/power/**".into());
+        tabs.push(breakdown_tab(joints));
+        tabs.push(loss_terms_tab(joints));
     }
-    if parts.diagnosis {
-        power_contents.push("+ /diagnosis/power/**".into());
+    tabs.push(joint_views);
+    let mut imu = vec![paths::include(paths::IMU_GYRO_NORM)];
+    if parts.imu_filter {
+        imu.extend(include(&[
+            paths::IMU_SIGMA,
+            paths::IMU_SIGMA_REJECTED,
+            paths::IMU_THRESHOLD,
+        ]));
     }
-    let mut right = vec![Node::view(
-        "TimeSeries",
-        "Net power [W]",
-        "/",
-        power_contents,
-    )];
-    if parts.model || parts.diagnosis {
-        let mut error = vec!["+ /model/error/**".to_owned()];
+    let mut imu_tab =
+        vec![plot("IMU |ω| [rad/s] and the balance filter", imu).with_legend(Legend::RightTop)];
+    if parts.trials || parts.diagnosis {
+        let mut logs = vec![paths::include(&paths::trials_log(paths::TRIALS))];
         if parts.diagnosis {
-            error.push("+ /diagnosis/error/**".into());
+            logs.push(paths::include(&paths::trials_log(paths::DIAG_TRIALS)));
         }
-        right.push(Node::view("TimeSeries", "Prediction error [W]", "/", error));
+        imu_tab.push(Node::view("TextLog", "Trial log", "/", logs));
     }
-
-    let mut tabs = vec![
-        Node::view("TimeSeries", "Joint position q [rad]", "/", q),
-        Node::view("TimeSeries", "Joint velocity dq [rad/s]", "/", each("dq")),
-        Node::view("TimeSeries", "Joint torque tau [Nm]", "/", each("tau")),
-        Node::view(
-            "TimeSeries",
-            "Motor temperature [°C]",
-            "/",
-            each("temperature"),
-        ),
-    ];
-    if parts.model {
-        for j in joints {
-            tabs.push(Node::view(
+    tabs.push(Node::group(
+        Vertical,
+        "IMU and trials",
+        imu_tab,
+        vec![1.0, 1.0],
+    ));
+    tabs.push(plot(
+        "Raw power MBS/BMS [W]",
+        include(&[&paths::power_raw("mbs"), &paths::power_raw("bms")]),
+    ));
+    if parts.diagnosis {
+        let mut diag = vec![Node::view(
+            "TextDocument",
+            "Diagnosis summary",
+            paths::DIAG_SUMMARY,
+            vec![],
+        )];
+        if parts.located {
+            diag.push(Node::view(
                 "TimeSeries",
-                format!("Loss terms {j} [W]"),
-                format!("/model/terms/{j}"),
+                "Fields the found terms follow",
+                paths::DIAG_LOCATED,
                 vec![],
             ));
         }
-        tabs.push(Node::view(
-            "TimeSeries",
-            "Interaction losses [W]",
-            "/model/terms/interaction",
-            vec![],
-        ));
-    }
-    tabs.push(Node::view(
-        "TimeSeries",
-        "Raw power MBS/BMS [W]",
-        "/",
-        vec!["+ /power/mbs/raw".to_owned(), "+ /power/bms/raw".to_owned()],
-    ));
-    tabs.push(Node::view("TimeSeries", "IMU |ω| [rad/s]", "/imu", vec![]));
-    if parts.trials || parts.diagnosis {
-        let mut logs = vec!["+ /trials/**".to_owned()];
-        if parts.diagnosis {
-            logs.push("+ /diagnosis/**".into());
+        if parts.counterpart {
+            diag.push(Node::view(
+                "TimeSeries",
+                "Torque recording − twin [Nm]",
+                paths::DIAG_TORQUE,
+                vec![],
+            ));
         }
-        tabs.push(Node::view("TextLog", "Trials", "/", logs));
+        tabs.push(Node::group(Horizontal, "Diagnosis", diag, vec![]));
     }
-    if parts.counterpart {
-        tabs.push(Node::view(
-            "TimeSeries",
-            "Torque recording − twin [Nm]",
-            "/diagnosis/torque",
-            vec![],
-        ));
-    }
-    if parts.diagnosis {
-        tabs.push(Node::view(
-            "TextDocument",
-            "Diagnosis summary",
-            "/diagnosis/summary",
-            vec![],
-        ));
-    }
-    right.push(Node::container(Tabs, "Signals", tabs, vec![]));
-    let n = right.len();
-    let shares = match n {
-        2 => vec![1.0, 1.5],
-        _ => vec![1.0, 0.7, 1.5],
-    };
+    right.push(Node::container(Tabs, "Details", tabs, vec![]));
+    shares.push(1.6);
     Node::container(
         Horizontal,
         "g1viz replay",
         vec![
-            Node::view("3D", "Arm", "/robot", vec![]).with_eye(Eye::looking_at(
-                arm_center,
-                [1.0, 0.8, 0.45],
-                1.5,
-            )),
+            Node::view(
+                "3D",
+                "Arm",
+                "/",
+                vec!["+ /".to_owned(), paths::include_tree(paths::ROBOT)],
+            )
+            .with_eye(Eye::looking_at(arm_center, [1.0, 0.8, 0.45], 1.5)),
             Node::container(Vertical, "Plots", right, shares),
         ],
-        vec![1.0, 1.3],
+        vec![1.0, 1.6],
     )
+}
+
+/// The main power plot: readings vs like-for-like prediction (with a model), the sensors' net
+/// power (without), the diagnosis' before/after.
+fn power_view(parts: LayoutParts) -> Node {
+    let contents = if parts.model {
+        include(&[
+            paths::MODEL_READING_MEASURED,
+            paths::MODEL_READING_PREDICTED,
+            paths::MODEL_PREDICTED,
+        ])
+    } else if parts.diagnosis {
+        vec![paths::include_tree("diagnosis/power")]
+    } else {
+        include(&[&paths::power_net("mbs"), &paths::power_net("bms")])
+    };
+    let name = if parts.model || parts.diagnosis {
+        "Net power at the readings [W]"
+    } else {
+        "Net power [W] (minus the idle baseline before the arm moves)"
+    };
+    plot(name, contents).with_legend(Legend::LeftTop)
+}
+
+/// Where the power goes: per term and per joint over time, per-trial bars, and the note.
+fn breakdown_tab(joints: &[String]) -> Node {
+    use ContainerKind::{Horizontal, Vertical};
+    let by_joint: Vec<String> = joints
+        .iter()
+        .map(|j| paths::include(&paths::by_joint(j)))
+        .collect();
+    Node::container(
+        Horizontal,
+        "Where the power goes",
+        vec![
+            Node::container(
+                Vertical,
+                "Power over time",
+                vec![
+                    plot(
+                        "Predicted power by term, all joints [W]",
+                        vec![paths::include_tree(paths::BY_TERM)],
+                    )
+                    .with_legend(Legend::LeftTop),
+                    plot("Predicted power by joint, all terms [W]", by_joint)
+                        .with_legend(Legend::LeftTop),
+                ],
+                vec![],
+            ),
+            Node::container(
+                Vertical,
+                "Per trial",
+                vec![
+                    Node::view(
+                        "BarChart",
+                        "Mean per trial, by joint [W]",
+                        paths::BARS_BY_JOINT,
+                        vec![],
+                    ),
+                    Node::view(
+                        "BarChart",
+                        "Mean per trial, by term [W]",
+                        paths::BARS_BY_TERM,
+                        vec![],
+                    ),
+                    Node::view(
+                        "TextDocument",
+                        "What the terms are",
+                        paths::BREAKDOWN_NOTE,
+                        vec![],
+                    ),
+                ],
+                vec![1.0, 1.0, 1.2],
+            ),
+        ],
+        vec![1.6, 1.0],
+    )
+}
+
+/// One grid: the four loss terms of each joint, and the interaction.
+fn loss_terms_tab(joints: &[String]) -> Node {
+    let mut views: Vec<Node> = joints
+        .iter()
+        .enumerate()
+        .map(|(k, j)| {
+            let terms = paths::TERMS
+                .iter()
+                .map(|t| paths::include(&paths::term(j, t)))
+                .collect();
+            // The terms have the same colours in every cell: one legend is enough.
+            let legend = if k == 0 {
+                Legend::LeftTop
+            } else {
+                Legend::Hidden
+            };
+            plot(format!("{j} [W]"), terms).with_legend(legend)
+        })
+        .collect();
+    views.push(
+        plot(
+            "Interaction [W]",
+            vec![paths::include(paths::TERM_INTERACTION)],
+        )
+        .with_legend(Legend::Hidden),
+    );
+    Node::container(ContainerKind::Grid, "Loss terms per joint", views, vec![]).with_columns(4)
 }

@@ -13,10 +13,13 @@
 //! The footer is an index the viewer can rebuild; decoded, the two files are equal.
 
 pub mod blueprint;
+mod layers;
 pub mod overlay;
+pub mod paths;
 pub mod replay;
 mod robot3d;
 mod rrd_sink;
+mod style;
 
 use std::path::{Path, PathBuf};
 
@@ -85,7 +88,11 @@ pub fn open_stream(
 ) -> Result<VizStream> {
     let app = rerun::ApplicationId::try_new(app_id)
         .with_context(|| format!("invalid Rerun application id {app_id:?}"))?;
-    let builder = rerun::RecordingStreamBuilder::new(app).recording_id(recording_id.to_owned());
+    // The recording's name, start time and properties are logged by the replay with
+    // deterministic row ids, not by the SDK (wall-clock ids, and "now" as the start time).
+    let builder = rerun::RecordingStreamBuilder::new(app)
+        .recording_id(recording_id.to_owned())
+        .send_properties(false);
     match sink {
         Sink::Save(path) => {
             refuse_overwrite(path, inputs)?;
@@ -126,19 +133,39 @@ fn refuse_overwrite(target: &Path, inputs: &[&Path]) -> Result<()> {
     crate::util::refuse_to_overwrite_inputs("Rerun output", target, inputs)
 }
 
-/// FNV-1a, 64 bit: a stable hash (std's hashers are randomly seeded or not guaranteed stable).
-pub(crate) fn stable_hash(parts: &[&[u8]]) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for part in parts {
-        for &b in *part {
-            h ^= u64::from(b);
-            h = h.wrapping_mul(0x0000_0100_0000_01b3);
+/// What an output shows. Each kind has its own application id (so its own default layout in
+/// the viewer: a replay and a diagnosis opened together keep theirs) and its own recording id
+/// for the same input (so they open side by side instead of merging into one recording).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OutputKind {
+    /// `g1viz replay` without a model.
+    Replay,
+    /// `g1viz replay --model`.
+    ModelReplay,
+    /// `g1viz diagnose --save`.
+    Diagnosis,
+}
+
+impl OutputKind {
+    /// Lower-case tag: `replay`, `model`, `diagnosis`.
+    pub fn tag(self) -> &'static str {
+        match self {
+            OutputKind::Replay => "replay",
+            OutputKind::ModelReplay => "model",
+            OutputKind::Diagnosis => "diagnosis",
         }
-        // Separator so that ("ab","c") and ("a","bc") differ.
-        h ^= 0xff;
-        h = h.wrapping_mul(0x0000_0100_0000_01b3);
     }
-    h
+
+    /// The Rerun application id of this kind of output (`g1viz-replay`, …).
+    pub fn app_id(self) -> String {
+        format!("g1viz-{}", self.tag())
+    }
+
+    /// The recording id of this kind of output made from the input with recording id `input_id`
+    /// (see [`recording_id_for`] / [`recording_id_for_source`]).
+    pub fn recording_id(self, input_id: &str) -> String {
+        format!("{input_id}-{}", self.tag())
+    }
 }
 
 /// Recording id derived from the input file (or bag directory): see [`recording_id_for_source`].
@@ -149,7 +176,7 @@ pub fn recording_id_for(rec: &crate::signals::Recording) -> String {
         return id;
     }
     let name = rec.source.to_string_lossy();
-    let h = stable_hash(&[
+    let h = crate::read::fingerprint::stable_hash(&[
         name.as_bytes(),
         &rec.start_ns.to_le_bytes(),
         &(rec.state.t.len() as u64).to_le_bytes(),
@@ -158,60 +185,11 @@ pub fn recording_id_for(rec: &crate::signals::Recording) -> String {
 }
 
 /// Recording id of the session at `path`, known before reading it (so a streamed replay can
-/// open its output first): a stable hash of the file name, its size and its first and last
-/// 64 KiB; for a ROS 2 bag directory, of its name, its `metadata.yaml` and the name and size of
-/// each of its `.db3`/`.mcap` files (other files, such as an `.rrd` saved beside them, do not
-/// count). The same input gives the same id, so repeated runs produce comparable files, and a
-/// copied file replays the same; `None` when the path cannot be read.
+/// open its output first): `g1viz-` and the session's [`crate::read::fingerprint::fingerprint`].
+/// The same input gives the same id, so repeated runs produce comparable files, and a copied
+/// file replays the same; `None` when the path cannot be read.
 pub fn recording_id_for_source(path: &Path) -> Option<String> {
-    use std::io::{Read, Seek, SeekFrom};
-    const EDGE: u64 = 64 * 1024;
-    // `.` or `dir/..` have no file name of their own: use the resolved one.
-    let name = match path.file_name() {
-        Some(n) => n.to_string_lossy().into_owned(),
-        None => path
-            .canonicalize()
-            .ok()?
-            .file_name()
-            .map_or_else(String::new, |n| n.to_string_lossy().into_owned()),
-    };
-    let meta = std::fs::metadata(path).ok()?;
-    let mut parts: Vec<Vec<u8>> = vec![name.into_bytes()];
-    if meta.is_dir() {
-        let mut entries: Vec<(String, u64)> = std::fs::read_dir(path)
-            .ok()?
-            .filter_map(|e| {
-                let e = e.ok()?;
-                let n = e.file_name().to_string_lossy().into_owned();
-                let bag_file = n == "metadata.yaml" || n.ends_with(".db3") || n.ends_with(".mcap");
-                bag_file.then_some((n, e.metadata().ok()?.len()))
-            })
-            .collect();
-        entries.sort();
-        for (n, size) in entries {
-            if n == "metadata.yaml" {
-                parts.push(std::fs::read(path.join(&n)).ok()?);
-            }
-            parts.push(n.into_bytes());
-            parts.push(size.to_le_bytes().to_vec());
-        }
-    } else {
-        let size = meta.len();
-        parts.push(size.to_le_bytes().to_vec());
-        let mut f = std::fs::File::open(path).ok()?;
-        let mut head = Vec::new();
-        (&mut f).take(EDGE).read_to_end(&mut head).ok()?;
-        parts.push(head);
-        if size > EDGE {
-            // The last 64 KiB, without re-reading bytes the head already covered.
-            f.seek(SeekFrom::Start((size - EDGE).max(EDGE))).ok()?;
-            let mut tail = Vec::new();
-            f.take(EDGE).read_to_end(&mut tail).ok()?;
-            parts.push(tail);
-        }
-    }
-    let refs: Vec<&[u8]> = parts.iter().map(Vec::as_slice).collect();
-    Some(format!("g1viz-{:016x}", stable_hash(&refs)))
+    crate::read::fingerprint::fingerprint(path).map(|h| format!("g1viz-{h:016x}"))
 }
 
 /// The two timelines every temporal row carries: `time` (absolute timestamp, the robot's clock:
@@ -231,8 +209,10 @@ pub(crate) fn time_columns(start_ns: u64, t: &[f64]) -> [TimeColumn; 2] {
 
 /// Builds Rerun chunks with deterministic row and chunk ids and sends them to a stream.
 ///
-/// Ids are `Tuid(namespace, counter)`: give every writer on one stream its own `namespace`
-/// (e.g. replay, identify, diagnose) so their ids never collide.
+/// Ids are `Tuid(session start, namespace + counter)`: their time part is the session's start
+/// (what the viewer shows as the recording's "modified" time, instead of 1970), and every writer
+/// on one stream gets its own `namespace` (a multiple of 2⁴⁸: replay, identify, diagnose…) so
+/// their ids never collide.
 pub struct ChunkWriter<'a> {
     stream: &'a RecordingStream,
     namespace: u64,
@@ -253,7 +233,7 @@ impl<'a> ChunkWriter<'a> {
 
     fn next_tuid(&mut self) -> Tuid {
         self.counter += 1;
-        Tuid::from_nanos_and_inc(self.namespace, self.counter)
+        Tuid::from_nanos_and_inc(self.start_ns, self.namespace.wrapping_add(self.counter))
     }
 
     fn row_ids(&mut self, n: usize) -> Vec<RowId> {

@@ -1,10 +1,16 @@
-//! What an identified power model adds to a replay: per-sample predicted vs measured net power,
-//! per-joint loss-term series, per-trajectory predictions and the trials the IMU and 3σ
-//! filters reject (with their statistics), so contaminated trajectories can be found in the viewer.
+//! What an identified power model adds to a replay: each power reading next to the model's
+//! prediction averaged over that reading's own window (like for like, as `validate` scores it),
+//! the instantaneous prediction as context, per-joint loss-term series, per-trajectory errors,
+//! the IMU filter's statistic and threshold, and the trials the IMU and 3σ filters reject (with
+//! their statistics, as `validate` records them), so contaminated trajectories can be found in
+//! the viewer.
 
 use anyhow::Result;
 
-use super::replay::{PowerPrediction, ReplayExtras, TermSeries, TrajectoryPoint, TrialMark};
+use super::replay::{
+    ImuFilterMarks, PowerPrediction, ReadingPrediction, ReplayExtras, TermSeries, TrajectoryPoint,
+    TrialMark,
+};
 use crate::identify::dataset::{self, DatasetOptions, Mode};
 use crate::identify::{IdentifyOptions, Validation, validate};
 use crate::power::PowerModel;
@@ -29,7 +35,6 @@ pub fn model_extras(
         },
     )
     .trials;
-    let power = opts.target.series(rec);
 
     let mut prediction = PowerPrediction::default();
     let mut terms = TermSeries::default();
@@ -42,16 +47,8 @@ pub fn model_extras(
         let last = s.t.partition_point(|&t| t <= trial.t_return_end);
         for k in first..last {
             let t = s.t[k];
-            // Zero-order hold of the latest reading: what the sensor said at that moment.
-            let r = power.t.partition_point(|&tp| tp <= t);
-            let measured = if r == 0 {
-                f64::NAN
-            } else {
-                power.watts[r - 1] - basis.baseline_w
-            };
             let b = model.breakdown(&s.tau[k], &s.dq[k], &basis.tau0_sq);
             prediction.t.push(t);
-            prediction.measured_net.push(measured);
             prediction
                 .predicted
                 .push(model.predict(&s.tau[k], &s.dq[k], &basis.tau0_sq));
@@ -64,6 +61,8 @@ pub fn model_extras(
         }
     }
 
+    let is_rejected = |trial: usize| crate::trial::is_rejected(&v.rejections, 0, trial);
+    let readings = reading_predictions(rec, model, &v, opts, &is_rejected);
     let trajectories = v
         .per_trial
         .iter()
@@ -72,8 +71,10 @@ pub fn model_extras(
             t: p.window.1,
             measured: p.measured_w,
             predicted: p.predicted_w,
+            rejected: p.rejected,
         })
         .collect();
+    let imu_filter = imu_marks(&v, opts);
 
     let trials = seg
         .trials
@@ -101,12 +102,78 @@ pub fn model_extras(
         .collect();
     let extras = ReplayExtras {
         prediction: Some(prediction),
+        readings: Some(readings),
         trajectories,
         terms: Some(terms),
         trials,
+        imu_filter,
         diagnosis: None,
     };
     Ok((extras, v))
+}
+
+/// Every power reading inside a trial's trajectory window, paired with the model's prediction
+/// averaged over the reading's own window (the sensor timing `validate` used): the rows
+/// `validate` scores per reading, so their error is its per-reading error.
+fn reading_predictions(
+    rec: &Recording,
+    model: &PowerModel,
+    v: &Validation,
+    opts: &IdentifyOptions,
+    is_rejected: &dyn Fn(usize) -> bool,
+) -> ReadingPrediction {
+    let rows = dataset::build(
+        rec,
+        &v.session.segmentation.trials,
+        &DatasetOptions {
+            mode: Mode::Reading,
+            target: opts.target,
+            alignment: v.alignment,
+        },
+    )
+    .rows;
+    let theta = model.to_vector();
+    let mut out = ReadingPrediction {
+        window_s: v.alignment.window_s,
+        lag_s: v.alignment.lag_s,
+        ..ReadingPrediction::default()
+    };
+    for row in rows {
+        out.t.push(row.t);
+        out.trial.push(row.trial);
+        out.measured.push(row.y);
+        out.predicted
+            .push(theta.iter().zip(&row.phi).map(|(a, b)| a * b).sum());
+        out.rejected.push(is_rejected(row.trial));
+    }
+    out
+}
+
+/// The IMU filter's statistic per trial (over its trajectory window) and its threshold
+/// (k × the median σ|ω| of the session's trials, as the filter computes it).
+fn imu_marks(v: &Validation, opts: &IdentifyOptions) -> Option<ImuFilterMarks> {
+    let k = opts.filters.imu_k?;
+    let mut sigmas: Vec<f64> = v.per_trial.iter().map(|p| p.sigma_omega).collect();
+    sigmas.retain(|s| s.is_finite());
+    if sigmas.is_empty() {
+        return None;
+    }
+    sigmas.sort_by(f64::total_cmp);
+    let n = sigmas.len();
+    let median = if n % 2 == 1 {
+        sigmas[n / 2]
+    } else {
+        0.5 * (sigmas[n / 2 - 1] + sigmas[n / 2])
+    };
+    Some(ImuFilterMarks {
+        k,
+        threshold: k * median,
+        spans: v
+            .per_trial
+            .iter()
+            .map(|p| (p.window.0, p.window.1, p.sigma_omega))
+            .collect(),
+    })
 }
 
 /// Replay extras of a diagnosis: measured vs before/after predictions per reading, and the trials
@@ -134,6 +201,8 @@ pub fn diagnosis_extras(d: &crate::diagnose::Diagnosis) -> ReplayExtras {
             highlighted,
             summary: d.summary.clone(),
             counterpart: d.counterpart.as_ref().map(|c| c.series.clone()),
+            found: Vec::new(),
+            located: Vec::new(),
         }),
         ..ReplayExtras::default()
     }

@@ -1,29 +1,21 @@
 //! `g1viz replay`: a [`Recording`] (plus whatever identification and diagnosis add, as
 //! [`ReplayExtras`]) logged to Rerun.
 //!
-//! Entity paths (all scalars are `Scalars` with a static `SeriesLines`/`SeriesPoints` style):
-//! - `robot/<link>` (+ `/visual<k>`): the arm, see [`super::robot3d`]
-//! - `joints/<j>/{q, q_cmd, dq, tau, temperature}`, `<j>` = [`super::short_joint_name`]
-//! - `power/{mbs,bms}/{raw,net}` [W] (net = minus the mean of the readings before the arm first
-//!   moves), `imu/gyro_norm` [rad/s]
-//! - `model/power/{measured_net,predicted}`, `model/error/{sample,trajectory}`,
-//!   `model/terms/<j>/{mechanical,copper,coulomb,viscous}`, `model/terms/interaction/total`
-//! - `trials/log` (TextLog per trial, WARN for rejected ones), `trials/{active,rejected}` (0/1 bands)
-//! - `diagnosis/power/{measured,before,after}`, `diagnosis/error/{before,after}`,
-//!   `diagnosis/trials`, `diagnosis/summary` (TextDocument); with a counterpart
-//!   `diagnosis/power/twin` and `diagnosis/torque/<j>` (τ recording − twin)
+//! Entity paths are listed in [`super::paths`] (all scalars are `Scalars` with a static
+//! `SeriesLines`/`SeriesPoints` style naming and colouring them, see [`super::style`]). The
+//! recording names itself after the input file, carries the session's real start time and
+//! properties (input, command, model, version) under `__properties`.
 //!
-//! Timelines: `time` (timestamp: recording start + t) and `session` (duration since start).
-//! Long series are sent column-wise in chunks of [`ReplayOptions::chunk_rows`] samples, so memory
-//! stays bounded whatever the session length.
+//! Timelines: `session` (duration since the session start; the layout opens on it) and `time`
+//! (timestamp: recording start + t). Long series are sent column-wise in chunks of
+//! [`ReplayOptions::chunk_rows`] samples, so memory stays bounded whatever the session length.
 
 use anyhow::{Context, Result, bail};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-use rerun::components::TextLogLevel;
-use rerun::{Color, RecordingStream, Scalars, SeriesLines, SeriesPoints, TextDocument, TextLog};
+use rerun::{AnyValues, RecordingInfo, RecordingStream, Scalars};
 
 use super::blueprint::{self, LayoutParts};
-use super::{ChunkWriter, robot3d, short_joint_name};
+use super::{ChunkWriter, layers, paths, robot3d, short_joint_name, style};
 use crate::N_JOINTS;
 use crate::robot::{ArmJoints, RobotModel};
 use crate::signals::{PowerSeries, Recording};
@@ -42,6 +34,12 @@ pub struct ReplayOptions {
     pub progress: bool,
     /// Also send the viewer layout (blueprint).
     pub blueprint: bool,
+    /// Recording properties beside the input and g1viz version, e.g. `("command", "replay")`,
+    /// `("model", "paper")`; shown in the viewer's recording properties.
+    pub properties: Vec<(String, String)>,
+    /// The tab the layout opens on, by name (`None`: the first; see
+    /// [`blueprint::Node::tab_names`]).
+    pub open_tab: Option<String>,
 }
 
 impl Default for ReplayOptions {
@@ -52,19 +50,51 @@ impl Default for ReplayOptions {
             motion_threshold_rad: 0.02,
             progress: true,
             blueprint: true,
+            properties: Vec::new(),
+            open_tab: None,
         }
     }
 }
 
-/// Per-sample predictions of the identified power model (filled by identify/validate).
+/// Instantaneous per-sample predictions of the identified power model: context only, since a
+/// power reading is a window average and compares with [`ReadingPrediction`].
 #[derive(Debug, Clone, Default)]
 pub struct PowerPrediction {
     /// Time [s since recording start].
     pub t: Vec<f64>,
-    /// Measured net power [W] (the model's target).
-    pub measured_net: Vec<f64>,
     /// Predicted net power [W].
     pub predicted: Vec<f64>,
+}
+
+/// Each power reading next to the model's prediction averaged over the reading's own window
+/// [t − lag − window, t − lag]: like for like, the error `validate` reports per reading.
+#[derive(Debug, Clone, Default)]
+pub struct ReadingPrediction {
+    /// Reading stamps [s since recording start].
+    pub t: Vec<f64>,
+    /// Trial of each reading.
+    pub trial: Vec<usize>,
+    /// Measured net power (reading minus its trial's pre-idle mean) [W].
+    pub measured: Vec<f64>,
+    /// Prediction averaged over the reading's window [W].
+    pub predicted: Vec<f64>,
+    /// Whether the reading's trial was rejected by a filter.
+    pub rejected: Vec<bool>,
+    /// Sensor averaging window used [s].
+    pub window_s: f64,
+    /// Sensor lag used [s].
+    pub lag_s: f64,
+}
+
+/// The IMU balance filter as the viewer shows it: its statistic per trial and its threshold.
+#[derive(Debug, Clone, Default)]
+pub struct ImuFilterMarks {
+    /// The threshold factor k (threshold = k × median σ|ω|).
+    pub k: f64,
+    /// The threshold [rad/s].
+    pub threshold: f64,
+    /// Per trial: trajectory window start, end [s] and σ|ω| over it [rad/s].
+    pub spans: Vec<(f64, f64, f64)>,
 }
 
 /// Per-trajectory (aggregated) prediction, one per trial.
@@ -78,6 +108,8 @@ pub struct TrajectoryPoint {
     pub measured: f64,
     /// Predicted mean net power [W].
     pub predicted: f64,
+    /// Whether a filter rejected the trial.
+    pub rejected: bool,
 }
 
 /// Per-joint loss-term time series [W] (the model's breakdown per sample).
@@ -131,19 +163,27 @@ pub struct DiagnosisOverlay {
     pub summary: String,
     /// The twin re-run on the recording's commands (`diagnose --counterpart`).
     pub counterpart: Option<crate::diagnose::counterpart::CounterpartSeries>,
+    /// Prediction with the terms found beyond the library [W], per reading (empty when none).
+    pub found: Vec<f64>,
+    /// The recorded fields the found terms follow, per reading: (field name, values).
+    pub located: Vec<(String, Vec<f64>)>,
 }
 
 /// What later stages add to a replay. Plain data so identify/diagnose need no Rerun types.
 #[derive(Debug, Clone, Default)]
 pub struct ReplayExtras {
-    /// Identified-model predictions per sample.
+    /// Identified-model predictions per sample (context).
     pub prediction: Option<PowerPrediction>,
+    /// Identified-model predictions at the power readings, like for like.
+    pub readings: Option<ReadingPrediction>,
     /// Identified-model predictions per trajectory.
     pub trajectories: Vec<TrajectoryPoint>,
     /// Loss terms per joint.
     pub terms: Option<TermSeries>,
     /// Trial windows with rejection marks.
     pub trials: Vec<TrialMark>,
+    /// The IMU filter's statistic and threshold.
+    pub imu_filter: Option<ImuFilterMarks>,
     /// Diagnosis before/after.
     pub diagnosis: Option<DiagnosisOverlay>,
 }
@@ -159,25 +199,11 @@ pub struct ReplaySummary {
     pub warnings: Vec<String>,
 }
 
+/// How often the arm links' loss colours are updated [Hz].
+const LINK_COLOUR_RATE_HZ: f64 = 10.0;
+
 /// Tuid namespace of the replay's own rows (other writers on the same stream use others).
 const REPLAY_NAMESPACE: u64 = 0x0001_0000_0000_0000;
-
-/// Eight distinguishable colours (one per joint, then reused).
-const PALETTE: [[u8; 3]; 8] = [
-    [31, 119, 180],
-    [255, 127, 14],
-    [44, 160, 44],
-    [214, 39, 40],
-    [148, 103, 189],
-    [140, 86, 75],
-    [227, 119, 194],
-    [127, 127, 127],
-];
-
-fn color(i: usize) -> Color {
-    let [r, g, b] = PALETTE[i % PALETTE.len()];
-    Color::from_rgb(r, g, b)
-}
 
 /// Where the 3D camera looks: the mean position of the links that move with the arm, at the
 /// zero pose (the model root if none moves).
@@ -195,6 +221,33 @@ fn arm_center(robot: &RobotModel, arm: &ArmJoints) -> [f32; 3] {
     }
     let mean = moving.iter().sum::<nalgebra::Vector3<f64>>() / moving.len() as f64;
     [mean.x as f32, mean.y as f32, mean.z as f32]
+}
+
+/// The viewer layout of a replay with `extras` (`joints`: the short joint names).
+pub fn layout(
+    robot: &RobotModel,
+    arm: &ArmJoints,
+    joints: &[String],
+    extras: &ReplayExtras,
+) -> blueprint::Node {
+    let parts = LayoutParts {
+        model: extras.prediction.is_some()
+            || extras.readings.is_some()
+            || extras.terms.is_some()
+            || !extras.trajectories.is_empty(),
+        diagnosis: extras.diagnosis.is_some(),
+        counterpart: extras
+            .diagnosis
+            .as_ref()
+            .is_some_and(|d| d.counterpart.is_some()),
+        trials: !extras.trials.is_empty(),
+        imu_filter: extras.imu_filter.is_some(),
+        located: extras
+            .diagnosis
+            .as_ref()
+            .is_some_and(|d| !d.located.is_empty()),
+    };
+    blueprint::replay_layout(joints, parts, arm_center(robot, arm))
 }
 
 /// Logs `rec` (and `extras`) to `stream`: arm animation, joint and power series, model/diagnosis
@@ -295,6 +348,8 @@ pub struct ReplayLogger<'a> {
     q0: Option<[f64; N_JOINTS]>,
     motion_t: f64,
     command_style_sent: bool,
+    /// Yaw of the first IMU orientation (removed, so the body starts facing +X).
+    yaw0: Option<f64>,
     /// The ~1 Hz power readings (≈ 60 kB per hour), logged by `finish`.
     mbs: PowerSeries,
     bms: PowerSeries,
@@ -329,18 +384,15 @@ impl<'a> ReplayLogger<'a> {
         let mut summary = ReplaySummary::default();
         let mut w = ChunkWriter::new(stream, REPLAY_NAMESPACE, start_ns);
         if opts.blueprint {
-            let parts = LayoutParts {
-                model: extras.prediction.is_some()
-                    || extras.terms.is_some()
-                    || !extras.trajectories.is_empty(),
-                diagnosis: extras.diagnosis.is_some(),
-                counterpart: extras
-                    .diagnosis
-                    .as_ref()
-                    .is_some_and(|d| d.counterpart.is_some()),
-                trials: !extras.trials.is_empty(),
-            };
-            let layout = blueprint::replay_layout(&joints, parts, arm_center(robot, arm));
+            let mut layout = layout(robot, arm, &joints, extras);
+            if let Some(tab) = &opts.open_tab
+                && !layout.open_tab(tab)
+            {
+                bail!(
+                    "no tab {tab:?} in the layout (tabs: {})",
+                    layout.tab_names().join(", ")
+                );
+            }
             blueprint::send_blueprint(stream, &layout)?;
             // The blueprint bypasses the batcher: flush so it reaches the sink before any data
             // chunk (a fixed message order is part of the reproducible output).
@@ -348,6 +400,7 @@ impl<'a> ReplayLogger<'a> {
                 .flush_blocking()
                 .context("sending the viewer layout")?;
         }
+        log_recording_info(&mut w, source, start_ns, &opts.properties)?;
         let scene = robot3d::log_static_robot(&mut w, robot, arm, &mut summary.warnings)?;
         log_styles(&mut w, &joints)?;
         let progress = if expected_samples > 0 {
@@ -369,6 +422,7 @@ impl<'a> ReplayLogger<'a> {
             q0: None,
             motion_t: f64::INFINITY,
             command_style_sent: false,
+            yaw0: None,
             mbs: PowerSeries::default(),
             bms: PowerSeries::default(),
             progress,
@@ -409,7 +463,7 @@ impl<'a> ReplayLogger<'a> {
                 ] {
                     scalars(
                         &mut self.w,
-                        &format!("joints/{name}/{signal}"),
+                        &paths::joint(name, signal),
                         t,
                         data[start..end].iter().map(|v| v[j]),
                     )?;
@@ -417,7 +471,7 @@ impl<'a> ReplayLogger<'a> {
             }
             scalars(
                 &mut self.w,
-                "imu/gyro_norm",
+                paths::IMU_GYRO_NORM,
                 t,
                 st.gyro[start..end]
                     .iter()
@@ -444,6 +498,10 @@ impl<'a> ReplayLogger<'a> {
                 &pose_t,
                 &pose_q,
             )?;
+            if st.quat.len() == st.t.len() {
+                let quats: Vec<[f64; 4]> = pose_idx.iter().map(|&i| st.quat[i]).collect();
+                robot3d::log_body_orientation(&mut self.w, &mut self.yaw0, &pose_t, &quats)?;
+            }
             self.progress.inc((end - start) as u64);
         }
         self.summary.samples += n;
@@ -451,12 +509,13 @@ impl<'a> ReplayLogger<'a> {
         let cmd = &part.command;
         if !cmd.t.is_empty() && !self.command_style_sent {
             for (j, name) in self.joints.iter().enumerate() {
-                let style = SeriesLines::new()
-                    .with_names([format!("{name} cmd")])
-                    .with_colors([color(j)])
-                    .with_widths([0.5]);
-                self.w
-                    .send_static(&format!("joints/{name}/q_cmd"), &style)?;
+                style::line(
+                    &mut self.w,
+                    &paths::joint(name, "q_cmd"),
+                    &format!("{name} cmd"),
+                    style::joint_command(j),
+                    0.75,
+                )?;
             }
             self.command_style_sent = true;
         }
@@ -465,7 +524,7 @@ impl<'a> ReplayLogger<'a> {
             for (j, name) in self.joints.iter().enumerate() {
                 scalars(
                     &mut self.w,
-                    &format!("joints/{name}/q_cmd"),
+                    &paths::joint(name, "q_cmd"),
                     &cmd.t[start..end],
                     cmd.q[start..end].iter().map(|v| v[j]),
                 )?;
@@ -492,7 +551,7 @@ impl<'a> ReplayLogger<'a> {
             }
             scalars_chunked(
                 w,
-                &format!("power/{label}/raw"),
+                &paths::power_raw(label),
                 &series.t,
                 &series.watts,
                 self.chunk,
@@ -503,7 +562,7 @@ impl<'a> ReplayLogger<'a> {
                     let net: Vec<f64> = series.watts.iter().map(|p| p - base).collect();
                     scalars_chunked(
                         w,
-                        &format!("power/{label}/net"),
+                        &paths::power_net(label),
                         &series.t,
                         &net,
                         self.chunk,
@@ -517,7 +576,12 @@ impl<'a> ReplayLogger<'a> {
                 )),
             }
         }
-        log_extras(w, &self.joints, extras, self.chunk)?;
+        let scale = extras.terms.as_ref().map_or(1.0, layers::colour_scale);
+        layers::log_extras(w, &self.joints, extras, self.chunk, scale)?;
+        if let Some(terms) = &extras.terms {
+            let (t, power) = layers::decimated_joint_power(terms, LINK_COLOUR_RATE_HZ);
+            robot3d::log_link_colors(w, self.robot, self.arm, &self.scene, &t, &power, scale)?;
+        }
         Ok(self.summary)
     }
 }
@@ -569,7 +633,7 @@ pub fn idle_baseline(series: &PowerSeries, motion_t: f64) -> Option<f64> {
     (!idle.is_empty()).then(|| idle.iter().sum::<f64>() / idle.len() as f64)
 }
 
-fn scalars(
+pub(super) fn scalars(
     w: &mut ChunkWriter<'_>,
     path: &str,
     t: &[f64],
@@ -581,7 +645,7 @@ fn scalars(
     w.send_columns(path, t, Scalars::new(values).columns_of_unit_batches()?)
 }
 
-fn scalars_chunked(
+pub(super) fn scalars_chunked(
     w: &mut ChunkWriter<'_>,
     path: &str,
     t: &[f64],
@@ -596,222 +660,53 @@ fn scalars_chunked(
     Ok(())
 }
 
-fn line(w: &mut ChunkWriter<'_>, path: &str, name: &str, c: Color) -> Result<()> {
-    w.send_static(
-        path,
-        &SeriesLines::new().with_names([name]).with_colors([c]),
-    )
-}
-
-/// Static legend names and colours of every series (the command's are sent with its first
-/// samples, since a streamed session only shows whether it has any when they arrive).
+/// Static legend names and colours of the recorded series (the command's are sent with its
+/// first samples, since a streamed session only shows whether it has any when they arrive).
 fn log_styles(w: &mut ChunkWriter<'_>, joints: &[String]) -> Result<()> {
     for (j, name) in joints.iter().enumerate() {
         for signal in ["q", "dq", "tau", "temperature"] {
-            line(w, &format!("joints/{name}/{signal}"), name, color(j))?;
+            style::line(w, &paths::joint(name, signal), name, style::joint(j), 1.5)?;
         }
     }
-    line(w, "imu/gyro_norm", "|ω| body", color(7))?;
-    line(w, "power/mbs/raw", "MBS raw", color(0))?;
-    line(w, "power/mbs/net", "MBS net", color(1))?;
-    line(w, "power/bms/raw", "BMS raw", color(2))?;
-    line(w, "power/bms/net", "BMS net", color(3))
+    style::line(w, paths::IMU_GYRO_NORM, "|ω| body", style::NEUTRAL, 1.0)?;
+    style::line(w, &paths::power_raw("mbs"), "MBS raw", style::MBS, 1.5)?;
+    style::line(w, &paths::power_net("mbs"), "MBS net", style::MBS, 1.5)?;
+    style::line(w, &paths::power_raw("bms"), "BMS raw", style::BMS, 1.5)?;
+    style::line(w, &paths::power_net("bms"), "BMS net", style::BMS, 1.5)
 }
 
-fn log_extras(
+/// The recording's name (the input file's), its real start time, and its properties (input,
+/// g1viz version, and `extra`, e.g. command and model), as the viewer's recording properties.
+fn log_recording_info(
     w: &mut ChunkWriter<'_>,
-    joints: &[String],
-    extras: &ReplayExtras,
-    chunk: usize,
+    source: &std::path::Path,
+    start_ns: u64,
+    extra: &[(String, String)],
 ) -> Result<()> {
-    if let Some(p) = &extras.prediction {
-        line(w, "model/power/measured_net", "measured net", color(1))?;
-        line(w, "model/power/predicted", "predicted", color(4))?;
-        line(
-            w,
-            "model/error/sample",
-            "error (measured − predicted)",
-            color(3),
-        )?;
-        scalars_chunked(w, "model/power/measured_net", &p.t, &p.measured_net, chunk)?;
-        scalars_chunked(w, "model/power/predicted", &p.t, &p.predicted, chunk)?;
-        let err: Vec<f64> = p
-            .measured_net
-            .iter()
-            .zip(&p.predicted)
-            .map(|(m, q)| m - q)
-            .collect();
-        scalars_chunked(w, "model/error/sample", &p.t, &err, chunk)?;
+    let name = source.file_name().map_or_else(
+        || source.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    );
+    let start = rerun::components::Timestamp((start_ns.min(i64::MAX as u64) as i64).into());
+    w.send_static(
+        paths::PROPERTIES,
+        &RecordingInfo::new().with_name(name).with_start_time(start),
+    )?;
+    let mut props = vec![
+        ("input".to_owned(), source.display().to_string()),
+        (
+            "version".to_owned(),
+            format!("g1viz {}", env!("CARGO_PKG_VERSION")),
+        ),
+    ];
+    props.extend(extra.iter().cloned());
+    let mut values = AnyValues::default();
+    for (k, text) in &props {
+        let field = rerun::ComponentIdentifier::try_new(k.as_str())
+            .with_context(|| format!("recording property name {k:?}"))?;
+        values = values.with_component::<rerun::components::Text>(field, [text.as_str()]);
     }
-    if !extras.trajectories.is_empty() {
-        w.send_static(
-            "model/error/trajectory",
-            &SeriesPoints::new()
-                .with_names(["error per trajectory"])
-                .with_colors([color(6)])
-                .with_marker_sizes([4.0]),
-        )?;
-        let t: Vec<f64> = extras.trajectories.iter().map(|p| p.t).collect();
-        let e: Vec<f64> = extras
-            .trajectories
-            .iter()
-            .map(|p| p.measured - p.predicted)
-            .collect();
-        scalars_chunked(w, "model/error/trajectory", &t, &e, chunk)?;
-    }
-    if let Some(terms) = &extras.terms {
-        for (j, name) in joints.iter().enumerate() {
-            for (k, (term, data)) in [
-                ("mechanical", &terms.mechanical),
-                ("copper", &terms.copper),
-                ("coulomb", &terms.coulomb),
-                ("viscous", &terms.viscous),
-            ]
-            .into_iter()
-            .enumerate()
-            {
-                let path = format!("model/terms/{name}/{term}");
-                line(w, &path, term, color(k))?;
-                let n = terms.t.len().min(data.len());
-                for start in (0..n).step_by(chunk) {
-                    let end = (start + chunk).min(n);
-                    scalars(
-                        w,
-                        &path,
-                        &terms.t[start..end],
-                        data[start..end].iter().map(|v| v[j]),
-                    )?;
-                }
-            }
-        }
-        line(
-            w,
-            "model/terms/interaction/total",
-            "interaction total",
-            color(4),
-        )?;
-        scalars_chunked(
-            w,
-            "model/terms/interaction/total",
-            &terms.t,
-            &terms.interaction,
-            chunk,
-        )?;
-    }
-    log_trials(w, "trials", &extras.trials)?;
-    if let Some(d) = &extras.diagnosis {
-        line(w, "diagnosis/power/measured", "measured net", color(1))?;
-        line(w, "diagnosis/power/before", "base model", color(7))?;
-        line(
-            w,
-            "diagnosis/power/after",
-            "with accepted hypotheses",
-            color(2),
-        )?;
-        line(w, "diagnosis/error/before", "error base model", color(7))?;
-        line(
-            w,
-            "diagnosis/error/after",
-            "error with hypotheses",
-            color(2),
-        )?;
-        scalars_chunked(w, "diagnosis/power/measured", &d.t, &d.measured, chunk)?;
-        scalars_chunked(w, "diagnosis/power/before", &d.t, &d.before, chunk)?;
-        scalars_chunked(w, "diagnosis/power/after", &d.t, &d.after, chunk)?;
-        let eb: Vec<f64> = d
-            .measured
-            .iter()
-            .zip(&d.before)
-            .map(|(m, p)| m - p)
-            .collect();
-        let ea: Vec<f64> = d
-            .measured
-            .iter()
-            .zip(&d.after)
-            .map(|(m, p)| m - p)
-            .collect();
-        scalars_chunked(w, "diagnosis/error/before", &d.t, &eb, chunk)?;
-        scalars_chunked(w, "diagnosis/error/after", &d.t, &ea, chunk)?;
-        log_trials(w, "diagnosis/trials", &d.highlighted)?;
-        if let Some(cp) = &d.counterpart {
-            line(
-                w,
-                "diagnosis/power/twin",
-                "twin on the same commands",
-                color(4),
-            )?;
-            scalars_chunked(w, "diagnosis/power/twin", &cp.power_t, &cp.power_w, chunk)?;
-            for (j, name) in joints.iter().enumerate() {
-                let path = format!("diagnosis/torque/{name}");
-                line(w, &path, &format!("{name} τ recording − twin"), color(j))?;
-                let v: Vec<f64> = cp.tau_diff.iter().map(|x| x[j]).collect();
-                scalars_chunked(w, &path, &cp.tau_t, &v, chunk)?;
-            }
-        }
-        w.send_static(
-            "diagnosis/summary",
-            &TextDocument::from_markdown(d.summary.clone()),
-        )?;
-    }
-    Ok(())
-}
-
-/// A log line per trial at its start and 0/1 bands (`<prefix>/active`, `<prefix>/rejected`).
-fn log_trials(w: &mut ChunkWriter<'_>, prefix: &str, trials: &[TrialMark]) -> Result<()> {
-    if trials.is_empty() {
-        return Ok(());
-    }
-    let mut order: Vec<&TrialMark> = trials.iter().collect();
-    order.sort_by(|a, b| a.t_start.total_cmp(&b.t_start).then(a.index.cmp(&b.index)));
-    let t: Vec<f64> = order.iter().map(|m| m.t_start).collect();
-    let texts: Vec<String> = order
-        .iter()
-        .map(|m| match (&m.rejected, &m.highlight) {
-            (Some(r), _) => format!(
-                "trial {}: REJECTED by {} ({r}) {}",
-                m.index,
-                r.reason.name(),
-                m.label
-            ),
-            (None, Some(why)) => format!("trial {}: {why} {}", m.index, m.label),
-            (None, None) => format!("trial {}: {}", m.index, m.label),
-        })
-        .collect();
-    let levels: Vec<TextLogLevel> = order
-        .iter()
-        .map(|m| {
-            if m.rejected.is_some() || m.highlight.is_some() {
-                TextLogLevel::WARN.into()
-            } else {
-                TextLogLevel::INFO.into()
-            }
-        })
-        .collect();
-    let columns = TextLog::update_fields()
-        .with_many_text(texts)
-        .with_many_level(levels)
-        .columns_of_unit_batches()?;
-    w.send_columns(&format!("{prefix}/log"), &t, columns)?;
-
-    // Bands: 1 inside a window, 0 outside (two points per edge so the step is sharp).
-    for (band, keep) in [("active", false), ("rejected", true)] {
-        let mut bt = Vec::new();
-        let mut bv = Vec::new();
-        for m in order
-            .iter()
-            .filter(|m| !keep || m.rejected.is_some() || m.highlight.is_some())
-        {
-            bt.extend([m.t_start, m.t_start, m.t_end, m.t_end]);
-            bv.extend([0.0, 1.0, 1.0, 0.0]);
-        }
-        if bt.is_empty() {
-            continue;
-        }
-        let path = format!("{prefix}/{band}");
-        line(w, &path, band, if keep { color(3) } else { color(7) })?;
-        w.send_columns(&path, &bt, Scalars::new(bv).columns_of_unit_batches()?)?;
-    }
-    Ok(())
+    w.send_static(&format!("{}/g1viz", paths::PROPERTIES), &values)
 }
 
 fn progress_bar(enabled: bool, len: u64) -> ProgressBar {

@@ -1,19 +1,22 @@
 //! The robot in 3D: static link geometry (URDF meshes via `Asset3D`, primitives otherwise) and
 //! link poses animated from the recorded joint positions.
 //!
-//! Layout (flat): `robot/<link>` carries the link's world pose (relative to `robot`, which is the
-//! model root) as a `Transform3D`; `robot/<link>/visual<k>` carries the visual's origin in the link
-//! frame (static `Transform3D`, with the mesh scale) and its shape. Links whose pose does not
-//! depend on the arm joints get one static pose; the others one pose per logged sample.
+//! Layout (flat): `robot` is the model root (the pelvis), oriented in the world by the recorded
+//! IMU quaternion (yaw of the first sample removed), so the body's sway shows; `robot/<link>`
+//! carries the link's pose relative to the root as a `Transform3D` (and, for the arm links,
+//! small axes: the joint frames); `robot/<link>/visual<k>` carries the visual's origin in the
+//! link frame (static `Transform3D`, with the mesh scale) and its shape. Links whose pose does
+//! not depend on the arm joints get one static pose; the others one pose per logged sample.
 
 use anyhow::Result;
 use nalgebra::Isometry3;
 use rerun::components::FillMode;
 use rerun::{
-    Asset3D, Boxes3D, Color, Cylinders3D, Ellipsoids3D, Quaternion, Transform3D, ViewCoordinates,
+    Asset3D, Boxes3D, Color, Cylinders3D, Ellipsoids3D, Quaternion, Transform3D, TransformAxes3D,
+    ViewCoordinates,
 };
 
-use super::ChunkWriter;
+use super::{ChunkWriter, paths};
 use crate::N_JOINTS;
 use crate::robot::{ArmJoints, Geometry, RobotModel};
 
@@ -51,7 +54,7 @@ fn link_path(name: &str) -> String {
             }
         })
         .collect();
-    format!("robot/{clean}")
+    format!("{}/{clean}", paths::ROBOT)
 }
 
 /// Logs the static parts: view coordinates, geometry, the pose of every link that never moves.
@@ -62,11 +65,16 @@ pub(super) fn log_static_robot(
     arm: &ArmJoints,
     warnings: &mut Vec<String>,
 ) -> Result<ArmScene> {
-    w.send_static("robot", &ViewCoordinates::RIGHT_HAND_Z_UP())?;
+    w.send_static("/", &ViewCoordinates::RIGHT_HAND_Z_UP())?;
     // Two different joint vectors: a link moves with the arm iff its pose changes between them
     // (exact for the tree-structured FK; no joint happens to map both vectors to the same pose).
     let home = robot.link_poses(arm, &[0.0; N_JOINTS]);
     let probe = robot.link_poses(arm, &[0.5, -0.4, 0.3, -0.6, 0.7, -0.5, 0.4]);
+    let arm_links: Vec<usize> = arm
+        .joints
+        .iter()
+        .filter_map(|&j| robot.joints().get(j).map(|jt| jt.child_link))
+        .collect();
     let mut scene = ArmScene {
         paths: Vec::new(),
         moving: Vec::new(),
@@ -79,6 +87,10 @@ pub(super) fn log_static_robot(
         };
         if moving {
             scene.moving.push(i);
+            if arm_links.contains(&i) {
+                // The joint frame: short axes at the arm link's origin (its joint).
+                w.send_static(&path, &TransformAxes3D::new(0.06))?;
+            }
         } else if let Some(pose) = home.get(i) {
             w.send_static(&path, &to_transform(pose))?;
         }
@@ -171,6 +183,106 @@ pub(super) fn log_link_poses(
             .with_many_quaternion(std::mem::take(&mut rotations[k]))
             .columns_of_unit_batches()?;
         w.send_columns(&scene.paths[link], t, columns)?;
+    }
+    Ok(())
+}
+
+/// Logs the body (model root) orientation from the IMU quaternions `quat` (w, x, y, z) at `t`:
+/// the yaw of the first orientation (kept in `yaw0`) is removed so the robot starts facing the
+/// same way whatever its heading was; roll, pitch and any later yaw change show as recorded.
+/// Non-finite or zero quaternions are replaced by the identity.
+pub(super) fn log_body_orientation(
+    w: &mut ChunkWriter<'_>,
+    yaw0: &mut Option<f64>,
+    t: &[f64],
+    quat: &[[f64; 4]],
+) -> Result<()> {
+    use nalgebra::{Quaternion as Q, UnitQuaternion};
+    if t.is_empty() {
+        return Ok(());
+    }
+    let unit = |q: &[f64; 4]| -> UnitQuaternion<f64> {
+        let raw = Q::new(q[0], q[1], q[2], q[3]);
+        if q.iter().all(|x| x.is_finite()) && raw.norm() > 1e-9 {
+            UnitQuaternion::from_quaternion(raw)
+        } else {
+            UnitQuaternion::identity()
+        }
+    };
+    let first = *yaw0.get_or_insert_with(|| unit(&quat[0]).euler_angles().2);
+    let unyaw = UnitQuaternion::from_euler_angles(0.0, 0.0, -first);
+    let rotations: Vec<Quaternion> = quat
+        .iter()
+        .map(|q| {
+            let r = unyaw * unit(q);
+            let c = r.quaternion();
+            Quaternion::from_xyzw([c.i as f32, c.j as f32, c.k as f32, c.w as f32])
+        })
+        .collect();
+    let columns = Transform3D::update_fields()
+        .with_many_quaternion(rotations)
+        .columns_of_unit_batches()?;
+    w.send_columns(paths::ROBOT, t, columns)
+}
+
+/// Colour of a joint's predicted power `p` on a scale of `full` W: grey at 0, red at `full`
+/// and above, blue for negative power (copper below the holding torque, braking).
+pub(super) fn loss_colour(p: f64, full: f64) -> Color {
+    const GREY: [f64; 3] = [180.0, 180.0, 190.0];
+    let (x, target) = if p >= 0.0 {
+        ((p / full).min(1.0), [230.0, 50.0, 50.0])
+    } else {
+        ((-p / full).min(1.0), [60.0, 120.0, 230.0])
+    };
+    let x = if x.is_finite() { x } else { 0.0 };
+    let c = |i: usize| (GREY[i] + (target[i] - GREY[i]) * x).round() as u8;
+    Color::from_rgb(c(0), c(1), c(2))
+}
+
+/// Colours each arm joint's child link by the joint's predicted power `power[k][j]` at `t[k]`
+/// (see [`loss_colour`]; the scale `full` [W] is stated in the view's note).
+pub(super) fn log_link_colors(
+    w: &mut ChunkWriter<'_>,
+    robot: &RobotModel,
+    arm: &ArmJoints,
+    scene: &ArmScene,
+    t: &[f64],
+    power: &[[f64; N_JOINTS]],
+    full: f64,
+) -> Result<()> {
+    if t.is_empty() {
+        return Ok(());
+    }
+    for (j, &joint) in arm.joints.iter().enumerate() {
+        let Some(child) = robot.joints().get(joint).map(|jt| jt.child_link) else {
+            continue;
+        };
+        let (Some(link), Some(path)) = (robot.links().get(child), scene.paths.get(child)) else {
+            continue;
+        };
+        let colours: Vec<Color> = power.iter().map(|p| loss_colour(p[j], full)).collect();
+        for (k, visual) in link.visuals.iter().enumerate() {
+            let vpath = format!("{path}/visual{k}");
+            let columns = match visual.geometry {
+                Geometry::Box { .. } => Boxes3D::update_fields()
+                    .with_colors(colours.clone())
+                    .columns_of_unit_batches()?
+                    .collect::<Vec<_>>(),
+                Geometry::Cylinder { .. } => Cylinders3D::update_fields()
+                    .with_colors(colours.clone())
+                    .columns_of_unit_batches()?
+                    .collect::<Vec<_>>(),
+                Geometry::Sphere { .. } => Ellipsoids3D::update_fields()
+                    .with_colors(colours.clone())
+                    .columns_of_unit_batches()?
+                    .collect::<Vec<_>>(),
+                Geometry::Mesh { .. } => Asset3D::update_fields()
+                    .with_many_albedo_factor(colours.iter().map(|c| c.0))
+                    .columns_of_unit_batches()?
+                    .collect::<Vec<_>>(),
+            };
+            w.send_columns(&vpath, t, columns)?;
+        }
     }
     Ok(())
 }

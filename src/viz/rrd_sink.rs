@@ -97,7 +97,7 @@ impl LogSink for RrdFileSink {
         if let LogMsg::SetStoreInfo(info) = &mut msg {
             // The SDK stamps this message with the wall clock; derive it from the store id instead.
             let id = info.info.store_id.recording_id().as_str();
-            let h = super::stable_hash(&[id.as_bytes()]);
+            let h = crate::read::fingerprint::stable_hash(&[id.as_bytes()]);
             info.row_id = Tuid::from_nanos_and_inc(h >> 1, 0);
         }
         let mut state = lock(&self.state);

@@ -1,0 +1,43 @@
+#!/usr/bin/env bash
+# Regenerates docs/img/*.png: the shipped example replayed with the paper's model
+# (`g1viz replay examples/g1_example.mcap --model paper`), one screenshot per tab of the layout,
+# taken in the stock Rerun 0.36.3 web viewer in headless Chromium (software WebGL under Xvfb).
+#
+# Needs: cargo; `pip install rerun-sdk==0.36.3 websocket-client`; Debian packages
+# `xvfb chromium`. Run from anywhere: docs/screenshots.sh [WAIT_SECONDS]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+wait_s="${1:-30}"
+work="$(mktemp -d)"
+pids=()
+cleanup() {
+    for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done
+    rm -rf "$work"
+}
+trap cleanup EXIT
+
+cargo run --quiet --example docs_views -- "$work/rrd" > "$work/list.tsv"
+mkdir -p docs/img
+
+free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])'; }
+devtools="$(free_port)"
+xvfb-run -a -s "-screen 0 1920x1080x24" chromium --headless --no-sandbox \
+    --use-gl=angle --use-angle=swiftshader --enable-unsafe-swiftshader --ignore-gpu-blocklist \
+    --disable-background-networking --disable-component-update --no-first-run \
+    --user-data-dir="$work/chrome" --window-size=1920,1080 \
+    --remote-debugging-port="$devtools" about:blank > "$work/chrome.log" 2>&1 &
+pids+=($!)
+for _ in $(seq 50); do curl -s "http://127.0.0.1:$devtools/json" > /dev/null && break; sleep 0.2; done
+
+while IFS=$'\t' read -r rrd tab; do
+    name="$(basename "$rrd" .rrd)"
+    grpc="$(free_port)"; web="$(free_port)"
+    rerun --serve-web "$rrd" --port "$grpc" --web-viewer-port "$web" > "$work/$name.log" 2>&1 &
+    server=$!
+    pids+=("$server")
+    for _ in $(seq 100); do curl -s "http://127.0.0.1:$web" > /dev/null && break; sleep 0.2; done
+    url="http://127.0.0.1:$web/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A$grpc%2Fproxy"
+    python3 docs/cdp_screenshot.py "$devtools" "$wait_s" "$url" "docs/img/$name.png"
+    kill "$server"; wait "$server" 2>/dev/null || true
+    echo "$name: $tab"
+done < "$work/list.tsv"

@@ -1,0 +1,89 @@
+//! Writes the `.rrd` files the screenshots in `docs/` are taken from: the shipped example session
+//! replayed as `g1viz replay examples/g1_example.mcap --model paper` does, once per tab of the
+//! layout, each opening on its tab (`docs/screenshots.sh` serves and photographs them).
+//!
+//! `cargo run --example docs_views -- OUT_DIR` writes `OUT_DIR/<n>-<tab>.rrd` (n = 0 is the
+//! layout as it opens) and prints one line per file: `<file>\t<tab name>`.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+
+use g1viz::identify::pipeline::IdentifyOptions;
+use g1viz::power::PowerModel;
+use g1viz::robot::RobotModel;
+use g1viz::signals::{SignalMap, load_recording};
+use g1viz::viz::replay::{ReplayOptions, log_replay};
+use g1viz::viz::{OutputKind, Sink, open_stream, overlay, recording_id_for, short_joint_name};
+
+fn main() -> Result<()> {
+    let out = PathBuf::from(
+        std::env::args()
+            .nth(1)
+            .context("usage: docs_views OUT_DIR")?,
+    );
+    std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
+    let session = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("examples/g1_example.mcap");
+    let rec = load_recording(&session, &SignalMap::g1_left_arm(), &Default::default())?;
+    let robot = RobotModel::builtin();
+    let arm = robot.arm(&rec.joint_names)?;
+    let (extras, _) = overlay::model_extras(&rec, &PowerModel::PAPER, &IdentifyOptions::default())?;
+    let kind = OutputKind::ModelReplay;
+    let mut tabs: Vec<Option<String>> = vec![None];
+    let joints: Vec<String> = rec
+        .joint_names
+        .iter()
+        .map(|n| short_joint_name(n))
+        .collect();
+    let layout = g1viz::viz::replay::layout(&robot, &arm, &joints, &extras);
+    tabs.extend(layout.tab_names().into_iter().map(Some));
+    for (n, tab) in tabs.iter().enumerate() {
+        let slug: String = tab
+            .as_deref()
+            .unwrap_or("default")
+            .chars()
+            .map(|c| {
+                if c.is_ascii_alphanumeric() {
+                    c.to_ascii_lowercase()
+                } else {
+                    '-'
+                }
+            })
+            .collect();
+        let file = out.join(format!("{n}-{slug}.rrd"));
+        let viz = open_stream(
+            &kind.app_id(),
+            &kind.recording_id(&recording_id_for(&rec)),
+            &Sink::Save(file.clone()),
+            &[&session],
+        )?;
+        let opts = ReplayOptions {
+            progress: false,
+            pose_rate_hz: Some(30.0),
+            open_tab: tab.clone(),
+            properties: vec![
+                ("command".into(), "replay --model paper".into()),
+                ("model".into(), "paper".into()),
+            ],
+            ..Default::default()
+        };
+        log_replay(&rec, &robot, &arm, &extras, &opts, viz.stream())?;
+        viz.finish()?;
+        println!(
+            "{}\t{}",
+            file.display(),
+            tab.as_deref().unwrap_or("(as it opens)")
+        );
+    }
+    Ok(())
+}
+
+/// `Raw power MBS/BMS [W]` → `raw-power-mbs-bms-w`.
+fn slug(name: &str) -> String {
+    let words: Vec<String> = name
+        .split(|c: char| !c.is_ascii_alphanumeric())
+        .filter(|w| !w.is_empty())
+        .map(str::to_ascii_lowercase)
+        .collect();
+    words.join("-")
+}

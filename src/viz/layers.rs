@@ -1,0 +1,635 @@
+//! What a model or a diagnosis adds to a replay, logged: the power readings next to the
+//! like-for-like prediction and their errors, the loss terms (per joint, per term, per trial),
+//! the IMU filter's statistic and threshold, the trial track and log, the diagnosis overlay.
+
+use anyhow::Result;
+use rerun::components::{InterpolationMode, MarkerShape, TextLogLevel};
+use rerun::{BarChart, SeriesLines, TextDocument, TextLog};
+
+use super::replay::{
+    DiagnosisOverlay, ImuFilterMarks, ReadingPrediction, ReplayExtras, TermSeries, TrajectoryPoint,
+    TrialMark, scalars, scalars_chunked,
+};
+use super::{ChunkWriter, paths, style};
+use crate::N_JOINTS;
+
+/// Logs everything `extras` holds.
+/// `colour_scale`: the power [W] at which an arm link is drawn fully red (stated in the note).
+pub(super) fn log_extras(
+    w: &mut ChunkWriter<'_>,
+    joints: &[String],
+    extras: &ReplayExtras,
+    chunk: usize,
+    colour_scale: f64,
+) -> Result<()> {
+    if let Some(p) = &extras.prediction {
+        style::line(
+            w,
+            paths::MODEL_PREDICTED,
+            "predicted, instantaneous (context)",
+            style::PREDICTED_CONTEXT,
+            0.75,
+        )?;
+        scalars_chunked(w, paths::MODEL_PREDICTED, &p.t, &p.predicted, chunk)?;
+    }
+    if let Some(r) = &extras.readings {
+        log_readings(w, r, chunk)?;
+    }
+    log_trajectories(w, &extras.trajectories)?;
+    if let Some(terms) = &extras.terms {
+        log_terms(w, joints, terms, chunk)?;
+        log_breakdown(w, joints, terms, chunk)?;
+        log_bars(w, terms, &extras.trials)?;
+        w.send_static(
+            paths::BREAKDOWN_NOTE,
+            &TextDocument::from_markdown(breakdown_note(joints, colour_scale)),
+        )?;
+    }
+    if let Some(imu) = &extras.imu_filter {
+        log_imu_filter(w, imu)?;
+    }
+    log_trials(w, paths::TRIALS, &extras.trials, "rejected", true)?;
+    if let Some(d) = &extras.diagnosis {
+        log_diagnosis(w, joints, d, chunk)?;
+    }
+    Ok(())
+}
+
+/// Values of `v` where `keep` says so, with their times.
+fn split(t: &[f64], v: &[f64], keep: impl Fn(usize) -> bool) -> (Vec<f64>, Vec<f64>) {
+    (0..t.len().min(v.len()))
+        .filter(|&i| keep(i))
+        .map(|i| (t[i], v[i]))
+        .unzip()
+}
+
+/// Readings: measured and like-for-like predicted at the reading stamps, and their error
+/// (readings of rejected trials in the warning colour).
+fn log_readings(w: &mut ChunkWriter<'_>, r: &ReadingPrediction, chunk: usize) -> Result<()> {
+    style::points(
+        w,
+        paths::MODEL_READING_MEASURED,
+        "measured reading (net of the trial's pre-idle)",
+        style::MEASURED,
+        MarkerShape::Circle,
+        3.0,
+    )?;
+    style::points(
+        w,
+        paths::MODEL_READING_PREDICTED,
+        &format!(
+            "predicted over the reading's window ({:.2} s, lag {:.2} s)",
+            r.window_s, r.lag_s
+        ),
+        style::PREDICTED,
+        MarkerShape::Diamond,
+        3.0,
+    )?;
+    scalars_chunked(w, paths::MODEL_READING_MEASURED, &r.t, &r.measured, chunk)?;
+    scalars_chunked(w, paths::MODEL_READING_PREDICTED, &r.t, &r.predicted, chunk)?;
+    let err: Vec<f64> = r
+        .measured
+        .iter()
+        .zip(&r.predicted)
+        .map(|(m, p)| m - p)
+        .collect();
+    let rejected = |i: usize| r.rejected.get(i).copied().unwrap_or(false);
+    let (kt, kv) = split(&r.t, &err, |i| !rejected(i));
+    let (rt, rv) = split(&r.t, &err, rejected);
+    style::points(
+        w,
+        paths::MODEL_ERROR_READING,
+        "error per reading (measured − predicted)",
+        style::ERROR,
+        MarkerShape::Circle,
+        2.5,
+    )?;
+    scalars_chunked(w, paths::MODEL_ERROR_READING, &kt, &kv, chunk)?;
+    if !rt.is_empty() {
+        style::points(
+            w,
+            paths::MODEL_ERROR_READING_REJECTED,
+            "error per reading, rejected trial",
+            style::WARNING,
+            MarkerShape::Circle,
+            2.5,
+        )?;
+        scalars_chunked(w, paths::MODEL_ERROR_READING_REJECTED, &rt, &rv, chunk)?;
+    }
+    Ok(())
+}
+
+/// Per-trajectory errors (mean reading − mean like-for-like prediction), at the trajectory end.
+fn log_trajectories(w: &mut ChunkWriter<'_>, points: &[TrajectoryPoint]) -> Result<()> {
+    for (rejected, path, name, colour, shape) in [
+        (
+            false,
+            paths::MODEL_ERROR_TRAJECTORY,
+            "error per trajectory",
+            style::ERROR_TRAJECTORY,
+            MarkerShape::Diamond,
+        ),
+        (
+            true,
+            paths::MODEL_ERROR_TRAJECTORY_REJECTED,
+            "error per trajectory, rejected trial",
+            style::WARNING,
+            MarkerShape::Cross,
+        ),
+    ] {
+        let (t, e): (Vec<f64>, Vec<f64>) = points
+            .iter()
+            .filter(|p| p.rejected == rejected)
+            .map(|p| (p.t, p.measured - p.predicted))
+            .unzip();
+        if t.is_empty() {
+            continue;
+        }
+        style::points(w, path, name, colour, shape, 6.0)?;
+        scalars(w, path, &t, e.into_iter())?;
+    }
+    Ok(())
+}
+
+/// One series per joint and term, and the interaction.
+fn log_terms(
+    w: &mut ChunkWriter<'_>,
+    joints: &[String],
+    terms: &TermSeries,
+    chunk: usize,
+) -> Result<()> {
+    for (j, name) in joints.iter().enumerate() {
+        for (k, data) in [
+            &terms.mechanical,
+            &terms.copper,
+            &terms.coulomb,
+            &terms.viscous,
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let path = paths::term(name, paths::TERMS[k]);
+            style::line(w, &path, paths::TERMS[k], style::TERMS[k], 1.5)?;
+            let n = terms.t.len().min(data.len());
+            for start in (0..n).step_by(chunk) {
+                let end = (start + chunk).min(n);
+                scalars(
+                    w,
+                    &path,
+                    &terms.t[start..end],
+                    data[start..end].iter().map(|v| v[j]),
+                )?;
+            }
+        }
+    }
+    style::line(
+        w,
+        paths::TERM_INTERACTION,
+        "interaction Σ e_ij |q̇_i||q̇_j|",
+        style::TERMS[4],
+        1.5,
+    )?;
+    scalars_chunked(
+        w,
+        paths::TERM_INTERACTION,
+        &terms.t,
+        &terms.interaction,
+        chunk,
+    )
+}
+
+/// Per sample: each term summed over the joints, and each joint's terms summed.
+fn log_breakdown(
+    w: &mut ChunkWriter<'_>,
+    joints: &[String],
+    terms: &TermSeries,
+    chunk: usize,
+) -> Result<()> {
+    let fields = [
+        &terms.mechanical,
+        &terms.copper,
+        &terms.coulomb,
+        &terms.viscous,
+    ];
+    for (k, term) in paths::TERMS.iter().enumerate() {
+        style::line(w, &paths::by_term(term), term, style::TERMS[k], 1.5)?;
+    }
+    style::line(
+        w,
+        &paths::by_term("interaction"),
+        "interaction",
+        style::TERMS[4],
+        1.5,
+    )?;
+    for (j, name) in joints.iter().enumerate() {
+        style::line(w, &paths::by_joint(name), name, style::joint(j), 1.5)?;
+    }
+    let n = fields
+        .iter()
+        .map(|f| f.len())
+        .chain([terms.t.len(), terms.interaction.len()])
+        .min()
+        .unwrap_or(0);
+    for start in (0..n).step_by(chunk) {
+        let end = (start + chunk).min(n);
+        let t = &terms.t[start..end];
+        for (k, field) in fields.iter().enumerate() {
+            let sums = field[start..end].iter().map(|v| v.iter().sum::<f64>());
+            scalars(w, &paths::by_term(paths::TERMS[k]), t, sums)?;
+        }
+        scalars(
+            w,
+            &paths::by_term("interaction"),
+            t,
+            terms.interaction[start..end].iter().copied(),
+        )?;
+        for (j, name) in joints.iter().enumerate() {
+            let sums = (start..end).map(|i| fields.iter().map(|f| f[i][j]).sum::<f64>());
+            scalars(w, &paths::by_joint(name), t, sums)?;
+        }
+    }
+    Ok(())
+}
+
+/// Per trial, at its end: bar charts of the mean power per joint (terms summed) and per term
+/// (joints summed) over the trial's window.
+fn log_bars(w: &mut ChunkWriter<'_>, terms: &TermSeries, trials: &[TrialMark]) -> Result<()> {
+    let fields = [
+        &terms.mechanical,
+        &terms.copper,
+        &terms.coulomb,
+        &terms.viscous,
+    ];
+    let n = fields
+        .iter()
+        .map(|f| f.len())
+        .chain([terms.t.len(), terms.interaction.len()])
+        .min()
+        .unwrap_or(0);
+    // Samples in time order (trial windows may overlap at their idle edges).
+    let mut order: Vec<usize> = (0..n).collect();
+    order.sort_by(|&a, &b| terms.t[a].total_cmp(&terms.t[b]));
+    let sorted_t: Vec<f64> = order.iter().map(|&i| terms.t[i]).collect();
+    for m in trials {
+        let lo = sorted_t.partition_point(|&t| t < m.t_start);
+        let hi = sorted_t.partition_point(|&t| t <= m.t_end);
+        if hi <= lo {
+            continue;
+        }
+        let count = (hi - lo) as f64;
+        let mut by_joint = [0.0; N_JOINTS];
+        let mut by_term = [0.0; 5];
+        for &i in &order[lo..hi] {
+            for (k, field) in fields.iter().enumerate() {
+                for (j, v) in field[i].iter().enumerate() {
+                    by_joint[j] += v / count;
+                    by_term[k] += v / count;
+                }
+            }
+            by_term[4] += terms.interaction[i] / count;
+        }
+        w.send_row(
+            paths::BARS_BY_JOINT,
+            m.t_end,
+            &BarChart::new(by_joint.as_slice()).with_color(style::rgb(style::PREDICTED)),
+        )?;
+        w.send_row(
+            paths::BARS_BY_TERM,
+            m.t_end,
+            &BarChart::new(by_term.as_slice()).with_color(style::rgb(style::TERMS[0])),
+        )?;
+    }
+    Ok(())
+}
+
+/// The note shown beside the breakdown: what the terms are, what the copper term is relative to.
+pub(super) fn breakdown_note(joints: &[String], colour_scale: f64) -> String {
+    let list: Vec<String> = joints
+        .iter()
+        .enumerate()
+        .map(|(j, n)| format!("{j} = {n}"))
+        .collect();
+    format!(
+        "**Where the power goes** — the model's predicted net power, split per joint *i* into \
+         mechanical *a_i τ_i q̇_i*, copper *b_i (τ_i² − τ̄0_i²)*, Coulomb *c_i \\|q̇_i\\|* and \
+         viscous *d_i q̇_i²*, plus the interaction *Σ e_ij \\|q̇_i\\|\\|q̇_j\\|*.\n\n\
+         **The copper term is relative to the holding torque τ̄0**: τ̄0_i² is joint *i*'s mean τ² \
+         in the trial's pre-idle (the arm at rest), so the term is negative whenever the arm \
+         holds less torque than it did at rest — not regeneration.\n\n\
+         Bar charts: the mean over each trial's trajectory window, logged at its end (scrub the \
+         time cursor). By joint: {}. By term: 0 = mechanical, 1 = copper, 2 = Coulomb, \
+         3 = viscous, 4 = interaction.\n\n\
+         In 3D each arm link is coloured by its joint's predicted power: grey at 0 W, red at \
+         {colour_scale:.1} W and above, blue when negative.",
+        list.join(", ")
+    )
+}
+
+/// σ|ω| per trial as bars over the trial windows (above the threshold in the warning colour),
+/// and the threshold as a line.
+fn log_imu_filter(w: &mut ChunkWriter<'_>, imu: &ImuFilterMarks) -> Result<()> {
+    let bars = |rejected: bool| -> (Vec<f64>, Vec<f64>) {
+        let mut t = Vec::new();
+        let mut v = Vec::new();
+        for &(t0, t1, s) in &imu.spans {
+            if (s > imu.threshold) == rejected && s.is_finite() {
+                t.extend([t0, t0, t1, t1]);
+                v.extend([0.0, s, s, 0.0]);
+            }
+        }
+        (t, v)
+    };
+    for (rejected, path, name, colour) in [
+        (
+            false,
+            paths::IMU_SIGMA,
+            "σ|ω| per trial (the filter's statistic)",
+            style::IMU_SIGMA,
+        ),
+        (
+            true,
+            paths::IMU_SIGMA_REJECTED,
+            "σ|ω| per trial above the threshold: rejected",
+            style::WARNING,
+        ),
+    ] {
+        let (t, v) = bars(rejected);
+        if t.is_empty() {
+            continue;
+        }
+        style::line(w, path, name, colour, 2.0)?;
+        scalars(w, path, &t, v.into_iter())?;
+    }
+    let first = imu.spans.iter().map(|s| s.0).fold(f64::INFINITY, f64::min);
+    let last = imu
+        .spans
+        .iter()
+        .map(|s| s.1)
+        .fold(f64::NEG_INFINITY, f64::max);
+    if first.is_finite() && last.is_finite() {
+        style::line(
+            w,
+            paths::IMU_THRESHOLD,
+            &format!(
+                "threshold {} × median σ|ω| = {:.4} rad/s",
+                imu.k, imu.threshold
+            ),
+            style::WARNING,
+            1.0,
+        )?;
+        scalars(
+            w,
+            paths::IMU_THRESHOLD,
+            &[first, last],
+            [imu.threshold; 2].into_iter(),
+        )?;
+    }
+    Ok(())
+}
+
+/// The text of a trial's log line: its label, and why it was rejected (filter, statistic,
+/// threshold) or where a diagnosis located its mismatch.
+fn trial_text(m: &TrialMark) -> String {
+    match (&m.rejected, &m.highlight) {
+        (Some(r), _) => format!("{} — REJECTED by {}: {r}", m.label, r.reason.name()),
+        (None, Some(why)) => format!("{} — {why}", m.label),
+        (None, None) => m.label.clone(),
+    }
+}
+
+/// Whether the trial is marked (rejected by a filter, or located by a diagnosis).
+fn marked(m: &TrialMark) -> bool {
+    m.rejected.is_some() || m.highlight.is_some()
+}
+
+/// A log line per trial at its start; with `index`, the trial track `trials/index` (the trial
+/// under way, held until the next one starts); a thick segment at the trial's index for every
+/// marked trial (`<prefix>/<kind>/<k>`, named with its reason and statistic).
+fn log_trials(
+    w: &mut ChunkWriter<'_>,
+    prefix: &str,
+    trials: &[TrialMark],
+    kind: &str,
+    index: bool,
+) -> Result<()> {
+    if trials.is_empty() {
+        return Ok(());
+    }
+    let mut order: Vec<&TrialMark> = trials.iter().collect();
+    order.sort_by(|a, b| a.t_start.total_cmp(&b.t_start).then(a.index.cmp(&b.index)));
+    let t: Vec<f64> = order.iter().map(|m| m.t_start).collect();
+    let texts: Vec<String> = order.iter().map(|m| trial_text(m)).collect();
+    let levels: Vec<TextLogLevel> = order
+        .iter()
+        .map(|m| {
+            if marked(m) {
+                TextLogLevel::WARN.into()
+            } else {
+                TextLogLevel::INFO.into()
+            }
+        })
+        .collect();
+    let columns = TextLog::update_fields()
+        .with_many_text(texts)
+        .with_many_level(levels)
+        .columns_of_unit_batches()?;
+    w.send_columns(&paths::trials_log(prefix), &t, columns)?;
+
+    if index {
+        w.send_static(
+            paths::TRIAL_INDEX,
+            &SeriesLines::new()
+                .with_names(["trial under way"])
+                .with_colors([style::rgb(style::NEUTRAL)])
+                .with_widths([1.0])
+                .with_interpolation_mode(InterpolationMode::StepAfter),
+        )?;
+        let idx = order.iter().map(|m| m.index as f64);
+        scalars(w, paths::TRIAL_INDEX, &t, idx)?;
+    }
+    for m in order.iter().filter(|m| marked(m)) {
+        let path = paths::trial_span(prefix, kind, m.index);
+        style::line(w, &path, &trial_text(m), style::WARNING, 6.0)?;
+        scalars(
+            w,
+            &path,
+            &[m.t_start, m.t_end],
+            [m.index as f64; 2].into_iter(),
+        )?;
+    }
+    Ok(())
+}
+
+/// The diagnosis: measured vs before/after (and the twin), their errors, the located trials,
+/// the torque differences and the summary.
+fn log_diagnosis(
+    w: &mut ChunkWriter<'_>,
+    joints: &[String],
+    d: &DiagnosisOverlay,
+    chunk: usize,
+) -> Result<()> {
+    style::points(
+        w,
+        paths::DIAG_MEASURED,
+        "measured reading (net)",
+        style::MEASURED,
+        MarkerShape::Circle,
+        3.0,
+    )?;
+    style::line(w, paths::DIAG_BEFORE, "base model", style::NEUTRAL, 1.5)?;
+    style::line(
+        w,
+        paths::DIAG_AFTER,
+        "with accepted hypotheses",
+        style::PREDICTED,
+        1.5,
+    )?;
+    style::points(
+        w,
+        paths::DIAG_ERROR_BEFORE,
+        "error, base model",
+        style::NEUTRAL,
+        MarkerShape::Circle,
+        2.5,
+    )?;
+    style::points(
+        w,
+        paths::DIAG_ERROR_AFTER,
+        "error, with hypotheses",
+        style::ERROR,
+        MarkerShape::Circle,
+        2.5,
+    )?;
+    scalars_chunked(w, paths::DIAG_MEASURED, &d.t, &d.measured, chunk)?;
+    scalars_chunked(w, paths::DIAG_BEFORE, &d.t, &d.before, chunk)?;
+    scalars_chunked(w, paths::DIAG_AFTER, &d.t, &d.after, chunk)?;
+    let err = |p: &[f64]| -> Vec<f64> { d.measured.iter().zip(p).map(|(m, p)| m - p).collect() };
+    scalars_chunked(w, paths::DIAG_ERROR_BEFORE, &d.t, &err(&d.before), chunk)?;
+    scalars_chunked(w, paths::DIAG_ERROR_AFTER, &d.t, &err(&d.after), chunk)?;
+    log_trials(w, paths::DIAG_TRIALS, &d.highlighted, "located", false)?;
+    if d.found.len() == d.t.len() && !d.found.is_empty() {
+        style::line(
+            w,
+            paths::DIAG_FOUND,
+            "with terms found beyond the library",
+            style::WARNING,
+            1.5,
+        )?;
+        style::points(
+            w,
+            paths::DIAG_ERROR_FOUND,
+            "error with found terms",
+            style::WARNING,
+            MarkerShape::Circle,
+            2.5,
+        )?;
+        scalars_chunked(w, paths::DIAG_FOUND, &d.t, &d.found, chunk)?;
+        scalars_chunked(w, paths::DIAG_ERROR_FOUND, &d.t, &err(&d.found), chunk)?;
+    }
+    for (k, (name, values)) in d.located.iter().enumerate() {
+        let path = paths::diag_located(k);
+        style::line(w, &path, name, style::joint(k), 1.5)?;
+        scalars_chunked(w, &path, &d.t, values, chunk)?;
+    }
+    if let Some(cp) = &d.counterpart {
+        style::line(
+            w,
+            paths::DIAG_TWIN,
+            "twin on the same commands",
+            style::MBS,
+            1.5,
+        )?;
+        scalars_chunked(w, paths::DIAG_TWIN, &cp.power_t, &cp.power_w, chunk)?;
+        for (j, name) in joints.iter().enumerate() {
+            let path = paths::diag_torque(name);
+            style::line(
+                w,
+                &path,
+                &format!("{name} τ recording − twin"),
+                style::joint(j),
+                1.5,
+            )?;
+            let v: Vec<f64> = cp.tau_diff.iter().map(|x| x[j]).collect();
+            scalars_chunked(w, &path, &cp.tau_t, &v, chunk)?;
+        }
+    }
+    w.send_static(
+        paths::DIAG_SUMMARY,
+        &TextDocument::from_markdown(hard_line_breaks(&d.summary)),
+    )
+}
+
+/// Plain text as markdown that keeps its line breaks (markdown joins consecutive lines into one
+/// paragraph): every line ends in a hard break.
+fn hard_line_breaks(text: &str) -> String {
+    text.lines()
+        .map(|l| {
+            if l.trim().is_empty() {
+                String::new()
+            } else {
+                format!("{}  ", l.trim_end())
+            }
+        })
+        .collect::<Vec<_>>()
+        .join("\n")
+}
+
+/// Per-joint predicted power (the joint's four terms summed) of every sample, in time order.
+fn joint_power(terms: &TermSeries) -> Vec<(f64, [f64; N_JOINTS])> {
+    let fields = [
+        &terms.mechanical,
+        &terms.copper,
+        &terms.coulomb,
+        &terms.viscous,
+    ];
+    let n = fields
+        .iter()
+        .map(|f| f.len())
+        .chain([terms.t.len()])
+        .min()
+        .unwrap_or(0);
+    let mut out: Vec<(f64, [f64; N_JOINTS])> = (0..n)
+        .map(|i| {
+            (
+                terms.t[i],
+                std::array::from_fn(|j| fields.iter().map(|f| f[i][j]).sum()),
+            )
+        })
+        .collect();
+    out.sort_by(|a, b| a.0.total_cmp(&b.0));
+    out
+}
+
+/// The colour scale of the arm links: the 98th percentile of the joints' positive predicted
+/// power (at least 1 W), rounded up to 0.5 W.
+pub(super) fn colour_scale(terms: &TermSeries) -> f64 {
+    let mut p: Vec<f64> = joint_power(terms)
+        .iter()
+        .flat_map(|(_, v)| v.iter().copied())
+        .filter(|x| x.is_finite() && *x > 0.0)
+        .collect();
+    if p.is_empty() {
+        return 1.0;
+    }
+    p.sort_by(f64::total_cmp);
+    let q = p[((p.len() - 1) as f64 * 0.98) as usize];
+    ((q * 2.0).ceil() / 2.0).max(1.0)
+}
+
+/// Per-joint predicted power at most `rate_hz` times a second, in time order.
+pub(super) fn decimated_joint_power(
+    terms: &TermSeries,
+    rate_hz: f64,
+) -> (Vec<f64>, Vec<[f64; N_JOINTS]>) {
+    let mut next = f64::NEG_INFINITY;
+    let mut t = Vec::new();
+    let mut p = Vec::new();
+    for (ti, v) in joint_power(terms) {
+        if ti >= next {
+            t.push(ti);
+            p.push(v);
+            next = ti + 1.0 / rate_hz;
+        }
+    }
+    (t, p)
+}
