@@ -354,13 +354,7 @@ fn info(a: InfoArgs) -> Result<()> {
     let rec = a.read.load(&a.session);
     if a.json {
         let signals = rec.as_ref().ok().map(signal_summary);
-        // Why `signals` is null, as the text form says it.
-        let signals_error = rec.as_ref().err().map(|e| format!("{e:#}"));
-        let out = serde_json::json!({
-            "container": info,
-            "signals": signals,
-            "signals_error": signals_error,
-        });
+        let out = serde_json::json!({ "container": info, "signals": signals });
         println!("{}", serde_json::to_string_pretty(&out)?);
         return Ok(());
     }

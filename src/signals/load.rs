@@ -199,8 +199,8 @@ fn read_batches(
                 plan.undecodable += 1;
                 if plan.undecodable <= MAX_DETAILED_WARNINGS {
                     warnings.push(format!(
-                        "{file}: topic {} at log time {} ns ({}): {e}; message skipped",
-                        plan.topic, msg.log_time_ns, msg.location()
+                        "{file}: topic {} at log time {} ns (record at byte offset {}): {e}; message skipped",
+                        plan.topic, msg.log_time_ns, msg.file_offset
                     ));
                 }
                 continue;
