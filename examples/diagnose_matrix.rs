@@ -182,7 +182,7 @@ fn session(
             &Default::default(),
         )?);
     }
-    Ok(diagnose::join_recordings(recs, 5.0))
+    Ok(g1viz::signals::join_recordings(recs, 5.0))
 }
 
 fn row(case: &Case, seed: u64, mode: &str, d: &Diagnosis) -> String {

@@ -58,7 +58,7 @@ fn session(
         end = Some(rec.state.t.last().copied().unwrap_or(0.0) + offset);
         recs.push(rec);
     }
-    (diagnose::join_recordings(recs, GAP_S), truth_trials)
+    (g1viz::signals::join_recordings(recs, GAP_S), truth_trials)
 }
 
 const GAP_S: f64 = 5.0;
