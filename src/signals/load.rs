@@ -251,8 +251,11 @@ impl Decoder {
                 plan.undecodable += 1;
                 if plan.undecodable <= MAX_DETAILED_WARNINGS {
                     self.warnings.push(format!(
-                        "{}: topic {} at log time {} ns (record at byte offset {}): {e}; message skipped",
-                        self.file, plan.topic, msg.log_time_ns, msg.file_offset
+                        "{}: topic {} at log time {} ns ({}): {e}; message skipped",
+                        self.file,
+                        plan.topic,
+                        msg.log_time_ns,
+                        msg.location()
                     ));
                 }
                 continue;
