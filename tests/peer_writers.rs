@@ -123,6 +123,7 @@ layouts = {
     'no_index': dict(index_types=IndexType.NONE),
     'unchunked_no_repeated_channels': dict(use_chunking=False, repeat_channels=False, repeat_schemas=False),
     'no_statistics_no_index': dict(use_statistics=False, index_types=IndexType.NONE),
+    'no_crc': dict(enable_crcs=False),
     'lz4_small_chunks': dict(compression=CompressionType.LZ4, chunk_size=64 * 1024),
 }
 for name, opts in layouts.items():
@@ -160,7 +161,7 @@ fn mcap_layouts_written_by_the_python_writer() {
     let tmp = tempfile::tempdir().unwrap();
     let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/g1_example.mcap");
     let manifest = generate(MCAP_LAYOUTS, &[&src, tmp.path()]);
-    assert_eq!(manifest.len(), 7);
+    assert_eq!(manifest.len(), 8);
     for (layout, want) in &manifest {
         check(&tmp.path().join(format!("{layout}.mcap")), want);
     }
@@ -241,4 +242,38 @@ fn rosbag2_mcap_storage_with_zstd_compression() {
     for (bag, want) in &manifest {
         check(&tmp.path().join(bag), want);
     }
+}
+
+/// A Statistics record whose start time is later than the first message (and end time earlier
+/// than the last): `info` takes the span from the messages, not from the record.
+#[test]
+fn statistics_that_contradict_the_messages_do_not_set_the_span() {
+    if !python_has("mcap") {
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/g1_example.mcap");
+    let manifest = generate(MCAP_LAYOUTS, &[&src, tmp.path()]);
+    let path = tmp.path().join("no_crc.mcap");
+    let mut bytes = std::fs::read(&path).unwrap();
+    // Footer: opcode, length, summary_start (u64), summary_offset_start, crc; then the magic.
+    let footer = bytes.len() - 8 - 29;
+    let mut pos = u64::from_le_bytes(bytes[footer + 9..footer + 17].try_into().unwrap()) as usize;
+    let mut patched = false;
+    while pos < footer {
+        let len = u64::from_le_bytes(bytes[pos + 1..pos + 9].try_into().unwrap()) as usize;
+        if bytes[pos] == 0x0B {
+            // message_count u64, schema_count u16, channel/attachment/metadata/chunk counts u32.
+            let start = pos + 9 + 8 + 2 + 16;
+            let first = u64::from_le_bytes(bytes[start..start + 8].try_into().unwrap());
+            let last = u64::from_le_bytes(bytes[start + 8..start + 16].try_into().unwrap());
+            bytes[start..start + 8].copy_from_slice(&(first + 5_000_000_000).to_le_bytes());
+            bytes[start + 8..start + 16].copy_from_slice(&(last - 5_000_000_000).to_le_bytes());
+            patched = true;
+        }
+        pos += 9 + len;
+    }
+    assert!(patched, "no statistics record in the summary");
+    std::fs::write(&path, bytes).unwrap();
+    check(&path, &manifest["no_crc"]);
 }

@@ -237,3 +237,51 @@ fn payloads_that_do_not_fit_a_fixed_size_definition_are_dropped_with_a_warning()
         r.warnings
     );
 }
+
+/// Every message as (topic, log time, payload), in delivery order.
+fn all_messages(source: &mut dyn g1viz::read::MessageSource) -> Vec<(String, u64, Vec<u8>)> {
+    let mut out = Vec::new();
+    let summary = source
+        .read(None, &mut |m| {
+            out.push((m.channel.topic.clone(), m.log_time_ns, m.data.to_vec()));
+            Ok(())
+        })
+        .unwrap();
+    assert!(summary.complete, "{summary:?}");
+    out
+}
+
+#[test]
+fn mcap_and_ros1_readers_run_from_memory_like_from_files() {
+    use g1viz::read::bag1::Ros1BagSource;
+    use g1viz::read::mcap::McapSource;
+    use std::io::Cursor;
+    let opts = OpenOptions::default();
+    let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/g1_example.mcap");
+    let bytes = std::fs::read(&example).unwrap();
+    let from_file = all_messages(&mut McapSource::open(&example, &opts).unwrap());
+    let mut in_memory =
+        McapSource::from_reader(Cursor::new(bytes), Path::new("memory"), &opts).unwrap();
+    assert!(from_file.len() > 1000);
+    assert!(all_messages(&mut in_memory) == from_file);
+    let err = McapSource::from_reader(
+        Cursor::new(b"not mcap".to_vec()),
+        Path::new("memory"),
+        &opts,
+    )
+    .err()
+    .unwrap()
+    .to_string();
+    assert!(err.starts_with("memory: not an MCAP file"), "{err}");
+
+    let Some(shared) = common::shared_dir() else {
+        return;
+    };
+    let bag = shared.join("recordings/g1_smoke.bag");
+    let from_file = all_messages(&mut Ros1BagSource::open(&bag, &opts).unwrap());
+    let bytes = std::fs::read(&bag).unwrap();
+    let mut in_memory =
+        Ros1BagSource::from_reader(Cursor::new(bytes), Path::new("memory"), &opts).unwrap();
+    assert!(from_file.len() > 1000);
+    assert!(all_messages(&mut in_memory) == from_file);
+}

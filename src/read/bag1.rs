@@ -33,10 +33,10 @@ const MAX_CHUNK_BYTES: u64 = 256 << 20;
 /// next chunk waits until the loaded ones are delivered (with a warning: order may break).
 const OVERLAP_BUDGET_BYTES: usize = 256 << 20;
 
-/// A ROS 1 bag opened for reading.
-pub struct Ros1BagSource {
+/// A ROS 1 bag (a file, or any seekable byte source) opened for reading.
+pub struct Ros1BagSource<R = File> {
     path: PathBuf,
-    file: File,
+    file: R,
     file_len: u64,
     connections: BTreeMap<u32, Connection>,
     /// Chunks sorted by start time.
@@ -196,16 +196,32 @@ fn time_ns(b: &[u8]) -> Option<u64> {
     Some(u32::from_le_bytes(*sec) as u64 * 1_000_000_000 + u32::from_le_bytes(nsec) as u64)
 }
 
-impl Ros1BagSource {
+impl Ros1BagSource<File> {
     /// Open a ROS 1 bag (format 2.0). Fails only when the file is not a bag or its bag header
     /// is unreadable; later damage becomes warnings.
-    pub fn open(path: &Path, opts: &OpenOptions) -> Result<Ros1BagSource, ReadError> {
+    pub fn open(path: &Path, opts: &OpenOptions) -> Result<Ros1BagSource<File>, ReadError> {
+        let file = File::open(path).map_err(|source| ReadError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        Ros1BagSource::from_reader(file, path, opts)
+    }
+}
+
+impl<R: Read + Seek> Ros1BagSource<R> {
+    /// Read a ROS 1 bag from any seekable byte source (a file, a `Cursor` over bytes); `path`
+    /// is what errors and warnings call it. Same checks as [`Ros1BagSource::open`].
+    pub fn from_reader(
+        mut file: R,
+        path: &Path,
+        opts: &OpenOptions,
+    ) -> Result<Ros1BagSource<R>, ReadError> {
         let io = |source| ReadError::Io {
             path: path.to_path_buf(),
             source,
         };
-        let mut file = File::open(path).map_err(io)?;
-        let file_len = file.metadata().map_err(io)?.len();
+        let file_len = file.seek(SeekFrom::End(0)).map_err(io)?;
+        file.seek(SeekFrom::Start(0)).map_err(io)?;
         let mut magic = [0u8; 13];
         let got = read_up_to(&mut file, &mut magic).map_err(io)?;
         if magic[..got] != *MAGIC {
@@ -949,7 +965,7 @@ fn record_error_text(e: RecordError, offset: u64) -> String {
 }
 
 /// Like `read_exact` but returns how much was read when the file is shorter.
-fn read_up_to(file: &mut File, buf: &mut [u8]) -> std::io::Result<usize> {
+fn read_up_to(file: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
     let mut got = 0;
     while got < buf.len() {
         match file.read(&mut buf[got..])? {
@@ -960,7 +976,7 @@ fn read_up_to(file: &mut File, buf: &mut [u8]) -> std::io::Result<usize> {
     Ok(got)
 }
 
-impl MessageSource for Ros1BagSource {
+impl<R: Read + Seek> MessageSource for Ros1BagSource<R> {
     fn format(&self) -> &'static str {
         "ros1-bag"
     }

@@ -825,10 +825,15 @@ fn decompress_chunk(body: &[u8], out: &mut Vec<u8>) -> Result<(), String> {
     match chunk.compression.as_str() {
         "" => out.extend_from_slice(data),
         "zstd" => {
-            let decoder = zstd::stream::read::Decoder::with_buffer(data)
-                .map_err(|e| format!("zstd decompression failed: {e}"))?;
-            super::read_capped(decoder, size, out)
-                .map_err(|e| format!("zstd decompression failed: {e}"))?;
+            // The bulk decoder writes at most the Vec's capacity: the declared size.
+            out.reserve_exact(size);
+            zstd::bulk::Decompressor::new()
+                .and_then(|mut d| d.decompress_to_buffer(data, out))
+                .map_err(|e| {
+                    format!(
+                        "zstd decompression failed (or more than the declared {size} bytes): {e}"
+                    )
+                })?;
         }
         "lz4" => {
             super::read_capped(lz4_flex::frame::FrameDecoder::new(data), size, out)

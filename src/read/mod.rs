@@ -219,7 +219,7 @@ pub(crate) fn read_capped(
     out: &mut Vec<u8>,
 ) -> std::io::Result<()> {
     use std::io::Read;
-    out.reserve(size.min(16 << 20));
+    out.reserve(size);
     reader.take(size as u64 + 1).read_to_end(out).map(|_| ())
 }
 

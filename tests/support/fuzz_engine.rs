@@ -888,6 +888,9 @@ fn mutate_db3(input: &mut Input, rng: &mut Rng) -> String {
         let yaml = input.files.get_mut("metadata.yaml").expect("metadata.yaml");
         let text = String::from_utf8_lossy(yaml).into_owned();
         let mut lines: Vec<String> = text.lines().map(str::to_string).collect();
+        if lines.is_empty() {
+            lines.push(String::new()); // a metadata.yaml emptied by earlier mutations
+        }
         let i = rng.below(lines.len());
         let what = match rng.below(5) {
             0 => {
