@@ -7,8 +7,9 @@
 //! cargo run --release --no-default-features --example diagnose_matrix -- [--parts N] [--report DIR] [CASE…]
 //! ```
 //! Cases: null, thermal, thermal_refit, braking, bus_loss, latency, payload, gear_friction,
-//! drive_loss, stribeck, balance_leak, braking+latency, bus_loss+payload, harness, harness15
-//! (default: all). `--parts N` joins N smoke sessions (≈ 24 trials each) for every case
+//! drive_loss, stribeck, balance_leak, braking+latency, bus_loss+payload, harness, harness15,
+//! and the forms that differ from every fitted one: bus_power, electronics_nm, joint_friction,
+//! housing_friction, fan_load (default: all). `--parts N` joins N smoke sessions (≈ 24 trials each) for every case
 //! instead of the case's own count (3, or 6 for the faint effects).
 
 use std::path::PathBuf;
@@ -30,6 +31,9 @@ struct Case {
     seeds: &'static [u64],
     /// Smoke sessions joined per seed (`--parts` overrides): faint effects need more trials.
     parts: u64,
+    /// Effects outside the library: (recorded field the discovered term must follow, "" for a
+    /// base-term correction; true parameter of the matching form).
+    found: &'static [(&'static str, f64)],
 }
 
 const CASES: &[Case] = &[
@@ -40,6 +44,7 @@ const CASES: &[Case] = &[
         t_start_c: &[30.0],
         parts: 3,
         seeds: &[11, 12, 13, 14, 15],
+        found: &[],
     },
     Case {
         name: "thermal",
@@ -48,6 +53,7 @@ const CASES: &[Case] = &[
         t_start_c: &[70.0],
         parts: 3,
         seeds: &[3, 6, 7],
+        found: &[],
     },
     Case {
         name: "braking",
@@ -56,6 +62,7 @@ const CASES: &[Case] = &[
         t_start_c: &[30.0],
         parts: 6,
         seeds: &[3, 6, 7],
+        found: &[],
     },
     Case {
         name: "bus_loss",
@@ -64,6 +71,7 @@ const CASES: &[Case] = &[
         t_start_c: &[30.0],
         parts: 3,
         seeds: &[3, 6, 7],
+        found: &[],
     },
     Case {
         name: "latency",
@@ -72,6 +80,7 @@ const CASES: &[Case] = &[
         t_start_c: &[30.0],
         parts: 3,
         seeds: &[3, 6, 7],
+        found: &[],
     },
     Case {
         name: "payload",
@@ -80,6 +89,7 @@ const CASES: &[Case] = &[
         t_start_c: &[30.0],
         parts: 3,
         seeds: &[3, 6, 7],
+        found: &[],
     },
     Case {
         name: "thermal_refit",
@@ -90,6 +100,7 @@ const CASES: &[Case] = &[
         t_start_c: &[30.0, 50.0, 70.0],
         parts: 6,
         seeds: &[3, 6, 7],
+        found: &[],
     },
     Case {
         name: "gear_friction",
@@ -98,6 +109,7 @@ const CASES: &[Case] = &[
         t_start_c: &[30.0],
         parts: 6,
         seeds: &[3, 6, 7],
+        found: &[],
     },
     Case {
         name: "drive_loss",
@@ -106,6 +118,7 @@ const CASES: &[Case] = &[
         t_start_c: &[30.0],
         parts: 3,
         seeds: &[3, 6, 7],
+        found: &[],
     },
     Case {
         name: "stribeck",
@@ -114,6 +127,7 @@ const CASES: &[Case] = &[
         t_start_c: &[30.0],
         parts: 6,
         seeds: &[3, 6, 7],
+        found: &[],
     },
     Case {
         name: "balance_leak",
@@ -122,6 +136,7 @@ const CASES: &[Case] = &[
         t_start_c: &[30.0],
         parts: 6,
         seeds: &[3, 6, 7],
+        found: &[],
     },
     Case {
         name: "braking+latency",
@@ -130,6 +145,7 @@ const CASES: &[Case] = &[
         t_start_c: &[30.0],
         parts: 3,
         seeds: &[4, 9],
+        found: &[],
     },
     Case {
         name: "bus_loss+payload",
@@ -138,6 +154,7 @@ const CASES: &[Case] = &[
         t_start_c: &[30.0],
         parts: 3,
         seeds: &[4, 9],
+        found: &[],
     },
     Case {
         name: "harness",
@@ -146,6 +163,7 @@ const CASES: &[Case] = &[
         t_start_c: &[30.0],
         parts: 3,
         seeds: &[5, 8],
+        found: &[],
     },
     Case {
         name: "harness15",
@@ -154,6 +172,52 @@ const CASES: &[Case] = &[
         t_start_c: &[30.0],
         parts: 3,
         seeds: &[5, 8],
+        found: &[],
+    },
+    Case {
+        name: "bus_power",
+        effects: &["bus_power=0.05"],
+        truth: &[("bus_power", "R_bus", 0.05)],
+        t_start_c: &[30.0],
+        parts: 3,
+        seeds: &[3, 6],
+        found: &[],
+    },
+    Case {
+        name: "electronics_nm",
+        effects: &["electronics_nm=0.5"],
+        truth: &[("electronics_nm", "k_el", 0.5)],
+        t_start_c: &[30.0],
+        parts: 3,
+        seeds: &[3, 6],
+        found: &[],
+    },
+    Case {
+        name: "joint_friction",
+        effects: &["joint_friction=1"],
+        truth: &[],
+        t_start_c: &[30.0],
+        parts: 3,
+        seeds: &[3, 6],
+        found: &[("", 1.0)],
+    },
+    Case {
+        name: "housing_friction",
+        effects: &["housing_friction=0.05"],
+        truth: &[],
+        t_start_c: &[30.0, 50.0, 70.0],
+        parts: 6,
+        seeds: &[3, 6],
+        found: &[("temperature[1]", 0.05)],
+    },
+    Case {
+        name: "fan_load",
+        effects: &["fan_load=3"],
+        truth: &[],
+        t_start_c: &[30.0],
+        parts: 3,
+        seeds: &[3, 6],
+        found: &[("fan_state[1]", 3.0)],
     },
 ];
 
@@ -163,7 +227,7 @@ fn session(
     parts: u64,
     t_start_c: &[f64],
     dir: &std::path::Path,
-) -> Result<g1viz::signals::Recording> {
+) -> Result<(g1viz::signals::Recording, Vec<diagnose::FieldSource>)> {
     let mut recs = Vec::new();
     for part in 0..parts {
         let cfg = SimConfig {
@@ -182,11 +246,28 @@ fn session(
             &Default::default(),
         )?);
     }
-    Ok(diagnose::join_recordings(recs, 5.0))
+    Ok(diagnose::join_recordings_with_sources(recs, 5.0))
+}
+
+/// A discovered term in a table cell: its formula, the field(s) it follows, its first parameter.
+fn found_cell(t: &diagnose::Discovery) -> String {
+    let field = t.fields.first().map_or(String::new(), |f| {
+        format!(" on {f}{}", if t.fields.len() > 1 { " …" } else { "" })
+    });
+    let p = t.params.first().map_or(String::new(), |p| {
+        format!(", {} = {:.4} ± {:.4}", p.symbol, p.value, p.std_err)
+    });
+    format!("found: {}{field}{p}", t.form)
 }
 
 fn row(case: &Case, seed: u64, mode: &str, d: &Diagnosis) -> String {
-    let accepted: Vec<&str> = d.accepted.iter().map(|h| h.id.as_str()).collect();
+    let mut accepted: Vec<String> = d.accepted.iter().map(|h| h.id.clone()).collect();
+    if let Some(r) = &d.discovery {
+        accepted.extend(r.accepted.iter().map(found_cell));
+    }
+    for c in &d.confounded {
+        accepted.push(format!("(confounded: {} or {})", c.kept, c.dropped));
+    }
     let mut truth = Vec::new();
     let mut found = Vec::new();
     let mut ranks = Vec::new();
@@ -220,6 +301,43 @@ fn row(case: &Case, seed: u64, mode: &str, d: &Diagnosis) -> String {
                 .find(|h| h.id == *id)
                 .map_or("—".into(), |h| h.rank.to_string()),
         );
+    }
+    for (field, value) in case.found {
+        truth.push(format!("{field} {value}"));
+        let hit = d.discovery.as_ref().and_then(|r| {
+            r.accepted.iter().find(|t| {
+                if field.is_empty() {
+                    t.fields.is_empty()
+                } else {
+                    t.fields.iter().any(|f| f.contains(field))
+                }
+            })
+        });
+        found.push(match hit {
+            None => "not found".into(),
+            Some(t) if t.params.len() == g1viz::N_JOINTS => {
+                // Per-joint coefficients: worst relative error against F·w_i.
+                let w = g1viz::sim::effects::JOINT_FRICTION_PATTERN;
+                let worst = t
+                    .params
+                    .iter()
+                    .zip(w)
+                    .map(|(p, wi)| (p.value - value * wi) / (value * wi))
+                    .max_by(|a, b| a.abs().total_cmp(&b.abs()))
+                    .unwrap_or(f64::NAN);
+                format!("per joint, worst error {:+.1} %", 100.0 * worst)
+            }
+            Some(t) => {
+                let p = &t.params[0];
+                format!(
+                    "{} = {:.4} ± {:.4} ({:+.1} %)",
+                    p.symbol,
+                    p.value,
+                    p.std_err,
+                    100.0 * (p.value - value) / value
+                )
+            }
+        });
     }
     if case.name.starts_with("harness") {
         let c = d.unexplained.first();
@@ -299,14 +417,18 @@ fn main() -> Result<()> {
         for &seed in case.seeds {
             let t0 = Instant::now();
             let n = parts.unwrap_or(case.parts);
-            let rec = session(&effects, seed, n, case.t_start_c, dir.path())?;
+            let (rec, sources) = session(&effects, seed, n, case.t_start_c, dir.path())?;
+            let base = DiagnoseOptions {
+                field_sources: sources,
+                ..DiagnoseOptions::default()
+            };
             for (mode, opts) in [
-                ("refit", DiagnoseOptions::default()),
+                ("refit", base.clone()),
                 (
                     "twin (paper θ)",
                     DiagnoseOptions {
                         reference: Some(PowerModel::PAPER),
-                        ..DiagnoseOptions::default()
+                        ..base.clone()
                     },
                 ),
             ] {
