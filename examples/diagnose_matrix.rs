@@ -176,8 +176,8 @@ const CASES: &[Case] = &[
     },
     Case {
         name: "bus_power",
-        effects: &["bus_power=0.05"],
-        truth: &[("bus_power", "R_bus", 0.05)],
+        effects: &["bus_power=10"],
+        truth: &[("bus_power", "R_bus", 10.0)],
         t_start_c: &[30.0],
         parts: 3,
         seeds: &[3, 6],
@@ -440,6 +440,12 @@ fn main() -> Result<()> {
                     if let Some(h) = d.hypotheses.iter().find(|h| h.id == *id && !accepted) {
                         eprintln!("  {} {mode}: {id} {}", case.name, h.verdict);
                     }
+                }
+                // What discovery tried when it found nothing (or what it left out).
+                for line in d.summary.lines().filter(|l| {
+                    l.starts_with("Beyond") || l.starts_with("Confounded") || l.starts_with("Form")
+                }) {
+                    eprintln!("  {} {mode}: {line}", case.name);
                 }
                 if let Some(r) = &report {
                     let sub = r.join(format!(

@@ -42,6 +42,8 @@ const SLOW_SHARE: f64 = 0.1;
 const TRIALS_PER_TERM: usize = 20;
 /// Hard cap on discovered terms.
 const MAX_TERMS: usize = 4;
+/// Partial correlation (given the library design) above which two terms are confounded.
+const CONFOUNDED_R: f64 = 0.9;
 
 /// One base loss term of the paper's model, per joint (block of the 49 regressors).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -173,6 +175,9 @@ pub struct DiscoveryReport {
     /// Held-out predictions with the discovered terms (per reading, same order as the rows).
     #[serde(skip)]
     pub pred: Vec<f64>,
+    /// Regressor columns of the kept terms (per reading), to test library terms given them.
+    #[serde(skip)]
+    pub cols: Vec<Vec<f64>>,
     /// Notes (fields left out as meters of the power, unreadable files).
     pub notes: Vec<String>,
 }
@@ -253,6 +258,30 @@ struct Base<'a> {
 }
 
 impl<'a> Base<'a> {
+    /// `c` with its least-squares projection on the library design removed (full data).
+    fn residualise(&self, c: &[f64]) -> Vec<f64> {
+        let p = self.p;
+        let mut g = DMatrix::zeros(p, p);
+        for (gf, _, _, _) in &self.fold {
+            g += gf;
+        }
+        for i in 0..p {
+            g[(i, i)] += 1e-9 * (1.0 + g[(i, i)]);
+        }
+        let mut h = DVector::zeros(p);
+        for (x, v) in self.xm.iter().zip(c) {
+            for a in 0..p {
+                h[a] += x[a] * v;
+            }
+        }
+        let beta = g.cholesky().map_or_else(|| DVector::zeros(p), |ch| ch.solve(&h));
+        self.xm
+            .iter()
+            .zip(c)
+            .map(|(x, v)| v - x.iter().zip(beta.iter()).map(|(a, b)| a * b).sum::<f64>())
+            .collect()
+    }
+
     fn new(data: &'a PowerData, cur: &'a State) -> Base<'a> {
         let rows = &data.rows[cur.lag];
         let m = design_map_for(&cur.spec, &cur.full.theta);
@@ -814,6 +843,12 @@ pub(crate) fn discover(
             report.best_rejected = Some(d);
         }
         let Some(b) = best else { break };
+        if let Some(note) = confounded_with(&search, &chosen, b.idx) {
+            // The data cannot tell this term from one already found: report, do not claim.
+            report.notes.push(note);
+            closed.push(search.cands[b.idx].group.clone());
+            continue;
+        }
         chosen.push(b.idx);
         chosen_cols.extend(search.cols(b.idx));
         closed.push(search.cands[b.idx].group.clone());
@@ -824,6 +859,22 @@ pub(crate) fn discover(
     backward(&search, &mut chosen, &mut accepted, &mut report.notes)?;
     finish(&search, &chosen, &accepted, cur, joint_names, &mut report)?;
     Ok(report)
+}
+
+/// A note when candidate `i` is confounded with an already chosen term (partial correlation of
+/// their first regressors given the library design ≥ [`CONFOUNDED_R`]).
+fn confounded_with(search: &Search, chosen: &[usize], i: usize) -> Option<String> {
+    let mine = search.base.residualise(&search.cols(i)[0]);
+    chosen.iter().find_map(|&k| {
+        let other = search.base.residualise(&search.cols(k)[0]);
+        let (r, _) = pearson(&mine, &other);
+        (r.abs() >= CONFOUNDED_R).then(|| {
+            format!(
+                "confounded: {} or {} (partial correlation of their regressors r = {r:+.3}); only the first is claimed",
+                search.cands[k].group, search.cands[i].group
+            )
+        })
+    })
 }
 
 /// Backward elimination at the final Holm level: every kept term stays significant given the
@@ -920,9 +971,26 @@ fn finish(
         off += ncols;
         report.accepted.push(d);
     }
+    report.cols = all;
     report.pred = final_fit.map_or_else(|| cur.cv.pred.clone(), |f| f.pred);
     report.after = Some(search.base.compare(&cur.cv.pred, &report.pred).3);
     Ok(())
+}
+
+/// Whether library term `j` of `cur` stays significant given the found terms `cols`:
+/// (p-value, relative held-out change, ΔBIC) of the full model against the one without it.
+pub(crate) fn library_term_given_found(
+    data: &PowerData,
+    cur: &State,
+    without: &State,
+    cols: &[Vec<f64>],
+) -> Result<(f64, f64, f64)> {
+    let refs: Vec<&Vec<f64>> = cols.iter().collect();
+    let full_base = Base::new(data, cur);
+    let full = full_base.fit(&refs)?;
+    let wo = Base::new(data, without).fit(&refs)?;
+    let (p, rel, _, _) = full_base.compare(&wo.pred, &full.pred);
+    Ok((p, rel, full.bic - wo.bic))
 }
 
 fn verdict_of(s: &Scored, level: f64, rule: &Rule) -> String {

@@ -27,7 +27,8 @@ pub struct FieldSource {
     pub offset_s: f64,
 }
 
-/// A reading window [start, end) in recording time [s].
+/// A reading window (start, end] in recording time [s] (a status message stamped with the
+/// reading's own time belongs to it).
 #[derive(Debug, Clone, Copy)]
 pub struct Window {
     /// Start [s].
@@ -112,10 +113,10 @@ impl TopicAcc {
         }
     }
 
-    /// Close every window ending at or before `t` (holding the last value for empty ones).
+    /// Close every window ending before `t` (holding the last value for empty ones).
     fn advance(&mut self, windows: &[Window], t: f64) {
         let n = self.names.len();
-        while self.cursor < windows.len() && windows[self.cursor].end <= t {
+        while self.cursor < windows.len() && windows[self.cursor].end < t {
             let w = self.cursor;
             if self.last_t > f64::NEG_INFINITY {
                 self.held[w * n..(w + 1) * n].copy_from_slice(&self.last);
@@ -128,7 +129,7 @@ impl TopicAcc {
         self.advance(windows, t);
         let n = self.names.len();
         if let Some(w) = windows.get(self.cursor)
-            && t >= w.start
+            && t > w.start
         {
             let k = self.cursor;
             self.count[k] += 1;
@@ -331,7 +332,7 @@ mod tests {
             },
         ];
         let mut acc = TopicAcc::new(vec!["x".into()], None, 2);
-        for (t, v) in [(0.2, 1.0), (0.4, 3.0), (1.5, 7.0)] {
+        for (t, v) in [(0.2, 1.0), (1.0, 3.0), (1.5, 7.0)] {
             acc.row[0] = v;
             acc.add(&windows, t);
         }

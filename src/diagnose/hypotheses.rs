@@ -232,7 +232,7 @@ pub static POWER_HYPOTHESES: [Hypothesis; 9] = [
         combine: Combine::Single,
         to_physical: identity,
         physical_slope: 1.0,
-        plausible: (0.001, 2.0),
+        plausible: (0.001, 50.0),
     },
     Hypothesis {
         id: "electronics_nm",

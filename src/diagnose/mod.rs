@@ -558,8 +558,7 @@ pub fn diagnose_trials(
         bic_threshold: opts.bic_threshold,
         min_improvement: opts.min_improvement,
     };
-    let candidates: Vec<&'static hypotheses::Hypothesis> = POWER_HYPOTHESES.iter().collect();
-    let sel = select::select(&data, &candidates, &rule)?;
+    let (sel, discovery, fields) = select_and_discover(rec, power, &metas, &data, &rule, opts)?;
 
     // Torque level.
     let torque = match arm {
@@ -644,21 +643,6 @@ pub fn diagnose_trials(
         after: quality(&last.cv.pred),
         before_per_trial: per_trial(&sel.base.cv.pred),
         after_per_trial: per_trial(&last.cv.pred),
-    };
-
-    // Beyond the library: every recorded field and products of the loss terms with slow states.
-    let fields = run_fields(rec, power, &metas, &data.rows[last.lag], data.lags[last.lag], opts);
-    let discovery = if opts.discover {
-        let inputs = field_inputs(&fields, opts);
-        Some(discover::discover(
-            &data,
-            last,
-            &inputs,
-            &rule,
-            &rec.joint_names,
-        )?)
-    } else {
-        None
     };
 
     // Locate with the base model's held-out residuals; correlate what the final model leaves.
@@ -803,6 +787,74 @@ fn rescale_bus(d: &mut Diagnosis, volts: f64) {
     d.bus_volts = volts;
 }
 
+/// Stage: library selection, then discovery beyond it; a library term that is not significant
+/// given what discovery found is confounded with it: it is dropped, reported, and the library
+/// selection re-run without it.
+fn select_and_discover(
+    rec: &Recording,
+    power: &crate::signals::PowerSeries,
+    metas: &[TrialMeta],
+    data: &PowerData,
+    rule: &Rule,
+    opts: &DiagnoseOptions,
+) -> Result<(select::Selection, Option<DiscoveryReport>, RowFields)> {
+    let mut excluded: Vec<&str> = Vec::new();
+    let mut confounded = Vec::new();
+    let mut fields: Option<(usize, RowFields)> = None;
+    loop {
+        let candidates: Vec<&'static hypotheses::Hypothesis> = POWER_HYPOTHESES
+            .iter()
+            .filter(|h| !excluded.contains(&h.id))
+            .collect();
+        let mut sel = select::select(data, &candidates, rule)?;
+        let lag = sel.last.lag;
+        if fields.as_ref().is_none_or(|(l, _)| *l != lag) {
+            let f = run_fields(rec, power, metas, &data.rows[lag], data.lags[lag], opts);
+            fields = Some((lag, f));
+        }
+        let Some((_, f)) = &fields else {
+            unreachable!("fields were just read")
+        };
+        if !opts.discover {
+            return Ok((sel, None, fields.map(|f| f.1).unwrap_or_default()));
+        }
+        let report = discover::discover(data, &sel.last, &field_inputs(f, opts), rule, &rec.joint_names)?;
+        let mut dropped = None;
+        if !report.cols.is_empty() {
+            for (j, h) in sel.last.spec.iter().enumerate() {
+                let mut spec = sel.last.spec.clone();
+                spec.remove(j);
+                let without = select::state(data, spec, lag)?;
+                let (p, rel, d_bic) =
+                    discover::library_term_given_found(data, &sel.last, &without, &report.cols)?;
+                let ok = p < rule.alpha && d_bic < rule.bic_threshold && rel >= rule.min_improvement;
+                if !ok {
+                    let found: Vec<&str> = report.accepted.iter().map(|t| t.name.as_str()).collect();
+                    dropped = Some((h.id, Confounded {
+                        kept: found.join("; "),
+                        dropped: h.id.into(),
+                        correlation: f64::NAN,
+                        p_value: p,
+                        rel_change: rel,
+                    }));
+                    break;
+                }
+            }
+        }
+        match dropped {
+            Some((id, c)) => {
+                excluded.push(id);
+                confounded.push(c);
+            }
+            None => {
+                sel.confounded.extend(confounded);
+                let f = fields.map(|f| f.1).unwrap_or_default();
+                return Ok((sel, Some(report), f));
+            }
+        }
+    }
+}
+
 /// Stage: what the replay shows of the found terms: their fields beside the residual, the
 /// prediction with them, and the trials they improve most.
 fn show_found(d: &mut Diagnosis, f: &RowFields, rows: &Rows, metas: &[TrialMeta]) {
@@ -848,6 +900,7 @@ fn show_found(d: &mut Diagnosis, f: &RowFields, rows: &Rows, metas: &[TrialMeta]
 }
 
 /// The recorded fields over the final rows' windows and every trial's baseline windows.
+#[derive(Default)]
 struct RowFields {
     table: fields::FieldTable,
     /// Index into the table's windows of each row.

@@ -517,7 +517,7 @@ pub(crate) struct State {
     pub bic: f64,
 }
 
-fn state(data: &PowerData, spec: Spec, lag: usize) -> Result<State> {
+pub(crate) fn state(data: &PowerData, spec: Spec, lag: usize) -> Result<State> {
     let cv = cross_validate(
         &spec,
         &data.rows[lag],

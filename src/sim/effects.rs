@@ -142,7 +142,7 @@ pub struct HousingFriction {
 }
 
 /// A load on the main-board rail that follows a status field of another topic: a cooling fan
-/// that switches on and off during the session (on for ≈ 30 s, off for ≈ 45 s on average,
+/// that cycles on and off during the session (on for ≈ 8 s, off for ≈ 12 s on average,
 /// exponential durations) and draws `watts` while on. `/lf/mainboardstate` `fan_state[1]`
 /// reads ≈ 3000 rpm while it runs and 0 while it stands (without this effect that fan turns
 /// steadily 30 rpm below fan 0).
@@ -153,7 +153,7 @@ pub struct RailLoad {
 }
 
 /// Mean on and off durations of the [`RailLoad`] fan [s].
-pub const FAN_MEAN_ON_OFF_S: (f64, f64) = (30.0, 45.0);
+pub const FAN_MEAN_ON_OFF_S: (f64, f64) = (8.0, 12.0);
 
 /// The set of switched-on effects (all off by default: the paper's plant).
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]

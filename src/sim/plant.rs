@@ -357,7 +357,7 @@ impl Engine<'_> {
                     }
                     thermal.step(t, dt, &tau);
                     let housing_c: [f64; N_JOINTS] =
-                        std::array::from_fn(|i| thermal.housing_c(i, t));
+                        std::array::from_fn(|i| thermal.housing_c(i));
                     let sample = PlantSample {
                         q: &q,
                         tau: &tau,
@@ -483,7 +483,7 @@ impl Engine<'_> {
                             tau_est: (tau[i] + noise.tau_nm * gauss(rng)) as f32,
                             temperature: [
                                 thermal.winding_c[i].round() as i16,
-                                thermal.housing_c(i, t).round() as i16,
+                                thermal.housing_c(i).round() as i16,
                             ],
                             vol,
                         };

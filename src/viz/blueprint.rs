@@ -315,6 +315,9 @@ pub struct LayoutParts {
     pub counterpart: bool,
     /// Trial marks are logged.
     pub trials: bool,
+    /// The diagnosis found terms following recorded fields (plotted in their own tab, time-
+    /// aligned with the prediction error).
+    pub located: bool,
 }
 
 /// The replay layout: the 3D arm on the left; on the right power (measured vs predicted), the
@@ -401,6 +404,14 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
             "TimeSeries",
             "Torque recording − twin [Nm]",
             "/diagnosis/torque",
+            vec![],
+        ));
+    }
+    if parts.located {
+        tabs.push(Node::view(
+            "TimeSeries",
+            "Fields the found terms follow",
+            "/diagnosis/located",
             vec![],
         ));
     }

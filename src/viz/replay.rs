@@ -140,6 +140,10 @@ pub struct DiagnosisOverlay {
     pub summary: String,
     /// The twin re-run on the recording's commands (`diagnose --counterpart`).
     pub counterpart: Option<crate::diagnose::counterpart::CounterpartSeries>,
+    /// Prediction with the terms found beyond the library [W] (empty when none was found).
+    pub found: Vec<f64>,
+    /// The recorded fields the found terms follow, per reading: (field name, values).
+    pub located: Vec<(String, Vec<f64>)>,
 }
 
 /// What later stages add to a replay. Plain data so identify/diagnose need no Rerun types.
@@ -348,6 +352,10 @@ impl<'a> ReplayLogger<'a> {
                     .as_ref()
                     .is_some_and(|d| d.counterpart.is_some()),
                 trials: !extras.trials.is_empty(),
+                located: extras
+                    .diagnosis
+                    .as_ref()
+                    .is_some_and(|d| !d.located.is_empty()),
             };
             let layout = blueprint::replay_layout(&joints, parts, arm_center(robot, arm));
             blueprint::send_blueprint(stream, &layout)?;
@@ -742,6 +750,18 @@ fn log_extras(
         scalars_chunked(w, "diagnosis/error/before", &d.t, &eb, chunk)?;
         scalars_chunked(w, "diagnosis/error/after", &d.t, &ea, chunk)?;
         log_trials(w, "diagnosis/trials", &d.highlighted)?;
+        if d.found.len() == d.t.len() && !d.found.is_empty() {
+            line(w, "diagnosis/power/found", "with terms found beyond the library", color(3))?;
+            line(w, "diagnosis/error/found", "error with found terms", color(3))?;
+            scalars_chunked(w, "diagnosis/power/found", &d.t, &d.found, chunk)?;
+            let ef: Vec<f64> = d.measured.iter().zip(&d.found).map(|(m, p)| m - p).collect();
+            scalars_chunked(w, "diagnosis/error/found", &d.t, &ef, chunk)?;
+        }
+        for (k, (name, values)) in d.located.iter().enumerate() {
+            let path = format!("diagnosis/located/{k}");
+            line(w, &path, name, color(k))?;
+            scalars_chunked(w, &path, &d.t, values, chunk)?;
+        }
         if let Some(cp) = &d.counterpart {
             line(
                 w,
