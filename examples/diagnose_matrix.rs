@@ -28,6 +28,8 @@ struct Case {
     truth: &'static [(&'static str, &'static str, f64)],
     /// Winding temperature at the start of each part (cycled over the parts).
     t_start_c: &'static [f64],
+    /// Housing temperature at the start of each part (cycled; empty: settled with the winding).
+    housing_c: &'static [f64],
     seeds: &'static [u64],
     /// Smoke sessions joined per seed (`--parts` overrides): faint effects need more trials.
     parts: u64,
@@ -42,6 +44,7 @@ const CASES: &[Case] = &[
         effects: &[],
         truth: &[],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 3,
         seeds: &[11, 12, 13, 14, 15],
         found: &[],
@@ -51,6 +54,7 @@ const CASES: &[Case] = &[
         effects: &["thermal=0.00393"],
         truth: &[("thermal", "α", 0.00393)],
         t_start_c: &[70.0],
+        housing_c: &[],
         parts: 3,
         seeds: &[3, 6, 7],
         found: &[],
@@ -60,6 +64,7 @@ const CASES: &[Case] = &[
         effects: &["braking=0.25"],
         truth: &[("braking", "r", 0.25)],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 6,
         seeds: &[3, 6, 7],
         found: &[],
@@ -69,6 +74,7 @@ const CASES: &[Case] = &[
         effects: &["bus_loss=0.05"],
         truth: &[("bus_loss", "R_bus", 0.05)],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 3,
         seeds: &[3, 6, 7],
         found: &[],
@@ -78,6 +84,7 @@ const CASES: &[Case] = &[
         effects: &["latency=0.3"],
         truth: &[("latency", "L", 0.3)],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 3,
         seeds: &[3, 6, 7],
         found: &[],
@@ -87,6 +94,7 @@ const CASES: &[Case] = &[
         effects: &["payload=0.5"],
         truth: &[("payload", "m", 0.5)],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 3,
         seeds: &[3, 6, 7],
         found: &[],
@@ -98,6 +106,7 @@ const CASES: &[Case] = &[
         // A refitted b_i absorbs a constant temperature offset; parts started at different
         // temperatures make the drift identifiable without the twin.
         t_start_c: &[30.0, 50.0, 70.0],
+        housing_c: &[],
         parts: 6,
         seeds: &[3, 6, 7],
         found: &[],
@@ -107,6 +116,7 @@ const CASES: &[Case] = &[
         effects: &["gear_friction=0.15"],
         truth: &[("gear_friction", "μ", 0.15)],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 6,
         seeds: &[3, 6, 7],
         found: &[],
@@ -116,6 +126,7 @@ const CASES: &[Case] = &[
         effects: &["drive_loss=0.5"],
         truth: &[("drive_loss", "V_drop", 0.5)],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 3,
         seeds: &[3, 6, 7],
         found: &[],
@@ -125,6 +136,7 @@ const CASES: &[Case] = &[
         effects: &["stribeck=10"],
         truth: &[("stribeck", "F_s", 10.0)],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 6,
         seeds: &[3, 6, 7],
         found: &[],
@@ -134,6 +146,7 @@ const CASES: &[Case] = &[
         effects: &["balance_leak"],
         truth: &[("balance_leak", "k_leak", 500.0 / 9.0)],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 6,
         seeds: &[3, 6, 7],
         found: &[],
@@ -143,6 +156,7 @@ const CASES: &[Case] = &[
         effects: &["braking=0.25", "latency=0.3"],
         truth: &[("braking", "r", 0.25), ("latency", "L", 0.3)],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 3,
         seeds: &[4, 9],
         found: &[],
@@ -152,6 +166,7 @@ const CASES: &[Case] = &[
         effects: &["bus_loss=0.05", "payload=0.5"],
         truth: &[("bus_loss", "R_bus", 0.05), ("payload", "m", 0.5)],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 3,
         seeds: &[4, 9],
         found: &[],
@@ -161,6 +176,7 @@ const CASES: &[Case] = &[
         effects: &["harness_drag=4"],
         truth: &[],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 3,
         seeds: &[5, 8],
         found: &[],
@@ -170,6 +186,7 @@ const CASES: &[Case] = &[
         effects: &["harness_drag=15"],
         truth: &[],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 3,
         seeds: &[5, 8],
         found: &[],
@@ -179,6 +196,7 @@ const CASES: &[Case] = &[
         effects: &["bus_power=10"],
         truth: &[("bus_power", "R_bus", 10.0)],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 3,
         seeds: &[3, 6],
         found: &[],
@@ -188,6 +206,7 @@ const CASES: &[Case] = &[
         effects: &["electronics_nm=0.5"],
         truth: &[("electronics_nm", "k_el", 0.5)],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 3,
         seeds: &[3, 6],
         found: &[],
@@ -197,6 +216,7 @@ const CASES: &[Case] = &[
         effects: &["joint_friction=1"],
         truth: &[],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 3,
         seeds: &[3, 6],
         found: &[("", 1.0)],
@@ -205,7 +225,10 @@ const CASES: &[Case] = &[
         name: "housing_friction",
         effects: &["housing_friction=0.05"],
         truth: &[],
+        // Windings and housings started at unrelated temperatures (a motor worked hard just
+        // before has a hot winding in a cool housing), so the two can be told apart.
         t_start_c: &[30.0, 50.0, 70.0],
+        housing_c: &[50.0, 30.0, 40.0, 35.0],
         parts: 6,
         seeds: &[3, 6],
         found: &[("temperature[1]", 0.05)],
@@ -215,6 +238,7 @@ const CASES: &[Case] = &[
         effects: &["fan_load=3"],
         truth: &[],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 3,
         seeds: &[3, 6],
         found: &[("fan_state[1]", 3.0)],
@@ -226,6 +250,7 @@ fn session(
     seed: u64,
     parts: u64,
     t_start_c: &[f64],
+    housing_c: &[f64],
     dir: &std::path::Path,
 ) -> Result<(g1viz::signals::Recording, Vec<diagnose::FieldSource>)> {
     let mut recs = Vec::new();
@@ -235,6 +260,8 @@ fn session(
             seed: seed * 100 + part,
             effects: *effects,
             t_start_c: t_start_c[part as usize % t_start_c.len()],
+            housing_start_c: (!housing_c.is_empty())
+                .then(|| housing_c[part as usize % housing_c.len()]),
             progress: false,
             ..SimConfig::default()
         };
@@ -417,7 +444,7 @@ fn main() -> Result<()> {
         for &seed in case.seeds {
             let t0 = Instant::now();
             let n = parts.unwrap_or(case.parts);
-            let (rec, sources) = session(&effects, seed, n, case.t_start_c, dir.path())?;
+            let (rec, sources) = session(&effects, seed, n, case.t_start_c, case.housing_c, dir.path())?;
             let base = DiagnoseOptions {
                 field_sources: sources,
                 ..DiagnoseOptions::default()

@@ -10,7 +10,7 @@
 //! - products of each pooled base loss term (Σ τq̇, Σ Δτ², Σ |q̇|, Σ q̇²) with each slow state
 //!   signal (fields that change little within a trial, and session time), and with each
 //!   per-motor field family taken joint by joint (Σ_i term_i · s_i, s_i = the field of joint
-//!   i's own motor); against a held base model the plain pooled term is a second column;
+//!   i's own motor), with the plain pooled term as a second column (the level);
 //! - against a held base model, each base loss term per joint (one coefficient per joint) and
 //!   pooled (one coefficient): a friction or efficiency the twin has wrong.
 //!
@@ -490,7 +490,7 @@ fn families(names: &[String], arm: &[usize; N_JOINTS]) -> Vec<(String, [usize; N
 }
 
 /// Columns of a candidate on the rows.
-fn columns(kind: &Kind, inp: &Inputs, rv: &RowValues, rows: &Rows, twin: bool) -> Vec<Vec<f64>> {
+fn columns(kind: &Kind, inp: &Inputs, rv: &RowValues, rows: &Rows) -> Vec<Vec<f64>> {
     let n = rows.len();
     let term_sum = |t: Term, r: usize, w: &dyn Fn(usize) -> f64| -> f64 {
         (0..N_JOINTS).map(|i| rows.x[r][t.offset() + i] * w(i)).sum()
@@ -515,11 +515,12 @@ fn columns(kind: &Kind, inp: &Inputs, rv: &RowValues, rows: &Rows, twin: bool) -
                 Signal::Family(_, fs) => rv.raw[fs[i]][r],
                 Signal::Time => rv.hours[r],
             };
-            let mut out = vec![(0..n).map(|r| term_sum(*t, r, &|i| s(r, i))).collect()];
-            if twin {
-                out.push((0..n).map(|r| term_sum(*t, r, &|_| 1.0)).collect());
-            }
-            out
+            // The level column lets the term's coefficient at signal 0 take any sign (the base
+            // coefficients it would otherwise shift are bounded at 0).
+            vec![
+                (0..n).map(|r| term_sum(*t, r, &|i| s(r, i))).collect(),
+                (0..n).map(|r| term_sum(*t, r, &|_| 1.0)).collect(),
+            ]
         }
         Kind::PerJoint(t) => (0..N_JOINTS)
             .map(|i| (0..n).map(|r| rows.x[r][t.offset() + i]).collect())
@@ -540,6 +541,9 @@ fn generate(
     let rv = RowValues::new(inp, rows);
     let mut meters = Vec::new();
     let mut usable = vec![true; names.len()];
+    let single: Vec<bool> = (0..names.len())
+        .map(|f| !inp.fields.duplicate.get(f).copied().unwrap_or(false))
+        .collect();
     for f in 0..names.len() {
         let net: Vec<f64> = (0..rows.len())
             .map(|r| rv.raw[f][r] - rv.baseline[f][r])
@@ -547,7 +551,9 @@ fn generate(
         let (r, _) = pearson(&net, &rows.y);
         if r.abs() >= METER_CORRELATION {
             usable[f] = false;
-            meters.push(format!("{} (r = {r:+.2})", names[f]));
+            if single[f] {
+                meters.push(format!("{} (r = {r:+.2})", names[f]));
+            }
         }
     }
     if !meters.is_empty() {
@@ -558,7 +564,7 @@ fn generate(
     }
     let mut kinds: Vec<(Kind, String)> = Vec::new();
     let mut slow = vec![Signal::Time];
-    for f in (0..names.len()).filter(|&f| usable[f]) {
+    for f in (0..names.len()).filter(|&f| usable[f] && single[f]) {
         kinds.push((Kind::Additive(f, span(&rv.raw[f])), format!("field {}", names[f])));
         if let Some(thr) = step_threshold(&rv.raw[f]) {
             kinds.push((Kind::Step(f, thr), format!("field {}", names[f])));
@@ -724,14 +730,13 @@ struct Search<'a> {
     cands: Vec<Cand>,
     rv: RowValues,
     inp: &'a Inputs<'a>,
-    twin: bool,
     rule: Rule,
     m: usize,
 }
 
 impl Search<'_> {
     fn cols(&self, i: usize) -> Vec<Vec<f64>> {
-        columns(&self.cands[i].kind, self.inp, &self.rv, self.base.rows, self.twin)
+        columns(&self.cands[i].kind, self.inp, &self.rv, self.base.rows)
     }
 
     fn level(&self, step: usize) -> f64 {
@@ -743,6 +748,7 @@ impl Search<'_> {
         let own = self.cols(i);
         let mut cols: Vec<&Vec<f64>> = prev.iter().collect();
         cols.extend(own.iter());
+        // A candidate whose fit fails (a degenerate column) is not a discovery.
         let fit = self.base.fit(&cols).ok()?;
         let (p, rel, before, after) = self.base.compare(cur.0, &fit.pred);
         let n = self.base.rows.len().max(1) as f64;
@@ -797,12 +803,14 @@ pub(crate) fn discover(
     let (cands, rv) = generate(inp, rows, data.n_trials, twin, &mut report.notes);
     let m = cands.len();
     report.n_candidates = m;
+    report.fields_used = (0..inp.fields.names.len())
+        .filter(|&f| !inp.fields.duplicate.get(f).copied().unwrap_or(false))
+        .count();
     let search = Search {
         base,
         cands,
         rv,
         inp,
-        twin,
         rule: *rule,
         m,
     };
@@ -825,6 +833,7 @@ pub(crate) fn discover(
             let Some(s) = search.score(i, &chosen_cols, (&cur_pred, cur_bic), y_rms) else {
                 continue;
             };
+
             let slot = if search.passes(&s, level) {
                 &mut best
             } else {

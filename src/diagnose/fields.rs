@@ -44,6 +44,9 @@ pub struct FieldTable {
     pub names: Vec<String>,
     /// Window value per field and window.
     pub values: Vec<Vec<f64>>,
+    /// Whether a field repeats an earlier field's values exactly (kept for per-motor families,
+    /// not tried again on its own).
+    pub duplicate: Vec<bool>,
     /// Fields read in all (before dropping constant, incomplete and duplicate ones).
     pub n_read: usize,
     /// Problems met (a file that could not be read is skipped with a note, never fatal).
@@ -143,8 +146,8 @@ impl TopicAcc {
 }
 
 /// Read every numeric field of `sources` over `windows` (sorted by start, non-overlapping).
-/// Fields that are constant, not defined over every window, or exact duplicates of an earlier
-/// field are dropped.
+/// Fields that are constant or not defined over every window are dropped; exact duplicates of
+/// an earlier field are marked.
 pub fn read_fields(sources: &[FieldSource], windows: &[Window]) -> FieldTable {
     let mut table = FieldTable::default();
     let mut merged: HashMap<String, Vec<f64>> = HashMap::new();
@@ -201,12 +204,13 @@ pub fn read_fields(sources: &[FieldSource], windows: &[Window]) -> FieldTable {
             continue;
         }
         let key: Vec<u64> = vals.iter().map(|v| v.to_bits()).collect();
-        if seen.contains_key(&key) {
-            continue;
+        let dup = seen.contains_key(&key);
+        if !dup {
+            seen.insert(key, table.names.len());
         }
-        seen.insert(key, table.names.len());
         table.names.push(name);
         table.values.push(vals);
+        table.duplicate.push(dup);
     }
     table
 }

@@ -819,40 +819,57 @@ fn select_and_discover(
             return Ok((sel, None, fields.map(|f| f.1).unwrap_or_default()));
         }
         let report = discover::discover(data, &sel.last, &field_inputs(f, opts), rule, &rec.joint_names)?;
-        let mut dropped = None;
-        if !report.cols.is_empty() {
-            for (j, h) in sel.last.spec.iter().enumerate() {
-                let mut spec = sel.last.spec.clone();
-                spec.remove(j);
-                let without = select::state(data, spec, lag)?;
-                let (p, rel, d_bic) =
-                    discover::library_term_given_found(data, &sel.last, &without, &report.cols)?;
-                let ok = p < rule.alpha && d_bic < rule.bic_threshold && rel >= rule.min_improvement;
-                if !ok {
-                    let found: Vec<&str> = report.accepted.iter().map(|t| t.name.as_str()).collect();
-                    dropped = Some((h.id, Confounded {
-                        kept: found.join("; "),
-                        dropped: h.id.into(),
-                        correlation: f64::NAN,
-                        p_value: p,
-                        rel_change: rel,
-                    }));
-                    break;
-                }
-            }
+        let dropped = library_given_found(data, &sel.last, &report, rule)?;
+        if dropped.is_empty() {
+            sel.confounded.extend(confounded);
+            sel.accepted.retain(|a| !excluded.contains(&a.id.as_str()));
+            let f = fields.map(|f| f.1).unwrap_or_default();
+            return Ok((sel, Some(report), f));
         }
-        match dropped {
-            Some((id, c)) => {
-                excluded.push(id);
-                confounded.push(c);
+        for c in dropped {
+            if let Some(h) = hypotheses::power_hypothesis(&c.dropped) {
+                excluded.push(h.id);
             }
-            None => {
-                sel.confounded.extend(confounded);
-                let f = fields.map(|f| f.1).unwrap_or_default();
-                return Ok((sel, Some(report), f));
-            }
+            confounded.push(c);
         }
     }
+}
+
+/// Library terms of `cur` that are not significant given the found terms (all at once).
+fn library_given_found(
+    data: &PowerData,
+    cur: &select::State,
+    report: &DiscoveryReport,
+    rule: &Rule,
+) -> Result<Vec<Confounded>> {
+    let mut out = Vec::new();
+    if report.cols.is_empty() {
+        return Ok(out);
+    }
+    let found: Vec<&str> = report.accepted.iter().map(|t| t.name.as_str()).collect();
+    let rows = &data.rows[cur.lag];
+    for (j, h) in cur.spec.iter().enumerate() {
+        let mut spec = cur.spec.clone();
+        spec.remove(j);
+        let without = select::state(data, spec, cur.lag)?;
+        let (p, rel, d_bic) = discover::library_term_given_found(data, cur, &without, &report.cols)?;
+        if p < rule.alpha && d_bic < rule.bic_threshold && rel >= rule.min_improvement {
+            continue;
+        }
+        let mine: Vec<f64> = rows
+            .x
+            .iter()
+            .map(|x| select::regressor(h, x, &cur.full.theta))
+            .collect();
+        out.push(Confounded {
+            kept: found.join("; "),
+            dropped: h.id.into(),
+            correlation: select::correlation(&mine, &report.cols[0]),
+            p_value: p,
+            rel_change: rel,
+        });
+    }
+    Ok(out)
 }
 
 /// Stage: what the replay shows of the found terms: their fields beside the residual, the

@@ -885,7 +885,7 @@ pub(crate) fn select(
 }
 
 /// The regressor of hypothesis `h` on row `r` (pooled terms weighted by `theta`).
-fn regressor(h: &Hypothesis, x: &[f64; N_RAW], theta: &[f64]) -> f64 {
+pub(crate) fn regressor(h: &Hypothesis, x: &[f64; N_RAW], theta: &[f64]) -> f64 {
     let (off, len) = h.raw;
     (0..len)
         .map(|i| {
@@ -899,7 +899,7 @@ fn regressor(h: &Hypothesis, x: &[f64; N_RAW], theta: &[f64]) -> f64 {
 }
 
 /// Pearson correlation.
-fn correlation(a: &[f64], b: &[f64]) -> f64 {
+pub(crate) fn correlation(a: &[f64], b: &[f64]) -> f64 {
     let n = a.len().max(1) as f64;
     let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
     let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);

@@ -296,6 +296,9 @@ impl Engine<'_> {
         let keep_s = latency + SENSOR_WINDOW_S + 2.0;
 
         let mut thermal = ThermalState::new(cfg.thermal, cfg.t_start_c);
+        if let Some(h) = cfg.housing_start_c {
+            thermal.set_housing(h);
+        }
         let mut stats = RunStats {
             trials: vec![TrialSums::default(); self.trials.len()],
             tau_home,

@@ -67,6 +67,11 @@ impl ThermalState {
         }
     }
 
+    /// Set every housing temperature [°C].
+    pub fn set_housing(&mut self, c: f64) {
+        self.housing = [c; N_JOINTS];
+    }
+
     /// Ambient temperature at session time `t` [s].
     pub fn ambient(&self, t: f64) -> f64 {
         self.model.ambient_c + self.model.ambient_rate_k_per_h * t / 3600.0
