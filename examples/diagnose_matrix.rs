@@ -352,7 +352,17 @@ fn row(case: &Case, seed: u64, mode: &str, d: &Diagnosis) -> String {
                     .map(|(p, wi)| (p.value - value * wi) / (value * wi))
                     .max_by(|a, b| a.abs().total_cmp(&b.abs()))
                     .unwrap_or(f64::NAN);
-                format!("per joint, worst error {:+.1} %", 100.0 * worst)
+                let worst_se = t
+                    .params
+                    .iter()
+                    .zip(w)
+                    .map(|(p, wi)| (p.value - value * wi).abs() / p.std_err)
+                    .fold(0.0, f64::max);
+                format!(
+                    "per joint, worst error {:+.1} %, worst {:.1} s.e.",
+                    100.0 * worst,
+                    worst_se
+                )
             }
             Some(t) => {
                 let p = &t.params[0];
@@ -380,6 +390,13 @@ fn row(case: &Case, seed: u64, mode: &str, d: &Diagnosis) -> String {
         }));
     }
     let f = &d.final_model;
+    // Held-out R² after: with the terms found beyond the library when there are any.
+    let after_r2 = d
+        .discovery
+        .as_ref()
+        .filter(|r| !r.accepted.is_empty())
+        .and_then(|r| r.after)
+        .map_or(f.after.r2, |q| q.r2);
     let torque = d
         .accepted
         .iter()
@@ -410,7 +427,7 @@ fn row(case: &Case, seed: u64, mode: &str, d: &Diagnosis) -> String {
             accepted.join(", ")
         },
         f.before.r2,
-        f.after.r2,
+        after_r2,
         d.n_trials,
         d.n_trials + d.rejected.len(),
     )
@@ -444,7 +461,14 @@ fn main() -> Result<()> {
         for &seed in case.seeds {
             let t0 = Instant::now();
             let n = parts.unwrap_or(case.parts);
-            let (rec, sources) = session(&effects, seed, n, case.t_start_c, case.housing_c, dir.path())?;
+            let (rec, sources) = session(
+                &effects,
+                seed,
+                n,
+                case.t_start_c,
+                case.housing_c,
+                dir.path(),
+            )?;
             let base = DiagnoseOptions {
                 field_sources: sources,
                 ..DiagnoseOptions::default()

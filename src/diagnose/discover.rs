@@ -274,7 +274,9 @@ impl<'a> Base<'a> {
                 h[a] += x[a] * v;
             }
         }
-        let beta = g.cholesky().map_or_else(|| DVector::zeros(p), |ch| ch.solve(&h));
+        let beta = g
+            .cholesky()
+            .map_or_else(|| DVector::zeros(p), |ch| ch.solve(&h));
         self.xm
             .iter()
             .zip(c)
@@ -418,8 +420,14 @@ impl<'a> Base<'a> {
         (
             improvement_p_value(&d),
             1.0 - ra / rb.max(1e-300),
-            Quality { r2: r2b, rmse_w: rb },
-            Quality { r2: r2a, rmse_w: ra },
+            Quality {
+                r2: r2b,
+                rmse_w: rb,
+            },
+            Quality {
+                r2: r2a,
+                rmse_w: ra,
+            },
         )
     }
 }
@@ -493,7 +501,9 @@ fn families(names: &[String], arm: &[usize; N_JOINTS]) -> Vec<(String, [usize; N
 fn columns(kind: &Kind, inp: &Inputs, rv: &RowValues, rows: &Rows) -> Vec<Vec<f64>> {
     let n = rows.len();
     let term_sum = |t: Term, r: usize, w: &dyn Fn(usize) -> f64| -> f64 {
-        (0..N_JOINTS).map(|i| rows.x[r][t.offset() + i] * w(i)).sum()
+        (0..N_JOINTS)
+            .map(|i| rows.x[r][t.offset() + i] * w(i))
+            .sum()
     };
     match kind {
         Kind::Additive(f, _) => vec![(0..n).map(|r| rv.raw[*f][r] - rv.baseline[*f][r]).collect()],
@@ -565,7 +575,10 @@ fn generate(
     let mut kinds: Vec<(Kind, String)> = Vec::new();
     let mut slow = vec![Signal::Time];
     for f in (0..names.len()).filter(|&f| usable[f] && single[f]) {
-        kinds.push((Kind::Additive(f, span(&rv.raw[f])), format!("field {}", names[f])));
+        kinds.push((
+            Kind::Additive(f, span(&rv.raw[f])),
+            format!("field {}", names[f]),
+        ));
         if let Some(thr) = step_threshold(&rv.raw[f]) {
             kinds.push((Kind::Step(f, thr), format!("field {}", names[f])));
         }
@@ -622,10 +635,21 @@ pub(crate) fn describe(
         std_err: se.get(j).copied().unwrap_or(f64::NAN),
         unit,
     };
-    let sign = |v: f64, up: &str, down: &str| if v >= 0.0 { up.to_string() } else { down.to_string() };
+    let sign = |v: f64, up: &str, down: &str| {
+        if v >= 0.0 {
+            up.to_string()
+        } else {
+            down.to_string()
+        }
+    };
     match kind {
         Kind::Additive(f, sp) => {
-            let mut swing = param("load change over the field's 5–95 % range".into(), "ΔP", 0, "W".into());
+            let mut swing = param(
+                "load change over the field's 5–95 % range".into(),
+                "ΔP",
+                0,
+                "W".into(),
+            );
             swing.value *= sp;
             swing.std_err *= sp;
             (
@@ -638,7 +662,12 @@ pub(crate) fn describe(
                 vec![names[*f].clone()],
                 vec![
                     swing,
-                    param("load per unit of the field".into(), "k", 0, "W per unit".into()),
+                    param(
+                        "load per unit of the field".into(),
+                        "k",
+                        0,
+                        "W per unit".into(),
+                    ),
                 ],
             )
         }
@@ -675,19 +704,34 @@ pub(crate) fn describe(
                     capitalise(t.words()),
                     sign(gamma[0], "rises with", "falls as it rises:")
                 ),
-                format!("P += Σ_i {}·(k·s_i{})", t.symbol(), if gamma.len() > 1 { " + k0" } else { "" }),
+                format!(
+                    "P += Σ_i {}·(k·s_i{})",
+                    t.symbol(),
+                    if gamma.len() > 1 { " + k0" } else { "" }
+                ),
                 fields,
                 ps,
             )
         }
         Kind::PerJoint(t) => (
-            format!("{} differs joint by joint from the model", capitalise(t.words())),
+            format!(
+                "{} differs joint by joint from the model",
+                capitalise(t.words())
+            ),
             format!("P += Σ_i k_i·{}", t.symbol()),
             Vec::new(),
             (0..N_JOINTS)
                 .map(|i| {
-                    let j = joint_names.get(i).cloned().unwrap_or_else(|| format!("joint {i}"));
-                    param(format!("excess on {j}"), &format!("k_{i}"), i, t.unit().into())
+                    let j = joint_names
+                        .get(i)
+                        .cloned()
+                        .unwrap_or_else(|| format!("joint {i}"));
+                    param(
+                        format!("excess on {j}"),
+                        &format!("k_{i}"),
+                        i,
+                        t.unit().into(),
+                    )
                 })
                 .collect(),
         ),
@@ -1031,7 +1075,12 @@ fn to_discovery(
     let g: Vec<f64> = s.fit.gamma.iter().rev().take(n).rev().copied().collect();
     let se: Vec<f64> = (0..n)
         .map(|j| {
-            let per: Vec<f64> = s.fit.fold_gamma.iter().map(|t| t[t.len() - n + j]).collect();
+            let per: Vec<f64> = s
+                .fit
+                .fold_gamma
+                .iter()
+                .map(|t| t[t.len() - n + j])
+                .collect();
             jackknife_se(&per)
         })
         .collect();
@@ -1064,7 +1113,9 @@ mod tests {
 
     #[test]
     fn step_threshold_needs_two_levels() {
-        let two: Vec<f64> = (0..100).map(|k| if k % 3 == 0 { 3000.0 } else { 0.0 }).collect();
+        let two: Vec<f64> = (0..100)
+            .map(|k| if k % 3 == 0 { 3000.0 } else { 0.0 })
+            .collect();
         assert_eq!(step_threshold(&two), Some(1500.0));
         let ramp: Vec<f64> = (0..100).map(f64::from).collect();
         assert_eq!(step_threshold(&ramp), None);

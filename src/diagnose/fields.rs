@@ -313,10 +313,7 @@ mod tests {
                     Value::Struct(vec![("q".into(), Value::Float(0.0))]),
                 ]),
             ),
-            (
-                "t".into(),
-                Value::Array(vec![Value::Int(1), Value::Int(2)]),
-            ),
+            ("t".into(), Value::Array(vec![Value::Int(1), Value::Int(2)])),
         ]);
         let mut out = Vec::new();
         numeric_leaves(&v, "", &mut out);

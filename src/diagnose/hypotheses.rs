@@ -249,7 +249,6 @@ pub static POWER_HYPOTHESES: [Hypothesis; 9] = [
     },
 ];
 
-
 /// Identifier of the power-sensor latency hypothesis (window shift, not an extra regressor).
 pub const LATENCY_ID: &str = "latency";
 /// Identifier of the payload-at-the-hand hypothesis (torque level).

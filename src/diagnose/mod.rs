@@ -29,9 +29,9 @@ use std::path::PathBuf;
 use anyhow::{Context, Result, bail};
 
 pub use data::{Phase, TrialWindow};
-pub use locate::{Breakdown, Correlate, Group, TrialResidual};
 pub use discover::{Discovery, DiscoveryReport};
 pub use fields::FieldSource;
+pub use locate::{Breakdown, Correlate, Group, TrialResidual};
 pub use select::{Confounded, HypothesisScore, MechanismForms, Param};
 pub use torque::{ArmModel, TorqueComparison};
 
@@ -651,10 +651,15 @@ pub fn diagnose_trials(
         .zip(&sel.base.cv.pred)
         .map(|(a, b)| a - b)
         .collect();
+    // What the final model leaves: with the terms found beyond the library when there are any.
+    let final_pred = match &discovery {
+        Some(r) if !r.accepted.is_empty() && r.pred.len() == last.cv.pred.len() => &r.pred,
+        _ => &last.cv.pred,
+    };
     let resid_final: Vec<f64> = data.rows[last.lag]
         .y
         .iter()
-        .zip(&last.cv.pred)
+        .zip(final_pred)
         .map(|(a, b)| a - b)
         .collect();
     let breakdowns = locate::breakdowns(rows0, &metas, &resid_base, &rec.joint_names);
@@ -818,7 +823,13 @@ fn select_and_discover(
         if !opts.discover {
             return Ok((sel, None, fields.map(|f| f.1).unwrap_or_default()));
         }
-        let report = discover::discover(data, &sel.last, &field_inputs(f, opts), rule, &rec.joint_names)?;
+        let report = discover::discover(
+            data,
+            &sel.last,
+            &field_inputs(f, opts),
+            rule,
+            &rec.joint_names,
+        )?;
         let dropped = library_given_found(data, &sel.last, &report, rule)?;
         if dropped.is_empty() {
             sel.confounded.extend(confounded);
@@ -852,7 +863,8 @@ fn library_given_found(
         let mut spec = cur.spec.clone();
         spec.remove(j);
         let without = select::state(data, spec, cur.lag)?;
-        let (p, rel, d_bic) = discover::library_term_given_found(data, cur, &without, &report.cols)?;
+        let (p, rel, d_bic) =
+            discover::library_term_given_found(data, cur, &without, &report.cols)?;
         if p < rule.alpha && d_bic < rule.bic_threshold && rel >= rule.min_improvement {
             continue;
         }
@@ -941,8 +953,12 @@ fn run_fields(
         end: t - lag,
     };
     // (window, tag): tag < rows.len() = row, otherwise baseline of trial tag − rows.len().
-    let mut all: Vec<(fields::Window, usize)> =
-        rows.t.iter().enumerate().map(|(r, &t)| (window(t), r)).collect();
+    let mut all: Vec<(fields::Window, usize)> = rows
+        .t
+        .iter()
+        .enumerate()
+        .map(|(r, &t)| (window(t), r))
+        .collect();
     for (ti, m) in metas.iter().enumerate() {
         let lo = power.t.partition_point(|&x| x < m.window.t_pre + w);
         let hi = power.t.partition_point(|&x| x < m.window.t_traj + 1e-9);

@@ -611,7 +611,15 @@ fn beyond_section(md: &mut String, d: &Diagnosis) {
         let params: Vec<String> = t
             .params
             .iter()
-            .map(|p| format!("{} = {} ± {} {}", p.symbol, sig(p.value), sig(p.std_err), p.unit))
+            .map(|p| {
+                format!(
+                    "{} = {} ± {} {}",
+                    p.symbol,
+                    sig(p.value),
+                    sig(p.std_err),
+                    p.unit
+                )
+            })
             .collect();
         let _ = writeln!(
             md,

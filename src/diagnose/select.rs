@@ -941,7 +941,10 @@ fn backward(
         let h = cur.spec[j];
         let rows = &data.rows[cur.lag];
         let col = |g: &Hypothesis| -> Vec<f64> {
-            rows.x.iter().map(|x| regressor(g, x, &cur.full.theta)).collect()
+            rows.x
+                .iter()
+                .map(|x| regressor(g, x, &cur.full.theta))
+                .collect()
         };
         let mine = col(h);
         let kept = cur

@@ -392,23 +392,25 @@ impl Effects {
                     )
             }
             "bus_power" => {
-                self.bus_power = Some(value.map_or(BusPowerLoss::DEFAULT, |resistance_ohm| {
-                    BusPowerLoss { resistance_ohm }
-                }))
+                self.bus_power =
+                    Some(
+                        value.map_or(BusPowerLoss::DEFAULT, |resistance_ohm| BusPowerLoss {
+                            resistance_ohm,
+                        }),
+                    )
             }
             "electronics_nm" => {
-                self.electronics_nm = Some(
-                    value.map_or(ElectronicsLoss::DEFAULT, |w_per_nm| ElectronicsLoss {
-                        w_per_nm,
-                    }),
-                )
+                self.electronics_nm =
+                    Some(
+                        value.map_or(ElectronicsLoss::DEFAULT, |w_per_nm| ElectronicsLoss {
+                            w_per_nm,
+                        }),
+                    )
             }
             "joint_friction" => {
-                self.joint_friction = Some(
-                    value.map_or(JointFrictionExcess::DEFAULT, |newton_m| {
-                        JointFrictionExcess { newton_m }
-                    }),
-                )
+                self.joint_friction = Some(value.map_or(JointFrictionExcess::DEFAULT, |newton_m| {
+                    JointFrictionExcess { newton_m }
+                }))
             }
             "housing_friction" => {
                 self.housing_friction = Some(value.map_or(HousingFriction::DEFAULT, |w| {
@@ -462,16 +464,9 @@ pub struct PlantSample<'a> {
 }
 
 /// Net arm power of the plant for one true state sample.
-pub fn arm_power(
-    model: &crate::power::PowerModel,
-    effects: &Effects,
-    s: &PlantSample,
-) -> ArmPower {
+pub fn arm_power(model: &crate::power::PowerModel, effects: &Effects, s: &PlantSample) -> ArmPower {
     let (q, tau, dq) = (s.q, s.tau, s.dq);
-    let mut tau0_sq = [0.0; N_JOINTS];
-    for i in 0..N_JOINTS {
-        tau0_sq[i] = s.tau_home[i] * s.tau_home[i];
-    }
+    let tau0_sq = s.tau_home.map(|v| v * v);
     let base = model.predict(tau, dq, &tau0_sq);
     let mut extra = 0.0;
     for i in 0..N_JOINTS {

@@ -359,8 +359,7 @@ impl Engine<'_> {
                         tau[i] = rigid[i] + fr[i];
                     }
                     thermal.step(t, dt, &tau);
-                    let housing_c: [f64; N_JOINTS] =
-                        std::array::from_fn(|i| thermal.housing_c(i));
+                    let housing_c: [f64; N_JOINTS] = std::array::from_fn(|i| thermal.housing_c(i));
                     let sample = PlantSample {
                         q: &q,
                         tau: &tau,

@@ -751,10 +751,25 @@ fn log_extras(
         scalars_chunked(w, "diagnosis/error/after", &d.t, &ea, chunk)?;
         log_trials(w, "diagnosis/trials", &d.highlighted)?;
         if d.found.len() == d.t.len() && !d.found.is_empty() {
-            line(w, "diagnosis/power/found", "with terms found beyond the library", color(3))?;
-            line(w, "diagnosis/error/found", "error with found terms", color(3))?;
+            line(
+                w,
+                "diagnosis/power/found",
+                "with terms found beyond the library",
+                color(3),
+            )?;
+            line(
+                w,
+                "diagnosis/error/found",
+                "error with found terms",
+                color(3),
+            )?;
             scalars_chunked(w, "diagnosis/power/found", &d.t, &d.found, chunk)?;
-            let ef: Vec<f64> = d.measured.iter().zip(&d.found).map(|(m, p)| m - p).collect();
+            let ef: Vec<f64> = d
+                .measured
+                .iter()
+                .zip(&d.found)
+                .map(|(m, p)| m - p)
+                .collect();
             scalars_chunked(w, "diagnosis/error/found", &d.t, &ef, chunk)?;
         }
         for (k, (name, values)) in d.located.iter().enumerate() {
