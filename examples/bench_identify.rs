@@ -12,7 +12,7 @@ use std::time::Instant;
 
 use anyhow::{Context, Result};
 use g1viz::N_PARAMS;
-use g1viz::identify::pipeline::{self, IdentifyOptions};
+use g1viz::identify::{self as pipeline, IdentifyOptions};
 use g1viz::power::PowerModel;
 use g1viz::signals::{SignalMap, load_recording};
 
@@ -38,7 +38,7 @@ fn main() -> Result<()> {
     let rec = load_recording(session, &map, &Default::default())?;
     let t_read = t0.elapsed().as_secs_f64();
     let t1 = Instant::now();
-    let seg = g1viz::identify::segment::segment(&rec, &Default::default());
+    let seg = g1viz::trial::segment(&rec, &Default::default());
     let t_segment = t1.elapsed().as_secs_f64();
     let t2 = Instant::now();
     let id = pipeline::identify(std::slice::from_ref(&rec), &IdentifyOptions::default())?;

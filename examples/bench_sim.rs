@@ -18,7 +18,7 @@ use anyhow::Context;
 use g1viz::sim::{Preset, SimConfig, simulate};
 
 fn effects_table() -> anyhow::Result<()> {
-    use g1viz::identify::pipeline::{IdentifyOptions, validate};
+    use g1viz::identify::{IdentifyOptions, validate};
     use g1viz::sim::Artefacts;
     let tmp = tempfile::tempdir()?;
     println!(

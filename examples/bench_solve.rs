@@ -12,8 +12,7 @@ use std::hint::black_box;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
-use g1viz::identify::metrics::{Metrics, condition_number};
-use g1viz::identify::solve::{fit_bvls, fit_constrained, paper_lower_bounds};
+use g1viz::lsq::{Metrics, condition_number, fit_bvls, fit_constrained, paper_lower_bounds};
 use g1viz::power::{ModelFile, ModelMetrics, PowerModel, Provenance, TermMeans, regressor_into};
 use g1viz::{N_JOINTS, N_PARAMS};
 use rand::{RngExt, SeedableRng};
@@ -130,7 +129,7 @@ fn main() -> anyhow::Result<()> {
         .fold(0.0, f64::max);
     println!("largest |θ − θ_paper| = {worst:.4} (noise 0.3 W per row)");
 
-    let model = fit.model()?;
+    let model = g1viz::power::PowerModel::from_vector(&fit.theta49()?);
     let calls = 10_000_000u64;
     let mut tau = [1.0, 0.5, 0.2, 2.0, 0.1, 0.3, 0.05];
     let mut dq = [0.3, -0.2, 0.1, 1.0, 0.0, 0.5, -0.4];

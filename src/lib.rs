@@ -5,23 +5,28 @@
 //! ```text
 //! read (MCAP, ROS 2 .db3, ROS 1 .bag; schema-driven decoding)
 //!   → signals (named arm signals: q, dq, tau, temperature, IMU, MBS/BMS power)
+//!   → trial (trial windows, segmentation, the IMU and n·σ filters)
 //!   → robot (URDF, forward kinematics, inverse dynamics)
 //!   → power (the paper's 49-parameter model)
-//!   → identify (segmentation, regressors, filters, constrained fit, metrics, report)
+//!   → identify (regressors, constrained fit, validation, report)
 //!   → diagnose (sim-to-real mismatch: locate, name, model)
-//!   → viz (Rerun recording)
+//!   → viz (Rerun recording); rows (per-reading rows as Parquet, for many sessions and robots)
 //! sim (digital twin) writes the same MCAP format that `read` reads.
+//! lsq (least squares: normal equations, bounded solvers, metrics) and util sit under all of them.
 //! ```
 #![warn(missing_docs)]
 
 pub mod diagnose;
 pub mod identify;
+pub mod lsq;
 mod plot;
 pub mod power;
 pub mod read;
 pub mod robot;
+pub mod rows;
 pub mod signals;
 pub mod sim;
+pub mod trial;
 pub mod util;
 #[cfg(feature = "viz")]
 pub mod viz;

@@ -1,9 +1,9 @@
 //! Small helpers shared by every stage: atomic file output.
 
 use std::io::Write;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
-use anyhow::{Context, Result};
+use anyhow::{Context, Result, bail};
 
 /// Write `bytes` to `path` atomically: write a temporary file beside it, then rename.
 /// A reader never sees a half-written file and a failed write leaves the old file intact.
@@ -114,4 +114,80 @@ pub fn read_text_input(path: &Path) -> std::io::Result<String> {
         ));
     }
     std::fs::read_to_string(path)
+}
+
+/// Serde for an f64 that may be NaN or infinite: JSON has no such numbers, so they are written as
+/// `null` and `null` reads back as NaN (`#[serde(with = "crate::util::nan_as_null")]`).
+pub mod nan_as_null {
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    /// Write a finite value as a number, anything else as `null`.
+    pub fn serialize<S: Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
+        if v.is_finite() {
+            s.serialize_f64(*v)
+        } else {
+            s.serialize_none()
+        }
+    }
+
+    /// Read a number, or `null` as NaN.
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+        Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+    }
+}
+
+/// Refuses outputs that would overwrite an input (a file read, a bag folder, or a simulated
+/// session's truth sidecar) or each other — checked before any work is done.
+pub fn check_outputs(outputs: &[(&str, Option<&Path>)], inputs: &[Option<&Path>]) -> Result<()> {
+    let sidecars: Vec<PathBuf> = inputs
+        .iter()
+        .flatten()
+        .map(|p| crate::sim::truth_path(p))
+        .collect();
+    let mut all: Vec<&Path> = inputs.iter().flatten().copied().collect();
+    all.extend(sidecars.iter().map(PathBuf::as_path));
+    let outputs: Vec<(&str, &Path)> = outputs
+        .iter()
+        .filter_map(|(what, p)| p.map(|p| (*what, p)))
+        .collect();
+    for (k, (what, out)) in outputs.iter().enumerate() {
+        crate::util::refuse_to_overwrite_inputs(what, out, &all)?;
+        for (other, o) in &outputs[..k] {
+            let (x, y) = (
+                crate::util::canonical_target(out),
+                crate::util::canonical_target(o),
+            );
+            if x.is_some() && x == y {
+                bail!(
+                    "the {what} and the {other} are the same file {}",
+                    out.display()
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Refuses a session given twice; `why` says what that would spoil.
+pub fn check_distinct_sessions(sessions: &[&Path], why: &str) -> Result<()> {
+    for (k, a) in sessions.iter().enumerate() {
+        for b in &sessions[..k] {
+            if same_file(a, b) {
+                bail!(
+                    "{} and {} are the same recording: {why}",
+                    b.display(),
+                    a.display()
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Whether two paths name the same existing file.
+pub fn same_file(a: &Path, b: &Path) -> bool {
+    match (a.canonicalize(), b.canonicalize()) {
+        (Ok(x), Ok(y)) => x == y,
+        _ => false,
+    }
 }

@@ -438,24 +438,27 @@ fn not_a_bag_is_a_format_error() {
 #[test]
 fn bags_written_by_rosbags_at_run_time() {
     let Some(shared) = shared() else { return };
-    let importable = Command::new("python3")
-        .args(["-c", "import rosbags"])
-        .output()
-        .is_ok_and(|o| o.status.success());
+    let importable = common::output_within(
+        Command::new("python3").args(["-c", "import rosbags"]),
+        common::TOOL_LIMIT,
+    )
+    .is_ok_and(|o| o.status.success());
     if !importable {
         common::skip("python3 `rosbags` not importable (pip install rosbags==0.11.9)");
         return;
     }
     let tmp = tempfile::tempdir().unwrap();
     let n = 1500;
-    let out = Command::new("python3")
-        .args(["-c", GENERATOR])
-        .arg(shared.join("recordings/g1_smoke.bag"))
-        .arg(shared.join("recordings/g1_smoke_db3"))
-        .arg(tmp.path())
-        .arg(n.to_string())
-        .output()
-        .unwrap();
+    let out = common::output_within(
+        Command::new("python3")
+            .args(["-c", GENERATOR])
+            .arg(shared.join("recordings/g1_smoke.bag"))
+            .arg(shared.join("recordings/g1_smoke_db3"))
+            .arg(tmp.path())
+            .arg(n.to_string()),
+        common::TOOL_LIMIT,
+    )
+    .unwrap();
     assert!(
         out.status.success(),
         "{}",

@@ -1,10 +1,9 @@
 //! Tests of the identification core: the constrained solvers (clarabel vs the independent active-set BVLS and
 //! the KKT conditions), fit metrics against hand-computed values, the model file and the report.
 
-use g1viz::identify::metrics::{Metrics, condition_number, condition_number_matrix};
-use g1viz::identify::solve::{
-    Bounds, Method, fit_bvls, fit_constrained, fit_constrained_general, fit_general, kkt_check,
-    paper_lower_bounds, rows_to_matrix,
+use g1viz::lsq::{
+    Bounds, Method, Metrics, condition_number, condition_number_matrix, fit_bvls, fit_constrained,
+    fit_constrained_general, fit_general, kkt_check, paper_lower_bounds, rows_to_matrix,
 };
 use g1viz::power::{PowerModel, regressor_into};
 use g1viz::{N_JOINTS, N_PARAMS};
@@ -477,17 +476,18 @@ fn sample_model_file() -> g1viz::power::ModelFile {
             used: 9,
             rejected: 1,
         },
-        rejected_trials: vec![RejectedTrial {
-            session: "paper.mcap".into(),
+        rejected_trials: vec![g1viz::trial::Rejection {
+            session: 0,
             trial: 4,
-            filter: "imu_sigma".into(),
+            reason: g1viz::trial::RejectReason::ImuSway,
             statistic: 0.31,
             threshold: 0.12,
-            reason: "body sway σ_ω 0.31 rad/s > 2.5 × median".into(),
+            pass: 0,
+            detail: String::new(),
         }],
         solver: Some(SolverRecord {
-            method: "clarabel".into(),
-            status: "Solved".into(),
+            method: Method::Clarabel,
+            status: g1viz::lsq::Status::Solved,
             iterations: 12,
         }),
         ..Provenance::default()
@@ -591,7 +591,7 @@ fn report_writes_markdown_and_readable_pngs() {
     use g1viz::identify::report::*;
     let (rows, y) = paper_shaped(120, 0.3, &PowerModel::PAPER, 11);
     let fit = fit_constrained(&rows, &y, &paper_lower_bounds()).unwrap();
-    let model = fit.model().unwrap();
+    let model = PowerModel::from_vector(&fit.theta49().unwrap());
     let predicted: Vec<f64> = rows
         .iter()
         .map(|r| model.breakdown_from_regressor(r).total())

@@ -152,13 +152,15 @@ fn python_dump(
 ) -> Option<serde_json::Value> {
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/py/dump_mcap.py");
     let idx: Vec<String> = indices.iter().map(ToString::to_string).collect();
-    let out = Command::new("python3")
-        .arg(script)
-        .arg(path)
-        .arg(topic)
-        .arg(idx.join(","))
-        .args(fields)
-        .output();
+    let out = common::output_within(
+        Command::new("python3")
+            .arg(script)
+            .arg(path)
+            .arg(topic)
+            .arg(idx.join(","))
+            .args(fields),
+        common::TOOL_LIMIT,
+    );
     match out {
         Ok(o) if o.status.success() => {
             Some(serde_json::from_slice(&o.stdout).expect("python JSON"))

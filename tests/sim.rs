@@ -186,18 +186,23 @@ fn official_python_reader_decodes_the_file() {
     };
     simulate(&cfg, &out).unwrap();
     let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/py/check_sim_mcap.py");
-    let run = std::process::Command::new("python3")
-        .arg(&script)
-        .arg(&out)
-        .arg(out.with_extension("truth.json"))
-        .output();
+    assert!(script.is_file(), "{} missing", script.display());
+    let run = common::output_within(
+        std::process::Command::new("python3")
+            .arg(&script)
+            .arg(&out)
+            .arg(out.with_extension("truth.json")),
+        common::TOOL_LIMIT,
+    );
     let Ok(run) = run else {
         common::skip("python3 not available: independent-reader check");
         return;
     };
     let stdout = String::from_utf8_lossy(&run.stdout);
     let stderr = String::from_utf8_lossy(&run.stderr);
-    if run.status.code() == Some(2) {
+    // Exit status 3 is the script's own "modules missing"; python's 2 (cannot open the script,
+    // bad arguments) and anything else but 0 are failures.
+    if run.status.code() == Some(3) {
         common::skip(&format!(
             "python modules mcap / mcap-ros2-support missing ({stderr})"
         ));
@@ -617,7 +622,14 @@ fn twin_of_the_shared_smoke_session_matches_it() {
     let real = load(shared);
     let dir = tmp();
     let out = dir.path().join("twin.mcap");
-    g1viz::sim::simulate_like(&real, &tiny(1), &out).unwrap();
+    // What `g1viz simulate --like g1_smoke.mcap -o twin.mcap` runs (default seed 1, default
+    // artefacts).
+    let cfg = SimConfig {
+        seed: 1,
+        progress: false,
+        ..SimConfig::default()
+    };
+    g1viz::sim::simulate_like(&real, &cfg, &out).unwrap();
     let twin = load(&out);
     assert_eq!(twin.start_ns, real.start_ns);
     assert_eq!(twin.state.t.len(), real.state.t.len());
@@ -651,4 +663,143 @@ fn twin_of_the_shared_smoke_session_matches_it() {
         / n)
         .sqrt();
     assert!(rms < 1.5, "MBS rms difference {rms:.2} W");
+
+    // README: "τ differs by 0.071 Nm rms — √2 × the files' noise — and MBS power by 0.91 W rms".
+    // The expectation for τ is the independent generator's own noise level (truth JSON); the
+    // power figure is this code's result on that file, held as stated.
+    let truth: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(shared.with_extension("truth.json")).unwrap(),
+    )
+    .unwrap();
+    let sigma = truth["plant"]["noise"]["tau_Nm"].as_f64().expect("τ noise");
+    let tau_rms = (real
+        .state
+        .tau
+        .iter()
+        .zip(&twin.state.tau)
+        .flat_map(|(a, b)| a.iter().zip(b).map(|(x, y)| (x - y).powi(2)))
+        .sum::<f64>()
+        / (7 * real.state.tau.len()) as f64)
+        .sqrt();
+    common::assert_figure("twin τ rms difference [Nm]", tau_rms, "0.071");
+    common::assert_figure(
+        "√2 × the generator's τ noise [Nm]",
+        2f64.sqrt() * sigma,
+        "0.071",
+    );
+    common::assert_figure("twin MBS rms difference [W]", rms, "0.91");
+}
+
+/// README (Digital twin): "Protocol as in the paper (2 s pre-idle at home, cubic smooth-step
+/// segments through 3–5 waypoints, 2 s post-idle, return at 0.5 rad/s); presets … `smoke` (24
+/// trials), … `holdout` (46 trials at the unseen speeds)" — the trial windows and speed levels
+/// from the truth sidecar, the return speed measured in the written joint velocities. (`paper`,
+/// 1000 trials at 0.5–2.5 rad/s, is checked by the paper-scale tests in tests/identify.rs.)
+#[test]
+fn presets_follow_the_protocol_the_readme_states() {
+    let dir = tmp();
+    for (preset, n, speeds) in [
+        (Preset::Smoke, 24, &[0.5, 1.0, 1.5, 2.0, 2.5][..]),
+        (Preset::Holdout, 46, &[0.75, 1.25, 1.75, 2.25][..]),
+    ] {
+        let out = dir.path().join(format!("{}.mcap", preset.name()));
+        let cfg = SimConfig {
+            preset,
+            seed: 2,
+            progress: false,
+            ..SimConfig::default()
+        };
+        let truth = simulate(&cfg, &out).unwrap();
+        assert_eq!(truth.trials.len(), n, "{preset:?}");
+        let d = decode(&out);
+        let s0 = truth.session.start_ns;
+        let at = |ns: u64| (ns - s0) as f64 * 1e-9;
+        let mut levels: Vec<f64> = Vec::new();
+        for tr in &truth.trials {
+            let what = format!("{preset:?} trial {}", tr.index);
+            let pre = at(tr.t_traj_start_ns) - at(tr.t_trial_start_ns);
+            let post = at(tr.t_post_idle_end_ns) - at(tr.t_traj_end_ns);
+            assert!((pre - 2.0).abs() < 1e-6, "{what}: pre-idle {pre} s");
+            assert!((post - 2.0).abs() < 1e-6, "{what}: post-idle {post} s");
+            assert!(
+                (3..=5).contains(&tr.waypoints_rad.len()),
+                "{what}: {} waypoints",
+                tr.waypoints_rad.len()
+            );
+            assert!(speeds.contains(&tr.qdot_max), "{what}: {}", tr.qdot_max);
+            if !levels.contains(&tr.qdot_max) {
+                levels.push(tr.qdot_max);
+            }
+            // The return home peaks at 0.5 rad/s on the joint with the longest way back
+            // (smooth-step peak 1.5·Δ/T with T = 1.5·Δ/0.5), up to the 3 mrad/s velocity noise.
+            let (r0, r1) = (at(tr.t_post_idle_end_ns), at(tr.t_return_end_ns));
+            let peak = d
+                .state
+                .iter()
+                .filter(|s| s.0 > r0 && s.0 < r1)
+                .map(|s| s.2.iter().fold(0.0f64, |m, v| m.max(v.abs())))
+                .fold(0.0f64, f64::max);
+            assert!(
+                (peak - 0.5).abs() < 0.02,
+                "{what}: return peak {peak} rad/s"
+            );
+        }
+        assert_eq!(levels.len(), speeds.len(), "{preset:?}: levels {levels:?}");
+    }
+}
+
+/// README (Digital twin): a bare `--effect NAME` switches the effect on at the default the README
+/// names for it (the list above the effect table and the table's first column).
+#[test]
+fn bare_effect_names_use_the_readme_defaults() {
+    let on = |name: &str| {
+        let mut e = g1viz::sim::Effects::default();
+        e.enable(name).unwrap();
+        e
+    };
+    let fig = common::assert_figure;
+    fig(
+        "thermal α [1/K]",
+        on("thermal").thermal.unwrap().alpha_per_k,
+        "0.00393",
+    );
+    fig(
+        "braking r",
+        on("braking").braking.unwrap().return_fraction,
+        "0.25",
+    );
+    fig(
+        "bus_loss R_bus [Ω]",
+        on("bus_loss").bus_loss.unwrap().resistance_ohm,
+        "0.05",
+    );
+    fig(
+        "payload [kg]",
+        on("payload").payload.unwrap().mass_kg,
+        "0.5",
+    );
+    fig("latency [s]", on("latency").latency.unwrap().seconds, "0.3");
+    fig(
+        "gear_friction μ",
+        on("gear_friction").gear_friction.unwrap().mu,
+        "0.15",
+    );
+    fig(
+        "drive_loss V_drop [V]",
+        on("drive_loss").drive_loss.unwrap().volts,
+        "0.5",
+    );
+    fig(
+        "stribeck F_s [Nm]",
+        on("stribeck").stribeck.unwrap().newton_m,
+        "10",
+    );
+    let leak = on("balance_leak").balance_leak.unwrap();
+    fig("balance_leak k [W/(rad/s)²]", leak.w_per_rad2_s2, "55.6");
+    fig("balance_leak sway [rad/s]", leak.sway_rad_s, "0.05");
+    fig(
+        "harness_drag k [W·s/rad]",
+        on("harness_drag").harness_drag.unwrap().w_per_rad_s,
+        "4",
+    );
 }

@@ -11,7 +11,8 @@ use std::path::{Path, PathBuf};
 use g1viz::N_JOINTS;
 use g1viz::robot::RobotModel;
 use g1viz::signals::{CommandSeries, PowerSeries, Recording, StateSeries};
-use g1viz::viz::replay::{Rejection, ReplayExtras, ReplayOptions, TrialMark, log_replay};
+use g1viz::trial::{RejectReason, Rejection};
+use g1viz::viz::replay::{ReplayExtras, ReplayOptions, TrialMark, log_replay};
 use g1viz::viz::{Sink, open_stream, recording_id_for};
 use rerun::external::re_build_info::CrateVersion;
 use rerun::external::re_log_encoding::{DecoderApp, Encoder, EncodingOptions};
@@ -88,6 +89,7 @@ fn extras() -> ReplayExtras {
                 t_end: 2.5,
                 label: "joints 0-6".into(),
                 rejected: None,
+                highlight: None,
             },
             TrialMark {
                 index: 1,
@@ -95,10 +97,15 @@ fn extras() -> ReplayExtras {
                 t_end: 4.0,
                 label: "joints 0-6".into(),
                 rejected: Some(Rejection {
-                    filter: "imu".into(),
-                    detail: "σ|ω| = 0.4 > 2.5 × median".into(),
+                    session: 0,
+                    trial: 1,
+                    reason: RejectReason::ImuSway,
                     statistic: 0.4,
+                    threshold: 0.16,
+                    pass: 0,
+                    detail: String::new(),
                 }),
+                highlight: None,
             },
         ],
         ..Default::default()
@@ -428,10 +435,10 @@ fn unfinished_output_leaves_no_file() {
 /// The stock CLI of the pinned version accepts the file (skipped when `rerun` is not on PATH).
 #[test]
 fn stock_cli_verifies_rrd() {
-    let Ok(version) = std::process::Command::new("rerun")
-        .arg("--version")
-        .output()
-    else {
+    let Ok(version) = common::output_within(
+        std::process::Command::new("rerun").arg("--version"),
+        common::TOOL_LIMIT,
+    ) else {
         common::skip("`rerun` not on PATH (pip install rerun-sdk==0.36.3): `rerun rrd verify`");
         return;
     };
@@ -444,11 +451,13 @@ fn stock_cli_verifies_rrd() {
     let rec = synthetic(&input_file(dir.path()));
     let out = dir.path().join("out.rrd");
     write_rrd(&rec, &out).unwrap();
-    let status = std::process::Command::new("rerun")
-        .args(["rrd", "verify"])
-        .arg(&out)
-        .output()
-        .unwrap();
+    let status = common::output_within(
+        std::process::Command::new("rerun")
+            .args(["rrd", "verify"])
+            .arg(&out),
+        common::TOOL_LIMIT,
+    )
+    .unwrap();
     assert!(
         status.status.success(),
         "rerun rrd verify failed:\n{}\n{}",
@@ -604,14 +613,18 @@ fn model_overlay_marks_contaminated_trials_and_logs_loss_terms() {
         &g1viz::read::OpenOptions::default(),
     )
     .unwrap();
-    let opts = g1viz::identify::pipeline::IdentifyOptions::default();
+    let opts = g1viz::identify::IdentifyOptions::default();
     let (extras, _) =
         g1viz::viz::overlay::model_extras(&rec, &g1viz::power::PowerModel::PAPER, &opts).unwrap();
 
     let mut imu: Vec<usize> = extras
         .trials
         .iter()
-        .filter(|m| m.rejected.as_ref().is_some_and(|r| r.filter == "imu"))
+        .filter(|m| {
+            m.rejected
+                .as_ref()
+                .is_some_and(|r| r.reason == RejectReason::ImuSway)
+        })
         .map(|m| m.index)
         .collect();
     imu.sort_unstable();
@@ -950,7 +963,7 @@ fn connect_streams_to_a_stock_rerun_server() {
     use std::process::{Command, Stdio};
     use std::time::{Duration, Instant};
 
-    if Command::new("rerun").arg("--version").output().is_err() {
+    if common::output_within(Command::new("rerun").arg("--version"), common::TOOL_LIMIT).is_err() {
         common::skip("`rerun` not on PATH (pip install rerun-sdk==0.36.3): --connect test");
         return;
     }
@@ -959,12 +972,14 @@ fn connect_streams_to_a_stock_rerun_server() {
     let saved = dir.path().join("saved.rrd");
     let received = dir.path().join("received.rrd");
     let g1viz = |args: &[&str]| {
-        let o = Command::new(env!("CARGO_BIN_EXE_g1viz"))
-            .arg("replay")
-            .arg(&example)
-            .args(args)
-            .output()
-            .unwrap();
+        let o = common::output_within(
+            Command::new(env!("CARGO_BIN_EXE_g1viz"))
+                .arg("replay")
+                .arg(&example)
+                .args(args),
+            common::G1VIZ_LIMIT,
+        )
+        .unwrap();
         assert!(
             o.status.success(),
             "g1viz replay {args:?}: {}",
@@ -978,13 +993,17 @@ fn connect_streams_to_a_stock_rerun_server() {
         .local_addr()
         .unwrap()
         .port();
-    let mut server = Command::new("rerun")
-        .args(["--port", &port.to_string(), "--save"])
-        .arg(&received)
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
+    // Its own process group: stopping it reaches the pip wrapper and the CLI it starts, and a
+    // panic below kills both (the group is killed when `server` is dropped).
+    let server = common::Group::spawn(
+        Command::new("rerun")
+            .args(["--port", &port.to_string(), "--save"])
+            .arg(&received)
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null()),
+    )
+    .unwrap();
     let deadline = Instant::now() + Duration::from_secs(30);
     while TcpStream::connect(("127.0.0.1", port)).is_err() {
         assert!(
@@ -1008,11 +1027,9 @@ fn connect_streams_to_a_stock_rerun_server() {
         );
         last = len;
     }
-    // SAFETY: plain kill(2) of our own child process.
-    unsafe {
-        libc::kill(server.id() as libc::pid_t, libc::SIGINT);
-    }
-    let _ = server.wait();
+    // SIGINT to the whole group lets the server finish its file; SIGTERM, then SIGKILL, follow
+    // after bounded waits, so an ignored SIGINT cannot hang the test.
+    server.stop(Duration::from_secs(20));
 
     let (a, b) = (contents(&decode(&saved)), contents(&decode(&received)));
     let recording_rows = |c: &Contents| -> BTreeMap<(String, bool), usize> {

@@ -7,43 +7,11 @@
 //! lags describe the same readings and their errors can be compared trial by trial.
 
 use crate::N_JOINTS;
-use crate::identify::filters::sigma_omega;
 use crate::power::{PowerModel, regressor_into};
 use crate::signals::{PowerSeries, Recording};
+use crate::trial::{Phase, TrialWindow, sigma_omega};
 
 use super::hypotheses::{N_EXTRA, N_LOCATE, N_RAW, Sample, extras_into, locate_into};
-
-/// The time windows of one trial (Recording time, s) and what moved in it.
-#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
-pub struct TrialWindow {
-    /// Trial index as numbered by the segmentation.
-    pub index: usize,
-    /// Pre-idle start.
-    pub t_pre: f64,
-    /// Trajectory start (= pre-idle end).
-    pub t_traj: f64,
-    /// Trajectory end (= post-idle start).
-    pub t_traj_end: f64,
-    /// Post-idle end (= return start).
-    pub t_post_end: f64,
-    /// Return end.
-    pub t_return_end: f64,
-    /// Model indices of the joints that moved.
-    pub joints_moved: Vec<usize>,
-    /// Peak speed of the trial (its speed level) [rad/s].
-    pub qdot_max: f64,
-}
-
-/// Where in a trial a reading's window lies.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-pub enum Phase {
-    /// Moving through the route.
-    Trajectory,
-    /// Holding the final posture.
-    PostIdle,
-    /// Returning home.
-    Return,
-}
 
 /// Per-trial quantities computed once from the kinematic side.
 #[derive(Debug, Clone)]
@@ -127,7 +95,7 @@ pub(crate) fn trial_meta(
     let mut out = Vec::new();
     let mut skipped = Vec::new();
     for w in windows {
-        let pre = sample_range(t, w.t_pre, w.t_traj);
+        let pre = sample_range(t, w.t_pre_start, w.t_traj_start);
         if pre.len() < 3 {
             skipped.push((
                 w.index,
@@ -156,7 +124,7 @@ pub(crate) fn trial_meta(
         }
         extra0.iter_mut().for_each(|v| *v /= n.max(1) as f64);
         // The identification's IMU statistic over the same trajectory window.
-        let sigma_omega = sigma_omega(rec, w.t_traj, w.t_post_end);
+        let sigma_omega = sigma_omega(rec, w.t_traj_start, w.t_post_end);
         out.push(TrialMeta {
             window: w.clone(),
             tau0_sq,
@@ -213,7 +181,8 @@ fn window_mean(
 }
 
 /// Build the rows for one sensor lag. Readings are assigned to trials by their stamps:
-/// baseline readings have stamps in [t_pre + W, t_traj], row readings in [t_traj + W, t_return_end].
+/// baseline readings have stamps in [t_pre_start + W, t_traj_start], row readings in
+/// [t_traj_start + W, t_return_end].
 pub(crate) fn build_rows(
     rec: &Recording,
     power: &PowerSeries,
@@ -228,7 +197,7 @@ pub(crate) fn build_rows(
     let mut loc = [0.0; N_LOCATE];
     for (ti, meta) in trials.iter().enumerate() {
         let w = &meta.window;
-        let base = sample_range(pt, w.t_pre + width, w.t_traj + 1e-9);
+        let base = sample_range(pt, w.t_pre_start + width, w.t_traj_start + 1e-9);
         let vals: Vec<f64> = base
             .filter_map(|k| power.watts.get(k).copied())
             .filter(|v| v.is_finite())
@@ -237,7 +206,7 @@ pub(crate) fn build_rows(
             continue;
         }
         let baseline = vals.iter().sum::<f64>() / vals.len() as f64;
-        for k in sample_range(pt, w.t_traj + width, w.t_return_end + 1e-9) {
+        for k in sample_range(pt, w.t_traj_start + width, w.t_return_end + 1e-9) {
             let (Some(&tk), Some(&p)) = (pt.get(k), power.watts.get(k)) else {
                 continue;
             };
@@ -252,13 +221,7 @@ pub(crate) fn build_rows(
                 continue;
             }
             let mid = tk - 0.5 * width;
-            let phase = if mid < w.t_traj_end {
-                Phase::Trajectory
-            } else if mid < w.t_post_end {
-                Phase::PostIdle
-            } else {
-                Phase::Return
-            };
+            let phase = w.phase_at(mid).unwrap_or(Phase::Return);
             rows.trial.push(ti);
             rows.t.push(tk);
             rows.phase.push(phase);

@@ -6,9 +6,10 @@
 //! Groups are tested at trial level (each trial contributes the mean residual of its rows in
 //! the group), because readings of one trial share the trial's baseline and are not independent.
 
-use super::data::{Phase, Rows, TrialMeta};
+use super::data::{Rows, TrialMeta};
 use super::hypotheses::{N_LOCATE, locate_name};
 use super::stats::{pearson, t_upper_tail};
+use crate::trial::Phase;
 use nalgebra::DMatrix;
 
 use crate::{N_JOINTS, N_PARAMS};
@@ -271,7 +272,7 @@ pub(crate) fn breakdowns(
     let speed: Vec<f64> = rows
         .trial
         .iter()
-        .map(|&t| trials[t].window.qdot_max)
+        .map(|&t| trials[t].window.speed_level())
         .collect();
     out.push(split3(
         "speed",
@@ -396,7 +397,7 @@ pub(crate) fn correlates(
         }
         f[(r, N_LOCATE)] = rows.t[r];
         f[(r, N_LOCATE + 1)] = trials[rows.trial[r]].sigma_omega;
-        f[(r, N_LOCATE + 2)] = trials[rows.trial[r]].window.qdot_max;
+        f[(r, N_LOCATE + 2)] = trials[rows.trial[r]].window.speed_level();
     }
     let width = if base_fitted { N_PARAMS + 1 } else { 1 };
     let x = DMatrix::from_fn(

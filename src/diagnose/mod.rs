@@ -15,7 +15,6 @@ pub mod discover;
 pub mod fields;
 pub mod hypotheses;
 pub mod locate;
-mod qp;
 pub mod report;
 pub mod select;
 pub mod stats;
@@ -26,9 +25,9 @@ pub mod torque;
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result, bail};
+use anyhow::{Result, bail};
 
-pub use data::{Phase, TrialWindow};
+pub use crate::trial::{Phase, TrialWindow};
 pub use discover::{Discovery, DiscoveryReport};
 pub use fields::FieldSource;
 pub use locate::{Breakdown, Correlate, Group, TrialResidual};
@@ -36,11 +35,11 @@ pub use select::{Confounded, HypothesisScore, MechanismForms, Param};
 pub use torque::{ArmModel, TorqueComparison};
 
 use crate::N_PARAMS;
-pub use crate::identify::dataset::Target;
-use crate::identify::filters::{self, TrialStat};
 use crate::power::PowerModel;
 use crate::robot::{ArmDynamics, RobotModel};
 use crate::signals::Recording;
+pub use crate::signals::Target;
+use crate::trial::{Cascade, Rejection, TrialStat};
 use data::{Rows, TrialMeta, build_rows, trial_meta};
 use hypotheses::{LATENCY_ID, POWER_HYPOTHESES};
 use select::{PowerData, Rule, r2_rmse};
@@ -131,15 +130,6 @@ pub struct LagPoint {
     pub rmse_w: f64,
 }
 
-/// A trial left out of the diagnosis and why.
-#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
-pub struct RejectedTrial {
-    /// Trial index (segmentation numbering).
-    pub trial: usize,
-    /// Reason with its statistic.
-    pub reason: String,
-}
-
 /// The model refitted with the accepted hypotheses.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct FinalModel {
@@ -221,7 +211,7 @@ pub struct Diagnosis {
     /// Power readings used.
     pub n_readings: usize,
     /// Trials left out, with reasons.
-    pub rejected: Vec<RejectedTrial>,
+    pub rejected: Vec<Rejection>,
     /// Torque level (absent without a robot model or torque data).
     pub torque: Option<TorqueComparison>,
     /// How the base model was obtained: `reference` (held at the twin's model) or `refit` (per fold).
@@ -271,23 +261,55 @@ impl Diagnosis {
     }
 }
 
-/// Reject balance-contaminated trials with the identification's IMU filter.
-fn imu_filter(
-    mut metas: Vec<TrialMeta>,
-    k: f64,
-    rejected: &mut Vec<RejectedTrial>,
-) -> Vec<TrialMeta> {
-    let stats: Vec<TrialStat> = metas
+/// Stage: the trials usable for the diagnosis — per-trial quantities (trials without a pre-idle
+/// are unusable), the identification's IMU filter, then n·σ passes on the per-trial mean
+/// residuals of the base model (hardware-event outliers).
+fn filter_trials(
+    rec: &Recording,
+    windows: &[TrialWindow],
+    opts: &DiagnoseOptions,
+    reference: Option<Vec<f64>>,
+) -> Result<(Vec<TrialMeta>, Vec<Rejection>)> {
+    let power = opts.target.series(rec);
+    let bus = data::BusModel {
+        model: opts.reference.unwrap_or(PowerModel::PAPER),
+        volts: hypotheses::NOMINAL_BUS_VOLTS,
+    };
+    let (metas, skipped) = trial_meta(rec, windows, bus);
+    let cascade = Cascade {
+        imu_k: Some(opts.imu_threshold),
+        passes: opts.outlier_passes,
+        n_sigma: 3.0,
+        min_trials: 10,
+    };
+    let sigmas: Vec<TrialStat> = metas
         .iter()
-        .map(|m| (0, m.window.index, m.sigma_omega))
+        .map(|m| TrialStat::new(0, m.window.index, m.sigma_omega))
         .collect();
-    let out = filters::imu_sway(&stats, k);
-    rejected.extend(out.iter().map(|r| RejectedTrial {
-        trial: r.trial,
-        reason: r.describe(),
-    }));
-    metas.retain(|m| !out.iter().any(|r| r.trial == m.window.index));
-    metas
+    let mut rejected: Vec<Rejection> = skipped
+        .into_iter()
+        .map(|(trial, reason)| Rejection::unusable(0, trial, reason))
+        .collect();
+    rejected.extend(cascade.run(&sigmas, |rej| {
+        let kept: Vec<TrialMeta> = metas
+            .iter()
+            .filter(|m| !crate::trial::is_rejected(rej, 0, m.window.index))
+            .cloned()
+            .collect();
+        let rows = build_rows(rec, power, &kept, 0.0, opts.sensor_window_s, false);
+        let res = base_trial_residuals(&rows, kept.len(), opts.folds, reference.clone())?;
+        Ok::<_, anyhow::Error>(
+            kept.iter()
+                .zip(&res)
+                .map(|(m, r)| TrialStat::new(0, m.window.index, r.unwrap_or(f64::NAN)))
+                .collect(),
+        )
+    })?);
+    let metas = metas
+        .into_iter()
+        .filter(|m| !crate::trial::is_rejected(&rejected, 0, m.window.index))
+        .collect();
+    Ok((metas, rejected))
 }
 
 /// Per-trial mean in-sample residual of the base model fitted to `rows`.
@@ -315,38 +337,7 @@ fn base_trial_residuals(
         .collect())
 }
 
-/// Join recordings end to end into one (e.g. several short sessions of one robot, to diagnose
-/// them together): each part's times are shifted to start `gap_s` after the previous part's last
-/// joint sample. Warnings are kept, the first part's source and start time are used.
-pub fn join_recordings(parts: Vec<Recording>, gap_s: f64) -> Recording {
-    let mut parts = parts.into_iter();
-    let Some(mut out) = parts.next() else {
-        return Recording::default();
-    };
-    for r in parts {
-        let offset = out.state.t.last().copied().unwrap_or(0.0) + gap_s
-            - r.state.t.first().copied().unwrap_or(0.0);
-        let shift = |v: &[f64]| v.iter().map(|t| t + offset).collect::<Vec<_>>();
-        out.state.t.extend(shift(&r.state.t));
-        out.state.q.extend(r.state.q);
-        out.state.dq.extend(r.state.dq);
-        out.state.tau.extend(r.state.tau);
-        out.state.temp.extend(r.state.temp);
-        out.state.gyro.extend(r.state.gyro);
-        out.state.quat.extend(r.state.quat);
-        out.command.t.extend(shift(&r.command.t));
-        out.command.q.extend(r.command.q);
-        out.command.dq.extend(r.command.dq);
-        out.mbs.t.extend(shift(&r.mbs.t));
-        out.mbs.watts.extend(r.mbs.watts);
-        out.bms.t.extend(shift(&r.bms.t));
-        out.bms.watts.extend(r.bms.watts);
-        out.warnings.extend(r.warnings);
-    }
-    out
-}
-
-/// [`join_recordings`], plus where each part's file lies on the joined time line (for
+/// [`crate::signals::join_recordings`], plus where each part's file lies on the joined time line (for
 /// [`DiagnoseOptions::field_sources`]).
 pub fn join_recordings_with_sources(
     parts: Vec<Recording>,
@@ -366,16 +357,13 @@ pub fn join_recordings_with_sources(
         });
         end = Some(r.state.t.last().copied().unwrap_or(0.0) + offset);
     }
-    (join_recordings(parts, gap_s), sources)
+    (crate::signals::join_recordings(parts, gap_s), sources)
 }
 
 /// Diagnose a recording: segment its trials from the data (the identification's segmentation),
 /// load the robot model for the torque level, and run [`diagnose_trials`].
 pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis> {
-    let seg = crate::identify::segment::segment(
-        rec,
-        &crate::identify::segment::SegmentOptions::default(),
-    );
+    let seg = crate::trial::segment(rec, &crate::trial::SegmentOptions::default());
     if seg.trials.is_empty() {
         let why: Vec<String> = seg
             .unmatched
@@ -389,30 +377,8 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis> {
             why.join("; ")
         );
     }
-    let windows: Vec<TrialWindow> = seg
-        .trials
-        .iter()
-        .map(|t| TrialWindow {
-            index: t.index,
-            t_pre: t.t_pre_start,
-            t_traj: t.t_traj_start,
-            t_traj_end: t.t_traj_end,
-            t_post_end: t.t_post_end,
-            t_return_end: t.t_return_end,
-            joints_moved: t.joints_moved.clone(),
-            qdot_max: if t.qdot_max_cmd.is_finite() {
-                t.qdot_max_cmd
-            } else {
-                t.qdot_max_meas
-            },
-        })
-        .collect();
     let arm = if opts.torque_level && rec.state.tau.iter().any(|t| t.iter().any(|v| *v != 0.0)) {
-        let model = match &opts.urdf {
-            Some(p) => RobotModel::from_urdf_file(p)
-                .with_context(|| format!("loading URDF {}", p.display()))?,
-            None => RobotModel::builtin(),
-        };
+        let model = RobotModel::load(opts.urdf.as_deref())?;
         let joints = model.arm(&rec.joint_names)?;
         Some(ArmDynamics::new(&model, &joints)?)
     } else {
@@ -420,7 +386,7 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis> {
     };
     diagnose_trials(
         rec,
-        &windows,
+        &seg.trials,
         arm.as_ref().map(|a| a as &dyn ArmModel),
         opts,
     )
@@ -443,54 +409,7 @@ pub fn diagnose_trials(
     }
     let w = opts.sensor_window_s;
     let reference: Option<Vec<f64>> = opts.reference.map(|m| m.to_vector().to_vec());
-    let mut rejected = Vec::new();
-    let bus = data::BusModel {
-        model: opts.reference.unwrap_or(PowerModel::PAPER),
-        volts: hypotheses::NOMINAL_BUS_VOLTS,
-    };
-    let (metas, skipped) = trial_meta(rec, windows, bus);
-    rejected.extend(
-        skipped
-            .into_iter()
-            .map(|(trial, reason)| RejectedTrial { trial, reason }),
-    );
-    let mut metas = imu_filter(metas, opts.imu_threshold, &mut rejected);
-
-    // 3σ passes on per-trial mean residuals of the base model (hardware-event outliers).
-    for pass in 0..opts.outlier_passes {
-        let rows = build_rows(rec, power, &metas, 0.0, w, false);
-        let res = base_trial_residuals(&rows, metas.len(), opts.folds, reference.clone())?;
-        let stats: Vec<TrialStat> = metas
-            .iter()
-            .zip(&res)
-            .filter_map(|(m, r)| r.map(|r| (0, m.window.index, r)))
-            .collect();
-        if stats.len() < 10 {
-            break;
-        }
-        let out = filters::three_sigma(&stats, 3.0, pass + 1);
-        let before = metas.len();
-        let mut keep = Vec::new();
-        for (m, r) in metas.into_iter().zip(&res) {
-            if r.is_none() {
-                rejected.push(RejectedTrial {
-                    trial: m.window.index,
-                    reason: "no power readings in the trial".into(),
-                });
-            } else if let Some(o) = out.iter().find(|o| o.trial == m.window.index) {
-                rejected.push(RejectedTrial {
-                    trial: m.window.index,
-                    reason: o.describe(),
-                });
-            } else {
-                keep.push(m);
-            }
-        }
-        metas = keep;
-        if metas.len() == before {
-            break;
-        }
-    }
+    let (metas, rejected) = filter_trials(rec, windows, opts, reference.clone())?;
     if metas.len() < 2 * opts.folds.max(2) {
         bail!(
             "{}: only {} usable trials (need at least {} for {}-fold cross-validation by trial)",
@@ -694,7 +613,7 @@ pub fn diagnose_trials(
             .map(|m| &m.window);
         HighlightedTrial {
             trial,
-            t_start: w.map_or(0.0, |w| w.t_traj),
+            t_start: w.map_or(0.0, |w| w.t_traj_start),
             t_end: w.map_or(0.0, |w| w.t_return_end),
             reason,
         }

@@ -251,7 +251,7 @@ pub fn write_report(dir: &Path, d: &Diagnosis) -> Result<()> {
     if !d.rejected.is_empty() {
         let _ = writeln!(md, "## Trials left out\n\n| trial | reason |\n|---|---|");
         for r in &d.rejected {
-            let _ = writeln!(md, "| {} | {} |", r.trial, r.reason);
+            let _ = writeln!(md, "| {} | {} |", r.trial, r);
         }
         md.push('\n');
     }

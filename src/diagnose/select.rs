@@ -14,62 +14,9 @@ use rand::seq::SliceRandom;
 use super::data::Rows;
 use super::hypotheses::{Combine, Hypothesis, LATENCY_ID, N_RAW};
 use super::stats::improvement_p_value;
-use crate::identify::metrics::Metrics;
+use crate::lsq::{Gram, Metrics, bounded_quadratic};
 use crate::power::PowerModel;
 use crate::{N_JOINTS, N_PARAMS};
-
-/// Least-squares sufficient statistics of a set of rows over the raw layout.
-#[derive(Debug, Clone)]
-pub(crate) struct Gram {
-    pub g: DMatrix<f64>,
-    pub h: DVector<f64>,
-    pub yy: f64,
-    pub n: usize,
-}
-
-impl Gram {
-    fn zeros(p: usize) -> Self {
-        Gram {
-            g: DMatrix::zeros(p, p),
-            h: DVector::zeros(p),
-            yy: 0.0,
-            n: 0,
-        }
-    }
-
-    fn add_row(&mut self, x: &[f64], y: f64) {
-        let p = x.len();
-        let g = self.g.as_mut_slice();
-        for (c, &xc) in x.iter().enumerate() {
-            if xc == 0.0 {
-                continue;
-            }
-            let col = &mut g[c * p..(c + 1) * p];
-            for (gv, &xr) in col.iter_mut().zip(x) {
-                *gv += xr * xc;
-            }
-        }
-        for (hv, &xr) in self.h.iter_mut().zip(x) {
-            *hv += xr * y;
-        }
-        self.yy += y * y;
-        self.n += 1;
-    }
-
-    fn minus(&self, other: &Gram) -> Gram {
-        Gram {
-            g: &self.g - &other.g,
-            h: &self.h - &other.h,
-            yy: self.yy - other.yy,
-            n: self.n - other.n,
-        }
-    }
-
-    /// Sum of squared residuals of coefficients `beta` (raw layout).
-    pub fn sse(&self, beta: &DVector<f64>) -> f64 {
-        (self.yy - 2.0 * beta.dot(&self.h) + beta.dot(&(&self.g * beta))).max(0.0)
-    }
-}
 
 /// Assignment of trials to cross-validation folds (shuffled with a fixed seed: reproducible).
 #[derive(Debug, Clone)]
@@ -107,10 +54,7 @@ impl FoldGrams {
         }
         let mut total = Gram::zeros(N_RAW);
         for f in &fold {
-            total.g += &f.g;
-            total.h += &f.h;
-            total.yy += f.yy;
-            total.n += f.n;
+            total.add(f);
         }
         FoldGrams { total, fold }
     }
@@ -215,7 +159,7 @@ fn solve_bounded(
     let hs = DVector::from_fn(p, |i, _| h[i] / s[i]);
     let los: Vec<f64> = lo.iter().zip(&s).map(|(l, si)| l * si).collect();
     let his: Vec<f64> = hi.iter().zip(&s).map(|(u, si)| u * si).collect();
-    let z = super::qp::bounded_quadratic(&gs, &hs, &los, &his)?;
+    let z = bounded_quadratic(&gs, &hs, &los, &his)?;
     Ok(DVector::from_fn(p, |i, _| z[i] / s[i]))
 }
 
@@ -1020,7 +964,7 @@ mod tests {
                     + noise.sample(&mut rng);
                 rows.trial.push(t);
                 rows.t.push(t as f64);
-                rows.phase.push(super::super::data::Phase::Trajectory);
+                rows.phase.push(crate::trial::Phase::Trajectory);
                 rows.y.push(y);
                 rows.x.push(x);
             }

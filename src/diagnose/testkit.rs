@@ -5,10 +5,10 @@
 use rand::{RngExt, SeedableRng};
 use rand_distr::{Distribution, Normal};
 
-use super::data::TrialWindow;
 use crate::N_JOINTS;
 use crate::power::PowerModel;
 use crate::signals::Recording;
+use crate::trial::TrialWindow;
 
 /// Effects of the miniature generator (same physics as `sim::Effects`).
 #[derive(Default, Clone, Copy)]
@@ -136,13 +136,14 @@ pub(crate) fn session(n_trials: usize, seed: u64, fx: Effects) -> (Recording, Ve
         }
         windows.push(TrialWindow {
             index,
-            t_pre,
-            t_traj,
+            t_pre_start: t_pre,
+            t_traj_start: t_traj,
             t_traj_end,
             t_post_end,
             t_return_end,
             joints_moved: moved,
-            qdot_max,
+            qdot_max_cmd: qdot_max,
+            qdot_max_meas: f64::NAN,
         });
     }
     // 1 Hz sensor on its own clock: mean power over [ts − L − 0.2, ts − L] plus noise.

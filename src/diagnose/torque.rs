@@ -5,12 +5,13 @@
 //! all joints. Scored like the power hypotheses: cross-validation by trial, paired test, BIC.
 
 use anyhow::Result;
-use nalgebra::{DMatrix, DVector, SMatrix};
+use nalgebra::{DVector, SMatrix};
 
 use super::data::TrialMeta;
 use super::select::{Folds, HypothesisScore, Param, bic, jackknife_se, r2_rmse, trial_sse};
 use super::stats::improvement_p_value;
 use crate::N_JOINTS;
+use crate::lsq::Gram;
 use crate::signals::Recording;
 
 /// Velocity scale [rad/s] of the smooth Coulomb friction sign (the form of `robot::JointFriction`).
@@ -93,7 +94,7 @@ fn rows(
     let mut out = Vec::new();
     for (ti, meta) in trials.iter().enumerate() {
         let w = &meta.window;
-        let i0 = s.t.partition_point(|&t| t < w.t_pre).max(2);
+        let i0 = s.t.partition_point(|&t| t < w.t_pre_start).max(2);
         let i1 =
             s.t.partition_point(|&t| t < w.t_return_end)
                 .min(s.t.len().saturating_sub(2));
@@ -144,50 +145,6 @@ fn rows(
     out
 }
 
-struct Gram {
-    g: DMatrix<f64>,
-    h: DVector<f64>,
-    yy: f64,
-    n: usize,
-}
-
-impl Gram {
-    fn zeros() -> Gram {
-        Gram {
-            g: DMatrix::zeros(N_TORQUE, N_TORQUE),
-            h: DVector::zeros(N_TORQUE),
-            yy: 0.0,
-            n: 0,
-        }
-    }
-
-    fn add(&mut self, row: &TorqueRow) {
-        for j in 0..N_JOINTS {
-            let x = &row.x[j];
-            for a in 0..N_TORQUE {
-                if x[a] == 0.0 {
-                    continue;
-                }
-                self.h[a] += x[a] * row.r[j];
-                for b in 0..N_TORQUE {
-                    self.g[(a, b)] += x[a] * x[b];
-                }
-            }
-            self.yy += row.r[j] * row.r[j];
-            self.n += 1;
-        }
-    }
-
-    fn minus(&self, o: &Gram) -> Gram {
-        Gram {
-            g: &self.g - &o.g,
-            h: &self.h - &o.h,
-            yy: self.yy - o.yy,
-            n: self.n - o.n,
-        }
-    }
-}
-
 /// Unconstrained least squares on the first `p` columns (tiny relative ridge for joints that never moved).
 fn solve(gr: &Gram, p: usize) -> DVector<f64> {
     let g = gr.g.view((0, 0), (p, p)).into_owned();
@@ -210,10 +167,6 @@ fn predict(row: &TorqueRow, beta: &DVector<f64>) -> [f64; N_JOINTS] {
     std::array::from_fn(|j| row.x[j].iter().zip(beta.iter()).map(|(a, b)| a * b).sum())
 }
 
-fn sse(gr: &Gram, beta: &DVector<f64>) -> f64 {
-    (gr.yy - 2.0 * beta.dot(&gr.h) + beta.dot(&(&gr.g * beta))).max(0.0)
-}
-
 /// Result of the torque level: the comparison and the payload hypothesis' score.
 pub(crate) struct TorqueLevel {
     pub comparison: TorqueComparison,
@@ -233,7 +186,7 @@ pub(crate) fn torque_level(
         .map(|m| {
             let t = &rec.state.t;
             t.partition_point(|&x| x < m.window.t_return_end)
-                - t.partition_point(|&x| x < m.window.t_pre)
+                - t.partition_point(|&x| x < m.window.t_pre_start)
         })
         .sum();
     let stride = in_trials.div_ceil(max_samples.max(1)).max(1);
@@ -242,16 +195,16 @@ pub(crate) fn torque_level(
         return Ok(None);
     }
     let n_trials = trials.len();
-    let mut fold_grams: Vec<Gram> = (0..folds.k).map(|_| Gram::zeros()).collect();
+    let mut fold_grams: Vec<Gram> = (0..folds.k).map(|_| Gram::zeros(N_TORQUE)).collect();
     for row in &rows {
-        fold_grams[folds.of_trial[row.trial]].add(row);
+        let g = &mut fold_grams[folds.of_trial[row.trial]];
+        for j in 0..N_JOINTS {
+            g.add_row(&row.x[j], row.r[j]);
+        }
     }
-    let mut total = Gram::zeros();
+    let mut total = Gram::zeros(N_TORQUE);
     for g in &fold_grams {
-        total.g += &g.g;
-        total.h += &g.h;
-        total.yy += g.yy;
-        total.n += g.n;
+        total.add(g);
     }
     let mut pred_base = vec![[0.0; N_JOINTS]; rows.len()];
     let mut pred_pay = vec![[0.0; N_JOINTS]; rows.len()];
@@ -287,7 +240,7 @@ pub(crate) fn torque_level(
     let b0 = solve(&total, N_FRICTION);
     let b1 = solve(&total, N_TORQUE);
     let delta_bic =
-        bic(sse(&total, &b1), total.n, N_TORQUE) - bic(sse(&total, &b0), total.n, N_FRICTION);
+        bic(total.sse(&b1), total.n, N_TORQUE) - bic(total.sse(&b0), total.n, N_FRICTION);
     let m = b1[N_FRICTION];
     let com: [f64; 3] = std::array::from_fn(|c| b1[N_FRICTION + 1 + c] / m);
     let m_se = jackknife_se(&fold_pay.iter().map(|p| p[0]).collect::<Vec<_>>());

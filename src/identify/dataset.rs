@@ -18,38 +18,11 @@
 use anyhow::{Result, bail};
 use nalgebra::{DMatrix, DVector};
 
-use super::filters::sigma_omega;
-use super::segment::Trial;
 use crate::power::regressor_into;
+pub use crate::signals::Target;
 use crate::signals::{PowerSeries, Recording};
+use crate::trial::{TrialWindow, sigma_omega};
 use crate::{N_JOINTS, N_PARAMS};
-
-/// Which power sensor is the regression target.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-pub enum Target {
-    /// Main-board sensor: the arm/upper-body rail (the paper's choice, lower noise).
-    Mbs,
-    /// Battery management system: whole-robot power.
-    Bms,
-}
-
-impl Target {
-    /// The recording's power series for this target.
-    pub fn series<'a>(&self, rec: &'a Recording) -> &'a PowerSeries {
-        match self {
-            Target::Mbs => &rec.mbs,
-            Target::Bms => &rec.bms,
-        }
-    }
-
-    /// Lower-case name ("mbs" / "bms").
-    pub fn name(&self) -> &'static str {
-        match self {
-            Target::Mbs => "mbs",
-            Target::Bms => "bms",
-        }
-    }
-}
 
 /// How readings and regressors are paired into rows (see the module docs).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
@@ -102,7 +75,7 @@ impl Alignment {
 /// One regression row.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Row {
-    /// Index of the trial (in its [`super::segment::Segmentation`]).
+    /// Index of the trial (in its [`crate::trial::Segmentation`]).
     pub trial: usize,
     /// Time the row stands for [s]: reading stamp (reading mode), sample time (sample mode),
     /// trajectory start (trial mode).
@@ -240,7 +213,7 @@ fn readings_within<'a>(
 /// Baseline and statistics of one trial; Err(reason) when the trial cannot give rows.
 fn trial_basis(
     rec: &Recording,
-    trial: &Trial,
+    trial: &TrialWindow,
     target: Target,
     align: &Alignment,
 ) -> Result<TrialBasis, String> {
@@ -277,7 +250,7 @@ fn push_finite(rows: &mut Vec<Row>, row: Row) {
 }
 
 /// Build the rows of one recording's trials.
-pub fn build(rec: &Recording, trials: &[Trial], opts: &DatasetOptions) -> Dataset {
+pub fn build(rec: &Recording, trials: &[TrialWindow], opts: &DatasetOptions) -> Dataset {
     let mut out = Dataset {
         mode: opts.mode,
         target: opts.target,
@@ -395,7 +368,7 @@ pub struct AlignmentEstimate {
 /// version of the right ones, so the fit degrades away from the true timing. Coarse grid
 /// (W 0.05–1.0 s, lag −0.3–0.5 s), then a 0.025 s grid around the best.
 pub fn estimate_alignment(
-    sessions: &[(&Recording, &[Trial])],
+    sessions: &[(&Recording, &[TrialWindow])],
     target: Target,
 ) -> Result<AlignmentEstimate> {
     let mut grid = Vec::new();
@@ -429,8 +402,23 @@ pub fn estimate_alignment(
         }
     }
     let Some(coarse) = best_of(&grid) else {
+        let nominal = DatasetOptions {
+            mode: Mode::Reading,
+            target,
+            alignment: Alignment::NOMINAL,
+        };
+        let readings: usize = sessions
+            .iter()
+            .map(|(rec, trials)| build(rec, trials, &nominal).rows.len())
+            .sum();
+        let trials: usize = sessions.iter().map(|(_, t)| t.len()).sum();
         bail!(
-            "too few power readings inside trajectory windows to estimate the sensor window and lag"
+            "only {readings} {} power readings inside the {trials} trajectory windows; estimating \
+             the sensor window and lag needs more than {N_PARAMS} (one per model parameter): record \
+             more trials, or give the timing (--window SECONDS --lag SECONDS; the G1's sensor \
+             averages about {} s with no lag)",
+            target.name().to_uppercase(),
+            Alignment::NOMINAL.window_s
         )
     };
     const STEP: f64 = 0.025;

@@ -1,10 +1,23 @@
-//! Identification of the arm power model from recorded sessions: trial segmentation, regressor datasets,
-//! outlier filters, the constrained least-squares fit, fit metrics and the markdown/PNG report.
+//! Identification of the arm power model from recorded sessions: regressor datasets (per trial,
+//! per reading on the sensor's own window, per sample), the paper's filtered constrained fit
+//! ([`identify()`]), hold-out validation ([`validate()`]), the model-file record and the
+//! markdown/PNG report. Trials and their filters live in [`crate::trial`], the solvers in
+//! [`crate::lsq`].
 
 pub mod dataset;
-pub mod filters;
-pub mod metrics;
-pub mod pipeline;
+mod fit;
+mod pipeline;
+mod record;
 pub mod report;
-pub mod segment;
-pub mod solve;
+mod summary;
+mod table;
+mod validate;
+
+pub use dataset::{Alignment, AlignmentEstimate, Mode, Target};
+pub use fit::{kappa, term_means};
+pub use pipeline::{
+    AlignmentChoice, Identification, IdentifyOptions, ModeFit, RowsFit, SessionSummary,
+    fit_given_rows, identify,
+};
+pub use table::TrialPrediction;
+pub use validate::{Validation, validate};

@@ -15,7 +15,7 @@ use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use crate::N_JOINTS;
-use crate::identify::metrics::Metrics;
+use crate::lsq::Metrics;
 use crate::plot::{FONT, padded_range, plot_err, register_font, write_png};
 use crate::power::{DatasetMetrics, ModelFile, N_PAIRS, PAIRS, PowerModel, TERM_NAMES, TermMeans};
 
@@ -399,15 +399,20 @@ fn write_rejected(md: &mut String, m: &ModelFile) {
         "| session | trial | filter | statistic | threshold | reason |\n|---|---:|---|---:|---:|---|"
     );
     for t in rej {
+        let session = m
+            .provenance
+            .sessions
+            .get(t.session)
+            .map_or_else(|| t.session.to_string(), |s| s.path.clone());
         let _ = writeln!(
             md,
             "| `{}` | {} | {} | {} | {} | {} |",
-            t.session,
+            session,
             t.trial,
-            t.filter,
+            t.reason.name(),
             fmt_num(t.statistic, 3),
             fmt_num(t.threshold, 3),
-            t.reason
+            t
         );
     }
     md.push('\n');

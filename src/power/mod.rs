@@ -9,8 +9,8 @@ use crate::{N_JOINTS, N_PARAMS};
 
 mod model_file;
 pub use model_file::{
-    DatasetMetrics, DominantTerm, FilterRecord, ModelFile, ModelMetrics, Provenance, RejectedTrial,
-    SCHEMA_VERSION, SessionRef, SolverRecord, TrialCounts,
+    DatasetMetrics, DominantTerm, FilterRecord, ModelFile, ModelFileError, ModelMetrics,
+    ModelProblem, Provenance, SCHEMA_VERSION, SessionRef, SolverRecord, TrialCounts,
 };
 
 /// Number of pairwise interaction terms.
@@ -347,4 +347,13 @@ impl PowerModel {
             },
         }
     }
+}
+
+/// A model file (`model.json`), or `paper` (when no such file exists) for the paper's tabulated
+/// parameters.
+pub fn load_model(path: &std::path::Path) -> Result<PowerModel, ModelFileError> {
+    if path.as_os_str() == "paper" && !path.exists() {
+        return Ok(PowerModel::PAPER);
+    }
+    Ok(ModelFile::load(path)?.model())
 }

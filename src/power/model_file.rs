@@ -26,7 +26,8 @@
 //!     "target": "mbs" | "bms", "rows": "trajectory" | "per_sample" | "per_reading",
 //!     "filters": [ { "name", "parameters": { name: number }, "rejected": n } ],
 //!     "trials": { "segmented", "used", "rejected" },
-//!     "rejected_trials": [ { "session", "trial", "filter", "statistic", "threshold", "reason" } ],
+//!     "rejected_trials": [ { "session": index into "sessions", "trial", "filter": "imu_sigma" | "residual_3sigma" | "unusable",
+//!                          "statistic", "threshold", "pass", "detail"? } ],
 //!     "solver": { "method", "status", "iterations" } | null,
 //!     "notes": [ "…" ]
 //!   }
@@ -39,13 +40,15 @@
 //! same bytes (no wall-clock times are written; `created` comes from the caller).
 
 use std::collections::BTreeMap;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail, ensure};
 use serde::{Deserialize, Serialize};
 
 use super::{LossTerm, N_PAIRS, PAIRS, PowerModel};
-use crate::identify::metrics::{Metrics, nan_as_null};
+use crate::lsq::{Method, Metrics, Status};
+use crate::trial::Rejection;
+use crate::util::nan_as_null;
 use crate::{N_JOINTS, N_PARAMS};
 
 /// The schema version this code writes and reads.
@@ -142,7 +145,7 @@ pub struct Provenance {
     /// Trial counts.
     pub trials: TrialCounts,
     /// Every rejected trial with its reason.
-    pub rejected_trials: Vec<RejectedTrial>,
+    pub rejected_trials: Vec<Rejection>,
     /// Solver that produced θ.
     pub solver: Option<SolverRecord>,
     /// Anything else worth knowing.
@@ -204,6 +207,56 @@ impl SessionRef {
     }
 }
 
+/// Why a model file cannot be used, naming the file.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelFileError {
+    /// The file could not be read.
+    #[error("reading model file {}: {reason}", .path.display())]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// What went wrong.
+        reason: String,
+    },
+    /// The file was read but is not a usable model file.
+    #[error("invalid model file {}: {problem}", .path.display())]
+    Invalid {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with its content.
+        problem: ModelProblem,
+    },
+}
+
+/// What is wrong with a model file's content.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelProblem {
+    /// Not JSON at all.
+    #[error("not valid JSON: {0}")]
+    Json(String),
+    /// JSON that does not have the model file's shape (missing fields, wrong types, null θ).
+    #[error("does not match the model.json schema: {0}")]
+    Schema(String),
+    /// A field whose value is not acceptable.
+    #[error("{message}")]
+    Field {
+        /// The field, e.g. `theta`, `a[3]`, `e["0,1"]`.
+        field: String,
+        /// Its value as found (or a count of its entries).
+        value: String,
+        /// The whole explanation.
+        message: String,
+    },
+}
+
+fn field(name: impl Into<String>, value: impl std::fmt::Display, message: String) -> ModelProblem {
+    ModelProblem::Field {
+        field: name.into(),
+        value: value.to_string(),
+        message,
+    }
+}
+
 /// One filter and its settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FilterRecord {
@@ -226,32 +279,13 @@ pub struct TrialCounts {
     pub rejected: usize,
 }
 
-/// A trial a filter rejected.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct RejectedTrial {
-    /// Session path or name.
-    pub session: String,
-    /// Trial index within its session.
-    pub trial: usize,
-    /// Filter name.
-    pub filter: String,
-    /// The statistic that was tested (σ_ω in rad/s, |residual| in W, …).
-    #[serde(with = "nan_as_null")]
-    pub statistic: f64,
-    /// The threshold it exceeded.
-    #[serde(with = "nan_as_null")]
-    pub threshold: f64,
-    /// Human-readable reason.
-    pub reason: String,
-}
-
 /// The solver run that produced θ (no timings: they would make the file non-reproducible).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SolverRecord {
-    /// `clarabel` or `bvls`.
-    pub method: String,
-    /// Final status.
-    pub status: String,
+    /// Solver (`clarabel` or `bvls`).
+    pub method: Method,
+    /// Final status (`Solved`, `AlmostSolved`, …).
+    pub status: Status,
     /// Iterations.
     pub iterations: u32,
 }
@@ -342,46 +376,78 @@ impl ModelFile {
         PowerModel::from_vector(&v)
     }
 
-    /// Read and validate a model file. Errors name the file and the offending field.
-    pub fn load(path: &Path) -> Result<ModelFile> {
-        let text = crate::util::read_text_input(path)
-            .with_context(|| format!("reading model file {}", path.display()))?;
-        Self::from_json(&text).with_context(|| format!("invalid model file {}", path.display()))
+    /// Read and validate a model file; errors name the file and the offending field.
+    pub fn load(path: &Path) -> Result<ModelFile, ModelFileError> {
+        let text = crate::util::read_text_input(path).map_err(|e| ModelFileError::Read {
+            path: path.to_path_buf(),
+            reason: format!("{e:#}"),
+        })?;
+        Self::from_json(&text).map_err(|problem| ModelFileError::Invalid {
+            path: path.to_path_buf(),
+            problem,
+        })
     }
 
     /// Parse and validate model JSON text.
-    pub fn from_json(text: &str) -> Result<ModelFile> {
-        let value: serde_json::Value = serde_json::from_str(text).context("not valid JSON")?;
+    pub fn from_json(text: &str) -> Result<ModelFile, ModelProblem> {
+        let value: serde_json::Value =
+            serde_json::from_str(text).map_err(|e| ModelProblem::Json(e.to_string()))?;
         match value.get("schema_version") {
-            None => bail!("field `schema_version` is missing (expected {SCHEMA_VERSION})"),
+            None => {
+                return Err(field(
+                    "schema_version",
+                    "missing",
+                    format!("field `schema_version` is missing (expected {SCHEMA_VERSION})"),
+                ));
+            }
             Some(v) if v.as_u64() == Some(SCHEMA_VERSION as u64) => {}
             Some(v) => {
-                bail!("field `schema_version` is {v}; this g1viz reads version {SCHEMA_VERSION}")
+                return Err(field(
+                    "schema_version",
+                    v,
+                    format!(
+                        "field `schema_version` is {v}; this g1viz reads version {SCHEMA_VERSION}"
+                    ),
+                ));
             }
         }
         let file: ModelFile =
-            serde_json::from_value(value).context("does not match the model.json schema")?;
+            serde_json::from_value(value).map_err(|e| ModelProblem::Schema(e.to_string()))?;
         file.validate()?;
         Ok(file)
     }
 
-    fn validate(&self) -> Result<()> {
-        ensure!(
-            self.theta.len() == N_PARAMS,
-            "field `theta` has {} values, the power model has {N_PARAMS}",
-            self.theta.len()
-        );
-        if let Some(p) = self.theta.iter().position(|v| !v.is_finite()) {
-            bail!(
-                "field `theta[{p}]` ({}) is not a finite number",
-                PowerModel::param_name(p)
-            );
+    fn validate(&self) -> Result<(), ModelProblem> {
+        if self.theta.len() != N_PARAMS {
+            return Err(field(
+                "theta",
+                format!("{} values", self.theta.len()),
+                format!(
+                    "field `theta` has {} values, the power model has {N_PARAMS}",
+                    self.theta.len()
+                ),
+            ));
         }
-        ensure!(
-            self.joint_names.len() == N_JOINTS,
-            "field `joint_names` has {} names, the arm has {N_JOINTS} joints",
-            self.joint_names.len()
-        );
+        if let Some(p) = self.theta.iter().position(|v| !v.is_finite()) {
+            return Err(field(
+                format!("theta[{p}]"),
+                self.theta[p],
+                format!(
+                    "field `theta[{p}]` ({}) is not a finite number",
+                    PowerModel::param_name(p)
+                ),
+            ));
+        }
+        if self.joint_names.len() != N_JOINTS {
+            return Err(field(
+                "joint_names",
+                format!("{} names", self.joint_names.len()),
+                format!(
+                    "field `joint_names` has {} names, the arm has {N_JOINTS} joints",
+                    self.joint_names.len()
+                ),
+            ));
+        }
         let expected = self.model();
         for (name, named, from_theta) in [
             ("a", &self.a, &expected.a),
@@ -390,36 +456,58 @@ impl ModelFile {
             ("d", &self.d, &expected.d),
         ] {
             for i in 0..N_JOINTS {
-                ensure!(
-                    named[i] == from_theta[i],
-                    "field `{name}[{i}]` = {} disagrees with `theta` ({}) — edit both or only `theta` and the named copies",
-                    named[i],
-                    from_theta[i]
-                );
+                if named[i] != from_theta[i] {
+                    return Err(field(
+                        format!("{name}[{i}]"),
+                        named[i],
+                        format!(
+                            "field `{name}[{i}]` = {} disagrees with `theta` ({}) — edit both or only `theta` and the named copies",
+                            named[i], from_theta[i]
+                        ),
+                    ));
+                }
             }
         }
-        ensure!(
-            self.e.len() == N_PAIRS,
-            "field `e` has {} entries, expected {N_PAIRS} pairs \"i,j\" with i<j",
-            self.e.len()
-        );
+        if self.e.len() != N_PAIRS {
+            return Err(field(
+                "e",
+                format!("{} entries", self.e.len()),
+                format!(
+                    "field `e` has {} entries, expected {N_PAIRS} pairs \"i,j\" with i<j",
+                    self.e.len()
+                ),
+            ));
+        }
         for (k, &(i, j)) in PAIRS.iter().enumerate() {
             let key = pair_key(i, j);
             match self.e.get(&key) {
-                None => bail!("field `e` has no entry \"{key}\""),
-                Some(&v) => ensure!(
-                    v == expected.e[k],
-                    "field `e[\"{key}\"]` = {v} disagrees with `theta` ({})",
-                    expected.e[k]
-                ),
+                None => {
+                    return Err(field("e", "", format!("field `e` has no entry \"{key}\"")));
+                }
+                Some(&v) if v != expected.e[k] => {
+                    return Err(field(
+                        format!("e[\"{key}\"]"),
+                        v,
+                        format!(
+                            "field `e[\"{key}\"]` = {v} disagrees with `theta` ({})",
+                            expected.e[k]
+                        ),
+                    ));
+                }
+                Some(_) => {}
             }
         }
-        if let Some(se) = &self.theta_std_err {
-            ensure!(
-                se.len() == N_PARAMS,
-                "field `theta_std_err` has {} values, expected {N_PARAMS}",
-                se.len()
-            );
+        if let Some(se) = &self.theta_std_err
+            && se.len() != N_PARAMS
+        {
+            return Err(field(
+                "theta_std_err",
+                format!("{} values", se.len()),
+                format!(
+                    "field `theta_std_err` has {} values, expected {N_PARAMS}",
+                    se.len()
+                ),
+            ));
         }
         Ok(())
     }

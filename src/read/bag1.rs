@@ -14,11 +14,10 @@ use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use super::db3::{rate_hz, resolve_schema, session_info};
 use super::msgdef::MsgSchema;
 use super::{
     Channel, Encoding, MessageRef, MessageSource, OpenOptions, ReadError, ReadSummary, SessionInfo,
-    TopicInfo,
+    TopicInfo, rate_hz, session_info,
 };
 
 const MAGIC: &[u8] = b"#ROSBAG V2.0\n";
@@ -28,6 +27,11 @@ const OP_INDEX_DATA: u8 = 0x04;
 const OP_CHUNK: u8 = 0x05;
 const OP_CHUNK_INFO: u8 = 0x06;
 const OP_CONNECTION: u8 = 0x07;
+/// Chunks larger than this (declared uncompressed size) are treated as damage.
+const MAX_CHUNK_BYTES: u64 = 256 << 20;
+/// Most decompressed bytes held at once for chunks whose time ranges overlap; beyond it the
+/// next chunk waits until the loaded ones are delivered (with a warning: order may break).
+const OVERLAP_BUDGET_BYTES: usize = 256 << 20;
 
 /// A ROS 1 bag opened for reading.
 pub struct Ros1BagSource {
@@ -258,6 +262,8 @@ impl Ros1BagSource {
                 path.display()
             ));
             false
+        } else if index_pos == file_len && conn_count == 0 && chunk_count == 0 {
+            true // a bag closed with nothing recorded: its (empty) index ends the file
         } else if index_pos >= file_len {
             bag.open_warnings.push(format!(
                 "{}: index position {index_pos} is beyond the end of the file ({file_len} bytes): \
@@ -333,6 +339,8 @@ impl Ros1BagSource {
         chunk_count: u32,
     ) -> Result<(), String> {
         let mut offset = index_pos;
+        let mut seen_chunks = std::collections::HashSet::new();
+        let mut duplicates = 0u64;
         for _ in 0..(conn_count as u64 + chunk_count as u64) {
             let record = self
                 .record_at(offset)
@@ -356,6 +364,11 @@ impl Ros1BagSource {
                             "chunk position {pos} is beyond the end of the file"
                         ));
                     }
+                    if !seen_chunks.insert(pos) {
+                        duplicates += 1;
+                        offset = record.end();
+                        continue;
+                    }
                     let counts = data
                         .chunks_exact(8)
                         .map(|c| {
@@ -377,6 +390,13 @@ impl Ros1BagSource {
             }
             offset = record.end();
         }
+        if duplicates > 0 {
+            self.open_warnings.push(format!(
+                "{}: the index lists {duplicates} chunk-info records more than once (same chunk \
+                 position); each chunk is read once",
+                self.path.display()
+            ));
+        }
         Ok(())
     }
 
@@ -393,8 +413,8 @@ impl Ros1BagSource {
         let definition = info.string("message_definition").unwrap_or_default();
         let embedded = (!definition.trim().is_empty())
             .then(|| MsgSchema::parse_ros1msg(&type_name, &definition));
-        let channel =
-            resolve_schema(&self.path, &topic, &type_name, embedded, &self.opts).map(|schema| {
+        let channel = super::resolve_schema(&self.path, &topic, &type_name, embedded, &self.opts)
+            .map(|schema| {
                 Arc::new(Channel {
                     topic: topic.clone(),
                     type_name: type_name.clone(),
@@ -417,6 +437,7 @@ impl Ros1BagSource {
     /// chunk time ranges and per-connection statistics; stop at the first damage with a warning.
     fn scan(&mut self, mut offset: u64) -> Result<(), std::io::Error> {
         let mut stats: BTreeMap<u32, TopicStat> = BTreeMap::new();
+        let mut orphans = BTreeMap::new();
         while offset < self.file_len {
             let record = match self.record_at(offset) {
                 Ok(r) => r,
@@ -448,6 +469,10 @@ impl Ros1BagSource {
                     };
                     match self.load_chunk(&chunk, None) {
                         Ok(loaded) => {
+                            self.damaged |= !loaded.damage.is_empty();
+                            let warnings = self.chunk_warnings(offset, &loaded);
+                            self.open_warnings.extend(warnings);
+                            merge_orphans(&mut orphans, &loaded.orphans);
                             let mut counts: BTreeMap<u32, u32> = BTreeMap::new();
                             let mut meta = chunk;
                             for m in &loaded.messages {
@@ -504,8 +529,76 @@ impl Ros1BagSource {
             }
             offset = record.end();
         }
+        let warnings = self.orphan_warnings(&orphans);
+        self.open_warnings.extend(warnings);
         self.scanned_stats = Some(stats);
         Ok(())
+    }
+
+    /// Warnings for bad records inside a loaded chunk.
+    fn chunk_warnings(&self, pos: u64, chunk: &LoadedChunk) -> Vec<String> {
+        chunk
+            .damage
+            .iter()
+            .map(|(_, what)| {
+                format!(
+                    "{}: chunk at byte offset {pos}: {what}",
+                    self.path.display()
+                )
+            })
+            .collect()
+    }
+
+    /// One warning per unknown connection id that carried messages.
+    fn orphan_warnings(&self, orphans: &BTreeMap<u32, (u64, u64)>) -> Vec<String> {
+        orphans
+            .iter()
+            .map(|(conn, (n, first))| {
+                format!(
+                    "{}: {n} messages on connection id {conn}, which has no connection record, \
+                     were skipped (the first at byte offset {first})",
+                    self.path.display()
+                )
+            })
+            .collect()
+    }
+
+    /// Load chunk `c` for a read and queue it with its warnings; on damage warn and return
+    /// false (the read stops there).
+    fn load_for_read(
+        &mut self,
+        c: &ChunkMeta,
+        wanted: &[u32],
+        loaded: &mut Vec<LoadedChunk>,
+        state: &mut ReadState,
+    ) -> bool {
+        match self.load_chunk(c, Some(wanted)) {
+            Ok(chunk) => {
+                if !chunk.damage.is_empty() {
+                    state.summary.complete = false;
+                }
+                for w in self.chunk_warnings(c.pos, &chunk) {
+                    if !state.known.contains(&w) {
+                        state.summary.warnings.push(w);
+                    }
+                }
+                merge_orphans(&mut state.orphans, &chunk.orphans);
+                if chunk.head_time().is_some() {
+                    loaded.push(chunk);
+                }
+                true
+            }
+            Err(e) => {
+                state.summary.warnings.push(format!(
+                    "{}: damaged chunk at byte offset {} ({e}); read stopped there, \
+                     messages before it were delivered",
+                    self.path.display(),
+                    c.pos
+                ));
+                state.summary.complete = false;
+                false
+            }
+        }
     }
 
     fn warn_truncated(&mut self, offset: u64, what: &str) {
@@ -528,13 +621,9 @@ impl Ros1BagSource {
         ));
     }
 
-    /// Read, decompress and parse one chunk: its connection records are registered, its
-    /// messages (of `wanted` connections, or all) returned sorted by time.
-    fn load_chunk(
-        &mut self,
-        meta: &ChunkMeta,
-        wanted: Option<&[u32]>,
-    ) -> Result<LoadedChunk, String> {
+    /// Read and decompress the chunk `meta` points to: (uncompressed records, compression,
+    /// offset of the chunk data in the file). Output is capped at the declared size.
+    fn chunk_bytes(&mut self, meta: &ChunkMeta) -> Result<(Vec<u8>, String, u64), String> {
         let record = self
             .record_at(meta.pos)
             .map_err(|e| record_error_text(e, meta.pos))?;
@@ -543,7 +632,14 @@ impl Ros1BagSource {
             return Err(format!("record at offset {} is not a chunk", meta.pos));
         }
         let compression = fields.string("compression")?;
-        let size = fields.u32("size")? as usize;
+        let size = fields.u32("size")? as u64;
+        if size > MAX_CHUNK_BYTES {
+            return Err(format!(
+                "chunk claims {size} uncompressed bytes (more than the {} MiB limit)",
+                MAX_CHUNK_BYTES >> 20
+            ));
+        }
+        let size = size as usize;
         let len = meta.available.unwrap_or(record.data_len);
         let raw = self
             .read_data(record.data_offset, len)
@@ -565,64 +661,154 @@ impl Ros1BagSource {
                 ));
             }
         };
-        if !truncated && data.len() != size {
+        if data.len() > size || (!truncated && data.len() != size) {
+            let more = if data.len() > size { "more than " } else { "" };
             return Err(format!(
-                "chunk decompressed to {} bytes, its header says {size}",
+                "chunk decompressed to {more}{} bytes, its header says {size}",
                 data.len()
             ));
         }
+        Ok((data, compression, record.data_offset))
+    }
+
+    /// Read, decompress and parse one chunk: its connection records are registered, its
+    /// messages (of `wanted` connections, or all) returned sorted by time. A bad record inside
+    /// the chunk does not lose the rest when the chunk's index data gives the offsets of the
+    /// messages after it; what was lost is in [`LoadedChunk::damage`].
+    fn load_chunk(
+        &mut self,
+        meta: &ChunkMeta,
+        wanted: Option<&[u32]>,
+    ) -> Result<LoadedChunk, String> {
+        let (data, compression, data_offset) = self.chunk_bytes(meta)?;
         // Offsets of uncompressed chunks point at the message record itself.
-        let base = (compression == "none").then_some(record.data_offset);
-        let mut messages = Vec::new();
+        let base = (compression == "none").then_some(data_offset);
+        let mut chunk = LoadedChunk {
+            data: Vec::new(),
+            messages: Vec::new(),
+            next: 0,
+            parsed: 0,
+            damage: Vec::new(),
+            orphans: BTreeMap::new(),
+        };
         let mut at = 0usize;
-        while let Some(header_len) = data.get(at..at + 4) {
-            let header_len =
-                u32::from_le_bytes([header_len[0], header_len[1], header_len[2], header_len[3]])
-                    as usize;
-            let header_end = at + 4 + header_len;
-            let Some(data_len) = data.get(header_end..header_end + 4) else {
-                break;
-            };
-            let data_len =
-                u32::from_le_bytes([data_len[0], data_len[1], data_len[2], data_len[3]]) as usize;
-            let data_start = header_end + 4;
-            let data_end = data_start + data_len;
-            if data_end > data.len() {
-                if truncated {
-                    break;
-                }
-                return Err(format!(
-                    "record at byte {at} of the chunk overruns the chunk ({} bytes)",
-                    data.len()
-                ));
+        let mut resync: Option<Vec<usize>> = None;
+        while let Err((bad_at, what)) =
+            self.parse_chunk_records(&data, at, meta, base, wanted, &mut chunk)
+        {
+            chunk.damage.push((bad_at, what));
+            let offsets = resync.get_or_insert_with(|| self.index_offsets(meta));
+            match offsets.iter().find(|&&o| o > bad_at) {
+                Some(&o) => at = o,
+                None => break,
             }
-            let fields = Fields::parse(&data[at + 4..header_end])
-                .map_err(|e| format!("record at byte {at} of the chunk: {e}"))?;
-            match fields.op()? {
+        }
+        if !chunk.damage.is_empty() {
+            let expected: u64 = meta.counts.iter().map(|(_, n)| *n as u64).sum();
+            let indexed = resync.as_ref().map_or(0, |o| o.len() as u64);
+            let expected = expected.max(indexed);
+            let lost = if expected > chunk.parsed {
+                format!(
+                    "{} of its {expected} messages lost",
+                    expected - chunk.parsed
+                )
+            } else {
+                "messages after it lost unless the chunk index lists them".to_string()
+            };
+            let (bad_at, what) = &chunk.damage[0];
+            chunk.damage = vec![(
+                *bad_at,
+                format!(
+                    "{what}; {} bad record(s) in the chunk, {} messages read from it, {lost}",
+                    chunk.damage.len(),
+                    chunk.parsed
+                ),
+            )];
+        }
+        // Stable: messages with equal stamps keep their recorded order.
+        chunk.messages.sort_by_key(|m| m.time_ns);
+        chunk.data = data;
+        Ok(chunk)
+    }
+
+    /// Parse the records of a decompressed chunk from byte `at`; on a bad record, its position
+    /// in the chunk and what is wrong.
+    fn parse_chunk_records(
+        &mut self,
+        data: &[u8],
+        mut at: usize,
+        meta: &ChunkMeta,
+        base: Option<u64>,
+        wanted: Option<&[u32]>,
+        chunk: &mut LoadedChunk,
+    ) -> Result<(), (usize, String)> {
+        let truncated = meta.available.is_some();
+        while at < data.len() {
+            let bad = |what: String| (at, format!("record at byte {at} of the chunk: {what}"));
+            let Some(framed) = frame_in(data, at) else {
+                if truncated {
+                    return Ok(()); // the end of the file cut the chunk: reported by the caller
+                }
+                return Err(bad(format!(
+                    "its lengths overrun the chunk ({} bytes)",
+                    data.len()
+                )));
+            };
+            let (header, data_start, data_end) = framed;
+            let fields = Fields::parse(header).map_err(&bad)?;
+            match fields.op().map_err(&bad)? {
                 OP_MESSAGE_DATA => {
-                    let conn = fields.u32("conn")?;
-                    if wanted.is_none_or(|w| w.contains(&conn)) {
-                        messages.push(ChunkMessage {
-                            time_ns: fields.time_ns("time")?,
+                    let conn = fields.u32("conn").map_err(&bad)?;
+                    let time_ns = fields.time_ns("time").map_err(&bad)?;
+                    chunk.parsed += 1;
+                    let file_offset = base.map_or(meta.pos, |b| b + at as u64);
+                    if !self.connections.contains_key(&conn) {
+                        chunk.orphans.entry(conn).or_insert((0, file_offset)).0 += 1;
+                    } else if wanted.is_none_or(|w| w.contains(&conn)) {
+                        chunk.messages.push(ChunkMessage {
+                            time_ns,
                             conn,
                             start: data_start,
                             end: data_end,
-                            file_offset: base.map_or(meta.pos, |b| b + at as u64),
+                            file_offset,
                         });
                     }
                 }
-                OP_CONNECTION => self.add_connection(&fields, &data[data_start..data_end])?,
+                OP_CONNECTION => self
+                    .add_connection(&fields, &data[data_start..data_end])
+                    .map_err(&bad)?,
                 _ => {}
             }
             at = data_end;
         }
-        // Stable: messages with equal stamps keep their recorded order.
-        messages.sort_by_key(|m| m.time_ns);
-        Ok(LoadedChunk {
-            data,
-            messages,
-            next: 0,
-        })
+        Ok(())
+    }
+
+    /// Offsets (in the uncompressed chunk) of the messages the index data records after the
+    /// chunk list, sorted; empty when there are none or they are unreadable.
+    fn index_offsets(&mut self, meta: &ChunkMeta) -> Vec<usize> {
+        let mut out = Vec::new();
+        let Ok(chunk) = self.record_at(meta.pos) else {
+            return out;
+        };
+        let mut offset = chunk.end();
+        while let Ok(r) = self.record_at(offset) {
+            let is_index = Fields::parse(&r.header).is_ok_and(|f| f.op() == Ok(OP_INDEX_DATA));
+            let Some(d) = is_index
+                .then(|| self.read_data(r.data_offset, r.data_len).ok())
+                .flatten()
+            else {
+                break;
+            };
+            out.extend(
+                d.chunks_exact(12)
+                    .map(|e| u32::from_le_bytes([e[8], e[9], e[10], e[11]]) as usize),
+            );
+            offset = r.end();
+        }
+        out.sort_unstable();
+        out.dedup();
+        out
     }
 
     /// Per-connection first/last stamps from the index data records that follow each chunk.
@@ -684,6 +870,22 @@ impl Ros1BagSource {
     }
 }
 
+/// What a read accumulates besides the delivered messages.
+struct ReadState {
+    summary: ReadSummary,
+    /// Warnings already given when the bag was opened (not repeated).
+    known: std::collections::HashSet<String>,
+    /// Messages on unknown connection ids: id → (count, first offset).
+    orphans: BTreeMap<u32, (u64, u64)>,
+}
+
+fn merge_orphans(into: &mut BTreeMap<u32, (u64, u64)>, from: &BTreeMap<u32, (u64, u64)>) {
+    for (conn, (n, first)) in from {
+        let e = into.entry(*conn).or_insert((0, *first));
+        e.0 += n;
+    }
+}
+
 struct ChunkMessage {
     time_ns: u64,
     conn: u32,
@@ -696,6 +898,12 @@ struct LoadedChunk {
     data: Vec<u8>,
     messages: Vec<ChunkMessage>,
     next: usize,
+    /// Message records parsed (of every connection, wanted or not).
+    parsed: u64,
+    /// Bad records inside the chunk: (byte in the chunk, what); at most one summary entry.
+    damage: Vec<(usize, String)>,
+    /// Messages on connection ids without a connection record: id → (count, first offset).
+    orphans: BTreeMap<u32, (u64, u64)>,
 }
 
 impl LoadedChunk {
@@ -704,19 +912,31 @@ impl LoadedChunk {
     }
 }
 
-/// Decompress a whole chunk; for a chunk cut off by the end of the file keep what came out.
-fn decompress(
-    mut reader: impl Read,
-    size: usize,
-    truncated: bool,
-) -> Result<Vec<u8>, std::io::Error> {
-    // The header's size is only a hint for the allocation: it comes from the file.
+/// Decompress a whole chunk, reading at most one byte more than its declared `size` (enough to
+/// tell a bomb from a valid chunk); for a chunk cut off by the end of the file keep what came out.
+fn decompress(reader: impl Read, size: usize, truncated: bool) -> Result<Vec<u8>, std::io::Error> {
     let mut out = Vec::with_capacity(size.min(64 << 20));
-    match reader.read_to_end(&mut out) {
+    match reader.take(size as u64 + 1).read_to_end(&mut out) {
         Ok(_) => Ok(out),
         Err(_) if truncated => Ok(out),
         Err(e) => Err(e),
     }
+}
+
+/// The record framed at `at` in a chunk: (header, data start, data end), `None` when its
+/// lengths run past the chunk.
+fn frame_in(data: &[u8], at: usize) -> Option<(&[u8], usize, usize)> {
+    let header_len =
+        u32::from_le_bytes(data.get(at..at.checked_add(4)?)?.try_into().ok()?) as usize;
+    let header_end = at.checked_add(4)?.checked_add(header_len)?;
+    let data_len = u32::from_le_bytes(
+        data.get(header_end..header_end.checked_add(4)?)?
+            .try_into()
+            .ok()?,
+    ) as usize;
+    let data_start = header_end + 4;
+    let data_end = data_start.checked_add(data_len)?;
+    (data_end <= data.len()).then(|| (&data[at + 4..header_end], data_start, data_end))
 }
 
 fn record_error_text(e: RecordError, offset: u64) -> String {
@@ -819,6 +1039,12 @@ impl MessageSource for Ros1BagSource {
             .collect();
         let mut next_chunk = 0;
         let mut loaded: Vec<LoadedChunk> = Vec::new();
+        let mut over_budget = false;
+        let mut state = ReadState {
+            known: self.open_warnings.iter().cloned().collect(),
+            summary,
+            orphans: BTreeMap::new(),
+        };
         loop {
             // The loaded chunk with the earliest pending message.
             let head = loaded
@@ -826,25 +1052,21 @@ impl MessageSource for Ros1BagSource {
                 .enumerate()
                 .filter_map(|(i, c)| c.head_time().map(|t| (t, i)))
                 .min();
-            // Load the next chunk first if it may hold a message at or before that one.
+            let held: usize = loaded.iter().map(|c| c.data.len()).sum();
+            // Load the next chunk first if it may hold a message at or before that one (and
+            // the chunks already held leave room for it).
             if let Some(c) = chunks.get(next_chunk)
                 && head.is_none_or(|(t, _)| c.start_ns <= t)
             {
-                next_chunk += 1;
-                match self.load_chunk(c, Some(&wanted)) {
-                    Ok(chunk) => loaded.push(chunk),
-                    Err(e) => {
-                        summary.warnings.push(format!(
-                            "{}: damaged chunk at byte offset {} ({e}); read stopped there, \
-                             messages before it were delivered",
-                            self.path.display(),
-                            c.pos
-                        ));
-                        summary.complete = false;
+                if head.is_some() && held >= OVERLAP_BUDGET_BYTES {
+                    over_budget = true;
+                } else {
+                    next_chunk += 1;
+                    if !self.load_for_read(c, &wanted, &mut loaded, &mut state) {
                         next_chunk = chunks.len();
                     }
+                    continue;
                 }
-                continue;
             }
             let Some((_, i)) = head else { break };
             let chunk = &mut loaded[i];
@@ -857,13 +1079,28 @@ impl MessageSource for Ros1BagSource {
                     publish_time_ns: m.time_ns,
                     data: &chunk.data[m.start..m.end],
                     file_offset: m.file_offset,
+                    row_id: false,
                 })?;
-                summary.messages += 1;
+                state.summary.messages += 1;
             }
             if chunk.head_time().is_none() {
                 // `remove`, not `swap_remove`: equal stamps go to the earlier chunk first.
                 loaded.remove(i);
             }
+        }
+        let ReadState {
+            mut summary,
+            orphans,
+            ..
+        } = state;
+        summary.warnings.extend(self.orphan_warnings(&orphans));
+        if over_budget {
+            summary.warnings.push(format!(
+                "{}: more chunks overlap in time than fit the {} MiB memory budget; they were read \
+                 one after the other, so messages may come out of time order",
+                self.path.display(),
+                OVERLAP_BUDGET_BYTES >> 20
+            ));
         }
         Ok(summary)
     }

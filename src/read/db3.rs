@@ -14,10 +14,11 @@ use std::sync::Arc;
 use rusqlite::fallible_streaming_iterator::FallibleStreamingIterator;
 use rusqlite::{Connection, OpenFlags};
 
-use super::msgdef::{self, MsgSchema, SchemaError};
+use super::mcap::McapSource;
+use super::msgdef::MsgSchema;
 use super::{
     Channel, Encoding, MessageRef, MessageSource, OpenOptions, ReadError, ReadSummary, SessionInfo,
-    TopicInfo,
+    TopicInfo, rate_hz, session_info,
 };
 
 /// A ROS 2 bag (sqlite3 storage, or MCAP storage delegated to the MCAP reader).
@@ -31,7 +32,11 @@ enum Inner {
     /// size or duration, so the files follow each other in time).
     Mcap {
         bag: PathBuf,
-        files: Vec<super::mcap::McapSource>,
+        files: Vec<McapSource>,
+        /// Payloads are individually zstd-compressed (`compression_mode: MESSAGE`).
+        message_zstd: bool,
+        /// Decompressed copies of `compression_mode: FILE` files; removed on drop.
+        _scratch: Option<tempfile::TempDir>,
     },
 }
 
@@ -46,6 +51,8 @@ struct SqliteBag {
     message_compression: bool,
     /// Decompressed copies of `compression_mode: FILE` databases; removed on drop.
     _scratch: Option<tempfile::TempDir>,
+    /// Damage found when opening (truncated databases), repeated in info and every read.
+    notes: Vec<String>,
 }
 
 struct DbFile {
@@ -95,17 +102,23 @@ impl Ros2BagSource {
             path: yaml_path.clone(),
             source,
         })?;
-        let meta = BagMetadata::parse(&text).map_err(|what| ReadError::Format {
-            path: yaml_path.clone(),
-            offset: 0,
-            what,
-        })?;
+        let meta = BagMetadata::parse(&text)
+            .map_err(|what| ReadError::Other(format!("{}: {what}", yaml_path.display())))?;
         if meta.relative_file_paths.is_empty() {
-            return Err(ReadError::Format {
-                path: yaml_path,
-                offset: 0,
-                what: "metadata.yaml lists no storage files (relative_file_paths is empty)".into(),
-            });
+            return Err(ReadError::Other(format!(
+                "{}: lists no storage files (relative_file_paths is empty)",
+                yaml_path.display()
+            )));
+        }
+        let mut listed = std::collections::HashSet::new();
+        if let Some(twice) = meta.relative_file_paths.iter().find(|f| {
+            let path = dir.join(f.as_str());
+            !listed.insert(std::fs::canonicalize(&path).unwrap_or(path))
+        }) {
+            return Err(ReadError::Other(format!(
+                "{}: storage file {twice} is listed twice in relative_file_paths (its messages would be read twice)",
+                yaml_path.display()
+            )));
         }
         let files: Vec<PathBuf> = meta
             .relative_file_paths
@@ -129,26 +142,13 @@ impl Ros2BagSource {
                     inner: Inner::Sqlite(db),
                 })
             }
-            "mcap" => {
-                if compression != Compression::None {
-                    return Err(ReadError::Other(format!(
-                        "{}: rosbag2 compression of MCAP storage is not supported (MCAP compresses its own chunks)",
-                        yaml_path.display()
-                    )));
-                }
-                let files = files
-                    .iter()
-                    .map(|f| super::mcap::McapSource::open(f, opts))
-                    .collect::<Result<Vec<_>, _>>()?;
-                Ok(Ros2BagSource {
-                    inner: Inner::Mcap { bag: dir, files },
-                })
-            }
-            other => Err(ReadError::Format {
-                path: yaml_path,
-                offset: 0,
-                what: format!("unsupported rosbag2 storage {other:?} (supported: sqlite3, mcap)"),
+            "mcap" => Ok(Ros2BagSource {
+                inner: open_mcap_storage(&dir, &files, compression, opts)?,
             }),
+            other => Err(ReadError::Other(format!(
+                "{}: unsupported rosbag2 storage {other:?} (supported: sqlite3, mcap)",
+                yaml_path.display()
+            ))),
         }
     }
 }
@@ -205,7 +205,7 @@ impl MessageSource for Ros2BagSource {
     fn info(&mut self) -> Result<SessionInfo, ReadError> {
         match &mut self.inner {
             Inner::Sqlite(db) => db.info(),
-            Inner::Mcap { bag, files } => {
+            Inner::Mcap { bag, files, .. } => {
                 let mut infos = Vec::with_capacity(files.len());
                 for f in files.iter_mut() {
                     infos.push(f.info()?);
@@ -222,13 +222,36 @@ impl MessageSource for Ros2BagSource {
     ) -> Result<ReadSummary, ReadError> {
         match &mut self.inner {
             Inner::Sqlite(db) => db.read(topics, visit),
-            Inner::Mcap { files, .. } => {
+            Inner::Mcap {
+                files,
+                message_zstd,
+                ..
+            } => {
                 let mut total = ReadSummary {
                     complete: true,
                     ..ReadSummary::default()
                 };
+                let mut scratch = Vec::new();
+                let compressed = *message_zstd;
+                let mut inflate = |m: MessageRef<'_>| {
+                    if !compressed {
+                        return visit(m);
+                    }
+                    decompress_message(m.data, &mut scratch).map_err(|e| {
+                        ReadError::Other(format!(
+                            "topic {}: message at log time {} ns ({}): {e}",
+                            m.channel.topic,
+                            m.log_time_ns,
+                            m.location()
+                        ))
+                    })?;
+                    visit(MessageRef {
+                        data: &scratch,
+                        ..m
+                    })
+                };
                 for f in files.iter_mut() {
-                    let s = f.read(topics, visit)?;
+                    let s = f.read(topics, &mut inflate)?;
                     total.messages += s.messages;
                     total.warnings.extend(s.warnings);
                     if !s.complete {
@@ -264,113 +287,6 @@ fn merge_infos(path: &Path, format: &str, infos: Vec<SessionInfo>) -> SessionInf
         t.rate_hz = rate_hz(t.count, t.first_ns, t.last_ns);
     }
     session_info(path, format, topics, warnings)
-}
-
-/// Mean rate over a topic's own span, 0 when it has fewer than two messages.
-pub(crate) fn rate_hz(count: u64, first_ns: u64, last_ns: u64) -> f64 {
-    if count < 2 || last_ns <= first_ns {
-        return 0.0;
-    }
-    (count - 1) as f64 / ((last_ns - first_ns) as f64 * 1e-9)
-}
-
-/// Assemble a [`SessionInfo`] from per-topic statistics (sorted by topic name here).
-pub(crate) fn session_info(
-    path: &Path,
-    format: &str,
-    mut topics: Vec<TopicInfo>,
-    warnings: Vec<String>,
-) -> SessionInfo {
-    topics.sort_by(|a, b| a.topic.cmp(&b.topic));
-    let present = topics.iter().filter(|t| t.count > 0);
-    let start_ns = present.clone().map(|t| t.first_ns).min().unwrap_or(0);
-    let end_ns = present.map(|t| t.last_ns).max().unwrap_or(0);
-    SessionInfo {
-        path: path.to_path_buf(),
-        format: format.to_string(),
-        start_ns,
-        end_ns,
-        messages: topics.iter().map(|t| t.count).sum(),
-        topics,
-        warnings,
-    }
-}
-
-/// The message definition of `type_name` from, in order: the definition the recording carries
-/// (`embedded`, parsed with `parse`), `.msg` files on `--msg-path`, the built-in definitions.
-/// The error text names the type, the topic and where to put a definition.
-pub(crate) fn resolve_schema(
-    file: &Path,
-    topic: &str,
-    type_name: &str,
-    embedded: Option<Result<MsgSchema, SchemaError>>,
-    opts: &OpenOptions,
-) -> Result<MsgSchema, String> {
-    match embedded {
-        Some(Ok(schema)) => return Ok(schema),
-        Some(Err(e)) => {
-            return Err(format!(
-                "{}: topic {topic}: the message definition of {type_name} stored in the recording is bad: {e}",
-                file.display()
-            ));
-        }
-        None => {}
-    }
-    if !opts.msg_paths.is_empty() {
-        match MsgSchema::from_msg_files(type_name, &opts.msg_paths) {
-            Ok(schema) => return Ok(schema),
-            Err(SchemaError::MissingType(_)) => {}
-            Err(e) => {
-                return Err(format!(
-                    "{}: topic {topic}: definition of {type_name} found on --msg-path is bad: {e}",
-                    file.display()
-                ));
-            }
-        }
-    }
-    let normalised = normalise_type_name(type_name);
-    let builtin =
-        msgdef::builtin_definition(type_name).or_else(|| msgdef::builtin_definition(&normalised));
-    if let Some(text) = builtin {
-        return MsgSchema::parse_ros2msg(&normalised, text).map_err(|e| {
-            format!(
-                "{}: topic {topic}: built-in definition of {type_name}: {e}",
-                file.display()
-            )
-        });
-    }
-    let (pkg, name) = split_type_name(type_name);
-    let searched = if opts.msg_paths.is_empty() {
-        "no --msg-path given".to_string()
-    } else {
-        format!(
-            "not found under --msg-path {}",
-            opts.msg_paths
-                .iter()
-                .map(|p| p.display().to_string())
-                .collect::<Vec<_>>()
-                .join(", ")
-        )
-    };
-    Err(format!(
-        "{}: topic {topic}: no message definition for type {type_name} (the recording does not carry one, \
-         {searched}, and it is not built in); put its definition at DIR/{pkg}/msg/{name}.msg \
-         (with the .msg files of the types it uses) and pass --msg-path DIR",
-        file.display()
-    ))
-}
-
-/// `pkg/Type` → `pkg/msg/Type`; `pkg/msg/Type` unchanged.
-fn normalise_type_name(type_name: &str) -> String {
-    let (pkg, name) = split_type_name(type_name);
-    format!("{pkg}/msg/{name}")
-}
-
-/// Package and bare type name of `pkg/Type` or `pkg/msg/Type`.
-fn split_type_name(type_name: &str) -> (&str, &str) {
-    let pkg = type_name.split('/').next().unwrap_or(type_name);
-    let name = type_name.rsplit('/').next().unwrap_or(type_name);
-    (pkg, name)
 }
 
 /// rosbag2 compression of the storage files.
@@ -434,13 +350,41 @@ fn open_db(path: &Path) -> Result<Connection, ReadError> {
         }
     }
     uri.push_str("?immutable=1");
-    Connection::open_with_flags(
+    let conn = Connection::open_with_flags(
         &uri,
         OpenFlags::SQLITE_OPEN_READ_ONLY
             | OpenFlags::SQLITE_OPEN_URI
             | OpenFlags::SQLITE_OPEN_NO_MUTEX,
     )
-    .map_err(|e| sql_error(path, e))
+    .map_err(|e| sql_error(path, e))?;
+    if truncation(path).is_some() {
+        // sqlite refuses a file shorter than its header says outright; with this (read-only)
+        // flag it reads the pages that are there and reports the missing ones when reached.
+        conn.execute_batch("PRAGMA writable_schema = ON")
+            .map_err(|e| sql_error(path, e))?;
+    }
+    Ok(conn)
+}
+
+/// For a database file shorter than its header says (a truncated copy, a recorder that died):
+/// a warning with how many pages are present.
+fn truncation(path: &Path) -> Option<String> {
+    let mut header = [0u8; 100];
+    let mut file = std::fs::File::open(path).ok()?;
+    std::io::Read::read_exact(&mut file, &mut header).ok()?;
+    let len = file.metadata().ok()?.len();
+    let page_size = match u16::from_be_bytes([header[16], header[17]]) {
+        1 => 65536,
+        n => u64::from(n),
+    };
+    let pages = u64::from(u32::from_be_bytes(header[28..32].try_into().ok()?));
+    (page_size > 0 && pages * page_size > len).then(|| {
+        format!(
+            "{}: database truncated: {} of its {pages} pages present; messages are read up to the damage",
+            path.display(),
+            len / page_size
+        )
+    })
 }
 
 fn has_table(conn: &Connection, table: &str) -> rusqlite::Result<bool> {
@@ -459,22 +403,21 @@ impl SqliteBag {
         compression: Compression,
         opts: &OpenOptions,
     ) -> Result<SqliteBag, ReadError> {
-        let scratch = if compression == Compression::FileZstd {
-            Some(tempfile::tempdir().map_err(|source| ReadError::Io {
-                path: std::env::temp_dir(),
-                source,
-            })?)
-        } else {
-            None
-        };
+        let scratch = scratch_dir(compression)?;
         let mut topics: Vec<BagTopic> = Vec::new();
         let mut db_files = Vec::with_capacity(files.len());
+        let mut notes = Vec::new();
         for (index, path) in files.into_iter().enumerate() {
             let db_path = match &scratch {
                 Some(dir) => decompress_file(&path, &dir.path().join(format!("{index}.db3")))?,
                 None => path.clone(),
             };
             let conn = open_db(&db_path)?;
+            notes.extend(
+                truncation(&db_path).map(|w| {
+                    w.replace(&db_path.display().to_string(), &path.display().to_string())
+                }),
+            );
             let topic_ids = read_topics(&conn, &path, &mut topics, opts)?;
             db_files.push(DbFile {
                 path,
@@ -488,25 +431,31 @@ impl SqliteBag {
             topics,
             message_compression: compression == Compression::MessageZstd,
             _scratch: scratch,
+            notes,
         })
     }
 
     fn info(&mut self) -> Result<SessionInfo, ReadError> {
         let mut stats: Vec<(u64, u64, u64)> = vec![(0, u64::MAX, 0); self.topics.len()];
+        let mut notes = self.notes.clone();
         for f in &self.files {
             let conn = open_db(&f.db_path)?;
-            let mut stmt = conn
-                .prepare(
-                    "SELECT topic_id, count(*), min(timestamp), max(timestamp) FROM messages GROUP BY topic_id",
-                )
-                .map_err(|e| sql_error(&f.path, e))?;
-            let mut rows = stmt.query([]).map_err(|e| sql_error(&f.path, e))?;
-            while let Some(row) = rows.next().map_err(|e| sql_error(&f.path, e))? {
-                let id: i64 = row.get(0).map_err(|e| sql_error(&f.path, e))?;
-                let n: i64 = row.get(1).map_err(|e| sql_error(&f.path, e))?;
-                let first: i64 = row.get(2).map_err(|e| sql_error(&f.path, e))?;
-                let last: i64 = row.get(3).map_err(|e| sql_error(&f.path, e))?;
+            let rows = match topic_counts(&conn) {
+                Ok(rows) => rows,
+                Err(e) => {
+                    notes.push(format!(
+                        "{}: database damaged (sqlite: {e}); its messages are not counted",
+                        f.path.display()
+                    ));
+                    continue;
+                }
+            };
+            for (id, n, first, last) in rows {
                 let Some(&t) = f.topic_ids.get(&id) else {
+                    notes.push(format!(
+                        "{}: {n} messages on topic id {id}, which is not in the topics table, are not listed",
+                        f.path.display()
+                    ));
                     continue;
                 };
                 let s = &mut stats[t];
@@ -536,7 +485,29 @@ impl SqliteBag {
                 }
             })
             .collect();
+        warnings.extend(notes);
         Ok(session_info(&self.bag, "ros2-sqlite3", topics, warnings))
+    }
+
+    /// Which topics to deliver; an explicitly requested topic without a definition is an
+    /// error, one that only comes along with "all topics" is skipped with a warning.
+    fn select(
+        &self,
+        wanted: Option<&[&str]>,
+        warnings: &mut Vec<String>,
+    ) -> Result<Vec<bool>, ReadError> {
+        let mut selected = vec![false; self.topics.len()];
+        for (i, t) in self.topics.iter().enumerate() {
+            if !wanted.is_none_or(|w| w.contains(&t.name.as_str())) {
+                continue;
+            }
+            match &t.channel {
+                Ok(_) => selected[i] = true,
+                Err(e) if wanted.is_some() => return Err(ReadError::Other(e.clone())),
+                Err(e) => warnings.push(format!("{e}; topic skipped")),
+            }
+        }
+        Ok(selected)
     }
 
     fn read(
@@ -545,30 +516,23 @@ impl SqliteBag {
         visit: &mut dyn FnMut(MessageRef<'_>) -> Result<(), ReadError>,
     ) -> Result<ReadSummary, ReadError> {
         let mut summary = ReadSummary {
-            complete: true,
+            complete: self.notes.is_empty(),
+            warnings: self.notes.clone(),
             ..ReadSummary::default()
         };
-        // Which topics to deliver; an explicitly requested topic without a definition is an
-        // error, one that only comes along with "all topics" is skipped with a warning.
-        let mut selected = vec![false; self.topics.len()];
-        for (i, t) in self.topics.iter().enumerate() {
-            let asked = wanted.is_none_or(|w| w.contains(&t.name.as_str()));
-            if !asked {
-                continue;
-            }
-            match &t.channel {
-                Ok(_) => selected[i] = true,
-                Err(e) if wanted.is_some() => return Err(ReadError::Other(e.clone())),
-                Err(e) => summary.warnings.push(format!("{e}; topic skipped")),
-            }
-        }
+        let selected = self.select(wanted, &mut summary.warnings)?;
         let conns = self
             .files
             .iter()
             .map(|f| open_db(&f.db_path))
             .collect::<Result<Vec<_>, _>>()?;
-        let mut stmts = Vec::with_capacity(conns.len());
+        // Per file: the time-ordered query, and a rowid-order one for a database too damaged
+        // to sort (it then yields the rows up to the damage).
+        let mut sorted = Vec::with_capacity(conns.len());
+        let mut by_row = Vec::with_capacity(conns.len());
+        let mut files = Vec::with_capacity(conns.len());
         for (conn, f) in conns.iter().zip(&self.files) {
+            summary.warnings.extend(orphan_rows(conn, f));
             let ids: Vec<String> = f
                 .topic_ids
                 .iter()
@@ -578,56 +542,64 @@ impl SqliteBag {
             if ids.is_empty() {
                 continue;
             }
-            // Ties in time keep insertion (rowid) order, which the timestamp index also gives.
             let sql = format!(
-                "SELECT topic_id, timestamp, data, id FROM messages WHERE topic_id IN ({}) ORDER BY timestamp, id",
+                "SELECT topic_id, timestamp, data, id FROM messages WHERE topic_id IN ({})",
                 ids.join(",")
             );
-            let stmt = conn.prepare(&sql).map_err(|e| sql_error(&f.path, e))?;
-            stmts.push((stmt, f));
+            // Ties in time keep insertion (rowid) order, which the timestamp index also gives.
+            let prepare = |order: &str| conn.prepare(&format!("{sql} ORDER BY {order}"));
+            sorted.push(prepare("timestamp, id").map_err(|e| sql_error(&f.path, e))?);
+            by_row.push(prepare("id").map_err(|e| sql_error(&f.path, e))?);
+            files.push(f);
         }
-        let mut streams = Vec::with_capacity(stmts.len());
-        for (stmt, f) in stmts.iter_mut() {
-            let mut rows = stmt.query([]).map_err(|e| sql_error(&f.path, e))?;
-            rows.advance().map_err(|e| sql_error(&f.path, e))?;
-            streams.push((rows, *f));
+        let mut streams = Vec::with_capacity(files.len());
+        for ((s, r), f) in sorted.iter_mut().zip(by_row.iter_mut()).zip(files) {
+            if let Some(stream) = Stream::start(s, r, f, &mut summary) {
+                streams.push(stream);
+            }
         }
+        self.merge(streams, visit, &mut summary)?;
+        Ok(summary)
+    }
+
+    /// Deliver the rows of every stream in time order (k-way merge: k is the number of split
+    /// files, small, so a linear pick beats a heap).
+    fn merge(
+        &self,
+        mut streams: Vec<Stream<'_>>,
+        visit: &mut dyn FnMut(MessageRef<'_>) -> Result<(), ReadError>,
+        summary: &mut ReadSummary,
+    ) -> Result<(), ReadError> {
         let mut scratch = Vec::new();
         loop {
-            // k-way merge: the stream whose current row is earliest (k is the number of split
-            // files, small, so a linear pick beats a heap).
-            let mut best: Option<(usize, i64)> = None;
-            for (k, (rows, f)) in streams.iter().enumerate() {
-                if let Some(row) = rows.get() {
-                    let ts: i64 = row.get(1).map_err(|e| sql_error(&f.path, e))?;
-                    if best.is_none_or(|(_, b)| ts < b) {
-                        best = Some((k, ts));
-                    }
-                }
-            }
-            let Some((k, ts)) = best else { break };
-            let (rows, f) = &mut streams[k];
-            if let Some(row) = rows.get() {
-                let id: i64 = row.get(0).map_err(|e| sql_error(&f.path, e))?;
-                let rowid: i64 = row.get(3).map_err(|e| sql_error(&f.path, e))?;
-                let data = row
-                    .get_ref(2)
-                    .and_then(|v| v.as_blob().map_err(Into::into))
-                    .map_err(|e| sql_error(&f.path, e))?;
-                let channel = f
-                    .topic_ids
-                    .get(&id)
-                    .and_then(|&t| self.topics[t].channel.as_ref().ok());
-                if let Some(channel) = channel {
+            let best = streams
+                .iter()
+                .enumerate()
+                .filter_map(|(k, s)| s.cur.map(|c| (c.ts, k)))
+                .min();
+            let Some((ts, k)) = best else { break };
+            let stream = &mut streams[k];
+            let Some(cur) = stream.cur else { break };
+            let f = stream.file;
+            let channel = f
+                .topic_ids
+                .get(&cur.topic_id)
+                .and_then(|&t| self.topics[t].channel.as_ref().ok());
+            let data = stream
+                .rows
+                .get()
+                .map(|row| row.get_ref(2).and_then(|v| v.as_blob().map_err(Into::into)));
+            match (channel, data) {
+                (Some(channel), Some(Ok(data))) => {
                     let payload = if self.message_compression {
-                        scratch.clear();
-                        if let Err(e) = zstd::stream::copy_decode(data, &mut scratch) {
-                            return Err(ReadError::Other(format!(
-                                "{}: topic {}: message row {rowid}: zstd payload does not decompress: {e}",
+                        decompress_message(data, &mut scratch).map_err(|e| {
+                            ReadError::Other(format!(
+                                "{}: topic {}: message row id {}: {e}",
                                 f.path.display(),
-                                channel.topic
-                            )));
-                        }
+                                channel.topic,
+                                cur.rowid
+                            ))
+                        })?;
                         &scratch[..]
                     } else {
                         data
@@ -638,15 +610,177 @@ impl SqliteBag {
                         log_time_ns: time,
                         publish_time_ns: time,
                         data: payload,
-                        file_offset: rowid.max(0) as u64,
+                        file_offset: cur.rowid.max(0) as u64,
+                        row_id: true,
                     })?;
                     summary.messages += 1;
                 }
+                (_, Some(Err(e))) => {
+                    stream.damaged(&e, summary);
+                    continue;
+                }
+                _ => {}
             }
-            rows.advance().map_err(|e| sql_error(&f.path, e))?;
+            stream.advance(summary);
         }
-        Ok(summary)
+        Ok(())
     }
+}
+
+/// The current row of a stream: topic id, timestamp, row id.
+#[derive(Debug, Clone, Copy)]
+struct RowHead {
+    topic_id: i64,
+    ts: i64,
+    rowid: i64,
+}
+
+/// The rows of one storage file, one at a time; damage ends the stream with a warning.
+struct Stream<'s> {
+    rows: rusqlite::Rows<'s>,
+    file: &'s DbFile,
+    cur: Option<RowHead>,
+}
+
+impl<'s> Stream<'s> {
+    /// Run the time-ordered query; when the database is too damaged for it, the rowid-order
+    /// one (rows up to the damage, with a warning).
+    fn start(
+        sorted: &'s mut rusqlite::Statement<'_>,
+        by_row: &'s mut rusqlite::Statement<'_>,
+        file: &'s DbFile,
+        summary: &mut ReadSummary,
+    ) -> Option<Stream<'s>> {
+        let first = |stmt: &'s mut rusqlite::Statement<'_>| {
+            let mut rows = stmt.query([])?;
+            rows.advance()?;
+            let cur = rows.get().map(RowHead::of).transpose()?;
+            Ok::<_, rusqlite::Error>(Stream { rows, file, cur })
+        };
+        match first(sorted) {
+            Ok(s) => Some(s),
+            Err(e) => {
+                summary.complete = false;
+                summary.warnings.push(format!(
+                    "{}: database damaged (sqlite: {e}); its messages are read in row order up to the damage",
+                    file.path.display()
+                ));
+                match first(by_row) {
+                    Ok(s) => Some(s),
+                    Err(e) => {
+                        summary.warnings.push(format!(
+                            "{}: no message of this file is readable (sqlite: {e})",
+                            file.path.display()
+                        ));
+                        None
+                    }
+                }
+            }
+        }
+    }
+
+    fn advance(&mut self, summary: &mut ReadSummary) {
+        let step = self
+            .rows
+            .advance()
+            .and_then(|()| self.rows.get().map(RowHead::of).transpose());
+        match step {
+            Ok(cur) => self.cur = cur,
+            Err(e) => self.damaged(&e, summary),
+        }
+    }
+
+    fn damaged(&mut self, e: &rusqlite::Error, summary: &mut ReadSummary) {
+        summary.complete = false;
+        summary.warnings.push(format!(
+            "{}: database damaged after message row id {} (sqlite: {e}); the rest of this file is not read",
+            self.file.path.display(),
+            self.cur.map_or(0, |c| c.rowid)
+        ));
+        self.cur = None;
+    }
+}
+
+impl RowHead {
+    fn of(row: &rusqlite::Row<'_>) -> rusqlite::Result<RowHead> {
+        Ok(RowHead {
+            topic_id: row.get(0)?,
+            ts: row.get(1)?,
+            rowid: row.get(3)?,
+        })
+    }
+}
+
+/// (topic id, count, first, last timestamp) per topic id of one database.
+fn topic_counts(conn: &Connection) -> rusqlite::Result<Vec<(i64, i64, i64, i64)>> {
+    conn.prepare(
+        "SELECT topic_id, count(*), min(timestamp), max(timestamp) FROM messages GROUP BY topic_id",
+    )?
+    .query_map([], |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?)))?
+    .collect()
+}
+
+/// Warnings for messages whose topic id is not in the file's topics table (never delivered).
+fn orphan_rows(conn: &Connection, f: &DbFile) -> Vec<String> {
+    let known: Vec<String> = f.topic_ids.keys().map(i64::to_string).collect();
+    let sql = format!(
+        "SELECT topic_id, count(*), min(id) FROM messages WHERE topic_id NOT IN ({}) GROUP BY topic_id",
+        known.join(",")
+    );
+    let rows = conn.prepare(&sql).and_then(|mut stmt| {
+        stmt.query_map([], |r| {
+            Ok((
+                r.get::<_, i64>(0)?,
+                r.get::<_, i64>(1)?,
+                r.get::<_, i64>(2)?,
+            ))
+        })?
+        .collect::<Result<Vec<_>, _>>()
+    });
+    match rows {
+        Ok(rows) => rows
+            .into_iter()
+            .map(|(id, n, first)| {
+                format!(
+                    "{}: {n} messages on topic id {id}, which is not in the topics table, were skipped (first at message row id {first})",
+                    f.path.display()
+                )
+            })
+            .collect(),
+        Err(_) => Vec::new(), // a damaged table: reported by the read itself
+    }
+}
+
+/// Refuse a database that is not rosbag2's (no `topics`/`messages` tables) or comes from a
+/// pre-release rosbag2 (2018, topics without `serialization_format`) with a clear message.
+fn check_layout(conn: &Connection, path: &Path) -> Result<(), ReadError> {
+    let columns = |table: &str| -> rusqlite::Result<Vec<String>> {
+        conn.prepare(&format!("PRAGMA table_info({table})"))?
+            .query_map([], |r| r.get::<_, String>(1))?
+            .collect()
+    };
+    let sql_err = |e| sql_error(path, e);
+    let topics = columns("topics").map_err(sql_err)?;
+    let messages = columns("messages").map_err(sql_err)?;
+    let has = |cols: &[String], names: &[&str]| names.iter().all(|n| cols.iter().any(|c| c == n));
+    if topics.is_empty() || messages.is_empty() {
+        return Err(ReadError::Other(format!(
+            "{}: not a rosbag2 database (no topics or messages table)",
+            path.display()
+        )));
+    }
+    if !has(&topics, &["id", "name", "type", "serialization_format"])
+        || !has(&messages, &["id", "topic_id", "timestamp", "data"])
+    {
+        return Err(ReadError::Other(format!(
+            "{}: a pre-release (2018) rosbag2 database (topics: {}; messages: {}), which is not \
+             supported; re-record it or convert it with a current rosbag2",
+            path.display(),
+            topics.join(", "),
+            messages.join(", ")
+        )));
+    }
+    Ok(())
 }
 
 /// Register the topics of one storage file in `topics` (by name) and resolve their definitions.
@@ -657,6 +791,7 @@ fn read_topics(
     opts: &OpenOptions,
 ) -> Result<HashMap<i64, usize>, ReadError> {
     let sql_err = |e| sql_error(path, e);
+    check_layout(conn, path)?;
     let mut definitions: HashMap<String, (String, String)> = HashMap::new();
     if has_table(conn, "message_definitions").map_err(sql_err)? {
         let mut stmt = conn
@@ -708,7 +843,7 @@ fn read_topics(
                     "ros2idl" => Some(MsgSchema::parse_idl(&type_name, text)),
                     _ => None,
                 });
-            resolve_schema(path, &name, &type_name, embedded, opts).map(|schema| {
+            super::resolve_schema(path, &name, &type_name, embedded, opts).map(|schema| {
                 Arc::new(Channel {
                     topic: name.clone(),
                     type_name: type_name.clone(),
@@ -727,28 +862,122 @@ fn read_topics(
     Ok(ids)
 }
 
-/// Decompress a `compression_mode: FILE` storage file (one zstd stream) to `out`.
+/// Largest inflation accepted for a `compression_mode: FILE` storage file: its decompressed
+/// scratch copy may be at most this many times its compressed size, plus [`FILE_SLACK_BYTES`].
+const MAX_FILE_RATIO: u64 = 1000;
+/// See [`MAX_FILE_RATIO`].
+const FILE_SLACK_BYTES: u64 = 64 << 20;
+/// Largest message accepted from rosbag2 message compression (or its declared size if smaller).
+const MAX_MESSAGE_BYTES: u64 = 256 << 20;
+
+/// Decompress a `compression_mode: FILE` storage file (one zstd stream) to `out`, refusing to
+/// write more than [`MAX_FILE_RATIO`] × its size (+ [`FILE_SLACK_BYTES`]) of scratch file.
 fn decompress_file(path: &Path, out: &Path) -> Result<PathBuf, ReadError> {
-    let input = std::fs::File::open(path).map_err(|source| ReadError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    let output = std::fs::File::create(out).map_err(|source| ReadError::Io {
-        path: out.to_path_buf(),
-        source,
-    })?;
+    let io = |p: &Path| {
+        let p = p.to_path_buf();
+        move |source| ReadError::Io { path: p, source }
+    };
+    let input = std::fs::File::open(path).map_err(io(path))?;
+    let compressed = input.metadata().map_err(io(path))?.len();
+    let cap = compressed
+        .saturating_mul(MAX_FILE_RATIO)
+        .saturating_add(FILE_SLACK_BYTES);
+    let output = std::fs::File::create(out).map_err(io(out))?;
     let mut writer = std::io::BufWriter::new(output);
-    zstd::stream::copy_decode(std::io::BufReader::new(input), &mut writer).map_err(|e| {
+    let bad = |e: std::io::Error| {
         ReadError::Other(format!(
             "{}: zstd-compressed storage file does not decompress: {e}",
             path.display()
         ))
-    })?;
-    std::io::Write::flush(&mut writer).map_err(|source| ReadError::Io {
-        path: out.to_path_buf(),
-        source,
-    })?;
+    };
+    let decoder = zstd::stream::read::Decoder::new(input).map_err(bad)?;
+    let written =
+        std::io::copy(&mut std::io::Read::take(decoder, cap + 1), &mut writer).map_err(bad)?;
+    if written > cap {
+        return Err(ReadError::Other(format!(
+            "{}: zstd-compressed storage file inflates to more than {cap} bytes ({MAX_FILE_RATIO} × its \
+             {compressed} bytes + {} MiB): refused as a decompression bomb",
+            path.display(),
+            FILE_SLACK_BYTES >> 20
+        )));
+    }
+    std::io::Write::flush(&mut writer).map_err(io(out))?;
     Ok(out.to_path_buf())
+}
+
+/// Decompress one zstd-compressed message payload into `out`, capped at its declared content
+/// size (when the frame states one) and at [`MAX_MESSAGE_BYTES`].
+fn decompress_message(data: &[u8], out: &mut Vec<u8>) -> Result<(), String> {
+    let declared = zstd::zstd_safe::get_frame_content_size(data).ok().flatten();
+    let limit = declared.unwrap_or(MAX_MESSAGE_BYTES).min(MAX_MESSAGE_BYTES);
+    out.clear();
+    let decoder = zstd::stream::read::Decoder::with_buffer(data)
+        .map_err(|e| format!("zstd payload does not decompress: {e}"))?;
+    super::read_capped(decoder, limit as usize, out)
+        .map_err(|e| format!("zstd payload does not decompress: {e}"))?;
+    if out.len() as u64 > limit {
+        return Err(format!(
+            "zstd payload inflates to more than {limit} bytes ({}): refused as a decompression bomb",
+            if declared.is_some_and(|d| d <= MAX_MESSAGE_BYTES) {
+                "its declared size"
+            } else {
+                "the per-message limit"
+            }
+        ));
+    }
+    if declared.is_some_and(|d| d != out.len() as u64) {
+        return Err(format!(
+            "zstd payload decompresses to {} bytes, its frame header says {}",
+            out.len(),
+            declared.unwrap_or(0)
+        ));
+    }
+    Ok(())
+}
+
+/// The MCAP storage of a rosbag2 bag: one reader per split file; with `compression_mode: FILE`
+/// each file is first decompressed to a scratch folder (removed when the bag is dropped).
+fn open_mcap_storage(
+    dir: &Path,
+    files: &[PathBuf],
+    compression: Compression,
+    opts: &OpenOptions,
+) -> Result<Inner, ReadError> {
+    let scratch = scratch_dir(compression)?;
+    let mut sources = Vec::with_capacity(files.len());
+    for (index, f) in files.iter().enumerate() {
+        let source = match &scratch {
+            Some(tmp) => {
+                let copy = decompress_file(f, &tmp.path().join(format!("{index}.mcap")))?;
+                let file = std::fs::File::open(&copy).map_err(|source| ReadError::Io {
+                    path: copy.clone(),
+                    source,
+                })?;
+                McapSource::from_reader(file, f, opts)?
+            }
+            None => McapSource::open(f, opts)?,
+        };
+        sources.push(source);
+    }
+    Ok(Inner::Mcap {
+        bag: dir.to_path_buf(),
+        files: sources,
+        message_zstd: compression == Compression::MessageZstd,
+        _scratch: scratch,
+    })
+}
+
+/// A scratch folder for decompressed copies when the bag compresses whole files.
+fn scratch_dir(compression: Compression) -> Result<Option<tempfile::TempDir>, ReadError> {
+    if compression != Compression::FileZstd {
+        return Ok(None);
+    }
+    tempfile::tempdir()
+        .map(Some)
+        .map_err(|source| ReadError::Io {
+            path: std::env::temp_dir(),
+            source,
+        })
 }
 
 /// The fields of `metadata.yaml` the reader needs (rosbag2 metadata versions 4–9).
@@ -763,28 +992,35 @@ struct BagMetadata {
 
 impl BagMetadata {
     fn parse(text: &str) -> Result<BagMetadata, String> {
-        let doc = yaml::parse(text)?;
+        let doc = super::yaml::parse(text)?;
         let info = doc
             .get("rosbag2_bagfile_information")
-            .ok_or("metadata.yaml has no rosbag2_bagfile_information section")?;
-        let scalar = |key: &str| info.get(key).and_then(yaml::Yaml::as_str).unwrap_or("");
+            .ok_or("no rosbag2_bagfile_information section")?;
+        let scalar = |key: &str| {
+            info.get(key)
+                .and_then(super::yaml::Yaml::as_str)
+                .unwrap_or("")
+        };
         let version = scalar("version");
+        if version.is_empty() {
+            return Err("no version: a pre-release (2018) rosbag2 bag or not \
+                        rosbag2 metadata; supported: rosbag2 metadata versions 1 to 9"
+                .into());
+        }
         let version: u32 = version
             .parse()
-            .map_err(|_| format!("metadata.yaml: version {version:?} is not a number"))?;
+            .map_err(|_| format!("version {version:?} is not a number"))?;
         if !(1..=9).contains(&version) {
             return Err(format!(
-                "metadata.yaml: rosbag2 metadata version {version} is not supported (supported: up to 9)"
+                "rosbag2 metadata version {version} is not supported (supported: up to 9)"
             ));
         }
         let relative_file_paths = match info.get("relative_file_paths") {
-            Some(yaml::Yaml::Seq(items)) => items
+            Some(super::yaml::Yaml::Seq(items)) => items
                 .iter()
                 .map(|i| i.as_str().map(str::to_string))
                 .collect::<Option<Vec<_>>>()
-                .ok_or(
-                    "metadata.yaml: relative_file_paths holds something other than file names",
-                )?,
+                .ok_or("relative_file_paths holds something other than file names")?,
             _ => Vec::new(),
         };
         Ok(BagMetadata {
@@ -794,314 +1030,5 @@ impl BagMetadata {
             compression_format: scalar("compression_format").to_string(),
             compression_mode: scalar("compression_mode").to_string(),
         })
-    }
-}
-
-/// The block-style YAML subset rosbag2 (yaml-cpp) and the Python `rosbags` library write:
-/// nested mappings and sequences by indentation, plain/quoted/multi-line scalars, block
-/// scalars, empty flow collections and flow sequences of scalars.
-mod yaml {
-    /// A YAML node.
-    #[derive(Debug, Clone, PartialEq)]
-    pub enum Yaml {
-        Null,
-        Str(String),
-        Seq(Vec<Yaml>),
-        Map(Vec<(String, Yaml)>),
-    }
-
-    impl Yaml {
-        pub fn get(&self, key: &str) -> Option<&Yaml> {
-            match self {
-                Yaml::Map(entries) => entries.iter().find(|(k, _)| k == key).map(|(_, v)| v),
-                _ => None,
-            }
-        }
-
-        pub fn as_str(&self) -> Option<&str> {
-            match self {
-                Yaml::Str(s) => Some(s),
-                Yaml::Null => Some(""),
-                _ => None,
-            }
-        }
-    }
-
-    struct Line {
-        indent: usize,
-        text: String,
-        number: usize,
-    }
-
-    pub fn parse(text: &str) -> Result<Yaml, String> {
-        let mut lines: Vec<Line> = Vec::new();
-        for (n, raw) in text.lines().enumerate() {
-            let trimmed = raw.trim_end();
-            let content = trimmed.trim_start();
-            if content.is_empty() || content.starts_with('#') || content == "---" {
-                continue;
-            }
-            if content == "..." {
-                break;
-            }
-            if raw.starts_with('\t') {
-                return Err(format!("metadata.yaml line {}: tab indentation", n + 1));
-            }
-            lines.push(Line {
-                indent: trimmed.len() - content.len(),
-                text: content.to_string(),
-                number: n + 1,
-            });
-        }
-        let mut i = 0;
-        let indent = lines.first().map_or(0, |l| l.indent);
-        let node = parse_node(&mut lines, &mut i, indent)?;
-        if let Some(l) = lines.get(i) {
-            return Err(format!(
-                "metadata.yaml line {}: unexpected indentation",
-                l.number
-            ));
-        }
-        Ok(node)
-    }
-
-    fn parse_node(lines: &mut [Line], i: &mut usize, indent: usize) -> Result<Yaml, String> {
-        let Some(line) = lines.get(*i) else {
-            return Ok(Yaml::Null);
-        };
-        if line.indent < indent {
-            return Ok(Yaml::Null);
-        }
-        if is_seq_item(&line.text) {
-            parse_seq(lines, i, line.indent)
-        } else if split_key(&line.text).is_some() {
-            parse_map(lines, i, line.indent)
-        } else {
-            let first = line.text.clone();
-            let parent = line.indent.saturating_sub(1);
-            *i += 1;
-            scalar(&first, lines, i, parent)
-        }
-    }
-
-    fn is_seq_item(text: &str) -> bool {
-        text == "-" || text.starts_with("- ")
-    }
-
-    fn parse_seq(lines: &mut [Line], i: &mut usize, indent: usize) -> Result<Yaml, String> {
-        let mut items = Vec::new();
-        while let Some(line) = lines.get_mut(*i) {
-            if line.indent != indent || !is_seq_item(&line.text) {
-                break;
-            }
-            let rest = line.text[1..].trim_start().to_string();
-            if rest.is_empty() {
-                *i += 1;
-                let child = lines.get(*i).map_or(indent + 1, |l| l.indent);
-                items.push(if child > indent {
-                    parse_node(lines, i, child)?
-                } else {
-                    Yaml::Null
-                });
-            } else {
-                // `- key: value` opens a mapping whose keys sit at the column after "- ".
-                let column = indent + (line.text.len() - rest.len());
-                line.indent = column;
-                line.text = rest;
-                items.push(parse_node(lines, i, column)?);
-            }
-        }
-        Ok(Yaml::Seq(items))
-    }
-
-    fn parse_map(lines: &mut [Line], i: &mut usize, indent: usize) -> Result<Yaml, String> {
-        let mut entries = Vec::new();
-        while let Some(line) = lines.get(*i) {
-            if line.indent != indent {
-                if line.indent > indent {
-                    return Err(format!(
-                        "metadata.yaml line {}: unexpected indentation",
-                        line.number
-                    ));
-                }
-                break;
-            }
-            let Some((key, rest)) = split_key(&line.text) else {
-                return Err(format!(
-                    "metadata.yaml line {}: expected `key: value`",
-                    line.number
-                ));
-            };
-            *i += 1;
-            let value = if rest.is_empty() {
-                match lines.get(*i) {
-                    Some(next) if next.indent > indent => {
-                        let child = next.indent;
-                        parse_node(lines, i, child)?
-                    }
-                    // A sequence may sit at the same indentation as its key.
-                    Some(next) if next.indent == indent && is_seq_item(&next.text) => {
-                        parse_seq(lines, i, indent)?
-                    }
-                    _ => Yaml::Null,
-                }
-            } else {
-                scalar(&rest, lines, i, indent)?
-            };
-            entries.push((key, value));
-        }
-        Ok(Yaml::Map(entries))
-    }
-
-    /// `key: rest` (key possibly quoted) or `key:` at the end of the line.
-    fn split_key(text: &str) -> Option<(String, String)> {
-        let (key, after) = if let Some(q @ ('"' | '\'')) = text.chars().next() {
-            let end = text[1..].find(q)? + 1;
-            (text[1..end].to_string(), &text[end + 1..])
-        } else {
-            let pos = text
-                .find(": ")
-                .or_else(|| text.ends_with(':').then(|| text.len() - 1))?;
-            if text.starts_with(['[', '{']) {
-                return None;
-            }
-            (text[..pos].trim_end().to_string(), &text[pos..])
-        };
-        let rest = after.strip_prefix(':')?;
-        if !(rest.is_empty() || rest.starts_with(' ')) {
-            return None;
-        }
-        Some((key, strip_comment(rest.trim()).to_string()))
-    }
-
-    fn strip_comment(text: &str) -> &str {
-        if text.starts_with(['"', '\'']) {
-            return text;
-        }
-        match text.find(" #") {
-            Some(p) => text[..p].trim_end(),
-            None => text,
-        }
-    }
-
-    /// A scalar starting with `first`, continued on following lines indented deeper than `parent`.
-    fn scalar(first: &str, lines: &[Line], i: &mut usize, parent: usize) -> Result<Yaml, String> {
-        let mut text = first.to_string();
-        let block = text.starts_with('|') || text.starts_with('>');
-        let mut continuation = Vec::new();
-        while let Some(l) = lines.get(*i) {
-            if l.indent <= parent {
-                break;
-            }
-            continuation.push(l.text.as_str());
-            *i += 1;
-        }
-        if block {
-            let sep = if text.starts_with('|') { "\n" } else { " " };
-            return Ok(Yaml::Str(continuation.join(sep)));
-        }
-        for c in continuation {
-            text.push(' ');
-            text.push_str(c);
-        }
-        let text = text.trim();
-        Ok(match text {
-            "~" | "null" | "Null" | "NULL" => Yaml::Null,
-            "[]" => Yaml::Seq(Vec::new()),
-            "{}" => Yaml::Map(Vec::new()),
-            _ if text.starts_with('"') => Yaml::Str(double_quoted(text)?),
-            _ if text.starts_with('\'') => Yaml::Str(
-                text.strip_prefix('\'')
-                    .and_then(|t| t.strip_suffix('\''))
-                    .ok_or_else(|| format!("unterminated quoted string {text}"))?
-                    .replace("''", "'"),
-            ),
-            _ if text.starts_with('[') && text.ends_with(']') => Yaml::Seq(
-                text[1..text.len() - 1]
-                    .split(',')
-                    .map(|s| Yaml::Str(s.trim().trim_matches(['"', '\'']).to_string()))
-                    .collect(),
-            ),
-            _ => Yaml::Str(text.to_string()),
-        })
-    }
-
-    fn double_quoted(text: &str) -> Result<String, String> {
-        let body = text
-            .strip_prefix('"')
-            .and_then(|t| t.strip_suffix('"'))
-            .ok_or_else(|| format!("unterminated quoted string {text}"))?;
-        let mut out = String::with_capacity(body.len());
-        let mut chars = body.chars();
-        while let Some(c) = chars.next() {
-            if c != '\\' {
-                out.push(c);
-                continue;
-            }
-            match chars.next() {
-                Some('n') => out.push('\n'),
-                Some('t') => out.push('\t'),
-                Some('r') => out.push('\r'),
-                Some('0') => out.push('\0'),
-                Some(' ') | None => {}
-                Some(other) => out.push(other),
-            }
-        }
-        Ok(out)
-    }
-
-    #[cfg(test)]
-    mod tests {
-        use super::*;
-
-        #[test]
-        fn yaml_cpp_style_v5_metadata() {
-            let text = "rosbag2_bagfile_information:\n  version: 5\n  storage_identifier: sqlite3\n  \
-                relative_file_paths:\n    - a_0.db3\n    - a_1.db3\n  duration:\n    nanoseconds: 10\n  \
-                topics_with_message_count:\n    - topic_metadata:\n        name: /chatter\n        \
-                type: std_msgs/msg/String\n        offered_qos_profiles: \"- history: 3\\n  depth: 0\"\n      \
-                message_count: 100\n  compression_format: \"\"\n  compression_mode: \"\"\n  custom_data: ~\n";
-            let doc = parse(text).unwrap();
-            let info = doc.get("rosbag2_bagfile_information").unwrap();
-            assert_eq!(info.get("version"), Some(&Yaml::Str("5".into())));
-            assert_eq!(
-                info.get("relative_file_paths"),
-                Some(&Yaml::Seq(vec![
-                    Yaml::Str("a_0.db3".into()),
-                    Yaml::Str("a_1.db3".into())
-                ]))
-            );
-            let Some(Yaml::Seq(topics)) = info.get("topics_with_message_count") else {
-                panic!("no topics")
-            };
-            let meta = topics[0].get("topic_metadata").unwrap();
-            assert_eq!(meta.get("name").unwrap().as_str(), Some("/chatter"));
-            assert_eq!(
-                meta.get("offered_qos_profiles").unwrap().as_str(),
-                Some("- history: 3\n  depth: 0")
-            );
-            assert_eq!(
-                topics[0].get("message_count").unwrap().as_str(),
-                Some("100")
-            );
-            assert_eq!(info.get("compression_mode").unwrap().as_str(), Some(""));
-            assert_eq!(info.get("custom_data"), Some(&Yaml::Null));
-        }
-
-        #[test]
-        fn multi_line_plain_scalar_and_same_indent_sequence() {
-            let text = "a:\n  h: \n    RIHS01_abc\n  l:\n  - x\n  - y\n  q: []\n";
-            let doc = parse(text).unwrap();
-            let a = doc.get("a").unwrap();
-            assert_eq!(a.get("h").unwrap().as_str(), Some("RIHS01_abc"));
-            assert_eq!(
-                a.get("l"),
-                Some(&Yaml::Seq(vec![
-                    Yaml::Str("x".into()),
-                    Yaml::Str("y".into())
-                ]))
-            );
-            assert_eq!(a.get("q"), Some(&Yaml::Seq(vec![])));
-        }
     }
 }

@@ -74,6 +74,12 @@ pub struct FieldExtractor {
     min_len: usize,
     /// Needed by walked paths only.
     schema: Option<MsgSchema>,
+    /// For types without strings or sequences: the payload lengths that can be a message of
+    /// the type (its size, plus CDR end padding). Any other length means the definition does
+    /// not match the payload, which would otherwise decode as plausible garbage.
+    fixed_len: Option<(usize, usize)>,
+    /// Root type name, for messages.
+    root: String,
 }
 
 #[derive(Debug, Clone)]
@@ -174,6 +180,16 @@ fn rules_for(encoding: Encoding, data: &[u8]) -> Result<Rules, DecodeError> {
     }
 }
 
+/// Largest message layout computed (1 TiB): far beyond any real message, far below overflow.
+const MAX_LAYOUT_BYTES: usize = 1 << 40;
+
+fn too_large(what: &dyn Fn() -> String) -> DecodeError {
+    DecodeError::Invalid(format!(
+        "{}: the message layout exceeds {MAX_LAYOUT_BYTES} bytes",
+        what()
+    ))
+}
+
 /// Where bytes come from while walking: nowhere (layout only, fails on variable sizes) or a payload.
 #[derive(Clone, Copy)]
 enum Src<'a> {
@@ -271,26 +287,64 @@ impl Walker<'_, '_> {
                 self.check_within(end, what)?;
                 Ok(Some(end))
             }
-            FieldType::Message(name) => {
-                let msg = self
-                    .schema
-                    .get(name)
-                    .map_err(|e| DecodeError::Invalid(e.to_string()))?;
-                let mut p = pos;
-                for _ in 0..count {
-                    for f in &msg.fields {
-                        match self.skip_field(f, p, what)? {
-                            Some(next) => p = next,
-                            None => return Ok(None),
-                        }
-                    }
-                }
-                Ok(Some(p))
-            }
+            FieldType::Message(name) => self.skip_messages(name, count, pos, what),
         }
     }
 
-    /// In payload mode, fail when `end` lies beyond the payload (stops absurd lengths early).
+    /// Position after `count` nested messages of type `name` from `pos`. In layout mode the
+    /// size of an element depends only on its start position modulo the largest alignment (8),
+    /// so the walk stops at the first repeated phase and jumps the remaining whole cycles
+    /// arithmetically: a huge fixed array costs at most 9 element walks, not one per element.
+    fn skip_messages(
+        &self,
+        name: &str,
+        count: usize,
+        pos: usize,
+        what: &dyn Fn() -> String,
+    ) -> Result<Option<usize>, DecodeError> {
+        let msg = self
+            .schema
+            .get(name)
+            .map_err(|e| DecodeError::Invalid(e.to_string()))?;
+        let layout = matches!(self.src, Src::Layout);
+        let mut seen: [Option<(usize, usize)>; 8] = [None; 8];
+        let (mut k, mut p) = (0usize, pos);
+        while k < count {
+            if layout {
+                let phase = (p - self.base) % 8;
+                if let Some((k0, p0)) = seen[phase] {
+                    let cycles = (count - k) / (k - k0);
+                    p = (p - p0)
+                        .checked_mul(cycles)
+                        .and_then(|a| p.checked_add(a))
+                        .ok_or_else(|| too_large(what))?;
+                    self.check_within(p, what)?;
+                    k += cycles * (k - k0);
+                    seen = [None; 8];
+                    if k >= count {
+                        break;
+                    }
+                }
+                seen[(p - self.base) % 8] = Some((k, p));
+            }
+            let before = p;
+            for f in &msg.fields {
+                match self.skip_field(f, p, what)? {
+                    Some(next) => p = next,
+                    None => return Ok(None),
+                }
+            }
+            self.check_within(p, what)?;
+            k += 1;
+            if p == before {
+                break; // a type without bytes: every further element is empty too
+            }
+        }
+        Ok(Some(p))
+    }
+
+    /// In payload mode, fail when `end` lies beyond the payload (stops absurd lengths early); in
+    /// layout mode, when a layout exceeds [`MAX_LAYOUT_BYTES`] (keeps offsets far from overflow).
     fn check_within(&self, end: usize, what: &dyn Fn() -> String) -> Result<(), DecodeError> {
         match self.src {
             Src::Payload(data) if end > data.len() => Err(DecodeError::Truncated {
@@ -298,6 +352,7 @@ impl Walker<'_, '_> {
                 needed: end,
                 len: data.len(),
             }),
+            Src::Layout if end > MAX_LAYOUT_BYTES => Err(too_large(what)),
             _ => Ok(()),
         }
     }
@@ -450,6 +505,16 @@ impl Walker<'_, '_> {
     ) -> Result<(Vec<Value>, usize), DecodeError> {
         let what = || name.to_string();
         self.check_within(pos.saturating_add(count.min(1)), &what)?;
+        // Every element but one of a field-less type takes at least one byte: more elements than
+        // payload bytes can only be empty structs, which would allocate without bound.
+        if let Src::Payload(data) = self.src
+            && count > data.len()
+        {
+            return Err(DecodeError::Invalid(format!(
+                "{name}: {count} elements cannot fit in a payload of {} bytes",
+                data.len()
+            )));
+        }
         let mut out = Vec::with_capacity(count.min(4096));
         for _ in 0..count {
             let (v, p) = self.decode_one(ty, pos, name)?;
@@ -705,6 +770,8 @@ impl FieldExtractor {
                 names,
                 min_len: 0,
                 schema: None,
+                fixed_len: None,
+                root: schema.root.clone(),
             });
         }
         let rules = match encoding {
@@ -736,12 +803,22 @@ impl FieldExtractor {
                 }
             }
         }
+        let what = || schema.root.clone();
+        let fixed_len = match layout.skip_messages(&schema.root, 1, base, &what) {
+            Ok(Some(end)) if encoding == Encoding::Cdr => {
+                Some((end, base + (end - base).div_ceil(8) * 8))
+            }
+            Ok(Some(end)) => Some((end, end)),
+            _ => None,
+        };
         Ok(FieldExtractor {
             encoding,
             leaves,
             names,
             min_len,
             schema: needs_schema.then(|| schema.clone()),
+            fixed_len,
+            root: schema.root.clone(),
         })
     }
 
@@ -774,6 +851,20 @@ impl FieldExtractor {
             return self.extract_json(data, out);
         }
         let rules = rules_for(self.encoding, data)?;
+        if let Some((lo, hi)) = self.fixed_len
+            && !(lo..=hi).contains(&data.len())
+        {
+            return Err(DecodeError::Invalid(format!(
+                "payload is {} bytes but every {} message is {lo} bytes{}: the message definition does not match the payload",
+                data.len(),
+                self.root,
+                if hi > lo {
+                    format!(" (up to {hi} with padding)")
+                } else {
+                    String::new()
+                }
+            )));
+        }
         if data.len() < self.min_len {
             let first_missing = self
                 .leaves

@@ -5,14 +5,13 @@
 //!
 //! Memory holds at most the chunks whose time ranges overlap (normally one chunk), never the file.
 
-use std::collections::{BTreeMap, HashMap, HashSet};
+use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
 use std::fs::File;
 use std::io::{BufReader, Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use ::mcap::records::{self, op};
-
+use super::mcap_records::{self as rec, ChunkIndex, Statistics};
 use super::msgdef::MsgType;
 use super::{
     Channel, Encoding, MessageRef, MessageSource, MsgSchema, OpenOptions, ReadError, ReadSummary,
@@ -22,14 +21,32 @@ use super::{
 /// The 8 bytes every MCAP file starts and ends with.
 pub const MAGIC: &[u8; 8] = b"\x89MCAP0\r\n";
 
+/// MCAP record opcodes the reader handles.
+mod op {
+    pub const HEADER: u8 = 0x01;
+    pub const FOOTER: u8 = 0x02;
+    pub const SCHEMA: u8 = 0x03;
+    pub const CHANNEL: u8 = 0x04;
+    pub const MESSAGE: u8 = 0x05;
+    pub const CHUNK: u8 = 0x06;
+    pub const MESSAGE_INDEX: u8 = 0x07;
+    pub const CHUNK_INDEX: u8 = 0x08;
+    pub const STATISTICS: u8 = 0x0B;
+    pub const DATA_END: u8 = 0x0F;
+}
+
 /// Opcode (1) + record length (8).
 const RECORD_PREFIX: u64 = 9;
 /// Footer record plus the closing magic.
 const FOOTER_TOTAL: u64 = RECORD_PREFIX + 20 + 8;
-/// Chunks (compressed or not) larger than this are treated as damage rather than allocated.
-const MAX_CHUNK_BYTES: u64 = 1 << 30;
+/// Chunks (compressed or not, and after decompression) larger than this are treated as damage
+/// rather than allocated.
+const MAX_CHUNK_BYTES: u64 = 256 << 20;
 /// Summary sections larger than this are ignored (linear scan instead).
 const MAX_SUMMARY_BYTES: u64 = 256 << 20;
+/// Most decompressed bytes held at once for chunks whose time ranges overlap; beyond it the
+/// chunks are delivered one after the other (with a warning) instead of merged.
+const GROUP_BUDGET_BYTES: u64 = 256 << 20;
 
 #[derive(Debug, Clone)]
 struct SchemaRec {
@@ -45,27 +62,33 @@ struct ChannelRec {
     message_encoding: String,
 }
 
-/// Schemas and channels seen so far (from the summary or the data section).
+/// Schemas and channels seen so far (from the summary or the data section), and messages met on
+/// channel ids that have no channel record.
 #[derive(Debug, Default)]
 struct Registry {
     schemas: HashMap<u16, SchemaRec>,
     channels: HashMap<u16, ChannelRec>,
+    /// Channel id → (messages skipped, byte offset of the first).
+    orphans: BTreeMap<u16, (u64, u64)>,
 }
 
 impl Registry {
-    fn add(&mut self, record: records::Record<'_>) {
-        match record {
-            records::Record::Schema { header, data } => {
+    /// Register a schema or channel record body; other opcodes are ignored.
+    fn add(&mut self, opcode: u8, body: &[u8]) -> Result<(), String> {
+        match opcode {
+            op::SCHEMA => {
+                let s = rec::schema(body)?;
                 self.schemas.insert(
-                    header.id,
+                    s.id,
                     SchemaRec {
-                        name: header.name,
-                        encoding: header.encoding,
-                        data: data.into_owned(),
+                        name: s.name,
+                        encoding: s.encoding,
+                        data: s.data,
                     },
                 );
             }
-            records::Record::Channel(c) => {
+            op::CHANNEL => {
+                let c = rec::channel(body)?;
                 self.channels.insert(
                     c.id,
                     ChannelRec {
@@ -77,6 +100,7 @@ impl Registry {
             }
             _ => {}
         }
+        Ok(())
     }
 
     fn wanted(&self, channel_id: u16, topics: Option<&[&str]>) -> bool {
@@ -86,12 +110,26 @@ impl Registry {
             (Some(_), None) => false,
         }
     }
+
+    /// Warnings for the messages skipped because their channel id has no channel record.
+    fn orphan_warnings(&self, path: &Path) -> Vec<String> {
+        self.orphans
+            .iter()
+            .map(|(id, (n, first))| {
+                format!(
+                    "{}: {n} messages on channel id {id}, which has no channel record, were skipped \
+                     (the first in the record at byte offset {first})",
+                    path.display()
+                )
+            })
+            .collect()
+    }
 }
 
 #[derive(Debug)]
 struct Summary {
-    chunks: Vec<records::ChunkIndex>,
-    stats: Option<records::Statistics>,
+    chunks: Vec<ChunkIndex>,
+    stats: Option<Statistics>,
 }
 
 /// Damage found while reading: where and what. Turned into a warning; the read stops there.
@@ -113,12 +151,12 @@ struct RawMsg {
 }
 
 /// Receives each wanted message with the source (for channel lookups) and its payload.
-type RawSink<'a> = dyn FnMut(&mut McapSource, &RawMsg, &[u8]) -> Result<(), ReadError> + 'a;
+type RawSink<'a, R> = dyn FnMut(&mut McapSource<R>, &RawMsg, &[u8]) -> Result<(), ReadError> + 'a;
 
-/// An MCAP file opened for streaming.
-pub struct McapSource {
+/// An MCAP file (or any seekable byte source) opened for streaming.
+pub struct McapSource<R = File> {
     path: PathBuf,
-    file: File,
+    file: BufReader<R>,
     file_len: u64,
     opts: OpenOptions,
     registry: Registry,
@@ -129,27 +167,44 @@ pub struct McapSource {
     resolved: HashMap<u16, Arc<Channel>>,
 }
 
-impl McapSource {
+impl McapSource<File> {
     /// Open `path`: checks the magic and header record, and loads the summary section when the
     /// footer points to a readable one. A file that is not MCAP → [`ReadError::Format`].
-    pub fn open(path: &Path, opts: &OpenOptions) -> Result<McapSource, ReadError> {
-        let io = |source| ReadError::Io {
+    pub fn open(path: &Path, opts: &OpenOptions) -> Result<McapSource<File>, ReadError> {
+        let file = File::open(path).map_err(|source| ReadError::Io {
             path: path.to_path_buf(),
             source,
+        })?;
+        McapSource::from_reader(file, path, opts)
+    }
+}
+
+impl<R: Read + Seek> McapSource<R> {
+    /// Read MCAP from any seekable byte source (a file, a `Cursor` over bytes); `name` is what
+    /// errors and warnings call it. Same checks as [`McapSource::open`].
+    pub fn from_reader(
+        mut reader: R,
+        name: &Path,
+        opts: &OpenOptions,
+    ) -> Result<McapSource<R>, ReadError> {
+        let io = |source| ReadError::Io {
+            path: name.to_path_buf(),
+            source,
         };
-        let mut file = File::open(path).map_err(io)?;
-        let file_len = file.metadata().map_err(io)?.len();
+        let file_len = reader.seek(SeekFrom::End(0)).map_err(io)?;
+        reader.seek(SeekFrom::Start(0)).map_err(io)?;
         let format = |offset, what: &str| ReadError::Format {
-            path: path.to_path_buf(),
+            path: name.to_path_buf(),
             offset,
             what: what.to_string(),
         };
         let mut magic = [0u8; 8];
-        if file.read_exact(&mut magic).is_err() || &magic != MAGIC {
+        if reader.read_exact(&mut magic).is_err() || &magic != MAGIC {
             return Err(format(0, "not an MCAP file (bad magic bytes)"));
         }
         let mut prefix = [0u8; 9];
-        file.read_exact(&mut prefix)
+        reader
+            .read_exact(&mut prefix)
             .map_err(|_| format(8, "file ends inside the header record"))?;
         let len = u64::from_le_bytes(prefix[1..9].try_into().unwrap_or_default());
         if prefix[0] != op::HEADER
@@ -162,8 +217,8 @@ impl McapSource {
             ));
         }
         let mut source = McapSource {
-            path: path.to_path_buf(),
-            file,
+            path: name.to_path_buf(),
+            file: BufReader::with_capacity(1 << 16, reader),
             file_len,
             opts: opts.clone(),
             registry: Registry::default(),
@@ -177,12 +232,13 @@ impl McapSource {
                 source.registry = Registry::default();
                 source.open_warnings.push(format!(
                     "{}: summary section unreadable at byte offset {} ({}); reading the data section linearly",
-                    path.display(),
+                    name.display(),
                     d.offset,
                     d.what
                 ));
             }
         }
+        source.learn_missing_channels()?;
         Ok(source)
     }
 
@@ -191,28 +247,27 @@ impl McapSource {
         self.summary.as_ref().is_some_and(|s| !s.chunks.is_empty())
     }
 
+    fn read_at(&mut self, offset: u64, buf: &mut [u8]) -> std::io::Result<()> {
+        self.file.seek(SeekFrom::Start(offset))?;
+        self.file.read_exact(buf)
+    }
+
     fn load_summary(&mut self) -> Result<Option<Summary>, Damage> {
         if self.file_len < 8 + FOOTER_TOTAL + 8 {
             return Ok(None);
         }
         let footer_at = self.file_len - FOOTER_TOTAL;
         let mut tail = [0u8; FOOTER_TOTAL as usize];
-        let read = self
-            .file
-            .seek(SeekFrom::Start(footer_at))
-            .and_then(|_| self.file.read_exact(&mut tail));
-        if read.is_err() || &tail[29..] != MAGIC || tail[0] != op::FOOTER {
+        if self.read_at(footer_at, &mut tail).is_err()
+            || &tail[29..] != MAGIC
+            || tail[0] != op::FOOTER
+        {
             return Ok(None); // no footer: truncated or still being written; the linear scan reports it
         }
-        let footer = match ::mcap::parse_record(op::FOOTER, &tail[9..29]) {
-            Ok(records::Record::Footer(f)) => f,
-            _ => {
-                return Err(Damage {
-                    offset: footer_at,
-                    what: "bad footer record".into(),
-                });
-            }
-        };
+        let footer = rec::footer(&tail[9..29]).map_err(|what| Damage {
+            offset: footer_at,
+            what,
+        })?;
         if footer.summary_start == 0 {
             return Ok(None);
         }
@@ -226,9 +281,7 @@ impl McapSource {
             });
         }
         let mut bytes = vec![0u8; (footer_at - footer.summary_start) as usize];
-        self.file
-            .seek(SeekFrom::Start(footer.summary_start))
-            .and_then(|_| self.file.read_exact(&mut bytes))
+        self.read_at(footer.summary_start, &mut bytes)
             .map_err(|e| Damage {
                 offset: footer.summary_start,
                 what: e.to_string(),
@@ -244,38 +297,79 @@ impl McapSource {
                 });
             }
         }
+        self.parse_summary(&bytes, footer.summary_start).map(Some)
+    }
+
+    /// The records of the summary section: schemas and channels registered, chunk indexes
+    /// (each chunk once, however often it is listed) and statistics kept.
+    fn parse_summary(&mut self, bytes: &[u8], summary_start: u64) -> Result<Summary, Damage> {
         let mut summary = Summary {
             chunks: Vec::new(),
             stats: None,
         };
+        let mut seen_chunks = HashSet::new();
+        let mut duplicates = 0u64;
         let mut pos = 0usize;
         while pos < bytes.len() {
-            let offset = footer.summary_start + pos as u64;
-            let (opcode, body, next) =
-                frame(&bytes, pos).map_err(|what| Damage { offset, what })?;
+            let offset = summary_start + pos as u64;
+            let damage = |what| Damage { offset, what };
+            let (opcode, body, next) = frame(bytes, pos).map_err(damage)?;
             pos = next;
-            let parsed = || {
-                ::mcap::parse_record(opcode, body).map_err(|e| Damage {
-                    offset,
-                    what: e.to_string(),
-                })
-            };
             match opcode {
-                op::SCHEMA | op::CHANNEL => self.registry.add(parsed()?),
+                op::SCHEMA | op::CHANNEL => self.registry.add(opcode, body).map_err(damage)?,
                 op::CHUNK_INDEX => {
-                    if let records::Record::ChunkIndex(ci) = parsed()? {
+                    let ci = rec::chunk_index(body).map_err(damage)?;
+                    if seen_chunks.insert(ci.chunk_start_offset) {
                         summary.chunks.push(ci);
+                    } else {
+                        duplicates += 1;
                     }
                 }
-                op::STATISTICS => {
-                    if let records::Record::Statistics(s) = parsed()? {
-                        summary.stats = Some(s);
-                    }
-                }
+                op::STATISTICS => summary.stats = Some(rec::statistics(body).map_err(damage)?),
                 _ => {}
             }
         }
-        Ok(Some(summary))
+        if duplicates > 0 {
+            self.open_warnings.push(format!(
+                "{}: the summary lists {duplicates} chunk index entries more than once (same chunk \
+                 offset); each chunk is read once",
+                self.path.display()
+            ));
+        }
+        Ok(summary)
+    }
+
+    /// Writers may leave the Channel (and Schema) records out of the summary and write them
+    /// only in the data section (`repeat_channels=False`, rosbag2's `noRepeatedChannels`): learn
+    /// the channels the statistics or chunk indexes name from the data section, reading only as
+    /// far as needed.
+    fn learn_missing_channels(&mut self) -> Result<(), ReadError> {
+        let Some(summary) = &self.summary else {
+            return Ok(());
+        };
+        let mut needed: BTreeSet<u16> = summary
+            .chunks
+            .iter()
+            .flat_map(|c| c.message_index_offsets.keys().copied())
+            .collect();
+        if let Some(stats) = &summary.stats {
+            needed.extend(stats.channel_message_counts.keys().copied());
+        }
+        needed.retain(|id| !self.registry.channels.contains_key(id));
+        if needed.is_empty() {
+            return Ok(());
+        }
+        let learned = self.walk_linear(Some(&[]), Some(&needed), &mut |_, _, _| Ok(()))?;
+        self.registry.orphans.clear();
+        if let Err(d) = learned {
+            self.open_warnings.push(format!(
+                "{}: looking for channel records in the data section: damaged at byte offset {}: {}",
+                self.path.display(),
+                d.offset,
+                d.what
+            ));
+        }
+        Ok(())
     }
 
     /// The decoded channel for `id`, parsing its schema on first use.
@@ -293,18 +387,22 @@ impl McapSource {
     fn walk(
         &mut self,
         topics: Option<&[&str]>,
-        sink: &mut RawSink<'_>,
+        sink: &mut RawSink<'_, R>,
     ) -> Result<ReadSummary, ReadError> {
         let mut summary = ReadSummary {
             messages: 0,
             warnings: self.open_warnings.clone(),
             complete: true,
         };
+        self.registry.orphans.clear();
         let result = if self.has_index() {
-            self.walk_indexed(topics, sink)?
+            self.walk_indexed(topics, sink, &mut summary.warnings)?
         } else {
-            self.walk_linear(topics, sink)?
+            self.walk_linear(topics, None, sink)?
         };
+        summary
+            .warnings
+            .extend(self.registry.orphan_warnings(&self.path));
         if let Err(d) = result {
             summary.complete = false;
             summary.warnings.push(format!(
@@ -317,12 +415,15 @@ impl McapSource {
         Ok(summary)
     }
 
-    fn walk_indexed(
-        &mut self,
+    /// The chunk indexes to read for `topics`, by start time, in groups of chunks whose time
+    /// ranges overlap (merged so delivery stays time-ordered). A group stops growing at
+    /// [`GROUP_BUDGET_BYTES`] of decompressed data (with a warning: order may then break).
+    fn chunk_groups(
+        &self,
         topics: Option<&[&str]>,
-        sink: &mut RawSink<'_>,
-    ) -> Result<Result<(), Damage>, ReadError> {
-        let mut chunks = self
+        warnings: &mut Vec<String>,
+    ) -> Vec<Vec<ChunkIndex>> {
+        let mut chunks: Vec<ChunkIndex> = self
             .summary
             .as_ref()
             .map(|s| s.chunks.clone())
@@ -335,20 +436,53 @@ impl McapSource {
                     .any(|id| self.registry.wanted(*id, topics))
         });
         chunks.sort_by_key(|c| (c.message_start_time, c.chunk_start_offset));
+        let mut groups: Vec<Vec<ChunkIndex>> = Vec::new();
+        let mut end = 0u64;
+        let mut bytes = 0u64;
+        let mut over_budget = false;
+        for c in chunks {
+            let size = c.uncompressed_size.min(MAX_CHUNK_BYTES);
+            let joins = groups.last().is_some_and(|_| c.message_start_time < end);
+            if joins && bytes + size > GROUP_BUDGET_BYTES {
+                over_budget = true;
+            }
+            match groups.last_mut() {
+                Some(g) if joins && bytes + size <= GROUP_BUDGET_BYTES => {
+                    end = end.max(c.message_end_time);
+                    bytes += size;
+                    g.push(c);
+                }
+                _ => {
+                    end = c.message_end_time;
+                    bytes = size;
+                    groups.push(vec![c]);
+                }
+            }
+        }
+        if over_budget {
+            warnings.push(format!(
+                "{}: more chunks overlap in time than fit the {} MiB memory budget; they are read \
+                 one after the other, so messages may come out of time order",
+                self.path.display(),
+                GROUP_BUDGET_BYTES >> 20
+            ));
+        }
+        groups
+    }
+
+    fn walk_indexed(
+        &mut self,
+        topics: Option<&[&str]>,
+        sink: &mut RawSink<'_, R>,
+        warnings: &mut Vec<String>,
+    ) -> Result<Result<(), Damage>, ReadError> {
+        let groups = self.chunk_groups(topics, warnings);
         let mut buffers: Vec<Vec<u8>> = Vec::new();
         let mut scratch = Vec::new();
-        let mut i = 0;
-        while i < chunks.len() {
-            // A group: chunks whose time ranges overlap, merged so delivery stays time-ordered.
-            let mut end = chunks[i].message_end_time;
-            let mut j = i + 1;
-            while j < chunks.len() && chunks[j].message_start_time < end {
-                end = end.max(chunks[j].message_end_time);
-                j += 1;
-            }
+        for group in groups {
             let mut msgs = Vec::new();
             let mut damage = None;
-            for (k, ci) in chunks[i..j].iter().enumerate() {
+            for (k, ci) in group.iter().enumerate() {
                 if buffers.len() <= k {
                     buffers.push(Vec::new());
                 }
@@ -382,12 +516,11 @@ impl McapSource {
             if let Some(d) = damage {
                 return Ok(Err(d));
             }
-            i = j;
         }
         Ok(Ok(()))
     }
 
-    fn topics_of(&self, ci: &records::ChunkIndex) -> String {
+    fn topics_of(&self, ci: &ChunkIndex) -> String {
         let names: Vec<&str> = ci
             .message_index_offsets
             .keys()
@@ -403,7 +536,7 @@ impl McapSource {
     /// Read and decompress the chunk an index entry points to into `out`.
     fn read_chunk_at(
         &mut self,
-        ci: &records::ChunkIndex,
+        ci: &ChunkIndex,
         scratch: &mut Vec<u8>,
         out: &mut Vec<u8>,
     ) -> Result<(), Damage> {
@@ -414,14 +547,12 @@ impl McapSource {
             || offset.saturating_add(ci.chunk_length) > self.file_len
         {
             return Err(damage(format!(
-                "chunk index points beyond the file (length {})",
+                "chunk index points beyond the file or to an oversized chunk (length {})",
                 ci.chunk_length
             )));
         }
         scratch.resize(ci.chunk_length as usize, 0);
-        self.file
-            .seek(SeekFrom::Start(offset))
-            .and_then(|_| self.file.read_exact(scratch))
+        self.read_at(offset, scratch)
             .map_err(|e| damage(e.to_string()))?;
         let (opcode, body, _) = frame(scratch, 0).map_err(damage)?;
         if opcode != op::CHUNK {
@@ -432,47 +563,35 @@ impl McapSource {
         decompress_chunk(body, out).map_err(damage)
     }
 
+    /// Read the data section record by record from the start. With `until`, stop as soon as
+    /// every channel id in it has a channel record (used to learn channels, not to deliver).
     fn walk_linear(
         &mut self,
         topics: Option<&[&str]>,
-        sink: &mut RawSink<'_>,
+        until: Option<&BTreeSet<u16>>,
+        sink: &mut RawSink<'_, R>,
     ) -> Result<Result<(), Damage>, ReadError> {
         let path = self.path.clone();
         let io = |e: std::io::Error| ReadError::Io {
             path: path.clone(),
             source: e,
         };
-        let file = self.file.try_clone().map_err(io)?;
-        let mut reader = BufReader::with_capacity(1 << 20, file);
-        reader.seek(SeekFrom::Start(8)).map_err(io)?;
+        self.file.seek(SeekFrom::Start(8)).map_err(io)?;
         let mut pos = 8u64;
         let mut body = Vec::new();
         let mut chunk = Vec::new();
         loop {
+            if until.is_some_and(|ids| ids.iter().all(|id| self.registry.channels.contains_key(id)))
+            {
+                return Ok(Ok(()));
+            }
             let offset = pos;
             let damage = |what: String| Damage { offset, what };
-            if pos == self.file_len {
-                return Ok(Err(damage(
-                    "file ends without a footer (truncated?)".into(),
-                )));
-            }
-            if pos + RECORD_PREFIX > self.file_len {
-                return Ok(Err(damage(
-                    "file ends inside a record header (truncated)".into(),
-                )));
-            }
-            let mut prefix = [0u8; 9];
-            if let Err(e) = reader.read_exact(&mut prefix) {
-                return Ok(Err(damage(e.to_string())));
-            }
-            let opcode = prefix[0];
-            let len = u64::from_le_bytes(prefix[1..].try_into().unwrap_or_default());
-            let remaining = self.file_len - pos - RECORD_PREFIX;
-            if len > remaining {
-                return Ok(Err(damage(format!(
-                    "record (opcode 0x{opcode:02x}) claims {len} bytes but only {remaining} remain (truncated file or bad record length)"
-                ))));
-            }
+            let (opcode, len) = match self.next_record_header(pos) {
+                Ok(Some(h)) => h,
+                Ok(None) => return Ok(Ok(())),
+                Err(what) => return Ok(Err(damage(what))),
+            };
             pos += RECORD_PREFIX + len;
             match opcode {
                 op::DATA_END | op::FOOTER => return Ok(Ok(())),
@@ -481,12 +600,12 @@ impl McapSource {
                         return Ok(Err(damage(format!("record of {len} bytes is too large"))));
                     }
                     body.resize(len as usize, 0);
-                    if let Err(e) = reader.read_exact(&mut body) {
+                    if let Err(e) = self.file.read_exact(&mut body) {
                         return Ok(Err(damage(e.to_string())));
                     }
                 }
                 _ => {
-                    reader.seek_relative(len as i64).map_err(io)?;
+                    self.file.seek_relative(len as i64).map_err(io)?;
                     continue;
                 }
             }
@@ -498,11 +617,10 @@ impl McapSource {
                         scan_records(&chunk, offset, 0, &mut self.registry, topics, &mut msgs)
                     })
             } else {
-                let mut framed = Vec::with_capacity(body.len() + 9);
-                framed.push(opcode);
-                framed.extend_from_slice(&(len).to_le_bytes());
-                framed.extend_from_slice(&body);
-                std::mem::swap(&mut framed, &mut chunk);
+                chunk.clear();
+                chunk.push(opcode);
+                chunk.extend_from_slice(&len.to_le_bytes());
+                chunk.extend_from_slice(&body);
                 scan_records(&chunk, offset, 0, &mut self.registry, topics, &mut msgs)
             };
             if let Err(d) = scanned {
@@ -516,6 +634,30 @@ impl McapSource {
                 sink(self, m, chunk.get(m.start..m.end).unwrap_or(&[]))?;
             }
         }
+    }
+
+    /// Opcode and length of the record at `pos` (the reader is positioned there), checked
+    /// against the bytes left in the file; `None` at a clean end of the data section.
+    fn next_record_header(&mut self, pos: u64) -> Result<Option<(u8, u64)>, String> {
+        if pos == self.file_len {
+            return Err("file ends without a footer (truncated?)".into());
+        }
+        if pos + RECORD_PREFIX > self.file_len {
+            return Err("file ends inside a record header (truncated)".into());
+        }
+        let mut prefix = [0u8; 9];
+        self.file
+            .read_exact(&mut prefix)
+            .map_err(|e| e.to_string())?;
+        let opcode = prefix[0];
+        let len = u64::from_le_bytes(prefix[1..].try_into().unwrap_or_default());
+        let remaining = self.file_len - pos - RECORD_PREFIX;
+        if len > remaining {
+            return Err(format!(
+                "record (opcode 0x{opcode:02x}) claims {len} bytes but only {remaining} remain (truncated file or bad record length)"
+            ));
+        }
+        Ok(Some((opcode, len)))
     }
 
     /// Per-channel first/last log time from the message indexes of the chunks (reads only the
@@ -576,17 +718,17 @@ impl McapSource {
     /// Earliest and latest log time listed in the message index record at `offset`.
     fn index_bounds(&mut self, offset: u64) -> Option<(u64, u64)> {
         let mut prefix = [0u8; 9];
-        self.file.seek(SeekFrom::Start(offset)).ok()?;
-        self.file.read_exact(&mut prefix).ok()?;
+        self.read_at(offset, &mut prefix).ok()?;
         let len = u64::from_le_bytes(prefix[1..].try_into().ok()?);
         if prefix[0] != op::MESSAGE_INDEX
             || len > MAX_CHUNK_BYTES
-            || offset + RECORD_PREFIX + len > self.file_len
+            || offset.checked_add(RECORD_PREFIX + len)? > self.file_len
         {
             return None;
         }
         let mut body = vec![0u8; len as usize];
         self.file.read_exact(&mut body).ok()?;
+        // channel id (2), then a u32 byte length, then (log time, offset) pairs.
         let entries = body.get(6..)?;
         entries
             .chunks_exact(16)
@@ -616,23 +758,36 @@ impl McapSource {
             count,
             first_ns: first,
             last_ns: last,
-            rate_hz: rate(count, first, last),
+            rate_hz: super::rate_hz(count, first, last),
         }
     }
-}
 
-/// Mean rate [Hz] of `count` messages spread over [first, last] ns.
-pub fn rate(count: u64, first: u64, last: u64) -> f64 {
-    if count > 1 && last > first {
-        (count - 1) as f64 / ((last - first) as f64 * 1e-9)
-    } else {
-        0.0
+    /// Per-channel (count, first, last) from the statistics and message indexes, when they
+    /// cover every channel; `None` when a scan is needed (no statistics, no chunk or message
+    /// index for some channel).
+    fn indexed_counts(&mut self) -> Option<BTreeMap<u16, (u64, u64, u64)>> {
+        let stats = self.summary.as_ref()?.stats.clone()?;
+        if !self.has_index() {
+            return None;
+        }
+        let spans = self.channel_spans();
+        let mut per_channel = BTreeMap::new();
+        for (id, count) in &stats.channel_message_counts {
+            if *count == 0 {
+                continue;
+            }
+            let (first, last) = spans.get(id).copied()?;
+            per_channel.insert(*id, (*count, first, last));
+        }
+        Some(per_channel)
     }
 }
 
 /// Split the record at `pos` in `buf`: (opcode, body, position after it).
 fn frame(buf: &[u8], pos: usize) -> Result<(u8, &[u8], usize), String> {
-    let prefix = buf.get(pos..pos + 9).ok_or("record header cut off")?;
+    let prefix = buf
+        .get(pos..pos.saturating_add(9))
+        .ok_or("record header cut off")?;
     let len = u64::from_le_bytes(
         prefix[1..]
             .try_into()
@@ -652,34 +807,31 @@ fn frame(buf: &[u8], pos: usize) -> Result<(u8, &[u8], usize), String> {
     Ok((prefix[0], &buf[start..end], end))
 }
 
-/// Decompress a chunk record body into `out`, checking sizes and the CRC.
+/// Decompress a chunk record body into `out`, checking sizes and the CRC. The output is capped
+/// at the declared uncompressed size (itself at most [`MAX_CHUNK_BYTES`]): a chunk that
+/// inflates beyond it is damage, whatever its compressed size.
 fn decompress_chunk(body: &[u8], out: &mut Vec<u8>) -> Result<(), String> {
-    let (header, data) = match ::mcap::parse_record(op::CHUNK, body) {
-        Ok(records::Record::Chunk { header, data }) => (header, data),
-        Ok(_) => return Err("not a chunk".into()),
-        Err(e) => return Err(format!("bad chunk record: {e}")),
-    };
-    if header.uncompressed_size > MAX_CHUNK_BYTES {
+    let chunk = rec::chunk(body)?;
+    if chunk.uncompressed_size > MAX_CHUNK_BYTES {
         return Err(format!(
-            "chunk claims {} uncompressed bytes",
-            header.uncompressed_size
+            "chunk claims {} uncompressed bytes (more than the {} MiB limit)",
+            chunk.uncompressed_size,
+            MAX_CHUNK_BYTES >> 20
         ));
     }
-    let size = header.uncompressed_size as usize;
+    let size = chunk.uncompressed_size as usize;
     out.clear();
-    match header.compression.as_str() {
-        "" => out.extend_from_slice(&data),
+    let data = chunk.records;
+    match chunk.compression.as_str() {
+        "" => out.extend_from_slice(data),
         "zstd" => {
-            out.reserve(size);
-            // A Vec destination is bounded by its capacity (reserved above).
-            zstd::bulk::Decompressor::new()
-                .and_then(|mut d| d.decompress_to_buffer(&data[..], out))
+            let decoder = zstd::stream::read::Decoder::with_buffer(data)
+                .map_err(|e| format!("zstd decompression failed: {e}"))?;
+            super::read_capped(decoder, size, out)
                 .map_err(|e| format!("zstd decompression failed: {e}"))?;
         }
         "lz4" => {
-            out.reserve(size);
-            lz4_flex::frame::FrameDecoder::new(&data[..])
-                .read_to_end(out)
+            super::read_capped(lz4_flex::frame::FrameDecoder::new(data), size, out)
                 .map_err(|e| format!("lz4 decompression failed: {e}"))?;
         }
         other => {
@@ -689,19 +841,20 @@ fn decompress_chunk(body: &[u8], out: &mut Vec<u8>) -> Result<(), String> {
         }
     }
     if out.len() != size {
+        let more = if out.len() > size { "more than " } else { "" };
         return Err(format!(
-            "chunk decompressed to {} bytes, header says {size}",
+            "chunk decompressed to {more}{} bytes, header says {size}",
             out.len()
         ));
     }
-    if header.uncompressed_crc != 0 && crc32fast::hash(out) != header.uncompressed_crc {
+    if chunk.uncompressed_crc != 0 && crc32fast::hash(out) != chunk.uncompressed_crc {
         return Err("chunk CRC mismatch (corrupted data)".into());
     }
     Ok(())
 }
 
 /// Walk the records in `buf` (a decompressed chunk, or one framed record): register schemas and
-/// channels, collect wanted messages.
+/// channels, collect wanted messages; messages on unknown channel ids are counted as orphans.
 fn scan_records(
     buf: &[u8],
     file_offset: u64,
@@ -712,21 +865,27 @@ fn scan_records(
 ) -> Result<(), Damage> {
     let mut pos = 0;
     while pos < buf.len() {
-        let (opcode, body, next) = frame(buf, pos).map_err(|what| Damage {
+        let damage = |what| Damage {
             offset: file_offset,
             what,
-        })?;
+        };
+        let (opcode, body, next) = frame(buf, pos).map_err(damage)?;
         let body_start = pos + 9;
         pos = next;
         match opcode {
             op::MESSAGE => {
                 let Some(h) = body.get(..22) else {
-                    return Err(Damage {
-                        offset: file_offset,
-                        what: "message record shorter than its header".into(),
-                    });
+                    return Err(damage("message record shorter than its header".into()));
                 };
                 let channel_id = u16::from_le_bytes([h[0], h[1]]);
+                if !registry.channels.contains_key(&channel_id) {
+                    let e = registry
+                        .orphans
+                        .entry(channel_id)
+                        .or_insert((0, file_offset));
+                    e.0 += 1;
+                    continue;
+                }
                 if !registry.wanted(channel_id, topics) {
                     continue;
                 }
@@ -740,13 +899,9 @@ fn scan_records(
                     file_offset,
                 });
             }
-            op::SCHEMA | op::CHANNEL => {
-                let record = ::mcap::parse_record(opcode, body).map_err(|e| Damage {
-                    offset: file_offset,
-                    what: format!("bad schema/channel record: {e}"),
-                })?;
-                registry.add(record);
-            }
+            op::SCHEMA | op::CHANNEL => registry
+                .add(opcode, body)
+                .map_err(|e| damage(format!("bad schema/channel record: {e}")))?,
             _ => {}
         }
     }
@@ -838,62 +993,34 @@ fn schemaless(name: &str) -> MsgSchema {
     MsgSchema { root, types }
 }
 
-impl MessageSource for McapSource {
+impl<R: Read + Seek> MessageSource for McapSource<R> {
     fn format(&self) -> &'static str {
         "mcap"
     }
 
     fn info(&mut self) -> Result<SessionInfo, ReadError> {
-        let stats = self.summary.as_ref().and_then(|s| s.stats.clone());
         let mut warnings = self.open_warnings.clone();
-        let mut per_channel: BTreeMap<u16, (u64, u64, u64)> = BTreeMap::new();
-        let (start_ns, end_ns, messages) = match stats {
-            Some(stats) => {
-                let spans = self.channel_spans();
-                for (id, count) in &stats.channel_message_counts {
-                    let (first, last) = spans
-                        .get(id)
-                        .copied()
-                        .unwrap_or((stats.message_start_time, stats.message_end_time));
-                    per_channel.insert(*id, (*count, first, last));
-                }
-                (
-                    stats.message_start_time,
-                    stats.message_end_time,
-                    stats.message_count,
-                )
-            }
+        // Statistics and indexes when they cover every channel; otherwise count the messages
+        // themselves (a writer's statistics without an index give no per-topic times).
+        let per_channel = match self.indexed_counts() {
+            Some(p) => p,
             None => {
-                let mut bounds = (u64::MAX, 0u64, 0u64);
+                let mut per_channel: BTreeMap<u16, (u64, u64, u64)> = BTreeMap::new();
                 let summary = self.walk(None, &mut |_, m, _| {
                     let e = per_channel.entry(m.channel_id).or_insert((0, u64::MAX, 0));
                     *e = (e.0 + 1, e.1.min(m.log_time), e.2.max(m.log_time));
-                    bounds = (
-                        bounds.0.min(m.log_time),
-                        bounds.1.max(m.log_time),
-                        bounds.2 + 1,
-                    );
                     Ok(())
                 })?;
                 warnings = summary.warnings;
-                (if bounds.2 == 0 { 0 } else { bounds.0 }, bounds.1, bounds.2)
+                per_channel
             }
         };
-        let mut topics: Vec<TopicInfo> = per_channel
+        let topics: Vec<TopicInfo> = per_channel
             .iter()
             .filter(|(_, (count, _, _))| *count > 0)
             .map(|(id, (count, first, last))| self.topic_info(*id, *count, *first, *last))
             .collect();
-        topics.sort_by(|a, b| a.topic.cmp(&b.topic));
-        Ok(SessionInfo {
-            path: self.path.clone(),
-            format: "mcap".into(),
-            start_ns,
-            end_ns,
-            messages,
-            topics,
-            warnings,
-        })
+        Ok(super::session_info(&self.path, "mcap", topics, warnings))
     }
 
     fn read(
@@ -911,6 +1038,7 @@ impl MessageSource for McapSource {
                 publish_time_ns: m.publish_time,
                 data,
                 file_offset: m.file_offset,
+                row_id: false,
             })
         })?;
         summary.messages = delivered;

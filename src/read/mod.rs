@@ -6,15 +6,18 @@
 //! A damaged file is read up to the damage; what was lost is reported in
 //! [`ReadSummary::warnings`] with the file and byte offset.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 pub mod bag1;
 pub mod db3;
 pub mod decode;
+mod idl;
 pub mod mcap;
+mod mcap_records;
 pub mod msgdef;
 pub mod session;
+mod yaml;
 
 pub use decode::{DecodeError, FieldExtractor, FieldPath, Value};
 pub use msgdef::{MsgSchema, SchemaError};
@@ -56,8 +59,23 @@ pub struct MessageRef<'a> {
     /// Serialised payload.
     pub data: &'a [u8],
     /// Byte offset in the file of the record holding this message, for error messages
-    /// (for compressed chunks: the chunk's offset).
+    /// (for compressed chunks: the chunk's offset); for rosbag2 sqlite storage, the message's
+    /// row id (see `row_id`).
     pub file_offset: u64,
+    /// True when `file_offset` is a database row id, not a byte offset.
+    pub row_id: bool,
+}
+
+impl MessageRef<'_> {
+    /// Where the message is, for messages to the user: `record at byte offset N` or
+    /// `message row id N`.
+    pub fn location(&self) -> String {
+        if self.row_id {
+            format!("message row id {}", self.file_offset)
+        } else {
+            format!("record at byte offset {}", self.file_offset)
+        }
+    }
 }
 
 /// What a full read produced besides the messages.
@@ -157,6 +175,122 @@ pub enum ReadError {
     /// Anything else, already worded with its context.
     #[error("{0}")]
     Other(String),
+}
+
+/// Mean rate [Hz] of `count` messages over a topic's own span [first, last] ns; 0 when it has
+/// fewer than two messages.
+pub(crate) fn rate_hz(count: u64, first_ns: u64, last_ns: u64) -> f64 {
+    if count < 2 || last_ns <= first_ns {
+        return 0.0;
+    }
+    (count - 1) as f64 / ((last_ns - first_ns) as f64 * 1e-9)
+}
+
+/// Assemble a [`SessionInfo`] from per-topic statistics (sorted by topic name here; start and
+/// end from the topics' own first and last messages).
+pub(crate) fn session_info(
+    path: &Path,
+    format: &str,
+    mut topics: Vec<TopicInfo>,
+    warnings: Vec<String>,
+) -> SessionInfo {
+    topics.sort_by(|a, b| a.topic.cmp(&b.topic));
+    let present = topics.iter().filter(|t| t.count > 0);
+    let start_ns = present.clone().map(|t| t.first_ns).min().unwrap_or(0);
+    let end_ns = present.map(|t| t.last_ns).max().unwrap_or(0);
+    SessionInfo {
+        path: path.to_path_buf(),
+        format: format.to_string(),
+        start_ns,
+        end_ns,
+        messages: topics.iter().map(|t| t.count).sum(),
+        topics,
+        warnings,
+    }
+}
+
+/// Read at most `size + 1` bytes of `reader` into `out`: one byte more than allowed is enough
+/// to tell a stream longer than its declared size (a decompression bomb) without inflating it
+/// further.
+pub(crate) fn read_capped(
+    reader: impl std::io::Read,
+    size: usize,
+    out: &mut Vec<u8>,
+) -> std::io::Result<()> {
+    use std::io::Read;
+    out.reserve(size.min(16 << 20));
+    reader.take(size as u64 + 1).read_to_end(out).map(|_| ())
+}
+
+/// The message definition of `type_name` from, in order: the definition the recording carries
+/// (`embedded`, parsed with `parse`), `.msg` files on `--msg-path`, the built-in definitions.
+/// The error text names the type, the topic and where to put a definition.
+pub(crate) fn resolve_schema(
+    file: &Path,
+    topic: &str,
+    type_name: &str,
+    embedded: Option<Result<MsgSchema, SchemaError>>,
+    opts: &OpenOptions,
+) -> Result<MsgSchema, String> {
+    match embedded {
+        Some(Ok(schema)) => return Ok(schema),
+        Some(Err(e)) => {
+            return Err(format!(
+                "{}: topic {topic}: the message definition of {type_name} stored in the recording is bad: {e}",
+                file.display()
+            ));
+        }
+        None => {}
+    }
+    if !opts.msg_paths.is_empty() {
+        match MsgSchema::from_msg_files(type_name, &opts.msg_paths) {
+            Ok(schema) => return Ok(schema),
+            Err(SchemaError::MissingType(_)) => {}
+            Err(e) => {
+                return Err(format!(
+                    "{}: topic {topic}: definition of {type_name} found on --msg-path is bad: {e}",
+                    file.display()
+                ));
+            }
+        }
+    }
+    let normalised = msgdef::normalize_type_name(type_name, "");
+    let builtin =
+        msgdef::builtin_definition(type_name).or_else(|| msgdef::builtin_definition(&normalised));
+    if let Some(text) = builtin {
+        return MsgSchema::parse_ros2msg(&normalised, text).map_err(|e| {
+            format!(
+                "{}: topic {topic}: built-in definition of {type_name}: {e}",
+                file.display()
+            )
+        });
+    }
+    let (pkg, name) = split_type_name(type_name);
+    let searched = if opts.msg_paths.is_empty() {
+        "no --msg-path given".to_string()
+    } else {
+        format!(
+            "not found under --msg-path {}",
+            opts.msg_paths
+                .iter()
+                .map(|p| p.display().to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        )
+    };
+    Err(format!(
+        "{}: topic {topic}: no message definition for type {type_name} (the recording does not carry one, \
+         {searched}, and it is not built in); put its definition at DIR/{pkg}/msg/{name}.msg \
+         (with the .msg files of the types it uses) and pass --msg-path DIR",
+        file.display()
+    ))
+}
+
+/// Package and bare type name of `pkg/Type` or `pkg/msg/Type`.
+fn split_type_name(type_name: &str) -> (&str, &str) {
+    let pkg = type_name.split('/').next().unwrap_or(type_name);
+    let name = type_name.rsplit('/').next().unwrap_or(type_name);
+    (pkg, name)
 }
 
 /// Options shared by all readers.

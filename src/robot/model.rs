@@ -172,6 +172,14 @@ impl RobotModel {
         build(&robot, base_dir)
     }
 
+    /// The URDF at `path`, or the shipped one when none is given (`--urdf` of every command).
+    pub fn load(path: Option<&Path>) -> anyhow::Result<RobotModel> {
+        match path {
+            Some(p) => Self::from_urdf_file(p),
+            None => Ok(Self::builtin()),
+        }
+    }
+
     /// The shipped `urdf/g1_left_arm.urdf` (left arm with Dex3-1 hand, primitive geometry).
     pub fn builtin() -> RobotModel {
         Self::from_urdf_str(BUILTIN_URDF, Path::new("."))

@@ -10,7 +10,7 @@ use anyhow::bail;
 use super::Recording;
 use super::map::{GROUPS, Group, SignalMap, group_signals};
 use crate::N_JOINTS;
-use crate::read::{FieldExtractor, FieldPath, OpenOptions, ReadError, Session};
+use crate::read::{FieldExtractor, FieldPath, MessageRef, OpenOptions, ReadError, Session};
 
 /// Detailed warnings of one kind before they are only counted.
 const MAX_DETAILED_WARNINGS: usize = 10;
@@ -80,6 +80,74 @@ pub fn stream_recording(
     })
 }
 
+/// Count and rate of one signal series, from a streamed read.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct SeriesStats {
+    /// Samples (or readings).
+    pub count: usize,
+    /// Mean rate [Hz]: (count − 1) / (last − first stamp); 0 below two samples.
+    pub rate_hz: f64,
+    #[serde(skip)]
+    first: Option<f64>,
+    #[serde(skip)]
+    last: Option<f64>,
+}
+
+impl SeriesStats {
+    fn add(&mut self, t: &[f64]) {
+        for &v in t {
+            self.first = Some(self.first.map_or(v, |f| f.min(v)));
+            self.last = Some(self.last.map_or(v, |l| l.max(v)));
+        }
+        self.count += t.len();
+        self.rate_hz = match (self.first, self.last) {
+            (Some(a), Some(b)) if self.count > 1 && b > a => (self.count - 1) as f64 / (b - a),
+            _ => 0.0,
+        };
+    }
+}
+
+/// What the arm signals of a recording amount to, read in one streamed pass (memory does not
+/// grow with the file): the joints and each series' count and rate.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct SignalStats {
+    /// URDF joint names of the arm, in model order.
+    pub joints: Vec<String>,
+    /// Joint states.
+    pub state: SeriesStats,
+    /// Commands.
+    pub command: SeriesStats,
+    /// Main-board power readings.
+    pub mbs_power: SeriesStats,
+    /// Battery power readings.
+    pub bms_power: SeriesStats,
+    /// Problems met while reading.
+    #[serde(skip)]
+    pub warnings: Vec<String>,
+}
+
+/// Stream `path` once and count its arm signals (what `g1viz info` prints), holding one batch at
+/// a time. Errors as [`load_recording`].
+pub fn signal_stats(
+    path: &Path,
+    map: &SignalMap,
+    opts: &OpenOptions,
+) -> anyhow::Result<SignalStats> {
+    let mut stats = SignalStats {
+        joints: map.joint_names.clone(),
+        ..SignalStats::default()
+    };
+    let summary = read_batches(path, map, opts, 4096, &mut |batch| {
+        stats.state.add(&batch.state.t);
+        stats.command.add(&batch.command.t);
+        stats.mbs_power.add(&batch.mbs.t);
+        stats.bms_power.add(&batch.bms.t);
+        Ok(())
+    })?;
+    stats.warnings = summary.warnings;
+    Ok(stats)
+}
+
 /// Per-group read plans plus the batch being filled.
 struct Batcher {
     plans: Vec<GroupPlan>,
@@ -118,16 +186,9 @@ impl Batcher {
     }
 }
 
-fn read_batches(
-    path: &Path,
-    map: &SignalMap,
-    opts: &OpenOptions,
-    batch_samples: usize,
-    on_batch: &mut dyn FnMut(&mut Recording) -> anyhow::Result<()>,
-) -> anyhow::Result<StreamSummary> {
-    map.validate()?;
-    let mut session = Session::open(path, opts)?;
-    let plans: Vec<GroupPlan> = GROUPS
+/// One read plan per signal group: its topic, field paths and scales.
+fn group_plans(map: &SignalMap) -> Vec<GroupPlan> {
+    GROUPS
         .iter()
         .map(|&group| {
             let names = group_signals(group);
@@ -142,19 +203,114 @@ fn read_batches(
                 undecodable: 0,
             }
         })
-        .collect();
+        .collect()
+}
+
+/// Per topic: the type the extractors were compiled for, and (group index, extractor) for each
+/// group reading the topic.
+type Compiled = (String, Vec<(usize, FieldExtractor)>);
+
+/// Decodes messages into a [`Batcher`]: field extractors compiled per topic on first sight (and
+/// again when a topic's type changes), samples scaled, bad ones counted and warned about.
+struct Decoder {
+    file: String,
+    extractors: HashMap<String, Compiled>,
+    row: Vec<f64>,
+    warnings: Vec<String>,
+}
+
+impl Decoder {
+    /// Decode one message into every group that reads its topic.
+    fn decode(&mut self, b: &mut Batcher, msg: &MessageRef<'_>) -> Result<(), ReadError> {
+        let topic = msg.channel.topic.as_str();
+        let known = self
+            .extractors
+            .get(topic)
+            .is_some_and(|(ty, _)| *ty == msg.channel.type_name);
+        if !known {
+            let mut list = Vec::new();
+            for (gi, plan) in b.plans.iter().enumerate().filter(|(_, p)| p.topic == topic) {
+                let ex = FieldExtractor::compile(&msg.channel.schema, msg.channel.encoding, &plan.paths).map_err(|e| {
+                    ReadError::Other(format!(
+                        "{}: topic {topic} ({}): schema does not match the signal map ({:?} signals): {e}",
+                        self.file, msg.channel.type_name, plan.group
+                    ))
+                })?;
+                list.push((gi, ex));
+            }
+            self.extractors
+                .insert(topic.to_string(), (msg.channel.type_name.clone(), list));
+        }
+        let Some((_, list)) = self.extractors.get(topic) else {
+            return Ok(());
+        };
+        for (gi, ex) in list {
+            let plan = &mut b.plans[*gi];
+            self.row.resize(ex.len(), 0.0);
+            if let Err(e) = ex.extract(msg.data, &mut self.row) {
+                plan.undecodable += 1;
+                if plan.undecodable <= MAX_DETAILED_WARNINGS {
+                    self.warnings.push(format!(
+                        "{}: topic {} at log time {} ns ({}): {e}; message skipped",
+                        self.file,
+                        plan.topic,
+                        msg.log_time_ns,
+                        msg.location()
+                    ));
+                }
+                continue;
+            }
+            if let Some(bad) = self.row.iter().position(|v| !v.is_finite()) {
+                plan.non_finite += 1;
+                if plan.non_finite <= MAX_DETAILED_WARNINGS {
+                    self.warnings.push(format!(
+                        "{}: topic {} field {} is {} at log time {} ns; sample dropped",
+                        self.file,
+                        plan.topic,
+                        plan.paths
+                            .get(bad)
+                            .map(ToString::to_string)
+                            .unwrap_or_default(),
+                        self.row.get(bad).copied().unwrap_or(f64::NAN),
+                        msg.log_time_ns
+                    ));
+                }
+                continue;
+            }
+            plan.t_ns.push(msg.log_time_ns);
+            for (v, s) in self.row.iter_mut().zip(&plan.scales) {
+                *v *= s;
+            }
+            let group = plan.group;
+            push_row(&mut b.batch, group, &self.row);
+            b.samples[group_index(group)] += 1;
+        }
+        Ok(())
+    }
+}
+
+fn read_batches(
+    path: &Path,
+    map: &SignalMap,
+    opts: &OpenOptions,
+    batch_samples: usize,
+    on_batch: &mut dyn FnMut(&mut Recording) -> anyhow::Result<()>,
+) -> anyhow::Result<StreamSummary> {
+    map.validate()?;
+    let mut session = Session::open(path, opts)?;
+    let plans = group_plans(map);
     let mut topic_names: Vec<String> = plans.iter().map(|p| p.topic.clone()).collect();
     topic_names.sort_unstable();
     topic_names.dedup();
     let topics: Vec<&str> = topic_names.iter().map(String::as_str).collect();
 
     let progress = progress_bar(&mut session);
-    let mut warnings = Vec::new();
-    // Per topic: the type the extractors were compiled for, and (group index, extractor) for
-    // each group reading the topic.
-    type Compiled = (String, Vec<(usize, FieldExtractor)>);
-    let mut extractors: HashMap<String, Compiled> = HashMap::new();
-    let mut row = Vec::new();
+    let mut decoder = Decoder {
+        file: path.display().to_string(),
+        extractors: HashMap::new(),
+        row: Vec::new(),
+        warnings: Vec::new(),
+    };
     // Samples go straight into the typed series (no intermediate copy); times are set per batch.
     let mut b = Batcher {
         plans,
@@ -169,7 +325,6 @@ fn read_batches(
     // An error of `on_batch` stops the read; it is returned as is, not as a read error.
     let mut sink_error: Option<anyhow::Error> = None;
     let mut count = 0u64;
-    let file = path.display().to_string();
     let read = session.read(Some(&topics), &mut |msg| {
         count += 1;
         if count.is_multiple_of(4096)
@@ -177,55 +332,7 @@ fn read_batches(
         {
             pb.set_position(count);
         }
-        let topic = msg.channel.topic.as_str();
-        let known = extractors.get(topic).is_some_and(|(ty, _)| *ty == msg.channel.type_name);
-        if !known {
-            let mut list = Vec::new();
-            for (gi, plan) in b.plans.iter().enumerate().filter(|(_, p)| p.topic == topic) {
-                let ex = FieldExtractor::compile(&msg.channel.schema, msg.channel.encoding, &plan.paths).map_err(|e| {
-                    ReadError::Other(format!(
-                        "{file}: topic {topic} ({}): schema does not match the signal map ({:?} signals): {e}",
-                        msg.channel.type_name, plan.group
-                    ))
-                })?;
-                list.push((gi, ex));
-            }
-            extractors.insert(topic.to_string(), (msg.channel.type_name.clone(), list));
-        }
-        for (gi, ex) in extractors.get(topic).map(|(_, l)| l.as_slice()).unwrap_or(&[]) {
-            let plan = &mut b.plans[*gi];
-            row.resize(ex.len(), 0.0);
-            if let Err(e) = ex.extract(msg.data, &mut row) {
-                plan.undecodable += 1;
-                if plan.undecodable <= MAX_DETAILED_WARNINGS {
-                    warnings.push(format!(
-                        "{file}: topic {} at log time {} ns (record at byte offset {}): {e}; message skipped",
-                        plan.topic, msg.log_time_ns, msg.file_offset
-                    ));
-                }
-                continue;
-            }
-            if let Some(bad) = row.iter().position(|v| !v.is_finite()) {
-                plan.non_finite += 1;
-                if plan.non_finite <= MAX_DETAILED_WARNINGS {
-                    warnings.push(format!(
-                        "{file}: topic {} field {} is {} at log time {} ns; sample dropped",
-                        plan.topic,
-                        plan.paths.get(bad).map(ToString::to_string).unwrap_or_default(),
-                        row.get(bad).copied().unwrap_or(f64::NAN),
-                        msg.log_time_ns
-                    ));
-                }
-                continue;
-            }
-            plan.t_ns.push(msg.log_time_ns);
-            for (v, s) in row.iter_mut().zip(&plan.scales) {
-                *v *= s;
-            }
-            let group = plan.group;
-            push_row(&mut b.batch, group, &row);
-            b.samples[group_index(group)] += 1;
-        }
+        decoder.decode(&mut b, &msg)?;
         if b.len() >= batch_samples
             && let Err(e) = b.flush(on_batch)
         {
@@ -241,7 +348,26 @@ fn read_batches(
         return Err(e);
     }
     let summary = read?;
+    let mut warnings = decoder.warnings;
     warnings.extend(summary.warnings);
+    finish_warnings(&decoder.file, &b, map, &mut session, &mut warnings)?;
+    b.flush(on_batch)?;
+    Ok(StreamSummary {
+        start_ns: b.start_ns.unwrap_or(0),
+        samples: b.samples,
+        warnings,
+    })
+}
+
+/// The end of a read: totals of dropped samples, an error when no state sample was read (naming
+/// the topics the file has and any damage met), a warning per empty optional group.
+fn finish_warnings(
+    file: &str,
+    b: &Batcher,
+    map: &SignalMap,
+    session: &mut Session,
+    warnings: &mut Vec<String>,
+) -> anyhow::Result<()> {
     for plan in &b.plans {
         if plan.non_finite > MAX_DETAILED_WARNINGS || plan.undecodable > MAX_DETAILED_WARNINGS {
             warnings.push(format!(
@@ -250,7 +376,6 @@ fn read_batches(
             ));
         }
     }
-
     if b.samples[0] == 0 {
         let state_topic = map.group_topic(Group::State).unwrap_or("");
         let present = session
@@ -286,12 +411,7 @@ fn read_batches(
             ));
         }
     }
-    b.flush(on_batch)?;
-    Ok(StreamSummary {
-        start_ns: b.start_ns.unwrap_or(0),
-        samples: b.samples,
-        warnings,
-    })
+    Ok(())
 }
 
 /// Position of `group` in [`StreamSummary::samples`].

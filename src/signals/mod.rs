@@ -65,10 +65,78 @@ pub struct Recording {
     pub warnings: Vec<String>,
 }
 
+/// Which power sensor is the regression target.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum Target {
+    /// Main-board sensor: the arm/upper-body rail (the paper's choice, lower noise).
+    Mbs,
+    /// Battery management system: whole-robot power.
+    Bms,
+}
+
+impl Target {
+    /// The recording's power series for this target.
+    pub fn series<'a>(&self, rec: &'a Recording) -> &'a PowerSeries {
+        match self {
+            Target::Mbs => &rec.mbs,
+            Target::Bms => &rec.bms,
+        }
+    }
+
+    /// Lower-case name ("mbs" / "bms").
+    pub fn name(&self) -> &'static str {
+        match self {
+            Target::Mbs => "mbs",
+            Target::Bms => "bms",
+        }
+    }
+}
+
+/// Join recordings end to end into one (e.g. several short sessions of one robot, to diagnose
+/// them together): each part's times are shifted to start `gap_s` after the previous part's last
+/// joint sample. Warnings are kept, the first part's source and start time are used.
+pub fn join_recordings(parts: Vec<Recording>, gap_s: f64) -> Recording {
+    let mut parts = parts.into_iter();
+    let Some(mut out) = parts.next() else {
+        return Recording::default();
+    };
+    for r in parts {
+        let offset = out.state.t.last().copied().unwrap_or(0.0) + gap_s
+            - r.state.t.first().copied().unwrap_or(0.0);
+        let shift = |v: &[f64]| v.iter().map(|t| t + offset).collect::<Vec<_>>();
+        out.state.t.extend(shift(&r.state.t));
+        out.state.q.extend(r.state.q);
+        out.state.dq.extend(r.state.dq);
+        out.state.tau.extend(r.state.tau);
+        out.state.temp.extend(r.state.temp);
+        out.state.gyro.extend(r.state.gyro);
+        out.state.quat.extend(r.state.quat);
+        out.command.t.extend(shift(&r.command.t));
+        out.command.q.extend(r.command.q);
+        out.command.dq.extend(r.command.dq);
+        out.mbs.t.extend(shift(&r.mbs.t));
+        out.mbs.watts.extend(r.mbs.watts);
+        out.bms.t.extend(shift(&r.bms.t));
+        out.bms.watts.extend(r.bms.watts);
+        out.warnings.extend(r.warnings);
+    }
+    out
+}
+
+/// Mean rate [Hz] of a time stamp series: (n − 1) / span; 0 for fewer than two stamps.
+pub fn rate_hz(t: &[f64]) -> f64 {
+    match (t.first(), t.last()) {
+        (Some(a), Some(b)) if t.len() > 1 && b > a => (t.len() - 1) as f64 / (b - a),
+        _ => 0.0,
+    }
+}
+
 mod load;
 mod map;
 
-pub use load::{StreamSummary, load_recording, stream_recording};
+pub use load::{
+    SeriesStats, SignalStats, StreamSummary, load_recording, signal_stats, stream_recording,
+};
 pub use map::{
     G1_LEFT_ARM_BASE, G1_RIGHT_ARM_BASE, GROUPS, Group, JOINT_SHORT, SignalMap, SignalSpec,
     group_signals,

@@ -172,6 +172,16 @@ pub fn truth_path(out: &Path) -> PathBuf {
     out.with_extension("truth.json")
 }
 
+/// The true parameters of a simulated session, from its truth sidecar (ours or the shared
+/// generator's: both carry `theta.vector`), when there is one.
+pub fn truth_model(session: &Path) -> Option<PowerModel> {
+    let text = crate::util::read_text_input(&truth_path(session)).ok()?;
+    let json: serde_json::Value = serde_json::from_str(&text).ok()?;
+    let v: Vec<f64> = serde_json::from_value(json["theta"]["vector"].clone()).ok()?;
+    let v: [f64; crate::N_PARAMS] = v.try_into().ok()?;
+    Some(PowerModel::from_vector(&v))
+}
+
 /// The true plant's dynamics (with the payload when that effect is on) and, with a payload, the
 /// URDF-only dynamics the payload's share of the power is measured against.
 fn dynamics(cfg: &SimConfig) -> Result<(ArmDynamics, Option<ArmDynamics>)> {
@@ -229,14 +239,14 @@ fn trial_plans(
                 axis: u[3] * std::f64::consts::TAU,
             });
             let outlier = (u[4] < a.outlier_fraction).then(|| OutlierStep {
-                start: tt.traj_start + u[5] * (tt.post_idle_end - tt.traj_start - 1.0).max(0.0),
+                start: tt.t_traj_start + u[5] * (tt.t_post_end - tt.t_traj_start - 1.0).max(0.0),
                 duration: lerp(a.outlier_duration_s, u[6]),
                 step_w: lerp(a.outlier_step_w, u[7]),
             });
             TrialPlan {
-                pre_start: tt.trial_start,
-                traj_start: tt.traj_start,
-                window_end: tt.post_idle_end,
+                pre_start: tt.t_pre_start,
+                traj_start: tt.t_traj_start,
+                window_end: tt.t_post_end,
                 sway,
                 outlier,
             }
@@ -333,11 +343,11 @@ pub fn simulate(cfg: &SimConfig, out: &Path) -> Result<Truth> {
                     .collect(),
                 qdot_max: pt.qdot_max,
                 waypoints_rad: pt.route.waypoints.clone(),
-                t_trial_start_ns: ns(tt.trial_start),
-                t_traj_start_ns: ns(tt.traj_start),
-                t_traj_end_ns: ns(tt.traj_end),
-                t_post_idle_end_ns: ns(tt.post_idle_end),
-                t_return_end_ns: ns(tt.return_end),
+                t_trial_start_ns: ns(tt.t_pre_start),
+                t_traj_start_ns: ns(tt.t_traj_start),
+                t_traj_end_ns: ns(tt.t_traj_end),
+                t_post_idle_end_ns: ns(tt.t_post_end),
+                t_return_end_ns: ns(tt.t_return_end),
                 contaminated: plan.sway.is_some(),
                 sway_amplitude_rad_s: plan.sway.map(|s| round4(s.amplitude)),
                 sway_freq_hz: plan.sway.map(|s| round4(s.freq_hz)),

@@ -9,6 +9,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::N_JOINTS;
+use crate::trial::TrialWindow;
 
 /// Pre-idle duration at home [s].
 pub const PRE_IDLE_S: f64 = 2.0;
@@ -292,27 +293,13 @@ pub fn segment_duration(max_dq: f64, qdot_max: f64) -> f64 {
     MIN_SEGMENT_S.max(1.5 * max_dq / qdot_max)
 }
 
-/// Phase boundaries of one scheduled trial [s since session start].
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct TrialTimes {
-    /// Pre-idle start.
-    pub trial_start: f64,
-    /// Trajectory start (end of pre-idle).
-    pub traj_start: f64,
-    /// Trajectory end (start of post-idle).
-    pub traj_end: f64,
-    /// Post-idle end (start of return).
-    pub post_idle_end: f64,
-    /// Return end (arm at home).
-    pub return_end: f64,
-}
-
 /// The commanded joint trajectory of a whole session: piecewise smooth steps, at home elsewhere.
 #[derive(Debug, Clone)]
 pub struct Schedule {
     segments: Vec<Segment>,
-    /// Per trial phase times, in order.
-    pub trials: Vec<TrialTimes>,
+    /// The scheduled trials in order (times in s since session start; the commanded peak
+    /// speed is the trial's speed level, nothing is measured).
+    pub trials: Vec<TrialWindow>,
     /// Session duration [s].
     pub duration: f64,
 }
@@ -357,12 +344,16 @@ impl Schedule {
                 q1: [0.0; N_JOINTS],
             });
             t += dur;
-            times.push(TrialTimes {
-                trial_start,
-                traj_start,
-                traj_end,
-                post_idle_end,
-                return_end: t,
+            times.push(TrialWindow {
+                index: k,
+                t_pre_start: trial_start,
+                t_traj_start: traj_start,
+                t_traj_end: traj_end,
+                t_post_end: post_idle_end,
+                t_return_end: t,
+                joints_moved: tr.route.joints.clone(),
+                qdot_max_cmd: tr.qdot_max,
+                qdot_max_meas: f64::NAN,
             });
         }
         Schedule {
@@ -444,11 +435,11 @@ mod tests {
         };
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let s = Schedule::build(&[tr], &mut rng);
-        let tt = s.trials[0];
+        let tt = &s.trials[0];
         let mut hint = 0;
         let mut peak: f64 = 0.0;
-        let mut t = tt.traj_start;
-        while t < tt.traj_end {
+        let mut t = tt.t_traj_start;
+        while t < tt.t_traj_end {
             peak = peak.max(s.eval(t, &mut hint).1[3].abs());
             t += 1e-3;
         }

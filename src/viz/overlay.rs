@@ -4,12 +4,9 @@
 
 use anyhow::Result;
 
-use super::replay::{
-    PowerPrediction, Rejection, ReplayExtras, TermSeries, TrajectoryPoint, TrialMark,
-};
+use super::replay::{PowerPrediction, ReplayExtras, TermSeries, TrajectoryPoint, TrialMark};
 use crate::identify::dataset::{self, DatasetOptions, Mode};
-use crate::identify::filters::{self, TrialStat};
-use crate::identify::pipeline::{IdentifyOptions, Validation, validate};
+use crate::identify::{IdentifyOptions, Validation, validate};
 use crate::power::PowerModel;
 use crate::signals::Recording;
 
@@ -78,7 +75,6 @@ pub fn model_extras(
         })
         .collect();
 
-    let rejections = filter_marks(&v, opts);
     let trials = seg
         .trials
         .iter()
@@ -98,10 +94,8 @@ pub fn model_extras(
                     joints.join("+"),
                     t.qdot_max_cmd
                 ),
-                rejected: rejections
-                    .iter()
-                    .find(|(trial, _)| *trial == t.index)
-                    .map(|(_, r)| r.clone()),
+                rejected: v.rejections.iter().find(|r| r.trial == t.index).cloned(),
+                highlight: None,
             }
         })
         .collect();
@@ -113,58 +107,6 @@ pub fn model_extras(
         diagnosis: None,
     };
     Ok((extras, v))
-}
-
-/// The identification filters replayed on this session: IMU sway, then `opts.sigma_passes` passes
-/// of n·σ rejection on the per-trial residuals of the trials still kept.
-fn filter_marks(v: &Validation, opts: &IdentifyOptions) -> Vec<(usize, Rejection)> {
-    let mut out = Vec::new();
-    if let Some(k) = opts.imu_k {
-        let sigmas: Vec<TrialStat> = v
-            .per_trial
-            .iter()
-            .map(|p| (0, p.trial, p.sigma_omega))
-            .collect();
-        for r in filters::imu_sway(&sigmas, k) {
-            out.push((
-                r.trial,
-                Rejection {
-                    filter: "imu".into(),
-                    detail: format!(
-                        "σ|ω| = {:.3} rad/s > {k} × median = {:.3} rad/s",
-                        r.statistic, r.threshold
-                    ),
-                    statistic: r.statistic,
-                },
-            ));
-        }
-    }
-    for pass in 1..=opts.sigma_passes {
-        let residuals: Vec<TrialStat> = v
-            .per_trial
-            .iter()
-            .filter(|p| !out.iter().any(|(t, _)| *t == p.trial))
-            .map(|p| (0, p.trial, p.measured_w - p.predicted_w))
-            .collect();
-        let rejected = filters::three_sigma(&residuals, opts.n_sigma, pass);
-        if rejected.is_empty() {
-            break;
-        }
-        for r in rejected {
-            out.push((
-                r.trial,
-                Rejection {
-                    filter: "3sigma".into(),
-                    detail: format!(
-                        "pass {pass}: residual {:+.2} W beyond {} σ̂ = {:.2} W",
-                        r.statistic, opts.n_sigma, r.threshold
-                    ),
-                    statistic: r.statistic,
-                },
-            ));
-        }
-    }
-    out
 }
 
 /// Replay extras of a diagnosis: measured vs before/after predictions per reading, and the trials
@@ -179,11 +121,8 @@ pub fn diagnosis_extras(d: &crate::diagnose::Diagnosis) -> ReplayExtras {
             t_start: h.t_start,
             t_end: h.t_end,
             label: format!("trial {}", h.trial),
-            rejected: Some(Rejection {
-                filter: "diagnosis".into(),
-                detail: h.reason.clone(),
-                statistic: f64::NAN,
-            }),
+            rejected: None,
+            highlight: Some(h.reason.clone()),
         })
         .collect();
     ReplayExtras {

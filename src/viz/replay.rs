@@ -97,17 +97,6 @@ pub struct TermSeries {
     pub interaction: Vec<f64>,
 }
 
-/// Why a trial was rejected.
-#[derive(Debug, Clone)]
-pub struct Rejection {
-    /// Filter name, e.g. `"imu"` or `"3sigma"`.
-    pub filter: String,
-    /// Human-readable statistic, e.g. `"σ|ω| = 0.41 rad/s > 2.5 × median 0.12"`.
-    pub detail: String,
-    /// The statistic's value.
-    pub statistic: f64,
-}
-
 /// A trial's time window and status.
 #[derive(Debug, Clone)]
 pub struct TrialMark {
@@ -120,7 +109,9 @@ pub struct TrialMark {
     /// Free text shown in the log (joints moved, speed…).
     pub label: String,
     /// Set when a filter rejected the trial.
-    pub rejected: Option<Rejection>,
+    pub rejected: Option<crate::trial::Rejection>,
+    /// Set when a diagnosis located its mismatch in the trial: why.
+    pub highlight: Option<String>,
 }
 
 /// Diagnosis overlay: the power prediction before and after adding the accepted hypotheses.
@@ -810,18 +801,21 @@ fn log_trials(w: &mut ChunkWriter<'_>, prefix: &str, trials: &[TrialMark]) -> Re
     let t: Vec<f64> = order.iter().map(|m| m.t_start).collect();
     let texts: Vec<String> = order
         .iter()
-        .map(|m| match &m.rejected {
-            Some(r) => format!(
-                "trial {}: REJECTED by {} ({}, statistic {:.4}) {}",
-                m.index, r.filter, r.detail, r.statistic, m.label
+        .map(|m| match (&m.rejected, &m.highlight) {
+            (Some(r), _) => format!(
+                "trial {}: REJECTED by {} ({r}) {}",
+                m.index,
+                r.reason.name(),
+                m.label
             ),
-            None => format!("trial {}: {}", m.index, m.label),
+            (None, Some(why)) => format!("trial {}: {why} {}", m.index, m.label),
+            (None, None) => format!("trial {}: {}", m.index, m.label),
         })
         .collect();
     let levels: Vec<TextLogLevel> = order
         .iter()
         .map(|m| {
-            if m.rejected.is_some() {
+            if m.rejected.is_some() || m.highlight.is_some() {
                 TextLogLevel::WARN.into()
             } else {
                 TextLogLevel::INFO.into()
@@ -838,7 +832,10 @@ fn log_trials(w: &mut ChunkWriter<'_>, prefix: &str, trials: &[TrialMark]) -> Re
     for (band, keep) in [("active", false), ("rejected", true)] {
         let mut bt = Vec::new();
         let mut bv = Vec::new();
-        for m in order.iter().filter(|m| !keep || m.rejected.is_some()) {
+        for m in order
+            .iter()
+            .filter(|m| !keep || m.rejected.is_some() || m.highlight.is_some())
+        {
             bt.extend([m.t_start, m.t_start, m.t_end, m.t_end]);
             bv.extend([0.0, 1.0, 1.0, 0.0]);
         }

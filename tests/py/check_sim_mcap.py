@@ -4,7 +4,8 @@
 fields must hold physically plausible values that agree with the truth sidecar.
 
 Usage: check_sim_mcap.py SESSION.mcap SESSION.truth.json
-Exit code 0 = all checks passed; 2 = the python modules are missing; 1 = a check failed.
+Exit code 0 = all checks passed; 3 = the python modules are missing; 1 = a check failed
+(python itself exits with 2 when it cannot open the script: that must not read as a skip).
 """
 import json
 import sys
@@ -14,7 +15,7 @@ try:
     from mcap_ros2.decoder import DecoderFactory
 except ImportError as e:  # the Rust test skips on this exit code
     print(f"missing python module: {e}", file=sys.stderr)
-    sys.exit(2)
+    sys.exit(3)
 
 
 def main(path, truth_path):

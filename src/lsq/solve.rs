@@ -17,15 +17,50 @@ use anyhow::{Result, anyhow, bail, ensure};
 use nalgebra::{DMatrix, DVector};
 
 use crate::N_PARAMS;
-use crate::power::PowerModel;
 
 /// Which solver to use.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Method {
     /// clarabel interior-point QP.
     Clarabel,
     /// Exact active-set bounded-variable least squares (this module's own implementation).
     Bvls,
+}
+
+impl Method {
+    /// `clarabel` or `bvls`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Clarabel => "clarabel",
+            Method::Bvls => "bvls",
+        }
+    }
+}
+
+impl std::fmt::Display for Method {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// How a solver finished (only finishes that leave a usable solution; anything else is an error).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub enum Status {
+    /// Converged to the requested accuracy.
+    Solved,
+    /// Converged to the reduced accuracy clarabel accepts.
+    AlmostSolved,
+    /// Stopped at the iteration limit with primal and dual residuals below 1e-6.
+    MaxIterations,
+    /// Stopped for lack of progress with primal and dual residuals below 1e-6.
+    InsufficientProgress,
+}
+
+impl std::fmt::Display for Status {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        std::fmt::Debug::fmt(self, f)
+    }
 }
 
 /// A bound-constrained least-squares problem's constraints and regularisation.
@@ -52,12 +87,12 @@ impl Bounds {
 }
 
 /// How the solver ran.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct SolverInfo {
-    /// `"clarabel"` or `"bvls"`.
-    pub method: &'static str,
-    /// Final status as the solver names it (`Solved`, `AlmostSolved`, … for clarabel; `Solved` for BVLS).
-    pub status: String,
+    /// Solver.
+    pub method: Method,
+    /// Final status (`Solved` for BVLS).
+    pub status: Status,
     /// Interior-point iterations (clarabel) or least-squares subproblem solves (BVLS).
     pub iterations: u32,
     /// Wall time of the whole fit including preparation [s].
@@ -93,11 +128,6 @@ impl Fit {
                 self.theta.len()
             )
         })
-    }
-
-    /// The fitted power model (errors if the fit had another number of columns).
-    pub fn model(&self) -> Result<PowerModel> {
-        Ok(PowerModel::from_vector(&self.theta49()?))
     }
 }
 
@@ -163,7 +193,7 @@ pub fn fit_general(
         Method::Clarabel => solve_clarabel(&prep)?,
         Method::Bvls => {
             let (x, free, it) = solve_bvls(&prep.r, &prep.c, &prep.lo, &prep.hi)?;
-            (x, free, "Solved".to_string(), it)
+            (x, free, Status::Solved, it)
         }
     };
     let theta = prep.unscale(&x);
@@ -199,10 +229,7 @@ pub fn fit_general(
         rss,
         n_rows: phi.nrows(),
         solver: SolverInfo {
-            method: match method {
-                Method::Clarabel => "clarabel",
-                Method::Bvls => "bvls",
-            },
+            method,
             status,
             iterations,
             time_s: start.elapsed().as_secs_f64(),
@@ -359,7 +386,7 @@ impl Prepared {
 }
 
 /// clarabel on ½xᵀ(RᵀR)x − (Rᵀc)ᵀx with each finite bound as one row of a nonnegative cone.
-fn solve_clarabel(p: &Prepared) -> Result<(Vec<f64>, Vec<bool>, String, u32)> {
+fn solve_clarabel(p: &Prepared) -> Result<(Vec<f64>, Vec<bool>, Status, u32)> {
     use clarabel::algebra::CscMatrix;
     use clarabel::solver::{
         DefaultSettings, DefaultSolver, IPSolver, SolverStatus, SupportedConeT,
@@ -419,13 +446,18 @@ fn solve_clarabel(p: &Prepared) -> Result<(Vec<f64>, Vec<bool>, String, u32)> {
         .map_err(|e| anyhow!("clarabel rejected the problem: {e:?}"))?;
     solver.solve();
     let sol = &solver.solution;
-    match sol.status {
-        SolverStatus::Solved | SolverStatus::AlmostSolved => {}
+    let status = match sol.status {
+        SolverStatus::Solved => Status::Solved,
+        SolverStatus::AlmostSolved => Status::AlmostSolved,
         // Iteration/progress limits still leave a usable point when the gap is already small.
-        SolverStatus::MaxIterations | SolverStatus::InsufficientProgress
-            if sol.r_prim < 1e-6 && sol.r_dual < 1e-6 => {}
+        SolverStatus::MaxIterations if sol.r_prim < 1e-6 && sol.r_dual < 1e-6 => {
+            Status::MaxIterations
+        }
+        SolverStatus::InsufficientProgress if sol.r_prim < 1e-6 && sol.r_dual < 1e-6 => {
+            Status::InsufficientProgress
+        }
         other => bail!("clarabel did not solve the least-squares problem: status {other:?}"),
-    }
+    };
     // A bound is active when its slack is smaller than its multiplier (the interior-point iterate's
     // complementarity pairs s·z → 0 from opposite sides).
     let mut free = vec![true; k];
@@ -436,7 +468,7 @@ fn solve_clarabel(p: &Prepared) -> Result<(Vec<f64>, Vec<bool>, String, u32)> {
             x[j] = if is_lower { p.lo[j] } else { p.hi[j] };
         }
     }
-    Ok((x, free, format!("{:?}", sol.status), sol.iterations))
+    Ok((x, free, status, sol.iterations))
 }
 
 /// Stark–Parker bounded-variable least squares on min ‖R x − c‖, lo ≤ x ≤ hi.

@@ -8,7 +8,7 @@ use nalgebra::{DMatrix, DVector};
 
 /// Minimise ½θᵀGθ − hᵀθ subject to lo ≤ θ ≤ hi (infinite bounds allowed; lo = hi fixes a
 /// variable). G must be symmetric positive definite. Exact (finite active-set iterations, each a Cholesky solve of the free block).
-pub(crate) fn bounded_quadratic(
+pub fn bounded_quadratic(
     g: &DMatrix<f64>,
     h: &DVector<f64>,
     lo: &[f64],
@@ -110,7 +110,7 @@ mod tests {
 
     #[test]
     fn agrees_with_the_identification_bvls_on_random_problems() {
-        use crate::identify::solve::{Bounds, Method, fit_general};
+        use crate::lsq::{Bounds, Method, fit_general};
         use rand::{RngExt, SeedableRng};
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
         for _ in 0..20 {

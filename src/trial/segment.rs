@@ -13,6 +13,7 @@
 //! near a smooth-step boundary the displacement grows quadratically in time, so two samples fix
 //! the instant the reference left (or reached) its idle value.
 
+use super::TrialWindow;
 use crate::N_JOINTS;
 use crate::signals::Recording;
 
@@ -60,31 +61,6 @@ impl Default for SegmentOptions {
     }
 }
 
-/// One trial that fits the protocol. Times in seconds of Recording time (same meaning as the
-/// truth JSON's `t_trial_start_ns`, `t_traj_start_ns`, `t_traj_end_ns`, `t_post_idle_end_ns`,
-/// `t_return_end_ns`).
-#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct Trial {
-    /// Position of the trial in the session (0-based, counting matched trials only).
-    pub index: usize,
-    /// Start of the pre-idle window used for baselines.
-    pub t_pre_start: f64,
-    /// Start of the trajectory (end of the pre-idle).
-    pub t_traj_start: f64,
-    /// End of the trajectory (start of the post-idle).
-    pub t_traj_end: f64,
-    /// End of the post-idle (start of the return).
-    pub t_post_end: f64,
-    /// End of the return home.
-    pub t_return_end: f64,
-    /// Model indices of the joints that moved during the trajectory.
-    pub joints_moved: Vec<usize>,
-    /// Peak commanded joint speed over the trajectory [rad/s] (the speed level); NaN without a command stream.
-    pub qdot_max_cmd: f64,
-    /// Peak measured joint speed over the trajectory [rad/s] (3-sample mean of |q̇|).
-    pub qdot_max_meas: f64,
-}
-
 /// A stretch of the session that does not fit the protocol.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Stretch {
@@ -100,7 +76,7 @@ pub struct Stretch {
 #[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
 pub struct Segmentation {
     /// Trials in time order.
-    pub trials: Vec<Trial>,
+    pub trials: Vec<TrialWindow>,
     /// Stretches with motion that are not trials, each with a reason.
     pub unmatched: Vec<Stretch>,
     /// The stream that was segmented ("command" or "state"; empty when the session has no samples).
@@ -421,7 +397,7 @@ fn match_trials(runs: &[Run], opts: &SegmentOptions) -> Segmentation {
                 }
             )));
         } else {
-            seg.trials.push(Trial {
+            seg.trials.push(TrialWindow {
                 index: seg.trials.len(),
                 t_pre_start: (h.t1 - opts.pre_idle_s).max(h.t0),
                 t_traj_start: h.t1,
@@ -447,7 +423,7 @@ fn describe(body: &[Run]) -> String {
 }
 
 /// Fill joints moved and peak speeds of a matched trial.
-fn describe_trial(rec: &Recording, r: &Reference, trial: &mut Trial, opts: &SegmentOptions) {
+fn describe_trial(rec: &Recording, r: &Reference, trial: &mut TrialWindow, opts: &SegmentOptions) {
     let (a, b) = (trial.t_traj_start, trial.t_traj_end);
     let span = |t: &[f64]| {
         (

@@ -17,22 +17,22 @@ pub struct Metrics {
     /// Number of rows.
     pub n: usize,
     /// Coefficient of determination 1 − SS_res/SS_tot (NaN when y is constant or n = 0).
-    #[serde(with = "nan_as_null")]
+    #[serde(with = "crate::util::nan_as_null")]
     pub r2: f64,
     /// Root-mean-square residual [W].
-    #[serde(with = "nan_as_null")]
+    #[serde(with = "crate::util::nan_as_null")]
     pub rmse: f64,
     /// Mean absolute residual [W].
-    #[serde(with = "nan_as_null")]
+    #[serde(with = "crate::util::nan_as_null")]
     pub mae: f64,
     /// Mean of ŷ − y [W] (negative = under-prediction).
-    #[serde(with = "nan_as_null")]
+    #[serde(with = "crate::util::nan_as_null")]
     pub bias: f64,
     /// Residual skewness m3/m2^{3/2} (NaN when the residuals are constant).
-    #[serde(with = "nan_as_null")]
+    #[serde(with = "crate::util::nan_as_null")]
     pub skewness: f64,
     /// Residual kurtosis m4/m2² (Pearson; 3 for a normal distribution; NaN when the residuals are constant).
-    #[serde(with = "nan_as_null")]
+    #[serde(with = "crate::util::nan_as_null")]
     pub kurtosis: f64,
 }
 
@@ -113,23 +113,5 @@ fn ratio(max: f64, min: f64) -> f64 {
         f64::INFINITY
     } else {
         max / min
-    }
-}
-
-/// Serde for an f64 that may be NaN or infinite: JSON has no such numbers, so they are written as `null`
-/// and `null` reads back as NaN.
-pub(crate) mod nan_as_null {
-    use serde::{Deserialize, Deserializer, Serializer};
-
-    pub fn serialize<S: Serializer>(v: &f64, s: S) -> Result<S::Ok, S::Error> {
-        if v.is_finite() {
-            s.serialize_f64(*v)
-        } else {
-            s.serialize_none()
-        }
-    }
-
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
-        Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
     }
 }

@@ -1,0 +1,155 @@
+//! `g1viz diagnose`: sim-to-real mismatch — where, why, fitted — with a report, diagnosis.json and
+//! an .rrd of before/after.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Result, bail};
+use clap::Args;
+
+use super::{ReadArgs, TargetArg, expand_sessions};
+use g1viz::power::load_model;
+use g1viz::signals::{Recording, join_recordings};
+use g1viz::util::{check_distinct_sessions, check_outputs};
+
+#[derive(Args)]
+pub struct DiagnoseArgs {
+    /// Recording(s) to diagnose: files, bag folders, or folders of recordings. Several sessions
+    /// of one robot are diagnosed as one data set (joined end to end on one clock; each keeps its
+    /// own trials and baselines).
+    #[arg(required = true, value_name = "SESSION")]
+    sessions: Vec<PathBuf>,
+    /// The twin's power model (model.json); without it the model is refitted inside each fold.
+    #[arg(long, value_name = "M")]
+    model: Option<PathBuf>,
+    /// URDF for the torque-level comparison (default: the shipped one).
+    #[arg(long, value_name = "URDF")]
+    urdf: Option<PathBuf>,
+    /// Power sensor.
+    #[arg(long, value_enum, default_value = "mbs")]
+    target: TargetArg,
+    /// Write a markdown report with figures into DIR.
+    #[arg(long, value_name = "DIR")]
+    report: Option<PathBuf>,
+    /// Write the machine-readable diagnosis here.
+    #[arg(long, value_name = "FILE")]
+    json: Option<PathBuf>,
+    /// Write an .rrd with before/after predictions, residuals and the located trials.
+    #[arg(long, value_name = "OUT")]
+    save: Option<PathBuf>,
+    /// Also compare sample by sample with the twin driven by the same commands on the same
+    /// timeline (made with `g1viz simulate --like SESSION -o TWIN`).
+    #[arg(long, value_name = "TWIN")]
+    counterpart: Option<PathBuf>,
+    #[command(flatten)]
+    read: ReadArgs,
+}
+
+/// Diagnose and write what was asked for.
+pub fn run(a: DiagnoseArgs) -> Result<()> {
+    use g1viz::diagnose::{self, DiagnoseOptions};
+    let sessions = expand_sessions(&a.sessions)?;
+    let mut all: Vec<&Path> = sessions.iter().map(PathBuf::as_path).collect();
+    check_distinct_sessions(&all, "its trials would count twice")?;
+    if let Some(c) = &a.counterpart {
+        if sessions.len() > 1 {
+            bail!("--counterpart compares one session with its twin; give one session");
+        }
+        all.push(c);
+        check_distinct_sessions(
+            &all,
+            "the counterpart must be its twin (`g1viz simulate --like`)",
+        )?;
+    }
+    check_outputs(
+        &[
+            ("diagnosis JSON", a.json.as_deref()),
+            ("report folder", a.report.as_deref()),
+            ("Rerun output", a.save.as_deref()),
+        ],
+        &[
+            sessions
+                .iter()
+                .map(|p| Some(p.as_path()))
+                .collect::<Vec<_>>(),
+            vec![
+                a.model.as_deref(),
+                a.counterpart.as_deref(),
+                a.urdf.as_deref(),
+                a.read.signals.as_deref(),
+            ],
+        ]
+        .concat(),
+    )?;
+    let parts = sessions
+        .iter()
+        .map(|p| a.read.load(p))
+        .collect::<Result<Vec<_>>>()?;
+    // Each part starts 5 s after the previous one ends: trials and their baselines stay apart.
+    let rec = join_recordings(parts, 5.0);
+    let opts = DiagnoseOptions {
+        reference: a.model.as_deref().map(load_model).transpose()?,
+        target: a.target.into(),
+        urdf: a.urdf.clone(),
+        ..DiagnoseOptions::default()
+    };
+    let mut d = diagnose::diagnose(&rec, &opts)?;
+    if let Some(p) = &a.counterpart {
+        let twin = a.read.load(p)?;
+        d.attach_counterpart(diagnose::counterpart::compare(&rec, &twin, &d)?);
+    }
+    println!("{}", d.summary);
+    if let Some(p) = &a.json {
+        d.save_json(p)?;
+        println!("wrote {}", p.display());
+    }
+    if let Some(dir) = &a.report {
+        diagnose::report::write_report(dir, &d)?;
+        println!("wrote {}", dir.join("report.md").display());
+    }
+    if let Some(out) = &a.save {
+        save_diagnosis_rrd(&rec, &a, &sessions, &d, out)?;
+        println!("wrote {}", out.display());
+    }
+    Ok(())
+}
+
+#[cfg(feature = "viz")]
+fn save_diagnosis_rrd(
+    rec: &Recording,
+    a: &DiagnoseArgs,
+    sessions: &[PathBuf],
+    d: &g1viz::diagnose::Diagnosis,
+    out: &Path,
+) -> Result<()> {
+    use g1viz::robot::RobotModel;
+    use g1viz::viz::{self, Sink};
+    let robot = RobotModel::load(a.urdf.as_deref())?;
+    let arm = robot.arm(&rec.joint_names)?;
+    let extras = viz::overlay::diagnosis_extras(d);
+    let stream = viz::open_stream(
+        "g1viz",
+        &viz::recording_id_for(rec),
+        &Sink::Save(out.to_path_buf()),
+        &sessions.iter().map(PathBuf::as_path).collect::<Vec<_>>(),
+    )?;
+    viz::replay::log_replay(
+        rec,
+        &robot,
+        &arm,
+        &extras,
+        &Default::default(),
+        stream.stream(),
+    )?;
+    stream.finish()
+}
+
+#[cfg(not(feature = "viz"))]
+fn save_diagnosis_rrd(
+    _: &Recording,
+    _: &DiagnoseArgs,
+    _: &[PathBuf],
+    _: &g1viz::diagnose::Diagnosis,
+    _: &Path,
+) -> Result<()> {
+    bail!("--save needs the `viz` feature (Rerun output); rebuild with default features")
+}

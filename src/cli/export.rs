@@ -1,0 +1,84 @@
+//! `g1viz export rows`: the per-reading rows of one or more sessions as a Parquet table, for
+//! DataFusion / DuckDB / Polars across sessions and robots (`identify --rows` fits from it).
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Result;
+use clap::{Args, Subcommand};
+
+use super::{FitArgs, ReadArgs, expand_sessions};
+use g1viz::util::{check_distinct_sessions, check_outputs};
+
+/// What to export.
+#[derive(Args)]
+pub struct ExportArgs {
+    #[command(subcommand)]
+    what: ExportWhat,
+}
+
+#[derive(Subcommand)]
+enum ExportWhat {
+    /// Per-reading rows (regressors, net power, trial/session/robot, temperatures, filter flags)
+    /// as Parquet.
+    Rows(RowsArgs),
+}
+
+#[derive(Args)]
+struct RowsArgs {
+    /// Session(s): files, bag folders, or folders of recordings.
+    #[arg(required = true, value_name = "SESSION")]
+    sessions: Vec<PathBuf>,
+    /// The Parquet file to write.
+    #[arg(short, long, value_name = "FILE")]
+    output: PathBuf,
+    /// Robot name written in every row (default: the first session's folder name).
+    #[arg(long, value_name = "NAME")]
+    robot: Option<String>,
+    #[command(flatten)]
+    fit: FitArgs,
+    #[command(flatten)]
+    read: ReadArgs,
+}
+
+/// Run the export.
+pub fn run(a: ExportArgs) -> Result<()> {
+    match a.what {
+        ExportWhat::Rows(r) => rows(r),
+    }
+}
+
+fn rows(a: RowsArgs) -> Result<()> {
+    let sessions = expand_sessions(&a.sessions)?;
+    let paths: Vec<&Path> = sessions.iter().map(PathBuf::as_path).collect();
+    check_distinct_sessions(&paths, "its rows would count twice")?;
+    let mut inputs: Vec<Option<&Path>> = paths.iter().map(|p| Some(*p)).collect();
+    inputs.push(a.read.signals.as_deref());
+    check_outputs(&[("row table", Some(&a.output))], &inputs)?;
+    let recs = paths
+        .iter()
+        .map(|p| a.read.load(p))
+        .collect::<Result<Vec<_>>>()?;
+    // The identification decides the sensor timing and which trials its filters reject.
+    let id = g1viz::identify::identify(&recs, &a.fit.options())?;
+    let robot = a.robot.clone().unwrap_or_else(|| {
+        sessions[0]
+            .canonicalize()
+            .ok()
+            .and_then(|p| {
+                p.parent()?
+                    .file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+            })
+            .unwrap_or_else(|| "robot".into())
+    });
+    let table = g1viz::rows::table_rows(&recs, &id, &robot);
+    g1viz::rows::write_parquet(&a.output, &table)?;
+    let rejected = table.iter().filter(|r| r.rejected_by.is_some()).count();
+    println!(
+        "wrote {} ({} rows of {} sessions, robot {robot}; {rejected} rows in rejected trials, flagged)",
+        a.output.display(),
+        table.len(),
+        sessions.len()
+    );
+    Ok(())
+}

@@ -1,0 +1,260 @@
+//! The command line's shared pieces: the top-level parser, the subcommand list, the options
+//! several subcommands share (reading a session, fitting a model) and value parsers. Each
+//! subcommand lives in its own module with its arguments and one `run` function; the work itself
+//! is library code.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use clap::{Args, Parser, Subcommand, ValueEnum};
+
+use g1viz::identify::{Alignment, AlignmentChoice, IdentifyOptions, Mode, Target};
+use g1viz::read::OpenOptions;
+use g1viz::signals::{Recording, SignalMap, load_recording};
+use g1viz::trial::Cascade;
+
+pub mod diagnose;
+pub mod export;
+pub mod identify;
+pub mod info;
+pub mod replay;
+pub mod simulate;
+pub mod validate;
+
+const EXAMPLES: &str = "\
+Examples:
+  g1viz info examples/g1_example.mcap
+  g1viz replay examples/g1_example.mcap --save example.rrd
+  g1viz replay session.mcap --urdf ../shared/g1_description/g1_29dof_with_hand_rev_1_0.urdf --spawn
+  g1viz identify smoke.mcap -o model.json --report report/
+  g1viz validate --model model.json holdout.mcap
+  g1viz replay holdout.mcap --model model.json --save holdout.rrd
+  g1viz simulate --preset smoke --seed 1 -o sim.mcap --effect braking=0.3
+  g1viz simulate --like session.mcap -o twin.mcap
+  g1viz diagnose session.mcap --model model.json --report diag/ --save diag.rrd
+  g1viz diagnose session.mcap --model model.json --counterpart twin.mcap
+  g1viz export rows robot_a/ robot_b/ -o rows.parquet
+  g1viz identify --rows rows.parquet -o model.json";
+
+/// Replay, identify and diagnose the electrical power of the Unitree G1 arm.
+#[derive(Parser)]
+#[command(name = "g1viz", version, about, after_help = EXAMPLES)]
+pub struct Cli {
+    /// The subcommand.
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand)]
+pub enum Command {
+    /// Print what a recording holds: topics, types, counts, rates, time range and the resolved arm signals.
+    Info(info::InfoArgs),
+    /// Replay a session in the Rerun viewer (or to an .rrd file): animated arm, joint signals, power,
+    /// and with --model the identified model's prediction and loss terms.
+    Replay(replay::ReplayArgs),
+    /// Identify the 49-parameter arm power model from one or more sessions (writes model.json).
+    Identify(identify::IdentifyArgs),
+    /// Validate a model on a hold-out session.
+    Validate(validate::ValidateArgs),
+    /// Simulate a session with the digital twin (MCAP + truth JSON), optionally with concealed effects.
+    Simulate(simulate::SimulateArgs),
+    /// Diagnose sim-to-real mismatch: locate it, name the missing physics, model it.
+    Diagnose(diagnose::DiagnoseArgs),
+    /// Export data for other tools: `export rows` writes the per-reading rows as Parquet.
+    Export(export::ExportArgs),
+}
+
+/// Options for reading a session, shared by every subcommand that reads one.
+#[derive(Args, Clone)]
+pub struct ReadArgs {
+    /// Signal mapping override (TOML: topics, field paths, scales; e.g. `arm = "right"`).
+    #[arg(long, value_name = "FILE")]
+    pub signals: Option<PathBuf>,
+    /// Folder with .msg definitions for bags that do not carry them (repeatable).
+    #[arg(long = "msg-path", value_name = "DIR")]
+    pub msg_paths: Vec<PathBuf>,
+}
+
+impl ReadArgs {
+    pub fn open_options(&self) -> OpenOptions {
+        OpenOptions {
+            msg_paths: self.msg_paths.clone(),
+        }
+    }
+
+    pub fn signal_map(&self) -> Result<SignalMap> {
+        match &self.signals {
+            Some(path) => SignalMap::from_toml_file(path),
+            None => Ok(SignalMap::g1_left_arm()),
+        }
+    }
+
+    pub fn load(&self, path: &Path) -> Result<Recording> {
+        let rec = load_recording(path, &self.signal_map()?, &self.open_options())
+            .with_context(|| format!("reading {}", path.display()))?;
+        for w in &rec.warnings {
+            eprintln!("warning: {w}");
+        }
+        Ok(rec)
+    }
+}
+
+/// Power sensor used as the regression target.
+#[derive(Clone, Copy, ValueEnum)]
+pub enum TargetArg {
+    /// Main-board sensor (arm/upper-body rail; the paper's choice).
+    Mbs,
+    /// Battery management system (whole robot).
+    Bms,
+}
+
+impl From<TargetArg> for Target {
+    fn from(t: TargetArg) -> Target {
+        match t {
+            TargetArg::Mbs => Target::Mbs,
+            TargetArg::Bms => Target::Bms,
+        }
+    }
+}
+
+/// How power readings are paired with the kinematics.
+#[derive(Clone, Copy, ValueEnum)]
+pub enum ModeArg {
+    /// One row per power reading, regressors averaged over the reading's own window (default).
+    Reading,
+    /// One row per trajectory (the paper's aggregation).
+    Trial,
+    /// One row per 100 Hz sample with the reading held (degenerate; for comparison).
+    Sample,
+}
+
+/// Identification/validation options shared by identify, validate and replay --model.
+#[derive(Args, Clone)]
+pub struct FitArgs {
+    /// Power sensor to model.
+    #[arg(long, value_enum, default_value = "mbs")]
+    target: TargetArg,
+    /// Row pairing.
+    #[arg(long, value_enum, default_value = "reading")]
+    mode: ModeArg,
+    /// IMU balance-contamination filter: reject trials with σ(|ω|) > K × median.
+    #[arg(long, value_name = "K", default_value_t = 2.5, value_parser = positive)]
+    imu_threshold: f64,
+    /// Switch the IMU filter off.
+    #[arg(long)]
+    no_imu_filter: bool,
+    /// Passes of n·σ residual rejection (0 = off).
+    #[arg(long, default_value_t = 2)]
+    sigma_passes: usize,
+    /// Width of the residual rejection in σ.
+    #[arg(long, default_value_t = 3.0, value_parser = positive)]
+    n_sigma: f64,
+    /// Power-sensor averaging window [s] (default: estimated from the data together with the lag).
+    #[arg(long, value_name = "SECONDS", value_parser = positive, requires = "lag")]
+    window: Option<f64>,
+    /// Power-sensor lag [s] (with --window).
+    #[arg(long, value_name = "SECONDS", requires = "window", allow_hyphen_values = true, value_parser = finite)]
+    lag: Option<f64>,
+}
+
+impl FitArgs {
+    pub fn options(&self) -> IdentifyOptions {
+        IdentifyOptions {
+            target: self.target.into(),
+            mode: match self.mode {
+                ModeArg::Reading => Mode::Reading,
+                ModeArg::Trial => Mode::Trial,
+                ModeArg::Sample => Mode::Sample,
+            },
+            filters: Cascade {
+                imu_k: (!self.no_imu_filter).then_some(self.imu_threshold),
+                passes: self.sigma_passes,
+                n_sigma: self.n_sigma,
+                ..Cascade::default()
+            },
+            alignment: match (self.window, self.lag) {
+                (Some(window_s), Some(lag_s)) => {
+                    AlignmentChoice::Given(Alignment { window_s, lag_s })
+                }
+                _ => AlignmentChoice::Auto,
+            },
+            ..IdentifyOptions::default()
+        }
+    }
+}
+
+/// A finite number > 0 (clap value parser).
+pub fn positive(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        _ => Err(format!("{s:?} is not a finite number > 0")),
+    }
+}
+
+/// A finite number (clap value parser).
+pub fn finite(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() => Ok(v),
+        _ => Err(format!("{s:?} is not a finite number")),
+    }
+}
+
+/// A finite number ≥ 0 (clap value parser).
+pub fn non_negative(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v >= 0.0 => Ok(v),
+        _ => Err(format!("{s:?} is not a finite number ≥ 0")),
+    }
+}
+
+/// A motor winding temperature a robot can start a session at [°C] (clap value parser).
+pub fn winding_temperature(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if (-40.0..=150.0).contains(&v) => Ok(v),
+        _ => Err(format!("{s:?} is not a temperature between -40 and 150 °C")),
+    }
+}
+
+/// The recordings named on the command line: a file or a bag folder as given; any other folder
+/// stands for the recordings inside it (`.mcap` and `.bag` files and bag folders, in name order).
+pub fn expand_sessions(paths: &[PathBuf]) -> Result<Vec<PathBuf>> {
+    let is_bag_dir = |p: &Path| p.join("metadata.yaml").is_file();
+    let mut out = Vec::new();
+    for p in paths {
+        if !p.is_dir() || is_bag_dir(p) {
+            out.push(p.clone());
+            continue;
+        }
+        let mut found: Vec<PathBuf> = std::fs::read_dir(p)
+            .with_context(|| format!("listing {}", p.display()))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|e| {
+                is_bag_dir(e)
+                    || (e.is_file()
+                        && matches!(e.extension().and_then(|x| x.to_str()), Some("mcap" | "bag")))
+            })
+            .collect();
+        if found.is_empty() {
+            anyhow::bail!(
+                "{}: a folder with no recordings in it (.mcap, .bag or ROS 2 bag folders)",
+                p.display()
+            );
+        }
+        found.sort();
+        out.extend(found);
+    }
+    Ok(out)
+}
+
+/// Run the parsed command.
+pub fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Info(a) => info::run(a),
+        Command::Replay(a) => replay::run(a),
+        Command::Identify(a) => identify::run(a),
+        Command::Validate(a) => validate::run(a),
+        Command::Simulate(a) => simulate::run(a),
+        Command::Diagnose(a) => diagnose::run(a),
+        Command::Export(a) => export::run(a),
+    }
+}

@@ -1,0 +1,105 @@
+//! The least-squares steps identification applies to its rows: the paper's constrained fit of
+//! any number of rows, fit quality, κ(ΦᵀΦ), per-trial mean residuals and term means.
+
+use anyhow::Result;
+use nalgebra::SymmetricEigen;
+
+use super::dataset::Row;
+use crate::N_PARAMS;
+use crate::lsq::{self, Gram, Metrics};
+use crate::power::{PowerModel, TermMeans};
+use crate::trial::TrialStat;
+
+/// θᵀφ.
+pub(crate) fn predict(theta: &[f64; N_PARAMS], phi: &[f64; N_PARAMS]) -> f64 {
+    theta.iter().zip(phi).map(|(t, v)| t * v).sum()
+}
+
+/// Normal equations of the rows.
+fn gram(rows: &[Row]) -> Gram {
+    let mut g = Gram::zeros(N_PARAMS);
+    for row in rows {
+        g.add_row(&row.phi, row.y);
+    }
+    g
+}
+
+/// κ(ΦᵀΦ) of the rows' raw (unscaled) regressors; ∞ when singular.
+pub fn kappa(rows: &[Row]) -> f64 {
+    gram(rows).condition_number()
+}
+
+/// The paper's constrained fit (a ≥ 1, the rest ≥ 0) of any number of rows. Large row sets are
+/// first compressed to 49 rows with the same normal equations (ΦᵀΦ = RᵀR, Φᵀy = Rᵀz from the
+/// eigen-decomposition), which leaves the least-squares objective unchanged up to a constant
+/// (standard errors of a compressed fit are meaningless; only the degenerate sample-row
+/// comparison is that large).
+pub(crate) fn fit_rows(rows: &[Row]) -> Result<lsq::Fit> {
+    const COMPRESS_ABOVE: usize = 20_000;
+    let lower = lsq::paper_lower_bounds();
+    if rows.len() <= COMPRESS_ABOVE {
+        let phi: Vec<[f64; N_PARAMS]> = rows.iter().map(|r| r.phi).collect();
+        let y: Vec<f64> = rows.iter().map(|r| r.y).collect();
+        return lsq::fit_constrained(&phi, &y, &lower);
+    }
+    let normal = gram(rows);
+    let eig = SymmetricEigen::new(normal.g.clone());
+    let cutoff = eig.eigenvalues.max().max(0.0) * 1e-14;
+    let mut phi = Vec::with_capacity(N_PARAMS);
+    let mut y = Vec::with_capacity(N_PARAMS);
+    for (k, &lambda) in eig.eigenvalues.iter().enumerate() {
+        if lambda <= cutoff {
+            continue;
+        }
+        let v = eig.eigenvectors.column(k);
+        let s = lambda.sqrt();
+        phi.push(std::array::from_fn(|p| s * v[p]));
+        y.push(
+            v.iter()
+                .zip(normal.h.iter())
+                .map(|(a, b)| a * b)
+                .sum::<f64>()
+                / s,
+        );
+    }
+    lsq::fit_constrained(&phi, &y, &lower)
+}
+
+/// Fit quality of θ on the rows.
+pub(crate) fn quality(theta: &[f64; N_PARAMS], rows: &[Row]) -> Metrics {
+    let y: Vec<f64> = rows.iter().map(|r| r.y).collect();
+    let yhat: Vec<f64> = rows.iter().map(|r| predict(theta, &r.phi)).collect();
+    Metrics::compute(&y, &yhat)
+}
+
+/// Mean residual per (session, trial) of the rows of each session (rows grouped by trial).
+pub(crate) fn trial_residuals(theta: &[f64; N_PARAMS], sets: &[(usize, &[Row])]) -> Vec<TrialStat> {
+    let mut out: Vec<TrialStat> = Vec::new();
+    let mut count = 0usize;
+    for &(session, rows) in sets {
+        for row in rows {
+            let r = row.y - predict(theta, &row.phi);
+            match out.last_mut() {
+                Some(last) if last.session == session && last.trial == row.trial => {
+                    count += 1;
+                    last.value += (r - last.value) / count as f64;
+                }
+                _ => {
+                    out.push(TrialStat::new(session, row.trial, r));
+                    count = 1;
+                }
+            }
+        }
+    }
+    out
+}
+
+/// Mean term contributions of a model over rows (the model is linear, so the breakdown of an
+/// averaged row is the mean of its samples' breakdowns).
+pub fn term_means(model: &PowerModel, rows: &[Row]) -> TermMeans {
+    let mut means = TermMeans::default();
+    for row in rows {
+        means.add(&model.breakdown_from_regressor(&row.phi));
+    }
+    means
+}

@@ -1,0 +1,130 @@
+//! Plain-text summaries of an identification and a validation for the terminal.
+
+use super::pipeline::{Identification, SessionSummary};
+use super::validate::Validation;
+use crate::lsq::Metrics;
+use crate::power::{LossTerm, TERM_NAMES};
+
+fn metrics_line(label: &str, m: &Metrics) -> String {
+    format!(
+        "{label}: n {}, R² {:.4}, RMSE {:.3} W, MAE {:.3} W, bias {:+.3} W, skewness {:.2}, kurtosis {:.2}",
+        m.n, m.r2, m.rmse, m.mae, m.bias, m.skewness, m.kurtosis
+    )
+}
+
+fn shares_line(shares: &[f64; 5]) -> String {
+    let parts: Vec<String> = TERM_NAMES
+        .iter()
+        .zip(shares)
+        .map(|(name, v)| format!("{name} {v:.1} %"))
+        .collect();
+    format!("term shares: {}", parts.join(", "))
+}
+
+fn segmentation_lines(out: &mut Vec<String>, s: &SessionSummary) {
+    out.push(format!(
+        "{}: {} trials ({} stream), {} stretches not matching the protocol",
+        s.source.display(),
+        s.segmentation.trials.len(),
+        s.segmentation.source,
+        s.segmentation.unmatched.len()
+    ));
+    out.extend(
+        s.segmentation
+            .unmatched
+            .iter()
+            .map(|u| format!("  {:.2}–{:.2} s: {}", u.t0, u.t1, u.reason)),
+    );
+    out.extend(
+        s.skipped
+            .iter()
+            .map(|k| format!("  trial {} skipped: {}", k.trial, k.reason)),
+    );
+}
+
+impl Identification {
+    /// Plain-text summary for the terminal: sessions and segmentation, rejected trials, sensor
+    /// timing, fit quality, the row-pairing comparison, dominant terms and term shares.
+    pub fn summary(&self) -> String {
+        let mut out = Vec::new();
+        for s in &self.sessions {
+            segmentation_lines(&mut out, s);
+        }
+        out.extend(self.rejections.iter().map(|r| format!("rejected {r}")));
+        out.push(format!(
+            "power readings = averages over [t − {:.3} s − {:.3} s, t − {:.3} s]{}",
+            self.alignment.lag_s,
+            self.alignment.window_s,
+            self.alignment.lag_s,
+            if self.alignment_estimate.is_some() {
+                " (estimated)"
+            } else {
+                ""
+            }
+        ));
+        out.push(format!(
+            "{} trials used, target {}, {} rows",
+            self.trials_used,
+            self.options.target.name(),
+            self.options.mode.name()
+        ));
+        out.push(metrics_line("fit", &self.fit));
+        if self.fit.n < crate::N_PARAMS {
+            out.push(format!(
+                "warning: {} rows for {} parameters — the model is not identifiable from these \
+                 sessions (record more trials); the fit is one of many that match them",
+                self.fit.n,
+                crate::N_PARAMS
+            ));
+        }
+        out.push(metrics_line(
+            "trial level (like for like)",
+            &self.trial_level_aligned,
+        ));
+        out.push(metrics_line(
+            "trial level (paper: whole-window regressors)",
+            &self.trial_level,
+        ));
+        out.extend(self.modes.iter().map(|m| {
+            format!(
+                "{:>7} rows: n {:>7}, κ(ΦᵀΦ) {:.3e}, R² {:.4}",
+                m.mode.name(),
+                m.quality.n,
+                m.kappa,
+                m.quality.r2
+            )
+        }));
+        let dominant: Vec<String> = self
+            .dominant
+            .iter()
+            .enumerate()
+            .map(|(j, d)| format!("{j}: {}", d.map_or("none", LossTerm::name)))
+            .collect();
+        out.push(format!("dominant term per joint: {}", dominant.join(", ")));
+        out.push(shares_line(&self.shares_percent));
+        out.join("\n")
+    }
+}
+
+impl Validation {
+    /// Plain-text summary for the terminal: segmentation, metrics at reading and trial level,
+    /// term shares.
+    pub fn summary(&self) -> String {
+        let mut out = Vec::new();
+        segmentation_lines(&mut out, &self.session);
+        out.push(metrics_line("per reading", &self.reading_level));
+        out.push(metrics_line(
+            "per trial (like for like)",
+            &self.trial_level_aligned,
+        ));
+        if let Some(m) = &self.trial_level_aligned_imu_kept {
+            out.push(metrics_line("per trial, IMU-calm trials only", m));
+        }
+        out.push(metrics_line(
+            "per trial (paper: whole-window regressors)",
+            &self.trial_level,
+        ));
+        out.push(shares_line(&self.shares_percent));
+        out.join("\n")
+    }
+}
