@@ -837,7 +837,7 @@ fn show_found(d: &mut Diagnosis, f: &RowFields, rows: &Rows, metas: &[TrialMeta]
         }
         d.replay.highlighted.push(HighlightedTrial {
             trial: w.index,
-            t_start: w.t_traj,
+            t_start: w.t_traj_start,
             t_end: w.t_return_end,
             reason: format!(
                 "carries what was found beyond the library ({}): held-out squared error −{g:.2} W²",
@@ -879,8 +879,10 @@ fn run_fields(
         .map(|(r, &t)| (window(t), r))
         .collect();
     for (ti, m) in metas.iter().enumerate() {
-        let lo = power.t.partition_point(|&x| x < m.window.t_pre + w);
-        let hi = power.t.partition_point(|&x| x < m.window.t_traj + 1e-9);
+        let lo = power.t.partition_point(|&x| x < m.window.t_pre_start + w);
+        let hi = power
+            .t
+            .partition_point(|&x| x < m.window.t_traj_start + 1e-9);
         for k in lo..hi.max(lo) {
             if power.watts.get(k).is_some_and(|v| v.is_finite()) {
                 all.push((window(power.t[k]), rows.len() + ti));
