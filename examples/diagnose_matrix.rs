@@ -7,8 +7,9 @@
 //! cargo run --release --no-default-features --example diagnose_matrix -- [--parts N] [--report DIR] [CASE…]
 //! ```
 //! Cases: null, thermal, thermal_refit, braking, bus_loss, latency, payload, gear_friction,
-//! drive_loss, stribeck, balance_leak, braking+latency, bus_loss+payload, harness, harness15
-//! (default: all). `--parts N` joins N smoke sessions (≈ 24 trials each) for every case
+//! drive_loss, stribeck, balance_leak, braking+latency, bus_loss+payload, harness, harness15,
+//! and the forms that differ from every fitted one: bus_power, electronics_nm, joint_friction,
+//! housing_friction, fan_load (default: all). `--parts N` joins N smoke sessions (≈ 24 trials each) for every case
 //! instead of the case's own count (3, or 6 for the faint effects).
 
 use std::path::PathBuf;
@@ -27,9 +28,14 @@ struct Case {
     truth: &'static [(&'static str, &'static str, f64)],
     /// Winding temperature at the start of each part (cycled over the parts).
     t_start_c: &'static [f64],
+    /// Housing temperature at the start of each part (cycled; empty: settled with the winding).
+    housing_c: &'static [f64],
     seeds: &'static [u64],
     /// Smoke sessions joined per seed (`--parts` overrides): faint effects need more trials.
     parts: u64,
+    /// Effects outside the library: (recorded field the discovered term must follow, "" for a
+    /// base-term correction; true parameter of the matching form).
+    found: &'static [(&'static str, f64)],
 }
 
 const CASES: &[Case] = &[
@@ -38,48 +44,60 @@ const CASES: &[Case] = &[
         effects: &[],
         truth: &[],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 3,
         seeds: &[11, 12, 13, 14, 15],
+        found: &[],
     },
     Case {
         name: "thermal",
         effects: &["thermal=0.00393"],
         truth: &[("thermal", "α", 0.00393)],
         t_start_c: &[70.0],
+        housing_c: &[],
         parts: 3,
         seeds: &[3, 6, 7],
+        found: &[],
     },
     Case {
         name: "braking",
         effects: &["braking=0.25"],
         truth: &[("braking", "r", 0.25)],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 6,
         seeds: &[3, 6, 7],
+        found: &[],
     },
     Case {
         name: "bus_loss",
         effects: &["bus_loss=0.05"],
         truth: &[("bus_loss", "R_bus", 0.05)],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 3,
         seeds: &[3, 6, 7],
+        found: &[],
     },
     Case {
         name: "latency",
         effects: &["latency=0.3"],
         truth: &[("latency", "L", 0.3)],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 3,
         seeds: &[3, 6, 7],
+        found: &[],
     },
     Case {
         name: "payload",
         effects: &["payload=0.5"],
         truth: &[("payload", "m", 0.5)],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 3,
         seeds: &[3, 6, 7],
+        found: &[],
     },
     Case {
         name: "thermal_refit",
@@ -88,72 +106,142 @@ const CASES: &[Case] = &[
         // A refitted b_i absorbs a constant temperature offset; parts started at different
         // temperatures make the drift identifiable without the twin.
         t_start_c: &[30.0, 50.0, 70.0],
+        housing_c: &[],
         parts: 6,
         seeds: &[3, 6, 7],
+        found: &[],
     },
     Case {
         name: "gear_friction",
         effects: &["gear_friction=0.15"],
         truth: &[("gear_friction", "μ", 0.15)],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 6,
         seeds: &[3, 6, 7],
+        found: &[],
     },
     Case {
         name: "drive_loss",
         effects: &["drive_loss=0.5"],
         truth: &[("drive_loss", "V_drop", 0.5)],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 3,
         seeds: &[3, 6, 7],
+        found: &[],
     },
     Case {
         name: "stribeck",
         effects: &["stribeck=10"],
         truth: &[("stribeck", "F_s", 10.0)],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 6,
         seeds: &[3, 6, 7],
+        found: &[],
     },
     Case {
         name: "balance_leak",
         effects: &["balance_leak"],
         truth: &[("balance_leak", "k_leak", 500.0 / 9.0)],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 6,
         seeds: &[3, 6, 7],
+        found: &[],
     },
     Case {
         name: "braking+latency",
         effects: &["braking=0.25", "latency=0.3"],
         truth: &[("braking", "r", 0.25), ("latency", "L", 0.3)],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 3,
         seeds: &[4, 9],
+        found: &[],
     },
     Case {
         name: "bus_loss+payload",
         effects: &["bus_loss=0.05", "payload=0.5"],
         truth: &[("bus_loss", "R_bus", 0.05), ("payload", "m", 0.5)],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 3,
         seeds: &[4, 9],
+        found: &[],
     },
     Case {
         name: "harness",
         effects: &["harness_drag=4"],
         truth: &[],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 3,
         seeds: &[5, 8],
+        found: &[],
     },
     Case {
         name: "harness15",
         effects: &["harness_drag=15"],
         truth: &[],
         t_start_c: &[30.0],
+        housing_c: &[],
         parts: 3,
         seeds: &[5, 8],
+        found: &[],
+    },
+    Case {
+        name: "bus_power",
+        effects: &["bus_power=10"],
+        truth: &[("bus_power", "R_bus", 10.0)],
+        t_start_c: &[30.0],
+        housing_c: &[],
+        parts: 3,
+        seeds: &[3, 6],
+        found: &[],
+    },
+    Case {
+        name: "electronics_nm",
+        effects: &["electronics_nm=0.5"],
+        truth: &[("electronics_nm", "k_el", 0.5)],
+        t_start_c: &[30.0],
+        housing_c: &[],
+        parts: 3,
+        seeds: &[3, 6],
+        found: &[],
+    },
+    Case {
+        name: "joint_friction",
+        effects: &["joint_friction=1"],
+        truth: &[],
+        t_start_c: &[30.0],
+        housing_c: &[],
+        parts: 3,
+        seeds: &[3, 6],
+        found: &[("", 1.0)],
+    },
+    Case {
+        name: "housing_friction",
+        effects: &["housing_friction=0.05"],
+        truth: &[],
+        // Windings and housings started at unrelated temperatures (a motor worked hard just
+        // before has a hot winding in a cool housing), so the two can be told apart.
+        t_start_c: &[30.0, 50.0, 70.0],
+        housing_c: &[50.0, 30.0, 40.0, 35.0],
+        parts: 6,
+        seeds: &[3, 6],
+        found: &[("temperature[1]", 0.05)],
+    },
+    Case {
+        name: "fan_load",
+        effects: &["fan_load=3"],
+        truth: &[],
+        t_start_c: &[30.0],
+        housing_c: &[],
+        parts: 3,
+        seeds: &[3, 6],
+        found: &[("fan_state[1]", 3.0)],
     },
 ];
 
@@ -162,8 +250,9 @@ fn session(
     seed: u64,
     parts: u64,
     t_start_c: &[f64],
+    housing_c: &[f64],
     dir: &std::path::Path,
-) -> Result<g1viz::signals::Recording> {
+) -> Result<(g1viz::signals::Recording, Vec<diagnose::FieldSource>)> {
     let mut recs = Vec::new();
     for part in 0..parts {
         let cfg = SimConfig {
@@ -171,6 +260,8 @@ fn session(
             seed: seed * 100 + part,
             effects: *effects,
             t_start_c: t_start_c[part as usize % t_start_c.len()],
+            housing_start_c: (!housing_c.is_empty())
+                .then(|| housing_c[part as usize % housing_c.len()]),
             progress: false,
             ..SimConfig::default()
         };
@@ -182,11 +273,28 @@ fn session(
             &Default::default(),
         )?);
     }
-    Ok(g1viz::signals::join_recordings(recs, 5.0))
+    Ok(diagnose::join_recordings_with_sources(recs, 5.0))
+}
+
+/// A discovered term in a table cell: its formula, the field(s) it follows, its first parameter.
+fn found_cell(t: &diagnose::Discovery) -> String {
+    let field = t.fields.first().map_or(String::new(), |f| {
+        format!(" on {f}{}", if t.fields.len() > 1 { " …" } else { "" })
+    });
+    let p = t.params.first().map_or(String::new(), |p| {
+        format!(", {} = {:.4} ± {:.4}", p.symbol, p.value, p.std_err)
+    });
+    format!("found: {}{field}{p}", t.form)
 }
 
 fn row(case: &Case, seed: u64, mode: &str, d: &Diagnosis) -> String {
-    let accepted: Vec<&str> = d.accepted.iter().map(|h| h.id.as_str()).collect();
+    let mut accepted: Vec<String> = d.accepted.iter().map(|h| h.id.clone()).collect();
+    if let Some(r) = &d.discovery {
+        accepted.extend(r.accepted.iter().map(found_cell));
+    }
+    for c in &d.confounded {
+        accepted.push(format!("(confounded: {} or {})", c.kept, c.dropped));
+    }
     let mut truth = Vec::new();
     let mut found = Vec::new();
     let mut ranks = Vec::new();
@@ -221,6 +329,53 @@ fn row(case: &Case, seed: u64, mode: &str, d: &Diagnosis) -> String {
                 .map_or("—".into(), |h| h.rank.to_string()),
         );
     }
+    for (field, value) in case.found {
+        truth.push(format!("{field} {value}"));
+        let hit = d.discovery.as_ref().and_then(|r| {
+            r.accepted.iter().find(|t| {
+                if field.is_empty() {
+                    t.fields.is_empty()
+                } else {
+                    t.fields.iter().any(|f| f.contains(field))
+                }
+            })
+        });
+        found.push(match hit {
+            None => "not found".into(),
+            Some(t) if t.params.len() == g1viz::N_JOINTS => {
+                // Per-joint coefficients: worst relative error against F·w_i.
+                let w = g1viz::sim::effects::JOINT_FRICTION_PATTERN;
+                let worst = t
+                    .params
+                    .iter()
+                    .zip(w)
+                    .map(|(p, wi)| (p.value - value * wi) / (value * wi))
+                    .max_by(|a, b| a.abs().total_cmp(&b.abs()))
+                    .unwrap_or(f64::NAN);
+                let worst_se = t
+                    .params
+                    .iter()
+                    .zip(w)
+                    .map(|(p, wi)| (p.value - value * wi).abs() / p.std_err)
+                    .fold(0.0, f64::max);
+                format!(
+                    "per joint, worst error {:+.1} %, worst {:.1} s.e.",
+                    100.0 * worst,
+                    worst_se
+                )
+            }
+            Some(t) => {
+                let p = &t.params[0];
+                format!(
+                    "{} = {:.4} ± {:.4} ({:+.1} %)",
+                    p.symbol,
+                    p.value,
+                    p.std_err,
+                    100.0 * (p.value - value) / value
+                )
+            }
+        });
+    }
     if case.name.starts_with("harness") {
         let c = d.unexplained.first();
         found.push(c.map_or("—".into(), |c| {
@@ -235,6 +390,13 @@ fn row(case: &Case, seed: u64, mode: &str, d: &Diagnosis) -> String {
         }));
     }
     let f = &d.final_model;
+    // Held-out R² after: with the terms found beyond the library when there are any.
+    let after_r2 = d
+        .discovery
+        .as_ref()
+        .filter(|r| !r.accepted.is_empty())
+        .and_then(|r| r.after)
+        .map_or(f.after.r2, |q| q.r2);
     let torque = d
         .accepted
         .iter()
@@ -265,7 +427,7 @@ fn row(case: &Case, seed: u64, mode: &str, d: &Diagnosis) -> String {
             accepted.join(", ")
         },
         f.before.r2,
-        f.after.r2,
+        after_r2,
         d.n_trials,
         d.n_trials + d.rejected.len(),
     )
@@ -299,14 +461,25 @@ fn main() -> Result<()> {
         for &seed in case.seeds {
             let t0 = Instant::now();
             let n = parts.unwrap_or(case.parts);
-            let rec = session(&effects, seed, n, case.t_start_c, dir.path())?;
+            let (rec, sources) = session(
+                &effects,
+                seed,
+                n,
+                case.t_start_c,
+                case.housing_c,
+                dir.path(),
+            )?;
+            let base = DiagnoseOptions {
+                field_sources: sources,
+                ..DiagnoseOptions::default()
+            };
             for (mode, opts) in [
-                ("refit", DiagnoseOptions::default()),
+                ("refit", base.clone()),
                 (
                     "twin (paper θ)",
                     DiagnoseOptions {
                         reference: Some(PowerModel::PAPER),
-                        ..DiagnoseOptions::default()
+                        ..base.clone()
                     },
                 ),
             ] {
@@ -318,6 +491,12 @@ fn main() -> Result<()> {
                     if let Some(h) = d.hypotheses.iter().find(|h| h.id == *id && !accepted) {
                         eprintln!("  {} {mode}: {id} {}", case.name, h.verdict);
                     }
+                }
+                // What discovery tried when it found nothing (or what it left out).
+                for line in d.summary.lines().filter(|l| {
+                    l.starts_with("Beyond") || l.starts_with("Confounded") || l.starts_with("Form")
+                }) {
+                    eprintln!("  {} {mode}: {line}", case.name);
                 }
                 if let Some(r) = &report {
                     let sub = r.join(format!(

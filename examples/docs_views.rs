@@ -9,7 +9,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 
-use g1viz::identify::pipeline::IdentifyOptions;
+use g1viz::identify::IdentifyOptions;
 use g1viz::power::PowerModel;
 use g1viz::robot::RobotModel;
 use g1viz::signals::{SignalMap, load_recording};

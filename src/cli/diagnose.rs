@@ -8,7 +8,7 @@ use clap::Args;
 
 use super::{ReadArgs, TargetArg, expand_sessions};
 use g1viz::power::load_model;
-use g1viz::signals::{Recording, join_recordings};
+use g1viz::signals::Recording;
 use g1viz::util::{check_distinct_sessions, check_outputs};
 
 #[derive(Args)]
@@ -86,11 +86,13 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
         .map(|p| a.read.load(p))
         .collect::<Result<Vec<_>>>()?;
     // Each part starts 5 s after the previous one ends: trials and their baselines stay apart.
-    let rec = join_recordings(parts, 5.0);
+    // Discovery reads every field of every part's file, placed on the joined time line.
+    let (rec, field_sources) = diagnose::join_recordings_with_sources(parts, 5.0);
     let opts = DiagnoseOptions {
         reference: a.model.as_deref().map(load_model).transpose()?,
         target: a.target.into(),
         urdf: a.urdf.clone(),
+        field_sources,
         ..DiagnoseOptions::default()
     };
     let busy = super::spinner("diagnosing");

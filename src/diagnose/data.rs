@@ -7,7 +7,7 @@
 //! lags describe the same readings and their errors can be compared trial by trial.
 
 use crate::N_JOINTS;
-use crate::power::regressor_into;
+use crate::power::{PowerModel, regressor_into};
 use crate::signals::{PowerSeries, Recording};
 use crate::trial::{Phase, TrialWindow, sigma_omega};
 
@@ -23,6 +23,8 @@ pub(crate) struct TrialMeta {
     pub extra0: [f64; N_EXTRA],
     /// σ of the body angular-velocity magnitude over the trajectory window [rad/s].
     pub sigma_omega: f64,
+    /// Bus-current model.
+    pub bus: BusModel,
 }
 
 /// Rows of one lag.
@@ -55,22 +57,39 @@ fn sample_range(t: &[f64], a: f64, b: f64) -> std::ops::Range<usize> {
     i0..i1.max(i0)
 }
 
-fn sample_at<'a>(rec: &'a Recording, k: usize, tau0_sq: &'a [f64; N_JOINTS]) -> Option<Sample<'a>> {
+fn sample_at<'a>(
+    rec: &'a Recording,
+    k: usize,
+    tau0_sq: &'a [f64; N_JOINTS],
+    bus: &BusModel,
+) -> Option<Sample<'a>> {
     let s = &rec.state;
+    let (tau, dq) = (s.tau.get(k)?, s.dq.get(k)?);
     Some(Sample {
         q: s.q.get(k)?,
-        dq: s.dq.get(k)?,
-        tau: s.tau.get(k)?,
+        dq,
+        tau,
         temp: s.temp.get(k)?,
         gyro: s.gyro.get(k)?,
         tau0_sq,
+        bus_amps: bus.model.predict(tau, dq, tau0_sq) / bus.volts,
     })
+}
+
+/// What the bus-current feature needs: the drives' electrical power model and the supply voltage.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct BusModel {
+    /// Power model of the drives' electrical input (the twin's).
+    pub model: PowerModel,
+    /// Supply voltage [V].
+    pub volts: f64,
 }
 
 /// Compute the per-trial quantities; trials without pre-idle samples are returned in `skipped`.
 pub(crate) fn trial_meta(
     rec: &Recording,
     windows: &[TrialWindow],
+    bus: BusModel,
 ) -> (Vec<TrialMeta>, Vec<(usize, String)>) {
     let t = &rec.state.t;
     let mut out = Vec::new();
@@ -97,7 +116,7 @@ pub(crate) fn trial_meta(
         let mut buf = [0.0; N_EXTRA];
         let mut n = 0usize;
         for k in pre {
-            if let Some(s) = sample_at(rec, k, &tau0_sq) {
+            if let Some(s) = sample_at(rec, k, &tau0_sq, &bus) {
                 extras_into(&s, &mut buf);
                 extra0.iter_mut().zip(&buf).for_each(|(a, b)| *a += b);
                 n += 1;
@@ -111,6 +130,7 @@ pub(crate) fn trial_meta(
             tau0_sq,
             extra0,
             sigma_omega,
+            bus,
         });
     }
     (out, skipped)
@@ -137,7 +157,7 @@ fn window_mean(
     let mut lbuf = [0.0; N_LOCATE];
     let mut lsum = [0.0; N_LOCATE];
     for k in range {
-        let s = sample_at(rec, k, &meta.tau0_sq)?;
+        let s = sample_at(rec, k, &meta.tau0_sq, &meta.bus)?;
         regressor_into(s.tau, s.dq, s.tau0_sq, &mut phi);
         extras_into(&s, &mut ex);
         for (xi, v) in x.iter_mut().zip(phi.iter().chain(ex.iter())) {

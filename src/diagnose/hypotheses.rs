@@ -31,6 +31,9 @@ pub struct Sample<'a> {
     pub gyro: &'a [f64; 3],
     /// Mean squared torque of the trial's pre-idle window [Nm²].
     pub tau0_sq: &'a [f64; N_JOINTS],
+    /// Bus current P_elec / V_bus [A]: the drives' net electrical input power by the twin's model
+    /// (the reference model, or the paper's without one) over the supply voltage.
+    pub bus_amps: f64,
 }
 
 // Offsets of each hypothesis' raw features in the extra-feature layout.
@@ -41,9 +44,15 @@ const GEAR: usize = BUS + 1;
 const DRIVE: usize = GEAR + 1;
 const STRIBECK: usize = DRIVE + 1;
 const LEAK: usize = STRIBECK + 1;
+const BUS_POWER: usize = LEAK + 1;
+const DRIVE_NM: usize = BUS_POWER + 1;
 
 /// Number of per-sample extra features of the power-level hypotheses.
-pub const N_EXTRA: usize = LEAK + 1;
+pub const N_EXTRA: usize = DRIVE_NM + 1;
+
+/// Supply voltage [V] assumed for the bus current P_elec / V_bus when the recording's motor
+/// supply voltages are not available (13 Li-ion cells, mid charge).
+pub const NOMINAL_BUS_VOLTS: f64 = 50.0;
 
 /// Width of a raw row: the 49 base regressors followed by the extra features.
 pub const N_RAW: usize = N_PARAMS + N_EXTRA;
@@ -53,11 +62,13 @@ pub fn extras_into(s: &Sample, out: &mut [f64; N_EXTRA]) {
     let mut current = 0.0;
     let mut gear = 0.0;
     let mut stribeck = 0.0;
+    let mut torque = 0.0;
     for i in 0..N_JOINTS {
         let p = s.tau[i] * s.dq[i];
         out[THERMAL + i] = (s.temp[i] - T_REF_C) * (s.tau[i] * s.tau[i] - s.tau0_sq[i]);
         out[BRAKING + i] = p.min(0.0);
         current += s.tau[i].abs() / JOINT_TORQUE_CONSTANT[i];
+        torque += s.tau[i].abs();
         gear += p.abs();
         let v = s.dq[i] / STRIBECK_VELOCITY;
         stribeck += s.dq[i].abs() * (-v * v).exp();
@@ -67,6 +78,8 @@ pub fn extras_into(s: &Sample, out: &mut [f64; N_EXTRA]) {
     out[DRIVE] = current;
     out[STRIBECK] = stribeck;
     out[LEAK] = s.gyro.iter().map(|w| w * w).sum();
+    out[BUS_POWER] = s.bus_amps * s.bus_amps;
+    out[DRIVE_NM] = torque;
 }
 
 /// How a hypothesis' raw features enter the model.
@@ -84,6 +97,9 @@ pub enum Combine {
 pub struct Hypothesis {
     /// Short identifier (also the simulator's effect name where it has one).
     pub id: &'static str,
+    /// The physical mechanism this is one form of: forms of one mechanism compete (at most one
+    /// is accepted; the report names the winner, the runner-up and the margin).
+    pub mechanism: &'static str,
     /// What it is, in words.
     pub title: &'static str,
     /// Symbol of the physical parameter.
@@ -113,9 +129,10 @@ fn return_fraction(c: f64) -> f64 {
 }
 
 /// The power-level hypotheses (extra regressors).
-pub static POWER_HYPOTHESES: [Hypothesis; 7] = [
+pub static POWER_HYPOTHESES: [Hypothesis; 9] = [
     Hypothesis {
         id: "thermal",
+        mechanism: "winding-resistance temperature drift",
         title: "winding-resistance temperature drift",
         symbol: "α",
         unit: "1/K",
@@ -128,6 +145,7 @@ pub static POWER_HYPOTHESES: [Hypothesis; 7] = [
     },
     Hypothesis {
         id: "braking",
+        mechanism: "braking asymmetry",
         title: "braking asymmetry (regenerated power only partly returned)",
         symbol: "r",
         unit: "-",
@@ -140,6 +158,7 @@ pub static POWER_HYPOTHESES: [Hypothesis; 7] = [
     },
     Hypothesis {
         id: "bus_loss",
+        mechanism: "shared DC-bus loss",
         title: "shared DC-bus loss ∝ (total drive current)²",
         symbol: "R_bus",
         unit: "Ω",
@@ -152,6 +171,7 @@ pub static POWER_HYPOTHESES: [Hypothesis; 7] = [
     },
     Hypothesis {
         id: "gear_friction",
+        mechanism: "load-dependent gear friction",
         title: "load-dependent gear friction ∝ Σ|τ_i q̇_i|",
         symbol: "μ",
         unit: "-",
@@ -164,6 +184,7 @@ pub static POWER_HYPOTHESES: [Hypothesis; 7] = [
     },
     Hypothesis {
         id: "drive_loss",
+        mechanism: "drive-electronics loss",
         title: "current-proportional drive-electronics loss ∝ Σ|τ_i|/K_i",
         symbol: "V_drop",
         unit: "V",
@@ -176,6 +197,7 @@ pub static POWER_HYPOTHESES: [Hypothesis; 7] = [
     },
     Hypothesis {
         id: "stribeck",
+        mechanism: "Stribeck friction",
         title: "Stribeck friction Σ|q̇_i|·exp(−(q̇_i/v_s)²), v_s = 0.1 rad/s",
         symbol: "F_s",
         unit: "Nm",
@@ -188,6 +210,7 @@ pub static POWER_HYPOTHESES: [Hypothesis; 7] = [
     },
     Hypothesis {
         id: "balance_leak",
+        mechanism: "balance-compensation leakage",
         title: "balance-compensation leakage ∝ |ω_body|²",
         symbol: "k_leak",
         unit: "W/(rad/s)²",
@@ -197,6 +220,32 @@ pub static POWER_HYPOTHESES: [Hypothesis; 7] = [
         to_physical: identity,
         physical_slope: 1.0,
         plausible: (0.1, 1.0e5),
+    },
+    Hypothesis {
+        id: "bus_power",
+        mechanism: "shared DC-bus loss",
+        title: "shared DC-bus loss ∝ (total electrical input power / V_bus)²",
+        symbol: "R_bus",
+        unit: "Ω",
+        model_assumes: "the drives' shared supply path has no resistance: there is no loss in the bus current P_elec/V_bus",
+        raw: (BUS_POWER, 1),
+        combine: Combine::Single,
+        to_physical: identity,
+        physical_slope: 1.0,
+        plausible: (0.001, 50.0),
+    },
+    Hypothesis {
+        id: "electronics_nm",
+        mechanism: "drive-electronics loss",
+        title: "drive-electronics loss ∝ Σ|τ_i| (one coefficient per Nm)",
+        symbol: "k_el",
+        unit: "W/Nm",
+        model_assumes: "the drives have no loss proportional to their torque",
+        raw: (DRIVE_NM, 1),
+        combine: Combine::Single,
+        to_physical: identity,
+        physical_slope: 1.0,
+        plausible: (0.01, 10.0),
     },
 ];
 
@@ -264,6 +313,7 @@ mod tests {
             temp: &temp,
             gyro: &gyro,
             tau0_sq: &tau0_sq,
+            bus_amps: 3.0,
         };
         let mut out = [0.0; N_EXTRA];
         extras_into(&s, &mut out);
@@ -281,5 +331,7 @@ mod tests {
         assert!((out[LEAK] - 0.05).abs() < 1e-12);
         // Stribeck vanishes at high speed, equals |q̇| for q̇ ≪ v_s.
         assert!(out[STRIBECK] < 1e-6);
+        assert_eq!(out[BUS_POWER], 9.0);
+        assert!((out[DRIVE_NM] - 7.0).abs() < 1e-12);
     }
 }

@@ -11,6 +11,8 @@
 
 pub mod counterpart;
 pub mod data;
+pub mod discover;
+pub mod fields;
 pub mod hypotheses;
 pub mod locate;
 pub mod report;
@@ -26,8 +28,10 @@ use std::path::PathBuf;
 use anyhow::{Result, bail};
 
 pub use crate::trial::{Phase, TrialWindow};
+pub use discover::{Discovery, DiscoveryReport};
+pub use fields::FieldSource;
 pub use locate::{Breakdown, Correlate, Group, TrialResidual};
-pub use select::{HypothesisScore, Param};
+pub use select::{Confounded, HypothesisScore, MechanismForms, Param};
 pub use torque::{ArmModel, TorqueComparison};
 
 use crate::N_PARAMS;
@@ -76,6 +80,13 @@ pub struct DiagnoseOptions {
     pub urdf: Option<PathBuf>,
     /// Compare torques and score the payload hypothesis.
     pub torque_level: bool,
+    /// Search beyond the library ([`discover`]) when the library is done.
+    pub discover: bool,
+    /// Files whose every numeric field discovery reads (empty: the recording's own source when
+    /// it is a file; joined recordings give one entry per part, see [`join_recordings_with_sources`]).
+    pub field_sources: Vec<FieldSource>,
+    /// SDK motor index of each arm joint (whose `motor_state[k]` fields belong to joint i).
+    pub arm_motors: [usize; crate::N_JOINTS],
 }
 
 impl Default for DiagnoseOptions {
@@ -94,6 +105,9 @@ impl Default for DiagnoseOptions {
             max_torque_samples: 60_000,
             urdf: None,
             torque_level: true,
+            discover: true,
+            field_sources: Vec::new(),
+            arm_motors: std::array::from_fn(|i| crate::signals::G1_LEFT_ARM_BASE + i),
         }
     }
 }
@@ -150,6 +164,22 @@ pub struct ReplayData {
     pub after_w: Vec<f64>,
     /// Trials to highlight (worst residuals, carriers of unexplained structure).
     pub highlighted: Vec<HighlightedTrial>,
+    /// Held-out prediction with the terms found beyond the library [W] (empty when none).
+    #[serde(default)]
+    pub found_w: Vec<f64>,
+    /// The recorded fields the found terms follow, per reading (window values), to plot beside
+    /// the residual.
+    #[serde(default)]
+    pub located: Vec<LocatedField>,
+}
+
+/// A recorded field a found term follows, sampled on the readings' windows.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct LocatedField {
+    /// `topic.field.path`.
+    pub name: String,
+    /// Window value per reading (same order as [`ReplayData::t`]).
+    pub values: Vec<f64>,
 }
 
 /// A trial the replay should point the user to.
@@ -202,6 +232,18 @@ pub struct Diagnosis {
     pub final_model: FinalModel,
     /// Residual structure left after the final model: strongest correlates.
     pub unexplained: Vec<Correlate>,
+    /// Forms of each mechanism with several, compared with the same cross-validation.
+    #[serde(default)]
+    pub forms: Vec<MechanismForms>,
+    /// Hypotheses forward selection accepted together that the data cannot tell apart.
+    #[serde(default)]
+    pub confounded: Vec<Confounded>,
+    /// Discovery beyond the library (absent when switched off).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub discovery: Option<DiscoveryReport>,
+    /// Mean motor supply voltage the bus-current form used [V] (recorded, or nominal).
+    #[serde(default)]
+    pub bus_volts: f64,
     /// Plain-language summary.
     pub summary: String,
     /// Per-reading data for the replay.
@@ -229,7 +271,11 @@ fn filter_trials(
     reference: Option<Vec<f64>>,
 ) -> Result<(Vec<TrialMeta>, Vec<Rejection>)> {
     let power = opts.target.series(rec);
-    let (metas, skipped) = trial_meta(rec, windows);
+    let bus = data::BusModel {
+        model: opts.reference.unwrap_or(PowerModel::PAPER),
+        volts: hypotheses::NOMINAL_BUS_VOLTS,
+    };
+    let (metas, skipped) = trial_meta(rec, windows, bus);
     let cascade = Cascade {
         imu_k: Some(opts.imu_threshold),
         passes: opts.outlier_passes,
@@ -289,6 +335,29 @@ fn base_trial_residuals(
     Ok((0..n_trials)
         .map(|t| (cnt[t] > 0).then(|| sum[t] / cnt[t] as f64))
         .collect())
+}
+
+/// [`crate::signals::join_recordings`], plus where each part's file lies on the joined time line (for
+/// [`DiagnoseOptions::field_sources`]).
+pub fn join_recordings_with_sources(
+    parts: Vec<Recording>,
+    gap_s: f64,
+) -> (Recording, Vec<FieldSource>) {
+    let mut sources = Vec::new();
+    let mut end = None::<f64>;
+    for r in &parts {
+        let offset = match end {
+            None => 0.0,
+            Some(e) => e + gap_s - r.state.t.first().copied().unwrap_or(0.0),
+        };
+        sources.push(FieldSource {
+            path: r.source.clone(),
+            start_ns: r.start_ns,
+            offset_s: offset,
+        });
+        end = Some(r.state.t.last().copied().unwrap_or(0.0) + offset);
+    }
+    (crate::signals::join_recordings(parts, gap_s), sources)
 }
 
 /// Diagnose a recording: segment its trials from the data (the identification's segmentation),
@@ -408,8 +477,7 @@ pub fn diagnose_trials(
         bic_threshold: opts.bic_threshold,
         min_improvement: opts.min_improvement,
     };
-    let candidates: Vec<&'static hypotheses::Hypothesis> = POWER_HYPOTHESES.iter().collect();
-    let sel = select::select(&data, &candidates, &rule)?;
+    let (sel, discovery, fields) = select_and_discover(rec, power, &metas, &data, &rule, opts)?;
 
     // Torque level.
     let torque = match arm {
@@ -502,10 +570,15 @@ pub fn diagnose_trials(
         .zip(&sel.base.cv.pred)
         .map(|(a, b)| a - b)
         .collect();
+    // What the final model leaves: with the terms found beyond the library when there are any.
+    let final_pred = match &discovery {
+        Some(r) if !r.accepted.is_empty() && r.pred.len() == last.cv.pred.len() => &r.pred,
+        _ => &last.cv.pred,
+    };
     let resid_final: Vec<f64> = data.rows[last.lag]
         .y
         .iter()
-        .zip(&last.cv.pred)
+        .zip(final_pred)
         .map(|(a, b)| a - b)
         .collect();
     let breakdowns = locate::breakdowns(rows0, &metas, &resid_base, &rec.joint_names);
@@ -575,6 +648,8 @@ pub fn diagnose_trials(
         before_w: sel.base.cv.pred.clone(),
         after_w: last.cv.pred.clone(),
         highlighted,
+        found_w: Vec::new(),
+        located: Vec::new(),
     };
     let mut diag = Diagnosis {
         schema_version: SCHEMA_VERSION,
@@ -598,12 +673,266 @@ pub fn diagnose_trials(
         accepted,
         final_model,
         unexplained,
+        forms: sel.forms.clone(),
+        confounded: sel.confounded.clone(),
+        discovery,
+        bus_volts: hypotheses::NOMINAL_BUS_VOLTS,
         summary: String::new(),
         replay,
         counterpart: None,
     };
+    if let Some(v) = fields.table.bus_volts {
+        rescale_bus(&mut diag, v);
+    }
+    show_found(&mut diag, &fields, &data.rows[last.lag], &metas);
     diag.summary = summary::summarise(&diag);
     Ok(diag)
+}
+
+/// The bus-current form was fitted at the nominal voltage: R = c·V_nom² / ... rescaled to the
+/// recorded mean supply voltage V̄ (R ∝ V̄², since the feature is (P/V_nom)²).
+fn rescale_bus(d: &mut Diagnosis, volts: f64) {
+    let k = (volts / hypotheses::NOMINAL_BUS_VOLTS).powi(2);
+    let title = hypotheses::power_hypothesis("bus_power").map_or("", |h| h.title);
+    let scale = |p: &mut Param| {
+        p.value *= k;
+        p.std_err *= k;
+    };
+    for s in d.hypotheses.iter_mut().chain(d.accepted.iter_mut()) {
+        if s.id == "bus_power" {
+            s.params.iter_mut().for_each(scale);
+        }
+    }
+    d.final_model
+        .params
+        .iter_mut()
+        .filter(|p| p.name == title)
+        .for_each(scale);
+    d.bus_volts = volts;
+}
+
+/// Stage: library selection, then discovery beyond it; a library term that is not significant
+/// given what discovery found is confounded with it: it is dropped, reported, and the library
+/// selection re-run without it.
+fn select_and_discover(
+    rec: &Recording,
+    power: &crate::signals::PowerSeries,
+    metas: &[TrialMeta],
+    data: &PowerData,
+    rule: &Rule,
+    opts: &DiagnoseOptions,
+) -> Result<(select::Selection, Option<DiscoveryReport>, RowFields)> {
+    let mut excluded: Vec<&str> = Vec::new();
+    let mut confounded = Vec::new();
+    let mut fields: Option<(usize, RowFields)> = None;
+    loop {
+        let candidates: Vec<&'static hypotheses::Hypothesis> = POWER_HYPOTHESES
+            .iter()
+            .filter(|h| !excluded.contains(&h.id))
+            .collect();
+        let mut sel = select::select(data, &candidates, rule)?;
+        let lag = sel.last.lag;
+        if fields.as_ref().is_none_or(|(l, _)| *l != lag) {
+            let f = run_fields(rec, power, metas, &data.rows[lag], data.lags[lag], opts);
+            fields = Some((lag, f));
+        }
+        let Some((_, f)) = &fields else {
+            unreachable!("fields were just read")
+        };
+        if !opts.discover {
+            return Ok((sel, None, fields.map(|f| f.1).unwrap_or_default()));
+        }
+        let report = discover::discover(
+            data,
+            &sel.last,
+            &field_inputs(f, opts),
+            rule,
+            &rec.joint_names,
+        )?;
+        let dropped = library_given_found(data, &sel.last, &report, rule)?;
+        if dropped.is_empty() {
+            sel.confounded.extend(confounded);
+            sel.accepted.retain(|a| !excluded.contains(&a.id.as_str()));
+            let f = fields.map(|f| f.1).unwrap_or_default();
+            return Ok((sel, Some(report), f));
+        }
+        for c in dropped {
+            if let Some(h) = hypotheses::power_hypothesis(&c.dropped) {
+                excluded.push(h.id);
+            }
+            confounded.push(c);
+        }
+    }
+}
+
+/// Library terms of `cur` that are not significant given the found terms (all at once).
+fn library_given_found(
+    data: &PowerData,
+    cur: &select::State,
+    report: &DiscoveryReport,
+    rule: &Rule,
+) -> Result<Vec<Confounded>> {
+    let mut out = Vec::new();
+    if report.cols.is_empty() {
+        return Ok(out);
+    }
+    let found: Vec<&str> = report.accepted.iter().map(|t| t.name.as_str()).collect();
+    let rows = &data.rows[cur.lag];
+    for (j, h) in cur.spec.iter().enumerate() {
+        let mut spec = cur.spec.clone();
+        spec.remove(j);
+        let without = select::state(data, spec, cur.lag)?;
+        let (p, rel, d_bic) =
+            discover::library_term_given_found(data, cur, &without, &report.cols)?;
+        if p < rule.alpha && d_bic < rule.bic_threshold && rel >= rule.min_improvement {
+            continue;
+        }
+        let mine: Vec<f64> = rows
+            .x
+            .iter()
+            .map(|x| select::regressor(h, x, &cur.full.theta))
+            .collect();
+        out.push(Confounded {
+            kept: found.join("; "),
+            dropped: h.id.into(),
+            correlation: select::correlation(&mine, &report.cols[0]),
+            p_value: p,
+            rel_change: rel,
+        });
+    }
+    Ok(out)
+}
+
+/// Stage: what the replay shows of the found terms: their fields beside the residual, the
+/// prediction with them, and the trials they improve most.
+fn show_found(d: &mut Diagnosis, f: &RowFields, rows: &Rows, metas: &[TrialMeta]) {
+    let Some(r) = &d.discovery else {
+        return;
+    };
+    if r.accepted.is_empty() || r.pred.len() != rows.len() {
+        return;
+    }
+    for t in &r.accepted {
+        for name in &t.fields {
+            if let Some(k) = f.table.names.iter().position(|n| n == name) {
+                let vals = &f.table.values[k];
+                d.replay.located.push(LocatedField {
+                    name: name.clone(),
+                    values: f.row_window.iter().map(|&w| vals[w]).collect(),
+                });
+            }
+        }
+    }
+    d.replay.found_w = r.pred.clone();
+    let n = metas.len();
+    let before = select::trial_sse(&rows.y, &d.replay.after_w, &rows.trial, n);
+    let after = select::trial_sse(&rows.y, &r.pred, &rows.trial, n);
+    let mut gain: Vec<(usize, f64)> = (0..n).map(|t| (t, before[t] - after[t])).collect();
+    gain.sort_by(|a, b| b.1.total_cmp(&a.1));
+    let names: Vec<&str> = r.accepted.iter().map(|t| t.name.as_str()).collect();
+    for &(t, g) in gain.iter().take(5).filter(|(_, g)| *g > 0.0) {
+        let w = &metas[t].window;
+        if d.replay.highlighted.iter().any(|h| h.trial == w.index) {
+            continue;
+        }
+        d.replay.highlighted.push(HighlightedTrial {
+            trial: w.index,
+            t_start: w.t_traj_start,
+            t_end: w.t_return_end,
+            reason: format!(
+                "carries what was found beyond the library ({}): held-out squared error −{g:.2} W²",
+                names.join("; ")
+            ),
+        });
+    }
+}
+
+/// The recorded fields over the final rows' windows and every trial's baseline windows.
+#[derive(Default)]
+struct RowFields {
+    table: fields::FieldTable,
+    /// Index into the table's windows of each row.
+    row_window: Vec<usize>,
+    /// Per trial (position in the trial list): indices of its baseline windows.
+    base_windows: Vec<Vec<usize>>,
+}
+
+/// Stage: read every numeric field of the recording's files over the rows' windows.
+fn run_fields(
+    rec: &Recording,
+    power: &crate::signals::PowerSeries,
+    metas: &[TrialMeta],
+    rows: &Rows,
+    lag: f64,
+    opts: &DiagnoseOptions,
+) -> RowFields {
+    let w = opts.sensor_window_s;
+    let window = |t: f64| fields::Window {
+        start: t - lag - w,
+        end: t - lag,
+    };
+    // (window, tag): tag < rows.len() = row, otherwise baseline of trial tag − rows.len().
+    let mut all: Vec<(fields::Window, usize)> = rows
+        .t
+        .iter()
+        .enumerate()
+        .map(|(r, &t)| (window(t), r))
+        .collect();
+    for (ti, m) in metas.iter().enumerate() {
+        let lo = power.t.partition_point(|&x| x < m.window.t_pre_start + w);
+        let hi = power
+            .t
+            .partition_point(|&x| x < m.window.t_traj_start + 1e-9);
+        for k in lo..hi.max(lo) {
+            if power.watts.get(k).is_some_and(|v| v.is_finite()) {
+                all.push((window(power.t[k]), rows.len() + ti));
+            }
+        }
+    }
+    all.sort_by(|a, b| a.0.start.total_cmp(&b.0.start));
+    let mut row_window = vec![0; rows.len()];
+    let mut base_windows = vec![Vec::new(); metas.len()];
+    for (i, (_, tag)) in all.iter().enumerate() {
+        if *tag < rows.len() {
+            row_window[*tag] = i;
+        } else {
+            base_windows[tag - rows.len()].push(i);
+        }
+    }
+    let windows: Vec<fields::Window> = all.iter().map(|a| a.0).collect();
+    let sources: Vec<FieldSource> = if opts.field_sources.is_empty() {
+        if rec.source.exists() {
+            vec![FieldSource {
+                path: rec.source.clone(),
+                start_ns: rec.start_ns,
+                offset_s: 0.0,
+            }]
+        } else {
+            Vec::new()
+        }
+    } else {
+        opts.field_sources.clone()
+    };
+    let table = if opts.discover && !sources.is_empty() {
+        fields::read_fields(&sources, &windows)
+    } else {
+        fields::FieldTable::default()
+    };
+    RowFields {
+        table,
+        row_window,
+        base_windows,
+    }
+}
+
+/// Stage: discovery inputs (the field table and where the rows' and baselines' windows are).
+fn field_inputs<'a>(f: &'a RowFields, opts: &DiagnoseOptions) -> discover::Inputs<'a> {
+    discover::Inputs {
+        fields: &f.table,
+        row_window: &f.row_window,
+        base_windows: &f.base_windows,
+        arm_motors: opts.arm_motors,
+    }
 }
 
 /// Keep, at every lag, only the readings present at all lags (a gap can drop a window at one lag).

@@ -226,6 +226,7 @@ pub fn write_report(dir: &Path, d: &Diagnosis) -> Result<()> {
         FIGURES[3]
     );
 
+    beyond_section(&mut md, d);
     let _ = writeln!(md, "## Residual structure no hypothesis explains\n");
     let _ = writeln!(
         md,
@@ -553,4 +554,94 @@ fn counterpart_section(md: &mut String, c: &super::counterpart::CounterpartCompa
         }
     }
     let _ = writeln!(md);
+}
+
+/// Mechanism forms, confounded pairs and discovery beyond the library.
+fn beyond_section(md: &mut String, d: &Diagnosis) {
+    if !d.forms.is_empty() {
+        let _ = writeln!(
+            md,
+            "## Mechanisms with several forms (same cross-validation)\n\n| mechanism | winning form | runner-up | held-out RMSE [W] | margin | p | accepted |\n|---|---|---|---|---|---|---|"
+        );
+        for f in &d.forms {
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} | {:.3} vs {:.3} | {:.1} % | {} | {} |",
+                f.mechanism,
+                f.winner,
+                f.runner_up,
+                f.rmse_w[0],
+                f.rmse_w[1],
+                100.0 * f.margin,
+                sig(f.p_value),
+                if f.accepted { "yes" } else { "no" }
+            );
+        }
+        md.push('\n');
+    }
+    if !d.confounded.is_empty() {
+        let _ = writeln!(
+            md,
+            "## Confounded\n\n| kept | dropped | regressor r | p of dropped given kept | RMSE change |\n|---|---|---|---|---|"
+        );
+        for c in &d.confounded {
+            let _ = writeln!(
+                md,
+                "| {} | {} | {:+.2} | {} | {:+.2} % |",
+                c.kept,
+                c.dropped,
+                c.correlation,
+                sig(c.p_value),
+                -100.0 * c.rel_change
+            );
+        }
+        md.push('\n');
+    }
+    let Some(r) = &d.discovery else {
+        return;
+    };
+    let _ = writeln!(
+        md,
+        "## Beyond the library\n\n{} numeric fields read, {} used; {} candidate terms tried; family-wise level {} (Holm).\n",
+        r.fields_read,
+        r.fields_used,
+        r.n_candidates,
+        sig(r.alpha)
+    );
+    let _ = writeln!(
+        md,
+        "| step | found | form | field(s) | parameter(s) | held-out R² before → after | p | verdict |\n|---|---|---|---|---|---|---|---|"
+    );
+    for t in r.accepted.iter().chain(r.best_rejected.iter()) {
+        let params: Vec<String> = t
+            .params
+            .iter()
+            .map(|p| {
+                format!(
+                    "{} = {} ± {} {}",
+                    p.symbol,
+                    sig(p.value),
+                    sig(p.std_err),
+                    p.unit
+                )
+            })
+            .collect();
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} | {:.3} → {:.3} | {} | {} |",
+            t.step,
+            t.name,
+            t.form,
+            t.fields.join(", "),
+            params.join("; "),
+            t.before.r2,
+            t.after.r2,
+            sig(t.p_value),
+            t.verdict
+        );
+    }
+    for n in &r.notes {
+        let _ = writeln!(md, "\n- {n}");
+    }
+    md.push('\n');
 }

@@ -163,6 +163,26 @@ fn solve_bounded(
     Ok(DVector::from_fn(p, |i, _| z[i] / s[i]))
 }
 
+/// [`design_map`] for discovery: the library model's columns on the raw layout.
+pub(crate) fn design_map_for(spec: &[&Hypothesis], theta: &[f64]) -> DMatrix<f64> {
+    design_map(spec, theta)
+}
+
+/// [`bounds`] for `p` coefficients (base first, the rest free).
+pub(crate) fn bounds_for(p: usize, reference: Option<&[f64]>) -> (Vec<f64>, Vec<f64>) {
+    bounds(p, reference)
+}
+
+/// [`solve_bounded`] with the paper's θ as the prior mean.
+pub(crate) fn solve_bounded_for(
+    g: &DMatrix<f64>,
+    h: &DVector<f64>,
+    lo: &[f64],
+    hi: &[f64],
+) -> Result<DVector<f64>> {
+    solve_bounded(g, h, lo, hi, &PowerModel::PAPER.to_vector())
+}
+
 fn fit_once(
     spec: &[&Hypothesis],
     gram: &Gram,
@@ -441,7 +461,7 @@ pub(crate) struct State {
     pub bic: f64,
 }
 
-fn state(data: &PowerData, spec: Spec, lag: usize) -> Result<State> {
+pub(crate) fn state(data: &PowerData, spec: Spec, lag: usize) -> Result<State> {
     let cv = cross_validate(
         &spec,
         &data.rows[lag],
@@ -631,20 +651,112 @@ fn score_latency(data: &PowerData, cur: &State, step: usize) -> Result<Candidate
     Ok(Candidate { score, next })
 }
 
+/// How the forms of one mechanism compared at the selection step that decided between them.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct MechanismForms {
+    /// The mechanism.
+    pub mechanism: String,
+    /// Identifier of the best-scoring form.
+    pub winner: String,
+    /// Identifier of the second-best form.
+    pub runner_up: String,
+    /// Held-out RMSE with the winner and with the runner-up [W].
+    pub rmse_w: [f64; 2],
+    /// Margin: 1 − RMSE(winner)/RMSE(runner-up).
+    pub margin: f64,
+    /// One-sided paired p-value that the winner's per-trial held-out error is below the
+    /// runner-up's.
+    pub p_value: f64,
+    /// Whether the winning form was accepted.
+    pub accepted: bool,
+}
+
+/// Two hypotheses the data cannot tell apart: forward selection accepted both, but one is not
+/// significant given the other.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct Confounded {
+    /// The one kept (significant given the other).
+    pub kept: String,
+    /// The one dropped in backward elimination.
+    pub dropped: String,
+    /// Correlation of their regressors over the readings.
+    pub correlation: f64,
+    /// p-value of the dropped one given all the others (paired held-out test).
+    pub p_value: f64,
+    /// Relative held-out RMSE change from dropping it.
+    pub rel_change: f64,
+}
+
 /// The result of greedy forward selection at the power level.
 pub(crate) struct Selection {
     /// Every candidate scored against the base model (step 1), ranked.
     pub first_step: Vec<HypothesisScore>,
     /// The accepted hypotheses in the order they were added, with their score at that step.
     pub accepted: Vec<HypothesisScore>,
+    /// Forms of each mechanism with more than one, compared where they were decided.
+    pub forms: Vec<MechanismForms>,
+    /// Pairs forward selection accepted but backward elimination separated.
+    pub confounded: Vec<Confounded>,
     /// Base model state (no hypothesis, no lag).
     pub base: State,
     /// Final model state.
     pub last: State,
 }
 
+/// Mechanism of a candidate (`None` = latency).
+fn mechanism(c: &Option<&'static Hypothesis>) -> &'static str {
+    c.map_or(LATENCY_ID, |h| h.mechanism)
+}
+
+/// Compare the two best forms of every mechanism with more than one form among `scored`.
+fn compare_forms(
+    data: &PowerData,
+    scored: &[(usize, Candidate)],
+    remaining: &[Option<&'static Hypothesis>],
+    decided: &mut Vec<MechanismForms>,
+) {
+    let mut mechs: Vec<&str> = remaining.iter().map(mechanism).collect();
+    mechs.sort_unstable();
+    mechs.dedup();
+    for m in mechs {
+        if decided.iter().any(|d| d.mechanism == m) {
+            continue;
+        }
+        let forms: Vec<&Candidate> = scored
+            .iter()
+            .filter(|(i, _)| mechanism(&remaining[*i]) == m)
+            .map(|(_, c)| c)
+            .collect();
+        if forms.len() < 2 {
+            continue;
+        }
+        // `scored` is sorted best first.
+        let (w, r) = (forms[0], forms[1]);
+        let y = &data.rows[w.next.lag].y;
+        let trial = &data.rows[w.next.lag].trial;
+        let ew = trial_sse(y, &w.next.cv.pred, trial, data.n_trials);
+        let er = trial_sse(
+            &data.rows[r.next.lag].y,
+            &r.next.cv.pred,
+            &data.rows[r.next.lag].trial,
+            data.n_trials,
+        );
+        let d: Vec<f64> = er.iter().zip(&ew).map(|(a, b)| a - b).collect();
+        decided.push(MechanismForms {
+            mechanism: m.into(),
+            winner: w.score.id.clone(),
+            runner_up: r.score.id.clone(),
+            rmse_w: [w.score.rmse_after, r.score.rmse_after],
+            margin: 1.0 - w.score.rmse_after / r.score.rmse_after.max(1e-300),
+            p_value: improvement_p_value(&d),
+            accepted: w.score.accepted,
+        });
+    }
+}
+
 /// Greedy forward selection: at each step score every remaining candidate against the current
-/// model, add the best one that passes the rule, stop when none passes.
+/// model, add the best one that passes the rule (the other forms of its mechanism leave the
+/// race), stop when none passes; then backward elimination ([`backward`]).
 pub(crate) fn select(
     data: &PowerData,
     candidates: &[&'static Hypothesis],
@@ -659,6 +771,7 @@ pub(crate) fn select(
     }
     let mut first_step = Vec::new();
     let mut accepted = Vec::new();
+    let mut forms = Vec::new();
     for step in 1.. {
         let mut scored: Vec<(usize, Candidate)> = Vec::new();
         for (i, c) in remaining.iter().enumerate() {
@@ -679,22 +792,124 @@ pub(crate) fn select(
         if step == 1 {
             first_step = scored.iter().map(|(_, c)| c.score.clone()).collect();
         }
+        let winner = scored
+            .first()
+            .filter(|(_, c)| c.score.accepted)
+            .map(|(i, _)| mechanism(&remaining[*i]));
+        // A mechanism's forms are compared at the step that accepts one of them (or at the
+        // first step when none is ever accepted: replaced below).
+        if let Some(m) = winner {
+            let mut here = Vec::new();
+            compare_forms(data, &scored, &remaining, &mut here);
+            forms.retain(|f: &MechanismForms| f.mechanism != m);
+            forms.extend(here.into_iter().filter(|f| f.mechanism == m));
+        } else if step == 1 {
+            compare_forms(data, &scored, &remaining, &mut forms);
+        }
         let Some((idx, best)) = scored.into_iter().next().filter(|(_, c)| c.score.accepted) else {
             break;
         };
+        let m = mechanism(&remaining[idx]);
         accepted.push(best.score);
         cur = best.next;
-        remaining.remove(idx);
+        remaining.retain(|c| mechanism(c) != m);
         if remaining.is_empty() {
             break;
         }
     }
+    let (cur, accepted, confounded) = backward(data, cur, accepted, rule)?;
     Ok(Selection {
         first_step,
         accepted,
+        forms,
+        confounded,
         base,
         last: cur,
     })
+}
+
+/// The regressor of hypothesis `h` on row `r` (pooled terms weighted by `theta`).
+pub(crate) fn regressor(h: &Hypothesis, x: &[f64; N_RAW], theta: &[f64]) -> f64 {
+    let (off, len) = h.raw;
+    (0..len)
+        .map(|i| {
+            let w = match h.combine {
+                Combine::Single => 1.0,
+                Combine::WeightedByBase(b) => theta.get(b + i).copied().unwrap_or(1.0),
+            };
+            w * x[N_PARAMS + off + i]
+        })
+        .sum()
+}
+
+/// Pearson correlation.
+pub(crate) fn correlation(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().max(1) as f64;
+    let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
+    let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
+    for (x, y) in a.iter().zip(b) {
+        sab += (x - ma) * (y - mb);
+        saa += (x - ma) * (x - ma);
+        sbb += (y - mb) * (y - mb);
+    }
+    sab / (saa * sbb).sqrt().max(1e-300)
+}
+
+/// Backward elimination: every accepted power hypothesis must stay significant (same rule)
+/// given all the others; the least significant one that fails is dropped, repeatedly. A dropped
+/// term is reported as confounded with the kept term its regressor correlates with most.
+fn backward(
+    data: &PowerData,
+    mut cur: State,
+    mut accepted: Vec<HypothesisScore>,
+    rule: &Rule,
+) -> Result<(State, Vec<HypothesisScore>, Vec<Confounded>)> {
+    let mut confounded = Vec::new();
+    while cur.spec.len() >= 2 {
+        let mut worst: Option<(usize, State, f64, f64, f64)> = None;
+        for j in 0..cur.spec.len() {
+            let mut spec = cur.spec.clone();
+            spec.remove(j);
+            let without = state(data, spec, cur.lag)?;
+            // Score the full model against the one without term j.
+            let (p, _, _, _, _, rel) = compare(data, &without, &cur.cv.pred, cur.lag);
+            let d_bic = cur.bic - without.bic;
+            let ok = p < rule.alpha && d_bic < rule.bic_threshold && rel >= rule.min_improvement;
+            if !ok && worst.as_ref().is_none_or(|w| p > w.2) {
+                worst = Some((j, without, p, rel, d_bic));
+            }
+        }
+        let Some((j, without, p, rel, _)) = worst else {
+            break;
+        };
+        let h = cur.spec[j];
+        let rows = &data.rows[cur.lag];
+        let col = |g: &Hypothesis| -> Vec<f64> {
+            rows.x
+                .iter()
+                .map(|x| regressor(g, x, &cur.full.theta))
+                .collect()
+        };
+        let mine = col(h);
+        let kept = cur
+            .spec
+            .iter()
+            .filter(|g| g.id != h.id)
+            .map(|g| (g.id, correlation(&mine, &col(g))))
+            .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()));
+        if let Some((k, r)) = kept {
+            confounded.push(Confounded {
+                kept: k.into(),
+                dropped: h.id.into(),
+                correlation: r,
+                p_value: p,
+                rel_change: rel,
+            });
+        }
+        accepted.retain(|s| s.id != h.id);
+        cur = without;
+    }
+    Ok((cur, accepted, confounded))
 }
 
 #[cfg(test)]
@@ -735,6 +950,7 @@ mod tests {
                     temp: &temp,
                     gyro: &gyro,
                     tau0_sq: &tau0_sq,
+                    bus_amps: PowerModel::PAPER.predict(&tau, &dq, &tau0_sq) / 50.0,
                 };
                 let mut phi = [0.0; N_PARAMS];
                 regressor_into(&tau, &dq, &tau0_sq, &mut phi);

@@ -195,6 +195,8 @@ pub fn summarise(d: &Diagnosis) -> String {
             f.after_per_trial.r2
         );
     }
+    forms_and_confounding(d, &mut s);
+    discovery_lines(d, &mut s);
     let sig: Vec<_> = d.unexplained.iter().filter(|c| c.significant).collect();
     if sig.is_empty() {
         let _ = writeln!(
@@ -215,4 +217,70 @@ pub fn summarise(d: &Diagnosis) -> String {
         }
     }
     s
+}
+
+/// Mechanism forms (winner, runner-up, margin) and confounded pairs.
+fn forms_and_confounding(d: &Diagnosis, s: &mut String) {
+    for f in d.forms.iter().filter(|f| f.accepted) {
+        let _ = writeln!(
+            s,
+            "Form: {}: {} fits better than {} (held-out RMSE {:.3} vs {:.3} W, margin {:.1} %, p = {:.1e}).",
+            f.mechanism,
+            f.winner,
+            f.runner_up,
+            f.rmse_w[0],
+            f.rmse_w[1],
+            100.0 * f.margin,
+            f.p_value
+        );
+    }
+    for c in &d.confounded {
+        let _ = writeln!(
+            s,
+            "Confounded: {} or {} (regressor correlation r = {:+.2}); {} is not significant given {} (p = {:.1e}, held-out RMSE change {:+.1} %), so only {} is claimed.",
+            c.kept,
+            c.dropped,
+            c.correlation,
+            c.dropped,
+            c.kept,
+            c.p_value,
+            -100.0 * c.rel_change,
+            c.kept
+        );
+    }
+}
+
+/// Terms found beyond the library, or what the search tried.
+fn discovery_lines(d: &Diagnosis, s: &mut String) {
+    let Some(r) = &d.discovery else {
+        return;
+    };
+    for t in &r.accepted {
+        let params: Vec<String> = t.params.iter().map(fmt_param).collect();
+        let _ = writeln!(
+            s,
+            "Found beyond the library: {}; {} with {} improves held-out power R² from {:.3} to {:.3} (RMSE {:.3} → {:.3} W, p = {:.1e} < {:.1e}).",
+            t.name,
+            t.form,
+            params.join(", "),
+            t.before.r2,
+            t.after.r2,
+            t.before.rmse_w,
+            t.after.rmse_w,
+            t.p_value,
+            t.alpha
+        );
+    }
+    if r.accepted.is_empty() {
+        let best = r
+            .best_rejected
+            .as_ref()
+            .map(|b| format!(" (best: {}, {})", b.name, b.verdict))
+            .unwrap_or_default();
+        let _ = writeln!(
+            s,
+            "Beyond the library: {} candidate terms from {} recorded fields tried, none supported at a family-wise level of {:.0e}{best}.",
+            r.n_candidates, r.fields_used, r.alpha
+        );
+    }
 }

@@ -99,6 +99,62 @@ pub struct BalanceLeak {
 /// Correlation time of the ambient body sway of [`BalanceLeak`] [s].
 pub const SWAY_CORRELATION_S: f64 = 0.5;
 
+/// Shared DC-bus loss from the drives' total electrical input power: the bus carries
+/// I_bus = P_elec / V_bus, so P += R_bus·(P_elec / V_bus)², with P_elec = the arm drives' net
+/// electrical input (the paper's model on the true torques plus every other effect of this list
+/// except the rail load) and V_bus = the motors' supply voltage (what `motor_state[k].vol` records).
+/// Regenerated power goes back through the bus: P_elec keeps its sign and is squared, so a
+/// braking arm also loses on the bus. Unlike [`BusLoss`], a stalled joint (phase current, no
+/// mechanical power) adds almost nothing.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct BusPowerLoss {
+    /// Resistance of the shared supply path [Ω].
+    pub resistance_ohm: f64,
+}
+
+/// Drive-electronics loss per newton-metre (one coefficient for all joints, not through the
+/// torque constant): P += k·Σ_i |τ_i|.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ElectronicsLoss {
+    /// Loss per Nm of joint torque [W/Nm].
+    pub w_per_nm: f64,
+}
+
+/// Unequal Coulomb friction excess per joint on the motor side (a drag the torque estimate does
+/// not see): P += F·Σ_i w_i·|q̇_i|, w = [`JOINT_FRICTION_PATTERN`].
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct JointFrictionExcess {
+    /// Scale F of the per-joint excess [Nm]; joint i gets F·w_i.
+    pub newton_m: f64,
+}
+
+/// Relative size of the per-joint friction excess of [`JointFrictionExcess`] (shoulder pitch,
+/// roll, yaw, elbow, wrist roll, pitch, yaw).
+pub const JOINT_FRICTION_PATTERN: [f64; N_JOINTS] = [1.0, 0.25, 0.5, 1.5, 0.2, 0.75, 0.3];
+
+/// Friction that follows the motor housing temperature (seals and bearings tighten as the
+/// housing warms): P += k·Σ_i (T_housing,i − 25 °C)·|q̇_i|, T_housing = what
+/// `motor_state[k].temperature[1]` records. The diagnosis library does not use that field.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct HousingFriction {
+    /// Coefficient k [W/(K·rad/s)].
+    pub w_per_k_rad_s: f64,
+}
+
+/// A load on the main-board rail that follows a status field of another topic: a cooling fan
+/// that cycles on and off during the session (on for ≈ 8 s, off for ≈ 12 s on average,
+/// exponential durations) and draws `watts` while on. `/lf/mainboardstate` `fan_state[1]`
+/// reads ≈ 3000 rpm while it runs and 0 while it stands (without this effect that fan turns
+/// steadily 30 rpm below fan 0).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct RailLoad {
+    /// Power drawn while on [W].
+    pub watts: f64,
+}
+
+/// Mean on and off durations of the [`RailLoad`] fan [s].
+pub const FAN_MEAN_ON_OFF_S: (f64, f64) = (8.0, 12.0);
+
 /// The set of switched-on effects (all off by default: the paper's plant).
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 pub struct Effects {
@@ -132,10 +188,25 @@ pub struct Effects {
     /// Balance-compensation leakage (with ambient body sway).
     #[serde(skip_serializing_if = "Option::is_none", default)]
     pub balance_leak: Option<BalanceLeak>,
+    /// Bus loss from total electrical power.
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    pub bus_power: Option<BusPowerLoss>,
+    /// Electronics loss per Nm.
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    pub electronics_nm: Option<ElectronicsLoss>,
+    /// Per-joint Coulomb friction excess.
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    pub joint_friction: Option<JointFrictionExcess>,
+    /// Friction following the housing temperature.
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    pub housing_friction: Option<HousingFriction>,
+    /// Switching fan load on the main-board rail.
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    pub fan_load: Option<RailLoad>,
 }
 
 /// Names accepted by [`Effects::enable`], in documentation order.
-pub const EFFECT_NAMES: [&str; 10] = [
+pub const EFFECT_NAMES: [&str; 15] = [
     "thermal",
     "braking",
     "bus_loss",
@@ -146,6 +217,11 @@ pub const EFFECT_NAMES: [&str; 10] = [
     "stribeck",
     "balance_leak",
     "harness_drag",
+    "bus_power",
+    "electronics_nm",
+    "joint_friction",
+    "housing_friction",
+    "fan_load",
 ];
 
 impl ThermalDrift {
@@ -198,6 +274,30 @@ impl BalanceLeak {
         sway_rad_s: 0.05,
     };
 }
+impl BusPowerLoss {
+    /// 50 mΩ, as [`BusLoss::DEFAULT`].
+    pub const DEFAULT: BusPowerLoss = BusPowerLoss {
+        resistance_ohm: 0.05,
+    };
+}
+impl ElectronicsLoss {
+    /// 0.5 W/Nm: about [`DriveLoss::DEFAULT`] at the arm's torque constants.
+    pub const DEFAULT: ElectronicsLoss = ElectronicsLoss { w_per_nm: 0.5 };
+}
+impl JointFrictionExcess {
+    /// 1 Nm at the shoulder pitch (1.5 Nm at the elbow, 0.2 Nm at the wrist roll).
+    pub const DEFAULT: JointFrictionExcess = JointFrictionExcess { newton_m: 1.0 };
+}
+impl HousingFriction {
+    /// 0.05 W/(K·rad/s): 1 W more per rad/s at a housing 20 K above 25 °C.
+    pub const DEFAULT: HousingFriction = HousingFriction {
+        w_per_k_rad_s: 0.05,
+    };
+}
+impl RailLoad {
+    /// A 3 W fan.
+    pub const DEFAULT: RailLoad = RailLoad { watts: 3.0 };
+}
 /// Default payload: a 0.5 kg tool held 10 cm beyond the wrist-yaw link origin.
 pub const DEFAULT_PAYLOAD: Payload = Payload {
     mass_kg: 0.5,
@@ -208,7 +308,8 @@ impl Effects {
     /// Switch on effect `spec` = `name` or `name=value` (value in the effect's unit: thermal α [1/K],
     /// braking r [-], bus_loss R [Ω], payload mass [kg] at the default position, latency [s],
     /// gear_friction μ [-], drive_loss V_drop [V], stribeck F_s [Nm], balance_leak k [W/(rad/s)²] at
-    /// the default sway, harness_drag k [W·s/rad]).
+    /// the default sway, harness_drag k [W·s/rad], bus_power R [Ω], electronics_nm k [W/Nm],
+    /// joint_friction F [Nm], housing_friction k [W/(K·rad/s)], fan_load [W]).
     pub fn enable(&mut self, spec: &str) -> anyhow::Result<()> {
         let (name, value) = match spec.split_once('=') {
             Some((n, v)) => {
@@ -290,6 +391,35 @@ impl Effects {
                         }),
                     )
             }
+            "bus_power" => {
+                self.bus_power =
+                    Some(
+                        value.map_or(BusPowerLoss::DEFAULT, |resistance_ohm| BusPowerLoss {
+                            resistance_ohm,
+                        }),
+                    )
+            }
+            "electronics_nm" => {
+                self.electronics_nm =
+                    Some(
+                        value.map_or(ElectronicsLoss::DEFAULT, |w_per_nm| ElectronicsLoss {
+                            w_per_nm,
+                        }),
+                    )
+            }
+            "joint_friction" => {
+                self.joint_friction = Some(value.map_or(JointFrictionExcess::DEFAULT, |newton_m| {
+                    JointFrictionExcess { newton_m }
+                }))
+            }
+            "housing_friction" => {
+                self.housing_friction = Some(value.map_or(HousingFriction::DEFAULT, |w| {
+                    HousingFriction { w_per_k_rad_s: w }
+                }))
+            }
+            "fan_load" => {
+                self.fan_load = Some(value.map_or(RailLoad::DEFAULT, |watts| RailLoad { watts }))
+            }
             _ => anyhow::bail!(
                 "unknown effect {name:?} (known: {})",
                 EFFECT_NAMES.join(", ")
@@ -314,28 +444,36 @@ pub struct ArmPower {
     pub effects: f64,
 }
 
-/// Net arm power of the plant for true torque `tau` (incl. friction and payload), velocity `dq`,
-/// position `q`, home torque `tau_home` and winding temperature `temp_c`.
-pub fn arm_power(
-    model: &crate::power::PowerModel,
-    effects: &Effects,
-    q: &[f64; N_JOINTS],
-    tau: &[f64; N_JOINTS],
-    dq: &[f64; N_JOINTS],
-    tau_home: &[f64; N_JOINTS],
-    temp_c: &[f64; N_JOINTS],
-) -> ArmPower {
-    let mut tau0_sq = [0.0; N_JOINTS];
-    for i in 0..N_JOINTS {
-        tau0_sq[i] = tau_home[i] * tau_home[i];
-    }
+/// One sample of the true plant state, the input of [`arm_power`].
+#[derive(Debug, Clone, Copy)]
+pub struct PlantSample<'a> {
+    /// Joint positions [rad].
+    pub q: &'a [f64; N_JOINTS],
+    /// True joint torques (incl. friction and payload) [Nm].
+    pub tau: &'a [f64; N_JOINTS],
+    /// Joint velocities [rad/s].
+    pub dq: &'a [f64; N_JOINTS],
+    /// Home (gravity) torques [Nm].
+    pub tau_home: &'a [f64; N_JOINTS],
+    /// Winding temperatures [°C].
+    pub winding_c: &'a [f64; N_JOINTS],
+    /// Housing temperatures [°C].
+    pub housing_c: &'a [f64; N_JOINTS],
+    /// Supply voltage of the drives [V].
+    pub bus_volts: f64,
+}
+
+/// Net arm power of the plant for one true state sample.
+pub fn arm_power(model: &crate::power::PowerModel, effects: &Effects, s: &PlantSample) -> ArmPower {
+    let (q, tau, dq) = (s.q, s.tau, s.dq);
+    let tau0_sq = s.tau_home.map(|v| v * v);
     let base = model.predict(tau, dq, &tau0_sq);
     let mut extra = 0.0;
     for i in 0..N_JOINTS {
         if let Some(th) = effects.thermal {
             extra += model.b[i]
                 * th.alpha_per_k
-                * (temp_c[i] - THERMAL_REFERENCE_C)
+                * (s.winding_c[i] - THERMAL_REFERENCE_C)
                 * (tau[i] * tau[i] - tau0_sq[i]);
         }
         if let Some(br) = effects.braking {
@@ -369,6 +507,27 @@ pub fn arm_power(
     if let Some(h) = effects.harness_drag {
         extra += h.w_per_rad_s * (1.0 - q[3].cos()) * dq[3].abs();
     }
+    if let Some(e) = effects.electronics_nm {
+        extra += e.w_per_nm * tau.iter().map(|t| t.abs()).sum::<f64>();
+    }
+    if let Some(f) = effects.joint_friction {
+        extra += f.newton_m
+            * (0..N_JOINTS)
+                .map(|i| JOINT_FRICTION_PATTERN[i] * dq[i].abs())
+                .sum::<f64>();
+    }
+    if let Some(h) = effects.housing_friction {
+        extra += h.w_per_k_rad_s
+            * (0..N_JOINTS)
+                .map(|i| (s.housing_c[i] - THERMAL_REFERENCE_C) * dq[i].abs())
+                .sum::<f64>();
+    }
+    if let Some(b) = effects.bus_power
+        && s.bus_volts > 0.0
+    {
+        let amps = (base + extra) / s.bus_volts;
+        extra += b.resistance_ohm * amps * amps;
+    }
     ArmPower {
         base,
         effects: extra,
@@ -379,6 +538,26 @@ pub fn arm_power(
 mod tests {
     use super::*;
     use crate::power::PowerModel;
+
+    /// `arm_power` at 25 °C and a 50 V bus.
+    fn ap(
+        e: &Effects,
+        q: &[f64; N_JOINTS],
+        tau: &[f64; N_JOINTS],
+        dq: &[f64; N_JOINTS],
+        tau_home: &[f64; N_JOINTS],
+    ) -> ArmPower {
+        let s = PlantSample {
+            q,
+            tau,
+            dq,
+            tau_home,
+            winding_c: &[25.0; N_JOINTS],
+            housing_c: &[25.0; N_JOINTS],
+            bus_volts: 50.0,
+        };
+        arm_power(&PowerModel::PAPER, e, &s)
+    }
 
     #[test]
     fn braking_loses_the_unreturned_fraction() {
@@ -394,26 +573,10 @@ mod tests {
         let mut dq = [0.0; N_JOINTS];
         tau[3] = 2.0;
         dq[3] = -1.0;
-        let p = arm_power(
-            &PowerModel::PAPER,
-            &e,
-            &[0.0; 7],
-            &tau,
-            &dq,
-            &[0.0; 7],
-            &[25.0; 7],
-        );
+        let p = ap(&e, &[0.0; 7], &tau, &dq, &[0.0; 7]);
         assert!((p.effects - 1.5).abs() < 1e-12);
         dq[3] = 1.0;
-        let p = arm_power(
-            &PowerModel::PAPER,
-            &e,
-            &[0.0; 7],
-            &tau,
-            &dq,
-            &[0.0; 7],
-            &[25.0; 7],
-        );
+        let p = ap(&e, &[0.0; 7], &tau, &dq, &[0.0; 7]);
         assert_eq!(p.effects, 0.0);
     }
 
@@ -433,7 +596,7 @@ mod tests {
         q[3] = std::f64::consts::FRAC_PI_2;
         let mut dq = [0.0; N_JOINTS];
         dq[3] = 0.5;
-        let p = arm_power(&PowerModel::PAPER, &e, &q, &tau, &dq, &tau, &[25.0; 7]);
+        let p = ap(&e, &q, &tau, &dq, &tau);
         // 0.1 Ω · (3 A)² = 0.9 W; 2 · (1 − cos 90°) · 0.5 = 1 W.
         assert!((p.effects - 1.9).abs() < 1e-9, "{}", p.effects);
     }
@@ -450,19 +613,56 @@ mod tests {
         dq[0] = 1.0;
         tau[5] = -0.7; // 1 A, braking at q̇ = v_s: 0.07 W
         dq[5] = 0.1;
-        let p = arm_power(
-            &PowerModel::PAPER,
-            &e,
-            &[0.0; 7],
-            &tau,
-            &dq,
-            &tau,
-            &[25.0; 7],
-        );
+        let p = ap(&e, &[0.0; 7], &tau, &dq, &tau);
         // gear 0.1·(2.6 + 0.07) = 0.267; drive 0.5 V·3 A = 1.5;
         // Stribeck 2·(1·e^−100 + 0.1·e^−1) = 0.0735759.
         let want = 0.267 + 1.5 + 2.0 * (1.0 * (-100.0f64).exp() + 0.1 * (-1.0f64).exp());
         assert!((p.effects - want).abs() < 1e-9, "{} vs {want}", p.effects);
+    }
+
+    #[test]
+    fn new_forms_by_hand() {
+        let mut tau = [0.0; N_JOINTS];
+        let mut dq = [0.0; N_JOINTS];
+        tau[0] = 2.0;
+        tau[3] = -1.0;
+        dq[0] = 1.0;
+        dq[3] = 2.0;
+        let zero = [0.0; N_JOINTS];
+        // Electronics per Nm: 0.5 W/Nm · (2 + 1) Nm = 1.5 W.
+        let mut e = Effects::default();
+        e.enable("electronics_nm=0.5").unwrap();
+        assert!((ap(&e, &zero, &tau, &dq, &zero).effects - 1.5).abs() < 1e-12);
+        // Per-joint friction: F = 2 → 2·(1.0·1 + 1.5·2) = 8 W.
+        let mut e = Effects::default();
+        e.enable("joint_friction=2").unwrap();
+        assert!((ap(&e, &zero, &tau, &dq, &zero).effects - 8.0).abs() < 1e-12);
+        // Housing friction: 0.1·(35 − 25)·1 + 0.1·(45 − 25)·2 = 1 + 4 = 5 W.
+        let mut e = Effects::default();
+        e.enable("housing_friction=0.1").unwrap();
+        let mut housing = [25.0; N_JOINTS];
+        housing[0] = 35.0;
+        housing[3] = 45.0;
+        let s = PlantSample {
+            q: &zero,
+            tau: &tau,
+            dq: &dq,
+            tau_home: &zero,
+            winding_c: &[25.0; N_JOINTS],
+            housing_c: &housing,
+            bus_volts: 50.0,
+        };
+        assert!((arm_power(&PowerModel::PAPER, &e, &s).effects - 5.0).abs() < 1e-12);
+        // Bus loss from electrical power: R·(P/V)² with P the base model's power.
+        let mut e = Effects::default();
+        e.enable("bus_power=0.1").unwrap();
+        let p = ap(&e, &zero, &tau, &dq, &zero);
+        let want = 0.1 * (p.base / 50.0).powi(2);
+        assert!(p.base > 1.0 && (p.effects - want).abs() < 1e-12, "{p:?}");
+        // A stalled joint (τ, no motion) loses on the bus only through its copper loss.
+        let stalled = [5.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
+        let p = ap(&e, &zero, &stalled, &zero, &zero);
+        assert!((p.effects - 0.1 * (p.base / 50.0).powi(2)).abs() < 1e-12);
     }
 
     #[test]

@@ -127,6 +127,10 @@ pub struct SimConfig {
     pub route_seed: u64,
     /// Winding temperature at session start [°C] (a warm robot: 50–70 °C).
     pub t_start_c: f64,
+    /// Housing temperature at session start [°C]; `None`: settled with the winding (ambient +
+    /// 70 % of the winding's rise). A motor worked hard just before has a hot winding in a
+    /// housing that is still cool.
+    pub housing_start_c: Option<f64>,
     /// Motor thermal constants.
     pub thermal: ThermalModel,
     /// Joint friction inside τ.
@@ -152,6 +156,7 @@ impl Default for SimConfig {
             with_hand: true,
             route_seed: 0,
             t_start_c: 30.0,
+            housing_start_c: None,
             thermal: ThermalModel::default(),
             friction: DEFAULT_FRICTION,
             noise: Noise::default(),

@@ -13,7 +13,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 
 use super::SimConfig;
-use super::effects::{Effects, SWAY_CORRELATION_S, arm_power};
+use super::effects::{Effects, FAN_MEAN_ON_OFF_S, PlantSample, SWAY_CORRELATION_S, arm_power};
 use super::protocol::Schedule;
 use super::thermal::ThermalState;
 use super::truth::Noise;
@@ -296,6 +296,9 @@ impl Engine<'_> {
         let keep_s = latency + SENSOR_WINDOW_S + 2.0;
 
         let mut thermal = ThermalState::new(cfg.thermal, cfg.t_start_c);
+        if let Some(h) = cfg.housing_start_c {
+            thermal.set_housing(h);
+        }
         let mut stats = RunStats {
             trials: vec![TrialSums::default(); self.trials.len()],
             tau_home,
@@ -320,6 +323,8 @@ impl Engine<'_> {
         // effect on leaves every other random draw of the session unchanged.
         let mut ambient = [0.0f64; 2];
         let mut sway_rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x005a_1a4c_e000_u64);
+        // The switching fan of the rail-load effect: its own random stream too.
+        let mut fan = effects.fan_load.map(|l| Fan::new(l.watts, cfg.seed));
         let mut term_sums = [0.0f64; 5];
         let mut motors = [MotorState::default(); N_MOTORS];
         let (mut i_ls, mut i_cmd, mut i_mbs, mut i_bms) = (0usize, 0usize, 0usize, 0usize);
@@ -354,8 +359,20 @@ impl Engine<'_> {
                         tau[i] = rigid[i] + fr[i];
                     }
                     thermal.step(t, dt, &tau);
-                    let p = arm_power(model, effects, &q, &tau, &dq, &tau_home, &thermal.winding_c);
+                    let housing_c: [f64; N_JOINTS] = std::array::from_fn(|i| thermal.housing_c(i));
+                    let sample = PlantSample {
+                        q: &q,
+                        tau: &tau,
+                        dq: &dq,
+                        tau_home: &tau_home,
+                        winding_c: &thermal.winding_c,
+                        housing_c: &housing_c,
+                        bus_volts: pack_volts(soc) - 0.15,
+                    };
+                    let p = arm_power(model, effects, &sample);
                     let mut eff = p.effects;
+                    let fan_w = fan.as_mut().map_or(0.0, |f| f.load_at(t));
+                    eff += fan_w;
                     if let (Some(d), Some(th_u)) = (self.dyn_urdf, tau_home_urdf) {
                         // The payload's share: the base model on true minus URDF-only torques.
                         let rigid_u = d.inverse_dynamics(&q, &dq, &ddq);
@@ -418,7 +435,7 @@ impl Engine<'_> {
                     }
                     drift = ou_step(drift, dt, REST_DRIFT, rng);
                     let p_arm = p.base + p.effects;
-                    let p_rail = P_REST_W + drift + p.base + p.effects + leak + step_w;
+                    let p_rail = P_REST_W + drift + p.base + p.effects + leak + step_w + fan_w;
                     while power_hist.front().is_some_and(|&(tf, _)| tf < t - keep_s) {
                         power_hist.pop_front();
                     }
@@ -468,7 +485,7 @@ impl Engine<'_> {
                             tau_est: (tau[i] + noise.tau_nm * gauss(rng)) as f32,
                             temperature: [
                                 thermal.winding_c[i].round() as i16,
-                                thermal.housing_c(i, t).round() as i16,
+                                thermal.housing_c(i).round() as i16,
                             ],
                             vol,
                         };
@@ -529,14 +546,18 @@ impl Engine<'_> {
                         + noise.mbs_w * gauss(rng);
                     let volts = quant(pack_volts(soc) - 0.4 + 0.005 * gauss(rng), 0.01);
                     let amps = quant(p / volts, 0.001);
-                    let fan = 2085.0 + 10.0 * gauss(rng);
+                    let rpm = 2085.0 + 10.0 * gauss(rng);
+                    let rpm2 = match fan.as_mut() {
+                        None => rpm - 30.0,
+                        Some(f) => f.rpm(),
+                    };
                     out.write(
                         Topic::Mbs,
                         ns,
                         cdr.main_board_state(
                             volts as f32,
                             amps as f32,
-                            [fan as u16, (fan - 30.0) as u16],
+                            [rpm as u16, rpm2 as u16],
                             [39, 36],
                         ),
                     )?;
@@ -551,6 +572,50 @@ impl Engine<'_> {
             stats.soc_range = [soc; 2];
         }
         Ok(stats)
+    }
+}
+
+/// The switching main-board fan of the rail-load effect: on/off with exponential durations.
+struct Fan {
+    watts: f64,
+    on: bool,
+    next_toggle: f64,
+    rng: ChaCha8Rng,
+}
+
+impl Fan {
+    fn new(watts: f64, seed: u64) -> Fan {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x00fa_9100_ad00_u64);
+        let first = FAN_MEAN_ON_OFF_S.1 * -(1.0 - rng.random::<f64>()).ln();
+        Fan {
+            watts,
+            on: false,
+            next_toggle: first,
+            rng,
+        }
+    }
+
+    /// Advance to session time `t` and return the load drawn then [W].
+    fn load_at(&mut self, t: f64) -> f64 {
+        while t >= self.next_toggle {
+            self.on = !self.on;
+            let mean = if self.on {
+                FAN_MEAN_ON_OFF_S.0
+            } else {
+                FAN_MEAN_ON_OFF_S.1
+            };
+            self.next_toggle += mean * -(1.0 - self.rng.random::<f64>()).ln();
+        }
+        if self.on { self.watts } else { 0.0 }
+    }
+
+    /// Speed the board reports for the fan now [rpm].
+    fn rpm(&mut self) -> f64 {
+        if self.on {
+            3000.0 + 10.0 * gauss(&mut self.rng)
+        } else {
+            0.0
+        }
     }
 }
 

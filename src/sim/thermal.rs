@@ -1,7 +1,10 @@
 //! First-order thermal model of each arm motor: the winding temperature T follows
 //! C·dT/dt = P_heat − (T − T_amb)/R_th with P_heat = idle loss + copper heating b_heat·τ², C = τ_th/R_th.
-//! The housing sits between winding and ambient. Constants as in the shared truth files
-//! (`plant.thermal`): with them a session's windings warm by a few K over several minutes.
+//! The housing sits between winding and ambient: it settles at ambient + 70 % of the winding's
+//! rise, lagging the winding with [`HOUSING_LAG`] times its time constant (a second, heavier
+//! thermal mass), so a warm motor that cools down shows a housing that is still warm. Winding
+//! constants as in the shared truth files (`plant.thermal`): with them a session's windings warm
+//! by a few K over several minutes.
 
 use serde::{Deserialize, Serialize};
 
@@ -38,21 +41,35 @@ impl Default for ThermalModel {
     }
 }
 
-/// Winding temperatures of the seven motors, integrated step by step.
+/// Housing time constant as a multiple of the winding's.
+pub const HOUSING_LAG: f64 = 3.0;
+/// Share of the winding's rise above ambient the housing settles at.
+const HOUSING_SHARE: f64 = 0.7;
+
+/// Winding and housing temperatures of the seven motors, integrated step by step.
 #[derive(Debug, Clone)]
 pub struct ThermalState {
     model: ThermalModel,
     /// Current winding temperature [°C].
     pub winding_c: [f64; N_JOINTS],
+    /// Current housing temperature [°C].
+    housing: [f64; N_JOINTS],
 }
 
 impl ThermalState {
     /// All windings at `t_start_c` [°C].
     pub fn new(model: ThermalModel, t_start_c: f64) -> Self {
+        let amb = model.ambient_c;
         ThermalState {
             winding_c: [t_start_c; N_JOINTS],
+            housing: [amb + HOUSING_SHARE * (t_start_c - amb); N_JOINTS],
             model,
         }
+    }
+
+    /// Set every housing temperature [°C].
+    pub fn set_housing(&mut self, c: f64) {
+        self.housing = [c; N_JOINTS];
     }
 
     /// Ambient temperature at session time `t` [s].
@@ -69,13 +86,15 @@ impl ThermalState {
             let t_eq = amb + heat * self.model.r_k_per_w[i];
             let k = (-dt / self.model.tau_s[i]).exp();
             *w = t_eq + (*w - t_eq) * k;
+            let h_eq = amb + HOUSING_SHARE * (*w - amb);
+            let kh = (-dt / (HOUSING_LAG * self.model.tau_s[i])).exp();
+            self.housing[i] = h_eq + (self.housing[i] - h_eq) * kh;
         }
     }
 
-    /// Housing temperature [°C]: ambient + 70 % of the winding's rise above ambient.
-    pub fn housing_c(&self, i: usize, t: f64) -> f64 {
-        let amb = self.ambient(t);
-        amb + 0.7 * (self.winding_c[i] - amb)
+    /// Housing temperature [°C] of motor `i`.
+    pub fn housing_c(&self, i: usize) -> f64 {
+        self.housing[i]
     }
 }
 
@@ -115,5 +134,30 @@ mod tests {
         }
         let expected = t_eq + (30.0 - t_eq) * (-1.0f64).exp();
         assert!((s.winding_c[0] - expected).abs() < 1e-6);
+    }
+
+    #[test]
+    fn housing_lags_the_winding_and_settles_at_seventy_percent() {
+        let m = ThermalModel {
+            ambient_rate_k_per_h: 0.0,
+            ..Default::default()
+        };
+        // A hot motor left without load: the winding cools faster than its housing.
+        let mut s = ThermalState::new(m, 70.0);
+        let h0 = s.housing_c(0);
+        assert!((h0 - (23.0 + 0.7 * 47.0)).abs() < 1e-12);
+        for k in 0..60_000 {
+            s.step(k as f64 * 0.01, 0.01, &[0.0; N_JOINTS]);
+        }
+        // After 600 s the winding has dropped a third of the way to equilibrium, the housing
+        // much less.
+        let w_drop = 70.0 - s.winding_c[0];
+        let h_drop = h0 - s.housing_c(0);
+        assert!(w_drop > 10.0 && h_drop < 0.5 * w_drop, "{w_drop} {h_drop}");
+        for k in 60_000..4_000_000 {
+            s.step(k as f64 * 0.01, 0.01, &[0.0; N_JOINTS]);
+        }
+        let t_eq = 23.0 + m.idle_w[0] * m.r_k_per_w[0];
+        assert!((s.housing_c(0) - (23.0 + 0.7 * (t_eq - 23.0))).abs() < 0.05);
     }
 }

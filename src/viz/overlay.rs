@@ -201,8 +201,12 @@ pub fn diagnosis_extras(d: &crate::diagnose::Diagnosis) -> ReplayExtras {
             highlighted,
             summary: d.summary.clone(),
             counterpart: d.counterpart.as_ref().map(|c| c.series.clone()),
-            found: Vec::new(),
-            located: Vec::new(),
+            found: r.found_w.clone(),
+            located: r
+                .located
+                .iter()
+                .map(|l| (l.name.clone(), l.values.clone()))
+                .collect(),
         }),
         ..ReplayExtras::default()
     }

@@ -1,0 +1,1145 @@
+//! Discovery beyond the hypothesis library: when the library is done, search a generated set
+//! of candidate terms with the same gates as the hypotheses and a hard cap on false
+//! discoveries across everything tried.
+//!
+//! Candidates (each one or a few extra regressors, net of the trial's pre-idle baseline like
+//! the target):
+//! - every non-constant numeric field of every topic ([`super::fields`]), as an additive term
+//!   (W per unit) and, for fields that switch between levels, as a step (W while above the
+//!   midpoint of its range);
+//! - products of each pooled base loss term (Σ τq̇, Σ Δτ², Σ |q̇|, Σ q̇²) with each slow state
+//!   signal (fields that change little within a trial, and session time), and with each
+//!   per-motor field family taken joint by joint (Σ_i term_i · s_i, s_i = the field of joint
+//!   i's own motor), with the plain pooled term as a second column (the level);
+//! - against a held base model, each base loss term per joint (one coefficient per joint) and
+//!   pooled (one coefficient): a friction or efficiency the twin has wrong.
+//!
+//! Selection: forward (best held-out improvement that passes every gate at the Holm-corrected
+//! level α/(m − j), m = candidates tried), then backward elimination (every accepted term stays
+//! significant given the others), never more terms than one per 20 trials. Fields that track
+//! the measured power itself (|r| ≥ 0.5 with the readings: another meter of the same flow) are
+//! consequences of the power, not causes, and are left out with a note. Names come from the
+//! term's structure only ([`describe`]).
+
+use anyhow::Result;
+use nalgebra::{DMatrix, DVector};
+
+use super::Quality;
+use super::data::Rows;
+use super::fields::FieldTable;
+use super::select::{
+    Param, PowerData, Rule, State, bic, bounds_for, design_map_for, jackknife_se, r2_rmse,
+    solve_bounded_for, trial_sse,
+};
+use super::stats::{improvement_p_value, pearson};
+use crate::{N_JOINTS, N_PARAMS};
+
+/// Correlation with the readings above which a field counts as a meter of the power itself.
+const METER_CORRELATION: f64 = 0.5;
+/// Within-trial share of a field's variance below which it is a slow state signal.
+const SLOW_SHARE: f64 = 0.1;
+/// At most one discovered term per this many trials.
+const TRIALS_PER_TERM: usize = 20;
+/// Hard cap on discovered terms.
+const MAX_TERMS: usize = 4;
+/// Partial correlation (given the library design) above which two terms are confounded.
+const CONFOUNDED_R: f64 = 0.9;
+
+/// One base loss term of the paper's model, per joint (block of the 49 regressors).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Term {
+    /// τ_i q̇_i (mechanical power: transmission efficiency).
+    Mech,
+    /// τ_i² − τ0_i² (copper loss).
+    Copper,
+    /// |q̇_i| (Coulomb friction).
+    Coulomb,
+    /// q̇_i² (viscous friction).
+    Viscous,
+}
+
+impl Term {
+    const ALL: [Term; 4] = [Term::Mech, Term::Copper, Term::Coulomb, Term::Viscous];
+
+    fn offset(self) -> usize {
+        match self {
+            Term::Mech => 0,
+            Term::Copper => N_JOINTS,
+            Term::Coulomb => 2 * N_JOINTS,
+            Term::Viscous => 3 * N_JOINTS,
+        }
+    }
+
+    fn words(self) -> &'static str {
+        match self {
+            Term::Mech => "the transmitted mechanical power τq̇ (efficiency)",
+            Term::Copper => "the copper loss Δτ²",
+            Term::Coulomb => "the Coulomb friction loss |q̇|",
+            Term::Viscous => "the viscous friction loss q̇²",
+        }
+    }
+
+    fn symbol(self) -> &'static str {
+        match self {
+            Term::Mech => "τ_i q̇_i",
+            Term::Copper => "Δτ_i²",
+            Term::Coulomb => "|q̇_i|",
+            Term::Viscous => "q̇_i²",
+        }
+    }
+
+    fn unit(self) -> &'static str {
+        match self {
+            Term::Mech => "-",
+            Term::Copper => "W/Nm²",
+            Term::Coulomb => "W·s/rad",
+            Term::Viscous => "W·s²/rad²",
+        }
+    }
+}
+
+/// A slow state signal a loss term may depend on.
+#[derive(Debug, Clone)]
+pub(crate) enum Signal {
+    /// One field for all joints.
+    Field(usize),
+    /// A field of each joint's own motor (field indices per joint).
+    Family(String, [usize; N_JOINTS]),
+    /// Session time [h].
+    Time,
+}
+
+/// A generated candidate term.
+#[derive(Debug, Clone)]
+pub(crate) enum Kind {
+    /// W per unit of the field (and the field's 5–95 % span, to state the load it swings).
+    Additive(usize, f64),
+    /// W while the field is above `threshold`.
+    Step(usize, f64),
+    /// Σ_i term_i · signal_i.
+    Product(Term, Signal),
+    /// One coefficient per joint on term_i (held base model only).
+    PerJoint(Term),
+    /// One coefficient on Σ_i term_i (held base model only).
+    Pooled(Term),
+}
+
+/// A term found beyond the library.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct Discovery {
+    /// What it is, in physical words (from the term's structure).
+    pub name: String,
+    /// Its form as a formula.
+    pub form: String,
+    /// The recorded field(s) it follows (empty for a base-term correction).
+    pub fields: Vec<String>,
+    /// Its parameter(s) with standard errors (delete-a-fold jackknife).
+    pub params: Vec<Param>,
+    /// One-sided paired p-value of the held-out improvement by trial.
+    pub p_value: f64,
+    /// Level it had to beat (Holm over the candidates tried).
+    pub alpha: f64,
+    /// ΔBIC of adding it.
+    pub delta_bic: f64,
+    /// 1 − held-out RMSE after / before.
+    pub rel_improvement: f64,
+    /// Held-out quality before adding it (per reading).
+    pub before: Quality,
+    /// Held-out quality after adding it.
+    pub after: Quality,
+    /// Selection step (1 = first term found).
+    pub step: usize,
+    /// Why accepted or rejected.
+    pub verdict: String,
+}
+
+/// What discovery tried and found.
+#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
+pub struct DiscoveryReport {
+    /// Numeric fields read / kept as candidates (non-constant, complete, distinct, not a meter).
+    pub fields_read: usize,
+    /// Fields kept.
+    pub fields_used: usize,
+    /// Candidate terms tried (m of the Holm correction).
+    pub n_candidates: usize,
+    /// Family-wise false-discovery level across all candidates.
+    pub alpha: f64,
+    /// Terms found, in the order accepted (backward elimination applied).
+    pub accepted: Vec<Discovery>,
+    /// The best candidate that was not accepted (for the report), if any was tried.
+    pub best_rejected: Option<Discovery>,
+    /// Held-out quality before discovery (the library model) and after it.
+    pub before: Option<Quality>,
+    /// After the discovered terms.
+    pub after: Option<Quality>,
+    /// Held-out predictions with the discovered terms (per reading, same order as the rows).
+    #[serde(skip)]
+    pub pred: Vec<f64>,
+    /// Regressor columns of the kept terms (per reading), to test library terms given them.
+    #[serde(skip)]
+    pub cols: Vec<Vec<f64>>,
+    /// Notes (fields left out as meters of the power, unreadable files).
+    pub notes: Vec<String>,
+}
+
+/// Everything discovery needs about the recording beyond the power data.
+pub(crate) struct Inputs<'a> {
+    /// Field table over the rows' and the baseline readings' windows.
+    pub fields: &'a FieldTable,
+    /// Window of each row in the table.
+    pub row_window: &'a [usize],
+    /// Baseline (pre-idle) reading windows of each trial (position in the trial list).
+    pub base_windows: &'a [Vec<usize>],
+    /// Per joint: the motor index whose fields belong to it (`motor_state[k]`).
+    pub arm_motors: [usize; N_JOINTS],
+}
+
+/// Field values on the rows: raw window value and the mean over the row's trial baseline.
+struct RowValues {
+    raw: Vec<Vec<f64>>,
+    baseline: Vec<Vec<f64>>,
+    hours: Vec<f64>,
+}
+
+impl RowValues {
+    fn new(inp: &Inputs, rows: &Rows) -> RowValues {
+        let mut raw = Vec::new();
+        let mut baseline = Vec::new();
+        for vals in &inp.fields.values {
+            raw.push((0..rows.len()).map(|r| vals[inp.row_window[r]]).collect());
+            baseline.push(
+                rows.trial
+                    .iter()
+                    .map(|&ti| base_mean(&inp.base_windows[ti], |w| vals[w]))
+                    .collect(),
+            );
+        }
+        RowValues {
+            raw,
+            baseline,
+            hours: rows.t.iter().map(|t| t / 3600.0).collect(),
+        }
+    }
+}
+
+/// Mean of `f` over a trial's baseline windows (0 without any).
+fn base_mean(windows: &[usize], f: impl Fn(usize) -> f64) -> f64 {
+    if windows.is_empty() {
+        return 0.0;
+    }
+    windows.iter().map(|&w| f(w)).sum::<f64>() / windows.len() as f64
+}
+
+/// A candidate and the group it competes in (forms of one mechanism: at most one accepted).
+struct Cand {
+    kind: Kind,
+    group: String,
+}
+
+/// Result of fitting the current model plus extra columns.
+struct ExtFit {
+    pred: Vec<f64>,
+    /// Coefficients of the extra columns per fold.
+    fold_gamma: Vec<Vec<f64>>,
+    /// Coefficients of the extra columns on all data.
+    gamma: Vec<f64>,
+    bic: f64,
+}
+
+/// The library model's design on each row (x_raw · M), fold Grams of it, and the data.
+struct Base<'a> {
+    data: &'a PowerData,
+    cur: &'a State,
+    rows: &'a Rows,
+    xm: Vec<Vec<f64>>,
+    /// Per fold: (Σ xm xmᵀ, Σ xm y, Σ y², n).
+    fold: Vec<(DMatrix<f64>, DVector<f64>, f64, usize)>,
+    p: usize,
+}
+
+impl<'a> Base<'a> {
+    /// `c` with its least-squares projection on the library design removed (full data).
+    fn residualise(&self, c: &[f64]) -> Vec<f64> {
+        let p = self.p;
+        let mut g = DMatrix::zeros(p, p);
+        for (gf, _, _, _) in &self.fold {
+            g += gf;
+        }
+        for i in 0..p {
+            g[(i, i)] += 1e-9 * (1.0 + g[(i, i)]);
+        }
+        let mut h = DVector::zeros(p);
+        for (x, v) in self.xm.iter().zip(c) {
+            for a in 0..p {
+                h[a] += x[a] * v;
+            }
+        }
+        let beta = g
+            .cholesky()
+            .map_or_else(|| DVector::zeros(p), |ch| ch.solve(&h));
+        self.xm
+            .iter()
+            .zip(c)
+            .map(|(x, v)| v - x.iter().zip(beta.iter()).map(|(a, b)| a * b).sum::<f64>())
+            .collect()
+    }
+
+    fn new(data: &'a PowerData, cur: &'a State) -> Base<'a> {
+        let rows = &data.rows[cur.lag];
+        let m = design_map_for(&cur.spec, &cur.full.theta);
+        let p = m.ncols();
+        let xm: Vec<Vec<f64>> = rows
+            .x
+            .iter()
+            .map(|x| {
+                (0..p)
+                    .map(|c| (0..x.len()).map(|r| x[r] * m[(r, c)]).sum())
+                    .collect()
+            })
+            .collect();
+        let k = data.folds.k;
+        let mut fold = vec![(DMatrix::zeros(p, p), DVector::zeros(p), 0.0, 0usize); k];
+        for (r, x) in xm.iter().enumerate() {
+            let f = data.folds.of_trial[rows.trial[r]];
+            let (g, h, yy, n) = &mut fold[f];
+            let y = rows.y[r];
+            for a in 0..p {
+                h[a] += x[a] * y;
+                for b in 0..p {
+                    g[(a, b)] += x[a] * x[b];
+                }
+            }
+            *yy += y * y;
+            *n += 1;
+        }
+        Base {
+            data,
+            cur,
+            rows,
+            xm,
+            fold,
+            p,
+        }
+    }
+
+    /// Cross-validated and full fit of the library model plus `cols`.
+    fn fit(&self, cols: &[&Vec<f64>]) -> Result<ExtFit> {
+        let (p, q, k) = (self.p, cols.len(), self.data.folds.k);
+        let n = p + q;
+        // Per fold Gram of the extended design.
+        let mut fg: Vec<(DMatrix<f64>, DVector<f64>, f64, usize)> = self
+            .fold
+            .iter()
+            .map(|(g, h, yy, nn)| {
+                let mut gg = DMatrix::zeros(n, n);
+                gg.view_mut((0, 0), (p, p)).copy_from(g);
+                let mut hh = DVector::zeros(n);
+                hh.rows_mut(0, p).copy_from(h);
+                (gg, hh, *yy, *nn)
+            })
+            .collect();
+        for (r, x) in self.xm.iter().enumerate() {
+            let f = self.data.folds.of_trial[self.rows.trial[r]];
+            let (g, h, _, _) = &mut fg[f];
+            let y = self.rows.y[r];
+            for (j, c) in cols.iter().enumerate() {
+                let e = c[r];
+                if e == 0.0 {
+                    continue;
+                }
+                h[p + j] += e * y;
+                for a in 0..p {
+                    g[(a, p + j)] += x[a] * e;
+                }
+                for (l, c2) in cols.iter().enumerate() {
+                    g[(p + l, p + j)] += c2[r] * e;
+                }
+            }
+        }
+        for (g, _, _, _) in fg.iter_mut() {
+            for j in p..n {
+                for a in 0..p {
+                    g[(j, a)] = g[(a, j)];
+                }
+            }
+        }
+        let mut total = (DMatrix::zeros(n, n), DVector::zeros(n), 0.0, 0usize);
+        for (g, h, yy, nn) in &fg {
+            total.0 += g;
+            total.1 += h;
+            total.2 += yy;
+            total.3 += nn;
+        }
+        let (lo, hi) = bounds_for(n, self.data.reference.as_deref());
+        let mut fold_theta = Vec::with_capacity(k);
+        for (g, h, _, _) in &fg {
+            let gt = &total.0 - g;
+            let ht = &total.1 - h;
+            fold_theta.push(solve_bounded_for(&gt, &ht, &lo, &hi)?);
+        }
+        let full = solve_bounded_for(&total.0, &total.1, &lo, &hi)?;
+        let pred = (0..self.rows.len())
+            .map(|r| {
+                let th = &fold_theta[self.data.folds.of_trial[self.rows.trial[r]]];
+                let base: f64 = self.xm[r].iter().zip(th.iter()).map(|(a, b)| a * b).sum();
+                base + cols
+                    .iter()
+                    .enumerate()
+                    .map(|(j, c)| c[r] * th[p + j])
+                    .sum::<f64>()
+            })
+            .collect();
+        let sse = (total.2 - 2.0 * full.dot(&total.1) + full.dot(&(&total.0 * &full))).max(0.0);
+        let n_free = if self.data.reference.is_some() {
+            0
+        } else {
+            N_PARAMS
+        } + self.cur.spec.len()
+            + usize::from(self.cur.lag != 0)
+            + q;
+        Ok(ExtFit {
+            pred,
+            fold_gamma: fold_theta
+                .iter()
+                .map(|t| t.iter().skip(p).copied().collect())
+                .collect(),
+            gamma: full.iter().skip(p).copied().collect(),
+            bic: bic(sse, total.3, n_free),
+        })
+    }
+
+    /// Compare predictions `after` with `before`: (p, rel improvement, before, after quality).
+    fn compare(&self, before: &[f64], after: &[f64]) -> (f64, f64, Quality, Quality) {
+        let y = &self.rows.y;
+        let nt = self.data.n_trials;
+        let eb = trial_sse(y, before, &self.rows.trial, nt);
+        let ea = trial_sse(y, after, &self.rows.trial, nt);
+        let d: Vec<f64> = eb.iter().zip(&ea).map(|(a, b)| a - b).collect();
+        let (r2b, rb) = r2_rmse(y, before);
+        let (r2a, ra) = r2_rmse(y, after);
+        (
+            improvement_p_value(&d),
+            1.0 - ra / rb.max(1e-300),
+            Quality {
+                r2: r2b,
+                rmse_w: rb,
+            },
+            Quality {
+                r2: r2a,
+                rmse_w: ra,
+            },
+        )
+    }
+}
+
+/// Share of a series' variance that lies within trials.
+fn within_share(v: &[f64], trial: &[usize], n_trials: usize) -> f64 {
+    let mut s = vec![0.0; n_trials];
+    let mut c = vec![0usize; n_trials];
+    for (x, &t) in v.iter().zip(trial) {
+        s[t] += x;
+        c[t] += 1;
+    }
+    let mean = v.iter().sum::<f64>() / v.len().max(1) as f64;
+    let (mut within, mut total) = (0.0, 0.0);
+    for (x, &t) in v.iter().zip(trial) {
+        let m = s[t] / c[t] as f64;
+        within += (x - m).powi(2);
+        total += (x - mean).powi(2);
+    }
+    within / total.max(1e-300)
+}
+
+/// 5–95 % span of a field's values.
+fn span(v: &[f64]) -> f64 {
+    let mut s: Vec<f64> = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    let q = |p: f64| s[((s.len() - 1) as f64 * p).round() as usize];
+    if s.is_empty() { 0.0 } else { q(0.95) - q(0.05) }
+}
+
+/// Threshold of a field that switches between levels: the midpoint of its 5–95 % range when
+/// fewer than 10 % of the values lie in the middle third of it.
+fn step_threshold(v: &[f64]) -> Option<f64> {
+    let mut s: Vec<f64> = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    let q = |p: f64| s[((s.len() - 1) as f64 * p).round() as usize];
+    let (lo, hi) = (q(0.05), q(0.95));
+    if hi - lo <= 0.0 {
+        return None;
+    }
+    let mid = v
+        .iter()
+        .filter(|&&x| x > lo + (hi - lo) / 3.0 && x < hi - (hi - lo) / 3.0)
+        .count();
+    (mid * 10 < v.len()).then_some(0.5 * (lo + hi))
+}
+
+/// Per-motor families: fields `…motor_state[k].rest` present for every arm motor.
+fn families(names: &[String], arm: &[usize; N_JOINTS]) -> Vec<(String, [usize; N_JOINTS])> {
+    use std::collections::BTreeMap;
+    let mut by_key: BTreeMap<String, [Option<usize>; N_JOINTS]> = BTreeMap::new();
+    for (f, name) in names.iter().enumerate() {
+        for (j, &k) in arm.iter().enumerate() {
+            let tag = format!("[{k}].");
+            if let Some(pos) = name.find(&tag) {
+                let key = format!("{}[*].{}", &name[..pos], &name[pos + tag.len()..]);
+                by_key.entry(key).or_insert([None; N_JOINTS])[j] = Some(f);
+            }
+        }
+    }
+    by_key
+        .into_iter()
+        .filter_map(|(k, v)| {
+            let all: Option<Vec<usize>> = v.iter().copied().collect();
+            all.map(|a| (k, std::array::from_fn(|j| a[j])))
+        })
+        .collect()
+}
+
+/// Columns of a candidate on the rows.
+fn columns(kind: &Kind, inp: &Inputs, rv: &RowValues, rows: &Rows) -> Vec<Vec<f64>> {
+    let n = rows.len();
+    let term_sum = |t: Term, r: usize, w: &dyn Fn(usize) -> f64| -> f64 {
+        (0..N_JOINTS)
+            .map(|i| rows.x[r][t.offset() + i] * w(i))
+            .sum()
+    };
+    match kind {
+        Kind::Additive(f, _) => vec![(0..n).map(|r| rv.raw[*f][r] - rv.baseline[*f][r]).collect()],
+        Kind::Step(f, thr) => {
+            let vals = &inp.fields.values[*f];
+            let on = |v: f64| f64::from(u8::from(v > *thr));
+            vec![
+                (0..n)
+                    .map(|r| {
+                        on(rv.raw[*f][r])
+                            - base_mean(&inp.base_windows[rows.trial[r]], |w| on(vals[w]))
+                    })
+                    .collect(),
+            ]
+        }
+        Kind::Product(t, sig) => {
+            let s = |r: usize, i: usize| match sig {
+                Signal::Field(f) => rv.raw[*f][r],
+                Signal::Family(_, fs) => rv.raw[fs[i]][r],
+                Signal::Time => rv.hours[r],
+            };
+            // The level column lets the term's coefficient at signal 0 take any sign (the base
+            // coefficients it would otherwise shift are bounded at 0).
+            vec![
+                (0..n).map(|r| term_sum(*t, r, &|i| s(r, i))).collect(),
+                (0..n).map(|r| term_sum(*t, r, &|_| 1.0)).collect(),
+            ]
+        }
+        Kind::PerJoint(t) => (0..N_JOINTS)
+            .map(|i| (0..n).map(|r| rows.x[r][t.offset() + i]).collect())
+            .collect(),
+        Kind::Pooled(t) => vec![(0..n).map(|r| term_sum(*t, r, &|_| 1.0)).collect()],
+    }
+}
+
+/// Generate every candidate; fields that meter the power itself are left out (noted).
+fn generate(
+    inp: &Inputs,
+    rows: &Rows,
+    n_trials: usize,
+    twin: bool,
+    notes: &mut Vec<String>,
+) -> (Vec<Cand>, RowValues) {
+    let names = &inp.fields.names;
+    let rv = RowValues::new(inp, rows);
+    let mut meters = Vec::new();
+    let mut usable = vec![true; names.len()];
+    let single: Vec<bool> = (0..names.len())
+        .map(|f| !inp.fields.duplicate.get(f).copied().unwrap_or(false))
+        .collect();
+    for f in 0..names.len() {
+        let net: Vec<f64> = (0..rows.len())
+            .map(|r| rv.raw[f][r] - rv.baseline[f][r])
+            .collect();
+        let (r, _) = pearson(&net, &rows.y);
+        if r.abs() >= METER_CORRELATION {
+            usable[f] = false;
+            if single[f] {
+                meters.push(format!("{} (r = {r:+.2})", names[f]));
+            }
+        }
+    }
+    if !meters.is_empty() {
+        notes.push(format!(
+            "left out as meters of the power itself (|r| ≥ {METER_CORRELATION} with the readings): {}",
+            meters.join(", ")
+        ));
+    }
+    let mut kinds: Vec<(Kind, String)> = Vec::new();
+    let mut slow = vec![Signal::Time];
+    for f in (0..names.len()).filter(|&f| usable[f] && single[f]) {
+        kinds.push((
+            Kind::Additive(f, span(&rv.raw[f])),
+            format!("field {}", names[f]),
+        ));
+        if let Some(thr) = step_threshold(&rv.raw[f]) {
+            kinds.push((Kind::Step(f, thr), format!("field {}", names[f])));
+        }
+        if within_share(&rv.raw[f], &rows.trial, n_trials) < SLOW_SHARE {
+            slow.push(Signal::Field(f));
+        }
+    }
+    for (key, fs) in families(names, &inp.arm_motors) {
+        let ok = fs.iter().all(|&f| usable[f])
+            && fs
+                .iter()
+                .all(|&f| within_share(&rv.raw[f], &rows.trial, n_trials) < SLOW_SHARE);
+        if ok {
+            slow.push(Signal::Family(key, fs));
+        }
+    }
+    for t in Term::ALL {
+        for s in &slow {
+            let g = format!("{t:?} × {}", signal_name(s, names));
+            kinds.push((Kind::Product(t, s.clone()), g));
+        }
+        if twin {
+            kinds.push((Kind::PerJoint(t), format!("{t:?} correction")));
+            kinds.push((Kind::Pooled(t), format!("{t:?} correction")));
+        }
+    }
+    let cands = kinds
+        .into_iter()
+        .map(|(kind, group)| Cand { kind, group })
+        .collect();
+    (cands, rv)
+}
+
+fn signal_name(s: &Signal, names: &[String]) -> String {
+    match s {
+        Signal::Field(f) => names[*f].clone(),
+        Signal::Family(k, _) => format!("{k} (each joint's own motor)"),
+        Signal::Time => "session time".into(),
+    }
+}
+
+/// Name, formula, fields and parameters of a fitted candidate, from its structure only.
+pub(crate) fn describe(
+    kind: &Kind,
+    names: &[String],
+    joint_names: &[String],
+    gamma: &[f64],
+    se: &[f64],
+) -> (String, String, Vec<String>, Vec<Param>) {
+    let param = |name: String, symbol: &str, j: usize, unit: String| Param {
+        name,
+        symbol: symbol.into(),
+        value: gamma.get(j).copied().unwrap_or(f64::NAN),
+        std_err: se.get(j).copied().unwrap_or(f64::NAN),
+        unit,
+    };
+    let sign = |v: f64, up: &str, down: &str| {
+        if v >= 0.0 {
+            up.to_string()
+        } else {
+            down.to_string()
+        }
+    };
+    match kind {
+        Kind::Additive(f, sp) => {
+            let mut swing = param(
+                "load change over the field's 5–95 % range".into(),
+                "ΔP",
+                0,
+                "W".into(),
+            );
+            swing.value *= sp;
+            swing.std_err *= sp;
+            (
+                format!(
+                    "a load on the power rail that {} {}",
+                    sign(gamma[0], "rises with", "falls as it rises:"),
+                    names[*f]
+                ),
+                format!("P += k·{}", names[*f]),
+                vec![names[*f].clone()],
+                vec![
+                    swing,
+                    param(
+                        "load per unit of the field".into(),
+                        "k",
+                        0,
+                        "W per unit".into(),
+                    ),
+                ],
+            )
+        }
+        Kind::Step(f, thr) => (
+            format!(
+                "a rail load that switches with {} (drawn while it reads above {thr:.4})",
+                names[*f]
+            ),
+            format!("P += P_on·[{} > {thr:.4}]", names[*f]),
+            vec![names[*f].clone()],
+            vec![param("power while on".into(), "P_on", 0, "W".into())],
+        ),
+        Kind::Product(t, s) => {
+            let (sname, fields) = match s {
+                Signal::Field(f) => (names[*f].clone(), vec![names[*f].clone()]),
+                Signal::Family(k, fs) => (
+                    format!("{k} of each joint's own motor"),
+                    fs.iter().map(|&f| names[f].clone()).collect(),
+                ),
+                Signal::Time => ("session time [h]".into(), Vec::new()),
+            };
+            let mut ps = vec![param(
+                format!("change of {} per unit of the signal", t.words()),
+                "k",
+                0,
+                format!("{} per unit", t.unit()),
+            )];
+            if gamma.len() > 1 {
+                ps.push(param("level at signal 0".into(), "k0", 1, t.unit().into()));
+            }
+            (
+                format!(
+                    "{} of the arm's joints {} {sname}",
+                    capitalise(t.words()),
+                    sign(gamma[0], "rises with", "falls as it rises:")
+                ),
+                format!(
+                    "P += Σ_i {}·(k·s_i{})",
+                    t.symbol(),
+                    if gamma.len() > 1 { " + k0" } else { "" }
+                ),
+                fields,
+                ps,
+            )
+        }
+        Kind::PerJoint(t) => (
+            format!(
+                "{} differs joint by joint from the model",
+                capitalise(t.words())
+            ),
+            format!("P += Σ_i k_i·{}", t.symbol()),
+            Vec::new(),
+            (0..N_JOINTS)
+                .map(|i| {
+                    let j = joint_names
+                        .get(i)
+                        .cloned()
+                        .unwrap_or_else(|| format!("joint {i}"));
+                    param(
+                        format!("excess on {j}"),
+                        &format!("k_{i}"),
+                        i,
+                        t.unit().into(),
+                    )
+                })
+                .collect(),
+        ),
+        Kind::Pooled(t) => (
+            format!(
+                "{} of all joints is {} than the model's",
+                capitalise(t.words()),
+                sign(gamma[0], "larger", "smaller")
+            ),
+            format!("P += k·Σ_i {}", t.symbol()),
+            Vec::new(),
+            vec![param("common excess".into(), "k", 0, t.unit().into())],
+        ),
+    }
+}
+
+fn capitalise(s: &str) -> String {
+    let mut c = s.chars();
+    c.next()
+        .map(|f| f.to_uppercase().collect::<String>() + c.as_str())
+        .unwrap_or_default()
+}
+
+/// A scored candidate.
+struct Scored {
+    idx: usize,
+    fit: ExtFit,
+    p: f64,
+    rel: f64,
+    d_bic: f64,
+    before: Quality,
+    after: Quality,
+    plausible: bool,
+}
+
+/// Forward selection over the candidates at the Holm level; returns the accepted (step,
+/// score) pairs and the best rejected candidate of the first step.
+struct Search<'a> {
+    base: Base<'a>,
+    cands: Vec<Cand>,
+    rv: RowValues,
+    inp: &'a Inputs<'a>,
+    rule: Rule,
+    m: usize,
+}
+
+impl Search<'_> {
+    fn cols(&self, i: usize) -> Vec<Vec<f64>> {
+        columns(&self.cands[i].kind, self.inp, &self.rv, self.base.rows)
+    }
+
+    fn level(&self, step: usize) -> f64 {
+        self.rule.alpha / self.m.saturating_sub(step - 1).max(1) as f64
+    }
+
+    /// Score candidate `i` on top of the chosen columns `prev` (current predictions and BIC).
+    fn score(&self, i: usize, prev: &[Vec<f64>], cur: (&[f64], f64), y_rms: f64) -> Option<Scored> {
+        let own = self.cols(i);
+        let mut cols: Vec<&Vec<f64>> = prev.iter().collect();
+        cols.extend(own.iter());
+        // A candidate whose fit fails (a degenerate column) is not a discovery.
+        let fit = self.base.fit(&cols).ok()?;
+        let (p, rel, before, after) = self.base.compare(cur.0, &fit.pred);
+        let n = self.base.rows.len().max(1) as f64;
+        let contrib: f64 = (0..self.base.rows.len())
+            .map(|r| {
+                own.iter()
+                    .enumerate()
+                    .map(|(j, c)| c[r] * fit.gamma[prev.len() + j])
+                    .sum::<f64>()
+                    .powi(2)
+            })
+            .sum();
+        let plausible = fit.gamma.iter().all(|g| g.is_finite()) && (contrib / n).sqrt() <= y_rms;
+        Some(Scored {
+            idx: i,
+            d_bic: fit.bic - cur.1,
+            fit,
+            p,
+            rel,
+            before,
+            after,
+            plausible,
+        })
+    }
+
+    fn passes(&self, s: &Scored, level: f64) -> bool {
+        s.p < level
+            && s.d_bic < self.rule.bic_threshold
+            && s.rel >= self.rule.min_improvement
+            && s.plausible
+    }
+}
+
+/// Run discovery on the library's final model `cur`.
+pub(crate) fn discover(
+    data: &PowerData,
+    cur: &State,
+    inp: &Inputs,
+    rule: &Rule,
+    joint_names: &[String],
+) -> Result<DiscoveryReport> {
+    let base = Base::new(data, cur);
+    let rows = base.rows;
+    let twin = data.reference.is_some();
+    let mut report = DiscoveryReport {
+        fields_read: inp.fields.n_read,
+        fields_used: inp.fields.names.len(),
+        alpha: rule.alpha,
+        notes: inp.fields.notes.clone(),
+        ..Default::default()
+    };
+    let (cands, rv) = generate(inp, rows, data.n_trials, twin, &mut report.notes);
+    let m = cands.len();
+    report.n_candidates = m;
+    report.fields_used = (0..inp.fields.names.len())
+        .filter(|&f| !inp.fields.duplicate.get(f).copied().unwrap_or(false))
+        .count();
+    let search = Search {
+        base,
+        cands,
+        rv,
+        inp,
+        rule: *rule,
+        m,
+    };
+    let y_rms = (rows.y.iter().map(|v| v * v).sum::<f64>() / rows.len().max(1) as f64).sqrt();
+    let max_terms = MAX_TERMS.min(data.n_trials / TRIALS_PER_TERM);
+    let mut chosen: Vec<usize> = Vec::new();
+    let mut chosen_cols: Vec<Vec<f64>> = Vec::new();
+    let mut cur_pred = cur.cv.pred.clone();
+    let mut cur_bic = cur.bic;
+    let mut closed: Vec<String> = Vec::new();
+    report.before = Some(search.base.compare(&cur_pred, &cur_pred).2);
+    let mut accepted: Vec<(usize, Scored)> = Vec::new();
+    for step in 1..=max_terms {
+        let level = search.level(step);
+        let (mut best, mut best_fail): (Option<Scored>, Option<Scored>) = (None, None);
+        for i in 0..m {
+            if chosen.contains(&i) || closed.contains(&search.cands[i].group) {
+                continue;
+            }
+            let Some(s) = search.score(i, &chosen_cols, (&cur_pred, cur_bic), y_rms) else {
+                continue;
+            };
+
+            let slot = if search.passes(&s, level) {
+                &mut best
+            } else {
+                &mut best_fail
+            };
+            if slot.as_ref().is_none_or(|b| s.rel > b.rel) {
+                *slot = Some(s);
+            }
+        }
+        if step == 1
+            && let Some(f) = &best_fail
+            && best.as_ref().is_none_or(|b| f.rel > b.rel)
+        {
+            let verdict = verdict_of(f, level, rule);
+            let d = to_discovery(f, &search, joint_names, level, step, verdict);
+            report.best_rejected = Some(d);
+        }
+        let Some(b) = best else { break };
+        if let Some(note) = confounded_with(&search, &chosen, b.idx) {
+            // The data cannot tell this term from one already found: report, do not claim.
+            report.notes.push(note);
+            closed.push(search.cands[b.idx].group.clone());
+            continue;
+        }
+        chosen.push(b.idx);
+        chosen_cols.extend(search.cols(b.idx));
+        closed.push(search.cands[b.idx].group.clone());
+        cur_pred = b.fit.pred.clone();
+        cur_bic = b.fit.bic;
+        accepted.push((step, b));
+    }
+    backward(&search, &mut chosen, &mut accepted, &mut report.notes)?;
+    finish(&search, &chosen, &accepted, cur, joint_names, &mut report)?;
+    Ok(report)
+}
+
+/// A note when candidate `i` is confounded with an already chosen term (partial correlation of
+/// their first regressors given the library design ≥ [`CONFOUNDED_R`]).
+fn confounded_with(search: &Search, chosen: &[usize], i: usize) -> Option<String> {
+    let mine = search.base.residualise(&search.cols(i)[0]);
+    chosen.iter().find_map(|&k| {
+        let other = search.base.residualise(&search.cols(k)[0]);
+        let (r, _) = pearson(&mine, &other);
+        (r.abs() >= CONFOUNDED_R).then(|| {
+            format!(
+                "confounded: {} or {} (partial correlation of their regressors r = {r:+.3}); only the first is claimed",
+                search.cands[k].group, search.cands[i].group
+            )
+        })
+    })
+}
+
+/// Backward elimination at the final Holm level: every kept term stays significant given the
+/// others; the least significant failing one is dropped, repeatedly.
+fn backward(
+    search: &Search,
+    chosen: &mut Vec<usize>,
+    accepted: &mut Vec<(usize, Scored)>,
+    notes: &mut Vec<String>,
+) -> Result<()> {
+    let level = search.level(chosen.len().max(1));
+    while chosen.len() >= 2 {
+        let cols_of = |skip: Option<usize>| -> Vec<Vec<f64>> {
+            chosen
+                .iter()
+                .enumerate()
+                .filter(|(l, _)| Some(*l) != skip)
+                .flat_map(|(_, &k)| search.cols(k))
+                .collect()
+        };
+        let all = cols_of(None);
+        let full = search.base.fit(&all.iter().collect::<Vec<_>>())?;
+        let mut drop: Option<(usize, f64)> = None;
+        for j in 0..chosen.len() {
+            let rest = cols_of(Some(j));
+            let without = search.base.fit(&rest.iter().collect::<Vec<_>>())?;
+            let (p, rel, _, _) = search.base.compare(&without.pred, &full.pred);
+            let ok = p < level
+                && full.bic - without.bic < search.rule.bic_threshold
+                && rel >= search.rule.min_improvement;
+            if !ok && drop.is_none_or(|(_, pw)| p > pw) {
+                drop = Some((j, p));
+            }
+        }
+        let Some((j, p)) = drop else { break };
+        let k = chosen.remove(j);
+        accepted.retain(|(_, s)| s.idx != k);
+        notes.push(format!(
+            "dropped in backward elimination (p = {p:.1e} given the others): {}",
+            search.cands[k].group
+        ));
+    }
+    Ok(())
+}
+
+/// Parameters of the kept terms fitted together, and the final held-out predictions.
+fn finish(
+    search: &Search,
+    chosen: &[usize],
+    accepted: &[(usize, Scored)],
+    cur: &State,
+    joint_names: &[String],
+    report: &mut DiscoveryReport,
+) -> Result<()> {
+    let all: Vec<Vec<f64>> = chosen.iter().flat_map(|&k| search.cols(k)).collect();
+    let final_fit = if chosen.is_empty() {
+        None
+    } else {
+        Some(search.base.fit(&all.iter().collect::<Vec<_>>())?)
+    };
+    let mut off = 0;
+    for &k in chosen {
+        let Some((step, s)) = accepted.iter().find(|(_, s)| s.idx == k) else {
+            continue;
+        };
+        let ncols = search.cols(k).len();
+        let level = search.level(*step);
+        let verdict = format!(
+            "accepted: held-out RMSE −{:.1} % (p = {:.1e} < {:.1e}, Holm over {} candidates), ΔBIC = {:.1}",
+            100.0 * s.rel,
+            s.p,
+            level,
+            search.m,
+            s.d_bic
+        );
+        let mut d = to_discovery(s, search, joint_names, level, *step, verdict);
+        if let Some(f) = &final_fit {
+            let g: Vec<f64> = f.gamma[off..off + ncols].to_vec();
+            let se: Vec<f64> = (0..ncols)
+                .map(|j| {
+                    let per: Vec<f64> = f.fold_gamma.iter().map(|t| t[off + j]).collect();
+                    jackknife_se(&per)
+                })
+                .collect();
+            d.params = describe(
+                &search.cands[k].kind,
+                &search.inp.fields.names,
+                joint_names,
+                &g,
+                &se,
+            )
+            .3;
+        }
+        off += ncols;
+        report.accepted.push(d);
+    }
+    report.cols = all;
+    report.pred = final_fit.map_or_else(|| cur.cv.pred.clone(), |f| f.pred);
+    report.after = Some(search.base.compare(&cur.cv.pred, &report.pred).3);
+    Ok(())
+}
+
+/// Whether library term `j` of `cur` stays significant given the found terms `cols`:
+/// (p-value, relative held-out change, ΔBIC) of the full model against the one without it.
+pub(crate) fn library_term_given_found(
+    data: &PowerData,
+    cur: &State,
+    without: &State,
+    cols: &[Vec<f64>],
+) -> Result<(f64, f64, f64)> {
+    let refs: Vec<&Vec<f64>> = cols.iter().collect();
+    let full_base = Base::new(data, cur);
+    let full = full_base.fit(&refs)?;
+    let wo = Base::new(data, without).fit(&refs)?;
+    let (p, rel, _, _) = full_base.compare(&wo.pred, &full.pred);
+    Ok((p, rel, full.bic - wo.bic))
+}
+
+fn verdict_of(s: &Scored, level: f64, rule: &Rule) -> String {
+    let mut why = Vec::new();
+    if s.p >= level {
+        why.push(format!("p = {:.1e} ≥ {:.1e} (Holm)", s.p, level));
+    }
+    if s.d_bic >= rule.bic_threshold {
+        why.push(format!("ΔBIC = {:.1}", s.d_bic));
+    }
+    if s.rel < rule.min_improvement {
+        why.push(format!("held-out RMSE improves by {:.2} %", 100.0 * s.rel));
+    }
+    if !s.plausible {
+        why.push("explains more than the signal there is".into());
+    }
+    format!("rejected: {}", why.join("; "))
+}
+
+fn to_discovery(
+    s: &Scored,
+    search: &Search,
+    joint_names: &[String],
+    level: f64,
+    step: usize,
+    verdict: String,
+) -> Discovery {
+    let n = search.cols(s.idx).len();
+    let g: Vec<f64> = s.fit.gamma.iter().rev().take(n).rev().copied().collect();
+    let se: Vec<f64> = (0..n)
+        .map(|j| {
+            let per: Vec<f64> = s
+                .fit
+                .fold_gamma
+                .iter()
+                .map(|t| t[t.len() - n + j])
+                .collect();
+            jackknife_se(&per)
+        })
+        .collect();
+    let (name, form, fields, params) = describe(
+        &search.cands[s.idx].kind,
+        &search.inp.fields.names,
+        joint_names,
+        &g,
+        &se,
+    );
+    Discovery {
+        name,
+        form,
+        fields,
+        params,
+        p_value: s.p,
+        alpha: level,
+        delta_bic: s.d_bic,
+        rel_improvement: s.rel,
+        before: s.before,
+        after: s.after,
+        step,
+        verdict,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn step_threshold_needs_two_levels() {
+        let two: Vec<f64> = (0..100)
+            .map(|k| if k % 3 == 0 { 3000.0 } else { 0.0 })
+            .collect();
+        assert_eq!(step_threshold(&two), Some(1500.0));
+        let ramp: Vec<f64> = (0..100).map(f64::from).collect();
+        assert_eq!(step_threshold(&ramp), None);
+    }
+
+    #[test]
+    fn families_need_every_arm_motor() {
+        let mut names: Vec<String> = (0..35)
+            .map(|k| format!("/lowstate.motor_state[{k}].temperature[1]"))
+            .collect();
+        names.push("/lowstate.motor_state[16].vol".into());
+        let arm = [15, 16, 17, 18, 19, 20, 21];
+        let f = families(&names, &arm);
+        assert_eq!(f.len(), 1);
+        assert_eq!(f[0].0, "/lowstate.motor_state[*].temperature[1]");
+        assert_eq!(f[0].1, [15, 16, 17, 18, 19, 20, 21]);
+    }
+
+    #[test]
+    fn within_share_of_a_slow_and_a_fast_signal() {
+        let trial: Vec<usize> = (0..40).map(|r| r / 10).collect();
+        let slow: Vec<f64> = trial.iter().map(|&t| t as f64).collect();
+        let fast: Vec<f64> = (0..40).map(|r| (r % 2) as f64).collect();
+        assert!(within_share(&slow, &trial, 4) < 1e-12);
+        assert!(within_share(&fast, &trial, 4) > 0.9);
+    }
+}
