@@ -9,7 +9,7 @@ use std::path::PathBuf;
 
 use anyhow::{Context, Result};
 
-use g1viz::identify::pipeline::IdentifyOptions;
+use g1viz::identify::IdentifyOptions;
 use g1viz::power::PowerModel;
 use g1viz::robot::RobotModel;
 use g1viz::signals::{SignalMap, load_recording};
@@ -38,18 +38,7 @@ fn main() -> Result<()> {
     let layout = g1viz::viz::replay::layout(&robot, &arm, &joints, &extras);
     tabs.extend(layout.tab_names().into_iter().map(Some));
     for (n, tab) in tabs.iter().enumerate() {
-        let slug: String = tab
-            .as_deref()
-            .unwrap_or("default")
-            .chars()
-            .map(|c| {
-                if c.is_ascii_alphanumeric() {
-                    c.to_ascii_lowercase()
-                } else {
-                    '-'
-                }
-            })
-            .collect();
+        let slug = slug(tab.as_deref().unwrap_or("default"));
         let file = out.join(format!("{n}-{slug}.rrd"));
         let viz = open_stream(
             &kind.app_id(),
