@@ -7,7 +7,7 @@
 # `xvfb chromium`. Run from anywhere: docs/screenshots.sh [WAIT_SECONDS]
 set -euo pipefail
 cd "$(dirname "$0")/.."
-wait_s="${1:-30}"
+wait_s="${1:-150}"
 work="$(mktemp -d)"
 pids=()
 cleanup() {

@@ -38,18 +38,7 @@ fn main() -> Result<()> {
     let layout = g1viz::viz::replay::layout(&robot, &arm, &joints, &extras);
     tabs.extend(layout.tab_names().into_iter().map(Some));
     for (n, tab) in tabs.iter().enumerate() {
-        let slug: String = tab
-            .as_deref()
-            .unwrap_or("default")
-            .chars()
-            .map(|c| {
-                if c.is_ascii_alphanumeric() {
-                    c.to_ascii_lowercase()
-                } else {
-                    '-'
-                }
-            })
-            .collect();
+        let slug = slug(tab.as_deref().unwrap_or("default"));
         let file = out.join(format!("{n}-{slug}.rrd"));
         let viz = open_stream(
             &kind.app_id(),
