@@ -381,7 +381,8 @@ fn row(case: &Case, seed: u64, mode: &str, d: &Diagnosis) -> String {
         found.push(c.map_or("—".into(), |c| {
             format!(
                 "top correlate: {} (r = {:+.2}, p = {:.1e}{}), trials {:?}",
-                c.feature,
+                // `|` would end the markdown table cell.
+                c.feature.replace('|', "\\|"),
                 c.r,
                 c.p_adjusted,
                 if c.significant { "" } else { ", n.s." },

@@ -430,19 +430,18 @@ fn blueprint_has_few_tabs_linked_axes_and_session_time() {
             let d = column.descriptor.component.to_string();
             let values = column.list_array.values();
             match d.as_str() {
-                "ContainerBlueprint:container_kind" => {
+                "ContainerBlueprint:container_kind"
                     if values
                         .as_primitive::<rerun::external::arrow::datatypes::UInt8Type>()
                         .value(0)
-                        == 1
-                    {
-                        tab_containers.push(path.clone());
-                    }
+                        == 1 =>
+                {
+                    tab_containers.push(path.clone());
                 }
-                "ViewBlueprint:class_identifier" => {
-                    if values.as_string::<i32>().value(0) == "TimeSeries" {
-                        time_series += 1;
-                    }
+                "ViewBlueprint:class_identifier"
+                    if values.as_string::<i32>().value(0) == "TimeSeries" =>
+                {
+                    time_series += 1;
                 }
                 "TimePanelBlueprint:timeline" => {
                     timeline = Some(values.as_string::<i32>().value(0).to_owned());
