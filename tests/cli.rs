@@ -56,6 +56,23 @@ fn fails(dir: &Path, args: &[&str]) -> String {
     err
 }
 
+/// `/lowstate` messages of the shipped example, as the container itself counts them (`info --json`).
+fn example_lowstate_messages() -> u64 {
+    let (info, _) = ok(
+        &crate_dir(),
+        &["info", "examples/g1_example.mcap", "--json"],
+    );
+    let info: serde_json::Value = serde_json::from_str(&info).unwrap();
+    info["container"]["topics"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|t| t["topic"] == "/lowstate")
+        .unwrap()["count"]
+        .as_u64()
+        .unwrap()
+}
+
 fn json(path: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
 }
@@ -122,19 +139,7 @@ fn readme_main_command_replays_the_shipped_example() {
     let args: Vec<&str> = args.iter().map(String::as_str).collect();
     let (_, err) = ok(&crate_dir(), &args);
 
-    let (info, _) = ok(
-        &crate_dir(),
-        &["info", "examples/g1_example.mcap", "--json"],
-    );
-    let info: serde_json::Value = serde_json::from_str(&info).unwrap();
-    let lowstate = info["container"]["topics"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|t| t["topic"] == "/lowstate")
-        .unwrap()["count"]
-        .as_u64()
-        .unwrap();
+    let lowstate = example_lowstate_messages();
     assert!(
         err.contains(&format!("({lowstate} samples)")),
         "one sample per /lowstate message ({lowstate}):\n{err}"
@@ -857,19 +862,7 @@ fn predict_power_example_runs() {
         .unwrap();
     let (out, err) = text(&o);
     assert!(o.status.success(), "{out}\n{err}");
-    let (info, _) = ok(
-        &crate_dir(),
-        &["info", "examples/g1_example.mcap", "--json"],
-    );
-    let info: serde_json::Value = serde_json::from_str(&info).unwrap();
-    let lowstate = info["container"]["topics"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .find(|t| t["topic"] == "/lowstate")
-        .unwrap()["count"]
-        .as_u64()
-        .unwrap();
+    let lowstate = example_lowstate_messages();
     assert!(out.starts_with(&format!("{lowstate} samples")), "{out}");
     let mean: f64 = out
         .split("mean ")
