@@ -59,22 +59,30 @@ pub fn run(a: IdentifyArgs) -> Result<()> {
         ],
         &inputs,
     )?;
-    let recs = fit_sessions
+    // Each session is streamed twice (segmentation, then rows): memory stays bounded whatever
+    // the sessions' length.
+    let map = a.read.signal_map()?;
+    let files: Vec<identify::SessionFile> = fit_sessions
         .iter()
-        .map(|p| a.read.load(p))
-        .collect::<Result<Vec<_>>>()?;
-    let busy = super::spinner("identifying");
-    let id = identify::identify(&recs, &opts);
-    busy.finish_and_clear();
-    let id = id?;
+        .map(|p| a.read.session_file(p, &map))
+        .collect();
+    let stream = identify::StreamOptions::default();
+    let id = identify::identify_files(&files, &opts, &stream)?;
+    for w in id.sessions.iter().flat_map(|s| &s.warnings) {
+        eprintln!("warning: {w}");
+    }
     let validation = match &a.holdout {
-        Some(p) => Some(identify::validate(&id.model, &a.read.load(p)?, &opts)?),
+        Some(p) => {
+            let v =
+                identify::validate_file(&id.model, &a.read.session_file(p, &map), &opts, &stream)?;
+            for w in &v.session.warnings {
+                eprintln!("warning: {w}");
+            }
+            Some(v)
+        }
         None => None,
     };
-    let names = recs
-        .first()
-        .map(|r| r.joint_names.clone())
-        .unwrap_or_default();
+    let names = map.joint_names.clone();
     let file = id.model_file(&names, validation.as_ref(), "")?;
     file.save(&a.output)?;
 

@@ -1,0 +1,149 @@
+//! The streamed identification and validation (two passes over the file, memory bounded by the
+//! piece length) against the in-memory pipeline on the loaded recording: same trials, same
+//! sensor timing, same θ, including when the session is segmented in many short pieces.
+
+use std::path::{Path, PathBuf};
+
+use g1viz::identify::{
+    self, AlignmentChoice, Identification, IdentifyOptions, SessionFile, StreamOptions,
+};
+use g1viz::power::PowerModel;
+use g1viz::signals::{SignalMap, load_recording};
+
+fn example() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/g1_example.mcap")
+}
+
+fn file(path: &Path) -> SessionFile {
+    SessionFile {
+        path: path.to_path_buf(),
+        map: SignalMap::g1_left_arm(),
+        read: Default::default(),
+    }
+}
+
+/// Options the example supports: it is too short for the timing search (42 readings).
+fn nominal() -> IdentifyOptions {
+    IdentifyOptions {
+        alignment: AlignmentChoice::Given(identify::Alignment::NOMINAL),
+        ..IdentifyOptions::default()
+    }
+}
+
+fn assert_same(a: &Identification, b: &Identification) {
+    assert_eq!(a.sessions.len(), b.sessions.len());
+    for (x, y) in a.sessions.iter().zip(&b.sessions) {
+        assert_eq!(x.segmentation.trials, y.segmentation.trials);
+        assert_eq!(x.skipped, y.skipped);
+    }
+    assert_eq!(a.alignment, b.alignment);
+    assert_eq!(a.rejections, b.rejections);
+    assert_eq!(a.model.to_vector(), b.model.to_vector());
+    assert_eq!(a.per_trial, b.per_trial);
+    assert_eq!(a.fit, b.fit);
+    assert_eq!(a.trials_used, b.trials_used);
+    for (x, y) in a.modes.iter().zip(&b.modes) {
+        assert_eq!(x.mode, y.mode);
+        assert_eq!(x.quality, y.quality);
+    }
+}
+
+#[test]
+fn streamed_identify_equals_in_memory_on_the_example() {
+    let rec = load_recording(&example(), &SignalMap::g1_left_arm(), &Default::default()).unwrap();
+    let opts = nominal();
+    let mem = identify::identify(std::slice::from_ref(&rec), &opts).unwrap();
+    // One piece (the default) and pieces of 15 s (every trial boundary near a piece boundary).
+    for chunk_s in [600.0, 15.0, 31.0] {
+        let so = StreamOptions {
+            chunk_s,
+            batch_samples: 500,
+            ..StreamOptions::default()
+        };
+        let streamed = identify::identify_files(&[file(&example())], &opts, &so).unwrap();
+        assert_eq!(mem.sessions[0].segmentation.trials.len(), 7);
+        assert_same(&mem, &streamed);
+        assert_eq!(
+            mem.sessions[0].segmentation.unmatched, streamed.sessions[0].segmentation.unmatched,
+            "piece length {chunk_s} s"
+        );
+    }
+}
+
+#[test]
+fn streamed_validate_equals_in_memory_on_the_example() {
+    let rec = load_recording(&example(), &SignalMap::g1_left_arm(), &Default::default()).unwrap();
+    let model = PowerModel::PAPER;
+    let opts = IdentifyOptions::default();
+    let mem = identify::validate(&model, &rec, &opts).unwrap();
+    let so = StreamOptions {
+        chunk_s: 20.0,
+        batch_samples: 700,
+        ..StreamOptions::default()
+    };
+    let streamed = identify::validate_file(&model, &file(&example()), &opts, &so).unwrap();
+    assert_eq!(mem.alignment, streamed.alignment);
+    assert_eq!(mem.per_trial, streamed.per_trial);
+    assert_eq!(mem.trial_level, streamed.trial_level);
+    assert_eq!(mem.reading_level, streamed.reading_level);
+    assert_eq!(mem.rejections, streamed.rejections);
+    assert_eq!(mem.notes, streamed.notes);
+}
+
+/// A simulated 24-trial session (~6 min) in 60 s pieces, with the timing search's held trials
+/// capped at 12 (every 2nd trial held): trials equal; the timing search runs on the held subset.
+#[test]
+fn streamed_identify_on_a_smoke_session_in_pieces() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("smoke.mcap");
+    g1viz::sim::simulate(
+        &g1viz::sim::SimConfig {
+            progress: false,
+            seed: 5,
+            ..Default::default()
+        },
+        &path,
+    )
+    .unwrap();
+    let rec = load_recording(&path, &SignalMap::g1_left_arm(), &Default::default()).unwrap();
+    let opts = IdentifyOptions::default();
+    let mem = identify::identify(std::slice::from_ref(&rec), &opts).unwrap();
+    let pieces = StreamOptions {
+        chunk_s: 60.0,
+        ..StreamOptions::default()
+    };
+    let streamed = identify::identify_files(&[file(&path)], &opts, &pieces).unwrap();
+    assert!(mem.sessions[0].segmentation.trials.len() >= 20);
+    assert_same(&mem, &streamed);
+
+    let held = StreamOptions {
+        chunk_s: 60.0,
+        hold_trials: 12,
+        ..StreamOptions::default()
+    };
+    let subset = identify::identify_files(&[file(&path)], &opts, &held).unwrap();
+    let est = subset.alignment_estimate.as_ref().unwrap();
+    let full = mem.alignment_estimate.as_ref().unwrap();
+    // The subset's search sees fewer rows (every 2nd trial) …
+    assert!(
+        est.grid[0].rows < full.grid[0].rows * 2 / 3,
+        "{} vs {}",
+        est.grid[0].rows,
+        full.grid[0].rows
+    );
+    // … and still finds the simulated sensor's timing (0.2 s window, no lag) within one fine step.
+    assert!(
+        (subset.alignment.window_s - 0.2).abs() <= 0.0251,
+        "{:?}",
+        subset.alignment
+    );
+    assert!(
+        subset.alignment.lag_s.abs() <= 0.0251,
+        "{:?}",
+        subset.alignment
+    );
+    assert_eq!(
+        subset.sessions[0].segmentation.trials,
+        mem.sessions[0].segmentation.trials
+    );
+}
