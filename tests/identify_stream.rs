@@ -147,3 +147,83 @@ fn streamed_identify_on_a_smoke_session_in_pieces() {
         mem.sessions[0].segmentation.trials
     );
 }
+
+/// Two sessions of one robot (the example, and a simulated one started with warm windings): the
+/// per-session breakdown accounts for every trial and row, and shows each start temperature.
+#[test]
+fn multi_session_breakdown() {
+    let dir = tempfile::tempdir().unwrap();
+    let warm = dir.path().join("warm.mcap");
+    g1viz::sim::simulate(
+        &g1viz::sim::SimConfig {
+            preset: g1viz::sim::Preset::Example,
+            progress: false,
+            seed: 9,
+            t_start_c: 55.0,
+            ..Default::default()
+        },
+        &warm,
+    )
+    .unwrap();
+    let opts = nominal();
+    let id = identify::identify_files(
+        &[file(&example()), file(&warm)],
+        &opts,
+        &StreamOptions::default(),
+    )
+    .unwrap();
+    assert_eq!(id.per_session.len(), 2);
+    let total: usize = id
+        .sessions
+        .iter()
+        .map(|s| s.segmentation.trials.len())
+        .sum();
+    assert_eq!(
+        id.per_session.iter().map(|b| b.trials).sum::<usize>(),
+        total
+    );
+    assert_eq!(
+        id.per_session.iter().map(|b| b.used).sum::<usize>(),
+        id.trials_used
+    );
+    for (s, b) in id.per_session.iter().enumerate() {
+        let rejected = id.rejections.iter().filter(|r| r.session == s).count();
+        assert_eq!(b.rejected, rejected);
+        assert_eq!(b.used + b.rejected + b.without_rows, b.trials, "{b:?}");
+    }
+    // The final fit's rows are the sessions' per-reading rows: their RMSEs pool to the fit's.
+    let n: usize = id.per_session.iter().map(|b| b.reading.n).sum();
+    assert_eq!(n, id.fit.n);
+    let pooled = (id
+        .per_session
+        .iter()
+        .map(|b| b.reading.n as f64 * b.reading.rmse.powi(2))
+        .sum::<f64>()
+        / n as f64)
+        .sqrt();
+    assert!(
+        (pooled - id.fit.rmse).abs() < 1e-9,
+        "{pooled} vs {}",
+        id.fit.rmse
+    );
+    // Start temperatures: the example's first sample as read independently, the twin's 55 °C.
+    let rec = load_recording(&example(), &SignalMap::g1_left_arm(), &Default::default()).unwrap();
+    assert_eq!(
+        id.per_session[0].first_temp_c,
+        rec.state.temp.first().copied()
+    );
+    let warm_t = id.per_session[1].first_temp_c.unwrap();
+    assert!(warm_t.iter().all(|t| (t - 55.0).abs() <= 1.5), "{warm_t:?}");
+    let text = id.summary();
+    assert!(text.contains("per session:"), "{text}");
+    assert!(text.contains("warm.mcap"), "{text}");
+    let report = dir.path().join("report");
+    let file = id
+        .model_file(&SignalMap::g1_left_arm().joint_names, None, "")
+        .unwrap();
+    g1viz::identify::report::write_report(&report, &id.report_input(file, None, None)).unwrap();
+    let md = std::fs::read_to_string(report.join("report.md")).unwrap();
+    assert!(md.contains("## Per session"), "{md}");
+    let joined: Vec<String> = warm_t.iter().map(|v| format!("{v:.1}")).collect();
+    assert!(md.contains(&joined.join(", ")), "{md}");
+}

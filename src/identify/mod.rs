@@ -17,8 +17,8 @@ mod validate;
 pub use dataset::{Alignment, AlignmentEstimate, Mode, Target};
 pub use fit::{kappa, term_means};
 pub use pipeline::{
-    AlignmentChoice, Identification, IdentifyOptions, ModeFit, RowsFit, SessionSummary,
-    fit_given_rows, identify, identify_files,
+    AlignmentChoice, Identification, IdentifyOptions, ModeFit, RowsFit, SessionBreakdown,
+    SessionSummary, fit_given_rows, identify, identify_files,
 };
 pub use stream::{SessionFile, StreamOptions};
 pub use table::TrialPrediction;

@@ -91,6 +91,25 @@ pub struct SessionSummary {
     pub warnings: Vec<String>,
 }
 
+/// One session's share of a (multi-session) identification.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct SessionBreakdown {
+    /// File.
+    pub source: PathBuf,
+    /// Trials the segmenter found.
+    pub trials: usize,
+    /// Trials retained for the final fit.
+    pub used: usize,
+    /// Trials a filter rejected (IMU, residual).
+    pub rejected: usize,
+    /// Trials without rows (no baseline, no reading).
+    pub without_rows: usize,
+    /// The final model on the session's retained trials, one row per power reading.
+    pub reading: Metrics,
+    /// Winding temperatures of the session's first joint-state sample [°C].
+    pub first_temp_c: Option<[f64; N_JOINTS]>,
+}
+
 /// Result of [`identify`].
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct Identification {
@@ -131,6 +150,8 @@ pub struct Identification {
     pub solver: SolverInfo,
     /// Per-trial measured vs predicted (all trials with rows, rejected ones flagged).
     pub per_trial: Vec<TrialPrediction>,
+    /// Per input session: trials used and rejected, per-reading fit, start temperatures.
+    pub per_session: Vec<SessionBreakdown>,
 }
 
 /// Where a session's samples come from.
@@ -663,6 +684,7 @@ fn identify_prepared(sessions: Vec<Prepared>, opts: &IdentifyOptions) -> Result<
         compare_pairings(&sessions, &rows, &retained, opts, alignment, &final_fit)?;
     let per_trial = per_trial_table(&sessions, &rows, &final_fit.theta, &rejections);
 
+    let per_session = session_breakdown(&sessions, &rows, &retained, &rejections, &final_fit.theta);
     let model = PowerModel::from_vector(&final_fit.theta);
     let terms = term_means(&model, &trial_rows);
     let retained_table: Vec<&TrialPrediction> = per_trial.iter().filter(|p| !p.rejected).collect();
@@ -695,7 +717,42 @@ fn identify_prepared(sessions: Vec<Prepared>, opts: &IdentifyOptions) -> Result<
         solver: final_fit.fit.solver.clone(),
         rejections,
         per_trial,
+        per_session,
     })
+}
+
+/// Stage 8: each session's trials used and rejected and the final model's per-reading fit there.
+fn session_breakdown(
+    sessions: &[Prepared],
+    rows: &[SessionSets],
+    retained: &[Vec<TrialWindow>],
+    rejections: &[Rejection],
+    theta: &[f64; N_PARAMS],
+) -> Vec<SessionBreakdown> {
+    sessions
+        .iter()
+        .zip(rows)
+        .zip(retained)
+        .enumerate()
+        .map(|(s, ((p, r), kept))| {
+            let rejected = p
+                .seg
+                .trials
+                .iter()
+                .filter(|t| trial::is_rejected(rejections, s, t.index))
+                .count();
+            let used = restrict(&r.reading, kept);
+            SessionBreakdown {
+                source: p.source.clone(),
+                trials: p.seg.trials.len(),
+                used: used.trials.len(),
+                rejected,
+                without_rows: used.skipped.len(),
+                reading: quality(theta, &used.rows),
+                first_temp_c: p.first_temp_c,
+            }
+        })
+        .collect()
 }
 
 /// A fit of rows that were built elsewhere (e.g. read back from a row table): the paper's
