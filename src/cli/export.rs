@@ -72,7 +72,7 @@ fn rows(a: RowsArgs) -> Result<()> {
             .unwrap_or_else(|| "robot".into())
     });
     let table = g1viz::rows::table_rows(&recs, &id, &robot);
-    g1viz::rows::write_parquet(&a.output, &table)?;
+    g1viz::rows::write_parquet(&a.output, &table, &a.read.signal_map()?.joint_names)?;
     let rejected = table.iter().filter(|r| r.rejected_by.is_some()).count();
     println!(
         "wrote {} ({} rows of {} sessions, robot {robot}; {rejected} rows in rejected trials, flagged)",

@@ -108,8 +108,27 @@ fn from_rows(a: &IdentifyArgs, table: &Path) -> Result<()> {
     use g1viz::power::{
         DatasetMetrics, ModelFile, ModelMetrics, Provenance, SessionRef, SolverRecord,
     };
+    use g1viz::rows::RowTable;
     check_outputs(&[("model file", Some(&a.output))], &[Some(table)])?;
-    let rows = g1viz::rows::read_parquet(table)?;
+    let RowTable { joint_names, rows } = g1viz::rows::read_table(table)?;
+    // The regressors are per joint: a table of another arm (or robot) would fit the wrong joints.
+    let names = a.read.signal_map()?.joint_names;
+    match joint_names {
+        Some(t) if t != names => anyhow::bail!(
+            "{}: the rows are for joints {} but the signal map (--signals) is for {}; \
+             fit them with the matching --signals",
+            table.display(),
+            t.join(", "),
+            names.join(", ")
+        ),
+        Some(_) => {}
+        None => eprintln!(
+            "warning: {} names no joints (metadata {}); assuming {}",
+            table.display(),
+            g1viz::rows::JOINT_NAMES_KEY,
+            names.join(", ")
+        ),
+    }
     let target = a.fit.options().target.name();
     if let Some(r) = rows.iter().find(|r| r.target != target) {
         anyhow::bail!(
@@ -159,7 +178,6 @@ fn from_rows(a: &IdentifyArgs, table: &Path) -> Result<()> {
         )],
         ..Provenance::default()
     };
-    let names = g1viz::signals::SignalMap::g1_left_arm().joint_names;
     let metrics = ModelMetrics {
         identification: Some(DatasetMetrics {
             dataset: format!("per-reading rows of {} sessions", sessions.len()),
