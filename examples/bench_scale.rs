@@ -128,11 +128,11 @@ fn session(dir: &Path, hours: f64) -> Result<PathBuf> {
     }
     let p = |seed| paper_session(dir, seed);
     let all = f64::INFINITY;
-    let parts = match hours {
-        h if h == 1.0 => vec![(p(1)?, 3600.0)],
-        h if h == 4.4 => vec![(p(1)?, all), (p(2)?, 1.1 * 3600.0)],
-        h if h == 10.0 => vec![(p(1)?, all), (p(2)?, all), (p(3)?, all), (p(1)?, 360.0)],
-        h => bail!("no recipe for a {h} h session (1, 4.4 or 10)"),
+    let parts = match (hours * 10.0).round() as u32 {
+        10 => vec![(p(1)?, 3600.0)],
+        44 => vec![(p(1)?, all), (p(2)?, 1.1 * 3600.0)],
+        100 => vec![(p(1)?, all), (p(2)?, all), (p(3)?, all), (p(1)?, 360.0)],
+        _ => bail!("no recipe for a {hours} h session (1, 4.4 or 10)"),
     };
     eprintln!("writing {} …", out.display());
     concatenate(&parts, &out)?;

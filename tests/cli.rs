@@ -960,7 +960,7 @@ except ImportError:
     sys.exit(3)
 import json
 for p in sys.argv[1:]:
-    print("names", p, " ".join(json.loads(pq.read_schema(p).metadata[b"g1viz:joint_names"])))
+    print("names", p, " ".join(json.loads(pq.read_metadata(p).metadata[b"g1viz:joint_names"])))
 t = pa.concat_tables([pq.read_table(p) for p in sys.argv[1:]])
 for name in ["robot", "session", "trial", "t_s", "y_w", "phi_a0", "phi_e56", "temp_c_3", "sigma_omega", "rejected"]:
     assert name in t.column_names, name

@@ -154,11 +154,20 @@ pub fn write_parquet(path: &Path, rows: &[TableRow], joint_names: &[String]) -> 
     }
     let names = serde_json::to_string(joint_names)?;
     let schema = Arc::new(
-        schema().with_metadata([(JOINT_NAMES_KEY.to_string(), names)].into_iter().collect()),
+        schema().with_metadata(
+            [(JOINT_NAMES_KEY.to_string(), names.clone())]
+                .into_iter()
+                .collect(),
+        ),
     );
     let batch = batch(rows, schema.clone())?;
+    // In the file's own key-value metadata too, for engines that do not decode the Arrow schema.
     let props = WriterProperties::builder()
         .set_compression(Compression::ZSTD(ZstdLevel::default()))
+        .set_key_value_metadata(Some(vec![KeyValue::new(
+            JOINT_NAMES_KEY.to_string(),
+            names,
+        )]))
         .build();
     crate::util::write_atomic_with(path, |w| {
         let mut writer = ArrowWriter::try_new(w, schema, Some(props))?;
