@@ -227,3 +227,28 @@ fn multi_session_breakdown() {
     let joined: Vec<String> = warm_t.iter().map(|v| format!("{v:.1}")).collect();
     assert!(md.contains(&joined.join(", ")), "{md}");
 }
+
+/// The exported rows of a streamed session (one trial held at a time) equal those built on the
+/// loaded recording: regressors, net power, temperatures, flags.
+#[test]
+fn streamed_row_export_equals_in_memory() {
+    let rec = load_recording(&example(), &SignalMap::g1_left_arm(), &Default::default()).unwrap();
+    let opts = nominal();
+    let mem_id = identify::identify(std::slice::from_ref(&rec), &opts).unwrap();
+    let mem = g1viz::rows::table_rows(std::slice::from_ref(&rec), &mem_id, "r");
+    let files = [file(&example())];
+    let id = identify::identify_files(&files, &opts, &StreamOptions::default()).unwrap();
+    let streamed = g1viz::rows::table_rows_files(&files, &id, "r").unwrap();
+    assert!(mem.len() > 40, "{}", mem.len());
+    assert_eq!(mem.len(), streamed.len());
+    for (a, b) in mem.iter().zip(&streamed) {
+        assert_eq!(a.row, b.row);
+        assert_eq!(
+            (a.t_ns, &a.session, &a.rejected_by),
+            (b.t_ns, &b.session, &b.rejected_by)
+        );
+        for (x, y) in a.temp_c.iter().zip(&b.temp_c) {
+            assert!(x == y || (x.is_nan() && y.is_nan()), "{x} vs {y}");
+        }
+    }
+}

@@ -493,3 +493,59 @@ pub(crate) fn row_pass(
     step(&mut buf, true, &mut sets);
     Ok(sets)
 }
+
+/// Stream every arm topic of `file` once and call `on_trial` for each of `trials` (in time
+/// order) with a recording holding at least that trial's joint states (all columns) and every
+/// power reading up to a few seconds past the trial's window; earlier samples are dropped, so
+/// memory stays bounded. Times share the clock of [`segmentation_pass`] (the same earliest
+/// message). Used by the row export, which needs the temperatures too.
+pub fn for_each_trial(
+    file: &SessionFile,
+    trials: &[TrialWindow],
+    batch_samples: usize,
+    on_trial: &mut dyn FnMut(&Recording, &TrialWindow),
+) -> Result<()> {
+    // A reading stamped up to this long after the window can still belong to it (sensor lag).
+    const AFTER_S: f64 = 2.0;
+    let mut buf = Recording {
+        source: file.path.clone(),
+        joint_names: file.map.joint_names.clone(),
+        ..Recording::default()
+    };
+    let mut next = 0usize;
+    let mut step = |buf: &mut Recording, done: bool| {
+        let last_t = buf.state.t.last().copied().unwrap_or(f64::NEG_INFINITY);
+        while let Some(t) = trials.get(next) {
+            if !done && last_t <= t.t_post_end + AFTER_S {
+                break;
+            }
+            on_trial(buf, t);
+            next += 1;
+        }
+        let keep_from = trials
+            .get(next)
+            .map_or(f64::INFINITY, |t| t.t_pre_start - MARGIN_S);
+        let i = buf.state.t.partition_point(|&x| x < keep_from);
+        drain_state(&mut buf.state, i);
+    };
+    stream_recording(
+        &file.path,
+        &file.map,
+        &file.read,
+        batch_samples,
+        &mut |batch| {
+            buf.start_ns = batch.start_ns;
+            append_state(&mut buf.state, &batch.state, true);
+            sort_state(&mut buf.state);
+            for (to, from) in [(&mut buf.mbs, &batch.mbs), (&mut buf.bms, &batch.bms)] {
+                to.t.extend_from_slice(&from.t);
+                to.watts.extend_from_slice(&from.watts);
+                sort_power(to);
+            }
+            step(&mut buf, false);
+            Ok(())
+        },
+    )?;
+    step(&mut buf, true);
+    Ok(())
+}

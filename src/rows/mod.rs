@@ -289,6 +289,42 @@ fn read_batch(b: &RecordBatch, out: &mut Vec<TableRow>) -> Result<()> {
     Ok(())
 }
 
+/// The rows of one trial of session `s` built on `rec` (which holds at least the trial's window).
+fn trial_table_rows(
+    rec: &Recording,
+    trial: &crate::trial::TrialWindow,
+    s: usize,
+    id: &crate::identify::Identification,
+    robot: &str,
+    out: &mut Vec<TableRow>,
+) {
+    use crate::identify::dataset::{self, DatasetOptions, Mode};
+    let opts = DatasetOptions {
+        mode: Mode::Reading,
+        target: id.options.target,
+        alignment: id.alignment,
+    };
+    let set = dataset::build(rec, std::slice::from_ref(trial), &opts);
+    for row in set.rows {
+        let rejected_by = id
+            .rejections
+            .iter()
+            .find(|r| r.session == s && r.trial == row.trial)
+            .map(|r| r.reason.name().to_string());
+        out.push(TableRow {
+            robot: robot.to_string(),
+            session: rec.source.display().to_string(),
+            t_ns: rec.start_ns as i64 + (row.t * 1e9).round() as i64,
+            target: id.options.target.name().to_string(),
+            window_s: id.alignment.window_s,
+            lag_s: id.alignment.lag_s,
+            temp_c: mean_temperatures(rec, row.t0, row.t1),
+            rejected_by,
+            row,
+        });
+    }
+}
+
 /// The rows of an identification's sessions, all trials with readings (the rejected ones
 /// flagged with their filter), at the sensor timing the identification used.
 pub fn table_rows(
@@ -296,33 +332,32 @@ pub fn table_rows(
     id: &crate::identify::Identification,
     robot: &str,
 ) -> Vec<TableRow> {
-    use crate::identify::dataset::{self, DatasetOptions, Mode};
-    let opts = DatasetOptions {
-        mode: Mode::Reading,
-        target: id.options.target,
-        alignment: id.alignment,
-    };
     let mut out = Vec::new();
     for (s, (rec, summary)) in recs.iter().zip(&id.sessions).enumerate() {
-        let set = dataset::build(rec, &summary.segmentation.trials, &opts);
-        for row in set.rows {
-            let rejected_by = id
-                .rejections
-                .iter()
-                .find(|r| r.session == s && r.trial == row.trial)
-                .map(|r| r.reason.name().to_string());
-            out.push(TableRow {
-                robot: robot.to_string(),
-                session: rec.source.display().to_string(),
-                t_ns: rec.start_ns as i64 + (row.t * 1e9).round() as i64,
-                target: id.options.target.name().to_string(),
-                window_s: id.alignment.window_s,
-                lag_s: id.alignment.lag_s,
-                temp_c: mean_temperatures(rec, row.t0, row.t1),
-                rejected_by,
-                row,
-            });
+        for trial in &summary.segmentation.trials {
+            trial_table_rows(rec, trial, s, id, robot, &mut out);
         }
     }
     out
+}
+
+/// [`table_rows`] of session files, each streamed once more holding one trial at a time (the
+/// identification must come from [`crate::identify::identify_files`] on the same files, so the
+/// trials share its clock).
+pub fn table_rows_files(
+    files: &[crate::identify::SessionFile],
+    id: &crate::identify::Identification,
+    robot: &str,
+) -> Result<Vec<TableRow>> {
+    let mut out = Vec::new();
+    for (s, (file, summary)) in files.iter().zip(&id.sessions).enumerate() {
+        crate::identify::stream::for_each_trial(
+            file,
+            &summary.segmentation.trials,
+            4096,
+            &mut |rec, trial| trial_table_rows(rec, trial, s, id, robot, &mut out),
+        )
+        .with_context(|| format!("reading {} (rows)", file.path.display()))?;
+    }
+    Ok(out)
 }
