@@ -136,14 +136,15 @@ pub mod nan_as_null {
     }
 }
 
+/// The truth sidecar path of a simulated session's file: `x.mcap` → `x.truth.json`.
+pub fn truth_path(out: &Path) -> PathBuf {
+    out.with_extension("truth.json")
+}
+
 /// Refuses outputs that would overwrite an input (a file read, a bag folder, or a simulated
 /// session's truth sidecar) or each other — checked before any work is done.
 pub fn check_outputs(outputs: &[(&str, Option<&Path>)], inputs: &[Option<&Path>]) -> Result<()> {
-    let sidecars: Vec<PathBuf> = inputs
-        .iter()
-        .flatten()
-        .map(|p| crate::sim::truth_path(p))
-        .collect();
+    let sidecars: Vec<PathBuf> = inputs.iter().flatten().map(|p| truth_path(p)).collect();
     let mut all: Vec<&Path> = inputs.iter().flatten().copied().collect();
     all.extend(sidecars.iter().map(PathBuf::as_path));
     let outputs: Vec<(&str, &Path)> = outputs

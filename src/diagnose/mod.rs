@@ -10,18 +10,18 @@
 //! the held-out residuals ([`locate`]) → plain-language summary ([`summary`]).
 
 pub mod counterpart;
-pub mod data;
-pub mod discover;
-pub mod fields;
+pub(crate) mod data;
+pub(crate) mod discover;
+pub(crate) mod fields;
 pub mod hypotheses;
-pub mod locate;
+pub(crate) mod locate;
 pub mod report;
-pub mod select;
-pub mod stats;
-pub mod summary;
+pub(crate) mod select;
+pub(crate) mod stats;
+pub(crate) mod summary;
 #[cfg(test)]
 mod testkit;
-pub mod torque;
+pub(crate) mod torque;
 
 use std::path::PathBuf;
 

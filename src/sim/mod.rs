@@ -13,11 +13,11 @@
 //! ```
 
 pub mod effects;
-pub mod plant;
-pub mod protocol;
-pub mod thermal;
+pub(crate) mod plant;
+pub(crate) mod protocol;
+pub(crate) mod thermal;
 pub mod truth;
-pub mod writer;
+pub(crate) mod writer;
 
 use std::collections::BTreeMap;
 use std::io::IsTerminal;
@@ -33,6 +33,7 @@ pub use effects::{
     SensorLatency, StribeckFriction, ThermalDrift,
 };
 pub use protocol::Preset;
+pub use thermal::ThermalModel;
 pub use truth::Truth;
 
 use crate::N_JOINTS;
@@ -41,7 +42,6 @@ use crate::robot::{ArmDynamics, JointFriction, RobotModel};
 use crate::signals::Recording;
 use plant::{Engine, OutlierStep, Reference, Sampled, Sway, Timeline, TrialArtefacts};
 use protocol::Schedule;
-use thermal::ThermalModel;
 use truth::Noise;
 
 /// URDF joint names of the left arm, model order.
@@ -167,10 +167,7 @@ impl Default for SimConfig {
     }
 }
 
-/// The truth sidecar path of an output file: `x.mcap` → `x.truth.json`.
-pub fn truth_path(out: &Path) -> PathBuf {
-    out.with_extension("truth.json")
-}
+pub use crate::util::truth_path;
 
 /// The true parameters of a simulated session, from its truth sidecar (ours or the shared
 /// generator's: both carry `theta.vector`), when there is one.
