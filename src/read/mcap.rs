@@ -180,6 +180,11 @@ impl McapSource<File> {
 }
 
 impl<R: Read + Seek> McapSource<R> {
+    /// What errors and warnings call this source (the file name given when opening).
+    pub fn name(&self) -> &Path {
+        &self.path
+    }
+
     /// Read MCAP from any seekable byte source (a file, a `Cursor` over bytes); `name` is what
     /// errors and warnings call it. Same checks as [`McapSource::open`].
     pub fn from_reader(
