@@ -36,7 +36,7 @@ enum Inner {
         /// Payloads are individually zstd-compressed (`compression_mode: MESSAGE`).
         message_zstd: bool,
         /// Decompressed copies of `compression_mode: FILE` files; removed on drop.
-        _scratch: Option<tempfile::TempDir>,
+        _scratch: Option<Scratch>,
     },
 }
 
@@ -50,7 +50,7 @@ struct SqliteBag {
     /// Payloads are individually zstd-compressed (`compression_mode: MESSAGE`).
     message_compression: bool,
     /// Decompressed copies of `compression_mode: FILE` databases; removed on drop.
-    _scratch: Option<tempfile::TempDir>,
+    _scratch: Option<Scratch>,
     /// Damage found when opening (truncated databases), repeated in info and every read.
     notes: Vec<String>,
 }
@@ -1081,16 +1081,28 @@ fn open_mcap_storage(
 }
 
 /// A scratch folder for decompressed copies when the bag compresses whole files.
-fn scratch_dir(compression: Compression) -> Result<Option<tempfile::TempDir>, ReadError> {
+fn scratch_dir(compression: Compression) -> Result<Option<Scratch>, ReadError> {
     if compression != Compression::FileZstd {
         return Ok(None);
     }
-    tempfile::tempdir()
-        .map(Some)
-        .map_err(|source| ReadError::Io {
-            path: std::env::temp_dir(),
-            source,
-        })
+    let dir = tempfile::tempdir().map_err(|source| ReadError::Io {
+        path: std::env::temp_dir(),
+        source,
+    })?;
+    let guard = crate::util::temp::TempPath::register(dir.path().to_path_buf());
+    Ok(Some(Scratch { dir, _guard: guard }))
+}
+
+/// A scratch folder, also registered for removal on a termination signal.
+struct Scratch {
+    dir: tempfile::TempDir,
+    _guard: crate::util::temp::TempPath,
+}
+
+impl Scratch {
+    fn path(&self) -> &Path {
+        self.dir.path()
+    }
 }
 
 /// The fields of `metadata.yaml` the reader needs (rosbag2 metadata versions 4–9).
