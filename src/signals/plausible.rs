@@ -197,7 +197,7 @@ impl Plausible {
             }
         }
         if let Some(last) = c.last_ns {
-            let mut note = |slot: &mut (u64, u64, u64), size: u64| {
+            let note = |slot: &mut (u64, u64, u64), size: u64| {
                 if slot.0 == 0 {
                     (slot.1, slot.2) = (size, t_ns);
                 }

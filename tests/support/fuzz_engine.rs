@@ -17,9 +17,9 @@ use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::Path;
 
-use g1viz::read::decode::{Value, decode};
-use g1viz::read::msgdef::{ArrayKind, FieldType, Primitive};
+use g1viz::read::{ArrayKind, FieldType, Primitive};
 use g1viz::read::{Encoding, MsgSchema, OpenOptions, Session};
+use g1viz::read::{Value, decode};
 
 /// A small deterministic PRNG (xorshift64*): reproducible campaigns without API churn.
 pub struct Rng(u64);
