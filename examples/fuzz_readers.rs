@@ -11,6 +11,9 @@
 //! cargo run --example fuzz_readers -- --replay 7 123456            # re-run input 123456 of seed 7
 //! ```
 //!
+//! A file `STOP` in the output folder ends a campaign early: the batches under way finish and
+//! the summary is printed.
+//!
 //! Input `i` of campaign seed `S` is a pure function of `(S, i)`, so a child generates its own
 //! inputs from a range of indices and the parent only hands out ranges. A child (under
 //! `RLIMIT_AS` 2 GiB, `RLIMIT_FSIZE` 512 MiB, no core files) runs each input in-process: it
@@ -652,7 +655,8 @@ fn campaign(args: &Args) -> Result<(), String> {
         loop {
             let from = {
                 let mut n = next.lock().map_err(|e| e.to_string())?;
-                if *n >= end || deadline.is_some_and(|d| Instant::now() >= d) {
+                let stop = args.out.join("STOP").exists();
+                if *n >= end || stop || deadline.is_some_and(|d| Instant::now() >= d) {
                     return Ok(());
                 }
                 let from = *n;
