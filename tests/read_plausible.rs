@@ -217,3 +217,19 @@ fn a_recording_on_a_relative_clock_keeps_its_samples() {
         rec.warnings
     );
 }
+
+#[test]
+fn log_times_near_the_end_of_the_clock_do_not_overflow() {
+    // Found by the fuzzing campaign: a message stamped near u64::MAX ns followed by normal ones
+    // (file order) overflowed the backward-jump check.
+    let clean = clean();
+    let (rec, _) = changed(10, false, |m| m.log_time = u64::MAX - 5);
+    assert_eq!(rec.state.t.len(), clean.state.t.len());
+    assert!(
+        rec.warnings
+            .iter()
+            .any(|w| w.contains("topic /lowstate") && w.contains("jumps back")),
+        "{:?}",
+        rec.warnings
+    );
+}

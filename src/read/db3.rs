@@ -252,7 +252,7 @@ impl MessageSource for Ros2BagSource {
                         })
                     };
                     let s = f.read(topics, &mut inflate)?;
-                    total.messages += s.messages - skipped.count();
+                    total.messages += s.messages.saturating_sub(skipped.count());
                     total.warnings.extend(s.warnings);
                     total.warnings.extend(skipped.warnings());
                     if !s.complete {

@@ -203,7 +203,7 @@ impl Plausible {
                 }
                 slot.0 += 1;
             };
-            if t_ns + MAX_BACKWARD_NS < last {
+            if t_ns.saturating_add(MAX_BACKWARD_NS) < last {
                 note(&mut c.backward, last - t_ns);
             } else if t_ns > last.saturating_add(MAX_GAP_NS) {
                 note(&mut c.gaps, t_ns - last);
