@@ -172,6 +172,24 @@ fn a_message_at_log_time_zero_is_dropped_not_a_56_year_session() {
 }
 
 #[test]
+fn a_message_at_log_time_zero_in_a_file_without_index_is_dropped_too() {
+    // No second pass over a file without index: the stray message (in a later chunk; the reader
+    // orders messages within a chunk) is dropped because wall-clock ones came before it. A stray
+    // in the first chunk of such a file is kept, with a warning saying so.
+    let clean = clean();
+    let k = 5000;
+    let (rec, _) = changed(k, false, |m| m.log_time = 0);
+    assert_state_without(&rec, &clean, k);
+    assert!(
+        rec.warnings.iter().any(|w| w.contains("topic /lowstate")
+            && w.contains("before 2000")
+            && w.contains("dropped")),
+        "{:?}",
+        rec.warnings
+    );
+}
+
+#[test]
 fn clock_jumps_and_gaps_in_a_topic_are_warned_about() {
     // One /lowstate message stamped 2 h late in a file without index (read in file order): a
     // 2 h gap into it, a 2 h jump back after it.

@@ -195,6 +195,13 @@ impl Ros2BagSource {
 }
 
 impl MessageSource for Ros2BagSource {
+    fn info_is_cheap(&self) -> bool {
+        match &self.inner {
+            Inner::Sqlite(_) => true,
+            Inner::Mcap { files, .. } => files.iter().all(McapSource::has_index),
+        }
+    }
+
     fn format(&self) -> &'static str {
         match &self.inner {
             Inner::Sqlite(_) => "ros2-sqlite3",

@@ -1004,6 +1004,10 @@ fn schemaless(name: &str) -> MsgSchema {
 }
 
 impl<R: Read + Seek> MessageSource for McapSource<R> {
+    fn info_is_cheap(&self) -> bool {
+        self.has_index()
+    }
+
     fn format(&self) -> &'static str {
         "mcap"
     }

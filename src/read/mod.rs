@@ -317,6 +317,11 @@ pub trait MessageSource {
     fn format(&self) -> &'static str;
     /// Topic statistics, from the summary/index when present, otherwise by a scan.
     fn info(&mut self) -> Result<SessionInfo, ReadError>;
+    /// Whether [`MessageSource::info`] is cheap (a summary, an index, or a scan already done
+    /// when opening) rather than a pass over the whole file.
+    fn info_is_cheap(&self) -> bool {
+        true
+    }
     /// Stream every message (optionally only those of `topics`) in log-time order to `visit`.
     /// Damage stops the read with a warning in the summary rather than an error, once at
     /// least the file header was valid. An error returned by `visit` aborts the read and is returned.

@@ -73,8 +73,8 @@ struct Dropped {
 #[derive(Debug, Default)]
 struct TopicClock {
     last_ns: Option<u64>,
-    /// (count, first log time) of samples before 2000.
-    early: (u64, u64),
+    /// (count, first log time, how many were dropped) of samples before 2000.
+    early: (u64, u64, u64),
     /// (count, first jump size, its log time) of backward jumps.
     backward: (u64, u64, u64),
     /// (count, first gap size, its log time) of forward gaps.
@@ -87,8 +87,10 @@ pub struct Plausible {
     file: String,
     /// Per group ([`GROUPS`] order): signal name and limit of each row value.
     signals: Vec<Vec<(String, Option<Limit>)>>,
-    /// Samples before 2000 are dropped (the recording runs on a wall clock).
+    /// Samples before 2000 are dropped (the recording runs on a wall clock, says its index).
     drop_early: bool,
+    /// A sample after 2000 has been read (then later samples before 2000 are dropped too).
+    wall_clock_seen: bool,
     dropped: BTreeMap<(usize, usize), Dropped>,
     /// (group, field) → the field path, for warnings.
     paths: HashMap<(usize, usize), String>,
@@ -117,15 +119,19 @@ impl Plausible {
             })
             .collect();
         let topics: Vec<&str> = map.signals.values().map(|s| s.topic.as_str()).collect();
-        let drop_early = session.info().is_ok_and(|info| {
-            info.topics
-                .iter()
-                .any(|t| topics.contains(&t.topic.as_str()) && t.last_ns >= WALL_CLOCK_FLOOR_NS)
-        });
+        // Only from a summary or index: a file without one is not read twice for this; its
+        // early samples are then dropped once a wall-clock one has been seen (file order).
+        let drop_early = session.info_is_cheap()
+            && session.info().is_ok_and(|info| {
+                info.topics
+                    .iter()
+                    .any(|t| topics.contains(&t.topic.as_str()) && t.last_ns >= WALL_CLOCK_FLOOR_NS)
+            });
         Plausible {
             file: file.to_string(),
             signals,
             drop_early,
+            wall_clock_seen: false,
             dropped: BTreeMap::new(),
             paths: HashMap::new(),
             clocks: BTreeMap::new(),
@@ -192,9 +198,12 @@ impl Plausible {
                 c.early.1 = t_ns;
             }
             c.early.0 += 1;
-            if self.drop_early {
+            if self.drop_early || self.wall_clock_seen {
+                c.early.2 += 1;
                 return false;
             }
+        } else {
+            self.wall_clock_seen = true;
         }
         if let Some(last) = c.last_ns {
             let note = |slot: &mut (u64, u64, u64), size: u64| {
@@ -239,11 +248,18 @@ impl Plausible {
             ));
         }
         for (topic, c) in &self.clocks {
-            if c.early.0 > 0 {
-                out.push(if self.drop_early {
+            if c.early.2 > 0 {
+                out.push(format!(
+                    "{file}: topic {topic}: {} message(s) stamped before 2000 (first at log time {} ns) in a recording on a wall clock: dropped (a recorder whose clock was not set?)",
+                    c.early.2, c.early.1
+                ));
+            }
+            if c.early.0 > c.early.2 {
+                out.push(if self.wall_clock_seen {
                     format!(
-                        "{file}: topic {topic}: {} message(s) stamped before 2000 (first at log time {} ns) in a recording on a wall clock: dropped (a recorder whose clock was not set?)",
-                        c.early.0, c.early.1
+                        "{file}: topic {topic}: {} message(s) stamped before 2000 (first at log time {} ns) kept: read before the first wall-clock time, and the file has no index to tell",
+                        c.early.0 - c.early.2,
+                        c.early.1
                     )
                 } else {
                     format!(
