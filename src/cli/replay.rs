@@ -52,7 +52,7 @@ pub struct ReplayArgs {
 /// Replay the session to the chosen sink.
 #[cfg(feature = "viz")]
 pub fn run(a: ReplayArgs) -> Result<()> {
-    use g1viz::power::load_model;
+    use g1viz::power::load_model_for;
     use g1viz::robot::RobotModel;
     use g1viz::viz::{self, OutputKind, Sink};
     use std::path::Path;
@@ -89,7 +89,7 @@ pub fn run(a: ReplayArgs) -> Result<()> {
         Some(m) => {
             let rec = a.read.load(&a.session)?;
             let arm = robot.arm(&rec.joint_names)?;
-            let model = load_model(m)?;
+            let model = load_model_for(m, &rec.joint_names, a.fit.options().target)?;
             let busy = super::spinner("applying the model");
             let extras = viz::overlay::model_extras(&rec, &model, &a.fit.options());
             busy.finish_and_clear();

@@ -260,6 +260,7 @@ struct Decoder {
     extractors: HashMap<String, Compiled>,
     row: Vec<f64>,
     warnings: Vec<String>,
+    plausible: super::plausible::Plausible,
 }
 
 impl Decoder {
@@ -320,10 +321,13 @@ impl Decoder {
                 }
                 continue;
             }
-            plan.t_ns.push(msg.log_time_ns);
             for (v, s) in self.row.iter_mut().zip(&plan.scales) {
                 *v *= s;
             }
+            if !(self.plausible).keep(*gi, &plan.topic, &plan.paths, &self.row, msg.log_time_ns) {
+                continue;
+            }
+            plan.t_ns.push(msg.log_time_ns);
             let group = plan.group;
             push_row(&mut b.batch, group, &self.row);
             b.samples[group_index(group)] += 1;
@@ -363,6 +367,7 @@ fn read_batches(
         extractors: HashMap::new(),
         row: Vec::new(),
         warnings: Vec::new(),
+        plausible: super::plausible::Plausible::new(&path.display().to_string(), map, &mut session),
     };
     // Samples go straight into the typed series (no intermediate copy); times are set per batch.
     let mut b = Batcher {
@@ -402,6 +407,7 @@ fn read_batches(
     }
     let summary = read?;
     let mut warnings = decoder.warnings;
+    warnings.extend(decoder.plausible.warnings());
     warnings.extend(summary.warnings);
     finish_warnings(&decoder.file, &b, map, &mut session, &mut warnings)?;
     b.flush(on_batch)?;

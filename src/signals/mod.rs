@@ -133,6 +133,7 @@ pub fn rate_hz(t: &[f64]) -> f64 {
 
 mod load;
 mod map;
+pub mod plausible;
 
 pub use load::{
     SeriesStats, SignalStats, StreamSummary, load_recording, signal_stats, stream_recording,
