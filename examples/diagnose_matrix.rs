@@ -288,7 +288,16 @@ fn found_cell(t: &diagnose::Discovery) -> String {
 }
 
 fn row(case: &Case, seed: u64, mode: &str, d: &Diagnosis) -> String {
-    let mut accepted: Vec<String> = d.accepted.iter().map(|h| h.id.clone()).collect();
+    let mut accepted: Vec<String> = d
+        .accepted
+        .iter()
+        .map(
+            |h| match d.forms.iter().find(|f| f.confounded && f.winner == h.id) {
+                Some(f) => format!("{} (form: confounded — {})", f.mechanism, f.either()),
+                None => h.id.clone(),
+            },
+        )
+        .collect();
     if let Some(r) = &d.discovery {
         accepted.extend(r.accepted.iter().map(found_cell));
     }

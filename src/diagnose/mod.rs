@@ -496,6 +496,7 @@ pub fn diagnose_trials(
         }
         ranked.push(p);
     }
+    mark_confounded(&mut ranked, &sel.confounded);
     ranked.sort_by(|a, b| {
         (b.accepted, b.rel_improvement)
             .partial_cmp(&(a.accepted, a.rel_improvement))
@@ -711,6 +712,23 @@ fn rescale_bus(d: &mut Diagnosis, volts: f64) {
     d.bus_volts = volts;
 }
 
+/// A term dropped as confounded stays in the ranking, not accepted, its verdict saying with what.
+fn mark_confounded(ranked: &mut [HypothesisScore], confounded: &[Confounded]) {
+    for c in confounded {
+        for s in ranked.iter_mut().filter(|s| s.id == c.dropped) {
+            s.accepted = false;
+            s.verdict = format!(
+                "confounded with {}: not significant given it (p = {:.1e}, held-out RMSE change {:+.1} %, regressor r = {:+.2}); scored alone: {}",
+                c.kept,
+                c.p_value,
+                -100.0 * c.rel_change,
+                c.correlation,
+                s.verdict
+            );
+        }
+    }
+}
+
 /// Stage: library selection, then discovery beyond it; a library term that is not significant
 /// given what discovery found is confounded with it: it is dropped, reported, and the library
 /// selection re-run without it.
@@ -725,12 +743,16 @@ fn select_and_discover(
     let mut excluded: Vec<&str> = Vec::new();
     let mut confounded = Vec::new();
     let mut fields: Option<(usize, RowFields)> = None;
+    // The first run's step-1 scores: a term excluded from later runs keeps its place in the
+    // ranking (marked confounded by `mark_confounded`).
+    let mut first_scores: Option<Vec<HypothesisScore>> = None;
     loop {
         let candidates: Vec<&'static hypotheses::Hypothesis> = POWER_HYPOTHESES
             .iter()
             .filter(|h| !excluded.contains(&h.id))
             .collect();
         let mut sel = select::select(data, &candidates, rule)?;
+        let first = first_scores.get_or_insert_with(|| sel.first_step.clone());
         let lag = sel.last.lag;
         if fields.as_ref().is_none_or(|(l, _)| *l != lag) {
             let f = run_fields(rec, power, metas, &data.rows[lag], data.lags[lag], opts);
@@ -751,6 +773,12 @@ fn select_and_discover(
         )?;
         let dropped = library_given_found(data, &sel.last, &report, rule)?;
         if dropped.is_empty() {
+            sel.first_step.extend(
+                first
+                    .iter()
+                    .filter(|h| excluded.contains(&h.id.as_str()))
+                    .cloned(),
+            );
             sel.confounded.extend(confounded);
             sel.accepted.retain(|a| !excluded.contains(&a.id.as_str()));
             let f = fields.map(|f| f.1).unwrap_or_default();

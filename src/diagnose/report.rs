@@ -574,7 +574,11 @@ fn beyond_section(md: &mut String, d: &Diagnosis) {
                 f.rmse_w[1],
                 100.0 * f.margin,
                 sig(f.p_value),
-                if f.accepted { "yes" } else { "no" }
+                match (f.accepted, f.confounded) {
+                    (true, true) => format!("mechanism only — form: confounded, {}", f.either()),
+                    (true, false) => "yes".into(),
+                    _ => "no".into(),
+                }
             );
         }
         md.push('\n');
