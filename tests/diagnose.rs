@@ -492,6 +492,53 @@ fn friction_following_the_housing_temperature_is_discovered_on_that_field() {
     assert!((k - 0.05).abs() <= 0.005, "k = {k}");
 }
 
+/// The simulated session's junk fields are left out of discovery by the data-driven rules,
+/// each with its reason, and nothing physical is: the message tick is a counter, the CRCs are
+/// hash-like, and no temperature, voltage, fan or joint field is left out except as constant (a
+/// heading that drifts at a steady rate may go as a clock: it duplicates session time).
+fn junk_fields_left_out(d: &Diagnosis) {
+    let r = d.discovery.as_ref().expect("discovery ran");
+    for e in &r.excluded {
+        eprintln!("  left out: {} — {}", e.name, e.reason);
+    }
+    let reason = |name: &str| {
+        r.excluded
+            .iter()
+            .find(|e| e.name == name)
+            .map(|e| e.reason.as_str())
+    };
+    assert!(
+        reason("/lowstate.tick").is_some_and(|r| r.starts_with("counter")),
+        "tick: {:?}",
+        reason("/lowstate.tick")
+    );
+    for crc in ["/lowstate.crc", "/arm_sdk.crc"] {
+        assert!(
+            reason(crc).is_some_and(|r| r.starts_with("hash")),
+            "{crc}: {:?}",
+            reason(crc)
+        );
+    }
+    for e in r
+        .excluded
+        .iter()
+        .filter(|e| !e.reason.starts_with("constant"))
+    {
+        assert!(
+            !["temperature", "vol", "fan_state", "q", "dq", "tau_est"]
+                .iter()
+                .any(|w| e.name.ends_with(w) || e.name.contains(&format!(".{w}["))),
+            "physical field left out: {e:?}"
+        );
+    }
+    assert!(
+        d.summary
+            .contains("Left out of discovery as counters, clocks or hash-like: "),
+        "{}",
+        d.summary
+    );
+}
+
 #[test]
 fn a_rail_load_switching_with_a_board_status_field_is_discovered() {
     // A 3 W fan on the main-board rail, on and off during the session; the board's fan_state[1]
@@ -502,6 +549,7 @@ fn a_rail_load_switching_with_a_board_status_field_is_discovered() {
         let (rec, _, files) = session(&e, 3, 3, &[30.0]);
         let d = diagnose::diagnose(&rec, &files.opts(opts)).unwrap();
         show(&format!("fan_load {mode}"), &d);
+        junk_fields_left_out(&d);
         let t = only_discovery("fan_load", &d);
         assert_eq!(
             t.fields,

@@ -180,6 +180,10 @@ pub struct DiscoveryReport {
     pub cols: Vec<Vec<f64>>,
     /// Notes (fields left out as meters of the power, unreadable files).
     pub notes: Vec<String>,
+    /// Fields left out by a rule on their own data (constant, counter or clock, hash-/CRC-like),
+    /// each with its reason.
+    #[serde(default)]
+    pub excluded: Vec<super::fields::ExcludedField>,
 }
 
 /// Everything discovery needs about the recording beyond the power data.
@@ -842,6 +846,7 @@ pub(crate) fn discover(
         fields_used: inp.fields.names.len(),
         alpha: rule.alpha,
         notes: inp.fields.notes.clone(),
+        excluded: inp.fields.excluded.clone(),
         ..Default::default()
     };
     let (cands, rv) = generate(inp, rows, data.n_trials, twin, &mut report.notes);

@@ -29,7 +29,7 @@ use anyhow::{Result, bail};
 
 pub use crate::trial::{Phase, TrialWindow};
 pub use discover::{Discovery, DiscoveryReport};
-pub use fields::FieldSource;
+pub use fields::{ExcludedField, FieldSource};
 pub use locate::{Breakdown, Correlate, Group, TrialResidual};
 pub use select::{Confounded, HypothesisScore, MechanismForms, Param};
 pub use torque::{ArmModel, TorqueComparison};

@@ -648,4 +648,21 @@ fn beyond_section(md: &mut String, d: &Diagnosis) {
         let _ = writeln!(md, "\n- {n}");
     }
     md.push('\n');
+    excluded_fields(md, r);
+}
+
+/// The fields discovery left out by a rule on their own data, with the reason.
+fn excluded_fields(md: &mut String, r: &super::DiscoveryReport) {
+    if r.excluded.is_empty() {
+        return;
+    }
+    let _ = writeln!(
+        md,
+        "### Fields left out of discovery ({})\n\n| field | reason |\n|---|---|",
+        r.excluded.len()
+    );
+    for e in &r.excluded {
+        let _ = writeln!(md, "| `{}` | {} |", e.name, e.reason.replace('|', "\\|"));
+    }
+    md.push('\n');
 }

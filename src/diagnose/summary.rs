@@ -317,4 +317,17 @@ fn discovery_lines(d: &Diagnosis, s: &mut String) {
             r.n_candidates, r.fields_used, r.alpha
         );
     }
+    let junk: Vec<&str> = r
+        .excluded
+        .iter()
+        .filter(|e| !e.reason.starts_with("constant"))
+        .map(|e| e.name.as_str())
+        .collect();
+    if !junk.is_empty() {
+        let _ = writeln!(
+            s,
+            "Left out of discovery as counters, clocks or hash-like: {} (reasons in the report).",
+            junk.join(", ")
+        );
+    }
 }
