@@ -59,6 +59,19 @@ fn session_with(
     t_start_c: &[f64],
     housing_c: &[f64],
 ) -> (Recording, TruthTrials, Files) {
+    let window = SimConfig::default().sensor_window_s;
+    session_window(effects, seed, parts, t_start_c, housing_c, window)
+}
+
+/// [`session_with`] with power sensors averaging `window_s`.
+fn session_window(
+    effects: &Effects,
+    seed: u64,
+    parts: u64,
+    t_start_c: &[f64],
+    housing_c: &[f64],
+    window_s: f64,
+) -> (Recording, TruthTrials, Files) {
     let dir = tempfile::tempdir().unwrap();
     let mut recs = Vec::new();
     let mut truth_trials = Vec::new();
@@ -71,6 +84,7 @@ fn session_with(
             t_start_c: t_start_c[part as usize % t_start_c.len()],
             housing_start_c: (!housing_c.is_empty())
                 .then(|| housing_c[part as usize % housing_c.len()]),
+            sensor_window_s: window_s,
             progress: false,
             ..SimConfig::default()
         };
@@ -492,6 +506,42 @@ fn friction_following_the_housing_temperature_is_discovered_on_that_field() {
     assert!((k - 0.05).abs() <= 0.005, "k = {k}");
 }
 
+/// A found term is shown like a hypothesis: diagnosis.json carries its name, form, field(s),
+/// parameter ± s.e. and held-out before/after; the replay carries the located field's value per
+/// reading (plotted beside the residual in `--save`) and marks the trials that carry it.
+fn found_term_shown(d: &Diagnosis) {
+    let json: serde_json::Value = serde_json::to_value(d).unwrap();
+    let t = &json["discovery"]["accepted"][0];
+    for key in ["name", "form"] {
+        assert!(t[key].as_str().is_some_and(|s| !s.is_empty()), "{key}: {t}");
+    }
+    let field = t["fields"][0].as_str().expect("field");
+    let p = &t["params"][0];
+    assert!(
+        p["value"].is_f64() && p["std_err"].as_f64().is_some_and(|v| v > 0.0),
+        "{p}"
+    );
+    for q in ["before", "after"] {
+        assert!(t[q]["r2"].is_f64() && t[q]["rmse_w"].is_f64(), "{q}: {t}");
+    }
+    assert!(t["after"]["r2"].as_f64() > t["before"]["r2"].as_f64());
+    let located = &json["replay"]["located"][0];
+    assert_eq!(located["name"].as_str(), Some(field));
+    assert_eq!(
+        located["values"].as_array().map(Vec::len),
+        Some(d.replay.t.len()),
+        "one value per reading"
+    );
+    assert_eq!(d.replay.found_w.len(), d.replay.t.len());
+    assert!(
+        d.replay.highlighted.iter().any(|h| h
+            .reason
+            .starts_with("carries what was found beyond the library")),
+        "{:?}",
+        d.replay.highlighted
+    );
+}
+
 /// The simulated session's junk fields are left out of discovery by the data-driven rules,
 /// each with its reason, and nothing physical is: the message tick is a counter, the CRCs are
 /// hash-like, and no temperature, voltage, fan or joint field is left out except as constant (a
@@ -550,6 +600,7 @@ fn a_rail_load_switching_with_a_board_status_field_is_discovered() {
         let d = diagnose::diagnose(&rec, &files.opts(opts)).unwrap();
         show(&format!("fan_load {mode}"), &d);
         junk_fields_left_out(&d);
+        found_term_shown(&d);
         let t = only_discovery("fan_load", &d);
         assert_eq!(
             t.fields,
@@ -625,6 +676,46 @@ fn two_effects_at_once_are_both_found() {
         param(&d, "L")
     );
     assert!(d.final_model.after.r2 > d.final_model.before.r2);
+}
+
+#[test]
+fn a_sensor_window_other_than_the_nominal_is_estimated_and_nothing_claimed() {
+    // Power sensors averaging 0.5 s instead of the G1's 0.2 s; nothing concealed. The window is
+    // estimated on the (W, lag) grid of the identification (0.025 s steps): within ±0.05 s.
+    let (rec, _, files) = session_window(&Effects::default(), 3, 3, &[30.0], &[], 0.5);
+    let auto = |o: DiagnoseOptions| DiagnoseOptions {
+        sensor_window_s: None,
+        ..o
+    };
+    for (mode, opts) in [("refit", refit()), ("twin", twin())] {
+        let d = diagnose::diagnose(&rec, &files.opts(auto(opts))).unwrap();
+        show(&format!("W = 0.5 s {mode}"), &d);
+        let sw = d.sensor_window;
+        assert!(sw.estimated, "{sw:?}");
+        assert!(
+            (sw.window_s - 0.5).abs() <= 0.05,
+            "{mode}: W = {}",
+            sw.window_s
+        );
+        assert!(
+            d.summary
+                .contains("Sensor window: each reading averages the")
+        );
+        assert!(claims(&d).is_empty(), "{mode}: claimed {:?}", claims(&d));
+    }
+    // Nominal sessions: the estimate is within ±0.05 s of the nominal 0.2 s.
+    for seed in [11, 12, 13] {
+        let (rec, _, files) = session(&Effects::default(), seed, 3, &[30.0]);
+        let d = diagnose::diagnose(&rec, &files.opts(auto(refit()))).unwrap();
+        eprintln!("seed {seed}: {:?}", d.sensor_window);
+        assert!(
+            (d.sensor_window.window_s - 0.2).abs() <= 0.05,
+            "seed {seed}: {:?}",
+            d.sensor_window
+        );
+    }
+    // Given (the default), the window is the nominal one and says so.
+    assert_eq!(refit().sensor_window_s, Some(0.2));
 }
 
 #[test]

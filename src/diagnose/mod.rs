@@ -25,7 +25,7 @@ pub mod torque;
 
 use std::path::PathBuf;
 
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 
 pub use crate::trial::{Phase, TrialWindow};
 pub use discover::{Discovery, DiscoveryReport};
@@ -66,8 +66,12 @@ pub struct DiagnoseOptions {
     pub bic_threshold: f64,
     /// Minimum relative held-out RMSE improvement.
     pub min_improvement: f64,
-    /// Power sensor averaging window W [s] (a reading stamped t averages [t − W, t]).
-    pub sensor_window_s: f64,
+    /// Power sensor averaging window W [s] (a reading stamped t averages [t − W, t]); default
+    /// the G1's nominal 0.2 s. `None`: estimated from the data by the identification's
+    /// alignment scan ([`crate::identify::dataset::estimate_alignment`]) — on 72 nominal trials
+    /// the scan's flat optimum can land at 0.15 s with a 0.025 s lag, which the latency
+    /// hypothesis then claims, so the estimate is not the default.
+    pub sensor_window_s: Option<f64>,
     /// Largest sensor latency scanned [s] (0 disables the latency hypothesis).
     pub max_lag_s: f64,
     /// IMU filter: reject trials whose σ_ω exceeds this multiple of the median.
@@ -98,7 +102,7 @@ impl Default for DiagnoseOptions {
             alpha: 1e-3,
             bic_threshold: -10.0,
             min_improvement: 0.02,
-            sensor_window_s: 0.2,
+            sensor_window_s: Some(crate::identify::Alignment::NOMINAL.window_s),
             max_lag_s: 1.0,
             imu_threshold: 2.5,
             outlier_passes: 2,
@@ -110,6 +114,75 @@ impl Default for DiagnoseOptions {
             arm_motors: std::array::from_fn(|i| crate::signals::G1_LEFT_ARM_BASE + i),
         }
     }
+}
+
+/// The power sensor's averaging window the diagnosis used.
+#[derive(Debug, Clone, Copy, Default, serde::Serialize, serde::Deserialize)]
+pub struct SensorWindow {
+    /// Window W [s].
+    pub window_s: f64,
+    /// Estimated from the data (true) or given (false).
+    pub estimated: bool,
+    /// Lag of the best (W, lag) point of the alignment scan [s] (the latency hypothesis judges
+    /// a lag; this is only the scan's by-product). 0 when W was given.
+    pub scan_lag_s: f64,
+    /// Per-reading R² of the identification's least-squares fit at that point (NaN when given).
+    pub scan_r2: f64,
+    /// Trials the scan used.
+    pub scan_trials: usize,
+}
+
+/// Largest number of trials the sensor-window scan uses (evenly spread over the session): the
+/// window is a property of the sensor, and 150 trials fix it well while the scan's cost stays
+/// bounded at paper scale.
+const WINDOW_SCAN_TRIALS: usize = 150;
+
+/// The sensor window: given, or estimated by the identification's (W, lag) alignment scan on at
+/// most [`WINDOW_SCAN_TRIALS`] trials.
+fn sensor_window(
+    rec: &Recording,
+    windows: &[TrialWindow],
+    opts: &DiagnoseOptions,
+) -> Result<SensorWindow> {
+    if let Some(w) = opts.sensor_window_s {
+        return Ok(SensorWindow {
+            window_s: w,
+            estimated: false,
+            scan_lag_s: 0.0,
+            scan_r2: f64::NAN,
+            scan_trials: 0,
+        });
+    }
+    let step = windows.len().div_ceil(WINDOW_SCAN_TRIALS).max(1);
+    let used: Vec<TrialWindow> = windows.iter().step_by(step).cloned().collect();
+    let est = crate::identify::dataset::estimate_alignment(&[(rec, &used)], opts.target)
+        .with_context(|| {
+            format!(
+                "{}: estimating the power sensor's window",
+                rec.source.display()
+            )
+        })?;
+    // A reading cannot average power after its own stamp: W trades against a negative lag on a
+    // flat R² surface (W = 0.275 s at lag −0.05 s was seen on a 0.2 s sensor), so the best point
+    // with lag ≥ 0 is taken; a positive lag is the latency hypothesis' to judge.
+    let best = est
+        .grid
+        .iter()
+        .filter(|g| g.alignment.lag_s >= -1e-9)
+        .max_by(|a, b| a.r2.total_cmp(&b.r2))
+        .copied()
+        .unwrap_or(crate::identify::dataset::AlignmentScore {
+            alignment: est.best,
+            rows: 0,
+            r2: est.r2,
+        });
+    Ok(SensorWindow {
+        window_s: best.alignment.window_s,
+        estimated: true,
+        scan_lag_s: best.alignment.lag_s,
+        scan_r2: best.r2,
+        scan_trials: used.len(),
+    })
 }
 
 /// Held-out quality of a model.
@@ -244,6 +317,9 @@ pub struct Diagnosis {
     /// Mean motor supply voltage the bus-current form used [V] (recorded, or nominal).
     #[serde(default)]
     pub bus_volts: f64,
+    /// The power sensor's averaging window used for every reading's regressors.
+    #[serde(default)]
+    pub sensor_window: SensorWindow,
     /// Plain-language summary.
     pub summary: String,
     /// Per-reading data for the replay.
@@ -268,6 +344,7 @@ fn filter_trials(
     rec: &Recording,
     windows: &[TrialWindow],
     opts: &DiagnoseOptions,
+    w: f64,
     reference: Option<Vec<f64>>,
 ) -> Result<(Vec<TrialMeta>, Vec<Rejection>)> {
     let power = opts.target.series(rec);
@@ -296,7 +373,7 @@ fn filter_trials(
             .filter(|m| !crate::trial::is_rejected(rej, 0, m.window.index))
             .cloned()
             .collect();
-        let rows = build_rows(rec, power, &kept, 0.0, opts.sensor_window_s, false);
+        let rows = build_rows(rec, power, &kept, 0.0, w, false);
         let res = base_trial_residuals(&rows, kept.len(), opts.folds, reference.clone())?;
         Ok::<_, anyhow::Error>(
             kept.iter()
@@ -407,9 +484,15 @@ pub fn diagnose_trials(
             opts.target
         );
     }
-    let w = opts.sensor_window_s;
+    let sensor = sensor_window(rec, windows, opts)?;
+    let w = sensor.window_s;
+    let resolved = DiagnoseOptions {
+        sensor_window_s: Some(w),
+        ..opts.clone()
+    };
+    let opts = &resolved;
     let reference: Option<Vec<f64>> = opts.reference.map(|m| m.to_vector().to_vec());
-    let (metas, rejected) = filter_trials(rec, windows, opts, reference.clone())?;
+    let (metas, rejected) = filter_trials(rec, windows, opts, w, reference.clone())?;
     if metas.len() < 2 * opts.folds.max(2) {
         bail!(
             "{}: only {} usable trials (need at least {} for {}-fold cross-validation by trial)",
@@ -678,6 +761,7 @@ pub fn diagnose_trials(
         confounded: sel.confounded.clone(),
         discovery,
         bus_volts: hypotheses::NOMINAL_BUS_VOLTS,
+        sensor_window: sensor,
         summary: String::new(),
         replay,
         counterpart: None,
@@ -894,7 +978,10 @@ fn run_fields(
     lag: f64,
     opts: &DiagnoseOptions,
 ) -> RowFields {
-    let w = opts.sensor_window_s;
+    // Resolved by `diagnose_trials` before the stages run.
+    let w = opts
+        .sensor_window_s
+        .unwrap_or(crate::identify::Alignment::NOMINAL.window_s);
     let window = |t: f64| fields::Window {
         start: t - lag - w,
         end: t - lag,

@@ -121,6 +121,14 @@ pub fn summarise(d: &Diagnosis) -> String {
             );
         }
     }
+    let sw = &d.sensor_window;
+    if sw.estimated {
+        let _ = writeln!(
+            s,
+            "Sensor window: each reading averages the {:.3} s before its stamp (estimated from {} trials by the identification's alignment scan, R² = {:.3}).",
+            sw.window_s, sw.scan_trials, sw.scan_r2
+        );
+    }
     if let Some(best) = d
         .lag_scan
         .iter()

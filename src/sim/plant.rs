@@ -293,7 +293,7 @@ impl Engine<'_> {
         let tau_home_urdf = self.dyn_urdf.map(|d| d.gravity_torque(&zero));
         let tau0_sq = tau_home.map(|v| v * v);
         let latency = effects.latency.map_or(0.0, |l| l.seconds);
-        let keep_s = latency + SENSOR_WINDOW_S + 2.0;
+        let keep_s = latency + cfg.sensor_window_s + 2.0;
 
         let mut thermal = ThermalState::new(cfg.thermal, cfg.t_start_c);
         if let Some(h) = cfg.housing_start_c {
@@ -515,7 +515,7 @@ impl Engine<'_> {
                 }
                 2 => {
                     i_bms += 1;
-                    let p = window_mean(&power_hist, t - latency, SENSOR_WINDOW_S);
+                    let p = window_mean(&power_hist, t - latency, cfg.sensor_window_s);
                     bms_ou = ou_step(bms_ou, (t - t_bms_prev).max(0.0), BMS_OU, rng);
                     t_bms_prev = t;
                     let p_bms = p + BMS_OFFSET_W + bms_ou + noise.bms_w * gauss(rng);
@@ -542,7 +542,7 @@ impl Engine<'_> {
                 }
                 _ => {
                     i_mbs += 1;
-                    let p = window_mean(&power_hist, t - latency, SENSOR_WINDOW_S)
+                    let p = window_mean(&power_hist, t - latency, cfg.sensor_window_s)
                         + noise.mbs_w * gauss(rng);
                     let volts = quant(pack_volts(soc) - 0.4 + 0.005 * gauss(rng), 0.01);
                     let amps = quant(p / volts, 0.001);
