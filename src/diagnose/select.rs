@@ -785,7 +785,7 @@ fn compare_forms(
             accepted: w.score.accepted,
             form_words: [form_words(&remaining[wi]), form_words(&remaining[ri])],
             params: [w.score.params.clone(), r.score.params.clone()],
-            confounded: w.score.accepted && !(p_value < alpha),
+            confounded: w.score.accepted && (p_value >= alpha || p_value.is_nan()),
         });
     }
 }
