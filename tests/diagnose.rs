@@ -590,6 +590,25 @@ fn junk_fields_left_out(d: &Diagnosis) {
 }
 
 #[test]
+fn housing_friction_with_default_start_temperatures_is_not_told_from_other_friction() {
+    // What holds without special start temperatures (windings at 30 °C, housings settled with
+    // them): the housings barely change over the session, so k·(T_housing − 25 °C)·|q̇| is an
+    // almost constant Coulomb excess. A refit absorbs it into c_i and claims nothing; against
+    // the twin the excess is visible but the housing field is not named — it goes to the library's
+    // load-dependent gear friction, the friction form that fits it best (README: a known
+    // limitation; the housing is found once the temperatures move apart, test above).
+    let mut e = Effects::default();
+    e.enable("housing_friction=0.05").unwrap();
+    let (rec, _, files) = session(&e, 3, 6, &[30.0]);
+    let d = diagnose::diagnose(&rec, &files.opts(refit())).unwrap();
+    show("housing_friction default start refit", &d);
+    assert!(claims(&d).is_empty(), "refit: {:?}", claims(&d));
+    let d = diagnose::diagnose(&rec, &files.opts(twin())).unwrap();
+    show("housing_friction default start twin", &d);
+    assert_eq!(claims(&d), ["gear_friction"], "twin");
+}
+
+#[test]
 fn a_rail_load_switching_with_a_board_status_field_is_discovered() {
     // A 3 W fan on the main-board rail, on and off during the session; the board's fan_state[1]
     // says when. Nothing in the library follows a board field.

@@ -54,7 +54,7 @@ pub struct FieldTable {
     /// Mean motor supply voltage over the windows (fields named `…].vol`), when recorded [V].
     pub bus_volts: Option<f64>,
     /// Fields left out of discovery by a rule on their own data, each with the reason
-    /// ([`junk_reason`]): constant, a counter or clock, or hash-/CRC-like.
+    /// (constant over the reading windows, or by `junk_reason`: a counter or clock, or hash-/CRC-like).
     pub excluded: Vec<ExcludedField>,
 }
 
@@ -183,7 +183,8 @@ pub(crate) fn junk_reason(st: &MsgStats, clock_r: Option<f64>) -> Option<String>
         return None;
     }
     if st.max <= st.min {
-        return Some(format!("constant ({} in every message)", st.min));
+        // Constant over the messages looked at: judged on the reading windows instead.
+        return None;
     }
     // An integer that steps the same way at (nearly) every message counts messages or time; a
     // float drifting one way (a heading, a charge) is a physical signal and is judged by the
@@ -268,9 +269,15 @@ struct TopicAcc {
     held: Vec<f64>,
     cursor: usize,
     row: Vec<f64>,
-    /// Per-message statistics of each field.
+    /// Per-message statistics of each field, over the topic's first [`STATS_MESSAGES`]
+    /// messages in the file.
     stats: Vec<MsgStats>,
+    n_stats: usize,
 }
+
+/// Messages per topic and file the junk rules look at: enough for their statistics, and the
+/// cost stays bounded on hours-long files (a 500 Hz state topic carries ~10⁷ messages).
+const STATS_MESSAGES: usize = 50_000;
 
 impl TopicAcc {
     fn new(names: Vec<String>, extractor: Option<FieldExtractor>, n_windows: usize) -> Self {
@@ -285,6 +292,7 @@ impl TopicAcc {
             cursor: 0,
             row: vec![0.0; n],
             stats: vec![MsgStats::default(); n],
+            n_stats: 0,
             names,
         }
     }
@@ -302,8 +310,11 @@ impl TopicAcc {
     }
 
     fn add(&mut self, windows: &[Window], t: f64) {
-        for (st, &v) in self.stats.iter_mut().zip(&self.row) {
-            st.add(v);
+        if self.n_stats < STATS_MESSAGES {
+            self.n_stats += 1;
+            for (st, &v) in self.stats.iter_mut().zip(&self.row) {
+                st.add(v);
+            }
         }
         self.advance(windows, t);
         let n = self.names.len();
@@ -587,7 +598,8 @@ mod tests {
             (0..n).map(|i| if (i / 500) % 2 == 0 { hash(7) } else { hash(i) }),
         ));
         assert!(r.as_deref().is_some_and(|r| r.starts_with("hash")), "{r:?}");
-        assert!(reason(stats((0..n).map(|_| 7.0))).is_some_and(|r| r.starts_with("constant")));
+        // Constant: left to the reading-window rule of `read_fields`.
+        assert_eq!(reason(stats((0..n).map(|_| 7.0))), None);
         // Kept: a slowly heating integer temperature (steps up now and then), a 0/3000 rpm fan
         // switching every 400 messages, a noisy float, a wide but smooth integer (an encoder).
         assert_eq!(reason(stats((0..n).map(|i| 30.0 + (i / 300) as f64))), None);
