@@ -27,8 +27,17 @@ pub struct ValidateArgs {
 /// Validate and print the metrics (text or JSON).
 pub fn run(a: ValidateArgs) -> Result<()> {
     let model = load_model(&a.model)?;
-    let rec = a.read.load(&a.session)?;
-    let v = g1viz::identify::validate(&model, &rec, &a.fit.options())?;
+    let map = a.read.signal_map()?;
+    // Streamed twice (segmentation, then rows): memory stays bounded whatever the length.
+    let v = g1viz::identify::validate_file(
+        &model,
+        &a.read.session_file(&a.session, &map),
+        &a.fit.options(),
+        &g1viz::identify::StreamOptions::default(),
+    )?;
+    for w in &v.session.warnings {
+        eprintln!("warning: {w}");
+    }
     for n in &v.notes {
         eprintln!("note: {n}");
     }

@@ -136,6 +136,7 @@ mod map;
 
 pub use load::{
     SeriesStats, SignalStats, StreamSummary, load_recording, signal_stats, stream_recording,
+    stream_state,
 };
 pub use map::{
     G1_LEFT_ARM_BASE, G1_RIGHT_ARM_BASE, GROUPS, Group, JOINT_SHORT, SignalMap, SignalSpec,
