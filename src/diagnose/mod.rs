@@ -126,7 +126,8 @@ pub struct SensorWindow {
     /// Lag of the best (W, lag) point of the alignment scan [s] (the latency hypothesis judges
     /// a lag; this is only the scan's by-product). 0 when W was given.
     pub scan_lag_s: f64,
-    /// Per-reading R² of the identification's least-squares fit at that point (NaN when given).
+    /// Per-reading R² of the identification's least-squares fit at that point (0 when given:
+    /// JSON has no NaN).
     pub scan_r2: f64,
     /// Trials the scan used.
     pub scan_trials: usize,
@@ -149,7 +150,7 @@ fn sensor_window(
             window_s: w,
             estimated: false,
             scan_lag_s: 0.0,
-            scan_r2: f64::NAN,
+            scan_r2: 0.0,
             scan_trials: 0,
         });
     }
