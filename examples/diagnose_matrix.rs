@@ -288,7 +288,16 @@ fn found_cell(t: &diagnose::Discovery) -> String {
 }
 
 fn row(case: &Case, seed: u64, mode: &str, d: &Diagnosis) -> String {
-    let mut accepted: Vec<String> = d.accepted.iter().map(|h| h.id.clone()).collect();
+    let mut accepted: Vec<String> = d
+        .accepted
+        .iter()
+        .map(
+            |h| match d.forms.iter().find(|f| f.confounded && f.winner == h.id) {
+                Some(f) => format!("{} (form: confounded — {})", f.mechanism, f.either()),
+                None => h.id.clone(),
+            },
+        )
+        .collect();
     if let Some(r) = &d.discovery {
         accepted.extend(r.accepted.iter().map(found_cell));
     }
@@ -342,27 +351,51 @@ fn row(case: &Case, seed: u64, mode: &str, d: &Diagnosis) -> String {
         });
         found.push(match hit {
             None => "not found".into(),
-            Some(t) if t.params.len() == g1viz::N_JOINTS => {
-                // Per-joint coefficients: worst relative error against F·w_i.
+            Some(t)
+                if t.fields.is_empty() && t.params.iter().any(|p| p.symbol.starts_with("k_")) =>
+            {
+                // Identified per-joint coefficients: worst relative error against F·w_i.
                 let w = g1viz::sim::effects::JOINT_FRICTION_PATTERN;
-                let worst = t
+                let ided: Vec<(&diagnose::Param, f64)> = t
                     .params
                     .iter()
-                    .zip(w)
+                    .filter_map(|p| {
+                        let i: usize = p.symbol.strip_prefix("k_")?.parse().ok()?;
+                        Some((p, w[i]))
+                    })
+                    .collect();
+                let worst = ided
+                    .iter()
                     .map(|(p, wi)| (p.value - value * wi) / (value * wi))
                     .max_by(|a, b| a.abs().total_cmp(&b.abs()))
                     .unwrap_or(f64::NAN);
-                let worst_se = t
-                    .params
+                let worst_se = ided
                     .iter()
-                    .zip(w)
                     .map(|(p, wi)| (p.value - value * wi).abs() / p.std_err)
                     .fold(0.0, f64::max);
-                format!(
-                    "per joint, worst error {:+.1} %, worst {:.1} s.e.",
-                    100.0 * worst,
-                    worst_se
-                )
+                let pooled =
+                    t.params
+                        .iter()
+                        .find(|p| p.symbol == "k_pooled")
+                        .map_or(String::new(), |p| {
+                            format!(
+                                "; {} pooled: k = {:.4} ± {:.4} (mean excess {:.4})",
+                                g1viz::N_JOINTS - ided.len(),
+                                p.value,
+                                p.std_err,
+                                value * w.iter().sum::<f64>() / w.len() as f64
+                            )
+                        });
+                if ided.is_empty() {
+                    format!("no joint identified (s.e. > 4 % of k_i){pooled}")
+                } else {
+                    format!(
+                        "{} joints identified, worst error {:+.1} %, worst {:.1} s.e.{pooled}",
+                        ided.len(),
+                        100.0 * worst,
+                        worst_se
+                    )
+                }
             }
             Some(t) => {
                 let p = &t.params[0];
@@ -415,7 +448,7 @@ fn row(case: &Case, seed: u64, mode: &str, d: &Diagnosis) -> String {
         if found.is_empty() {
             "—".into()
         } else {
-            found.join("; ")
+            cell(&found.join("; "))
         },
         if ranks.is_empty() {
             "—".into()
@@ -425,13 +458,18 @@ fn row(case: &Case, seed: u64, mode: &str, d: &Diagnosis) -> String {
         if accepted.is_empty() {
             "none".into()
         } else {
-            accepted.join(", ")
+            cell(&accepted.join(", "))
         },
         f.before.r2,
         after_r2,
         d.n_trials,
         d.n_trials + d.rejected.len(),
     )
+}
+
+/// A markdown table cell: `|` (as in |q̇|) escaped, already escaped ones left alone.
+fn cell(s: &str) -> String {
+    s.replace("\\|", "|").replace('|', "\\|")
 }
 
 fn main() -> Result<()> {

@@ -59,6 +59,19 @@ fn session_with(
     t_start_c: &[f64],
     housing_c: &[f64],
 ) -> (Recording, TruthTrials, Files) {
+    let window = SimConfig::default().sensor_window_s;
+    session_window(effects, seed, parts, t_start_c, housing_c, window)
+}
+
+/// [`session_with`] with power sensors averaging `window_s`.
+fn session_window(
+    effects: &Effects,
+    seed: u64,
+    parts: u64,
+    t_start_c: &[f64],
+    housing_c: &[f64],
+    window_s: f64,
+) -> (Recording, TruthTrials, Files) {
     let dir = tempfile::tempdir().unwrap();
     let mut recs = Vec::new();
     let mut truth_trials = Vec::new();
@@ -71,6 +84,7 @@ fn session_with(
             t_start_c: t_start_c[part as usize % t_start_c.len()],
             housing_start_c: (!housing_c.is_empty())
                 .then(|| housing_c[part as usize % housing_c.len()]),
+            sensor_window_s: window_s,
             progress: false,
             ..SimConfig::default()
         };
@@ -199,6 +213,32 @@ fn check_single(
         "{name}: held-out fit does not improve"
     );
     assert_eq!(claims(&d), [id], "{name}: nothing else may be claimed");
+    // Where the effect's mechanism has several forms, its own form is the one claimed, or the
+    // forms are reported as confounded (the margin is not significant) with it among them.
+    if let Some(f) = form_of(&d, id) {
+        assert!(
+            f.accepted && (f.winner == id || f.confounded && f.runner_up == id),
+            "{name}: wrong form claimed: {f:?}"
+        );
+    }
+}
+
+/// The form comparison of the mechanism whose winning or runner-up form is `id`.
+fn form_of<'a>(d: &'a Diagnosis, id: &str) -> Option<&'a diagnose::MechanismForms> {
+    d.forms.iter().find(|f| f.winner == id || f.runner_up == id)
+}
+
+/// Every library term reported as confounded stays in the ranking, not accepted, marked with
+/// what it is confounded with.
+fn confounded_stay_ranked(name: &str, d: &Diagnosis) {
+    for c in &d.confounded {
+        let h = d.hypotheses.iter().find(|h| h.id == c.dropped);
+        assert!(
+            h.is_some_and(|h| !h.accepted && h.verdict.starts_with("confounded with ")),
+            "{name}: {} dropped as confounded but ranked as {h:?}",
+            c.dropped
+        );
+    }
 }
 
 #[test]
@@ -224,10 +264,9 @@ fn thermal_drift_is_found_against_the_twin() {
 fn braking_asymmetry_is_found() {
     let mut e = Effects::default();
     e.enable("braking=0.25").unwrap();
-    // Against the twin r is recovered to −0.6 %; a refitted base gives −9.5 % on this session
-    // (the pooled weights are the refitted a_i, which trade off against c_i, d_i): too close to
-    // the 10 % bound for a stable test, so the refit case is covered by the two-effect test.
-    check_single("braking", e, &twin(), SMALL, "braking", "r", 0.25);
+    // The README row's 144 trials, both modes (seed 3: twin −4.2 %, refit +0.5 %).
+    check_single("braking", e, &twin(), DOUBLE, "braking", "r", 0.25);
+    check_single("braking refit", e, &refit(), DOUBLE, "braking", "r", 0.25);
 }
 
 #[test]
@@ -293,14 +332,15 @@ fn thermal_drift_is_found_by_a_refit_across_temperatures() {
 #[test]
 fn gear_friction_is_found_against_the_twin() {
     // μ·Σ|τq̇| = μ·Σ(τq̇ − 2·min(τq̇, 0)): a refitted a_i and the braking term span most of it,
-    // so a refit rarely resolves it (README matrix); against the twin μ is recovered.
+    // so a refit rarely resolves it (README matrix); against the twin μ is recovered. On the
+    // README row's 144 trials.
     let mut e = Effects::default();
     e.enable("gear_friction=0.15").unwrap();
     check_single(
         "gear_friction",
         e,
         &twin(),
-        SMALL,
+        DOUBLE,
         "gear_friction",
         "μ",
         0.15,
@@ -357,18 +397,66 @@ fn bus_loss_from_total_electrical_power_wins_over_the_current_form() {
 }
 
 #[test]
-fn electronics_loss_per_newton_metre_is_told_from_per_ampere() {
+fn electronics_loss_per_newton_metre_is_found_against_the_twin() {
     let mut e = Effects::default();
     e.enable("electronics_nm=0.5").unwrap();
     check_single(
         "electronics_nm",
         e,
-        &refit(),
+        &twin(),
         SMALL,
         "electronics_nm",
         "k_el",
         0.5,
     );
+}
+
+/// The forms of the drive-electronics mechanism on a refit: the mechanism is claimed (its
+/// winning form's parameter within 10 %), its form left open when the margin is not
+/// significant — never one form claimed on a margin the data do not support.
+fn electronics_forms_on_a_refit(effect: &str, seed: u64, truth_id: &str, truth: Option<f64>) {
+    let mut e = Effects::default();
+    e.enable(effect).unwrap();
+    let (rec, _, files) = session(&e, seed, 3, &[30.0]);
+    let d = diagnose::diagnose(&rec, &files.opts(refit())).unwrap();
+    show(&format!("{effect} seed {seed} refit"), &d);
+    let ids = ["drive_loss", "electronics_nm"];
+    let c = claims(&d);
+    assert!(c.len() == 1 && ids.contains(&c[0].as_str()), "claims {c:?}");
+    let f = form_of(&d, truth_id).expect("forms compared");
+    assert!(
+        f.accepted && f.confounded && ids.contains(&f.winner.as_str()),
+        "{f:?}"
+    );
+    assert!(f.p_value >= 1e-3, "{f:?}");
+    assert!(
+        d.summary
+            .contains("Form: drive-electronics loss: confounded — per-Nm or per-ampere")
+            || d.summary
+                .contains("Form: drive-electronics loss: confounded — per-ampere or per-Nm"),
+        "{}",
+        d.summary
+    );
+    assert!(d.summary.contains("(form: confounded — "), "{}", d.summary);
+    // The true form's own fit, reported as evidence beside the winner's.
+    let i = usize::from(f.winner != truth_id);
+    assert!(f.params.iter().all(|p| p.len() == 1), "{f:?}");
+    if let Some(truth) = truth {
+        let v = f.params[i][0].value;
+        assert!((v - truth).abs() <= 0.1 * truth, "{truth_id}: {v}");
+    }
+    // Both forms' parameters in the report's JSON.
+    let json = serde_json::to_string(&d).unwrap();
+    assert!(json.contains("\"confounded\":true"), "{json:.200}");
+}
+
+#[test]
+fn electronics_forms_a_refit_cannot_tell_are_reported_as_confounded() {
+    // Per-Nm truth, seed 3: per-Nm wins by 1.4 % (p ≈ 0.09), k_el within 10 %.
+    electronics_forms_on_a_refit("electronics_nm=0.5", 3, "electronics_nm", Some(0.5));
+    // Per-ampere truth, seed 6: per-Nm wins by 0.3 % (p ≈ 0.44); the per-ampere fit's V_drop
+    // is +12 % (1.8 s.e.; README matrix), so only the confounded form is asserted.
+    electronics_forms_on_a_refit("drive_loss=0.5", 6, "drive_loss", None);
 }
 
 /// The discovered terms of a session; exactly one expected.
@@ -418,6 +506,108 @@ fn friction_following_the_housing_temperature_is_discovered_on_that_field() {
     assert!((k - 0.05).abs() <= 0.005, "k = {k}");
 }
 
+/// A found term is shown like a hypothesis: diagnosis.json carries its name, form, field(s),
+/// parameter ± s.e. and held-out before/after; the replay carries the located field's value per
+/// reading (plotted beside the residual in `--save`) and marks the trials that carry it.
+fn found_term_shown(d: &Diagnosis) {
+    let json: serde_json::Value = serde_json::to_value(d).unwrap();
+    let t = &json["discovery"]["accepted"][0];
+    for key in ["name", "form"] {
+        assert!(t[key].as_str().is_some_and(|s| !s.is_empty()), "{key}: {t}");
+    }
+    let field = t["fields"][0].as_str().expect("field");
+    let p = &t["params"][0];
+    assert!(
+        p["value"].is_f64() && p["std_err"].as_f64().is_some_and(|v| v > 0.0),
+        "{p}"
+    );
+    for q in ["before", "after"] {
+        assert!(t[q]["r2"].is_f64() && t[q]["rmse_w"].is_f64(), "{q}: {t}");
+    }
+    assert!(t["after"]["r2"].as_f64() > t["before"]["r2"].as_f64());
+    let located = &json["replay"]["located"][0];
+    assert_eq!(located["name"].as_str(), Some(field));
+    assert_eq!(
+        located["values"].as_array().map(Vec::len),
+        Some(d.replay.t.len()),
+        "one value per reading"
+    );
+    assert_eq!(d.replay.found_w.len(), d.replay.t.len());
+    assert!(
+        d.replay.highlighted.iter().any(|h| h
+            .reason
+            .starts_with("carries what was found beyond the library")),
+        "{:?}",
+        d.replay.highlighted
+    );
+}
+
+/// The simulated session's junk fields are left out of discovery by the data-driven rules,
+/// each with its reason, and nothing physical is: the message tick is a counter, the CRCs are
+/// hash-like, and no temperature, voltage, fan or joint field is left out except as constant (a
+/// heading that drifts at a steady rate may go as a clock: it duplicates session time).
+fn junk_fields_left_out(d: &Diagnosis) {
+    let r = d.discovery.as_ref().expect("discovery ran");
+    for e in &r.excluded {
+        eprintln!("  left out: {} — {}", e.name, e.reason);
+    }
+    let reason = |name: &str| {
+        r.excluded
+            .iter()
+            .find(|e| e.name == name)
+            .map(|e| e.reason.as_str())
+    };
+    assert!(
+        reason("/lowstate.tick").is_some_and(|r| r.starts_with("counter")),
+        "tick: {:?}",
+        reason("/lowstate.tick")
+    );
+    for crc in ["/lowstate.crc", "/arm_sdk.crc"] {
+        assert!(
+            reason(crc).is_some_and(|r| r.starts_with("hash")),
+            "{crc}: {:?}",
+            reason(crc)
+        );
+    }
+    for e in r
+        .excluded
+        .iter()
+        .filter(|e| !e.reason.starts_with("constant"))
+    {
+        assert!(
+            !["temperature", "vol", "fan_state", "q", "dq", "tau_est"]
+                .iter()
+                .any(|w| e.name.ends_with(w) || e.name.contains(&format!(".{w}["))),
+            "physical field left out: {e:?}"
+        );
+    }
+    assert!(
+        d.summary
+            .contains("Left out of discovery as counters, clocks or hash-like: "),
+        "{}",
+        d.summary
+    );
+}
+
+#[test]
+fn housing_friction_with_default_start_temperatures_is_not_told_from_other_friction() {
+    // What holds without special start temperatures (windings at 30 °C, housings settled with
+    // them): the housings barely change over the session, so k·(T_housing − 25 °C)·|q̇| is an
+    // almost constant Coulomb excess. A refit absorbs it into c_i and claims nothing; against
+    // the twin the excess is visible but the housing field is not named — it goes to the library's
+    // load-dependent gear friction, the friction form that fits it best (README: a known
+    // limitation; the housing is found once the temperatures move apart, test above).
+    let mut e = Effects::default();
+    e.enable("housing_friction=0.05").unwrap();
+    let (rec, _, files) = session(&e, 3, 6, &[30.0]);
+    let d = diagnose::diagnose(&rec, &files.opts(refit())).unwrap();
+    show("housing_friction default start refit", &d);
+    assert!(claims(&d).is_empty(), "refit: {:?}", claims(&d));
+    let d = diagnose::diagnose(&rec, &files.opts(twin())).unwrap();
+    show("housing_friction default start twin", &d);
+    assert_eq!(claims(&d), ["gear_friction"], "twin");
+}
+
 #[test]
 fn a_rail_load_switching_with_a_board_status_field_is_discovered() {
     // A 3 W fan on the main-board rail, on and off during the session; the board's fan_state[1]
@@ -428,6 +618,8 @@ fn a_rail_load_switching_with_a_board_status_field_is_discovered() {
         let (rec, _, files) = session(&e, 3, 3, &[30.0]);
         let d = diagnose::diagnose(&rec, &files.opts(opts)).unwrap();
         show(&format!("fan_load {mode}"), &d);
+        junk_fields_left_out(&d);
+        found_term_shown(&d);
         let t = only_discovery("fan_load", &d);
         assert_eq!(
             t.fields,
@@ -455,23 +647,47 @@ fn unequal_joint_friction_is_found_per_joint_against_the_twin() {
     let d = diagnose::diagnose(&rec, &files.opts(twin())).unwrap();
     show("joint_friction twin", &d);
     let t = only_discovery("joint_friction", &d);
-    assert!(t.name.contains("Coulomb") && t.params.len() == 7, "{t:?}");
-    // Each joint's excess F·w_i within 10 % or, where the joint moves too little for that
-    // (wrist roll, shoulder roll: s.e. ≈ 0.1 W·s/rad on 72 trials), within 2.5 standard errors;
-    // the well-determined ones (s.e. < 0.1) within 10 %.
+    confounded_stay_ranked("joint_friction twin", &d);
+    assert!(t.name.contains("Coulomb"), "{t:?}");
+    // Joints the data identify (s.e. ≤ 4 % of the value) are reported one by one, each within
+    // 10 % of its excess F·w_i; the rest share one pooled coefficient, which lies within the
+    // range of their true excesses (± 2.5 s.e.). The well-moved shoulder pitch (0), elbow (3)
+    // and wrist pitch (5) must be among the identified.
     let w = g1viz::sim::effects::JOINT_FRICTION_PATTERN;
-    for (p, wi) in t.params.iter().zip(w) {
-        let err = (p.value - wi).abs();
-        assert!(
-            err <= (0.1 * wi).max(2.5 * p.std_err),
-            "{}: {} ± {} vs {wi}",
-            p.name,
-            p.value,
-            p.std_err
-        );
-        if p.std_err < 0.1 {
-            assert!(err <= 0.1 * wi, "{}: {} vs {wi}", p.name, p.value);
+    let mut identified = Vec::new();
+    for p in &t.params {
+        eprintln!("  {} = {} ± {} ({})", p.symbol, p.value, p.std_err, p.name);
+        if let Some(i) = p
+            .symbol
+            .strip_prefix("k_")
+            .and_then(|i| i.parse::<usize>().ok())
+        {
+            assert!(p.std_err <= 0.04 * p.value.abs(), "{p:?}");
+            assert!(
+                (p.value - w[i]).abs() <= 0.1 * w[i],
+                "{}: {} vs {}",
+                p.name,
+                p.value,
+                w[i]
+            );
+            identified.push(i);
         }
+    }
+    let pooled: Vec<&diagnose::Param> =
+        t.params.iter().filter(|p| p.symbol == "k_pooled").collect();
+    assert!(pooled.len() <= 1 && identified.len() + pooled.len() == t.params.len());
+    if let Some(p) = pooled.first() {
+        let rest: Vec<f64> = (0..7)
+            .filter(|i| !identified.contains(i))
+            .map(|i| w[i])
+            .collect();
+        let (lo, hi) = rest
+            .iter()
+            .fold((f64::INFINITY, 0.0f64), |a, &v| (a.0.min(v), a.1.max(v)));
+        assert!(
+            p.value >= lo - 2.5 * p.std_err && p.value <= hi + 2.5 * p.std_err,
+            "{p:?} vs {rest:?}"
+        );
     }
     let d = diagnose::diagnose(&rec, &files.opts(refit())).unwrap();
     show("joint_friction refit", &d);
@@ -502,6 +718,46 @@ fn two_effects_at_once_are_both_found() {
         param(&d, "L")
     );
     assert!(d.final_model.after.r2 > d.final_model.before.r2);
+}
+
+#[test]
+fn a_sensor_window_other_than_the_nominal_is_estimated_and_nothing_claimed() {
+    // Power sensors averaging 0.5 s instead of the G1's 0.2 s; nothing concealed. The window is
+    // estimated on the (W, lag) grid of the identification (0.025 s steps): within ±0.05 s.
+    let (rec, _, files) = session_window(&Effects::default(), 3, 3, &[30.0], &[], 0.5);
+    let auto = |o: DiagnoseOptions| DiagnoseOptions {
+        sensor_window_s: None,
+        ..o
+    };
+    for (mode, opts) in [("refit", refit()), ("twin", twin())] {
+        let d = diagnose::diagnose(&rec, &files.opts(auto(opts))).unwrap();
+        show(&format!("W = 0.5 s {mode}"), &d);
+        let sw = d.sensor_window;
+        assert!(sw.estimated, "{sw:?}");
+        assert!(
+            (sw.window_s - 0.5).abs() <= 0.05,
+            "{mode}: W = {}",
+            sw.window_s
+        );
+        assert!(
+            d.summary
+                .contains("Sensor window: each reading averages the")
+        );
+        assert!(claims(&d).is_empty(), "{mode}: claimed {:?}", claims(&d));
+    }
+    // Nominal sessions: the estimate is within ±0.05 s of the nominal 0.2 s.
+    for seed in [11, 12, 13] {
+        let (rec, _, files) = session(&Effects::default(), seed, 3, &[30.0]);
+        let d = diagnose::diagnose(&rec, &files.opts(auto(refit()))).unwrap();
+        eprintln!("seed {seed}: {:?}", d.sensor_window);
+        assert!(
+            (d.sensor_window.window_s - 0.2).abs() <= 0.05,
+            "seed {seed}: {:?}",
+            d.sensor_window
+        );
+    }
+    // Given (the default), the window is the nominal one and says so.
+    assert_eq!(refit().sensor_window_s, Some(0.2));
 }
 
 #[test]

@@ -803,3 +803,51 @@ fn bare_effect_names_use_the_readme_defaults() {
         "4",
     );
 }
+
+/// README (Digital twin): the effect table's rows of the five forms the diagnosis does not fit,
+/// at their printed precision (hold-out preset, seed 3, no artefacts — `bench_sim effects`).
+#[test]
+fn effect_table_rows_of_the_new_forms() {
+    use g1viz::identify::{IdentifyOptions, validate};
+    let tmp = tempfile::tempdir().unwrap();
+    // (effect, per-trajectory R², RMSE, per-reading like-for-like R², RMSE, mean effect power)
+    let rows = [
+        ("bus_power", "0.780", "1.36", "0.989", "0.30", "0.00"),
+        ("electronics_nm", "0.787", "1.61", "0.933", "0.91", "0.22"),
+        ("joint_friction", "0.744", "1.44", "0.941", "0.69", "0.56"),
+        ("housing_friction", "0.787", "1.34", "0.988", "0.32", "0.12"),
+        ("fan_load", "0.711", "1.78", "0.852", "1.27", "0.03"),
+    ];
+    for (effect, r2, rmse, r2a, rmsea, eff) in rows {
+        let mut cfg = SimConfig {
+            preset: Preset::Holdout,
+            seed: 3,
+            progress: false,
+            artefacts: Artefacts::NONE,
+            ..SimConfig::default()
+        };
+        cfg.effects.enable(effect).unwrap();
+        let out = tmp.path().join(format!("{effect}.mcap"));
+        let truth = simulate(&cfg, &out).unwrap();
+        let rec = g1viz::signals::load_recording(
+            &out,
+            &g1viz::signals::SignalMap::g1_left_arm(),
+            &Default::default(),
+        )
+        .unwrap();
+        let v = validate(&cfg.truth, &rec, &IdentifyOptions::default()).unwrap();
+        let (m, a) = (v.trial_level, v.trial_level_aligned);
+        let mean_eff = truth
+            .trials
+            .iter()
+            .map(|t| t.effect_power_traj_mean_w)
+            .sum::<f64>()
+            / truth.trials.len().max(1) as f64;
+        let fig = common::assert_figure;
+        fig(&format!("{effect} trajectory R²"), m.r2, r2);
+        fig(&format!("{effect} trajectory RMSE"), m.rmse, rmse);
+        fig(&format!("{effect} reading R²"), a.r2, r2a);
+        fig(&format!("{effect} reading RMSE"), a.rmse, rmsea);
+        fig(&format!("{effect} mean effect power"), mean_eff, eff);
+    }
+}

@@ -28,6 +28,10 @@ pub struct DiagnoseArgs {
     /// Power sensor.
     #[arg(long, value_enum, default_value = "mbs")]
     target: TargetArg,
+    /// The power sensor's averaging window W in seconds, or `auto` to estimate it from the data
+    /// (the identification's alignment scan).
+    #[arg(long, value_name = "SECONDS|auto", default_value = "0.2")]
+    sensor_window: String,
     /// Write a markdown report with figures into DIR.
     #[arg(long, value_name = "DIR")]
     report: Option<PathBuf>,
@@ -95,6 +99,14 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
         target: a.target.into(),
         urdf: a.urdf.clone(),
         field_sources,
+        sensor_window_s: match a.sensor_window.as_str() {
+            "auto" => None,
+            w => Some(w.parse::<f64>().ok().filter(|w| *w > 0.0).ok_or_else(|| {
+                anyhow::anyhow!(
+                    "--sensor-window {w}: expected a positive number of seconds or `auto`"
+                )
+            })?),
+        },
         ..DiagnoseOptions::default()
     };
     let busy = super::spinner("diagnosing");

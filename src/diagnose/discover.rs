@@ -180,6 +180,10 @@ pub struct DiscoveryReport {
     pub cols: Vec<Vec<f64>>,
     /// Notes (fields left out as meters of the power, unreadable files).
     pub notes: Vec<String>,
+    /// Fields left out by a rule on their own data (constant, counter or clock, hash-/CRC-like),
+    /// each with its reason.
+    #[serde(default)]
+    pub excluded: Vec<super::fields::ExcludedField>,
 }
 
 /// Everything discovery needs about the recording beyond the power data.
@@ -720,20 +724,22 @@ pub(crate) fn describe(
             ),
             format!("P += Σ_i k_i·{}", t.symbol()),
             Vec::new(),
-            (0..N_JOINTS)
-                .map(|i| {
-                    let j = joint_names
-                        .get(i)
-                        .cloned()
-                        .unwrap_or_else(|| format!("joint {i}"));
-                    param(
-                        format!("excess on {j}"),
-                        &format!("k_{i}"),
-                        i,
-                        t.unit().into(),
-                    )
-                })
-                .collect(),
+            identified_or_pooled(
+                (0..N_JOINTS)
+                    .map(|i| {
+                        let j = joint_names
+                            .get(i)
+                            .cloned()
+                            .unwrap_or_else(|| format!("joint {i}"));
+                        param(
+                            format!("excess on {j}"),
+                            &format!("k_{i}"),
+                            i,
+                            t.unit().into(),
+                        )
+                    })
+                    .collect(),
+            ),
         ),
         Kind::Pooled(t) => (
             format!(
@@ -746,6 +752,41 @@ pub(crate) fn describe(
             vec![param("common excess".into(), "k", 0, t.unit().into())],
         ),
     }
+}
+
+/// Largest standard error, as a fraction of |k_i|, of a per-joint coefficient reported on its
+/// own: at 4 % a 10 % error is 2.5 standard errors.
+pub const IDENTIFIED_REL_SE: f64 = 0.04;
+
+/// Per-joint coefficients: those the data identify (s.e. ≤ [`IDENTIFIED_REL_SE`]·|k_i|) are
+/// reported one by one; the others are pooled into one inverse-variance weighted coefficient
+/// `k_pooled` (named after the joints it covers), since the data do not tell them apart.
+fn identified_or_pooled(params: Vec<Param>) -> Vec<Param> {
+    let ok = |p: &Param| p.std_err.is_finite() && p.std_err <= IDENTIFIED_REL_SE * p.value.abs();
+    let (mut out, rest): (Vec<Param>, Vec<Param>) = params.into_iter().partition(ok);
+    let w: Vec<f64> = rest
+        .iter()
+        .map(|p| 1.0 / p.std_err.max(1e-12).powi(2))
+        .collect();
+    let sw: f64 = w.iter().sum();
+    if let Some(first) = rest.first() {
+        let joints: Vec<&str> = rest
+            .iter()
+            .map(|p| p.name.trim_start_matches("excess on "))
+            .collect();
+        out.push(Param {
+            name: format!(
+                "common excess on {} (not identified joint by joint: s.e. > {:.0} % of the value)",
+                joints.join(", "),
+                100.0 * IDENTIFIED_REL_SE
+            ),
+            symbol: "k_pooled".into(),
+            value: rest.iter().zip(&w).map(|(p, w)| p.value * w).sum::<f64>() / sw,
+            std_err: 1.0 / sw.sqrt(),
+            unit: first.unit.clone(),
+        });
+    }
+    out
 }
 
 fn capitalise(s: &str) -> String {
@@ -842,6 +883,7 @@ pub(crate) fn discover(
         fields_used: inp.fields.names.len(),
         alpha: rule.alpha,
         notes: inp.fields.notes.clone(),
+        excluded: inp.fields.excluded.clone(),
         ..Default::default()
     };
     let (cands, rv) = generate(inp, rows, data.n_trials, twin, &mut report.notes);
@@ -1110,6 +1152,33 @@ fn to_discovery(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn per_joint_coefficients_identified_or_pooled() {
+        let p = |i: usize, v: f64, se: f64| Param {
+            name: format!("excess on j{i}"),
+            symbol: format!("k_{i}"),
+            value: v,
+            std_err: se,
+            unit: "W·s/rad".into(),
+        };
+        // j0 and j2 identified (s.e. 2 % and 4 %); j1 (s.e. 50 %) and j3 (10 %) pooled with
+        // inverse-variance weights 1/0.25² = 16 and 1/0.1² = 100.
+        let out = identified_or_pooled(vec![
+            p(0, 1.0, 0.02),
+            p(1, 0.5, 0.25),
+            p(2, 2.0, 0.08),
+            p(3, 1.0, 0.1),
+        ]);
+        let syms: Vec<&str> = out.iter().map(|p| p.symbol.as_str()).collect();
+        assert_eq!(syms, ["k_0", "k_2", "k_pooled"]);
+        let pooled = &out[2];
+        assert!((pooled.value - (16.0 * 0.5 + 100.0 * 1.0) / 116.0).abs() < 1e-12);
+        assert!((pooled.std_err - 1.0 / 116f64.sqrt()).abs() < 1e-12);
+        assert!(pooled.name.contains("j1, j3"), "{}", pooled.name);
+        // All identified: nothing pooled.
+        assert_eq!(identified_or_pooled(vec![p(0, 1.0, 0.01)]).len(), 1);
+    }
 
     #[test]
     fn step_threshold_needs_two_levels() {

@@ -25,11 +25,11 @@ pub(crate) mod torque;
 
 use std::path::PathBuf;
 
-use anyhow::{Result, bail};
+use anyhow::{Context, Result, bail};
 
 pub use crate::trial::{Phase, TrialWindow};
 pub use discover::{Discovery, DiscoveryReport};
-pub use fields::FieldSource;
+pub use fields::{ExcludedField, FieldSource};
 pub use locate::{Breakdown, Correlate, Group, TrialResidual};
 pub use select::{Confounded, HypothesisScore, MechanismForms, Param};
 pub use torque::{ArmModel, TorqueComparison};
@@ -66,8 +66,12 @@ pub struct DiagnoseOptions {
     pub bic_threshold: f64,
     /// Minimum relative held-out RMSE improvement.
     pub min_improvement: f64,
-    /// Power sensor averaging window W [s] (a reading stamped t averages [t − W, t]).
-    pub sensor_window_s: f64,
+    /// Power sensor averaging window W [s] (a reading stamped t averages [t − W, t]); default
+    /// the G1's nominal 0.2 s. `None`: estimated from the data by the identification's
+    /// alignment scan ([`crate::identify::dataset::estimate_alignment`]) — on 72 nominal trials
+    /// the scan's flat optimum can land at 0.15 s with a 0.025 s lag, which the latency
+    /// hypothesis then claims, so the estimate is not the default.
+    pub sensor_window_s: Option<f64>,
     /// Largest sensor latency scanned [s] (0 disables the latency hypothesis).
     pub max_lag_s: f64,
     /// IMU filter: reject trials whose σ_ω exceeds this multiple of the median.
@@ -98,7 +102,7 @@ impl Default for DiagnoseOptions {
             alpha: 1e-3,
             bic_threshold: -10.0,
             min_improvement: 0.02,
-            sensor_window_s: 0.2,
+            sensor_window_s: Some(crate::identify::Alignment::NOMINAL.window_s),
             max_lag_s: 1.0,
             imu_threshold: 2.5,
             outlier_passes: 2,
@@ -110,6 +114,76 @@ impl Default for DiagnoseOptions {
             arm_motors: std::array::from_fn(|i| crate::signals::G1_LEFT_ARM_BASE + i),
         }
     }
+}
+
+/// The power sensor's averaging window the diagnosis used.
+#[derive(Debug, Clone, Copy, Default, serde::Serialize, serde::Deserialize)]
+pub struct SensorWindow {
+    /// Window W [s].
+    pub window_s: f64,
+    /// Estimated from the data (true) or given (false).
+    pub estimated: bool,
+    /// Lag of the best (W, lag) point of the alignment scan [s] (the latency hypothesis judges
+    /// a lag; this is only the scan's by-product). 0 when W was given.
+    pub scan_lag_s: f64,
+    /// Per-reading R² of the identification's least-squares fit at that point (0 when given:
+    /// JSON has no NaN).
+    pub scan_r2: f64,
+    /// Trials the scan used.
+    pub scan_trials: usize,
+}
+
+/// Largest number of trials the sensor-window scan uses (evenly spread over the session): the
+/// window is a property of the sensor, and 150 trials fix it well while the scan's cost stays
+/// bounded at paper scale.
+const WINDOW_SCAN_TRIALS: usize = 150;
+
+/// The sensor window: given, or estimated by the identification's (W, lag) alignment scan on at
+/// most [`WINDOW_SCAN_TRIALS`] trials.
+fn sensor_window(
+    rec: &Recording,
+    windows: &[TrialWindow],
+    opts: &DiagnoseOptions,
+) -> Result<SensorWindow> {
+    if let Some(w) = opts.sensor_window_s {
+        return Ok(SensorWindow {
+            window_s: w,
+            estimated: false,
+            scan_lag_s: 0.0,
+            scan_r2: 0.0,
+            scan_trials: 0,
+        });
+    }
+    let step = windows.len().div_ceil(WINDOW_SCAN_TRIALS).max(1);
+    let used: Vec<TrialWindow> = windows.iter().step_by(step).cloned().collect();
+    let est = crate::identify::dataset::estimate_alignment(&[(rec, &used)], opts.target)
+        .with_context(|| {
+            format!(
+                "{}: estimating the power sensor's window",
+                rec.source.display()
+            )
+        })?;
+    // A reading cannot average power after its own stamp: W trades against a negative lag on a
+    // flat R² surface (W = 0.275 s at lag −0.05 s was seen on a 0.2 s sensor), so the best point
+    // with lag ≥ 0 is taken; a positive lag is the latency hypothesis' to judge.
+    let best = est
+        .grid
+        .iter()
+        .filter(|g| g.alignment.lag_s >= -1e-9)
+        .max_by(|a, b| a.r2.total_cmp(&b.r2))
+        .copied()
+        .unwrap_or(crate::identify::dataset::AlignmentScore {
+            alignment: est.best,
+            rows: 0,
+            r2: est.r2,
+        });
+    Ok(SensorWindow {
+        window_s: best.alignment.window_s,
+        estimated: true,
+        scan_lag_s: best.alignment.lag_s,
+        scan_r2: best.r2,
+        scan_trials: used.len(),
+    })
 }
 
 /// Held-out quality of a model.
@@ -244,6 +318,9 @@ pub struct Diagnosis {
     /// Mean motor supply voltage the bus-current form used [V] (recorded, or nominal).
     #[serde(default)]
     pub bus_volts: f64,
+    /// The power sensor's averaging window used for every reading's regressors.
+    #[serde(default)]
+    pub sensor_window: SensorWindow,
     /// Plain-language summary.
     pub summary: String,
     /// Per-reading data for the replay.
@@ -268,6 +345,7 @@ fn filter_trials(
     rec: &Recording,
     windows: &[TrialWindow],
     opts: &DiagnoseOptions,
+    w: f64,
     reference: Option<Vec<f64>>,
 ) -> Result<(Vec<TrialMeta>, Vec<Rejection>)> {
     let power = opts.target.series(rec);
@@ -296,7 +374,7 @@ fn filter_trials(
             .filter(|m| !crate::trial::is_rejected(rej, 0, m.window.index))
             .cloned()
             .collect();
-        let rows = build_rows(rec, power, &kept, 0.0, opts.sensor_window_s, false);
+        let rows = build_rows(rec, power, &kept, 0.0, w, false);
         let res = base_trial_residuals(&rows, kept.len(), opts.folds, reference.clone())?;
         Ok::<_, anyhow::Error>(
             kept.iter()
@@ -412,8 +490,15 @@ pub fn diagnose_trials(
             opts.target
         );
     }
+    let sensor = sensor_window(rec, windows, opts)?;
+    let w = sensor.window_s;
+    let resolved = DiagnoseOptions {
+        sensor_window_s: Some(w),
+        ..opts.clone()
+    };
+    let opts = &resolved;
     let reference: Option<Vec<f64>> = opts.reference.map(|m| m.to_vector().to_vec());
-    let (metas, rejected) = filter_trials(rec, windows, opts, reference.clone())?;
+    let (metas, rejected) = filter_trials(rec, windows, opts, w, reference.clone())?;
     if metas.len() < 2 * opts.folds.max(2) {
         bail!(
             "{}: only {} usable trials (need at least {} for {}-fold cross-validation by trial)",
@@ -481,6 +566,7 @@ pub fn diagnose_trials(
         confounded: sel.confounded.clone(),
         discovery,
         bus_volts: hypotheses::NOMINAL_BUS_VOLTS,
+        sensor_window: sensor,
         summary: String::new(),
         replay,
         counterpart: None,
@@ -509,7 +595,10 @@ fn scan_lags(
     opts: &DiagnoseOptions,
     reference: Option<Vec<f64>>,
 ) -> Result<LagRows> {
-    let w = opts.sensor_window_s;
+    // Resolved by `diagnose_trials` before the stages run.
+    let w = opts
+        .sensor_window_s
+        .unwrap_or(crate::identify::Alignment::NOMINAL.window_s);
     // Rows at every scanned lag; keep only readings present at all lags (same readings everywhere).
     let mut lags = vec![0.0];
     if opts.max_lag_s > 0.0 {
@@ -585,6 +674,7 @@ fn rank_hypotheses(
         }
         ranked.push(p);
     }
+    mark_confounded(&mut ranked, &sel.confounded);
     ranked.sort_by(|a, b| {
         (b.accepted, b.rel_improvement)
             .partial_cmp(&(a.accepted, a.rel_improvement))
@@ -811,6 +901,23 @@ fn rescale_bus(d: &mut Diagnosis, volts: f64) {
     d.bus_volts = volts;
 }
 
+/// A term dropped as confounded stays in the ranking, not accepted, its verdict saying with what.
+fn mark_confounded(ranked: &mut [HypothesisScore], confounded: &[Confounded]) {
+    for c in confounded {
+        for s in ranked.iter_mut().filter(|s| s.id == c.dropped) {
+            s.accepted = false;
+            s.verdict = format!(
+                "confounded with {}: not significant given it (p = {:.1e}, held-out RMSE change {:+.1} %, regressor r = {:+.2}); scored alone: {}",
+                c.kept,
+                c.p_value,
+                -100.0 * c.rel_change,
+                c.correlation,
+                s.verdict
+            );
+        }
+    }
+}
+
 /// Stage: library selection, then discovery beyond it; a library term that is not significant
 /// given what discovery found is confounded with it: it is dropped, reported, and the library
 /// selection re-run without it.
@@ -825,12 +932,16 @@ fn select_and_discover(
     let mut excluded: Vec<&str> = Vec::new();
     let mut confounded = Vec::new();
     let mut fields: Option<(usize, RowFields)> = None;
+    // The first run's step-1 scores: a term excluded from later runs keeps its place in the
+    // ranking (marked confounded by `mark_confounded`).
+    let mut first_scores: Option<Vec<HypothesisScore>> = None;
     loop {
         let candidates: Vec<&'static hypotheses::Hypothesis> = POWER_HYPOTHESES
             .iter()
             .filter(|h| !excluded.contains(&h.id))
             .collect();
         let mut sel = select::select(data, &candidates, rule)?;
+        let first = first_scores.get_or_insert_with(|| sel.first_step.clone());
         let lag = sel.last.lag;
         if fields.as_ref().is_none_or(|(l, _)| *l != lag) {
             let f = run_fields(rec, power, metas, &data.rows[lag], data.lags[lag], opts);
@@ -851,6 +962,12 @@ fn select_and_discover(
         )?;
         let dropped = library_given_found(data, &sel.last, &report, rule)?;
         if dropped.is_empty() {
+            sel.first_step.extend(
+                first
+                    .iter()
+                    .filter(|h| excluded.contains(&h.id.as_str()))
+                    .cloned(),
+            );
             sel.confounded.extend(confounded);
             sel.accepted.retain(|a| !excluded.contains(&a.id.as_str()));
             let f = fields.map(|f| f.1).unwrap_or_default();
@@ -966,7 +1083,10 @@ fn run_fields(
     lag: f64,
     opts: &DiagnoseOptions,
 ) -> RowFields {
-    let w = opts.sensor_window_s;
+    // Resolved by `diagnose_trials` before the stages run.
+    let w = opts
+        .sensor_window_s
+        .unwrap_or(crate::identify::Alignment::NOMINAL.window_s);
     let window = |t: f64| fields::Window {
         start: t - lag - w,
         end: t - lag,

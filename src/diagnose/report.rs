@@ -606,7 +606,11 @@ fn beyond_section(md: &mut String, d: &Diagnosis) {
                 f.rmse_w[1],
                 100.0 * f.margin,
                 sig(f.p_value),
-                if f.accepted { "yes" } else { "no" }
+                match (f.accepted, f.confounded) {
+                    (true, true) => format!("mechanism only — form: confounded, {}", f.either()),
+                    (true, false) => "yes".into(),
+                    _ => "no".into(),
+                }
             );
         }
         md.push('\n');
@@ -674,6 +678,23 @@ fn beyond_section(md: &mut String, d: &Diagnosis) {
     }
     for n in &r.notes {
         let _ = writeln!(md, "\n- {n}");
+    }
+    md.push('\n');
+    excluded_fields(md, r);
+}
+
+/// The fields discovery left out by a rule on their own data, with the reason.
+fn excluded_fields(md: &mut String, r: &super::DiscoveryReport) {
+    if r.excluded.is_empty() {
+        return;
+    }
+    let _ = writeln!(
+        md,
+        "### Fields left out of discovery ({})\n\n| field | reason |\n|---|---|",
+        r.excluded.len()
+    );
+    for e in &r.excluded {
+        let _ = writeln!(md, "| `{}` | {} |", e.name, e.reason.replace('|', "\\|"));
     }
     md.push('\n');
 }

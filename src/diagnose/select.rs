@@ -669,6 +669,31 @@ pub struct MechanismForms {
     pub p_value: f64,
     /// Whether the winning form was accepted.
     pub accepted: bool,
+    /// The winner's and the runner-up's form in words (e.g. `per-Nm`, `per-ampere`).
+    #[serde(default)]
+    pub form_words: [String; 2],
+    /// The parameter(s) of the winner and of the runner-up, each fitted in its own form.
+    #[serde(default)]
+    pub params: [Vec<Param>; 2],
+    /// The data do not tell the forms apart: the winner's margin is not significant (p at or
+    /// above the significance level of the rule). The mechanism is then claimed with its form
+    /// left open ("form: confounded — X or Y"), not the winning form.
+    #[serde(default)]
+    pub confounded: bool,
+}
+
+impl MechanismForms {
+    /// "per-Nm or per-ampere" (winner first).
+    pub fn either(&self) -> String {
+        let w = |i: usize, id: &str| {
+            if self.form_words[i].is_empty() {
+                id.to_string()
+            } else {
+                self.form_words[i].clone()
+            }
+        };
+        format!("{} or {}", w(0, &self.winner), w(1, &self.runner_up))
+    }
 }
 
 /// Two hypotheses the data cannot tell apart: forward selection accepted both, but one is not
@@ -708,11 +733,18 @@ fn mechanism(c: &Option<&'static Hypothesis>) -> &'static str {
     c.map_or(LATENCY_ID, |h| h.mechanism)
 }
 
-/// Compare the two best forms of every mechanism with more than one form among `scored`.
+/// Form of a candidate in words (empty for latency).
+fn form_words(c: &Option<&'static Hypothesis>) -> String {
+    c.map_or(String::new(), |h| h.form.to_string())
+}
+
+/// Compare the two best forms of every mechanism with more than one form among `scored`; the
+/// forms are confounded when the winner's per-trial margin is not significant at `alpha`.
 fn compare_forms(
     data: &PowerData,
     scored: &[(usize, Candidate)],
     remaining: &[Option<&'static Hypothesis>],
+    alpha: f64,
     decided: &mut Vec<MechanismForms>,
 ) {
     let mut mechs: Vec<&str> = remaining.iter().map(mechanism).collect();
@@ -722,16 +754,16 @@ fn compare_forms(
         if decided.iter().any(|d| d.mechanism == m) {
             continue;
         }
-        let forms: Vec<&Candidate> = scored
+        let forms: Vec<(usize, &Candidate)> = scored
             .iter()
             .filter(|(i, _)| mechanism(&remaining[*i]) == m)
-            .map(|(_, c)| c)
+            .map(|(i, c)| (*i, c))
             .collect();
         if forms.len() < 2 {
             continue;
         }
         // `scored` is sorted best first.
-        let (w, r) = (forms[0], forms[1]);
+        let ((wi, w), (ri, r)) = (forms[0], forms[1]);
         let y = &data.rows[w.next.lag].y;
         let trial = &data.rows[w.next.lag].trial;
         let ew = trial_sse(y, &w.next.cv.pred, trial, data.n_trials);
@@ -742,14 +774,18 @@ fn compare_forms(
             data.n_trials,
         );
         let d: Vec<f64> = er.iter().zip(&ew).map(|(a, b)| a - b).collect();
+        let p_value = improvement_p_value(&d);
         decided.push(MechanismForms {
             mechanism: m.into(),
             winner: w.score.id.clone(),
             runner_up: r.score.id.clone(),
             rmse_w: [w.score.rmse_after, r.score.rmse_after],
             margin: 1.0 - w.score.rmse_after / r.score.rmse_after.max(1e-300),
-            p_value: improvement_p_value(&d),
+            p_value,
             accepted: w.score.accepted,
+            form_words: [form_words(&remaining[wi]), form_words(&remaining[ri])],
+            params: [w.score.params.clone(), r.score.params.clone()],
+            confounded: w.score.accepted && (p_value >= alpha || p_value.is_nan()),
         });
     }
 }
@@ -769,9 +805,9 @@ pub(crate) fn select(
     if data.lags.len() >= 3 {
         remaining.push(None); // None = latency
     }
-    let mut first_step = Vec::new();
+    let mut first_step: Vec<HypothesisScore> = Vec::new();
     let mut accepted = Vec::new();
-    let mut forms = Vec::new();
+    let mut forms: Vec<MechanismForms> = Vec::new();
     for step in 1.. {
         let mut scored: Vec<(usize, Candidate)> = Vec::new();
         for (i, c) in remaining.iter().enumerate() {
@@ -800,11 +836,11 @@ pub(crate) fn select(
         // first step when none is ever accepted: replaced below).
         if let Some(m) = winner {
             let mut here = Vec::new();
-            compare_forms(data, &scored, &remaining, &mut here);
+            compare_forms(data, &scored, &remaining, rule.alpha, &mut here);
             forms.retain(|f: &MechanismForms| f.mechanism != m);
             forms.extend(here.into_iter().filter(|f| f.mechanism == m));
         } else if step == 1 {
-            compare_forms(data, &scored, &remaining, &mut forms);
+            compare_forms(data, &scored, &remaining, rule.alpha, &mut forms);
         }
         let Some((idx, best)) = scored.into_iter().next().filter(|(_, c)| c.score.accepted) else {
             break;
@@ -817,7 +853,27 @@ pub(crate) fn select(
             break;
         }
     }
-    let (cur, accepted, confounded) = backward(data, cur, accepted, rule)?;
+    let (cur, mut accepted, confounded) = backward(data, cur, accepted, rule)?;
+    // A winner backward elimination dropped is no longer claimed in any form.
+    for f in forms.iter_mut() {
+        if !accepted.iter().any(|a| a.id == f.winner) {
+            f.accepted = false;
+            f.confounded = false;
+        }
+    }
+    for f in forms.iter().filter(|f| f.confounded) {
+        for s in accepted.iter_mut().chain(first_step.iter_mut()) {
+            if s.id == f.winner {
+                s.verdict = format!(
+                    "{}; form: confounded — {} (margin {:.1} %, p = {:.2})",
+                    s.verdict,
+                    f.either(),
+                    100.0 * f.margin,
+                    f.p_value
+                );
+            }
+        }
+    }
     Ok(Selection {
         first_step,
         accepted,
@@ -1006,6 +1062,45 @@ mod tests {
         assert_eq!(sel.accepted.len(), 1);
         let v = sel.accepted[0].params[0].value;
         assert!((v - r).abs() < 0.1 * r, "r = {v}");
+    }
+
+    /// The drive-electronics mechanism of `effect` data: (forms entry, accepted ids).
+    fn electronics_forms(seed: u64, effect: &dyn Fn(&Sample) -> f64) -> MechanismForms {
+        let sel = select(&synth(seed, 120, effect), &all(), &RULE).unwrap();
+        let f = sel
+            .forms
+            .iter()
+            .find(|f| f.mechanism == "drive-electronics loss")
+            .cloned()
+            .expect("forms compared");
+        assert_eq!(sel.accepted.len(), 1, "{:?}", sel.accepted);
+        assert_eq!(sel.accepted[0].id, f.winner);
+        f
+    }
+
+    #[test]
+    fn forms_are_told_apart_only_on_a_significant_margin() {
+        let k = crate::power::JOINT_TORQUE_CONSTANT;
+        let amps = move |s: &Sample| (0..7).map(|j| s.tau[j].abs() / k[j]).sum::<f64>();
+        // Per ampere, strong: the per-ampere form wins significantly and is claimed.
+        let f = electronics_forms(3, &|s: &Sample| 1.0 * amps(s));
+        assert!(
+            f.accepted && !f.confounded && f.winner == "drive_loss",
+            "{f:?}"
+        );
+        assert!(f.p_value < RULE.alpha, "{f:?}");
+        assert_eq!(f.form_words, ["per-ampere", "per-Nm"]);
+        // The same form, weak (V = 0.15 V): the loss is found but its form is not told.
+        let weak = move |s: &Sample| 0.15 * amps(s);
+        let f = electronics_forms(3, &weak);
+        assert!(f.accepted && f.confounded, "{f:?}");
+        assert!(f.p_value >= RULE.alpha, "{f:?}");
+        assert_eq!(
+            f.either(),
+            format!("{} or {}", f.form_words[0], f.form_words[1])
+        );
+        let sel = select(&synth(3, 120, &weak), &all(), &RULE).unwrap();
+        assert!(sel.accepted[0].verdict.contains("form: confounded — "));
     }
 
     #[test]

@@ -4,7 +4,7 @@
 use std::fmt::Write;
 
 use super::hypotheses::{LATENCY_ID, PAYLOAD_ID, power_hypothesis};
-use super::{Diagnosis, HypothesisScore, Param};
+use super::{Diagnosis, HypothesisScore, MechanismForms, Param};
 
 fn fmt_param(p: &Param) -> String {
     // Two significant digits of the uncertainty (or of the value when there is none).
@@ -137,6 +137,14 @@ fn where_wrong(d: &Diagnosis, s: &mut String) {
             );
         }
     }
+    let sw = &d.sensor_window;
+    if sw.estimated {
+        let _ = writeln!(
+            s,
+            "Sensor window: each reading averages the {:.3} s before its stamp (estimated from {} trials by the identification's alignment scan, R² = {:.3}).",
+            sw.window_s, sw.scan_trials, sw.scan_r2
+        );
+    }
     if let Some(best) = d
         .lag_scan
         .iter()
@@ -179,12 +187,19 @@ fn named(d: &Diagnosis, s: &mut String) {
                 .unwrap_or(false)
         });
         let p = shown.or(h.params.first());
+        let (title, param) = match d.forms.iter().find(|f| f.confounded && f.winner == h.id) {
+            Some(f) => (
+                format!("{} (form: confounded — {})", f.mechanism, f.either()),
+                either_params(f, p),
+            ),
+            None => (h.title.clone(), p.map(fmt_param).unwrap_or_default()),
+        };
         let _ = writeln!(
             s,
             "Named: {}; adding {} with {} improves held-out {} R² from {:.3} to {:.3} (RMSE {:.3} → {:.3} {}).",
             assumption(h),
-            h.title,
-            p.map(fmt_param).unwrap_or_default(),
+            title,
+            param,
             h.level,
             h.r2_before,
             h.r2_after,
@@ -241,9 +256,36 @@ fn unexplained(d: &Diagnosis, s: &mut String) {
     }
 }
 
+/// The parameter of each of two confounded forms, the winner's as `shown` (its final refit).
+fn either_params(f: &MechanismForms, shown: Option<&Param>) -> String {
+    let one = |i: usize, p: Option<&Param>| {
+        p.map(|p| format!("{} ({})", fmt_param(p), f.form_words[i]))
+            .unwrap_or_default()
+    };
+    format!(
+        "{} or {}",
+        one(0, shown.or(f.params[0].first())),
+        one(1, f.params[1].first())
+    )
+}
+
 /// Mechanism forms (winner, runner-up, margin) and confounded pairs.
 fn forms_and_confounding(d: &Diagnosis, s: &mut String) {
-    for f in d.forms.iter().filter(|f| f.accepted) {
+    for f in d.forms.iter().filter(|f| f.accepted && f.confounded) {
+        let _ = writeln!(
+            s,
+            "Form: {}: confounded — {}: the data do not tell them apart ({} vs {}: held-out RMSE {:.3} vs {:.3} W, margin {:.1} %, p = {:.2}); the mechanism is claimed, not the form.",
+            f.mechanism,
+            f.either(),
+            f.winner,
+            f.runner_up,
+            f.rmse_w[0],
+            f.rmse_w[1],
+            100.0 * f.margin,
+            f.p_value
+        );
+    }
+    for f in d.forms.iter().filter(|f| f.accepted && !f.confounded) {
         let _ = writeln!(
             s,
             "Form: {}: {} fits better than {} (held-out RMSE {:.3} vs {:.3} W, margin {:.1} %, p = {:.1e}).",
@@ -303,6 +345,19 @@ fn discovery_lines(d: &Diagnosis, s: &mut String) {
             s,
             "Beyond the library: {} candidate terms from {} recorded fields tried, none supported at a family-wise level of {:.0e}{best}.",
             r.n_candidates, r.fields_used, r.alpha
+        );
+    }
+    let junk: Vec<&str> = r
+        .excluded
+        .iter()
+        .filter(|e| !e.reason.starts_with("constant"))
+        .map(|e| e.name.as_str())
+        .collect();
+    if !junk.is_empty() {
+        let _ = writeln!(
+            s,
+            "Left out of discovery as counters, clocks or hash-like: {} (reasons in the report).",
+            junk.join(", ")
         );
     }
 }

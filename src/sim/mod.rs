@@ -141,6 +141,9 @@ pub struct SimConfig {
     pub artefacts: Artefacts,
     /// Lag of the measured joints behind the command (the PD loop, kp = 400, kd = 12) [s].
     pub tracking_lag_s: f64,
+    /// Averaging window W of the power sensors [s] (a reading stamped t averages the W before
+    /// t − latency; the G1's is about 0.2 s).
+    pub sensor_window_s: f64,
     /// Show a progress bar on stderr (only drawn when stderr is a terminal).
     pub progress: bool,
 }
@@ -162,6 +165,7 @@ impl Default for SimConfig {
             noise: Noise::default(),
             artefacts: Artefacts::default(),
             tracking_lag_s: 0.01,
+            sensor_window_s: plant::SENSOR_WINDOW_S,
             progress: true,
         }
     }
@@ -552,7 +556,7 @@ fn plant_truth(cfg: &SimConfig, stats: &plant::RunStats) -> truth::PlantTruth {
     tracking_lag_s: cfg.tracking_lag_s,
     noise: cfg.noise,
     sensor: truth::SensorTruth {
-        avg_window_s: plant::SENSOR_WINDOW_S,
+        avg_window_s: cfg.sensor_window_s,
         period_s: plant::SENSOR_PERIOD.0,
         jitter_s: plant::SENSOR_PERIOD.1,
         quantisation: "MBS V 0.01 V, A 0.001 A; BMS 10 mV, 1 mA".into(),

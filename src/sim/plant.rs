@@ -403,7 +403,7 @@ impl Engine<'_> {
         let tau_home_urdf = self.dyn_urdf.map(|d| d.gravity_torque(&zero));
         let tau0_sq = tau_home.map(|v| v * v);
         let latency = effects.latency.map_or(0.0, |l| l.seconds);
-        let keep_s = latency + SENSOR_WINDOW_S + 2.0;
+        let keep_s = latency + cfg.sensor_window_s + 2.0;
 
         let mut thermal = ThermalState::new(cfg.thermal, cfg.t_start_c);
         if let Some(h) = cfg.housing_start_c {
@@ -720,7 +720,7 @@ impl Engine<'_> {
     ) -> Result<()> {
         let noise: Noise = self.cfg.noise;
         st.i_bms += 1;
-        let p = window_mean(&st.power_hist, t - st.latency, SENSOR_WINDOW_S);
+        let p = window_mean(&st.power_hist, t - st.latency, self.cfg.sensor_window_s);
         st.bms_ou = ou_step(st.bms_ou, (t - st.t_bms_prev).max(0.0), BMS_OU, rng);
         st.t_bms_prev = t;
         let p_bms = p + BMS_OFFSET_W + st.bms_ou + noise.bms_w * gauss(rng);
@@ -757,8 +757,8 @@ impl Engine<'_> {
     ) -> Result<()> {
         let noise: Noise = self.cfg.noise;
         st.i_mbs += 1;
-        let p =
-            window_mean(&st.power_hist, t - st.latency, SENSOR_WINDOW_S) + noise.mbs_w * gauss(rng);
+        let p = window_mean(&st.power_hist, t - st.latency, self.cfg.sensor_window_s)
+            + noise.mbs_w * gauss(rng);
         let volts = quant(pack_volts(st.soc) - 0.4 + 0.005 * gauss(rng), 0.01);
         let amps = quant(p / volts, 0.001);
         let rpm = 2085.0 + 10.0 * gauss(rng);
