@@ -374,7 +374,7 @@ impl Engine<'_> {
             match which {
                 0 => {
                     self.lowstate(&mut st, out, rng, ns, t)?;
-                    if st.i_ls % 4096 == 0 {
+                    if st.i_ls.is_multiple_of(4096) {
                         progress(st.i_ls as u64);
                     }
                 }
