@@ -404,6 +404,7 @@ fn recording_identifies_itself() {
 /// timeline, every plot's time axis linked to the others.
 #[test]
 fn blueprint_has_few_tabs_linked_axes_and_session_time() {
+    use rerun::Loggable as _;
     use rerun::external::arrow::array::AsArray;
     let dir = tempfile::tempdir().unwrap();
     let rec = synthetic(&input_file(dir.path()));
@@ -414,6 +415,7 @@ fn blueprint_has_few_tabs_linked_axes_and_session_time() {
     let mut time_axes = 0;
     let mut time_series = 0;
     let mut timeline = None;
+    let mut whole_session = false;
     for msg in &msgs {
         let LogMsg::ArrowMsg(store, arrow) = msg else {
             continue;
@@ -423,7 +425,23 @@ fn blueprint_has_few_tabs_linked_axes_and_session_time() {
         }
         let chunk = Chunk::from_arrow_msg(arrow).unwrap();
         let path = chunk.entity_path().to_string();
-        if path.ends_with("/TimeAxis") {
+        // The viewer's shared view (what globally linked plots read): its range is the whole
+        // session, both ends unbounded (the viewer's default is a 60 s window at the cursor).
+        if path == "/view/5c0dca6a-e63f-9cf7-f657-2602590474cc/TimeAxis" {
+            let range = chunk
+                .components()
+                .0
+                .values()
+                .find(|c| c.descriptor.component.as_str() == "TimeAxis:view_range")
+                .expect("the shared time axis has a view range");
+            let range =
+                rerun::external::re_sdk_types::blueprint::components::TimeRange::from_arrow(
+                    range.list_array.values(),
+                )
+                .unwrap();
+            let infinite = rerun::external::re_sdk_types::datatypes::TimeRangeBoundary::Infinite;
+            whole_session = range[0].0.start == infinite && range[0].0.end == infinite;
+        } else if path.ends_with("/TimeAxis") {
             time_axes += 1;
         }
         for column in chunk.components().0.values() {
@@ -451,6 +469,7 @@ fn blueprint_has_few_tabs_linked_axes_and_session_time() {
         }
     }
     assert_eq!(timeline.as_deref(), Some("session"));
+    assert!(whole_session, "the plots open on the whole session");
     assert!(time_series >= 5, "{time_series} plots");
     assert_eq!(time_axes, time_series, "every plot links its time axis");
     assert_eq!(tab_containers.len(), 1, "{tab_containers:?}");

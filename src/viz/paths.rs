@@ -62,10 +62,19 @@ pub const BY_JOINT: &str = "model/by_joint";
 pub fn by_joint(j: &str) -> String {
     format!("model/by_joint/{j}")
 }
-/// Per-trial bar chart: mean power of each joint over the trial's trajectory [W].
+/// Below this: per-trial bars, one series per joint (its mean power over each trial's
+/// trajectory [W], drawn as a bar in the joint's slot of the trial's window).
 pub const BARS_BY_JOINT: &str = "model/bars/by_joint";
-/// Per-trial bar chart: mean power of each term over the trial's trajectory [W].
+/// Per-trial bars of joint `j` [W].
+pub fn bar_by_joint(j: &str) -> String {
+    format!("{BARS_BY_JOINT}/{j}")
+}
+/// Below this: per-trial bars, one series per term (joints summed; `interaction` too) [W].
 pub const BARS_BY_TERM: &str = "model/bars/by_term";
+/// Per-trial bars of term `term` [W].
+pub fn bar_by_term(term: &str) -> String {
+    format!("{BARS_BY_TERM}/{term}")
+}
 /// What the breakdown views show (text, markdown).
 pub const BREAKDOWN_NOTE: &str = "model/note";
 

@@ -246,8 +246,55 @@ pub fn layout(
             .diagnosis
             .as_ref()
             .is_some_and(|d| !d.located.is_empty()),
+        ranges: plot_ranges(extras),
     };
     blueprint::replay_layout(joints, parts, arm_center(robot, arm))
+}
+
+/// Room above the data for the legend (a fraction of the data's span).
+const LEGEND_HEADROOM: f64 = 0.6;
+
+/// The y ranges of the plots whose data `extras` holds, with room for the legend on top.
+fn plot_ranges(extras: &ReplayExtras) -> blueprint::PlotRanges {
+    use blueprint::range_with_headroom as fit;
+    let h = LEGEND_HEADROOM;
+    let mut r = blueprint::PlotRanges::default();
+    if let Some(rd) = &extras.readings {
+        let instant = extras.prediction.iter().flat_map(|p| p.predicted.iter());
+        r.power = fit(
+            rd.measured
+                .iter()
+                .chain(&rd.predicted)
+                .chain(instant)
+                .copied(),
+            h,
+        );
+        let per_reading = rd.measured.iter().zip(&rd.predicted).map(|(m, p)| m - p);
+        let per_trajectory = extras.trajectories.iter().map(|p| p.measured - p.predicted);
+        r.error = fit(per_reading.chain(per_trajectory).chain([0.0]), h);
+    }
+    if let Some(terms) = &extras.terms {
+        let fields = [
+            &terms.mechanical,
+            &terms.copper,
+            &terms.coulomb,
+            &terms.viscous,
+        ];
+        let by_term = fields
+            .iter()
+            .flat_map(|f| f.iter().map(|v| v.iter().sum::<f64>()))
+            .chain(terms.interaction.iter().copied());
+        r.by_term = fit(by_term, h);
+        let n = fields.iter().map(|f| f.len()).min().unwrap_or(0);
+        let by_joint = (0..n)
+            .flat_map(|i| (0..N_JOINTS).map(move |j| fields.iter().map(|f| f[i][j]).sum::<f64>()));
+        r.by_joint = fit(by_joint, h);
+        r.first_joint_terms = fit(fields.iter().flat_map(|f| f.iter().map(|v| v[0])), h);
+        let means = layers::trial_means(terms, &extras.trials);
+        r.bars_by_joint = fit(means.iter().flat_map(|m| m.by_joint).chain([0.0]), h);
+        r.bars_by_term = fit(means.iter().flat_map(|m| m.by_term).chain([0.0]), h);
+    }
+    r
 }
 
 /// Logs `rec` (and `extras`) to `stream`: arm animation, joint and power series, model/diagnosis
@@ -401,7 +448,13 @@ impl<'a> ReplayLogger<'a> {
                 .context("sending the viewer layout")?;
         }
         log_recording_info(&mut w, source, start_ns, &opts.properties)?;
-        let scene = robot3d::log_static_robot(&mut w, robot, arm, &mut summary.warnings)?;
+        let scene = robot3d::log_static_robot(
+            &mut w,
+            robot,
+            arm,
+            extras.terms.is_some(),
+            &mut summary.warnings,
+        )?;
         log_styles(&mut w, &joints)?;
         let progress = if expected_samples > 0 {
             progress_bar(opts.progress, expected_samples)
