@@ -27,8 +27,18 @@ pub struct ValidateArgs {
 /// Validate and print the metrics (text or JSON).
 pub fn run(a: ValidateArgs) -> Result<()> {
     let model = load_model(&a.model)?;
-    let rec = a.read.load(&a.session)?;
-    let v = g1viz::identify::validate(&model, &rec, &a.fit.options())?;
+    let busy = super::spinner("reading the session");
+    let rec = match a.read.load(&a.session) {
+        Ok(rec) => rec,
+        Err(e) => {
+            busy.finish_and_clear();
+            return Err(e);
+        }
+    };
+    busy.set_message("validating the model");
+    let v = g1viz::identify::validate(&model, &rec, &a.fit.options());
+    busy.finish_and_clear();
+    let v = v?;
     for n in &v.notes {
         eprintln!("note: {n}");
     }

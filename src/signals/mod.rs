@@ -133,6 +133,7 @@ pub fn rate_hz(t: &[f64]) -> f64 {
 
 mod load;
 mod map;
+mod sink;
 
 pub use load::{
     SeriesStats, SignalStats, StreamSummary, load_recording, signal_stats, stream_recording,
@@ -141,3 +142,4 @@ pub use map::{
     G1_LEFT_ARM_BASE, G1_RIGHT_ARM_BASE, GROUPS, Group, JOINT_SHORT, SignalMap, SignalSpec,
     group_signals,
 };
+pub use sink::{RecordingSink, StreamHeader, stream_into};

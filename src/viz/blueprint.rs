@@ -567,7 +567,7 @@ fn include(paths: &[&str]) -> Vec<String> {
 /// joint, per-trial bars, what the copper term is relative to), the loss terms per joint (one
 /// grid), the joints (q with its command, q̇, τ, temperature), IMU and trials (|ω|, the filter's
 /// statistic and threshold, the trial log), raw power, diagnosis. The 3D view's camera starts on
-/// the front left of the arm, ~1.5 m from `arm_center` (a point on the arm in the `/robot` frame,
+/// the front left of the arm, ~1.1 m from `arm_center` (a point on the arm in the `/robot` frame,
 /// X forward, Y left, Z up).
 pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]) -> Node {
     use ContainerKind::{Horizontal, Tabs, Vertical};
@@ -615,7 +615,7 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
                 "/",
                 vec!["+ /".to_owned(), paths::include_tree(paths::ROBOT)],
             )
-            .with_eye(Eye::looking_at(arm_center, [1.0, 0.8, 0.45], 1.5)),
+            .with_eye(Eye::looking_at(arm_center, [1.0, 0.8, 0.45], 1.1)),
             Node::container(Vertical, "Plots", right, shares),
         ],
         vec![1.0, 1.6],
@@ -765,13 +765,13 @@ fn breakdown_tab(joints: &[String], ranges: PlotRanges) -> Node {
         "Per trial",
         vec![
             plot(
-                "Mean per trial, by joint [W] (a bar per joint, in legend order)",
+                "Mean per trial, by joint [W]",
                 vec![paths::include_tree(paths::BARS_BY_JOINT)],
             )
             .with_legend(Legend::LeftTop)
             .with_y_range(ranges.bars_by_joint),
             plot(
-                "Mean per trial, by term [W] (a bar per term, in legend order)",
+                "Mean per trial, by term [W]",
                 vec![paths::include_tree(paths::BARS_BY_TERM)],
             )
             .with_legend(Legend::LeftTop)

@@ -251,6 +251,10 @@ fn log_breakdown(
     Ok(())
 }
 
+/// Time between the bottom and top of a bar's vertical edge [s] (the viewer keeps one value per
+/// time stamp, so an edge needs two stamps).
+const EDGE_S: f64 = 0.01;
+
 /// Per-trial bars: the mean power of each joint (terms summed) and of each term (joints summed)
 /// over each trial's window, drawn on the time axis as a group of bars inside the trial's window
 /// (one slot per joint or term, in legend order), one named series per joint or term.
@@ -358,7 +362,9 @@ fn bar_outline(
         if a < last || !h.is_finite() {
             continue; // overlapping windows: keep the series in time order
         }
-        t.extend([a, a, b, b]);
+        // Distinct stamps for the vertical edges: the viewer keeps one value per stamp.
+        let e = EDGE_S.min(0.05 * (b - a));
+        t.extend([a, a + e, b - e, b]);
         v.extend([0.0, h, h, 0.0]);
         last = b;
     }
@@ -368,6 +374,7 @@ fn bar_outline(
 /// The note shown beside the breakdown: what the terms are, what the copper term is relative to.
 pub(super) fn breakdown_note(joints: &[String], colour_scale: f64) -> String {
     let list: Vec<&str> = joints.iter().map(String::as_str).collect();
+    let list = list.join(" → ");
     format!(
         "**Where the power goes** — the model's predicted net power, split per joint *i* into \
          mechanical *a_i τ_i q̇_i*, copper *b_i (τ_i² − τ̄0_i²)*, Coulomb *c_i \\|q̇_i\\|* and \
@@ -376,11 +383,11 @@ pub(super) fn breakdown_note(joints: &[String], colour_scale: f64) -> String {
          in the trial's pre-idle (the arm at rest), so the term is negative whenever the arm \
          holds less torque than it did at rest — not regeneration.\n\n\
          Per-trial bars: the mean over each trial's window, drawn inside that window, one bar \
-         per joint ({}) or per term (mechanical, copper, Coulomb, viscous, interaction), left \
-         to right in legend order.\n\n\
+         per joint, left to right {}, or per term, left to right mechanical, copper, Coulomb, \
+         viscous, interaction (hover a bar for its name).\n\n\
          In 3D each arm link is coloured by its joint's predicted power: grey at 0 W, red at \
          {colour_scale:.1} W and above, blue when negative.",
-        list.join(", ")
+        list
     )
 }
 
@@ -392,7 +399,8 @@ fn log_imu_filter(w: &mut ChunkWriter<'_>, imu: &ImuFilterMarks) -> Result<()> {
         let mut v = Vec::new();
         for &(t0, t1, s) in &imu.spans {
             if (s > imu.threshold) == rejected && s.is_finite() {
-                t.extend([t0, t0, t1, t1]);
+                let e = EDGE_S.min(0.05 * (t1 - t0));
+                t.extend([t0, t0 + e, t1 - e, t1]);
                 v.extend([0.0, s, s, 0.0]);
             }
         }

@@ -5,8 +5,6 @@
 
 /// The robot (model root, oriented by the recorded IMU quaternion); links below it.
 pub const ROBOT: &str = "robot";
-/// Joint frames (axes at every arm joint) below the robot.
-pub const JOINT_FRAMES: &str = "frames";
 /// Per-joint signal `q`, `q_cmd`, `dq`, `tau` or `temperature`.
 pub fn joint(j: &str, signal: &str) -> String {
     format!("joints/{j}/{signal}")
@@ -26,8 +24,6 @@ pub const IMU_SIGMA: &str = "imu/sigma_per_trial";
 /// The IMU filter's threshold (k × median σ|ω|) [rad/s].
 pub const IMU_THRESHOLD: &str = "imu/threshold";
 
-/// Everything the identified model adds lives below this.
-pub const MODEL: &str = "model";
 /// Measured net power per reading (net of the trial's pre-idle) [W].
 pub const MODEL_READING_MEASURED: &str = "model/power/reading_measured";
 /// The model's prediction averaged over each reading's own window, at the reading [W].
@@ -56,8 +52,6 @@ pub const BY_TERM: &str = "model/by_term";
 pub fn by_term(term: &str) -> String {
     format!("model/by_term/{term}")
 }
-/// Below this: one series per joint, its four terms summed.
-pub const BY_JOINT: &str = "model/by_joint";
 /// A joint's four terms summed [W].
 pub fn by_joint(j: &str) -> String {
     format!("model/by_joint/{j}")
@@ -91,8 +85,6 @@ pub const TRIALS: &str = "trials";
 /// Index of the trial under way (step series held from each trial's start to the next).
 pub const TRIAL_INDEX: &str = "trials/index";
 
-/// Below this: the diagnosis overlay.
-pub const DIAGNOSIS: &str = "diagnosis";
 /// Measured net power per reading the diagnosis used [W].
 pub const DIAG_MEASURED: &str = "diagnosis/power/measured";
 /// Base-model prediction [W].

@@ -15,6 +15,7 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use rerun::{AnyValues, RecordingInfo, RecordingStream, Scalars};
 
 use super::blueprint::{self, LayoutParts};
+use super::slice::{Decimator, Slice};
 use super::{ChunkWriter, layers, paths, robot3d, short_joint_name, style};
 use crate::N_JOINTS;
 use crate::robot::{ArmJoints, RobotModel};
@@ -40,6 +41,8 @@ pub struct ReplayOptions {
     /// The tab the layout opens on, by name (`None`: the first; see
     /// [`blueprint::Node::tab_names`]).
     pub open_tab: Option<String>,
+    /// The part of the session to log (time window, rate cap of the series; default: all).
+    pub slice: Slice,
 }
 
 impl Default for ReplayOptions {
@@ -52,6 +55,7 @@ impl Default for ReplayOptions {
             blueprint: true,
             properties: Vec::new(),
             open_tab: None,
+            slice: Slice::default(),
         }
     }
 }
@@ -308,6 +312,13 @@ pub fn log_replay(
     opts: &ReplayOptions,
     stream: &RecordingStream,
 ) -> Result<ReplaySummary> {
+    let sliced;
+    let extras = if opts.slice.is_all() {
+        extras
+    } else {
+        sliced = opts.slice.extras(extras);
+        &sliced
+    };
     let mut logger = ReplayLogger::begin(
         stream,
         robot,
@@ -336,44 +347,71 @@ pub fn replay_file(
     opts: &ReplayOptions,
     stream: &RecordingStream,
 ) -> Result<ReplaySummary> {
-    let extras = ReplayExtras::default();
     // The reader shows its own progress bar (messages read); one bar is enough.
     let quiet = ReplayOptions {
         progress: false,
         ..opts.clone()
     };
-    let mut logger: Option<ReplayLogger<'_>> = None;
-    let read = crate::signals::stream_recording(
-        path,
-        map,
-        read_opts,
-        opts.chunk_rows.max(1),
-        &mut |batch| {
-            if logger.is_none() {
-                logger = Some(ReplayLogger::begin(
-                    stream,
-                    robot,
-                    arm,
-                    path,
-                    &batch.joint_names,
-                    batch.start_ns,
-                    &extras,
-                    &quiet,
-                    0,
-                )?);
-            }
-            match logger.as_mut() {
-                Some(l) => l.add(batch),
-                None => Ok(()),
-            }
-        },
-    )?;
-    let logger = logger.context("the recording delivered no samples")?;
-    let mut summary = logger.finish(&extras)?;
-    let mut warnings = read.warnings;
-    warnings.append(&mut summary.warnings);
-    summary.warnings = warnings;
-    Ok(summary)
+    let mut sink = StreamedReplay {
+        stream,
+        robot,
+        arm,
+        opts: &quiet,
+        extras: ReplayExtras::default(),
+        logger: None,
+        summary: None,
+    };
+    crate::signals::stream_into(path, map, read_opts, opts.chunk_rows.max(1), &mut sink)?;
+    sink.summary.context("the recording delivered no samples")
+}
+
+/// The streamed replay as a [`crate::signals::RecordingSink`]: `begin` sends the layout and the
+/// static robot (the header gives the clock origin and joints), `batch` logs each stretch,
+/// `finish` the power series; the reader's warnings join the replay's.
+struct StreamedReplay<'a> {
+    stream: &'a RecordingStream,
+    robot: &'a RobotModel,
+    arm: &'a ArmJoints,
+    opts: &'a ReplayOptions,
+    extras: ReplayExtras,
+    logger: Option<ReplayLogger<'a>>,
+    summary: Option<ReplaySummary>,
+}
+
+impl crate::signals::RecordingSink for StreamedReplay<'_> {
+    fn begin(&mut self, header: &crate::signals::StreamHeader<'_>) -> Result<()> {
+        self.logger = Some(ReplayLogger::begin(
+            self.stream,
+            self.robot,
+            self.arm,
+            header.source,
+            header.joint_names,
+            header.start_ns,
+            &self.extras,
+            self.opts,
+            0,
+        )?);
+        Ok(())
+    }
+
+    fn batch(&mut self, batch: &Recording) -> Result<()> {
+        match self.logger.as_mut() {
+            Some(l) => l.add(batch),
+            None => bail!("a batch came before the session header"),
+        }
+    }
+
+    fn finish(&mut self, read: &crate::signals::StreamSummary, _begun: bool) -> Result<()> {
+        let Some(logger) = self.logger.take() else {
+            return Ok(()); // nothing was read: replay_file reports it
+        };
+        let mut summary = logger.finish(&self.extras)?;
+        let mut warnings = read.warnings.clone();
+        warnings.append(&mut summary.warnings);
+        summary.warnings = warnings;
+        self.summary = Some(summary);
+        Ok(())
+    }
 }
 
 /// Incremental replay: [`ReplayLogger::begin`] sends the layout and the static robot,
@@ -402,6 +440,9 @@ pub struct ReplayLogger<'a> {
     bms: PowerSeries,
     progress: ProgressBar,
     summary: ReplaySummary,
+    slice: Slice,
+    /// Rate caps of the state and command series, across batches.
+    decimators: [Decimator; 2],
 }
 
 impl<'a> ReplayLogger<'a> {
@@ -480,6 +521,8 @@ impl<'a> ReplayLogger<'a> {
             bms: PowerSeries::default(),
             progress,
             summary,
+            slice: opts.slice,
+            decimators: [Decimator::default(); 2],
         })
     }
 
@@ -488,11 +531,25 @@ impl<'a> ReplayLogger<'a> {
     /// Series of unequal lengths are an error naming the field.
     pub fn add(&mut self, part: &Recording) -> Result<()> {
         check_lengths(part)?;
-        let st = &part.state;
-        let n = st.t.len().min(st.q.len());
-        // Motion start: the first sample any joint is more than the threshold from the first.
+        self.track_motion(part);
+        for (mine, theirs) in [(&mut self.mbs, &part.mbs), (&mut self.bms, &part.bms)] {
+            mine.t.extend_from_slice(&theirs.t);
+            mine.watts.extend_from_slice(&theirs.watts);
+        }
+        if self.slice.is_all() {
+            self.add_samples(part)
+        } else {
+            let [state, cmd] = &mut self.decimators;
+            let kept = self.slice.recording(part, state, cmd);
+            self.add_samples(&kept)
+        }
+    }
+
+    /// Motion start: the first sample any joint is more than the threshold from the first (over
+    /// the whole session, whatever the slice, so the idle baseline is the same).
+    fn track_motion(&mut self, part: &Recording) {
         if self.motion_t.is_infinite() {
-            for (q, &t) in st.q.iter().zip(&st.t) {
+            for (q, &t) in part.state.q.iter().zip(&part.state.t) {
                 let q0 = *self.q0.get_or_insert(*q);
                 if q.iter()
                     .zip(&q0)
@@ -503,6 +560,12 @@ impl<'a> ReplayLogger<'a> {
                 }
             }
         }
+    }
+
+    /// Logs the joint, IMU, pose and command samples of `part`.
+    fn add_samples(&mut self, part: &Recording) -> Result<()> {
+        let st = &part.state;
+        let n = st.t.len().min(st.q.len());
         let mut pose_idx: Vec<usize> = Vec::with_capacity(self.chunk);
         for start in (0..n).step_by(self.chunk) {
             let end = (start + self.chunk).min(n);
@@ -583,10 +646,6 @@ impl<'a> ReplayLogger<'a> {
                 )?;
             }
         }
-        for (mine, theirs) in [(&mut self.mbs, &part.mbs), (&mut self.bms, &part.bms)] {
-            mine.t.extend_from_slice(&theirs.t);
-            mine.watts.extend_from_slice(&theirs.watts);
-        }
         Ok(())
     }
 
@@ -602,24 +661,18 @@ impl<'a> ReplayLogger<'a> {
             if series.t.is_empty() {
                 continue;
             }
-            scalars_chunked(
-                w,
-                &paths::power_raw(label),
-                &series.t,
-                &series.watts,
-                self.chunk,
-            )?;
+            let (t, watts): (Vec<f64>, Vec<f64>) = series
+                .t
+                .iter()
+                .zip(&series.watts)
+                .filter(|(t, _)| self.slice.contains(**t))
+                .unzip();
+            scalars_chunked(w, &paths::power_raw(label), &t, &watts, self.chunk)?;
             match idle_baseline(series, self.motion_t) {
                 Some(base) => {
                     self.summary.baseline_w[k] = Some(base);
-                    let net: Vec<f64> = series.watts.iter().map(|p| p - base).collect();
-                    scalars_chunked(
-                        w,
-                        &paths::power_net(label),
-                        &series.t,
-                        &net,
-                        self.chunk,
-                    )?;
+                    let net: Vec<f64> = watts.iter().map(|p| p - base).collect();
+                    scalars_chunked(w, &paths::power_net(label), &t, &net, self.chunk)?;
                 }
                 None => self.summary.warnings.push(format!(
                     "{}: no {} power reading before the arm first moves (t = {:.2} s); net power not logged",
