@@ -1457,8 +1457,8 @@ fn replay_trials_logs_those_trials() {
 
 /// Size per hour of session of a plain replay at the defaults, as the README states it
 /// ("≈ N MB per hour … ± P %"): the example replayed, scaled to an hour. The size estimate
-/// printed before writing lands within 25 % of the file written, at the defaults and with
-/// `--max-rate 20`.
+/// printed before writing lands within 25 % of the file written: at the defaults, with
+/// `--max-rate 20`, for two trials at 20 Hz, and for 20 s with the model.
 #[test]
 fn rrd_size_per_hour_matches_readme_and_estimate() {
     use g1viz::viz::session::Notice;
@@ -1489,13 +1489,22 @@ fn rrd_size_per_hour_matches_readme_and_estimate() {
     .unwrap();
     let duration = rec.state.t.last().unwrap() - rec.state.t[0];
     let dir = tempfile::tempdir().unwrap();
-    for (name, max_rate) in [("defaults", None), ("capped", Some(20.0))] {
+    let paper = g1viz::power::PowerModel::PAPER;
+    let cases = [
+        ("defaults", None, None, None),
+        ("capped", Some(20.0), None, None),
+        ("two trials", Some(20.0), Some((2, 3)), None),
+        ("model, 20 s", None, None, Some(&paper)),
+    ];
+    for (name, max_rate, trials, model) in cases {
         let out = dir.path().join(format!("{name}.rrd"));
         let window = g1viz::viz::session::Window {
             max_rate_hz: max_rate,
-            ..Default::default()
+            trials,
+            from_s: model.map(|_| 10.0),
+            to_s: model.map(|_| 30.0),
         };
-        let notices = replay_window(&session, &out, window, None);
+        let notices = replay_window(&session, &out, window, model);
         let size = std::fs::metadata(&out).unwrap().len() as f64;
         let estimate = notices
             .iter()
@@ -1508,7 +1517,7 @@ fn rrd_size_per_hour_matches_readme_and_estimate() {
             (estimate / size - 1.0).abs() < 0.25,
             "{name}: estimate {estimate:.0} B vs {size:.0} B written"
         );
-        if max_rate.is_none() {
+        if name == "defaults" {
             let per_hour_mb = size * 3600.0 / duration / 1e6;
             assert!(
                 (per_hour_mb / stated_mb - 1.0).abs() <= tolerance,

@@ -81,15 +81,18 @@ pub struct SizeEstimate {
     pub bytes: f64,
 }
 
-/// Bytes per logged scalar row (one value of one series: row id, two time stamps, the value and
-/// the chunk overhead), measured on the shipped example (82.5 s, 8248 state and command samples:
-/// 8.37 MB with poses at 1 Hz, 9.96 MB at 30 Hz).
-pub const BYTES_PER_SCALAR: f64 = 27.7;
-/// Bytes per logged pose of one moving link (translation + rotation, two time stamps), from the
-/// same measurement.
+/// Bytes per logged scalar row (one value of one series: row id, two time stamps, the value),
+/// measured on the shipped example (82.5 s, 8248 state and command samples: 8.37 MB with poses
+/// at 1 Hz, 9.96 MB at 30 Hz; 237 chunks for 21 s of it at 20 Hz, 1.3 MB).
+pub const BYTES_PER_SCALAR: f64 = 24.9;
+/// Bytes per logged pose of one moving link (translation + rotation, two time stamps).
 pub const BYTES_PER_LINK_POSE: f64 = 41.7;
-/// Fixed part: layout, robot geometry, properties, series styles.
-pub const BYTES_FIXED: f64 = 80_000.0;
+/// Bytes per chunk (one entity's rows of one batch: its schema and index), same measurement.
+pub const BYTES_PER_CHUNK: f64 = 2800.0;
+/// Fixed part: layout, robot geometry, properties, series styles (≈ 90 static chunks).
+pub const BYTES_FIXED: f64 = 300_000.0;
+/// Samples per batch (the replay's default chunk size): one chunk per entity and batch.
+const BATCH_SAMPLES: f64 = 4096.0;
 /// Scalar series per state sample (q, q̇, τ, temperature of 7 joints, |ω|).
 const STATE_SERIES: f64 = 29.0;
 /// Scalar series per command sample (q_cmd of 7 joints).
@@ -97,6 +100,10 @@ const COMMAND_SERIES: f64 = 7.0;
 /// Scalar series per state sample the model adds (instantaneous prediction, 28 joint terms,
 /// interaction, 5 per-term and 7 per-joint sums) and links coloured at 10 Hz.
 const MODEL_SERIES: f64 = 42.0;
+/// Temporal entities besides the joints' and the links': raw and net power of two sensors.
+const POWER_ENTITIES: f64 = 4.0;
+/// Temporal entities a model adds (its series, bars, readings, errors, trial marks, colours).
+const MODEL_ENTITIES: f64 = 80.0;
 
 impl SizeEstimate {
     /// The size of a replay covering `seconds` of a session sampled at `state_hz` (commands at
@@ -117,11 +124,21 @@ impl SizeEstimate {
         let poses = pose_hz.map_or(cap(state_hz), |p| p.min(cap(state_hz))) * seconds;
         let model_rows = if model { MODEL_SERIES * state } else { 0.0 };
         let scalars = STATE_SERIES * state + COMMAND_SERIES * command + model_rows;
+        let links = moving_links as f64 + 1.0;
+        let entities = STATE_SERIES
+            + COMMAND_SERIES
+            + links
+            + POWER_ENTITIES
+            + if model { MODEL_ENTITIES } else { 0.0 };
+        // Batches are cut from the recorded samples, before the rate cap (+1: a window starts
+        // and ends inside batches).
+        let batches = (state_hz * seconds / BATCH_SAMPLES).ceil() + 1.0;
         SizeEstimate {
             seconds,
             bytes: BYTES_FIXED
+                + BYTES_PER_CHUNK * entities * batches
                 + BYTES_PER_SCALAR * scalars
-                + BYTES_PER_LINK_POSE * (moving_links as f64 + 1.0) * poses,
+                + BYTES_PER_LINK_POSE * links * poses,
         }
     }
 }
