@@ -1,5 +1,6 @@
 //! Writes the `.rrd` files the screenshots in `docs/` are taken from: the shipped example session
-//! replayed as `g1viz replay examples/g1_example.mcap --model paper` does, once per tab of the
+//! replayed as `g1viz replay examples/g1_example.mcap --model paper --max-rate 25 --pose-rate 25`
+//! does, once per tab of the
 //! layout, each opening on its tab (`docs/screenshots.sh` serves and photographs them). The first
 //! tab is what the layout opens on, so it is not written twice.
 //!
@@ -53,7 +54,13 @@ fn main() -> Result<()> {
         )?;
         let opts = ReplayOptions {
             progress: false,
-            pose_rate_hz: Some(30.0),
+            // `replay --max-rate 25 --pose-rate 25`: the same views for an 82 s session, a
+            // quarter of the data for the web viewer to ingest before the screenshot.
+            pose_rate_hz: Some(25.0),
+            slice: g1viz::viz::Slice {
+                max_rate_hz: Some(25.0),
+                ..Default::default()
+            },
             open_tab: tab.clone(),
             properties: vec![
                 ("command".into(), "replay --model paper".into()),
