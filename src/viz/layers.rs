@@ -269,13 +269,13 @@ fn log_bars(
     by_term_names.push("interaction");
     for (j, name) in joints.iter().enumerate() {
         let path = paths::bar_by_joint(name);
-        style::line(w, &path, name, style::joint(j), 1.5)?;
+        style::line_exact(w, &path, name, style::joint(j), 1.5)?;
         let (t, v) = bar_outline(&means, j, joints.len(), |m| m.by_joint[j]);
         scalars(w, &path, &t, v.into_iter())?;
     }
     for (k, name) in by_term_names.iter().enumerate() {
         let path = paths::bar_by_term(name);
-        style::line(w, &path, name, style::TERMS[k], 1.5)?;
+        style::line_exact(w, &path, name, style::TERMS[k], 1.5)?;
         let (t, v) = bar_outline(&means, k, by_term_names.len(), |m| m.by_term[k]);
         scalars(w, &path, &t, v.into_iter())?;
     }
@@ -424,7 +424,7 @@ fn log_imu_filter(w: &mut ChunkWriter<'_>, imu: &ImuFilterMarks) -> Result<()> {
         if t.is_empty() {
             continue;
         }
-        style::line(w, path, name, colour, 2.0)?;
+        style::line_exact(w, path, name, colour, 2.0)?;
         scalars(w, path, &t, v.into_iter())?;
     }
     let first = imu.spans.iter().map(|s| s.0).fold(f64::INFINITY, f64::min);

@@ -103,3 +103,22 @@ pub(super) fn points(
             .with_marker_sizes([size]),
     )
 }
+
+/// A named line like [`line`], drawn point by point at any zoom (no min-max decimation, which
+/// turns narrow bar outlines into zigzags when zoomed out).
+pub(super) fn line_exact(
+    w: &mut ChunkWriter<'_>,
+    path: &str,
+    name: &str,
+    c: [u8; 3],
+    width: f32,
+) -> Result<()> {
+    w.send_static(
+        path,
+        &SeriesLines::new()
+            .with_names([name])
+            .with_colors([rgb(c)])
+            .with_widths([width])
+            .with_aggregation_policy(AggregationPolicy::Off),
+    )
+}
