@@ -12,6 +12,8 @@ work="$(mktemp -d)"
 pids=()
 cleanup() {
     for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done
+    # xvfb-run does not stop the browser it started: stop this run's browser (its own profile).
+    pkill -f -- "--user-data-dir=$work/chrome" 2>/dev/null || true
     rm -rf "$work"
 }
 trap cleanup EXIT
