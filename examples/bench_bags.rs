@@ -13,10 +13,12 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
-use g1viz::read::bag1::Ros1BagSource;
-use g1viz::read::db3::Ros2BagSource;
-use g1viz::read::mcap::McapSource;
-use g1viz::read::{Channel, FieldExtractor, FieldPath, MessageSource, OpenOptions, msgdef};
+use g1viz::read::McapSource;
+use g1viz::read::Ros1BagSource;
+use g1viz::read::Ros2BagSource;
+use g1viz::read::{
+    Channel, FieldExtractor, FieldPath, MessageSource, OpenOptions, builtin_definition,
+};
 
 const RATE_HZ: u64 = 100;
 const START_NS: u64 = 1_773_482_400_000_000_000;
@@ -153,11 +155,11 @@ fn dir_size(dir: &Path) -> Result<u64> {
 
 /// LowState's definition with its dependencies in the concatenated form bags embed.
 fn lowstate_definition() -> Result<String> {
-    let mut text = msgdef::builtin_definition(LOWSTATE)
+    let mut text = builtin_definition(LOWSTATE)
         .context("LowState is built in")?
         .to_string();
     for dep in ["IMUState", "MotorState"] {
-        let body = msgdef::builtin_definition(&format!("unitree_hg/msg/{dep}"))
+        let body = builtin_definition(&format!("unitree_hg/msg/{dep}"))
             .context("dependency is built in")?;
         text.push_str(&format!(
             "{}\nMSG: unitree_hg/{dep}\n{body}",

@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::Context;
-use g1viz::read::decode::decode;
+use g1viz::read::decode;
 use g1viz::read::{FieldExtractor, OpenOptions, Session};
 use g1viz::signals::{Group, SignalMap, group_signals, load_recording};
 
@@ -52,12 +52,12 @@ fn smoke_messages(path: &Path) -> anyhow::Result<Vec<Msg>> {
         Ok(())
     })?;
     for m in &mut out {
-        let mut text = g1viz::read::msgdef::builtin_definition(&m.type_name)
+        let mut text = g1viz::read::builtin_definition(&m.type_name)
             .context("builtin definition")?
             .to_string();
         for dep in ["IMUState", "MotorState", "MotorCmd"] {
-            let dep_text = g1viz::read::msgdef::builtin_definition(&format!("unitree_hg/{dep}"))
-                .context("dep")?;
+            let dep_text =
+                g1viz::read::builtin_definition(&format!("unitree_hg/{dep}")).context("dep")?;
             text.push_str(&format!(
                 "\n{}\nMSG: unitree_hg/{dep}\n{dep_text}",
                 "=".repeat(80)

@@ -13,6 +13,8 @@ fn main() {
     unsafe {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
+    // Ctrl-C / SIGTERM / SIGHUP remove the temporary outputs in flight before the process ends.
+    g1viz::util::temp::cleanup_on_termination_signals();
     if let Err(err) = cli::run(cli::Cli::parse()) {
         eprintln!("error: {err:#}");
         std::process::exit(1);

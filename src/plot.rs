@@ -38,28 +38,19 @@ pub(crate) fn write_png(
     draw: impl FnOnce(&Area) -> Result<()>,
 ) -> Result<()> {
     register_font()?;
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let tmp = path.with_file_name(format!(
-        ".{}.tmp{}.png",
-        name.trim_end_matches(".png"),
-        std::process::id()
-    ));
+    // Removed when dropped (an error, a panic) or on a termination signal; renamed on success.
+    let tmp = crate::util::temp::TempPath::beside(path, ".png");
     let result = (|| {
         {
-            let root = BitMapBackend::new(&tmp, size).into_drawing_area();
+            let root = BitMapBackend::new(tmp.path(), size).into_drawing_area();
             root.fill(&WHITE).map_err(plot_err)?;
             draw(&root)?;
             root.present().map_err(plot_err)?;
         }
-        std::fs::rename(&tmp, path)
-            .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))
+        let shown = tmp.path().display().to_string();
+        tmp.commit(path)
+            .with_context(|| format!("renaming {shown} to {}", path.display()))
     })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
     result.with_context(|| format!("drawing {}", path.display()))
 }
 

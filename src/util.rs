@@ -1,4 +1,7 @@
-//! Small helpers shared by every stage: atomic file output.
+//! Small helpers shared by every stage: atomic file output (its temporary files registered in
+//! [`temp`] so no signal, error or panic leaves them behind), input checks.
+
+pub mod temp;
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -22,28 +25,20 @@ pub fn write_atomic_with(
     };
     std::fs::create_dir_all(dir)
         .with_context(|| format!("creating directory {}", dir.display()))?;
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let tmp = dir.join(format!(".{name}.tmp{}", std::process::id()));
-    let result = (|| {
-        let file =
-            std::fs::File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
-        let mut w = std::io::BufWriter::new(file);
-        fill(&mut w)?;
-        let file = w
-            .into_inner()
-            .map_err(|e| e.into_error())
-            .context("flushing output")?;
-        file.sync_all().ok();
-        std::fs::rename(&tmp, path)
-            .with_context(|| format!("renaming {} to {}", tmp.display(), path.display()))
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
+    // Removed when dropped (an error, a panic) or on a termination signal; renamed on success.
+    let tmp = temp::TempPath::beside(path, "");
+    let file = std::fs::File::create(tmp.path())
+        .with_context(|| format!("creating {}", tmp.path().display()))?;
+    let mut w = std::io::BufWriter::new(file);
+    fill(&mut w)?;
+    let file = w
+        .into_inner()
+        .map_err(|e| e.into_error())
+        .context("flushing output")?;
+    file.sync_all().ok();
+    let shown = tmp.path().display().to_string();
+    tmp.commit(path)
+        .with_context(|| format!("renaming {shown} to {}", path.display()))
 }
 
 /// Canonical form of a path that may not exist yet (canonical parent + file name).
@@ -136,14 +131,15 @@ pub mod nan_as_null {
     }
 }
 
+/// The truth sidecar path of a simulated session's file: `x.mcap` → `x.truth.json`.
+pub fn truth_path(out: &Path) -> PathBuf {
+    out.with_extension("truth.json")
+}
+
 /// Refuses outputs that would overwrite an input (a file read, a bag folder, or a simulated
 /// session's truth sidecar) or each other — checked before any work is done.
 pub fn check_outputs(outputs: &[(&str, Option<&Path>)], inputs: &[Option<&Path>]) -> Result<()> {
-    let sidecars: Vec<PathBuf> = inputs
-        .iter()
-        .flatten()
-        .map(|p| crate::sim::truth_path(p))
-        .collect();
+    let sidecars: Vec<PathBuf> = inputs.iter().flatten().map(|p| truth_path(p)).collect();
     let mut all: Vec<&Path> = inputs.iter().flatten().copied().collect();
     all.extend(sidecars.iter().map(PathBuf::as_path));
     let outputs: Vec<(&str, &Path)> = outputs

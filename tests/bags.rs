@@ -12,8 +12,8 @@ use std::hash::{Hash, Hasher};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use g1viz::read::bag1::Ros1BagSource;
-use g1viz::read::db3::Ros2BagSource;
+use g1viz::read::Ros1BagSource;
+use g1viz::read::Ros2BagSource;
 use g1viz::read::{Encoding, MessageSource, OpenOptions, ReadError, ReadSummary};
 
 fn shared() -> Option<PathBuf> {
@@ -162,7 +162,7 @@ fn bag1_decodes_to_the_mcap_values() {
                 (want.0.as_str(), want.1)
             );
             assert_eq!(m.channel.encoding, Encoding::Ros1);
-            let ros1 = g1viz::read::decode::decode(&m.channel.schema, Encoding::Ros1, m.data)
+            let ros1 = g1viz::read::decode(&m.channel.schema, Encoding::Ros1, m.data)
                 .map_err(|e| ReadError::Other(e.to_string()))?;
             if !cdr_schemas.contains_key(&m.channel.type_name) {
                 let schema = g1viz::read::MsgSchema::from_msg_files(&m.channel.type_name, &msg_dir)
@@ -170,7 +170,7 @@ fn bag1_decodes_to_the_mcap_values() {
                 cdr_schemas.insert(m.channel.type_name.clone(), schema);
             }
             let cdr_schema = &cdr_schemas[&m.channel.type_name];
-            let cdr = g1viz::read::decode::decode(cdr_schema, Encoding::Cdr, &want.2)
+            let cdr = g1viz::read::decode(cdr_schema, Encoding::Cdr, &want.2)
                 .map_err(|e| ReadError::Other(e.to_string()))?;
             assert_eq!(ros1, cdr, "{} at {}", want.0, want.1);
             n += 1;
@@ -312,7 +312,7 @@ fn definitions_from_msg_path_builtin_or_a_clear_error() {
     let mut decoded = 0;
     source
         .read(Some(&["/lf/bmsstate"]), &mut |m| {
-            let v = g1viz::read::decode::decode(&m.channel.schema, Encoding::Cdr, m.data)
+            let v = g1viz::read::decode(&m.channel.schema, Encoding::Cdr, m.data)
                 .map_err(|e| ReadError::Other(e.to_string()))?;
             let mv = v
                 .get(&g1viz::read::FieldPath::parse("bmsvoltage[0]").unwrap())
@@ -523,7 +523,7 @@ fn bags_written_by_rosbags_at_run_time() {
     let mut volts = Vec::new();
     source
         .read(Some(&["/lf/bmsstate"]), &mut |m| {
-            let v = g1viz::read::decode::decode(&m.channel.schema, Encoding::Ros1, m.data)
+            let v = g1viz::read::decode(&m.channel.schema, Encoding::Ros1, m.data)
                 .map_err(|e| ReadError::Other(e.to_string()))?;
             let path = g1viz::read::FieldPath::parse("bmsvoltage[0]").unwrap();
             volts.push(v.get(&path).and_then(|x| x.as_f64()).unwrap());
@@ -689,7 +689,7 @@ fn mcap_storage_bag_is_delegated() {
     .unwrap();
     let mut bag = Ros2BagSource::open(tmp.path(), &OpenOptions::default()).unwrap();
     assert_eq!(bag.format(), "ros2-mcap");
-    let mut direct = g1viz::read::mcap::McapSource::open(
+    let mut direct = g1viz::read::McapSource::open(
         &shared.join("recordings/g1_smoke.mcap"),
         &OpenOptions::default(),
     )

@@ -921,6 +921,27 @@ fn exported_rows_are_read_by_pyarrow_and_refit_to_the_same_model() {
     {
         assert!((s - r).abs() <= 1e-9 * s.abs().max(1.0), "{s} vs {r}");
     }
+    // The table names its joints: a signal map of the other arm refuses it, naming both.
+    std::fs::write(d.join("right.toml"), "arm = \"right\"\n").unwrap();
+    let err = fails(
+        d,
+        &[
+            "identify",
+            "--rows",
+            "a.parquet",
+            "--signals",
+            "right.toml",
+            "-o",
+            "r.json",
+        ],
+    );
+    assert!(
+        err.contains("left_elbow_joint")
+            && err.contains("right_elbow_joint")
+            && err.contains("a.parquet"),
+        "{err}"
+    );
+    assert!(!d.join("r.json").exists());
 
     let ours: Vec<(String, usize, f64)> = ["a", "b"]
         .iter()
@@ -937,6 +958,9 @@ try:
     import pyarrow as pa, pyarrow.parquet as pq, pyarrow.compute as pc
 except ImportError:
     sys.exit(3)
+import json
+for p in sys.argv[1:]:
+    print("names", p, " ".join(json.loads(pq.read_metadata(p).metadata[b"g1viz:joint_names"])))
 t = pa.concat_tables([pq.read_table(p) for p in sys.argv[1:]])
 for name in ["robot", "session", "trial", "t_s", "y_w", "phi_a0", "phi_e56", "temp_c_3", "sigma_omega", "rejected"]:
     assert name in t.column_names, name
@@ -955,8 +979,16 @@ for r, n, m in zip(g["robot"].to_pylist(), g["y_w_count"].to_pylist(), g["y_w_me
     }
     let (out, err) = text(&o);
     assert!(o.status.success(), "{out}\n{err}");
+    let names = g1viz::signals::SignalMap::g1_left_arm()
+        .joint_names
+        .join(" ");
+    for robot in ["a", "b"] {
+        let line = format!("names {robot}.parquet {names}");
+        assert!(out.lines().any(|l| l == line), "{out}");
+    }
     let theirs: Vec<(String, usize, f64)> = out
         .lines()
+        .filter(|l| !l.starts_with("names "))
         .map(|l| {
             let f: Vec<&str> = l.split_whitespace().collect();
             (

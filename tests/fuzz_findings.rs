@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use g1viz::read::decode::decode;
+use g1viz::read::decode;
 use g1viz::read::{Encoding, MsgSchema};
 
 /// Address-space limit of each child [KiB].

@@ -33,7 +33,7 @@ fn seeds_read_cleanly_in_every_container() {
         let mut n = 0;
         let summary = session
             .read(None, &mut |m| {
-                g1viz::read::decode::decode(&m.channel.schema, m.channel.encoding, m.data)
+                g1viz::read::decode(&m.channel.schema, m.channel.encoding, m.data)
                     .unwrap_or_else(|e| panic!("{}: {e}", seed.label));
                 n += 1;
                 Ok(())

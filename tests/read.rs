@@ -7,8 +7,8 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use g1viz::read::decode::decode;
-use g1viz::read::mcap::McapSource;
+use g1viz::read::McapSource;
+use g1viz::read::decode;
 use g1viz::read::{Encoding, FieldExtractor, FieldPath, MessageSource, OpenOptions, Session};
 use g1viz::signals::{SignalMap, load_recording};
 
@@ -304,15 +304,13 @@ fn smoke_messages(n: usize) -> Option<Vec<Msg>> {
 
 /// ROS 2 concatenated schema text of a unitree_hg type from the built-in .msg texts.
 fn ros2msg_text(type_name: &str) -> String {
-    let root = g1viz::read::msgdef::builtin_definition(type_name)
+    let root = g1viz::read::builtin_definition(type_name)
         .unwrap()
         .to_string();
     let mut text = root;
     for dep in ["IMUState", "MotorState", "MotorCmd"] {
         text.push_str(&format!("\n{}\nMSG: unitree_hg/{dep}\n", "=".repeat(80)));
-        text.push_str(
-            g1viz::read::msgdef::builtin_definition(&format!("unitree_hg/{dep}")).unwrap(),
-        );
+        text.push_str(g1viz::read::builtin_definition(&format!("unitree_hg/{dep}")).unwrap());
     }
     text
 }

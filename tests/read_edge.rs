@@ -253,8 +253,8 @@ fn all_messages(source: &mut dyn g1viz::read::MessageSource) -> Vec<(String, u64
 
 #[test]
 fn mcap_and_ros1_readers_run_from_memory_like_from_files() {
-    use g1viz::read::bag1::Ros1BagSource;
-    use g1viz::read::mcap::McapSource;
+    use g1viz::read::McapSource;
+    use g1viz::read::Ros1BagSource;
     use std::io::Cursor;
     let opts = OpenOptions::default();
     let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/g1_example.mcap");

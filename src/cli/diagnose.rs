@@ -7,7 +7,7 @@ use anyhow::{Result, bail};
 use clap::Args;
 
 use super::{ReadArgs, TargetArg, expand_sessions};
-use g1viz::power::load_model;
+use g1viz::power::load_model_for;
 use g1viz::signals::Recording;
 use g1viz::util::{check_distinct_sessions, check_outputs};
 
@@ -89,7 +89,9 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
     // Discovery reads every field of every part's file, placed on the joined time line.
     let (rec, field_sources) = diagnose::join_recordings_with_sources(parts, 5.0);
     let opts = DiagnoseOptions {
-        reference: a.model.as_deref().map(load_model).transpose()?,
+        reference: (a.model.as_deref())
+            .map(|m| load_model_for(m, &rec.joint_names, a.target.into()))
+            .transpose()?,
         target: a.target.into(),
         urdf: a.urdf.clone(),
         field_sources,

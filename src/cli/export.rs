@@ -54,12 +54,19 @@ fn rows(a: RowsArgs) -> Result<()> {
     let mut inputs: Vec<Option<&Path>> = paths.iter().map(|p| Some(*p)).collect();
     inputs.push(a.read.signals.as_deref());
     check_outputs(&[("row table", Some(&a.output))], &inputs)?;
-    let recs = paths
-        .iter()
-        .map(|p| a.read.load(p))
-        .collect::<Result<Vec<_>>>()?;
-    // The identification decides the sensor timing and which trials its filters reject.
-    let id = g1viz::identify::identify(&recs, &a.fit.options())?;
+    let map = a.read.signal_map()?;
+    let files: Vec<_> = paths.iter().map(|p| a.read.session_file(p, &map)).collect();
+    // The identification decides the sensor timing and which trials its filters reject. Every
+    // session is streamed (memory bounded whatever its length): twice for the identification,
+    // once more for the rows.
+    let id = g1viz::identify::identify_files(
+        &files,
+        &a.fit.options(),
+        &g1viz::identify::StreamOptions::default(),
+    )?;
+    for w in id.sessions.iter().flat_map(|s| &s.warnings) {
+        eprintln!("warning: {w}");
+    }
     let robot = a.robot.clone().unwrap_or_else(|| {
         sessions[0]
             .canonicalize()
@@ -71,8 +78,8 @@ fn rows(a: RowsArgs) -> Result<()> {
             })
             .unwrap_or_else(|| "robot".into())
     });
-    let table = g1viz::rows::table_rows(&recs, &id, &robot);
-    g1viz::rows::write_parquet(&a.output, &table)?;
+    let table = g1viz::rows::table_rows_files(&files, &id, &robot)?;
+    g1viz::rows::write_parquet(&a.output, &table, &map.joint_names)?;
     let rejected = table.iter().filter(|r| r.rejected_by.is_some()).count();
     println!(
         "wrote {} ({} rows of {} sessions, robot {robot}; {rejected} rows in rejected trials, flagged)",

@@ -59,22 +59,30 @@ pub fn run(a: IdentifyArgs) -> Result<()> {
         ],
         &inputs,
     )?;
-    let recs = fit_sessions
+    // Each session is streamed twice (segmentation, then rows): memory stays bounded whatever
+    // the sessions' length.
+    let map = a.read.signal_map()?;
+    let files: Vec<identify::SessionFile> = fit_sessions
         .iter()
-        .map(|p| a.read.load(p))
-        .collect::<Result<Vec<_>>>()?;
-    let busy = super::spinner("identifying");
-    let id = identify::identify(&recs, &opts);
-    busy.finish_and_clear();
-    let id = id?;
+        .map(|p| a.read.session_file(p, &map))
+        .collect();
+    let stream = identify::StreamOptions::default();
+    let id = identify::identify_files(&files, &opts, &stream)?;
+    for w in id.sessions.iter().flat_map(|s| &s.warnings) {
+        eprintln!("warning: {w}");
+    }
     let validation = match &a.holdout {
-        Some(p) => Some(identify::validate(&id.model, &a.read.load(p)?, &opts)?),
+        Some(p) => {
+            let v =
+                identify::validate_file(&id.model, &a.read.session_file(p, &map), &opts, &stream)?;
+            for w in &v.session.warnings {
+                eprintln!("warning: {w}");
+            }
+            Some(v)
+        }
         None => None,
     };
-    let names = recs
-        .first()
-        .map(|r| r.joint_names.clone())
-        .unwrap_or_default();
+    let names = map.joint_names.clone();
     let file = id.model_file(&names, validation.as_ref(), "")?;
     file.save(&a.output)?;
 
@@ -100,8 +108,27 @@ fn from_rows(a: &IdentifyArgs, table: &Path) -> Result<()> {
     use g1viz::power::{
         DatasetMetrics, ModelFile, ModelMetrics, Provenance, SessionRef, SolverRecord,
     };
+    use g1viz::rows::RowTable;
     check_outputs(&[("model file", Some(&a.output))], &[Some(table)])?;
-    let rows = g1viz::rows::read_parquet(table)?;
+    let RowTable { joint_names, rows } = g1viz::rows::read_table(table)?;
+    // The regressors are per joint: a table of another arm (or robot) would fit the wrong joints.
+    let names = a.read.signal_map()?.joint_names;
+    match joint_names {
+        Some(t) if t != names => anyhow::bail!(
+            "{}: the rows are for joints {} but the signal map (--signals) is for {}; \
+             fit them with the matching --signals",
+            table.display(),
+            t.join(", "),
+            names.join(", ")
+        ),
+        Some(_) => {}
+        None => eprintln!(
+            "warning: {} names no joints (metadata {}); assuming {}",
+            table.display(),
+            g1viz::rows::JOINT_NAMES_KEY,
+            names.join(", ")
+        ),
+    }
     let target = a.fit.options().target.name();
     if let Some(r) = rows.iter().find(|r| r.target != target) {
         anyhow::bail!(
@@ -151,7 +178,6 @@ fn from_rows(a: &IdentifyArgs, table: &Path) -> Result<()> {
         )],
         ..Provenance::default()
     };
-    let names = g1viz::signals::SignalMap::g1_left_arm().joint_names;
     let metrics = ModelMetrics {
         identification: Some(DatasetMetrics {
             dataset: format!("per-reading rows of {} sessions", sessions.len()),

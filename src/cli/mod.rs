@@ -153,6 +153,15 @@ impl ReadArgs {
         }
     }
 
+    /// `path` with this signal map and these reader options, for a streamed read.
+    pub fn session_file(&self, path: &Path, map: &SignalMap) -> g1viz::identify::SessionFile {
+        g1viz::identify::SessionFile {
+            path: path.to_path_buf(),
+            map: map.clone(),
+            read: self.open_options(),
+        }
+    }
+
     pub fn load(&self, path: &Path) -> Result<Recording> {
         let rec = load_recording(path, &self.signal_map()?, &self.open_options())
             .with_context(|| format!("reading {}", path.display()))?;

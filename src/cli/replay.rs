@@ -65,7 +65,7 @@ pub struct ReplayArgs {
 /// Replay the session to the chosen sink.
 #[cfg(feature = "viz")]
 pub fn run(a: ReplayArgs) -> Result<()> {
-    use g1viz::power::load_model;
+    use g1viz::power::load_model_for;
     use g1viz::robot::RobotModel;
     use g1viz::viz::session::{Notice, SessionReplay, Window, replay_session};
     use g1viz::viz::{self, Sink};
@@ -88,15 +88,15 @@ pub fn run(a: ReplayArgs) -> Result<()> {
         inputs.push(m);
     }
     let mut properties = vec![("command".to_owned(), super::command_line())];
+    let map = a.read.signal_map()?;
     let model = match &a.model {
         Some(m) => {
             properties.push(("model".to_owned(), m.display().to_string()));
-            Some(load_model(m)?)
+            Some(load_model_for(m, &map.joint_names, a.fit.options().target)?)
         }
         None => None,
     };
     let model_name = a.model.as_ref().map(|m| m.display().to_string());
-    let map = a.read.signal_map()?;
     let read = a.read.open_options();
     let replay = SessionReplay {
         session: &a.session,

@@ -6,7 +6,7 @@ use anyhow::Result;
 use clap::Args;
 
 use super::{FitArgs, ReadArgs};
-use g1viz::power::load_model;
+use g1viz::power::load_model_for;
 
 #[derive(Args)]
 pub struct ValidateArgs {
@@ -26,26 +26,40 @@ pub struct ValidateArgs {
 
 /// Validate and print the metrics (text or JSON).
 pub fn run(a: ValidateArgs) -> Result<()> {
-    let model = load_model(&a.model)?;
-    let busy = super::spinner("reading the session");
-    let rec = match a.read.load(&a.session) {
-        Ok(rec) => rec,
-        Err(e) => {
-            busy.finish_and_clear();
-            return Err(e);
-        }
-    };
-    busy.set_message("validating the model");
-    let v = g1viz::identify::validate(&model, &rec, &a.fit.options());
+    let map = a.read.signal_map()?;
+    let model = load_model_for(&a.model, &map.joint_names, a.fit.options().target)?;
+    // Streamed twice (segmentation, then rows): memory stays bounded whatever the length.
+    let busy = super::spinner("validating the model (reading the session twice)");
+    let v = g1viz::identify::validate_file(
+        &model,
+        &a.read.session_file(&a.session, &map),
+        &a.fit.options(),
+        &g1viz::identify::StreamOptions::default(),
+    );
     busy.finish_and_clear();
     let v = v?;
+    for w in &v.session.warnings {
+        eprintln!("warning: {w}");
+    }
     for n in &v.notes {
         eprintln!("note: {n}");
     }
     if a.json {
         println!("{}", serde_json::to_string_pretty(&v)?);
-        return Ok(());
+    } else {
+        println!("{}", v.summary());
     }
-    println!("{}", v.summary());
+    // An undefined fit is a failed validation, not a result.
+    for (what, r2) in [
+        ("per-trial", v.trial_level.r2),
+        ("per-reading", v.reading_level.r2),
+    ] {
+        anyhow::ensure!(
+            r2.is_finite(),
+            "validation of {} on {}: the {what} R² is not a number (predictions or measured power not finite, or the measured power constant)",
+            a.model.display(),
+            a.session.display()
+        );
+    }
     Ok(())
 }

@@ -158,8 +158,21 @@ fn split3(
     }
 }
 
-/// All breakdowns of the residuals `resid` (measured − predicted, held out) of `rows`.
+/// All breakdowns of the residuals `resid` (measured − predicted, held out) of `rows`: by what
+/// moved ([`motion_breakdowns`]), then by the conditions it moved in ([`condition_breakdowns`]).
 pub(crate) fn breakdowns(
+    rows: &Rows,
+    trials: &[TrialMeta],
+    resid: &[f64],
+    joint_names: &[String],
+) -> Vec<Breakdown> {
+    let mut out = motion_breakdowns(rows, trials, resid, joint_names);
+    out.extend(condition_breakdowns(rows, trials, resid));
+    out
+}
+
+/// Breakdowns by joint moved, phase, driving/braking/holding regime and braking joint.
+fn motion_breakdowns(
     rows: &Rows,
     trials: &[TrialMeta],
     resid: &[f64],
@@ -252,7 +265,15 @@ pub(crate) fn breakdowns(
             })
             .collect(),
     });
+    out
+}
 
+/// Breakdowns by temperature, speed, number of joints moving, body sway (IMU) and session time.
+fn condition_breakdowns(rows: &Rows, trials: &[TrialMeta], resid: &[f64]) -> Vec<Breakdown> {
+    let n_trials = trials.len();
+    let n = rows.len();
+    let sel = |f: &dyn Fn(usize) -> bool| -> Vec<usize> { (0..n).filter(|&r| f(r)).collect() };
+    let mut out = Vec::new();
     if !rows.locate.is_empty() {
         let temp: Vec<f64> = rows
             .locate

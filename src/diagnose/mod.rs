@@ -10,18 +10,18 @@
 //! the held-out residuals ([`locate`]) → plain-language summary ([`summary`]).
 
 pub mod counterpart;
-pub mod data;
-pub mod discover;
-pub mod fields;
+pub(crate) mod data;
+pub(crate) mod discover;
+pub(crate) mod fields;
 pub mod hypotheses;
-pub mod locate;
+pub(crate) mod locate;
 pub mod report;
-pub mod select;
-pub mod stats;
-pub mod summary;
+pub(crate) mod select;
+pub(crate) mod stats;
+pub(crate) mod summary;
 #[cfg(test)]
 mod testkit;
-pub mod torque;
+pub(crate) mod torque;
 
 use std::path::PathBuf;
 
@@ -393,6 +393,11 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis> {
 }
 
 /// Diagnose a recording whose trials are already segmented. `arm` enables the torque level.
+///
+/// Stages: usable trials ([`filter_trials`]) → rows at every scanned lag ([`scan_lags`]) →
+/// library selection and discovery ([`select_and_discover`]) → torque level → ranking
+/// ([`rank_hypotheses`]) → final refit ([`refit_final`]) → locate ([`locate_residuals`]) →
+/// lag scan, replay data and assembly.
 pub fn diagnose_trials(
     rec: &Recording,
     windows: &[TrialWindow],
@@ -407,7 +412,6 @@ pub fn diagnose_trials(
             opts.target
         );
     }
-    let w = opts.sensor_window_s;
     let reference: Option<Vec<f64>> = opts.reference.map(|m| m.to_vector().to_vec());
     let (metas, rejected) = filter_trials(rec, windows, opts, reference.clone())?;
     if metas.len() < 2 * opts.folds.max(2) {
@@ -419,7 +423,93 @@ pub fn diagnose_trials(
             opts.folds
         );
     }
+    let scan = scan_lags(rec, power, &metas, opts, reference.clone())?;
+    if scan.rows[0].len() < 3 * (N_PARAMS + 10) / 2 {
+        bail!(
+            "{}: only {} power readings inside usable trials; too few to diagnose a {N_PARAMS}-parameter model",
+            rec.source.display(),
+            scan.rows[0].len()
+        );
+    }
+    let data = PowerData::new(scan.lags, scan.rows, metas.len(), opts.folds, reference);
+    let rule = Rule {
+        alpha: opts.alpha,
+        bic_threshold: opts.bic_threshold,
+        min_improvement: opts.min_improvement,
+    };
+    let (sel, discovery, fields) = select_and_discover(rec, power, &metas, &data, &rule, opts)?;
 
+    // Torque level.
+    let torque = match arm {
+        Some(a) => torque::torque_level(rec, &metas, a, &data.folds, opts.max_torque_samples)?,
+        None => None,
+    };
+    let ranking = rank_hypotheses(&sel, torque.as_ref(), &rule);
+    let final_model = refit_final(
+        &sel,
+        &ranking.accepted,
+        torque.as_ref(),
+        &data.rows[0],
+        metas.len(),
+    );
+    let located = locate_residuals(rec, &metas, &data, &sel, discovery.as_ref());
+    let lag_scan = lag_scan(&data)?;
+    let replay = replay_data(&metas, &data.rows[0], &sel, &located);
+    let mut diag = Diagnosis {
+        schema_version: SCHEMA_VERSION,
+        source: rec.source.display().to_string(),
+        target: opts.target,
+        joint_names: rec.joint_names.clone(),
+        n_trials: metas.len(),
+        n_readings: data.rows[0].len(),
+        rejected,
+        torque: torque.map(|t| t.comparison),
+        base_model: if data.reference.is_some() {
+            "reference".into()
+        } else {
+            "refit".into()
+        },
+        lag_scan,
+        breakdowns: located.breakdowns,
+        worst: located.worst,
+        worst_trials: located.worst_trials,
+        hypotheses: ranking.ranked,
+        accepted: ranking.accepted,
+        final_model,
+        unexplained: located.unexplained,
+        forms: sel.forms.clone(),
+        confounded: sel.confounded.clone(),
+        discovery,
+        bus_volts: hypotheses::NOMINAL_BUS_VOLTS,
+        summary: String::new(),
+        replay,
+        counterpart: None,
+    };
+    if let Some(v) = fields.table.bus_volts {
+        rescale_bus(&mut diag, v);
+    }
+    show_found(&mut diag, &fields, &data.rows[sel.last.lag], &metas);
+    diag.summary = summary::summarise(&diag);
+    Ok(diag)
+}
+
+/// Power rows of the usable trials at every scanned sensor lag (ascending; index 0 = no lag),
+/// restricted to the readings present at all lags (same readings everywhere).
+struct LagRows {
+    lags: Vec<f64>,
+    rows: Vec<Rows>,
+}
+
+/// Stage: rows at every coarse lag (0.05 s steps up to [`DiagnoseOptions::max_lag_s`]), then a
+/// fine scan (0.01 s) around the base model's best coarse lag.
+fn scan_lags(
+    rec: &Recording,
+    power: &crate::signals::PowerSeries,
+    metas: &[TrialMeta],
+    opts: &DiagnoseOptions,
+    reference: Option<Vec<f64>>,
+) -> Result<LagRows> {
+    let w = opts.sensor_window_s;
     // Rows at every scanned lag; keep only readings present at all lags (same readings everywhere).
     let mut lags = vec![0.0];
     if opts.max_lag_s > 0.0 {
@@ -428,7 +518,7 @@ pub fn diagnose_trials(
     }
     let mut all_rows: Vec<Rows> = lags
         .iter()
-        .map(|&l| build_rows(rec, power, &metas, l, w, l == 0.0))
+        .map(|&l| build_rows(rec, power, metas, l, w, l == 0.0))
         .collect();
     // Fine scan (0.01 s) around the base model's best coarse lag.
     if lags.len() >= 3 {
@@ -439,7 +529,7 @@ pub fn diagnose_trials(
             std::mem::take(&mut all_rows),
             metas.len(),
             opts.folds,
-            reference.clone(),
+            reference,
         );
         let sse: Vec<f64> = (0..lags.len())
             .map(|l| {
@@ -456,7 +546,7 @@ pub fn diagnose_trials(
             let l = centre + 0.01 * k as f64;
             if l > 0.0 && l <= opts.max_lag_s && lags.iter().all(|x| (x - l).abs() > 1e-6) {
                 lags.push(l);
-                all_rows.push(build_rows(rec, power, &metas, l, w, false));
+                all_rows.push(build_rows(rec, power, metas, l, w, false));
             }
         }
         let mut by_lag: Vec<(f64, Rows)> = lags.into_iter().zip(all_rows).collect();
@@ -464,29 +554,28 @@ pub fn diagnose_trials(
         (lags, all_rows) = by_lag.into_iter().unzip();
     }
     common_readings(&mut all_rows);
-    if all_rows[0].len() < 3 * (N_PARAMS + 10) / 2 {
-        bail!(
-            "{}: only {} power readings inside usable trials; too few to diagnose a {N_PARAMS}-parameter model",
-            rec.source.display(),
-            all_rows[0].len()
-        );
-    }
-    let data = PowerData::new(lags.clone(), all_rows, metas.len(), opts.folds, reference);
-    let rule = Rule {
-        alpha: opts.alpha,
-        bic_threshold: opts.bic_threshold,
-        min_improvement: opts.min_improvement,
-    };
-    let (sel, discovery, fields) = select_and_discover(rec, power, &metas, &data, &rule, opts)?;
+    Ok(LagRows {
+        lags,
+        rows: all_rows,
+    })
+}
 
-    // Torque level.
-    let torque = match arm {
-        Some(a) => torque::torque_level(rec, &metas, a, &data.folds, opts.max_torque_samples)?,
-        None => None,
-    };
+/// Every hypothesis scored against the base model, ranked, and the accepted ones in order.
+struct Ranking {
+    ranked: Vec<HypothesisScore>,
+    accepted: Vec<HypothesisScore>,
+}
+
+/// Stage: the torque level's payload hypothesis judged by the power level's rule, then every
+/// hypothesis ranked (accepted first, then by held-out improvement).
+fn rank_hypotheses(
+    sel: &select::Selection,
+    torque: Option<&torque::TorqueLevel>,
+    rule: &Rule,
+) -> Ranking {
     let mut ranked = sel.first_step.clone();
     let mut accepted = sel.accepted.clone();
-    if let Some(t) = &torque {
+    if let Some(t) = torque {
         let mut p = t.payload.clone();
         let (ok, why) = rule.judge(&p);
         p.accepted = ok;
@@ -504,10 +593,20 @@ pub fn diagnose_trials(
     for (i, s) in ranked.iter_mut().enumerate() {
         s.rank = i + 1;
     }
+    Ranking { ranked, accepted }
+}
 
-    // Final model and held-out quality.
+/// Stage: the final model — the physical parameters of the accepted hypotheses (jackknife
+/// standard errors over the folds) and the held-out quality before and after them, per reading
+/// and per trial (`rows0`: the rows at no lag).
+fn refit_final(
+    sel: &select::Selection,
+    accepted: &[HypothesisScore],
+    torque: Option<&torque::TorqueLevel>,
+    rows0: &Rows,
+    n_trials: usize,
+) -> FinalModel {
     let last = &sel.last;
-    let rows0 = &data.rows[0];
     let mut params = Vec::new();
     for (j, h) in last.spec.iter().enumerate() {
         let c = N_PARAMS + j;
@@ -528,10 +627,7 @@ pub fn diagnose_trials(
     if let Some(lat) = accepted.iter().find(|s| s.id == LATENCY_ID) {
         params.extend(lat.params.iter().cloned());
     }
-    if let Some(t) = torque
-        .as_ref()
-        .filter(|t| accepted.iter().any(|s| s.id == t.payload.id))
-    {
+    if let Some(t) = torque.filter(|t| accepted.iter().any(|s| s.id == t.payload.id)) {
         params.extend(t.payload.params.iter().cloned());
     }
     let y = &rows0.y;
@@ -540,7 +636,7 @@ pub fn diagnose_trials(
         Quality { r2, rmse_w }
     };
     let per_trial = |pred: &[f64]| {
-        let n = metas.len();
+        let n = n_trials;
         let (mut ys, mut ps, mut c) = (vec![0.0; n], vec![0.0; n], vec![0usize; n]);
         for r in 0..y.len() {
             let t = rows0.trial[r];
@@ -554,7 +650,7 @@ pub fn diagnose_trials(
         let (r2, rmse_w) = r2_rmse(&yt, &pt);
         Quality { r2, rmse_w }
     };
-    let final_model = FinalModel {
+    FinalModel {
         hypotheses: accepted.iter().map(|s| s.id.clone()).collect(),
         params,
         theta: last.full.theta[..N_PARAMS].to_vec(),
@@ -562,16 +658,36 @@ pub fn diagnose_trials(
         after: quality(&last.cv.pred),
         before_per_trial: per_trial(&sel.base.cv.pred),
         after_per_trial: per_trial(&last.cv.pred),
-    };
+    }
+}
 
-    // Locate with the base model's held-out residuals; correlate what the final model leaves.
-    let resid_base: Vec<f64> = y
+/// Where the base model's held-out residuals lie, and the structure the final model leaves.
+struct Located {
+    breakdowns: Vec<Breakdown>,
+    worst: Option<(String, Group)>,
+    worst_trials: Vec<TrialResidual>,
+    unexplained: Vec<Correlate>,
+}
+
+/// Stage: locate with the base model's held-out residuals; correlate what the final model
+/// leaves (with the terms found beyond the library when there are any).
+fn locate_residuals(
+    rec: &Recording,
+    metas: &[TrialMeta],
+    data: &PowerData,
+    sel: &select::Selection,
+    discovery: Option<&DiscoveryReport>,
+) -> Located {
+    let last = &sel.last;
+    let rows0 = &data.rows[0];
+    let resid_base: Vec<f64> = rows0
+        .y
         .iter()
         .zip(&sel.base.cv.pred)
         .map(|(a, b)| a - b)
         .collect();
     // What the final model leaves: with the terms found beyond the library when there are any.
-    let final_pred = match &discovery {
+    let final_pred = match discovery {
         Some(r) if !r.accepted.is_empty() && r.pred.len() == last.cv.pred.len() => &r.pred,
         _ => &last.cv.pred,
     };
@@ -581,31 +697,50 @@ pub fn diagnose_trials(
         .zip(final_pred)
         .map(|(a, b)| a - b)
         .collect();
-    let breakdowns = locate::breakdowns(rows0, &metas, &resid_base, &rec.joint_names);
+    let breakdowns = locate::breakdowns(rows0, metas, &resid_base, &rec.joint_names);
     let worst = locate::worst(&breakdowns);
-    let worst_trials: Vec<TrialResidual> = locate::trial_residuals(rows0, &metas, &resid_base)
+    let worst_trials: Vec<TrialResidual> = locate::trial_residuals(rows0, metas, &resid_base)
         .into_iter()
         .take(10)
         .collect();
     let unexplained = locate::correlates(
         rows0,
-        &metas,
+        metas,
         &resid_final,
         &rec.joint_names,
         data.reference.is_none(),
         0.01,
         6,
     );
-    let lag_scan = (0..lags.len())
+    Located {
+        breakdowns,
+        worst,
+        worst_trials,
+        unexplained,
+    }
+}
+
+/// Stage: the base model's in-sample RMSE refitted at every scanned lag.
+fn lag_scan(data: &PowerData) -> Result<Vec<LagPoint>> {
+    (0..data.lags.len())
         .map(|l| {
             let g = &data.grams[l].total;
             data.fit_all(&[], l).map(|f| LagPoint {
-                lag_s: lags[l],
+                lag_s: data.lags[l],
                 rmse_w: (g.sse(&f.beta) / g.n.max(1) as f64).sqrt(),
             })
         })
-        .collect::<Result<Vec<_>>>()?;
+        .collect()
+}
 
+/// Stage: per-reading data for the replay, with the trials to point the user to (largest
+/// held-out base residuals, carriers of unexplained structure).
+fn replay_data(
+    metas: &[TrialMeta],
+    rows0: &Rows,
+    sel: &select::Selection,
+    located: &Located,
+) -> ReplayData {
     let mark = |trial: usize, reason: String| {
         let w = metas
             .iter()
@@ -618,7 +753,8 @@ pub fn diagnose_trials(
             reason,
         }
     };
-    let mut highlighted: Vec<HighlightedTrial> = worst_trials
+    let mut highlighted: Vec<HighlightedTrial> = located
+        .worst_trials
         .iter()
         .take(5)
         .map(|t| {
@@ -631,7 +767,7 @@ pub fn diagnose_trials(
             )
         })
         .collect();
-    for c in unexplained.iter().filter(|c| c.significant) {
+    for c in located.unexplained.iter().filter(|c| c.significant) {
         for &t in &c.trials {
             if !highlighted.iter().any(|h| h.trial == t) {
                 highlighted.push(mark(
@@ -641,52 +777,16 @@ pub fn diagnose_trials(
             }
         }
     }
-    let replay = ReplayData {
+    ReplayData {
         t: rows0.t.clone(),
         trial: rows0.trial.iter().map(|&t| metas[t].window.index).collect(),
-        measured_w: y.clone(),
+        measured_w: rows0.y.clone(),
         before_w: sel.base.cv.pred.clone(),
-        after_w: last.cv.pred.clone(),
+        after_w: sel.last.cv.pred.clone(),
         highlighted,
         found_w: Vec::new(),
         located: Vec::new(),
-    };
-    let mut diag = Diagnosis {
-        schema_version: SCHEMA_VERSION,
-        source: rec.source.display().to_string(),
-        target: opts.target,
-        joint_names: rec.joint_names.clone(),
-        n_trials: metas.len(),
-        n_readings: rows0.len(),
-        rejected,
-        torque: torque.map(|t| t.comparison),
-        base_model: if data.reference.is_some() {
-            "reference".into()
-        } else {
-            "refit".into()
-        },
-        lag_scan,
-        breakdowns,
-        worst,
-        worst_trials,
-        hypotheses: ranked,
-        accepted,
-        final_model,
-        unexplained,
-        forms: sel.forms.clone(),
-        confounded: sel.confounded.clone(),
-        discovery,
-        bus_volts: hypotheses::NOMINAL_BUS_VOLTS,
-        summary: String::new(),
-        replay,
-        counterpart: None,
-    };
-    if let Some(v) = fields.table.bus_volts {
-        rescale_bus(&mut diag, v);
     }
-    show_found(&mut diag, &fields, &data.rows[last.lag], &metas);
-    diag.summary = summary::summarise(&diag);
-    Ok(diag)
 }
 
 /// The bus-current form was fitted at the nominal voltage: R = c·V_nom² / ... rescaled to the

@@ -35,11 +35,33 @@ fn sig(v: f64) -> String {
 }
 
 /// Write `dir/report.md`, its figures and `dir/diagnosis.json`.
+///
+/// Sections in order: header, counterpart, torque level, where the model is wrong, hypotheses,
+/// the final model, beyond the library, unexplained structure (with the lag scan), trials left
+/// out; each section function appends its markdown and writes its figures.
 pub fn write_report(dir: &Path, d: &Diagnosis) -> Result<()> {
     register_font()?;
     std::fs::create_dir_all(dir)
         .with_context(|| format!("creating report directory {}", dir.display()))?;
     let mut md = String::new();
+    header_section(&mut md, d);
+    if let Some(c) = &d.counterpart {
+        counterpart_section(&mut md, c);
+    }
+    if let Some(t) = &d.torque {
+        torque_section(&mut md, t);
+    }
+    where_section(&mut md, dir, d)?;
+    hypotheses_section(&mut md, dir, d)?;
+    final_section(&mut md, dir, d)?;
+    beyond_section(&mut md, d);
+    unexplained_section(&mut md, dir, d)?;
+    crate::util::write_atomic(&dir.join("report.md"), md.as_bytes())?;
+    d.save_json(&dir.join("diagnosis.json"))
+}
+
+/// Title, summary and the counts of trials and readings.
+fn header_section(md: &mut String, d: &Diagnosis) {
     let _ = writeln!(md, "# Sim-to-real diagnosis: {}\n", d.source);
     let _ = writeln!(md, "```text\n{}```\n", d.summary);
     let _ = writeln!(
@@ -55,34 +77,34 @@ pub fn write_report(dir: &Path, d: &Diagnosis) -> Result<()> {
         },
         d.rejected.len()
     );
+}
 
-    if let Some(c) = &d.counterpart {
-        counterpart_section(&mut md, c);
-    }
-
-    if let Some(t) = &d.torque {
-        let _ = writeln!(md, "## Torque level (tau_est vs URDF inverse dynamics)\n");
-        let _ = writeln!(md, "{} samples.\n", t.n_samples);
+/// Recorded vs URDF torque per joint.
+fn torque_section(md: &mut String, t: &super::TorqueComparison) {
+    let _ = writeln!(md, "## Torque level (tau_est vs URDF inverse dynamics)\n");
+    let _ = writeln!(md, "{} samples.\n", t.n_samples);
+    let _ = writeln!(
+        md,
+        "| joint | bias [Nm] | RMS [Nm] | RMS after friction [Nm] | Fc [Nm] | Fv [Nm·s/rad] |"
+    );
+    let _ = writeln!(md, "|---|---|---|---|---|---|");
+    for j in 0..t.rmse_urdf.len() {
         let _ = writeln!(
             md,
-            "| joint | bias [Nm] | RMS [Nm] | RMS after friction [Nm] | Fc [Nm] | Fv [Nm·s/rad] |"
+            "| {} | {:+.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
+            t.joints.get(j).cloned().unwrap_or_default(),
+            t.bias_urdf[j],
+            t.rmse_urdf[j],
+            t.rmse_with_friction[j],
+            t.coulomb_nm[j],
+            t.viscous_nms[j]
         );
-        let _ = writeln!(md, "|---|---|---|---|---|---|");
-        for j in 0..t.rmse_urdf.len() {
-            let _ = writeln!(
-                md,
-                "| {} | {:+.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
-                t.joints.get(j).cloned().unwrap_or_default(),
-                t.bias_urdf[j],
-                t.rmse_urdf[j],
-                t.rmse_with_friction[j],
-                t.coulomb_nm[j],
-                t.viscous_nms[j]
-            );
-        }
-        md.push('\n');
     }
+    md.push('\n');
+}
 
+/// Residual breakdowns of the base model and the regime figure.
+fn where_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()> {
     let _ = writeln!(
         md,
         "## Where the model is wrong (held-out residuals of the base model)\n"
@@ -128,7 +150,11 @@ pub fn write_report(dir: &Path, d: &Diagnosis) -> Result<()> {
             .collect::<Vec<_>>()
             .join(", ")
     );
+    Ok(())
+}
 
+/// The hypothesis ranking and its figure.
+fn hypotheses_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()> {
     let _ = writeln!(
         md,
         "## Hypotheses (scored against the base model; accepted first)\n"
@@ -174,7 +200,11 @@ pub fn write_report(dir: &Path, d: &Diagnosis) -> Result<()> {
         "![Held-out improvement per hypothesis]({})\n",
         FIGURES[1]
     );
+    Ok(())
+}
 
+/// The model with the accepted hypotheses, held-out quality and the before/after figures.
+fn final_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()> {
     let f = &d.final_model;
     let _ = writeln!(md, "## Model with the accepted hypotheses\n");
     if f.hypotheses.is_empty() {
@@ -225,8 +255,11 @@ pub fn write_report(dir: &Path, d: &Diagnosis) -> Result<()> {
         "![Held-out residual over the session, before and after]({})\n",
         FIGURES[3]
     );
+    Ok(())
+}
 
-    beyond_section(&mut md, d);
+/// Residual structure no hypothesis explains, the lag-scan figure and the trials left out.
+fn unexplained_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()> {
     let _ = writeln!(md, "## Residual structure no hypothesis explains\n");
     let _ = writeln!(
         md,
@@ -260,8 +293,7 @@ pub fn write_report(dir: &Path, d: &Diagnosis) -> Result<()> {
         }
         md.push('\n');
     }
-    crate::util::write_atomic(&dir.join("report.md"), md.as_bytes())?;
-    d.save_json(&dir.join("diagnosis.json"))
+    Ok(())
 }
 
 fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {

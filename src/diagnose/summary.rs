@@ -53,9 +53,21 @@ fn braking_joints(d: &Diagnosis) -> Vec<String> {
         .collect()
 }
 
-/// The summary text.
+/// The summary text: counts and torque, where the power model is wrong, what is named, forms
+/// and confounding, discovery, and what remains unexplained.
 pub fn summarise(d: &Diagnosis) -> String {
     let mut s = String::new();
+    counts_and_torque(d, &mut s);
+    where_wrong(d, &mut s);
+    named(d, &mut s);
+    forms_and_confounding(d, &mut s);
+    discovery_lines(d, &mut s);
+    unexplained(d, &mut s);
+    s
+}
+
+/// Trials and readings used; the torque level's worst joint.
+fn counts_and_torque(d: &Diagnosis, s: &mut String) {
     let _ = writeln!(
         s,
         "Diagnosis of {}: {} trials, {} {:?} power readings ({} trials left out).",
@@ -83,6 +95,10 @@ pub fn summarise(d: &Diagnosis) -> String {
             "Torque: URDF inverse dynamics + fitted joint friction vs tau_est; worst joint {worst}."
         );
     }
+}
+
+/// The base model's held-out quality, where it is most clearly wrong, and its best sensor lag.
+fn where_wrong(d: &Diagnosis, s: &mut String) {
     let f = &d.final_model;
     let base = if d.base_model == "reference" {
         "the twin's power model"
@@ -133,6 +149,11 @@ pub fn summarise(d: &Diagnosis) -> String {
             best.lag_s
         );
     }
+}
+
+/// The accepted hypotheses with their parameters (or why none is), and the model with them.
+fn named(d: &Diagnosis, s: &mut String) {
+    let f = &d.final_model;
     if d.accepted.is_empty() {
         match d.hypotheses.first() {
             Some(h) => {
@@ -195,8 +216,10 @@ pub fn summarise(d: &Diagnosis) -> String {
             f.after_per_trial.r2
         );
     }
-    forms_and_confounding(d, &mut s);
-    discovery_lines(d, &mut s);
+}
+
+/// The strongest correlates of the residual the final model leaves.
+fn unexplained(d: &Diagnosis, s: &mut String) {
     let sig: Vec<_> = d.unexplained.iter().filter(|c| c.significant).collect();
     if sig.is_empty() {
         let _ = writeln!(
@@ -216,7 +239,6 @@ pub fn summarise(d: &Diagnosis) -> String {
             );
         }
     }
-    s
 }
 
 /// Mechanism forms (winner, runner-up, margin) and confounded pairs.

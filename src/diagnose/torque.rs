@@ -194,9 +194,31 @@ pub(crate) fn torque_level(
     if rows.len() < 50 {
         return Ok(None);
     }
-    let n_trials = trials.len();
+    let cv = cross_validate_torque(&rows, folds);
+    let payload = payload_score(&rows, &cv, trials.len());
+    let comparison = compare(rec, &rows, &cv.total);
+    Ok(Some(TorqueLevel {
+        comparison,
+        payload,
+    }))
+}
+
+/// Held-out predictions of the friction-only and the friction + payload fits, per fold.
+struct TorqueCv {
+    /// Gram of all rows.
+    total: Gram,
+    /// Friction only, held out, per row.
+    pred_base: Vec<[f64; N_JOINTS]>,
+    /// Friction + payload, held out, per row.
+    pred_pay: Vec<[f64; N_JOINTS]>,
+    /// Payload columns [m, m·cx, m·cy, m·cz] fitted on each fold's training trials.
+    fold_pay: Vec<[f64; 4]>,
+}
+
+/// Stage: fit both models on each fold's training trials and predict its held-out rows.
+fn cross_validate_torque(rows: &[TorqueRow], folds: &Folds) -> TorqueCv {
     let mut fold_grams: Vec<Gram> = (0..folds.k).map(|_| Gram::zeros(N_TORQUE)).collect();
-    for row in &rows {
+    for row in rows {
         let g = &mut fold_grams[folds.of_trial[row.trial]];
         for j in 0..N_JOINTS {
             g.add_row(&row.x[j], row.r[j]);
@@ -221,6 +243,23 @@ pub(crate) fn torque_level(
             }
         }
     }
+    TorqueCv {
+        total,
+        pred_base,
+        pred_pay,
+        fold_pay,
+    }
+}
+
+/// Stage: the payload hypothesis scored like the power hypotheses (paired held-out test by
+/// trial, BIC of the full fit, jackknife standard errors over the folds).
+fn payload_score(rows: &[TorqueRow], cv: &TorqueCv, n_trials: usize) -> HypothesisScore {
+    let TorqueCv {
+        total,
+        pred_base,
+        pred_pay,
+        fold_pay,
+    } = cv;
     // Flatten per joint-equation for errors.
     let flat =
         |p: &[[f64; N_JOINTS]]| -> Vec<f64> { p.iter().flat_map(|a| a.iter().copied()).collect() };
@@ -229,7 +268,7 @@ pub(crate) fn torque_level(
         .iter()
         .flat_map(|r| std::iter::repeat_n(r.trial, N_JOINTS))
         .collect();
-    let (pb, pp) = (flat(&pred_base), flat(&pred_pay));
+    let (pb, pp) = (flat(pred_base), flat(pred_pay));
     let before = trial_sse(&y, &pb, &trial_of, n_trials);
     let after = trial_sse(&y, &pp, &trial_of, n_trials);
     let d: Vec<f64> = before.iter().zip(&after).map(|(a, b)| a - b).collect();
@@ -237,8 +276,8 @@ pub(crate) fn torque_level(
     let (r2_before, rmse_before) = r2_rmse(&y, &pb);
     let (r2_after, rmse_after) = r2_rmse(&y, &pp);
 
-    let b0 = solve(&total, N_FRICTION);
-    let b1 = solve(&total, N_TORQUE);
+    let b0 = solve(total, N_FRICTION);
+    let b1 = solve(total, N_TORQUE);
     let delta_bic =
         bic(total.sse(&b1), total.n, N_TORQUE) - bic(total.sse(&b0), total.n, N_FRICTION);
     let m = b1[N_FRICTION];
@@ -264,7 +303,7 @@ pub(crate) fn torque_level(
             unit: "m".into(),
         });
     }
-    let payload = HypothesisScore {
+    HypothesisScore {
         id: super::hypotheses::PAYLOAD_ID.into(),
         title: "payload at the hand the URDF lacks (point mass)".into(),
         level: "torque".into(),
@@ -281,13 +320,17 @@ pub(crate) fn torque_level(
         rank: 0,
         step: 1,
         verdict: String::new(),
-    };
+    }
+}
 
+/// Stage: per-joint bias and RMS of τ_rec − τ_URDF, before and after the fitted friction.
+fn compare(rec: &Recording, rows: &[TorqueRow], total: &Gram) -> TorqueComparison {
+    let b0 = solve(total, N_FRICTION);
     let n = rows.len() as f64;
     let mut bias = [0.0; N_JOINTS];
     let mut ms = [0.0; N_JOINTS];
     let mut ms_f = [0.0; N_JOINTS];
-    for row in &rows {
+    for row in rows {
         let fr = predict(row, &b0);
         for j in 0..N_JOINTS {
             bias[j] += row.r[j] / n;
@@ -295,7 +338,7 @@ pub(crate) fn torque_level(
             ms_f[j] += (row.r[j] - fr[j]).powi(2) / n;
         }
     }
-    let comparison = TorqueComparison {
+    TorqueComparison {
         joints: rec.joint_names.clone(),
         n_samples: rows.len(),
         bias_urdf: bias.to_vec(),
@@ -303,9 +346,5 @@ pub(crate) fn torque_level(
         rmse_with_friction: ms_f.iter().map(|v| v.sqrt()).collect(),
         coulomb_nm: (0..N_JOINTS).map(|j| b0[2 * j]).collect(),
         viscous_nms: (0..N_JOINTS).map(|j| b0[2 * j + 1]).collect(),
-    };
-    Ok(Some(TorqueLevel {
-        comparison,
-        payload,
-    }))
+    }
 }

@@ -9,6 +9,7 @@ mod fit;
 mod pipeline;
 mod record;
 pub mod report;
+pub mod stream;
 mod summary;
 mod table;
 mod validate;
@@ -16,8 +17,9 @@ mod validate;
 pub use dataset::{Alignment, AlignmentEstimate, Mode, Target};
 pub use fit::{kappa, term_means};
 pub use pipeline::{
-    AlignmentChoice, Identification, IdentifyOptions, ModeFit, RowsFit, SessionSummary,
-    fit_given_rows, identify,
+    AlignmentChoice, Identification, IdentifyOptions, ModeFit, RowsFit, SessionBreakdown,
+    SessionSummary, fit_given_rows, identify, identify_files,
 };
+pub use stream::{SessionFile, StreamOptions};
 pub use table::TrialPrediction;
-pub use validate::{Validation, validate};
+pub use validate::{Validation, validate, validate_file};

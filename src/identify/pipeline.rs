@@ -7,7 +7,9 @@
 //! and sample pairings are also fitted on the same retained trials, with κ(ΦᵀΦ) and R² of each,
 //! reproducing the paper's case for aggregation.
 
-use std::path::PathBuf;
+use std::borrow::Cow;
+use std::collections::HashSet;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 
@@ -15,6 +17,7 @@ use super::dataset::{
     self, Alignment, AlignmentEstimate, Dataset, DatasetOptions, Mode, Row, Skipped,
 };
 use super::fit::{fit_rows, kappa, quality, term_means, trial_residuals};
+use super::stream::{self, RowPlan, SessionFile, SessionSets, StreamOptions};
 use super::table::{TrialPrediction, trial_metrics, trial_predictions};
 use crate::lsq::{Metrics, SolverInfo};
 use crate::power::{LossTerm, PowerModel, TermMeans};
@@ -80,6 +83,31 @@ pub struct SessionSummary {
     pub segmentation: Segmentation,
     /// Trials without rows and why.
     pub skipped: Vec<Skipped>,
+    /// Winding temperatures of the session's first joint-state sample [°C].
+    #[serde(default)]
+    pub first_temp_c: Option<[f64; N_JOINTS]>,
+    /// Problems met while reading a streamed session.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub warnings: Vec<String>,
+}
+
+/// One session's share of a (multi-session) identification.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct SessionBreakdown {
+    /// File.
+    pub source: PathBuf,
+    /// Trials the segmenter found.
+    pub trials: usize,
+    /// Trials retained for the final fit.
+    pub used: usize,
+    /// Trials a filter rejected (IMU, residual).
+    pub rejected: usize,
+    /// Trials without rows (no baseline, no reading).
+    pub without_rows: usize,
+    /// The final model on the session's retained trials, one row per power reading.
+    pub reading: Metrics,
+    /// Winding temperatures of the session's first joint-state sample [°C].
+    pub first_temp_c: Option<[f64; N_JOINTS]>,
 }
 
 /// Result of [`identify`].
@@ -122,17 +150,168 @@ pub struct Identification {
     pub solver: SolverInfo,
     /// Per-trial measured vs predicted (all trials with rows, rejected ones flagged).
     pub per_trial: Vec<TrialPrediction>,
+    /// Per input session: trials used and rejected, per-reading fit, start temperatures.
+    pub per_session: Vec<SessionBreakdown>,
 }
 
-/// A recording and its segmentation.
-pub(crate) struct Segmented<'a> {
-    pub rec: &'a Recording,
+/// Where a session's samples come from.
+pub(crate) enum Input<'a> {
+    /// A recording in memory.
+    Memory(&'a Recording),
+    /// A file read in two streamed passes ([`super::stream`]).
+    File(SessionFile, StreamOptions),
+}
+
+/// One session segmented: its trials, σ_ω of each, the joint states the sensor-timing search
+/// reads, and where its rows are built from.
+pub(crate) struct Prepared<'a> {
+    pub source: PathBuf,
     pub seg: Segmentation,
+    /// σ_ω over each trial's analysis window, in `seg.trials` order.
+    pub sigmas: Vec<f64>,
+    /// The session has joint-state samples.
+    pub has_state: bool,
+    /// Winding temperatures of the first joint-state sample.
+    pub first_temp_c: Option<[f64; N_JOINTS]>,
+    /// Problems met while reading (streamed input only; a recording carries its own).
+    pub warnings: Vec<String>,
+    /// Joint states (and the power series) of `subset_trials` at least.
+    pub subset: Cow<'a, Recording>,
+    /// The trials the timing search may use (every trial in memory; a bounded set streamed).
+    pub subset_trials: Vec<TrialWindow>,
+    pub input: Input<'a>,
+}
+
+impl<'a> Prepared<'a> {
+    /// Segment a recording in memory.
+    pub(crate) fn from_memory(rec: &'a Recording, opts: &SegmentOptions) -> Prepared<'a> {
+        let seg = trial::segment(rec, opts);
+        let sigmas = seg
+            .trials
+            .iter()
+            .map(|t| {
+                let (a, b) = t.analysis_window();
+                trial::sigma_omega(rec, a, b)
+            })
+            .collect();
+        Prepared {
+            source: rec.source.clone(),
+            subset_trials: seg.trials.clone(),
+            seg,
+            sigmas,
+            has_state: !rec.state.t.is_empty(),
+            first_temp_c: rec.state.temp.first().copied(),
+            warnings: Vec::new(),
+            subset: Cow::Borrowed(rec),
+            input: Input::Memory(rec),
+        }
+    }
+
+    /// Segment a file in one streamed pass.
+    pub(crate) fn from_file(
+        file: SessionFile,
+        opts: &SegmentOptions,
+        so: StreamOptions,
+    ) -> Result<Prepared<'static>> {
+        let p1 = stream::segmentation_pass(&file, opts, &so)
+            .with_context(|| format!("reading {}", file.path.display()))?;
+        Ok(Prepared {
+            source: p1.source,
+            seg: p1.seg,
+            sigmas: p1.sigmas,
+            has_state: true,
+            first_temp_c: p1.first_temp_c,
+            warnings: p1.warnings,
+            subset: Cow::Owned(p1.held),
+            subset_trials: p1.held_trials,
+            input: Input::File(file, so),
+        })
+    }
+
+    /// The planned rows of this session (a second streamed pass for a file).
+    pub(crate) fn rows(&self, plan: &RowPlan) -> Result<SessionSets> {
+        match &self.input {
+            Input::Memory(rec) => Ok(SessionSets::from_memory(rec, plan)),
+            Input::File(file, so) => stream::row_pass(file, &self.subset, plan, so)
+                .with_context(|| format!("reading {} (rows)", file.path.display())),
+        }
+    }
+
+    /// Sample rows of the `retained` trials thinned by `stride` (in memory: built now, exactly;
+    /// streamed: those pass 2 kept, thinned by the stride planned from the IMU-kept trials).
+    fn sample_rows(
+        &self,
+        sets: &SessionSets,
+        retained: &[TrialWindow],
+        stride: usize,
+        dopts: &DatasetOptions,
+    ) -> Vec<Row> {
+        match &self.input {
+            Input::Memory(rec) => {
+                let mut rows = Vec::new();
+                for trial in retained {
+                    let set = dataset::build(rec, std::slice::from_ref(trial), dopts);
+                    rows.extend(set.rows.into_iter().step_by(stride));
+                }
+                rows
+            }
+            Input::File(..) => {
+                let keep: HashSet<usize> = retained.iter().map(|t| t.index).collect();
+                sets.sample_thin
+                    .iter()
+                    .filter(|r| keep.contains(&r.trial))
+                    .cloned()
+                    .collect()
+            }
+        }
+    }
+
+    /// After the timing search: a streamed session keeps only the power series and the clock of
+    /// its held joint states.
+    pub(crate) fn release_subset(&mut self) {
+        if let Cow::Owned(held) = &mut self.subset {
+            held.state = Default::default();
+        }
+    }
+
+    pub(crate) fn no_usable_trials(&self, skipped: &[Skipped]) -> anyhow::Error {
+        no_usable_trials(&self.source, self.has_state, &self.seg, skipped)
+    }
+}
+
+/// The part of `d` that belongs to `trials` (same as building `d` on those trials only: every
+/// trial's rows depend on that trial alone).
+pub(crate) fn restrict(d: &Dataset, trials: &[TrialWindow]) -> Dataset {
+    let keep: HashSet<usize> = trials.iter().map(|t| t.index).collect();
+    Dataset {
+        mode: d.mode,
+        target: d.target,
+        alignment: d.alignment,
+        rows: d
+            .rows
+            .iter()
+            .filter(|r| keep.contains(&r.trial))
+            .cloned()
+            .collect(),
+        trials: d
+            .trials
+            .iter()
+            .filter(|b| keep.contains(&b.trial))
+            .cloned()
+            .collect(),
+        skipped: d
+            .skipped
+            .iter()
+            .filter(|s| keep.contains(&s.trial))
+            .cloned()
+            .collect(),
+    }
 }
 
 /// Explain why a session gave no rows.
 pub(crate) fn no_usable_trials(
-    rec: &Recording,
+    source: &Path,
+    has_state: bool,
     seg: &Segmentation,
     skipped: &[Skipped],
 ) -> anyhow::Error {
@@ -159,49 +338,41 @@ pub(crate) fn no_usable_trials(
             .take(5)
             .map(|s| format!("trial {}: {}", s.trial, s.reason)),
     );
-    if rec.state.t.is_empty() {
+    if !has_state {
         why.push("no joint-state samples".into());
     }
     anyhow::anyhow!(
         "no usable trials in {}: {}",
-        rec.source.display(),
+        source.display(),
         why.join("; ")
     )
 }
 
-/// Stage 1: segment every session; a session without a single trial is an error.
-fn segment_sessions<'a>(
-    recs: &'a [Recording],
-    opts: &IdentifyOptions,
-) -> Result<Vec<Segmented<'a>>> {
-    recs.iter()
-        .map(|rec| {
-            let seg = trial::segment(rec, &opts.segment);
-            if seg.trials.is_empty() {
-                Err(no_usable_trials(rec, &seg, &[]))
-            } else {
-                Ok(Segmented { rec, seg })
-            }
-        })
-        .collect()
+/// Stage 1 check: a session without a single trial is an error.
+fn check_segmented(sessions: &[Prepared]) -> Result<()> {
+    match sessions.iter().find(|p| p.seg.trials.is_empty()) {
+        Some(p) => Err(p.no_usable_trials(&[])),
+        None => Ok(()),
+    }
 }
 
 /// σ_ω of every trial of every session, the IMU filter's statistic.
-fn imu_statistics(sessions: &[Segmented]) -> Vec<TrialStat> {
+fn imu_statistics(sessions: &[Prepared]) -> Vec<TrialStat> {
     sessions
         .iter()
         .enumerate()
         .flat_map(|(s, p)| {
-            p.seg.trials.iter().map(move |t| {
-                let (a, b) = t.analysis_window();
-                TrialStat::new(s, t.index, trial::sigma_omega(p.rec, a, b))
-            })
+            p.seg
+                .trials
+                .iter()
+                .zip(&p.sigmas)
+                .map(move |(t, &sigma)| TrialStat::new(s, t.index, sigma))
         })
         .collect()
 }
 
 /// Each session's trials that no rejection names.
-fn trials_kept(sessions: &[Segmented], rejections: &[Rejection]) -> Vec<Vec<TrialWindow>> {
+fn trials_kept(sessions: &[Prepared], rejections: &[Rejection]) -> Vec<Vec<TrialWindow>> {
     sessions
         .iter()
         .enumerate()
@@ -217,25 +388,36 @@ fn trials_kept(sessions: &[Segmented], rejections: &[Rejection]) -> Vec<Vec<Tria
 }
 
 /// Stage 3: the power sensor's window and lag, given or estimated from (at most ~300 of) the
-/// kept trials.
+/// kept trials whose samples the sessions hold for it (every trial in memory).
 pub(crate) fn resolve_alignment(
-    sessions: &[Segmented],
+    sessions: &[Prepared],
     kept: &[Vec<TrialWindow>],
     opts: &IdentifyOptions,
 ) -> Result<(Alignment, Option<AlignmentEstimate>)> {
     match opts.alignment {
         AlignmentChoice::Given(a) => Ok((a, None)),
         AlignmentChoice::Auto => {
-            let total: usize = kept.iter().map(Vec::len).sum();
+            let usable: Vec<Vec<TrialWindow>> = sessions
+                .iter()
+                .zip(kept)
+                .map(|(p, k)| {
+                    let held: HashSet<usize> = p.subset_trials.iter().map(|t| t.index).collect();
+                    k.iter()
+                        .filter(|t| held.contains(&t.index))
+                        .cloned()
+                        .collect()
+                })
+                .collect();
+            let total: usize = usable.iter().map(Vec::len).sum();
             let stride = total.div_ceil(300).max(1);
-            let thinned: Vec<Vec<TrialWindow>> = kept
+            let thinned: Vec<Vec<TrialWindow>> = usable
                 .iter()
                 .map(|t| t.iter().step_by(stride).cloned().collect())
                 .collect();
             let pairs: Vec<(&Recording, &[TrialWindow])> = sessions
                 .iter()
                 .zip(&thinned)
-                .map(|(p, t)| (p.rec, t.as_slice()))
+                .map(|(p, t)| (p.subset.as_ref(), t.as_slice()))
                 .collect();
             let est = dataset::estimate_alignment(&pairs, opts.target)?;
             Ok((est.best, Some(est)))
@@ -243,25 +425,76 @@ pub(crate) fn resolve_alignment(
     }
 }
 
-/// Stage 4: the rows of the options' pairing, one data set per session.
-fn build_sets(
-    sessions: &[Segmented],
+/// The sample-row stride of the pairing comparison: at most `SAMPLE_ROWS_MAX` rows over the
+/// given trials' trajectory windows (at 100 Hz).
+fn sample_stride(trials: &[Vec<TrialWindow>]) -> usize {
+    // Sample rows of a paper-scale session would take ~0.5 GB (1e6 × 49 f64): the comparison
+    // thins them trial by trial, which keeps the zero-order-hold structure that makes them
+    // degenerate.
+    const SAMPLE_ROWS_MAX: f64 = 100_000.0;
+    let traj_seconds: f64 = trials
+        .iter()
+        .flatten()
+        .map(|t| t.t_post_end - t.t_traj_start)
+        .sum();
+    ((traj_seconds * 100.0 / SAMPLE_ROWS_MAX).ceil() as usize).max(1)
+}
+
+/// Stage 4a: every session's rows (reading and trial rows of every trial; sample rows of the
+/// kept trials, thinned, and all of them when the fit is per sample).
+fn session_rows(
+    sessions: &[Prepared],
     kept: &[Vec<TrialWindow>],
     opts: &IdentifyOptions,
     alignment: Alignment,
-) -> Result<Vec<Dataset>> {
-    let dopts = DatasetOptions {
-        mode: opts.mode,
-        target: opts.target,
-        alignment,
-    };
+) -> Result<Vec<SessionSets>> {
+    let stride = sample_stride(kept);
     sessions
         .iter()
         .zip(kept)
-        .map(|(p, trials)| {
-            let d = dataset::build(p.rec, trials, &dopts);
+        .map(|(p, k)| {
+            let kept_idx: Vec<usize> = k.iter().map(|t| t.index).collect();
+            let plan = RowPlan {
+                target: opts.target,
+                alignment,
+                trials: &p.seg.trials,
+                sample_trials: if matches!(p.input, Input::File(..)) {
+                    &kept_idx
+                } else {
+                    &[]
+                },
+                sample_stride: stride,
+                full_sample_trials: if opts.mode == Mode::Sample {
+                    &kept_idx
+                } else {
+                    &[]
+                },
+            };
+            p.rows(&plan)
+        })
+        .collect()
+}
+
+/// Stage 4b: the rows of the options' pairing on the kept trials, one data set per session.
+fn build_sets(
+    sessions: &[Prepared],
+    rows: &[SessionSets],
+    kept: &[Vec<TrialWindow>],
+    opts: &IdentifyOptions,
+) -> Result<Vec<Dataset>> {
+    sessions
+        .iter()
+        .zip(rows)
+        .zip(kept)
+        .map(|((p, r), trials)| {
+            let all = match opts.mode {
+                Mode::Reading => &r.reading,
+                Mode::Trial => &r.trial,
+                Mode::Sample => &r.sample_full,
+            };
+            let d = restrict(all, trials);
             if d.rows.is_empty() && !trials.is_empty() {
-                Err(no_usable_trials(p.rec, &p.seg, &d.skipped))
+                Err(p.no_usable_trials(&d.skipped))
             } else {
                 Ok(d)
             }
@@ -338,37 +571,29 @@ fn fit_with_rejection(
 /// Stage 6: the trial, reading and sample pairings on the same retained trials, each with its
 /// own constrained fit (the options' pairing reuses the final fit). Also returns the trial rows.
 fn compare_pairings(
-    sessions: &[Segmented],
+    sessions: &[Prepared],
+    rows: &[SessionSets],
     retained: &[Vec<TrialWindow>],
     opts: &IdentifyOptions,
     alignment: Alignment,
     final_fit: &FinalFit,
 ) -> Result<(Vec<ModeFit>, Vec<Row>)> {
-    // Sample rows of a paper-scale session would take ~0.5 GB (1e6 × 49 f64): the comparison
-    // thins them trial by trial to at most SAMPLE_ROWS_MAX, which keeps the zero-order-hold
-    // structure that makes them degenerate.
-    const SAMPLE_ROWS_MAX: f64 = 100_000.0;
-    let traj_seconds: f64 = retained
-        .iter()
-        .flatten()
-        .map(|t| t.t_post_end - t.t_traj_start)
-        .sum();
-    let stride = ((traj_seconds * 100.0 / SAMPLE_ROWS_MAX).ceil() as usize).max(1);
+    let stride = sample_stride(retained);
     let mode_rows = |mode: Mode| -> Vec<Row> {
         let dopts = DatasetOptions {
             mode,
             target: opts.target,
             alignment,
         };
-        let step = if mode == Mode::Sample { stride } else { 1 };
-        let mut rows = Vec::new();
-        for (p, ts) in sessions.iter().zip(retained) {
-            for trial in ts {
-                let set = dataset::build(p.rec, std::slice::from_ref(trial), &dopts);
-                rows.extend(set.rows.into_iter().step_by(step));
+        let mut out = Vec::new();
+        for ((p, r), ts) in sessions.iter().zip(rows).zip(retained) {
+            match mode {
+                Mode::Trial => out.extend(restrict(&r.trial, ts).rows),
+                Mode::Reading => out.extend(restrict(&r.reading, ts).rows),
+                Mode::Sample => out.extend(p.sample_rows(r, ts, stride, &dopts)),
             }
         }
-        rows
+        out
     };
     let mut modes = Vec::new();
     let mut trial_rows = Vec::new();
@@ -394,30 +619,18 @@ fn compare_pairings(
 
 /// Stage 7: per-trial measured vs predicted over every trial with rows, rejected ones flagged.
 fn per_trial_table(
-    sessions: &[Segmented],
-    opts: &IdentifyOptions,
-    alignment: Alignment,
+    sessions: &[Prepared],
+    rows: &[SessionSets],
     theta: &[f64; N_PARAMS],
     rejections: &[Rejection],
 ) -> Vec<TrialPrediction> {
     let mut per_trial = Vec::new();
-    for (s, p) in sessions.iter().enumerate() {
-        let set = |mode| {
-            dataset::build(
-                p.rec,
-                &p.seg.trials,
-                &DatasetOptions {
-                    mode,
-                    target: opts.target,
-                    alignment,
-                },
-            )
-        };
+    for (s, (p, r)) in sessions.iter().zip(rows).enumerate() {
         per_trial.extend(trial_predictions(
             s,
             &p.seg,
-            &set(Mode::Reading),
-            &set(Mode::Trial),
+            &r.reading,
+            &r.trial,
             theta,
             |t| trial::is_rejected(rejections, s, t),
         ));
@@ -425,21 +638,53 @@ fn per_trial_table(
     per_trial
 }
 
-/// Identify the power model from one or more recordings.
+/// Identify the power model from one or more recordings in memory.
 pub fn identify(recs: &[Recording], opts: &IdentifyOptions) -> Result<Identification> {
     if recs.is_empty() {
         bail!("identify needs at least one recording");
     }
-    let sessions = segment_sessions(recs, opts)?;
+    let sessions = recs
+        .iter()
+        .map(|r| Prepared::from_memory(r, &opts.segment))
+        .collect();
+    identify_prepared(sessions, opts)
+}
+
+/// Identify the power model from one or more session files, reading each in two streamed passes
+/// (memory bounded whatever the sessions' length; see [`super::stream`]). The trials and θ equal
+/// those of [`identify`] on the loaded recordings when every session has a command stream and at
+/// most `stream.hold_trials` trials (beyond that the sensor timing is searched on a subset).
+pub fn identify_files(
+    files: &[SessionFile],
+    opts: &IdentifyOptions,
+    stream: &StreamOptions,
+) -> Result<Identification> {
+    if files.is_empty() {
+        bail!("identify needs at least one recording");
+    }
+    let sessions = files
+        .iter()
+        .map(|f| Prepared::from_file(f.clone(), &opts.segment, *stream))
+        .collect::<Result<Vec<_>>>()?;
+    identify_prepared(sessions, opts)
+}
+
+fn identify_prepared(sessions: Vec<Prepared>, opts: &IdentifyOptions) -> Result<Identification> {
+    check_segmented(&sessions)?;
     let mut rejections = opts.filters.imu(&imu_statistics(&sessions));
     let kept = trials_kept(&sessions, &rejections);
     let (alignment, alignment_estimate) = resolve_alignment(&sessions, &kept, opts)?;
-    let sets = build_sets(&sessions, &kept, opts, alignment)?;
+    let mut sessions = sessions;
+    sessions.iter_mut().for_each(Prepared::release_subset);
+    let rows = session_rows(&sessions, &kept, opts, alignment)?;
+    let sets = build_sets(&sessions, &rows, &kept, opts)?;
     let final_fit = fit_with_rejection(&sets, &mut rejections, opts)?;
     let retained = trials_kept(&sessions, &rejections);
-    let (modes, trial_rows) = compare_pairings(&sessions, &retained, opts, alignment, &final_fit)?;
-    let per_trial = per_trial_table(&sessions, opts, alignment, &final_fit.theta, &rejections);
+    let (modes, trial_rows) =
+        compare_pairings(&sessions, &rows, &retained, opts, alignment, &final_fit)?;
+    let per_trial = per_trial_table(&sessions, &rows, &final_fit.theta, &rejections);
 
+    let per_session = session_breakdown(&sessions, &rows, &retained, &rejections, &final_fit.theta);
     let model = PowerModel::from_vector(&final_fit.theta);
     let terms = term_means(&model, &trial_rows);
     let retained_table: Vec<&TrialPrediction> = per_trial.iter().filter(|p| !p.rejected).collect();
@@ -447,9 +692,11 @@ pub fn identify(recs: &[Recording], opts: &IdentifyOptions) -> Result<Identifica
         .into_iter()
         .zip(sets)
         .map(|(p, d)| SessionSummary {
-            source: p.rec.source.clone(),
+            source: p.source,
             segmentation: p.seg,
             skipped: d.skipped,
+            first_temp_c: p.first_temp_c,
+            warnings: p.warnings,
         })
         .collect();
     Ok(Identification {
@@ -470,7 +717,42 @@ pub fn identify(recs: &[Recording], opts: &IdentifyOptions) -> Result<Identifica
         solver: final_fit.fit.solver.clone(),
         rejections,
         per_trial,
+        per_session,
     })
+}
+
+/// Stage 8: each session's trials used and rejected and the final model's per-reading fit there.
+fn session_breakdown(
+    sessions: &[Prepared],
+    rows: &[SessionSets],
+    retained: &[Vec<TrialWindow>],
+    rejections: &[Rejection],
+    theta: &[f64; N_PARAMS],
+) -> Vec<SessionBreakdown> {
+    sessions
+        .iter()
+        .zip(rows)
+        .zip(retained)
+        .enumerate()
+        .map(|(s, ((p, r), kept))| {
+            let rejected = p
+                .seg
+                .trials
+                .iter()
+                .filter(|t| trial::is_rejected(rejections, s, t.index))
+                .count();
+            let used = restrict(&r.reading, kept);
+            SessionBreakdown {
+                source: p.source.clone(),
+                trials: p.seg.trials.len(),
+                used: used.trials.len(),
+                rejected,
+                without_rows: used.skipped.len(),
+                reading: quality(theta, &used.rows),
+                first_temp_c: p.first_temp_c,
+            }
+        })
+        .collect()
 }
 
 /// A fit of rows that were built elsewhere (e.g. read back from a row table): the paper's

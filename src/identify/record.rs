@@ -206,7 +206,9 @@ impl Identification {
                 })
                 .collect(),
             truth,
-            notes: Vec::new(),
+            notes: super::summary::per_session_markdown(self)
+                .into_iter()
+                .collect(),
         }
     }
 }

@@ -42,6 +42,71 @@ fn segmentation_lines(out: &mut Vec<String>, s: &SessionSummary) {
     );
 }
 
+/// "31.2–35.0 °C" (range over the joints) or "–".
+fn temp_range(t: &Option<[f64; crate::N_JOINTS]>) -> String {
+    match t {
+        Some(t) => {
+            let lo = t.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = t.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+            format!("{lo:.1}–{hi:.1} °C")
+        }
+        None => "–".into(),
+    }
+}
+
+/// One line per session of a multi-session identification.
+fn per_session_lines(out: &mut Vec<String>, id: &Identification) {
+    if id.per_session.len() < 2 {
+        return;
+    }
+    out.push("per session:".into());
+    for b in &id.per_session {
+        out.push(format!(
+            "  {}: {} trials, {} used, {} rejected, {} without rows; per reading n {}, RMSE {:.3} W, R² {:.4}; start winding {}",
+            b.source.display(),
+            b.trials,
+            b.used,
+            b.rejected,
+            b.without_rows,
+            b.reading.n,
+            b.reading.rmse,
+            b.reading.r2,
+            temp_range(&b.first_temp_c)
+        ));
+    }
+}
+
+/// The per-session breakdown as a markdown table (for the report), empty for one session.
+pub(crate) fn per_session_markdown(id: &Identification) -> Option<String> {
+    if id.per_session.len() < 2 {
+        return None;
+    }
+    let mut md = String::from(
+        "## Per session\n\n| session | trials | used | rejected | without rows | readings | RMSE [W] | R² | start winding T per joint [°C] |\n|---|---|---|---|---|---|---|---|---|\n",
+    );
+    for b in &id.per_session {
+        let temps = b.first_temp_c.map_or("–".into(), |t| {
+            t.iter()
+                .map(|v| format!("{v:.1}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        });
+        md.push_str(&format!(
+            "| {} | {} | {} | {} | {} | {} | {:.3} | {:.4} | {} |\n",
+            b.source.display(),
+            b.trials,
+            b.used,
+            b.rejected,
+            b.without_rows,
+            b.reading.n,
+            b.reading.rmse,
+            b.reading.r2,
+            temps
+        ));
+    }
+    Some(md)
+}
+
 impl Identification {
     /// Plain-text summary for the terminal: sessions and segmentation, rejected trials, sensor
     /// timing, fit quality, the row-pairing comparison, dominant terms and term shares.
@@ -51,6 +116,7 @@ impl Identification {
             segmentation_lines(&mut out, s);
         }
         out.extend(self.rejections.iter().map(|r| format!("rejected {r}")));
+        per_session_lines(&mut out, self);
         out.push(format!(
             "power readings = averages over [t − {:.3} s − {:.3} s, t − {:.3} s]{}",
             self.alignment.lag_s,

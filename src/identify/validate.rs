@@ -4,11 +4,10 @@
 
 use anyhow::Result;
 
-use super::dataset::{self, Alignment, DatasetOptions, Mode};
+use super::dataset::Alignment;
 use super::fit::{quality, term_means};
-use super::pipeline::{
-    IdentifyOptions, Segmented, SessionSummary, no_usable_trials, resolve_alignment,
-};
+use super::pipeline::{IdentifyOptions, Prepared, SessionSummary, resolve_alignment};
+use super::stream::{RowPlan, SessionFile, StreamOptions};
 use super::table::{TrialPrediction, trial_metrics, trial_predictions};
 use crate::lsq::Metrics;
 use crate::power::{PowerModel, TermMeans};
@@ -47,22 +46,41 @@ pub struct Validation {
     pub notes: Vec<String>,
 }
 
-/// Apply `model` to a hold-out session. No filter removes trials (the paper's hold-out set is
-/// unfiltered); the filters are evaluated and reported separately.
+/// Apply `model` to a hold-out session in memory. No filter removes trials (the paper's hold-out
+/// set is unfiltered); the filters are evaluated and reported separately.
 pub fn validate(model: &PowerModel, rec: &Recording, opts: &IdentifyOptions) -> Result<Validation> {
-    let seg = trial::segment(rec, &opts.segment);
-    if seg.trials.is_empty() {
-        return Err(no_usable_trials(rec, &seg, &[]));
+    validate_prepared(model, Prepared::from_memory(rec, &opts.segment), opts)
+}
+
+/// [`validate`] on a session file read in two streamed passes (memory bounded whatever the
+/// session's length; see [`super::stream`]).
+pub fn validate_file(
+    model: &PowerModel,
+    file: &SessionFile,
+    opts: &IdentifyOptions,
+    stream: &StreamOptions,
+) -> Result<Validation> {
+    validate_prepared(
+        model,
+        Prepared::from_file(file.clone(), &opts.segment, *stream)?,
+        opts,
+    )
+}
+
+fn validate_prepared(
+    model: &PowerModel,
+    prepared: Prepared,
+    opts: &IdentifyOptions,
+) -> Result<Validation> {
+    if prepared.seg.trials.is_empty() {
+        return Err(prepared.no_usable_trials(&[]));
     }
-    let prepared = [Segmented { rec, seg }];
+    let prepared = [prepared];
     let mut notes = Vec::new();
     // A model is being applied, not fitted: a session too short to estimate the sensor timing
     // from still validates, at the sensor's nominal timing (said in the notes).
-    let alignment = match resolve_alignment(
-        &prepared,
-        std::slice::from_ref(&prepared[0].seg.trials),
-        opts,
-    ) {
+    let all = std::slice::from_ref(&prepared[0].seg.trials);
+    let alignment = match resolve_alignment(&prepared, all, opts) {
         Ok((a, _)) => a,
         Err(e) => {
             notes.push(format!(
@@ -73,30 +91,23 @@ pub fn validate(model: &PowerModel, rec: &Recording, opts: &IdentifyOptions) -> 
             Alignment::NOMINAL
         }
     };
-    let [Segmented { seg, .. }] = prepared;
+    let [mut p] = prepared;
+    p.release_subset();
+    let sets = p.rows(&RowPlan {
+        target: opts.target,
+        alignment,
+        trials: &p.seg.trials,
+        sample_trials: &[],
+        sample_stride: 1,
+        full_sample_trials: &[],
+    })?;
     let theta = model.to_vector();
-    let trial_set = dataset::build(
-        rec,
-        &seg.trials,
-        &DatasetOptions {
-            mode: Mode::Trial,
-            target: opts.target,
-            alignment,
-        },
-    );
+    let (trial_set, reading_set) = (&sets.trial, &sets.reading);
     if trial_set.rows.is_empty() {
-        return Err(no_usable_trials(rec, &seg, &trial_set.skipped));
+        return Err(p.no_usable_trials(&trial_set.skipped));
     }
-    let reading_set = dataset::build(
-        rec,
-        &seg.trials,
-        &DatasetOptions {
-            mode: Mode::Reading,
-            target: opts.target,
-            alignment,
-        },
-    );
-    let mut per_trial = trial_predictions(0, &seg, &reading_set, &trial_set, &theta, |_| false);
+    let seg = &p.seg;
+    let mut per_trial = trial_predictions(0, seg, reading_set, trial_set, &theta, |_| false);
     let sigmas: Vec<TrialStat> = trial_set
         .trials
         .iter()
@@ -115,6 +126,7 @@ pub fn validate(model: &PowerModel, rec: &Recording, opts: &IdentifyOptions) -> 
                 .any(|r| r.trial == p.trial && r.reason == RejectReason::ImuSway)
         })
         .collect();
+    let terms = term_means(model, &trial_set.rows);
     Ok(Validation {
         notes,
         trial_level: trial_metrics(&all, |p| p.predicted_window_w),
@@ -125,15 +137,17 @@ pub fn validate(model: &PowerModel, rec: &Recording, opts: &IdentifyOptions) -> 
             .map(|_| trial_metrics(&imu_calm, |p| p.predicted_w)),
         rejections,
         reading_level: quality(&theta, &reading_set.rows),
-        terms: term_means(model, &trial_set.rows),
-        shares_percent: term_means(model, &trial_set.rows).shares_percent(),
-        per_trial,
+        terms,
+        shares_percent: terms.shares_percent(),
         alignment,
         session: SessionSummary {
-            source: rec.source.clone(),
-            segmentation: seg,
-            skipped: trial_set.skipped,
+            skipped: sets.trial.skipped.clone(),
+            source: p.source,
+            segmentation: p.seg,
+            first_temp_c: p.first_temp_c,
+            warnings: p.warnings,
         },
+        per_trial,
     })
 }
 

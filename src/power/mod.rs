@@ -11,6 +11,7 @@ mod model_file;
 pub use model_file::{
     DatasetMetrics, DominantTerm, FilterRecord, ModelFile, ModelFileError, ModelMetrics,
     ModelProblem, Provenance, SCHEMA_VERSION, SessionRef, SolverRecord, TrialCounts,
+    load_model_for,
 };
 
 /// Number of pairwise interaction terms.

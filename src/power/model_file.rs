@@ -47,6 +47,7 @@ use serde::{Deserialize, Serialize};
 
 use super::{LossTerm, N_PAIRS, PAIRS, PowerModel};
 use crate::lsq::{Method, Metrics, Status};
+use crate::signals::Target;
 use crate::trial::Rejection;
 use crate::util::nan_as_null;
 use crate::{N_JOINTS, N_PARAMS};
@@ -217,6 +218,14 @@ pub enum ModelFileError {
         path: PathBuf,
         /// What went wrong.
         reason: String,
+    },
+    /// A valid model file that does not fit the session it is used on (joints, sensor).
+    #[error("model file {} does not fit this session: {problem}", .path.display())]
+    Mismatch {
+        /// The file.
+        path: PathBuf,
+        /// What does not match.
+        problem: ModelProblem,
     },
     /// The file was read but is not a usable model file.
     #[error("invalid model file {}: {problem}", .path.display())]
@@ -438,6 +447,7 @@ impl ModelFile {
                 ),
             ));
         }
+        check_magnitudes(&self.theta)?;
         if self.joint_names.len() != N_JOINTS {
             return Err(field(
                 "joint_names",
@@ -512,6 +522,27 @@ impl ModelFile {
         Ok(())
     }
 
+    /// Check the model fits a session before it is used on it: the same 7 joints in the same
+    /// order (URDF names, so the arm's side too) and, when the file records it, the same power
+    /// sensor as `target`. Errors name the field and its value.
+    pub fn check_use(&self, joints: &[String], target: Target) -> Result<(), ModelProblem> {
+        check_joints(&self.joint_names, joints)?;
+        let wanted = target_name(target);
+        let recorded = self.provenance.target.as_str();
+        if !recorded.is_empty() && recorded != wanted {
+            return Err(field(
+                "provenance.target",
+                recorded,
+                format!(
+                    "field `provenance.target` is {recorded:?}: the model was identified on the \
+                     {recorded} sensor but is used on the {wanted} sensor here (--target \
+                     {wanted}); pass --target {recorded} or use a model of the {wanted} sensor"
+                ),
+            ));
+        }
+        Ok(())
+    }
+
     /// Pretty-printed JSON (deterministic: maps are sorted, floats printed shortest-exact).
     pub fn to_json(&self) -> Result<String> {
         let mut s = serde_json::to_string_pretty(self).context("serialising model file")?;
@@ -526,4 +557,113 @@ impl ModelFile {
         crate::util::write_atomic(path, self.to_json()?.as_bytes())
             .with_context(|| format!("writing model file {}", path.display()))
     }
+}
+
+/// Largest inverse gear efficiency a model may have (a_i = 100: 1 % efficiency).
+pub const MAX_A: f64 = 100.0;
+/// Largest magnitude of a loss coefficient b, c, d, e (in their units; identified values are
+/// of order 1).
+pub const MAX_LOSS_COEFFICIENT: f64 = 1e4;
+
+/// Refuse a negative or absurd inverse gear efficiency and absurd loss coefficients (θ is finite
+/// here).
+fn check_magnitudes(theta: &[f64]) -> Result<(), ModelProblem> {
+    for (p, &v) in theta.iter().enumerate() {
+        let name = PowerModel::param_name(p);
+        let problem = if p < N_JOINTS {
+            if v < 0.0 {
+                Some(format!(
+                    "is negative: {name} is an inverse gear efficiency (1 = lossless gear)"
+                ))
+            } else if v > MAX_A {
+                Some(format!(
+                    "is beyond {MAX_A}: {name} is an inverse gear efficiency (1 = lossless gear)"
+                ))
+            } else {
+                None
+            }
+        } else if v.abs() > MAX_LOSS_COEFFICIENT {
+            Some(format!(
+                "is beyond ±{MAX_LOSS_COEFFICIENT:e}: an absurd loss coefficient (identified \
+                 values are of order 1)"
+            ))
+        } else {
+            None
+        };
+        if let Some(why) = problem {
+            return Err(field(
+                format!("theta[{p}]"),
+                v,
+                format!("field `theta[{p}]` ({name}) = {v} {why}"),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The sensor name a model file records for `target`.
+fn target_name(target: Target) -> &'static str {
+    match target {
+        Target::Mbs => "mbs",
+        Target::Bms => "bms",
+    }
+}
+
+/// The arm side a URDF joint name belongs to (`left_…` / `right_…`).
+fn side(name: &str) -> Option<&'static str> {
+    ["left", "right"]
+        .into_iter()
+        .find(|s| name.strip_prefix(s).is_some_and(|r| r.starts_with('_')))
+}
+
+/// The model's joints must be the session's, in the same order.
+fn check_joints(model: &[String], session: &[String]) -> Result<(), ModelProblem> {
+    let Some(k) = (0..model.len().max(session.len())).find(|&k| model.get(k) != session.get(k))
+    else {
+        return Ok(());
+    };
+    let (m, s) = (model.get(k), session.get(k));
+    let shown = |v: Option<&String>| v.map_or("nothing".to_string(), |v| format!("{v:?}"));
+    let why = match (m.and_then(|m| side(m)), s.and_then(|s| side(s))) {
+        (Some(a), Some(b)) if a != b => {
+            format!("the model was identified on the {a} arm, the session is the {b} arm's")
+        }
+        _ if model.len() == session.len() && session.iter().all(|j| model.contains(j)) => {
+            format!(
+                "the same joints in another order (model: {}; session: {})",
+                model.join(", "),
+                session.join(", ")
+            )
+        }
+        _ => "the model was identified on other joints".to_string(),
+    };
+    Err(field(
+        format!("joint_names[{k}]"),
+        shown(m),
+        format!(
+            "field `joint_names[{k}]` is {}, but the session's joint {k} is {}: {why}",
+            shown(m),
+            shown(s)
+        ),
+    ))
+}
+
+/// Load a model file for use on a session with these joints (URDF names, model order) and
+/// this power sensor: [`ModelFile::load`] plus [`ModelFile::check_use`]. `paper` (when no such
+/// file exists) is the paper's tabulated model, which has no joint names to check.
+pub fn load_model_for(
+    path: &Path,
+    joints: &[String],
+    target: Target,
+) -> Result<PowerModel, ModelFileError> {
+    if path.as_os_str() == "paper" && !path.exists() {
+        return Ok(PowerModel::PAPER);
+    }
+    let file = ModelFile::load(path)?;
+    file.check_use(joints, target)
+        .map_err(|problem| ModelFileError::Mismatch {
+            path: path.to_path_buf(),
+            problem,
+        })?;
+    Ok(file.model())
 }

@@ -36,7 +36,7 @@ enum Inner {
         /// Payloads are individually zstd-compressed (`compression_mode: MESSAGE`).
         message_zstd: bool,
         /// Decompressed copies of `compression_mode: FILE` files; removed on drop.
-        _scratch: Option<tempfile::TempDir>,
+        _scratch: Option<Scratch>,
     },
 }
 
@@ -50,7 +50,7 @@ struct SqliteBag {
     /// Payloads are individually zstd-compressed (`compression_mode: MESSAGE`).
     message_compression: bool,
     /// Decompressed copies of `compression_mode: FILE` databases; removed on drop.
-    _scratch: Option<tempfile::TempDir>,
+    _scratch: Option<Scratch>,
     /// Damage found when opening (truncated databases), repeated in info and every read.
     notes: Vec<String>,
 }
@@ -195,6 +195,13 @@ impl Ros2BagSource {
 }
 
 impl MessageSource for Ros2BagSource {
+    fn info_is_cheap(&self) -> bool {
+        match &self.inner {
+            Inner::Sqlite(_) => true,
+            Inner::Mcap { files, .. } => files.iter().all(McapSource::has_index),
+        }
+    }
+
     fn format(&self) -> &'static str {
         match &self.inner {
             Inner::Sqlite(_) => "ros2-sqlite3",
@@ -233,27 +240,28 @@ impl MessageSource for Ros2BagSource {
                 };
                 let mut scratch = Vec::new();
                 let compressed = *message_zstd;
-                let mut inflate = |m: MessageRef<'_>| {
-                    if !compressed {
-                        return visit(m);
-                    }
-                    decompress_message(m.data, &mut scratch).map_err(|e| {
-                        ReadError::Other(format!(
-                            "topic {}: message at log time {} ns ({}): {e}",
-                            m.channel.topic,
-                            m.log_time_ns,
-                            m.location()
-                        ))
-                    })?;
-                    visit(MessageRef {
-                        data: &scratch,
-                        ..m
-                    })
-                };
                 for f in files.iter_mut() {
+                    let name = f.name().to_path_buf();
+                    let mut skipped = Skipped::default();
+                    let mut inflate = |m: MessageRef<'_>| {
+                        if !compressed {
+                            return visit(m);
+                        }
+                        if let Err(e) = decompress_message(m.data, &mut scratch) {
+                            skipped.add(&name, || {
+                                format!("topic {}, {}: {e}", m.channel.topic, m.location())
+                            });
+                            return Ok(());
+                        }
+                        visit(MessageRef {
+                            data: &scratch,
+                            ..m
+                        })
+                    };
                     let s = f.read(topics, &mut inflate)?;
-                    total.messages += s.messages;
+                    total.messages += s.messages.saturating_sub(skipped.count());
                     total.warnings.extend(s.warnings);
+                    total.warnings.extend(skipped.warnings());
                     if !s.complete {
                         total.complete = false;
                         break;
@@ -262,6 +270,37 @@ impl MessageSource for Ros2BagSource {
                 Ok(total)
             }
         }
+    }
+}
+
+/// Messages skipped because their zstd payload does not decompress: counted per storage file,
+/// reported as one warning per file naming the first one (the read goes on past them).
+#[derive(Default)]
+struct Skipped {
+    /// (file, count, the first one: topic, row id or byte offset, error).
+    per_file: Vec<(PathBuf, u64, String)>,
+}
+
+impl Skipped {
+    fn add(&mut self, file: &Path, first: impl FnOnce() -> String) {
+        match self.per_file.iter_mut().find(|(f, _, _)| f == file) {
+            Some((_, n, _)) => *n += 1,
+            None => self.per_file.push((file.to_path_buf(), 1, first())),
+        }
+    }
+
+    fn count(&self) -> u64 {
+        self.per_file.iter().map(|(_, n, _)| n).sum()
+    }
+
+    fn warnings(self) -> impl Iterator<Item = String> {
+        self.per_file.into_iter().map(|(file, n, first)| {
+            format!(
+                "{}: {n} message{} whose zstd payload does not decompress skipped (first: {first})",
+                file.display(),
+                if n == 1 { "" } else { "s" }
+            )
+        })
     }
 }
 
@@ -418,7 +457,7 @@ impl SqliteBag {
                     w.replace(&db_path.display().to_string(), &path.display().to_string())
                 }),
             );
-            let topic_ids = read_topics(&conn, &path, &mut topics, opts)?;
+            let topic_ids = read_topics(&conn, &path, &mut topics, opts, &mut notes)?;
             db_files.push(DbFile {
                 path,
                 db_path,
@@ -571,6 +610,7 @@ impl SqliteBag {
         summary: &mut ReadSummary,
     ) -> Result<(), ReadError> {
         let mut scratch = Vec::new();
+        let mut skipped = Skipped::default();
         loop {
             let best = streams
                 .iter()
@@ -591,18 +631,16 @@ impl SqliteBag {
                 .map(|row| row.get_ref(2).and_then(|v| v.as_blob().map_err(Into::into)));
             match (channel, data) {
                 (Some(channel), Some(Ok(data))) => {
-                    let payload = if self.message_compression {
-                        decompress_message(data, &mut scratch).map_err(|e| {
-                            ReadError::Other(format!(
-                                "{}: topic {}: message row id {}: {e}",
-                                f.path.display(),
-                                channel.topic,
-                                cur.rowid
-                            ))
-                        })?;
-                        &scratch[..]
-                    } else {
+                    let payload = if !self.message_compression {
                         data
+                    } else if let Err(e) = decompress_message(data, &mut scratch) {
+                        skipped.add(&f.path, || {
+                            format!("topic {}, message row id {}: {e}", channel.topic, cur.rowid)
+                        });
+                        stream.advance(summary);
+                        continue;
+                    } else {
+                        &scratch[..]
                     };
                     let time = ts.max(0) as u64;
                     visit(MessageRef {
@@ -623,6 +661,7 @@ impl SqliteBag {
             }
             stream.advance(summary);
         }
+        summary.warnings.extend(skipped.warnings());
         Ok(())
     }
 }
@@ -759,7 +798,12 @@ fn check_layout(conn: &Connection, path: &Path) -> Result<(), ReadError> {
             .query_map([], |r| r.get::<_, String>(1))?
             .collect()
     };
-    let sql_err = |e| sql_error(path, e);
+    let sql_err = |e| {
+        ReadError::Other(format!(
+            "{}: database damaged: the layout of its tables (sqlite_master) is unreadable (sqlite: {e})",
+            path.display()
+        ))
+    };
     let topics = columns("topics").map_err(sql_err)?;
     let messages = columns("messages").map_err(sql_err)?;
     let has = |cols: &[String], names: &[&str]| names.iter().all(|n| cols.iter().any(|c| c == n));
@@ -784,39 +828,67 @@ fn check_layout(conn: &Connection, path: &Path) -> Result<(), ReadError> {
 }
 
 /// Register the topics of one storage file in `topics` (by name) and resolve their definitions.
+/// A damaged `topics` table gives the topics read before the damage (messages on the others are
+/// then skipped with a warning) plus a note, or a clear error when not one topic is readable; a
+/// damaged `message_definitions` table is a note (definitions then come from `--msg-path` or the
+/// built-in ones).
 fn read_topics(
     conn: &Connection,
     path: &Path,
     topics: &mut Vec<BagTopic>,
     opts: &OpenOptions,
+    notes: &mut Vec<String>,
 ) -> Result<HashMap<i64, usize>, ReadError> {
-    let sql_err = |e| sql_error(path, e);
     check_layout(conn, path)?;
-    let mut definitions: HashMap<String, (String, String)> = HashMap::new();
-    if has_table(conn, "message_definitions").map_err(sql_err)? {
-        let mut stmt = conn
-            .prepare(
-                "SELECT topic_type, encoding, encoded_message_definition FROM message_definitions",
-            )
-            .map_err(sql_err)?;
-        let mut rows = stmt.query([]).map_err(sql_err)?;
-        while let Some(row) = rows.next().map_err(sql_err)? {
-            let ty: String = row.get(0).map_err(sql_err)?;
-            let encoding: String = row.get(1).map_err(sql_err)?;
-            let text: String = row.get(2).map_err(sql_err)?;
-            definitions.insert(ty, (encoding, text));
-        }
-    }
+    let definitions = read_definitions(conn, path, notes);
     let mut ids = HashMap::new();
-    let mut stmt = conn
+    let damaged = |what: String, e: rusqlite::Error| {
+        format!(
+            "{}: table topics damaged {what} (sqlite: {e})",
+            path.display()
+        )
+    };
+    let rows = conn
         .prepare("SELECT id, name, type, serialization_format FROM topics ORDER BY id")
-        .map_err(sql_err)?;
-    let mut rows = stmt.query([]).map_err(sql_err)?;
-    while let Some(row) = rows.next().map_err(sql_err)? {
-        let id: i64 = row.get(0).map_err(sql_err)?;
-        let name: String = row.get(1).map_err(sql_err)?;
-        let type_name: String = row.get(2).map_err(sql_err)?;
-        let format: String = row.get(3).map_err(sql_err)?;
+        .and_then(|mut stmt| {
+            let mut rows = stmt.query([])?;
+            let mut out = Vec::new();
+            loop {
+                match rows.next() {
+                    Ok(Some(row)) => out.push(topic_row(row)),
+                    Ok(None) => return Ok((out, None)),
+                    Err(e) if out.is_empty() => return Err(e),
+                    Err(e) => return Ok((out, Some(e))),
+                }
+            }
+        });
+    let (rows, tail) = match rows {
+        Ok(r) => r,
+        Err(e) => {
+            return Err(ReadError::Other(format!(
+                "{}; no topic is readable, so no message can be assigned to one",
+                damaged("at its first row".into(), e)
+            )));
+        }
+    };
+    if let Some(e) = tail {
+        let last = rows.iter().rev().find_map(|r| r.as_ref().ok().map(|r| r.0));
+        notes.push(format!(
+            "{}; messages on topics after it are skipped",
+            damaged(format!("after topic id {}", last.unwrap_or(0)), e)
+        ));
+    }
+    for (k, row) in rows.into_iter().enumerate() {
+        let (id, name, type_name, format) = match row {
+            Ok(r) => r,
+            Err(e) => {
+                notes.push(format!(
+                    "{}; that topic's messages are skipped",
+                    damaged(format!("at its row {}", k + 1), e)
+                ));
+                continue;
+            }
+        };
         if let Some(i) = topics.iter().position(|t| t.name == name) {
             if topics[i].type_name != type_name {
                 return Err(ReadError::Other(format!(
@@ -828,30 +900,7 @@ fn read_topics(
             ids.insert(id, i);
             continue;
         }
-        let channel = if format != "cdr" {
-            Err(format!(
-                "{}: topic {name}: unsupported serialization format {format:?} (supported: cdr)",
-                path.display()
-            ))
-        } else {
-            // rosbag2 stores encoding "unknown" with an empty text when it had no definition.
-            let embedded = definitions
-                .get(&type_name)
-                .filter(|(_, text)| !text.trim().is_empty())
-                .and_then(|(encoding, text)| match encoding.as_str() {
-                    "ros2msg" => Some(MsgSchema::parse_ros2msg(&type_name, text)),
-                    "ros2idl" => Some(MsgSchema::parse_idl(&type_name, text)),
-                    _ => None,
-                });
-            super::resolve_schema(path, &name, &type_name, embedded, opts).map(|schema| {
-                Arc::new(Channel {
-                    topic: name.clone(),
-                    type_name: type_name.clone(),
-                    encoding: Encoding::Cdr,
-                    schema: Arc::new(schema),
-                })
-            })
-        };
+        let channel = topic_channel(path, (&name, &type_name, &format), &definitions, opts);
         ids.insert(id, topics.len());
         topics.push(BagTopic {
             name,
@@ -860,6 +909,77 @@ fn read_topics(
         });
     }
     Ok(ids)
+}
+
+/// One row of the `topics` table: id, name, type, serialization format.
+type TopicRow = (i64, String, String, String);
+
+fn topic_row(row: &rusqlite::Row<'_>) -> rusqlite::Result<TopicRow> {
+    Ok((row.get(0)?, row.get(1)?, row.get(2)?, row.get(3)?))
+}
+
+/// The `message_definitions` table (type → encoding, text), if the database has one; damage
+/// ends it with a note.
+fn read_definitions(
+    conn: &Connection,
+    path: &Path,
+    notes: &mut Vec<String>,
+) -> HashMap<String, (String, String)> {
+    let mut definitions = HashMap::new();
+    let read = |definitions: &mut HashMap<String, (String, String)>| -> rusqlite::Result<()> {
+        if !has_table(conn, "message_definitions")? {
+            return Ok(());
+        }
+        let mut stmt = conn.prepare(
+            "SELECT topic_type, encoding, encoded_message_definition FROM message_definitions",
+        )?;
+        let mut rows = stmt.query([])?;
+        while let Some(row) = rows.next()? {
+            definitions.insert(row.get(0)?, (row.get(1)?, row.get(2)?));
+        }
+        Ok(())
+    };
+    if let Err(e) = read(&mut definitions) {
+        notes.push(format!(
+            "{}: table message_definitions damaged after {} definitions (sqlite: {e}); the other \
+             types' definitions come from --msg-path or the built-in ones",
+            path.display(),
+            definitions.len()
+        ));
+    }
+    definitions
+}
+
+/// The channel of a new topic, or why it cannot be decoded (reported when it is read).
+fn topic_channel(
+    path: &Path,
+    (name, type_name, format): (&str, &str, &str),
+    definitions: &HashMap<String, (String, String)>,
+    opts: &OpenOptions,
+) -> Result<Arc<Channel>, String> {
+    if format != "cdr" {
+        return Err(format!(
+            "{}: topic {name}: unsupported serialization format {format:?} (supported: cdr)",
+            path.display()
+        ));
+    }
+    // rosbag2 stores encoding "unknown" with an empty text when it had no definition.
+    let embedded = definitions
+        .get(type_name)
+        .filter(|(_, text)| !text.trim().is_empty())
+        .and_then(|(encoding, text)| match encoding.as_str() {
+            "ros2msg" => Some(MsgSchema::parse_ros2msg(type_name, text)),
+            "ros2idl" => Some(MsgSchema::parse_idl(type_name, text)),
+            _ => None,
+        });
+    super::resolve_schema(path, name, type_name, embedded, opts).map(|schema| {
+        Arc::new(Channel {
+            topic: name.to_string(),
+            type_name: type_name.to_string(),
+            encoding: Encoding::Cdr,
+            schema: Arc::new(schema),
+        })
+    })
 }
 
 /// Largest inflation accepted for a `compression_mode: FILE` storage file: its decompressed
@@ -968,16 +1088,28 @@ fn open_mcap_storage(
 }
 
 /// A scratch folder for decompressed copies when the bag compresses whole files.
-fn scratch_dir(compression: Compression) -> Result<Option<tempfile::TempDir>, ReadError> {
+fn scratch_dir(compression: Compression) -> Result<Option<Scratch>, ReadError> {
     if compression != Compression::FileZstd {
         return Ok(None);
     }
-    tempfile::tempdir()
-        .map(Some)
-        .map_err(|source| ReadError::Io {
-            path: std::env::temp_dir(),
-            source,
-        })
+    let dir = tempfile::tempdir().map_err(|source| ReadError::Io {
+        path: std::env::temp_dir(),
+        source,
+    })?;
+    let guard = crate::util::temp::TempPath::register(dir.path().to_path_buf());
+    Ok(Some(Scratch { dir, _guard: guard }))
+}
+
+/// A scratch folder, also registered for removal on a termination signal.
+struct Scratch {
+    dir: tempfile::TempDir,
+    _guard: crate::util::temp::TempPath,
+}
+
+impl Scratch {
+    fn path(&self) -> &Path {
+        self.dir.path()
+    }
 }
 
 /// The fields of `metadata.yaml` the reader needs (rosbag2 metadata versions 4–9).

@@ -180,6 +180,11 @@ impl McapSource<File> {
 }
 
 impl<R: Read + Seek> McapSource<R> {
+    /// What errors and warnings call this source (the file name given when opening).
+    pub fn name(&self) -> &Path {
+        &self.path
+    }
+
     /// Read MCAP from any seekable byte source (a file, a `Cursor` over bytes); `name` is what
     /// errors and warnings call it. Same checks as [`McapSource::open`].
     pub fn from_reader(
@@ -999,6 +1004,10 @@ fn schemaless(name: &str) -> MsgSchema {
 }
 
 impl<R: Read + Seek> MessageSource for McapSource<R> {
+    fn info_is_cheap(&self) -> bool {
+        self.has_index()
+    }
+
     fn format(&self) -> &'static str {
         "mcap"
     }

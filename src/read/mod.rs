@@ -9,20 +9,28 @@
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-pub mod bag1;
-pub mod db3;
-pub mod decode;
-pub mod fingerprint;
+// The modules are the crate's own; what users and tests need is re-exported below.
+pub(crate) mod bag1;
+pub(crate) mod db3;
+pub(crate) mod decode;
+pub(crate) mod fingerprint;
 mod idl;
-pub mod mcap;
+pub(crate) mod mcap;
 mod mcap_records;
-pub mod msgdef;
-pub mod session;
+pub(crate) mod msgdef;
+pub(crate) mod session;
 mod yaml;
 
-pub use decode::{DecodeError, FieldExtractor, FieldPath, Value};
-pub use msgdef::{MsgSchema, SchemaError};
-pub use session::Session;
+pub use bag1::Ros1BagSource;
+pub use db3::Ros2BagSource;
+pub use decode::{DecodeError, FieldExtractor, FieldPath, Value, decode};
+pub use fingerprint::{fingerprint, stable_hash};
+pub use mcap::McapSource;
+pub use msgdef::{
+    ArrayKind, Field, FieldType, MAX_ARRAY_LEN, MAX_NESTING, MsgSchema, MsgType, Primitive,
+    SchemaError, builtin_definition, normalize_type_name,
+};
+pub use session::{Format, Session, detect_format};
 
 /// How message payloads are serialised.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -309,6 +317,11 @@ pub trait MessageSource {
     fn format(&self) -> &'static str;
     /// Topic statistics, from the summary/index when present, otherwise by a scan.
     fn info(&mut self) -> Result<SessionInfo, ReadError>;
+    /// Whether [`MessageSource::info`] is cheap (a summary, an index, or a scan already done
+    /// when opening) rather than a pass over the whole file.
+    fn info_is_cheap(&self) -> bool {
+        true
+    }
     /// Stream every message (optionally only those of `topics`) in log-time order to `visit`.
     /// Damage stops the read with a warning in the summary rather than an error, once at
     /// least the file header was valid. An error returned by `visit` aborts the read and is returned.

@@ -130,6 +130,11 @@ impl Session {
         self.source.info()
     }
 
+    /// Whether [`Session::info`] is cheap (summary, index, or a scan already done when opening).
+    pub fn info_is_cheap(&self) -> bool {
+        self.source.info_is_cheap()
+    }
+
     /// Stream messages (all, or those of `topics`) in log-time order to `visit`.
     pub fn read(
         &mut self,

@@ -19,6 +19,7 @@ use arrow_schema::{DataType, Field, Schema};
 use parquet::arrow::ArrowWriter;
 use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 use parquet::basic::{Compression, ZstdLevel};
+use parquet::file::metadata::KeyValue;
 use parquet::file::properties::WriterProperties;
 
 use crate::identify::dataset::Row;
@@ -47,6 +48,19 @@ pub struct TableRow {
     pub temp_c: [f64; N_JOINTS],
     /// The filter that rejected the row's trial (`imu_sigma`, `residual_3sigma`, …), if any.
     pub rejected_by: Option<String>,
+}
+
+/// Parquet key-value metadata key holding the arm's URDF joint names (a JSON array, model
+/// order), which `phi_*` and `temp_c_*` columns refer to.
+pub const JOINT_NAMES_KEY: &str = "g1viz:joint_names";
+
+/// A row table with the joint names its regressors refer to.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RowTable {
+    /// URDF joint names in model order (None: a table without the [`JOINT_NAMES_KEY`] metadata).
+    pub joint_names: Option<Vec<String>>,
+    /// The rows.
+    pub rows: Vec<TableRow>,
 }
 
 /// Name of the column holding regressor `p` (`phi_a0` … `phi_e56`).
@@ -128,12 +142,32 @@ fn batch(rows: &[TableRow], schema: Arc<Schema>) -> Result<RecordBatch> {
     RecordBatch::try_new(schema, columns).context("building the row table")
 }
 
-/// Write the rows as one zstd-compressed Parquet file (atomically).
-pub fn write_parquet(path: &Path, rows: &[TableRow]) -> Result<()> {
-    let schema = Arc::new(schema());
+/// Write the rows as one zstd-compressed Parquet file (atomically), with `joint_names` (the
+/// arm's URDF joint names in model order) under [`JOINT_NAMES_KEY`] in the file's metadata.
+pub fn write_parquet(path: &Path, rows: &[TableRow], joint_names: &[String]) -> Result<()> {
+    if joint_names.len() != N_JOINTS {
+        bail!(
+            "{}: {} joint names given, the model has {N_JOINTS} joints",
+            path.display(),
+            joint_names.len()
+        );
+    }
+    let names = serde_json::to_string(joint_names)?;
+    let schema = Arc::new(
+        schema().with_metadata(
+            [(JOINT_NAMES_KEY.to_string(), names.clone())]
+                .into_iter()
+                .collect(),
+        ),
+    );
     let batch = batch(rows, schema.clone())?;
+    // In the file's own key-value metadata too, for engines that do not decode the Arrow schema.
     let props = WriterProperties::builder()
         .set_compression(Compression::ZSTD(ZstdLevel::default()))
+        .set_key_value_metadata(Some(vec![KeyValue::new(
+            JOINT_NAMES_KEY.to_string(),
+            names,
+        )]))
         .build();
     crate::util::write_atomic_with(path, |w| {
         let mut writer = ArrowWriter::try_new(w, schema, Some(props))?;
@@ -147,16 +181,48 @@ pub fn write_parquet(path: &Path, rows: &[TableRow]) -> Result<()> {
 /// Read a row table written by [`write_parquet`] (or by any tool keeping its column names and
 /// types). Errors name the file and the missing or mistyped column.
 pub fn read_parquet(path: &Path) -> Result<Vec<TableRow>> {
+    Ok(read_table(path)?.rows)
+}
+
+/// [`read_parquet`] plus the joint names of the file's [`JOINT_NAMES_KEY`] metadata (an error
+/// when present but not a JSON array of 7 names).
+pub fn read_table(path: &Path) -> Result<RowTable> {
     let file = File::open(path).with_context(|| format!("opening {}", path.display()))?;
-    let reader = ParquetRecordBatchReaderBuilder::try_new(file)
-        .and_then(|b| b.build())
+    let builder = ParquetRecordBatchReaderBuilder::try_new(file)
         .with_context(|| format!("{}: not a Parquet file", path.display()))?;
-    let mut out = Vec::new();
+    let joint_names = builder
+        .metadata()
+        .file_metadata()
+        .key_value_metadata()
+        .and_then(|kv| kv.iter().find(|e| e.key == JOINT_NAMES_KEY))
+        .and_then(|e| e.value.clone())
+        .or_else(|| builder.schema().metadata().get(JOINT_NAMES_KEY).cloned())
+        .map(|v| {
+            let names: Vec<String> = serde_json::from_str(&v).with_context(|| {
+                format!(
+                    "{}: metadata {JOINT_NAMES_KEY} is not a JSON list of names: {v}",
+                    path.display()
+                )
+            })?;
+            if names.len() != N_JOINTS {
+                bail!(
+                    "{}: metadata {JOINT_NAMES_KEY} names {} joints, the model has {N_JOINTS}",
+                    path.display(),
+                    names.len()
+                );
+            }
+            Ok(names)
+        })
+        .transpose()?;
+    let reader = builder
+        .build()
+        .with_context(|| format!("{}: not a Parquet file", path.display()))?;
+    let mut rows = Vec::new();
     for batch in reader {
         let batch = batch.with_context(|| format!("reading {}", path.display()))?;
-        read_batch(&batch, &mut out).with_context(|| format!("in {}", path.display()))?;
+        read_batch(&batch, &mut rows).with_context(|| format!("in {}", path.display()))?;
     }
-    Ok(out)
+    Ok(RowTable { joint_names, rows })
 }
 
 fn column<'a, T: 'static>(b: &'a RecordBatch, name: &str) -> Result<&'a T> {
@@ -223,6 +289,42 @@ fn read_batch(b: &RecordBatch, out: &mut Vec<TableRow>) -> Result<()> {
     Ok(())
 }
 
+/// The rows of one trial of session `s` built on `rec` (which holds at least the trial's window).
+fn trial_table_rows(
+    rec: &Recording,
+    trial: &crate::trial::TrialWindow,
+    s: usize,
+    id: &crate::identify::Identification,
+    robot: &str,
+    out: &mut Vec<TableRow>,
+) {
+    use crate::identify::dataset::{self, DatasetOptions, Mode};
+    let opts = DatasetOptions {
+        mode: Mode::Reading,
+        target: id.options.target,
+        alignment: id.alignment,
+    };
+    let set = dataset::build(rec, std::slice::from_ref(trial), &opts);
+    for row in set.rows {
+        let rejected_by = id
+            .rejections
+            .iter()
+            .find(|r| r.session == s && r.trial == row.trial)
+            .map(|r| r.reason.name().to_string());
+        out.push(TableRow {
+            robot: robot.to_string(),
+            session: rec.source.display().to_string(),
+            t_ns: rec.start_ns as i64 + (row.t * 1e9).round() as i64,
+            target: id.options.target.name().to_string(),
+            window_s: id.alignment.window_s,
+            lag_s: id.alignment.lag_s,
+            temp_c: mean_temperatures(rec, row.t0, row.t1),
+            rejected_by,
+            row,
+        });
+    }
+}
+
 /// The rows of an identification's sessions, all trials with readings (the rejected ones
 /// flagged with their filter), at the sensor timing the identification used.
 pub fn table_rows(
@@ -230,33 +332,32 @@ pub fn table_rows(
     id: &crate::identify::Identification,
     robot: &str,
 ) -> Vec<TableRow> {
-    use crate::identify::dataset::{self, DatasetOptions, Mode};
-    let opts = DatasetOptions {
-        mode: Mode::Reading,
-        target: id.options.target,
-        alignment: id.alignment,
-    };
     let mut out = Vec::new();
     for (s, (rec, summary)) in recs.iter().zip(&id.sessions).enumerate() {
-        let set = dataset::build(rec, &summary.segmentation.trials, &opts);
-        for row in set.rows {
-            let rejected_by = id
-                .rejections
-                .iter()
-                .find(|r| r.session == s && r.trial == row.trial)
-                .map(|r| r.reason.name().to_string());
-            out.push(TableRow {
-                robot: robot.to_string(),
-                session: rec.source.display().to_string(),
-                t_ns: rec.start_ns as i64 + (row.t * 1e9).round() as i64,
-                target: id.options.target.name().to_string(),
-                window_s: id.alignment.window_s,
-                lag_s: id.alignment.lag_s,
-                temp_c: mean_temperatures(rec, row.t0, row.t1),
-                rejected_by,
-                row,
-            });
+        for trial in &summary.segmentation.trials {
+            trial_table_rows(rec, trial, s, id, robot, &mut out);
         }
     }
     out
+}
+
+/// [`table_rows`] of session files, each streamed once more holding one trial at a time (the
+/// identification must come from [`crate::identify::identify_files`] on the same files, so the
+/// trials share its clock).
+pub fn table_rows_files(
+    files: &[crate::identify::SessionFile],
+    id: &crate::identify::Identification,
+    robot: &str,
+) -> Result<Vec<TableRow>> {
+    let mut out = Vec::new();
+    for (s, (file, summary)) in files.iter().zip(&id.sessions).enumerate() {
+        crate::identify::stream::for_each_trial(
+            file,
+            &summary.segmentation.trials,
+            4096,
+            &mut |rec, trial| trial_table_rows(rec, trial, s, id, robot, &mut out),
+        )
+        .with_context(|| format!("reading {} (rows)", file.path.display()))?;
+    }
+    Ok(out)
 }

@@ -48,7 +48,7 @@ pub fn load_recording(
     opts: &OpenOptions,
 ) -> anyhow::Result<Recording> {
     let mut out = None;
-    let summary = read_batches(path, map, opts, usize::MAX, &mut |batch| {
+    let summary = read_batches(path, map, opts, &ReadPlan::all(usize::MAX), &mut |batch| {
         out = Some(std::mem::take(batch));
         Ok(())
     })?;
@@ -75,9 +75,52 @@ pub fn stream_recording(
     batch_samples: usize,
     on_batch: &mut dyn FnMut(&Recording) -> anyhow::Result<()>,
 ) -> anyhow::Result<StreamSummary> {
-    read_batches(path, map, opts, batch_samples.max(1), &mut |batch| {
-        on_batch(batch)
-    })
+    read_batches(
+        path,
+        map,
+        opts,
+        &ReadPlan::all(batch_samples),
+        &mut |batch| on_batch(batch),
+    )
+}
+
+/// Stream only the joint states of `path` (no command or power topic is decoded), in batches of
+/// at most `batch_samples`, with times relative to `origin_ns` (e.g. the
+/// [`StreamSummary::start_ns`] of an earlier full read, so both reads share one clock).
+/// Errors as [`stream_recording`].
+pub fn stream_state(
+    path: &Path,
+    map: &SignalMap,
+    opts: &OpenOptions,
+    origin_ns: u64,
+    batch_samples: usize,
+    on_batch: &mut dyn FnMut(&Recording) -> anyhow::Result<()>,
+) -> anyhow::Result<StreamSummary> {
+    let plan = ReadPlan {
+        batch_samples: batch_samples.max(1),
+        state_only: true,
+        origin_ns: Some(origin_ns),
+    };
+    read_batches(path, map, opts, &plan, &mut |batch| on_batch(batch))
+}
+
+/// What [`read_batches`] reads: batch size, which groups, the time origin.
+struct ReadPlan {
+    batch_samples: usize,
+    /// Decode the state group only.
+    state_only: bool,
+    /// Fixed time origin (default: the first batch's earliest sample).
+    origin_ns: Option<u64>,
+}
+
+impl ReadPlan {
+    fn all(batch_samples: usize) -> ReadPlan {
+        ReadPlan {
+            batch_samples: batch_samples.max(1),
+            state_only: false,
+            origin_ns: None,
+        }
+    }
 }
 
 /// Count and rate of one signal series, from a streamed read.
@@ -137,7 +180,7 @@ pub fn signal_stats(
         joints: map.joint_names.clone(),
         ..SignalStats::default()
     };
-    let summary = read_batches(path, map, opts, 4096, &mut |batch| {
+    let summary = read_batches(path, map, opts, &ReadPlan::all(4096), &mut |batch| {
         stats.state.add(&batch.state.t);
         stats.command.add(&batch.command.t);
         stats.mbs_power.add(&batch.mbs.t);
@@ -217,6 +260,7 @@ struct Decoder {
     extractors: HashMap<String, Compiled>,
     row: Vec<f64>,
     warnings: Vec<String>,
+    plausible: super::plausible::Plausible,
 }
 
 impl Decoder {
@@ -277,10 +321,13 @@ impl Decoder {
                 }
                 continue;
             }
-            plan.t_ns.push(msg.log_time_ns);
             for (v, s) in self.row.iter_mut().zip(&plan.scales) {
                 *v *= s;
             }
+            if !(self.plausible).keep(*gi, &plan.topic, &plan.paths, &self.row, msg.log_time_ns) {
+                continue;
+            }
+            plan.t_ns.push(msg.log_time_ns);
             let group = plan.group;
             push_row(&mut b.batch, group, &self.row);
             b.samples[group_index(group)] += 1;
@@ -293,13 +340,23 @@ fn read_batches(
     path: &Path,
     map: &SignalMap,
     opts: &OpenOptions,
-    batch_samples: usize,
+    plan: &ReadPlan,
     on_batch: &mut dyn FnMut(&mut Recording) -> anyhow::Result<()>,
 ) -> anyhow::Result<StreamSummary> {
     map.validate()?;
+    let batch_samples = plan.batch_samples;
     let mut session = Session::open(path, opts)?;
-    let plans = group_plans(map);
-    let mut topic_names: Vec<String> = plans.iter().map(|p| p.topic.clone()).collect();
+    let mut plans = group_plans(map);
+    if plan.state_only {
+        for p in plans.iter_mut().filter(|p| p.group != Group::State) {
+            p.topic.clear();
+        }
+    }
+    let mut topic_names: Vec<String> = plans
+        .iter()
+        .filter(|p| !p.topic.is_empty())
+        .map(|p| p.topic.clone())
+        .collect();
     topic_names.sort_unstable();
     topic_names.dedup();
     let topics: Vec<&str> = topic_names.iter().map(String::as_str).collect();
@@ -310,6 +367,7 @@ fn read_batches(
         extractors: HashMap::new(),
         row: Vec::new(),
         warnings: Vec::new(),
+        plausible: super::plausible::Plausible::new(&path.display().to_string(), map, &mut session),
     };
     // Samples go straight into the typed series (no intermediate copy); times are set per batch.
     let mut b = Batcher {
@@ -319,7 +377,7 @@ fn read_batches(
             joint_names: map.joint_names.clone(),
             ..Recording::default()
         },
-        start_ns: None,
+        start_ns: plan.origin_ns,
         samples: [0; 4],
     };
     // An error of `on_batch` stops the read; it is returned as is, not as a read error.
@@ -349,6 +407,7 @@ fn read_batches(
     }
     let summary = read?;
     let mut warnings = decoder.warnings;
+    warnings.extend(decoder.plausible.warnings());
     warnings.extend(summary.warnings);
     finish_warnings(&decoder.file, &b, map, &mut session, &mut warnings)?;
     b.flush(on_batch)?;
@@ -403,7 +462,8 @@ fn finish_warnings(
             "{file}: required topic {state_topic} has no readable messages; topics in the file: {present}{damage}"
         );
     }
-    for plan in b.plans.iter().skip(1) {
+    // A group left out of the read (empty topic) is not missing.
+    for plan in b.plans.iter().skip(1).filter(|p| !p.topic.is_empty()) {
         if b.samples[group_index(plan.group)] == 0 {
             warnings.push(format!(
                 "{file}: optional topic {} has no messages: {:?} series left empty",

@@ -133,10 +133,12 @@ pub fn rate_hz(t: &[f64]) -> f64 {
 
 mod load;
 mod map;
+pub mod plausible;
 mod sink;
 
 pub use load::{
     SeriesStats, SignalStats, StreamSummary, load_recording, signal_stats, stream_recording,
+    stream_state,
 };
 pub use map::{
     G1_LEFT_ARM_BASE, G1_RIGHT_ARM_BASE, GROUPS, Group, JOINT_SHORT, SignalMap, SignalSpec,

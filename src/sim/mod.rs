@@ -13,11 +13,11 @@
 //! ```
 
 pub mod effects;
-pub mod plant;
-pub mod protocol;
-pub mod thermal;
+pub(crate) mod plant;
+pub(crate) mod protocol;
+pub(crate) mod thermal;
 pub mod truth;
-pub mod writer;
+pub(crate) mod writer;
 
 use std::collections::BTreeMap;
 use std::io::IsTerminal;
@@ -33,15 +33,15 @@ pub use effects::{
     SensorLatency, StribeckFriction, ThermalDrift,
 };
 pub use protocol::Preset;
+pub use thermal::ThermalModel;
 pub use truth::Truth;
 
 use crate::N_JOINTS;
 use crate::power::{PAIRS, PowerModel};
 use crate::robot::{ArmDynamics, JointFriction, RobotModel};
 use crate::signals::Recording;
-use plant::{Engine, OutlierStep, Reference, Sampled, Sway, Timeline, TrialPlan};
+use plant::{Engine, OutlierStep, Reference, Sampled, Sway, Timeline, TrialArtefacts};
 use protocol::Schedule;
-use thermal::ThermalModel;
 use truth::Noise;
 
 /// URDF joint names of the left arm, model order.
@@ -167,10 +167,7 @@ impl Default for SimConfig {
     }
 }
 
-/// The truth sidecar path of an output file: `x.mcap` → `x.truth.json`.
-pub fn truth_path(out: &Path) -> PathBuf {
-    out.with_extension("truth.json")
-}
+pub use crate::util::truth_path;
 
 /// The true parameters of a simulated session, from its truth sidecar (ours or the shared
 /// generator's: both carry `theta.vector`), when there is one.
@@ -212,14 +209,14 @@ fn progress_bar(cfg: &SimConfig, len: u64) -> indicatif::ProgressBar {
     }
 }
 
-/// Phase windows of each trial plus its artefacts: contamination with a probability growing
-/// with speed^1.5 and joint count^0.8 (scaled to the target fraction), outliers uniformly.
-fn trial_plans(
+/// Each trial's artefacts: contamination with a probability growing with speed^1.5 and joint
+/// count^0.8 (scaled to the target fraction), outliers uniformly.
+fn trial_artefacts(
     trials: &[protocol::PlannedTrial],
     schedule: &Schedule,
     a: &Artefacts,
     rng: &mut ChaCha8Rng,
-) -> Vec<TrialPlan> {
+) -> Vec<TrialArtefacts> {
     let weight = |t: &protocol::PlannedTrial| {
         (t.qdot_max / 2.5).powf(1.5) * (t.route.joints.len() as f64).powf(0.8)
     };
@@ -243,13 +240,7 @@ fn trial_plans(
                 duration: lerp(a.outlier_duration_s, u[6]),
                 step_w: lerp(a.outlier_step_w, u[7]),
             });
-            TrialPlan {
-                pre_start: tt.t_pre_start,
-                traj_start: tt.t_traj_start,
-                window_end: tt.t_post_end,
-                sway,
-                outlier,
-            }
+            TrialArtefacts { sway, outlier }
         })
         .collect()
 }
@@ -295,7 +286,7 @@ pub fn simulate(cfg: &SimConfig, out: &Path) -> Result<Truth> {
         bms,
     };
 
-    let plans = trial_plans(&planned, &schedule, &cfg.artefacts, &mut rng);
+    let artefacts = trial_artefacts(&planned, &schedule, &cfg.artefacts, &mut rng);
 
     let (dyn_true, dyn_urdf) = dynamics(cfg)?;
     let engine = Engine {
@@ -305,7 +296,8 @@ pub fn simulate(cfg: &SimConfig, out: &Path) -> Result<Truth> {
         friction: &cfg.friction,
         timeline: &timeline,
         reference: Reference::Protocol(&schedule),
-        trials: &plans,
+        trials: &schedule.trials,
+        artefacts: &artefacts,
     };
     let stats = run_to_file(cfg, &engine, &mut rng, out)?;
 
@@ -313,9 +305,9 @@ pub fn simulate(cfg: &SimConfig, out: &Path) -> Result<Truth> {
     let trials = planned
         .iter()
         .zip(&schedule.trials)
-        .zip(plans.iter().zip(&stats.trials))
+        .zip(artefacts.iter().zip(&stats.trials))
         .enumerate()
-        .map(|(index, ((pt, tt), (plan, sums)))| {
+        .map(|(index, ((pt, tt), (art, sums)))| {
             let pre = |s: f64| {
                 if sums.n_pre > 0 {
                     s / sums.n_pre as f64
@@ -348,13 +340,13 @@ pub fn simulate(cfg: &SimConfig, out: &Path) -> Result<Truth> {
                 t_traj_end_ns: ns(tt.t_traj_end),
                 t_post_idle_end_ns: ns(tt.t_post_end),
                 t_return_end_ns: ns(tt.t_return_end),
-                contaminated: plan.sway.is_some(),
-                sway_amplitude_rad_s: plan.sway.map(|s| round4(s.amplitude)),
-                sway_freq_hz: plan.sway.map(|s| round4(s.freq_hz)),
-                outlier: plan.outlier.is_some(),
-                outlier_step_w: plan.outlier.map(|o| round4(o.step_w)),
-                outlier_start_ns: plan.outlier.map(|o| ns(o.start)),
-                outlier_duration_s: plan.outlier.map(|o| round4(o.duration)),
+                contaminated: art.sway.is_some(),
+                sway_amplitude_rad_s: art.sway.map(|s| round4(s.amplitude)),
+                sway_freq_hz: art.sway.map(|s| round4(s.freq_hz)),
+                outlier: art.outlier.is_some(),
+                outlier_step_w: art.outlier.map(|o| round4(o.step_w)),
+                outlier_start_ns: art.outlier.map(|o| ns(o.start)),
+                outlier_duration_s: art.outlier.map(|o| round4(o.duration)),
                 true_net_arm_power_traj_mean_w: round4(traj(sums.arm_traj) - pre(sums.arm_pre)),
                 effect_power_traj_mean_w: round4(traj(sums.eff_traj) - pre(sums.eff_pre)),
                 leak_power_traj_mean_w: round4(traj(sums.leak_traj)),
@@ -427,17 +419,12 @@ fn build_truth(
     let start_ns = first.copied().unwrap_or(tl.start_ns);
     let end_ns = last.copied().unwrap_or(tl.start_ns);
     let m = &cfg.truth;
-    let mut e = BTreeMap::new();
-    for (k, &(i, j)) in PAIRS.iter().enumerate() {
-        e.insert(format!("{i},{j}"), m.e[k]);
-    }
     let topic = |t: &str, ty: &str| truth::TopicEntry {
         topic: t.into(),
         type_name: ty.into(),
     };
     let n_contaminated = trials.iter().filter(|t| t.contaminated).count();
     let n_outliers = trials.iter().filter(|t| t.outlier).count();
-    let terms = ["mech", "copper", "coulomb", "viscous", "interaction"];
     Truth {
         generator: truth::Generator {
             name: "g1viz".into(),
@@ -464,10 +451,19 @@ fn build_truth(
             serde_json::json!({ "path": out.file_name().map(|n| n.to_string_lossy().into_owned()), "end_ns": null }),
         )]),
         topics: BTreeMap::from([
-            ("lowstate".into(), topic("/lowstate", "unitree_hg/msg/LowState")),
+            (
+                "lowstate".into(),
+                topic("/lowstate", "unitree_hg/msg/LowState"),
+            ),
             ("arm_sdk".into(), topic("/arm_sdk", "unitree_hg/msg/LowCmd")),
-            ("bms".into(), topic("/lf/bmsstate", "unitree_hg/msg/BmsState")),
-            ("mbs".into(), topic("/lf/mainboardstate", "unitree_hg/msg/MainBoardState")),
+            (
+                "bms".into(),
+                topic("/lf/bmsstate", "unitree_hg/msg/BmsState"),
+            ),
+            (
+                "mbs".into(),
+                topic("/lf/mainboardstate", "unitree_hg/msg/MainBoardState"),
+            ),
         ]),
         joints: truth::Joints {
             names: JOINT_NAMES.iter().map(|s| s.to_string()).collect(),
@@ -475,74 +471,10 @@ fn build_truth(
             sdk_index: (0..N_JOINTS).map(|i| plant::ARM_BASE + i).collect(),
         },
         effects: cfg.effects,
-        artefacts: truth::ArtefactsTruth {
-            contamination: truth::Contamination {
-                enabled: cfg.artefacts.contamination_fraction > 0.0,
-                target_fraction: cfg.artefacts.contamination_fraction,
-                amplitude_range_rad_s: cfg.artefacts.sway_amplitude_rad_s,
-                freq_range_hz: cfg.artefacts.sway_freq_hz,
-                k_leak: cfg.artefacts.k_leak,
-                n_trials: n_contaminated,
-                model: "sway gyro = A*env(t)*sin(2 pi f t); MBS leak = k_leak*|sway|^2; probability grows with speed^1.5 and joint count^0.8".into(),
-            },
-            outliers: truth::Outliers {
-                enabled: cfg.artefacts.outlier_fraction > 0.0,
-                target_fraction: cfg.artefacts.outlier_fraction,
-                step_w: cfg.artefacts.outlier_step_w,
-                duration_s: cfg.artefacts.outlier_duration_s,
-                n_trials: n_outliers,
-            },
-        },
-        theta: truth::Theta {
-            order: "a0..a6, b0..b6, c0..c6, d0..d6, e_ij for i<j lexicographic (e01, e02, ..., e56)".into(),
-            vector: m.to_vector().to_vec(),
-            a: m.a,
-            b: m.b,
-            c: m.c,
-            d: m.d,
-            e,
-            source: if *m == PowerModel::PAPER { "paper tables".into() } else { "user model".into() },
-        },
-        plant: truth::PlantTruth {
-            rail_power: "P_mbs = P_rest + drift + sum_i[a_i tau_i qd_i + b_i (tau_i^2 - tau_home_i^2) + c_i|qd_i| + d_i qd_i^2] + sum_{i<j} e_ij |qd_i||qd_j| + effects + contamination leak + outlier steps; tau, qd = true joint torque/velocity".into(),
-            p_rest_w: plant::P_REST_W,
-            rest_drift: format!("OU sigma {} W, tau {} s", plant::REST_DRIFT.0, plant::REST_DRIFT.1),
-            bms: format!("P_bms = P_mbs + {} W + OU(sigma {} W, tau {} s)", plant::BMS_OFFSET_W, plant::BMS_OU.0, plant::BMS_OU.1),
-            tau_home_nm: stats.tau_home,
-            joint_friction_in_tau: truth::FrictionTruth {
-                coulomb_nm: cfg.friction.coulomb_nm,
-                viscous_nms: cfg.friction.viscous_nms,
-                form: "Fc*tanh(qd/0.01) + Fv*qd".into(),
-            },
-            tracking_lag_s: cfg.tracking_lag_s,
-            noise: cfg.noise,
-            sensor: truth::SensorTruth {
-                avg_window_s: plant::SENSOR_WINDOW_S,
-                period_s: plant::SENSOR_PERIOD.0,
-                jitter_s: plant::SENSOR_PERIOD.1,
-                quantisation: "MBS V 0.01 V, A 0.001 A; BMS 10 mV, 1 mA".into(),
-            },
-            thermal: truth::ThermalTruth {
-                model: cfg.thermal,
-                t_start_c: cfg.t_start_c,
-                winding_temp_range_c: stats.temp_range.map(|v| (v * 100.0).round() / 100.0),
-                affects_power: cfg.effects.thermal.is_some(),
-            },
-            payload: cfg.effects.payload,
-            mean_power_components_w: terms.iter().zip(stats.mean_terms).map(|(k, v)| (k.to_string(), v)).collect(),
-            battery_soc_range: stats.soc_range,
-        },
-        protocol: truth::ProtocolTruth {
-            pre_idle_s: protocol::PRE_IDLE_S,
-            post_idle_s: protocol::POST_IDLE_S,
-            return_speed_rad_s: protocol::RETURN_SPEED,
-            segment: "s=3t^2-2t^3, T=max(0.3, 1.5*max|dq|/qdot_max)".into(),
-            id_speeds: protocol::ID_SPEEDS.to_vec(),
-            holdout_speeds: protocol::HOLDOUT_SPEEDS.to_vec(),
-            kp: 400.0,
-            kd: 12.0,
-            inter_trial_gap_s: protocol::GAP_S,
-        },
+        artefacts: artefacts_truth(cfg, n_contaminated, n_outliers),
+        theta: theta_truth(m),
+        plant: plant_truth(cfg, stats),
+        protocol: protocol_truth(),
         trials,
         message_counts: truth::MessageCounts {
             lowstate: stats.counts[writer::Topic::LowState as usize],
@@ -550,6 +482,105 @@ fn build_truth(
             bms: stats.counts[writer::Topic::Bms as usize],
             mbs: stats.counts[writer::Topic::Mbs as usize],
         },
+    }
+}
+
+/// The artefacts' configuration and how many trials carry each.
+fn artefacts_truth(
+    cfg: &SimConfig,
+    n_contaminated: usize,
+    n_outliers: usize,
+) -> truth::ArtefactsTruth {
+    truth::ArtefactsTruth {
+    contamination: truth::Contamination {
+        enabled: cfg.artefacts.contamination_fraction > 0.0,
+        target_fraction: cfg.artefacts.contamination_fraction,
+        amplitude_range_rad_s: cfg.artefacts.sway_amplitude_rad_s,
+        freq_range_hz: cfg.artefacts.sway_freq_hz,
+        k_leak: cfg.artefacts.k_leak,
+        n_trials: n_contaminated,
+        model: "sway gyro = A*env(t)*sin(2 pi f t); MBS leak = k_leak*|sway|^2; probability grows with speed^1.5 and joint count^0.8".into(),
+    },
+    outliers: truth::Outliers {
+        enabled: cfg.artefacts.outlier_fraction > 0.0,
+        target_fraction: cfg.artefacts.outlier_fraction,
+        step_w: cfg.artefacts.outlier_step_w,
+        duration_s: cfg.artefacts.outlier_duration_s,
+        n_trials: n_outliers,
+    },
+}
+}
+
+/// The true power model θ in both layouts.
+fn theta_truth(m: &PowerModel) -> truth::Theta {
+    let mut e = BTreeMap::new();
+    for (k, &(i, j)) in PAIRS.iter().enumerate() {
+        e.insert(format!("{i},{j}"), m.e[k]);
+    }
+    truth::Theta {
+        order: "a0..a6, b0..b6, c0..c6, d0..d6, e_ij for i<j lexicographic (e01, e02, ..., e56)"
+            .into(),
+        vector: m.to_vector().to_vec(),
+        a: m.a,
+        b: m.b,
+        c: m.c,
+        d: m.d,
+        e,
+        source: if *m == PowerModel::PAPER {
+            "paper tables".into()
+        } else {
+            "user model".into()
+        },
+    }
+}
+
+/// The plant: rail power, rest drift, friction inside τ, noise, sensors, thermal, payload and the
+/// run's statistics.
+fn plant_truth(cfg: &SimConfig, stats: &plant::RunStats) -> truth::PlantTruth {
+    let terms = ["mech", "copper", "coulomb", "viscous", "interaction"];
+    truth::PlantTruth {
+    rail_power: "P_mbs = P_rest + drift + sum_i[a_i tau_i qd_i + b_i (tau_i^2 - tau_home_i^2) + c_i|qd_i| + d_i qd_i^2] + sum_{i<j} e_ij |qd_i||qd_j| + effects + contamination leak + outlier steps; tau, qd = true joint torque/velocity".into(),
+    p_rest_w: plant::P_REST_W,
+    rest_drift: format!("OU sigma {} W, tau {} s", plant::REST_DRIFT.0, plant::REST_DRIFT.1),
+    bms: format!("P_bms = P_mbs + {} W + OU(sigma {} W, tau {} s)", plant::BMS_OFFSET_W, plant::BMS_OU.0, plant::BMS_OU.1),
+    tau_home_nm: stats.tau_home,
+    joint_friction_in_tau: truth::FrictionTruth {
+        coulomb_nm: cfg.friction.coulomb_nm,
+        viscous_nms: cfg.friction.viscous_nms,
+        form: "Fc*tanh(qd/0.01) + Fv*qd".into(),
+    },
+    tracking_lag_s: cfg.tracking_lag_s,
+    noise: cfg.noise,
+    sensor: truth::SensorTruth {
+        avg_window_s: plant::SENSOR_WINDOW_S,
+        period_s: plant::SENSOR_PERIOD.0,
+        jitter_s: plant::SENSOR_PERIOD.1,
+        quantisation: "MBS V 0.01 V, A 0.001 A; BMS 10 mV, 1 mA".into(),
+    },
+    thermal: truth::ThermalTruth {
+        model: cfg.thermal,
+        t_start_c: cfg.t_start_c,
+        winding_temp_range_c: stats.temp_range.map(|v| (v * 100.0).round() / 100.0),
+        affects_power: cfg.effects.thermal.is_some(),
+    },
+    payload: cfg.effects.payload,
+    mean_power_components_w: terms.iter().zip(stats.mean_terms).map(|(k, v)| (k.to_string(), v)).collect(),
+    battery_soc_range: stats.soc_range,
+}
+}
+
+/// The protocol's constants.
+fn protocol_truth() -> truth::ProtocolTruth {
+    truth::ProtocolTruth {
+        pre_idle_s: protocol::PRE_IDLE_S,
+        post_idle_s: protocol::POST_IDLE_S,
+        return_speed_rad_s: protocol::RETURN_SPEED,
+        segment: "s=3t^2-2t^3, T=max(0.3, 1.5*max|dq|/qdot_max)".into(),
+        id_speeds: protocol::ID_SPEEDS.to_vec(),
+        holdout_speeds: protocol::HOLDOUT_SPEEDS.to_vec(),
+        kp: 400.0,
+        kd: 12.0,
+        inter_trial_gap_s: protocol::GAP_S,
     }
 }
 
@@ -623,6 +654,7 @@ pub fn simulate_like(rec: &Recording, cfg: &SimConfig, out: &Path) -> Result<Tru
         timeline: &timeline,
         reference: Reference::Sampled(&sampled),
         trials: &[],
+        artefacts: &[],
     };
     let stats = run_to_file(&cfg_like, &engine, &mut rng, out)?;
     let truth = build_truth(&cfg_like, "like", &timeline, &stats, Vec::new(), out);

@@ -13,7 +13,9 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 
 use super::SimConfig;
-use super::effects::{Effects, FAN_MEAN_ON_OFF_S, PlantSample, SWAY_CORRELATION_S, arm_power};
+use super::effects::{
+    ArmPower, Effects, FAN_MEAN_ON_OFF_S, PlantSample, SWAY_CORRELATION_S, arm_power,
+};
 use super::protocol::Schedule;
 use super::thermal::ThermalState;
 use super::truth::Noise;
@@ -21,6 +23,7 @@ use super::writer::{BmsFields, Cdr, ImuState, McapOut, MotorState, N_MOTORS, Top
 use crate::N_JOINTS;
 use crate::power::{PAIRS, PowerModel};
 use crate::robot::{ArmDynamics, JointFriction};
+use crate::trial::TrialWindow;
 
 /// SDK index of the first left-arm motor.
 pub const ARM_BASE: usize = 15;
@@ -173,15 +176,12 @@ pub struct OutlierStep {
     pub step_w: f64,
 }
 
-/// Phase windows and artefacts of one trial [s since session start].
-#[derive(Debug, Clone, Copy)]
-pub struct TrialPlan {
-    /// Pre-idle start.
-    pub pre_start: f64,
-    /// Trajectory start = pre-idle end.
-    pub traj_start: f64,
-    /// Post-idle end = end of the trajectory window.
-    pub window_end: f64,
+/// The artefacts drawn for one trial (balance sway, hardware-event step). The trial's times are
+/// its [`TrialWindow`]; this record holds only what the simulator alone knows about it (what the
+/// session contains but no reader of a recording can see), so the shared trial type stays free
+/// of simulator-only data. One per trial, in the order of [`Engine::trials`].
+#[derive(Debug, Clone, Copy, Default)]
+pub struct TrialArtefacts {
     /// Balance contamination (over the trajectory window).
     pub sway: Option<Sway>,
     /// Hardware-event outlier.
@@ -224,7 +224,7 @@ pub struct TrialSums {
 pub struct RunStats {
     /// Messages per topic (by [`Topic`] index).
     pub counts: [u64; 4],
-    /// Per-trial sums (same order as the plans).
+    /// Per-trial sums (same order as the trials).
     pub trials: Vec<TrialSums>,
     /// Home torque of the true plant [Nm].
     pub tau_home: [f64; N_JOINTS],
@@ -269,8 +269,78 @@ pub struct Engine<'a> {
     pub timeline: &'a Timeline,
     /// The command.
     pub reference: Reference<'a>,
-    /// Trials (empty for `simulate_like`).
-    pub trials: &'a [TrialPlan],
+    /// Trials, as scheduled (empty for `simulate_like`).
+    pub trials: &'a [TrialWindow],
+    /// Each trial's artefacts (same order as `trials`; a missing entry means none).
+    pub artefacts: &'a [TrialArtefacts],
+}
+
+/// The engine's state between events: the plant's slow states, the sensors' history, the
+/// message counters and cursors, and the statistics so far.
+struct RunState {
+    /// Home torque of the true plant [Nm].
+    tau_home: [f64; N_JOINTS],
+    /// Home torque of the URDF-only plant [Nm] (with a payload).
+    tau_home_urdf: Option<[f64; N_JOINTS]>,
+    /// Squared home torques.
+    tau0_sq: [f64; N_JOINTS],
+    /// Sensor latency of the latency effect [s].
+    latency: f64,
+    /// How much rail-power history the sensors need [s].
+    keep_s: f64,
+    thermal: ThermalState,
+    stats: RunStats,
+    cdr: Cdr,
+    /// (t, rail power) of the recent state samples.
+    power_hist: VecDeque<(f64, f64)>,
+    drift: f64,
+    bms_ou: f64,
+    t_bms_prev: f64,
+    soc: f64,
+    yaw0: f64,
+    tick: u32,
+    ref_hint: usize,
+    cmd_hint: usize,
+    trial_cursor: usize,
+    t_prev: Option<f64>,
+    sway_angle: [f64; 2],
+    /// Ambient sway of the balance-leak effect.
+    ambient: [f64; 2],
+    /// The ambient sway's own random stream (switching the effect on leaves every other random
+    /// draw of the session unchanged).
+    sway_rng: ChaCha8Rng,
+    /// The switching fan of the rail-load effect (its own random stream too).
+    fan: Option<Fan>,
+    term_sums: [f64; 5],
+    motors: [MotorState; N_MOTORS],
+    i_ls: usize,
+    i_cmd: usize,
+    i_mbs: usize,
+    i_bms: usize,
+}
+
+/// One state sample of the true plant: tracked motion, true torques and the arm's power.
+struct PlantStep {
+    q: [f64; N_JOINTS],
+    dq: [f64; N_JOINTS],
+    tau: [f64; N_JOINTS],
+    /// The arm's power (base model + power-changing effects).
+    power: ArmPower,
+    /// Effect power so far (effects, fan load, payload share) [W].
+    eff: f64,
+    /// Fan load of the rail-load effect [W].
+    fan_w: f64,
+}
+
+/// The trial artefacts active at one state sample.
+struct ArtefactsNow {
+    /// Contamination sway rate [rad/s] and its axis [rad].
+    sway: f64,
+    sway_axis: f64,
+    /// Hardware-event step [W].
+    step_w: f64,
+    /// The trial whose pre-idle..post-idle window holds the sample.
+    trial_here: Option<usize>,
 }
 
 impl Engine<'_> {
@@ -281,61 +351,16 @@ impl Engine<'_> {
         rng: &mut ChaCha8Rng,
         progress: &dyn Fn(u64),
     ) -> Result<RunStats> {
-        let cfg = self.cfg;
-        let effects: &Effects = &cfg.effects;
-        let model: &PowerModel = &cfg.truth;
-        let noise: Noise = cfg.noise;
         let tl = self.timeline;
         let t_of = |ns: u64| (ns as i128 - tl.start_ns as i128) as f64 * 1e-9;
-
-        let zero = [0.0; N_JOINTS];
-        let tau_home = self.dyn_true.gravity_torque(&zero);
-        let tau_home_urdf = self.dyn_urdf.map(|d| d.gravity_torque(&zero));
-        let tau0_sq = tau_home.map(|v| v * v);
-        let latency = effects.latency.map_or(0.0, |l| l.seconds);
-        let keep_s = latency + SENSOR_WINDOW_S + 2.0;
-
-        let mut thermal = ThermalState::new(cfg.thermal, cfg.t_start_c);
-        if let Some(h) = cfg.housing_start_c {
-            thermal.set_housing(h);
-        }
-        let mut stats = RunStats {
-            trials: vec![TrialSums::default(); self.trials.len()],
-            tau_home,
-            temp_range: [f64::INFINITY, f64::NEG_INFINITY],
-            soc_range: [f64::INFINITY, f64::NEG_INFINITY],
-            ..Default::default()
-        };
-        let mut cdr = Cdr::default();
-        let mut power_hist: VecDeque<(f64, f64)> = VecDeque::with_capacity(1024);
-        let mut drift = 0.0;
-        let mut bms_ou = 0.0;
-        let mut t_bms_prev = 0.0;
-        let mut soc = 0.98 - 0.02 * rng.random::<f64>();
-        let yaw0 = rng.random_range(-0.5..0.5);
-        let mut tick: u32 = rng.random_range(1_000_000..9_000_000);
-        let mut ref_hint = 0usize;
-        let mut cmd_hint = 0usize;
-        let mut trial_cursor = 0usize;
-        let mut t_prev: Option<f64> = None;
-        let mut sway_angle = [0.0f64; 2];
-        // Ambient sway of the balance-leak effect: its own random stream, so switching the
-        // effect on leaves every other random draw of the session unchanged.
-        let mut ambient = [0.0f64; 2];
-        let mut sway_rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x005a_1a4c_e000_u64);
-        // The switching fan of the rail-load effect: its own random stream too.
-        let mut fan = effects.fan_load.map(|l| Fan::new(l.watts, cfg.seed));
-        let mut term_sums = [0.0f64; 5];
-        let mut motors = [MotorState::default(); N_MOTORS];
-        let (mut i_ls, mut i_cmd, mut i_mbs, mut i_bms) = (0usize, 0usize, 0usize, 0usize);
-
+        let mut st = self.start(rng);
         loop {
             // Next event in time order; ties: lowstate, arm_sdk, bms, mbs.
             let candidates = [
-                tl.lowstate.get(i_ls).copied(),
-                tl.arm_sdk.get(i_cmd).copied(),
-                tl.bms.get(i_bms).copied(),
-                tl.mbs.get(i_mbs).copied(),
+                tl.lowstate.get(st.i_ls).copied(),
+                tl.arm_sdk.get(st.i_cmd).copied(),
+                tl.bms.get(st.i_bms).copied(),
+                tl.mbs.get(st.i_mbs).copied(),
             ];
             let Some((which, ns)) = candidates
                 .iter()
@@ -348,230 +373,409 @@ impl Engine<'_> {
             let t = t_of(ns);
             match which {
                 0 => {
-                    i_ls += 1;
-                    let dt = t_prev.map_or(0.01, |p| (t - p).max(0.0));
-                    t_prev = Some(t);
-                    let (q, dq, ddq) = self.reference.eval(t - cfg.tracking_lag_s, &mut ref_hint);
-                    let fr = self.friction.torque(&dq);
-                    let rigid = self.dyn_true.inverse_dynamics(&q, &dq, &ddq);
-                    let mut tau = [0.0; N_JOINTS];
-                    for i in 0..N_JOINTS {
-                        tau[i] = rigid[i] + fr[i];
+                    self.lowstate(&mut st, out, rng, ns, t)?;
+                    if st.i_ls % 4096 == 0 {
+                        progress(st.i_ls as u64);
                     }
-                    thermal.step(t, dt, &tau);
-                    let housing_c: [f64; N_JOINTS] = std::array::from_fn(|i| thermal.housing_c(i));
-                    let sample = PlantSample {
-                        q: &q,
-                        tau: &tau,
-                        dq: &dq,
-                        tau_home: &tau_home,
-                        winding_c: &thermal.winding_c,
-                        housing_c: &housing_c,
-                        bus_volts: pack_volts(soc) - 0.15,
-                    };
-                    let p = arm_power(model, effects, &sample);
-                    let mut eff = p.effects;
-                    let fan_w = fan.as_mut().map_or(0.0, |f| f.load_at(t));
-                    eff += fan_w;
-                    if let (Some(d), Some(th_u)) = (self.dyn_urdf, tau_home_urdf) {
-                        // The payload's share: the base model on true minus URDF-only torques.
-                        let rigid_u = d.inverse_dynamics(&q, &dq, &ddq);
-                        let mut tau_u = [0.0; N_JOINTS];
-                        for i in 0..N_JOINTS {
-                            tau_u[i] = rigid_u[i] + fr[i];
-                        }
-                        eff += p.base - model.predict(&tau_u, &dq, &th_u.map(|v| v * v));
-                    }
-                    accumulate_terms(model, &tau, &dq, &tau0_sq, &mut term_sums);
+                }
+                1 => self.arm_sdk(&mut st, out, ns, t)?,
+                2 => self.bms(&mut st, out, rng, ns, t)?,
+                _ => self.mbs(&mut st, out, rng, ns, t)?,
+            }
+        }
+        let n = st.i_ls.max(1) as f64;
+        let mut stats = st.stats;
+        stats.mean_terms = st.term_sums.map(|s| s / n);
+        stats.counts = out.counts();
+        if !stats.temp_range[0].is_finite() {
+            stats.temp_range = [self.cfg.t_start_c; 2];
+            stats.soc_range = [st.soc; 2];
+        }
+        Ok(stats)
+    }
 
-                    // Trial artefacts.
-                    while trial_cursor + 1 < self.trials.len()
-                        && self.trials[trial_cursor + 1].pre_start <= t
-                    {
-                        trial_cursor += 1;
-                    }
-                    let mut sway = 0.0;
-                    let mut sway_axis = 0.0;
-                    let mut step_w = 0.0;
-                    let mut trial_here = None;
-                    if let Some(tp) = self.trials.get(trial_cursor) {
-                        if let Some(s) = tp.sway {
-                            sway = s.amplitude
-                                * sway_envelope(t, tp.traj_start, tp.window_end)
-                                * (std::f64::consts::TAU * s.freq_hz * (t - tp.traj_start)).sin();
-                            sway_axis = s.axis;
-                        }
-                        if let Some(o) = tp.outlier
-                            && t >= o.start
-                            && t < o.start + o.duration
-                        {
-                            step_w = o.step_w;
-                        }
-                        if t >= tp.pre_start && t < tp.window_end {
-                            trial_here = Some(trial_cursor);
-                        }
-                    }
-                    // Body rate about the two horizontal axes: contamination sway plus, with the
-                    // balance-leak effect, the ambient sway; the legs' balancing power leaks in ∝ |ω|².
-                    let mut rate = [sway * sway_axis.cos(), sway * sway_axis.sin()];
-                    let leak = match effects.balance_leak {
-                        None => cfg.artefacts.k_leak * sway * sway,
-                        Some(b) => {
-                            for (r, a) in rate.iter_mut().zip(ambient.iter_mut()) {
-                                *a = ou_step(
-                                    *a,
-                                    dt,
-                                    (b.sway_rad_s, SWAY_CORRELATION_S),
-                                    &mut sway_rng,
-                                );
-                                *r += *a;
-                            }
-                            b.w_per_rad2_s2 * (rate[0] * rate[0] + rate[1] * rate[1])
-                        }
-                    };
-                    if effects.balance_leak.is_some() {
-                        // With the effect on, all of the leak is the concealed effect's power.
-                        eff += leak;
-                    }
-                    drift = ou_step(drift, dt, REST_DRIFT, rng);
-                    let p_arm = p.base + p.effects;
-                    let p_rail = P_REST_W + drift + p.base + p.effects + leak + step_w + fan_w;
-                    while power_hist.front().is_some_and(|&(tf, _)| tf < t - keep_s) {
-                        power_hist.pop_front();
-                    }
-                    power_hist.push_back((t, p_rail));
-                    soc -= (p_rail + BMS_OFFSET_W) * dt / 3600.0 / BATTERY_WH;
-                    stats.soc_range = [stats.soc_range[0].min(soc), stats.soc_range[1].max(soc)];
-                    for &w in &thermal.winding_c {
-                        stats.temp_range = [stats.temp_range[0].min(w), stats.temp_range[1].max(w)];
-                    }
-                    if let Some(k) = trial_here {
-                        let tp = &self.trials[k];
-                        let s = &mut stats.trials[k];
-                        if t < tp.traj_start {
-                            s.n_pre += 1;
-                            s.arm_pre += p_arm;
-                            s.eff_pre += eff;
-                        } else {
-                            s.n_traj += 1;
-                            s.arm_traj += p_arm;
-                            s.eff_traj += eff;
-                            s.leak_traj += leak;
-                            for i in 0..N_JOINTS {
-                                s.temp_traj[i] += thermal.winding_c[i];
-                            }
-                        }
-                    }
+    /// Stage: the state at session start (draws the battery charge, the IMU yaw and the tick).
+    fn start(&self, rng: &mut ChaCha8Rng) -> RunState {
+        let cfg = self.cfg;
+        let effects: &Effects = &cfg.effects;
+        let zero = [0.0; N_JOINTS];
+        let tau_home = self.dyn_true.gravity_torque(&zero);
+        let tau_home_urdf = self.dyn_urdf.map(|d| d.gravity_torque(&zero));
+        let tau0_sq = tau_home.map(|v| v * v);
+        let latency = effects.latency.map_or(0.0, |l| l.seconds);
+        let keep_s = latency + SENSOR_WINDOW_S + 2.0;
 
-                    // Message.
-                    let vol = quant(pack_volts(soc) - 0.15 + 0.03 * gauss(rng), 0.1) as f32;
-                    for (slot, &(q0, tau0)) in STANDING.iter().enumerate() {
-                        let k = if slot < 15 { slot } else { slot + N_JOINTS };
-                        motors[k] = MotorState {
-                            mode: 1,
-                            q: quant(q0 + noise.q_rad * gauss(rng), STANDING_QUANT.0) as f32,
-                            dq: quant(noise.dq_rad_s * gauss(rng), STANDING_QUANT.1) as f32,
-                            tau_est: quant(tau0 + noise.tau_nm * gauss(rng), STANDING_QUANT.2)
-                                as f32,
-                            temperature: [30, 28],
-                            vol,
-                        };
-                    }
-                    for i in 0..N_JOINTS {
-                        motors[ARM_BASE + i] = MotorState {
-                            mode: 1,
-                            q: (q[i] + noise.q_rad * gauss(rng)) as f32,
-                            dq: (dq[i] + noise.dq_rad_s * gauss(rng)) as f32,
-                            tau_est: (tau[i] + noise.tau_nm * gauss(rng)) as f32,
-                            temperature: [
-                                thermal.winding_c[i].round() as i16,
-                                thermal.housing_c(i).round() as i16,
-                            ],
-                            vol,
-                        };
-                    }
-                    for (angle, r) in sway_angle.iter_mut().zip(rate) {
-                        *angle += r * dt;
-                        if effects.balance_leak.is_some() {
-                            // The balance controller pulls the body back (2 s time constant).
-                            *angle -= *angle * dt / 2.0;
-                        }
-                    }
-                    let imu = imu_state(t, yaw0, rate, sway_angle, noise.gyro_rad_s, rng);
-                    out.write(Topic::LowState, ns, cdr.low_state(tick, &imu, &motors))?;
-                    tick = tick.wrapping_add(10);
-                    if i_ls % 4096 == 0 {
-                        progress(i_ls as u64);
-                    }
+        let mut thermal = ThermalState::new(cfg.thermal, cfg.t_start_c);
+        if let Some(h) = cfg.housing_start_c {
+            thermal.set_housing(h);
+        }
+        let stats = RunStats {
+            trials: vec![TrialSums::default(); self.trials.len()],
+            tau_home,
+            temp_range: [f64::INFINITY, f64::NEG_INFINITY],
+            soc_range: [f64::INFINITY, f64::NEG_INFINITY],
+            ..Default::default()
+        };
+        let soc = 0.98 - 0.02 * rng.random::<f64>();
+        let yaw0 = rng.random_range(-0.5..0.5);
+        let tick: u32 = rng.random_range(1_000_000..9_000_000);
+        RunState {
+            tau_home,
+            tau_home_urdf,
+            tau0_sq,
+            latency,
+            keep_s,
+            thermal,
+            stats,
+            cdr: Cdr::default(),
+            power_hist: VecDeque::with_capacity(1024),
+            drift: 0.0,
+            bms_ou: 0.0,
+            t_bms_prev: 0.0,
+            soc,
+            yaw0,
+            tick,
+            ref_hint: 0,
+            cmd_hint: 0,
+            trial_cursor: 0,
+            t_prev: None,
+            sway_angle: [0.0; 2],
+            ambient: [0.0; 2],
+            sway_rng: ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x005a_1a4c_e000_u64),
+            fan: effects.fan_load.map(|l| Fan::new(l.watts, cfg.seed)),
+            term_sums: [0.0; 5],
+            motors: [MotorState::default(); N_MOTORS],
+            i_ls: 0,
+            i_cmd: 0,
+            i_mbs: 0,
+            i_bms: 0,
+        }
+    }
+
+    /// Stage (one `/lowstate` tick): the true plant, the trial's artefacts, the body sway and the
+    /// balance leak, the rail power and its bookkeeping, then the message.
+    fn lowstate<W: Write + Seek>(
+        &self,
+        st: &mut RunState,
+        out: &mut McapOut<W>,
+        rng: &mut ChaCha8Rng,
+        ns: u64,
+        t: f64,
+    ) -> Result<()> {
+        st.i_ls += 1;
+        let dt = st.t_prev.map_or(0.01, |p| (t - p).max(0.0));
+        st.t_prev = Some(t);
+        let plant = self.plant_step(st, t, dt);
+        let art = self.artefacts_at(st, t);
+        let (rate, leak) = self.body_rate(st, &art, dt);
+        let mut eff = plant.eff;
+        if self.cfg.effects.balance_leak.is_some() {
+            // With the effect on, all of the leak is the concealed effect's power.
+            eff += leak;
+        }
+        st.drift = ou_step(st.drift, dt, REST_DRIFT, rng);
+        self.account(st, t, dt, &plant, eff, leak, &art);
+        self.write_lowstate(st, out, rng, ns, t, dt, &plant, rate)
+    }
+
+    /// Stage: the arm tracks the command; true torques, winding temperatures and the arm's
+    /// power (with the fan load and the payload's share as effect power).
+    fn plant_step(&self, st: &mut RunState, t: f64, dt: f64) -> PlantStep {
+        let cfg = self.cfg;
+        let model: &PowerModel = &cfg.truth;
+        let (q, dq, ddq) = self
+            .reference
+            .eval(t - cfg.tracking_lag_s, &mut st.ref_hint);
+        let fr = self.friction.torque(&dq);
+        let rigid = self.dyn_true.inverse_dynamics(&q, &dq, &ddq);
+        let mut tau = [0.0; N_JOINTS];
+        for i in 0..N_JOINTS {
+            tau[i] = rigid[i] + fr[i];
+        }
+        let thermal = &mut st.thermal;
+        thermal.step(t, dt, &tau);
+        let housing_c: [f64; N_JOINTS] = std::array::from_fn(|i| thermal.housing_c(i));
+        let sample = PlantSample {
+            q: &q,
+            tau: &tau,
+            dq: &dq,
+            tau_home: &st.tau_home,
+            winding_c: &thermal.winding_c,
+            housing_c: &housing_c,
+            bus_volts: pack_volts(st.soc) - 0.15,
+        };
+        let p = arm_power(model, &cfg.effects, &sample);
+        let mut eff = p.effects;
+        let fan_w = st.fan.as_mut().map_or(0.0, |f| f.load_at(t));
+        eff += fan_w;
+        if let (Some(d), Some(th_u)) = (self.dyn_urdf, st.tau_home_urdf) {
+            // The payload's share: the base model on true minus URDF-only torques.
+            let rigid_u = d.inverse_dynamics(&q, &dq, &ddq);
+            let mut tau_u = [0.0; N_JOINTS];
+            for i in 0..N_JOINTS {
+                tau_u[i] = rigid_u[i] + fr[i];
+            }
+            eff += p.base - model.predict(&tau_u, &dq, &th_u.map(|v| v * v));
+        }
+        accumulate_terms(model, &tau, &dq, &st.tau0_sq, &mut st.term_sums);
+        PlantStep {
+            q,
+            dq,
+            tau,
+            power: p,
+            eff,
+            fan_w,
+        }
+    }
+
+    /// Stage: the current trial's artefacts at `t` (contamination sway, outlier step).
+    fn artefacts_at(&self, st: &mut RunState, t: f64) -> ArtefactsNow {
+        while st.trial_cursor + 1 < self.trials.len()
+            && self.trials[st.trial_cursor + 1].t_pre_start <= t
+        {
+            st.trial_cursor += 1;
+        }
+        let mut now = ArtefactsNow {
+            sway: 0.0,
+            sway_axis: 0.0,
+            step_w: 0.0,
+            trial_here: None,
+        };
+        if let Some(tp) = self.trials.get(st.trial_cursor) {
+            let art = self
+                .artefacts
+                .get(st.trial_cursor)
+                .copied()
+                .unwrap_or_default();
+            if let Some(s) = art.sway {
+                now.sway = s.amplitude
+                    * sway_envelope(t, tp.t_traj_start, tp.t_post_end)
+                    * (std::f64::consts::TAU * s.freq_hz * (t - tp.t_traj_start)).sin();
+                now.sway_axis = s.axis;
+            }
+            if let Some(o) = art.outlier
+                && t >= o.start
+                && t < o.start + o.duration
+            {
+                now.step_w = o.step_w;
+            }
+            if t >= tp.t_pre_start && t < tp.t_post_end {
+                now.trial_here = Some(st.trial_cursor);
+            }
+        }
+        now
+    }
+
+    /// Stage: body rate about the two horizontal axes — contamination sway plus, with the
+    /// balance-leak effect, the ambient sway — and the legs' balancing power leaking in ∝ |ω|².
+    fn body_rate(&self, st: &mut RunState, art: &ArtefactsNow, dt: f64) -> ([f64; 2], f64) {
+        let sway = art.sway;
+        let mut rate = [sway * art.sway_axis.cos(), sway * art.sway_axis.sin()];
+        let leak = match self.cfg.effects.balance_leak {
+            None => self.cfg.artefacts.k_leak * sway * sway,
+            Some(b) => {
+                for (r, a) in rate.iter_mut().zip(st.ambient.iter_mut()) {
+                    *a = ou_step(*a, dt, (b.sway_rad_s, SWAY_CORRELATION_S), &mut st.sway_rng);
+                    *r += *a;
                 }
-                1 => {
-                    i_cmd += 1;
-                    let (q, dq, _) = self.reference.eval(t, &mut cmd_hint);
-                    out.write(
-                        Topic::ArmSdk,
-                        ns,
-                        cdr.low_cmd(ARM_BASE, &q, &dq, 400.0, 12.0),
-                    )?;
-                }
-                2 => {
-                    i_bms += 1;
-                    let p = window_mean(&power_hist, t - latency, SENSOR_WINDOW_S);
-                    bms_ou = ou_step(bms_ou, (t - t_bms_prev).max(0.0), BMS_OU, rng);
-                    t_bms_prev = t;
-                    let p_bms = p + BMS_OFFSET_W + bms_ou + noise.bms_w * gauss(rng);
-                    let volts = quant(pack_volts(soc), 0.01);
-                    let cell = (volts / 13.0 * 1000.0).round();
-                    let mut cell_mv = [0u16; 13];
-                    for (c, v) in cell_mv.iter_mut().enumerate() {
-                        *v = (cell + [-2.0, 0.0, 2.0, -1.0, 1.0][c % 5]).clamp(0.0, 65535.0) as u16;
-                    }
-                    let temp = 28.0 + 2.0 * t / 3600.0;
-                    let b = BmsFields {
-                        pack_mv: (volts * 1000.0).round() as u32,
-                        current_ma: (p_bms / volts * 1000.0).round() as i32,
-                        soc_pct: (soc * 100.0).round().clamp(0.0, 100.0) as u8,
-                        temps_c: [
-                            temp as i16,
-                            (temp as i16).saturating_add(1),
-                            (temp as i16).saturating_sub(1),
-                            temp as i16,
-                        ],
-                        cell_mv,
-                    };
-                    out.write(Topic::Bms, ns, cdr.bms_state(&b))?;
-                }
-                _ => {
-                    i_mbs += 1;
-                    let p = window_mean(&power_hist, t - latency, SENSOR_WINDOW_S)
-                        + noise.mbs_w * gauss(rng);
-                    let volts = quant(pack_volts(soc) - 0.4 + 0.005 * gauss(rng), 0.01);
-                    let amps = quant(p / volts, 0.001);
-                    let rpm = 2085.0 + 10.0 * gauss(rng);
-                    let rpm2 = match fan.as_mut() {
-                        None => rpm - 30.0,
-                        Some(f) => f.rpm(),
-                    };
-                    out.write(
-                        Topic::Mbs,
-                        ns,
-                        cdr.main_board_state(
-                            volts as f32,
-                            amps as f32,
-                            [rpm as u16, rpm2 as u16],
-                            [39, 36],
-                        ),
-                    )?;
+                b.w_per_rad2_s2 * (rate[0] * rate[0] + rate[1] * rate[1])
+            }
+        };
+        (rate, leak)
+    }
+
+    /// Stage: the rail power into the sensors' history, the battery, and the run's statistics.
+    #[allow(clippy::too_many_arguments)]
+    fn account(
+        &self,
+        st: &mut RunState,
+        t: f64,
+        dt: f64,
+        plant: &PlantStep,
+        eff: f64,
+        leak: f64,
+        art: &ArtefactsNow,
+    ) {
+        let p = &plant.power;
+        let p_arm = p.base + p.effects;
+        let p_rail = P_REST_W + st.drift + p.base + p.effects + leak + art.step_w + plant.fan_w;
+        let keep_s = st.keep_s;
+        while st
+            .power_hist
+            .front()
+            .is_some_and(|&(tf, _)| tf < t - keep_s)
+        {
+            st.power_hist.pop_front();
+        }
+        st.power_hist.push_back((t, p_rail));
+        st.soc -= (p_rail + BMS_OFFSET_W) * dt / 3600.0 / BATTERY_WH;
+        let (stats, soc) = (&mut st.stats, st.soc);
+        stats.soc_range = [stats.soc_range[0].min(soc), stats.soc_range[1].max(soc)];
+        for &w in &st.thermal.winding_c {
+            stats.temp_range = [stats.temp_range[0].min(w), stats.temp_range[1].max(w)];
+        }
+        if let Some(k) = art.trial_here {
+            let tp = &self.trials[k];
+            let s = &mut stats.trials[k];
+            if t < tp.t_traj_start {
+                s.n_pre += 1;
+                s.arm_pre += p_arm;
+                s.eff_pre += eff;
+            } else {
+                s.n_traj += 1;
+                s.arm_traj += p_arm;
+                s.eff_traj += eff;
+                s.leak_traj += leak;
+                for i in 0..N_JOINTS {
+                    s.temp_traj[i] += st.thermal.winding_c[i];
                 }
             }
         }
-        let n = i_ls.max(1) as f64;
-        stats.mean_terms = term_sums.map(|s| s / n);
-        stats.counts = out.counts();
-        if !stats.temp_range[0].is_finite() {
-            stats.temp_range = [cfg.t_start_c; 2];
-            stats.soc_range = [soc; 2];
+    }
+
+    /// Stage: the `/lowstate` message — every motor (the standing rest of the robot quantised,
+    /// the arm with sensor noise) and the pelvis IMU.
+    #[allow(clippy::too_many_arguments)]
+    fn write_lowstate<W: Write + Seek>(
+        &self,
+        st: &mut RunState,
+        out: &mut McapOut<W>,
+        rng: &mut ChaCha8Rng,
+        ns: u64,
+        t: f64,
+        dt: f64,
+        plant: &PlantStep,
+        rate: [f64; 2],
+    ) -> Result<()> {
+        let noise: Noise = self.cfg.noise;
+        let (q, dq, tau) = (&plant.q, &plant.dq, &plant.tau);
+        let vol = quant(pack_volts(st.soc) - 0.15 + 0.03 * gauss(rng), 0.1) as f32;
+        for (slot, &(q0, tau0)) in STANDING.iter().enumerate() {
+            let k = if slot < 15 { slot } else { slot + N_JOINTS };
+            st.motors[k] = MotorState {
+                mode: 1,
+                q: quant(q0 + noise.q_rad * gauss(rng), STANDING_QUANT.0) as f32,
+                dq: quant(noise.dq_rad_s * gauss(rng), STANDING_QUANT.1) as f32,
+                tau_est: quant(tau0 + noise.tau_nm * gauss(rng), STANDING_QUANT.2) as f32,
+                temperature: [30, 28],
+                vol,
+            };
         }
-        Ok(stats)
+        for i in 0..N_JOINTS {
+            st.motors[ARM_BASE + i] = MotorState {
+                mode: 1,
+                q: (q[i] + noise.q_rad * gauss(rng)) as f32,
+                dq: (dq[i] + noise.dq_rad_s * gauss(rng)) as f32,
+                tau_est: (tau[i] + noise.tau_nm * gauss(rng)) as f32,
+                temperature: [
+                    st.thermal.winding_c[i].round() as i16,
+                    st.thermal.housing_c(i).round() as i16,
+                ],
+                vol,
+            };
+        }
+        for (angle, r) in st.sway_angle.iter_mut().zip(rate) {
+            *angle += r * dt;
+            if self.cfg.effects.balance_leak.is_some() {
+                // The balance controller pulls the body back (2 s time constant).
+                *angle -= *angle * dt / 2.0;
+            }
+        }
+        let imu = imu_state(t, st.yaw0, rate, st.sway_angle, noise.gyro_rad_s, rng);
+        out.write(
+            Topic::LowState,
+            ns,
+            st.cdr.low_state(st.tick, &imu, &st.motors),
+        )?;
+        st.tick = st.tick.wrapping_add(10);
+        Ok(())
+    }
+
+    /// Stage (one `/arm_sdk` message): the command.
+    fn arm_sdk<W: Write + Seek>(
+        &self,
+        st: &mut RunState,
+        out: &mut McapOut<W>,
+        ns: u64,
+        t: f64,
+    ) -> Result<()> {
+        st.i_cmd += 1;
+        let (q, dq, _) = self.reference.eval(t, &mut st.cmd_hint);
+        out.write(
+            Topic::ArmSdk,
+            ns,
+            st.cdr.low_cmd(ARM_BASE, &q, &dq, 400.0, 12.0),
+        )
+    }
+
+    /// Stage (one `/lf/bmsstate` reading): the battery's view of the rail power plus the rest
+    /// of the robot.
+    fn bms<W: Write + Seek>(
+        &self,
+        st: &mut RunState,
+        out: &mut McapOut<W>,
+        rng: &mut ChaCha8Rng,
+        ns: u64,
+        t: f64,
+    ) -> Result<()> {
+        let noise: Noise = self.cfg.noise;
+        st.i_bms += 1;
+        let p = window_mean(&st.power_hist, t - st.latency, SENSOR_WINDOW_S);
+        st.bms_ou = ou_step(st.bms_ou, (t - st.t_bms_prev).max(0.0), BMS_OU, rng);
+        st.t_bms_prev = t;
+        let p_bms = p + BMS_OFFSET_W + st.bms_ou + noise.bms_w * gauss(rng);
+        let volts = quant(pack_volts(st.soc), 0.01);
+        let cell = (volts / 13.0 * 1000.0).round();
+        let mut cell_mv = [0u16; 13];
+        for (c, v) in cell_mv.iter_mut().enumerate() {
+            *v = (cell + [-2.0, 0.0, 2.0, -1.0, 1.0][c % 5]).clamp(0.0, 65535.0) as u16;
+        }
+        let temp = 28.0 + 2.0 * t / 3600.0;
+        let b = BmsFields {
+            pack_mv: (volts * 1000.0).round() as u32,
+            current_ma: (p_bms / volts * 1000.0).round() as i32,
+            soc_pct: (st.soc * 100.0).round().clamp(0.0, 100.0) as u8,
+            temps_c: [
+                temp as i16,
+                (temp as i16).saturating_add(1),
+                (temp as i16).saturating_sub(1),
+                temp as i16,
+            ],
+            cell_mv,
+        };
+        out.write(Topic::Bms, ns, st.cdr.bms_state(&b))
+    }
+
+    /// Stage (one `/lf/mainboardstate` reading): the arm rail's sensor and the fans.
+    fn mbs<W: Write + Seek>(
+        &self,
+        st: &mut RunState,
+        out: &mut McapOut<W>,
+        rng: &mut ChaCha8Rng,
+        ns: u64,
+        t: f64,
+    ) -> Result<()> {
+        let noise: Noise = self.cfg.noise;
+        st.i_mbs += 1;
+        let p =
+            window_mean(&st.power_hist, t - st.latency, SENSOR_WINDOW_S) + noise.mbs_w * gauss(rng);
+        let volts = quant(pack_volts(st.soc) - 0.4 + 0.005 * gauss(rng), 0.01);
+        let amps = quant(p / volts, 0.001);
+        let rpm = 2085.0 + 10.0 * gauss(rng);
+        let rpm2 = match st.fan.as_mut() {
+            None => rpm - 30.0,
+            Some(f) => f.rpm(),
+        };
+        out.write(
+            Topic::Mbs,
+            ns,
+            st.cdr.main_board_state(
+                volts as f32,
+                amps as f32,
+                [rpm as u16, rpm2 as u16],
+                [39, 36],
+            ),
+        )
     }
 }
 

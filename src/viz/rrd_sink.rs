@@ -41,6 +41,8 @@ pub(super) struct RrdFileSink {
 pub(super) struct PendingFile {
     state: Shared,
     tmp: PathBuf,
+    /// Registers `tmp` for removal on drop or on a termination signal (`util::temp`).
+    guard: Option<crate::util::temp::TempPath>,
     target: PathBuf,
     committed: bool,
 }
@@ -57,11 +59,8 @@ impl RrdFileSink {
         let name = target
             .file_name()
             .ok_or_else(|| anyhow!("output path {} has no file name", target.display()))?;
-        let tmp = dir.join(format!(
-            ".{}.tmp{}",
-            name.to_string_lossy(),
-            std::process::id()
-        ));
+        let guard = crate::util::temp::TempPath::beside(&dir.join(name), "");
+        let tmp = guard.path().to_path_buf();
         let file = File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
         let encoder = Encoder::new_eager(
             CrateVersion::LOCAL,
@@ -85,6 +84,7 @@ impl RrdFileSink {
         let pending = PendingFile {
             state: state.clone(),
             tmp,
+            guard: Some(guard),
             target: target.to_path_buf(),
             committed: false,
         };
@@ -166,7 +166,8 @@ impl PendingFile {
             .with_context(|| format!("writing {}", self.tmp.display()))?;
         file.sync_all()
             .with_context(|| format!("syncing {}", self.tmp.display()))?;
-        std::fs::rename(&self.tmp, &self.target).with_context(|| {
+        let guard = self.guard.take().context("already committed")?;
+        guard.commit(&self.target).with_context(|| {
             format!(
                 "renaming {} to {}",
                 self.tmp.display(),

@@ -17,9 +17,9 @@ use std::collections::BTreeMap;
 use std::io::Write;
 use std::path::Path;
 
-use g1viz::read::decode::{Value, decode};
-use g1viz::read::msgdef::{ArrayKind, FieldType, Primitive};
+use g1viz::read::{ArrayKind, FieldType, Primitive};
 use g1viz::read::{Encoding, MsgSchema, OpenOptions, Session};
+use g1viz::read::{Value, decode};
 
 /// A small deterministic PRNG (xorshift64*): reproducible campaigns without API churn.
 pub struct Rng(u64);
@@ -477,6 +477,9 @@ fn write_db3(msgs: &[SeedMsg], mode: &str) -> Input {
     let db = tmp.path().join("in.db3");
     {
         let conn = rusqlite::Connection::open(&db).expect("sqlite");
+        // No fsync and one transaction: the seed is rebuilt by every campaign child.
+        conn.execute_batch("PRAGMA synchronous = OFF; PRAGMA journal_mode = MEMORY;")
+            .expect("pragmas");
         conn.execute_batch(
             "CREATE TABLE schema(schema_version INTEGER PRIMARY KEY, ros_distro TEXT NOT NULL);
              INSERT INTO schema VALUES (4, 'humble');
@@ -490,6 +493,7 @@ fn write_db3(msgs: &[SeedMsg], mode: &str) -> Input {
                type_description_hash TEXT NOT NULL);",
         )
         .expect("tables");
+        conn.execute_batch("BEGIN").expect("begin");
         let mut topics: BTreeMap<String, i64> = BTreeMap::new();
         for m in msgs {
             let id = match topics.get(&m.topic) {
@@ -517,6 +521,7 @@ fn write_db3(msgs: &[SeedMsg], mode: &str) -> Input {
             )
             .expect("message");
         }
+        conn.execute_batch("COMMIT").expect("commit");
     }
     let bytes = std::fs::read(&db).expect("db");
     let (file, bytes) = if mode == "file" {
@@ -966,7 +971,10 @@ fn mutate_db3(input: &mut Input, rng: &mut Rng) -> String {
         ),
     };
     let ok = rusqlite::Connection::open(&db)
-        .and_then(|c| c.execute_batch(&sql))
+        .and_then(|c| {
+            c.execute_batch("PRAGMA synchronous = OFF; PRAGMA journal_mode = MEMORY;")?;
+            c.execute_batch(&sql)
+        })
         .is_ok();
     if ok {
         input

@@ -1,0 +1,551 @@
+//! Bounded-memory reading of a session file for identification and validation, in two streamed
+//! passes (memory does not grow with the session's length):
+//!
+//! 1. **Segmentation pass** (every arm topic): the samples are buffered in pieces of about
+//!    [`StreamOptions::chunk_s`] seconds; each piece is segmented, the trials it completes are
+//!    kept (σ_ω of each taken on the spot) and the buffer is cut at the last one's return, so the
+//!    next piece starts with that return and the home idle before the next trial. With a
+//!    command stream every trial boundary depends only on the samples around it, so the trials
+//!    equal those of segmenting the whole session at once (tested); the measured-state
+//!    segmenter's noise threshold is estimated per piece. The power series are kept whole
+//!    (~1 Hz). The joint states of at most [`StreamOptions::hold_trials`] trials (every trial,
+//!    or every 2nd, 4th, … in session order) are held for the sensor-timing search.
+//! 2. **Row pass** (joint states only, same clock): a buffer holds the samples from the current
+//!    trial's pre-idle to its post-idle end; each trial's rows (per reading, per trial, thinned
+//!    per sample) are built there and the buffer is emptied before the next trial.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+
+use super::dataset::{self, Dataset, DatasetOptions, Mode, Row};
+use crate::N_JOINTS;
+use crate::read::OpenOptions;
+use crate::signals::{PowerSeries, Recording, SignalMap, StateSeries, Target, stream_recording};
+use crate::trial::{self, SegmentOptions, Segmentation, TrialWindow};
+
+/// Tuning of the streamed read.
+#[derive(Debug, Clone, Copy)]
+pub struct StreamOptions {
+    /// Length of the pieces the segmentation pass buffers [s] (a session shorter than this is
+    /// segmented in one piece, exactly as in memory).
+    pub chunk_s: f64,
+    /// Most trials whose joint states are held for the sensor-timing search; beyond it every
+    /// 2nd (then 4th, …) trial in session order is held.
+    pub hold_trials: usize,
+    /// Samples per decoded batch.
+    pub batch_samples: usize,
+}
+
+impl Default for StreamOptions {
+    fn default() -> Self {
+        StreamOptions {
+            chunk_s: 300.0,
+            hold_trials: 320,
+            batch_samples: 4096,
+        }
+    }
+}
+
+/// A session file and how to read it.
+#[derive(Debug, Clone)]
+pub struct SessionFile {
+    /// File or bag folder.
+    pub path: PathBuf,
+    /// Topics and fields of the arm signals.
+    pub map: SignalMap,
+    /// Reader options (message definitions).
+    pub read: OpenOptions,
+}
+
+/// Margin around a trial's window whose samples are kept [s] (rows only read inside it).
+const MARGIN_S: f64 = 0.5;
+
+/// What the segmentation pass found.
+pub(crate) struct Pass1 {
+    pub source: PathBuf,
+    pub seg: Segmentation,
+    /// σ_ω over each trial's analysis window, in `seg.trials` order.
+    pub sigmas: Vec<f64>,
+    /// Joint states (t, τ, q̇) of `held_trials`' windows plus the whole power series.
+    pub held: Recording,
+    pub held_trials: Vec<TrialWindow>,
+    /// Winding temperatures of the first joint-state sample.
+    pub first_temp_c: Option<[f64; N_JOINTS]>,
+    pub warnings: Vec<String>,
+}
+
+/// Append the samples of `from` (all of its columns that `to` keeps) to `to`.
+fn append_state(to: &mut StateSeries, from: &StateSeries, full: bool) {
+    to.t.extend_from_slice(&from.t);
+    to.tau.extend_from_slice(&from.tau);
+    to.dq.extend_from_slice(&from.dq);
+    to.gyro.extend_from_slice(&from.gyro);
+    if full {
+        to.q.extend_from_slice(&from.q);
+        to.temp.extend_from_slice(&from.temp);
+        to.quat.extend_from_slice(&from.quat);
+    }
+}
+
+/// Drop the samples before index `i` of every non-empty column.
+fn drain_state(s: &mut StateSeries, i: usize) {
+    fn d<T>(v: &mut Vec<T>, i: usize) {
+        v.drain(..i.min(v.len()));
+    }
+    d(&mut s.t, i);
+    d(&mut s.q, i);
+    d(&mut s.dq, i);
+    d(&mut s.tau, i);
+    d(&mut s.temp, i);
+    d(&mut s.gyro, i);
+    d(&mut s.quat, i);
+}
+
+/// Sort every column of `s` by time (a file without an index may deliver a batch earlier than
+/// the previous one).
+fn sort_state(s: &mut StateSeries) {
+    if s.t.is_sorted() {
+        return;
+    }
+    let mut order: Vec<usize> = (0..s.t.len()).collect();
+    order.sort_by(|&a, &b| s.t[a].total_cmp(&s.t[b]));
+    fn p<T: Copy>(v: &mut Vec<T>, o: &[usize]) {
+        if v.len() == o.len() {
+            *v = o.iter().map(|&i| v[i]).collect();
+        }
+    }
+    p(&mut s.t, &order);
+    p(&mut s.q, &order);
+    p(&mut s.dq, &order);
+    p(&mut s.tau, &order);
+    p(&mut s.temp, &order);
+    p(&mut s.gyro, &order);
+    p(&mut s.quat, &order);
+}
+
+/// The joint states of a bounded set of trials, for the sensor-timing search.
+struct Holder {
+    stride: usize,
+    max: usize,
+    rec: Recording,
+    trials: Vec<TrialWindow>,
+}
+
+impl Holder {
+    /// Copy the samples of `trial`'s window from `from` when the trial is one of those held.
+    fn offer(&mut self, from: &StateSeries, trial: &TrialWindow) {
+        if !trial.index.is_multiple_of(self.stride) {
+            return;
+        }
+        copy_window(&mut self.rec.state, from, trial);
+        self.trials.push(trial.clone());
+        if self.trials.len() > self.max {
+            self.stride *= 2;
+            let old = std::mem::take(&mut self.rec.state);
+            let stride = self.stride;
+            self.trials.retain(|t| t.index.is_multiple_of(stride));
+            for t in &self.trials {
+                copy_window(&mut self.rec.state, &old, t);
+            }
+        }
+    }
+}
+
+/// Append `from`'s (t, τ, q̇) samples inside `trial`'s window (with margins) that are later than
+/// the last sample of `to`.
+fn copy_window(to: &mut StateSeries, from: &StateSeries, trial: &TrialWindow) {
+    let after = to.t.last().copied().unwrap_or(f64::NEG_INFINITY);
+    let lo = (trial.t_pre_start - MARGIN_S).max(after);
+    let n = from.t.len().min(from.tau.len()).min(from.dq.len());
+    let i0 = from.t[..n].partition_point(|&x| x <= lo);
+    let i1 = from.t[..n].partition_point(|&x| x <= trial.t_post_end + MARGIN_S);
+    if i0 < i1 {
+        to.t.extend_from_slice(&from.t[i0..i1]);
+        to.tau.extend_from_slice(&from.tau[i0..i1]);
+        to.dq.extend_from_slice(&from.dq[i0..i1]);
+    }
+}
+
+/// Piecewise segmentation state of pass 1.
+struct Chunker<'o> {
+    opts: &'o SegmentOptions,
+    chunk_s: f64,
+    /// Joint states and commands of the current piece.
+    buf: Recording,
+    /// Return end of the last accepted trial (−∞ before the first).
+    until: f64,
+    /// Trajectory start of the last accepted trial.
+    last_traj: f64,
+    seg: Segmentation,
+    sigmas: Vec<f64>,
+    hold: Holder,
+}
+
+impl Chunker<'_> {
+    fn span(&self) -> f64 {
+        let span = |t: &[f64]| match (t.first(), t.last()) {
+            (Some(a), Some(b)) => b - a,
+            _ => 0.0,
+        };
+        span(&self.buf.state.t).max(span(&self.buf.command.t))
+    }
+
+    fn push(&mut self, batch: &Recording) {
+        append_state(&mut self.buf.state, &batch.state, true);
+        sort_state(&mut self.buf.state);
+        let c = &mut self.buf.command;
+        c.t.extend_from_slice(&batch.command.t);
+        c.q.extend_from_slice(&batch.command.q);
+        c.dq.extend_from_slice(&batch.command.dq);
+        if !c.t.is_sorted() {
+            let mut o: Vec<usize> = (0..c.t.len()).collect();
+            o.sort_by(|&a, &b| c.t[a].total_cmp(&c.t[b]));
+            c.t = o.iter().map(|&i| c.t[i]).collect();
+            if c.q.len() == o.len() {
+                c.q = o.iter().map(|&i| c.q[i]).collect();
+            }
+            if c.dq.len() == o.len() {
+                c.dq = o.iter().map(|&i| c.dq[i]).collect();
+            }
+        }
+    }
+
+    /// Segment the buffer, keep the trials it completes (all of them when `last`), and cut the
+    /// buffer at the return of the last one kept.
+    fn process(&mut self, last: bool) {
+        let seg = trial::segment(&self.buf, self.opts);
+        if self.seg.source.is_empty() {
+            self.seg.source = seg.source.clone();
+        }
+        let fresh: Vec<&TrialWindow> = seg
+            .trials
+            .iter()
+            .filter(|t| t.t_traj_start > self.last_traj)
+            .collect();
+        // The newest trial of a piece may still be cut off by the piece's end: the next piece
+        // segments it again.
+        let take = if last {
+            fresh.len()
+        } else {
+            fresh.len().saturating_sub(1)
+        };
+        let before = self.until;
+        for t in &fresh[..take] {
+            let mut t = (*t).clone();
+            t.index = self.seg.trials.len();
+            let (a, b) = t.analysis_window();
+            self.sigmas.push(trial::sigma_omega(&self.buf, a, b));
+            self.hold.offer(&self.buf.state, &t);
+            self.until = t.t_return_end;
+            self.last_traj = t.t_traj_start;
+            self.seg.trials.push(t);
+        }
+        let mut cut = fresh[..take].last().map(|t| t.t_post_end);
+        if !last && cut.is_none() && self.span() > 2.0 * self.chunk_s {
+            // No trial completed in two pieces' time: keep only the last piece (bounded memory
+            // on a session that does not follow the protocol), reporting what came before.
+            let end = self.buf.state.t.last().copied().unwrap_or(0.0);
+            let mut c = end - self.chunk_s;
+            if let Some(t) = fresh.first() {
+                c = c.min(t.t_pre_start - MARGIN_S);
+            }
+            let start = self.buf.state.t.first().copied().unwrap_or(0.0);
+            if c <= start {
+                c = end - self.chunk_s;
+            }
+            self.until = self.until.max(c);
+            cut = Some(c);
+        }
+        let upto = if last { f64::INFINITY } else { self.until };
+        for s in seg.unmatched {
+            if s.t0 >= before && s.t0 < upto {
+                self.seg.unmatched.push(s);
+            }
+        }
+        if let (false, Some(cut)) = (last, cut) {
+            let i = self.buf.state.t.partition_point(|&x| x < cut);
+            drain_state(&mut self.buf.state, i);
+            let c = &mut self.buf.command;
+            let i = c.t.partition_point(|&x| x < cut);
+            c.t.drain(..i);
+            c.q.drain(..i.min(c.q.len()));
+            c.dq.drain(..i.min(c.dq.len()));
+        }
+    }
+}
+
+/// Pass 1: segment `file` piece by piece, σ_ω per trial, the held samples and the power series.
+pub(crate) fn segmentation_pass(
+    file: &SessionFile,
+    opts: &SegmentOptions,
+    so: &StreamOptions,
+) -> Result<Pass1> {
+    let mut ch = Chunker {
+        opts,
+        chunk_s: so.chunk_s.max(1.0),
+        buf: Recording::default(),
+        until: f64::NEG_INFINITY,
+        last_traj: f64::NEG_INFINITY,
+        seg: Segmentation::default(),
+        sigmas: Vec::new(),
+        hold: Holder {
+            stride: 1,
+            max: so.hold_trials.max(1),
+            rec: Recording::default(),
+            trials: Vec::new(),
+        },
+    };
+    let mut mbs = PowerSeries::default();
+    let mut bms = PowerSeries::default();
+    let mut first_temp_c = None;
+    let summary = stream_recording(
+        &file.path,
+        &file.map,
+        &file.read,
+        so.batch_samples,
+        &mut |batch| {
+            if first_temp_c.is_none() {
+                first_temp_c = batch.state.temp.first().copied();
+            }
+            mbs.t.extend_from_slice(&batch.mbs.t);
+            mbs.watts.extend_from_slice(&batch.mbs.watts);
+            bms.t.extend_from_slice(&batch.bms.t);
+            bms.watts.extend_from_slice(&batch.bms.watts);
+            ch.push(batch);
+            if ch.span() >= ch.chunk_s {
+                ch.process(false);
+            }
+            Ok(())
+        },
+    )?;
+    ch.process(true);
+    sort_power(&mut mbs);
+    sort_power(&mut bms);
+    let mut held = ch.hold.rec;
+    held.source = file.path.clone();
+    held.start_ns = summary.start_ns;
+    held.joint_names = file.map.joint_names.clone();
+    held.mbs = mbs;
+    held.bms = bms;
+    Ok(Pass1 {
+        source: file.path.clone(),
+        seg: ch.seg,
+        sigmas: ch.sigmas,
+        held,
+        held_trials: ch.hold.trials,
+        first_temp_c,
+        warnings: summary.warnings,
+    })
+}
+
+fn sort_power(p: &mut PowerSeries) {
+    if p.t.is_sorted() {
+        return;
+    }
+    let mut o: Vec<usize> = (0..p.t.len()).collect();
+    o.sort_by(|&a, &b| p.t[a].total_cmp(&p.t[b]));
+    p.t = o.iter().map(|&i| p.t[i]).collect();
+    if p.watts.len() == o.len() {
+        p.watts = o.iter().map(|&i| p.watts[i]).collect();
+    }
+}
+
+/// What pass 2 builds.
+pub(crate) struct RowPlan<'a> {
+    pub target: Target,
+    pub alignment: dataset::Alignment,
+    /// Every trial of the session (reading and trial rows are built for each).
+    pub trials: &'a [TrialWindow],
+    /// Trials whose sample rows are built (thinned by `sample_stride`).
+    pub sample_trials: &'a [usize],
+    pub sample_stride: usize,
+    /// Trials whose sample rows are all kept (only when the fit itself is per sample).
+    pub full_sample_trials: &'a [usize],
+}
+
+/// The rows of one session (every trial's reading and trial rows; sample rows as planned).
+pub(crate) struct SessionSets {
+    pub reading: Dataset,
+    pub trial: Dataset,
+    /// Thinned sample rows of the planned trials.
+    pub sample_thin: Vec<Row>,
+    /// All sample rows of the planned trials (empty unless planned).
+    pub sample_full: Dataset,
+}
+
+fn empty_set(mode: Mode, plan: &RowPlan) -> Dataset {
+    Dataset {
+        mode,
+        target: plan.target,
+        alignment: plan.alignment,
+        rows: Vec::new(),
+        trials: Vec::new(),
+        skipped: Vec::new(),
+    }
+}
+
+fn extend(to: &mut Dataset, from: Dataset) {
+    to.rows.extend(from.rows);
+    to.trials.extend(from.trials);
+    to.skipped.extend(from.skipped);
+}
+
+impl SessionSets {
+    fn new(plan: &RowPlan) -> SessionSets {
+        SessionSets {
+            reading: empty_set(Mode::Reading, plan),
+            trial: empty_set(Mode::Trial, plan),
+            sample_thin: Vec::new(),
+            sample_full: empty_set(Mode::Sample, plan),
+        }
+    }
+
+    /// Add the rows of `trial` built on `rec` (which holds at least the trial's window).
+    pub(crate) fn add_trial(&mut self, rec: &Recording, trial: &TrialWindow, plan: &RowPlan) {
+        let opts = |mode| DatasetOptions {
+            mode,
+            target: plan.target,
+            alignment: plan.alignment,
+        };
+        let one = std::slice::from_ref(trial);
+        extend(
+            &mut self.reading,
+            dataset::build(rec, one, &opts(Mode::Reading)),
+        );
+        extend(
+            &mut self.trial,
+            dataset::build(rec, one, &opts(Mode::Trial)),
+        );
+        let thin = plan.sample_trials.contains(&trial.index);
+        let full = plan.full_sample_trials.contains(&trial.index);
+        if thin || full {
+            let set = dataset::build(rec, one, &opts(Mode::Sample));
+            if thin {
+                self.sample_thin
+                    .extend(set.rows.iter().step_by(plan.sample_stride.max(1)).cloned());
+            }
+            if full {
+                extend(&mut self.sample_full, set);
+            }
+        }
+    }
+
+    /// The rows of every trial of `plan` built on a whole recording in memory.
+    pub(crate) fn from_memory(rec: &Recording, plan: &RowPlan) -> SessionSets {
+        let mut sets = SessionSets::new(plan);
+        for t in plan.trials {
+            sets.add_trial(rec, t, plan);
+        }
+        sets
+    }
+}
+
+/// Pass 2: stream the joint states of `file` (clock of pass 1) and build the planned rows,
+/// holding only the current trial's samples.
+///
+/// `power` gives the clock (`start_ns`) and the power series (those of pass 1).
+pub(crate) fn row_pass(
+    file: &SessionFile,
+    power: &Recording,
+    plan: &RowPlan,
+    so: &StreamOptions,
+) -> Result<SessionSets> {
+    let mut sets = SessionSets::new(plan);
+    let mut buf = Recording {
+        source: file.path.clone(),
+        start_ns: power.start_ns,
+        joint_names: file.map.joint_names.clone(),
+        mbs: power.mbs.clone(),
+        bms: power.bms.clone(),
+        ..Recording::default()
+    };
+    let trials = plan.trials;
+    let mut next = 0usize;
+    let mut step = |buf: &mut Recording, done: bool, sets: &mut SessionSets| {
+        let last_t = buf.state.t.last().copied().unwrap_or(f64::NEG_INFINITY);
+        while let Some(t) = trials.get(next) {
+            if !done && last_t <= t.t_post_end + MARGIN_S {
+                break;
+            }
+            sets.add_trial(buf, t, plan);
+            next += 1;
+        }
+        let keep_from = trials
+            .get(next)
+            .map_or(f64::INFINITY, |t| t.t_pre_start - MARGIN_S);
+        let i = buf.state.t.partition_point(|&x| x < keep_from);
+        drain_state(&mut buf.state, i);
+    };
+    crate::signals::stream_state(
+        &file.path,
+        &file.map,
+        &file.read,
+        power.start_ns,
+        so.batch_samples,
+        &mut |batch| {
+            append_state(&mut buf.state, &batch.state, false);
+            sort_state(&mut buf.state);
+            step(&mut buf, false, &mut sets);
+            Ok(())
+        },
+    )?;
+    step(&mut buf, true, &mut sets);
+    Ok(sets)
+}
+
+/// Stream every arm topic of `file` once and call `on_trial` for each of `trials` (in time
+/// order) with a recording holding at least that trial's joint states (all columns) and every
+/// power reading up to a few seconds past the trial's window; earlier samples are dropped, so
+/// memory stays bounded. Times share the clock of [`segmentation_pass`] (the same earliest
+/// message). Used by the row export, which needs the temperatures too.
+pub fn for_each_trial(
+    file: &SessionFile,
+    trials: &[TrialWindow],
+    batch_samples: usize,
+    on_trial: &mut dyn FnMut(&Recording, &TrialWindow),
+) -> Result<()> {
+    // A reading stamped up to this long after the window can still belong to it (sensor lag).
+    const AFTER_S: f64 = 2.0;
+    let mut buf = Recording {
+        source: file.path.clone(),
+        joint_names: file.map.joint_names.clone(),
+        ..Recording::default()
+    };
+    let mut next = 0usize;
+    let mut step = |buf: &mut Recording, done: bool| {
+        let last_t = buf.state.t.last().copied().unwrap_or(f64::NEG_INFINITY);
+        while let Some(t) = trials.get(next) {
+            if !done && last_t <= t.t_post_end + AFTER_S {
+                break;
+            }
+            on_trial(buf, t);
+            next += 1;
+        }
+        let keep_from = trials
+            .get(next)
+            .map_or(f64::INFINITY, |t| t.t_pre_start - MARGIN_S);
+        let i = buf.state.t.partition_point(|&x| x < keep_from);
+        drain_state(&mut buf.state, i);
+    };
+    stream_recording(
+        &file.path,
+        &file.map,
+        &file.read,
+        batch_samples,
+        &mut |batch| {
+            buf.start_ns = batch.start_ns;
+            append_state(&mut buf.state, &batch.state, true);
+            sort_state(&mut buf.state);
+            for (to, from) in [(&mut buf.mbs, &batch.mbs), (&mut buf.bms, &batch.bms)] {
+                to.t.extend_from_slice(&from.t);
+                to.watts.extend_from_slice(&from.watts);
+                sort_power(to);
+            }
+            step(&mut buf, false);
+            Ok(())
+        },
+    )?;
+    step(&mut buf, true);
+    Ok(())
+}

@@ -1,0 +1,254 @@
+//! The streamed identification and validation (two passes over the file, memory bounded by the
+//! piece length) against the in-memory pipeline on the loaded recording: same trials, same
+//! sensor timing, same θ, including when the session is segmented in many short pieces.
+
+use std::path::{Path, PathBuf};
+
+use g1viz::identify::{
+    self, AlignmentChoice, Identification, IdentifyOptions, SessionFile, StreamOptions,
+};
+use g1viz::power::PowerModel;
+use g1viz::signals::{SignalMap, load_recording};
+
+fn example() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/g1_example.mcap")
+}
+
+fn file(path: &Path) -> SessionFile {
+    SessionFile {
+        path: path.to_path_buf(),
+        map: SignalMap::g1_left_arm(),
+        read: Default::default(),
+    }
+}
+
+/// Options the example supports: it is too short for the timing search (42 readings).
+fn nominal() -> IdentifyOptions {
+    IdentifyOptions {
+        alignment: AlignmentChoice::Given(identify::Alignment::NOMINAL),
+        ..IdentifyOptions::default()
+    }
+}
+
+fn assert_same(a: &Identification, b: &Identification) {
+    assert_eq!(a.sessions.len(), b.sessions.len());
+    for (x, y) in a.sessions.iter().zip(&b.sessions) {
+        assert_eq!(x.segmentation.trials, y.segmentation.trials);
+        assert_eq!(x.skipped, y.skipped);
+    }
+    assert_eq!(a.alignment, b.alignment);
+    assert_eq!(a.rejections, b.rejections);
+    assert_eq!(a.model.to_vector(), b.model.to_vector());
+    assert_eq!(a.per_trial, b.per_trial);
+    assert_eq!(a.fit, b.fit);
+    assert_eq!(a.trials_used, b.trials_used);
+    for (x, y) in a.modes.iter().zip(&b.modes) {
+        assert_eq!(x.mode, y.mode);
+        assert_eq!(x.quality, y.quality);
+    }
+}
+
+#[test]
+fn streamed_identify_equals_in_memory_on_the_example() {
+    let rec = load_recording(&example(), &SignalMap::g1_left_arm(), &Default::default()).unwrap();
+    let opts = nominal();
+    let mem = identify::identify(std::slice::from_ref(&rec), &opts).unwrap();
+    // One piece (the default) and pieces of 15 s (every trial boundary near a piece boundary).
+    for chunk_s in [600.0, 15.0, 31.0] {
+        let so = StreamOptions {
+            chunk_s,
+            batch_samples: 500,
+            ..StreamOptions::default()
+        };
+        let streamed = identify::identify_files(&[file(&example())], &opts, &so).unwrap();
+        assert_eq!(mem.sessions[0].segmentation.trials.len(), 7);
+        assert_same(&mem, &streamed);
+        assert_eq!(
+            mem.sessions[0].segmentation.unmatched, streamed.sessions[0].segmentation.unmatched,
+            "piece length {chunk_s} s"
+        );
+    }
+}
+
+#[test]
+fn streamed_validate_equals_in_memory_on_the_example() {
+    let rec = load_recording(&example(), &SignalMap::g1_left_arm(), &Default::default()).unwrap();
+    let model = PowerModel::PAPER;
+    let opts = IdentifyOptions::default();
+    let mem = identify::validate(&model, &rec, &opts).unwrap();
+    let so = StreamOptions {
+        chunk_s: 20.0,
+        batch_samples: 700,
+        ..StreamOptions::default()
+    };
+    let streamed = identify::validate_file(&model, &file(&example()), &opts, &so).unwrap();
+    assert_eq!(mem.alignment, streamed.alignment);
+    assert_eq!(mem.per_trial, streamed.per_trial);
+    assert_eq!(mem.trial_level, streamed.trial_level);
+    assert_eq!(mem.reading_level, streamed.reading_level);
+    assert_eq!(mem.rejections, streamed.rejections);
+    assert_eq!(mem.notes, streamed.notes);
+}
+
+/// A simulated 24-trial session (~6 min) in 60 s pieces, with the timing search's held trials
+/// capped at 12 (every 2nd trial held): trials equal; the timing search runs on the held subset.
+#[test]
+fn streamed_identify_on_a_smoke_session_in_pieces() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("smoke.mcap");
+    g1viz::sim::simulate(
+        &g1viz::sim::SimConfig {
+            progress: false,
+            seed: 5,
+            ..Default::default()
+        },
+        &path,
+    )
+    .unwrap();
+    let rec = load_recording(&path, &SignalMap::g1_left_arm(), &Default::default()).unwrap();
+    let opts = IdentifyOptions::default();
+    let mem = identify::identify(std::slice::from_ref(&rec), &opts).unwrap();
+    let pieces = StreamOptions {
+        chunk_s: 60.0,
+        ..StreamOptions::default()
+    };
+    let streamed = identify::identify_files(&[file(&path)], &opts, &pieces).unwrap();
+    assert!(mem.sessions[0].segmentation.trials.len() >= 20);
+    assert_same(&mem, &streamed);
+
+    let held = StreamOptions {
+        chunk_s: 60.0,
+        hold_trials: 12,
+        ..StreamOptions::default()
+    };
+    let subset = identify::identify_files(&[file(&path)], &opts, &held).unwrap();
+    let est = subset.alignment_estimate.as_ref().unwrap();
+    let full = mem.alignment_estimate.as_ref().unwrap();
+    // The subset's search sees fewer rows (every 2nd trial) …
+    assert!(
+        est.grid[0].rows < full.grid[0].rows * 2 / 3,
+        "{} vs {}",
+        est.grid[0].rows,
+        full.grid[0].rows
+    );
+    // … and still finds the simulated sensor's timing (0.2 s window, no lag) within one fine step.
+    assert!(
+        (subset.alignment.window_s - 0.2).abs() <= 0.0251,
+        "{:?}",
+        subset.alignment
+    );
+    assert!(
+        subset.alignment.lag_s.abs() <= 0.0251,
+        "{:?}",
+        subset.alignment
+    );
+    assert_eq!(
+        subset.sessions[0].segmentation.trials,
+        mem.sessions[0].segmentation.trials
+    );
+}
+
+/// Two sessions of one robot (the example, and a simulated one started with warm windings): the
+/// per-session breakdown accounts for every trial and row, and shows each start temperature.
+#[test]
+fn multi_session_breakdown() {
+    let dir = tempfile::tempdir().unwrap();
+    let warm = dir.path().join("warm.mcap");
+    g1viz::sim::simulate(
+        &g1viz::sim::SimConfig {
+            preset: g1viz::sim::Preset::Example,
+            progress: false,
+            seed: 9,
+            t_start_c: 55.0,
+            ..Default::default()
+        },
+        &warm,
+    )
+    .unwrap();
+    let opts = nominal();
+    let id = identify::identify_files(
+        &[file(&example()), file(&warm)],
+        &opts,
+        &StreamOptions::default(),
+    )
+    .unwrap();
+    assert_eq!(id.per_session.len(), 2);
+    let total: usize = id
+        .sessions
+        .iter()
+        .map(|s| s.segmentation.trials.len())
+        .sum();
+    assert_eq!(
+        id.per_session.iter().map(|b| b.trials).sum::<usize>(),
+        total
+    );
+    assert_eq!(
+        id.per_session.iter().map(|b| b.used).sum::<usize>(),
+        id.trials_used
+    );
+    for (s, b) in id.per_session.iter().enumerate() {
+        let rejected = id.rejections.iter().filter(|r| r.session == s).count();
+        assert_eq!(b.rejected, rejected);
+        assert_eq!(b.used + b.rejected + b.without_rows, b.trials, "{b:?}");
+    }
+    // The final fit's rows are the sessions' per-reading rows: their RMSEs pool to the fit's.
+    let n: usize = id.per_session.iter().map(|b| b.reading.n).sum();
+    assert_eq!(n, id.fit.n);
+    let pooled = (id
+        .per_session
+        .iter()
+        .map(|b| b.reading.n as f64 * b.reading.rmse.powi(2))
+        .sum::<f64>()
+        / n as f64)
+        .sqrt();
+    assert!(
+        (pooled - id.fit.rmse).abs() < 1e-9,
+        "{pooled} vs {}",
+        id.fit.rmse
+    );
+    // Start temperatures: the example's first sample as read independently, the twin's 55 °C.
+    let rec = load_recording(&example(), &SignalMap::g1_left_arm(), &Default::default()).unwrap();
+    assert_eq!(
+        id.per_session[0].first_temp_c,
+        rec.state.temp.first().copied()
+    );
+    let warm_t = id.per_session[1].first_temp_c.unwrap();
+    assert!(warm_t.iter().all(|t| (t - 55.0).abs() <= 1.5), "{warm_t:?}");
+    let text = id.summary();
+    assert!(text.contains("per session:"), "{text}");
+    assert!(text.contains("warm.mcap"), "{text}");
+    let report = dir.path().join("report");
+    let file = id
+        .model_file(&SignalMap::g1_left_arm().joint_names, None, "")
+        .unwrap();
+    g1viz::identify::report::write_report(&report, &id.report_input(file, None, None)).unwrap();
+    let md = std::fs::read_to_string(report.join("report.md")).unwrap();
+    assert!(md.contains("## Per session"), "{md}");
+    let joined: Vec<String> = warm_t.iter().map(|v| format!("{v:.1}")).collect();
+    assert!(md.contains(&joined.join(", ")), "{md}");
+}
+
+/// The exported rows of a streamed session (one trial held at a time) equal those built on the
+/// loaded recording: regressors, net power, temperatures, flags.
+#[test]
+fn streamed_row_export_equals_in_memory() {
+    let rec = load_recording(&example(), &SignalMap::g1_left_arm(), &Default::default()).unwrap();
+    let opts = nominal();
+    let mem_id = identify::identify(std::slice::from_ref(&rec), &opts).unwrap();
+    let mem = g1viz::rows::table_rows(std::slice::from_ref(&rec), &mem_id, "r");
+    let files = [file(&example())];
+    let id = identify::identify_files(&files, &opts, &StreamOptions::default()).unwrap();
+    let streamed = g1viz::rows::table_rows_files(&files, &id, "r").unwrap();
+    assert!(mem.len() > 40, "{}", mem.len());
+    assert_eq!(mem.len(), streamed.len());
+    for (a, b) in mem.iter().zip(&streamed) {
+        assert_eq!(a.row, b.row);
+        assert_eq!(
+            (a.t_ns, &a.session, &a.rejected_by),
+            (b.t_ns, &b.session, &b.rejected_by)
+        );
+        for (x, y) in a.temp_c.iter().zip(&b.temp_c) {
+            assert!(x == y || (x.is_nan() && y.is_nan()), "{x} vs {y}");
+        }
+    }
+}
