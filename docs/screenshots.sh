@@ -12,6 +12,8 @@ work="$(mktemp -d)"
 pids=()
 cleanup() {
     for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done
+    # xvfb-run does not stop the browser it started: stop this run's browser (its own profile).
+    pkill -f -- "--user-data-dir=$work/chrome" 2>/dev/null || true
     rm -rf "$work"
 }
 trap cleanup EXIT
@@ -38,6 +40,9 @@ while IFS=$'\t' read -r rrd tab; do
     for _ in $(seq 100); do curl -s "http://127.0.0.1:$web" > /dev/null && break; sleep 0.2; done
     url="http://127.0.0.1:$web/?url=rerun%2Bhttp%3A%2F%2F127.0.0.1%3A$grpc%2Fproxy"
     python3 docs/cdp_screenshot.py "$devtools" "$wait_s" "$url" "docs/img/$name.png"
-    kill "$server"; wait "$server" 2>/dev/null || true
+    # `rerun` on PATH is a launcher: stop the viewer binary it started, then the launcher.
+    pkill -P "$server" 2>/dev/null || true
+    kill "$server" 2>/dev/null || true
+    wait "$server" 2>/dev/null || true
     echo "$name: $tab"
 done < "$work/list.tsv"

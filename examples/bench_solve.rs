@@ -199,6 +199,7 @@ fn main() -> anyhow::Result<()> {
                 label: "identification".into(),
                 measured: y.clone(),
                 predicted,
+                trials: Vec::new(),
             }),
             validation: None,
             terms: Some(TermContributions::from_means("identification rows", &means)),

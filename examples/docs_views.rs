@@ -1,6 +1,8 @@
 //! Writes the `.rrd` files the screenshots in `docs/` are taken from: the shipped example session
-//! replayed as `g1viz replay examples/g1_example.mcap --model paper` does, once per tab of the
-//! layout, each opening on its tab (`docs/screenshots.sh` serves and photographs them).
+//! replayed as `g1viz replay examples/g1_example.mcap --model paper --max-rate 25 --pose-rate 25`
+//! does, once per tab of the
+//! layout, each opening on its tab (`docs/screenshots.sh` serves and photographs them). The first
+//! tab is what the layout opens on, so it is not written twice.
 //!
 //! `cargo run --example docs_views -- OUT_DIR` writes `OUT_DIR/<n>-<tab>.rrd` (n = 0 is the
 //! layout as it opens) and prints one line per file: `<file>\t<tab name>`.
@@ -38,6 +40,10 @@ fn main() -> Result<()> {
     let layout = g1viz::viz::replay::layout(&robot, &arm, &joints, &extras);
     tabs.extend(layout.tab_names().into_iter().map(Some));
     for (n, tab) in tabs.iter().enumerate() {
+        // The layout opens on its first tab: that view is the default one, already taken.
+        if n == 1 {
+            continue;
+        }
         let slug = slug(tab.as_deref().unwrap_or("default"));
         let file = out.join(format!("{n}-{slug}.rrd"));
         let viz = open_stream(
@@ -48,7 +54,13 @@ fn main() -> Result<()> {
         )?;
         let opts = ReplayOptions {
             progress: false,
-            pose_rate_hz: Some(30.0),
+            // `replay --max-rate 25 --pose-rate 25`: the same views for an 82 s session, a
+            // quarter of the data for the web viewer to ingest before the screenshot.
+            pose_rate_hz: Some(25.0),
+            slice: g1viz::viz::Slice {
+                max_rate_hz: Some(25.0),
+                ..Default::default()
+            },
             open_tab: tab.clone(),
             properties: vec![
                 ("command".into(), "replay --model paper".into()),

@@ -609,11 +609,13 @@ fn report_writes_markdown_and_readable_pngs() {
             label: "identification".into(),
             measured: y.clone(),
             predicted: predicted.clone(),
+            trials: Vec::new(),
         }),
         validation: Some(PredictionSet {
             label: "hold-out".into(),
             measured: y[..40].to_vec(),
             predicted: predicted[..40].to_vec(),
+            trials: Vec::new(),
         }),
         terms: Some(TermContributions::from_means("identification", &means)),
         aggregation: vec![

@@ -404,6 +404,7 @@ fn recording_identifies_itself() {
 /// timeline, every plot's time axis linked to the others.
 #[test]
 fn blueprint_has_few_tabs_linked_axes_and_session_time() {
+    use rerun::Loggable as _;
     use rerun::external::arrow::array::AsArray;
     let dir = tempfile::tempdir().unwrap();
     let rec = synthetic(&input_file(dir.path()));
@@ -414,6 +415,7 @@ fn blueprint_has_few_tabs_linked_axes_and_session_time() {
     let mut time_axes = 0;
     let mut time_series = 0;
     let mut timeline = None;
+    let mut whole_session = false;
     for msg in &msgs {
         let LogMsg::ArrowMsg(store, arrow) = msg else {
             continue;
@@ -423,7 +425,23 @@ fn blueprint_has_few_tabs_linked_axes_and_session_time() {
         }
         let chunk = Chunk::from_arrow_msg(arrow).unwrap();
         let path = chunk.entity_path().to_string();
-        if path.ends_with("/TimeAxis") {
+        // The viewer's shared view (what globally linked plots read): its range is the whole
+        // session, both ends unbounded (the viewer's default is a 60 s window at the cursor).
+        if path == "/view/5c0dca6a-e63f-9cf7-f657-2602590474cc/TimeAxis" {
+            let range = chunk
+                .components()
+                .0
+                .values()
+                .find(|c| c.descriptor.component.as_str() == "TimeAxis:view_range")
+                .expect("the shared time axis has a view range");
+            let range =
+                rerun::external::re_sdk_types::blueprint::components::TimeRange::from_arrow(
+                    range.list_array.values(),
+                )
+                .unwrap();
+            let infinite = rerun::external::re_sdk_types::datatypes::TimeRangeBoundary::Infinite;
+            whole_session = range[0].0.start == infinite && range[0].0.end == infinite;
+        } else if path.ends_with("/TimeAxis") {
             time_axes += 1;
         }
         for column in chunk.components().0.values() {
@@ -451,6 +469,7 @@ fn blueprint_has_few_tabs_linked_axes_and_session_time() {
         }
     }
     assert_eq!(timeline.as_deref(), Some("session"));
+    assert!(whole_session, "the plots open on the whole session");
     assert!(time_series >= 5, "{time_series} plots");
     assert_eq!(time_axes, time_series, "every plot links its time axis");
     assert_eq!(tab_containers.len(), 1, "{tab_containers:?}");
@@ -1256,4 +1275,490 @@ fn connect_streams_to_a_stock_rerun_server() {
         series(&b, "/power/mbs/net"),
         "values"
     );
+}
+
+/// Replays `session` as `g1viz replay --save out` does with `window` (and `model`), through the
+/// same entry point as the CLI; returns the notices it printed.
+fn replay_window(
+    session: &Path,
+    out: &Path,
+    window: g1viz::viz::session::Window,
+    model: Option<&g1viz::power::PowerModel>,
+) -> Vec<g1viz::viz::session::Notice> {
+    use g1viz::viz::session::{SessionReplay, replay_session};
+    let map = g1viz::signals::SignalMap::g1_left_arm();
+    let read = g1viz::read::OpenOptions::default();
+    let robot = RobotModel::builtin();
+    let sink = Sink::Save(out.to_path_buf());
+    let inputs = [session];
+    let replay = SessionReplay {
+        session,
+        map: &map,
+        read: &read,
+        robot: &robot,
+        model: model.map(|m| ("paper", m)),
+        fit: g1viz::identify::IdentifyOptions::default(),
+        sink: &sink,
+        inputs: &inputs,
+        window,
+        opts: ReplayOptions {
+            progress: false,
+            pose_rate_hz: Some(30.0),
+            ..Default::default()
+        },
+    };
+    let mut notices = Vec::new();
+    replay_session(&replay, &mut |n| notices.push(n)).unwrap();
+    notices
+}
+
+/// Session seconds of the series at `path` in a decoded replay of a session starting at
+/// `start_ns`.
+fn session_times(c: &Contents, path: &str, start_ns: u64) -> Vec<f64> {
+    series(c, path)
+        .iter()
+        .map(|(t, _)| (*t - start_ns as i64) as f64 * 1e-9)
+        .collect()
+}
+
+/// `replay --from 20 --to 45`: every joint sample of the window, and nothing outside it, on the
+/// session timeline (times keep their place); the power readings of the window only.
+#[test]
+fn replay_from_to_logs_exactly_the_window() {
+    let session = example_session();
+    let rec = g1viz::signals::load_recording(
+        &session,
+        &g1viz::signals::SignalMap::g1_left_arm(),
+        &Default::default(),
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("window.rrd");
+    let window = g1viz::viz::session::Window {
+        from_s: Some(20.0),
+        to_s: Some(45.0),
+        ..Default::default()
+    };
+    replay_window(&session, &out, window, None);
+    let c = contents(&decode(&out));
+    let expected: Vec<f64> = rec
+        .state
+        .t
+        .iter()
+        .copied()
+        .filter(|t| (20.0..=45.0).contains(t))
+        .collect();
+    assert!(expected.len() > 1000);
+    let got = session_times(&c, "/joints/elbow/q", rec.start_ns);
+    assert_eq!(got.len(), expected.len());
+    for (g, e) in got.iter().zip(&expected) {
+        assert!((g - e).abs() < 1e-6, "{g} vs {e}");
+    }
+    let readings = session_times(&c, "/power/mbs/raw", rec.start_ns);
+    let want = rec
+        .mbs
+        .t
+        .iter()
+        .filter(|t| (20.0..=45.0).contains(*t))
+        .count();
+    assert_eq!(readings.len(), want);
+    assert!(
+        readings
+            .iter()
+            .all(|t| (20.0 - 1e-6..=45.0 + 1e-6).contains(t))
+    );
+}
+
+/// `replay --max-rate 10`: the joint series keep one sample per 0.1 s bin at most, and still
+/// span the session (≈ 10 per second of it).
+#[test]
+fn replay_max_rate_caps_the_series() {
+    let session = example_session();
+    let rec = g1viz::signals::load_recording(
+        &session,
+        &g1viz::signals::SignalMap::g1_left_arm(),
+        &Default::default(),
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("capped.rrd");
+    let window = g1viz::viz::session::Window {
+        max_rate_hz: Some(10.0),
+        ..Default::default()
+    };
+    replay_window(&session, &out, window, None);
+    let c = contents(&decode(&out));
+    let t = session_times(&c, "/joints/sh_pitch/tau", rec.start_ns);
+    let duration = rec.state.t.last().unwrap() - rec.state.t[0];
+    // One sample per 0.1 s bin at most.
+    let bins: Vec<i64> = t.iter().map(|x| (x * 10.0).floor() as i64).collect();
+    assert!(
+        bins.windows(2).all(|w| w[1] > w[0]),
+        "two samples in one 0.1 s bin"
+    );
+    let expected = duration * 10.0;
+    assert!(
+        (t.len() as f64 - expected).abs() < 0.02 * expected + 2.0,
+        "{} samples for {duration:.1} s",
+        t.len()
+    );
+    // The gyro series too; power readings (≈ 1 Hz) are untouched.
+    assert_eq!(rows(&c, "/imu/gyro_norm"), t.len());
+    assert_eq!(rows(&c, "/power/mbs/raw"), rec.mbs.t.len());
+}
+
+/// `replay --model paper --trials 2-3`: the trial track holds trials 2 and 3 only, the joint
+/// samples lie within their windows (pre-idle of 2 to return of 3), and the model's series too.
+#[test]
+fn replay_trials_logs_those_trials() {
+    let session = example_session();
+    let rec = g1viz::signals::load_recording(
+        &session,
+        &g1viz::signals::SignalMap::g1_left_arm(),
+        &Default::default(),
+    )
+    .unwrap();
+    let seg = g1viz::trial::segment(&rec, &Default::default());
+    assert!(seg.trials.len() >= 4, "{} trials", seg.trials.len());
+    let (a, b) = (&seg.trials[2], &seg.trials[3]);
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("trials.rrd");
+    let window = g1viz::viz::session::Window {
+        trials: Some((a.index, b.index)),
+        ..Default::default()
+    };
+    replay_window(
+        &session,
+        &out,
+        window,
+        Some(&g1viz::power::PowerModel::PAPER),
+    );
+    let c = contents(&decode(&out));
+    let track: Vec<f64> = series(&c, "/trials/index").iter().map(|p| p.1).collect();
+    assert_eq!(track, vec![a.index as f64, b.index as f64]);
+    let (lo, hi) = (a.t_pre_start - 1e-6, b.t_return_end + 1e-6);
+    for path in [
+        "/joints/elbow/q",
+        "/model/power/predicted",
+        "/model/by_term/copper",
+    ] {
+        let t = session_times(&c, path, rec.start_ns);
+        assert!(!t.is_empty(), "{path}");
+        assert!(t.iter().all(|x| (lo..=hi).contains(x)), "{path}");
+    }
+    let all = rec
+        .state
+        .t
+        .iter()
+        .filter(|t| (lo..=hi).contains(*t))
+        .count();
+    assert_eq!(rows(&c, "/joints/elbow/q"), all);
+}
+
+/// Size per hour of session of a plain replay at the defaults, as the README states it
+/// ("≈ N MB per hour … ± P %"): the example replayed, scaled to an hour. The size estimate
+/// printed before writing lands within 25 % of the file written: at the defaults, with
+/// `--max-rate 20`, for two trials at 20 Hz, and for 20 s with the model.
+#[test]
+fn rrd_size_per_hour_matches_readme_and_estimate() {
+    use g1viz::viz::session::Notice;
+    let readme =
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("README.md")).unwrap();
+    let line = readme
+        .lines()
+        .find(|l| l.contains("MB per hour of session"))
+        .expect("the README states the .rrd size per hour");
+    let number = |tag: &str| -> f64 {
+        let at = line
+            .find(tag)
+            .unwrap_or_else(|| panic!("{tag:?} in {line:?}"));
+        let before = &line[..at];
+        let start = before
+            .rfind(|c: char| !(c.is_ascii_digit() || c == '.'))
+            .map_or(0, |i| i + 1);
+        before[start..].parse().unwrap()
+    };
+    let stated_mb = number(" MB per hour of session");
+    let tolerance = number(" %") / 100.0;
+    let session = example_session();
+    let rec = g1viz::signals::load_recording(
+        &session,
+        &g1viz::signals::SignalMap::g1_left_arm(),
+        &Default::default(),
+    )
+    .unwrap();
+    let duration = rec.state.t.last().unwrap() - rec.state.t[0];
+    let dir = tempfile::tempdir().unwrap();
+    let paper = g1viz::power::PowerModel::PAPER;
+    let cases = [
+        ("defaults", None, None, None),
+        ("capped", Some(20.0), None, None),
+        ("two trials", Some(20.0), Some((2, 3)), None),
+        ("model, 20 s", None, None, Some(&paper)),
+    ];
+    for (name, max_rate, trials, model) in cases {
+        let out = dir.path().join(format!("{name}.rrd"));
+        let window = g1viz::viz::session::Window {
+            max_rate_hz: max_rate,
+            trials,
+            from_s: model.map(|_| 10.0),
+            to_s: model.map(|_| 30.0),
+        };
+        let notices = replay_window(&session, &out, window, model);
+        let size = std::fs::metadata(&out).unwrap().len() as f64;
+        let estimate = notices
+            .iter()
+            .find_map(|n| match n {
+                Notice::Estimate(e) => Some(e.bytes),
+                _ => None,
+            })
+            .expect("an estimate before writing");
+        assert!(
+            (estimate / size - 1.0).abs() < 0.25,
+            "{name}: estimate {estimate:.0} B vs {size:.0} B written"
+        );
+        if name == "defaults" {
+            let per_hour_mb = size * 3600.0 / duration / 1e6;
+            assert!(
+                (per_hour_mb / stated_mb - 1.0).abs() <= tolerance,
+                "{per_hour_mb:.0} MB per hour vs the README's {stated_mb} MB ± {}",
+                tolerance * 100.0
+            );
+        }
+    }
+}
+
+/// The strings of the static component `component` (e.g. `SeriesLines:names`) at `path`.
+fn static_strings(c: &Contents, path: &str, component: &str) -> Vec<String> {
+    use rerun::external::arrow::array::{Array, AsArray};
+    use rerun::external::arrow::datatypes::DataType;
+    let mut out = Vec::new();
+    for chunk in c
+        .chunks
+        .iter()
+        .filter(|ch| ch.is_static() && ch.entity_path().to_string() == path)
+    {
+        for column in chunk.components().0.values() {
+            if column.descriptor.component.as_str() != component {
+                continue;
+            }
+            let values = column.list_array.values();
+            if values.data_type() == &DataType::Utf8 {
+                out.extend(
+                    values
+                        .as_string::<i32>()
+                        .iter()
+                        .flatten()
+                        .map(str::to_owned),
+                );
+            }
+        }
+    }
+    out
+}
+
+/// A diagnosis whose found terms follow recorded fields gets the "Fields the found terms follow"
+/// view in its Diagnosis tab, rooted at `/diagnosis/located`: one series per field, named after
+/// the field, with the field's value at every reading (the values given here, read back).
+#[test]
+fn diagnosis_rrd_has_the_located_fields_tab() {
+    use g1viz::viz::replay::DiagnosisOverlay;
+    let dir = tempfile::tempdir().unwrap();
+    let rec = synthetic(&input_file(dir.path()));
+    let t: Vec<f64> = vec![0.5, 1.5, 2.5, 3.5, 4.5];
+    let speed = vec![0.0, 0.4, 0.9, 0.3, 0.1];
+    let temp = vec![31.0, 31.5, 32.0, 32.4, 32.9];
+    let extras = ReplayExtras {
+        diagnosis: Some(DiagnosisOverlay {
+            t: t.clone(),
+            measured: vec![1.0, 2.0, 3.0, 2.0, 1.0],
+            before: vec![1.1, 1.8, 2.5, 1.9, 1.0],
+            after: vec![1.0, 2.0, 2.9, 2.0, 1.0],
+            found: vec![1.0, 2.0, 3.0, 2.0, 1.0],
+            located: vec![
+                ("/lowstate.motor_state[3].dq".into(), speed.clone()),
+                ("/lowstate.motor_state[3].temperature".into(), temp.clone()),
+            ],
+            summary: "found: a term following the elbow speed".into(),
+            ..Default::default()
+        }),
+        ..Default::default()
+    };
+    let out = dir.path().join("located.rrd");
+    save_replay(&rec, &extras, &out, &rec.source);
+    let msgs = decode(&out);
+    let c = contents(&msgs);
+    let names = blueprint_strings(&msgs);
+    assert!(
+        names.iter().any(|s| s == "Fields the found terms follow"),
+        "{names:?}"
+    );
+    assert!(
+        names
+            .iter()
+            .any(|s| s.trim_start_matches('/') == "diagnosis/located"),
+        "view origin"
+    );
+    for (k, (field, values)) in [
+        ("/lowstate.motor_state[3].dq", &speed),
+        ("/lowstate.motor_state[3].temperature", &temp),
+    ]
+    .iter()
+    .enumerate()
+    {
+        let path = format!("/diagnosis/located/{k}");
+        let got: Vec<f64> = series(&c, &path).into_iter().map(|p| p.1).collect();
+        assert_eq!(&got, *values, "{path}");
+        assert_eq!(
+            static_strings(&c, &path, "SeriesLines:names"),
+            vec![field.to_string()]
+        );
+    }
+    // Found terms: their prediction and error are logged beside the base model's.
+    assert_eq!(rows(&c, "/diagnosis/power/found"), t.len());
+    assert_eq!(rows(&c, "/diagnosis/error/found"), t.len());
+}
+
+/// The arm links of a model replay change colour with their joint's power: their colour is on
+/// the timeline (no static colour, which would override it), grey at the session start, and
+/// reddens during a trial; the per-trial bars' heights are each trial's mean of the per-joint
+/// power series (recomputed here from the decoded loss-term series); the trial log names a
+/// rejected trial's statistic once, without the "session 0 trial N" of the rejection's own text.
+#[test]
+fn model_replay_colours_links_draws_trial_bars_and_logs_rejections() {
+    use rerun::external::arrow::array::{Array, AsArray};
+    let session = example_session();
+    let rec = g1viz::signals::load_recording(
+        &session,
+        &g1viz::signals::SignalMap::g1_left_arm(),
+        &Default::default(),
+    )
+    .unwrap();
+    let opts = g1viz::identify::IdentifyOptions::default();
+    let (extras, _) =
+        g1viz::viz::overlay::model_extras(&rec, &g1viz::power::PowerModel::PAPER, &opts).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("model.rrd");
+    save_replay(&rec, &extras, &out, &session);
+    let c = contents(&decode(&out));
+
+    // Link colours: the elbow link's shape has colours only on the timeline, more than one.
+    let elbow = "/robot/left_elbow_link/visual0";
+    let colour_rows = |is_static: bool| -> usize {
+        c.chunks
+            .iter()
+            .filter(|ch| ch.is_static() == is_static && ch.entity_path().to_string() == elbow)
+            .flat_map(|ch| ch.components().0.values())
+            .filter(|col| col.descriptor.component.as_str().ends_with(":colors"))
+            .map(|col| col.list_array.len())
+            .sum()
+    };
+    assert_eq!(colour_rows(true), 0, "no static colour on an arm link");
+    assert!(
+        colour_rows(false) > 100,
+        "{} colour rows",
+        colour_rows(false)
+    );
+    let mut distinct = std::collections::BTreeSet::new();
+    for ch in c
+        .chunks
+        .iter()
+        .filter(|ch| !ch.is_static() && ch.entity_path().to_string() == elbow)
+    {
+        for col in ch.components().0.values() {
+            if col.descriptor.component.as_str().ends_with(":colors") {
+                let v = col
+                    .list_array
+                    .values()
+                    .as_primitive::<rerun::external::arrow::datatypes::UInt32Type>();
+                distinct.extend(v.values().iter().copied());
+            }
+        }
+    }
+    assert!(
+        distinct.len() > 10,
+        "{} distinct link colours",
+        distinct.len()
+    );
+
+    // Bars: for every trial, the flat top of the elbow's bar is the mean of the decoded
+    // per-joint sum of its four terms over the trial's window.
+    let terms: Vec<Vec<(i64, f64)>> = ["mechanical", "copper", "coulomb", "viscous"]
+        .iter()
+        .map(|t| series(&c, &format!("/model/terms/elbow/{t}")))
+        .collect();
+    let bars = series(&c, "/model/bars/by_joint/elbow");
+    let start = rec.start_ns as i64;
+    let mut checked = 0;
+    for m in &extras.trials {
+        let (a, b) = (
+            start + (m.t_start * 1e9).round() as i64,
+            start + (m.t_end * 1e9).round() as i64,
+        );
+        let inside: Vec<usize> = (0..terms[0].len())
+            .filter(|&i| terms[0][i].0 >= a && terms[0][i].0 <= b)
+            .collect();
+        if inside.is_empty() {
+            continue;
+        }
+        let mean = inside
+            .iter()
+            .map(|&i| terms.iter().map(|s| s[i].1).sum::<f64>())
+            .sum::<f64>()
+            / inside.len() as f64;
+        let top: Vec<f64> = bars
+            .iter()
+            .filter(|(t, v)| *t > a && *t < b && *v != 0.0)
+            .map(|p| p.1)
+            .collect();
+        assert_eq!(top.len(), 2, "trial {}: the bar's two top corners", m.index);
+        for v in top {
+            assert!(
+                (v - mean).abs() < 1e-6,
+                "trial {}: bar {v} vs mean {mean}",
+                m.index
+            );
+        }
+        checked += 1;
+    }
+    assert!(checked >= 3, "{checked} trials checked");
+
+    // Trial log: a rejected trial's line names it once.
+    let rejected: Vec<&TrialMark> = extras
+        .trials
+        .iter()
+        .filter(|m| m.rejected.is_some())
+        .collect();
+    let log = c
+        .chunks
+        .iter()
+        .filter(|ch| ch.entity_path().to_string() == "/trials/log")
+        .flat_map(|ch| ch.components().0.values())
+        .filter(|col| col.descriptor.component.as_str() == "TextLog:text")
+        .flat_map(|col| {
+            col.list_array
+                .values()
+                .as_string::<i32>()
+                .iter()
+                .flatten()
+                .map(str::to_owned)
+                .collect::<Vec<_>>()
+        })
+        .collect::<Vec<_>>();
+    assert_eq!(log.len(), extras.trials.len());
+    for line in &log {
+        assert!(!line.contains("session 0"), "{line}");
+    }
+    for m in rejected {
+        let line = log
+            .iter()
+            .find(|l| l.starts_with(&format!("trial {} ", m.index)))
+            .expect("a log line per trial");
+        assert!(line.contains("REJECTED"), "{line}");
+        assert_eq!(
+            line.matches(&format!("trial {}", m.index)).count(),
+            1,
+            "{line}"
+        );
+    }
 }

@@ -62,7 +62,9 @@ Examples:
   g1viz replay session.mcap --spawn                                         # opens a viewer
   g1viz replay session.mcap --model model.json --connect                    # to a running viewer
   g1viz replay session.mcap --urdf g1_29dof_with_hand_rev_1_0.urdf --save meshes.rrd
-  g1viz replay session.mcap --model paper --open-tab 'IMU and trials' --save imu.rrd")]
+  g1viz replay session.mcap --model paper --open-tab 'IMU and trials' --save imu.rrd
+  g1viz replay session.mcap --trials 10-14 --max-rate 20 --save part.rrd     # a small file to share
+  g1viz replay session.mcap --from 600 --to 900 --save ten_to_fifteen_min.rrd")]
     Replay(replay::ReplayArgs),
     /// Identify the 49-parameter arm power model from one or more sessions (writes model.json).
     #[command(after_help = "\

@@ -3,8 +3,6 @@
 
 use std::path::PathBuf;
 
-#[cfg(feature = "viz")]
-use anyhow::Context;
 use anyhow::{Result, bail};
 use clap::Args;
 
@@ -43,6 +41,21 @@ pub struct ReplayArgs {
     /// Open the layout on this tab (e.g. "Joints", "IMU and trials"; default: the first).
     #[arg(long, value_name = "TAB")]
     open_tab: Option<String>,
+    /// Replay from this session time [s since the session start] (times keep their place on
+    /// the `session` timeline).
+    #[arg(long, value_name = "S", value_parser = non_negative)]
+    from: Option<f64>,
+    /// Replay up to this session time [s].
+    #[arg(long, value_name = "S", value_parser = non_negative)]
+    to: Option<f64>,
+    /// Replay trials A to B only (e.g. `3-7`, or `5`): from A's pre-idle to B's return home.
+    /// Without --model the session is read once more first, to find the trials.
+    #[arg(long, value_name = "A-B", value_parser = trial_range)]
+    trials: Option<(usize, usize)>,
+    /// At most this many samples per second of every joint, IMU and model series (default: all
+    /// recorded samples). Shrinks long recordings; see the size estimate printed before writing.
+    #[arg(long, value_name = "HZ", value_parser = non_negative)]
+    max_rate: Option<f64>,
     #[command(flatten)]
     fit: FitArgs,
     #[command(flatten)]
@@ -54,7 +67,8 @@ pub struct ReplayArgs {
 pub fn run(a: ReplayArgs) -> Result<()> {
     use g1viz::power::load_model_for;
     use g1viz::robot::RobotModel;
-    use g1viz::viz::{self, OutputKind, Sink};
+    use g1viz::viz::session::{Notice, SessionReplay, Window, replay_session};
+    use g1viz::viz::{self, Sink};
     use std::path::Path;
 
     let robot = RobotModel::load(a.urdf.as_deref())?;
@@ -74,73 +88,94 @@ pub fn run(a: ReplayArgs) -> Result<()> {
         inputs.push(m);
     }
     let mut properties = vec![("command".to_owned(), super::command_line())];
-    if let Some(m) = &a.model {
-        properties.push(("model".to_owned(), m.display().to_string()));
-    }
-    let opts = viz::replay::ReplayOptions {
-        pose_rate_hz: (a.pose_rate > 0.0).then_some(a.pose_rate),
-        blueprint: !a.no_blueprint,
-        properties,
-        open_tab: a.open_tab.clone(),
-        ..Default::default()
-    };
-    let summary = match &a.model {
-        // The model overlay needs the whole session (trial segmentation, fitted windows).
+    let map = a.read.signal_map()?;
+    let model = match &a.model {
         Some(m) => {
-            let rec = a.read.load(&a.session)?;
-            let arm = robot.arm(&rec.joint_names)?;
-            let model = load_model_for(m, &rec.joint_names, a.fit.options().target)?;
-            let busy = super::spinner("applying the model");
-            let extras = viz::overlay::model_extras(&rec, &model, &a.fit.options());
-            busy.finish_and_clear();
-            let (extras, v) = extras?;
-            for n in &v.notes {
-                eprintln!("note: {n}");
-            }
-            eprintln!(
-                "model {}: per-trajectory R² {:.3}, RMSE {:.2} W on {} trials",
-                m.display(),
-                v.trial_level_aligned.r2,
-                v.trial_level_aligned.rmse,
-                v.per_trial.len()
-            );
-            let kind = OutputKind::ModelReplay;
-            let id = kind.recording_id(&viz::recording_id_for(&rec));
-            let out = viz::open_stream(&kind.app_id(), &id, &sink, &inputs)?;
-            let summary =
-                viz::replay::log_replay(&rec, &robot, &arm, &extras, &opts, out.stream())?;
-            out.finish()?;
-            summary
+            properties.push(("model".to_owned(), m.display().to_string()));
+            Some(load_model_for(m, &map.joint_names, a.fit.options().target)?)
         }
-        // A plain replay streams the file: memory does not grow with its length.
-        None => {
-            let map = a.read.signal_map()?;
-            let arm = robot.arm(&map.joint_names)?;
-            let kind = OutputKind::Replay;
-            let id = viz::recording_id_for_source(&a.session)
-                .with_context(|| format!("cannot read {}", a.session.display()))?;
-            let out = viz::open_stream(&kind.app_id(), &kind.recording_id(&id), &sink, &inputs)?;
-            let summary = viz::replay::replay_file(
-                &a.session,
-                &map,
-                &a.read.open_options(),
-                &robot,
-                &arm,
-                &opts,
-                out.stream(),
-            )
-            .with_context(|| format!("replaying {}", a.session.display()))?;
-            out.finish()?;
-            summary
-        }
+        None => None,
     };
+    let model_name = a.model.as_ref().map(|m| m.display().to_string());
+    let read = a.read.open_options();
+    let replay = SessionReplay {
+        session: &a.session,
+        map: &map,
+        read: &read,
+        robot: &robot,
+        model: model_name.as_deref().zip(model.as_ref()),
+        fit: a.fit.options(),
+        sink: &sink,
+        inputs: &inputs,
+        window: Window {
+            from_s: a.from,
+            to_s: a.to,
+            trials: a.trials,
+            max_rate_hz: a.max_rate,
+        },
+        opts: viz::replay::ReplayOptions {
+            pose_rate_hz: (a.pose_rate > 0.0).then_some(a.pose_rate),
+            blueprint: !a.no_blueprint,
+            properties,
+            open_tab: a.open_tab.clone(),
+            ..Default::default()
+        },
+    };
+    let busy = super::spinner(if model.is_some() {
+        "reading the session and applying the model"
+    } else {
+        "opening the session"
+    });
+    let summary = replay_session(&replay, &mut |notice| match notice {
+        Notice::Note(n) => busy.suspend(|| eprintln!("note: {n}")),
+        Notice::ModelFit { r2, rmse, trials } => busy.suspend(|| {
+            eprintln!(
+                "model {}: per-trajectory R² {r2:.3}, RMSE {rmse:.2} W on {trials} trials",
+                model_name.as_deref().unwrap_or("")
+            )
+        }),
+        Notice::Estimate(e) => {
+            busy.finish_and_clear();
+            if a.save.is_some() {
+                eprintln!("expected size: {e}");
+            }
+        }
+    });
+    busy.finish_and_clear();
+    let summary = summary?;
     for w in &summary.warnings {
         eprintln!("warning: {w}");
     }
     if let Some(path) = &a.save {
-        eprintln!("wrote {} ({} samples)", path.display(), summary.samples);
+        let size = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
+        eprintln!(
+            "wrote {} ({} samples, {:.1} MB)",
+            path.display(),
+            summary.samples,
+            size as f64 / 1e6
+        );
     }
     Ok(())
+}
+
+/// `A-B` or `A` (trial indices, A ≤ B) for `--trials`.
+fn trial_range(s: &str) -> Result<(usize, usize), String> {
+    let parse = |x: &str| {
+        x.trim()
+            .parse::<usize>()
+            .map_err(|_| format!("{s:?} is not a trial range like 3-7 or 5"))
+    };
+    let (a, b) = match s.split_once('-') {
+        Some((a, b)) => (parse(a)?, parse(b)?),
+        None => {
+            let a = parse(s)?;
+            (a, a)
+        }
+    };
+    if b < a {
+        return Err(format!("{s:?}: the range ends before it starts"));
+    }
+    Ok((a, b))
 }
 
 /// Without the `viz` feature there is no Rerun output.

@@ -29,12 +29,15 @@ pub fn run(a: ValidateArgs) -> Result<()> {
     let map = a.read.signal_map()?;
     let model = load_model_for(&a.model, &map.joint_names, a.fit.options().target)?;
     // Streamed twice (segmentation, then rows): memory stays bounded whatever the length.
+    let busy = super::spinner("validating the model (reading the session twice)");
     let v = g1viz::identify::validate_file(
         &model,
         &a.read.session_file(&a.session, &map),
         &a.fit.options(),
         &g1viz::identify::StreamOptions::default(),
-    )?;
+    );
+    busy.finish_and_clear();
+    let v = v?;
     for w in &v.session.warnings {
         eprintln!("warning: {w}");
     }

@@ -300,34 +300,38 @@ fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
     padded_range(values, 0.08)
 }
 
-fn draw_bars(a: &Area, caption: &str, y_desc: &str, bars: &[(String, f64, bool)]) -> Result<()> {
+/// Horizontal bars, one per labelled category (top to bottom in the given order): the labels sit
+/// left of the axis at full length, where vertical bars' labels overlapped or were cut.
+fn draw_bars(a: &Area, caption: &str, x_desc: &str, bars: &[(String, f64, bool)]) -> Result<()> {
     let n = bars.len().max(1);
     let (lo, hi) = range(bars.iter().map(|b| b.1).chain([0.0]));
+    let longest = bars.iter().map(|b| b.0.chars().count()).max().unwrap_or(0);
     let mut chart = ChartBuilder::on(a)
         .caption(caption, (FONT, 18))
-        .margin(10)
-        .x_label_area_size(90)
-        .y_label_area_size(60)
-        .build_cartesian_2d((0..n - 1).into_segmented(), lo..hi)
+        .margin(12)
+        .x_label_area_size(44)
+        .y_label_area_size((longest as u32 * 7 + 16).clamp(60, 320))
+        .build_cartesian_2d(lo..hi, (0..n - 1).into_segmented())
         .map_err(plot_err)?;
     chart
         .configure_mesh()
-        .disable_x_mesh()
-        .x_labels(n)
-        .y_desc(y_desc)
-        .x_label_formatter(&|v| match v {
+        .disable_y_mesh()
+        .y_labels(n)
+        .x_desc(x_desc)
+        .y_label_formatter(&|v| match v {
+            // Row 0 at the top.
             SegmentValue::CenterOf(i) => bars
-                .get(*i)
-                .map(|b| b.0.chars().take(22).collect())
+                .get(n - 1 - *i)
+                .map(|b| b.0.clone())
                 .unwrap_or_default(),
             _ => String::new(),
         })
-        .x_label_style((FONT, 11).into_font().transform(FontTransform::Rotate90))
-        .label_style((FONT, 12))
+        .label_style((FONT, 13))
         .draw()
         .map_err(plot_err)?;
     chart
-        .draw_series(bars.iter().enumerate().map(|(i, b)| {
+        .draw_series(bars.iter().enumerate().map(|(k, b)| {
+            let i = n - 1 - k;
             let color = if b.2 {
                 RGBColor(214, 96, 77)
             } else {
@@ -335,12 +339,12 @@ fn draw_bars(a: &Area, caption: &str, y_desc: &str, bars: &[(String, f64, bool)]
             };
             let mut r = Rectangle::new(
                 [
-                    (SegmentValue::Exact(i), 0.0),
-                    (SegmentValue::Exact(i + 1), b.1),
+                    (0.0, SegmentValue::Exact(i)),
+                    (b.1, SegmentValue::Exact(i + 1)),
                 ],
                 color.filled(),
             );
-            r.set_margin(0, 0, 6, 6);
+            r.set_margin(4, 4, 0, 0);
             r
         }))
         .map_err(plot_err)?;

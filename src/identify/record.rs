@@ -164,6 +164,7 @@ impl Identification {
             label,
             measured: table.iter().map(|p| p.measured_w).collect(),
             predicted: table.iter().map(|p| p.predicted_w).collect(),
+            trials: table.iter().map(|p| p.trial).collect(),
         };
         let retained: Vec<TrialPrediction> = self
             .per_trial

@@ -49,6 +49,9 @@ pub struct PredictionSet {
     pub measured: Vec<f64>,
     /// Predicted net power [W].
     pub predicted: Vec<f64>,
+    /// Trial index of each row (empty when the rows are not trials): the parity plot labels
+    /// its points with them.
+    pub trials: Vec<usize>,
 }
 
 /// Mean term contributions over a dataset ([`TERM_NAMES`] order).
@@ -521,6 +524,9 @@ fn range_of(values: impl Iterator<Item = f64>) -> (f64, f64) {
     padded_range(values, 0.05)
 }
 
+/// Most points a parity plot labels with their trial ids.
+const MAX_LABELLED_POINTS: usize = 80;
+
 /// Predicted against measured, one point per row, with the y = x line: rows stay separate points
 /// (no line joins rows that were sorted by value, which invents a curve and hides which row is
 /// off).
@@ -574,8 +580,31 @@ fn draw_parity(
                 .map(|(&x, &y)| Circle::new((x, y), radius, BLUE.stroke_width(1))),
         )
         .map_err(plot_err)?
-        .label("one row (trajectory or reading)")
+        .label(if set.trials.len() == n {
+            "one trajectory (labelled with its trial)"
+        } else {
+            "one row (trajectory or reading)"
+        })
         .legend(|(x, y)| Circle::new((x + 10, y), 4, BLUE.stroke_width(1)));
+    // Trial ids beside their points, as long as the labels stay readable.
+    if set.trials.len() == n && n <= MAX_LABELLED_POINTS {
+        chart
+            .draw_series(
+                set.measured
+                    .iter()
+                    .zip(&set.predicted)
+                    .zip(&set.trials)
+                    .map(|((&x, &y), t)| {
+                        EmptyElement::at((x, y))
+                            + Text::new(
+                                format!("{t}"),
+                                (5, -14),
+                                (FONT, 12).into_font().color(&BLACK),
+                            )
+                    }),
+            )
+            .map_err(plot_err)?;
+    }
     chart
         .configure_series_labels()
         .position(SeriesLabelPosition::UpperLeft)

@@ -134,6 +134,7 @@ pub fn rate_hz(t: &[f64]) -> f64 {
 mod load;
 mod map;
 pub mod plausible;
+mod sink;
 
 pub use load::{
     SeriesStats, SignalStats, StreamSummary, load_recording, signal_stats, stream_recording,
@@ -143,3 +144,4 @@ pub use map::{
     G1_LEFT_ARM_BASE, G1_RIGHT_ARM_BASE, GROUPS, Group, JOINT_SHORT, SignalMap, SignalSpec,
     group_signals,
 };
+pub use sink::{RecordingSink, StreamHeader, stream_into};

@@ -133,6 +133,12 @@ pub fn is_rejected(rejections: &[Rejection], session: usize, trial: usize) -> bo
 }
 
 impl Cascade {
+    /// The IMU filter's threshold k × median σ_ω over `sigmas` (`None` when the filter is
+    /// disabled; NaN when no σ_ω is finite): the value [`Cascade::imu`] tests against.
+    pub fn imu_threshold(&self, sigmas: &[TrialStat]) -> Option<f64> {
+        self.imu_k.map(|k| imu_threshold(sigmas, k))
+    }
+
     /// The IMU filter alone over every trial's σ_ω (none when disabled).
     pub fn imu(&self, sigmas: &[TrialStat]) -> Vec<Rejection> {
         self.imu_k.map(|k| imu_sway(sigmas, k)).unwrap_or_default()
@@ -242,9 +248,14 @@ fn median(v: &[f64]) -> f64 {
     }
 }
 
+/// The IMU filter's threshold: k × the median of the finite σ_ω.
+fn imu_threshold(sigmas: &[TrialStat], k: f64) -> f64 {
+    k * median(&sigmas.iter().map(|s| s.value).collect::<Vec<_>>())
+}
+
 /// IMU balance-contamination filter: reject σ_ω > k · median(σ_ω) over the given trials.
 pub fn imu_sway(sigmas: &[TrialStat], k: f64) -> Vec<Rejection> {
-    let threshold = k * median(&sigmas.iter().map(|s| s.value).collect::<Vec<_>>());
+    let threshold = imu_threshold(sigmas, k);
     sigmas
         .iter()
         .filter(|s| s.value > threshold)

@@ -15,18 +15,22 @@ use anyhow::{Context, Result};
 use rerun::blueprint::components::{
     ContainerKind, IncludedContent, QueryExpression, RootContainer, ViewClass,
 };
+use rerun::components::Range1D;
 use rerun::external::re_log_types::{
     BlueprintActivationCommand, RecordingId, SetStoreInfo, StoreId, StoreInfo, StoreKind,
     StoreSource, external::re_tuid::Tuid,
 };
 use rerun::external::re_sdk_types::blueprint::archetypes::{
-    ContainerBlueprint, EyeControls3D, PlotLegend, TimeAxis, TimePanelBlueprint, ViewBlueprint,
-    ViewContents, ViewportBlueprint,
+    ContainerBlueprint, EyeControls3D, PlotLegend, ScalarAxis, TextLogColumns, TimeAxis,
+    TimePanelBlueprint, ViewBlueprint, ViewContents, ViewportBlueprint,
 };
 use rerun::external::re_sdk_types::blueprint::components::{
-    ActiveTab, Corner2D, Eye3DKind, LinkAxis, TimelineName,
+    ActiveTab, Corner2D, Eye3DKind, LinkAxis, TextLogColumn, TimeRange, TimelineName,
 };
-use rerun::external::re_sdk_types::datatypes::Uuid;
+use rerun::external::re_sdk_types::blueprint::datatypes::{
+    TextLogColumn as TextLogColumnData, TextLogColumnKind, TimelineColumn,
+};
+use rerun::external::re_sdk_types::datatypes::{self as rr_data, Uuid};
 use rerun::log::{Chunk, ChunkId, LogMsg, RowId};
 use rerun::{AsComponents, RecordingStream, TimeColumn};
 
@@ -62,8 +66,11 @@ pub enum Node {
         contents: Vec<String>,
         /// Initial camera of a 3D view (ignored for other classes).
         eye: Option<Eye>,
-        /// Where a plot's legend goes (time series only; `None`: the viewer's default).
+        /// Where a plot's legend goes (time series and bar charts; `None`: the viewer's default).
         legend: Option<Legend>,
+        /// The y range a plot opens on (time series only; `None`: fitted to the data). Set with
+        /// headroom above the data, it keeps the legend (top corner) off the data.
+        y_range: Option<[f64; 2]>,
     },
 }
 
@@ -123,7 +130,16 @@ impl Node {
             contents,
             eye: None,
             legend: None,
+            y_range: None,
         }
+    }
+
+    /// Sets the y range a plot opens on (time series only; ignored when `None`).
+    pub fn with_y_range(mut self, range: Option<[f64; 2]>) -> Node {
+        if let Node::View { y_range, .. } = &mut self {
+            *y_range = range.or(*y_range);
+        }
+        self
     }
 
     /// Sets where a plot's legend goes (time series only).
@@ -350,6 +366,7 @@ impl BlueprintChunks {
                 contents,
                 eye,
                 legend,
+                y_range,
             } => {
                 let queries: Vec<QueryExpression> = if contents.is_empty() {
                     vec![QueryExpression("$origin/**".into())]
@@ -372,6 +389,13 @@ impl BlueprintChunks {
                 if *class == "TimeSeries" {
                     let axis = TimeAxis::new().with_link(LinkAxis::LinkToGlobal);
                     self.log(&format!("{path}/TimeAxis"), &axis)?;
+                    if let Some([lo, hi]) = y_range {
+                        let axis = ScalarAxis::new().with_range(Range1D::new(*lo, *hi));
+                        self.log(&format!("{path}/ScalarAxis"), &axis)?;
+                    }
+                }
+                if *class == "TextLog" {
+                    self.log(&format!("{path}/TextLogColumns"), &text_log_columns())?;
                 }
                 if let Some(legend) = legend {
                     let arch = match legend {
@@ -389,6 +413,41 @@ impl BlueprintChunks {
             }
         }
     }
+}
+
+/// The trial log's columns: the `session` time, the level and the text (the wall-clock `time`
+/// column and the entity path are hidden, so the text gets the width).
+fn text_log_columns() -> TextLogColumns {
+    let timeline = |name: &str, visible: bool| TimelineColumn {
+        visible: visible.into(),
+        timeline: name.into(),
+    };
+    let column = |kind, visible: bool| {
+        TextLogColumn(TextLogColumnData {
+            visible: visible.into(),
+            kind,
+        })
+    };
+    TextLogColumns::new()
+        .with_timeline_columns([timeline("session", true), timeline("time", false)])
+        .with_text_log_columns([
+            column(TextLogColumnKind::EntityPath, false),
+            column(TextLogColumnKind::LogLevel, true),
+            column(TextLogColumnKind::Body, true),
+        ])
+}
+
+/// Blueprint path of the viewer's shared view (`GLOBAL_VIEW_ID` in the viewer): the properties
+/// every plot with a globally linked time axis reads.
+const GLOBAL_VIEW: &str = "view/5c0dca6a-e63f-9cf7-f657-2602590474cc";
+
+/// The time range the linked plots open on: the whole session (the viewer's default for
+/// recordings over a minute is a 60 s window around the time cursor).
+fn whole_session_axis() -> TimeAxis {
+    TimeAxis::new().with_view_range(TimeRange(rr_data::TimeRange {
+        start: rr_data::TimeRangeBoundary::Infinite,
+        end: rr_data::TimeRangeBoundary::Infinite,
+    }))
 }
 
 /// Sends `root` as the active and default blueprint of `stream`'s application.
@@ -412,6 +471,7 @@ pub fn send_blueprint(stream: &RecordingStream, root: &Node) -> Result<()> {
         msgs: vec![LogMsg::SetStoreInfo(set_info)],
     };
     chunks.node(root)?;
+    chunks.log(&format!("{GLOBAL_VIEW}/TimeAxis"), &whole_session_axis())?;
     chunks.log(
         "time_panel",
         &TimePanelBlueprint::new().with_timeline(TimelineName("session".into())),
@@ -434,7 +494,7 @@ pub fn send_blueprint(stream: &RecordingStream, root: &Node) -> Result<()> {
     Ok(())
 }
 
-/// Which optional parts the replay layout shows.
+/// Which optional parts the replay layout shows, and the y ranges the plots open on.
 #[derive(Debug, Clone, Copy, Default)]
 pub struct LayoutParts {
     /// Identified-model predictions, errors and loss terms are logged.
@@ -450,6 +510,46 @@ pub struct LayoutParts {
     /// The diagnosis found terms following recorded fields (plotted beside its summary,
     /// time-aligned with the prediction error).
     pub located: bool,
+    /// Y ranges with room for the legend above the data, where the data is known up front.
+    pub ranges: PlotRanges,
+}
+
+/// Y ranges [W] the plots open on (`None`: fitted to the data by the viewer).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct PlotRanges {
+    /// Net power at the readings.
+    pub power: Option<[f64; 2]>,
+    /// Error at the readings.
+    pub error: Option<[f64; 2]>,
+    /// Predicted power by term.
+    pub by_term: Option<[f64; 2]>,
+    /// Predicted power by joint.
+    pub by_joint: Option<[f64; 2]>,
+    /// Per-trial means by joint.
+    pub bars_by_joint: Option<[f64; 2]>,
+    /// Per-trial means by term.
+    pub bars_by_term: Option<[f64; 2]>,
+    /// The loss terms of the first joint (the cell that carries the grid's legend).
+    pub first_joint_terms: Option<[f64; 2]>,
+}
+
+/// The y range of `values` with `headroom` × the span added above (where the legend goes) and
+/// 5 % below; `None` when no value is finite.
+pub fn range_with_headroom(
+    values: impl IntoIterator<Item = f64>,
+    headroom: f64,
+) -> Option<[f64; 2]> {
+    let (lo, hi) = values
+        .into_iter()
+        .filter(|v| v.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+            (lo.min(v), hi.max(v))
+        });
+    if !lo.is_finite() {
+        return None;
+    }
+    let span = (hi - lo).max(1e-3);
+    Some([lo - 0.05 * span, hi + headroom * span])
 }
 
 fn plot(name: impl Into<String>, contents: Vec<String>) -> Node {
@@ -467,30 +567,14 @@ fn include(paths: &[&str]) -> Vec<String> {
 /// joint, per-trial bars, what the copper term is relative to), the loss terms per joint (one
 /// grid), the joints (q with its command, q̇, τ, temperature), IMU and trials (|ω|, the filter's
 /// statistic and threshold, the trial log), raw power, diagnosis. The 3D view's camera starts on
-/// the front left of the arm, ~1.5 m from `arm_center` (a point on the arm in the `/robot` frame,
+/// the front left of the arm, ~1.1 m from `arm_center` (a point on the arm in the `/robot` frame,
 /// X forward, Y left, Z up).
 pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]) -> Node {
-    use ContainerKind::{Grid, Horizontal, Tabs, Vertical};
-    let each = |signal: &str| -> Vec<String> {
-        joints
-            .iter()
-            .map(|j| paths::include(&paths::joint(j, signal)))
-            .collect()
-    };
+    use ContainerKind::{Horizontal, Tabs, Vertical};
     let mut right = vec![power_view(parts)];
     let mut shares = vec![1.0];
     if parts.trials || parts.diagnosis {
-        right.push(
-            plot(
-                "Trials (index; red: rejected or located)",
-                vec![
-                    paths::include(paths::TRIAL_INDEX),
-                    paths::include_tree(&paths::trial_spans(paths::TRIALS, "rejected")),
-                    paths::include_tree(&paths::trial_spans(paths::DIAG_TRIALS, "located")),
-                ],
-            )
-            .with_legend(Legend::Hidden),
-        );
+        right.push(trial_track());
         shares.push(0.4);
     }
     if parts.model || parts.diagnosis {
@@ -500,83 +584,24 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
         }
         right.push(
             plot("Error at the readings, measured − predicted [W]", error)
-                .with_legend(Legend::LeftTop),
+                .with_legend(Legend::LeftTop)
+                .with_y_range(parts.ranges.error),
         );
         shares.push(0.8);
     }
-
-    let mut q = each("q");
-    q.extend(each("q_cmd"));
-    let joint_views = Node::container(
-        Grid,
-        "Joints",
-        vec![
-            // One legend for the four plots (same colour per joint everywhere).
-            plot("Joint position q [rad] (command: lighter)", q).with_legend(Legend::Hidden),
-            plot("Joint velocity q̇ [rad/s]", each("dq")).with_legend(Legend::Hidden),
-            plot("Joint torque τ [Nm]", each("tau")).with_legend(Legend::LeftTop),
-            plot("Motor temperature [°C]", each("temperature")).with_legend(Legend::Hidden),
-        ],
-        vec![],
-    )
-    .with_columns(2);
     let mut tabs = Vec::new();
     if parts.model {
-        tabs.push(breakdown_tab(joints));
-        tabs.push(loss_terms_tab(joints));
+        tabs.push(breakdown_tab(joints, parts.ranges));
+        tabs.push(loss_terms_tab(joints, parts.ranges));
     }
-    tabs.push(joint_views);
-    let mut imu = vec![paths::include(paths::IMU_GYRO_NORM)];
-    if parts.imu_filter {
-        imu.extend(include(&[
-            paths::IMU_SIGMA,
-            paths::IMU_SIGMA_REJECTED,
-            paths::IMU_THRESHOLD,
-        ]));
-    }
-    let mut imu_tab =
-        vec![plot("IMU |ω| [rad/s] and the balance filter", imu).with_legend(Legend::RightTop)];
-    if parts.trials || parts.diagnosis {
-        let mut logs = vec![paths::include(&paths::trials_log(paths::TRIALS))];
-        if parts.diagnosis {
-            logs.push(paths::include(&paths::trials_log(paths::DIAG_TRIALS)));
-        }
-        imu_tab.push(Node::view("TextLog", "Trial log", "/", logs));
-    }
-    tabs.push(Node::group(
-        Vertical,
-        "IMU and trials",
-        imu_tab,
-        vec![1.0, 1.0],
-    ));
+    tabs.push(joints_tab(joints));
+    tabs.push(imu_tab(parts));
     tabs.push(plot(
         "Raw power MBS/BMS [W]",
         include(&[&paths::power_raw("mbs"), &paths::power_raw("bms")]),
     ));
     if parts.diagnosis {
-        let mut diag = vec![Node::view(
-            "TextDocument",
-            "Diagnosis summary",
-            paths::DIAG_SUMMARY,
-            vec![],
-        )];
-        if parts.located {
-            diag.push(Node::view(
-                "TimeSeries",
-                "Fields the found terms follow",
-                paths::DIAG_LOCATED,
-                vec![],
-            ));
-        }
-        if parts.counterpart {
-            diag.push(Node::view(
-                "TimeSeries",
-                "Torque recording − twin [Nm]",
-                paths::DIAG_TORQUE,
-                vec![],
-            ));
-        }
-        tabs.push(Node::group(Horizontal, "Diagnosis", diag, vec![]));
+        tabs.push(diagnosis_tab(parts));
     }
     right.push(Node::container(Tabs, "Details", tabs, vec![]));
     shares.push(1.6);
@@ -590,11 +615,102 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
                 "/",
                 vec!["+ /".to_owned(), paths::include_tree(paths::ROBOT)],
             )
-            .with_eye(Eye::looking_at(arm_center, [1.0, 0.8, 0.45], 1.5)),
+            .with_eye(Eye::looking_at(arm_center, [1.0, 0.8, 0.45], 1.1)),
             Node::container(Vertical, "Plots", right, shares),
         ],
         vec![1.0, 1.6],
     )
+}
+
+/// The trial track: the trial under way, rejected (or located) trials as thick red segments.
+fn trial_track() -> Node {
+    plot(
+        "Trials (index; red: rejected or located)",
+        vec![
+            paths::include(paths::TRIAL_INDEX),
+            paths::include_tree(&paths::trial_spans(paths::TRIALS, "rejected")),
+            paths::include_tree(&paths::trial_spans(paths::DIAG_TRIALS, "located")),
+        ],
+    )
+    .with_legend(Legend::Hidden)
+}
+
+/// The joint signals in one grid (one colour per joint everywhere, one legend).
+fn joints_tab(joints: &[String]) -> Node {
+    let each = |signal: &str| -> Vec<String> {
+        joints
+            .iter()
+            .map(|j| paths::include(&paths::joint(j, signal)))
+            .collect()
+    };
+    let mut q = each("q");
+    q.extend(each("q_cmd"));
+    Node::container(
+        ContainerKind::Grid,
+        "Joints",
+        vec![
+            plot("Joint position q [rad] (command: lighter)", q).with_legend(Legend::Hidden),
+            plot("Joint velocity q̇ [rad/s]", each("dq")).with_legend(Legend::Hidden),
+            plot("Joint torque τ [Nm]", each("tau")).with_legend(Legend::LeftTop),
+            plot("Motor temperature [°C]", each("temperature")).with_legend(Legend::Hidden),
+        ],
+        vec![],
+    )
+    .with_columns(2)
+}
+
+/// |ω| with the IMU filter's statistic and threshold, and the trial log.
+fn imu_tab(parts: LayoutParts) -> Node {
+    let mut imu = vec![paths::include(paths::IMU_GYRO_NORM)];
+    if parts.imu_filter {
+        imu.extend(include(&[
+            paths::IMU_SIGMA,
+            paths::IMU_SIGMA_REJECTED,
+            paths::IMU_THRESHOLD,
+        ]));
+    }
+    let mut views =
+        vec![plot("IMU |ω| [rad/s] and the balance filter", imu).with_legend(Legend::RightTop)];
+    if parts.trials || parts.diagnosis {
+        let mut logs = vec![paths::include(&paths::trials_log(paths::TRIALS))];
+        if parts.diagnosis {
+            logs.push(paths::include(&paths::trials_log(paths::DIAG_TRIALS)));
+        }
+        views.push(Node::view("TextLog", "Trial log", "/", logs));
+    }
+    Node::group(
+        ContainerKind::Vertical,
+        "IMU and trials",
+        views,
+        vec![1.0, 1.0],
+    )
+}
+
+/// The diagnosis: its summary, the fields its found terms follow, the torque differences.
+fn diagnosis_tab(parts: LayoutParts) -> Node {
+    let mut diag = vec![Node::view(
+        "TextDocument",
+        "Diagnosis summary",
+        paths::DIAG_SUMMARY,
+        vec![],
+    )];
+    if parts.located {
+        diag.push(Node::view(
+            "TimeSeries",
+            "Fields the found terms follow",
+            paths::DIAG_LOCATED,
+            vec![],
+        ));
+    }
+    if parts.counterpart {
+        diag.push(Node::view(
+            "TimeSeries",
+            "Torque recording − twin [Nm]",
+            paths::DIAG_TORQUE,
+            vec![],
+        ));
+    }
+    Node::group(ContainerKind::Horizontal, "Diagnosis", diag, vec![])
 }
 
 /// The main power plot: readings vs like-for-like prediction (with a model), the sensors' net
@@ -616,66 +732,69 @@ fn power_view(parts: LayoutParts) -> Node {
     } else {
         "Net power [W] (minus the idle baseline before the arm moves)"
     };
-    plot(name, contents).with_legend(Legend::LeftTop)
+    plot(name, contents)
+        .with_legend(Legend::LeftTop)
+        .with_y_range(parts.ranges.power)
 }
 
 /// Where the power goes: per term and per joint over time, per-trial bars, and the note.
-fn breakdown_tab(joints: &[String]) -> Node {
+fn breakdown_tab(joints: &[String], ranges: PlotRanges) -> Node {
     use ContainerKind::{Horizontal, Vertical};
     let by_joint: Vec<String> = joints
         .iter()
         .map(|j| paths::include(&paths::by_joint(j)))
         .collect();
+    let over_time = Node::container(
+        Vertical,
+        "Power over time",
+        vec![
+            plot(
+                "Predicted power by term, all joints [W]",
+                vec![paths::include_tree(paths::BY_TERM)],
+            )
+            .with_legend(Legend::LeftTop)
+            .with_y_range(ranges.by_term),
+            plot("Predicted power by joint, all terms [W]", by_joint)
+                .with_legend(Legend::LeftTop)
+                .with_y_range(ranges.by_joint),
+        ],
+        vec![],
+    );
+    let per_trial = Node::container(
+        Vertical,
+        "Per trial",
+        vec![
+            plot(
+                "Mean per trial, by joint [W]",
+                vec![paths::include_tree(paths::BARS_BY_JOINT)],
+            )
+            .with_legend(Legend::LeftTop)
+            .with_y_range(ranges.bars_by_joint),
+            plot(
+                "Mean per trial, by term [W]",
+                vec![paths::include_tree(paths::BARS_BY_TERM)],
+            )
+            .with_legend(Legend::LeftTop)
+            .with_y_range(ranges.bars_by_term),
+            Node::view(
+                "TextDocument",
+                "What the terms are",
+                paths::BREAKDOWN_NOTE,
+                vec![],
+            ),
+        ],
+        vec![1.0, 1.0, 0.8],
+    );
     Node::container(
         Horizontal,
         "Where the power goes",
-        vec![
-            Node::container(
-                Vertical,
-                "Power over time",
-                vec![
-                    plot(
-                        "Predicted power by term, all joints [W]",
-                        vec![paths::include_tree(paths::BY_TERM)],
-                    )
-                    .with_legend(Legend::LeftTop),
-                    plot("Predicted power by joint, all terms [W]", by_joint)
-                        .with_legend(Legend::LeftTop),
-                ],
-                vec![],
-            ),
-            Node::container(
-                Vertical,
-                "Per trial",
-                vec![
-                    Node::view(
-                        "BarChart",
-                        "Mean per trial, by joint [W]",
-                        paths::BARS_BY_JOINT,
-                        vec![],
-                    ),
-                    Node::view(
-                        "BarChart",
-                        "Mean per trial, by term [W]",
-                        paths::BARS_BY_TERM,
-                        vec![],
-                    ),
-                    Node::view(
-                        "TextDocument",
-                        "What the terms are",
-                        paths::BREAKDOWN_NOTE,
-                        vec![],
-                    ),
-                ],
-                vec![1.0, 1.0, 1.2],
-            ),
-        ],
-        vec![1.6, 1.0],
+        vec![over_time, per_trial],
+        vec![1.0, 1.0],
     )
 }
 
 /// One grid: the four loss terms of each joint, and the interaction.
-fn loss_terms_tab(joints: &[String]) -> Node {
+fn loss_terms_tab(joints: &[String], ranges: PlotRanges) -> Node {
     let mut views: Vec<Node> = joints
         .iter()
         .enumerate()
@@ -685,12 +804,13 @@ fn loss_terms_tab(joints: &[String]) -> Node {
                 .map(|t| paths::include(&paths::term(j, t)))
                 .collect();
             // The terms have the same colours in every cell: one legend is enough.
-            let legend = if k == 0 {
-                Legend::LeftTop
+            if k == 0 {
+                plot(format!("{j} [W]"), terms)
+                    .with_legend(Legend::LeftTop)
+                    .with_y_range(ranges.first_joint_terms)
             } else {
-                Legend::Hidden
-            };
-            plot(format!("{j} [W]"), terms).with_legend(legend)
+                plot(format!("{j} [W]"), terms).with_legend(Legend::Hidden)
+            }
         })
         .collect();
     views.push(

@@ -4,7 +4,7 @@
 
 use anyhow::Result;
 use rerun::components::{InterpolationMode, MarkerShape, TextLogLevel};
-use rerun::{BarChart, SeriesLines, TextDocument, TextLog};
+use rerun::{SeriesLines, TextDocument, TextLog};
 
 use super::replay::{
     DiagnosisOverlay, ImuFilterMarks, ReadingPrediction, ReplayExtras, TermSeries, TrajectoryPoint,
@@ -26,7 +26,7 @@ pub(super) fn log_extras(
         style::line(
             w,
             paths::MODEL_PREDICTED,
-            "predicted, instantaneous (context)",
+            "predicted, instantaneous",
             style::PREDICTED_CONTEXT,
             0.75,
         )?;
@@ -39,7 +39,7 @@ pub(super) fn log_extras(
     if let Some(terms) = &extras.terms {
         log_terms(w, joints, terms, chunk)?;
         log_breakdown(w, joints, terms, chunk)?;
-        log_bars(w, terms, &extras.trials)?;
+        log_bars(w, joints, terms, &extras.trials)?;
         w.send_static(
             paths::BREAKDOWN_NOTE,
             &TextDocument::from_markdown(breakdown_note(joints, colour_scale)),
@@ -69,21 +69,21 @@ fn log_readings(w: &mut ChunkWriter<'_>, r: &ReadingPrediction, chunk: usize) ->
     style::points(
         w,
         paths::MODEL_READING_MEASURED,
-        "measured reading (net of the trial's pre-idle)",
+        "measured reading",
         style::MEASURED,
         MarkerShape::Circle,
-        3.0,
+        4.0,
     )?;
     style::points(
         w,
         paths::MODEL_READING_PREDICTED,
         &format!(
-            "predicted over the reading's window ({:.2} s, lag {:.2} s)",
+            "predicted, reading window ({:.2} s, lag {:.2} s)",
             r.window_s, r.lag_s
         ),
         style::PREDICTED,
         MarkerShape::Diamond,
-        3.0,
+        4.0,
     )?;
     scalars_chunked(w, paths::MODEL_READING_MEASURED, &r.t, &r.measured, chunk)?;
     scalars_chunked(w, paths::MODEL_READING_PREDICTED, &r.t, &r.predicted, chunk)?;
@@ -99,7 +99,7 @@ fn log_readings(w: &mut ChunkWriter<'_>, r: &ReadingPrediction, chunk: usize) ->
     style::points(
         w,
         paths::MODEL_ERROR_READING,
-        "error per reading (measured − predicted)",
+        "per reading",
         style::ERROR,
         MarkerShape::Circle,
         2.5,
@@ -109,7 +109,7 @@ fn log_readings(w: &mut ChunkWriter<'_>, r: &ReadingPrediction, chunk: usize) ->
         style::points(
             w,
             paths::MODEL_ERROR_READING_REJECTED,
-            "error per reading, rejected trial",
+            "per reading, rejected trial",
             style::WARNING,
             MarkerShape::Circle,
             2.5,
@@ -125,14 +125,14 @@ fn log_trajectories(w: &mut ChunkWriter<'_>, points: &[TrajectoryPoint]) -> Resu
         (
             false,
             paths::MODEL_ERROR_TRAJECTORY,
-            "error per trajectory",
+            "per trajectory",
             style::ERROR_TRAJECTORY,
             MarkerShape::Diamond,
         ),
         (
             true,
             paths::MODEL_ERROR_TRAJECTORY_REJECTED,
-            "error per trajectory, rejected trial",
+            "per trajectory, rejected trial",
             style::WARNING,
             MarkerShape::Cross,
         ),
@@ -251,9 +251,52 @@ fn log_breakdown(
     Ok(())
 }
 
-/// Per trial, at its end: bar charts of the mean power per joint (terms summed) and per term
-/// (joints summed) over the trial's window.
-fn log_bars(w: &mut ChunkWriter<'_>, terms: &TermSeries, trials: &[TrialMark]) -> Result<()> {
+/// Time between the bottom and top of a bar's vertical edge [s] (the viewer keeps one value per
+/// time stamp, so an edge needs two stamps).
+const EDGE_S: f64 = 0.01;
+
+/// Per-trial bars: the mean power of each joint (terms summed) and of each term (joints summed)
+/// over each trial's window, drawn on the time axis as a group of bars inside the trial's window
+/// (one slot per joint or term, in legend order), one named series per joint or term.
+fn log_bars(
+    w: &mut ChunkWriter<'_>,
+    joints: &[String],
+    terms: &TermSeries,
+    trials: &[TrialMark],
+) -> Result<()> {
+    let means = trial_means(terms, trials);
+    let mut by_term_names: Vec<&str> = paths::TERMS.to_vec();
+    by_term_names.push("interaction");
+    for (j, name) in joints.iter().enumerate() {
+        let path = paths::bar_by_joint(name);
+        style::line_exact(w, &path, name, style::joint(j), 1.5)?;
+        let (t, v) = bar_outline(&means, j, joints.len(), |m| m.by_joint[j]);
+        scalars(w, &path, &t, v.into_iter())?;
+    }
+    for (k, name) in by_term_names.iter().enumerate() {
+        let path = paths::bar_by_term(name);
+        style::line_exact(w, &path, name, style::TERMS[k], 1.5)?;
+        let (t, v) = bar_outline(&means, k, by_term_names.len(), |m| m.by_term[k]);
+        scalars(w, &path, &t, v.into_iter())?;
+    }
+    Ok(())
+}
+
+/// The mean predicted power of one trial over its window.
+pub(super) struct TrialMean {
+    /// The trial's window [s].
+    pub t0: f64,
+    /// End of the window [s].
+    pub t1: f64,
+    /// Per joint, its four terms summed [W].
+    pub by_joint: [f64; N_JOINTS],
+    /// Per term (mechanical, copper, Coulomb, viscous, interaction), joints summed [W].
+    pub by_term: [f64; 5],
+}
+
+/// Mean predicted power per joint and per term over each trial's window, in time order
+/// (trials without samples are left out).
+pub(super) fn trial_means(terms: &TermSeries, trials: &[TrialMark]) -> Vec<TrialMean> {
     let fields = [
         &terms.mechanical,
         &terms.copper,
@@ -270,45 +313,68 @@ fn log_bars(w: &mut ChunkWriter<'_>, terms: &TermSeries, trials: &[TrialMark]) -
     let mut order: Vec<usize> = (0..n).collect();
     order.sort_by(|&a, &b| terms.t[a].total_cmp(&terms.t[b]));
     let sorted_t: Vec<f64> = order.iter().map(|&i| terms.t[i]).collect();
-    for m in trials {
+    let mut sorted: Vec<&TrialMark> = trials.iter().collect();
+    sorted.sort_by(|a, b| a.t_start.total_cmp(&b.t_start));
+    let mut out = Vec::new();
+    for m in sorted {
         let lo = sorted_t.partition_point(|&t| t < m.t_start);
         let hi = sorted_t.partition_point(|&t| t <= m.t_end);
         if hi <= lo {
             continue;
         }
         let count = (hi - lo) as f64;
-        let mut by_joint = [0.0; N_JOINTS];
-        let mut by_term = [0.0; 5];
+        let mut mean = TrialMean {
+            t0: m.t_start,
+            t1: m.t_end,
+            by_joint: [0.0; N_JOINTS],
+            by_term: [0.0; 5],
+        };
         for &i in &order[lo..hi] {
             for (k, field) in fields.iter().enumerate() {
                 for (j, v) in field[i].iter().enumerate() {
-                    by_joint[j] += v / count;
-                    by_term[k] += v / count;
+                    mean.by_joint[j] += v / count;
+                    mean.by_term[k] += v / count;
                 }
             }
-            by_term[4] += terms.interaction[i] / count;
+            mean.by_term[4] += terms.interaction[i] / count;
         }
-        w.send_row(
-            paths::BARS_BY_JOINT,
-            m.t_end,
-            &BarChart::new(by_joint.as_slice()).with_color(style::rgb(style::PREDICTED)),
-        )?;
-        w.send_row(
-            paths::BARS_BY_TERM,
-            m.t_end,
-            &BarChart::new(by_term.as_slice()).with_color(style::rgb(style::TERMS[0])),
-        )?;
+        out.push(mean);
     }
-    Ok(())
+    out
+}
+
+/// The outline of bar `slot` of `slots` in every trial's window: up from 0 to the value, across
+/// 80 % of the slot, back down to 0 (the series runs along 0 between bars).
+fn bar_outline(
+    means: &[TrialMean],
+    slot: usize,
+    slots: usize,
+    value: impl Fn(&TrialMean) -> f64,
+) -> (Vec<f64>, Vec<f64>) {
+    let mut t = Vec::with_capacity(4 * means.len());
+    let mut v = Vec::with_capacity(4 * means.len());
+    let mut last = f64::NEG_INFINITY;
+    for m in means {
+        let width = (m.t1 - m.t0) / slots as f64;
+        let a = m.t0 + (slot as f64 + 0.1) * width;
+        let b = a + 0.8 * width;
+        let h = value(m);
+        if a < last || !h.is_finite() {
+            continue; // overlapping windows: keep the series in time order
+        }
+        // Distinct stamps for the vertical edges: the viewer keeps one value per stamp.
+        let e = EDGE_S.min(0.05 * (b - a));
+        t.extend([a, a + e, b - e, b]);
+        v.extend([0.0, h, h, 0.0]);
+        last = b;
+    }
+    (t, v)
 }
 
 /// The note shown beside the breakdown: what the terms are, what the copper term is relative to.
 pub(super) fn breakdown_note(joints: &[String], colour_scale: f64) -> String {
-    let list: Vec<String> = joints
-        .iter()
-        .enumerate()
-        .map(|(j, n)| format!("{j} = {n}"))
-        .collect();
+    let list: Vec<&str> = joints.iter().map(String::as_str).collect();
+    let list = list.join(" → ");
     format!(
         "**Where the power goes** — the model's predicted net power, split per joint *i* into \
          mechanical *a_i τ_i q̇_i*, copper *b_i (τ_i² − τ̄0_i²)*, Coulomb *c_i \\|q̇_i\\|* and \
@@ -316,12 +382,12 @@ pub(super) fn breakdown_note(joints: &[String], colour_scale: f64) -> String {
          **The copper term is relative to the holding torque τ̄0**: τ̄0_i² is joint *i*'s mean τ² \
          in the trial's pre-idle (the arm at rest), so the term is negative whenever the arm \
          holds less torque than it did at rest — not regeneration.\n\n\
-         Bar charts: the mean over each trial's trajectory window, logged at its end (scrub the \
-         time cursor). By joint: {}. By term: 0 = mechanical, 1 = copper, 2 = Coulomb, \
-         3 = viscous, 4 = interaction.\n\n\
+         Per-trial bars: the mean over each trial's window, drawn inside that window, one bar \
+         per joint, left to right {}, or per term, left to right mechanical, copper, Coulomb, \
+         viscous, interaction (hover a bar for its name).\n\n\
          In 3D each arm link is coloured by its joint's predicted power: grey at 0 W, red at \
          {colour_scale:.1} W and above, blue when negative.",
-        list.join(", ")
+        list
     )
 }
 
@@ -333,7 +399,8 @@ fn log_imu_filter(w: &mut ChunkWriter<'_>, imu: &ImuFilterMarks) -> Result<()> {
         let mut v = Vec::new();
         for &(t0, t1, s) in &imu.spans {
             if (s > imu.threshold) == rejected && s.is_finite() {
-                t.extend([t0, t0, t1, t1]);
+                let e = EDGE_S.min(0.05 * (t1 - t0));
+                t.extend([t0, t0 + e, t1 - e, t1]);
                 v.extend([0.0, s, s, 0.0]);
             }
         }
@@ -357,7 +424,7 @@ fn log_imu_filter(w: &mut ChunkWriter<'_>, imu: &ImuFilterMarks) -> Result<()> {
         if t.is_empty() {
             continue;
         }
-        style::line(w, path, name, colour, 2.0)?;
+        style::line_exact(w, path, name, colour, 2.0)?;
         scalars(w, path, &t, v.into_iter())?;
     }
     let first = imu.spans.iter().map(|s| s.0).fold(f64::INFINITY, f64::min);
@@ -391,9 +458,26 @@ fn log_imu_filter(w: &mut ChunkWriter<'_>, imu: &ImuFilterMarks) -> Result<()> {
 /// threshold) or where a diagnosis located its mismatch.
 fn trial_text(m: &TrialMark) -> String {
     match (&m.rejected, &m.highlight) {
-        (Some(r), _) => format!("{} — REJECTED by {}: {r}", m.label, r.reason.name()),
+        (Some(r), _) => format!("{} — REJECTED: {}", m.label, rejection_text(r)),
         (None, Some(why)) => format!("{} — {why}", m.label),
         (None, None) => m.label.clone(),
+    }
+}
+
+/// Why a filter rejected a trial, without the session/trial prefix of the rejection's own
+/// `Display` (the log line already names the trial).
+fn rejection_text(r: &crate::trial::Rejection) -> String {
+    use crate::trial::RejectReason;
+    match r.reason {
+        RejectReason::ImuSway => format!(
+            "IMU sway σ|ω| = {:.4} rad/s > threshold {:.4} rad/s (k × median)",
+            r.statistic, r.threshold
+        ),
+        RejectReason::Residual => format!(
+            "residual {:+.3} W beyond {:.3} W (n·σ filter, pass {})",
+            r.statistic, r.threshold, r.pass
+        ),
+        RejectReason::Unusable => format!("unusable: {}", r.detail),
     }
 }
 

@@ -12,14 +12,19 @@
 //! per-store chunk manifests from `HashMap`s (store order and manifest column order vary).
 //! The footer is an index the viewer can rebuild; decoded, the two files are equal.
 
-pub mod blueprint;
+mod blueprint;
 mod layers;
 pub mod overlay;
-pub mod paths;
+mod paths;
 pub mod replay;
 mod robot3d;
 mod rrd_sink;
+pub mod session;
+mod slice;
 mod style;
+
+pub use blueprint::{Eye, LayoutParts, Legend, Node, PlotRanges, range_with_headroom};
+pub use slice::{Decimator, Slice};
 
 use std::path::{Path, PathBuf};
 

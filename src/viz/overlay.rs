@@ -15,6 +15,7 @@ use crate::identify::dataset::{self, DatasetOptions, Mode};
 use crate::identify::{IdentifyOptions, Validation, validate};
 use crate::power::PowerModel;
 use crate::signals::Recording;
+use crate::trial::TrialStat;
 
 /// Replay extras of `model` applied to `rec` (segmented and filtered as `opts` says), plus the
 /// hold-out validation it is built on.
@@ -83,7 +84,12 @@ pub fn model_extras(
             let joints: Vec<String> = t
                 .joints_moved
                 .iter()
-                .map(|&j| rec.joint_names.get(j).cloned().unwrap_or_default())
+                .map(|&j| {
+                    rec.joint_names
+                        .get(j)
+                        .map(|n| super::short_joint_name(n))
+                        .unwrap_or_default()
+                })
                 .collect();
             TrialMark {
                 index: t.index,
@@ -149,25 +155,22 @@ fn reading_predictions(
     out
 }
 
-/// The IMU filter's statistic per trial (over its trajectory window) and its threshold
-/// (k × the median σ|ω| of the session's trials, as the filter computes it).
+/// The IMU filter's statistic per trial (over its trajectory window) and its threshold, as the
+/// filter cascade computes it from the same statistics ([`crate::trial::Cascade::imu_threshold`]).
 fn imu_marks(v: &Validation, opts: &IdentifyOptions) -> Option<ImuFilterMarks> {
     let k = opts.filters.imu_k?;
-    let mut sigmas: Vec<f64> = v.per_trial.iter().map(|p| p.sigma_omega).collect();
-    sigmas.retain(|s| s.is_finite());
-    if sigmas.is_empty() {
+    let sigmas: Vec<TrialStat> = v
+        .per_trial
+        .iter()
+        .map(|p| TrialStat::new(0, p.trial, p.sigma_omega))
+        .collect();
+    let threshold = opts.filters.imu_threshold(&sigmas)?;
+    if !threshold.is_finite() {
         return None;
     }
-    sigmas.sort_by(f64::total_cmp);
-    let n = sigmas.len();
-    let median = if n % 2 == 1 {
-        sigmas[n / 2]
-    } else {
-        0.5 * (sigmas[n / 2 - 1] + sigmas[n / 2])
-    };
     Some(ImuFilterMarks {
         k,
-        threshold: k * median,
+        threshold,
         spans: v
             .per_trial
             .iter()

@@ -5,8 +5,6 @@
 
 /// The robot (model root, oriented by the recorded IMU quaternion); links below it.
 pub const ROBOT: &str = "robot";
-/// Joint frames (axes at every arm joint) below the robot.
-pub const JOINT_FRAMES: &str = "frames";
 /// Per-joint signal `q`, `q_cmd`, `dq`, `tau` or `temperature`.
 pub fn joint(j: &str, signal: &str) -> String {
     format!("joints/{j}/{signal}")
@@ -26,8 +24,6 @@ pub const IMU_SIGMA: &str = "imu/sigma_per_trial";
 /// The IMU filter's threshold (k × median σ|ω|) [rad/s].
 pub const IMU_THRESHOLD: &str = "imu/threshold";
 
-/// Everything the identified model adds lives below this.
-pub const MODEL: &str = "model";
 /// Measured net power per reading (net of the trial's pre-idle) [W].
 pub const MODEL_READING_MEASURED: &str = "model/power/reading_measured";
 /// The model's prediction averaged over each reading's own window, at the reading [W].
@@ -56,16 +52,23 @@ pub const BY_TERM: &str = "model/by_term";
 pub fn by_term(term: &str) -> String {
     format!("model/by_term/{term}")
 }
-/// Below this: one series per joint, its four terms summed.
-pub const BY_JOINT: &str = "model/by_joint";
 /// A joint's four terms summed [W].
 pub fn by_joint(j: &str) -> String {
     format!("model/by_joint/{j}")
 }
-/// Per-trial bar chart: mean power of each joint over the trial's trajectory [W].
+/// Below this: per-trial bars, one series per joint (its mean power over each trial's
+/// trajectory [W], drawn as a bar in the joint's slot of the trial's window).
 pub const BARS_BY_JOINT: &str = "model/bars/by_joint";
-/// Per-trial bar chart: mean power of each term over the trial's trajectory [W].
+/// Per-trial bars of joint `j` [W].
+pub fn bar_by_joint(j: &str) -> String {
+    format!("{BARS_BY_JOINT}/{j}")
+}
+/// Below this: per-trial bars, one series per term (joints summed; `interaction` too) [W].
 pub const BARS_BY_TERM: &str = "model/bars/by_term";
+/// Per-trial bars of term `term` [W].
+pub fn bar_by_term(term: &str) -> String {
+    format!("{BARS_BY_TERM}/{term}")
+}
 /// What the breakdown views show (text, markdown).
 pub const BREAKDOWN_NOTE: &str = "model/note";
 
@@ -82,8 +85,6 @@ pub const TRIALS: &str = "trials";
 /// Index of the trial under way (step series held from each trial's start to the next).
 pub const TRIAL_INDEX: &str = "trials/index";
 
-/// Below this: the diagnosis overlay.
-pub const DIAGNOSIS: &str = "diagnosis";
 /// Measured net power per reading the diagnosis used [W].
 pub const DIAG_MEASURED: &str = "diagnosis/power/measured";
 /// Base-model prediction [W].

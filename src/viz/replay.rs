@@ -15,6 +15,7 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use rerun::{AnyValues, RecordingInfo, RecordingStream, Scalars};
 
 use super::blueprint::{self, LayoutParts};
+use super::slice::{Decimator, Slice};
 use super::{ChunkWriter, layers, paths, robot3d, short_joint_name, style};
 use crate::N_JOINTS;
 use crate::robot::{ArmJoints, RobotModel};
@@ -40,6 +41,8 @@ pub struct ReplayOptions {
     /// The tab the layout opens on, by name (`None`: the first; see
     /// [`blueprint::Node::tab_names`]).
     pub open_tab: Option<String>,
+    /// The part of the session to log (time window, rate cap of the series; default: all).
+    pub slice: Slice,
 }
 
 impl Default for ReplayOptions {
@@ -52,6 +55,7 @@ impl Default for ReplayOptions {
             blueprint: true,
             properties: Vec::new(),
             open_tab: None,
+            slice: Slice::default(),
         }
     }
 }
@@ -246,8 +250,55 @@ pub fn layout(
             .diagnosis
             .as_ref()
             .is_some_and(|d| !d.located.is_empty()),
+        ranges: plot_ranges(extras),
     };
     blueprint::replay_layout(joints, parts, arm_center(robot, arm))
+}
+
+/// Room above the data for the legend (a fraction of the data's span).
+const LEGEND_HEADROOM: f64 = 0.6;
+
+/// The y ranges of the plots whose data `extras` holds, with room for the legend on top.
+fn plot_ranges(extras: &ReplayExtras) -> blueprint::PlotRanges {
+    use blueprint::range_with_headroom as fit;
+    let h = LEGEND_HEADROOM;
+    let mut r = blueprint::PlotRanges::default();
+    if let Some(rd) = &extras.readings {
+        let instant = extras.prediction.iter().flat_map(|p| p.predicted.iter());
+        r.power = fit(
+            rd.measured
+                .iter()
+                .chain(&rd.predicted)
+                .chain(instant)
+                .copied(),
+            h,
+        );
+        let per_reading = rd.measured.iter().zip(&rd.predicted).map(|(m, p)| m - p);
+        let per_trajectory = extras.trajectories.iter().map(|p| p.measured - p.predicted);
+        r.error = fit(per_reading.chain(per_trajectory).chain([0.0]), h);
+    }
+    if let Some(terms) = &extras.terms {
+        let fields = [
+            &terms.mechanical,
+            &terms.copper,
+            &terms.coulomb,
+            &terms.viscous,
+        ];
+        let by_term = fields
+            .iter()
+            .flat_map(|f| f.iter().map(|v| v.iter().sum::<f64>()))
+            .chain(terms.interaction.iter().copied());
+        r.by_term = fit(by_term, h);
+        let n = fields.iter().map(|f| f.len()).min().unwrap_or(0);
+        let by_joint = (0..n)
+            .flat_map(|i| (0..N_JOINTS).map(move |j| fields.iter().map(|f| f[i][j]).sum::<f64>()));
+        r.by_joint = fit(by_joint, h);
+        r.first_joint_terms = fit(fields.iter().flat_map(|f| f.iter().map(|v| v[0])), h);
+        let means = layers::trial_means(terms, &extras.trials);
+        r.bars_by_joint = fit(means.iter().flat_map(|m| m.by_joint).chain([0.0]), h);
+        r.bars_by_term = fit(means.iter().flat_map(|m| m.by_term).chain([0.0]), h);
+    }
+    r
 }
 
 /// Logs `rec` (and `extras`) to `stream`: arm animation, joint and power series, model/diagnosis
@@ -261,6 +312,13 @@ pub fn log_replay(
     opts: &ReplayOptions,
     stream: &RecordingStream,
 ) -> Result<ReplaySummary> {
+    let sliced;
+    let extras = if opts.slice.is_all() {
+        extras
+    } else {
+        sliced = opts.slice.extras(extras);
+        &sliced
+    };
     let mut logger = ReplayLogger::begin(
         stream,
         robot,
@@ -289,44 +347,71 @@ pub fn replay_file(
     opts: &ReplayOptions,
     stream: &RecordingStream,
 ) -> Result<ReplaySummary> {
-    let extras = ReplayExtras::default();
     // The reader shows its own progress bar (messages read); one bar is enough.
     let quiet = ReplayOptions {
         progress: false,
         ..opts.clone()
     };
-    let mut logger: Option<ReplayLogger<'_>> = None;
-    let read = crate::signals::stream_recording(
-        path,
-        map,
-        read_opts,
-        opts.chunk_rows.max(1),
-        &mut |batch| {
-            if logger.is_none() {
-                logger = Some(ReplayLogger::begin(
-                    stream,
-                    robot,
-                    arm,
-                    path,
-                    &batch.joint_names,
-                    batch.start_ns,
-                    &extras,
-                    &quiet,
-                    0,
-                )?);
-            }
-            match logger.as_mut() {
-                Some(l) => l.add(batch),
-                None => Ok(()),
-            }
-        },
-    )?;
-    let logger = logger.context("the recording delivered no samples")?;
-    let mut summary = logger.finish(&extras)?;
-    let mut warnings = read.warnings;
-    warnings.append(&mut summary.warnings);
-    summary.warnings = warnings;
-    Ok(summary)
+    let mut sink = StreamedReplay {
+        stream,
+        robot,
+        arm,
+        opts: &quiet,
+        extras: ReplayExtras::default(),
+        logger: None,
+        summary: None,
+    };
+    crate::signals::stream_into(path, map, read_opts, opts.chunk_rows.max(1), &mut sink)?;
+    sink.summary.context("the recording delivered no samples")
+}
+
+/// The streamed replay as a [`crate::signals::RecordingSink`]: `begin` sends the layout and the
+/// static robot (the header gives the clock origin and joints), `batch` logs each stretch,
+/// `finish` the power series; the reader's warnings join the replay's.
+struct StreamedReplay<'a> {
+    stream: &'a RecordingStream,
+    robot: &'a RobotModel,
+    arm: &'a ArmJoints,
+    opts: &'a ReplayOptions,
+    extras: ReplayExtras,
+    logger: Option<ReplayLogger<'a>>,
+    summary: Option<ReplaySummary>,
+}
+
+impl crate::signals::RecordingSink for StreamedReplay<'_> {
+    fn begin(&mut self, header: &crate::signals::StreamHeader<'_>) -> Result<()> {
+        self.logger = Some(ReplayLogger::begin(
+            self.stream,
+            self.robot,
+            self.arm,
+            header.source,
+            header.joint_names,
+            header.start_ns,
+            &self.extras,
+            self.opts,
+            0,
+        )?);
+        Ok(())
+    }
+
+    fn batch(&mut self, batch: &Recording) -> Result<()> {
+        match self.logger.as_mut() {
+            Some(l) => l.add(batch),
+            None => bail!("a batch came before the session header"),
+        }
+    }
+
+    fn finish(&mut self, read: &crate::signals::StreamSummary, _begun: bool) -> Result<()> {
+        let Some(logger) = self.logger.take() else {
+            return Ok(()); // nothing was read: replay_file reports it
+        };
+        let mut summary = logger.finish(&self.extras)?;
+        let mut warnings = read.warnings.clone();
+        warnings.append(&mut summary.warnings);
+        summary.warnings = warnings;
+        self.summary = Some(summary);
+        Ok(())
+    }
 }
 
 /// Incremental replay: [`ReplayLogger::begin`] sends the layout and the static robot,
@@ -355,6 +440,9 @@ pub struct ReplayLogger<'a> {
     bms: PowerSeries,
     progress: ProgressBar,
     summary: ReplaySummary,
+    slice: Slice,
+    /// Rate caps of the state and command series, across batches.
+    decimators: [Decimator; 2],
 }
 
 impl<'a> ReplayLogger<'a> {
@@ -401,7 +489,13 @@ impl<'a> ReplayLogger<'a> {
                 .context("sending the viewer layout")?;
         }
         log_recording_info(&mut w, source, start_ns, &opts.properties)?;
-        let scene = robot3d::log_static_robot(&mut w, robot, arm, &mut summary.warnings)?;
+        let scene = robot3d::log_static_robot(
+            &mut w,
+            robot,
+            arm,
+            extras.terms.is_some(),
+            &mut summary.warnings,
+        )?;
         log_styles(&mut w, &joints)?;
         let progress = if expected_samples > 0 {
             progress_bar(opts.progress, expected_samples)
@@ -427,6 +521,8 @@ impl<'a> ReplayLogger<'a> {
             bms: PowerSeries::default(),
             progress,
             summary,
+            slice: opts.slice,
+            decimators: [Decimator::default(); 2],
         })
     }
 
@@ -435,11 +531,25 @@ impl<'a> ReplayLogger<'a> {
     /// Series of unequal lengths are an error naming the field.
     pub fn add(&mut self, part: &Recording) -> Result<()> {
         check_lengths(part)?;
-        let st = &part.state;
-        let n = st.t.len().min(st.q.len());
-        // Motion start: the first sample any joint is more than the threshold from the first.
+        self.track_motion(part);
+        for (mine, theirs) in [(&mut self.mbs, &part.mbs), (&mut self.bms, &part.bms)] {
+            mine.t.extend_from_slice(&theirs.t);
+            mine.watts.extend_from_slice(&theirs.watts);
+        }
+        if self.slice.is_all() {
+            self.add_samples(part)
+        } else {
+            let [state, cmd] = &mut self.decimators;
+            let kept = self.slice.recording(part, state, cmd);
+            self.add_samples(&kept)
+        }
+    }
+
+    /// Motion start: the first sample any joint is more than the threshold from the first (over
+    /// the whole session, whatever the slice, so the idle baseline is the same).
+    fn track_motion(&mut self, part: &Recording) {
         if self.motion_t.is_infinite() {
-            for (q, &t) in st.q.iter().zip(&st.t) {
+            for (q, &t) in part.state.q.iter().zip(&part.state.t) {
                 let q0 = *self.q0.get_or_insert(*q);
                 if q.iter()
                     .zip(&q0)
@@ -450,6 +560,12 @@ impl<'a> ReplayLogger<'a> {
                 }
             }
         }
+    }
+
+    /// Logs the joint, IMU, pose and command samples of `part`.
+    fn add_samples(&mut self, part: &Recording) -> Result<()> {
+        let st = &part.state;
+        let n = st.t.len().min(st.q.len());
         let mut pose_idx: Vec<usize> = Vec::with_capacity(self.chunk);
         for start in (0..n).step_by(self.chunk) {
             let end = (start + self.chunk).min(n);
@@ -530,10 +646,6 @@ impl<'a> ReplayLogger<'a> {
                 )?;
             }
         }
-        for (mine, theirs) in [(&mut self.mbs, &part.mbs), (&mut self.bms, &part.bms)] {
-            mine.t.extend_from_slice(&theirs.t);
-            mine.watts.extend_from_slice(&theirs.watts);
-        }
         Ok(())
     }
 
@@ -549,24 +661,18 @@ impl<'a> ReplayLogger<'a> {
             if series.t.is_empty() {
                 continue;
             }
-            scalars_chunked(
-                w,
-                &paths::power_raw(label),
-                &series.t,
-                &series.watts,
-                self.chunk,
-            )?;
+            let (t, watts): (Vec<f64>, Vec<f64>) = series
+                .t
+                .iter()
+                .zip(&series.watts)
+                .filter(|(t, _)| self.slice.contains(**t))
+                .unzip();
+            scalars_chunked(w, &paths::power_raw(label), &t, &watts, self.chunk)?;
             match idle_baseline(series, self.motion_t) {
                 Some(base) => {
                     self.summary.baseline_w[k] = Some(base);
-                    let net: Vec<f64> = series.watts.iter().map(|p| p - base).collect();
-                    scalars_chunked(
-                        w,
-                        &paths::power_net(label),
-                        &series.t,
-                        &net,
-                        self.chunk,
-                    )?;
+                    let net: Vec<f64> = watts.iter().map(|p| p - base).collect();
+                    scalars_chunked(w, &paths::power_net(label), &t, &net, self.chunk)?;
                 }
                 None => self.summary.warnings.push(format!(
                     "{}: no {} power reading before the arm first moves (t = {:.2} s); net power not logged",

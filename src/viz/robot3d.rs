@@ -1,4 +1,5 @@
-//! The robot in 3D: static link geometry (URDF meshes via `Asset3D`, primitives otherwise) and
+//! The robot in 3D: static link geometry (URDF meshes via `Asset3D`; primitives otherwise, a box
+//! drawn as a capsule along its longest side, sized to the link) and
 //! link poses animated from the recorded joint positions.
 //!
 //! Layout (flat): `robot` is the model root (the pelvis), oriented in the world by the recorded
@@ -12,8 +13,8 @@ use anyhow::Result;
 use nalgebra::Isometry3;
 use rerun::components::FillMode;
 use rerun::{
-    Asset3D, Boxes3D, Color, Cylinders3D, Ellipsoids3D, Quaternion, Transform3D, TransformAxes3D,
-    ViewCoordinates,
+    Asset3D, Capsules3D, Color, Cylinders3D, Ellipsoids3D, Quaternion, Transform3D,
+    TransformAxes3D, ViewCoordinates,
 };
 
 use super::{ChunkWriter, paths};
@@ -59,10 +60,13 @@ fn link_path(name: &str) -> String {
 
 /// Logs the static parts: view coordinates, geometry, the pose of every link that never moves.
 /// Meshes that cannot be read are skipped with a warning (the rest of the robot still shows).
+/// With `colour_links` the arm joints' child links get their colour on the timeline (see
+/// [`log_link_colors`]) instead of a static one.
 pub(super) fn log_static_robot(
     w: &mut ChunkWriter<'_>,
     robot: &RobotModel,
     arm: &ArmJoints,
+    colour_links: bool,
     warnings: &mut Vec<String>,
 ) -> Result<ArmScene> {
     w.send_static("/", &ViewCoordinates::RIGHT_HAND_Z_UP())?;
@@ -100,48 +104,40 @@ pub(super) fn log_static_robot(
                 let u = |x: f32| (x.clamp(0.0, 1.0) * 255.0).round() as u8;
                 Color::from_unmultiplied_rgba(u(c[0]), u(c[1]), u(c[2]), u(c[3]))
             });
-            let mut origin = to_transform(&visual.origin);
+            let origin = to_transform(&visual.origin);
+            // Arm links coloured by their power get their colour on the timeline (static data
+            // would override it), starting grey at the session start.
+            let timed = colour_links && arm_links.contains(&i);
+            let static_colour = (!timed).then_some(color);
             match &visual.geometry {
                 Geometry::Mesh { path: mesh, scale } => match Asset3D::from_file_path(mesh) {
                     Ok(asset) => {
-                        origin =
+                        let origin =
                             origin.with_scale([scale[0] as f32, scale[1] as f32, scale[2] as f32]);
                         w.send_static(&vpath, &origin)?;
-                        w.send_static(&vpath, &asset.with_albedo_factor(color.0))?;
+                        let asset = match static_colour {
+                            Some(c) => asset.with_albedo_factor(c.0),
+                            None => asset,
+                        };
+                        w.send_static(&vpath, &asset)?;
                     }
-                    Err(err) => warnings.push(format!(
-                        "link {}: mesh {}: {err}; not shown",
-                        link.name,
-                        mesh.display()
-                    )),
+                    Err(err) => {
+                        warnings.push(format!(
+                            "link {}: mesh {}: {err}; not shown",
+                            link.name,
+                            mesh.display()
+                        ));
+                        continue;
+                    }
                 },
-                Geometry::Box { size } => {
+                geometry => {
                     w.send_static(&vpath, &origin)?;
-                    let half = [
-                        size[0] as f32 / 2.0,
-                        size[1] as f32 / 2.0,
-                        size[2] as f32 / 2.0,
-                    ];
-                    let shape = Boxes3D::from_half_sizes([half])
-                        .with_colors([color])
-                        .with_fill_mode(FillMode::Solid);
-                    w.send_static(&vpath, &shape)?;
+                    log_primitive(w, &vpath, geometry, static_colour)?;
                 }
-                Geometry::Cylinder { radius, length } => {
-                    w.send_static(&vpath, &origin)?;
-                    let shape =
-                        Cylinders3D::from_lengths_and_radii([*length as f32], [*radius as f32])
-                            .with_colors([color])
-                            .with_fill_mode(FillMode::Solid);
-                    w.send_static(&vpath, &shape)?;
-                }
-                Geometry::Sphere { radius } => {
-                    w.send_static(&vpath, &origin)?;
-                    let shape = Ellipsoids3D::from_radii([*radius as f32])
-                        .with_colors([color])
-                        .with_fill_mode(FillMode::Solid);
-                    w.send_static(&vpath, &shape)?;
-                }
+            }
+            if timed {
+                let columns = colour_columns(&visual.geometry, &[color])?;
+                w.send_columns(&vpath, &[0.0], columns)?;
             }
         }
         scene.paths.push(path);
@@ -263,26 +259,86 @@ pub(super) fn log_link_colors(
         let colours: Vec<Color> = power.iter().map(|p| loss_colour(p[j], full)).collect();
         for (k, visual) in link.visuals.iter().enumerate() {
             let vpath = format!("{path}/visual{k}");
-            let columns = match visual.geometry {
-                Geometry::Box { .. } => Boxes3D::update_fields()
-                    .with_colors(colours.clone())
-                    .columns_of_unit_batches()?
-                    .collect::<Vec<_>>(),
-                Geometry::Cylinder { .. } => Cylinders3D::update_fields()
-                    .with_colors(colours.clone())
-                    .columns_of_unit_batches()?
-                    .collect::<Vec<_>>(),
-                Geometry::Sphere { .. } => Ellipsoids3D::update_fields()
-                    .with_colors(colours.clone())
-                    .columns_of_unit_batches()?
-                    .collect::<Vec<_>>(),
-                Geometry::Mesh { .. } => Asset3D::update_fields()
-                    .with_many_albedo_factor(colours.iter().map(|c| c.0))
-                    .columns_of_unit_batches()?
-                    .collect::<Vec<_>>(),
-            };
+            let columns = colour_columns(&visual.geometry, &colours)?;
             w.send_columns(&vpath, t, columns)?;
         }
     }
     Ok(())
+}
+
+/// A URDF box drawn as a capsule along its longest side: the box's cross-section sets the
+/// radius (a rounded limb the size of the link instead of a crate).
+fn box_as_capsule(size: &[f64; 3]) -> Capsules3D {
+    let axis = (0..3)
+        .max_by(|&a, &b| size[a].total_cmp(&size[b]))
+        .unwrap_or(2);
+    let others: Vec<f64> = (0..3).filter(|&k| k != axis).map(|k| size[k]).collect();
+    let radius = 0.25 * (others[0] + others[1]);
+    let half = (0.5 * size[axis] - radius).max(0.0) as f32;
+    let mut a = [0.0f32; 3];
+    let mut b = [0.0f32; 3];
+    a[axis] = -half;
+    b[axis] = half;
+    Capsules3D::from_endpoints_and_radii([a], [b], [radius as f32])
+}
+
+/// Logs one primitive shape (`colour`: static colour, or `None` when it comes on the timeline).
+fn log_primitive(
+    w: &mut ChunkWriter<'_>,
+    vpath: &str,
+    geometry: &Geometry,
+    colour: Option<Color>,
+) -> Result<()> {
+    match geometry {
+        Geometry::Box { size } => {
+            let mut shape = box_as_capsule(size).with_fill_mode(FillMode::Solid);
+            if let Some(c) = colour {
+                shape = shape.with_colors([c]);
+            }
+            w.send_static(vpath, &shape)
+        }
+        Geometry::Cylinder { radius, length } => {
+            let mut shape = Cylinders3D::from_lengths_and_radii([*length as f32], [*radius as f32])
+                .with_fill_mode(FillMode::Solid);
+            if let Some(c) = colour {
+                shape = shape.with_colors([c]);
+            }
+            w.send_static(vpath, &shape)
+        }
+        Geometry::Sphere { radius } => {
+            let mut shape =
+                Ellipsoids3D::from_radii([*radius as f32]).with_fill_mode(FillMode::Solid);
+            if let Some(c) = colour {
+                shape = shape.with_colors([c]);
+            }
+            w.send_static(vpath, &shape)
+        }
+        Geometry::Mesh { .. } => Ok(()),
+    }
+}
+
+/// The colour column of a visual of `geometry`, one row per colour.
+fn colour_columns(
+    geometry: &Geometry,
+    colours: &[Color],
+) -> Result<Vec<rerun::SerializedComponentColumn>> {
+    let colours = colours.to_vec();
+    Ok(match geometry {
+        Geometry::Box { .. } => Capsules3D::update_fields()
+            .with_colors(colours)
+            .columns_of_unit_batches()?
+            .collect(),
+        Geometry::Cylinder { .. } => Cylinders3D::update_fields()
+            .with_colors(colours)
+            .columns_of_unit_batches()?
+            .collect(),
+        Geometry::Sphere { .. } => Ellipsoids3D::update_fields()
+            .with_colors(colours)
+            .columns_of_unit_batches()?
+            .collect(),
+        Geometry::Mesh { .. } => Asset3D::update_fields()
+            .with_many_albedo_factor(colours.iter().map(|c| c.0))
+            .columns_of_unit_batches()?
+            .collect(),
+    })
 }

@@ -30,8 +30,9 @@ pub(super) fn joint_command(j: usize) -> [u8; 3] {
     JOINTS[j % JOINTS.len()].map(|c| c + (255 - c) / 2)
 }
 
-/// Measured power readings.
-pub(super) const MEASURED: [u8; 3] = [235, 235, 235];
+/// Measured power readings: a dark, saturated blue that stands out on the viewer's dark and
+/// light themes alike (and from the orange prediction).
+pub(super) const MEASURED: [u8; 3] = [40, 70, 200];
 /// Like-for-like prediction at the readings.
 pub(super) const PREDICTED: [u8; 3] = [255, 160, 40];
 /// Instantaneous prediction (context line).
@@ -41,7 +42,7 @@ pub(super) const MBS: [u8; 3] = [23, 190, 207];
 /// BMS net power.
 pub(super) const BMS: [u8; 3] = [188, 189, 34];
 /// Error per reading.
-pub(super) const ERROR: [u8; 3] = [23, 190, 207];
+pub(super) const ERROR: [u8; 3] = [0, 140, 160];
 /// Error per trajectory.
 pub(super) const ERROR_TRAJECTORY: [u8; 3] = [255, 221, 87];
 /// Rejected trials (filters) and located trials (diagnosis).
@@ -100,5 +101,24 @@ pub(super) fn points(
             .with_colors([rgb(c)])
             .with_markers([shape])
             .with_marker_sizes([size]),
+    )
+}
+
+/// A named line like [`line`], drawn point by point at any zoom (no min-max decimation, which
+/// turns narrow bar outlines into zigzags when zoomed out).
+pub(super) fn line_exact(
+    w: &mut ChunkWriter<'_>,
+    path: &str,
+    name: &str,
+    c: [u8; 3],
+    width: f32,
+) -> Result<()> {
+    w.send_static(
+        path,
+        &SeriesLines::new()
+            .with_names([name])
+            .with_colors([rgb(c)])
+            .with_widths([width])
+            .with_aggregation_policy(AggregationPolicy::Off),
     )
 }

@@ -1,0 +1,349 @@
+//! Replaying a session file, the way `g1viz replay` does: the choice between the streamed
+//! replay (no model: the file is read in batches, memory bounded whatever its length) and the
+//! model replay (the model's overlay needs the whole session in memory), the part of the session
+//! to log (`--from/--to` in session seconds, `--trials A-B`, `--max-rate` for the series), and
+//! the size estimate printed before anything is written.
+
+use std::path::Path;
+
+use anyhow::{Context, Result, bail};
+
+use super::replay::{ReplayOptions, ReplaySummary, log_replay, replay_file};
+use super::slice::Slice;
+use super::{OutputKind, Sink, open_stream, recording_id_for, recording_id_for_source};
+use crate::identify::IdentifyOptions;
+use crate::power::PowerModel;
+use crate::read::OpenOptions;
+use crate::robot::RobotModel;
+use crate::signals::{Group, Recording, SignalMap, load_recording};
+
+/// The part of the session to replay, as the user asks for it.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Window {
+    /// Start [s since the session start].
+    pub from_s: Option<f64>,
+    /// End [s since the session start].
+    pub to_s: Option<f64>,
+    /// Trials A to B (inclusive, by index): from A's pre-idle to B's return.
+    pub trials: Option<(usize, usize)>,
+    /// At most this many samples per second of every per-sample series.
+    pub max_rate_hz: Option<f64>,
+}
+
+/// One replay of a session file.
+pub struct SessionReplay<'a> {
+    /// The recording.
+    pub session: &'a Path,
+    /// Which topics and fields the arm signals come from.
+    pub map: &'a SignalMap,
+    /// Reader options (message definition paths).
+    pub read: &'a OpenOptions,
+    /// The robot drawn in 3D.
+    pub robot: &'a RobotModel,
+    /// The identified model, with the name it is shown under (`None`: plain replay).
+    pub model: Option<(&'a str, &'a PowerModel)>,
+    /// Segmentation and filters (the model overlay, `--trials`).
+    pub fit: IdentifyOptions,
+    /// Where the recording goes.
+    pub sink: &'a Sink,
+    /// Files the output must not overwrite.
+    pub inputs: &'a [&'a Path],
+    /// The part to log.
+    pub window: Window,
+    /// Layout, pose rate, properties…
+    pub opts: ReplayOptions,
+}
+
+/// What a replay tells its user while it runs (printed by the CLI).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Notice {
+    /// A note of the validation behind the model overlay.
+    Note(String),
+    /// The model's fit on this session.
+    ModelFit {
+        /// Per-trajectory R².
+        r2: f64,
+        /// Per-trajectory RMSE [W].
+        rmse: f64,
+        /// Trials scored.
+        trials: usize,
+    },
+    /// The expected size of the output, before it is written.
+    Estimate(SizeEstimate),
+}
+
+/// Expected size of a replay's `.rrd`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SizeEstimate {
+    /// Session seconds the replay covers.
+    pub seconds: f64,
+    /// Expected file size [bytes].
+    pub bytes: f64,
+}
+
+/// Bytes per logged scalar row (one value of one series: row id, two time stamps, the value),
+/// measured on the shipped example (82.5 s, 8248 state and command samples: 8.37 MB with poses
+/// at 1 Hz, 9.96 MB at 30 Hz; 237 chunks for 21 s of it at 20 Hz, 1.3 MB).
+pub const BYTES_PER_SCALAR: f64 = 24.9;
+/// Bytes per logged pose of one moving link (translation + rotation, two time stamps).
+pub const BYTES_PER_LINK_POSE: f64 = 41.7;
+/// Bytes per chunk (one entity's rows of one batch: its schema and index), same measurement.
+pub const BYTES_PER_CHUNK: f64 = 2800.0;
+/// Fixed part: layout, robot geometry, properties, series styles (≈ 90 static chunks).
+pub const BYTES_FIXED: f64 = 300_000.0;
+/// Samples per batch (the replay's default chunk size): one chunk per entity and batch.
+const BATCH_SAMPLES: f64 = 4096.0;
+/// Scalar series per state sample (q, q̇, τ, temperature of 7 joints, |ω|).
+const STATE_SERIES: f64 = 29.0;
+/// Scalar series per command sample (q_cmd of 7 joints).
+const COMMAND_SERIES: f64 = 7.0;
+/// Scalar series per state sample the model adds (instantaneous prediction, 28 joint terms,
+/// interaction, 5 per-term and 7 per-joint sums) and links coloured at 10 Hz.
+const MODEL_SERIES: f64 = 42.0;
+/// Temporal entities besides the joints' and the links': raw and net power of two sensors.
+const POWER_ENTITIES: f64 = 4.0;
+/// Temporal entities a model adds (its series, bars, readings, errors, trial marks, colours).
+const MODEL_ENTITIES: f64 = 80.0;
+
+impl SizeEstimate {
+    /// The size of a replay covering `seconds` of a session sampled at `state_hz` (commands at
+    /// `command_hz`, 0 when none), poses at `pose_hz` of `moving_links` links, per-sample series
+    /// capped at `max_rate_hz`, with or without a model.
+    pub fn new(
+        seconds: f64,
+        state_hz: f64,
+        command_hz: f64,
+        pose_hz: Option<f64>,
+        max_rate_hz: Option<f64>,
+        moving_links: usize,
+        model: bool,
+    ) -> SizeEstimate {
+        let cap = |hz: f64| max_rate_hz.map_or(hz, |m| hz.min(m));
+        let state = cap(state_hz) * seconds;
+        let command = cap(command_hz) * seconds;
+        let poses = pose_hz.map_or(cap(state_hz), |p| p.min(cap(state_hz))) * seconds;
+        let model_rows = if model { MODEL_SERIES * state } else { 0.0 };
+        let scalars = STATE_SERIES * state + COMMAND_SERIES * command + model_rows;
+        let links = moving_links as f64 + 1.0;
+        let entities = STATE_SERIES
+            + COMMAND_SERIES
+            + links
+            + POWER_ENTITIES
+            + if model { MODEL_ENTITIES } else { 0.0 };
+        // Batches are cut from the recorded samples, before the rate cap (+1: a window starts
+        // and ends inside batches).
+        let batches = (state_hz * seconds / BATCH_SAMPLES).ceil() + 1.0;
+        SizeEstimate {
+            seconds,
+            bytes: BYTES_FIXED
+                + BYTES_PER_CHUNK * entities * batches
+                + BYTES_PER_SCALAR * scalars
+                + BYTES_PER_LINK_POSE * links * poses,
+        }
+    }
+}
+
+impl std::fmt::Display for SizeEstimate {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let mb = self.bytes / 1e6;
+        let per_hour = if self.seconds > 0.0 {
+            mb * 3600.0 / self.seconds
+        } else {
+            0.0
+        };
+        write!(
+            f,
+            "≈ {mb:.1} MB for {:.0} s of session (≈ {per_hour:.0} MB per hour at these settings)",
+            self.seconds
+        )
+    }
+}
+
+impl Window {
+    /// Whether the whole session is logged at full rate.
+    pub fn is_all(&self) -> bool {
+        *self == Window::default()
+    }
+
+    /// The slice of the session `rec` (segmented as `fit` says for `--trials`) this window
+    /// covers; an error names a trial range the session does not have.
+    pub fn resolve(&self, rec: Option<&Recording>, fit: &IdentifyOptions) -> Result<Slice> {
+        let mut slice = Slice {
+            max_rate_hz: self.max_rate_hz.filter(|r| *r > 0.0),
+            ..Slice::default()
+        };
+        if let Some((a, b)) = self.trials {
+            let rec = rec.context("--trials needs the session's trial segmentation")?;
+            let seg = crate::trial::segment(rec, &fit.segment);
+            let pick: Vec<_> = seg
+                .trials
+                .iter()
+                .filter(|t| t.index >= a && t.index <= b)
+                .collect();
+            let (Some(first), Some(last)) = (pick.first(), pick.last()) else {
+                bail!(
+                    "{}: no trials {a}-{b} (the session has {} trials, 0-{})",
+                    rec.source.display(),
+                    seg.trials.len(),
+                    seg.trials.len().saturating_sub(1)
+                );
+            };
+            slice.from_s = first.t_pre_start;
+            slice.to_s = last.t_return_end;
+        }
+        if let Some(from) = self.from_s {
+            slice.from_s = slice.from_s.max(from);
+        }
+        if let Some(to) = self.to_s {
+            slice.to_s = slice.to_s.min(to);
+        }
+        if slice.to_s < slice.from_s {
+            bail!(
+                "empty replay window: from {:.3} s to {:.3} s",
+                slice.from_s,
+                slice.to_s
+            );
+        }
+        Ok(slice)
+    }
+}
+
+/// Replays `r.session` as `g1viz replay` does; `notify` hears the notes, the model's fit and
+/// the size estimate (before the output is opened).
+pub fn replay_session(
+    r: &SessionReplay<'_>,
+    notify: &mut dyn FnMut(Notice),
+) -> Result<ReplaySummary> {
+    match r.model {
+        Some((_, model)) => model_replay(r, model, notify),
+        None => streamed_replay(r, notify),
+    }
+}
+
+/// With a model: the whole session in memory (segmentation, fitted windows), then sliced.
+fn model_replay(
+    r: &SessionReplay<'_>,
+    model: &PowerModel,
+    notify: &mut dyn FnMut(Notice),
+) -> Result<ReplaySummary> {
+    let rec = load_recording(r.session, r.map, r.read)
+        .with_context(|| format!("reading {}", r.session.display()))?;
+    let arm = r.robot.arm(&rec.joint_names)?;
+    let (extras, v) = super::overlay::model_extras(&rec, model, &r.fit)?;
+    for n in &v.notes {
+        notify(Notice::Note(n.clone()));
+    }
+    notify(Notice::ModelFit {
+        r2: v.trial_level_aligned.r2,
+        rmse: v.trial_level_aligned.rmse,
+        trials: v.per_trial.len(),
+    });
+    let slice = r.window.resolve(Some(&rec), &r.fit)?;
+    let span = |t: &[f64]| span_and_rate(t, &slice);
+    let (seconds, state_hz) = span(&rec.state.t);
+    let (_, command_hz) = span(&rec.command.t);
+    notify(Notice::Estimate(SizeEstimate::new(
+        seconds,
+        state_hz,
+        command_hz,
+        r.opts.pose_rate_hz,
+        slice.max_rate_hz,
+        moving_links(r.robot, &arm),
+        true,
+    )));
+    let kind = OutputKind::ModelReplay;
+    let id = kind.recording_id(&recording_id_for(&rec));
+    let out = open_stream(&kind.app_id(), &id, r.sink, r.inputs)?;
+    let opts = ReplayOptions {
+        slice,
+        ..r.opts.clone()
+    };
+    let summary = log_replay(&rec, r.robot, &arm, &extras, &opts, out.stream())?;
+    out.finish()?;
+    Ok(summary)
+}
+
+/// Without a model: the file is streamed (memory does not grow with its length); `--trials`
+/// reads it once more first, to find the trials.
+fn streamed_replay(r: &SessionReplay<'_>, notify: &mut dyn FnMut(Notice)) -> Result<ReplaySummary> {
+    let arm = r.robot.arm(&r.map.joint_names)?;
+    let slice = if r.window.trials.is_some() {
+        let rec = load_recording(r.session, r.map, r.read)
+            .with_context(|| format!("reading {}", r.session.display()))?;
+        r.window.resolve(Some(&rec), &r.fit)?
+    } else {
+        r.window.resolve(None, &r.fit)?
+    };
+    if let Some(e) = topic_estimate(r, &slice, moving_links(r.robot, &arm)) {
+        notify(Notice::Estimate(e));
+    }
+    let kind = OutputKind::Replay;
+    let id = recording_id_for_source(r.session)
+        .with_context(|| format!("cannot read {}", r.session.display()))?;
+    let out = open_stream(&kind.app_id(), &kind.recording_id(&id), r.sink, r.inputs)?;
+    let opts = ReplayOptions {
+        slice,
+        ..r.opts.clone()
+    };
+    let summary = replay_file(r.session, r.map, r.read, r.robot, &arm, &opts, out.stream())
+        .with_context(|| format!("replaying {}", r.session.display()))?;
+    out.finish()?;
+    Ok(summary)
+}
+
+/// The estimate from the file's topic statistics (summary or index when the container has
+/// them); `None` when they cannot be read (the replay itself then reports the problem).
+fn topic_estimate(r: &SessionReplay<'_>, slice: &Slice, links: usize) -> Option<SizeEstimate> {
+    let info = crate::read::Session::open(r.session, r.read)
+        .ok()?
+        .info()
+        .ok()?;
+    let topic_of = |g: Group| -> Option<String> {
+        let name = crate::signals::group_signals(g).into_iter().next()?;
+        r.map.signals.get(&name).map(|s| s.topic.clone())
+    };
+    let rate_and_span = |g: Group| -> (f64, f64) {
+        let Some(topic) = topic_of(g) else {
+            return (0.0, 0.0);
+        };
+        info.topics
+            .iter()
+            .find(|t| t.topic == topic)
+            .map_or((0.0, 0.0), |t| {
+                let first = (t.first_ns.saturating_sub(info.start_ns)) as f64 * 1e-9;
+                let last = (t.last_ns.saturating_sub(info.start_ns)) as f64 * 1e-9;
+                let seconds = (last.min(slice.to_s) - first.max(slice.from_s)).max(0.0);
+                (t.rate_hz, seconds)
+            })
+    };
+    let (state_hz, seconds) = rate_and_span(Group::State);
+    let (command_hz, _) = rate_and_span(Group::Command);
+    Some(SizeEstimate::new(
+        seconds,
+        state_hz,
+        command_hz,
+        r.opts.pose_rate_hz,
+        slice.max_rate_hz,
+        links,
+        false,
+    ))
+}
+
+/// Seconds of `t` inside the slice, and the series' mean rate [Hz] there.
+fn span_and_rate(t: &[f64], slice: &Slice) -> (f64, f64) {
+    let inside: Vec<f64> = t.iter().copied().filter(|x| slice.contains(*x)).collect();
+    match (inside.first(), inside.last()) {
+        (Some(a), Some(b)) if b > a => (b - a, (inside.len() - 1) as f64 / (b - a)),
+        _ => (0.0, 0.0),
+    }
+}
+
+/// Links whose pose depends on the arm joints (one pose row each per logged pose).
+fn moving_links(robot: &RobotModel, arm: &crate::robot::ArmJoints) -> usize {
+    let home = robot.link_poses(arm, &[0.0; crate::N_JOINTS]);
+    let probe = robot.link_poses(arm, &[0.5, -0.4, 0.3, -0.6, 0.7, -0.5, 0.4]);
+    home.iter()
+        .zip(&probe)
+        .filter(|(a, b)| (a.translation.vector - b.translation.vector).norm() > 1e-9)
+        .count()
+}

@@ -1,0 +1,237 @@
+//! Replaying part of a session: a time window in session seconds (`replay --from/--to`, or the
+//! window of `--trials A-B`) and a rate cap for the series (`--max-rate`). Times stay relative to
+//! the session start, so a slice lines up with the full replay on the `session` timeline.
+
+use crate::signals::Recording;
+
+use super::replay::{
+    DiagnosisOverlay, ImuFilterMarks, PowerPrediction, ReadingPrediction, ReplayExtras, TermSeries,
+};
+
+/// Which part of a session a replay logs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Slice {
+    /// Start of the window [s since the session start].
+    pub from_s: f64,
+    /// End of the window [s] (inclusive).
+    pub to_s: f64,
+    /// At most this many samples per second of every per-sample series (`None`: all).
+    pub max_rate_hz: Option<f64>,
+}
+
+impl Default for Slice {
+    fn default() -> Self {
+        Slice {
+            from_s: f64::NEG_INFINITY,
+            to_s: f64::INFINITY,
+            max_rate_hz: None,
+        }
+    }
+}
+
+/// Keeps the first sample of each `1 / rate`-second bin of a series (carried across batches):
+/// at most `rate` samples per second, evenly spread, whatever the jitter of the stamps.
+#[derive(Debug, Clone, Copy)]
+pub struct Decimator {
+    last_bin: f64,
+}
+
+impl Default for Decimator {
+    fn default() -> Self {
+        Decimator {
+            last_bin: f64::NEG_INFINITY,
+        }
+    }
+}
+
+impl Slice {
+    /// Whether this slice logs everything (no window, no rate cap).
+    pub fn is_all(&self) -> bool {
+        *self == Slice::default()
+    }
+
+    /// Whether `t` lies in the window.
+    pub fn contains(&self, t: f64) -> bool {
+        t >= self.from_s && t <= self.to_s
+    }
+
+    /// Indices of the samples at `t` that are in the window and, with a rate cap, the first of
+    /// their `1 / max_rate_hz` bin (`dec` carries the last bin across batches).
+    pub fn keep(&self, t: &[f64], dec: &mut Decimator) -> Vec<usize> {
+        let rate = self.max_rate_hz.filter(|r| *r > 0.0);
+        let mut out = Vec::new();
+        for (i, &ti) in t.iter().enumerate() {
+            if !self.contains(ti) {
+                continue;
+            }
+            if let Some(rate) = rate {
+                let bin = (ti * rate).floor();
+                if bin <= dec.last_bin {
+                    continue;
+                }
+                dec.last_bin = bin;
+            }
+            out.push(i);
+        }
+        out
+    }
+
+    /// The state and command samples of `part` this slice logs (power readings untouched: the
+    /// replay keeps them all for the idle baseline and logs those in the window).
+    pub fn recording(
+        &self,
+        part: &Recording,
+        state: &mut Decimator,
+        cmd: &mut Decimator,
+    ) -> Recording {
+        let s = &part.state;
+        let ks = self.keep(&s.t, state);
+        let pick = |v: &[[f64; 7]]| -> Vec<[f64; 7]> {
+            ks.iter().filter_map(|&i| v.get(i).copied()).collect()
+        };
+        let mut out = Recording {
+            source: part.source.clone(),
+            start_ns: part.start_ns,
+            joint_names: part.joint_names.clone(),
+            mbs: part.mbs.clone(),
+            bms: part.bms.clone(),
+            ..Recording::default()
+        };
+        out.state.t = ks.iter().map(|&i| s.t[i]).collect();
+        out.state.q = pick(&s.q);
+        out.state.dq = pick(&s.dq);
+        out.state.tau = pick(&s.tau);
+        out.state.temp = pick(&s.temp);
+        out.state.gyro = ks.iter().filter_map(|&i| s.gyro.get(i).copied()).collect();
+        if s.quat.len() == s.t.len() {
+            out.state.quat = ks.iter().map(|&i| s.quat[i]).collect();
+        }
+        let c = &part.command;
+        let kc = self.keep(&c.t, cmd);
+        out.command.t = kc.iter().map(|&i| c.t[i]).collect();
+        out.command.q = kc.iter().filter_map(|&i| c.q.get(i).copied()).collect();
+        if c.dq.len() == c.t.len() {
+            out.command.dq = kc.iter().map(|&i| c.dq[i]).collect();
+        }
+        out
+    }
+
+    /// What `extras` hold inside the window; per-sample series (instantaneous prediction, loss
+    /// terms) also rate-capped. Trials are kept when they overlap the window.
+    pub fn extras(&self, e: &ReplayExtras) -> ReplayExtras {
+        let all = Slice {
+            max_rate_hz: None,
+            ..*self
+        };
+        let ReplayExtras {
+            prediction,
+            readings,
+            trajectories,
+            terms,
+            trials,
+            imu_filter,
+            diagnosis,
+        } = e;
+        ReplayExtras {
+            prediction: prediction.as_ref().map(|p| {
+                let k = self.keep(&p.t, &mut Decimator::default());
+                PowerPrediction {
+                    t: pick(&p.t, &k),
+                    predicted: pick(&p.predicted, &k),
+                }
+            }),
+            readings: readings.as_ref().map(|r| {
+                let k = all.keep(&r.t, &mut Decimator::default());
+                ReadingPrediction {
+                    t: pick(&r.t, &k),
+                    trial: pick(&r.trial, &k),
+                    measured: pick(&r.measured, &k),
+                    predicted: pick(&r.predicted, &k),
+                    rejected: pick(&r.rejected, &k),
+                    ..r.clone()
+                }
+            }),
+            trajectories: trajectories
+                .iter()
+                .filter(|p| self.contains(p.t))
+                .cloned()
+                .collect(),
+            terms: terms.as_ref().map(|t| {
+                let k = self.keep(&t.t, &mut Decimator::default());
+                TermSeries {
+                    t: pick(&t.t, &k),
+                    mechanical: pick(&t.mechanical, &k),
+                    copper: pick(&t.copper, &k),
+                    coulomb: pick(&t.coulomb, &k),
+                    viscous: pick(&t.viscous, &k),
+                    interaction: pick(&t.interaction, &k),
+                }
+            }),
+            trials: trials
+                .iter()
+                .filter(|m| self.overlaps(m.t_start, m.t_end))
+                .cloned()
+                .collect(),
+            imu_filter: imu_filter.as_ref().map(|f| ImuFilterMarks {
+                spans: f
+                    .spans
+                    .iter()
+                    .filter(|s| self.overlaps(s.0, s.1))
+                    .copied()
+                    .collect(),
+                ..*f
+            }),
+            diagnosis: diagnosis.as_ref().map(|d| self.diagnosis(d)),
+        }
+    }
+
+    /// Whether [a, b] overlaps the window.
+    pub fn overlaps(&self, a: f64, b: f64) -> bool {
+        b >= self.from_s && a <= self.to_s
+    }
+
+    fn diagnosis(&self, d: &DiagnosisOverlay) -> DiagnosisOverlay {
+        let k = self.keep(&d.t, &mut Decimator::default());
+        let same = |v: &Vec<f64>| {
+            if v.len() == d.t.len() {
+                pick(v, &k)
+            } else {
+                v.clone()
+            }
+        };
+        DiagnosisOverlay {
+            t: pick(&d.t, &k),
+            measured: same(&d.measured),
+            before: same(&d.before),
+            after: same(&d.after),
+            found: same(&d.found),
+            located: d
+                .located
+                .iter()
+                .map(|(n, v)| (n.clone(), same(v)))
+                .collect(),
+            highlighted: d
+                .highlighted
+                .iter()
+                .filter(|m| self.overlaps(m.t_start, m.t_end))
+                .cloned()
+                .collect(),
+            counterpart: d.counterpart.as_ref().map(|c| {
+                let kp = self.keep(&c.power_t, &mut Decimator::default());
+                let kt = self.keep(&c.tau_t, &mut Decimator::default());
+                crate::diagnose::counterpart::CounterpartSeries {
+                    power_t: pick(&c.power_t, &kp),
+                    power_w: pick(&c.power_w, &kp),
+                    tau_t: pick(&c.tau_t, &kt),
+                    tau_diff: pick(&c.tau_diff, &kt),
+                }
+            }),
+            summary: d.summary.clone(),
+        }
+    }
+}
+
+/// The elements of `v` at `k` (indices past its end skipped).
+fn pick<T: Clone>(v: &[T], k: &[usize]) -> Vec<T> {
+    k.iter().filter_map(|&i| v.get(i).cloned()).collect()
+}
