@@ -141,7 +141,7 @@ fn readme_main_command_replays_the_shipped_example() {
 
     let lowstate = example_lowstate_messages();
     assert!(
-        err.contains(&format!("({lowstate} samples)")),
+        err.contains(&format!("({lowstate} samples, ")),
         "one sample per /lowstate message ({lowstate}):\n{err}"
     );
     let bytes = std::fs::read(&out).unwrap();
