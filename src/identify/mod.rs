@@ -20,6 +20,6 @@ pub use pipeline::{
     AlignmentChoice, Identification, IdentifyOptions, ModeFit, RowsFit, SessionBreakdown,
     SessionSummary, fit_given_rows, identify, identify_files,
 };
-pub use stream::{SessionFile, StreamOptions};
-pub use table::TrialPrediction;
+pub use stream::{SessionFile, StreamOptions, segment_file};
+pub use table::{ReadingFit, TrialBaseline, TrialPrediction};
 pub use validate::{Validation, validate, validate_file};

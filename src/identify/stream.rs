@@ -441,6 +441,19 @@ impl SessionSets {
     }
 }
 
+/// The trials of `file`, found by the streamed segmentation pass (memory bounded whatever the
+/// session's length; the trials equal those of segmenting the whole session when it has a
+/// command stream).
+pub fn segment_file(
+    file: &SessionFile,
+    opts: &SegmentOptions,
+    so: &StreamOptions,
+) -> Result<Segmentation> {
+    let mut so = *so;
+    so.hold_trials = 1;
+    Ok(segmentation_pass(file, opts, &so)?.seg)
+}
+
 /// Pass 2: stream the joint states of `file` (clock of pass 1) and build the planned rows,
 /// holding only the current trial's samples.
 ///
@@ -495,8 +508,9 @@ pub(crate) fn row_pass(
 }
 
 /// Stream every arm topic of `file` once and call `on_trial` for each of `trials` (in time
-/// order) with a recording holding at least that trial's joint states (all columns) and every
-/// power reading up to a few seconds past the trial's window; earlier samples are dropped, so
+/// order) with a recording holding at least that trial's joint states (all columns, from its
+/// pre-idle start to its return end) and every power reading up to a few seconds past the
+/// trial's window; earlier samples are dropped, so
 /// memory stays bounded. Times share the clock of [`segmentation_pass`] (the same earliest
 /// message). Used by the row export, which needs the temperatures too.
 pub fn for_each_trial(
@@ -516,7 +530,7 @@ pub fn for_each_trial(
     let mut step = |buf: &mut Recording, done: bool| {
         let last_t = buf.state.t.last().copied().unwrap_or(f64::NEG_INFINITY);
         while let Some(t) = trials.get(next) {
-            if !done && last_t <= t.t_post_end + AFTER_S {
+            if !done && last_t <= t.t_post_end.max(t.t_return_end) + AFTER_S {
                 break;
             }
             on_trial(buf, t);

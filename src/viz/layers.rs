@@ -39,7 +39,15 @@ pub(super) fn log_extras(
     if let Some(terms) = &extras.terms {
         log_terms(w, joints, terms, chunk)?;
         log_breakdown(w, joints, terms, chunk)?;
-        log_bars(w, joints, terms, &extras.trials)?;
+        let computed;
+        let means: &[TrialMean] = match &extras.sample_stats {
+            Some(s) => &s.means,
+            None => {
+                computed = trial_means(terms, &extras.trials);
+                &computed
+            }
+        };
+        log_bars(w, joints, means)?;
         w.send_static(
             paths::BREAKDOWN_NOTE,
             &TextDocument::from_markdown(breakdown_note(joints, colour_scale)),
@@ -158,6 +166,28 @@ fn log_terms(
     terms: &TermSeries,
     chunk: usize,
 ) -> Result<()> {
+    for name in joints {
+        for (k, term) in paths::TERMS.iter().enumerate() {
+            style::line(w, &paths::term(name, term), term, style::TERMS[k], 1.5)?;
+        }
+    }
+    style::line(
+        w,
+        paths::TERM_INTERACTION,
+        "interaction Σ e_ij |q̇_i||q̇_j|",
+        style::TERMS[4],
+        1.5,
+    )?;
+    log_term_data(w, joints, terms, chunk)
+}
+
+/// The values of [`log_terms`]' series (their styles sent once, by it).
+pub(super) fn log_term_data(
+    w: &mut ChunkWriter<'_>,
+    joints: &[String],
+    terms: &TermSeries,
+    chunk: usize,
+) -> Result<()> {
     for (j, name) in joints.iter().enumerate() {
         for (k, data) in [
             &terms.mechanical,
@@ -169,7 +199,6 @@ fn log_terms(
         .enumerate()
         {
             let path = paths::term(name, paths::TERMS[k]);
-            style::line(w, &path, paths::TERMS[k], style::TERMS[k], 1.5)?;
             let n = terms.t.len().min(data.len());
             for start in (0..n).step_by(chunk) {
                 let end = (start + chunk).min(n);
@@ -182,13 +211,6 @@ fn log_terms(
             }
         }
     }
-    style::line(
-        w,
-        paths::TERM_INTERACTION,
-        "interaction Σ e_ij |q̇_i||q̇_j|",
-        style::TERMS[4],
-        1.5,
-    )?;
     scalars_chunked(
         w,
         paths::TERM_INTERACTION,
@@ -205,12 +227,6 @@ fn log_breakdown(
     terms: &TermSeries,
     chunk: usize,
 ) -> Result<()> {
-    let fields = [
-        &terms.mechanical,
-        &terms.copper,
-        &terms.coulomb,
-        &terms.viscous,
-    ];
     for (k, term) in paths::TERMS.iter().enumerate() {
         style::line(w, &paths::by_term(term), term, style::TERMS[k], 1.5)?;
     }
@@ -224,6 +240,22 @@ fn log_breakdown(
     for (j, name) in joints.iter().enumerate() {
         style::line(w, &paths::by_joint(name), name, style::joint(j), 1.5)?;
     }
+    log_breakdown_data(w, joints, terms, chunk)
+}
+
+/// The values of [`log_breakdown`]'s series (their styles sent once, by it).
+pub(super) fn log_breakdown_data(
+    w: &mut ChunkWriter<'_>,
+    joints: &[String],
+    terms: &TermSeries,
+    chunk: usize,
+) -> Result<()> {
+    let fields = [
+        &terms.mechanical,
+        &terms.copper,
+        &terms.coulomb,
+        &terms.viscous,
+    ];
     let n = fields
         .iter()
         .map(|f| f.len())
@@ -258,32 +290,27 @@ const EDGE_S: f64 = 0.01;
 /// Per-trial bars: the mean power of each joint (terms summed) and of each term (joints summed)
 /// over each trial's window, drawn on the time axis as a group of bars inside the trial's window
 /// (one slot per joint or term, in legend order), one named series per joint or term.
-fn log_bars(
-    w: &mut ChunkWriter<'_>,
-    joints: &[String],
-    terms: &TermSeries,
-    trials: &[TrialMark],
-) -> Result<()> {
-    let means = trial_means(terms, trials);
+fn log_bars(w: &mut ChunkWriter<'_>, joints: &[String], means: &[TrialMean]) -> Result<()> {
     let mut by_term_names: Vec<&str> = paths::TERMS.to_vec();
     by_term_names.push("interaction");
     for (j, name) in joints.iter().enumerate() {
         let path = paths::bar_by_joint(name);
         style::line_exact(w, &path, name, style::joint(j), 1.5)?;
-        let (t, v) = bar_outline(&means, j, joints.len(), |m| m.by_joint[j]);
+        let (t, v) = bar_outline(means, j, joints.len(), |m| m.by_joint[j]);
         scalars(w, &path, &t, v.into_iter())?;
     }
     for (k, name) in by_term_names.iter().enumerate() {
         let path = paths::bar_by_term(name);
         style::line_exact(w, &path, name, style::TERMS[k], 1.5)?;
-        let (t, v) = bar_outline(&means, k, by_term_names.len(), |m| m.by_term[k]);
+        let (t, v) = bar_outline(means, k, by_term_names.len(), |m| m.by_term[k]);
         scalars(w, &path, &t, v.into_iter())?;
     }
     Ok(())
 }
 
 /// The mean predicted power of one trial over its window.
-pub(super) struct TrialMean {
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TrialMean {
     /// The trial's window [s].
     pub t0: f64,
     /// End of the window [s].

@@ -14,6 +14,7 @@
 
 mod blueprint;
 mod layers;
+mod model_stream;
 pub mod overlay;
 mod paths;
 pub mod replay;
@@ -24,6 +25,7 @@ mod slice;
 mod style;
 
 pub use blueprint::{Eye, LayoutParts, Legend, Node, PlotRanges, range_with_headroom};
+pub use layers::TrialMean;
 pub use slice::{Decimator, Slice};
 
 use std::path::{Path, PathBuf};

@@ -43,6 +43,8 @@ pub struct ReplayOptions {
     pub open_tab: Option<String>,
     /// The part of the session to log (time window, rate cap of the series; default: all).
     pub slice: Slice,
+    /// How a model replay reads the session file (piece length, batch size).
+    pub stream: crate::identify::StreamOptions,
 }
 
 impl Default for ReplayOptions {
@@ -56,6 +58,7 @@ impl Default for ReplayOptions {
             properties: Vec::new(),
             open_tab: None,
             slice: Slice::default(),
+            stream: crate::identify::StreamOptions::default(),
         }
     }
 }
@@ -190,6 +193,31 @@ pub struct ReplayExtras {
     pub imu_filter: Option<ImuFilterMarks>,
     /// Diagnosis before/after.
     pub diagnosis: Option<DiagnosisOverlay>,
+    /// Statistics of per-sample series that are not held here but logged while the session is
+    /// streamed (`prediction`/`terms` are then present and empty): the streamed model replay.
+    pub sample_stats: Option<SampleStats>,
+}
+
+/// What the layout, the per-trial bars and the link colours need of the per-sample model series
+/// (instantaneous prediction, loss terms) when those are streamed instead of held: their
+/// extremes, the per-trial means and the colour scale (both computed as from the whole series),
+/// and the joints' power decimated to the link-colour rate.
+#[derive(Debug, Clone, Default)]
+pub struct SampleStats {
+    /// Extremes of the instantaneous prediction [W].
+    pub instant: Option<[f64; 2]>,
+    /// Extremes of each term summed over the joints, and of the interaction [W].
+    pub by_term: Option<[f64; 2]>,
+    /// Extremes of each joint's four terms summed [W].
+    pub by_joint: Option<[f64; 2]>,
+    /// Extremes of the first joint's four terms [W].
+    pub first_joint_terms: Option<[f64; 2]>,
+    /// Mean power per joint and per term over each trial's window, in time order.
+    pub means: Vec<layers::TrialMean>,
+    /// Power [W] at which a link is drawn fully red.
+    pub colour_scale: f64,
+    /// Per-joint power at most 10 times a second (the link-colour rate): times and values.
+    pub link_power: (Vec<f64>, Vec<[f64; N_JOINTS]>),
 }
 
 /// What a replay logged.
@@ -204,7 +232,7 @@ pub struct ReplaySummary {
 }
 
 /// How often the arm links' loss colours are updated [Hz].
-const LINK_COLOUR_RATE_HZ: f64 = 10.0;
+pub(crate) const LINK_COLOUR_RATE_HZ: f64 = 10.0;
 
 /// Tuid namespace of the replay's own rows (other writers on the same stream use others).
 const REPLAY_NAMESPACE: u64 = 0x0001_0000_0000_0000;
@@ -265,19 +293,29 @@ fn plot_ranges(extras: &ReplayExtras) -> blueprint::PlotRanges {
     let mut r = blueprint::PlotRanges::default();
     if let Some(rd) = &extras.readings {
         let instant = extras.prediction.iter().flat_map(|p| p.predicted.iter());
+        let streamed = extras.sample_stats.iter().flat_map(|s| s.instant);
         r.power = fit(
             rd.measured
                 .iter()
                 .chain(&rd.predicted)
                 .chain(instant)
-                .copied(),
+                .copied()
+                .chain(streamed.flatten()),
             h,
         );
         let per_reading = rd.measured.iter().zip(&rd.predicted).map(|(m, p)| m - p);
         let per_trajectory = extras.trajectories.iter().map(|p| p.measured - p.predicted);
         r.error = fit(per_reading.chain(per_trajectory).chain([0.0]), h);
     }
-    if let Some(terms) = &extras.terms {
+    if let Some(stats) = &extras.sample_stats {
+        let fit2 = |x: Option<[f64; 2]>| x.and_then(|v| fit(v, h));
+        r.by_term = fit2(stats.by_term);
+        r.by_joint = fit2(stats.by_joint);
+        r.first_joint_terms = fit2(stats.first_joint_terms);
+        let means = &stats.means;
+        r.bars_by_joint = fit(means.iter().flat_map(|m| m.by_joint).chain([0.0]), h);
+        r.bars_by_term = fit(means.iter().flat_map(|m| m.by_term).chain([0.0]), h);
+    } else if let Some(terms) = &extras.terms {
         let fields = [
             &terms.mechanical,
             &terms.copper,
@@ -649,6 +687,26 @@ impl<'a> ReplayLogger<'a> {
         Ok(())
     }
 
+    /// Logs the model's instantaneous prediction and loss terms of one stretch of samples
+    /// (already sliced; their styles are sent by [`Self::finish`] with `prediction`/`terms`
+    /// present in the extras): how the streamed model replay logs the series it does not hold.
+    pub fn log_model_samples(
+        &mut self,
+        prediction: &PowerPrediction,
+        terms: &TermSeries,
+    ) -> Result<()> {
+        let w = &mut self.w;
+        scalars_chunked(
+            w,
+            paths::MODEL_PREDICTED,
+            &prediction.t,
+            &prediction.predicted,
+            self.chunk,
+        )?;
+        layers::log_term_data(w, &self.joints, terms, self.chunk)?;
+        layers::log_breakdown_data(w, &self.joints, terms, self.chunk)
+    }
+
     /// Logs the power series (raw, and net of the readings before the arm first moved) and
     /// `extras`; returns what was logged.
     pub fn finish(mut self, extras: &ReplayExtras) -> Result<ReplaySummary> {
@@ -682,9 +740,15 @@ impl<'a> ReplayLogger<'a> {
                 )),
             }
         }
-        let scale = extras.terms.as_ref().map_or(1.0, layers::colour_scale);
+        let scale = match &extras.sample_stats {
+            Some(s) => s.colour_scale,
+            None => extras.terms.as_ref().map_or(1.0, layers::colour_scale),
+        };
         layers::log_extras(w, &self.joints, extras, self.chunk, scale)?;
-        if let Some(terms) = &extras.terms {
+        if let Some(s) = &extras.sample_stats {
+            let (t, power) = &s.link_power;
+            robot3d::log_link_colors(w, self.robot, self.arm, &self.scene, t, power, scale)?;
+        } else if let Some(terms) = &extras.terms {
             let (t, power) = layers::decimated_joint_power(terms, LINK_COLOUR_RATE_HZ);
             robot3d::log_link_colors(w, self.robot, self.arm, &self.scene, &t, &power, scale)?;
         }
