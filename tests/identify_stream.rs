@@ -121,17 +121,19 @@ fn streamed_identify_on_a_smoke_session_in_pieces() {
         hold_trials: 12,
         ..StreamOptions::default()
     };
+    // Pass 1 cannot hold every trial's samples (12 of 24): the timing search's trials are read
+    // in one more streamed pass, the same kept trials as in memory, so the result is the same.
     let subset = identify::identify_files(&[file(&path)], &opts, &held).unwrap();
     let est = subset.alignment_estimate.as_ref().unwrap();
     let full = mem.alignment_estimate.as_ref().unwrap();
-    // The subset's search sees fewer rows (every 2nd trial) …
-    assert!(
-        est.grid[0].rows < full.grid[0].rows * 2 / 3,
-        "{} vs {}",
-        est.grid[0].rows,
-        full.grid[0].rows
-    );
-    // … and still finds the simulated sensor's timing (0.2 s window, no lag) within one fine step.
+    assert_eq!(est.grid.len(), full.grid.len());
+    for (a, b) in est.grid.iter().zip(&full.grid) {
+        assert_eq!(a.rows, b.rows);
+        assert_eq!(a.alignment, b.alignment);
+        assert_eq!(a.r2.to_bits(), b.r2.to_bits());
+    }
+    assert_same(&mem, &subset);
+    // … and it finds the simulated sensor's timing (0.2 s window, no lag) within one fine step.
     assert!(
         (subset.alignment.window_s - 0.2).abs() <= 0.0251,
         "{:?}",
@@ -141,10 +143,6 @@ fn streamed_identify_on_a_smoke_session_in_pieces() {
         subset.alignment.lag_s.abs() <= 0.0251,
         "{:?}",
         subset.alignment
-    );
-    assert_eq!(
-        subset.sessions[0].segmentation.trials,
-        mem.sessions[0].segmentation.trials
     );
 }
 
