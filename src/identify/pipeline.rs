@@ -655,7 +655,7 @@ pub fn identify(recs: &[Recording], opts: &IdentifyOptions) -> Result<Identifica
 }
 
 /// Identify the power model from one or more session files, reading each in two streamed passes
-/// (memory bounded whatever the sessions' length; see [`super::stream`]). The trials and θ equal
+/// (memory bounded whatever the sessions' length). The trials and θ equal
 /// those of [`identify`] on the loaded recordings when every session has a command stream and at
 /// most `stream.hold_trials` trials (beyond that the sensor timing is searched on a subset).
 pub fn identify_files(

@@ -62,7 +62,7 @@ pub fn validate(model: &PowerModel, rec: &Recording, opts: &IdentifyOptions) -> 
 }
 
 /// [`validate`] on a session file read in two streamed passes (memory bounded whatever the
-/// session's length; see [`super::stream`]).
+/// session's length).
 pub fn validate_file(
     model: &PowerModel,
     file: &SessionFile,

@@ -287,6 +287,14 @@ impl<'a> ChunkWriter<'a> {
         self.send_columns(path, &[t], columns)
     }
 
+    /// Waits until everything sent so far has reached the sink (bounds the memory of a fast
+    /// producer, e.g. the model series of a streamed replay).
+    pub fn flush(&self) -> Result<()> {
+        self.stream
+            .flush_blocking()
+            .context("writing the recording")
+    }
+
     /// Sends `data` as static (timeless) on `path`.
     pub fn send_static(&mut self, path: &str, data: &dyn AsComponents) -> Result<()> {
         let chunk_id = ChunkId::from_tuid(self.next_tuid());

@@ -4,7 +4,7 @@
 //! prediction, loss terms) are never held whole. The file is read once more for their
 //! statistics (plot ranges for the layout, per-trial bars, the link colours at 10 Hz and the
 //! histogram behind the colour scale), once for the replay itself, and once to log the series
-//! trial by trial ([`crate::identify::stream::for_each_trial`]). Every figure equals the one of
+//! trial by trial ([`crate::identify::for_each_trial`]). Every figure equals the one of
 //! the in-memory replay ([`super::overlay::model_extras`]) computed from the whole series.
 
 use std::collections::BTreeMap;
@@ -20,7 +20,7 @@ use super::replay::{
 };
 use super::slice::{Decimator, Slice};
 use crate::N_JOINTS;
-use crate::identify::{SessionFile, Validation, stream::for_each_trial};
+use crate::identify::{SessionFile, Validation, for_each_trial};
 use crate::power::PowerModel;
 use crate::robot::{ArmJoints, RobotModel};
 use crate::signals::{Recording, RecordingSink, StateSeries, StreamHeader, StreamSummary};

@@ -481,7 +481,15 @@ pub struct ReplayLogger<'a> {
     slice: Slice,
     /// Rate caps of the state and command series, across batches.
     decimators: [Decimator; 2],
+    /// Model samples logged since the last flush ([`Self::log_model_samples`]).
+    unflushed: usize,
+    /// Model samples gathered into the next chunk ([`Self::log_model_samples`]).
+    pending: (PowerPrediction, TermSeries),
 }
+
+/// Model samples (≈ 42 scalar rows each) between waits for the sink in
+/// [`ReplayLogger::log_model_samples`].
+const MODEL_FLUSH_SAMPLES: usize = 20_000;
 
 impl<'a> ReplayLogger<'a> {
     /// Sends the viewer layout (when [`ReplayOptions::blueprint`]), the static robot and the
@@ -561,6 +569,8 @@ impl<'a> ReplayLogger<'a> {
             summary,
             slice: opts.slice,
             decimators: [Decimator::default(); 2],
+            unflushed: 0,
+            pending: Default::default(),
         })
     }
 
@@ -690,27 +700,71 @@ impl<'a> ReplayLogger<'a> {
     /// Logs the model's instantaneous prediction and loss terms of one stretch of samples
     /// (already sliced; their styles are sent by [`Self::finish`] with `prediction`/`terms`
     /// present in the extras): how the streamed model replay logs the series it does not hold.
+    /// Stretches are gathered into chunks of [`ReplayOptions::chunk_rows`] samples, as the
+    /// in-memory replay cuts the whole series (few large chunks keep the file's index small).
     pub fn log_model_samples(
         &mut self,
         prediction: &PowerPrediction,
         terms: &TermSeries,
     ) -> Result<()> {
+        let (p, tm) = &mut self.pending;
+        p.t.extend_from_slice(&prediction.t);
+        p.predicted.extend_from_slice(&prediction.predicted);
+        tm.t.extend_from_slice(&terms.t);
+        tm.mechanical.extend_from_slice(&terms.mechanical);
+        tm.copper.extend_from_slice(&terms.copper);
+        tm.coulomb.extend_from_slice(&terms.coulomb);
+        tm.viscous.extend_from_slice(&terms.viscous);
+        tm.interaction.extend_from_slice(&terms.interaction);
+        let full = tm.t.len().min(p.t.len()) / self.chunk * self.chunk;
+        if full > 0 {
+            self.write_pending(full)?;
+        }
+        Ok(())
+    }
+
+    /// Logs the first `n` gathered model samples and drops them from the gathering buffer.
+    fn write_pending(&mut self, n: usize) -> Result<()> {
+        let (p, tm) = &mut self.pending;
+        let head_p = PowerPrediction {
+            t: p.t.drain(..n).collect(),
+            predicted: p.predicted.drain(..n).collect(),
+        };
+        let head = TermSeries {
+            t: tm.t.drain(..n).collect(),
+            mechanical: tm.mechanical.drain(..n).collect(),
+            copper: tm.copper.drain(..n).collect(),
+            coulomb: tm.coulomb.drain(..n).collect(),
+            viscous: tm.viscous.drain(..n).collect(),
+            interaction: tm.interaction.drain(..n).collect(),
+        };
         let w = &mut self.w;
         scalars_chunked(
             w,
             paths::MODEL_PREDICTED,
-            &prediction.t,
-            &prediction.predicted,
+            &head_p.t,
+            &head_p.predicted,
             self.chunk,
         )?;
-        layers::log_term_data(w, &self.joints, terms, self.chunk)?;
-        layers::log_breakdown_data(w, &self.joints, terms, self.chunk)
+        layers::log_term_data(w, &self.joints, &head, self.chunk)?;
+        layers::log_breakdown_data(w, &self.joints, &head, self.chunk)?;
+        // These are computed far faster than the sink writes them: wait for it now and then.
+        self.unflushed += n;
+        if self.unflushed >= MODEL_FLUSH_SAMPLES {
+            self.unflushed = 0;
+            w.flush()?;
+        }
+        Ok(())
     }
 
     /// Logs the power series (raw, and net of the readings before the arm first moved) and
     /// `extras`; returns what was logged.
     pub fn finish(mut self, extras: &ReplayExtras) -> Result<ReplaySummary> {
         self.progress.finish_and_clear();
+        let rest = self.pending.1.t.len();
+        if rest > 0 {
+            self.write_pending(rest)?;
+        }
         let w = &mut self.w;
         for (k, (label, series)) in [("mbs", &self.mbs), ("bms", &self.bms)]
             .into_iter()
