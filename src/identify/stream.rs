@@ -570,6 +570,18 @@ pub fn for_each_trial(
     batch_samples: usize,
     on_trial: &mut dyn FnMut(&Recording, &TrialWindow),
 ) -> Result<()> {
+    for_each_trial_and_batch(file, trials, batch_samples, &mut |_| {}, on_trial)
+}
+
+/// [`for_each_trial`], also showing `on_batch` every decoded batch as it arrives (every sample
+/// of the session, on the same clock), e.g. for statistics over the whole session.
+pub fn for_each_trial_and_batch(
+    file: &SessionFile,
+    trials: &[TrialWindow],
+    batch_samples: usize,
+    on_batch: &mut dyn FnMut(&Recording),
+    on_trial: &mut dyn FnMut(&Recording, &TrialWindow),
+) -> Result<()> {
     // A reading stamped up to this long after the window can still belong to it (sensor lag).
     const AFTER_S: f64 = 2.0;
     let mut buf = Recording {
@@ -599,6 +611,7 @@ pub fn for_each_trial(
         &file.read,
         batch_samples,
         &mut |batch| {
+            on_batch(batch);
             buf.start_ns = batch.start_ns;
             append_state(&mut buf.state, &batch.state, true);
             sort_state(&mut buf.state);

@@ -20,7 +20,7 @@ use super::replay::{
 };
 use super::slice::{Decimator, Slice};
 use crate::N_JOINTS;
-use crate::identify::{SessionFile, Validation, for_each_trial};
+use crate::identify::{SessionFile, Validation, for_each_trial_and_batch};
 use crate::power::PowerModel;
 use crate::robot::{ArmJoints, RobotModel};
 use crate::signals::{Recording, RecordingSink, StateSeries, StreamHeader, StreamSummary};
@@ -120,6 +120,9 @@ impl Extremes {
 #[derive(Default)]
 struct Accumulator {
     instant: Extremes,
+    tau: Extremes,
+    gyro: Extremes,
+    raw_power: Extremes,
     by_term: Extremes,
     by_joint: Extremes,
     first_joint: Extremes,
@@ -131,6 +134,31 @@ struct Accumulator {
 }
 
 impl Accumulator {
+    /// The extremes of the recorded series inside the slice (τ, |ω|, raw power), which the
+    /// in-memory replay takes from the whole recording.
+    fn add_batch(&mut self, batch: &Recording, slice: &Slice) {
+        let st = &batch.state;
+        for (i, &t) in st.t.iter().enumerate() {
+            if !slice.contains(t) {
+                continue;
+            }
+            for &x in st.tau.get(i).into_iter().flatten() {
+                self.tau.add(x);
+            }
+            if let Some(g) = st.gyro.get(i) {
+                self.gyro
+                    .add((g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt());
+            }
+        }
+        for p in [&batch.mbs, &batch.bms] {
+            for (t, w) in p.t.iter().zip(&p.watts) {
+                if slice.contains(*t) {
+                    self.raw_power.add(*w);
+                }
+            }
+        }
+    }
+
     fn add(&mut self, trial: &TrialWindow, p: &PowerPrediction, terms: &TermSeries) {
         for &v in &p.predicted {
             self.instant.add(v);
@@ -182,8 +210,7 @@ impl Accumulator {
             &terms.viscous,
         ];
         let mut mean = TrialMean {
-            t0,
-            t1,
+            index: trial.index,
             by_joint: [0.0; N_JOINTS],
             by_term: [0.0; 5],
         };
@@ -215,14 +242,15 @@ impl Accumulator {
                 below += n;
             }
         }
-        let mut means = self.means;
-        means.sort_by(|a, b| a.t0.total_cmp(&b.t0));
         let stats = SampleStats {
             instant: self.instant.0,
             by_term: self.by_term.0,
             by_joint: self.by_joint.0,
             first_joint_terms: self.first_joint.0,
-            means,
+            tau: self.tau.0,
+            gyro: self.gyro.0,
+            raw_power: self.raw_power.0,
+            means: self.means,
             colour_scale: 1.0,
             link_power: (self.link_t, self.link_power),
         };
@@ -246,16 +274,18 @@ impl StreamedModel<'_> {
     /// Read the file once, calling `each` with every planned trial's sliced series.
     fn pass(
         &self,
+        on_batch: &mut dyn FnMut(&Recording),
         each: &mut dyn FnMut(&TrialWindow, &PowerPrediction, &TermSeries) -> Result<()>,
     ) -> Result<()> {
         let windows: Vec<TrialWindow> = self.plan.iter().map(|(t, _)| t.clone()).collect();
         let mut dec = Decimator::default();
         let mut failed = None;
         let mut next = 0usize;
-        for_each_trial(
+        for_each_trial_and_batch(
             self.file,
             &windows,
             self.opts.stream.batch_samples,
+            on_batch,
             &mut |rec: &Recording, t: &TrialWindow| {
                 // for_each_trial calls in plan order.
                 let tau0 = self.plan[next].1;
@@ -276,12 +306,15 @@ impl StreamedModel<'_> {
 
     /// The statistics pass: what the layout, the bars and the link colours need.
     pub(super) fn stats(&self) -> Result<(SampleStats, Option<(u64, usize)>)> {
-        let mut acc = Accumulator::default();
-        self.pass(&mut |t, p, terms| {
-            acc.add(t, p, terms);
-            Ok(())
-        })?;
-        Ok(acc.finish())
+        let acc = std::cell::RefCell::new(Accumulator::default());
+        self.pass(
+            &mut |batch| acc.borrow_mut().add_batch(batch, &self.opts.slice),
+            &mut |t, p, terms| {
+                acc.borrow_mut().add(t, p, terms);
+                Ok(())
+            },
+        )?;
+        Ok(acc.into_inner().finish())
     }
 
     /// The replay: the session's samples, then the model's series trial by trial, then the
@@ -319,7 +352,7 @@ impl StreamedModel<'_> {
         let mut warnings = std::mem::take(&mut sink.warnings);
         let mut logger = sink.logger.context("the recording delivered no samples")?;
         let mut in_bucket = Vec::new();
-        self.pass(&mut |_, p, terms| {
+        self.pass(&mut |_| {}, &mut |_, p, terms| {
             if let Some((b, _)) = colour {
                 for i in 0..terms.t.len() {
                     in_bucket.extend(
@@ -367,7 +400,7 @@ impl RecordingSink for Sink<'_, '_> {
             header.start_ns,
             self.extras,
             self.opts,
-            0,
+            None,
         )?);
         Ok(())
     }

@@ -198,10 +198,10 @@ pub struct ReplayExtras {
     pub sample_stats: Option<SampleStats>,
 }
 
-/// What the layout, the per-trial bars and the link colours need of the per-sample model series
-/// (instantaneous prediction, loss terms) when those are streamed instead of held: their
-/// extremes, the per-trial means and the colour scale (both computed as from the whole series),
-/// and the joints' power decimated to the link-colour rate.
+/// What the layout, the per-trial bars and the link colours need of the per-sample series
+/// when those are streamed instead of held (the streamed model replay): their extremes, the
+/// per-trial means and the colour scale (computed as from the whole series), and the joints'
+/// power decimated to the link-colour rate.
 #[derive(Debug, Clone, Default)]
 pub struct SampleStats {
     /// Extremes of the instantaneous prediction [W].
@@ -212,6 +212,12 @@ pub struct SampleStats {
     pub by_joint: Option<[f64; 2]>,
     /// Extremes of the first joint's four terms [W].
     pub first_joint_terms: Option<[f64; 2]>,
+    /// Extremes of the joint torques in the slice [N·m].
+    pub tau: Option<[f64; 2]>,
+    /// Extremes of |ω| in the slice [rad/s].
+    pub gyro: Option<[f64; 2]>,
+    /// Extremes of the raw power readings in the slice [W].
+    pub raw_power: Option<[f64; 2]>,
     /// Mean power per joint and per term over each trial's window, in time order.
     pub means: Vec<layers::TrialMean>,
     /// Power [W] at which a link is drawn fully red.
@@ -255,13 +261,19 @@ fn arm_center(robot: &RobotModel, arm: &ArmJoints) -> [f32; 3] {
     [mean.x as f32, mean.y as f32, mean.z as f32]
 }
 
-/// The viewer layout of a replay with `extras` (`joints`: the short joint names).
+/// The viewer layout of a replay with `extras` (`joints`: the short joint names). `whole`: the
+/// recording when it is in memory (its joint, IMU and power ranges give those plots room for
+/// their legends; a streamed replay does not know them up front), with the part to be logged.
 pub fn layout(
     robot: &RobotModel,
     arm: &ArmJoints,
     joints: &[String],
     extras: &ReplayExtras,
+    whole: Option<(&Recording, &Slice)>,
 ) -> blueprint::Node {
+    let diagnosis_power_series = extras.diagnosis.as_ref().map_or(0, |d| {
+        3 + usize::from(!d.found.is_empty()) + usize::from(d.counterpart.is_some())
+    });
     let parts = LayoutParts {
         model: extras.prediction.is_some()
             || extras.readings.is_some()
@@ -278,43 +290,54 @@ pub fn layout(
             .diagnosis
             .as_ref()
             .is_some_and(|d| !d.located.is_empty()),
-        ranges: plot_ranges(extras),
+        diagnosis_power_series,
+        ranges: plot_ranges(extras, whole),
     };
     blueprint::replay_layout(joints, parts, arm_center(robot, arm))
 }
 
-/// Room above the data for the legend (a fraction of the data's span).
-const LEGEND_HEADROOM: f64 = 0.6;
-
-/// The y ranges of the plots whose data `extras` holds, with room for the legend on top.
-fn plot_ranges(extras: &ReplayExtras) -> blueprint::PlotRanges {
-    use blueprint::range_with_headroom as fit;
-    let h = LEGEND_HEADROOM;
+/// The data ranges of the plots whose data `extras` (and the in-memory recording) hold.
+fn plot_ranges(
+    extras: &ReplayExtras,
+    whole: Option<(&Recording, &Slice)>,
+) -> blueprint::PlotRanges {
+    use blueprint::data_range;
     let mut r = blueprint::PlotRanges::default();
     if let Some(rd) = &extras.readings {
         let instant = extras.prediction.iter().flat_map(|p| p.predicted.iter());
         let streamed = extras.sample_stats.iter().flat_map(|s| s.instant);
-        r.power = fit(
+        r.power = data_range(
             rd.measured
                 .iter()
                 .chain(&rd.predicted)
                 .chain(instant)
                 .copied()
                 .chain(streamed.flatten()),
-            h,
         );
-        let per_reading = rd.measured.iter().zip(&rd.predicted).map(|(m, p)| m - p);
-        let per_trajectory = extras.trajectories.iter().map(|p| p.measured - p.predicted);
-        r.error = fit(per_reading.chain(per_trajectory).chain([0.0]), h);
+    } else if let Some(d) = &extras.diagnosis {
+        let twin = d.counterpart.iter().flat_map(|c| c.power_w.iter());
+        r.power = data_range(
+            d.measured
+                .iter()
+                .chain(&d.before)
+                .chain(&d.after)
+                .chain(&d.found)
+                .chain(twin)
+                .copied(),
+        );
     }
     if let Some(stats) = &extras.sample_stats {
-        let fit2 = |x: Option<[f64; 2]>| x.and_then(|v| fit(v, h));
-        r.by_term = fit2(stats.by_term);
-        r.by_joint = fit2(stats.by_joint);
-        r.first_joint_terms = fit2(stats.first_joint_terms);
-        let means = &stats.means;
-        r.bars_by_joint = fit(means.iter().flat_map(|m| m.by_joint).chain([0.0]), h);
-        r.bars_by_term = fit(means.iter().flat_map(|m| m.by_term).chain([0.0]), h);
+        let range = |x: Option<[f64; 2]>| x.and_then(data_range);
+        r.by_term = range(stats.by_term);
+        r.by_joint = range(stats.by_joint);
+        r.first_joint_terms = range(stats.first_joint_terms);
+        r.tau = range(stats.tau);
+        let imu = extras
+            .imu_filter
+            .iter()
+            .flat_map(|f| f.spans.iter().map(|s| s.2).chain([f.threshold]));
+        r.imu = data_range(stats.gyro.into_iter().flatten().chain(imu));
+        r.raw_power = range(stats.raw_power);
     } else if let Some(terms) = &extras.terms {
         let fields = [
             &terms.mechanical,
@@ -326,15 +349,34 @@ fn plot_ranges(extras: &ReplayExtras) -> blueprint::PlotRanges {
             .iter()
             .flat_map(|f| f.iter().map(|v| v.iter().sum::<f64>()))
             .chain(terms.interaction.iter().copied());
-        r.by_term = fit(by_term, h);
+        r.by_term = data_range(by_term);
         let n = fields.iter().map(|f| f.len()).min().unwrap_or(0);
         let by_joint = (0..n)
             .flat_map(|i| (0..N_JOINTS).map(move |j| fields.iter().map(|f| f[i][j]).sum::<f64>()));
-        r.by_joint = fit(by_joint, h);
-        r.first_joint_terms = fit(fields.iter().flat_map(|f| f.iter().map(|v| v[0])), h);
-        let means = layers::trial_means(terms, &extras.trials);
-        r.bars_by_joint = fit(means.iter().flat_map(|m| m.by_joint).chain([0.0]), h);
-        r.bars_by_term = fit(means.iter().flat_map(|m| m.by_term).chain([0.0]), h);
+        r.by_joint = data_range(by_joint);
+        r.first_joint_terms = data_range(fields.iter().flat_map(|f| f.iter().map(|v| v[0])));
+    }
+    if let Some((rec, slice)) = whole {
+        let st = &rec.state;
+        let kept = |i: &usize| slice.contains(st.t[i.to_owned()]);
+        let idx: Vec<usize> = (0..st.t.len()).filter(kept).collect();
+        r.tau = data_range(idx.iter().filter_map(|&i| st.tau.get(i)).flatten().copied());
+        let gyro = idx
+            .iter()
+            .filter_map(|&i| st.gyro.get(i))
+            .map(|g| (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt());
+        let imu = extras
+            .imu_filter
+            .iter()
+            .flat_map(|f| f.spans.iter().map(|s| s.2).chain([f.threshold]));
+        r.imu = data_range(gyro.chain(imu));
+        let raw = [&rec.mbs, &rec.bms].into_iter().flat_map(|p| {
+            p.t.iter()
+                .zip(&p.watts)
+                .filter(|(t, _)| slice.contains(**t))
+                .map(|(_, w)| *w)
+        });
+        r.raw_power = data_range(raw);
     }
     r
 }
@@ -366,7 +408,7 @@ pub fn log_replay(
         rec.start_ns,
         extras,
         opts,
-        rec.state.t.len() as u64,
+        Some(rec),
     )?;
     logger.add(rec)?;
     logger.finish(extras)
@@ -427,7 +469,7 @@ impl crate::signals::RecordingSink for StreamedReplay<'_> {
             header.start_ns,
             &self.extras,
             self.opts,
-            0,
+            None,
         )?);
         Ok(())
     }
@@ -493,8 +535,9 @@ const MODEL_FLUSH_SAMPLES: usize = 20_000;
 
 impl<'a> ReplayLogger<'a> {
     /// Sends the viewer layout (when [`ReplayOptions::blueprint`]), the static robot and the
-    /// series styles. `joint_names` are the 7 arm joints' URDF names; `expected_samples` sizes the
-    /// progress bar (0: no bar).
+    /// series styles. `joint_names` are the 7 arm joints' URDF names; `whole`: the whole recording
+    /// when it is in memory (it sizes the progress bar and gives plots their ranges; `None`: a
+    /// streamed replay, no bar).
     #[allow(clippy::too_many_arguments)]
     pub fn begin(
         stream: &'a RecordingStream,
@@ -505,7 +548,7 @@ impl<'a> ReplayLogger<'a> {
         start_ns: u64,
         extras: &ReplayExtras,
         opts: &ReplayOptions,
-        expected_samples: u64,
+        whole: Option<&Recording>,
     ) -> Result<Self> {
         let joints: Vec<String> = joint_names.iter().map(|n| short_joint_name(n)).collect();
         if joints.len() != N_JOINTS {
@@ -518,7 +561,7 @@ impl<'a> ReplayLogger<'a> {
         let mut summary = ReplaySummary::default();
         let mut w = ChunkWriter::new(stream, REPLAY_NAMESPACE, start_ns);
         if opts.blueprint {
-            let mut layout = layout(robot, arm, &joints, extras);
+            let mut layout = layout(robot, arm, &joints, extras, whole.map(|r| (r, &opts.slice)));
             if let Some(tab) = &opts.open_tab
                 && !layout.open_tab(tab)
             {
@@ -543,6 +586,7 @@ impl<'a> ReplayLogger<'a> {
             &mut summary.warnings,
         )?;
         log_styles(&mut w, &joints)?;
+        let expected_samples = whole.map_or(0, |r| r.state.t.len() as u64);
         let progress = if expected_samples > 0 {
             progress_bar(opts.progress, expected_samples)
         } else {
