@@ -809,6 +809,9 @@ impl<'a> ReplayLogger<'a> {
         if rest > 0 {
             self.write_pending(rest)?;
         }
+        if extras.sample_stats.is_some() {
+            self.w.flush()?;
+        }
         let w = &mut self.w;
         for (k, (label, series)) in [("mbs", &self.mbs), ("bms", &self.bms)]
             .into_iter()
@@ -844,8 +847,12 @@ impl<'a> ReplayLogger<'a> {
         };
         layers::log_extras(w, &self.joints, extras, self.chunk, scale)?;
         if let Some(s) = &extras.sample_stats {
+            // In chunks (a long session has hundreds of thousands of colours per link).
             let (t, power) = &s.link_power;
-            robot3d::log_link_colors(w, self.robot, self.arm, &self.scene, t, power, scale)?;
+            for (t, power) in t.chunks(self.chunk).zip(power.chunks(self.chunk)) {
+                robot3d::log_link_colors(w, self.robot, self.arm, &self.scene, t, power, scale)?;
+                w.flush()?;
+            }
         } else if let Some(terms) = &extras.terms {
             let (t, power) = layers::decimated_joint_power(terms, LINK_COLOUR_RATE_HZ);
             robot3d::log_link_colors(w, self.robot, self.arm, &self.scene, &t, &power, scale)?;
