@@ -1665,62 +1665,7 @@ fn model_replay_colours_links_draws_trial_bars_and_logs_rejections() {
         distinct.len()
     );
 
-    // Bars, keyed by trial index: for every trial, the elbow's bar sits in the elbow's slot
-    // (4th of 7) of the group around the trial's index, and its height is the mean of the
-    // decoded per-joint sum of its four terms over the trial's window.
-    let terms: Vec<Vec<(i64, f64)>> = ["mechanical", "copper", "coulomb", "viscous"]
-        .iter()
-        .map(|t| series(&c, &format!("/model/terms/elbow/{t}")))
-        .collect();
-    let (x, heights, widths) = bar_chart(&c, "/model/bars/by_joint/elbow");
-    assert_eq!(x.len(), heights.len());
-    assert_eq!(widths.len(), heights.len());
-    let width = 0.8 / 7.0;
-    for w in &widths {
-        assert!((f64::from(*w) - width).abs() < 1e-6, "bar width {w}");
-    }
-    let start = rec.start_ns as i64;
-    let mut checked = 0;
-    for m in &extras.trials {
-        let (a, b) = (
-            start + (m.t_start * 1e9).round() as i64,
-            start + (m.t_end * 1e9).round() as i64,
-        );
-        let inside: Vec<usize> = (0..terms[0].len())
-            .filter(|&i| terms[0][i].0 >= a && terms[0][i].0 <= b)
-            .collect();
-        if inside.is_empty() {
-            continue;
-        }
-        let mean = inside
-            .iter()
-            .map(|&i| terms.iter().map(|s| s[i].1).sum::<f64>())
-            .sum::<f64>()
-            / inside.len() as f64;
-        let slot = m.index as f64 - 0.4 + 3.5 * width;
-        let k = x
-            .iter()
-            .position(|&xi| (xi - slot).abs() < 1e-9)
-            .unwrap_or_else(|| panic!("trial {}: no elbow bar at {slot} in {x:?}", m.index));
-        assert!(
-            (heights[k] - mean).abs() < 1e-6,
-            "trial {}: bar {} vs mean {mean}",
-            m.index,
-            heights[k]
-        );
-        checked += 1;
-    }
-    assert!(checked >= 3, "{checked} trials checked");
-    // The seven joints' bars of a trial sit side by side, none over another.
-    let mut all_x: Vec<f64> = ARM
-        .iter()
-        .map(|j| g1viz::viz::short_joint_name(j))
-        .flat_map(|j| bar_chart(&c, &format!("/model/bars/by_joint/{j}")).0)
-        .collect();
-    all_x.sort_by(f64::total_cmp);
-    for pair in all_x.windows(2) {
-        assert!(pair[1] - pair[0] >= width - 1e-9, "bars overlap: {pair:?}");
-    }
+    assert_bars_are_trial_means(&c, &extras, rec.start_ns);
 
     // Trial log: a rejected trial's line names it once.
     let rejected: Vec<&TrialMark> = extras
@@ -2338,5 +2283,67 @@ fn recording_properties_hold_paths_as_given() {
     let here = env!("CARGO_MANIFEST_DIR");
     for (k, v) in &texts {
         assert!(!v.contains(here), "{k} = {v} names the build directory");
+    }
+}
+
+/// Bars, keyed by trial index: for every trial, the elbow's bar sits in the elbow's slot (4th of
+/// 7) of the group around the trial's index, and its height is the mean of the decoded per-joint
+/// sum of its four terms over the trial's window; the seven joints' bars never overlap.
+fn assert_bars_are_trial_means(c: &Contents, extras: &ReplayExtras, start_ns: u64) {
+    // Bars, keyed by trial index: for every trial, the elbow's bar sits in the elbow's slot
+    // (4th of 7) of the group around the trial's index, and its height is the mean of the
+    // decoded per-joint sum of its four terms over the trial's window.
+    let terms: Vec<Vec<(i64, f64)>> = ["mechanical", "copper", "coulomb", "viscous"]
+        .iter()
+        .map(|t| series(c, &format!("/model/terms/elbow/{t}")))
+        .collect();
+    let (x, heights, widths) = bar_chart(c, "/model/bars/by_joint/elbow");
+    assert_eq!(x.len(), heights.len());
+    assert_eq!(widths.len(), heights.len());
+    let width = 0.8 / 7.0;
+    for w in &widths {
+        assert!((f64::from(*w) - width).abs() < 1e-6, "bar width {w}");
+    }
+    let start = start_ns as i64;
+    let mut checked = 0;
+    for m in &extras.trials {
+        let (a, b) = (
+            start + (m.t_start * 1e9).round() as i64,
+            start + (m.t_end * 1e9).round() as i64,
+        );
+        let inside: Vec<usize> = (0..terms[0].len())
+            .filter(|&i| terms[0][i].0 >= a && terms[0][i].0 <= b)
+            .collect();
+        if inside.is_empty() {
+            continue;
+        }
+        let mean = inside
+            .iter()
+            .map(|&i| terms.iter().map(|s| s[i].1).sum::<f64>())
+            .sum::<f64>()
+            / inside.len() as f64;
+        let slot = m.index as f64 - 0.4 + 3.5 * width;
+        let k = x
+            .iter()
+            .position(|&xi| (xi - slot).abs() < 1e-9)
+            .unwrap_or_else(|| panic!("trial {}: no elbow bar at {slot} in {x:?}", m.index));
+        assert!(
+            (heights[k] - mean).abs() < 1e-6,
+            "trial {}: bar {} vs mean {mean}",
+            m.index,
+            heights[k]
+        );
+        checked += 1;
+    }
+    assert!(checked >= 3, "{checked} trials checked");
+    // The seven joints' bars of a trial sit side by side, none over another.
+    let mut all_x: Vec<f64> = ARM
+        .iter()
+        .map(|j| g1viz::viz::short_joint_name(j))
+        .flat_map(|j| bar_chart(c, &format!("/model/bars/by_joint/{j}")).0)
+        .collect();
+    all_x.sort_by(f64::total_cmp);
+    for pair in all_x.windows(2) {
+        assert!(pair[1] - pair[0] >= width - 1e-9, "bars overlap: {pair:?}");
     }
 }
