@@ -814,7 +814,7 @@ fn power_view(parts: LayoutParts) -> Node {
         )
     } else {
         (
-            "Net power, MBS and BMS [W] (minus the idle baseline before the arm moves)",
+            "Net power [W]: MBS cyan, BMS olive (minus the idle baseline before the arm moves)",
             include(&[&paths::power_net("mbs"), &paths::power_net("bms")]),
             2,
         )
