@@ -2347,3 +2347,56 @@ fn assert_bars_are_trial_means(c: &Contents, extras: &ReplayExtras, start_ns: u6
         assert!(pair[1] - pair[0] >= width - 1e-9, "bars overlap: {pair:?}");
     }
 }
+
+/// The short plots of the overview open on ranges with readable ticks (issue 13: "short panels
+/// with a single 0 tick"): the error plot on a range symmetric about zero, its bound a round
+/// number holding every decoded error with at least 5 % to spare and no more than 2.75× the
+/// largest; the trial track on the trial indices with half a step spare.
+#[test]
+fn overview_plots_open_on_readable_ranges() {
+    let session = example_session();
+    let rec = g1viz::signals::load_recording(
+        &session,
+        &g1viz::signals::SignalMap::g1_left_arm(),
+        &Default::default(),
+    )
+    .unwrap();
+    let (extras, _) = g1viz::viz::overlay::model_extras(
+        &rec,
+        &g1viz::power::PowerModel::PAPER,
+        &Default::default(),
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("model.rrd");
+    save_replay(&rec, &extras, &out, &session);
+    let msgs = decode(&out);
+    let c = contents(&msgs);
+    let views = blueprint_views(&msgs);
+
+    let error = view_named(&views, "Error measured − predicted");
+    let largest = view_series(&c, error)
+        .iter()
+        .flat_map(|s| s.1.iter().map(|v| v.abs()))
+        .fold(0.0, f64::max);
+    assert!(largest > 0.0);
+    let [lo, hi] = error.y_range.expect("the error plot's range");
+    assert_eq!(lo, -hi, "symmetric about zero");
+    assert!(
+        hi >= 1.05 * largest && hi <= 2.75 * largest,
+        "±{hi} for errors up to {largest}"
+    );
+    let mantissa = hi / 10f64.powf(hi.log10().floor());
+    assert!(
+        [1.0, 2.0, 2.5, 5.0]
+            .iter()
+            .any(|m| (mantissa - m).abs() < 1e-9),
+        "bound {hi} is not a round number"
+    );
+
+    let track = view_named(&views, "Trials (index");
+    let indices: Vec<f64> = extras.trials.iter().map(|m| m.index as f64).collect();
+    let first = indices.iter().copied().fold(f64::INFINITY, f64::min);
+    let last = indices.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    assert_eq!(track.y_range, Some([first - 0.5, last + 0.5]));
+}
