@@ -1665,62 +1665,7 @@ fn model_replay_colours_links_draws_trial_bars_and_logs_rejections() {
         distinct.len()
     );
 
-    // Bars, keyed by trial index: for every trial, the elbow's bar sits in the elbow's slot
-    // (4th of 7) of the group around the trial's index, and its height is the mean of the
-    // decoded per-joint sum of its four terms over the trial's window.
-    let terms: Vec<Vec<(i64, f64)>> = ["mechanical", "copper", "coulomb", "viscous"]
-        .iter()
-        .map(|t| series(&c, &format!("/model/terms/elbow/{t}")))
-        .collect();
-    let (x, heights, widths) = bar_chart(&c, "/model/bars/by_joint/elbow");
-    assert_eq!(x.len(), heights.len());
-    assert_eq!(widths.len(), heights.len());
-    let width = 0.8 / 7.0;
-    for w in &widths {
-        assert!((f64::from(*w) - width).abs() < 1e-6, "bar width {w}");
-    }
-    let start = rec.start_ns as i64;
-    let mut checked = 0;
-    for m in &extras.trials {
-        let (a, b) = (
-            start + (m.t_start * 1e9).round() as i64,
-            start + (m.t_end * 1e9).round() as i64,
-        );
-        let inside: Vec<usize> = (0..terms[0].len())
-            .filter(|&i| terms[0][i].0 >= a && terms[0][i].0 <= b)
-            .collect();
-        if inside.is_empty() {
-            continue;
-        }
-        let mean = inside
-            .iter()
-            .map(|&i| terms.iter().map(|s| s[i].1).sum::<f64>())
-            .sum::<f64>()
-            / inside.len() as f64;
-        let slot = m.index as f64 - 0.4 + 3.5 * width;
-        let k = x
-            .iter()
-            .position(|&xi| (xi - slot).abs() < 1e-9)
-            .unwrap_or_else(|| panic!("trial {}: no elbow bar at {slot} in {x:?}", m.index));
-        assert!(
-            (heights[k] - mean).abs() < 1e-6,
-            "trial {}: bar {} vs mean {mean}",
-            m.index,
-            heights[k]
-        );
-        checked += 1;
-    }
-    assert!(checked >= 3, "{checked} trials checked");
-    // The seven joints' bars of a trial sit side by side, none over another.
-    let mut all_x: Vec<f64> = ARM
-        .iter()
-        .map(|j| g1viz::viz::short_joint_name(j))
-        .flat_map(|j| bar_chart(&c, &format!("/model/bars/by_joint/{j}")).0)
-        .collect();
-    all_x.sort_by(f64::total_cmp);
-    for pair in all_x.windows(2) {
-        assert!(pair[1] - pair[0] >= width - 1e-9, "bars overlap: {pair:?}");
-    }
+    assert_bars_are_trial_means(&c, &extras, rec.start_ns);
 
     // Trial log: a rejected trial's line names it once.
     let rejected: Vec<&TrialMark> = extras
@@ -2339,4 +2284,119 @@ fn recording_properties_hold_paths_as_given() {
     for (k, v) in &texts {
         assert!(!v.contains(here), "{k} = {v} names the build directory");
     }
+}
+
+/// Bars, keyed by trial index: for every trial, the elbow's bar sits in the elbow's slot (4th of
+/// 7) of the group around the trial's index, and its height is the mean of the decoded per-joint
+/// sum of its four terms over the trial's window; the seven joints' bars never overlap.
+fn assert_bars_are_trial_means(c: &Contents, extras: &ReplayExtras, start_ns: u64) {
+    // Bars, keyed by trial index: for every trial, the elbow's bar sits in the elbow's slot
+    // (4th of 7) of the group around the trial's index, and its height is the mean of the
+    // decoded per-joint sum of its four terms over the trial's window.
+    let terms: Vec<Vec<(i64, f64)>> = ["mechanical", "copper", "coulomb", "viscous"]
+        .iter()
+        .map(|t| series(c, &format!("/model/terms/elbow/{t}")))
+        .collect();
+    let (x, heights, widths) = bar_chart(c, "/model/bars/by_joint/elbow");
+    assert_eq!(x.len(), heights.len());
+    assert_eq!(widths.len(), heights.len());
+    let width = 0.8 / 7.0;
+    for w in &widths {
+        assert!((f64::from(*w) - width).abs() < 1e-6, "bar width {w}");
+    }
+    let start = start_ns as i64;
+    let mut checked = 0;
+    for m in &extras.trials {
+        let (a, b) = (
+            start + (m.t_start * 1e9).round() as i64,
+            start + (m.t_end * 1e9).round() as i64,
+        );
+        let inside: Vec<usize> = (0..terms[0].len())
+            .filter(|&i| terms[0][i].0 >= a && terms[0][i].0 <= b)
+            .collect();
+        if inside.is_empty() {
+            continue;
+        }
+        let mean = inside
+            .iter()
+            .map(|&i| terms.iter().map(|s| s[i].1).sum::<f64>())
+            .sum::<f64>()
+            / inside.len() as f64;
+        let slot = m.index as f64 - 0.4 + 3.5 * width;
+        let k = x
+            .iter()
+            .position(|&xi| (xi - slot).abs() < 1e-9)
+            .unwrap_or_else(|| panic!("trial {}: no elbow bar at {slot} in {x:?}", m.index));
+        assert!(
+            (heights[k] - mean).abs() < 1e-6,
+            "trial {}: bar {} vs mean {mean}",
+            m.index,
+            heights[k]
+        );
+        checked += 1;
+    }
+    assert!(checked >= 3, "{checked} trials checked");
+    // The seven joints' bars of a trial sit side by side, none over another.
+    let mut all_x: Vec<f64> = ARM
+        .iter()
+        .map(|j| g1viz::viz::short_joint_name(j))
+        .flat_map(|j| bar_chart(c, &format!("/model/bars/by_joint/{j}")).0)
+        .collect();
+    all_x.sort_by(f64::total_cmp);
+    for pair in all_x.windows(2) {
+        assert!(pair[1] - pair[0] >= width - 1e-9, "bars overlap: {pair:?}");
+    }
+}
+
+/// The short plots of the overview open on ranges with readable ticks (issue 13: "short panels
+/// with a single 0 tick"): the error plot on a range symmetric about zero, its bound a round
+/// number holding every decoded error with at least 5 % to spare and no more than 2.75× the
+/// largest; the trial track on the trial indices with half a step spare.
+#[test]
+fn overview_plots_open_on_readable_ranges() {
+    let session = example_session();
+    let rec = g1viz::signals::load_recording(
+        &session,
+        &g1viz::signals::SignalMap::g1_left_arm(),
+        &Default::default(),
+    )
+    .unwrap();
+    let (extras, _) = g1viz::viz::overlay::model_extras(
+        &rec,
+        &g1viz::power::PowerModel::PAPER,
+        &Default::default(),
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("model.rrd");
+    save_replay(&rec, &extras, &out, &session);
+    let msgs = decode(&out);
+    let c = contents(&msgs);
+    let views = blueprint_views(&msgs);
+
+    let error = view_named(&views, "Error measured − predicted");
+    let largest = view_series(&c, error)
+        .iter()
+        .flat_map(|s| s.1.iter().map(|v| v.abs()))
+        .fold(0.0, f64::max);
+    assert!(largest > 0.0);
+    let [lo, hi] = error.y_range.expect("the error plot's range");
+    assert_eq!(lo, -hi, "symmetric about zero");
+    assert!(
+        hi >= 1.05 * largest && hi <= 2.75 * largest,
+        "±{hi} for errors up to {largest}"
+    );
+    let mantissa = hi / 10f64.powf(hi.log10().floor());
+    assert!(
+        [1.0, 2.0, 2.5, 5.0]
+            .iter()
+            .any(|m| (mantissa - m).abs() < 1e-9),
+        "bound {hi} is not a round number"
+    );
+
+    let track = view_named(&views, "Trials (index");
+    let indices: Vec<f64> = extras.trials.iter().map(|m| m.index as f64).collect();
+    let first = indices.iter().copied().fold(f64::INFINITY, f64::min);
+    let last = indices.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    assert_eq!(track.y_range, Some([first - 0.5, last + 0.5]));
 }

@@ -551,6 +551,24 @@ pub struct PlotRanges {
     pub imu: Option<[f64; 2]>,
     /// Raw MBS/BMS readings [W].
     pub raw_power: Option<[f64; 2]>,
+    /// Errors at the readings (per reading and per trajectory) [W].
+    pub error: Option<[f64; 2]>,
+    /// Trial indices (first, last).
+    pub trials: Option<[f64; 2]>,
+}
+
+/// A y range symmetric about zero that holds `data` with a tenth to spare, its bound a round
+/// number (1, 2, 2.5 or 5 × 10^k): the ticks at zero and at round values inside it are labelled,
+/// where a fitted range of a short plot showed a single "0".
+pub fn symmetric_range(data: [f64; 2]) -> [f64; 2] {
+    let m = (data[0].abs().max(data[1].abs()) * 1.1).max(1e-6);
+    let decade = 10f64.powf(m.log10().floor());
+    let bound = [1.0, 2.0, 2.5, 5.0, 10.0]
+        .iter()
+        .map(|f| f * decade)
+        .find(|b| *b >= m)
+        .unwrap_or(10.0 * decade);
+    [-bound, bound]
 }
 
 /// The range [min, max] of the finite `values`; `None` when there are none.
@@ -626,14 +644,14 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
     )
     .with_eye(Eye::looking_at(arm_center, [1.0, 0.8, 0.45], 0.75));
     let mut overview = vec![arm, power_view(parts)];
-    let mut shares = vec![1.7, 1.1];
+    let mut shares = vec![1.5, 1.1];
     if parts.trials || parts.diagnosis {
-        overview.push(trial_track());
-        shares.push(0.3);
+        overview.push(trial_track(parts.ranges.trials));
+        shares.push(0.4);
     }
     if parts.model || parts.diagnosis {
         overview.push(error_view(parts));
-        shares.push(0.8);
+        shares.push(1.0);
     }
     let mut tabs = Vec::new();
     if parts.model {
@@ -681,11 +699,14 @@ fn error_view(parts: LayoutParts) -> Node {
             ": base model grey, with the hypotheses orange"
         });
     }
-    plot(name, error).with_legend(Legend::Hidden)
+    plot(name, error)
+        .with_legend(Legend::Hidden)
+        .with_y_range(parts.ranges.error.map(symmetric_range))
 }
 
-/// The trial track: the trial under way, rejected (or located) trials as thick red segments.
-fn trial_track() -> Node {
+/// The trial track: the trial under way, rejected (or located) trials as thick red segments;
+/// `indices`: the first and last trial index (the y range then holds them, half a step spare).
+fn trial_track(indices: Option<[f64; 2]>) -> Node {
     plot(
         "Trials (index; red: rejected or located)",
         vec![
@@ -695,6 +716,7 @@ fn trial_track() -> Node {
         ],
     )
     .with_legend(Legend::Hidden)
+    .with_y_range(indices.map(|[lo, hi]| [lo - 0.5, hi + 0.5]))
 }
 
 /// The joint signals in one grid (one colour per joint everywhere); the joints' legend on τ
@@ -814,7 +836,7 @@ fn power_view(parts: LayoutParts) -> Node {
         )
     } else {
         (
-            "Net power, MBS and BMS [W] (minus the idle baseline before the arm moves)",
+            "Net power [W]: MBS cyan, BMS olive (minus the idle baseline before the arm moves)",
             include(&[&paths::power_net("mbs"), &paths::power_net("bms")]),
             2,
         )

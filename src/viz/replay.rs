@@ -303,6 +303,25 @@ fn plot_ranges(
 ) -> blueprint::PlotRanges {
     use blueprint::data_range;
     let mut r = blueprint::PlotRanges::default();
+    r.trials = data_range(
+        extras
+            .trials
+            .iter()
+            .chain(extras.diagnosis.iter().flat_map(|d| d.highlighted.iter()))
+            .map(|m| m.index as f64),
+    );
+    // The error plot's series: the model's per reading and per trajectory, the diagnosis'.
+    let per_reading = extras
+        .readings
+        .iter()
+        .flat_map(|rd| rd.measured.iter().zip(&rd.predicted).map(|(m, p)| m - p));
+    let per_trajectory = extras.trajectories.iter().map(|p| p.measured - p.predicted);
+    let diagnosis = extras.diagnosis.iter().flat_map(|d| {
+        [&d.before, &d.after, &d.found]
+            .into_iter()
+            .flat_map(|p| d.measured.iter().zip(p).map(|(m, p)| m - p))
+    });
+    r.error = data_range(per_reading.chain(per_trajectory).chain(diagnosis));
     if let Some(rd) = &extras.readings {
         let instant = extras.prediction.iter().flat_map(|p| p.predicted.iter());
         let streamed = extras.sample_stats.iter().flat_map(|s| s.instant);
