@@ -1079,7 +1079,7 @@ fn blueprint_strings(msgs: &[LogMsg]) -> Vec<String> {
 /// difference — read back through rerun's decoder, row for row and value for value.
 #[test]
 fn diagnosis_rrd_has_before_after_located_trials_and_counterpart() {
-    use g1viz::diagnose::{self, DiagnoseOptions, counterpart};
+    use g1viz::diagnose::{self, DiagnoseOptions, compare_counterpart};
     use g1viz::power::PowerModel;
     use g1viz::read::OpenOptions;
     use g1viz::signals::{SignalMap, load_recording};
@@ -1119,7 +1119,7 @@ fn diagnosis_rrd_has_before_after_located_trials_and_counterpart() {
         "a 0.3 s sensor latency is found: {}",
         d.summary
     );
-    let comparison = counterpart::compare(&real, &twin, &d).unwrap();
+    let comparison = compare_counterpart(&real, &twin, &d).unwrap();
     d.attach_counterpart(comparison);
 
     let out = dir.path().join("diag.rrd");
