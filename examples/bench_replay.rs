@@ -18,7 +18,7 @@ use anyhow::Context;
 use g1viz::N_JOINTS;
 use g1viz::robot::RobotModel;
 use g1viz::signals::{CommandSeries, PowerSeries, Recording, StateSeries};
-use g1viz::viz::replay::{ReplayExtras, ReplayOptions, log_replay};
+use g1viz::viz::{ReplayExtras, ReplayOptions, log_replay};
 use g1viz::viz::{Sink, open_stream, recording_id_for};
 
 fn main() -> anyhow::Result<()> {
@@ -81,7 +81,7 @@ fn streamed(session: &std::path::Path, keep: Option<std::path::PathBuf>) -> anyh
     use g1viz::read::OpenOptions;
     use g1viz::signals::SignalMap;
     use g1viz::viz::recording_id_for_source;
-    use g1viz::viz::replay::replay_file;
+    use g1viz::viz::replay_file;
     let out = keep.clone().unwrap_or_else(|| {
         std::env::temp_dir().join(format!("g1viz_bench_{}.rrd", std::process::id()))
     });

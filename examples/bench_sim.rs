@@ -25,7 +25,7 @@ fn effects_table() -> anyhow::Result<()> {
         "| effect (default parameter) | trial R² | RMSE [W] | bias [W] | aligned R² | aligned RMSE [W] | mean effect power [W] |"
     );
     println!("|---|---|---|---|---|---|---|");
-    for effect in std::iter::once("none").chain(g1viz::sim::effects::EFFECT_NAMES) {
+    for effect in std::iter::once("none").chain(g1viz::sim::EFFECT_NAMES) {
         let mut cfg = SimConfig {
             preset: Preset::Holdout,
             seed: 3,

@@ -355,7 +355,7 @@ fn row(case: &Case, seed: u64, mode: &str, d: &Diagnosis) -> String {
                 if t.fields.is_empty() && t.params.iter().any(|p| p.symbol.starts_with("k_")) =>
             {
                 // Identified per-joint coefficients: worst relative error against F·w_i.
-                let w = g1viz::sim::effects::JOINT_FRICTION_PATTERN;
+                let w = g1viz::sim::JOINT_FRICTION_PATTERN;
                 let ided: Vec<(&diagnose::Param, f64)> = t
                     .params
                     .iter()

@@ -4,7 +4,7 @@
 //! layout, each opening on its tab (`docs/screenshots.sh` serves and photographs them). The first
 //! tab is what the layout opens on, so it is not written twice.
 //!
-//! `cargo run --example docs_views -- OUT_DIR` writes `OUT_DIR/<n>-<tab>.rrd` (n = 0 is the
+//! Run from the repository root: `cargo run --example docs_views -- OUT_DIR` writes `OUT_DIR/<n>-<tab>.rrd` (n = 0 is the
 //! layout as it opens) and prints one line per file: `<file>\t<tab name>`.
 
 use std::path::PathBuf;
@@ -15,8 +15,8 @@ use g1viz::identify::IdentifyOptions;
 use g1viz::power::PowerModel;
 use g1viz::robot::RobotModel;
 use g1viz::signals::{SignalMap, load_recording};
-use g1viz::viz::replay::{ReplayOptions, log_replay};
 use g1viz::viz::{OutputKind, Sink, open_stream, overlay, recording_id_for, short_joint_name};
+use g1viz::viz::{ReplayOptions, log_replay};
 
 fn main() -> Result<()> {
     let out = PathBuf::from(
@@ -25,7 +25,14 @@ fn main() -> Result<()> {
             .context("usage: docs_views OUT_DIR")?,
     );
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-    let session = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("examples/g1_example.mcap");
+    // Relative, as a user types it: the recording's `input` property shows this path, not the
+    // directory of the machine that made the screenshots.
+    let session = PathBuf::from("examples/g1_example.mcap");
+    anyhow::ensure!(
+        session.is_file(),
+        "{} not found: run from the repository root (docs/screenshots.sh does)",
+        session.display()
+    );
     let rec = load_recording(&session, &SignalMap::g1_left_arm(), &Default::default())?;
     let robot = RobotModel::builtin();
     let arm = robot.arm(&rec.joint_names)?;
@@ -37,7 +44,7 @@ fn main() -> Result<()> {
         .iter()
         .map(|n| short_joint_name(n))
         .collect();
-    let layout = g1viz::viz::replay::layout(&robot, &arm, &joints, &extras);
+    let layout = g1viz::viz::layout(&robot, &arm, &joints, &extras, None);
     tabs.extend(layout.tab_names().into_iter().map(Some));
     for (n, tab) in tabs.iter().enumerate() {
         // The layout opens on its first tab: that view is the default one, already taken.
@@ -63,7 +70,11 @@ fn main() -> Result<()> {
             },
             open_tab: tab.clone(),
             properties: vec![
-                ("command".into(), "replay --model paper".into()),
+                (
+                    "command".into(),
+                    "g1viz replay examples/g1_example.mcap --model paper --max-rate 25 --pose-rate 25"
+                        .into(),
+                ),
                 ("model".into(), "paper".into()),
             ],
             ..Default::default()

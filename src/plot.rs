@@ -67,3 +67,45 @@ pub(crate) fn padded_range(values: impl Iterator<Item = f64>, pad: f64) -> (f64,
     let pad = ((hi - lo) * pad).max(1e-6);
     (lo - pad, hi + pad)
 }
+
+/// A tick label for `v` on an axis spanning `span`: the decimals the ticks need (plotters puts
+/// at most about ten ticks on an axis, so a step of at least span / 10), and never "-0" or
+/// "-0.0": a tick computed a rounding error below zero (−1e-17) reads as zero.
+pub(crate) fn tick_label(v: f64, span: f64) -> String {
+    let step = span.abs() / 10.0;
+    let decimals = if step.is_finite() && step > 0.0 {
+        (-step.log10().floor()).clamp(0.0, 12.0) as usize
+    } else {
+        0
+    };
+    let s = format!("{v:.decimals$}");
+    match s.strip_prefix('-') {
+        Some(rest) if rest.chars().all(|c| c == '0' || c == '.') => rest.to_owned(),
+        _ => s,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::tick_label;
+
+    #[test]
+    fn tick_labels_have_no_negative_zero() {
+        // A span of 2 W: ticks every 0.2 W or more, one decimal.
+        assert_eq!(tick_label(-0.0, 2.0), "0.0");
+        assert_eq!(tick_label(-1e-17, 2.0), "0.0");
+        assert_eq!(tick_label(-0.04, 2.0), "0.0");
+        assert_eq!(tick_label(-0.2, 2.0), "-0.2");
+        assert_eq!(tick_label(0.4, 2.0), "0.4");
+        // A span of 40 W: whole watts.
+        assert_eq!(tick_label(-1e-17, 40.0), "0");
+        assert_eq!(tick_label(-5.0, 40.0), "-5");
+        assert_eq!(tick_label(12.0, 40.0), "12");
+        // A span of 0.05: ticks every 0.005 or more, three decimals.
+        assert_eq!(tick_label(-0.005, 0.05), "-0.005");
+        assert_eq!(tick_label(-3e-19, 0.05), "0.000");
+        // Degenerate spans still give a label.
+        assert_eq!(tick_label(-0.0, 0.0), "0");
+        assert_eq!(tick_label(3.0, f64::NAN), "3");
+    }
+}

@@ -438,13 +438,7 @@ fn not_a_bag_is_a_format_error() {
 #[test]
 fn bags_written_by_rosbags_at_run_time() {
     let Some(shared) = shared() else { return };
-    let importable = common::output_within(
-        Command::new("python3").args(["-c", "import rosbags"]),
-        common::TOOL_LIMIT,
-    )
-    .is_ok_and(|o| o.status.success());
-    if !importable {
-        common::skip("python3 `rosbags` not importable (pip install rosbags==0.11.9)");
+    if !common::python_module("rosbags", "rosbags==0.11.9") {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();

@@ -653,7 +653,7 @@ fn unequal_joint_friction_is_found_per_joint_against_the_twin() {
     // 10 % of its excess F·w_i; the rest share one pooled coefficient, which lies within the
     // range of their true excesses (± 2.5 s.e.). The well-moved shoulder pitch (0), elbow (3)
     // and wrist pitch (5) must be among the identified.
-    let w = g1viz::sim::effects::JOINT_FRICTION_PATTERN;
+    let w = g1viz::sim::JOINT_FRICTION_PATTERN;
     let mut identified = Vec::new();
     for p in &t.params {
         eprintln!("  {} = {} ± {} ({})", p.symbol, p.value, p.std_err, p.name);

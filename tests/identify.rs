@@ -874,12 +874,35 @@ fn identified_on_smoke_validates_on_holdout() {
     );
     assert_eq!(back.provenance.target, "mbs");
     let report = dir.path().join("report");
-    g1viz::identify::report::write_report(
-        &report,
-        &reading.report_input(back, Some(&v), Some(truth_model)),
-    )
-    .expect("report");
+    let input = reading.report_input(back, Some(&v), Some(truth_model));
+    g1viz::identify::report::write_report(&report, &input).expect("report");
     assert!(report.join("report.md").exists());
+    // The fit plot labels its points with their trials: every retained trial of the session
+    // (the truth file's trials less the rejected ones) once; the hold-out's points too.
+    let ident = input.identification.as_ref().expect("identification rows");
+    assert_eq!(ident.trials.len(), ident.measured.len());
+    let kept: std::collections::BTreeSet<usize> = ident.trials.iter().copied().collect();
+    assert_eq!(
+        kept.len(),
+        ident.trials.len(),
+        "a trial twice: {:?}",
+        ident.trials
+    );
+    let rejected: std::collections::BTreeSet<usize> =
+        reading.rejections.iter().map(|r| r.trial).collect();
+    assert!(
+        kept.is_disjoint(&rejected),
+        "{kept:?} vs rejected {rejected:?}"
+    );
+    let all: Vec<usize> = kept.union(&rejected).copied().collect();
+    assert_eq!(all.len(), smoke_truth.bounds.len(), "{all:?}");
+    assert!(
+        all.windows(2).all(|w| w[1] == w[0] + 1),
+        "trial ids not one per truth trial: {all:?}"
+    );
+    let hold = input.validation.as_ref().expect("hold-out rows");
+    assert_eq!(hold.trials.len(), hold.measured.len());
+    assert!(!hold.trials.is_empty());
 
     // Per-sample rows (zero-order-held power) are the degenerate setup: far lower R².
     let modes = |mode| {

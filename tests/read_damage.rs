@@ -35,15 +35,7 @@ fn read_all(path: &Path) -> (Msgs, ReadSummary) {
 }
 
 fn rosbags_importable() -> bool {
-    let ok = common::output_within(
-        Command::new("python3").args(["-c", "import rosbags"]),
-        common::TOOL_LIMIT,
-    )
-    .is_ok_and(|o| o.status.success());
-    if !ok {
-        common::skip("python3 `rosbags` not importable (pip install rosbags==0.11.9)");
-    }
-    ok
+    common::python_module("rosbags", "rosbags==0.11.9")
 }
 
 /// Copies the first N messages of a rosbag2 bag into a zstd message-compressed one:

@@ -21,12 +21,7 @@ fn open_err(path: &Path) -> String {
 
 #[test]
 fn empty_ros1_bag_reads_without_warnings_and_json_info_gives_the_reason() {
-    let ok = Command::new("python3")
-        .args(["-c", "import rosbags"])
-        .output()
-        .is_ok_and(|o| o.status.success());
-    if !ok {
-        common::skip("python3 `rosbags` not importable (pip install rosbags==0.11.9)");
+    if !common::python_module("rosbags", "rosbags==0.11.9") {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();

@@ -20,9 +20,7 @@ const PAD: usize = 64 << 10;
 
 /// Write the example's messages plus padding into one chunk of just under `MAX_CHUNK_BYTES`.
 fn write_big_chunk(path: &Path) {
-    let bytes =
-        std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/g1_example.mcap"))
-            .unwrap();
+    let msgs = common::example_messages();
     let mut w = mcap::WriteOptions::new()
         .compression(Some(mcap::Compression::Zstd))
         .chunk_size(Some(2 * MAX_CHUNK_BYTES))
@@ -30,27 +28,8 @@ fn write_big_chunk(path: &Path) {
             std::fs::File::create(path).unwrap(),
         ))
         .unwrap();
-    let mut channels = BTreeMap::<String, u16>::new();
-    let mut written = 0usize;
-    let mut first_time = None;
-    for (seq, m) in mcap::MessageStream::new(&bytes).unwrap().enumerate() {
-        let m = m.unwrap();
-        let id = *channels.entry(m.channel.topic.clone()).or_insert_with(|| {
-            let s = m.channel.schema.as_ref().unwrap();
-            let sid = w.add_schema(&s.name, &s.encoding, &s.data).unwrap();
-            w.add_channel(sid, &m.channel.topic, "cdr", &BTreeMap::new())
-                .unwrap()
-        });
-        first_time.get_or_insert(m.log_time);
-        let header = mcap::records::MessageHeader {
-            channel_id: id,
-            sequence: seq as u32,
-            log_time: m.log_time,
-            publish_time: m.log_time,
-        };
-        w.write_to_known_channel(&header, &m.data).unwrap();
-        written += m.data.len() + 31;
-    }
+    let mut written = common::write_messages(&mut w, &msgs);
+    let first_time = msgs.first().map(|m| m.log_time);
     let sid = w
         .add_schema("pad/msg/Blob", "ros2msg", b"uint8[] data")
         .unwrap();
@@ -132,13 +111,7 @@ fn chunks_of_the_largest_accepted_size_are_read_in_under_512_mb() {
     let Some(bag) = common::shared_recording("g1_smoke.bag") else {
         return;
     };
-    let importable = common::output_within(
-        Command::new("python3").args(["-c", "import rosbags"]),
-        common::TOOL_LIMIT,
-    )
-    .is_ok_and(|o| o.status.success());
-    if !importable {
-        common::skip("python3 `rosbags` not importable (pip install rosbags==0.11.9)");
+    if !common::python_module("rosbags", "rosbags==0.11.9") {
         return;
     }
     let big = tmp.path().join("big_chunk.bag");

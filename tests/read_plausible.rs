@@ -5,8 +5,11 @@
 //! with a warning instead of stretching the session over 56 years; jumps and gaps in a topic's
 //! log times are warned about; a recording wholly on a relative clock keeps its samples.
 
-use std::collections::BTreeMap;
+mod common;
+
 use std::path::Path;
+
+use common::{McapMsg, example_messages};
 
 use g1viz::read::OpenOptions;
 use g1viz::signals::{Recording, SignalMap, load_recording};
@@ -16,34 +19,8 @@ use g1viz::signals::{Recording, SignalMap, load_recording};
 /// stride) + 12 (q, dq, ddq).
 const LEFT_ELBOW_TAU_OFFSET: usize = 4 + 72 + 18 * 56 + 12;
 
-struct Msg {
-    topic: String,
-    schema: (String, String, Vec<u8>),
-    log_time: u64,
-    data: Vec<u8>,
-}
-
-fn example_messages() -> Vec<Msg> {
-    let bytes =
-        std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/g1_example.mcap"))
-            .unwrap();
-    mcap::MessageStream::new(&bytes)
-        .unwrap()
-        .map(|m| {
-            let m = m.unwrap();
-            let s = m.channel.schema.as_ref().unwrap();
-            Msg {
-                topic: m.channel.topic.clone(),
-                schema: (s.name.clone(), s.encoding.clone(), s.data.to_vec()),
-                log_time: m.log_time,
-                data: m.data.to_vec(),
-            }
-        })
-        .collect()
-}
-
 /// Write `msgs` as MCAP; without an index (no summary) the reader delivers them in file order.
-fn write(path: &Path, msgs: &[Msg], indexed: bool) {
+fn write(path: &Path, msgs: &[McapMsg], indexed: bool) {
     let mut opts = mcap::WriteOptions::new();
     if !indexed {
         opts = opts
@@ -58,21 +35,7 @@ fn write(path: &Path, msgs: &[Msg], indexed: bool) {
             std::fs::File::create(path).unwrap(),
         ))
         .unwrap();
-    let mut channels = BTreeMap::<String, u16>::new();
-    for (seq, m) in msgs.iter().enumerate() {
-        let id = *channels.entry(m.topic.clone()).or_insert_with(|| {
-            let sid = w.add_schema(&m.schema.0, &m.schema.1, &m.schema.2).unwrap();
-            w.add_channel(sid, &m.topic, "cdr", &BTreeMap::new())
-                .unwrap()
-        });
-        let header = mcap::records::MessageHeader {
-            channel_id: id,
-            sequence: seq as u32,
-            log_time: m.log_time,
-            publish_time: m.log_time,
-        };
-        w.write_to_known_channel(&header, &m.data).unwrap();
-    }
+    common::write_messages(&mut w, msgs);
     w.finish().unwrap();
 }
 
@@ -82,7 +45,7 @@ fn load(path: &Path) -> Recording {
 
 /// The example re-written with `change` applied to its `k`-th /lowstate message; returns the
 /// recording and the changed message's original log time.
-fn changed(k: usize, indexed: bool, change: impl Fn(&mut Msg)) -> (Recording, u64) {
+fn changed(k: usize, indexed: bool, change: impl Fn(&mut McapMsg)) -> (Recording, u64) {
     let tmp = tempfile::tempdir().unwrap();
     let mut msgs = example_messages();
     let m = msgs

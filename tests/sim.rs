@@ -438,7 +438,7 @@ fn simulate_like_reruns_a_recording_on_its_timeline() {
 
 #[test]
 fn payload_adds_its_gravity_torque_and_changes_power() {
-    let payload = g1viz::sim::effects::DEFAULT_PAYLOAD;
+    let payload = g1viz::sim::DEFAULT_PAYLOAD;
     let (a, b, _dir) = pair(&format!("payload={}", payload.mass_kg), |_| {});
     // Independent expectation at home: τ_i = m·g·∂z_p/∂q_i, z_p = height of the payload point from
     // forward kinematics (finite differences), not from the inverse dynamics under test.

@@ -12,7 +12,7 @@ use g1viz::N_JOINTS;
 use g1viz::robot::RobotModel;
 use g1viz::signals::{CommandSeries, PowerSeries, Recording, StateSeries};
 use g1viz::trial::{RejectReason, Rejection};
-use g1viz::viz::replay::{ReplayExtras, ReplayOptions, TrialMark, log_replay};
+use g1viz::viz::{ReplayExtras, ReplayOptions, TrialMark, log_replay};
 use g1viz::viz::{Sink, open_stream, recording_id_for};
 use rerun::external::re_build_info::CrateVersion;
 use rerun::external::re_log_encoding::{DecoderApp, Encoder, EncodingOptions};
@@ -337,8 +337,6 @@ fn blueprint_layout_is_complete() {
 /// properties; the robot's root follows the recorded IMU orientation.
 #[test]
 fn recording_identifies_itself() {
-    use rerun::external::arrow::array::AsArray;
-    use rerun::external::arrow::datatypes::Int64Type;
     let dir = tempfile::tempdir().unwrap();
     let rec = synthetic(&input_file(dir.path()));
     let out = dir.path().join("out.rrd");
@@ -356,30 +354,7 @@ fn recording_identifies_itself() {
     log_replay(&rec, &robot, &arm, &extras(), &opts, viz.stream()).unwrap();
     viz.finish().unwrap();
 
-    let mut texts: BTreeMap<String, String> = BTreeMap::new();
-    let mut start = None;
-    for msg in decode(&out) {
-        let LogMsg::ArrowMsg(store, arrow) = &msg else {
-            continue;
-        };
-        if store.kind() != StoreKind::Recording {
-            continue;
-        }
-        let chunk = Chunk::from_arrow_msg(arrow).unwrap();
-        if !chunk.entity_path().to_string().starts_with("/__properties") {
-            continue;
-        }
-        assert!(chunk.is_static());
-        for column in chunk.components().0.values() {
-            let values = column.list_array.values();
-            let field = column.descriptor.component.to_string();
-            if let Some(strings) = values.as_string_opt::<i32>() {
-                texts.insert(field, strings.value(0).to_owned());
-            } else if field.ends_with("start_time") {
-                start = Some(values.as_primitive::<Int64Type>().value(0));
-            }
-        }
-    }
+    let (texts, start) = recording_properties(&out);
     assert_eq!(
         texts.get("RecordingInfo:name").map(String::as_str),
         Some("session.mcap"),
@@ -887,7 +862,7 @@ fn assert_error_at_readings_is_like_for_like(c: &Contents, v: &g1viz::identify::
 }
 
 /// Stream `mcap` into `out` as `g1viz replay SESSION --save OUT` does, in batches of `chunk_rows`.
-fn stream_replay(mcap: &Path, out: &Path, chunk_rows: usize) -> g1viz::viz::replay::ReplaySummary {
+fn stream_replay(mcap: &Path, out: &Path, chunk_rows: usize) -> g1viz::viz::ReplaySummary {
     use g1viz::read::OpenOptions;
     use g1viz::signals::SignalMap;
     use g1viz::viz::recording_id_for_source;
@@ -901,7 +876,7 @@ fn stream_replay(mcap: &Path, out: &Path, chunk_rows: usize) -> g1viz::viz::repl
         progress: false,
         ..Default::default()
     };
-    let summary = g1viz::viz::replay::replay_file(
+    let summary = g1viz::viz::replay_file(
         mcap,
         &map,
         &OpenOptions::default(),
@@ -945,7 +920,16 @@ fn streamed_replay_matches_the_in_memory_replay() {
         );
 
         let (a, b) = (contents(&decode(&whole)), contents(&decode(&streamed)));
-        assert_eq!(a.rows, b.rows, "{}: rows per entity", mcap.display());
+        // The data, entity for entity (the layouts differ: only the in-memory replay knows the
+        // joints' range up front and gives their plot a legend).
+        let data = |c: &Contents| -> Vec<((bool, String, bool), usize)> {
+            c.rows
+                .iter()
+                .filter(|(k, _)| !k.0)
+                .map(|(k, n)| (k.clone(), *n))
+                .collect()
+        };
+        assert_eq!(data(&a), data(&b), "{}: rows per entity", mcap.display());
         let scalar_paths: Vec<&String> = a
             .rows
             .keys()
@@ -1562,7 +1546,7 @@ fn static_strings(c: &Contents, path: &str, component: &str) -> Vec<String> {
 /// the field, with the field's value at every reading (the values given here, read back).
 #[test]
 fn diagnosis_rrd_has_the_located_fields_tab() {
-    use g1viz::viz::replay::DiagnosisOverlay;
+    use g1viz::viz::DiagnosisOverlay;
     let dir = tempfile::tempdir().unwrap();
     let rec = synthetic(&input_file(dir.path()));
     let t: Vec<f64> = vec![0.5, 1.5, 2.5, 3.5, 4.5];
@@ -1681,47 +1665,7 @@ fn model_replay_colours_links_draws_trial_bars_and_logs_rejections() {
         distinct.len()
     );
 
-    // Bars: for every trial, the flat top of the elbow's bar is the mean of the decoded
-    // per-joint sum of its four terms over the trial's window.
-    let terms: Vec<Vec<(i64, f64)>> = ["mechanical", "copper", "coulomb", "viscous"]
-        .iter()
-        .map(|t| series(&c, &format!("/model/terms/elbow/{t}")))
-        .collect();
-    let bars = series(&c, "/model/bars/by_joint/elbow");
-    let start = rec.start_ns as i64;
-    let mut checked = 0;
-    for m in &extras.trials {
-        let (a, b) = (
-            start + (m.t_start * 1e9).round() as i64,
-            start + (m.t_end * 1e9).round() as i64,
-        );
-        let inside: Vec<usize> = (0..terms[0].len())
-            .filter(|&i| terms[0][i].0 >= a && terms[0][i].0 <= b)
-            .collect();
-        if inside.is_empty() {
-            continue;
-        }
-        let mean = inside
-            .iter()
-            .map(|&i| terms.iter().map(|s| s[i].1).sum::<f64>())
-            .sum::<f64>()
-            / inside.len() as f64;
-        let top: Vec<f64> = bars
-            .iter()
-            .filter(|(t, v)| *t > a && *t < b && *v != 0.0)
-            .map(|p| p.1)
-            .collect();
-        assert_eq!(top.len(), 2, "trial {}: the bar's two top corners", m.index);
-        for v in top {
-            assert!(
-                (v - mean).abs() < 1e-6,
-                "trial {}: bar {v} vs mean {mean}",
-                m.index
-            );
-        }
-        checked += 1;
-    }
-    assert!(checked >= 3, "{checked} trials checked");
+    assert_bars_are_trial_means(&c, &extras, rec.start_ns);
 
     // Trial log: a rejected trial's line names it once.
     let rejected: Vec<&TrialMark> = extras
@@ -1749,6 +1693,16 @@ fn model_replay_colours_links_draws_trial_bars_and_logs_rejections() {
     for line in &log {
         assert!(!line.contains("session 0"), "{line}");
     }
+    // Each log line is stamped at its trial's start rounded to 0.1 s, so the narrow session-time
+    // column shows it in full ("+39.1s").
+    let stamps = session_stamps(&c, "/trials/log");
+    assert_eq!(stamps.len(), extras.trials.len());
+    let mut starts: Vec<f64> = extras.trials.iter().map(|m| m.t_start).collect();
+    starts.sort_by(f64::total_cmp);
+    for (s, t) in stamps.iter().zip(&starts) {
+        assert!((s * 10.0 - (s * 10.0).round()).abs() < 1e-6, "stamp {s}");
+        assert!((s - t).abs() <= 0.05 + 1e-9, "stamp {s} vs trial start {t}");
+    }
     for m in rejected {
         let line = log
             .iter()
@@ -1761,4 +1715,688 @@ fn model_replay_colours_links_draws_trial_bars_and_logs_rejections() {
             "{line}"
         );
     }
+}
+
+/// A view of the decoded blueprint: its class, title, queries, legend and y range.
+#[derive(Debug, Default, Clone)]
+struct BlueprintView {
+    class: String,
+    name: String,
+    queries: Vec<String>,
+    /// `PlotLegend:visible` (None: not set).
+    legend_visible: Option<bool>,
+    /// Whether a `PlotLegend` was logged at all.
+    legend_set: bool,
+    y_range: Option<[f64; 2]>,
+}
+
+/// Every view of the blueprint in `msgs`, by its blueprint entity path.
+fn blueprint_views(msgs: &[LogMsg]) -> BTreeMap<String, BlueprintView> {
+    use rerun::external::arrow::array::AsArray;
+    use rerun::external::arrow::datatypes::Float64Type;
+    let mut views: BTreeMap<String, BlueprintView> = BTreeMap::new();
+    for msg in msgs {
+        let LogMsg::ArrowMsg(store, arrow) = msg else {
+            continue;
+        };
+        if store.kind() != StoreKind::Blueprint {
+            continue;
+        }
+        let chunk = Chunk::from_arrow_msg(arrow).unwrap();
+        let path = chunk.entity_path().to_string();
+        let Some(rest) = path.strip_prefix("/view/") else {
+            continue;
+        };
+        let id = rest.split('/').next().unwrap().to_owned();
+        let view = views.entry(id).or_default();
+        for column in chunk.components().0.values() {
+            let values = column.list_array.values();
+            match column.descriptor.component.as_str() {
+                "ViewBlueprint:class_identifier" => {
+                    view.class = values.as_string::<i32>().value(0).to_owned();
+                }
+                "ViewBlueprint:display_name" => {
+                    view.name = values.as_string::<i32>().value(0).to_owned();
+                }
+                "ViewContents:query" => view.queries.extend(
+                    values
+                        .as_string::<i32>()
+                        .iter()
+                        .flatten()
+                        .map(str::to_owned),
+                ),
+                "PlotLegend:visible" => {
+                    view.legend_set = true;
+                    view.legend_visible = Some(values.as_boolean().value(0));
+                }
+                "PlotLegend:corner" => view.legend_set = true,
+                "ScalarAxis:range" => {
+                    let pair = values.as_fixed_size_list().value(0);
+                    let v = pair.as_primitive::<Float64Type>();
+                    assert_eq!(v.len(), 2);
+                    view.y_range = Some([v.value(0), v.value(1)]);
+                }
+                _ => {}
+            }
+        }
+    }
+    // The viewer's shared view carries only a time axis.
+    views.retain(|_, v| !v.class.is_empty());
+    views
+}
+
+/// The view titled `name` (exactly, or its title starts with it).
+fn view_named<'a>(views: &'a BTreeMap<String, BlueprintView>, name: &str) -> &'a BlueprintView {
+    views
+        .values()
+        .find(|v| v.name == name || v.name.starts_with(name))
+        .unwrap_or_else(|| {
+            panic!(
+                "no view {name:?}: {:?}",
+                views.values().map(|v| &v.name).collect::<Vec<_>>()
+            )
+        })
+}
+
+/// Whether entity `path` is included by the view's queries (`+ /a`, `+ /a/**`).
+fn view_includes(v: &BlueprintView, path: &str) -> bool {
+    v.queries.iter().any(|q| {
+        let q = q.trim_start_matches("+ ").trim();
+        match q.strip_suffix("/**") {
+            Some(tree) => path == tree || path.starts_with(&format!("{tree}/")),
+            None => path == q,
+        }
+    })
+}
+
+/// The scalar series (entities with timed `Scalars`) a view shows: path and values.
+fn view_series(c: &Contents, v: &BlueprintView) -> Vec<(String, Vec<f64>)> {
+    let paths: std::collections::BTreeSet<String> = c
+        .chunks
+        .iter()
+        .filter(|ch| {
+            !ch.is_static()
+                && ch
+                    .components()
+                    .0
+                    .values()
+                    .any(|col| col.descriptor.component.as_str() == "Scalars:scalars")
+        })
+        .map(|ch| ch.entity_path().to_string())
+        .filter(|p| view_includes(v, p))
+        .collect();
+    paths
+        .into_iter()
+        .map(|p| {
+            let values = series(c, &p).into_iter().map(|x| x.1).collect();
+            (p, values)
+        })
+        .collect()
+}
+
+/// Legend geometry measured on the screenshots of the stock 0.36.3 web viewer (1920×1080
+/// window): 18 px above the first entry, 23 px per entry; the smallest plot area of the
+/// overview's power plot and of a half-height cell in the tabs.
+const LEGEND_TOP_PX: f64 = 18.0;
+const LEGEND_LINE_PX: f64 = 23.0;
+const OVERVIEW_PLOT_PX: f64 = 190.0;
+const DETAIL_PLOT_PX: f64 = 330.0;
+
+/// Checks every plot of `msgs` (decoded as `c`): each sets its legend explicitly; a shown legend
+/// has every entry (one per series with data) inside the plot and the data below it: the y range
+/// the plot opens on holds all the data and leaves the legend's share of the height free above
+/// it. Returns the titles of the plots that show a legend, with their number of entries.
+fn assert_legends_clear_the_data(msgs: &[LogMsg], c: &Contents) -> BTreeMap<String, usize> {
+    let views = blueprint_views(msgs);
+    let mut shown = BTreeMap::new();
+    for v in views.values() {
+        if v.class != "TimeSeries" && v.class != "BarChart" {
+            continue;
+        }
+        assert!(v.legend_set, "{}: legend not set explicitly", v.name);
+        if v.legend_visible == Some(false) {
+            continue;
+        }
+        assert_eq!(
+            v.class, "TimeSeries",
+            "{}: a bar chart has no y range",
+            v.name
+        );
+        let series = view_series(c, v);
+        let entries = series.len();
+        assert!(entries > 0, "{}: a legend with no series", v.name);
+        let values: Vec<f64> = series
+            .iter()
+            .flat_map(|s| s.1.iter().copied())
+            .filter(|x| x.is_finite())
+            .collect();
+        let lo = values.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = values.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let [y0, y1] = v
+            .y_range
+            .unwrap_or_else(|| panic!("{}: a legend without a y range can cover data", v.name));
+        assert!(
+            y0 <= lo && hi < y1,
+            "{}: data {lo}..{hi} outside {y0}..{y1}",
+            v.name
+        );
+        let plot_px = if v.name.starts_with("Net power") {
+            OVERVIEW_PLOT_PX
+        } else {
+            DETAIL_PLOT_PX
+        };
+        let legend = (LEGEND_TOP_PX + LEGEND_LINE_PX * entries as f64) / plot_px;
+        assert!(legend < 1.0, "{}: {entries} entries do not fit", v.name);
+        let free = (y1 - hi) / (y1 - y0);
+        assert!(
+            free >= legend - 1e-9,
+            "{}: {entries} legend entries need the top {legend:.2} of the plot, {free:.2} is free",
+            v.name
+        );
+        shown.insert(v.name.clone(), entries);
+    }
+    shown
+}
+
+/// Legends never cover data (issue 13): on the model replay of the shipped example, every plot
+/// that shows a legend opens on a y range that keeps the data below it, with every entry inside
+/// the plot — the τ plot (all 7 joints), the loss-term grid's legend cell (all 4 terms, viscous
+/// included), the IMU plot (all 4 series, the threshold included); small or dense plots (the
+/// error, the trial track, the other grid cells, the bar charts) show none. A streamed replay
+/// cannot know the joints' range when it sends the layout: its τ plot shows no legend.
+#[test]
+fn legends_never_cover_data() {
+    let session = example_session();
+    let rec = g1viz::signals::load_recording(
+        &session,
+        &g1viz::signals::SignalMap::g1_left_arm(),
+        &Default::default(),
+    )
+    .unwrap();
+    let (extras, _) = g1viz::viz::overlay::model_extras(
+        &rec,
+        &g1viz::power::PowerModel::PAPER,
+        &Default::default(),
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("model.rrd");
+    save_replay(&rec, &extras, &out, &session);
+    let msgs = decode(&out);
+    let c = contents(&msgs);
+    let shown = assert_legends_clear_the_data(&msgs, &c);
+    let expect = [
+        ("Net power at the readings [W]", 3),
+        ("Predicted power by term, all joints [W]", 5),
+        ("Predicted power by joint, all terms [W]", 7),
+        ("sh_pitch [W]", 4),
+        ("Joint torque τ [Nm]", 7),
+        ("IMU |ω| [rad/s] and the balance filter", 4),
+        ("Raw power MBS/BMS [W]", 2),
+    ];
+    for (name, entries) in expect {
+        assert_eq!(shown.get(name), Some(&entries), "{name}: {shown:?}");
+    }
+    assert_eq!(shown.len(), expect.len(), "{shown:?}");
+    let views = blueprint_views(&msgs);
+    let imu = view_named(&views, "IMU |ω| [rad/s] and the balance filter");
+    assert!(view_includes(imu, "/imu/threshold"), "{imu:?}");
+    for hidden in [
+        "Error measured − predicted",
+        "Trials (index",
+        "sh_roll [W]",
+        "Interaction",
+        "Mean per trial by joint",
+        "Mean per trial by term",
+        "Joint position q",
+        "Motor temperature",
+    ] {
+        assert_eq!(
+            view_named(&views, hidden).legend_visible,
+            Some(false),
+            "{hidden}"
+        );
+    }
+
+    let streamed = dir.path().join("streamed.rrd");
+    stream_replay(&session, &streamed, 4096);
+    let msgs = decode(&streamed);
+    let shown = assert_legends_clear_the_data(&msgs, &contents(&msgs));
+    assert!(shown.is_empty(), "{shown:?}");
+    let views = blueprint_views(&msgs);
+    let tau = view_named(&views, "Joint torque τ [Nm]");
+    assert_eq!(tau.legend_visible, Some(false));
+    assert_eq!(tau.y_range, None);
+}
+
+/// The static bar chart at `path`: abscissa, heights and widths.
+fn bar_chart(c: &Contents, path: &str) -> (Vec<f64>, Vec<f64>, Vec<f32>) {
+    use rerun::Loggable as _;
+    use rerun::external::arrow::array::AsArray;
+    use rerun::external::arrow::datatypes::Float32Type;
+    let chunk = c
+        .chunks
+        .iter()
+        .find(|ch| ch.is_static() && ch.entity_path().to_string() == path)
+        .unwrap_or_else(|| panic!("no bar chart at {path}"));
+    let column = |name: &str| {
+        chunk
+            .components()
+            .0
+            .values()
+            .find(|col| col.descriptor.component.as_str() == name)
+            .unwrap_or_else(|| panic!("{path}: no {name}"))
+            .list_array
+            .values()
+            .clone()
+    };
+    let tensor = |name: &str| -> Vec<f64> {
+        let t = rerun::components::TensorData::from_arrow(&column(name)).unwrap();
+        match &t[0].0.buffer {
+            rerun::datatypes::TensorBuffer::F64(b) => b.iter().copied().collect(),
+            other => panic!("{path} {name}: {other:?}"),
+        }
+    };
+    let widths = column("BarChart:widths")
+        .as_primitive::<Float32Type>()
+        .values()
+        .to_vec();
+    (
+        tensor("BarChart:abscissa"),
+        tensor("BarChart:values"),
+        widths,
+    )
+}
+
+/// The `session` timeline stamps [s] of every row at `path`, sorted.
+fn session_stamps(c: &Contents, path: &str) -> Vec<f64> {
+    let mut v: Vec<f64> = c
+        .chunks
+        .iter()
+        .filter(|ch| !ch.is_static() && ch.entity_path().to_string() == path)
+        .flat_map(|ch| {
+            ch.timelines()
+                .iter()
+                .find(|(name, _)| name.as_str() == "session")
+                .expect("session timeline")
+                .1
+                .times_raw()
+                .iter()
+                .map(|ns| *ns as f64 * 1e-9)
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    v.sort_by(f64::total_cmp);
+    v
+}
+
+/// The default arm (issue 13): every `<box>` visual of the shipped URDF is drawn as a solid
+/// capsule along the box's longest side, its radius the mean half-width of the other two sides
+/// and its overall length (cylinder + both caps) the longest side — read from the URDF text here,
+/// not from the model the replay built.
+#[test]
+fn default_arm_draws_each_urdf_box_as_a_capsule_sized_to_it() {
+    use rerun::external::arrow::array::AsArray;
+    use rerun::external::arrow::datatypes::Float32Type;
+    let urdf = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("urdf/g1_left_arm.urdf"),
+    )
+    .unwrap();
+    // (link, visual index, box size) for every box visual, in file order.
+    let mut boxes = Vec::new();
+    for link in urdf.split("<link ").skip(1) {
+        let name = link.split('"').nth(1).unwrap().to_owned();
+        let body = link.split("</link>").next().unwrap();
+        for (k, visual) in body.split("<visual").skip(1).enumerate() {
+            let visual = visual.split("</visual>").next().unwrap();
+            if let Some(b) = visual.split("<box").nth(1) {
+                let size: Vec<f64> = b
+                    .split("size=\"")
+                    .nth(1)
+                    .unwrap()
+                    .split('"')
+                    .next()
+                    .unwrap()
+                    .split_whitespace()
+                    .map(|x| x.parse().unwrap())
+                    .collect();
+                boxes.push((name.clone(), k, size));
+            }
+        }
+    }
+    assert!(
+        boxes.len() >= 10,
+        "{} boxes in the shipped URDF",
+        boxes.len()
+    );
+
+    let dir = tempfile::tempdir().unwrap();
+    let rec = synthetic(&input_file(dir.path()));
+    let out = dir.path().join("out.rrd");
+    write_rrd(&rec, &out).unwrap();
+    let c = contents(&decode(&out));
+    let f32s = |path: &str, component: &str| -> Vec<f32> {
+        c.chunks
+            .iter()
+            .filter(|ch| ch.is_static() && ch.entity_path().to_string() == path)
+            .flat_map(|ch| ch.components().0.values())
+            .filter(|col| col.descriptor.component.as_str() == component)
+            .flat_map(|col| {
+                let v = col.list_array.values().as_primitive::<Float32Type>();
+                (0..v.len()).map(|i| v.value(i)).collect::<Vec<_>>()
+            })
+            .collect()
+    };
+    for (link, k, size) in &boxes {
+        let path = format!("/robot/{link}/visual{k}");
+        let radii = f32s(&path, "Capsules3D:radii");
+        let lengths = f32s(&path, "Capsules3D:lengths");
+        assert_eq!((radii.len(), lengths.len()), (1, 1), "{path}: one capsule");
+        let mut sides = size.clone();
+        sides.sort_by(f64::total_cmp);
+        let radius = 0.25 * (sides[0] + sides[1]);
+        assert!(
+            (f64::from(radii[0]) - radius).abs() < 1e-6,
+            "{path}: radius {} vs box {size:?}",
+            radii[0]
+        );
+        let overall = f64::from(lengths[0]) + 2.0 * f64::from(radii[0]);
+        assert!(
+            (overall - sides[2].max(2.0 * radius)).abs() < 1e-5,
+            "{path}: capsule {overall} m long vs box {size:?}"
+        );
+    }
+}
+
+/// The measured readings stay visible next to the like-for-like prediction (issue 13): both are
+/// markers (not lines) in the power plot, at least 3 px, in colours far apart from each other
+/// and from the instantaneous context line drawn under them, one marker per reading.
+#[test]
+fn measured_readings_are_distinct_markers_in_the_power_plot() {
+    use rerun::external::arrow::array::{Array, AsArray};
+    use rerun::external::arrow::datatypes::{Float32Type, UInt32Type};
+    let session = example_session();
+    let rec = g1viz::signals::load_recording(
+        &session,
+        &g1viz::signals::SignalMap::g1_left_arm(),
+        &Default::default(),
+    )
+    .unwrap();
+    let (extras, _) = g1viz::viz::overlay::model_extras(
+        &rec,
+        &g1viz::power::PowerModel::PAPER,
+        &Default::default(),
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("model.rrd");
+    save_replay(&rec, &extras, &out, &session);
+    let msgs = decode(&out);
+    let c = contents(&msgs);
+    let views = blueprint_views(&msgs);
+    let power = view_named(&views, "Net power at the readings [W]");
+    let style = |path: &str, component: &str| -> Vec<u32> {
+        c.chunks
+            .iter()
+            .filter(|ch| ch.is_static() && ch.entity_path().to_string() == path)
+            .flat_map(|ch| ch.components().0.values())
+            .filter(|col| col.descriptor.component.as_str() == component)
+            .flat_map(|col| {
+                let v = col.list_array.values();
+                match v.data_type() {
+                    rerun::external::arrow::datatypes::DataType::Float32 => {
+                        let f = v.as_primitive::<Float32Type>();
+                        (0..f.len())
+                            .map(|i| f.value(i).to_bits())
+                            .collect::<Vec<_>>()
+                    }
+                    _ => {
+                        let u = v.as_primitive::<UInt32Type>();
+                        (0..u.len()).map(|i| u.value(i)).collect()
+                    }
+                }
+            })
+            .collect()
+    };
+    let rgb = |c: u32| {
+        [
+            (c >> 24) as f64,
+            ((c >> 16) & 255) as f64,
+            ((c >> 8) & 255) as f64,
+        ]
+    };
+    let dist = |a: u32, b: u32| {
+        let (a, b) = (rgb(a), rgb(b));
+        ((a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)).sqrt()
+    };
+    let readings = extras.readings.as_ref().unwrap();
+    let mut colours = Vec::new();
+    for path in [
+        "/model/power/reading_measured",
+        "/model/power/reading_predicted",
+    ] {
+        assert!(view_includes(power, path), "{path} not in {power:?}");
+        let sizes = style(path, "SeriesPoints:marker_sizes");
+        assert_eq!(sizes.len(), 1, "{path}: a marker series");
+        assert!(
+            f32::from_bits(sizes[0]) >= 3.0,
+            "{path}: marker {}",
+            f32::from_bits(sizes[0])
+        );
+        let colour = style(path, "SeriesPoints:colors");
+        assert_eq!(colour.len(), 1, "{path}");
+        colours.push(colour[0]);
+        assert_eq!(
+            series(&c, path).len(),
+            readings.t.len(),
+            "{path}: one per reading"
+        );
+    }
+    let context = style("/model/power/predicted", "SeriesLines:colors");
+    assert_eq!(context.len(), 1);
+    assert!(
+        dist(colours[0], colours[1]) > 150.0,
+        "measured vs predicted colours"
+    );
+    assert!(
+        dist(colours[0], context[0]) > 150.0,
+        "measured vs context line colours"
+    );
+}
+
+/// The recording's text properties (name, input, command, …) and start time [ns] in `rrd`.
+fn recording_properties(rrd: &Path) -> (BTreeMap<String, String>, Option<i64>) {
+    use rerun::external::arrow::array::AsArray;
+    use rerun::external::arrow::datatypes::Int64Type;
+    let mut texts: BTreeMap<String, String> = BTreeMap::new();
+    let mut start = None;
+    for msg in decode(rrd) {
+        let LogMsg::ArrowMsg(store, arrow) = &msg else {
+            continue;
+        };
+        if store.kind() != StoreKind::Recording {
+            continue;
+        }
+        let chunk = Chunk::from_arrow_msg(arrow).unwrap();
+        if !chunk.entity_path().to_string().starts_with("/__properties") {
+            continue;
+        }
+        assert!(chunk.is_static());
+        for column in chunk.components().0.values() {
+            let values = column.list_array.values();
+            let field = column.descriptor.component.to_string();
+            if let Some(strings) = values.as_string_opt::<i32>() {
+                texts.insert(field, strings.value(0).to_owned());
+            } else if field.ends_with("start_time") {
+                start = Some(values.as_primitive::<Int64Type>().value(0));
+            }
+        }
+    }
+    (texts, start)
+}
+
+/// The recording's properties hold the input and the command as typed (issue 13: the
+/// screenshots showed the directory of the machine that made them): `g1viz replay` run from the
+/// repository root on a relative path stores that path, and the program by its name.
+#[test]
+fn recording_properties_hold_paths_as_given() {
+    use std::process::Command;
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.rrd");
+    let args = [
+        "replay",
+        "examples/g1_example.mcap",
+        "--max-rate",
+        "5",
+        "--pose-rate",
+        "5",
+    ];
+    let o = common::output_within(
+        Command::new(env!("CARGO_BIN_EXE_g1viz"))
+            .current_dir(env!("CARGO_MANIFEST_DIR"))
+            .args(args)
+            .arg("--save")
+            .arg(&out),
+        common::G1VIZ_LIMIT,
+    )
+    .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (texts, _) = recording_properties(&out);
+    assert_eq!(
+        texts.get("input").map(String::as_str),
+        Some("examples/g1_example.mcap"),
+        "{texts:?}"
+    );
+    assert_eq!(
+        texts.get("command"),
+        Some(&format!(
+            "g1viz {} --save {}",
+            args.join(" "),
+            out.display()
+        )),
+        "{texts:?}"
+    );
+    assert_eq!(
+        texts.get("RecordingInfo:name").map(String::as_str),
+        Some("g1_example.mcap")
+    );
+    let here = env!("CARGO_MANIFEST_DIR");
+    for (k, v) in &texts {
+        assert!(!v.contains(here), "{k} = {v} names the build directory");
+    }
+}
+
+/// Bars, keyed by trial index: for every trial, the elbow's bar sits in the elbow's slot (4th of
+/// 7) of the group around the trial's index, and its height is the mean of the decoded per-joint
+/// sum of its four terms over the trial's window; the seven joints' bars never overlap.
+fn assert_bars_are_trial_means(c: &Contents, extras: &ReplayExtras, start_ns: u64) {
+    // Bars, keyed by trial index: for every trial, the elbow's bar sits in the elbow's slot
+    // (4th of 7) of the group around the trial's index, and its height is the mean of the
+    // decoded per-joint sum of its four terms over the trial's window.
+    let terms: Vec<Vec<(i64, f64)>> = ["mechanical", "copper", "coulomb", "viscous"]
+        .iter()
+        .map(|t| series(c, &format!("/model/terms/elbow/{t}")))
+        .collect();
+    let (x, heights, widths) = bar_chart(c, "/model/bars/by_joint/elbow");
+    assert_eq!(x.len(), heights.len());
+    assert_eq!(widths.len(), heights.len());
+    let width = 0.8 / 7.0;
+    for w in &widths {
+        assert!((f64::from(*w) - width).abs() < 1e-6, "bar width {w}");
+    }
+    let start = start_ns as i64;
+    let mut checked = 0;
+    for m in &extras.trials {
+        let (a, b) = (
+            start + (m.t_start * 1e9).round() as i64,
+            start + (m.t_end * 1e9).round() as i64,
+        );
+        let inside: Vec<usize> = (0..terms[0].len())
+            .filter(|&i| terms[0][i].0 >= a && terms[0][i].0 <= b)
+            .collect();
+        if inside.is_empty() {
+            continue;
+        }
+        let mean = inside
+            .iter()
+            .map(|&i| terms.iter().map(|s| s[i].1).sum::<f64>())
+            .sum::<f64>()
+            / inside.len() as f64;
+        let slot = m.index as f64 - 0.4 + 3.5 * width;
+        let k = x
+            .iter()
+            .position(|&xi| (xi - slot).abs() < 1e-9)
+            .unwrap_or_else(|| panic!("trial {}: no elbow bar at {slot} in {x:?}", m.index));
+        assert!(
+            (heights[k] - mean).abs() < 1e-6,
+            "trial {}: bar {} vs mean {mean}",
+            m.index,
+            heights[k]
+        );
+        checked += 1;
+    }
+    assert!(checked >= 3, "{checked} trials checked");
+    // The seven joints' bars of a trial sit side by side, none over another.
+    let mut all_x: Vec<f64> = ARM
+        .iter()
+        .map(|j| g1viz::viz::short_joint_name(j))
+        .flat_map(|j| bar_chart(c, &format!("/model/bars/by_joint/{j}")).0)
+        .collect();
+    all_x.sort_by(f64::total_cmp);
+    for pair in all_x.windows(2) {
+        assert!(pair[1] - pair[0] >= width - 1e-9, "bars overlap: {pair:?}");
+    }
+}
+
+/// The short plots of the overview open on ranges with readable ticks (issue 13: "short panels
+/// with a single 0 tick"): the error plot on a range symmetric about zero, its bound a round
+/// number holding every decoded error with at least 5 % to spare and no more than 2.75× the
+/// largest; the trial track on the trial indices with half a step spare.
+#[test]
+fn overview_plots_open_on_readable_ranges() {
+    let session = example_session();
+    let rec = g1viz::signals::load_recording(
+        &session,
+        &g1viz::signals::SignalMap::g1_left_arm(),
+        &Default::default(),
+    )
+    .unwrap();
+    let (extras, _) = g1viz::viz::overlay::model_extras(
+        &rec,
+        &g1viz::power::PowerModel::PAPER,
+        &Default::default(),
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("model.rrd");
+    save_replay(&rec, &extras, &out, &session);
+    let msgs = decode(&out);
+    let c = contents(&msgs);
+    let views = blueprint_views(&msgs);
+
+    let error = view_named(&views, "Error measured − predicted");
+    let largest = view_series(&c, error)
+        .iter()
+        .flat_map(|s| s.1.iter().map(|v| v.abs()))
+        .fold(0.0, f64::max);
+    assert!(largest > 0.0);
+    let [lo, hi] = error.y_range.expect("the error plot's range");
+    assert_eq!(lo, -hi, "symmetric about zero");
+    assert!(
+        hi >= 1.05 * largest && hi <= 2.75 * largest,
+        "±{hi} for errors up to {largest}"
+    );
+    let mantissa = hi / 10f64.powf(hi.log10().floor());
+    assert!(
+        [1.0, 2.0, 2.5, 5.0]
+            .iter()
+            .any(|m| (mantissa - m).abs() < 1e-9),
+        "bound {hi} is not a round number"
+    );
+
+    let track = view_named(&views, "Trials (index");
+    let indices: Vec<f64> = extras.trials.iter().map(|m| m.index as f64).collect();
+    let first = indices.iter().copied().fold(f64::INFINITY, f64::min);
+    let last = indices.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    assert_eq!(track.y_range, Some([first - 0.5, last + 0.5]));
 }

@@ -157,11 +157,11 @@ fn save_diagnosis_rrd(
     if let Some(m) = &a.model {
         properties.push(("model".to_owned(), m.display().to_string()));
     }
-    let opts = viz::replay::ReplayOptions {
+    let opts = viz::ReplayOptions {
         properties,
         ..Default::default()
     };
-    viz::replay::log_replay(rec, &robot, &arm, &extras, &opts, stream.stream())?;
+    viz::log_replay(rec, &robot, &arm, &extras, &opts, stream.stream())?;
     stream.finish()
 }
 

@@ -116,7 +116,15 @@ pub fn spinner(message: &str) -> indicatif::ProgressBar {
 
 /// The command line as typed (program name first), for provenance in outputs.
 pub fn command_line() -> String {
-    std::env::args()
+    // The program by its file name: its directory is the machine's, not part of the command.
+    let program = std::env::args().next().map(|a| {
+        std::path::Path::new(&a)
+            .file_name()
+            .map_or(a.clone(), |n| n.to_string_lossy().into_owned())
+    });
+    program
+        .into_iter()
+        .chain(std::env::args().skip(1))
         .map(|a| {
             if a.contains(char::is_whitespace) {
                 format!("'{a}'")

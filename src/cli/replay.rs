@@ -113,7 +113,7 @@ pub fn run(a: ReplayArgs) -> Result<()> {
             trials: a.trials,
             max_rate_hz: a.max_rate,
         },
-        opts: viz::replay::ReplayOptions {
+        opts: viz::ReplayOptions {
             pose_rate_hz: (a.pose_rate > 0.0).then_some(a.pose_rate),
             blueprint: !a.no_blueprint,
             properties,

@@ -10,7 +10,7 @@ use anyhow::{Context, Result};
 use plotters::prelude::*;
 
 use super::Diagnosis;
-use crate::plot::{Area, FONT, padded_range, plot_err, register_font, write_png};
+use crate::plot::{Area, FONT, padded_range, plot_err, register_font, tick_label, write_png};
 
 /// Figure file names, relative to the report directory.
 pub const FIGURES: [&str; 5] = [
@@ -318,6 +318,7 @@ fn draw_bars(a: &Area, caption: &str, x_desc: &str, bars: &[(String, f64, bool)]
         .disable_y_mesh()
         .y_labels(n)
         .x_desc(x_desc)
+        .x_label_formatter(&|v| tick_label(*v, hi - lo))
         .y_label_formatter(&|v| match v {
             // Row 0 at the top.
             SegmentValue::CenterOf(i) => bars

@@ -9,7 +9,7 @@ mod fit;
 mod pipeline;
 mod record;
 pub mod report;
-pub mod stream;
+mod stream;
 mod summary;
 mod table;
 mod validate;
@@ -20,6 +20,8 @@ pub use pipeline::{
     AlignmentChoice, Identification, IdentifyOptions, ModeFit, RowsFit, SessionBreakdown,
     SessionSummary, fit_given_rows, identify, identify_files,
 };
-pub use stream::{SessionFile, StreamOptions};
-pub use table::TrialPrediction;
+pub use stream::{
+    SessionFile, StreamOptions, for_each_trial, for_each_trial_and_batch, segment_file,
+};
+pub use table::{ReadingFit, TrialBaseline, TrialPrediction};
 pub use validate::{Validation, validate, validate_file};

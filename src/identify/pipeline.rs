@@ -387,8 +387,10 @@ fn trials_kept(sessions: &[Prepared], rejections: &[Rejection]) -> Vec<Vec<Trial
         .collect()
 }
 
-/// Stage 3: the power sensor's window and lag, given or estimated from (at most ~300 of) the
-/// kept trials whose samples the sessions hold for it (every trial in memory).
+/// Stage 3: the power sensor's window and lag, given or estimated from at most ~300 of the kept
+/// trials (every n-th). A streamed session whose first pass could not hold every trial's samples
+/// reads those trials' samples in one more streamed pass ([`stream::hold_pass`]), so the
+/// estimate equals the in-memory one.
 pub(crate) fn resolve_alignment(
     sessions: &[Prepared],
     kept: &[Vec<TrialWindow>],
@@ -397,27 +399,29 @@ pub(crate) fn resolve_alignment(
     match opts.alignment {
         AlignmentChoice::Given(a) => Ok((a, None)),
         AlignmentChoice::Auto => {
-            let usable: Vec<Vec<TrialWindow>> = sessions
-                .iter()
-                .zip(kept)
-                .map(|(p, k)| {
-                    let held: HashSet<usize> = p.subset_trials.iter().map(|t| t.index).collect();
-                    k.iter()
-                        .filter(|t| held.contains(&t.index))
-                        .cloned()
-                        .collect()
-                })
-                .collect();
-            let total: usize = usable.iter().map(Vec::len).sum();
+            let total: usize = kept.iter().map(Vec::len).sum();
             let stride = total.div_ceil(300).max(1);
-            let thinned: Vec<Vec<TrialWindow>> = usable
+            let thinned: Vec<Vec<TrialWindow>> = kept
                 .iter()
                 .map(|t| t.iter().step_by(stride).cloned().collect())
                 .collect();
+            let mut loaded: Vec<Option<Recording>> = Vec::new();
+            for (p, t) in sessions.iter().zip(&thinned) {
+                let held: HashSet<usize> = p.subset_trials.iter().map(|t| t.index).collect();
+                loaded.push(match &p.input {
+                    Input::File(file, so) if !t.iter().all(|t| held.contains(&t.index)) => {
+                        Some(stream::hold_pass(file, &p.subset, t, so).with_context(|| {
+                            format!("reading {} (timing search)", file.path.display())
+                        })?)
+                    }
+                    _ => None,
+                });
+            }
             let pairs: Vec<(&Recording, &[TrialWindow])> = sessions
                 .iter()
                 .zip(&thinned)
-                .map(|(p, t)| (p.subset.as_ref(), t.as_slice()))
+                .zip(&loaded)
+                .map(|((p, t), l)| (l.as_ref().unwrap_or(p.subset.as_ref()), t.as_slice()))
                 .collect();
             let est = dataset::estimate_alignment(&pairs, opts.target)?;
             Ok((est.best, Some(est)))
@@ -651,7 +655,7 @@ pub fn identify(recs: &[Recording], opts: &IdentifyOptions) -> Result<Identifica
 }
 
 /// Identify the power model from one or more session files, reading each in two streamed passes
-/// (memory bounded whatever the sessions' length; see [`super::stream`]). The trials and θ equal
+/// (memory bounded whatever the sessions' length). The trials and θ equal
 /// those of [`identify`] on the loaded recordings when every session has a command stream and at
 /// most `stream.hold_trials` trials (beyond that the sensor timing is searched on a subset).
 pub fn identify_files(

@@ -8,8 +8,10 @@
 //!    command stream every trial boundary depends only on the samples around it, so the trials
 //!    equal those of segmenting the whole session at once (tested); the measured-state
 //!    segmenter's noise threshold is estimated per piece. The power series are kept whole
-//!    (~1 Hz). The joint states of at most [`StreamOptions::hold_trials`] trials (every trial,
-//!    or every 2nd, 4th, … in session order) are held for the sensor-timing search.
+//!    (~1 Hz). The joint states of every trial are held for the sensor-timing search while
+//!    there are at most [`StreamOptions::hold_trials`]; beyond that none are, and the search's
+//!    trials (every n-th trial its filters keep, as in memory) are read in an extra streamed
+//!    pass ([`hold_pass`]).
 //! 2. **Row pass** (joint states only, same clock): a buffer holds the samples from the current
 //!    trial's pre-idle to its post-idle end; each trial's rows (per reading, per trial, thinned
 //!    per sample) are built there and the buffer is emptied before the next trial.
@@ -30,8 +32,8 @@ pub struct StreamOptions {
     /// Length of the pieces the segmentation pass buffers [s] (a session shorter than this is
     /// segmented in one piece, exactly as in memory).
     pub chunk_s: f64,
-    /// Most trials whose joint states are held for the sensor-timing search; beyond it every
-    /// 2nd (then 4th, …) trial in session order is held.
+    /// Most trials whose joint states pass 1 holds for the sensor-timing search; beyond it the
+    /// search's trials are read in an extra pass.
     pub hold_trials: usize,
     /// Samples per decoded batch.
     pub batch_samples: usize,
@@ -124,31 +126,29 @@ fn sort_state(s: &mut StateSeries) {
     p(&mut s.quat, &order);
 }
 
-/// The joint states of a bounded set of trials, for the sensor-timing search.
+/// The joint states of every trial while there are at most `max`, for the sensor-timing search
+/// (beyond that nothing: the search's trials are read again by [`hold_pass`]).
 struct Holder {
-    stride: usize,
     max: usize,
+    overflowed: bool,
     rec: Recording,
     trials: Vec<TrialWindow>,
 }
 
 impl Holder {
-    /// Copy the samples of `trial`'s window from `from` when the trial is one of those held.
+    /// Copy the samples of `trial`'s window from `from` unless the holder overflowed.
     fn offer(&mut self, from: &StateSeries, trial: &TrialWindow) {
-        if !trial.index.is_multiple_of(self.stride) {
+        if self.overflowed {
+            return;
+        }
+        if self.trials.len() >= self.max {
+            self.overflowed = true;
+            self.trials = Vec::new();
+            self.rec.state = StateSeries::default();
             return;
         }
         copy_window(&mut self.rec.state, from, trial);
         self.trials.push(trial.clone());
-        if self.trials.len() > self.max {
-            self.stride *= 2;
-            let old = std::mem::take(&mut self.rec.state);
-            let stride = self.stride;
-            self.trials.retain(|t| t.index.is_multiple_of(stride));
-            for t in &self.trials {
-                copy_window(&mut self.rec.state, &old, t);
-            }
-        }
     }
 }
 
@@ -290,7 +290,7 @@ pub(crate) fn segmentation_pass(
         seg: Segmentation::default(),
         sigmas: Vec::new(),
         hold: Holder {
-            stride: 1,
+            overflowed: false,
             max: so.hold_trials.max(1),
             rec: Recording::default(),
             trials: Vec::new(),
@@ -441,6 +441,70 @@ impl SessionSets {
     }
 }
 
+/// The trials of `file`, found by the streamed segmentation pass (memory bounded whatever the
+/// session's length; the trials equal those of segmenting the whole session when it has a
+/// command stream).
+pub fn segment_file(
+    file: &SessionFile,
+    opts: &SegmentOptions,
+    so: &StreamOptions,
+) -> Result<Segmentation> {
+    let mut so = *so;
+    so.hold_trials = 1;
+    Ok(segmentation_pass(file, opts, &so)?.seg)
+}
+
+/// The joint states (t, τ, q̇) of `trials`' windows (in time order), read in one streamed pass
+/// over `file`'s joint states, with the clock and power series of `power` (those of pass 1):
+/// the sensor-timing search's trials when pass 1 could not hold every trial.
+pub(crate) fn hold_pass(
+    file: &SessionFile,
+    power: &Recording,
+    trials: &[TrialWindow],
+    so: &StreamOptions,
+) -> Result<Recording> {
+    let mut held = Recording {
+        source: file.path.clone(),
+        start_ns: power.start_ns,
+        joint_names: file.map.joint_names.clone(),
+        mbs: power.mbs.clone(),
+        bms: power.bms.clone(),
+        ..Recording::default()
+    };
+    let mut buf = StateSeries::default();
+    let mut next = 0usize;
+    let mut step = |buf: &mut StateSeries, held: &mut StateSeries, done: bool| {
+        let last_t = buf.t.last().copied().unwrap_or(f64::NEG_INFINITY);
+        while let Some(t) = trials.get(next) {
+            if !done && last_t <= t.t_post_end + MARGIN_S {
+                break;
+            }
+            copy_window(held, buf, t);
+            next += 1;
+        }
+        let keep_from = trials
+            .get(next)
+            .map_or(f64::INFINITY, |t| t.t_pre_start - MARGIN_S);
+        let i = buf.t.partition_point(|&x| x < keep_from);
+        drain_state(buf, i);
+    };
+    crate::signals::stream_state(
+        &file.path,
+        &file.map,
+        &file.read,
+        power.start_ns,
+        so.batch_samples,
+        &mut |batch| {
+            append_state(&mut buf, &batch.state, false);
+            sort_state(&mut buf);
+            step(&mut buf, &mut held.state, false);
+            Ok(())
+        },
+    )?;
+    step(&mut buf, &mut held.state, true);
+    Ok(held)
+}
+
 /// Pass 2: stream the joint states of `file` (clock of pass 1) and build the planned rows,
 /// holding only the current trial's samples.
 ///
@@ -495,14 +559,27 @@ pub(crate) fn row_pass(
 }
 
 /// Stream every arm topic of `file` once and call `on_trial` for each of `trials` (in time
-/// order) with a recording holding at least that trial's joint states (all columns) and every
-/// power reading up to a few seconds past the trial's window; earlier samples are dropped, so
+/// order) with a recording holding at least that trial's joint states (all columns, from its
+/// pre-idle start to its return end) and every power reading up to a few seconds past the
+/// trial's window; earlier samples are dropped, so
 /// memory stays bounded. Times share the clock of [`segmentation_pass`] (the same earliest
 /// message). Used by the row export, which needs the temperatures too.
 pub fn for_each_trial(
     file: &SessionFile,
     trials: &[TrialWindow],
     batch_samples: usize,
+    on_trial: &mut dyn FnMut(&Recording, &TrialWindow),
+) -> Result<()> {
+    for_each_trial_and_batch(file, trials, batch_samples, &mut |_| {}, on_trial)
+}
+
+/// [`for_each_trial`], also showing `on_batch` every decoded batch as it arrives (every sample
+/// of the session, on the same clock), e.g. for statistics over the whole session.
+pub fn for_each_trial_and_batch(
+    file: &SessionFile,
+    trials: &[TrialWindow],
+    batch_samples: usize,
+    on_batch: &mut dyn FnMut(&Recording),
     on_trial: &mut dyn FnMut(&Recording, &TrialWindow),
 ) -> Result<()> {
     // A reading stamped up to this long after the window can still belong to it (sensor lag).
@@ -516,7 +593,7 @@ pub fn for_each_trial(
     let mut step = |buf: &mut Recording, done: bool| {
         let last_t = buf.state.t.last().copied().unwrap_or(f64::NEG_INFINITY);
         while let Some(t) = trials.get(next) {
-            if !done && last_t <= t.t_post_end + AFTER_S {
+            if !done && last_t <= t.t_post_end.max(t.t_return_end) + AFTER_S {
                 break;
             }
             on_trial(buf, t);
@@ -534,6 +611,7 @@ pub fn for_each_trial(
         &file.read,
         batch_samples,
         &mut |batch| {
+            on_batch(batch);
             buf.start_ns = batch.start_ns;
             append_state(&mut buf.state, &batch.state, true);
             sort_state(&mut buf.state);

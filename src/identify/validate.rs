@@ -5,10 +5,11 @@
 use anyhow::Result;
 
 use super::dataset::Alignment;
+use super::fit::predict;
 use super::fit::{quality, term_means};
 use super::pipeline::{IdentifyOptions, Prepared, SessionSummary, resolve_alignment};
 use super::stream::{RowPlan, SessionFile, StreamOptions};
-use super::table::{TrialPrediction, trial_metrics, trial_predictions};
+use super::table::{ReadingFit, TrialBaseline, TrialPrediction, trial_metrics, trial_predictions};
 use crate::lsq::Metrics;
 use crate::power::{PowerModel, TermMeans};
 use crate::signals::Recording;
@@ -42,6 +43,14 @@ pub struct Validation {
     pub terms: TermMeans,
     /// The same as % of the mean total predicted power.
     pub shares_percent: [f64; 5],
+    /// Every reading of the usable trials with its like-for-like prediction (the rows
+    /// `reading_level` scores), in session order.
+    #[serde(skip)]
+    pub readings: Vec<ReadingFit>,
+    /// The copper-term baseline of every usable trial, in session order (what a per-sample
+    /// prediction over the trial's samples needs).
+    #[serde(skip)]
+    pub baselines: Vec<TrialBaseline>,
     /// Remarks on how the validation was done (e.g. nominal sensor timing for a short session).
     pub notes: Vec<String>,
 }
@@ -53,7 +62,7 @@ pub fn validate(model: &PowerModel, rec: &Recording, opts: &IdentifyOptions) -> 
 }
 
 /// [`validate`] on a session file read in two streamed passes (memory bounded whatever the
-/// session's length; see [`super::stream`]).
+/// session's length).
 pub fn validate_file(
     model: &PowerModel,
     file: &SessionFile,
@@ -127,7 +136,27 @@ fn validate_prepared(
         })
         .collect();
     let terms = term_means(model, &trial_set.rows);
+    let readings = reading_set
+        .rows
+        .iter()
+        .map(|r| ReadingFit {
+            trial: r.trial,
+            t: r.t,
+            measured_w: r.y,
+            predicted_w: predict(&theta, &r.phi),
+        })
+        .collect();
+    let baselines = trial_set
+        .trials
+        .iter()
+        .map(|b| TrialBaseline {
+            trial: b.trial,
+            tau0_sq: b.tau0_sq,
+        })
+        .collect();
     Ok(Validation {
+        readings,
+        baselines,
         notes,
         trial_level: trial_metrics(&all, |p| p.predicted_window_w),
         trial_level_aligned: trial_metrics(&all, |p| p.predicted_w),

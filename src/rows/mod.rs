@@ -351,7 +351,7 @@ pub fn table_rows_files(
 ) -> Result<Vec<TableRow>> {
     let mut out = Vec::new();
     for (s, (file, summary)) in files.iter().zip(&id.sessions).enumerate() {
-        crate::identify::stream::for_each_trial(
+        crate::identify::for_each_trial(
             file,
             &summary.segmentation.trials,
             4096,

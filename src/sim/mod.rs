@@ -12,11 +12,11 @@
 //! # anyhow::Ok(())
 //! ```
 
-pub mod effects;
+mod effects;
 pub(crate) mod plant;
 pub(crate) mod protocol;
 pub(crate) mod thermal;
-pub mod truth;
+mod truth;
 pub(crate) mod writer;
 
 use std::collections::BTreeMap;
@@ -29,12 +29,18 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 pub use effects::{
-    BalanceLeak, BrakingAsymmetry, BusLoss, DriveLoss, Effects, GearFriction, HarnessDrag,
-    SensorLatency, StribeckFriction, ThermalDrift,
+    BalanceLeak, BrakingAsymmetry, BusLoss, BusPowerLoss, DEFAULT_PAYLOAD, DriveLoss, EFFECT_NAMES,
+    Effects, ElectronicsLoss, FAN_MEAN_ON_OFF_S, GearFriction, HarnessDrag, HousingFriction,
+    JOINT_FRICTION_PATTERN, JointFrictionExcess, RailLoad, SWAY_CORRELATION_S, SensorLatency,
+    StribeckFriction, THERMAL_REFERENCE_C, ThermalDrift,
 };
 pub use protocol::Preset;
 pub use thermal::ThermalModel;
-pub use truth::Truth;
+pub use truth::{
+    ArtefactsTruth, Contamination, FrictionTruth, Generator, Joints, MessageCounts, Noise,
+    Outliers, PlantTruth, ProtocolTruth, SensorTruth, SessionTimes, ThermalTruth, Theta,
+    TopicEntry, TrialTruth, Truth,
+};
 
 use crate::N_JOINTS;
 use crate::power::{PAIRS, PowerModel};
@@ -42,7 +48,6 @@ use crate::robot::{ArmDynamics, JointFriction, RobotModel};
 use crate::signals::Recording;
 use plant::{Engine, OutlierStep, Reference, Sampled, Sway, Timeline, TrialArtefacts};
 use protocol::Schedule;
-use truth::Noise;
 
 /// URDF joint names of the left arm, model order.
 pub use crate::robot::G1_LEFT_ARM_JOINTS as JOINT_NAMES;

@@ -25,7 +25,7 @@ use rerun::external::re_sdk_types::blueprint::archetypes::{
     TimePanelBlueprint, ViewBlueprint, ViewContents, ViewportBlueprint,
 };
 use rerun::external::re_sdk_types::blueprint::components::{
-    ActiveTab, Corner2D, Eye3DKind, LinkAxis, TextLogColumn, TimeRange, TimelineName,
+    ActiveTab, Corner2D, Eye3DKind, LinkAxis, PanelState, TextLogColumn, TimeRange, TimelineName,
 };
 use rerun::external::re_sdk_types::blueprint::datatypes::{
     TextLogColumn as TextLogColumnData, TextLogColumnKind, TimelineColumn,
@@ -140,6 +140,17 @@ impl Node {
             *y_range = range.or(*y_range);
         }
         self
+    }
+
+    /// A legend of `entries` lines in the top-left corner with the y range opening so that it
+    /// cannot cover `data` (a plot at least `plot_px` high); without a known range, or where the
+    /// legend would take most of the plot, no legend (the title names the series, hovering
+    /// names a line).
+    pub fn with_legend_room(self, data: Option<[f64; 2]>, entries: usize, plot_px: f64) -> Node {
+        match data.and_then(|d| legend_room(d, entries, plot_px)) {
+            Some(range) => self.with_legend(Legend::LeftTop).with_y_range(Some(range)),
+            None => self.with_legend(Legend::Hidden),
+        }
     }
 
     /// Sets where a plot's legend goes (time series only).
@@ -474,7 +485,11 @@ pub fn send_blueprint(stream: &RecordingStream, root: &Node) -> Result<()> {
     chunks.log(&format!("{GLOBAL_VIEW}/TimeAxis"), &whole_session_axis())?;
     chunks.log(
         "time_panel",
-        &TimePanelBlueprint::new().with_timeline(TimelineName("session".into())),
+        // Collapsed to its one line of controls (play, timeline, time): the plots get the
+        // height the streams tree would take.
+        &TimePanelBlueprint::new()
+            .with_timeline(TimelineName("session".into()))
+            .with_state(PanelState::Collapsed),
     )?;
     let root_id = Uuid {
         bytes: stable_uuid(root.name()),
@@ -510,45 +525,92 @@ pub struct LayoutParts {
     /// The diagnosis found terms following recorded fields (plotted beside its summary,
     /// time-aligned with the prediction error).
     pub located: bool,
-    /// Y ranges with room for the legend above the data, where the data is known up front.
+    /// Series in the diagnosis' power plot (measured, before, after, and the found terms'
+    /// prediction and the twin when present).
+    pub diagnosis_power_series: usize,
+    /// The plots' data ranges, where the data is known up front (legends get room above them).
     pub ranges: PlotRanges,
 }
 
-/// Y ranges [W] the plots open on (`None`: fitted to the data by the viewer).
+/// The data ranges [min, max] of the plots whose data is known when the layout is built (`None`:
+/// unknown, e.g. the joint signals of a streamed replay; such a plot shows no legend, since
+/// nothing keeps a legend off data of unknown range).
 #[derive(Debug, Clone, Copy, Default)]
 pub struct PlotRanges {
-    /// Net power at the readings.
+    /// Net power at the readings (or the diagnosis' before/after) [W].
     pub power: Option<[f64; 2]>,
-    /// Error at the readings.
-    pub error: Option<[f64; 2]>,
-    /// Predicted power by term.
+    /// Predicted power by term [W].
     pub by_term: Option<[f64; 2]>,
-    /// Predicted power by joint.
+    /// Predicted power by joint [W].
     pub by_joint: Option<[f64; 2]>,
-    /// Per-trial means by joint.
-    pub bars_by_joint: Option<[f64; 2]>,
-    /// Per-trial means by term.
-    pub bars_by_term: Option<[f64; 2]>,
-    /// The loss terms of the first joint (the cell that carries the grid's legend).
+    /// The loss terms of the first joint (the cell that carries the grid's legend) [W].
     pub first_joint_terms: Option<[f64; 2]>,
+    /// Joint torques [Nm].
+    pub tau: Option<[f64; 2]>,
+    /// IMU |ω| with the filter's statistic and threshold [rad/s].
+    pub imu: Option<[f64; 2]>,
+    /// Raw MBS/BMS readings [W].
+    pub raw_power: Option<[f64; 2]>,
+    /// Errors at the readings (per reading and per trajectory) [W].
+    pub error: Option<[f64; 2]>,
+    /// Trial indices (first, last).
+    pub trials: Option<[f64; 2]>,
 }
 
-/// The y range of `values` with `headroom` × the span added above (where the legend goes) and
-/// 5 % below; `None` when no value is finite.
-pub fn range_with_headroom(
-    values: impl IntoIterator<Item = f64>,
-    headroom: f64,
-) -> Option<[f64; 2]> {
+/// A y range symmetric about zero that holds `data` with a tenth to spare, its bound a round
+/// number (1, 2, 2.5 or 5 × 10^k): the ticks at zero and at round values inside it are labelled,
+/// where a fitted range of a short plot showed a single "0".
+pub fn symmetric_range(data: [f64; 2]) -> [f64; 2] {
+    let m = (data[0].abs().max(data[1].abs()) * 1.1).max(1e-6);
+    let decade = 10f64.powf(m.log10().floor());
+    let bound = [1.0, 2.0, 2.5, 5.0, 10.0]
+        .iter()
+        .map(|f| f * decade)
+        .find(|b| *b >= m)
+        .unwrap_or(10.0 * decade);
+    [-bound, bound]
+}
+
+/// The range [min, max] of the finite `values`; `None` when there are none.
+pub fn data_range(values: impl IntoIterator<Item = f64>) -> Option<[f64; 2]> {
     let (lo, hi) = values
         .into_iter()
         .filter(|v| v.is_finite())
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
             (lo.min(v), hi.max(v))
         });
-    if !lo.is_finite() {
+    lo.is_finite().then_some([lo, hi])
+}
+
+/// Legend geometry in the stock viewer (egui's default font, device pixel ratio 1): the space
+/// above its first entry [px].
+const LEGEND_TOP_PX: f64 = 18.0;
+/// Height of each legend entry [px].
+const LEGEND_LINE_PX: f64 = 23.0;
+/// The smallest plot area [px] the overview's power plot gets in a 1920×1080 browser window.
+pub const OVERVIEW_PLOT_PX: f64 = 190.0;
+/// The smallest plot area [px] of a legend-carrying plot in the tabs (a half-height cell).
+pub const DETAIL_PLOT_PX: f64 = 330.0;
+/// Above this fraction of the plot's height a legend would squash the data: hide it instead.
+const MAX_LEGEND_FRACTION: f64 = 0.6;
+
+/// The fraction of a plot `plot_px` high that a legend of `entries` lines covers.
+pub fn legend_fraction(entries: usize, plot_px: f64) -> f64 {
+    (LEGEND_TOP_PX + LEGEND_LINE_PX * entries as f64) / plot_px
+}
+
+/// The y range that keeps `data` below a legend of `entries` lines in the plot's top corner:
+/// the span above the data is the legend's share of the plot's height (and 5 % below the data).
+/// `None` when the legend would take more than [`MAX_LEGEND_FRACTION`] of the plot.
+pub fn legend_room(data: [f64; 2], entries: usize, plot_px: f64) -> Option<[f64; 2]> {
+    let f = legend_fraction(entries, plot_px);
+    if f > MAX_LEGEND_FRACTION {
         return None;
     }
+    let [lo, hi] = data;
     let span = (hi - lo).max(1e-3);
+    // The data fills [lo − 0.05 span, hi], the legend the top fraction f of the whole range.
+    let headroom = 1.05 * f / (1.0 - f);
     Some([lo - 0.05 * span, hi + headroom * span])
 }
 
@@ -560,70 +622,91 @@ fn include(paths: &[&str]) -> Vec<String> {
     paths.iter().map(|p| paths::include(p)).collect()
 }
 
-/// The replay layout. Left: the 3D arm (body oriented by the IMU). Right, top to bottom: power
-/// at the readings (measured vs the prediction averaged over each reading's window, the
+/// The replay layout. Left, the overview, top to bottom: the 3D arm (body oriented by the IMU),
+/// power at the readings (measured vs the prediction averaged over each reading's window, the
 /// instantaneous prediction as a thin context line), the trial track (rejected trials as red
-/// bars), the error at the readings, and at most six tabs: where the power goes (per term, per
-/// joint, per-trial bars, what the copper term is relative to), the loss terms per joint (one
-/// grid), the joints (q with its command, q̇, τ, temperature), IMU and trials (|ω|, the filter's
-/// statistic and threshold, the trial log), raw power, diagnosis. The 3D view's camera starts on
-/// the front left of the arm, ~1.1 m from `arm_center` (a point on the arm in the `/robot` frame,
-/// X forward, Y left, Z up).
+/// bars), the error at the readings. Right, at most six full-height tabs: where the power goes
+/// (per term, per joint, per-trial bars keyed by trial index, what the copper term is relative
+/// to), the loss terms per joint (one grid), the joints (q with its command, q̇, τ,
+/// temperature), IMU and trials (|ω|, the filter's statistic and threshold, the trial log), raw
+/// power, diagnosis. The 3D view's camera starts on the front left of the arm, 0.75 m from
+/// `arm_center` (a point on the arm in the `/robot` frame, X forward, Y left, Z up).
+///
+/// Legends: a plot shows one only where its data range is known and the legend fits above the
+/// data ([`Node::with_legend_room`]); elsewhere the title names the series.
 pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]) -> Node {
     use ContainerKind::{Horizontal, Tabs, Vertical};
-    let mut right = vec![power_view(parts)];
-    let mut shares = vec![1.0];
+    let arm = Node::view(
+        "3D",
+        "Arm",
+        "/",
+        vec!["+ /".to_owned(), paths::include_tree(paths::ROBOT)],
+    )
+    .with_eye(Eye::looking_at(arm_center, [1.0, 0.8, 0.45], 0.75));
+    let mut overview = vec![arm, power_view(parts)];
+    let mut shares = vec![1.5, 1.1];
     if parts.trials || parts.diagnosis {
-        right.push(trial_track());
+        overview.push(trial_track(parts.ranges.trials));
         shares.push(0.4);
     }
     if parts.model || parts.diagnosis {
-        let mut error = vec![paths::include_tree("model/error")];
-        if parts.diagnosis {
-            error.push(paths::include_tree("diagnosis/error"));
-        }
-        right.push(
-            plot("Error at the readings, measured − predicted [W]", error)
-                .with_legend(Legend::LeftTop)
-                .with_y_range(parts.ranges.error),
-        );
-        shares.push(0.8);
+        overview.push(error_view(parts));
+        shares.push(1.0);
     }
     let mut tabs = Vec::new();
     if parts.model {
         tabs.push(breakdown_tab(joints, parts.ranges));
         tabs.push(loss_terms_tab(joints, parts.ranges));
     }
-    tabs.push(joints_tab(joints));
+    tabs.push(joints_tab(joints, parts.ranges));
     tabs.push(imu_tab(parts));
-    tabs.push(plot(
-        "Raw power MBS/BMS [W]",
-        include(&[&paths::power_raw("mbs"), &paths::power_raw("bms")]),
-    ));
+    tabs.push(
+        plot(
+            "Raw power MBS/BMS [W]",
+            include(&[&paths::power_raw("mbs"), &paths::power_raw("bms")]),
+        )
+        .with_legend_room(parts.ranges.raw_power, 2, DETAIL_PLOT_PX),
+    );
     if parts.diagnosis {
         tabs.push(diagnosis_tab(parts));
     }
-    right.push(Node::container(Tabs, "Details", tabs, vec![]));
-    shares.push(1.6);
     Node::container(
         Horizontal,
         "g1viz replay",
         vec![
-            Node::view(
-                "3D",
-                "Arm",
-                "/",
-                vec!["+ /".to_owned(), paths::include_tree(paths::ROBOT)],
-            )
-            .with_eye(Eye::looking_at(arm_center, [1.0, 0.8, 0.45], 1.1)),
-            Node::container(Vertical, "Plots", right, shares),
+            Node::container(Vertical, "Overview", overview, shares),
+            Node::container(Tabs, "Details", tabs, vec![]),
         ],
-        vec![1.0, 1.6],
+        vec![1.0, 1.25],
     )
 }
 
-/// The trial track: the trial under way, rejected (or located) trials as thick red segments.
-fn trial_track() -> Node {
+/// The error at the readings: dots per reading, diamonds per trajectory, rejected trials in red
+/// (the trial track above says so; with a diagnosis: the base model's error and the error with
+/// the hypotheses). Small and dense: no legend, the title names the markers.
+fn error_view(parts: LayoutParts) -> Node {
+    let mut error = Vec::new();
+    let mut name = String::from("Error measured − predicted [W]");
+    if parts.model {
+        error.push(paths::include_tree("model/error"));
+        name.push_str(": dots per reading, diamonds per trial");
+    }
+    if parts.diagnosis {
+        error.push(paths::include_tree("diagnosis/error"));
+        name.push_str(if parts.model {
+            "; base model grey, with the hypotheses orange"
+        } else {
+            ": base model grey, with the hypotheses orange"
+        });
+    }
+    plot(name, error)
+        .with_legend(Legend::Hidden)
+        .with_y_range(parts.ranges.error.map(symmetric_range))
+}
+
+/// The trial track: the trial under way, rejected (or located) trials as thick red segments;
+/// `indices`: the first and last trial index (the y range then holds them, half a step spare).
+fn trial_track(indices: Option<[f64; 2]>) -> Node {
     plot(
         "Trials (index; red: rejected or located)",
         vec![
@@ -633,10 +716,12 @@ fn trial_track() -> Node {
         ],
     )
     .with_legend(Legend::Hidden)
+    .with_y_range(indices.map(|[lo, hi]| [lo - 0.5, hi + 0.5]))
 }
 
-/// The joint signals in one grid (one colour per joint everywhere, one legend).
-fn joints_tab(joints: &[String]) -> Node {
+/// The joint signals in one grid (one colour per joint everywhere); the joints' legend on τ
+/// when its range is known (a replay from memory), none otherwise.
+fn joints_tab(joints: &[String], ranges: PlotRanges) -> Node {
     let each = |signal: &str| -> Vec<String> {
         joints
             .iter()
@@ -645,13 +730,18 @@ fn joints_tab(joints: &[String]) -> Node {
     };
     let mut q = each("q");
     q.extend(each("q_cmd"));
+    let tau = plot("Joint torque τ [Nm]", each("tau")).with_legend_room(
+        ranges.tau,
+        joints.len(),
+        DETAIL_PLOT_PX,
+    );
     Node::container(
         ContainerKind::Grid,
         "Joints",
         vec![
             plot("Joint position q [rad] (command: lighter)", q).with_legend(Legend::Hidden),
             plot("Joint velocity q̇ [rad/s]", each("dq")).with_legend(Legend::Hidden),
-            plot("Joint torque τ [Nm]", each("tau")).with_legend(Legend::LeftTop),
+            tau,
             plot("Motor temperature [°C]", each("temperature")).with_legend(Legend::Hidden),
         ],
         vec![],
@@ -662,15 +752,21 @@ fn joints_tab(joints: &[String]) -> Node {
 /// |ω| with the IMU filter's statistic and threshold, and the trial log.
 fn imu_tab(parts: LayoutParts) -> Node {
     let mut imu = vec![paths::include(paths::IMU_GYRO_NORM)];
-    if parts.imu_filter {
+    let plot_view = if parts.imu_filter {
         imu.extend(include(&[
             paths::IMU_SIGMA,
             paths::IMU_SIGMA_REJECTED,
             paths::IMU_THRESHOLD,
         ]));
-    }
-    let mut views =
-        vec![plot("IMU |ω| [rad/s] and the balance filter", imu).with_legend(Legend::RightTop)];
+        plot("IMU |ω| [rad/s] and the balance filter", imu).with_legend_room(
+            parts.ranges.imu,
+            4,
+            DETAIL_PLOT_PX,
+        )
+    } else {
+        plot("IMU |ω| of the body [rad/s]", imu).with_legend(Legend::Hidden)
+    };
+    let mut views = vec![plot_view];
     if parts.trials || parts.diagnosis {
         let mut logs = vec![paths::include(&paths::trials_log(paths::TRIALS))];
         if parts.diagnosis {
@@ -682,7 +778,7 @@ fn imu_tab(parts: LayoutParts) -> Node {
         ContainerKind::Vertical,
         "IMU and trials",
         views,
-        vec![1.0, 1.0],
+        vec![1.5, 1.0],
     )
 }
 
@@ -695,20 +791,26 @@ fn diagnosis_tab(parts: LayoutParts) -> Node {
         vec![],
     )];
     if parts.located {
-        diag.push(Node::view(
-            "TimeSeries",
-            "Fields the found terms follow",
-            paths::DIAG_LOCATED,
-            vec![],
-        ));
+        diag.push(
+            Node::view(
+                "TimeSeries",
+                "Fields the found terms follow",
+                paths::DIAG_LOCATED,
+                vec![],
+            )
+            .with_legend(Legend::Hidden),
+        );
     }
     if parts.counterpart {
-        diag.push(Node::view(
-            "TimeSeries",
-            "Torque recording − twin [Nm]",
-            paths::DIAG_TORQUE,
-            vec![],
-        ));
+        diag.push(
+            Node::view(
+                "TimeSeries",
+                "Torque recording − twin [Nm]",
+                paths::DIAG_TORQUE,
+                vec![],
+            )
+            .with_legend(Legend::Hidden),
+        );
     }
     Node::group(ContainerKind::Horizontal, "Diagnosis", diag, vec![])
 }
@@ -716,28 +818,34 @@ fn diagnosis_tab(parts: LayoutParts) -> Node {
 /// The main power plot: readings vs like-for-like prediction (with a model), the sensors' net
 /// power (without), the diagnosis' before/after.
 fn power_view(parts: LayoutParts) -> Node {
-    let contents = if parts.model {
-        include(&[
-            paths::MODEL_READING_MEASURED,
-            paths::MODEL_READING_PREDICTED,
-            paths::MODEL_PREDICTED,
-        ])
+    let (name, contents, entries) = if parts.model {
+        (
+            "Net power at the readings [W]",
+            include(&[
+                paths::MODEL_READING_MEASURED,
+                paths::MODEL_READING_PREDICTED,
+                paths::MODEL_PREDICTED,
+            ]),
+            3,
+        )
     } else if parts.diagnosis {
-        vec![paths::include_tree("diagnosis/power")]
+        (
+            "Net power at the readings [W]",
+            vec![paths::include_tree("diagnosis/power")],
+            parts.diagnosis_power_series,
+        )
     } else {
-        include(&[&paths::power_net("mbs"), &paths::power_net("bms")])
+        (
+            "Net power [W]: MBS cyan, BMS olive (minus the idle baseline before the arm moves)",
+            include(&[&paths::power_net("mbs"), &paths::power_net("bms")]),
+            2,
+        )
     };
-    let name = if parts.model || parts.diagnosis {
-        "Net power at the readings [W]"
-    } else {
-        "Net power [W] (minus the idle baseline before the arm moves)"
-    };
-    plot(name, contents)
-        .with_legend(Legend::LeftTop)
-        .with_y_range(parts.ranges.power)
+    plot(name, contents).with_legend_room(parts.ranges.power, entries, OVERVIEW_PLOT_PX)
 }
 
-/// Where the power goes: per term and per joint over time, per-trial bars, and the note.
+/// Where the power goes: per term and per joint over time (each with its legend: the colours
+/// of the bars), per-trial bars keyed by trial index, and the note.
 fn breakdown_tab(joints: &[String], ranges: PlotRanges) -> Node {
     use ContainerKind::{Horizontal, Vertical};
     let by_joint: Vec<String> = joints
@@ -752,30 +860,28 @@ fn breakdown_tab(joints: &[String], ranges: PlotRanges) -> Node {
                 "Predicted power by term, all joints [W]",
                 vec![paths::include_tree(paths::BY_TERM)],
             )
-            .with_legend(Legend::LeftTop)
-            .with_y_range(ranges.by_term),
-            plot("Predicted power by joint, all terms [W]", by_joint)
-                .with_legend(Legend::LeftTop)
-                .with_y_range(ranges.by_joint),
+            .with_legend_room(ranges.by_term, paths::TERMS.len() + 1, DETAIL_PLOT_PX),
+            plot("Predicted power by joint, all terms [W]", by_joint).with_legend_room(
+                ranges.by_joint,
+                joints.len(),
+                DETAIL_PLOT_PX,
+            ),
         ],
         vec![],
     );
+    let bars = |name: &str, tree: &str| {
+        Node::view("BarChart", name, "/", vec![paths::include_tree(tree)])
+            .with_legend(Legend::Hidden)
+    };
     let per_trial = Node::container(
         Vertical,
         "Per trial",
         vec![
-            plot(
-                "Mean per trial, by joint [W]",
-                vec![paths::include_tree(paths::BARS_BY_JOINT)],
-            )
-            .with_legend(Legend::LeftTop)
-            .with_y_range(ranges.bars_by_joint),
-            plot(
-                "Mean per trial, by term [W]",
-                vec![paths::include_tree(paths::BARS_BY_TERM)],
-            )
-            .with_legend(Legend::LeftTop)
-            .with_y_range(ranges.bars_by_term),
+            bars(
+                "Mean per trial by joint [W], x: trial",
+                paths::BARS_BY_JOINT,
+            ),
+            bars("Mean per trial by term [W], x: trial", paths::BARS_BY_TERM),
             Node::view(
                 "TextDocument",
                 "What the terms are",
@@ -793,7 +899,8 @@ fn breakdown_tab(joints: &[String], ranges: PlotRanges) -> Node {
     )
 }
 
-/// One grid: the four loss terms of each joint, and the interaction.
+/// One grid: the four loss terms of each joint, and the interaction; the terms' legend on the
+/// first cell (the same colours in every cell).
 fn loss_terms_tab(joints: &[String], ranges: PlotRanges) -> Node {
     let mut views: Vec<Node> = joints
         .iter()
@@ -803,11 +910,12 @@ fn loss_terms_tab(joints: &[String], ranges: PlotRanges) -> Node {
                 .iter()
                 .map(|t| paths::include(&paths::term(j, t)))
                 .collect();
-            // The terms have the same colours in every cell: one legend is enough.
             if k == 0 {
-                plot(format!("{j} [W]"), terms)
-                    .with_legend(Legend::LeftTop)
-                    .with_y_range(ranges.first_joint_terms)
+                plot(format!("{j} [W]"), terms).with_legend_room(
+                    ranges.first_joint_terms,
+                    paths::TERMS.len(),
+                    DETAIL_PLOT_PX,
+                )
             } else {
                 plot(format!("{j} [W]"), terms).with_legend(Legend::Hidden)
             }

@@ -39,7 +39,15 @@ pub(super) fn log_extras(
     if let Some(terms) = &extras.terms {
         log_terms(w, joints, terms, chunk)?;
         log_breakdown(w, joints, terms, chunk)?;
-        log_bars(w, joints, terms, &extras.trials)?;
+        let computed;
+        let means: &[TrialMean] = match &extras.sample_stats {
+            Some(s) => &s.means,
+            None => {
+                computed = trial_means(terms, &extras.trials);
+                &computed
+            }
+        };
+        log_bars(w, joints, means)?;
         w.send_static(
             paths::BREAKDOWN_NOTE,
             &TextDocument::from_markdown(breakdown_note(joints, colour_scale)),
@@ -158,6 +166,28 @@ fn log_terms(
     terms: &TermSeries,
     chunk: usize,
 ) -> Result<()> {
+    for name in joints {
+        for (k, term) in paths::TERMS.iter().enumerate() {
+            style::line(w, &paths::term(name, term), term, style::TERMS[k], 1.5)?;
+        }
+    }
+    style::line(
+        w,
+        paths::TERM_INTERACTION,
+        "interaction Σ e_ij |q̇_i||q̇_j|",
+        style::TERMS[4],
+        1.5,
+    )?;
+    log_term_data(w, joints, terms, chunk)
+}
+
+/// The values of [`log_terms`]' series (their styles sent once, by it).
+pub(super) fn log_term_data(
+    w: &mut ChunkWriter<'_>,
+    joints: &[String],
+    terms: &TermSeries,
+    chunk: usize,
+) -> Result<()> {
     for (j, name) in joints.iter().enumerate() {
         for (k, data) in [
             &terms.mechanical,
@@ -169,7 +199,6 @@ fn log_terms(
         .enumerate()
         {
             let path = paths::term(name, paths::TERMS[k]);
-            style::line(w, &path, paths::TERMS[k], style::TERMS[k], 1.5)?;
             let n = terms.t.len().min(data.len());
             for start in (0..n).step_by(chunk) {
                 let end = (start + chunk).min(n);
@@ -182,13 +211,6 @@ fn log_terms(
             }
         }
     }
-    style::line(
-        w,
-        paths::TERM_INTERACTION,
-        "interaction Σ e_ij |q̇_i||q̇_j|",
-        style::TERMS[4],
-        1.5,
-    )?;
     scalars_chunked(
         w,
         paths::TERM_INTERACTION,
@@ -205,12 +227,6 @@ fn log_breakdown(
     terms: &TermSeries,
     chunk: usize,
 ) -> Result<()> {
-    let fields = [
-        &terms.mechanical,
-        &terms.copper,
-        &terms.coulomb,
-        &terms.viscous,
-    ];
     for (k, term) in paths::TERMS.iter().enumerate() {
         style::line(w, &paths::by_term(term), term, style::TERMS[k], 1.5)?;
     }
@@ -224,6 +240,22 @@ fn log_breakdown(
     for (j, name) in joints.iter().enumerate() {
         style::line(w, &paths::by_joint(name), name, style::joint(j), 1.5)?;
     }
+    log_breakdown_data(w, joints, terms, chunk)
+}
+
+/// The values of [`log_breakdown`]'s series (their styles sent once, by it).
+pub(super) fn log_breakdown_data(
+    w: &mut ChunkWriter<'_>,
+    joints: &[String],
+    terms: &TermSeries,
+    chunk: usize,
+) -> Result<()> {
+    let fields = [
+        &terms.mechanical,
+        &terms.copper,
+        &terms.coulomb,
+        &terms.viscous,
+    ];
     let n = fields
         .iter()
         .map(|f| f.len())
@@ -255,39 +287,91 @@ fn log_breakdown(
 /// time stamp, so an edge needs two stamps).
 const EDGE_S: f64 = 0.01;
 
-/// Per-trial bars: the mean power of each joint (terms summed) and of each term (joints summed)
-/// over each trial's window, drawn on the time axis as a group of bars inside the trial's window
-/// (one slot per joint or term, in legend order), one named series per joint or term.
-fn log_bars(
-    w: &mut ChunkWriter<'_>,
-    joints: &[String],
-    terms: &TermSeries,
-    trials: &[TrialMark],
-) -> Result<()> {
-    let means = trial_means(terms, trials);
-    let mut by_term_names: Vec<&str> = paths::TERMS.to_vec();
-    by_term_names.push("interaction");
+/// Per-trial bars keyed by trial index: the mean power of each joint (terms summed) and of each
+/// term (joints summed) over each trial's window, as static bar charts (one per joint or term,
+/// in its colour) whose bars sit side by side around the trial's index on the x axis, so they
+/// keep their width whatever the time zoom.
+fn log_bars(w: &mut ChunkWriter<'_>, joints: &[String], means: &[TrialMean]) -> Result<()> {
     for (j, name) in joints.iter().enumerate() {
-        let path = paths::bar_by_joint(name);
-        style::line_exact(w, &path, name, style::joint(j), 1.5)?;
-        let (t, v) = bar_outline(&means, j, joints.len(), |m| m.by_joint[j]);
-        scalars(w, &path, &t, v.into_iter())?;
+        let (x, v) = bar_slots(means, j, joints.len(), |m| m.by_joint[j]);
+        bar_chart(
+            w,
+            &paths::bar_by_joint(name),
+            &x,
+            &v,
+            bar_width(joints.len()),
+            style::joint(j),
+        )?;
     }
-    for (k, name) in by_term_names.iter().enumerate() {
-        let path = paths::bar_by_term(name);
-        style::line_exact(w, &path, name, style::TERMS[k], 1.5)?;
-        let (t, v) = bar_outline(&means, k, by_term_names.len(), |m| m.by_term[k]);
-        scalars(w, &path, &t, v.into_iter())?;
+    let n_terms = style::TERMS.len();
+    for (k, name) in paths::TERMS
+        .iter()
+        .chain(["interaction"].iter())
+        .enumerate()
+    {
+        let (x, v) = bar_slots(means, k, n_terms, |m| m.by_term[k]);
+        bar_chart(
+            w,
+            &paths::bar_by_term(name),
+            &x,
+            &v,
+            bar_width(n_terms),
+            style::TERMS[k],
+        )?;
     }
     Ok(())
 }
 
+/// Width of one bar of a group of `slots` around a trial index (the group spans 0.8).
+pub(super) fn bar_width(slots: usize) -> f64 {
+    0.8 / slots.max(1) as f64
+}
+
+/// Where bar `slot` of `slots` goes for each trial (x = trial index − 0.4 + the slot's centre)
+/// and its height; trials without a finite value are left out.
+pub(super) fn bar_slots(
+    means: &[TrialMean],
+    slot: usize,
+    slots: usize,
+    value: impl Fn(&TrialMean) -> f64,
+) -> (Vec<f64>, Vec<f64>) {
+    let width = bar_width(slots);
+    means
+        .iter()
+        .filter(|m| value(m).is_finite())
+        .map(|m| {
+            let x = m.index as f64 - 0.4 + (slot as f64 + 0.5) * width;
+            (x, value(m))
+        })
+        .unzip()
+}
+
+/// A static bar chart at `path`: bars of `width` at `x` with heights `v`, in `colour`.
+fn bar_chart(
+    w: &mut ChunkWriter<'_>,
+    path: &str,
+    x: &[f64],
+    v: &[f64],
+    width: f64,
+    colour: [u8; 3],
+) -> Result<()> {
+    if x.is_empty() {
+        return Ok(());
+    }
+    w.send_static(
+        path,
+        &rerun::BarChart::new(v.to_vec())
+            .with_abscissa(x.to_vec())
+            .with_widths(vec![width as f32; x.len()])
+            .with_color(style::rgb(colour)),
+    )
+}
+
 /// The mean predicted power of one trial over its window.
-pub(super) struct TrialMean {
-    /// The trial's window [s].
-    pub t0: f64,
-    /// End of the window [s].
-    pub t1: f64,
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TrialMean {
+    /// Trial index.
+    pub index: usize,
     /// Per joint, its four terms summed [W].
     pub by_joint: [f64; N_JOINTS],
     /// Per term (mechanical, copper, Coulomb, viscous, interaction), joints summed [W].
@@ -324,8 +408,7 @@ pub(super) fn trial_means(terms: &TermSeries, trials: &[TrialMark]) -> Vec<Trial
         }
         let count = (hi - lo) as f64;
         let mut mean = TrialMean {
-            t0: m.t_start,
-            t1: m.t_end,
+            index: m.index,
             by_joint: [0.0; N_JOINTS],
             by_term: [0.0; 5],
         };
@@ -343,34 +426,6 @@ pub(super) fn trial_means(terms: &TermSeries, trials: &[TrialMark]) -> Vec<Trial
     out
 }
 
-/// The outline of bar `slot` of `slots` in every trial's window: up from 0 to the value, across
-/// 80 % of the slot, back down to 0 (the series runs along 0 between bars).
-fn bar_outline(
-    means: &[TrialMean],
-    slot: usize,
-    slots: usize,
-    value: impl Fn(&TrialMean) -> f64,
-) -> (Vec<f64>, Vec<f64>) {
-    let mut t = Vec::with_capacity(4 * means.len());
-    let mut v = Vec::with_capacity(4 * means.len());
-    let mut last = f64::NEG_INFINITY;
-    for m in means {
-        let width = (m.t1 - m.t0) / slots as f64;
-        let a = m.t0 + (slot as f64 + 0.1) * width;
-        let b = a + 0.8 * width;
-        let h = value(m);
-        if a < last || !h.is_finite() {
-            continue; // overlapping windows: keep the series in time order
-        }
-        // Distinct stamps for the vertical edges: the viewer keeps one value per stamp.
-        let e = EDGE_S.min(0.05 * (b - a));
-        t.extend([a, a + e, b - e, b]);
-        v.extend([0.0, h, h, 0.0]);
-        last = b;
-    }
-    (t, v)
-}
-
 /// The note shown beside the breakdown: what the terms are, what the copper term is relative to.
 pub(super) fn breakdown_note(joints: &[String], colour_scale: f64) -> String {
     let list: Vec<&str> = joints.iter().map(String::as_str).collect();
@@ -382,9 +437,10 @@ pub(super) fn breakdown_note(joints: &[String], colour_scale: f64) -> String {
          **The copper term is relative to the holding torque τ̄0**: τ̄0_i² is joint *i*'s mean τ² \
          in the trial's pre-idle (the arm at rest), so the term is negative whenever the arm \
          holds less torque than it did at rest — not regeneration.\n\n\
-         Per-trial bars: the mean over each trial's window, drawn inside that window, one bar \
-         per joint, left to right {}, or per term, left to right mechanical, copper, Coulomb, \
-         viscous, interaction (hover a bar for its name).\n\n\
+         Per-trial bars: the mean over each trial's window, a group of bars at each trial's \
+         index on the x axis, one bar per joint, left to right {}, or per term, left to right \
+         mechanical, copper, Coulomb, viscous, interaction (coloured as in the plots over time; \
+         hover a bar for its series).\n\n\
          In 3D each arm link is coloured by its joint's predicted power: grey at 0 W, red at \
          {colour_scale:.1} W and above, blue when negative.",
         list
@@ -481,6 +537,11 @@ fn rejection_text(r: &crate::trial::Rejection) -> String {
     }
 }
 
+/// A trial log line's stamp: `t` [s] rounded to 0.1 s.
+pub(super) fn log_stamp(t: f64) -> f64 {
+    (t * 10.0).round() / 10.0
+}
+
 /// Whether the trial is marked (rejected by a filter, or located by a diagnosis).
 fn marked(m: &TrialMark) -> bool {
     m.rejected.is_some() || m.highlight.is_some()
@@ -502,6 +563,9 @@ fn log_trials(
     let mut order: Vec<&TrialMark> = trials.iter().collect();
     order.sort_by(|a, b| a.t_start.total_cmp(&b.t_start).then(a.index.cmp(&b.index)));
     let t: Vec<f64> = order.iter().map(|m| m.t_start).collect();
+    // The log's session-time column is narrow: stamped at the start rounded to 0.1 s, its time
+    // reads "+39.1s" in full (the trial track keeps the exact start).
+    let t_log: Vec<f64> = t.iter().map(|&x| log_stamp(x)).collect();
     let texts: Vec<String> = order.iter().map(|m| trial_text(m)).collect();
     let levels: Vec<TextLogLevel> = order
         .iter()
@@ -517,7 +581,7 @@ fn log_trials(
         .with_many_text(texts)
         .with_many_level(levels)
         .columns_of_unit_batches()?;
-    w.send_columns(&paths::trials_log(prefix), &t, columns)?;
+    w.send_columns(&paths::trials_log(prefix), &t_log, columns)?;
 
     if index {
         w.send_static(

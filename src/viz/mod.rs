@@ -14,16 +14,26 @@
 
 mod blueprint;
 mod layers;
+mod model_stream;
 pub mod overlay;
 mod paths;
-pub mod replay;
+mod replay;
 mod robot3d;
 mod rrd_sink;
 pub mod session;
 mod slice;
 mod style;
 
-pub use blueprint::{Eye, LayoutParts, Legend, Node, PlotRanges, range_with_headroom};
+pub use blueprint::{
+    DETAIL_PLOT_PX, Eye, LayoutParts, Legend, Node, OVERVIEW_PLOT_PX, PlotRanges, data_range,
+    legend_fraction, legend_room,
+};
+pub use layers::TrialMean;
+pub use replay::{
+    DiagnosisOverlay, ImuFilterMarks, PowerPrediction, ReadingPrediction, ReplayExtras,
+    ReplayLogger, ReplayOptions, ReplaySummary, SampleStats, TermSeries, TrajectoryPoint,
+    TrialMark, idle_baseline, layout, log_replay, replay_file,
+};
 pub use slice::{Decimator, Slice};
 
 use std::path::{Path, PathBuf};
@@ -285,6 +295,14 @@ impl<'a> ChunkWriter<'a> {
         self.send_columns(path, &[t], columns)
     }
 
+    /// Waits until everything sent so far has reached the sink (bounds the memory of a fast
+    /// producer, e.g. the model series of a streamed replay).
+    pub fn flush(&self) -> Result<()> {
+        self.stream
+            .flush_blocking()
+            .context("writing the recording")
+    }
+
     /// Sends `data` as static (timeless) on `path`.
     pub fn send_static(&mut self, path: &str, data: &dyn AsComponents) -> Result<()> {
         let chunk_id = ChunkId::from_tuid(self.next_tuid());
@@ -292,7 +310,12 @@ impl<'a> ChunkWriter<'a> {
         let components: ChunkComponents = data
             .as_serialized_batches()
             .into_iter()
-            .map(|b| b.partitioned([1]).map(|c| (c.descriptor, c.list_array)))
+            .map(|b| {
+                // One row holding the whole batch (`[1]` would keep only its first element,
+                // e.g. one bar of a bar chart's widths).
+                let n = b.array.len();
+                b.partitioned([n]).map(|c| (c.descriptor, c.list_array))
+            })
             .collect::<Result<_, _>>()?;
         let chunk = Chunk::from_native_row_ids(
             chunk_id,

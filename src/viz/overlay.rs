@@ -11,59 +11,97 @@ use super::replay::{
     ImuFilterMarks, PowerPrediction, ReadingPrediction, ReplayExtras, TermSeries, TrajectoryPoint,
     TrialMark,
 };
-use crate::identify::dataset::{self, DatasetOptions, Mode};
 use crate::identify::{IdentifyOptions, Validation, validate};
 use crate::power::PowerModel;
-use crate::signals::Recording;
-use crate::trial::TrialStat;
+use crate::signals::{Recording, StateSeries};
+use crate::trial::{TrialStat, TrialWindow};
 
 /// Replay extras of `model` applied to `rec` (segmented and filtered as `opts` says), plus the
-/// hold-out validation it is built on.
+/// hold-out validation it is built on. The whole session is in memory; the streamed replay
+/// builds the same extras from [`crate::identify::validate_file`] and [`trial_series`].
 pub fn model_extras(
     rec: &Recording,
     model: &PowerModel,
     opts: &IdentifyOptions,
 ) -> Result<(ReplayExtras, Validation)> {
     let v = validate(model, rec, opts)?;
-    let seg = &v.session.segmentation;
-    let bases = dataset::build(
-        rec,
-        &seg.trials,
-        &DatasetOptions {
-            mode: Mode::Trial,
-            target: opts.target,
-            alignment: v.alignment,
-        },
-    )
-    .trials;
-
+    let mut extras = validation_extras(&v, opts, &rec.joint_names);
     let mut prediction = PowerPrediction::default();
     let mut terms = TermSeries::default();
-    for basis in &bases {
-        let Some(trial) = seg.trials.iter().find(|t| t.index == basis.trial) else {
-            continue;
-        };
-        let s = &rec.state;
-        let first = s.t.partition_point(|&t| t < trial.t_pre_start);
-        let last = s.t.partition_point(|&t| t <= trial.t_return_end);
-        for k in first..last {
-            let t = s.t[k];
-            let b = model.breakdown(&s.tau[k], &s.dq[k], &basis.tau0_sq);
-            prediction.t.push(t);
-            prediction
-                .predicted
-                .push(model.predict(&s.tau[k], &s.dq[k], &basis.tau0_sq));
-            terms.t.push(t);
-            terms.mechanical.push(b.mechanical);
-            terms.copper.push(b.copper);
-            terms.coulomb.push(b.coulomb);
-            terms.viscous.push(b.viscous);
-            terms.interaction.push(b.interaction_total());
+    for b in &v.baselines {
+        if let Some(trial) = v
+            .session
+            .segmentation
+            .trials
+            .iter()
+            .find(|t| t.index == b.trial)
+        {
+            trial_series(
+                &rec.state,
+                trial,
+                &b.tau0_sq,
+                model,
+                &mut prediction,
+                &mut terms,
+            );
         }
     }
+    extras.prediction = Some(prediction);
+    extras.terms = Some(terms);
+    Ok((extras, v))
+}
 
+/// Appends the model's instantaneous prediction and loss terms at every sample of `state` in
+/// `trial`'s window (pre-idle start to return end), with the trial's copper baseline `tau0_sq`.
+pub fn trial_series(
+    state: &StateSeries,
+    trial: &TrialWindow,
+    tau0_sq: &[f64; crate::N_JOINTS],
+    model: &PowerModel,
+    prediction: &mut PowerPrediction,
+    terms: &mut TermSeries,
+) {
+    let n = state.t.len().min(state.tau.len()).min(state.dq.len());
+    let first = state.t[..n].partition_point(|&t| t < trial.t_pre_start);
+    let last = state.t[..n].partition_point(|&t| t <= trial.t_return_end);
+    for k in first..last.max(first) {
+        let t = state.t[k];
+        let b = model.breakdown(&state.tau[k], &state.dq[k], tau0_sq);
+        prediction.t.push(t);
+        prediction
+            .predicted
+            .push(model.predict(&state.tau[k], &state.dq[k], tau0_sq));
+        terms.t.push(t);
+        terms.mechanical.push(b.mechanical);
+        terms.copper.push(b.copper);
+        terms.coulomb.push(b.coulomb);
+        terms.viscous.push(b.viscous);
+        terms.interaction.push(b.interaction_total());
+    }
+}
+
+/// The extras a validation gives without the samples: each reading with its like-for-like
+/// prediction, per-trajectory errors, the IMU filter marks and the trial marks (with the
+/// rejections `validate` records). `joint_names` label the trials. The per-sample series
+/// (`prediction`, `terms`) are left to [`trial_series`].
+pub fn validation_extras(
+    v: &Validation,
+    opts: &IdentifyOptions,
+    joint_names: &[String],
+) -> ReplayExtras {
     let is_rejected = |trial: usize| crate::trial::is_rejected(&v.rejections, 0, trial);
-    let readings = reading_predictions(rec, model, &v, opts, &is_rejected);
+    let mut readings = ReadingPrediction {
+        window_s: v.alignment.window_s,
+        lag_s: v.alignment.lag_s,
+        ..ReadingPrediction::default()
+    };
+    for r in &v.readings {
+        readings.t.push(r.t);
+        readings.trial.push(r.trial);
+        readings.measured.push(r.measured_w);
+        readings.predicted.push(r.predicted_w);
+        readings.rejected.push(is_rejected(r.trial));
+    }
     let trajectories = v
         .per_trial
         .iter()
@@ -75,9 +113,9 @@ pub fn model_extras(
             rejected: p.rejected,
         })
         .collect();
-    let imu_filter = imu_marks(&v, opts);
-
-    let trials = seg
+    let trials = v
+        .session
+        .segmentation
         .trials
         .iter()
         .map(|t| {
@@ -85,7 +123,7 @@ pub fn model_extras(
                 .joints_moved
                 .iter()
                 .map(|&j| {
-                    rec.joint_names
+                    joint_names
                         .get(j)
                         .map(|n| super::short_joint_name(n))
                         .unwrap_or_default()
@@ -106,53 +144,16 @@ pub fn model_extras(
             }
         })
         .collect();
-    let extras = ReplayExtras {
-        prediction: Some(prediction),
+    ReplayExtras {
+        prediction: None,
         readings: Some(readings),
         trajectories,
-        terms: Some(terms),
+        terms: None,
         trials,
-        imu_filter,
+        imu_filter: imu_marks(v, opts),
         diagnosis: None,
-    };
-    Ok((extras, v))
-}
-
-/// Every power reading inside a trial's trajectory window, paired with the model's prediction
-/// averaged over the reading's own window (the sensor timing `validate` used): the rows
-/// `validate` scores per reading, so their error is its per-reading error.
-fn reading_predictions(
-    rec: &Recording,
-    model: &PowerModel,
-    v: &Validation,
-    opts: &IdentifyOptions,
-    is_rejected: &dyn Fn(usize) -> bool,
-) -> ReadingPrediction {
-    let rows = dataset::build(
-        rec,
-        &v.session.segmentation.trials,
-        &DatasetOptions {
-            mode: Mode::Reading,
-            target: opts.target,
-            alignment: v.alignment,
-        },
-    )
-    .rows;
-    let theta = model.to_vector();
-    let mut out = ReadingPrediction {
-        window_s: v.alignment.window_s,
-        lag_s: v.alignment.lag_s,
-        ..ReadingPrediction::default()
-    };
-    for row in rows {
-        out.t.push(row.t);
-        out.trial.push(row.trial);
-        out.measured.push(row.y);
-        out.predicted
-            .push(theta.iter().zip(&row.phi).map(|(a, b)| a * b).sum());
-        out.rejected.push(is_rejected(row.trial));
+        sample_stats: None,
     }
-    out
 }
 
 /// The IMU filter's statistic per trial (over its trajectory window) and its threshold, as the

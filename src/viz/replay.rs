@@ -43,6 +43,8 @@ pub struct ReplayOptions {
     pub open_tab: Option<String>,
     /// The part of the session to log (time window, rate cap of the series; default: all).
     pub slice: Slice,
+    /// How a model replay reads the session file (piece length, batch size).
+    pub stream: crate::identify::StreamOptions,
 }
 
 impl Default for ReplayOptions {
@@ -56,6 +58,7 @@ impl Default for ReplayOptions {
             properties: Vec::new(),
             open_tab: None,
             slice: Slice::default(),
+            stream: crate::identify::StreamOptions::default(),
         }
     }
 }
@@ -190,6 +193,37 @@ pub struct ReplayExtras {
     pub imu_filter: Option<ImuFilterMarks>,
     /// Diagnosis before/after.
     pub diagnosis: Option<DiagnosisOverlay>,
+    /// Statistics of per-sample series that are not held here but logged while the session is
+    /// streamed (`prediction`/`terms` are then present and empty): the streamed model replay.
+    pub sample_stats: Option<SampleStats>,
+}
+
+/// What the layout, the per-trial bars and the link colours need of the per-sample series
+/// when those are streamed instead of held (the streamed model replay): their extremes, the
+/// per-trial means and the colour scale (computed as from the whole series), and the joints'
+/// power decimated to the link-colour rate.
+#[derive(Debug, Clone, Default)]
+pub struct SampleStats {
+    /// Extremes of the instantaneous prediction [W].
+    pub instant: Option<[f64; 2]>,
+    /// Extremes of each term summed over the joints, and of the interaction [W].
+    pub by_term: Option<[f64; 2]>,
+    /// Extremes of each joint's four terms summed [W].
+    pub by_joint: Option<[f64; 2]>,
+    /// Extremes of the first joint's four terms [W].
+    pub first_joint_terms: Option<[f64; 2]>,
+    /// Extremes of the joint torques in the slice [N·m].
+    pub tau: Option<[f64; 2]>,
+    /// Extremes of |ω| in the slice [rad/s].
+    pub gyro: Option<[f64; 2]>,
+    /// Extremes of the raw power readings in the slice [W].
+    pub raw_power: Option<[f64; 2]>,
+    /// Mean power per joint and per term over each trial's window, in time order.
+    pub means: Vec<layers::TrialMean>,
+    /// Power [W] at which a link is drawn fully red.
+    pub colour_scale: f64,
+    /// Per-joint power at most 10 times a second (the link-colour rate): times and values.
+    pub link_power: (Vec<f64>, Vec<[f64; N_JOINTS]>),
 }
 
 /// What a replay logged.
@@ -204,7 +238,7 @@ pub struct ReplaySummary {
 }
 
 /// How often the arm links' loss colours are updated [Hz].
-const LINK_COLOUR_RATE_HZ: f64 = 10.0;
+pub(crate) const LINK_COLOUR_RATE_HZ: f64 = 10.0;
 
 /// Tuid namespace of the replay's own rows (other writers on the same stream use others).
 const REPLAY_NAMESPACE: u64 = 0x0001_0000_0000_0000;
@@ -227,13 +261,19 @@ fn arm_center(robot: &RobotModel, arm: &ArmJoints) -> [f32; 3] {
     [mean.x as f32, mean.y as f32, mean.z as f32]
 }
 
-/// The viewer layout of a replay with `extras` (`joints`: the short joint names).
+/// The viewer layout of a replay with `extras` (`joints`: the short joint names). `whole`: the
+/// recording when it is in memory (its joint, IMU and power ranges give those plots room for
+/// their legends; a streamed replay does not know them up front), with the part to be logged.
 pub fn layout(
     robot: &RobotModel,
     arm: &ArmJoints,
     joints: &[String],
     extras: &ReplayExtras,
+    whole: Option<(&Recording, &Slice)>,
 ) -> blueprint::Node {
+    let diagnosis_power_series = extras.diagnosis.as_ref().map_or(0, |d| {
+        3 + usize::from(!d.found.is_empty()) + usize::from(d.counterpart.is_some())
+    });
     let parts = LayoutParts {
         model: extras.prediction.is_some()
             || extras.readings.is_some()
@@ -250,34 +290,74 @@ pub fn layout(
             .diagnosis
             .as_ref()
             .is_some_and(|d| !d.located.is_empty()),
-        ranges: plot_ranges(extras),
+        diagnosis_power_series,
+        ranges: plot_ranges(extras, whole),
     };
     blueprint::replay_layout(joints, parts, arm_center(robot, arm))
 }
 
-/// Room above the data for the legend (a fraction of the data's span).
-const LEGEND_HEADROOM: f64 = 0.6;
-
-/// The y ranges of the plots whose data `extras` holds, with room for the legend on top.
-fn plot_ranges(extras: &ReplayExtras) -> blueprint::PlotRanges {
-    use blueprint::range_with_headroom as fit;
-    let h = LEGEND_HEADROOM;
+/// The data ranges of the plots whose data `extras` (and the in-memory recording) hold.
+fn plot_ranges(
+    extras: &ReplayExtras,
+    whole: Option<(&Recording, &Slice)>,
+) -> blueprint::PlotRanges {
+    use blueprint::data_range;
     let mut r = blueprint::PlotRanges::default();
+    r.trials = data_range(
+        extras
+            .trials
+            .iter()
+            .chain(extras.diagnosis.iter().flat_map(|d| d.highlighted.iter()))
+            .map(|m| m.index as f64),
+    );
+    // The error plot's series: the model's per reading and per trajectory, the diagnosis'.
+    let per_reading = extras
+        .readings
+        .iter()
+        .flat_map(|rd| rd.measured.iter().zip(&rd.predicted).map(|(m, p)| m - p));
+    let per_trajectory = extras.trajectories.iter().map(|p| p.measured - p.predicted);
+    let diagnosis = extras.diagnosis.iter().flat_map(|d| {
+        [&d.before, &d.after, &d.found]
+            .into_iter()
+            .flat_map(|p| d.measured.iter().zip(p).map(|(m, p)| m - p))
+    });
+    r.error = data_range(per_reading.chain(per_trajectory).chain(diagnosis));
     if let Some(rd) = &extras.readings {
         let instant = extras.prediction.iter().flat_map(|p| p.predicted.iter());
-        r.power = fit(
+        let streamed = extras.sample_stats.iter().flat_map(|s| s.instant);
+        r.power = data_range(
             rd.measured
                 .iter()
                 .chain(&rd.predicted)
                 .chain(instant)
-                .copied(),
-            h,
+                .copied()
+                .chain(streamed.flatten()),
         );
-        let per_reading = rd.measured.iter().zip(&rd.predicted).map(|(m, p)| m - p);
-        let per_trajectory = extras.trajectories.iter().map(|p| p.measured - p.predicted);
-        r.error = fit(per_reading.chain(per_trajectory).chain([0.0]), h);
+    } else if let Some(d) = &extras.diagnosis {
+        let twin = d.counterpart.iter().flat_map(|c| c.power_w.iter());
+        r.power = data_range(
+            d.measured
+                .iter()
+                .chain(&d.before)
+                .chain(&d.after)
+                .chain(&d.found)
+                .chain(twin)
+                .copied(),
+        );
     }
-    if let Some(terms) = &extras.terms {
+    if let Some(stats) = &extras.sample_stats {
+        let range = |x: Option<[f64; 2]>| x.and_then(data_range);
+        r.by_term = range(stats.by_term);
+        r.by_joint = range(stats.by_joint);
+        r.first_joint_terms = range(stats.first_joint_terms);
+        r.tau = range(stats.tau);
+        let imu = extras
+            .imu_filter
+            .iter()
+            .flat_map(|f| f.spans.iter().map(|s| s.2).chain([f.threshold]));
+        r.imu = data_range(stats.gyro.into_iter().flatten().chain(imu));
+        r.raw_power = range(stats.raw_power);
+    } else if let Some(terms) = &extras.terms {
         let fields = [
             &terms.mechanical,
             &terms.copper,
@@ -288,15 +368,34 @@ fn plot_ranges(extras: &ReplayExtras) -> blueprint::PlotRanges {
             .iter()
             .flat_map(|f| f.iter().map(|v| v.iter().sum::<f64>()))
             .chain(terms.interaction.iter().copied());
-        r.by_term = fit(by_term, h);
+        r.by_term = data_range(by_term);
         let n = fields.iter().map(|f| f.len()).min().unwrap_or(0);
         let by_joint = (0..n)
             .flat_map(|i| (0..N_JOINTS).map(move |j| fields.iter().map(|f| f[i][j]).sum::<f64>()));
-        r.by_joint = fit(by_joint, h);
-        r.first_joint_terms = fit(fields.iter().flat_map(|f| f.iter().map(|v| v[0])), h);
-        let means = layers::trial_means(terms, &extras.trials);
-        r.bars_by_joint = fit(means.iter().flat_map(|m| m.by_joint).chain([0.0]), h);
-        r.bars_by_term = fit(means.iter().flat_map(|m| m.by_term).chain([0.0]), h);
+        r.by_joint = data_range(by_joint);
+        r.first_joint_terms = data_range(fields.iter().flat_map(|f| f.iter().map(|v| v[0])));
+    }
+    if let Some((rec, slice)) = whole {
+        let st = &rec.state;
+        let kept = |i: &usize| slice.contains(st.t[i.to_owned()]);
+        let idx: Vec<usize> = (0..st.t.len()).filter(kept).collect();
+        r.tau = data_range(idx.iter().filter_map(|&i| st.tau.get(i)).flatten().copied());
+        let gyro = idx
+            .iter()
+            .filter_map(|&i| st.gyro.get(i))
+            .map(|g| (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt());
+        let imu = extras
+            .imu_filter
+            .iter()
+            .flat_map(|f| f.spans.iter().map(|s| s.2).chain([f.threshold]));
+        r.imu = data_range(gyro.chain(imu));
+        let raw = [&rec.mbs, &rec.bms].into_iter().flat_map(|p| {
+            p.t.iter()
+                .zip(&p.watts)
+                .filter(|(t, _)| slice.contains(**t))
+                .map(|(_, w)| *w)
+        });
+        r.raw_power = data_range(raw);
     }
     r
 }
@@ -328,7 +427,7 @@ pub fn log_replay(
         rec.start_ns,
         extras,
         opts,
-        rec.state.t.len() as u64,
+        Some(rec),
     )?;
     logger.add(rec)?;
     logger.finish(extras)
@@ -389,7 +488,7 @@ impl crate::signals::RecordingSink for StreamedReplay<'_> {
             header.start_ns,
             &self.extras,
             self.opts,
-            0,
+            None,
         )?);
         Ok(())
     }
@@ -443,12 +542,21 @@ pub struct ReplayLogger<'a> {
     slice: Slice,
     /// Rate caps of the state and command series, across batches.
     decimators: [Decimator; 2],
+    /// Model samples logged since the last flush ([`Self::log_model_samples`]).
+    unflushed: usize,
+    /// Model samples gathered into the next chunk ([`Self::log_model_samples`]).
+    pending: (PowerPrediction, TermSeries),
 }
+
+/// Model samples (≈ 42 scalar rows each) between waits for the sink in
+/// [`ReplayLogger::log_model_samples`].
+const MODEL_FLUSH_SAMPLES: usize = 20_000;
 
 impl<'a> ReplayLogger<'a> {
     /// Sends the viewer layout (when [`ReplayOptions::blueprint`]), the static robot and the
-    /// series styles. `joint_names` are the 7 arm joints' URDF names; `expected_samples` sizes the
-    /// progress bar (0: no bar).
+    /// series styles. `joint_names` are the 7 arm joints' URDF names; `whole`: the whole recording
+    /// when it is in memory (it sizes the progress bar and gives plots their ranges; `None`: a
+    /// streamed replay, no bar).
     #[allow(clippy::too_many_arguments)]
     pub fn begin(
         stream: &'a RecordingStream,
@@ -459,7 +567,7 @@ impl<'a> ReplayLogger<'a> {
         start_ns: u64,
         extras: &ReplayExtras,
         opts: &ReplayOptions,
-        expected_samples: u64,
+        whole: Option<&Recording>,
     ) -> Result<Self> {
         let joints: Vec<String> = joint_names.iter().map(|n| short_joint_name(n)).collect();
         if joints.len() != N_JOINTS {
@@ -472,7 +580,7 @@ impl<'a> ReplayLogger<'a> {
         let mut summary = ReplaySummary::default();
         let mut w = ChunkWriter::new(stream, REPLAY_NAMESPACE, start_ns);
         if opts.blueprint {
-            let mut layout = layout(robot, arm, &joints, extras);
+            let mut layout = layout(robot, arm, &joints, extras, whole.map(|r| (r, &opts.slice)));
             if let Some(tab) = &opts.open_tab
                 && !layout.open_tab(tab)
             {
@@ -497,6 +605,7 @@ impl<'a> ReplayLogger<'a> {
             &mut summary.warnings,
         )?;
         log_styles(&mut w, &joints)?;
+        let expected_samples = whole.map_or(0, |r| r.state.t.len() as u64);
         let progress = if expected_samples > 0 {
             progress_bar(opts.progress, expected_samples)
         } else {
@@ -523,6 +632,8 @@ impl<'a> ReplayLogger<'a> {
             summary,
             slice: opts.slice,
             decimators: [Decimator::default(); 2],
+            unflushed: 0,
+            pending: Default::default(),
         })
     }
 
@@ -649,10 +760,74 @@ impl<'a> ReplayLogger<'a> {
         Ok(())
     }
 
+    /// Logs the model's instantaneous prediction and loss terms of one stretch of samples
+    /// (already sliced; their styles are sent by [`Self::finish`] with `prediction`/`terms`
+    /// present in the extras): how the streamed model replay logs the series it does not hold.
+    /// Stretches are gathered into chunks of [`ReplayOptions::chunk_rows`] samples, as the
+    /// in-memory replay cuts the whole series (few large chunks keep the file's index small).
+    pub fn log_model_samples(
+        &mut self,
+        prediction: &PowerPrediction,
+        terms: &TermSeries,
+    ) -> Result<()> {
+        let (p, tm) = &mut self.pending;
+        p.t.extend_from_slice(&prediction.t);
+        p.predicted.extend_from_slice(&prediction.predicted);
+        tm.t.extend_from_slice(&terms.t);
+        tm.mechanical.extend_from_slice(&terms.mechanical);
+        tm.copper.extend_from_slice(&terms.copper);
+        tm.coulomb.extend_from_slice(&terms.coulomb);
+        tm.viscous.extend_from_slice(&terms.viscous);
+        tm.interaction.extend_from_slice(&terms.interaction);
+        let full = tm.t.len().min(p.t.len()) / self.chunk * self.chunk;
+        if full > 0 {
+            self.write_pending(full)?;
+        }
+        Ok(())
+    }
+
+    /// Logs the first `n` gathered model samples and drops them from the gathering buffer.
+    fn write_pending(&mut self, n: usize) -> Result<()> {
+        let (p, tm) = &mut self.pending;
+        let head_p = PowerPrediction {
+            t: p.t.drain(..n).collect(),
+            predicted: p.predicted.drain(..n).collect(),
+        };
+        let head = TermSeries {
+            t: tm.t.drain(..n).collect(),
+            mechanical: tm.mechanical.drain(..n).collect(),
+            copper: tm.copper.drain(..n).collect(),
+            coulomb: tm.coulomb.drain(..n).collect(),
+            viscous: tm.viscous.drain(..n).collect(),
+            interaction: tm.interaction.drain(..n).collect(),
+        };
+        let w = &mut self.w;
+        scalars_chunked(
+            w,
+            paths::MODEL_PREDICTED,
+            &head_p.t,
+            &head_p.predicted,
+            self.chunk,
+        )?;
+        layers::log_term_data(w, &self.joints, &head, self.chunk)?;
+        layers::log_breakdown_data(w, &self.joints, &head, self.chunk)?;
+        // These are computed far faster than the sink writes them: wait for it now and then.
+        self.unflushed += n;
+        if self.unflushed >= MODEL_FLUSH_SAMPLES {
+            self.unflushed = 0;
+            w.flush()?;
+        }
+        Ok(())
+    }
+
     /// Logs the power series (raw, and net of the readings before the arm first moved) and
     /// `extras`; returns what was logged.
     pub fn finish(mut self, extras: &ReplayExtras) -> Result<ReplaySummary> {
         self.progress.finish_and_clear();
+        let rest = self.pending.1.t.len();
+        if rest > 0 {
+            self.write_pending(rest)?;
+        }
         let w = &mut self.w;
         for (k, (label, series)) in [("mbs", &self.mbs), ("bms", &self.bms)]
             .into_iter()
@@ -682,9 +857,15 @@ impl<'a> ReplayLogger<'a> {
                 )),
             }
         }
-        let scale = extras.terms.as_ref().map_or(1.0, layers::colour_scale);
+        let scale = match &extras.sample_stats {
+            Some(s) => s.colour_scale,
+            None => extras.terms.as_ref().map_or(1.0, layers::colour_scale),
+        };
         layers::log_extras(w, &self.joints, extras, self.chunk, scale)?;
-        if let Some(terms) = &extras.terms {
+        if let Some(s) = &extras.sample_stats {
+            let (t, power) = &s.link_power;
+            robot3d::log_link_colors(w, self.robot, self.arm, &self.scene, t, power, scale)?;
+        } else if let Some(terms) = &extras.terms {
             let (t, power) = layers::decimated_joint_power(terms, LINK_COLOUR_RATE_HZ);
             robot3d::log_link_colors(w, self.robot, self.arm, &self.scene, &t, &power, scale)?;
         }

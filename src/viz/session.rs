@@ -1,6 +1,7 @@
-//! Replaying a session file, the way `g1viz replay` does: the choice between the streamed
-//! replay (no model: the file is read in batches, memory bounded whatever its length) and the
-//! model replay (the model's overlay needs the whole session in memory), the part of the session
+//! Replaying a session file, the way `g1viz replay` does: the plain replay (the file read in
+//! batches) or the model replay (the streamed validation, then the file read again for the
+//! model's series; see [`super::model_stream`]) — memory bounded whatever the session's length
+//! either way — the part of the session
 //! to log (`--from/--to` in session seconds, `--trials A-B`, `--max-rate` for the series), and
 //! the size estimate printed before anything is written.
 
@@ -8,14 +9,16 @@ use std::path::Path;
 
 use anyhow::{Context, Result, bail};
 
-use super::replay::{ReplayOptions, ReplaySummary, log_replay, replay_file};
+use super::model_stream::{StreamedModel, planned};
+use super::replay::{ReplayOptions, ReplaySummary, replay_file};
 use super::slice::Slice;
-use super::{OutputKind, Sink, open_stream, recording_id_for, recording_id_for_source};
-use crate::identify::IdentifyOptions;
+use super::{OutputKind, Sink, open_stream, recording_id_for_source};
+use crate::identify::{IdentifyOptions, SessionFile, validate_file};
 use crate::power::PowerModel;
 use crate::read::OpenOptions;
 use crate::robot::RobotModel;
-use crate::signals::{Group, Recording, SignalMap, load_recording};
+use crate::signals::{Group, SignalMap};
+use crate::trial::Segmentation;
 
 /// The part of the session to replay, as the user asks for it.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -165,16 +168,15 @@ impl Window {
         *self == Window::default()
     }
 
-    /// The slice of the session `rec` (segmented as `fit` says for `--trials`) this window
+    /// The slice of the session at `source` (with its trials `seg`, for `--trials`) this window
     /// covers; an error names a trial range the session does not have.
-    pub fn resolve(&self, rec: Option<&Recording>, fit: &IdentifyOptions) -> Result<Slice> {
+    pub fn resolve(&self, seg: Option<&Segmentation>, source: &Path) -> Result<Slice> {
         let mut slice = Slice {
             max_rate_hz: self.max_rate_hz.filter(|r| *r > 0.0),
             ..Slice::default()
         };
         if let Some((a, b)) = self.trials {
-            let rec = rec.context("--trials needs the session's trial segmentation")?;
-            let seg = crate::trial::segment(rec, &fit.segment);
+            let seg = seg.context("--trials needs the session's trial segmentation")?;
             let pick: Vec<_> = seg
                 .trials
                 .iter()
@@ -183,7 +185,7 @@ impl Window {
             let (Some(first), Some(last)) = (pick.first(), pick.last()) else {
                 bail!(
                     "{}: no trials {a}-{b} (the session has {} trials, 0-{})",
-                    rec.source.display(),
+                    source.display(),
                     seg.trials.len(),
                     seg.trials.len().saturating_sub(1)
                 );
@@ -220,16 +222,18 @@ pub fn replay_session(
     }
 }
 
-/// With a model: the whole session in memory (segmentation, fitted windows), then sliced.
+/// With a model: the streamed validation gives the overlay (readings, trials, rejections) and
+/// the trials for `--trials`; the model's per-sample series are computed trial by trial while
+/// the file is read again (see [`super::model_stream`]).
 fn model_replay(
     r: &SessionReplay<'_>,
     model: &PowerModel,
     notify: &mut dyn FnMut(Notice),
 ) -> Result<ReplaySummary> {
-    let rec = load_recording(r.session, r.map, r.read)
+    let arm = r.robot.arm(&r.map.joint_names)?;
+    let file = session_file(r);
+    let v = validate_file(model, &file, &r.fit, &r.opts.stream)
         .with_context(|| format!("reading {}", r.session.display()))?;
-    let arm = r.robot.arm(&rec.joint_names)?;
-    let (extras, v) = super::overlay::model_extras(&rec, model, &r.fit)?;
     for n in &v.notes {
         notify(Notice::Note(n.clone()));
     }
@@ -238,43 +242,60 @@ fn model_replay(
         rmse: v.trial_level_aligned.rmse,
         trials: v.per_trial.len(),
     });
-    let slice = r.window.resolve(Some(&rec), &r.fit)?;
-    let span = |t: &[f64]| span_and_rate(t, &slice);
-    let (seconds, state_hz) = span(&rec.state.t);
-    let (_, command_hz) = span(&rec.command.t);
-    notify(Notice::Estimate(SizeEstimate::new(
-        seconds,
-        state_hz,
-        command_hz,
-        r.opts.pose_rate_hz,
-        slice.max_rate_hz,
-        moving_links(r.robot, &arm),
-        true,
-    )));
-    let kind = OutputKind::ModelReplay;
-    let id = kind.recording_id(&recording_id_for(&rec));
-    let out = open_stream(&kind.app_id(), &id, r.sink, r.inputs)?;
+    let slice = r.window.resolve(Some(&v.session.segmentation), r.session)?;
     let opts = ReplayOptions {
         slice,
         ..r.opts.clone()
     };
-    let summary = log_replay(&rec, r.robot, &arm, &extras, &opts, out.stream())?;
+    let plan = planned(&v);
+    let streamed = StreamedModel {
+        file: &file,
+        model,
+        plan: &plan,
+        opts: &opts,
+    };
+    let (stats, colour) = streamed.stats()?;
+    let mut extras = super::overlay::validation_extras(&v, &r.fit, &r.map.joint_names);
+    if !slice.is_all() {
+        extras = slice.extras(&extras);
+    }
+    extras.prediction = Some(Default::default());
+    extras.terms = Some(Default::default());
+    extras.sample_stats = Some(stats);
+    let links = moving_links(r.robot, &arm);
+    if let Some(e) = topic_estimate(r, &slice, links, true) {
+        notify(Notice::Estimate(e));
+    }
+    let kind = OutputKind::ModelReplay;
+    let id = recording_id_for_source(r.session)
+        .with_context(|| format!("cannot read {}", r.session.display()))?;
+    let out = open_stream(&kind.app_id(), &kind.recording_id(&id), r.sink, r.inputs)?;
+    let summary = streamed.replay(r.robot, &arm, extras, colour, out.stream())?;
     out.finish()?;
     Ok(summary)
 }
 
+/// The session file of a replay.
+fn session_file(r: &SessionReplay<'_>) -> SessionFile {
+    SessionFile {
+        path: r.session.to_path_buf(),
+        map: r.map.clone(),
+        read: r.read.clone(),
+    }
+}
+
 /// Without a model: the file is streamed (memory does not grow with its length); `--trials`
-/// reads it once more first, to find the trials.
+/// reads it once more first, in a streamed segmentation pass, to find the trials.
 fn streamed_replay(r: &SessionReplay<'_>, notify: &mut dyn FnMut(Notice)) -> Result<ReplaySummary> {
     let arm = r.robot.arm(&r.map.joint_names)?;
     let slice = if r.window.trials.is_some() {
-        let rec = load_recording(r.session, r.map, r.read)
+        let seg = crate::identify::segment_file(&session_file(r), &r.fit.segment, &r.opts.stream)
             .with_context(|| format!("reading {}", r.session.display()))?;
-        r.window.resolve(Some(&rec), &r.fit)?
+        r.window.resolve(Some(&seg), r.session)?
     } else {
-        r.window.resolve(None, &r.fit)?
+        r.window.resolve(None, r.session)?
     };
-    if let Some(e) = topic_estimate(r, &slice, moving_links(r.robot, &arm)) {
+    if let Some(e) = topic_estimate(r, &slice, moving_links(r.robot, &arm), false) {
         notify(Notice::Estimate(e));
     }
     let kind = OutputKind::Replay;
@@ -293,7 +314,12 @@ fn streamed_replay(r: &SessionReplay<'_>, notify: &mut dyn FnMut(Notice)) -> Res
 
 /// The estimate from the file's topic statistics (summary or index when the container has
 /// them); `None` when they cannot be read (the replay itself then reports the problem).
-fn topic_estimate(r: &SessionReplay<'_>, slice: &Slice, links: usize) -> Option<SizeEstimate> {
+fn topic_estimate(
+    r: &SessionReplay<'_>,
+    slice: &Slice,
+    links: usize,
+    model: bool,
+) -> Option<SizeEstimate> {
     let info = crate::read::Session::open(r.session, r.read)
         .ok()?
         .info()
@@ -325,17 +351,8 @@ fn topic_estimate(r: &SessionReplay<'_>, slice: &Slice, links: usize) -> Option<
         r.opts.pose_rate_hz,
         slice.max_rate_hz,
         links,
-        false,
+        model,
     ))
-}
-
-/// Seconds of `t` inside the slice, and the series' mean rate [Hz] there.
-fn span_and_rate(t: &[f64], slice: &Slice) -> (f64, f64) {
-    let inside: Vec<f64> = t.iter().copied().filter(|x| slice.contains(*x)).collect();
-    match (inside.first(), inside.last()) {
-        (Some(a), Some(b)) if b > a => (b - a, (inside.len() - 1) as f64 / (b - a)),
-        _ => (0.0, 0.0),
-    }
 }
 
 /// Links whose pose depends on the arm joints (one pose row each per logged pose).

@@ -131,6 +131,7 @@ impl Slice {
             trials,
             imu_filter,
             diagnosis,
+            sample_stats,
         } = e;
         ReplayExtras {
             prediction: prediction.as_ref().map(|p| {
@@ -182,6 +183,8 @@ impl Slice {
                 ..*f
             }),
             diagnosis: diagnosis.as_ref().map(|d| self.diagnosis(d)),
+            // Computed from the series as sliced (see `SampleStats`).
+            sample_stats: sample_stats.clone(),
         }
     }
 

@@ -235,3 +235,83 @@ pub fn assert_figure(what: &str, got: f64, stated: &str) {
     );
     eprintln!("{what}: {got} = README {stated} ± {tolerance:e}");
 }
+
+/// Whether python3 can import `module`; when it cannot, a skip note naming the pip package.
+#[allow(dead_code)]
+pub fn python_module(module: &str, pip: &str) -> bool {
+    let ok = output_within(
+        std::process::Command::new("python3").args(["-c", &format!("import {module}")]),
+        TOOL_LIMIT,
+    )
+    .is_ok_and(|o| o.status.success());
+    if !ok {
+        skip(&format!(
+            "python3 `{module}` not importable (pip install {pip})"
+        ));
+    }
+    ok
+}
+
+// ------------------------------------------------------------------ MCAP files written by tests
+
+/// One message of an MCAP file as the `mcap` crate reads it: topic, schema (name, encoding,
+/// text), log time and CDR payload.
+#[allow(dead_code)]
+pub struct McapMsg {
+    /// Channel topic.
+    pub topic: String,
+    /// Schema name, encoding and data.
+    pub schema: (String, String, Vec<u8>),
+    /// Log time [ns].
+    pub log_time: u64,
+    /// Payload.
+    pub data: Vec<u8>,
+}
+
+/// The messages of the shipped `examples/g1_example.mcap`, in file order.
+#[allow(dead_code)]
+pub fn example_messages() -> Vec<McapMsg> {
+    let bytes =
+        std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/g1_example.mcap"))
+            .unwrap();
+    mcap::MessageStream::new(&bytes)
+        .unwrap()
+        .map(|m| {
+            let m = m.unwrap();
+            let s = m.channel.schema.as_ref().unwrap();
+            McapMsg {
+                topic: m.channel.topic.clone(),
+                schema: (s.name.clone(), s.encoding.clone(), s.data.to_vec()),
+                log_time: m.log_time,
+                data: m.data.to_vec(),
+            }
+        })
+        .collect()
+}
+
+/// Writes `msgs` through `w` (one `cdr` channel per topic, with its schema; sequence = index;
+/// publish time = log time); returns the bytes they take in a chunk (payload + 31-byte record).
+#[allow(dead_code)]
+pub fn write_messages<W: std::io::Write + std::io::Seek>(
+    w: &mut mcap::Writer<W>,
+    msgs: &[McapMsg],
+) -> usize {
+    let mut channels = std::collections::BTreeMap::<String, u16>::new();
+    let mut written = 0;
+    for (seq, m) in msgs.iter().enumerate() {
+        let id = *channels.entry(m.topic.clone()).or_insert_with(|| {
+            let sid = w.add_schema(&m.schema.0, &m.schema.1, &m.schema.2).unwrap();
+            w.add_channel(sid, &m.topic, "cdr", &std::collections::BTreeMap::new())
+                .unwrap()
+        });
+        let header = mcap::records::MessageHeader {
+            channel_id: id,
+            sequence: seq as u32,
+            log_time: m.log_time,
+            publish_time: m.log_time,
+        };
+        w.write_to_known_channel(&header, &m.data).unwrap();
+        written += m.data.len() + 31;
+    }
+    written
+}

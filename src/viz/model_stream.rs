@@ -1,0 +1,419 @@
+//! The model replay of a session file in bounded memory (`replay --model`): the model's overlay
+//! comes from the streamed validation ([`crate::identify::validate_file`]: readings, trials,
+//! rejections, each trial's copper baseline), and the per-sample series (instantaneous
+//! prediction, loss terms) are never held whole. The file is read once more for their
+//! statistics (plot ranges for the layout, per-trial bars, the link colours at 10 Hz and the
+//! histogram behind the colour scale), once for the replay itself, and once to log the series
+//! trial by trial ([`crate::identify::for_each_trial`]). Every figure equals the one of
+//! the in-memory replay ([`super::overlay::model_extras`]) computed from the whole series.
+
+use std::collections::BTreeMap;
+
+use anyhow::{Context, Result};
+use rerun::RecordingStream;
+
+use super::TrialMean;
+use super::overlay::trial_series;
+use super::replay::{
+    LINK_COLOUR_RATE_HZ, PowerPrediction, ReplayExtras, ReplayLogger, ReplayOptions, ReplaySummary,
+    SampleStats, TermSeries,
+};
+use super::slice::{Decimator, Slice};
+use crate::N_JOINTS;
+use crate::identify::{SessionFile, Validation, for_each_trial_and_batch};
+use crate::power::PowerModel;
+use crate::robot::{ArmJoints, RobotModel};
+use crate::signals::{Recording, RecordingSink, StateSeries, StreamHeader, StreamSummary};
+use crate::trial::TrialWindow;
+
+/// The usable trials of a validation (those with a copper baseline), in session order, with it.
+pub(super) fn planned(v: &Validation) -> Vec<(TrialWindow, [f64; N_JOINTS])> {
+    v.baselines
+        .iter()
+        .filter_map(|b| {
+            let t = v
+                .session
+                .segmentation
+                .trials
+                .iter()
+                .find(|t| t.index == b.trial)?;
+            Some((t.clone(), b.tau0_sq))
+        })
+        .collect()
+}
+
+/// The model's series over one trial, sliced (`dec` carries the rate cap across trials, as one
+/// decimator over the concatenated series of the in-memory replay does).
+fn sliced_series(
+    state: &StateSeries,
+    trial: &TrialWindow,
+    tau0_sq: &[f64; N_JOINTS],
+    model: &PowerModel,
+    slice: &Slice,
+    dec: &mut Decimator,
+) -> (PowerPrediction, TermSeries) {
+    let mut p = PowerPrediction::default();
+    let mut terms = TermSeries::default();
+    trial_series(state, trial, tau0_sq, model, &mut p, &mut terms);
+    if slice.is_all() {
+        return (p, terms);
+    }
+    let k = slice.keep(&p.t, dec);
+    fn pick<T: Copy>(v: &[T], k: &[usize]) -> Vec<T> {
+        k.iter().map(|&i| v[i]).collect()
+    }
+    (
+        PowerPrediction {
+            t: pick(&p.t, &k),
+            predicted: pick(&p.predicted, &k),
+        },
+        TermSeries {
+            t: pick(&terms.t, &k),
+            mechanical: pick(&terms.mechanical, &k),
+            copper: pick(&terms.copper, &k),
+            coulomb: pick(&terms.coulomb, &k),
+            viscous: pick(&terms.viscous, &k),
+            interaction: pick(&terms.interaction, &k),
+        },
+    )
+}
+
+/// Per-joint power of sample `i` (the joint's four terms summed, as the in-memory replay sums).
+fn joint_power(terms: &TermSeries, i: usize) -> [f64; N_JOINTS] {
+    let fields = [
+        &terms.mechanical,
+        &terms.copper,
+        &terms.coulomb,
+        &terms.viscous,
+    ];
+    std::array::from_fn(|j| fields.iter().map(|f| f[i][j]).sum())
+}
+
+/// Bucket of a positive power in the colour-scale histogram: the top bits of its IEEE pattern
+/// (monotone in the value for positive numbers; ~0.4 % wide).
+fn bucket(x: f64) -> u64 {
+    x.to_bits() >> 44
+}
+
+/// Whether a joint power counts for the colour scale (as in the in-memory replay).
+fn counts(x: f64) -> bool {
+    x.is_finite() && x > 0.0
+}
+
+/// Smallest and largest finite value seen.
+#[derive(Default)]
+struct Extremes(Option<[f64; 2]>);
+
+impl Extremes {
+    fn add(&mut self, v: f64) {
+        if !v.is_finite() {
+            return;
+        }
+        self.0 = Some(match self.0 {
+            Some([lo, hi]) => [lo.min(v), hi.max(v)],
+            None => [v, v],
+        });
+    }
+}
+
+/// Statistics of the sliced series, accumulated trial by trial.
+#[derive(Default)]
+struct Accumulator {
+    instant: Extremes,
+    tau: Extremes,
+    gyro: Extremes,
+    raw_power: Extremes,
+    by_term: Extremes,
+    by_joint: Extremes,
+    first_joint: Extremes,
+    means: Vec<TrialMean>,
+    histogram: BTreeMap<u64, u64>,
+    link_t: Vec<f64>,
+    link_power: Vec<[f64; N_JOINTS]>,
+    next_link: Option<f64>,
+}
+
+impl Accumulator {
+    /// The extremes of the recorded series inside the slice (τ, |ω|, raw power), which the
+    /// in-memory replay takes from the whole recording.
+    fn add_batch(&mut self, batch: &Recording, slice: &Slice) {
+        let st = &batch.state;
+        for (i, &t) in st.t.iter().enumerate() {
+            if !slice.contains(t) {
+                continue;
+            }
+            for &x in st.tau.get(i).into_iter().flatten() {
+                self.tau.add(x);
+            }
+            if let Some(g) = st.gyro.get(i) {
+                self.gyro
+                    .add((g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt());
+            }
+        }
+        for p in [&batch.mbs, &batch.bms] {
+            for (t, w) in p.t.iter().zip(&p.watts) {
+                if slice.contains(*t) {
+                    self.raw_power.add(*w);
+                }
+            }
+        }
+    }
+
+    fn add(&mut self, trial: &TrialWindow, p: &PowerPrediction, terms: &TermSeries) {
+        for &v in &p.predicted {
+            self.instant.add(v);
+        }
+        let fields = [
+            &terms.mechanical,
+            &terms.copper,
+            &terms.coulomb,
+            &terms.viscous,
+        ];
+        for i in 0..terms.t.len() {
+            for f in &fields {
+                self.by_term.add(f[i].iter().sum::<f64>());
+                self.first_joint.add(f[i][0]);
+            }
+            self.by_term.add(terms.interaction[i]);
+            let power = joint_power(terms, i);
+            for &x in &power {
+                self.by_joint.add(x);
+                if counts(x) {
+                    *self.histogram.entry(bucket(x)).or_default() += 1;
+                }
+            }
+            let t = terms.t[i];
+            if self.next_link.is_none_or(|next| t >= next) {
+                self.link_t.push(t);
+                self.link_power.push(power);
+                self.next_link = Some(t + 1.0 / LINK_COLOUR_RATE_HZ);
+            }
+        }
+        self.add_mean(trial, terms);
+    }
+
+    /// The trial's mean power per joint and per term over its mark's window (trajectory start
+    /// to post-idle end), summed in the in-memory replay's order.
+    fn add_mean(&mut self, trial: &TrialWindow, terms: &TermSeries) {
+        let (t0, t1) = (trial.t_traj_start, trial.t_post_end);
+        let inside: Vec<usize> = (0..terms.t.len())
+            .filter(|&i| terms.t[i] >= t0 && terms.t[i] <= t1)
+            .collect();
+        if inside.is_empty() {
+            return;
+        }
+        let count = inside.len() as f64;
+        let fields = [
+            &terms.mechanical,
+            &terms.copper,
+            &terms.coulomb,
+            &terms.viscous,
+        ];
+        let mut mean = TrialMean {
+            index: trial.index,
+            by_joint: [0.0; N_JOINTS],
+            by_term: [0.0; 5],
+        };
+        for i in inside {
+            for (k, field) in fields.iter().enumerate() {
+                for (j, v) in field[i].iter().enumerate() {
+                    mean.by_joint[j] += v / count;
+                    mean.by_term[k] += v / count;
+                }
+            }
+            mean.by_term[4] += terms.interaction[i] / count;
+        }
+        self.means.push(mean);
+    }
+
+    /// The statistics, and where the colour scale's 98th percentile lies (its histogram bucket
+    /// and rank inside it; `None` without positive power).
+    fn finish(self) -> (SampleStats, Option<(u64, usize)>) {
+        let total: u64 = self.histogram.values().sum();
+        let mut target = None;
+        if total > 0 {
+            let rank = ((total - 1) as f64 * 0.98) as u64;
+            let mut below = 0u64;
+            for (&b, &n) in &self.histogram {
+                if rank < below + n {
+                    target = Some((b, (rank - below) as usize));
+                    break;
+                }
+                below += n;
+            }
+        }
+        let stats = SampleStats {
+            instant: self.instant.0,
+            by_term: self.by_term.0,
+            by_joint: self.by_joint.0,
+            first_joint_terms: self.first_joint.0,
+            tau: self.tau.0,
+            gyro: self.gyro.0,
+            raw_power: self.raw_power.0,
+            means: self.means,
+            colour_scale: 1.0,
+            link_power: (self.link_t, self.link_power),
+        };
+        (stats, target)
+    }
+}
+
+/// A model replay of a session file, streamed.
+pub(super) struct StreamedModel<'a> {
+    /// The session.
+    pub file: &'a SessionFile,
+    /// The model.
+    pub model: &'a PowerModel,
+    /// The usable trials with their copper baselines ([`planned`]).
+    pub plan: &'a [(TrialWindow, [f64; N_JOINTS])],
+    /// The replay's options (slice, chunking, stream tuning).
+    pub opts: &'a ReplayOptions,
+}
+
+impl StreamedModel<'_> {
+    /// Read the file once, calling `each` with every planned trial's sliced series.
+    fn pass(
+        &self,
+        on_batch: &mut dyn FnMut(&Recording),
+        each: &mut dyn FnMut(&TrialWindow, &PowerPrediction, &TermSeries) -> Result<()>,
+    ) -> Result<()> {
+        let windows: Vec<TrialWindow> = self.plan.iter().map(|(t, _)| t.clone()).collect();
+        let mut dec = Decimator::default();
+        let mut failed = None;
+        let mut next = 0usize;
+        for_each_trial_and_batch(
+            self.file,
+            &windows,
+            self.opts.stream.batch_samples,
+            on_batch,
+            &mut |rec: &Recording, t: &TrialWindow| {
+                // for_each_trial calls in plan order.
+                let tau0 = self.plan[next].1;
+                next += 1;
+                if failed.is_some() {
+                    return;
+                }
+                let (p, terms) =
+                    sliced_series(&rec.state, t, &tau0, self.model, &self.opts.slice, &mut dec);
+                if let Err(e) = each(t, &p, &terms) {
+                    failed = Some(e);
+                }
+            },
+        )
+        .with_context(|| format!("reading {}", self.file.path.display()))?;
+        failed.map_or(Ok(()), Err)
+    }
+
+    /// The statistics pass: what the layout, the bars and the link colours need.
+    pub(super) fn stats(&self) -> Result<(SampleStats, Option<(u64, usize)>)> {
+        let acc = std::cell::RefCell::new(Accumulator::default());
+        self.pass(
+            &mut |batch| acc.borrow_mut().add_batch(batch, &self.opts.slice),
+            &mut |t, p, terms| {
+                acc.borrow_mut().add(t, p, terms);
+                Ok(())
+            },
+        )?;
+        Ok(acc.into_inner().finish())
+    }
+
+    /// The replay: the session's samples, then the model's series trial by trial, then the
+    /// power series and the overlays of `extras` (whose `sample_stats` come from
+    /// [`Self::stats`]; `colour` is the colour scale's bucket and rank from it).
+    pub(super) fn replay(
+        &self,
+        robot: &RobotModel,
+        arm: &ArmJoints,
+        mut extras: ReplayExtras,
+        colour: Option<(u64, usize)>,
+        stream: &RecordingStream,
+    ) -> Result<ReplaySummary> {
+        let quiet = ReplayOptions {
+            progress: false,
+            ..self.opts.clone()
+        };
+        let mut sink = Sink {
+            stream,
+            robot,
+            arm,
+            opts: &quiet,
+            extras: &extras,
+            logger: None,
+            warnings: Vec::new(),
+        };
+        crate::signals::stream_into(
+            &self.file.path,
+            &self.file.map,
+            &self.file.read,
+            self.opts.chunk_rows.max(1),
+            &mut sink,
+        )
+        .with_context(|| format!("replaying {}", self.file.path.display()))?;
+        let mut warnings = std::mem::take(&mut sink.warnings);
+        let mut logger = sink.logger.context("the recording delivered no samples")?;
+        let mut in_bucket = Vec::new();
+        self.pass(&mut |_| {}, &mut |_, p, terms| {
+            if let Some((b, _)) = colour {
+                for i in 0..terms.t.len() {
+                    in_bucket.extend(
+                        joint_power(terms, i)
+                            .into_iter()
+                            .filter(|&x| counts(x) && bucket(x) == b),
+                    );
+                }
+            }
+            logger.log_model_samples(p, terms)
+        })?;
+        if let (Some((_, rank)), Some(stats)) = (colour, extras.sample_stats.as_mut()) {
+            in_bucket.sort_by(f64::total_cmp);
+            if let Some(&q) = in_bucket.get(rank) {
+                stats.colour_scale = ((q * 2.0).ceil() / 2.0).max(1.0);
+            }
+        }
+        let mut summary = logger.finish(&extras)?;
+        warnings.append(&mut summary.warnings);
+        summary.warnings = warnings;
+        Ok(summary)
+    }
+}
+
+/// The replay pass as a [`RecordingSink`]: the logger is begun with the header and kept open
+/// for the model's series after the last batch.
+struct Sink<'a, 'e> {
+    stream: &'a RecordingStream,
+    robot: &'a RobotModel,
+    arm: &'a ArmJoints,
+    opts: &'a ReplayOptions,
+    extras: &'e ReplayExtras,
+    logger: Option<ReplayLogger<'a>>,
+    warnings: Vec<String>,
+}
+
+impl RecordingSink for Sink<'_, '_> {
+    fn begin(&mut self, header: &StreamHeader<'_>) -> Result<()> {
+        self.logger = Some(ReplayLogger::begin(
+            self.stream,
+            self.robot,
+            self.arm,
+            header.source,
+            header.joint_names,
+            header.start_ns,
+            self.extras,
+            self.opts,
+            None,
+        )?);
+        Ok(())
+    }
+
+    fn batch(&mut self, batch: &Recording) -> Result<()> {
+        match self.logger.as_mut() {
+            Some(l) => l.add(batch),
+            None => anyhow::bail!("a batch came before the session header"),
+        }
+    }
+
+    fn finish(&mut self, read: &StreamSummary, _begun: bool) -> Result<()> {
+        self.warnings = read.warnings.clone();
+        Ok(())
+    }
+}

@@ -1,0 +1,300 @@
+//! `replay --model` streamed (the validation read in two passes, the model's series computed
+//! trial by trial while the file is read again) against the in-memory model replay of the whole
+//! recording (`overlay::model_extras` + `log_replay`): the decoded `.rrd` files hold the same
+//! rows and the same values, on the shipped example and on a simulated session read in pieces,
+//! whole and sliced (`--from/--to`, `--max-rate`).
+
+use std::collections::BTreeMap;
+use std::io::BufReader;
+use std::path::{Path, PathBuf};
+
+use g1viz::identify::{IdentifyOptions, StreamOptions};
+use g1viz::power::PowerModel;
+use g1viz::robot::RobotModel;
+use g1viz::signals::{SignalMap, load_recording};
+use g1viz::viz::session::{SessionReplay, Window, replay_session};
+use g1viz::viz::{ReplayOptions, log_replay};
+use g1viz::viz::{Sink, open_stream, recording_id_for};
+use rerun::external::re_log_encoding::DecoderApp;
+use rerun::external::re_log_types::StoreKind;
+use rerun::log::{Chunk, LogMsg};
+
+fn example() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/g1_example.mcap")
+}
+
+/// What a decoded `.rrd` holds: per (blueprint?, entity, static?) the rows; the data chunks.
+struct Decoded {
+    rows: BTreeMap<(bool, String, bool), usize>,
+    chunks: Vec<Chunk>,
+    /// The plot ranges of the layout (each view's y axis), as printed, sorted.
+    axes: Vec<String>,
+}
+
+fn decode(path: &Path) -> Decoded {
+    let file = std::fs::File::open(path).unwrap();
+    let mut d = Decoded {
+        rows: BTreeMap::new(),
+        chunks: Vec::new(),
+        axes: Vec::new(),
+    };
+    for msg in DecoderApp::decode_lazy(BufReader::new(file)) {
+        if let LogMsg::ArrowMsg(store, arrow) = msg.unwrap() {
+            let chunk = Chunk::from_arrow_msg(&arrow).unwrap();
+            let blueprint = store.kind() == StoreKind::Blueprint;
+            *d.rows
+                .entry((
+                    blueprint,
+                    chunk.entity_path().to_string(),
+                    chunk.is_static(),
+                ))
+                .or_default() += chunk.num_rows();
+            if !blueprint {
+                d.chunks.push(chunk);
+            } else if chunk.entity_path().to_string().ends_with("/ScalarAxis") {
+                for (desc, list) in chunk.components().iter() {
+                    d.axes.push(format!("{desc:?} {:?}", list.list_array));
+                }
+            }
+        }
+    }
+    d.axes.sort();
+    d
+}
+
+/// The `(time [ns], value)` rows at `path`, sorted: scalars by their bits, anything else
+/// (transforms, colours, text) as printed.
+fn series(d: &Decoded, path: &str) -> Vec<(i64, String)> {
+    use rerun::external::arrow::array::{Array, AsArray};
+    use rerun::external::arrow::datatypes::Float64Type;
+    let mut v = Vec::new();
+    for chunk in d
+        .chunks
+        .iter()
+        .filter(|c| !c.is_static() && c.entity_path().to_string() == path)
+    {
+        let times = chunk
+            .timelines()
+            .iter()
+            .find(|(name, _)| name.as_str() == "time")
+            .unwrap()
+            .1
+            .times_raw()
+            .to_vec();
+        for (desc, list) in chunk.components().iter() {
+            let arr = &list.list_array;
+            let values = arr.values().as_primitive_opt::<Float64Type>();
+            for (i, &t) in times.iter().enumerate() {
+                let text = match values {
+                    Some(f) if arr.value_length(i) == 1 => {
+                        format!("{:x}", f.value(arr.value_offsets()[i] as usize).to_bits())
+                    }
+                    _ => format!("{desc:?} {:?}", arr.value(i)),
+                };
+                v.push((t, text));
+            }
+            let _ = arr.len();
+        }
+    }
+    v.sort_unstable();
+    v
+}
+
+/// The static values at `path` (styles, notes, geometry), as text.
+fn statics(d: &Decoded, path: &str) -> Vec<String> {
+    let mut v: Vec<String> = d
+        .chunks
+        .iter()
+        .filter(|c| c.is_static() && c.entity_path().to_string() == path)
+        .flat_map(|c| {
+            c.components()
+                .iter()
+                .map(|(desc, list)| format!("{desc:?} {:?}", list.list_array))
+                .collect::<Vec<_>>()
+        })
+        .collect();
+    v.sort();
+    v.dedup();
+    v
+}
+
+/// The in-memory model replay (the whole recording, `model_extras`, `log_replay`).
+fn in_memory(session: &Path, out: &Path, opts: &IdentifyOptions, ro: &ReplayOptions) {
+    let rec = load_recording(session, &SignalMap::g1_left_arm(), &Default::default()).unwrap();
+    let (extras, _) = g1viz::viz::overlay::model_extras(&rec, &PowerModel::PAPER, opts).unwrap();
+    let robot = RobotModel::builtin();
+    let arm = robot.arm(&rec.joint_names).unwrap();
+    let kind = g1viz::viz::OutputKind::ModelReplay;
+    let viz = open_stream(
+        &kind.app_id(),
+        &kind.recording_id(&recording_id_for(&rec)),
+        &Sink::Save(out.to_path_buf()),
+        &[session],
+    )
+    .unwrap();
+    log_replay(&rec, &robot, &arm, &extras, ro, viz.stream()).unwrap();
+    viz.finish().unwrap();
+}
+
+/// The streamed model replay, as `g1viz replay --model paper --save` does it.
+fn streamed(session: &Path, out: &Path, opts: &IdentifyOptions, ro: &ReplayOptions, w: Window) {
+    let map = SignalMap::g1_left_arm();
+    let read = Default::default();
+    let robot = RobotModel::builtin();
+    let sink = Sink::Save(out.to_path_buf());
+    let inputs = [session];
+    let r = SessionReplay {
+        session,
+        map: &map,
+        read: &read,
+        robot: &robot,
+        model: Some(("paper", &PowerModel::PAPER)),
+        fit: opts.clone(),
+        sink: &sink,
+        inputs: &inputs,
+        window: w,
+        opts: ro.clone(),
+    };
+    replay_session(&r, &mut |_| {}).unwrap();
+}
+
+/// Every row and every value of the two replays agree (model series, readings, bars, link
+/// colours, the layout's plot ranges, the colour-scale note).
+fn assert_same_replay(a: &Path, b: &Path, what: &str) {
+    let (a, b) = (decode(a), decode(b));
+    let differ: Vec<_> = a
+        .rows
+        .keys()
+        .chain(b.rows.keys())
+        .filter(|k| !k.0 && a.rows.get(*k) != b.rows.get(*k))
+        .map(|k| (k, a.rows.get(k), b.rows.get(k)))
+        .collect();
+    assert!(
+        differ.is_empty(),
+        "{what}: rows per entity differ: {differ:?}"
+    );
+    let blueprint = |d: &Decoded| d.rows.keys().filter(|k| k.0).count();
+    assert_eq!(blueprint(&a), blueprint(&b), "{what}: layout");
+    assert!(a.axes.len() >= 5, "{what}: {} plot ranges", a.axes.len());
+    assert_eq!(a.axes, b.axes, "{what}: plot ranges");
+    let temporal: Vec<&String> = a
+        .rows
+        .keys()
+        .filter(|(bp, _, st)| !bp && !st)
+        .map(|(_, p, _)| p)
+        .collect();
+    let mut model_paths = 0;
+    for p in temporal {
+        if ["/model", "/breakdown", "/terms", "/bars"]
+            .iter()
+            .any(|x| p.contains(x))
+        {
+            model_paths += 1;
+        }
+        let (x, y) = (series(&a, p), series(&b, p));
+        if !x.is_empty() || !y.is_empty() {
+            assert_eq!(x, y, "{what}: {p}");
+        }
+    }
+    assert!(model_paths > 20, "{what}: {model_paths} model series");
+    let statics_paths: Vec<&String> = a
+        .rows
+        .keys()
+        .filter(|(bp, _, st)| !bp && *st)
+        .map(|(_, p, _)| p)
+        .filter(|p| !p.contains("__properties") && !p.contains("recording"))
+        .collect();
+    for p in statics_paths {
+        assert_eq!(statics(&a, p), statics(&b, p), "{what}: static {p}");
+    }
+}
+
+fn replay_options(stream: StreamOptions, slice: g1viz::viz::Slice) -> ReplayOptions {
+    ReplayOptions {
+        progress: false,
+        pose_rate_hz: Some(30.0),
+        slice,
+        stream,
+        ..Default::default()
+    }
+}
+
+#[test]
+fn streamed_model_replay_equals_in_memory_on_the_example() {
+    let dir = tempfile::tempdir().unwrap();
+    let opts = IdentifyOptions::default();
+    for (k, chunk_s) in [600.0, 15.0].into_iter().enumerate() {
+        let so = StreamOptions {
+            chunk_s,
+            batch_samples: 500,
+            ..StreamOptions::default()
+        };
+        let (a, b) = (
+            dir.path().join(format!("mem{k}.rrd")),
+            dir.path().join(format!("str{k}.rrd")),
+        );
+        in_memory(
+            &example(),
+            &a,
+            &opts,
+            &replay_options(so, Default::default()),
+        );
+        streamed(
+            &example(),
+            &b,
+            &opts,
+            &replay_options(so, Default::default()),
+            Window::default(),
+        );
+        assert_same_replay(&a, &b, &format!("example, pieces of {chunk_s} s"));
+    }
+}
+
+#[test]
+fn streamed_model_replay_equals_in_memory_on_a_simulated_session_in_pieces() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("smoke.mcap");
+    g1viz::sim::simulate(
+        &g1viz::sim::SimConfig {
+            progress: false,
+            seed: 5,
+            ..Default::default()
+        },
+        &path,
+    )
+    .unwrap();
+    let opts = IdentifyOptions::default();
+    let so = StreamOptions {
+        chunk_s: 60.0,
+        batch_samples: 2000,
+        ..StreamOptions::default()
+    };
+    let whole = replay_options(so, Default::default());
+    let (a, b) = (dir.path().join("mem.rrd"), dir.path().join("str.rrd"));
+    in_memory(&path, &a, &opts, &whole);
+    streamed(&path, &b, &opts, &whole, Window::default());
+    assert_same_replay(&a, &b, "simulated session, 60 s pieces");
+
+    // Sliced: a window in session seconds and a rate cap, as --from/--to/--max-rate give.
+    let window = Window {
+        from_s: Some(100.0),
+        to_s: Some(400.0),
+        max_rate_hz: Some(20.0),
+        trials: None,
+    };
+    let slice = window.resolve(None, &path).unwrap();
+    let cut = replay_options(so, slice);
+    let (c, d) = (
+        dir.path().join("mem_cut.rrd"),
+        dir.path().join("str_cut.rrd"),
+    );
+    in_memory(&path, &c, &opts, &cut);
+    streamed(
+        &path,
+        &d,
+        &opts,
+        &replay_options(so, Default::default()),
+        window,
+    );
+    assert_same_replay(&c, &d, "simulated session, 100-400 s at 20 Hz");
+}
