@@ -14,11 +14,15 @@ xvfb=""
 cleanup() {
     # The `rerun` launchers and the viewer each started.
     for p in "${pids[@]}"; do pkill -P "$p" 2>/dev/null || true; kill "$p" 2>/dev/null || true; done
-    # xvfb-run does not stop the browser it started: stop this run's browser (its own profile),
-    # then let xvfb-run stop its X server as it exits (killing xvfb-run left the server running).
-    pkill -f -- "--user-data-dir=$work/chrome" 2>/dev/null || true
-    if [ -n "$xvfb" ]; then wait "$xvfb" 2>/dev/null || true; fi
-    rm -rf "$work"
+    # xvfb-run stops neither the browser nor its X server when it is killed: stop its children
+    # (the browser, Xvfb), then it.
+    if [ -n "$xvfb" ]; then
+        pkill -P "$xvfb" 2>/dev/null || true
+        kill "$xvfb" 2>/dev/null || true
+        wait "$xvfb" 2>/dev/null || true
+    fi
+    # The browser's helper processes may still be writing its cache for a moment.
+    for _ in 1 2 3 4 5; do rm -rf "$work" 2>/dev/null && break; sleep 1; done
 }
 trap cleanup EXIT
 
