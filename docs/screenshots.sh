@@ -10,11 +10,19 @@ cd "$(dirname "$0")/.."
 wait_s="${1:-150}"
 work="$(mktemp -d)"
 pids=()
+xvfb=""
 cleanup() {
-    for p in "${pids[@]}"; do kill "$p" 2>/dev/null || true; done
-    # xvfb-run does not stop the browser it started: stop this run's browser (its own profile).
-    pkill -f -- "--user-data-dir=$work/chrome" 2>/dev/null || true
-    rm -rf "$work"
+    # The `rerun` launchers and the viewer each started.
+    for p in "${pids[@]}"; do pkill -P "$p" 2>/dev/null || true; kill "$p" 2>/dev/null || true; done
+    # xvfb-run stops neither the browser nor its X server when it is killed: stop its children
+    # (the browser, Xvfb), then it.
+    if [ -n "$xvfb" ]; then
+        pkill -P "$xvfb" 2>/dev/null || true
+        kill "$xvfb" 2>/dev/null || true
+        wait "$xvfb" 2>/dev/null || true
+    fi
+    # The browser's helper processes may still be writing its cache for a moment.
+    for _ in 1 2 3 4 5; do rm -rf "$work" 2>/dev/null && break; sleep 1; done
 }
 trap cleanup EXIT
 
@@ -28,7 +36,7 @@ xvfb-run -a -s "-screen 0 1920x1080x24" chromium --headless --no-sandbox \
     --disable-background-networking --disable-component-update --no-first-run \
     --user-data-dir="$work/chrome" --window-size=1920,1080 \
     --remote-debugging-port="$devtools" about:blank > "$work/chrome.log" 2>&1 &
-pids+=($!)
+xvfb=$!
 for _ in $(seq 50); do curl -s "http://127.0.0.1:$devtools/json" > /dev/null && break; sleep 0.2; done
 
 while IFS=$'\t' read -r rrd tab; do

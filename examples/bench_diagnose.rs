@@ -63,7 +63,7 @@ fn main() -> Result<()> {
     let t_diag = t1.elapsed().as_secs_f64();
     let t2 = Instant::now();
     if let Some(r) = &report {
-        diagnose::report::write_report(r, &d)?;
+        diagnose::write_report(r, &d)?;
     }
     let t_report = t2.elapsed().as_secs_f64();
     print!("{}", d.summary);

@@ -543,7 +543,7 @@ fn main() -> Result<()> {
                         case.name,
                         if mode == "refit" { "refit" } else { "twin" }
                     ));
-                    diagnose::report::write_report(&sub, &d)?;
+                    diagnose::write_report(&sub, &d)?;
                 }
             }
             eprintln!(

@@ -12,7 +12,8 @@
 //!   → diagnose (sim-to-real mismatch: locate, name, model)
 //!   → viz (Rerun recording); rows (per-reading rows as Parquet, for many sessions and robots)
 //! sim (digital twin) writes the same MCAP format that `read` reads.
-//! lsq (least squares: normal equations, bounded solvers, metrics) and util sit under all of them.
+//! timing (the power sensors' window and lag, and the scan that estimates them) sits under identify
+//! and diagnose; lsq (least squares: normal equations, bounded solvers, metrics) and util sit under all of them.
 //! ```
 #![warn(missing_docs)]
 
@@ -26,6 +27,7 @@ pub mod robot;
 pub mod rows;
 pub mod signals;
 pub mod sim;
+pub mod timing;
 pub mod trial;
 pub mod util;
 #[cfg(feature = "viz")]

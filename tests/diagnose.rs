@@ -860,7 +860,7 @@ fn shared_recordings_claim_no_missing_physics() {
 /// null session's (which is sensor noise only); a counterpart on another timeline is refused.
 #[test]
 fn counterpart_comparison_shows_what_the_twin_lacks() {
-    use g1viz::diagnose::counterpart;
+    use g1viz::diagnose::compare_counterpart;
     let dir = tempfile::tempdir().unwrap();
     let map = SignalMap::g1_left_arm();
     let load =
@@ -896,7 +896,7 @@ fn counterpart_comparison_shows_what_the_twin_lacks() {
         sim::simulate_like(&real, &twin_cfg, &twin_path).unwrap();
         let counterpart_rec = load(&twin_path);
         let mut d = diagnose::diagnose(&real, &five_fold_twin()).unwrap();
-        let c = counterpart::compare(&real, &counterpart_rec, &d).unwrap();
+        let c = compare_counterpart(&real, &counterpart_rec, &d).unwrap();
         assert_eq!(
             c.matched_samples,
             real.state.t.len(),
@@ -926,6 +926,6 @@ fn counterpart_comparison_shows_what_the_twin_lacks() {
     sim::simulate(&cfg, &other).unwrap();
     let real = load(&dir.path().join("null.mcap"));
     let d = diagnose::diagnose(&real, &five_fold_twin()).unwrap();
-    let err = counterpart::compare(&real, &load(&other), &d).unwrap_err();
+    let err = compare_counterpart(&real, &load(&other), &d).unwrap_err();
     assert!(err.to_string().contains("simulate --like"), "{err}");
 }

@@ -115,7 +115,7 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
     let mut d = d?;
     if let Some(p) = &a.counterpart {
         let twin = a.read.load(p)?;
-        d.attach_counterpart(diagnose::counterpart::compare(&rec, &twin, &d)?);
+        d.attach_counterpart(diagnose::compare_counterpart(&rec, &twin, &d)?);
     }
     println!("{}", d.summary);
     if let Some(p) = &a.json {
@@ -123,7 +123,7 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
         println!("wrote {}", p.display());
     }
     if let Some(dir) = &a.report {
-        diagnose::report::write_report(dir, &d)?;
+        diagnose::write_report(dir, &d)?;
         println!("wrote {}", dir.join("report.md").display());
     }
     if let Some(out) = &a.save {

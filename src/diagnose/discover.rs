@@ -624,6 +624,33 @@ fn signal_name(s: &Signal, names: &[String]) -> String {
     }
 }
 
+/// Fitted coefficients of a candidate and their standard errors, turned into named parameters.
+struct Fitted<'a> {
+    gamma: &'a [f64],
+    se: &'a [f64],
+}
+
+impl Fitted<'_> {
+    fn param(&self, name: String, symbol: &str, j: usize, unit: String) -> Param {
+        Param {
+            name,
+            symbol: symbol.into(),
+            value: self.gamma.get(j).copied().unwrap_or(f64::NAN),
+            std_err: self.se.get(j).copied().unwrap_or(f64::NAN),
+            unit,
+        }
+    }
+
+    /// `up` when the first coefficient is ≥ 0, `down` otherwise.
+    fn sign(&self, up: &str, down: &str) -> String {
+        if self.gamma.first().copied().unwrap_or(0.0) >= 0.0 {
+            up.to_string()
+        } else {
+            down.to_string()
+        }
+    }
+}
+
 /// Name, formula, fields and parameters of a fitted candidate, from its structure only.
 pub(crate) fn describe(
     kind: &Kind,
@@ -632,23 +659,10 @@ pub(crate) fn describe(
     gamma: &[f64],
     se: &[f64],
 ) -> (String, String, Vec<String>, Vec<Param>) {
-    let param = |name: String, symbol: &str, j: usize, unit: String| Param {
-        name,
-        symbol: symbol.into(),
-        value: gamma.get(j).copied().unwrap_or(f64::NAN),
-        std_err: se.get(j).copied().unwrap_or(f64::NAN),
-        unit,
-    };
-    let sign = |v: f64, up: &str, down: &str| {
-        if v >= 0.0 {
-            up.to_string()
-        } else {
-            down.to_string()
-        }
-    };
+    let fit = Fitted { gamma, se };
     match kind {
         Kind::Additive(f, sp) => {
-            let mut swing = param(
+            let mut swing = fit.param(
                 "load change over the field's 5–95 % range".into(),
                 "ΔP",
                 0,
@@ -659,14 +673,14 @@ pub(crate) fn describe(
             (
                 format!(
                     "a load on the power rail that {} {}",
-                    sign(gamma[0], "rises with", "falls as it rises:"),
+                    fit.sign("rises with", "falls as it rises:"),
                     names[*f]
                 ),
                 format!("P += k·{}", names[*f]),
                 vec![names[*f].clone()],
                 vec![
                     swing,
-                    param(
+                    fit.param(
                         "load per unit of the field".into(),
                         "k",
                         0,
@@ -682,41 +696,9 @@ pub(crate) fn describe(
             ),
             format!("P += P_on·[{} > {thr:.4}]", names[*f]),
             vec![names[*f].clone()],
-            vec![param("power while on".into(), "P_on", 0, "W".into())],
+            vec![fit.param("power while on".into(), "P_on", 0, "W".into())],
         ),
-        Kind::Product(t, s) => {
-            let (sname, fields) = match s {
-                Signal::Field(f) => (names[*f].clone(), vec![names[*f].clone()]),
-                Signal::Family(k, fs) => (
-                    format!("{k} of each joint's own motor"),
-                    fs.iter().map(|&f| names[f].clone()).collect(),
-                ),
-                Signal::Time => ("session time [h]".into(), Vec::new()),
-            };
-            let mut ps = vec![param(
-                format!("change of {} per unit of the signal", t.words()),
-                "k",
-                0,
-                format!("{} per unit", t.unit()),
-            )];
-            if gamma.len() > 1 {
-                ps.push(param("level at signal 0".into(), "k0", 1, t.unit().into()));
-            }
-            (
-                format!(
-                    "{} of the arm's joints {} {sname}",
-                    capitalise(t.words()),
-                    sign(gamma[0], "rises with", "falls as it rises:")
-                ),
-                format!(
-                    "P += Σ_i {}·(k·s_i{})",
-                    t.symbol(),
-                    if gamma.len() > 1 { " + k0" } else { "" }
-                ),
-                fields,
-                ps,
-            )
-        }
+        Kind::Product(t, s) => describe_product(*t, s, names, &fit),
         Kind::PerJoint(t) => (
             format!(
                 "{} differs joint by joint from the model",
@@ -731,7 +713,7 @@ pub(crate) fn describe(
                             .get(i)
                             .cloned()
                             .unwrap_or_else(|| format!("joint {i}"));
-                        param(
+                        fit.param(
                             format!("excess on {j}"),
                             &format!("k_{i}"),
                             i,
@@ -745,13 +727,53 @@ pub(crate) fn describe(
             format!(
                 "{} of all joints is {} than the model's",
                 capitalise(t.words()),
-                sign(gamma[0], "larger", "smaller")
+                fit.sign("larger", "smaller")
             ),
             format!("P += k·Σ_i {}", t.symbol()),
             Vec::new(),
-            vec![param("common excess".into(), "k", 0, t.unit().into())],
+            vec![fit.param("common excess".into(), "k", 0, t.unit().into())],
         ),
     }
+}
+
+/// [`describe`] of a base loss term times a slow state signal.
+fn describe_product(
+    t: Term,
+    s: &Signal,
+    names: &[String],
+    fit: &Fitted,
+) -> (String, String, Vec<String>, Vec<Param>) {
+    let (sname, fields) = match s {
+        Signal::Field(f) => (names[*f].clone(), vec![names[*f].clone()]),
+        Signal::Family(k, fs) => (
+            format!("{k} of each joint's own motor"),
+            fs.iter().map(|&f| names[f].clone()).collect(),
+        ),
+        Signal::Time => ("session time [h]".into(), Vec::new()),
+    };
+    let mut ps = vec![fit.param(
+        format!("change of {} per unit of the signal", t.words()),
+        "k",
+        0,
+        format!("{} per unit", t.unit()),
+    )];
+    if fit.gamma.len() > 1 {
+        ps.push(fit.param("level at signal 0".into(), "k0", 1, t.unit().into()));
+    }
+    (
+        format!(
+            "{} of the arm's joints {} {sname}",
+            capitalise(t.words()),
+            fit.sign("rises with", "falls as it rises:")
+        ),
+        format!(
+            "P += Σ_i {}·(k·s_i{})",
+            t.symbol(),
+            if fit.gamma.len() > 1 { " + k0" } else { "" }
+        ),
+        fields,
+        ps,
+    )
 }
 
 /// Largest standard error, as a fraction of |k_i|, of a per-joint coefficient reported on its

@@ -116,8 +116,6 @@ pub struct Hypothesis {
     pub combine: Combine,
     /// Coefficient of the regressor → physical parameter.
     pub to_physical: fn(f64) -> f64,
-    /// Derivative of [`Hypothesis::to_physical`] (for the uncertainty).
-    pub physical_slope: f64,
     /// Physically plausible range of the parameter (inclusive).
     pub plausible: (f64, f64),
 }
@@ -143,7 +141,6 @@ pub static POWER_HYPOTHESES: [Hypothesis; 9] = [
         raw: (THERMAL, N_JOINTS),
         combine: Combine::WeightedByBase(N_JOINTS),
         to_physical: identity,
-        physical_slope: 1.0,
         plausible: (0.0005, 0.01),
     },
     Hypothesis {
@@ -157,7 +154,6 @@ pub static POWER_HYPOTHESES: [Hypothesis; 9] = [
         raw: (BRAKING, N_JOINTS),
         combine: Combine::WeightedByBase(0),
         to_physical: return_fraction,
-        physical_slope: 1.0,
         plausible: (0.0, 0.98),
     },
     Hypothesis {
@@ -171,7 +167,6 @@ pub static POWER_HYPOTHESES: [Hypothesis; 9] = [
         raw: (BUS, 1),
         combine: Combine::Single,
         to_physical: identity,
-        physical_slope: 1.0,
         plausible: (0.001, 2.0),
     },
     Hypothesis {
@@ -185,7 +180,6 @@ pub static POWER_HYPOTHESES: [Hypothesis; 9] = [
         raw: (GEAR, 1),
         combine: Combine::Single,
         to_physical: identity,
-        physical_slope: 1.0,
         plausible: (0.005, 1.0),
     },
     Hypothesis {
@@ -199,7 +193,6 @@ pub static POWER_HYPOTHESES: [Hypothesis; 9] = [
         raw: (DRIVE, 1),
         combine: Combine::Single,
         to_physical: identity,
-        physical_slope: 1.0,
         plausible: (0.01, 10.0),
     },
     Hypothesis {
@@ -213,7 +206,6 @@ pub static POWER_HYPOTHESES: [Hypothesis; 9] = [
         raw: (STRIBECK, 1),
         combine: Combine::Single,
         to_physical: identity,
-        physical_slope: 1.0,
         plausible: (0.01, 20.0),
     },
     Hypothesis {
@@ -227,7 +219,6 @@ pub static POWER_HYPOTHESES: [Hypothesis; 9] = [
         raw: (LEAK, 1),
         combine: Combine::Single,
         to_physical: identity,
-        physical_slope: 1.0,
         plausible: (0.1, 1.0e5),
     },
     Hypothesis {
@@ -241,7 +232,6 @@ pub static POWER_HYPOTHESES: [Hypothesis; 9] = [
         raw: (BUS_POWER, 1),
         combine: Combine::Single,
         to_physical: identity,
-        physical_slope: 1.0,
         plausible: (0.001, 50.0),
     },
     Hypothesis {
@@ -255,7 +245,6 @@ pub static POWER_HYPOTHESES: [Hypothesis; 9] = [
         raw: (DRIVE_NM, 1),
         combine: Combine::Single,
         to_physical: identity,
-        physical_slope: 1.0,
         plausible: (0.01, 10.0),
     },
 ];

@@ -13,14 +13,16 @@
 //!   (zero-order hold): each reading repeats ~100 times, the degenerate setup the paper warns about.
 //! * [`Mode::Reading`] — beyond the paper: one row per reading inside the trajectory window, φ
 //!   averaged over the reading's own averaging window [t − lag − W, t − lag]. The sensor window W
-//!   and lag are estimated from the data by [`estimate_alignment`].
+//!   and lag are estimated from the data by [`estimate_alignment`] (the scan lives in
+//!   [`crate::timing`]).
 
 use anyhow::{Result, bail};
-use nalgebra::{DMatrix, DVector};
 
 use crate::power::regressor_into;
 pub use crate::signals::Target;
 use crate::signals::{PowerSeries, Recording};
+pub use crate::timing::{Alignment, AlignmentEstimate, AlignmentScore};
+use crate::timing::{ScanGrid, ridge_r2, scan_alignment};
 use crate::trial::{TrialWindow, sigma_omega};
 use crate::{N_JOINTS, N_PARAMS};
 
@@ -43,32 +45,6 @@ impl Mode {
             Mode::Reading => "reading",
             Mode::Sample => "sample",
         }
-    }
-}
-
-/// Timing of a power reading: it is the average power over [t − lag − window, t − lag].
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct Alignment {
-    /// Averaging window W [s].
-    pub window_s: f64,
-    /// Lag of the window's end behind the reading's timestamp [s].
-    pub lag_s: f64,
-}
-
-impl Alignment {
-    /// The G1 power sensors' nominal timing: each reading averages the 0.2 s before its stamp.
-    pub const NOMINAL: Alignment = Alignment {
-        window_s: 0.2,
-        lag_s: 0.0,
-    };
-
-    /// The window of a reading stamped `t`.
-    pub fn window_of(&self, t: f64) -> (f64, f64) {
-        (t - self.lag_s - self.window_s, t - self.lag_s)
-    }
-
-    fn centre_of(&self, t: f64) -> f64 {
-        t - self.lag_s - 0.5 * self.window_s
     }
 }
 
@@ -340,43 +316,15 @@ pub fn build(rec: &Recording, trials: &[TrialWindow], opts: &DatasetOptions) -> 
     out
 }
 
-/// One point of the alignment search.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
-pub struct AlignmentScore {
-    /// Candidate timing.
-    pub alignment: Alignment,
-    /// Rows the fit used.
-    pub rows: usize,
-    /// R² of the least-squares fit of the per-reading rows.
-    pub r2: f64,
-}
-
-/// Result of [`estimate_alignment`].
-#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
-pub struct AlignmentEstimate {
-    /// Best timing (highest R²).
-    pub best: Alignment,
-    /// R² at the best timing.
-    pub r2: f64,
-    /// Every candidate tried (coarse grid, then a finer grid around the best).
-    pub grid: Vec<AlignmentScore>,
-}
-
 /// Estimate the sensor's averaging window W and lag from the data: the per-reading rows are
 /// built for each candidate (W, lag) and fitted by (lightly ridge-regularised) least squares; the
-/// candidate with the highest R² wins. Regressors averaged over the wrong window are a noisy
-/// version of the right ones, so the fit degrades away from the true timing. Coarse grid
-/// (W 0.05–1.0 s, lag −0.3–0.5 s), then a 0.025 s grid around the best.
+/// candidate with the highest R² wins ([`crate::timing::scan_alignment`] on the identification's
+/// grid: W 0.05–1.0 s, lag −0.3–0.5 s, then a 0.025 s grid around the best).
 pub fn estimate_alignment(
     sessions: &[(&Recording, &[TrialWindow])],
     target: Target,
 ) -> Result<AlignmentEstimate> {
-    let mut grid = Vec::new();
-    let score = |w: f64, lag: f64, grid: &mut Vec<AlignmentScore>| -> Option<AlignmentScore> {
-        let alignment = Alignment {
-            window_s: w,
-            lag_s: lag,
-        };
+    let est = scan_alignment(&ScanGrid::IDENTIFY, |alignment| {
         let opts = DatasetOptions {
             mode: Mode::Reading,
             target,
@@ -386,22 +334,11 @@ pub fn estimate_alignment(
             .iter()
             .flat_map(|(rec, trials)| build(rec, trials, &opts).rows)
             .collect();
-        let r2 = ridge_r2(&rows)?;
-        let s = AlignmentScore {
-            alignment,
-            rows: rows.len(),
-            r2,
-        };
-        grid.push(s);
-        Some(s)
-    };
-    let best_of = |g: &[AlignmentScore]| g.iter().copied().max_by(|a, b| a.r2.total_cmp(&b.r2));
-    for w in [0.05, 0.1, 0.2, 0.3, 0.5, 0.75, 1.0] {
-        for lag in [-0.3, -0.2, -0.1, 0.0, 0.1, 0.2, 0.3, 0.5] {
-            score(w, lag, &mut grid);
-        }
-    }
-    let Some(coarse) = best_of(&grid) else {
+        let y: Vec<f64> = rows.iter().map(|r| r.y).collect();
+        let r2 = ridge_r2(rows.iter().map(|r| r.phi.as_slice()), &y)?;
+        Some((rows.len(), r2))
+    });
+    let Some(est) = est else {
         let nominal = DatasetOptions {
             mode: Mode::Reading,
             target,
@@ -421,42 +358,5 @@ pub fn estimate_alignment(
             Alignment::NOMINAL.window_s
         )
     };
-    const STEP: f64 = 0.025;
-    for dw in -4..=4 {
-        for dl in -4..=4 {
-            let (w, lag) = (
-                coarse.alignment.window_s + dw as f64 * STEP,
-                coarse.alignment.lag_s + dl as f64 * STEP,
-            );
-            if w > 0.0 && (dw != 0 || dl != 0) {
-                score(w, lag, &mut grid);
-            }
-        }
-    }
-    let best = best_of(&grid).unwrap_or(coarse);
-    Ok(AlignmentEstimate {
-        best: best.alignment,
-        r2: best.r2,
-        grid,
-    })
-}
-
-/// R² of an unconstrained least-squares fit with a tiny ridge (unexcited columns, e.g. joint
-/// pairs that never move together, make ΦᵀΦ singular). None with fewer rows than parameters.
-fn ridge_r2(rows: &[Row]) -> Option<f64> {
-    if rows.len() <= N_PARAMS {
-        return None;
-    }
-    let phi = DMatrix::from_fn(rows.len(), N_PARAMS, |r, c| rows[r].phi[c]);
-    let y = DVector::from_iterator(rows.len(), rows.iter().map(|r| r.y));
-    let mut normal = phi.transpose() * &phi;
-    let scale = normal.diagonal().max().max(1e-12);
-    for k in 0..N_PARAMS {
-        normal[(k, k)] += 1e-9 * scale;
-    }
-    let theta = normal.cholesky()?.solve(&(phi.transpose() * &y));
-    let residual = &y - &phi * theta;
-    let mean = y.mean();
-    let total: f64 = y.iter().map(|v| (v - mean).powi(2)).sum();
-    (total > 0.0).then(|| 1.0 - residual.norm_squared() / total)
+    Ok(est)
 }

@@ -557,17 +557,17 @@ pub struct PlotRanges {
     pub trials: Option<[f64; 2]>,
 }
 
-/// A y range symmetric about zero that holds `data` with a tenth to spare, its bound a round
-/// number (1, 2, 2.5 or 5 × 10^k): the ticks at zero and at round values inside it are labelled,
-/// where a fitted range of a short plot showed a single "0".
+/// A y range symmetric about zero that holds `data` with 5 % to spare, its bound 1.2, 2.5 or
+/// 12 × 10^k: the viewer labels ticks at powers of ten, so the ticks at zero and at ±10^k lie
+/// inside it, at most five steps across (a fitted range of a short plot showed a single "0").
 pub fn symmetric_range(data: [f64; 2]) -> [f64; 2] {
-    let m = (data[0].abs().max(data[1].abs()) * 1.1).max(1e-6);
+    let m = (data[0].abs().max(data[1].abs()) * 1.05).max(1e-6);
     let decade = 10f64.powf(m.log10().floor());
-    let bound = [1.0, 2.0, 2.5, 5.0, 10.0]
+    let bound = [1.2, 2.5, 12.0]
         .iter()
         .map(|f| f * decade)
         .find(|b| *b >= m)
-        .unwrap_or(10.0 * decade);
+        .unwrap_or(12.0 * decade);
     [-bound, bound]
 }
 

@@ -302,8 +302,7 @@ fn plot_ranges(
     whole: Option<(&Recording, &Slice)>,
 ) -> blueprint::PlotRanges {
     use blueprint::data_range;
-    let mut r = blueprint::PlotRanges::default();
-    r.trials = data_range(
+    let trials = data_range(
         extras
             .trials
             .iter()
@@ -321,7 +320,11 @@ fn plot_ranges(
             .into_iter()
             .flat_map(|p| d.measured.iter().zip(p).map(|(m, p)| m - p))
     });
-    r.error = data_range(per_reading.chain(per_trajectory).chain(diagnosis));
+    let mut r = blueprint::PlotRanges {
+        trials,
+        error: data_range(per_reading.chain(per_trajectory).chain(diagnosis)),
+        ..Default::default()
+    };
     if let Some(rd) = &extras.readings {
         let instant = extras.prediction.iter().flat_map(|p| p.predicted.iter());
         let streamed = extras.sample_stats.iter().flat_map(|s| s.instant);

@@ -1,0 +1,214 @@
+//! The judging stages of [`super::diagnose_trials`]: ranking every hypothesis, the final refit
+//! with the accepted ones, where the held-out residuals lie, and the bus-loss rescaling to the
+//! recorded supply voltage.
+
+use crate::N_PARAMS;
+use crate::signals::Recording;
+
+use super::data::{Rows, TrialMeta};
+use super::hypotheses::{self, LATENCY_ID};
+use super::select::{self, PowerData, Rule, r2_rmse};
+use super::{
+    Breakdown, Confounded, Correlate, Diagnosis, DiscoveryReport, FinalModel, Group,
+    HypothesisScore, Param, Quality, TrialResidual, locate, torque,
+};
+
+/// Every hypothesis scored against the base model, ranked, and the accepted ones in order.
+pub(crate) struct Ranking {
+    pub(crate) ranked: Vec<HypothesisScore>,
+    pub(crate) accepted: Vec<HypothesisScore>,
+}
+
+/// Stage: the torque level's payload hypothesis judged by the power level's rule, then every
+/// hypothesis ranked (accepted first, then by held-out improvement).
+pub(crate) fn rank_hypotheses(
+    sel: &select::Selection,
+    torque: Option<&torque::TorqueLevel>,
+    rule: &Rule,
+) -> Ranking {
+    let mut ranked = sel.first_step.clone();
+    let mut accepted = sel.accepted.clone();
+    if let Some(t) = torque {
+        let mut p = t.payload.clone();
+        let (ok, why) = rule.judge(&p);
+        p.accepted = ok;
+        p.verdict = why;
+        if ok {
+            accepted.push(p.clone());
+        }
+        ranked.push(p);
+    }
+    mark_confounded(&mut ranked, &sel.confounded);
+    ranked.sort_by(|a, b| {
+        (b.accepted, b.rel_improvement)
+            .partial_cmp(&(a.accepted, a.rel_improvement))
+            .unwrap_or(std::cmp::Ordering::Equal)
+    });
+    for (i, s) in ranked.iter_mut().enumerate() {
+        s.rank = i + 1;
+    }
+    Ranking { ranked, accepted }
+}
+
+/// Stage: the final model — the physical parameters of the accepted hypotheses (jackknife
+/// standard errors over the folds) and the held-out quality before and after them, per reading
+/// and per trial (`rows0`: the rows at no lag).
+pub(crate) fn refit_final(
+    sel: &select::Selection,
+    accepted: &[HypothesisScore],
+    torque: Option<&torque::TorqueLevel>,
+    rows0: &Rows,
+    n_trials: usize,
+) -> FinalModel {
+    let last = &sel.last;
+    let mut params = Vec::new();
+    for (j, h) in last.spec.iter().enumerate() {
+        let c = N_PARAMS + j;
+        let per_fold: Vec<f64> = last
+            .cv
+            .fold_theta
+            .iter()
+            .map(|t| (h.to_physical)(t[c]))
+            .collect();
+        params.push(Param {
+            name: h.title.into(),
+            symbol: h.symbol.into(),
+            value: (h.to_physical)(last.full.theta[c]),
+            std_err: select::jackknife_se(&per_fold),
+            unit: h.unit.into(),
+        });
+    }
+    if let Some(lat) = accepted.iter().find(|s| s.id == LATENCY_ID) {
+        params.extend(lat.params.iter().cloned());
+    }
+    if let Some(t) = torque.filter(|t| accepted.iter().any(|s| s.id == t.payload.id)) {
+        params.extend(t.payload.params.iter().cloned());
+    }
+    let y = &rows0.y;
+    let quality = |pred: &[f64]| {
+        let (r2, rmse_w) = r2_rmse(y, pred);
+        Quality { r2, rmse_w }
+    };
+    let per_trial = |pred: &[f64]| {
+        let n = n_trials;
+        let (mut ys, mut ps, mut c) = (vec![0.0; n], vec![0.0; n], vec![0usize; n]);
+        for r in 0..y.len() {
+            let t = rows0.trial[r];
+            ys[t] += y[r];
+            ps[t] += pred[r];
+            c[t] += 1;
+        }
+        let keep: Vec<usize> = (0..n).filter(|&t| c[t] > 0).collect();
+        let yt: Vec<f64> = keep.iter().map(|&t| ys[t] / c[t] as f64).collect();
+        let pt: Vec<f64> = keep.iter().map(|&t| ps[t] / c[t] as f64).collect();
+        let (r2, rmse_w) = r2_rmse(&yt, &pt);
+        Quality { r2, rmse_w }
+    };
+    FinalModel {
+        hypotheses: accepted.iter().map(|s| s.id.clone()).collect(),
+        params,
+        theta: last.full.theta[..N_PARAMS].to_vec(),
+        before: quality(&sel.base.cv.pred),
+        after: quality(&last.cv.pred),
+        before_per_trial: per_trial(&sel.base.cv.pred),
+        after_per_trial: per_trial(&last.cv.pred),
+    }
+}
+
+/// Where the base model's held-out residuals lie, and the structure the final model leaves.
+pub(crate) struct Located {
+    pub(crate) breakdowns: Vec<Breakdown>,
+    pub(crate) worst: Option<(String, Group)>,
+    pub(crate) worst_trials: Vec<TrialResidual>,
+    pub(crate) unexplained: Vec<Correlate>,
+}
+
+/// Stage: locate with the base model's held-out residuals; correlate what the final model
+/// leaves (with the terms found beyond the library when there are any).
+pub(crate) fn locate_residuals(
+    rec: &Recording,
+    metas: &[TrialMeta],
+    data: &PowerData,
+    sel: &select::Selection,
+    discovery: Option<&DiscoveryReport>,
+) -> Located {
+    let last = &sel.last;
+    let rows0 = &data.rows[0];
+    let resid_base: Vec<f64> = rows0
+        .y
+        .iter()
+        .zip(&sel.base.cv.pred)
+        .map(|(a, b)| a - b)
+        .collect();
+    // What the final model leaves: with the terms found beyond the library when there are any.
+    let final_pred = match discovery {
+        Some(r) if !r.accepted.is_empty() && r.pred.len() == last.cv.pred.len() => &r.pred,
+        _ => &last.cv.pred,
+    };
+    let resid_final: Vec<f64> = data.rows[last.lag]
+        .y
+        .iter()
+        .zip(final_pred)
+        .map(|(a, b)| a - b)
+        .collect();
+    let breakdowns = locate::breakdowns(rows0, metas, &resid_base, &rec.joint_names);
+    let worst = locate::worst(&breakdowns);
+    let worst_trials: Vec<TrialResidual> = locate::trial_residuals(rows0, metas, &resid_base)
+        .into_iter()
+        .take(10)
+        .collect();
+    let unexplained = locate::correlates(
+        rows0,
+        metas,
+        &resid_final,
+        &rec.joint_names,
+        data.reference.is_none(),
+        0.01,
+        6,
+    );
+    Located {
+        breakdowns,
+        worst,
+        worst_trials,
+        unexplained,
+    }
+}
+
+/// The bus-current form was fitted at the nominal voltage: R = c·V_nom² / ... rescaled to the
+/// recorded mean supply voltage V̄ (R ∝ V̄², since the feature is (P/V_nom)²).
+pub(crate) fn rescale_bus(d: &mut Diagnosis, volts: f64) {
+    let k = (volts / hypotheses::NOMINAL_BUS_VOLTS).powi(2);
+    let title = hypotheses::power_hypothesis("bus_power").map_or("", |h| h.title);
+    let scale = |p: &mut Param| {
+        p.value *= k;
+        p.std_err *= k;
+    };
+    for s in d.hypotheses.iter_mut().chain(d.accepted.iter_mut()) {
+        if s.id == "bus_power" {
+            s.params.iter_mut().for_each(scale);
+        }
+    }
+    d.final_model
+        .params
+        .iter_mut()
+        .filter(|p| p.name == title)
+        .for_each(scale);
+    d.bus_volts = volts;
+}
+
+/// A term dropped as confounded stays in the ranking, not accepted, its verdict saying with what.
+pub(crate) fn mark_confounded(ranked: &mut [HypothesisScore], confounded: &[Confounded]) {
+    for c in confounded {
+        for s in ranked.iter_mut().filter(|s| s.id == c.dropped) {
+            s.accepted = false;
+            s.verdict = format!(
+                "confounded with {}: not significant given it (p = {:.1e}, held-out RMSE change {:+.1} %, regressor r = {:+.2}); scored alone: {}",
+                c.kept,
+                c.p_value,
+                -100.0 * c.rel_change,
+                c.correlation,
+                s.verdict
+            );
+        }
+    }
+}

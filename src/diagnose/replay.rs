@@ -1,0 +1,153 @@
+//! Per-reading data for the replay of a diagnosis: measured and predicted power, the trials to
+//! point the user to, and the recorded fields the terms found beyond the library follow.
+
+use super::data::{Rows, TrialMeta};
+use super::outcome::Located;
+use super::select_discover::RowFields;
+use super::{Diagnosis, select};
+
+/// Data for the replay: per power reading, measured and predicted net power.
+#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
+pub struct ReplayData {
+    /// Reading time stamp [s, Recording time].
+    pub t: Vec<f64>,
+    /// Trial index of each reading (segmentation numbering).
+    pub trial: Vec<usize>,
+    /// Measured net power [W].
+    pub measured_w: Vec<f64>,
+    /// Held-out prediction of the base model [W].
+    pub before_w: Vec<f64>,
+    /// Held-out prediction with the accepted hypotheses [W].
+    pub after_w: Vec<f64>,
+    /// Trials to highlight (worst residuals, carriers of unexplained structure).
+    pub highlighted: Vec<HighlightedTrial>,
+    /// Held-out prediction with the terms found beyond the library [W] (empty when none).
+    #[serde(default)]
+    pub found_w: Vec<f64>,
+    /// The recorded fields the found terms follow, per reading (window values), to plot beside
+    /// the residual.
+    #[serde(default)]
+    pub located: Vec<LocatedField>,
+}
+
+/// A recorded field a found term follows, sampled on the readings' windows.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct LocatedField {
+    /// `topic.field.path`.
+    pub name: String,
+    /// Window value per reading (same order as [`ReplayData::t`]).
+    pub values: Vec<f64>,
+}
+
+/// A trial the replay should point the user to.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct HighlightedTrial {
+    /// Trial index (segmentation numbering).
+    pub trial: usize,
+    /// Trajectory start [s, Recording time].
+    pub t_start: f64,
+    /// Return end [s].
+    pub t_end: f64,
+    /// Why it is highlighted.
+    pub reason: String,
+}
+
+/// Stage: per-reading data for the replay, with the trials to point the user to (largest
+/// held-out base residuals, carriers of unexplained structure).
+pub(crate) fn replay_data(
+    metas: &[TrialMeta],
+    rows0: &Rows,
+    sel: &select::Selection,
+    located: &Located,
+) -> ReplayData {
+    let mark = |trial: usize, reason: String| {
+        let w = metas
+            .iter()
+            .find(|m| m.window.index == trial)
+            .map(|m| &m.window);
+        HighlightedTrial {
+            trial,
+            t_start: w.map_or(0.0, |w| w.t_traj_start),
+            t_end: w.map_or(0.0, |w| w.t_return_end),
+            reason,
+        }
+    };
+    let mut highlighted: Vec<HighlightedTrial> = located
+        .worst_trials
+        .iter()
+        .take(5)
+        .map(|t| {
+            mark(
+                t.trial,
+                format!(
+                    "largest held-out residual of the base model: {:+.2} W",
+                    t.mean_w
+                ),
+            )
+        })
+        .collect();
+    for c in located.unexplained.iter().filter(|c| c.significant) {
+        for &t in &c.trials {
+            if !highlighted.iter().any(|h| h.trial == t) {
+                highlighted.push(mark(
+                    t,
+                    format!("carries unexplained structure ({})", c.feature),
+                ));
+            }
+        }
+    }
+    ReplayData {
+        t: rows0.t.clone(),
+        trial: rows0.trial.iter().map(|&t| metas[t].window.index).collect(),
+        measured_w: rows0.y.clone(),
+        before_w: sel.base.cv.pred.clone(),
+        after_w: sel.last.cv.pred.clone(),
+        highlighted,
+        found_w: Vec::new(),
+        located: Vec::new(),
+    }
+}
+
+/// Stage: what the replay shows of the found terms: their fields beside the residual, the
+/// prediction with them, and the trials they improve most.
+pub(crate) fn show_found(d: &mut Diagnosis, f: &RowFields, rows: &Rows, metas: &[TrialMeta]) {
+    let Some(r) = &d.discovery else {
+        return;
+    };
+    if r.accepted.is_empty() || r.pred.len() != rows.len() {
+        return;
+    }
+    for t in &r.accepted {
+        for name in &t.fields {
+            if let Some(k) = f.table.names.iter().position(|n| n == name) {
+                let vals = &f.table.values[k];
+                d.replay.located.push(LocatedField {
+                    name: name.clone(),
+                    values: f.row_window.iter().map(|&w| vals[w]).collect(),
+                });
+            }
+        }
+    }
+    d.replay.found_w = r.pred.clone();
+    let n = metas.len();
+    let before = select::trial_sse(&rows.y, &d.replay.after_w, &rows.trial, n);
+    let after = select::trial_sse(&rows.y, &r.pred, &rows.trial, n);
+    let mut gain: Vec<(usize, f64)> = (0..n).map(|t| (t, before[t] - after[t])).collect();
+    gain.sort_by(|a, b| b.1.total_cmp(&a.1));
+    let names: Vec<&str> = r.accepted.iter().map(|t| t.name.as_str()).collect();
+    for &(t, g) in gain.iter().take(5).filter(|(_, g)| *g > 0.0) {
+        let w = &metas[t].window;
+        if d.replay.highlighted.iter().any(|h| h.trial == w.index) {
+            continue;
+        }
+        d.replay.highlighted.push(HighlightedTrial {
+            trial: w.index,
+            t_start: w.t_traj_start,
+            t_end: w.t_return_end,
+            reason: format!(
+                "carries what was found beyond the library ({}): held-out squared error −{g:.2} W²",
+                names.join("; ")
+            ),
+        });
+    }
+}

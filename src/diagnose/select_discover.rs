@@ -1,0 +1,207 @@
+//! Library selection, then discovery beyond the library over every numeric field the
+//! recording's files carry: reading those fields over the rows' windows, and dropping a library
+//! term that is not significant given what discovery found (confounded with it).
+
+use anyhow::Result;
+
+use crate::signals::Recording;
+
+use super::data::{Rows, TrialMeta};
+use super::hypotheses::{self, POWER_HYPOTHESES};
+use super::select::{self, PowerData, Rule};
+use super::{
+    Confounded, DiagnoseOptions, DiscoveryReport, FieldSource, HypothesisScore, discover, fields,
+};
+
+/// Stage: library selection, then discovery beyond it; a library term that is not significant
+/// given what discovery found is confounded with it: it is dropped, reported, and the library
+/// selection re-run without it.
+pub(crate) fn select_and_discover(
+    rec: &Recording,
+    power: &crate::signals::PowerSeries,
+    metas: &[TrialMeta],
+    data: &PowerData,
+    rule: &Rule,
+    opts: &DiagnoseOptions,
+) -> Result<(select::Selection, Option<DiscoveryReport>, RowFields)> {
+    let mut excluded: Vec<&str> = Vec::new();
+    let mut confounded = Vec::new();
+    let mut fields: Option<(usize, RowFields)> = None;
+    // The first run's step-1 scores: a term excluded from later runs keeps its place in the
+    // ranking (marked confounded by `mark_confounded`).
+    let mut first_scores: Option<Vec<HypothesisScore>> = None;
+    loop {
+        let candidates: Vec<&'static hypotheses::Hypothesis> = POWER_HYPOTHESES
+            .iter()
+            .filter(|h| !excluded.contains(&h.id))
+            .collect();
+        let mut sel = select::select(data, &candidates, rule)?;
+        let first = first_scores.get_or_insert_with(|| sel.first_step.clone());
+        let lag = sel.last.lag;
+        if fields.as_ref().is_none_or(|(l, _)| *l != lag) {
+            let f = run_fields(rec, power, metas, &data.rows[lag], data.lags[lag], opts);
+            fields = Some((lag, f));
+        }
+        let Some((_, f)) = &fields else {
+            unreachable!("fields were just read")
+        };
+        if !opts.discover {
+            return Ok((sel, None, fields.map(|f| f.1).unwrap_or_default()));
+        }
+        let report = discover::discover(
+            data,
+            &sel.last,
+            &field_inputs(f, opts),
+            rule,
+            &rec.joint_names,
+        )?;
+        let dropped = library_given_found(data, &sel.last, &report, rule)?;
+        if dropped.is_empty() {
+            sel.first_step.extend(
+                first
+                    .iter()
+                    .filter(|h| excluded.contains(&h.id.as_str()))
+                    .cloned(),
+            );
+            sel.confounded.extend(confounded);
+            sel.accepted.retain(|a| !excluded.contains(&a.id.as_str()));
+            let f = fields.map(|f| f.1).unwrap_or_default();
+            return Ok((sel, Some(report), f));
+        }
+        for c in dropped {
+            if let Some(h) = hypotheses::power_hypothesis(&c.dropped) {
+                excluded.push(h.id);
+            }
+            confounded.push(c);
+        }
+    }
+}
+
+/// Library terms of `cur` that are not significant given the found terms (all at once).
+pub(crate) fn library_given_found(
+    data: &PowerData,
+    cur: &select::State,
+    report: &DiscoveryReport,
+    rule: &Rule,
+) -> Result<Vec<Confounded>> {
+    let mut out = Vec::new();
+    if report.cols.is_empty() {
+        return Ok(out);
+    }
+    let found: Vec<&str> = report.accepted.iter().map(|t| t.name.as_str()).collect();
+    let rows = &data.rows[cur.lag];
+    for (j, h) in cur.spec.iter().enumerate() {
+        let mut spec = cur.spec.clone();
+        spec.remove(j);
+        let without = select::state(data, spec, cur.lag)?;
+        let (p, rel, d_bic) =
+            discover::library_term_given_found(data, cur, &without, &report.cols)?;
+        if p < rule.alpha && d_bic < rule.bic_threshold && rel >= rule.min_improvement {
+            continue;
+        }
+        let mine: Vec<f64> = rows
+            .x
+            .iter()
+            .map(|x| select::regressor(h, x, &cur.full.theta))
+            .collect();
+        out.push(Confounded {
+            kept: found.join("; "),
+            dropped: h.id.into(),
+            correlation: select::correlation(&mine, &report.cols[0]),
+            p_value: p,
+            rel_change: rel,
+        });
+    }
+    Ok(out)
+}
+
+/// The recorded fields over the final rows' windows and every trial's baseline windows.
+#[derive(Default)]
+pub(crate) struct RowFields {
+    pub(crate) table: fields::FieldTable,
+    /// Index into the table's windows of each row.
+    pub(crate) row_window: Vec<usize>,
+    /// Per trial (position in the trial list): indices of its baseline windows.
+    pub(crate) base_windows: Vec<Vec<usize>>,
+}
+
+/// Stage: read every numeric field of the recording's files over the rows' windows.
+pub(crate) fn run_fields(
+    rec: &Recording,
+    power: &crate::signals::PowerSeries,
+    metas: &[TrialMeta],
+    rows: &Rows,
+    lag: f64,
+    opts: &DiagnoseOptions,
+) -> RowFields {
+    // Resolved by `diagnose_trials` before the stages run.
+    let w = opts
+        .sensor_window_s
+        .unwrap_or(crate::timing::Alignment::NOMINAL.window_s);
+    let window = |t: f64| fields::Window {
+        start: t - lag - w,
+        end: t - lag,
+    };
+    // (window, tag): tag < rows.len() = row, otherwise baseline of trial tag − rows.len().
+    let mut all: Vec<(fields::Window, usize)> = rows
+        .t
+        .iter()
+        .enumerate()
+        .map(|(r, &t)| (window(t), r))
+        .collect();
+    for (ti, m) in metas.iter().enumerate() {
+        let lo = power.t.partition_point(|&x| x < m.window.t_pre_start + w);
+        let hi = power
+            .t
+            .partition_point(|&x| x < m.window.t_traj_start + 1e-9);
+        for k in lo..hi.max(lo) {
+            if power.watts.get(k).is_some_and(|v| v.is_finite()) {
+                all.push((window(power.t[k]), rows.len() + ti));
+            }
+        }
+    }
+    all.sort_by(|a, b| a.0.start.total_cmp(&b.0.start));
+    let mut row_window = vec![0; rows.len()];
+    let mut base_windows = vec![Vec::new(); metas.len()];
+    for (i, (_, tag)) in all.iter().enumerate() {
+        if *tag < rows.len() {
+            row_window[*tag] = i;
+        } else {
+            base_windows[tag - rows.len()].push(i);
+        }
+    }
+    let windows: Vec<fields::Window> = all.iter().map(|a| a.0).collect();
+    let sources: Vec<FieldSource> = if opts.field_sources.is_empty() {
+        if rec.source.exists() {
+            vec![FieldSource {
+                path: rec.source.clone(),
+                start_ns: rec.start_ns,
+                offset_s: 0.0,
+            }]
+        } else {
+            Vec::new()
+        }
+    } else {
+        opts.field_sources.clone()
+    };
+    let table = if opts.discover && !sources.is_empty() {
+        fields::read_fields(&sources, &windows)
+    } else {
+        fields::FieldTable::default()
+    };
+    RowFields {
+        table,
+        row_window,
+        base_windows,
+    }
+}
+
+/// Stage: discovery inputs (the field table and where the rows' and baselines' windows are).
+pub(crate) fn field_inputs<'a>(f: &'a RowFields, opts: &DiagnoseOptions) -> discover::Inputs<'a> {
+    discover::Inputs {
+        fields: &f.table,
+        row_window: &f.row_window,
+        base_windows: &f.base_windows,
+        arm_motors: opts.arm_motors,
+    }
+}
