@@ -41,7 +41,7 @@ use std::sync::Mutex;
 use std::sync::mpsc::{self, RecvTimeoutError};
 use std::time::{Duration, Instant};
 
-use fuzz_engine::{Input, Kind, Rng, exercise, mutate, seed_messages, seeds};
+use fuzz_engine::{Input, Kind, exercise, input_for, seed_messages, seeds};
 
 /// Address-space limit of each child.
 const LIMIT_AS_BYTES: u64 = 2 << 30;
@@ -152,19 +152,6 @@ fn build_seeds(messages: usize) -> Result<Vec<Input>, String> {
     let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/g1_example.mcap");
     let bytes = std::fs::read(&example).map_err(|e| format!("{}: {e}", example.display()))?;
     Ok(seeds(&seed_messages(&bytes, messages)))
-}
-
-/// Input `i` of campaign seed `seed`: a pure function of both (splitmix64 of the pair seeds the
-/// mutation generator).
-fn input_for(seeds: &[Input], seed: u64, i: u64) -> Input {
-    let mut z = seed
-        .wrapping_mul(0x9E37_79B9_7F4A_7C15)
-        .wrapping_add(i.wrapping_mul(0xBF58_476D_1CE4_E5B9));
-    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-    let mut rng = Rng::new(z ^ (z >> 31));
-    let base = &seeds[rng.below(seeds.len())];
-    mutate(base, &mut rng)
 }
 
 /// The reader an input targets, as reports name it.

@@ -558,6 +558,30 @@ fn write_db3(msgs: &[SeedMsg], mode: &str) -> Input {
 // ---------------------------------------------------------------------------------------------
 // Mutation
 
+/// The generator of input `i` of campaign seed `seed`: a pure function of both (splitmix64 of
+/// the pair), so any input of a campaign can be rebuilt alone.
+fn campaign_rng(seed: u64, i: u64) -> Rng {
+    let mut z = seed
+        .wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        .wrapping_add(i.wrapping_mul(0xBF58_476D_1CE4_E5B9));
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    Rng::new(z ^ (z >> 31))
+}
+
+/// Input `i` of campaign seed `seed` (`examples/fuzz_readers.rs` runs these).
+pub fn input_for(seeds: &[Input], seed: u64, i: u64) -> Input {
+    let mut rng = campaign_rng(seed, i);
+    let base = &seeds[rng.below(seeds.len())];
+    mutate(base, &mut rng)
+}
+
+/// The container input `i` of campaign seed `seed` targets, without building it (a mutation
+/// keeps its seed's container).
+pub fn campaign_kind(seeds: &[Input], seed: u64, i: u64) -> Kind {
+    seeds[campaign_rng(seed, i).below(seeds.len())].kind
+}
+
 /// Apply 1–4 mutations (structure-aware for the input's container, or byte havoc).
 pub fn mutate(seed: &Input, rng: &mut Rng) -> Input {
     let mut input = seed.clone();
