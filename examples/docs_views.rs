@@ -15,7 +15,7 @@ use g1viz::identify::IdentifyOptions;
 use g1viz::power::PowerModel;
 use g1viz::robot::RobotModel;
 use g1viz::signals::{SignalMap, load_recording};
-use g1viz::viz::{OutputKind, Sink, open_stream, overlay, recording_id_for, short_joint_name};
+use g1viz::viz::{OutputKind, Sink, model_extras, open_stream, recording_id_for, short_joint_name};
 use g1viz::viz::{ReplayOptions, log_replay};
 
 fn main() -> Result<()> {
@@ -36,7 +36,7 @@ fn main() -> Result<()> {
     let rec = load_recording(&session, &SignalMap::g1_left_arm(), &Default::default())?;
     let robot = RobotModel::builtin();
     let arm = robot.arm(&rec.joint_names)?;
-    let (extras, _) = overlay::model_extras(&rec, &PowerModel::PAPER, &IdentifyOptions::default())?;
+    let (extras, _) = model_extras(&rec, &PowerModel::PAPER, &IdentifyOptions::default())?;
     let kind = OutputKind::ModelReplay;
     let mut tabs: Vec<Option<String>> = vec![None];
     let joints: Vec<String> = rec

@@ -12,8 +12,8 @@ use g1viz::identify::{IdentifyOptions, StreamOptions};
 use g1viz::power::PowerModel;
 use g1viz::robot::RobotModel;
 use g1viz::signals::{SignalMap, load_recording};
-use g1viz::viz::session::{SessionReplay, Window, replay_session};
 use g1viz::viz::{ReplayOptions, log_replay};
+use g1viz::viz::{SessionReplay, Window, replay_session};
 use g1viz::viz::{Sink, open_stream, recording_id_for};
 use rerun::external::re_log_encoding::DecoderApp;
 use rerun::external::re_log_types::StoreKind;
@@ -121,7 +121,7 @@ fn statics(d: &Decoded, path: &str) -> Vec<String> {
 /// The in-memory model replay (the whole recording, `model_extras`, `log_replay`).
 fn in_memory(session: &Path, out: &Path, opts: &IdentifyOptions, ro: &ReplayOptions) {
     let rec = load_recording(session, &SignalMap::g1_left_arm(), &Default::default()).unwrap();
-    let (extras, _) = g1viz::viz::overlay::model_extras(&rec, &PowerModel::PAPER, opts).unwrap();
+    let (extras, _) = g1viz::viz::model_extras(&rec, &PowerModel::PAPER, opts).unwrap();
     let robot = RobotModel::builtin();
     let arm = robot.arm(&rec.joint_names).unwrap();
     let kind = g1viz::viz::OutputKind::ModelReplay;

@@ -759,7 +759,7 @@ fn model_overlay_marks_contaminated_trials_and_logs_loss_terms() {
     .unwrap();
     let opts = g1viz::identify::IdentifyOptions::default();
     let (extras, validation) =
-        g1viz::viz::overlay::model_extras(&rec, &g1viz::power::PowerModel::PAPER, &opts).unwrap();
+        g1viz::viz::model_extras(&rec, &g1viz::power::PowerModel::PAPER, &opts).unwrap();
 
     let mut imu: Vec<usize> = extras
         .trials
@@ -1107,12 +1107,7 @@ fn diagnosis_rrd_has_before_after_located_trials_and_counterpart() {
     d.attach_counterpart(comparison);
 
     let out = dir.path().join("diag.rrd");
-    save_replay(
-        &real,
-        &g1viz::viz::overlay::diagnosis_extras(&d),
-        &out,
-        &real_path,
-    );
+    save_replay(&real, &g1viz::viz::diagnosis_extras(&d), &out, &real_path);
     let msgs = decode(&out);
     let c = contents(&msgs);
 
@@ -1266,10 +1261,10 @@ fn connect_streams_to_a_stock_rerun_server() {
 fn replay_window(
     session: &Path,
     out: &Path,
-    window: g1viz::viz::session::Window,
+    window: g1viz::viz::Window,
     model: Option<&g1viz::power::PowerModel>,
-) -> Vec<g1viz::viz::session::Notice> {
-    use g1viz::viz::session::{SessionReplay, replay_session};
+) -> Vec<g1viz::viz::Notice> {
+    use g1viz::viz::{SessionReplay, replay_session};
     let map = g1viz::signals::SignalMap::g1_left_arm();
     let read = g1viz::read::OpenOptions::default();
     let robot = RobotModel::builtin();
@@ -1318,7 +1313,7 @@ fn replay_from_to_logs_exactly_the_window() {
     .unwrap();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("window.rrd");
-    let window = g1viz::viz::session::Window {
+    let window = g1viz::viz::Window {
         from_s: Some(20.0),
         to_s: Some(45.0),
         ..Default::default()
@@ -1366,7 +1361,7 @@ fn replay_max_rate_caps_the_series() {
     .unwrap();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("capped.rrd");
-    let window = g1viz::viz::session::Window {
+    let window = g1viz::viz::Window {
         max_rate_hz: Some(10.0),
         ..Default::default()
     };
@@ -1407,7 +1402,7 @@ fn replay_trials_logs_those_trials() {
     let (a, b) = (&seg.trials[2], &seg.trials[3]);
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("trials.rrd");
-    let window = g1viz::viz::session::Window {
+    let window = g1viz::viz::Window {
         trials: Some((a.index, b.index)),
         ..Default::default()
     };
@@ -1445,7 +1440,7 @@ fn replay_trials_logs_those_trials() {
 /// `--max-rate 20`, for two trials at 20 Hz, and for 20 s with the model.
 #[test]
 fn rrd_size_per_hour_matches_readme_and_estimate() {
-    use g1viz::viz::session::Notice;
+    use g1viz::viz::Notice;
     let readme =
         std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("README.md")).unwrap();
     let line = readme
@@ -1482,7 +1477,7 @@ fn rrd_size_per_hour_matches_readme_and_estimate() {
     ];
     for (name, max_rate, trials, model) in cases {
         let out = dir.path().join(format!("{name}.rrd"));
-        let window = g1viz::viz::session::Window {
+        let window = g1viz::viz::Window {
             max_rate_hz: max_rate,
             trials,
             from_s: model.map(|_| 10.0),
@@ -1620,7 +1615,7 @@ fn model_replay_colours_links_draws_trial_bars_and_logs_rejections() {
     .unwrap();
     let opts = g1viz::identify::IdentifyOptions::default();
     let (extras, _) =
-        g1viz::viz::overlay::model_extras(&rec, &g1viz::power::PowerModel::PAPER, &opts).unwrap();
+        g1viz::viz::model_extras(&rec, &g1viz::power::PowerModel::PAPER, &opts).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("model.rrd");
     save_replay(&rec, &extras, &out, &session);
@@ -1913,12 +1908,9 @@ fn legends_never_cover_data() {
         &Default::default(),
     )
     .unwrap();
-    let (extras, _) = g1viz::viz::overlay::model_extras(
-        &rec,
-        &g1viz::power::PowerModel::PAPER,
-        &Default::default(),
-    )
-    .unwrap();
+    let (extras, _) =
+        g1viz::viz::model_extras(&rec, &g1viz::power::PowerModel::PAPER, &Default::default())
+            .unwrap();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("model.rrd");
     save_replay(&rec, &extras, &out, &session);
@@ -2122,12 +2114,9 @@ fn measured_readings_are_distinct_markers_in_the_power_plot() {
         &Default::default(),
     )
     .unwrap();
-    let (extras, _) = g1viz::viz::overlay::model_extras(
-        &rec,
-        &g1viz::power::PowerModel::PAPER,
-        &Default::default(),
-    )
-    .unwrap();
+    let (extras, _) =
+        g1viz::viz::model_extras(&rec, &g1viz::power::PowerModel::PAPER, &Default::default())
+            .unwrap();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("model.rrd");
     save_replay(&rec, &extras, &out, &session);
@@ -2361,12 +2350,9 @@ fn overview_plots_open_on_readable_ranges() {
         &Default::default(),
     )
     .unwrap();
-    let (extras, _) = g1viz::viz::overlay::model_extras(
-        &rec,
-        &g1viz::power::PowerModel::PAPER,
-        &Default::default(),
-    )
-    .unwrap();
+    let (extras, _) =
+        g1viz::viz::model_extras(&rec, &g1viz::power::PowerModel::PAPER, &Default::default())
+            .unwrap();
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("model.rrd");
     save_replay(&rec, &extras, &out, &session);

@@ -145,7 +145,7 @@ fn save_diagnosis_rrd(
     use g1viz::viz::{self, OutputKind, Sink};
     let robot = RobotModel::load(a.urdf.as_deref())?;
     let arm = robot.arm(&rec.joint_names)?;
-    let extras = viz::overlay::diagnosis_extras(d);
+    let extras = viz::diagnosis_extras(d);
     let kind = OutputKind::Diagnosis;
     let stream = viz::open_stream(
         &kind.app_id(),

@@ -67,8 +67,8 @@ pub struct ReplayArgs {
 pub fn run(a: ReplayArgs) -> Result<()> {
     use g1viz::power::load_model_for;
     use g1viz::robot::RobotModel;
-    use g1viz::viz::session::{Notice, SessionReplay, Window, replay_session};
     use g1viz::viz::{self, Sink};
+    use g1viz::viz::{Notice, SessionReplay, Window, replay_session};
     use std::path::Path;
 
     let robot = RobotModel::load(a.urdf.as_deref())?;

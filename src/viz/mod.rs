@@ -15,12 +15,12 @@
 mod blueprint;
 mod layers;
 mod model_stream;
-pub mod overlay;
+mod overlay;
 mod paths;
 mod replay;
 mod robot3d;
 mod rrd_sink;
-pub mod session;
+mod session;
 mod slice;
 mod style;
 
@@ -29,10 +29,15 @@ pub use blueprint::{
     legend_fraction, legend_room,
 };
 pub use layers::TrialMean;
+pub use overlay::{diagnosis_extras, model_extras, trial_series, validation_extras};
 pub use replay::{
     DiagnosisOverlay, ImuFilterMarks, PowerPrediction, ReadingPrediction, ReplayExtras,
     ReplayLogger, ReplayOptions, ReplaySummary, SampleStats, TermSeries, TrajectoryPoint,
     TrialMark, idle_baseline, layout, log_replay, replay_file,
+};
+pub use session::{
+    BYTES_FIXED, BYTES_PER_CHUNK, BYTES_PER_LINK_POSE, BYTES_PER_SCALAR, Notice, SessionReplay,
+    SizeEstimate, Window, replay_session,
 };
 pub use slice::{Decimator, Slice};
 
