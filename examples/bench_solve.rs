@@ -162,7 +162,7 @@ fn main() -> anyhow::Result<()> {
     );
 
     if let Some(dir) = report_dir {
-        use g1viz::identify::report::*;
+        use g1viz::identify::{PredictionSet, ReportInput, TermContributions, write_report};
         let predicted: Vec<f64> = rows
             .iter()
             .map(|r| model.breakdown_from_regressor(r).total())

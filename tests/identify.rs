@@ -8,8 +8,8 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use g1viz::identify::dataset::{self, Alignment, DatasetOptions, Mode, Target};
 use g1viz::identify::{self as pipeline, AlignmentChoice, IdentifyOptions};
+use g1viz::identify::{Alignment, DatasetOptions, Mode, Target, build_dataset};
 use g1viz::power::PowerModel;
 use g1viz::signals::{PowerSeries, Recording};
 use g1viz::trial::{self as segment};
@@ -291,7 +291,7 @@ fn regressors_and_targets_on_hand_computed_samples() {
         },
     };
 
-    let samples = dataset::build(&rec, std::slice::from_ref(&trial), &opts(Mode::Sample));
+    let samples = build_dataset(&rec, std::slice::from_ref(&trial), &opts(Mode::Sample));
     let first = &samples.rows[0];
     assert_eq!(first.t, 1.01);
     assert_eq!(first.tau0_sq[0], 4.0);
@@ -321,7 +321,7 @@ fn regressors_and_targets_on_hand_computed_samples() {
 
     // Per reading: the 1.4 s reading averages (1.2, 1.4] — all first-half samples; the 1.9 s
     // reading averages (1.7, 1.9] — all second-half samples: τq̇ = [-1, 2], Δτ² = [-3, 0].
-    let readings = dataset::build(&rec, std::slice::from_ref(&trial), &opts(Mode::Reading));
+    let readings = build_dataset(&rec, std::slice::from_ref(&trial), &opts(Mode::Reading));
     assert_eq!(readings.rows.len(), 2);
     assert!(
         (readings.rows[0].phi[0] - 1.5).abs() < 1e-12 && (readings.rows[0].y - 4.0).abs() < 1e-12
@@ -332,7 +332,7 @@ fn regressors_and_targets_on_hand_computed_samples() {
     assert!((second.y - 10.0).abs() < 1e-12);
 
     // Per trial over (1.0, 2.0]: 50 samples of each half → means of the two halves.
-    let trials = dataset::build(&rec, std::slice::from_ref(&trial), &opts(Mode::Trial));
+    let trials = build_dataset(&rec, std::slice::from_ref(&trial), &opts(Mode::Trial));
     assert_eq!(trials.rows.len(), 1);
     let row = &trials.rows[0];
     assert!((row.phi[0] - 0.25).abs() < 1e-12, "{}", row.phi[0]); // (1.5 − 1)/2
@@ -344,12 +344,12 @@ fn regressors_and_targets_on_hand_computed_samples() {
     let mut damaged = rec.clone();
     damaged.mbs.watts[3] = f64::NAN;
     damaged.mbs.watts[0] = f64::NAN;
-    let rows = dataset::build(&damaged, std::slice::from_ref(&trial), &opts(Mode::Reading)).rows;
+    let rows = build_dataset(&damaged, std::slice::from_ref(&trial), &opts(Mode::Reading)).rows;
     assert_eq!(rows.len(), 1);
     assert!((rows[0].y - 3.0).abs() < 1e-12, "{}", rows[0].y); // 125 − 122
 
     // BMS target: no BMS readings → the trial is skipped with a reason naming the sensor.
-    let bms = dataset::build(
+    let bms = build_dataset(
         &rec,
         &[trial],
         &DatasetOptions {
@@ -875,7 +875,7 @@ fn identified_on_smoke_validates_on_holdout() {
     assert_eq!(back.provenance.target, "mbs");
     let report = dir.path().join("report");
     let input = reading.report_input(back, Some(&v), Some(truth_model));
-    g1viz::identify::report::write_report(&report, &input).expect("report");
+    g1viz::identify::write_report(&report, &input).expect("report");
     assert!(report.join("report.md").exists());
     // The fit plot labels its points with their trials: every retained trial of the session
     // (the truth file's trials less the rejected ones) once; the hold-out's points too.

@@ -588,7 +588,10 @@ fn model_file_errors_name_file_and_field() {
 
 #[test]
 fn report_writes_markdown_and_readable_pngs() {
-    use g1viz::identify::report::*;
+    use g1viz::identify::{
+        AggregationRow, PredictionSet, REPORT_FIGURES as FIGURES, ReportInput, TermContributions,
+        write_report,
+    };
     let (rows, y) = paper_shaped(120, 0.3, &PowerModel::PAPER, 11);
     let fit = fit_constrained(&rows, &y, &paper_lower_bounds()).unwrap();
     let model = PowerModel::from_vector(&fit.theta49().unwrap());

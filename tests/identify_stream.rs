@@ -221,7 +221,7 @@ fn multi_session_breakdown() {
     let file = id
         .model_file(&SignalMap::g1_left_arm().joint_names, None, "")
         .unwrap();
-    g1viz::identify::report::write_report(&report, &id.report_input(file, None, None)).unwrap();
+    g1viz::identify::write_report(&report, &id.report_input(file, None, None)).unwrap();
     let md = std::fs::read_to_string(report.join("report.md")).unwrap();
     assert!(md.contains("## Per session"), "{md}");
     let joined: Vec<String> = warm_t.iter().map(|v| format!("{v:.1}")).collect();

@@ -96,7 +96,7 @@ pub fn run(a: IdentifyArgs) -> Result<()> {
             .first()
             .and_then(|p| g1viz::sim::truth_model(p));
         let input = id.report_input(file, validation.as_ref(), truth);
-        g1viz::identify::report::write_report(dir, &input)?;
+        g1viz::identify::write_report(dir, &input)?;
         println!("wrote {}", dir.join("report.md").display());
     }
     Ok(())

@@ -4,21 +4,28 @@
 //! markdown/PNG report. Trials and their filters live in [`crate::trial`], the solvers in
 //! [`crate::lsq`].
 
-pub mod dataset;
+mod dataset;
 mod fit;
 mod pipeline;
 mod record;
-pub mod report;
+mod report;
 mod stream;
 mod summary;
 mod table;
 mod validate;
 
-pub use dataset::{Alignment, AlignmentEstimate, Mode, Target};
+pub use dataset::{
+    Alignment, AlignmentEstimate, AlignmentScore, Dataset, DatasetOptions, Mode, Row, Skipped,
+    Target, TrialBasis, build as build_dataset, estimate_alignment,
+};
 pub use fit::{kappa, term_means};
 pub use pipeline::{
     AlignmentChoice, Identification, IdentifyOptions, ModeFit, RowsFit, SessionBreakdown,
     SessionSummary, fit_given_rows, identify, identify_files,
+};
+pub use report::{
+    AggregationRow, FIGURES as REPORT_FIGURES, PredictionSet, ReportInput, TermContributions,
+    write_report,
 };
 pub use stream::{
     SessionFile, StreamOptions, for_each_trial, for_each_trial_and_batch, segment_file,

@@ -22,7 +22,7 @@ use parquet::basic::{Compression, ZstdLevel};
 use parquet::file::metadata::KeyValue;
 use parquet::file::properties::WriterProperties;
 
-use crate::identify::dataset::Row;
+use crate::identify::Row;
 use crate::power::PowerModel;
 use crate::signals::Recording;
 use crate::{N_JOINTS, N_PARAMS};
@@ -298,13 +298,13 @@ fn trial_table_rows(
     robot: &str,
     out: &mut Vec<TableRow>,
 ) {
-    use crate::identify::dataset::{self, DatasetOptions, Mode};
+    use crate::identify::{DatasetOptions, Mode, build_dataset};
     let opts = DatasetOptions {
         mode: Mode::Reading,
         target: id.options.target,
         alignment: id.alignment,
     };
-    let set = dataset::build(rec, std::slice::from_ref(trial), &opts);
+    let set = build_dataset(rec, std::slice::from_ref(trial), &opts);
     for row in set.rows {
         let rejected_by = id
             .rejections

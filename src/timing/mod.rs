@@ -4,7 +4,7 @@
 //! window explain the readings ([`ridge_r2`]).
 //!
 //! The scan knows nothing of how rows are built: identification scores its own per-reading rows
-//! (`identify::dataset::estimate_alignment`), diagnosis its own.
+//! (`identify::estimate_alignment`), diagnosis its own.
 
 use nalgebra::{DMatrix, DVector};
 
