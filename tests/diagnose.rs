@@ -213,6 +213,7 @@ fn check_single(
         "{name}: held-out fit does not improve"
     );
     assert_eq!(claims(&d), [id], "{name}: nothing else may be claimed");
+    nominal_window(name, &d);
     // Where the effect's mechanism has several forms, its own form is the one claimed, or the
     // forms are reported as confounded (the margin is not significant) with it among them.
     if let Some(f) = form_of(&d, id) {
@@ -221,6 +222,16 @@ fn check_single(
             "{name}: wrong form claimed: {f:?}"
         );
     }
+}
+
+/// The window the diagnosis estimated (the default) on a session simulated with the G1's 0.2 s
+/// sensor window: within ±0.05 s (two steps of the scan's fine grid).
+fn nominal_window(name: &str, d: &Diagnosis) {
+    let sw = d.sensor_window;
+    assert!(
+        sw.estimated && (sw.window_s - 0.2).abs() <= 0.05,
+        "{name}: sensor window {sw:?}"
+    );
 }
 
 /// The form comparison of the mechanism whose winning or runner-up form is `id`.
@@ -292,6 +303,7 @@ fn off_grid_sensor_latency_is_refined_between_scan_points() {
     let d = diagnose::diagnose(&rec, &files.opts(refit())).unwrap();
     show("latency 0.27", &d);
     assert_eq!(claims(&d), ["latency"]);
+    nominal_window("latency 0.27", &d);
     let l = param(&d, "L");
     assert!((l - 0.27).abs() <= 0.01, "L = {l}");
 }
@@ -723,14 +735,11 @@ fn two_effects_at_once_are_both_found() {
 #[test]
 fn a_sensor_window_other_than_the_nominal_is_estimated_and_nothing_claimed() {
     // Power sensors averaging 0.5 s instead of the G1's 0.2 s; nothing concealed. The window is
-    // estimated on the (W, lag) grid of the identification (0.025 s steps): within ±0.05 s.
+    // estimated by default (0.025 s fine grid): within ±0.05 s.
     let (rec, _, files) = session_window(&Effects::default(), 3, 3, &[30.0], &[], 0.5);
-    let auto = |o: DiagnoseOptions| DiagnoseOptions {
-        sensor_window_s: None,
-        ..o
-    };
     for (mode, opts) in [("refit", refit()), ("twin", twin())] {
-        let d = diagnose::diagnose(&rec, &files.opts(auto(opts))).unwrap();
+        assert_eq!(opts.sensor_window_s, None, "estimated by default");
+        let d = diagnose::diagnose(&rec, &files.opts(opts)).unwrap();
         show(&format!("W = 0.5 s {mode}"), &d);
         let sw = d.sensor_window;
         assert!(sw.estimated, "{sw:?}");
@@ -745,19 +754,18 @@ fn a_sensor_window_other_than_the_nominal_is_estimated_and_nothing_claimed() {
         );
         assert!(claims(&d).is_empty(), "{mode}: claimed {:?}", claims(&d));
     }
-    // Nominal sessions: the estimate is within ±0.05 s of the nominal 0.2 s.
-    for seed in [11, 12, 13] {
-        let (rec, _, files) = session(&Effects::default(), seed, 3, &[30.0]);
-        let d = diagnose::diagnose(&rec, &files.opts(auto(refit()))).unwrap();
-        eprintln!("seed {seed}: {:?}", d.sensor_window);
-        assert!(
-            (d.sensor_window.window_s - 0.2).abs() <= 0.05,
-            "seed {seed}: {:?}",
-            d.sensor_window
-        );
-    }
-    // Given (the default), the window is the nominal one and says so.
-    assert_eq!(refit().sensor_window_s, Some(0.2));
+    // Given, the window is used as it is and says so.
+    let given = DiagnoseOptions {
+        sensor_window_s: Some(0.5),
+        ..refit()
+    };
+    let d = diagnose::diagnose(&rec, &files.opts(given)).unwrap();
+    assert!(!d.sensor_window.estimated && d.sensor_window.window_s == 0.5);
+    assert!(
+        claims(&d).is_empty(),
+        "given 0.5 s: claimed {:?}",
+        claims(&d)
+    );
 }
 
 #[test]
@@ -767,6 +775,7 @@ fn null_sessions_accept_nothing() {
         for (mode, opts) in [("refit", refit()), ("twin", twin())] {
             let d = diagnose::diagnose(&rec, &files.opts(opts)).unwrap();
             show(&format!("null seed {seed} {mode}"), &d);
+            nominal_window(&format!("null seed {seed} {mode}"), &d);
             assert!(
                 claims(&d).is_empty(),
                 "seed {seed} {mode}: claimed {:?}",

@@ -29,8 +29,8 @@ pub struct DiagnoseArgs {
     #[arg(long, value_enum, default_value = "mbs")]
     target: TargetArg,
     /// The power sensor's averaging window W in seconds, or `auto` to estimate it from the data
-    /// (the identification's alignment scan).
-    #[arg(long, value_name = "SECONDS|auto", default_value = "0.2")]
+    /// (the (W, lag) alignment scan, the lag left to the latency hypothesis).
+    #[arg(long, value_name = "SECONDS|auto", default_value = "auto")]
     sensor_window: String,
     /// Write a markdown report with figures into DIR.
     #[arg(long, value_name = "DIR")]

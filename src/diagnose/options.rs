@@ -26,11 +26,9 @@ pub struct DiagnoseOptions {
     pub bic_threshold: f64,
     /// Minimum relative held-out RMSE improvement.
     pub min_improvement: f64,
-    /// Power sensor averaging window W [s] (a reading stamped t averages [t − W, t]); default
-    /// the G1's nominal 0.2 s. `None`: estimated from the data by the identification's
-    /// alignment scan ([`crate::timing::scan_alignment`] on the diagnosis' rows) — on 72 nominal trials
-    /// the scan's flat optimum can land at 0.15 s with a 0.025 s lag, which the latency
-    /// hypothesis then claims, so the estimate is not the default.
+    /// Power sensor averaging window W [s] (a reading stamped t averages [t − W, t]).
+    /// `None` (the default): estimated from the data by the (W, lag) alignment scan with the lag
+    /// left to the latency hypothesis (see `diagnose/window.rs`); `Some(w)`: given.
     pub sensor_window_s: Option<f64>,
     /// Largest sensor latency scanned [s] (0 disables the latency hypothesis).
     pub max_lag_s: f64,
@@ -62,7 +60,7 @@ impl Default for DiagnoseOptions {
             alpha: 1e-3,
             bic_threshold: -10.0,
             min_improvement: 0.02,
-            sensor_window_s: Some(crate::timing::Alignment::NOMINAL.window_s),
+            sensor_window_s: None,
             max_lag_s: 1.0,
             imu_threshold: 2.5,
             outlier_passes: 2,

@@ -21,12 +21,25 @@ pub struct SensorWindow {
     pub window_s: f64,
     /// Estimated from the data (true) or given (false).
     pub estimated: bool,
-    /// Lag of the best (W, lag) point of the alignment scan [s] (the latency hypothesis judges
-    /// a lag; this is only the scan's by-product). 0 when W was given.
+    /// W of the best (W, lag ≥ 0) point of the alignment scan [s] (0 when W was given).
+    #[serde(default)]
+    pub scan_window_s: f64,
+    /// Lag of that point [s] (the latency hypothesis judges a lag; this is only the scan's
+    /// by-product). 0 when W was given.
     pub scan_lag_s: f64,
-    /// Per-reading R² of the identification's least-squares fit at that point (0 when given:
+    /// Per-reading R² of the base regressors' least-squares fit at that point (0 when given:
     /// JSON has no NaN).
     pub scan_r2: f64,
+    /// ΔBIC of freeing W against the nominal 0.2 s window at the same window centre (negative
+    /// favours the free W; the nominal window is kept unless it beats the diagnosis' BIC
+    /// threshold). 0 when W was given.
+    #[serde(default)]
+    pub window_delta_bic: f64,
+    /// ΔBIC of freeing the lag against the best window at lag 0 near the same window centre
+    /// (negative favours the lag; used only when the nominal window is rejected). 0 when W was
+    /// given or the scan's best lag is 0.
+    #[serde(default)]
+    pub lag_delta_bic: f64,
     /// Trials the scan used.
     pub scan_trials: usize,
 }

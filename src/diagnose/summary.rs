@@ -141,8 +141,8 @@ fn where_wrong(d: &Diagnosis, s: &mut String) {
     if sw.estimated {
         let _ = writeln!(
             s,
-            "Sensor window: each reading averages the {:.3} s before its stamp (estimated from {} trials by the identification's alignment scan, R² = {:.3}).",
-            sw.window_s, sw.scan_trials, sw.scan_r2
+            "Sensor window: each reading averages the {:.3} s before its stamp (estimated from {} trials by the (W, lag) alignment scan; best point W {:.3} s, lag {:.3} s, R² = {:.3}; the lag is the latency hypothesis' to judge).",
+            sw.window_s, sw.scan_trials, sw.scan_window_s, sw.scan_lag_s, sw.scan_r2
         );
     }
     if let Some(best) = d
