@@ -40,6 +40,8 @@ const METER_CORRELATION: f64 = 0.5;
 const SLOW_SHARE: f64 = 0.1;
 /// At most one discovered term per this many trials.
 const TRIALS_PER_TERM: usize = 20;
+/// How candidate names call session time.
+const TIME_NAME: &str = "session time";
 /// Hard cap on discovered terms.
 const MAX_TERMS: usize = 4;
 /// Partial correlation (given the library design) above which two terms are confounded.
@@ -620,7 +622,7 @@ fn signal_name(s: &Signal, names: &[String]) -> String {
     match s {
         Signal::Field(f) => names[*f].clone(),
         Signal::Family(k, _) => format!("{k} (each joint's own motor)"),
-        Signal::Time => "session time".into(),
+        Signal::Time => TIME_NAME.into(),
     }
 }
 
@@ -974,8 +976,35 @@ pub(crate) fn discover(
         accepted.push((step, b));
     }
     backward(&search, &mut chosen, &mut accepted, &mut report.notes)?;
+    let on_time = chosen
+        .iter()
+        .any(|&i| search.cands[i].group.contains(TIME_NAME));
+    if let Some(note) = on_time
+        .then(|| clock_stand_ins(&search.inp.fields.excluded))
+        .flatten()
+    {
+        report.notes.push(note);
+    }
     finish(&search, &chosen, &accepted, cur, joint_names, &mut report)?;
     Ok(report)
+}
+
+/// A note naming the recorded fields left out because they follow session time (the clock
+/// rule): when a discovered term uses session time, any of them may be the quantity the effect
+/// really follows (a battery voltage that falls steadily, say) — the data cannot tell them from
+/// the clock, so they are named beside it instead of being dropped silently.
+fn clock_stand_ins(excluded: &[super::fields::ExcludedField]) -> Option<String> {
+    let names: Vec<&str> = excluded
+        .iter()
+        .filter(|e| e.reason.starts_with(super::fields::CLOCK_REASON))
+        .map(|e| e.name.as_str())
+        .collect();
+    (!names.is_empty()).then(|| {
+        format!(
+            "{TIME_NAME} stands for any recorded field that follows it as closely: {} (left out of the search as clock-like); the data cannot tell them from the clock",
+            names.join(", ")
+        )
+    })
 }
 
 /// A note when candidate `i` is confounded with an already chosen term (partial correlation of
@@ -1174,6 +1203,33 @@ fn to_discovery(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn clock_like_fields_are_named_beside_session_time() {
+        let ex = |name: &str, reason: &str| super::super::fields::ExcludedField {
+            name: name.into(),
+            reason: reason.into(),
+        };
+        assert_eq!(clock_stand_ins(&[]), None);
+        let counter_only = [ex(
+            "/lowstate.tick",
+            "counter: steps the same way in 100.0 %",
+        )];
+        assert_eq!(clock_stand_ins(&counter_only), None);
+        let clock = format!("{}: r = +0.99995", super::super::fields::CLOCK_REASON);
+        let note = clock_stand_ins(&[
+            ex("/lf/bmsstate.bmsvoltage[0]", &clock),
+            ex("/lowstate.tick", "counter: steps the same way in 100.0 %"),
+            ex("/lf/bmsstate.cell_vol[3]", &clock),
+        ])
+        .unwrap();
+        assert!(note.starts_with(TIME_NAME), "{note}");
+        assert!(
+            note.contains("/lf/bmsstate.bmsvoltage[0], /lf/bmsstate.cell_vol[3]"),
+            "{note}"
+        );
+        assert!(!note.contains("tick"), "{note}");
+    }
 
     #[test]
     fn per_joint_coefficients_identified_or_pooled() {
