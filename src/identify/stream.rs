@@ -471,37 +471,10 @@ pub(crate) fn hold_pass(
         bms: power.bms.clone(),
         ..Recording::default()
     };
-    let mut buf = StateSeries::default();
-    let mut next = 0usize;
-    let mut step = |buf: &mut StateSeries, held: &mut StateSeries, done: bool| {
-        let last_t = buf.t.last().copied().unwrap_or(f64::NEG_INFINITY);
-        while let Some(t) = trials.get(next) {
-            if !done && last_t <= t.t_post_end + MARGIN_S {
-                break;
-            }
-            copy_window(held, buf, t);
-            next += 1;
-        }
-        let keep_from = trials
-            .get(next)
-            .map_or(f64::INFINITY, |t| t.t_pre_start - MARGIN_S);
-        let i = buf.t.partition_point(|&x| x < keep_from);
-        drain_state(buf, i);
-    };
-    crate::signals::stream_state(
-        &file.path,
-        &file.map,
-        &file.read,
-        power.start_ns,
-        so.batch_samples,
-        &mut |batch| {
-            append_state(&mut buf, &batch.state, false);
-            sort_state(&mut buf);
-            step(&mut buf, &mut held.state, false);
-            Ok(())
-        },
-    )?;
-    step(&mut buf, &mut held.state, true);
+    let mut buf = Recording::default();
+    stream_trial_windows(file, power.start_ns, trials, so, &mut buf, &mut |buf, t| {
+        copy_window(&mut held.state, &buf.state, t)
+    })?;
     Ok(held)
 }
 
@@ -524,15 +497,36 @@ pub(crate) fn row_pass(
         bms: power.bms.clone(),
         ..Recording::default()
     };
-    let trials = plan.trials;
+    stream_trial_windows(
+        file,
+        power.start_ns,
+        plan.trials,
+        so,
+        &mut buf,
+        &mut |buf, t| sets.add_trial(buf, t, plan),
+    )?;
+    Ok(sets)
+}
+
+/// Stream `file`'s joint states into `buf.state` and hand each of `trials` (in time order) to
+/// `on_trial` once its whole window (pre-idle start to post-idle end, ± the margin) has been
+/// read; samples no later trial needs are dropped, so `buf` holds about one trial at a time.
+fn stream_trial_windows(
+    file: &SessionFile,
+    start_ns: u64,
+    trials: &[TrialWindow],
+    so: &StreamOptions,
+    buf: &mut Recording,
+    on_trial: &mut dyn FnMut(&Recording, &TrialWindow),
+) -> Result<()> {
     let mut next = 0usize;
-    let mut step = |buf: &mut Recording, done: bool, sets: &mut SessionSets| {
+    let mut step = |buf: &mut Recording, done: bool| {
         let last_t = buf.state.t.last().copied().unwrap_or(f64::NEG_INFINITY);
         while let Some(t) = trials.get(next) {
             if !done && last_t <= t.t_post_end + MARGIN_S {
                 break;
             }
-            sets.add_trial(buf, t, plan);
+            on_trial(buf, t);
             next += 1;
         }
         let keep_from = trials
@@ -545,17 +539,17 @@ pub(crate) fn row_pass(
         &file.path,
         &file.map,
         &file.read,
-        power.start_ns,
+        start_ns,
         so.batch_samples,
         &mut |batch| {
             append_state(&mut buf.state, &batch.state, false);
             sort_state(&mut buf.state);
-            step(&mut buf, false, &mut sets);
+            step(buf, false);
             Ok(())
         },
     )?;
-    step(&mut buf, true, &mut sets);
-    Ok(sets)
+    step(buf, true);
+    Ok(())
 }
 
 /// Stream every arm topic of `file` once and call `on_trial` for each of `trials` (in time
