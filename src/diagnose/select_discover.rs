@@ -38,16 +38,15 @@ pub(crate) fn select_and_discover(
         let mut sel = select::select(data, &candidates, rule)?;
         let first = first_scores.get_or_insert_with(|| sel.first_step.clone());
         let lag = sel.last.lag;
-        if fields.as_ref().is_none_or(|(l, _)| *l != lag) {
-            let f = run_fields(rec, power, metas, &data.rows[lag], data.lags[lag], opts);
-            fields = Some((lag, f));
-        }
-        let Some((_, f)) = &fields else {
-            unreachable!("fields were just read")
+        // The fields are read again only when the selected lag changed.
+        let f = match fields.take() {
+            Some((l, f)) if l == lag => f,
+            _ => run_fields(rec, power, metas, &data.rows[lag], data.lags[lag], opts),
         };
         if !opts.discover {
-            return Ok((sel, None, fields.map(|f| f.1).unwrap_or_default()));
+            return Ok((sel, None, f));
         }
+        let f = &fields.insert((lag, f)).1;
         let report = discover::discover(
             data,
             &sel.last,

@@ -28,17 +28,14 @@ use crate::trial::TrialWindow;
 
 /// The usable trials of a validation (those with a copper baseline), in session order, with it.
 pub(super) fn planned(v: &Validation) -> Vec<(TrialWindow, [f64; N_JOINTS])> {
+    // Indexed once: a linear search per baseline is quadratic in trials (~1e6 steps at paper scale).
+    let mut by_index: BTreeMap<_, &TrialWindow> = BTreeMap::new();
+    for t in &v.session.segmentation.trials {
+        by_index.entry(t.index).or_insert(t); // the first, as a search would find
+    }
     v.baselines
         .iter()
-        .filter_map(|b| {
-            let t = v
-                .session
-                .segmentation
-                .trials
-                .iter()
-                .find(|t| t.index == b.trial)?;
-            Some((t.clone(), b.tau0_sq))
-        })
+        .filter_map(|b| Some(((*by_index.get(&b.trial)?).clone(), b.tau0_sq)))
         .collect()
 }
 
