@@ -85,29 +85,45 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
         ]
         .concat(),
     )?;
+    let sensor_window_s = match a.sensor_window.as_str() {
+        "auto" => None,
+        w => Some(w.parse::<f64>().ok().filter(|w| *w > 0.0).ok_or_else(|| {
+            anyhow::anyhow!("--sensor-window {w}: expected a positive number of seconds or `auto`")
+        })?),
+    };
+    let map = a.read.signal_map()?;
+    let opts = DiagnoseOptions {
+        reference: (a.model.as_deref())
+            .map(|m| load_model_for(m, &map.joint_names, a.target.into()))
+            .transpose()?,
+        target: a.target.into(),
+        urdf: a.urdf.clone(),
+        sensor_window_s,
+        ..DiagnoseOptions::default()
+    };
+    if a.save.is_none() && a.counterpart.is_none() {
+        // Streamed: the sessions are read trial by trial, never held whole.
+        let files: Vec<g1viz::identify::SessionFile> = sessions
+            .iter()
+            .map(|p| a.read.session_file(p, &map))
+            .collect();
+        let busy = super::spinner("diagnosing");
+        let d = diagnose::diagnose_files(&files, &opts, JOIN_GAP_S);
+        busy.finish_and_clear();
+        return write_outputs(&a, &d?);
+    }
+    // The .rrd replays the whole session and the counterpart compares it sample by sample: the
+    // sessions are loaded.
     let parts = sessions
         .iter()
         .map(|p| a.read.load(p))
         .collect::<Result<Vec<_>>>()?;
     // Each part starts 5 s after the previous one ends: trials and their baselines stay apart.
     // Discovery reads every field of every part's file, placed on the joined time line.
-    let (rec, field_sources) = diagnose::join_recordings_with_sources(parts, 5.0);
+    let (rec, field_sources) = diagnose::join_recordings_with_sources(parts, JOIN_GAP_S);
     let opts = DiagnoseOptions {
-        reference: (a.model.as_deref())
-            .map(|m| load_model_for(m, &rec.joint_names, a.target.into()))
-            .transpose()?,
-        target: a.target.into(),
-        urdf: a.urdf.clone(),
         field_sources,
-        sensor_window_s: match a.sensor_window.as_str() {
-            "auto" => None,
-            w => Some(w.parse::<f64>().ok().filter(|w| *w > 0.0).ok_or_else(|| {
-                anyhow::anyhow!(
-                    "--sensor-window {w}: expected a positive number of seconds or `auto`"
-                )
-            })?),
-        },
-        ..DiagnoseOptions::default()
+        ..opts
     };
     let busy = super::spinner("diagnosing");
     let d = diagnose::diagnose(&rec, &opts);
@@ -117,18 +133,28 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
         let twin = a.read.load(p)?;
         d.attach_counterpart(diagnose::compare_counterpart(&rec, &twin, &d)?);
     }
+    write_outputs(&a, &d)?;
+    if let Some(out) = &a.save {
+        save_diagnosis_rrd(&rec, &a, &sessions, &d, out)?;
+        println!("wrote {}", out.display());
+    }
+    Ok(())
+}
+
+/// Gap between joined sessions [s]: each part starts this long after the previous one ends, so
+/// trials and their baselines stay apart.
+const JOIN_GAP_S: f64 = 5.0;
+
+/// Print the summary and write the JSON and the report when asked for.
+fn write_outputs(a: &DiagnoseArgs, d: &g1viz::diagnose::Diagnosis) -> Result<()> {
     println!("{}", d.summary);
     if let Some(p) = &a.json {
         d.save_json(p)?;
         println!("wrote {}", p.display());
     }
     if let Some(dir) = &a.report {
-        diagnose::write_report(dir, &d)?;
+        g1viz::diagnose::write_report(dir, d)?;
         println!("wrote {}", dir.join("report.md").display());
-    }
-    if let Some(out) = &a.save {
-        save_diagnosis_rrd(&rec, &a, &sessions, &d, out)?;
-        println!("wrote {}", out.display());
     }
     Ok(())
 }

@@ -25,6 +25,9 @@ pub(crate) struct TrialMeta {
     pub sigma_omega: f64,
     /// Bus-current model.
     pub bus: BusModel,
+    /// Joint-state samples from the pre-idle start to the return end (the torque level's
+    /// thinning counts them).
+    pub n_samples: usize,
 }
 
 /// Rows of one lag.
@@ -125,18 +128,22 @@ pub(crate) fn trial_meta(
         extra0.iter_mut().for_each(|v| *v /= n.max(1) as f64);
         // The identification's IMU statistic over the same trajectory window.
         let sigma_omega = sigma_omega(rec, w.t_traj_start, w.t_post_end);
+        let n_samples = sample_range(t, w.t_pre_start, w.t_return_end).len();
         out.push(TrialMeta {
             window: w.clone(),
             tau0_sq,
             extra0,
             sigma_omega,
             bus,
+            n_samples,
         });
     }
     (out, skipped)
 }
 
-/// Mean of φ and the extras (and optionally the descriptors) over state samples in [a, b).
+/// Mean of φ and the extras (and optionally the descriptors) over state samples in [a, b), the
+/// window cut at the trial's span ([`super::reduce::span`]: a window never reaches into samples
+/// that belong to no trial's span, so a streamed read sees the same samples as one in memory).
 /// `None` when the window holds fewer than 2 samples (a gap in the joint stream).
 fn window_mean(
     rec: &Recording,
@@ -146,6 +153,7 @@ fn window_mean(
     x: &mut [f64; N_RAW],
     loc: Option<&mut [f64; N_LOCATE]>,
 ) -> Option<()> {
+    let a = a.max(super::reduce::span(&meta.window).0);
     let range = sample_range(&rec.state.t, a, b);
     if range.len() < 2 {
         return None;

@@ -261,14 +261,13 @@ fn numeric_leaves(v: &Value, prefix: &str, out: &mut Vec<String>) {
 struct TopicAcc {
     names: Vec<String>,
     extractor: Option<FieldExtractor>,
-    /// Sums and counts per window (windows × fields, row-major by window).
-    sum: Vec<f64>,
+    /// Per field, per window: the sum of the values inside the window while it is open, its
+    /// value once closed (the mean, or the held value when it got none; NaN before any message).
+    vals: Vec<Vec<f64>>,
     count: Vec<u32>,
     /// Last value of each field and the time it was seen.
     last: Vec<f64>,
     last_t: f64,
-    /// Held value per window (the last value before the window end) when the window got none.
-    held: Vec<f64>,
     cursor: usize,
     row: Vec<f64>,
     /// Per-message statistics of each field, over the topic's first [`STATS_MESSAGES`]
@@ -286,11 +285,10 @@ impl TopicAcc {
         let n = names.len();
         TopicAcc {
             extractor,
-            sum: vec![0.0; n * n_windows],
+            vals: vec![vec![0.0; n_windows]; n],
             count: vec![0; n_windows],
             last: vec![f64::NAN; n],
             last_t: f64::NEG_INFINITY,
-            held: vec![f64::NAN; n * n_windows],
             cursor: 0,
             row: vec![0.0; n],
             stats: vec![MsgStats::default(); n],
@@ -299,13 +297,19 @@ impl TopicAcc {
         }
     }
 
-    /// Close every window ending before `t` (holding the last value for empty ones).
+    /// Close every window ending before `t`: its mean, or the last value for an empty one.
     fn advance(&mut self, windows: &[Window], t: f64) {
-        let n = self.names.len();
         while self.cursor < windows.len() && windows[self.cursor].end < t {
             let w = self.cursor;
-            if self.last_t > f64::NEG_INFINITY {
-                self.held[w * n..(w + 1) * n].copy_from_slice(&self.last);
+            let c = self.count[w];
+            for (v, last) in self.vals.iter_mut().zip(&self.last) {
+                v[w] = if c > 0 {
+                    v[w] / c as f64
+                } else if self.last_t > f64::NEG_INFINITY {
+                    *last
+                } else {
+                    f64::NAN
+                };
             }
             self.cursor += 1;
         }
@@ -319,14 +323,13 @@ impl TopicAcc {
             }
         }
         self.advance(windows, t);
-        let n = self.names.len();
         if let Some(w) = windows.get(self.cursor)
             && t > w.start
         {
             let k = self.cursor;
             self.count[k] += 1;
-            for (s, v) in self.sum[k * n..(k + 1) * n].iter_mut().zip(&self.row) {
-                *s += v;
+            for (s, v) in self.vals.iter_mut().zip(&self.row) {
+                s[k] += v;
             }
         }
         self.last.copy_from_slice(&self.row);
@@ -386,7 +389,8 @@ pub fn read_fields(sources: &[FieldSource], windows: &[Window]) -> FieldTable {
     if !vols.is_empty() {
         table.bus_volts = Some(vols.iter().sum::<f64>() / vols.len() as f64);
     }
-    let mut seen: HashMap<Vec<u64>, usize> = HashMap::new();
+    // Exact duplicates, found by a hash of the values' bits (candidates compared bit by bit).
+    let mut seen: HashMap<u64, Vec<usize>> = HashMap::new();
     for name in order {
         let Some(vals) = merged.remove(&name) else {
             continue;
@@ -413,10 +417,21 @@ pub fn read_fields(sources: &[FieldSource], windows: &[Window]) -> FieldTable {
             });
             continue;
         }
-        let key: Vec<u64> = vals.iter().map(|v| v.to_bits()).collect();
-        let dup = seen.contains_key(&key);
+        let key = {
+            use std::hash::{Hash, Hasher};
+            let mut h = std::hash::DefaultHasher::new();
+            vals.iter().for_each(|v| v.to_bits().hash(&mut h));
+            h.finish()
+        };
+        let same = seen.entry(key).or_default();
+        let dup = same.iter().any(|&i| {
+            table.values[i]
+                .iter()
+                .zip(&vals)
+                .all(|(a, b)| a.to_bits() == b.to_bits())
+        });
         if !dup {
-            seen.insert(key, table.names.len());
+            same.push(table.names.len());
         }
         table.names.push(name);
         table.values.push(vals);
@@ -519,26 +534,19 @@ fn read_one(src: &FieldSource, windows: &[Window]) -> Result<Vec<FieldRead>> {
             continue;
         };
         acc.advance(windows, f64::INFINITY);
-        let n = acc.names.len();
-        for (f, name) in acc.names.iter().enumerate() {
-            let vals: Vec<f64> = (0..nw)
-                .map(|w| {
-                    // Windows outside this file's time span are not its to fill.
-                    if windows[w].end < t_first || windows[w].start > t_last {
-                        return f64::NAN;
-                    }
-                    if acc.count[w] > 0 {
-                        acc.sum[w * n + f] / acc.count[w] as f64
-                    } else {
-                        acc.held[w * n + f]
-                    }
-                })
-                .collect();
+        let vals = std::mem::take(&mut acc.vals);
+        for ((mut vals, name), stats) in vals.into_iter().zip(acc.names).zip(acc.stats) {
+            // Windows outside this file's time span are not its to fill.
+            for (v, w) in vals.iter_mut().zip(windows) {
+                if w.end < t_first || w.start > t_last {
+                    *v = f64::NAN;
+                }
+            }
             out.push(FieldRead {
-                name: name.clone(),
+                name,
                 clock_r: clock_correlation(windows, &vals),
                 vals,
-                stats: acc.stats[f],
+                stats,
             });
         }
     }
@@ -669,7 +677,6 @@ mod tests {
         }
         acc.advance(&windows, f64::INFINITY);
         assert_eq!(acc.count, [2, 0]);
-        assert_eq!(acc.sum[0], 4.0);
-        assert_eq!(acc.held[1], 7.0);
+        assert_eq!(acc.vals[0], [2.0, 7.0]);
     }
 }

@@ -17,6 +17,7 @@ pub(crate) mod hypotheses;
 pub(crate) mod locate;
 mod options;
 mod outcome;
+mod reduce;
 mod replay;
 pub(crate) mod report;
 mod result;
@@ -51,13 +52,16 @@ pub use select::{Confounded, HypothesisScore, MechanismForms, Param};
 pub use torque::{ArmModel, TorqueComparison};
 
 use crate::N_PARAMS;
+use crate::identify::SessionFile;
+use crate::power::PowerModel;
 use crate::robot::{ArmDynamics, RobotModel};
 use crate::signals::Recording;
 use outcome::{locate_residuals, rank_hypotheses, refit_final, rescale_bus};
+use reduce::{InMemory, SessionInfo, Streamed, TrialSamples};
 use replay::{replay_data, show_found};
 use select::{PowerData, Rule};
 use select_discover::select_and_discover;
-use stages::{filter_trials, lag_scan, scan_lags};
+use stages::{assemble, coarse_lags, filter_trials, lag_scan, scan_lags, trial_rows};
 use window::sensor_window;
 
 /// [`crate::signals::join_recordings`], plus where each part's file lies on the joined time line (for
@@ -100,13 +104,8 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis> {
             why.join("; ")
         );
     }
-    let arm = if opts.torque_level && rec.state.tau.iter().any(|t| t.iter().any(|v| *v != 0.0)) {
-        let model = RobotModel::load(opts.urdf.as_deref())?;
-        let joints = model.arm(&rec.joint_names)?;
-        Some(ArmDynamics::new(&model, &joints)?)
-    } else {
-        None
-    };
+    let has_torque = rec.state.tau.iter().any(|t| t.iter().any(|v| *v != 0.0));
+    let arm = arm_model(opts, has_torque, &rec.joint_names)?;
     diagnose_trials(
         rec,
         &seg.trials,
@@ -115,27 +114,92 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis> {
     )
 }
 
+/// The URDF arm for the torque level, when it is asked for and the session recorded torques.
+fn arm_model(
+    opts: &DiagnoseOptions,
+    has_torque: bool,
+    joint_names: &[String],
+) -> Result<Option<ArmDynamics>> {
+    if !(opts.torque_level && has_torque) {
+        return Ok(None);
+    }
+    let model = RobotModel::load(opts.urdf.as_deref())?;
+    let joints = model.arm(joint_names)?;
+    Ok(Some(ArmDynamics::new(&model, &joints)?))
+}
+
+/// Diagnose session files without holding them in memory: each file is streamed trial by trial
+/// (several passes; only per-trial reductions are kept — the rows at every scanned lag, the
+/// torque rows, the sensor-window scan's trials and discovery's window means), with the same
+/// stages and the same result as [`diagnose`] on the files loaded and joined by
+/// [`join_recordings_with_sources`] with `gap_s` (each file keeps its own clock, shifted onto
+/// the joined one). `opts.field_sources` is ignored: discovery reads the files themselves.
+pub fn diagnose_files(
+    files: &[SessionFile],
+    opts: &DiagnoseOptions,
+    gap_s: f64,
+) -> Result<Diagnosis> {
+    let (mut samples, s) = Streamed::open(files, opts.target, bus_model(opts), gap_s)?;
+    let arm = arm_model(opts, s.has_torque, &s.info.joint_names)?;
+    let opts = DiagnoseOptions {
+        field_sources: s.field_sources,
+        ..opts.clone()
+    };
+    run(
+        &s.info,
+        &mut samples,
+        (s.metas, s.skipped),
+        arm.as_ref().map(|a| a as &dyn ArmModel),
+        &opts,
+    )
+}
+
+/// The bus-current feature's model: the twin's power model at the nominal supply voltage.
+fn bus_model(opts: &DiagnoseOptions) -> data::BusModel {
+    data::BusModel {
+        model: opts.reference.unwrap_or(PowerModel::PAPER),
+        volts: hypotheses::NOMINAL_BUS_VOLTS,
+    }
+}
+
 /// Diagnose a recording whose trials are already segmented. `arm` enables the torque level.
 ///
-/// Stages: usable trials ([`filter_trials`]) → rows at every scanned lag ([`scan_lags`]) →
-/// library selection and discovery ([`select_and_discover`]) → torque level → ranking
-/// ([`rank_hypotheses`]) → final refit ([`refit_final`]) → locate ([`locate_residuals`]) →
-/// lag scan, replay data and assembly.
+/// The recording is reduced trial by trial (as [`diagnose_files`] reduces streamed files) and
+/// the stages run on the reductions: per-trial quantities → sensor window ([`sensor_window`])
+/// → rows at the coarse lags → usable trials ([`filter_trials`]) → fine lags and torque rows
+/// ([`scan_lags`]) → library selection and discovery ([`select_and_discover`]) → torque level →
+/// ranking ([`rank_hypotheses`]) → final refit ([`refit_final`]) → locate
+/// ([`locate_residuals`]) → lag scan, replay data and assembly.
 pub fn diagnose_trials(
     rec: &Recording,
     windows: &[TrialWindow],
     arm: Option<&dyn ArmModel>,
     opts: &DiagnoseOptions,
 ) -> Result<Diagnosis> {
-    let power = opts.target.series(rec);
+    let info = SessionInfo::of(rec, opts.target);
+    let mut samples = InMemory(rec);
+    let metas = reduce::trial_metas(&mut samples, windows, bus_model(opts))?;
+    run(&info, &mut samples, metas, arm, opts)
+}
+
+/// The stages on a session's reductions (`metas`: every trial's quantities, and the trials
+/// without a pre-idle); `samples` gives the trials' joint states for the per-trial passes.
+fn run(
+    info: &SessionInfo,
+    samples: &mut dyn TrialSamples,
+    (all_metas, skipped): (Vec<data::TrialMeta>, Vec<(usize, String)>),
+    arm: Option<&dyn ArmModel>,
+    opts: &DiagnoseOptions,
+) -> Result<Diagnosis> {
+    let power = &info.power;
     if power.t.is_empty() {
         bail!(
             "{}: no {:?} power readings to diagnose",
-            rec.source.display(),
+            info.source.display(),
             opts.target
         );
     }
-    let sensor = sensor_window(rec, windows, opts)?;
+    let sensor = sensor_window(info, samples, &all_metas, opts)?;
     let w = sensor.window_s;
     let resolved = DiagnoseOptions {
         sensor_window_s: Some(w),
@@ -143,21 +207,42 @@ pub fn diagnose_trials(
     };
     let opts = &resolved;
     let reference: Option<Vec<f64>> = opts.reference.map(|m| m.to_vector().to_vec());
-    let (metas, rejected) = filter_trials(rec, windows, opts, w, reference.clone())?;
+    // Rows of every trial at every coarse lag (one pass), then the usable trials.
+    let lags = coarse_lags(opts);
+    let per_trial = trial_rows(samples, power, &all_metas, &lags, w)?;
+    let (metas, rejected, kept) =
+        filter_trials(&all_metas, skipped, &per_trial, opts, reference.clone())?;
+    drop(all_metas);
     if metas.len() < 2 * opts.folds.max(2) {
         bail!(
             "{}: only {} usable trials (need at least {} for {}-fold cross-validation by trial)",
-            rec.source.display(),
+            info.source.display(),
             metas.len(),
             2 * opts.folds.max(2),
             opts.folds
         );
     }
-    let scan = scan_lags(rec, power, &metas, opts, reference.clone())?;
+    let coarse = kept_rows(per_trial, &kept, lags.len());
+    // The fine lags' rows and the torque rows (one more pass).
+    let stride = torque::stride(&metas, opts.max_torque_samples);
+    let mut torque_rows = Vec::new();
+    let scan = scan_lags(
+        samples,
+        power,
+        &metas,
+        coarse,
+        opts,
+        reference.clone(),
+        &mut |rec, ti, meta| {
+            if let Some(a) = arm {
+                torque::trial_rows(rec, ti, meta, a, stride, &mut torque_rows);
+            }
+        },
+    )?;
     if scan.rows[0].len() < 3 * (N_PARAMS + 10) / 2 {
         bail!(
             "{}: only {} power readings inside usable trials; too few to diagnose a {N_PARAMS}-parameter model",
-            rec.source.display(),
+            info.source.display(),
             scan.rows[0].len()
         );
     }
@@ -167,13 +252,16 @@ pub fn diagnose_trials(
         bic_threshold: opts.bic_threshold,
         min_improvement: opts.min_improvement,
     };
-    let (sel, discovery, fields) = select_and_discover(rec, power, &metas, &data, &rule, opts)?;
+    let (sel, discovery, fields) = select_and_discover(info, &metas, &data, &rule, opts)?;
 
     // Torque level.
     let torque = match arm {
-        Some(a) => torque::torque_level(rec, &metas, a, &data.folds, opts.max_torque_samples)?,
+        Some(_) => {
+            torque::torque_level(&info.joint_names, &torque_rows, metas.len(), &data.folds)?
+        }
         None => None,
     };
+    drop(torque_rows);
     let ranking = rank_hypotheses(&sel, torque.as_ref(), &rule);
     let final_model = refit_final(
         &sel,
@@ -182,14 +270,14 @@ pub fn diagnose_trials(
         &data.rows[0],
         metas.len(),
     );
-    let located = locate_residuals(rec, &metas, &data, &sel, discovery.as_ref());
+    let located = locate_residuals(&info.joint_names, &metas, &data, &sel, discovery.as_ref());
     let lag_scan = lag_scan(&data)?;
     let replay = replay_data(&metas, &data.rows[0], &sel, &located);
     let mut diag = Diagnosis {
         schema_version: SCHEMA_VERSION,
-        source: rec.source.display().to_string(),
+        source: info.source.display().to_string(),
         target: opts.target,
-        joint_names: rec.joint_names.clone(),
+        joint_names: info.joint_names.clone(),
         n_trials: metas.len(),
         n_readings: data.rows[0].len(),
         rejected,
@@ -222,4 +310,31 @@ pub fn diagnose_trials(
     show_found(&mut diag, &fields, &data.rows[sel.last.lag], &metas);
     diag.summary = summary::summarise(&diag);
     Ok(diag)
+}
+
+/// The kept trials' rows at each of `n_lags` lags, assembled lag by lag (moved, not copied).
+fn kept_rows(per_trial: Vec<Vec<data::Rows>>, kept: &[usize], n_lags: usize) -> Vec<data::Rows> {
+    let mut by_trial: Vec<Option<std::vec::IntoIter<data::Rows>>> = per_trial
+        .into_iter()
+        .map(|t| Some(t.into_iter()))
+        .collect();
+    // Rejected trials' rows are dropped now.
+    for (i, t) in by_trial.iter_mut().enumerate() {
+        if kept.binary_search(&i).is_err() {
+            *t = None;
+        }
+    }
+    (0..n_lags)
+        .map(|l| {
+            assemble(
+                kept.iter().map(|&i| {
+                    by_trial[i]
+                        .as_mut()
+                        .and_then(Iterator::next)
+                        .unwrap_or_default()
+                }),
+                l == 0,
+            )
+        })
+        .collect()
 }

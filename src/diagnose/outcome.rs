@@ -3,7 +3,6 @@
 //! recorded supply voltage.
 
 use crate::N_PARAMS;
-use crate::signals::Recording;
 
 use super::data::{Rows, TrialMeta};
 use super::hypotheses::{self, LATENCY_ID};
@@ -126,7 +125,7 @@ pub(crate) struct Located {
 /// Stage: locate with the base model's held-out residuals; correlate what the final model
 /// leaves (with the terms found beyond the library when there are any).
 pub(crate) fn locate_residuals(
-    rec: &Recording,
+    joint_names: &[String],
     metas: &[TrialMeta],
     data: &PowerData,
     sel: &select::Selection,
@@ -151,7 +150,7 @@ pub(crate) fn locate_residuals(
         .zip(final_pred)
         .map(|(a, b)| a - b)
         .collect();
-    let breakdowns = locate::breakdowns(rows0, metas, &resid_base, &rec.joint_names);
+    let breakdowns = locate::breakdowns(rows0, metas, &resid_base, joint_names);
     let worst = locate::worst(&breakdowns);
     let worst_trials: Vec<TrialResidual> = locate::trial_residuals(rows0, metas, &resid_base)
         .into_iter()
@@ -161,7 +160,7 @@ pub(crate) fn locate_residuals(
         rows0,
         metas,
         &resid_final,
-        &rec.joint_names,
+        joint_names,
         data.reference.is_none(),
         0.01,
         6,

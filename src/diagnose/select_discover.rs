@@ -4,8 +4,7 @@
 
 use anyhow::Result;
 
-use crate::signals::Recording;
-
+use super::reduce::SessionInfo;
 use super::data::{Rows, TrialMeta};
 use super::hypotheses::{self, POWER_HYPOTHESES};
 use super::select::{self, PowerData, Rule};
@@ -17,8 +16,7 @@ use super::{
 /// given what discovery found is confounded with it: it is dropped, reported, and the library
 /// selection re-run without it.
 pub(crate) fn select_and_discover(
-    rec: &Recording,
-    power: &crate::signals::PowerSeries,
+    info: &SessionInfo,
     metas: &[TrialMeta],
     data: &PowerData,
     rule: &Rule,
@@ -41,7 +39,11 @@ pub(crate) fn select_and_discover(
         // The fields are read again only when the selected lag changed.
         let f = match fields.take() {
             Some((l, f)) if l == lag => f,
-            _ => run_fields(rec, power, metas, &data.rows[lag], data.lags[lag], opts),
+            other => {
+                // The fields of another lag are dropped before the new ones are read.
+                drop(other);
+                run_fields(info, metas, &data.rows[lag], data.lags[lag], opts)
+            }
         };
         if !opts.discover {
             return Ok((sel, None, f));
@@ -52,7 +54,7 @@ pub(crate) fn select_and_discover(
             &sel.last,
             &field_inputs(f, opts),
             rule,
-            &rec.joint_names,
+            &info.joint_names,
         )?;
         let dropped = library_given_found(data, &sel.last, &report, rule)?;
         if dropped.is_empty() {
@@ -126,13 +128,13 @@ pub(crate) struct RowFields {
 
 /// Stage: read every numeric field of the recording's files over the rows' windows.
 pub(crate) fn run_fields(
-    rec: &Recording,
-    power: &crate::signals::PowerSeries,
+    info: &SessionInfo,
     metas: &[TrialMeta],
     rows: &Rows,
     lag: f64,
     opts: &DiagnoseOptions,
 ) -> RowFields {
+    let power = &info.power;
     // Resolved by `diagnose_trials` before the stages run.
     let w = opts
         .sensor_window_s
@@ -171,10 +173,10 @@ pub(crate) fn run_fields(
     }
     let windows: Vec<fields::Window> = all.iter().map(|a| a.0).collect();
     let sources: Vec<FieldSource> = if opts.field_sources.is_empty() {
-        if rec.source.exists() {
+        if info.source.exists() {
             vec![FieldSource {
-                path: rec.source.clone(),
-                start_ns: rec.start_ns,
+                path: info.source.clone(),
+                start_ns: info.start_ns,
                 offset_s: 0.0,
             }]
         } else {

@@ -3,30 +3,69 @@
 
 use anyhow::Result;
 
-use crate::power::PowerModel;
-use crate::signals::Recording;
+use crate::signals::{PowerSeries, Recording};
 use crate::trial::{Cascade, Rejection, TrialStat, TrialWindow};
 
-use super::data::{self, Rows, TrialMeta, build_rows, trial_meta};
+use super::data::{Rows, TrialMeta, build_rows};
+use super::reduce::TrialSamples;
 use super::select::PowerData;
-use super::{DiagnoseOptions, LagPoint, hypotheses};
+use super::{DiagnoseOptions, LagPoint};
 
-/// Stage: the trials usable for the diagnosis — per-trial quantities (trials without a pre-idle
-/// are unusable), the identification's IMU filter, then n·σ passes on the per-trial mean
-/// residuals of the base model (hardware-event outliers).
-pub(crate) fn filter_trials(
-    rec: &Recording,
-    windows: &[TrialWindow],
-    opts: &DiagnoseOptions,
+/// Rows of each of `metas`' trials (outer) at each of `lags` (inner), each trial's rows on its
+/// own (trial position 0; see [`assemble`]), with the descriptor features at lag 0: one pass
+/// over the trials' samples.
+pub(crate) fn trial_rows(
+    samples: &mut dyn TrialSamples,
+    power: &PowerSeries,
+    metas: &[TrialMeta],
+    lags: &[f64],
     w: f64,
+) -> Result<Vec<Vec<Rows>>> {
+    let windows: Vec<TrialWindow> = metas.iter().map(|m| m.window.clone()).collect();
+    let mut out = Vec::with_capacity(metas.len());
+    samples.for_each(&windows, &mut |rec, _| {
+        let ti = out.len();
+        let meta = &metas[ti];
+        let one = std::slice::from_ref(meta);
+        out.push(
+            lags.iter()
+                .map(|&l| build_rows(rec, power, one, l, w, l == 0.0))
+                .collect(),
+        );
+        Ok(())
+    })?;
+    Ok(out)
+}
+
+/// One trial list's rows from each trial's own rows, in order, each row's trial set to its
+/// trial's position (as [`build_rows`] over the whole list numbers them).
+pub(crate) fn assemble(parts: impl IntoIterator<Item = Rows>, with_locate: bool) -> Rows {
+    let mut out = Rows::default();
+    for (ti, p) in parts.into_iter().enumerate() {
+        out.trial.extend(std::iter::repeat_n(ti, p.len()));
+        out.t.extend(p.t);
+        out.phase.extend(p.phase);
+        out.y.extend(p.y);
+        out.x.extend(p.x);
+        if with_locate {
+            out.locate.extend(p.locate);
+        }
+    }
+    out
+}
+
+/// Stage: the trials usable for the diagnosis — trials without a pre-idle are unusable
+/// (`skipped`), then the identification's IMU filter, then n·σ passes on the per-trial mean
+/// residuals of the base model (hardware-event outliers) fitted on the rows at lag 0
+/// (`rows[trial][0]`, each trial's own rows at lag 0). Returns the kept trials, the rejections
+/// and the kept trials' positions in `metas`.
+pub(crate) fn filter_trials(
+    metas: &[TrialMeta],
+    skipped: Vec<(usize, String)>,
+    rows: &[Vec<Rows>],
+    opts: &DiagnoseOptions,
     reference: Option<Vec<f64>>,
-) -> Result<(Vec<TrialMeta>, Vec<Rejection>)> {
-    let power = opts.target.series(rec);
-    let bus = data::BusModel {
-        model: opts.reference.unwrap_or(PowerModel::PAPER),
-        volts: hypotheses::NOMINAL_BUS_VOLTS,
-    };
-    let (metas, skipped) = trial_meta(rec, windows, bus);
+) -> Result<(Vec<TrialMeta>, Vec<Rejection>, Vec<usize>)> {
     let cascade = Cascade {
         imu_k: Some(opts.imu_threshold),
         passes: opts.outlier_passes,
@@ -42,25 +81,23 @@ pub(crate) fn filter_trials(
         .map(|(trial, reason)| Rejection::unusable(0, trial, reason))
         .collect();
     rejected.extend(cascade.run(&sigmas, |rej| {
-        let kept: Vec<TrialMeta> = metas
-            .iter()
-            .filter(|m| !crate::trial::is_rejected(rej, 0, m.window.index))
-            .cloned()
+        let kept: Vec<usize> = (0..metas.len())
+            .filter(|&i| !crate::trial::is_rejected(rej, 0, metas[i].window.index))
             .collect();
-        let rows = build_rows(rec, power, &kept, 0.0, w, false);
-        let res = base_trial_residuals(&rows, kept.len(), opts.folds, reference.clone())?;
+        let lag0 = assemble(kept.iter().map(|&i| rows[i][0].clone()), false);
+        let res = base_trial_residuals(&lag0, kept.len(), opts.folds, reference.clone())?;
         Ok::<_, anyhow::Error>(
             kept.iter()
                 .zip(&res)
-                .map(|(m, r)| TrialStat::new(0, m.window.index, r.unwrap_or(f64::NAN)))
+                .map(|(&i, r)| TrialStat::new(0, metas[i].window.index, r.unwrap_or(f64::NAN)))
                 .collect(),
         )
     })?);
-    let metas = metas
-        .into_iter()
-        .filter(|m| !crate::trial::is_rejected(&rejected, 0, m.window.index))
+    let kept: Vec<usize> = (0..metas.len())
+        .filter(|&i| !crate::trial::is_rejected(&rejected, 0, metas[i].window.index))
         .collect();
-    Ok((metas, rejected))
+    let metas = kept.iter().map(|&i| metas[i].clone()).collect();
+    Ok((metas, rejected, kept))
 }
 
 /// Per-trial mean in-sample residual of the base model fitted to `rows`.
@@ -95,30 +132,36 @@ pub(crate) struct LagRows {
     pub(crate) rows: Vec<Rows>,
 }
 
-/// Stage: rows at every coarse lag (0.05 s steps up to [`DiagnoseOptions::max_lag_s`]), then a
-/// fine scan (0.01 s) around the base model's best coarse lag.
-pub(crate) fn scan_lags(
-    rec: &Recording,
-    power: &crate::signals::PowerSeries,
-    metas: &[TrialMeta],
-    opts: &DiagnoseOptions,
-    reference: Option<Vec<f64>>,
-) -> Result<LagRows> {
-    // Resolved by `diagnose_trials` before the stages run.
-    let w = opts
-        .sensor_window_s
-        .unwrap_or(crate::timing::Alignment::NOMINAL.window_s);
-    // Rows at every scanned lag; keep only readings present at all lags (same readings everywhere).
+/// Coarse lags of the scan: 0 and 0.05 s steps up to [`DiagnoseOptions::max_lag_s`].
+pub(crate) fn coarse_lags(opts: &DiagnoseOptions) -> Vec<f64> {
     let mut lags = vec![0.0];
     if opts.max_lag_s > 0.0 {
         let coarse = (opts.max_lag_s / 0.05).round() as usize;
         lags.extend((1..=coarse).map(|k| k as f64 * 0.05));
     }
-    let mut all_rows: Vec<Rows> = lags
-        .iter()
-        .map(|&l| build_rows(rec, power, metas, l, w, l == 0.0))
-        .collect();
+    lags
+}
+
+/// Stage: rows at every coarse lag ([`coarse_lags`], `coarse`: the kept trials' rows there), then
+/// a fine scan (0.01 s) around the base model's best coarse lag, built in one more pass over the
+/// trials' samples that also shows each trial to `extra` (the torque rows).
+pub(crate) fn scan_lags(
+    samples: &mut dyn TrialSamples,
+    power: &PowerSeries,
+    metas: &[TrialMeta],
+    coarse: Vec<Rows>,
+    opts: &DiagnoseOptions,
+    reference: Option<Vec<f64>>,
+    extra: &mut dyn FnMut(&Recording, usize, &TrialMeta),
+) -> Result<LagRows> {
+    // Resolved by `diagnose_trials` before the stages run.
+    let w = opts
+        .sensor_window_s
+        .unwrap_or(crate::timing::Alignment::NOMINAL.window_s);
+    let mut lags = coarse_lags(opts);
+    let mut all_rows = coarse;
     // Fine scan (0.01 s) around the base model's best coarse lag.
+    let mut fine = Vec::new();
     if lags.len() >= 3 {
         // The rows move into the scan and back out of it: at paper scale one copy of all lags'
         // rows is ~100 MB.
@@ -143,9 +186,33 @@ pub(crate) fn scan_lags(
         for k in -4i32..=4 {
             let l = centre + 0.01 * k as f64;
             if l > 0.0 && l <= opts.max_lag_s && lags.iter().all(|x| (x - l).abs() > 1e-6) {
-                lags.push(l);
-                all_rows.push(build_rows(rec, power, metas, l, w, false));
+                fine.push(l);
             }
+        }
+    }
+    // The fine lags' rows (built without descriptors), and whatever else needs the samples.
+    let mut per_trial = Vec::with_capacity(metas.len());
+    let windows: Vec<TrialWindow> = metas.iter().map(|m| m.window.clone()).collect();
+    samples.for_each(&windows, &mut |rec, _| {
+        let ti = per_trial.len();
+        let one = std::slice::from_ref(&metas[ti]);
+        let rows: Vec<Rows> = fine
+            .iter()
+            .map(|&l| build_rows(rec, power, one, l, w, false))
+            .collect();
+        per_trial.push(rows);
+        extra(rec, ti, &metas[ti]);
+        Ok(())
+    })?;
+    if !fine.is_empty() {
+        let mut by_trial: Vec<std::vec::IntoIter<Rows>> =
+            per_trial.into_iter().map(Vec::into_iter).collect();
+        for &l in &fine {
+            lags.push(l);
+            all_rows.push(assemble(
+                by_trial.iter_mut().map(|t| t.next().unwrap_or_default()),
+                false,
+            ));
         }
         let mut by_lag: Vec<(f64, Rows)> = lags.into_iter().zip(all_rows).collect();
         by_lag.sort_by(|a, b| a.0.total_cmp(&b.0));

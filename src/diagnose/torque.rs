@@ -78,71 +78,78 @@ pub struct TorqueComparison {
 }
 
 /// One torque sample's residual and columns.
-struct TorqueRow {
+pub(crate) struct TorqueRow {
     trial: usize,
     r: [f64; N_JOINTS],
     x: [[f64; N_TORQUE]; N_JOINTS],
 }
 
-fn rows(
+/// Thinning of the torque samples: every `stride`-th sample of each trial, so that at most about
+/// `max_samples` are used over `trials`.
+pub(crate) fn stride(trials: &[TrialMeta], max_samples: usize) -> usize {
+    let in_trials: usize = trials.iter().map(|m| m.n_samples).sum();
+    in_trials.div_ceil(max_samples.max(1)).max(1)
+}
+
+/// The torque rows of one trial (`ti`: its position in the trial list) from `rec`, which holds
+/// at least the trial's span: every `stride`-th sample from the pre-idle start to the return end.
+pub(crate) fn trial_rows(
     rec: &Recording,
-    trials: &[TrialMeta],
+    ti: usize,
+    meta: &TrialMeta,
     model: &dyn ArmModel,
     stride: usize,
-) -> Vec<TorqueRow> {
+    out: &mut Vec<TorqueRow>,
+) {
     let s = &rec.state;
-    let mut out = Vec::new();
-    for (ti, meta) in trials.iter().enumerate() {
-        let w = &meta.window;
-        let i0 = s.t.partition_point(|&t| t < w.t_pre_start).max(2);
-        let i1 =
-            s.t.partition_point(|&t| t < w.t_return_end)
-                .min(s.t.len().saturating_sub(2));
-        let mut k = i0;
-        while k < i1 {
-            let (Some(q), Some(dq), Some(tau), Some(a), Some(b), Some(ta), Some(tb)) = (
-                s.q.get(k),
-                s.dq.get(k),
-                s.tau.get(k),
-                s.dq.get(k - 2),
-                s.dq.get(k + 2),
-                s.t.get(k - 2),
-                s.t.get(k + 2),
-            ) else {
-                break;
-            };
-            k += stride;
-            let dt = tb - ta;
-            if dt <= 0.0 || dt > 0.2 {
-                continue; // a gap in the stream: no derivative here
-            }
-            let ddq: [f64; N_JOINTS] = std::array::from_fn(|i| (b[i] - a[i]) / dt);
-            let tau_id = model.inverse_dynamics(q, dq, &ddq);
-            let y = model.payload_regressor(q, dq, &ddq);
-            let mut row = TorqueRow {
-                trial: ti,
-                r: [0.0; N_JOINTS],
-                x: [[0.0; N_TORQUE]; N_JOINTS],
-            };
-            for j in 0..N_JOINTS {
-                row.r[j] = tau[j] - tau_id[j];
-                row.x[j][2 * j] = (dq[j] / COULOMB_VELOCITY).tanh();
-                row.x[j][2 * j + 1] = dq[j];
-                for c in 0..4 {
-                    row.x[j][N_FRICTION + c] = y[(j, c)];
-                }
-            }
-            if row
-                .r
-                .iter()
-                .chain(row.x.iter().flatten())
-                .all(|v| v.is_finite())
-            {
-                out.push(row);
+    let w = &meta.window;
+    let i0 = s.t.partition_point(|&t| t < w.t_pre_start).max(2);
+    let i1 =
+        s.t.partition_point(|&t| t < w.t_return_end)
+            .min(s.t.len().saturating_sub(2));
+    let mut k = i0;
+    while k < i1 {
+        let (Some(q), Some(dq), Some(tau), Some(a), Some(b), Some(ta), Some(tb)) = (
+            s.q.get(k),
+            s.dq.get(k),
+            s.tau.get(k),
+            s.dq.get(k - 2),
+            s.dq.get(k + 2),
+            s.t.get(k - 2),
+            s.t.get(k + 2),
+        ) else {
+            break;
+        };
+        k += stride;
+        let dt = tb - ta;
+        if dt <= 0.0 || dt > 0.2 {
+            continue; // a gap in the stream: no derivative here
+        }
+        let ddq: [f64; N_JOINTS] = std::array::from_fn(|i| (b[i] - a[i]) / dt);
+        let tau_id = model.inverse_dynamics(q, dq, &ddq);
+        let y = model.payload_regressor(q, dq, &ddq);
+        let mut row = TorqueRow {
+            trial: ti,
+            r: [0.0; N_JOINTS],
+            x: [[0.0; N_TORQUE]; N_JOINTS],
+        };
+        for j in 0..N_JOINTS {
+            row.r[j] = tau[j] - tau_id[j];
+            row.x[j][2 * j] = (dq[j] / COULOMB_VELOCITY).tanh();
+            row.x[j][2 * j + 1] = dq[j];
+            for c in 0..4 {
+                row.x[j][N_FRICTION + c] = y[(j, c)];
             }
         }
+        if row
+            .r
+            .iter()
+            .chain(row.x.iter().flatten())
+            .all(|v| v.is_finite())
+        {
+            out.push(row);
+        }
     }
-    out
 }
 
 /// Unconstrained least squares on the first `p` columns (tiny relative ridge for joints that never moved).
@@ -173,30 +180,20 @@ pub(crate) struct TorqueLevel {
     pub payload: HypothesisScore,
 }
 
-/// Compare torques and score the payload hypothesis with the power level's trial folds.
+/// Compare torques and score the payload hypothesis with the power level's trial folds, on the
+/// torque rows of the trials ([`trial_rows`], positions as in `folds`).
 pub(crate) fn torque_level(
-    rec: &Recording,
-    trials: &[TrialMeta],
-    model: &dyn ArmModel,
+    joint_names: &[String],
+    rows: &[TorqueRow],
+    n_trials: usize,
     folds: &Folds,
-    max_samples: usize,
 ) -> Result<Option<TorqueLevel>> {
-    let in_trials: usize = trials
-        .iter()
-        .map(|m| {
-            let t = &rec.state.t;
-            t.partition_point(|&x| x < m.window.t_return_end)
-                - t.partition_point(|&x| x < m.window.t_pre_start)
-        })
-        .sum();
-    let stride = in_trials.div_ceil(max_samples.max(1)).max(1);
-    let rows = rows(rec, trials, model, stride);
     if rows.len() < 50 {
         return Ok(None);
     }
-    let cv = cross_validate_torque(&rows, folds);
-    let payload = payload_score(&rows, &cv, trials.len());
-    let comparison = compare(rec, &rows, &cv.total);
+    let cv = cross_validate_torque(rows, folds);
+    let payload = payload_score(rows, &cv, n_trials);
+    let comparison = compare(joint_names, rows, &cv.total);
     Ok(Some(TorqueLevel {
         comparison,
         payload,
@@ -324,7 +321,7 @@ fn payload_score(rows: &[TorqueRow], cv: &TorqueCv, n_trials: usize) -> Hypothes
 }
 
 /// Stage: per-joint bias and RMS of τ_rec − τ_URDF, before and after the fitted friction.
-fn compare(rec: &Recording, rows: &[TorqueRow], total: &Gram) -> TorqueComparison {
+fn compare(joint_names: &[String], rows: &[TorqueRow], total: &Gram) -> TorqueComparison {
     let b0 = solve(total, N_FRICTION);
     let n = rows.len() as f64;
     let mut bias = [0.0; N_JOINTS];
@@ -339,7 +336,7 @@ fn compare(rec: &Recording, rows: &[TorqueRow], total: &Gram) -> TorqueCompariso
         }
     }
     TorqueComparison {
-        joints: rec.joint_names.clone(),
+        joints: joint_names.to_vec(),
         n_samples: rows.len(),
         bias_urdf: bias.to_vec(),
         rmse_urdf: ms.iter().map(|v| v.sqrt()).collect(),

@@ -24,13 +24,11 @@
 
 use anyhow::{Context, Result};
 
-use crate::power::PowerModel;
-use crate::signals::Recording;
 use crate::timing::{Alignment, ScanGrid, ridge_r2, scan_alignment};
 use crate::trial::{Cascade, TrialStat, TrialWindow, is_rejected};
 
-use super::data::{BusModel, Rows, TrialMeta, build_rows, trial_meta};
-use super::hypotheses::NOMINAL_BUS_VOLTS;
+use super::data::{Rows, TrialMeta, build_rows};
+use super::reduce::{SessionInfo, TrialSamples, hold};
 use super::{DiagnoseOptions, SensorWindow};
 
 /// Largest number of trials the sensor-window scan uses (evenly spread over the session): the
@@ -52,10 +50,12 @@ const STEP: f64 = 0.025;
 const FIXED_SET_S: f64 = 1.0 + 4.0 * STEP;
 
 /// The sensor window: given, or estimated (see the module docs) on the diagnosis' own rows of at
-/// most [`WINDOW_SCAN_TRIALS`] IMU-kept trials.
+/// most [`WINDOW_SCAN_TRIALS`] IMU-kept trials (of `all`: every trial's quantities), whose
+/// joint states are held for the scan (read once more from `samples`).
 pub(crate) fn sensor_window(
-    rec: &Recording,
-    windows: &[TrialWindow],
+    info: &SessionInfo,
+    samples: &mut dyn TrialSamples,
+    all: &[TrialMeta],
     opts: &DiagnoseOptions,
 ) -> Result<SensorWindow> {
     if let Some(w) = opts.sensor_window_s {
@@ -64,8 +64,11 @@ pub(crate) fn sensor_window(
             ..SensorWindow::default()
         });
     }
-    let metas = scan_trials(rec, windows, opts);
-    let power = opts.target.series(rec);
+    let metas = scan_trials(all, opts);
+    let windows: Vec<TrialWindow> = metas.iter().map(|m| m.window.clone()).collect();
+    let held = hold(samples, &windows)?;
+    let rec = &held;
+    let power = &info.power;
     let nominal = Alignment::NOMINAL;
     let reference = build_rows(rec, power, &metas, 0.0, nominal.window_s, false);
     let score = |a: Alignment| {
@@ -82,7 +85,7 @@ pub(crate) fn sensor_window(
         format!(
             "{}: estimating the power sensor's window: fewer than {} {} readings inside the {} \
              scanned trials; give the window (--sensor-window SECONDS)",
-            rec.source.display(),
+            info.source.display(),
             crate::N_PARAMS + 1,
             opts.target.name().to_uppercase(),
             metas.len()
@@ -156,12 +159,7 @@ pub(crate) fn sensor_window(
 
 /// At most [`WINDOW_SCAN_TRIALS`] trials evenly spread over the session, without those the IMU
 /// filter rejects (a swaying trial's balance power is noise to the window's fit).
-fn scan_trials(rec: &Recording, windows: &[TrialWindow], opts: &DiagnoseOptions) -> Vec<TrialMeta> {
-    let bus = BusModel {
-        model: opts.reference.unwrap_or(PowerModel::PAPER),
-        volts: NOMINAL_BUS_VOLTS,
-    };
-    let (metas, _) = trial_meta(rec, windows, bus);
+fn scan_trials(metas: &[TrialMeta], opts: &DiagnoseOptions) -> Vec<TrialMeta> {
     let sigmas: Vec<TrialStat> = metas
         .iter()
         .map(|m| TrialStat::new(0, m.window.index, m.sigma_omega))
@@ -175,8 +173,9 @@ fn scan_trials(rec: &Recording, windows: &[TrialWindow], opts: &DiagnoseOptions)
         .run(&sigmas, |_| Ok::<_, std::convert::Infallible>(Vec::new()))
         .unwrap_or_default();
     let kept: Vec<TrialMeta> = metas
-        .into_iter()
+        .iter()
         .filter(|m| !is_rejected(&rejected, 0, m.window.index))
+        .cloned()
         .collect();
     let step = kept.len().div_ceil(WINDOW_SCAN_TRIALS).max(1);
     kept.into_iter().step_by(step).collect()
