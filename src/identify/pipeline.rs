@@ -271,8 +271,7 @@ impl<'a> Prepared<'a> {
             Input::Memory(rec) => {
                 let mut rows = Vec::new();
                 for trial in retained {
-                    let set = dataset::build(rec, std::slice::from_ref(trial), dopts);
-                    rows.extend(set.rows.into_iter().step_by(stride));
+                    rows.extend(dataset::sample_rows_thinned(rec, trial, dopts, stride));
                 }
                 rows
             }

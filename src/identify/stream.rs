@@ -420,17 +420,17 @@ impl SessionSets {
             &mut self.trial,
             dataset::build(rec, one, &opts(Mode::Trial)),
         );
-        let thin = plan.sample_trials.contains(&trial.index);
-        let full = plan.full_sample_trials.contains(&trial.index);
-        if thin || full {
-            let set = dataset::build(rec, one, &opts(Mode::Sample));
-            if thin {
-                self.sample_thin
-                    .extend(set.rows.iter().step_by(plan.sample_stride.max(1)).cloned());
-            }
-            if full {
-                self.sample_sums.add(set);
-            }
+        if plan.sample_trials.contains(&trial.index) {
+            self.sample_thin.extend(dataset::sample_rows_thinned(
+                rec,
+                trial,
+                &opts(Mode::Sample),
+                plan.sample_stride,
+            ));
+        }
+        if plan.full_sample_trials.contains(&trial.index) {
+            self.sample_sums
+                .add(dataset::build(rec, one, &opts(Mode::Sample)));
         }
     }
 }
