@@ -289,3 +289,134 @@ fn streamed_identify_and_validate_on_bag_and_db3() {
         assert_eq!(mem.baselines, streamed.baselines);
     }
 }
+
+/// The per-sample fit (`--mode sample`) holds no sample rows: each trial's are reduced to their
+/// normal equations and sums as they are built. Streamed (in pieces) it equals the in-memory
+/// pipeline on the example and on a simulated 24-trial session (timing estimated, residual
+/// rejection on), and both equal a constrained fit of every retained trial's sample rows built
+/// and held independently (the fit the per-sample mode made before it was bounded).
+#[test]
+fn streamed_sample_mode_equals_in_memory_and_the_fit_of_the_rows() {
+    let dir = tempfile::tempdir().unwrap();
+    let sim = dir.path().join("smoke.mcap");
+    g1viz::sim::simulate(
+        &g1viz::sim::SimConfig {
+            progress: false,
+            seed: 5,
+            ..Default::default()
+        },
+        &sim,
+    )
+    .unwrap();
+    let sample = |base: IdentifyOptions| IdentifyOptions {
+        mode: identify::Mode::Sample,
+        ..base
+    };
+    let narrow = IdentifyOptions {
+        filters: g1viz::trial::Cascade {
+            n_sigma: 1.5,
+            ..Default::default()
+        },
+        ..IdentifyOptions::default()
+    };
+    for (path, opts, chunk_s) in [
+        (example(), sample(nominal()), 15.0),
+        // A narrow residual band, so trials are rejected by their mean residual too.
+        (sim.clone(), sample(narrow), 60.0),
+    ] {
+        let rec = load_recording(&path, &SignalMap::g1_left_arm(), &Default::default()).unwrap();
+        let mem = identify::identify(std::slice::from_ref(&rec), &opts).unwrap();
+        let so = StreamOptions {
+            chunk_s,
+            batch_samples: 500,
+            ..StreamOptions::default()
+        };
+        let streamed = identify::identify_files(&[file(&path)], &opts, &so).unwrap();
+        assert_same(&mem, &streamed);
+        assert_eq!(mem.std_err, streamed.std_err);
+        let by_residual = mem
+            .rejections
+            .iter()
+            .any(|r| r.reason == g1viz::trial::RejectReason::Residual);
+        assert_eq!(by_residual, path == sim, "{:?}", mem.rejections);
+        for (x, y) in mem.modes.iter().zip(&streamed.modes) {
+            assert_eq!(x.kappa, y.kappa, "{:?}", x.mode);
+        }
+
+        // Independently: every retained trial's sample rows, held, fitted as rows.
+        let retained: Vec<_> = mem.sessions[0]
+            .segmentation
+            .trials
+            .iter()
+            .filter(|t| !mem.rejections.iter().any(|r| r.trial == t.index))
+            .cloned()
+            .collect();
+        let rows = identify::build_dataset(
+            &rec,
+            &retained,
+            &identify::DatasetOptions {
+                mode: identify::Mode::Sample,
+                target: opts.target,
+                alignment: mem.alignment,
+            },
+        )
+        .rows;
+        assert!(rows.len() > 1000, "{} rows", rows.len());
+        // The rows fitted directly (QR of the rows, clarabel), scored with the whole-set metrics.
+        let phi: Vec<[f64; 49]> = rows.iter().map(|r| r.phi).collect();
+        let y: Vec<f64> = rows.iter().map(|r| r.y).collect();
+        let lower = g1viz::lsq::paper_lower_bounds();
+        let held = g1viz::lsq::fit_constrained(&phi, &y, &lower).unwrap();
+        let yhat: Vec<f64> = phi
+            .iter()
+            .map(|p| p.iter().zip(&held.theta).map(|(a, b)| a * b).sum())
+            .collect();
+        let held_fit = g1viz::lsq::Metrics::compute(&y, &yhat);
+        assert_eq!(mem.fit.n, rows.len());
+        assert_eq!(mem.trials_used, retained.len());
+        let close = |a: f64, b: f64, tol: f64| (a - b).abs() <= tol * b.abs().max(1e-9);
+        for (name, a, b) in [
+            ("r2", mem.fit.r2, held_fit.r2),
+            ("rmse", mem.fit.rmse, held_fit.rmse),
+            ("mae", mem.fit.mae, held_fit.mae),
+            ("bias", mem.fit.bias, held_fit.bias),
+            ("skewness", mem.fit.skewness, held_fit.skewness),
+            ("kurtosis", mem.fit.kurtosis, held_fit.kurtosis),
+        ] {
+            assert!(close(a, b, 1e-6), "{}: {name} {a} vs {b}", path.display());
+        }
+        let sample_mode = mem.modes.iter().find(|m| m.mode == identify::Mode::Sample);
+        let kappa = g1viz::lsq::condition_number(&phi);
+        assert!(close(sample_mode.unwrap().kappa, kappa, 1e-6));
+        // The held fit's standard errors (from the rows' residuals) are the bounded fit's.
+        for (a, b) in mem.std_err.iter().zip(&held.std_err) {
+            match (a, b) {
+                (Some(a), Some(b)) => assert!(close(*a, *b, 1e-4), "std err {a} vs {b}"),
+                _ => assert_eq!(a.is_some(), b.is_some()),
+            }
+        }
+        // Predictions agree to solver accuracy (θ itself is ill-determined per sample).
+        let (a, b) = (mem.model.to_vector(), held.theta.clone());
+        let rms = |theta: &[f64]| {
+            let sq: f64 = rows
+                .iter()
+                .map(|r| {
+                    r.phi
+                        .iter()
+                        .zip(theta)
+                        .map(|(p, t)| p * t)
+                        .sum::<f64>()
+                        .powi(2)
+                })
+                .sum();
+            (sq / rows.len() as f64).sqrt()
+        };
+        let diff: Vec<f64> = a.iter().zip(&b).map(|(x, y)| x - y).collect();
+        assert!(
+            rms(&diff) <= 1e-4 * rms(&b),
+            "{}: predictions differ by {} W rms",
+            path.display(),
+            rms(&diff)
+        );
+    }
+}

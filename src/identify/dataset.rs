@@ -282,24 +282,7 @@ pub fn build(rec: &Recording, trials: &[TrialWindow], opts: &DatasetOptions) -> 
                     }
                 }
             }
-            Mode::Sample => {
-                let s = &rec.state;
-                let n = s.t.len().min(s.tau.len()).min(s.dq.len());
-                let (i0, i1) = (
-                    s.t[..n].partition_point(|&x| x <= a),
-                    s.t[..n].partition_point(|&x| x <= b),
-                );
-                let mut phi = [0.0; N_PARAMS];
-                for k in i0..i1 {
-                    // Zero-order hold: the latest reading stamped at or before the sample.
-                    let r = power.t.partition_point(|&x| x <= s.t[k]);
-                    let Some(&w) = r.checked_sub(1).and_then(|r| power.watts.get(r)) else {
-                        continue;
-                    };
-                    regressor_into(&s.tau[k], &s.dq[k], &basis.tau0_sq, &mut phi);
-                    push_finite(&mut out.rows, row(s.t[k], s.t[k], s.t[k], phi, w));
-                }
-            }
+            Mode::Sample => sample_rows(rec, power, &basis, trial.index, 1, &mut out.rows),
         }
         if out.rows.len() == before {
             out.skipped.push(Skipped {
@@ -314,6 +297,76 @@ pub fn build(rec: &Recording, trials: &[TrialWindow], opts: &DatasetOptions) -> 
         }
     }
     out
+}
+
+/// The sample rows (zero-order-held power) of one trial with its `basis`, keeping every
+/// `every`-th row produced (all for 1); the rows left out are never materialised.
+fn sample_rows(
+    rec: &Recording,
+    power: &PowerSeries,
+    basis: &TrialBasis,
+    trial: usize,
+    every: usize,
+    out: &mut Vec<Row>,
+) {
+    let s = &rec.state;
+    let (a, b) = basis.window;
+    let n = s.t.len().min(s.tau.len()).min(s.dq.len());
+    let (i0, i1) = (
+        s.t[..n].partition_point(|&x| x <= a),
+        s.t[..n].partition_point(|&x| x <= b),
+    );
+    let every = every.max(1);
+    let mut produced = 0usize;
+    let mut phi = [0.0; N_PARAMS];
+    for k in i0..i1 {
+        // Zero-order hold: the latest reading stamped at or before the sample.
+        let r = power.t.partition_point(|&x| x <= s.t[k]);
+        let Some(&w) = r.checked_sub(1).and_then(|r| power.watts.get(r)) else {
+            continue;
+        };
+        regressor_into(&s.tau[k], &s.dq[k], &basis.tau0_sq, &mut phi);
+        let y = w - basis.baseline_w;
+        if !(y.is_finite() && phi.iter().all(|v| v.is_finite())) {
+            continue;
+        }
+        produced += 1;
+        if (produced - 1) % every != 0 {
+            continue;
+        }
+        out.push(Row {
+            trial,
+            t: s.t[k],
+            t0: s.t[k],
+            t1: s.t[k],
+            phi,
+            y,
+            sigma_omega: basis.sigma_omega,
+            tau0_sq: basis.tau0_sq,
+        });
+    }
+}
+
+/// The sample rows of one trial thinned to every `every`-th (the same rows as
+/// `build(…, Mode::Sample).rows.iter().step_by(every)`, without building the others).
+pub(crate) fn sample_rows_thinned(
+    rec: &Recording,
+    trial: &TrialWindow,
+    opts: &DatasetOptions,
+    every: usize,
+) -> Vec<Row> {
+    let mut rows = Vec::new();
+    if let Ok(basis) = trial_basis(rec, trial, opts.target, &opts.alignment) {
+        sample_rows(
+            rec,
+            opts.target.series(rec),
+            &basis,
+            trial.index,
+            every,
+            &mut rows,
+        );
+    }
+    rows
 }
 
 /// Estimate the sensor's averaging window W and lag from the data: the per-reading rows are
@@ -359,4 +412,67 @@ pub fn estimate_alignment(
         )
     };
     Ok(est)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::signals::StateSeries;
+
+    /// Thinned sample rows are every n-th of the rows `build` makes, including when a
+    /// non-finite sample is dropped in between (the count is over rows produced, not samples).
+    #[test]
+    fn thinned_sample_rows_are_every_nth_built_row() {
+        let n = 1200;
+        let t: Vec<f64> = (0..n).map(|k| k as f64 * 0.01).collect();
+        let wave = |k: usize, j: usize| ((k * (j + 1)) as f64 * 0.013).sin();
+        let mut tau: Vec<[f64; N_JOINTS]> = (0..n)
+            .map(|k| std::array::from_fn(|j| 2.0 + wave(k, j)))
+            .collect();
+        tau[700][3] = f64::NAN;
+        let state = StateSeries {
+            dq: (0..n)
+                .map(|k| std::array::from_fn(|j| if k > 300 { wave(k, j + 2) } else { 0.0 }))
+                .collect(),
+            tau,
+            t: t.clone(),
+            ..StateSeries::default()
+        };
+        let mbs = PowerSeries {
+            t: (0..12).map(|k| k as f64 + 0.5).collect(),
+            watts: (0..12).map(|k| 20.0 + k as f64).collect(),
+        };
+        let rec = Recording {
+            state,
+            mbs,
+            ..Recording::default()
+        };
+        let trial = TrialWindow {
+            index: 4,
+            t_pre_start: 0.0,
+            t_traj_start: 3.0,
+            t_traj_end: 9.0,
+            t_post_end: 11.0,
+            t_return_end: 11.9,
+            joints_moved: vec![0],
+            qdot_max_cmd: 1.0,
+            qdot_max_meas: 1.0,
+        };
+        let opts = DatasetOptions {
+            mode: Mode::Sample,
+            target: Target::Mbs,
+            alignment: Alignment::NOMINAL,
+        };
+        let all = build(&rec, std::slice::from_ref(&trial), &opts).rows;
+        assert!(all.len() > 700 && all.len() < 800, "{}", all.len());
+        assert!(
+            all.iter().all(|r| r.t != t[700]),
+            "the NaN sample gives no row"
+        );
+        for every in [1, 3, 7] {
+            let thin = sample_rows_thinned(&rec, &trial, &opts, every);
+            let expected: Vec<Row> = all.iter().step_by(every).cloned().collect();
+            assert_eq!(thin, expected, "every {every}");
+        }
+    }
 }

@@ -2,7 +2,6 @@
 //! any number of rows, fit quality, κ(ΦᵀΦ), per-trial mean residuals and term means.
 
 use anyhow::Result;
-use nalgebra::SymmetricEigen;
 
 use super::dataset::Row;
 use crate::N_PARAMS;
@@ -30,39 +29,26 @@ pub fn kappa(rows: &[Row]) -> f64 {
 }
 
 /// The paper's constrained fit (a ≥ 1, the rest ≥ 0) of any number of rows. Large row sets are
-/// first compressed to 49 rows with the same normal equations (ΦᵀΦ = RᵀR, Φᵀy = Rᵀz from the
-/// eigen-decomposition), which leaves the least-squares objective unchanged up to a constant
-/// (standard errors of a compressed fit are meaningless; only the degenerate sample-row
-/// comparison is that large).
+/// fitted from their normal equations ([`fit_normal`]; only the degenerate sample-row comparison
+/// and very long sessions are that large).
 pub(crate) fn fit_rows(rows: &[Row]) -> Result<lsq::Fit> {
     const COMPRESS_ABOVE: usize = 20_000;
-    let lower = lsq::paper_lower_bounds();
     if rows.len() <= COMPRESS_ABOVE {
         let phi: Vec<[f64; N_PARAMS]> = rows.iter().map(|r| r.phi).collect();
         let y: Vec<f64> = rows.iter().map(|r| r.y).collect();
-        return lsq::fit_constrained(&phi, &y, &lower);
+        return lsq::fit_constrained(&phi, &y, &lsq::paper_lower_bounds());
     }
-    let normal = gram(rows);
-    let eig = SymmetricEigen::new(normal.g.clone());
-    let cutoff = eig.eigenvalues.max().max(0.0) * 1e-14;
-    let mut phi = Vec::with_capacity(N_PARAMS);
-    let mut y = Vec::with_capacity(N_PARAMS);
-    for (k, &lambda) in eig.eigenvalues.iter().enumerate() {
-        if lambda <= cutoff {
-            continue;
-        }
-        let v = eig.eigenvectors.column(k);
-        let s = lambda.sqrt();
-        phi.push(std::array::from_fn(|p| s * v[p]));
-        y.push(
-            v.iter()
-                .zip(normal.h.iter())
-                .map(|(a, b)| a * b)
-                .sum::<f64>()
-                / s,
-        );
-    }
-    lsq::fit_constrained(&phi, &y, &lower)
+    fit_normal(&gram(rows))
+}
+
+/// The paper's constrained fit from the normal equations of the rows ([`lsq::fit_gram`]: the
+/// same minimiser; the residual sum of squares and standard errors are those of the rows).
+pub(crate) fn fit_normal(normal: &Gram) -> Result<lsq::Fit> {
+    lsq::fit_gram(
+        normal,
+        &lsq::Bounds::lower(&lsq::paper_lower_bounds()),
+        lsq::Method::Clarabel,
+    )
 }
 
 /// Fit quality of θ on the rows.
@@ -72,22 +58,23 @@ pub(crate) fn quality(theta: &[f64; N_PARAMS], rows: &[Row]) -> Metrics {
     Metrics::compute(&y, &yhat)
 }
 
-/// Mean residual per (session, trial) of the rows of each session (rows grouped by trial).
-pub(crate) fn trial_residuals(theta: &[f64; N_PARAMS], sets: &[(usize, &[Row])]) -> Vec<TrialStat> {
+/// Mean residual per (session, trial) of `rows` (session, row), grouped by session and trial.
+pub(crate) fn trial_residuals<'r>(
+    theta: &[f64; N_PARAMS],
+    rows: impl IntoIterator<Item = (usize, &'r Row)>,
+) -> Vec<TrialStat> {
     let mut out: Vec<TrialStat> = Vec::new();
     let mut count = 0usize;
-    for &(session, rows) in sets {
-        for row in rows {
-            let r = row.y - predict(theta, &row.phi);
-            match out.last_mut() {
-                Some(last) if last.session == session && last.trial == row.trial => {
-                    count += 1;
-                    last.value += (r - last.value) / count as f64;
-                }
-                _ => {
-                    out.push(TrialStat::new(session, row.trial, r));
-                    count = 1;
-                }
+    for (session, row) in rows {
+        let r = row.y - predict(theta, &row.phi);
+        match out.last_mut() {
+            Some(last) if last.session == session && last.trial == row.trial => {
+                count += 1;
+                last.value += (r - last.value) / count as f64;
+            }
+            _ => {
+                out.push(TrialStat::new(session, row.trial, r));
+                count = 1;
             }
         }
     }

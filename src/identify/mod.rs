@@ -9,6 +9,7 @@ mod fit;
 mod pipeline;
 mod record;
 mod report;
+mod sample;
 mod stream;
 mod summary;
 mod table;

@@ -16,10 +16,11 @@ use anyhow::{Context, Result, bail};
 use super::dataset::{
     self, Alignment, AlignmentEstimate, Dataset, DatasetOptions, Mode, Row, Skipped,
 };
-use super::fit::{fit_rows, kappa, quality, term_means, trial_residuals};
+use super::fit::{fit_normal, fit_rows, kappa, quality, term_means, trial_residuals};
+use super::sample::{self, SampleSums};
 use super::stream::{self, RowPlan, SessionFile, SessionSets, StreamOptions};
 use super::table::{TrialPrediction, trial_metrics, trial_predictions};
-use crate::lsq::{Metrics, SolverInfo};
+use crate::lsq::{Gram, Metrics, MetricsAccumulator, SolverInfo};
 use crate::power::{LossTerm, PowerModel, TermMeans};
 use crate::signals::{Recording, Target};
 use crate::trial::{
@@ -230,10 +231,30 @@ impl<'a> Prepared<'a> {
 
     /// The planned rows of this session (a second streamed pass for a file).
     pub(crate) fn rows(&self, plan: &RowPlan) -> Result<SessionSets> {
+        let mut sets = SessionSets::new(plan);
+        self.for_each_trial(plan.trials, "rows", &mut |rec, t| {
+            sets.add_trial(rec, t, plan)
+        })?;
+        Ok(sets)
+    }
+
+    /// Call `on_trial` for each of `trials` (in time order) with a recording holding at least
+    /// that trial's window and the power series: the whole recording in memory, or one more
+    /// streamed pass over a file holding about one trial at a time (`what` names the pass in
+    /// an error).
+    fn for_each_trial(
+        &self,
+        trials: &[TrialWindow],
+        what: &str,
+        on_trial: &mut dyn FnMut(&Recording, &TrialWindow),
+    ) -> Result<()> {
         match &self.input {
-            Input::Memory(rec) => Ok(SessionSets::from_memory(rec, plan)),
-            Input::File(file, so) => stream::row_pass(file, &self.subset, plan, so)
-                .with_context(|| format!("reading {} (rows)", file.path.display())),
+            Input::Memory(rec) => {
+                trials.iter().for_each(|t| on_trial(rec, t));
+                Ok(())
+            }
+            Input::File(file, so) => stream::trial_pass(file, &self.subset, trials, so, on_trial)
+                .with_context(|| format!("reading {} ({what})", file.path.display())),
         }
     }
 
@@ -250,8 +271,7 @@ impl<'a> Prepared<'a> {
             Input::Memory(rec) => {
                 let mut rows = Vec::new();
                 for trial in retained {
-                    let set = dataset::build(rec, std::slice::from_ref(trial), dopts);
-                    rows.extend(set.rows.into_iter().step_by(stride));
+                    rows.extend(dataset::sample_rows_thinned(rec, trial, dopts, stride));
                 }
                 rows
             }
@@ -462,7 +482,9 @@ fn session_rows(
                 target: opts.target,
                 alignment,
                 trials: &p.seg.trials,
-                sample_trials: if matches!(p.input, Input::File(..)) {
+                // The sample pairing's comparison (streamed: thinned now; in memory: built when
+                // compared); a per-sample fit scores its own rows instead.
+                sample_trials: if matches!(p.input, Input::File(..)) && opts.mode != Mode::Sample {
                     &kept_idx
                 } else {
                     &[]
@@ -479,48 +501,28 @@ fn session_rows(
         .collect()
 }
 
-/// Stage 4b: the rows of the options' pairing on the kept trials, one data set per session.
-fn build_sets(
-    sessions: &[Prepared],
-    rows: &[SessionSets],
-    kept: &[Vec<TrialWindow>],
-    opts: &IdentifyOptions,
-) -> Result<Vec<Dataset>> {
-    sessions
-        .iter()
-        .zip(rows)
-        .zip(kept)
-        .map(|((p, r), trials)| {
-            let all = match opts.mode {
-                Mode::Reading => &r.reading,
-                Mode::Trial => &r.trial,
-                Mode::Sample => &r.sample_full,
-            };
-            let d = restrict(all, trials);
-            if d.rows.is_empty() && !trials.is_empty() {
-                Err(p.no_usable_trials(&d.skipped))
-            } else {
-                Ok(d)
-            }
-        })
-        .collect()
+/// What the final fit is made of, one entry per session.
+enum FitInput {
+    /// Rows of the trial or reading pairing.
+    Rows(Vec<Dataset>),
+    /// The sample rows reduced to per-trial statistics (`--mode sample`).
+    Sums(Vec<SampleSums>),
 }
 
-/// Result of stage 5.
-struct FinalFit {
-    fit: crate::lsq::Fit,
-    theta: [f64; N_PARAMS],
-    rows: Vec<Row>,
-}
+impl FitInput {
+    /// Each session's trials without rows.
+    fn into_skipped(self) -> Vec<Vec<Skipped>> {
+        match self {
+            FitInput::Rows(sets) => sets.into_iter().map(|d| d.skipped).collect(),
+            FitInput::Sums(sets) => sets.into_iter().map(|d| d.skipped).collect(),
+        }
+    }
 
-/// Stage 5: the constrained fit with iterative n·σ rejection by trial (each pass refits without
-/// the trials rejected so far), then the final fit on what remains.
-fn fit_with_rejection(
-    sets: &[Dataset],
-    rejections: &mut Vec<Rejection>,
-    opts: &IdentifyOptions,
-) -> Result<FinalFit> {
-    let rows_kept = |rej: &[Rejection]| -> Vec<Row> {
+    /// The rows of the trials no rejection names (empty for statistics).
+    fn rows_kept(&self, rej: &[Rejection]) -> Vec<Row> {
+        let FitInput::Rows(sets) = self else {
+            return Vec::new();
+        };
         sets.iter()
             .enumerate()
             .flat_map(|(s, d)| {
@@ -530,50 +532,183 @@ fn fit_with_rejection(
                     .cloned()
             })
             .collect()
-    };
+    }
+
+    /// The normal equations of the trials no rejection names (statistics only).
+    fn gram_kept(&self, rej: &[Rejection]) -> Gram {
+        let mut g = Gram::zeros(N_PARAMS);
+        if let FitInput::Sums(sets) = self {
+            for (s, d) in sets.iter().enumerate() {
+                for t in d.sums.iter() {
+                    if !trial::is_rejected(rej, s, t.trial) {
+                        t.add_to(&mut g);
+                    }
+                }
+            }
+        }
+        g
+    }
+
+    /// The mean residual of θ over each trial no rejection names, session by session.
+    fn residuals(&self, theta: &[f64; N_PARAMS], rej: &[Rejection]) -> Vec<TrialStat> {
+        match self {
+            FitInput::Rows(sets) => trial_residuals(
+                theta,
+                sets.iter().enumerate().flat_map(|(s, d)| {
+                    d.rows
+                        .iter()
+                        .filter(move |r| !trial::is_rejected(rej, s, r.trial))
+                        .map(move |r| (s, r))
+                }),
+            ),
+            FitInput::Sums(sets) => sets
+                .iter()
+                .enumerate()
+                .flat_map(|(s, d)| {
+                    d.sums
+                        .iter()
+                        .filter(move |t| !trial::is_rejected(rej, s, t.trial))
+                        .map(move |t| TrialStat::new(s, t.trial, t.mean_residual(theta)))
+                })
+                .collect(),
+        }
+    }
+}
+
+/// Stage 4b: the rows of the options' pairing on the kept trials, one data set per session
+/// (per-trial statistics of the sample rows in sample mode).
+fn build_sets(
+    sessions: &[Prepared],
+    rows: &[SessionSets],
+    kept: &[Vec<TrialWindow>],
+    opts: &IdentifyOptions,
+) -> Result<FitInput> {
+    let per_session = sessions.iter().zip(rows).zip(kept);
+    if opts.mode == Mode::Sample {
+        let sets = per_session
+            .map(|((p, r), trials)| {
+                let keep: HashSet<usize> = trials.iter().map(|t| t.index).collect();
+                let d = r.sample_sums.restrict(&keep);
+                if d.sums.is_empty() && !trials.is_empty() {
+                    Err(p.no_usable_trials(&d.skipped))
+                } else {
+                    Ok(d)
+                }
+            })
+            .collect::<Result<Vec<_>>>()?;
+        return Ok(FitInput::Sums(sets));
+    }
+    let sets = per_session
+        .map(|((p, r), trials)| {
+            let all = match opts.mode {
+                Mode::Trial => &r.trial,
+                _ => &r.reading,
+            };
+            let d = restrict(all, trials);
+            if d.rows.is_empty() && !trials.is_empty() {
+                Err(p.no_usable_trials(&d.skipped))
+            } else {
+                Ok(d)
+            }
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok(FitInput::Rows(sets))
+}
+
+/// Result of stage 5.
+struct FinalFit {
+    fit: crate::lsq::Fit,
+    theta: [f64; N_PARAMS],
+    /// The rows fitted (none for a fit of per-trial statistics).
+    rows: Vec<Row>,
+}
+
+/// Stage 5: the constrained fit with iterative n·σ rejection by trial (each pass refits without
+/// the trials rejected so far), then the final fit on what remains.
+fn fit_with_rejection(
+    input: &FitInput,
+    rejections: &mut Vec<Rejection>,
+    opts: &IdentifyOptions,
+) -> Result<FinalFit> {
     let min_rows = if opts.mode == Mode::Trial {
         1
     } else {
         N_PARAMS
     };
-    let fit_kept = |rej: &[Rejection]| -> Result<(crate::lsq::Fit, Vec<Row>)> {
-        let rows = rows_kept(rej);
+    let fit_kept = |rej: &[Rejection]| -> Result<(crate::lsq::Fit, Vec<Row>, usize)> {
         let after_residual_rejection = rej.iter().any(|r| r.reason == RejectReason::Residual);
-        if after_residual_rejection && rows.len() < min_rows {
-            bail!(
-                "residual rejection left {} rows, too few to fit",
-                rows.len()
-            );
+        let check = |n: usize| {
+            if after_residual_rejection && n < min_rows {
+                bail!("residual rejection left {n} rows, too few to fit");
+            }
+            Ok(())
+        };
+        match input {
+            FitInput::Rows(_) => {
+                let rows = input.rows_kept(rej);
+                check(rows.len())?;
+                let fit = fit_rows(&rows).context("constrained least squares")?;
+                let n = rows.len();
+                Ok((fit, rows, n))
+            }
+            FitInput::Sums(_) => {
+                let normal = input.gram_kept(rej);
+                check(normal.n)?;
+                let fit = fit_normal(&normal).context("constrained least squares")?;
+                Ok((fit, Vec::new(), normal.n))
+            }
         }
-        let fit = fit_rows(&rows).context("constrained least squares")?;
-        Ok((fit, rows))
     };
     opts.filters.residual_passes(rejections, |rej| {
-        let (fit, rows) = fit_kept(rej)?;
+        let (fit, _, _) = fit_kept(rej)?;
         let theta = fit.theta49()?;
-        let mut views: Vec<(usize, &[Row])> = Vec::new();
-        let mut start = 0;
-        for (s, d) in sets.iter().enumerate() {
-            let n = d
-                .rows
-                .iter()
-                .filter(|r| !trial::is_rejected(rej, s, r.trial))
-                .count();
-            views.push((s, &rows[start..start + n]));
-            start += n;
-        }
-        Ok::<_, anyhow::Error>(trial_residuals(&theta, &views))
+        Ok::<_, anyhow::Error>(input.residuals(&theta, rej))
     })?;
-    let (fit, rows) = fit_kept(rejections)?;
-    if rows.is_empty() {
+    let (fit, rows, n) = fit_kept(rejections)?;
+    if n == 0 {
         bail!("no rows left after filtering");
     }
     let theta = fit.theta49()?;
     Ok(FinalFit { fit, theta, rows })
 }
 
+/// Stage 5b: κ(ΦᵀΦ) and the fit quality of the final fit on its own rows. A per-sample fit was
+/// made from per-trial statistics: its κ comes from their sum, and the retained trials' sample
+/// rows are built once more (a streamed pass for a file) and scored one at a time.
+fn final_scores(
+    sessions: &[Prepared],
+    input: &FitInput,
+    final_fit: &FinalFit,
+    rejections: &[Rejection],
+    retained: &[Vec<TrialWindow>],
+    opts: &IdentifyOptions,
+    alignment: Alignment,
+) -> Result<(f64, Metrics)> {
+    if let FitInput::Rows(_) = input {
+        return Ok((
+            kappa(&final_fit.rows),
+            quality(&final_fit.theta, &final_fit.rows),
+        ));
+    }
+    let dopts = DatasetOptions {
+        mode: Mode::Sample,
+        target: opts.target,
+        alignment,
+    };
+    let mut acc = MetricsAccumulator::default();
+    for (p, trials) in sessions.iter().zip(retained) {
+        p.for_each_trial(trials, "scoring the per-sample fit", &mut |rec, t| {
+            let set = dataset::build(rec, std::slice::from_ref(t), &dopts);
+            sample::score_rows(&mut acc, &final_fit.theta, &set.rows);
+        })?;
+    }
+    let kappa = input.gram_kept(rejections).condition_number();
+    Ok((kappa, acc.finish()))
+}
+
 /// Stage 6: the trial, reading and sample pairings on the same retained trials, each with its
-/// own constrained fit (the options' pairing reuses the final fit). Also returns the trial rows.
+/// own constrained fit (the options' pairing reuses the final fit and its `scores`, κ and
+/// quality). Also returns the trial rows.
 fn compare_pairings(
     sessions: &[Prepared],
     rows: &[SessionSets],
@@ -581,6 +716,7 @@ fn compare_pairings(
     opts: &IdentifyOptions,
     alignment: Alignment,
     final_fit: &FinalFit,
+    scores: (f64, Metrics),
 ) -> Result<(Vec<ModeFit>, Vec<Row>)> {
     let stride = sample_stride(retained);
     let mode_rows = |mode: Mode| -> Vec<Row> {
@@ -602,13 +738,19 @@ fn compare_pairings(
     let mut modes = Vec::new();
     let mut trial_rows = Vec::new();
     for mode in [Mode::Trial, Mode::Reading, Mode::Sample] {
-        let (rows, theta) = if mode == opts.mode {
-            (final_fit.rows.clone(), final_fit.theta)
-        } else {
-            let rows = mode_rows(mode);
-            let theta = fit_rows(&rows)?.theta49()?;
-            (rows, theta)
-        };
+        if mode == opts.mode {
+            modes.push(ModeFit {
+                mode,
+                kappa: scores.0,
+                quality: scores.1,
+            });
+            if mode == Mode::Trial {
+                trial_rows = final_fit.rows.clone();
+            }
+            continue;
+        }
+        let rows = mode_rows(mode);
+        let theta = fit_rows(&rows)?.theta49()?;
         modes.push(ModeFit {
             mode,
             kappa: kappa(&rows),
@@ -681,11 +823,21 @@ fn identify_prepared(sessions: Vec<Prepared>, opts: &IdentifyOptions) -> Result<
     let mut sessions = sessions;
     sessions.iter_mut().for_each(Prepared::release_subset);
     let rows = session_rows(&sessions, &kept, opts, alignment)?;
-    let sets = build_sets(&sessions, &rows, &kept, opts)?;
-    let final_fit = fit_with_rejection(&sets, &mut rejections, opts)?;
+    let input = build_sets(&sessions, &rows, &kept, opts)?;
+    let final_fit = fit_with_rejection(&input, &mut rejections, opts)?;
     let retained = trials_kept(&sessions, &rejections);
-    let (modes, trial_rows) =
-        compare_pairings(&sessions, &rows, &retained, opts, alignment, &final_fit)?;
+    let scores = final_scores(
+        &sessions,
+        &input,
+        &final_fit,
+        &rejections,
+        &retained,
+        opts,
+        alignment,
+    )?;
+    let (modes, trial_rows) = compare_pairings(
+        &sessions, &rows, &retained, opts, alignment, &final_fit, scores,
+    )?;
     let per_trial = per_trial_table(&sessions, &rows, &final_fit.theta, &rejections);
 
     let per_session = session_breakdown(&sessions, &rows, &retained, &rejections, &final_fit.theta);
@@ -694,11 +846,11 @@ fn identify_prepared(sessions: Vec<Prepared>, opts: &IdentifyOptions) -> Result<
     let retained_table: Vec<&TrialPrediction> = per_trial.iter().filter(|p| !p.rejected).collect();
     let sessions = sessions
         .into_iter()
-        .zip(sets)
-        .map(|(p, d)| SessionSummary {
+        .zip(input.into_skipped())
+        .map(|(p, skipped)| SessionSummary {
             source: p.source,
             segmentation: p.seg,
-            skipped: d.skipped,
+            skipped,
             first_temp_c: p.first_temp_c,
             warnings: p.warnings,
         })
@@ -710,7 +862,7 @@ fn identify_prepared(sessions: Vec<Prepared>, opts: &IdentifyOptions) -> Result<
         alignment,
         alignment_estimate,
         trials_used: retained.iter().map(Vec::len).sum(),
-        fit: quality(&final_fit.theta, &final_fit.rows),
+        fit: scores.1,
         trial_level: trial_metrics(&retained_table, |p| p.predicted_window_w),
         trial_level_aligned: trial_metrics(&retained_table, |p| p.predicted_w),
         modes,

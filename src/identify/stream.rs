@@ -21,6 +21,7 @@ use std::path::PathBuf;
 use anyhow::Result;
 
 use super::dataset::{self, Dataset, DatasetOptions, Mode, Row};
+use super::sample::SampleSums;
 use crate::N_JOINTS;
 use crate::read::OpenOptions;
 use crate::signals::{PowerSeries, Recording, SignalMap, StateSeries, Target, stream_recording};
@@ -360,7 +361,8 @@ pub(crate) struct RowPlan<'a> {
     /// Trials whose sample rows are built (thinned by `sample_stride`).
     pub sample_trials: &'a [usize],
     pub sample_stride: usize,
-    /// Trials whose sample rows are all kept (only when the fit itself is per sample).
+    /// Trials whose sample rows are reduced to per-trial statistics (only when the fit itself
+    /// is per sample).
     pub full_sample_trials: &'a [usize],
 }
 
@@ -370,8 +372,9 @@ pub(crate) struct SessionSets {
     pub trial: Dataset,
     /// Thinned sample rows of the planned trials.
     pub sample_thin: Vec<Row>,
-    /// All sample rows of the planned trials (empty unless planned).
-    pub sample_full: Dataset,
+    /// The sample rows of the planned trials reduced to per-trial statistics (empty unless
+    /// planned: only the per-sample fit needs them).
+    pub sample_sums: SampleSums,
 }
 
 fn empty_set(mode: Mode, plan: &RowPlan) -> Dataset {
@@ -392,12 +395,12 @@ fn extend(to: &mut Dataset, from: Dataset) {
 }
 
 impl SessionSets {
-    fn new(plan: &RowPlan) -> SessionSets {
+    pub(crate) fn new(plan: &RowPlan) -> SessionSets {
         SessionSets {
             reading: empty_set(Mode::Reading, plan),
             trial: empty_set(Mode::Trial, plan),
             sample_thin: Vec::new(),
-            sample_full: empty_set(Mode::Sample, plan),
+            sample_sums: SampleSums::default(),
         }
     }
 
@@ -417,27 +420,18 @@ impl SessionSets {
             &mut self.trial,
             dataset::build(rec, one, &opts(Mode::Trial)),
         );
-        let thin = plan.sample_trials.contains(&trial.index);
-        let full = plan.full_sample_trials.contains(&trial.index);
-        if thin || full {
-            let set = dataset::build(rec, one, &opts(Mode::Sample));
-            if thin {
-                self.sample_thin
-                    .extend(set.rows.iter().step_by(plan.sample_stride.max(1)).cloned());
-            }
-            if full {
-                extend(&mut self.sample_full, set);
-            }
+        if plan.sample_trials.contains(&trial.index) {
+            self.sample_thin.extend(dataset::sample_rows_thinned(
+                rec,
+                trial,
+                &opts(Mode::Sample),
+                plan.sample_stride,
+            ));
         }
-    }
-
-    /// The rows of every trial of `plan` built on a whole recording in memory.
-    pub(crate) fn from_memory(rec: &Recording, plan: &RowPlan) -> SessionSets {
-        let mut sets = SessionSets::new(plan);
-        for t in plan.trials {
-            sets.add_trial(rec, t, plan);
+        if plan.full_sample_trials.contains(&trial.index) {
+            self.sample_sums
+                .add(dataset::build(rec, one, &opts(Mode::Sample)));
         }
-        sets
     }
 }
 
@@ -478,17 +472,18 @@ pub(crate) fn hold_pass(
     Ok(held)
 }
 
-/// Pass 2: stream the joint states of `file` (clock of pass 1) and build the planned rows,
-/// holding only the current trial's samples.
+/// Pass 2 (and the sample-mode scoring pass): stream the joint states of `file` (clock of
+/// pass 1) and call `on_trial` for each of `trials` (in time order) with a recording holding
+/// that trial's window and the power series, holding only about one trial's samples.
 ///
 /// `power` gives the clock (`start_ns`) and the power series (those of pass 1).
-pub(crate) fn row_pass(
+pub(crate) fn trial_pass(
     file: &SessionFile,
     power: &Recording,
-    plan: &RowPlan,
+    trials: &[TrialWindow],
     so: &StreamOptions,
-) -> Result<SessionSets> {
-    let mut sets = SessionSets::new(plan);
+    on_trial: &mut dyn FnMut(&Recording, &TrialWindow),
+) -> Result<()> {
     let mut buf = Recording {
         source: file.path.clone(),
         start_ns: power.start_ns,
@@ -497,15 +492,7 @@ pub(crate) fn row_pass(
         bms: power.bms.clone(),
         ..Recording::default()
     };
-    stream_trial_windows(
-        file,
-        power.start_ns,
-        plan.trials,
-        so,
-        &mut buf,
-        &mut |buf, t| sets.add_trial(buf, t, plan),
-    )?;
-    Ok(sets)
+    stream_trial_windows(file, power.start_ns, trials, so, &mut buf, on_trial)
 }
 
 /// Stream `file`'s joint states into `buf.state` and hand each of `trials` (in time order) to

@@ -11,9 +11,11 @@ mod qp;
 mod solve;
 
 pub use gram::Gram;
-pub use metrics::{Metrics, condition_number, condition_number_gram, condition_number_matrix};
+pub use metrics::{
+    Metrics, MetricsAccumulator, condition_number, condition_number_gram, condition_number_matrix,
+};
 pub use qp::bounded_quadratic;
 pub use solve::{
     Bounds, Fit, KktReport, Method, SolverInfo, Status, fit_bvls, fit_constrained,
-    fit_constrained_general, fit_general, kkt_check, paper_lower_bounds, rows_to_matrix,
+    fit_constrained_general, fit_general, fit_gram, kkt_check, paper_lower_bounds, rows_to_matrix,
 };

@@ -16,6 +16,7 @@ use std::time::Instant;
 use anyhow::{Result, anyhow, bail, ensure};
 use nalgebra::{DMatrix, DVector};
 
+use super::Gram;
 use crate::N_PARAMS;
 
 /// Which solver to use.
@@ -189,23 +190,103 @@ pub fn fit_general(
 ) -> Result<Fit> {
     let start = Instant::now();
     let prep = Prepared::new(phi, y, bounds)?;
-    let (x, free, status, iterations) = match method {
-        Method::Clarabel => solve_clarabel(&prep)?,
+    let (x, free, status, iterations) = solve(&prep, method)?;
+    let theta = prep.unscale(&x);
+    let rss = (phi * DVector::from_column_slice(&theta) - y).norm_squared();
+    let sigma2_scaled = |dof: usize| prep.rss_scaled(&x) / dof as f64;
+    Ok(finish_fit(
+        &prep,
+        bounds,
+        (theta, free, status, iterations),
+        (rss, phi.nrows(), &sigma2_scaled),
+        method,
+        start,
+    ))
+}
+
+/// The same problem as [`fit_general`] given only the normal equations of the rows (ΦᵀΦ, Φᵀy,
+/// yᵀy, n: a [`Gram`]), so rows that were never held together can be fitted. The Gram matrix is
+/// turned into at most p rows with the same normal equations (ΦᵀΦ = RᵀR, Φᵀy = Rᵀz from its
+/// eigen-decomposition; eigenvalues below 1e-14 of the largest are dropped) and those are solved;
+/// the residual sum of squares, the row count and the standard errors are those of the original
+/// rows (from yᵀy and n), not of the compressed ones.
+pub fn fit_gram(gram: &Gram, bounds: &Bounds, method: Method) -> Result<Fit> {
+    let start = Instant::now();
+    let p = gram.columns();
+    ensure!(
+        gram.n > 0,
+        "empty least-squares problem (0 rows, {p} columns)"
+    );
+    let (phi, y) = compress_gram(gram);
+    let prep = Prepared::new(&phi, &y, bounds)?;
+    let (x, free, status, iterations) = solve(&prep, method)?;
+    let theta = prep.unscale(&x);
+    let rss = gram.sse(&DVector::from_column_slice(&theta));
+    // Scaled residual variance of the original rows: rss in the compressed problem's y scale.
+    let sigma2_scaled = |dof: usize| rss / (prep.y_norm * prep.y_norm) / dof as f64;
+    Ok(finish_fit(
+        &prep,
+        bounds,
+        (theta, free, status, iterations),
+        (rss, gram.n, &sigma2_scaled),
+        method,
+        start,
+    ))
+}
+
+/// At most p rows (R, z) with RᵀR = ΦᵀΦ and Rᵀz = Φᵀy of the rows behind `gram`. A column that
+/// is identically zero (ΦᵀΦ_jj = 0) stays exactly zero, so it is pinned as unidentifiable.
+fn compress_gram(gram: &Gram) -> (DMatrix<f64>, DVector<f64>) {
+    let p = gram.columns();
+    let eig = nalgebra::SymmetricEigen::new(gram.g.clone());
+    let cutoff = eig.eigenvalues.max().max(0.0) * 1e-14;
+    let keep: Vec<usize> = (0..p).filter(|&k| eig.eigenvalues[k] > cutoff).collect();
+    let zero: Vec<bool> = (0..p).map(|j| gram.g[(j, j)] == 0.0).collect();
+    let mut phi = DMatrix::zeros(keep.len().max(1), p);
+    let mut y = DVector::zeros(keep.len().max(1));
+    for (i, &k) in keep.iter().enumerate() {
+        let v = eig.eigenvectors.column(k);
+        let s = eig.eigenvalues[k].sqrt();
+        for j in 0..p {
+            if !zero[j] {
+                phi[(i, j)] = s * v[j];
+            }
+        }
+        y[i] = v.dot(&gram.h) / s;
+    }
+    (phi, y)
+}
+
+/// Run `method` on a prepared problem: (x, free set, status, iterations).
+fn solve(prep: &Prepared, method: Method) -> Result<(Vec<f64>, Vec<bool>, Status, u32)> {
+    Ok(match method {
+        Method::Clarabel => solve_clarabel(prep)?,
         Method::Bvls => {
             let (x, free, it) = solve_bvls(&prep.r, &prep.c, &prep.lo, &prep.hi)?;
             (x, free, Status::Solved, it)
         }
-    };
-    let theta = prep.unscale(&x);
-    let rss = (phi * DVector::from_column_slice(&theta) - y).norm_squared();
-    let n = phi.ncols();
+    })
+}
+
+/// The [`Fit`] of a solved problem: `solved` = (θ, free set, status, iterations); `data` = (the
+/// rows' residual sum of squares, their number, the scaled residual variance for a number of
+/// degrees of freedom).
+fn finish_fit(
+    prep: &Prepared,
+    bounds: &Bounds,
+    solved: (Vec<f64>, Vec<bool>, Status, u32),
+    data: (f64, usize, &dyn Fn(usize) -> f64),
+    method: Method,
+    start: Instant,
+) -> Fit {
+    let (theta, free, status, iterations) = solved;
+    let (rss, n_rows, sigma2_scaled) = data;
+    let n = theta.len();
     let mut at_bound = vec![false; n];
     let mut std_err = vec![None; n];
-    let dof = phi
-        .nrows()
-        .saturating_sub(free.iter().filter(|&&f| f).count());
+    let dof = n_rows.saturating_sub(free.iter().filter(|&&f| f).count());
     let se_scaled = if dof > 0 {
-        std_errors_scaled(&prep.r, &free, prep.rss_scaled(&x) / dof as f64)
+        std_errors_scaled(&prep.r, &free, sigma2_scaled(dof))
     } else {
         None
     };
@@ -221,20 +302,20 @@ pub fn fit_general(
     for &col in &prep.zero_cols {
         at_bound[col] = theta[col] == bounds.lower[col] || theta[col] == bounds.upper[col];
     }
-    Ok(Fit {
+    Fit {
         theta,
         std_err,
         at_bound,
         unidentifiable: prep.zero_cols.clone(),
         rss,
-        n_rows: phi.nrows(),
+        n_rows,
         solver: SolverInfo {
             method,
             status,
             iterations,
             time_s: start.elapsed().as_secs_f64(),
         },
-    })
+    }
 }
 
 /// The problem in scaled variables x_k = ‖φ_k‖ θ_k / ‖y‖ over the non-zero columns, reduced by a thin QR of
@@ -712,4 +793,76 @@ pub fn kkt_check(
         rep.natural_residual = rep.natural_residual.max((x - (x - g).clamp(lo, hi)).abs());
     }
     Ok(rep)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Rows with correlated columns, one column identically zero and one parameter pushed
+    /// against its bound, plus noise (a fixed linear congruential sequence).
+    fn problem() -> (DMatrix<f64>, DVector<f64>) {
+        let mut state = 12345u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let m = 300;
+        let phi = DMatrix::from_fn(m, 5, |_, j| if j == 3 { 0.0 } else { next() });
+        let phi = DMatrix::from_fn(m, 5, |i, j| match j {
+            1 => phi[(i, 1)] + 0.9 * phi[(i, 0)],
+            _ => phi[(i, j)],
+        });
+        let truth = [2.0, -0.5, 1.5, 0.0, 0.7];
+        let y = DVector::from_fn(m, |i, _| {
+            (0..5).map(|j| phi[(i, j)] * truth[j]).sum::<f64>() + 0.05 * next()
+        });
+        (phi, y)
+    }
+
+    #[test]
+    fn fit_from_the_normal_equations_equals_the_fit_of_the_rows() {
+        let (phi, y) = problem();
+        let mut gram = Gram::zeros(5);
+        for i in 0..phi.nrows() {
+            let row: Vec<f64> = phi.row(i).iter().copied().collect();
+            gram.add_row(&row, y[i]);
+        }
+        let bounds = Bounds::lower(&[1.0, 0.0, 0.0, 0.0, 0.0]);
+        for method in [Method::Clarabel, Method::Bvls] {
+            let rows = fit_general(&phi, &y, &bounds, method).unwrap();
+            let normal = fit_gram(&gram, &bounds, method).unwrap();
+            assert_eq!(normal.n_rows, phi.nrows());
+            assert_eq!(normal.unidentifiable, vec![3]);
+            assert_eq!(normal.at_bound, rows.at_bound, "{method}");
+            assert!(
+                rows.at_bound[1],
+                "the second parameter is held at its bound"
+            );
+            for (a, b) in rows.theta.iter().zip(&normal.theta) {
+                assert!((a - b).abs() < 1e-6, "{method}: θ {a} vs {b}");
+            }
+            assert!(
+                (rows.rss - normal.rss).abs() < 1e-9 * rows.rss,
+                "{method}: rss"
+            );
+            for (a, b) in rows.std_err.iter().zip(&normal.std_err) {
+                match (a, b) {
+                    (Some(a), Some(b)) => {
+                        assert!((a - b).abs() < 1e-6 * a, "{method}: std err {a} vs {b}")
+                    }
+                    _ => assert_eq!(a.is_some(), b.is_some(), "{method}: std err"),
+                }
+            }
+            assert!(normal.std_err[0].is_some() && normal.std_err[1].is_none());
+        }
+    }
+
+    #[test]
+    fn fit_from_empty_normal_equations_is_an_error() {
+        let err = fit_gram(&Gram::zeros(3), &Bounds::lower(&[0.0; 3]), Method::Clarabel);
+        assert!(err.unwrap_err().to_string().contains("0 rows"));
+    }
 }

@@ -1,0 +1,200 @@
+//! The per-sample fit (`--mode sample`) in bounded memory: each trial's sample rows are reduced,
+//! as soon as they are built, to their sufficient statistics — ΦᵀΦ, Φᵀy, yᵀy, n and the sums Σφ,
+//! Σy — which is all the constrained fit (from the normal equations, [`crate::lsq::fit_gram`]) and
+//! the rejection by trial (a trial's mean residual is (Σy − θ·Σφ)/n) need. A paper-scale session
+//! has ~1e6 sample rows (~0.5 GB as rows); its statistics take ~10 kB per trial. The fit's quality
+//! (residual moments, mean absolute residual) needs the final θ, so the sample rows of the
+//! retained trials are built once more and scored one at a time
+//! ([`crate::lsq::MetricsAccumulator`]).
+
+use std::collections::HashSet;
+
+use super::dataset::{Dataset, Row, Skipped, TrialBasis};
+use super::fit::predict;
+use crate::N_PARAMS;
+use crate::lsq::{Gram, MetricsAccumulator};
+
+/// Entries of the upper triangle of ΦᵀΦ.
+const UPPER: usize = N_PARAMS * (N_PARAMS + 1) / 2;
+
+/// The sufficient statistics of one trial's sample rows.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct TrialSums {
+    /// Trial index.
+    pub trial: usize,
+    /// Upper triangle of ΦᵀΦ, column by column (entry (r, c), r ≤ c, at c(c+1)/2 + r).
+    upper: Box<[f64]>,
+    /// Φᵀy.
+    h: [f64; N_PARAMS],
+    /// yᵀy.
+    yy: f64,
+    /// Σφ over the rows.
+    sum_phi: [f64; N_PARAMS],
+    /// Σy.
+    sum_y: f64,
+    /// Rows.
+    n: usize,
+}
+
+impl TrialSums {
+    /// The statistics of one trial's rows (all of trial `trial`).
+    pub(crate) fn from_rows(trial: usize, rows: &[Row]) -> TrialSums {
+        let mut s = TrialSums {
+            trial,
+            upper: vec![0.0; UPPER].into_boxed_slice(),
+            h: [0.0; N_PARAMS],
+            yy: 0.0,
+            sum_phi: [0.0; N_PARAMS],
+            sum_y: 0.0,
+            n: 0,
+        };
+        for row in rows {
+            s.add_row(&row.phi, row.y);
+        }
+        s
+    }
+
+    fn add_row(&mut self, phi: &[f64; N_PARAMS], y: f64) {
+        for (c, &xc) in phi.iter().enumerate() {
+            if xc == 0.0 {
+                continue;
+            }
+            let col = &mut self.upper[c * (c + 1) / 2..=c * (c + 1) / 2 + c];
+            for (g, &xr) in col.iter_mut().zip(phi) {
+                *g += xr * xc;
+            }
+        }
+        for ((h, s), &x) in self.h.iter_mut().zip(&mut self.sum_phi).zip(phi) {
+            *h += x * y;
+            *s += x;
+        }
+        self.yy += y * y;
+        self.sum_y += y;
+        self.n += 1;
+    }
+
+    /// Add these statistics to `g` (ΦᵀΦ made whole from its upper triangle).
+    pub(crate) fn add_to(&self, g: &mut Gram) {
+        for c in 0..N_PARAMS {
+            for r in 0..=c {
+                let v = self.upper[c * (c + 1) / 2 + r];
+                g.g[(r, c)] += v;
+                if r != c {
+                    g.g[(c, r)] += v;
+                }
+            }
+        }
+        for (a, b) in g.h.iter_mut().zip(&self.h) {
+            *a += b;
+        }
+        g.yy += self.yy;
+        g.n += self.n;
+    }
+
+    /// The trial's mean residual y − θᵀφ over its rows (NaN without rows).
+    pub(crate) fn mean_residual(&self, theta: &[f64; N_PARAMS]) -> f64 {
+        (self.sum_y - predict(theta, &self.sum_phi)) / self.n as f64
+    }
+}
+
+/// The sample-mode rows of a session, reduced trial by trial.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct SampleSums {
+    /// Per-trial statistics of every trial that has rows, in session order.
+    pub sums: Vec<TrialSums>,
+    /// Per-trial baselines of those trials.
+    pub trials: Vec<TrialBasis>,
+    /// Trials without rows.
+    pub skipped: Vec<Skipped>,
+}
+
+impl SampleSums {
+    /// Reduce one trial's data set (built in sample mode) and keep its statistics.
+    pub(crate) fn add(&mut self, set: Dataset) {
+        if let Some(basis) = set.trials.first() {
+            self.sums.push(TrialSums::from_rows(basis.trial, &set.rows));
+        }
+        self.trials.extend(set.trials);
+        self.skipped.extend(set.skipped);
+    }
+
+    /// The part that belongs to the trials with the given indices.
+    pub(crate) fn restrict(&self, keep: &HashSet<usize>) -> SampleSums {
+        SampleSums {
+            sums: self
+                .sums
+                .iter()
+                .filter(|s| keep.contains(&s.trial))
+                .cloned()
+                .collect(),
+            trials: self
+                .trials
+                .iter()
+                .filter(|b| keep.contains(&b.trial))
+                .cloned()
+                .collect(),
+            skipped: self
+                .skipped
+                .iter()
+                .filter(|s| keep.contains(&s.trial))
+                .cloned()
+                .collect(),
+        }
+    }
+}
+
+/// Score `theta` on sample rows handed over trial by trial.
+pub(crate) fn score_rows(acc: &mut MetricsAccumulator, theta: &[f64; N_PARAMS], rows: &[Row]) {
+    for row in rows {
+        acc.add(row.y, predict(theta, &row.phi));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn row(trial: usize, k: usize) -> Row {
+        let x = k as f64;
+        Row {
+            trial,
+            t: x,
+            t0: x,
+            t1: x,
+            phi: std::array::from_fn(|p| {
+                if p % 5 == 3 {
+                    0.0
+                } else {
+                    ((p * 7 + k * 3) % 11) as f64 - 4.0 + 0.1 * x
+                }
+            }),
+            y: 3.0 * x - 1.0,
+            sigma_omega: 0.0,
+            tau0_sq: [0.0; crate::N_JOINTS],
+        }
+    }
+
+    #[test]
+    fn trial_statistics_equal_the_normal_equations_of_the_rows() {
+        let rows: Vec<Row> = (0..40).map(|k| row(2, k)).collect();
+        let sums = TrialSums::from_rows(2, &rows);
+        let mut direct = Gram::zeros(N_PARAMS);
+        for r in &rows {
+            direct.add_row(&r.phi, r.y);
+        }
+        let mut from_sums = Gram::zeros(N_PARAMS);
+        sums.add_to(&mut from_sums);
+        assert_eq!(from_sums.n, 40);
+        assert!((&from_sums.g - &direct.g).norm() <= 1e-12 * direct.g.norm());
+        assert!((&from_sums.h - &direct.h).norm() <= 1e-12 * direct.h.norm());
+        assert!((from_sums.yy - direct.yy).abs() <= 1e-12 * direct.yy);
+        let theta: [f64; N_PARAMS] = std::array::from_fn(|p| 0.01 * p as f64);
+        let mean = rows
+            .iter()
+            .map(|r| r.y - predict(&theta, &r.phi))
+            .sum::<f64>()
+            / 40.0;
+        assert!((sums.mean_residual(&theta) - mean).abs() < 1e-9);
+        assert!(TrialSums::from_rows(0, &[]).mean_residual(&theta).is_nan());
+    }
+}
