@@ -1178,3 +1178,43 @@ fn loss_terms_tab(joints: &[String], ranges: PlotRanges) -> Node {
     );
     Node::container(ContainerKind::Grid, "Loss terms per joint", views, vec![]).with_columns(4)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Hand-worked cases of the viewer's tick rule: the example's 7 trials on a 45 px track
+    /// (spacing of 1: 45/8 < 20 px; of 10: 56 px) and the error plot's ±1.2 W over 183 px.
+    #[test]
+    fn labelled_step_follows_the_viewer_grid() {
+        assert_eq!(labelled_step(8.0, 45.0, Y_LABEL_PX), 10.0);
+        assert_eq!(labelled_step(2.4, 183.0, Y_LABEL_PX), 1.0);
+        // A step whose spacing is exactly the label spacing is not labelled.
+        assert_eq!(labelled_step(1.0, 20.0, Y_LABEL_PX), 10.0);
+        assert_eq!(labelled_ticks([-0.5, 6.5], 45.0, Y_LABEL_PX), vec![0.0]);
+        assert_eq!(labelled_ticks([-0.5, 10.5], 45.0, Y_LABEL_PX), vec![0.0, 10.0]);
+    }
+
+    /// A few trials in a narrow bar chart: the extent reaches the next labelled tick on the
+    /// nearer side only (10, not −10).
+    #[test]
+    fn tick_range_widens_towards_the_nearer_tick() {
+        let margins = |[a, b]: [f64; 2]| Some([a - 0.05 * (b - a), b + 0.05 * (b - a)]);
+        let (d, r) = tick_range([-0.4, 6.4], 300.0, X_LABEL_PX, &margins).unwrap();
+        assert_eq!(d, [-0.4, 10.0]);
+        assert_eq!(labelled_ticks(r, 300.0, X_LABEL_PX).len(), 2);
+        // Already readable: unchanged.
+        let (d, _) = tick_range([-0.4, 30.4], 300.0, X_LABEL_PX, &margins).unwrap();
+        assert_eq!(d, [-0.4, 30.4]);
+    }
+
+    #[test]
+    fn queries_match_paths_with_or_without_the_leading_slash() {
+        assert!(query_includes("+ /joints/elbow/q", "/", "joints/elbow/q"));
+        assert!(!query_includes("+ /joints/elbow/q", "/", "joints/elbow/q_cmd"));
+        assert!(query_includes("+ /model/bars/**", "/", "model/bars/by_joint/elbow"));
+        assert!(!query_includes("+ /model/bars/**", "/", "model/barsx"));
+        assert!(query_includes("$origin/**", "diagnosis/torque", "diagnosis/torque/elbow"));
+        assert!(!query_includes("- /joints/**", "/", "joints/elbow/q"));
+    }
+}
