@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Regenerates docs/img/*.png: the shipped example replayed with the paper's model
 # (`g1viz replay examples/g1_example.mcap --model paper`), one screenshot per tab of the layout,
+# and a plain replay of it (no model) on its Joints tab,
 # taken in the stock Rerun 0.36.3 web viewer in headless Chromium (software WebGL under Xvfb).
 #
 # Needs: cargo; `pip install rerun-sdk==0.36.3 websocket-client`; Debian packages
@@ -27,6 +28,11 @@ cleanup() {
 trap cleanup EXIT
 
 cargo run --quiet --example docs_views -- "$work/rrd" > "$work/list.tsv"
+# A plain replay (no model: the file is streamed, its layout sent again once the data is in),
+# on its Joints tab.
+cargo run --quiet -- replay examples/g1_example.mcap --max-rate 25 --pose-rate 25 \
+    --open-tab Joints --save "$work/rrd/6-plain-replay-joints.rrd"
+printf '%s\t%s\n' "$work/rrd/6-plain-replay-joints.rrd" "plain replay, Joints" >> "$work/list.tsv"
 mkdir -p docs/img
 
 free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])'; }

@@ -137,6 +137,31 @@ fn decode(path: &Path) -> Vec<LogMsg> {
         .collect()
 }
 
+/// `msgs` with only the last chunk of each blueprint entity: the layout's last send (the replay
+/// sends it before the data and again, fitted to the data, after it; both list every entity).
+fn last_send(msgs: Vec<LogMsg>) -> Vec<LogMsg> {
+    let path_of = |m: &LogMsg| match m {
+        LogMsg::ArrowMsg(store, arrow) if store.kind() == StoreKind::Blueprint => Some(
+            Chunk::from_arrow_msg(arrow)
+                .unwrap()
+                .entity_path()
+                .to_string(),
+        ),
+        _ => None,
+    };
+    let mut last = BTreeMap::new();
+    for (i, m) in msgs.iter().enumerate() {
+        if let Some(p) = path_of(m) {
+            last.insert(p, i);
+        }
+    }
+    msgs.into_iter()
+        .enumerate()
+        .filter(|(i, m)| path_of(m).is_none_or(|p| last[&p] == *i))
+        .map(|(_, m)| m)
+        .collect()
+}
+
 /// Rows per (store kind, entity path, static?) and the chunks of the recording store.
 #[derive(Default)]
 struct Contents {
@@ -290,7 +315,7 @@ fn blueprint_layout_is_complete() {
     let mut nodes = BTreeSet::new();
     let mut children = Vec::new();
     let mut eye = false;
-    for msg in decode(&out) {
+    for msg in last_send(decode(&out)) {
         let LogMsg::ArrowMsg(store, arrow) = &msg else {
             continue;
         };
@@ -385,7 +410,7 @@ fn blueprint_has_few_tabs_linked_axes_and_session_time() {
     let rec = synthetic(&input_file(dir.path()));
     let out = dir.path().join("out.rrd");
     write_rrd(&rec, &out).unwrap();
-    let msgs = decode(&out);
+    let msgs = last_send(decode(&out));
     let mut tab_containers = Vec::new();
     let mut time_axes = 0;
     let mut time_series = 0;
@@ -1858,7 +1883,10 @@ fn assert_legends_clear_the_data(msgs: &[LogMsg], c: &Contents) -> BTreeMap<Stri
             v.name
         );
         let series = view_series(c, v);
-        let entries = series.len();
+        // One entry per name (series of one name share an entry, e.g. a joint's q and command).
+        let names: std::collections::BTreeSet<String> =
+            series.iter().map(|s| legend_name(c, &s.0)).collect();
+        let entries = names.len();
         assert!(entries > 0, "{}: a legend with no series", v.name);
         let values: Vec<f64> = series
             .iter()
@@ -1893,6 +1921,15 @@ fn assert_legends_clear_the_data(msgs: &[LogMsg], c: &Contents) -> BTreeMap<Stri
     shown
 }
 
+/// The name a series shows in a legend: its `SeriesLines`/`SeriesPoints` name, else its path.
+fn legend_name(c: &Contents, path: &str) -> String {
+    ["SeriesLines:names", "SeriesPoints:names"]
+        .iter()
+        .flat_map(|k| static_strings(c, path, k))
+        .next()
+        .unwrap_or_else(|| path.to_owned())
+}
+
 /// Legends never cover data (issue 13): on the model replay of the shipped example, every plot
 /// that shows a legend opens on a y range that keeps the data below it, with every entry inside
 /// the plot — the τ plot (all 7 joints), the loss-term grid's legend cell (all 4 terms, viscous
@@ -1922,6 +1959,8 @@ fn legends_never_cover_data() {
         ("Predicted power by term, all joints [W]", 5),
         ("Predicted power by joint, all terms [W]", 7),
         ("sh_pitch [W]", 4),
+        ("Joint position q [rad] (command: lighter)", 7),
+        ("Joint velocity q̇ [rad/s]", 7),
         ("Joint torque τ [Nm]", 7),
         ("IMU |ω| [rad/s] and the balance filter", 4),
         ("Raw power MBS/BMS [W]", 2),
@@ -1940,7 +1979,6 @@ fn legends_never_cover_data() {
         "Interaction",
         "Mean per trial by joint",
         "Mean per trial by term",
-        "Joint position q",
         "Motor temperature",
     ] {
         assert_eq!(
@@ -1950,15 +1988,192 @@ fn legends_never_cover_data() {
         );
     }
 
-    let streamed = dir.path().join("streamed.rrd");
-    stream_replay(&session, &streamed, 4096);
-    let msgs = decode(&streamed);
-    let shown = assert_legends_clear_the_data(&msgs, &contents(&msgs));
-    assert!(shown.is_empty(), "{shown:?}");
-    let views = blueprint_views(&msgs);
-    let tau = view_named(&views, "Joint torque τ [Nm]");
-    assert_eq!(tau.legend_visible, Some(false));
-    assert_eq!(tau.y_range, None);
+    // A plain replay streams the file: its layout is sent again once the data is logged, so
+    // its plots carry legends too (issue 13).
+    let mut sessions = vec![session];
+    sessions.extend(common::shared_recording("g1_smoke.mcap"));
+    for session in sessions {
+        let streamed = dir.path().join("streamed.rrd");
+        stream_replay(&session, &streamed, 4096);
+        let msgs = decode(&streamed);
+        let c = contents(&msgs);
+        let shown = assert_legends_clear_the_data(&msgs, &c);
+        let expect = [
+            (
+                "Net power [W]: MBS cyan, BMS olive (minus the idle baseline before the arm moves)",
+                2,
+            ),
+            ("Joint position q [rad] (command: lighter)", 7),
+            ("Joint velocity q̇ [rad/s]", 7),
+            ("Joint torque τ [Nm]", 7),
+            ("Raw power MBS/BMS [W]", 2),
+        ];
+        for (name, entries) in expect {
+            assert_eq!(shown.get(name), Some(&entries), "{name}: {shown:?}");
+        }
+        assert_eq!(shown.len(), expect.len(), "{shown:?}");
+        // The entries are the joints' names (each joint's q and command share one).
+        let views = blueprint_views(&msgs);
+        let q = view_named(&views, "Joint position q");
+        let names: std::collections::BTreeSet<String> = view_series(&c, q)
+            .iter()
+            .map(|s| legend_name(&c, &s.0))
+            .collect();
+        let joints: std::collections::BTreeSet<String> = ARM
+            .iter()
+            .map(|j| g1viz::viz::short_joint_name(j))
+            .collect();
+        assert_eq!(names, joints, "{}", session.display());
+        assert_eq!(view_series(&c, q).len(), 14, "q and command per joint");
+    }
+}
+
+/// The labels the stock 0.36.3 viewer draws on an axis showing [lo, hi] over `px` pixels —
+/// egui_plot's rule, restated here from its source: grid lines every `s0`, `10 s0` and
+/// `100 s0` (`s0`: the power of ten at or above the span of 8 px); a line carries the largest of
+/// those steps its value is a multiple of, and gets a label when that step spans more than
+/// `label_px` (20 px on a y axis, 60 px on an x axis); lines are the multiples in [lo, hi).
+fn viewer_labels(range: [f64; 2], px: f64, label_px: f64) -> Vec<f64> {
+    let [lo, hi] = range;
+    let span = hi - lo;
+    assert!(span > 0.0, "empty range {range:?}");
+    let s0 = 10f64.powf((8.0 * span / px).log10().ceil());
+    let mut labels = Vec::new();
+    for step in [s0, 10.0 * s0, 100.0 * s0] {
+        if step * px / span <= label_px {
+            continue;
+        }
+        let mut k = (lo / step).ceil();
+        while k * step < hi {
+            labels.push(k * step);
+            k += 1.0;
+        }
+    }
+    labels.sort_by(f64::total_cmp);
+    labels.dedup_by(|a, b| (*a - *b).abs() < 0.1 * s0);
+    labels
+}
+
+/// The smallest plot area [px] of each plot in a 1920×1080 browser window, measured on the
+/// screenshots of docs/viewer.md: the overview's power plot, trial track and error plot, and a
+/// half-height cell of the tabs (every other plot is at least that high).
+fn plot_height_px(title: &str) -> f64 {
+    if title.starts_with("Net power") {
+        190.0
+    } else if title.starts_with("Trials (index") {
+        40.0
+    } else if title.starts_with("Error measured") {
+        150.0
+    } else {
+        330.0
+    }
+}
+
+/// A per-trial bar chart's plot area [px] (width, height) at 1920×1080.
+const BAR_PLOT_PX: [f64; 2] = [300.0, 200.0];
+
+/// Every plot of `msgs` (decoded as `c`) that has data opens with at least two labelled ticks
+/// on each axis the layout sets (issue 13: "short panels with a single 0 tick"): a time series
+/// on its y range (which holds all its data), a bar chart on the extent the viewer fits to its
+/// bars (5 % to spare) on both axes. Returns the number of plots checked.
+fn assert_every_plot_has_two_labelled_ticks(msgs: &[LogMsg], c: &Contents) -> usize {
+    let views = blueprint_views(msgs);
+    let mut checked = 0;
+    for v in views.values() {
+        match v.class.as_str() {
+            "TimeSeries" => {
+                let values: Vec<f64> = view_series(c, v)
+                    .into_iter()
+                    .flat_map(|s| s.1)
+                    .filter(|x| x.is_finite())
+                    .collect();
+                if values.is_empty() {
+                    continue;
+                }
+                let lo = values.iter().copied().fold(f64::INFINITY, f64::min);
+                let hi = values.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                let range = v
+                    .y_range
+                    .unwrap_or_else(|| panic!("{}: no y range for its data", v.name));
+                assert!(
+                    range[0] <= lo && hi <= range[1],
+                    "{}: data {lo}..{hi} outside {range:?}",
+                    v.name
+                );
+                let labels = viewer_labels(range, plot_height_px(&v.name), 20.0);
+                assert!(labels.len() >= 2, "{}: {range:?} labels {labels:?}", v.name);
+                checked += 1;
+            }
+            "BarChart" => {
+                let bars: Vec<String> =
+                    c.chunks
+                        .iter()
+                        .filter(|ch| {
+                            ch.is_static()
+                                && ch.components().0.values().any(|col| {
+                                    col.descriptor.component.as_str() == "BarChart:values"
+                                })
+                        })
+                        .map(|ch| ch.entity_path().to_string())
+                        .filter(|p| view_includes(v, p))
+                        .collect();
+                if bars.is_empty() {
+                    continue;
+                }
+                let (mut x, mut y) = ([f64::INFINITY, f64::NEG_INFINITY], [0.0f64, 0.0f64]);
+                for p in &bars {
+                    let (abscissa, heights, widths) = bar_chart(c, p);
+                    for ((a, h), w) in abscissa.iter().zip(&heights).zip(&widths) {
+                        x = [x[0].min(*a), x[1].max(a + f64::from(*w))];
+                        y = [y[0].min(*h), y[1].max(*h)];
+                    }
+                }
+                let margins = |[a, b]: [f64; 2]| [a - 0.05 * (b - a), b + 0.05 * (b - a)];
+                let xl = viewer_labels(margins(x), BAR_PLOT_PX[0], 60.0);
+                let yl = viewer_labels(margins(y), BAR_PLOT_PX[1], 20.0);
+                assert!(xl.len() >= 2, "{}: x {x:?} labels {xl:?}", v.name);
+                assert!(yl.len() >= 2, "{}: y {y:?} labels {yl:?}", v.name);
+                checked += 1;
+            }
+            _ => {}
+        }
+    }
+    checked
+}
+
+/// Every plot opens with at least two labelled ticks (issue 13): the model replay of the shipped
+/// example (few trials: its trial track and per-trial bar charts showed a single "0"), and the
+/// plain streamed replay of the example and of the shared `g1_smoke` session.
+#[test]
+fn every_plot_opens_with_two_labelled_ticks() {
+    let session = example_session();
+    let rec = g1viz::signals::load_recording(
+        &session,
+        &g1viz::signals::SignalMap::g1_left_arm(),
+        &Default::default(),
+    )
+    .unwrap();
+    let (extras, _) =
+        g1viz::viz::model_extras(&rec, &g1viz::power::PowerModel::PAPER, &Default::default())
+            .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("model.rrd");
+    save_replay(&rec, &extras, &out, &session);
+    let msgs = decode(&out);
+    let checked = assert_every_plot_has_two_labelled_ticks(&msgs, &contents(&msgs));
+    // Power, track, error; by term, by joint, two bar charts; 8 loss cells; q, q̇, τ, °C; IMU;
+    // raw power.
+    assert!(checked >= 21, "{checked} plots checked");
+
+    let mut sessions = vec![session];
+    sessions.extend(common::shared_recording("g1_smoke.mcap"));
+    for session in sessions {
+        let streamed = dir.path().join("streamed.rrd");
+        stream_replay(&session, &streamed, 4096);
+        let msgs = decode(&streamed);
+        let checked = assert_every_plot_has_two_labelled_ticks(&msgs, &contents(&msgs));
+        assert!(checked >= 7, "{}: {checked} plots", session.display());
+    }
 }
 
 /// The static bar chart at `path`: abscissa, heights and widths.
@@ -2280,7 +2495,8 @@ fn recording_properties_hold_paths_as_given() {
 /// sum of its four terms over the trial's window; the seven joints' bars never overlap.
 fn assert_bars_are_trial_means(c: &Contents, extras: &ReplayExtras, start_ns: u64) {
     // Bars, keyed by trial index: for every trial, the elbow's bar sits in the elbow's slot
-    // (4th of 7) of the group around the trial's index, and its height is the mean of the
+    // (4th of 7) of the group centred on the trial's index (the abscissa is a bar's left edge:
+    // the viewer draws it from there to abscissa + width), and its height is the mean of the
     // decoded per-joint sum of its four terms over the trial's window.
     let terms: Vec<Vec<(i64, f64)>> = ["mechanical", "copper", "coulomb", "viscous"]
         .iter()
@@ -2311,7 +2527,7 @@ fn assert_bars_are_trial_means(c: &Contents, extras: &ReplayExtras, start_ns: u6
             .map(|&i| terms.iter().map(|s| s[i].1).sum::<f64>())
             .sum::<f64>()
             / inside.len() as f64;
-        let slot = m.index as f64 - 0.4 + 3.5 * width;
+        let slot = m.index as f64 - 0.4 + 3.0 * width;
         let k = x
             .iter()
             .position(|&xi| (xi - slot).abs() < 1e-9)
@@ -2376,9 +2592,18 @@ fn overview_plots_open_on_readable_ranges() {
     let step = 10f64.powf(hi.log10().floor());
     assert!(step < hi && hi / step <= 2.5, "±{hi}: ticks every {step}");
 
+    // The trial track holds the trial indices with half a step spare and, widened as far as
+    // the next labelled tick, shows at least two labels in its 40 px.
     let track = view_named(&views, "Trials (index");
     let indices: Vec<f64> = extras.trials.iter().map(|m| m.index as f64).collect();
     let first = indices.iter().copied().fold(f64::INFINITY, f64::min);
     let last = indices.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-    assert_eq!(track.y_range, Some([first - 0.5, last + 0.5]));
+    let [lo, hi] = track.y_range.expect("the trial track's range");
+    assert!(lo <= first - 0.5 && hi >= last + 0.5, "{lo}..{hi}");
+    let labels = viewer_labels([lo, hi], 40.0, 20.0);
+    assert!(labels.len() >= 2, "{lo}..{hi}: {labels:?}");
+    assert!(
+        hi - lo <= (last - first + 1.0).max(10.0) + 1.0,
+        "{lo}..{hi}: wider than a decade of trials"
+    );
 }

@@ -20,6 +20,10 @@ pub struct ExportArgs {
 enum ExportWhat {
     /// Per-reading rows (regressors, net power, trial/session/robot, temperatures, filter flags)
     /// as Parquet.
+    #[command(after_help = "\
+Examples:
+  g1viz export rows a.mcap b.mcap -o rows.parquet --robot g1_lab
+  g1viz export rows recordings/ -o rows.parquet                    # every recording in a folder")]
     Rows(RowsArgs),
 }
 

@@ -95,6 +95,11 @@ Examples:
   g1viz diagnose session.mcap --model model.json --counterpart twin.mcap   # twin from simulate --like")]
     Diagnose(diagnose::DiagnoseArgs),
     /// Export data for other tools: `export rows` writes the per-reading rows as Parquet.
+    #[command(after_help = "\
+Examples:
+  g1viz export rows a.mcap b.mcap -o rows.parquet --robot g1_lab
+  g1viz export rows recordings/ -o rows.parquet                    # every recording in a folder
+  g1viz identify --rows rows.parquet -o model.json                 # fit from the table")]
     Export(export::ExportArgs),
 }
 

@@ -71,7 +71,27 @@ pub enum Node {
         /// The y range a plot opens on (time series only; `None`: fitted to the data). Set with
         /// headroom above the data, it keeps the legend (top corner) off the data.
         y_range: Option<[f64; 2]>,
+        /// How [`Node::fit`] sets the legend and y range once the data's range is known.
+        fit: Fit,
+        /// The smallest height [px] of the plot area in a 1920×1080 browser window.
+        plot_px: f64,
     },
+}
+
+/// How a plot's legend and y range follow from its data range ([`Node::fit`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Fit {
+    /// Left as built (3D, text, bar charts).
+    Free,
+    /// The data with 5 % to spare, widened until the viewer labels at least two ticks; no legend.
+    Ticks,
+    /// As `Ticks`, with room above the data for a legend of this many entries (no legend where
+    /// it would take most of the plot).
+    Legend(usize),
+    /// Symmetric about zero ([`symmetric_range`]), widened for ticks if need be; no legend.
+    Symmetric,
+    /// Trial indices: half a step spare, widened for ticks; no legend.
+    Indices,
 }
 
 /// A plot legend's place.
@@ -131,6 +151,54 @@ impl Node {
             eye: None,
             legend: None,
             y_range: None,
+            fit: Fit::Free,
+            plot_px: DETAIL_PLOT_PX,
+        }
+    }
+
+    /// Sets how [`Node::fit`] fits this plot, in a plot area at least `plot_px` high.
+    pub fn with_fit(mut self, new_fit: Fit, px: f64) -> Node {
+        if let Node::View { fit, plot_px, .. } = &mut self {
+            *fit = new_fit;
+            *plot_px = px;
+        }
+        self
+    }
+
+    /// Sets every fitted plot's legend and y range from its data range: `range_of(queries,
+    /// origin)` is the range [min, max] of the values the view's entity queries take in (`None`:
+    /// no data). Plots without data keep what they have.
+    pub fn fit(&mut self, range_of: &dyn Fn(&[String], &str) -> Option<[f64; 2]>) {
+        match self {
+            Node::Container { children, .. } => {
+                for c in children {
+                    c.fit(range_of);
+                }
+            }
+            Node::View {
+                class,
+                origin,
+                contents,
+                legend,
+                y_range,
+                fit,
+                plot_px,
+                ..
+            } => {
+                if *class != "TimeSeries" || *fit == Fit::Free {
+                    return;
+                }
+                let Some(data) = range_of(contents, origin) else {
+                    return;
+                };
+                let (shown, range) = fitted_range(data, *fit, *plot_px);
+                *legend = Some(if shown {
+                    Legend::LeftTop
+                } else {
+                    Legend::Hidden
+                });
+                *y_range = Some(range);
+            }
         }
     }
 
@@ -147,9 +215,10 @@ impl Node {
     /// legend would take most of the plot, no legend (the title names the series, hovering
     /// names a line).
     pub fn with_legend_room(self, data: Option<[f64; 2]>, entries: usize, plot_px: f64) -> Node {
-        match data.and_then(|d| legend_room(d, entries, plot_px)) {
-            Some(range) => self.with_legend(Legend::LeftTop).with_y_range(Some(range)),
-            None => self.with_legend(Legend::Hidden),
+        let node = self.with_fit(Fit::Legend(entries), plot_px);
+        match data.map(|d| fitted_range(d, Fit::Legend(entries), plot_px)) {
+            Some((true, range)) => node.with_legend(Legend::LeftTop).with_y_range(Some(range)),
+            _ => node.with_legend(Legend::Hidden),
         }
     }
 
@@ -378,6 +447,7 @@ impl BlueprintChunks {
                 eye,
                 legend,
                 y_range,
+                ..
             } => {
                 let queries: Vec<QueryExpression> = if contents.is_empty() {
                     vec![QueryExpression("$origin/**".into())]
@@ -410,9 +480,17 @@ impl BlueprintChunks {
                 }
                 if let Some(legend) = legend {
                     let arch = match legend {
-                        Legend::LeftTop => PlotLegend::new().with_corner(Corner2D::LeftTop),
-                        Legend::RightTop => PlotLegend::new().with_corner(Corner2D::RightTop),
-                        Legend::LeftBottom => PlotLegend::new().with_corner(Corner2D::LeftBottom),
+                        // `visible` set either way: a later send of the layout replaces an
+                        // earlier hidden legend.
+                        Legend::LeftTop => PlotLegend::new()
+                            .with_corner(Corner2D::LeftTop)
+                            .with_visible(true),
+                        Legend::RightTop => PlotLegend::new()
+                            .with_corner(Corner2D::RightTop)
+                            .with_visible(true),
+                        Legend::LeftBottom => PlotLegend::new()
+                            .with_corner(Corner2D::LeftBottom)
+                            .with_visible(true),
                         Legend::Hidden => PlotLegend::new().with_visible(false),
                     };
                     self.log(&format!("{path}/PlotLegend"), &arch)?;
@@ -463,6 +541,18 @@ fn whole_session_axis() -> TimeAxis {
 
 /// Sends `root` as the active and default blueprint of `stream`'s application.
 pub fn send_blueprint(stream: &RecordingStream, root: &Node) -> Result<()> {
+    send_blueprint_generation(stream, root, 0)
+}
+
+/// Sends `root` again, once the data is logged (e.g. with the plots fitted to it): the same
+/// blueprint store and entities, rows with later ids (the viewer's latest-at query takes the
+/// later row at the same blueprint time), then the activation again, so the viewer replaces its
+/// active copy of the layout with this one. `generation` (1, 2, …) orders the sends.
+pub fn resend_blueprint(stream: &RecordingStream, root: &Node, generation: u32) -> Result<()> {
+    send_blueprint_generation(stream, root, generation.max(1))
+}
+
+fn send_blueprint_generation(stream: &RecordingStream, root: &Node, generation: u32) -> Result<()> {
     let Some(info) = stream.store_info() else {
         return Ok(()); // disabled stream: nothing to configure
     };
@@ -478,8 +568,13 @@ pub fn send_blueprint(stream: &RecordingStream, root: &Node) -> Result<()> {
     };
     let mut chunks = BlueprintChunks {
         store_id: store_id.clone(),
-        counter: 0,
-        msgs: vec![LogMsg::SetStoreInfo(set_info)],
+        counter: u64::from(generation) << 32,
+        // The store is declared by the first send.
+        msgs: if generation == 0 {
+            vec![LogMsg::SetStoreInfo(set_info)]
+        } else {
+            Vec::new()
+        },
     };
     chunks.node(root)?;
     chunks.log(&format!("{GLOBAL_VIEW}/TimeAxis"), &whole_session_axis())?;
@@ -614,8 +709,144 @@ pub fn legend_room(data: [f64; 2], entries: usize, plot_px: f64) -> Option<[f64;
     Some([lo - 0.05 * span, hi + headroom * span])
 }
 
+/// A time-series plot of `contents`, fitted for readable ticks in a half-height cell of the tabs.
 fn plot(name: impl Into<String>, contents: Vec<String>) -> Node {
-    Node::view("TimeSeries", name, "/", contents)
+    Node::view("TimeSeries", name, "/", contents).with_fit(Fit::Ticks, DETAIL_PLOT_PX)
+}
+
+/// The smallest plot area [px] of the overview's trial track in a 1920×1080 browser window.
+pub const TRACK_PLOT_PX: f64 = 40.0;
+/// The smallest plot area [px] of the overview's error plot in a 1920×1080 browser window.
+pub const ERROR_PLOT_PX: f64 = 150.0;
+/// The smallest plot area [px] of a per-trial bar chart: width, height (1920×1080 window).
+pub const BAR_PLOT_PX: [f64; 2] = [300.0, 200.0];
+/// The spacing [px] above which the stock viewer labels a tick of the y axis (egui_plot's
+/// default `label_spacing` of a y axis is 20–30 px: labels fade in over it).
+pub const Y_LABEL_PX: f64 = 20.0;
+/// The spacing [px] above which the stock viewer labels a tick of the x axis (60–80 px).
+pub const X_LABEL_PX: f64 = 60.0;
+/// The margin the viewer adds on each side of the data when it fits a plot itself (egui_plot's
+/// default margin fraction), as a fraction of the data's span.
+pub const AUTO_MARGIN: f64 = 0.05;
+
+/// The step between the labelled ticks the stock viewer (0.36.3, egui_plot's default log-10 grid)
+/// draws on an axis spanning `span` over `px` pixels. Its grid has lines every `s0`, `10 s0` and
+/// `100 s0`, `s0` the power of ten at or above the span of 8 px; a line gets a label when the
+/// spacing of its step exceeds `label_px`. The labelled ticks are therefore the multiples of the
+/// smallest power of ten whose spacing exceeds `label_px`.
+pub fn labelled_step(span: f64, px: f64, label_px: f64) -> f64 {
+    let min = (label_px * span / px).max(f64::MIN_POSITIVE);
+    let mut step = 10f64.powf(min.log10().floor());
+    while step <= min {
+        step *= 10.0;
+    }
+    step
+}
+
+/// The labelled ticks of an axis showing `range` over `px` pixels (the viewer's grid takes the
+/// multiples of the step in [lo, hi)).
+pub fn labelled_ticks(range: [f64; 2], px: f64, label_px: f64) -> Vec<f64> {
+    let [lo, hi] = range;
+    let step = labelled_step(hi - lo, px, label_px);
+    let (first, last) = ((lo / step).ceil() as i64, (hi / step).ceil() as i64);
+    (first..last.min(first + 1000))
+        .map(|k| k as f64 * step)
+        .collect()
+}
+
+/// The axis range for `data` under `pad` (the margins and legend room around the data),
+/// `data` widened to the multiples of the labelled step around it until the viewer labels at
+/// least two ticks. Returns the widened data and the axis range; `None` when `pad` refuses.
+pub fn tick_range(
+    data: [f64; 2],
+    px: f64,
+    label_px: f64,
+    pad: &dyn Fn([f64; 2]) -> Option<[f64; 2]>,
+) -> Option<([f64; 2], [f64; 2])> {
+    let [lo, hi] = data;
+    let spare = (1e-3 * lo.abs().max(hi.abs())).max(1e-6);
+    let mut d = if hi - lo < spare {
+        [lo - spare, hi + spare]
+    } else {
+        data
+    };
+    for _ in 0..8 {
+        let r = pad(d)?;
+        if labelled_ticks(r, px, label_px).len() >= 2 {
+            return Some((d, r));
+        }
+        let step = labelled_step(r[1] - r[0], px, label_px);
+        let first = (d[0] / step).ceil() * step;
+        if first <= d[1] {
+            // One multiple inside: reach the next one on the nearer side.
+            let (up, down) = (first + step, first - step);
+            if up - d[1] <= d[0] - down {
+                d[1] = up;
+            } else {
+                d[0] = down;
+            }
+        } else {
+            // None inside: the multiples around the data.
+            d = [first - step, first];
+        }
+    }
+    pad(d).map(|r| (d, r))
+}
+
+/// `data` with `AUTO_MARGIN` of its span on each side.
+fn with_margins(data: [f64; 2]) -> [f64; 2] {
+    let span = data[1] - data[0];
+    [data[0] - AUTO_MARGIN * span, data[1] + AUTO_MARGIN * span]
+}
+
+/// Whether the plot shows its legend, and the y range it opens on, for `data` under `fit` in a
+/// plot area `px` high: every range holds the data, and the viewer labels at least two ticks.
+pub fn fitted_range(data: [f64; 2], fit: Fit, px: f64) -> (bool, [f64; 2]) {
+    let plain = |d| Some(with_margins(d));
+    let ticks = |pad: &dyn Fn([f64; 2]) -> Option<[f64; 2]>| {
+        tick_range(data, px, Y_LABEL_PX, pad).map(|(_, r)| r)
+    };
+    let fallback = with_margins(data);
+    match fit {
+        Fit::Legend(entries) => match ticks(&|d| legend_room(d, entries, px)) {
+            Some(r) => (true, r),
+            None => (false, ticks(&plain).unwrap_or(fallback)),
+        },
+        Fit::Symmetric => {
+            let sym = symmetric_range(data);
+            if labelled_ticks(sym, px, Y_LABEL_PX).len() >= 2 {
+                (false, sym)
+            } else {
+                (false, ticks(&|d| Some(symmetric_range(d))).unwrap_or(sym))
+            }
+        }
+        Fit::Indices => (
+            false,
+            ticks(&|[a, b]| Some([a - 0.5, b + 0.5])).unwrap_or([data[0] - 0.5, data[1] + 0.5]),
+        ),
+        Fit::Ticks | Fit::Free => (false, ticks(&plain).unwrap_or(fallback)),
+    }
+}
+
+/// Whether blueprint query `query` (`+ /a`, `+ /a/**`, `$origin/**`) takes in entity `path`.
+pub fn query_includes(query: &str, origin: &str, path: &str) -> bool {
+    let Some(q) = query
+        .trim()
+        .strip_prefix('+')
+        .map(str::trim)
+        .or_else(|| (!query.trim_start().starts_with('-')).then_some(query.trim()))
+    else {
+        return false;
+    };
+    // Entity paths with or without their leading slash.
+    let rooted = |p: &str| format!("/{}", p.trim_matches('/'));
+    let q = q.replace("$origin", &rooted(origin));
+    let path = rooted(path);
+    match q.strip_suffix("/**").map(rooted) {
+        Some(tree) if tree == "/" => true,
+        Some(tree) => path == tree || path.starts_with(&format!("{tree}/")),
+        None => path == rooted(&q),
+    }
 }
 
 fn include(paths: &[&str]) -> Vec<String> {
@@ -700,8 +931,14 @@ fn error_view(parts: LayoutParts) -> Node {
         });
     }
     plot(name, error)
+        .with_fit(Fit::Symmetric, ERROR_PLOT_PX)
         .with_legend(Legend::Hidden)
-        .with_y_range(parts.ranges.error.map(symmetric_range))
+        .with_y_range(
+            parts
+                .ranges
+                .error
+                .map(|d| fitted_range(d, Fit::Symmetric, ERROR_PLOT_PX).1),
+        )
 }
 
 /// The trial track: the trial under way, rejected (or located) trials as thick red segments;
@@ -715,8 +952,9 @@ fn trial_track(indices: Option<[f64; 2]>) -> Node {
             paths::include_tree(&paths::trial_spans(paths::DIAG_TRIALS, "located")),
         ],
     )
+    .with_fit(Fit::Indices, TRACK_PLOT_PX)
     .with_legend(Legend::Hidden)
-    .with_y_range(indices.map(|[lo, hi]| [lo - 0.5, hi + 0.5]))
+    .with_y_range(indices.map(|d| fitted_range(d, Fit::Indices, TRACK_PLOT_PX).1))
 }
 
 /// The joint signals in one grid (one colour per joint everywhere); the joints' legend on τ
@@ -739,8 +977,16 @@ fn joints_tab(joints: &[String], ranges: PlotRanges) -> Node {
         ContainerKind::Grid,
         "Joints",
         vec![
-            plot("Joint position q [rad] (command: lighter)", q).with_legend(Legend::Hidden),
-            plot("Joint velocity q̇ [rad/s]", each("dq")).with_legend(Legend::Hidden),
+            plot("Joint position q [rad] (command: lighter)", q).with_legend_room(
+                None,
+                joints.len(),
+                DETAIL_PLOT_PX,
+            ),
+            plot("Joint velocity q̇ [rad/s]", each("dq")).with_legend_room(
+                None,
+                joints.len(),
+                DETAIL_PLOT_PX,
+            ),
             tau,
             plot("Motor temperature [°C]", each("temperature")).with_legend(Legend::Hidden),
         ],
@@ -798,6 +1044,7 @@ fn diagnosis_tab(parts: LayoutParts) -> Node {
                 paths::DIAG_LOCATED,
                 vec![],
             )
+            .with_fit(Fit::Ticks, DETAIL_PLOT_PX)
             .with_legend(Legend::Hidden),
         );
     }
@@ -809,6 +1056,7 @@ fn diagnosis_tab(parts: LayoutParts) -> Node {
                 paths::DIAG_TORQUE,
                 vec![],
             )
+            .with_fit(Fit::Ticks, DETAIL_PLOT_PX)
             .with_legend(Legend::Hidden),
         );
     }
@@ -929,4 +1177,44 @@ fn loss_terms_tab(joints: &[String], ranges: PlotRanges) -> Node {
         .with_legend(Legend::Hidden),
     );
     Node::container(ContainerKind::Grid, "Loss terms per joint", views, vec![]).with_columns(4)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Hand-worked cases of the viewer's tick rule: the example's 7 trials on a 45 px track
+    /// (spacing of 1: 45/8 < 20 px; of 10: 56 px) and the error plot's ±1.2 W over 183 px.
+    #[test]
+    fn labelled_step_follows_the_viewer_grid() {
+        assert_eq!(labelled_step(8.0, 45.0, Y_LABEL_PX), 10.0);
+        assert_eq!(labelled_step(2.4, 183.0, Y_LABEL_PX), 1.0);
+        // A step whose spacing is exactly the label spacing is not labelled.
+        assert_eq!(labelled_step(1.0, 20.0, Y_LABEL_PX), 10.0);
+        assert_eq!(labelled_ticks([-0.5, 6.5], 45.0, Y_LABEL_PX), vec![0.0]);
+        assert_eq!(labelled_ticks([-0.5, 10.5], 45.0, Y_LABEL_PX), vec![0.0, 10.0]);
+    }
+
+    /// A few trials in a narrow bar chart: the extent reaches the next labelled tick on the
+    /// nearer side only (10, not −10).
+    #[test]
+    fn tick_range_widens_towards_the_nearer_tick() {
+        let margins = |[a, b]: [f64; 2]| Some([a - 0.05 * (b - a), b + 0.05 * (b - a)]);
+        let (d, r) = tick_range([-0.4, 6.4], 300.0, X_LABEL_PX, &margins).unwrap();
+        assert_eq!(d, [-0.4, 10.0]);
+        assert_eq!(labelled_ticks(r, 300.0, X_LABEL_PX).len(), 2);
+        // Already readable: unchanged.
+        let (d, _) = tick_range([-0.4, 30.4], 300.0, X_LABEL_PX, &margins).unwrap();
+        assert_eq!(d, [-0.4, 30.4]);
+    }
+
+    #[test]
+    fn queries_match_paths_with_or_without_the_leading_slash() {
+        assert!(query_includes("+ /joints/elbow/q", "/", "joints/elbow/q"));
+        assert!(!query_includes("+ /joints/elbow/q", "/", "joints/elbow/q_cmd"));
+        assert!(query_includes("+ /model/bars/**", "/", "model/bars/by_joint/elbow"));
+        assert!(!query_includes("+ /model/bars/**", "/", "model/barsx"));
+        assert!(query_includes("$origin/**", "diagnosis/torque", "diagnosis/torque/elbow"));
+        assert!(!query_includes("- /joints/**", "/", "joints/elbow/q"));
+    }
 }

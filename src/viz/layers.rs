@@ -292,6 +292,10 @@ const EDGE_S: f64 = 0.01;
 /// in its colour) whose bars sit side by side around the trial's index on the x axis, so they
 /// keep their width whatever the time zoom.
 fn log_bars(w: &mut ChunkWriter<'_>, joints: &[String], means: &[TrialMean]) -> Result<()> {
+    let joint_values = means.iter().flat_map(|m| m.by_joint);
+    bar_axis_anchors(w, paths::BARS_BY_JOINT, means, joint_values)?;
+    let term_values = means.iter().flat_map(|m| m.by_term);
+    bar_axis_anchors(w, paths::BARS_BY_TERM, means, term_values)?;
     for (j, name) in joints.iter().enumerate() {
         let (x, v) = bar_slots(means, j, joints.len(), |m| m.by_joint[j]);
         bar_chart(
@@ -322,13 +326,51 @@ fn log_bars(w: &mut ChunkWriter<'_>, joints: &[String], means: &[TrialMean]) -> 
     Ok(())
 }
 
+/// Invisible bars (height 0 or at the y extent, fully transparent) at the ends of the extent
+/// the bar charts under `tree` are fitted to: the viewer fits a bar chart to its bars (5 % to
+/// spare) and labels only the multiples of a power of ten whose spacing is wide enough, so a
+/// few trials in a narrow cell showed a single "0". The extent is the trials' (and the values')
+/// widened until the viewer labels at least two ticks on each axis in a
+/// [`blueprint::BAR_PLOT_PX`] plot.
+fn bar_axis_anchors(
+    w: &mut ChunkWriter<'_>,
+    tree: &str,
+    means: &[TrialMean],
+    values: impl Iterator<Item = f64>,
+) -> Result<()> {
+    use super::blueprint::{BAR_PLOT_PX, X_LABEL_PX, Y_LABEL_PX, tick_range};
+    let Some([first, last]) = super::data_range(means.iter().map(|m| m.index as f64)) else {
+        return Ok(());
+    };
+    let [lo, hi] = super::data_range(values.chain([0.0])).unwrap_or([0.0, 0.0]);
+    let margins = |[a, b]: [f64; 2]| {
+        let span = b - a;
+        Some([a - 0.05 * span, b + 0.05 * span])
+    };
+    let trials = [first - 0.4, last + 0.4];
+    let x = tick_range(trials, BAR_PLOT_PX[0], X_LABEL_PX, &margins).map_or(trials, |r| r.0);
+    let y = tick_range([lo, hi], BAR_PLOT_PX[1], Y_LABEL_PX, &margins).map_or([lo, hi], |r| r.0);
+    // Heights 0 unless the values' extent had to widen (then the anchors reach the widened
+    // extent, still invisible).
+    let height = |end: f64, data: f64| if end == data { 0.0 } else { end };
+    let width = 1e-3;
+    w.send_static(
+        &format!("{tree}/{}", paths::BAR_AXIS),
+        &rerun::BarChart::new(vec![height(y[0], lo), height(y[1], hi)])
+            .with_abscissa(vec![x[0], x[1] - width])
+            .with_widths(vec![width as f32; 2])
+            .with_color(rerun::Color::from_unmultiplied_rgba(0, 0, 0, 0)),
+    )
+}
+
 /// Width of one bar of a group of `slots` around a trial index (the group spans 0.8).
 pub(super) fn bar_width(slots: usize) -> f64 {
     0.8 / slots.max(1) as f64
 }
 
-/// Where bar `slot` of `slots` goes for each trial (x = trial index − 0.4 + the slot's centre)
-/// and its height; trials without a finite value are left out.
+/// Where bar `slot` of `slots` goes for each trial and its height: x is the bar's left edge (the
+/// viewer draws a bar from its abscissa to abscissa + width), trial index − 0.4 + slot × width,
+/// so the group is centred on the trial's index; trials without a finite value are left out.
 pub(super) fn bar_slots(
     means: &[TrialMean],
     slot: usize,
@@ -340,7 +382,7 @@ pub(super) fn bar_slots(
         .iter()
         .filter(|m| value(m).is_finite())
         .map(|m| {
-            let x = m.index as f64 - 0.4 + (slot as f64 + 0.5) * width;
+            let x = m.index as f64 - 0.4 + slot as f64 * width;
             (x, value(m))
         })
         .unzip()

@@ -238,6 +238,9 @@ pub struct ChunkWriter<'a> {
     namespace: u64,
     counter: u64,
     start_ns: u64,
+    /// The range [min, max] of the finite scalars logged on each entity path (what the
+    /// plots are fitted to once everything is logged).
+    ranges: std::collections::BTreeMap<String, [f64; 2]>,
 }
 
 impl<'a> ChunkWriter<'a> {
@@ -248,7 +251,49 @@ impl<'a> ChunkWriter<'a> {
             namespace,
             counter: 0,
             start_ns,
+            ranges: Default::default(),
         }
+    }
+
+    /// The stream this writer logs into.
+    pub fn stream(&self) -> &'a RecordingStream {
+        self.stream
+    }
+
+    /// Widens the range of the scalars logged on `path` to hold `values`.
+    pub fn note_values(&mut self, path: &str, values: &[f64]) {
+        let Some([lo, hi]) = data_range(values.iter().copied()) else {
+            return;
+        };
+        match self.ranges.get_mut(path) {
+            Some(r) => *r = [r[0].min(lo), r[1].max(hi)],
+            None => {
+                self.ranges.insert(path.to_owned(), [lo, hi]);
+            }
+        }
+    }
+
+    /// The range [min, max] of the scalars logged so far on the entity paths blueprint queries
+    /// `queries` take in (`origin`: the view's origin, used when `queries` is empty or names
+    /// `$origin`); `None` when nothing was logged there.
+    pub fn range_of(&self, queries: &[String], origin: &str) -> Option<[f64; 2]> {
+        let default = ["$origin/**".to_owned()];
+        let queries = if queries.is_empty() {
+            &default[..]
+        } else {
+            queries
+        };
+        let included = |p: &str| {
+            queries
+                .iter()
+                .any(|q| blueprint::query_includes(q, origin, p))
+        };
+        data_range(
+            self.ranges
+                .iter()
+                .filter(|(p, _)| included(p))
+                .flat_map(|(_, r)| *r),
+        )
     }
 
     fn next_tuid(&mut self) -> Tuid {

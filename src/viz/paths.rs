@@ -65,6 +65,8 @@ pub fn bar_by_joint(j: &str) -> String {
 }
 /// Below this: per-trial bars, one series per term (joints summed; `interaction` too) [W].
 pub const BARS_BY_TERM: &str = "model/bars/by_term";
+/// The invisible bars under each bar tree that fix the chart's extent (see `layers`).
+pub const BAR_AXIS: &str = "x_axis_extent";
 /// Per-trial bars of term `term` [W].
 pub fn bar_by_term(term: &str) -> String {
     format!("{BARS_BY_TERM}/{term}")

@@ -549,6 +549,9 @@ pub struct ReplayLogger<'a> {
     unflushed: usize,
     /// Model samples gathered into the next chunk ([`Self::log_model_samples`]).
     pending: (PowerPrediction, TermSeries),
+    /// The layout sent by [`Self::begin`] (when it sends one): [`Self::finish`] sends it again
+    /// with every plot fitted to the data logged.
+    layout: Option<blueprint::Node>,
 }
 
 /// Model samples (≈ 42 scalar rows each) between waits for the sink in
@@ -573,6 +576,7 @@ impl<'a> ReplayLogger<'a> {
         whole: Option<&Recording>,
     ) -> Result<Self> {
         let joints: Vec<String> = joint_names.iter().map(|n| short_joint_name(n)).collect();
+        let mut sent_layout = None;
         if joints.len() != N_JOINTS {
             bail!(
                 "{}: expected {N_JOINTS} arm joint names, got {}",
@@ -598,6 +602,7 @@ impl<'a> ReplayLogger<'a> {
             stream
                 .flush_blocking()
                 .context("sending the viewer layout")?;
+            sent_layout = Some(layout);
         }
         log_recording_info(&mut w, source, start_ns, &opts.properties)?;
         let scene = robot3d::log_static_robot(
@@ -637,6 +642,7 @@ impl<'a> ReplayLogger<'a> {
             decimators: [Decimator::default(); 2],
             unflushed: 0,
             pending: Default::default(),
+            layout: sent_layout,
         })
     }
 
@@ -739,10 +745,12 @@ impl<'a> ReplayLogger<'a> {
         let cmd = &part.command;
         if !cmd.t.is_empty() && !self.command_style_sent {
             for (j, name) in self.joints.iter().enumerate() {
+                // Named like the joint's q: the plot's legend has one entry per joint (its
+                // colour the measured q's), which shows or hides both lines.
                 style::line(
                     &mut self.w,
                     &paths::joint(name, "q_cmd"),
-                    &format!("{name} cmd"),
+                    name,
                     style::joint_command(j),
                     0.75,
                 )?;
@@ -879,6 +887,15 @@ impl<'a> ReplayLogger<'a> {
             let (t, power) = layers::decimated_joint_power(terms, LINK_COLOUR_RATE_HZ);
             robot3d::log_link_colors(w, self.robot, self.arm, &self.scene, &t, &power, scale)?;
         }
+        if let Some(mut layout) = self.layout.take() {
+            // Now every plot's data range is known (a streamed replay knows none up front):
+            // the layout again, each plot opening on its data with readable ticks and, where
+            // it fits, its legend above the data. After the data, in a fixed message order.
+            w.flush()?;
+            layout.fit(&|queries, origin| w.range_of(queries, origin));
+            blueprint::resend_blueprint(w.stream(), &layout, 1)?;
+            w.flush().context("sending the fitted viewer layout")?;
+        }
         Ok(self.summary)
     }
 }
@@ -939,6 +956,8 @@ pub(super) fn scalars(
     if t.is_empty() {
         return Ok(());
     }
+    let values: Vec<f64> = values.collect();
+    w.note_values(path, &values);
     w.send_columns(path, t, Scalars::new(values).columns_of_unit_batches()?)
 }
 
