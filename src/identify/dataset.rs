@@ -330,8 +330,9 @@ fn sample_rows(
         if !(y.is_finite() && phi.iter().all(|v| v.is_finite())) {
             continue;
         }
+        let kept = produced.is_multiple_of(every);
         produced += 1;
-        if (produced - 1) % every != 0 {
+        if !kept {
             continue;
         }
         out.push(Row {
