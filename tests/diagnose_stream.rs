@@ -93,7 +93,12 @@ fn assert_same(what: &str, memory: &Diagnosis, stream: &Diagnosis, rel: f64) {
         diffs.is_empty(),
         "{what}: streamed diagnosis differs from the in-memory one in {} places:\n{}",
         diffs.len(),
-        diffs.iter().take(20).cloned().collect::<Vec<_>>().join("\n")
+        diffs
+            .iter()
+            .take(20)
+            .cloned()
+            .collect::<Vec<_>>()
+            .join("\n")
     );
 }
 
@@ -255,10 +260,34 @@ fn shared_smoke_bags_are_read_alike() {
 fn the_comparison_sees_a_small_difference() {
     let a: Value = serde_json::json!({"x": [1.0, 2.0], "s": "a"});
     let mut diffs = Vec::new();
-    same("", &a, &serde_json::json!({"x": [1.0, 2.0], "s": "a"}), 1e-9, &mut diffs);
+    same(
+        "",
+        &a,
+        &serde_json::json!({"x": [1.0, 2.0], "s": "a"}),
+        1e-9,
+        &mut diffs,
+    );
     assert!(diffs.is_empty());
-    same("", &a, &serde_json::json!({"x": [1.0, 2.000001], "s": "a"}), 1e-9, &mut diffs);
-    same("", &a, &serde_json::json!({"x": [1.0, 2.0], "s": "b"}), 1e-9, &mut diffs);
-    same("", &a, &serde_json::json!({"x": [1.0], "s": "a"}), 1e-9, &mut diffs);
+    same(
+        "",
+        &a,
+        &serde_json::json!({"x": [1.0, 2.000001], "s": "a"}),
+        1e-9,
+        &mut diffs,
+    );
+    same(
+        "",
+        &a,
+        &serde_json::json!({"x": [1.0, 2.0], "s": "b"}),
+        1e-9,
+        &mut diffs,
+    );
+    same(
+        "",
+        &a,
+        &serde_json::json!({"x": [1.0], "s": "a"}),
+        1e-9,
+        &mut diffs,
+    );
     assert_eq!(diffs.len(), 3, "{diffs:?}");
 }

@@ -256,9 +256,7 @@ fn run(
 
     // Torque level.
     let torque = match arm {
-        Some(_) => {
-            torque::torque_level(&info.joint_names, &torque_rows, metas.len(), &data.folds)?
-        }
+        Some(_) => torque::torque_level(&info.joint_names, &torque_rows, metas.len(), &data.folds)?,
         None => None,
     };
     drop(torque_rows);
@@ -314,10 +312,8 @@ fn run(
 
 /// The kept trials' rows at each of `n_lags` lags, assembled lag by lag (moved, not copied).
 fn kept_rows(per_trial: Vec<Vec<data::Rows>>, kept: &[usize], n_lags: usize) -> Vec<data::Rows> {
-    let mut by_trial: Vec<Option<std::vec::IntoIter<data::Rows>>> = per_trial
-        .into_iter()
-        .map(|t| Some(t.into_iter()))
-        .collect();
+    let mut by_trial: Vec<Option<std::vec::IntoIter<data::Rows>>> =
+        per_trial.into_iter().map(|t| Some(t.into_iter())).collect();
     // Rejected trials' rows are dropped now.
     for (i, t) in by_trial.iter_mut().enumerate() {
         if kept.binary_search(&i).is_err() {

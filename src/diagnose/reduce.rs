@@ -302,10 +302,8 @@ impl TrialSamples for Streamed {
     ) -> Result<()> {
         for part in &self.parts {
             let range = part.first..part.first + part.local.len();
-            let mine: Vec<&TrialWindow> = trials
-                .iter()
-                .filter(|t| range.contains(&t.index))
-                .collect();
+            let mine: Vec<&TrialWindow> =
+                trials.iter().filter(|t| range.contains(&t.index)).collect();
             if mine.is_empty() {
                 continue;
             }

@@ -4,9 +4,9 @@
 
 use anyhow::Result;
 
-use super::reduce::SessionInfo;
 use super::data::{Rows, TrialMeta};
 use super::hypotheses::{self, POWER_HYPOTHESES};
+use super::reduce::SessionInfo;
 use super::select::{self, PowerData, Rule};
 use super::{
     Confounded, DiagnoseOptions, DiscoveryReport, FieldSource, HypothesisScore, discover, fields,

@@ -1192,7 +1192,10 @@ mod tests {
         // A step whose spacing is exactly the label spacing is not labelled.
         assert_eq!(labelled_step(1.0, 20.0, Y_LABEL_PX), 10.0);
         assert_eq!(labelled_ticks([-0.5, 6.5], 45.0, Y_LABEL_PX), vec![0.0]);
-        assert_eq!(labelled_ticks([-0.5, 10.5], 45.0, Y_LABEL_PX), vec![0.0, 10.0]);
+        assert_eq!(
+            labelled_ticks([-0.5, 10.5], 45.0, Y_LABEL_PX),
+            vec![0.0, 10.0]
+        );
     }
 
     /// A few trials in a narrow bar chart: the extent reaches the next labelled tick on the
@@ -1211,10 +1214,22 @@ mod tests {
     #[test]
     fn queries_match_paths_with_or_without_the_leading_slash() {
         assert!(query_includes("+ /joints/elbow/q", "/", "joints/elbow/q"));
-        assert!(!query_includes("+ /joints/elbow/q", "/", "joints/elbow/q_cmd"));
-        assert!(query_includes("+ /model/bars/**", "/", "model/bars/by_joint/elbow"));
+        assert!(!query_includes(
+            "+ /joints/elbow/q",
+            "/",
+            "joints/elbow/q_cmd"
+        ));
+        assert!(query_includes(
+            "+ /model/bars/**",
+            "/",
+            "model/bars/by_joint/elbow"
+        ));
         assert!(!query_includes("+ /model/bars/**", "/", "model/barsx"));
-        assert!(query_includes("$origin/**", "diagnosis/torque", "diagnosis/torque/elbow"));
+        assert!(query_includes(
+            "$origin/**",
+            "diagnosis/torque",
+            "diagnosis/torque/elbow"
+        ));
         assert!(!query_includes("- /joints/**", "/", "joints/elbow/q"));
     }
 }

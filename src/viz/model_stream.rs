@@ -7,9 +7,9 @@
 //! trial by trial ([`crate::identify::for_each_trial`]). Every figure equals the one of
 //! the in-memory replay ([`super::overlay::model_extras`]) computed from the whole series.
 //!
-//! Memory: the replay waits for the `.rrd` sink every [`REPLAY_FLUSH_SAMPLES`] samples (chunks
+//! Memory: the replay waits for the `.rrd` sink every [`REPLAY_FLUSH_SAMPLES`](super::replay::REPLAY_FLUSH_SAMPLES) samples (chunks
 //! are built far faster than they are encoded), and logs in chunks of at least
-//! [`STREAMED_CHUNK_ROWS`] samples (the file's footer indexes every chunk until the end).
+//! [`STREAMED_CHUNK_ROWS`](super::replay::STREAMED_CHUNK_ROWS) samples (the file's footer indexes every chunk until the end).
 
 use std::collections::BTreeMap;
 
@@ -19,8 +19,8 @@ use rerun::RecordingStream;
 use super::TrialMean;
 use super::overlay::trial_series;
 use super::replay::{
-    LINK_COLOUR_RATE_HZ, PowerPrediction, ReplayExtras, ReplayLogger, ReplayOptions, ReplaySummary,
-    SampleStats, TermSeries,
+    LINK_COLOUR_RATE_HZ, PowerPrediction, REPLAY_FLUSH_SAMPLES, ReplayExtras, ReplayLogger,
+    ReplayOptions, ReplaySummary, STREAMED_CHUNK_ROWS, SampleStats, TermSeries,
 };
 use super::slice::{Decimator, Slice};
 use crate::N_JOINTS;
@@ -396,18 +396,6 @@ struct Sink<'a, 'e> {
     /// Samples logged since the stream was last waited for.
     unflushed: usize,
 }
-
-/// Samples per Rerun chunk of the streamed model replay, at least (the replay's own
-/// [`ReplayOptions::chunk_rows`] when larger). The `.rrd` footer indexes every chunk, in memory
-/// until the file is finished, and is built at the end: at 4096 rows that took ~100 MB at the
-/// end of a 10 h session's model replay (peak 286 MB); at 16384 the peak was 182 MB.
-const STREAMED_CHUNK_ROWS: usize = 16_384;
-
-/// Samples (state and command) the replay pass logs between waits for the sink: the samples
-/// are turned into chunks far faster than the sink encodes and writes them, and without a wait
-/// the chunks in flight pile up (1 h session: peak RSS 175 MB without the waits, 79 MB with
-/// them, ~5 % longer).
-const REPLAY_FLUSH_SAMPLES: usize = 60_000;
 
 impl RecordingSink for Sink<'_, '_> {
     fn begin(&mut self, header: &StreamHeader<'_>) -> Result<()> {
