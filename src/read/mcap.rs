@@ -3,7 +3,8 @@
 //! linear scan of the data section when it is not. Records are framed here so every warning can
 //! name its byte offset; record bodies are parsed with the `mcap` crate.
 //!
-//! Memory holds at most the chunks whose time ranges overlap (normally one chunk), never the file.
+//! Memory holds at most three groups of chunks whose time ranges overlap (normally three chunks:
+//! one being read, one being decompressed on a second thread, one being delivered), never the file.
 
 use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
 use std::fs::File;
@@ -133,6 +134,7 @@ struct Summary {
 }
 
 /// Damage found while reading: where and what. Turned into a warning; the read stops there.
+#[derive(Debug, Clone)]
 struct Damage {
     offset: u64,
     what: String,
@@ -475,6 +477,11 @@ impl<R: Read + Seek> McapSource<R> {
         groups
     }
 
+    /// Deliver the indexed chunks group by group. Decompression runs on a second thread one
+    /// group ahead of the scan and delivery here (on two cores reading then costs about as
+    /// much as decompressing alone); the raw chunk bytes are read here, in file order, so the
+    /// byte source needs no sharing. Memory: at most three groups' buffers (normally three
+    /// chunks).
     fn walk_indexed(
         &mut self,
         topics: Option<&[&str]>,
@@ -482,47 +489,110 @@ impl<R: Read + Seek> McapSource<R> {
         warnings: &mut Vec<String>,
     ) -> Result<Result<(), Damage>, ReadError> {
         let groups = self.chunk_groups(topics, warnings);
-        let mut buffers: Vec<Vec<u8>> = Vec::new();
-        let mut scratch = Vec::new();
-        for group in groups {
-            let mut msgs = Vec::new();
-            let mut damage = None;
-            for (k, ci) in group.iter().enumerate() {
-                if buffers.len() <= k {
-                    buffers.push(Vec::new());
-                }
-                let loaded = self.read_chunk_at(ci, &mut scratch, &mut buffers[k]);
-                let loaded = loaded.and_then(|()| {
-                    scan_records(
-                        &buffers[k],
-                        ci.chunk_start_offset,
-                        k,
-                        &mut self.registry,
-                        topics,
-                        &mut msgs,
-                    )
-                });
-                if let Err(mut d) = loaded {
-                    d.what = format!("{} (chunk with {})", d.what, self.topics_of(ci));
-                    // Deliver what is certainly earlier than the damaged chunk, then stop.
-                    msgs.retain(|m| m.log_time < ci.message_start_time && m.buf < k);
-                    damage = Some(d);
-                    break;
-                }
-            }
-            msgs.sort_by_key(|m| m.log_time);
-            for m in &msgs {
-                let data = buffers
-                    .get(m.buf)
-                    .and_then(|b| b.get(m.start..m.end))
-                    .unwrap_or(&[]);
-                sink(self, m, data)?;
-            }
-            if let Some(d) = damage {
-                return Ok(Err(d));
-            }
+        if groups.is_empty() {
+            return Ok(Ok(()));
         }
-        Ok(Ok(()))
+        std::thread::scope(|scope| {
+            let (jobs, job_rx) = std::sync::mpsc::sync_channel::<InflateJob>(1);
+            let (done_tx, done) = std::sync::mpsc::sync_channel::<Vec<Result<Vec<u8>, Damage>>>(1);
+            scope.spawn(move || {
+                let mut inflater = Inflater::default();
+                for mut job in job_rx {
+                    let out = job
+                        .chunks
+                        .into_iter()
+                        .map(|raw| {
+                            let (offset, bytes) = raw?;
+                            let mut buf = job.spare.pop().unwrap_or_default();
+                            inflater
+                                .chunk_record(&bytes, &mut buf)
+                                .map_err(|what| Damage { offset, what })?;
+                            Ok(buf)
+                        })
+                        .collect();
+                    if done_tx.send(out).is_err() {
+                        break; // the reader stopped (damage or a sink error)
+                    }
+                }
+            });
+            let mut spare = Vec::new();
+            let first = self.read_group(&groups[0], std::mem::take(&mut spare));
+            if jobs.send(first).is_err() {
+                return Ok(Err(worker_gone(&groups[0])));
+            }
+            for (g, group) in groups.iter().enumerate() {
+                if let Some(next) = groups.get(g + 1) {
+                    let job = self.read_group(next, std::mem::take(&mut spare));
+                    if jobs.send(job).is_err() {
+                        return Ok(Err(worker_gone(group)));
+                    }
+                }
+                let Ok(buffers) = done.recv() else {
+                    return Ok(Err(worker_gone(group)));
+                };
+                let mut msgs = Vec::new();
+                let mut damage = None;
+                for (k, (ci, buf)) in group.iter().zip(&buffers).enumerate() {
+                    let loaded = buf.as_ref().map_err(Damage::clone).and_then(|b| {
+                        scan_records(
+                            b,
+                            ci.chunk_start_offset,
+                            k,
+                            &mut self.registry,
+                            topics,
+                            &mut msgs,
+                        )
+                    });
+                    if let Err(mut d) = loaded {
+                        d.what = format!("{} (chunk with {})", d.what, self.topics_of(ci));
+                        // Deliver what is certainly earlier than the damaged chunk, then stop.
+                        msgs.retain(|m| m.log_time < ci.message_start_time && m.buf < k);
+                        damage = Some(d);
+                        break;
+                    }
+                }
+                msgs.sort_by_key(|m| m.log_time);
+                for m in &msgs {
+                    let data = buffers
+                        .get(m.buf)
+                        .and_then(|b| b.as_ref().ok())
+                        .and_then(|b| b.get(m.start..m.end))
+                        .unwrap_or(&[]);
+                    sink(self, m, data)?;
+                }
+                if let Some(d) = damage {
+                    return Ok(Err(d));
+                }
+                spare = buffers.into_iter().filter_map(Result::ok).collect();
+            }
+            Ok(Ok(()))
+        })
+    }
+
+    /// The raw chunk records of `group`, read in file order and checked against the file's
+    /// length (a chunk that cannot be read is carried as its damage, reported when reached).
+    fn read_group(&mut self, group: &[ChunkIndex], spare: Vec<Vec<u8>>) -> InflateJob {
+        let chunks = group
+            .iter()
+            .map(|ci| {
+                let offset = ci.chunk_start_offset;
+                let damage = |what: String| Damage { offset, what };
+                if ci.chunk_length < RECORD_PREFIX
+                    || ci.chunk_length > MAX_CHUNK_BYTES
+                    || offset.saturating_add(ci.chunk_length) > self.file_len
+                {
+                    return Err(damage(format!(
+                        "chunk index points beyond the file or to an oversized chunk (length {})",
+                        ci.chunk_length
+                    )));
+                }
+                let mut bytes = vec![0; ci.chunk_length as usize];
+                self.read_at(offset, &mut bytes)
+                    .map_err(|e| damage(e.to_string()))?;
+                Ok((offset, bytes))
+            })
+            .collect();
+        InflateJob { chunks, spare }
     }
 
     fn topics_of(&self, ci: &ChunkIndex) -> String {
@@ -536,36 +606,6 @@ impl<R: Read + Seek> McapSource<R> {
         } else {
             format!("topics {}", names.join(", "))
         }
-    }
-
-    /// Read and decompress the chunk an index entry points to into `out`.
-    fn read_chunk_at(
-        &mut self,
-        ci: &ChunkIndex,
-        scratch: &mut Vec<u8>,
-        out: &mut Vec<u8>,
-    ) -> Result<(), Damage> {
-        let offset = ci.chunk_start_offset;
-        let damage = |what: String| Damage { offset, what };
-        if ci.chunk_length < RECORD_PREFIX
-            || ci.chunk_length > MAX_CHUNK_BYTES
-            || offset.saturating_add(ci.chunk_length) > self.file_len
-        {
-            return Err(damage(format!(
-                "chunk index points beyond the file or to an oversized chunk (length {})",
-                ci.chunk_length
-            )));
-        }
-        scratch.resize(ci.chunk_length as usize, 0);
-        self.read_at(offset, scratch)
-            .map_err(|e| damage(e.to_string()))?;
-        let (opcode, body, _) = frame(scratch, 0).map_err(damage)?;
-        if opcode != op::CHUNK {
-            return Err(damage(format!(
-                "expected a chunk record, found opcode 0x{opcode:02x}"
-            )));
-        }
-        decompress_chunk(body, out).map_err(damage)
     }
 
     /// Read the data section record by record from the start. With `until`, stop as soon as
@@ -585,6 +625,7 @@ impl<R: Read + Seek> McapSource<R> {
         let mut pos = 8u64;
         let mut body = Vec::new();
         let mut chunk = Vec::new();
+        let mut inflater = Inflater::default();
         loop {
             if until.is_some_and(|ids| ids.iter().all(|id| self.registry.channels.contains_key(id)))
             {
@@ -616,7 +657,8 @@ impl<R: Read + Seek> McapSource<R> {
             }
             let mut msgs = Vec::new();
             let scanned = if opcode == op::CHUNK {
-                decompress_chunk(&body, &mut chunk)
+                inflater
+                    .chunk_body(&body, &mut chunk)
                     .map_err(|what| Damage { offset, what })
                     .and_then(|()| {
                         scan_records(&chunk, offset, 0, &mut self.registry, topics, &mut msgs)
@@ -812,55 +854,97 @@ fn frame(buf: &[u8], pos: usize) -> Result<(u8, &[u8], usize), String> {
     Ok((prefix[0], &buf[start..end], end))
 }
 
-/// Decompress a chunk record body into `out`, checking sizes and the CRC. The output is capped
-/// at the declared uncompressed size (itself at most [`MAX_CHUNK_BYTES`]): a chunk that
-/// inflates beyond it is damage, whatever its compressed size.
-fn decompress_chunk(body: &[u8], out: &mut Vec<u8>) -> Result<(), String> {
-    let chunk = rec::chunk(body)?;
-    if chunk.uncompressed_size > MAX_CHUNK_BYTES {
-        return Err(format!(
-            "chunk claims {} uncompressed bytes (more than the {} MiB limit)",
-            chunk.uncompressed_size,
-            MAX_CHUNK_BYTES >> 20
-        ));
+/// Raw chunk records of one group for the decompression thread (with the file offset each
+/// came from, or the damage met reading it), and spent buffers to decompress into.
+struct InflateJob {
+    chunks: Vec<Result<(u64, Vec<u8>), Damage>>,
+    spare: Vec<Vec<u8>>,
+}
+
+/// The damage reported when the decompression thread is gone (it only stops early on a bug).
+fn worker_gone(group: &[ChunkIndex]) -> Damage {
+    Damage {
+        offset: group.first().map_or(0, |c| c.chunk_start_offset),
+        what: "the chunk decompression thread stopped unexpectedly".into(),
     }
-    let size = chunk.uncompressed_size as usize;
-    out.clear();
-    let data = chunk.records;
-    match chunk.compression.as_str() {
-        "" => out.extend_from_slice(data),
-        "zstd" => {
-            // The bulk decoder writes at most the Vec's capacity: the declared size.
-            out.reserve_exact(size);
-            zstd::bulk::Decompressor::new()
-                .and_then(|mut d| d.decompress_to_buffer(data, out))
-                .map_err(|e| {
+}
+
+/// Chunk decompression, keeping one zstd context for every chunk (creating one per chunk cost
+/// a few per cent of a whole read).
+#[derive(Default)]
+struct Inflater {
+    zstd: Option<zstd::bulk::Decompressor<'static>>,
+}
+
+impl Inflater {
+    /// Decompress a whole chunk record (opcode, length, body) into `out`.
+    fn chunk_record(&mut self, bytes: &[u8], out: &mut Vec<u8>) -> Result<(), String> {
+        let (opcode, body, _) = frame(bytes, 0)?;
+        if opcode != op::CHUNK {
+            return Err(format!(
+                "expected a chunk record, found opcode 0x{opcode:02x}"
+            ));
+        }
+        self.chunk_body(body, out)
+    }
+
+    /// Decompress a chunk record body into `out`, checking sizes and the CRC. The output is
+    /// capped at the declared uncompressed size (itself at most [`MAX_CHUNK_BYTES`]): a chunk
+    /// that inflates beyond it is damage, whatever its compressed size.
+    fn chunk_body(&mut self, body: &[u8], out: &mut Vec<u8>) -> Result<(), String> {
+        let chunk = rec::chunk(body)?;
+        if chunk.uncompressed_size > MAX_CHUNK_BYTES {
+            return Err(format!(
+                "chunk claims {} uncompressed bytes (more than the {} MiB limit)",
+                chunk.uncompressed_size,
+                MAX_CHUNK_BYTES >> 20
+            ));
+        }
+        let size = chunk.uncompressed_size as usize;
+        out.clear();
+        let data = chunk.records;
+        match chunk.compression.as_str() {
+            "" => out.extend_from_slice(data),
+            "zstd" => {
+                let failed = |e: std::io::Error| {
                     format!(
                         "zstd decompression failed (or more than the declared {size} bytes): {e}"
                     )
-                })?;
+                };
+                let d = match &mut self.zstd {
+                    Some(d) => d,
+                    empty => empty.insert(zstd::bulk::Decompressor::new().map_err(failed)?),
+                };
+                // The bulk decoder writes at most the Vec's capacity: the declared size.
+                out.reserve_exact(size);
+                if let Err(e) = d.decompress_to_buffer(data, out) {
+                    // A failed frame may leave the context mid-stream: start the next afresh.
+                    self.zstd = None;
+                    return Err(failed(e));
+                }
+            }
+            "lz4" => {
+                super::read_capped(lz4_flex::frame::FrameDecoder::new(data), size, out)
+                    .map_err(|e| format!("lz4 decompression failed: {e}"))?;
+            }
+            other => {
+                return Err(format!(
+                    "unsupported chunk compression {other:?} (supported: zstd, lz4, none)"
+                ));
+            }
         }
-        "lz4" => {
-            super::read_capped(lz4_flex::frame::FrameDecoder::new(data), size, out)
-                .map_err(|e| format!("lz4 decompression failed: {e}"))?;
-        }
-        other => {
+        if out.len() != size {
+            let more = if out.len() > size { "more than " } else { "" };
             return Err(format!(
-                "unsupported chunk compression {other:?} (supported: zstd, lz4, none)"
+                "chunk decompressed to {more}{} bytes, header says {size}",
+                out.len()
             ));
         }
+        if chunk.uncompressed_crc != 0 && crc32fast::hash(out) != chunk.uncompressed_crc {
+            return Err("chunk CRC mismatch (corrupted data)".into());
+        }
+        Ok(())
     }
-    if out.len() != size {
-        let more = if out.len() > size { "more than " } else { "" };
-        return Err(format!(
-            "chunk decompressed to {more}{} bytes, header says {size}",
-            out.len()
-        ));
-    }
-    if chunk.uncompressed_crc != 0 && crc32fast::hash(out) != chunk.uncompressed_crc {
-        return Err("chunk CRC mismatch (corrupted data)".into());
-    }
-    Ok(())
 }
 
 /// Walk the records in `buf` (a decompressed chunk, or one framed record): register schemas and
