@@ -506,6 +506,20 @@ fn stream_trial_windows(
     buf: &mut Recording,
     on_trial: &mut dyn FnMut(&Recording, &TrialWindow),
 ) -> Result<()> {
+    // Only the trials' windows are read (an indexed MCAP skips the chunks between them): the
+    // windows ± the margin, merged where they touch.
+    let mut windows: Vec<(f64, f64)> = trials
+        .iter()
+        .map(|t| (t.t_pre_start - MARGIN_S, t.t_post_end + MARGIN_S))
+        .collect();
+    windows.sort_by(|x, y| x.0.total_cmp(&y.0));
+    let mut ranges: Vec<(f64, f64)> = Vec::with_capacity(windows.len());
+    for (a, b) in windows {
+        match ranges.last_mut() {
+            Some(last) if a <= last.1 => last.1 = last.1.max(b),
+            _ => ranges.push((a, b)),
+        }
+    }
     let mut next = 0usize;
     let mut step = |buf: &mut Recording, done: bool| {
         let last_t = buf.state.t.last().copied().unwrap_or(f64::NEG_INFINITY);
@@ -528,6 +542,7 @@ fn stream_trial_windows(
         &file.read,
         start_ns,
         so.batch_samples,
+        Some(&ranges),
         &mut |batch| {
             append_state(&mut buf.state, &batch.state, false);
             sort_state(&mut buf.state);

@@ -167,6 +167,9 @@ pub struct McapSource<R = File> {
     open_warnings: Vec<String>,
     /// Decoded channels by id, built when first needed.
     resolved: HashMap<u16, Arc<Channel>>,
+    /// Log-time ranges the next reads need ([`MessageSource::set_time_ranges`]): indexed
+    /// chunks wholly outside them are skipped.
+    time_ranges: Option<Vec<(u64, u64)>>,
 }
 
 impl McapSource<File> {
@@ -232,6 +235,7 @@ impl<R: Read + Seek> McapSource<R> {
             summary: None,
             open_warnings: Vec::new(),
             resolved: HashMap::new(),
+            time_ranges: None,
         };
         match source.load_summary() {
             Ok(summary) => source.summary = summary,
@@ -442,6 +446,9 @@ impl<R: Read + Seek> McapSource<R> {
                     .keys()
                     .any(|id| self.registry.wanted(*id, topics))
         });
+        if let Some(ranges) = &self.time_ranges {
+            chunks.retain(|c| overlaps(ranges, c.message_start_time, c.message_end_time));
+        }
         chunks.sort_by_key(|c| (c.message_start_time, c.chunk_start_offset));
         let mut groups: Vec<Vec<ChunkIndex>> = Vec::new();
         let mut end = 0u64;
@@ -854,6 +861,13 @@ fn frame(buf: &[u8], pos: usize) -> Result<(u8, &[u8], usize), String> {
     Ok((prefix[0], &buf[start..end], end))
 }
 
+/// Whether [a, b] overlaps one of `ranges` (sorted, inclusive bounds).
+fn overlaps(ranges: &[(u64, u64)], a: u64, b: u64) -> bool {
+    // The first range that does not end before a.
+    let i = ranges.partition_point(|r| r.1 < a);
+    ranges.get(i).is_some_and(|r| r.0 <= b)
+}
+
 /// Raw chunk records of one group for the decompression thread (with the file offset each
 /// came from, or the damage met reading it), and spent buffers to decompress into.
 struct InflateJob {
@@ -1121,6 +1135,10 @@ impl<R: Read + Seek> MessageSource for McapSource<R> {
         Ok(super::session_info(&self.path, "mcap", topics, warnings))
     }
 
+    fn set_time_ranges(&mut self, ranges: Option<Vec<(u64, u64)>>) {
+        self.time_ranges = ranges;
+    }
+
     fn read(
         &mut self,
         topics: Option<&[&str]>,
@@ -1140,7 +1158,7 @@ impl<R: Read + Seek> MessageSource for McapSource<R> {
             })
         })?;
         summary.messages = delivered;
-        if summary.complete && topics.is_none() {
+        if summary.complete && topics.is_none() && self.time_ranges.is_none() {
             let expected = self
                 .summary
                 .as_ref()

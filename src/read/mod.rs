@@ -330,4 +330,12 @@ pub trait MessageSource {
         topics: Option<&[&str]>,
         visit: &mut dyn FnMut(MessageRef<'_>) -> Result<(), ReadError>,
     ) -> Result<ReadSummary, ReadError>;
+    /// A hint for the next reads: only messages whose log time falls in one of `ranges`
+    /// (inclusive nanosecond bounds, sorted, not overlapping) are needed. A reader that can
+    /// skip whole stretches outside them (MCAP chunks, through the chunk index) does; every
+    /// reader may still deliver messages outside them, so the caller filters. `None` (the
+    /// default) reads everything.
+    fn set_time_ranges(&mut self, ranges: Option<Vec<(u64, u64)>>) {
+        let _ = ranges;
+    }
 }

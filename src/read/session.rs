@@ -135,6 +135,12 @@ impl Session {
         self.source.info_is_cheap()
     }
 
+    /// Only messages in these log-time ranges are needed by the next reads (a hint: see
+    /// [`MessageSource::set_time_ranges`]).
+    pub fn set_time_ranges(&mut self, ranges: Option<Vec<(u64, u64)>>) {
+        self.source.set_time_ranges(ranges);
+    }
+
     /// Stream messages (all, or those of `topics`) in log-time order to `visit`.
     pub fn read(
         &mut self,

@@ -87,6 +87,8 @@ pub fn stream_recording(
 /// Stream only the joint states of `path` (no command or power topic is decoded), in batches of
 /// at most `batch_samples`, with times relative to `origin_ns` (e.g. the
 /// [`StreamSummary::start_ns`] of an earlier full read, so both reads share one clock).
+/// With `ranges` (seconds on that clock, sorted, not overlapping), only the samples inside them
+/// are decoded and delivered, and an indexed MCAP reads only the chunks that overlap them.
 /// Errors as [`stream_recording`].
 pub fn stream_state(
     path: &Path,
@@ -94,12 +96,22 @@ pub fn stream_state(
     opts: &OpenOptions,
     origin_ns: u64,
     batch_samples: usize,
+    ranges: Option<&[(f64, f64)]>,
     on_batch: &mut dyn FnMut(&Recording) -> anyhow::Result<()>,
 ) -> anyhow::Result<StreamSummary> {
+    let to_ns = |t: f64| {
+        let ns = (t * 1e9).round();
+        if ns <= 0.0 {
+            origin_ns.saturating_sub((-ns).min(u64::MAX as f64) as u64)
+        } else {
+            origin_ns.saturating_add(ns.min(u64::MAX as f64) as u64)
+        }
+    };
     let plan = ReadPlan {
         batch_samples: batch_samples.max(1),
         state_only: true,
         origin_ns: Some(origin_ns),
+        ranges: ranges.map(|r| r.iter().map(|&(a, b)| (to_ns(a), to_ns(b))).collect()),
     };
     read_batches(path, map, opts, &plan, &mut |batch| on_batch(batch))
 }
@@ -111,6 +123,8 @@ struct ReadPlan {
     state_only: bool,
     /// Fixed time origin (default: the first batch's earliest sample).
     origin_ns: Option<u64>,
+    /// Only messages with log times in these ranges (inclusive ns, sorted, not overlapping).
+    ranges: Option<Vec<(u64, u64)>>,
 }
 
 impl ReadPlan {
@@ -119,6 +133,7 @@ impl ReadPlan {
             batch_samples: batch_samples.max(1),
             state_only: false,
             origin_ns: None,
+            ranges: None,
         }
     }
 }
@@ -383,7 +398,17 @@ fn read_batches(
     // An error of `on_batch` stops the read; it is returned as is, not as a read error.
     let mut sink_error: Option<anyhow::Error> = None;
     let mut count = 0u64;
+    session.set_time_ranges(plan.ranges.clone());
+    let wanted = |t: u64| {
+        plan.ranges.as_ref().is_none_or(|r| {
+            let i = r.partition_point(|x| x.1 < t);
+            r.get(i).is_some_and(|x| x.0 <= t)
+        })
+    };
     let read = session.read(Some(&topics), &mut |msg| {
+        if !wanted(msg.log_time_ns) {
+            return Ok(());
+        }
         count += 1;
         if count.is_multiple_of(4096)
             && let Some(pb) = &progress
