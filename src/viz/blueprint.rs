@@ -135,6 +135,10 @@ impl Eye {
     }
 }
 
+/// The range [min, max] of the values a view's entity queries (under its origin) take in, or
+/// `None` without data: what [`Node::fit`] fits each plot to.
+pub type RangeOf<'a> = dyn Fn(&[String], &str) -> Option<[f64; 2]> + 'a;
+
 impl Node {
     /// A view node.
     pub fn view(
@@ -168,7 +172,7 @@ impl Node {
     /// Sets every fitted plot's legend and y range from its data range: `range_of(queries,
     /// origin)` is the range [min, max] of the values the view's entity queries take in (`None`:
     /// no data). Plots without data keep what they have.
-    pub fn fit(&mut self, range_of: &dyn Fn(&[String], &str) -> Option<[f64; 2]>) {
+    pub fn fit(&mut self, range_of: &RangeOf<'_>) {
         match self {
             Node::Container { children, .. } => {
                 for c in children {
