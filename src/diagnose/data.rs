@@ -51,6 +51,16 @@ impl Rows {
     pub fn len(&self) -> usize {
         self.y.len()
     }
+
+    /// Give back the spare capacity of every column.
+    pub fn shrink_to_fit(&mut self) {
+        self.trial.shrink_to_fit();
+        self.t.shrink_to_fit();
+        self.phase.shrink_to_fit();
+        self.y.shrink_to_fit();
+        self.x.shrink_to_fit();
+        self.locate.shrink_to_fit();
+    }
 }
 
 /// Index range of state samples with time in [a, b).

@@ -61,7 +61,7 @@ use reduce::{InMemory, SessionInfo, Streamed, TrialSamples};
 use replay::{replay_data, show_found};
 use select::{PowerData, Rule};
 use select_discover::select_and_discover;
-use stages::{assemble, coarse_lags, filter_trials, lag_scan, scan_lags, trial_rows};
+use stages::{coarse_lags, filter_trials, lag_scan, scan_lags, trial_rows};
 use window::sensor_window;
 
 /// [`crate::signals::join_recordings`], plus where each part's file lies on the joined time line (for
@@ -222,7 +222,7 @@ fn run(
             opts.folds
         );
     }
-    let coarse = kept_rows(per_trial, &kept, lags.len());
+    let coarse = per_trial.keep(&kept);
     // The fine lags' rows and the torque rows (one more pass).
     let stride = torque::stride(&metas, opts.max_torque_samples);
     let mut torque_rows = Vec::new();
@@ -308,29 +308,4 @@ fn run(
     show_found(&mut diag, &fields, &data.rows[sel.last.lag], &metas);
     diag.summary = summary::summarise(&diag);
     Ok(diag)
-}
-
-/// The kept trials' rows at each of `n_lags` lags, assembled lag by lag (moved, not copied).
-fn kept_rows(per_trial: Vec<Vec<data::Rows>>, kept: &[usize], n_lags: usize) -> Vec<data::Rows> {
-    let mut by_trial: Vec<Option<std::vec::IntoIter<data::Rows>>> =
-        per_trial.into_iter().map(|t| Some(t.into_iter())).collect();
-    // Rejected trials' rows are dropped now.
-    for (i, t) in by_trial.iter_mut().enumerate() {
-        if kept.binary_search(&i).is_err() {
-            *t = None;
-        }
-    }
-    (0..n_lags)
-        .map(|l| {
-            assemble(
-                kept.iter().map(|&i| {
-                    by_trial[i]
-                        .as_mut()
-                        .and_then(Iterator::next)
-                        .unwrap_or_default()
-                }),
-                l == 0,
-            )
-        })
-        .collect()
 }

@@ -11,58 +11,122 @@ use super::reduce::TrialSamples;
 use super::select::PowerData;
 use super::{DiagnoseOptions, LagPoint};
 
-/// Rows of each of `metas`' trials (outer) at each of `lags` (inner), each trial's rows on its
-/// own (trial position 0; see [`assemble`]), with the descriptor features at lag 0: one pass
-/// over the trials' samples.
+/// Rows of every trial at each of a set of lags, stored lag by lag in one [`Rows`] per lag
+/// (trial = position in the trial list): no per-trial allocations, so memory is the rows
+/// themselves (at 10 h the coarse lags' rows are most of the diagnosis' memory).
+pub(crate) struct TrialRows {
+    /// One [`Rows`] per lag, the trials' rows appended in trial order.
+    pub(crate) by_lag: Vec<Rows>,
+    /// `spans[lag][trial]`: where each trial's rows lie in `by_lag[lag]`.
+    spans: Vec<Vec<std::ops::Range<usize>>>,
+}
+
+impl TrialRows {
+    /// The rows of the trials at positions `kept` (ascending) at `lag`, renumbered 0.., copied.
+    pub(crate) fn subset(&self, lag: usize, kept: &[usize]) -> Rows {
+        let from = &self.by_lag[lag];
+        let mut out = Rows::default();
+        for (k, &i) in kept.iter().enumerate() {
+            let s = self.spans[lag][i].clone();
+            out.trial.extend(std::iter::repeat_n(k, s.len()));
+            out.t.extend_from_slice(&from.t[s.clone()]);
+            out.phase.extend_from_slice(&from.phase[s.clone()]);
+            out.y.extend_from_slice(&from.y[s.clone()]);
+            out.x.extend_from_slice(&from.x[s.clone()]);
+            if !from.locate.is_empty() {
+                out.locate.extend_from_slice(&from.locate[s]);
+            }
+        }
+        out
+    }
+
+    /// Keep only the trials at positions `kept` (ascending), renumbered 0.., in place (no
+    /// second copy of the rows), and return the rows lag by lag.
+    pub(crate) fn keep(self, kept: &[usize]) -> Vec<Rows> {
+        let mut new_pos = vec![usize::MAX; self.spans.first().map_or(0, Vec::len)];
+        for (k, &i) in kept.iter().enumerate() {
+            if let Some(p) = new_pos.get_mut(i) {
+                *p = k;
+            }
+        }
+        self.by_lag
+            .into_iter()
+            .map(|mut r| {
+                let mut w = 0;
+                for i in 0..r.len() {
+                    let p = new_pos[r.trial[i]];
+                    if p == usize::MAX {
+                        continue;
+                    }
+                    r.trial[w] = p;
+                    r.t[w] = r.t[i];
+                    r.phase[w] = r.phase[i];
+                    r.y[w] = r.y[i];
+                    r.x[w] = r.x[i];
+                    if !r.locate.is_empty() {
+                        r.locate[w] = r.locate[i];
+                    }
+                    w += 1;
+                }
+                r.trial.truncate(w);
+                r.t.truncate(w);
+                r.phase.truncate(w);
+                r.y.truncate(w);
+                r.x.truncate(w);
+                if !r.locate.is_empty() {
+                    r.locate.truncate(w);
+                }
+                r.shrink_to_fit();
+                r
+            })
+            .collect()
+    }
+}
+
+/// Rows of each of `metas`' trials at each of `lags`, with the descriptor features at lag 0:
+/// one pass over the trials' samples.
 pub(crate) fn trial_rows(
     samples: &mut dyn TrialSamples,
     power: &PowerSeries,
     metas: &[TrialMeta],
     lags: &[f64],
     w: f64,
-) -> Result<Vec<Vec<Rows>>> {
+) -> Result<TrialRows> {
     let windows: Vec<TrialWindow> = metas.iter().map(|m| m.window.clone()).collect();
-    let mut out = Vec::with_capacity(metas.len());
+    let mut out = TrialRows {
+        by_lag: vec![Rows::default(); lags.len()],
+        spans: vec![Vec::with_capacity(metas.len()); lags.len()],
+    };
+    let mut ti = 0usize;
     samples.for_each(&windows, &mut |rec, _| {
-        let ti = out.len();
-        let meta = &metas[ti];
-        let one = std::slice::from_ref(meta);
-        out.push(
-            lags.iter()
-                .map(|&l| build_rows(rec, power, one, l, w, l == 0.0))
-                .collect(),
-        );
+        let one = std::slice::from_ref(&metas[ti]);
+        for (l, &lag) in lags.iter().enumerate() {
+            let part = build_rows(rec, power, one, lag, w, lag == 0.0);
+            let to = &mut out.by_lag[l];
+            let start = to.len();
+            to.trial.extend(std::iter::repeat_n(ti, part.len()));
+            to.t.extend(part.t);
+            to.phase.extend(part.phase);
+            to.y.extend(part.y);
+            to.x.extend(part.x);
+            to.locate.extend(part.locate);
+            out.spans[l].push(start..to.len());
+        }
+        ti += 1;
         Ok(())
     })?;
     Ok(out)
 }
 
-/// One trial list's rows from each trial's own rows, in order, each row's trial set to its
-/// trial's position (as [`build_rows`] over the whole list numbers them).
-pub(crate) fn assemble(parts: impl IntoIterator<Item = Rows>, with_locate: bool) -> Rows {
-    let mut out = Rows::default();
-    for (ti, p) in parts.into_iter().enumerate() {
-        out.trial.extend(std::iter::repeat_n(ti, p.len()));
-        out.t.extend(p.t);
-        out.phase.extend(p.phase);
-        out.y.extend(p.y);
-        out.x.extend(p.x);
-        if with_locate {
-            out.locate.extend(p.locate);
-        }
-    }
-    out
-}
-
 /// Stage: the trials usable for the diagnosis — trials without a pre-idle are unusable
 /// (`skipped`), then the identification's IMU filter, then n·σ passes on the per-trial mean
-/// residuals of the base model (hardware-event outliers) fitted on the rows at lag 0
-/// (`rows[trial][0]`, each trial's own rows at lag 0). Returns the kept trials, the rejections
-/// and the kept trials' positions in `metas`.
+/// residuals of the base model (hardware-event outliers) fitted on the rows at lag 0 (lag
+/// index 0 of `rows`). Returns the kept trials, the rejections and the kept trials' positions
+/// in `metas`.
 pub(crate) fn filter_trials(
     metas: &[TrialMeta],
     skipped: Vec<(usize, String)>,
-    rows: &[Vec<Rows>],
+    rows: &TrialRows,
     opts: &DiagnoseOptions,
     reference: Option<Vec<f64>>,
 ) -> Result<(Vec<TrialMeta>, Vec<Rejection>, Vec<usize>)> {
@@ -84,7 +148,8 @@ pub(crate) fn filter_trials(
         let kept: Vec<usize> = (0..metas.len())
             .filter(|&i| !crate::trial::is_rejected(rej, 0, metas[i].window.index))
             .collect();
-        let lag0 = assemble(kept.iter().map(|&i| rows[i][0].clone()), false);
+        let mut lag0 = rows.subset(0, &kept);
+        lag0.locate = Vec::new();
         let res = base_trial_residuals(&lag0, kept.len(), opts.folds, reference.clone())?;
         Ok::<_, anyhow::Error>(
             kept.iter()
@@ -191,28 +256,29 @@ pub(crate) fn scan_lags(
         }
     }
     // The fine lags' rows (built without descriptors), and whatever else needs the samples.
-    let mut per_trial = Vec::with_capacity(metas.len());
+    // Appended lag by lag as each trial is built (no per-trial allocations).
+    let mut fine_rows = vec![Rows::default(); fine.len()];
     let windows: Vec<TrialWindow> = metas.iter().map(|m| m.window.clone()).collect();
+    let mut ti = 0usize;
     samples.for_each(&windows, &mut |rec, _| {
-        let ti = per_trial.len();
         let one = std::slice::from_ref(&metas[ti]);
-        let rows: Vec<Rows> = fine
-            .iter()
-            .map(|&l| build_rows(rec, power, one, l, w, false))
-            .collect();
-        per_trial.push(rows);
+        for (to, &l) in fine_rows.iter_mut().zip(&fine) {
+            let part = build_rows(rec, power, one, l, w, false);
+            to.trial.extend(std::iter::repeat_n(ti, part.len()));
+            to.t.extend(part.t);
+            to.phase.extend(part.phase);
+            to.y.extend(part.y);
+            to.x.extend(part.x);
+        }
         extra(rec, ti, &metas[ti]);
+        ti += 1;
         Ok(())
     })?;
     if !fine.is_empty() {
-        let mut by_trial: Vec<std::vec::IntoIter<Rows>> =
-            per_trial.into_iter().map(Vec::into_iter).collect();
-        for &l in &fine {
+        for (&l, mut rows) in fine.iter().zip(fine_rows) {
+            rows.shrink_to_fit();
             lags.push(l);
-            all_rows.push(assemble(
-                by_trial.iter_mut().map(|t| t.next().unwrap_or_default()),
-                false,
-            ));
+            all_rows.push(rows);
         }
         let mut by_lag: Vec<(f64, Rows)> = lags.into_iter().zip(all_rows).collect();
         by_lag.sort_by(|a, b| a.0.total_cmp(&b.0));
