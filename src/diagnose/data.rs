@@ -30,6 +30,9 @@ pub(crate) struct TrialMeta {
     pub n_samples: usize,
 }
 
+/// Trials that cannot be used, each with its position and the reason (e.g. no pre-idle).
+pub(crate) type Skipped = Vec<(usize, String)>;
+
 /// Rows of one lag.
 #[derive(Debug, Clone, Default)]
 pub(crate) struct Rows {
@@ -103,7 +106,7 @@ pub(crate) fn trial_meta(
     rec: &Recording,
     windows: &[TrialWindow],
     bus: BusModel,
-) -> (Vec<TrialMeta>, Vec<(usize, String)>) {
+) -> (Vec<TrialMeta>, Skipped) {
     let t = &rec.state.t;
     let mut out = Vec::new();
     let mut skipped = Vec::new();

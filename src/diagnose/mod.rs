@@ -187,7 +187,7 @@ pub fn diagnose_trials(
 fn run(
     info: &SessionInfo,
     samples: &mut dyn TrialSamples,
-    (all_metas, skipped): (Vec<data::TrialMeta>, Vec<(usize, String)>),
+    (all_metas, skipped): (Vec<data::TrialMeta>, data::Skipped),
     arm: Option<&dyn ArmModel>,
     opts: &DiagnoseOptions,
 ) -> Result<Diagnosis> {

@@ -87,7 +87,7 @@ pub(crate) fn trial_metas(
     samples: &mut dyn TrialSamples,
     windows: &[TrialWindow],
     bus: BusModel,
-) -> Result<(Vec<TrialMeta>, Vec<(usize, String)>)> {
+) -> Result<(Vec<TrialMeta>, super::data::Skipped)> {
     let mut metas = Vec::new();
     let mut skipped = Vec::new();
     samples.for_each(windows, &mut |rec, w| {
