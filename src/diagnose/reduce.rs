@@ -12,7 +12,9 @@
 
 use anyhow::{Result, bail};
 
-use crate::identify::{SessionFile, StreamOptions, for_each_trial_and_batch, segment_file};
+use crate::identify::{
+    SessionFile, StreamOptions, for_each_trial_and_batch, for_each_trial_state, segment_file,
+};
 use crate::signals::{PowerSeries, Recording, StateSeries, Target};
 use crate::trial::{SegmentOptions, TrialWindow};
 
@@ -144,6 +146,8 @@ struct Part {
     first: usize,
     /// Shift of its times on the joined clock [s].
     offset_s: f64,
+    /// Its own clock's origin (the first pass's earliest message) [ns].
+    start_ns: u64,
 }
 
 /// Session files streamed trial by trial, joined end to end on one clock as
@@ -212,6 +216,7 @@ impl Streamed {
                 local: seg.trials,
                 first: out.windows.len(),
                 offset_s: 0.0,
+                start_ns: 0,
             };
             // The clock: a part starts `gap_s` after the previous part's last joint sample (set
             // at its first joint sample, before any trial is handed over).
@@ -261,6 +266,7 @@ impl Streamed {
             out.has_torque |= has_torque;
             let off = offset.get().unwrap_or(0.0);
             part.offset_s = off;
+            part.start_ns = start_ns;
             end = Some(last_t.unwrap_or(0.0) + off);
             if i == 0 {
                 out.info.start_ns = start_ns;
@@ -313,11 +319,12 @@ impl TrialSamples for Streamed {
                 .collect();
             let mut k = 0usize;
             let mut err = None;
-            for_each_trial_and_batch(
+            // Joint states only, and only inside the trials' windows.
+            for_each_trial_state(
                 &part.file,
+                part.start_ns,
                 &local,
                 BATCH_SAMPLES,
-                &mut |_| {},
                 &mut |buf, _| {
                     let g = mine[k];
                     k += 1;

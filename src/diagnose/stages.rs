@@ -27,7 +27,10 @@ impl TrialRows {
         let from = &self.by_lag[lag];
         let mut out = Rows::default();
         for (k, &i) in kept.iter().enumerate() {
-            let s = self.spans[lag][i].clone();
+            // A trial the samples never delivered (a read cut short) has no rows.
+            let Some(s) = self.spans[lag].get(i).cloned() else {
+                continue;
+            };
             out.trial.extend(std::iter::repeat_n(k, s.len()));
             out.t.extend_from_slice(&from.t[s.clone()]);
             out.phase.extend_from_slice(&from.phase[s.clone()]);

@@ -506,11 +506,36 @@ fn stream_trial_windows(
     buf: &mut Recording,
     on_trial: &mut dyn FnMut(&Recording, &TrialWindow),
 ) -> Result<()> {
+    let span = TrialSpan {
+        end: &|t| t.t_post_end,
+        all_columns: false,
+    };
+    stream_trial_spans(file, start_ns, trials, so.batch_samples, &span, buf, on_trial)
+}
+
+/// Which part of each trial a streamed trial walk reads, and which joint-state columns it keeps.
+struct TrialSpan<'a> {
+    /// End of a trial's window (before the margin).
+    end: &'a dyn Fn(&TrialWindow) -> f64,
+    /// Keep every column (q, temperatures, quaternion too), not only t, τ, q̇ and the gyro.
+    all_columns: bool,
+}
+
+/// [`stream_trial_windows`] with each trial's window ending at `end(trial)` (+ the margin).
+fn stream_trial_spans(
+    file: &SessionFile,
+    start_ns: u64,
+    trials: &[TrialWindow],
+    batch_samples: usize,
+    span: &TrialSpan<'_>,
+    buf: &mut Recording,
+    on_trial: &mut dyn FnMut(&Recording, &TrialWindow),
+) -> Result<()> {
     // Only the trials' windows are read (an indexed MCAP skips the chunks between them): the
     // windows ± the margin, merged where they touch.
     let mut windows: Vec<(f64, f64)> = trials
         .iter()
-        .map(|t| (t.t_pre_start - MARGIN_S, t.t_post_end + MARGIN_S))
+        .map(|t| (t.t_pre_start - MARGIN_S, (span.end)(t) + MARGIN_S))
         .collect();
     windows.sort_by(|x, y| x.0.total_cmp(&y.0));
     let mut ranges: Vec<(f64, f64)> = Vec::with_capacity(windows.len());
@@ -524,7 +549,7 @@ fn stream_trial_windows(
     let mut step = |buf: &mut Recording, done: bool| {
         let last_t = buf.state.t.last().copied().unwrap_or(f64::NEG_INFINITY);
         while let Some(t) = trials.get(next) {
-            if !done && last_t <= t.t_post_end + MARGIN_S {
+            if !done && last_t <= (span.end)(t) + MARGIN_S {
                 break;
             }
             on_trial(buf, t);
@@ -541,10 +566,10 @@ fn stream_trial_windows(
         &file.map,
         &file.read,
         start_ns,
-        so.batch_samples,
+        batch_samples,
         Some(&ranges),
         &mut |batch| {
-            append_state(&mut buf.state, &batch.state, false);
+            append_state(&mut buf.state, &batch.state, span.all_columns);
             sort_state(&mut buf.state);
             step(buf, false);
             Ok(())
@@ -552,6 +577,38 @@ fn stream_trial_windows(
     )?;
     step(buf, true);
     Ok(())
+}
+
+/// Stream only the joint states of `file` inside `trials`' whole windows (pre-idle start to the
+/// later of post-idle end and return end, ± half a second; an indexed MCAP skips the chunks
+/// between them) and call `on_trial` for each of `trials` (in time order) with a recording
+/// holding at least that window's joint states and nothing else. `start_ns` is the clock's
+/// origin: the [`crate::signals::StreamSummary::start_ns`] of the pass that found the trials.
+pub fn for_each_trial_state(
+    file: &SessionFile,
+    start_ns: u64,
+    trials: &[TrialWindow],
+    batch_samples: usize,
+    on_trial: &mut dyn FnMut(&Recording, &TrialWindow),
+) -> Result<()> {
+    let mut buf = Recording {
+        source: file.path.clone(),
+        start_ns,
+        joint_names: file.map.joint_names.clone(),
+        ..Recording::default()
+    };
+    stream_trial_spans(
+        file,
+        start_ns,
+        trials,
+        batch_samples,
+        &TrialSpan {
+            end: &|t| t.t_post_end.max(t.t_return_end),
+            all_columns: true,
+        },
+        &mut buf,
+        on_trial,
+    )
 }
 
 /// Stream every arm topic of `file` once and call `on_trial` for each of `trials` (in time
