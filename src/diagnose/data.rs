@@ -55,6 +55,35 @@ impl Rows {
         self.y.len()
     }
 
+    /// Keep, in place and in order, the rows for which `f(row, trial)` gives a trial index
+    /// (the row's new `trial`); the others are dropped.
+    pub fn retain(&mut self, mut f: impl FnMut(usize, usize) -> Option<usize>) {
+        let mut w = 0;
+        for i in 0..self.len() {
+            let Some(p) = f(i, self.trial[i]) else {
+                continue;
+            };
+            self.trial[w] = p;
+            self.t[w] = self.t[i];
+            self.phase[w] = self.phase[i];
+            self.y[w] = self.y[i];
+            self.x[w] = self.x[i];
+            if !self.locate.is_empty() {
+                self.locate[w] = self.locate[i];
+            }
+            w += 1;
+        }
+        self.trial.truncate(w);
+        self.t.truncate(w);
+        self.phase.truncate(w);
+        self.y.truncate(w);
+        self.x.truncate(w);
+        if !self.locate.is_empty() {
+            self.locate.truncate(w);
+        }
+        self.shrink_to_fit();
+    }
+
     /// Give back the spare capacity of every column.
     pub fn shrink_to_fit(&mut self) {
         self.trial.shrink_to_fit();

@@ -253,8 +253,8 @@ struct ExtFit {
 }
 
 /// The library model's design on each row (x_raw · M), fold Grams of it, and the data.
-struct Base<'a> {
-    data: &'a PowerData,
+struct Base<'a, 'd> {
+    data: &'a PowerData<'d>,
     cur: &'a State,
     rows: &'a Rows,
     xm: Vec<Vec<f64>>,
@@ -263,7 +263,7 @@ struct Base<'a> {
     p: usize,
 }
 
-impl<'a> Base<'a> {
+impl<'a, 'd> Base<'a, 'd> {
     /// `c` with its least-squares projection on the library design removed (full data).
     fn residualise(&self, c: &[f64]) -> Vec<f64> {
         let p = self.p;
@@ -290,8 +290,8 @@ impl<'a> Base<'a> {
             .collect()
     }
 
-    fn new(data: &'a PowerData, cur: &'a State) -> Base<'a> {
-        let rows = &data.rows[cur.lag];
+    fn new(data: &'a PowerData<'d>, cur: &'a State) -> Result<Base<'a, 'd>> {
+        let rows = data.rows(cur.lag)?;
         let m = design_map_for(&cur.spec, &cur.full.theta);
         let p = m.ncols();
         let xm: Vec<Vec<f64>> = rows
@@ -318,14 +318,14 @@ impl<'a> Base<'a> {
             *yy += y * y;
             *n += 1;
         }
-        Base {
+        Ok(Base {
             data,
             cur,
             rows,
             xm,
             fold,
             p,
-        }
+        })
     }
 
     /// Cross-validated and full fit of the library model plus `cols`.
@@ -834,8 +834,8 @@ struct Scored {
 
 /// Forward selection over the candidates at the Holm level; returns the accepted (step,
 /// score) pairs and the best rejected candidate of the first step.
-struct Search<'a> {
-    base: Base<'a>,
+struct Search<'a, 'd> {
+    base: Base<'a, 'd>,
     cands: Vec<Cand>,
     rv: RowValues,
     inp: &'a Inputs<'a>,
@@ -843,7 +843,7 @@ struct Search<'a> {
     m: usize,
 }
 
-impl Search<'_> {
+impl Search<'_, '_> {
     fn cols(&self, i: usize) -> Vec<Vec<f64>> {
         columns(&self.cands[i].kind, self.inp, &self.rv, self.base.rows)
     }
@@ -899,7 +899,7 @@ pub(crate) fn discover(
     rule: &Rule,
     joint_names: &[String],
 ) -> Result<DiscoveryReport> {
-    let base = Base::new(data, cur);
+    let base = Base::new(data, cur)?;
     let rows = base.rows;
     let twin = data.reference.is_some();
     let mut report = DiscoveryReport {
@@ -1132,9 +1132,9 @@ pub(crate) fn library_term_given_found(
     cols: &[Vec<f64>],
 ) -> Result<(f64, f64, f64)> {
     let refs: Vec<&Vec<f64>> = cols.iter().collect();
-    let full_base = Base::new(data, cur);
+    let full_base = Base::new(data, cur)?;
     let full = full_base.fit(&refs)?;
-    let wo = Base::new(data, without).fit(&refs)?;
+    let wo = Base::new(data, without)?.fit(&refs)?;
     let (p, rel, _, _) = full_base.compare(&wo.pred, &full.pred);
     Ok((p, rel, full.bic - wo.bic))
 }

@@ -59,9 +59,9 @@ use crate::signals::Recording;
 use outcome::{locate_residuals, rank_hypotheses, refit_final, rescale_bus};
 use reduce::{InMemory, SessionInfo, Streamed, TrialSamples};
 use replay::{replay_data, show_found};
-use select::{PowerData, Rule};
+use select::Rule;
 use select_discover::select_and_discover;
-use stages::{coarse_lags, filter_trials, lag_scan, scan_lags, trial_rows};
+use stages::{coarse_lags, filter_trials, lag_scan, remove_trials, scan_lags, trial_rows};
 use window::sensor_window;
 
 /// [`crate::signals::join_recordings`], plus where each part's file lies on the joined time line (for
@@ -207,12 +207,12 @@ fn run(
     };
     let opts = &resolved;
     let reference: Option<Vec<f64>> = opts.reference.map(|m| m.to_vector().to_vec());
-    // Rows of every trial at every coarse lag (one pass), then the usable trials.
+    // Rows of every trial at lag 0 and Gram matrices at every coarse lag (one pass), then the
+    // usable trials, and the others' rows taken out of the Gram matrices (one short pass).
     let lags = coarse_lags(opts);
-    let per_trial = trial_rows(samples, power, &all_metas, &lags, w)?;
+    let first = trial_rows(samples, power, &all_metas, &lags, w)?;
     let (metas, rejected, kept) =
-        filter_trials(&all_metas, skipped, &per_trial, opts, reference.clone())?;
-    drop(all_metas);
+        filter_trials(&all_metas, skipped, &first.rows0, opts, reference.clone())?;
     if metas.len() < 2 * opts.folds.max(2) {
         bail!(
             "{}: only {} usable trials (need at least {} for {}-fold cross-validation by trial)",
@@ -222,31 +222,37 @@ fn run(
             opts.folds
         );
     }
-    let coarse = per_trial.keep(&kept);
-    // The fine lags' rows and the torque rows (one more pass).
+    let gone: Vec<usize> = (0..all_metas.len())
+        .filter(|i| kept.binary_search(i).is_err())
+        .collect();
+    let mut totals = first.totals;
+    remove_trials(samples, power, &all_metas, &gone, &lags, w, &mut totals)?;
+    drop(all_metas);
+    let rows0 = first.rows0.keep(&kept);
+    // Every lag's Gram matrices, the fine lags and the torque rows (one more pass).
     let stride = torque::stride(&metas, opts.max_torque_samples);
     let mut torque_rows = Vec::new();
-    let scan = scan_lags(
+    let data = scan_lags(
         samples,
         power,
         &metas,
-        coarse,
+        rows0,
+        &totals,
         opts,
-        reference.clone(),
+        reference,
         &mut |rec, ti, meta| {
             if let Some(a) = arm {
                 torque::trial_rows(rec, ti, meta, a, stride, &mut torque_rows);
             }
         },
     )?;
-    if scan.rows[0].len() < 3 * (N_PARAMS + 10) / 2 {
+    if data.rows0().len() < 3 * (N_PARAMS + 10) / 2 {
         bail!(
             "{}: only {} power readings inside usable trials; too few to diagnose a {N_PARAMS}-parameter model",
             info.source.display(),
-            scan.rows[0].len()
+            data.rows0().len()
         );
     }
-    let data = PowerData::new(scan.lags, scan.rows, metas.len(), opts.folds, reference);
     let rule = Rule {
         alpha: opts.alpha,
         bic_threshold: opts.bic_threshold,
@@ -265,19 +271,19 @@ fn run(
         &sel,
         &ranking.accepted,
         torque.as_ref(),
-        &data.rows[0],
+        data.rows0(),
         metas.len(),
     );
     let located = locate_residuals(&info.joint_names, &metas, &data, &sel, discovery.as_ref());
     let lag_scan = lag_scan(&data)?;
-    let replay = replay_data(&metas, &data.rows[0], &sel, &located);
+    let replay = replay_data(&metas, data.rows0(), &sel, &located);
     let mut diag = Diagnosis {
         schema_version: SCHEMA_VERSION,
         source: info.source.display().to_string(),
         target: opts.target,
         joint_names: info.joint_names.clone(),
         n_trials: metas.len(),
-        n_readings: data.rows[0].len(),
+        n_readings: data.rows0().len(),
         rejected,
         torque: torque.map(|t| t.comparison),
         base_model: if data.reference.is_some() {
@@ -305,7 +311,7 @@ fn run(
     if let Some(v) = fields.table.bus_volts {
         rescale_bus(&mut diag, v);
     }
-    show_found(&mut diag, &fields, &data.rows[sel.last.lag], &metas);
+    show_found(&mut diag, &fields, data.rows0(), &metas);
     diag.summary = summary::summarise(&diag);
     Ok(diag)
 }

@@ -132,7 +132,7 @@ pub(crate) fn locate_residuals(
     discovery: Option<&DiscoveryReport>,
 ) -> Located {
     let last = &sel.last;
-    let rows0 = &data.rows[0];
+    let rows0 = data.rows0();
     let resid_base: Vec<f64> = rows0
         .y
         .iter()
@@ -144,7 +144,8 @@ pub(crate) fn locate_residuals(
         Some(r) if !r.accepted.is_empty() && r.pred.len() == last.cv.pred.len() => &r.pred,
         _ => &last.cv.pred,
     };
-    let resid_final: Vec<f64> = data.rows[last.lag]
+    // Every lag's rows are the same readings (same y).
+    let resid_final: Vec<f64> = rows0
         .y
         .iter()
         .zip(final_pred)

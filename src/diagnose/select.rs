@@ -48,19 +48,45 @@ pub(crate) struct FoldGrams {
 
 impl FoldGrams {
     pub fn new(rows: &Rows, folds: &Folds) -> FoldGrams {
-        let mut fold: Vec<Gram> = (0..folds.k).map(|_| Gram::zeros(N_RAW)).collect();
-        for r in 0..rows.len() {
-            fold[folds.of_trial[rows.trial[r]]].add_row(&rows.x[r], rows.y[r]);
-        }
-        let mut total = Gram::zeros(N_RAW);
-        for f in &fold {
-            total.add(f);
-        }
-        FoldGrams { total, fold }
+        let mut b = FoldGramsBuilder::new(folds.k);
+        b.add_rows(rows, folds);
+        b.finish()
     }
 
     fn train(&self, f: usize) -> Gram {
         self.total.minus(&self.fold[f])
+    }
+}
+
+/// [`FoldGrams`] accumulated from rows given piece by piece (a trial at a time): the same sums,
+/// in the same order, as [`FoldGrams::new`] on all the rows at once.
+pub(crate) struct FoldGramsBuilder {
+    fold: Vec<Gram>,
+}
+
+impl FoldGramsBuilder {
+    pub fn new(k: usize) -> FoldGramsBuilder {
+        FoldGramsBuilder {
+            fold: (0..k).map(|_| Gram::zeros(N_RAW)).collect(),
+        }
+    }
+
+    /// Add `rows` (their `trial` indexes `folds`).
+    pub fn add_rows(&mut self, rows: &Rows, folds: &Folds) {
+        for r in 0..rows.len() {
+            self.fold[folds.of_trial[rows.trial[r]]].add_row(&rows.x[r], rows.y[r]);
+        }
+    }
+
+    pub fn finish(self) -> FoldGrams {
+        let mut total = Gram::zeros(N_RAW);
+        for f in &self.fold {
+            total.add(f);
+        }
+        FoldGrams {
+            total,
+            fold: self.fold,
+        }
     }
 }
 
@@ -401,27 +427,64 @@ impl Rule {
     }
 }
 
-/// Power-level data: rows and Gram matrices at each scanned sensor lag (index 0 = no lag), and
+/// Builds the rows at the given lag indices on demand (one more pass over the trials' samples).
+pub(crate) type LagRowSource<'a> = Box<dyn FnMut(&[usize]) -> Result<Vec<Rows>> + 'a>;
+
+/// Seed of the cross-validation folds: every stage uses the same assignment of trials to folds.
+pub(crate) const FOLD_SEED: u64 = 0x67_3176_697a;
+
+/// Power-level data: Gram matrices at each scanned sensor lag (index 0 = no lag), the rows at
+/// lag 0, the rows at other lags as far as they are needed (built on first use when a
+/// [`LagRowSource`] is given: a long session's rows at every lag would not fit in memory), and
 /// the reference θ when the base model is held at the twin's model instead of refitted.
-pub(crate) struct PowerData {
+///
+/// Every lag's rows are the same readings (same `t`, `y`, `trial`, `phase`); only `x` differs.
+pub(crate) struct PowerData<'a> {
     pub lags: Vec<f64>,
-    pub rows: Vec<Rows>,
+    rows: Vec<std::cell::OnceCell<Rows>>,
     pub grams: Vec<FoldGrams>,
     pub folds: Folds,
     pub n_trials: usize,
     pub reference: Option<Vec<f64>>,
+    source: Option<std::cell::RefCell<LagRowSource<'a>>>,
 }
 
-impl PowerData {
+impl<'a> PowerData<'a> {
+    /// From the rows at every lag.
     pub fn new(
         lags: Vec<f64>,
         rows: Vec<Rows>,
         n_trials: usize,
         k: usize,
         reference: Option<Vec<f64>>,
-    ) -> PowerData {
-        let folds = Folds::new(n_trials, k, 0x67_3176_697a);
+    ) -> PowerData<'a> {
+        let folds = Folds::new(n_trials, k, FOLD_SEED);
         let grams = rows.iter().map(|r| FoldGrams::new(r, &folds)).collect();
+        PowerData {
+            lags,
+            rows: rows.into_iter().map(std::cell::OnceCell::from).collect(),
+            grams,
+            folds,
+            n_trials,
+            reference,
+            source: None,
+        }
+    }
+
+    /// From the Gram matrices at every lag, the rows at lag 0 and a source of the other lags'
+    /// rows (`grams` built with `folds`).
+    pub fn with_source(
+        lags: Vec<f64>,
+        rows0: Rows,
+        grams: Vec<FoldGrams>,
+        folds: Folds,
+        reference: Option<Vec<f64>>,
+        source: LagRowSource<'a>,
+    ) -> PowerData<'a> {
+        let n_trials = folds.of_trial.len();
+        let rows: Vec<std::cell::OnceCell<Rows>> =
+            (0..lags.len()).map(|_| std::cell::OnceCell::new()).collect();
+        let _ = rows[0].set(rows0);
         PowerData {
             lags,
             rows,
@@ -429,7 +492,45 @@ impl PowerData {
             folds,
             n_trials,
             reference,
+            source: Some(std::cell::RefCell::new(source)),
         }
+    }
+
+    /// The rows at lag 0 (always held).
+    pub fn rows0(&self) -> &Rows {
+        self.rows[0].get().expect("lag 0 rows are always held")
+    }
+
+    /// The rows at lag index `lag`, built on first use.
+    pub fn rows(&self, lag: usize) -> Result<&Rows> {
+        if self.rows[lag].get().is_none() {
+            self.load(&[lag])?;
+        }
+        self.rows[lag]
+            .get()
+            .ok_or_else(|| anyhow::anyhow!("no power rows at the sensor lag {} s", self.lags[lag]))
+    }
+
+    /// Build the rows of those of `lags` (indices) not held yet, in one pass.
+    pub fn load(&self, lags: &[usize]) -> Result<()> {
+        let mut missing: Vec<usize> = lags
+            .iter()
+            .copied()
+            .filter(|&l| self.rows[l].get().is_none())
+            .collect();
+        missing.sort_unstable();
+        missing.dedup();
+        if missing.is_empty() {
+            return Ok(());
+        }
+        let Some(src) = &self.source else {
+            anyhow::bail!("power rows at lag indices {missing:?} are not held");
+        };
+        let built = (src.borrow_mut())(&missing)?;
+        for (l, r) in missing.into_iter().zip(built) {
+            let _ = self.rows[l].set(r);
+        }
+        Ok(())
     }
 
     fn reference(&self) -> Option<&[f64]> {
@@ -464,7 +565,7 @@ pub(crate) struct State {
 pub(crate) fn state(data: &PowerData, spec: Spec, lag: usize) -> Result<State> {
     let cv = cross_validate(
         &spec,
-        &data.rows[lag],
+        data.rows(lag)?,
         &data.folds,
         &data.grams[lag],
         data.reference(),
@@ -518,21 +619,16 @@ fn compare(
     data: &PowerData,
     cur: &State,
     next_pred: &[f64],
-    next_lag: usize,
 ) -> (f64, f64, f64, f64, f64, f64) {
-    let y = &data.rows[cur.lag].y;
-    let trial = &data.rows[cur.lag].trial;
+    // Every lag's rows are the same readings: y and trial are the lag-0 rows'.
+    let y = &data.rows0().y;
+    let trial = &data.rows0().trial;
     let before = trial_sse(y, &cur.cv.pred, trial, data.n_trials);
-    let after = trial_sse(
-        &data.rows[next_lag].y,
-        next_pred,
-        &data.rows[next_lag].trial,
-        data.n_trials,
-    );
+    let after = trial_sse(y, next_pred, trial, data.n_trials);
     let d: Vec<f64> = before.iter().zip(&after).map(|(a, b)| a - b).collect();
     let p = improvement_p_value(&d);
     let (r2b, rmseb) = r2_rmse(y, &cur.cv.pred);
-    let (r2a, rmsea) = r2_rmse(&data.rows[next_lag].y, next_pred);
+    let (r2a, rmsea) = r2_rmse(y, next_pred);
     (p, r2b, r2a, rmseb, rmsea, 1.0 - rmsea / rmseb.max(1e-300))
 }
 
@@ -554,7 +650,7 @@ fn score_term(
         .map(|t| (h.to_physical)(t[j]))
         .collect();
     let (p_value, r2_before, r2_after, rmse_before, rmse_after, rel) =
-        compare(data, cur, &next.cv.pred, cur.lag);
+        compare(data, cur, &next.cv.pred);
     let score = HypothesisScore {
         id: h.id.into(),
         title: h.title.into(),
@@ -594,7 +690,7 @@ fn score_latency(data: &PowerData, cur: &State, step: usize) -> Result<Candidate
         }
         fold_fits.push(per);
     }
-    let mut pred = vec![0.0; data.rows[0].len()];
+    let mut pred = vec![0.0; data.rows0().len()];
     let mut fold_lag = Vec::with_capacity(data.folds.k);
     let mut chosen = vec![0usize; data.folds.k];
     for f in 0..data.folds.k {
@@ -605,15 +701,6 @@ fn score_latency(data: &PowerData, cur: &State, step: usize) -> Result<Candidate
         chosen[f] = best;
         fold_lag.push(refined);
     }
-    for (r, p) in pred.iter_mut().enumerate() {
-        let f = data.folds.of_trial[data.rows[0].trial[r]];
-        let l = chosen[f];
-        *p = data.rows[l].x[r]
-            .iter()
-            .zip(fold_fits[l][f].beta.iter())
-            .map(|(a, b)| a * b)
-            .sum();
-    }
     let full_sse: Vec<f64> = (0..nl)
         .map(|l| {
             data.fit_all(&cur.spec, l)
@@ -621,9 +708,22 @@ fn score_latency(data: &PowerData, cur: &State, step: usize) -> Result<Candidate
         })
         .collect::<Result<_>>()?;
     let (best, lag) = refine_lag(&data.lags, &full_sse);
+    // The chosen lags' rows in one pass (when they are built on demand).
+    let mut needed = chosen.clone();
+    needed.push(best);
+    data.load(&needed)?;
+    for (r, p) in pred.iter_mut().enumerate() {
+        let f = data.folds.of_trial[data.rows0().trial[r]];
+        let l = chosen[f];
+        *p = data.rows(l)?.x[r]
+            .iter()
+            .zip(fold_fits[l][f].beta.iter())
+            .map(|(a, b)| a * b)
+            .sum();
+    }
     let next = state(data, cur.spec.clone(), best)?;
     // Rows are the same readings at every lag, so per-trial errors compare directly.
-    let (p_value, r2_before, r2_after, rmse_before, rmse_after, rel) = compare(data, cur, &pred, 0);
+    let (p_value, r2_before, r2_after, rmse_before, rmse_after, rel) = compare(data, cur, &pred);
     let score = HypothesisScore {
         id: LATENCY_ID.into(),
         title: "power-sensor latency (reading averages an earlier window)".into(),
@@ -764,15 +864,11 @@ fn compare_forms(
         }
         // `scored` is sorted best first.
         let ((wi, w), (ri, r)) = (forms[0], forms[1]);
-        let y = &data.rows[w.next.lag].y;
-        let trial = &data.rows[w.next.lag].trial;
+        // Every lag's rows are the same readings: y and trial are the lag-0 rows'.
+        let y = &data.rows0().y;
+        let trial = &data.rows0().trial;
         let ew = trial_sse(y, &w.next.cv.pred, trial, data.n_trials);
-        let er = trial_sse(
-            &data.rows[r.next.lag].y,
-            &r.next.cv.pred,
-            &data.rows[r.next.lag].trial,
-            data.n_trials,
-        );
+        let er = trial_sse(y, &r.next.cv.pred, trial, data.n_trials);
         let d: Vec<f64> = er.iter().zip(&ew).map(|(a, b)| a - b).collect();
         let p_value = improvement_p_value(&d);
         decided.push(MechanismForms {
@@ -928,7 +1024,7 @@ fn backward(
             spec.remove(j);
             let without = state(data, spec, cur.lag)?;
             // Score the full model against the one without term j.
-            let (p, _, _, _, _, rel) = compare(data, &without, &cur.cv.pred, cur.lag);
+            let (p, _, _, _, _, rel) = compare(data, &without, &cur.cv.pred);
             let d_bic = cur.bic - without.bic;
             let ok = p < rule.alpha && d_bic < rule.bic_threshold && rel >= rule.min_improvement;
             if !ok && worst.as_ref().is_none_or(|w| p > w.2) {
@@ -939,7 +1035,7 @@ fn backward(
             break;
         };
         let h = cur.spec[j];
-        let rows = &data.rows[cur.lag];
+        let rows = data.rows(cur.lag)?;
         let col = |g: &Hypothesis| -> Vec<f64> {
             rows.x
                 .iter()

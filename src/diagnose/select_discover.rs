@@ -42,7 +42,7 @@ pub(crate) fn select_and_discover(
             other => {
                 // The fields of another lag are dropped before the new ones are read.
                 drop(other);
-                run_fields(info, metas, &data.rows[lag], data.lags[lag], opts)
+                run_fields(info, metas, data.rows0(), data.lags[lag], opts)
             }
         };
         if !opts.discover {
@@ -90,7 +90,7 @@ pub(crate) fn library_given_found(
         return Ok(out);
     }
     let found: Vec<&str> = report.accepted.iter().map(|t| t.name.as_str()).collect();
-    let rows = &data.rows[cur.lag];
+    let rows = data.rows(cur.lag)?;
     for (j, h) in cur.spec.iter().enumerate() {
         let mut spec = cur.spec.clone();
         spec.remove(j);

@@ -1,34 +1,36 @@
 //! The data stages of [`super::diagnose_trials`]: the usable trials (IMU and n·σ filters) and
 //! the power rows at every scanned sensor lag, and the lag scan the report plots.
 
+use std::collections::HashSet;
+
 use anyhow::Result;
 
 use crate::signals::{PowerSeries, Recording};
+use crate::lsq::Gram;
 use crate::trial::{Cascade, Rejection, TrialStat, TrialWindow};
 
 use super::data::{Rows, TrialMeta, build_rows};
+use super::hypotheses::N_RAW;
 use super::reduce::TrialSamples;
-use super::select::PowerData;
+use super::select::{FOLD_SEED, Folds, FoldGramsBuilder, PowerData, fit};
 use super::{DiagnoseOptions, LagPoint};
 
-/// Rows of every trial at each of a set of lags, stored lag by lag in one [`Rows`] per lag
-/// (trial = position in the trial list): no per-trial allocations, so memory is the rows
-/// themselves (at 10 h the coarse lags' rows are most of the diagnosis' memory).
+/// The rows of every trial at lag 0 (trial = position in the trial list), appended in trial
+/// order, and where each trial's rows lie.
 pub(crate) struct TrialRows {
-    /// One [`Rows`] per lag, the trials' rows appended in trial order.
-    pub(crate) by_lag: Vec<Rows>,
-    /// `spans[lag][trial]`: where each trial's rows lie in `by_lag[lag]`.
-    spans: Vec<Vec<std::ops::Range<usize>>>,
+    rows: Rows,
+    /// `spans[trial]`: where each trial's rows lie in `rows`.
+    spans: Vec<std::ops::Range<usize>>,
 }
 
 impl TrialRows {
-    /// The rows of the trials at positions `kept` (ascending) at `lag`, renumbered 0.., copied.
-    pub(crate) fn subset(&self, lag: usize, kept: &[usize]) -> Rows {
-        let from = &self.by_lag[lag];
+    /// The rows of the trials at positions `kept` (ascending), renumbered 0.., copied.
+    pub(crate) fn subset(&self, kept: &[usize]) -> Rows {
+        let from = &self.rows;
         let mut out = Rows::default();
         for (k, &i) in kept.iter().enumerate() {
             // A trial the samples never delivered (a read cut short) has no rows.
-            let Some(s) = self.spans[lag].get(i).cloned() else {
+            let Some(s) = self.spans.get(i).cloned() else {
                 continue;
             };
             out.trial.extend(std::iter::repeat_n(k, s.len()));
@@ -44,81 +46,103 @@ impl TrialRows {
     }
 
     /// Keep only the trials at positions `kept` (ascending), renumbered 0.., in place (no
-    /// second copy of the rows), and return the rows lag by lag.
-    pub(crate) fn keep(self, kept: &[usize]) -> Vec<Rows> {
-        let mut new_pos = vec![usize::MAX; self.spans.first().map_or(0, Vec::len)];
+    /// second copy of the rows).
+    pub(crate) fn keep(self, kept: &[usize]) -> Rows {
+        let mut new_pos = vec![usize::MAX; self.spans.len()];
         for (k, &i) in kept.iter().enumerate() {
             if let Some(p) = new_pos.get_mut(i) {
                 *p = k;
             }
         }
-        self.by_lag
-            .into_iter()
-            .map(|mut r| {
-                let mut w = 0;
-                for i in 0..r.len() {
-                    let p = new_pos[r.trial[i]];
-                    if p == usize::MAX {
-                        continue;
-                    }
-                    r.trial[w] = p;
-                    r.t[w] = r.t[i];
-                    r.phase[w] = r.phase[i];
-                    r.y[w] = r.y[i];
-                    r.x[w] = r.x[i];
-                    if !r.locate.is_empty() {
-                        r.locate[w] = r.locate[i];
-                    }
-                    w += 1;
-                }
-                r.trial.truncate(w);
-                r.t.truncate(w);
-                r.phase.truncate(w);
-                r.y.truncate(w);
-                r.x.truncate(w);
-                if !r.locate.is_empty() {
-                    r.locate.truncate(w);
-                }
-                r.shrink_to_fit();
-                r
-            })
-            .collect()
+        let mut r = self.rows;
+        r.retain(|_, trial| {
+            let p = new_pos[trial];
+            (p != usize::MAX).then_some(p)
+        });
+        r
     }
 }
 
-/// Rows of each of `metas`' trials at each of `lags`, with the descriptor features at lag 0:
-/// one pass over the trials' samples.
+/// Every trial's rows at lag 0 (with the descriptor features) and, for each coarse lag, the
+/// Gram matrix of every trial's rows there (the rows themselves are not kept: at 10 h the rows
+/// of all lags were most of the diagnosis' memory).
+pub(crate) struct FirstPass {
+    pub(crate) rows0: TrialRows,
+    pub(crate) totals: Vec<Gram>,
+}
+
+/// One pass over `metas`' trials: [`FirstPass`] at `lags` (`lags[0]` = 0).
 pub(crate) fn trial_rows(
     samples: &mut dyn TrialSamples,
     power: &PowerSeries,
     metas: &[TrialMeta],
     lags: &[f64],
     w: f64,
-) -> Result<TrialRows> {
+) -> Result<FirstPass> {
     let windows: Vec<TrialWindow> = metas.iter().map(|m| m.window.clone()).collect();
-    let mut out = TrialRows {
-        by_lag: vec![Rows::default(); lags.len()],
-        spans: vec![Vec::with_capacity(metas.len()); lags.len()],
-    };
+    let mut rows = Rows::default();
+    let mut spans = Vec::with_capacity(metas.len());
+    let mut totals: Vec<Gram> = lags.iter().map(|_| Gram::zeros(N_RAW)).collect();
     let mut ti = 0usize;
     samples.for_each(&windows, &mut |rec, _| {
         let one = std::slice::from_ref(&metas[ti]);
         for (l, &lag) in lags.iter().enumerate() {
-            let part = build_rows(rec, power, one, lag, w, lag == 0.0);
-            let to = &mut out.by_lag[l];
-            let start = to.len();
-            to.trial.extend(std::iter::repeat_n(ti, part.len()));
-            to.t.extend(part.t);
-            to.phase.extend(part.phase);
-            to.y.extend(part.y);
-            to.x.extend(part.x);
-            to.locate.extend(part.locate);
-            out.spans[l].push(start..to.len());
+            let part = build_rows(rec, power, one, lag, w, l == 0);
+            for (x, y) in part.x.iter().zip(&part.y) {
+                totals[l].add_row(x, *y);
+            }
+            if l == 0 {
+                let start = rows.len();
+                rows.trial.extend(std::iter::repeat_n(ti, part.len()));
+                rows.t.extend(part.t);
+                rows.phase.extend(part.phase);
+                rows.y.extend(part.y);
+                rows.x.extend(part.x);
+                rows.locate.extend(part.locate);
+                spans.push(start..rows.len());
+            }
         }
         ti += 1;
         Ok(())
     })?;
-    Ok(out)
+    Ok(FirstPass {
+        rows0: TrialRows { rows, spans },
+        totals,
+    })
+}
+
+/// Remove from `totals` (Gram matrices at `lags` of every trial of `metas`) the rows of the
+/// trials at positions `gone`: one pass over those trials only.
+pub(crate) fn remove_trials(
+    samples: &mut dyn TrialSamples,
+    power: &PowerSeries,
+    metas: &[TrialMeta],
+    gone: &[usize],
+    lags: &[f64],
+    w: f64,
+    totals: &mut [Gram],
+) -> Result<()> {
+    if gone.is_empty() {
+        return Ok(());
+    }
+    let windows: Vec<TrialWindow> = gone.iter().map(|&i| metas[i].window.clone()).collect();
+    let mut removed: Vec<Gram> = lags.iter().map(|_| Gram::zeros(N_RAW)).collect();
+    let mut k = 0usize;
+    samples.for_each(&windows, &mut |rec, _| {
+        let one = std::slice::from_ref(&metas[gone[k]]);
+        for (l, &lag) in lags.iter().enumerate() {
+            let part = build_rows(rec, power, one, lag, w, false);
+            for (x, y) in part.x.iter().zip(&part.y) {
+                removed[l].add_row(x, *y);
+            }
+        }
+        k += 1;
+        Ok(())
+    })?;
+    for (t, r) in totals.iter_mut().zip(&removed) {
+        *t = t.minus(r);
+    }
+    Ok(())
 }
 
 /// Stage: the trials usable for the diagnosis — trials without a pre-idle are unusable
@@ -151,7 +175,7 @@ pub(crate) fn filter_trials(
         let kept: Vec<usize> = (0..metas.len())
             .filter(|&i| !crate::trial::is_rejected(rej, 0, metas[i].window.index))
             .collect();
-        let mut lag0 = rows.subset(0, &kept);
+        let mut lag0 = rows.subset(&kept);
         lag0.locate = Vec::new();
         let res = base_trial_residuals(&lag0, kept.len(), opts.folds, reference.clone())?;
         Ok::<_, anyhow::Error>(
@@ -193,13 +217,6 @@ pub(crate) fn base_trial_residuals(
         .collect())
 }
 
-/// Power rows of the usable trials at every scanned sensor lag (ascending; index 0 = no lag),
-/// restricted to the readings present at all lags (same readings everywhere).
-pub(crate) struct LagRows {
-    pub(crate) lags: Vec<f64>,
-    pub(crate) rows: Vec<Rows>,
-}
-
 /// Coarse lags of the scan: 0 and 0.05 s steps up to [`DiagnoseOptions::max_lag_s`].
 pub(crate) fn coarse_lags(opts: &DiagnoseOptions) -> Vec<f64> {
     let mut lags = vec![0.0];
@@ -210,88 +227,123 @@ pub(crate) fn coarse_lags(opts: &DiagnoseOptions) -> Vec<f64> {
     lags
 }
 
-/// Stage: rows at every coarse lag ([`coarse_lags`], `coarse`: the kept trials' rows there), then
-/// a fine scan (0.01 s) around the base model's best coarse lag, built in one more pass over the
-/// trials' samples that also shows each trial to `extra` (the torque rows).
-pub(crate) fn scan_lags(
-    samples: &mut dyn TrialSamples,
-    power: &PowerSeries,
-    metas: &[TrialMeta],
-    coarse: Vec<Rows>,
+/// Append `part` (one trial's rows) to `to`, keeping only the readings in `common` and
+/// numbering them as trial `ti`.
+fn append_common(to: &mut Rows, mut part: Rows, common: &HashSet<u64>, ti: usize) {
+    let keep: Vec<bool> = part
+        .t
+        .iter()
+        .map(|t| common.contains(&t.to_bits()))
+        .collect();
+    part.retain(|r, _| keep[r].then_some(ti));
+    to.trial.extend(part.trial);
+    to.t.extend(part.t);
+    to.phase.extend(part.phase);
+    to.y.extend(part.y);
+    to.x.extend(part.x);
+}
+
+/// Stage: the power data of the usable trials `metas` at every scanned sensor lag.
+///
+/// `totals` (the Gram matrices of their rows at the [`coarse_lags`]) give the base model's best
+/// coarse lag, and a fine scan (0.01 s) is added around it. One pass over the trials' samples
+/// then builds each trial's rows at every lag, keeps the readings present at all lags (a gap
+/// can drop a window at one lag), adds them to each lag's fold Gram matrices and shows the
+/// trial to `extra` (the torque rows). Only the rows at lag 0 (`rows0`, with the descriptor
+/// features) are kept; another lag's rows are built again, in one more pass, when a stage
+/// needs them (on a 10 h session the rows of all ~29 lags took ~500 MB).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn scan_lags<'a>(
+    samples: &'a mut dyn TrialSamples,
+    power: &'a PowerSeries,
+    metas: &'a [TrialMeta],
+    mut rows0: Rows,
+    totals: &[Gram],
     opts: &DiagnoseOptions,
     reference: Option<Vec<f64>>,
     extra: &mut dyn FnMut(&Recording, usize, &TrialMeta),
-) -> Result<LagRows> {
+) -> Result<PowerData<'a>> {
     // Resolved by `diagnose_trials` before the stages run.
     let w = opts
         .sensor_window_s
         .unwrap_or(crate::timing::Alignment::NOMINAL.window_s);
     let mut lags = coarse_lags(opts);
-    let mut all_rows = coarse;
-    // Fine scan (0.01 s) around the base model's best coarse lag.
-    let mut fine = Vec::new();
     if lags.len() >= 3 {
-        // The rows move into the scan and back out of it: at paper scale one copy of all lags'
-        // rows is ~100 MB.
-        let data = PowerData::new(
-            lags.clone(),
-            std::mem::take(&mut all_rows),
-            metas.len(),
-            opts.folds,
-            reference,
-        );
-        let sse: Vec<f64> = (0..lags.len())
-            .map(|l| {
-                data.fit_all(&[], l)
-                    .map(|f| data.grams[l].total.sse(&f.beta))
-            })
+        let sse: Vec<f64> = totals
+            .iter()
+            .map(|g| fit(&[], g, reference.as_deref()).map(|f| g.sse(&f.beta)))
             .collect::<Result<_>>()?;
-        let best = (0..lags.len())
+        let best = (0..sse.len())
             .min_by(|&a, &b| sse[a].total_cmp(&sse[b]))
             .unwrap_or(0);
-        all_rows = data.rows;
         let centre = lags[best];
+        let mut fine = Vec::new();
         for k in -4i32..=4 {
             let l = centre + 0.01 * k as f64;
             if l > 0.0 && l <= opts.max_lag_s && lags.iter().all(|x| (x - l).abs() > 1e-6) {
                 fine.push(l);
             }
         }
+        lags.extend(fine);
+        lags.sort_by(f64::total_cmp);
     }
-    // The fine lags' rows (built without descriptors), and whatever else needs the samples.
-    // Appended lag by lag as each trial is built (no per-trial allocations).
-    let mut fine_rows = vec![Rows::default(); fine.len()];
+    let folds = Folds::new(metas.len(), opts.folds, FOLD_SEED);
+    let mut grams: Vec<FoldGramsBuilder> = lags
+        .iter()
+        .map(|_| FoldGramsBuilder::new(folds.k))
+        .collect();
+    let mut common: HashSet<u64> = HashSet::new();
     let windows: Vec<TrialWindow> = metas.iter().map(|m| m.window.clone()).collect();
     let mut ti = 0usize;
     samples.for_each(&windows, &mut |rec, _| {
         let one = std::slice::from_ref(&metas[ti]);
-        for (to, &l) in fine_rows.iter_mut().zip(&fine) {
-            let part = build_rows(rec, power, one, l, w, false);
-            to.trial.extend(std::iter::repeat_n(ti, part.len()));
-            to.t.extend(part.t);
-            to.phase.extend(part.phase);
-            to.y.extend(part.y);
-            to.x.extend(part.x);
+        let parts: Vec<Rows> = lags
+            .iter()
+            .map(|&l| build_rows(rec, power, one, l, w, false))
+            .collect();
+        // The readings present at every lag (a handful per trial).
+        let here: HashSet<u64> = parts[0]
+            .t
+            .iter()
+            .map(|t| t.to_bits())
+            .filter(|b| parts[1..].iter().all(|p| p.t.iter().any(|u| u.to_bits() == *b)))
+            .collect();
+        for (g, part) in grams.iter_mut().zip(parts) {
+            let mut rows = Rows::default();
+            append_common(&mut rows, part, &here, ti);
+            g.add_rows(&rows, &folds);
         }
+        common.extend(here);
         extra(rec, ti, &metas[ti]);
         ti += 1;
         Ok(())
     })?;
-    if !fine.is_empty() {
-        for (&l, mut rows) in fine.iter().zip(fine_rows) {
-            rows.shrink_to_fit();
-            lags.push(l);
-            all_rows.push(rows);
-        }
-        let mut by_lag: Vec<(f64, Rows)> = lags.into_iter().zip(all_rows).collect();
-        by_lag.sort_by(|a, b| a.0.total_cmp(&b.0));
-        (lags, all_rows) = by_lag.into_iter().unzip();
-    }
-    common_readings(&mut all_rows);
-    Ok(LagRows {
-        lags,
-        rows: all_rows,
-    })
+    let keep: Vec<bool> = rows0
+        .t
+        .iter()
+        .map(|t| common.contains(&t.to_bits()))
+        .collect();
+    rows0.retain(|r, trial| keep[r].then_some(trial));
+    let grams = grams.into_iter().map(FoldGramsBuilder::finish).collect();
+    let at = lags.clone();
+    let source = Box::new(move |want: &[usize]| -> Result<Vec<Rows>> {
+        let mut out = vec![Rows::default(); want.len()];
+        let mut ti = 0usize;
+        samples.for_each(&windows, &mut |rec, _| {
+            let one = std::slice::from_ref(&metas[ti]);
+            for (to, &l) in out.iter_mut().zip(want) {
+                let part = build_rows(rec, power, one, at[l], w, false);
+                append_common(to, part, &common, ti);
+            }
+            ti += 1;
+            Ok(())
+        })?;
+        out.iter_mut().for_each(Rows::shrink_to_fit);
+        Ok(out)
+    });
+    Ok(PowerData::with_source(
+        lags, rows0, grams, folds, reference, source,
+    ))
 }
 
 /// Stage: the base model's in-sample RMSE refitted at every scanned lag.
@@ -307,41 +359,3 @@ pub(crate) fn lag_scan(data: &PowerData) -> Result<Vec<LagPoint>> {
         .collect()
 }
 
-/// Keep, at every lag, only the readings present at all lags (a gap can drop a window at one lag).
-pub(crate) fn common_readings(all: &mut [Rows]) {
-    use std::collections::HashMap;
-    let mut count: HashMap<u64, usize> = HashMap::new();
-    for rows in all.iter() {
-        for t in &rows.t {
-            *count.entry(t.to_bits()).or_default() += 1;
-        }
-    }
-    let n = all.len();
-    for rows in all.iter_mut() {
-        let keep: Vec<bool> = rows
-            .t
-            .iter()
-            .map(|t| count.get(&t.to_bits()) == Some(&n))
-            .collect();
-        if keep.iter().all(|k| *k) {
-            continue;
-        }
-        let mut i = 0;
-        let mut filt = Rows::default();
-        for (r, k) in keep.iter().enumerate() {
-            if *k {
-                filt.trial.push(rows.trial[r]);
-                filt.t.push(rows.t[r]);
-                filt.phase.push(rows.phase[r]);
-                filt.y.push(rows.y[r]);
-                filt.x.push(rows.x[r]);
-                if let Some(l) = rows.locate.get(r) {
-                    filt.locate.push(*l);
-                }
-                i += 1;
-            }
-        }
-        debug_assert_eq!(i, filt.len());
-        *rows = filt;
-    }
-}
