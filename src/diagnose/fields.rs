@@ -263,8 +263,16 @@ struct TopicAcc {
     extractor: Option<FieldExtractor>,
     /// Per field, per window: the sum of the values inside the window while it is open, its
     /// value once closed (the mean, or the held value when it got none; NaN before any message).
-    vals: Vec<Vec<f64>>,
+    /// `None` while every message so far carried the field's first value: most fields of a
+    /// robot's state never change (unused motors, reserved words), and a window vector for
+    /// each of them was most of a long diagnosis' memory. The vector is built, exactly as it
+    /// would have been accumulated, when the value first changes ([`TopicAcc::dense`]).
+    vals: Vec<Option<Vec<f64>>>,
     count: Vec<u32>,
+    /// Each field's value in the topic's first message.
+    first: Vec<f64>,
+    /// The window cursor after the first message closed the windows before it (those hold NaN).
+    cursor0: usize,
     /// Last value of each field and the time it was seen.
     last: Vec<f64>,
     last_t: f64,
@@ -280,13 +288,24 @@ struct TopicAcc {
 /// cost stays bounded on hours-long files (a 500 Hz state topic carries ~10⁷ messages).
 const STATS_MESSAGES: usize = 50_000;
 
+/// The sum of `c` messages all carrying `v`, added one by one as the accumulation does.
+fn repeated_sum(v: f64, c: u32) -> f64 {
+    let mut s = 0.0;
+    for _ in 0..c {
+        s += v;
+    }
+    s
+}
+
 impl TopicAcc {
-    fn new(names: Vec<String>, extractor: Option<FieldExtractor>, n_windows: usize) -> Self {
+    fn new(names: Vec<String>, extractor: Option<FieldExtractor>) -> Self {
         let n = names.len();
         TopicAcc {
             extractor,
-            vals: vec![vec![0.0; n_windows]; n],
-            count: vec![0; n_windows],
+            vals: vec![None; n],
+            count: Vec::new(),
+            first: vec![f64::NAN; n],
+            cursor0: 0,
             last: vec![f64::NAN; n],
             last_t: f64::NEG_INFINITY,
             cursor: 0,
@@ -297,12 +316,39 @@ impl TopicAcc {
         }
     }
 
+    /// Field `f`'s window vector as the accumulation would hold it now, while every message so
+    /// far carried its first value: closed windows hold their mean (or the held value, or NaN
+    /// before the first message), the open one its running sum, later ones 0.
+    fn dense(&self, f: usize) -> Vec<f64> {
+        let v0 = self.first[f];
+        let seen = self.last_t > f64::NEG_INFINITY;
+        (0..self.count.len())
+            .map(|w| {
+                let c = self.count[w];
+                if w < self.cursor {
+                    if c > 0 {
+                        repeated_sum(v0, c) / c as f64
+                    } else if seen && w >= self.cursor0 {
+                        v0
+                    } else {
+                        f64::NAN
+                    }
+                } else if w == self.cursor {
+                    repeated_sum(v0, c)
+                } else {
+                    0.0
+                }
+            })
+            .collect()
+    }
+
     /// Close every window ending before `t`: its mean, or the last value for an empty one.
     fn advance(&mut self, windows: &[Window], t: f64) {
         while self.cursor < windows.len() && windows[self.cursor].end < t {
             let w = self.cursor;
             let c = self.count[w];
             for (v, last) in self.vals.iter_mut().zip(&self.last) {
+                let Some(v) = v else { continue };
                 v[w] = if c > 0 {
                     v[w] / c as f64
                 } else if self.last_t > f64::NEG_INFINITY {
@@ -316,6 +362,9 @@ impl TopicAcc {
     }
 
     fn add(&mut self, windows: &[Window], t: f64) {
+        if self.count.is_empty() {
+            self.count = vec![0; windows.len()];
+        }
         if self.n_stats < STATS_MESSAGES {
             self.n_stats += 1;
             for (st, &v) in self.stats.iter_mut().zip(&self.row) {
@@ -323,13 +372,24 @@ impl TopicAcc {
             }
         }
         self.advance(windows, t);
+        if self.last_t == f64::NEG_INFINITY {
+            self.cursor0 = self.cursor;
+            self.first.copy_from_slice(&self.row);
+        }
+        for f in 0..self.vals.len() {
+            if self.vals[f].is_none() && self.row[f].to_bits() != self.first[f].to_bits() {
+                self.vals[f] = Some(self.dense(f));
+            }
+        }
         if let Some(w) = windows.get(self.cursor)
             && t > w.start
         {
             let k = self.cursor;
             self.count[k] += 1;
             for (s, v) in self.vals.iter_mut().zip(&self.row) {
-                s[k] += v;
+                if let Some(s) = s {
+                    s[k] += v;
+                }
             }
         }
         self.last.copy_from_slice(&self.row);
@@ -345,8 +405,10 @@ pub fn read_fields(sources: &[FieldSource], windows: &[Window]) -> FieldTable {
     let mut merged: HashMap<String, Vec<f64>> = HashMap::new();
     let mut stats: HashMap<String, (MsgStats, Option<f64>)> = HashMap::new();
     let mut order: Vec<String> = Vec::new();
+    // Fields constant over every window, by value (their windows are not kept).
+    let mut constants: HashMap<String, f64> = HashMap::new();
     for src in sources {
-        match read_one(src, windows) {
+        match read_one(src, windows, sources.len() == 1) {
             Ok(topics) => {
                 for f in topics {
                     let (st, clock) = stats
@@ -369,6 +431,9 @@ pub fn read_fields(sources: &[FieldSource], windows: &[Window]) -> FieldTable {
                         }
                         None => {
                             order.push(f.name.clone());
+                            if let Some(v) = f.constant {
+                                constants.insert(f.name.clone(), v);
+                            }
                             merged.insert(f.name, f.vals);
                         }
                     }
@@ -402,15 +467,12 @@ pub fn read_fields(sources: &[FieldSource], windows: &[Window]) -> FieldTable {
             table.excluded.push(ExcludedField { name, reason });
             continue;
         }
-        if vals.iter().any(|v| !v.is_finite()) {
-            continue;
-        }
-        let (lo, hi) = vals
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
-                (a.min(v), b.max(v))
-            });
-        if hi - lo <= 1e-9 * hi.abs().max(lo.abs()).max(1e-300) {
+        let lo = match constants.get(&name) {
+            Some(&lo) => Some(lo),
+            None if vals.iter().any(|v| !v.is_finite()) => continue,
+            None => constant_value(&vals),
+        };
+        if let Some(lo) = lo {
             table.excluded.push(ExcludedField {
                 name,
                 reason: format!("constant over every reading window ({lo})"),
@@ -440,11 +502,28 @@ pub fn read_fields(sources: &[FieldSource], windows: &[Window]) -> FieldTable {
     table
 }
 
+/// The lowest window value of `vals` when they are all finite and constant (to 1e-9 relative).
+fn constant_value(vals: &[f64]) -> Option<f64> {
+    if vals.iter().any(|v| !v.is_finite()) {
+        return None;
+    }
+    let (lo, hi) = vals
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &v| {
+            (a.min(v), b.max(v))
+        });
+    (hi - lo <= 1e-9 * hi.abs().max(lo.abs()).max(1e-300)).then_some(lo)
+}
+
 /// One field of one file: window values (NaN where a window lies outside the file), its
 /// per-message statistics, and the correlation of its window values with time in this file.
 struct FieldRead {
     name: String,
+    /// Empty when `constant` is set.
     vals: Vec<f64>,
+    /// The value of a field constant over every window (finite everywhere): its windows are
+    /// not kept.
+    constant: Option<f64>,
     stats: MsgStats,
     clock_r: Option<f64>,
 }
@@ -474,10 +553,10 @@ fn clock_correlation(windows: &[Window], vals: &[f64]) -> Option<f64> {
 }
 
 /// Window values of every numeric field of one file (NaN where a window lies outside it).
-fn read_one(src: &FieldSource, windows: &[Window]) -> Result<Vec<FieldRead>> {
+/// `summarise`: fields constant over every window are returned without their windows.
+fn read_one(src: &FieldSource, windows: &[Window], summarise: bool) -> Result<Vec<FieldRead>> {
     let mut session = Session::open(&src.path, &OpenOptions::default())
         .with_context(|| format!("opening {}", src.path.display()))?;
-    let nw = windows.len();
     let mut topics: HashMap<String, TopicAcc> = HashMap::new();
     let mut topic_order: Vec<String> = Vec::new();
     let mut t_first = f64::INFINITY;
@@ -512,7 +591,7 @@ fn read_one(src: &FieldSource, windows: &[Window]) -> Result<Vec<FieldRead>> {
                     }
                 }
                 topic_order.push(topic.to_string());
-                topics.insert(topic.to_string(), TopicAcc::new(names, extractor, nw));
+                topics.insert(topic.to_string(), TopicAcc::new(names, extractor));
             }
             let Some(acc) = topics.get_mut(topic) else {
                 return Ok(());
@@ -534,18 +613,33 @@ fn read_one(src: &FieldSource, windows: &[Window]) -> Result<Vec<FieldRead>> {
             continue;
         };
         acc.advance(windows, f64::INFINITY);
-        let vals = std::mem::take(&mut acc.vals);
-        for ((mut vals, name), stats) in vals.into_iter().zip(acc.names).zip(acc.stats) {
+        let names = std::mem::take(&mut acc.names);
+        let stats = std::mem::take(&mut acc.stats);
+        for (f, (name, stats)) in names.into_iter().zip(stats).enumerate() {
+            let unchanged = acc.vals[f].is_none();
+            // One field's window vector at a time.
+            let mut vals = acc.vals[f].take().unwrap_or_else(|| acc.dense(f));
             // Windows outside this file's time span are not its to fill.
             for (v, w) in vals.iter_mut().zip(windows) {
                 if w.end < t_first || w.start > t_last {
                     *v = f64::NAN;
                 }
             }
+            let clock_r = clock_correlation(windows, &vals);
+            // A field that never changed is left out as constant by `read_fields` (unless a
+            // junk rule takes it first): its windows need not be kept. The supply voltages
+            // are kept: their mean is the bus voltage.
+            let constant = (summarise && unchanged && !name.ends_with("].vol"))
+                .then(|| constant_value(&vals))
+                .flatten();
+            if constant.is_some() {
+                vals = Vec::new();
+            }
             out.push(FieldRead {
                 name,
-                clock_r: clock_correlation(windows, &vals),
+                clock_r,
                 vals,
+                constant,
                 stats,
             });
         }
@@ -670,13 +764,71 @@ mod tests {
                 end: 3.0,
             },
         ];
-        let mut acc = TopicAcc::new(vec!["x".into()], None, 2);
+        let mut acc = TopicAcc::new(vec!["x".into()], None);
         for (t, v) in [(0.2, 1.0), (1.0, 3.0), (1.5, 7.0)] {
             acc.row[0] = v;
             acc.add(&windows, t);
         }
         acc.advance(&windows, f64::INFINITY);
         assert_eq!(acc.count, [2, 0]);
-        assert_eq!(acc.vals[0], [2.0, 7.0]);
+        assert_eq!(acc.vals[0].as_deref(), Some(&[2.0, 7.0][..]));
+    }
+
+    /// The window values of a topic's fields, accumulated with the windows of a field that has
+    /// not changed yet left out, equal the plain definition: the mean of the messages inside
+    /// each window, the last value before an empty one, NaN before the first message.
+    #[test]
+    fn unchanged_fields_keep_no_windows_and_give_the_same_values() {
+        let windows: Vec<Window> = (0..12)
+            .map(|k| Window {
+                start: 1.0 + k as f64,
+                end: 1.2 + k as f64 + if k == 5 { 0.6 } else { 0.0 },
+            })
+            .collect();
+        // Messages every 0.07 s from t = 2.5 (windows 0 and 1 come before the first message).
+        let msgs: Vec<(f64, [f64; 4])> = (0..160)
+            .map(|i| {
+                let t = 2.5 + 0.07 * i as f64;
+                // Constant; changes at message 40; changes at the first message of window 6;
+                // a value that is not exact in binary, changing once late.
+                let late = if i < 150 { 0.1 } else { 0.3 };
+                let w6 = if t > 7.0 { 2.0 } else { -1.5 };
+                (
+                    t,
+                    [3.25, if i < 40 { 7.0 } else { 7.0 + i as f64 }, w6, late],
+                )
+            })
+            .collect();
+        let mut acc = TopicAcc::new((0..4).map(|f| format!("f{f}")).collect(), None);
+        for (t, row) in &msgs {
+            acc.row.copy_from_slice(row);
+            acc.add(&windows, *t);
+        }
+        acc.advance(&windows, f64::INFINITY);
+        assert!(acc.vals[0].is_none(), "the constant field kept its windows");
+        assert!(acc.vals[1].is_some() && acc.vals[2].is_some() && acc.vals[3].is_some());
+        for f in 0..4 {
+            let got = acc.vals[f].clone().unwrap_or_else(|| acc.dense(f));
+            for (w, win) in windows.iter().enumerate() {
+                let inside: Vec<f64> = msgs
+                    .iter()
+                    .filter(|(t, _)| *t > win.start && *t <= win.end)
+                    .map(|(_, r)| r[f])
+                    .collect();
+                let want = if !inside.is_empty() {
+                    inside.iter().sum::<f64>() / inside.len() as f64
+                } else {
+                    msgs.iter()
+                        .rfind(|(t, _)| *t <= win.start)
+                        .map_or(f64::NAN, |(_, r)| r[f])
+                };
+                assert!(
+                    (got[w] - want).abs() <= 1e-12 * want.abs().max(1.0)
+                        || (got[w].is_nan() && want.is_nan()),
+                    "field {f} window {w}: {} vs {want}",
+                    got[w]
+                );
+            }
+        }
     }
 }

@@ -145,12 +145,7 @@ pub(crate) fn locate_residuals(
         _ => &last.cv.pred,
     };
     // Every lag's rows are the same readings (same y).
-    let resid_final: Vec<f64> = rows0
-        .y
-        .iter()
-        .zip(final_pred)
-        .map(|(a, b)| a - b)
-        .collect();
+    let resid_final: Vec<f64> = rows0.y.iter().zip(final_pred).map(|(a, b)| a - b).collect();
     let breakdowns = locate::breakdowns(rows0, metas, &resid_base, joint_names);
     let worst = locate::worst(&breakdowns);
     let worst_trials: Vec<TrialResidual> = locate::trial_residuals(rows0, metas, &resid_base)

@@ -482,8 +482,9 @@ impl<'a> PowerData<'a> {
         source: LagRowSource<'a>,
     ) -> PowerData<'a> {
         let n_trials = folds.of_trial.len();
-        let rows: Vec<std::cell::OnceCell<Rows>> =
-            (0..lags.len()).map(|_| std::cell::OnceCell::new()).collect();
+        let rows: Vec<std::cell::OnceCell<Rows>> = (0..lags.len())
+            .map(|_| std::cell::OnceCell::new())
+            .collect();
         let _ = rows[0].set(rows0);
         PowerData {
             lags,
@@ -615,11 +616,7 @@ struct Candidate {
     next: State,
 }
 
-fn compare(
-    data: &PowerData,
-    cur: &State,
-    next_pred: &[f64],
-) -> (f64, f64, f64, f64, f64, f64) {
+fn compare(data: &PowerData, cur: &State, next_pred: &[f64]) -> (f64, f64, f64, f64, f64, f64) {
     // Every lag's rows are the same readings: y and trial are the lag-0 rows'.
     let y = &data.rows0().y;
     let trial = &data.rows0().trial;

@@ -5,14 +5,14 @@ use std::collections::HashSet;
 
 use anyhow::Result;
 
-use crate::signals::{PowerSeries, Recording};
 use crate::lsq::Gram;
+use crate::signals::{PowerSeries, Recording};
 use crate::trial::{Cascade, Rejection, TrialStat, TrialWindow};
 
 use super::data::{Rows, TrialMeta, build_rows};
 use super::hypotheses::N_RAW;
 use super::reduce::TrialSamples;
-use super::select::{FOLD_SEED, Folds, FoldGramsBuilder, PowerData, fit};
+use super::select::{FOLD_SEED, FoldGramsBuilder, Folds, PowerData, fit};
 use super::{DiagnoseOptions, LagPoint};
 
 /// The rows of every trial at lag 0 (trial = position in the trial list), appended in trial
@@ -306,7 +306,11 @@ pub(crate) fn scan_lags<'a>(
             .t
             .iter()
             .map(|t| t.to_bits())
-            .filter(|b| parts[1..].iter().all(|p| p.t.iter().any(|u| u.to_bits() == *b)))
+            .filter(|b| {
+                parts[1..]
+                    .iter()
+                    .all(|p| p.t.iter().any(|u| u.to_bits() == *b))
+            })
             .collect();
         for (g, part) in grams.iter_mut().zip(parts) {
             let mut rows = Rows::default();
@@ -358,4 +362,3 @@ pub(crate) fn lag_scan(data: &PowerData) -> Result<Vec<LagPoint>> {
         })
         .collect()
 }
-

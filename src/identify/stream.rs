@@ -510,7 +510,15 @@ fn stream_trial_windows(
         end: &|t| t.t_post_end,
         all_columns: false,
     };
-    stream_trial_spans(file, start_ns, trials, so.batch_samples, &span, buf, on_trial)
+    stream_trial_spans(
+        file,
+        start_ns,
+        trials,
+        so.batch_samples,
+        &span,
+        buf,
+        on_trial,
+    )
 }
 
 /// Which part of each trial a streamed trial walk reads, and which joint-state columns it keeps.
