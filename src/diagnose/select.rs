@@ -1071,7 +1071,11 @@ mod tests {
 
     /// Synthetic rows: each row one random arm state of 1–3 moving joints; the truth is the
     /// paper's model plus `effect(sample)`; trials heat up from 30 to 60 °C.
-    pub(super) fn synth(seed: u64, n_trials: usize, effect: &dyn Fn(&Sample) -> f64) -> PowerData {
+    pub(super) fn synth(
+        seed: u64,
+        n_trials: usize,
+        effect: &dyn Fn(&Sample) -> f64,
+    ) -> PowerData<'static> {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         let noise = Normal::new(0.0, 0.3).unwrap();
         let mut rows = Rows::default();
