@@ -2,7 +2,8 @@
 //! trial by trial while the file is read again) against the in-memory model replay of the whole
 //! recording (`overlay::model_extras` + `log_replay`): the decoded `.rrd` files hold the same
 //! rows and the same values, on the shipped example and on a simulated session read in pieces,
-//! whole and sliced (`--from/--to`, `--max-rate`).
+//! whole and sliced (`--from/--to`, `--max-rate`). `diagnose --save` of one session streams its
+//! replay too: checked the same way against the replay of the loaded session.
 
 use std::collections::BTreeMap;
 use std::io::BufReader;
@@ -27,7 +28,7 @@ fn example() -> PathBuf {
 struct Decoded {
     rows: BTreeMap<(bool, String, bool), usize>,
     chunks: Vec<Chunk>,
-    /// The plot ranges of the layout (each view's y axis), as printed, sorted.
+    /// The plot ranges of the last layout sent (each view's y axis), as printed, sorted.
     axes: Vec<String>,
 }
 
@@ -38,6 +39,7 @@ fn decode(path: &Path) -> Decoded {
         chunks: Vec::new(),
         axes: Vec::new(),
     };
+    let mut last_axes: BTreeMap<String, Vec<String>> = BTreeMap::new();
     for msg in DecoderApp::decode_lazy(BufReader::new(file)) {
         if let LogMsg::ArrowMsg(store, arrow) = msg.unwrap() {
             let chunk = Chunk::from_arrow_msg(&arrow).unwrap();
@@ -52,12 +54,17 @@ fn decode(path: &Path) -> Decoded {
             if !blueprint {
                 d.chunks.push(chunk);
             } else if chunk.entity_path().to_string().ends_with("/ScalarAxis") {
-                for (desc, list) in chunk.components().iter() {
-                    d.axes.push(format!("{desc:?} {:?}", list.list_array));
-                }
+                // The layout is sent again once the data are logged: the viewer keeps the last.
+                let text: Vec<String> = chunk
+                    .components()
+                    .iter()
+                    .map(|(desc, list)| format!("{desc:?} {:?}", list.list_array))
+                    .collect();
+                last_axes.insert(chunk.entity_path().to_string(), text);
             }
         }
     }
+    d.axes = last_axes.into_values().flatten().collect();
     d.axes.sort();
     d
 }
@@ -161,6 +168,11 @@ fn streamed(session: &Path, out: &Path, opts: &IdentifyOptions, ro: &ReplayOptio
 /// Every row and every value of the two replays agree (model series, readings, bars, link
 /// colours, the layout's plot ranges, the colour-scale note).
 fn assert_same_replay(a: &Path, b: &Path, what: &str) {
+    assert_same_replay_of(a, b, what, &["/model", "/breakdown", "/terms", "/bars"], 20);
+}
+
+/// [`assert_same_replay`], with more than `min_marked` series under the `marked` paths.
+fn assert_same_replay_of(a: &Path, b: &Path, what: &str, marked: &[&str], min_marked: usize) {
     let (a, b) = (decode(a), decode(b));
     let differ: Vec<_> = a
         .rows
@@ -185,10 +197,7 @@ fn assert_same_replay(a: &Path, b: &Path, what: &str) {
         .collect();
     let mut model_paths = 0;
     for p in temporal {
-        if ["/model", "/breakdown", "/terms", "/bars"]
-            .iter()
-            .any(|x| p.contains(x))
-        {
+        if marked.iter().any(|x| p.contains(x)) {
             model_paths += 1;
         }
         let (x, y) = (series(&a, p), series(&b, p));
@@ -196,7 +205,10 @@ fn assert_same_replay(a: &Path, b: &Path, what: &str) {
             assert_eq!(x, y, "{what}: {p}");
         }
     }
-    assert!(model_paths > 20, "{what}: {model_paths} model series");
+    assert!(
+        model_paths > min_marked,
+        "{what}: {model_paths} series under {marked:?}"
+    );
     let statics_paths: Vec<&String> = a
         .rows
         .keys()
@@ -297,4 +309,87 @@ fn streamed_model_replay_equals_in_memory_on_a_simulated_session_in_pieces() {
         window,
     );
     assert_same_replay(&c, &d, "simulated session, 100-400 s at 20 Hz");
+}
+
+/// `diagnose SESSION --save` streams the session into the `.rrd` (the diagnosis' overlays are
+/// per reading and per trial): the same rows and values as the replay of the loaded session
+/// with the same diagnosis, on a simulated session with a power-sensor latency the diagnosis
+/// finds (so the before/after series differ).
+#[test]
+fn streamed_diagnosis_replay_equals_in_memory() {
+    use g1viz::diagnose::{self, DiagnoseOptions};
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("latency.mcap");
+    let mut effects = g1viz::sim::Effects::default();
+    effects.enable("latency").unwrap();
+    g1viz::sim::simulate(
+        &g1viz::sim::SimConfig {
+            progress: false,
+            seed: 3,
+            effects,
+            ..Default::default()
+        },
+        &path,
+    )
+    .unwrap();
+    let opts = DiagnoseOptions {
+        reference: Some(PowerModel::PAPER),
+        ..DiagnoseOptions::default()
+    };
+    let map = SignalMap::g1_left_arm();
+    let file = g1viz::identify::SessionFile {
+        path: path.clone(),
+        map: map.clone(),
+        read: Default::default(),
+    };
+    let d = diagnose::diagnose_files(std::slice::from_ref(&file), &opts, 5.0).unwrap();
+    assert!(
+        !d.replay.t.is_empty(),
+        "the diagnosis has no readings to show"
+    );
+    assert!(
+        !d.accepted.is_empty(),
+        "the latency was not found: {}",
+        d.summary
+    );
+    let extras = g1viz::viz::diagnosis_extras(&d);
+    let robot = RobotModel::builtin();
+    let arm = robot.arm(&map.joint_names).unwrap();
+    let ro = ReplayOptions {
+        progress: false,
+        ..Default::default()
+    };
+    let kind = g1viz::viz::OutputKind::Diagnosis;
+    let (a, b) = (dir.path().join("mem.rrd"), dir.path().join("str.rrd"));
+    let rec = load_recording(&path, &map, &Default::default()).unwrap();
+    let out = open_stream(
+        &kind.app_id(),
+        &kind.recording_id(&recording_id_for(&rec)),
+        &Sink::Save(a.clone()),
+        &[path.as_path()],
+    )
+    .unwrap();
+    log_replay(&rec, &robot, &arm, &extras, &ro, out.stream()).unwrap();
+    out.finish().unwrap();
+    let id = g1viz::viz::recording_id_for_source(&path).unwrap();
+    let out = open_stream(
+        &kind.app_id(),
+        &kind.recording_id(&id),
+        &Sink::Save(b.clone()),
+        &[path.as_path()],
+    )
+    .unwrap();
+    g1viz::viz::replay_file_with(
+        &path,
+        &map,
+        &Default::default(),
+        &robot,
+        &arm,
+        extras,
+        &ro,
+        out.stream(),
+    )
+    .unwrap();
+    out.finish().unwrap();
+    assert_same_replay_of(&a, &b, "diagnosis replay", &["diagnosis/"], 5);
 }

@@ -101,8 +101,9 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
         sensor_window_s,
         ..DiagnoseOptions::default()
     };
-    if a.save.is_none() && a.counterpart.is_none() {
-        // Streamed: the sessions are read trial by trial, never held whole.
+    if a.counterpart.is_none() && (a.save.is_none() || sessions.len() == 1) {
+        // Streamed: the sessions are read trial by trial, never held whole; the .rrd of one
+        // session is streamed too (the diagnosis' overlays are per reading and per trial).
         let files: Vec<g1viz::identify::SessionFile> = sessions
             .iter()
             .map(|p| a.read.session_file(p, &map))
@@ -110,10 +111,16 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
         let busy = super::spinner("diagnosing");
         let d = diagnose::diagnose_files(&files, &opts, JOIN_GAP_S);
         busy.finish_and_clear();
-        return write_outputs(&a, &d?);
+        let d = d?;
+        write_outputs(&a, &d)?;
+        if let (Some(out), [file]) = (&a.save, files.as_slice()) {
+            save_streamed_rrd(file, &a, &d, out)?;
+            println!("wrote {}", out.display());
+        }
+        return Ok(());
     }
-    // The .rrd replays the whole session and the counterpart compares it sample by sample: the
-    // sessions are loaded.
+    // The .rrd of several joined sessions replays them on the diagnosis' joined clock, and the
+    // counterpart compares the session with its twin sample by sample: the sessions are loaded.
     let parts = sessions
         .iter()
         .map(|p| a.read.load(p))
@@ -189,6 +196,65 @@ fn save_diagnosis_rrd(
     };
     viz::log_replay(rec, &robot, &arm, &extras, &opts, stream.stream())?;
     stream.finish()
+}
+
+/// The `.rrd` of one session's diagnosis, the session streamed from its file.
+#[cfg(feature = "viz")]
+fn save_streamed_rrd(
+    file: &g1viz::identify::SessionFile,
+    a: &DiagnoseArgs,
+    d: &g1viz::diagnose::Diagnosis,
+    out: &Path,
+) -> Result<()> {
+    use anyhow::Context;
+    use g1viz::robot::RobotModel;
+    use g1viz::viz::{self, OutputKind, Sink};
+    let robot = RobotModel::load(a.urdf.as_deref())?;
+    let arm = robot.arm(&file.map.joint_names)?;
+    let extras = viz::diagnosis_extras(d);
+    let kind = OutputKind::Diagnosis;
+    let id = viz::recording_id_for_source(&file.path)
+        .with_context(|| format!("cannot read {}", file.path.display()))?;
+    let stream = viz::open_stream(
+        &kind.app_id(),
+        &kind.recording_id(&id),
+        &Sink::Save(out.to_path_buf()),
+        &[file.path.as_path()],
+    )?;
+    let mut properties = vec![("command".to_owned(), super::command_line())];
+    if let Some(m) = &a.model {
+        properties.push(("model".to_owned(), m.display().to_string()));
+    }
+    let opts = viz::ReplayOptions {
+        properties,
+        ..Default::default()
+    };
+    let busy = super::spinner("writing the replay");
+    let summary = viz::replay_file_with(
+        &file.path,
+        &file.map,
+        &file.read,
+        &robot,
+        &arm,
+        extras,
+        &opts,
+        stream.stream(),
+    );
+    busy.finish_and_clear();
+    for w in &summary?.warnings {
+        eprintln!("warning: {w}");
+    }
+    stream.finish()
+}
+
+#[cfg(not(feature = "viz"))]
+fn save_streamed_rrd(
+    _: &g1viz::identify::SessionFile,
+    _: &DiagnoseArgs,
+    _: &g1viz::diagnose::Diagnosis,
+    _: &Path,
+) -> Result<()> {
+    bail!("--save needs the `viz` feature (Rerun output); rebuild with default features")
 }
 
 #[cfg(not(feature = "viz"))]

@@ -461,6 +461,31 @@ pub fn replay_file(
     opts: &ReplayOptions,
     stream: &RecordingStream,
 ) -> Result<ReplaySummary> {
+    replay_file_with(
+        path,
+        map,
+        read_opts,
+        robot,
+        arm,
+        ReplayExtras::default(),
+        opts,
+        stream,
+    )
+}
+
+/// [`replay_file`] with overlays known before the file is read (a diagnosis': they hold per
+/// reading and per trial values, not per sample series, so they need not the whole session).
+#[allow(clippy::too_many_arguments)]
+pub fn replay_file_with(
+    path: &std::path::Path,
+    map: &crate::signals::SignalMap,
+    read_opts: &crate::read::OpenOptions,
+    robot: &RobotModel,
+    arm: &ArmJoints,
+    extras: ReplayExtras,
+    opts: &ReplayOptions,
+    stream: &RecordingStream,
+) -> Result<ReplaySummary> {
     // The reader shows its own progress bar (messages read); one bar is enough.
     let quiet = ReplayOptions {
         progress: false,
@@ -472,7 +497,7 @@ pub fn replay_file(
         robot,
         arm,
         opts: &quiet,
-        extras: ReplayExtras::default(),
+        extras,
         logger: None,
         summary: None,
         unflushed: 0,
