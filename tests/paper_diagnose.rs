@@ -334,8 +334,8 @@ fn found_param<'a>(t: &'a diagnose::Discovery, symbol: &str) -> &'a diagnose::Pa
 /// JOINT_FRICTION_PATTERN) against the twin. At 72 trials no joint is identified (only a pooled
 /// excess); at paper scale the shoulder pitch, shoulder yaw, elbow and wrist pitch are reported
 /// one by one, each within 10 % of F·w_i, and the three least-moved joints share one pooled
-/// coefficient inside the range of their true excesses (± 2.5 s.e.). (A refit absorbs the excess
-/// into its per-joint c_i and claims nothing — asserted at 72 trials in tests/diagnose.rs.)
+/// coefficient inside the range of their true excesses (± 2.5 s.e.). A refit absorbs the excess
+/// into its per-joint c_i (the same regressor) and claims nothing, at paper scale too.
 #[test]
 fn paper_scale_joint_friction_is_identified_joint_by_joint_against_the_twin() {
     let f = 1.0;
@@ -381,6 +381,9 @@ fn paper_scale_joint_friction_is_identified_joint_by_joint_against_the_twin() {
         common::assert_figure(sym, p.value, stated[0]);
         common::assert_figure(&format!("{sym} s.e."), p.std_err, stated[1]);
     }
+    let d = diagnose::diagnose(&s.rec, &DiagnoseOptions::default()).expect("diagnose");
+    print!("== refit\n{}", d.summary);
+    assert!(claims(&d).is_empty(), "refit: claimed {:?}", claims(&d));
 }
 
 /// Friction that follows the housing temperature (P += k·Σ(T_housing,i − 25 °C)·|q̇_i|,
