@@ -3,7 +3,8 @@
 //! inside every fold. The README states the drift is found at paper scale even where a short
 //! session confounds it with b_i (α = 0.00382 ± 0.00012); this test holds that figure. The
 //! truth is the simulator's α; the estimate is this code's result, held at its printed precision.
-//! The README's bus-loss detection limit at paper scale is held here too.
+//! The README's bus-loss detection limit at paper scale is held here too, and its paper-scale
+//! rows for the effect forms the diagnosis does not fit (below).
 
 mod common;
 
