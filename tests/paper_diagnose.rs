@@ -3,7 +3,8 @@
 //! inside every fold. The README states the drift is found at paper scale even where a short
 //! session confounds it with b_i (α = 0.00382 ± 0.00012); this test holds that figure. The
 //! truth is the simulator's α; the estimate is this code's result, held at its printed precision.
-//! The README's bus-loss detection limit at paper scale is held here too.
+//! The README's bus-loss detection limit at paper scale is held here too, and its paper-scale
+//! rows for the effect forms the diagnosis does not fit (below).
 
 mod common;
 
@@ -113,4 +114,325 @@ fn paper_scale_bus_loss_detection_limit() {
         outcome.push((r, ids));
     }
     println!("{outcome:?}");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Paper scale for the effect forms the diagnosis does not fit (issue: "stop testing formulas
+// against themselves"): each a 1000-trial session (seed 21) with one concealed effect whose form
+// differs from every fitted hypothesis form. The bar: the right mechanism or a discovered term on
+// the right field, the parameter of the matching form within 10 % of the simulator's value, and
+// nothing else claimed (library terms reported as confounded with a found term are not claims).
+// The README's paper-scale figures for these rows are held at their printed precision.
+
+/// A simulated paper-scale session, kept on disk while it is diagnosed: discovery reads every
+/// recorded field from the file.
+struct Paper {
+    _dir: tempfile::TempDir,
+    rec: g1viz::signals::Recording,
+}
+
+/// Simulate a paper-scale session (seed 21, default start temperatures) with `effect` concealed.
+fn paper_session(effect: &str) -> Paper {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("paper_form.mcap");
+    let mut effects = Effects::default();
+    effects.enable(effect).expect("effect");
+    let cfg = SimConfig {
+        preset: Preset::Paper,
+        seed: 21,
+        effects,
+        progress: false,
+        ..SimConfig::default()
+    };
+    sim::simulate(&cfg, &path).expect("simulate");
+    let rec = load_recording(&path, &SignalMap::g1_left_arm(), &Default::default()).expect("read");
+    Paper { _dir: dir, rec }
+}
+
+/// The twin: the base model held at the paper's parameters (the simulator's base plant).
+fn twin() -> DiagnoseOptions {
+    DiagnoseOptions {
+        reference: Some(g1viz::power::PowerModel::PAPER),
+        ..DiagnoseOptions::default()
+    }
+}
+
+/// Everything a diagnosis claims: accepted library hypotheses and terms found beyond it.
+fn claims(d: &diagnose::Diagnosis) -> Vec<String> {
+    let mut c: Vec<String> = d.accepted.iter().map(|h| h.id.clone()).collect();
+    if let Some(r) = &d.discovery {
+        c.extend(r.accepted.iter().map(|t| format!("found: {}", t.name)));
+    }
+    c
+}
+
+/// The final model's parameter `symbol`.
+fn final_param<'a>(d: &'a diagnose::Diagnosis, symbol: &str) -> &'a diagnose::Param {
+    d.final_model
+        .params
+        .iter()
+        .find(|p| p.symbol == symbol)
+        .unwrap_or_else(|| panic!("{symbol} not in the final model: {:?}", d.final_model))
+}
+
+/// `v` within 10 % of `truth`.
+#[track_caller]
+fn within_10_percent(what: &str, v: f64, truth: f64) {
+    assert!(
+        (v - truth).abs() <= 0.1 * truth.abs(),
+        "{what} = {v}, truth {truth} ({:+.1} %)",
+        100.0 * (v / truth - 1.0)
+    );
+}
+
+/// The one library hypothesis `id` claimed and nothing else; the form comparison of its
+/// mechanism decided for it (winner `id` over `runner_up`, paired held-out p < 1e-3, not
+/// confounded). Returns the final model's parameter `symbol` and the form comparison.
+fn library_form_claimed<'a>(
+    mode: &str,
+    d: &'a diagnose::Diagnosis,
+    id: &str,
+    runner_up: &str,
+    symbol: &str,
+) -> (&'a diagnose::Param, &'a diagnose::MechanismForms) {
+    print!("== {mode}\n{}", d.summary);
+    assert_eq!(claims(d), [id], "{mode}: nothing else may be claimed");
+    let f = d
+        .forms
+        .iter()
+        .find(|f| f.winner == id)
+        .unwrap_or_else(|| panic!("{mode}: no form comparison won by {id}: {:?}", d.forms));
+    assert!(
+        f.accepted && !f.confounded && f.runner_up == runner_up && f.p_value < 1e-3,
+        "{mode}: {f:?}"
+    );
+    let p = final_param(d, symbol);
+    println!(
+        "{mode}: {symbol} = {} ± {}; form margin {:.1} % (p = {:.1e})",
+        p.value,
+        p.std_err,
+        100.0 * f.margin,
+        f.p_value
+    );
+    (p, f)
+}
+
+/// The bus loss from total electrical power (P += R·(P_elec/V_bus)², deliberately strong 10 Ω:
+/// the arm's net electrical power is tens of W, so a realistic 50 mΩ is a few mW — fitted at
+/// paper scale with an s.e. of ≈ 0.07 Ω and not claimed, see the README). Both modes: only
+/// `bus_power` claimed, its form beats the phase-current form, R_bus within 10 %.
+#[test]
+fn paper_scale_bus_loss_from_electrical_power_is_found_in_its_form() {
+    let truth = 10.0;
+    let s = paper_session(&format!("bus_power={truth}"));
+    for (mode, opts, stated) in [
+        ("refit", DiagnoseOptions::default(), ("9.51", "0.13", "21")),
+        ("twin", twin(), ("10.00", "0.12", "35")),
+    ] {
+        let d = diagnose::diagnose(&s.rec, &opts).expect("diagnose");
+        let (p, f) = library_form_claimed(mode, &d, "bus_power", "bus_loss", "R_bus");
+        within_10_percent(&format!("{mode} R_bus"), p.value, truth);
+        common::assert_figure(&format!("{mode} R_bus [Ω]"), p.value, stated.0);
+        common::assert_figure(&format!("{mode} R_bus s.e. [Ω]"), p.std_err, stated.1);
+        common::assert_figure(
+            &format!("{mode} form margin [%]"),
+            100.0 * f.margin,
+            stated.2,
+        );
+    }
+}
+
+/// The same form at a realistic 50 mΩ (refit): the loss is a few mW, R_bus is fitted with an s.e.
+/// of ≈ 0.07 Ω (the truth within 2 s.e.) and nothing is claimed.
+#[test]
+fn paper_scale_bus_loss_from_electrical_power_at_a_realistic_resistance_is_not_claimed() {
+    let truth = 0.05;
+    let s = paper_session(&format!("bus_power={truth}"));
+    let d = diagnose::diagnose(&s.rec, &DiagnoseOptions::default()).expect("diagnose");
+    print!("{}", d.summary);
+    assert!(claims(&d).is_empty(), "claimed {:?}", claims(&d));
+    let h = d
+        .hypotheses
+        .iter()
+        .find(|h| h.id == "bus_power")
+        .expect("scored");
+    let p = &h.params[0];
+    println!("R_bus = {} ± {} Ω: {}", p.value, p.std_err, h.verdict);
+    assert!(
+        !h.accepted && (p.value - truth).abs() <= 2.0 * p.std_err,
+        "{h:?}"
+    );
+    common::assert_figure("R_bus s.e. at 50 mΩ [Ω]", p.std_err, "0.07");
+}
+
+/// The drive-electronics loss per newton-metre (P += k·Σ|τ_i|, 0.5 W/Nm). At 72 trials its form
+/// and the per-ampere form are confounded; at paper scale the per-Nm form wins significantly in
+/// both modes and k_el is within 10 %.
+#[test]
+fn paper_scale_electronics_loss_per_newton_metre_is_told_from_per_ampere() {
+    let truth = 0.5;
+    let s = paper_session(&format!("electronics_nm={truth}"));
+    for (mode, opts, stated) in [
+        (
+            "refit",
+            DiagnoseOptions::default(),
+            ("0.508", "0.0039", "2.2"),
+        ),
+        ("twin", twin(), ("0.512", "0.0029", "2.6")),
+    ] {
+        let d = diagnose::diagnose(&s.rec, &opts).expect("diagnose");
+        let (p, f) = library_form_claimed(mode, &d, "electronics_nm", "drive_loss", "k_el");
+        within_10_percent(&format!("{mode} k_el"), p.value, truth);
+        common::assert_figure(&format!("{mode} k_el [W/Nm]"), p.value, stated.0);
+        common::assert_figure(&format!("{mode} k_el s.e. [W/Nm]"), p.std_err, stated.1);
+        common::assert_figure(
+            &format!("{mode} form margin [%]"),
+            100.0 * f.margin,
+            stated.2,
+        );
+    }
+}
+
+/// The one term found beyond the library and nothing else claimed; library terms dropped as
+/// confounded with it stay unclaimed.
+fn only_found(mode: &str, d: &diagnose::Diagnosis) -> diagnose::Discovery {
+    print!("== {mode}\n{}", d.summary);
+    let found = d
+        .discovery
+        .as_ref()
+        .map(|r| r.accepted.clone())
+        .unwrap_or_default();
+    assert!(
+        d.accepted.is_empty() && found.len() == 1,
+        "{mode}: claims {:?}",
+        claims(d)
+    );
+    for c in &d.confounded {
+        assert!(
+            !d.accepted.iter().any(|h| h.id == c.dropped),
+            "{mode}: {c:?}"
+        );
+    }
+    let t = found.into_iter().next().expect("one found term");
+    for p in &t.params {
+        println!(
+            "{mode}: {} = {} ± {} ({})",
+            p.symbol, p.value, p.std_err, p.name
+        );
+    }
+    t
+}
+
+/// The found term's parameter `symbol`.
+fn found_param<'a>(t: &'a diagnose::Discovery, symbol: &str) -> &'a diagnose::Param {
+    t.params
+        .iter()
+        .find(|p| p.symbol == symbol)
+        .unwrap_or_else(|| panic!("{symbol} not in {t:?}"))
+}
+
+/// Unequal Coulomb friction excess per joint (P += F·Σ w_i·|q̇_i|, F = 1, w =
+/// JOINT_FRICTION_PATTERN) against the twin. At 72 trials no joint is identified (only a pooled
+/// excess); at paper scale the shoulder pitch, shoulder yaw, elbow and wrist pitch are reported
+/// one by one, each within 10 % of F·w_i, and the three least-moved joints share one pooled
+/// coefficient inside the range of their true excesses (± 2.5 s.e.). A refit absorbs the excess
+/// into its per-joint c_i (the same regressor) and claims nothing, at paper scale too.
+#[test]
+fn paper_scale_joint_friction_is_identified_joint_by_joint_against_the_twin() {
+    let f = 1.0;
+    let s = paper_session(&format!("joint_friction={f}"));
+    let d = diagnose::diagnose(&s.rec, &twin()).expect("diagnose");
+    let t = only_found("twin", &d);
+    assert!(
+        t.name.contains("Coulomb") && t.name.contains("joint by joint"),
+        "{}",
+        t.name
+    );
+    let w = g1viz::sim::JOINT_FRICTION_PATTERN;
+    let mut identified = Vec::new();
+    for p in &t.params {
+        if let Some(i) = p
+            .symbol
+            .strip_prefix("k_")
+            .and_then(|i| i.parse::<usize>().ok())
+        {
+            within_10_percent(&format!("k_{i}"), p.value, f * w[i]);
+            identified.push(i);
+        }
+    }
+    assert_eq!(identified, [0, 2, 3, 5], "{t:?}");
+    let pooled = found_param(&t, "k_pooled");
+    assert_eq!(t.params.len(), identified.len() + 1, "{t:?}");
+    let rest: Vec<f64> = [1, 4, 6].iter().map(|&i| f * w[i]).collect();
+    let (lo, hi) = rest
+        .iter()
+        .fold((f64::INFINITY, 0.0f64), |a, &v| (a.0.min(v), a.1.max(v)));
+    assert!(
+        pooled.value >= lo - 2.5 * pooled.std_err && pooled.value <= hi + 2.5 * pooled.std_err,
+        "{pooled:?} vs {rest:?}"
+    );
+    for (sym, stated) in [
+        ("k_0", ["1.00", "0.014"]),
+        ("k_2", ["0.50", "0.015"]),
+        ("k_3", ["1.48", "0.023"]),
+        ("k_5", ["0.74", "0.022"]),
+        ("k_pooled", ["0.27", "0.012"]),
+    ] {
+        let p = found_param(&t, sym);
+        common::assert_figure(sym, p.value, stated[0]);
+        common::assert_figure(&format!("{sym} s.e."), p.std_err, stated[1]);
+    }
+    let d = diagnose::diagnose(&s.rec, &DiagnoseOptions::default()).expect("diagnose");
+    print!("== refit\n{}", d.summary);
+    assert!(claims(&d).is_empty(), "refit: claimed {:?}", claims(&d));
+}
+
+/// Friction that follows the housing temperature (P += k·Σ(T_housing,i − 25 °C)·|q̇_i|,
+/// k = 0.05 W/(K·rad/s)) with the default start temperatures (windings at 30 °C, housings settled
+/// with them). At 72–144 trials this is an almost constant Coulomb excess (nothing claimed by a
+/// refit, gear friction claimed against the twin); over a paper session the housings warm, and
+/// both modes find it on the seven arm motors' `temperature[1]`, k within 10 %, and its level
+/// k0 = −25 °C·k (the 25 °C reference) within 10 %.
+#[test]
+fn paper_scale_housing_friction_is_found_on_the_housing_field_at_default_start() {
+    let k = 0.05;
+    let s = paper_session(&format!("housing_friction={k}"));
+    for (mode, opts, stated) in [
+        ("refit", DiagnoseOptions::default(), ("0.0485", "0.0008")),
+        ("twin", twin(), ("0.0478", "0.0021")),
+    ] {
+        let d = diagnose::diagnose(&s.rec, &opts).expect("diagnose");
+        let t = only_found(mode, &d);
+        let housings: Vec<String> = (15..22)
+            .map(|m| format!("/lowstate.motor_state[{m}].temperature[1]"))
+            .collect();
+        assert_eq!(t.fields, housings, "{mode}: {t:?}");
+        assert!(t.name.contains("Coulomb"), "{mode}: {}", t.name);
+        let kf = found_param(&t, "k");
+        within_10_percent(&format!("{mode} k"), kf.value, k);
+        within_10_percent(
+            &format!("{mode} k0"),
+            found_param(&t, "k0").value,
+            -25.0 * k,
+        );
+        common::assert_figure(&format!("{mode} k"), kf.value, stated.0);
+        common::assert_figure(&format!("{mode} k s.e."), kf.std_err, stated.1);
+    }
+}
+
+/// A 3 W fan on the main-board rail switching on and off, `/lf/mainboardstate.fan_state[1]`
+/// reading its speed (refit): found on that field, its load within 10 % of 3 W (the step form's
+/// P_on, or the linear form's load change over the field's 5–95 % range, which spans off to on).
+#[test]
+fn paper_scale_fan_load_is_found_on_the_board_field() {
+    let watts = 3.0;
+    let s = paper_session(&format!("fan_load={watts}"));
+    let d = diagnose::diagnose(&s.rec, &DiagnoseOptions::default()).expect("diagnose");
+    let t = only_found("refit", &d);
+    assert_eq!(t.fields, ["/lf/mainboardstate.fan_state[1]"], "{t:?}");
+    let p = &t.params[0];
+    assert!(p.symbol == "P_on" || p.symbol == "ΔP", "{p:?}");
+    within_10_percent(&p.symbol, p.value, watts);
+    common::assert_figure(&p.symbol, p.value, "2.95");
+    common::assert_figure(&format!("{} s.e.", p.symbol), p.std_err, "0.026");
 }
