@@ -1,5 +1,6 @@
 //! Benchmark of every model-related command against session length: wall time and peak RSS of
-//! `info`, `identify`, `validate`, `diagnose`, `replay --save` and `replay --model paper --save`,
+//! `info`, `identify`, `validate`, `diagnose` (with and without `--save`), `replay --save` and
+//! `replay --model paper --save`,
 //! each run as a child process of the built `g1viz` binary, on sessions of 1 h, 4.4 h and 10 h,
 //! plus the size of each `.rrd`.
 //!
@@ -218,7 +219,7 @@ fn main() -> Result<()> {
     let wanted: Vec<String> = args
         .get(2)
         .map_or(
-            "info,identify,validate,diagnose,replay,replay-model",
+            "info,identify,validate,diagnose,diagnose-save,replay,replay-model",
             String::as_str,
         )
         .split(',')
@@ -251,6 +252,10 @@ fn main() -> Result<()> {
             ("identify", vec!["identify", &sp, "-o", &mp]),
             ("validate", vec!["validate", "--model", "paper", &sp]),
             ("diagnose", vec!["diagnose", "--model", "paper", &sp]),
+            (
+                "diagnose-save",
+                vec!["diagnose", "--model", "paper", &sp, "--save", &rp],
+            ),
             ("replay", vec!["replay", &sp, "--save", &rp]),
             (
                 "replay-model",
@@ -271,6 +276,8 @@ fn main() -> Result<()> {
                 .unwrap_or_else(|_| "–".into());
             let label = if name == "replay-model" {
                 "replay --model paper --save".to_string()
+            } else if name == "diagnose-save" {
+                "diagnose --model paper --save".to_string()
             } else if name == "replay" {
                 "replay --save".to_string()
             } else {

@@ -206,6 +206,19 @@ fn library_form_claimed<'a>(
         f.accepted && !f.confounded && f.runner_up == runner_up && f.p_value < 1e-3,
         "{mode}: {f:?}"
     );
+    // The form comparison reports the winner's parameter as the ranking does (same units and
+    // bus-voltage scaling).
+    let scored = d
+        .accepted
+        .iter()
+        .find(|h| h.id == id)
+        .map(|h| h.params[0].value)
+        .unwrap_or(f64::NAN);
+    let in_forms = f.params[0].first().map_or(f64::NAN, |p| p.value);
+    assert!(
+        (in_forms - scored).abs() <= 1e-9 * scored.abs(),
+        "{mode}: the form comparison gives {symbol} = {in_forms}, the ranking {scored}"
+    );
     let p = final_param(d, symbol);
     println!(
         "{mode}: {symbol} = {} ± {}; form margin {:.1} % (p = {:.1e})",

@@ -188,6 +188,17 @@ pub(crate) fn rescale_bus(d: &mut Diagnosis, volts: f64) {
         .iter_mut()
         .filter(|p| p.name == title)
         .for_each(scale);
+    // The forms' own fits, as the summary prints them when the forms are confounded.
+    for f in &mut d.forms {
+        for (id, params) in [&f.winner, &f.runner_up]
+            .into_iter()
+            .zip(f.params.iter_mut())
+        {
+            if id == "bus_power" {
+                params.iter_mut().for_each(scale);
+            }
+        }
+    }
     d.bus_volts = volts;
 }
 
