@@ -230,6 +230,88 @@ fn window_mean(
     Some(())
 }
 
+/// The base regressors and extra features of every state sample a trial's windows can reach
+/// (its span up to the end of its return), computed once and shared by the rows of every lag:
+/// a window's mean is then the same sums, in the same order, as from the samples.
+pub(crate) struct TrialFeatures {
+    first: usize,
+    /// `None` for a sample with missing data (its windows give no row).
+    feats: Vec<Option<[f64; N_RAW]>>,
+}
+
+impl TrialFeatures {
+    /// No cached features: every window is computed from the samples (for a single use of a
+    /// trial's samples, where computing every sample of its span first would cost more).
+    pub(crate) fn none() -> TrialFeatures {
+        TrialFeatures {
+            first: 0,
+            feats: Vec::new(),
+        }
+    }
+
+    pub(crate) fn new(rec: &Recording, meta: &TrialMeta) -> TrialFeatures {
+        let a = super::reduce::span(&meta.window).0;
+        let range = sample_range(&rec.state.t, a, meta.window.t_return_end + 1e-6);
+        let mut phi = [0.0; crate::N_PARAMS];
+        let mut ex = [0.0; N_EXTRA];
+        let feats = range
+            .clone()
+            .map(|k| {
+                let s = sample_at(rec, k, &meta.tau0_sq, &meta.bus)?;
+                regressor_into(s.tau, s.dq, s.tau0_sq, &mut phi);
+                extras_into(&s, &mut ex);
+                let mut x = [0.0; N_RAW];
+                for (xi, v) in x.iter_mut().zip(phi.iter().chain(ex.iter())) {
+                    *xi = *v;
+                }
+                Some(x)
+            })
+            .collect();
+        TrialFeatures {
+            first: range.start,
+            feats,
+        }
+    }
+
+    /// [`window_mean`] without descriptors, from the cached features (`None` when the window
+    /// reaches outside them: the caller computes it from the samples).
+    fn window_mean(
+        &self,
+        rec: &Recording,
+        meta: &TrialMeta,
+        a: f64,
+        b: f64,
+        x: &mut [f64; N_RAW],
+    ) -> Option<Option<()>> {
+        let a = a.max(super::reduce::span(&meta.window).0);
+        let range = sample_range(&rec.state.t, a, b);
+        if range.len() < 2 {
+            return Some(None);
+        }
+        if self.feats.is_empty()
+            || range.start < self.first
+            || range.end > self.first + self.feats.len()
+        {
+            return None;
+        }
+        let n = range.len() as f64;
+        x.fill(0.0);
+        for k in range {
+            let Some(f) = &self.feats[k - self.first] else {
+                return Some(None);
+            };
+            for (xi, v) in x.iter_mut().zip(f) {
+                *xi += v;
+            }
+        }
+        x.iter_mut().for_each(|v| *v /= n);
+        for (v, b0) in x[crate::N_PARAMS..].iter_mut().zip(&meta.extra0) {
+            *v -= b0;
+        }
+        Some(Some(()))
+    }
+}
+
 /// Build the rows for one sensor lag. Readings are assigned to trials by their stamps:
 /// baseline readings have stamps in [t_pre_start + W, t_traj_start], row readings in
 /// [t_traj_start + W, t_return_end].
@@ -242,45 +324,77 @@ pub(crate) fn build_rows(
     with_locate: bool,
 ) -> Rows {
     let mut rows = Rows::default();
+    let feats = TrialFeatures::none();
+    for (ti, meta) in trials.iter().enumerate() {
+        trial_rows_into(
+            &mut rows,
+            rec,
+            power,
+            meta,
+            ti,
+            &feats,
+            lag,
+            width,
+            with_locate,
+        );
+    }
+    rows
+}
+
+/// One trial's rows (as trial `ti`) for one sensor lag, from its [`TrialFeatures`].
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn trial_rows_into(
+    rows: &mut Rows,
+    rec: &Recording,
+    power: &PowerSeries,
+    meta: &TrialMeta,
+    ti: usize,
+    feats: &TrialFeatures,
+    lag: f64,
+    width: f64,
+    with_locate: bool,
+) {
     let pt = &power.t;
     let mut x = [0.0; N_RAW];
     let mut loc = [0.0; N_LOCATE];
-    for (ti, meta) in trials.iter().enumerate() {
-        let w = &meta.window;
-        let base = sample_range(pt, w.t_pre_start + width, w.t_traj_start + 1e-9);
-        let vals: Vec<f64> = base
-            .filter_map(|k| power.watts.get(k).copied())
-            .filter(|v| v.is_finite())
-            .collect();
-        if vals.is_empty() {
+    let w = &meta.window;
+    let base = sample_range(pt, w.t_pre_start + width, w.t_traj_start + 1e-9);
+    let vals: Vec<f64> = base
+        .filter_map(|k| power.watts.get(k).copied())
+        .filter(|v| v.is_finite())
+        .collect();
+    if vals.is_empty() {
+        return;
+    }
+    let baseline = vals.iter().sum::<f64>() / vals.len() as f64;
+    for k in sample_range(pt, w.t_traj_start + width, w.t_return_end + 1e-9) {
+        let (Some(&tk), Some(&p)) = (pt.get(k), power.watts.get(k)) else {
+            continue;
+        };
+        if !p.is_finite() {
             continue;
         }
-        let baseline = vals.iter().sum::<f64>() / vals.len() as f64;
-        for k in sample_range(pt, w.t_traj_start + width, w.t_return_end + 1e-9) {
-            let (Some(&tk), Some(&p)) = (pt.get(k), power.watts.get(k)) else {
-                continue;
-            };
-            if !p.is_finite() {
-                continue;
-            }
-            let (a, b) = (tk - lag - width, tk - lag);
-            let l = if with_locate { Some(&mut loc) } else { None };
-            // A gap in the joint stream, or non-finite samples (damaged file): no row.
-            if window_mean(rec, meta, a, b, &mut x, l).is_none() || x.iter().any(|v| !v.is_finite())
-            {
-                continue;
-            }
-            let mid = tk - 0.5 * width;
-            let phase = w.phase_at(mid).unwrap_or(Phase::Return);
-            rows.trial.push(ti);
-            rows.t.push(tk);
-            rows.phase.push(phase);
-            rows.y.push(p - baseline);
-            rows.x.push(x);
-            if with_locate {
-                rows.locate.push(loc);
-            }
+        let (a, b) = (tk - lag - width, tk - lag);
+        let got = if with_locate {
+            window_mean(rec, meta, a, b, &mut x, Some(&mut loc))
+        } else {
+            feats
+                .window_mean(rec, meta, a, b, &mut x)
+                .unwrap_or_else(|| window_mean(rec, meta, a, b, &mut x, None))
+        };
+        // A gap in the joint stream, or non-finite samples (damaged file): no row.
+        if got.is_none() || x.iter().any(|v| !v.is_finite()) {
+            continue;
+        }
+        let mid = tk - 0.5 * width;
+        let phase = w.phase_at(mid).unwrap_or(Phase::Return);
+        rows.trial.push(ti);
+        rows.t.push(tk);
+        rows.phase.push(phase);
+        rows.y.push(p - baseline);
+        rows.x.push(x);
+        if with_locate {
+            rows.locate.push(loc);
         }
     }
-    rows
 }

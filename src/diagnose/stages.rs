@@ -9,7 +9,7 @@ use crate::lsq::Gram;
 use crate::signals::{PowerSeries, Recording};
 use crate::trial::{Cascade, Rejection, TrialStat, TrialWindow};
 
-use super::data::{Rows, TrialMeta, build_rows};
+use super::data::{Rows, TrialFeatures, TrialMeta, trial_rows_into};
 use super::hypotheses::N_RAW;
 use super::reduce::TrialSamples;
 use super::select::{FOLD_SEED, FoldGramsBuilder, Folds, PowerData, fit};
@@ -85,9 +85,20 @@ pub(crate) fn trial_rows(
     let mut totals: Vec<Gram> = lags.iter().map(|_| Gram::zeros(N_RAW)).collect();
     let mut ti = 0usize;
     samples.for_each(&windows, &mut |rec, _| {
-        let one = std::slice::from_ref(&metas[ti]);
+        let feats = TrialFeatures::new(rec, &metas[ti]);
         for (l, &lag) in lags.iter().enumerate() {
-            let part = build_rows(rec, power, one, lag, w, l == 0);
+            let mut part = Rows::default();
+            trial_rows_into(
+                &mut part,
+                rec,
+                power,
+                &metas[ti],
+                ti,
+                &feats,
+                lag,
+                w,
+                l == 0,
+            );
             for (x, y) in part.x.iter().zip(&part.y) {
                 totals[l].add_row(x, *y);
             }
@@ -129,9 +140,11 @@ pub(crate) fn remove_trials(
     let mut removed: Vec<Gram> = lags.iter().map(|_| Gram::zeros(N_RAW)).collect();
     let mut k = 0usize;
     samples.for_each(&windows, &mut |rec, _| {
-        let one = std::slice::from_ref(&metas[gone[k]]);
+        let meta = &metas[gone[k]];
+        let feats = TrialFeatures::new(rec, meta);
         for (l, &lag) in lags.iter().enumerate() {
-            let part = build_rows(rec, power, one, lag, w, false);
+            let mut part = Rows::default();
+            trial_rows_into(&mut part, rec, power, meta, 0, &feats, lag, w, false);
             for (x, y) in part.x.iter().zip(&part.y) {
                 removed[l].add_row(x, *y);
             }
@@ -296,10 +309,14 @@ pub(crate) fn scan_lags<'a>(
     let windows: Vec<TrialWindow> = metas.iter().map(|m| m.window.clone()).collect();
     let mut ti = 0usize;
     samples.for_each(&windows, &mut |rec, _| {
-        let one = std::slice::from_ref(&metas[ti]);
+        let feats = TrialFeatures::new(rec, &metas[ti]);
         let parts: Vec<Rows> = lags
             .iter()
-            .map(|&l| build_rows(rec, power, one, l, w, false))
+            .map(|&l| {
+                let mut part = Rows::default();
+                trial_rows_into(&mut part, rec, power, &metas[ti], 0, &feats, l, w, false);
+                part
+            })
             .collect();
         // The readings present at every lag (a handful per trial).
         let here: HashSet<u64> = parts[0]
@@ -334,9 +351,12 @@ pub(crate) fn scan_lags<'a>(
         let mut out = vec![Rows::default(); want.len()];
         let mut ti = 0usize;
         samples.for_each(&windows, &mut |rec, _| {
-            let one = std::slice::from_ref(&metas[ti]);
+            let feats = TrialFeatures::new(rec, &metas[ti]);
             for (to, &l) in out.iter_mut().zip(want) {
-                let part = build_rows(rec, power, one, at[l], w, false);
+                let mut part = Rows::default();
+                trial_rows_into(
+                    &mut part, rec, power, &metas[ti], 0, &feats, at[l], w, false,
+                );
                 append_common(to, part, &common, ti);
             }
             ti += 1;
