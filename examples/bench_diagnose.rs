@@ -1,7 +1,8 @@
 //! Benchmark of the diagnosis end to end on a paper-scale session (≈ 1000 trials, 3.3 h):
 //! read → segment → rows at every scanned sensor lag → filters → hypothesis selection (power and
-//! torque level) → locate → summary → report. Without a session argument it first simulates one
-//! (not timed), optionally with concealed effects.
+//! torque level) → locate → summary → report, on the loaded session; then the same diagnosis
+//! streamed from the file as `g1viz diagnose` does it. Without a session argument it first
+//! simulates one (not timed), optionally with concealed effects.
 //!
 //! ```text
 //! cargo run --release --no-default-features --example bench_diagnose -- [SESSION.mcap] [--effect NAME=VALUE]… [--twin] [--report DIR]
@@ -84,6 +85,24 @@ fn main() -> Result<()> {
             String::new()
         },
         t0.elapsed().as_secs_f64()
+    );
+    drop(rec);
+    // What `g1viz diagnose SESSION` does: the session streamed trial by trial, never held whole.
+    let t3 = Instant::now();
+    let file = g1viz::identify::SessionFile {
+        path: path.clone(),
+        map: SignalMap::g1_left_arm(),
+        read: Default::default(),
+    };
+    let streamed = diagnose::diagnose_files(std::slice::from_ref(&file), &opts, 5.0)?;
+    println!(
+        "streamed (as the CLI does): {:.2} s, the same accepted hypotheses: {}",
+        t3.elapsed().as_secs_f64(),
+        streamed
+            .accepted
+            .iter()
+            .map(|h| h.id.as_str())
+            .eq(d.accepted.iter().map(|h| h.id.as_str()))
     );
     Ok(())
 }
