@@ -891,13 +891,16 @@ impl Search<'_, '_> {
     }
 }
 
-/// Run discovery on the library's final model `cur`.
+/// Run discovery on the library's final model `cur`; candidates of the groups in `blocked`
+/// (alternatives to a library term the data could not tell from it, [`rival_of`]) are not
+/// tried.
 pub(crate) fn discover(
     data: &PowerData,
     cur: &State,
     inp: &Inputs,
     rule: &Rule,
     joint_names: &[String],
+    blocked: &[String],
 ) -> Result<DiscoveryReport> {
     let base = Base::new(data, cur)?;
     let rows = base.rows;
@@ -930,7 +933,7 @@ pub(crate) fn discover(
     let mut chosen_cols: Vec<Vec<f64>> = Vec::new();
     let mut cur_pred = cur.cv.pred.clone();
     let mut cur_bic = cur.bic;
-    let mut closed: Vec<String> = Vec::new();
+    let mut closed: Vec<String> = blocked.to_vec();
     report.before = Some(search.base.compare(&cur_pred, &cur_pred).2);
     let mut accepted: Vec<(usize, Scored)> = Vec::new();
     for step in 1..=max_terms {
@@ -987,6 +990,156 @@ pub(crate) fn discover(
     }
     finish(&search, &chosen, &accepted, cur, joint_names, &mut report)?;
     Ok(report)
+}
+
+/// A candidate beyond the library that explains what an accepted library term explains, on the
+/// model without that term ([`rival_of`]).
+pub(crate) struct Rival {
+    /// The rival's name (from its structure) and form.
+    pub name: String,
+    /// The rival is not significantly worse than the library term (a tie): neither is claimed.
+    /// Otherwise the rival is significantly better and replaces the library term.
+    pub tied: bool,
+    /// Paired one-sided p-value (by trial, held out) that the library term fits better.
+    pub p_library: f64,
+    /// Held-out RMSE [W] with the library term and with the rival instead.
+    pub rmse: [f64; 2],
+    /// Correlation of the two regressors, each net of the rest of the model.
+    pub correlation: f64,
+    /// Groups of the candidates that explain the same as the library term (they pass the gates
+    /// without it and not beside it): on a tie none of them may be claimed in its place.
+    pub blocked: Vec<String>,
+}
+
+/// Whether the library itself reads recorded field `name`: the arm motors' position, velocity,
+/// torque estimate and winding temperature (`temperature[0]`), and the IMU.
+fn library_reads(name: &str, arm_motors: &[usize; N_JOINTS]) -> bool {
+    name.contains("imu_state.")
+        || arm_motors.iter().any(|k| {
+            let tag = format!("motor_state[{k}].");
+            name.find(&tag).is_some_and(|pos| {
+                matches!(
+                    &name[pos + tag.len()..],
+                    "q" | "dq" | "tau_est" | "temperature[0]"
+                )
+            })
+        })
+}
+
+/// Whether candidate `kind` may stand in for a library term as a rival: it follows recorded
+/// fields, none of which the library reads ([`library_reads`]). A term on session time or a
+/// correction of a base loss term is not another mechanism the data could name instead.
+fn may_rival(kind: &Kind, names: &[String], arm_motors: &[usize; N_JOINTS]) -> bool {
+    let fields: Vec<usize> = match kind {
+        Kind::Additive(f, _) | Kind::Step(f, _) => vec![*f],
+        Kind::Product(_, Signal::Field(f)) => vec![*f],
+        Kind::Product(_, Signal::Family(_, fs)) => fs.to_vec(),
+        Kind::Product(_, Signal::Time) | Kind::PerJoint(_) | Kind::Pooled(_) => Vec::new(),
+    };
+    !fields.is_empty()
+        && fields
+            .iter()
+            .all(|&f| !library_reads(&names[f], arm_motors))
+}
+
+/// The best candidate beyond the library that does the library term's work: every candidate is
+/// scored on `without` (the model `with` without the term, whose regressor is `h_col`) with
+/// discovery's gates at the first Holm step; of those that pass there and no longer pass beside
+/// the term (they explain the same), a rival ([`may_rival`]) that is significantly better than
+/// `with` (paired held-out test by trial at the rule's α) beats the term; otherwise the best
+/// rival that is not significantly worse ties with it. `None` when the term is significantly
+/// better than every rival that explains the same.
+pub(crate) fn rival_of(
+    data: &PowerData,
+    with: &State,
+    without: &State,
+    h_col: &[f64],
+    inp: &Inputs,
+    rule: &Rule,
+    joint_names: &[String],
+) -> Result<Option<Rival>> {
+    let base = Base::new(data, without)?;
+    let rows = base.rows;
+    let twin = data.reference.is_some();
+    let mut notes = Vec::new();
+    let (cands, rv) = generate(inp, rows, data.n_trials, twin, &mut notes);
+    let m = cands.len();
+    let search = Search {
+        base,
+        cands,
+        rv,
+        inp,
+        rule: *rule,
+        m,
+    };
+    let names = &inp.fields.names;
+    if !(0..m).any(|i| may_rival(&search.cands[i].kind, names, &inp.arm_motors)) {
+        return Ok(None);
+    }
+    let y_rms = (rows.y.iter().map(|v| v * v).sum::<f64>() / rows.len().max(1) as f64).sqrt();
+    let level = search.level(1);
+    let nt = data.n_trials;
+    let e_with = trial_sse(&rows.y, &with.cv.pred, &rows.trial, nt);
+    let (_, rmse_with) = r2_rmse(&rows.y, &with.cv.pred);
+    // What a candidate still adds beside the term: one that no longer passes there explains
+    // the same.
+    let beside = Base::new(data, with)?;
+    let explains_same = |i: usize| {
+        let cols = search.cols(i);
+        let refs: Vec<&Vec<f64>> = cols.iter().collect();
+        !beside.fit(&refs).ok().is_some_and(|fit| {
+            let (p, rel, _, _) = beside.compare(&with.cv.pred, &fit.pred);
+            p < level && fit.bic - with.bic < rule.bic_threshold && rel >= rule.min_improvement
+        })
+    };
+    // Candidates that explain the same: (score on `without`, p the term fits better, p the
+    // candidate fits better).
+    let mut same: Vec<(Scored, f64, f64)> = Vec::new();
+    for i in 0..m {
+        let Some(s) = search.score(i, &[], (&without.cv.pred, without.bic), y_rms) else {
+            continue;
+        };
+        if !search.passes(&s, level) || !explains_same(i) {
+            continue;
+        }
+        let e_riv = trial_sse(&rows.y, &s.fit.pred, &rows.trial, nt);
+        let d_lib: Vec<f64> = e_riv.iter().zip(&e_with).map(|(a, b)| a - b).collect();
+        let d_riv: Vec<f64> = d_lib.iter().map(|v| -v).collect();
+        same.push((s, improvement_p_value(&d_lib), improvement_p_value(&d_riv)));
+    }
+    let best_of = |pick: &dyn Fn(&(Scored, f64, f64)) -> bool| {
+        same.iter()
+            .filter(|c| may_rival(&search.cands[c.0.idx].kind, names, &inp.arm_motors))
+            .filter(|c| pick(c))
+            .max_by(|a, b| a.0.rel.total_cmp(&b.0.rel))
+    };
+    let better = best_of(&|c| c.2 < rule.alpha);
+    let tie = best_of(&|c| c.1 >= rule.alpha || c.1.is_nan());
+    let Some((s, p_lib, _)) = better.or(tie) else {
+        return Ok(None);
+    };
+    let tied = better.is_none();
+    let mut blocked: Vec<String> = Vec::new();
+    if tied {
+        for (c, _, _) in &same {
+            let group = &search.cands[c.idx].group;
+            if !blocked.contains(group) {
+                blocked.push(group.clone());
+            }
+        }
+    }
+    let (_, rmse_riv) = r2_rmse(&rows.y, &s.fit.pred);
+    let mine = search.base.residualise(h_col);
+    let theirs = search.base.residualise(&search.cols(s.idx)[0]);
+    let d = to_discovery(s, &search, joint_names, level, 1, String::new());
+    Ok(Some(Rival {
+        name: format!("{} ({})", d.name, d.form),
+        tied,
+        p_library: *p_lib,
+        rmse: [rmse_with, rmse_riv],
+        correlation: pearson(&mine, &theirs).0,
+        blocked,
+    }))
 }
 
 /// A note naming the recorded fields left out because they follow session time (the clock

@@ -298,7 +298,18 @@ fn forms_and_confounding(d: &Diagnosis, s: &mut String) {
             f.p_value
         );
     }
-    for c in &d.confounded {
+    for c in d.confounded.iter().filter(|c| c.neither) {
+        let _ = writeln!(
+            s,
+            "Confounded: {} or {} (regressor correlation r = {:+.2}, each net of the rest of the model): they explain the same part of the power and the first fits the held-out trials {:+.1} % better, not significantly (p = {:.1e}), so neither is claimed.",
+            c.dropped,
+            c.kept,
+            c.correlation,
+            100.0 * c.rel_change,
+            c.p_value,
+        );
+    }
+    for c in d.confounded.iter().filter(|c| !c.neither) {
         let _ = writeln!(
             s,
             "Confounded: {} or {} (regressor correlation r = {:+.2}); {} is not significant given {} (p = {:.1e}, held-out RMSE change {:+.1} %), so only {} is claimed.",
