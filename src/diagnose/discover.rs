@@ -938,7 +938,8 @@ pub(crate) fn discover(
     let mut accepted: Vec<(usize, Scored)> = Vec::new();
     for step in 1..=max_terms {
         let level = search.level(step);
-        let (mut best, mut best_fail): (Option<Scored>, Option<Scored>) = (None, None);
+        let mut best_fail: Option<Scored> = None;
+        let mut passing: Vec<Scored> = Vec::new();
         for i in 0..m {
             if chosen.contains(&i) || closed.contains(&search.cands[i].group) {
                 continue;
@@ -946,16 +947,22 @@ pub(crate) fn discover(
             let Some(s) = search.score(i, &chosen_cols, (&cur_pred, cur_bic), y_rms) else {
                 continue;
             };
-
-            let slot = if search.passes(&s, level) {
-                &mut best
-            } else {
-                &mut best_fail
-            };
-            if slot.as_ref().is_none_or(|b| s.rel > b.rel) {
-                *slot = Some(s);
+            if search.passes(&s, level) {
+                passing.push(s);
+            } else if best_fail.as_ref().is_none_or(|b| s.rel > b.rel) {
+                best_fail = Some(s);
             }
         }
+        let best = (0..passing.len())
+            .max_by(|&a, &b| passing[a].rel.total_cmp(&passing[b].rel))
+            .map(|k| {
+                let b = &passing[k];
+                let refs: Vec<&Scored> = passing.iter().collect();
+                // The plain pooled term when the term × signal containing it is not
+                // significantly better: the signal is not what the data support.
+                let k = simpler_nested(&search, b, &refs).unwrap_or(k);
+                passing.swap_remove(k)
+            });
         if step == 1
             && let Some(f) = &best_fail
             && best.as_ref().is_none_or(|b| f.rel > b.rel)
@@ -992,6 +999,31 @@ pub(crate) fn discover(
     Ok(report)
 }
 
+/// Paired one-sided p-value (held-out error by trial) that predictions `a` fit better than `b`.
+fn p_better(search: &Search, a: &[f64], b: &[f64]) -> f64 {
+    let rows = search.base.rows;
+    let nt = search.base.data.n_trials;
+    let ea = trial_sse(&rows.y, a, &rows.trial, nt);
+    let eb = trial_sse(&rows.y, b, &rows.trial, nt);
+    let d: Vec<f64> = eb.iter().zip(&ea).map(|(x, y)| x - y).collect();
+    improvement_p_value(&d)
+}
+
+/// A base loss term times a signal (with its level) contains the plain pooled term: when it
+/// does not fit significantly better than that pooled term (paired held-out test by trial at the
+/// rule's α), the simpler one is what the data support — its position in `among`.
+fn simpler_nested(search: &Search, b: &Scored, among: &[&Scored]) -> Option<usize> {
+    let Kind::Product(t, _) = search.cands[b.idx].kind else {
+        return None;
+    };
+    among.iter().position(|o| {
+        matches!(search.cands[o.idx].kind, Kind::Pooled(u) if u == t) && {
+            let p = p_better(search, &b.fit.pred, &o.fit.pred);
+            p >= search.rule.alpha || p.is_nan()
+        }
+    })
+}
+
 /// A candidate beyond the library that explains what an accepted library term explains, on the
 /// model without that term ([`rival_of`]).
 pub(crate) struct Rival {
@@ -1004,7 +1036,7 @@ pub(crate) struct Rival {
     pub p_library: f64,
     /// Held-out RMSE [W] with the library term and with the rival instead.
     pub rmse: [f64; 2],
-    /// Correlation of the two regressors, each net of the rest of the model.
+    /// Correlation of the two regressors over the readings (the rival's first column).
     pub correlation: f64,
     /// Groups of the candidates that explain the same as the library term (they pass the gates
     /// without it and not beside it): on a tie none of them may be claimed in its place.
@@ -1105,20 +1137,49 @@ pub(crate) fn rival_of(
         let e_riv = trial_sse(&rows.y, &s.fit.pred, &rows.trial, nt);
         let d_lib: Vec<f64> = e_riv.iter().zip(&e_with).map(|(a, b)| a - b).collect();
         let d_riv: Vec<f64> = d_lib.iter().map(|v| -v).collect();
+        if std::env::var_os("G1VIZ_DEBUG_RIVAL").is_some() {
+            eprintln!(
+                "RIVAL {} rel {:.4} p_lib {:.2e} p_riv {:.2e} may {} rmse {:.4} vs with {:.4}",
+                search.cands[i].group,
+                s.rel,
+                improvement_p_value(&d_lib),
+                improvement_p_value(&d_riv),
+                may_rival(&search.cands[i].kind, names, &inp.arm_motors),
+                s.after.rmse_w,
+                r2_rmse(&rows.y, &with.cv.pred).1
+            );
+        }
         same.push((s, improvement_p_value(&d_lib), improvement_p_value(&d_riv)));
     }
-    let best_of = |pick: &dyn Fn(&(Scored, f64, f64)) -> bool| {
-        same.iter()
-            .filter(|c| may_rival(&search.cands[c.0.idx].kind, names, &inp.arm_motors))
-            .filter(|c| pick(c))
-            .max_by(|a, b| a.0.rel.total_cmp(&b.0.rel))
+    let correction = |c: &(Scored, f64, f64)| {
+        matches!(search.cands[c.0.idx].kind, Kind::PerJoint(_) | Kind::Pooled(_))
     };
-    let better = best_of(&|c| c.2 < rule.alpha);
-    let tie = best_of(&|c| c.1 >= rule.alpha || c.1.is_nan());
-    let Some((s, p_lib, _)) = better.or(tie) else {
-        return Ok(None);
+    let field = |c: &(Scored, f64, f64)| may_rival(&search.cands[c.0.idx].kind, names, &inp.arm_motors);
+    // A product whose pooled term fits as well is that pooled term.
+    let simpler = |k: usize| {
+        let refs: Vec<&Scored> = same.iter().map(|c| &c.0).collect();
+        simpler_nested(&search, &same[k].0, &refs).unwrap_or(k)
+    };
+    let best_of = |pick: &dyn Fn(&(Scored, f64, f64)) -> bool| {
+        (0..same.len())
+            .filter(|&k| pick(&same[k]))
+            .max_by(|&a, &b| same[a].0.rel.total_cmp(&same[b].0.rel))
+            .map(simpler)
+    };
+    // Significantly better: a term on a field the library does not read, or a correction of a
+    // base loss term (the twin's friction or efficiency is what is wrong).
+    let better = best_of(&|c| (field(c) || correction(c)) && c.2 < rule.alpha)
+        .filter(|&k| same[k].2 < rule.alpha);
+    // A tie: only a term on such a field names another mechanism the data cannot tell apart.
+    let tie = || {
+        best_of(&|c| field(c) && (c.1 >= rule.alpha || c.1.is_nan()))
+            .filter(|&k| field(&same[k]))
     };
     let tied = better.is_none();
+    let Some(k) = better.or_else(tie) else {
+        return Ok(None);
+    };
+    let (s, p_lib, _) = &same[k];
     let mut blocked: Vec<String> = Vec::new();
     if tied {
         for (c, _, _) in &same {
@@ -1129,15 +1190,13 @@ pub(crate) fn rival_of(
         }
     }
     let (_, rmse_riv) = r2_rmse(&rows.y, &s.fit.pred);
-    let mine = search.base.residualise(h_col);
-    let theirs = search.base.residualise(&search.cols(s.idx)[0]);
     let d = to_discovery(s, &search, joint_names, level, 1, String::new());
     Ok(Some(Rival {
         name: format!("{} ({})", d.name, d.form),
         tied,
         p_library: *p_lib,
         rmse: [rmse_with, rmse_riv],
-        correlation: pearson(&mine, &theirs).0,
+        correlation: pearson(h_col, &search.cols(s.idx)[0]).0,
         blocked,
     }))
 }

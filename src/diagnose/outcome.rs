@@ -198,7 +198,7 @@ pub(crate) fn mark_confounded(ranked: &mut [HypothesisScore], confounded: &[Conf
             s.accepted = false;
             if c.neither {
                 s.verdict = format!(
-                    "confounded with {}: the data do not tell them apart (this term fits the held-out trials {:+.1} % better, p = {:.1e} ≥ the test's α; regressor r = {:+.2}, each net of the rest of the model); neither is claimed; scored alone: {}",
+                    "confounded with {}: the data do not tell them apart (this term fits the held-out trials {:+.1} % better, p = {:.1e} ≥ the test's α; regressor r = {:+.2}); neither is claimed; scored alone: {}",
                     c.kept,
                     100.0 * c.rel_change,
                     c.p_value,

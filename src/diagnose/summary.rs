@@ -301,7 +301,7 @@ fn forms_and_confounding(d: &Diagnosis, s: &mut String) {
     for c in d.confounded.iter().filter(|c| c.neither) {
         let _ = writeln!(
             s,
-            "Confounded: {} or {} (regressor correlation r = {:+.2}, each net of the rest of the model): they explain the same part of the power and the first fits the held-out trials {:+.1} % better, not significantly (p = {:.1e}), so neither is claimed.",
+            "Confounded: {} or {} (regressor correlation r = {:+.2}): they explain the same part of the power and the first fits the held-out trials {:+.1} % better, not significantly (p = {:.1e}), so neither is claimed.",
             c.dropped,
             c.kept,
             c.correlation,
