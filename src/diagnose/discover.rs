@@ -1036,11 +1036,24 @@ pub(crate) struct Rival {
     pub p_library: f64,
     /// Held-out RMSE [W] with the library term and with the rival instead.
     pub rmse: [f64; 2],
-    /// Correlation of the two regressors over the readings (the rival's first column).
+    /// Correlation over the readings of what each adds to the held-out prediction of the
+    /// model without the library term (their regressors as the fits weight them).
     pub correlation: f64,
     /// Groups of the candidates that explain the same as the library term (they pass the gates
     /// without it and not beside it): on a tie none of them may be claimed in its place.
     pub blocked: Vec<String>,
+}
+
+/// A candidate that explains what a library term explains ([`rival_of`]).
+struct Same {
+    /// Its score on the model without the term.
+    s: Scored,
+    /// Paired one-sided p-value that the library term fits the held-out trials better.
+    p_lib: f64,
+    /// The same, that the candidate fits better.
+    p_riv: f64,
+    /// Correlation of what each adds to the prediction of the model without the term.
+    r: f64,
 }
 
 /// Whether the library itself reads recorded field `name`: the arm motors' position, velocity,
@@ -1075,7 +1088,7 @@ fn may_rival(kind: &Kind, names: &[String], arm_motors: &[usize; N_JOINTS]) -> b
 }
 
 /// The best candidate beyond the library that does the library term's work: every candidate is
-/// scored on `without` (the model `with` without the term, whose regressor is `h_col`) with
+/// scored on `without` (the model `with` without the term) with
 /// discovery's gates at the first Holm step; of those that pass there and no longer pass beside
 /// the term (they explain the same), a rival ([`may_rival`]) that is significantly better than
 /// `with` (paired held-out test by trial at the rule's α) beats the term; otherwise the best
@@ -1085,7 +1098,6 @@ pub(crate) fn rival_of(
     data: &PowerData,
     with: &State,
     without: &State,
-    h_col: &[f64],
     inp: &Inputs,
     rule: &Rule,
     joint_names: &[String],
@@ -1124,9 +1136,15 @@ pub(crate) fn rival_of(
             p < level && fit.bic - with.bic < rule.bic_threshold && rel >= rule.min_improvement
         })
     };
-    // Candidates that explain the same: (score on `without`, p the term fits better, p the
-    // candidate fits better).
-    let mut same: Vec<(Scored, f64, f64)> = Vec::new();
+    // What the term adds to the held-out prediction.
+    let lib_add: Vec<f64> = with
+        .cv
+        .pred
+        .iter()
+        .zip(&without.cv.pred)
+        .map(|(a, b)| a - b)
+        .collect();
+    let mut same: Vec<Same> = Vec::new();
     for i in 0..m {
         let Some(s) = search.score(i, &[], (&without.cv.pred, without.bic), y_rms) else {
             continue;
@@ -1137,66 +1155,103 @@ pub(crate) fn rival_of(
         let e_riv = trial_sse(&rows.y, &s.fit.pred, &rows.trial, nt);
         let d_lib: Vec<f64> = e_riv.iter().zip(&e_with).map(|(a, b)| a - b).collect();
         let d_riv: Vec<f64> = d_lib.iter().map(|v| -v).collect();
+        let riv_add: Vec<f64> = s
+            .fit
+            .pred
+            .iter()
+            .zip(&without.cv.pred)
+            .map(|(a, b)| a - b)
+            .collect();
         if std::env::var_os("G1VIZ_DEBUG_RIVAL").is_some() {
             eprintln!(
-                "RIVAL {} rel {:.4} p_lib {:.2e} p_riv {:.2e} may {} rmse {:.4} vs with {:.4}",
+                "RIVAL {} rel {:.4} p_lib {:.2e} p_riv {:.2e} r {:.3} rmse {:.4} vs {:.4}",
                 search.cands[i].group,
                 s.rel,
                 improvement_p_value(&d_lib),
                 improvement_p_value(&d_riv),
-                may_rival(&search.cands[i].kind, names, &inp.arm_motors),
+                pearson(&lib_add, &riv_add).0,
                 s.after.rmse_w,
-                r2_rmse(&rows.y, &with.cv.pred).1
+                rmse_with
             );
         }
-        same.push((s, improvement_p_value(&d_lib), improvement_p_value(&d_riv)));
+        same.push(Same {
+            p_lib: improvement_p_value(&d_lib),
+            p_riv: improvement_p_value(&d_riv),
+            r: pearson(&lib_add, &riv_add).0,
+            s,
+        });
     }
-    let correction = |c: &(Scored, f64, f64)| {
-        matches!(search.cands[c.0.idx].kind, Kind::PerJoint(_) | Kind::Pooled(_))
+    let correction =
+        |c: &Same| matches!(search.cands[c.s.idx].kind, Kind::PerJoint(_) | Kind::Pooled(_));
+    // A loss term × signal carries its field only when it fits significantly better than its
+    // level alone (the plain pooled term with a free coefficient): otherwise any slow signal
+    // would do, and the field names nothing.
+    let mut level_pred: Vec<(Term, Vec<f64>)> = Vec::new();
+    for c in &same {
+        if let Kind::Product(t, _) = search.cands[c.s.idx].kind
+            && !level_pred.iter().any(|(u, _)| *u == t)
+        {
+            let level = search.cols(c.s.idx).swap_remove(1);
+            if let Ok(fit) = search.base.fit(&[&level]) {
+                level_pred.push((t, fit.pred));
+            }
+        }
+    }
+    let carried = |c: &Same| match search.cands[c.s.idx].kind {
+        Kind::Product(t, _) => level_pred.iter().any(|(u, pred)| {
+            *u == t && p_better(&search, &c.s.fit.pred, pred) < rule.alpha
+        }),
+        _ => true,
     };
-    let field = |c: &(Scored, f64, f64)| may_rival(&search.cands[c.0.idx].kind, names, &inp.arm_motors);
+    let field = |c: &Same| {
+        may_rival(&search.cands[c.s.idx].kind, names, &inp.arm_motors) && carried(c)
+    };
     // A product whose pooled term fits as well is that pooled term.
     let simpler = |k: usize| {
-        let refs: Vec<&Scored> = same.iter().map(|c| &c.0).collect();
-        simpler_nested(&search, &same[k].0, &refs).unwrap_or(k)
+        let refs: Vec<&Scored> = same.iter().map(|c| &c.s).collect();
+        simpler_nested(&search, &same[k].s, &refs).unwrap_or(k)
     };
-    let best_of = |pick: &dyn Fn(&(Scored, f64, f64)) -> bool| {
+    let best_of = |pick: &dyn Fn(&Same) -> bool| {
         (0..same.len())
             .filter(|&k| pick(&same[k]))
-            .max_by(|&a, &b| same[a].0.rel.total_cmp(&same[b].0.rel))
+            .max_by(|&a, &b| same[a].s.rel.total_cmp(&same[b].s.rel))
             .map(simpler)
     };
     // Significantly better: a term on a field the library does not read, or a correction of a
     // base loss term (the twin's friction or efficiency is what is wrong).
-    let better = best_of(&|c| (field(c) || correction(c)) && c.2 < rule.alpha)
-        .filter(|&k| same[k].2 < rule.alpha);
-    // A tie: only a term on such a field names another mechanism the data cannot tell apart.
+    let better = best_of(&|c| (field(c) || correction(c)) && c.p_riv < rule.alpha)
+        .filter(|&k| same[k].p_riv < rule.alpha);
+    // A tie: a term on such a field, not significantly worse, whose contribution is collinear
+    // with the term's — another mechanism the data cannot tell apart.
     let tie = || {
-        best_of(&|c| field(c) && (c.1 >= rule.alpha || c.1.is_nan()))
-            .filter(|&k| field(&same[k]))
+        best_of(&|c| {
+            field(c) && (c.p_lib >= rule.alpha || c.p_lib.is_nan()) && c.r >= CONFOUNDED_R
+        })
+        .filter(|&k| field(&same[k]))
     };
     let tied = better.is_none();
     let Some(k) = better.or_else(tie) else {
         return Ok(None);
     };
-    let (s, p_lib, _) = &same[k];
+    let c = &same[k];
     let mut blocked: Vec<String> = Vec::new();
     if tied {
-        for (c, _, _) in &same {
-            let group = &search.cands[c.idx].group;
+        for o in &same {
+            let group = &search.cands[o.s.idx].group;
             if !blocked.contains(group) {
                 blocked.push(group.clone());
             }
         }
     }
-    let (_, rmse_riv) = r2_rmse(&rows.y, &s.fit.pred);
+    let (_, rmse_riv) = r2_rmse(&rows.y, &c.s.fit.pred);
+    let s = &c.s;
     let d = to_discovery(s, &search, joint_names, level, 1, String::new());
     Ok(Some(Rival {
         name: format!("{} ({})", d.name, d.form),
         tied,
-        p_library: *p_lib,
+        p_library: c.p_lib,
         rmse: [rmse_with, rmse_riv],
-        correlation: pearson(h_col, &search.cols(s.idx)[0]).0,
+        correlation: c.r,
         blocked,
     }))
 }

@@ -100,12 +100,6 @@ pub(crate) fn library_rivals(
     blocked: &mut Vec<String>,
 ) -> Result<Vec<Confounded>> {
     for (j, h) in cur.spec.iter().enumerate() {
-        let col: Vec<f64> = data
-            .rows(cur.lag)?
-            .x
-            .iter()
-            .map(|x| select::regressor(h, x, &cur.full.theta))
-            .collect();
         let mut spec = cur.spec.clone();
         spec.remove(j);
         let without = select::state(data, spec, cur.lag)?;
@@ -113,7 +107,6 @@ pub(crate) fn library_rivals(
             data,
             cur,
             &without,
-            &col,
             inputs,
             rule,
             &info.joint_names,
