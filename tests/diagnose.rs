@@ -636,7 +636,11 @@ fn housing_friction_with_default_start_temperatures_is_a_coulomb_excess_not_gear
         housing.iter().all(|&t| t == housing[0]),
         "housings: {housing:?}"
     );
-    assert!(d.accepted.is_empty(), "twin: library claims {:?}", claims(&d));
+    assert!(
+        d.accepted.is_empty(),
+        "twin: library claims {:?}",
+        claims(&d)
+    );
     assert!(
         d.hypotheses
             .iter()
@@ -668,9 +672,9 @@ fn housing_friction_with_default_start_temperatures_is_a_coulomb_excess_not_gear
     );
     let json = serde_json::to_value(&d).unwrap();
     assert!(
-        json["confounded"]
-            .as_array()
-            .is_some_and(|c| c.iter().any(|c| c["dropped"] == "gear_friction"
+        json["confounded"].as_array().is_some_and(|c| c
+            .iter()
+            .any(|c| c["dropped"] == "gear_friction"
                 && c["correlation"].is_f64()
                 && c["neither"].is_boolean())),
         "{}",

@@ -1088,12 +1088,16 @@ fn may_rival(kind: &Kind, names: &[String], arm_motors: &[usize; N_JOINTS]) -> b
 }
 
 /// The best candidate beyond the library that does the library term's work: every candidate is
-/// scored on `without` (the model `with` without the term) with
-/// discovery's gates at the first Holm step; of those that pass there and no longer pass beside
-/// the term (they explain the same), a rival ([`may_rival`]) that is significantly better than
-/// `with` (paired held-out test by trial at the rule's α) beats the term; otherwise the best
-/// rival that is not significantly worse ties with it. `None` when the term is significantly
-/// better than every rival that explains the same.
+/// scored on `without` (the model `with` without the term) with discovery's gates at the first
+/// Holm step; those that pass there and no longer pass beside the term explain the same. Of
+/// them, one that fits the held-out trials significantly better than `with` (paired test by
+/// trial at the rule's α) beats the term — a term on recorded fields the library does not read
+/// ([`may_rival`]) or a correction of a base loss term. Otherwise the best term on such fields
+/// that is not significantly worse and whose contribution to the prediction is collinear with
+/// the term's (r ≥ [`CONFOUNDED_R`]) ties with it. A loss term × signal counts as a term on its
+/// field only when it fits significantly better than its level alone (any slow signal would do
+/// otherwise), and one whose plain pooled term fits as well is that pooled term. `None` when no
+/// rival beats or ties, and always when no recorded field lies beyond the library's.
 pub(crate) fn rival_of(
     data: &PowerData,
     with: &State,
@@ -1162,18 +1166,6 @@ pub(crate) fn rival_of(
             .zip(&without.cv.pred)
             .map(|(a, b)| a - b)
             .collect();
-        if std::env::var_os("G1VIZ_DEBUG_RIVAL").is_some() {
-            eprintln!(
-                "RIVAL {} rel {:.4} p_lib {:.2e} p_riv {:.2e} r {:.3} rmse {:.4} vs {:.4}",
-                search.cands[i].group,
-                s.rel,
-                improvement_p_value(&d_lib),
-                improvement_p_value(&d_riv),
-                pearson(&lib_add, &riv_add).0,
-                s.after.rmse_w,
-                rmse_with
-            );
-        }
         same.push(Same {
             p_lib: improvement_p_value(&d_lib),
             p_riv: improvement_p_value(&d_riv),
@@ -1181,8 +1173,12 @@ pub(crate) fn rival_of(
             s,
         });
     }
-    let correction =
-        |c: &Same| matches!(search.cands[c.s.idx].kind, Kind::PerJoint(_) | Kind::Pooled(_));
+    let correction = |c: &Same| {
+        matches!(
+            search.cands[c.s.idx].kind,
+            Kind::PerJoint(_) | Kind::Pooled(_)
+        )
+    };
     // A loss term × signal carries its field only when it fits significantly better than its
     // level alone (the plain pooled term with a free coefficient): otherwise any slow signal
     // would do, and the field names nothing.
@@ -1198,14 +1194,13 @@ pub(crate) fn rival_of(
         }
     }
     let carried = |c: &Same| match search.cands[c.s.idx].kind {
-        Kind::Product(t, _) => level_pred.iter().any(|(u, pred)| {
-            *u == t && p_better(&search, &c.s.fit.pred, pred) < rule.alpha
-        }),
+        Kind::Product(t, _) => level_pred
+            .iter()
+            .any(|(u, pred)| *u == t && p_better(&search, &c.s.fit.pred, pred) < rule.alpha),
         _ => true,
     };
-    let field = |c: &Same| {
-        may_rival(&search.cands[c.s.idx].kind, names, &inp.arm_motors) && carried(c)
-    };
+    let field =
+        |c: &Same| may_rival(&search.cands[c.s.idx].kind, names, &inp.arm_motors) && carried(c);
     // A product whose pooled term fits as well is that pooled term.
     let simpler = |k: usize| {
         let refs: Vec<&Scored> = same.iter().map(|c| &c.s).collect();
@@ -1224,10 +1219,8 @@ pub(crate) fn rival_of(
     // A tie: a term on such a field, not significantly worse, whose contribution is collinear
     // with the term's — another mechanism the data cannot tell apart.
     let tie = || {
-        best_of(&|c| {
-            field(c) && (c.p_lib >= rule.alpha || c.p_lib.is_nan()) && c.r >= CONFOUNDED_R
-        })
-        .filter(|&k| field(&same[k]))
+        best_of(&|c| field(c) && (c.p_lib >= rule.alpha || c.p_lib.is_nan()) && c.r >= CONFOUNDED_R)
+            .filter(|&k| field(&same[k]))
     };
     let tied = better.is_none();
     let Some(k) = better.or_else(tie) else {

@@ -53,14 +53,8 @@ pub(crate) fn select_and_discover(
         }
         let f = &fields.insert((lag, f)).1;
         let inputs = field_inputs(f, opts);
-        let report = discover::discover(
-            data,
-            &sel.last,
-            &inputs,
-            rule,
-            &info.joint_names,
-            &blocked,
-        )?;
+        let report =
+            discover::discover(data, &sel.last, &inputs, rule, &info.joint_names, &blocked)?;
         let mut dropped = library_given_found(data, &sel.last, &report, rule)?;
         if dropped.is_empty() {
             dropped = library_rivals(data, &sel.last, &inputs, rule, info, &mut blocked)?;
@@ -103,14 +97,7 @@ pub(crate) fn library_rivals(
         let mut spec = cur.spec.clone();
         spec.remove(j);
         let without = select::state(data, spec, cur.lag)?;
-        let Some(r) = discover::rival_of(
-            data,
-            cur,
-            &without,
-            inputs,
-            rule,
-            &info.joint_names,
-        )?
+        let Some(r) = discover::rival_of(data, cur, &without, inputs, rule, &info.joint_names)?
         else {
             continue;
         };

@@ -396,7 +396,9 @@ mod tests {
         };
         let line = confounded_line(&c(true));
         assert!(
-            line.starts_with("Confounded: gear_friction or found term (regressor correlation r = +0.87)"),
+            line.starts_with(
+                "Confounded: gear_friction or found term (regressor correlation r = +0.87)"
+            ),
             "{line}"
         );
         assert!(line.contains("+1.2 % better"), "{line}");
