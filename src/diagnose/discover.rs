@@ -891,13 +891,16 @@ impl Search<'_, '_> {
     }
 }
 
-/// Run discovery on the library's final model `cur`.
+/// Run discovery on the library's final model `cur`; candidates of the groups in `blocked`
+/// (alternatives to a library term the data could not tell from it, [`rival_of`]) are not
+/// tried.
 pub(crate) fn discover(
     data: &PowerData,
     cur: &State,
     inp: &Inputs,
     rule: &Rule,
     joint_names: &[String],
+    blocked: &[String],
 ) -> Result<DiscoveryReport> {
     let base = Base::new(data, cur)?;
     let rows = base.rows;
@@ -930,12 +933,13 @@ pub(crate) fn discover(
     let mut chosen_cols: Vec<Vec<f64>> = Vec::new();
     let mut cur_pred = cur.cv.pred.clone();
     let mut cur_bic = cur.bic;
-    let mut closed: Vec<String> = Vec::new();
+    let mut closed: Vec<String> = blocked.to_vec();
     report.before = Some(search.base.compare(&cur_pred, &cur_pred).2);
     let mut accepted: Vec<(usize, Scored)> = Vec::new();
     for step in 1..=max_terms {
         let level = search.level(step);
-        let (mut best, mut best_fail): (Option<Scored>, Option<Scored>) = (None, None);
+        let mut best_fail: Option<Scored> = None;
+        let mut passing: Vec<Scored> = Vec::new();
         for i in 0..m {
             if chosen.contains(&i) || closed.contains(&search.cands[i].group) {
                 continue;
@@ -943,16 +947,22 @@ pub(crate) fn discover(
             let Some(s) = search.score(i, &chosen_cols, (&cur_pred, cur_bic), y_rms) else {
                 continue;
             };
-
-            let slot = if search.passes(&s, level) {
-                &mut best
-            } else {
-                &mut best_fail
-            };
-            if slot.as_ref().is_none_or(|b| s.rel > b.rel) {
-                *slot = Some(s);
+            if search.passes(&s, level) {
+                passing.push(s);
+            } else if best_fail.as_ref().is_none_or(|b| s.rel > b.rel) {
+                best_fail = Some(s);
             }
         }
+        let best = (0..passing.len())
+            .max_by(|&a, &b| passing[a].rel.total_cmp(&passing[b].rel))
+            .map(|k| {
+                let b = &passing[k];
+                let refs: Vec<&Scored> = passing.iter().collect();
+                // The plain pooled term when the term × signal containing it is not
+                // significantly better: the signal is not what the data support.
+                let k = simpler_nested(&search, b, &refs).unwrap_or(k);
+                passing.swap_remove(k)
+            });
         if step == 1
             && let Some(f) = &best_fail
             && best.as_ref().is_none_or(|b| f.rel > b.rel)
@@ -987,6 +997,256 @@ pub(crate) fn discover(
     }
     finish(&search, &chosen, &accepted, cur, joint_names, &mut report)?;
     Ok(report)
+}
+
+/// Paired one-sided p-value (held-out error by trial) that predictions `a` fit better than `b`.
+fn p_better(search: &Search, a: &[f64], b: &[f64]) -> f64 {
+    let rows = search.base.rows;
+    let nt = search.base.data.n_trials;
+    let ea = trial_sse(&rows.y, a, &rows.trial, nt);
+    let eb = trial_sse(&rows.y, b, &rows.trial, nt);
+    let d: Vec<f64> = eb.iter().zip(&ea).map(|(x, y)| x - y).collect();
+    improvement_p_value(&d)
+}
+
+/// A base loss term times a signal (with its level) contains the plain pooled term: when it
+/// does not fit significantly better than that pooled term (paired held-out test by trial at the
+/// rule's α), the simpler one is what the data support — its position in `among`.
+fn simpler_nested(search: &Search, b: &Scored, among: &[&Scored]) -> Option<usize> {
+    let Kind::Product(t, _) = search.cands[b.idx].kind else {
+        return None;
+    };
+    among.iter().position(|o| {
+        matches!(search.cands[o.idx].kind, Kind::Pooled(u) if u == t) && {
+            let p = p_better(search, &b.fit.pred, &o.fit.pred);
+            p >= search.rule.alpha || p.is_nan()
+        }
+    })
+}
+
+/// A candidate beyond the library that explains what an accepted library term explains, on the
+/// model without that term ([`rival_of`]).
+pub(crate) struct Rival {
+    /// The rival's name (from its structure) and form.
+    pub name: String,
+    /// The rival is not significantly worse than the library term (a tie): neither is claimed.
+    /// Otherwise the rival is significantly better and replaces the library term.
+    pub tied: bool,
+    /// Paired one-sided p-value (by trial, held out) that the library term fits better.
+    pub p_library: f64,
+    /// Held-out RMSE [W] with the library term and with the rival instead.
+    pub rmse: [f64; 2],
+    /// Correlation over the readings of what each adds to the held-out prediction of the
+    /// model without the library term (their regressors as the fits weight them).
+    pub correlation: f64,
+    /// Groups of the candidates that explain the same as the library term (they pass the gates
+    /// without it and not beside it): on a tie none of them may be claimed in its place.
+    pub blocked: Vec<String>,
+}
+
+/// A candidate that explains what a library term explains ([`rival_of`]).
+struct Same {
+    /// Its score on the model without the term.
+    s: Scored,
+    /// Paired one-sided p-value that the library term fits the held-out trials better.
+    p_lib: f64,
+    /// The same, that the candidate fits better.
+    p_riv: f64,
+    /// Correlation of what each adds to the prediction of the model without the term.
+    r: f64,
+}
+
+/// Whether the library itself reads recorded field `name`: the arm motors' position, velocity,
+/// torque estimate and winding temperature (`temperature[0]`), and the IMU.
+fn library_reads(name: &str, arm_motors: &[usize; N_JOINTS]) -> bool {
+    name.contains("imu_state.")
+        || arm_motors.iter().any(|k| {
+            let tag = format!("motor_state[{k}].");
+            name.find(&tag).is_some_and(|pos| {
+                matches!(
+                    &name[pos + tag.len()..],
+                    "q" | "dq" | "tau_est" | "temperature[0]"
+                )
+            })
+        })
+}
+
+/// Whether candidate `kind` may stand in for a library term as a rival: it follows recorded
+/// fields, none of which the library reads ([`library_reads`]). A term on session time or a
+/// correction of a base loss term is not another mechanism the data could name instead.
+fn may_rival(kind: &Kind, names: &[String], arm_motors: &[usize; N_JOINTS]) -> bool {
+    let fields: Vec<usize> = match kind {
+        Kind::Additive(f, _) | Kind::Step(f, _) => vec![*f],
+        Kind::Product(_, Signal::Field(f)) => vec![*f],
+        Kind::Product(_, Signal::Family(_, fs)) => fs.to_vec(),
+        Kind::Product(_, Signal::Time) | Kind::PerJoint(_) | Kind::Pooled(_) => Vec::new(),
+    };
+    !fields.is_empty()
+        && fields
+            .iter()
+            .all(|&f| !library_reads(&names[f], arm_motors))
+}
+
+/// The best candidate beyond the library that does the library term's work: every candidate is
+/// scored on `without` (the model `with` without the term) with discovery's gates at the first
+/// Holm step; those that pass there and no longer pass beside the term explain the same. Of
+/// them, one that fits the held-out trials significantly better than `with` (paired test by
+/// trial at the rule's α) beats the term — a term on recorded fields the library does not read
+/// ([`may_rival`]) or a correction of a base loss term. Otherwise the best term on such fields
+/// that is not significantly worse and whose contribution to the prediction is collinear with
+/// the term's (r ≥ [`CONFOUNDED_R`]) ties with it. A loss term × signal counts as a term on its
+/// field only when it fits significantly better than its level alone (any slow signal would do
+/// otherwise), and one whose plain pooled term fits as well is that pooled term. `None` when no
+/// rival beats or ties, and always when no recorded field lies beyond the library's.
+pub(crate) fn rival_of(
+    data: &PowerData,
+    with: &State,
+    without: &State,
+    inp: &Inputs,
+    rule: &Rule,
+    joint_names: &[String],
+) -> Result<Option<Rival>> {
+    let base = Base::new(data, without)?;
+    let rows = base.rows;
+    let twin = data.reference.is_some();
+    let mut notes = Vec::new();
+    let (cands, rv) = generate(inp, rows, data.n_trials, twin, &mut notes);
+    let m = cands.len();
+    let search = Search {
+        base,
+        cands,
+        rv,
+        inp,
+        rule: *rule,
+        m,
+    };
+    let names = &inp.fields.names;
+    if !(0..m).any(|i| may_rival(&search.cands[i].kind, names, &inp.arm_motors)) {
+        return Ok(None);
+    }
+    let y_rms = (rows.y.iter().map(|v| v * v).sum::<f64>() / rows.len().max(1) as f64).sqrt();
+    let level = search.level(1);
+    let nt = data.n_trials;
+    let e_with = trial_sse(&rows.y, &with.cv.pred, &rows.trial, nt);
+    let (_, rmse_with) = r2_rmse(&rows.y, &with.cv.pred);
+    // What a candidate still adds beside the term: one that no longer passes there explains
+    // the same.
+    let beside = Base::new(data, with)?;
+    let explains_same = |i: usize| {
+        let cols = search.cols(i);
+        let refs: Vec<&Vec<f64>> = cols.iter().collect();
+        !beside.fit(&refs).ok().is_some_and(|fit| {
+            let (p, rel, _, _) = beside.compare(&with.cv.pred, &fit.pred);
+            p < level && fit.bic - with.bic < rule.bic_threshold && rel >= rule.min_improvement
+        })
+    };
+    // What the term adds to the held-out prediction.
+    let lib_add: Vec<f64> = with
+        .cv
+        .pred
+        .iter()
+        .zip(&without.cv.pred)
+        .map(|(a, b)| a - b)
+        .collect();
+    let mut same: Vec<Same> = Vec::new();
+    for i in 0..m {
+        let Some(s) = search.score(i, &[], (&without.cv.pred, without.bic), y_rms) else {
+            continue;
+        };
+        if !search.passes(&s, level) || !explains_same(i) {
+            continue;
+        }
+        let e_riv = trial_sse(&rows.y, &s.fit.pred, &rows.trial, nt);
+        let d_lib: Vec<f64> = e_riv.iter().zip(&e_with).map(|(a, b)| a - b).collect();
+        let d_riv: Vec<f64> = d_lib.iter().map(|v| -v).collect();
+        let riv_add: Vec<f64> = s
+            .fit
+            .pred
+            .iter()
+            .zip(&without.cv.pred)
+            .map(|(a, b)| a - b)
+            .collect();
+        same.push(Same {
+            p_lib: improvement_p_value(&d_lib),
+            p_riv: improvement_p_value(&d_riv),
+            r: pearson(&lib_add, &riv_add).0,
+            s,
+        });
+    }
+    let correction = |c: &Same| {
+        matches!(
+            search.cands[c.s.idx].kind,
+            Kind::PerJoint(_) | Kind::Pooled(_)
+        )
+    };
+    // A loss term × signal carries its field only when it fits significantly better than its
+    // level alone (the plain pooled term with a free coefficient): otherwise any slow signal
+    // would do, and the field names nothing.
+    let mut level_pred: Vec<(Term, Vec<f64>)> = Vec::new();
+    for c in &same {
+        if let Kind::Product(t, _) = search.cands[c.s.idx].kind
+            && !level_pred.iter().any(|(u, _)| *u == t)
+        {
+            let level = search.cols(c.s.idx).swap_remove(1);
+            if let Ok(fit) = search.base.fit(&[&level]) {
+                level_pred.push((t, fit.pred));
+            }
+        }
+    }
+    let carried = |c: &Same| match search.cands[c.s.idx].kind {
+        Kind::Product(t, _) => level_pred
+            .iter()
+            .any(|(u, pred)| *u == t && p_better(&search, &c.s.fit.pred, pred) < rule.alpha),
+        _ => true,
+    };
+    let field =
+        |c: &Same| may_rival(&search.cands[c.s.idx].kind, names, &inp.arm_motors) && carried(c);
+    // A product whose pooled term fits as well is that pooled term.
+    let simpler = |k: usize| {
+        let refs: Vec<&Scored> = same.iter().map(|c| &c.s).collect();
+        simpler_nested(&search, &same[k].s, &refs).unwrap_or(k)
+    };
+    let best_of = |pick: &dyn Fn(&Same) -> bool| {
+        (0..same.len())
+            .filter(|&k| pick(&same[k]))
+            .max_by(|&a, &b| same[a].s.rel.total_cmp(&same[b].s.rel))
+            .map(simpler)
+    };
+    // Significantly better: a term on a field the library does not read, or a correction of a
+    // base loss term (the twin's friction or efficiency is what is wrong).
+    let better = best_of(&|c| (field(c) || correction(c)) && c.p_riv < rule.alpha)
+        .filter(|&k| same[k].p_riv < rule.alpha);
+    // A tie: a term on such a field, not significantly worse, whose contribution is collinear
+    // with the term's — another mechanism the data cannot tell apart.
+    let tie = || {
+        best_of(&|c| field(c) && (c.p_lib >= rule.alpha || c.p_lib.is_nan()) && c.r >= CONFOUNDED_R)
+            .filter(|&k| field(&same[k]))
+    };
+    let tied = better.is_none();
+    let Some(k) = better.or_else(tie) else {
+        return Ok(None);
+    };
+    let c = &same[k];
+    let mut blocked: Vec<String> = Vec::new();
+    if tied {
+        for o in &same {
+            let group = &search.cands[o.s.idx].group;
+            if !blocked.contains(group) {
+                blocked.push(group.clone());
+            }
+        }
+    }
+    let (_, rmse_riv) = r2_rmse(&rows.y, &c.s.fit.pred);
+    let s = &c.s;
+    let d = to_discovery(s, &search, joint_names, level, 1, String::new());
+    Ok(Some(Rival {
+        name: format!("{} ({})", d.name, d.form),
+        tied,
+        p_library: c.p_lib,
+        rmse: [rmse_with, rmse_riv],
+        correlation: c.r,
+        blocked,
+    }))
 }
 
 /// A note naming the recorded fields left out because they follow session time (the clock

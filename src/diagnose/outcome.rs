@@ -207,6 +207,17 @@ pub(crate) fn mark_confounded(ranked: &mut [HypothesisScore], confounded: &[Conf
     for c in confounded {
         for s in ranked.iter_mut().filter(|s| s.id == c.dropped) {
             s.accepted = false;
+            if c.neither {
+                s.verdict = format!(
+                    "confounded with {}: the data do not tell them apart (this term fits the held-out trials {:+.1} % better, p = {:.1e} ≥ the test's α; regressor r = {:+.2}); neither is claimed; scored alone: {}",
+                    c.kept,
+                    100.0 * c.rel_change,
+                    c.p_value,
+                    c.correlation,
+                    s.verdict
+                );
+                continue;
+            }
             s.verdict = format!(
                 "confounded with {}: not significant given it (p = {:.1e}, held-out RMSE change {:+.1} %, regressor r = {:+.2}); scored alone: {}",
                 c.kept,

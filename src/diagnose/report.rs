@@ -628,8 +628,13 @@ fn beyond_section(md: &mut String, d: &Diagnosis) {
         for c in &d.confounded {
             let _ = writeln!(
                 md,
-                "| {} | {} | {:+.2} | {} | {:+.2} % |",
+                "| {}{} | {} | {:+.2} | {} | {:+.2} % |",
                 c.kept,
+                if c.neither {
+                    " (not told apart: neither claimed)"
+                } else {
+                    ""
+                },
                 c.dropped,
                 c.correlation,
                 sig(c.p_value),

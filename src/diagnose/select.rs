@@ -807,6 +807,13 @@ pub struct Confounded {
     pub p_value: f64,
     /// Relative held-out RMSE change from dropping it.
     pub rel_change: f64,
+    /// The data do not tell the two apart in either direction (a library term and a term beyond
+    /// the library, on a recorded field the library does not read, that explains the same part of
+    /// the power): neither is claimed. Then `p_value` is that of the dropped one fitting the
+    /// held-out trials better than the kept one, and `rel_change` is 1 − its held-out RMSE /
+    /// the kept one's.
+    #[serde(default)]
+    pub neither: bool,
 }
 
 /// The result of greedy forward selection at the power level.
@@ -1053,6 +1060,7 @@ fn backward(
                 correlation: r,
                 p_value: p,
                 rel_change: rel,
+                neither: false,
             });
         }
         accepted.retain(|s| s.id != h.id);

@@ -24,6 +24,9 @@ pub(crate) fn select_and_discover(
 ) -> Result<(select::Selection, Option<DiscoveryReport>, RowFields)> {
     let mut excluded: Vec<&str> = Vec::new();
     let mut confounded = Vec::new();
+    // Candidate groups beyond the library that may not be claimed in place of a library term
+    // they could not be told from (`library_rivals`).
+    let mut blocked: Vec<String> = Vec::new();
     let mut fields: Option<(usize, RowFields)> = None;
     // The first run's step-1 scores: a term excluded from later runs keeps its place in the
     // ranking (marked confounded by `mark_confounded`).
@@ -49,14 +52,13 @@ pub(crate) fn select_and_discover(
             return Ok((sel, None, f));
         }
         let f = &fields.insert((lag, f)).1;
-        let report = discover::discover(
-            data,
-            &sel.last,
-            &field_inputs(f, opts),
-            rule,
-            &info.joint_names,
-        )?;
-        let dropped = library_given_found(data, &sel.last, &report, rule)?;
+        let inputs = field_inputs(f, opts);
+        let report =
+            discover::discover(data, &sel.last, &inputs, rule, &info.joint_names, &blocked)?;
+        let mut dropped = library_given_found(data, &sel.last, &report, rule)?;
+        if dropped.is_empty() {
+            dropped = library_rivals(data, &sel.last, &inputs, rule, info, &mut blocked)?;
+        }
         if dropped.is_empty() {
             sel.first_step.extend(
                 first
@@ -76,6 +78,42 @@ pub(crate) fn select_and_discover(
             confounded.push(c);
         }
     }
+}
+
+/// A library term of `cur` that a candidate beyond the library, on a recorded field the library
+/// does not read, does the same work as ([`discover::rival_of`]): a term a rival beats is
+/// dropped as confounded with it (discovery then finds the rival); a term that ties with a rival
+/// is dropped with neither claimed, and every candidate that explains the same is `blocked` from
+/// discovery. At most one term per call (the first in `cur`'s order that has a rival).
+pub(crate) fn library_rivals(
+    data: &PowerData,
+    cur: &select::State,
+    inputs: &discover::Inputs,
+    rule: &Rule,
+    info: &SessionInfo,
+    blocked: &mut Vec<String>,
+) -> Result<Vec<Confounded>> {
+    for (j, h) in cur.spec.iter().enumerate() {
+        let mut spec = cur.spec.clone();
+        spec.remove(j);
+        let without = select::state(data, spec, cur.lag)?;
+        let Some(r) = discover::rival_of(data, cur, &without, inputs, rule, &info.joint_names)?
+        else {
+            continue;
+        };
+        if r.tied {
+            blocked.extend(r.blocked);
+        }
+        return Ok(vec![Confounded {
+            kept: r.name,
+            dropped: h.id.into(),
+            correlation: r.correlation,
+            p_value: r.p_library,
+            rel_change: 1.0 - r.rmse[0] / r.rmse[1].max(1e-300),
+            neither: r.tied,
+        }]);
+    }
+    Ok(Vec::new())
 }
 
 /// Library terms of `cur` that are not significant given the found terms (all at once).
@@ -111,6 +149,7 @@ pub(crate) fn library_given_found(
             correlation: select::correlation(&mine, &report.cols[0]),
             p_value: p,
             rel_change: rel,
+            neither: false,
         });
     }
     Ok(out)

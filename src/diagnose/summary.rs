@@ -298,9 +298,27 @@ fn forms_and_confounding(d: &Diagnosis, s: &mut String) {
             f.p_value
         );
     }
-    for c in &d.confounded {
-        let _ = writeln!(
-            s,
+    for c in d.confounded.iter().filter(|c| c.neither) {
+        let _ = writeln!(s, "{}", confounded_line(c));
+    }
+    for c in d.confounded.iter().filter(|c| !c.neither) {
+        let _ = writeln!(s, "{}", confounded_line(c));
+    }
+}
+
+/// The summary's line for a confounded pair, with its evidence.
+fn confounded_line(c: &super::Confounded) -> String {
+    if c.neither {
+        format!(
+            "Confounded: {} or {} (regressor correlation r = {:+.2}): they explain the same part of the power and the first fits the held-out trials {:+.1} % better, not significantly (p = {:.1e}), so neither is claimed.",
+            c.dropped,
+            c.kept,
+            c.correlation,
+            100.0 * c.rel_change,
+            c.p_value,
+        )
+    } else {
+        format!(
             "Confounded: {} or {} (regressor correlation r = {:+.2}); {} is not significant given {} (p = {:.1e}, held-out RMSE change {:+.1} %), so only {} is claimed.",
             c.kept,
             c.dropped,
@@ -310,7 +328,7 @@ fn forms_and_confounding(d: &Diagnosis, s: &mut String) {
             c.p_value,
             -100.0 * c.rel_change,
             c.kept
-        );
+        )
     }
 }
 
@@ -359,5 +377,35 @@ fn discovery_lines(d: &Diagnosis, s: &mut String) {
             "Left out of discovery as counters, clocks or hash-like: {} (reasons in the report).",
             junk.join(", ")
         );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_confounded_pair_not_told_apart_claims_neither() {
+        let c = |neither: bool| super::super::Confounded {
+            kept: "found term".into(),
+            dropped: "gear_friction".into(),
+            correlation: 0.87,
+            p_value: 0.25,
+            rel_change: 0.012,
+            neither,
+        };
+        let line = confounded_line(&c(true));
+        assert!(
+            line.starts_with(
+                "Confounded: gear_friction or found term (regressor correlation r = +0.87)"
+            ),
+            "{line}"
+        );
+        assert!(line.contains("+1.2 % better"), "{line}");
+        assert!(line.contains("p = 2.5e-1"), "{line}");
+        assert!(line.ends_with("so neither is claimed."), "{line}");
+        let line = confounded_line(&c(false));
+        assert!(line.ends_with("so only found term is claimed."), "{line}");
+        assert!(!line.contains("neither"), "{line}");
     }
 }
