@@ -166,6 +166,19 @@ fn write_outputs(a: &DiagnoseArgs, d: &g1viz::diagnose::Diagnosis) -> Result<()>
     Ok(())
 }
 
+/// The diagnosis replay's options: the recording's properties name the command and the model.
+#[cfg(feature = "viz")]
+fn replay_options(a: &DiagnoseArgs) -> g1viz::viz::ReplayOptions {
+    let mut properties = vec![("command".to_owned(), super::command_line())];
+    if let Some(m) = &a.model {
+        properties.push(("model".to_owned(), m.display().to_string()));
+    }
+    g1viz::viz::ReplayOptions {
+        properties,
+        ..Default::default()
+    }
+}
+
 #[cfg(feature = "viz")]
 fn save_diagnosis_rrd(
     rec: &Recording,
@@ -186,14 +199,7 @@ fn save_diagnosis_rrd(
         &Sink::Save(out.to_path_buf()),
         &sessions.iter().map(PathBuf::as_path).collect::<Vec<_>>(),
     )?;
-    let mut properties = vec![("command".to_owned(), super::command_line())];
-    if let Some(m) = &a.model {
-        properties.push(("model".to_owned(), m.display().to_string()));
-    }
-    let opts = viz::ReplayOptions {
-        properties,
-        ..Default::default()
-    };
+    let opts = replay_options(a);
     viz::log_replay(rec, &robot, &arm, &extras, &opts, stream.stream())?;
     stream.finish()
 }
@@ -221,14 +227,7 @@ fn save_streamed_rrd(
         &Sink::Save(out.to_path_buf()),
         &[file.path.as_path()],
     )?;
-    let mut properties = vec![("command".to_owned(), super::command_line())];
-    if let Some(m) = &a.model {
-        properties.push(("model".to_owned(), m.display().to_string()));
-    }
-    let opts = viz::ReplayOptions {
-        properties,
-        ..Default::default()
-    };
+    let opts = replay_options(a);
     let busy = super::spinner("writing the replay");
     let summary = viz::replay_file_with(
         &file.path,
