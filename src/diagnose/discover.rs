@@ -1029,7 +1029,7 @@ fn simpler_nested(search: &Search, b: &Scored, among: &[&Scored]) -> Option<usiz
 pub(crate) struct Rival {
     /// The rival's name (from its structure) and form.
     pub name: String,
-    /// The rival is not significantly worse than the library term (a tie): neither is claimed.
+    /// The rival is not significantly worse than the library term (a tie): the library term stays claimed, the rival named beside it.
     /// Otherwise the rival is significantly better and replaces the library term.
     pub tied: bool,
     /// Paired one-sided p-value (by trial, held out) that the library term fits better.

@@ -202,22 +202,23 @@ pub(crate) fn rescale_bus(d: &mut Diagnosis, volts: f64) {
     d.bus_volts = volts;
 }
 
-/// A term dropped as confounded stays in the ranking, not accepted, its verdict saying with what.
+/// A term dropped as confounded stays in the ranking, not accepted, its verdict saying with what;
+/// a library term tied with a term beyond the library stays accepted, the other named.
 pub(crate) fn mark_confounded(ranked: &mut [HypothesisScore], confounded: &[Confounded]) {
     for c in confounded {
         for s in ranked.iter_mut().filter(|s| s.id == c.dropped) {
-            s.accepted = false;
-            if c.neither {
+            if c.tied {
                 s.verdict = format!(
-                    "confounded with {}: the data do not tell them apart (this term fits the held-out trials {:+.1} % better, p = {:.1e} ≥ the test's α; regressor r = {:+.2}); neither is claimed; scored alone: {}",
+                    "{}; not told apart from {} (this term fits the held-out trials {:+.1} % better, p = {:.1e} ≥ the test's α; regressor r = {:+.2}): claimed as the library's physical mechanism, the other not excluded",
+                    s.verdict,
                     c.kept,
                     100.0 * c.rel_change,
                     c.p_value,
                     c.correlation,
-                    s.verdict
                 );
                 continue;
             }
+            s.accepted = false;
             s.verdict = format!(
                 "confounded with {}: not significant given it (p = {:.1e}, held-out RMSE change {:+.1} %, regressor r = {:+.2}); scored alone: {}",
                 c.kept,

@@ -630,8 +630,8 @@ fn beyond_section(md: &mut String, d: &Diagnosis) {
                 md,
                 "| {}{} | {} | {:+.2} | {} | {:+.2} % |",
                 c.kept,
-                if c.neither {
-                    " (not told apart: neither claimed)"
+                if c.tied {
+                    " (not told apart: the dropped column's library term stays claimed)"
                 } else {
                     ""
                 },

@@ -807,13 +807,14 @@ pub struct Confounded {
     pub p_value: f64,
     /// Relative held-out RMSE change from dropping it.
     pub rel_change: f64,
-    /// The data do not tell the two apart in either direction (a library term and a term beyond
-    /// the library, on a recorded field the library does not read, that explains the same part of
-    /// the power): neither is claimed. Then `p_value` is that of the dropped one fitting the
-    /// held-out trials better than the kept one, and `rel_change` is 1 − its held-out RMSE /
-    /// the kept one's.
+    /// The data do not tell the two apart in either direction (a library term, `dropped`, and a
+    /// term beyond the library, `kept`, on a recorded field the library does not read, that
+    /// explains the same part of the power). The library term — a mechanism written from physics
+    /// — stays claimed, and the other is named beside it as an explanation the data cannot
+    /// exclude. Then `p_value` is that of the library term fitting the held-out trials better
+    /// than the other, and `rel_change` is 1 − its held-out RMSE / the other's.
     #[serde(default)]
-    pub neither: bool,
+    pub tied: bool,
 }
 
 /// The result of greedy forward selection at the power level.
@@ -1060,7 +1061,7 @@ fn backward(
                 correlation: r,
                 p_value: p,
                 rel_change: rel,
-                neither: false,
+                tied: false,
             });
         }
         accepted.retain(|s| s.id != h.id);

@@ -56,10 +56,16 @@ pub(crate) fn select_and_discover(
         let report =
             discover::discover(data, &sel.last, &inputs, rule, &info.joint_names, &blocked)?;
         let mut dropped = library_given_found(data, &sel.last, &report, rule)?;
+        let mut ties = Vec::new();
         if dropped.is_empty() {
-            dropped = library_rivals(data, &sel.last, &inputs, rule, info, &mut blocked)?;
+            let rivals = library_rivals(data, &sel.last, &inputs, rule, info, &mut blocked)?;
+            (ties, dropped) = rivals.into_iter().partition(|c| c.tied);
         }
         if dropped.is_empty() {
+            // A library term tied with a rival stays claimed (its form comes from physics, the
+            // rival's from a search), the rival named beside it; the selection is not re-run
+            // without it (without it another term would absorb part of its effect).
+            confounded.extend(ties);
             sel.first_step.extend(
                 first
                     .iter()
@@ -80,11 +86,12 @@ pub(crate) fn select_and_discover(
     }
 }
 
-/// A library term of `cur` that a candidate beyond the library, on a recorded field the library
-/// does not read, does the same work as ([`discover::rival_of`]): a term a rival beats is
-/// dropped as confounded with it (discovery then finds the rival); a term that ties with a rival
-/// is dropped with neither claimed, and every candidate that explains the same is `blocked` from
-/// discovery. At most one term per call (the first in `cur`'s order that has a rival).
+/// The library terms of `cur` that a candidate beyond the library, on a recorded field the
+/// library does not read, does the same work as ([`discover::rival_of`]): a term a rival beats
+/// is returned alone (the first in `cur`'s order; it is dropped as confounded with the rival and
+/// discovery then finds the rival); otherwise every term that ties with a rival is returned
+/// (`tied`: the library term stays claimed, the rival named beside it), and every candidate
+/// that explains the same is `blocked` from discovery.
 pub(crate) fn library_rivals(
     data: &PowerData,
     cur: &select::State,
@@ -93,6 +100,7 @@ pub(crate) fn library_rivals(
     info: &SessionInfo,
     blocked: &mut Vec<String>,
 ) -> Result<Vec<Confounded>> {
+    let mut ties = Vec::new();
     for (j, h) in cur.spec.iter().enumerate() {
         let mut spec = cur.spec.clone();
         spec.remove(j);
@@ -101,19 +109,21 @@ pub(crate) fn library_rivals(
         else {
             continue;
         };
-        if r.tied {
-            blocked.extend(r.blocked);
-        }
-        return Ok(vec![Confounded {
+        let c = Confounded {
             kept: r.name,
             dropped: h.id.into(),
             correlation: r.correlation,
             p_value: r.p_library,
             rel_change: 1.0 - r.rmse[0] / r.rmse[1].max(1e-300),
-            neither: r.tied,
-        }]);
+            tied: r.tied,
+        };
+        if !r.tied {
+            return Ok(vec![c]);
+        }
+        blocked.extend(r.blocked);
+        ties.push(c);
     }
-    Ok(Vec::new())
+    Ok(ties)
 }
 
 /// Library terms of `cur` that are not significant given the found terms (all at once).
@@ -149,7 +159,7 @@ pub(crate) fn library_given_found(
             correlation: select::correlation(&mine, &report.cols[0]),
             p_value: p,
             rel_change: rel,
-            neither: false,
+            tied: false,
         });
     }
     Ok(out)

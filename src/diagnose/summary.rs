@@ -298,19 +298,19 @@ fn forms_and_confounding(d: &Diagnosis, s: &mut String) {
             f.p_value
         );
     }
-    for c in d.confounded.iter().filter(|c| c.neither) {
+    for c in d.confounded.iter().filter(|c| c.tied) {
         let _ = writeln!(s, "{}", confounded_line(c));
     }
-    for c in d.confounded.iter().filter(|c| !c.neither) {
+    for c in d.confounded.iter().filter(|c| !c.tied) {
         let _ = writeln!(s, "{}", confounded_line(c));
     }
 }
 
 /// The summary's line for a confounded pair, with its evidence.
 fn confounded_line(c: &super::Confounded) -> String {
-    if c.neither {
+    if c.tied {
         format!(
-            "Confounded: {} or {} (regressor correlation r = {:+.2}): they explain the same part of the power and the first fits the held-out trials {:+.1} % better, not significantly (p = {:.1e}), so neither is claimed.",
+            "Confounded: {} or {} (regressor correlation r = {:+.2}): they explain the same part of the power and the first fits the held-out trials {:+.1} % better, not significantly (p = {:.1e}); the first, the library's physical mechanism, is claimed, the second is not excluded.",
             c.dropped,
             c.kept,
             c.correlation,
@@ -385,14 +385,14 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_confounded_pair_not_told_apart_claims_neither() {
-        let c = |neither: bool| super::super::Confounded {
+    fn a_confounded_pair_not_told_apart_is_named_beside_the_library_term() {
+        let c = |tied: bool| super::super::Confounded {
             kept: "found term".into(),
             dropped: "gear_friction".into(),
             correlation: 0.87,
             p_value: 0.25,
             rel_change: 0.012,
-            neither,
+            tied,
         };
         let line = confounded_line(&c(true));
         assert!(
@@ -403,9 +403,12 @@ mod tests {
         );
         assert!(line.contains("+1.2 % better"), "{line}");
         assert!(line.contains("p = 2.5e-1"), "{line}");
-        assert!(line.ends_with("so neither is claimed."), "{line}");
+        assert!(
+            line.ends_with("the first, the library's physical mechanism, is claimed, the second is not excluded."),
+            "{line}"
+        );
         let line = confounded_line(&c(false));
         assert!(line.ends_with("so only found term is claimed."), "{line}");
-        assert!(!line.contains("neither"), "{line}");
+        assert!(!line.contains("not excluded"), "{line}");
     }
 }
