@@ -393,3 +393,60 @@ fn streamed_diagnosis_replay_equals_in_memory() {
     out.finish().unwrap();
     assert_same_replay_of(&a, &b, "diagnosis replay", &["diagnosis/"], 5);
 }
+
+/// `g1viz diagnose SESSION --model paper --save OUT --json J` end to end through the binary (the
+/// streamed path the CLI takes for one session): the `.rrd` holds the diagnosis' measured power
+/// at every reading the diagnosis used, as its JSON lists them, and the recording's properties.
+#[test]
+fn cli_diagnose_save_streams_the_diagnosis_rrd() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("latency.mcap");
+    let mut effects = g1viz::sim::Effects::default();
+    effects.enable("latency").unwrap();
+    g1viz::sim::simulate(
+        &g1viz::sim::SimConfig {
+            progress: false,
+            seed: 5,
+            effects,
+            ..Default::default()
+        },
+        &path,
+    )
+    .unwrap();
+    let (rrd, json) = (dir.path().join("d.rrd"), dir.path().join("d.json"));
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_g1viz"))
+        .args(["diagnose", "--model", "paper", "--save"])
+        .arg(&rrd)
+        .arg("--json")
+        .arg(&json)
+        .arg(&path)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let d: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let readings = d["replay"]["t"].as_array().unwrap().len();
+    assert!(readings > 50, "{readings} readings");
+    let decoded = decode(&rrd);
+    let measured: usize = decoded
+        .rows
+        .iter()
+        .filter(|((bp, p, st), _)| !bp && !st && p.ends_with("diagnosis/power/measured"))
+        .map(|(_, n)| n)
+        .sum();
+    assert_eq!(
+        measured, readings,
+        "measured power rows vs the diagnosis' readings"
+    );
+    assert!(
+        decoded
+            .rows
+            .keys()
+            .any(|(_, p, _)| p.contains("__properties")),
+        "no recording properties"
+    );
+}
