@@ -276,7 +276,7 @@ impl Streamed {
                 start_ns,
                 offset_s: off,
             });
-            sort_power(&mut power);
+            power.sort_by_time();
             for (t, v) in power.t.iter().zip(&power.watts) {
                 out.info.power.t.push(t + off);
                 out.info.power.watts.push(*v);
@@ -372,15 +372,3 @@ fn shift(rec: &Recording, off: f64) -> Recording {
     out
 }
 
-/// Sort a power series by time (a file without an index may deliver a batch out of order).
-fn sort_power(p: &mut PowerSeries) {
-    if p.t.is_sorted() {
-        return;
-    }
-    let mut o: Vec<usize> = (0..p.t.len()).collect();
-    o.sort_by(|&a, &b| p.t[a].total_cmp(&p.t[b]));
-    p.t = o.iter().map(|&i| p.t[i]).collect();
-    if p.watts.len() == o.len() {
-        p.watts = o.iter().map(|&i| p.watts[i]).collect();
-    }
-}

@@ -321,8 +321,8 @@ pub(crate) fn segmentation_pass(
         },
     )?;
     ch.process(true);
-    sort_power(&mut mbs);
-    sort_power(&mut bms);
+    mbs.sort_by_time();
+    bms.sort_by_time();
     let mut held = ch.hold.rec;
     held.source = file.path.clone();
     held.start_ns = summary.start_ns;
@@ -340,17 +340,6 @@ pub(crate) fn segmentation_pass(
     })
 }
 
-fn sort_power(p: &mut PowerSeries) {
-    if p.t.is_sorted() {
-        return;
-    }
-    let mut o: Vec<usize> = (0..p.t.len()).collect();
-    o.sort_by(|&a, &b| p.t[a].total_cmp(&p.t[b]));
-    p.t = o.iter().map(|&i| p.t[i]).collect();
-    if p.watts.len() == o.len() {
-        p.watts = o.iter().map(|&i| p.watts[i]).collect();
-    }
-}
 
 /// What pass 2 builds.
 pub(crate) struct RowPlan<'a> {
@@ -679,7 +668,7 @@ pub fn for_each_trial_and_batch(
             for (to, from) in [(&mut buf.mbs, &batch.mbs), (&mut buf.bms, &batch.bms)] {
                 to.t.extend_from_slice(&from.t);
                 to.watts.extend_from_slice(&from.watts);
-                sort_power(to);
+                to.sort_by_time();
             }
             step(&mut buf, false);
             Ok(())

@@ -44,6 +44,21 @@ pub struct PowerSeries {
     pub watts: Vec<f64>,
 }
 
+impl PowerSeries {
+    /// Sort the readings by time (a file without an index may deliver a batch out of order).
+    pub fn sort_by_time(&mut self) {
+        if self.t.is_sorted() {
+            return;
+        }
+        let mut o: Vec<usize> = (0..self.t.len()).collect();
+        o.sort_by(|&a, &b| self.t[a].total_cmp(&self.t[b]));
+        self.t = o.iter().map(|&i| self.t[i]).collect();
+        if self.watts.len() == o.len() {
+            self.watts = o.iter().map(|&i| self.watts[i]).collect();
+        }
+    }
+}
+
 /// A session's arm signals, ready for identification, diagnosis and replay.
 #[derive(Debug, Clone, Default)]
 pub struct Recording {
