@@ -371,4 +371,3 @@ fn shift(rec: &Recording, off: f64) -> Recording {
     out.state.t.iter_mut().for_each(|t| *t += off);
     out
 }
-

@@ -340,7 +340,6 @@ pub(crate) fn segmentation_pass(
     })
 }
 
-
 /// What pass 2 builds.
 pub(crate) struct RowPlan<'a> {
     pub target: Target,

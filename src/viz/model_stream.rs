@@ -19,8 +19,8 @@ use rerun::RecordingStream;
 use super::TrialMean;
 use super::overlay::trial_series;
 use super::replay::{
-    LINK_COLOUR_RATE_HZ, PowerPrediction, REPLAY_FLUSH_SAMPLES, ReplayExtras, ReplayLogger,
-    ReplayOptions, ReplaySummary, STREAMED_CHUNK_ROWS, SampleStats, TermSeries,
+    LINK_COLOUR_RATE_HZ, PowerPrediction, ReplayExtras, ReplayLogger, ReplayOptions, ReplaySummary,
+    STREAMED_CHUNK_ROWS, SampleStats, TermSeries,
 };
 use super::slice::{Decimator, Slice};
 use crate::N_JOINTS;
@@ -414,18 +414,12 @@ impl RecordingSink for Sink<'_, '_> {
     }
 
     fn batch(&mut self, batch: &Recording) -> Result<()> {
-        match self.logger.as_mut() {
-            Some(l) => l.add(batch)?,
-            None => anyhow::bail!("a batch came before the session header"),
-        }
-        self.unflushed += batch.state.t.len() + batch.command.t.len();
-        if self.unflushed >= REPLAY_FLUSH_SAMPLES {
-            self.unflushed = 0;
-            self.stream
-                .flush_blocking()
-                .context("writing the recording")?;
-        }
-        Ok(())
+        super::replay::log_streamed_batch(
+            self.logger.as_mut(),
+            self.stream,
+            &mut self.unflushed,
+            batch,
+        )
     }
 
     fn finish(&mut self, read: &StreamSummary, _begun: bool) -> Result<()> {

@@ -506,6 +506,26 @@ pub fn replay_file_with(
     sink.summary.context("the recording delivered no samples")
 }
 
+/// Log one batch of a streamed replay, waiting for the sink every [`REPLAY_FLUSH_SAMPLES`]
+/// samples (`unflushed`: the samples logged since the last wait).
+pub(crate) fn log_streamed_batch(
+    logger: Option<&mut ReplayLogger<'_>>,
+    stream: &RecordingStream,
+    unflushed: &mut usize,
+    batch: &Recording,
+) -> Result<()> {
+    match logger {
+        Some(l) => l.add(batch)?,
+        None => bail!("a batch came before the session header"),
+    }
+    *unflushed += batch.state.t.len() + batch.command.t.len();
+    if *unflushed >= REPLAY_FLUSH_SAMPLES {
+        *unflushed = 0;
+        stream.flush_blocking().context("writing the recording")?;
+    }
+    Ok(())
+}
+
 /// The streamed replay as a [`crate::signals::RecordingSink`]: `begin` sends the layout and the
 /// static robot (the header gives the clock origin and joints), `batch` logs each stretch,
 /// `finish` the power series; the reader's warnings join the replay's.
@@ -538,18 +558,12 @@ impl crate::signals::RecordingSink for StreamedReplay<'_> {
     }
 
     fn batch(&mut self, batch: &Recording) -> Result<()> {
-        match self.logger.as_mut() {
-            Some(l) => l.add(batch)?,
-            None => bail!("a batch came before the session header"),
-        }
-        self.unflushed += batch.state.t.len() + batch.command.t.len();
-        if self.unflushed >= REPLAY_FLUSH_SAMPLES {
-            self.unflushed = 0;
-            self.stream
-                .flush_blocking()
-                .context("writing the recording")?;
-        }
-        Ok(())
+        log_streamed_batch(
+            self.logger.as_mut(),
+            self.stream,
+            &mut self.unflushed,
+            batch,
+        )
     }
 
     fn finish(&mut self, read: &crate::signals::StreamSummary, _begun: bool) -> Result<()> {
