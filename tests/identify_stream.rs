@@ -135,6 +135,34 @@ fn streamed_identify_on_a_smoke_session_in_pieces() {
         assert_eq!(a.r2.to_bits(), b.r2.to_bits());
     }
     assert_same(&mem, &subset);
+
+    // The search on every 2nd trial (cap 12 of 24): pass 1's held set (every 2nd, cap 12) is
+    // that set, no extra pass; the estimate is the in-memory one on the same thinned trials.
+    let thin = IdentifyOptions {
+        search_trials: 12,
+        ..opts.clone()
+    };
+    assert_eq!(identify::search_stride(&[24], 12), 2);
+    let mem_thin = identify::identify(std::slice::from_ref(&rec), &thin).unwrap();
+    let streamed_thin = identify::identify_files(&[file(&path)], &thin, &held).unwrap();
+    let (a, b) = (
+        mem_thin.alignment_estimate.as_ref().unwrap(),
+        streamed_thin.alignment_estimate.as_ref().unwrap(),
+    );
+    for (x, y) in a.grid.iter().zip(&b.grid) {
+        assert_eq!(
+            (x.rows, x.alignment, x.r2.to_bits()),
+            (y.rows, y.alignment, y.r2.to_bits())
+        );
+    }
+    assert_same(&mem_thin, &streamed_thin);
+    // Fewer rows than the search over every trial: the thinned set is what was searched.
+    assert!(
+        a.grid[0].rows < full.grid[0].rows * 2 / 3,
+        "{} vs {}",
+        a.grid[0].rows,
+        full.grid[0].rows
+    );
     // … and it finds the simulated sensor's timing (0.2 s window, no lag) within one fine step.
     assert!(
         (subset.alignment.window_s - 0.2).abs() <= 0.0251,

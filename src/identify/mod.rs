@@ -21,8 +21,8 @@ pub use dataset::{
 };
 pub use fit::{kappa, term_means};
 pub use pipeline::{
-    AlignmentChoice, Identification, IdentifyOptions, ModeFit, RowsFit, SessionBreakdown,
-    SessionSummary, fit_given_rows, identify, identify_files,
+    AlignmentChoice, Identification, IdentifyOptions, ModeFit, RowsFit, SEARCH_TRIALS,
+    SessionBreakdown, SessionSummary, fit_given_rows, identify, identify_files, search_stride,
 };
 pub use report::{
     AggregationRow, FIGURES as REPORT_FIGURES, PredictionSet, ReportInput, TermContributions,

@@ -50,6 +50,28 @@ pub struct IdentifyOptions {
     pub filters: Cascade,
     /// Power-sensor window and lag.
     pub alignment: AlignmentChoice,
+    /// Most trials the sensor-timing search uses ([`search_stride`]; default
+    /// [`SEARCH_TRIALS`]).
+    pub search_trials: usize,
+}
+
+/// Default of [`IdentifyOptions::search_trials`]: the timing search's cost grows with its trials,
+/// and ~300 trials pin the window and lag to the fine grid's 25 ms step.
+pub const SEARCH_TRIALS: usize = 300;
+
+/// The timing search's trial stride: the smallest power of two `s` for which every `s`-th trial
+/// (by index, from trial 0) of every session, `counts[i]` trials in session i, is at most `cap`
+/// trials. A power of two, so that a session's first pass can keep a bounded set while it does not
+/// yet know its length — every `s'`-th trial, doubling `s'` whenever the set outgrows its cap —
+/// and still hold the search's trials whenever its cap is at least `cap`
+/// ([`super::stream::StreamOptions::hold_trials`]).
+pub fn search_stride(counts: &[usize], cap: usize) -> usize {
+    let cap = cap.max(1);
+    let mut s = 1usize;
+    while counts.iter().map(|n| n.div_ceil(s)).sum::<usize>() > cap {
+        s *= 2;
+    }
+    s
 }
 
 impl Default for IdentifyOptions {
@@ -60,6 +82,7 @@ impl Default for IdentifyOptions {
             segment: SegmentOptions::default(),
             filters: Cascade::default(),
             alignment: AlignmentChoice::Auto,
+            search_trials: SEARCH_TRIALS,
         }
     }
 }
@@ -407,10 +430,12 @@ fn trials_kept(sessions: &[Prepared], rejections: &[Rejection]) -> Vec<Vec<Trial
         .collect()
 }
 
-/// Stage 3: the power sensor's window and lag, given or estimated from at most ~300 of the kept
-/// trials (every n-th). A streamed session whose first pass could not hold every trial's samples
-/// reads those trials' samples in one more streamed pass ([`stream::hold_pass`]), so the
-/// estimate equals the in-memory one.
+/// Stage 3: the power sensor's window and lag, given or estimated from at most
+/// [`IdentifyOptions::search_trials`] trials: every s-th trial of each session
+/// ([`search_stride`]) that the IMU filter keeps. A streamed session's first pass holds those
+/// trials' samples; if it could not ([`StreamOptions::hold_trials`] below the search's cap),
+/// they are read in one more streamed pass ([`stream::hold_pass`]). Either way the estimate
+/// equals the in-memory one.
 pub(crate) fn resolve_alignment(
     sessions: &[Prepared],
     kept: &[Vec<TrialWindow>],
@@ -419,11 +444,16 @@ pub(crate) fn resolve_alignment(
     match opts.alignment {
         AlignmentChoice::Given(a) => Ok((a, None)),
         AlignmentChoice::Auto => {
-            let total: usize = kept.iter().map(Vec::len).sum();
-            let stride = total.div_ceil(300).max(1);
+            let counts: Vec<usize> = sessions.iter().map(|p| p.seg.trials.len()).collect();
+            let stride = search_stride(&counts, opts.search_trials);
             let thinned: Vec<Vec<TrialWindow>> = kept
                 .iter()
-                .map(|t| t.iter().step_by(stride).cloned().collect())
+                .map(|t| {
+                    t.iter()
+                        .filter(|t| t.index.is_multiple_of(stride))
+                        .cloned()
+                        .collect()
+                })
                 .collect();
             let mut loaded: Vec<Option<Recording>> = Vec::new();
             for (p, t) in sessions.iter().zip(&thinned) {
@@ -797,9 +827,8 @@ pub fn identify(recs: &[Recording], opts: &IdentifyOptions) -> Result<Identifica
 }
 
 /// Identify the power model from one or more session files, reading each in two streamed passes
-/// (memory bounded whatever the sessions' length). The trials and θ equal
-/// those of [`identify`] on the loaded recordings when every session has a command stream and at
-/// most `stream.hold_trials` trials (beyond that the sensor timing is searched on a subset).
+/// (memory bounded whatever the sessions' length). The trials and θ equal those of [`identify`]
+/// on the loaded recordings when every session has a command stream.
 pub fn identify_files(
     files: &[SessionFile],
     opts: &IdentifyOptions,
@@ -945,4 +974,28 @@ pub fn fit_given_rows(rows: &[Row]) -> Result<RowsFit> {
         std_err: fit.std_err.clone(),
         solver: fit.solver,
     })
+}
+
+#[cfg(test)]
+mod search_tests {
+    use super::search_stride;
+
+    #[test]
+    fn search_stride_is_the_smallest_power_of_two_within_the_cap() {
+        assert_eq!(search_stride(&[], 300), 1);
+        assert_eq!(search_stride(&[300], 300), 1);
+        assert_eq!(search_stride(&[301], 300), 2);
+        assert_eq!(search_stride(&[1000], 300), 4);
+        assert_eq!(search_stride(&[2400], 300), 8);
+        // Across sessions: 150 + 151 trials need every 2nd (75 + 76).
+        assert_eq!(search_stride(&[150, 151], 300), 2);
+        for n in 0..2000usize {
+            for cap in [1usize, 7, 300] {
+                let s = search_stride(&[n], cap);
+                assert!(s.is_power_of_two());
+                assert!(n.div_ceil(s) <= cap);
+                assert!(s == 1 || n.div_ceil(s / 2) > cap);
+            }
+        }
+    }
 }

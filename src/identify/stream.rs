@@ -8,10 +8,11 @@
 //!    command stream every trial boundary depends only on the samples around it, so the trials
 //!    equal those of segmenting the whole session at once (tested); the measured-state
 //!    segmenter's noise threshold is estimated per piece. The power series are kept whole
-//!    (~1 Hz). The joint states of every trial are held for the sensor-timing search while
-//!    there are at most [`StreamOptions::hold_trials`]; beyond that none are, and the search's
-//!    trials (every n-th trial its filters keep, as in memory) are read in an extra streamed
-//!    pass ([`hold_pass`]).
+//!    (~1 Hz). The joint states of the sensor-timing search's trials are held: every n-th trial,
+//!    n a power of two that doubles whenever more than [`StreamOptions::hold_trials`] would be
+//!    held, which is the search's own choice of trials without knowing the session's length
+//!    ([`super::pipeline::search_stride`]). Only with `hold_trials` below the search's cap are
+//!    the search's trials read in an extra streamed pass ([`hold_pass`]).
 //! 2. **Row pass** (joint states only, same clock): a buffer holds the samples from the current
 //!    trial's pre-idle to its post-idle end; each trial's rows (per reading, per trial, thinned
 //!    per sample) are built there and the buffer is emptied before the next trial.
@@ -33,8 +34,9 @@ pub struct StreamOptions {
     /// Length of the pieces the segmentation pass buffers [s] (a session shorter than this is
     /// segmented in one piece, exactly as in memory).
     pub chunk_s: f64,
-    /// Most trials whose joint states pass 1 holds for the sensor-timing search; beyond it the
-    /// search's trials are read in an extra pass.
+    /// Most trials whose joint states pass 1 holds for the sensor-timing search (every n-th,
+    /// n a power of two). At or above [`super::pipeline::IdentifyOptions::search_trials`] they
+    /// include the search's trials; below it the search's trials are read in an extra pass.
     pub hold_trials: usize,
     /// Samples per decoded batch.
     pub batch_samples: usize,
@@ -44,7 +46,7 @@ impl Default for StreamOptions {
     fn default() -> Self {
         StreamOptions {
             chunk_s: 300.0,
-            hold_trials: 320,
+            hold_trials: super::pipeline::SEARCH_TRIALS,
             batch_samples: 4096,
         }
     }
@@ -127,29 +129,44 @@ fn sort_state(s: &mut StateSeries) {
     p(&mut s.quat, &order);
 }
 
-/// The joint states of every trial while there are at most `max`, for the sensor-timing search
-/// (beyond that nothing: the search's trials are read again by [`hold_pass`]).
+/// The joint states of every `stride`-th trial (by index) for the sensor-timing search, at most
+/// `max` trials: when one more would exceed it, the stride doubles and the trials off the new
+/// stride are dropped. The set is then the one [`super::pipeline::search_stride`] picks for a
+/// session of that length with cap `max`, and holds the search's trials for any smaller cap.
 struct Holder {
     max: usize,
-    overflowed: bool,
+    stride: usize,
     rec: Recording,
     trials: Vec<TrialWindow>,
 }
 
 impl Holder {
-    /// Copy the samples of `trial`'s window from `from` unless the holder overflowed.
-    fn offer(&mut self, from: &StateSeries, trial: &TrialWindow) {
-        if self.overflowed {
-            return;
+    fn new(max: usize) -> Holder {
+        Holder {
+            max: max.max(1),
+            stride: 1,
+            rec: Recording::default(),
+            trials: Vec::new(),
         }
-        if self.trials.len() >= self.max {
-            self.overflowed = true;
-            self.trials = Vec::new();
-            self.rec.state = StateSeries::default();
+    }
+
+    /// Copy the samples of `trial`'s window from `from` when its index is on the stride.
+    fn offer(&mut self, from: &StateSeries, trial: &TrialWindow) {
+        if !trial.index.is_multiple_of(self.stride) {
             return;
         }
         copy_window(&mut self.rec.state, from, trial);
         self.trials.push(trial.clone());
+        while self.trials.len() > self.max {
+            self.stride *= 2;
+            let old = std::mem::take(&mut self.rec.state);
+            let stride = self.stride;
+            self.trials.retain(|t| t.index.is_multiple_of(stride));
+            // The old set is the union of its trials' windows: every kept window is in it.
+            for t in &self.trials {
+                copy_window(&mut self.rec.state, &old, t);
+            }
+        }
     }
 }
 
@@ -290,12 +307,7 @@ pub(crate) fn segmentation_pass(
         last_traj: f64::NEG_INFINITY,
         seg: Segmentation::default(),
         sigmas: Vec::new(),
-        hold: Holder {
-            overflowed: false,
-            max: so.hold_trials.max(1),
-            rec: Recording::default(),
-            trials: Vec::new(),
-        },
+        hold: Holder::new(so.hold_trials),
     };
     let mut mbs = PowerSeries::default();
     let mut bms = PowerSeries::default();
@@ -675,4 +687,68 @@ pub fn for_each_trial_and_batch(
     )?;
     step(&mut buf, true);
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::identify::search_stride;
+
+    /// Trials 10 s apart with one sample per 0.1 s in each window (q̇ = the trial index, so a
+    /// sample says which trial it came from).
+    fn session(n: usize) -> (StateSeries, Vec<TrialWindow>) {
+        let mut s = StateSeries::default();
+        let mut trials = Vec::new();
+        for i in 0..n {
+            let t0 = 10.0 * i as f64;
+            trials.push(TrialWindow {
+                index: i,
+                t_pre_start: t0 + 1.0,
+                t_traj_start: t0 + 2.0,
+                t_traj_end: t0 + 4.0,
+                t_post_end: t0 + 5.0,
+                t_return_end: t0 + 7.0,
+                joints_moved: vec![0],
+                qdot_max_cmd: 1.0,
+                qdot_max_meas: 1.0,
+            });
+        }
+        for k in 0..(100 * n) {
+            s.t.push(0.1 * k as f64);
+            s.tau.push([0.0; N_JOINTS]);
+            s.dq.push([(k / 100) as f64; N_JOINTS]);
+        }
+        (s, trials)
+    }
+
+    #[test]
+    fn the_held_trials_are_the_search_stride_of_the_session_length() {
+        for n in [1, 2, 5, 7, 8, 9, 24, 33, 64, 65] {
+            let (s, trials) = session(n);
+            for max in [1, 2, 3, 5, 6, 12, 100] {
+                let mut h = Holder::new(max);
+                for t in &trials {
+                    h.offer(&s, t);
+                }
+                let stride = search_stride(&[n], max);
+                let want: Vec<usize> = (0..n).filter(|i| i % stride == 0).collect();
+                let got: Vec<usize> = h.trials.iter().map(|t| t.index).collect();
+                assert_eq!(got, want, "{n} trials, cap {max}");
+                assert!(got.len() <= max);
+                // Exactly the held trials' windows (± the margin) are kept, once each.
+                let from: Vec<usize> = h.rec.state.dq.iter().map(|d| d[0] as usize).collect();
+                let mut expect = Vec::new();
+                for &i in &want {
+                    let w = &trials[i];
+                    for (k, &t) in s.t.iter().enumerate() {
+                        if t > w.t_pre_start - MARGIN_S && t <= w.t_post_end + MARGIN_S {
+                            expect.push(k / 100);
+                        }
+                    }
+                }
+                assert_eq!(from, expect, "{n} trials, cap {max}");
+                assert!(h.rec.state.t.is_sorted());
+            }
+        }
+    }
 }
