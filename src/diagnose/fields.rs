@@ -282,6 +282,11 @@ struct TopicAcc {
     /// messages in the file.
     stats: Vec<MsgStats>,
     n_stats: usize,
+    /// The latest message not decoded yet (outside every window, past the statistics) and its
+    /// time: decoded only if a window closes after it without a message of its own, whose
+    /// value it then holds ([`TopicAcc::offer`]).
+    pending: Vec<u8>,
+    pending_t: Option<f64>,
 }
 
 /// Messages per topic and file the junk rules look at: enough for their statistics, and the
@@ -312,7 +317,48 @@ impl TopicAcc {
             row: vec![0.0; n],
             stats: vec![MsgStats::default(); n],
             n_stats: 0,
+            pending: Vec::new(),
+            pending_t: None,
             names,
+        }
+    }
+
+    /// One message's raw bytes at time `t`, with the same result as decoding it and calling
+    /// [`TopicAcc::add`]: past the first [`STATS_MESSAGES`], a message outside every window
+    /// only matters as the hold value of a window that closes without a message, so it is kept
+    /// undecoded until the next one replaces it or such a window closes. On a 500 Hz state
+    /// topic most messages fall between the power readings' windows.
+    fn offer(&mut self, windows: &[Window], t: f64, data: &[u8]) {
+        if self.n_stats >= STATS_MESSAGES {
+            if windows.get(self.cursor).is_some_and(|w| w.end < t) {
+                self.flush(windows);
+                self.advance(windows, t);
+            }
+            if !windows.get(self.cursor).is_some_and(|w| t > w.start) {
+                self.pending.clear();
+                self.pending.extend_from_slice(data);
+                self.pending_t = Some(t);
+                return;
+            }
+            // Inside a window: this message supersedes the pending one before any window closes.
+            self.pending_t = None;
+        }
+        self.decode_add(windows, t, data);
+    }
+
+    /// Decode and add the pending message, if any.
+    fn flush(&mut self, windows: &[Window]) {
+        if let Some(t) = self.pending_t.take() {
+            let data = std::mem::take(&mut self.pending);
+            self.decode_add(windows, t, &data);
+            self.pending = data;
+        }
+    }
+
+    fn decode_add(&mut self, windows: &[Window], t: f64, data: &[u8]) {
+        let Some(ex) = &self.extractor else { return };
+        if ex.extract(data, &mut self.row).is_ok() {
+            self.add(windows, t);
         }
     }
 
@@ -593,16 +639,10 @@ fn read_one(src: &FieldSource, windows: &[Window], summarise: bool) -> Result<Ve
                 topic_order.push(topic.to_string());
                 topics.insert(topic.to_string(), TopicAcc::new(names, extractor));
             }
-            let Some(acc) = topics.get_mut(topic) else {
-                return Ok(());
-            };
-            let Some(ex) = &acc.extractor else {
-                return Ok(());
-            };
-            // Only messages inside a window, or the last one before a window, matter; the
-            // others are still decoded for the hold value (cheap: fixed offsets).
-            if ex.extract(msg.data, &mut acc.row).is_ok() {
-                acc.add(windows, t);
+            if let Some(acc) = topics.get_mut(topic)
+                && acc.extractor.is_some()
+            {
+                acc.offer(windows, t, msg.data);
             }
             Ok::<(), ReadError>(())
         })
@@ -612,6 +652,7 @@ fn read_one(src: &FieldSource, windows: &[Window], summarise: bool) -> Result<Ve
         let Some(mut acc) = topics.remove(&topic) else {
             continue;
         };
+        acc.flush(windows);
         acc.advance(windows, f64::INFINITY);
         let names = std::mem::take(&mut acc.names);
         let stats = std::mem::take(&mut acc.stats);
@@ -830,5 +871,74 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// Messages offered as raw bytes (decoded lazily past the statistics) give the same window
+    /// values, bit for bit, as decoding and adding every message: inside windows, before
+    /// windows that get no message (their hold), with values that change only between windows.
+    #[test]
+    fn lazily_decoded_messages_give_the_same_windows() {
+        use crate::read::{Encoding, MsgSchema};
+        let schema =
+            MsgSchema::parse_ros1msg("p/T", "float64 a\nfloat64 b\nfloat64 c\nfloat64 d\n")
+                .unwrap();
+        let paths: Vec<FieldPath> = ["a", "b", "c", "d"]
+            .iter()
+            .map(|p| FieldPath::parse(p).unwrap())
+            .collect();
+        let ex = || FieldExtractor::compile(&schema, Encoding::Ros1, &paths).unwrap();
+        // 0.2 s windows once a second for 130 s; messages at 500 Hz for 130 s except a gap
+        // 100.6–104.9 s (windows 101–104 get no message; the last one before them lies
+        // between windows).
+        let windows: Vec<Window> = (0..130)
+            .map(|k| Window {
+                start: k as f64 + 0.3,
+                end: k as f64 + 0.5,
+            })
+            .collect();
+        let in_window = |t: f64| windows.iter().any(|w| t > w.start && t <= w.end);
+        let msgs: Vec<(f64, [f64; 4])> = (0..65_000)
+            .map(|i| 0.002 * i as f64)
+            .filter(|t| !(100.6..104.9).contains(t))
+            .enumerate()
+            .map(|(i, t)| {
+                // Constant; changing every message; changing only in messages outside every
+                // window (and back); changing once between window 100 and the gap.
+                let c = if !in_window(t) && i % 7 == 0 {
+                    5.0
+                } else {
+                    1.0
+                };
+                let d = if t > 100.55 { 0.3 } else { 0.1 };
+                (t, [3.25, (i as f64 * 0.37).sin(), c, d])
+            })
+            .collect();
+        assert!(msgs.len() > STATS_MESSAGES + 10_000);
+        let names: Vec<String> = (0..4).map(|f| format!("f{f}")).collect();
+        let mut plain = TopicAcc::new(names.clone(), Some(ex()));
+        let mut lazy = TopicAcc::new(names, Some(ex()));
+        let mut decoded = 0usize;
+        for (t, row) in &msgs {
+            let data: Vec<u8> = row.iter().flat_map(|v| v.to_le_bytes()).collect();
+            plain.decode_add(&windows, *t, &data);
+            let n = lazy.n_stats;
+            lazy.offer(&windows, *t, &data);
+            decoded += usize::from(lazy.last_t == *t || lazy.n_stats > n);
+        }
+        for acc in [&mut plain, &mut lazy] {
+            acc.flush(&windows);
+            acc.advance(&windows, f64::INFINITY);
+        }
+        for f in 0..4 {
+            let a = plain.vals[f].clone().unwrap_or_else(|| plain.dense(f));
+            let b = lazy.vals[f].clone().unwrap_or_else(|| lazy.dense(f));
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&a), bits(&b), "field {f}");
+        }
+        // The hold of the empty windows is the value just before the gap.
+        let d = plain.vals[3].clone().unwrap();
+        assert_eq!(d[101], 0.3);
+        // Most messages past the statistics were never decoded.
+        assert!(decoded < STATS_MESSAGES + 5_000, "{decoded} decoded");
     }
 }
