@@ -1005,6 +1005,36 @@ fn counterpart_comparison_shows_what_the_twin_lacks() {
         let counterpart_rec = load(&twin_path);
         let mut d = diagnose::diagnose(&real, &five_fold_twin()).unwrap();
         let c = compare_counterpart(&real, &counterpart_rec, &d).unwrap();
+        // The two files read side by side (streamed) give the same figures, bit for bit, and
+        // the same per-sample series when asked for them.
+        let file = |p: &std::path::Path| g1viz::identify::SessionFile {
+            path: p.to_path_buf(),
+            map: map.clone(),
+            read: OpenOptions::default(),
+        };
+        for keep in [true, false] {
+            let s = g1viz::diagnose::compare_counterpart_files(
+                &file(&real_path),
+                &file(&twin_path),
+                &d,
+                keep,
+            )
+            .unwrap();
+            let mut want = c.clone();
+            if !keep {
+                want.series.tau_t.clear();
+                want.series.tau_diff.clear();
+            }
+            assert_eq!(
+                format!("{want:?}"),
+                format!("{s:?}"),
+                "{name}, series {keep}"
+            );
+            assert_eq!(
+                s.series.tau_t.len(),
+                if keep { s.matched_samples } else { 0 }
+            );
+        }
         assert_eq!(
             c.matched_samples,
             real.state.t.len(),
@@ -1036,4 +1066,22 @@ fn counterpart_comparison_shows_what_the_twin_lacks() {
     let d = diagnose::diagnose(&real, &five_fold_twin()).unwrap();
     let err = compare_counterpart(&real, &load(&other), &d).unwrap_err();
     assert!(err.to_string().contains("simulate --like"), "{err}");
+    let file = |p: std::path::PathBuf| g1viz::identify::SessionFile {
+        path: p,
+        map: map.clone(),
+        read: OpenOptions::default(),
+    };
+    let err = g1viz::diagnose::compare_counterpart_files(
+        &file(dir.path().join("null.mcap")),
+        &file(other.clone()),
+        &d,
+        false,
+    )
+    .unwrap_err();
+    assert_eq!(
+        err.to_string(),
+        compare_counterpart(&real, &load(&other), &d)
+            .unwrap_err()
+            .to_string()
+    );
 }

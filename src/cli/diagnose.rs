@@ -101,9 +101,10 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
         sensor_window_s,
         ..DiagnoseOptions::default()
     };
-    if a.counterpart.is_none() && (a.save.is_none() || sessions.len() == 1) {
+    if sessions.len() == 1 || (a.save.is_none() && a.counterpart.is_none()) {
         // Streamed: the sessions are read trial by trial, never held whole; the .rrd of one
-        // session is streamed too (the diagnosis' overlays are per reading and per trial).
+        // session is streamed too (the diagnosis' overlays are per reading and per trial), and
+        // the counterpart is read beside the session sample by sample.
         let files: Vec<g1viz::identify::SessionFile> = sessions
             .iter()
             .map(|p| a.read.session_file(p, &map))
@@ -111,7 +112,15 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
         let busy = super::spinner("diagnosing");
         let d = diagnose::diagnose_files(&files, &opts, JOIN_GAP_S);
         busy.finish_and_clear();
-        let d = d?;
+        let mut d = d?;
+        if let (Some(p), [file]) = (&a.counterpart, files.as_slice()) {
+            let busy = super::spinner("comparing with the counterpart");
+            let twin = a.read.session_file(p, &map);
+            // The viewer plots the per-sample torque differences: kept only for --save.
+            let c = diagnose::compare_counterpart_files(file, &twin, &d, a.save.is_some());
+            busy.finish_and_clear();
+            d.attach_counterpart(c?);
+        }
         write_outputs(&a, &d)?;
         if let (Some(out), [file]) = (&a.save, files.as_slice()) {
             save_streamed_rrd(file, &a, &d, out)?;
@@ -119,8 +128,8 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
         }
         return Ok(());
     }
-    // The .rrd of several joined sessions replays them on the diagnosis' joined clock, and the
-    // counterpart compares the session with its twin sample by sample: the sessions are loaded.
+    // The .rrd of several joined sessions replays them on the diagnosis' joined clock: the
+    // sessions are loaded.
     let parts = sessions
         .iter()
         .map(|p| a.read.load(p))
@@ -135,11 +144,7 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
     let busy = super::spinner("diagnosing");
     let d = diagnose::diagnose(&rec, &opts);
     busy.finish_and_clear();
-    let mut d = d?;
-    if let Some(p) = &a.counterpart {
-        let twin = a.read.load(p)?;
-        d.attach_counterpart(diagnose::compare_counterpart(&rec, &twin, &d)?);
-    }
+    let d = d?;
     write_outputs(&a, &d)?;
     if let Some(out) = &a.save {
         save_diagnosis_rrd(&rec, &a, &sessions, &d, out)?;

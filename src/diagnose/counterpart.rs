@@ -3,12 +3,15 @@
 //! model-level diagnosis explains the recording with fitted terms, this shows directly how far
 //! the twin's torques and power are from the robot's, per joint and per trial.
 
-use anyhow::{Result, bail};
+use std::path::Path;
+
+use anyhow::{Context, Result, bail};
 use serde::{Deserialize, Serialize};
 
 use super::Diagnosis;
 use crate::N_JOINTS;
-use crate::signals::{PowerSeries, Recording};
+use crate::identify::SessionFile;
+use crate::signals::{PowerSeries, Recording, load_recording, stream_recording};
 
 /// Samples closer than this in absolute time are the same message slot [ns].
 const MATCH_TOLERANCE_NS: i128 = 1_000_000;
@@ -85,12 +88,13 @@ pub struct CounterpartComparison {
     pub series: CounterpartSeries,
 }
 
-fn abs_ns(rec: &Recording, t: f64) -> i128 {
-    i128::from(rec.start_ns) + (t * 1e9).round() as i128
+fn abs_ns(start_ns: u64, t: f64) -> i128 {
+    i128::from(start_ns) + (t * 1e9).round() as i128
 }
 
-/// Index pairs (a, b) of samples whose absolute times agree within the tolerance.
-fn match_times(a: &Recording, ta: &[f64], b: &Recording, tb: &[f64]) -> Vec<(usize, usize)> {
+/// Index pairs (a, b) of samples whose absolute times agree within the tolerance (`ta` on the
+/// clock starting at `a`, `tb` at `b`; both in time order).
+fn match_times(a: u64, ta: &[f64], b: u64, tb: &[f64]) -> Vec<(usize, usize)> {
     let mut out = Vec::new();
     let mut j = 0usize;
     for (i, &t) in ta.iter().enumerate() {
@@ -108,21 +112,30 @@ fn match_times(a: &Recording, ta: &[f64], b: &Recording, tb: &[f64]) -> Vec<(usi
     out
 }
 
-/// Time [s] the arm first moves (`+∞` if never).
-fn motion_start(rec: &Recording) -> f64 {
-    let Some(q0) = rec.state.q.first() else {
-        return f64::INFINITY;
-    };
-    rec.state
-        .q
-        .iter()
-        .zip(&rec.state.t)
-        .find(|(q, _)| {
-            q.iter()
-                .zip(q0)
-                .any(|(a, b)| (a - b).abs() > MOTION_THRESHOLD_RAD)
-        })
-        .map_or(f64::INFINITY, |(_, &t)| t)
+/// First time [s] the arm moves: a sample this far from the first one (`+∞` if never).
+#[derive(Default)]
+struct MotionStart {
+    q0: Option<[f64; N_JOINTS]>,
+    at: Option<f64>,
+}
+
+impl MotionStart {
+    fn add(&mut self, t: f64, q: &[f64; N_JOINTS]) {
+        if self.at.is_some() {
+            return;
+        }
+        let q0 = self.q0.get_or_insert(*q);
+        if q.iter()
+            .zip(q0.iter())
+            .any(|(a, b)| (a - b).abs() > MOTION_THRESHOLD_RAD)
+        {
+            self.at = Some(t);
+        }
+    }
+
+    fn time(&self) -> f64 {
+        self.at.unwrap_or(f64::INFINITY)
+    }
 }
 
 fn idle_mean(p: &PowerSeries, before: f64) -> Option<f64> {
@@ -135,51 +148,93 @@ fn idle_mean(p: &PowerSeries, before: f64) -> Option<f64> {
     (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
 }
 
-/// Compare `real` (the diagnosed recording) with `sim`, its counterpart, on the diagnosis'
-/// power target; trials are those of `d` (their readings in `d.replay`).
-pub fn compare(real: &Recording, sim: &Recording, d: &Diagnosis) -> Result<CounterpartComparison> {
-    let pairs = match_times(real, &real.state.t, sim, &sim.state.t);
-    let share = pairs.len() as f64 / real.state.t.len().max(1) as f64;
+/// Per-joint sums over the matched joint samples (recording − counterpart), in time order.
+struct JointSums {
+    matched: usize,
+    tau_sq: [f64; N_JOINTS],
+    tau: [f64; N_JOINTS],
+    q_sq: [f64; N_JOINTS],
+    /// The per-sample torque differences, when the viewer needs them.
+    series: Option<(Vec<f64>, Vec<[f64; N_JOINTS]>)>,
+}
+
+impl JointSums {
+    fn new(keep_series: bool) -> JointSums {
+        JointSums {
+            matched: 0,
+            tau_sq: [0.0; N_JOINTS],
+            tau: [0.0; N_JOINTS],
+            q_sq: [0.0; N_JOINTS],
+            series: keep_series.then(Default::default),
+        }
+    }
+
+    /// One matched pair: the recording's sample at `t` and the counterpart's.
+    fn add(
+        &mut self,
+        t: f64,
+        real: (&[f64; N_JOINTS], &[f64; N_JOINTS]),
+        sim: (&[f64; N_JOINTS], &[f64; N_JOINTS]),
+    ) {
+        let ((qr, tr), (qs, ts)) = (real, sim);
+        let d: [f64; N_JOINTS] = std::array::from_fn(|j| tr[j] - ts[j]);
+        for j in 0..N_JOINTS {
+            let dq = qr[j] - qs[j];
+            self.tau_sq[j] += d[j] * d[j];
+            self.tau[j] += d[j];
+            self.q_sq[j] += dq * dq;
+        }
+        self.matched += 1;
+        if let Some((tt, dd)) = &mut self.series {
+            tt.push(t);
+            dd.push(d);
+        }
+    }
+}
+
+/// What [`finish`] needs of one side: its file, clock origin and target power series.
+struct Side<'a> {
+    source: &'a Path,
+    start_ns: u64,
+    power: &'a PowerSeries,
+}
+
+/// The comparison from the joint sums and both sides' power (`real_samples` = the recording's
+/// joint samples, `moved` = the recording's first motion).
+fn finish(
+    sums: JointSums,
+    real_samples: usize,
+    joint_names: &[String],
+    (real, sim): (Side, Side),
+    moved: f64,
+    d: &Diagnosis,
+) -> Result<CounterpartComparison> {
+    let share = sums.matched as f64 / real_samples.max(1) as f64;
     if share < MIN_MATCHED_SHARE {
         bail!(
             "{}: only {} of {} joint samples of {} share its timeline; make the counterpart with `g1viz simulate --like {}`",
             sim.source.display(),
-            pairs.len(),
-            real.state.t.len(),
+            sums.matched,
+            real_samples,
             real.source.display(),
             real.source.display()
         );
     }
-    let tau_diff: Vec<[f64; N_JOINTS]> = pairs
-        .iter()
-        .map(|&(a, b)| std::array::from_fn(|j| real.state.tau[a][j] - sim.state.tau[b][j]))
-        .collect();
-    let mut joints = Vec::with_capacity(N_JOINTS);
-    for j in 0..N_JOINTS {
-        let (mut s2, mut s1, mut q2) = (0.0, 0.0, 0.0);
-        for (&(a, b), d) in pairs.iter().zip(&tau_diff) {
-            let dt = d[j];
-            let dq = real.state.q[a][j] - sim.state.q[b][j];
-            s2 += dt * dt;
-            s1 += dt;
-            q2 += dq * dq;
-        }
-        let n = pairs.len() as f64;
-        joints.push(JointDifference {
-            joint: real
-                .joint_names
+    let n = sums.matched as f64;
+    let joints = (0..N_JOINTS)
+        .map(|j| JointDifference {
+            joint: joint_names
                 .get(j)
                 .cloned()
                 .unwrap_or_else(|| format!("joint {j}")),
-            tau_rms_nm: (s2 / n).sqrt(),
-            tau_bias_nm: s1 / n,
-            q_rms_rad: (q2 / n).sqrt(),
-        });
-    }
+            tau_rms_nm: (sums.tau_sq[j] / n).sqrt(),
+            tau_bias_nm: sums.tau[j] / n,
+            q_rms_rad: (sums.q_sq[j] / n).sqrt(),
+        })
+        .collect();
 
     // Net power: each side minus its own readings before the (recording's) first motion.
-    let (pr, ps) = (d.target.series(real), d.target.series(sim));
-    let moved = motion_start(real);
+    let (pr, ps) = (real.power, sim.power);
     let (Some(br), Some(bs)) = (idle_mean(pr, moved), idle_mean(ps, moved)) else {
         bail!(
             "{} / {}: no {:?} power reading before the arm first moves (t = {moved:.2} s): no idle baseline to compare net power",
@@ -188,7 +243,7 @@ pub fn compare(real: &Recording, sim: &Recording, d: &Diagnosis) -> Result<Count
             d.target
         );
     };
-    let readings = match_times(real, &pr.t, sim, &ps.t);
+    let readings = match_times(real.start_ns, &pr.t, sim.start_ns, &ps.t);
     let diffs: Vec<(f64, f64, f64)> = readings
         .iter()
         .map(|&(a, b)| (pr.t[a], pr.watts[a] - br, ps.watts[b] - bs))
@@ -237,9 +292,10 @@ pub fn compare(real: &Recording, sim: &Recording, d: &Diagnosis) -> Result<Count
     worst.sort_by(|a, b| b.power_mean_w.abs().total_cmp(&a.power_mean_w.abs()));
     worst.truncate(5);
 
+    let (tau_t, tau_diff) = sums.series.unwrap_or_default();
     Ok(CounterpartComparison {
         source: sim.source.display().to_string(),
-        matched_samples: pairs.len(),
+        matched_samples: sums.matched,
         joints,
         matched_readings: diffs.len(),
         power_rms_w: (sse / n).sqrt(),
@@ -249,10 +305,234 @@ pub fn compare(real: &Recording, sim: &Recording, d: &Diagnosis) -> Result<Count
         series: CounterpartSeries {
             power_t: diffs.iter().map(|x| x.0).collect(),
             power_w: diffs.iter().map(|x| x.2).collect(),
-            tau_t: pairs.iter().map(|&(a, _)| real.state.t[a]).collect(),
+            tau_t,
             tau_diff,
         },
     })
+}
+
+/// Compare `real` (the diagnosed recording) with `sim`, its counterpart, on the diagnosis'
+/// power target; trials are those of `d` (their readings in `d.replay`).
+pub fn compare(real: &Recording, sim: &Recording, d: &Diagnosis) -> Result<CounterpartComparison> {
+    let (rs, ss) = (&real.state, &sim.state);
+    let pairs = match_times(real.start_ns, &rs.t, sim.start_ns, &ss.t);
+    let mut sums = JointSums::new(true);
+    for &(a, b) in &pairs {
+        sums.add(rs.t[a], (&rs.q[a], &rs.tau[a]), (&ss.q[b], &ss.tau[b]));
+    }
+    let mut moved = MotionStart::default();
+    for (t, q) in rs.t.iter().zip(&rs.q) {
+        moved.add(*t, q);
+        if moved.at.is_some() {
+            break;
+        }
+    }
+    fn side<'a>(r: &'a Recording, d: &Diagnosis) -> Side<'a> {
+        Side {
+            source: &r.source,
+            start_ns: r.start_ns,
+            power: d.target.series(r),
+        }
+    }
+    finish(
+        sums,
+        rs.t.len(),
+        &real.joint_names,
+        (side(real, d), side(sim, d)),
+        moved.time(),
+        d,
+    )
+}
+
+/// One batch of the counterpart's joint samples (absolute times) and target power readings.
+struct SimBatch {
+    ns: Vec<i128>,
+    q: Vec<[f64; N_JOINTS]>,
+    tau: Vec<[f64; N_JOINTS]>,
+    power: PowerSeries,
+}
+
+/// The counterpart's samples not yet passed by the recording: (absolute time, q, τ).
+type SimQueue = std::collections::VecDeque<(i128, [f64; N_JOINTS], [f64; N_JOINTS])>;
+
+/// Queue a counterpart batch's samples and keep its readings.
+fn take_sim(
+    b: SimBatch,
+    pending: &mut SimQueue,
+    last: &mut i128,
+    power: &mut PowerSeries,
+) -> Result<()> {
+    power.t.extend_from_slice(&b.power.t);
+    power.watts.extend_from_slice(&b.power.watts);
+    for ((ns, q), tau) in b.ns.into_iter().zip(b.q).zip(b.tau) {
+        if ns < *last {
+            return Err(OutOfOrder.into());
+        }
+        *last = ns;
+        pending.push_back((ns, q, tau));
+    }
+    Ok(())
+}
+
+/// Samples in batch order went back in time: the file has no index (its batches are sorted
+/// only within themselves), so it is compared loaded.
+#[derive(Debug)]
+struct OutOfOrder;
+
+impl std::fmt::Display for OutOfOrder {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("samples out of time order")
+    }
+}
+
+impl std::error::Error for OutOfOrder {}
+
+/// [`compare`] on the two files read side by side, never held whole: the counterpart is
+/// streamed on a second thread and merged with the recording sample by sample, keeping the
+/// per-joint sums (and the per-sample torque differences only with `keep_series`, for the
+/// viewer). Same figures as [`compare`] on the loaded recordings; a file whose samples do not
+/// come in time order (no index) is loaded and compared so.
+pub fn compare_files(
+    real: &SessionFile,
+    sim: &SessionFile,
+    d: &Diagnosis,
+    keep_series: bool,
+) -> Result<CounterpartComparison> {
+    match compare_streamed(real, sim, d, keep_series) {
+        Err(e) if e.downcast_ref::<OutOfOrder>().is_some() => {
+            let load = |f: &SessionFile| load_recording(&f.path, &f.map, &f.read);
+            let (r, s) = (load(real)?, load(sim)?);
+            let mut c = compare(&r, &s, d)?;
+            if !keep_series {
+                c.series.tau_t = Vec::new();
+                c.series.tau_diff = Vec::new();
+            }
+            Ok(c)
+        }
+        other => other,
+    }
+}
+
+fn compare_streamed(
+    real: &SessionFile,
+    sim: &SessionFile,
+    d: &Diagnosis,
+    keep_series: bool,
+) -> Result<CounterpartComparison> {
+    const BATCH: usize = 4096;
+    let target = d.target;
+    let (tx, rx) = std::sync::mpsc::sync_channel::<SimBatch>(2);
+    let sim_file = sim.clone();
+    let reader = std::thread::spawn(move || -> Result<u64> {
+        let summary = stream_recording(
+            &sim_file.path,
+            &sim_file.map,
+            &sim_file.read,
+            BATCH,
+            &mut |b| {
+                let st = &b.state;
+                let batch = SimBatch {
+                    ns: st.t.iter().map(|&t| abs_ns(b.start_ns, t)).collect(),
+                    q: st.q.clone(),
+                    tau: st.tau.clone(),
+                    power: target.series(b).clone(),
+                };
+                tx.send(batch)
+                    .map_err(|_| anyhow::anyhow!("the comparison stopped"))
+            },
+        )
+        .with_context(|| format!("reading the counterpart {}", sim_file.path.display()))?;
+        Ok(summary.start_ns)
+    });
+
+    let mut sums = JointSums::new(keep_series);
+    let mut moved = MotionStart::default();
+    let mut real_power = PowerSeries::default();
+    let mut sim_power = PowerSeries::default();
+    // The counterpart's samples not yet passed by the recording, and whether its stream ended.
+    let mut pending = SimQueue::new();
+    let mut sim_done = false;
+    let mut last_sim = i128::MIN;
+    let mut last_real = f64::NEG_INFINITY;
+    let mut real_samples = 0usize;
+    let streamed = stream_recording(&real.path, &real.map, &real.read, BATCH, &mut |b| {
+        let tp = target.series(b);
+        real_power.t.extend_from_slice(&tp.t);
+        real_power.watts.extend_from_slice(&tp.watts);
+        let st = &b.state;
+        for k in 0..st.t.len().min(st.q.len()).min(st.tau.len()) {
+            let t = st.t[k];
+            if t < last_real {
+                return Err(OutOfOrder.into());
+            }
+            last_real = t;
+            real_samples += 1;
+            moved.add(t, &st.q[k]);
+            let x = abs_ns(b.start_ns, t);
+            loop {
+                while pending
+                    .front()
+                    .is_some_and(|p| p.0 < x - MATCH_TOLERANCE_NS)
+                {
+                    pending.pop_front();
+                }
+                if !pending.is_empty() || sim_done {
+                    break;
+                }
+                match rx.recv() {
+                    Ok(sb) => take_sim(sb, &mut pending, &mut last_sim, &mut sim_power)?,
+                    Err(_) => sim_done = true,
+                }
+            }
+            if let Some(p) = pending.front()
+                && (p.0 - x).abs() <= MATCH_TOLERANCE_NS
+            {
+                sums.add(t, (&st.q[k], &st.tau[k]), (&p.1, &p.2));
+                pending.pop_front();
+            }
+        }
+        Ok(())
+    })
+    .with_context(|| format!("reading {}", real.path.display()));
+    // The counterpart's remaining readings (its samples are no longer needed).
+    let mut drained = Ok(());
+    if streamed.is_ok() {
+        while let Ok(sb) = rx.recv() {
+            pending.clear();
+            if let Err(e) = take_sim(sb, &mut pending, &mut last_sim, &mut sim_power) {
+                drained = Err(e);
+                break;
+            }
+        }
+    }
+    drop(rx);
+    let joined = reader
+        .join()
+        .map_err(|_| anyhow::anyhow!("the counterpart's reader thread panicked"))?;
+    let real_summary = streamed?;
+    drained?;
+    let sim_start_ns = joined?;
+    real_power.sort_by_time();
+    sim_power.sort_by_time();
+    finish(
+        sums,
+        real_samples,
+        &real.map.joint_names,
+        (
+            Side {
+                source: &real.path,
+                start_ns: real_summary.start_ns,
+                power: &real_power,
+            },
+            Side {
+                source: &sim.path,
+                start_ns: sim_start_ns,
+                power: &sim_power,
+            },
+        ),
+        moved.time(),
+        d,
+    )
 }
 
 /// Plain-language paragraph for the terminal summary and the report.

@@ -39,7 +39,7 @@ pub use crate::signals::Target;
 pub use crate::trial::{Phase, TrialWindow};
 pub use counterpart::{
     CounterpartComparison, CounterpartSeries, JointDifference, TrialDifference,
-    compare as compare_counterpart,
+    compare as compare_counterpart, compare_files as compare_counterpart_files,
 };
 pub use discover::{Discovery, DiscoveryReport};
 pub use fields::{ExcludedField, FieldSource};
