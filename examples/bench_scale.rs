@@ -1,5 +1,6 @@
 //! Benchmark of every model-related command against session length: wall time and peak RSS of
-//! `info`, `identify`, `validate`, `diagnose` (with and without `--save`), `replay --save` and
+//! `info`, `identify`, `validate`, `diagnose` (alone, with `--save`, and with `--counterpart` of
+//! the session's twin made by `simulate --like`, reused when present), `replay --save` and
 //! `replay --model paper --save`,
 //! each run as a child process of the built `g1viz` binary, on sessions of 1 h, 4.4 h and 10 h,
 //! plus the size of each `.rrd`.
@@ -219,7 +220,7 @@ fn main() -> Result<()> {
     let wanted: Vec<String> = args
         .get(2)
         .map_or(
-            "info,identify,validate,diagnose,diagnose-save,replay,replay-model",
+            "info,identify,validate,diagnose,diagnose-save,diagnose-counterpart,replay,replay-model",
             String::as_str,
         )
         .split(',')
@@ -247,6 +248,18 @@ fn main() -> Result<()> {
         let rrd = dir.join(format!("replay_{h}h.rrd"));
         let sp = s.display().to_string();
         let (mp, rp) = (model.display().to_string(), rrd.display().to_string());
+        // The twin on the session's own commands and timeline (`diagnose --counterpart`).
+        let twin = dir.join(format!("session_{h}h_twin.mcap"));
+        let tp = twin.display().to_string();
+        if wanted.iter().any(|w| w == "diagnose-counterpart") && !twin.exists() {
+            let ok = Command::new(&bin)
+                .args(["simulate", "--like", &sp, "-o", &tp])
+                .current_dir(&dir)
+                .status()?;
+            if !ok.success() {
+                bail!("simulate --like {sp} failed");
+            }
+        }
         let commands: Vec<(&str, Vec<&str>)> = vec![
             ("info", vec!["info", &sp]),
             ("identify", vec!["identify", &sp, "-o", &mp]),
@@ -255,6 +268,10 @@ fn main() -> Result<()> {
             (
                 "diagnose-save",
                 vec!["diagnose", "--model", "paper", &sp, "--save", &rp],
+            ),
+            (
+                "diagnose-counterpart",
+                vec!["diagnose", "--model", "paper", &sp, "--counterpart", &tp],
             ),
             ("replay", vec!["replay", &sp, "--save", &rp]),
             (
@@ -278,6 +295,8 @@ fn main() -> Result<()> {
                 "replay --model paper --save".to_string()
             } else if name == "diagnose-save" {
                 "diagnose --model paper --save".to_string()
+            } else if name == "diagnose-counterpart" {
+                "diagnose --model paper --counterpart TWIN".to_string()
             } else if name == "replay" {
                 "replay --save".to_string()
             } else {
