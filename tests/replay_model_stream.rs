@@ -394,6 +394,109 @@ fn streamed_diagnosis_replay_equals_in_memory() {
     assert_same_replay_of(&a, &b, "diagnosis replay", &["diagnosis/"], 5);
 }
 
+/// `diagnose A B --save` replays the sessions part by part on the diagnosis' joined clock
+/// (`replay_files_with`): the same rows and values as the replay of the sessions loaded and
+/// joined (`join_recordings_with_sources`, as the diagnosis joins them), the second part's
+/// samples shifted onto the first's clock.
+#[test]
+fn streamed_joined_diagnosis_replay_equals_in_memory() {
+    use g1viz::diagnose::{self, DiagnoseOptions};
+    let dir = tempfile::tempdir().unwrap();
+    let map = SignalMap::g1_left_arm();
+    let mut paths = Vec::new();
+    for seed in [3, 4] {
+        let path = dir.path().join(format!("latency{seed}.mcap"));
+        let mut effects = g1viz::sim::Effects::default();
+        effects.enable("latency").unwrap();
+        g1viz::sim::simulate(
+            &g1viz::sim::SimConfig {
+                progress: false,
+                seed,
+                effects,
+                ..Default::default()
+            },
+            &path,
+        )
+        .unwrap();
+        paths.push(path);
+    }
+    let files: Vec<_> = paths
+        .iter()
+        .map(|p| g1viz::identify::SessionFile {
+            path: p.clone(),
+            map: map.clone(),
+            read: Default::default(),
+        })
+        .collect();
+    let opts = DiagnoseOptions {
+        reference: Some(PowerModel::PAPER),
+        ..DiagnoseOptions::default()
+    };
+    let d = diagnose::diagnose_files(&files, &opts, 5.0).unwrap();
+    let parts: Vec<_> = paths
+        .iter()
+        .map(|p| load_recording(p, &map, &Default::default()).unwrap())
+        .collect();
+    let first_end = parts[0].state.t.last().copied().unwrap();
+    let (rec, _) = diagnose::join_recordings_with_sources(parts, 5.0);
+    assert!(
+        d.replay.t.iter().any(|&t| t > first_end + 5.0),
+        "the diagnosis has no readings in the second session"
+    );
+    let extras = g1viz::viz::diagnosis_extras(&d);
+    let robot = RobotModel::builtin();
+    let arm = robot.arm(&map.joint_names).unwrap();
+    let ro = ReplayOptions {
+        progress: false,
+        ..Default::default()
+    };
+    let kind = g1viz::viz::OutputKind::Diagnosis;
+    let (a, b) = (dir.path().join("mem.rrd"), dir.path().join("str.rrd"));
+    let inputs: Vec<&Path> = paths.iter().map(PathBuf::as_path).collect();
+    let out = open_stream(
+        &kind.app_id(),
+        &kind.recording_id(&recording_id_for(&rec)),
+        &Sink::Save(a.clone()),
+        &inputs,
+    )
+    .unwrap();
+    log_replay(&rec, &robot, &arm, &extras, &ro, out.stream()).unwrap();
+    out.finish().unwrap();
+    let id = g1viz::viz::recording_id_for_source(&paths[0]).unwrap();
+    let out = open_stream(
+        &kind.app_id(),
+        &kind.recording_id(&id),
+        &Sink::Save(b.clone()),
+        &inputs,
+    )
+    .unwrap();
+    g1viz::viz::replay_files_with(
+        &inputs,
+        5.0,
+        &map,
+        &Default::default(),
+        &robot,
+        &arm,
+        extras,
+        &ro,
+        out.stream(),
+    )
+    .unwrap();
+    out.finish().unwrap();
+    assert_same_replay_of(&a, &b, "joined diagnosis replay", &["diagnosis/"], 5);
+    // The second session is on the joined clock: the streamed replay's joint samples reach past
+    // the first session's end and the 5 s gap.
+    let q = series(&decode(&b), "/joints/elbow/q");
+    let span_s = match (q.first(), q.last()) {
+        (Some(a), Some(z)) => (z.0 - a.0) as f64 * 1e-9,
+        _ => 0.0,
+    };
+    assert!(
+        span_s > first_end + 5.0,
+        "the streamed replay spans {span_s:.1} s, the first session alone {first_end:.1} s"
+    );
+}
+
 /// `g1viz diagnose SESSION --model paper --save OUT --json J` end to end through the binary (the
 /// streamed path the CLI takes for one session): the `.rrd` holds the diagnosis' measured power
 /// at every reading the diagnosis used, as its JSON lists them, and the recording's properties.

@@ -436,6 +436,49 @@ fn simulate_like_reruns_a_recording_on_its_timeline() {
     assert!(mean_dp < 1.5, "MBS differs by {mean_dp} W on average");
 }
 
+/// `simulate --like` streams the recording (`simulate_like_file`: its stamps, then its
+/// trajectory as the twin reaches it): the same session file and truth, byte for byte, as
+/// `simulate_like` of the loaded recording — following the command, and following the measured
+/// states of a recording read without its command topic.
+#[test]
+fn simulate_like_file_streams_the_same_twin_as_the_loaded_recording() {
+    let dir = tmp();
+    let a_path = dir.path().join("a.mcap");
+    simulate(&tiny(4), &a_path).unwrap();
+    let commanded = g1viz::signals::SignalMap::g1_left_arm();
+    let mut uncommanded = commanded.clone();
+    for (name, spec) in uncommanded.signals.iter_mut() {
+        if name.starts_with("cmd_") {
+            spec.topic = "/not_recorded".into();
+        }
+    }
+    let opts = g1viz::read::OpenOptions::default();
+    let mut twins = Vec::new();
+    for (what, map) in [("commanded", &commanded), ("measured", &uncommanded)] {
+        let rec = g1viz::signals::load_recording(&a_path, map, &opts).unwrap();
+        assert_eq!(rec.command.t.is_empty(), what == "measured", "{what}");
+        let (loaded, streamed) = (dir.path().join("l"), dir.path().join("s"));
+        std::fs::create_dir_all(&loaded).unwrap();
+        std::fs::create_dir_all(&streamed).unwrap();
+        let (l, s) = (loaded.join("twin.mcap"), streamed.join("twin.mcap"));
+        g1viz::sim::simulate_like(&rec, &tiny(99), &l).unwrap();
+        let (_, warnings) =
+            g1viz::sim::simulate_like_file(&a_path, map, &opts, &tiny(99), &s).unwrap();
+        assert_eq!(warnings, rec.warnings, "{what}: warnings");
+        let (lb, sb) = (std::fs::read(&l).unwrap(), std::fs::read(&s).unwrap());
+        assert!(lb.len() > 10_000, "{what}: {} bytes", lb.len());
+        assert!(
+            lb == sb,
+            "{what}: the streamed twin differs from the loaded one"
+        );
+        let truth = |p: &Path| std::fs::read(g1viz::sim::truth_path(p)).unwrap();
+        assert_eq!(truth(&l), truth(&s), "{what}: truth");
+        twins.push(lb);
+    }
+    // The two references give two twins (the measured states lag the command).
+    assert!(twins[0] != twins[1], "the reference made no difference");
+}
+
 #[test]
 fn payload_adds_its_gravity_torque_and_changes_power() {
     let payload = g1viz::sim::DEFAULT_PAYLOAD;

@@ -8,7 +8,6 @@ use clap::Args;
 
 use super::{ReadArgs, TargetArg, expand_sessions};
 use g1viz::power::load_model_for;
-use g1viz::signals::Recording;
 use g1viz::util::{check_distinct_sessions, check_outputs};
 
 #[derive(Args)]
@@ -101,53 +100,29 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
         sensor_window_s,
         ..DiagnoseOptions::default()
     };
-    if sessions.len() == 1 || (a.save.is_none() && a.counterpart.is_none()) {
-        // Streamed: the sessions are read trial by trial, never held whole; the .rrd of one
-        // session is streamed too (the diagnosis' overlays are per reading and per trial), and
-        // the counterpart is read beside the session sample by sample.
-        let files: Vec<g1viz::identify::SessionFile> = sessions
-            .iter()
-            .map(|p| a.read.session_file(p, &map))
-            .collect();
-        let busy = super::spinner("diagnosing");
-        let d = diagnose::diagnose_files(&files, &opts, JOIN_GAP_S);
-        busy.finish_and_clear();
-        let mut d = d?;
-        if let (Some(p), [file]) = (&a.counterpart, files.as_slice()) {
-            let busy = super::spinner("comparing with the counterpart");
-            let twin = a.read.session_file(p, &map);
-            // The viewer plots the per-sample torque differences: kept only for --save.
-            let c = diagnose::compare_counterpart_files(file, &twin, &d, a.save.is_some());
-            busy.finish_and_clear();
-            d.attach_counterpart(c?);
-        }
-        write_outputs(&a, &d)?;
-        if let (Some(out), [file]) = (&a.save, files.as_slice()) {
-            save_streamed_rrd(file, &a, &d, out)?;
-            println!("wrote {}", out.display());
-        }
-        return Ok(());
-    }
-    // The .rrd of several joined sessions replays them on the diagnosis' joined clock: the
-    // sessions are loaded.
-    let parts = sessions
+    // Streamed: the sessions are read trial by trial, never held whole; the .rrd is streamed too
+    // (the diagnosis' overlays are per reading and per trial; several sessions are replayed part
+    // by part on the diagnosis' joined clock), and the counterpart is read beside the session
+    // sample by sample.
+    let files: Vec<g1viz::identify::SessionFile> = sessions
         .iter()
-        .map(|p| a.read.load(p))
-        .collect::<Result<Vec<_>>>()?;
-    // Each part starts 5 s after the previous one ends: trials and their baselines stay apart.
-    // Discovery reads every field of every part's file, placed on the joined time line.
-    let (rec, field_sources) = diagnose::join_recordings_with_sources(parts, JOIN_GAP_S);
-    let opts = DiagnoseOptions {
-        field_sources,
-        ..opts
-    };
+        .map(|p| a.read.session_file(p, &map))
+        .collect();
     let busy = super::spinner("diagnosing");
-    let d = diagnose::diagnose(&rec, &opts);
+    let d = diagnose::diagnose_files(&files, &opts, JOIN_GAP_S);
     busy.finish_and_clear();
-    let d = d?;
+    let mut d = d?;
+    if let (Some(p), [file]) = (&a.counterpart, files.as_slice()) {
+        let busy = super::spinner("comparing with the counterpart");
+        let twin = a.read.session_file(p, &map);
+        // The viewer plots the per-sample torque differences: kept only for --save.
+        let c = diagnose::compare_counterpart_files(file, &twin, &d, a.save.is_some());
+        busy.finish_and_clear();
+        d.attach_counterpart(c?);
+    }
     write_outputs(&a, &d)?;
     if let Some(out) = &a.save {
-        save_diagnosis_rrd(&rec, &a, &sessions, &d, out)?;
+        save_streamed_rrd(&files, &a, &d, out)?;
         println!("wrote {}", out.display());
     }
     Ok(())
@@ -184,35 +159,11 @@ fn replay_options(a: &DiagnoseArgs) -> g1viz::viz::ReplayOptions {
     }
 }
 
-#[cfg(feature = "viz")]
-fn save_diagnosis_rrd(
-    rec: &Recording,
-    a: &DiagnoseArgs,
-    sessions: &[PathBuf],
-    d: &g1viz::diagnose::Diagnosis,
-    out: &Path,
-) -> Result<()> {
-    use g1viz::robot::RobotModel;
-    use g1viz::viz::{self, OutputKind, Sink};
-    let robot = RobotModel::load(a.urdf.as_deref())?;
-    let arm = robot.arm(&rec.joint_names)?;
-    let extras = viz::diagnosis_extras(d);
-    let kind = OutputKind::Diagnosis;
-    let stream = viz::open_stream(
-        &kind.app_id(),
-        &kind.recording_id(&viz::recording_id_for(rec)),
-        &Sink::Save(out.to_path_buf()),
-        &sessions.iter().map(PathBuf::as_path).collect::<Vec<_>>(),
-    )?;
-    let opts = replay_options(a);
-    viz::log_replay(rec, &robot, &arm, &extras, &opts, stream.stream())?;
-    stream.finish()
-}
-
-/// The `.rrd` of one session's diagnosis, the session streamed from its file.
+/// The `.rrd` of a diagnosis, the sessions streamed from their files (several joined end to end
+/// on the diagnosis' clock; the recording id is the first file's).
 #[cfg(feature = "viz")]
 fn save_streamed_rrd(
-    file: &g1viz::identify::SessionFile,
+    files: &[g1viz::identify::SessionFile],
     a: &DiagnoseArgs,
     d: &g1viz::diagnose::Diagnosis,
     out: &Path,
@@ -220,24 +171,29 @@ fn save_streamed_rrd(
     use anyhow::Context;
     use g1viz::robot::RobotModel;
     use g1viz::viz::{self, OutputKind, Sink};
+    let [first, ..] = files else {
+        bail!("no session to replay");
+    };
     let robot = RobotModel::load(a.urdf.as_deref())?;
-    let arm = robot.arm(&file.map.joint_names)?;
+    let arm = robot.arm(&first.map.joint_names)?;
     let extras = viz::diagnosis_extras(d);
     let kind = OutputKind::Diagnosis;
-    let id = viz::recording_id_for_source(&file.path)
-        .with_context(|| format!("cannot read {}", file.path.display()))?;
+    let id = viz::recording_id_for_source(&first.path)
+        .with_context(|| format!("cannot read {}", first.path.display()))?;
+    let paths: Vec<&Path> = files.iter().map(|f| f.path.as_path()).collect();
     let stream = viz::open_stream(
         &kind.app_id(),
         &kind.recording_id(&id),
         &Sink::Save(out.to_path_buf()),
-        &[file.path.as_path()],
+        &paths,
     )?;
     let opts = replay_options(a);
     let busy = super::spinner("writing the replay");
-    let summary = viz::replay_file_with(
-        &file.path,
-        &file.map,
-        &file.read,
+    let summary = viz::replay_files_with(
+        &paths,
+        JOIN_GAP_S,
+        &first.map,
+        &first.read,
         &robot,
         &arm,
         extras,
@@ -253,19 +209,8 @@ fn save_streamed_rrd(
 
 #[cfg(not(feature = "viz"))]
 fn save_streamed_rrd(
-    _: &g1viz::identify::SessionFile,
+    _: &[g1viz::identify::SessionFile],
     _: &DiagnoseArgs,
-    _: &g1viz::diagnose::Diagnosis,
-    _: &Path,
-) -> Result<()> {
-    bail!("--save needs the `viz` feature (Rerun output); rebuild with default features")
-}
-
-#[cfg(not(feature = "viz"))]
-fn save_diagnosis_rrd(
-    _: &Recording,
-    _: &DiagnoseArgs,
-    _: &[PathBuf],
     _: &g1viz::diagnose::Diagnosis,
     _: &Path,
 ) -> Result<()> {

@@ -10,7 +10,7 @@ use clap::{Args, Parser, Subcommand, ValueEnum};
 
 use g1viz::identify::{Alignment, AlignmentChoice, IdentifyOptions, Mode, Target};
 use g1viz::read::OpenOptions;
-use g1viz::signals::{Recording, SignalMap, load_recording};
+use g1viz::signals::SignalMap;
 use g1viz::trial::Cascade;
 
 pub mod diagnose;
@@ -173,15 +173,6 @@ impl ReadArgs {
             map: map.clone(),
             read: self.open_options(),
         }
-    }
-
-    pub fn load(&self, path: &Path) -> Result<Recording> {
-        let rec = load_recording(path, &self.signal_map()?, &self.open_options())
-            .with_context(|| format!("reading {}", path.display()))?;
-        for w in &rec.warnings {
-            eprintln!("warning: {w}");
-        }
-        Ok(rec)
     }
 }
 

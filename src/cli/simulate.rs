@@ -84,7 +84,21 @@ pub fn run(a: SimulateArgs) -> Result<()> {
         cfg.artefacts = Artefacts::NONE;
     }
     let truth = match &a.like {
-        Some(p) => g1viz::sim::simulate_like(&a.read.load(p)?, &cfg, &a.output)?,
+        // Streamed: the recording is read twice (its stamps, then its trajectory as the twin
+        // reaches it), never held whole.
+        Some(p) => {
+            let (truth, warnings) = g1viz::sim::simulate_like_file(
+                p,
+                &a.read.signal_map()?,
+                &a.read.open_options(),
+                &cfg,
+                &a.output,
+            )?;
+            for w in &warnings {
+                eprintln!("warning: {w}");
+            }
+            truth
+        }
         None => g1viz::sim::simulate(&cfg, &a.output)?,
     };
     let what = match &a.like {

@@ -13,6 +13,7 @@
 //! ```
 
 mod effects;
+pub(crate) mod like;
 pub(crate) mod plant;
 pub(crate) mod protocol;
 pub(crate) mod thermal;
@@ -34,6 +35,7 @@ pub use effects::{
     JOINT_FRICTION_PATTERN, JointFrictionExcess, RailLoad, SWAY_CORRELATION_S, SensorLatency,
     StribeckFriction, THERMAL_REFERENCE_C, ThermalDrift,
 };
+pub use like::simulate_like_file;
 pub use protocol::Preset;
 pub use thermal::ThermalModel;
 pub use truth::{
@@ -654,7 +656,6 @@ pub fn simulate_like(rec: &Recording, cfg: &SimConfig, out: &Path) -> Result<Tru
         ..cfg.clone()
     };
     let (dyn_true, dyn_urdf) = dynamics(&cfg_like)?;
-    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
     let engine = Engine {
         cfg: &cfg_like,
         dyn_true: &dyn_true,
@@ -665,8 +666,15 @@ pub fn simulate_like(rec: &Recording, cfg: &SimConfig, out: &Path) -> Result<Tru
         trials: &[],
         artefacts: &[],
     };
-    let stats = run_to_file(&cfg_like, &engine, &mut rng, out)?;
-    let truth = build_truth(&cfg_like, "like", &timeline, &stats, Vec::new(), out);
+    run_like(&cfg_like, &engine, out)
+}
+
+/// The run of a re-recorded twin (`engine` on the recording's timeline and reference, no
+/// trials): the session file and its truth.
+fn run_like(cfg_like: &SimConfig, engine: &Engine, out: &Path) -> Result<Truth> {
+    let mut rng = ChaCha8Rng::seed_from_u64(cfg_like.seed);
+    let stats = run_to_file(cfg_like, engine, &mut rng, out)?;
+    let truth = build_truth(cfg_like, "like", engine.timeline, &stats, Vec::new(), out);
     write_truth(&truth, out)?;
     Ok(truth)
 }

@@ -102,6 +102,8 @@ pub enum Reference<'a> {
     Protocol(&'a Schedule),
     /// A sampled trajectory.
     Sampled(&'a Sampled),
+    /// A sampled trajectory read from a file as the engine reaches it.
+    Streamed(&'a super::like::StreamedSampled),
 }
 
 impl Reference<'_> {
@@ -113,44 +115,56 @@ impl Reference<'_> {
     ) -> ([f64; N_JOINTS], [f64; N_JOINTS], [f64; N_JOINTS]) {
         match self {
             Reference::Protocol(s) => s.eval(t, hint),
-            Reference::Sampled(s) => {
-                let zero = [0.0; N_JOINTS];
-                let n = s.t.len();
-                if n == 0 {
-                    return (zero, zero, zero);
-                }
-                while *hint + 1 < n && s.t[*hint + 1] <= t {
-                    *hint += 1;
-                }
-                while *hint > 0 && s.t[*hint] > t {
-                    *hint -= 1;
-                }
-                let k = *hint;
-                if k + 1 >= n || t <= s.t[0] {
-                    let k = if t <= s.t[0] { 0 } else { n - 1 };
-                    return (s.q[k], s.dq[k], zero);
-                }
-                let h = s.t[k + 1] - s.t[k];
-                let u = if h > 0.0 {
-                    ((t - s.t[k]) / h).clamp(0.0, 1.0)
-                } else {
-                    0.0
-                };
-                let mut q = zero;
-                let mut dq = zero;
-                let mut ddq = zero;
-                for j in 0..N_JOINTS {
-                    q[j] = s.q[k][j] + u * (s.q[k + 1][j] - s.q[k][j]);
-                    dq[j] = s.dq[k][j] + u * (s.dq[k + 1][j] - s.dq[k][j]);
-                    ddq[j] = if h > 0.0 {
-                        (s.dq[k + 1][j] - s.dq[k][j]) / h
-                    } else {
-                        0.0
-                    };
-                }
-                (q, dq, ddq)
-            }
+            Reference::Sampled(s) => s.eval(t, hint),
+            Reference::Streamed(s) => s.eval(t, hint),
         }
+    }
+}
+
+impl Sampled {
+    /// q, q̇, q̈ at `t`, linearly interpolated (q̈ the slope of q̇ between the two samples); held
+    /// at the first and the last sample outside them. `hint` is a cursor for monotone queries.
+    pub fn eval(
+        &self,
+        t: f64,
+        hint: &mut usize,
+    ) -> ([f64; N_JOINTS], [f64; N_JOINTS], [f64; N_JOINTS]) {
+        let s = self;
+        let zero = [0.0; N_JOINTS];
+        let n = s.t.len();
+        if n == 0 {
+            return (zero, zero, zero);
+        }
+        while *hint + 1 < n && s.t[*hint + 1] <= t {
+            *hint += 1;
+        }
+        while *hint > 0 && s.t[*hint] > t {
+            *hint -= 1;
+        }
+        let k = *hint;
+        if k + 1 >= n || t <= s.t[0] {
+            let k = if t <= s.t[0] { 0 } else { n - 1 };
+            return (s.q[k], s.dq[k], zero);
+        }
+        let h = s.t[k + 1] - s.t[k];
+        let u = if h > 0.0 {
+            ((t - s.t[k]) / h).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        let mut q = zero;
+        let mut dq = zero;
+        let mut ddq = zero;
+        for j in 0..N_JOINTS {
+            q[j] = s.q[k][j] + u * (s.q[k + 1][j] - s.q[k][j]);
+            dq[j] = s.dq[k][j] + u * (s.dq[k + 1][j] - s.dq[k][j]);
+            ddq[j] = if h > 0.0 {
+                (s.dq[k + 1][j] - s.dq[k][j]) / h
+            } else {
+                0.0
+            };
+        }
+        (q, dq, ddq)
     }
 }
 

@@ -506,6 +506,51 @@ pub fn replay_file_with(
     sink.summary.context("the recording delivered no samples")
 }
 
+/// [`replay_file_with`] of several files joined end to end into one session, each part starting
+/// `gap_s` after the previous one ends, as [`crate::signals::join_recordings`] joins them loaded
+/// (the clock and header are the first file's): the replay of a diagnosis of several sessions,
+/// streamed part by part. One path is [`replay_file_with`].
+#[allow(clippy::too_many_arguments)]
+pub fn replay_files_with(
+    paths: &[&std::path::Path],
+    gap_s: f64,
+    map: &crate::signals::SignalMap,
+    read_opts: &crate::read::OpenOptions,
+    robot: &RobotModel,
+    arm: &ArmJoints,
+    extras: ReplayExtras,
+    opts: &ReplayOptions,
+    stream: &RecordingStream,
+) -> Result<ReplaySummary> {
+    if let [path] = paths {
+        return replay_file_with(path, map, read_opts, robot, arm, extras, opts, stream);
+    }
+    let quiet = ReplayOptions {
+        progress: false,
+        chunk_rows: opts.chunk_rows.max(STREAMED_CHUNK_ROWS),
+        ..opts.clone()
+    };
+    let mut sink = StreamedReplay {
+        stream,
+        robot,
+        arm,
+        opts: &quiet,
+        extras,
+        logger: None,
+        summary: None,
+        unflushed: 0,
+    };
+    crate::signals::stream_joined_into(
+        paths,
+        map,
+        read_opts,
+        opts.chunk_rows.max(1),
+        gap_s,
+        &mut sink,
+    )?;
+    sink.summary.context("the recordings delivered no samples")
+}
+
 /// Log one batch of a streamed replay, waiting for the sink every [`REPLAY_FLUSH_SAMPLES`]
 /// samples (`unflushed`: the samples logged since the last wait).
 pub(crate) fn log_streamed_batch(
