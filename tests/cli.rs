@@ -299,6 +299,28 @@ fn workflow_simulate_identify_validate_diagnose() {
                 .starts_with(b"RRF2")
         );
     }
+    if cfg!(feature = "viz") {
+        // Two sessions joined: the .rrd is streamed part by part on the joined clock.
+        let (out, _) = ok(
+            d,
+            &[
+                "diagnose",
+                "ho.mcap",
+                "twin.mcap",
+                "--model",
+                "model.json",
+                "--save",
+                "joined.rrd",
+            ],
+        );
+        assert!(out.contains("wrote joined.rrd"), "{out}");
+        let joined = std::fs::metadata(d.join("joined.rrd")).unwrap().len();
+        let single = std::fs::metadata(d.join("diag.rrd")).unwrap().len();
+        assert!(
+            joined > single * 3 / 2,
+            "two sessions' replay {joined} B, one session's {single} B"
+        );
+    }
     // Inputs are never modified; outputs do not leave temporary files behind.
     let names: Vec<String> = std::fs::read_dir(d)
         .unwrap()
