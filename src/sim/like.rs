@@ -77,9 +77,8 @@ pub fn simulate_like_file(
                         dq: b.state.dq.clone(),
                     }
                 };
-                // The engine stopped (an error of its own): stop reading.
-                tx.send(s)
-                    .context("the twin stopped before the recording's end")
+                // The twin is done with the trajectory (or failed): stop reading.
+                tx.send(s).map_err(|_| anyhow::Error::new(TwinStopped))
             })
         });
         let run = {
@@ -102,10 +101,27 @@ pub fn simulate_like_file(
             .join()
             .map_err(|_| anyhow::anyhow!("the reader thread panicked"))?;
         let truth = run?;
-        read.with_context(|| format!("reading {} a second time", path.display()))?;
+        match read {
+            Err(e) if e.chain().any(|c| c.is::<TwinStopped>()) => {}
+            r => {
+                r.with_context(|| format!("reading {} a second time", path.display()))?;
+            }
+        }
         Ok((truth, stamps.warnings))
     })
 }
+
+/// The reader's stop when the twin no longer takes the trajectory (not an error of the read).
+#[derive(Debug)]
+struct TwinStopped;
+
+impl std::fmt::Display for TwinStopped {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("the twin stopped taking the trajectory")
+    }
+}
+
+impl std::error::Error for TwinStopped {}
 
 /// What the first pass keeps: every message's stamp, the joint states' largest gap.
 struct Stamps {
