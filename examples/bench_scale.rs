@@ -1,7 +1,7 @@
 //! Benchmark of every model-related command against session length: wall time and peak RSS of
 //! `info`, `identify`, `validate`, `diagnose` (alone, with `--save`, and with `--counterpart` of
 //! the session's twin made by `simulate --like`, reused when present), `replay --save` and
-//! `replay --model paper --save`,
+//! `replay --model paper --save` and `simulate --like SESSION` (the twin on the session's timeline),
 //! each run as a child process of the built `g1viz` binary, on sessions of 1 h, 4.4 h and 10 h,
 //! plus the size of each `.rrd`.
 //!
@@ -220,7 +220,7 @@ fn main() -> Result<()> {
     let wanted: Vec<String> = args
         .get(2)
         .map_or(
-            "info,identify,validate,diagnose,diagnose-save,diagnose-counterpart,replay,replay-model",
+            "info,identify,validate,diagnose,diagnose-save,diagnose-counterpart,replay,replay-model,simulate-like",
             String::as_str,
         )
         .split(',')
@@ -247,6 +247,8 @@ fn main() -> Result<()> {
         let model = dir.join(format!("model_{h}h.json"));
         let rrd = dir.join(format!("replay_{h}h.rrd"));
         let sp = s.display().to_string();
+        let like = dir.join(format!("like_{h}h.mcap"));
+        let lp = like.display().to_string();
         let (mp, rp) = (model.display().to_string(), rrd.display().to_string());
         // The twin on the session's own commands and timeline (`diagnose --counterpart`).
         let twin = dir.join(format!("session_{h}h_twin.mcap"));
@@ -278,6 +280,7 @@ fn main() -> Result<()> {
                 "replay-model",
                 vec!["replay", &sp, "--model", "paper", "--save", &rp],
             ),
+            ("simulate-like", vec!["simulate", "--like", &sp, "-o", &lp]),
         ];
         for (name, argv) in commands {
             if !wanted.iter().any(|w| w == name) {
@@ -297,6 +300,8 @@ fn main() -> Result<()> {
                 "diagnose --model paper --save".to_string()
             } else if name == "diagnose-counterpart" {
                 "diagnose --model paper --counterpart TWIN".to_string()
+            } else if name == "simulate-like" {
+                "simulate --like SESSION".to_string()
             } else if name == "replay" {
                 "replay --save".to_string()
             } else {
@@ -309,6 +314,8 @@ fn main() -> Result<()> {
             );
         }
         let _ = std::fs::remove_file(&rrd);
+        let _ = std::fs::remove_file(&like);
+        let _ = std::fs::remove_file(g1viz::sim::truth_path(&like));
     }
     Ok(())
 }
