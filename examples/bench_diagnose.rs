@@ -93,6 +93,7 @@ fn main() -> Result<()> {
         path: path.clone(),
         map: SignalMap::g1_left_arm(),
         read: Default::default(),
+        spill: Default::default(),
     };
     let streamed = diagnose::diagnose_files(std::slice::from_ref(&file), &opts, 5.0)?;
     println!(

@@ -1011,6 +1011,7 @@ fn counterpart_comparison_shows_what_the_twin_lacks() {
             path: p.to_path_buf(),
             map: map.clone(),
             read: OpenOptions::default(),
+            spill: Default::default(),
         };
         for keep in [true, false] {
             let s = g1viz::diagnose::compare_counterpart_files(
@@ -1070,6 +1071,7 @@ fn counterpart_comparison_shows_what_the_twin_lacks() {
         path: p,
         map: map.clone(),
         read: OpenOptions::default(),
+        spill: Default::default(),
     };
     let err = g1viz::diagnose::compare_counterpart_files(
         &file(dir.path().join("null.mcap")),

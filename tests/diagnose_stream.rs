@@ -23,6 +23,7 @@ fn file(path: &Path) -> SessionFile {
         path: path.to_path_buf(),
         map: SignalMap::g1_left_arm(),
         read: OpenOptions::default(),
+        spill: Default::default(),
     }
 }
 

@@ -21,6 +21,7 @@ fn file(path: &Path) -> SessionFile {
         path: path.to_path_buf(),
         map: SignalMap::g1_left_arm(),
         read: Default::default(),
+        spill: Default::default(),
     }
 }
 
@@ -114,9 +115,24 @@ fn streamed_identify_on_a_smoke_session_in_pieces() {
         chunk_s: 60.0,
         ..StreamOptions::default()
     };
-    let streamed = identify::identify_files(&[file(&path)], &opts, &pieces).unwrap();
+    let f = file(&path);
+    let streamed = identify::identify_files(std::slice::from_ref(&f), &opts, &pieces).unwrap();
     assert!(mem.sessions[0].segmentation.trials.len() >= 20);
     assert_same(&mem, &streamed);
+    // The passes after the first read the joint states the first spilled (the default); without
+    // the spill they read the recording's trial windows again: the same result either way.
+    assert!(
+        f.spill.get().is_some(),
+        "the first pass spilled no joint states"
+    );
+    let unspilled = StreamOptions {
+        spill_states: false,
+        ..pieces
+    };
+    let f = file(&path);
+    let from_file = identify::identify_files(std::slice::from_ref(&f), &opts, &unspilled).unwrap();
+    assert!(f.spill.get().is_none());
+    assert_same(&mem, &from_file);
 
     let held = StreamOptions {
         chunk_s: 60.0,

@@ -341,6 +341,7 @@ fn streamed_diagnosis_replay_equals_in_memory() {
         path: path.clone(),
         map: map.clone(),
         read: Default::default(),
+        spill: Default::default(),
     };
     let d = diagnose::diagnose_files(std::slice::from_ref(&file), &opts, 5.0).unwrap();
     assert!(
@@ -426,6 +427,7 @@ fn streamed_joined_diagnosis_replay_equals_in_memory() {
             path: p.clone(),
             map: map.clone(),
             read: Default::default(),
+            spill: Default::default(),
         })
         .collect();
     let opts = DiagnoseOptions {

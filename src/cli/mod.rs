@@ -172,6 +172,7 @@ impl ReadArgs {
             path: path.to_path_buf(),
             map: map.clone(),
             read: self.open_options(),
+            spill: Default::default(),
         }
     }
 }

@@ -13,7 +13,8 @@
 use anyhow::{Result, bail};
 
 use crate::identify::{
-    SessionFile, StreamOptions, for_each_trial_and_batch, for_each_trial_state, segment_file,
+    SessionFile, StreamOptions, for_each_trial_and_batch_no_commands, for_each_trial_state,
+    segment_file,
 };
 use crate::signals::{PowerSeries, Recording, StateSeries, Target};
 use crate::trial::{SegmentOptions, TrialWindow};
@@ -229,7 +230,7 @@ impl Streamed {
             let mut skipped = Vec::new();
             let mut k = 0usize;
             let first = part.first;
-            for_each_trial_and_batch(
+            for_each_trial_and_batch_no_commands(
                 file,
                 &part.local,
                 BATCH_SAMPLES,

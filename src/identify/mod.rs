@@ -29,8 +29,8 @@ pub use report::{
     write_report,
 };
 pub use stream::{
-    SessionFile, StreamOptions, for_each_trial, for_each_trial_and_batch, for_each_trial_state,
-    segment_file,
+    SessionFile, StreamOptions, for_each_trial, for_each_trial_and_batch,
+    for_each_trial_and_batch_no_commands, for_each_trial_state, segment_file,
 };
 pub use table::{ReadingFit, TrialBaseline, TrialPrediction};
 pub use validate::{Validation, validate, validate_file};

@@ -25,7 +25,10 @@ use super::dataset::{self, Dataset, DatasetOptions, Mode, Row};
 use super::sample::SampleSums;
 use crate::N_JOINTS;
 use crate::read::OpenOptions;
-use crate::signals::{PowerSeries, Recording, SignalMap, StateSeries, Target, stream_recording};
+use crate::signals::{
+    PowerSeries, Recording, SignalMap, SpillSlot, SpillWriter, StateSeries, Target,
+    stream_recording,
+};
 use crate::trial::{self, SegmentOptions, Segmentation, TrialWindow};
 
 /// Tuning of the streamed read.
@@ -40,6 +43,10 @@ pub struct StreamOptions {
     pub hold_trials: usize,
     /// Samples per decoded batch.
     pub batch_samples: usize,
+    /// Whether the segmentation pass keeps the session's joint states in a temporary file
+    /// (about 150 bytes per sample) for the passes after it ([`SessionFile::spill`]): they then
+    /// read no more of the recording than those samples, bit for bit the same.
+    pub spill_states: bool,
 }
 
 impl Default for StreamOptions {
@@ -48,6 +55,7 @@ impl Default for StreamOptions {
             chunk_s: 300.0,
             hold_trials: super::pipeline::SEARCH_TRIALS,
             batch_samples: 4096,
+            spill_states: true,
         }
     }
 }
@@ -61,6 +69,10 @@ pub struct SessionFile {
     pub map: SignalMap,
     /// Reader options (message definitions).
     pub read: OpenOptions,
+    /// The joint states the first full pass spilled to a temporary file
+    /// ([`StreamOptions::spill_states`]); the passes after it read their trials' samples from
+    /// there. Empty (`Default`): every pass reads the file. Shared by clones.
+    pub spill: SpillSlot,
 }
 
 /// Margin around a trial's window whose samples are kept [s] (rows only read inside it).
@@ -312,12 +324,24 @@ pub(crate) fn segmentation_pass(
     let mut mbs = PowerSeries::default();
     let mut bms = PowerSeries::default();
     let mut first_temp_c = None;
+    let mut spill = if so.spill_states && file.spill.get().is_none() {
+        // Without a temporary file the later passes read the recording again.
+        SpillWriter::new().ok()
+    } else {
+        None
+    };
     let summary = stream_recording(
         &file.path,
         &file.map,
         &file.read,
         so.batch_samples,
         &mut |batch| {
+            // A full disk drops the spill, not the read: the later passes read the file.
+            if let Some(w) = &mut spill
+                && w.push(&batch.state).is_err()
+            {
+                spill = None;
+            }
             if first_temp_c.is_none() {
                 first_temp_c = batch.state.temp.first().copied();
             }
@@ -335,6 +359,10 @@ pub(crate) fn segmentation_pass(
     ch.process(true);
     mbs.sort_by_time();
     bms.sort_by_time();
+    if let Some(mut s) = spill.and_then(|w| w.finish(summary.start_ns).ok()) {
+        s.power = Some([mbs.clone(), bms.clone()]);
+        file.spill.fill(s);
+    }
     let mut held = ch.hold.rec;
     held.source = file.path.clone();
     held.start_ns = summary.start_ns;
@@ -569,20 +597,26 @@ fn stream_trial_spans(
         let i = buf.state.t.partition_point(|&x| x < keep_from);
         drain_state(&mut buf.state, i);
     };
-    crate::signals::stream_state(
-        &file.path,
-        &file.map,
-        &file.read,
-        start_ns,
-        batch_samples,
-        Some(&ranges),
-        &mut |batch| {
-            append_state(&mut buf.state, &batch.state, span.all_columns);
-            sort_state(&mut buf.state);
-            step(buf, false);
-            Ok(())
-        },
-    )?;
+    let mut on_state = |state: &StateSeries| {
+        append_state(&mut buf.state, state, span.all_columns);
+        sort_state(&mut buf.state);
+        step(buf, false);
+        Ok(())
+    };
+    match file.spill.get().filter(|s| s.origin_ns == start_ns) {
+        Some(spill) => spill.stream(Some(&ranges), &mut on_state)?,
+        None => {
+            crate::signals::stream_state(
+                &file.path,
+                &file.map,
+                &file.read,
+                start_ns,
+                batch_samples,
+                Some(&ranges),
+                &mut |batch| on_state(&batch.state),
+            )?;
+        }
+    }
     step(buf, true);
     Ok(())
 }
@@ -643,6 +677,30 @@ pub fn for_each_trial_and_batch(
     on_batch: &mut dyn FnMut(&Recording),
     on_trial: &mut dyn FnMut(&Recording, &TrialWindow),
 ) -> Result<()> {
+    trials_and_batches(file, trials, batch_samples, false, on_batch, on_trial)
+}
+
+/// [`for_each_trial_and_batch`] for a caller that needs joint states and power only (no
+/// commands): when the first pass spilled the session ([`SessionFile::spill`]), the batches come
+/// from the spill and the recording is not read again.
+pub fn for_each_trial_and_batch_no_commands(
+    file: &SessionFile,
+    trials: &[TrialWindow],
+    batch_samples: usize,
+    on_batch: &mut dyn FnMut(&Recording),
+    on_trial: &mut dyn FnMut(&Recording, &TrialWindow),
+) -> Result<()> {
+    trials_and_batches(file, trials, batch_samples, true, on_batch, on_trial)
+}
+
+fn trials_and_batches(
+    file: &SessionFile,
+    trials: &[TrialWindow],
+    batch_samples: usize,
+    spilled_only: bool,
+    on_batch: &mut dyn FnMut(&Recording),
+    on_trial: &mut dyn FnMut(&Recording, &TrialWindow),
+) -> Result<()> {
     // A reading stamped up to this long after the window can still belong to it (sensor lag).
     const AFTER_S: f64 = 2.0;
     let mut buf = Recording {
@@ -666,27 +724,81 @@ pub fn for_each_trial_and_batch(
         let i = buf.state.t.partition_point(|&x| x < keep_from);
         drain_state(&mut buf.state, i);
     };
-    stream_recording(
-        &file.path,
-        &file.map,
-        &file.read,
-        batch_samples,
-        &mut |batch| {
-            on_batch(batch);
-            buf.start_ns = batch.start_ns;
-            append_state(&mut buf.state, &batch.state, true);
-            sort_state(&mut buf.state);
-            for (to, from) in [(&mut buf.mbs, &batch.mbs), (&mut buf.bms, &batch.bms)] {
-                to.t.extend_from_slice(&from.t);
-                to.watts.extend_from_slice(&from.watts);
-                to.sort_by_time();
-            }
-            step(&mut buf, false);
-            Ok(())
-        },
-    )?;
+    let mut on_recording = |batch: &Recording| {
+        on_batch(batch);
+        buf.start_ns = batch.start_ns;
+        append_state(&mut buf.state, &batch.state, true);
+        sort_state(&mut buf.state);
+        for (to, from) in [(&mut buf.mbs, &batch.mbs), (&mut buf.bms, &batch.bms)] {
+            to.t.extend_from_slice(&from.t);
+            to.watts.extend_from_slice(&from.watts);
+            to.sort_by_time();
+        }
+        step(&mut buf, false);
+        Ok(())
+    };
+    match (file.spill.get(), spilled_only) {
+        (Some(spill), true) if spill.power.is_some() => {
+            replay_spill(spill, &file.map.joint_names, &mut on_recording)?
+        }
+        _ => {
+            stream_recording(
+                &file.path,
+                &file.map,
+                &file.read,
+                batch_samples,
+                &mut on_recording,
+            )?;
+        }
+    }
     step(&mut buf, true);
     Ok(())
+}
+
+/// The batches of a spilled session ([`SessionFile::spill`]) as the recording's full read
+/// delivers them, without the commands: each block of joint states with the power readings
+/// stamped up to its last sample (the rest with the last block).
+fn replay_spill(
+    spill: &crate::signals::StateSpill,
+    joint_names: &[String],
+    on_batch: &mut dyn FnMut(&Recording) -> Result<()>,
+) -> Result<()> {
+    let Some([mbs, bms]) = &spill.power else {
+        anyhow::bail!("the spill holds no power readings");
+    };
+    let mut from = [0usize; 2];
+    let mut pending: Option<StateSeries> = None;
+    let mut emit = |state: StateSeries, last: bool, from: &mut [usize; 2]| {
+        let t_max = state.t.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let mut rec = Recording {
+            start_ns: spill.origin_ns,
+            joint_names: joint_names.to_vec(),
+            state,
+            ..Recording::default()
+        };
+        for (k, (p, to)) in [(mbs, &mut rec.mbs), (bms, &mut rec.bms)]
+            .into_iter()
+            .enumerate()
+        {
+            let end = if last {
+                p.t.len()
+            } else {
+                from[k] + p.t[from[k]..].partition_point(|&t| t <= t_max)
+            };
+            to.t.extend_from_slice(&p.t[from[k]..end]);
+            to.watts.extend_from_slice(&p.watts[from[k]..end]);
+            from[k] = end;
+        }
+        on_batch(&rec)
+    };
+    // One block behind, so that the last one also takes the readings after it.
+    spill.stream(None, &mut |s| {
+        if let Some(prev) = pending.replace(s.clone()) {
+            emit(prev, false, &mut from)?;
+        }
+        Ok(())
+    })?;
+    emit(pending.unwrap_or_default(), true, &mut from)
 }
 
 #[cfg(test)]

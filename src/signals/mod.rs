@@ -150,6 +150,7 @@ mod load;
 mod map;
 pub mod plausible;
 mod sink;
+mod spill;
 
 pub use load::{
     SeriesStats, SignalStats, StreamSummary, load_recording, signal_stats, stream_recording,
@@ -160,3 +161,4 @@ pub use map::{
     group_signals,
 };
 pub use sink::{RecordingSink, StreamHeader, stream_into, stream_joined_into};
+pub use spill::{SpillSlot, SpillWriter, StateSpill};

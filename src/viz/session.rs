@@ -281,6 +281,7 @@ fn session_file(r: &SessionReplay<'_>) -> SessionFile {
         path: r.session.to_path_buf(),
         map: r.map.clone(),
         read: r.read.clone(),
+        spill: Default::default(),
     }
 }
 
@@ -289,7 +290,12 @@ fn session_file(r: &SessionReplay<'_>) -> SessionFile {
 fn streamed_replay(r: &SessionReplay<'_>, notify: &mut dyn FnMut(Notice)) -> Result<ReplaySummary> {
     let arm = r.robot.arm(&r.map.joint_names)?;
     let slice = if r.window.trials.is_some() {
-        let seg = crate::identify::segment_file(&session_file(r), &r.fit.segment, &r.opts.stream)
+        // Only the trials are wanted of this pass: no joint states are kept for later ones.
+        let so = crate::identify::StreamOptions {
+            spill_states: false,
+            ..r.opts.stream
+        };
+        let seg = crate::identify::segment_file(&session_file(r), &r.fit.segment, &so)
             .with_context(|| format!("reading {}", r.session.display()))?;
         r.window.resolve(Some(&seg), r.session)?
     } else {
