@@ -24,7 +24,7 @@ use super::replay::{
 };
 use super::slice::{Decimator, Slice};
 use crate::N_JOINTS;
-use crate::identify::{SessionFile, Validation, for_each_trial_and_batch};
+use crate::identify::{SessionFile, Validation, for_each_trial_and_batch_no_commands};
 use crate::power::PowerModel;
 use crate::robot::{ArmJoints, RobotModel};
 use crate::signals::{Recording, RecordingSink, StateSeries, StreamHeader, StreamSummary};
@@ -285,7 +285,7 @@ impl StreamedModel<'_> {
         let mut dec = Decimator::default();
         let mut failed = None;
         let mut next = 0usize;
-        for_each_trial_and_batch(
+        for_each_trial_and_batch_no_commands(
             self.file,
             &windows,
             self.opts.stream.batch_samples,
