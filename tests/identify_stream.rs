@@ -282,6 +282,8 @@ fn streamed_row_export_equals_in_memory() {
     let mem = g1viz::rows::table_rows(std::slice::from_ref(&rec), &mem_id, "r");
     let files = [file(&example())];
     let id = identify::identify_files(&files, &opts, &StreamOptions::default()).unwrap();
+    // The export reads the joint states the identification spilled.
+    assert!(files[0].spill.get().is_some());
     let streamed = g1viz::rows::table_rows_files(&files, &id, "r").unwrap();
     assert!(mem.len() > 40, "{}", mem.len());
     assert_eq!(mem.len(), streamed.len());

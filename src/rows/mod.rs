@@ -341,7 +341,8 @@ pub fn table_rows(
     out
 }
 
-/// [`table_rows`] of session files, each streamed once more holding one trial at a time (the
+/// [`table_rows`] of session files, each streamed once more holding one trial at a time (from
+/// the joint states the identification spilled, when it did; the
 /// identification must come from [`crate::identify::identify_files`] on the same files, so the
 /// trials share its clock).
 pub fn table_rows_files(
@@ -351,10 +352,12 @@ pub fn table_rows_files(
 ) -> Result<Vec<TableRow>> {
     let mut out = Vec::new();
     for (s, (file, summary)) in files.iter().zip(&id.sessions).enumerate() {
-        crate::identify::for_each_trial(
+        // Joint states and power only: the identification's spill when it left one.
+        crate::identify::for_each_trial_and_batch_no_commands(
             file,
             &summary.segmentation.trials,
             4096,
+            &mut |_| {},
             &mut |rec, trial| trial_table_rows(rec, trial, s, id, robot, &mut out),
         )
         .with_context(|| format!("reading {} (rows)", file.path.display()))?;
