@@ -296,17 +296,25 @@ fn found_cell(t: &diagnose::Discovery) -> String {
     let p = t.params.first().map_or(String::new(), |p| {
         format!(", {} = {:.4} ± {:.4}", p.symbol, p.value, p.std_err)
     });
-    let tied: Vec<String> = t
-        .tied
+    // Rivals grouped by field pattern across the motors (`motor_state[*]`), best first.
+    let mut groups: Vec<(String, &diagnose::TiedTerm, usize)> = Vec::new();
+    for o in &t.tied {
+        let key = o
+            .fields
+            .first()
+            .map_or("session time".to_string(), |f| motor_pattern(f));
+        match groups.iter_mut().find(|g| g.0 == key) {
+            Some(g) => g.2 += 1,
+            None => groups.push((key, o, 1)),
+        }
+    }
+    let tied: Vec<String> = groups
         .iter()
-        .map(|o| {
-            let on = o.fields.first().map_or("session time".to_string(), |f| {
-                format!("{f}{}", if o.fields.len() > 1 { " …" } else { "" })
-            });
+        .map(|(key, o, n)| {
             let p = o.params.first().map_or(String::new(), |p| {
-                format!(", {} = {:.4} ± {:.4}", p.symbol, p.value, p.std_err)
+                format!(", best {} = {:.4} ± {:.4}", p.symbol, p.value, p.std_err)
             });
-            format!(" or {on}{p}")
+            format!(" or {key} ({n} candidate(s){p})")
         })
         .collect();
     let tied = if tied.is_empty() {
@@ -315,6 +323,21 @@ fn found_cell(t: &diagnose::Discovery) -> String {
         format!(" (field confounded:{})", tied.join(";"))
     };
     format!("found: {}{field}{p}{tied}", t.form)
+}
+
+/// A field name with the motor index as `[*]` (`…motor_state[17].temperature[0]` →
+/// `…motor_state[*].temperature[0]`).
+fn motor_pattern(f: &str) -> String {
+    match f.find("motor_state[") {
+        Some(a) => {
+            let start = a + "motor_state[".len();
+            match f[start..].find(']') {
+                Some(b) => format!("{}*{}", &f[..start], &f[start + b..]),
+                None => f.to_string(),
+            }
+        }
+        None => f.to_string(),
+    }
 }
 
 fn row(case: &Case, seed: u64, mode: &str, d: &Diagnosis) -> String {
