@@ -613,6 +613,21 @@ fn housing_friction_with_housings_following_their_windings_is_claimed_with_its_f
         d.summary
     );
     found_term_shown(&d);
+    // The report lists every rival with its evidence.
+    let dir = tempfile::tempdir().unwrap();
+    diagnose::write_report(dir.path(), &d).unwrap();
+    let md = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
+    let section = md
+        .split("### Not told apart from a found term")
+        .nth(1)
+        .unwrap_or_else(|| panic!("no rival section in the report"));
+    let rows = section
+        .lines()
+        .skip_while(|l| !l.starts_with("|---"))
+        .skip(1)
+        .take_while(|l| l.starts_with("| "))
+        .count();
+    assert_eq!(rows, tied.len(), "{section}");
 }
 
 /// A found term is shown like a hypothesis: diagnosis.json carries its name, form, field(s),
