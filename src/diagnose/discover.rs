@@ -16,7 +16,10 @@
 //!
 //! Selection: forward (best held-out improvement that passes every gate at the Holm-corrected
 //! level α/(m − j), m = candidates tried), then backward elimination (every accepted term stays
-//! significant given the others), never more terms than one per 20 trials. Fields that track
+//! significant given the others), never more terms than one per 20 trials. A chosen term's
+//! rivals at its step — candidates on other fields it does not fit significantly better than,
+//! of the same structure or with a collinear contribution ([`tie_of`]) — are named with it as
+//! confounded and never claimed. Fields that track
 //! the measured power itself (|r| ≥ 0.5 with the readings: another meter of the same flow) are
 //! consequences of the power, not causes, and are left out with a note. Names come from the
 //! term's structure only ([`describe`]).
