@@ -157,13 +157,14 @@ pub struct Discovery {
     /// Why accepted or rejected.
     pub verdict: String,
     /// Candidates on other recorded fields that the data cannot tell from this one at its step
-    /// ([`tie_of`]): the term is claimed as a mechanism with its field confounded, and none of
-    /// them is claimed as a term of its own.
+    /// (not significantly worse by the paired held-out test, and of the same structure or with
+    /// a collinear contribution): the term is claimed as a mechanism with its field confounded,
+    /// and none of them is claimed as a term of its own.
     #[serde(default)]
     pub tied: Vec<TiedTerm>,
 }
 
-/// A candidate on other field(s) that fits as well as a found term ([`tie_of`]).
+/// A candidate on other field(s) that fits as well as a found term (see [`Discovery::tied`]).
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct TiedTerm {
     /// What it is, in physical words (from the term's structure).
@@ -174,7 +175,7 @@ pub struct TiedTerm {
     pub fields: Vec<String>,
     /// Its parameter(s) fitted in the found term's place, with standard errors.
     pub params: Vec<Param>,
-    /// Held-out RMSE [W] with the found term and with this one in its place.
+    /// Held-out RMSE (W) with the found term and with this one in its place.
     pub rmse_w: [f64; 2],
     /// One-sided paired p-value (held-out error by trial) that the found term fits better:
     /// at least the acceptance α, so not significantly.
