@@ -555,6 +555,81 @@ fn friction_following_the_housing_temperature_is_discovered_on_that_field() {
     assert!((k - 0.05).abs() <= 0.005, "k = {k}");
 }
 
+/// Seed of the related-start housing session on which the two temperatures tie.
+const RELATED_HOUSING_SEED: u64 = 3;
+
+#[test]
+fn housing_friction_with_housings_following_their_windings_is_claimed_with_its_field_confounded() {
+    // The same friction ∝ housing temperature[1], but as on a real robot: the housings start
+    // settled with their windings (30, 50, 70 °C over the parts), so housing and winding
+    // temperatures move together and the Coulomb loss × either fits as well. One mechanism is
+    // claimed with its field confounded — both temperature fields named, with the evidence —
+    // never a wrong field alone, and never a second term.
+    let mut e = Effects::default();
+    e.enable("housing_friction=0.05").unwrap();
+    let (rec, _, files) = session(&e, RELATED_HOUSING_SEED, 6, &[30.0, 50.0, 70.0]);
+    let d = diagnose::diagnose(&rec, &files.opts(refit())).unwrap();
+    show("housing_friction related start", &d);
+    let t = only_discovery("housing_friction related start", &d);
+    assert!(
+        t.name.contains("Coulomb")
+            && t.name.contains("temperature[0]")
+            && t.name.contains("temperature[1]")
+            && t.name.contains("confounded"),
+        "{}",
+        t.name
+    );
+    let json = serde_json::to_value(&d).unwrap();
+    let found = &json["discovery"]["accepted"][0];
+    let tied = found["tied"].as_array().cloned().unwrap_or_default();
+    let mut named: Vec<String> = t.fields.clone();
+    for o in &tied {
+        for f in o["fields"].as_array().into_iter().flatten() {
+            named.extend(f.as_str().map(String::from));
+        }
+        // Not significantly worse than the found term, by the acceptance test's α, and a
+        // rival by structure or collinearity; both RMSEs and its own parameter given.
+        let p = o["p_value"].as_f64().unwrap_or(f64::NAN);
+        assert!(p >= 1e-3, "{o}");
+        let r = o["correlation"].as_f64().unwrap_or(f64::NAN);
+        assert!(o["same_structure"] == true || r >= 0.9, "{o}");
+        let rmse = o["rmse_w"].as_array().expect("rmse_w");
+        assert!(
+            rmse.len() == 2 && rmse.iter().all(|v| v.as_f64().is_some_and(|v| v > 0.0)),
+            "{o}"
+        );
+        let p0 = &o["params"][0];
+        assert!(p0["value"].is_f64() && p0["std_err"].is_f64(), "{o}");
+    }
+    let temp = |i: u8| {
+        named.iter().any(|f| {
+            f.starts_with("/lowstate.motor_state[") && f.ends_with(&format!("].temperature[{i}]"))
+        })
+    };
+    assert!(temp(0) && temp(1), "fields named: {named:?}");
+    assert!(
+        d.summary.contains("Not told apart from it: "),
+        "{}",
+        d.summary
+    );
+    found_term_shown(&d);
+    // The report lists every rival with its evidence.
+    let dir = tempfile::tempdir().unwrap();
+    diagnose::write_report(dir.path(), &d).unwrap();
+    let md = std::fs::read_to_string(dir.path().join("report.md")).unwrap();
+    let section = md
+        .split("### Not told apart from a found term")
+        .nth(1)
+        .unwrap_or_else(|| panic!("no rival section in the report"));
+    let rows = section
+        .lines()
+        .skip_while(|l| !l.starts_with("|---"))
+        .skip(1)
+        .take_while(|l| l.starts_with("| "))
+        .count();
+    assert_eq!(rows, tied.len(), "{section}");
+}
+
 /// A found term is shown like a hypothesis: diagnosis.json carries its name, form, field(s),
 /// parameter ± s.e. and held-out before/after; the replay carries the located field's value per
 /// reading (plotted beside the residual in `--save`) and marks the trials that carry it.

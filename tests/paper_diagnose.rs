@@ -420,6 +420,8 @@ fn paper_scale_housing_friction_is_found_on_the_housing_field_at_default_start()
             .map(|m| format!("/lowstate.motor_state[{m}].temperature[1]"))
             .collect();
         assert_eq!(t.fields, housings, "{mode}: {t:?}");
+        // Over a paper session the housings are told from the windings: no rival field named.
+        assert!(t.tied.is_empty(), "{mode}: {:?}", t.tied);
         assert!(t.name.contains("Coulomb"), "{mode}: {}", t.name);
         let kf = found_param(&t, "k");
         within_10_percent(&format!("{mode} k"), kf.value, k);

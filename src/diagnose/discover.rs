@@ -16,7 +16,10 @@
 //!
 //! Selection: forward (best held-out improvement that passes every gate at the Holm-corrected
 //! level α/(m − j), m = candidates tried), then backward elimination (every accepted term stays
-//! significant given the others), never more terms than one per 20 trials. Fields that track
+//! significant given the others), never more terms than one per 20 trials. A chosen term's
+//! rivals at its step — candidates on other fields it does not fit significantly better than,
+//! of the same structure or with a collinear contribution ([`tie_of`]) — are named with it as
+//! confounded and never claimed. Fields that track
 //! the measured power itself (|r| ≥ 0.5 with the readings: another meter of the same flow) are
 //! consequences of the power, not causes, and are left out with a note. Names come from the
 //! term's structure only ([`describe`]).
@@ -153,6 +156,36 @@ pub struct Discovery {
     pub step: usize,
     /// Why accepted or rejected.
     pub verdict: String,
+    /// Candidates on other recorded fields that the data cannot tell from this one at its step
+    /// (not significantly worse by the paired held-out test, and of the same structure or with
+    /// a collinear contribution): the term is claimed as a mechanism with its field confounded,
+    /// and none of them is claimed as a term of its own.
+    #[serde(default)]
+    pub tied: Vec<TiedTerm>,
+}
+
+/// A candidate on other field(s) that fits as well as a found term (see [`Discovery::tied`]).
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct TiedTerm {
+    /// What it is, in physical words (from the term's structure).
+    pub name: String,
+    /// Its form as a formula.
+    pub form: String,
+    /// The recorded field(s) it follows (empty for session time).
+    pub fields: Vec<String>,
+    /// Its parameter(s) fitted in the found term's place, with standard errors.
+    pub params: Vec<Param>,
+    /// Held-out RMSE (W) with the found term and with this one in its place.
+    pub rmse_w: [f64; 2],
+    /// One-sided paired p-value (held-out error by trial) that the found term fits better:
+    /// at least the acceptance α, so not significantly.
+    pub p_value: f64,
+    /// Correlation over the readings of what each adds to the held-out prediction.
+    pub correlation: f64,
+    /// The same structure as the found term (the same base loss term × a signal, or the same
+    /// kind of rail load) on another field; otherwise a term whose contribution is collinear
+    /// with the found term's (r ≥ 0.9).
+    pub same_structure: bool,
 }
 
 /// What discovery tried and found.
@@ -936,6 +969,7 @@ pub(crate) fn discover(
     let mut closed: Vec<String> = blocked.to_vec();
     report.before = Some(search.base.compare(&cur_pred, &cur_pred).2);
     let mut accepted: Vec<(usize, Scored)> = Vec::new();
+    let mut tied: Vec<(usize, Vec<Tie>)> = Vec::new();
     for step in 1..=max_terms {
         let level = search.level(step);
         let mut best_fail: Option<Scored> = None;
@@ -978,6 +1012,15 @@ pub(crate) fn discover(
             closed.push(search.cands[b.idx].group.clone());
             continue;
         }
+        // Rivals on other fields the data cannot tell from it: named with it, never claimed.
+        let ties = ties_at_step(&search, &b, &passing, &cur_pred, joint_names, level);
+        for t in &ties {
+            let g = &search.cands[t.idx].group;
+            if !closed.contains(g) {
+                closed.push(g.clone());
+            }
+        }
+        tied.push((b.idx, ties));
         chosen.push(b.idx);
         chosen_cols.extend(search.cols(b.idx));
         closed.push(search.cands[b.idx].group.clone());
@@ -995,7 +1038,15 @@ pub(crate) fn discover(
     {
         report.notes.push(note);
     }
-    finish(&search, &chosen, &accepted, cur, joint_names, &mut report)?;
+    finish(
+        &search,
+        &chosen,
+        &accepted,
+        &mut tied,
+        cur,
+        joint_names,
+        &mut report,
+    )?;
     Ok(report)
 }
 
@@ -1007,6 +1058,222 @@ fn p_better(search: &Search, a: &[f64], b: &[f64]) -> f64 {
     let eb = trial_sse(&rows.y, b, &rows.trial, nt);
     let d: Vec<f64> = eb.iter().zip(&ea).map(|(x, y)| x - y).collect();
     improvement_p_value(&d)
+}
+
+/// The signal(s) a candidate follows, by name: its recorded field(s), or session time; empty
+/// for a correction of a base loss term (it follows no signal).
+fn followed(kind: &Kind, names: &[String]) -> Vec<String> {
+    match kind {
+        Kind::Additive(f, _) | Kind::Step(f, _) | Kind::Product(_, Signal::Field(f)) => {
+            vec![names[*f].clone()]
+        }
+        Kind::Product(_, Signal::Family(_, fs)) => fs.iter().map(|&f| names[f].clone()).collect(),
+        Kind::Product(_, Signal::Time) => vec![TIME_NAME.into()],
+        Kind::PerJoint(_) | Kind::Pooled(_) => Vec::new(),
+    }
+}
+
+/// Whether two candidates differ only in the signal they follow: both additive loads, both
+/// steps, or the same base loss term × a signal.
+fn same_structure(a: &Kind, b: &Kind) -> bool {
+    match (a, b) {
+        (Kind::Additive(..), Kind::Additive(..)) | (Kind::Step(..), Kind::Step(..)) => true,
+        (Kind::Product(t, _), Kind::Product(u, _)) => t == u,
+        _ => false,
+    }
+}
+
+/// The rival rule of discovery: whether `rival`, a candidate that passes the gates at the step
+/// where `chosen` is accepted, ties with it. Both must follow a signal (a correction of a base
+/// loss term names no field to confound); a rival sharing a field with the chosen term is the
+/// same field in another form (a step and a linear load on one field, a loss term × a joint
+/// family and × one member of it), not a tie. Otherwise it ties when the chosen term does not
+/// fit the held-out trials significantly better (`p_chosen_better` ≥ `alpha`, the paired test
+/// by trial) and it has the same structure on another field or a contribution to the
+/// prediction collinear with the chosen one's (`r` ≥ [`CONFOUNDED_R`]). `Some(same structure)`
+/// for a tie.
+fn tie_of(
+    chosen: &Kind,
+    rival: &Kind,
+    names: &[String],
+    p_chosen_better: f64,
+    r: f64,
+    alpha: f64,
+) -> Option<bool> {
+    let (mine, theirs) = (followed(chosen, names), followed(rival, names));
+    if mine.is_empty() || theirs.is_empty() || theirs.iter().any(|f| mine.contains(f)) {
+        return None;
+    }
+    let same = same_structure(chosen, rival);
+    let not_worse = p_chosen_better >= alpha || p_chosen_better.is_nan();
+    (not_worse && (same || r >= CONFOUNDED_R)).then_some(same)
+}
+
+/// How a candidate's signal enters its name (the words after the subject): "rises with X",
+/// "falls as it rises: X", "switches with X (…)". Empty for a correction.
+fn predicate(kind: &Kind, names: &[String], gamma0: f64) -> String {
+    let sign = |f: &str| {
+        if gamma0 >= 0.0 {
+            format!("rises with {f}")
+        } else {
+            format!("falls as it rises: {f}")
+        }
+    };
+    match kind {
+        Kind::Additive(f, _) | Kind::Product(_, Signal::Field(f)) => sign(&names[*f]),
+        Kind::Step(f, thr) => format!(
+            "switches with {} (drawn while it reads above {thr:.4})",
+            names[*f]
+        ),
+        Kind::Product(_, Signal::Family(k, _)) => sign(&format!("{k} of each joint's own motor")),
+        Kind::Product(_, Signal::Time) => sign("session time [h]"),
+        Kind::PerJoint(_) | Kind::Pooled(_) => String::new(),
+    }
+}
+
+/// A rival of a chosen term at its step ([`tie_of`]), as reported, and how its signal reads.
+struct Tie {
+    idx: usize,
+    term: TiedTerm,
+    predicate: String,
+    /// The signal with each arm motor's index as `[*]`: fields of one family across the
+    /// motors (they move together) are named as one group.
+    pattern: String,
+}
+
+/// A candidate's signal with the arm motors' indices as `[*]` (a family's key, a member of it,
+/// session time, or the field itself).
+fn pattern(kind: &Kind, names: &[String], arm: &[usize; N_JOINTS]) -> String {
+    match kind {
+        Kind::Product(_, Signal::Family(k, _)) => k.clone(),
+        Kind::Product(_, Signal::Time) => TIME_NAME.into(),
+        _ => {
+            let mut f = followed(kind, names).join(", ");
+            for k in arm {
+                f = f.replace(&format!("motor_state[{k}]."), "motor_state[*].");
+            }
+            f
+        }
+    }
+}
+
+/// Most rivals named in a found term's name (all are listed in the report and the JSON).
+const TIES_NAMED: usize = 3;
+
+/// The candidates among `passing` (the other candidates that pass the gates at `b`'s step) that
+/// tie with the chosen `b` ([`tie_of`]), best held-out fit first. A loss term × signal counts
+/// only when it carries its field (no plain pooled term among `passing` fits as well).
+fn ties_at_step(
+    search: &Search,
+    b: &Scored,
+    passing: &[Scored],
+    cur_pred: &[f64],
+    joint_names: &[String],
+    level: f64,
+) -> Vec<Tie> {
+    let names = &search.inp.fields.names;
+    let chosen = &search.cands[b.idx].kind;
+    if followed(chosen, names).is_empty() {
+        return Vec::new();
+    }
+    let add = |p: &[f64]| -> Vec<f64> { p.iter().zip(cur_pred).map(|(a, c)| a - c).collect() };
+    let mine = add(&b.fit.pred);
+    let refs: Vec<&Scored> = passing.iter().collect();
+    let (_, rmse_b) = r2_rmse(&search.base.rows.y, &b.fit.pred);
+    let mut ties: Vec<Tie> = Vec::new();
+    for s in passing {
+        let kind = &search.cands[s.idx].kind;
+        if followed(kind, names).is_empty() || simpler_nested(search, s, &refs).is_some() {
+            continue;
+        }
+        let p = p_better(search, &b.fit.pred, &s.fit.pred);
+        let (r, _) = pearson(&mine, &add(&s.fit.pred));
+        let Some(same) = tie_of(chosen, kind, names, p, r, search.rule.alpha) else {
+            continue;
+        };
+        let n = search.cols(s.idx).len();
+        let gamma0 = s
+            .fit
+            .gamma
+            .get(s.fit.gamma.len() - n)
+            .copied()
+            .unwrap_or(0.0);
+        let d = to_discovery(s, search, joint_names, level, 0, String::new());
+        let (_, rmse_s) = r2_rmse(&search.base.rows.y, &s.fit.pred);
+        ties.push(Tie {
+            idx: s.idx,
+            predicate: predicate(kind, names, gamma0),
+            pattern: pattern(kind, names, &search.inp.arm_motors),
+            term: TiedTerm {
+                name: d.name,
+                form: d.form,
+                fields: d.fields,
+                params: d.params,
+                rmse_w: [rmse_b, rmse_s],
+                p_value: p,
+                correlation: r,
+                same_structure: same,
+            },
+        });
+    }
+    ties.sort_by(|a, c| a.term.rmse_w[1].total_cmp(&c.term.rmse_w[1]));
+    // The best of each group first, so that the first listed are different signals.
+    let mut first: Vec<Tie> = Vec::new();
+    let mut rest: Vec<Tie> = Vec::new();
+    for t in ties {
+        if first.iter().any(|f| f.pattern == t.pattern) {
+            rest.push(t);
+        } else {
+            first.push(t);
+        }
+    }
+    first.extend(rest);
+    first
+}
+
+/// The name of a found term with its ties: "<name>, or <rival> … (confounded: the data cannot
+/// tell these fields apart)" — a rival of the same structure by its signal alone, another by
+/// its own name. Rivals on one field pattern across the arm motors (`[*]`) are one group, named
+/// by its best member with the count of the others; at most [`TIES_NAMED`] groups are named,
+/// the rest counted. `ties` lists each group's best member first ([`ties_at_step`]).
+fn name_with_ties(name: &str, ties: &[Tie]) -> String {
+    if ties.is_empty() {
+        return name.to_string();
+    }
+    let mut groups: Vec<(&Tie, usize)> = Vec::new();
+    for t in ties {
+        match groups.iter_mut().find(|(g, _)| g.pattern == t.pattern) {
+            Some((_, n)) => *n += 1,
+            None => groups.push((t, 1)),
+        }
+    }
+    let mut alt: Vec<String> = groups
+        .iter()
+        .take(TIES_NAMED)
+        .map(|(t, n)| {
+            let head = if t.term.same_structure && !t.predicate.is_empty() {
+                t.predicate.clone()
+            } else {
+                let mut c = t.term.name.chars();
+                c.next()
+                    .map(|f| f.to_lowercase().collect::<String>() + c.as_str())
+                    .unwrap_or_default()
+            };
+            if *n > 1 {
+                format!("{head} (and {} more on {})", n - 1, t.pattern)
+            } else {
+                head
+            }
+        })
+        .collect();
+    if groups.len() > TIES_NAMED {
+        let more: usize = groups.iter().skip(TIES_NAMED).map(|(_, n)| n).sum();
+        alt.push(format!("{more} other candidate(s) listed with it"));
+    }
+    format!(
+        "{name}, or {} (confounded: the data cannot tell these fields apart)",
+        alt.join(", or ")
+    )
 }
 
 /// A base loss term times a signal (with its level) contains the plain pooled term: when it
@@ -1326,11 +1593,13 @@ fn backward(
     Ok(())
 }
 
-/// Parameters of the kept terms fitted together, and the final held-out predictions.
+/// Parameters of the kept terms fitted together, their ties named with them, and the final
+/// held-out predictions.
 fn finish(
     search: &Search,
     chosen: &[usize],
     accepted: &[(usize, Scored)],
+    tied: &mut [(usize, Vec<Tie>)],
     cur: &State,
     joint_names: &[String],
     report: &mut DiscoveryReport,
@@ -1375,6 +1644,10 @@ fn finish(
             .3;
         }
         off += ncols;
+        if let Some((_, ties)) = tied.iter_mut().find(|(i, _)| *i == k) {
+            d.name = name_with_ties(&d.name, ties);
+            d.tied = ties.drain(..).map(|t| t.term).collect();
+        }
         report.accepted.push(d);
     }
     report.cols = all;
@@ -1457,6 +1730,7 @@ fn to_discovery(
         after: s.after,
         step,
         verdict,
+        tied: Vec::new(),
     }
 }
 
@@ -1516,6 +1790,104 @@ mod tests {
         assert!(pooled.name.contains("j1, j3"), "{}", pooled.name);
         // All identified: nothing pooled.
         assert_eq!(identified_or_pooled(vec![p(0, 1.0, 0.01)]).len(), 1);
+    }
+
+    #[test]
+    fn rival_rule_ties_other_fields_only() {
+        let names: Vec<String> = [
+            "/lowstate.motor_state[15].temperature[0]",
+            "/lowstate.motor_state[16].temperature[0]",
+            "/lowstate.motor_state[15].temperature[1]",
+            "/lowstate.motor_state[16].temperature[1]",
+            "/lf/mainboardstate.fan_state[1]",
+            "/lf/bmsstate.cell_vol[0]",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        let fam = |a: usize, key: &str| {
+            let mut fs = [a; N_JOINTS];
+            fs[1] = a + 1;
+            Signal::Family(key.into(), fs)
+        };
+        let winding = Kind::Product(Term::Coulomb, fam(0, "winding"));
+        let housing = Kind::Product(Term::Coulomb, fam(2, "housing"));
+        let alpha = 1e-3;
+        // Same structure on another field, not significantly worse: a tie whatever r.
+        assert_eq!(
+            tie_of(&winding, &housing, &names, 0.2, 0.1, alpha),
+            Some(true)
+        );
+        assert_eq!(
+            tie_of(&winding, &housing, &names, f64::NAN, 0.1, alpha),
+            Some(true)
+        );
+        // Significantly worse: no tie, even collinear.
+        assert_eq!(tie_of(&winding, &housing, &names, 1e-4, 0.99, alpha), None);
+        // Another structure: a tie only when collinear.
+        let viscous = Kind::Product(Term::Viscous, fam(2, "housing"));
+        assert_eq!(tie_of(&winding, &viscous, &names, 0.2, 0.5, alpha), None);
+        assert_eq!(
+            tie_of(&winding, &viscous, &names, 0.2, 0.95, alpha),
+            Some(false)
+        );
+        // A field of the chosen family in another form is the same field, not a tie.
+        let one = Kind::Product(Term::Coulomb, Signal::Field(2));
+        assert_eq!(tie_of(&housing, &one, &names, 0.5, 0.99, alpha), None);
+        // A step and a linear load on one field: the same field.
+        let lin = Kind::Additive(4, 1.0);
+        let step = Kind::Step(4, 0.5);
+        assert_eq!(tie_of(&lin, &step, &names, 0.5, 0.99, alpha), None);
+        // Another field: the same structure ties, a step vs a linear load only when collinear.
+        let other = Kind::Additive(5, 1.0);
+        assert_eq!(tie_of(&lin, &other, &names, 0.5, 0.0, alpha), Some(true));
+        assert_eq!(tie_of(&step, &other, &names, 0.5, 0.5, alpha), None);
+        // Session time is a signal too; a base-term correction follows none.
+        let time = Kind::Product(Term::Coulomb, Signal::Time);
+        assert_eq!(tie_of(&winding, &time, &names, 0.5, 0.0, alpha), Some(true));
+        let pooled = Kind::Pooled(Term::Coulomb);
+        assert_eq!(tie_of(&winding, &pooled, &names, 0.5, 0.99, alpha), None);
+        assert_eq!(tie_of(&pooled, &winding, &names, 0.5, 0.99, alpha), None);
+    }
+
+    #[test]
+    fn a_found_name_with_ties_names_every_field_as_confounded() {
+        let tie = |name: &str, predicate: &str, pattern: &str, same: bool| Tie {
+            idx: 0,
+            predicate: predicate.into(),
+            pattern: pattern.into(),
+            term: TiedTerm {
+                name: name.into(),
+                form: String::new(),
+                fields: Vec::new(),
+                params: Vec::new(),
+                rmse_w: [1.0, 1.0],
+                p_value: 0.3,
+                correlation: 0.95,
+                same_structure: same,
+            },
+        };
+        assert_eq!(name_with_ties("A rises with x", &[]), "A rises with x");
+        let n = name_with_ties(
+            "A rises with x",
+            &[
+                tie("A rises with y", "rises with y", "y", true),
+                tie("B falls as it rises: z", "falls as it rises: z", "z", false),
+            ],
+        );
+        assert_eq!(
+            n,
+            "A rises with x, or rises with y, or b falls as it rises: z (confounded: the data cannot tell these fields apart)"
+        );
+        // One pattern over several motors is one group; past three groups, a count.
+        let mut many: Vec<Tie> = (0..5)
+            .map(|i| tie("A", &format!("rises with f{i}"), &format!("p{i}"), true))
+            .collect();
+        many.push(tie("A", "rises with g", "p0", true));
+        many.push(tie("A", "rises with h", "p0", true));
+        let n = name_with_ties("A rises with x", &many);
+        assert!(n.contains("rises with f0 (and 2 more on p0), or rises with f1, or rises with f2, or 2 other candidate(s) listed with it"), "{n}");
+        assert!(!n.contains("f3") && !n.contains(" g"), "{n}");
     }
 
     #[test]

@@ -686,11 +686,60 @@ fn beyond_section(md: &mut String, d: &Diagnosis) {
             t.verdict
         );
     }
+    tied_terms(md, r);
     for n in &r.notes {
         let _ = writeln!(md, "\n- {n}");
     }
     md.push('\n');
     excluded_fields(md, r);
+}
+
+/// The candidates each found term was not told apart from (its field is confounded), with the
+/// evidence: held-out RMSE of both, p that the found term fits better, correlation of what
+/// each adds to the prediction.
+fn tied_terms(md: &mut String, r: &super::DiscoveryReport) {
+    if r.accepted.iter().all(|t| t.tied.is_empty()) {
+        return;
+    }
+    let _ = writeln!(
+        md,
+        "\n### Not told apart from a found term (confounded: claimed as one mechanism, the field in doubt)\n\n| step | candidate | form | field(s) | parameter(s) | held-out RMSE [W] found vs candidate | p (found fits better) | r of contributions | why a rival |\n|---|---|---|---|---|---|---|---|---|"
+    );
+    for t in &r.accepted {
+        for o in &t.tied {
+            let params: Vec<String> = o
+                .params
+                .iter()
+                .map(|p| {
+                    format!(
+                        "{} = {} ± {} {}",
+                        p.symbol,
+                        sig(p.value),
+                        sig(p.std_err),
+                        p.unit
+                    )
+                })
+                .collect();
+            let _ = writeln!(
+                md,
+                "| {} | {} | {} | {} | {} | {:.3} vs {:.3} | {} | {:+.3} | {} |",
+                t.step,
+                o.name,
+                o.form,
+                o.fields.join(", "),
+                params.join("; "),
+                o.rmse_w[0],
+                o.rmse_w[1],
+                sig(o.p_value),
+                o.correlation,
+                if o.same_structure {
+                    "same term, another field"
+                } else {
+                    "collinear contribution"
+                }
+            );
+        }
+    }
 }
 
 /// The fields discovery left out by a rule on their own data, with the reason.

@@ -352,6 +352,7 @@ fn discovery_lines(d: &Diagnosis, s: &mut String) {
             t.p_value,
             t.alpha
         );
+        tied_lines(t, s);
     }
     if r.accepted.is_empty() {
         let best = r
@@ -376,6 +377,43 @@ fn discovery_lines(d: &Diagnosis, s: &mut String) {
             s,
             "Left out of discovery as counters, clocks or hash-like: {} (reasons in the report).",
             junk.join(", ")
+        );
+    }
+}
+
+/// Most rivals of a found term given a line of their own (the report lists all).
+const TIED_LINES: usize = 3;
+
+/// The candidates a found term was not told apart from, with their evidence.
+fn tied_lines(t: &super::Discovery, s: &mut String) {
+    for o in t.tied.iter().take(TIED_LINES) {
+        let params: Vec<String> = o.params.iter().map(fmt_param).collect();
+        let fields = if o.fields.is_empty() {
+            String::new()
+        } else {
+            format!(" on {}", o.fields.join(", "))
+        };
+        let _ = writeln!(
+            s,
+            "  Not told apart from it: {}{fields} with {} fits as well (held-out RMSE {:.3} W vs {:.3} W, p = {:.1e} that the found term fits better; {}, r = {:+.2}); not claimed.",
+            o.form,
+            params.join(", "),
+            o.rmse_w[1],
+            o.rmse_w[0],
+            o.p_value,
+            if o.same_structure {
+                "the same term on another field"
+            } else {
+                "contributions collinear"
+            },
+            o.correlation
+        );
+    }
+    if t.tied.len() > TIED_LINES {
+        let _ = writeln!(
+            s,
+            "  … and {} more not told apart from it (listed in the report).",
+            t.tied.len() - TIED_LINES
         );
     }
 }
