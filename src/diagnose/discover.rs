@@ -10,7 +10,10 @@
 //! - products of each pooled base loss term (Σ τq̇, Σ Δτ², Σ |q̇|, Σ q̇²) with each slow state
 //!   signal (fields that change little within a trial, and session time), and with each
 //!   per-motor field family taken joint by joint (Σ_i term_i · s_i, s_i = the field of joint
-//!   i's own motor), with the plain pooled term as a second column (the level);
+//!   i's own motor), with the plain pooled term as a second column (the level); the pooled
+//!   drive current Σ |τ_i|/K_i (the library's drive-electronics loss per ampere) times each
+//!   signal common to all joints likewise (a drive loss that follows a state: the switching
+//!   loss follows the supply voltage);
 //! - against a held base model, each base loss term per joint (one coefficient per joint) and
 //!   pooled (one coefficient): a friction or efficiency the twin has wrong.
 //!
@@ -18,7 +21,9 @@
 //! level α/(m − j), m = candidates tried), then backward elimination (every accepted term stays
 //! significant given the others), never more terms than one per 20 trials. Fields that track
 //! the measured power itself (|r| ≥ 0.5 with the readings: another meter of the same flow) are
-//! consequences of the power, not causes, and are left out with a note. Names come from the
+//! consequences of the power, not causes, and are left out with a note; at rest (their mean
+//! over each trial's pre-idle readings) they are still slow state signals — a battery voltage
+//! that sags under the load meters it, its rest value tracks the charge. Names come from the
 //! term's structure only ([`describe`]).
 
 use anyhow::Result;
@@ -27,6 +32,7 @@ use nalgebra::{DMatrix, DVector};
 use super::Quality;
 use super::data::Rows;
 use super::fields::FieldTable;
+use super::hypotheses::DRIVE_CURRENT;
 use super::select::{
     Param, PowerData, Rule, State, bic, bounds_for, design_map_for, jackknife_se, r2_rmse,
     solve_bounded_for, trial_sse,
@@ -58,17 +64,23 @@ pub(crate) enum Term {
     Coulomb,
     /// q̇_i² (viscous friction).
     Viscous,
+    /// |τ_i| / K_i (the phase current: drive-electronics loss per ampere). Only its sum over
+    /// the joints is in a row, so it pairs with signals common to all joints (a field, session
+    /// time), not with per-motor families.
+    Current,
 }
 
 impl Term {
     const ALL: [Term; 4] = [Term::Mech, Term::Copper, Term::Coulomb, Term::Viscous];
 
+    /// Position of joint 0's column in a raw row (the pooled sum's for [`Term::Current`]).
     fn offset(self) -> usize {
         match self {
             Term::Mech => 0,
             Term::Copper => N_JOINTS,
             Term::Coulomb => 2 * N_JOINTS,
             Term::Viscous => 3 * N_JOINTS,
+            Term::Current => DRIVE_CURRENT,
         }
     }
 
@@ -78,6 +90,7 @@ impl Term {
             Term::Copper => "the copper loss Δτ²",
             Term::Coulomb => "the Coulomb friction loss |q̇|",
             Term::Viscous => "the viscous friction loss q̇²",
+            Term::Current => "the drive-electronics loss per ampere of phase current |τ|/K",
         }
     }
 
@@ -87,6 +100,7 @@ impl Term {
             Term::Copper => "Δτ_i²",
             Term::Coulomb => "|q̇_i|",
             Term::Viscous => "q̇_i²",
+            Term::Current => "|τ_i|/K_i",
         }
     }
 
@@ -96,6 +110,7 @@ impl Term {
             Term::Copper => "W/Nm²",
             Term::Coulomb => "W·s/rad",
             Term::Viscous => "W·s²/rad²",
+            Term::Current => "V",
         }
     }
 }
@@ -109,6 +124,10 @@ pub(crate) enum Signal {
     Family(String, [usize; N_JOINTS]),
     /// Session time [h].
     Time,
+    /// A field left out as a meter of the power, at rest: its mean over the trial's pre-idle
+    /// readings. Within a trial a meter follows the power it meters (a supply voltage sags
+    /// under the load's current); at rest it reads the state it stands at (the charge).
+    Rest(usize),
 }
 
 /// A generated candidate term.
@@ -153,6 +172,30 @@ pub struct Discovery {
     pub step: usize,
     /// Why accepted or rejected.
     pub verdict: String,
+    /// Candidates on other signals the data cannot tell from this term (forward selection's
+    /// runners-up that fit the held-out trials not significantly worse and add a collinear
+    /// contribution): confounded with it, named, not claimed.
+    #[serde(default)]
+    pub stand_ins: Vec<StandIn>,
+}
+
+/// A candidate the data cannot tell from a found term ([`Discovery::stand_ins`]).
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct StandIn {
+    /// Its name (from its structure).
+    pub name: String,
+    /// Its form.
+    pub form: String,
+    /// The recorded field(s) it follows (empty for session time).
+    pub fields: Vec<String>,
+    /// Its parameters fitted in the found term's place (± s.e.).
+    pub params: Vec<Param>,
+    /// 1 − held-out RMSE after / before, in the found term's place.
+    pub rel_improvement: f64,
+    /// Paired one-sided p-value (by trial, held out) that the found term fits better.
+    pub p_found_better: f64,
+    /// Correlation of what each adds to the held-out prediction.
+    pub correlation: f64,
 }
 
 /// What discovery tried and found.
@@ -507,6 +550,10 @@ fn families(names: &[String], arm: &[usize; N_JOINTS]) -> Vec<(String, [usize; N
 fn columns(kind: &Kind, inp: &Inputs, rv: &RowValues, rows: &Rows) -> Vec<Vec<f64>> {
     let n = rows.len();
     let term_sum = |t: Term, r: usize, w: &dyn Fn(usize) -> f64| -> f64 {
+        if t == Term::Current {
+            // One pooled column; its signals are common to all joints.
+            return rows.x[r][t.offset()] * w(0);
+        }
         (0..N_JOINTS)
             .map(|i| rows.x[r][t.offset() + i] * w(i))
             .sum()
@@ -530,6 +577,7 @@ fn columns(kind: &Kind, inp: &Inputs, rv: &RowValues, rows: &Rows) -> Vec<Vec<f6
                 Signal::Field(f) => rv.raw[*f][r],
                 Signal::Family(_, fs) => rv.raw[fs[i]][r],
                 Signal::Time => rv.hours[r],
+                Signal::Rest(f) => rv.baseline[*f][r],
             };
             // The level column lets the term's coefficient at signal 0 take any sign (the base
             // coefficients it would otherwise shift are bounded at 0).
@@ -574,12 +622,20 @@ fn generate(
     }
     if !meters.is_empty() {
         notes.push(format!(
-            "left out as meters of the power itself (|r| ≥ {METER_CORRELATION} with the readings): {}",
+            "left out as meters of the power itself (|r| ≥ {METER_CORRELATION} with the readings): {}; tried only at rest (their mean over each trial's pre-idle readings) as slow state signals",
             meters.join(", ")
         ));
     }
     let mut kinds: Vec<(Kind, String)> = Vec::new();
     let mut slow = vec![Signal::Time];
+    // A meter at rest: a slow state when its rest value changes from trial to trial.
+    for f in (0..names.len()).filter(|&f| !usable[f] && single[f]) {
+        let rest = &rv.baseline[f];
+        let first = rest.first().copied().unwrap_or(0.0);
+        if rest.iter().all(|v| v.is_finite()) && rest.iter().any(|&v| v != first) {
+            slow.push(Signal::Rest(f));
+        }
+    }
     for f in (0..names.len()).filter(|&f| usable[f] && single[f]) {
         kinds.push((
             Kind::Additive(f, span(&rv.raw[f])),
@@ -611,6 +667,14 @@ fn generate(
             kinds.push((Kind::Pooled(t), format!("{t:?} correction")));
         }
     }
+    // The drive-electronics loss per ampere × each signal common to all joints: a drive loss
+    // that changes with a state (a switching loss follows the supply voltage). Its plain form
+    // is the library's drive-electronics hypothesis, so it has no correction of its own.
+    let t = Term::Current;
+    for s in slow.iter().filter(|s| !matches!(s, Signal::Family(..))) {
+        let g = format!("{t:?} × {}", signal_name(s, names));
+        kinds.push((Kind::Product(t, s.clone()), g));
+    }
     let cands = kinds
         .into_iter()
         .map(|(kind, group)| Cand { kind, group })
@@ -623,6 +687,7 @@ fn signal_name(s: &Signal, names: &[String]) -> String {
         Signal::Field(f) => names[*f].clone(),
         Signal::Family(k, _) => format!("{k} (each joint's own motor)"),
         Signal::Time => TIME_NAME.into(),
+        Signal::Rest(f) => format!("{} at rest", names[*f]),
     }
 }
 
@@ -752,6 +817,13 @@ fn describe_product(
             fs.iter().map(|&f| names[f].clone()).collect(),
         ),
         Signal::Time => ("session time [h]".into(), Vec::new()),
+        Signal::Rest(f) => (
+            format!(
+                "{} at rest (its mean over each trial's pre-idle readings)",
+                names[*f]
+            ),
+            vec![names[*f].clone()],
+        ),
     };
     let mut ps = vec![fit.param(
         format!("change of {} per unit of the signal", t.words()),
@@ -936,6 +1008,8 @@ pub(crate) fn discover(
     let mut closed: Vec<String> = blocked.to_vec();
     report.before = Some(search.base.compare(&cur_pred, &cur_pred).2);
     let mut accepted: Vec<(usize, Scored)> = Vec::new();
+    // Per chosen candidate: what the data cannot tell from it.
+    let mut stand: Vec<(usize, Vec<StandIn>)> = Vec::new();
     for step in 1..=max_terms {
         let level = search.level(step);
         let mut best_fail: Option<Scored> = None;
@@ -978,6 +1052,18 @@ pub(crate) fn discover(
             closed.push(search.cands[b.idx].group.clone());
             continue;
         }
+        let ins = stand_ins_of(&search, &b, &passing, &cur_pred, joint_names, level);
+        if !ins.is_empty() {
+            let named: Vec<String> = ins.iter().map(|(_, s)| s.name.clone()).collect();
+            report.notes.push(format!(
+                "confounded: {} or {} — the data cannot tell them apart (each fits the held-out trials not significantly worse, p ≥ {:.0e}, with a contribution correlated at r ≥ {CONFOUNDED_R}); only the first is claimed",
+                to_discovery(&b, &search, joint_names, level, step, String::new()).name,
+                named.join(" or "),
+                rule.alpha
+            ));
+            closed.extend(ins.iter().map(|(g, _)| g.clone()));
+            stand.push((b.idx, ins.into_iter().map(|(_, s)| s).collect()));
+        }
         chosen.push(b.idx);
         chosen_cols.extend(search.cols(b.idx));
         closed.push(search.cands[b.idx].group.clone());
@@ -996,7 +1082,64 @@ pub(crate) fn discover(
         report.notes.push(note);
     }
     finish(&search, &chosen, &accepted, cur, joint_names, &mut report)?;
+    for (d, &k) in report.accepted.iter_mut().zip(&chosen) {
+        if let Some((_, ins)) = stand.iter().find(|(i, _)| *i == k) {
+            d.stand_ins = ins.clone();
+        }
+    }
     Ok(report)
+}
+
+/// The passing candidates of one forward step that the data cannot tell from the chosen `b`:
+/// on another group, `b` not significantly better on the held-out trials (paired test by trial
+/// at the rule's α) and their contributions to the prediction collinear (r ≥
+/// [`CONFOUNDED_R`]). Each with its group, best first.
+fn stand_ins_of(
+    search: &Search,
+    b: &Scored,
+    passing: &[Scored],
+    cur_pred: &[f64],
+    joint_names: &[String],
+    level: f64,
+) -> Vec<(String, StandIn)> {
+    let add = |s: &Scored| -> Vec<f64> {
+        s.fit
+            .pred
+            .iter()
+            .zip(cur_pred)
+            .map(|(a, c)| a - c)
+            .collect()
+    };
+    let mine = add(b);
+    let group = &search.cands[b.idx].group;
+    let mut out: Vec<(f64, String, StandIn)> = Vec::new();
+    for o in passing {
+        let g = &search.cands[o.idx].group;
+        if g == group || out.iter().any(|(_, h, _)| h == g) {
+            continue;
+        }
+        let p = p_better(search, &b.fit.pred, &o.fit.pred);
+        let (r, _) = pearson(&mine, &add(o));
+        if !(p >= search.rule.alpha && r >= CONFOUNDED_R) {
+            continue;
+        }
+        let d = to_discovery(o, search, joint_names, level, 0, String::new());
+        out.push((
+            o.rel,
+            g.clone(),
+            StandIn {
+                name: d.name,
+                form: d.form,
+                fields: d.fields,
+                params: d.params,
+                rel_improvement: o.rel,
+                p_found_better: p,
+                correlation: r,
+            },
+        ));
+    }
+    out.sort_by(|a, b| b.0.total_cmp(&a.0));
+    out.into_iter().map(|(_, g, s)| (g, s)).collect()
 }
 
 /// Paired one-sided p-value (held-out error by trial) that predictions `a` fit better than `b`.
@@ -1077,7 +1220,7 @@ fn library_reads(name: &str, arm_motors: &[usize; N_JOINTS]) -> bool {
 fn may_rival(kind: &Kind, names: &[String], arm_motors: &[usize; N_JOINTS]) -> bool {
     let fields: Vec<usize> = match kind {
         Kind::Additive(f, _) | Kind::Step(f, _) => vec![*f],
-        Kind::Product(_, Signal::Field(f)) => vec![*f],
+        Kind::Product(_, Signal::Field(f) | Signal::Rest(f)) => vec![*f],
         Kind::Product(_, Signal::Family(_, fs)) => fs.to_vec(),
         Kind::Product(_, Signal::Time) | Kind::PerJoint(_) | Kind::Pooled(_) => Vec::new(),
     };
@@ -1457,6 +1600,7 @@ fn to_discovery(
         after: s.after,
         step,
         verdict,
+        stand_ins: Vec::new(),
     }
 }
 

@@ -41,7 +41,7 @@ pub use counterpart::{
     CounterpartComparison, CounterpartSeries, JointDifference, TrialDifference,
     compare as compare_counterpart, compare_files as compare_counterpart_files,
 };
-pub use discover::{Discovery, DiscoveryReport};
+pub use discover::{Discovery, DiscoveryReport, StandIn};
 pub use fields::{ExcludedField, FieldSource};
 pub use locate::{Breakdown, Correlate, Group, TrialResidual};
 pub use options::DiagnoseOptions;
