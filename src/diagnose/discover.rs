@@ -21,9 +21,9 @@
 //! level α/(m − j), m = candidates tried), then backward elimination (every accepted term stays
 //! significant given the others), never more terms than one per 20 trials. Fields that track
 //! the measured power itself (|r| ≥ 0.5 with the readings: another meter of the same flow) are
-//! consequences of the power, not causes, and are left out with a note; at rest (their mean
-//! over each trial's pre-idle readings) they are still slow state signals — a battery voltage
-//! that sags under the load meters it, its rest value tracks the charge. Names come from the
+//! consequences of the power, not causes, and are left out with a note; those that fall as the
+//! power rises (a battery voltage sagging under the load) are still slow state signals at rest
+//! (their mean over each trial's pre-idle readings: the charge). Names come from the
 //! term's structure only ([`describe`]).
 
 use anyhow::Result;
@@ -124,9 +124,9 @@ pub(crate) enum Signal {
     Family(String, [usize; N_JOINTS]),
     /// Session time [h].
     Time,
-    /// A field left out as a meter of the power, at rest: its mean over the trial's pre-idle
-    /// readings. Within a trial a meter follows the power it meters (a supply voltage sags
-    /// under the load's current); at rest it reads the state it stands at (the charge).
+    /// A field left out as a meter of the power that falls as the power rises (a supply
+    /// voltage sagging under the load's current), at rest: its mean over the trial's pre-idle
+    /// readings, where it reads the state it stands at (the charge).
     Rest(usize),
 }
 
@@ -605,6 +605,8 @@ fn generate(
     let rv = RowValues::new(inp, rows);
     let mut meters = Vec::new();
     let mut usable = vec![true; names.len()];
+    // Meters that fall as the power rises: a supply sagging under the load.
+    let mut sags = vec![false; names.len()];
     let single: Vec<bool> = (0..names.len())
         .map(|f| !inp.fields.duplicate.get(f).copied().unwrap_or(false))
         .collect();
@@ -615,6 +617,7 @@ fn generate(
         let (r, _) = pearson(&net, &rows.y);
         if r.abs() >= METER_CORRELATION {
             usable[f] = false;
+            sags[f] = r < 0.0;
             if single[f] {
                 meters.push(format!("{} (r = {r:+.2})", names[f]));
             }
@@ -622,14 +625,17 @@ fn generate(
     }
     if !meters.is_empty() {
         notes.push(format!(
-            "left out as meters of the power itself (|r| ≥ {METER_CORRELATION} with the readings): {}; tried only at rest (their mean over each trial's pre-idle readings) as slow state signals",
+            "left out as meters of the power itself (|r| ≥ {METER_CORRELATION} with the readings): {}; those that fall as it rises (a supply sagging under the load) are tried at rest (their mean over each trial's pre-idle readings) as slow state signals",
             meters.join(", ")
         ));
     }
     let mut kinds: Vec<(Kind, String)> = Vec::new();
     let mut slow = vec![Signal::Time];
-    // A meter at rest: a slow state when its rest value changes from trial to trial.
-    for f in (0..names.len()).filter(|&f| !usable[f] && single[f]) {
+    // A meter that falls as the power rises is the supply sagging under the load (a battery
+    // voltage): at rest it reads the source's state (the charge), a slow state signal when it
+    // changes from trial to trial. One that rises with the power is the flow itself, at rest
+    // the rest load: not a state.
+    for f in (0..names.len()).filter(|&f| sags[f] && single[f]) {
         let rest = &rv.baseline[f];
         let first = rest.first().copied().unwrap_or(0.0);
         if rest.iter().all(|v| v.is_finite()) && rest.iter().any(|&v| v != first) {
