@@ -1166,6 +1166,21 @@ fn switching_forms(
         "{name}: {}",
         t.name
     );
+    // The library's per-ampere loss, taken first, is dropped as confounded with the found term.
+    assert!(
+        d.confounded
+            .iter()
+            .any(|c| c.dropped == "drive_loss" && !c.tied),
+        "{name}: {:?}",
+        d.confounded
+    );
+    // The BMS charge is named too (the voltage is a function of it).
+    assert!(
+        forms
+            .iter()
+            .any(|(f, _)| f.iter().any(|f| f == "/lf/bmsstate.soc")),
+        "{name}: {forms:?}"
+    );
     (t, forms)
 }
 
@@ -1219,6 +1234,8 @@ fn switching_loss_on_the_linear_battery_found_on_session_time_names_the_voltages
                 && named(&|f| f == "/lf/mainboardstate.value[0]"),
             "{name}: the supply voltages are not named: {forms:?}"
         );
+        // Session time is the found signal or named beside it.
+        assert!(forms.iter().any(|(f, _)| f.is_empty()), "{name}: {forms:?}");
         // The per-volt coefficient of every voltage form: 12–14 % below k_sw (README).
         volt_forms_within(&name, &forms, k_sw, [-0.145, -0.115]);
         if on_time {
