@@ -1174,6 +1174,12 @@ fn switching_forms(name: &str, d: &Diagnosis) -> (diagnose::Discovery, Forms) {
         "{name}: {:?}",
         d.confounded
     );
+    assert!(
+        d.summary
+            .contains("Confounded: the data cannot tell it from the candidate term on "),
+        "{name}: {}",
+        d.summary
+    );
     // The BMS charge is named too (the voltage is a function of it).
     assert!(
         forms

@@ -352,6 +352,21 @@ fn discovery_lines(d: &Diagnosis, s: &mut String) {
             t.p_value,
             t.alpha
         );
+        if !t.stand_ins.is_empty() {
+            let what: Vec<String> = t
+                .stand_ins
+                .iter()
+                .map(|o| match o.fields.first() {
+                    Some(f) => f.clone(),
+                    None => "session time".into(),
+                })
+                .collect();
+            let _ = writeln!(
+                s,
+                "Confounded: the data cannot tell it from the candidate term on {} (held-out fit not significantly worse, contributions collinear); only it is claimed.",
+                what.join(", ")
+            );
+        }
     }
     if r.accepted.is_empty() {
         let best = r
