@@ -23,7 +23,7 @@ pub struct SimulateArgs {
     seed: u64,
     /// Switch on a concealed effect, e.g. braking=0.3, thermal=0.00393, bus_loss=0.05, latency=0.3,
     /// payload=0.5, gear_friction=0.15, drive_loss=0.5, stribeck=10, balance_leak=55,
-    /// harness_drag=4 (repeatable; a bare NAME uses the default value).
+    /// harness_drag=4, switching=0.01 (repeatable; a bare NAME uses the default value).
     #[arg(long = "effect", value_name = "NAME=VALUE")]
     effects: Vec<String>,
     /// Re-run this recording's commanded trajectory through the twin (same timeline).
@@ -41,6 +41,14 @@ pub struct SimulateArgs {
     /// Winding temperature at session start [°C].
     #[arg(long, value_name = "C", value_parser = winding_temperature)]
     t_start: Option<f64>,
+    /// Battery model: linear (open-circuit voltage linear in charge, no internal resistance;
+    /// every recorded voltage follows the charge alone) or realistic (NMC cell curve and 0.15 Ω
+    /// pack resistance: the voltages sag under load).
+    #[arg(long, default_value = "linear", value_name = "MODEL")]
+    battery: String,
+    /// State of charge at session start, 0–1 (default: a freshly charged pack, 0.96–0.98).
+    #[arg(long, value_name = "SOC")]
+    soc_start: Option<f64>,
     /// No balance contamination and no hardware-event outliers.
     #[arg(long)]
     clean: bool,
@@ -68,6 +76,8 @@ pub fn run(a: SimulateArgs) -> Result<()> {
         preset: a.preset.parse()?,
         seed: a.seed,
         with_hand: !a.no_hand,
+        battery: a.battery.parse()?,
+        soc_start: a.soc_start,
         ..SimConfig::default()
     };
     for e in &a.effects {

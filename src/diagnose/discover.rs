@@ -10,7 +10,10 @@
 //! - products of each pooled base loss term (Σ τq̇, Σ Δτ², Σ |q̇|, Σ q̇²) with each slow state
 //!   signal (fields that change little within a trial, and session time), and with each
 //!   per-motor field family taken joint by joint (Σ_i term_i · s_i, s_i = the field of joint
-//!   i's own motor), with the plain pooled term as a second column (the level);
+//!   i's own motor), with the plain pooled term as a second column (the level); the pooled
+//!   drive current Σ |τ_i|/K_i (the library's drive-electronics loss per ampere) times each
+//!   signal common to all joints likewise (a drive loss that follows a state: the switching
+//!   loss follows the supply voltage);
 //! - against a held base model, each base loss term per joint (one coefficient per joint) and
 //!   pooled (one coefficient): a friction or efficiency the twin has wrong.
 //!
@@ -21,7 +24,9 @@
 //! of the same structure or with a collinear contribution ([`tie_of`]) — are named with it as
 //! confounded and never claimed. Fields that track
 //! the measured power itself (|r| ≥ 0.5 with the readings: another meter of the same flow) are
-//! consequences of the power, not causes, and are left out with a note. Names come from the
+//! consequences of the power, not causes, and are left out with a note; those that fall as the
+//! power rises (a battery voltage sagging under the load) are still slow state signals at rest
+//! (their mean over each trial's pre-idle readings: the charge). Names come from the
 //! term's structure only ([`describe`]).
 
 use anyhow::Result;
@@ -30,6 +35,7 @@ use nalgebra::{DMatrix, DVector};
 use super::Quality;
 use super::data::Rows;
 use super::fields::FieldTable;
+use super::hypotheses::DRIVE_CURRENT;
 use super::select::{
     Param, PowerData, Rule, State, bic, bounds_for, design_map_for, jackknife_se, r2_rmse,
     solve_bounded_for, trial_sse,
@@ -61,17 +67,23 @@ pub(crate) enum Term {
     Coulomb,
     /// q̇_i² (viscous friction).
     Viscous,
+    /// |τ_i| / K_i (the phase current: drive-electronics loss per ampere). Only its sum over
+    /// the joints is in a row, so it pairs with signals common to all joints (a field, session
+    /// time), not with per-motor families.
+    Current,
 }
 
 impl Term {
     const ALL: [Term; 4] = [Term::Mech, Term::Copper, Term::Coulomb, Term::Viscous];
 
+    /// Position of joint 0's column in a raw row (the pooled sum's for [`Term::Current`]).
     fn offset(self) -> usize {
         match self {
             Term::Mech => 0,
             Term::Copper => N_JOINTS,
             Term::Coulomb => 2 * N_JOINTS,
             Term::Viscous => 3 * N_JOINTS,
+            Term::Current => DRIVE_CURRENT,
         }
     }
 
@@ -81,6 +93,7 @@ impl Term {
             Term::Copper => "the copper loss Δτ²",
             Term::Coulomb => "the Coulomb friction loss |q̇|",
             Term::Viscous => "the viscous friction loss q̇²",
+            Term::Current => "the drive-electronics loss per ampere of phase current |τ|/K",
         }
     }
 
@@ -90,6 +103,7 @@ impl Term {
             Term::Copper => "Δτ_i²",
             Term::Coulomb => "|q̇_i|",
             Term::Viscous => "q̇_i²",
+            Term::Current => "|τ_i|/K_i",
         }
     }
 
@@ -99,6 +113,7 @@ impl Term {
             Term::Copper => "W/Nm²",
             Term::Coulomb => "W·s/rad",
             Term::Viscous => "W·s²/rad²",
+            Term::Current => "V",
         }
     }
 }
@@ -112,6 +127,10 @@ pub(crate) enum Signal {
     Family(String, [usize; N_JOINTS]),
     /// Session time [h].
     Time,
+    /// A field left out as a meter of the power that falls as the power rises (a supply
+    /// voltage sagging under the load's current), at rest: its mean over the trial's pre-idle
+    /// readings, where it reads the state it stands at (the charge).
+    Rest(usize),
 }
 
 /// A generated candidate term.
@@ -540,6 +559,10 @@ fn families(names: &[String], arm: &[usize; N_JOINTS]) -> Vec<(String, [usize; N
 fn columns(kind: &Kind, inp: &Inputs, rv: &RowValues, rows: &Rows) -> Vec<Vec<f64>> {
     let n = rows.len();
     let term_sum = |t: Term, r: usize, w: &dyn Fn(usize) -> f64| -> f64 {
+        if t == Term::Current {
+            // One pooled column; its signals are common to all joints.
+            return rows.x[r][t.offset()] * w(0);
+        }
         (0..N_JOINTS)
             .map(|i| rows.x[r][t.offset() + i] * w(i))
             .sum()
@@ -563,6 +586,7 @@ fn columns(kind: &Kind, inp: &Inputs, rv: &RowValues, rows: &Rows) -> Vec<Vec<f6
                 Signal::Field(f) => rv.raw[*f][r],
                 Signal::Family(_, fs) => rv.raw[fs[i]][r],
                 Signal::Time => rv.hours[r],
+                Signal::Rest(f) => rv.baseline[*f][r],
             };
             // The level column lets the term's coefficient at signal 0 take any sign (the base
             // coefficients it would otherwise shift are bounded at 0).
@@ -590,6 +614,8 @@ fn generate(
     let rv = RowValues::new(inp, rows);
     let mut meters = Vec::new();
     let mut usable = vec![true; names.len()];
+    // Meters that fall as the power rises: a supply sagging under the load.
+    let mut sags = vec![false; names.len()];
     let single: Vec<bool> = (0..names.len())
         .map(|f| !inp.fields.duplicate.get(f).copied().unwrap_or(false))
         .collect();
@@ -600,6 +626,7 @@ fn generate(
         let (r, _) = pearson(&net, &rows.y);
         if r.abs() >= METER_CORRELATION {
             usable[f] = false;
+            sags[f] = r < 0.0;
             if single[f] {
                 meters.push(format!("{} (r = {r:+.2})", names[f]));
             }
@@ -607,12 +634,23 @@ fn generate(
     }
     if !meters.is_empty() {
         notes.push(format!(
-            "left out as meters of the power itself (|r| ≥ {METER_CORRELATION} with the readings): {}",
+            "left out as meters of the power itself (|r| ≥ {METER_CORRELATION} with the readings): {}; those that fall as it rises (a supply sagging under the load) are tried at rest (their mean over each trial's pre-idle readings) as slow state signals",
             meters.join(", ")
         ));
     }
     let mut kinds: Vec<(Kind, String)> = Vec::new();
     let mut slow = vec![Signal::Time];
+    // A meter that falls as the power rises is the supply sagging under the load (a battery
+    // voltage): at rest it reads the source's state (the charge), a slow state signal when it
+    // changes from trial to trial. One that rises with the power is the flow itself, at rest
+    // the rest load: not a state.
+    for f in (0..names.len()).filter(|&f| sags[f] && single[f]) {
+        let rest = &rv.baseline[f];
+        let first = rest.first().copied().unwrap_or(0.0);
+        if rest.iter().all(|v| v.is_finite()) && rest.iter().any(|&v| v != first) {
+            slow.push(Signal::Rest(f));
+        }
+    }
     for f in (0..names.len()).filter(|&f| usable[f] && single[f]) {
         kinds.push((
             Kind::Additive(f, span(&rv.raw[f])),
@@ -644,6 +682,14 @@ fn generate(
             kinds.push((Kind::Pooled(t), format!("{t:?} correction")));
         }
     }
+    // The drive-electronics loss per ampere × each signal common to all joints: a drive loss
+    // that changes with a state (a switching loss follows the supply voltage). Its plain form
+    // is the library's drive-electronics hypothesis, so it has no correction of its own.
+    let t = Term::Current;
+    for s in slow.iter().filter(|s| !matches!(s, Signal::Family(..))) {
+        let g = format!("{t:?} × {}", signal_name(s, names));
+        kinds.push((Kind::Product(t, s.clone()), g));
+    }
     let cands = kinds
         .into_iter()
         .map(|(kind, group)| Cand { kind, group })
@@ -656,6 +702,7 @@ fn signal_name(s: &Signal, names: &[String]) -> String {
         Signal::Field(f) => names[*f].clone(),
         Signal::Family(k, _) => format!("{k} (each joint's own motor)"),
         Signal::Time => TIME_NAME.into(),
+        Signal::Rest(f) => format!("{} at rest", names[*f]),
     }
 }
 
@@ -785,6 +832,13 @@ fn describe_product(
             fs.iter().map(|&f| names[f].clone()).collect(),
         ),
         Signal::Time => ("session time [h]".into(), Vec::new()),
+        Signal::Rest(f) => (
+            format!(
+                "{} at rest (its mean over each trial's pre-idle readings)",
+                names[*f]
+            ),
+            vec![names[*f].clone()],
+        ),
     };
     let mut ps = vec![fit.param(
         format!("change of {} per unit of the signal", t.words()),
@@ -1064,7 +1118,10 @@ fn p_better(search: &Search, a: &[f64], b: &[f64]) -> f64 {
 /// for a correction of a base loss term (it follows no signal).
 fn followed(kind: &Kind, names: &[String]) -> Vec<String> {
     match kind {
-        Kind::Additive(f, _) | Kind::Step(f, _) | Kind::Product(_, Signal::Field(f)) => {
+        Kind::Additive(f, _)
+        | Kind::Step(f, _)
+        | Kind::Product(_, Signal::Field(f))
+        | Kind::Product(_, Signal::Rest(f)) => {
             vec![names[*f].clone()]
         }
         Kind::Product(_, Signal::Family(_, fs)) => fs.iter().map(|&f| names[f].clone()).collect(),
@@ -1121,6 +1178,7 @@ fn predicate(kind: &Kind, names: &[String], gamma0: f64) -> String {
     };
     match kind {
         Kind::Additive(f, _) | Kind::Product(_, Signal::Field(f)) => sign(&names[*f]),
+        Kind::Product(_, Signal::Rest(f)) => sign(&format!("{} at rest", names[*f])),
         Kind::Step(f, thr) => format!(
             "switches with {} (drawn while it reads above {thr:.4})",
             names[*f]
@@ -1344,7 +1402,7 @@ fn library_reads(name: &str, arm_motors: &[usize; N_JOINTS]) -> bool {
 fn may_rival(kind: &Kind, names: &[String], arm_motors: &[usize; N_JOINTS]) -> bool {
     let fields: Vec<usize> = match kind {
         Kind::Additive(f, _) | Kind::Step(f, _) => vec![*f],
-        Kind::Product(_, Signal::Field(f)) => vec![*f],
+        Kind::Product(_, Signal::Field(f) | Signal::Rest(f)) => vec![*f],
         Kind::Product(_, Signal::Family(_, fs)) => fs.to_vec(),
         Kind::Product(_, Signal::Time) | Kind::PerJoint(_) | Kind::Pooled(_) => Vec::new(),
     };

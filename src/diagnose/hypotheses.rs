@@ -50,6 +50,10 @@ const DRIVE_NM: usize = BUS_POWER + 1;
 /// Number of per-sample extra features of the power-level hypotheses.
 pub const N_EXTRA: usize = DRIVE_NM + 1;
 
+/// Position in a raw row of the drive current Σ_i |τ_i| / K_i [A] (the drive-electronics
+/// loss's feature), for discovery's loss-term products.
+pub(crate) const DRIVE_CURRENT: usize = N_PARAMS + DRIVE;
+
 /// Supply voltage [V] assumed for the bus current P_elec / V_bus when the recording's motor
 /// supply voltages are not available (13 Li-ion cells, mid charge).
 pub const NOMINAL_BUS_VOLTS: f64 = 50.0;

@@ -152,6 +152,18 @@ pub struct RailLoad {
     pub watts: f64,
 }
 
+/// Inverter switching loss, which follows the supply voltage: each drive's bridge dissipates
+/// while its switches commutate the phase current against the DC-link voltage, so
+/// P += k_sw·V_bus·Σ_i |τ_i| / K_i, K = [`JOINT_TORQUE_CONSTANT`], V_bus = the motors' supply
+/// voltage (what `motor_state[k].vol` records). k_sw ≈ ½·(t_rise + t_fall)·f_sw summed over the
+/// commutating legs (100–200 ns edges at 20 kHz: a few thousandths). The library's
+/// drive-electronics loss is the conduction form V_drop·Σ|τ_i|/K_i at a constant voltage.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SwitchingLoss {
+    /// Switching coefficient k_sw [W/(V·A)].
+    pub per_volt_amp: f64,
+}
+
 /// Mean on and off durations of the [`RailLoad`] fan [s].
 pub const FAN_MEAN_ON_OFF_S: (f64, f64) = (8.0, 12.0);
 
@@ -203,10 +215,13 @@ pub struct Effects {
     /// Switching fan load on the main-board rail.
     #[serde(skip_serializing_if = "Option::is_none", default)]
     pub fan_load: Option<RailLoad>,
+    /// Inverter switching loss following the supply voltage.
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    pub switching: Option<SwitchingLoss>,
 }
 
 /// Names accepted by [`Effects::enable`], in documentation order.
-pub const EFFECT_NAMES: [&str; 15] = [
+pub const EFFECT_NAMES: [&str; 16] = [
     "thermal",
     "braking",
     "bus_loss",
@@ -222,6 +237,7 @@ pub const EFFECT_NAMES: [&str; 15] = [
     "joint_friction",
     "housing_friction",
     "fan_load",
+    "switching",
 ];
 
 impl ThermalDrift {
@@ -294,6 +310,11 @@ impl HousingFriction {
         w_per_k_rad_s: 0.05,
     };
 }
+impl SwitchingLoss {
+    /// 0.01 W/(V·A): 0.5 W per ampere of phase current at a 50 V bus, about
+    /// [`DriveLoss::DEFAULT`] (a slow bridge; fast ones switch for a few thousandths).
+    pub const DEFAULT: SwitchingLoss = SwitchingLoss { per_volt_amp: 0.01 };
+}
 impl RailLoad {
     /// A 3 W fan.
     pub const DEFAULT: RailLoad = RailLoad { watts: 3.0 };
@@ -309,7 +330,8 @@ impl Effects {
     /// braking r [-], bus_loss R [Ω], payload mass [kg] at the default position, latency [s],
     /// gear_friction μ [-], drive_loss V_drop [V], stribeck F_s [Nm], balance_leak k [W/(rad/s)²] at
     /// the default sway, harness_drag k [W·s/rad], bus_power R [Ω], electronics_nm k [W/Nm],
-    /// joint_friction F [Nm], housing_friction k [W/(K·rad/s)], fan_load [W]).
+    /// joint_friction F [Nm], housing_friction k [W/(K·rad/s)], fan_load [W], switching
+    /// k_sw [W/(V·A)]).
     pub fn enable(&mut self, spec: &str) -> anyhow::Result<()> {
         let (name, value) = match spec.split_once('=') {
             Some((n, v)) => {
@@ -420,6 +442,14 @@ impl Effects {
             "fan_load" => {
                 self.fan_load = Some(value.map_or(RailLoad::DEFAULT, |watts| RailLoad { watts }))
             }
+            "switching" => {
+                self.switching =
+                    Some(
+                        value.map_or(SwitchingLoss::DEFAULT, |per_volt_amp| SwitchingLoss {
+                            per_volt_amp,
+                        }),
+                    )
+            }
             _ => anyhow::bail!(
                 "unknown effect {name:?} (known: {})",
                 EFFECT_NAMES.join(", ")
@@ -491,6 +521,9 @@ pub fn arm_power(model: &crate::power::PowerModel, effects: &Effects, s: &PlantS
     }
     if let Some(d) = effects.drive_loss {
         extra += d.volts * current;
+    }
+    if let Some(sw) = effects.switching {
+        extra += sw.per_volt_amp * s.bus_volts.max(0.0) * current;
     }
     if let Some(g) = effects.gear_friction {
         extra += g.mu * (0..N_JOINTS).map(|i| (tau[i] * dq[i]).abs()).sum::<f64>();
@@ -663,6 +696,32 @@ mod tests {
         let stalled = [5.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0];
         let p = ap(&e, &zero, &stalled, &zero, &zero);
         assert!((p.effects - 0.1 * (p.base / 50.0).powi(2)).abs() < 1e-12);
+    }
+
+    #[test]
+    fn switching_loss_follows_the_bus_voltage_by_hand() {
+        let mut e = Effects::default();
+        e.enable("switching=0.02").unwrap();
+        let mut tau = [0.0; N_JOINTS];
+        tau[0] = -2.6; // 2 A at K = 1.3
+        tau[4] = 0.7; // 1 A at K = 0.7
+        let zero = [0.0; N_JOINTS];
+        let at = |volts: f64| {
+            let s = PlantSample {
+                q: &zero,
+                tau: &tau,
+                dq: &zero,
+                tau_home: &zero,
+                winding_c: &[25.0; N_JOINTS],
+                housing_c: &[25.0; N_JOINTS],
+                bus_volts: volts,
+            };
+            arm_power(&PowerModel::PAPER, &e, &s).effects
+        };
+        // 0.02 W/(V·A) · 50 V · 3 A = 3 W; at 40 V, 2.4 W.
+        assert!((at(50.0) - 3.0).abs() < 1e-12, "{}", at(50.0));
+        assert!((at(40.0) - 2.4).abs() < 1e-12, "{}", at(40.0));
+        assert_eq!(SwitchingLoss::DEFAULT.per_volt_amp, 0.01);
     }
 
     #[test]

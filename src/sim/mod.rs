@@ -12,6 +12,7 @@
 //! # anyhow::Ok(())
 //! ```
 
+mod battery;
 mod effects;
 pub(crate) mod like;
 pub(crate) mod plant;
@@ -29,11 +30,12 @@ use rand::{RngExt, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+pub use battery::{Battery, NMC_OCV, PACK_AH, PACK_RESISTANCE_OHM, nmc_cell_ocv};
 pub use effects::{
     BalanceLeak, BrakingAsymmetry, BusLoss, BusPowerLoss, DEFAULT_PAYLOAD, DriveLoss, EFFECT_NAMES,
     Effects, ElectronicsLoss, FAN_MEAN_ON_OFF_S, GearFriction, HarnessDrag, HousingFriction,
     JOINT_FRICTION_PATTERN, JointFrictionExcess, RailLoad, SWAY_CORRELATION_S, SensorLatency,
-    StribeckFriction, THERMAL_REFERENCE_C, ThermalDrift,
+    StribeckFriction, SwitchingLoss, THERMAL_REFERENCE_C, ThermalDrift,
 };
 pub use like::simulate_like_file;
 pub use protocol::Preset;
@@ -140,6 +142,11 @@ pub struct SimConfig {
     pub housing_start_c: Option<f64>,
     /// Motor thermal constants.
     pub thermal: ThermalModel,
+    /// Battery model (default: linear, every README figure's).
+    pub battery: Battery,
+    /// State of charge at session start (0..=1); `None`: a freshly charged pack, drawn in
+    /// 0.96–0.98.
+    pub soc_start: Option<f64>,
     /// Joint friction inside τ.
     pub friction: JointFriction,
     /// Measurement noise.
@@ -168,6 +175,8 @@ impl Default for SimConfig {
             t_start_c: 30.0,
             housing_start_c: None,
             thermal: ThermalModel::default(),
+            battery: Battery::Linear,
+            soc_start: None,
             friction: DEFAULT_FRICTION,
             noise: Noise::default(),
             artefacts: Artefacts::default(),
@@ -268,8 +277,20 @@ fn sensor_clock(start_ns: u64, end_s: f64, rng: &mut ChaCha8Rng) -> Vec<u64> {
     out
 }
 
+/// Settings no session can have.
+fn check_config(cfg: &SimConfig) -> Result<()> {
+    if let Some(s) = cfg.soc_start {
+        anyhow::ensure!(
+            (0.0..=1.0).contains(&s),
+            "state of charge at session start {s} is not within 0..=1"
+        );
+    }
+    Ok(())
+}
+
 /// Simulate a session of `cfg.preset` and write it to `out` (MCAP) and `truth_path(out)` (JSON).
 pub fn simulate(cfg: &SimConfig, out: &Path) -> Result<Truth> {
+    check_config(cfg)?;
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
     let planned = protocol::plan(cfg.preset, cfg.seed, cfg.route_seed);
     let schedule = Schedule::build(&planned, &mut rng);
@@ -577,6 +598,7 @@ fn plant_truth(cfg: &SimConfig, stats: &plant::RunStats) -> truth::PlantTruth {
     payload: cfg.effects.payload,
     mean_power_components_w: terms.iter().zip(stats.mean_terms).map(|(k, v)| (k.to_string(), v)).collect(),
     battery_soc_range: stats.soc_range,
+    battery: cfg.battery,
 }
 }
 
@@ -603,6 +625,7 @@ const MAX_LIKE_GAP_S: f64 = 3600.0;
 /// it like the robot's), otherwise the measured one (no extra lag). Artefacts tied to trials
 /// (contamination, outliers) are not added: the recording's trials are not known here.
 pub fn simulate_like(rec: &Recording, cfg: &SimConfig, out: &Path) -> Result<Truth> {
+    check_config(cfg)?;
     anyhow::ensure!(
         !rec.state.t.is_empty(),
         "{}: the recording has no joint states to re-run",

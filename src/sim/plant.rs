@@ -13,6 +13,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 
 use super::SimConfig;
+use super::battery::Battery;
 use super::effects::{
     ArmPower, Effects, FAN_MEAN_ON_OFF_S, PlantSample, SWAY_CORRELATION_S, arm_power,
 };
@@ -39,8 +40,6 @@ pub const BMS_OU: (f64, f64) = (2.0, 30.0);
 pub const SENSOR_WINDOW_S: f64 = 0.2;
 /// Power-sensor period [s] and uniform jitter [s].
 pub const SENSOR_PERIOD: (f64, f64) = (1.0, 0.03);
-/// Usable battery energy [Wh] (9 Ah pack, 13 cells).
-const BATTERY_WH: f64 = 450.0;
 /// Leg, waist and right-arm standing posture (SDK 0..=14 and 22..=28): q [rad], τ [Nm].
 const STANDING: [(f64, f64); 22] = [
     (-0.1, -2.4),
@@ -264,11 +263,6 @@ fn quant(v: f64, step: f64) -> f64 {
     (v / step).round() * step
 }
 
-/// Pack open-circuit voltage [V] at state of charge `soc` (13 Li-ion cells).
-fn pack_volts(soc: f64) -> f64 {
-    13.0 * (3.3 + 0.85 * soc)
-}
-
 /// Everything the engine needs besides the output.
 pub struct Engine<'a> {
     /// Configuration.
@@ -311,6 +305,9 @@ struct RunState {
     bms_ou: f64,
     t_bms_prev: f64,
     soc: f64,
+    /// Pack terminal voltage at the last state sample [V] (the realistic battery; the linear
+    /// one's is a function of `soc` alone).
+    pack_v: f64,
     yaw0: f64,
     tick: u32,
     ref_hint: usize,
@@ -408,6 +405,15 @@ impl Engine<'_> {
         Ok(stats)
     }
 
+    /// Pack terminal voltage now [V]: the linear battery's open-circuit voltage at the current
+    /// charge, the realistic one's voltage under the last state sample's load.
+    fn pack_volts(&self, st: &RunState) -> f64 {
+        match self.cfg.battery {
+            Battery::Linear => Battery::Linear.open_circuit_volts(st.soc),
+            Battery::Realistic => st.pack_v,
+        }
+    }
+
     /// Stage: the state at session start (draws the battery charge, the IMU yaw and the tick).
     fn start(&self, rng: &mut ChaCha8Rng) -> RunState {
         let cfg = self.cfg;
@@ -430,7 +436,9 @@ impl Engine<'_> {
             soc_range: [f64::INFINITY, f64::NEG_INFINITY],
             ..Default::default()
         };
-        let soc = 0.98 - 0.02 * rng.random::<f64>();
+        // Drawn even when the start is given, so the random streams stay the same.
+        let drawn = 0.98 - 0.02 * rng.random::<f64>();
+        let soc = cfg.soc_start.unwrap_or(drawn);
         let yaw0 = rng.random_range(-0.5..0.5);
         let tick: u32 = rng.random_range(1_000_000..9_000_000);
         RunState {
@@ -447,6 +455,7 @@ impl Engine<'_> {
             bms_ou: 0.0,
             t_bms_prev: 0.0,
             soc,
+            pack_v: cfg.battery.terminal_volts(soc, P_REST_W + BMS_OFFSET_W),
             yaw0,
             tick,
             ref_hint: 0,
@@ -506,6 +515,7 @@ impl Engine<'_> {
         for i in 0..N_JOINTS {
             tau[i] = rigid[i] + fr[i];
         }
+        let bus_volts = self.pack_volts(st) - 0.15;
         let thermal = &mut st.thermal;
         thermal.step(t, dt, &tau);
         let housing_c: [f64; N_JOINTS] = std::array::from_fn(|i| thermal.housing_c(i));
@@ -516,7 +526,7 @@ impl Engine<'_> {
             tau_home: &st.tau_home,
             winding_c: &thermal.winding_c,
             housing_c: &housing_c,
-            bus_volts: pack_volts(st.soc) - 0.15,
+            bus_volts,
         };
         let p = arm_power(model, &cfg.effects, &sample);
         let mut eff = p.effects;
@@ -622,7 +632,15 @@ impl Engine<'_> {
             st.power_hist.pop_front();
         }
         st.power_hist.push_back((t, p_rail));
-        st.soc -= (p_rail + BMS_OFFSET_W) * dt / 3600.0 / BATTERY_WH;
+        let battery = self.cfg.battery;
+        if battery == Battery::Linear {
+            st.soc -= battery.soc_used(p_rail + BMS_OFFSET_W, 0.0, dt);
+        } else {
+            // Everything the pack feeds (the rail, the rest of the robot's offset and noise).
+            let load = p_rail + BMS_OFFSET_W + st.bms_ou;
+            st.soc -= battery.soc_used(load, st.pack_v, dt);
+            st.pack_v = battery.terminal_volts(st.soc, load);
+        }
         let (stats, soc) = (&mut st.stats, st.soc);
         stats.soc_range = [stats.soc_range[0].min(soc), stats.soc_range[1].max(soc)];
         for &w in &st.thermal.winding_c {
@@ -663,7 +681,7 @@ impl Engine<'_> {
     ) -> Result<()> {
         let noise: Noise = self.cfg.noise;
         let (q, dq, tau) = (&plant.q, &plant.dq, &plant.tau);
-        let vol = quant(pack_volts(st.soc) - 0.15 + 0.03 * gauss(rng), 0.1) as f32;
+        let vol = quant(self.pack_volts(st) - 0.15 + 0.03 * gauss(rng), 0.1) as f32;
         for (slot, &(q0, tau0)) in STANDING.iter().enumerate() {
             let k = if slot < 15 { slot } else { slot + N_JOINTS };
             st.motors[k] = MotorState {
@@ -738,7 +756,7 @@ impl Engine<'_> {
         st.bms_ou = ou_step(st.bms_ou, (t - st.t_bms_prev).max(0.0), BMS_OU, rng);
         st.t_bms_prev = t;
         let p_bms = p + BMS_OFFSET_W + st.bms_ou + noise.bms_w * gauss(rng);
-        let volts = quant(pack_volts(st.soc), 0.01);
+        let volts = quant(self.pack_volts(st), 0.01);
         let cell = (volts / 13.0 * 1000.0).round();
         let mut cell_mv = [0u16; 13];
         for (c, v) in cell_mv.iter_mut().enumerate() {
@@ -773,7 +791,7 @@ impl Engine<'_> {
         st.i_mbs += 1;
         let p = window_mean(&st.power_hist, t - st.latency, self.cfg.sensor_window_s)
             + noise.mbs_w * gauss(rng);
-        let volts = quant(pack_volts(st.soc) - 0.4 + 0.005 * gauss(rng), 0.01);
+        let volts = quant(self.pack_volts(st) - 0.4 + 0.005 * gauss(rng), 0.01);
         let amps = quant(p / volts, 0.001);
         let rpm = 2085.0 + 10.0 * gauss(rng);
         let rpm2 = match st.fan.as_mut() {

@@ -230,6 +230,13 @@ pub struct PlantTruth {
     pub mean_power_components_w: BTreeMap<String, f64>,
     /// State-of-charge range.
     pub battery_soc_range: [f64; 2],
+    /// Battery model (absent: the linear default, so older truth files read as it).
+    #[serde(default, skip_serializing_if = "is_linear")]
+    pub battery: super::Battery,
+}
+
+fn is_linear(b: &super::Battery) -> bool {
+    *b == super::Battery::Linear
 }
 
 /// Protocol constants.
