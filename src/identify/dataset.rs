@@ -193,6 +193,22 @@ fn trial_basis(
     target: Target,
     align: &Alignment,
 ) -> Result<TrialBasis, String> {
+    trial_basis_cached(rec, trial, target, align, None)
+}
+
+/// What [`trial_basis`] computes from the joint states alone (the pre-idle τ̄0² and σ_ω): the
+/// same for every alignment, so the timing search keeps it per trial (keyed by trial index).
+type StateBasis = std::collections::HashMap<usize, Result<([f64; N_JOINTS], f64), String>>;
+
+/// [`trial_basis`], taking the alignment-independent part from `cache` when given (and
+/// keeping it there): the same values, computed once per trial instead of once per alignment.
+fn trial_basis_cached(
+    rec: &Recording,
+    trial: &TrialWindow,
+    target: Target,
+    align: &Alignment,
+    cache: Option<&mut StateBasis>,
+) -> Result<TrialBasis, String> {
     let power = target.series(rec);
     let (pre0, pre1) = (trial.t_pre_start, trial.t_traj_start);
     let pre: Vec<f64> = readings_within(power, align, pre0, pre1)
@@ -205,15 +221,23 @@ fn trial_basis(
             target.name().to_uppercase()
         ));
     }
-    let tau0_sq = mean_tau_sq(rec, pre0, pre1)
-        .ok_or_else(|| format!("no joint-state sample in the pre-idle {pre0:.2}–{pre1:.2} s"))?;
     let window = (trial.t_traj_start, trial.t_post_end);
+    let state = || {
+        let tau0_sq = mean_tau_sq(rec, pre0, pre1).ok_or_else(|| {
+            format!("no joint-state sample in the pre-idle {pre0:.2}–{pre1:.2} s")
+        })?;
+        Ok((tau0_sq, sigma_omega(rec, window.0, window.1)))
+    };
+    let (tau0_sq, sigma) = match cache {
+        Some(c) => c.entry(trial.index).or_insert_with(state).clone()?,
+        None => state()?,
+    };
     Ok(TrialBasis {
         trial: trial.index,
         baseline_w: pre.iter().sum::<f64>() / pre.len() as f64,
         baseline_readings: pre.len(),
         tau0_sq,
-        sigma_omega: sigma_omega(rec, window.0, window.1),
+        sigma_omega: sigma,
         window,
     })
 }
@@ -227,6 +251,17 @@ fn push_finite(rows: &mut Vec<Row>, row: Row) {
 
 /// Build the rows of one recording's trials.
 pub fn build(rec: &Recording, trials: &[TrialWindow], opts: &DatasetOptions) -> Dataset {
+    build_cached(rec, trials, opts, None)
+}
+
+/// [`build`] with the trials' alignment-independent basis kept in `cache` across calls (the
+/// timing search builds the same trials' rows at every candidate alignment).
+fn build_cached(
+    rec: &Recording,
+    trials: &[TrialWindow],
+    opts: &DatasetOptions,
+    mut cache: Option<&mut StateBasis>,
+) -> Dataset {
     let mut out = Dataset {
         mode: opts.mode,
         target: opts.target,
@@ -237,7 +272,13 @@ pub fn build(rec: &Recording, trials: &[TrialWindow], opts: &DatasetOptions) -> 
     };
     let power = opts.target.series(rec);
     for trial in trials {
-        let basis = match trial_basis(rec, trial, opts.target, &opts.alignment) {
+        let basis = match trial_basis_cached(
+            rec,
+            trial,
+            opts.target,
+            &opts.alignment,
+            cache.as_deref_mut(),
+        ) {
             Ok(b) => b,
             Err(reason) => {
                 out.skipped.push(Skipped {
@@ -378,6 +419,8 @@ pub fn estimate_alignment(
     sessions: &[(&Recording, &[TrialWindow])],
     target: Target,
 ) -> Result<AlignmentEstimate> {
+    // Each trial's pre-idle τ̄0² and σ_ω do not depend on the alignment: computed once.
+    let mut caches: Vec<StateBasis> = sessions.iter().map(|_| StateBasis::new()).collect();
     let est = scan_alignment(&ScanGrid::IDENTIFY, |alignment| {
         let opts = DatasetOptions {
             mode: Mode::Reading,
@@ -386,7 +429,8 @@ pub fn estimate_alignment(
         };
         let rows: Vec<Row> = sessions
             .iter()
-            .flat_map(|(rec, trials)| build(rec, trials, &opts).rows)
+            .zip(caches.iter_mut())
+            .flat_map(|((rec, trials), cache)| build_cached(rec, trials, &opts, Some(cache)).rows)
             .collect();
         let y: Vec<f64> = rows.iter().map(|r| r.y).collect();
         let r2 = ridge_r2(rows.iter().map(|r| r.phi.as_slice()), &y)?;
@@ -475,5 +519,37 @@ mod tests {
             let expected: Vec<Row> = all.iter().step_by(every).cloned().collect();
             assert_eq!(thin, expected, "every {every}");
         }
+        // The timing search's cache of each trial's alignment-independent basis gives the same
+        // rows and bases at every alignment as building without it, also for a trial without
+        // a pre-idle reading (index 5: its pre-idle ends before the first reading).
+        let early = TrialWindow {
+            index: 5,
+            t_pre_start: 0.0,
+            t_traj_start: 0.1,
+            ..trial.clone()
+        };
+        let trials = [trial, early];
+        let mut cache = StateBasis::new();
+        for (w, lag) in [(0.2, 0.0), (0.5, 0.1), (0.05, 0.3), (0.2, 0.0)] {
+            let opts = DatasetOptions {
+                mode: Mode::Reading,
+                target: Target::Mbs,
+                alignment: Alignment {
+                    window_s: w,
+                    lag_s: lag,
+                },
+            };
+            let plain = build(&rec, &trials, &opts);
+            let cached = build_cached(&rec, &trials, &opts, Some(&mut cache));
+            assert!(!plain.rows.is_empty());
+            assert_eq!(plain.rows, cached.rows, "W {w}, lag {lag}");
+            assert_eq!(plain.trials, cached.trials, "W {w}, lag {lag}");
+            assert_eq!(plain.skipped, cached.skipped, "W {w}, lag {lag}");
+        }
+        assert_eq!(
+            cache.len(),
+            1,
+            "only the trial with a pre-idle reading reaches the cache"
+        );
     }
 }
