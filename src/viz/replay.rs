@@ -486,6 +486,22 @@ pub fn replay_file_with(
     opts: &ReplayOptions,
     stream: &RecordingStream,
 ) -> Result<ReplaySummary> {
+    streamed_replay(robot, arm, extras, opts, stream, &mut |sink| {
+        crate::signals::stream_into(path, map, read_opts, opts.chunk_rows.max(1), sink)
+    })
+}
+
+/// A streamed replay into `stream`: `read` drives the sink over the recording(s).
+fn streamed_replay(
+    robot: &RobotModel,
+    arm: &ArmJoints,
+    extras: ReplayExtras,
+    opts: &ReplayOptions,
+    stream: &RecordingStream,
+    read: &mut dyn FnMut(
+        &mut dyn crate::signals::RecordingSink,
+    ) -> Result<crate::signals::StreamSummary>,
+) -> Result<ReplaySummary> {
     // The reader shows its own progress bar (messages read); one bar is enough.
     let quiet = ReplayOptions {
         progress: false,
@@ -502,7 +518,7 @@ pub fn replay_file_with(
         summary: None,
         unflushed: 0,
     };
-    crate::signals::stream_into(path, map, read_opts, opts.chunk_rows.max(1), &mut sink)?;
+    read(&mut sink)?;
     sink.summary.context("the recording delivered no samples")
 }
 
@@ -525,30 +541,16 @@ pub fn replay_files_with(
     if let [path] = paths {
         return replay_file_with(path, map, read_opts, robot, arm, extras, opts, stream);
     }
-    let quiet = ReplayOptions {
-        progress: false,
-        chunk_rows: opts.chunk_rows.max(STREAMED_CHUNK_ROWS),
-        ..opts.clone()
-    };
-    let mut sink = StreamedReplay {
-        stream,
-        robot,
-        arm,
-        opts: &quiet,
-        extras,
-        logger: None,
-        summary: None,
-        unflushed: 0,
-    };
-    crate::signals::stream_joined_into(
-        paths,
-        map,
-        read_opts,
-        opts.chunk_rows.max(1),
-        gap_s,
-        &mut sink,
-    )?;
-    sink.summary.context("the recordings delivered no samples")
+    streamed_replay(robot, arm, extras, opts, stream, &mut |sink| {
+        crate::signals::stream_joined_into(
+            paths,
+            map,
+            read_opts,
+            opts.chunk_rows.max(1),
+            gap_s,
+            sink,
+        )
+    })
 }
 
 /// Log one batch of a streamed replay, waiting for the sink every [`REPLAY_FLUSH_SAMPLES`]
