@@ -41,7 +41,7 @@ xvfb-run -a -s "-screen 0 1920x1080x24" chromium --headless --no-sandbox \
     --use-gl=angle --use-angle=swiftshader --enable-unsafe-swiftshader --ignore-gpu-blocklist \
     --disable-background-networking --disable-component-update --no-first-run \
     --user-data-dir="$work/chrome" --window-size=1920,1080 \
-    --remote-debugging-port="$devtools" about:blank > "$work/chrome.log" 2>&1 &
+    --remote-allow-origins="*" --remote-debugging-port="$devtools" about:blank > "$work/chrome.log" 2>&1 &
 xvfb=$!
 for _ in $(seq 50); do curl -s "http://127.0.0.1:$devtools/json" > /dev/null && break; sleep 0.2; done
 
