@@ -837,6 +837,49 @@ fn a_rail_load_switching_with_a_board_status_field_is_discovered() {
 }
 
 #[test]
+fn two_equal_fans_on_two_board_fields_are_both_claimed_not_tied() {
+    // Two 3 W fans on the main-board rail, switching independently; fan_state[0] and [1] say
+    // when. The two loads have the same structure on two fields, so when the first is found the
+    // other cannot be shown to fit worse: a tie by the rival rule. Tried beside the first, it
+    // passes on its own — a second effect, to be claimed, not named as a confounder.
+    let mut e = Effects::default();
+    e.enable("fan_load=3").unwrap();
+    e.enable("fan0_load=3").unwrap();
+    let (rec, _, files) = session(&e, 3, 6, &[30.0]);
+    let d = diagnose::diagnose(&rec, &files.opts(refit())).unwrap();
+    show("two fans", &d);
+    assert!(d.accepted.is_empty(), "library claims {:?}", claims(&d));
+    let found = d.discovery.as_ref().unwrap().accepted.clone();
+    let mut fields: Vec<String> = found.iter().flat_map(|t| t.fields.clone()).collect();
+    fields.sort();
+    assert_eq!(
+        fields,
+        [
+            "/lf/mainboardstate.fan_state[0]",
+            "/lf/mainboardstate.fan_state[1]"
+        ],
+        "claims {:?}",
+        claims(&d)
+    );
+    for t in &found {
+        assert!(
+            t.tied.iter().all(|r| !r.fields[0].contains("fan_state")),
+            "{}: the other fan named as a tie: {:?}",
+            t.name,
+            t.tied.iter().map(|r| &r.name).collect::<Vec<_>>()
+        );
+        let p = &t.params[0];
+        assert!(
+            (p.value - 3.0).abs() <= 0.3,
+            "{}: {} = {}",
+            t.name,
+            p.symbol,
+            p.value
+        );
+    }
+}
+
+#[test]
 fn unequal_joint_friction_is_found_per_joint_against_the_twin() {
     // Coulomb excess F·w_i per joint (w = JOINT_FRICTION_PATTERN): against the twin it is a
     // per-joint correction of c_i; a refit absorbs it into c_i (nothing to claim).

@@ -1069,6 +1069,12 @@ pub(crate) fn discover(
         // Rivals on other fields the data cannot tell from it: named with it, never claimed.
         let ties = ties_at_step(&search, &b, &passing, &cur_pred, joint_names, level);
         for t in &ties {
+            // A rival of the same structure whose contribution is not collinear with the chosen
+            // one's may be a second effect of the same kind: it stays open and is tried beside
+            // the chosen term at the next steps; only if it does not pass there is it a tie.
+            if stays_open(&t.term) {
+                continue;
+            }
             let g = &search.cands[t.idx].group;
             if !closed.contains(g) {
                 closed.push(g.clone());
@@ -1083,6 +1089,7 @@ pub(crate) fn discover(
         accepted.push((step, b));
     }
     backward(&search, &mut chosen, &mut accepted, &mut report.notes)?;
+    claim_rivals_found_beside(&search, &chosen, &mut tied, &mut report.notes);
     let on_time = chosen
         .iter()
         .any(|&i| search.cands[i].group.contains(TIME_NAME));
@@ -1102,6 +1109,43 @@ pub(crate) fn discover(
         &mut report,
     )?;
     Ok(report)
+}
+
+/// Whether a rival tied with a chosen term stays open to be tried beside it at the later steps
+/// of forward selection: one of the same structure whose contribution is not collinear with the
+/// chosen one's (r < [`CONFOUNDED_R`]). Such a rival is either a stand-in for the chosen term's
+/// signal (beside it, it adds nothing and fails the gates) or a second effect of the same kind
+/// (beside it, it passes and is claimed on its own).
+fn stays_open(t: &TiedTerm) -> bool {
+    t.same_structure && t.correlation < CONFOUNDED_R
+}
+
+/// Rivals that were tried beside the term they tied with and were accepted themselves (and kept
+/// by backward elimination) are second effects, not ties: taken out of the tie lists, with a
+/// note.
+fn claim_rivals_found_beside(
+    search: &Search,
+    chosen: &[usize],
+    tied: &mut [(usize, Vec<Tie>)],
+    notes: &mut Vec<String>,
+) {
+    let groups: Vec<&String> = chosen.iter().map(|&k| &search.cands[k].group).collect();
+    for (k, ties) in tied.iter_mut() {
+        if !chosen.contains(k) {
+            continue;
+        }
+        ties.retain(|t| {
+            let g = &search.cands[t.idx].group;
+            let claimed = groups.contains(&g);
+            if claimed {
+                notes.push(format!(
+                    "tried beside {}, which it tied with when that was found, {g} stays significant: a second effect of the same kind, claimed on its own",
+                    search.cands[*k].group
+                ));
+            }
+            !claimed
+        });
+    }
 }
 
 /// Paired one-sided p-value (held-out error by trial) that predictions `a` fit better than `b`.

@@ -215,13 +215,17 @@ pub struct Effects {
     /// Switching fan load on the main-board rail.
     #[serde(skip_serializing_if = "Option::is_none", default)]
     pub fan_load: Option<RailLoad>,
+    /// A second switching fan on the same rail, cycling independently of the first and reported
+    /// in `fan_state[0]`: a second load of the same kind on another field.
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    pub fan0_load: Option<RailLoad>,
     /// Inverter switching loss following the supply voltage.
     #[serde(skip_serializing_if = "Option::is_none", default)]
     pub switching: Option<SwitchingLoss>,
 }
 
 /// Names accepted by [`Effects::enable`], in documentation order.
-pub const EFFECT_NAMES: [&str; 16] = [
+pub const EFFECT_NAMES: [&str; 17] = [
     "thermal",
     "braking",
     "bus_loss",
@@ -237,6 +241,7 @@ pub const EFFECT_NAMES: [&str; 16] = [
     "joint_friction",
     "housing_friction",
     "fan_load",
+    "fan0_load",
     "switching",
 ];
 
@@ -330,7 +335,7 @@ impl Effects {
     /// braking r [-], bus_loss R [Ω], payload mass [kg] at the default position, latency [s],
     /// gear_friction μ [-], drive_loss V_drop [V], stribeck F_s [Nm], balance_leak k [W/(rad/s)²] at
     /// the default sway, harness_drag k [W·s/rad], bus_power R [Ω], electronics_nm k [W/Nm],
-    /// joint_friction F [Nm], housing_friction k [W/(K·rad/s)], fan_load [W], switching
+    /// joint_friction F [Nm], housing_friction k [W/(K·rad/s)], fan_load and fan0_load [W], switching
     /// k_sw [W/(V·A)]).
     pub fn enable(&mut self, spec: &str) -> anyhow::Result<()> {
         let (name, value) = match spec.split_once('=') {
@@ -441,6 +446,9 @@ impl Effects {
             }
             "fan_load" => {
                 self.fan_load = Some(value.map_or(RailLoad::DEFAULT, |watts| RailLoad { watts }))
+            }
+            "fan0_load" => {
+                self.fan0_load = Some(value.map_or(RailLoad::DEFAULT, |watts| RailLoad { watts }))
             }
             "switching" => {
                 self.switching =

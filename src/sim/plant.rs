@@ -322,6 +322,8 @@ struct RunState {
     sway_rng: ChaCha8Rng,
     /// The switching fan of the rail-load effect (its own random stream too).
     fan: Option<Fan>,
+    /// The second switching fan (`fan0_load`, reported in `fan_state[0]`; a stream of its own).
+    fan0: Option<Fan>,
     term_sums: [f64; 5],
     motors: [MotorState; N_MOTORS],
     i_ls: usize,
@@ -339,7 +341,7 @@ struct PlantStep {
     power: ArmPower,
     /// Effect power so far (effects, fan load, payload share) [W].
     eff: f64,
-    /// Fan load of the rail-load effect [W].
+    /// Fan load of the rail-load effects [W].
     fan_w: f64,
 }
 
@@ -466,6 +468,9 @@ impl Engine<'_> {
             ambient: [0.0; 2],
             sway_rng: ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x005a_1a4c_e000_u64),
             fan: effects.fan_load.map(|l| Fan::new(l.watts, cfg.seed)),
+            fan0: effects
+                .fan0_load
+                .map(|l| Fan::new(l.watts, cfg.seed ^ 0x0f00_0000_0000_u64)),
             term_sums: [0.0; 5],
             motors: [MotorState::default(); N_MOTORS],
             i_ls: 0,
@@ -530,7 +535,8 @@ impl Engine<'_> {
         };
         let p = arm_power(model, &cfg.effects, &sample);
         let mut eff = p.effects;
-        let fan_w = st.fan.as_mut().map_or(0.0, |f| f.load_at(t));
+        let fan_w = st.fan.as_mut().map_or(0.0, |f| f.load_at(t))
+            + st.fan0.as_mut().map_or(0.0, |f| f.load_at(t));
         eff += fan_w;
         if let (Some(d), Some(th_u)) = (self.dyn_urdf, st.tau_home_urdf) {
             // The payload's share: the base model on true minus URDF-only torques.
@@ -798,6 +804,7 @@ impl Engine<'_> {
             None => rpm - 30.0,
             Some(f) => f.rpm(),
         };
+        let rpm = st.fan0.as_mut().map_or(rpm, |f| f.rpm());
         out.write(
             Topic::Mbs,
             ns,
