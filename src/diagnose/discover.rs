@@ -232,6 +232,9 @@ pub struct DiscoveryReport {
     /// Regressor columns of the kept terms (per reading), to test library terms given them.
     #[serde(skip)]
     pub cols: Vec<Vec<f64>>,
+    /// The trials' rest power explained with the fields at rest (absent with too few trials).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rest: Option<super::rest::RestPower>,
     /// Notes (fields left out as meters of the power, unreadable files).
     pub notes: Vec<String>,
     /// Fields left out by a rule on their own data (constant, counter or clock, hash-/CRC-like),
@@ -248,6 +251,10 @@ pub(crate) struct Inputs<'a> {
     pub row_window: &'a [usize],
     /// Baseline (pre-idle) reading windows of each trial (position in the trial list).
     pub base_windows: &'a [Vec<usize>],
+    /// Rest power of each trial: the mean of its baseline readings [W] (NaN without any).
+    pub base_power: &'a [f64],
+    /// Start of each trial on the session clock [s].
+    pub trial_start: &'a [f64],
     /// Per joint: the motor index whose fields belong to it (`motor_state[k]`).
     pub arm_motors: [usize; N_JOINTS],
 }
@@ -609,7 +616,7 @@ fn generate(
     n_trials: usize,
     twin: bool,
     notes: &mut Vec<String>,
-) -> (Vec<Cand>, RowValues) {
+) -> (Vec<Cand>, RowValues, Vec<bool>) {
     let names = &inp.fields.names;
     let rv = RowValues::new(inp, rows);
     let mut meters = Vec::new();
@@ -694,7 +701,8 @@ fn generate(
         .into_iter()
         .map(|(kind, group)| Cand { kind, group })
         .collect();
-    (cands, rv)
+    let tried: Vec<bool> = (0..names.len()).map(|f| usable[f] && single[f]).collect();
+    (cands, rv, tried)
 }
 
 fn signal_name(s: &Signal, names: &[String]) -> String {
@@ -1000,7 +1008,8 @@ pub(crate) fn discover(
         excluded: inp.fields.excluded.clone(),
         ..Default::default()
     };
-    let (cands, rv) = generate(inp, rows, data.n_trials, twin, &mut report.notes);
+    let (cands, rv, usable) = generate(inp, rows, data.n_trials, twin, &mut report.notes);
+    report.rest = rest_power_of(inp, usable, rule);
     let m = cands.len();
     report.n_candidates = m;
     report.fields_used = (0..inp.fields.names.len())
@@ -1109,6 +1118,36 @@ pub(crate) fn discover(
         &mut report,
     )?;
     Ok(report)
+}
+
+/// The rest-power stage on the fields discovery may try (not meters of the power, not
+/// duplicates), each field at rest per trial ([`super::rest`]).
+fn rest_power_of(inp: &Inputs, usable: Vec<bool>, rule: &Rule) -> Option<super::rest::RestPower> {
+    let fields = inp
+        .fields
+        .values
+        .iter()
+        .map(|vals| {
+            inp.base_windows
+                .iter()
+                .map(|ws| {
+                    if ws.is_empty() {
+                        f64::NAN
+                    } else {
+                        base_mean(ws, |w| vals[w])
+                    }
+                })
+                .collect()
+        })
+        .collect();
+    let r = super::rest::RestInputs {
+        power: inp.base_power,
+        start: inp.trial_start,
+        fields,
+        names: &inp.fields.names,
+        usable,
+    };
+    super::rest::rest_power(&r, rule)
 }
 
 /// Whether a rival tied with a chosen term stays open to be tried beside it at the later steps
@@ -1479,7 +1518,7 @@ pub(crate) fn rival_of(
     let rows = base.rows;
     let twin = data.reference.is_some();
     let mut notes = Vec::new();
-    let (cands, rv) = generate(inp, rows, data.n_trials, twin, &mut notes);
+    let (cands, rv, _) = generate(inp, rows, data.n_trials, twin, &mut notes);
     let m = cands.len();
     let search = Search {
         base,

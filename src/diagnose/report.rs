@@ -691,7 +691,57 @@ fn beyond_section(md: &mut String, d: &Diagnosis) {
         let _ = writeln!(md, "\n- {n}");
     }
     md.push('\n');
+    if let Some(rest) = &r.rest {
+        rest_section(md, rest);
+    }
     excluded_fields(md, r);
+}
+
+/// The trials' rest power explained by the fields at rest ([`super::rest`]).
+fn rest_section(md: &mut String, r: &super::RestPower) {
+    let _ = writeln!(
+        md,
+        "### Rest power
+
+Each trial's pre-idle power (mean {:.2} W; the net-power model subtracts it, so a load that changes between trials never reaches it) against every field above at rest and session time: {} candidates, {} trials in {} blocks of {} (held out by block), Holm. Held-out RMSE {:.3} → {:.3} W.\n",
+        r.mean_w,
+        r.n_candidates,
+        r.n_trials,
+        r.n_blocks,
+        super::rest::BLOCK_TRIALS,
+        r.rmse_before_w,
+        r.rmse_after_w
+    );
+    let _ = writeln!(
+        md,
+        "| found | form | parameter(s) | p | verdict | not told apart from it |\n|---|---|---|---|---|---|"
+    );
+    for t in r.found.iter().chain(r.best_rejected.iter()) {
+        let params: Vec<String> = t
+            .params
+            .iter()
+            .map(|p| {
+                format!(
+                    "{} = {} ± {} {}",
+                    p.symbol,
+                    sig(p.value),
+                    sig(p.std_err),
+                    p.unit
+                )
+            })
+            .collect();
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {} | {} | {} |",
+            t.name,
+            t.form,
+            params.join("; "),
+            sig(t.p_value),
+            t.verdict,
+            t.tied.join(", ")
+        );
+    }
+    md.push('\n');
 }
 
 /// The candidates each found term was not told apart from (its field is confounded), with the

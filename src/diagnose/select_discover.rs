@@ -173,6 +173,10 @@ pub(crate) struct RowFields {
     pub(crate) row_window: Vec<usize>,
     /// Per trial (position in the trial list): indices of its baseline windows.
     pub(crate) base_windows: Vec<Vec<usize>>,
+    /// Per trial: its rest power, the mean of its baseline readings [W] (NaN without any).
+    pub(crate) base_power: Vec<f64>,
+    /// Per trial: its start (pre-idle) on the session clock [s].
+    pub(crate) trial_start: Vec<f64>,
 }
 
 /// Stage: read every numeric field of the recording's files over the rows' windows.
@@ -199,17 +203,25 @@ pub(crate) fn run_fields(
         .enumerate()
         .map(|(r, &t)| (window(t), r))
         .collect();
+    let mut base_power = vec![f64::NAN; metas.len()];
     for (ti, m) in metas.iter().enumerate() {
         let lo = power.t.partition_point(|&x| x < m.window.t_pre_start + w);
         let hi = power
             .t
             .partition_point(|&x| x < m.window.t_traj_start + 1e-9);
+        let (mut sum, mut n) = (0.0, 0usize);
         for k in lo..hi.max(lo) {
-            if power.watts.get(k).is_some_and(|v| v.is_finite()) {
+            if let Some(&v) = power.watts.get(k).filter(|v| v.is_finite()) {
                 all.push((window(power.t[k]), rows.len() + ti));
+                sum += v;
+                n += 1;
             }
         }
+        if n > 0 {
+            base_power[ti] = sum / n as f64;
+        }
     }
+    let trial_start: Vec<f64> = metas.iter().map(|m| m.window.t_pre_start).collect();
     all.sort_by(|a, b| a.0.start.total_cmp(&b.0.start));
     let mut row_window = vec![0; rows.len()];
     let mut base_windows = vec![Vec::new(); metas.len()];
@@ -243,6 +255,8 @@ pub(crate) fn run_fields(
         table,
         row_window,
         base_windows,
+        base_power,
+        trial_start,
     }
 }
 
@@ -252,6 +266,8 @@ pub(crate) fn field_inputs<'a>(f: &'a RowFields, opts: &DiagnoseOptions) -> disc
         fields: &f.table,
         row_window: &f.row_window,
         base_windows: &f.base_windows,
+        base_power: &f.base_power,
+        trial_start: &f.trial_start,
         arm_motors: opts.arm_motors,
     }
 }

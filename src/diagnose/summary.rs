@@ -366,6 +366,9 @@ fn discovery_lines(d: &Diagnosis, s: &mut String) {
             r.n_candidates, r.fields_used, r.alpha
         );
     }
+    if let Some(rest) = &r.rest {
+        rest_lines(rest, s);
+    }
     let junk: Vec<&str> = r
         .excluded
         .iter()
@@ -377,6 +380,62 @@ fn discovery_lines(d: &Diagnosis, s: &mut String) {
             s,
             "Left out of discovery as counters, clocks or hash-like: {} (reasons in the report).",
             junk.join(", ")
+        );
+    }
+}
+
+/// Most fields named beside a rest-power term in the summary (the JSON lists all).
+const REST_TIES_NAMED: usize = 4;
+
+/// The rest power (each trial's pre-idle mean, which the net-power model subtracts): the loads
+/// found on it, or what was tried.
+fn rest_lines(r: &super::RestPower, s: &mut String) {
+    for t in &r.found {
+        let params: Vec<String> = t.params.iter().map(fmt_param).collect();
+        let ties = if t.tied.is_empty() {
+            String::new()
+        } else {
+            let more = t.tied.len().saturating_sub(REST_TIES_NAMED);
+            let mut named: Vec<&str> = t
+                .tied
+                .iter()
+                .take(REST_TIES_NAMED)
+                .map(String::as_str)
+                .collect();
+            let tail = format!("{more} more");
+            if more > 0 {
+                named.push(&tail);
+            }
+            format!(
+                " Not told apart from it (fit as well; not claimed): {}.",
+                named.join(", ")
+            )
+        };
+        let _ = writeln!(
+            s,
+            "Rest power (each trial's pre-idle mean, {:.1} W on average, which the net-power model subtracts): {}; {} with {}; held-out RMSE over {} trials {:.3} → {:.3} W (p = {:.1e} < {:.1e} by blocks of {} trials).{ties}",
+            r.mean_w,
+            t.name,
+            t.form,
+            params.join(", "),
+            r.n_trials,
+            r.rmse_before_w,
+            r.rmse_after_w,
+            t.p_value,
+            t.alpha,
+            super::rest::BLOCK_TRIALS
+        );
+    }
+    if r.found.is_empty() {
+        let best = r
+            .best_rejected
+            .as_ref()
+            .map(|b| format!(" (best: {}, {})", b.name, b.verdict))
+            .unwrap_or_default();
+        let _ = writeln!(
+            s,
+            "Rest power: {} candidates tried on {} trials' pre-idle power ({:.1} W on average, held-out RMSE {:.3} W), none supported{best}.",
+            r.n_candidates, r.n_trials, r.mean_w, r.rmse_before_w
         );
     }
 }

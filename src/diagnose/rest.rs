@@ -1,0 +1,520 @@
+//! Rest power: what the power rail draws while the arm stands still, trial by trial.
+//!
+//! The net-power model subtracts each trial's pre-idle baseline, so a load that changes only
+//! between trials (a fan stepping with the board temperature, a light switched on) never
+//! reaches it, however large. This stage explains the baselines themselves with every usable
+//! recorded field's value at rest (its mean over the trial's pre-idle readings) and session
+//! time, under discovery's gates: held-out improvement, Holm over every candidate, BIC and a
+//! minimum gain. The rest power drifts slowly, so neighbouring trials are not independent: the
+//! folds are contiguous blocks of trials and the paired test is by block.
+
+use nalgebra::{DMatrix, DVector};
+
+use super::select::{Param, Rule, jackknife_se};
+use super::stats::improvement_p_value;
+
+/// Trials per block of the held-out test (≈ 4–5 minutes of the protocol).
+pub const BLOCK_TRIALS: usize = 20;
+/// Cross-validation folds (blocks assigned round-robin).
+const FOLDS: usize = 10;
+/// Most terms found on the rest power.
+const MAX_TERMS: usize = 3;
+/// Fewest blocks for the test to run.
+const MIN_BLOCKS: usize = 10;
+/// How the rest power's candidates call session time.
+const TIME_NAME: &str = "session time [h]";
+
+/// What the rest-power stage found.
+#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
+pub struct RestPower {
+    /// Trials with a baseline (pre-idle readings).
+    pub n_trials: usize,
+    /// Blocks of the held-out test.
+    pub n_blocks: usize,
+    /// Candidates tried (m of the Holm correction).
+    pub n_candidates: usize,
+    /// Mean rest power over the trials [W].
+    pub mean_w: f64,
+    /// Held-out RMSE of the trials' rest power with a constant [W].
+    pub rmse_before_w: f64,
+    /// The same with the terms found [W].
+    pub rmse_after_w: f64,
+    /// Terms found, in the order accepted.
+    pub found: Vec<RestTerm>,
+    /// The best candidate not accepted at the first step.
+    pub best_rejected: Option<RestTerm>,
+}
+
+/// A term of the rest power on one recorded field (or session time).
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct RestTerm {
+    /// In words, from its structure.
+    pub name: String,
+    /// The field it follows (`topic.field.path`, or session time).
+    pub field: String,
+    /// `P_rest += k·x` or `P_rest += P_on·[x > threshold]`.
+    pub form: String,
+    /// Its parameters (fitted with the other terms found) ± s.e. (jackknife over folds).
+    pub params: Vec<Param>,
+    /// Paired one-sided p-value by block (held out) of the improvement at its step.
+    pub p_value: f64,
+    /// Holm level it was judged at.
+    pub alpha: f64,
+    /// ΔBIC of adding it.
+    pub delta_bic: f64,
+    /// Relative held-out RMSE improvement at its step.
+    pub rel_improvement: f64,
+    /// Other fields that pass at its step and do not fit significantly worse: the data cannot
+    /// tell them from it (named, not claimed).
+    pub tied: Vec<String>,
+    /// Accepted or rejected, and why.
+    pub verdict: String,
+}
+
+/// A candidate column: a field linear, a field as a step, or session time.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Cand {
+    Linear(usize),
+    Step(usize, f64),
+    Time,
+}
+
+/// The inputs of the stage, per trial with a baseline.
+pub(crate) struct RestInputs<'a> {
+    /// Rest power of each trial [W] (NaN: no baseline reading).
+    pub power: &'a [f64],
+    /// Start of each trial [s].
+    pub start: &'a [f64],
+    /// Per field: its value at rest per trial.
+    pub fields: Vec<Vec<f64>>,
+    /// Field names.
+    pub names: &'a [String],
+    /// Fields that may be tried (not meters of the power, not duplicates).
+    pub usable: Vec<bool>,
+}
+
+struct Fit {
+    /// Held-out prediction per trial.
+    pred: Vec<f64>,
+    /// Coefficients per fold (train fits).
+    fold_coef: Vec<Vec<f64>>,
+    /// Coefficients on all trials.
+    coef: Vec<f64>,
+    bic: f64,
+}
+
+struct Scored {
+    cand: usize,
+    fit: Fit,
+    p: f64,
+    rel: f64,
+    d_bic: f64,
+}
+
+struct Search<'a> {
+    y: Vec<f64>,
+    block: Vec<usize>,
+    n_blocks: usize,
+    cols: Vec<Vec<f64>>,
+    cands: Vec<Cand>,
+    names: &'a [String],
+    rule: Rule,
+}
+
+fn lstsq(x: &[&[f64]], y: &[f64], rows: &[usize]) -> Option<Vec<f64>> {
+    let p = x.len() + 1;
+    let a = DMatrix::from_fn(
+        rows.len(),
+        p,
+        |r, c| {
+            if c == 0 { 1.0 } else { x[c - 1][rows[r]] }
+        },
+    );
+    let b = DVector::from_iterator(rows.len(), rows.iter().map(|&r| y[r]));
+    let sol = a.svd(true, true).solve(&b, 1e-10).ok()?;
+    sol.iter()
+        .all(|v| v.is_finite())
+        .then(|| sol.iter().copied().collect())
+}
+
+fn predict(coef: &[f64], x: &[&[f64]], r: usize) -> f64 {
+    coef[0] + x.iter().zip(&coef[1..]).map(|(c, k)| c[r] * k).sum::<f64>()
+}
+
+impl Search<'_> {
+    fn fit(&self, x: &[&[f64]]) -> Option<Fit> {
+        let n = self.y.len();
+        let mut pred = vec![f64::NAN; n];
+        let mut fold_coef = Vec::new();
+        for f in 0..FOLDS {
+            let train: Vec<usize> = (0..n).filter(|&r| self.block[r] % FOLDS != f).collect();
+            let coef = lstsq(x, &self.y, &train)?;
+            for r in (0..n).filter(|&r| self.block[r] % FOLDS == f) {
+                pred[r] = predict(&coef, x, r);
+            }
+            fold_coef.push(coef);
+        }
+        let all: Vec<usize> = (0..n).collect();
+        let coef = lstsq(x, &self.y, &all)?;
+        let sse: f64 = (0..n)
+            .map(|r| (self.y[r] - predict(&coef, x, r)).powi(2))
+            .sum();
+        let k = (x.len() + 1) as f64;
+        let bic = n as f64 * (sse / n as f64).max(1e-300).ln() + k * (n as f64).ln();
+        Some(Fit {
+            pred,
+            fold_coef,
+            coef,
+            bic,
+        })
+    }
+
+    /// Per block: held-out squared error of `a` minus that of `b`.
+    fn block_gain(&self, a: &[f64], b: &[f64]) -> Vec<f64> {
+        let mut d = vec![0.0; self.n_blocks];
+        for r in 0..self.y.len() {
+            d[self.block[r]] += (self.y[r] - a[r]).powi(2) - (self.y[r] - b[r]).powi(2);
+        }
+        d
+    }
+
+    fn rmse(&self, pred: &[f64]) -> f64 {
+        let n = self.y.len().max(1) as f64;
+        (self
+            .y
+            .iter()
+            .zip(pred)
+            .map(|(y, p)| (y - p).powi(2))
+            .sum::<f64>()
+            / n)
+            .sqrt()
+    }
+
+    fn score(&self, i: usize, chosen: &[usize], cur: &Fit) -> Option<Scored> {
+        let mut x: Vec<&[f64]> = chosen.iter().map(|&c| self.cols[c].as_slice()).collect();
+        x.push(&self.cols[i]);
+        let fit = self.fit(&x)?;
+        let p = improvement_p_value(&self.block_gain(&cur.pred, &fit.pred));
+        let rel = 1.0 - self.rmse(&fit.pred) / self.rmse(&cur.pred).max(1e-300);
+        let d_bic = fit.bic - cur.bic;
+        Some(Scored {
+            cand: i,
+            fit,
+            p,
+            rel,
+            d_bic,
+        })
+    }
+
+    fn passes(&self, s: &Scored, level: f64) -> bool {
+        s.p < level && s.d_bic < self.rule.bic_threshold && s.rel >= self.rule.min_improvement
+    }
+
+    fn level(&self, step: usize) -> f64 {
+        self.rule.alpha / (self.cands.len() + 1).saturating_sub(step).max(1) as f64
+    }
+
+    fn field_name(&self, c: Cand) -> String {
+        match c {
+            Cand::Linear(f) | Cand::Step(f, _) => self.names[f].clone(),
+            Cand::Time => TIME_NAME.into(),
+        }
+    }
+
+    fn term(&self, s: &Scored, level: f64, verdict: String, coef: (f64, f64)) -> RestTerm {
+        let c = self.cands[s.cand];
+        let field = self.field_name(c);
+        let (k, se) = coef;
+        let (name, form, params) = match c {
+            Cand::Step(_, thr) => (
+                format!(
+                    "the rail's rest power switches with {field} (drawn while it reads above {thr:.4})"
+                ),
+                format!("P_rest += P_on·[{field} > {thr:.4}]"),
+                vec![Param {
+                    name: "load while the field reads above the threshold".into(),
+                    symbol: "P_on".into(),
+                    value: k,
+                    std_err: se,
+                    unit: "W".into(),
+                }],
+            ),
+            _ => {
+                let sp = span(&self.cols[s.cand]);
+                let dir = if k >= 0.0 {
+                    format!("rises with {field}")
+                } else {
+                    format!("falls as it rises: {field}")
+                };
+                (
+                    format!("the rail's rest power {dir}"),
+                    format!("P_rest += k·{field}"),
+                    vec![
+                        Param {
+                            name: "rest-power change over the field's 5–95 % range".into(),
+                            symbol: "ΔP".into(),
+                            value: k * sp,
+                            std_err: se * sp,
+                            unit: "W".into(),
+                        },
+                        Param {
+                            name: "rest power per unit of the field".into(),
+                            symbol: "k".into(),
+                            value: k,
+                            std_err: se,
+                            unit: "W per unit".into(),
+                        },
+                    ],
+                )
+            }
+        };
+        RestTerm {
+            name,
+            field,
+            form,
+            params,
+            p_value: s.p,
+            alpha: level,
+            delta_bic: s.d_bic,
+            rel_improvement: s.rel,
+            tied: Vec::new(),
+            verdict,
+        }
+    }
+}
+
+/// 5–95 % span of `v`.
+fn span(v: &[f64]) -> f64 {
+    let mut s: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
+    if s.is_empty() {
+        return 0.0;
+    }
+    s.sort_by(f64::total_cmp);
+    let q = |p: f64| s[((s.len() - 1) as f64 * p).round() as usize];
+    q(0.95) - q(0.05)
+}
+
+/// The step threshold of a field that switches between levels (as discovery's).
+fn step_threshold(v: &[f64]) -> Option<f64> {
+    let (lo, hi) = {
+        let mut s: Vec<f64> = v.to_vec();
+        s.sort_by(f64::total_cmp);
+        let q = |p: f64| s[((s.len() - 1) as f64 * p).round() as usize];
+        (q(0.05), q(0.95))
+    };
+    if hi - lo <= 0.0 {
+        return None;
+    }
+    let mid = v
+        .iter()
+        .filter(|&&x| x > lo + (hi - lo) / 3.0 && x < hi - (hi - lo) / 3.0)
+        .count();
+    (mid * 10 < v.len()).then_some(0.5 * (lo + hi))
+}
+
+/// Explain the trials' rest power with the fields at rest; `None` when there are too few trials
+/// with a baseline for the block test.
+pub(crate) fn rest_power(inp: &RestInputs, rule: &Rule) -> Option<RestPower> {
+    let trials: Vec<usize> = (0..inp.power.len())
+        .filter(|&t| inp.power[t].is_finite() && inp.start[t].is_finite())
+        .collect();
+    let n_blocks = trials.len() / BLOCK_TRIALS;
+    if n_blocks < MIN_BLOCKS {
+        return None;
+    }
+    let n = n_blocks * BLOCK_TRIALS;
+    let trials = &trials[..n];
+    let y: Vec<f64> = trials.iter().map(|&t| inp.power[t]).collect();
+    let block: Vec<usize> = (0..n).map(|r| r / BLOCK_TRIALS).collect();
+    let mut cols = Vec::new();
+    let mut cands = Vec::new();
+    for (f, vals) in inp.fields.iter().enumerate() {
+        if !inp.usable.get(f).copied().unwrap_or(false) {
+            continue;
+        }
+        let v: Vec<f64> = trials.iter().map(|&t| vals[t]).collect();
+        if v.iter().any(|x| !x.is_finite()) || span(&v) <= 0.0 {
+            continue;
+        }
+        if let Some(thr) = step_threshold(&v) {
+            cols.push(v.iter().map(|&x| f64::from(u8::from(x > thr))).collect());
+            cands.push(Cand::Step(f, thr));
+        }
+        cols.push(v);
+        cands.push(Cand::Linear(f));
+    }
+    cols.push(trials.iter().map(|&t| inp.start[t] / 3600.0).collect());
+    cands.push(Cand::Time);
+    let search = Search {
+        y,
+        block,
+        n_blocks,
+        cols,
+        cands,
+        names: inp.names,
+        rule: *rule,
+    };
+    let base = search.fit(&[])?;
+    let mut out = RestPower {
+        n_trials: n,
+        n_blocks,
+        n_candidates: search.cands.len(),
+        mean_w: search.y.iter().sum::<f64>() / n as f64,
+        rmse_before_w: search.rmse(&base.pred),
+        rmse_after_w: search.rmse(&base.pred),
+        ..Default::default()
+    };
+    let mut chosen: Vec<usize> = Vec::new();
+    let mut steps: Vec<(Scored, f64, Vec<String>)> = Vec::new();
+    let mut cur = base;
+    // The fields a candidate follows: its step and linear forms are one group.
+    let field_of = |i: usize| search.field_name(search.cands[i]);
+    for step in 1..=MAX_TERMS {
+        let level = search.level(step);
+        let mut passing = Vec::new();
+        let mut best_fail: Option<Scored> = None;
+        for i in 0..search.cands.len() {
+            if chosen.iter().any(|&c| field_of(c) == field_of(i)) {
+                continue;
+            }
+            let Some(s) = search.score(i, &chosen, &cur) else {
+                continue;
+            };
+            if search.passes(&s, level) {
+                passing.push(s);
+            } else if best_fail.as_ref().is_none_or(|b| s.rel > b.rel) {
+                best_fail = Some(s);
+            }
+        }
+        let best = (0..passing.len()).max_by(|&a, &b| passing[a].rel.total_cmp(&passing[b].rel));
+        if step == 1 && best.is_none() {
+            if let Some(f) = &best_fail {
+                let verdict = format!(
+                    "rejected: p = {:.1e} {} {:.1e} (Holm); ΔBIC = {:.1}; held-out RMSE improves by {:.1} %",
+                    f.p,
+                    if f.p < level { "<" } else { "≥" },
+                    level,
+                    f.d_bic,
+                    100.0 * f.rel
+                );
+                let k = f.fit.coef.last().copied().unwrap_or(f64::NAN);
+                out.best_rejected = Some(search.term(f, level, verdict, (k, f64::NAN)));
+            }
+        }
+        let Some(b) = best else { break };
+        let b = passing.swap_remove(b);
+        // Rivals: other fields that pass here and do not fit significantly worse. They stay
+        // open (tried beside it at the next step: a second load passes there, a stand-in not).
+        let mut tied: Vec<(f64, String)> = passing
+            .iter()
+            .filter(|s| field_of(s.cand) != field_of(b.cand))
+            .filter(|s| {
+                let p = improvement_p_value(&search.block_gain(&s.fit.pred, &b.fit.pred));
+                p >= rule.alpha || p.is_nan()
+            })
+            .map(|s| (search.rmse(&s.fit.pred), field_of(s.cand)))
+            .collect();
+        tied.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut names: Vec<String> = Vec::new();
+        for (_, f) in tied {
+            if !names.contains(&f) {
+                names.push(f);
+            }
+        }
+        chosen.push(b.cand);
+        cur = Fit {
+            pred: b.fit.pred.clone(),
+            fold_coef: b.fit.fold_coef.clone(),
+            coef: b.fit.coef.clone(),
+            bic: b.fit.bic,
+        };
+        steps.push((b, level, names));
+    }
+    // A rival found later as a term of its own is not a tie of the earlier ones.
+    let found_fields: Vec<String> = chosen.iter().map(|&c| field_of(c)).collect();
+    for (k, (s, level, tied)) in steps.iter().enumerate() {
+        let coef = cur.coef[k + 1];
+        let se = jackknife_se(&cur.fold_coef.iter().map(|c| c[k + 1]).collect::<Vec<_>>());
+        let verdict = format!(
+            "accepted: held-out RMSE −{:.1} % (p = {:.1e} < {:.1e} by blocks of {BLOCK_TRIALS} trials, Holm over {} candidates), ΔBIC = {:.1}",
+            100.0 * s.rel,
+            s.p,
+            level,
+            search.cands.len(),
+            s.d_bic
+        );
+        let mut t = search.term(s, *level, verdict, (coef, se));
+        t.tied = tied
+            .iter()
+            .filter(|f| !found_fields.contains(f))
+            .cloned()
+            .collect();
+        out.found.push(t);
+    }
+    out.rmse_after_w = search.rmse(&cur.pred);
+    Some(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rule() -> Rule {
+        Rule {
+            alpha: 1e-3,
+            bic_threshold: -10.0,
+            min_improvement: 0.02,
+        }
+    }
+
+    /// A fan stepping between levels between trials, a drifting rest power, two unrelated
+    /// fields and a copy of the fan's level with noise.
+    fn inputs(fan_w: f64, seed: u64) -> (Vec<f64>, Vec<f64>, Vec<Vec<f64>>, Vec<String>) {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let n = 600;
+        let mut drift: f64 = 0.0;
+        let mut fan = 2000.0;
+        let (mut p, mut t, mut f0, mut f1, mut f2) = (vec![], vec![], vec![], vec![], vec![]);
+        for i in 0..n {
+            drift = 0.95 * drift + 0.1 * (rng.random::<f64>() - 0.5);
+            if rng.random::<f64>() < 0.01 {
+                fan = [1800.0, 2600.0, 3400.0, 4200.0][rng.random_range(0..4usize)];
+            }
+            let load = fan_w * (fan / 4200.0f64).powi(3);
+            p.push(120.0 + drift + load + 0.2 * (rng.random::<f64>() - 0.5));
+            t.push(13.0 * i as f64);
+            f0.push(fan + 10.0 * (rng.random::<f64>() - 0.5));
+            f1.push(30.0 + rng.random::<f64>());
+            f2.push((i as f64 * 0.37).sin());
+        }
+        let names = vec!["/mb.fan".to_string(), "/x.a".into(), "/x.b".into()];
+        (p, t, vec![f0, f1, f2], names)
+    }
+
+    #[test]
+    fn a_fan_stepping_between_trials_is_found_and_nothing_on_a_quiet_rail() {
+        let (p, t, fields, names) = inputs(5.0, 1);
+        let inp = RestInputs {
+            power: &p,
+            start: &t,
+            fields,
+            names: &names,
+            usable: vec![true; 3],
+        };
+        let r = rest_power(&inp, &rule()).unwrap();
+        assert_eq!(r.found.len(), 1, "{r:?}");
+        assert_eq!(r.found[0].field, "/mb.fan");
+        assert!(r.rmse_after_w < 0.5 * r.rmse_before_w, "{r:?}");
+        let (p, t, fields, names) = inputs(0.0, 2);
+        let inp = RestInputs {
+            power: &p,
+            start: &t,
+            fields,
+            names: &names,
+            usable: vec![true; 3],
+        };
+        let r = rest_power(&inp, &rule()).unwrap();
+        assert!(r.found.is_empty(), "{r:?}");
+    }
+}
