@@ -23,20 +23,32 @@ def main(argv=None):
     g.add_argument("--effects", default="", help="comma list: thermal,braking,latency,payload,bus_power,"
                                                   "electronics_nm,gear_friction,grease,rail_load (or null)")
     g.add_argument("--zstd-level", type=int, default=1)
+    g.add_argument("--expect", action="store_true", help="also write NAME.expect.json for `check`")
+    g.add_argument("--set", action="append", default=[], metavar="EFFECT.PARAM=VALUE",
+                   help="override an effect parameter, e.g. bus_power.R_bus_ohm=0.05 (recorded in the truth)")
+    k = sub.add_parser("check", help="read DIR/NAME.mcap back with mcap_ros2 and compare")
+    k.add_argument("base", nargs="+", help="DIR/NAME (no extension)")
+    k.add_argument("--full", action="store_true", help="walk every message (order, sequence, CRC)")
     s = sub.add_parser("suite", help="the 14-session suite NN_<effects>.mcap")
     s.add_argument("--out", required=True)
     s.add_argument("--hours", type=float, default=4.4)
     s.add_argument("--zstd-level", type=int, default=1)
+    s.add_argument("--expect", action="store_true")
     sub.add_parser("selftest", help="RNEA / energy / CDR checks")
     a = ap.parse_args(argv)
     from .session import generate
     if a.cmd == "selftest":
         from .selftest import main as st
         st()
+    elif a.cmd == "check":
+        from .check import check
+        ok = all([check(b.removesuffix(".mcap"), full=a.full) for b in a.base])
+        return 0 if ok else 1
     elif a.cmd == "generate":
         eff = [x for x in a.effects.replace("+", ",").split(",") if x and x != "null"]
         t0 = time.time()
-        tr = generate(a.out, a.seed, hours=a.hours, effects=eff, n_trials=a.trials, zstd_level=a.zstd_level)
+        tr = generate(a.out, a.seed, hours=a.hours, effects=eff, n_trials=a.trials, zstd_level=a.zstd_level,
+                      expect=a.expect, overrides={k: json.loads(v) for k, v in (x.split("=", 1) for x in a.set)})
         print(f"{a.out}.mcap: {tr['session']['n_trials']} trials, {tr['session']['duration_s']:.0f} s, "
               f"{sum(tr['message_counts'].values())} messages, effects={list(tr['effects']) or 'none'}, "
               f"{time.time() - t0:.1f} s ({json.dumps(tr['timings_s'])})")
@@ -47,7 +59,7 @@ def main(argv=None):
             effs = [] if eff == "null" else eff.split(",")
             t0 = time.time()
             tr = generate(os.path.join(a.out, name), seed, hours=a.hours, effects=effs, zstd_level=a.zstd_level,
-                          preset="suite")
+                          preset="suite", expect=a.expect)
             print(f"{name}: seed {seed}, {tr['session']['n_trials']} trials, {tr['session']['duration_s']:.0f} s, "
                   f"{time.time() - t0:.1f} s", flush=True)
 

@@ -66,9 +66,9 @@ PLANT = {
                 "dt_s": 1.0},
     "battery": {"cells": 13, "capacity_Wh": 1100.0, "soc_start": [0.95, 0.99],
                 "ocv_cell_V": "3.30 + 0.85*soc", "R_pack_ohm": 0.1, "R_harness_ohm": 0.03},
-    "board": {"tau_s": 600.0, "K_per_W": 0.12, "ou_sigma_K": 1.5, "ou_tau_s": 1200.0,
+    "board": {"tau_s": 300.0, "K_per_W": 0.12, "ou_sigma_K": 2.0, "ou_tau_s": 900.0,
               "fan_levels_rpm": [1800, 2400, 3000, 3600, 4200],
-              "up_thresholds_C": [38.0, 40.5, 43.0, 45.5], "hysteresis_K": 1.5},
+              "up_thresholds_C": [37.5, 39.5, 41.5, 43.5], "hysteresis_K": 1.0},
     "standing": "legs/waist/right arm fixed posture; q quantised 2pi/32768, dq 0.002, tau 0.01",
 }
 
@@ -118,14 +118,23 @@ def quat_from_rpy(r, p, y):
                      cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy], 1)
 
 
-def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1, preset="indgen"):
+def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1, preset="indgen", expect=False,
+             expect_every=997, overrides=None):
+    """Write out_base.mcap and out_base.truth.json. With expect=True also out_base.expect.json: the
+    values meant for a sample of messages (every `expect_every`-th 100 Hz message, every 20th 1 Hz
+    reading), for `python3 -m indgen check`."""
     t_wall = time.time()
     effects = [e for e in effects if e]
     for e in effects:
         if e not in EFFECTS:
             raise SystemExit(f"unknown effect {e!r}; known: {', '.join(EFFECTS)}")
     on = {e: (e in effects) for e in EFFECTS}
-    P = {e: EFFECTS[e]["params"] for e in EFFECTS}
+    P = {e: dict(EFFECTS[e]["params"]) for e in EFFECTS}
+    for k, v in (overrides or {}).items():
+        en, pn = k.split(".", 1)
+        if en not in P or pn not in P[en]:
+            raise SystemExit(f"unknown effect parameter {k!r}")
+        P[en][pn] = v
     rng = np.random.default_rng(seed)
     rng_noise = np.random.default_rng([seed, 7])
 
@@ -275,6 +284,7 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
         return blk, ls, cm
 
     pair_cache = {}
+    exp = {"lowstate": [], "arm_sdk": [], "mbs": [], "bms": []}
     timing = {"physics_s": 0.0, "serialise_s": 0.0, "write_s": 0.0}
 
     a_ = a
@@ -286,7 +296,8 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
         tb = kk * DT
         q_cmd, qd_cmd, _ = evaluate(segs, tb)
         q, qd, qdd = evaluate(segs, tb - PLANT["tracking_lag_s"])
-        tau = model.rnea(q, qd, qdd) + Fc * np.tanh(qd / 0.01) + Fv * qd
+        fric = Fc * np.tanh(qd / 0.01) + Fv * qd
+        tau = model.rnea(q, qd, qdd) + fric
         tau2 = tau * tau
         aqd = np.abs(qd)
         mech = tau * qd
@@ -334,6 +345,12 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
         pair = 0.5 * aqd * (aqd @ E)     # per joint: half its pair terms
         # (sum over i of half of sum_j e_ij|qd_i||qd_j| = sum_{i<j} e_ij |qd_i||qd_j|)
         net = (p_mech + p_cu + p_coul + p_visc + pair).sum(1)
+        if on["payload"]:
+            # the same motion without the payload: the payload's power is the difference
+            tau_n = model0.rnea(q, qd, qdd) + fric
+            net_nom = (a_ * tau_n * qd + b * (tau_n * tau_n - tau_home ** 2) + p_coul + p_visc + pair).sum(1)
+        else:
+            net_nom = net
         # --- effects ---
         eff = {}
         el_i = p_mech + b * tau2 + p_coul + p_visc + pair  # gross per-joint electrical input
@@ -361,6 +378,8 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
         fanP = np.array([fan_power(l) for l in range(len(fan_rpm))])[fan_bin][rep]
         if on["rail_load"]:
             eff["rail_load"] = fanP
+        if on["payload"]:
+            eff["payload"] = net - net_nom  # incl. the extra holding (copper) power at home
         # artefacts
         ti = np.clip(np.searchsorted(t_start, tb, side="right") - 1, 0, nT - 1)
         u = (tb - t_ts[ti]) / (t_te[ti] + 0.5 - t_ts[ti])
@@ -374,7 +393,7 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
         drift = rest_drift[s_idx] * (1 - fr) + rest_drift[np.minimum(s_idx + 1, nS - 1)] * fr
         bou = bms_ou[s_idx] * (1 - fr) + bms_ou[np.minimum(s_idx + 1, nS - 1)] * fr
         eff_sum = sum(eff.values()) if eff else np.zeros(n)
-        base_rail = PLANT["P_rest_W"] + drift + net + eff_sum + leak + outlier
+        base_rail = PLANT["P_rest_W"] + drift + net_nom + eff_sum + leak + outlier
         # battery / bus voltage (sag with load through the pack resistance), causal charge
         ocv = 13 * (3.30 + 0.85 * soc)
         p_bms_nobus = base_rail + PLANT["bms_offset_W"] + bou
@@ -417,7 +436,7 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
         in_pre = (tb >= t_start[ti]) & (tb < t_ts[ti])
         wt = in_traj.astype(float)
         acc["n"] += np.bincount(ti, wt, nT)
-        acc["net"] += np.bincount(ti, wt * net, nT)
+        acc["net"] += np.bincount(ti, wt * net_nom, nT)
         acc["eff"] += np.bincount(ti, wt * eff_sum, nT)
         acc["leak"] += np.bincount(ti, wt * leak, nT)
         acc["fan"] += np.bincount(ti, wt * fanP, nT)
@@ -525,6 +544,33 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
         bf.manufacturer_date[:] = 2507
         timing["serialise_s"] += time.time() - ts0
 
+        if expect:
+            for i in np.nonzero(kk % expect_every == 0)[0]:
+                exp["lowstate"].append({
+                    "log_time": int(ls_ns[i]), "sequence": int(kk[i]), "tick": int(ls.tick[i]),
+                    "q_arm": ls.q[i, ARM_SDK].tolist(), "dq_arm": ls.dq[i, ARM_SDK].tolist(),
+                    "tau_arm": ls.tau[i, ARM_SDK].tolist(), "temp_arm": ls.temp[i, ARM_SDK].tolist(),
+                    "vol": ls.vol[i, :29].tolist(), "q_all": ls.q[i].tolist(), "tau_all": ls.tau[i].tolist(),
+                    "gyro": ls.gyro[i].tolist(), "acc": ls.acc[i].tolist(), "quat": ls.quat[i].tolist(),
+                    "rpy": ls.rpy[i].tolist(), "imu_temp": int(ls.imu_temp[i]), "crc": int(ls.crc[i]),
+                    "true": {"q": q[i].tolist(), "qd": qd[i].tolist(), "tau": tau[i].tolist(),
+                             "Tw": Tw[i].tolist(), "Th": Th[i].tolist(), "V_bus": float(V_bus[i]),
+                             "rail_W": float(rail[i])}})
+                exp["arm_sdk"].append({"log_time": int(cm_ns[i]), "sequence": int(kk[i]),
+                                       "q_arm": cm.q[i, ARM_SDK].tolist(), "dq_arm": cm.dq[i, ARM_SDK].tolist(),
+                                       "crc": int(cm.crc[i]), "true_q_cmd": q_cmd[i].tolist()})
+            for i in range(nm):
+                if (seq["mbs"] - nm + i) % 20 == 0:
+                    exp["mbs"].append({"log_time": int(mbs_ns[m_sel][i]), "sequence": int(seq["mbs"] - nm + i),
+                                       "value": mf.value[i].tolist(), "fan_state": mf.fan_state[i].tolist(),
+                                       "temperature": mf.temperature[i].tolist(),
+                                       "true_avg_W": float(P_mbs_read[i])})
+            for i in range(nbm):
+                if (seq["bms"] - nbm + i) % 20 == 0:
+                    exp["bms"].append({"log_time": int(bms_ns[b_sel][i]), "sequence": int(seq["bms"] - nbm + i),
+                                       "bmsvoltage0": int(bf.bmsvoltage[i, 0]), "current": int(bf.current[i]),
+                                       "soc": int(bf.soc[i]), "cell_vol": bf.cell_vol[i, :13].tolist(),
+                                       "temperature": bf.temperature[i, :4].tolist()})
         # --- chunks: pairs + 1 Hz messages merged in time order ---
         tw0 = time.time()
         rare_t = np.concatenate([mbs_ns[m_sel], bms_ns[b_sel]])
@@ -616,7 +662,7 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
             "effect_power_traj_mean_W": round(float(eff_mean), 4),
             "effect_power_net_traj_mean_W": round(float(eff_mean - acc["eff_pre"][i] / npre[i]), 4),
             "effect_power_by_effect_traj_mean_W": {k: round(float(acc[f"eff_{k}"][i] / nn[i]), 4)
-                                                   for k in EFFECTS if on[k] and k != "latency" and k != "payload"},
+                                                   for k in EFFECTS if on[k] and k != "latency"},
             "leak_power_traj_mean_W": round(float(acc["leak"][i] / nn[i]), 4),
             "winding_temp_traj_mean_C": [round(float(v), 2) for v in acc_Tw[i] / nn[i]],
             "housing_temp_traj_mean_C": [round(float(v), 2) for v in acc_Th[i] / nn[i]],
@@ -627,7 +673,9 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
     vec = list(a) + list(b) + list(c) + list(d) + [e[f"{i},{j}"] for i in range(7) for j in range(i + 1, 7)]
     eff_out = {}
     for k in effects:
-        eff_out[k] = {"params": EFFECTS[k]["params"], "formula": EFFECTS[k]["formula"]}
+        eff_out[k] = {"params": P[k], "formula": EFFECTS[k]["formula"], "why": EFFECTS[k]["why"]}
+        if any(x.startswith(k + ".") for x in (overrides or {})):
+            eff_out[k]["overridden_from_default"] = EFFECTS[k]["params"]
     if on["payload"]:
         eff_out["payload"]["tau_home_with_payload_Nm"] = tau_home_p.tolist()
     if on["rail_load"]:
@@ -684,4 +732,7 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
     }
     with open(out_base + ".truth.json", "w") as f:
         json.dump(truth, f, indent=1)
+    if expect:
+        with open(out_base + ".expect.json", "w") as f:
+            json.dump(exp, f)
     return truth
