@@ -74,8 +74,8 @@ PLANT = {
 
 CONTAM = {"target_fraction": 0.1, "amplitude_range_rad_s": [0.05, 0.3], "freq_range_hz": [1.0, 2.0],
           "k_leak_W_per_(rad/s)^2": 55.55555555555556,
-          "model": "sway gyro (x, 0.4 on y) = A*env(t)*sin(2 pi f (t-t_traj_start)), env = sin^2 over "
-                   "[traj start, traj end + 0.5 s]; MBS leak = k_leak*|sway|^2; probability ~ speed^1.5 * "
+          "model": "sway = A*env(t)*sin(2 pi f (t-t_traj_start)), env = sin^2 over [traj start, traj end + "
+                   "0.5 s]; gyro x += sway, gyro y += 0.4 sway; MBS leak = k_leak*sway^2; probability ~ speed^1.5 * "
                    "joints^0.8 scaled to the target fraction"}
 OUTL = {"target_fraction": 0.015, "step_W": [10.0, 20.0], "duration_s": [2.0, 5.0],
         "model": "step added to the MBS rail power, starting uniformly inside the trajectory"}
@@ -307,6 +307,7 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
         bin_len = np.diff(np.append(bins, n))
         tau2_bin = np.add.reduceat(tau2, bins, axis=0) / bin_len[:, None]
         fric_bin = np.add.reduceat(c * aqd + d * qd * qd, bins, axis=0) / bin_len[:, None]
+        Tb_bin = np.empty(nb)
         Tw_bin = np.empty((nb, 7))
         Th_bin = np.empty((nb, 7))
         fan_bin = np.empty(nb, int)
@@ -323,6 +324,7 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
                 fan_level -= 1
                 fan_changes += 1
             fan_bin[j] = fan_level
+            Tb_bin[j] = T_b
             dt = bin_len[j] * DT
             r_T = 1.0 + ALPHA_CU * (T_w - 25.0) if on["thermal"] else 1.0
             P_w = P_idle_w + b * r_T * tau2_bin[j]
@@ -471,8 +473,8 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
         ls.tick[:] = (tick0 + kk * 10) & 0xFFFFFFFF
         # IMU: standing pelvis with balance sway on contaminated trials
         yaw = 0.35 + yaw_drift[s_idx]
-        roll = 0.004 - sway / (2 * np.pi * np.maximum(c_f[ti], 1e-3)) * 0.0 + \
-            np.where(inwin, -c_amp[ti] * np.sin(np.pi * np.clip(u, 0, 1)) ** 2 *
+        # roll angle of the sway = integral of the roll rate (slowly varying envelope)
+        roll = 0.004 + np.where(inwin, -c_amp[ti] * np.sin(np.pi * np.clip(u, 0, 1)) ** 2 *
                      np.cos(2 * np.pi * c_f[ti] * (tb - t_ts[ti])) / (2 * np.pi * c_f[ti]), 0.0)
         pitch = 0.015 + 0.4 * (roll - 0.004)
         ls.rpy[:, 0] = roll
@@ -522,9 +524,9 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
         lvl = fan_bin[rep[mi]]
         mf.fan_state[:, 0] = np.round(fan_rpm[lvl] + rng_noise.normal(0, 5, nm))
         mf.fan_state[:, 1] = np.round(fan_rpm[lvl] * 0.985 + rng_noise.normal(0, 5, nm))
-        tbm = T_b  # board temperature of this block (1 K steps anyway)
-        mf.temperature[:, 0] = int(round(tbm))
-        mf.temperature[:, 1] = int(round(tbm - 3))
+        tbm = Tb_bin[rep[mi]]  # board temperature at the reading
+        mf.temperature[:, 0] = np.round(tbm).astype(np.int16)
+        mf.temperature[:, 1] = np.round(tbm - 3).astype(np.int16)
         bblk = cdr.Block(nbm, BMS_REC)
         bblk.header(0, chan["bms"], cdr.BMS_BODY, np.arange(seq["bms"], seq["bms"] + nbm), bms_ns[b_sel])
         seq["bms"] += nbm
@@ -698,6 +700,9 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
         "fan_level_changes": int(fan_changes),
         "fan_level_time_fraction": np.bincount(fan_all, minlength=len(fan_rpm)).astype(float).__truediv__(len(fan_all)).round(4).tolist(),
         "sensor_latency_s": L,
+        "thermal_affects_power": on["thermal"],
+        "housing_temp_affects_power": on["grease"],
+        "fan_on_mbs_rail": on["rail_load"],
     })
     import mcap
     import zstandard
