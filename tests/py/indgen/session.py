@@ -193,6 +193,12 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
     # sensor clocks (each free running)
     mbs_t = sensor_clock(rng, T_sess - 0.02, rng.uniform(0.6, 1.4))
     bms_t = sensor_clock(rng, T_sess - 0.02, rng.uniform(0.6, 1.4))
+    # a reading within 0.2 ms of a block boundary is nudged just past it, so that it sorts after the
+    # (jittered, |j| <= 0.15 ms) last messages of the block it is written with
+    for arr in (mbs_t, bms_t):
+        bnd = np.round(arr / (BLOCK * DT)) * (BLOCK * DT)
+        near = (np.abs(arr - bnd) < 2e-4) & (bnd > 0)
+        arr[near] = bnd[near] + 2e-4
     W = PLANT["sensor"]["avg_window_s"]
     L = P["latency"]["L_s"] if on["latency"] else 0.0
 
@@ -409,7 +415,8 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
         rail = base_rail + (eff["bus_power"] if on["bus_power"] else 0.0)
         p_bms = rail + PLANT["bms_offset_W"] + bou
         soc = soc - p_bms.sum() * DT / 3600.0 / bat["capacity_Wh"]
-        last_rail_W = float(rail[-100:].mean()) + fanP[-1]
+        # board heating: the rail's load without the fan, plus the fan's own power (either way)
+        last_rail_W = float((rail - (fanP if on["rail_load"] else 0.0))[-100:].mean()) + fanP[-1]
         # --- sensor readings in this block ---
         t_all = np.concatenate([tail_t, tb])
         cs_m = np.concatenate([[0.0], np.cumsum(np.concatenate([tail_mbs, rail]))])
