@@ -41,10 +41,11 @@ def theta_truth():
 
 PLANT = {
     "P_rest_W": 120.0,
-    "rest_drift": {"sigma_W": 0.3, "tau_s": 300.0},
+    "rest_drift": "OU sigma 0.3 W, tau 300 s",
+    "rest_drift_params": {"sigma_W": 0.3, "tau_s": 300.0},
     "bms_offset_W": 15.0,
     "bms_ou": {"sigma_W": 2.0, "tau_s": 30.0},
-    "friction_in_tau": {"coulomb_Nm": [0.45, 0.4, 0.3, 0.35, 0.22, 0.2, 0.2],
+    "joint_friction_in_tau": {"coulomb_Nm": [0.45, 0.4, 0.3, 0.35, 0.22, 0.2, 0.2],
                         "viscous_Nms": [0.18, 0.15, 0.12, 0.12, 0.07, 0.06, 0.05],
                         "form": "Fc*tanh(qd/0.01) + Fv*qd"},
     "tracking_lag_s": 0.01,
@@ -72,7 +73,7 @@ PLANT = {
     "standing": "legs/waist/right arm fixed posture; q quantised 2pi/32768, dq 0.002, tau 0.01",
 }
 
-CONTAM = {"target_fraction": 0.1, "amplitude_range_rad_s": [0.05, 0.3], "freq_range_hz": [1.0, 2.0],
+CONTAM = {"target_fraction": 0.1, "amplitude_scale": 1.0, "amplitude_range_rad_s": [0.05, 0.3], "freq_range_hz": [1.0, 2.0],
           "k_leak_W_per_(rad/s)^2": 55.55555555555556,
           "model": "sway = A*env(t)*sin(2 pi f (t-t_traj_start)), env = sin^2 over [traj start, traj end + "
                    "0.5 s]; gyro x += sway, gyro y += 0.4 sway; MBS leak = k_leak*sway^2; probability ~ speed^1.5 * "
@@ -150,8 +151,8 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
     for k, v in e.items():
         i, j = map(int, k.split(","))
         E[i, j] = E[j, i] = v
-    Fc = np.array(PLANT["friction_in_tau"]["coulomb_Nm"])
-    Fv = np.array(PLANT["friction_in_tau"]["viscous_Nms"])
+    Fc = np.array(PLANT["joint_friction_in_tau"]["coulomb_Nm"])
+    Fv = np.array(PLANT["joint_friction_in_tau"]["viscous_Nms"])
 
     # ---- protocol ---------------------------------------------------------------------------
     routes = make_routes(rng)
@@ -183,7 +184,8 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
 
     # 1 Hz slow series over the whole session
     nS = int(T_sess) + 3
-    rest_drift = ou_series(rng, nS, 1.0, PLANT["rest_drift"]["sigma_W"], PLANT["rest_drift"]["tau_s"])
+    rest_drift = ou_series(rng, nS, 1.0, PLANT["rest_drift_params"]["sigma_W"],
+                            PLANT["rest_drift_params"]["tau_s"])
     bms_ou = ou_series(rng, nS, 1.0, PLANT["bms_ou"]["sigma_W"], PLANT["bms_ou"]["tau_s"])
     board_ou = ou_series(rng, nS, 1.0, PLANT["board"]["ou_sigma_K"], PLANT["board"]["ou_tau_s"])
     yaw_drift = np.cumsum(rng.normal(0, 2e-5, nS))
@@ -690,6 +692,9 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
     if on["rail_load"]:
         eff_out["rail_load"]["fan_level_changes"] = int(fan_changes)
     plant = json.loads(json.dumps(PLANT))
+    plant["thermal"].update({"winding_temp_range_C": [round(float(Tw_range[0]), 2), round(float(Tw_range[1]), 2)],
+                             "housing_temp_range_C": [round(float(Th_range[0]), 2), round(float(Th_range[1]), 2)],
+                             "affects_power": on["thermal"] or on["grease"]})
     plant.update({
         "rail_power": "P_mbs = P_rest + drift + sum_i[a_i tau_i qd_i + b_i (tau_i^2 - tau_home_i^2) + c_i|qd_i| + "
                       "d_i qd_i^2] + sum_{i<j} e_ij |qd_i||qd_j| + effects + contamination leak + outlier steps; "
@@ -707,6 +712,7 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
         "fan_level_changes": int(fan_changes),
         "fan_level_time_fraction": np.bincount(fan_all, minlength=len(fan_rpm)).astype(float).__truediv__(len(fan_all)).round(4).tolist(),
         "sensor_latency_s": L,
+        "sensor_window_end_before_timestamp_s": L,
         "thermal_affects_power": on["thermal"],
         "housing_temp_affects_power": on["grease"],
         "fan_on_mbs_rail": on["rail_load"],
