@@ -387,19 +387,22 @@ pub(crate) fn rest_power(inp: &RestInputs, rule: &Rule) -> Option<RestPower> {
             }
         }
         let best = (0..passing.len()).max_by(|&a, &b| passing[a].rel.total_cmp(&passing[b].rel));
-        if step == 1 && best.is_none() {
-            if let Some(f) = &best_fail {
-                let verdict = format!(
-                    "rejected: p = {:.1e} {} {:.1e} (Holm); ΔBIC = {:.1}; held-out RMSE improves by {:.1} %",
-                    f.p,
-                    if f.p < level { "<" } else { "≥" },
-                    level,
-                    f.d_bic,
-                    100.0 * f.rel
-                );
-                let k = f.fit.coef.last().copied().unwrap_or(f64::NAN);
-                out.best_rejected = Some(search.term(f, level, verdict, (k, f64::NAN)));
-            }
+        if step == 1
+            && best.is_none()
+            && let Some(f) = &best_fail
+        {
+            let verdict = format!(
+                "rejected: p = {:.1e} {} {:.1e} (Holm); ΔBIC = {:.1}; held-out RMSE improves by {:.1} %",
+                f.p,
+                if f.p < level { "<" } else { "≥" },
+                level,
+                f.d_bic,
+                100.0 * f.rel
+            );
+            let j = f.fit.coef.len() - 1;
+            let k = f.fit.coef[j];
+            let se = jackknife_se(&f.fit.fold_coef.iter().map(|c| c[j]).collect::<Vec<_>>());
+            out.best_rejected = Some(search.term(f, level, verdict, (k, se)));
         }
         let Some(b) = best else { break };
         let b = passing.swap_remove(b);
@@ -506,6 +509,9 @@ mod tests {
         assert_eq!(r.found.len(), 1, "{r:?}");
         assert_eq!(r.found[0].field, "/mb.fan");
         assert!(r.rmse_after_w < 0.5 * r.rmse_before_w, "{r:?}");
+        // diagnosis.json reads back (a NaN would be written as null).
+        let back: RestPower = serde_json::from_str(&serde_json::to_string(&r).unwrap()).unwrap();
+        assert_eq!(back.found.len(), 1);
         let (p, t, fields, names) = inputs(0.0, 2);
         let inp = RestInputs {
             power: &p,
@@ -516,5 +522,7 @@ mod tests {
         };
         let r = rest_power(&inp, &rule()).unwrap();
         assert!(r.found.is_empty(), "{r:?}");
+        let back: RestPower = serde_json::from_str(&serde_json::to_string(&r).unwrap()).unwrap();
+        assert!(back.best_rejected.is_some());
     }
 }
