@@ -157,11 +157,18 @@ fn twin() -> DiagnoseOptions {
     }
 }
 
-/// Everything a diagnosis claims: accepted library hypotheses and terms found beyond it.
+/// Everything a diagnosis claims: accepted library hypotheses, terms found beyond it and loads
+/// found on the rest power.
 fn claims(d: &diagnose::Diagnosis) -> Vec<String> {
     let mut c: Vec<String> = d.accepted.iter().map(|h| h.id.clone()).collect();
     if let Some(r) = &d.discovery {
         c.extend(r.accepted.iter().map(|t| format!("found: {}", t.name)));
+        c.extend(
+            r.rest
+                .iter()
+                .flat_map(|r| &r.found)
+                .map(|t| format!("rest: {}", t.name)),
+        );
     }
     c
 }
@@ -450,4 +457,15 @@ fn paper_scale_fan_load_is_found_on_the_board_field() {
     within_10_percent(&p.symbol, p.value, watts);
     common::assert_figure(&p.symbol, p.value, "2.95");
     common::assert_figure(&format!("{} s.e.", p.symbol), p.std_err, "0.026");
+    // The fan is on or off in each trial's pre-idle too: the rest power steps with it.
+    let rest = d
+        .discovery
+        .as_ref()
+        .and_then(|r| r.rest.as_ref())
+        .expect("rest power");
+    println!("rest: {rest:?}");
+    assert_eq!(rest.found.len(), 1, "{rest:?}");
+    assert_eq!(rest.found[0].field, "/lf/mainboardstate.fan_state[1]");
+    let p = &rest.found[0].params[0];
+    within_10_percent(&format!("rest {}", p.symbol), p.value, watts);
 }

@@ -60,7 +60,7 @@ use crate::robot::{ArmDynamics, RobotModel};
 use crate::signals::Recording;
 use outcome::{locate_residuals, rank_hypotheses, refit_final, rescale_bus};
 use reduce::{InMemory, SessionInfo, Streamed, TrialSamples};
-use replay::{replay_data, show_found};
+use replay::{replay_data, show_found, show_rest};
 use select::Rule;
 use select_discover::select_and_discover;
 use stages::{coarse_lags, filter_trials, lag_scan, remove_trials, scan_lags, trial_rows};
@@ -314,6 +314,7 @@ fn run(
         rescale_bus(&mut diag, v);
     }
     show_found(&mut diag, &fields, data.rows0(), &metas);
+    show_rest(&mut diag, &fields, data.rows0(), &metas);
     diag.summary = summary::summarise(&diag);
     Ok(diag)
 }

@@ -28,6 +28,14 @@ pub struct ReplayData {
     /// the residual.
     #[serde(default)]
     pub located: Vec<LocatedField>,
+    /// Rest power of each reading's trial (its pre-idle mean) [W], when terms were found on it
+    /// (empty otherwise). For the viewer only: `diagnosis.json` has the terms
+    /// (`discovery.rest`), and a trial the rest-power stage could not use has no value (NaN).
+    #[serde(skip)]
+    pub rest_w: Vec<f64>,
+    /// Held-out rest power of each reading's trial with the terms found on it [W] (viewer only).
+    #[serde(skip)]
+    pub rest_found_w: Vec<f64>,
 }
 
 /// A recorded field a found term follows, sampled on the readings' windows.
@@ -105,6 +113,71 @@ pub(crate) fn replay_data(
         highlighted,
         found_w: Vec::new(),
         located: Vec::new(),
+        rest_w: Vec::new(),
+        rest_found_w: Vec::new(),
+    }
+}
+
+/// Trials marked where the rest power steps most with its found terms.
+const REST_MARKED: usize = 5;
+
+/// Stage: what the replay shows of the loads found on the rest power: each trial's rest power
+/// and its prediction per reading, the fields they follow beside them, and the trials where the
+/// predicted rest power steps most.
+pub(crate) fn show_rest(d: &mut Diagnosis, f: &RowFields, rows: &Rows, metas: &[TrialMeta]) {
+    let Some(rest) = d.discovery.as_ref().and_then(|r| r.rest.as_ref()) else {
+        return;
+    };
+    if rest.found.is_empty() || rest.trial_pred.len() != metas.len() {
+        return;
+    }
+    let at = |v: &[f64]| -> Vec<f64> {
+        rows.trial
+            .iter()
+            .map(|&t| v.get(t).copied().unwrap_or(f64::NAN))
+            .collect()
+    };
+    d.replay.rest_w = at(&f.base_power);
+    d.replay.rest_found_w = at(&rest.trial_pred);
+    for t in &rest.found {
+        if let Some(k) = f.table.names.iter().position(|n| n == &t.field)
+            && !d.replay.located.iter().any(|l| l.name == t.field)
+        {
+            let vals = &f.table.values[k];
+            d.replay.located.push(LocatedField {
+                name: t.field.clone(),
+                values: f.row_window.iter().map(|&w| vals[w]).collect(),
+            });
+        }
+    }
+    // Steps of the predicted rest power between consecutive trials that have one.
+    let mut steps: Vec<(usize, f64)> = Vec::new();
+    let mut prev: Option<f64> = None;
+    for (t, &p) in rest.trial_pred.iter().enumerate() {
+        if !p.is_finite() {
+            continue;
+        }
+        if let Some(q) = prev {
+            steps.push((t, p - q));
+        }
+        prev = Some(p);
+    }
+    steps.sort_by(|a, b| b.1.abs().total_cmp(&a.1.abs()));
+    let names: Vec<&str> = rest.found.iter().map(|t| t.field.as_str()).collect();
+    for &(t, step) in steps.iter().take(REST_MARKED) {
+        let w = &metas[t].window;
+        if d.replay.highlighted.iter().any(|h| h.trial == w.index) {
+            continue;
+        }
+        d.replay.highlighted.push(HighlightedTrial {
+            trial: w.index,
+            t_start: w.t_pre_start,
+            t_end: w.t_traj_start,
+            reason: format!(
+                "rest power steps {step:+.2} W from the trial before, with {}",
+                names.join(", ")
+            ),
+        });
     }
 }
 

@@ -43,6 +43,10 @@ pub struct RestPower {
     pub found: Vec<RestTerm>,
     /// The best candidate not accepted at the first step.
     pub best_rejected: Option<RestTerm>,
+    /// Held-out rest power with the terms found, per trial of the stage's input (NaN for the
+    /// trials it did not use); empty when nothing was found.
+    #[serde(skip)]
+    pub trial_pred: Vec<f64>,
 }
 
 /// A term of the rest power on one recorded field (or session time).
@@ -455,6 +459,28 @@ pub(crate) fn rest_power(inp: &RestInputs, rule: &Rule) -> Option<RestPower> {
         out.found.push(t);
     }
     out.rmse_after_w = search.rmse(&cur.pred);
+    if !out.found.is_empty() {
+        out.trial_pred = vec![f64::NAN; inp.power.len()];
+        // Trials past the last whole block were not in the test: the fit on all trials.
+        let x_of = |c: usize, t: usize| match search.cands[c] {
+            Cand::Linear(f) => inp.fields[f][t],
+            Cand::Step(f, thr) => f64::from(u8::from(inp.fields[f][t] > thr)),
+            Cand::Time => inp.start[t] / 3600.0,
+        };
+        for t in 0..inp.power.len() {
+            let x: Vec<f64> = chosen.iter().map(|&c| x_of(c, t)).collect();
+            if x.iter().all(|v| v.is_finite()) {
+                out.trial_pred[t] = cur.coef[0]
+                    + x.iter()
+                        .zip(&cur.coef[1..])
+                        .map(|(a, k)| a * k)
+                        .sum::<f64>();
+            }
+        }
+        for (r, &t) in trials.iter().enumerate() {
+            out.trial_pred[t] = cur.pred[r];
+        }
+    }
     Some(out)
 }
 

@@ -624,6 +624,9 @@ pub struct LayoutParts {
     /// The diagnosis found terms following recorded fields (plotted beside its summary,
     /// time-aligned with the prediction error).
     pub located: bool,
+    /// The diagnosis found loads on the rest power (each trial's rest power and its prediction
+    /// are plotted beside the fields).
+    pub rest: bool,
     /// Series in the diagnosis' power plot (measured, before, after, and the found terms'
     /// prediction and the twin when present).
     pub diagnosis_power_series: usize,
@@ -1050,6 +1053,17 @@ fn diagnosis_tab(parts: LayoutParts) -> Node {
             )
             .with_fit(Fit::Ticks, DETAIL_PLOT_PX)
             .with_legend(Legend::Hidden),
+        );
+    }
+    if parts.rest {
+        diag.push(
+            Node::view(
+                "TimeSeries",
+                "Rest power of each trial [W]",
+                paths::DIAG_REST,
+                vec![],
+            )
+            .with_fit(Fit::Ticks, DETAIL_PLOT_PX),
         );
     }
     if parts.counterpart {

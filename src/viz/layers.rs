@@ -721,6 +721,25 @@ fn log_diagnosis(
         style::line(w, &path, name, style::joint(k), 1.5)?;
         scalars_chunked(w, &path, &d.t, values, chunk)?;
     }
+    let [rest, rest_found] = &d.rest;
+    if rest.len() == d.t.len() && rest_found.len() == d.t.len() && !rest.is_empty() {
+        style::line(
+            w,
+            paths::DIAG_REST_MEASURED,
+            "rest power of the trial (pre-idle mean)",
+            style::MBS,
+            1.5,
+        )?;
+        style::line(
+            w,
+            paths::DIAG_REST_FOUND,
+            "with the loads found on it (held out)",
+            style::WARNING,
+            1.5,
+        )?;
+        scalars_chunked(w, paths::DIAG_REST_MEASURED, &d.t, rest, chunk)?;
+        scalars_chunked(w, paths::DIAG_REST_FOUND, &d.t, rest_found, chunk)?;
+    }
     if let Some(cp) = &d.counterpart {
         style::line(
             w,

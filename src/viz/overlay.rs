@@ -211,6 +211,7 @@ pub fn diagnosis_extras(d: &crate::diagnose::Diagnosis) -> ReplayExtras {
                 .iter()
                 .map(|l| (l.name.clone(), l.values.clone()))
                 .collect(),
+            rest: [r.rest_w.clone(), r.rest_found_w.clone()],
         }),
         ..ReplayExtras::default()
     }

@@ -103,6 +103,12 @@ pub const DIAG_LOCATED: &str = "diagnosis/located";
 pub fn diag_located(k: usize) -> String {
     format!("diagnosis/located/{k}")
 }
+/// Below this: the rest power of each reading's trial and its prediction.
+pub const DIAG_REST: &str = "diagnosis/rest";
+/// Rest power of each reading's trial (its pre-idle mean) [W].
+pub const DIAG_REST_MEASURED: &str = "diagnosis/rest/measured";
+/// Held-out rest power with the loads found on it [W].
+pub const DIAG_REST_FOUND: &str = "diagnosis/rest/found";
 /// The twin's net power on the recording's commands [W].
 pub const DIAG_TWIN: &str = "diagnosis/power/twin";
 /// Error of the base model [W].

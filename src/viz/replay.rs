@@ -174,6 +174,9 @@ pub struct DiagnosisOverlay {
     pub found: Vec<f64>,
     /// The recorded fields the found terms follow, per reading: (field name, values).
     pub located: Vec<(String, Vec<f64>)>,
+    /// Rest power of each reading's trial and its prediction with the loads found on it [W]
+    /// (both empty when none was found).
+    pub rest: [Vec<f64>; 2],
 }
 
 /// What later stages add to a replay. Plain data so identify/diagnose need no Rerun types.
@@ -290,6 +293,10 @@ pub fn layout(
             .diagnosis
             .as_ref()
             .is_some_and(|d| !d.located.is_empty()),
+        rest: extras
+            .diagnosis
+            .as_ref()
+            .is_some_and(|d| !d.rest[0].is_empty()),
         diagnosis_power_series,
         ranges: plot_ranges(extras, whole),
     };

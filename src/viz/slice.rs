@@ -213,6 +213,7 @@ impl Slice {
                 .iter()
                 .map(|(n, v)| (n.clone(), same(v)))
                 .collect(),
+            rest: [same(&d.rest[0]), same(&d.rest[1])],
             highlighted: d
                 .highlighted
                 .iter()

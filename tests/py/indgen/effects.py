@@ -65,6 +65,8 @@ EFFECTS = {
         "why": 'Gear grease base-oil viscosity falls ~2.5 %/K around 40 C (ISO VG 32: 32 cSt at 40 C, 5.4 cSt at 100 C -> ln-slope ~0.03/K); viscous drag is proportional to viscosity.',
         "formula": "viscous term uses the housing temperature Th_i (recorded in temperature[1]): "
                    "d_i qd_i^2 exp(-beta (Th_i - T_ref)); dP = sum_i d_i qd_i^2 (exp(-beta(Th_i-T_ref)) - 1)",
+        # The recorded fields the effect follows (for scoring a diagnosis that locates it).
+        "fields": [f"/lowstate.motor_state[{k}].temperature[1]" for k in range(15, 22)],
     },
     "rail_load": {
         # Two 12 V 50 mm blowers cooling the main board, 4.5 W each at 5000 rpm; fan affinity law
@@ -74,6 +76,8 @@ EFFECTS = {
         "formula": "dP = n_fans * P_max * (n/n_max)^3 with n = fan speed level (recorded in "
                    "MainBoardState.fan_state[0] with +-10 rpm noise); levels switch on board "
                    "temperature with hysteresis",
+        # Both fans report the level (fan 1 at 0.985 of fan 0's speed).
+        "fields": ["/lf/mainboardstate.fan_state[0]", "/lf/mainboardstate.fan_state[1]"],
     },
 }
 NAMES = list(EFFECTS)

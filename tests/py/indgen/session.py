@@ -685,6 +685,8 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
     eff_out = {}
     for k in effects:
         eff_out[k] = {"params": P[k], "formula": EFFECTS[k]["formula"], "why": EFFECTS[k]["why"]}
+        if "fields" in EFFECTS[k]:
+            eff_out[k]["fields"] = EFFECTS[k]["fields"]
         if any(x.startswith(k + ".") for x in (overrides or {})):
             eff_out[k]["overridden_from_default"] = EFFECTS[k]["params"]
     if on["payload"]:
