@@ -320,6 +320,35 @@ fn workflow_simulate_identify_validate_diagnose() {
             joined > single * 3 / 2,
             "two sessions' replay {joined} B, one session's {single} B"
         );
+        // A rate cap keeps a long session's .rrd small enough for the web viewer.
+        let (out, _) = ok(
+            d,
+            &[
+                "diagnose",
+                "ho.mcap",
+                "--model",
+                "model.json",
+                "--save",
+                "small.rrd",
+                "--max-rate",
+                "5",
+                "--pose-rate",
+                "2",
+                "--open-tab",
+                "Diagnosis",
+            ],
+        );
+        assert!(out.contains("wrote small.rrd"), "{out}");
+        let small = std::fs::metadata(d.join("small.rrd")).unwrap().len();
+        assert!(
+            small * 4 < single,
+            "capped replay {small} B, full one {single} B"
+        );
+        // The replay options need --save (a usage error, exit status 2).
+        let o = run(d, &["diagnose", "ho.mcap", "--open-tab", "Diagnosis"]);
+        let (_, err) = text(&o);
+        assert_eq!(o.status.code(), Some(2), "{err}");
+        assert!(err.contains("--save"), "{err}");
     }
     // Inputs are never modified; outputs do not leave temporary files behind.
     let names: Vec<String> = std::fs::read_dir(d)

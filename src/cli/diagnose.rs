@@ -40,6 +40,18 @@ pub struct DiagnoseArgs {
     /// Write an .rrd with before/after predictions, residuals and the located trials.
     #[arg(long, value_name = "OUT")]
     save: Option<PathBuf>,
+    /// With --save: open the layout on this tab (e.g. "Diagnosis", "Joints"; default: the
+    /// first).
+    #[arg(long, value_name = "TAB", requires = "save")]
+    open_tab: Option<String>,
+    /// With --save: arm poses per second in the 3D view (0 = every recorded sample).
+    #[arg(long, value_name = "HZ", default_value_t = 0.0, value_parser = super::non_negative, requires = "save")]
+    pose_rate: f64,
+    /// With --save: at most this many samples per second of every joint and IMU series
+    /// (default: all recorded samples). A paper-scale session's .rrd is gigabytes at full rate,
+    /// more than the web viewer holds; the diagnosis' per-reading series are always kept whole.
+    #[arg(long, value_name = "HZ", value_parser = super::non_negative, requires = "save")]
+    max_rate: Option<f64>,
     /// Also compare sample by sample with the twin driven by the same commands on the same
     /// timeline (made with `g1viz simulate --like SESSION -o TWIN`).
     #[arg(long, value_name = "TWIN")]
@@ -155,6 +167,12 @@ fn replay_options(a: &DiagnoseArgs) -> g1viz::viz::ReplayOptions {
     }
     g1viz::viz::ReplayOptions {
         properties,
+        open_tab: a.open_tab.clone(),
+        pose_rate_hz: (a.pose_rate > 0.0).then_some(a.pose_rate),
+        slice: g1viz::viz::Slice {
+            max_rate_hz: a.max_rate,
+            ..Default::default()
+        },
         ..Default::default()
     }
 }

@@ -301,6 +301,27 @@ impl Node {
         }
     }
 
+    /// The tab a user's `tab` means: its exact name, else the one name equal to it ignoring
+    /// case, else the one name that starts with it ignoring case ("diagnosis" opens "Diagnosis
+    /// summary" where that view is the diagnosis' only one); `None` when none or several match.
+    pub fn resolve_tab(&self, tab: &str) -> Option<String> {
+        let names = self.tab_names();
+        if names.iter().any(|n| n == tab) {
+            return Some(tab.to_owned());
+        }
+        let lower = tab.to_lowercase();
+        for pick in [
+            |n: &str, t: &str| n.to_lowercase() == t,
+            |n: &str, t: &str| n.to_lowercase().starts_with(t),
+        ] {
+            let hits: Vec<&String> = names.iter().filter(|n| pick(n, &lower)).collect();
+            if let [one] = hits.as_slice() {
+                return Some((*one).clone());
+            }
+        }
+        None
+    }
+
     /// Names of the tabs of every tab container in this tree, in display order.
     pub fn tab_names(&self) -> Vec<String> {
         match self {
@@ -1200,6 +1221,30 @@ fn loss_terms_tab(joints: &[String], ranges: PlotRanges) -> Node {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_tab_is_found_by_its_name_ignoring_case_or_by_a_unique_start() {
+        let view = |name: &str| Node::view("TimeSeries", name, "x", vec![]);
+        let tabs = Node::container(
+            ContainerKind::Tabs,
+            "tabs",
+            vec![
+                view("Joints"),
+                view("Joint limits"),
+                view("IMU and trials"),
+                view("Diagnosis summary"),
+            ],
+            vec![],
+        );
+        assert_eq!(tabs.resolve_tab("Joints").as_deref(), Some("Joints"));
+        assert_eq!(tabs.resolve_tab("joints").as_deref(), Some("Joints"));
+        assert_eq!(
+            tabs.resolve_tab("Diagnosis").as_deref(),
+            Some("Diagnosis summary")
+        );
+        assert_eq!(tabs.resolve_tab("Joint"), None, "two tabs start with it");
+        assert_eq!(tabs.resolve_tab("Torque"), None);
+    }
 
     /// Hand-worked cases of the viewer's tick rule: the example's 7 trials on a 45 px track
     /// (spacing of 1: 45/8 < 20 px; of 10: 56 px) and the error plot's ±1.2 W over 183 px.

@@ -706,7 +706,9 @@ impl<'a> ReplayLogger<'a> {
         if opts.blueprint {
             let mut layout = layout(robot, arm, &joints, extras, whole.map(|r| (r, &opts.slice)));
             if let Some(tab) = &opts.open_tab
-                && !layout.open_tab(tab)
+                && !layout
+                    .resolve_tab(tab)
+                    .is_some_and(|name| layout.open_tab(&name))
             {
                 bail!(
                     "no tab {tab:?} in the layout (tabs: {})",
