@@ -516,7 +516,7 @@ fn within_share(v: &[f64], trial: &[usize], n_trials: usize) -> f64 {
 }
 
 /// 5–95 % span of a field's values.
-fn span(v: &[f64]) -> f64 {
+pub(super) fn span(v: &[f64]) -> f64 {
     let mut s: Vec<f64> = v.to_vec();
     s.sort_by(f64::total_cmp);
     let q = |p: f64| s[((s.len() - 1) as f64 * p).round() as usize];
@@ -525,7 +525,7 @@ fn span(v: &[f64]) -> f64 {
 
 /// Threshold of a field that switches between levels: the midpoint of its 5–95 % range when
 /// fewer than 10 % of the values lie in the middle third of it.
-fn step_threshold(v: &[f64]) -> Option<f64> {
+pub(super) fn step_threshold(v: &[f64]) -> Option<f64> {
     let mut s: Vec<f64> = v.to_vec();
     s.sort_by(f64::total_cmp);
     let q = |p: f64| s[((s.len() - 1) as f64 * p).round() as usize];

@@ -165,18 +165,8 @@ fn hypotheses_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()> 
     );
     let _ = writeln!(md, "|---|---|---|---|---|---|---|---|");
     for h in &d.hypotheses {
-        let p = h
-            .params
-            .first()
-            .map(|p| {
-                format!(
-                    "{} = {} ± {} {}",
-                    p.symbol,
-                    sig(p.value),
-                    sig(p.std_err),
-                    p.unit
-                )
-            })
+        let p = param_cells(&h.params[..h.params.len().min(1)])
+            .pop()
             .unwrap_or_default();
         let _ = writeln!(
             md,
@@ -659,19 +649,7 @@ fn beyond_section(md: &mut String, d: &Diagnosis) {
         "| step | found | form | field(s) | parameter(s) | held-out R² before → after | p | verdict |\n|---|---|---|---|---|---|---|---|"
     );
     for t in r.accepted.iter().chain(r.best_rejected.iter()) {
-        let params: Vec<String> = t
-            .params
-            .iter()
-            .map(|p| {
-                format!(
-                    "{} = {} ± {} {}",
-                    p.symbol,
-                    sig(p.value),
-                    sig(p.std_err),
-                    p.unit
-                )
-            })
-            .collect();
+        let params = param_cells(&t.params);
         let _ = writeln!(
             md,
             "| {} | {} | {} | {} | {} | {:.3} → {:.3} | {} | {} |",
@@ -717,19 +695,7 @@ Each trial's pre-idle power (mean {:.2} W; the net-power model subtracts it, so 
         "| found | form | parameter(s) | p | verdict | not told apart from it |\n|---|---|---|---|---|---|"
     );
     for t in r.found.iter().chain(r.best_rejected.iter()) {
-        let params: Vec<String> = t
-            .params
-            .iter()
-            .map(|p| {
-                format!(
-                    "{} = {} ± {} {}",
-                    p.symbol,
-                    sig(p.value),
-                    sig(p.std_err),
-                    p.unit
-                )
-            })
-            .collect();
+        let params = param_cells(&t.params);
         let _ = writeln!(
             md,
             "| {} | {} | {} | {} | {} | {} |",
@@ -757,19 +723,7 @@ fn tied_terms(md: &mut String, r: &super::DiscoveryReport) {
     );
     for t in &r.accepted {
         for o in &t.tied {
-            let params: Vec<String> = o
-                .params
-                .iter()
-                .map(|p| {
-                    format!(
-                        "{} = {} ± {} {}",
-                        p.symbol,
-                        sig(p.value),
-                        sig(p.std_err),
-                        p.unit
-                    )
-                })
-                .collect();
+            let params = param_cells(&o.params);
             let _ = writeln!(
                 md,
                 "| {} | {} | {} | {} | {} | {:.3} vs {:.3} | {} | {:+.3} | {} |",
@@ -806,4 +760,20 @@ fn excluded_fields(md: &mut String, r: &super::DiscoveryReport) {
         let _ = writeln!(md, "| `{}` | {} |", e.name, e.reason.replace('|', "\\|"));
     }
     md.push('\n');
+}
+
+/// A table cell's parameters: `symbol = value ± s.e. unit` each.
+fn param_cells(params: &[super::Param]) -> Vec<String> {
+    params
+        .iter()
+        .map(|p| {
+            format!(
+                "{} = {} ± {} {}",
+                p.symbol,
+                sig(p.value),
+                sig(p.std_err),
+                p.unit
+            )
+        })
+        .collect()
 }

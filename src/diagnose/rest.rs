@@ -10,6 +10,7 @@
 
 use nalgebra::{DMatrix, DVector};
 
+use super::discover::{span, step_threshold};
 use super::select::{Param, Rule, jackknife_se};
 use super::stats::improvement_p_value;
 
@@ -287,35 +288,6 @@ impl Search<'_> {
     }
 }
 
-/// 5–95 % span of `v`.
-fn span(v: &[f64]) -> f64 {
-    let mut s: Vec<f64> = v.iter().copied().filter(|x| x.is_finite()).collect();
-    if s.is_empty() {
-        return 0.0;
-    }
-    s.sort_by(f64::total_cmp);
-    let q = |p: f64| s[((s.len() - 1) as f64 * p).round() as usize];
-    q(0.95) - q(0.05)
-}
-
-/// The step threshold of a field that switches between levels (as discovery's).
-fn step_threshold(v: &[f64]) -> Option<f64> {
-    let (lo, hi) = {
-        let mut s: Vec<f64> = v.to_vec();
-        s.sort_by(f64::total_cmp);
-        let q = |p: f64| s[((s.len() - 1) as f64 * p).round() as usize];
-        (q(0.05), q(0.95))
-    };
-    if hi - lo <= 0.0 {
-        return None;
-    }
-    let mid = v
-        .iter()
-        .filter(|&&x| x > lo + (hi - lo) / 3.0 && x < hi - (hi - lo) / 3.0)
-        .count();
-    (mid * 10 < v.len()).then_some(0.5 * (lo + hi))
-}
-
 /// Explain the trials' rest power with the fields at rest; `None` when there are too few trials
 /// with a baseline for the block test.
 pub(crate) fn rest_power(inp: &RestInputs, rule: &Rule) -> Option<RestPower> {
@@ -523,32 +495,28 @@ mod tests {
 
     #[test]
     fn a_fan_stepping_between_trials_is_found_and_nothing_on_a_quiet_rail() {
-        let (p, t, fields, names) = inputs(5.0, 1);
-        let inp = RestInputs {
-            power: &p,
-            start: &t,
-            fields,
-            names: &names,
-            usable: vec![true; 3],
+        let run = |fan_w: f64, seed: u64| {
+            let (p, t, fields, names) = inputs(fan_w, seed);
+            let inp = RestInputs {
+                power: &p,
+                start: &t,
+                fields,
+                names: &names,
+                usable: vec![true; 3],
+            };
+            let r = rest_power(&inp, &rule()).unwrap();
+            // diagnosis.json reads back (a NaN would be written as null).
+            let back: RestPower =
+                serde_json::from_str(&serde_json::to_string(&r).unwrap()).unwrap();
+            assert_eq!(back.found.len(), r.found.len());
+            r
         };
-        let r = rest_power(&inp, &rule()).unwrap();
+        let r = run(5.0, 1);
         assert_eq!(r.found.len(), 1, "{r:?}");
         assert_eq!(r.found[0].field, "/mb.fan");
         assert!(r.rmse_after_w < 0.5 * r.rmse_before_w, "{r:?}");
-        // diagnosis.json reads back (a NaN would be written as null).
-        let back: RestPower = serde_json::from_str(&serde_json::to_string(&r).unwrap()).unwrap();
-        assert_eq!(back.found.len(), 1);
-        let (p, t, fields, names) = inputs(0.0, 2);
-        let inp = RestInputs {
-            power: &p,
-            start: &t,
-            fields,
-            names: &names,
-            usable: vec![true; 3],
-        };
-        let r = rest_power(&inp, &rule()).unwrap();
+        let r = run(0.0, 2);
         assert!(r.found.is_empty(), "{r:?}");
-        let back: RestPower = serde_json::from_str(&serde_json::to_string(&r).unwrap()).unwrap();
-        assert!(back.best_rejected.is_some());
+        assert!(r.best_rejected.is_some());
     }
 }
