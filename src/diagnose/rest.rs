@@ -126,17 +126,33 @@ struct Search<'a> {
     rule: Rule,
 }
 
+/// Least squares of `y` on [1, x…] over `rows`, through the normal equations (a handful of
+/// columns: the p × p system is solved by Cholesky, or by SVD when it is singular).
 fn lstsq(x: &[&[f64]], y: &[f64], rows: &[usize]) -> Option<Vec<f64>> {
     let p = x.len() + 1;
-    let a = DMatrix::from_fn(
-        rows.len(),
-        p,
-        |r, c| {
-            if c == 0 { 1.0 } else { x[c - 1][rows[r]] }
-        },
-    );
-    let b = DVector::from_iterator(rows.len(), rows.iter().map(|&r| y[r]));
-    let sol = a.svd(true, true).solve(&b, 1e-10).ok()?;
+    let mut ata = DMatrix::<f64>::zeros(p, p);
+    let mut aty = DVector::<f64>::zeros(p);
+    let mut row = vec![1.0; p];
+    for &r in rows {
+        for (c, col) in x.iter().enumerate() {
+            row[c + 1] = col[r];
+        }
+        for i in 0..p {
+            aty[i] += row[i] * y[r];
+            for j in 0..=i {
+                ata[(i, j)] += row[i] * row[j];
+            }
+        }
+    }
+    for i in 0..p {
+        for j in 0..i {
+            ata[(j, i)] = ata[(i, j)];
+        }
+    }
+    let sol = match ata.clone().cholesky() {
+        Some(ch) => ch.solve(&aty),
+        None => ata.svd(true, true).solve(&aty, 1e-10).ok()?,
+    };
     sol.iter()
         .all(|v| v.is_finite())
         .then(|| sol.iter().copied().collect())
