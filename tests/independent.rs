@@ -233,14 +233,15 @@ const SUITE: [&str; 16] = [
 
 /// Generate session `index` (1-based) of the suite into `dir`, diagnose it and score it; the
 /// recording is deleted afterwards (≈ 0.6 GB each at paper scale).
-fn run_one(dir: &Path, index: usize) -> Scored {
+fn run_one(dir: &Path, shared: &Path, index: usize) -> Scored {
     let stem = SUITE[index - 1];
     let gen_out = common::output_within(
         Command::new("python3")
             .args(["-m", "indgen", "suite", "--out"])
             .arg(dir)
             .args(["--hours", &HOURS.to_string(), "--only", &index.to_string()])
-            .env("PYTHONPATH", python_dir()),
+            .env("PYTHONPATH", python_dir())
+            .env("G1VIZ_SHARED", shared),
         common::TOOL_LIMIT,
     )
     .expect("python3 runs");
@@ -325,6 +326,10 @@ fn independent_generator_suite_is_diagnosed_as_the_readme_says() {
     if !modules.iter().all(|(m, pip)| common::python_module(m, pip)) {
         return;
     }
+    // The generator reads the URDF and the message definitions there.
+    let Some(shared) = common::shared_dir() else {
+        return;
+    };
     let list = common::output_within(
         Command::new("python3")
             .args(["-m", "indgen", "suite", "--out", ".", "--list"])
@@ -349,7 +354,7 @@ fn independent_generator_suite_is_diagnosed_as_the_readme_says() {
                     if i > SUITE.len() {
                         break;
                     }
-                    let r = run_one(dir.path(), i);
+                    let r = run_one(dir.path(), &shared, i);
                     results.lock().unwrap().push(r);
                 }
             });

@@ -10,7 +10,9 @@ import os
 
 import numpy as np
 
-MSG_DIR = "/work/shared/msg/unitree_hg"
+from . import shared_dir
+
+MSG_DIR = os.path.join(shared_dir(), "msg", "unitree_hg")
 SCHEMA_NAMES = {
     "LowState": "unitree_hg/msg/LowState",
     "LowCmd": "unitree_hg/msg/LowCmd",

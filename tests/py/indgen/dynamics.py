@@ -10,13 +10,15 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 
+from . import shared_dir
+
 ARM_JOINTS = [
     "left_shoulder_pitch_joint", "left_shoulder_roll_joint", "left_shoulder_yaw_joint",
     "left_elbow_joint", "left_wrist_roll_joint", "left_wrist_pitch_joint", "left_wrist_yaw_joint",
 ]
 G = 9.81
 
-DEFAULT_URDF = "/work/shared/g1_description/g1_29dof_with_hand_rev_1_0.urdf"
+DEFAULT_URDF = os.path.join(shared_dir(), "g1_description", "g1_29dof_with_hand_rev_1_0.urdf")
 
 
 def rpy_matrix(r, p, y):
