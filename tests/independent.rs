@@ -124,8 +124,8 @@ struct Scored {
     params: Vec<(String, f64, f64, f64)>,
     /// Mean concealed-effect power per trial, net of the trial's pre-idle (truth file) [W].
     effect_w: f64,
-    /// Rest-power terms found: (field, first parameter).
-    rest: Vec<(String, f64)>,
+    /// Rest-power terms found: (field, first parameter, fields named with it).
+    rest: Vec<(String, f64, Vec<String>)>,
 }
 
 impl Scored {
@@ -195,7 +195,7 @@ fn score(stem: &str, truth: &serde_json::Value, d: &Diagnosis) -> Scored {
             .discovery
             .iter()
             .flat_map(|r| r.rest.iter().flat_map(|r| &r.found))
-            .map(|t| (t.field.clone(), t.params[0].value))
+            .map(|t| (t.field.clone(), t.params[0].value, t.tied.clone()))
             .collect(),
     }
 }
@@ -440,6 +440,27 @@ fn independent_generator_suite_is_diagnosed_as_the_readme_says() {
         "{fans:?}"
     );
     common::assert_figure("14 rest-power ΔP [W]", fans[0].1, "5");
+    // Named beside it: the other fan and the board temperatures (README).
+    let tied = &fans[0].2;
+    assert!(
+        tied.iter()
+            .any(|f| f.starts_with("/lf/mainboardstate.fan_state["))
+            && tied
+                .iter()
+                .any(|f| f.starts_with("/lf/mainboardstate.temperature[")),
+        "{tied:?}"
+    );
+    // The grease: the viscous loss, falling as a housing temperature rises (README).
+    let grease = &by_stem("13_grease").claims;
+    assert!(
+        grease.len() == 1
+            && grease[0].starts_with("found: The viscous friction loss")
+            && grease[0]
+                .split(", or")
+                .next()
+                .is_some_and(|head| head.contains("falls") && head.ends_with(".temperature[1]")),
+        "{grease:?}"
+    );
     for r in results.iter().filter(|r| r.stem != "14_rail_load") {
         assert!(r.rest.is_empty(), "{}: rest power {:?}", r.stem, r.rest);
     }
