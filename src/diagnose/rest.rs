@@ -8,11 +8,10 @@
 //! minimum gain. The rest power drifts slowly, so neighbouring trials are not independent: the
 //! folds are contiguous blocks of trials and the paired test is by block.
 
-use nalgebra::{DMatrix, DVector};
-
 use super::discover::{span, step_threshold};
 use super::select::{Param, Rule, jackknife_se};
 use super::stats::improvement_p_value;
+use crate::lsq::Gram;
 
 /// Trials per block of the held-out test (≈ 4–5 minutes of the protocol).
 pub const BLOCK_TRIALS: usize = 20;
@@ -126,32 +125,12 @@ struct Search<'a> {
     rule: Rule,
 }
 
-/// Least squares of `y` on [1, x…] over `rows`, through the normal equations (a handful of
-/// columns: the p × p system is solved by Cholesky, or by SVD when it is singular).
-fn lstsq(x: &[&[f64]], y: &[f64], rows: &[usize]) -> Option<Vec<f64>> {
-    let p = x.len() + 1;
-    let mut ata = DMatrix::<f64>::zeros(p, p);
-    let mut aty = DVector::<f64>::zeros(p);
-    let mut row = vec![1.0; p];
-    for &r in rows {
-        for (c, col) in x.iter().enumerate() {
-            row[c + 1] = col[r];
-        }
-        for i in 0..p {
-            aty[i] += row[i] * y[r];
-            for j in 0..=i {
-                ata[(i, j)] += row[i] * row[j];
-            }
-        }
-    }
-    for i in 0..p {
-        for j in 0..i {
-            ata[(j, i)] = ata[(i, j)];
-        }
-    }
-    let sol = match ata.clone().cholesky() {
-        Some(ch) => ch.solve(&aty),
-        None => ata.svd(true, true).solve(&aty, 1e-10).ok()?,
+/// The least-squares coefficients of a row set's normal equations (a handful of columns:
+/// Cholesky, or SVD when the system is singular).
+fn solve(g: &Gram) -> Option<Vec<f64>> {
+    let sol = match g.g.clone().cholesky() {
+        Some(ch) => ch.solve(&g.h),
+        None => g.g.clone().svd(true, true).solve(&g.h, 1e-10).ok()?,
     };
     sol.iter()
         .all(|v| v.is_finite())
@@ -165,18 +144,28 @@ fn predict(coef: &[f64], x: &[&[f64]], r: usize) -> f64 {
 impl Search<'_> {
     fn fit(&self, x: &[&[f64]]) -> Option<Fit> {
         let n = self.y.len();
+        let p = x.len() + 1;
+        // Each fold's normal equations once; a fold's training set is the total minus it.
+        let mut folds = vec![Gram::zeros(p); FOLDS];
+        let mut row = vec![1.0; p];
+        for r in 0..n {
+            for (c, col) in x.iter().enumerate() {
+                row[c + 1] = col[r];
+            }
+            folds[self.block[r] % FOLDS].add_row(&row, self.y[r]);
+        }
+        let mut total = Gram::zeros(p);
+        folds.iter().for_each(|f| total.add(f));
         let mut pred = vec![f64::NAN; n];
         let mut fold_coef = Vec::new();
-        for f in 0..FOLDS {
-            let train: Vec<usize> = (0..n).filter(|&r| self.block[r] % FOLDS != f).collect();
-            let coef = lstsq(x, &self.y, &train)?;
+        for (f, held) in folds.iter().enumerate() {
+            let coef = solve(&total.minus(held))?;
             for r in (0..n).filter(|&r| self.block[r] % FOLDS == f) {
                 pred[r] = predict(&coef, x, r);
             }
             fold_coef.push(coef);
         }
-        let all: Vec<usize> = (0..n).collect();
-        let coef = lstsq(x, &self.y, &all)?;
+        let coef = solve(&total)?;
         let sse: f64 = (0..n)
             .map(|r| (self.y[r] - predict(&coef, x, r)).powi(2))
             .sum();

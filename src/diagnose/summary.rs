@@ -355,11 +355,7 @@ fn discovery_lines(d: &Diagnosis, s: &mut String) {
         tied_lines(t, s);
     }
     if r.accepted.is_empty() {
-        let best = r
-            .best_rejected
-            .as_ref()
-            .map(|b| format!(" (best: {}, {})", b.name, b.verdict))
-            .unwrap_or_default();
+        let best = best_rejected(r.best_rejected.as_ref().map(|b| (&b.name, &b.verdict)));
         let _ = writeln!(
             s,
             "Beyond the library: {} candidate terms from {} recorded fields tried, none supported at a family-wise level of {:.0e}{best}.",
@@ -382,6 +378,12 @@ fn discovery_lines(d: &Diagnosis, s: &mut String) {
             junk.join(", ")
         );
     }
+}
+
+/// " (best: <name>, <verdict>)" of the best rejected candidate, if any was tried.
+fn best_rejected(b: Option<(&String, &String)>) -> String {
+    b.map(|(name, verdict)| format!(" (best: {name}, {verdict})"))
+        .unwrap_or_default()
 }
 
 /// Most fields named beside a rest-power term in the summary (the JSON lists all).
@@ -427,11 +429,7 @@ fn rest_lines(r: &super::RestPower, s: &mut String) {
         );
     }
     if r.found.is_empty() {
-        let best = r
-            .best_rejected
-            .as_ref()
-            .map(|b| format!(" (best: {}, {})", b.name, b.verdict))
-            .unwrap_or_default();
+        let best = best_rejected(r.best_rejected.as_ref().map(|b| (&b.name, &b.verdict)));
         let _ = writeln!(
             s,
             "Rest power: {} candidates tried on {} trials' pre-idle power ({:.1} W on average, held-out RMSE {:.3} W), none supported{best}.",
