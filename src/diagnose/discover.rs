@@ -41,6 +41,7 @@ use super::select::{
     solve_bounded_for, trial_sse,
 };
 use super::stats::{improvement_p_value, pearson};
+use crate::lsq::{Gram, solve_normal};
 use crate::{N_JOINTS, N_PARAMS};
 
 /// Correlation with the readings above which a field counts as a meter of the power itself.
@@ -317,8 +318,8 @@ struct Base<'a, 'd> {
     cur: &'a State,
     rows: &'a Rows,
     xm: Vec<Vec<f64>>,
-    /// Per fold: (Σ xm xmᵀ, Σ xm y, Σ y², n).
-    fold: Vec<(DMatrix<f64>, DVector<f64>, f64, usize)>,
+    /// The normal equations of each fold's rows.
+    fold: Vec<Gram>,
     p: usize,
 }
 
@@ -327,11 +328,8 @@ impl<'a, 'd> Base<'a, 'd> {
     fn residualise(&self, c: &[f64]) -> Vec<f64> {
         let p = self.p;
         let mut g = DMatrix::zeros(p, p);
-        for (gf, _, _, _) in &self.fold {
-            g += gf;
-        }
-        for i in 0..p {
-            g[(i, i)] += 1e-9 * (1.0 + g[(i, i)]);
+        for gf in &self.fold {
+            g += &gf.g;
         }
         let mut h = DVector::zeros(p);
         for (x, v) in self.xm.iter().zip(c) {
@@ -339,9 +337,7 @@ impl<'a, 'd> Base<'a, 'd> {
                 h[a] += x[a] * v;
             }
         }
-        let beta = g
-            .cholesky()
-            .map_or_else(|| DVector::zeros(p), |ch| ch.solve(&h));
+        let beta = solve_normal(&g, &h, 1e-9).unwrap_or_else(|| DVector::zeros(p));
         self.xm
             .iter()
             .zip(c)
@@ -363,19 +359,9 @@ impl<'a, 'd> Base<'a, 'd> {
             })
             .collect();
         let k = data.folds.k;
-        let mut fold = vec![(DMatrix::zeros(p, p), DVector::zeros(p), 0.0, 0usize); k];
+        let mut fold = vec![Gram::zeros(p); k];
         for (r, x) in xm.iter().enumerate() {
-            let f = data.folds.of_trial[rows.trial[r]];
-            let (g, h, yy, n) = &mut fold[f];
-            let y = rows.y[r];
-            for a in 0..p {
-                h[a] += x[a] * y;
-                for b in 0..p {
-                    g[(a, b)] += x[a] * x[b];
-                }
-            }
-            *yy += y * y;
-            *n += 1;
+            fold[data.folds.of_trial[rows.trial[r]]].add_row(x, rows.y[r]);
         }
         Ok(Base {
             data,
@@ -392,20 +378,10 @@ impl<'a, 'd> Base<'a, 'd> {
         let (p, q, k) = (self.p, cols.len(), self.data.folds.k);
         let n = p + q;
         // Per fold Gram of the extended design.
-        let mut fg: Vec<(DMatrix<f64>, DVector<f64>, f64, usize)> = self
-            .fold
-            .iter()
-            .map(|(g, h, yy, nn)| {
-                let mut gg = DMatrix::zeros(n, n);
-                gg.view_mut((0, 0), (p, p)).copy_from(g);
-                let mut hh = DVector::zeros(n);
-                hh.rows_mut(0, p).copy_from(h);
-                (gg, hh, *yy, *nn)
-            })
-            .collect();
+        let mut fg: Vec<Gram> = self.fold.iter().map(|g| g.widened(q)).collect();
         for (r, x) in self.xm.iter().enumerate() {
             let f = self.data.folds.of_trial[self.rows.trial[r]];
-            let (g, h, _, _) = &mut fg[f];
+            let Gram { g, h, .. } = &mut fg[f];
             let y = self.rows.y[r];
             for (j, c) in cols.iter().enumerate() {
                 let e = c[r];
@@ -421,28 +397,24 @@ impl<'a, 'd> Base<'a, 'd> {
                 }
             }
         }
-        for (g, _, _, _) in fg.iter_mut() {
+        for Gram { g, .. } in fg.iter_mut() {
             for j in p..n {
                 for a in 0..p {
                     g[(j, a)] = g[(a, j)];
                 }
             }
         }
-        let mut total = (DMatrix::zeros(n, n), DVector::zeros(n), 0.0, 0usize);
-        for (g, h, yy, nn) in &fg {
-            total.0 += g;
-            total.1 += h;
-            total.2 += yy;
-            total.3 += nn;
+        let mut total = Gram::zeros(n);
+        for g in &fg {
+            total.add(g);
         }
         let (lo, hi) = bounds_for(n, self.data.reference.as_deref());
         let mut fold_theta = Vec::with_capacity(k);
-        for (g, h, _, _) in &fg {
-            let gt = &total.0 - g;
-            let ht = &total.1 - h;
-            fold_theta.push(solve_bounded_for(&gt, &ht, &lo, &hi)?);
+        for g in &fg {
+            let train = total.minus(g);
+            fold_theta.push(solve_bounded_for(&train.g, &train.h, &lo, &hi)?);
         }
-        let full = solve_bounded_for(&total.0, &total.1, &lo, &hi)?;
+        let full = solve_bounded_for(&total.g, &total.h, &lo, &hi)?;
         let pred = (0..self.rows.len())
             .map(|r| {
                 let th = &fold_theta[self.data.folds.of_trial[self.rows.trial[r]]];
@@ -454,7 +426,7 @@ impl<'a, 'd> Base<'a, 'd> {
                     .sum::<f64>()
             })
             .collect();
-        let sse = (total.2 - 2.0 * full.dot(&total.1) + full.dot(&(&total.0 * &full))).max(0.0);
+        let sse = total.sse(&full);
         let n_free = if self.data.reference.is_some() {
             0
         } else {
@@ -469,7 +441,7 @@ impl<'a, 'd> Base<'a, 'd> {
                 .map(|t| t.iter().skip(p).copied().collect())
                 .collect(),
             gamma: full.iter().skip(p).copied().collect(),
-            bic: bic(sse, total.3, n_free),
+            bic: bic(sse, total.n, n_free),
         })
     }
 

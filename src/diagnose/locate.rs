@@ -10,6 +10,7 @@ use super::data::{Rows, TrialMeta};
 use super::hypotheses::{N_LOCATE, locate_name};
 use super::stats::{pearson, t_upper_tail};
 use crate::trial::Phase;
+use crate::lsq::solve_normal;
 use nalgebra::DMatrix;
 
 use crate::{N_JOINTS, N_PARAMS};
@@ -428,13 +429,7 @@ pub(crate) fn correlates(
             if c + 1 < width { rows.x[r][c] } else { 1.0 }
         },
     );
-    let mut g = x.transpose() * &x;
-    let ridge = 1e-9 * (0..g.nrows()).map(|i| g[(i, i)]).fold(0.0, f64::max);
-    for i in 0..g.nrows() {
-        g[(i, i)] += ridge.max(1e-300);
-    }
-    if let Some(ch) = g.cholesky() {
-        let b = ch.solve(&(x.transpose() * &f));
+    if let Some(b) = solve_normal(&(x.transpose() * &x), &(x.transpose() * &f), 1e-9) {
         f -= &x * b;
     }
     let mut feat = vec![vec![0.0; nf]; nt];

@@ -128,13 +128,7 @@ struct Search<'a> {
 /// The least-squares coefficients of a row set's normal equations (a handful of columns:
 /// Cholesky, or SVD when the system is singular).
 fn solve(g: &Gram) -> Option<Vec<f64>> {
-    let sol = match g.g.clone().cholesky() {
-        Some(ch) => ch.solve(&g.h),
-        None => g.g.clone().svd(true, true).solve(&g.h, 1e-10).ok()?,
-    };
-    sol.iter()
-        .all(|v| v.is_finite())
-        .then(|| sol.iter().copied().collect())
+    g.solve(0.0).map(|s| s.iter().copied().collect())
 }
 
 fn predict(coef: &[f64], x: &[&[f64]], r: usize) -> f64 {

@@ -154,20 +154,8 @@ pub(crate) fn trial_rows(
 
 /// Unconstrained least squares on the first `p` columns (tiny relative ridge for joints that never moved).
 fn solve(gr: &Gram, p: usize) -> DVector<f64> {
-    let g = gr.g.view((0, 0), (p, p)).into_owned();
-    let scale = (0..p).map(|i| g[(i, i)]).fold(0.0, f64::max).max(1e-300);
-    let mut gr2 = g.clone();
-    for i in 0..p {
-        gr2[(i, i)] += 1e-9 * scale;
-    }
-    let h = gr.h.rows(0, p).into_owned();
-    let sol = gr2
-        .cholesky()
-        .map(|c| c.solve(&h))
-        .unwrap_or_else(|| DVector::zeros(p));
-    let mut full = DVector::zeros(N_TORQUE);
-    full.rows_mut(0, p).copy_from(&sol);
-    full
+    gr.solve_leading(p, 1e-9)
+        .unwrap_or_else(|| DVector::zeros(N_TORQUE))
 }
 
 fn predict(row: &TorqueRow, beta: &DVector<f64>) -> [f64; N_JOINTS] {

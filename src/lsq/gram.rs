@@ -82,6 +82,59 @@ impl Gram {
     pub fn condition_number(&self) -> f64 {
         super::condition_number_gram(&self.g)
     }
+
+    /// The same rows with `extra` more columns, all zero for now (a design being extended:
+    /// the new columns' sums are added by the caller).
+    pub fn widened(&self, extra: usize) -> Gram {
+        let p = self.columns();
+        let mut w = Gram::zeros(p + extra);
+        w.g.view_mut((0, 0), (p, p)).copy_from(&self.g);
+        w.h.rows_mut(0, p).copy_from(&self.h);
+        w.yy = self.yy;
+        w.n = self.n;
+        w
+    }
+
+    /// The unconstrained least-squares coefficients (see [`solve_normal`]), with a ridge of
+    /// `ridge` × the largest diagonal entry for columns that never moved.
+    pub fn solve(&self, ridge: f64) -> Option<DVector<f64>> {
+        solve_normal(&self.g, &self.h, ridge)
+    }
+
+    /// [`Gram::solve`] on the first `p` columns only (a nested model), padded with zeros.
+    pub fn solve_leading(&self, p: usize, ridge: f64) -> Option<DVector<f64>> {
+        let g = self.g.view((0, 0), (p, p)).into_owned();
+        let h = self.h.rows(0, p).into_owned();
+        let sol = solve_normal(&g, &h, ridge)?;
+        let mut full = DVector::zeros(self.columns());
+        full.rows_mut(0, p).copy_from(&sol);
+        Some(full)
+    }
+}
+
+/// The one unconstrained solve of the crate: `(G + ridge·max diag(G)·I) β = rhs` by Cholesky,
+/// and by SVD (least-norm) when the system is singular. `rhs` may have several columns. None
+/// only when the result is not finite.
+pub fn solve_normal<C: nalgebra::Dim, S: nalgebra::storage::Storage<f64, nalgebra::Dyn, C>>(
+    g: &DMatrix<f64>,
+    rhs: &nalgebra::Matrix<f64, nalgebra::Dyn, C, S>,
+    ridge: f64,
+) -> Option<nalgebra::OMatrix<f64, nalgebra::Dyn, C>>
+where
+    nalgebra::DefaultAllocator: nalgebra::allocator::Allocator<nalgebra::Dyn, C>,
+{
+    let mut a = g.clone();
+    if ridge > 0.0 {
+        let scale = a.diagonal().iter().copied().fold(0.0, f64::max).max(1e-300);
+        for i in 0..a.nrows() {
+            a[(i, i)] += ridge * scale;
+        }
+    }
+    let sol = match a.clone().cholesky() {
+        Some(ch) => ch.solve(rhs),
+        None => a.svd(true, true).solve(rhs, 1e-10).ok()?,
+    };
+    sol.iter().all(|v| v.is_finite()).then_some(sol)
 }
 
 #[cfg(test)]
@@ -114,5 +167,33 @@ mod tests {
         let mut back = rest.clone();
         back.add(&first);
         assert!((&back.g - &all.g).norm() < 1e-12);
+    }
+
+    #[test]
+    fn solve_agrees_with_an_independent_qr_and_falls_back_when_singular() {
+        // Well-posed: the Cholesky path against an SVD least-squares solve of the rows themselves.
+        let x = DMatrix::from_row_slice(4, 2, &[1.0, 0.5, 2.0, -1.0, 0.0, 3.0, 1.5, 1.0]);
+        let y = DVector::from_vec(vec![1.0, -2.0, 0.5, 4.0]);
+        let mut gram = Gram::zeros(2);
+        for r in 0..4 {
+            gram.add_row(&[x[(r, 0)], x[(r, 1)]], y[r]);
+        }
+        let rows = x.clone().svd(true, true).solve(&y, 1e-12).expect("svd");
+        let beta = gram.solve(0.0).expect("well-posed");
+        assert!((beta - &rows).norm() < 1e-10);
+        // Singular (a column that never moved): SVD gives the least-norm solution, the dead
+        // column's coefficient 0 and the live one's exact.
+        let mut dead = Gram::zeros(2);
+        for r in 0..4 {
+            dead.add_row(&[x[(r, 0)], 0.0], y[r]);
+        }
+        let b = dead.solve(0.0).expect("least-norm");
+        let exact = dead.h[0] / dead.g[(0, 0)];
+        assert!(b[1].abs() < 1e-12 && (b[0] - exact).abs() < 1e-10);
+        let lead = gram.solve_leading(1, 0.0).expect("nested");
+        assert!((lead[0] - gram.h[0] / gram.g[(0, 0)]).abs() < 1e-12 && lead[1] == 0.0);
+        let wide = gram.widened(1);
+        assert_eq!((wide.columns(), wide.n), (3, 4));
+        assert_eq!(wide.g[(2, 2)], 0.0);
     }
 }

@@ -6,9 +6,9 @@
 //! The scan knows nothing of how rows are built: identification scores its own per-reading rows
 //! (`identify::estimate_alignment`), diagnosis its own.
 
-use nalgebra::{DMatrix, DVector};
 
 use crate::N_PARAMS;
+use crate::lsq::Gram;
 
 /// Timing of a power reading: it is the average power over [t − lag − window, t − lag].
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -147,24 +147,12 @@ pub fn ridge_r2<'a>(phi: impl ExactSizeIterator<Item = &'a [f64]>, y: &[f64]) ->
     if n <= N_PARAMS || phi.len() != n {
         return None;
     }
-    let mut m = DMatrix::zeros(n, N_PARAMS);
-    for (r, row) in phi.enumerate() {
-        if row.len() < N_PARAMS {
-            return None;
-        }
-        for (c, v) in row.iter().take(N_PARAMS).enumerate() {
-            m[(r, c)] = *v;
-        }
+    let mut gram = Gram::zeros(N_PARAMS);
+    for (row, &yv) in phi.zip(y) {
+        gram.add_row(row.get(..N_PARAMS)?, yv);
     }
-    let y = DVector::from_column_slice(y);
-    let mut normal = m.transpose() * &m;
-    let scale = normal.diagonal().max().max(1e-12);
-    for k in 0..N_PARAMS {
-        normal[(k, k)] += 1e-9 * scale;
-    }
-    let theta = normal.cholesky()?.solve(&(m.transpose() * &y));
-    let residual = &y - &m * theta;
-    let mean = y.mean();
+    let theta = gram.solve(1e-9)?;
+    let mean = y.iter().sum::<f64>() / n as f64;
     let total: f64 = y.iter().map(|v| (v - mean).powi(2)).sum();
-    (total > 0.0).then(|| 1.0 - residual.norm_squared() / total)
+    (total > 0.0).then(|| 1.0 - gram.sse(&theta) / total)
 }
