@@ -9,8 +9,8 @@
 use super::data::{Rows, TrialMeta};
 use super::hypotheses::{N_LOCATE, locate_name};
 use super::stats::{pearson, t_upper_tail};
-use crate::trial::Phase;
 use crate::lsq::solve_normal;
+use crate::trial::Phase;
 use nalgebra::DMatrix;
 
 use crate::{N_JOINTS, N_PARAMS};

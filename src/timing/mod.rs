@@ -6,7 +6,6 @@
 //! The scan knows nothing of how rows are built: identification scores its own per-reading rows
 //! (`identify::estimate_alignment`), diagnosis its own.
 
-
 use crate::N_PARAMS;
 use crate::lsq::Gram;
 
