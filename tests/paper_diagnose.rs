@@ -469,3 +469,30 @@ fn paper_scale_fan_load_is_found_on_the_board_field() {
     let p = &rest.found[0].params[0];
     within_10_percent(&format!("rest {}", p.symbol), p.value, watts);
 }
+
+/// A power sensor lagging 0.8 s and nothing else (seed 3, refit): the latency is the one claim.
+/// The rest power reads each trial's baseline readings at the lag the selection found (their
+/// windows inside the pre-idle); read at lag 0 the first ones averaged the end of the previous
+/// trial's return, and the rest power claimed two arm joint velocities (issue 28).
+#[test]
+fn paper_scale_latency_alone_claims_nothing_on_the_rest_power() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("paper_latency.mcap");
+    let mut effects = Effects::default();
+    effects.enable("latency=0.8").expect("latency effect");
+    let cfg = SimConfig {
+        preset: Preset::Paper,
+        seed: 3,
+        effects,
+        progress: false,
+        ..SimConfig::default()
+    };
+    sim::simulate(&cfg, &path).expect("simulate");
+    let rec = load_recording(&path, &SignalMap::g1_left_arm(), &Default::default()).expect("read");
+    let d = diagnose::diagnose(&rec, &DiagnoseOptions::default()).expect("diagnose");
+    print!("{}", d.summary);
+    assert_eq!(claims(&d), ["latency"]);
+    within_10_percent("L", d.accepted[0].params[0].value, 0.8);
+    let rest = d.discovery.as_ref().and_then(|r| r.rest.as_ref());
+    assert!(rest.is_some_and(|r| r.n_trials >= 200), "{rest:?}");
+}
