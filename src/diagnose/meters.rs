@@ -124,9 +124,13 @@ fn checks(target: Target, diff: &[f64], cols: &[Vec<f64>]) -> Vec<Option<MeterCh
     };
     s.into_iter()
         .map(|(share, se)| {
-            let verdict = if share - Z * se > 0.5 {
+            // A verdict only where the comparison tells 0 from 1 (Z·se ≤ ½); an artefact's
+            // share is consistent with 0 (a load's is diluted below 1 where the other meter's
+            // readings fall at other instants than the fields' windows follow).
+            let resolved = Z * se <= 0.5;
+            let verdict = if resolved && share - Z * se > 0.5 {
                 "load"
-            } else if share + Z * se < 0.5 {
+            } else if resolved && share + Z * se < 0.5 && share + Z * se >= 0.0 {
                 "meter artefact"
             } else {
                 "undecided"
