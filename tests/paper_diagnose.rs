@@ -468,4 +468,65 @@ fn paper_scale_fan_load_is_found_on_the_board_field() {
     assert_eq!(rest.found[0].field, "/lf/mainboardstate.fan_state[1]");
     let p = &rest.found[0].params[0];
     within_10_percent(&format!("rest {}", p.symbol), p.value, watts);
+    // A load on the rail: the battery meter shows it too.
+    for m in [&t.meter, &rest.found[0].meter] {
+        let m = m.as_ref().expect("checked against the battery meter");
+        assert_eq!(m.verdict, "load", "{m:?}");
+    }
+}
+
+/// The same fan cycling, drawing nothing, while the main-board meter's reading shifts by 3 W
+/// (`fan_meter`, a one-meter artefact): found on the same field, and named an artefact of the
+/// main-board meter (the battery meter shows none of it), not a load on the rail (issue 28).
+#[test]
+fn paper_scale_one_meter_artefact_is_named_a_correction_of_that_meter() {
+    let s = paper_session("fan_meter=3");
+    let d = diagnose::diagnose(&s.rec, &DiagnoseOptions::default()).expect("diagnose");
+    print!("{}", d.summary);
+    let t = only_found("refit", &d);
+    assert_eq!(t.fields, ["/lf/mainboardstate.fan_state[1]"], "{t:?}");
+    let rest = d.discovery.as_ref().and_then(|r| r.rest.as_ref());
+    let rest = &rest.expect("rest power").found;
+    assert_eq!(rest.len(), 1, "{rest:?}");
+    for (name, m) in [(&t.name, &t.meter), (&rest[0].name, &rest[0].meter)] {
+        let m = m.as_ref().expect("checked against the battery meter");
+        assert_eq!(m.verdict, "meter artefact", "{m:?}");
+        assert!(m.share.abs() < 0.25, "{m:?}");
+        assert!(
+            name.contains("main-board meter") && !name.contains("rail load"),
+            "{name}"
+        );
+    }
+    assert!(
+        d.summary.contains("an artefact of the main-board meter"),
+        "{}",
+        d.summary
+    );
+}
+
+/// A power sensor lagging 0.8 s and nothing else (seed 3, refit): the latency is the one claim.
+/// The rest power reads each trial's baseline readings at the lag the selection found (their
+/// windows inside the pre-idle); read at lag 0 the first ones averaged the end of the previous
+/// trial's return, and the rest power claimed two arm joint velocities (issue 28).
+#[test]
+fn paper_scale_latency_alone_claims_nothing_on_the_rest_power() {
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("paper_latency.mcap");
+    let mut effects = Effects::default();
+    effects.enable("latency=0.8").expect("latency effect");
+    let cfg = SimConfig {
+        preset: Preset::Paper,
+        seed: 3,
+        effects,
+        progress: false,
+        ..SimConfig::default()
+    };
+    sim::simulate(&cfg, &path).expect("simulate");
+    let rec = load_recording(&path, &SignalMap::g1_left_arm(), &Default::default()).expect("read");
+    let d = diagnose::diagnose(&rec, &DiagnoseOptions::default()).expect("diagnose");
+    print!("{}", d.summary);
+    assert_eq!(claims(&d), ["latency"]);
+    within_10_percent("L", d.accepted[0].params[0].value, 0.8);
+    let rest = d.discovery.as_ref().and_then(|r| r.rest.as_ref());
+    assert!(rest.is_some_and(|r| r.n_trials >= 200), "{rest:?}");
 }

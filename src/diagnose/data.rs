@@ -312,8 +312,21 @@ impl TrialFeatures {
     }
 }
 
+/// A trial's baseline readings at sensor lag `lag` and window `width`: those whose window
+/// [t − lag − W, t − lag] lies inside the pre-idle, stamps in [t_pre_start + W + lag,
+/// t_traj_start + lag]. The one rule of every stage that reads a trial's rest power: without
+/// the lag, a lagging sensor's first baseline readings average the previous trial's motion.
+pub(crate) fn baseline_readings(
+    pt: &[f64],
+    w: &TrialWindow,
+    lag: f64,
+    width: f64,
+) -> std::ops::Range<usize> {
+    sample_range(pt, w.t_pre_start + width + lag, w.t_traj_start + lag + 1e-9)
+}
+
 /// Build the rows for one sensor lag. Readings are assigned to trials by their stamps:
-/// baseline readings have stamps in [t_pre_start + W, t_traj_start], row readings in
+/// baseline readings by [`baseline_readings`], row readings with stamps in
 /// [t_traj_start + W, t_return_end].
 pub(crate) fn build_rows(
     rec: &Recording,
@@ -358,7 +371,7 @@ pub(crate) fn trial_rows_into(
     let mut x = [0.0; N_RAW];
     let mut loc = [0.0; N_LOCATE];
     let w = &meta.window;
-    let base = sample_range(pt, w.t_pre_start + width, w.t_traj_start + 1e-9);
+    let base = baseline_readings(pt, w, lag, width);
     let vals: Vec<f64> = base
         .filter_map(|k| power.watts.get(k).copied())
         .filter(|v| v.is_finite())

@@ -182,6 +182,13 @@ pub struct Discovery {
     /// and none of them is claimed as a term of its own.
     #[serde(default)]
     pub tied: Vec<TiedTerm>,
+    /// What the rail's other meter shows of it: a load or an artefact of the meter it was
+    /// found on ([`super::meters`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub meter: Option<super::meters::MeterCheck>,
+    /// What it adds to the power, per reading (the final joint fit's coefficients).
+    #[serde(skip)]
+    pub contribution: Vec<f64>,
 }
 
 /// A candidate on other field(s) that fits as well as a found term (see [`Discovery::tied`]).
@@ -1747,6 +1754,9 @@ fn finish(
                     jackknife_se(&per)
                 })
                 .collect();
+            d.contribution = (0..all.first().map_or(0, Vec::len))
+                .map(|r| (0..ncols).map(|j| g[j] * all[off + j][r]).sum())
+                .collect();
             d.params = describe(
                 &search.cands[k].kind,
                 &search.inp.fields.names,
@@ -1844,6 +1854,8 @@ fn to_discovery(
         step,
         verdict,
         tied: Vec::new(),
+        meter: None,
+        contribution: Vec::new(),
     }
 }
 

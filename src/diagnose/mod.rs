@@ -15,6 +15,7 @@ pub(crate) mod discover;
 pub(crate) mod fields;
 pub(crate) mod hypotheses;
 pub(crate) mod locate;
+pub(crate) mod meters;
 mod options;
 mod outcome;
 mod reduce;
@@ -45,6 +46,7 @@ pub use counterpart::{
 pub use discover::{Discovery, DiscoveryReport, TiedTerm};
 pub use fields::{ExcludedField, FieldSource};
 pub use locate::{Breakdown, Correlate, Group, TrialResidual};
+pub use meters::MeterCheck;
 pub use options::DiagnoseOptions;
 pub use replay::{HighlightedTrial, LocatedField, ReplayData};
 pub use report::{FIGURES as REPORT_FIGURES, write_report};
@@ -260,7 +262,12 @@ fn run(
         bic_threshold: opts.bic_threshold,
         min_improvement: opts.min_improvement,
     };
-    let (sel, discovery, fields) = select_and_discover(info, &metas, &data, &rule, opts)?;
+    let (sel, mut discovery, fields) = select_and_discover(info, &metas, &data, &rule, opts)?;
+    if let Some(r) = discovery.as_mut() {
+        let (rows, lag) = (data.rows(sel.last.lag)?, data.lags[sel.last.lag]);
+        let (power, other) = (&info.power, &info.other);
+        meters::check_findings(r, info.target, power, other, &metas, rows, lag, w);
+    }
 
     // Torque level.
     let torque = match arm {

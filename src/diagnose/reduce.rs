@@ -70,6 +70,19 @@ pub(crate) struct SessionInfo {
     pub joint_names: Vec<String>,
     /// The target's power readings, whole (about one a second).
     pub power: PowerSeries,
+    /// The other meter of the same rail (the battery's for the main board's, and the other way
+    /// round), whole: what a finding is checked against ([`super::meters`]).
+    pub other: PowerSeries,
+    /// The target meter.
+    pub target: Target,
+}
+
+/// The other meter's series of a recording or batch.
+fn other_series(rec: &Recording, target: Target) -> &PowerSeries {
+    match target {
+        Target::Mbs => &rec.bms,
+        Target::Bms => &rec.mbs,
+    }
 }
 
 impl SessionInfo {
@@ -80,6 +93,8 @@ impl SessionInfo {
             start_ns: rec.start_ns,
             joint_names: rec.joint_names.clone(),
             power: target.series(rec).clone(),
+            other: other_series(rec, target).clone(),
+            target,
         }
     }
 }
@@ -192,6 +207,8 @@ impl Streamed {
                 start_ns: 0,
                 joint_names: first_file.map.joint_names.clone(),
                 power: PowerSeries::default(),
+                other: PowerSeries::default(),
+                target,
             },
             windows: Vec::new(),
             metas: Vec::new(),
@@ -225,6 +242,7 @@ impl Streamed {
             let mut last_t = None::<f64>;
             let mut start_ns = 0u64;
             let mut power = PowerSeries::default();
+            let mut other = PowerSeries::default();
             let mut has_torque = false;
             let mut metas = Vec::new();
             let mut skipped = Vec::new();
@@ -250,6 +268,9 @@ impl Streamed {
                     let p = target.series(batch);
                     power.t.extend_from_slice(&p.t);
                     power.watts.extend_from_slice(&p.watts);
+                    let o = other_series(batch, target);
+                    other.t.extend_from_slice(&o.t);
+                    other.watts.extend_from_slice(&o.watts);
                     has_torque |= batch.state.tau.iter().any(|t| t.iter().any(|v| *v != 0.0));
                 },
                 &mut |buf, w| {
@@ -277,10 +298,13 @@ impl Streamed {
                 start_ns,
                 offset_s: off,
             });
-            power.sort_by_time();
-            for (t, v) in power.t.iter().zip(&power.watts) {
-                out.info.power.t.push(t + off);
-                out.info.power.watts.push(*v);
+            for (p, to) in [
+                (&mut power, &mut out.info.power),
+                (&mut other, &mut out.info.other),
+            ] {
+                p.sort_by_time();
+                to.t.extend(p.t.iter().map(|t| t + off));
+                to.watts.extend_from_slice(&p.watts);
             }
             out.windows.extend(
                 part.local

@@ -47,6 +47,10 @@ pub struct RestPower {
     /// trials it did not use); empty when nothing was found.
     #[serde(skip)]
     pub trial_pred: Vec<f64>,
+    /// Per found term: what it adds to the rest power per trial of the stage's input (NaN where
+    /// unknown); what the other meter is checked against.
+    #[serde(skip)]
+    pub term_cols: Vec<Vec<f64>>,
 }
 
 /// A term of the rest power on one recorded field (or session time).
@@ -73,6 +77,9 @@ pub struct RestTerm {
     pub tied: Vec<String>,
     /// Accepted or rejected, and why.
     pub verdict: String,
+    /// What the rail's other meter shows of it ([`super::meters`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub meter: Option<super::meters::MeterCheck>,
 }
 
 /// A candidate column: a field linear, a field as a step, or session time.
@@ -125,12 +132,6 @@ struct Search<'a> {
     rule: Rule,
 }
 
-/// The least-squares coefficients of a row set's normal equations (a handful of columns:
-/// Cholesky, or SVD when the system is singular).
-fn solve(g: &Gram) -> Option<Vec<f64>> {
-    g.solve(0.0).map(|s| s.iter().copied().collect())
-}
-
 fn predict(coef: &[f64], x: &[&[f64]], r: usize) -> f64 {
     coef[0] + x.iter().zip(&coef[1..]).map(|(c, k)| c[r] * k).sum::<f64>()
 }
@@ -153,13 +154,13 @@ impl Search<'_> {
         let mut pred = vec![f64::NAN; n];
         let mut fold_coef = Vec::new();
         for (f, held) in folds.iter().enumerate() {
-            let coef = solve(&total.minus(held))?;
+            let coef: Vec<f64> = total.minus(held).solve(0.0)?.iter().copied().collect();
             for r in (0..n).filter(|&r| self.block[r] % FOLDS == f) {
                 pred[r] = predict(&coef, x, r);
             }
             fold_coef.push(coef);
         }
-        let coef = solve(&total)?;
+        let coef: Vec<f64> = total.solve(0.0)?.iter().copied().collect();
         let sse: f64 = (0..n)
             .map(|r| (self.y[r] - predict(&coef, x, r)).powi(2))
             .sum();
@@ -283,6 +284,7 @@ impl Search<'_> {
             rel_improvement: s.rel,
             tied: Vec::new(),
             verdict,
+            meter: None,
         }
     }
 }
@@ -438,6 +440,15 @@ pub(crate) fn rest_power(inp: &RestInputs, rule: &Rule) -> Option<RestPower> {
             Cand::Step(f, thr) => f64::from(u8::from(inp.fields[f][t] > thr)),
             Cand::Time => inp.start[t] / 3600.0,
         };
+        out.term_cols = chosen
+            .iter()
+            .enumerate()
+            .map(|(k, &c)| {
+                (0..inp.power.len())
+                    .map(|t| cur.coef[k + 1] * x_of(c, t))
+                    .collect()
+            })
+            .collect();
         for t in 0..inp.power.len() {
             let x: Vec<f64> = chosen.iter().map(|&c| x_of(c, t)).collect();
             if x.iter().all(|v| v.is_finite()) {

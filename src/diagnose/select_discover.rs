@@ -205,12 +205,8 @@ pub(crate) fn run_fields(
         .collect();
     let mut base_power = vec![f64::NAN; metas.len()];
     for (ti, m) in metas.iter().enumerate() {
-        let lo = power.t.partition_point(|&x| x < m.window.t_pre_start + w);
-        let hi = power
-            .t
-            .partition_point(|&x| x < m.window.t_traj_start + 1e-9);
         let (mut sum, mut n) = (0.0, 0usize);
-        for k in lo..hi.max(lo) {
+        for k in super::data::baseline_readings(&power.t, &m.window, lag, w) {
             if let Some(&v) = power.watts.get(k).filter(|v| v.is_finite()) {
                 all.push((window(power.t[k]), rows.len() + ti));
                 sum += v;

@@ -352,6 +352,7 @@ fn discovery_lines(d: &Diagnosis, s: &mut String) {
             t.p_value,
             t.alpha
         );
+        meter_line(t.meter.as_ref(), s);
         tied_lines(t, s);
     }
     if r.accepted.is_empty() {
@@ -377,6 +378,13 @@ fn discovery_lines(d: &Diagnosis, s: &mut String) {
             "Left out of discovery as counters, clocks or hash-like: {} (reasons in the report).",
             junk.join(", ")
         );
+    }
+}
+
+/// What the rail's other meter shows of a finding, on a line of its own.
+fn meter_line(m: Option<&super::MeterCheck>, s: &mut String) {
+    if let Some(m) = m {
+        let _ = writeln!(s, "  {}", m.words());
     }
 }
 
@@ -427,6 +435,7 @@ fn rest_lines(r: &super::RestPower, s: &mut String) {
             t.alpha,
             super::rest::BLOCK_TRIALS
         );
+        meter_line(t.meter.as_ref(), s);
     }
     if r.found.is_empty() {
         let best = best_rejected(r.best_rejected.as_ref().map(|b| (&b.name, &b.verdict)));

@@ -78,6 +78,18 @@ impl Gram {
         (self.yy - 2.0 * beta.dot(&self.h) + beta.dot(&(&self.g * beta))).max(0.0)
     }
 
+    /// The coefficients and their classical standard errors (residual variance × (ΦᵀΦ)⁻¹ᵢᵢ,
+    /// n − p degrees of freedom); `None` when ΦᵀΦ is singular or n ≤ p.
+    pub fn solve_with_se(&self) -> Option<(DVector<f64>, DVector<f64>)> {
+        let p = self.columns();
+        let inv = self.g.clone().cholesky()?.inverse();
+        let beta = &inv * &self.h;
+        let dof = self.n.checked_sub(p).filter(|&d| d > 0)? as f64;
+        let s2 = self.sse(&beta) / dof;
+        let se = DVector::from_iterator(p, (0..p).map(|i| (s2 * inv[(i, i)]).max(0.0).sqrt()));
+        beta.iter().all(|v| v.is_finite()).then_some((beta, se))
+    }
+
     /// κ(ΦᵀΦ) = λ_max/λ_min; ∞ when singular (see [`super::condition_number_gram`]).
     pub fn condition_number(&self) -> f64 {
         super::condition_number_gram(&self.g)

@@ -164,6 +164,16 @@ pub struct SwitchingLoss {
     pub per_volt_amp: f64,
 }
 
+/// A measurement artefact of one meter: fan 1 cycles as for [`RailLoad`] but draws nothing from
+/// the arm rail, and the main-board meter's reading shifts by `watts` while it runs (interference
+/// in its current sense). The battery meter does not show it: a correction of the main-board
+/// meter, not a load.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct MeterOffset {
+    /// Shift of the main-board reading while the fan runs [W].
+    pub watts: f64,
+}
+
 /// Mean on and off durations of the [`RailLoad`] fan [s].
 pub const FAN_MEAN_ON_OFF_S: (f64, f64) = (8.0, 12.0);
 
@@ -222,10 +232,13 @@ pub struct Effects {
     /// Inverter switching loss following the supply voltage.
     #[serde(skip_serializing_if = "Option::is_none", default)]
     pub switching: Option<SwitchingLoss>,
+    /// The main-board meter's reading shifted while fan 1 runs (no load; a one-meter artefact).
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    pub fan_meter: Option<MeterOffset>,
 }
 
 /// Names accepted by [`Effects::enable`], in documentation order.
-pub const EFFECT_NAMES: [&str; 17] = [
+pub const EFFECT_NAMES: [&str; 18] = [
     "thermal",
     "braking",
     "bus_loss",
@@ -243,6 +256,7 @@ pub const EFFECT_NAMES: [&str; 17] = [
     "fan_load",
     "fan0_load",
     "switching",
+    "fan_meter",
 ];
 
 impl ThermalDrift {
@@ -335,7 +349,7 @@ impl Effects {
     /// braking r [-], bus_loss R [Ω], payload mass [kg] at the default position, latency [s],
     /// gear_friction μ [-], drive_loss V_drop [V], stribeck F_s [Nm], balance_leak k [W/(rad/s)²] at
     /// the default sway, harness_drag k [W·s/rad], bus_power R [Ω], electronics_nm k [W/Nm],
-    /// joint_friction F [Nm], housing_friction k [W/(K·rad/s)], fan_load and fan0_load [W], switching
+    /// joint_friction F [Nm], housing_friction k [W/(K·rad/s)], fan_load, fan0_load and fan_meter [W], switching
     /// k_sw [W/(V·A)]).
     pub fn enable(&mut self, spec: &str) -> anyhow::Result<()> {
         let (name, value) = match spec.split_once('=') {
@@ -446,6 +460,11 @@ impl Effects {
             }
             "fan_load" => {
                 self.fan_load = Some(value.map_or(RailLoad::DEFAULT, |watts| RailLoad { watts }))
+            }
+            "fan_meter" => {
+                self.fan_meter = Some(MeterOffset {
+                    watts: value.unwrap_or(RailLoad::DEFAULT.watts),
+                })
             }
             "fan0_load" => {
                 self.fan0_load = Some(value.map_or(RailLoad::DEFAULT, |watts| RailLoad { watts }))

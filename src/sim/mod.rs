@@ -34,8 +34,8 @@ pub use battery::{Battery, NMC_OCV, PACK_AH, PACK_RESISTANCE_OHM, nmc_cell_ocv};
 pub use effects::{
     BalanceLeak, BrakingAsymmetry, BusLoss, BusPowerLoss, DEFAULT_PAYLOAD, DriveLoss, EFFECT_NAMES,
     Effects, ElectronicsLoss, FAN_MEAN_ON_OFF_S, GearFriction, HarnessDrag, HousingFriction,
-    JOINT_FRICTION_PATTERN, JointFrictionExcess, RailLoad, SWAY_CORRELATION_S, SensorLatency,
-    StribeckFriction, SwitchingLoss, THERMAL_REFERENCE_C, ThermalDrift,
+    JOINT_FRICTION_PATTERN, JointFrictionExcess, MeterOffset, RailLoad, SWAY_CORRELATION_S,
+    SensorLatency, StribeckFriction, SwitchingLoss, THERMAL_REFERENCE_C, ThermalDrift,
 };
 pub use like::simulate_like_file;
 pub use protocol::Preset;

@@ -467,7 +467,10 @@ impl Engine<'_> {
             sway_angle: [0.0; 2],
             ambient: [0.0; 2],
             sway_rng: ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x005a_1a4c_e000_u64),
-            fan: effects.fan_load.map(|l| Fan::new(l.watts, cfg.seed)),
+            // The fan of `fan_meter` cycles as the rail load's would, drawing nothing.
+            fan: (effects.fan_load.map(|l| l.watts))
+                .or(effects.fan_meter.map(|_| 0.0))
+                .map(|w| Fan::new(w, cfg.seed)),
             fan0: effects
                 .fan0_load
                 .map(|l| Fan::new(l.watts, cfg.seed ^ 0x0f00_0000_0000_u64)),
@@ -795,7 +798,12 @@ impl Engine<'_> {
     ) -> Result<()> {
         let noise: Noise = self.cfg.noise;
         st.i_mbs += 1;
+        let artefact = match (self.cfg.effects.fan_meter, &st.fan) {
+            (Some(m), Some(f)) if f.on => m.watts,
+            _ => 0.0,
+        };
         let p = window_mean(&st.power_hist, t - st.latency, self.cfg.sensor_window_s)
+            + artefact
             + noise.mbs_w * gauss(rng);
         let volts = quant(self.pack_volts(st) - 0.4 + 0.005 * gauss(rng), 0.01);
         let amps = quant(p / volts, 0.001);

@@ -1,0 +1,258 @@
+//! Meter or load: the arm rail is metered twice (the main board's meter, and the battery's, which
+//! also carries the rest of the robot). A load on the rail shows on both meters; an artefact of one
+//! meter (an offset or gain that follows some state, a lag, a window) on that meter alone.
+//!
+//! Every term found beyond the library and every rest-power term is checked against the other
+//! meter trial by trial: the difference other − target of the two meters' per-trial power (net of
+//! each one's own baseline for the moving part, the baseline itself for the rest power) is
+//! regressed on what the term adds to the target's power. The rail's real power cancels in the
+//! difference, so a load leaves a slope of 0 (the other meter shows all of it: share 1) and an
+//! artefact of the target meter a slope of −1 (share 0). An artefact is renamed a correction of
+//! that meter's reading, not a load on the rail; its fitted form is kept as the correction.
+
+use serde::{Deserialize, Serialize};
+
+use super::data::{Rows, TrialMeta, baseline_readings};
+use super::discover::DiscoveryReport;
+use crate::lsq::Gram;
+use crate::signals::{PowerSeries, Target};
+
+/// Standard errors a share must lie from ½ for a verdict.
+const Z: f64 = 3.0;
+
+/// What the rail's other meter shows of a finding.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MeterCheck {
+    /// The meter it was found on ("main-board" or "battery").
+    pub meter: String,
+    /// The meter it was checked against.
+    pub other: String,
+    /// Share of it that the other meter shows (1: a load on the rail; 0: an artefact of
+    /// `meter`).
+    pub share: f64,
+    /// Standard error of the share.
+    pub std_err: f64,
+    /// Trials compared.
+    pub n_trials: usize,
+    /// "load", "meter artefact" or "undecided".
+    pub verdict: String,
+}
+
+impl MeterCheck {
+    /// Whether the finding is an artefact of the meter it was found on.
+    pub fn artefact(&self) -> bool {
+        self.verdict == "meter artefact"
+    }
+
+    /// One sentence for the summary.
+    pub fn words(&self) -> String {
+        let shown = format!(
+            "the {} meter shows {:.0} ± {:.0} % of it",
+            self.other,
+            // (rounded first: no "-0")
+            (100.0 * self.share).round() + 0.0,
+            100.0 * self.std_err
+        );
+        match self.verdict.as_str() {
+            "load" => format!("Both meters see it ({shown}): a load on the rail."),
+            "meter artefact" => format!(
+                "One meter only ({shown}): an artefact of the {} meter, modelled as a correction of its reading.",
+                self.meter
+            ),
+            _ => format!("The other meter cannot tell load from artefact ({shown})."),
+        }
+    }
+}
+
+fn meter_name(t: Target) -> &'static str {
+    match t {
+        Target::Mbs => "main-board",
+        Target::Bms => "battery",
+    }
+}
+
+/// One meter's power per trial: the rest power (mean of its baseline readings) and the net power
+/// of the moving part (readings stamped in [t_traj_start + W, t_return_end], minus the rest).
+fn per_trial(p: &PowerSeries, metas: &[TrialMeta], lag: f64, w: f64) -> (Vec<f64>, Vec<f64>) {
+    let mean = |r: std::ops::Range<usize>| {
+        let v: Vec<f64> = p.watts[r]
+            .iter()
+            .copied()
+            .filter(|v| v.is_finite())
+            .collect();
+        if v.is_empty() {
+            f64::NAN
+        } else {
+            v.iter().sum::<f64>() / v.len() as f64
+        }
+    };
+    metas
+        .iter()
+        .map(|m| {
+            let rest = mean(baseline_readings(&p.t, &m.window, lag, w));
+            let a = p.t.partition_point(|&x| x < m.window.t_traj_start + w);
+            let b = p.t.partition_point(|&x| x < m.window.t_return_end + 1e-9);
+            (rest, mean(a..b.max(a)) - rest)
+        })
+        .unzip()
+}
+
+/// Share of each column (what a term adds, per trial) that the other meter shows, with its
+/// standard error, from the slope of `diff` = other − target on the columns (with a constant).
+fn shares(diff: &[f64], cols: &[Vec<f64>]) -> Option<(Vec<(f64, f64)>, usize)> {
+    let mut g = Gram::zeros(cols.len() + 1);
+    let mut row = vec![1.0; cols.len() + 1];
+    for (t, &d) in diff.iter().enumerate() {
+        for (c, col) in cols.iter().enumerate() {
+            row[c + 1] = col[t];
+        }
+        if d.is_finite() && row.iter().all(|v| v.is_finite()) {
+            g.add_row(&row, d);
+        }
+    }
+    let (beta, se) = g.solve_with_se()?;
+    Some((
+        (1..=cols.len()).map(|c| (1.0 + beta[c], se[c])).collect(),
+        g.n,
+    ))
+}
+
+/// The check of each column, `None` where the other meter has too few trials.
+fn checks(target: Target, diff: &[f64], cols: &[Vec<f64>]) -> Vec<Option<MeterCheck>> {
+    let Some((s, n)) = shares(diff, cols) else {
+        return vec![None; cols.len()];
+    };
+    s.into_iter()
+        .map(|(share, se)| {
+            // A verdict only where the comparison tells 0 from 1 (Z·se ≤ ½); an artefact's
+            // share is consistent with 0 (a load's is diluted below 1 where the other meter's
+            // readings fall at other instants than the fields' windows follow).
+            let resolved = Z * se <= 0.5;
+            let verdict = if resolved && share - Z * se > 0.5 {
+                "load"
+            } else if resolved && share + Z * se < 0.5 && share + Z * se >= 0.0 {
+                "meter artefact"
+            } else {
+                "undecided"
+            };
+            Some(MeterCheck {
+                meter: meter_name(target).into(),
+                other: meter_name(other(target)).into(),
+                share,
+                std_err: se,
+                n_trials: n,
+                verdict: verdict.into(),
+            })
+        })
+        .collect()
+}
+
+fn other(t: Target) -> Target {
+    match t {
+        Target::Mbs => Target::Bms,
+        Target::Bms => Target::Mbs,
+    }
+}
+
+/// The name of a finding on `fields` that is an artefact of the meter it was found on.
+fn artefact_name(c: &MeterCheck, fields: &str) -> String {
+    format!(
+        "the {} meter's reading follows {fields}, which the {} meter does not show: a correction of that meter, not a load on the rail",
+        c.meter, c.other
+    )
+}
+
+/// Stage: check every term discovery and the rest power found against the other meter
+/// (`rows`: the rows discovery's terms are per reading of; `lag`, `w`: the sensor's).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn check_findings(
+    report: &mut DiscoveryReport,
+    target: Target,
+    power: &PowerSeries,
+    other_power: &PowerSeries,
+    metas: &[TrialMeta],
+    rows: &Rows,
+    lag: f64,
+    w: f64,
+) {
+    if other_power.t.is_empty() {
+        return;
+    }
+    let (rest1, net1) = per_trial(power, metas, lag, w);
+    let (rest2, net2) = per_trial(other_power, metas, lag, w);
+    let diff = |a: &[f64], b: &[f64]| -> Vec<f64> { b.iter().zip(a).map(|(b, a)| b - a).collect() };
+    // Discovery's terms: what each adds, averaged over its trial's readings.
+    let n = metas.len();
+    let cols: Vec<Vec<f64>> = report
+        .accepted
+        .iter()
+        .filter(|t| t.contribution.len() == rows.len())
+        .map(|t| {
+            let (mut sum, mut cnt) = (vec![0.0; n], vec![0usize; n]);
+            for (r, &ti) in rows.trial.iter().enumerate() {
+                sum[ti] += t.contribution[r];
+                cnt[ti] += 1;
+            }
+            (0..n)
+                .map(|i| {
+                    if cnt[i] > 0 {
+                        sum[i] / cnt[i] as f64
+                    } else {
+                        f64::NAN
+                    }
+                })
+                .collect()
+        })
+        .collect();
+    if cols.len() == report.accepted.len() && !cols.is_empty() {
+        let found = checks(target, &diff(&net1, &net2), &cols);
+        for (t, c) in report.accepted.iter_mut().zip(found) {
+            if let Some(c) = c.as_ref().filter(|c| c.artefact()) {
+                t.name = artefact_name(c, &t.fields.join(", "));
+            }
+            t.meter = c;
+        }
+    }
+    let Some(rest) = report.rest.as_mut() else {
+        return;
+    };
+    if rest.term_cols.len() != rest.found.len() || rest.found.is_empty() {
+        return;
+    }
+    let found = checks(target, &diff(&rest1, &rest2), &rest.term_cols);
+    for (t, c) in rest.found.iter_mut().zip(found) {
+        if let Some(c) = c.as_ref().filter(|c| c.artefact()) {
+            t.name = artefact_name(c, &t.field);
+        }
+        t.meter = c;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A load seen by both meters has share ≈ 1, an artefact of one ≈ 0 (noise on the other).
+    #[test]
+    fn a_load_shows_on_both_meters_and_an_artefact_on_one() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let n = 400;
+        let z: Vec<f64> = (0..n)
+            .map(|i| 3.0 * f64::from(u8::from(i % 3 == 0)))
+            .collect();
+        let noise: Vec<f64> = (0..n).map(|_| 2.0 * (rng.random::<f64>() - 0.5)).collect();
+        // Load: both meters carry z, the difference only noise.
+        let load: Vec<f64> = noise.clone();
+        // Artefact of the target: it carries z, the other not.
+        let art: Vec<f64> = noise.iter().zip(&z).map(|(e, z)| e - z).collect();
+        let c = checks(Target::Mbs, &load, std::slice::from_ref(&z));
+        let c = c[0].as_ref().unwrap();
+        assert_eq!(c.verdict, "load", "{c:?}");
+        assert!((c.share - 1.0).abs() < 0.1, "{c:?}");
+        let c = checks(Target::Mbs, &art, std::slice::from_ref(&z));
+        let c = c[0].as_ref().unwrap();
+        assert_eq!(c.verdict, "meter artefact", "{c:?}");
+        assert!(c.share.abs() < 0.1 && c.other == "battery", "{c:?}");
+    }
+}
