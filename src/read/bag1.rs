@@ -28,10 +28,10 @@ const OP_CHUNK: u8 = 0x05;
 const OP_CHUNK_INFO: u8 = 0x06;
 const OP_CONNECTION: u8 = 0x07;
 /// Chunks larger than this (declared uncompressed size) are treated as damage.
-const MAX_CHUNK_BYTES: u64 = 256 << 20;
+const MAX_CHUNK_BYTES: u64 = 64 << 20;
 /// Most decompressed bytes held at once for chunks whose time ranges overlap; beyond it the
 /// next chunk waits until the loaded ones are delivered (with a warning: order may break).
-const OVERLAP_BUDGET_BYTES: usize = 256 << 20;
+const OVERLAP_BUDGET_BYTES: usize = 128 << 20;
 
 /// A ROS 1 bag (a file, or any seekable byte source) opened for reading.
 pub struct Ros1BagSource<R = File> {

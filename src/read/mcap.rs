@@ -42,14 +42,15 @@ const RECORD_PREFIX: u64 = 9;
 const FOOTER_TOTAL: u64 = RECORD_PREFIX + 20 + 8;
 /// Chunks (compressed or not, and after decompression) larger than this are treated as damage
 /// rather than allocated.
-const MAX_CHUNK_BYTES: u64 = 256 << 20;
+const MAX_CHUNK_BYTES: u64 = 64 << 20;
 /// Index disagreements of one kind reported in detail before they are only counted.
 const MAX_DETAILED: u64 = 10;
 /// Summary sections larger than this are ignored (linear scan instead).
-const MAX_SUMMARY_BYTES: u64 = 256 << 20;
+const MAX_SUMMARY_BYTES: u64 = 64 << 20;
 /// Most decompressed bytes held at once for chunks whose time ranges overlap; beyond it the
-/// chunks are delivered one after the other (with a warning) instead of merged.
-const GROUP_BUDGET_BYTES: u64 = 256 << 20;
+/// chunks are delivered one after the other (with a warning) instead of merged. With the raw
+/// chunk bytes and three groups in flight, hostile input stays under 512 MB.
+const GROUP_BUDGET_BYTES: u64 = 64 << 20;
 
 #[derive(Debug, Clone)]
 struct SchemaRec {
