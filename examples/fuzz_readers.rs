@@ -500,6 +500,8 @@ fn classify_death(status: Option<ExitStatus>, stderr: &str) -> Option<String> {
 struct Tally {
     done: u64,
     per_kind: BTreeMap<String, u64>,
+    /// Inputs per verdict: `clean` (an error or warnings count as clean), or the finding class.
+    verdicts: BTreeMap<String, u64>,
     findings: BTreeMap<(String, String), u64>,
     finding_inputs: u64,
 }
@@ -561,9 +563,16 @@ fn run_range(
 ) -> Result<u64, String> {
     let run = run_child(exe, args, from, to)?;
     let mut t = tally.lock().map_err(|e| e.to_string())?;
-    for (_, kind) in &run.finished {
+    for (i, kind) in &run.finished {
         t.done += 1;
         *t.per_kind.entry(kind.clone()).or_default() += 1;
+        let verdict = run
+            .reported
+            .iter()
+            .find(|r| r.0 == *i)
+            .map_or("clean", |r| r.1.as_str())
+            .to_string();
+        *t.verdicts.entry(verdict).or_default() += 1;
     }
     for (i, class, location, detail) in &run.reported {
         t.finding(
@@ -605,6 +614,7 @@ fn run_range(
     };
     let mut t = tally.lock().map_err(|e| e.to_string())?;
     t.done += 1;
+    *t.verdicts.entry(class.clone()).or_default() += 1;
     t.finding(args, seeds, (i, &class, ""), &detail)?;
     Ok(i + 1)
 }
@@ -619,6 +629,7 @@ fn campaign(args: &Args) -> Result<(), String> {
     let tally = Mutex::new(Tally {
         done: 0,
         per_kind: BTreeMap::new(),
+        verdicts: BTreeMap::new(),
         findings: BTreeMap::new(),
         finding_inputs: 0,
     });
@@ -694,7 +705,54 @@ fn campaign(args: &Args) -> Result<(), String> {
     for ((class, location), count) in &tally.findings {
         println!("  {class} at {location}: {count} inputs");
     }
-    Ok(())
+    write_results(args, &tally, started.elapsed())
+}
+
+/// The campaign's observed results, as `results.json` in the output folder: what to store in
+/// the repository and quote (verdict counts per input, distinct findings, time, seed, commit,
+/// the limits every input ran under).
+fn write_results(args: &Args, tally: &Tally, elapsed: Duration) -> Result<(), String> {
+    let git = |a: &[&str]| {
+        Command::new("git")
+            .args(a)
+            .output()
+            .ok()
+            .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
+            .unwrap_or_default()
+    };
+    let findings: Vec<_> = tally
+        .findings
+        .iter()
+        .map(|((class, location), n)| {
+            serde_json::json!({ "class": class, "location": location, "inputs": n })
+        })
+        .collect();
+    let results = serde_json::json!({
+        "seed": args.seed,
+        "first_input": args.first,
+        "inputs": tally.done,
+        "seed_messages": args.messages,
+        "seconds": elapsed.as_secs_f64().round(),
+        "jobs": args.jobs,
+        "commit": git(&["rev-parse", "HEAD"]),
+        "uncommitted_changes": !git(&["status", "--porcelain", "--untracked-files=no"]).is_empty(),
+        "finished_unix_s": std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_secs()),
+        "limits": {
+            "address_space_bytes": LIMIT_AS_BYTES,
+            "file_size_bytes": LIMIT_FSIZE_BYTES,
+            "peak_rss_kib": MAX_RSS_KIB,
+            "cpu_s_per_input": args.timeout.as_secs_f64(),
+            "cpu_s_per_input_per_mb": 1.0,
+        },
+        "inputs_per_kind": tally.per_kind,
+        "verdicts": tally.verdicts,
+        "distinct_findings": findings,
+        "inputs_with_findings": tally.finding_inputs,
+    });
+    let text = serde_json::to_string_pretty(&results).map_err(|e| e.to_string())?;
+    std::fs::write(args.out.join("results.json"), text + "\n").map_err(|e| e.to_string())
 }
 
 fn progress(tally: &Tally, started: Instant) {

@@ -1,5 +1,5 @@
 //! Peak memory on the largest valid inputs the MCAP and ROS 1 readers accept: a file whose chunk
-//! declares (and really holds) an uncompressed size within 1 MiB of the 256 MiB chunk limit — a
+//! declares (and really holds) an uncompressed size within 1 MiB of the 64 MiB chunk limit — a
 //! session's messages plus padding messages on another topic; the MCAP written with the `mcap`
 //! crate, the ROS 1 bag (lz4) with the Python `rosbags` library — is read by `g1viz info`
 //! (summary, then the arm signals streamed through that chunk) in a child limited to 2 GiB of
@@ -12,7 +12,7 @@ use std::path::Path;
 use std::process::Command;
 
 /// The reader's largest accepted chunk (decompressed) [bytes].
-const MAX_CHUNK_BYTES: u64 = 256 << 20;
+const MAX_CHUNK_BYTES: u64 = 64 << 20;
 /// Peak RSS budget of the child [KiB].
 const MAX_RSS_KIB: i64 = 512 * 1024;
 /// Size of one padding message [bytes].

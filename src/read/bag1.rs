@@ -28,10 +28,10 @@ const OP_CHUNK: u8 = 0x05;
 const OP_CHUNK_INFO: u8 = 0x06;
 const OP_CONNECTION: u8 = 0x07;
 /// Chunks larger than this (declared uncompressed size) are treated as damage.
-const MAX_CHUNK_BYTES: u64 = 256 << 20;
+const MAX_CHUNK_BYTES: u64 = 64 << 20;
 /// Most decompressed bytes held at once for chunks whose time ranges overlap; beyond it the
 /// next chunk waits until the loaded ones are delivered (with a warning: order may break).
-const OVERLAP_BUDGET_BYTES: usize = 256 << 20;
+const OVERLAP_BUDGET_BYTES: usize = 128 << 20;
 
 /// A ROS 1 bag (a file, or any seekable byte source) opened for reading.
 pub struct Ros1BagSource<R = File> {
@@ -66,6 +66,8 @@ struct ChunkMeta {
     counts: Vec<(u32, u32)>,
     /// For a chunk cut off by the end of the file: how many data bytes are present.
     available: Option<u64>,
+    /// Offset of the chunk info record that lists this chunk (0 for a chunk found by a scan).
+    info_pos: u64,
 }
 
 #[derive(Debug, Clone, Copy)]
@@ -267,6 +269,15 @@ impl<R: Read + Seek> Ros1BagSource<R> {
         if fields.op().map_err(&format_error)? != OP_BAG_HEADER {
             return Err(format_error("first record is not a bag header".into()));
         }
+        if let Ok(encryptor) = fields.bytes("encryptor")
+            && !encryptor.is_empty()
+        {
+            return Err(format_error(format!(
+                "the bag is encrypted (encryptor {}); g1viz cannot read encrypted bags: decrypt \
+                 it first (`rosbag decrypt`)",
+                String::from_utf8_lossy(encryptor)
+            )));
+        }
         let index_pos = fields.u64("index_pos").map_err(&format_error)?;
         let conn_count = fields.u32("conn_count").map_err(&format_error)?;
         let chunk_count = fields.u32("chunk_count").map_err(&format_error)?;
@@ -400,6 +411,7 @@ impl<R: Read + Seek> Ros1BagSource<R> {
                         end_ns: fields.time_ns("end_time")?,
                         counts,
                         available: None,
+                        info_pos: offset,
                     });
                 }
                 op => return Err(format!("unexpected record op {op:#04x} at offset {offset}")),
@@ -482,6 +494,7 @@ impl<R: Read + Seek> Ros1BagSource<R> {
                         end_ns: 0,
                         counts: Vec::new(),
                         available: cut.then_some(available),
+                        info_pos: 0,
                     };
                     match self.load_chunk(&chunk, None) {
                         Ok(loaded) => {
@@ -793,7 +806,11 @@ impl<R: Read + Seek> Ros1BagSource<R> {
                 OP_CONNECTION => self
                     .add_connection(&fields, &data[data_start..data_end])
                     .map_err(&bad)?,
-                _ => {}
+                op => {
+                    return Err(bad(format!(
+                        "record op {op:#04x} is neither a message nor a connection record"
+                    )));
+                }
             }
             at = data_end;
         }
@@ -827,36 +844,82 @@ impl<R: Read + Seek> Ros1BagSource<R> {
         out
     }
 
-    /// Per-connection first/last stamps from the index data records that follow each chunk.
-    fn indexed_stats(&mut self) -> Result<BTreeMap<u32, TopicStat>, String> {
+    /// Per-connection statistics counted from the messages of every chunk (an index is not
+    /// taken on its word: ROS 1 bags carry no checksum), each chunk's counts checked against its
+    /// chunk info record; disagreements and damage go to `warnings`.
+    fn counted_stats(&mut self, warnings: &mut Vec<String>) -> BTreeMap<u32, TopicStat> {
         let mut stats: BTreeMap<u32, TopicStat> = BTreeMap::new();
-        for c in self.chunks.clone() {
-            let chunk = self
-                .record_at(c.pos)
-                .map_err(|e| record_error_text(e, c.pos))?;
-            let mut offset = chunk.end();
-            for _ in 0..c.counts.len() {
-                let record = self
-                    .record_at(offset)
-                    .map_err(|e| record_error_text(e, offset))?;
-                let fields = Fields::parse(&record.header)?;
-                if fields.op()? != OP_INDEX_DATA {
-                    return Err(format!("expected an index data record at offset {offset}"));
+        let mut orphans = BTreeMap::new();
+        let mut differ = 0usize;
+        for meta in self.chunks.clone() {
+            let chunk = match self.load_chunk(&meta, None) {
+                Ok(c) => c,
+                Err(e) => {
+                    warnings.push(format!(
+                        "{}: damaged chunk at byte offset {} ({e}); messages counted up to it",
+                        self.path.display(),
+                        meta.pos
+                    ));
+                    break;
                 }
-                let conn = fields.u32("conn")?;
-                let entries = self
-                    .read_data(record.data_offset, record.data_len)
-                    .map_err(|e| record_error_text(e, offset))?;
-                let stat = stats.entry(conn).or_default();
-                for e in entries.chunks_exact(12) {
-                    if let Some(t) = time_ns(&e[..8]) {
-                        stat.add(t, 1);
-                    }
+            };
+            warnings.extend(self.chunk_warnings(meta.pos, &chunk));
+            merge_orphans(&mut orphans, &chunk.orphans);
+            let mut read: BTreeMap<u32, u64> = BTreeMap::new();
+            for m in &chunk.messages {
+                *read.entry(m.conn).or_default() += 1;
+                stats.entry(m.conn).or_default().add(m.time_ns, 1);
+            }
+            for (conn, (n, _)) in &chunk.orphans {
+                *read.entry(*conn).or_default() += n;
+            }
+            let mut listed: BTreeMap<u32, u64> = BTreeMap::new();
+            for &(conn, n) in meta.counts.iter().filter(|(_, n)| *n > 0) {
+                let e = listed.entry(conn).or_default();
+                *e = e.saturating_add(n.into());
+            }
+            if listed != read && chunk.damage.is_empty() {
+                differ += 1;
+                if differ <= 10 {
+                    warnings.push(format!(
+                        "{}: the chunk info record at byte offset {} lists {} for the chunk at \
+                         byte offset {}, which holds {}; the counts shown are the ones read",
+                        self.path.display(),
+                        meta.info_pos,
+                        self.per_topic(&listed),
+                        meta.pos,
+                        self.per_topic(&read)
+                    ));
                 }
-                offset = record.end();
             }
         }
-        Ok(stats)
+        if differ > 10 {
+            warnings.push(format!(
+                "{}: {} more chunk info records disagree with their chunks",
+                self.path.display(),
+                differ - 10
+            ));
+        }
+        warnings.extend(self.orphan_warnings(&orphans));
+        stats
+    }
+
+    /// `N messages on TOPIC (connection C), ...` for messages per connection id.
+    fn per_topic(&self, counts: &BTreeMap<u32, u64>) -> String {
+        if counts.is_empty() {
+            return "no messages".into();
+        }
+        let parts: Vec<String> = counts
+            .iter()
+            .map(|(conn, n)| {
+                let topic = self
+                    .connections
+                    .get(conn)
+                    .map_or("an unknown topic", |c| c.topic.as_str());
+                format!("{n} messages on {topic} (connection {conn})")
+            })
+            .collect();
+        parts.join(", ")
     }
 
     /// Connection ids to deliver for `wanted` topics; errors for an explicitly requested topic
@@ -985,25 +1048,7 @@ impl<R: Read + Seek> MessageSource for Ros1BagSource<R> {
         let mut warnings = self.open_warnings.clone();
         let stats = match &self.scanned_stats {
             Some(s) => s.clone(),
-            None => match self.indexed_stats() {
-                Ok(s) => s,
-                Err(e) => {
-                    // Fall back to chunk time ranges: counts stay exact, first/last approximate.
-                    warnings.push(format!(
-                        "{}: index data unreadable ({e}); topic time ranges are chunk ranges",
-                        self.path.display()
-                    ));
-                    let mut s: BTreeMap<u32, TopicStat> = BTreeMap::new();
-                    for c in &self.chunks {
-                        for &(conn, n) in &c.counts {
-                            let st = s.entry(conn).or_default();
-                            st.add(c.start_ns, n as u64);
-                            st.add(c.end_ns, 0);
-                        }
-                    }
-                    s
-                }
-            },
+            None => self.counted_stats(&mut warnings),
         };
         let mut by_topic: BTreeMap<&str, (&str, TopicStat)> = BTreeMap::new();
         for (id, c) in &self.connections {
@@ -1047,12 +1092,8 @@ impl<R: Read + Seek> MessageSource for Ros1BagSource<R> {
             messages: 0,
         };
         let wanted = self.select(topics, &mut summary.warnings)?;
-        let chunks: Vec<ChunkMeta> = self
-            .chunks
-            .iter()
-            .filter(|c| c.counts.iter().any(|(id, n)| *n > 0 && wanted.contains(id)))
-            .cloned()
-            .collect();
+        // Every chunk is read: the chunk info counts are not taken on their word (no checksum).
+        let chunks = self.chunks.clone();
         let mut next_chunk = 0;
         let mut loaded: Vec<LoadedChunk> = Vec::new();
         let mut over_budget = false;

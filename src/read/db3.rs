@@ -984,11 +984,11 @@ fn topic_channel(
 
 /// Largest inflation accepted for a `compression_mode: FILE` storage file: its decompressed
 /// scratch copy may be at most this many times its compressed size, plus [`FILE_SLACK_BYTES`].
-const MAX_FILE_RATIO: u64 = 1000;
+const MAX_FILE_RATIO: u64 = 100;
 /// See [`MAX_FILE_RATIO`].
 const FILE_SLACK_BYTES: u64 = 64 << 20;
 /// Largest message accepted from rosbag2 message compression (or its declared size if smaller).
-const MAX_MESSAGE_BYTES: u64 = 256 << 20;
+const MAX_MESSAGE_BYTES: u64 = 64 << 20;
 
 /// Decompress a `compression_mode: FILE` storage file (one zstd stream) to `out`, refusing to
 /// write more than [`MAX_FILE_RATIO`] × its size (+ [`FILE_SLACK_BYTES`]) of scratch file.

@@ -42,12 +42,15 @@ const RECORD_PREFIX: u64 = 9;
 const FOOTER_TOTAL: u64 = RECORD_PREFIX + 20 + 8;
 /// Chunks (compressed or not, and after decompression) larger than this are treated as damage
 /// rather than allocated.
-const MAX_CHUNK_BYTES: u64 = 256 << 20;
+const MAX_CHUNK_BYTES: u64 = 64 << 20;
+/// Index disagreements of one kind reported in detail before they are only counted.
+const MAX_DETAILED: u64 = 10;
 /// Summary sections larger than this are ignored (linear scan instead).
-const MAX_SUMMARY_BYTES: u64 = 256 << 20;
+const MAX_SUMMARY_BYTES: u64 = 64 << 20;
 /// Most decompressed bytes held at once for chunks whose time ranges overlap; beyond it the
-/// chunks are delivered one after the other (with a warning) instead of merged.
-const GROUP_BUDGET_BYTES: u64 = 256 << 20;
+/// chunks are delivered one after the other (with a warning) instead of merged. With the raw
+/// chunk bytes and three groups in flight, hostile input stays under 512 MB.
+const GROUP_BUDGET_BYTES: u64 = 64 << 20;
 
 #[derive(Debug, Clone)]
 struct SchemaRec {
@@ -71,6 +74,8 @@ struct Registry {
     channels: HashMap<u16, ChannelRec>,
     /// Channel id → (messages skipped, byte offset of the first).
     orphans: BTreeMap<u16, (u64, u64)>,
+    /// Channel ids of the messages met since last cleared (to check a chunk index against its chunk).
+    seen: BTreeSet<u16>,
 }
 
 impl Registry {
@@ -131,6 +136,12 @@ impl Registry {
 struct Summary {
     chunks: Vec<ChunkIndex>,
     stats: Option<Statistics>,
+    /// Byte offset of the statistics record.
+    stats_offset: u64,
+    /// The footer's summary CRC was set and matched: the index is what the writer wrote, so
+    /// chunks may be skipped on its word. Without it (CRC 0, which the spec allows) every
+    /// indexed chunk is read and the index is checked against what the chunks hold.
+    verified: bool,
 }
 
 /// Damage found while reading: where and what. Turned into a warning; the read stops there.
@@ -308,7 +319,9 @@ impl<R: Read + Seek> McapSource<R> {
                 });
             }
         }
-        self.parse_summary(&bytes, footer.summary_start).map(Some)
+        let mut summary = self.parse_summary(&bytes, footer.summary_start)?;
+        summary.verified = footer.summary_crc != 0;
+        Ok(Some(summary))
     }
 
     /// The records of the summary section: schemas and channels registered, chunk indexes
@@ -317,6 +330,8 @@ impl<R: Read + Seek> McapSource<R> {
         let mut summary = Summary {
             chunks: Vec::new(),
             stats: None,
+            stats_offset: 0,
+            verified: false,
         };
         let mut seen_chunks = HashSet::new();
         let mut duplicates = 0u64;
@@ -329,14 +344,18 @@ impl<R: Read + Seek> McapSource<R> {
             match opcode {
                 op::SCHEMA | op::CHANNEL => self.registry.add(opcode, body).map_err(damage)?,
                 op::CHUNK_INDEX => {
-                    let ci = rec::chunk_index(body).map_err(damage)?;
+                    let mut ci = rec::chunk_index(body).map_err(damage)?;
+                    ci.record_offset = offset;
                     if seen_chunks.insert(ci.chunk_start_offset) {
                         summary.chunks.push(ci);
                     } else {
                         duplicates += 1;
                     }
                 }
-                op::STATISTICS => summary.stats = Some(rec::statistics(body).map_err(damage)?),
+                op::STATISTICS => {
+                    summary.stats = Some(rec::statistics(body).map_err(damage)?);
+                    summary.stats_offset = offset;
+                }
                 _ => {}
             }
         }
@@ -439,14 +458,17 @@ impl<R: Read + Seek> McapSource<R> {
             .as_ref()
             .map(|s| s.chunks.clone())
             .unwrap_or_default();
+        // Chunks are skipped on the index's word only when its CRC vouches for it.
+        let trusted = self.summary.as_ref().is_some_and(|s| s.verified);
         chunks.retain(|c| {
-            topics.is_none()
+            !trusted
+                || topics.is_none()
                 || c.message_index_offsets.is_empty()
                 || c.message_index_offsets
                     .keys()
                     .any(|id| self.registry.wanted(*id, topics))
         });
-        if let Some(ranges) = &self.time_ranges {
+        if let Some(ranges) = self.time_ranges.as_ref().filter(|_| trusted) {
             chunks.retain(|c| overlaps(ranges, c.message_start_time, c.message_end_time));
         }
         chunks.sort_by_key(|c| (c.message_start_time, c.chunk_start_offset));
@@ -499,6 +521,7 @@ impl<R: Read + Seek> McapSource<R> {
         if groups.is_empty() {
             return Ok(Ok(()));
         }
+        let mut mismatched = 0u64;
         std::thread::scope(|scope| {
             let (jobs, job_rx) = std::sync::mpsc::sync_channel::<InflateJob>(1);
             let (done_tx, done) = std::sync::mpsc::sync_channel::<Vec<Result<Vec<u8>, Damage>>>(1);
@@ -540,6 +563,7 @@ impl<R: Read + Seek> McapSource<R> {
                 let mut msgs = Vec::new();
                 let mut damage = None;
                 for (k, (ci, buf)) in group.iter().zip(&buffers).enumerate() {
+                    self.registry.seen.clear();
                     let loaded = buf.as_ref().map_err(Damage::clone).and_then(|b| {
                         scan_records(
                             b,
@@ -557,6 +581,7 @@ impl<R: Read + Seek> McapSource<R> {
                         damage = Some(d);
                         break;
                     }
+                    mismatched += self.check_chunk_channels(ci, mismatched, warnings);
                 }
                 msgs.sort_by_key(|m| m.log_time);
                 for m in &msgs {
@@ -572,8 +597,44 @@ impl<R: Read + Seek> McapSource<R> {
                 }
                 spare = buffers.into_iter().filter_map(Result::ok).collect();
             }
+            if mismatched > MAX_DETAILED {
+                warnings.push(format!(
+                    "{}: {} more chunk index entries disagree with their chunks",
+                    self.path.display(),
+                    mismatched - MAX_DETAILED
+                ));
+            }
             Ok(Ok(()))
         })
+    }
+
+    /// Compare the channels the chunk index entry `ci` lists with those of the chunk just
+    /// scanned (`registry.seen`); a difference is a warning (the first [`MAX_DETAILED`]
+    /// in detail). Returns 1 when they differ.
+    fn check_chunk_channels(
+        &self,
+        ci: &ChunkIndex,
+        before: u64,
+        warnings: &mut Vec<String>,
+    ) -> u64 {
+        let listed: BTreeSet<u16> = ci.message_index_offsets.keys().copied().collect();
+        // An index without message indexes makes no claim about the chunk's channels.
+        if listed.is_empty() || listed == self.registry.seen {
+            return 0;
+        }
+        if before < MAX_DETAILED {
+            warnings.push(format!(
+                "{}: the chunk index record at byte offset {} lists channel ids {:?} for the chunk \
+                 at byte offset {}, which holds messages on channel ids {:?}; the chunk was read \
+                 whole (the data wins over the index)",
+                self.path.display(),
+                ci.record_offset,
+                listed,
+                ci.chunk_start_offset,
+                self.registry.seen
+            ));
+        }
+        1
     }
 
     /// The raw chunk records of `group`, read in file order and checked against the file's
@@ -816,12 +877,37 @@ impl<R: Read + Seek> McapSource<R> {
         }
     }
 
-    /// Per-channel (count, first, last) from the statistics and message indexes, when they
-    /// cover every channel; `None` when a scan is needed (no statistics, no chunk or message
-    /// index for some channel).
-    fn indexed_counts(&mut self) -> Option<BTreeMap<u16, (u64, u64, u64)>> {
-        let stats = self.summary.as_ref()?.stats.clone()?;
+    /// Per-channel (count, first, last) from the statistics and message indexes, when the
+    /// summary's CRC vouches for them and they cover every channel; `None` when the messages
+    /// must be counted (no statistics, no CRC, no chunk or message index for some channel, or
+    /// counts that cannot be true: a warning says which).
+    fn indexed_counts(
+        &mut self,
+        warnings: &mut Vec<String>,
+    ) -> Option<BTreeMap<u16, (u64, u64, u64)>> {
+        let summary = self.summary.as_ref().filter(|s| s.verified)?;
+        let stats = summary.stats.clone()?;
+        let stats_offset = summary.stats_offset;
         if !self.has_index() {
+            return None;
+        }
+        // A message record takes at least its prefix and 22 header bytes of a chunk.
+        let capacity = summary
+            .chunks
+            .iter()
+            .fold(0u64, |a, c| a.saturating_add(c.uncompressed_size))
+            / (RECORD_PREFIX + 22);
+        let total = stats
+            .channel_message_counts
+            .values()
+            .try_fold(0u64, |a, n| a.checked_add(*n));
+        if total.is_none_or(|t| t > capacity) {
+            warnings.push(format!(
+                "{}: the statistics record at byte offset {stats_offset} lists more messages than \
+                 the indexed chunks can hold ({} bytes); the messages were counted instead",
+                self.path.display(),
+                capacity * (RECORD_PREFIX + 22)
+            ));
             return None;
         }
         let spans = self.channel_spans();
@@ -834,6 +920,60 @@ impl<R: Read + Seek> McapSource<R> {
             per_channel.insert(*id, (*count, first, last));
         }
         Some(per_channel)
+    }
+
+    /// Warnings where the statistics record disagrees with the messages counted (`read`:
+    /// channel id → count, first, last); `complete` is whether the whole file was read.
+    fn check_statistics(
+        &self,
+        read: &BTreeMap<u16, (u64, u64, u64)>,
+        complete: bool,
+        warnings: &mut Vec<String>,
+    ) {
+        let Some(summary) = &self.summary else { return };
+        let Some(stats) = &summary.stats else { return };
+        let at = summary.stats_offset;
+        let path = self.path.display();
+        let ids: BTreeSet<u16> = read
+            .keys()
+            .chain(stats.channel_message_counts.keys())
+            .copied()
+            .collect();
+        let mut differ = 0u64;
+        for id in ids {
+            let got = read.get(&id).map_or(0, |r| r.0);
+            let listed = stats.channel_message_counts.get(&id).copied();
+            match listed {
+                Some(n) if n == got => continue,
+                // The read stopped at damage (its own warning says so): fewer is expected.
+                Some(n) if !complete && n > got => continue,
+                None if got == 0 || stats.channel_message_counts.is_empty() => continue,
+                _ => {}
+            }
+            differ += 1;
+            if differ <= MAX_DETAILED {
+                let listed = listed.map_or("no".to_string(), |n| n.to_string());
+                warnings.push(format!(
+                    "{path}: the statistics record at byte offset {at} lists {listed} messages on \
+                     channel {id} ({}) but {got} were read; the counts shown are the ones read",
+                    self.topic_info(id, 0, 0, 0).topic
+                ));
+            }
+        }
+        if differ > MAX_DETAILED {
+            warnings.push(format!(
+                "{path}: the statistics record disagrees with the messages read on {} more channels",
+                differ - MAX_DETAILED
+            ));
+        }
+        let total = read.values().fold(0u64, |a, r| a.saturating_add(r.0));
+        if complete && stats.message_count != total {
+            warnings.push(format!(
+                "{path}: the statistics record at byte offset {at} lists {} messages in all but \
+                 {total} were read",
+                stats.message_count
+            ));
+        }
     }
 }
 
@@ -986,6 +1126,7 @@ fn scan_records(
                     return Err(damage("message record shorter than its header".into()));
                 };
                 let channel_id = u16::from_le_bytes([h[0], h[1]]);
+                registry.seen.insert(channel_id);
                 if !registry.channels.contains_key(&channel_id) {
                     let e = registry
                         .orphans
@@ -1112,9 +1253,10 @@ impl<R: Read + Seek> MessageSource for McapSource<R> {
 
     fn info(&mut self) -> Result<SessionInfo, ReadError> {
         let mut warnings = self.open_warnings.clone();
-        // Statistics and indexes when they cover every channel; otherwise count the messages
-        // themselves (a writer's statistics without an index give no per-topic times).
-        let per_channel = match self.indexed_counts() {
+        // Statistics and indexes when a CRC vouches for them and they cover every channel with
+        // plausible counts; otherwise the messages themselves are counted and the statistics
+        // (if any) checked against them.
+        let per_channel = match self.indexed_counts(&mut warnings) {
             Some(p) => p,
             None => {
                 let mut per_channel: BTreeMap<u16, (u64, u64, u64)> = BTreeMap::new();
@@ -1123,7 +1265,13 @@ impl<R: Read + Seek> MessageSource for McapSource<R> {
                     *e = (e.0 + 1, e.1.min(m.log_time), e.2.max(m.log_time));
                     Ok(())
                 })?;
-                warnings = summary.warnings;
+                warnings.extend(
+                    summary
+                        .warnings
+                        .into_iter()
+                        .filter(|w| !self.open_warnings.contains(w)),
+                );
+                self.check_statistics(&per_channel, summary.complete, &mut warnings);
                 per_channel
             }
         };

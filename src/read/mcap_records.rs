@@ -42,6 +42,8 @@ pub(crate) struct ChunkIndex {
     /// Channel id → offset of that channel's message index record.
     pub message_index_offsets: BTreeMap<u16, u64>,
     pub uncompressed_size: u64,
+    /// Byte offset of this chunk index record in the file (0 until the summary parser sets it).
+    pub record_offset: u64,
 }
 
 /// A Statistics record (opcode 0x0B).
@@ -191,6 +193,7 @@ pub(crate) fn chunk_index(body: &[u8]) -> Result<ChunkIndex, String> {
         chunk_length,
         message_index_offsets,
         uncompressed_size,
+        record_offset: 0,
     })
 }
 

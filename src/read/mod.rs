@@ -212,7 +212,8 @@ pub(crate) fn session_info(
         format: format.to_string(),
         start_ns,
         end_ns,
-        messages: topics.iter().map(|t| t.count).sum(),
+        // Saturating: counts come from files; a reader warns where they are implausible.
+        messages: topics.iter().fold(0u64, |a, t| a.saturating_add(t.count)),
         topics,
         warnings,
     }

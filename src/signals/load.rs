@@ -143,23 +143,30 @@ impl ReadPlan {
 pub struct SeriesStats {
     /// Samples (or readings).
     pub count: usize,
-    /// Mean rate [Hz]: (count − 1) / (last − first stamp); 0 below two samples.
+    /// Mean rate [Hz]: (count − 1) / (last − first stamp); 0 below two samples. Computed from
+    /// the integer log times, so it does not depend on the time origin (nor on the order the
+    /// recording stores its topics in).
     pub rate_hz: f64,
     #[serde(skip)]
-    first: Option<f64>,
+    first_ns: Option<i128>,
     #[serde(skip)]
-    last: Option<f64>,
+    last_ns: Option<i128>,
 }
 
 impl SeriesStats {
-    fn add(&mut self, t: &[f64]) {
+    /// Add the samples at times `t` [s] relative to `start_ns`.
+    fn add(&mut self, t: &[f64], start_ns: u64) {
         for &v in t {
-            self.first = Some(self.first.map_or(v, |f| f.min(v)));
-            self.last = Some(self.last.map_or(v, |l| l.max(v)));
+            // Exact: `t` was made from integer nanoseconds relative to `start_ns`.
+            let ns = i128::from(start_ns) + (v * 1e9).round() as i128;
+            self.first_ns = Some(self.first_ns.map_or(ns, |f| f.min(ns)));
+            self.last_ns = Some(self.last_ns.map_or(ns, |l| l.max(ns)));
         }
         self.count += t.len();
-        self.rate_hz = match (self.first, self.last) {
-            (Some(a), Some(b)) if self.count > 1 && b > a => (self.count - 1) as f64 / (b - a),
+        self.rate_hz = match (self.first_ns, self.last_ns) {
+            (Some(a), Some(b)) if self.count > 1 && b > a => {
+                (self.count - 1) as f64 / ((b - a) as f64 * 1e-9)
+            }
             _ => 0.0,
         };
     }
@@ -196,10 +203,10 @@ pub fn signal_stats(
         ..SignalStats::default()
     };
     let summary = read_batches(path, map, opts, &ReadPlan::all(4096), &mut |batch| {
-        stats.state.add(&batch.state.t);
-        stats.command.add(&batch.command.t);
-        stats.mbs_power.add(&batch.mbs.t);
-        stats.bms_power.add(&batch.bms.t);
+        stats.state.add(&batch.state.t, batch.start_ns);
+        stats.command.add(&batch.command.t, batch.start_ns);
+        stats.mbs_power.add(&batch.mbs.t, batch.start_ns);
+        stats.bms_power.add(&batch.bms.t, batch.start_ns);
         Ok(())
     })?;
     stats.warnings = summary.warnings;

@@ -1,0 +1,142 @@
+//! The readers do not take an index on its word, and the figures do not depend on how a file
+//! stores its topics. Inputs are built from the shipped `examples/g1_example.mcap` (expected
+//! counts from the `mcap` crate's own reader, not from g1viz): a summary with its CRC set to 0
+//! (the spec allows it) whose chunk index lists the wrong channel ids must still deliver every
+//! sample, with a warning naming the index record; the same session written in two layouts
+//! (time-interleaved; one topic after another) gives bit-identical counts, rates and times.
+
+mod common;
+
+use std::path::Path;
+
+use g1viz::read::{OpenOptions, Session};
+use g1viz::signals::{self, SignalMap};
+
+fn example_bytes() -> Vec<u8> {
+    std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/g1_example.mcap")).unwrap()
+}
+
+/// Messages on `topic` in `bytes`, counted by the `mcap` crate.
+fn count_with_mcap_crate(bytes: &[u8], topic: &str) -> usize {
+    mcap::MessageStream::new(bytes)
+        .unwrap()
+        .filter(|m| m.as_ref().unwrap().channel.topic == topic)
+        .count()
+}
+
+/// `bytes` with the footer's summary CRC zeroed and every chunk index entry's channel ids
+/// replaced by ids no channel has (900, 901, ...). Returns the number of entries changed.
+fn wrong_chunk_index_ids(bytes: &mut [u8]) -> usize {
+    let u64_at = |b: &[u8], at: usize| u64::from_le_bytes(b[at..at + 8].try_into().unwrap());
+    let footer = bytes.len() - 8 - 29; // footer record (9 + 20) before the closing magic
+    assert_eq!(bytes[footer], 0x02, "footer opcode");
+    let summary_start = u64_at(bytes, footer + 9) as usize;
+    bytes[footer + 25..footer + 29].copy_from_slice(&0u32.to_le_bytes());
+    let mut pos = summary_start;
+    let mut changed = 0;
+    while pos < footer {
+        let (opcode, len) = (bytes[pos], u64_at(bytes, pos + 1) as usize);
+        let body = pos + 9;
+        if opcode == 0x08 {
+            // start, end, chunk offset, chunk length (4 × u64), then the id → offset map.
+            let map_len = u32::from_le_bytes(bytes[body + 32..body + 36].try_into().unwrap());
+            let entries = body + 36;
+            for (k, e) in (entries..entries + map_len as usize)
+                .step_by(10)
+                .enumerate()
+            {
+                bytes[e..e + 2].copy_from_slice(&(900 + k as u16).to_le_bytes());
+                changed += 1;
+            }
+        }
+        pos = body + len;
+    }
+    changed
+}
+
+#[test]
+fn a_wrong_chunk_index_without_crc_loses_no_sample_and_is_reported() {
+    let mut bytes = example_bytes();
+    let expected = count_with_mcap_crate(&bytes, "/lowstate");
+    assert_eq!(expected, 8248, "the example's joint states");
+    assert!(wrong_chunk_index_ids(&mut bytes) > 0);
+    let tmp = tempfile::tempdir().unwrap();
+    let file = tmp.path().join("crc0_wrong_ids.mcap");
+    std::fs::write(&file, &bytes).unwrap();
+
+    let rec =
+        signals::load_recording(&file, &SignalMap::g1_left_arm(), &OpenOptions::default()).unwrap();
+    assert_eq!(rec.state.t.len(), expected);
+    assert_eq!(
+        rec.command.t.len(),
+        count_with_mcap_crate(&bytes, "/arm_sdk")
+    );
+    assert!(
+        rec.warnings.iter().any(
+            |w| w.contains("chunk index record at byte offset") && w.contains("crc0_wrong_ids")
+        ),
+        "{:?}",
+        rec.warnings
+    );
+
+    let info = Session::open(&file, &OpenOptions::default())
+        .unwrap()
+        .info()
+        .unwrap();
+    let lowstate = info.topics.iter().find(|t| t.topic == "/lowstate").unwrap();
+    assert_eq!(lowstate.count as usize, expected);
+}
+
+/// The example written with the `mcap` crate, its messages in `msgs` order.
+fn write_layout(path: &Path, msgs: &[common::McapMsg]) {
+    let mut w = mcap::WriteOptions::new()
+        .compression(Some(mcap::Compression::Zstd))
+        .chunk_size(Some(256 << 10))
+        .create(std::io::BufWriter::new(
+            std::fs::File::create(path).unwrap(),
+        ))
+        .unwrap();
+    common::write_messages(&mut w, msgs);
+    w.finish().unwrap();
+}
+
+#[test]
+fn two_storage_layouts_of_one_session_give_identical_figures() {
+    let tmp = tempfile::tempdir().unwrap();
+    let mut msgs = common::example_messages();
+    let interleaved = tmp.path().join("interleaved.mcap");
+    write_layout(&interleaved, &msgs);
+    // One topic after another, the power topics first (they start later than the states).
+    msgs.sort_by(|a, b| b.topic.cmp(&a.topic).then(a.log_time.cmp(&b.log_time)));
+    let by_topic = tmp.path().join("by_topic.mcap");
+    write_layout(&by_topic, &msgs);
+
+    let map = SignalMap::g1_left_arm();
+    let opts = OpenOptions::default();
+    let stats = |p: &Path| signals::signal_stats(p, &map, &opts).unwrap();
+    let (a, b) = (stats(&interleaved), stats(&by_topic));
+    assert_eq!(a.state.count, 8248);
+    for (x, y) in [
+        (a.state, b.state),
+        (a.command, b.command),
+        (a.mbs_power, b.mbs_power),
+        (a.bms_power, b.bms_power),
+    ] {
+        assert_eq!(x.count, y.count);
+        assert_eq!(x.rate_hz.to_bits(), y.rate_hz.to_bits(), "{x:?} vs {y:?}");
+    }
+    let info = |p: &Path| Session::open(p, &opts).unwrap().info().unwrap();
+    let (ia, ib) = (info(&interleaved), info(&by_topic));
+    assert_eq!((ia.start_ns, ia.end_ns), (ib.start_ns, ib.end_ns));
+    for (x, y) in ia.topics.iter().zip(&ib.topics) {
+        assert_eq!((&x.topic, x.count), (&y.topic, y.count));
+        assert_eq!(x.rate_hz.to_bits(), y.rate_hz.to_bits(), "{}", x.topic);
+    }
+    let load = |p: &Path| signals::load_recording(p, &map, &opts).unwrap();
+    let (ra, rb) = (load(&interleaved), load(&by_topic));
+    assert_eq!(ra.start_ns, rb.start_ns);
+    let bits = |t: &[f64]| t.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&ra.state.t), bits(&rb.state.t));
+    assert_eq!(bits(&ra.command.t), bits(&rb.command.t));
+    assert_eq!(bits(&ra.mbs.t), bits(&rb.mbs.t));
+}
