@@ -40,7 +40,7 @@ TERMS = {  # base loss terms a state may modulate, and words a claim naming them
     "copper": ["copper", "τ²", "winding", "resist"],
     "coulomb": ["coulomb", "|q̇|"],
     "viscous": ["viscous", "q̇²"],
-    "mech_drive": ["transmitted", "mechanical", "efficien", "driving", "τ·q̇", "τq̇"],
+    "mech_drive": ["transmitted", "mechanical", "efficien", "driving", "τ·q̇", "τq̇", "gear friction"],
     "mech_brake": ["braking", "regenerat", "transmitted", "mechanical", "efficien"],
 }
 METER_WORDS = ["meter", "sensor", "artefact", "artifact", "gain", "offset", "calibrat", "window"]
@@ -92,8 +92,10 @@ def draw_effect(rng):
                  pooled=bool(rng.random() < 0.5), form=str(rng.choice(FORMS_SHAPE)),
                  magnitude=_lu(rng, 0.03, 5.0) * float(rng.choice([-1, 1])), unit="W")
         _shape_params(rng, e)
+        # the library mechanism that is this term changing: copper with the winding temperature is
+        # the thermal drift; a braking loss changing with any state is still the braking asymmetry
         ids = ["thermal"] if (term == "copper" and state == "winding_temp") else []
-        ids += ["braking"] if term == "mech_brake" and e["form"] == "linear" and state in ("hidden_mode",) else []
+        ids += ["braking"] if term == "mech_brake" else []
         e["expect"] = {"ids": ids, "fields": STATES[state][0](j), "terms": TERMS[term]}
     else:
         meter = str(rng.choice(["mbs", "bms"]))
