@@ -27,6 +27,10 @@ def generate(base, seed, minutes):
     for e, g, r in zip(effects, gains, rms):
         e["detectability"] = round(g, 5)
         e["reading_rms_W"] = round(r, 4)
+        if e.get("mechanism") == "payload":
+            g, r = phys.payload_detectability()
+            e.update(detectability=round(g, 5), level="torque", torque_rms_Nm=round(r, 4))
+            del e["reading_rms_W"]
     truth["fuzz"] = {"seed": seed, "effects": effects, "oracle_rmse_W": rmse,
                      "hidden_mode_switch_s": phys.mode_t}
     with open(base + ".truth.json", "w") as f:

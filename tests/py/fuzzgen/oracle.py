@@ -9,6 +9,9 @@ cross-validated by trial, after subtracting the effects' true contributions (the
 known, so a slow effect cannot soak up the rest-power drift), and records for each effect the
 held-out RMSE gain of knowing it: 1 - RMSE(all subtracted) / RMSE(all but this one subtracted). Readings of trials with balance sway or an outlier
 step (both truth-file flags) are left out, as a diagnoser would reject them.
+
+A payload in the hand is in the recorded joint torques, so the power regressors carry it; its
+detectability is taken at the torque level instead (`grammar.Physics.payload_detectability`).
 """
 import numpy as np
 

@@ -409,7 +409,7 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
         bou = bms_ou[s_idx] * (1 - fr) + bms_ou[np.minimum(s_idx + 1, nS - 1)] * fr
         if hook is not None:
             eff["fuzz"] = hook.power({
-                "t": tb, "q": q, "qd": qd, "tau": tau, "mech": mech, "a": a_, "b": b, "c": c, "d": d,
+                "t": tb, "q": q, "qd": qd, "qdd": qdd, "tau": tau, "mech": mech, "a": a_, "b": b, "c": c, "d": d,
                 "tau_home": tau_home, "Tw": Tw, "Th": Th, "fan_rpm": fan_rpm[fan_bin][rep], "Tb": Tb_bin[rep],
                 "soc": soc, "ocv": 13 * (3.30 + 0.85 * soc), "ambient": ambient[s_idx], "sway": sway,
                 "pack_T": pack_T0[0] + 1.2 * tb / 3600.0, "imu_T": 38 + 2.0 * tb / 3600.0,
