@@ -1,4 +1,4 @@
-"""CLI: python3 -m fuzzgen {draw,session,campaign,summarise} (PYTHONPATH=tests/py)."""
+"""CLI: python3 -m fuzzgen {draw,session,campaign,summarise,selftest} (PYTHONPATH=tests/py)."""
 import argparse
 import json
 import os
@@ -24,6 +24,7 @@ def main(argv=None):
     c.add_argument("--work", default="/tmp/fuzzgen")
     c.add_argument("--g1viz", default="target/debug/g1viz")
     c.add_argument("--jobs", type=int, default=2)
+    sub.add_parser("selftest", help="grammar coverage, scorer rules, oracle on synthetic readings")
     m = sub.add_parser("summarise", help="rewrite results.json/csv/png from --out/sessions.jsonl")
     m.add_argument("--out", default="docs/campaign")
     m.add_argument("--planned", type=int, required=True)
@@ -32,7 +33,10 @@ def main(argv=None):
     m.add_argument("--g1viz", default="target/debug/g1viz")
     a = ap.parse_args(argv)
     from . import campaign, grammar
-    if a.cmd == "draw":
+    if a.cmd == "selftest":
+        from .selftest import main as st
+        st()
+    elif a.cmd == "draw":
         print(json.dumps(grammar.draw_session(a.seed), indent=1))
     elif a.cmd == "session":
         os.makedirs(a.work, exist_ok=True)
@@ -45,6 +49,7 @@ def main(argv=None):
     else:
         r = campaign.summarise(a.out, a.planned, a.seed, a.minutes, a.g1viz)
         print(json.dumps({k: v for k, v in r.items() if k not in ("wrong_claims",)}, indent=1, ensure_ascii=False))
+        print(campaign.doc_table(r))
     return 0
 
 

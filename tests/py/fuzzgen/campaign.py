@@ -169,6 +169,27 @@ def summarise(out_dir, planned, campaign_seed, minutes, binary):
     return summary
 
 
+DOC_ROWS = [("sessions diagnosed", "sessions_done", 1, ""), ("null sessions", "null_sessions", 1, ""),
+            ("claims", "claims", 1, ""), ("right claims", "right", 1, ""), ("located but misnamed", "located", 1, ""),
+            ("wrong claims", "wrong", 1, ""), ("spurious claims", "spurious", 1, ""),
+            ("claim precision", "claim_precision", 100, " %"), ("concealed effects", "effects", 1, ""),
+            ("effects with detectability >= 5 %", "effects_above_gate", 1, ""),
+            ("recall (named) above 5 %", "recall_above_gate", 100, " %"),
+            ("recall (named or located) above 5 %", "recall_or_located_above_gate", 100, " %")]
+
+
+def doc_table(summary):
+    """The figure table docs/campaign.md quotes (tests/campaign.rs checks it against results.json)."""
+    rows = ["| figure | value | source |", "|---|---|---|"]
+    for name, key, scale, unit in DOC_ROWS:
+        v = summary[key]
+        if v is None:
+            continue
+        val = f"{v * scale:.1f}" if scale != 1 else f"{v}"
+        rows.append(f"| {name} | {val}{unit} | `results.json` {key}{' × 100' if scale != 1 else ''} |")
+    return "\n".join(rows)
+
+
 def figure(summary, path):
     try:
         import matplotlib
