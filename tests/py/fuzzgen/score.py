@@ -9,8 +9,9 @@ terms (field and ties). Each claim is scored
   a meter/sensor correction);
 * located: on an effect's field or naming its loss term, but another mechanism (e.g. a meter
   artefact called a load), or the right term on a proxy of an unrecorded state;
-* wrong: none of these while an effect of the session is left unnamed (a wrong story for it);
-* spurious: none of these and every effect already accounted for (or a null session).
+* wrong: none of these while an effect of the session the oracle can see (detectability >=
+  `SEEN`) is left unnamed (a wrong story for it);
+* spurious: none of these and every visible effect already accounted for (or a null session).
 
 Each effect is named (a right claim), located (a located claim) or missed.
 """
@@ -68,7 +69,10 @@ def relation(c, e):
 _TERM_WORDS = [["copper", "τ²"], ["coulomb", "|q̇|"], ["viscous", "q̇²"], ["transmitted", "efficien"]]
 
 
-def score(truth_effects, detect, claim_list, gate=0.0):
+SEEN = 0.01  # held-out RMSE gain below which an effect cannot be what a claim is about
+
+
+def score(truth_effects, detect, claim_list, gate=SEEN):
     """Score claims and effects. truth_effects: the drawn effects; detect: oracle gain per effect."""
     rel = [[relation(c, e) for e in truth_effects] for c in claim_list]
     eff_state = ["missed"] * len(truth_effects)
