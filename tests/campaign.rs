@@ -52,20 +52,17 @@ fn slice_seeds() -> (String, Vec<u64>) {
 /// Seeds that once made a wrong claim: `SEED MINUTES` per line, `#` starts a comment.
 fn regression_seeds() -> Vec<(u64, f64)> {
     let path = python_dir().join("fuzzgen/regression_seeds.txt");
-    let text = std::fs::read_to_string(&path)
-        .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     text.lines()
         .enumerate()
         .filter_map(|(n, l)| {
             let l = l.split('#').next().unwrap_or("").trim();
             (!l.is_empty()).then(|| {
+                let want = format!("{} line {}: want `SEED MINUTES`", path.display(), n + 1);
                 let mut w = l.split_whitespace();
-                let parse = |x: Option<&str>| -> f64 {
-                    x.and_then(|v| v.parse().ok()).unwrap_or_else(|| {
-                        panic!("{} line {}: want `SEED MINUTES`", path.display(), n + 1)
-                    })
-                };
-                (parse(w.next()) as u64, parse(w.next()))
+                let seed: u64 = w.next().and_then(|v| v.parse().ok()).expect(&want);
+                let minutes: f64 = w.next().and_then(|v| v.parse().ok()).expect(&want);
+                (seed, minutes)
             })
         })
         .collect()
@@ -152,14 +149,16 @@ fn fuzz_slice_of_this_commit_claims_no_wrong_mechanism() {
     // Two sessions at a time (one generates while the other is diagnosed).
     std::thread::scope(|s| {
         for _ in 0..2 {
-            s.spawn(|| loop {
-                let i = next.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
-                let Some(&(seed, minutes)) = jobs.get(i) else {
-                    break;
-                };
-                let r = run_session(seed, minutes, work.path(), &shared);
-                eprintln!("seed {seed} ({minutes} min): {}", describe(&r));
-                records.lock().unwrap().push((seed, r));
+            s.spawn(|| {
+                loop {
+                    let i = next.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+                    let Some(&(seed, minutes)) = jobs.get(i) else {
+                        break;
+                    };
+                    let r = run_session(seed, minutes, work.path(), &shared);
+                    eprintln!("seed {seed} ({minutes} min): {}", describe(&r));
+                    records.lock().unwrap().push((seed, r));
+                }
             });
         }
     });
@@ -185,10 +184,18 @@ fn fuzz_slice_of_this_commit_claims_no_wrong_mechanism() {
 fn doc_figures(doc: &str) -> Vec<(String, String)> {
     doc.lines()
         .filter_map(|l| {
-            let cells: Vec<&str> = l.trim().trim_matches('|').split('|').map(str::trim).collect();
+            let cells: Vec<&str> = l
+                .trim()
+                .trim_matches('|')
+                .split('|')
+                .map(str::trim)
+                .collect();
             (cells.len() == 3 && cells[2].starts_with("`results.json`")).then(|| {
                 (
-                    cells[2].trim_start_matches("`results.json`").trim().to_string(),
+                    cells[2]
+                        .trim_start_matches("`results.json`")
+                        .trim()
+                        .to_string(),
                     cells[1].trim_end_matches(" %").to_string(),
                 )
             })
@@ -200,7 +207,8 @@ fn doc_figures(doc: &str) -> Vec<(String, String)> {
 fn docs_quote_the_stored_campaign_results() {
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let results: serde_json::Value = serde_json::from_slice(
-        &std::fs::read(root.join("docs/campaign/results.json")).expect("docs/campaign/results.json"),
+        &std::fs::read(root.join("docs/campaign/results.json"))
+            .expect("docs/campaign/results.json"),
     )
     .expect("results.json parses");
     let doc = std::fs::read_to_string(root.join("docs/campaign.md")).expect("docs/campaign.md");
