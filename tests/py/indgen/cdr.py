@@ -51,7 +51,9 @@ class Block:
     def __init__(self, n, row_size):
         self.n = n
         self.row = row_size
-        self.buf = np.zeros((n, row_size), np.uint8)
+        # one spare row, so that the strided views of an empty block (a last simulation block too
+        # short to hold a 1 Hz reading) still fit their buffer
+        self.buf = np.zeros((n + 1, row_size), np.uint8)
 
     def view(self, base, off, dtype, shape=(), strides=None):
         dt = np.dtype(dtype)
@@ -176,7 +178,7 @@ def fill_crc(blk, base, body_size, crc_off):
 
 def record_bytes(blk, base, rec_size):
     """(N, rec_size) uint8 view of one message's records in a block."""
-    return blk.buf[:, base:base + rec_size]
+    return blk.buf[:blk.n, base:base + rec_size]
 
 
 def selftest_messages():

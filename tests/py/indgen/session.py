@@ -120,10 +120,15 @@ def quat_from_rpy(r, p, y):
 
 
 def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1, preset="indgen", expect=False,
-             expect_every=997, overrides=None):
+             expect_every=997, overrides=None, hook=None):
     """Write out_base.mcap and out_base.truth.json. With expect=True also out_base.expect.json: the
     values meant for a sample of messages (every `expect_every`-th 100 Hz message, every 20th 1 Hz
-    reading), for `python3 -m indgen check`."""
+    reading), for `python3 -m indgen check`.
+
+    `hook` (optional, used by tests/py/fuzzgen) adds physics drawn elsewhere: each block,
+    `hook.power(ctx)` gets the block's true states (dict) and returns extra MBS rail power per
+    sample (counted as effect "fuzz"), and `hook.meter(mt, bt, avg, P_mbs, P_bms)` may replace
+    the block's readings (`avg(meter, ts, lag_s, window_s)` = the true window average)."""
     t_wall = time.time()
     effects = [e for e in effects if e]
     for e in effects:
@@ -242,7 +247,7 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
     tail_v = np.zeros(0)
 
     # per-trial accumulators (trajectory window, pre-idle window)
-    acc_keys = ["n", "net", "eff", "leak", "fan", "n_pre", "eff_pre"] + [f"eff_{x}" for x in EFFECTS]
+    acc_keys = ["n", "net", "eff", "leak", "fan", "n_pre", "eff_pre"] + [f"eff_{x}" for x in [*EFFECTS, "fuzz"]]
     acc = {k: np.zeros(nT) for k in acc_keys}
     acc_Tw = np.zeros((nT, 7))
     acc_Th = np.zeros((nT, 7))
@@ -402,6 +407,13 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
         fr = tb - np.floor(tb)
         drift = rest_drift[s_idx] * (1 - fr) + rest_drift[np.minimum(s_idx + 1, nS - 1)] * fr
         bou = bms_ou[s_idx] * (1 - fr) + bms_ou[np.minimum(s_idx + 1, nS - 1)] * fr
+        if hook is not None:
+            eff["fuzz"] = hook.power({
+                "t": tb, "q": q, "qd": qd, "qdd": qdd, "tau": tau, "mech": mech, "a": a_, "b": b, "c": c, "d": d,
+                "tau_home": tau_home, "Tw": Tw, "Th": Th, "fan_rpm": fan_rpm[fan_bin][rep], "Tb": Tb_bin[rep],
+                "soc": soc, "ocv": 13 * (3.30 + 0.85 * soc), "ambient": ambient[s_idx], "sway": sway,
+                "pack_T": pack_T0[0] + 1.2 * tb / 3600.0, "imu_T": 38 + 2.0 * tb / 3600.0,
+                "payload_W": eff.get("payload"), "rng": rng_noise})
         eff_sum = sum(eff.values()) if eff else np.zeros(n)
         base_rail = PLANT["P_rest_W"] + drift + net_nom + eff_sum + leak + outlier
         # battery / bus voltage (sag with load through the pack resistance), causal charge
@@ -426,9 +438,9 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
         cs_v = np.concatenate([[0.0], np.cumsum(np.concatenate([tail_v, V_pack]))])
         t_hi = tb[-1] + DT if k1 < K else 1e18
 
-        def window_avg(ts, lat, cs):
+        def window_avg(ts, lat, cs, w=W):
             i1 = np.searchsorted(t_all, ts - lat, side="right")
-            i0 = np.searchsorted(t_all, ts - lat - W, side="right")
+            i0 = np.searchsorted(t_all, ts - lat - w, side="right")
             i0 = np.minimum(i0, i1 - 1)
             return (cs[i1] - cs[i0]) / (i1 - i0)
 
@@ -439,6 +451,10 @@ def generate(out_base, seed, hours=None, effects=(), n_trials=None, zstd_level=1
         V_mbs = window_avg(mt, L, cs_v) - PLANT["sensor"]["mbs_rail_drop_V"] + rng_noise.normal(0, 0.004, len(mt))
         P_bms_read = window_avg(bt, 0.0, cs_b) + rng_noise.normal(0, PLANT["noise"]["bms_W"], len(bt))
         V_bms = window_avg(bt, 0.0, cs_v) + rng_noise.normal(0, 0.004, len(bt))
+        if hook is not None:
+            P_mbs_read, P_bms_read = hook.meter(
+                mt, bt, lambda m, ts, lag, w: window_avg(ts, lag, cs_m if m == "mbs" else cs_b, w),
+                P_mbs_read, P_bms_read)
         keep = 200
         tail_t, tail_mbs, tail_bms, tail_v = t_all[-keep:], np.concatenate([tail_mbs, rail])[-keep:], \
             np.concatenate([tail_bms, p_bms])[-keep:], np.concatenate([tail_v, V_pack])[-keep:]

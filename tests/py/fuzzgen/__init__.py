@@ -1,0 +1,1 @@
+"""fuzzgen: a physics-fuzz campaign over indgen sessions (see README.md here)."""

@@ -1,0 +1,397 @@
+"""The grammar of concealed physics: a seed draws 0-2 effects (>= 20 % nulls), each a mechanism x
+form x field/state x magnitude, and `Physics` adds them to an indgen session through its hook.
+
+Written from physics and the diagnoser's *advertised* mechanism ids (the `hypotheses` list that
+`g1viz diagnose --json` prints), not from its formulas. Every effect also carries what a claim
+must say to name it (`expect`): library ids of its mechanism, recorded fields it follows, words
+of the loss term it changes, or the meter it is an artefact of.
+"""
+import math
+
+import numpy as np
+
+# Library mechanisms the diagnoser advertises (ids as printed in diagnosis.json), grouped where
+# two ids are forms of one mechanism.
+LIBRARY = {
+    "braking": ["braking"], "gear_friction": ["gear_friction"], "electronics": ["electronics_nm", "drive_loss"],
+    "bus": ["bus_power", "bus_loss"], "thermal": ["thermal"], "stribeck": ["stribeck"],
+    "balance_leak": ["balance_leak"], "latency": ["latency"], "payload": ["payload"],
+}
+ARM = list(range(15, 22))
+Q_RANGE = np.array([[-1.6, 0.8], [0.05, 1.4], [-1.2, 1.2], [-0.6, 1.6], [-1.4, 1.4], [-1.2, 1.2], [-1.2, 1.2]])
+
+# Slow and fast states: name -> (recorded fields, or [] when unrecorded; per joint?). Their
+# normalised value u is 0 at the session start and about 1 over a 0.5 h session's change.
+STATES = {
+    "winding_temp": (lambda j: [f"/lowstate.motor_state[{ARM[j]}].temperature[0]"], True),
+    "housing_temp": (lambda j: [f"/lowstate.motor_state[{ARM[j]}].temperature[1]"], True),
+    "board_temp": (lambda j: ["/lf/mainboardstate.temperature[0]", "/lf/mainboardstate.temperature[1]"], False),
+    "fan": (lambda j: ["/lf/mainboardstate.fan_state[0]", "/lf/mainboardstate.fan_state[1]"], False),
+    "soc": (lambda j: ["/lf/bmsstate.soc"], False),
+    "pack_temp": (lambda j: [f"/lf/bmsstate.temperature[{k}]" for k in range(4)], False),
+    "imu_temp": (lambda j: ["/lowstate.imu_state.temperature"], False),
+    "joint_pos": (lambda j: [f"/lowstate.motor_state[{ARM[j]}].q"], True),
+    "ambient": (lambda j: [], False),       # not recorded (rises ~1 K/h)
+    "hidden_ou": (lambda j: [], False),     # not recorded: humidity-like slow state
+    "hidden_mode": (lambda j: [], False),   # not recorded: a mode switching a few times an hour
+}
+SLOW_STATES = [s for s in STATES if s != "joint_pos"]
+TERMS = {  # base loss terms a state may modulate, and words a claim naming them uses
+    "copper": ["copper", "τ²", "winding", "resist"],
+    "coulomb": ["coulomb", "|q̇|"],
+    "viscous": ["viscous", "q̇²"],
+    "mech_drive": ["transmitted", "mechanical", "efficien", "driving", "τ·q̇", "τq̇", "gear friction"],
+    "mech_brake": ["braking", "regenerat", "transmitted", "mechanical", "efficien"],
+}
+METER_WORDS = ["meter", "sensor", "artefact", "artifact", "gain", "offset", "calibrat", "window"]
+FORMS_SHAPE = ["linear", "power", "exponential", "threshold", "one_sided"]
+
+
+def _lu(rng, lo, hi):
+    return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
+
+
+def draw_effect(rng):
+    """One effect: a dict with kind, mechanism, form, state, magnitude and `expect`."""
+    kind = rng.choice(["library", "load", "modulated", "meter"], p=[0.4, 0.2, 0.25, 0.15])
+    e = {"kind": str(kind)}
+    j = int(rng.integers(7))
+    if kind == "library":
+        mech = str(rng.choice(list(LIBRARY), p=[0.14, 0.12, 0.14, 0.12, 0.12, 0.1, 0.04, 0.12, 0.1]))
+        e["mechanism"] = mech
+        if mech == "latency":
+            e.update(form="lag", meter="mbs", magnitude=_lu(rng, 0.01, 1.0), unit="s")
+        elif mech == "payload":
+            e.update(form="point_mass", magnitude=_lu(rng, 0.003, 1.0), unit="kg")
+        else:
+            form = str(rng.choice(["linear", "power", "threshold", "per_joint", "one_sided", "switched"]))
+            e.update(form=form, magnitude=_lu(rng, 0.02, 5.0), unit="W")
+            if form == "power":
+                e["exponent"] = float(rng.uniform(0.5, 2.0))
+            if form == "threshold":
+                e["quantile"] = float(rng.uniform(0.3, 0.9))
+            if form == "per_joint":
+                e["weights"] = rng.uniform(0, 2, 7).round(3).tolist()
+            if form == "switched":
+                e["state"] = str(rng.choice(SLOW_STATES))
+                e["joint"] = j
+                e["u0"] = float(rng.uniform(0.2, 0.8))
+            if mech == "stribeck":
+                e["v_s"] = _lu(rng, 0.03, 0.3)
+        e["expect"] = {"ids": LIBRARY[mech], "fields": [], "terms": []}
+    elif kind == "load":
+        state = str(rng.choice([s for s in STATES if s not in ("ambient", "hidden_ou", "hidden_mode")]))
+        e.update(mechanism="rail_load", state=state, joint=j, form=str(rng.choice(FORMS_SHAPE)),
+                 magnitude=_lu(rng, 0.03, 5.0) * float(rng.choice([-1, 1], p=[0.3, 0.7])), unit="W")
+        _shape_params(rng, e)
+        e["expect"] = {"ids": [], "fields": STATES[state][0](j), "terms": []}
+    elif kind == "modulated":
+        term = str(rng.choice(list(TERMS)))
+        state = str(rng.choice(SLOW_STATES))
+        e.update(mechanism=f"{term}_x_state", term=term, state=state, joint=j,
+                 pooled=bool(rng.random() < 0.5), form=str(rng.choice(FORMS_SHAPE)),
+                 magnitude=_lu(rng, 0.03, 5.0) * float(rng.choice([-1, 1])), unit="W")
+        _shape_params(rng, e)
+        # the library mechanism that is this term changing: copper with the winding temperature is
+        # the thermal drift; a braking loss changing with any state is still the braking asymmetry
+        ids = ["thermal"] if (term == "copper" and state == "winding_temp") else []
+        ids += ["braking"] if term == "mech_brake" else []
+        e["expect"] = {"ids": ids, "fields": STATES[state][0](j), "terms": TERMS[term]}
+    else:
+        meter = str(rng.choice(["mbs", "bms"]))
+        art = str(rng.choice(["gain", "offset", "lag", "window"]))
+        e.update(mechanism=f"meter_{art}", meter=meter, artefact=art)
+        if art == "gain":
+            e.update(form=str(rng.choice(["constant", "drift_time", "follows_board_temp"])),
+                     magnitude=_lu(rng, 5e-4, 0.05), unit="relative")
+        elif art == "offset":
+            e.update(form=str(rng.choice(["step_time", "drift_time", "follows_board_temp"])),
+                     magnitude=_lu(rng, 0.03, 5.0), unit="W", u0=float(rng.uniform(0.2, 0.8)))
+        elif art == "lag":
+            e.update(form="constant", magnitude=_lu(rng, 0.01, 1.0), unit="s")
+        else:
+            e.update(form="drift_time", magnitude=_lu(rng, 0.01, 0.6), unit="s")
+        fields = ["/lf/mainboardstate.temperature[0]", "/lf/mainboardstate.temperature[1]"] \
+            if e["form"] == "follows_board_temp" else []
+        e["expect"] = {"ids": ["latency"] if (art == "lag" and meter == "mbs") else [], "fields": fields,
+                       "terms": [], "meter": meter, "meter_words": METER_WORDS}
+    return e
+
+
+def _shape_params(rng, e):
+    if e["form"] == "power":
+        e["exponent"] = float(rng.uniform(0.5, 3.0))
+    elif e["form"] == "exponential":
+        e["rate"] = float(rng.uniform(1.0, 4.0))
+    elif e["form"] in ("threshold", "one_sided"):
+        e["u0"] = float(rng.uniform(0.2, 0.8))
+
+
+def draw_session(seed):
+    """The concealed physics of session `seed`: a list of 0-2 effects (25 % nulls)."""
+    rng = np.random.default_rng([seed, 2801])
+    n = int(rng.choice([0, 1, 2], p=[0.25, 0.45, 0.30]))
+    effects = [draw_effect(rng) for _ in range(n)]
+    if sum(e["mechanism"] == "payload" for e in effects) > 1:
+        effects = effects[:1]
+    if sum(e["kind"] == "meter" and e["meter"] == "mbs" for e in effects) > 1:
+        effects = effects[:1]  # one artefact per meter
+    return effects
+
+
+def shape(form, u, e):
+    """g(u) of a form; u ~ 0 at the start, ~1 over the session's change."""
+    if form == "linear":
+        return u
+    if form == "power":
+        return np.maximum(u, 0.0) ** e["exponent"]
+    if form == "exponential":
+        return (np.exp(e["rate"] * u) - 1.0) / (math.exp(e["rate"]) - 1.0)
+    if form == "threshold":
+        return (u > e["u0"]).astype(float)
+    if form == "one_sided":
+        return np.maximum(u - e["u0"], 0.0) / max(1e-9, 1.0 - e["u0"])
+    raise ValueError(form)
+
+
+class Physics:
+    """indgen hook: adds the drawn effects to the rail (power) or to one meter's readings, and
+    keeps, per MBS reading, the window-averaged paper regressors and each effect's true
+    contribution for the oracle."""
+
+    W = 0.3  # indgen's reading window
+
+    def __init__(self, effects, seed, duration_s):
+        self.effects = effects
+        self.rng = np.random.default_rng([seed, 2802])
+        self.T = duration_s
+        self.coef = [None] * len(effects)
+        self.s0 = {}
+        self.ou = 0.0
+        self.mode = 0
+        self.mode_t = []
+        self.tail = None
+        self.rows = []  # (t, reading, features..., contributions...)
+        self.cur = None
+        self.cache = {}
+        self.tb_cur = np.zeros(0)
+        self.model0 = None
+        self.payload_sq = 0.0
+        self.payload_n = 0
+
+    # -- states -------------------------------------------------------------------------
+    def state(self, name, j, ctx):
+        t = ctx["t"]
+        if name == "winding_temp":
+            s, span = ctx["Tw"][:, j], 15.0
+        elif name == "housing_temp":
+            s, span = ctx["Th"][:, j], 5.0
+        elif name == "board_temp":
+            s, span = ctx["Tb"], 6.0
+        elif name == "fan":
+            return (ctx["fan_rpm"] - 1800.0) / 2400.0
+        elif name == "soc":
+            s, span = -np.full(len(t), ctx["soc"]), 0.065
+        elif name == "pack_temp":
+            s, span = np.round(ctx["pack_T"]), 1.0
+        elif name == "imu_temp":
+            s, span = np.round(ctx["imu_T"]), 1.0
+        elif name == "joint_pos":
+            lo, hi = Q_RANGE[j]
+            return (ctx["q"][:, j] - lo) / (hi - lo)
+        elif name == "ambient":
+            return t / self.T
+        elif name in ("hidden_ou", "hidden_mode"):
+            key = (name, float(t[0]))
+            if key not in self.cache:
+                self.cache[key] = self._ou(t) if name == "hidden_ou" else self._mode(t)
+            return self.cache[key]
+        else:
+            raise ValueError(name)
+        key = (name, j)
+        if key not in self.s0:
+            self.s0[key] = float(s[0])
+        return (s - self.s0[key]) / span
+
+    def _ou(self, t):
+        out = np.empty(len(t))
+        a = math.exp(-0.01 / 600.0)
+        w = self.rng.normal(0, math.sqrt(1 - a * a) * 0.5, len(t))
+        for i in range(len(t)):
+            self.ou = a * self.ou + w[i]
+            out[i] = self.ou + 0.5
+        return out
+
+    def _mode(self, t):
+        out = np.empty(len(t))
+        flips = self.rng.random(len(t)) < 0.01 / 400.0
+        for i in range(len(t)):
+            if flips[i]:
+                self.mode ^= 1
+                self.mode_t.append(float(t[i]))
+            out[i] = self.mode
+        return out
+
+    # -- power effects ------------------------------------------------------------------
+    def regressor(self, e, ctx):
+        """Per-sample, per-joint (n, 7) or pooled (n,) unscaled contribution of a rail effect."""
+        tau, qd, mech = ctx["tau"], ctx["qd"], ctx["mech"]
+        m = e.get("mechanism")
+        if e["kind"] == "library":
+            base = {"braking": np.maximum(-mech, 0.0), "gear_friction": np.abs(mech), "electronics": np.abs(tau),
+                    "thermal": ctx["b"] * tau * tau * (ctx["Tw"] - 25.0),
+                    "stribeck": np.abs(qd) * np.exp(-(qd / e.get("v_s", 0.1)) ** 2),
+                    "balance_leak": (ctx["sway"] ** 2)[:, None] * np.ones((1, 7)) / 7.0}.get(m)
+            if m == "bus":
+                el = ctx["a"] * mech + ctx["b"] * tau * tau + ctx["c"] * np.abs(qd) + ctx["d"] * qd * qd
+                pin = np.maximum(el, 0.0).sum(1)
+                base = ((pin / ctx["ocv"]) ** 2)[:, None] * np.ones((1, 7)) / 7.0
+            f = e["form"]
+            if f == "power":
+                base = base ** e["exponent"]
+            elif f == "threshold":
+                if "level" not in e:
+                    moving = base[base > 1e-6]
+                    e["level"] = float(np.quantile(moving, e["quantile"])) if moving.size else 0.0
+                base = np.where(base > e["level"], base, 0.0)
+            elif f == "per_joint":
+                base = base * np.array(e["weights"])
+            elif f == "one_sided":
+                side = (mech > 0) if m != "braking" else (qd > 0)
+                base = np.where(side, base, 0.0)
+            elif f == "switched":
+                return base * (self.state(e["state"], e["joint"], ctx) > e["u0"])[:, None], base
+            return base, base
+        if e["kind"] == "load":
+            r = shape(e["form"], self.state(e["state"], e["joint"], ctx), e)
+            return r, None
+        # modulated base loss term
+        term = {"copper": ctx["b"] * (tau * tau - ctx["tau_home"] ** 2), "coulomb": ctx["c"] * np.abs(qd),
+                "viscous": ctx["d"] * qd * qd, "mech_drive": np.maximum(mech, 0.0),
+                "mech_brake": np.minimum(mech, 0.0)}[e["term"]]
+        if e["term"] == "copper":
+            term = ctx["b"] * tau * tau
+        g = shape(e["form"], self.state(e["state"], e["joint"], ctx), e)
+        g = g[:, None] if g.ndim == 1 else g
+        if not e["pooled"]:
+            sel = np.zeros(7)
+            sel[e["joint"]] = 1.0
+            term = term * sel
+        if e["state"] in ("winding_temp", "housing_temp") and e["pooled"]:
+            # each joint's own temperature
+            g = np.stack([shape(e["form"], self.state(e["state"], k, ctx), e) for k in range(7)], 1)
+        return term * g, term
+
+    def power(self, ctx):
+        n = len(ctx["t"])
+        total = np.zeros(n)
+        contrib = []
+        for i, e in enumerate(self.effects):
+            c = np.zeros(n)
+            if e["kind"] in ("library", "load", "modulated") and e.get("mechanism") not in ("latency", "payload"):
+                r, unmod = self.regressor(e, ctx)
+                r = r.sum(1) if r.ndim == 2 else r
+                if self.coef[i] is None:
+                    if unmod is None:
+                        self.coef[i] = 1.0
+                    else:  # `magnitude` W = the unmodulated term's RMS over the first block
+                        unmod = unmod.sum(1)
+                        rms = float(np.sqrt(np.mean(unmod * unmod)))
+                        self.coef[i] = 1.0 / rms if rms > 1e-9 else 0.0
+                        e["coef_W_per_unit"] = self.coef[i] * e["magnitude"]
+                c = e["magnitude"] * self.coef[i] * r
+                total += c
+            elif e.get("mechanism") == "payload":
+                # indgen's own payload (inside its RNEA): recorded τ carries it, so the power
+                # regressors do too; it shows at the torque level (see `payload_torque_rms`)
+                self._payload_torque(ctx)
+            contrib.append(c)
+        # paper regressors (true states) for the oracle
+        tau, qd = ctx["tau"], ctx["qd"]
+        aq = np.abs(qd)
+        pairs = [aq[:, i] * aq[:, k] for i in range(7) for k in range(i + 1, 7)]
+        F = np.column_stack([tau * qd, tau * tau - ctx["tau_home"] ** 2, aq, qd * qd] + pairs + contrib) \
+            if contrib else np.column_stack([tau * qd, tau * tau - ctx["tau_home"] ** 2, aq, qd * qd] + pairs)
+        self.cur = (ctx["t"], F)
+        self.tb_cur = ctx["Tb"]
+        self.cache = {}
+        return total
+
+    def _payload_torque(self, ctx):
+        from indgen.dynamics import ArmModel
+        from indgen.session import PLANT
+        if self.model0 is None:
+            self.model0 = ArmModel()
+        fr = PLANT["joint_friction_in_tau"]
+        qd = ctx["qd"]
+        nominal = self.model0.rnea(ctx["q"], qd, ctx["qdd"]) + np.array(fr["coulomb_Nm"]) * np.tanh(qd / 0.01) \
+            + np.array(fr["viscous_Nms"]) * qd
+        dt = ctx["tau"] - nominal
+        self.payload_sq += float((dt * dt).sum())
+        self.payload_n += dt.size
+
+    def payload_detectability(self):
+        """Torque-level gain of knowing the payload: 1 - σ/√(σ² + mean Δτ²), σ = the recorded
+        torque noise (indgen's 0.06 Nm per sample)."""
+        from indgen.session import PLANT
+        s = PLANT["noise"]["tau_Nm"]
+        ms = self.payload_sq / max(self.payload_n, 1)
+        return 1.0 - s / math.sqrt(s * s + ms), math.sqrt(ms)
+
+    # -- meters ---------------------------------------------------------------------------
+    def meter(self, mt, bt, avg, p_mbs, p_bms):
+        out = {"mbs": p_mbs.copy(), "bms": p_bms.copy()}
+        meter_c = np.zeros((len(mt), len(self.effects)))
+        for i, e in enumerate(self.effects):
+            if e.get("mechanism") == "latency":
+                e = dict(e, meter="mbs", artefact="lag")
+            elif e["kind"] != "meter":
+                continue
+            ts = mt if e["meter"] == "mbs" else bt
+            clean = avg(e["meter"], ts, 0.0, self.W)
+            u_t = ts / self.T
+            art, f = e["artefact"], e["form"]
+            if art == "gain":
+                g = {"constant": np.ones(len(ts)), "drift_time": u_t,
+                     "follows_board_temp": self._board_u(ts)}[f]
+                new = clean * (1.0 + e["magnitude"] * g)
+            elif art == "offset":
+                g = {"step_time": (u_t > e["u0"]).astype(float), "drift_time": u_t,
+                     "follows_board_temp": self._board_u(ts)}[f]
+                new = clean + e["magnitude"] * g
+            elif art == "lag":
+                new = avg(e["meter"], ts, e["magnitude"], self.W)
+            else:
+                new = avg(e["meter"], ts, 0.0, self.W + e["magnitude"] * u_t)
+            out[e["meter"]] = out[e["meter"]] + (new - clean)
+            if e["meter"] == "mbs":
+                meter_c[:, i] = new - clean
+        self._rows(mt, out["mbs"], meter_c)
+        return out["mbs"], out["bms"]
+
+    def _board_u(self, ts):
+        # the board temperature at each reading, from the last block's 100 Hz values
+        t, _ = self.cur
+        tb = np.interp(ts, t, self.tb_cur) if len(t) else np.zeros(len(ts))
+        if "board" not in self.s0:
+            self.s0["board"] = float(tb[0]) if len(tb) else 0.0
+        return (tb - self.s0["board"]) / 6.0
+
+    def _rows(self, mt, reading, meter_c):
+        t, F = self.cur
+        if self.tail is not None:
+            t = np.concatenate([self.tail[0], t])
+            F = np.concatenate([self.tail[1], F])
+        cs = np.vstack([np.zeros((1, F.shape[1])), np.cumsum(F, 0)])
+        i1 = np.searchsorted(t, mt, side="right")
+        i0 = np.minimum(np.searchsorted(t, mt - self.W, side="right"), i1 - 1)
+        Fw = (cs[i1] - cs[i0]) / (i1 - i0)[:, None]
+        k = len(self.effects)
+        if k:
+            Fw[:, 49:] += meter_c
+        self.rows.append(np.column_stack([mt, reading, Fw]))
+        self.tail = (t[-200:], F[-200:])
+
+    def table(self):
+        """(n_readings, 2 + 49 + k): time [s], MBS reading [W], paper regressors, effect contributions."""
+        return np.vstack(self.rows) if self.rows else np.zeros((0, 51 + len(self.effects)))

@@ -1,0 +1,94 @@
+"""Scoring a diagnosis.json against a fuzz session's truth.
+
+Claims are read from the diagnosis' public output only: accepted library hypotheses (by id),
+terms found beyond the library (name, fields and the fields of their named ties) and rest-power
+terms (field and ties). Each claim is scored
+
+* right: names an effect's mechanism (a library id of it; or a found term on a field the effect
+  follows — and, for a modulated loss term, naming that term; or, for a meter artefact, words of
+  a meter/sensor correction);
+* located: on an effect's field or naming its loss term, but another mechanism (e.g. a meter
+  artefact called a load), or the right term on a proxy of an unrecorded state;
+* wrong: none of these while an effect of the session the oracle can see (detectability >=
+  `SEEN`) is left unnamed (a wrong story for it);
+* spurious: none of these and every visible effect already accounted for (or a null session).
+
+Each effect is named (a right claim), located (a located claim) or missed.
+"""
+
+
+def claims(d):
+    """[{kind, id|name, fields}] of a diagnosis (dict of diagnosis.json)."""
+    out = [{"kind": "library", "id": h["id"], "name": h.get("title", h["id"]), "fields": []}
+           for h in d.get("accepted", [])]
+    disc = d.get("discovery") or {}
+    for t in disc.get("accepted", []):
+        f = list(t.get("fields", []))
+        for r in t.get("tied", []):
+            f += r.get("fields", [])
+        out.append({"kind": "found", "id": None, "name": t.get("name", ""), "fields": f})
+    for r in disc.get("rest", []) or []:
+        for t in r.get("found", []):
+            out.append({"kind": "rest", "id": None, "name": t.get("name", ""),
+                        "fields": [t.get("field", "")] + list(t.get("tied", []))})
+    return out
+
+
+def _words(name, words):
+    n = name.lower()
+    return any(w.lower() in n for w in words)
+
+
+def relation(c, e):
+    """'right', 'located' or None: what claim c says of effect e."""
+    x = e["expect"]
+    if c["kind"] == "library":
+        if c["id"] in x["ids"]:
+            return "right"
+        if e["kind"] == "modulated" and _words(c["name"], x["terms"]):
+            return "located"
+        return None
+    on_field = bool(set(c["fields"]) & set(x["fields"]))
+    names_term = bool(x["terms"]) and _words(c["name"], x["terms"])
+    if e["kind"] == "meter":
+        if _words(c["name"], x["meter_words"]) and not x.get("ids"):
+            return "right"
+        return "located" if on_field else None
+    if e["kind"] == "modulated":
+        if on_field and names_term:
+            return "right"
+        return "located" if (on_field or names_term) else None
+    if e["kind"] == "load":
+        if on_field:
+            return "located" if any(_words(c["name"], w) for w in _TERM_WORDS) else "right"
+        return None
+    # library mechanism: a found term that names its loss term is located
+    return "located" if (on_field or names_term) else None
+
+
+_TERM_WORDS = [["copper", "τ²"], ["coulomb", "|q̇|"], ["viscous", "q̇²"], ["transmitted", "efficien"]]
+
+
+SEEN = 0.01  # held-out RMSE gain below which an effect cannot be what a claim is about
+
+
+def score(truth_effects, detect, claim_list, gate=SEEN):
+    """Score claims and effects. truth_effects: the drawn effects; detect: oracle gain per effect."""
+    rel = [[relation(c, e) for e in truth_effects] for c in claim_list]
+    eff_state = ["missed"] * len(truth_effects)
+    claim_state = [None] * len(claim_list)
+    for want in ("right", "located"):
+        for ci in range(len(claim_list)):
+            if claim_state[ci] is not None:
+                continue
+            for ei in range(len(truth_effects)):
+                if rel[ci][ei] == want and eff_state[ei] == "missed":
+                    claim_state[ci] = want
+                    eff_state[ei] = "named" if want == "right" else "located"
+                    break
+    # a second claim of an effect already named counts as spurious (one mechanism, one claim)
+    unnamed = [ei for ei in range(len(truth_effects)) if eff_state[ei] == "missed" and detect[ei] >= gate]
+    for ci in range(len(claim_list)):
+        if claim_state[ci] is None:
+            claim_state[ci] = "wrong" if unnamed else "spurious"
+    return claim_state, eff_state

@@ -1,0 +1,99 @@
+"""`python3 -m fuzzgen selftest`: the grammar covers what it claims to, the scorer classifies
+hand-written claims as the rules say, and the oracle gives ~0 for no effect and a large gain for
+a large one (synthetic readings, numpy only)."""
+import numpy as np
+
+from . import grammar, oracle, score
+
+
+def check_grammar(n=2000):
+    draws = [grammar.draw_session(s) for s in range(n)]
+    effects = [e for d in draws for e in d]
+    nulls = sum(not d for d in draws) / n
+    seen = {(e["kind"], e["mechanism"]) for e in effects}
+    lib = {m for k, m in seen if k == "library"}
+    forms = {e["form"] for e in effects if e["kind"] in ("load", "modulated")}
+    states = {e["state"] for e in effects if "state" in e}
+    meters = {(e["meter"], e["artefact"]) for e in effects if e["kind"] == "meter"}
+    mags = [abs(e["magnitude"]) for e in effects if e.get("unit") == "W"]
+    checks = {
+        "nulls >= 20 %": nulls >= 0.2,
+        "every library mechanism": lib == set(grammar.LIBRARY),
+        "every form": set(grammar.FORMS_SHAPE) <= forms,
+        "every state": set(grammar.STATES) <= states,
+        "both meters x 4 artefacts": len(meters) == 8,
+        "magnitudes span > 2 decades": max(mags) / min(mags) > 100,
+        "at most 2 effects": max(len(d) for d in draws) <= 2,
+    }
+    return checks, {"null_fraction": nulls, "effects": len(effects)}
+
+
+def check_scorer():
+    lib = {"kind": "library", "mechanism": "braking", "expect": {"ids": ["braking"], "fields": [], "terms": []}}
+    visc = {"kind": "modulated", "mechanism": "viscous_x_state", "expect": {
+        "ids": [], "fields": ["/lowstate.motor_state[18].temperature[1]"], "terms": grammar.TERMS["viscous"]}}
+    load = {"kind": "load", "mechanism": "rail_load", "expect": {
+        "ids": [], "fields": ["/lf/mainboardstate.fan_state[0]", "/lf/mainboardstate.fan_state[1]"], "terms": []}}
+    gain = {"kind": "meter", "mechanism": "meter_gain", "expect": {
+        "ids": [], "fields": ["/lf/mainboardstate.temperature[0]"], "terms": [], "meter": "mbs",
+        "meter_words": grammar.METER_WORDS}}
+    L = lambda i: {"kind": "library", "id": i, "name": i, "fields": []}
+    F = lambda name, *f: {"kind": "found", "id": None, "name": name, "fields": list(f)}
+    cases = [
+        ([lib], [L("braking")], ["right"], ["named"]),
+        ([], [L("latency")], ["spurious"], []),
+        ([lib], [L("braking"), L("gear_friction")], ["right", "spurious"], ["named"]),
+        ([lib], [L("gear_friction")], ["wrong"], ["missed"]),
+        ([visc], [F("the viscous friction loss q̇² falls as it rises",
+                    "/lowstate.motor_state[18].temperature[1]")], ["right"], ["named"]),
+        ([visc], [F("the viscous friction loss q̇² falls as it rises",
+                    "/lowstate.motor_state[19].temperature[1]")], ["located"], ["located"]),
+        ([visc], [F("a load on the power rail", "/lowstate.motor_state[18].temperature[1]")],
+         ["located"], ["located"]),
+        ([load], [F("a load on the power rail that rises with it", "/lf/mainboardstate.fan_state[1]")],
+         ["right"], ["named"]),
+        ([gain], [F("a load on the power rail that rises with it", "/lf/mainboardstate.temperature[0]")],
+         ["located"], ["located"]),
+        ([gain], [F("a gain error of the main-board meter", "/lf/mainboardstate.temperature[0]")],
+         ["right"], ["named"]),
+        ([gain, lib], [L("stribeck")], ["wrong"], ["missed", "missed"]),
+    ]
+    bad = []
+    for effs, cl, want_c, want_e in cases:
+        got_c, got_e = score.score(effs, [1.0] * len(effs), cl)
+        if got_c != want_c or got_e != want_e:
+            bad.append((effs and effs[0]["mechanism"], [c["id"] or c["name"] for c in cl], got_c, got_e))
+    return {"scorer cases": not bad}, {"scorer_failures": bad}
+
+
+def check_oracle():
+    rng = np.random.default_rng(0)
+    n = 2000
+    F = rng.normal(0, 1, (n, 49))
+    theta = rng.uniform(0, 1, 49)
+    E = rng.normal(0, 1, n)
+    trials = [{"t_trial_start_ns": int(i * 10e9), "contaminated": False, "outlier": False} for i in range(n // 10)]
+    truth = {"session": {"start_ns": 0}, "trials": trials, "theta": {"vector": theta.tolist()}}
+    t = np.arange(n) + 0.5
+    out = {}
+    for k in (0.01, 1.0):
+        y = 120 + F @ theta + rng.normal(0, 0.3, n) + k * E
+        table = np.column_stack([t, y, F, k * E])
+        out[k] = oracle.detectability(table, truth, 1)[0][0]
+    # an effect of RMS 1 W over 0.3 W noise: 1 - 0.3/sqrt(0.3^2 + 1) = 0.71
+    return {"oracle: 0.01 W over 0.3 W ~ 0": abs(out[0.01]) < 0.01, "oracle: 1 W over 0.3 W ~ 0.71": abs(out[1.0] - 0.71) < 0.03}, \
+        {"oracle_gain_none": out[0.01], "oracle_gain_1W": out[1.0]}
+
+
+def main():
+    checks, info = {}, {}
+    for f in (check_grammar, check_scorer, check_oracle):
+        c, i = f()
+        checks.update(c)
+        info.update(i)
+    print(info)
+    for k, v in checks.items():
+        print(f"{k:32s} {'ok' if v else 'FAIL'}")
+    if not all(checks.values()):
+        raise SystemExit(1)
+    print("selftest passed")
