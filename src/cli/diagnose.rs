@@ -186,7 +186,6 @@ fn save_streamed_rrd(
     d: &g1viz::diagnose::Diagnosis,
     out: &Path,
 ) -> Result<()> {
-    use anyhow::Context;
     use g1viz::robot::RobotModel;
     use g1viz::viz::{self, OutputKind, Sink};
     let [first, ..] = files else {
@@ -196,8 +195,7 @@ fn save_streamed_rrd(
     let arm = robot.arm(&first.map.joint_names)?;
     let extras = viz::diagnosis_extras(d);
     let kind = OutputKind::Diagnosis;
-    let id = viz::recording_id_for_source(&first.path)
-        .with_context(|| format!("cannot read {}", first.path.display()))?;
+    let id = viz::recording_id_or_reason(&first.path)?;
     let paths: Vec<&Path> = files.iter().map(|f| f.path.as_path()).collect();
     let stream = viz::open_stream(
         &kind.app_id(),

@@ -201,6 +201,18 @@ fn run(
             opts.target
         );
     }
+    // The trial count first: a session too short for the cross-validation fails on it at once,
+    // not after a sensor-window estimate that needs more trials too.
+    let need = 2 * opts.folds.max(2);
+    if all_metas.len() < need {
+        bail!(
+            "{}: only {} trials with a pre-idle (need at least {need} usable for {}-fold \
+             cross-validation by trial; diagnose needs a longer session)",
+            info.source.display(),
+            all_metas.len(),
+            opts.folds
+        );
+    }
     let sensor = sensor_window(info, samples, &all_metas, opts)?;
     let w = sensor.window_s;
     let resolved = DiagnoseOptions {

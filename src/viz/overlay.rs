@@ -203,7 +203,7 @@ pub fn diagnosis_extras(d: &crate::diagnose::Diagnosis) -> ReplayExtras {
             before: r.before_w.clone(),
             after: r.after_w.clone(),
             highlighted,
-            summary: d.summary.clone(),
+            summary: crate::diagnose::summary::summary_markdown(d),
             counterpart: d.counterpart.as_ref().map(|c| c.series.clone()),
             found: r.found_w.clone(),
             located: r
