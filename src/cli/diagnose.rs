@@ -41,14 +41,19 @@ pub struct DiagnoseArgs {
     #[arg(long, value_name = "OUT")]
     save: Option<PathBuf>,
     /// With --save: open the layout on this tab (e.g. "Joints", "IMU and trials").
-    #[arg(long, value_name = "TAB", default_value = "Diagnosis", requires = "save")]
+    #[arg(
+        long,
+        value_name = "TAB",
+        default_value = "Diagnosis",
+        requires = "save"
+    )]
     open_tab: String,
     /// With --save: arm poses per second in the 3D view (0 = every sample kept), as replay.
     #[arg(long, value_name = "HZ", default_value_t = 30.0, value_parser = super::non_negative, requires = "save")]
     pose_rate: f64,
     /// With --save: at most this many samples per second of every joint and IMU series (default:
-    /// all of a short session's samples, and 20 000 per series of a longer one —
-    /// 1.3 Hz for 4.4 h, an .rrd the web viewer loads in about a minute; 0 = every sample).
+    /// all of a short session's samples, and 8 000 per series of a longer one —
+    /// 0.5 Hz for 4.4 h, an .rrd the web viewer loads in about a minute; 0 = every sample).
     /// The diagnosis' per-reading series are always kept whole.
     #[arg(long, value_name = "HZ", value_parser = super::non_negative, requires = "save")]
     max_rate: Option<f64>,
@@ -159,7 +164,7 @@ fn write_outputs(a: &DiagnoseArgs, d: &g1viz::diagnose::Diagnosis) -> Result<()>
 }
 
 /// Samples per joint and IMU series of a diagnosis `.rrd` by default ([`default_max_rate`]).
-const SAMPLES_PER_SERIES: f64 = 20_000.0;
+const SAMPLES_PER_SERIES: f64 = 8_000.0;
 
 /// The default rate cap of a diagnosis `.rrd` for a session of `duration_s`: every sample of a
 /// short session, [`SAMPLES_PER_SERIES`] per series of a long one (`None`: no cap).
@@ -218,7 +223,9 @@ fn save_streamed_rrd(
     )?;
     let opts = replay_options(a, d);
     if let Some(r) = opts.slice.max_rate_hz {
-        eprintln!("replay: at most {r:.2} samples per second of every joint and IMU series (--max-rate)");
+        eprintln!(
+            "replay: at most {r:.2} samples per second of every joint and IMU series (--max-rate)"
+        );
     }
     let busy = super::spinner("writing the replay");
     let summary = viz::replay_files_with(

@@ -241,6 +241,7 @@ fn run(
         .collect();
     let mut totals = first.totals;
     remove_trials(samples, power, &all_metas, &gone, &lags, w, &mut totals)?;
+    let rejected_windows = replay::rejected_windows(&all_metas, &rejected);
     drop(all_metas);
     let rows0 = first.rows0.keep(&kept);
     // Every lag's Gram matrices, the fine lags and the torque rows (one more pass).
@@ -290,7 +291,10 @@ fn run(
     );
     let located = locate_residuals(&info.joint_names, &metas, &data, &sel, discovery.as_ref());
     let lag_scan = lag_scan(&data)?;
-    let replay = replay_data(&metas, data.rows0(), &sel, &located);
+    let replay = ReplayData {
+        rejected: rejected_windows,
+        ..replay_data(&metas, data.rows0(), &sel, &located)
+    };
     let mut diag = Diagnosis {
         schema_version: SCHEMA_VERSION,
         source: info.source.display().to_string(),

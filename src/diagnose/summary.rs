@@ -438,7 +438,11 @@ fn left_out(r: &super::DiscoveryReport, s: &mut String) {
         .map(|e| e.name.as_str())
         .collect();
     if !junk.is_empty() {
-        let more = if junk.len() > LEFT_OUT_NAMED { ", …" } else { "" };
+        let more = if junk.len() > LEFT_OUT_NAMED {
+            ", …"
+        } else {
+            ""
+        };
         let _ = writeln!(
             s,
             "Left out of discovery as counters, clocks or hash-like: {} fields ({}{more}; all with reasons in the report).",

@@ -539,8 +539,8 @@ fn log_imu_filter(w: &mut ChunkWriter<'_>, imu: &ImuFilterMarks) -> Result<()> {
                 "threshold {} × median σ|ω| = {:.4} rad/s",
                 imu.k, imu.threshold
             ),
-            style::WARNING,
-            1.0,
+            style::THRESHOLD,
+            2.0,
         )?;
         scalars(
             w,
