@@ -278,7 +278,8 @@ fn workflow_simulate_identify_validate_diagnose() {
         "twin.mcap",
     ];
     if cfg!(feature = "viz") {
-        args.extend(["--save", "diag.rrd"]);
+        // Every sample (a session this long is capped by default).
+        args.extend(["--save", "diag.rrd", "--max-rate", "0"]);
     }
     let (out, _) = ok(d, &args);
     assert!(out.contains("Counterpart (twin.mcap"), "{out}");
@@ -311,6 +312,8 @@ fn workflow_simulate_identify_validate_diagnose() {
                 "model.json",
                 "--save",
                 "joined.rrd",
+                "--max-rate",
+                "0",
             ],
         );
         assert!(out.contains("wrote joined.rrd"), "{out}");
