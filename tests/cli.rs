@@ -278,7 +278,8 @@ fn workflow_simulate_identify_validate_diagnose() {
         "twin.mcap",
     ];
     if cfg!(feature = "viz") {
-        args.extend(["--save", "diag.rrd"]);
+        // Every sample (a session this long is capped by default).
+        args.extend(["--save", "diag.rrd", "--max-rate", "0"]);
     }
     let (out, _) = ok(d, &args);
     assert!(out.contains("Counterpart (twin.mcap"), "{out}");
@@ -311,6 +312,8 @@ fn workflow_simulate_identify_validate_diagnose() {
                 "model.json",
                 "--save",
                 "joined.rrd",
+                "--max-rate",
+                "0",
             ],
         );
         assert!(out.contains("wrote joined.rrd"), "{out}");
@@ -757,6 +760,54 @@ fn identify_on_a_short_session_names_counts_and_a_way_out() {
     // Half the timing is refused by the parser.
     let o = run(dir.path(), &["identify", example, "--window", "0.2"]);
     assert_eq!(o.status.code(), Some(2));
+}
+
+/// `diagnose` on the shipped example (7 trials) says at once that the session is too short for
+/// the cross-validation, whether or not the sensor window is given (it used to ask for
+/// `--sensor-window` first, then refuse the trial count).
+#[test]
+fn diagnose_on_the_example_names_the_trial_count_at_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let example = crate_dir().join("examples/g1_example.mcap");
+    let example = example.to_str().unwrap();
+    for extra in [&[][..], &["--sensor-window", "0.2"][..]] {
+        let args = [&["diagnose", example][..], extra].concat();
+        let err = fails(dir.path(), &args);
+        assert!(
+            err.contains("only 7 trials with a pre-idle (need at least 20 usable for 10-fold")
+                && !err.contains("--sensor-window"),
+            "{err}"
+        );
+    }
+}
+
+/// `simulate --help` lists every effect the simulator accepts (the simulator's own list, which
+/// its unit test ties to `--effect`'s parser): the 17 of issue 30, not 11.
+#[test]
+fn simulate_help_lists_every_effect() {
+    let (out, _) = ok(&crate_dir(), &["simulate", "--help"]);
+    assert_eq!(g1viz::sim::EFFECT_NAMES.len(), 17);
+    for name in g1viz::sim::EFFECT_NAMES {
+        assert!(out.contains(name), "{name} missing from:\n{out}");
+    }
+}
+
+/// A missing input gives the operating system's reason, whichever command reads it.
+#[test]
+fn a_missing_file_gives_the_os_reason() {
+    let dir = tempfile::tempdir().unwrap();
+    for args in [
+        &["info", "missing.mcap"][..],
+        &["replay", "missing.mcap", "--save", "x.rrd"][..],
+        &["identify", "missing.mcap", "-o", "m.json"][..],
+        &["diagnose", "missing.mcap"][..],
+    ] {
+        let err = fails(dir.path(), args);
+        assert!(
+            err.contains("missing.mcap") && err.contains("No such file or directory"),
+            "{args:?}: {err}"
+        );
+    }
 }
 
 /// README: "The example session was made with `g1viz simulate --preset example --seed 1 -o

@@ -250,7 +250,7 @@ fn shared_smoke_bags_are_read_alike() {
             assert_eq!(format!("{m:#}"), format!("{s:#}"), "{name}");
             let why = format!("{m:#}");
             assert!(
-                why.contains("3 scanned trials") || why.contains("only 3 usable trials"),
+                why.contains("only 3 trials with a pre-idle (need at least 20 usable"),
                 "{name}: {why}"
             );
         }

@@ -1162,7 +1162,18 @@ fn diagnosis_rrd_has_before_after_located_trials_and_counterpart() {
     assert!(after < 0.5 * before, "rms error {before} → {after}");
 
     assert!(!r.highlighted.is_empty(), "located trials");
-    assert_eq!(rows(&c, "/diagnosis/trials/log"), r.highlighted.len());
+    // The trial log: the located trials, and the rejected ones (each filter's rejection with
+    // its window; a trial without a pre-idle has none to show).
+    let filtered = d
+        .rejected
+        .iter()
+        .filter(|x| x.reason != g1viz::trial::RejectReason::Unusable)
+        .count();
+    assert!(r.rejected.len() >= filtered, "{:?}", d.rejected);
+    assert_eq!(
+        rows(&c, "/diagnosis/trials/log"),
+        r.highlighted.len() + r.rejected.len()
+    );
     assert!(
         c.rows
             .contains_key(&(false, "/diagnosis/summary".to_owned(), true)),

@@ -40,16 +40,21 @@ pub struct DiagnoseArgs {
     /// Write an .rrd with before/after predictions, residuals and the located trials.
     #[arg(long, value_name = "OUT")]
     save: Option<PathBuf>,
-    /// With --save: open the layout on this tab (e.g. "Diagnosis", "Joints"; default: the
-    /// first).
-    #[arg(long, value_name = "TAB", requires = "save")]
-    open_tab: Option<String>,
-    /// With --save: arm poses per second in the 3D view (0 = every recorded sample).
-    #[arg(long, value_name = "HZ", default_value_t = 0.0, value_parser = super::non_negative, requires = "save")]
+    /// With --save: open the layout on this tab (e.g. "Joints", "IMU and trials").
+    #[arg(
+        long,
+        value_name = "TAB",
+        default_value = "Diagnosis",
+        requires = "save"
+    )]
+    open_tab: String,
+    /// With --save: arm poses per second in the 3D view (0 = every sample kept), as replay.
+    #[arg(long, value_name = "HZ", default_value_t = 30.0, value_parser = super::non_negative, requires = "save")]
     pose_rate: f64,
-    /// With --save: at most this many samples per second of every joint and IMU series
-    /// (default: all recorded samples). A paper-scale session's .rrd is gigabytes at full rate,
-    /// more than the web viewer holds; the diagnosis' per-reading series are always kept whole.
+    /// With --save: at most this many samples per second of every joint and IMU series (default:
+    /// all of a short session's samples, and 8 000 per series of a longer one —
+    /// 0.5 Hz for 4.4 h, an .rrd the web viewer loads in about a minute; 0 = every sample).
+    /// The diagnosis' per-reading series are always kept whole.
     #[arg(long, value_name = "HZ", value_parser = super::non_negative, requires = "save")]
     max_rate: Option<f64>,
     /// Also compare sample by sample with the twin driven by the same commands on the same
@@ -158,19 +163,32 @@ fn write_outputs(a: &DiagnoseArgs, d: &g1viz::diagnose::Diagnosis) -> Result<()>
     Ok(())
 }
 
+/// Samples per joint and IMU series of a diagnosis `.rrd` by default ([`default_max_rate`]).
+const SAMPLES_PER_SERIES: f64 = 8_000.0;
+
+/// The default rate cap of a diagnosis `.rrd` for a session of `duration_s`: every sample of a
+/// short session, [`SAMPLES_PER_SERIES`] per series of a long one (`None`: no cap).
+fn default_max_rate(duration_s: f64) -> Option<f64> {
+    let rate = SAMPLES_PER_SERIES / duration_s.max(1.0);
+    (rate < 100.0).then_some(rate)
+}
+
 /// The diagnosis replay's options: the recording's properties name the command and the model.
 #[cfg(feature = "viz")]
-fn replay_options(a: &DiagnoseArgs) -> g1viz::viz::ReplayOptions {
+fn replay_options(a: &DiagnoseArgs, d: &g1viz::diagnose::Diagnosis) -> g1viz::viz::ReplayOptions {
     let mut properties = vec![("command".to_owned(), super::command_line())];
     if let Some(m) = &a.model {
         properties.push(("model".to_owned(), m.display().to_string()));
     }
     g1viz::viz::ReplayOptions {
         properties,
-        open_tab: a.open_tab.clone(),
+        open_tab: Some(a.open_tab.clone()),
         pose_rate_hz: (a.pose_rate > 0.0).then_some(a.pose_rate),
         slice: g1viz::viz::Slice {
-            max_rate_hz: a.max_rate,
+            max_rate_hz: match a.max_rate {
+                Some(r) => (r > 0.0).then_some(r),
+                None => default_max_rate(d.replay.t.last().copied().unwrap_or(0.0)),
+            },
             ..Default::default()
         },
         ..Default::default()
@@ -186,7 +204,6 @@ fn save_streamed_rrd(
     d: &g1viz::diagnose::Diagnosis,
     out: &Path,
 ) -> Result<()> {
-    use anyhow::Context;
     use g1viz::robot::RobotModel;
     use g1viz::viz::{self, OutputKind, Sink};
     let [first, ..] = files else {
@@ -196,8 +213,7 @@ fn save_streamed_rrd(
     let arm = robot.arm(&first.map.joint_names)?;
     let extras = viz::diagnosis_extras(d);
     let kind = OutputKind::Diagnosis;
-    let id = viz::recording_id_for_source(&first.path)
-        .with_context(|| format!("cannot read {}", first.path.display()))?;
+    let id = viz::recording_id_or_reason(&first.path)?;
     let paths: Vec<&Path> = files.iter().map(|f| f.path.as_path()).collect();
     let stream = viz::open_stream(
         &kind.app_id(),
@@ -205,7 +221,12 @@ fn save_streamed_rrd(
         &Sink::Save(out.to_path_buf()),
         &paths,
     )?;
-    let opts = replay_options(a);
+    let opts = replay_options(a, d);
+    if let Some(r) = opts.slice.max_rate_hz {
+        eprintln!(
+            "replay: at most {r:.2} samples per second of every joint and IMU series (--max-rate)"
+        );
+    }
     let busy = super::spinner("writing the replay");
     let summary = viz::replay_files_with(
         &paths,

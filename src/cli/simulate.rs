@@ -21,10 +21,8 @@ pub struct SimulateArgs {
     /// Random seed (same seed, same file).
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Switch on a concealed effect, e.g. braking=0.3, thermal=0.00393, bus_loss=0.05, latency=0.3,
-    /// payload=0.5, gear_friction=0.15, drive_loss=0.5, stribeck=10, balance_leak=55,
-    /// harness_drag=4, switching=0.01 (repeatable; a bare NAME uses the default value).
-    #[arg(long = "effect", value_name = "NAME=VALUE")]
+    /// Switch on a concealed effect (the list is the simulator's own: [`effect_help`]).
+    #[arg(long = "effect", value_name = "NAME=VALUE", help = effect_help())]
     effects: Vec<String>,
     /// Re-run this recording's commanded trajectory through the twin (same timeline).
     #[arg(long, value_name = "SESSION")]
@@ -54,6 +52,15 @@ pub struct SimulateArgs {
     clean: bool,
     #[command(flatten)]
     read: ReadArgs,
+}
+
+/// `--effect`'s help: every effect the simulator accepts, from its own list.
+fn effect_help() -> String {
+    format!(
+        "Switch on a concealed effect, e.g. braking=0.3 (repeatable; a bare NAME uses the default \
+         value). NAME is one of: {}",
+        g1viz::sim::EFFECT_NAMES.join(", ")
+    )
 }
 
 /// Simulate and write the session and its truth file.

@@ -203,6 +203,18 @@ fn run(
             opts.target
         );
     }
+    // The trial count first: a session too short for the cross-validation fails on it at once,
+    // not after a sensor-window estimate that needs more trials too.
+    let need = 2 * opts.folds.max(2);
+    if all_metas.len() < need {
+        bail!(
+            "{}: only {} trials with a pre-idle (need at least {need} usable for {}-fold \
+             cross-validation by trial; diagnose needs a longer session)",
+            info.source.display(),
+            all_metas.len(),
+            opts.folds
+        );
+    }
     let sensor = sensor_window(info, samples, &all_metas, opts)?;
     let w = sensor.window_s;
     let resolved = DiagnoseOptions {
@@ -231,6 +243,7 @@ fn run(
         .collect();
     let mut totals = first.totals;
     remove_trials(samples, power, &all_metas, &gone, &lags, w, &mut totals)?;
+    let rejected_windows = replay::rejected_windows(&all_metas, &rejected);
     drop(all_metas);
     let rows0 = first.rows0.keep(&kept);
     // Every lag's Gram matrices, the fine lags and the torque rows (one more pass).
@@ -285,7 +298,10 @@ fn run(
     );
     let located = locate_residuals(&info.joint_names, &metas, &data, &sel, discovery.as_ref());
     let lag_scan = lag_scan(&data)?;
-    let replay = replay_data(&metas, data.rows0(), &sel, &located);
+    let replay = ReplayData {
+        rejected: rejected_windows,
+        ..replay_data(&metas, data.rows0(), &sel, &located)
+    };
     let mut diag = Diagnosis {
         schema_version: SCHEMA_VERSION,
         source: info.source.display().to_string(),

@@ -36,6 +36,10 @@ pub struct ReplayData {
     /// Held-out rest power of each reading's trial with the terms found on it [W] (viewer only).
     #[serde(skip)]
     pub rest_found_w: Vec<f64>,
+    /// The trials a filter rejected, with their windows (viewer only: `diagnosis.json` lists
+    /// the rejections in `rejected`).
+    #[serde(skip)]
+    pub rejected: Vec<HighlightedTrial>,
 }
 
 /// A recorded field a found term follows, sampled on the readings' windows.
@@ -58,6 +62,25 @@ pub struct HighlightedTrial {
     pub t_end: f64,
     /// Why it is highlighted.
     pub reason: String,
+}
+
+/// The windows of the `rejected` trials among `metas`, each with its rejection in words.
+pub(crate) fn rejected_windows(
+    metas: &[TrialMeta],
+    rejected: &[crate::trial::Rejection],
+) -> Vec<HighlightedTrial> {
+    rejected
+        .iter()
+        .filter_map(|r| {
+            let w = &metas.iter().find(|m| m.window.index == r.trial)?.window;
+            Some(HighlightedTrial {
+                trial: r.trial,
+                t_start: w.t_traj_start,
+                t_end: w.t_return_end,
+                reason: r.to_string(),
+            })
+        })
+        .collect()
 }
 
 /// Stage: per-reading data for the replay, with the trials to point the user to (largest
@@ -111,10 +134,7 @@ pub(crate) fn replay_data(
         before_w: sel.base.cv.pred.clone(),
         after_w: sel.last.cv.pred.clone(),
         highlighted,
-        found_w: Vec::new(),
-        located: Vec::new(),
-        rest_w: Vec::new(),
-        rest_found_w: Vec::new(),
+        ..ReplayData::default()
     }
 }
 

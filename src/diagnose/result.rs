@@ -81,7 +81,9 @@ pub struct FinalModel {
     pub after_per_trial: Quality,
 }
 
-/// Everything a diagnosis found (serialised as diagnosis.json).
+/// Everything a diagnosis found (serialised as diagnosis.json, verdict first: the summary, what
+/// was accepted and found, where the base model is wrong and what was tried; then the counts,
+/// the supporting tables and the replay data).
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct Diagnosis {
     /// Layout version ([`SCHEMA_VERSION`]).
@@ -90,34 +92,12 @@ pub struct Diagnosis {
     pub source: String,
     /// Power target.
     pub target: Target,
-    /// URDF joint names.
-    pub joint_names: Vec<String>,
-    /// Trials used.
-    pub n_trials: usize,
-    /// Power readings used.
-    pub n_readings: usize,
-    /// Trials left out, with reasons.
-    pub rejected: Vec<Rejection>,
-    /// Torque level (absent without a robot model or torque data).
-    pub torque: Option<TorqueComparison>,
-    /// How the base model was obtained: `reference` (held at the twin's model) or `refit` (per fold).
-    pub base_model: String,
-    /// Sensor-lag scan of the base model.
-    pub lag_scan: Vec<LagPoint>,
-    /// Residual breakdowns of the base model (held out).
-    pub breakdowns: Vec<Breakdown>,
-    /// Where the base model is worst: (breakdown, group).
-    pub worst: Option<(String, Group)>,
-    /// Trials with the largest held-out base residual.
-    pub worst_trials: Vec<TrialResidual>,
-    /// Every hypothesis scored against the base model, ranked (1 = best).
-    pub hypotheses: Vec<HypothesisScore>,
+    /// Plain-language summary.
+    pub summary: String,
     /// Accepted hypotheses in selection order, scored at their step.
     pub accepted: Vec<HypothesisScore>,
     /// The refit with the accepted hypotheses.
     pub final_model: FinalModel,
-    /// Residual structure left after the final model: strongest correlates.
-    pub unexplained: Vec<Correlate>,
     /// Forms of each mechanism with several, compared with the same cross-validation.
     #[serde(default)]
     pub forms: Vec<MechanismForms>,
@@ -127,14 +107,36 @@ pub struct Diagnosis {
     /// Discovery beyond the library (absent when switched off).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub discovery: Option<DiscoveryReport>,
-    /// Mean motor supply voltage the bus-current form used [V] (recorded, or nominal).
-    #[serde(default)]
-    pub bus_volts: f64,
+    /// Where the base model is worst: (breakdown, group).
+    pub worst: Option<(String, Group)>,
+    /// Every hypothesis scored against the base model, ranked (1 = best).
+    pub hypotheses: Vec<HypothesisScore>,
+    /// Residual structure left after the final model: strongest correlates.
+    pub unexplained: Vec<Correlate>,
+    /// Trials used.
+    pub n_trials: usize,
+    /// Power readings used.
+    pub n_readings: usize,
+    /// Trials left out, with reasons.
+    pub rejected: Vec<Rejection>,
+    /// How the base model was obtained: `reference` (held at the twin's model) or `refit` (per fold).
+    pub base_model: String,
     /// The power sensor's averaging window used for every reading's regressors.
     #[serde(default)]
     pub sensor_window: SensorWindow,
-    /// Plain-language summary.
-    pub summary: String,
+    /// Mean motor supply voltage the bus-current form used [V] (recorded, or nominal).
+    #[serde(default)]
+    pub bus_volts: f64,
+    /// Torque level (absent without a robot model or torque data).
+    pub torque: Option<TorqueComparison>,
+    /// Sensor-lag scan of the base model.
+    pub lag_scan: Vec<LagPoint>,
+    /// Residual breakdowns of the base model (held out).
+    pub breakdowns: Vec<Breakdown>,
+    /// Trials with the largest held-out base residual.
+    pub worst_trials: Vec<TrialResidual>,
+    /// URDF joint names.
+    pub joint_names: Vec<String>,
     /// Per-reading data for the replay.
     pub replay: ReplayData,
     /// Sample-by-sample comparison with a simulated counterpart, when one was given.

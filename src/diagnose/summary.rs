@@ -53,29 +53,81 @@ fn braking_joints(d: &Diagnosis) -> Vec<String> {
         .collect()
 }
 
-/// The summary text: counts and torque, where the power model is wrong, what is named, forms
-/// and confounding, discovery, and what remains unexplained.
+/// The summary text, verdict first: the counts, then [`sections`] one after the other.
 pub fn summarise(d: &Diagnosis) -> String {
-    let mut s = String::new();
-    counts_and_torque(d, &mut s);
-    where_wrong(d, &mut s);
-    named(d, &mut s);
-    forms_and_confounding(d, &mut s);
-    discovery_lines(d, &mut s);
-    unexplained(d, &mut s);
+    let mut s = header(d);
+    for (_, text) in sections(d) {
+        s.push_str(&text);
+    }
     s
 }
 
-/// Trials and readings used; the torque level's worst joint.
-fn counts_and_torque(d: &Diagnosis, s: &mut String) {
-    let _ = writeln!(
-        s,
-        "Diagnosis of {}: {} trials, {} {:?} power readings ({} trials left out).",
+/// The summary as markdown (the viewer's diagnosis tab): the counts, then each non-empty
+/// section under its heading, every line its own paragraph.
+pub fn summary_markdown(d: &Diagnosis) -> String {
+    let mut md = header(d);
+    for (title, text) in sections(d).iter().filter(|(_, t)| !t.is_empty()) {
+        let _ = write!(md, "\n#### {title}\n");
+        for line in text.lines() {
+            let _ = write!(md, "\n{line}\n");
+        }
+    }
+    md
+}
+
+/// The summary's first line: what was diagnosed, with how many trials and readings.
+fn header(d: &Diagnosis) -> String {
+    format!(
+        "Diagnosis of {}: {} trials, {} {:?} power readings ({} trials left out).\n",
         d.source,
         d.n_trials,
         d.n_readings,
         d.target,
         d.rejected.len()
+    )
+}
+
+/// The summary's sections, verdict first: what was found (each claim with its parameter and
+/// evidence, forms and confounding), what was located but not identified, what was tried and
+/// rejected; then the supporting figures (the base model's quality, torque, sensor window, what
+/// remains unexplained and, folded behind a count, the fields left out of discovery).
+pub fn sections(d: &Diagnosis) -> [(&'static str, String); 4] {
+    let mut found = String::new();
+    named(d, &mut found);
+    forms_and_confounding(d, &mut found);
+    let mut rejected = String::new();
+    not_named(d, &mut rejected);
+    let mut support = String::new();
+    quality(d, &mut support);
+    unexplained(d, &mut support);
+    if let Some(r) = &d.discovery {
+        found_lines(r, &mut found);
+        rejected_lines(r, &mut rejected);
+        left_out(r, &mut support);
+    }
+    let mut located_ = String::new();
+    located(d, &mut located_);
+    [
+        ("Found", found),
+        ("Located, not identified", located_),
+        ("Tried and rejected", rejected),
+        ("Supporting figures", support),
+    ]
+}
+
+/// The base model's held-out quality, the torque level's worst joint, the sensor window and the
+/// best sensor lag.
+fn quality(d: &Diagnosis, s: &mut String) {
+    let f = &d.final_model;
+    let base = if d.base_model == "reference" {
+        "the twin's power model"
+    } else {
+        "the base model (refitted per fold)"
+    };
+    let _ = writeln!(
+        s,
+        "Power: {base} predicts held-out readings with R² = {:.3}, RMSE = {:.2} W (per trial R² = {:.3}).",
+        f.before.r2, f.before.rmse_w, f.before_per_trial.r2
     );
     if let Some(t) = &d.torque {
         let worst = t
@@ -95,21 +147,11 @@ fn counts_and_torque(d: &Diagnosis, s: &mut String) {
             "Torque: URDF inverse dynamics + fitted joint friction vs tau_est; worst joint {worst}."
         );
     }
+    sensor_lines(d, s);
 }
 
-/// The base model's held-out quality, where it is most clearly wrong, and its best sensor lag.
-fn where_wrong(d: &Diagnosis, s: &mut String) {
-    let f = &d.final_model;
-    let base = if d.base_model == "reference" {
-        "the twin's power model"
-    } else {
-        "the base model (refitted per fold)"
-    };
-    let _ = writeln!(
-        s,
-        "Power: {base} predicts held-out readings with R² = {:.3}, RMSE = {:.2} W (per trial R² = {:.3}).",
-        f.before.r2, f.before.rmse_w, f.before_per_trial.r2
-    );
+/// Where the base model is most clearly wrong (located, not identified).
+fn located(d: &Diagnosis, s: &mut String) {
     if let Some((by, g)) = &d.worst {
         if g.p_value < 1e-3 {
             let dir = if g.bias_w > 0.0 {
@@ -137,6 +179,10 @@ fn where_wrong(d: &Diagnosis, s: &mut String) {
             );
         }
     }
+}
+
+/// The estimated sensor window and the base model's best sensor lag.
+fn sensor_lines(d: &Diagnosis, s: &mut String) {
     let sw = &d.sensor_window;
     if sw.estimated {
         let _ = writeln!(
@@ -159,9 +205,8 @@ fn where_wrong(d: &Diagnosis, s: &mut String) {
     }
 }
 
-/// The accepted hypotheses with their parameters (or why none is), and the model with them.
-fn named(d: &Diagnosis, s: &mut String) {
-    let f = &d.final_model;
+/// Why no hypothesis of the library is accepted, when none is.
+fn not_named(d: &Diagnosis, s: &mut String) {
     if d.accepted.is_empty() {
         match d.hypotheses.first() {
             Some(h) => {
@@ -179,6 +224,11 @@ fn named(d: &Diagnosis, s: &mut String) {
             }
         }
     }
+}
+
+/// The accepted hypotheses with their parameters, and the model with them.
+fn named(d: &Diagnosis, s: &mut String) {
+    let f = &d.final_model;
     for h in &d.accepted {
         let shown = d.final_model.params.iter().find(|p| {
             h.params
@@ -332,11 +382,8 @@ fn confounded_line(c: &super::Confounded) -> String {
     }
 }
 
-/// Terms found beyond the library, or what the search tried.
-fn discovery_lines(d: &Diagnosis, s: &mut String) {
-    let Some(r) = &d.discovery else {
-        return;
-    };
+/// Terms found beyond the library and on the rest power.
+fn found_lines(r: &super::DiscoveryReport, s: &mut String) {
     for t in &r.accepted {
         let params: Vec<String> = t.params.iter().map(fmt_param).collect();
         let _ = writeln!(
@@ -355,6 +402,13 @@ fn discovery_lines(d: &Diagnosis, s: &mut String) {
         meter_line(t.meter.as_ref(), s);
         tied_lines(t, s);
     }
+    if let Some(rest) = &r.rest {
+        rest_found(rest, s);
+    }
+}
+
+/// What discovery and the rest power tried without finding anything.
+fn rejected_lines(r: &super::DiscoveryReport, s: &mut String) {
     if r.accepted.is_empty() {
         let best = best_rejected(r.best_rejected.as_ref().map(|b| (&b.name, &b.verdict)));
         let _ = writeln!(
@@ -363,9 +417,21 @@ fn discovery_lines(d: &Diagnosis, s: &mut String) {
             r.n_candidates, r.fields_used, r.alpha
         );
     }
-    if let Some(rest) = &r.rest {
-        rest_lines(rest, s);
+    if let Some(rest) = r.rest.as_ref().filter(|r| r.found.is_empty()) {
+        let best = best_rejected(rest.best_rejected.as_ref().map(|b| (&b.name, &b.verdict)));
+        let _ = writeln!(
+            s,
+            "Rest power: {} candidates tried on {} trials' pre-idle power ({:.1} W on average, held-out RMSE {:.3} W), none supported{best}.",
+            rest.n_candidates, rest.n_trials, rest.mean_w, rest.rmse_before_w
+        );
     }
+}
+
+/// Fields named beside the count of those left out of discovery (the report lists all).
+const LEFT_OUT_NAMED: usize = 3;
+
+/// The fields left out of discovery as counters, clocks or hash-like, folded behind a count.
+fn left_out(r: &super::DiscoveryReport, s: &mut String) {
     let junk: Vec<&str> = r
         .excluded
         .iter()
@@ -373,10 +439,16 @@ fn discovery_lines(d: &Diagnosis, s: &mut String) {
         .map(|e| e.name.as_str())
         .collect();
     if !junk.is_empty() {
+        let more = if junk.len() > LEFT_OUT_NAMED {
+            ", …"
+        } else {
+            ""
+        };
         let _ = writeln!(
             s,
-            "Left out of discovery as counters, clocks or hash-like: {} (reasons in the report).",
-            junk.join(", ")
+            "Left out of discovery as counters, clocks or hash-like: {} fields ({}{more}; all with reasons in the report).",
+            junk.len(),
+            junk[..junk.len().min(LEFT_OUT_NAMED)].join(", ")
         );
     }
 }
@@ -397,9 +469,9 @@ fn best_rejected(b: Option<(&String, &String)>) -> String {
 /// Most fields named beside a rest-power term in the summary (the JSON lists all).
 const REST_TIES_NAMED: usize = 4;
 
-/// The rest power (each trial's pre-idle mean, which the net-power model subtracts): the loads
-/// found on it, or what was tried.
-fn rest_lines(r: &super::RestPower, s: &mut String) {
+/// The loads found on the rest power (each trial's pre-idle mean, which the net-power model
+/// subtracts).
+fn rest_found(r: &super::RestPower, s: &mut String) {
     for t in &r.found {
         let params: Vec<String> = t.params.iter().map(fmt_param).collect();
         let ties = if t.tied.is_empty() {
@@ -436,14 +508,6 @@ fn rest_lines(r: &super::RestPower, s: &mut String) {
             super::rest::BLOCK_TRIALS
         );
         meter_line(t.meter.as_ref(), s);
-    }
-    if r.found.is_empty() {
-        let best = best_rejected(r.best_rejected.as_ref().map(|b| (&b.name, &b.verdict)));
-        let _ = writeln!(
-            s,
-            "Rest power: {} candidates tried on {} trials' pre-idle power ({:.1} W on average, held-out RMSE {:.3} W), none supported{best}.",
-            r.n_candidates, r.n_trials, r.mean_w, r.rmse_before_w
-        );
     }
 }
 

@@ -107,6 +107,29 @@ impl Target {
     }
 }
 
+impl Recording {
+    /// Appends `r`'s samples, readings and warnings, its times shifted by `offset` [s] (the
+    /// source and start time stay this one's).
+    pub fn append(&mut self, r: Recording, offset: f64) {
+        let shift = |v: &[f64]| v.iter().map(|t| t + offset).collect::<Vec<_>>();
+        self.state.t.extend(shift(&r.state.t));
+        self.state.q.extend(r.state.q);
+        self.state.dq.extend(r.state.dq);
+        self.state.tau.extend(r.state.tau);
+        self.state.temp.extend(r.state.temp);
+        self.state.gyro.extend(r.state.gyro);
+        self.state.quat.extend(r.state.quat);
+        self.command.t.extend(shift(&r.command.t));
+        self.command.q.extend(r.command.q);
+        self.command.dq.extend(r.command.dq);
+        self.mbs.t.extend(shift(&r.mbs.t));
+        self.mbs.watts.extend(r.mbs.watts);
+        self.bms.t.extend(shift(&r.bms.t));
+        self.bms.watts.extend(r.bms.watts);
+        self.warnings.extend(r.warnings);
+    }
+}
+
 /// Join recordings end to end into one (e.g. several short sessions of one robot, to diagnose
 /// them together): each part's times are shifted to start `gap_s` after the previous part's last
 /// joint sample. Warnings are kept, the first part's source and start time are used.
@@ -118,22 +141,7 @@ pub fn join_recordings(parts: Vec<Recording>, gap_s: f64) -> Recording {
     for r in parts {
         let offset = out.state.t.last().copied().unwrap_or(0.0) + gap_s
             - r.state.t.first().copied().unwrap_or(0.0);
-        let shift = |v: &[f64]| v.iter().map(|t| t + offset).collect::<Vec<_>>();
-        out.state.t.extend(shift(&r.state.t));
-        out.state.q.extend(r.state.q);
-        out.state.dq.extend(r.state.dq);
-        out.state.tau.extend(r.state.tau);
-        out.state.temp.extend(r.state.temp);
-        out.state.gyro.extend(r.state.gyro);
-        out.state.quat.extend(r.state.quat);
-        out.command.t.extend(shift(&r.command.t));
-        out.command.q.extend(r.command.q);
-        out.command.dq.extend(r.command.dq);
-        out.mbs.t.extend(shift(&r.mbs.t));
-        out.mbs.watts.extend(r.mbs.watts);
-        out.bms.t.extend(shift(&r.bms.t));
-        out.bms.watts.extend(r.bms.watts);
-        out.warnings.extend(r.warnings);
+        out.append(r, offset);
     }
     out
 }

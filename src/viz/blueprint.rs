@@ -952,11 +952,13 @@ fn error_view(parts: LayoutParts) -> Node {
     }
     if parts.diagnosis {
         error.push(paths::include_tree("diagnosis/error"));
-        name.push_str(if parts.model {
-            "; base model grey, with the hypotheses orange"
-        } else {
-            ": base model grey, with the hypotheses orange"
-        });
+        name.push_str(if parts.model { "; " } else { ": " });
+        // The accepted hypotheses' error is drawn over the base model's (the same when none was
+        // accepted); the found terms' in red when there are any.
+        name.push_str("base model grey, with accepted hypotheses teal");
+        if parts.diagnosis_power_series > 3 + usize::from(parts.counterpart) {
+            name.push_str(", with the found terms red");
+        }
     }
     plot(name, error)
         .with_fit(Fit::Symmetric, ERROR_PLOT_PX)
@@ -1056,14 +1058,17 @@ fn imu_tab(parts: LayoutParts) -> Node {
     )
 }
 
-/// The diagnosis: its summary, the fields its found terms follow, the torque differences.
+/// The diagnosis: its summary (verdict first) on the left; on the right, one above the other at
+/// the tab's full height, the fields its found terms follow, the rest power of each trial and
+/// the torque differences.
 fn diagnosis_tab(parts: LayoutParts) -> Node {
-    let mut diag = vec![Node::view(
+    let summary = Node::view(
         "TextDocument",
         "Diagnosis summary",
         paths::DIAG_SUMMARY,
         vec![],
-    )];
+    );
+    let mut diag = Vec::new();
     if parts.located {
         diag.push(
             Node::view(
@@ -1099,7 +1104,21 @@ fn diagnosis_tab(parts: LayoutParts) -> Node {
             .with_legend(Legend::Hidden),
         );
     }
-    Node::group(ContainerKind::Horizontal, "Diagnosis", diag, vec![])
+    if diag.is_empty() {
+        return Node::container(
+            ContainerKind::Horizontal,
+            "Diagnosis",
+            vec![summary],
+            vec![],
+        );
+    }
+    let plots = Node::group(ContainerKind::Vertical, "Diagnosis plots", diag, vec![]);
+    Node::container(
+        ContainerKind::Horizontal,
+        "Diagnosis",
+        vec![summary, plots],
+        vec![1.0, 1.4],
+    )
 }
 
 /// The main power plot: readings vs like-for-like prediction (with a model), the sensors' net

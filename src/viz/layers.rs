@@ -539,8 +539,8 @@ fn log_imu_filter(w: &mut ChunkWriter<'_>, imu: &ImuFilterMarks) -> Result<()> {
                 "threshold {} × median σ|ω| = {:.4} rad/s",
                 imu.k, imu.threshold
             ),
-            style::WARNING,
-            1.0,
+            style::THRESHOLD,
+            2.0,
         )?;
         scalars(
             w,
@@ -764,23 +764,8 @@ fn log_diagnosis(
     }
     w.send_static(
         paths::DIAG_SUMMARY,
-        &TextDocument::from_markdown(hard_line_breaks(&d.summary)),
+        &TextDocument::from_markdown(d.summary.clone()),
     )
-}
-
-/// Plain text as markdown that keeps its line breaks (markdown joins consecutive lines into one
-/// paragraph): every line ends in a hard break.
-fn hard_line_breaks(text: &str) -> String {
-    text.lines()
-        .map(|l| {
-            if l.trim().is_empty() {
-                String::new()
-            } else {
-                format!("{}  ", l.trim_end())
-            }
-        })
-        .collect::<Vec<_>>()
-        .join("\n")
 }
 
 /// Per-joint predicted power (the joint's four terms summed) of every sample, in time order.

@@ -212,6 +212,21 @@ pub fn recording_id_for_source(path: &Path) -> Option<String> {
     crate::read::fingerprint::fingerprint(path).map(|h| format!("g1viz-{h:016x}"))
 }
 
+/// [`recording_id_for_source`], or an error naming the path and the operating system's reason it
+/// cannot be read.
+pub fn recording_id_or_reason(path: &Path) -> anyhow::Result<String> {
+    recording_id_for_source(path).ok_or_else(|| {
+        let open = std::fs::metadata(path).and_then(|m| match m.is_dir() {
+            true => std::fs::read_dir(path).map(drop),
+            false => std::fs::File::open(path).map(drop),
+        });
+        match open {
+            Err(e) => anyhow::anyhow!("cannot read {}: {e}", path.display()),
+            Ok(()) => anyhow::anyhow!("cannot read {}", path.display()),
+        }
+    })
+}
+
 /// The two timelines every temporal row carries: `time` (absolute timestamp, the robot's clock:
 /// `Recording::start_ns` + t) and `session` (duration since the start of the session, handy for
 /// comparing sessions). Both are built from the same seconds-since-start values.

@@ -195,6 +195,14 @@ pub fn diagnosis_extras(d: &crate::diagnose::Diagnosis) -> ReplayExtras {
             rejected: None,
             highlight: Some(h.reason.clone()),
         })
+        .chain(r.rejected.iter().map(|h| TrialMark {
+            index: h.trial,
+            t_start: h.t_start,
+            t_end: h.t_end,
+            label: format!("trial {}", h.trial),
+            rejected: d.rejected.iter().find(|x| x.trial == h.trial).cloned(),
+            highlight: None,
+        }))
         .collect();
     ReplayExtras {
         diagnosis: Some(super::replay::DiagnosisOverlay {
@@ -203,7 +211,7 @@ pub fn diagnosis_extras(d: &crate::diagnose::Diagnosis) -> ReplayExtras {
             before: r.before_w.clone(),
             after: r.after_w.clone(),
             highlighted,
-            summary: d.summary.clone(),
+            summary: crate::diagnose::summary::summary_markdown(d),
             counterpart: d.counterpart.as_ref().map(|c| c.series.clone()),
             found: r.found_w.clone(),
             located: r

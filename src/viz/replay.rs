@@ -666,6 +666,10 @@ pub struct ReplayLogger<'a> {
     unflushed: usize,
     /// Model samples gathered into the next chunk ([`Self::log_model_samples`]).
     pending: (PowerPrediction, TermSeries),
+    /// Samples a slice kept, gathered into chunks of [`Self::chunk`] (a rate cap keeps a few
+    /// samples of each of the reader's batches: logged batch by batch, a paper-scale session
+    /// became 16 000 chunks of a dozen rows, which the web viewer ingests slowly).
+    kept: Recording,
     /// The layout sent by [`Self::begin`] (when it sends one): [`Self::finish`] sends it again
     /// with every plot fitted to the data logged.
     layout: Option<blueprint::Node>,
@@ -761,6 +765,7 @@ impl<'a> ReplayLogger<'a> {
             decimators: [Decimator::default(); 2],
             unflushed: 0,
             pending: Default::default(),
+            kept: Recording::default(),
             layout: sent_layout,
         })
     }
@@ -780,8 +785,18 @@ impl<'a> ReplayLogger<'a> {
         } else {
             let [state, cmd] = &mut self.decimators;
             let kept = self.slice.recording(part, state, cmd);
-            self.add_samples(&kept)
+            self.kept.append(kept, 0.0);
+            if self.kept.state.t.len().max(self.kept.command.t.len()) >= self.chunk {
+                self.add_kept()?;
+            }
+            Ok(())
         }
+    }
+
+    /// Logs the gathered kept samples ([`Self::kept`]).
+    fn add_kept(&mut self) -> Result<()> {
+        let kept = std::mem::take(&mut self.kept);
+        self.add_samples(&kept)
     }
 
     /// Motion start: the first sample any joint is more than the threshold from the first (over
@@ -953,6 +968,7 @@ impl<'a> ReplayLogger<'a> {
     /// Logs the power series (raw, and net of the readings before the arm first moved) and
     /// `extras`; returns what was logged.
     pub fn finish(mut self, extras: &ReplayExtras) -> Result<ReplaySummary> {
+        self.add_kept()?;
         self.progress.finish_and_clear();
         let rest = self.pending.1.t.len();
         if rest > 0 {

@@ -12,7 +12,7 @@ use anyhow::{Context, Result, bail};
 use super::model_stream::{StreamedModel, planned};
 use super::replay::{ReplayOptions, ReplaySummary, replay_file};
 use super::slice::Slice;
-use super::{OutputKind, Sink, open_stream, recording_id_for_source};
+use super::{OutputKind, Sink, open_stream, recording_id_or_reason};
 use crate::identify::{IdentifyOptions, SessionFile, validate_file};
 use crate::power::PowerModel;
 use crate::read::OpenOptions;
@@ -267,8 +267,7 @@ fn model_replay(
         notify(Notice::Estimate(e));
     }
     let kind = OutputKind::ModelReplay;
-    let id = recording_id_for_source(r.session)
-        .with_context(|| format!("cannot read {}", r.session.display()))?;
+    let id = recording_id_or_reason(r.session)?;
     let out = open_stream(&kind.app_id(), &kind.recording_id(&id), r.sink, r.inputs)?;
     let summary = streamed.replay(r.robot, &arm, extras, colour, out.stream())?;
     out.finish()?;
@@ -305,8 +304,7 @@ fn streamed_replay(r: &SessionReplay<'_>, notify: &mut dyn FnMut(Notice)) -> Res
         notify(Notice::Estimate(e));
     }
     let kind = OutputKind::Replay;
-    let id = recording_id_for_source(r.session)
-        .with_context(|| format!("cannot read {}", r.session.display()))?;
+    let id = recording_id_or_reason(r.session)?;
     let out = open_stream(&kind.app_id(), &kind.recording_id(&id), r.sink, r.inputs)?;
     let opts = ReplayOptions {
         slice,

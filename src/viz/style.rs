@@ -52,14 +52,18 @@ pub(super) const NEUTRAL: [u8; 3] = [150, 150, 150];
 /// The IMU statistic per trial.
 pub(super) const IMU_SIGMA: [u8; 3] = [120, 200, 255];
 
-/// Colours of the loss terms: mechanical, copper, Coulomb, viscous, interaction.
+/// Colours of the loss terms: mechanical, copper, Coulomb, viscous, interaction — a scheme of
+/// their own (near-black, olive, cyan, grey, gold), none of them a joint's hue, since the
+/// per-term and per-joint plots sit side by side.
 pub(super) const TERMS: [[u8; 3]; 5] = [
-    [31, 119, 180],
-    [255, 127, 14],
-    [44, 160, 44],
-    [148, 103, 189],
-    [140, 86, 75],
+    [40, 40, 40],
+    [188, 189, 34],
+    [23, 190, 207],
+    [150, 150, 150],
+    [230, 190, 0],
 ];
+/// The IMU filter's threshold: a dark line above the noise band, not the rejected trials' red.
+pub(super) const THRESHOLD: [u8; 3] = [20, 20, 20];
 
 /// An RGB triple as a Rerun colour.
 pub(super) fn rgb([r, g, b]: [u8; 3]) -> Color {
