@@ -133,13 +133,27 @@ pub(crate) fn sensor_window(
         Some((_, n, r2)) if best.lag_s > 0.0 => delta_bic(est.r2, n, r2),
         _ => 0.0,
     };
-    let window_s = if window_delta_bic >= opts.bic_threshold {
-        nominal_w
-    } else {
-        match lag0 {
-            Some((a, _, _)) if lag_delta_bic >= opts.bic_threshold => a.window_s,
-            _ => best.window_s,
+    // A nominal window that needs a lag to reach the centre carries a latency claim; the same
+    // centre at lag 0 (a longer window) carries none. The lag is kept only where the data
+    // demand it by the same BIC rule — the nominal window's lag beating the lag-0 window of
+    // the same centre (both free one parameter), or the scan's own lagged point beating it
+    // (one more) — otherwise the lag-0 window is the estimate (the campaign's spurious 0.05 s
+    // latencies were a 0.3 s window read as 0.2 s + lag).
+    let nominal_lag = nominal.is_some_and(|(a, _, _)| a.lag_s > 0.0);
+    let lag_demanded = match (nominal, lag0) {
+        (Some((_, n, r2)), Some((_, _, r2_lag0))) if nominal_lag => {
+            let n = n as f64;
+            n * ((1.0 - r2).max(1e-300) / (1.0 - r2_lag0).max(1e-300)).ln() < opts.bic_threshold
         }
+        (_, None) => true,
+        _ => false,
+    } || (best.lag_s > 0.0 && lag_delta_bic < opts.bic_threshold);
+    let window_s = if window_delta_bic >= opts.bic_threshold && (lag_demanded || !nominal_lag) {
+        nominal_w
+    } else if !lag_demanded {
+        lag0.map_or(best.window_s, |(a, _, _)| a.window_s)
+    } else {
+        best.window_s
     };
     Ok(SensorWindow {
         window_s,
