@@ -6,6 +6,9 @@
 
 mod common;
 
+/// The documentation page that prints the figures this file holds.
+const PAGE: &str = "docs/model.md";
+
 use std::path::{Path, PathBuf};
 
 use g1viz::identify::{self as pipeline, AlignmentChoice, IdentifyOptions};
@@ -629,11 +632,17 @@ fn shared_sessions_segment_like_the_truth_file() {
     // README: "largest boundary error 2.3 ms from the `/arm_sdk` stream and 53 ms from
     // `/lowstate` alone".
     common::assert_figure(
+        PAGE,
         "largest boundary error, commands [ms]",
         worst[0] * 1e3,
         "2.3",
     );
-    common::assert_figure("largest boundary error, states [ms]", worst[1] * 1e3, "53");
+    common::assert_figure(
+        PAGE,
+        "largest boundary error, states [ms]",
+        worst[1] * 1e3,
+        "53",
+    );
 }
 
 #[test]
@@ -750,7 +759,7 @@ fn identified_on_smoke_validates_on_holdout() {
     // The README's results table, every figure at the precision it is printed with. The data
     // and the reference θ are the independent generator's; the figures are this code's results
     // on them, held here so that a change of any of them fails.
-    let fig = common::assert_figure;
+    let fig = |what: &str, got: f64, stated: &str| common::assert_figure(PAGE, what, got, stated);
     // Per-reading rows (default).
     fig(
         "smoke identification R² (reading rows)",
@@ -959,7 +968,7 @@ fn bms_target_validates_on_holdout_as_stated() {
         v.trial_level_aligned.r2,
         v.trial_level.r2
     );
-    common::assert_figure("BMS hold-out R²", v.reading_level.r2, "0.82");
+    common::assert_figure(PAGE, "BMS hold-out R²", v.reading_level.r2, "0.82");
 }
 
 // ---------------------------------------------------------------- paper scale
@@ -1111,10 +1120,10 @@ fn paper_scale_identification_recovers_the_paper_parameters() {
         worst_trial.0,
         PowerModel::param_name(worst_trial.1)
     );
-    common::assert_figure("paper-scale RMS parameter error", rms, "0.016");
-    common::assert_figure("paper-scale worst parameter error", worst.0, "0.042");
+    common::assert_figure(PAGE, "paper-scale RMS parameter error", rms, "0.016");
+    common::assert_figure(PAGE, "paper-scale worst parameter error", worst.0, "0.042");
     assert_eq!(PowerModel::param_name(worst.1), "e23");
-    common::assert_figure("paper-scale RMS error, trial rows", rms_trial, "0.68");
+    common::assert_figure(PAGE, "paper-scale RMS error, trial rows", rms_trial, "0.68");
 }
 
 /// README: "per-sample rows reach R² … 0.29 (paper scale) against … 0.997 for per-reading rows".
@@ -1136,7 +1145,12 @@ fn paper_scale_per_sample_rows_are_degenerate() {
         );
         m.quality.r2
     };
-    common::assert_figure("paper-scale per-sample R²", r2(Mode::Sample), "0.29");
-    common::assert_figure("paper-scale per-reading R²", r2(Mode::Reading), "0.997");
+    common::assert_figure(PAGE, "paper-scale per-sample R²", r2(Mode::Sample), "0.29");
+    common::assert_figure(
+        PAGE,
+        "paper-scale per-reading R²",
+        r2(Mode::Reading),
+        "0.997",
+    );
     assert!(r2(Mode::Sample) < r2(Mode::Trial) - 0.3);
 }

@@ -9,6 +9,9 @@
 
 mod common;
 
+/// The documentation page that prints the figures this file holds.
+const PAGE: &str = "docs/diagnosis-results.md";
+
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -420,15 +423,17 @@ fn independent_generator_suite_is_diagnosed_as_the_readme_says() {
             .iter()
             .find(|p| p.0 == effect)
             .map_or(f64::NAN, |p| p.2);
-        common::assert_figure(&format!("{stem} {effect}"), got, stated);
+        common::assert_figure(PAGE, &format!("{stem} {effect}"), got, stated);
     }
     // The bus loss at the generator's physical 0.1 Ω and at 5 Ω, per trial (truth files).
     common::assert_figure(
+        PAGE,
         "09 bus loss per trial [W]",
         by_stem("09_bus_power").effect_w,
         "0.006",
     );
     common::assert_figure(
+        PAGE,
         "15 bus loss per trial [W]",
         by_stem("15_bus_power5ohm").effect_w,
         "0.3",
@@ -439,7 +444,7 @@ fn independent_generator_suite_is_diagnosed_as_the_readme_says() {
         fans.len() == 1 && fans[0].0.starts_with("/lf/mainboardstate.fan_state["),
         "{fans:?}"
     );
-    common::assert_figure("14 rest-power ΔP [W]", fans[0].1, "5");
+    common::assert_figure(PAGE, "14 rest-power ΔP [W]", fans[0].1, "5");
     // Named beside it: the other fan and the board temperatures (README).
     let tied = &fans[0].2;
     assert!(
@@ -465,6 +470,7 @@ fn independent_generator_suite_is_diagnosed_as_the_readme_says() {
         assert!(r.rest.is_empty(), "{}: rest power {:?}", r.stem, r.rest);
     }
     common::assert_figure(
+        PAGE,
         &format!("largest parameter deviation ({}) [%]", worst.0),
         100.0 * worst.1,
         "-6.5",

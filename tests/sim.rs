@@ -5,6 +5,9 @@
 
 mod common;
 
+/// The documentation page that prints the figures this file holds.
+const PAGE: &str = "docs/simulation.md";
+
 use std::path::{Path, PathBuf};
 
 use g1viz::sim::{Artefacts, Preset, SimConfig, simulate};
@@ -724,13 +727,14 @@ fn twin_of_the_shared_smoke_session_matches_it() {
         .sum::<f64>()
         / (7 * real.state.tau.len()) as f64)
         .sqrt();
-    common::assert_figure("twin τ rms difference [Nm]", tau_rms, "0.071");
+    common::assert_figure(PAGE, "twin τ rms difference [Nm]", tau_rms, "0.071");
     common::assert_figure(
+        PAGE,
         "√2 × the generator's τ noise [Nm]",
         2f64.sqrt() * sigma,
         "0.071",
     );
-    common::assert_figure("twin MBS rms difference [W]", rms, "0.91");
+    common::assert_figure(PAGE, "twin MBS rms difference [W]", rms, "0.91");
 }
 
 /// README (Digital twin): "Protocol as in the paper (2 s pre-idle at home, cubic smooth-step
@@ -800,7 +804,7 @@ fn bare_effect_names_use_the_readme_defaults() {
         e.enable(name).unwrap();
         e
     };
-    let fig = common::assert_figure;
+    let fig = |what: &str, got: f64, stated: &str| common::assert_figure(PAGE, what, got, stated);
     fig(
         "thermal α [1/K]",
         on("thermal").thermal.unwrap().alpha_per_k,
@@ -886,7 +890,8 @@ fn effect_table_rows_of_the_new_forms() {
             .map(|t| t.effect_power_traj_mean_w)
             .sum::<f64>()
             / truth.trials.len().max(1) as f64;
-        let fig = common::assert_figure;
+        let fig =
+            |what: &str, got: f64, stated: &str| common::assert_figure(PAGE, what, got, stated);
         fig(&format!("{effect} trajectory R²"), m.r2, r2);
         fig(&format!("{effect} trajectory RMSE"), m.rmse, rmse);
         fig(&format!("{effect} reading R²"), a.r2, r2a);
