@@ -123,3 +123,32 @@ fn documentation_links_lead_to_files_and_headings() {
     }
     assert!(checked >= 10, "{checked} links checked");
 }
+
+/// The README's summary of results restates figures of the guides; each of its numbers is printed
+/// by the guide it summarises, where a test holds it (so a figure changed there and not here, or
+/// here and not there, fails).
+#[test]
+fn readme_summary_figures_are_the_guides() {
+    let readme = common::doc_page("README.md");
+    let start = readme
+        .find("## What it finds")
+        .expect("README has `## What it finds`");
+    let section = &readme[start..];
+    let section = &section[..section[3..].find("\n## ").map_or(section.len(), |e| e + 3)];
+    let guides = ["docs/model.md", "docs/diagnosis-results.md"].map(common::doc_page);
+    let numbers: Vec<&str> = section
+        .split(|c: char| !(c.is_ascii_digit() || c == '.'))
+        .map(|w| w.trim_end_matches('.'))
+        .filter(|w| w.contains('.') || w.len() > 1)
+        .collect();
+    assert!(numbers.len() >= 5, "{numbers:?}");
+    for n in numbers {
+        assert!(
+            guides.iter().any(|g| g
+                .split(|c: char| !(c.is_ascii_digit() || c == '.'))
+                .any(|w| w.trim_end_matches('.') == n)),
+            "README's `What it finds` states {n}, which neither docs/model.md nor \
+             docs/diagnosis-results.md prints"
+        );
+    }
+}
