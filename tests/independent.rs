@@ -5,7 +5,7 @@
 //! diagnosed the way a new user would (`g1viz diagnose SESSION --json`, the base model refitted)
 //! and scored against the generator's truth file: every concealed effect named by a claim of its
 //! mechanism (or located on the field it follows), and nothing else claimed. The table this
-//! prints is the README's "Sessions from an independent generator"; the test holds each row.
+//! prints is docs/diagnosis-results.md's "Sessions from an independent generator"; the test holds each row.
 
 mod common;
 
@@ -211,7 +211,7 @@ fn python_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/py")
 }
 
-/// Paper scale, as in the experiment the README reports (≈ 1000 trials per session).
+/// Paper scale, as in the experiment docs/diagnosis-results.md reports (≈ 1000 trials per session).
 const HOURS: f64 = 4.4;
 
 /// Sessions of the suite (`python3 -m indgen suite --list`), in order.
@@ -279,7 +279,7 @@ fn run_one(dir: &Path, shared: &Path, index: usize) -> Scored {
     score(stem, &truth, &d)
 }
 
-/// The README's table, row by row: session, right (every effect named, nothing else claimed).
+/// The table of docs/diagnosis-results.md, row by row: session, right (every effect named, nothing else claimed).
 /// Sessions 09 and 10 carry the generator's physical 0.1 Ω bus loss (≈ 0.006 W per trial):
 /// no claim of it is possible, so they count as missed.
 const README_ROWS: [(&str, bool); 16] = [
@@ -302,10 +302,10 @@ const README_ROWS: [(&str, bool); 16] = [
 ];
 
 /// Parameters of the claimed terms in the generator's own form are within this of the truth
-/// (README).
+/// (docs/diagnosis-results.md).
 const PARAM_TOLERANCE: f64 = 0.10;
 
-/// The README table's estimates: session, effect, value as printed.
+/// The estimates in the table of docs/diagnosis-results.md: session, effect, value as printed.
 const README_PARAMS: [(&str, &str, &str); 10] = [
     ("04_thermal", "thermal", "0.00379"),
     ("05_braking", "braking", "0.680"),
@@ -445,7 +445,7 @@ fn independent_generator_suite_is_diagnosed_as_the_readme_says() {
         "{fans:?}"
     );
     common::assert_figure(PAGE, "14 rest-power ΔP [W]", fans[0].1, "5");
-    // Named beside it: the other fan and the board temperatures (README).
+    // Named beside it: the other fan and the board temperatures (docs/diagnosis-results.md).
     let tied = &fans[0].2;
     assert!(
         tied.iter()
@@ -455,7 +455,7 @@ fn independent_generator_suite_is_diagnosed_as_the_readme_says() {
                 .any(|f| f.starts_with("/lf/mainboardstate.temperature[")),
         "{tied:?}"
     );
-    // The grease: the viscous loss, falling as a housing temperature rises (README).
+    // The grease: the viscous loss, falling as a housing temperature rises (docs/diagnosis-results.md).
     let grease = &by_stem("13_grease").claims;
     assert!(
         grease.len() == 1
@@ -480,7 +480,7 @@ fn independent_generator_suite_is_diagnosed_as_the_readme_says() {
         assert_eq!(
             r.right(),
             want,
-            "{stem}: the README says {}; claims {:?}, missed {:?}, spurious {:?}",
+            "{stem}: docs/diagnosis-results.md says {}; claims {:?}, missed {:?}, spurious {:?}",
             if want { "right" } else { "wrong" },
             r.claims,
             r.missed,

@@ -1,9 +1,9 @@
 //! Paper-scale diagnosis: a 1000-trial simulated session with a concealed winding-resistance
 //! temperature drift (α = 0.00393 /K, the copper value), diagnosed with the base model refitted
-//! inside every fold. The README states the drift is found at paper scale even where a short
+//! inside every fold. docs/diagnosis-results.md states the drift is found at paper scale even where a short
 //! session confounds it with b_i (α = 0.00382 ± 0.00012); this test holds that figure. The
 //! truth is the simulator's α; the estimate is this code's result, held at its printed precision.
-//! The README's bus-loss detection limit at paper scale is held here too, and its paper-scale
+//! Its bus-loss detection limit at paper scale is held here too, and its paper-scale
 //! rows for the effect forms the diagnosis does not fit (below).
 
 mod common;
@@ -62,7 +62,7 @@ fn paper_bus_loss(r_ohm: f64) -> diagnose::Diagnosis {
     diagnose::diagnose(&rec, &DiagnoseOptions::default()).expect("diagnose")
 }
 
-/// The bus-loss detection limit at paper scale (README): R_bus = 0.01 Ω is found (nothing else
+/// The bus-loss detection limit at paper scale (docs/diagnosis-results.md): R_bus = 0.01 Ω is found (nothing else
 /// claimed, within 10 %), so is 0.0075 Ω (the limit), and 0.005 Ω is not claimed: its fit is
 /// significant, but it improves the held-out RMSE by less than the 2 % minimum improvement.
 #[test]
@@ -98,7 +98,7 @@ fn paper_scale_bus_loss_detection_limit() {
             assert!(ids.is_empty(), "R_bus {r}: claimed {ids:?}");
             assert!(h.p_value < 1e-3 && h.rel_improvement < 0.02, "{h:?}");
         }
-        // The README's figures, at their printed precision.
+        // The figures of docs/diagnosis-results.md, at their printed precision.
         let stated = match r {
             0.01 => ("0.0099", "0.0005", "-3.5"),
             0.0075 => ("0.0074", "0.0004", "-2.0"),
@@ -131,7 +131,7 @@ fn paper_scale_bus_loss_detection_limit() {
 // differs from every fitted hypothesis form. The bar: the right mechanism or a discovered term on
 // the right field, the parameter of the matching form within 10 % of the simulator's value, and
 // nothing else claimed (library terms reported as confounded with a found term are not claims).
-// The README's paper-scale figures for these rows are held at their printed precision.
+// The paper-scale figures of docs/diagnosis-results.md for these rows are held at their printed precision.
 
 /// A simulated paper-scale session, kept on disk while it is diagnosed: discovery reads every
 /// recorded field from the file.
@@ -248,7 +248,7 @@ fn library_form_claimed<'a>(
 
 /// The bus loss from total electrical power (P += R·(P_elec/V_bus)², deliberately strong 10 Ω:
 /// the arm's net electrical power is tens of W, so a realistic 50 mΩ is a few mW — fitted at
-/// paper scale with an s.e. of ≈ 0.07 Ω and not claimed, see the README). Both modes: only
+/// paper scale with an s.e. of ≈ 0.07 Ω and not claimed, see docs/diagnosis-results.md). Both modes: only
 /// `bus_power` claimed, its form beats the phase-current form, R_bus within 10 %.
 #[test]
 fn paper_scale_bus_loss_from_electrical_power_is_found_in_its_form() {

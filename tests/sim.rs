@@ -710,7 +710,7 @@ fn twin_of_the_shared_smoke_session_matches_it() {
         .sqrt();
     assert!(rms < 1.5, "MBS rms difference {rms:.2} W");
 
-    // README: "τ differs by 0.071 Nm rms — √2 × the files' noise — and MBS power by 0.91 W rms".
+    // docs/simulation.md: "τ differs by 0.071 Nm rms — √2 × the files' noise — and MBS power by 0.91 W rms".
     // The expectation for τ is the independent generator's own noise level (truth JSON); the
     // power figure is this code's result on that file, held as stated.
     let truth: serde_json::Value = serde_json::from_str(
@@ -737,7 +737,7 @@ fn twin_of_the_shared_smoke_session_matches_it() {
     common::assert_figure(PAGE, "twin MBS rms difference [W]", rms, "0.91");
 }
 
-/// README (Digital twin): "Protocol as in the paper (2 s pre-idle at home, cubic smooth-step
+/// docs/simulation.md: "Protocol as in the paper (2 s pre-idle at home, cubic smooth-step
 /// segments through 3–5 waypoints, 2 s post-idle, return at 0.5 rad/s); presets … `smoke` (24
 /// trials), … `holdout` (46 trials at the unseen speeds)" — the trial windows and speed levels
 /// from the truth sidecar, the return speed measured in the written joint velocities. (`paper`,
@@ -795,7 +795,7 @@ fn presets_follow_the_protocol_the_readme_states() {
     }
 }
 
-/// README (Digital twin): a bare `--effect NAME` switches the effect on at the default the README
+/// docs/simulation.md: a bare `--effect NAME` switches the effect on at the default docs/simulation.md
 /// names for it (the list above the effect table and the table's first column).
 #[test]
 fn bare_effect_names_use_the_readme_defaults() {
@@ -851,7 +851,7 @@ fn bare_effect_names_use_the_readme_defaults() {
     );
 }
 
-/// README (Digital twin): the effect table's rows of the five forms the diagnosis does not fit,
+/// docs/simulation.md: the effect table's rows of the five forms the diagnosis does not fit,
 /// at their printed precision (hold-out preset, seed 3, no artefacts — `bench_sim effects`).
 #[test]
 fn effect_table_rows_of_the_new_forms() {
