@@ -1,7 +1,7 @@
 //! Bare decompression of an MCAP file: the floor for any command that reads it.
 //!
 //! Walks the file's top-level records with a buffered reader (no index, no message decoding) and
-//! zstd/lz4-free decompresses every zstd chunk on one core, so the README can state each command's
+//! zstd/lz4-free decompresses every zstd chunk on one core, so docs/scale.md can state each command's
 //! reading time as a multiple of this figure (issue: "time still within ~2× of bare decompression").
 //!
 //! ```text

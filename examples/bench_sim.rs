@@ -1,5 +1,5 @@
 //! Benchmark of the digital twin: time to simulate and write a preset session, file size and
-//! throughput. Also how the README example session is produced.
+//! throughput. Also how the shipped example session is produced.
 //!
 //! ```text
 //! cargo run --release --no-default-features --example bench_sim                 # paper preset → temp dir

@@ -1,4 +1,4 @@
-//! The diagnosis acceptance matrix as a markdown table for the README: for each concealed effect
+//! The diagnosis acceptance matrix as a markdown table for docs/diagnosis-results.md: for each concealed effect
 //! (and null sessions, two effects at once, the harness drag outside the library), simulate
 //! sessions, diagnose them, and print the true parameter, the recovered one ± its standard error,
 //! the rank of the right hypothesis, what was accepted, and the held-out R² before → after.

@@ -190,7 +190,7 @@ const SMALL: Sessions = Sessions {
     t_start_c: &[30.0],
     parts: 3,
 };
-/// ≈ 140 trials: what the README matrix uses for the faint effects.
+/// ≈ 140 trials: what the matrix in docs/diagnosis-results.md uses for the faint effects.
 const DOUBLE: Sessions = Sessions {
     t_start_c: &[30.0],
     parts: 6,
@@ -325,7 +325,7 @@ fn thermal_drift_is_found_against_the_twin() {
 fn braking_asymmetry_is_found() {
     let mut e = Effects::default();
     e.enable("braking=0.25").unwrap();
-    // The README row's 144 trials, both modes (seed 3: twin −4.2 %, refit +0.5 %).
+    // The matrix row's 144 trials, both modes (seed 3: twin −4.2 %, refit +0.5 %).
     check_single("braking", e, &twin(), DOUBLE, "braking", "r", 0.25);
     check_single("braking refit", e, &refit(), DOUBLE, "braking", "r", 0.25);
 }
@@ -394,8 +394,8 @@ fn thermal_drift_is_found_by_a_refit_across_temperatures() {
 #[test]
 fn gear_friction_is_found_against_the_twin() {
     // μ·Σ|τq̇| = μ·Σ(τq̇ − 2·min(τq̇, 0)): a refitted a_i and the braking term span most of it,
-    // so a refit rarely resolves it (README matrix); against the twin μ is recovered. On the
-    // README row's 144 trials.
+    // so a refit rarely resolves it (the matrix in docs/diagnosis-results.md); against the twin μ is recovered. On the
+    // matrix row's 144 trials.
     let mut e = Effects::default();
     e.enable("gear_friction=0.15").unwrap();
     check_single(
@@ -517,7 +517,7 @@ fn electronics_forms_a_refit_cannot_tell_are_reported_as_confounded() {
     // Per-Nm truth, seed 3: per-Nm wins by 1.4 % (p ≈ 0.09), k_el within 10 %.
     electronics_forms_on_a_refit("electronics_nm=0.5", 3, "electronics_nm", Some(0.5));
     // Per-ampere truth, seed 6: per-Nm wins by 0.3 % (p ≈ 0.44); the per-ampere fit's V_drop
-    // is +12 % (1.8 s.e.; README matrix), so only the confounded form is asserted.
+    // is +12 % (1.8 s.e.; the matrix in docs/diagnosis-results.md), so only the confounded form is asserted.
     electronics_forms_on_a_refit("drive_loss=0.5", 6, "drive_loss", None);
 }
 
@@ -1018,7 +1018,7 @@ fn null_sessions_accept_nothing() {
 #[test]
 fn harness_drag_outside_the_library_is_located() {
     // A stiff harness (15 W·s/rad): the simulator's default 4 W·s/rad adds ~0.1 W to an elbow
-    // trial's mean power, below what ~70 trials resolve (the README's matrix reports both).
+    // trial's mean power, below what ~70 trials resolve (the matrix in docs/diagnosis-results.md reports both).
     let mut e = Effects::default();
     e.enable("harness_drag=15").unwrap();
     let (rec, truth, files) = session(&e, 5, 3, &[30.0]);
@@ -1311,7 +1311,7 @@ fn switching_forms(name: &str, d: &Diagnosis) -> (diagnose::Discovery, Forms) {
 }
 
 /// Every voltage form's per-volt coefficient k (there is one at least) lies within 20 % of
-/// `k_sw`, its relative error within `rel` (the README's printed range). Not within 2.5 of its
+/// `k_sw`, its relative error within `rel` (the range docs/diagnosis-results.md prints). Not within 2.5 of its
 /// s.e.: the jackknife over trial folds does not see that the slope on the voltage rests on the
 /// few parts' levels (−13.9 % is 2.9 s.e. in the linear refit).
 fn volt_forms_within(name: &str, forms: &Forms, k_sw: f64, rel: [f64; 2]) {
@@ -1342,7 +1342,7 @@ fn switching_loss_on_the_linear_battery_found_on_session_time_names_the_voltages
         let name = format!("switching linear {mode}");
         let d = diagnose::diagnose(&rec, &files.opts(opts)).unwrap();
         show(&name, &d);
-        // At this scale the linear pack's quantised voltages are not clock-like (README).
+        // At this scale the linear pack's quantised voltages are not clock-like (docs/diagnosis-results.md).
         let r = d.discovery.as_ref().expect("discovery ran");
         assert!(
             !r.excluded
@@ -1374,7 +1374,7 @@ fn switching_loss_on_the_linear_battery_found_on_session_time_names_the_voltages
         );
         // Session time is the found signal or named beside it.
         assert!(forms.iter().any(|(f, _)| f.is_empty()), "{name}: {forms:?}");
-        // The per-volt coefficient of every voltage form: 12–14 % below k_sw (README).
+        // The per-volt coefficient of every voltage form: 12–14 % below k_sw (docs/diagnosis-results.md).
         volt_forms_within(&name, &forms, k_sw, [-0.145, -0.115]);
         if on_time {
             // The found term's own name says its signal is confounded (the rivals above).
@@ -1396,7 +1396,7 @@ fn switching_loss_on_the_realistic_battery_is_confounded_with_the_supply_voltage
     // they read the charge. The term is found on a voltage at rest or on a signal the data
     // cannot tell from it, with the voltages named beside it; the per-volt coefficient of the
     // voltage forms is k_sw within 20 %: the slope on the voltage rests on six parts' levels
-    // (README).
+    // (docs/diagnosis-results.md).
     let k_sw = 0.05;
     let mut e = Effects::default();
     e.enable(&format!("switching={k_sw}")).unwrap();

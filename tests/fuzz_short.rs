@@ -4,6 +4,7 @@
 //! panic fails the test with the input's recipe; long campaigns with child processes, memory
 //! limits and a watchdog are `cargo run --release --example fuzz_readers`.
 
+mod common;
 #[path = "support/fuzz_engine.rs"]
 mod fuzz_engine;
 
@@ -76,16 +77,12 @@ fn short_campaign_finds_no_panic() {
     );
 }
 
-/// The README's 1 M-input campaign (seed 2031, 60 seed messages, inputs 0..1,000,000).
+/// The 1 M-input campaign of docs/reading.md (seed 2031, 60 seed messages, inputs 0..1,000,000).
 const CAMPAIGN_SEED: u64 = 2031;
 const CAMPAIGN_INPUTS: u64 = 1_000_000;
 const CAMPAIGN_MESSAGES: usize = 60;
 
-fn readme() -> String {
-    std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("README.md")).unwrap()
-}
-
-/// The per-container counts the README states for the campaign are what its generator makes:
+/// The per-container counts docs/reading.md states for the campaign are what its generator makes:
 /// recomputed here for every one of the million inputs (the container is fixed by the input's
 /// seed pick, so no input has to be built).
 #[test]
@@ -108,7 +105,10 @@ fn readme_campaign_counts_are_the_generators() {
         let (head, tail) = s.split_at(s.len() - 3);
         format!("{head},{tail}")
     };
-    let text = readme().split_whitespace().collect::<Vec<_>>().join(" ");
+    let text = common::doc_page("docs/reading.md")
+        .split_whitespace()
+        .collect::<Vec<_>>()
+        .join(" ");
     let stated = format!(
         "(seed {CAMPAIGN_SEED}, dev profile, two batched jobs at `nice 19` on a 2-core machine \
          shared with builds, 6,528 s, 153 inputs/s): 1,000,000 inputs — ROS 1 {}, `.db3` {}, MCAP {}",
@@ -118,7 +118,7 @@ fn readme_campaign_counts_are_the_generators() {
     );
     assert!(
         text.contains(&stated),
-        "README does not state the campaign's counts {counts:?}: expected {stated:?}"
+        "docs/reading.md does not state the campaign's counts {counts:?}: expected {stated:?}"
     );
 }
 

@@ -6,6 +6,9 @@
 
 mod common;
 
+/// The documentation page that prints the figures this file holds.
+const PAGE: &str = "docs/model.md";
+
 use std::path::{Path, PathBuf};
 
 use g1viz::identify::{self as pipeline, AlignmentChoice, IdentifyOptions};
@@ -626,20 +629,26 @@ fn shared_sessions_segment_like_the_truth_file() {
             }
         }
     }
-    // README: "largest boundary error 2.3 ms from the `/arm_sdk` stream and 53 ms from
+    // docs/model.md: "largest boundary error 2.3 ms from the `/arm_sdk` stream and 53 ms from
     // `/lowstate` alone".
     common::assert_figure(
+        PAGE,
         "largest boundary error, commands [ms]",
         worst[0] * 1e3,
         "2.3",
     );
-    common::assert_figure("largest boundary error, states [ms]", worst[1] * 1e3, "53");
+    common::assert_figure(
+        PAGE,
+        "largest boundary error, states [ms]",
+        worst[1] * 1e3,
+        "53",
+    );
 }
 
 #[test]
 fn imu_filter_agrees_with_the_truth_contamination_flags() {
     let Some(dir) = shared_dir() else { return };
-    // README: "IMU balance-contamination filter (σ|ω| > 2.5 × median): flags exactly the truth's
+    // docs/model.md: "IMU balance-contamination filter (σ|ω| > 2.5 × median): flags exactly the truth's
     // contaminated trials — 4/4 on smoke, 7/7 on hold-out".
     // (And the model paragraph's "3σ" residual filter.)
     assert_eq!(IdentifyOptions::default().filters.imu_k, Some(2.5));
@@ -747,10 +756,10 @@ fn identified_on_smoke_validates_on_holdout() {
     let v_trial = validations.pop().expect("trial rows validated");
     let v = validations.pop().expect("reading rows validated");
 
-    // The README's results table, every figure at the precision it is printed with. The data
+    // The results table of docs/model.md, every figure at the precision it is printed with. The data
     // and the reference θ are the independent generator's; the figures are this code's results
     // on them, held here so that a change of any of them fails.
-    let fig = common::assert_figure;
+    let fig = |what: &str, got: f64, stated: &str| common::assert_figure(PAGE, what, got, stated);
     // Per-reading rows (default).
     fig(
         "smoke identification R² (reading rows)",
@@ -923,7 +932,7 @@ fn identified_on_smoke_validates_on_holdout() {
     }
     assert!(modes(Mode::Sample).quality.r2 < modes(Mode::Reading).quality.r2 - 0.3);
     assert!(modes(Mode::Sample).quality.r2 < modes(Mode::Trial).quality.r2 - 0.3);
-    // README: "per-sample rows reach R² 0.43 (smoke) … against 0.998 … for per-reading rows";
+    // docs/model.md: "per-sample rows reach R² 0.43 (smoke) … against 0.998 … for per-reading rows";
     // "κ(ΦᵀΦ) of per-sample rows is not the largest (2.5e8 vs 1.4e10 per reading on smoke)".
     fig(
         "smoke per-sample R²",
@@ -939,7 +948,7 @@ fn identified_on_smoke_validates_on_holdout() {
     fig("smoke per-reading κ", modes(Mode::Reading).kappa, "1.4e10");
 }
 
-/// README: "BMS (`--target bms`) is noisier: hold-out R² 0.82" — identified on the shared smoke
+/// docs/model.md: "BMS (`--target bms`) is noisier: hold-out R² 0.82" — identified on the shared smoke
 /// session, validated on the shared hold-out, both against the BMS rail.
 #[test]
 fn bms_target_validates_on_holdout_as_stated() {
@@ -959,7 +968,7 @@ fn bms_target_validates_on_holdout_as_stated() {
         v.trial_level_aligned.r2,
         v.trial_level.r2
     );
-    common::assert_figure("BMS hold-out R²", v.reading_level.r2, "0.82");
+    common::assert_figure(PAGE, "BMS hold-out R²", v.reading_level.r2, "0.82");
 }
 
 // ---------------------------------------------------------------- paper scale
@@ -1053,7 +1062,7 @@ fn parameter_error(model: &PowerModel) -> (f64, (f64, usize)) {
     (rms, worst)
 }
 
-/// README: "IMU balance-contamination filter … flags exactly the truth's contaminated trials —
+/// docs/model.md: "IMU balance-contamination filter … flags exactly the truth's contaminated trials —
 /// … 110/110 on a paper-scale simulated session — with no false alarm"; 873 trials kept, 127
 /// rejected (the 110 and 17 by the residual filter); every trial segmented.
 #[test]
@@ -1063,7 +1072,7 @@ fn paper_scale_filters_flag_the_contaminated_trials_and_keep_873() {
         run.segmented.0, run.segmented.1,
         "trials segmented / simulated"
     );
-    // README: "`paper` (1000 trials at 0.5–2.5 rad/s)", the paper's five speeds.
+    // docs/model.md: "`paper` (1000 trials at 0.5–2.5 rad/s)", the paper's five speeds.
     assert_eq!(run.segmented.1, 1000);
     assert_eq!(run.speeds, [0.5, 1.0, 1.5, 2.0, 2.5]);
     let id = &run.reading;
@@ -1091,7 +1100,7 @@ fn paper_scale_filters_flag_the_contaminated_trials_and_keep_873() {
     assert_eq!(residual, 17, "rejected by the 3σ residual filter");
 }
 
-/// README: the paper's θ recovered from the per-reading rows (RMS parameter error and the worst
+/// docs/model.md: the paper's θ recovered from the per-reading rows (RMS parameter error and the worst
 /// parameter), and from the per-trajectory rows alone (RMS error 0.68). The truth is the paper's
 /// table; the errors are this code's results on the simulated session, held as stated.
 #[test]
@@ -1111,13 +1120,13 @@ fn paper_scale_identification_recovers_the_paper_parameters() {
         worst_trial.0,
         PowerModel::param_name(worst_trial.1)
     );
-    common::assert_figure("paper-scale RMS parameter error", rms, "0.016");
-    common::assert_figure("paper-scale worst parameter error", worst.0, "0.042");
+    common::assert_figure(PAGE, "paper-scale RMS parameter error", rms, "0.016");
+    common::assert_figure(PAGE, "paper-scale worst parameter error", worst.0, "0.042");
     assert_eq!(PowerModel::param_name(worst.1), "e23");
-    common::assert_figure("paper-scale RMS error, trial rows", rms_trial, "0.68");
+    common::assert_figure(PAGE, "paper-scale RMS error, trial rows", rms_trial, "0.68");
 }
 
-/// README: "per-sample rows reach R² … 0.29 (paper scale) against … 0.997 for per-reading rows".
+/// docs/model.md: "per-sample rows reach R² … 0.29 (paper scale) against … 0.997 for per-reading rows".
 #[test]
 fn paper_scale_per_sample_rows_are_degenerate() {
     let id = &paper_run().reading;
@@ -1136,7 +1145,12 @@ fn paper_scale_per_sample_rows_are_degenerate() {
         );
         m.quality.r2
     };
-    common::assert_figure("paper-scale per-sample R²", r2(Mode::Sample), "0.29");
-    common::assert_figure("paper-scale per-reading R²", r2(Mode::Reading), "0.997");
+    common::assert_figure(PAGE, "paper-scale per-sample R²", r2(Mode::Sample), "0.29");
+    common::assert_figure(
+        PAGE,
+        "paper-scale per-reading R²",
+        r2(Mode::Reading),
+        "0.997",
+    );
     assert!(r2(Mode::Sample) < r2(Mode::Trial) - 0.3);
 }

@@ -5,9 +5,12 @@
 //! diagnosed the way a new user would (`g1viz diagnose SESSION --json`, the base model refitted)
 //! and scored against the generator's truth file: every concealed effect named by a claim of its
 //! mechanism (or located on the field it follows), and nothing else claimed. The table this
-//! prints is the README's "Sessions from an independent generator"; the test holds each row.
+//! prints is docs/diagnosis-results.md's "Sessions from an independent generator"; the test holds each row.
 
 mod common;
+
+/// The documentation page that prints the figures this file holds.
+const PAGE: &str = "docs/diagnosis-results.md";
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -208,7 +211,7 @@ fn python_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/py")
 }
 
-/// Paper scale, as in the experiment the README reports (≈ 1000 trials per session).
+/// Paper scale, as in the experiment docs/diagnosis-results.md reports (≈ 1000 trials per session).
 const HOURS: f64 = 4.4;
 
 /// Sessions of the suite (`python3 -m indgen suite --list`), in order.
@@ -276,7 +279,7 @@ fn run_one(dir: &Path, shared: &Path, index: usize) -> Scored {
     score(stem, &truth, &d)
 }
 
-/// The README's table, row by row: session, right (every effect named, nothing else claimed).
+/// The table of docs/diagnosis-results.md, row by row: session, right (every effect named, nothing else claimed).
 /// Sessions 09 and 10 carry the generator's physical 0.1 Ω bus loss (≈ 0.006 W per trial):
 /// no claim of it is possible, so they count as missed.
 const README_ROWS: [(&str, bool); 16] = [
@@ -307,10 +310,10 @@ const WHOLE_CLAIMS: [(&str, &[&str]); 2] = [
 ];
 
 /// Parameters of the claimed terms in the generator's own form are within this of the truth
-/// (README).
+/// (docs/diagnosis-results.md).
 const PARAM_TOLERANCE: f64 = 0.10;
 
-/// The README table's estimates: session, effect, value as printed.
+/// The estimates in the table of docs/diagnosis-results.md: session, effect, value as printed.
 const README_PARAMS: [(&str, &str, &str); 10] = [
     ("04_thermal", "thermal", "0.00379"),
     ("05_braking", "braking", "0.680"),
@@ -428,15 +431,17 @@ fn independent_generator_suite_is_diagnosed_as_the_readme_says() {
             .iter()
             .find(|p| p.0 == effect)
             .map_or(f64::NAN, |p| p.2);
-        common::assert_figure(&format!("{stem} {effect}"), got, stated);
+        common::assert_figure(PAGE, &format!("{stem} {effect}"), got, stated);
     }
     // The bus loss at the generator's physical 0.1 Ω and at 5 Ω, per trial (truth files).
     common::assert_figure(
+        PAGE,
         "09 bus loss per trial [W]",
         by_stem("09_bus_power").effect_w,
         "0.006",
     );
     common::assert_figure(
+        PAGE,
         "15 bus loss per trial [W]",
         by_stem("15_bus_power5ohm").effect_w,
         "0.3",
@@ -447,8 +452,8 @@ fn independent_generator_suite_is_diagnosed_as_the_readme_says() {
         fans.len() == 1 && fans[0].0.starts_with("/lf/mainboardstate.fan_state["),
         "{fans:?}"
     );
-    common::assert_figure("14 rest-power ΔP [W]", fans[0].1, "5");
-    // Named beside it: the other fan and the board temperatures (README).
+    common::assert_figure(PAGE, "14 rest-power ΔP [W]", fans[0].1, "5");
+    // Named beside it: the other fan and the board temperatures (docs/diagnosis-results.md).
     let tied = &fans[0].2;
     assert!(
         tied.iter()
@@ -458,7 +463,7 @@ fn independent_generator_suite_is_diagnosed_as_the_readme_says() {
                 .any(|f| f.starts_with("/lf/mainboardstate.temperature[")),
         "{tied:?}"
     );
-    // The grease: the viscous loss, falling as a housing temperature rises (README).
+    // The grease: the viscous loss, falling as a housing temperature rises (docs/diagnosis-results.md).
     let grease = &by_stem("13_grease").claims;
     assert!(
         grease.len() == 1
@@ -473,6 +478,7 @@ fn independent_generator_suite_is_diagnosed_as_the_readme_says() {
         assert!(r.rest.is_empty(), "{}: rest power {:?}", r.stem, r.rest);
     }
     common::assert_figure(
+        PAGE,
         &format!("largest parameter deviation ({}) [%]", worst.0),
         100.0 * worst.1,
         "-6.5",
@@ -485,7 +491,7 @@ fn independent_generator_suite_is_diagnosed_as_the_readme_says() {
         assert_eq!(
             r.right(),
             want,
-            "{stem}: the README says {}; claims {:?}, missed {:?}, spurious {:?}",
+            "{stem}: docs/diagnosis-results.md says {}; claims {:?}, missed {:?}, spurious {:?}",
             if want { "right" } else { "wrong" },
             r.claims,
             r.missed,

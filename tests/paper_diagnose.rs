@@ -1,12 +1,15 @@
 //! Paper-scale diagnosis: a 1000-trial simulated session with a concealed winding-resistance
 //! temperature drift (α = 0.00393 /K, the copper value), diagnosed with the base model refitted
-//! inside every fold. The README states the drift is found at paper scale even where a short
+//! inside every fold. docs/diagnosis-results.md states the drift is found at paper scale even where a short
 //! session confounds it with b_i (α = 0.00382 ± 0.00012); this test holds that figure. The
 //! truth is the simulator's α; the estimate is this code's result, held at its printed precision.
-//! The README's bus-loss detection limit at paper scale is held here too, and its paper-scale
+//! Its bus-loss detection limit at paper scale is held here too, and its paper-scale
 //! rows for the effect forms the diagnosis does not fit (below).
 
 mod common;
+
+/// The documentation page that prints the figures this file holds.
+const PAGE: &str = "docs/diagnosis-results.md";
 
 use g1viz::diagnose::{self, DiagnoseOptions};
 use g1viz::signals::{SignalMap, load_recording};
@@ -34,8 +37,8 @@ fn paper_scale_thermal_drift_is_found_under_a_refit() {
     assert_eq!(ids, ["thermal"], "accepted: {ids:?}");
     let alpha = &d.accepted[0].params[0];
     println!("α = {} ± {}", alpha.value, alpha.std_err);
-    common::assert_figure("paper-scale α [1/K]", alpha.value, "0.00382");
-    common::assert_figure("paper-scale α s.e. [1/K]", alpha.std_err, "0.00012");
+    common::assert_figure(PAGE, "paper-scale α [1/K]", alpha.value, "0.00382");
+    common::assert_figure(PAGE, "paper-scale α s.e. [1/K]", alpha.std_err, "0.00012");
 }
 
 /// Diagnose a paper-scale session (seed 21, refit) with a shared DC-bus loss of `r_ohm`.
@@ -59,7 +62,7 @@ fn paper_bus_loss(r_ohm: f64) -> diagnose::Diagnosis {
     diagnose::diagnose(&rec, &DiagnoseOptions::default()).expect("diagnose")
 }
 
-/// The bus-loss detection limit at paper scale (README): R_bus = 0.01 Ω is found (nothing else
+/// The bus-loss detection limit at paper scale (docs/diagnosis-results.md): R_bus = 0.01 Ω is found (nothing else
 /// claimed, within 10 %), so is 0.0075 Ω (the limit), and 0.005 Ω is not claimed: its fit is
 /// significant, but it improves the held-out RMSE by less than the 2 % minimum improvement.
 #[test]
@@ -95,21 +98,27 @@ fn paper_scale_bus_loss_detection_limit() {
             assert!(ids.is_empty(), "R_bus {r}: claimed {ids:?}");
             assert!(h.p_value < 1e-3 && h.rel_improvement < 0.02, "{h:?}");
         }
-        // The README's figures, at their printed precision.
+        // The figures of docs/diagnosis-results.md, at their printed precision.
         let stated = match r {
             0.01 => ("0.0099", "0.0005", "-3.5"),
             0.0075 => ("0.0074", "0.0004", "-2.0"),
             _ => ("0.0048", "0.0005", "-0.9"),
         };
-        common::assert_figure(&format!("R_bus {r}"), h.params[0].value, stated.0);
-        common::assert_figure(&format!("R_bus {r} s.e."), h.params[0].std_err, stated.1);
+        common::assert_figure(PAGE, &format!("R_bus {r}"), h.params[0].value, stated.0);
         common::assert_figure(
+            PAGE,
+            &format!("R_bus {r} s.e."),
+            h.params[0].std_err,
+            stated.1,
+        );
+        common::assert_figure(
+            PAGE,
             &format!("R_bus {r} held-out RMSE change [%]"),
             -100.0 * h.rel_improvement,
             stated.2,
         );
         if r == 0.005 {
-            common::assert_figure("R_bus 0.005 p", h.p_value, "2.6e-8");
+            common::assert_figure(PAGE, "R_bus 0.005 p", h.p_value, "2.6e-8");
         }
         outcome.push((r, ids));
     }
@@ -122,7 +131,7 @@ fn paper_scale_bus_loss_detection_limit() {
 // differs from every fitted hypothesis form. The bar: the right mechanism or a discovered term on
 // the right field, the parameter of the matching form within 10 % of the simulator's value, and
 // nothing else claimed (library terms reported as confounded with a found term are not claims).
-// The README's paper-scale figures for these rows are held at their printed precision.
+// The paper-scale figures of docs/diagnosis-results.md for these rows are held at their printed precision.
 
 /// A simulated paper-scale session, kept on disk while it is diagnosed: discovery reads every
 /// recorded field from the file.
@@ -239,7 +248,7 @@ fn library_form_claimed<'a>(
 
 /// The bus loss from total electrical power (P += R·(P_elec/V_bus)², deliberately strong 10 Ω:
 /// the arm's net electrical power is tens of W, so a realistic 50 mΩ is a few mW — fitted at
-/// paper scale with an s.e. of ≈ 0.07 Ω and not claimed, see the README). Both modes: only
+/// paper scale with an s.e. of ≈ 0.07 Ω and not claimed, see docs/diagnosis-results.md). Both modes: only
 /// `bus_power` claimed, its form beats the phase-current form, R_bus within 10 %.
 #[test]
 fn paper_scale_bus_loss_from_electrical_power_is_found_in_its_form() {
@@ -252,9 +261,10 @@ fn paper_scale_bus_loss_from_electrical_power_is_found_in_its_form() {
         let d = diagnose::diagnose(&s.rec, &opts).expect("diagnose");
         let (p, f) = library_form_claimed(mode, &d, "bus_power", "bus_loss", "R_bus");
         within_10_percent(&format!("{mode} R_bus"), p.value, truth);
-        common::assert_figure(&format!("{mode} R_bus [Ω]"), p.value, stated.0);
-        common::assert_figure(&format!("{mode} R_bus s.e. [Ω]"), p.std_err, stated.1);
+        common::assert_figure(PAGE, &format!("{mode} R_bus [Ω]"), p.value, stated.0);
+        common::assert_figure(PAGE, &format!("{mode} R_bus s.e. [Ω]"), p.std_err, stated.1);
         common::assert_figure(
+            PAGE,
             &format!("{mode} form margin [%]"),
             100.0 * f.margin,
             stated.2,
@@ -282,7 +292,7 @@ fn paper_scale_bus_loss_from_electrical_power_at_a_realistic_resistance_is_not_c
         !h.accepted && (p.value - truth).abs() <= 2.0 * p.std_err,
         "{h:?}"
     );
-    common::assert_figure("R_bus s.e. at 50 mΩ [Ω]", p.std_err, "0.07");
+    common::assert_figure(PAGE, "R_bus s.e. at 50 mΩ [Ω]", p.std_err, "0.07");
 }
 
 /// The drive-electronics loss per newton-metre (P += k·Σ|τ_i|, 0.5 W/Nm). At 72 trials its form
@@ -303,9 +313,15 @@ fn paper_scale_electronics_loss_per_newton_metre_is_told_from_per_ampere() {
         let d = diagnose::diagnose(&s.rec, &opts).expect("diagnose");
         let (p, f) = library_form_claimed(mode, &d, "electronics_nm", "drive_loss", "k_el");
         within_10_percent(&format!("{mode} k_el"), p.value, truth);
-        common::assert_figure(&format!("{mode} k_el [W/Nm]"), p.value, stated.0);
-        common::assert_figure(&format!("{mode} k_el s.e. [W/Nm]"), p.std_err, stated.1);
+        common::assert_figure(PAGE, &format!("{mode} k_el [W/Nm]"), p.value, stated.0);
         common::assert_figure(
+            PAGE,
+            &format!("{mode} k_el s.e. [W/Nm]"),
+            p.std_err,
+            stated.1,
+        );
+        common::assert_figure(
+            PAGE,
             &format!("{mode} form margin [%]"),
             100.0 * f.margin,
             stated.2,
@@ -399,8 +415,8 @@ fn paper_scale_joint_friction_is_identified_joint_by_joint_against_the_twin() {
         ("k_pooled", ["0.27", "0.012"]),
     ] {
         let p = found_param(&t, sym);
-        common::assert_figure(sym, p.value, stated[0]);
-        common::assert_figure(&format!("{sym} s.e."), p.std_err, stated[1]);
+        common::assert_figure(PAGE, sym, p.value, stated[0]);
+        common::assert_figure(PAGE, &format!("{sym} s.e."), p.std_err, stated[1]);
     }
     let d = diagnose::diagnose(&s.rec, &DiagnoseOptions::default()).expect("diagnose");
     print!("== refit\n{}", d.summary);
@@ -437,8 +453,8 @@ fn paper_scale_housing_friction_is_found_on_the_housing_field_at_default_start()
             found_param(&t, "k0").value,
             -25.0 * k,
         );
-        common::assert_figure(&format!("{mode} k"), kf.value, stated.0);
-        common::assert_figure(&format!("{mode} k s.e."), kf.std_err, stated.1);
+        common::assert_figure(PAGE, &format!("{mode} k"), kf.value, stated.0);
+        common::assert_figure(PAGE, &format!("{mode} k s.e."), kf.std_err, stated.1);
     }
 }
 
@@ -455,8 +471,8 @@ fn paper_scale_fan_load_is_found_on_the_board_field() {
     let p = &t.params[0];
     assert!(p.symbol == "P_on" || p.symbol == "ΔP", "{p:?}");
     within_10_percent(&p.symbol, p.value, watts);
-    common::assert_figure(&p.symbol, p.value, "2.95");
-    common::assert_figure(&format!("{} s.e.", p.symbol), p.std_err, "0.026");
+    common::assert_figure(PAGE, &p.symbol, p.value, "2.95");
+    common::assert_figure(PAGE, &format!("{} s.e.", p.symbol), p.std_err, "0.026");
     // The fan is on or off in each trial's pre-idle too: the rest power steps with it.
     let rest = d
         .discovery

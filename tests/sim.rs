@@ -5,6 +5,9 @@
 
 mod common;
 
+/// The documentation page that prints the figures this file holds.
+const PAGE: &str = "docs/simulation.md";
+
 use std::path::{Path, PathBuf};
 
 use g1viz::sim::{Artefacts, Preset, SimConfig, simulate};
@@ -707,7 +710,7 @@ fn twin_of_the_shared_smoke_session_matches_it() {
         .sqrt();
     assert!(rms < 1.5, "MBS rms difference {rms:.2} W");
 
-    // README: "τ differs by 0.071 Nm rms — √2 × the files' noise — and MBS power by 0.91 W rms".
+    // docs/simulation.md: "τ differs by 0.071 Nm rms — √2 × the files' noise — and MBS power by 0.91 W rms".
     // The expectation for τ is the independent generator's own noise level (truth JSON); the
     // power figure is this code's result on that file, held as stated.
     let truth: serde_json::Value = serde_json::from_str(
@@ -724,16 +727,17 @@ fn twin_of_the_shared_smoke_session_matches_it() {
         .sum::<f64>()
         / (7 * real.state.tau.len()) as f64)
         .sqrt();
-    common::assert_figure("twin τ rms difference [Nm]", tau_rms, "0.071");
+    common::assert_figure(PAGE, "twin τ rms difference [Nm]", tau_rms, "0.071");
     common::assert_figure(
+        PAGE,
         "√2 × the generator's τ noise [Nm]",
         2f64.sqrt() * sigma,
         "0.071",
     );
-    common::assert_figure("twin MBS rms difference [W]", rms, "0.91");
+    common::assert_figure(PAGE, "twin MBS rms difference [W]", rms, "0.91");
 }
 
-/// README (Digital twin): "Protocol as in the paper (2 s pre-idle at home, cubic smooth-step
+/// docs/simulation.md: "Protocol as in the paper (2 s pre-idle at home, cubic smooth-step
 /// segments through 3–5 waypoints, 2 s post-idle, return at 0.5 rad/s); presets … `smoke` (24
 /// trials), … `holdout` (46 trials at the unseen speeds)" — the trial windows and speed levels
 /// from the truth sidecar, the return speed measured in the written joint velocities. (`paper`,
@@ -791,7 +795,7 @@ fn presets_follow_the_protocol_the_readme_states() {
     }
 }
 
-/// README (Digital twin): a bare `--effect NAME` switches the effect on at the default the README
+/// docs/simulation.md: a bare `--effect NAME` switches the effect on at the default docs/simulation.md
 /// names for it (the list above the effect table and the table's first column).
 #[test]
 fn bare_effect_names_use_the_readme_defaults() {
@@ -800,7 +804,7 @@ fn bare_effect_names_use_the_readme_defaults() {
         e.enable(name).unwrap();
         e
     };
-    let fig = common::assert_figure;
+    let fig = |what: &str, got: f64, stated: &str| common::assert_figure(PAGE, what, got, stated);
     fig(
         "thermal α [1/K]",
         on("thermal").thermal.unwrap().alpha_per_k,
@@ -847,7 +851,7 @@ fn bare_effect_names_use_the_readme_defaults() {
     );
 }
 
-/// README (Digital twin): the effect table's rows of the five forms the diagnosis does not fit,
+/// docs/simulation.md: the effect table's rows of the five forms the diagnosis does not fit,
 /// at their printed precision (hold-out preset, seed 3, no artefacts — `bench_sim effects`).
 #[test]
 fn effect_table_rows_of_the_new_forms() {
@@ -886,7 +890,8 @@ fn effect_table_rows_of_the_new_forms() {
             .map(|t| t.effect_power_traj_mean_w)
             .sum::<f64>()
             / truth.trials.len().max(1) as f64;
-        let fig = common::assert_figure;
+        let fig =
+            |what: &str, got: f64, stated: &str| common::assert_figure(PAGE, what, got, stated);
         fig(&format!("{effect} trajectory R²"), m.r2, r2);
         fig(&format!("{effect} trajectory RMSE"), m.rmse, rmse);
         fig(&format!("{effect} reading R²"), a.r2, r2a);

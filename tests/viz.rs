@@ -1470,19 +1470,18 @@ fn replay_trials_logs_those_trials() {
     assert_eq!(rows(&c, "/joints/elbow/q"), all);
 }
 
-/// Size per hour of session of a plain replay at the defaults, as the README states it
+/// Size per hour of session of a plain replay at the defaults, as docs/viewer.md states it
 /// ("≈ N MB per hour … ± P %"): the example replayed, scaled to an hour. The size estimate
 /// printed before writing lands within 25 % of the file written: at the defaults, with
 /// `--max-rate 20`, for two trials at 20 Hz, and for 20 s with the model.
 #[test]
 fn rrd_size_per_hour_matches_readme_and_estimate() {
     use g1viz::viz::Notice;
-    let readme =
-        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("README.md")).unwrap();
-    let line = readme
+    let page = common::doc_page("docs/viewer.md");
+    let line = page
         .lines()
         .find(|l| l.contains("MB per hour of session"))
-        .expect("the README states the .rrd size per hour");
+        .expect("docs/viewer.md states the .rrd size per hour");
     let number = |tag: &str| -> f64 {
         let at = line
             .find(tag)
@@ -1536,7 +1535,7 @@ fn rrd_size_per_hour_matches_readme_and_estimate() {
             let per_hour_mb = size * 3600.0 / duration / 1e6;
             assert!(
                 (per_hour_mb / stated_mb - 1.0).abs() <= tolerance,
-                "{per_hour_mb:.0} MB per hour vs the README's {stated_mb} MB ± {}",
+                "{per_hour_mb:.0} MB per hour vs docs/viewer.md's {stated_mb} MB ± {}",
                 tolerance * 100.0
             );
         }

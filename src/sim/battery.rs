@@ -1,7 +1,7 @@
 //! The twin's battery: what every recorded voltage (`/lowstate.motor_state[k].vol`, the
 //! main board's rail voltage, the BMS pack and cell voltages) follows.
 //!
-//! Two models. [`Battery::Linear`] (the default, behind every figure of the README) is an
+//! Two models. [`Battery::Linear`] (the default, behind every figure of the docs) is an
 //! open-circuit voltage linear in state of charge with no internal resistance: every recorded
 //! voltage is then a function of the charge alone, which falls steadily over a session, so the
 //! voltages follow session time. [`Battery::Realistic`] is what a Li-ion pack does: a per-cell

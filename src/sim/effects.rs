@@ -298,7 +298,7 @@ impl DriveLoss {
 impl StribeckFriction {
     /// 10 Nm of breakaway excess at the joint output: a deliberately strong effect. The paper's
     /// protocol never moves slower than 0.5 rad/s, so the low-speed band only shows during
-    /// accelerations; 5 Nm is resolved to ≈ 15–25 % on ≈ 140 trials (README matrix).
+    /// accelerations; 5 Nm is resolved to ≈ 15–25 % on ≈ 140 trials (docs/diagnosis-results.md).
     pub const DEFAULT: StribeckFriction = StribeckFriction { newton_m: 10.0 };
 }
 impl BalanceLeak {

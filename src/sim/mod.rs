@@ -142,7 +142,7 @@ pub struct SimConfig {
     pub housing_start_c: Option<f64>,
     /// Motor thermal constants.
     pub thermal: ThermalModel,
-    /// Battery model (default: linear, every README figure's).
+    /// Battery model (default: linear, every documented figure's).
     pub battery: Battery,
     /// State of charge at session start (0..=1); `None`: a freshly charged pack, drawn in
     /// 0.96–0.98.

@@ -58,7 +58,7 @@ pub enum Preset {
     Paper,
     /// The paper's 46 hold-out trials at {0.75, 1.25, 1.75, 2.25} rad/s on identification routes.
     Holdout,
-    /// 7 trials of mixed kinds (the README example session).
+    /// 7 trials of mixed kinds (the shipped example session).
     Example,
 }
 

@@ -214,14 +214,58 @@ pub fn output_within(
     })
 }
 
-// ------------------------------------------------------------------ README figures
+// ------------------------------------------------------------------ documented figures
 
-/// Assert that `got` is the figure the README prints as `stated`, at the precision it is printed
-/// with: within half a unit of its last digit ("0.998" → ± 0.0005, "0.34" → ± 0.005, "2.5e8" →
-/// ± 0.05e8, "53" → ± 0.5).
+/// The text of a documentation page, by its path in the crate (`README.md`, `docs/model.md`).
 #[allow(dead_code)]
 #[track_caller]
-pub fn assert_figure(what: &str, got: f64, stated: &str) {
+pub fn doc_page(page: &str) -> String {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(page);
+    std::fs::read_to_string(&path)
+        .unwrap_or_else(|e| panic!("documentation page {}: {e}", path.display()))
+}
+
+/// The fenced code blocks of `page` whose opening fence names `lang` (```` ```sh ````), in order,
+/// each as its lines.
+#[allow(dead_code)]
+pub fn doc_blocks(page: &str, lang: &str) -> Vec<Vec<String>> {
+    let mut blocks = Vec::new();
+    let mut current: Option<(bool, Vec<String>)> = None;
+    for line in doc_page(page).lines() {
+        if let Some(fence) = line.strip_prefix("```") {
+            match current.take() {
+                Some((true, b)) => blocks.push(b),
+                Some((false, _)) => {}
+                None => current = Some((fence.trim() == lang, Vec::new())),
+            }
+        } else if let Some((_, b)) = current.as_mut() {
+            b.push(line.to_owned());
+        }
+    }
+    blocks
+}
+
+/// Assert that `got` is the figure `page` prints as `stated`, at the precision it is printed
+/// with: within half a unit of its last digit ("0.998" → ± 0.0005, "0.34" → ± 0.005, "2.5e8" →
+/// ± 0.05e8, "53" → ± 0.5) — and that the page prints `stated` (as a number of its own, a
+/// typographic minus read as `-`), so a figure changed on the page fails its test too.
+#[allow(dead_code)]
+#[track_caller]
+pub fn assert_figure(page: &str, what: &str, got: f64, stated: &str) {
+    let text = doc_page(page).replace('−', "-");
+    let number_char = |c: Option<char>| c.is_some_and(|c| c.is_ascii_digit() || c == '.');
+    let printed = text.match_indices(stated).any(|(at, _)| {
+        let before = text[..at].chars().next_back();
+        let mut after = text[at + stated.len()..].chars();
+        // "0.3" is not printed by "0.35", nor by "10.3"; "0.3." (a sentence's end) is.
+        let ends_there = match after.next() {
+            Some(c) if c.is_ascii_digit() => false,
+            Some('.') => !number_char(after.next()),
+            _ => true,
+        };
+        !number_char(before) && ends_there
+    });
+    assert!(printed, "{what}: {page} does not print {stated}");
     let (mantissa, exponent) = match stated.split_once(['e', 'E']) {
         Some((m, e)) => (m, e.parse::<i32>().expect("exponent")),
         None => (stated, 0),
@@ -231,9 +275,9 @@ pub fn assert_figure(what: &str, got: f64, stated: &str) {
     let tolerance = 0.5 * 10f64.powi(exponent - decimals);
     assert!(
         (got - value).abs() <= tolerance * (1.0 + 1e-9),
-        "{what}: {got} is not the README's {stated} (± {tolerance:e})"
+        "{what}: {got} is not {page}'s {stated} (± {tolerance:e})"
     );
-    eprintln!("{what}: {got} = README {stated} ± {tolerance:e}");
+    eprintln!("{what}: {got} = {page} {stated} ± {tolerance:e}");
 }
 
 /// Whether python3 can import `module`; when it cannot, a skip note naming the pip package.
