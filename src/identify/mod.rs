@@ -20,6 +20,7 @@ pub use dataset::{
     Target, TrialBasis, build as build_dataset, estimate_alignment,
 };
 pub use fit::{kappa, term_means};
+pub(crate) use fit::fit_normal;
 pub use pipeline::{
     AlignmentChoice, Identification, IdentifyOptions, ModeFit, RowsFit, SEARCH_TRIALS,
     SessionBreakdown, SessionSummary, fit_given_rows, identify, identify_files, search_stride,
