@@ -31,18 +31,45 @@ fn reset_peak() {
 
 fn main() -> Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let dir = PathBuf::from(args.first().context("usage: bench_fleet DIR [ROBOTS DAYS EVERY PRESET]")?);
+    let dir = PathBuf::from(
+        args.first()
+            .context("usage: bench_fleet DIR [ROBOTS DAYS EVERY PRESET]")?,
+    );
     let num = |i: usize, d: usize| args.get(i).and_then(|s| s.parse().ok()).unwrap_or(d);
     let spec = FleetSpec {
         robots: num(1, 20),
         days: num(2, 30),
         every_days: num(3, 1),
-        preset: args.get(4).map(|s| s.parse()).transpose()?.unwrap_or(g1viz::sim::Preset::Smoke),
+        preset: args
+            .get(4)
+            .map(|s| s.parse())
+            .transpose()?
+            .unwrap_or(g1viz::sim::Preset::Smoke),
         wear: vec![
-            Wear { robot: 0, param: 21, offset: 0.0, per_week: 0.1 },
-            Wear { robot: 0, param: 10, offset: 0.0, per_week: 0.1 },
-            Wear { robot: 3, param: 15, offset: 0.0, per_week: 0.1 },
-            Wear { robot: 2, param: 25, offset: 0.4, per_week: 0.0 },
+            Wear {
+                robot: 0,
+                param: 21,
+                offset: 0.0,
+                per_week: 0.1,
+            },
+            Wear {
+                robot: 0,
+                param: 10,
+                offset: 0.0,
+                per_week: 0.1,
+            },
+            Wear {
+                robot: 3,
+                param: 15,
+                offset: 0.0,
+                per_week: 0.1,
+            },
+            Wear {
+                robot: 2,
+                param: 25,
+                offset: 0.4,
+                per_week: 0.0,
+            },
         ],
         payload_robot: Some(1),
         seed: 11,
@@ -87,7 +114,10 @@ fn main() -> Result<()> {
         );
         if let Some(d) = drift::analyse(&fit, 4.0, 3) {
             for t in d.drifting() {
-                println!("  drift {} θ{} {:+.4}/week (z {:+.1})", t.robot, t.param, t.slope, t.z);
+                println!(
+                    "  drift {} θ{} {:+.4}/week (z {:+.1})",
+                    t.robot, t.param, t.slope, t.z
+                );
             }
             for o in &d.outliers {
                 println!("  differs {} θ{} (z {:+.1})", o.robot, o.param, o.z);

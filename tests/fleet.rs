@@ -39,14 +39,37 @@ fn a_group_equals_identification_on_the_same_rows() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     g1viz(
-        &["simulate", "--preset", "smoke", "--seed", "7", "-o", "s.mcap"],
+        &[
+            "simulate", "--preset", "smoke", "--seed", "7", "-o", "s.mcap",
+        ],
         d,
     );
-    g1viz(&["export", "rows", "s.mcap", "-o", "rows.parquet", "--robot", "r1"], d);
-    g1viz(&["identify", "s.mcap", "-o", "session.json"], d);
-    g1viz(&["identify", "--rows", "rows.parquet", "-o", "rows.json"], d);
     g1viz(
-        &["fleet", "rows.parquet", "--by", "robot,session", "--report", "rep"],
+        &[
+            "export",
+            "rows",
+            "s.mcap",
+            "-o",
+            "rows.parquet",
+            "--robot",
+            "r1",
+        ],
+        d,
+    );
+    g1viz(&["identify", "s.mcap", "-o", "session.json"], d);
+    g1viz(
+        &["identify", "--rows", "rows.parquet", "-o", "rows.json"],
+        d,
+    );
+    g1viz(
+        &[
+            "fleet",
+            "rows.parquet",
+            "--by",
+            "robot,session",
+            "--report",
+            "rep",
+        ],
         d,
     );
     let fleet = json(&d.join("rep/fleet.json"));
@@ -88,10 +111,30 @@ fn a_synthetic_fleet_shows_exactly_its_introduced_drifts() {
         every_days: 3,
         preset: Preset::Smoke,
         wear: vec![
-            Wear { robot: 0, param: d0, offset: 0.0, per_week: 0.25 },
-            Wear { robot: 0, param: b3, offset: 0.0, per_week: 0.25 },
-            Wear { robot: 3, param: c1, offset: 0.0, per_week: 0.25 },
-            Wear { robot: 2, param: d4, offset: 0.4, per_week: 0.0 },
+            Wear {
+                robot: 0,
+                param: d0,
+                offset: 0.0,
+                per_week: 0.25,
+            },
+            Wear {
+                robot: 0,
+                param: b3,
+                offset: 0.0,
+                per_week: 0.25,
+            },
+            Wear {
+                robot: 3,
+                param: c1,
+                offset: 0.0,
+                per_week: 0.25,
+            },
+            Wear {
+                robot: 2,
+                param: d4,
+                offset: 0.4,
+                per_week: 0.0,
+            },
         ],
         payload_robot: Some(1),
         seed: 5,
@@ -100,8 +143,16 @@ fn a_synthetic_fleet_shows_exactly_its_introduced_drifts() {
     assert!(rows > 4 * 7 * 100, "{rows} rows");
     let out = g1viz(
         &[
-            "fleet", "rows", "--by", "robot,day", "--report", "rep", "--save", "fleet.rrd",
-            "--save-sql", "sql",
+            "fleet",
+            "rows",
+            "--by",
+            "robot,day",
+            "--report",
+            "rep",
+            "--save",
+            "fleet.rrd",
+            "--save-sql",
+            "sql",
         ],
         dir.path(),
     );
@@ -121,14 +172,21 @@ fn a_synthetic_fleet_shows_exactly_its_introduced_drifts() {
         })
         .collect();
     drifts.sort();
-    let expected = vec![(robot_name(0), b3), (robot_name(0), d0), (robot_name(3), c1)];
+    let expected = vec![
+        (robot_name(0), b3),
+        (robot_name(0), d0),
+        (robot_name(3), c1),
+    ];
     assert_eq!(drifts, expected, "{out}");
     // The fitted slopes are the introduced ones (25 % of the nominal value a week) within 3 s.e.
     for t in report["drift"]["trends"].as_array().unwrap() {
         if t["drifting"].as_bool().unwrap() {
             let p = t["param"].as_u64().unwrap() as usize;
             let nominal = PowerModel::PAPER.to_vector()[p];
-            let (slope, se) = (t["slope"].as_f64().unwrap(), t["slope_se"].as_f64().unwrap());
+            let (slope, se) = (
+                t["slope"].as_f64().unwrap(),
+                t["slope_se"].as_f64().unwrap(),
+            );
             assert!(
                 (slope - 0.25 * nominal).abs() < 3.0 * se,
                 "{}: slope {slope} ± {se}, introduced {}",

@@ -101,7 +101,10 @@ pub fn run(a: FleetArgs) -> Result<()> {
                 );
             }
             if d.drifting().next().is_none() && d.outliers.is_empty() {
-                println!("no drift and no robot differing from the fleet beyond {} s.e.", a.z);
+                println!(
+                    "no drift and no robot differing from the fleet beyond {} s.e.",
+                    a.z
+                );
             }
         }
         None => println!("no drift analysis (--by needs robot and day, week or session)"),
@@ -118,14 +121,24 @@ pub fn run(a: FleetArgs) -> Result<()> {
         let Some(d) = &drift else {
             anyhow::bail!("--save needs a drift analysis: --by with robot and a period");
         };
-        save_rrd(path, d, &joints, &fleet::report::markdown(&fit, drift.as_ref(), &joints))?;
+        save_rrd(
+            path,
+            d,
+            &joints,
+            &fleet::report::markdown(&fit, drift.as_ref(), &joints),
+        )?;
         println!("wrote {}", path.display());
     }
     Ok(())
 }
 
 #[cfg(feature = "viz")]
-fn save_rrd(path: &std::path::Path, d: &fleet::drift::Drift, joints: &[String], md: &str) -> Result<()> {
+fn save_rrd(
+    path: &std::path::Path,
+    d: &fleet::drift::Drift,
+    joints: &[String],
+    md: &str,
+) -> Result<()> {
     fleet::viz::write_rrd(path, d, joints, md)
 }
 

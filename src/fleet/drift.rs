@@ -95,7 +95,7 @@ fn line(points: &[Point]) -> Option<(f64, f64, f64, f64)> {
         sxy += w * p.t_weeks * p.value;
     }
     let det = s * sxx - sx * sx;
-    if !(det > 0.0) || points.len() < 3 {
+    if det.is_nan() || det <= 0.0 || points.len() < 3 {
         return None;
     }
     let slope = (s * sxy - sx * sy) / det;

@@ -21,8 +21,9 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use datafusion::arrow::array::{Array, Float64Array, RecordBatch};
+use datafusion::arrow::array::{Array, Float64Array};
 use datafusion::arrow::datatypes::DataType;
+use datafusion::arrow::record_batch::RecordBatch;
 use datafusion::common::ScalarValue;
 use datafusion::prelude::{ParquetReadOptions, SessionContext};
 
@@ -76,7 +77,14 @@ impl Engine {
         };
         let joint_names = runtime.block_on(async {
             let df = ctx
-                .read_parquet(urls, ParquetReadOptions::default())
+                .read_parquet(
+                    urls,
+                    ParquetReadOptions {
+                        // Keep the schema metadata: the joint names are there.
+                        skip_metadata: Some(false),
+                        ..Default::default()
+                    },
+                )
                 .await
                 .with_context(|| format!("reading the row tables {}", shown()))?;
             let names = df
@@ -121,9 +129,9 @@ fn text(b: &RecordBatch, name: &str, row: usize) -> Result<String> {
         bail!("query result has no column {name}");
     };
     Ok(match ScalarValue::try_from_array(c, row)? {
-        ScalarValue::Utf8(Some(s)) | ScalarValue::LargeUtf8(Some(s)) | ScalarValue::Utf8View(Some(s)) => {
-            s
-        }
+        ScalarValue::Utf8(Some(s))
+        | ScalarValue::LargeUtf8(Some(s))
+        | ScalarValue::Utf8View(Some(s)) => s,
         v => v.to_string(),
     })
 }
@@ -461,7 +469,10 @@ pub fn fit_fleet(
         if pass > opts.cascade.passes || groups.values().all(|w| w.done) {
             break;
         }
-        progress(&format!("residual pass {pass}: fitting {} groups", groups.len()));
+        progress(&format!(
+            "residual pass {pass}: fitting {} groups",
+            groups.len()
+        ));
         for w in groups.values_mut().filter(|w| !w.done) {
             let theta = match w.fit().and_then(|f| f.theta49()) {
                 Ok(t) => t,

@@ -151,7 +151,11 @@ pub fn figure(path: &Path, drift: &Drift, joints: &[String]) -> Result<()> {
                         .outliers
                         .iter()
                         .any(|o| o.param == p && o.robot == t.robot);
-                let colour = if flagged { RED } else { RGBColor(120, 120, 120) };
+                let colour = if flagged {
+                    RED
+                } else {
+                    RGBColor(120, 120, 120)
+                };
                 for q in &t.points {
                     chart
                         .draw_series(std::iter::once(PathElement::new(

@@ -80,7 +80,9 @@ pub fn write_fleet(
             if spec.payload_robot == Some(r) {
                 cfg.effects.enable("payload=0.5")?;
             }
-            let session = scratch.path().join(format!("{}_day{day:03}.mcap", robot_name(r)));
+            let session = scratch
+                .path()
+                .join(format!("{}_day{day:03}.mcap", robot_name(r)));
             crate::sim::simulate(&cfg, &session)?;
             let file = crate::identify::SessionFile {
                 path: session.clone(),

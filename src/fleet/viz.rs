@@ -43,12 +43,16 @@ pub fn write_rrd(path: &Path, drift: &Drift, joints: &[String], markdown: &str) 
             &SeriesPoints::new()
                 .with_names([t.robot.as_str()])
                 .with_colors([colour])
-                .with_marker_sizes([if flagged { 4.0 } else { 2.5 }]),
+                .with_marker_sizes([if flagged { 4.0f32 } else { 2.5 }]),
         )?;
         let times: Vec<f64> = t.points.iter().map(|p| p.t_weeks * WEEK_S).collect();
         let values: Vec<f64> = t.points.iter().map(|p| p.value).collect();
         w.note_values(&entity, &values);
-        w.send_columns(&entity, &times, Scalars::new(values).columns_of_unit_batches()?)?;
+        w.send_columns(
+            &entity,
+            &times,
+            Scalars::new(values).columns_of_unit_batches()?,
+        )?;
         if t.drifting {
             let last = times.last().copied().unwrap_or(0.0);
             w.send_row(
