@@ -1,4 +1,4 @@
-//! `g1viz fleet`: per-group power models of row tables summed by the embedded SQL engine, the
+//! `g1viz fleet`: per-group power models of row tables (their sums streamed from Parquet), the
 //! drift of each robot's parameters, a report and a Rerun recording.
 
 use std::path::PathBuf;
@@ -7,7 +7,7 @@ use anyhow::Result;
 use clap::Args;
 
 use super::FitArgs;
-use g1viz::fleet::{self, Engine, FleetOptions, Key};
+use g1viz::fleet::{self, FleetOptions, Key, Tables};
 
 #[derive(Args)]
 pub struct FleetArgs {
@@ -19,10 +19,6 @@ pub struct FleetArgs {
     /// Drift needs robot and a period (day, week or session).
     #[arg(long, default_value = "robot,week", value_name = "KEYS")]
     by: String,
-    /// Only rows matching this SQL predicate over the row table's columns, e.g.
-    /// "robot IN ('g1_00', 'g1_03') AND t_ns >= 1773446400000000000" (pushed down to the scan).
-    #[arg(long = "where", value_name = "SQL")]
-    filter: Option<String>,
     /// A drift or a difference from the fleet is flagged beyond this many standard errors.
     #[arg(long, default_value_t = 4.0, value_name = "Z")]
     z: f64,
@@ -32,8 +28,8 @@ pub struct FleetArgs {
     /// Write a Rerun recording of the fleet on a time axis (`rerun FILE` opens it).
     #[arg(long, value_name = "FILE")]
     save: Option<PathBuf>,
-    /// Write each query the engine ran (NN_name.sql) and its result (NN_name.csv) into DIR, to
-    /// run the same SQL on another engine.
+    /// Write each sum as SQL (NN_name.sql) with our result (NN_name.csv) into DIR, to run the
+    /// same SQL on an engine (examples/fleet_sql_crosscheck.py: DuckDB, Spark).
     #[arg(long, value_name = "DIR")]
     save_sql: Option<PathBuf>,
     /// The filters and target of identification (--mode, --window and --lag are the export's
@@ -48,17 +44,16 @@ pub fn run(a: FleetArgs) -> Result<()> {
     let options = FleetOptions {
         by: Key::parse_list(&a.by)?,
         target: opts.target.name().to_string(),
-        filter: a.filter.clone(),
         cascade: opts.filters,
     };
     let started = std::time::Instant::now();
     let bar = super::spinner("opening the row tables");
-    let engine = Engine::open(&a.rows)?;
-    let fit = fleet::fit_fleet(&engine, &options, &mut |stage| {
+    let tables = Tables::open(&a.rows)?;
+    let fit = fleet::fit_fleet(&tables, &options, &mut |stage| {
         bar.set_message(stage.to_string())
     })?;
     bar.finish_and_clear();
-    let joints = engine
+    let joints = tables
         .joint_names
         .clone()
         .unwrap_or_else(|| g1viz::signals::SignalMap::g1_left_arm().joint_names);

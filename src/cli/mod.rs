@@ -103,11 +103,11 @@ Examples:
   g1viz identify --rows rows.parquet -o model.json                 # fit from the table")]
     Export(export::ExportArgs),
     /// Per-robot, per-period power models of many sessions' rows (Parquet from `export rows`),
-    /// summed by an embedded SQL engine, and their drift: which robot's joint is wearing.
+    /// and their drift: which robot's joint is wearing.
     #[command(after_help = "\
 Examples:
   g1viz fleet fleet_rows/ --by robot,week --report fleet/ --save fleet.rrd
-  g1viz fleet a.parquet b.parquet --by robot,day --where \"robot <> 'g1_07'\"
+  g1viz fleet a.parquet b.parquet --by robot,day --z 5
   g1viz fleet fleet_rows/ --by session --save-sql sql/   # the queries and their results")]
     Fleet(fleet::FleetArgs),
 }

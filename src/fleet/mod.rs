@@ -1,9 +1,11 @@
 //! `g1viz fleet`: per-robot, per-period power models of many sessions' row tables (Parquet, as
 //! `g1viz export rows` writes them), and their drift.
 //!
-//! The heavy part — sums over millions of rows — is SQL ([`sql`]) run by an embedded engine
-//! (Apache DataFusion) over the Parquet files: per group of `--by` keys the trials' first
-//! moments (Σy, Σφ, σ_ω), then the group's normal equations ΦᵀΦ, Φᵀy, yᵀy, n. Each group is
+//! The heavy part — sums over millions of rows — is a streamed scan of the Parquet files
+//! ([`Tables`], only the needed columns read): per group of `--by` keys the trials' first
+//! moments (Σy, Σφ, σ_ω) and the group's normal equations ΦᵀΦ, Φᵀy, yᵀy, n. The same sums are
+//! written as portable SQL ([`sql`]; `--save-sql` writes each query beside our result, and
+//! `examples/fleet_sql_crosscheck.py` runs them unchanged on DuckDB and Spark). Each group is
 //! then solved here, with identification's own filters ([`crate::trial::Cascade`]): the IMU
 //! filter over the group's trials, then the 3σ residual passes, the groups in step so that each
 //! pass costs one scan (the normal equations of the trials a pass rejects, subtracted from the
@@ -17,157 +19,133 @@ pub mod synth;
 #[cfg(feature = "viz")]
 pub mod viz;
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, HashSet};
+use std::fmt::Write as _;
+use std::fs::File;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
-use datafusion::arrow::array::{Array, Float64Array};
-use datafusion::arrow::datatypes::DataType;
-use datafusion::arrow::record_batch::RecordBatch;
-use datafusion::common::ScalarValue;
-use datafusion::prelude::{ParquetReadOptions, SessionContext};
+use arrow_array::{Float64Array, Int64Array, StringArray, UInt32Array};
+use parquet::arrow::ProjectionMask;
+use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
 
 use crate::N_PARAMS;
 use crate::lsq::Gram;
+use crate::rows::{column, phi_column};
 use crate::trial::{Cascade, RejectReason, Rejection, TrialStat};
 pub use sql::{Key, Pick, TrialId};
 
-/// An embedded SQL engine with the row tables registered as the table `rows`.
-pub struct Engine {
-    ctx: SessionContext,
-    runtime: tokio::runtime::Runtime,
-    /// The arm's joint names from the tables' metadata (None: the tables name none).
+/// The row tables of a fleet: Parquet files from `g1viz export rows`.
+pub struct Tables {
+    /// The files, in path order.
+    pub files: Vec<PathBuf>,
+    /// The arm's joint names from the first file's metadata (None: it names none).
     pub joint_names: Option<Vec<String>>,
 }
 
-impl Engine {
-    /// Register `paths` (Parquet files, or folders searched recursively for `*.parquet`) as one
-    /// table `rows`. Every path must exist; the files must share the row table's schema.
-    pub fn open(paths: &[PathBuf]) -> Result<Engine> {
-        if paths.is_empty() {
-            bail!("no row tables given");
+fn parquet_files(dir: &Path, out: &mut Vec<PathBuf>) -> Result<()> {
+    for e in std::fs::read_dir(dir).with_context(|| format!("listing {}", dir.display()))? {
+        let p = e?.path();
+        if p.is_dir() {
+            parquet_files(&p, out)?;
+        } else if p.extension().is_some_and(|x| x == "parquet") {
+            out.push(p);
         }
+    }
+    Ok(())
+}
+
+/// One row as the scan sees it.
+struct ScanRow<'a> {
+    robot: &'a str,
+    session: &'a str,
+    trial: u32,
+    t_ns: i64,
+    y: f64,
+    phi: [f64; N_PARAMS],
+    sigma_omega: f64,
+}
+
+impl Tables {
+    /// `paths`: Parquet files, or folders searched recursively for `*.parquet` (a dataset
+    /// partitioned as ROBOT/DAY.parquet). Every path must exist and hold at least one file.
+    pub fn open(paths: &[PathBuf]) -> Result<Tables> {
+        let mut files = Vec::new();
         for p in paths {
-            if !p.exists() {
+            if p.is_dir() {
+                let before = files.len();
+                parquet_files(p, &mut files)?;
+                if files.len() == before {
+                    bail!("{}: no .parquet files in the folder", p.display());
+                }
+            } else if p.exists() {
+                files.push(p.clone());
+            } else {
                 bail!("{}: no such file or folder", p.display());
             }
         }
-        let runtime = tokio::runtime::Builder::new_multi_thread()
-            .enable_all()
-            .build()
-            .context("starting the query engine's runtime")?;
-        let ctx = SessionContext::new();
-        let urls: Vec<String> = paths
-            .iter()
-            .map(|p| {
-                let abs = std::path::absolute(p)?;
-                let mut s = abs.display().to_string();
-                if abs.is_dir() && !s.ends_with('/') {
-                    s.push('/');
-                }
-                Ok(s)
-            })
-            .collect::<std::io::Result<_>>()?;
-        let shown = || {
-            paths
-                .iter()
-                .map(|p| p.display().to_string())
-                .collect::<Vec<_>>()
-                .join(", ")
+        files.sort();
+        files.dedup();
+        let Some(first) = files.first() else {
+            bail!("no row tables given");
         };
-        let joint_names = runtime.block_on(async {
-            let df = ctx
-                .read_parquet(
-                    urls,
-                    ParquetReadOptions {
-                        // Keep the schema metadata: the joint names are there.
-                        skip_metadata: Some(false),
-                        ..Default::default()
-                    },
-                )
-                .await
-                .with_context(|| format!("reading the row tables {}", shown()))?;
-            let names = df
-                .schema()
-                .metadata()
-                .get(crate::rows::JOINT_NAMES_KEY)
-                .and_then(|v| serde_json::from_str::<Vec<String>>(v).ok());
-            ctx.register_table("rows", df.into_view())?;
-            anyhow::Ok(names)
-        })?;
-        Ok(Engine {
-            ctx,
-            runtime,
-            joint_names,
-        })
+        let joint_names = crate::rows::table_joint_names(first)?;
+        Ok(Tables { files, joint_names })
     }
 
-    /// Run one query and collect its result.
-    pub fn query(&self, sql: &str) -> Result<Vec<RecordBatch>> {
-        self.runtime.block_on(async {
-            let df = self.ctx.sql(sql).await?;
-            Ok(df.collect().await?)
-        })
-    }
-}
-
-/// One result column as numbers (any numeric type the engine returned).
-fn numbers(b: &RecordBatch, name: &str) -> Result<Float64Array> {
-    let Some(c) = b.column_by_name(name) else {
-        bail!("query result has no column {name}");
-    };
-    let c = datafusion::arrow::compute::cast(c, &DataType::Float64)?;
-    Ok(c.as_any()
-        .downcast_ref::<Float64Array>()
-        .context("cast to Float64")?
-        .clone())
-}
-
-/// One result cell as text (keys: strings and integers).
-fn text(b: &RecordBatch, name: &str, row: usize) -> Result<String> {
-    let Some(c) = b.column_by_name(name) else {
-        bail!("query result has no column {name}");
-    };
-    Ok(match ScalarValue::try_from_array(c, row)? {
-        ScalarValue::Utf8(Some(s))
-        | ScalarValue::LargeUtf8(Some(s))
-        | ScalarValue::Utf8View(Some(s)) => s,
-        v => v.to_string(),
-    })
-}
-
-/// A query's result as CSV (header, then one line per row; text quoted when needed).
-pub fn to_csv(batches: &[RecordBatch]) -> Result<String> {
-    let mut out = String::new();
-    let Some(first) = batches.first() else {
-        return Ok(out);
-    };
-    let names: Vec<String> = first
-        .schema()
-        .fields()
-        .iter()
-        .map(|f| f.name().clone())
-        .collect();
-    out.push_str(&names.join(","));
-    out.push('\n');
-    for b in batches {
-        for r in 0..b.num_rows() {
-            let cells = names
-                .iter()
-                .map(|n| {
-                    let t = text(b, n, r)?;
-                    Ok(if t.contains([',', '"', '\n']) {
-                        format!("\"{}\"", t.replace('"', "\"\""))
-                    } else {
-                        t
-                    })
-                })
-                .collect::<Result<Vec<_>>>()?;
-            out.push_str(&cells.join(","));
-            out.push('\n');
+    /// Every row of `target`, file by file, batch by batch (only the needed columns decoded).
+    fn scan(&self, target: &str, f: &mut dyn FnMut(&ScanRow)) -> Result<()> {
+        for path in &self.files {
+            let file = File::open(path).with_context(|| format!("opening {}", path.display()))?;
+            let builder = ParquetRecordBatchReaderBuilder::try_new(file)
+                .with_context(|| format!("{}: not a Parquet file", path.display()))?;
+            let mut names: Vec<String> = ["robot", "session", "trial", "t_ns", "target", "y_w", "sigma_omega"]
+                .map(String::from)
+                .to_vec();
+            names.extend((0..N_PARAMS).map(phi_column));
+            let mask = ProjectionMask::columns(builder.parquet_schema(), names.iter().map(String::as_str));
+            let reader = builder
+                .with_projection(mask)
+                .with_batch_size(8192)
+                .build()
+                .with_context(|| format!("reading {}", path.display()))?;
+            for batch in reader {
+                let b = batch.with_context(|| format!("reading {}", path.display()))?;
+                let cols = (|| {
+                    let num = |n: &str| column::<Float64Array>(&b, n);
+                    anyhow::Ok((
+                        column::<StringArray>(&b, "robot")?,
+                        column::<StringArray>(&b, "session")?,
+                        column::<UInt32Array>(&b, "trial")?,
+                        column::<Int64Array>(&b, "t_ns")?,
+                        column::<StringArray>(&b, "target")?,
+                        num("y_w")?,
+                        num("sigma_omega")?,
+                        (0..N_PARAMS)
+                            .map(|p| num(&phi_column(p)))
+                            .collect::<Result<Vec<_>>>()?,
+                    ))
+                })()
+                .with_context(|| format!("in {}", path.display()))?;
+                let (robot, session, trial, t_ns, tgt, y, sigma, phi) = cols;
+                for k in 0..b.num_rows() {
+                    if tgt.value(k) != target {
+                        continue;
+                    }
+                    f(&ScanRow {
+                        robot: robot.value(k),
+                        session: session.value(k),
+                        trial: trial.value(k),
+                        t_ns: t_ns.value(k),
+                        y: y.value(k),
+                        phi: std::array::from_fn(|p| phi[p].value(k)),
+                        sigma_omega: sigma.value(k),
+                    });
+                }
+            }
         }
+        Ok(())
     }
-    Ok(out)
 }
 
 /// What `g1viz fleet` groups and filters.
@@ -177,8 +155,6 @@ pub struct FleetOptions {
     pub by: Vec<Key>,
     /// Power target of the rows used (`mbs` / `bms`).
     pub target: String,
-    /// An extra SQL predicate on the rows (`--where`), pushed down to the Parquet scan.
-    pub filter: Option<String>,
     /// Identification's filter cascade, applied per group.
     pub cascade: Cascade,
 }
@@ -290,127 +266,187 @@ impl Work {
     }
 }
 
-fn key_of(b: &RecordBatch, by: &[Key], r: usize) -> Result<Vec<String>> {
-    by.iter().map(|k| text(b, k.name(), r)).collect()
+/// Sums of one (group, trial) or one group: the normal equations, Σy, the reading times.
+#[derive(Clone)]
+struct Sums {
+    gram: Gram,
+    sy: f64,
+    t_ns: (i64, i64),
 }
 
-fn trial_of(b: &RecordBatch, r: usize) -> Result<TrialId> {
-    let trial = text(b, "trial_trial", r)?;
-    Ok((
-        text(b, "trial_robot", r)?,
-        text(b, "trial_session", r)?,
-        trial
-            .parse()
-            .with_context(|| format!("trial index {trial:?} is not a number"))?,
-    ))
-}
-
-/// The normal equations in row `r` of a [`sql::normal_equations`] result.
-fn gram_of(cols: &NormalColumns, r: usize) -> (Gram, f64) {
-    let mut g = Gram::zeros(N_PARAMS);
-    for i in 0..N_PARAMS {
-        g.h[i] = cols.h[i].value(r);
-        for j in i..N_PARAMS {
-            let v = cols.g[i * N_PARAMS + j].value(r);
-            g.g[(i, j)] = v;
-            g.g[(j, i)] = v;
+impl Sums {
+    fn new() -> Sums {
+        Sums {
+            gram: Gram::zeros(N_PARAMS),
+            sy: 0.0,
+            t_ns: (i64::MAX, i64::MIN),
         }
     }
-    g.yy = cols.yy.value(r);
-    g.n = cols.n.value(r) as usize;
-    (g, cols.sy.value(r))
-}
 
-struct NormalColumns {
-    n: Float64Array,
-    sy: Float64Array,
-    yy: Float64Array,
-    h: Vec<Float64Array>,
-    /// Row-major N×N, upper triangle filled.
-    g: Vec<Float64Array>,
-}
+    fn add(&mut self, r: &ScanRow) {
+        self.gram.add_row(&r.phi, r.y);
+        self.sy += r.y;
+        self.t_ns = (self.t_ns.0.min(r.t_ns), self.t_ns.1.max(r.t_ns));
+    }
 
-impl NormalColumns {
-    fn of(b: &RecordBatch) -> Result<NormalColumns> {
-        let empty = Float64Array::from(Vec::<f64>::new());
-        let mut g = vec![empty; N_PARAMS * N_PARAMS];
+    /// CSV cells as [`sql::normal_equations`] names them (n, t_min, t_max, sy, yy, h_i, g_i_j).
+    fn csv(&self, out: &mut String) {
+        let g = &self.gram;
+        let _ = write!(out, "{},{},{},{},{}", g.n, self.t_ns.0, self.t_ns.1, self.sy, g.yy);
+        for i in 0..N_PARAMS {
+            let _ = write!(out, ",{}", g.h[i]);
+        }
         for i in 0..N_PARAMS {
             for j in i..N_PARAMS {
-                g[i * N_PARAMS + j] = numbers(b, &format!("g_{i}_{j}"))?;
+                let _ = write!(out, ",{}", g.g[(i, j)]);
             }
         }
-        Ok(NormalColumns {
-            n: numbers(b, "n")?,
-            sy: numbers(b, "sy")?,
-            yy: numbers(b, "yy")?,
-            h: (0..N_PARAMS)
-                .map(|i| numbers(b, &format!("h_{i}")))
-                .collect::<Result<_>>()?,
-            g,
-        })
     }
 }
 
-/// Fit every group of the engine's rows: moments, IMU filter, normal equations, residual passes
-/// (one scan per pass for the trials it rejects), final fit. `progress` hears each stage.
+fn csv_header(by: &[Key], per_trial: bool, values: &[String]) -> String {
+    let mut h: Vec<String> = by.iter().map(|k| k.name().to_string()).collect();
+    if per_trial {
+        h.extend(sql::TRIAL_COLUMNS.map(|c| format!("trial_{c}")));
+    }
+    h.extend(values.iter().cloned());
+    h.join(",") + "\n"
+}
+
+fn csv_text(v: &str) -> String {
+    if v.contains([',', '"', '\n']) {
+        format!("\"{}\"", v.replace('"', "\"\""))
+    } else {
+        v.to_string()
+    }
+}
+
+fn csv_key(key: &[String], trial: Option<&TrialId>, out: &mut String) {
+    let mut cells: Vec<String> = key.iter().map(|k| csv_text(k)).collect();
+    if let Some((r, s, t)) = trial {
+        cells.extend([csv_text(r), csv_text(s), t.to_string()]);
+    }
+    out.push_str(&cells.join(","));
+    out.push(',');
+}
+
+fn normal_columns() -> Vec<String> {
+    let mut v: Vec<String> = ["n", "t_min", "t_max", "sy", "yy"].map(String::from).to_vec();
+    v.extend((0..N_PARAMS).map(|i| format!("h_{i}")));
+    for i in 0..N_PARAMS {
+        v.extend((i..N_PARAMS).map(|j| format!("g_{i}_{j}")));
+    }
+    v
+}
+
+/// The normal equations of the picked trials, per (group, trial): one scan.
+fn trial_sums(
+    tables: &Tables,
+    by: &[Key],
+    target: &str,
+    only: &[TrialId],
+) -> Result<BTreeMap<(Vec<String>, TrialId), Sums>> {
+    let wanted: HashSet<(&str, &str, u32)> = only
+        .iter()
+        .map(|(r, s, t)| (r.as_str(), s.as_str(), *t))
+        .collect();
+    let mut out: BTreeMap<(Vec<String>, TrialId), Sums> = BTreeMap::new();
+    tables.scan(target, &mut |r| {
+        if !wanted.contains(&(r.robot, r.session, r.trial)) {
+            return;
+        }
+        let key: Vec<String> = by.iter().map(|k| k.value(r.robot, r.session, r.t_ns)).collect();
+        let id = (r.robot.to_string(), r.session.to_string(), r.trial);
+        out.entry((key, id)).or_insert_with(Sums::new).add(r);
+    })?;
+    Ok(out)
+}
+
+/// Fit every group of the tables' rows: one scan for the per-trial moments and the groups'
+/// normal equations, the IMU filter, then per residual pass the normal equations of the trials
+/// rejected (one scan each), final fit. `progress` hears each stage.
 pub fn fit_fleet(
-    engine: &Engine,
+    tables: &Tables,
     opts: &FleetOptions,
     progress: &mut dyn FnMut(&str),
 ) -> Result<FleetFit> {
     let by = &opts.by;
-    let filter = opts.filter.as_deref();
+    let target = opts.target.as_str();
     let mut queries = Vec::new();
-    let mut run = |name: &str, q: String| -> Result<Vec<RecordBatch>> {
-        let out = engine
-            .query(&q)
-            .with_context(|| format!("running the {name} query"))?;
-        queries.push((name.to_string(), q, to_csv(&out)?));
-        Ok(out)
-    };
 
-    progress("scanning: per-trial moments");
+    progress(&format!("scanning {} files: moments and normal equations", tables.files.len()));
     let mut groups: BTreeMap<Vec<String>, Work> = BTreeMap::new();
-    for b in run("moments", sql::moments(by, &opts.target, filter))? {
-        let (n, sy, sigma) = (
-            numbers(&b, "n")?,
-            numbers(&b, "sy")?,
-            numbers(&b, "sigma_omega")?,
-        );
-        let s: Vec<Float64Array> = (0..N_PARAMS)
-            .map(|p| numbers(&b, &format!("s_{p}")))
-            .collect::<Result<_>>()?;
-        for r in 0..b.num_rows() {
-            let w = groups.entry(key_of(&b, by, r)?).or_insert_with(|| Work {
+    let mut moments: BTreeMap<(Vec<String>, TrialId), TrialMoments> = BTreeMap::new();
+    let mut totals: BTreeMap<Vec<String>, Sums> = BTreeMap::new();
+    tables.scan(target, &mut |r| {
+        let key: Vec<String> = by.iter().map(|k| k.value(r.robot, r.session, r.t_ns)).collect();
+        let id = (r.robot.to_string(), r.session.to_string(), r.trial);
+        let m = moments.entry((key.clone(), id.clone())).or_insert_with(|| TrialMoments {
+            id,
+            n: 0.0,
+            sy: 0.0,
+            s: [0.0; N_PARAMS],
+            sigma_omega: f64::NEG_INFINITY,
+        });
+        m.n += 1.0;
+        m.sy += r.y;
+        for (a, v) in m.s.iter_mut().zip(&r.phi) {
+            *a += v;
+        }
+        m.sigma_omega = m.sigma_omega.max(r.sigma_omega);
+        totals.entry(key).or_insert_with(Sums::new).add(r);
+    })?;
+    if totals.is_empty() {
+        bail!("no rows of target {target} in the tables");
+    }
+    let mut csv = csv_header(by, true, &{
+        let mut v: Vec<String> = ["n", "sigma_omega", "sy"].map(String::from).to_vec();
+        v.extend((0..N_PARAMS).map(|p| format!("s_{p}")));
+        v
+    });
+    for ((key, id), m) in &moments {
+        csv_key(key, Some(id), &mut csv);
+        let _ = write!(csv, "{},{},{}", m.n, m.sigma_omega, m.sy);
+        for v in &m.s {
+            let _ = write!(csv, ",{v}");
+        }
+        csv.push('\n');
+    }
+    queries.push(("moments".to_string(), sql::moments(by, target), csv));
+    let mut csv = csv_header(by, false, &normal_columns());
+    for (key, t) in &totals {
+        csv_key(key, None, &mut csv);
+        t.csv(&mut csv);
+        csv.push('\n');
+    }
+    queries.push((
+        "normal_equations".to_string(),
+        sql::normal_equations(by, false, Pick::All, target),
+        csv,
+    ));
+    for (key, t) in totals {
+        groups.insert(
+            key,
+            Work {
                 trials: Vec::new(),
                 sessions: Vec::new(),
-                total: Gram::zeros(N_PARAMS),
-                sy: 0.0,
-                t_ns: (0, 0),
+                total: t.gram,
+                sy: t.sy,
+                t_ns: t.t_ns,
                 removed: Vec::new(),
                 rejections: Vec::new(),
                 error: None,
                 done: false,
-            });
-            let id = trial_of(&b, r)?;
-            if !w.sessions.iter().any(|(x, y)| *x == id.0 && *y == id.1) {
-                w.sessions.push((id.0.clone(), id.1.clone()));
-            }
-            w.trials.push(TrialMoments {
-                id,
-                n: n.value(r),
-                sy: sy.value(r),
-                s: std::array::from_fn(|p| s[p].value(r)),
-                sigma_omega: sigma.value(r),
-            });
-        }
-    }
-    if groups.is_empty() {
-        bail!(
-            "no rows of target {} in the tables{}",
-            opts.target,
-            filter.map(|f| format!(" where {f}")).unwrap_or_default()
+            },
         );
+    }
+    for ((key, _), m) in moments {
+        let w = groups.get_mut(&key).context("a trial outside every group")?;
+        let id = &m.id;
+        if !w.sessions.iter().any(|(x, y)| *x == id.0 && *y == id.1) {
+            w.sessions.push((id.0.clone(), id.1.clone()));
+        }
+        w.trials.push(m);
     }
     for w in groups.values_mut() {
         w.sessions.sort();
@@ -422,23 +458,6 @@ pub fn fit_fleet(
         w.rejections = opts.cascade.imu(&sigmas);
     }
 
-    progress("scanning: normal equations per group");
-    for b in run(
-        "normal_equations",
-        sql::normal_equations(by, false, Pick::All, &opts.target, filter),
-    )? {
-        let cols = NormalColumns::of(&b)?;
-        let (t0, t1) = (numbers(&b, "t_min")?, numbers(&b, "t_max")?);
-        for r in 0..b.num_rows() {
-            let key = key_of(&b, by, r)?;
-            let Some(w) = groups.get_mut(&key) else {
-                bail!("group {key:?} has normal equations but no trials");
-            };
-            (w.total, w.sy) = gram_of(&cols, r);
-            w.t_ns = (t0.value(r) as i64, t1.value(r) as i64);
-        }
-    }
-
     let mut pass = 0;
     loop {
         // The normal equations of every trial rejected so far and not yet removed, one scan.
@@ -448,22 +467,23 @@ pub fn fit_fleet(
                 "scanning: normal equations of {} rejected trials",
                 pending.len()
             ));
-            for b in run(
-                &format!("rejected_{pass}"),
-                sql::normal_equations(by, true, Pick::Only(&pending), &opts.target, filter),
-            )? {
-                let cols = NormalColumns::of(&b)?;
-                for r in 0..b.num_rows() {
-                    let Some(w) = groups.get_mut(&key_of(&b, by, r)?) else {
-                        continue;
-                    };
-                    let id = trial_of(&b, r)?;
-                    if w.pending().contains(&id) {
-                        let (g, sy) = gram_of(&cols, r);
-                        w.removed.push((id, g, sy));
-                    }
+            let sums = trial_sums(tables, by, target, &pending)?;
+            let mut csv = csv_header(by, true, &normal_columns());
+            for ((key, id), t) in sums {
+                csv_key(&key, Some(&id), &mut csv);
+                t.csv(&mut csv);
+                csv.push('\n');
+                if let Some(w) = groups.get_mut(&key)
+                    && w.pending().contains(&id)
+                {
+                    w.removed.push((id, t.gram, t.sy));
                 }
             }
+            queries.push((
+                format!("rejected_{pass}"),
+                sql::normal_equations(by, true, Pick::Only(&pending), target),
+                csv,
+            ));
         }
         pass += 1;
         if pass > opts.cascade.passes || groups.values().all(|w| w.done) {
