@@ -94,7 +94,9 @@ fn main() -> Result<()> {
         let mut tables = Tables::open(std::slice::from_ref(&dir))?;
         if third {
             tables.files.retain(|f| {
-                let day = f.file_stem().and_then(|s| s.to_str()?.strip_prefix("day")?.parse().ok());
+                let day = f
+                    .file_stem()
+                    .and_then(|s| s.to_str()?.strip_prefix("day")?.parse().ok());
                 day.is_some_and(|d: usize| d < spec.days / 3)
             });
         }
@@ -110,7 +112,11 @@ fn main() -> Result<()> {
         let peak = peak_mb().unwrap_or(f64::NAN);
         println!(
             "{}: {rows} rows, {} groups, {:.2} s ({:.1} s per million rows), peak RSS {peak:.0} MB ({:.0} MB per million rows)",
-            if third { "first third of the days" } else { "all days" },
+            if third {
+                "first third of the days"
+            } else {
+                "all days"
+            },
             fit.groups.len(),
             secs,
             secs / mrows,

@@ -5,8 +5,8 @@
 //! periods where the parameter is free (weights 1/s.e.², t in weeks from the fleet's first
 //! reading); its standard errors are widened by the Birge ratio √(χ²/(k − 2)) when the periods
 //! scatter more than their own errors say. A slope beyond `z` of its standard error is a drift.
-//! A robot whose level at t₀ lies beyond `z` combined standard errors from the weighted mean of
-//! the other robots' levels differs from the fleet.
+//! A robot whose level at t₀ lies beyond `z` combined standard errors from the median of the
+//! other robots' levels differs from the fleet.
 
 use crate::N_PARAMS;
 
@@ -53,9 +53,9 @@ pub struct Outlier {
     pub robot: String,
     /// Parameter index.
     pub param: usize,
-    /// The robot's level and the other robots' weighted mean level.
+    /// The robot's level at the fleet's first reading.
     pub level: f64,
-    /// The others' level.
+    /// The other robots' median level.
     pub fleet_level: f64,
     /// (level − fleet_level) / combined standard error.
     pub z: f64,
@@ -169,14 +169,27 @@ pub fn analyse(fit: &FleetFit, z: f64, min_periods: usize) -> Option<Drift> {
             continue;
         }
         for t in &of {
-            let (mut sw, mut swl) = (0.0, 0.0);
-            for o in of.iter().filter(|o| o.robot != t.robot) {
-                let w = 1.0 / (o.level_se * o.level_se);
-                sw += w;
-                swl += w * o.level;
-            }
-            let fleet_level = swl / sw;
-            let zd = (t.level - fleet_level) / (t.level_se * t.level_se + 1.0 / sw).sqrt();
+            // The others' median level (robust to another robot that differs too), its
+            // standard error taken as the weighted mean's × √(π/2).
+            let mut others: Vec<f64> = of
+                .iter()
+                .filter(|o| o.robot != t.robot)
+                .map(|o| o.level)
+                .collect();
+            others.sort_by(f64::total_cmp);
+            let m = others.len();
+            let fleet_level = if m % 2 == 1 {
+                others[m / 2]
+            } else {
+                0.5 * (others[m / 2 - 1] + others[m / 2])
+            };
+            let sw: f64 = of
+                .iter()
+                .filter(|o| o.robot != t.robot)
+                .map(|o| 1.0 / (o.level_se * o.level_se))
+                .sum();
+            let se_ref = (std::f64::consts::FRAC_PI_2 / sw).sqrt();
+            let zd = (t.level - fleet_level) / (t.level_se * t.level_se + se_ref * se_ref).sqrt();
             if zd.abs() > z {
                 outliers.push(Outlier {
                     robot: t.robot.clone(),

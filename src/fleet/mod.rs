@@ -99,11 +99,20 @@ impl Tables {
             let file = File::open(path).with_context(|| format!("opening {}", path.display()))?;
             let builder = ParquetRecordBatchReaderBuilder::try_new(file)
                 .with_context(|| format!("{}: not a Parquet file", path.display()))?;
-            let mut names: Vec<String> = ["robot", "session", "trial", "t_ns", "target", "y_w", "sigma_omega"]
-                .map(String::from)
-                .to_vec();
+            let mut names: Vec<String> = [
+                "robot",
+                "session",
+                "trial",
+                "t_ns",
+                "target",
+                "y_w",
+                "sigma_omega",
+            ]
+            .map(String::from)
+            .to_vec();
             names.extend((0..N_PARAMS).map(phi_column));
-            let mask = ProjectionMask::columns(builder.parquet_schema(), names.iter().map(String::as_str));
+            let mask =
+                ProjectionMask::columns(builder.parquet_schema(), names.iter().map(String::as_str));
             let reader = builder
                 .with_projection(mask)
                 .with_batch_size(8192)
@@ -292,7 +301,11 @@ impl Sums {
     /// CSV cells as [`sql::normal_equations`] names them (n, t_min, t_max, sy, yy, h_i, g_i_j).
     fn csv(&self, out: &mut String) {
         let g = &self.gram;
-        let _ = write!(out, "{},{},{},{},{}", g.n, self.t_ns.0, self.t_ns.1, self.sy, g.yy);
+        let _ = write!(
+            out,
+            "{},{},{},{},{}",
+            g.n, self.t_ns.0, self.t_ns.1, self.sy, g.yy
+        );
         for i in 0..N_PARAMS {
             let _ = write!(out, ",{}", g.h[i]);
         }
@@ -331,7 +344,9 @@ fn csv_key(key: &[String], trial: Option<&TrialId>, out: &mut String) {
 }
 
 fn normal_columns() -> Vec<String> {
-    let mut v: Vec<String> = ["n", "t_min", "t_max", "sy", "yy"].map(String::from).to_vec();
+    let mut v: Vec<String> = ["n", "t_min", "t_max", "sy", "yy"]
+        .map(String::from)
+        .to_vec();
     v.extend((0..N_PARAMS).map(|i| format!("h_{i}")));
     for i in 0..N_PARAMS {
         v.extend((i..N_PARAMS).map(|j| format!("g_{i}_{j}")));
@@ -355,7 +370,10 @@ fn trial_sums(
         if !wanted.contains(&(r.robot, r.session, r.trial)) {
             return;
         }
-        let key: Vec<String> = by.iter().map(|k| k.value(r.robot, r.session, r.t_ns)).collect();
+        let key: Vec<String> = by
+            .iter()
+            .map(|k| k.value(r.robot, r.session, r.t_ns))
+            .collect();
         let id = (r.robot.to_string(), r.session.to_string(), r.trial);
         out.entry((key, id)).or_insert_with(Sums::new).add(r);
     })?;
@@ -374,20 +392,28 @@ pub fn fit_fleet(
     let target = opts.target.as_str();
     let mut queries = Vec::new();
 
-    progress(&format!("scanning {} files: moments and normal equations", tables.files.len()));
+    progress(&format!(
+        "scanning {} files: moments and normal equations",
+        tables.files.len()
+    ));
     let mut groups: BTreeMap<Vec<String>, Work> = BTreeMap::new();
     let mut moments: BTreeMap<(Vec<String>, TrialId), TrialMoments> = BTreeMap::new();
     let mut totals: BTreeMap<Vec<String>, Sums> = BTreeMap::new();
     tables.scan(target, &mut |r| {
-        let key: Vec<String> = by.iter().map(|k| k.value(r.robot, r.session, r.t_ns)).collect();
+        let key: Vec<String> = by
+            .iter()
+            .map(|k| k.value(r.robot, r.session, r.t_ns))
+            .collect();
         let id = (r.robot.to_string(), r.session.to_string(), r.trial);
-        let m = moments.entry((key.clone(), id.clone())).or_insert_with(|| TrialMoments {
-            id,
-            n: 0.0,
-            sy: 0.0,
-            s: [0.0; N_PARAMS],
-            sigma_omega: f64::NEG_INFINITY,
-        });
+        let m = moments
+            .entry((key.clone(), id.clone()))
+            .or_insert_with(|| TrialMoments {
+                id,
+                n: 0.0,
+                sy: 0.0,
+                s: [0.0; N_PARAMS],
+                sigma_omega: f64::NEG_INFINITY,
+            });
         m.n += 1.0;
         m.sy += r.y;
         for (a, v) in m.s.iter_mut().zip(&r.phi) {
@@ -441,7 +467,9 @@ pub fn fit_fleet(
         );
     }
     for ((key, _), m) in moments {
-        let w = groups.get_mut(&key).context("a trial outside every group")?;
+        let w = groups
+            .get_mut(&key)
+            .context("a trial outside every group")?;
         let id = &m.id;
         if !w.sessions.iter().any(|(x, y)| *x == id.0 && *y == id.1) {
             w.sessions.push((id.0.clone(), id.1.clone()));

@@ -168,12 +168,7 @@ pub fn moments(keys: &[Key], target: &str) -> String {
 /// The normal equations of each group's picked rows (per trial too when `per_trial`): `n`,
 /// Σy `sy`, yᵀy `yy`, Φᵀy `h_p`, the upper triangle of ΦᵀΦ `g_i_j` (i ≤ j), and the first and
 /// last reading time `t_min`/`t_max` [ns].
-pub fn normal_equations(
-    keys: &[Key],
-    per_trial: bool,
-    pick: Pick,
-    target: &str,
-) -> String {
+pub fn normal_equations(keys: &[Key], per_trial: bool, pick: Pick, target: &str) -> String {
     let (mut select, group) = grouping(keys, per_trial);
     select.push("COUNT(*) AS n".into());
     select.push("MIN(rows.t_ns) AS t_min".into());
