@@ -48,25 +48,25 @@ fn main() -> Result<()> {
         wear: vec![
             Wear {
                 robot: 0,
-                param: 21,
+                param: 7, // b0
                 offset: 0.0,
                 per_week: 0.1,
             },
             Wear {
                 robot: 0,
-                param: 10,
+                param: 10, // b3
                 offset: 0.0,
                 per_week: 0.1,
             },
             Wear {
                 robot: 3,
-                param: 15,
+                param: 15, // c1
                 offset: 0.0,
-                per_week: 0.1,
+                per_week: 0.2,
             },
             Wear {
                 robot: 2,
-                param: 25,
+                param: 9, // b2
                 offset: 0.4,
                 per_week: 0.0,
             },

@@ -34,7 +34,7 @@ pub fn markdown(fit: &FleetFit, drift: Option<&Drift>, joints: &[String]) -> Str
     );
     let _ = writeln!(
         s,
-        "| {} | rows | used | trials | rejected IMU / 3σ | R² | RMSE [W] | note |\n|{}---|---|---|---|---|---|---|---|",
+        "| {} | rows | used | trials | rejected IMU / 3σ | R² | RMSE [W] | note |\n|{}---|---|---|---|---|---|---|",
         by.join(" | "),
         "---|".repeat(by.len())
     );
