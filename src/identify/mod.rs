@@ -19,8 +19,8 @@ pub use dataset::{
     Alignment, AlignmentEstimate, AlignmentScore, Dataset, DatasetOptions, Mode, Row, Skipped,
     Target, TrialBasis, build as build_dataset, estimate_alignment,
 };
-pub use fit::{kappa, term_means};
 pub(crate) use fit::fit_normal;
+pub use fit::{kappa, term_means};
 pub use pipeline::{
     AlignmentChoice, Identification, IdentifyOptions, ModeFit, RowsFit, SEARCH_TRIALS,
     SessionBreakdown, SessionSummary, fit_given_rows, identify, identify_files, search_stride,
