@@ -18,6 +18,7 @@
 #![warn(missing_docs)]
 
 pub mod diagnose;
+pub mod fleet;
 pub mod identify;
 pub mod lsq;
 mod plot;

@@ -15,6 +15,7 @@ use g1viz::trial::Cascade;
 
 pub mod diagnose;
 pub mod export;
+pub mod fleet;
 pub mod identify;
 pub mod info;
 pub mod replay;
@@ -101,6 +102,14 @@ Examples:
   g1viz export rows recordings/ -o rows.parquet                    # every recording in a folder
   g1viz identify --rows rows.parquet -o model.json                 # fit from the table")]
     Export(export::ExportArgs),
+    /// Per-robot, per-period power models of many sessions' rows (Parquet from `export rows`),
+    /// and their drift: which robot's joint is wearing.
+    #[command(after_help = "\
+Examples:
+  g1viz fleet fleet_rows/ --by robot,week --report fleet/ --save fleet.rrd
+  g1viz fleet a.parquet b.parquet --by robot,day --z 5
+  g1viz fleet fleet_rows/ --by session --save-sql sql/   # the queries and their results")]
+    Fleet(fleet::FleetArgs),
 }
 
 /// A spinner with `message` and the elapsed time on stderr, for a job that can take seconds
@@ -334,5 +343,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Simulate(a) => simulate::run(a),
         Command::Diagnose(a) => diagnose::run(a),
         Command::Export(a) => export::run(a),
+        Command::Fleet(a) => fleet::run(a),
     }
 }

@@ -50,6 +50,10 @@ pub struct SimulateArgs {
     /// No balance contamination and no hardware-event outliers.
     #[arg(long)]
     clean: bool,
+    /// Start the session this many days after the simulator's epoch (2026-03-14), e.g. one
+    /// session a day of a synthetic fleet.
+    #[arg(long, default_value_t = 0, value_name = "N")]
+    day: u64,
     #[command(flatten)]
     read: ReadArgs,
 }
@@ -85,6 +89,7 @@ pub fn run(a: SimulateArgs) -> Result<()> {
         with_hand: !a.no_hand,
         battery: a.battery.parse()?,
         soc_start: a.soc_start,
+        start_day: a.day,
         ..SimConfig::default()
     };
     for e in &a.effects {

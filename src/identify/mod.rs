@@ -19,6 +19,7 @@ pub use dataset::{
     Alignment, AlignmentEstimate, AlignmentScore, Dataset, DatasetOptions, Mode, Row, Skipped,
     Target, TrialBasis, build as build_dataset, estimate_alignment,
 };
+pub(crate) use fit::fit_normal;
 pub use fit::{kappa, term_means};
 pub use pipeline::{
     AlignmentChoice, Identification, IdentifyOptions, ModeFit, RowsFit, SEARCH_TRIALS,

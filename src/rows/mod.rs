@@ -184,13 +184,23 @@ pub fn read_parquet(path: &Path) -> Result<Vec<TableRow>> {
     Ok(read_table(path)?.rows)
 }
 
-/// [`read_parquet`] plus the joint names of the file's [`JOINT_NAMES_KEY`] metadata (an error
-/// when present but not a JSON array of 7 names).
-pub fn read_table(path: &Path) -> Result<RowTable> {
+fn open_table(path: &Path) -> Result<ParquetRecordBatchReaderBuilder<File>> {
     let file = File::open(path).with_context(|| format!("opening {}", path.display()))?;
-    let builder = ParquetRecordBatchReaderBuilder::try_new(file)
-        .with_context(|| format!("{}: not a Parquet file", path.display()))?;
-    let joint_names = builder
+    ParquetRecordBatchReaderBuilder::try_new(file)
+        .with_context(|| format!("{}: not a Parquet file", path.display()))
+}
+
+/// The joint names of a row table's [`JOINT_NAMES_KEY`] metadata (None when absent; an error
+/// when present but not a JSON array of 7 names).
+pub fn table_joint_names(path: &Path) -> Result<Option<Vec<String>>> {
+    joint_names_of(&open_table(path)?, path)
+}
+
+fn joint_names_of(
+    builder: &ParquetRecordBatchReaderBuilder<File>,
+    path: &Path,
+) -> Result<Option<Vec<String>>> {
+    builder
         .metadata()
         .file_metadata()
         .key_value_metadata()
@@ -213,7 +223,14 @@ pub fn read_table(path: &Path) -> Result<RowTable> {
             }
             Ok(names)
         })
-        .transpose()?;
+        .transpose()
+}
+
+/// [`read_parquet`] plus the joint names of the file's [`JOINT_NAMES_KEY`] metadata (an error
+/// when present but not a JSON array of 7 names).
+pub fn read_table(path: &Path) -> Result<RowTable> {
+    let builder = open_table(path)?;
+    let joint_names = joint_names_of(&builder, path)?;
     let reader = builder
         .build()
         .with_context(|| format!("{}: not a Parquet file", path.display()))?;
@@ -225,7 +242,7 @@ pub fn read_table(path: &Path) -> Result<RowTable> {
     Ok(RowTable { joint_names, rows })
 }
 
-fn column<'a, T: 'static>(b: &'a RecordBatch, name: &str) -> Result<&'a T> {
+pub(crate) fn column<'a, T: 'static>(b: &'a RecordBatch, name: &str) -> Result<&'a T> {
     let Some(c) = b.column_by_name(name) else {
         bail!("column `{name}` is missing");
     };

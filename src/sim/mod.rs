@@ -160,6 +160,8 @@ pub struct SimConfig {
     pub sensor_window_s: f64,
     /// Show a progress bar on stderr (only drawn when stderr is a terminal).
     pub progress: bool,
+    /// Days after the epoch (2026-03-14) the session starts on (a fleet's daily sessions).
+    pub start_day: u64,
 }
 
 impl Default for SimConfig {
@@ -183,6 +185,7 @@ impl Default for SimConfig {
             tracking_lag_s: 0.01,
             sensor_window_s: plant::SENSOR_WINDOW_S,
             progress: true,
+            start_day: 0,
         }
     }
 }
@@ -294,7 +297,9 @@ pub fn simulate(cfg: &SimConfig, out: &Path) -> Result<Truth> {
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed);
     let planned = protocol::plan(cfg.preset, cfg.seed, cfg.route_seed);
     let schedule = Schedule::build(&planned, &mut rng);
-    let start_ns = EPOCH_NS + rng.random_range(0..3 * 3600 * 1_000_000_000u64);
+    let start_ns = EPOCH_NS
+        + cfg.start_day * 86_400_000_000_000
+        + rng.random_range(0..3 * 3600 * 1_000_000_000u64);
 
     // Message clocks: /lowstate at 100 Hz with ~0.1 ms jitter, /arm_sdk 3 ms later.
     let n = (schedule.duration / 0.01).ceil() as u64;

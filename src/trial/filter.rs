@@ -156,24 +156,37 @@ impl Cascade {
     ) -> Result<(), E> {
         for pass in 1..=self.passes {
             let all = residuals(rejections)?;
-            let (stats, empty): (Vec<TrialStat>, Vec<TrialStat>) =
-                all.into_iter().partition(|r| r.value.is_finite());
-            if stats.len() < self.min_trials.max(3) {
-                break;
-            }
-            let new = three_sigma(&stats, self.n_sigma, pass);
-            let unusable: Vec<Rejection> = empty
-                .iter()
-                .map(|r| Rejection::unusable(r.session, r.trial, "no power readings in the trial"))
-                .collect();
-            let changed = !new.is_empty() || !unusable.is_empty();
-            rejections.extend(unusable);
-            rejections.extend(new);
-            if !changed {
+            if !self.residual_pass(pass, rejections, all) {
                 break;
             }
         }
         Ok(())
+    }
+
+    /// Residual pass `pass` (1-based) of [`Cascade::residual_passes`] on the residuals `all` of
+    /// the trials not yet rejected, for callers that run many trial sets in step (the fleet's
+    /// groups share one scan per pass). Returns whether another pass is due (this one rejected
+    /// something and `pass` < [`Cascade::passes`]).
+    pub fn residual_pass(
+        &self,
+        pass: usize,
+        rejections: &mut Vec<Rejection>,
+        all: Vec<TrialStat>,
+    ) -> bool {
+        let (stats, empty): (Vec<TrialStat>, Vec<TrialStat>) =
+            all.into_iter().partition(|r| r.value.is_finite());
+        if stats.len() < self.min_trials.max(3) {
+            return false;
+        }
+        let new = three_sigma(&stats, self.n_sigma, pass);
+        let unusable: Vec<Rejection> = empty
+            .iter()
+            .map(|r| Rejection::unusable(r.session, r.trial, "no power readings in the trial"))
+            .collect();
+        let changed = !new.is_empty() || !unusable.is_empty();
+        rejections.extend(unusable);
+        rejections.extend(new);
+        changed && pass < self.passes
     }
 
     /// IMU filter, then the residual passes.

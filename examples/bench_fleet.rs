@@ -1,0 +1,138 @@
+//! Benchmark of `g1viz fleet` on a synthetic fleet written by the simulator.
+//!
+//! ```text
+//! cargo run --example bench_fleet -- DIR [ROBOTS DAYS EVERY PRESET]   # default: 20 30 1 smoke
+//! ```
+//!
+//! Writes the fleet into DIR (once: an existing DIR is reused) with wear on three parameters of
+//! two robots, a 40 % offset on one and a payload on another, then fits it by robot and week on
+//! the first third of the days' files and on all of them, printing rows, time and peak memory (the
+//! process's resident high-water mark, reset before each fit) per million rows, and the flags.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use g1viz::fleet::synth::{FleetSpec, Wear, write_fleet};
+use g1viz::fleet::{FleetOptions, Key, Tables, drift, fit_fleet};
+
+/// Peak resident memory since the last reset [MB] (Linux), and a reset.
+fn peak_mb() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb / 1024.0)
+}
+
+fn reset_peak() {
+    // "5" resets the peak resident set size (Linux ≥ 4.0); harmless elsewhere.
+    std::fs::write("/proc/self/clear_refs", "5").ok();
+}
+
+fn main() -> Result<()> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let dir = PathBuf::from(
+        args.first()
+            .context("usage: bench_fleet DIR [ROBOTS DAYS EVERY PRESET]")?,
+    );
+    let num = |i: usize, d: usize| args.get(i).and_then(|s| s.parse().ok()).unwrap_or(d);
+    let spec = FleetSpec {
+        robots: num(1, 20),
+        days: num(2, 30),
+        every_days: num(3, 1),
+        preset: args
+            .get(4)
+            .map(|s| s.parse())
+            .transpose()?
+            .unwrap_or(g1viz::sim::Preset::Smoke),
+        wear: vec![
+            Wear {
+                robot: 0,
+                param: 7, // b0
+                offset: 0.0,
+                per_week: 0.1,
+            },
+            Wear {
+                robot: 0,
+                param: 10, // b3
+                offset: 0.0,
+                per_week: 0.1,
+            },
+            Wear {
+                robot: 3,
+                param: 15, // c1
+                offset: 0.0,
+                per_week: 0.2,
+            },
+            Wear {
+                robot: 2,
+                param: 9, // b2
+                offset: 0.4,
+                per_week: 0.0,
+            },
+        ],
+        payload_robot: Some(1),
+        seed: 11,
+    };
+    if !dir.exists() {
+        let t = Instant::now();
+        let rows = write_fleet(&dir, &spec, &mut |done, total| {
+            eprint!("\rsimulating, identifying, exporting: {done}/{total} sessions");
+        })?;
+        eprintln!();
+        println!(
+            "wrote {rows} rows of {} robots × {} days in {:.0} s",
+            spec.robots,
+            spec.days,
+            t.elapsed().as_secs_f64()
+        );
+    }
+    // The first third of the days' files (dayNNN.parquet), then all of them.
+    for third in [true, false] {
+        reset_peak();
+        let t = Instant::now();
+        let mut tables = Tables::open(std::slice::from_ref(&dir))?;
+        if third {
+            tables.files.retain(|f| {
+                let day = f
+                    .file_stem()
+                    .and_then(|s| s.to_str()?.strip_prefix("day")?.parse().ok());
+                day.is_some_and(|d: usize| d < spec.days / 3)
+            });
+        }
+        let opts = FleetOptions {
+            by: vec![Key::Robot, Key::Week],
+            target: "mbs".into(),
+            cascade: g1viz::trial::Cascade::default(),
+        };
+        let fit = fit_fleet(&tables, &opts, &mut |_| {})?;
+        let secs = t.elapsed().as_secs_f64();
+        let rows: usize = fit.groups.iter().map(|g| g.rows).sum();
+        let mrows = rows as f64 / 1e6;
+        let peak = peak_mb().unwrap_or(f64::NAN);
+        println!(
+            "{}: {rows} rows, {} groups, {:.2} s ({:.1} s per million rows), peak RSS {peak:.0} MB ({:.0} MB per million rows)",
+            if third {
+                "first third of the days"
+            } else {
+                "all days"
+            },
+            fit.groups.len(),
+            secs,
+            secs / mrows,
+            peak / mrows
+        );
+        if let Some(d) = drift::analyse(&fit, 4.0, 3) {
+            for t in d.drifting() {
+                println!(
+                    "  drift {} θ{} {:+.4}/week (z {:+.1})",
+                    t.robot, t.param, t.slope, t.z
+                );
+            }
+            for o in &d.outliers {
+                println!("  differs {} θ{} (z {:+.1})", o.robot, o.param, o.z);
+            }
+        }
+    }
+    Ok(())
+}

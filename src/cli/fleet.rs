@@ -1,0 +1,143 @@
+//! `g1viz fleet`: per-group power models of row tables (their sums streamed from Parquet), the
+//! drift of each robot's parameters, a report and a Rerun recording.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use clap::Args;
+
+use super::FitArgs;
+use g1viz::fleet::{self, FleetOptions, Key, Tables};
+
+#[derive(Args)]
+pub struct FleetArgs {
+    /// Row tables: Parquet files from `g1viz export rows`, or folders of them (searched
+    /// recursively, e.g. a dataset partitioned as ROBOT/DAY.parquet).
+    #[arg(required = true, value_name = "ROWS")]
+    rows: Vec<PathBuf>,
+    /// Grouping keys, comma-separated: robot, session, day, week (UTC; weeks start on Monday).
+    /// Drift needs robot and a period (day, week or session).
+    #[arg(long, default_value = "robot,week", value_name = "KEYS")]
+    by: String,
+    /// A drift or a difference from the fleet is flagged beyond this many standard errors.
+    #[arg(long, default_value_t = 4.0, value_name = "Z")]
+    z: f64,
+    /// Write fleet.md, fleet.json and fleet.png into DIR.
+    #[arg(long, value_name = "DIR")]
+    report: Option<PathBuf>,
+    /// Write a Rerun recording of the fleet on a time axis (`rerun FILE` opens it).
+    #[arg(long, value_name = "FILE")]
+    save: Option<PathBuf>,
+    /// Write each sum as SQL (NN_name.sql) with our result (NN_name.csv) into DIR, to run the
+    /// same SQL on an engine (examples/fleet_sql_crosscheck.py: DuckDB, Spark).
+    #[arg(long, value_name = "DIR")]
+    save_sql: Option<PathBuf>,
+    /// The filters and target of identification (--mode, --window and --lag are the export's
+    /// and do not apply here).
+    #[command(flatten)]
+    fit: FitArgs,
+}
+
+/// Fit the groups, analyse the drift, print the summary and write the outputs.
+pub fn run(a: FleetArgs) -> Result<()> {
+    let opts = a.fit.options();
+    let options = FleetOptions {
+        by: Key::parse_list(&a.by)?,
+        target: opts.target.name().to_string(),
+        cascade: opts.filters,
+    };
+    let started = std::time::Instant::now();
+    let bar = super::spinner("opening the row tables");
+    let tables = Tables::open(&a.rows)?;
+    let fit = fleet::fit_fleet(&tables, &options, &mut |stage| {
+        bar.set_message(stage.to_string())
+    })?;
+    bar.finish_and_clear();
+    let joints = tables
+        .joint_names
+        .clone()
+        .unwrap_or_else(|| g1viz::signals::SignalMap::g1_left_arm().joint_names);
+    let drift = fleet::drift::analyse(&fit, a.z, 3);
+    let rows: usize = fit.groups.iter().map(|g| g.rows).sum();
+    let failed = fit.groups.iter().filter(|g| g.error.is_some()).count();
+    println!(
+        "{} groups ({failed} without a model) from {rows} rows in {:.1} s",
+        fit.groups.len(),
+        started.elapsed().as_secs_f64()
+    );
+    for g in fit.groups.iter().filter(|g| g.error.is_some()) {
+        println!(
+            "  {}: {}",
+            g.label(&fit.by),
+            g.error.as_deref().unwrap_or("")
+        );
+    }
+    match &drift {
+        Some(d) => {
+            for t in d.drifting() {
+                println!(
+                    "drift: {} {} {:+.4} ± {:.4} per week (z {:+.1}), level {:.4}",
+                    t.robot,
+                    fleet::report::param_label(t.param, &joints),
+                    t.slope,
+                    t.slope_se,
+                    t.z,
+                    t.level
+                );
+            }
+            for o in &d.outliers {
+                println!(
+                    "differs from the fleet: {} {} level {:.4}, other robots {:.4} (z {:+.1})",
+                    o.robot,
+                    fleet::report::param_label(o.param, &joints),
+                    o.level,
+                    o.fleet_level,
+                    o.z
+                );
+            }
+            if d.drifting().next().is_none() && d.outliers.is_empty() {
+                println!(
+                    "no drift and no robot differing from the fleet beyond {} s.e.",
+                    a.z
+                );
+            }
+        }
+        None => println!("no drift analysis (--by needs robot and day, week or session)"),
+    }
+    if let Some(dir) = &a.save_sql {
+        fleet::save_queries(&fit, dir)?;
+        println!("wrote {} queries to {}", fit.queries.len(), dir.display());
+    }
+    if let Some(dir) = &a.report {
+        fleet::report::write(dir, &fit, drift.as_ref(), &joints)?;
+        println!("wrote {}", dir.join("fleet.md").display());
+    }
+    if let Some(path) = &a.save {
+        let Some(d) = &drift else {
+            anyhow::bail!("--save needs a drift analysis: --by with robot and a period");
+        };
+        save_rrd(
+            path,
+            d,
+            &joints,
+            &fleet::report::markdown(&fit, drift.as_ref(), &joints),
+        )?;
+        println!("wrote {}", path.display());
+    }
+    Ok(())
+}
+
+#[cfg(feature = "viz")]
+fn save_rrd(
+    path: &std::path::Path,
+    d: &fleet::drift::Drift,
+    joints: &[String],
+    md: &str,
+) -> Result<()> {
+    fleet::viz::write_rrd(path, d, joints, md)
+}
+
+#[cfg(not(feature = "viz"))]
+fn save_rrd(_: &std::path::Path, _: &fleet::drift::Drift, _: &[String], _: &str) -> Result<()> {
+    anyhow::bail!("--save needs the viz feature (built without it)")
+}

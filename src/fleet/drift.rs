@@ -1,0 +1,234 @@
+//! Drift: each robot's parameters over the periods of a fleet fit, and the robots that differ
+//! from the fleet.
+//!
+//! Per robot and parameter, a weighted straight line θ(t) = level + slope·(t − t₀) through the
+//! periods where the parameter is free (weights 1/s.e.², t in weeks from the fleet's first
+//! reading); its standard errors are widened by the Birge ratio √(χ²/(k − 2)) when the periods
+//! scatter more than their own errors say. A slope beyond `z` of its standard error is a drift.
+//! A robot whose level at t₀ lies beyond `z` combined standard errors from the median of the
+//! other robots' levels differs from the fleet.
+
+use crate::N_PARAMS;
+
+use super::{FleetFit, Key};
+
+/// One period of one robot's parameter.
+#[derive(Debug, Clone, Copy, serde::Serialize)]
+pub struct Point {
+    /// Mid time of the period [weeks since the fleet's first reading].
+    pub t_weeks: f64,
+    /// θ.
+    pub value: f64,
+    /// Its standard error.
+    pub std_err: f64,
+}
+
+/// A robot's parameter over the periods, with its straight-line fit.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Trend {
+    /// Robot.
+    pub robot: String,
+    /// Parameter index (model order).
+    pub param: usize,
+    /// The periods where the parameter was free.
+    pub points: Vec<Point>,
+    /// Level at the fleet's first reading.
+    pub level: f64,
+    /// Its standard error (Birge-widened).
+    pub level_se: f64,
+    /// Slope [per week].
+    pub slope: f64,
+    /// Its standard error (Birge-widened).
+    pub slope_se: f64,
+    /// slope / slope_se.
+    pub z: f64,
+    /// Whether |z| exceeds the threshold.
+    pub drifting: bool,
+}
+
+/// A robot's level that differs from the other robots'.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Outlier {
+    /// Robot.
+    pub robot: String,
+    /// Parameter index.
+    pub param: usize,
+    /// The robot's level at the fleet's first reading.
+    pub level: f64,
+    /// The other robots' median level.
+    pub fleet_level: f64,
+    /// (level − fleet_level) / combined standard error.
+    pub z: f64,
+}
+
+/// Drift analysis of a fleet fit.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct Drift {
+    /// Threshold in standard errors.
+    pub z: f64,
+    /// The fleet's first reading [ns since the epoch] (t = 0 of the trends).
+    pub t0_ns: i64,
+    /// Every (robot, parameter) with at least `min_periods` free periods.
+    pub trends: Vec<Trend>,
+    /// Robots differing from the fleet.
+    pub outliers: Vec<Outlier>,
+}
+
+impl Drift {
+    /// The drifting trends.
+    pub fn drifting(&self) -> impl Iterator<Item = &Trend> {
+        self.trends.iter().filter(|t| t.drifting)
+    }
+}
+
+const NS_PER_WEEK: f64 = 7.0 * 86_400e9;
+
+/// Weighted straight line through the points: (level, level s.e., slope, slope s.e.).
+fn line(points: &[Point]) -> Option<(f64, f64, f64, f64)> {
+    let (mut s, mut sx, mut sy, mut sxx, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for p in points {
+        let w = 1.0 / (p.std_err * p.std_err);
+        s += w;
+        sx += w * p.t_weeks;
+        sy += w * p.value;
+        sxx += w * p.t_weeks * p.t_weeks;
+        sxy += w * p.t_weeks * p.value;
+    }
+    let det = s * sxx - sx * sx;
+    if det.is_nan() || det <= 0.0 || points.len() < 3 {
+        return None;
+    }
+    let slope = (s * sxy - sx * sy) / det;
+    let level = (sxx * sy - sx * sxy) / det;
+    let chi2: f64 = points
+        .iter()
+        .map(|p| ((p.value - level - slope * p.t_weeks) / p.std_err).powi(2))
+        .sum();
+    let birge = (chi2 / (points.len() - 2) as f64).sqrt().max(1.0);
+    Some((
+        level,
+        (sxx / det).sqrt() * birge,
+        slope,
+        (s / det).sqrt() * birge,
+    ))
+}
+
+/// Trends and outliers of a fit grouped by robot and a period (day, week or session); `None`
+/// when `--by` has no robot key or no period key.
+pub fn analyse(fit: &FleetFit, z: f64, min_periods: usize) -> Option<Drift> {
+    let robot_at = fit.by.iter().position(|k| *k == Key::Robot)?;
+    fit.by
+        .iter()
+        .any(|k| k.is_period() || *k == Key::Session)
+        .then_some(())?;
+    let ok: Vec<_> = fit.groups.iter().filter(|g| g.error.is_none()).collect();
+    let t0_ns = ok.iter().map(|g| g.t_ns.0).min()?;
+    let mut robots: Vec<&str> = ok.iter().map(|g| g.key[robot_at].as_str()).collect();
+    robots.sort();
+    robots.dedup();
+    let mut trends = Vec::new();
+    for robot in &robots {
+        for param in 0..N_PARAMS {
+            let points: Vec<Point> = ok
+                .iter()
+                .filter(|g| g.key[robot_at] == *robot)
+                .filter_map(|g| {
+                    let se = g.std_err[param].filter(|s| s.is_finite() && *s > 0.0)?;
+                    let mid = 0.5 * (g.t_ns.0 + g.t_ns.1) as f64;
+                    Some(Point {
+                        t_weeks: (mid - t0_ns as f64) / NS_PER_WEEK,
+                        value: g.theta[param],
+                        std_err: se,
+                    })
+                })
+                .collect();
+            if points.len() < min_periods.max(3) {
+                continue;
+            }
+            let Some((level, level_se, slope, slope_se)) = line(&points) else {
+                continue;
+            };
+            let zs = slope / slope_se;
+            trends.push(Trend {
+                robot: robot.to_string(),
+                param,
+                points,
+                level,
+                level_se,
+                slope,
+                slope_se,
+                z: zs,
+                drifting: zs.abs() > z,
+            });
+        }
+    }
+    let mut outliers = Vec::new();
+    for param in 0..N_PARAMS {
+        let of: Vec<&Trend> = trends.iter().filter(|t| t.param == param).collect();
+        if of.len() < 3 {
+            continue;
+        }
+        for t in &of {
+            // The others' median level (robust to another robot that differs too), its
+            // standard error taken as the weighted mean's × √(π/2).
+            let mut others: Vec<f64> = of
+                .iter()
+                .filter(|o| o.robot != t.robot)
+                .map(|o| o.level)
+                .collect();
+            others.sort_by(f64::total_cmp);
+            let m = others.len();
+            let fleet_level = if m % 2 == 1 {
+                others[m / 2]
+            } else {
+                0.5 * (others[m / 2 - 1] + others[m / 2])
+            };
+            let sw: f64 = of
+                .iter()
+                .filter(|o| o.robot != t.robot)
+                .map(|o| 1.0 / (o.level_se * o.level_se))
+                .sum();
+            let se_ref = (std::f64::consts::FRAC_PI_2 / sw).sqrt();
+            let zd = (t.level - fleet_level) / (t.level_se * t.level_se + se_ref * se_ref).sqrt();
+            if zd.abs() > z {
+                outliers.push(Outlier {
+                    robot: t.robot.clone(),
+                    param,
+                    level: t.level,
+                    fleet_level,
+                    z: zd,
+                });
+            }
+        }
+    }
+    Some(Drift {
+        z,
+        t0_ns,
+        trends,
+        outliers,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn line_recovers_a_slope_and_widens_for_scatter() {
+        let exact: Vec<Point> = (0..5)
+            .map(|k| Point {
+                t_weeks: k as f64,
+                value: 2.0 + 0.5 * k as f64,
+                std_err: 0.1,
+            })
+            .collect();
+        let (level, _, slope, se) = line(&exact).unwrap();
+        assert!((level - 2.0).abs() < 1e-12 && (slope - 0.5).abs() < 1e-12);
+        // Unweighted: se(slope) = σ/√Σ(t − t̄)² = 0.1/√10.
+        assert!((se - 0.1 / 10f64.sqrt()).abs() < 1e-12);
+        let mut noisy = exact.clone();
+        noisy[2].value += 1.0;
+        let (_, _, _, wide) = line(&noisy).unwrap();
+        assert!(wide > 3.0 * se, "{wide} vs {se}");
+    }
+}

@@ -1,0 +1,230 @@
+//! The fleet report: `fleet.md` (groups, drifts, robots differing from the fleet),
+//! `fleet.json` (the same, for programs) and `fleet.png` (the flagged parameters per robot over
+//! time, with their standard errors and the fitted lines).
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use anyhow::Result;
+use plotters::prelude::*;
+
+use super::FleetFit;
+use super::drift::{Drift, Trend};
+use crate::plot::{FONT, padded_range, plot_err, write_png};
+use crate::power::PowerModel;
+
+/// A parameter's name with its joint, e.g. `d3 (left_elbow_joint)`.
+pub fn param_label(p: usize, joints: &[String]) -> String {
+    let name = PowerModel::param_name(p);
+    match (p < 4 * crate::N_JOINTS).then(|| joints.get(p % crate::N_JOINTS)) {
+        Some(Some(j)) => format!("{name} ({j})"),
+        _ => name,
+    }
+}
+
+/// The markdown report.
+pub fn markdown(fit: &FleetFit, drift: Option<&Drift>, joints: &[String]) -> String {
+    let mut s = String::from("# Fleet power models\n\n");
+    let by: Vec<&str> = fit.by.iter().map(|k| k.name()).collect();
+    let _ = writeln!(
+        s,
+        "{} groups by {}. Filters per group as identification applies them (IMU σ_ω, then 3σ residual passes).\n",
+        fit.groups.len(),
+        by.join(", ")
+    );
+    let _ = writeln!(
+        s,
+        "| {} | rows | used | trials | rejected IMU / 3σ | R² | RMSE [W] | note |\n|{}---|---|---|---|---|---|---|",
+        by.join(" | "),
+        "---|".repeat(by.len())
+    );
+    for g in &fit.groups {
+        let (imu, res, unusable) = g.rejected_by();
+        let _ = writeln!(
+            s,
+            "| {} | {} | {} | {} | {imu} / {} | {:.4} | {:.3} | {} |",
+            g.key.join(" | "),
+            g.rows,
+            g.rows_used,
+            g.trials,
+            res + unusable,
+            g.r2,
+            g.rmse,
+            g.error.as_deref().unwrap_or("")
+        );
+    }
+    let Some(d) = drift else {
+        s.push_str("\nNo drift analysis: it needs `--by` with robot and a period (day, week or session).\n");
+        return s;
+    };
+    let _ = writeln!(
+        s,
+        "\n## Drifts (slope beyond {} standard errors)\n\n| robot | parameter | level at start | slope per week | z | change over the periods |\n|---|---|---|---|---|---|",
+        d.z
+    );
+    let mut any = false;
+    for t in d.drifting() {
+        any = true;
+        let span = t.points.last().map(|p| p.t_weeks).unwrap_or(0.0)
+            - t.points.first().map(|p| p.t_weeks).unwrap_or(0.0);
+        let _ = writeln!(
+            s,
+            "| {} | {} | {:.4} ± {:.4} | {:+.4} ± {:.4} | {:+.1} | {:+.1} % |",
+            t.robot,
+            param_label(t.param, joints),
+            t.level,
+            t.level_se,
+            t.slope,
+            t.slope_se,
+            t.z,
+            100.0 * t.slope * span / t.level
+        );
+    }
+    if !any {
+        s.push_str("| none | | | | | |\n");
+    }
+    let _ = writeln!(
+        s,
+        "\n## Robots differing from the fleet (level at start beyond {} combined standard errors)\n\n| robot | parameter | level | other robots | z |\n|---|---|---|---|---|",
+        d.z
+    );
+    for o in &d.outliers {
+        let _ = writeln!(
+            s,
+            "| {} | {} | {:.4} | {:.4} | {:+.1} |",
+            o.robot,
+            param_label(o.param, joints),
+            o.level,
+            o.fleet_level,
+            o.z
+        );
+    }
+    if d.outliers.is_empty() {
+        s.push_str("| none | | | | |\n");
+    }
+    s.push_str("\n![flagged parameters per robot over time](fleet.png)\n");
+    s
+}
+
+/// The figure: one panel per flagged parameter (up to 6; the first trend's when none is
+/// flagged), every robot's periods with ±1 s.e. bars, its fitted line; flagged robots in red.
+pub fn figure(path: &Path, drift: &Drift, joints: &[String]) -> Result<()> {
+    let mut params: Vec<usize> = drift
+        .drifting()
+        .map(|t| t.param)
+        .chain(drift.outliers.iter().map(|o| o.param))
+        .collect();
+    params.sort();
+    params.dedup();
+    if params.is_empty() {
+        params.extend(drift.trends.first().map(|t| t.param));
+    }
+    params.truncate(6);
+    let cols = params.len().clamp(1, 3);
+    let rows = params.len().div_ceil(cols).max(1);
+    write_png(path, (480 * cols as u32, 360 * rows as u32), |root| {
+        let panels = root.split_evenly((rows, cols));
+        for (panel, &p) in panels.iter().zip(&params) {
+            let of: Vec<&Trend> = drift.trends.iter().filter(|t| t.param == p).collect();
+            let pts = || of.iter().flat_map(|t| &t.points);
+            let (x0, x1) = padded_range(pts().map(|q| q.t_weeks), 0.05);
+            let (y0, y1) = padded_range(
+                pts().flat_map(|q| [q.value - q.std_err, q.value + q.std_err]),
+                0.08,
+            );
+            let mut chart = ChartBuilder::on(panel)
+                .caption(param_label(p, joints), (FONT, 18))
+                .margin(8)
+                .x_label_area_size(32)
+                .y_label_area_size(56)
+                .build_cartesian_2d(x0..x1, y0..y1)
+                .map_err(plot_err)?;
+            chart
+                .configure_mesh()
+                .x_desc("weeks")
+                .label_style((FONT, 12))
+                .draw()
+                .map_err(plot_err)?;
+            for t in &of {
+                let flagged = t.drifting
+                    || drift
+                        .outliers
+                        .iter()
+                        .any(|o| o.param == p && o.robot == t.robot);
+                let colour = if flagged {
+                    RED
+                } else {
+                    RGBColor(120, 120, 120)
+                };
+                for q in &t.points {
+                    chart
+                        .draw_series(std::iter::once(PathElement::new(
+                            vec![
+                                (q.t_weeks, q.value - q.std_err),
+                                (q.t_weeks, q.value + q.std_err),
+                            ],
+                            colour.mix(0.5),
+                        )))
+                        .map_err(plot_err)?;
+                }
+                chart
+                    .draw_series(
+                        t.points
+                            .iter()
+                            .map(|q| Circle::new((q.t_weeks, q.value), 3, colour.filled())),
+                    )
+                    .map_err(plot_err)?;
+                let (a, b) = (
+                    t.points.first().map(|q| q.t_weeks).unwrap_or(0.0),
+                    t.points.last().map(|q| q.t_weeks).unwrap_or(0.0),
+                );
+                let series = chart
+                    .draw_series(LineSeries::new(
+                        [a, b].map(|x| (x, t.level + t.slope * x)),
+                        colour.stroke_width(if flagged { 2 } else { 1 }),
+                    ))
+                    .map_err(plot_err)?;
+                if flagged {
+                    series.label(t.robot.clone()).legend(move |(x, y)| {
+                        PathElement::new(vec![(x, y), (x + 16, y)], colour.stroke_width(2))
+                    });
+                }
+            }
+            if of.iter().any(|t| t.drifting) || drift.outliers.iter().any(|o| o.param == p) {
+                chart
+                    .configure_series_labels()
+                    .label_font((FONT, 12))
+                    .background_style(WHITE.mix(0.8))
+                    .draw()
+                    .map_err(plot_err)?;
+            }
+        }
+        Ok(())
+    })
+}
+
+/// Write `fleet.md`, `fleet.json` and (with a drift analysis) `fleet.png` into `dir`.
+pub fn write(dir: &Path, fit: &FleetFit, drift: Option<&Drift>, joints: &[String]) -> Result<()> {
+    use anyhow::Context;
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let by: Vec<&str> = fit.by.iter().map(|k| k.name()).collect();
+    let json = serde_json::json!({
+        "by": by,
+        "params": (0..crate::N_PARAMS).map(PowerModel::param_name).collect::<Vec<_>>(),
+        "joint_names": joints,
+        "groups": fit.groups,
+        "drift": drift,
+    });
+    crate::util::write_atomic(
+        &dir.join("fleet.json"),
+        serde_json::to_string_pretty(&json)?.as_bytes(),
+    )?;
+    crate::util::write_atomic(
+        &dir.join("fleet.md"),
+        markdown(fit, drift, joints).as_bytes(),
+    )?;
+    if let Some(d) = drift {
+        figure(&dir.join("fleet.png"), d, joints)?;
+    }
+    Ok(())
+}

@@ -1,0 +1,216 @@
+//! `g1viz fleet`: the per-group fit equals identification's on the same rows, and a synthetic
+//! fleet's introduced drifts (and only those) are found.
+
+use std::path::Path;
+use std::process::Command;
+
+use g1viz::fleet::synth::{FleetSpec, Wear, robot_name, write_fleet};
+use g1viz::power::PowerModel;
+use g1viz::sim::Preset;
+
+fn g1viz(args: &[&str], dir: &Path) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_g1viz"))
+        .args(args)
+        .current_dir(dir)
+        .output()
+        .expect("running g1viz");
+    let text = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "g1viz {args:?} failed:\n{text}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    text
+}
+
+fn json(path: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap()
+}
+
+fn theta_of_model(path: &Path) -> Vec<f64> {
+    serde_json::from_value(json(path)["theta"].clone()).unwrap()
+}
+
+/// One session's rows grouped by session: the engine's sums, identification's filters per
+/// group and the constrained solve give the model `identify` fits from the session itself
+/// (its own rows, filters and row-wise solve) and `identify --rows` from the exported table.
+#[test]
+fn a_group_equals_identification_on_the_same_rows() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    g1viz(
+        &[
+            "simulate", "--preset", "smoke", "--seed", "7", "-o", "s.mcap",
+        ],
+        d,
+    );
+    g1viz(
+        &[
+            "export",
+            "rows",
+            "s.mcap",
+            "-o",
+            "rows.parquet",
+            "--robot",
+            "r1",
+        ],
+        d,
+    );
+    g1viz(&["identify", "s.mcap", "-o", "session.json"], d);
+    g1viz(
+        &["identify", "--rows", "rows.parquet", "-o", "rows.json"],
+        d,
+    );
+    g1viz(
+        &[
+            "fleet",
+            "rows.parquet",
+            "--by",
+            "robot,session",
+            "--report",
+            "rep",
+        ],
+        d,
+    );
+    let fleet = json(&d.join("rep/fleet.json"));
+    let groups = fleet["groups"].as_array().unwrap();
+    assert_eq!(groups.len(), 1);
+    let ours: Vec<f64> = serde_json::from_value(groups[0]["theta"].clone()).unwrap();
+    let rejected = groups[0]["rejections"].as_array().unwrap().len();
+    let session = json(&d.join("session.json"));
+    let theirs_rejected = session["provenance"]["rejected_trials"]
+        .as_array()
+        .map(Vec::len);
+    assert_eq!(Some(rejected), theirs_rejected, "the same trials rejected");
+    for (what, other) in [
+        ("identify SESSION", theta_of_model(&d.join("session.json"))),
+        ("identify --rows", theta_of_model(&d.join("rows.json"))),
+    ] {
+        let scale = other.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        for (p, (a, b)) in ours.iter().zip(&other).enumerate() {
+            assert!(
+                (a - b).abs() <= 1e-5 * scale,
+                "{what}: {} {a} vs {b} (fleet rejected {rejected} trials, identify {theirs_rejected:?})",
+                PowerModel::param_name(p)
+            );
+        }
+    }
+}
+
+/// Four robots, a session every third day for three weeks: wear on b0 and b3 of g1_00 (copper
+/// losses, +25 % of nominal a week) and on c1 of g1_03 (Coulomb friction, +40 % a week),
+/// g1_02's b2 40 % above the others from the start, g1_01 carrying a payload (which changes the
+/// torques, not the power model: it must not be flagged).
+/// Grouped by robot and day, exactly the three drifts and the one difference are flagged.
+#[test]
+fn a_synthetic_fleet_shows_exactly_its_introduced_drifts() {
+    let dir = tempfile::tempdir().unwrap();
+    let rows_dir = dir.path().join("rows");
+    let (b0, b3, c1, b2) = (7, 10, 15, 9);
+    let spec = FleetSpec {
+        robots: 4,
+        days: 21,
+        every_days: 3,
+        preset: Preset::Smoke,
+        wear: vec![
+            Wear {
+                robot: 0,
+                param: b0,
+                offset: 0.0,
+                per_week: 0.25,
+            },
+            Wear {
+                robot: 0,
+                param: b3,
+                offset: 0.0,
+                per_week: 0.25,
+            },
+            Wear {
+                robot: 3,
+                param: c1,
+                offset: 0.0,
+                per_week: 0.4,
+            },
+            Wear {
+                robot: 2,
+                param: b2,
+                offset: 0.4,
+                per_week: 0.0,
+            },
+        ],
+        payload_robot: Some(1),
+        seed: 5,
+    };
+    let rows = write_fleet(&rows_dir, &spec, &mut |_, _| {}).unwrap();
+    assert!(rows > 4 * 7 * 100, "{rows} rows");
+    let out = g1viz(
+        &[
+            "fleet",
+            "rows",
+            "--by",
+            "robot,day",
+            "--report",
+            "rep",
+            "--save",
+            "fleet.rrd",
+            "--save-sql",
+            "sql",
+        ],
+        dir.path(),
+    );
+    let report = json(&dir.path().join("rep/fleet.json"));
+    let groups = report["groups"].as_array().unwrap();
+    assert_eq!(groups.len(), 4 * 7, "{out}");
+    let mut drifts: Vec<(String, usize)> = report["drift"]["trends"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|t| t["drifting"].as_bool().unwrap())
+        .map(|t| {
+            (
+                t["robot"].as_str().unwrap().to_string(),
+                t["param"].as_u64().unwrap() as usize,
+            )
+        })
+        .collect();
+    drifts.sort();
+    let expected = vec![
+        (robot_name(0), b0),
+        (robot_name(0), b3),
+        (robot_name(3), c1),
+    ];
+    assert_eq!(drifts, expected, "{out}");
+    // The fitted slopes are the introduced ones within 3 s.e.
+    for t in report["drift"]["trends"].as_array().unwrap() {
+        if t["drifting"].as_bool().unwrap() {
+            let p = t["param"].as_u64().unwrap() as usize;
+            let nominal = PowerModel::PAPER.to_vector()[p];
+            let rate = spec.wear.iter().find(|w| w.param == p).unwrap().per_week;
+            let (slope, se) = (
+                t["slope"].as_f64().unwrap(),
+                t["slope_se"].as_f64().unwrap(),
+            );
+            assert!(
+                (slope - rate * nominal).abs() < 3.0 * se,
+                "{}: slope {slope} ± {se}, introduced {}",
+                PowerModel::param_name(p),
+                rate * nominal
+            );
+        }
+    }
+    let outliers: Vec<(String, usize)> = report["drift"]["outliers"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|o| {
+            (
+                o["robot"].as_str().unwrap().to_string(),
+                o["param"].as_u64().unwrap() as usize,
+            )
+        })
+        .collect();
+    assert_eq!(outliers, vec![(robot_name(2), b2)], "{out}");
+    assert!(dir.path().join("rep/fleet.png").metadata().unwrap().len() > 10_000);
+    assert!(dir.path().join("fleet.rrd").metadata().unwrap().len() > 10_000);
+    assert!(dir.path().join("sql/01_normal_equations.sql").exists());
+}
