@@ -222,7 +222,7 @@ fn docs_quote_the_stored_campaign_results() {
         let got = results[key]
             .as_f64()
             .unwrap_or_else(|| panic!("results.json has no number {key}"));
-        common::assert_figure(key, got * scale, stated);
+        common::assert_figure("docs/campaign.md", key, got * scale, stated);
     }
     // A campaign that did not finish is labelled so wherever it is quoted.
     let complete = results["complete"].as_bool().expect("complete flag");
