@@ -71,6 +71,48 @@ fn stored_campaign_results_are_consistent() {
 }
 
 /// Set the campaign's limits in the child (between fork and exec).
+/// docs/reading.md quotes each stored campaign from its file: seed, short commit, seconds, the
+/// total and every container's count, and the number of findings.
+#[test]
+fn docs_quote_the_stored_campaigns() {
+    let page = common::doc_page("docs/reading.md");
+    let thousands = |n: u64| {
+        let d = n.to_string();
+        let mut out = String::new();
+        for (i, c) in d.chars().enumerate() {
+            if i > 0 && (d.len() - i) % 3 == 0 {
+                out.push(',');
+            }
+            out.push(c);
+        }
+        out
+    };
+    for (path, c) in campaigns() {
+        let k = &c["inputs_per_kind"];
+        let findings = c["distinct_findings"].as_array().unwrap().len();
+        let expected = [
+            format!("seed {}", c["seed"]),
+            format!("commit {}", &c["commit"].as_str().unwrap()[..7]),
+            format!(
+                "{} s",
+                thousands(c["seconds"].as_f64().unwrap().round() as u64)
+            ),
+            format!("{} inputs", thousands(c["inputs"].as_u64().unwrap())),
+            format!("ROS 1 {}", thousands(k["bag1"].as_u64().unwrap())),
+            format!("`.db3` {}", thousands(k["db3"].as_u64().unwrap())),
+            format!("MCAP {}", thousands(k["mcap"].as_u64().unwrap())),
+            format!("{findings} findings"),
+        ];
+        for e in expected {
+            assert!(
+                page.contains(&e),
+                "docs/reading.md does not quote {} as \"{e}\"",
+                path.display()
+            );
+        }
+    }
+}
+
 fn limit(cmd: &mut Command, as_bytes: u64, fsize_bytes: u64, cpu_s: u64) {
     // SAFETY: only async-signal-safe setrlimit calls between fork and exec.
     unsafe {

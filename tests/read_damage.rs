@@ -323,3 +323,71 @@ fn db3_whose_topics_table_is_damaged_part_way_reads_the_readable_topics() {
         "{summary:?}"
     );
 }
+
+/// A rosbag2 bag in `compression_mode: FILE` whose storage file is a zstd bomb (1 GiB of zeros in
+/// a few tens of kB): `info` refuses it with exit 1 and a message naming the file, and the scratch
+/// copy it writes stays within the stated bound (100 × the input + 64 MiB) — the child runs under
+/// RLIMIT_FSIZE at that bound, so one byte more would kill it with SIGXFSZ — and is removed.
+#[test]
+fn a_file_compressed_bag_bomb_is_refused_within_its_scratch_bound() {
+    use std::os::unix::process::{CommandExt, ExitStatusExt};
+    let dir = tempfile::tempdir().unwrap();
+    let bag = dir.path().join("bomb");
+    std::fs::create_dir(&bag).unwrap();
+    let stored = bag.join("bag_0.mcap.zstd");
+    {
+        let mut enc =
+            zstd::stream::write::Encoder::new(std::fs::File::create(&stored).unwrap(), 3).unwrap();
+        let zeros = vec![0u8; 1 << 20];
+        for _ in 0..1024 {
+            enc.write_all(&zeros).unwrap();
+        }
+        enc.finish().unwrap();
+    }
+    std::fs::write(
+        bag.join("metadata.yaml"),
+        "rosbag2_bagfile_information:\n  version: 5\n  storage_identifier: mcap\n  \
+         relative_file_paths:\n    - bag_0.mcap.zstd\n  compression_format: zstd\n  \
+         compression_mode: FILE\n",
+    )
+    .unwrap();
+    let size = std::fs::metadata(&stored).unwrap().len();
+    let bound = 100 * size + (64 << 20);
+    assert!(
+        bound < 1 << 30,
+        "the bomb must inflate past the bound ({size} bytes)"
+    );
+    let tmp = tempfile::tempdir().unwrap();
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_g1viz"));
+    cmd.arg("info").arg(&bag).env("TMPDIR", tmp.path());
+    // SAFETY: only an async-signal-safe setrlimit call between fork and exec.
+    unsafe {
+        cmd.pre_exec(move || {
+            let lim = libc::rlimit {
+                rlim_cur: bound as libc::rlim_t,
+                rlim_max: bound as libc::rlim_t,
+            };
+            if libc::setrlimit(libc::RLIMIT_FSIZE, &lim) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
+    let out = cmd.output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(
+        out.status.signal(),
+        None,
+        "killed (scratch file over the bound?): {err}"
+    );
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("bag_0.mcap.zstd") && err.contains("decompression bomb"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read_dir(tmp.path()).unwrap().count(),
+        0,
+        "scratch copy left behind"
+    );
+}

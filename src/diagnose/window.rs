@@ -13,7 +13,12 @@
 //! centre at c (± 2 fine steps, lag ≥ 0), is kept unless freeing W (one more parameter) beats it
 //! by the diagnosis' own BIC threshold (ΔBIC = n·ln(SSE_free/SSE_nominal) + ln n <
 //! [`DiagnoseOptions::bic_threshold`]); a sensor that averages 0.5 s smooths visibly more and
-//! rejects it. A rejected nominal window is replaced by the window at lag 0 with the same
+//! rejects it. A kept nominal window that needs a lag > 0 to reach the centre is a latency claim
+//! in disguise, so it also has to beat the lag-0 window of the same centre (same parameter count)
+//! by that rule — or the scan's lagged point has to — else the lag-0 window is the estimate: a
+//! 0.3 s sensor at lag 0 was read as 0.2 s + 0.05 s, and the latency hypothesis then "found" the
+//! 0.05 s on most sessions of the physics-fuzz campaign.
+//! A rejected nominal window is replaced by the window at lag 0 with the same
 //! centre (2c ± 2 steps), unless freeing the lag beats that by the same rule; only then is the
 //! scan's own (W, lag) point used. Either way the lag itself is the latency hypothesis' to judge
 //! (a real 0.3 s latency behind a 0.2 s window keeps the nominal window at lag ≈ 0.3 s, and the

@@ -1011,9 +1011,12 @@ fn decompress_file(path: &Path, out: &Path) -> Result<PathBuf, ReadError> {
         ))
     };
     let decoder = zstd::stream::read::Decoder::new(input).map_err(bad)?;
-    let written =
-        std::io::copy(&mut std::io::Read::take(decoder, cap + 1), &mut writer).map_err(bad)?;
-    if written > cap {
+    // Write at most `cap` bytes, then ask the stream for one more: the scratch file never
+    // holds a byte past the bound.
+    let mut limited = std::io::Read::take(decoder, cap);
+    std::io::copy(&mut limited, &mut writer).map_err(bad)?;
+    let more = std::io::Read::read(&mut limited.into_inner(), &mut [0u8; 1]).map_err(bad)? > 0;
+    if more {
         return Err(ReadError::Other(format!(
             "{}: zstd-compressed storage file inflates to more than {cap} bytes ({MAX_FILE_RATIO} × its \
              {compressed} bytes + {} MiB): refused as a decompression bomb",
