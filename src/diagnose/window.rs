@@ -144,7 +144,8 @@ pub(crate) fn sensor_window(
     // the same centre (both free one parameter), or the scan's own lagged point beating it
     // (one more) — otherwise the lag-0 window is the estimate (the campaign's spurious 0.05 s
     // latencies were a 0.3 s window read as 0.2 s + lag).
-    let nominal_lag = nominal.is_some_and(|(a, _, _)| a.lag_s > 0.0);
+    // A lag within one fine step of 0 is within the scan's resolution: no claim to test.
+    let nominal_lag = nominal.is_some_and(|(a, _, _)| a.lag_s > STEP + 1e-9);
     let lag_demanded = match (nominal, lag0) {
         (Some((_, n, r2)), Some((_, _, r2_lag0))) if nominal_lag => {
             let n = n as f64;
