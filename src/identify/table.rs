@@ -31,6 +31,9 @@ pub struct TrialPrediction {
     pub sigma_omega: f64,
     /// Rejected by a filter (identification) or flagged by the IMU criterion (validation).
     pub rejected: bool,
+    /// The trial's rest power: the mean of its pre-idle readings, taken off every reading [W].
+    #[serde(default)]
+    pub rest_w: f64,
 }
 
 /// One power reading of a usable trial next to the model's prediction averaged over the
@@ -92,6 +95,7 @@ pub(crate) fn trial_predictions(
             predicted_window_w: predict(theta, &window_row.phi),
             sigma_omega: basis.sigma_omega,
             rejected: rejected(basis.trial),
+            rest_w: basis.baseline_w,
         });
     }
     out

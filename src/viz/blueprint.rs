@@ -53,6 +53,9 @@ pub enum Node {
         active: Option<String>,
         /// Columns of a grid container (`None`: the viewer decides).
         columns: Option<u32>,
+        /// On the root: the window [s] the linked plots open on, centred on the time cursor
+        /// (`None`: the whole session).
+        window_s: Option<f64>,
     },
     /// A view.
     View {
@@ -75,6 +78,9 @@ pub enum Node {
         fit: Fit,
         /// The smallest height [px] of the plot area in a 1920×1080 browser window.
         plot_px: f64,
+        /// A time series on its own time axis, always the whole session (the per-trial plots
+        /// of a long session); `false`: linked to the other plots.
+        whole: bool,
     },
 }
 
@@ -157,7 +163,25 @@ impl Node {
             y_range: None,
             fit: Fit::Free,
             plot_px: DETAIL_PLOT_PX,
+            whole: false,
         }
+    }
+
+    /// Puts a time series on its own axis over the whole session, unlinked from the others.
+    pub fn whole_session(mut self) -> Node {
+        if let Node::View { whole, .. } = &mut self {
+            *whole = true;
+        }
+        self
+    }
+
+    /// Sets the window [s] the linked plots open on, centred on the time cursor (the root's;
+    /// `None`: the whole session).
+    pub fn with_window(mut self, window: Option<f64>) -> Node {
+        if let Node::Container { window_s, .. } = &mut self {
+            *window_s = window;
+        }
+        self
     }
 
     /// Sets how [`Node::fit`] fits this plot, in a plot area at least `plot_px` high.
@@ -270,7 +294,16 @@ impl Node {
             shares,
             active: None,
             columns: None,
+            window_s: None,
         }
+    }
+
+    /// Appends `suffix` to a view's title.
+    fn renamed_with(mut self, suffix: &str) -> Node {
+        if let Node::View { name, .. } = &mut self {
+            name.push_str(suffix);
+        }
+        self
     }
 
     /// Sets the number of columns of a grid container.
@@ -434,6 +467,7 @@ impl BlueprintChunks {
                 shares,
                 active,
                 columns,
+                ..
             } => {
                 for child in children {
                     self.node(child)?;
@@ -472,6 +506,7 @@ impl BlueprintChunks {
                 eye,
                 legend,
                 y_range,
+                whole,
                 ..
             } => {
                 let queries: Vec<QueryExpression> = if contents.is_empty() {
@@ -493,7 +528,13 @@ impl BlueprintChunks {
                     self.log(&format!("{path}/EyeControls3D"), &controls)?;
                 }
                 if *class == "TimeSeries" {
-                    let axis = TimeAxis::new().with_link(LinkAxis::LinkToGlobal);
+                    let axis = if *whole {
+                        TimeAxis::new()
+                            .with_link(LinkAxis::Independent)
+                            .with_view_range(session_range(None))
+                    } else {
+                        TimeAxis::new().with_link(LinkAxis::LinkToGlobal)
+                    };
                     self.log(&format!("{path}/TimeAxis"), &axis)?;
                     if let Some([lo, hi]) = y_range {
                         let axis = ScalarAxis::new().with_range(Range1D::new(*lo, *hi));
@@ -555,13 +596,25 @@ fn text_log_columns() -> TextLogColumns {
 /// every plot with a globally linked time axis reads.
 const GLOBAL_VIEW: &str = "view/5c0dca6a-e63f-9cf7-f657-2602590474cc";
 
-/// The time range the linked plots open on: the whole session (the viewer's default for
-/// recordings over a minute is a 60 s window around the time cursor).
-fn whole_session_axis() -> TimeAxis {
-    TimeAxis::new().with_view_range(TimeRange(rr_data::TimeRange {
-        start: rr_data::TimeRangeBoundary::Infinite,
-        end: rr_data::TimeRangeBoundary::Infinite,
-    }))
+/// The time range a plot opens on: the whole session (the viewer's default for recordings
+/// over a minute is a 60 s window around the time cursor), or `window` seconds centred on the
+/// time cursor (it follows the cursor: move the cursor, or right-click a whole-session plot,
+/// and the window goes there).
+fn session_range(window: Option<f64>) -> TimeRange {
+    use rr_data::TimeRangeBoundary::{CursorRelative, Infinite};
+    TimeRange(match window {
+        None => rr_data::TimeRange {
+            start: Infinite,
+            end: Infinite,
+        },
+        Some(w) => {
+            let half = (w * 0.5e9).round() as i64;
+            rr_data::TimeRange {
+                start: CursorRelative((-half).into()),
+                end: CursorRelative(half.into()),
+            }
+        }
+    })
 }
 
 /// Sends `root` as the active and default blueprint of `stream`'s application.
@@ -602,7 +655,14 @@ fn send_blueprint_generation(stream: &RecordingStream, root: &Node, generation: 
         },
     };
     chunks.node(root)?;
-    chunks.log(&format!("{GLOBAL_VIEW}/TimeAxis"), &whole_session_axis())?;
+    let window = match root {
+        Node::Container { window_s, .. } => *window_s,
+        Node::View { .. } => None,
+    };
+    chunks.log(
+        &format!("{GLOBAL_VIEW}/TimeAxis"),
+        &TimeAxis::new().with_view_range(session_range(window)),
+    )?;
     chunks.log(
         "time_panel",
         // Collapsed to its one line of controls (play, timeline, time): the plots get the
@@ -653,6 +713,46 @@ pub struct LayoutParts {
     pub diagnosis_power_series: usize,
     /// The plots' data ranges, where the data is known up front (legends get room above them).
     pub ranges: PlotRanges,
+    /// A long session ([`opening_window`]): the linked plots open on this many seconds around
+    /// the time cursor, and the overview shows per-trial plots over the whole session instead
+    /// of the trial track (`None`: everything over the whole session).
+    pub window_s: Option<f64>,
+    /// Trials in the session, and how many a filter rejected (and a diagnosis located).
+    pub trial_counts: TrialCounts,
+    /// Each trial's rest power (pre-idle mean) is logged ([`paths::TRIAL_REST`]).
+    pub trial_rest: bool,
+}
+
+/// How many trials a session has and how many are marked (the per-trial strip's title).
+#[derive(Debug, Clone, Copy, Default)]
+pub struct TrialCounts {
+    /// Trials in the session.
+    pub total: usize,
+    /// Trials a filter rejected.
+    pub rejected: usize,
+    /// Trials where a diagnosis located its mismatch.
+    pub located: usize,
+}
+
+/// Above this many trials the overview shows per-trial plots over the session and the linked
+/// plots open on a window of [`WINDOW_TRIALS`] trials (the shipped example has 7).
+pub const WINDOWED_ABOVE_TRIALS: usize = 20;
+/// Trials in the window the linked plots of a long session open on.
+pub const WINDOW_TRIALS: f64 = 4.0;
+
+/// The window [s] the linked plots of a session whose trials start at `starts` open on:
+/// [`WINDOW_TRIALS`] × the median spacing of the trial starts, when there are more than
+/// [`WINDOWED_ABOVE_TRIALS`] trials (`None`: the whole session).
+pub fn opening_window(starts: &[f64]) -> Option<f64> {
+    if starts.len() <= WINDOWED_ABOVE_TRIALS {
+        return None;
+    }
+    let mut sorted = starts.to_vec();
+    sorted.sort_by(f64::total_cmp);
+    let mut gaps: Vec<f64> = sorted.windows(2).map(|w| w[1] - w[0]).collect();
+    gaps.sort_by(f64::total_cmp);
+    let median = gaps[gaps.len() / 2];
+    (median.is_finite() && median > 0.0).then_some(WINDOW_TRIALS * median)
 }
 
 /// The data ranges [min, max] of the plots whose data is known when the layout is built (`None`:
@@ -902,16 +1002,22 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
         vec!["+ /".to_owned(), paths::include_tree(paths::ROBOT)],
     )
     .with_eye(Eye::looking_at(arm_center, [1.0, 0.8, 0.45], 0.75));
-    let mut overview = vec![arm, power_view(parts)];
-    let mut shares = vec![1.5, 1.1];
-    if parts.trials || parts.diagnosis {
-        overview.push(trial_track(parts.ranges.trials));
-        shares.push(0.4);
-    }
-    if parts.model || parts.diagnosis {
-        overview.push(error_view(parts));
-        shares.push(1.0);
-    }
+    let (overview, shares) = match parts.window_s {
+        Some(w) => session_overview(arm, parts, w),
+        None => {
+            let mut overview = vec![arm, power_view(parts)];
+            let mut shares = vec![1.5, 1.1];
+            if parts.trials || parts.diagnosis {
+                overview.push(trial_track(parts.ranges.trials));
+                shares.push(0.4);
+            }
+            if parts.model || parts.diagnosis {
+                overview.push(error_view(parts));
+                shares.push(1.0);
+            }
+            (overview, shares)
+        }
+    };
     let mut tabs = Vec::new();
     if parts.model {
         tabs.push(breakdown_tab(joints, parts.ranges));
@@ -938,6 +1044,71 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
         ],
         vec![1.0, 1.25],
     )
+    .with_window(parts.window_s)
+}
+
+/// The overview of a long session: the arm; the readings and their error on a window of a
+/// few trials around the time cursor (`window_s`); below them, over the whole session on their
+/// own axes, one value per trial: the rejected (and located) trials as a strip titled with
+/// their count, each trial's error, its rest power and the IMU statistic with its threshold.
+/// Right-clicking any of those moves the time cursor, and the window with it, to that trial.
+fn session_overview(arm: Node, parts: LayoutParts, window_s: f64) -> (Vec<Node>, Vec<f32>) {
+    let around = format!(" · {window_s:.0} s around the time cursor");
+    let mut overview = vec![arm, power_view(parts).renamed_with(&around)];
+    let mut shares = vec![1.0, 1.0];
+    if parts.model || parts.diagnosis {
+        overview.push(error_view(parts).renamed_with(&around));
+        shares.push(0.8);
+    }
+    let c = parts.trial_counts;
+    let mut strip = format!("Rejected trials: {} of {} (red)", c.rejected, c.total);
+    let mut strip_paths = vec![paths::include_tree(&paths::trial_strip(paths::TRIALS))];
+    if parts.diagnosis {
+        strip.push_str(&format!("; located: {} (orange)", c.located));
+        strip_paths.push(paths::include_tree(&paths::trial_strip(paths::DIAG_TRIALS)));
+    }
+    strip.push_str(" · right-click one to see it above");
+    let per_trial = |name: &str, contents: Vec<String>| {
+        plot(name, contents)
+            .whole_session()
+            .with_fit(Fit::Ticks, ERROR_PLOT_PX)
+            .with_legend(Legend::Hidden)
+    };
+    overview.push(per_trial(&strip, strip_paths));
+    shares.push(0.45);
+    if parts.model {
+        overview.push(per_trial(
+            "Error per trial [W] (rejected: red crosses)",
+            include(&[
+                paths::MODEL_ERROR_TRAJECTORY,
+                paths::MODEL_ERROR_TRAJECTORY_REJECTED,
+            ]),
+        ));
+        shares.push(0.8);
+    } else if parts.diagnosis {
+        overview.push(per_trial(
+            "Error per trial [W]: base model grey, with hypotheses teal, with found terms red",
+            vec![paths::include_tree("diagnosis/per_trial")],
+        ));
+        shares.push(0.8);
+    }
+    if parts.trial_rest || parts.rest {
+        let rest = if parts.trial_rest {
+            paths::include(paths::TRIAL_REST)
+        } else {
+            paths::include_tree(paths::DIAG_REST)
+        };
+        overview.push(per_trial("Rest power per trial [W] (pre-idle mean)", vec![rest]));
+        shares.push(0.8);
+    }
+    if parts.imu_filter {
+        overview.push(per_trial(
+            "IMU σ|ω| per trial [rad/s] (above the black threshold: rejected, red)",
+            include(&[paths::IMU_SIGMA, paths::IMU_SIGMA_REJECTED, paths::IMU_THRESHOLD]),
+        ));
+        shares.push(0.8);
+    }
+    (overview, shares)
 }
 
 /// The error at the readings: dots per reading, diamonds per trajectory, rejected trials in red

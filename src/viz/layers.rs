@@ -59,6 +59,42 @@ pub(super) fn log_extras(
     log_trials(w, paths::TRIALS, &extras.trials, "rejected", true)?;
     if let Some(d) = &extras.diagnosis {
         log_diagnosis(w, joints, d, chunk)?;
+        log_diagnosis_per_trial(w, d)?;
+    }
+    Ok(())
+}
+
+/// The first time and the mean of `v` of each run of readings of one trial (`t`, `trial` and
+/// `v` per reading, in session order).
+pub(super) fn per_trial_mean(t: &[f64], trial: &[usize], v: &[f64]) -> (Vec<f64>, Vec<f64>) {
+    let n = t.len().min(trial.len()).min(v.len());
+    let (mut starts, mut means) = (Vec::new(), Vec::new());
+    let mut k = 0;
+    while k < n {
+        let end = k + trial[k..n].iter().take_while(|&&x| x == trial[k]).count();
+        starts.push(t[k]);
+        means.push(v[k..end].iter().sum::<f64>() / (end - k) as f64);
+        k = end;
+    }
+    (starts, means)
+}
+
+/// The diagnosis' error per trial (the mean over its readings) of the base model, with the
+/// accepted hypotheses and with the found terms: the whole-session overview of a long session.
+fn log_diagnosis_per_trial(w: &mut ChunkWriter<'_>, d: &DiagnosisOverlay) -> Result<()> {
+    for (which, p, name, colour) in [
+        ("before", &d.before, "error per trial, base model", style::NEUTRAL),
+        ("after", &d.after, "error per trial, with hypotheses", style::ERROR),
+        ("found", &d.found, "error per trial, with found terms", style::WARNING),
+    ] {
+        if p.len() != d.t.len() || p.is_empty() {
+            continue;
+        }
+        let err: Vec<f64> = d.measured.iter().zip(p).map(|(m, p)| m - p).collect();
+        let (t, e) = per_trial_mean(&d.t, &d.trial, &err);
+        let path = paths::diag_trial_error(which);
+        style::points(w, &path, name, colour, MarkerShape::Diamond, 3.0)?;
+        scalars(w, &path, &t, e.into_iter())?;
     }
     Ok(())
 }
@@ -155,6 +191,22 @@ fn log_trajectories(w: &mut ChunkWriter<'_>, points: &[TrajectoryPoint]) -> Resu
         }
         style::points(w, path, name, colour, shape, 6.0)?;
         scalars(w, path, &t, e.into_iter())?;
+    }
+    let (t, rest): (Vec<f64>, Vec<f64>) = points
+        .iter()
+        .filter(|p| p.rest_w.is_finite())
+        .map(|p| (p.t, p.rest_w))
+        .unzip();
+    if !t.is_empty() {
+        style::points(
+            w,
+            paths::TRIAL_REST,
+            "rest power (pre-idle mean)",
+            style::MBS,
+            MarkerShape::Circle,
+            2.5,
+        )?;
+        scalars(w, paths::TRIAL_REST, &t, rest.into_iter())?;
     }
     Ok(())
 }
@@ -584,6 +636,29 @@ pub(super) fn log_stamp(t: f64) -> f64 {
     (t * 10.0).round() / 10.0
 }
 
+/// The strip of a long session's overview: a point per rejected trial at 1 and per located
+/// trial at 2, at the trial's start (`order`: by start).
+fn log_strip(w: &mut ChunkWriter<'_>, prefix: &str, order: &[&TrialMark]) -> Result<()> {
+    let strip = paths::trial_strip(prefix);
+    for (kind, y, colour) in [
+        ("rejected", 1.0, style::WARNING),
+        ("located", 2.0, style::PREDICTED),
+    ] {
+        let keep = |m: &TrialMark| match kind {
+            "rejected" => m.rejected.is_some(),
+            _ => m.highlight.is_some(),
+        };
+        let t: Vec<f64> = order.iter().filter(|m| keep(m)).map(|m| m.t_start).collect();
+        if t.is_empty() {
+            continue;
+        }
+        let path = format!("{strip}/{kind}");
+        style::points(w, &path, &format!("{kind} trial"), colour, MarkerShape::Asterisk, 4.0)?;
+        scalars(w, &path, &t, std::iter::repeat_n(y, t.len()))?;
+    }
+    Ok(())
+}
+
 /// Whether the trial is marked (rejected by a filter, or located by a diagnosis).
 fn marked(m: &TrialMark) -> bool {
     m.rejected.is_some() || m.highlight.is_some()
@@ -637,6 +712,7 @@ fn log_trials(
         let idx = order.iter().map(|m| m.index as f64);
         scalars(w, paths::TRIAL_INDEX, &t, idx)?;
     }
+    log_strip(w, prefix, &order)?;
     for m in order.iter().filter(|m| marked(m)) {
         let path = paths::trial_span(prefix, kind, m.index);
         style::line(w, &path, &trial_text(m), style::WARNING, 6.0)?;

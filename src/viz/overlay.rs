@@ -111,6 +111,7 @@ pub fn validation_extras(
             measured: p.measured_w,
             predicted: p.predicted_w,
             rejected: p.rejected,
+            rest_w: p.rest_w,
         })
         .collect();
     let trials = v
@@ -207,6 +208,7 @@ pub fn diagnosis_extras(d: &crate::diagnose::Diagnosis) -> ReplayExtras {
     ReplayExtras {
         diagnosis: Some(super::replay::DiagnosisOverlay {
             t: r.t.clone(),
+            trial: r.trial.clone(),
             measured: r.measured_w.clone(),
             before: r.before_w.clone(),
             after: r.after_w.clone(),

@@ -84,6 +84,18 @@ pub fn trial_spans(prefix: &str, kind: &str) -> String {
 }
 /// The trials of the replay.
 pub const TRIALS: &str = "trials";
+/// Each trial's rest power (pre-idle mean) at its trajectory's end [W].
+pub const TRIAL_REST: &str = "trials/rest_power";
+/// Below this: one point per marked trial of `prefix` at its start (`rejected` at 1, `located`
+/// at 2), the overview's strip of a long session.
+pub fn trial_strip(prefix: &str) -> String {
+    format!("{prefix}/strip")
+}
+/// Per-trial means of the diagnosis' error (`before`, `after`, `found`), at each trial's first
+/// reading [W].
+pub fn diag_trial_error(which: &str) -> String {
+    format!("diagnosis/per_trial/{which}")
+}
 /// Index of the trial under way (step series held from each trial's start to the next).
 pub const TRIAL_INDEX: &str = "trials/index";
 

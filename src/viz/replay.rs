@@ -117,6 +117,8 @@ pub struct TrajectoryPoint {
     pub predicted: f64,
     /// Whether a filter rejected the trial.
     pub rejected: bool,
+    /// The trial's rest power (its pre-idle mean) [W].
+    pub rest_w: f64,
 }
 
 /// Per-joint loss-term time series [W] (the model's breakdown per sample).
@@ -158,6 +160,8 @@ pub struct TrialMark {
 pub struct DiagnosisOverlay {
     /// Time [s since recording start].
     pub t: Vec<f64>,
+    /// Trial index of each reading.
+    pub trial: Vec<usize>,
     /// Measured net power [W].
     pub measured: Vec<f64>,
     /// Base-model prediction [W].
@@ -299,8 +303,47 @@ pub fn layout(
             .is_some_and(|d| !d.rest[0].is_empty()),
         diagnosis_power_series,
         ranges: plot_ranges(extras, whole),
+        window_s: blueprint::opening_window(&trial_starts(extras)),
+        trial_counts: trial_counts(extras),
+        trial_rest: extras.trajectories.iter().any(|p| p.rest_w.is_finite()),
     };
     blueprint::replay_layout(joints, parts, arm_center(robot, arm))
+}
+
+/// When each trial starts: the trial marks of a model replay, else each trial's first reading
+/// in a diagnosis.
+fn trial_starts(extras: &ReplayExtras) -> Vec<f64> {
+    if !extras.trials.is_empty() {
+        return extras.trials.iter().map(|m| m.t_start).collect();
+    }
+    extras
+        .diagnosis
+        .iter()
+        .flat_map(|d| layers::per_trial_mean(&d.t, &d.trial, &d.measured).0)
+        .collect()
+}
+
+/// How many trials `extras` cover, and how many are rejected and located.
+fn trial_counts(extras: &ReplayExtras) -> blueprint::TrialCounts {
+    let rejected = |m: &&TrialMark| m.rejected.is_some();
+    match &extras.diagnosis {
+        None => blueprint::TrialCounts {
+            total: extras.trials.len(),
+            rejected: extras.trials.iter().filter(rejected).count(),
+            located: 0,
+        },
+        Some(d) => {
+            let mut all: Vec<usize> = d.trial.clone();
+            all.extend(d.highlighted.iter().map(|m| m.index));
+            all.sort_unstable();
+            all.dedup();
+            blueprint::TrialCounts {
+                total: all.len(),
+                rejected: d.highlighted.iter().filter(rejected).count(),
+                located: d.highlighted.iter().filter(|m| m.highlight.is_some()).count(),
+            }
+        }
+    }
 }
 
 /// The data ranges of the plots whose data `extras` (and the in-memory recording) hold.

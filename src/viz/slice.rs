@@ -204,6 +204,7 @@ impl Slice {
         };
         DiagnosisOverlay {
             t: pick(&d.t, &k),
+            trial: pick(&d.trial, &k),
             measured: same(&d.measured),
             before: same(&d.before),
             after: same(&d.after),
