@@ -250,6 +250,8 @@ fn workflow_simulate_identify_validate_diagnose() {
         );
     }
     assert!(report.contains(".png"), "identification report has figures");
+    assert_verdict_first(&report, &["## Result"], "## Fit quality");
+    assert!(report.contains("Where the power goes"), "{report}");
 
     let (out, _) = ok(
         d,
@@ -287,7 +289,15 @@ fn workflow_simulate_identify_validate_diagnose() {
         "null session: {out}"
     );
     assert!(diag["counterpart"]["matched_samples"].as_u64().unwrap() > 10_000);
-    assert!(d.join("diag_report/report.md").is_file());
+    let report = std::fs::read_to_string(d.join("diag_report/report.md")).unwrap();
+    // At least one verdict section; none empty here: "Supporting figures" always has the
+    // base model's quality.
+    assert_verdict_first(
+        &report,
+        &["## Supporting figures"],
+        "## Where the model is wrong",
+    );
+    assert_diagnosis_json_verdict_first(&d.join("diag.json"));
     if cfg!(feature = "viz") {
         assert!(
             std::fs::read(d.join("diag.rrd"))
@@ -1110,4 +1120,73 @@ for r, n, m in zip(g["robot"].to_pylist(), g["y_w_count"].to_pylist(), g["y_w_me
         assert_eq!((r1, n1), (r2, n2));
         assert!((m1 - m2).abs() < 1e-9, "{r1}: {m1} vs {m2}");
     }
+}
+
+/// The report opens with its verdict: each of `verdict` headings comes before the first table
+/// and before `tables` (the first table section); no line of a code block is wider than 100
+/// characters (the page cuts them), and no markdown line is cut mid-word by the writer.
+fn assert_verdict_first(report: &str, verdict: &[&str], tables: &str) {
+    let first_table = report
+        .lines()
+        .position(|l| l.starts_with('|'))
+        .expect("the report has tables");
+    let line_of = |h: &str| report.lines().position(|l| l.starts_with(h));
+    for h in verdict {
+        let at = line_of(h).unwrap_or_else(|| panic!("no {h:?} in\n{report}"));
+        assert!(at < first_table, "{h:?} after the first table:\n{report}");
+    }
+    let t = line_of(tables).unwrap_or_else(|| panic!("no {tables:?} in\n{report}"));
+    assert!(verdict.iter().all(|h| line_of(h).unwrap() < t), "{report}");
+    let mut in_code = false;
+    for line in report.lines() {
+        if line.starts_with("```") {
+            in_code = !in_code;
+        } else if in_code {
+            assert!(
+                line.chars().count() <= 100,
+                "code line cut by the page: {line}"
+            );
+        }
+    }
+}
+
+/// `diagnosis.json` lists its top-level fields verdict first: the summary, what was accepted,
+/// the refit and what was found beyond the library before the hypotheses' scores, the counts,
+/// the tables and the replay data (read from the file's text: a JSON map has no order).
+fn assert_diagnosis_json_verdict_first(path: &std::path::Path) {
+    let text = std::fs::read_to_string(path).unwrap();
+    let keys: Vec<&str> = text
+        .lines()
+        .filter_map(|l| l.strip_prefix("  \""))
+        .filter_map(|l| l.split('"').next())
+        .collect();
+    let at = |k: &str| {
+        keys.iter()
+            .position(|x| *x == k)
+            .unwrap_or_else(|| panic!("no top-level {k:?} in {keys:?}"))
+    };
+    // `discovery` is absent when discovery is switched off.
+    let verdict: Vec<&str> = [
+        "summary",
+        "accepted",
+        "final_model",
+        "forms",
+        "confounded",
+        "discovery",
+    ]
+    .into_iter()
+    .filter(|k| *k != "discovery" || keys.contains(k))
+    .collect();
+    let support = [
+        "hypotheses",
+        "unexplained",
+        "n_trials",
+        "breakdowns",
+        "worst_trials",
+        "replay",
+    ];
+    for w in verdict.windows(2).chain(support.windows(2)) {
+        assert!(at(w[0]) < at(w[1]), "{} before {}: {keys:?}", w[0], w[1]);
+    }
+    assert!(at(verdict[verdict.len() - 1]) < at(support[0]), "{keys:?}");
 }

@@ -60,10 +60,14 @@ pub fn write_report(dir: &Path, d: &Diagnosis) -> Result<()> {
     d.save_json(&dir.join("diagnosis.json"))
 }
 
-/// Title, summary and the counts of trials and readings.
+/// Lines of a verdict section shown before the rest are folded behind their count.
+const FOLD_AFTER_LINES: usize = 8;
+
+/// Title, the counts of trials and readings, then the verdict (found, located but not
+/// identified, tried and rejected, supporting figures: the summary's sections, long ones
+/// folded) before any table.
 fn header_section(md: &mut String, d: &Diagnosis) {
     let _ = writeln!(md, "# Sim-to-real diagnosis: {}\n", d.source);
-    let _ = writeln!(md, "```text\n{}```\n", d.summary);
     let _ = writeln!(
         md,
         "{} trials, {} {:?} readings; base model: {}; {} trials left out.\n",
@@ -77,6 +81,12 @@ fn header_section(md: &mut String, d: &Diagnosis) {
         },
         d.rejected.len()
     );
+    md.push_str(&super::summary::verdict_markdown(
+        d,
+        "##",
+        Some(FOLD_AFTER_LINES),
+    ));
+    let _ = writeln!(md, "\n# Supporting tables\n");
 }
 
 /// Recorded vs URDF torque per joint.
@@ -112,11 +122,16 @@ fn where_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()> {
     if let Some((by, g)) = &d.worst {
         let _ = writeln!(
             md,
-            "Most significant: **{by} / {}**: mean residual {:+.3} W over {} trials (p = {}).\n",
+            "Group with the smallest p: **{by} / {}**: mean residual {:+.3} W over {} trials (p = {}{}).\n",
             g.label,
             g.bias_w,
             g.n_trials,
-            sig(g.p_value)
+            sig(g.p_value),
+            if g.p_value < 1e-3 {
+                ""
+            } else {
+                "; not significant at p < 0.001"
+            }
         );
     }
     for b in &d.breakdowns {

@@ -66,10 +66,32 @@ pub fn summarise(d: &Diagnosis) -> String {
 /// section under its heading, every line its own paragraph.
 pub fn summary_markdown(d: &Diagnosis) -> String {
     let mut md = header(d);
+    md.push_str(&verdict_markdown(d, "####", None));
+    md
+}
+
+/// [`sections`] as markdown: each non-empty section under a heading of level `heading`
+/// (`"##"`), every line its own paragraph; with `fold` = n, a section's lines after the n-th
+/// are folded behind their count (an HTML `<details>` block, as GitHub shows it).
+pub fn verdict_markdown(d: &Diagnosis, heading: &str, fold: Option<usize>) -> String {
+    let mut md = String::new();
     for (title, text) in sections(d).iter().filter(|(_, t)| !t.is_empty()) {
-        let _ = write!(md, "\n#### {title}\n");
-        for line in text.lines() {
-            let _ = write!(md, "\n{line}\n");
+        let _ = write!(md, "\n{heading} {title}\n");
+        let lines: Vec<&str> = text.lines().collect();
+        let shown = fold.unwrap_or(lines.len()).min(lines.len());
+        for line in &lines[..shown] {
+            let _ = write!(md, "\n{}\n", line.trim_start());
+        }
+        if shown < lines.len() {
+            let _ = write!(
+                md,
+                "\n<details><summary>{} more lines</summary>\n",
+                lines.len() - shown
+            );
+            for line in &lines[shown..] {
+                let _ = write!(md, "\n{}\n", line.trim_start());
+            }
+            md.push_str("\n</details>\n");
         }
     }
     md

@@ -110,6 +110,8 @@ pub fn write_report(dir: &Path, r: &ReportInput) -> Result<()> {
     let names = short_joint_names(&r.model.joint_names);
     let mut md = String::new();
     let _ = writeln!(md, "# {}\n", r.title);
+    write_result(&mut md, r, &names);
+    let _ = writeln!(md, "# Supporting tables\n");
     write_provenance(&mut md, &r.model);
     write_metrics(&mut md, r);
     write_parameters(&mut md, r, &names);
@@ -242,6 +244,81 @@ fn write_provenance(md: &mut String, m: &ModelFile) {
         );
     }
     md.push('\n');
+}
+
+/// The verdict before the tables: what was identified from how many trials, how well it
+/// predicts (held out where there is a hold-out), where the power goes, each joint's dominant
+/// loss, and how stable the parameters are (their median relative standard error).
+fn write_result(md: &mut String, r: &ReportInput, names: &[String]) {
+    let p = &r.model.provenance;
+    let _ = writeln!(md, "## Result\n");
+    let _ = writeln!(
+        md,
+        "Identified the arm's power model from {} of {} trials ({} rejected by the filters, \
+         listed at the end).\n",
+        p.trials.used, p.trials.segmented, p.trials.rejected
+    );
+    let quality = |name: &str, d: &DatasetMetrics| {
+        format!(
+            "{name} ({}): R² {}, RMSE {} W, MAE {} W over {} rows",
+            d.dataset,
+            fmt_num(d.fit.r2, 3),
+            fmt_num(d.fit.rmse, 2),
+            fmt_num(d.fit.mae, 2),
+            d.fit.n
+        )
+    };
+    let m = &r.model.metrics;
+    let fits: Vec<String> = [
+        ("held out", &m.validation),
+        ("identification", &m.identification),
+    ]
+    .into_iter()
+    .filter_map(|(name, d)| d.as_ref().map(|d| quality(name, d)))
+    .collect();
+    if !fits.is_empty() {
+        let _ = writeln!(md, "Fit: {}.\n", fits.join("; "));
+    }
+    if let Some(t) = &r.terms {
+        let shares: Vec<String> = TERM_NAMES
+            .iter()
+            .zip(t.shares_percent)
+            .map(|(n, s)| format!("{n} {} %", fmt_num(s, 1)))
+            .collect();
+        let _ = writeln!(
+            md,
+            "Where the power goes ({}): {}. A negative share is energy the term returns (the \
+             arm braking; copper below the holding torque at rest).\n",
+            t.dataset,
+            shares.join(", ")
+        );
+    }
+    let model = r.model.model();
+    let dominant: Vec<String> = (0..N_JOINTS)
+        .filter_map(|i| {
+            let t = model.dominant_term(i)?;
+            Some(format!("{} {}", names.get(i)?, t.name()))
+        })
+        .collect();
+    if !dominant.is_empty() {
+        let _ = writeln!(md, "Dominant loss per joint: {}.\n", dominant.join(", "));
+    }
+    if let Some(se) = &r.model.theta_std_err {
+        let mut rel: Vec<f64> = se
+            .iter()
+            .zip(&r.model.theta)
+            .filter_map(|(s, v)| s.map(|s| s / v.abs()).filter(|x| x.is_finite()))
+            .collect();
+        rel.sort_by(f64::total_cmp);
+        if let Some(mid) = rel.get(rel.len() / 2) {
+            let _ = writeln!(
+                md,
+                "Stability: median relative standard error of the {} non-zero parameters {} %.\n",
+                rel.len(),
+                fmt_num(100.0 * mid, 1)
+            );
+        }
+    }
 }
 
 fn metrics_row(md: &mut String, name: &str, d: &DatasetMetrics) {
@@ -397,6 +474,13 @@ fn write_rejected(md: &mut String, m: &ModelFile) {
         return;
     }
     let _ = writeln!(md, "## Rejected trials ({})\n", rej.len());
+    if rej.len() > FOLD_ROWS {
+        let _ = writeln!(
+            md,
+            "<details><summary>{} rejected trials</summary>\n",
+            rej.len()
+        );
+    }
     let _ = writeln!(
         md,
         "| session | trial | filter | statistic | threshold | reason |\n|---|---:|---|---:|---:|---|"
@@ -419,7 +503,13 @@ fn write_rejected(md: &mut String, m: &ModelFile) {
         );
     }
     md.push('\n');
+    if rej.len() > FOLD_ROWS {
+        md.push_str("</details>\n\n");
+    }
 }
+
+/// Rows of a long table shown before it is folded behind its count.
+const FOLD_ROWS: usize = 10;
 
 fn draw_coefficients(
     root: &DrawingArea<BitMapBackend<'_>, Shift>,

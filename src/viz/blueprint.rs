@@ -1098,13 +1098,20 @@ fn session_overview(arm: Node, parts: LayoutParts, window_s: f64) -> (Vec<Node>,
         } else {
             paths::include_tree(paths::DIAG_REST)
         };
-        overview.push(per_trial("Rest power per trial [W] (pre-idle mean)", vec![rest]));
+        overview.push(per_trial(
+            "Rest power per trial [W] (pre-idle mean)",
+            vec![rest],
+        ));
         shares.push(0.8);
     }
     if parts.imu_filter {
         overview.push(per_trial(
             "IMU σ|ω| per trial [rad/s] (above the black threshold: rejected, red)",
-            include(&[paths::IMU_SIGMA, paths::IMU_SIGMA_REJECTED, paths::IMU_THRESHOLD]),
+            include(&[
+                paths::IMU_SIGMA,
+                paths::IMU_SIGMA_REJECTED,
+                paths::IMU_THRESHOLD,
+            ]),
         ));
         shares.push(0.8);
     }
@@ -1411,6 +1418,71 @@ fn loss_terms_tab(joints: &[String], ranges: PlotRanges) -> Node {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every view of `node`: name and whether it is on its own whole-session axis.
+    fn views(node: &Node) -> Vec<(String, bool)> {
+        match node {
+            Node::View { name, whole, .. } => vec![(name.clone(), *whole)],
+            Node::Container { children, .. } => children.iter().flat_map(views).collect(),
+        }
+    }
+
+    /// Past 20 trials the linked plots open on 4 trials' spacing around the cursor; the
+    /// overview's per-trial plots keep the whole session, the strip names the counts, and the
+    /// trial track (one diagonal over a long session) is gone. The example's 7 trials: as before.
+    #[test]
+    fn a_long_session_opens_on_a_window_with_per_trial_plots() {
+        let starts: Vec<f64> = (0..30)
+            .map(|k| 10.0 * k as f64 + 0.1 * (k % 3) as f64)
+            .collect();
+        assert_eq!(opening_window(&starts[..7]), None);
+        assert_eq!(opening_window(&starts[..20]), None);
+        let w = opening_window(&starts).unwrap();
+        assert!((w - 40.0).abs() < 1.0, "{w}");
+        let joints: Vec<String> = (0..7).map(|j| format!("j{j}")).collect();
+        let parts = LayoutParts {
+            model: true,
+            trials: true,
+            imu_filter: true,
+            window_s: Some(w),
+            trial_counts: TrialCounts {
+                total: 1000,
+                rejected: 125,
+                located: 0,
+            },
+            trial_rest: true,
+            ..LayoutParts::default()
+        };
+        let root = replay_layout(&joints, parts, [0.0; 3]);
+        assert!(matches!(root, Node::Container { window_s: Some(x), .. } if x == w));
+        let v = views(&root);
+        let whole: Vec<&str> = v.iter().filter(|x| x.1).map(|x| x.0.as_str()).collect();
+        assert_eq!(whole.len(), 4, "{whole:?}");
+        assert!(
+            whole[0].starts_with("Rejected trials: 125 of 1000"),
+            "{whole:?}"
+        );
+        assert!(whole.iter().any(|n| n.starts_with("Rest power per trial")));
+        assert!(v.iter().any(|(n, wh)| !wh
+            && n.starts_with("Net power at the readings")
+            && n.contains("40 s around the time cursor")));
+        assert!(!v.iter().any(|(n, _)| n.starts_with("Trials (index")));
+        let short = replay_layout(
+            &joints,
+            LayoutParts {
+                window_s: None,
+                ..parts
+            },
+            [0.0; 3],
+        );
+        assert!(matches!(short, Node::Container { window_s: None, .. }));
+        assert!(views(&short).iter().all(|(_, wh)| !wh));
+        assert!(
+            views(&short)
+                .iter()
+                .any(|(n, _)| n.starts_with("Trials (index"))
+        );
+    }
 
     #[test]
     fn a_tab_is_found_by_its_name_ignoring_case_or_by_a_unique_start() {

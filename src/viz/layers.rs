@@ -83,9 +83,24 @@ pub(super) fn per_trial_mean(t: &[f64], trial: &[usize], v: &[f64]) -> (Vec<f64>
 /// accepted hypotheses and with the found terms: the whole-session overview of a long session.
 fn log_diagnosis_per_trial(w: &mut ChunkWriter<'_>, d: &DiagnosisOverlay) -> Result<()> {
     for (which, p, name, colour) in [
-        ("before", &d.before, "error per trial, base model", style::NEUTRAL),
-        ("after", &d.after, "error per trial, with hypotheses", style::ERROR),
-        ("found", &d.found, "error per trial, with found terms", style::WARNING),
+        (
+            "before",
+            &d.before,
+            "error per trial, base model",
+            style::NEUTRAL,
+        ),
+        (
+            "after",
+            &d.after,
+            "error per trial, with hypotheses",
+            style::ERROR,
+        ),
+        (
+            "found",
+            &d.found,
+            "error per trial, with found terms",
+            style::WARNING,
+        ),
     ] {
         if p.len() != d.t.len() || p.is_empty() {
             continue;
@@ -648,12 +663,23 @@ fn log_strip(w: &mut ChunkWriter<'_>, prefix: &str, order: &[&TrialMark]) -> Res
             "rejected" => m.rejected.is_some(),
             _ => m.highlight.is_some(),
         };
-        let t: Vec<f64> = order.iter().filter(|m| keep(m)).map(|m| m.t_start).collect();
+        let t: Vec<f64> = order
+            .iter()
+            .filter(|m| keep(m))
+            .map(|m| m.t_start)
+            .collect();
         if t.is_empty() {
             continue;
         }
         let path = format!("{strip}/{kind}");
-        style::points(w, &path, &format!("{kind} trial"), colour, MarkerShape::Asterisk, 4.0)?;
+        style::points(
+            w,
+            &path,
+            &format!("{kind} trial"),
+            colour,
+            MarkerShape::Asterisk,
+            4.0,
+        )?;
         scalars(w, &path, &t, std::iter::repeat_n(y, t.len()))?;
     }
     Ok(())

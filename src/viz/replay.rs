@@ -340,7 +340,11 @@ fn trial_counts(extras: &ReplayExtras) -> blueprint::TrialCounts {
             blueprint::TrialCounts {
                 total: all.len(),
                 rejected: d.highlighted.iter().filter(rejected).count(),
-                located: d.highlighted.iter().filter(|m| m.highlight.is_some()).count(),
+                located: d
+                    .highlighted
+                    .iter()
+                    .filter(|m| m.highlight.is_some())
+                    .count(),
             }
         }
     }
