@@ -252,16 +252,26 @@ impl TermMeans {
     /// while braking, copper below the home-posture load) can make a share negative. NaN when the mean total
     /// is zero.
     pub fn shares_percent(&self) -> [f64; 5] {
-        let means = self.means();
-        let total: f64 = means.iter().sum();
-        means.map(|m| {
+        let s = shares_percent(&self.means());
+        std::array::from_fn(|k| s[k])
+    }
+}
+
+/// Each of `parts` as a percentage of their sum: the share of a total, signed where a part is
+/// negative (the shares still sum to 100 %). NaN when the sum is zero. The one share
+/// computation of `identify`'s term shares and the viewer's term and joint shares.
+pub fn shares_percent(parts: &[f64]) -> Vec<f64> {
+    let total: f64 = parts.iter().sum();
+    parts
+        .iter()
+        .map(|p| {
             if total != 0.0 {
-                100.0 * m / total
+                100.0 * p / total
             } else {
                 f64::NAN
             }
         })
-    }
+        .collect()
 }
 
 /// The loss mechanisms the paper ranks per joint (mechanical power is not a loss).

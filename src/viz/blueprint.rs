@@ -597,9 +597,10 @@ fn text_log_columns() -> TextLogColumns {
 const GLOBAL_VIEW: &str = "view/5c0dca6a-e63f-9cf7-f657-2602590474cc";
 
 /// The time range a plot opens on: the whole session (the viewer's default for recordings
-/// over a minute is a 60 s window around the time cursor), or `window` seconds centred on the
-/// time cursor (it follows the cursor: move the cursor, or right-click a whole-session plot,
-/// and the window goes there).
+/// over a minute is a 60 s window around the time cursor), or a `window` seconds long at the
+/// time cursor, three quarters of it before the cursor (it follows the cursor: move the cursor,
+/// or right-click a whole-session plot, and the window goes there; a loaded file leaves the
+/// cursor at the session's end).
 fn session_range(window: Option<f64>) -> TimeRange {
     use rr_data::TimeRangeBoundary::{CursorRelative, Infinite};
     TimeRange(match window {
@@ -608,10 +609,10 @@ fn session_range(window: Option<f64>) -> TimeRange {
             end: Infinite,
         },
         Some(w) => {
-            let half = (w * 0.5e9).round() as i64;
+            let ns = |f: f64| ((w * f * 1e9).round() as i64).into();
             rr_data::TimeRange {
-                start: CursorRelative((-half).into()),
-                end: CursorRelative(half.into()),
+                start: CursorRelative(ns(-0.75)),
+                end: CursorRelative(ns(0.25)),
             }
         }
     })
@@ -1053,7 +1054,7 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
 /// their count, each trial's error, its rest power and the IMU statistic with its threshold.
 /// Right-clicking any of those moves the time cursor, and the window with it, to that trial.
 fn session_overview(arm: Node, parts: LayoutParts, window_s: f64) -> (Vec<Node>, Vec<f32>) {
-    let around = format!(" · {window_s:.0} s around the time cursor");
+    let around = format!(" · {window_s:.0} s at the time cursor");
     let mut overview = vec![arm, power_view(parts).renamed_with(&around)];
     let mut shares = vec![1.0, 1.0];
     if parts.model || parts.diagnosis {
@@ -1093,15 +1094,18 @@ fn session_overview(arm: Node, parts: LayoutParts, window_s: f64) -> (Vec<Node>,
         shares.push(0.8);
     }
     if parts.trial_rest || parts.rest {
-        let rest = if parts.trial_rest {
-            paths::include(paths::TRIAL_REST)
+        let (name, rest) = if parts.trial_rest {
+            (
+                "Rest power per trial [W] (pre-idle mean)",
+                paths::include(paths::TRIAL_REST),
+            )
         } else {
-            paths::include_tree(paths::DIAG_REST)
+            (
+                "Rest power per trial [W]: measured blue, with the loads found on it red",
+                paths::include_tree(&paths::diag_trial_rest("")),
+            )
         };
-        overview.push(per_trial(
-            "Rest power per trial [W] (pre-idle mean)",
-            vec![rest],
-        ));
+        overview.push(per_trial(name, vec![rest]));
         shares.push(0.8);
     }
     if parts.imu_filter {
@@ -1465,7 +1469,7 @@ mod tests {
         assert!(whole.iter().any(|n| n.starts_with("Rest power per trial")));
         assert!(v.iter().any(|(n, wh)| !wh
             && n.starts_with("Net power at the readings")
-            && n.contains("40 s around the time cursor")));
+            && n.contains("40 s at the time cursor")));
         assert!(!v.iter().any(|(n, _)| n.starts_with("Trials (index")));
         let short = replay_layout(
             &joints,

@@ -36,6 +36,7 @@ pub(super) fn log_extras(
         log_readings(w, r, chunk)?;
     }
     log_trajectories(w, &extras.trajectories)?;
+    let mut marks = std::borrow::Cow::Borrowed(&extras.trials[..]);
     if let Some(terms) = &extras.terms {
         log_terms(w, joints, terms, chunk)?;
         log_breakdown(w, joints, terms, chunk)?;
@@ -50,13 +51,14 @@ pub(super) fn log_extras(
         log_bars(w, joints, means)?;
         w.send_static(
             paths::BREAKDOWN_NOTE,
-            &TextDocument::from_markdown(breakdown_note(joints, colour_scale)),
+            &TextDocument::from_markdown(breakdown_note(joints, colour_scale, means)),
         )?;
+        marks = std::borrow::Cow::Owned(with_shares(&extras.trials, means, joints));
     }
     if let Some(imu) = &extras.imu_filter {
         log_imu_filter(w, imu)?;
     }
-    log_trials(w, paths::TRIALS, &extras.trials, "rejected", true)?;
+    log_trials(w, paths::TRIALS, &marks, "rejected", true)?;
     if let Some(d) = &extras.diagnosis {
         log_diagnosis(w, joints, d, chunk)?;
         log_diagnosis_per_trial(w, d)?;
@@ -110,6 +112,28 @@ fn log_diagnosis_per_trial(w: &mut ChunkWriter<'_>, d: &DiagnosisOverlay) -> Res
         let path = paths::diag_trial_error(which);
         style::points(w, &path, name, colour, MarkerShape::Diamond, 3.0)?;
         scalars(w, &path, &t, e.into_iter())?;
+    }
+    for (which, v, name, colour) in [
+        (
+            "measured",
+            &d.rest[0],
+            "rest power of the trial",
+            style::MEASURED,
+        ),
+        (
+            "found",
+            &d.rest[1],
+            "with the loads found on it (held out)",
+            style::WARNING,
+        ),
+    ] {
+        if v.len() != d.t.len() || v.is_empty() {
+            continue;
+        }
+        let (t, m) = per_trial_mean(&d.t, &d.trial, v);
+        let path = paths::diag_trial_rest(which);
+        style::points(w, &path, name, colour, MarkerShape::Circle, 2.5)?;
+        scalars(w, &path, &t, m.into_iter())?;
     }
     Ok(())
 }
@@ -485,6 +509,98 @@ pub struct TrialMean {
     pub by_joint: [f64; N_JOINTS],
     /// Per term (mechanical, copper, Coulomb, viscous, interaction), joints summed [W].
     pub by_term: [f64; 5],
+    /// Samples averaged (at a fixed sample rate, the trial's energy is its mean × this).
+    pub samples: usize,
+}
+
+impl TrialMean {
+    /// The mean of `terms` at its samples `idx`, as trial `index` (`None` without samples).
+    pub(super) fn over(index: usize, terms: &TermSeries, idx: &[usize]) -> Option<TrialMean> {
+        if idx.is_empty() {
+            return None;
+        }
+        let count = idx.len() as f64;
+        let fields = [
+            &terms.mechanical,
+            &terms.copper,
+            &terms.coulomb,
+            &terms.viscous,
+        ];
+        let mut mean = TrialMean {
+            index,
+            by_joint: [0.0; N_JOINTS],
+            by_term: [0.0; 5],
+            samples: idx.len(),
+        };
+        for &i in idx {
+            for (k, field) in fields.iter().enumerate() {
+                for (j, v) in field[i].iter().enumerate() {
+                    mean.by_joint[j] += v / count;
+                    mean.by_term[k] += v / count;
+                }
+            }
+            mean.by_term[4] += terms.interaction[i] / count;
+        }
+        Some(mean)
+    }
+}
+
+/// `trials` with each one's label followed by its energy shares (the two largest terms and the
+/// largest joint, [`energy_shares`] of the trial alone).
+fn with_shares(trials: &[TrialMark], means: &[TrialMean], joints: &[String]) -> Vec<TrialMark> {
+    let largest = |shares: &[f64], n: usize| {
+        let mut k: Vec<usize> = (0..shares.len()).collect();
+        k.sort_by(|&a, &b| shares[b].abs().total_cmp(&shares[a].abs()));
+        k.truncate(n);
+        k
+    };
+    trials
+        .iter()
+        .map(|m| {
+            let mut m = m.clone();
+            if let Some(mean) = means.iter().find(|x| x.index == m.index) {
+                let (terms, by_joint) = energy_shares(std::slice::from_ref(mean));
+                let names = crate::power::TERM_NAMES;
+                let t: Vec<String> = largest(&terms, 2)
+                    .into_iter()
+                    .map(|k| format!("{} {:.0} %", names[k], terms[k]))
+                    .collect();
+                if let (Some(&j), false) = (largest(&by_joint, 1).first(), t.is_empty()) {
+                    let name = joints.get(j).map_or("", String::as_str);
+                    m.label = format!(
+                        "{} · energy {}; {name} {:.0} %",
+                        m.label,
+                        t.join(", "),
+                        by_joint[j]
+                    );
+                }
+            }
+            m
+        })
+        .collect()
+}
+
+/// Each term's and each joint's share [%] of the arm's predicted energy over `means` (the
+/// trials' means weighted by their samples): ([`crate::power::TERM_NAMES`] order, joint order), by the
+/// same computation as `identify`'s shares ([`crate::power::shares_percent`]).
+pub(super) fn energy_shares(means: &[TrialMean]) -> (Vec<f64>, Vec<f64>) {
+    let mut terms = [0.0; 5];
+    let mut joints = [0.0; N_JOINTS];
+    for m in means {
+        let n = m.samples as f64;
+        terms
+            .iter_mut()
+            .zip(m.by_term)
+            .for_each(|(e, v)| *e += v * n);
+        joints
+            .iter_mut()
+            .zip(m.by_joint)
+            .for_each(|(e, v)| *e += v * n);
+    }
+    (
+        crate::power::shares_percent(&terms),
+        crate::power::shares_percent(&joints),
+    )
 }
 
 /// Mean predicted power per joint and per term over each trial's window, in time order
@@ -515,31 +631,34 @@ pub(super) fn trial_means(terms: &TermSeries, trials: &[TrialMark]) -> Vec<Trial
         if hi <= lo {
             continue;
         }
-        let count = (hi - lo) as f64;
-        let mut mean = TrialMean {
-            index: m.index,
-            by_joint: [0.0; N_JOINTS],
-            by_term: [0.0; 5],
-        };
-        for &i in &order[lo..hi] {
-            for (k, field) in fields.iter().enumerate() {
-                for (j, v) in field[i].iter().enumerate() {
-                    mean.by_joint[j] += v / count;
-                    mean.by_term[k] += v / count;
-                }
-            }
-            mean.by_term[4] += terms.interaction[i] / count;
-        }
-        out.push(mean);
+        out.extend(TrialMean::over(m.index, terms, &order[lo..hi]));
     }
     out
 }
 
 /// The note shown beside the breakdown: what the terms are, what the copper term is relative to.
-pub(super) fn breakdown_note(joints: &[String], colour_scale: f64) -> String {
+pub(super) fn breakdown_note(joints: &[String], colour_scale: f64, means: &[TrialMean]) -> String {
     let list: Vec<&str> = joints.iter().map(String::as_str).collect();
     let list = list.join(" → ");
+    let (by_term, by_joint) = energy_shares(means);
+    let row = |names: &mut dyn Iterator<Item = &str>, shares: &[f64]| {
+        let cells: Vec<String> = names
+            .zip(shares)
+            .map(|(n, s)| format!("{n} **{s:.1} %**"))
+            .collect();
+        cells.join(" · ")
+    };
     format!(
+        "**Share of the arm's predicted energy over the {} trials** (each trial's mean × its \
+         length, summed; a share is negative where the term returns energy: mechanical while \
+         the arm brakes, copper while it holds less torque than at rest — the shares still \
+         sum to 100 %):\n\n\
+         by term: {}\n\n\
+         by joint: {}\n\n",
+        means.len(),
+        row(&mut crate::power::TERM_NAMES.iter().copied(), &by_term),
+        row(&mut joints.iter().map(String::as_str), &by_joint),
+    ) + &format!(
         "**Where the power goes** — the model's predicted net power, split per joint *i* into \
          mechanical *a_i τ_i q̇_i*, copper *b_i (τ_i² − τ̄0_i²)*, Coulomb *c_i \\|q̇_i\\|* and \
          viscous *d_i q̇_i²*, plus the interaction *Σ e_ij \\|q̇_i\\|\\|q̇_j\\|*.\n\n\

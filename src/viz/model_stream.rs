@@ -200,31 +200,8 @@ impl Accumulator {
         let inside: Vec<usize> = (0..terms.t.len())
             .filter(|&i| terms.t[i] >= t0 && terms.t[i] <= t1)
             .collect();
-        if inside.is_empty() {
-            return;
-        }
-        let count = inside.len() as f64;
-        let fields = [
-            &terms.mechanical,
-            &terms.copper,
-            &terms.coulomb,
-            &terms.viscous,
-        ];
-        let mut mean = TrialMean {
-            index: trial.index,
-            by_joint: [0.0; N_JOINTS],
-            by_term: [0.0; 5],
-        };
-        for i in inside {
-            for (k, field) in fields.iter().enumerate() {
-                for (j, v) in field[i].iter().enumerate() {
-                    mean.by_joint[j] += v / count;
-                    mean.by_term[k] += v / count;
-                }
-            }
-            mean.by_term[4] += terms.interaction[i] / count;
-        }
-        self.means.push(mean);
+        self.means
+            .extend(TrialMean::over(trial.index, terms, &inside));
     }
 
     /// The statistics, and where the colour scale's 98th percentile lies (its histogram bucket

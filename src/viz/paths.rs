@@ -96,6 +96,12 @@ pub fn trial_strip(prefix: &str) -> String {
 pub fn diag_trial_error(which: &str) -> String {
     format!("diagnosis/per_trial/{which}")
 }
+/// Per-trial means of the diagnosis' rest power (`measured`, `found`; `""`: the tree) [W].
+pub fn diag_trial_rest(which: &str) -> String {
+    format!("diagnosis/per_trial_rest/{which}")
+        .trim_end_matches('/')
+        .to_owned()
+}
 /// Index of the trial under way (step series held from each trial's start to the next).
 pub const TRIAL_INDEX: &str = "trials/index";
 
