@@ -126,7 +126,12 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
         .map(|p| a.read.session_file(p, &map))
         .collect();
     let busy = super::spinner("diagnosing");
+    let bar = busy.clone();
+    diagnose::on_stage(Some(Box::new(move |k, n, name| {
+        bar.set_message(format!("diagnosing, stage {k} of {n}: {name}"));
+    })));
     let d = diagnose::diagnose_files(&files, &opts, JOIN_GAP_S);
+    diagnose::on_stage(None);
     busy.finish_and_clear();
     let mut d = d?;
     if let (Some(p), [file]) = (&a.counterpart, files.as_slice()) {

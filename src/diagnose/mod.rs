@@ -143,6 +143,10 @@ pub fn diagnose_files(
     opts: &DiagnoseOptions,
     gap_s: f64,
 ) -> Result<Diagnosis> {
+    stage(
+        1,
+        "reading the file: segmentation and per-trial reductions (1st pass)",
+    );
     let (mut samples, s) = Streamed::open(files, opts.target, bus_model(opts), gap_s)?;
     let arm = arm_model(opts, s.has_torque, &s.info.joint_names)?;
     let opts = DiagnoseOptions {
@@ -156,6 +160,30 @@ pub fn diagnose_files(
         arm.as_ref().map(|a| a as &dyn ArmModel),
         &opts,
     )
+}
+
+/// A reporter of the diagnosis' stages ([`on_stage`]).
+type StageReporter = Box<dyn Fn(usize, usize, &str) + Send>;
+static STAGE: std::sync::Mutex<Option<StageReporter>> = std::sync::Mutex::new(None);
+/// Stages [`stage`] counts.
+const STAGES: usize = 6;
+
+/// Sets (or clears) what is told of each stage a diagnosis enters: its number, the number of
+/// stages and its name (the CLI shows them on its spinner; a paper-scale diagnosis runs tens
+/// of seconds).
+pub fn on_stage(reporter: Option<StageReporter>) {
+    if let Ok(mut s) = STAGE.lock() {
+        *s = reporter;
+    }
+}
+
+/// Tells the reporter, if any, that stage `k` of [`STAGES`] begins.
+fn stage(k: usize, name: &str) {
+    if let Ok(s) = STAGE.lock()
+        && let Some(f) = s.as_ref()
+    {
+        f(k, STAGES, name);
+    }
 }
 
 /// The bus-current feature's model: the twin's power model at the nominal supply voltage.
@@ -215,6 +243,7 @@ fn run(
             opts.folds
         );
     }
+    stage(2, "estimating the sensor window");
     let sensor = sensor_window(info, samples, &all_metas, opts)?;
     let w = sensor.window_s;
     let resolved = DiagnoseOptions {
@@ -226,6 +255,7 @@ fn run(
     // Rows of every trial at lag 0 and Gram matrices at every coarse lag (one pass), then the
     // usable trials, and the others' rows taken out of the Gram matrices (one short pass).
     let lags = coarse_lags(opts);
+    stage(3, "rows at the coarse lags, filters");
     let first = trial_rows(samples, power, &all_metas, &lags, w)?;
     let (metas, rejected, kept) =
         filter_trials(&all_metas, skipped, &first.rows0, opts, reference.clone())?;
@@ -249,6 +279,7 @@ fn run(
     // Every lag's Gram matrices, the fine lags and the torque rows (one more pass).
     let stride = torque::stride(&metas, opts.max_torque_samples);
     let mut torque_rows = Vec::new();
+    stage(4, "fine lags and torque rows");
     let data = scan_lags(
         samples,
         power,
@@ -275,6 +306,10 @@ fn run(
         bic_threshold: opts.bic_threshold,
         min_improvement: opts.min_improvement,
     };
+    stage(
+        5,
+        "hypotheses and discovery (reads the recorded fields: the file's 2nd pass)",
+    );
     let (sel, mut discovery, fields) = select_and_discover(info, &metas, &data, &rule, opts)?;
     if let Some(r) = discovery.as_mut() {
         let (rows, lag) = (data.rows(sel.last.lag)?, data.lags[sel.last.lag]);
@@ -288,6 +323,7 @@ fn run(
         None => None,
     };
     drop(torque_rows);
+    stage(6, "ranking, final refit, locating the residual");
     let ranking = rank_hypotheses(&sel, torque.as_ref(), &rule);
     let final_model = refit_final(
         &sel,
