@@ -545,35 +545,52 @@ impl TrialMean {
     }
 }
 
-/// `trials` with each one's label followed by its energy shares (the two largest terms and the
-/// largest joint, [`energy_shares`] of the trial alone).
+/// `trials` with each one's label followed by its two largest terms and its largest joint:
+/// their shares of the trial's energy ([`energy_shares`] of the trial alone) where its net
+/// energy is not a small difference of large parts (|net| at least half the parts' absolute
+/// sum), else their mean power [W] and the net (a share of a net near zero runs to ±1000 %).
 fn with_shares(trials: &[TrialMark], means: &[TrialMean], joints: &[String]) -> Vec<TrialMark> {
-    let largest = |shares: &[f64], n: usize| {
-        let mut k: Vec<usize> = (0..shares.len()).collect();
-        k.sort_by(|&a, &b| shares[b].abs().total_cmp(&shares[a].abs()));
+    let largest = |v: &[f64], n: usize| {
+        let mut k: Vec<usize> = (0..v.len()).collect();
+        k.sort_by(|&a, &b| v[b].abs().total_cmp(&v[a].abs()));
         k.truncate(n);
         k
     };
+    let names = crate::power::TERM_NAMES;
     trials
         .iter()
         .map(|m| {
             let mut m = m.clone();
-            if let Some(mean) = means.iter().find(|x| x.index == m.index) {
-                let (terms, by_joint) = energy_shares(std::slice::from_ref(mean));
-                let names = crate::power::TERM_NAMES;
-                let t: Vec<String> = largest(&terms, 2)
-                    .into_iter()
-                    .map(|k| format!("{} {:.0} %", names[k], terms[k]))
-                    .collect();
-                if let (Some(&j), false) = (largest(&by_joint, 1).first(), t.is_empty()) {
-                    let name = joints.get(j).map_or("", String::as_str);
-                    m.label = format!(
-                        "{} · energy {}; {name} {:.0} %",
-                        m.label,
-                        t.join(", "),
-                        by_joint[j]
-                    );
+            let Some(mean) = means.iter().find(|x| x.index == m.index) else {
+                return m;
+            };
+            let net: f64 = mean.by_term.iter().sum();
+            let gross: f64 = mean.by_term.iter().map(|v| v.abs()).sum();
+            let (terms, by_joint) = energy_shares(std::slice::from_ref(mean));
+            let shares = net.abs() >= 0.5 * gross && gross > 0.0;
+            let show = |v: f64, w: f64| {
+                if shares {
+                    format!("{v:.0} %")
+                } else {
+                    format!("{w:+.2} W")
                 }
+            };
+            let t: Vec<String> = largest(&mean.by_term, 2)
+                .into_iter()
+                .map(|k| format!("{} {}", names[k], show(terms[k], mean.by_term[k])))
+                .collect();
+            if let Some(&j) = largest(&mean.by_joint, 1).first() {
+                let name = joints.get(j).map_or("", String::as_str);
+                let joint = show(by_joint[j], mean.by_joint[j]);
+                m.label = if shares {
+                    format!("{} · energy {}; {name} {joint}", m.label, t.join(", "))
+                } else {
+                    format!(
+                        "{} · net {net:+.2} W: {}; {name} {joint}",
+                        m.label,
+                        t.join(", ")
+                    )
+                };
             }
             m
         })
