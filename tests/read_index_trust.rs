@@ -2,15 +2,19 @@
 //! stores its topics. Inputs are built from the shipped `examples/g1_example.mcap` (expected
 //! counts from the `mcap` crate's own reader, not from g1viz): a summary with its CRC set to 0
 //! (the spec allows it) whose chunk index lists the wrong channel ids must still deliver every
-//! sample, with a warning naming the index record; the same session written in two layouts
-//! (time-interleaved; one topic after another) gives bit-identical counts, rates and times.
+//! sample, with a warning naming the index record; a CRC-0 summary whose chunk index leaves a
+//! chunk out still delivers that chunk, with a warning naming its offset; the same session
+//! written in other layouts (time-interleaved; one topic after another; chunked or not; indexed
+//! or not — the unindexed ones by the Python `mcap` library) gives bit-identical counts, rates,
+//! sample times, trial windows and identification.
 
 mod common;
 
 use std::path::Path;
 
 use g1viz::read::{OpenOptions, Session};
-use g1viz::signals::{self, SignalMap};
+use g1viz::identify::{self, IdentifyOptions, SessionFile, StreamOptions};
+use g1viz::signals::{self, Recording, SignalMap};
 
 fn example_bytes() -> Vec<u8> {
     std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/g1_example.mcap")).unwrap()
@@ -139,4 +143,113 @@ fn two_storage_layouts_of_one_session_give_identical_figures() {
     assert_eq!(bits(&ra.state.t), bits(&rb.state.t));
     assert_eq!(bits(&ra.command.t), bits(&rb.command.t));
     assert_eq!(bits(&ra.mbs.t), bits(&rb.mbs.t));
+}
+
+/// `examples/g1_example.mcap` rewritten by `tests/py/mcap_layouts.py` (the Python `mcap`
+/// library) into `out` with the given arguments.
+fn python_layout(out: &Path, args: &[&str]) -> bool {
+    if !common::python_module("mcap", "mcap") {
+        return false;
+    }
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let status = std::process::Command::new("python3")
+        .arg(root.join("tests/py/mcap_layouts.py"))
+        .arg(root.join("examples/g1_example.mcap"))
+        .arg(out)
+        .args(args)
+        .status()
+        .expect("python3 runs");
+    assert!(status.success(), "mcap_layouts.py {args:?}");
+    true
+}
+
+/// Everything a streamed read in batches of 500 samples hands over, as bits: the clock origin
+/// and per group the sample times and values, batch by batch concatenated.
+fn streamed_bits(path: &Path) -> (u64, Vec<Vec<u64>>) {
+    let mut groups = vec![Vec::new(); 4];
+    let summary = signals::stream_recording(
+        path,
+        &SignalMap::g1_left_arm(),
+        &OpenOptions::default(),
+        500,
+        &mut |b: &Recording| {
+            let s = &b.state;
+            let g = &mut groups;
+            g[0].extend(s.t.iter().chain(s.q.iter().chain(&s.tau).flatten()).map(|v| v.to_bits()));
+            g[1].extend(b.command.t.iter().chain(b.command.q.iter().flatten()).map(|v| v.to_bits()));
+            g[2].extend(b.mbs.t.iter().chain(&b.mbs.watts).map(|v| v.to_bits()));
+            g[3].extend(b.bms.t.iter().chain(&b.bms.watts).map(|v| v.to_bits()));
+            Ok(())
+        },
+    )
+    .unwrap();
+    (summary.start_ns, groups)
+}
+
+#[test]
+fn unindexed_layouts_give_the_figures_of_the_indexed_file() {
+    let tmp = tempfile::tempdir().unwrap();
+    let layouts: [(&str, &[&str]); 3] = [
+        ("time_chunked.mcap", &["--order", "time", "--chunk-size", "262144"]),
+        ("topic_chunked.mcap", &["--order", "topic", "--chunk-size", "65536"]),
+        ("topic_unchunked.mcap", &["--order", "topic", "--chunk-size", "0"]),
+    ];
+    let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/g1_example.mcap");
+    let opts = OpenOptions::default();
+    let map = SignalMap::g1_left_arm();
+    let reference = streamed_bits(&example);
+    let ref_stats = signals::signal_stats(&example, &map, &opts).unwrap();
+    let ref_info = Session::open(&example, &opts).unwrap().info().unwrap();
+    let session = |p: &Path| SessionFile {
+        path: p.to_path_buf(),
+        map: map.clone(),
+        read: Default::default(),
+        spill: Default::default(),
+    };
+    // The example is too short for the timing search; pieces of 15 s and batches of 500 make
+    // the streamed passes take many batches.
+    let id_opts = IdentifyOptions {
+        alignment: identify::AlignmentChoice::Given(identify::Alignment::NOMINAL),
+        ..IdentifyOptions::default()
+    };
+    let so = StreamOptions {
+        chunk_s: 15.0,
+        batch_samples: 500,
+        ..StreamOptions::default()
+    };
+    let ref_id = identify::identify_files(&[session(&example)], &id_opts, &so).unwrap();
+    assert_eq!(ref_id.sessions[0].segmentation.trials.len(), 7);
+    for (name, args) in layouts {
+        let path = tmp.path().join(name);
+        if !python_layout(&path, args) {
+            return;
+        }
+        let src = Session::open(&path, &opts).unwrap();
+        assert!(!src.info_is_cheap(), "{name} has no index");
+        let (start, groups) = streamed_bits(&path);
+        assert_eq!(start, reference.0, "{name}: clock origin");
+        for (g, (a, b)) in groups.iter().zip(&reference.1).enumerate() {
+            assert!(a == b, "{name}: group {g} differs ({} vs {} values)", a.len(), b.len());
+        }
+        let stats = signals::signal_stats(&path, &map, &opts).unwrap();
+        assert_eq!(stats, ref_stats, "{name}");
+        let info = Session::open(&path, &opts).unwrap().info().unwrap();
+        assert_eq!((info.start_ns, info.end_ns), (ref_info.start_ns, ref_info.end_ns));
+        for (x, y) in info.topics.iter().zip(&ref_info.topics) {
+            assert_eq!((&x.topic, x.count), (&y.topic, y.count), "{name}");
+            assert_eq!(x.rate_hz.to_bits(), y.rate_hz.to_bits(), "{name}: {}", x.topic);
+        }
+        let id = identify::identify_files(&[session(&path)], &id_opts, &so).unwrap();
+        let (x, y) = (&id.sessions[0], &ref_id.sessions[0]);
+        assert_eq!(x.segmentation.trials, y.segmentation.trials, "{name}: trial windows");
+        assert_eq!(id.model.to_vector(), ref_id.model.to_vector(), "{name}: θ");
+        assert_eq!(id.per_trial, ref_id.per_trial, "{name}");
+        assert_eq!(id.fit, ref_id.fit, "{name}");
+        assert!(
+            info.warnings.is_empty() && stats.warnings.is_empty(),
+            "{name}: {:?} {:?}",
+            info.warnings,
+            stats.warnings
+        );
+    }
 }
