@@ -538,16 +538,7 @@ impl<R: Read + Seek> McapSource<R> {
                 let field = |at: usize| u64_at(&head[..n.min(size as usize)], 9 + at);
                 match opcode {
                     op::DATA_END | op::FOOTER => break Ok(()),
-                    op::CHUNK => out.push(ChunkIndex {
-                        message_start_time: field(0).unwrap_or(0),
-                        message_end_time: field(8).unwrap_or(0),
-                        chunk_start_offset: pos,
-                        chunk_length: size,
-                        message_index_offsets: BTreeMap::new(),
-                        uncompressed_size: field(16).unwrap_or(0),
-                        record_offset: 0,
-                        loose: false,
-                    }),
+                    op::CHUNK => out.push(found(pos, size, field(16), false, field(0), field(8))),
                     op::MESSAGE | op::SCHEMA | op::CHANNEL => {
                         let time = field(6).filter(|_| opcode == op::MESSAGE);
                         extend_span(&mut out, pos, size, time);
@@ -735,7 +726,10 @@ impl<R: Read + Seek> McapSource<R> {
                         )
                     });
                     if let Err(mut d) = loaded {
-                        d.what = format!("{} (chunk with {})", d.what, self.topics_of(ci));
+                        d.what = match ci.loose {
+                            true => format!("{} (records stored outside chunks)", d.what),
+                            false => format!("{} (chunk with {})", d.what, self.topics_of(ci)),
+                        };
                         // Deliver what is certainly earlier than the damaged chunk, then stop.
                         msgs.retain(|m| m.log_time < ci.message_start_time && m.buf < k);
                         damage = Some(d);
@@ -1073,6 +1067,28 @@ fn u64_at(buf: &[u8], at: usize) -> Option<u64> {
     b.try_into().ok().map(u64::from_le_bytes)
 }
 
+/// An entry of the data section's layout: `size` bytes at `pos` (`loose`: records stored outside
+/// chunks), holding `uncompressed` bytes of records with log times from `start` to `end`.
+fn found(
+    pos: u64,
+    size: u64,
+    uncompressed: Option<u64>,
+    loose: bool,
+    start: Option<u64>,
+    end: Option<u64>,
+) -> ChunkIndex {
+    ChunkIndex {
+        message_start_time: start.unwrap_or(0),
+        message_end_time: end.unwrap_or(0),
+        chunk_start_offset: pos,
+        chunk_length: size,
+        message_index_offsets: BTreeMap::new(),
+        uncompressed_size: uncompressed.unwrap_or(0),
+        record_offset: 0,
+        loose,
+    }
+}
+
 /// Add the record of `size` bytes at `pos` (stored outside chunks; `time`: a message's log
 /// time) to the last span of `layout` when it ends there and has room, else start a span.
 fn extend_span(layout: &mut Vec<ChunkIndex>, pos: u64, size: u64, time: Option<u64>) {
@@ -1082,16 +1098,7 @@ fn extend_span(layout: &mut Vec<ChunkIndex>, pos: u64, size: u64, time: Option<u
             && s.chunk_length + size <= SPAN_BYTES
     });
     if !joins {
-        layout.push(ChunkIndex {
-            message_start_time: u64::MAX,
-            message_end_time: 0,
-            chunk_start_offset: pos,
-            chunk_length: 0,
-            message_index_offsets: BTreeMap::new(),
-            uncompressed_size: 0,
-            record_offset: 0,
-            loose: true,
-        });
+        layout.push(found(pos, 0, Some(0), true, Some(u64::MAX), Some(0)));
     }
     if let Some(s) = layout.last_mut() {
         s.chunk_length += size;
