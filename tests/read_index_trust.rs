@@ -2,15 +2,19 @@
 //! stores its topics. Inputs are built from the shipped `examples/g1_example.mcap` (expected
 //! counts from the `mcap` crate's own reader, not from g1viz): a summary with its CRC set to 0
 //! (the spec allows it) whose chunk index lists the wrong channel ids must still deliver every
-//! sample, with a warning naming the index record; the same session written in two layouts
-//! (time-interleaved; one topic after another) gives bit-identical counts, rates and times.
+//! sample, with a warning naming the index record; a CRC-0 summary whose chunk index leaves a
+//! chunk out still delivers that chunk, with a warning naming its offset; the same session
+//! written in other layouts (time-interleaved; one topic after another; chunked or not; indexed
+//! or not — the unindexed ones by the Python `mcap` library) gives bit-identical counts, rates,
+//! sample times, trial windows and identification.
 
 mod common;
 
 use std::path::Path;
 
+use g1viz::identify::{self, IdentifyOptions, SessionFile, StreamOptions};
 use g1viz::read::{OpenOptions, Session};
-use g1viz::signals::{self, SignalMap};
+use g1viz::signals::{self, Recording, SignalMap};
 
 fn example_bytes() -> Vec<u8> {
     std::fs::read(Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/g1_example.mcap")).unwrap()
@@ -87,6 +91,98 @@ fn a_wrong_chunk_index_without_crc_loses_no_sample_and_is_reported() {
     assert_eq!(lowstate.count as usize, expected);
 }
 
+/// `bytes` (an indexed MCAP file) with its `k`-th chunk index record left out of the summary,
+/// the summary offset records dropped (they would point past it) and the summary CRC set to 0
+/// (which the spec allows). Returns the new bytes and the left-out chunk's byte offset.
+fn without_chunk_index(bytes: &[u8], k: usize) -> (Vec<u8>, u64) {
+    let u64_at = |at: usize| u64::from_le_bytes(bytes[at..at + 8].try_into().unwrap());
+    let footer = bytes.len() - 8 - 29;
+    assert_eq!(bytes[footer], 0x02, "footer opcode");
+    let summary_start = u64_at(footer + 9) as usize;
+    let mut out = bytes[..summary_start].to_vec();
+    let (mut pos, mut seen, mut left_out) = (summary_start, 0, None);
+    while pos < footer {
+        let (opcode, end) = (bytes[pos], pos + 9 + u64_at(pos + 1) as usize);
+        if opcode == 0x08 {
+            seen += 1;
+            if seen == k + 1 {
+                left_out = Some(u64_at(pos + 9 + 16)); // start, end time, then the chunk offset
+                pos = end;
+                continue;
+            }
+        }
+        if opcode != 0x0E {
+            out.extend_from_slice(&bytes[pos..end]);
+        }
+        pos = end;
+    }
+    out.push(0x02);
+    out.extend_from_slice(&20u64.to_le_bytes());
+    out.extend_from_slice(&(summary_start as u64).to_le_bytes());
+    out.extend_from_slice(&[0; 12]); // no summary offsets, CRC 0
+    out.extend_from_slice(&bytes[bytes.len() - 8..]);
+    (
+        out,
+        left_out.expect("the example has that many chunk indexes"),
+    )
+}
+
+#[test]
+fn a_chunk_left_out_of_an_unchecked_index_is_read_from_the_data_section() {
+    let bytes = example_bytes();
+    let (damaged, chunk_at) = without_chunk_index(&bytes, 3);
+    let tmp = tempfile::tempdir().unwrap();
+    let (good, bad) = (
+        tmp.path().join("good.mcap"),
+        tmp.path().join("left_out.mcap"),
+    );
+    std::fs::write(&good, &bytes).unwrap();
+    std::fs::write(&bad, &damaged).unwrap();
+
+    let (map, opts) = (SignalMap::g1_left_arm(), OpenOptions::default());
+    let (a, b) = (
+        signals::load_recording(&good, &map, &opts).unwrap(),
+        signals::load_recording(&bad, &map, &opts).unwrap(),
+    );
+    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    let rows = |v: &[[f64; 7]]| bits(&v.concat());
+    assert_eq!(a.start_ns, b.start_ns);
+    assert_eq!(bits(&a.state.t), bits(&b.state.t));
+    assert_eq!(rows(&a.state.q), rows(&b.state.q));
+    assert_eq!(rows(&a.state.tau), rows(&b.state.tau));
+    assert_eq!(bits(&a.command.t), bits(&b.command.t));
+    assert_eq!(bits(&a.mbs.watts), bits(&b.mbs.watts));
+    assert_eq!(bits(&a.bms.t), bits(&b.bms.t));
+    assert_eq!(b.state.t.len(), count_with_mcap_crate(&bytes, "/lowstate"));
+    let warned = |w: &[String]| {
+        w.iter().any(|w| {
+            w.contains("left_out.mcap")
+                && w.contains(&format!(
+                    "chunk at byte offset {chunk_at} is missing from the chunk index"
+                ))
+        })
+    };
+    assert!(a.warnings.is_empty(), "{:?}", a.warnings);
+    assert!(warned(&b.warnings), "{:?}", b.warnings);
+
+    // `info` counts what was read, agrees with the statistics record, and says the same.
+    let info = Session::open(&bad, &opts).unwrap().info().unwrap();
+    for t in &info.topics {
+        assert_eq!(
+            t.count as usize,
+            count_with_mcap_crate(&bytes, &t.topic),
+            "{}",
+            t.topic
+        );
+    }
+    assert!(warned(&info.warnings), "{:?}", info.warnings);
+    assert!(
+        !info.warnings.iter().any(|w| w.contains("statistics")),
+        "{:?}",
+        info.warnings
+    );
+}
+
 /// The example written with the `mcap` crate, its messages in `msgs` order.
 fn write_layout(path: &Path, msgs: &[common::McapMsg]) {
     let mut w = mcap::WriteOptions::new()
@@ -139,4 +235,148 @@ fn two_storage_layouts_of_one_session_give_identical_figures() {
     assert_eq!(bits(&ra.state.t), bits(&rb.state.t));
     assert_eq!(bits(&ra.command.t), bits(&rb.command.t));
     assert_eq!(bits(&ra.mbs.t), bits(&rb.mbs.t));
+}
+
+/// `examples/g1_example.mcap` rewritten by `tests/py/mcap_layouts.py` (the Python `mcap`
+/// library) into `out` with the given arguments.
+fn python_layout(out: &Path, args: &[&str]) -> bool {
+    if !common::python_module("mcap", "mcap") {
+        return false;
+    }
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let status = std::process::Command::new("python3")
+        .arg(root.join("tests/py/mcap_layouts.py"))
+        .arg(root.join("examples/g1_example.mcap"))
+        .arg(out)
+        .args(args)
+        .status()
+        .expect("python3 runs");
+    assert!(status.success(), "mcap_layouts.py {args:?}");
+    true
+}
+
+/// Everything a streamed read in batches of 500 samples hands over, as bits: the clock origin
+/// and per group the sample times and values, batch by batch concatenated.
+fn streamed_bits(path: &Path) -> (u64, Vec<Vec<u64>>) {
+    let mut groups = vec![Vec::new(); 4];
+    let summary = signals::stream_recording(
+        path,
+        &SignalMap::g1_left_arm(),
+        &OpenOptions::default(),
+        500,
+        &mut |b: &Recording| {
+            let s = &b.state;
+            let g = &mut groups;
+            g[0].extend(
+                s.t.iter()
+                    .chain(s.q.iter().chain(&s.tau).flatten())
+                    .map(|v| v.to_bits()),
+            );
+            g[1].extend(
+                b.command
+                    .t
+                    .iter()
+                    .chain(b.command.q.iter().flatten())
+                    .map(|v| v.to_bits()),
+            );
+            g[2].extend(b.mbs.t.iter().chain(&b.mbs.watts).map(|v| v.to_bits()));
+            g[3].extend(b.bms.t.iter().chain(&b.bms.watts).map(|v| v.to_bits()));
+            Ok(())
+        },
+    )
+    .unwrap();
+    (summary.start_ns, groups)
+}
+
+#[test]
+fn unindexed_layouts_give_the_figures_of_the_indexed_file() {
+    let tmp = tempfile::tempdir().unwrap();
+    let layouts: [(&str, &[&str]); 3] = [
+        (
+            "time_chunked.mcap",
+            &["--order", "time", "--chunk-size", "262144"],
+        ),
+        (
+            "topic_chunked.mcap",
+            &["--order", "topic", "--chunk-size", "65536"],
+        ),
+        (
+            "topic_unchunked.mcap",
+            &["--order", "topic", "--chunk-size", "0"],
+        ),
+    ];
+    let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/g1_example.mcap");
+    let opts = OpenOptions::default();
+    let map = SignalMap::g1_left_arm();
+    let reference = streamed_bits(&example);
+    let ref_stats = signals::signal_stats(&example, &map, &opts).unwrap();
+    let ref_info = Session::open(&example, &opts).unwrap().info().unwrap();
+    let session = |p: &Path| SessionFile {
+        path: p.to_path_buf(),
+        map: map.clone(),
+        read: Default::default(),
+        spill: Default::default(),
+    };
+    // The example is too short for the timing search; pieces of 15 s and batches of 500 make
+    // the streamed passes take many batches.
+    let id_opts = IdentifyOptions {
+        alignment: identify::AlignmentChoice::Given(identify::Alignment::NOMINAL),
+        ..IdentifyOptions::default()
+    };
+    let so = StreamOptions {
+        chunk_s: 15.0,
+        batch_samples: 500,
+        ..StreamOptions::default()
+    };
+    let ref_id = identify::identify_files(&[session(&example)], &id_opts, &so).unwrap();
+    assert_eq!(ref_id.sessions[0].segmentation.trials.len(), 7);
+    for (name, args) in layouts {
+        let path = tmp.path().join(name);
+        if !python_layout(&path, args) {
+            return;
+        }
+        let src = Session::open(&path, &opts).unwrap();
+        assert!(!src.info_is_cheap(), "{name} has no index");
+        let (start, groups) = streamed_bits(&path);
+        assert_eq!(start, reference.0, "{name}: clock origin");
+        for (g, (a, b)) in groups.iter().zip(&reference.1).enumerate() {
+            assert!(
+                a == b,
+                "{name}: group {g} differs ({} vs {} values)",
+                a.len(),
+                b.len()
+            );
+        }
+        let stats = signals::signal_stats(&path, &map, &opts).unwrap();
+        assert_eq!(stats, ref_stats, "{name}");
+        let info = Session::open(&path, &opts).unwrap().info().unwrap();
+        assert_eq!(
+            (info.start_ns, info.end_ns),
+            (ref_info.start_ns, ref_info.end_ns)
+        );
+        for (x, y) in info.topics.iter().zip(&ref_info.topics) {
+            assert_eq!((&x.topic, x.count), (&y.topic, y.count), "{name}");
+            assert_eq!(
+                x.rate_hz.to_bits(),
+                y.rate_hz.to_bits(),
+                "{name}: {}",
+                x.topic
+            );
+        }
+        let id = identify::identify_files(&[session(&path)], &id_opts, &so).unwrap();
+        let (x, y) = (&id.sessions[0], &ref_id.sessions[0]);
+        assert_eq!(
+            x.segmentation.trials, y.segmentation.trials,
+            "{name}: trial windows"
+        );
+        assert_eq!(id.model.to_vector(), ref_id.model.to_vector(), "{name}: θ");
+        assert_eq!(id.per_trial, ref_id.per_trial, "{name}");
+        assert_eq!(id.fit, ref_id.fit, "{name}");
+        assert!(
+            info.warnings.is_empty() && stats.warnings.is_empty(),
+            "{name}: {:?} {:?}",
+            info.warnings,
+            stats.warnings
+        );
+    }
 }

@@ -3,7 +3,9 @@
 //! session's messages plus padding messages on another topic; the MCAP written with the `mcap`
 //! crate, the ROS 1 bag (lz4) with the Python `rosbags` library — is read by `g1viz info`
 //! (summary, then the arm signals streamed through that chunk) in a child limited to 2 GiB of
-//! address space (`ulimit -v 2097152`) with a peak RSS under 512 MB.
+//! address space (`ulimit -v 2097152`) with a peak RSS under 512 MB. A real chunk of 256 MiB
+//! (the earlier cap, which then peaked at 531 MB) is refused with a message naming the limit and
+//! the chunk's byte offset, under the same limits.
 
 mod common;
 
@@ -18,12 +20,12 @@ const MAX_RSS_KIB: i64 = 512 * 1024;
 /// Size of one padding message [bytes].
 const PAD: usize = 64 << 10;
 
-/// Write the example's messages plus padding into one chunk of just under `MAX_CHUNK_BYTES`.
-fn write_big_chunk(path: &Path) {
+/// Write the example's messages plus padding into one chunk of just under `size` bytes.
+fn write_big_chunk(path: &Path, size: u64) {
     let msgs = common::example_messages();
     let mut w = mcap::WriteOptions::new()
         .compression(Some(mcap::Compression::Zstd))
-        .chunk_size(Some(2 * MAX_CHUNK_BYTES))
+        .chunk_size(Some(2 * size))
         .create(std::io::BufWriter::new(
             std::fs::File::create(path).unwrap(),
         ))
@@ -37,7 +39,7 @@ fn write_big_chunk(path: &Path) {
         .add_channel(sid, "/padding", "cdr", &BTreeMap::new())
         .unwrap();
     let blob = vec![0u8; PAD];
-    let target = MAX_CHUNK_BYTES as usize - (256 << 10);
+    let target = size as usize - (256 << 10);
     let mut seq = 0u32;
     while written + PAD + 31 < target {
         let header = mcap::records::MessageHeader {
@@ -86,7 +88,7 @@ fn info_under_ulimit(file: &Path) -> (String, i64) {
 fn chunks_of_the_largest_accepted_size_are_read_in_under_512_mb() {
     let tmp = tempfile::tempdir().unwrap();
     let file = tmp.path().join("big_chunk.mcap");
-    write_big_chunk(&file);
+    write_big_chunk(&file, MAX_CHUNK_BYTES);
     // The file is what it claims: one chunk, declared within 1 MiB of the limit.
     let bytes = std::fs::read(&file).unwrap();
     let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
@@ -145,6 +147,46 @@ fn chunks_of_the_largest_accepted_size_are_read_in_under_512_mb() {
         peak_kib < MAX_RSS_KIB,
         "peak RSS {peak_kib} KiB on a {largest}-byte ROS 1 chunk"
     );
+}
+
+#[test]
+fn a_256_mib_chunk_is_refused_under_512_mb() {
+    let tmp = tempfile::tempdir().unwrap();
+    let file = tmp.path().join("chunk_256_mib.mcap");
+    write_big_chunk(&file, 256 << 20);
+    let bytes = std::fs::read(&file).unwrap();
+    let summary = mcap::Summary::read(&bytes).unwrap().unwrap();
+    let chunk = &summary.chunk_indexes[0];
+    assert!(chunk.uncompressed_size > 255 << 20, "{chunk:?}");
+    drop(bytes);
+    let out = common::output_within(
+        Command::new("sh")
+            .arg("-c")
+            .arg("ulimit -v 2097152 && exec \"$0\" info \"$1\"")
+            .arg(env!("CARGO_BIN_EXE_g1viz"))
+            .arg(&file),
+        common::G1VIZ_LIMIT,
+    )
+    .unwrap();
+    let text =
+        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
+    assert!(
+        matches!(out.status.code(), Some(0 | 1)),
+        "{:?}\n{text}",
+        out.status
+    );
+    let needle = format!("damaged at byte offset {}", chunk.chunk_start_offset);
+    assert!(
+        text.contains(&needle) && text.contains("64 MiB limit"),
+        "{text}"
+    );
+    // SAFETY: getrusage only writes the struct it is given.
+    let peak_kib = unsafe {
+        let mut usage: libc::rusage = std::mem::zeroed();
+        libc::getrusage(libc::RUSAGE_CHILDREN, &mut usage);
+        usage.ru_maxrss
+    };
+    assert!(peak_kib < MAX_RSS_KIB, "peak RSS {peak_kib} KiB");
 }
 
 /// Copies a ROS 1 bag's messages into one lz4 chunk and pads it with 64 KiB messages on

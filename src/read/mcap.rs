@@ -1,7 +1,11 @@
 //! MCAP reader: streams messages chunk by chunk (zstd, lz4 or uncompressed chunks), using the
-//! summary section (statistics, schema/channel records, chunk indexes) when it is there and a
-//! linear scan of the data section when it is not. Records are framed here so every warning can
-//! name its byte offset; record bodies are parsed with the `mcap` crate.
+//! summary section (statistics, schema/channel records, chunk indexes) when it is there. Unless
+//! the summary's CRC vouches for its index, the data section is also walked record header by
+//! record header (chunk bodies are not read): chunks the index leaves out and records stored
+//! outside chunks are read too (a warning names each when there is an index), and a file
+//! without an index is read in log-time order from that walk like an indexed one, so the
+//! messages come out the same whatever the storage order. Records are framed here so every
+//! warning can name its byte offset.
 //!
 //! Memory holds at most three groups of chunks whose time ranges overlap (normally three chunks:
 //! one being read, one being decompressed on a second thread, one being delivered), never the file.
@@ -47,6 +51,10 @@ const MAX_CHUNK_BYTES: u64 = 64 << 20;
 const MAX_DETAILED: u64 = 10;
 /// Summary sections larger than this are ignored (linear scan instead).
 const MAX_SUMMARY_BYTES: u64 = 64 << 20;
+/// Records stored outside chunks are read in spans of at most this many bytes.
+const SPAN_BYTES: u64 = 4 << 20;
+/// Most chunks (and spans) the walk over the data section keeps track of (about 80 bytes each).
+const MAX_CHUNKS: usize = 1 << 20;
 /// Most decompressed bytes held at once for chunks whose time ranges overlap; beyond it the
 /// chunks are delivered one after the other (with a warning) instead of merged. With the raw
 /// chunk bytes and three groups in flight, hostile input stays under 512 MB.
@@ -134,6 +142,8 @@ impl Registry {
 
 #[derive(Debug)]
 struct Summary {
+    /// Byte offset of the summary section (the data section ends before it).
+    start: u64,
     chunks: Vec<ChunkIndex>,
     stats: Option<Statistics>,
     /// Byte offset of the statistics record.
@@ -149,6 +159,13 @@ struct Summary {
 struct Damage {
     offset: u64,
     what: String,
+}
+
+/// The raw bytes of one chunk record, or of a span of records stored outside chunks (`loose`).
+struct RawChunk {
+    offset: u64,
+    bytes: Vec<u8>,
+    loose: bool,
 }
 
 /// A message located in a buffer, before delivery.
@@ -181,6 +198,12 @@ pub struct McapSource<R = File> {
     /// Log-time ranges the next reads need ([`MessageSource::set_time_ranges`]): indexed
     /// chunks wholly outside them are skipped.
     time_ranges: Option<Vec<(u64, u64)>>,
+    /// Chunks and spans of loose records in the data section that the chunk index does not
+    /// list (all of them when there is no index): read with the indexed ones.
+    unindexed: Vec<ChunkIndex>,
+    /// Damage that stopped the walk over the data section of a file without a chunk index:
+    /// every read stops there.
+    scan_damage: Option<Damage>,
 }
 
 impl McapSource<File> {
@@ -247,6 +270,8 @@ impl<R: Read + Seek> McapSource<R> {
             open_warnings: Vec::new(),
             resolved: HashMap::new(),
             time_ranges: None,
+            unindexed: Vec::new(),
+            scan_damage: None,
         };
         match source.load_summary() {
             Ok(summary) => source.summary = summary,
@@ -260,7 +285,11 @@ impl<R: Read + Seek> McapSource<R> {
                 ));
             }
         }
-        source.learn_missing_channels()?;
+        // A chunk index vouched for by the summary CRC is taken as the layout of the file.
+        if !source.summary.as_ref().is_some_and(|s| s.verified) || !source.has_index() {
+            source.find_unindexed();
+        }
+        source.learn_missing_channels();
         Ok(source)
     }
 
@@ -328,6 +357,7 @@ impl<R: Read + Seek> McapSource<R> {
     /// (each chunk once, however often it is listed) and statistics kept.
     fn parse_summary(&mut self, bytes: &[u8], summary_start: u64) -> Result<Summary, Damage> {
         let mut summary = Summary {
+            start: summary_start,
             chunks: Vec::new(),
             stats: None,
             stats_offset: 0,
@@ -373,9 +403,9 @@ impl<R: Read + Seek> McapSource<R> {
     /// only in the data section (`repeat_channels=False`, rosbag2's `noRepeatedChannels`): learn
     /// the channels the statistics or chunk indexes name from the data section, reading only as
     /// far as needed.
-    fn learn_missing_channels(&mut self) -> Result<(), ReadError> {
+    fn learn_missing_channels(&mut self) {
         let Some(summary) = &self.summary else {
-            return Ok(());
+            return;
         };
         let mut needed: BTreeSet<u16> = summary
             .chunks
@@ -387,11 +417,31 @@ impl<R: Read + Seek> McapSource<R> {
         }
         needed.retain(|id| !self.registry.channels.contains_key(id));
         if needed.is_empty() {
-            return Ok(());
+            return;
         }
-        let learned = self.walk_linear(Some(&[]), Some(&needed), &mut |_, _, _| Ok(()))?;
+        let mut inflater = Inflater::default();
+        let (layout, mut damage) = self.scan_layout();
+        for ci in layout {
+            if needed
+                .iter()
+                .all(|id| self.registry.channels.contains_key(id))
+            {
+                damage = None;
+                break;
+            }
+            let raw = self.read_group(std::slice::from_ref(&ci), Vec::new());
+            let scanned = raw.chunks.into_iter().try_for_each(|raw| {
+                let buf = inflater.entry(raw, Vec::new())?;
+                let (at, registry) = (ci.chunk_start_offset, &mut self.registry);
+                scan_records(&buf, at, 0, registry, Some(&[]), &mut Vec::new())
+            });
+            if let Err(d) = scanned {
+                damage = Some(d);
+                break;
+            }
+        }
         self.registry.orphans.clear();
-        if let Err(d) = learned {
+        if let Some(d) = damage {
             self.open_warnings.push(format!(
                 "{}: looking for channel records in the data section: damaged at byte offset {}: {}",
                 self.path.display(),
@@ -399,7 +449,115 @@ impl<R: Read + Seek> McapSource<R> {
                 d.what
             ));
         }
-        Ok(())
+    }
+
+    /// Walk the data section and keep what the chunk index does not cover: the chunks it leaves
+    /// out and the records stored outside chunks (everything, when there is no index). With an
+    /// index, each piece it leaves out is a warning naming its byte offset.
+    fn find_unindexed(&mut self) {
+        let (layout, damage) = self.scan_layout();
+        let indexed: HashSet<u64> = (self.summary.iter())
+            .flat_map(|s| &s.chunks)
+            .map(|c| c.chunk_start_offset)
+            .collect();
+        if indexed.is_empty() {
+            self.unindexed = layout;
+            self.scan_damage = damage;
+            return;
+        }
+        let path = self.path.display();
+        if let Some(d) = damage {
+            self.open_warnings.push(format!(
+                "{path}: the data section cannot be walked past byte offset {} ({}); the chunks \
+                 the index lists after it are read",
+                d.offset, d.what
+            ));
+        }
+        self.unindexed = (layout.into_iter())
+            .filter(|c| !indexed.contains(&c.chunk_start_offset))
+            .collect();
+        for c in self.unindexed.iter().take(MAX_DETAILED as usize) {
+            let (at, end) = (c.chunk_start_offset, c.chunk_start_offset + c.chunk_length);
+            let what = match c.loose {
+                true => format!("the records at byte offsets {at}..{end} lie outside every chunk"),
+                false => format!("the chunk at byte offset {at} is missing from the chunk index"),
+            };
+            self.open_warnings.push(format!(
+                "{path}: {what} (the summary has no CRC to vouch for the index); read from the \
+                 data section"
+            ));
+        }
+        if self.unindexed.len() > MAX_DETAILED as usize {
+            self.open_warnings.push(format!(
+                "{path}: {} more chunks or spans of records are missing from the chunk index",
+                self.unindexed.len() - MAX_DETAILED as usize
+            ));
+        }
+    }
+
+    /// The data section in file order: its chunks (times and sizes from their headers) and
+    /// spans of the records stored outside chunks, found by stepping over record headers (chunk
+    /// bodies are not read); and the damage that stopped the walk, if any.
+    fn scan_layout(&mut self) -> (Vec<ChunkIndex>, Option<Damage>) {
+        let end = self.summary.as_ref().map_or(self.file_len, |s| s.start);
+        let mut out: Vec<ChunkIndex> = Vec::new();
+        let mut pos = 8u64;
+        let mut head = [0u8; 33];
+        let walked = self
+            .file
+            .seek(SeekFrom::Start(pos))
+            .map_err(|e| e.to_string());
+        let damage = walked.and_then(|_| {
+            loop {
+                let rest = self.file_len.saturating_sub(pos);
+                if out.len() > MAX_CHUNKS {
+                    break Err(format!("more than {MAX_CHUNKS} chunks or spans of records"));
+                }
+                if pos >= end {
+                    break match rest {
+                        0 => Err("file ends without a footer (truncated?)".into()),
+                        _ => Ok(()),
+                    };
+                }
+                if rest < RECORD_PREFIX {
+                    break Err("file ends inside a record header (truncated)".into());
+                }
+                let n = rest.min(head.len() as u64) as usize;
+                if let Err(e) = self.file.read_exact(&mut head[..n]) {
+                    break Err(e.to_string());
+                }
+                let (opcode, len) = (head[0], u64_at(&head, 1).unwrap_or_default());
+                if len > rest - RECORD_PREFIX {
+                    break Err(format!(
+                        "record (opcode 0x{opcode:02x}) claims {len} bytes but only {} remain \
+                     (truncated file or bad record length)",
+                        rest - RECORD_PREFIX
+                    ));
+                }
+                let size = RECORD_PREFIX + len;
+                let field = |at: usize| u64_at(&head[..n.min(size as usize)], 9 + at);
+                match opcode {
+                    op::DATA_END | op::FOOTER => break Ok(()),
+                    op::CHUNK => out.push(found(pos, size, field(16), false, field(0), field(8))),
+                    op::MESSAGE | op::SCHEMA | op::CHANNEL => {
+                        let time = field(6).filter(|_| opcode == op::MESSAGE);
+                        extend_span(&mut out, pos, size, time);
+                    }
+                    _ => {}
+                }
+                pos += size;
+                if let Err(e) = self.file.seek_relative(size as i64 - n as i64) {
+                    break Err(e.to_string());
+                }
+            }
+        });
+        for s in out
+            .iter_mut()
+            .filter(|s| s.message_start_time > s.message_end_time)
+        {
+            (s.message_start_time, s.message_end_time) = (0, 0); // a span without messages
+        }
+        (out, damage.err().map(|what| Damage { offset: pos, what }))
     }
 
     /// The decoded channel for `id`, parsing its schema on first use.
@@ -412,8 +570,8 @@ impl<R: Read + Seek> McapSource<R> {
         Ok(c)
     }
 
-    /// Stream raw messages of wanted channels to `sink`, in log-time order when the file is
-    /// indexed (file order otherwise, sorted within each chunk).
+    /// Stream raw messages of wanted channels to `sink`, in log-time order (but where more
+    /// chunks overlap in time than the memory budget allows, with a warning).
     fn walk(
         &mut self,
         topics: Option<&[&str]>,
@@ -425,11 +583,10 @@ impl<R: Read + Seek> McapSource<R> {
             complete: true,
         };
         self.registry.orphans.clear();
-        let result = if self.has_index() {
-            self.walk_indexed(topics, sink, &mut summary.warnings)?
-        } else {
-            self.walk_linear(topics, None, sink)?
-        };
+        let mut result = self.walk_indexed(topics, sink, &mut summary.warnings)?;
+        if let (Ok(()), Some(d)) = (&result, &self.scan_damage) {
+            result = Err(d.clone());
+        }
         summary
             .warnings
             .extend(self.registry.orphan_warnings(&self.path));
@@ -453,11 +610,8 @@ impl<R: Read + Seek> McapSource<R> {
         topics: Option<&[&str]>,
         warnings: &mut Vec<String>,
     ) -> Vec<Vec<ChunkIndex>> {
-        let mut chunks: Vec<ChunkIndex> = self
-            .summary
-            .as_ref()
-            .map(|s| s.chunks.clone())
-            .unwrap_or_default();
+        let indexed = self.summary.iter().flat_map(|s| &s.chunks);
+        let mut chunks: Vec<ChunkIndex> = indexed.chain(&self.unindexed).cloned().collect();
         // Chunks are skipped on the index's word only when its CRC vouches for it.
         let trusted = self.summary.as_ref().is_some_and(|s| s.verified);
         chunks.retain(|c| {
@@ -503,6 +657,10 @@ impl<R: Read + Seek> McapSource<R> {
                 GROUP_BUDGET_BYTES >> 20
             ));
         }
+        // Each group is read and scanned in file order: channel records come before their use.
+        for g in &mut groups {
+            g.sort_by_key(|c| c.chunk_start_offset);
+        }
         groups
     }
 
@@ -531,14 +689,7 @@ impl<R: Read + Seek> McapSource<R> {
                     let out = job
                         .chunks
                         .into_iter()
-                        .map(|raw| {
-                            let (offset, bytes) = raw?;
-                            let mut buf = job.spare.pop().unwrap_or_default();
-                            inflater
-                                .chunk_record(&bytes, &mut buf)
-                                .map_err(|what| Damage { offset, what })?;
-                            Ok(buf)
-                        })
+                        .map(|raw| inflater.entry(raw, job.spare.pop().unwrap_or_default()))
                         .collect();
                     if done_tx.send(out).is_err() {
                         break; // the reader stopped (damage or a sink error)
@@ -575,7 +726,10 @@ impl<R: Read + Seek> McapSource<R> {
                         )
                     });
                     if let Err(mut d) = loaded {
-                        d.what = format!("{} (chunk with {})", d.what, self.topics_of(ci));
+                        d.what = match ci.loose {
+                            true => format!("{} (records stored outside chunks)", d.what),
+                            false => format!("{} (chunk with {})", d.what, self.topics_of(ci)),
+                        };
                         // Deliver what is certainly earlier than the damaged chunk, then stop.
                         msgs.retain(|m| m.log_time < ci.message_start_time && m.buf < k);
                         damage = Some(d);
@@ -657,7 +811,12 @@ impl<R: Read + Seek> McapSource<R> {
                 let mut bytes = vec![0; ci.chunk_length as usize];
                 self.read_at(offset, &mut bytes)
                     .map_err(|e| damage(e.to_string()))?;
-                Ok((offset, bytes))
+                let loose = ci.loose;
+                Ok(RawChunk {
+                    offset,
+                    bytes,
+                    loose,
+                })
             })
             .collect();
         InflateJob { chunks, spare }
@@ -674,105 +833,6 @@ impl<R: Read + Seek> McapSource<R> {
         } else {
             format!("topics {}", names.join(", "))
         }
-    }
-
-    /// Read the data section record by record from the start. With `until`, stop as soon as
-    /// every channel id in it has a channel record (used to learn channels, not to deliver).
-    fn walk_linear(
-        &mut self,
-        topics: Option<&[&str]>,
-        until: Option<&BTreeSet<u16>>,
-        sink: &mut RawSink<'_, R>,
-    ) -> Result<Result<(), Damage>, ReadError> {
-        let path = self.path.clone();
-        let io = |e: std::io::Error| ReadError::Io {
-            path: path.clone(),
-            source: e,
-        };
-        self.file.seek(SeekFrom::Start(8)).map_err(io)?;
-        let mut pos = 8u64;
-        let mut body = Vec::new();
-        let mut chunk = Vec::new();
-        let mut inflater = Inflater::default();
-        loop {
-            if until.is_some_and(|ids| ids.iter().all(|id| self.registry.channels.contains_key(id)))
-            {
-                return Ok(Ok(()));
-            }
-            let offset = pos;
-            let damage = |what: String| Damage { offset, what };
-            let (opcode, len) = match self.next_record_header(pos) {
-                Ok(Some(h)) => h,
-                Ok(None) => return Ok(Ok(())),
-                Err(what) => return Ok(Err(damage(what))),
-            };
-            pos += RECORD_PREFIX + len;
-            match opcode {
-                op::DATA_END | op::FOOTER => return Ok(Ok(())),
-                op::CHUNK | op::SCHEMA | op::CHANNEL | op::MESSAGE => {
-                    if len > MAX_CHUNK_BYTES {
-                        return Ok(Err(damage(format!("record of {len} bytes is too large"))));
-                    }
-                    body.resize(len as usize, 0);
-                    if let Err(e) = self.file.read_exact(&mut body) {
-                        return Ok(Err(damage(e.to_string())));
-                    }
-                }
-                _ => {
-                    self.file.seek_relative(len as i64).map_err(io)?;
-                    continue;
-                }
-            }
-            let mut msgs = Vec::new();
-            let scanned = if opcode == op::CHUNK {
-                inflater
-                    .chunk_body(&body, &mut chunk)
-                    .map_err(|what| Damage { offset, what })
-                    .and_then(|()| {
-                        scan_records(&chunk, offset, 0, &mut self.registry, topics, &mut msgs)
-                    })
-            } else {
-                chunk.clear();
-                chunk.push(opcode);
-                chunk.extend_from_slice(&len.to_le_bytes());
-                chunk.extend_from_slice(&body);
-                scan_records(&chunk, offset, 0, &mut self.registry, topics, &mut msgs)
-            };
-            if let Err(d) = scanned {
-                return Ok(Err(Damage {
-                    offset,
-                    what: d.what,
-                }));
-            }
-            msgs.sort_by_key(|m| m.log_time);
-            for m in &msgs {
-                sink(self, m, chunk.get(m.start..m.end).unwrap_or(&[]))?;
-            }
-        }
-    }
-
-    /// Opcode and length of the record at `pos` (the reader is positioned there), checked
-    /// against the bytes left in the file; `None` at a clean end of the data section.
-    fn next_record_header(&mut self, pos: u64) -> Result<Option<(u8, u64)>, String> {
-        if pos == self.file_len {
-            return Err("file ends without a footer (truncated?)".into());
-        }
-        if pos + RECORD_PREFIX > self.file_len {
-            return Err("file ends inside a record header (truncated)".into());
-        }
-        let mut prefix = [0u8; 9];
-        self.file
-            .read_exact(&mut prefix)
-            .map_err(|e| e.to_string())?;
-        let opcode = prefix[0];
-        let len = u64::from_le_bytes(prefix[1..].try_into().unwrap_or_default());
-        let remaining = self.file_len - pos - RECORD_PREFIX;
-        if len > remaining {
-            return Err(format!(
-                "record (opcode 0x{opcode:02x}) claims {len} bytes but only {remaining} remain (truncated file or bad record length)"
-            ));
-        }
-        Ok(Some((opcode, len)))
     }
 
     /// Per-channel first/last log time from the message indexes of the chunks (reads only the
@@ -1001,6 +1061,55 @@ fn frame(buf: &[u8], pos: usize) -> Result<(u8, &[u8], usize), String> {
     Ok((prefix[0], &buf[start..end], end))
 }
 
+/// The little-endian u64 at `at` in `buf`, if it is all there.
+fn u64_at(buf: &[u8], at: usize) -> Option<u64> {
+    let b = buf.get(at..at.checked_add(8)?)?;
+    b.try_into().ok().map(u64::from_le_bytes)
+}
+
+/// An entry of the data section's layout: `size` bytes at `pos` (`loose`: records stored outside
+/// chunks), holding `uncompressed` bytes of records with log times from `start` to `end`.
+fn found(
+    pos: u64,
+    size: u64,
+    uncompressed: Option<u64>,
+    loose: bool,
+    start: Option<u64>,
+    end: Option<u64>,
+) -> ChunkIndex {
+    ChunkIndex {
+        message_start_time: start.unwrap_or(0),
+        message_end_time: end.unwrap_or(0),
+        chunk_start_offset: pos,
+        chunk_length: size,
+        message_index_offsets: BTreeMap::new(),
+        uncompressed_size: uncompressed.unwrap_or(0),
+        record_offset: 0,
+        loose,
+    }
+}
+
+/// Add the record of `size` bytes at `pos` (stored outside chunks; `time`: a message's log
+/// time) to the last span of `layout` when it ends there and has room, else start a span.
+fn extend_span(layout: &mut Vec<ChunkIndex>, pos: u64, size: u64, time: Option<u64>) {
+    let joins = layout.last().is_some_and(|s| {
+        s.loose
+            && s.chunk_start_offset + s.chunk_length == pos
+            && s.chunk_length + size <= SPAN_BYTES
+    });
+    if !joins {
+        layout.push(found(pos, 0, Some(0), true, Some(u64::MAX), Some(0)));
+    }
+    if let Some(s) = layout.last_mut() {
+        s.chunk_length += size;
+        s.uncompressed_size = s.chunk_length;
+        if let Some(t) = time {
+            s.message_start_time = s.message_start_time.min(t);
+            s.message_end_time = s.message_end_time.max(t);
+        }
+    }
+}
+
 /// Whether [a, b] overlaps one of `ranges` (sorted, inclusive bounds).
 fn overlaps(ranges: &[(u64, u64)], a: u64, b: u64) -> bool {
     // The first range that does not end before a.
@@ -1011,7 +1120,7 @@ fn overlaps(ranges: &[(u64, u64)], a: u64, b: u64) -> bool {
 /// Raw chunk records of one group for the decompression thread (with the file offset each
 /// came from, or the damage met reading it), and spent buffers to decompress into.
 struct InflateJob {
-    chunks: Vec<Result<(u64, Vec<u8>), Damage>>,
+    chunks: Vec<Result<RawChunk, Damage>>,
     spare: Vec<Vec<u8>>,
 }
 
@@ -1031,6 +1140,24 @@ struct Inflater {
 }
 
 impl Inflater {
+    /// The records of one entry read from the file: a chunk decompressed into `buf`, or a span
+    /// of loose records as it is.
+    fn entry(
+        &mut self,
+        raw: Result<RawChunk, Damage>,
+        mut buf: Vec<u8>,
+    ) -> Result<Vec<u8>, Damage> {
+        let raw = raw?;
+        if raw.loose {
+            return Ok(raw.bytes);
+        }
+        (self.chunk_record(&raw.bytes, &mut buf)).map_err(|what| Damage {
+            offset: raw.offset,
+            what,
+        })?;
+        Ok(buf)
+    }
+
     /// Decompress a whole chunk record (opcode, length, body) into `out`.
     fn chunk_record(&mut self, bytes: &[u8], out: &mut Vec<u8>) -> Result<(), String> {
         let (opcode, body, _) = frame(bytes, 0)?;
@@ -1245,6 +1372,10 @@ fn schemaless(name: &str) -> MsgSchema {
 impl<R: Read + Seek> MessageSource for McapSource<R> {
     fn info_is_cheap(&self) -> bool {
         self.has_index()
+    }
+
+    fn latest_time_hint(&self) -> Option<u64> {
+        self.unindexed.iter().map(|c| c.message_end_time).max()
     }
 
     fn format(&self) -> &'static str {

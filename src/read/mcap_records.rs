@@ -42,8 +42,11 @@ pub(crate) struct ChunkIndex {
     /// Channel id → offset of that channel's message index record.
     pub message_index_offsets: BTreeMap<u16, u64>,
     pub uncompressed_size: u64,
-    /// Byte offset of this chunk index record in the file (0 until the summary parser sets it).
+    /// Byte offset of this chunk index record in the file (0 until the summary parser sets it;
+    /// 0 for an entry found by walking the data section).
     pub record_offset: u64,
+    /// Not a chunk: a span of records stored outside chunks (read as they are).
+    pub loose: bool,
 }
 
 /// A Statistics record (opcode 0x0B).
@@ -194,6 +197,7 @@ pub(crate) fn chunk_index(body: &[u8]) -> Result<ChunkIndex, String> {
         message_index_offsets,
         uncompressed_size,
         record_offset: 0,
+        loose: false,
     })
 }
 

@@ -323,6 +323,11 @@ pub trait MessageSource {
     fn info_is_cheap(&self) -> bool {
         true
     }
+    /// The latest log time the headers read when opening claim (MCAP chunk headers of a file
+    /// without an index), when [`MessageSource::info`] is not cheap; `None` when unknown.
+    fn latest_time_hint(&self) -> Option<u64> {
+        None
+    }
     /// Stream every message (optionally only those of `topics`) in log-time order to `visit`.
     /// Damage stops the read with a warning in the summary rather than an error, once at
     /// least the file header was valid. An error returned by `visit` aborts the read and is returned.

@@ -135,6 +135,12 @@ impl Session {
         self.source.info_is_cheap()
     }
 
+    /// The latest log time claimed by headers read when opening (see
+    /// [`super::MessageSource::latest_time_hint`]).
+    pub fn latest_time_hint(&self) -> Option<u64> {
+        self.source.latest_time_hint()
+    }
+
     /// Only messages in these log-time ranges are needed by the next reads (a hint: see
     /// [`MessageSource::set_time_ranges`]).
     pub fn set_time_ranges(&mut self, ranges: Option<Vec<(u64, u64)>>) {

@@ -119,14 +119,17 @@ impl Plausible {
             })
             .collect();
         let topics: Vec<&str> = map.signals.values().map(|s| s.topic.as_str()).collect();
-        // Only from a summary or index: a file without one is not read twice for this; its
-        // early samples are then dropped once a wall-clock one has been seen (file order).
-        let drop_early = session.info_is_cheap()
+        // Only from a summary, an index or the chunk headers: a file is not read twice for this;
+        // without any, early samples are dropped once a wall-clock one has been seen.
+        let drop_early = (session.info_is_cheap()
             && session.info().is_ok_and(|info| {
                 info.topics
                     .iter()
                     .any(|t| topics.contains(&t.topic.as_str()) && t.last_ns >= WALL_CLOCK_FLOOR_NS)
-            });
+            }))
+            || session
+                .latest_time_hint()
+                .is_some_and(|t| t >= WALL_CLOCK_FLOOR_NS);
         Plausible {
             file: file.to_string(),
             signals,
