@@ -146,19 +146,21 @@ pub(crate) fn sensor_window(
     let lag0 = lag0.max_by(|a, b| a.2.total_cmp(&b.2));
     // 3. A lag is demanded only where a lagged point beats every window at lag 0 by the BIC
     //    rule: the nominal window's lag (one free parameter, as the lag-0 window's W), or the
-    //    scan's own lagged point (one more). A lag within one fine step is within the scan's
-    //    resolution and demands nothing. Otherwise no latency can be claimed: a lag that only
+    //    scan's own lagged point (one more). The nominal window's lag is derived from the centre,
+    //    so one within one fine step is within the scan's resolution and demands nothing (the
+    //    scan's own lagged point carries the extra ln n instead). Otherwise no latency can be claimed: a lag that only
     //    re-centres a window of the wrong length is not a latency (the campaign's spurious
     //    latencies were a 0.3 s window read as 0.2 s or 0.225 s + lag).
-    let beats = |lagged: Option<(Alignment, usize, f64)>, extra: f64| match (lagged, lag0) {
-        (Some((a, n, r2)), Some((_, _, r2_0))) if a.lag_s > STEP + 1e-9 => {
-            let n = n as f64;
-            n * ((1.0 - r2).max(1e-300) / (1.0 - r2_0).max(1e-300)).ln() + extra * n.ln()
-                < opts.bic_threshold
-        }
-        (Some((a, _, _)), None) => a.lag_s > STEP + 1e-9,
-        _ => false,
-    };
+    let beats =
+        |lagged: Option<(Alignment, usize, f64)>, extra: f64, min_lag: f64| match (lagged, lag0) {
+            (Some((a, n, r2)), Some((_, _, r2_0))) if a.lag_s > min_lag + 1e-9 => {
+                let n = n as f64;
+                n * ((1.0 - r2).max(1e-300) / (1.0 - r2_0).max(1e-300)).ln() + extra * n.ln()
+                    < opts.bic_threshold
+            }
+            (Some((a, _, _)), None) => a.lag_s > min_lag + 1e-9,
+            _ => false,
+        };
     let lag_delta_bic = match lag0 {
         Some((_, n, r2)) if best.lag_s > 0.0 => delta_bic(est.r2, n, r2),
         _ => 0.0,
@@ -168,7 +170,7 @@ pub(crate) fn sensor_window(
         .iter()
         .find(|g| g.alignment == best)
         .map(|g| (g.alignment, g.rows, g.r2));
-    let lag_demanded = beats(nominal, 0.0) || beats(scanned, 1.0);
+    let lag_demanded = beats(nominal, 0.0, STEP) || beats(scanned, 1.0, 0.0);
     let nominal_kept = window_delta_bic >= opts.bic_threshold;
     let window_s = match (lag_demanded, nominal) {
         (true, _) if nominal_kept => nominal_w,
