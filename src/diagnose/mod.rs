@@ -12,6 +12,7 @@
 pub(crate) mod counterpart;
 pub(crate) mod data;
 pub(crate) mod discover;
+pub(crate) mod family;
 pub(crate) mod fields;
 pub(crate) mod hypotheses;
 pub(crate) mod locate;
