@@ -6,26 +6,31 @@
 //! nearly flat along it. The centre is well determined, W along the ridge is not: on 72 nominal
 //! trials the 2-D optimum wandered to W = 0.15 s, lag 0.025 s (the same centre as 0.2 s, lag 0),
 //! and the latency hypothesis, handed the too-short window, then "found" the 0.024 s that
-//! re-centres it. Contaminated trials only add noise along the ridge; the trade-off is the cause.
+//! re-centres it.
 //!
 //! So the window is judged as an engineer judges a datasheet value: the scan finds the best
 //! (W, lag ≥ 0) and its centre c; the sensor's nominal 0.2 s window, at the lag that puts its
 //! centre at c (± 2 fine steps, lag ≥ 0), is kept unless freeing W (one more parameter) beats it
 //! by the diagnosis' own BIC threshold (ΔBIC = n·ln(SSE_free/SSE_nominal) + ln n <
 //! [`DiagnoseOptions::bic_threshold`]); a sensor that averages 0.5 s smooths visibly more and
-//! rejects it. A kept nominal window that needs a lag > 0 to reach the centre is a latency claim
-//! in disguise, so it also has to beat the lag-0 window of the same centre (same parameter count)
-//! by that rule — or the scan's lagged point has to — else the lag-0 window is the estimate: a
-//! 0.3 s sensor at lag 0 was read as 0.2 s + 0.05 s, and the latency hypothesis then "found" the
-//! 0.05 s on most sessions of the physics-fuzz campaign.
-//! A rejected nominal window is replaced by the window at lag 0 with the same
-//! centre (2c ± 2 steps), unless freeing the lag beats that by the same rule; only then is the
-//! scan's own (W, lag) point used. Either way the lag itself is the latency hypothesis' to judge
-//! (a real 0.3 s latency behind a 0.2 s window keeps the nominal window at lag ≈ 0.3 s, and the
-//! hypothesis finds it as before).
-//! Candidates are compared on one set of readings (stamps at least the
-//! largest scanned window after the trajectory start) with one target (net of the pre-idle
-//! baseline at the nominal window), over the IMU-kept trials.
+//! rejects it.
+//!
+//! A lag is a latency claim only where the data demand one: a lagged point — the nominal window's
+//! lag (beyond one fine step: it is derived from the centre), or the scan's own lagged point
+//! (with one more ln n) — must beat **every** window the scan scored at lag 0 (and the lag-0
+//! windows of the same centre, 2c ± 2 steps) by that rule ([`SensorWindow::lag_demanded`]).
+//! Otherwise the best lag-0 window is the estimate (or the nominal window, where it needs no
+//! lag) and the latency hypothesis is scored but cannot be claimed: a lag that only re-centres a
+//! window of the wrong length is not a latency (the physics-fuzz campaign's 0.3 s sensors were
+//! read as 0.2 s + 0.05 s, or 0.225 s + 0.04 s, and "found" the lag). Where a lag is demanded it
+//! is the latency hypothesis' to judge (a real 0.3 s latency behind a 0.2 s window keeps the
+//! nominal window at lag ≈ 0.3 s).
+//!
+//! Candidates are compared on one set of readings (stamps at least the largest scanned window
+//! after the trajectory start) with one target (net of the pre-idle baseline at the nominal
+//! window), over the IMU-kept trials without those the diagnosis' residual passes reject: one
+//! contaminated trial with a mean residual of several watts outweighs the rest of the scan's
+//! squared error and puts the window wherever that trial fits best.
 
 use anyhow::{Context, Result};
 
