@@ -937,7 +937,15 @@ impl Search<'_, '_> {
                     .powi(2)
             })
             .sum();
-        let plausible = fit.gamma.iter().all(|g| g.is_finite()) && (contrib / n).sqrt() <= y_rms;
+        // A loss the model lacks (a one-sided form of a library mechanism, on its own) draws
+        // power: a negative coefficient is another term's remainder, not that loss.
+        let loss_sign = match self.cands[i].kind {
+            Kind::Pooled(t) if t.level_is_new() => fit.gamma[prev.len()] > 0.0,
+            _ => true,
+        };
+        let plausible = fit.gamma.iter().all(|g| g.is_finite())
+            && (contrib / n).sqrt() <= y_rms
+            && loss_sign;
         Some(Scored {
             idx: i,
             d_bic: fit.bic - cur.1,

@@ -57,8 +57,8 @@ pub const N_EXTRA: usize = DRIVING_TORQUE + 1;
 pub(crate) const DRIVE_CURRENT: usize = N_PARAMS + DRIVE;
 
 /// Positions in a raw row of the other pooled features discovery pairs with slow states: the
-/// drive current and the torque Σ|τ_i| of the joints that drive (τ_i q̇_i > 0; the braking
-/// joints' share is the rest of the whole), Stribeck friction and the bus current²
+/// drive current and the torque Σ|τ_i| of the joints that drive (τ_i q̇_i > 0, moving; the braking
+/// and holding joints' share is the rest of the whole), Stribeck friction and the bus current²
 /// (P_elec/V_bus)², and the per-joint braking power min(τ_i q̇_i, 0) (joint 0's).
 pub(crate) const RAW_DRIVING_CURRENT: usize = N_PARAMS + DRIVING_CURRENT;
 /// See [`RAW_DRIVING_CURRENT`].
@@ -71,6 +71,10 @@ pub(crate) const RAW_STRIBECK: usize = N_PARAMS + STRIBECK;
 pub(crate) const RAW_BUS_POWER: usize = N_PARAMS + BUS_POWER;
 /// See [`RAW_DRIVING_CURRENT`].
 pub(crate) const RAW_BRAKING: usize = N_PARAMS + BRAKING;
+
+/// Speed [rad/s] above which a joint moves (below it, velocity noise decides the sign of τq̇):
+/// a holding joint counts with the braking ones in the driving/braking split.
+const MOVING: f64 = 0.05;
 
 /// Supply voltage [V] assumed for the bus current P_elec / V_bus when the recording's motor
 /// supply voltages are not available (13 Li-ion cells, mid charge).
@@ -93,7 +97,7 @@ pub fn extras_into(s: &Sample, out: &mut [f64; N_EXTRA]) {
         out[BRAKING + i] = p.min(0.0);
         let amps = s.tau[i].abs() / JOINT_TORQUE_CONSTANT[i];
         current += amps;
-        if p > 0.0 {
+        if p > 0.0 && s.dq[i].abs() > MOVING {
             driving += amps;
             driving_nm += s.tau[i].abs();
         }
