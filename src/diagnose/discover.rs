@@ -249,6 +249,8 @@ fn base_mean(windows: &[usize], f: impl Fn(usize) -> f64) -> f64 {
 struct Cand {
     kind: Kind,
     group: String,
+    /// Its weight in the weighted Holm correction ([`super::family::weights`]).
+    weight: f64,
 }
 
 /// Result of fitting the current model plus extra columns.
@@ -534,8 +536,8 @@ fn signal_values(s: &Signal, rv: &RowValues) -> Vec<f64> {
 }
 
 /// Generate every candidate, fields that meter the power itself left out (noted), and keep
-/// those [`super::family::screen`] passes on the current model's residual `resid`; the count
-/// generated (the Holm correction's m) is returned last.
+/// those [`super::family::screen`] passes on the current model's residual `resid`; the
+/// weighted Holm correction over all generated is returned last.
 fn generate(
     inp: &Inputs,
     rows: &Rows,
@@ -543,7 +545,7 @@ fn generate(
     twin: bool,
     resid: &[f64],
     notes: &mut Vec<String>,
-) -> (Vec<Cand>, RowValues, Vec<bool>, usize) {
+) -> (Vec<Cand>, RowValues, Vec<bool>, Holm) {
     let names = &inp.fields.names;
     let rv = RowValues::new(inp, rows);
     let mut meters = Vec::new();
@@ -631,18 +633,40 @@ fn generate(
         }
     }
     let m = kinds.len();
+    let is_screened: Vec<bool> = family.iter().map(Option::is_some).collect();
+    let weights = super::family::weights(&is_screened);
     let keep = super::family::screen(
         &family,
         &|i| columns(&kinds[i].0, inp, &rv, rows),
         resid,
     );
-    let kinds: Vec<(Kind, String)> = keep.into_iter().map(|i| kinds[i].clone()).collect();
-    let cands = kinds
+    let w_min = weights.iter().copied().fold(1.0, f64::min);
+    let holm = Holm {
+        m,
+        total: weights.iter().sum(),
+        w_min,
+    };
+    let cands = keep
         .into_iter()
-        .map(|(kind, group)| Cand { kind, group })
+        .map(|i| Cand {
+            kind: kinds[i].0.clone(),
+            group: kinds[i].1.clone(),
+            weight: weights[i],
+        })
         .collect();
     let tried: Vec<bool> = (0..names.len()).map(|f| usable[f] && single[f]).collect();
-    (cands, rv, tried, m)
+    (cands, rv, tried, holm)
+}
+
+/// The weighted Holm correction over every candidate generated.
+#[derive(Debug, Clone, Copy)]
+struct Holm {
+    /// Candidates generated.
+    m: usize,
+    /// Their total weight.
+    total: f64,
+    /// The smallest weight (what an accepted term removes at least).
+    w_min: f64,
 }
 
 fn signal_name(s: &Signal, names: &[String]) -> String {
@@ -880,7 +904,7 @@ struct Search<'a, 'd> {
     rv: RowValues,
     inp: &'a Inputs<'a>,
     rule: Rule,
-    m: usize,
+    holm: Holm,
 }
 
 impl Search<'_, '_> {
@@ -888,8 +912,11 @@ impl Search<'_, '_> {
         columns(&self.cands[i].kind, self.inp, &self.rv, self.base.rows)
     }
 
+    /// The weighted Holm level of a candidate of weight 1 at `step` (a candidate's own level is
+    /// this times its weight).
     fn level(&self, step: usize) -> f64 {
-        self.rule.alpha / self.m.saturating_sub(step - 1).max(1) as f64
+        let h = self.holm;
+        self.rule.alpha / (h.total - (step - 1) as f64 * h.w_min).max(1.0)
     }
 
     /// Score candidate `i` on top of the chosen columns `prev` (current predictions and BIC).
@@ -910,7 +937,15 @@ impl Search<'_, '_> {
                     .powi(2)
             })
             .sum();
-        let plausible = fit.gamma.iter().all(|g| g.is_finite()) && (contrib / n).sqrt() <= y_rms;
+        // A loss the model lacks (a one-sided form of a library mechanism, on its own) draws
+        // power: a negative coefficient is another term's remainder, not that loss.
+        let loss_sign = match self.cands[i].kind {
+            Kind::Pooled(t) if t.level_is_new() => fit.gamma[prev.len()] > 0.0,
+            _ => true,
+        };
+        let plausible = fit.gamma.iter().all(|g| g.is_finite())
+            && (contrib / n).sqrt() <= y_rms
+            && loss_sign;
         Some(Scored {
             idx: i,
             d_bic: fit.bic - cur.1,
@@ -954,10 +989,10 @@ pub(crate) fn discover(
         ..Default::default()
     };
     let resid: Vec<f64> = rows.y.iter().zip(&cur.cv.pred).map(|(y, p)| y - p).collect();
-    let (cands, rv, usable, m) =
+    let (cands, rv, usable, holm) =
         generate(inp, rows, data.n_trials, twin, &resid, &mut report.notes);
     report.rest = rest_power_of(inp, usable, rule);
-    report.n_candidates = m;
+    report.n_candidates = holm.m;
     report.fields_used = (0..inp.fields.names.len())
         .filter(|&f| !inp.fields.duplicate.get(f).copied().unwrap_or(false))
         .count();
@@ -967,7 +1002,7 @@ pub(crate) fn discover(
         rv,
         inp,
         rule: *rule,
-        m,
+        holm,
     };
     let y_rms = (rows.y.iter().map(|v| v * v).sum::<f64>() / rows.len().max(1) as f64).sqrt();
     let max_terms = MAX_TERMS.min(data.n_trials / TRIALS_PER_TERM);
@@ -983,14 +1018,20 @@ pub(crate) fn discover(
         let level = search.level(step);
         let mut best_fail: Option<Scored> = None;
         let mut passing: Vec<Scored> = Vec::new();
-        for i in 0..m {
+        for i in 0..search.cands.len() {
             if chosen.contains(&i) || closed.contains(&search.cands[i].group) {
                 continue;
             }
             let Some(s) = search.score(i, &chosen_cols, (&cur_pred, cur_bic), y_rms) else {
                 continue;
             };
-            if search.passes(&s, level) {
+            if std::env::var_os("G1VIZ_DEBUG_DISCOVER").is_some() && s.rel > 0.02 {
+                eprintln!(
+                    "DBG step {step} {:?} p={:.2e} rel={:.3} dbic={:.1} plaus={}",
+                    search.cands[i].kind, s.p, s.rel, s.d_bic, s.plausible
+                );
+            }
+            if search.passes(&s, level * search.cands[i].weight) {
                 passing.push(s);
             } else if best_fail.as_ref().is_none_or(|b| s.rel > b.rel) {
                 best_fail = Some(s);
@@ -1010,8 +1051,9 @@ pub(crate) fn discover(
             && let Some(f) = &best_fail
             && best.as_ref().is_none_or(|b| f.rel > b.rel)
         {
-            let verdict = verdict_of(f, level, rule);
-            let d = to_discovery(f, &search, joint_names, level, step, verdict);
+            let lv = level * search.cands[f.idx].weight;
+            let verdict = verdict_of(f, lv, rule);
+            let d = to_discovery(f, &search, joint_names, lv, step, verdict);
             report.best_rejected = Some(d);
         }
         let Some(b) = best else { break };
@@ -1471,7 +1513,7 @@ pub(crate) fn rival_of(
         .zip(&without.cv.pred)
         .map(|(y, p)| y - p)
         .collect();
-    let (cands, rv, _, m_all) = generate(inp, rows, data.n_trials, twin, &resid, &mut notes);
+    let (cands, rv, _, holm) = generate(inp, rows, data.n_trials, twin, &resid, &mut notes);
     let m = cands.len();
     let search = Search {
         base,
@@ -1479,7 +1521,7 @@ pub(crate) fn rival_of(
         rv,
         inp,
         rule: *rule,
-        m: m_all,
+        holm,
     };
     let names = &inp.fields.names;
     if !(0..m).any(|i| may_rival(&search.cands[i].kind, names, &inp.arm_motors)) {
@@ -1498,7 +1540,9 @@ pub(crate) fn rival_of(
         let refs: Vec<&Vec<f64>> = cols.iter().collect();
         !beside.fit(&refs).ok().is_some_and(|fit| {
             let (p, rel, _, _) = beside.compare(&with.cv.pred, &fit.pred);
-            p < level && fit.bic - with.bic < rule.bic_threshold && rel >= rule.min_improvement
+            p < level * search.cands[i].weight
+                && fit.bic - with.bic < rule.bic_threshold
+                && rel >= rule.min_improvement
         })
     };
     // What the term adds to the held-out prediction.
@@ -1514,7 +1558,7 @@ pub(crate) fn rival_of(
         let Some(s) = search.score(i, &[], (&without.cv.pred, without.bic), y_rms) else {
             continue;
         };
-        if !search.passes(&s, level) || !explains_same(i) {
+        if !search.passes(&s, level * search.cands[i].weight) || !explains_same(i) {
             continue;
         }
         let e_riv = trial_sse(&rows.y, &s.fit.pred, &rows.trial, nt);
@@ -1710,13 +1754,13 @@ fn finish(
             continue;
         };
         let ncols = search.cols(k).len();
-        let level = search.level(*step);
+        let level = search.level(*step) * search.cands[k].weight;
         let verdict = format!(
-            "accepted: held-out RMSE −{:.1} % (p = {:.1e} < {:.1e}, Holm over {} candidates), ΔBIC = {:.1}",
+            "accepted: held-out RMSE −{:.1} % (p = {:.1e} < {:.1e}, weighted Holm over {} candidates), ΔBIC = {:.1}",
             100.0 * s.rel,
             s.p,
             level,
-            search.m,
+            search.holm.m,
             s.d_bic
         );
         let mut d = to_discovery(s, search, joint_names, level, *step, verdict);

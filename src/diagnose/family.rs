@@ -4,16 +4,18 @@
 //! mechanisms ([`Term`]), split where physics splits it (the transmitted power and the drive
 //! current into the joints that drive and those that brake), is tried times every slow state
 //! signal in one of a few forms ([`Shape`]): linear, a step above a level chosen from the data
-//! (five levels, each a candidate, so the search's multiplicity is counted), or exponential
+//! (three levels, each a candidate, so the search's multiplicity is counted), or exponential
 //! rising or falling. The linear forms of the four base terms and of the drive current are
 //! always scored; the rest of the family is screened on the current model's held-out residual
 //! (per term, the few best by the variance their two columns explain), since scoring every
 //! member with cross-validation would cost thousands of fits. Every member generated counts in
-//! the Holm correction whether screened out or not.
+//! the Holm correction whether screened out or not: a weighted Holm, in which the screened
+//! members together weigh as much as the candidates always scored (each always-scored one
+//! weighs 1, so its level is that of a Holm over twice their number; see [`weights`]).
 
 use super::hypotheses::{
-    DRIVE_CURRENT, RAW_BRAKING, RAW_BUS_POWER, RAW_DRIVING_CURRENT, RAW_GEAR, RAW_LEAK,
-    RAW_STRIBECK,
+    DRIVE_CURRENT, RAW_BRAKING, RAW_BUS_POWER, RAW_DRIVING_CURRENT, RAW_DRIVING_TORQUE,
+    RAW_STRIBECK, RAW_TORQUE,
 };
 use crate::N_JOINTS;
 
@@ -28,9 +30,8 @@ pub(crate) enum Term {
     Coulomb,
     /// q̇_i² (viscous friction).
     Viscous,
-    /// max(τ_i q̇_i, 0): the mechanical power of the joints that drive.
-    Driving,
-    /// min(τ_i q̇_i, 0): the braking (regenerated) power — the braking asymmetry's regressor.
+    /// min(τ_i q̇_i, 0): the braking (regenerated) power — the braking asymmetry's regressor
+    /// (its driving counterpart is τq̇ less this).
     Braking,
     /// Σ|τ_i|/K_i (the phase current: drive-electronics loss per ampere), pooled.
     Current,
@@ -38,12 +39,12 @@ pub(crate) enum Term {
     DrivingCurrent,
     /// The phase current of the joints that brake or hold, pooled.
     BrakingCurrent,
-    /// Σ|τ_i q̇_i| (load-dependent gear friction), pooled.
-    Gear,
+    /// Σ|τ_i| of the joints that drive (drive-electronics loss per Nm), pooled.
+    DrivingTorque,
+    /// Σ|τ_i| of the joints that brake or hold, pooled.
+    BrakingTorque,
     /// Σ|q̇_i|·exp(−(q̇_i/v_s)²) (Stribeck friction), pooled.
     Stribeck,
-    /// |ω_body|² (balance-compensation leakage), pooled.
-    Leak,
     /// (P_elec/V_bus)² (shared DC-bus loss), pooled.
     BusPower,
 }
@@ -52,19 +53,18 @@ impl Term {
     /// The base loss terms (per joint; twin corrections and per-motor families).
     pub(crate) const BASE: [Term; 4] = [Term::Mech, Term::Copper, Term::Coulomb, Term::Viscous];
     /// Every term of the family, in generation order.
-    pub(crate) const ALL: [Term; 13] = [
+    pub(crate) const ALL: [Term; 12] = [
         Term::Mech,
         Term::Copper,
         Term::Coulomb,
         Term::Viscous,
         Term::Current,
-        Term::Driving,
         Term::Braking,
         Term::DrivingCurrent,
         Term::BrakingCurrent,
-        Term::Gear,
+        Term::DrivingTorque,
+        Term::BrakingTorque,
         Term::Stribeck,
-        Term::Leak,
         Term::BusPower,
     ];
 
@@ -72,7 +72,7 @@ impl Term {
     pub(crate) fn per_joint(self) -> bool {
         matches!(
             self,
-            Term::Mech | Term::Copper | Term::Coulomb | Term::Viscous | Term::Driving | Term::Braking
+            Term::Mech | Term::Copper | Term::Coulomb | Term::Viscous | Term::Braking
         )
     }
 
@@ -87,7 +87,10 @@ impl Term {
     /// Whether its level alone is a candidate in a refitted model: a one-sided form of a library
     /// mechanism the library does not hold (the others are base terms or library hypotheses).
     pub(crate) fn level_is_new(self) -> bool {
-        matches!(self, Term::DrivingCurrent | Term::BrakingCurrent)
+        matches!(
+            self,
+            Term::DrivingCurrent | Term::BrakingCurrent | Term::DrivingTorque | Term::BrakingTorque
+        )
     }
 
     /// Its value on a raw row for joint `i` (pooled terms ignore `i`).
@@ -97,14 +100,13 @@ impl Term {
             Term::Copper => x[N_JOINTS + i],
             Term::Coulomb => x[2 * N_JOINTS + i],
             Term::Viscous => x[3 * N_JOINTS + i],
-            Term::Driving => x[i] - x[RAW_BRAKING + i],
             Term::Braking => x[RAW_BRAKING + i],
             Term::Current => x[DRIVE_CURRENT],
             Term::DrivingCurrent => x[RAW_DRIVING_CURRENT],
             Term::BrakingCurrent => x[DRIVE_CURRENT] - x[RAW_DRIVING_CURRENT],
-            Term::Gear => x[RAW_GEAR],
+            Term::DrivingTorque => x[RAW_DRIVING_TORQUE],
+            Term::BrakingTorque => x[RAW_TORQUE] - x[RAW_DRIVING_TORQUE],
             Term::Stribeck => x[RAW_STRIBECK],
-            Term::Leak => x[RAW_LEAK],
             Term::BusPower => x[RAW_BUS_POWER],
         }
     }
@@ -123,11 +125,10 @@ impl Term {
         match self {
             Term::Braking => Some("braking"),
             Term::Current | Term::DrivingCurrent | Term::BrakingCurrent => Some("drive_loss"),
-            Term::Gear => Some("gear_friction"),
+            Term::DrivingTorque | Term::BrakingTorque => Some("electronics_nm"),
             Term::Stribeck => Some("stribeck"),
-            Term::Leak => Some("balance_leak"),
             Term::BusPower => Some("bus_power"),
-            Term::Mech | Term::Copper | Term::Coulomb | Term::Viscous | Term::Driving => None,
+            Term::Mech | Term::Copper | Term::Coulomb | Term::Viscous => None,
         }
     }
 
@@ -138,7 +139,6 @@ impl Term {
             Term::Copper => "the copper loss Δτ²",
             Term::Coulomb => "the Coulomb friction loss |q̇|",
             Term::Viscous => "the viscous friction loss q̇²",
-            Term::Driving => "the transmitted mechanical power while driving (τq̇ > 0)",
             Term::Braking => "the braking asymmetry (regenerated power τq̇ < 0 not returned)",
             Term::Current => "the drive-electronics loss per ampere of phase current |τ|/K",
             Term::DrivingCurrent => {
@@ -147,9 +147,11 @@ impl Term {
             Term::BrakingCurrent => {
                 "the drive-electronics loss per ampere of the braking or holding joints' current (τq̇ ≤ 0)"
             }
-            Term::Gear => "the load-dependent gear friction Σ|τq̇|",
+            Term::DrivingTorque => "the drive-electronics loss per Nm of the driving joints (τq̇ > 0)",
+            Term::BrakingTorque => {
+                "the drive-electronics loss per Nm of the braking or holding joints (τq̇ ≤ 0)"
+            }
             Term::Stribeck => "the Stribeck friction Σ|q̇|·exp(−(q̇/v_s)²)",
-            Term::Leak => "the balance-compensation leakage |ω_body|²",
             Term::BusPower => "the shared DC-bus loss (P_elec/V_bus)²",
         }
     }
@@ -161,14 +163,13 @@ impl Term {
             Term::Copper => "Δτ_i²",
             Term::Coulomb => "|q̇_i|",
             Term::Viscous => "q̇_i²",
-            Term::Driving => "max(τ_i q̇_i, 0)",
             Term::Braking => "min(τ_i q̇_i, 0)",
             Term::Current => "|τ_i|/K_i",
             Term::DrivingCurrent => "|τ_i|/K_i·[τ_i q̇_i > 0]",
             Term::BrakingCurrent => "|τ_i|/K_i·[τ_i q̇_i ≤ 0]",
-            Term::Gear => "|τ_i q̇_i|",
+            Term::DrivingTorque => "|τ_i|·[τ_i q̇_i > 0]",
+            Term::BrakingTorque => "|τ_i|·[τ_i q̇_i ≤ 0]",
             Term::Stribeck => "|q̇_i|·exp(−(q̇_i/v_s)²)",
-            Term::Leak => "|ω|²",
             Term::BusPower => "(P_elec/V_bus)²",
         }
     }
@@ -176,12 +177,12 @@ impl Term {
     /// Unit of its coefficient.
     pub(crate) fn unit(self) -> &'static str {
         match self {
-            Term::Mech | Term::Driving | Term::Braking | Term::Gear => "-",
+            Term::Mech | Term::Braking => "-",
             Term::Copper => "W/Nm²",
             Term::Coulomb | Term::Stribeck => "W·s/rad",
             Term::Viscous => "W·s²/rad²",
             Term::Current | Term::DrivingCurrent | Term::BrakingCurrent => "V",
-            Term::Leak => "W/(rad/s)²",
+            Term::DrivingTorque | Term::BrakingTorque => "W/Nm",
             Term::BusPower => "Ω",
         }
     }
@@ -200,7 +201,7 @@ pub(crate) enum Shape {
 }
 
 /// Quantiles of a signal's values at which a step's level is tried.
-const STEP_QUANTILES: [f64; 5] = [0.2, 0.35, 0.5, 0.65, 0.8];
+const STEP_QUANTILES: [f64; 3] = [0.25, 0.5, 0.75];
 /// Rates of the exponential forms (over the 5–95 % range of the signal).
 const EXP_RATES: [f64; 2] = [3.0, -3.0];
 /// Family members kept per term by the screen (beside the always-scored linear forms).
@@ -338,6 +339,16 @@ fn explained(cols: &[Vec<f64>], e: &[f64]) -> f64 {
         .unwrap_or(0.0)
 }
 
+/// Weights of the weighted Holm correction, per generated candidate (`screened[i]`: a screened
+/// family member): 1 for a candidate always scored, and the screened members share the same
+/// total. Their sum is the correction's total weight.
+pub(crate) fn weights(screened: &[bool]) -> Vec<f64> {
+    let n_screened = screened.iter().filter(|&&s| s).count();
+    let n_core = screened.len() - n_screened;
+    let w = n_core.max(1) as f64 / n_screened.max(1) as f64;
+    screened.iter().map(|&s| if s { w } else { 1.0 }).collect()
+}
+
 /// Whether a term × signal candidate in `shape` is screened (not always scored).
 pub(crate) fn screened(t: Term, shape: Shape) -> bool {
     !(t.always_scored() && shape == Shape::Linear)
@@ -353,8 +364,8 @@ mod tests {
         let s = Shape::all_for(&v);
         assert_eq!(s[0], Shape::Linear);
         let steps = s.iter().filter(|x| matches!(x, Shape::Above(_))).count();
-        assert_eq!(steps, 5);
-        assert_eq!(s.len(), 8);
+        assert_eq!(steps, 3);
+        assert_eq!(s.len(), 6);
         // A signal with two levels only: one distinct step level survives.
         let two: Vec<f64> = (0..100).map(|k| f64::from(u8::from(k >= 70))).collect();
         let s2 = Shape::all_for(&two);
@@ -369,15 +380,20 @@ mod tests {
     }
 
     #[test]
+    fn screened_members_weigh_as_much_as_the_core_together() {
+        let w = weights(&[false, false, true, true, true, true]);
+        assert_eq!(&w[..2], &[1.0, 1.0]);
+        assert!((w[2..].iter().sum::<f64>() - 2.0).abs() < 1e-12);
+    }
+
+    #[test]
     fn split_terms_add_up_to_the_whole() {
         let mut x = vec![0.0; crate::diagnose::hypotheses::N_RAW];
         x[0] = 2.0; // τq̇ of joint 0
         x[RAW_BRAKING] = -0.5;
         x[DRIVE_CURRENT] = 3.0;
         x[RAW_DRIVING_CURRENT] = 1.0;
-        let d = Term::Driving.value(&x, 0);
-        let b = Term::Braking.value(&x, 0);
-        assert_eq!(d + b, Term::Mech.value(&x, 0));
+        assert_eq!(Term::Braking.value(&x, 0), -0.5);
         assert_eq!(
             Term::DrivingCurrent.value(&x, 0) + Term::BrakingCurrent.value(&x, 0),
             Term::Current.value(&x, 0)
@@ -387,7 +403,7 @@ mod tests {
     #[test]
     fn the_screen_keeps_unscreened_candidates_and_the_best_members() {
         let e: Vec<f64> = (0..50).map(|k| f64::from(k % 7) - 3.0).collect();
-        let fam = vec![None, Some(Term::Gear), Some(Term::Gear), Some(Term::Gear)];
+        let fam = vec![None, Some(Term::Stribeck), Some(Term::Stribeck), Some(Term::Stribeck)];
         let cols = |i: usize| -> Vec<Vec<f64>> {
             match i {
                 1 => vec![e.clone()],
