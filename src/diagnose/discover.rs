@@ -35,7 +35,7 @@ use nalgebra::{DMatrix, DVector};
 use super::Quality;
 use super::data::Rows;
 use super::fields::FieldTable;
-use super::hypotheses::DRIVE_CURRENT;
+use super::family::{Shape, Term};
 use super::select::{
     Param, PowerData, Rule, State, bic, bounds_for, design_map_for, jackknife_se, r2_rmse,
     solve_bounded_for, trial_sse,
@@ -56,68 +56,6 @@ const TIME_NAME: &str = "session time";
 const MAX_TERMS: usize = 4;
 /// Partial correlation (given the library design) above which two terms are confounded.
 const CONFOUNDED_R: f64 = 0.9;
-
-/// One base loss term of the paper's model, per joint (block of the 49 regressors).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(crate) enum Term {
-    /// τ_i q̇_i (mechanical power: transmission efficiency).
-    Mech,
-    /// τ_i² − τ0_i² (copper loss).
-    Copper,
-    /// |q̇_i| (Coulomb friction).
-    Coulomb,
-    /// q̇_i² (viscous friction).
-    Viscous,
-    /// |τ_i| / K_i (the phase current: drive-electronics loss per ampere). Only its sum over
-    /// the joints is in a row, so it pairs with signals common to all joints (a field, session
-    /// time), not with per-motor families.
-    Current,
-}
-
-impl Term {
-    const ALL: [Term; 4] = [Term::Mech, Term::Copper, Term::Coulomb, Term::Viscous];
-
-    /// Position of joint 0's column in a raw row (the pooled sum's for [`Term::Current`]).
-    fn offset(self) -> usize {
-        match self {
-            Term::Mech => 0,
-            Term::Copper => N_JOINTS,
-            Term::Coulomb => 2 * N_JOINTS,
-            Term::Viscous => 3 * N_JOINTS,
-            Term::Current => DRIVE_CURRENT,
-        }
-    }
-
-    fn words(self) -> &'static str {
-        match self {
-            Term::Mech => "the transmitted mechanical power τq̇ (efficiency)",
-            Term::Copper => "the copper loss Δτ²",
-            Term::Coulomb => "the Coulomb friction loss |q̇|",
-            Term::Viscous => "the viscous friction loss q̇²",
-            Term::Current => "the drive-electronics loss per ampere of phase current |τ|/K",
-        }
-    }
-
-    fn symbol(self) -> &'static str {
-        match self {
-            Term::Mech => "τ_i q̇_i",
-            Term::Copper => "Δτ_i²",
-            Term::Coulomb => "|q̇_i|",
-            Term::Viscous => "q̇_i²",
-            Term::Current => "|τ_i|/K_i",
-        }
-    }
-
-    fn unit(self) -> &'static str {
-        match self {
-            Term::Mech => "-",
-            Term::Copper => "W/Nm²",
-            Term::Coulomb => "W·s/rad",
-            Term::Viscous => "W·s²/rad²",
-            Term::Current => "V",
-        }
-    }
-}
 
 /// A slow state signal a loss term may depend on.
 #[derive(Debug, Clone)]
@@ -141,8 +79,8 @@ pub(crate) enum Kind {
     Additive(usize, f64),
     /// W while the field is above `threshold`.
     Step(usize, f64),
-    /// Σ_i term_i · signal_i.
-    Product(Term, Signal),
+    /// Σ_i term_i · g(signal_i), beside the term's level (a family member, [`super::family`]).
+    Product(Term, Signal, Shape),
     /// One coefficient per joint on term_i (held base model only).
     PerJoint(Term),
     /// One coefficient on Σ_i term_i (held base model only).
@@ -186,6 +124,10 @@ pub struct Discovery {
     /// found on ([`super::meters`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub meter: Option<super::meters::MeterCheck>,
+    /// The library mechanism this term is a form of (its hypothesis id: a one-sided or
+    /// state-switched braking asymmetry, drive-electronics loss, …), if any.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mechanism: Option<String>,
     /// What it adds to the power, per reading (the final joint fit's coefficients).
     #[serde(skip)]
     pub contribution: Vec<f64>,
@@ -307,6 +249,8 @@ fn base_mean(windows: &[usize], f: impl Fn(usize) -> f64) -> f64 {
 struct Cand {
     kind: Kind,
     group: String,
+    /// Its weight in the weighted Holm correction ([`super::family::weights`]).
+    weight: f64,
 }
 
 /// Result of fitting the current model plus extra columns.
@@ -544,15 +488,6 @@ fn families(names: &[String], arm: &[usize; N_JOINTS]) -> Vec<(String, [usize; N
 /// Columns of a candidate on the rows.
 fn columns(kind: &Kind, inp: &Inputs, rv: &RowValues, rows: &Rows) -> Vec<Vec<f64>> {
     let n = rows.len();
-    let term_sum = |t: Term, r: usize, w: &dyn Fn(usize) -> f64| -> f64 {
-        if t == Term::Current {
-            // One pooled column; its signals are common to all joints.
-            return rows.x[r][t.offset()] * w(0);
-        }
-        (0..N_JOINTS)
-            .map(|i| rows.x[r][t.offset() + i] * w(i))
-            .sum()
-    };
     match kind {
         Kind::Additive(f, _) => vec![(0..n).map(|r| rv.raw[*f][r] - rv.baseline[*f][r]).collect()],
         Kind::Step(f, thr) => {
@@ -567,7 +502,7 @@ fn columns(kind: &Kind, inp: &Inputs, rv: &RowValues, rows: &Rows) -> Vec<Vec<f6
                     .collect(),
             ]
         }
-        Kind::Product(t, sig) => {
+        Kind::Product(t, sig, shape) => {
             let s = |r: usize, i: usize| match sig {
                 Signal::Field(f) => rv.raw[*f][r],
                 Signal::Family(_, fs) => rv.raw[fs[i]][r],
@@ -577,25 +512,40 @@ fn columns(kind: &Kind, inp: &Inputs, rv: &RowValues, rows: &Rows) -> Vec<Vec<f6
             // The level column lets the term's coefficient at signal 0 take any sign (the base
             // coefficients it would otherwise shift are bounded at 0).
             vec![
-                (0..n).map(|r| term_sum(*t, r, &|i| s(r, i))).collect(),
-                (0..n).map(|r| term_sum(*t, r, &|_| 1.0)).collect(),
+                (0..n)
+                    .map(|r| t.sum(&rows.x[r], &|i| shape.g(s(r, i))))
+                    .collect(),
+                (0..n).map(|r| t.sum(&rows.x[r], &|_| 1.0)).collect(),
             ]
         }
         Kind::PerJoint(t) => (0..N_JOINTS)
-            .map(|i| (0..n).map(|r| rows.x[r][t.offset() + i]).collect())
+            .map(|i| (0..n).map(|r| t.value(&rows.x[r], i)).collect())
             .collect(),
-        Kind::Pooled(t) => vec![(0..n).map(|r| term_sum(*t, r, &|_| 1.0)).collect()],
+        Kind::Pooled(t) => vec![(0..n).map(|r| t.sum(&rows.x[r], &|_| 1.0)).collect()],
     }
 }
 
-/// Generate every candidate; fields that meter the power itself are left out (noted).
+/// A signal's values on the rows (every member's, for a family).
+fn signal_values(s: &Signal, rv: &RowValues) -> Vec<f64> {
+    match s {
+        Signal::Field(f) => rv.raw[*f].clone(),
+        Signal::Family(_, fs) => fs.iter().flat_map(|&f| rv.raw[f].iter().copied()).collect(),
+        Signal::Time => rv.hours.clone(),
+        Signal::Rest(f) => rv.baseline[*f].clone(),
+    }
+}
+
+/// Generate every candidate, fields that meter the power itself left out (noted), and keep
+/// those [`super::family::screen`] passes on the current model's residual `resid`; the
+/// weighted Holm correction over all generated is returned last.
 fn generate(
     inp: &Inputs,
     rows: &Rows,
     n_trials: usize,
     twin: bool,
+    resid: &[f64],
     notes: &mut Vec<String>,
-) -> (Vec<Cand>, RowValues, Vec<bool>) {
+) -> (Vec<Cand>, RowValues, Vec<bool>, Holm) {
     let names = &inp.fields.names;
     let rv = RowValues::new(inp, rows);
     let mut meters = Vec::new();
@@ -658,30 +608,65 @@ fn generate(
             slow.push(Signal::Family(key, fs));
         }
     }
+    // The family: every term × every slow signal it can pair with × every shape; the linear
+    // forms of the base terms and the drive current always scored, the rest screened.
+    let mut family: Vec<Option<Term>> = vec![None; kinds.len()];
     for t in Term::ALL {
-        for s in &slow {
+        for s in slow
+            .iter()
+            .filter(|s| t.per_joint() || !matches!(s, Signal::Family(..)))
+        {
             let g = format!("{t:?} × {}", signal_name(s, names));
-            kinds.push((Kind::Product(t, s.clone()), g));
+            for shape in Shape::all_for(&signal_values(s, &rv)) {
+                family.push(super::family::screened(t, shape).then_some(t));
+                kinds.push((Kind::Product(t, s.clone(), shape), g.clone()));
+            }
         }
-        if twin {
-            kinds.push((Kind::PerJoint(t), format!("{t:?} correction")));
+        // A one-sided form of a library mechanism the library does not hold, on its own.
+        if t.level_is_new() || (twin && Term::BASE.contains(&t)) {
+            family.push(None);
             kinds.push((Kind::Pooled(t), format!("{t:?} correction")));
         }
+        if twin && Term::BASE.contains(&t) {
+            family.push(None);
+            kinds.push((Kind::PerJoint(t), format!("{t:?} correction")));
+        }
     }
-    // The drive-electronics loss per ampere × each signal common to all joints: a drive loss
-    // that changes with a state (a switching loss follows the supply voltage). Its plain form
-    // is the library's drive-electronics hypothesis, so it has no correction of its own.
-    let t = Term::Current;
-    for s in slow.iter().filter(|s| !matches!(s, Signal::Family(..))) {
-        let g = format!("{t:?} × {}", signal_name(s, names));
-        kinds.push((Kind::Product(t, s.clone()), g));
-    }
-    let cands = kinds
+    let m = kinds.len();
+    let is_screened: Vec<bool> = family.iter().map(Option::is_some).collect();
+    let weights = super::family::weights(&is_screened);
+    let keep = super::family::screen(
+        &family,
+        &|i| columns(&kinds[i].0, inp, &rv, rows),
+        resid,
+    );
+    let w_min = weights.iter().copied().fold(1.0, f64::min);
+    let holm = Holm {
+        m,
+        total: weights.iter().sum(),
+        w_min,
+    };
+    let cands = keep
         .into_iter()
-        .map(|(kind, group)| Cand { kind, group })
+        .map(|i| Cand {
+            kind: kinds[i].0.clone(),
+            group: kinds[i].1.clone(),
+            weight: weights[i],
+        })
         .collect();
     let tried: Vec<bool> = (0..names.len()).map(|f| usable[f] && single[f]).collect();
-    (cands, rv, tried)
+    (cands, rv, tried, holm)
+}
+
+/// The weighted Holm correction over every candidate generated.
+#[derive(Debug, Clone, Copy)]
+struct Holm {
+    /// Candidates generated.
+    m: usize,
+    /// Their total weight.
+    total: f64,
+    /// The smallest weight (what an accepted term removes at least).
+    w_min: f64,
 }
 
 fn signal_name(s: &Signal, names: &[String]) -> String {
@@ -767,7 +752,7 @@ pub(crate) fn describe(
             vec![names[*f].clone()],
             vec![fit.param("power while on".into(), "P_on", 0, "W".into())],
         ),
-        Kind::Product(t, s) => describe_product(*t, s, names, &fit),
+        Kind::Product(t, s, shape) => describe_product(*t, s, *shape, names, &fit),
         Kind::PerJoint(t) => (
             format!(
                 "{} differs joint by joint from the model",
@@ -792,6 +777,12 @@ pub(crate) fn describe(
                     .collect(),
             ),
         ),
+        Kind::Pooled(t) if t.level_is_new() => (
+            format!("{} is missing from the model", capitalise(t.words())),
+            format!("P += k·Σ_i {}", t.symbol()),
+            Vec::new(),
+            vec![fit.param("coefficient".into(), "k", 0, t.unit().into())],
+        ),
         Kind::Pooled(t) => (
             format!(
                 "{} of all joints is {} than the model's",
@@ -805,27 +796,25 @@ pub(crate) fn describe(
     }
 }
 
-/// [`describe`] of a base loss term times a slow state signal.
+/// [`describe`] of a loss term or library mechanism times a slow state signal in a shape.
 fn describe_product(
     t: Term,
     s: &Signal,
+    shape: Shape,
     names: &[String],
     fit: &Fitted,
 ) -> (String, String, Vec<String>, Vec<Param>) {
-    let (sname, fields) = match s {
-        Signal::Field(f) => (names[*f].clone(), vec![names[*f].clone()]),
-        Signal::Family(k, fs) => (
-            format!("{k} of each joint's own motor"),
-            fs.iter().map(|&f| names[f].clone()).collect(),
+    let fields = match s {
+        Signal::Field(f) | Signal::Rest(f) => vec![names[*f].clone()],
+        Signal::Family(_, fs) => fs.iter().map(|&f| names[f].clone()).collect(),
+        Signal::Time => Vec::new(),
+    };
+    let sname = match s {
+        Signal::Rest(f) => format!(
+            "{} at rest (its mean over each trial's pre-idle readings)",
+            names[*f]
         ),
-        Signal::Time => ("session time [h]".into(), Vec::new()),
-        Signal::Rest(f) => (
-            format!(
-                "{} at rest (its mean over each trial's pre-idle readings)",
-                names[*f]
-            ),
-            vec![names[*f].clone()],
-        ),
+        _ => signal_words(s, names),
     };
     let mut ps = vec![fit.param(
         format!("change of {} per unit of the signal", t.words()),
@@ -838,13 +827,14 @@ fn describe_product(
     }
     (
         format!(
-            "{} of the arm's joints {} {sname}",
+            "{} of the arm's joints {}",
             capitalise(t.words()),
-            fit.sign("rises with", "falls as it rises:")
+            shape.predicate(&sname, fit.gamma.first().copied().unwrap_or(0.0))
         ),
         format!(
-            "P += Σ_i {}·(k·s_i{})",
+            "P += Σ_i {}·(k·{}{})",
             t.symbol(),
+            shape.formula(),
             if fit.gamma.len() > 1 { " + k0" } else { "" }
         ),
         fields,
@@ -914,7 +904,7 @@ struct Search<'a, 'd> {
     rv: RowValues,
     inp: &'a Inputs<'a>,
     rule: Rule,
-    m: usize,
+    holm: Holm,
 }
 
 impl Search<'_, '_> {
@@ -922,8 +912,11 @@ impl Search<'_, '_> {
         columns(&self.cands[i].kind, self.inp, &self.rv, self.base.rows)
     }
 
+    /// The weighted Holm level of a candidate of weight 1 at `step` (a candidate's own level is
+    /// this times its weight).
     fn level(&self, step: usize) -> f64 {
-        self.rule.alpha / self.m.saturating_sub(step - 1).max(1) as f64
+        let h = self.holm;
+        self.rule.alpha / (h.total - (step - 1) as f64 * h.w_min).max(1.0)
     }
 
     /// Score candidate `i` on top of the chosen columns `prev` (current predictions and BIC).
@@ -944,7 +937,15 @@ impl Search<'_, '_> {
                     .powi(2)
             })
             .sum();
-        let plausible = fit.gamma.iter().all(|g| g.is_finite()) && (contrib / n).sqrt() <= y_rms;
+        // A loss the model lacks (a one-sided form of a library mechanism, on its own) draws
+        // power: a negative coefficient is another term's remainder, not that loss.
+        let loss_sign = match self.cands[i].kind {
+            Kind::Pooled(t) if t.level_is_new() => fit.gamma[prev.len()] > 0.0,
+            _ => true,
+        };
+        let plausible = fit.gamma.iter().all(|g| g.is_finite())
+            && (contrib / n).sqrt() <= y_rms
+            && loss_sign;
         Some(Scored {
             idx: i,
             d_bic: fit.bic - cur.1,
@@ -987,10 +988,11 @@ pub(crate) fn discover(
         excluded: inp.fields.excluded.clone(),
         ..Default::default()
     };
-    let (cands, rv, usable) = generate(inp, rows, data.n_trials, twin, &mut report.notes);
+    let resid: Vec<f64> = rows.y.iter().zip(&cur.cv.pred).map(|(y, p)| y - p).collect();
+    let (cands, rv, usable, holm) =
+        generate(inp, rows, data.n_trials, twin, &resid, &mut report.notes);
     report.rest = rest_power_of(inp, usable, rule);
-    let m = cands.len();
-    report.n_candidates = m;
+    report.n_candidates = holm.m;
     report.fields_used = (0..inp.fields.names.len())
         .filter(|&f| !inp.fields.duplicate.get(f).copied().unwrap_or(false))
         .count();
@@ -1000,7 +1002,7 @@ pub(crate) fn discover(
         rv,
         inp,
         rule: *rule,
-        m,
+        holm,
     };
     let y_rms = (rows.y.iter().map(|v| v * v).sum::<f64>() / rows.len().max(1) as f64).sqrt();
     let max_terms = MAX_TERMS.min(data.n_trials / TRIALS_PER_TERM);
@@ -1016,14 +1018,20 @@ pub(crate) fn discover(
         let level = search.level(step);
         let mut best_fail: Option<Scored> = None;
         let mut passing: Vec<Scored> = Vec::new();
-        for i in 0..m {
+        for i in 0..search.cands.len() {
             if chosen.contains(&i) || closed.contains(&search.cands[i].group) {
                 continue;
             }
             let Some(s) = search.score(i, &chosen_cols, (&cur_pred, cur_bic), y_rms) else {
                 continue;
             };
-            if search.passes(&s, level) {
+            if std::env::var_os("G1VIZ_DEBUG_DISCOVER").is_some() && s.rel > 0.02 {
+                eprintln!(
+                    "DBG step {step} {:?} p={:.2e} rel={:.3} dbic={:.1} plaus={}",
+                    search.cands[i].kind, s.p, s.rel, s.d_bic, s.plausible
+                );
+            }
+            if search.passes(&s, level * search.cands[i].weight) {
                 passing.push(s);
             } else if best_fail.as_ref().is_none_or(|b| s.rel > b.rel) {
                 best_fail = Some(s);
@@ -1043,8 +1051,9 @@ pub(crate) fn discover(
             && let Some(f) = &best_fail
             && best.as_ref().is_none_or(|b| f.rel > b.rel)
         {
-            let verdict = verdict_of(f, level, rule);
-            let d = to_discovery(f, &search, joint_names, level, step, verdict);
+            let lv = level * search.cands[f.idx].weight;
+            let verdict = verdict_of(f, lv, rule);
+            let d = to_discovery(f, &search, joint_names, lv, step, verdict);
             report.best_rejected = Some(d);
         }
         let Some(b) = best else { break };
@@ -1182,12 +1191,12 @@ fn followed(kind: &Kind, names: &[String]) -> Vec<String> {
     match kind {
         Kind::Additive(f, _)
         | Kind::Step(f, _)
-        | Kind::Product(_, Signal::Field(f))
-        | Kind::Product(_, Signal::Rest(f)) => {
+        | Kind::Product(_, Signal::Field(f), _)
+        | Kind::Product(_, Signal::Rest(f), _) => {
             vec![names[*f].clone()]
         }
-        Kind::Product(_, Signal::Family(_, fs)) => fs.iter().map(|&f| names[f].clone()).collect(),
-        Kind::Product(_, Signal::Time) => vec![TIME_NAME.into()],
+        Kind::Product(_, Signal::Family(_, fs), _) => fs.iter().map(|&f| names[f].clone()).collect(),
+        Kind::Product(_, Signal::Time, _) => vec![TIME_NAME.into()],
         Kind::PerJoint(_) | Kind::Pooled(_) => Vec::new(),
     }
 }
@@ -1197,7 +1206,7 @@ fn followed(kind: &Kind, names: &[String]) -> Vec<String> {
 fn same_structure(a: &Kind, b: &Kind) -> bool {
     match (a, b) {
         (Kind::Additive(..), Kind::Additive(..)) | (Kind::Step(..), Kind::Step(..)) => true,
-        (Kind::Product(t, _), Kind::Product(u, _)) => t == u,
+        (Kind::Product(t, ..), Kind::Product(u, ..)) => t == u,
         _ => false,
     }
 }
@@ -1231,23 +1240,24 @@ fn tie_of(
 /// How a candidate's signal enters its name (the words after the subject): "rises with X",
 /// "falls as it rises: X", "switches with X (…)". Empty for a correction.
 fn predicate(kind: &Kind, names: &[String], gamma0: f64) -> String {
-    let sign = |f: &str| {
-        if gamma0 >= 0.0 {
-            format!("rises with {f}")
-        } else {
-            format!("falls as it rises: {f}")
-        }
-    };
     match kind {
-        Kind::Additive(f, _) | Kind::Product(_, Signal::Field(f)) => sign(&names[*f]),
-        Kind::Product(_, Signal::Rest(f)) => sign(&format!("{} at rest", names[*f])),
+        Kind::Additive(f, _) => Shape::Linear.predicate(&names[*f], gamma0),
+        Kind::Product(_, s, shape) => shape.predicate(&signal_words(s, names), gamma0),
         Kind::Step(f, thr) => format!(
             "switches with {} (drawn while it reads above {thr:.4})",
             names[*f]
         ),
-        Kind::Product(_, Signal::Family(k, _)) => sign(&format!("{k} of each joint's own motor")),
-        Kind::Product(_, Signal::Time) => sign("session time [h]"),
         Kind::PerJoint(_) | Kind::Pooled(_) => String::new(),
+    }
+}
+
+/// How a signal reads in a name.
+fn signal_words(s: &Signal, names: &[String]) -> String {
+    match s {
+        Signal::Field(f) => names[*f].clone(),
+        Signal::Rest(f) => format!("{} at rest", names[*f]),
+        Signal::Family(k, _) => format!("{k} of each joint's own motor"),
+        Signal::Time => "session time [h]".into(),
     }
 }
 
@@ -1265,8 +1275,8 @@ struct Tie {
 /// session time, or the field itself).
 fn pattern(kind: &Kind, names: &[String], arm: &[usize; N_JOINTS]) -> String {
     match kind {
-        Kind::Product(_, Signal::Family(k, _)) => k.clone(),
-        Kind::Product(_, Signal::Time) => TIME_NAME.into(),
+        Kind::Product(_, Signal::Family(k, _), _) => k.clone(),
+        Kind::Product(_, Signal::Time, _) => TIME_NAME.into(),
         _ => {
             let mut f = followed(kind, names).join(", ");
             for k in arm {
@@ -1400,7 +1410,7 @@ fn name_with_ties(name: &str, ties: &[Tie]) -> String {
 /// does not fit significantly better than that pooled term (paired held-out test by trial at the
 /// rule's α), the simpler one is what the data support — its position in `among`.
 fn simpler_nested(search: &Search, b: &Scored, among: &[&Scored]) -> Option<usize> {
-    let Kind::Product(t, _) = search.cands[b.idx].kind else {
+    let Kind::Product(t, ..) = search.cands[b.idx].kind else {
         return None;
     };
     among.iter().position(|o| {
@@ -1464,9 +1474,9 @@ fn library_reads(name: &str, arm_motors: &[usize; N_JOINTS]) -> bool {
 fn may_rival(kind: &Kind, names: &[String], arm_motors: &[usize; N_JOINTS]) -> bool {
     let fields: Vec<usize> = match kind {
         Kind::Additive(f, _) | Kind::Step(f, _) => vec![*f],
-        Kind::Product(_, Signal::Field(f) | Signal::Rest(f)) => vec![*f],
-        Kind::Product(_, Signal::Family(_, fs)) => fs.to_vec(),
-        Kind::Product(_, Signal::Time) | Kind::PerJoint(_) | Kind::Pooled(_) => Vec::new(),
+        Kind::Product(_, Signal::Field(f) | Signal::Rest(f), _) => vec![*f],
+        Kind::Product(_, Signal::Family(_, fs), _) => fs.to_vec(),
+        Kind::Product(_, Signal::Time, _) | Kind::PerJoint(_) | Kind::Pooled(_) => Vec::new(),
     };
     !fields.is_empty()
         && fields
@@ -1497,7 +1507,13 @@ pub(crate) fn rival_of(
     let rows = base.rows;
     let twin = data.reference.is_some();
     let mut notes = Vec::new();
-    let (cands, rv, _) = generate(inp, rows, data.n_trials, twin, &mut notes);
+    let resid: Vec<f64> = rows
+        .y
+        .iter()
+        .zip(&without.cv.pred)
+        .map(|(y, p)| y - p)
+        .collect();
+    let (cands, rv, _, holm) = generate(inp, rows, data.n_trials, twin, &resid, &mut notes);
     let m = cands.len();
     let search = Search {
         base,
@@ -1505,7 +1521,7 @@ pub(crate) fn rival_of(
         rv,
         inp,
         rule: *rule,
-        m,
+        holm,
     };
     let names = &inp.fields.names;
     if !(0..m).any(|i| may_rival(&search.cands[i].kind, names, &inp.arm_motors)) {
@@ -1524,7 +1540,9 @@ pub(crate) fn rival_of(
         let refs: Vec<&Vec<f64>> = cols.iter().collect();
         !beside.fit(&refs).ok().is_some_and(|fit| {
             let (p, rel, _, _) = beside.compare(&with.cv.pred, &fit.pred);
-            p < level && fit.bic - with.bic < rule.bic_threshold && rel >= rule.min_improvement
+            p < level * search.cands[i].weight
+                && fit.bic - with.bic < rule.bic_threshold
+                && rel >= rule.min_improvement
         })
     };
     // What the term adds to the held-out prediction.
@@ -1540,7 +1558,7 @@ pub(crate) fn rival_of(
         let Some(s) = search.score(i, &[], (&without.cv.pred, without.bic), y_rms) else {
             continue;
         };
-        if !search.passes(&s, level) || !explains_same(i) {
+        if !search.passes(&s, level * search.cands[i].weight) || !explains_same(i) {
             continue;
         }
         let e_riv = trial_sse(&rows.y, &s.fit.pred, &rows.trial, nt);
@@ -1571,7 +1589,7 @@ pub(crate) fn rival_of(
     // would do, and the field names nothing.
     let mut level_pred: Vec<(Term, Vec<f64>)> = Vec::new();
     for c in &same {
-        if let Kind::Product(t, _) = search.cands[c.s.idx].kind
+        if let Kind::Product(t, ..) = search.cands[c.s.idx].kind
             && !level_pred.iter().any(|(u, _)| *u == t)
         {
             let level = search.cols(c.s.idx).swap_remove(1);
@@ -1581,7 +1599,7 @@ pub(crate) fn rival_of(
         }
     }
     let carried = |c: &Same| match search.cands[c.s.idx].kind {
-        Kind::Product(t, _) => level_pred
+        Kind::Product(t, ..) => level_pred
             .iter()
             .any(|(u, pred)| *u == t && p_better(&search, &c.s.fit.pred, pred) < rule.alpha),
         _ => true,
@@ -1736,13 +1754,13 @@ fn finish(
             continue;
         };
         let ncols = search.cols(k).len();
-        let level = search.level(*step);
+        let level = search.level(*step) * search.cands[k].weight;
         let verdict = format!(
-            "accepted: held-out RMSE −{:.1} % (p = {:.1e} < {:.1e}, Holm over {} candidates), ΔBIC = {:.1}",
+            "accepted: held-out RMSE −{:.1} % (p = {:.1e} < {:.1e}, weighted Holm over {} candidates), ΔBIC = {:.1}",
             100.0 * s.rel,
             s.p,
             level,
-            search.m,
+            search.holm.m,
             s.d_bic
         );
         let mut d = to_discovery(s, search, joint_names, level, *step, verdict);
@@ -1855,6 +1873,10 @@ fn to_discovery(
         verdict,
         tied: Vec::new(),
         meter: None,
+        mechanism: match &search.cands[s.idx].kind {
+            Kind::Product(t, ..) | Kind::Pooled(t) => t.library_id().map(String::from),
+            _ => None,
+        },
         contribution: Vec::new(),
     }
 }
@@ -1935,8 +1957,8 @@ mod tests {
             fs[1] = a + 1;
             Signal::Family(key.into(), fs)
         };
-        let winding = Kind::Product(Term::Coulomb, fam(0, "winding"));
-        let housing = Kind::Product(Term::Coulomb, fam(2, "housing"));
+        let winding = Kind::Product(Term::Coulomb, fam(0, "winding"), Shape::Linear);
+        let housing = Kind::Product(Term::Coulomb, fam(2, "housing"), Shape::Linear);
         let alpha = 1e-3;
         // Same structure on another field, not significantly worse: a tie whatever r.
         assert_eq!(
@@ -1950,14 +1972,14 @@ mod tests {
         // Significantly worse: no tie, even collinear.
         assert_eq!(tie_of(&winding, &housing, &names, 1e-4, 0.99, alpha), None);
         // Another structure: a tie only when collinear.
-        let viscous = Kind::Product(Term::Viscous, fam(2, "housing"));
+        let viscous = Kind::Product(Term::Viscous, fam(2, "housing"), Shape::Linear);
         assert_eq!(tie_of(&winding, &viscous, &names, 0.2, 0.5, alpha), None);
         assert_eq!(
             tie_of(&winding, &viscous, &names, 0.2, 0.95, alpha),
             Some(false)
         );
         // A field of the chosen family in another form is the same field, not a tie.
-        let one = Kind::Product(Term::Coulomb, Signal::Field(2));
+        let one = Kind::Product(Term::Coulomb, Signal::Field(2), Shape::Linear);
         assert_eq!(tie_of(&housing, &one, &names, 0.5, 0.99, alpha), None);
         // A step and a linear load on one field: the same field.
         let lin = Kind::Additive(4, 1.0);
@@ -1968,7 +1990,7 @@ mod tests {
         assert_eq!(tie_of(&lin, &other, &names, 0.5, 0.0, alpha), Some(true));
         assert_eq!(tie_of(&step, &other, &names, 0.5, 0.5, alpha), None);
         // Session time is a signal too; a base-term correction follows none.
-        let time = Kind::Product(Term::Coulomb, Signal::Time);
+        let time = Kind::Product(Term::Coulomb, Signal::Time, Shape::Linear);
         assert_eq!(tie_of(&winding, &time, &names, 0.5, 0.0, alpha), Some(true));
         let pooled = Kind::Pooled(Term::Coulomb);
         assert_eq!(tie_of(&winding, &pooled, &names, 0.5, 0.99, alpha), None);

@@ -46,13 +46,35 @@ const STRIBECK: usize = DRIVE + 1;
 const LEAK: usize = STRIBECK + 1;
 const BUS_POWER: usize = LEAK + 1;
 const DRIVE_NM: usize = BUS_POWER + 1;
+const DRIVING_CURRENT: usize = DRIVE_NM + 1;
+const DRIVING_TORQUE: usize = DRIVING_CURRENT + 1;
 
 /// Number of per-sample extra features of the power-level hypotheses.
-pub const N_EXTRA: usize = DRIVE_NM + 1;
+pub const N_EXTRA: usize = DRIVING_TORQUE + 1;
 
 /// Position in a raw row of the drive current Σ_i |τ_i| / K_i [A] (the drive-electronics
 /// loss's feature), for discovery's loss-term products.
 pub(crate) const DRIVE_CURRENT: usize = N_PARAMS + DRIVE;
+
+/// Positions in a raw row of the other pooled features discovery pairs with slow states: the
+/// drive current and the torque Σ|τ_i| of the joints that drive (τ_i q̇_i > 0, moving; the braking
+/// and holding joints' share is the rest of the whole), Stribeck friction and the bus current²
+/// (P_elec/V_bus)², and the per-joint braking power min(τ_i q̇_i, 0) (joint 0's).
+pub(crate) const RAW_DRIVING_CURRENT: usize = N_PARAMS + DRIVING_CURRENT;
+/// See [`RAW_DRIVING_CURRENT`].
+pub(crate) const RAW_DRIVING_TORQUE: usize = N_PARAMS + DRIVING_TORQUE;
+/// See [`RAW_DRIVING_CURRENT`].
+pub(crate) const RAW_TORQUE: usize = N_PARAMS + DRIVE_NM;
+/// See [`RAW_DRIVING_CURRENT`].
+pub(crate) const RAW_STRIBECK: usize = N_PARAMS + STRIBECK;
+/// See [`RAW_DRIVING_CURRENT`].
+pub(crate) const RAW_BUS_POWER: usize = N_PARAMS + BUS_POWER;
+/// See [`RAW_DRIVING_CURRENT`].
+pub(crate) const RAW_BRAKING: usize = N_PARAMS + BRAKING;
+
+/// Speed [rad/s] above which a joint moves (below it, velocity noise decides the sign of τq̇):
+/// a holding joint counts with the braking ones in the driving/braking split.
+const MOVING: f64 = 0.05;
 
 /// Supply voltage [V] assumed for the bus current P_elec / V_bus when the recording's motor
 /// supply voltages are not available (13 Li-ion cells, mid charge).
@@ -67,11 +89,18 @@ pub fn extras_into(s: &Sample, out: &mut [f64; N_EXTRA]) {
     let mut gear = 0.0;
     let mut stribeck = 0.0;
     let mut torque = 0.0;
+    let mut driving = 0.0;
+    let mut driving_nm = 0.0;
     for i in 0..N_JOINTS {
         let p = s.tau[i] * s.dq[i];
         out[THERMAL + i] = (s.temp[i] - T_REF_C) * (s.tau[i] * s.tau[i] - s.tau0_sq[i]);
         out[BRAKING + i] = p.min(0.0);
-        current += s.tau[i].abs() / JOINT_TORQUE_CONSTANT[i];
+        let amps = s.tau[i].abs() / JOINT_TORQUE_CONSTANT[i];
+        current += amps;
+        if p > 0.0 && s.dq[i].abs() > MOVING {
+            driving += amps;
+            driving_nm += s.tau[i].abs();
+        }
         torque += s.tau[i].abs();
         gear += p.abs();
         let v = s.dq[i] / STRIBECK_VELOCITY;
@@ -84,6 +113,8 @@ pub fn extras_into(s: &Sample, out: &mut [f64; N_EXTRA]) {
     out[LEAK] = s.gyro.iter().map(|w| w * w).sum();
     out[BUS_POWER] = s.bus_amps * s.bus_amps;
     out[DRIVE_NM] = torque;
+    out[DRIVING_CURRENT] = driving;
+    out[DRIVING_TORQUE] = driving_nm;
 }
 
 /// How a hypothesis' raw features enter the model.
@@ -337,5 +368,8 @@ mod tests {
         assert!(out[STRIBECK] < 1e-6);
         assert_eq!(out[BUS_POWER], 9.0);
         assert!((out[DRIVE_NM] - 7.0).abs() < 1e-12);
+        // only joints 0 and 6 drive (τq̇ > 0): 2/1.3 + 0.7/0.7
+        assert!((out[DRIVING_CURRENT] - (2.0 / 1.3 + 1.0)).abs() < 1e-12);
+        assert!((out[DRIVING_TORQUE] - 2.7).abs() < 1e-12);
     }
 }

@@ -12,6 +12,7 @@
 pub(crate) mod counterpart;
 pub(crate) mod data;
 pub(crate) mod discover;
+pub(crate) mod family;
 pub(crate) mod fields;
 pub(crate) mod hypotheses;
 pub(crate) mod locate;
@@ -280,7 +281,7 @@ fn run(
     let stride = torque::stride(&metas, opts.max_torque_samples);
     let mut torque_rows = Vec::new();
     stage(4, "fine lags and torque rows");
-    let data = scan_lags(
+    let mut data = scan_lags(
         samples,
         power,
         &metas,
@@ -294,6 +295,7 @@ fn run(
             }
         },
     )?;
+    data.lag_claimable = sensor.lag_demanded;
     if data.rows0().len() < 3 * (N_PARAMS + 10) / 2 {
         bail!(
             "{}: only {} power readings inside usable trials; too few to diagnose a {N_PARAMS}-parameter model",

@@ -4,7 +4,8 @@ Claims are read from the diagnosis' public output only: accepted library hypothe
 terms found beyond the library (name, fields and the fields of their named ties) and rest-power
 terms (field and ties). Each claim is scored
 
-* right: names an effect's mechanism (a library id of it; or a found term on a field the effect
+* right: names an effect's mechanism (a library id of it — an accepted hypothesis, or a found term
+  that says which library mechanism it is a form of, `mechanism` in diagnosis.json; or a found term on a field the effect
   follows — and, for a modulated loss term, naming that term; or, for a meter artefact, words of
   a meter/sensor correction);
 * located: on an effect's field or naming its loss term, but another mechanism (e.g. a meter
@@ -26,7 +27,8 @@ def claims(d):
         f = list(t.get("fields", []))
         for r in t.get("tied", []):
             f += r.get("fields", [])
-        out.append({"kind": "found", "id": None, "name": t.get("name", ""), "fields": f})
+        # a found form of a library mechanism (one-sided, switched by a state) names its id
+        out.append({"kind": "found", "id": t.get("mechanism"), "name": t.get("name", ""), "fields": f})
     for r in disc.get("rest", []) or []:
         for t in r.get("found", []):
             out.append({"kind": "rest", "id": None, "name": t.get("name", ""),
@@ -42,6 +44,8 @@ def _words(name, words):
 def relation(c, e):
     """'right', 'located' or None: what claim c says of effect e."""
     x = e["expect"]
+    if c["kind"] == "found" and c.get("id") and c["id"] in x["ids"]:
+        return "right"
     if c["kind"] == "library":
         if c["id"] in x["ids"]:
             return "right"
