@@ -250,7 +250,7 @@ fn run(
     // Every lag's Gram matrices, the fine lags and the torque rows (one more pass).
     let stride = torque::stride(&metas, opts.max_torque_samples);
     let mut torque_rows = Vec::new();
-    let data = scan_lags(
+    let mut data = scan_lags(
         samples,
         power,
         &metas,
@@ -264,6 +264,7 @@ fn run(
             }
         },
     )?;
+    data.lag_claimable = sensor.lag_demanded;
     if data.rows0().len() < 3 * (N_PARAMS + 10) / 2 {
         bail!(
             "{}: only {} power readings inside usable trials; too few to diagnose a {N_PARAMS}-parameter model",

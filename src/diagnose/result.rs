@@ -40,6 +40,11 @@ pub struct SensorWindow {
     /// given or the scan's best lag is 0.
     #[serde(default)]
     pub lag_delta_bic: f64,
+    /// Whether a lagged point of the scan beats every window it scored at lag 0 (see
+    /// `diagnose/window.rs`); only then may the latency hypothesis be claimed. True when W was
+    /// given (the latency hypothesis alone judges the lag).
+    #[serde(default)]
+    pub lag_demanded: bool,
     /// Trials the scan used.
     pub scan_trials: usize,
 }

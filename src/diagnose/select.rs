@@ -446,6 +446,9 @@ pub(crate) struct PowerData<'a> {
     pub folds: Folds,
     pub n_trials: usize,
     pub reference: Option<Vec<f64>>,
+    /// Whether the sensor-window scan found a lag that beats every window at lag 0 (false: the
+    /// latency hypothesis is scored but never claimed; see `diagnose/window.rs`).
+    pub lag_claimable: bool,
     source: Option<std::cell::RefCell<LagRowSource<'a>>>,
 }
 
@@ -467,6 +470,7 @@ impl<'a> PowerData<'a> {
             folds,
             n_trials,
             reference,
+            lag_claimable: true,
             source: None,
         }
     }
@@ -493,6 +497,7 @@ impl<'a> PowerData<'a> {
             folds,
             n_trials,
             reference,
+            lag_claimable: true,
             source: Some(std::cell::RefCell::new(source)),
         }
     }
@@ -916,7 +921,14 @@ pub(crate) fn select(
                 Some(h) => score_term(data, &cur, h, step)?,
                 None => score_latency(data, &cur, step)?,
             };
-            let (ok, why) = rule.judge(&cand.score);
+            let (mut ok, mut why) = rule.judge(&cand.score);
+            if c.is_none() && !data.lag_claimable {
+                why = format!(
+                    "not claimed: the sensor-window scan finds no lag that beats every window at \
+                     lag 0 ({why})"
+                );
+                ok = false;
+            }
             cand.score.accepted = ok;
             cand.score.verdict = why;
             scored.push((i, cand));

@@ -187,15 +187,24 @@ fn sensor_lines(d: &Diagnosis, s: &mut String) {
     if sw.estimated {
         let _ = writeln!(
             s,
-            "Sensor window: each reading averages the {:.3} s before its stamp (estimated from {} trials by the (W, lag) alignment scan; best point W {:.3} s, lag {:.3} s, R² = {:.3}; the lag is the latency hypothesis' to judge).",
-            sw.window_s, sw.scan_trials, sw.scan_window_s, sw.scan_lag_s, sw.scan_r2
+            "Sensor window: each reading averages the {:.3} s before its stamp (estimated from {} trials by the (W, lag) alignment scan; best point W {:.3} s, lag {:.3} s, R² = {:.3}; {}).",
+            sw.window_s,
+            sw.scan_trials,
+            sw.scan_window_s,
+            sw.scan_lag_s,
+            sw.scan_r2,
+            if sw.lag_demanded {
+                "a lag beats every window at lag 0: the latency hypothesis judges it"
+            } else {
+                "no lag beats every window at lag 0: no latency is claimed"
+            }
         );
     }
     if let Some(best) = d
         .lag_scan
         .iter()
         .min_by(|a, b| a.rmse_w.total_cmp(&b.rmse_w))
-        .filter(|b| b.lag_s > 0.0)
+        .filter(|b| b.lag_s > 0.0 && sw.lag_demanded)
     {
         let _ = writeln!(
             s,

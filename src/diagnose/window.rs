@@ -6,26 +6,31 @@
 //! nearly flat along it. The centre is well determined, W along the ridge is not: on 72 nominal
 //! trials the 2-D optimum wandered to W = 0.15 s, lag 0.025 s (the same centre as 0.2 s, lag 0),
 //! and the latency hypothesis, handed the too-short window, then "found" the 0.024 s that
-//! re-centres it. Contaminated trials only add noise along the ridge; the trade-off is the cause.
+//! re-centres it.
 //!
 //! So the window is judged as an engineer judges a datasheet value: the scan finds the best
 //! (W, lag ≥ 0) and its centre c; the sensor's nominal 0.2 s window, at the lag that puts its
 //! centre at c (± 2 fine steps, lag ≥ 0), is kept unless freeing W (one more parameter) beats it
 //! by the diagnosis' own BIC threshold (ΔBIC = n·ln(SSE_free/SSE_nominal) + ln n <
 //! [`DiagnoseOptions::bic_threshold`]); a sensor that averages 0.5 s smooths visibly more and
-//! rejects it. A kept nominal window that needs a lag > 0 to reach the centre is a latency claim
-//! in disguise, so it also has to beat the lag-0 window of the same centre (same parameter count)
-//! by that rule — or the scan's lagged point has to — else the lag-0 window is the estimate: a
-//! 0.3 s sensor at lag 0 was read as 0.2 s + 0.05 s, and the latency hypothesis then "found" the
-//! 0.05 s on most sessions of the physics-fuzz campaign.
-//! A rejected nominal window is replaced by the window at lag 0 with the same
-//! centre (2c ± 2 steps), unless freeing the lag beats that by the same rule; only then is the
-//! scan's own (W, lag) point used. Either way the lag itself is the latency hypothesis' to judge
-//! (a real 0.3 s latency behind a 0.2 s window keeps the nominal window at lag ≈ 0.3 s, and the
-//! hypothesis finds it as before).
-//! Candidates are compared on one set of readings (stamps at least the
-//! largest scanned window after the trajectory start) with one target (net of the pre-idle
-//! baseline at the nominal window), over the IMU-kept trials.
+//! rejects it.
+//!
+//! A lag is a latency claim only where the data demand one: a lagged point — the nominal window's
+//! lag (beyond one fine step: it is derived from the centre), or the scan's own lagged point
+//! (with one more ln n) — must beat **every** window the scan scored at lag 0 (and the lag-0
+//! windows of the same centre, 2c ± 2 steps) by that rule ([`SensorWindow::lag_demanded`]).
+//! Otherwise the best lag-0 window is the estimate (or the nominal window, where it needs no
+//! lag) and the latency hypothesis is scored but cannot be claimed: a lag that only re-centres a
+//! window of the wrong length is not a latency (the physics-fuzz campaign's 0.3 s sensors were
+//! read as 0.2 s + 0.05 s, or 0.225 s + 0.04 s, and "found" the lag). Where a lag is demanded it
+//! is the latency hypothesis' to judge (a real 0.3 s latency behind a 0.2 s window keeps the
+//! nominal window at lag ≈ 0.3 s).
+//!
+//! Candidates are compared on one set of readings (stamps at least the largest scanned window
+//! after the trajectory start) with one target (net of the pre-idle baseline at the nominal
+//! window), over the IMU-kept trials without those the diagnosis' residual passes reject: one
+//! contaminated trial with a mean residual of several watts outweighs the rest of the scan's
+//! squared error and puts the window wherever that trial fits best.
 
 use anyhow::{Context, Result};
 
@@ -34,6 +39,7 @@ use crate::trial::{Cascade, TrialStat, TrialWindow, is_rejected};
 
 use super::data::{Rows, TrialMeta, build_rows};
 use super::reduce::{SessionInfo, TrialSamples, hold};
+use super::stages::base_trial_residuals;
 use super::{DiagnoseOptions, SensorWindow};
 
 /// Largest number of trials the sensor-window scan uses (evenly spread over the session): the
@@ -66,6 +72,7 @@ pub(crate) fn sensor_window(
     if let Some(w) = opts.sensor_window_s {
         return Ok(SensorWindow {
             window_s: w,
+            lag_demanded: true,
             ..SensorWindow::default()
         });
     }
@@ -75,6 +82,8 @@ pub(crate) fn sensor_window(
     let rec = &held;
     let power = &info.power;
     let nominal = Alignment::NOMINAL;
+    let all_rows = build_rows(rec, power, &metas, 0.0, nominal.window_s, false);
+    let metas = without_outliers(metas, all_rows, opts)?;
     let reference = build_rows(rec, power, &metas, 0.0, nominal.window_s, false);
     let score = |a: Alignment| {
         let rows = build_rows(rec, power, &metas, a.lag_s, a.window_s, false);
@@ -124,42 +133,56 @@ pub(crate) fn sensor_window(
     // 1. The sensor's nominal window at the lag that puts its centre where the data put it.
     let nominal = best_of(near(nominal_w, (centre - 0.5 * nominal_w).max(0.0)));
     let window_delta_bic = nominal.map_or(f64::NEG_INFINITY, |(_, n, r2)| delta_bic(est.r2, n, r2));
-    // 2. Otherwise the window at lag 0 with the same centre, unless the data demand a lag.
-    let lag0 = best_of(
-        (-2..=2)
-            .map(|k| Alignment {
-                window_s: 2.0 * centre + k as f64 * STEP,
-                lag_s: 0.0,
-            })
-            .filter(|a| a.window_s > 0.0)
-            .collect(),
+    // 2. The best window at lag 0: every lag-0 window the scan scored, and those of the data's
+    //    centre (2c ± 2 steps).
+    let at_centre: Vec<Alignment> = (-2..=2)
+        .map(|k| Alignment {
+            window_s: 2.0 * centre + k as f64 * STEP,
+            lag_s: 0.0,
+        })
+        .filter(|a| a.window_s > 0.0)
+        .collect();
+    let lag0 = best_of(at_centre).into_iter().chain(
+        est.grid
+            .iter()
+            .filter(|g| g.alignment.lag_s.abs() < 1e-9)
+            .map(|g| (g.alignment, g.rows, g.r2)),
     );
+    let lag0 = lag0.max_by(|a, b| a.2.total_cmp(&b.2));
+    // 3. A lag is demanded only where a lagged point beats every window at lag 0 by the BIC
+    //    rule: the nominal window's lag (one free parameter, as the lag-0 window's W), or the
+    //    scan's own lagged point (one more). The nominal window's lag is derived from the centre,
+    //    so one within one fine step is within the scan's resolution and demands nothing (the
+    //    scan's own lagged point carries the extra ln n instead). Otherwise no latency can be claimed: a lag that only
+    //    re-centres a window of the wrong length is not a latency (the campaign's spurious
+    //    latencies were a 0.3 s window read as 0.2 s or 0.225 s + lag).
+    let beats =
+        |lagged: Option<(Alignment, usize, f64)>, extra: f64, min_lag: f64| match (lagged, lag0) {
+            (Some((a, n, r2)), Some((_, _, r2_0))) if a.lag_s > min_lag + 1e-9 => {
+                let n = n as f64;
+                n * ((1.0 - r2).max(1e-300) / (1.0 - r2_0).max(1e-300)).ln() + extra * n.ln()
+                    < opts.bic_threshold
+            }
+            (Some((a, _, _)), None) => a.lag_s > min_lag + 1e-9,
+            _ => false,
+        };
     let lag_delta_bic = match lag0 {
         Some((_, n, r2)) if best.lag_s > 0.0 => delta_bic(est.r2, n, r2),
         _ => 0.0,
     };
-    // A nominal window that needs a lag to reach the centre carries a latency claim; the same
-    // centre at lag 0 (a longer window) carries none. The lag is kept only where the data
-    // demand it by the same BIC rule — the nominal window's lag beating the lag-0 window of
-    // the same centre (both free one parameter), or the scan's own lagged point beating it
-    // (one more) — otherwise the lag-0 window is the estimate (the campaign's spurious 0.05 s
-    // latencies were a 0.3 s window read as 0.2 s + lag).
-    // A lag within one fine step of 0 is within the scan's resolution: no claim to test.
-    let nominal_lag = nominal.is_some_and(|(a, _, _)| a.lag_s > STEP + 1e-9);
-    let lag_demanded = match (nominal, lag0) {
-        (Some((_, n, r2)), Some((_, _, r2_lag0))) if nominal_lag => {
-            let n = n as f64;
-            n * ((1.0 - r2).max(1e-300) / (1.0 - r2_lag0).max(1e-300)).ln() < opts.bic_threshold
-        }
-        (_, None) => true,
-        _ => false,
-    } || (best.lag_s > 0.0 && lag_delta_bic < opts.bic_threshold);
-    let window_s = if window_delta_bic >= opts.bic_threshold && (lag_demanded || !nominal_lag) {
-        nominal_w
-    } else if !lag_demanded {
-        lag0.map_or(best.window_s, |(a, _, _)| a.window_s)
-    } else {
-        best.window_s
+    let scanned = est
+        .grid
+        .iter()
+        .find(|g| g.alignment == best)
+        .map(|g| (g.alignment, g.rows, g.r2));
+    let lag_demanded = beats(nominal, 0.0, STEP) || beats(scanned, 1.0, 0.0);
+    let nominal_kept = window_delta_bic >= opts.bic_threshold;
+    let window_s = match (lag_demanded, nominal) {
+        (true, _) if nominal_kept => nominal_w,
+        (true, _) => best.window_s,
+        // No lag: the nominal window stands where it needs none (its lag within one step).
+        (false, Some((a, _, _))) if nominal_kept && a.lag_s <= STEP + 1e-9 => nominal_w,
+        (false, _) => lag0.map_or(best.window_s, |(a, _, _)| a.window_s),
     };
     Ok(SensorWindow {
         window_s,
@@ -173,6 +196,7 @@ pub(crate) fn sensor_window(
             0.0
         },
         lag_delta_bic,
+        lag_demanded,
         scan_trials: metas.len(),
     })
 }
@@ -199,6 +223,49 @@ fn scan_trials(metas: &[TrialMeta], opts: &DiagnoseOptions) -> Vec<TrialMeta> {
         .collect();
     let step = kept.len().div_ceil(WINDOW_SCAN_TRIALS).max(1);
     kept.into_iter().step_by(step).collect()
+}
+
+/// `metas` without the trials the diagnosis' residual passes reject (3σ of the per-trial mean
+/// residual of the base model on `rows`, their rows at the nominal window): one contaminated
+/// trial's residual of several watts outweighs the rest of the scan's squared error and puts the
+/// window wherever that trial fits best (a 0.3 s sensor was read as 0.225 s + a 0.05 s lag).
+fn without_outliers(
+    metas: Vec<TrialMeta>,
+    rows: Rows,
+    opts: &DiagnoseOptions,
+) -> Result<Vec<TrialMeta>> {
+    let cascade = Cascade {
+        imu_k: None,
+        passes: opts.outlier_passes,
+        n_sigma: 3.0,
+        min_trials: 10,
+    };
+    let reference: Option<Vec<f64>> = opts.reference.map(|m| m.to_vector().to_vec());
+    let mut rejected = Vec::new();
+    cascade.residual_passes(&mut rejected, |rej| {
+        let kept: Vec<usize> = (0..metas.len())
+            .filter(|&i| !is_rejected(rej, 0, i))
+            .collect();
+        let mut at = vec![None; metas.len()];
+        for (k, &i) in kept.iter().enumerate() {
+            at[i] = Some(k);
+        }
+        let mut sub = rows.clone();
+        sub.retain(|_, trial| at[trial]);
+        let res = base_trial_residuals(&sub, kept.len(), opts.folds, reference.clone())?;
+        Ok::<_, anyhow::Error>(
+            kept.iter()
+                .zip(res)
+                .map(|(&i, r)| TrialStat::new(0, i, r.unwrap_or(f64::NAN)))
+                .collect(),
+        )
+    })?;
+    Ok(metas
+        .into_iter()
+        .enumerate()
+        .filter(|(i, _)| !is_rejected(&rejected, 0, *i))
+        .map(|(_, m)| m)
+        .collect())
 }
 
 /// (rows, R²) of the base regressors' least-squares fit of one candidate's rows, restricted to
