@@ -1025,12 +1025,6 @@ pub(crate) fn discover(
             let Some(s) = search.score(i, &chosen_cols, (&cur_pred, cur_bic), y_rms) else {
                 continue;
             };
-            if std::env::var_os("G1VIZ_DEBUG_DISCOVER").is_some() && s.rel > 0.02 {
-                eprintln!(
-                    "DBG step {step} {:?} p={:.2e} rel={:.3} dbic={:.1} plaus={}",
-                    search.cands[i].kind, s.p, s.rel, s.d_bic, s.plausible
-                );
-            }
             if search.passes(&s, level * search.cands[i].weight) {
                 passing.push(s);
             } else if best_fail.as_ref().is_none_or(|b| s.rel > b.rel) {
