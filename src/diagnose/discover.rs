@@ -1341,6 +1341,17 @@ fn ties_at_step(
         });
     }
     ties.sort_by(|a, c| a.term.rmse_w[1].total_cmp(&c.term.rmse_w[1]));
+    // Forms of one term × signal are one candidate: its best form is the tie.
+    let mut seen: Vec<&String> = Vec::new();
+    ties.retain(|t| {
+        let g = &search.cands[t.idx].group;
+        let product = matches!(search.cands[t.idx].kind, Kind::Product(..));
+        let keep = !product || !seen.contains(&g);
+        if product {
+            seen.push(g);
+        }
+        keep
+    });
     // The best of each group first, so that the first listed are different signals.
     let mut first: Vec<Tie> = Vec::new();
     let mut rest: Vec<Tie> = Vec::new();
