@@ -34,8 +34,8 @@ use nalgebra::{DMatrix, DVector};
 
 use super::Quality;
 use super::data::Rows;
-use super::fields::FieldTable;
 use super::family::{Shape, Term};
+use super::fields::FieldTable;
 use super::select::{
     Param, PowerData, Rule, State, bic, bounds_for, design_map_for, jackknife_se, r2_rmse,
     solve_bounded_for, trial_sse,
@@ -635,11 +635,7 @@ fn generate(
     let m = kinds.len();
     let is_screened: Vec<bool> = family.iter().map(Option::is_some).collect();
     let weights = super::family::weights(&is_screened);
-    let keep = super::family::screen(
-        &family,
-        &|i| columns(&kinds[i].0, inp, &rv, rows),
-        resid,
-    );
+    let keep = super::family::screen(&family, &|i| columns(&kinds[i].0, inp, &rv, rows), resid);
     let w_min = weights.iter().copied().fold(1.0, f64::min);
     let holm = Holm {
         m,
@@ -943,9 +939,8 @@ impl Search<'_, '_> {
             Kind::Pooled(t) if t.level_is_new() => fit.gamma[prev.len()] > 0.0,
             _ => true,
         };
-        let plausible = fit.gamma.iter().all(|g| g.is_finite())
-            && (contrib / n).sqrt() <= y_rms
-            && loss_sign;
+        let plausible =
+            fit.gamma.iter().all(|g| g.is_finite()) && (contrib / n).sqrt() <= y_rms && loss_sign;
         Some(Scored {
             idx: i,
             d_bic: fit.bic - cur.1,
@@ -988,7 +983,12 @@ pub(crate) fn discover(
         excluded: inp.fields.excluded.clone(),
         ..Default::default()
     };
-    let resid: Vec<f64> = rows.y.iter().zip(&cur.cv.pred).map(|(y, p)| y - p).collect();
+    let resid: Vec<f64> = rows
+        .y
+        .iter()
+        .zip(&cur.cv.pred)
+        .map(|(y, p)| y - p)
+        .collect();
     let (cands, rv, usable, holm) =
         generate(inp, rows, data.n_trials, twin, &resid, &mut report.notes);
     report.rest = rest_power_of(inp, usable, rule);
@@ -1189,7 +1189,9 @@ fn followed(kind: &Kind, names: &[String]) -> Vec<String> {
         | Kind::Product(_, Signal::Rest(f), _) => {
             vec![names[*f].clone()]
         }
-        Kind::Product(_, Signal::Family(_, fs), _) => fs.iter().map(|&f| names[f].clone()).collect(),
+        Kind::Product(_, Signal::Family(_, fs), _) => {
+            fs.iter().map(|&f| names[f].clone()).collect()
+        }
         Kind::Product(_, Signal::Time, _) => vec![TIME_NAME.into()],
         Kind::PerJoint(_) | Kind::Pooled(_) => Vec::new(),
     }
