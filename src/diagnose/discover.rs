@@ -34,8 +34,8 @@ use nalgebra::{DMatrix, DVector};
 
 use super::Quality;
 use super::data::Rows;
-use super::fields::FieldTable;
 use super::family::{Shape, Term};
+use super::fields::FieldTable;
 use super::select::{
     Param, PowerData, Rule, State, bic, bounds_for, design_map_for, jackknife_se, r2_rmse,
     solve_bounded_for, trial_sse,
@@ -635,11 +635,7 @@ fn generate(
     let m = kinds.len();
     let is_screened: Vec<bool> = family.iter().map(Option::is_some).collect();
     let weights = super::family::weights(&is_screened);
-    let keep = super::family::screen(
-        &family,
-        &|i| columns(&kinds[i].0, inp, &rv, rows),
-        resid,
-    );
+    let keep = super::family::screen(&family, &|i| columns(&kinds[i].0, inp, &rv, rows), resid);
     let w_min = weights.iter().copied().fold(1.0, f64::min);
     let holm = Holm {
         m,
@@ -943,9 +939,8 @@ impl Search<'_, '_> {
             Kind::Pooled(t) if t.level_is_new() => fit.gamma[prev.len()] > 0.0,
             _ => true,
         };
-        let plausible = fit.gamma.iter().all(|g| g.is_finite())
-            && (contrib / n).sqrt() <= y_rms
-            && loss_sign;
+        let plausible =
+            fit.gamma.iter().all(|g| g.is_finite()) && (contrib / n).sqrt() <= y_rms && loss_sign;
         Some(Scored {
             idx: i,
             d_bic: fit.bic - cur.1,
@@ -988,7 +983,12 @@ pub(crate) fn discover(
         excluded: inp.fields.excluded.clone(),
         ..Default::default()
     };
-    let resid: Vec<f64> = rows.y.iter().zip(&cur.cv.pred).map(|(y, p)| y - p).collect();
+    let resid: Vec<f64> = rows
+        .y
+        .iter()
+        .zip(&cur.cv.pred)
+        .map(|(y, p)| y - p)
+        .collect();
     let (cands, rv, usable, holm) =
         generate(inp, rows, data.n_trials, twin, &resid, &mut report.notes);
     report.rest = rest_power_of(inp, usable, rule);
@@ -1025,12 +1025,6 @@ pub(crate) fn discover(
             let Some(s) = search.score(i, &chosen_cols, (&cur_pred, cur_bic), y_rms) else {
                 continue;
             };
-            if std::env::var_os("G1VIZ_DEBUG_DISCOVER").is_some() && s.rel > 0.02 {
-                eprintln!(
-                    "DBG step {step} {:?} p={:.2e} rel={:.3} dbic={:.1} plaus={}",
-                    search.cands[i].kind, s.p, s.rel, s.d_bic, s.plausible
-                );
-            }
             if search.passes(&s, level * search.cands[i].weight) {
                 passing.push(s);
             } else if best_fail.as_ref().is_none_or(|b| s.rel > b.rel) {
@@ -1195,7 +1189,9 @@ fn followed(kind: &Kind, names: &[String]) -> Vec<String> {
         | Kind::Product(_, Signal::Rest(f), _) => {
             vec![names[*f].clone()]
         }
-        Kind::Product(_, Signal::Family(_, fs), _) => fs.iter().map(|&f| names[f].clone()).collect(),
+        Kind::Product(_, Signal::Family(_, fs), _) => {
+            fs.iter().map(|&f| names[f].clone()).collect()
+        }
         Kind::Product(_, Signal::Time, _) => vec![TIME_NAME.into()],
         Kind::PerJoint(_) | Kind::Pooled(_) => Vec::new(),
     }
@@ -1347,6 +1343,17 @@ fn ties_at_step(
         });
     }
     ties.sort_by(|a, c| a.term.rmse_w[1].total_cmp(&c.term.rmse_w[1]));
+    // Forms of one term × signal are one candidate: its best form is the tie.
+    let mut seen: Vec<&String> = Vec::new();
+    ties.retain(|t| {
+        let g = &search.cands[t.idx].group;
+        let product = matches!(search.cands[t.idx].kind, Kind::Product(..));
+        let keep = !product || !seen.contains(&g);
+        if product {
+            seen.push(g);
+        }
+        keep
+    });
     // The best of each group first, so that the first listed are different signals.
     let mut first: Vec<Tie> = Vec::new();
     let mut rest: Vec<Tie> = Vec::new();

@@ -147,7 +147,9 @@ impl Term {
             Term::BrakingCurrent => {
                 "the drive-electronics loss per ampere of the braking or holding joints' current (τq̇ ≤ 0)"
             }
-            Term::DrivingTorque => "the drive-electronics loss per Nm of the driving joints (τq̇ > 0)",
+            Term::DrivingTorque => {
+                "the drive-electronics loss per Nm of the driving joints (τq̇ > 0)"
+            }
             Term::BrakingTorque => {
                 "the drive-electronics loss per Nm of the braking or holding joints (τq̇ ≤ 0)"
             }
@@ -369,7 +371,10 @@ mod tests {
         // A signal with two levels only: one distinct step level survives.
         let two: Vec<f64> = (0..100).map(|k| f64::from(u8::from(k >= 70))).collect();
         let s2 = Shape::all_for(&two);
-        assert_eq!(s2.iter().filter(|x| matches!(x, Shape::Above(_))).count(), 1);
+        assert_eq!(
+            s2.iter().filter(|x| matches!(x, Shape::Above(_))).count(),
+            1
+        );
         let e = Shape::Exp {
             rate: 3.0,
             lo: 0.0,
@@ -403,7 +408,12 @@ mod tests {
     #[test]
     fn the_screen_keeps_unscreened_candidates_and_the_best_members() {
         let e: Vec<f64> = (0..50).map(|k| f64::from(k % 7) - 3.0).collect();
-        let fam = vec![None, Some(Term::Stribeck), Some(Term::Stribeck), Some(Term::Stribeck)];
+        let fam = vec![
+            None,
+            Some(Term::Stribeck),
+            Some(Term::Stribeck),
+            Some(Term::Stribeck),
+        ];
         let cols = |i: usize| -> Vec<Vec<f64>> {
             match i {
                 1 => vec![e.clone()],

@@ -232,13 +232,17 @@ pub struct Effects {
     /// Inverter switching loss following the supply voltage.
     #[serde(skip_serializing_if = "Option::is_none", default)]
     pub switching: Option<SwitchingLoss>,
+    /// A drive-electronics loss per ampere only while a joint drives (τq̇ > 0): the library's
+    /// mechanism in a one-sided form.
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    pub driving_loss: Option<DriveLoss>,
     /// The main-board meter's reading shifted while fan 1 runs (no load; a one-meter artefact).
     #[serde(skip_serializing_if = "Option::is_none", default)]
     pub fan_meter: Option<MeterOffset>,
 }
 
 /// Names accepted by [`Effects::enable`], in documentation order.
-pub const EFFECT_NAMES: [&str; 18] = [
+pub const EFFECT_NAMES: [&str; 19] = [
     "thermal",
     "braking",
     "bus_loss",
@@ -257,6 +261,7 @@ pub const EFFECT_NAMES: [&str; 18] = [
     "fan0_load",
     "switching",
     "fan_meter",
+    "driving_loss",
 ];
 
 impl ThermalDrift {
@@ -350,7 +355,7 @@ impl Effects {
     /// gear_friction μ [-], drive_loss V_drop [V], stribeck F_s [Nm], balance_leak k [W/(rad/s)²] at
     /// the default sway, harness_drag k [W·s/rad], bus_power R [Ω], electronics_nm k [W/Nm],
     /// joint_friction F [Nm], housing_friction k [W/(K·rad/s)], fan_load, fan0_load and fan_meter [W], switching
-    /// k_sw [W/(V·A)]).
+    /// k_sw [W/(V·A)], driving_loss V_drop [V]).
     pub fn enable(&mut self, spec: &str) -> anyhow::Result<()> {
         let (name, value) = match spec.split_once('=') {
             Some((n, v)) => {
@@ -405,6 +410,10 @@ impl Effects {
             }
             "drive_loss" => {
                 self.drive_loss =
+                    Some(value.map_or(DriveLoss::DEFAULT, |volts| DriveLoss { volts }))
+            }
+            "driving_loss" => {
+                self.driving_loss =
                     Some(value.map_or(DriveLoss::DEFAULT, |volts| DriveLoss { volts }))
             }
             "stribeck" => {
@@ -548,6 +557,13 @@ pub fn arm_power(model: &crate::power::PowerModel, effects: &Effects, s: &PlantS
     }
     if let Some(d) = effects.drive_loss {
         extra += d.volts * current;
+    }
+    if let Some(d) = effects.driving_loss {
+        extra += d.volts
+            * (0..N_JOINTS)
+                .filter(|&i| tau[i] * dq[i] > 0.0)
+                .map(|i| tau[i].abs() / JOINT_TORQUE_CONSTANT[i])
+                .sum::<f64>();
     }
     if let Some(sw) = effects.switching {
         extra += sw.per_volt_amp * s.bus_volts.max(0.0) * current;
