@@ -417,24 +417,19 @@ mod tests {
     /// sample by sample, readings every 0.25 s (on the sample grid, so window edges fall on
     /// samples) plus one every 0.37 s (off it), with a NaN reading and a gap in the joint stream.
     fn session() -> (Recording, TrialWindow) {
-        let n = 2000;
         let wave = |k: usize, j: usize| ((k * (j + 3)) as f64 * 0.011).sin();
-        let state = StateSeries {
-            t: (0..n).filter(|&k| !(900..905).contains(&k)).map(|k| k as f64 * 0.01).collect(),
-            ..StateSeries::default()
+        let ks: Vec<usize> = (0..2000).filter(|k| !(900..905).contains(k)).collect();
+        let col = |f: &dyn Fn(usize, usize) -> f64| -> Vec<[f64; N_JOINTS]> {
+            ks.iter().map(|&k| std::array::from_fn(|j| f(k, j))).collect()
         };
-        let ks: Vec<usize> = (0..n).filter(|k| !(900..905).contains(k)).collect();
         let state = StateSeries {
-            q: ks.iter().map(|&k| std::array::from_fn(|j| 0.1 * wave(k, j))).collect(),
-            dq: ks
-                .iter()
-                .map(|&k| std::array::from_fn(|j| if k > 300 { wave(k, j + 1) } else { 0.0 }))
-                .collect(),
-            tau: ks.iter().map(|&k| std::array::from_fn(|j| 1.0 + wave(k, j + 2))).collect(),
-            temp: ks.iter().map(|_| [40.0; N_JOINTS]).collect(),
+            t: ks.iter().map(|&k| k as f64 * 0.01).collect(),
+            q: col(&|k, j| 0.1 * wave(k, j)),
+            dq: col(&|k, j| if k > 300 { wave(k, j + 1) } else { 0.0 }),
+            tau: col(&|k, j| 1.0 + wave(k, j + 2)),
+            temp: col(&|_, _| 40.0),
             gyro: ks.iter().map(|&k| [0.01 * wave(k, 0), 0.0, 0.0]).collect(),
             quat: ks.iter().map(|_| [1.0, 0.0, 0.0, 0.0]).collect(),
-            ..state
         };
         let mut t: Vec<f64> = (1..80).map(|k| k as f64 * 0.25).collect();
         t.extend((1..54).map(|k| k as f64 * 0.37));

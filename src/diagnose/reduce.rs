@@ -15,7 +15,7 @@ use crate::session::{
     Joined, JoinedPart, SessionFile, StreamOptions, TrialSource, for_each_trial_with_batches,
     segment_file,
 };
-use crate::signals::{PowerSeries, Recording, StateSeries, Target};
+use crate::signals::{PowerSeries, Recording, Target};
 use crate::trial::{SegmentOptions, TrialWindow};
 
 use super::FieldSource;
@@ -105,27 +105,11 @@ pub(crate) fn hold(samples: &mut dyn TrialSource, trials: &[TrialWindow]) -> Res
         let i0 = i0.max(s.t.partition_point(|&x| x <= after));
         let i1 = (s.t.partition_point(|&x| x < b) + 2).min(n);
         if i0 < i1 {
-            append_range(&mut held.state, s, i0..i1);
+            crate::session::append_range(&mut held.state, s, i0..i1);
         }
         Ok(())
     })?;
     Ok(held)
-}
-
-/// Append samples `r` of every column of `from` that has them.
-fn append_range(to: &mut StateSeries, from: &StateSeries, r: std::ops::Range<usize>) {
-    fn ext<T: Copy>(to: &mut Vec<T>, from: &[T], r: &std::ops::Range<usize>) {
-        if let Some(s) = from.get(r.clone()) {
-            to.extend_from_slice(s);
-        }
-    }
-    ext(&mut to.t, &from.t, &r);
-    ext(&mut to.q, &from.q, &r);
-    ext(&mut to.dq, &from.dq, &r);
-    ext(&mut to.tau, &from.tau, &r);
-    ext(&mut to.temp, &from.temp, &r);
-    ext(&mut to.gyro, &from.gyro, &r);
-    ext(&mut to.quat, &from.quat, &r);
 }
 
 /// What the first streamed pass over every file finds besides the per-trial quantities.

@@ -143,17 +143,24 @@ impl TrialSource for FileTrials<'_> {
     }
 }
 
-/// Append the samples of `from` (all of its columns that `to` keeps) to `to`.
-pub(crate) fn append_state(to: &mut StateSeries, from: &StateSeries, full: bool) {
-    to.t.extend_from_slice(&from.t);
-    to.tau.extend_from_slice(&from.tau);
-    to.dq.extend_from_slice(&from.dq);
-    to.gyro.extend_from_slice(&from.gyro);
-    if full {
-        to.q.extend_from_slice(&from.q);
-        to.temp.extend_from_slice(&from.temp);
-        to.quat.extend_from_slice(&from.quat);
+/// Append samples `r` of every column of `from` to `to` (as far as each column reaches).
+pub(crate) fn append_range(to: &mut StateSeries, from: &StateSeries, r: std::ops::Range<usize>) {
+    fn ext<T: Copy>(to: &mut Vec<T>, from: &[T], r: &std::ops::Range<usize>) {
+        let end = r.end.min(from.len());
+        to.extend_from_slice(&from[r.start.min(end)..end]);
     }
+    ext(&mut to.t, &from.t, &r);
+    ext(&mut to.q, &from.q, &r);
+    ext(&mut to.dq, &from.dq, &r);
+    ext(&mut to.tau, &from.tau, &r);
+    ext(&mut to.temp, &from.temp, &r);
+    ext(&mut to.gyro, &from.gyro, &r);
+    ext(&mut to.quat, &from.quat, &r);
+}
+
+/// Append every sample of `from` to `to` (each column that has them).
+pub(crate) fn append_state(to: &mut StateSeries, from: &StateSeries) {
+    append_range(to, from, 0..usize::MAX);
 }
 
 /// Drop the samples before index `i` of every non-empty column.

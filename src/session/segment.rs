@@ -118,7 +118,7 @@ impl Chunker<'_> {
     }
 
     fn push(&mut self, batch: &Recording) {
-        append_state(&mut self.buf.state, &batch.state, true);
+        append_state(&mut self.buf.state, &batch.state);
         sort_state(&mut self.buf.state);
         let c = &mut self.buf.command;
         c.t.extend_from_slice(&batch.command.t);

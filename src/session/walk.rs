@@ -86,7 +86,7 @@ pub(super) fn trial_windows(
         after_s: MARGIN_S,
     };
     let mut on_state = |state: &StateSeries| {
-        append_state(&mut buf.state, state, true);
+        append_state(&mut buf.state, state);
         sort_state(&mut buf.state);
         walk.step(&mut buf, false, on_trial)
     };
@@ -158,7 +158,7 @@ pub fn for_each_trial_with_batches(
     let mut on_recording = |batch: &Recording| {
         on_batch(batch);
         buf.start_ns = batch.start_ns;
-        append_state(&mut buf.state, &batch.state, true);
+        append_state(&mut buf.state, &batch.state);
         sort_state(&mut buf.state);
         for (to, from) in [(&mut buf.mbs, &batch.mbs), (&mut buf.bms, &batch.bms)] {
             to.t.extend_from_slice(&from.t);
