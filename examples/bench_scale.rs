@@ -207,6 +207,45 @@ fn measure(cmd: &mut Command, limit: Duration) -> Result<Usage> {
     })
 }
 
+/// Each command's name and arguments on the session `sp`, writing the model `mp` and the
+/// recording `rp`, with the twin `tp` and the `simulate --like` output `lp`.
+fn commands<'a>([sp, mp, rp, tp, lp]: [&'a str; 5]) -> Vec<(&'static str, Vec<&'a str>)> {
+    vec![
+        ("decompress", vec![sp]),
+        ("info", vec!["info", sp]),
+        ("identify", vec!["identify", sp, "-o", mp]),
+        ("validate", vec!["validate", "--model", "paper", sp]),
+        ("diagnose", vec!["diagnose", "--model", "paper", sp]),
+        (
+            "diagnose-save",
+            vec!["diagnose", "--model", "paper", sp, "--save", rp],
+        ),
+        (
+            "diagnose-counterpart",
+            vec!["diagnose", "--model", "paper", sp, "--counterpart", tp],
+        ),
+        ("replay", vec!["replay", sp, "--save", rp]),
+        (
+            "replay-model",
+            vec!["replay", sp, "--model", "paper", "--save", rp],
+        ),
+        ("simulate-like", vec!["simulate", "--like", sp, "-o", lp]),
+    ]
+}
+
+/// The command line a table row names.
+fn label(name: &str) -> &str {
+    match name {
+        "decompress" => "bare decompression (one core)",
+        "replay-model" => "replay --model paper --save",
+        "diagnose-save" => "diagnose --model paper --save",
+        "diagnose-counterpart" => "diagnose --model paper --counterpart TWIN",
+        "simulate-like" => "simulate --like SESSION",
+        "replay" => "replay --save",
+        other => other,
+    }
+}
+
 fn load_average() -> String {
     std::fs::read_to_string("/proc/loadavg")
         .map(|s| s.split_whitespace().take(3).collect::<Vec<_>>().join(" "))
@@ -284,33 +323,17 @@ fn main() -> Result<()> {
             }
         }
         let mut floor = None::<f64>;
-        let commands: Vec<(&str, Vec<&str>)> = vec![
-            ("decompress", vec![&sp]),
-            ("info", vec!["info", &sp]),
-            ("identify", vec!["identify", &sp, "-o", &mp]),
-            ("validate", vec!["validate", "--model", "paper", &sp]),
-            ("diagnose", vec!["diagnose", "--model", "paper", &sp]),
-            (
-                "diagnose-save",
-                vec!["diagnose", "--model", "paper", &sp, "--save", &rp],
-            ),
-            (
-                "diagnose-counterpart",
-                vec!["diagnose", "--model", "paper", &sp, "--counterpart", &tp],
-            ),
-            ("replay", vec!["replay", &sp, "--save", &rp]),
-            (
-                "replay-model",
-                vec!["replay", &sp, "--model", "paper", "--save", &rp],
-            ),
-            ("simulate-like", vec!["simulate", "--like", &sp, "-o", &lp]),
-        ];
+        let commands = commands([&sp, &mp, &rp, &tp, &lp]);
         for (name, argv) in commands {
             if !wanted.iter().any(|w| w == name) {
                 continue;
             }
             let _ = std::fs::remove_file(&rrd);
-            let exe = if name == "decompress" { &decompress } else { &bin };
+            let exe = if name == "decompress" {
+                &decompress
+            } else {
+                &bin
+            };
             let u = measure(
                 Command::new(exe).args(&argv).current_dir(&dir),
                 Duration::from_secs(3600),
@@ -322,21 +345,7 @@ fn main() -> Result<()> {
             let size = std::fs::metadata(&rrd)
                 .map(|m| format!("{:.0} MB", m.len() as f64 / 1e6))
                 .unwrap_or_else(|_| "–".into());
-            let label = if name == "decompress" {
-                "bare decompression (one core)".to_string()
-            } else if name == "replay-model" {
-                "replay --model paper --save".to_string()
-            } else if name == "diagnose-save" {
-                "diagnose --model paper --save".to_string()
-            } else if name == "diagnose-counterpart" {
-                "diagnose --model paper --counterpart TWIN".to_string()
-            } else if name == "simulate-like" {
-                "simulate --like SESSION".to_string()
-            } else if name == "replay" {
-                "replay --save".to_string()
-            } else {
-                name.to_string()
-            };
+            let label = label(name);
             println!(
                 "| {h} h | {mcap_mb:.0} MB | `{label}` | {:.1}{} | {:.1} | {ratio} | {:.0} | {size} | {} |",
                 u.wall,

@@ -9,7 +9,9 @@
 use crate::N_JOINTS;
 use crate::power::{PowerModel, regressor_into};
 use crate::signals::{PowerSeries, Recording};
-use crate::trial::{MIN_WINDOW_SAMPLES, Phase, TrialWindow, readings_within, samples_in, sigma_omega};
+use crate::trial::{
+    MIN_WINDOW_SAMPLES, Phase, TrialWindow, readings_within, samples_in, sigma_omega,
+};
 
 use super::hypotheses::{N_EXTRA, N_LOCATE, N_RAW, Sample, extras_into, locate_into};
 
@@ -420,7 +422,9 @@ mod tests {
         let wave = |k: usize, j: usize| ((k * (j + 3)) as f64 * 0.011).sin();
         let ks: Vec<usize> = (0..2000).filter(|k| !(900..905).contains(k)).collect();
         let col = |f: &dyn Fn(usize, usize) -> f64| -> Vec<[f64; N_JOINTS]> {
-            ks.iter().map(|&k| std::array::from_fn(|j| f(k, j))).collect()
+            ks.iter()
+                .map(|&k| std::array::from_fn(|j| f(k, j)))
+                .collect()
         };
         let state = StateSeries {
             t: ks.iter().map(|&k| k as f64 * 0.01).collect(),
@@ -482,13 +486,21 @@ mod tests {
             };
             let id = build_dataset(&rec, std::slice::from_ref(&trial), &opts);
             let rows = build_rows(&rec, &rec.mbs, &metas, lag, w, false);
-            assert!(id.rows.len() > 30, "W {w}, lag {lag}: {} rows", id.rows.len());
+            assert!(
+                id.rows.len() > 30,
+                "W {w}, lag {lag}: {} rows",
+                id.rows.len()
+            );
             for r in &id.rows {
                 let k = rows.t.iter().position(|&t| t == r.t);
                 let k = k.unwrap_or_else(|| panic!("W {w}, lag {lag}: no row at {}", r.t));
                 assert!((rows.y[k] - r.y).abs() < 1e-12, "y at {}", r.t);
                 for (a, b) in r.phi.iter().zip(&rows.x[k][..crate::N_PARAMS]) {
-                    assert!((a - b).abs() <= 1e-9 * (1.0 + a.abs()), "φ at {}: {a} {b}", r.t);
+                    assert!(
+                        (a - b).abs() <= 1e-9 * (1.0 + a.abs()),
+                        "φ at {}: {a} {b}",
+                        r.t
+                    );
                 }
             }
             let (lo, hi) = (trial.t_traj_start + lag + w, trial.t_post_end + lag);

@@ -56,9 +56,9 @@ pub use select::{Confounded, HypothesisScore, MechanismForms, Param};
 pub use torque::{ArmModel, TorqueComparison};
 
 use crate::N_PARAMS;
-use crate::session::{Memory, SessionFile, TrialSource};
 use crate::power::PowerModel;
 use crate::robot::{ArmDynamics, RobotModel};
+use crate::session::{Memory, SessionFile, TrialSource};
 use crate::signals::Recording;
 use outcome::{locate_residuals, rank_hypotheses, refit_final, rescale_bus};
 use reduce::SessionInfo;

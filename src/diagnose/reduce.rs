@@ -181,7 +181,12 @@ pub(crate) fn open_streamed(
         if i == 0 {
             out.info.start_ns = part.clock.start_ns;
         }
-        out.windows.extend(part.local.iter().enumerate().map(|(j, w)| part.global(w, j)));
+        out.windows.extend(
+            part.local
+                .iter()
+                .enumerate()
+                .map(|(j, w)| part.global(w, j)),
+        );
         parts.push(part);
     }
     if out.windows.is_empty() {

@@ -11,9 +11,9 @@ use crate::trial::{Cascade, Rejection, TrialStat, TrialWindow};
 
 use super::data::{Rows, TrialFeatures, TrialMeta, trial_rows_into};
 use super::hypotheses::N_RAW;
-use crate::session::TrialSource;
 use super::select::{FOLD_SEED, FoldGramsBuilder, Folds, PowerData, fit};
 use super::{DiagnoseOptions, LagPoint};
+use crate::session::TrialSource;
 
 /// The rows of every trial at lag 0 (trial = position in the trial list), appended in trial
 /// order, and where each trial's rows lie.

@@ -34,8 +34,8 @@ use crate::trial::{Cascade, TrialStat, TrialWindow, is_rejected};
 
 use super::data::{Rows, TrialMeta, build_rows};
 use super::reduce::{SessionInfo, hold};
-use crate::session::TrialSource;
 use super::{DiagnoseOptions, SensorWindow};
+use crate::session::TrialSource;
 
 /// Largest number of trials the sensor-window scan uses (evenly spread over the session): the
 /// window is a property of the sensor, and 150 trials fix it well while the scan's cost stays

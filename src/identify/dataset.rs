@@ -187,7 +187,10 @@ fn readings_within<'a>(
 fn reading_values(p: &PowerSeries, r: std::ops::Range<usize>) -> impl Iterator<Item = (f64, f64)> {
     let end = r.end.min(p.watts.len());
     let r = r.start.min(end)..end;
-    p.t[r.clone()].iter().copied().zip(p.watts[r].iter().copied())
+    p.t[r.clone()]
+        .iter()
+        .copied()
+        .zip(p.watts[r].iter().copied())
 }
 
 /// Baseline and statistics of one trial; Err(reason) when the trial cannot give rows.

@@ -15,6 +15,8 @@ mod summary;
 mod table;
 mod validate;
 
+/// The session types [`identify_files`] and [`validate_file`] take.
+pub use crate::session::{SEARCH_TRIALS, SessionFile, StreamOptions, search_stride};
 pub use dataset::{
     Alignment, AlignmentEstimate, AlignmentScore, Dataset, DatasetOptions, Mode, Row, Skipped,
     Target, TrialBasis, build as build_dataset, estimate_alignment,
@@ -29,7 +31,5 @@ pub use report::{
     AggregationRow, FIGURES as REPORT_FIGURES, PredictionSet, ReportInput, TermContributions,
     write_report,
 };
-/// The session types [`identify_files`] and [`validate_file`] take.
-pub use crate::session::{SEARCH_TRIALS, SessionFile, StreamOptions, search_stride};
 pub use table::{ReadingFit, TrialBaseline, TrialPrediction};
 pub use validate::{Validation, validate, validate_file};

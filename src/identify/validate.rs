@@ -9,10 +9,10 @@ use super::fit::predict;
 use super::fit::{quality, term_means};
 use super::pipeline::{IdentifyOptions, Prepared, SessionSummary, resolve_alignment};
 use super::sets::RowPlan;
-use crate::session::{SessionFile, StreamOptions};
 use super::table::{ReadingFit, TrialBaseline, TrialPrediction, trial_metrics, trial_predictions};
 use crate::lsq::Metrics;
 use crate::power::{PowerModel, TermMeans};
+use crate::session::{SessionFile, StreamOptions};
 use crate::signals::Recording;
 use crate::trial::{self, RejectReason, Rejection, TrialStat};
 

@@ -25,10 +25,10 @@ use crate::signals::{Recording, SignalMap, SpillSlot, StateSeries};
 use crate::trial::TrialWindow;
 
 pub(crate) use joined::{Joined, JoinedPart, global, shift};
-pub(crate) use segment::segmentation_pass;
 pub use segment::segment_file;
-pub(crate) use walk::hold_pass;
+pub(crate) use segment::segmentation_pass;
 pub use walk::for_each_trial_with_batches;
+pub(crate) use walk::hold_pass;
 
 /// Default of the identification's `search_trials` and of [`StreamOptions::hold_trials`]: the
 /// timing search's cost grows with its trials, and ~300 trials pin the window and lag to the fine

@@ -16,9 +16,9 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 
-use super::{MARGIN_S, SessionFile, StreamOptions, append_state, drain_state, sort_state};
 #[cfg(doc)]
 use super::search_stride;
+use super::{MARGIN_S, SessionFile, StreamOptions, append_state, drain_state, sort_state};
 use crate::N_JOINTS;
 use crate::signals::{PowerSeries, Recording, SpillWriter, StateSeries, stream_recording};
 use crate::trial::{self, SegmentOptions, Segmentation, TrialWindow};

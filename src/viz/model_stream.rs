@@ -25,9 +25,9 @@ use super::replay::{
 use super::slice::{Decimator, Slice};
 use crate::N_JOINTS;
 use crate::identify::Validation;
-use crate::session::{SessionFile, for_each_trial_with_batches};
 use crate::power::PowerModel;
 use crate::robot::{ArmJoints, RobotModel};
+use crate::session::{SessionFile, for_each_trial_with_batches};
 use crate::signals::{Recording, RecordingSink, StateSeries, StreamHeader, StreamSummary};
 use crate::trial::TrialWindow;
 

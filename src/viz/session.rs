@@ -14,10 +14,10 @@ use super::replay::{ReplayOptions, ReplaySummary, replay_file};
 use super::slice::Slice;
 use super::{OutputKind, Sink, open_stream, recording_id_or_reason};
 use crate::identify::{IdentifyOptions, validate_file};
-use crate::session::SessionFile;
 use crate::power::PowerModel;
 use crate::read::OpenOptions;
 use crate::robot::RobotModel;
+use crate::session::SessionFile;
 use crate::signals::{Group, SignalMap};
 use crate::trial::Segmentation;
 
