@@ -209,7 +209,7 @@ fn measure(cmd: &mut Command, limit: Duration) -> Result<Usage> {
 
 /// Each command's name and arguments on the session `sp`, writing the model `mp` and the
 /// recording `rp`, with the twin `tp` and the `simulate --like` output `lp`.
-fn commands<'a>([sp, mp, rp, tp, lp]: [&'a str; 5]) -> Vec<(&'static str, Vec<&'a str>)> {
+fn commands([sp, mp, rp, tp, lp]: [&str; 5]) -> Vec<(&'static str, Vec<&str>)> {
     vec![
         ("decompress", vec![sp]),
         ("info", vec!["info", sp]),
