@@ -16,8 +16,11 @@
 //! # e.g. cargo run --example bench_scale -- /tmp/g1viz-scale 1,4.4 info,identify
 //! ```
 //!
-//! Peak RSS is the child's own `ru_maxrss` (from `wait4`), wall time from spawn to exit. Each
-//! command has a 60 min limit. The machine's load average is printed with the table.
+//! Peak RSS is the child's own `ru_maxrss` and CPU its user + system time (from `wait4`), wall
+//! time from spawn to exit. Each command has a 60 min limit. The machine's load average is printed
+//! with the table. The command `decompress` runs `bench_decompress` (built beside this example:
+//! `cargo build --examples`) on the same file, the one-core floor every other command's CPU is
+//! given as a multiple of (the `× CPU` column).
 
 use std::collections::BTreeMap;
 use std::fs::File;
@@ -141,8 +144,19 @@ fn session(dir: &Path, hours: f64) -> Result<PathBuf> {
     Ok(out)
 }
 
-/// Wall time [s] and peak RSS [MB] of one child process (killed after `limit`).
-fn measure(cmd: &mut Command, limit: Duration) -> Result<(f64, f64, bool)> {
+/// What one child process took.
+struct Usage {
+    /// Spawn to exit [s].
+    wall: f64,
+    /// User + system CPU [s].
+    cpu: f64,
+    /// Peak RSS [MB].
+    rss: f64,
+    ok: bool,
+}
+
+/// The time, CPU and peak RSS of one child process (killed after `limit`).
+fn measure(cmd: &mut Command, limit: Duration) -> Result<Usage> {
     let t0 = Instant::now();
     let child = cmd
         .stdout(std::process::Stdio::null())
@@ -184,7 +198,52 @@ fn measure(cmd: &mut Command, limit: Duration) -> Result<(f64, f64, bool)> {
             err.lines().last().unwrap_or("(killed or no message)")
         );
     }
-    Ok((wall, usage.ru_maxrss as f64 / 1024.0, ok))
+    let secs = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
+    Ok(Usage {
+        wall,
+        cpu: secs(usage.ru_utime) + secs(usage.ru_stime),
+        rss: usage.ru_maxrss as f64 / 1024.0,
+        ok,
+    })
+}
+
+/// Each command's name and arguments on the session `sp`, writing the model `mp` and the
+/// recording `rp`, with the twin `tp` and the `simulate --like` output `lp`.
+fn commands([sp, mp, rp, tp, lp]: [&str; 5]) -> Vec<(&'static str, Vec<&str>)> {
+    vec![
+        ("decompress", vec![sp]),
+        ("info", vec!["info", sp]),
+        ("identify", vec!["identify", sp, "-o", mp]),
+        ("validate", vec!["validate", "--model", "paper", sp]),
+        ("diagnose", vec!["diagnose", "--model", "paper", sp]),
+        (
+            "diagnose-save",
+            vec!["diagnose", "--model", "paper", sp, "--save", rp],
+        ),
+        (
+            "diagnose-counterpart",
+            vec!["diagnose", "--model", "paper", sp, "--counterpart", tp],
+        ),
+        ("replay", vec!["replay", sp, "--save", rp]),
+        (
+            "replay-model",
+            vec!["replay", sp, "--model", "paper", "--save", rp],
+        ),
+        ("simulate-like", vec!["simulate", "--like", sp, "-o", lp]),
+    ]
+}
+
+/// The command line a table row names.
+fn label(name: &str) -> &str {
+    match name {
+        "decompress" => "bare decompression (one core)",
+        "replay-model" => "replay --model paper --save",
+        "diagnose-save" => "diagnose --model paper --save",
+        "diagnose-counterpart" => "diagnose --model paper --counterpart TWIN",
+        "simulate-like" => "simulate --like SESSION",
+        "replay" => "replay --save",
+        other => other,
+    }
 }
 
 fn load_average() -> String {
@@ -220,7 +279,7 @@ fn main() -> Result<()> {
     let wanted: Vec<String> = args
         .get(2)
         .map_or(
-            "info,identify,validate,diagnose,diagnose-save,diagnose-counterpart,replay,replay-model,simulate-like",
+            "decompress,info,identify,validate,diagnose,diagnose-save,diagnose-counterpart,replay,replay-model,simulate-like",
             String::as_str,
         )
         .split(',')
@@ -230,9 +289,10 @@ fn main() -> Result<()> {
     let bin = g1viz_bin()?;
     println!("binary {}, scratch {}", bin.display(), dir.display());
     println!(
-        "| session | MCAP | command | wall [s] | peak RSS [MB] | .rrd | load avg (1/5/15 min) |"
+        "| session | MCAP | command | wall [s] | CPU [s] | × CPU | peak RSS [MB] | .rrd | load avg (1/5/15 min) |"
     );
-    println!("|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|");
+    let decompress = std::env::current_exe()?.with_file_name("bench_decompress");
     for &h in &hours {
         let s = dir.join(format!("session_{h}h.mcap"));
         if !s.exists() {
@@ -262,54 +322,36 @@ fn main() -> Result<()> {
                 bail!("simulate --like {sp} failed");
             }
         }
-        let commands: Vec<(&str, Vec<&str>)> = vec![
-            ("info", vec!["info", &sp]),
-            ("identify", vec!["identify", &sp, "-o", &mp]),
-            ("validate", vec!["validate", "--model", "paper", &sp]),
-            ("diagnose", vec!["diagnose", "--model", "paper", &sp]),
-            (
-                "diagnose-save",
-                vec!["diagnose", "--model", "paper", &sp, "--save", &rp],
-            ),
-            (
-                "diagnose-counterpart",
-                vec!["diagnose", "--model", "paper", &sp, "--counterpart", &tp],
-            ),
-            ("replay", vec!["replay", &sp, "--save", &rp]),
-            (
-                "replay-model",
-                vec!["replay", &sp, "--model", "paper", "--save", &rp],
-            ),
-            ("simulate-like", vec!["simulate", "--like", &sp, "-o", &lp]),
-        ];
+        let mut floor = None::<f64>;
+        let commands = commands([&sp, &mp, &rp, &tp, &lp]);
         for (name, argv) in commands {
             if !wanted.iter().any(|w| w == name) {
                 continue;
             }
             let _ = std::fs::remove_file(&rrd);
-            let (wall, rss, ok) = measure(
-                Command::new(&bin).args(&argv).current_dir(&dir),
+            let exe = if name == "decompress" {
+                &decompress
+            } else {
+                &bin
+            };
+            let u = measure(
+                Command::new(exe).args(&argv).current_dir(&dir),
                 Duration::from_secs(3600),
             )?;
+            if name == "decompress" {
+                floor = Some(u.cpu);
+            }
+            let ratio = floor.map_or("–".into(), |f| format!("{:.2}", u.cpu / f));
             let size = std::fs::metadata(&rrd)
                 .map(|m| format!("{:.0} MB", m.len() as f64 / 1e6))
                 .unwrap_or_else(|_| "–".into());
-            let label = if name == "replay-model" {
-                "replay --model paper --save".to_string()
-            } else if name == "diagnose-save" {
-                "diagnose --model paper --save".to_string()
-            } else if name == "diagnose-counterpart" {
-                "diagnose --model paper --counterpart TWIN".to_string()
-            } else if name == "simulate-like" {
-                "simulate --like SESSION".to_string()
-            } else if name == "replay" {
-                "replay --save".to_string()
-            } else {
-                name.to_string()
-            };
+            let label = label(name);
             println!(
-                "| {h} h | {mcap_mb:.0} MB | `{label}` | {wall:.1}{} | {rss:.0} | {size} | {} |",
-                if ok { "" } else { " (failed)" },
+                "| {h} h | {mcap_mb:.0} MB | `{label}` | {:.1}{} | {:.1} | {ratio} | {:.0} | {size} | {} |",
+                u.wall,
+                if u.ok { "" } else { " (failed)" },
+                u.cpu,
+                u.rss,
                 load_average()
             );
         }

@@ -6,6 +6,7 @@
 //! read (MCAP, ROS 2 .db3, ROS 1 .bag; schema-driven decoding)
 //!   → signals (named arm signals: q, dq, tau, temperature, IMU, MBS/BMS power)
 //!   → trial (trial windows, segmentation, the IMU and n·σ filters)
+//!   → session (a session's trials read one by one in bounded memory, from files or memory)
 //!   → robot (URDF, forward kinematics, inverse dynamics)
 //!   → power (the paper's 49-parameter model)
 //!   → identify (regressors, constrained fit, validation, report)
@@ -26,6 +27,7 @@ pub mod power;
 pub mod read;
 pub mod robot;
 pub mod rows;
+pub mod session;
 pub mod signals;
 pub mod sim;
 pub mod timing;

@@ -121,7 +121,7 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
     // (the diagnosis' overlays are per reading and per trial; several sessions are replayed part
     // by part on the diagnosis' joined clock), and the counterpart is read beside the session
     // sample by sample.
-    let files: Vec<g1viz::identify::SessionFile> = sessions
+    let files: Vec<g1viz::session::SessionFile> = sessions
         .iter()
         .map(|p| a.read.session_file(p, &map))
         .collect();
@@ -204,7 +204,7 @@ fn replay_options(a: &DiagnoseArgs, d: &g1viz::diagnose::Diagnosis) -> g1viz::vi
 /// on the diagnosis' clock; the recording id is the first file's).
 #[cfg(feature = "viz")]
 fn save_streamed_rrd(
-    files: &[g1viz::identify::SessionFile],
+    files: &[g1viz::session::SessionFile],
     a: &DiagnoseArgs,
     d: &g1viz::diagnose::Diagnosis,
     out: &Path,
@@ -253,7 +253,7 @@ fn save_streamed_rrd(
 
 #[cfg(not(feature = "viz"))]
 fn save_streamed_rrd(
-    _: &[g1viz::identify::SessionFile],
+    _: &[g1viz::session::SessionFile],
     _: &DiagnoseArgs,
     _: &g1viz::diagnose::Diagnosis,
     _: &Path,

@@ -66,7 +66,7 @@ fn rows(a: RowsArgs) -> Result<()> {
     let id = g1viz::identify::identify_files(
         &files,
         &a.fit.options(),
-        &g1viz::identify::StreamOptions::default(),
+        &g1viz::session::StreamOptions::default(),
     )?;
     for w in id.sessions.iter().flat_map(|s| &s.warnings) {
         eprintln!("warning: {w}");

@@ -62,11 +62,11 @@ pub fn run(a: IdentifyArgs) -> Result<()> {
     // Each session is streamed twice (segmentation, then rows): memory stays bounded whatever
     // the sessions' length.
     let map = a.read.signal_map()?;
-    let files: Vec<identify::SessionFile> = fit_sessions
+    let files: Vec<g1viz::session::SessionFile> = fit_sessions
         .iter()
         .map(|p| a.read.session_file(p, &map))
         .collect();
-    let stream = identify::StreamOptions::default();
+    let stream = g1viz::session::StreamOptions::default();
     let id = identify::identify_files(&files, &opts, &stream)?;
     for w in id.sessions.iter().flat_map(|s| &s.warnings) {
         eprintln!("warning: {w}");

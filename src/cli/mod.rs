@@ -176,8 +176,8 @@ impl ReadArgs {
     }
 
     /// `path` with this signal map and these reader options, for a streamed read.
-    pub fn session_file(&self, path: &Path, map: &SignalMap) -> g1viz::identify::SessionFile {
-        g1viz::identify::SessionFile {
+    pub fn session_file(&self, path: &Path, map: &SignalMap) -> g1viz::session::SessionFile {
+        g1viz::session::SessionFile {
             path: path.to_path_buf(),
             map: map.clone(),
             read: self.open_options(),

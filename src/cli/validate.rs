@@ -34,7 +34,7 @@ pub fn run(a: ValidateArgs) -> Result<()> {
         &model,
         &a.read.session_file(&a.session, &map),
         &a.fit.options(),
-        &g1viz::identify::StreamOptions::default(),
+        &g1viz::session::StreamOptions::default(),
     );
     busy.finish_and_clear();
     let v = v?;

@@ -10,7 +10,7 @@ use serde::{Deserialize, Serialize};
 
 use super::Diagnosis;
 use crate::N_JOINTS;
-use crate::identify::SessionFile;
+use crate::session::SessionFile;
 use crate::signals::{PowerSeries, Recording, load_recording, stream_recording};
 
 /// Samples closer than this in absolute time are the same message slot [ns].

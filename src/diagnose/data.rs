@@ -9,7 +9,9 @@
 use crate::N_JOINTS;
 use crate::power::{PowerModel, regressor_into};
 use crate::signals::{PowerSeries, Recording};
-use crate::trial::{Phase, TrialWindow, sigma_omega};
+use crate::trial::{
+    MIN_WINDOW_SAMPLES, Phase, TrialWindow, readings_within, samples_in, sigma_omega,
+};
 
 use super::hypotheses::{N_EXTRA, N_LOCATE, N_RAW, Sample, extras_into, locate_into};
 
@@ -95,13 +97,6 @@ impl Rows {
     }
 }
 
-/// Index range of state samples with time in [a, b).
-fn sample_range(t: &[f64], a: f64, b: f64) -> std::ops::Range<usize> {
-    let i0 = t.partition_point(|&x| x < a);
-    let i1 = t.partition_point(|&x| x < b);
-    i0..i1.max(i0)
-}
-
 fn sample_at<'a>(
     rec: &'a Recording,
     k: usize,
@@ -140,14 +135,16 @@ pub(crate) fn trial_meta(
     let mut out = Vec::new();
     let mut skipped = Vec::new();
     for w in windows {
-        let pre = sample_range(t, w.t_pre_start, w.t_traj_start);
-        if pre.len() < 3 {
+        let Some(pre) = w.pre_idle(t) else {
             skipped.push((
                 w.index,
-                format!("only {} joint samples in the pre-idle window", pre.len()),
+                format!(
+                    "only {} joint samples in the pre-idle window",
+                    samples_in(t, w.t_pre_start, w.t_traj_start).len()
+                ),
             ));
             continue;
-        }
+        };
         let mut tau0_sq = [0.0; N_JOINTS];
         for k in pre.clone() {
             if let Some(tau) = rec.state.tau.get(k) {
@@ -170,7 +167,7 @@ pub(crate) fn trial_meta(
         extra0.iter_mut().for_each(|v| *v /= n.max(1) as f64);
         // The identification's IMU statistic over the same trajectory window.
         let sigma_omega = sigma_omega(rec, w.t_traj_start, w.t_post_end);
-        let n_samples = sample_range(t, w.t_pre_start, w.t_return_end).len();
+        let n_samples = samples_in(t, w.t_pre_start, w.t_return_end).len();
         out.push(TrialMeta {
             window: w.clone(),
             tau0_sq,
@@ -183,10 +180,10 @@ pub(crate) fn trial_meta(
     (out, skipped)
 }
 
-/// Mean of φ and the extras (and optionally the descriptors) over state samples in [a, b), the
+/// Mean of φ and the extras (and optionally the descriptors) over state samples in (a, b], the
 /// window cut at the trial's span ([`super::reduce::span`]: a window never reaches into samples
 /// that belong to no trial's span, so a streamed read sees the same samples as one in memory).
-/// `None` when the window holds fewer than 2 samples (a gap in the joint stream).
+/// `None` when the window holds fewer than [`MIN_WINDOW_SAMPLES`] (a gap in the joint stream).
 fn window_mean(
     rec: &Recording,
     meta: &TrialMeta,
@@ -196,8 +193,8 @@ fn window_mean(
     loc: Option<&mut [f64; N_LOCATE]>,
 ) -> Option<()> {
     let a = a.max(super::reduce::span(&meta.window).0);
-    let range = sample_range(&rec.state.t, a, b);
-    if range.len() < 2 {
+    let range = samples_in(&rec.state.t, a, b);
+    if range.len() < MIN_WINDOW_SAMPLES {
         return None;
     }
     let n = range.len() as f64;
@@ -251,7 +248,7 @@ impl TrialFeatures {
 
     pub(crate) fn new(rec: &Recording, meta: &TrialMeta) -> TrialFeatures {
         let a = super::reduce::span(&meta.window).0;
-        let range = sample_range(&rec.state.t, a, meta.window.t_return_end + 1e-6);
+        let range = samples_in(&rec.state.t, a, meta.window.t_return_end + 1e-6);
         let mut phi = [0.0; crate::N_PARAMS];
         let mut ex = [0.0; N_EXTRA];
         let feats = range
@@ -284,8 +281,8 @@ impl TrialFeatures {
         x: &mut [f64; N_RAW],
     ) -> Option<Option<()>> {
         let a = a.max(super::reduce::span(&meta.window).0);
-        let range = sample_range(&rec.state.t, a, b);
-        if range.len() < 2 {
+        let range = samples_in(&rec.state.t, a, b);
+        if range.len() < MIN_WINDOW_SAMPLES {
             return Some(None);
         }
         if self.feats.is_empty()
@@ -312,17 +309,15 @@ impl TrialFeatures {
     }
 }
 
-/// A trial's baseline readings at sensor lag `lag` and window `width`: those whose window
-/// [t − lag − W, t − lag] lies inside the pre-idle, stamps in [t_pre_start + W + lag,
-/// t_traj_start + lag]. The one rule of every stage that reads a trial's rest power: without
-/// the lag, a lagging sensor's first baseline readings average the previous trial's motion.
+/// A trial's baseline readings at sensor lag `lag` and window `width`: the rule identification
+/// uses too ([`TrialWindow::baseline_readings`]), for every stage that reads a trial's rest power.
 pub(crate) fn baseline_readings(
     pt: &[f64],
     w: &TrialWindow,
     lag: f64,
     width: f64,
 ) -> std::ops::Range<usize> {
-    sample_range(pt, w.t_pre_start + width + lag, w.t_traj_start + lag + 1e-9)
+    w.baseline_readings(pt, lag, width)
 }
 
 /// Build the rows for one sensor lag. Readings are assigned to trials by their stamps:
@@ -380,7 +375,9 @@ pub(crate) fn trial_rows_into(
         return;
     }
     let baseline = vals.iter().sum::<f64>() / vals.len() as f64;
-    for k in sample_range(pt, w.t_traj_start + width, w.t_return_end + 1e-9) {
+    // Readings whose window (at lag 0) lies inside the trajectory, post-idle and return: fixed
+    // by their stamps, so the rows of every lag describe the same readings.
+    for k in readings_within(pt, w.t_traj_start, w.t_return_end, 0.0, width) {
         let (Some(&tk), Some(&p)) = (pt.get(k), power.watts.get(k)) else {
             continue;
         };
@@ -408,6 +405,107 @@ pub(crate) fn trial_rows_into(
         rows.x.push(x);
         if with_locate {
             rows.locate.push(loc);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::identify::{Alignment, DatasetOptions, Mode, build_dataset};
+    use crate::signals::{StateSeries, Target};
+
+    /// A session written here, by neither row builder: 100 Hz joint states whose τ and q̇ vary
+    /// sample by sample, readings every 0.25 s (on the sample grid, so window edges fall on
+    /// samples) plus one every 0.37 s (off it), with a NaN reading and a gap in the joint stream.
+    fn session() -> (Recording, TrialWindow) {
+        let wave = |k: usize, j: usize| ((k * (j + 3)) as f64 * 0.011).sin();
+        let ks: Vec<usize> = (0..2000).filter(|k| !(900..905).contains(k)).collect();
+        let col = |f: &dyn Fn(usize, usize) -> f64| -> Vec<[f64; N_JOINTS]> {
+            ks.iter()
+                .map(|&k| std::array::from_fn(|j| f(k, j)))
+                .collect()
+        };
+        let state = StateSeries {
+            t: ks.iter().map(|&k| k as f64 * 0.01).collect(),
+            q: col(&|k, j| 0.1 * wave(k, j)),
+            dq: col(&|k, j| if k > 300 { wave(k, j + 1) } else { 0.0 }),
+            tau: col(&|k, j| 1.0 + wave(k, j + 2)),
+            temp: col(&|_, _| 40.0),
+            gyro: ks.iter().map(|&k| [0.01 * wave(k, 0), 0.0, 0.0]).collect(),
+            quat: ks.iter().map(|_| [1.0, 0.0, 0.0, 0.0]).collect(),
+        };
+        let mut t: Vec<f64> = (1..80).map(|k| k as f64 * 0.25).collect();
+        t.extend((1..54).map(|k| k as f64 * 0.37));
+        t.sort_by(f64::total_cmp);
+        let watts = t
+            .iter()
+            .enumerate()
+            .map(|(i, &s)| if i == 40 { f64::NAN } else { 20.0 + s.sin() })
+            .collect();
+        let rec = Recording {
+            state,
+            mbs: PowerSeries { t, watts },
+            ..Recording::default()
+        };
+        let trial = TrialWindow {
+            index: 0,
+            t_pre_start: 0.5,
+            t_traj_start: 3.0,
+            t_traj_end: 12.0,
+            t_post_end: 14.0,
+            t_return_end: 18.0,
+            joints_moved: vec![0],
+            qdot_max_cmd: 1.0,
+            qdot_max_meas: 1.0,
+        };
+        (rec, trial)
+    }
+
+    /// Identification's per-reading rows and the diagnosis' rows follow one rule (the samples a
+    /// reading averages, the fewest a window needs, the pre-idle and the baseline readings): on
+    /// the readings both take, the same φ and net power; and the diagnosis takes a row for every
+    /// reading identification takes.
+    #[test]
+    fn identification_and_diagnosis_build_the_same_reading_rows() {
+        let (rec, trial) = session();
+        let bus = BusModel {
+            model: PowerModel::PAPER,
+            volts: 50.0,
+        };
+        let (metas, skipped) = trial_meta(&rec, std::slice::from_ref(&trial), bus);
+        assert!(skipped.is_empty());
+        for (w, lag) in [(0.2, 0.0), (0.25, 0.1), (0.3, 0.05), (0.5, 0.3)] {
+            let opts = DatasetOptions {
+                mode: Mode::Reading,
+                target: Target::Mbs,
+                alignment: Alignment {
+                    window_s: w,
+                    lag_s: lag,
+                },
+            };
+            let id = build_dataset(&rec, std::slice::from_ref(&trial), &opts);
+            let rows = build_rows(&rec, &rec.mbs, &metas, lag, w, false);
+            assert!(
+                id.rows.len() > 30,
+                "W {w}, lag {lag}: {} rows",
+                id.rows.len()
+            );
+            for r in &id.rows {
+                let k = rows.t.iter().position(|&t| t == r.t);
+                let k = k.unwrap_or_else(|| panic!("W {w}, lag {lag}: no row at {}", r.t));
+                assert!((rows.y[k] - r.y).abs() < 1e-12, "y at {}", r.t);
+                for (a, b) in r.phi.iter().zip(&rows.x[k][..crate::N_PARAMS]) {
+                    assert!(
+                        (a - b).abs() <= 1e-9 * (1.0 + a.abs()),
+                        "φ at {}: {a} {b}",
+                        r.t
+                    );
+                }
+            }
+            let (lo, hi) = (trial.t_traj_start + lag + w, trial.t_post_end + lag);
+            let inside = rows.t.iter().filter(|&&t| t >= lo && t <= hi).count();
+            assert_eq!(inside, id.rows.len(), "W {w}, lag {lag}");
         }
     }
 }

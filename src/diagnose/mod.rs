@@ -57,12 +57,12 @@ pub use select::{Confounded, HypothesisScore, MechanismForms, Param};
 pub use torque::{ArmModel, TorqueComparison};
 
 use crate::N_PARAMS;
-use crate::identify::SessionFile;
 use crate::power::PowerModel;
 use crate::robot::{ArmDynamics, RobotModel};
+use crate::session::{Memory, SessionFile, TrialSource};
 use crate::signals::Recording;
 use outcome::{locate_residuals, rank_hypotheses, refit_final, rescale_bus};
-use reduce::{InMemory, SessionInfo, Streamed, TrialSamples};
+use reduce::SessionInfo;
 use replay::{replay_data, show_found, show_rest};
 use select::Rule;
 use select_discover::select_and_discover;
@@ -148,7 +148,7 @@ pub fn diagnose_files(
         1,
         "reading the file: segmentation and per-trial reductions (1st pass)",
     );
-    let (mut samples, s) = Streamed::open(files, opts.target, bus_model(opts), gap_s)?;
+    let (mut samples, s) = reduce::open_streamed(files, opts.target, bus_model(opts), gap_s)?;
     let arm = arm_model(opts, s.has_torque, &s.info.joint_names)?;
     let opts = DiagnoseOptions {
         field_sources: s.field_sources,
@@ -210,7 +210,7 @@ pub fn diagnose_trials(
     opts: &DiagnoseOptions,
 ) -> Result<Diagnosis> {
     let info = SessionInfo::of(rec, opts.target);
-    let mut samples = InMemory(rec);
+    let mut samples = Memory(rec);
     let metas = reduce::trial_metas(&mut samples, windows, bus_model(opts))?;
     run(&info, &mut samples, metas, arm, opts)
 }
@@ -219,7 +219,7 @@ pub fn diagnose_trials(
 /// without a pre-idle); `samples` gives the trials' joint states for the per-trial passes.
 fn run(
     info: &SessionInfo,
-    samples: &mut dyn TrialSamples,
+    samples: &mut dyn TrialSource,
     (all_metas, skipped): (Vec<data::TrialMeta>, data::Skipped),
     arm: Option<&dyn ArmModel>,
     opts: &DiagnoseOptions,

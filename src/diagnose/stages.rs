@@ -11,9 +11,9 @@ use crate::trial::{Cascade, Rejection, TrialStat, TrialWindow};
 
 use super::data::{Rows, TrialFeatures, TrialMeta, trial_rows_into};
 use super::hypotheses::N_RAW;
-use super::reduce::TrialSamples;
 use super::select::{FOLD_SEED, FoldGramsBuilder, Folds, PowerData, fit};
 use super::{DiagnoseOptions, LagPoint};
+use crate::session::TrialSource;
 
 /// The rows of every trial at lag 0 (trial = position in the trial list), appended in trial
 /// order, and where each trial's rows lie.
@@ -73,7 +73,7 @@ pub(crate) struct FirstPass {
 
 /// One pass over `metas`' trials: [`FirstPass`] at `lags` (`lags[0]` = 0).
 pub(crate) fn trial_rows(
-    samples: &mut dyn TrialSamples,
+    samples: &mut dyn TrialSource,
     power: &PowerSeries,
     metas: &[TrialMeta],
     lags: &[f64],
@@ -125,7 +125,7 @@ pub(crate) fn trial_rows(
 /// Remove from `totals` (Gram matrices at `lags` of every trial of `metas`) the rows of the
 /// trials at positions `gone`: one pass over those trials only.
 pub(crate) fn remove_trials(
-    samples: &mut dyn TrialSamples,
+    samples: &mut dyn TrialSource,
     power: &PowerSeries,
     metas: &[TrialMeta],
     gone: &[usize],
@@ -267,7 +267,7 @@ fn append_common(to: &mut Rows, mut part: Rows, common: &HashSet<u64>, ti: usize
 /// needs them (on a 10 h session the rows of all ~29 lags took ~500 MB).
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn scan_lags<'a>(
-    samples: &'a mut dyn TrialSamples,
+    samples: &'a mut dyn TrialSource,
     power: &'a PowerSeries,
     metas: &'a [TrialMeta],
     mut rows0: Rows,

@@ -38,9 +38,10 @@ use crate::timing::{Alignment, ScanGrid, ridge_r2, scan_alignment};
 use crate::trial::{Cascade, TrialStat, TrialWindow, is_rejected};
 
 use super::data::{Rows, TrialMeta, build_rows};
-use super::reduce::{SessionInfo, TrialSamples, hold};
+use super::reduce::{SessionInfo, hold};
 use super::stages::base_trial_residuals;
 use super::{DiagnoseOptions, SensorWindow};
+use crate::session::TrialSource;
 
 /// Largest number of trials the sensor-window scan uses (evenly spread over the session): the
 /// window is a property of the sensor, and 150 trials fix it well while the scan's cost stays
@@ -65,7 +66,7 @@ const FIXED_SET_S: f64 = 1.0 + 4.0 * STEP;
 /// joint states are held for the scan (read once more from `samples`).
 pub(crate) fn sensor_window(
     info: &SessionInfo,
-    samples: &mut dyn TrialSamples,
+    samples: &mut dyn TrialSource,
     all: &[TrialMeta],
     opts: &DiagnoseOptions,
 ) -> Result<SensorWindow> {

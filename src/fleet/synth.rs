@@ -84,7 +84,7 @@ pub fn write_fleet(
                 .path()
                 .join(format!("{}_day{day:03}.mcap", robot_name(r)));
             crate::sim::simulate(&cfg, &session)?;
-            let file = crate::identify::SessionFile {
+            let file = crate::session::SessionFile {
                 path: session.clone(),
                 map: map.clone(),
                 read: Default::default(),
@@ -94,7 +94,7 @@ pub fn write_fleet(
             let id = crate::identify::identify_files(
                 &files,
                 &crate::identify::IdentifyOptions::default(),
-                &crate::identify::StreamOptions::default(),
+                &crate::session::StreamOptions::default(),
             )
             .with_context(|| format!("identifying {}", session.display()))?;
             let table = crate::rows::table_rows_files(&files, &id, &robot_name(r))?;

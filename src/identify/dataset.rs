@@ -23,7 +23,7 @@ pub use crate::signals::Target;
 use crate::signals::{PowerSeries, Recording};
 pub use crate::timing::{Alignment, AlignmentEstimate, AlignmentScore};
 use crate::timing::{ScanGrid, ridge_r2, scan_alignment};
-use crate::trial::{TrialWindow, sigma_omega};
+use crate::trial::{MIN_WINDOW_SAMPLES, TrialWindow, samples_in, sigma_omega};
 use crate::{N_JOINTS, N_PARAMS};
 
 /// How readings and regressors are paired into rows (see the module docs).
@@ -124,34 +124,36 @@ pub struct DatasetOptions {
     pub alignment: Alignment,
 }
 
-/// Sum of φ (with Δτ² against zero) and count over the state samples with t in (t0, t1].
-fn phi_sum(rec: &Recording, t0: f64, t1: f64) -> ([f64; N_PARAMS], usize) {
+/// Sum of φ (with Δτ² against zero) and count over the state samples `r`.
+fn phi_sum(rec: &Recording, r: std::ops::Range<usize>) -> ([f64; N_PARAMS], usize) {
     let s = &rec.state;
-    let n = s.t.len().min(s.tau.len()).min(s.dq.len());
-    let (i0, i1) = (
-        s.t[..n].partition_point(|&x| x <= t0),
-        s.t[..n].partition_point(|&x| x <= t1),
-    );
     let mut sum = [0.0; N_PARAMS];
     let mut phi = [0.0; N_PARAMS];
-    for k in i0..i1 {
+    for k in r.clone() {
         regressor_into(&s.tau[k], &s.dq[k], &[0.0; N_JOINTS], &mut phi);
         for (acc, v) in sum.iter_mut().zip(&phi) {
             *acc += v;
         }
     }
-    (sum, i1 - i0)
+    (sum, r.len())
 }
 
-/// Mean φ over (t0, t1] with Δτ² against `tau0_sq`; None when no sample falls inside.
+/// The joint-state times of `rec` that have τ and q̇ too.
+fn state_times(rec: &Recording) -> &[f64] {
+    let s = &rec.state;
+    &s.t[..s.t.len().min(s.tau.len()).min(s.dq.len())]
+}
+
+/// Mean φ over the samples in (t0, t1] ([`samples_in`]) with Δτ² against `tau0_sq`; None with
+/// fewer than [`MIN_WINDOW_SAMPLES`] inside.
 fn phi_mean(
     rec: &Recording,
     t0: f64,
     t1: f64,
     tau0_sq: &[f64; N_JOINTS],
 ) -> Option<[f64; N_PARAMS]> {
-    let (mut sum, count) = phi_sum(rec, t0, t1);
-    if count == 0 {
+    let (mut sum, count) = phi_sum(rec, samples_in(state_times(rec), t0, t1));
+    if count < MIN_WINDOW_SAMPLES {
         return None;
     }
     for v in &mut sum {
@@ -163,27 +165,32 @@ fn phi_mean(
     Some(sum)
 }
 
-/// Per-joint mean τ² over the state samples in (t0, t1].
-fn mean_tau_sq(rec: &Recording, t0: f64, t1: f64) -> Option<[f64; N_JOINTS]> {
-    let (sum, count) = phi_sum(rec, t0, t1);
-    (count > 0).then(|| std::array::from_fn(|j| sum[N_JOINTS + j] / count as f64))
+/// Per-joint mean τ² over the trial's pre-idle samples ([`TrialWindow::pre_idle`]).
+fn mean_tau_sq(rec: &Recording, trial: &TrialWindow) -> Option<[f64; N_JOINTS]> {
+    let (sum, count) = phi_sum(rec, trial.pre_idle(state_times(rec))?);
+    Some(std::array::from_fn(|j| sum[N_JOINTS + j] / count as f64))
 }
 
-/// Readings whose averaging window lies inside [a, b]: (stamp, watts).
+/// Readings whose averaging window lies inside [a, b] ([`crate::trial::readings_within`]):
+/// (stamp, watts).
 fn readings_within<'a>(
     p: &'a PowerSeries,
     align: &Alignment,
     a: f64,
     b: f64,
 ) -> impl Iterator<Item = (f64, f64)> + 'a {
-    let (lo, hi) = (a + align.lag_s + align.window_s, b + align.lag_s);
-    let i0 = p.t.partition_point(|&x| x < lo);
-    let watts = p.watts.get(i0..).unwrap_or(&[]);
-    p.t[i0..]
+    let r = crate::trial::readings_within(&p.t, a, b, align.lag_s, align.window_s);
+    reading_values(p, r)
+}
+
+/// (stamp, watts) of the readings `r` of `p`.
+fn reading_values(p: &PowerSeries, r: std::ops::Range<usize>) -> impl Iterator<Item = (f64, f64)> {
+    let end = r.end.min(p.watts.len());
+    let r = r.start.min(end)..end;
+    p.t[r.clone()]
         .iter()
-        .zip(watts)
-        .take_while(move |(t, _)| **t <= hi)
-        .map(|(t, w)| (*t, *w))
+        .copied()
+        .zip(p.watts[r].iter().copied())
 }
 
 /// Baseline and statistics of one trial; Err(reason) when the trial cannot give rows.
@@ -211,7 +218,8 @@ fn trial_basis_cached(
 ) -> Result<TrialBasis, String> {
     let power = target.series(rec);
     let (pre0, pre1) = (trial.t_pre_start, trial.t_traj_start);
-    let pre: Vec<f64> = readings_within(power, align, pre0, pre1)
+    let base = trial.baseline_readings(&power.t, align.lag_s, align.window_s);
+    let pre: Vec<f64> = reading_values(power, base)
         .map(|(_, w)| w)
         .filter(|w| w.is_finite())
         .collect();
@@ -223,8 +231,11 @@ fn trial_basis_cached(
     }
     let window = (trial.t_traj_start, trial.t_post_end);
     let state = || {
-        let tau0_sq = mean_tau_sq(rec, pre0, pre1).ok_or_else(|| {
-            format!("no joint-state sample in the pre-idle {pre0:.2}–{pre1:.2} s")
+        let tau0_sq = mean_tau_sq(rec, trial).ok_or_else(|| {
+            format!(
+                "fewer than {} joint-state samples in the pre-idle {pre0:.2}–{pre1:.2} s",
+                crate::trial::MIN_PRE_IDLE_SAMPLES
+            )
         })?;
         Ok((tau0_sq, sigma_omega(rec, window.0, window.1)))
     };

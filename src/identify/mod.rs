@@ -10,11 +10,13 @@ mod pipeline;
 mod record;
 mod report;
 mod sample;
-mod stream;
+mod sets;
 mod summary;
 mod table;
 mod validate;
 
+/// The session types [`identify_files`] and [`validate_file`] take.
+pub use crate::session::{SEARCH_TRIALS, SessionFile, StreamOptions, search_stride};
 pub use dataset::{
     Alignment, AlignmentEstimate, AlignmentScore, Dataset, DatasetOptions, Mode, Row, Skipped,
     Target, TrialBasis, build as build_dataset, estimate_alignment,
@@ -22,16 +24,12 @@ pub use dataset::{
 pub(crate) use fit::fit_normal;
 pub use fit::{kappa, term_means};
 pub use pipeline::{
-    AlignmentChoice, Identification, IdentifyOptions, ModeFit, RowsFit, SEARCH_TRIALS,
-    SessionBreakdown, SessionSummary, fit_given_rows, identify, identify_files, search_stride,
+    AlignmentChoice, Identification, IdentifyOptions, ModeFit, RowsFit, SessionBreakdown,
+    SessionSummary, fit_given_rows, identify, identify_files,
 };
 pub use report::{
     AggregationRow, FIGURES as REPORT_FIGURES, PredictionSet, ReportInput, TermContributions,
     write_report,
-};
-pub use stream::{
-    SessionFile, StreamOptions, for_each_trial, for_each_trial_and_batch,
-    for_each_trial_and_batch_no_commands, for_each_trial_state, segment_file,
 };
 pub use table::{ReadingFit, TrialBaseline, TrialPrediction};
 pub use validate::{Validation, validate, validate_file};

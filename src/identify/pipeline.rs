@@ -18,10 +18,13 @@ use super::dataset::{
 };
 use super::fit::{fit_normal, fit_rows, kappa, quality, term_means, trial_residuals};
 use super::sample::{self, SampleSums};
-use super::stream::{self, RowPlan, SessionFile, SessionSets, StreamOptions};
+use super::sets::{RowPlan, SessionSets};
 use super::table::{TrialPrediction, trial_metrics, trial_predictions};
 use crate::lsq::{Gram, Metrics, MetricsAccumulator, SolverInfo};
 use crate::power::{LossTerm, PowerModel, TermMeans};
+use crate::session::{
+    self, FileTrials, Memory, SEARCH_TRIALS, SessionFile, StreamOptions, TrialSource, search_stride,
+};
 use crate::signals::{Recording, Target};
 use crate::trial::{
     self, Cascade, RejectReason, Rejection, SegmentOptions, Segmentation, TrialStat, TrialWindow,
@@ -53,25 +56,6 @@ pub struct IdentifyOptions {
     /// Most trials the sensor-timing search uses ([`search_stride`]; default
     /// [`SEARCH_TRIALS`]).
     pub search_trials: usize,
-}
-
-/// Default of [`IdentifyOptions::search_trials`]: the timing search's cost grows with its trials,
-/// and ~300 trials pin the window and lag to the fine grid's 25 ms step.
-pub const SEARCH_TRIALS: usize = 300;
-
-/// The timing search's trial stride: the smallest power of two `s` for which every `s`-th trial
-/// (by index, from trial 0) of every session, `counts[i]` trials in session i, is at most `cap`
-/// trials. A power of two, so that a session's first pass can keep a bounded set while it does not
-/// yet know its length — every `s'`-th trial, doubling `s'` whenever the set outgrows its cap —
-/// and still hold the search's trials whenever its cap is at least `cap`
-/// ([`super::stream::StreamOptions::hold_trials`]).
-pub fn search_stride(counts: &[usize], cap: usize) -> usize {
-    let cap = cap.max(1);
-    let mut s = 1usize;
-    while counts.iter().map(|n| n.div_ceil(s)).sum::<usize>() > cap {
-        s *= 2;
-    }
-    s
 }
 
 impl Default for IdentifyOptions {
@@ -182,8 +166,8 @@ pub struct Identification {
 pub(crate) enum Input<'a> {
     /// A recording in memory.
     Memory(&'a Recording),
-    /// A file read in two streamed passes ([`super::stream`]).
-    File(SessionFile, StreamOptions),
+    /// A file: its segmentation pass, then its trials from the spill ([`crate::session`]).
+    File(SessionFile),
 }
 
 /// One session segmented: its trials, σ_ω of each, the joint states the sensor-timing search
@@ -237,7 +221,7 @@ impl<'a> Prepared<'a> {
         opts: &SegmentOptions,
         so: StreamOptions,
     ) -> Result<Prepared<'static>> {
-        let p1 = stream::segmentation_pass(&file, opts, &so)
+        let p1 = session::segmentation_pass(&file, opts, &so)
             .with_context(|| format!("reading {}", file.path.display()))?;
         Ok(Prepared {
             source: p1.source,
@@ -248,7 +232,7 @@ impl<'a> Prepared<'a> {
             warnings: p1.warnings,
             subset: Cow::Owned(p1.held),
             subset_trials: p1.held_trials,
-            input: Input::File(file, so),
+            input: Input::File(file),
         })
     }
 
@@ -256,29 +240,32 @@ impl<'a> Prepared<'a> {
     pub(crate) fn rows(&self, plan: &RowPlan) -> Result<SessionSets> {
         let mut sets = SessionSets::new(plan);
         self.for_each_trial(plan.trials, "rows", &mut |rec, t| {
-            sets.add_trial(rec, t, plan)
+            sets.add_trial(rec, t, plan);
+            Ok(())
         })?;
         Ok(sets)
     }
 
     /// Call `on_trial` for each of `trials` (in time order) with a recording holding at least
-    /// that trial's window and the power series: the whole recording in memory, or one more
-    /// streamed pass over a file holding about one trial at a time (`what` names the pass in
-    /// an error).
+    /// that trial's window and the power series, from the session's [`TrialSource`]: the whole
+    /// recording in memory, or the file's spill holding about one trial at a time (`what` names
+    /// the pass in an error).
     fn for_each_trial(
         &self,
         trials: &[TrialWindow],
         what: &str,
-        on_trial: &mut dyn FnMut(&Recording, &TrialWindow),
+        on_trial: &mut dyn FnMut(&Recording, &TrialWindow) -> Result<()>,
     ) -> Result<()> {
-        match &self.input {
-            Input::Memory(rec) => {
-                trials.iter().for_each(|t| on_trial(rec, t));
-                Ok(())
-            }
-            Input::File(file, so) => stream::trial_pass(file, &self.subset, trials, so, on_trial)
-                .with_context(|| format!("reading {} ({what})", file.path.display())),
-        }
+        let mut source: Box<dyn TrialSource + '_> = match &self.input {
+            Input::Memory(rec) => Box::new(Memory(rec)),
+            Input::File(file) => Box::new(FileTrials {
+                file,
+                clock: &self.subset,
+            }),
+        };
+        source
+            .for_each(trials, on_trial)
+            .with_context(|| format!("{} ({what})", self.source.display()))
     }
 
     /// Sample rows of the `retained` trials thinned by `stride` (in memory: built now, exactly;
@@ -434,7 +421,7 @@ fn trials_kept(sessions: &[Prepared], rejections: &[Rejection]) -> Vec<Vec<Trial
 /// [`IdentifyOptions::search_trials`] trials: every s-th trial of each session
 /// ([`search_stride`]) that the IMU filter keeps. A streamed session's first pass holds those
 /// trials' samples; if it could not ([`StreamOptions::hold_trials`] below the search's cap),
-/// they are read in one more streamed pass ([`stream::hold_pass`]). Either way the estimate
+/// they are read in one more streamed pass ([`session::hold_pass`]). Either way the estimate
 /// equals the in-memory one.
 pub(crate) fn resolve_alignment(
     sessions: &[Prepared],
@@ -459,8 +446,8 @@ pub(crate) fn resolve_alignment(
             for (p, t) in sessions.iter().zip(&thinned) {
                 let held: HashSet<usize> = p.subset_trials.iter().map(|t| t.index).collect();
                 loaded.push(match &p.input {
-                    Input::File(file, so) if !t.iter().all(|t| held.contains(&t.index)) => {
-                        Some(stream::hold_pass(file, &p.subset, t, so).with_context(|| {
+                    Input::File(file) if !t.iter().all(|t| held.contains(&t.index)) => {
+                        Some(session::hold_pass(file, &p.subset, t).with_context(|| {
                             format!("reading {} (timing search)", file.path.display())
                         })?)
                     }
@@ -730,6 +717,7 @@ fn final_scores(
         p.for_each_trial(trials, "scoring the per-sample fit", &mut |rec, t| {
             let set = dataset::build(rec, std::slice::from_ref(t), &dopts);
             sample::score_rows(&mut acc, &final_fit.theta, &set.rows);
+            Ok(())
         })?;
     }
     let kappa = input.gram_kept(rejections).condition_number();

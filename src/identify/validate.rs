@@ -8,10 +8,11 @@ use super::dataset::Alignment;
 use super::fit::predict;
 use super::fit::{quality, term_means};
 use super::pipeline::{IdentifyOptions, Prepared, SessionSummary, resolve_alignment};
-use super::stream::{RowPlan, SessionFile, StreamOptions};
+use super::sets::RowPlan;
 use super::table::{ReadingFit, TrialBaseline, TrialPrediction, trial_metrics, trial_predictions};
 use crate::lsq::Metrics;
 use crate::power::{PowerModel, TermMeans};
+use crate::session::{SessionFile, StreamOptions};
 use crate::signals::Recording;
 use crate::trial::{self, RejectReason, Rejection, TrialStat};
 

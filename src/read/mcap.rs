@@ -7,8 +7,10 @@
 //! messages come out the same whatever the storage order. Records are framed here so every
 //! warning can name its byte offset.
 //!
-//! Memory holds at most three groups of chunks whose time ranges overlap (normally three chunks:
-//! one being read, one being decompressed on a second thread, one being delivered), never the file.
+//! Indexed chunks are decompressed by a pool of two worker threads while the caller's thread
+//! reads the next raw chunks and decodes the last. Memory holds at most four groups of chunks
+//! whose time ranges overlap (normally four chunks: one being read, two being decompressed, one
+//! being delivered), never the file.
 
 use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
 use std::fs::File;
@@ -681,36 +683,33 @@ impl<R: Read + Seek> McapSource<R> {
         }
         let mut mismatched = 0u64;
         std::thread::scope(|scope| {
-            let (jobs, job_rx) = std::sync::mpsc::sync_channel::<InflateJob>(1);
-            let (done_tx, done) = std::sync::mpsc::sync_channel::<Vec<Result<Vec<u8>, Damage>>>(1);
-            scope.spawn(move || {
-                let mut inflater = Inflater::default();
-                for mut job in job_rx {
-                    let out = job
-                        .chunks
-                        .into_iter()
-                        .map(|raw| inflater.entry(raw, job.spare.pop().unwrap_or_default()))
-                        .collect();
-                    if done_tx.send(out).is_err() {
-                        break; // the reader stopped (damage or a sink error)
-                    }
-                }
-            });
+            // A pool of decompression workers, group g going to worker g % INFLATE_WORKERS: each
+            // worker inflates one group while this thread reads the next and delivers the last.
+            let mut workers = Vec::new();
+            for _ in 0..INFLATE_WORKERS.min(groups.len()) {
+                let (jobs, job_rx) = std::sync::mpsc::sync_channel::<InflateJob>(1);
+                let (done_tx, done) = std::sync::mpsc::sync_channel::<Inflated>(1);
+                scope.spawn(move || inflate_jobs(job_rx, done_tx));
+                workers.push((jobs, done));
+            }
             let mut spare = Vec::new();
-            let first = self.read_group(&groups[0], std::mem::take(&mut spare));
-            if jobs.send(first).is_err() {
-                return Ok(Err(worker_gone(&groups[0])));
+            for (g, group) in groups.iter().enumerate().take(workers.len()) {
+                let job = self.read_group(group, Vec::new());
+                if workers[g].0.send(job).is_err() {
+                    return Ok(Err(worker_gone(group)));
+                }
             }
             for (g, group) in groups.iter().enumerate() {
-                if let Some(next) = groups.get(g + 1) {
+                let (jobs, done) = &workers[g % workers.len()];
+                let Ok(buffers) = done.recv() else {
+                    return Ok(Err(worker_gone(group)));
+                };
+                if let Some(next) = groups.get(g + workers.len()) {
                     let job = self.read_group(next, std::mem::take(&mut spare));
                     if jobs.send(job).is_err() {
                         return Ok(Err(worker_gone(group)));
                     }
                 }
-                let Ok(buffers) = done.recv() else {
-                    return Ok(Err(worker_gone(group)));
-                };
                 let mut msgs = Vec::new();
                 let mut damage = None;
                 for (k, (ci, buf)) in group.iter().zip(&buffers).enumerate() {
@@ -1122,6 +1121,32 @@ fn overlaps(ranges: &[(u64, u64)], a: u64, b: u64) -> bool {
 struct InflateJob {
     chunks: Vec<Result<RawChunk, Damage>>,
     spare: Vec<Vec<u8>>,
+}
+
+/// Decompression workers of an indexed read (the machine this was tuned on has two cores; the
+/// caller's thread reads the raw chunks and decodes the messages).
+const INFLATE_WORKERS: usize = 2;
+
+/// One group's decompressed chunks (or the damage met in each).
+type Inflated = Vec<Result<Vec<u8>, Damage>>;
+
+/// A decompression worker: inflate each job's chunks into its spare buffers, until either
+/// channel closes (the reader stopped on damage or a sink error).
+fn inflate_jobs(
+    jobs: std::sync::mpsc::Receiver<InflateJob>,
+    done: std::sync::mpsc::SyncSender<Inflated>,
+) {
+    let mut inflater = Inflater::default();
+    for mut job in jobs {
+        let out = job
+            .chunks
+            .into_iter()
+            .map(|raw| inflater.entry(raw, job.spare.pop().unwrap_or_default()))
+            .collect();
+        if done.send(out).is_err() {
+            break;
+        }
+    }
 }
 
 /// The damage reported when the decompression thread is gone (it only stops early on a bug).

@@ -363,19 +363,22 @@ pub fn table_rows(
 /// identification must come from [`crate::identify::identify_files`] on the same files, so the
 /// trials share its clock).
 pub fn table_rows_files(
-    files: &[crate::identify::SessionFile],
+    files: &[crate::session::SessionFile],
     id: &crate::identify::Identification,
     robot: &str,
 ) -> Result<Vec<TableRow>> {
     let mut out = Vec::new();
     for (s, (file, summary)) in files.iter().zip(&id.sessions).enumerate() {
         // Joint states and power only: the identification's spill when it left one.
-        crate::identify::for_each_trial_and_batch_no_commands(
+        crate::session::for_each_trial_with_batches(
             file,
             &summary.segmentation.trials,
             4096,
             &mut |_| {},
-            &mut |rec, trial| trial_table_rows(rec, trial, s, id, robot, &mut out),
+            &mut |rec, trial| {
+                trial_table_rows(rec, trial, s, id, robot, &mut out);
+                Ok(())
+            },
         )
         .with_context(|| format!("reading {} (rows)", file.path.display()))?;
     }

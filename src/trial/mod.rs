@@ -14,4 +14,6 @@ pub use filter::{
     Cascade, RejectReason, Rejection, TrialStat, imu_sway, is_rejected, sigma_omega, three_sigma,
 };
 pub use segment::{SegmentOptions, SegmentSource, Segmentation, Stretch, segment};
-pub use window::{Phase, TrialWindow};
+pub use window::{
+    MIN_PRE_IDLE_SAMPLES, MIN_WINDOW_SAMPLES, Phase, TrialWindow, readings_within, samples_in,
+};

@@ -1,4 +1,7 @@
-//! One trial's time window: the five protocol boundaries, what moved and how fast.
+//! One trial's time window: the five protocol boundaries, what moved and how fast, and the one
+//! rule by which identification and diagnosis pair a power reading with the samples it averages
+//! and take a trial's baseline ([`samples_in`], [`readings_within`], [`TrialWindow::pre_idle`],
+//! [`TrialWindow::baseline_readings`]).
 //!
 //! The same type is produced by the segmenter (from the data), by the simulator (from its
 //! schedule) and read by identification, diagnosis and the viewer.
@@ -30,6 +33,30 @@ pub struct TrialWindow {
     pub qdot_max_meas: f64,
 }
 
+/// Fewest joint-state samples a reading's window needs to give a row (fewer: a gap in the joint
+/// stream, and no mean worth fitting).
+pub const MIN_WINDOW_SAMPLES: usize = 2;
+
+/// Fewest joint-state samples a trial's pre-idle needs for its baseline (the pre-idle mean τ²
+/// every Δτ² is taken against).
+pub const MIN_PRE_IDLE_SAMPLES: usize = 3;
+
+/// The samples of the sorted times `t` inside the window (a, b]: a reading stamped at `b` (after
+/// its lag) has seen the sample at `b` but not the one at `a`, the previous window's last.
+pub fn samples_in(t: &[f64], a: f64, b: f64) -> std::ops::Range<usize> {
+    let i0 = t.partition_point(|&x| x <= a);
+    let i1 = t.partition_point(|&x| x <= b);
+    i0..i1.max(i0)
+}
+
+/// The readings of the sorted stamps `pt` whose averaging window [t − lag − W, t − lag] lies
+/// inside [a, b]: stamps in [a + W + lag, b + lag].
+pub fn readings_within(pt: &[f64], a: f64, b: f64, lag: f64, width: f64) -> std::ops::Range<usize> {
+    let i0 = pt.partition_point(|&x| x < a + width + lag);
+    let i1 = pt.partition_point(|&x| x <= b + lag);
+    i0..i1.max(i0)
+}
+
 /// Where in a trial a time lies (after the pre-idle).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum Phase {
@@ -54,6 +81,20 @@ impl TrialWindow {
     /// The window the paper's per-trial quantities are taken over: trajectory + post-idle.
     pub fn analysis_window(&self) -> (f64, f64) {
         (self.t_traj_start, self.t_post_end)
+    }
+
+    /// Its pre-idle samples of the sorted times `t` ([`samples_in`] the pre-idle), `None` when
+    /// fewer than [`MIN_PRE_IDLE_SAMPLES`]: the trial has no baseline.
+    pub fn pre_idle(&self, t: &[f64]) -> Option<std::ops::Range<usize>> {
+        let r = samples_in(t, self.t_pre_start, self.t_traj_start);
+        (r.len() >= MIN_PRE_IDLE_SAMPLES).then_some(r)
+    }
+
+    /// Its baseline readings at sensor lag `lag` and window `width` ([`readings_within`] the
+    /// pre-idle): without the lag, a lagging sensor's first baseline readings would average the
+    /// previous trial's motion.
+    pub fn baseline_readings(&self, pt: &[f64], lag: f64, width: f64) -> std::ops::Range<usize> {
+        readings_within(pt, self.t_pre_start, self.t_traj_start, lag, width)
     }
 
     /// Phase at time `t` (None before the trajectory or after the return).

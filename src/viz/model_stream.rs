@@ -4,7 +4,7 @@
 //! prediction, loss terms) are never held whole. The file is read once more for their
 //! statistics (plot ranges for the layout, per-trial bars, the link colours at 10 Hz and the
 //! histogram behind the colour scale), once for the replay itself, and once to log the series
-//! trial by trial ([`crate::identify::for_each_trial`]). Every figure equals the one of
+//! trial by trial ([`crate::session::for_each_trial_with_batches`]). Every figure equals the one of
 //! the in-memory replay ([`super::overlay::model_extras`]) computed from the whole series.
 //!
 //! Memory: the replay waits for the `.rrd` sink every [`REPLAY_FLUSH_SAMPLES`](super::replay::REPLAY_FLUSH_SAMPLES) samples (chunks
@@ -24,9 +24,10 @@ use super::replay::{
 };
 use super::slice::{Decimator, Slice};
 use crate::N_JOINTS;
-use crate::identify::{SessionFile, Validation, for_each_trial_and_batch_no_commands};
+use crate::identify::Validation;
 use crate::power::PowerModel;
 use crate::robot::{ArmJoints, RobotModel};
+use crate::session::{SessionFile, for_each_trial_with_batches};
 use crate::signals::{Recording, RecordingSink, StateSeries, StreamHeader, StreamSummary};
 use crate::trial::TrialWindow;
 
@@ -260,29 +261,22 @@ impl StreamedModel<'_> {
     ) -> Result<()> {
         let windows: Vec<TrialWindow> = self.plan.iter().map(|(t, _)| t.clone()).collect();
         let mut dec = Decimator::default();
-        let mut failed = None;
         let mut next = 0usize;
-        for_each_trial_and_batch_no_commands(
+        for_each_trial_with_batches(
             self.file,
             &windows,
             self.opts.stream.batch_samples,
             on_batch,
             &mut |rec: &Recording, t: &TrialWindow| {
-                // for_each_trial calls in plan order.
+                // The trials come in plan order.
                 let tau0 = self.plan[next].1;
                 next += 1;
-                if failed.is_some() {
-                    return;
-                }
                 let (p, terms) =
                     sliced_series(&rec.state, t, &tau0, self.model, &self.opts.slice, &mut dec);
-                if let Err(e) = each(t, &p, &terms) {
-                    failed = Some(e);
-                }
+                each(t, &p, &terms)
             },
         )
-        .with_context(|| format!("reading {}", self.file.path.display()))?;
-        failed.map_or(Ok(()), Err)
+        .with_context(|| format!("reading {}", self.file.path.display()))
     }
 
     /// The statistics pass: what the layout, the bars and the link colours need.

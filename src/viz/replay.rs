@@ -44,7 +44,7 @@ pub struct ReplayOptions {
     /// The part of the session to log (time window, rate cap of the series; default: all).
     pub slice: Slice,
     /// How a model replay reads the session file (piece length, batch size).
-    pub stream: crate::identify::StreamOptions,
+    pub stream: crate::session::StreamOptions,
 }
 
 impl Default for ReplayOptions {
@@ -58,7 +58,7 @@ impl Default for ReplayOptions {
             properties: Vec::new(),
             open_tab: None,
             slice: Slice::default(),
-            stream: crate::identify::StreamOptions::default(),
+            stream: crate::session::StreamOptions::default(),
         }
     }
 }

@@ -13,10 +13,11 @@ use super::model_stream::{StreamedModel, planned};
 use super::replay::{ReplayOptions, ReplaySummary, replay_file};
 use super::slice::Slice;
 use super::{OutputKind, Sink, open_stream, recording_id_or_reason};
-use crate::identify::{IdentifyOptions, SessionFile, validate_file};
+use crate::identify::{IdentifyOptions, validate_file};
 use crate::power::PowerModel;
 use crate::read::OpenOptions;
 use crate::robot::RobotModel;
+use crate::session::SessionFile;
 use crate::signals::{Group, SignalMap};
 use crate::trial::Segmentation;
 
@@ -290,11 +291,11 @@ fn streamed_replay(r: &SessionReplay<'_>, notify: &mut dyn FnMut(Notice)) -> Res
     let arm = r.robot.arm(&r.map.joint_names)?;
     let slice = if r.window.trials.is_some() {
         // Only the trials are wanted of this pass: no joint states are kept for later ones.
-        let so = crate::identify::StreamOptions {
+        let so = crate::session::StreamOptions {
             spill_states: false,
             ..r.opts.stream
         };
-        let seg = crate::identify::segment_file(&session_file(r), &r.fit.segment, &so)
+        let seg = crate::session::segment_file(&session_file(r), &r.fit.segment, &so)
             .with_context(|| format!("reading {}", r.session.display()))?;
         r.window.resolve(Some(&seg), r.session)?
     } else {

@@ -1,0 +1,200 @@
+//! A session's trials, read trial by trial in bounded memory: the one way every command reads
+//! trials (identify, validate, diagnose, replay, the row export).
+//!
+//! * [`segment_file`] / the segmentation pass (`segment.rs`) reads a file once, piece by piece:
+//!   the trials with their IMU statistic σ_ω, the whole power series (~1 Hz), the sensor-timing
+//!   search's held trials, and a spill of the joint states to a temporary file.
+//! * A [`TrialSource`] then hands each of a list of trials, in time order, a recording holding at
+//!   least that trial's samples (pre-idle start − [`MARGIN_S`] to the later of its post-idle and
+//!   return end): [`Memory`] (a whole recording in memory), [`FileTrials`] (one file, from its
+//!   spill or, without one, a ranged read of the file) and [`Joined`] (files end to end on one
+//!   clock). The stages after the source are one code path whatever it is.
+//! * [`for_each_trial_with_batches`] walks the whole session once more (from the spill when
+//!   there is one), showing every batch (whole-session statistics) and each trial.
+
+mod joined;
+mod segment;
+mod walk;
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+
+use crate::read::OpenOptions;
+use crate::signals::{Recording, SignalMap, SpillSlot, StateSeries};
+use crate::trial::TrialWindow;
+
+pub(crate) use joined::{Joined, JoinedPart, global, shift};
+pub use segment::segment_file;
+pub(crate) use segment::segmentation_pass;
+pub use walk::for_each_trial_with_batches;
+pub(crate) use walk::hold_pass;
+
+/// Default of the identification's `search_trials` and of [`StreamOptions::hold_trials`]: the
+/// timing search's cost grows with its trials, and ~300 trials pin the window and lag to the fine
+/// grid's 25 ms step.
+pub const SEARCH_TRIALS: usize = 300;
+
+/// The timing search's trial stride: the smallest power of two `s` for which every `s`-th trial
+/// (by index, from trial 0) of every session, `counts[i]` trials in session i, is at most `cap`
+/// trials. A power of two, so that a session's first pass can keep a bounded set while it does not
+/// yet know its length — every `s'`-th trial, doubling `s'` whenever the set outgrows its cap —
+/// and still hold the search's trials whenever its cap is at least `cap`
+/// ([`StreamOptions::hold_trials`]).
+pub fn search_stride(counts: &[usize], cap: usize) -> usize {
+    let cap = cap.max(1);
+    let mut s = 1usize;
+    while counts.iter().map(|n| n.div_ceil(s)).sum::<usize>() > cap {
+        s *= 2;
+    }
+    s
+}
+
+/// Tuning of the streamed read.
+#[derive(Debug, Clone, Copy)]
+pub struct StreamOptions {
+    /// Length of the pieces the segmentation pass buffers [s] (a session shorter than this is
+    /// segmented in one piece, exactly as in memory).
+    pub chunk_s: f64,
+    /// Most trials whose joint states pass 1 holds for the sensor-timing search (every n-th,
+    /// n a power of two). At or above the identification's `search_trials` they
+    /// include the search's trials; below it the search's trials are read in an extra pass.
+    pub hold_trials: usize,
+    /// Samples per decoded batch.
+    pub batch_samples: usize,
+    /// Whether the segmentation pass keeps the session's joint states in a temporary file
+    /// (about 150 bytes per sample) for the passes after it ([`SessionFile::spill`]): they then
+    /// read no more of the recording than those samples, bit for bit the same.
+    pub spill_states: bool,
+}
+
+impl Default for StreamOptions {
+    fn default() -> Self {
+        StreamOptions {
+            chunk_s: 300.0,
+            hold_trials: SEARCH_TRIALS,
+            batch_samples: 4096,
+            spill_states: true,
+        }
+    }
+}
+
+/// A session file and how to read it.
+#[derive(Debug, Clone)]
+pub struct SessionFile {
+    /// File or bag folder.
+    pub path: PathBuf,
+    /// Topics and fields of the arm signals.
+    pub map: SignalMap,
+    /// Reader options (message definitions).
+    pub read: OpenOptions,
+    /// The joint states the first full pass spilled to a temporary file
+    /// ([`StreamOptions::spill_states`]); the passes after it read their trials' samples from
+    /// there. Empty (`Default`): every pass reads the file. Shared by clones.
+    pub spill: SpillSlot,
+}
+
+/// Margin around a trial's window whose samples are kept [s] (rows only read inside it).
+pub(crate) const MARGIN_S: f64 = 0.5;
+
+/// A source of each trial's samples.
+pub(crate) trait TrialSource {
+    /// Call `f` for each of `trials` (in time order) with a recording whose joint states (all
+    /// columns) cover at least the trial's window, pre-idle start − [`MARGIN_S`] to the later of
+    /// its post-idle and return end, on the session's clock, with the power series.
+    fn for_each(
+        &mut self,
+        trials: &[TrialWindow],
+        f: &mut dyn FnMut(&Recording, &TrialWindow) -> Result<()>,
+    ) -> Result<()>;
+}
+
+/// A whole recording in memory: every trial sees all of it.
+pub(crate) struct Memory<'a>(pub &'a Recording);
+
+impl TrialSource for Memory<'_> {
+    fn for_each(
+        &mut self,
+        trials: &[TrialWindow],
+        f: &mut dyn FnMut(&Recording, &TrialWindow) -> Result<()>,
+    ) -> Result<()> {
+        trials.iter().try_for_each(|t| f(self.0, t))
+    }
+}
+
+/// One session file read trial by trial: from its spill when the segmentation pass made one on
+/// this clock, else by a read of the file limited to the trials' windows (an indexed MCAP skips
+/// the chunks between them). Holds about one trial's samples at a time.
+pub(crate) struct FileTrials<'a> {
+    pub file: &'a SessionFile,
+    /// The clock (`start_ns`, that of the segmentation pass) and the power series every trial's
+    /// recording carries (empty when the caller needs joint states only).
+    pub clock: &'a Recording,
+}
+
+impl TrialSource for FileTrials<'_> {
+    fn for_each(
+        &mut self,
+        trials: &[TrialWindow],
+        f: &mut dyn FnMut(&Recording, &TrialWindow) -> Result<()>,
+    ) -> Result<()> {
+        walk::trial_windows(self.file, self.clock, trials, f)
+            .with_context(|| format!("reading {}", self.file.path.display()))
+    }
+}
+
+/// Append samples `r` of every column of `from` to `to` (as far as each column reaches).
+pub(crate) fn append_range(to: &mut StateSeries, from: &StateSeries, r: std::ops::Range<usize>) {
+    fn ext<T: Copy>(to: &mut Vec<T>, from: &[T], r: &std::ops::Range<usize>) {
+        let end = r.end.min(from.len());
+        to.extend_from_slice(&from[r.start.min(end)..end]);
+    }
+    ext(&mut to.t, &from.t, &r);
+    ext(&mut to.q, &from.q, &r);
+    ext(&mut to.dq, &from.dq, &r);
+    ext(&mut to.tau, &from.tau, &r);
+    ext(&mut to.temp, &from.temp, &r);
+    ext(&mut to.gyro, &from.gyro, &r);
+    ext(&mut to.quat, &from.quat, &r);
+}
+
+/// Append every sample of `from` to `to` (each column that has them).
+pub(crate) fn append_state(to: &mut StateSeries, from: &StateSeries) {
+    append_range(to, from, 0..usize::MAX);
+}
+
+/// Drop the samples before index `i` of every non-empty column.
+pub(crate) fn drain_state(s: &mut StateSeries, i: usize) {
+    fn d<T>(v: &mut Vec<T>, i: usize) {
+        v.drain(..i.min(v.len()));
+    }
+    d(&mut s.t, i);
+    d(&mut s.q, i);
+    d(&mut s.dq, i);
+    d(&mut s.tau, i);
+    d(&mut s.temp, i);
+    d(&mut s.gyro, i);
+    d(&mut s.quat, i);
+}
+
+/// Sort every column of `s` by time (a file without an index may deliver a batch earlier than
+/// the previous one).
+pub(crate) fn sort_state(s: &mut StateSeries) {
+    if s.t.is_sorted() {
+        return;
+    }
+    let mut order: Vec<usize> = (0..s.t.len()).collect();
+    order.sort_by(|&a, &b| s.t[a].total_cmp(&s.t[b]));
+    fn p<T: Copy>(v: &mut Vec<T>, o: &[usize]) {
+        if v.len() == o.len() {
+            *v = o.iter().map(|&i| v[i]).collect();
+        }
+    }
+    p(&mut s.t, &order);
+    p(&mut s.q, &order);
+    p(&mut s.dq, &order);
+    p(&mut s.tau, &order);
+    p(&mut s.temp, &order);
+    p(&mut s.gyro, &order);
+    p(&mut s.quat, &order);
+}
