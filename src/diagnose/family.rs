@@ -362,7 +362,7 @@ mod tests {
 
     #[test]
     fn shapes_step_at_distinct_levels_and_exponentials_span_the_range() {
-        let v: Vec<f64> = (0..100).map(|k| f64::from(k)).collect();
+        let v: Vec<f64> = (0..100).map(f64::from).collect();
         let s = Shape::all_for(&v);
         assert_eq!(s[0], Shape::Linear);
         let steps = s.iter().filter(|x| matches!(x, Shape::Above(_))).count();
@@ -417,7 +417,7 @@ mod tests {
         let cols = |i: usize| -> Vec<Vec<f64>> {
             match i {
                 1 => vec![e.clone()],
-                _ => vec![(0..50).map(|k| f64::from(k)).collect()],
+                _ => vec![(0..50).map(f64::from).collect()],
             }
         };
         let kept = screen(&fam, &cols, &e);
