@@ -537,13 +537,18 @@ fn signal_values(s: &Signal, rv: &RowValues) -> Vec<f64> {
 
 /// Generate every candidate, fields that meter the power itself left out (noted), and keep
 /// those [`super::family::screen`] passes on the current model's residual `resid`; the
-/// weighted Holm correction over all generated is returned last.
+/// weighted Holm correction over all generated is returned last. No form of a library
+/// mechanism in `held` (the model's accepted hypotheses) is generated: a state-modulated form
+/// nests the plain one, so it would always "explain" the accepted term away, and under a
+/// slightly misspecified form it wins by a margin no physics demands (a constant 5 Ω bus loss
+/// told as "the bus loss rises with the battery temperature").
 fn generate(
     inp: &Inputs,
     rows: &Rows,
     n_trials: usize,
     twin: bool,
     resid: &[f64],
+    held: &[&str],
     notes: &mut Vec<String>,
 ) -> (Vec<Cand>, RowValues, Vec<bool>, Holm) {
     let names = &inp.fields.names;
@@ -611,7 +616,8 @@ fn generate(
     // The family: every term × every slow signal it can pair with × every shape; the linear
     // forms of the base terms and the drive current always scored, the rest screened.
     let mut family: Vec<Option<Term>> = vec![None; kinds.len()];
-    for t in Term::ALL {
+    let modulable = |t: &Term| t.library_id().is_none_or(|id| !held.contains(&id));
+    for t in Term::ALL.into_iter().filter(modulable) {
         for s in slow
             .iter()
             .filter(|s| t.per_joint() || !matches!(s, Signal::Family(..)))
@@ -989,8 +995,16 @@ pub(crate) fn discover(
         .zip(&cur.cv.pred)
         .map(|(y, p)| y - p)
         .collect();
-    let (cands, rv, usable, holm) =
-        generate(inp, rows, data.n_trials, twin, &resid, &mut report.notes);
+    let held: Vec<&str> = cur.spec.iter().map(|h| h.id).collect();
+    let (cands, rv, usable, holm) = generate(
+        inp,
+        rows,
+        data.n_trials,
+        twin,
+        &resid,
+        &held,
+        &mut report.notes,
+    );
     report.rest = rest_power_of(inp, usable, rule);
     report.n_candidates = holm.m;
     report.fields_used = (0..inp.fields.names.len())
@@ -1520,7 +1534,9 @@ pub(crate) fn rival_of(
         .zip(&without.cv.pred)
         .map(|(y, p)| y - p)
         .collect();
-    let (cands, rv, _, holm) = generate(inp, rows, data.n_trials, twin, &resid, &mut notes);
+    // The term under test is held too: a modulated form of it is that term, not its rival.
+    let held: Vec<&str> = with.spec.iter().map(|h| h.id).collect();
+    let (cands, rv, _, holm) = generate(inp, rows, data.n_trials, twin, &resid, &held, &mut notes);
     let m = cands.len();
     let search = Search {
         base,
