@@ -112,7 +112,7 @@ fn sample_at<'a>(
         temp: s.temp.get(k)?,
         gyro: s.gyro.get(k)?,
         tau0_sq,
-        bus_amps: bus.model.predict(tau, dq, tau0_sq) / bus.volts,
+        bus_amps: bus.model.predict(tau, dq, tau0_sq) / bus.volts_at(s.volts.get(k)),
     })
 }
 
@@ -121,8 +121,19 @@ fn sample_at<'a>(
 pub(crate) struct BusModel {
     /// Power model of the drives' electrical input (the twin's).
     pub model: PowerModel,
-    /// Supply voltage [V].
+    /// Supply voltage [V] where a sample has no recorded one.
     pub volts: f64,
+}
+
+impl BusModel {
+    /// The supply voltage of a sample: the recorded one (it falls with the battery's charge, and
+    /// the bus current P/V with it), or the nominal one where none was recorded.
+    fn volts_at(&self, recorded: Option<&f64>) -> f64 {
+        recorded
+            .copied()
+            .filter(|v| v.is_finite() && *v > 1.0)
+            .unwrap_or(self.volts)
+    }
 }
 
 /// Compute the per-trial quantities; trials without pre-idle samples are returned in `skipped`.
@@ -434,6 +445,7 @@ mod tests {
             temp: col(&|_, _| 40.0),
             gyro: ks.iter().map(|&k| [0.01 * wave(k, 0), 0.0, 0.0]).collect(),
             quat: ks.iter().map(|_| [1.0, 0.0, 0.0, 0.0]).collect(),
+            volts: Vec::new(),
         };
         let mut t: Vec<f64> = (1..80).map(|k| k as f64 * 0.25).collect();
         t.extend((1..54).map(|k| k as f64 * 0.37));

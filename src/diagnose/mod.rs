@@ -61,7 +61,7 @@ use crate::power::PowerModel;
 use crate::robot::{ArmDynamics, RobotModel};
 use crate::session::{Memory, SessionFile, TrialSource};
 use crate::signals::Recording;
-use outcome::{locate_residuals, rank_hypotheses, refit_final, rescale_bus};
+use outcome::{locate_residuals, rank_hypotheses, refit_final};
 use reduce::SessionInfo;
 use replay::{replay_data, show_found, show_rest};
 use select::Rule;
@@ -365,15 +365,15 @@ fn run(
         forms: sel.forms.clone(),
         confounded: sel.confounded.clone(),
         discovery,
-        bus_volts: hypotheses::NOMINAL_BUS_VOLTS,
+        bus_volts: fields
+            .table
+            .bus_volts
+            .unwrap_or(hypotheses::NOMINAL_BUS_VOLTS),
         sensor_window: sensor,
         summary: String::new(),
         replay,
         counterpart: None,
     };
-    if let Some(v) = fields.table.bus_volts {
-        rescale_bus(&mut diag, v);
-    }
     show_found(&mut diag, &fields, data.rows0(), &metas);
     show_rest(&mut diag, &fields, data.rows0(), &metas);
     diag.summary = summary::summarise(&diag);

@@ -5,11 +5,11 @@
 use crate::N_PARAMS;
 
 use super::data::{Rows, TrialMeta};
-use super::hypotheses::{self, LATENCY_ID};
+use super::hypotheses::LATENCY_ID;
 use super::select::{self, PowerData, Rule, r2_rmse};
 use super::{
-    Breakdown, Confounded, Correlate, Diagnosis, DiscoveryReport, FinalModel, Group,
-    HypothesisScore, Param, Quality, TrialResidual, locate, torque,
+    Breakdown, Confounded, Correlate, DiscoveryReport, FinalModel, Group, HypothesisScore, Param,
+    Quality, TrialResidual, locate, torque,
 };
 
 /// Every hypothesis scored against the base model, ranked, and the accepted ones in order.
@@ -167,39 +167,6 @@ pub(crate) fn locate_residuals(
         worst_trials,
         unexplained,
     }
-}
-
-/// The bus-current form was fitted at the nominal voltage: R = c·V_nom² / ... rescaled to the
-/// recorded mean supply voltage V̄ (R ∝ V̄², since the feature is (P/V_nom)²).
-pub(crate) fn rescale_bus(d: &mut Diagnosis, volts: f64) {
-    let k = (volts / hypotheses::NOMINAL_BUS_VOLTS).powi(2);
-    let title = hypotheses::power_hypothesis("bus_power").map_or("", |h| h.title);
-    let scale = |p: &mut Param| {
-        p.value *= k;
-        p.std_err *= k;
-    };
-    for s in d.hypotheses.iter_mut().chain(d.accepted.iter_mut()) {
-        if s.id == "bus_power" {
-            s.params.iter_mut().for_each(scale);
-        }
-    }
-    d.final_model
-        .params
-        .iter_mut()
-        .filter(|p| p.name == title)
-        .for_each(scale);
-    // The forms' own fits, as the summary prints them when the forms are confounded.
-    for f in &mut d.forms {
-        for (id, params) in [&f.winner, &f.runner_up]
-            .into_iter()
-            .zip(f.params.iter_mut())
-        {
-            if id == "bus_power" {
-                params.iter_mut().for_each(scale);
-            }
-        }
-    }
-    d.bus_volts = volts;
 }
 
 /// A term dropped as confounded stays in the ranking, not accepted, its verdict saying with what;

@@ -129,7 +129,8 @@ pub struct Diagnosis {
     /// The power sensor's averaging window used for every reading's regressors.
     #[serde(default)]
     pub sensor_window: SensorWindow,
-    /// Mean motor supply voltage the bus-current form used [V] (recorded, or nominal).
+    /// Mean recorded motor supply voltage [V] (nominal where none is recorded); the bus-current
+    /// form divides each sample's power by that sample's recorded voltage.
     #[serde(default)]
     pub bus_volts: f64,
     /// Torque level (absent without a robot model or torque data).

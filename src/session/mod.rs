@@ -156,6 +156,7 @@ pub(crate) fn append_range(to: &mut StateSeries, from: &StateSeries, r: std::ops
     ext(&mut to.temp, &from.temp, &r);
     ext(&mut to.gyro, &from.gyro, &r);
     ext(&mut to.quat, &from.quat, &r);
+    ext(&mut to.volts, &from.volts, &r);
 }
 
 /// Append every sample of `from` to `to` (each column that has them).
@@ -175,6 +176,7 @@ pub(crate) fn drain_state(s: &mut StateSeries, i: usize) {
     d(&mut s.temp, i);
     d(&mut s.gyro, i);
     d(&mut s.quat, i);
+    d(&mut s.volts, i);
 }
 
 /// Sort every column of `s` by time (a file without an index may deliver a batch earlier than
@@ -197,4 +199,5 @@ pub(crate) fn sort_state(s: &mut StateSeries) {
     p(&mut s.temp, &order);
     p(&mut s.gyro, &order);
     p(&mut s.quat, &order);
+    p(&mut s.volts, &order);
 }

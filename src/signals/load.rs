@@ -547,6 +547,7 @@ fn push_row(rec: &mut Recording, group: Group, r: &[f64]) {
             let o = 4 * N_JOINTS;
             s.gyro.push([at(o), at(o + 1), at(o + 2)]);
             s.quat.push([at(o + 3), at(o + 4), at(o + 5), at(o + 6)]);
+            s.volts.push(at(o + 7));
         }
         Group::Command => {
             rec.command.q.push(joints(r, 0));
@@ -590,6 +591,7 @@ fn set_times(rec: &mut Recording, group: Group, t_ns: &[u64]) {
             permute(&mut s.temp, order);
             permute(&mut s.gyro, order);
             permute(&mut s.quat, order);
+            permute(&mut s.volts, order);
         }
         Group::Command => {
             rec.command.t = t;

@@ -58,7 +58,7 @@ pub enum Group {
 /// Mapping from named signals to topics and fields, plus the URDF names of the 7 arm joints.
 ///
 /// Signal names: `q.J`, `dq.J`, `tau.J`, `temp.J`, `cmd_q.J`, `cmd_dq.J` for J in [`JOINT_SHORT`];
-/// `gyro.x|y|z`; `quat.w|x|y|z`; `mbs.voltage`, `mbs.current`, `bms.voltage`, `bms.current`
+/// `gyro.x|y|z`; `quat.w|x|y|z`; `bus.voltage` (the drives' supply); `mbs.voltage`, `mbs.current`, `bms.voltage`, `bms.current`
 /// (power = voltage × current after scaling, in W).
 #[derive(Debug, Clone, PartialEq)]
 pub struct SignalMap {
@@ -81,7 +81,14 @@ pub fn group_signals(group: Group) -> Vec<String> {
             let mut v = per_joint(&["q", "dq", "tau", "temp"]);
             v.extend(
                 [
-                    "gyro.x", "gyro.y", "gyro.z", "quat.w", "quat.x", "quat.y", "quat.z",
+                    "gyro.x",
+                    "gyro.y",
+                    "gyro.z",
+                    "quat.w",
+                    "quat.x",
+                    "quat.y",
+                    "quat.z",
+                    "bus.voltage",
                 ]
                 .map(String::from),
             );
@@ -187,6 +194,10 @@ impl SignalMap {
                 spec("/lowstate", &format!("imu_state.quaternion[{i}]"), 1.0),
             );
         }
+        signals.insert(
+            "bus.voltage".into(),
+            spec("/lowstate", &format!("motor_state[{base}].vol"), 1.0),
+        );
         signals.insert(
             "mbs.voltage".into(),
             spec("/lf/mainboardstate", "value[0]", 1.0),

@@ -22,6 +22,9 @@ pub struct StateSeries {
     pub gyro: Vec<[f64; 3]>,
     /// Body orientation quaternion (w, x, y, z).
     pub quat: Vec<[f64; 4]>,
+    /// Supply voltage of the arm's drives [V] (`motor_state[k].vol` of the arm's first motor):
+    /// the bus current is P_elec / this voltage, which falls with the battery's charge.
+    pub volts: Vec<f64>,
 }
 
 /// Commanded joint references (from `/arm_sdk`).
@@ -119,6 +122,7 @@ impl Recording {
         self.state.temp.extend(r.state.temp);
         self.state.gyro.extend(r.state.gyro);
         self.state.quat.extend(r.state.quat);
+        self.state.volts.extend(r.state.volts);
         self.command.t.extend(shift(&r.command.t));
         self.command.q.extend(r.command.q);
         self.command.dq.extend(r.command.dq);

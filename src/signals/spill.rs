@@ -19,7 +19,7 @@ use super::{PowerSeries, StateSeries};
 use crate::N_JOINTS;
 
 /// Values per sample besides the time: q, q̇, τ, T (7 each), gyro (3), quaternion (4).
-const COLUMNS: usize = 4 * N_JOINTS + 3 + 4;
+const COLUMNS: usize = 4 * N_JOINTS + 3 + 4 + 1;
 
 /// One written batch: its time span, where it starts in the file, its length, and which
 /// columns are stored wide (`f64`).
@@ -150,7 +150,8 @@ fn value(s: &StateSeries, i: usize, c: usize) -> f64 {
         c if c < 3 * J => s.tau[i][c - 2 * J],
         c if c < 4 * J => s.temp[i][c - 3 * J],
         c if c < 4 * J + 3 => s.gyro[i][c - 4 * J],
-        c => s.quat[i][c - 4 * J - 3],
+        c if c < 4 * J + 7 => s.quat[i][c - 4 * J - 3],
+        _ => s.volts.get(i).copied().unwrap_or(f64::NAN),
     }
 }
 
@@ -162,7 +163,8 @@ fn set_value(s: &mut StateSeries, i: usize, c: usize, v: f64) {
         c if c < 3 * J => s.tau[i][c - 2 * J] = v,
         c if c < 4 * J => s.temp[i][c - 3 * J] = v,
         c if c < 4 * J + 3 => s.gyro[i][c - 4 * J] = v,
-        c => s.quat[i][c - 4 * J - 3] = v,
+        c if c < 4 * J + 7 => s.quat[i][c - 4 * J - 3] = v,
+        _ => s.volts[i] = v,
     }
 }
 
@@ -209,6 +211,7 @@ impl StateSpill {
                 temp: vec![[0.0; N_JOINTS]; b.n],
                 gyro: vec![[0.0; 3]; b.n],
                 quat: vec![[0.0; 4]; b.n],
+                volts: vec![0.0; b.n],
             };
             let mut at = 0;
             for _ in 0..b.n {
@@ -256,6 +259,7 @@ fn filtered(s: &StateSeries, keep: &[bool]) -> StateSeries {
         temp: pick(&s.temp, keep),
         gyro: pick(&s.gyro, keep),
         quat: pick(&s.quat, keep),
+        volts: pick(&s.volts, keep),
     }
 }
 
@@ -294,6 +298,7 @@ mod tests {
             s.temp.push([31.0; N_JOINTS]);
             s.gyro.push([0.25, -0.5, 1e-3f32 as f64]);
             s.quat.push([1.0, 0.0, 0.0, f64::from(0.1f32)]);
+            s.volts.push(f64::from(52.5f32 - x as f32 * 1e-3));
         }
         s
     }
@@ -309,6 +314,7 @@ mod tests {
                 out.temp.extend_from_slice(&b.temp);
                 out.gyro.extend_from_slice(&b.gyro);
                 out.quat.extend_from_slice(&b.quat);
+                out.volts.extend_from_slice(&b.volts);
                 Ok(())
             })
             .unwrap();
@@ -343,6 +349,7 @@ mod tests {
         whole.temp.extend_from_slice(&b.temp);
         whole.gyro.extend_from_slice(&b.gyro);
         whole.quat.extend_from_slice(&b.quat);
+        whole.volts.extend_from_slice(&b.volts);
         assert_eq!(bits(&back), bits(&whole));
         // Two ranges, one ending exactly on a sample, one past the end.
         let ranges = [(1.0, 2.0), (5.5, 99.0)];
