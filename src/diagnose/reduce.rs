@@ -105,7 +105,7 @@ pub(crate) fn hold(samples: &mut dyn TrialSource, trials: &[TrialWindow]) -> Res
         let i0 = i0.max(s.t.partition_point(|&x| x <= after));
         let i1 = (s.t.partition_point(|&x| x < b) + 2).min(n);
         if i0 < i1 {
-            crate::session::append_range(&mut held.state, s, i0..i1);
+            held.state.extend_range(s, i0..i1);
         }
         Ok(())
     })?;

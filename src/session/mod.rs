@@ -21,7 +21,7 @@ use std::path::PathBuf;
 use anyhow::{Context, Result};
 
 use crate::read::OpenOptions;
-use crate::signals::{Recording, SignalMap, SpillSlot, StateSeries};
+use crate::signals::{Recording, SignalMap, SpillSlot};
 use crate::trial::TrialWindow;
 
 pub(crate) use joined::{Joined, JoinedPart, global, shift};
@@ -141,63 +141,4 @@ impl TrialSource for FileTrials<'_> {
         walk::trial_windows(self.file, self.clock, trials, f)
             .with_context(|| format!("reading {}", self.file.path.display()))
     }
-}
-
-/// Append samples `r` of every column of `from` to `to` (as far as each column reaches).
-pub(crate) fn append_range(to: &mut StateSeries, from: &StateSeries, r: std::ops::Range<usize>) {
-    fn ext<T: Copy>(to: &mut Vec<T>, from: &[T], r: &std::ops::Range<usize>) {
-        let end = r.end.min(from.len());
-        to.extend_from_slice(&from[r.start.min(end)..end]);
-    }
-    ext(&mut to.t, &from.t, &r);
-    ext(&mut to.q, &from.q, &r);
-    ext(&mut to.dq, &from.dq, &r);
-    ext(&mut to.tau, &from.tau, &r);
-    ext(&mut to.temp, &from.temp, &r);
-    ext(&mut to.gyro, &from.gyro, &r);
-    ext(&mut to.quat, &from.quat, &r);
-    ext(&mut to.volts, &from.volts, &r);
-}
-
-/// Append every sample of `from` to `to` (each column that has them).
-pub(crate) fn append_state(to: &mut StateSeries, from: &StateSeries) {
-    append_range(to, from, 0..usize::MAX);
-}
-
-/// Drop the samples before index `i` of every non-empty column.
-pub(crate) fn drain_state(s: &mut StateSeries, i: usize) {
-    fn d<T>(v: &mut Vec<T>, i: usize) {
-        v.drain(..i.min(v.len()));
-    }
-    d(&mut s.t, i);
-    d(&mut s.q, i);
-    d(&mut s.dq, i);
-    d(&mut s.tau, i);
-    d(&mut s.temp, i);
-    d(&mut s.gyro, i);
-    d(&mut s.quat, i);
-    d(&mut s.volts, i);
-}
-
-/// Sort every column of `s` by time (a file without an index may deliver a batch earlier than
-/// the previous one).
-pub(crate) fn sort_state(s: &mut StateSeries) {
-    if s.t.is_sorted() {
-        return;
-    }
-    let mut order: Vec<usize> = (0..s.t.len()).collect();
-    order.sort_by(|&a, &b| s.t[a].total_cmp(&s.t[b]));
-    fn p<T: Copy>(v: &mut Vec<T>, o: &[usize]) {
-        if v.len() == o.len() {
-            *v = o.iter().map(|&i| v[i]).collect();
-        }
-    }
-    p(&mut s.t, &order);
-    p(&mut s.q, &order);
-    p(&mut s.dq, &order);
-    p(&mut s.tau, &order);
-    p(&mut s.temp, &order);
-    p(&mut s.gyro, &order);
-    p(&mut s.quat, &order);
-    p(&mut s.volts, &order);
 }

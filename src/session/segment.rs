@@ -18,7 +18,7 @@ use anyhow::Result;
 
 #[cfg(doc)]
 use super::search_stride;
-use super::{MARGIN_S, SessionFile, StreamOptions, append_state, drain_state, sort_state};
+use super::{MARGIN_S, SessionFile, StreamOptions};
 use crate::N_JOINTS;
 use crate::signals::{PowerSeries, Recording, SpillWriter, StateSeries, stream_recording};
 use crate::trial::{self, SegmentOptions, Segmentation, TrialWindow};
@@ -118,8 +118,8 @@ impl Chunker<'_> {
     }
 
     fn push(&mut self, batch: &Recording) {
-        append_state(&mut self.buf.state, &batch.state);
-        sort_state(&mut self.buf.state);
+        self.buf.state.extend_range(&batch.state, 0..usize::MAX);
+        self.buf.state.sort_by_time();
         let c = &mut self.buf.command;
         c.t.extend_from_slice(&batch.command.t);
         c.q.extend_from_slice(&batch.command.q);
@@ -191,7 +191,7 @@ impl Chunker<'_> {
         }
         if let (false, Some(cut)) = (last, cut) {
             let i = self.buf.state.t.partition_point(|&x| x < cut);
-            drain_state(&mut self.buf.state, i);
+            self.buf.state.drain_front(i);
             let c = &mut self.buf.command;
             let i = c.t.partition_point(|&x| x < cut);
             c.t.drain(..i);

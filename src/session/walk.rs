@@ -7,7 +7,7 @@
 use anyhow::Result;
 
 use super::segment::copy_window;
-use super::{MARGIN_S, SessionFile, append_state, drain_state, sort_state};
+use super::{MARGIN_S, SessionFile};
 use crate::signals::{Recording, StateSeries, stream_recording};
 use crate::trial::TrialWindow;
 
@@ -46,7 +46,7 @@ impl Handover<'_> {
             .get(self.next)
             .map_or(f64::INFINITY, |t| t.t_pre_start - MARGIN_S);
         let i = buf.state.t.partition_point(|&x| x < keep_from);
-        drain_state(&mut buf.state, i);
+        buf.state.drain_front(i);
         Ok(())
     }
 }
@@ -86,8 +86,8 @@ pub(super) fn trial_windows(
         after_s: MARGIN_S,
     };
     let mut on_state = |state: &StateSeries| {
-        append_state(&mut buf.state, state);
-        sort_state(&mut buf.state);
+        buf.state.extend_range(state, 0..usize::MAX);
+        buf.state.sort_by_time();
         walk.step(&mut buf, false, on_trial)
     };
     match file.spill.get().filter(|s| s.origin_ns == clock.start_ns) {
@@ -158,8 +158,8 @@ pub fn for_each_trial_with_batches(
     let mut on_recording = |batch: &Recording| {
         on_batch(batch);
         buf.start_ns = batch.start_ns;
-        append_state(&mut buf.state, &batch.state);
-        sort_state(&mut buf.state);
+        buf.state.extend_range(&batch.state, 0..usize::MAX);
+        buf.state.sort_by_time();
         for (to, from) in [(&mut buf.mbs, &batch.mbs), (&mut buf.bms, &batch.bms)] {
             to.t.extend_from_slice(&from.t);
             to.watts.extend_from_slice(&from.watts);

@@ -580,19 +580,16 @@ fn set_times(rec: &mut Recording, group: Group, t_ns: &[u64]) {
         o
     });
     let order = order.as_deref();
+    if group == Group::State {
+        rec.state.t = t;
+        if let Some(o) = order {
+            rec.state.permute(o);
+        }
+        return;
+    }
     permute(&mut t, order);
     match group {
-        Group::State => {
-            let s = &mut rec.state;
-            s.t = t;
-            permute(&mut s.q, order);
-            permute(&mut s.dq, order);
-            permute(&mut s.tau, order);
-            permute(&mut s.temp, order);
-            permute(&mut s.gyro, order);
-            permute(&mut s.quat, order);
-            permute(&mut s.volts, order);
-        }
+        Group::State => {}
         Group::Command => {
             rec.command.t = t;
             permute(&mut rec.command.q, order);

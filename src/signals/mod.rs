@@ -27,6 +27,93 @@ pub struct StateSeries {
     pub volts: Vec<f64>,
 }
 
+/// An operation applied alike to every column of a [`StateSeries`] (whatever its element type).
+pub(crate) trait ColumnOp {
+    /// Apply to one column (`from`: the same column of the other series, for the two-series
+    /// walk [`StateSeries::zip_columns`]; empty for [`StateSeries::for_each_column`]).
+    fn apply<T: Copy>(&mut self, to: &mut Vec<T>, from: &[T]);
+}
+
+impl StateSeries {
+    /// `op` on every column, the time axis included: the one list of columns every
+    /// whole-series operation goes through, so a new column is added in one place.
+    pub(crate) fn zip_columns(&mut self, other: &StateSeries, op: &mut impl ColumnOp) {
+        op.apply(&mut self.t, &other.t);
+        op.apply(&mut self.q, &other.q);
+        op.apply(&mut self.dq, &other.dq);
+        op.apply(&mut self.tau, &other.tau);
+        op.apply(&mut self.temp, &other.temp);
+        op.apply(&mut self.gyro, &other.gyro);
+        op.apply(&mut self.quat, &other.quat);
+        op.apply(&mut self.volts, &other.volts);
+    }
+
+    /// `op` on every column alone.
+    pub(crate) fn for_each_column(&mut self, op: &mut impl ColumnOp) {
+        self.zip_columns(&StateSeries::default(), op);
+    }
+
+    /// Append samples `r` of every column of `from` (as far as each column reaches).
+    pub(crate) fn extend_range(&mut self, from: &StateSeries, r: std::ops::Range<usize>) {
+        struct Extend(std::ops::Range<usize>);
+        impl ColumnOp for Extend {
+            fn apply<T: Copy>(&mut self, to: &mut Vec<T>, from: &[T]) {
+                let end = self.0.end.min(from.len());
+                to.extend_from_slice(&from[self.0.start.min(end)..end]);
+            }
+        }
+        self.zip_columns(from, &mut Extend(r));
+    }
+
+    /// Drop the samples before index `i` (of every column that has them).
+    pub(crate) fn drain_front(&mut self, i: usize) {
+        struct Drain(usize);
+        impl ColumnOp for Drain {
+            fn apply<T: Copy>(&mut self, v: &mut Vec<T>, _: &[T]) {
+                v.drain(..self.0.min(v.len()));
+            }
+        }
+        self.for_each_column(&mut Drain(i));
+    }
+
+    /// Reorder every full column by `order` (sample indices; the time axis too).
+    pub(crate) fn permute(&mut self, order: &[usize]) {
+        struct Permute<'a>(&'a [usize]);
+        impl ColumnOp for Permute<'_> {
+            fn apply<T: Copy>(&mut self, v: &mut Vec<T>, _: &[T]) {
+                if v.len() == self.0.len() {
+                    *v = self.0.iter().map(|&i| v[i]).collect();
+                }
+            }
+        }
+        self.for_each_column(&mut Permute(order));
+    }
+
+    /// Sort the samples by time (a file without an index may deliver them out of order).
+    pub(crate) fn sort_by_time(&mut self) {
+        if self.t.is_sorted() {
+            return;
+        }
+        let mut order: Vec<usize> = (0..self.t.len()).collect();
+        order.sort_by(|&a, &b| self.t[a].total_cmp(&self.t[b]));
+        self.permute(&order);
+    }
+
+    /// The samples whose `keep` is true.
+    pub(crate) fn select(&self, keep: &[bool]) -> StateSeries {
+        let order: Vec<usize> = (0..self.t.len()).filter(|&i| keep[i]).collect();
+        let mut out = StateSeries::default();
+        struct Pick<'a>(&'a [usize]);
+        impl ColumnOp for Pick<'_> {
+            fn apply<T: Copy>(&mut self, to: &mut Vec<T>, from: &[T]) {
+                to.extend(self.0.iter().filter_map(|&i| from.get(i).copied()));
+            }
+        }
+        out.zip_columns(self, &mut Pick(&order));
+        out
+    }
+}
+
 /// Commanded joint references (from `/arm_sdk`).
 #[derive(Debug, Clone, Default)]
 pub struct CommandSeries {
@@ -115,14 +202,9 @@ impl Recording {
     /// source and start time stay this one's).
     pub fn append(&mut self, r: Recording, offset: f64) {
         let shift = |v: &[f64]| v.iter().map(|t| t + offset).collect::<Vec<_>>();
-        self.state.t.extend(shift(&r.state.t));
-        self.state.q.extend(r.state.q);
-        self.state.dq.extend(r.state.dq);
-        self.state.tau.extend(r.state.tau);
-        self.state.temp.extend(r.state.temp);
-        self.state.gyro.extend(r.state.gyro);
-        self.state.quat.extend(r.state.quat);
-        self.state.volts.extend(r.state.volts);
+        let n = self.state.t.len();
+        self.state.extend_range(&r.state, 0..usize::MAX);
+        self.state.t[n..].iter_mut().for_each(|t| *t += offset);
         self.command.t.extend(shift(&r.command.t));
         self.command.q.extend(r.command.q);
         self.command.dq.extend(r.command.dq);

@@ -232,7 +232,7 @@ impl StateSpill {
             if ranges_ns.is_some() {
                 let keep: Vec<bool> = s.t.iter().map(|&t| inside(t)).collect();
                 if !keep.iter().all(|&k| k) {
-                    s = filtered(&s, &keep);
+                    s = s.select(&keep);
                 }
             }
             if !s.t.is_empty() {
@@ -240,26 +240,6 @@ impl StateSpill {
             }
         }
         Ok(())
-    }
-}
-
-fn filtered(s: &StateSeries, keep: &[bool]) -> StateSeries {
-    fn pick<T: Copy>(v: &[T], keep: &[bool]) -> Vec<T> {
-        v.iter()
-            .zip(keep)
-            .filter(|(_, k)| **k)
-            .map(|(x, _)| *x)
-            .collect()
-    }
-    StateSeries {
-        t: pick(&s.t, keep),
-        q: pick(&s.q, keep),
-        dq: pick(&s.dq, keep),
-        tau: pick(&s.tau, keep),
-        temp: pick(&s.temp, keep),
-        gyro: pick(&s.gyro, keep),
-        quat: pick(&s.quat, keep),
-        volts: pick(&s.volts, keep),
     }
 }
 
@@ -307,14 +287,7 @@ mod tests {
         let mut out = StateSeries::default();
         spill
             .stream(ranges, &mut |b| {
-                out.t.extend_from_slice(&b.t);
-                out.q.extend_from_slice(&b.q);
-                out.dq.extend_from_slice(&b.dq);
-                out.tau.extend_from_slice(&b.tau);
-                out.temp.extend_from_slice(&b.temp);
-                out.gyro.extend_from_slice(&b.gyro);
-                out.quat.extend_from_slice(&b.quat);
-                out.volts.extend_from_slice(&b.volts);
+                out.extend_range(b, 0..usize::MAX);
                 Ok(())
             })
             .unwrap();
@@ -342,14 +315,7 @@ mod tests {
         assert_eq!(spill.origin_ns, 7);
         let back = all(&spill, None);
         let mut whole = a.clone();
-        whole.t.extend_from_slice(&b.t);
-        whole.q.extend_from_slice(&b.q);
-        whole.dq.extend_from_slice(&b.dq);
-        whole.tau.extend_from_slice(&b.tau);
-        whole.temp.extend_from_slice(&b.temp);
-        whole.gyro.extend_from_slice(&b.gyro);
-        whole.quat.extend_from_slice(&b.quat);
-        whole.volts.extend_from_slice(&b.volts);
+        whole.extend_range(&b, 0..usize::MAX);
         assert_eq!(bits(&back), bits(&whole));
         // Two ranges, one ending exactly on a sample, one past the end.
         let ranges = [(1.0, 2.0), (5.5, 99.0)];
@@ -363,7 +329,7 @@ mod tests {
                     .any(|&(x, y)| t >= x - 1e-12 && t <= y + 1e-12)
             })
             .collect();
-        assert_eq!(bits(&got), bits(&filtered(&whole, &keep)));
+        assert_eq!(bits(&got), bits(&whole.select(&keep)));
         assert!(
             got.t.contains(&whole.t[200]),
             "the range's end sample (t = 2.0)"
