@@ -89,7 +89,7 @@ fn main() -> Result<()> {
     drop(rec);
     // What `g1viz diagnose SESSION` does: the session streamed trial by trial, never held whole.
     let t3 = Instant::now();
-    let file = g1viz::identify::SessionFile {
+    let file = g1viz::session::SessionFile {
         path: path.clone(),
         map: SignalMap::g1_left_arm(),
         read: Default::default(),

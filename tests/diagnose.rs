@@ -1156,7 +1156,7 @@ fn counterpart_comparison_shows_what_the_twin_lacks() {
         let c = compare_counterpart(&real, &counterpart_rec, &d).unwrap();
         // The two files read side by side (streamed) give the same figures, bit for bit, and
         // the same per-sample series when asked for them.
-        let file = |p: &std::path::Path| g1viz::identify::SessionFile {
+        let file = |p: &std::path::Path| g1viz::session::SessionFile {
             path: p.to_path_buf(),
             map: map.clone(),
             read: OpenOptions::default(),
@@ -1216,7 +1216,7 @@ fn counterpart_comparison_shows_what_the_twin_lacks() {
     let d = diagnose::diagnose(&real, &five_fold_twin()).unwrap();
     let err = compare_counterpart(&real, &load(&other), &d).unwrap_err();
     assert!(err.to_string().contains("simulate --like"), "{err}");
-    let file = |p: std::path::PathBuf| g1viz::identify::SessionFile {
+    let file = |p: std::path::PathBuf| g1viz::session::SessionFile {
         path: p,
         map: map.clone(),
         read: OpenOptions::default(),

@@ -9,9 +9,9 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use g1viz::diagnose::{self, DiagnoseOptions, Diagnosis};
-use g1viz::identify::SessionFile;
 use g1viz::power::PowerModel;
 use g1viz::read::OpenOptions;
+use g1viz::session::SessionFile;
 use g1viz::signals::{SignalMap, load_recording};
 use g1viz::sim::{self, Effects, Preset, SimConfig};
 use serde_json::Value;

@@ -6,10 +6,9 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use g1viz::identify::{
-    self, AlignmentChoice, Identification, IdentifyOptions, SessionFile, StreamOptions,
-};
+use g1viz::identify::{self, AlignmentChoice, Identification, IdentifyOptions};
 use g1viz::power::PowerModel;
+use g1viz::session::{SessionFile, StreamOptions};
 use g1viz::signals::{SignalMap, load_recording};
 
 fn example() -> PathBuf {
@@ -158,7 +157,7 @@ fn streamed_identify_on_a_smoke_session_in_pieces() {
         search_trials: 12,
         ..opts.clone()
     };
-    assert_eq!(identify::search_stride(&[24], 12), 2);
+    assert_eq!(g1viz::session::search_stride(&[24], 12), 2);
     let mem_thin = identify::identify(std::slice::from_ref(&rec), &thin).unwrap();
     let streamed_thin = identify::identify_files(&[file(&path)], &thin, &held).unwrap();
     let (a, b) = (

@@ -12,8 +12,9 @@ mod common;
 
 use std::path::Path;
 
-use g1viz::identify::{self, IdentifyOptions, SessionFile, StreamOptions};
+use g1viz::identify::{self, IdentifyOptions};
 use g1viz::read::{OpenOptions, Session};
+use g1viz::session::{SessionFile, StreamOptions};
 use g1viz::signals::{self, Recording, SignalMap};
 
 fn example_bytes() -> Vec<u8> {

@@ -9,9 +9,10 @@ use std::collections::BTreeMap;
 use std::io::BufReader;
 use std::path::{Path, PathBuf};
 
-use g1viz::identify::{IdentifyOptions, StreamOptions};
+use g1viz::identify::IdentifyOptions;
 use g1viz::power::PowerModel;
 use g1viz::robot::RobotModel;
+use g1viz::session::StreamOptions;
 use g1viz::signals::{SignalMap, load_recording};
 use g1viz::viz::{ReplayOptions, log_replay};
 use g1viz::viz::{SessionReplay, Window, replay_session};
@@ -337,7 +338,7 @@ fn streamed_diagnosis_replay_equals_in_memory() {
         ..DiagnoseOptions::default()
     };
     let map = SignalMap::g1_left_arm();
-    let file = g1viz::identify::SessionFile {
+    let file = g1viz::session::SessionFile {
         path: path.clone(),
         map: map.clone(),
         read: Default::default(),
@@ -423,7 +424,7 @@ fn streamed_joined_diagnosis_replay_equals_in_memory() {
     }
     let files: Vec<_> = paths
         .iter()
-        .map(|p| g1viz::identify::SessionFile {
+        .map(|p| g1viz::session::SessionFile {
             path: p.clone(),
             map: map.clone(),
             read: Default::default(),

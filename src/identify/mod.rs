@@ -16,7 +16,6 @@ mod table;
 mod validate;
 
 /// The session types [`identify_files`] and [`validate_file`] take.
-pub use crate::session::{SEARCH_TRIALS, SessionFile, StreamOptions, search_stride};
 pub use dataset::{
     Alignment, AlignmentEstimate, AlignmentScore, Dataset, DatasetOptions, Mode, Row, Skipped,
     Target, TrialBasis, build as build_dataset, estimate_alignment,

@@ -966,7 +966,7 @@ pub fn fit_given_rows(rows: &[Row]) -> Result<RowsFit> {
 
 #[cfg(test)]
 mod search_tests {
-    use super::search_stride;
+    use crate::session::search_stride;
 
     #[test]
     fn search_stride_is_the_smallest_power_of_two_within_the_cap() {
