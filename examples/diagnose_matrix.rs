@@ -8,7 +8,7 @@
 //! ```
 //! Cases: null, thermal, thermal_refit, braking, bus_loss, latency, payload, gear_friction,
 //! drive_loss, stribeck, balance_leak, braking+latency, bus_loss+payload, harness, harness15,
-//! and the forms that differ from every fitted one: bus_power, electronics_nm, joint_friction,
+//! and the forms of single effects (library forms or forms of the generated family): bus_power, electronics_nm, joint_friction,
 //! housing_friction, housing_related (housings starting with their windings), fan_load (default: all). `--parts N` joins N smoke sessions (≈ 24 trials each) for every case
 //! instead of the case's own count (3, or 6 for the faint effects).
 
