@@ -1021,7 +1021,11 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
     };
     let mut tabs = Vec::new();
     if parts.model {
-        tabs.push(breakdown_tab(joints, parts.ranges));
+        tabs.push(breakdown_tab(
+            joints,
+            parts.ranges,
+            parts.window_s.is_some(),
+        ));
         tabs.push(loss_terms_tab(joints, parts.ranges));
     }
     tabs.push(joints_tab(joints, parts.ranges));
@@ -1333,8 +1337,9 @@ fn power_view(parts: LayoutParts) -> Node {
 }
 
 /// Where the power goes: per term and per joint over time (each with its legend: the colours
-/// of the bars), per-trial bars keyed by trial index, and the note.
-fn breakdown_tab(joints: &[String], ranges: PlotRanges) -> Node {
+/// of the bars), per-trial bars keyed by trial index (`long`: per-trial points over the whole
+/// session, as [`super::layers`] logs them past [`WINDOWED_ABOVE_TRIALS`]), and the note.
+fn breakdown_tab(joints: &[String], ranges: PlotRanges, long: bool) -> Node {
     use ContainerKind::{Horizontal, Vertical};
     let by_joint: Vec<String> = joints
         .iter()
@@ -1357,19 +1362,22 @@ fn breakdown_tab(joints: &[String], ranges: PlotRanges) -> Node {
         ],
         vec![],
     );
-    let bars = |name: &str, tree: &str| {
-        Node::view("BarChart", name, "/", vec![paths::include_tree(tree)])
-            .with_legend(Legend::Hidden)
+    let bars = |what: &str, tree: &str| {
+        if long {
+            let name = format!("Mean per trial by {what} [W], one point per trial");
+            plot(name, vec![paths::include_tree(tree)]).whole_session()
+        } else {
+            let name = format!("Mean per trial by {what} [W], x: trial");
+            Node::view("BarChart", name, "/", vec![paths::include_tree(tree)])
+                .with_legend(Legend::Hidden)
+        }
     };
     let per_trial = Node::container(
         Vertical,
         "Per trial",
         vec![
-            bars(
-                "Mean per trial by joint [W], x: trial",
-                paths::BARS_BY_JOINT,
-            ),
-            bars("Mean per trial by term [W], x: trial", paths::BARS_BY_TERM),
+            bars("joint", paths::BARS_BY_JOINT),
+            bars("term", paths::BARS_BY_TERM),
             Node::view(
                 "TextDocument",
                 "What the terms are",
@@ -1460,7 +1468,11 @@ mod tests {
         let root = replay_layout(&joints, parts, [0.0; 3]);
         assert!(matches!(root, Node::Container { window_s: Some(x), .. } if x == w));
         let v = views(&root);
-        let whole: Vec<&str> = v.iter().filter(|x| x.1).map(|x| x.0.as_str()).collect();
+        let whole: Vec<&str> = v
+            .iter()
+            .filter(|x| x.1 && !x.0.starts_with("Mean per trial"))
+            .map(|x| x.0.as_str())
+            .collect();
         assert_eq!(whole.len(), 4, "{whole:?}");
         assert!(
             whole[0].starts_with("Rejected trials: 125 of 1000"),
@@ -1471,6 +1483,20 @@ mod tests {
             && n.starts_with("Net power at the readings")
             && n.contains("40 s at the time cursor")));
         assert!(!v.iter().any(|(n, _)| n.starts_with("Trials (index")));
+        // Bars a thousand groups wide are sub-pixel: the per-trial means are points over the
+        // whole session instead (the example keeps its bar charts, below).
+        let per_trial = |root: &Node| -> Vec<(String, bool)> {
+            views(root)
+                .into_iter()
+                .filter(|(n, _)| n.starts_with("Mean per trial"))
+                .collect()
+        };
+        let long = per_trial(&root);
+        assert_eq!(long.len(), 2, "{long:?}");
+        assert!(
+            long.iter()
+                .all(|(n, whole)| *whole && n.ends_with("one point per trial"))
+        );
         let short = replay_layout(
             &joints,
             LayoutParts {
@@ -1481,6 +1507,8 @@ mod tests {
         );
         assert!(matches!(short, Node::Container { window_s: None, .. }));
         assert!(views(&short).iter().all(|(_, wh)| !wh));
+        let bars = per_trial(&short);
+        assert!(bars.len() == 2 && bars.iter().all(|(n, _)| n.ends_with("x: trial")));
         assert!(
             views(&short)
                 .iter()

@@ -382,7 +382,34 @@ const EDGE_S: f64 = 0.01;
 /// term (joints summed) over each trial's window, as static bar charts (one per joint or term,
 /// in its colour) whose bars sit side by side around the trial's index on the x axis, so they
 /// keep their width whatever the time zoom.
+///
+/// Past [`super::blueprint::WINDOWED_ABOVE_TRIALS`] trials a bar is narrower than a pixel, so
+/// each joint's and term's means are points on the session's time axis instead, one per trial
+/// at its start (the layout plots them over the whole session).
 fn log_bars(w: &mut ChunkWriter<'_>, joints: &[String], means: &[TrialMean]) -> Result<()> {
+    if means.len() > super::blueprint::WINDOWED_ABOVE_TRIALS {
+        let t: Vec<f64> = means.iter().map(|m| m.t).collect();
+        let series = joints
+            .iter()
+            .enumerate()
+            .map(|(j, name)| (paths::bar_by_joint(name), name.as_str(), style::joint(j), j))
+            .chain(
+                paths::TERMS
+                    .iter()
+                    .chain(["interaction"].iter())
+                    .enumerate()
+                    .map(|(k, name)| (paths::bar_by_term(name), *name, style::TERMS[k], 100 + k)),
+            );
+        for (path, name, colour, which) in series {
+            style::points(w, &path, name, colour, MarkerShape::Circle, 1.5)?;
+            let v = means.iter().map(|m| match which {
+                j if j < 100 => m.by_joint[j],
+                k => m.by_term[k - 100],
+            });
+            scalars(w, &path, &t, v)?;
+        }
+        return Ok(());
+    }
     let joint_values = means.iter().flat_map(|m| m.by_joint);
     bar_axis_anchors(w, paths::BARS_BY_JOINT, means, joint_values)?;
     let term_values = means.iter().flat_map(|m| m.by_term);
@@ -505,6 +532,8 @@ fn bar_chart(
 pub struct TrialMean {
     /// Trial index.
     pub index: usize,
+    /// Time of the trial's first sample [s].
+    pub t: f64,
     /// Per joint, its four terms summed [W].
     pub by_joint: [f64; N_JOINTS],
     /// Per term (mechanical, copper, Coulomb, viscous, interaction), joints summed [W].
@@ -528,6 +557,7 @@ impl TrialMean {
         ];
         let mut mean = TrialMean {
             index,
+            t: terms.t.get(idx[0]).copied().unwrap_or(f64::NAN),
             by_joint: [0.0; N_JOINTS],
             by_term: [0.0; 5],
             samples: idx.len(),
