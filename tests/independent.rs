@@ -323,8 +323,8 @@ const README_PARAMS: [(&str, &str, &str); 10] = [
     ("08_thermal+braking", "thermal", "0.00394"),
     ("11_electronics_nm", "electronics_nm", "0.407"),
     ("12_gear_friction", "gear_friction", "0.140"),
-    ("15_bus_power5ohm", "bus_power", "4.99"),
-    ("16_bus_power5ohm+latency", "bus_power", "5.03"),
+    ("15_bus_power5ohm", "bus_power", "5.09"),
+    ("16_bus_power5ohm+latency", "bus_power", "5.16"),
 ];
 
 #[test]

@@ -25,7 +25,8 @@ use rerun::external::re_sdk_types::blueprint::archetypes::{
     TimePanelBlueprint, ViewBlueprint, ViewContents, ViewportBlueprint,
 };
 use rerun::external::re_sdk_types::blueprint::components::{
-    ActiveTab, Corner2D, Eye3DKind, LinkAxis, PanelState, TextLogColumn, TimeRange, TimelineName,
+    ActiveTab, Corner2D, Eye3DKind, LinkAxis, PanelState, PlayState, TextLogColumn, TimeRange,
+    TimelineName,
 };
 use rerun::external::re_sdk_types::blueprint::datatypes::{
     TextLogColumn as TextLogColumnData, TextLogColumnKind, TimelineColumn,
@@ -598,9 +599,9 @@ const GLOBAL_VIEW: &str = "view/5c0dca6a-e63f-9cf7-f657-2602590474cc";
 
 /// The time range a plot opens on: the whole session (the viewer's default for recordings
 /// over a minute is a 60 s window around the time cursor), or a `window` seconds long at the
-/// time cursor, three quarters of it before the cursor (it follows the cursor: move the cursor,
-/// or right-click a whole-session plot, and the window goes there; a loaded file leaves the
-/// cursor at the session's end).
+/// time cursor, a tenth of it before the cursor (it follows the cursor: move the cursor, or
+/// right-click a whole-session plot, and the window goes there). The layout opens paused with
+/// the cursor at the session's start, so the window shows the first trials.
 fn session_range(window: Option<f64>) -> TimeRange {
     use rr_data::TimeRangeBoundary::{CursorRelative, Infinite};
     TimeRange(match window {
@@ -611,8 +612,8 @@ fn session_range(window: Option<f64>) -> TimeRange {
         Some(w) => {
             let ns = |f: f64| ((w * f * 1e9).round() as i64).into();
             rr_data::TimeRange {
-                start: CursorRelative(ns(-0.75)),
-                end: CursorRelative(ns(0.25)),
+                start: CursorRelative(ns(-0.1)),
+                end: CursorRelative(ns(0.9)),
             }
         }
     })
@@ -670,7 +671,8 @@ fn send_blueprint_generation(stream: &RecordingStream, root: &Node, generation: 
         // height the streams tree would take.
         &TimePanelBlueprint::new()
             .with_timeline(TimelineName("session".into()))
-            .with_state(PanelState::Collapsed),
+            .with_state(PanelState::Collapsed)
+            .with_play_state(PlayState::Paused),
     )?;
     let root_id = Uuid {
         bytes: stable_uuid(root.name()),
