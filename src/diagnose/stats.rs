@@ -169,6 +169,44 @@ pub fn improvement_p_value(d: &[f64]) -> f64 {
     (2.0 * paired_t_positive(d).1.min(signed_rank_positive(d).1)).min(1.0)
 }
 
+/// Resamples of the trials [`resampled_stability`] draws.
+pub const STABILITY_DRAWS: usize = 200;
+
+/// How stable a finding is under resampling of the trials: the fraction of `draws` bootstrap
+/// resamples (trials drawn with replacement, seeded by `seed`) in which `after` still passes
+/// its gate over `before` — [`improvement_p_value`] below `level` and a held-out RMSE gain of
+/// at least `min_gain`. Both are per-trial held-out squared errors, in the same trial order.
+pub fn resampled_stability(
+    before: &[f64],
+    after: &[f64],
+    (level, min_gain): (f64, f64),
+    draws: usize,
+    seed: u64,
+) -> f64 {
+    use rand::{RngExt, SeedableRng};
+    let n = before.len().min(after.len());
+    if n == 0 || draws == 0 {
+        return 0.0;
+    }
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let mut d = vec![0.0; n];
+    let mut held = 0usize;
+    for _ in 0..draws {
+        let (mut sb, mut sa) = (0.0f64, 0.0f64);
+        for slot in d.iter_mut() {
+            let k = rng.random_range(0..n);
+            sb += before[k];
+            sa += after[k];
+            *slot = before[k] - after[k];
+        }
+        let gain = 1.0 - (sa / sb.max(1e-300)).sqrt();
+        if gain >= min_gain && improvement_p_value(&d) < level {
+            held += 1;
+        }
+    }
+    held as f64 / draws as f64
+}
+
 /// Pearson correlation of `x` and `y` and its two-sided p-value (t test with n − 2 df).
 pub fn pearson(x: &[f64], y: &[f64]) -> (f64, f64) {
     let n = x.len().min(y.len());
@@ -195,6 +233,32 @@ pub fn pearson(x: &[f64], y: &[f64]) -> (f64, f64) {
 
 #[cfg(test)]
 mod tests {
+    /// A gain every trial shares is stable; one carried by a few trials is not, nor one whose
+    /// p-value sits at its level; the same seed gives the same figure.
+    #[test]
+    fn stability_separates_a_steady_gain_from_a_lucky_one() {
+        use super::resampled_stability as stab;
+        let n = 60;
+        let before: Vec<f64> = (0..n).map(|k| 10.0 + (k % 7) as f64).collect();
+        let steady: Vec<f64> = before.iter().map(|b| 0.8 * b).collect();
+        assert_eq!(stab(&before, &steady, (1e-6, 0.02), 200, 1), 1.0);
+        // Three trials carry the whole gain: resamples without them fail the gate.
+        let lucky: Vec<f64> = (0..n)
+            .map(|k| if k < 3 { 0.0 } else { before[k] * 1.001 })
+            .collect();
+        let s = stab(&before, &lucky, (1e-3, 0.02), 200, 1);
+        assert!(s < 0.5, "{s}");
+        // Noisy gains whose p-value lies at the level pass in about half of the resamples.
+        let noisy: Vec<f64> = (0..n)
+            .map(|k| before[k] * (0.9 + 0.25 * ((k * 37 % 11) as f64 / 10.0 - 0.5)))
+            .collect();
+        let d: Vec<f64> = before.iter().zip(&noisy).map(|(b, a)| b - a).collect();
+        let level = super::improvement_p_value(&d);
+        let s = stab(&before, &noisy, (level, 0.0), 200, 1);
+        assert!((0.25..0.75).contains(&s), "{s} at p = {level:e}");
+        assert_eq!(s, stab(&before, &noisy, (level, 0.0), 200, 1));
+    }
+
     use super::*;
 
     #[test]

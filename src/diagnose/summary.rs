@@ -419,7 +419,7 @@ fn found_lines(r: &super::DiscoveryReport, s: &mut String) {
         let params: Vec<String> = t.params.iter().map(fmt_param).collect();
         let _ = writeln!(
             s,
-            "Found beyond the library: {}; {} with {} improves held-out power R² from {:.3} to {:.3} (RMSE {:.3} → {:.3} W, p = {:.1e} < {:.1e}).",
+            "Found beyond the library: {}; {} with {} improves held-out power R² from {:.3} to {:.3} (RMSE {:.3} → {:.3} W, p = {:.1e} < {:.1e}{}).",
             t.name,
             t.form,
             params.join(", "),
@@ -428,7 +428,12 @@ fn found_lines(r: &super::DiscoveryReport, s: &mut String) {
             t.before.rmse_w,
             t.after.rmse_w,
             t.p_value,
-            t.alpha
+            t.alpha,
+            t.stability.map_or(String::new(), |f| format!(
+                "; held in {:.0} % of {} resamples of the trials",
+                100.0 * f,
+                super::stats::STABILITY_DRAWS
+            ))
         );
         meter_line(t.meter.as_ref(), s);
         tied_lines(t, s);
