@@ -1080,18 +1080,11 @@ pub(crate) fn discover(
             closed.push(search.cands[b.idx].group.clone());
             continue;
         }
-        // Rivals on other fields the data cannot tell from it: named with it, never claimed.
-        let ties = ties_at_step(&search, &b, &passing, &cur_pred, joint_names, level);
-        // Reported, not a gate: how often it still passes its test when the trials are
-        // resampled (a gate at 80 % drops true effects whose p lies within 10× of the Holm
-        // level, e.g. the housing friction and rail-load tests at 72 trials).
         let lv = level * search.cands[b.idx].weight;
-        b.stability = search.stability(&b, &cur_pred, lv, step);
         // A term × signal says the loss changes with the signal: that needs its dependence
         // k resolved, not only the term's gain (a slow signal nearly constant over the session
         // lets k·s + k0 act as a free level, e.g. an efficiency below the base model's a ≥ 1).
-        if let Some(k) = unresolved_dependence(&search, &b, joint_names) {
-            let d = to_discovery(&b, &search, joint_names, lv, step, String::new());
+        if let Some((d, k)) = unresolved_dependence(&search, &b, joint_names, lv, step) {
             let verdict = format!(
                 "not claimed: it improves the held-out RMSE by {:.1} % (p = {:.1e}), but its \
                  dependence on the signal is not resolved (k = {:.3} ± {:.3}, under {} standard \
@@ -1109,6 +1102,12 @@ pub(crate) fn discover(
             closed.push(search.cands[b.idx].group.clone());
             continue;
         }
+        // Reported, not a gate: how often it still passes its test when the trials are
+        // resampled (a gate at 80 % drops true effects whose p lies within 10× of the Holm
+        // level, e.g. the housing friction and rail-load tests at 72 trials).
+        b.stability = search.stability(&b, &cur_pred, lv, step);
+        // Rivals on other fields the data cannot tell from it: named with it, never claimed.
+        let ties = ties_at_step(&search, &b, &passing, &cur_pred, joint_names, level);
         for t in &ties {
             // A rival of the same structure whose contribution is not collinear with the chosen
             // one's may be a second effect of the same kind: it stays open and is tried beside
@@ -1895,15 +1894,22 @@ pub(crate) fn library_term_given_found(
 /// Standard errors its dependence coefficient must clear for a term × signal to be claimed.
 const DEPENDENCE_Z: f64 = 3.0;
 
-/// The dependence coefficient k of a term × signal candidate when it is not resolved
-/// (|k| < [`DEPENDENCE_Z`] s.e.); `None` for other candidates or a resolved k.
-fn unresolved_dependence(search: &Search, s: &Scored, joint_names: &[String]) -> Option<Param> {
+/// A term × signal candidate whose dependence coefficient k is not resolved (|k| <
+/// [`DEPENDENCE_Z`] s.e.): its description (at `level`, `step`) and k; `None` for other
+/// candidates or a resolved k.
+fn unresolved_dependence(
+    search: &Search,
+    s: &Scored,
+    joint_names: &[String],
+    level: f64,
+    step: usize,
+) -> Option<(Discovery, Param)> {
     if !matches!(search.cands[s.idx].kind, Kind::Product(..)) {
         return None;
     }
-    let d = to_discovery(s, search, joint_names, 0.0, 0, String::new());
-    let k = d.params.into_iter().next()?;
-    (k.value.abs() < DEPENDENCE_Z * k.std_err || !k.std_err.is_finite()).then_some(k)
+    let d = to_discovery(s, search, joint_names, level, step, String::new());
+    let k = d.params.first()?.clone();
+    (k.value.abs() < DEPENDENCE_Z * k.std_err || !k.std_err.is_finite()).then_some((d, k))
 }
 
 fn verdict_of(s: &Scored, level: f64, rule: &Rule) -> String {

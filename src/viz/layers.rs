@@ -389,24 +389,21 @@ const EDGE_S: f64 = 0.01;
 fn log_bars(w: &mut ChunkWriter<'_>, joints: &[String], means: &[TrialMean]) -> Result<()> {
     if means.len() > super::blueprint::WINDOWED_ABOVE_TRIALS {
         let t: Vec<f64> = means.iter().map(|m| m.t).collect();
-        let series = joints
+        let mut points = |path: &str, name: &str, colour, v: Vec<f64>| -> Result<()> {
+            style::points(w, path, name, colour, MarkerShape::Circle, 1.5)?;
+            scalars(w, path, &t, v.into_iter())
+        };
+        for (j, name) in joints.iter().enumerate() {
+            let v = means.iter().map(|m| m.by_joint[j]).collect();
+            points(&paths::bar_by_joint(name), name, style::joint(j), v)?;
+        }
+        for (k, name) in paths::TERMS
             .iter()
+            .chain(["interaction"].iter())
             .enumerate()
-            .map(|(j, name)| (paths::bar_by_joint(name), name.as_str(), style::joint(j), j))
-            .chain(
-                paths::TERMS
-                    .iter()
-                    .chain(["interaction"].iter())
-                    .enumerate()
-                    .map(|(k, name)| (paths::bar_by_term(name), *name, style::TERMS[k], 100 + k)),
-            );
-        for (path, name, colour, which) in series {
-            style::points(w, &path, name, colour, MarkerShape::Circle, 1.5)?;
-            let v = means.iter().map(|m| match which {
-                j if j < 100 => m.by_joint[j],
-                k => m.by_term[k - 100],
-            });
-            scalars(w, &path, &t, v)?;
+        {
+            let v = means.iter().map(|m| m.by_term[k]).collect();
+            points(&paths::bar_by_term(name), name, style::TERMS[k], v)?;
         }
         return Ok(());
     }
