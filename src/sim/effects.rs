@@ -343,11 +343,63 @@ impl RailLoad {
     /// A 3 W fan.
     pub const DEFAULT: RailLoad = RailLoad { watts: 3.0 };
 }
+impl MeterOffset {
+    /// The shift of a 3 W fan's load ([`RailLoad::DEFAULT`]).
+    pub const DEFAULT: MeterOffset = MeterOffset { watts: 3.0 };
+}
 /// Default payload: a 0.5 kg tool held 10 cm beyond the wrist-yaw link origin.
 pub const DEFAULT_PAYLOAD: Payload = Payload {
     mass_kg: 0.5,
     com_m: [0.10, 0.0, 0.0],
 };
+
+/// An effect set by one number in its unit (`name=value` of [`Effects::enable`]), with a
+/// default strength when no number is given.
+trait Strength: Sized {
+    const DEFAULT: Self;
+    /// The effect at strength `v`, its other parameters at their defaults.
+    fn with(v: f64) -> Self;
+}
+
+macro_rules! strength {
+    ($($ty:ty => $field:ident $(, ..$rest:ident)?;)*) => {$(
+        impl Strength for $ty {
+            const DEFAULT: Self = <$ty>::DEFAULT;
+            fn with(v: f64) -> Self {
+                Self { $field: v $(, ..<$ty>::$rest)? }
+            }
+        }
+    )*};
+}
+
+strength! {
+    ThermalDrift => alpha_per_k;
+    BrakingAsymmetry => return_fraction;
+    BusLoss => resistance_ohm;
+    SensorLatency => seconds;
+    HarnessDrag => w_per_rad_s;
+    GearFriction => mu;
+    DriveLoss => volts;
+    StribeckFriction => newton_m;
+    BalanceLeak => w_per_rad2_s2, ..DEFAULT;
+    BusPowerLoss => resistance_ohm;
+    ElectronicsLoss => w_per_nm;
+    JointFrictionExcess => newton_m;
+    HousingFriction => w_per_k_rad_s;
+    SwitchingLoss => per_volt_amp;
+    RailLoad => watts;
+    MeterOffset => watts;
+}
+
+impl Strength for Payload {
+    const DEFAULT: Self = DEFAULT_PAYLOAD;
+    fn with(mass_kg: f64) -> Self {
+        Payload {
+            mass_kg,
+            ..DEFAULT_PAYLOAD
+        }
+    }
+}
 
 impl Effects {
     /// Switch on effect `spec` = `name` or `name=value` (value in the effect's unit: thermal α [1/K],
@@ -371,121 +423,35 @@ impl Effects {
             }
             None => (spec.trim(), None),
         };
+        fn set<E: Strength>(slot: &mut Option<E>, value: Option<f64>) {
+            *slot = Some(value.map_or(E::DEFAULT, E::with));
+        }
         match name {
-            "thermal" => {
-                self.thermal =
-                    Some(
-                        value.map_or(ThermalDrift::DEFAULT, |alpha_per_k| ThermalDrift {
-                            alpha_per_k,
-                        }),
-                    )
-            }
+            "thermal" => set(&mut self.thermal, value),
             "braking" => {
                 anyhow::ensure!(
                     value.is_none_or(|v| v <= 1.0),
                     "effect {spec:?}: the braking fraction is at most 1"
                 );
-                self.braking = Some(value.map_or(BrakingAsymmetry::DEFAULT, |return_fraction| {
-                    BrakingAsymmetry { return_fraction }
-                }))
+                set(&mut self.braking, value)
             }
-            "bus_loss" => {
-                self.bus_loss = Some(value.map_or(BusLoss::DEFAULT, |resistance_ohm| BusLoss {
-                    resistance_ohm,
-                }))
-            }
-            "payload" => {
-                self.payload = Some(value.map_or(DEFAULT_PAYLOAD, |mass_kg| Payload {
-                    mass_kg,
-                    ..DEFAULT_PAYLOAD
-                }))
-            }
-            "latency" => {
-                self.latency =
-                    Some(value.map_or(SensorLatency::DEFAULT, |seconds| SensorLatency { seconds }))
-            }
-            "gear_friction" => {
-                self.gear_friction =
-                    Some(value.map_or(GearFriction::DEFAULT, |mu| GearFriction { mu }))
-            }
-            "drive_loss" => {
-                self.drive_loss =
-                    Some(value.map_or(DriveLoss::DEFAULT, |volts| DriveLoss { volts }))
-            }
-            "driving_loss" => {
-                self.driving_loss =
-                    Some(value.map_or(DriveLoss::DEFAULT, |volts| DriveLoss { volts }))
-            }
-            "stribeck" => {
-                self.stribeck =
-                    Some(
-                        value.map_or(StribeckFriction::DEFAULT, |newton_m| StribeckFriction {
-                            newton_m,
-                        }),
-                    )
-            }
-            "balance_leak" => {
-                self.balance_leak =
-                    Some(
-                        value.map_or(BalanceLeak::DEFAULT, |w_per_rad2_s2| BalanceLeak {
-                            w_per_rad2_s2,
-                            ..BalanceLeak::DEFAULT
-                        }),
-                    )
-            }
-            "harness_drag" => {
-                self.harness_drag =
-                    Some(
-                        value.map_or(HarnessDrag::DEFAULT, |w_per_rad_s| HarnessDrag {
-                            w_per_rad_s,
-                        }),
-                    )
-            }
-            "bus_power" => {
-                self.bus_power =
-                    Some(
-                        value.map_or(BusPowerLoss::DEFAULT, |resistance_ohm| BusPowerLoss {
-                            resistance_ohm,
-                        }),
-                    )
-            }
-            "electronics_nm" => {
-                self.electronics_nm =
-                    Some(
-                        value.map_or(ElectronicsLoss::DEFAULT, |w_per_nm| ElectronicsLoss {
-                            w_per_nm,
-                        }),
-                    )
-            }
-            "joint_friction" => {
-                self.joint_friction = Some(value.map_or(JointFrictionExcess::DEFAULT, |newton_m| {
-                    JointFrictionExcess { newton_m }
-                }))
-            }
-            "housing_friction" => {
-                self.housing_friction = Some(value.map_or(HousingFriction::DEFAULT, |w| {
-                    HousingFriction { w_per_k_rad_s: w }
-                }))
-            }
-            "fan_load" => {
-                self.fan_load = Some(value.map_or(RailLoad::DEFAULT, |watts| RailLoad { watts }))
-            }
-            "fan_meter" => {
-                self.fan_meter = Some(MeterOffset {
-                    watts: value.unwrap_or(RailLoad::DEFAULT.watts),
-                })
-            }
-            "fan0_load" => {
-                self.fan0_load = Some(value.map_or(RailLoad::DEFAULT, |watts| RailLoad { watts }))
-            }
-            "switching" => {
-                self.switching =
-                    Some(
-                        value.map_or(SwitchingLoss::DEFAULT, |per_volt_amp| SwitchingLoss {
-                            per_volt_amp,
-                        }),
-                    )
-            }
+            "bus_loss" => set(&mut self.bus_loss, value),
+            "payload" => set(&mut self.payload, value),
+            "latency" => set(&mut self.latency, value),
+            "gear_friction" => set(&mut self.gear_friction, value),
+            "drive_loss" => set(&mut self.drive_loss, value),
+            "driving_loss" => set(&mut self.driving_loss, value),
+            "stribeck" => set(&mut self.stribeck, value),
+            "balance_leak" => set(&mut self.balance_leak, value),
+            "harness_drag" => set(&mut self.harness_drag, value),
+            "bus_power" => set(&mut self.bus_power, value),
+            "electronics_nm" => set(&mut self.electronics_nm, value),
+            "joint_friction" => set(&mut self.joint_friction, value),
+            "housing_friction" => set(&mut self.housing_friction, value),
+            "fan_load" => set(&mut self.fan_load, value),
+            "fan0_load" => set(&mut self.fan0_load, value),
+            "fan_meter" => set(&mut self.fan_meter, value),
+            "switching" => set(&mut self.switching, value),
             _ => anyhow::bail!(
                 "unknown effect {name:?} (known: {})",
                 EFFECT_NAMES.join(", ")
