@@ -29,7 +29,8 @@ def claims(d):
             f += r.get("fields", [])
         # a found form of a library mechanism (one-sided, switched by a state) names its id
         out.append({"kind": "found", "id": t.get("mechanism"), "name": t.get("name", ""), "fields": f})
-    for r in disc.get("rest", []) or []:
+    rest = disc.get("rest") or []
+    for r in [rest] if isinstance(rest, dict) else rest:  # one rest-power stage: an object
         for t in r.get("found", []):
             out.append({"kind": "rest", "id": None, "name": t.get("name", ""),
                         "fields": [t.get("field", "")] + list(t.get("tied", []))})

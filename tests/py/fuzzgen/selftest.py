@@ -63,6 +63,13 @@ def check_scorer():
         got_c, got_e = score.score(effs, [1.0] * len(effs), cl)
         if got_c != want_c or got_e != want_e:
             bad.append((effs and effs[0]["mechanism"], [c["id"] or c["name"] for c in cl], got_c, got_e))
+    # diagnosis.json's rest-power stage is one object (or null), its found terms claims
+    rest = {"discovery": {"accepted": [], "rest": {"found": [
+        {"name": "the rail's rest power rises with it", "field": "/lf/mainboardstate.fan_state[1]", "tied": []}]}}}
+    if [c["fields"] for c in score.claims(rest)] != [["/lf/mainboardstate.fan_state[1]"]]:
+        bad.append(("rest object", score.claims(rest)))
+    if score.claims({"discovery": {"rest": None}}):
+        bad.append(("rest null", "claims"))
     return {"scorer cases": not bad}, {"scorer_failures": bad}
 
 
