@@ -404,10 +404,10 @@ fn ros1_field_at(b: &[u8], op: u8, name: &[u8]) -> usize {
             }
             q += 4 + len;
         }
-        if let (Some(o), Some(v)) = found {
-            if o == op {
-                return v;
-            }
+        if let (Some(o), Some(v)) = found
+            && o == op
+        {
+            return v;
         }
         at = header.end + 4 + u32_at(header.end);
     }
