@@ -636,6 +636,16 @@ fn run_range(
     Ok(i + 1)
 }
 
+/// The output of `git ARGS` in the current folder, trimmed (empty when git fails).
+fn git(a: &[&str]) -> String {
+    Command::new("git")
+        .args(a)
+        .output()
+        .ok()
+        .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
+        .unwrap_or_default()
+}
+
 fn campaign(args: &Args) -> Result<(), String> {
     let exe = std::env::current_exe().map_err(|e| e.to_string())?;
     let seeds = build_seeds(args.messages)?;
@@ -653,6 +663,9 @@ fn campaign(args: &Args) -> Result<(), String> {
         slowest: (0, 0),
     });
     let started = Instant::now();
+    // The commit as the campaign starts (the binary's, unless it was built from another).
+    let commit = git(&["rev-parse", "HEAD"]);
+    let dirty = !git(&["status", "--porcelain", "--untracked-files=no"]).is_empty();
     let last_progress = Mutex::new(Instant::now());
     let end = args.inputs.map_or(u64::MAX, |n| args.first + n);
     eprintln!(
@@ -724,22 +737,19 @@ fn campaign(args: &Args) -> Result<(), String> {
     for ((class, location), count) in &tally.findings {
         println!("  {class} at {location}: {count} inputs");
     }
-    write_results(args, &tally, started.elapsed())
+    write_results(args, &tally, started.elapsed(), (&commit, dirty))
 }
 
 /// The campaign's observed results, as `results.json` in the output folder: what to store in
 /// the repository and quote (verdict counts per input, distinct findings, time, seed, commit,
 /// the limits every input ran under, and the largest peak RSS and longest wall-clock time any
 /// clean input was seen to take, with its index).
-fn write_results(args: &Args, tally: &Tally, elapsed: Duration) -> Result<(), String> {
-    let git = |a: &[&str]| {
-        Command::new("git")
-            .args(a)
-            .output()
-            .ok()
-            .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
-            .unwrap_or_default()
-    };
+fn write_results(
+    args: &Args,
+    tally: &Tally,
+    elapsed: Duration,
+    (commit, dirty): (&str, bool),
+) -> Result<(), String> {
     let findings: Vec<_> = tally
         .findings
         .iter()
@@ -754,8 +764,8 @@ fn write_results(args: &Args, tally: &Tally, elapsed: Duration) -> Result<(), St
         "seed_messages": args.messages,
         "seconds": elapsed.as_secs_f64().round(),
         "jobs": args.jobs,
-        "commit": git(&["rev-parse", "HEAD"]),
-        "uncommitted_changes": !git(&["status", "--porcelain", "--untracked-files=no"]).is_empty(),
+        "commit": commit,
+        "uncommitted_changes": dirty,
         "finished_unix_s": std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_secs()),
