@@ -8,7 +8,8 @@
 //! or not — the unindexed ones by the Python `mcap` library) gives bit-identical counts, rates,
 //! sample times, trial windows and identification. ROS 1: the index data records after a chunk
 //! are checked against the messages read from it (a changed connection id or count is a
-//! warning; the counts shown do not move).
+//! warning; the counts shown do not move), and a chunk info start time later than the chunk's
+//! first message is a warning.
 
 mod common;
 
@@ -454,4 +455,44 @@ fn ros1_index_data_records_are_checked_against_the_chunk() {
             "{field:?} at byte {at}: {warnings:?}"
         );
     }
+}
+
+/// A ROS 1 chunk info record whose start time is later than the chunk's first message (so the
+/// chunk is read late and its messages may come out of time order) is a warning naming the
+/// record; every message is still delivered.
+#[test]
+fn a_ros1_chunk_info_start_later_than_its_messages_is_reported() {
+    let Some(src) = common::shared_recording("g1_smoke.bag") else {
+        return;
+    };
+    let read = |path: &Path| {
+        let mut n = 0u64;
+        let summary = Session::open(path, &OpenOptions::default())
+            .unwrap()
+            .read(None, &mut |_| {
+                n += 1;
+                Ok(())
+            })
+            .unwrap();
+        (n, summary.warnings)
+    };
+    let (clean_n, clean_warnings) = read(&src);
+    assert!(clean_warnings.is_empty(), "{clean_warnings:?}");
+    let mut bytes = std::fs::read(&src).unwrap();
+    // The first chunk info record's start time, seconds field: 100 s later.
+    let at = ros1_field_at(&bytes, 0x06, b"start_time");
+    let sec = u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap()) + 100;
+    bytes[at..at + 4].copy_from_slice(&sec.to_le_bytes());
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("late_start.bag");
+    std::fs::write(&path, &bytes).unwrap();
+    let (n, warnings) = read(&path);
+    assert_eq!(n, clean_n);
+    assert!(
+        warnings
+            .iter()
+            .any(|w| w.contains("the chunk info record at byte offset")
+                && w.contains("out of time order")),
+        "{warnings:?}"
+    );
 }

@@ -623,6 +623,18 @@ impl<R: Read + Seek> Ros1BagSource<R> {
                     }
                 }
                 merge_orphans(&mut state.orphans, &chunk.orphans);
+                let first = chunk.messages.iter().map(|m| m.time_ns).min();
+                if let Some(t) = first.filter(|&t| t < c.start_ns) {
+                    state.summary.warnings.push(format!(
+                        "{}: the chunk info record at byte offset {} says the chunk at byte offset \
+                         {} starts at {} ns, but it holds a message at {t} ns; messages may come \
+                         out of time order",
+                        self.path.display(),
+                        c.info_pos,
+                        c.pos,
+                        c.start_ns
+                    ));
+                }
                 if chunk.head_time().is_some() {
                     loaded.push(chunk);
                 }
