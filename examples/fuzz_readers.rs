@@ -267,7 +267,7 @@ fn run_file(path: &Path, cpu: Duration) -> i32 {
 }
 
 /// `--batch-worker FROM TO`: run inputs FROM..TO, reporting on stdout one line per event:
-/// `S i` (started), `D i KIND KIB` (clean), `P i KIND LOCATION\tMESSAGE` (panic), `M i KIND KIB`
+/// `S i` (started), `D i KIND KIB MS` (clean, with its peak RSS and wall-clock time), `P i KIND LOCATION\tMESSAGE` (panic), `M i KIND KIB`
 /// (peak RSS over budget; the child then exits so the next input starts with a fresh heap).
 fn batch_worker(args: &Args, range: std::ops::Range<u64>) -> Result<(), String> {
     install_panic_hook();
@@ -283,14 +283,16 @@ fn batch_worker(args: &Args, range: std::ops::Range<u64>) -> Result<(), String> 
         writeln!(out, "S {i}")
             .and_then(|_| out.flush())
             .map_err(|e| e.to_string())?;
+        let start = Instant::now();
         let (panic, kib) = match self_test(i) {
             Some(action) => run_self_test(&action, budget(&input, args.timeout)),
             None => run_one(&path, budget(&input, args.timeout)),
         };
+        let ms = start.elapsed().as_millis();
         let line = match (&panic, kib > MAX_RSS_KIB) {
             (Some(p), _) => format!("P {i} {kind} {p}"),
             (None, true) => format!("M {i} {kind} {kib}"),
-            (None, false) => format!("D {i} {kind} {kib}"),
+            (None, false) => format!("D {i} {kind} {kib} {ms}"),
         };
         writeln!(out, "{line}")
             .and_then(|_| out.flush())
@@ -348,6 +350,8 @@ struct ChildRun {
     finished: Vec<(u64, String)>,
     /// Findings reported by the child itself: (index, class, location, detail).
     reported: Vec<(u64, String, String, String)>,
+    /// Clean inputs' (index, peak RSS [KiB], wall-clock time [ms]).
+    observed: Vec<(u64, u64, u64)>,
     /// The input in flight when the child died or stalled.
     in_flight: Option<u64>,
     /// Exit status (`None`: killed by the wall-clock backstop).
@@ -413,6 +417,7 @@ fn run_child(exe: &Path, args: &Args, from: u64, to: u64) -> Result<ChildRun, St
     let mut run = ChildRun {
         finished: Vec::new(),
         reported: Vec::new(),
+        observed: Vec::new(),
         in_flight: None,
         status: None,
         stderr: String::new(),
@@ -458,6 +463,10 @@ fn on_line(line: &str, run: &mut ChildRun) {
                 let key = location.to_string();
                 run.reported
                     .push((i, "panic".into(), key, message.to_string()));
+            } else if tag == "D" {
+                let mut n = rest.split(' ').map(|x| x.parse::<u64>().unwrap_or(0));
+                let (kib, ms) = (n.next().unwrap_or(0), n.next().unwrap_or(0));
+                run.observed.push((i, kib, ms));
             } else if tag == "M" {
                 run.reported.push((
                     i,
@@ -504,6 +513,10 @@ struct Tally {
     verdicts: BTreeMap<String, u64>,
     findings: BTreeMap<(String, String), u64>,
     finding_inputs: u64,
+    /// Largest peak RSS of a clean input [KiB] and the input.
+    max_rss: (u64, u64),
+    /// Longest wall-clock time of a clean input [ms] and the input.
+    slowest: (u64, u64),
 }
 
 impl Tally {
@@ -574,6 +587,10 @@ fn run_range(
             .to_string();
         *t.verdicts.entry(verdict).or_default() += 1;
     }
+    for &(i, kib, ms) in &run.observed {
+        t.max_rss = t.max_rss.max((kib, i));
+        t.slowest = t.slowest.max((ms, i));
+    }
     for (i, class, location, detail) in &run.reported {
         t.finding(
             args,
@@ -619,6 +636,16 @@ fn run_range(
     Ok(i + 1)
 }
 
+/// The output of `git ARGS` in the current folder, trimmed (empty when git fails).
+fn git(a: &[&str]) -> String {
+    Command::new("git")
+        .args(a)
+        .output()
+        .ok()
+        .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
+        .unwrap_or_default()
+}
+
 fn campaign(args: &Args) -> Result<(), String> {
     let exe = std::env::current_exe().map_err(|e| e.to_string())?;
     let seeds = build_seeds(args.messages)?;
@@ -632,8 +659,13 @@ fn campaign(args: &Args) -> Result<(), String> {
         verdicts: BTreeMap::new(),
         findings: BTreeMap::new(),
         finding_inputs: 0,
+        max_rss: (0, 0),
+        slowest: (0, 0),
     });
     let started = Instant::now();
+    // The commit as the campaign starts (the binary's, unless it was built from another).
+    let commit = git(&["rev-parse", "HEAD"]);
+    let dirty = !git(&["status", "--porcelain", "--untracked-files=no"]).is_empty();
     let last_progress = Mutex::new(Instant::now());
     let end = args.inputs.map_or(u64::MAX, |n| args.first + n);
     eprintln!(
@@ -705,21 +737,19 @@ fn campaign(args: &Args) -> Result<(), String> {
     for ((class, location), count) in &tally.findings {
         println!("  {class} at {location}: {count} inputs");
     }
-    write_results(args, &tally, started.elapsed())
+    write_results(args, &tally, started.elapsed(), (&commit, dirty))
 }
 
 /// The campaign's observed results, as `results.json` in the output folder: what to store in
 /// the repository and quote (verdict counts per input, distinct findings, time, seed, commit,
-/// the limits every input ran under).
-fn write_results(args: &Args, tally: &Tally, elapsed: Duration) -> Result<(), String> {
-    let git = |a: &[&str]| {
-        Command::new("git")
-            .args(a)
-            .output()
-            .ok()
-            .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
-            .unwrap_or_default()
-    };
+/// the limits every input ran under, and the largest peak RSS and longest wall-clock time any
+/// clean input was seen to take, with its index).
+fn write_results(
+    args: &Args,
+    tally: &Tally,
+    elapsed: Duration,
+    (commit, dirty): (&str, bool),
+) -> Result<(), String> {
     let findings: Vec<_> = tally
         .findings
         .iter()
@@ -734,8 +764,8 @@ fn write_results(args: &Args, tally: &Tally, elapsed: Duration) -> Result<(), St
         "seed_messages": args.messages,
         "seconds": elapsed.as_secs_f64().round(),
         "jobs": args.jobs,
-        "commit": git(&["rev-parse", "HEAD"]),
-        "uncommitted_changes": !git(&["status", "--porcelain", "--untracked-files=no"]).is_empty(),
+        "commit": commit,
+        "uncommitted_changes": dirty,
         "finished_unix_s": std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_secs()),
@@ -750,6 +780,12 @@ fn write_results(args: &Args, tally: &Tally, elapsed: Duration) -> Result<(), St
         "verdicts": tally.verdicts,
         "distinct_findings": findings,
         "inputs_with_findings": tally.finding_inputs,
+        "observed": {
+            "max_peak_rss_kib": tally.max_rss.0,
+            "max_peak_rss_input": tally.max_rss.1,
+            "slowest_input_ms": tally.slowest.0,
+            "slowest_input": tally.slowest.1,
+        },
     });
     let text = serde_json::to_string_pretty(&results).map_err(|e| e.to_string())?;
     std::fs::write(args.out.join("results.json"), text + "\n").map_err(|e| e.to_string())

@@ -4,7 +4,9 @@
 //! sample of its inputs (regenerated from the seed: input `i` is a pure function of seed and
 //! index) is re-run through `g1viz info` in a child under the campaign's own limits — address
 //! space, file size (disk), CPU time per input — with a wall-clock backstop, and checked for a
-//! clean end (exit 0 or 1, no signal) and a peak RSS under the campaign's budget.
+//! clean end (exit 0 or 1, no signal) and a peak RSS under the campaign's budget. Campaigns that
+//! recorded the largest peak RSS and longest time any clean input took have those inputs
+//! re-run too, and the docs quote both figures.
 
 mod common;
 #[path = "support/fuzz_engine.rs"]
@@ -67,7 +69,31 @@ fn stored_campaign_results_are_consistent() {
             "{}",
             path.display()
         );
+        if let Some(o) = c.get("observed") {
+            let rss = o["max_peak_rss_kib"].as_u64().unwrap();
+            assert!(rss > 0, "{}", path.display());
+            assert!(rss <= c["limits"]["peak_rss_kib"].as_u64().unwrap());
+            let first = c["first_input"].as_u64().unwrap();
+            for k in ["max_peak_rss_input", "slowest_input"] {
+                let i = o[k].as_u64().unwrap();
+                assert!(
+                    (first..first + inputs).contains(&i),
+                    "{}: {k}",
+                    path.display()
+                );
+            }
+        }
     }
+    // Campaigns since the harness recorded what it observed carry it; the newest must.
+    let newest = campaigns()
+        .into_iter()
+        .max_by_key(|(_, c)| c["finished_unix_s"].as_u64())
+        .unwrap();
+    assert!(
+        newest.1.get("observed").is_some(),
+        "{}: no observed peak RSS / time",
+        newest.0.display()
+    );
 }
 
 /// Set the campaign's limits in the child (between fork and exec).
@@ -103,6 +129,19 @@ fn docs_quote_the_stored_campaigns() {
             format!("MCAP {}", thousands(k["mcap"].as_u64().unwrap())),
             format!("{findings} findings"),
         ];
+        let observed = c.get("observed").map(|o| {
+            [
+                format!(
+                    "peak RSS at most {} MiB",
+                    o["max_peak_rss_kib"].as_u64().unwrap().div_ceil(1024)
+                ),
+                format!(
+                    "slowest input {} ms",
+                    thousands(o["slowest_input_ms"].as_u64().unwrap())
+                ),
+            ]
+        });
+        let expected = expected.into_iter().chain(observed.into_iter().flatten());
         for e in expected {
             assert!(
                 page.contains(&e),
@@ -160,9 +199,15 @@ fn stored_campaign_samples_rerun_under_the_campaigns_limits() {
         let per_mb = lim["cpu_s_per_input_per_mb"].as_f64().unwrap();
         let tmp = tempfile::tempdir().unwrap();
         let step = (inputs / SAMPLE).max(1);
+        // The sample, plus the inputs the campaign saw take the most memory and time.
+        let heaviest = ["max_peak_rss_input", "slowest_input"]
+            .map(|k| c["observed"][k].as_u64())
+            .into_iter()
+            .flatten();
         for i in (first..first + inputs)
             .step_by(step as usize)
             .take(SAMPLE as usize)
+            .chain(heaviest)
         {
             let input = input_for(&all, seed, i);
             let dir = tmp.path().join(format!("i{i}"));

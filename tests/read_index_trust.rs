@@ -6,7 +6,10 @@
 //! chunk out still delivers that chunk, with a warning naming its offset; the same session
 //! written in other layouts (time-interleaved; one topic after another; chunked or not; indexed
 //! or not — the unindexed ones by the Python `mcap` library) gives bit-identical counts, rates,
-//! sample times, trial windows and identification.
+//! sample times, trial windows and identification. ROS 1: the index data records after a chunk
+//! are checked against the messages read from it (a changed connection id or count is a
+//! warning; the counts shown do not move), and a chunk info start time later than the chunk's
+//! first message is a warning.
 
 mod common;
 
@@ -380,4 +383,116 @@ fn unindexed_layouts_give_the_figures_of_the_indexed_file() {
             stats.warnings
         );
     }
+}
+
+/// Byte offset of the value of header field `name` in the first ROS 1 record with op `op`
+/// (walking the records of `g1_smoke.bag` as the format lays them out).
+fn ros1_field_at(b: &[u8], op: u8, name: &[u8]) -> usize {
+    let u32_at = |at: usize| u32::from_le_bytes(b[at..at + 4].try_into().unwrap()) as usize;
+    let mut at = 13;
+    while at + 8 <= b.len() {
+        let header_len = u32_at(at);
+        let (header, mut q) = (at + 4..at + 4 + header_len, at + 4);
+        let mut found = (None, None);
+        while q < header.end {
+            let len = u32_at(q);
+            let field = &b[q + 4..q + 4 + len];
+            let eq = field.iter().position(|&c| c == b'=').unwrap();
+            if &field[..eq] == b"op" {
+                found.0 = Some(field[eq + 1]);
+            } else if &field[..eq] == name {
+                found.1 = Some(q + 4 + eq + 1);
+            }
+            q += 4 + len;
+        }
+        if let (Some(o), Some(v)) = found
+            && o == op
+        {
+            return v;
+        }
+        at = header.end + 4 + u32_at(header.end);
+    }
+    panic!("no record with op {op} and field {name:?}");
+}
+
+/// ROS 1 `info` counts come from the messages read; the index data records after a chunk are
+/// checked against them: one naming a connection that is not in the chunk, or whose count
+/// does not match its entries, is a warning naming its byte offset, and no count moves.
+#[test]
+fn ros1_index_data_records_are_checked_against_the_chunk() {
+    let Some(src) = common::shared_recording("g1_smoke.bag") else {
+        return;
+    };
+    let clean = std::fs::read(&src).unwrap();
+    let counts = |path: &Path| {
+        let info = Session::open(path, &OpenOptions::default())
+            .unwrap()
+            .info()
+            .unwrap();
+        let c: Vec<(String, u64)> = info
+            .topics
+            .iter()
+            .map(|t| (t.topic.clone(), t.count))
+            .collect();
+        (c, info.warnings)
+    };
+    let tmp = tempfile::tempdir().unwrap();
+    let (truth, warnings) = counts(&src);
+    assert!(warnings.is_empty(), "{warnings:?}");
+    for (field, change) in [(&b"conn"[..], 0xFFFF_FF00u32), (&b"count"[..], 1)] {
+        let mut bytes = clean.clone();
+        let at = ros1_field_at(&bytes, 0x04, field);
+        let value = u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap()) ^ change;
+        bytes[at..at + 4].copy_from_slice(&value.to_le_bytes());
+        let path = tmp.path().join("damaged.bag");
+        std::fs::write(&path, &bytes).unwrap();
+        let (c, warnings) = counts(&path);
+        assert_eq!(c, truth, "{field:?}");
+        assert!(
+            warnings.iter().any(|w| w.contains("index data record")
+                && w.contains("byte offset")
+                && w.contains("the counts shown are the ones read")),
+            "{field:?} at byte {at}: {warnings:?}"
+        );
+    }
+}
+
+/// A ROS 1 chunk info record whose start time is later than the chunk's first message (so the
+/// chunk is read late and its messages may come out of time order) is a warning naming the
+/// record; every message is still delivered.
+#[test]
+fn a_ros1_chunk_info_start_later_than_its_messages_is_reported() {
+    let Some(src) = common::shared_recording("g1_smoke.bag") else {
+        return;
+    };
+    let read = |path: &Path| {
+        let mut n = 0u64;
+        let summary = Session::open(path, &OpenOptions::default())
+            .unwrap()
+            .read(None, &mut |_| {
+                n += 1;
+                Ok(())
+            })
+            .unwrap();
+        (n, summary.warnings)
+    };
+    let (clean_n, clean_warnings) = read(&src);
+    assert!(clean_warnings.is_empty(), "{clean_warnings:?}");
+    let mut bytes = std::fs::read(&src).unwrap();
+    // The first chunk info record's start time, seconds field: 100 s later.
+    let at = ros1_field_at(&bytes, 0x06, b"start_time");
+    let sec = u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap()) + 100;
+    bytes[at..at + 4].copy_from_slice(&sec.to_le_bytes());
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("late_start.bag");
+    std::fs::write(&path, &bytes).unwrap();
+    let (n, warnings) = read(&path);
+    assert_eq!(n, clean_n);
+    assert!(
+        warnings
+            .iter()
+            .any(|w| w.contains("the chunk info record at byte offset")
+                && w.contains("out of time order")),
+        "{warnings:?}"
+    );
 }

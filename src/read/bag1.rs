@@ -95,6 +95,15 @@ impl Default for TopicStat {
     }
 }
 
+/// What the index data records after one chunk say (see `Ros1BagSource::chunk_index`).
+#[derive(Default)]
+struct ChunkIndex {
+    offsets: Vec<usize>,
+    listed: BTreeMap<u32, u64>,
+    first: Option<u64>,
+    damaged_at: Option<u64>,
+}
+
 /// A record's header fields (`name=value`) and where its data lies in the file.
 struct RecordAt {
     header: Vec<u8>,
@@ -502,13 +511,15 @@ impl<R: Read + Seek> Ros1BagSource<R> {
                             let warnings = self.chunk_warnings(offset, &loaded);
                             self.open_warnings.extend(warnings);
                             merge_orphans(&mut orphans, &loaded.orphans);
-                            let mut counts: BTreeMap<u32, u32> = BTreeMap::new();
                             let mut meta = chunk;
+                            for m in &loaded.messages {
+                                meta.start_ns = meta.start_ns.min(m.time_ns);
+                                meta.end_ns = meta.end_ns.max(m.time_ns);
+                            }
+                            let mut counts: BTreeMap<u32, u32> = BTreeMap::new();
                             for m in &loaded.messages {
                                 *counts.entry(m.conn).or_default() += 1;
                                 stats.entry(m.conn).or_default().add(m.time_ns, 1);
-                                meta.start_ns = meta.start_ns.min(m.time_ns);
-                                meta.end_ns = meta.end_ns.max(m.time_ns);
                             }
                             meta.counts = counts.into_iter().collect();
                             if cut {
@@ -612,6 +623,18 @@ impl<R: Read + Seek> Ros1BagSource<R> {
                     }
                 }
                 merge_orphans(&mut state.orphans, &chunk.orphans);
+                let first = chunk.messages.iter().map(|m| m.time_ns).min();
+                if let Some(t) = first.filter(|&t| t < c.start_ns) {
+                    state.summary.warnings.push(format!(
+                        "{}: the chunk info record at byte offset {} says the chunk at byte offset \
+                         {} starts at {} ns, but it holds a message at {t} ns; messages may come \
+                         out of time order",
+                        self.path.display(),
+                        c.info_pos,
+                        c.pos,
+                        c.start_ns
+                    ));
+                }
                 if chunk.head_time().is_some() {
                     loaded.push(chunk);
                 }
@@ -726,7 +749,7 @@ impl<R: Read + Seek> Ros1BagSource<R> {
             self.parse_chunk_records(&data, at, meta, base, wanted, &mut chunk)
         {
             chunk.damage.push((bad_at, what));
-            let offsets = resync.get_or_insert_with(|| self.index_offsets(meta));
+            let offsets = resync.get_or_insert_with(|| self.chunk_index(meta).offsets);
             match offsets.iter().find(|&&o| o > bad_at) {
                 Some(&o) => at = o,
                 None => break,
@@ -817,47 +840,64 @@ impl<R: Read + Seek> Ros1BagSource<R> {
         Ok(())
     }
 
-    /// Offsets (in the uncompressed chunk) of the messages the index data records after the
-    /// chunk list, sorted; empty when there are none or they are unreadable.
-    fn index_offsets(&mut self, meta: &ChunkMeta) -> Vec<usize> {
-        let mut out = Vec::new();
-        let Ok(chunk) = self.record_at(meta.pos) else {
-            return out;
-        };
-        let mut offset = chunk.end();
-        while let Ok(r) = self.record_at(offset) {
-            let is_index = Fields::parse(&r.header).is_ok_and(|f| f.op() == Ok(OP_INDEX_DATA));
-            let Some(d) = is_index
-                .then(|| self.read_data(r.data_offset, r.data_len).ok())
-                .flatten()
-            else {
-                break;
-            };
-            out.extend(
-                d.chunks_exact(12)
-                    .map(|e| u32::from_le_bytes([e[8], e[9], e[10], e[11]]) as usize),
-            );
-            offset = r.end();
+    /// The index data records after chunk `meta`: their message offsets (in the uncompressed
+    /// chunk, sorted), messages listed per connection, the first record's byte offset, and the
+    /// byte offset of the first one that is unreadable or whose entries do not match its count.
+    fn chunk_index(&mut self, meta: &ChunkMeta) -> ChunkIndex {
+        let mut out = ChunkIndex::default();
+        let mut offset = self.record_at(meta.pos).map_or(self.file_len, |c| c.end());
+        while offset < self.file_len {
+            match self.index_data_at(offset) {
+                Ok(Some((conn, d, end))) => {
+                    out.first.get_or_insert(offset);
+                    *out.listed.entry(conn).or_default() += d.len() as u64 / 12;
+                    out.offsets.extend(
+                        d.chunks_exact(12)
+                            .map(|e| u32::from_le_bytes([e[8], e[9], e[10], e[11]]) as usize),
+                    );
+                    offset = end;
+                }
+                Ok(None) => break,
+                Err(()) => {
+                    out.damaged_at = Some(offset);
+                    break;
+                }
+            }
         }
-        out.sort_unstable();
-        out.dedup();
+        out.offsets.sort_unstable();
+        out.offsets.dedup();
         out
+    }
+
+    /// The index data record at `offset` as (connection, entries, end); `None` for another
+    /// record, `Err` when damaged or its entries do not match its count.
+    fn index_data_at(&mut self, offset: u64) -> Result<Option<(u32, Vec<u8>, u64)>, ()> {
+        let r = self.record_at(offset).map_err(drop)?;
+        let f = Fields::parse(&r.header).map_err(drop)?;
+        if f.op() != Ok(OP_INDEX_DATA) {
+            return Ok(None);
+        }
+        let (conn, count) = (f.u32("conn").map_err(drop)?, f.u32("count").map_err(drop)?);
+        let d = self.read_data(r.data_offset, r.data_len).map_err(drop)?;
+        let fits = d.len() as u64 == u64::from(count) * 12;
+        fits.then_some(Some((conn, d, r.end()))).ok_or(())
     }
 
     /// Per-connection statistics counted from the messages of every chunk (an index is not
     /// taken on its word: ROS 1 bags carry no checksum), each chunk's counts checked against its
-    /// chunk info record; disagreements and damage go to `warnings`.
+    /// chunk info record and the index data records after it; disagreements and damage go to
+    /// `warnings`.
     fn counted_stats(&mut self, warnings: &mut Vec<String>) -> BTreeMap<u32, TopicStat> {
         let mut stats: BTreeMap<u32, TopicStat> = BTreeMap::new();
         let mut orphans = BTreeMap::new();
-        let mut differ = 0usize;
+        let mut differ = Vec::new();
+        let path = self.path.display().to_string();
         for meta in self.chunks.clone() {
             let chunk = match self.load_chunk(&meta, None) {
                 Ok(c) => c,
                 Err(e) => {
                     warnings.push(format!(
-                        "{}: damaged chunk at byte offset {} ({e}); messages counted up to it",
-                        self.path.display(),
+                        "{path}: damaged chunk at byte offset {} ({e}); messages counted up to it",
                         meta.pos
                     ));
                     break;
@@ -873,31 +913,44 @@ impl<R: Read + Seek> Ros1BagSource<R> {
             for (conn, (n, _)) in &chunk.orphans {
                 *read.entry(*conn).or_default() += n;
             }
-            let mut listed: BTreeMap<u32, u64> = BTreeMap::new();
+            if !chunk.damage.is_empty() {
+                continue;
+            }
+            let mut info: BTreeMap<u32, u64> = BTreeMap::new();
             for &(conn, n) in meta.counts.iter().filter(|(_, n)| *n > 0) {
-                let e = listed.entry(conn).or_default();
+                let e = info.entry(conn).or_default();
                 *e = e.saturating_add(n.into());
             }
-            if listed != read && chunk.damage.is_empty() {
-                differ += 1;
-                if differ <= 10 {
-                    warnings.push(format!(
-                        "{}: the chunk info record at byte offset {} lists {} for the chunk at \
-                         byte offset {}, which holds {}; the counts shown are the ones read",
-                        self.path.display(),
-                        meta.info_pos,
-                        self.per_topic(&listed),
-                        meta.pos,
-                        self.per_topic(&read)
-                    ));
-                }
+            let index = self.chunk_index(&meta);
+            if let Some(at) = index.damaged_at {
+                differ.push(format!(
+                    "{path}: the index data record at byte offset {at} (after the chunk at byte \
+                     offset {}) is damaged; the counts shown are the ones read",
+                    meta.pos
+                ));
+            }
+            let by_index = (index.first)
+                .filter(|_| index.damaged_at.is_none())
+                .map(|at| (at, "index data records from", index.listed));
+            for (at, what, listed) in [(meta.info_pos, "chunk info record at", info)]
+                .into_iter()
+                .chain(by_index)
+                .filter(|l| l.2 != read)
+            {
+                differ.push(format!(
+                    "{path}: the {what} byte offset {at} say {} for the chunk at byte offset {}, \
+                     which holds {}; the counts shown are the ones read",
+                    self.per_topic(&listed),
+                    meta.pos,
+                    self.per_topic(&read)
+                ));
             }
         }
-        if differ > 10 {
+        let more = differ.len().saturating_sub(10);
+        warnings.extend(differ.into_iter().take(10));
+        if more > 0 {
             warnings.push(format!(
-                "{}: {} more chunk info records disagree with their chunks",
-                self.path.display(),
-                differ - 10
+                "{path}: {more} more index records disagree with their chunks"
             ));
         }
         warnings.extend(self.orphan_warnings(&orphans));

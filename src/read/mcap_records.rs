@@ -180,22 +180,17 @@ pub(crate) fn chunk(body: &[u8]) -> Result<ChunkRecord<'_>, String> {
 
 pub(crate) fn chunk_index(body: &[u8]) -> Result<ChunkIndex, String> {
     let mut b = Body::new("chunk index", body);
-    let message_start_time = b.u64("message_start_time")?;
-    let message_end_time = b.u64("message_end_time")?;
-    let chunk_start_offset = b.u64("chunk_start_offset")?;
-    let chunk_length = b.u64("chunk_length")?;
-    let message_index_offsets = b.map_u16_u64("message_index_offsets")?;
-    let _message_index_length = b.u64("message_index_length")?;
-    let _compression = b.string("compression")?;
-    let _compressed_size = b.u64("compressed_size")?;
-    let uncompressed_size = b.u64("uncompressed_size")?;
     Ok(ChunkIndex {
-        message_start_time,
-        message_end_time,
-        chunk_start_offset,
-        chunk_length,
-        message_index_offsets,
-        uncompressed_size,
+        message_start_time: b.u64("message_start_time")?,
+        message_end_time: b.u64("message_end_time")?,
+        chunk_start_offset: b.u64("chunk_start_offset")?,
+        chunk_length: b.u64("chunk_length")?,
+        message_index_offsets: b.map_u16_u64("message_index_offsets")?,
+        uncompressed_size: {
+            let _length = b.u64("message_index_length")?;
+            let _compression = (b.string("compression")?, b.u64("compressed_size")?);
+            b.u64("uncompressed_size")?
+        },
         record_offset: 0,
         loose: false,
     })
