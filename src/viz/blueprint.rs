@@ -177,12 +177,33 @@ impl Node {
     }
 
     /// Sets the window [s] the linked plots open on, centred on the time cursor (the root's;
-    /// `None`: the whole session).
+    /// `None`: the whole session). With a window, the linked plots carry no y range: the
+    /// viewer fits each one to the data inside the window as the window moves (a range over
+    /// the whole session flattened the few trials in view).
     pub fn with_window(mut self, window: Option<f64>) -> Node {
         if let Node::Container { window_s, .. } = &mut self {
             *window_s = window;
         }
+        if window.is_some() {
+            self.for_each_view(&mut |v| {
+                if let Node::View { whole, y_range, .. } = v
+                    && !*whole
+                {
+                    *y_range = None;
+                }
+            });
+        }
         self
+    }
+
+    /// Calls `f` on every view of this tree.
+    fn for_each_view(&mut self, f: &mut dyn FnMut(&mut Node)) {
+        match self {
+            Node::Container { children, .. } => {
+                children.iter_mut().for_each(|c| c.for_each_view(f))
+            }
+            Node::View { .. } => f(self),
+        }
     }
 
     /// Sets how [`Node::fit`] fits this plot, in a plot area at least `plot_px` high.
@@ -197,13 +218,22 @@ impl Node {
     /// Sets every fitted plot's legend and y range from its data range: `range_of(queries,
     /// origin)` is the range [min, max] of the values the view's entity queries take in (`None`:
     /// no data). Plots without data keep what they have.
+    /// In a layout with a window ([`Node::with_window`]) the linked plots get their legends
+    /// only: the viewer fits their y axes to the window.
     pub fn fit(&mut self, range_of: &RangeOf<'_>) {
-        match self {
-            Node::Container { children, .. } => {
-                for c in children {
-                    c.fit(range_of);
-                }
+        let windowed = matches!(
+            self,
+            Node::Container {
+                window_s: Some(_),
+                ..
             }
+        );
+        self.for_each_view(&mut |v| v.fit_view(range_of, windowed));
+    }
+
+    fn fit_view(&mut self, range_of: &RangeOf<'_>, windowed: bool) {
+        match self {
+            Node::Container { .. } => {}
             Node::View {
                 class,
                 origin,
@@ -212,6 +242,7 @@ impl Node {
                 y_range,
                 fit,
                 plot_px,
+                whole,
                 ..
             } => {
                 if *class != "TimeSeries" || *fit == Fit::Free {
@@ -226,7 +257,7 @@ impl Node {
                 } else {
                     Legend::Hidden
                 });
-                *y_range = Some(range);
+                *y_range = (*whole || !windowed).then_some(range);
             }
         }
     }
@@ -1366,10 +1397,10 @@ fn breakdown_tab(joints: &[String], ranges: PlotRanges, long: bool) -> Node {
     );
     let bars = |what: &str, tree: &str| {
         if long {
-            let name = format!("Mean per trial by {what} [W], one point per trial");
+            let name = format!("Share of each trial's energy by {what} [%], one point per trial");
             plot(name, vec![paths::include_tree(tree)]).whole_session()
         } else {
-            let name = format!("Mean per trial by {what} [W], x: trial");
+            let name = format!("Share of each trial's energy by {what} [%], x: trial");
             Node::view("BarChart", name, "/", vec![paths::include_tree(tree)])
                 .with_legend(Legend::Hidden)
         }
@@ -1467,12 +1498,31 @@ mod tests {
             trial_rest: true,
             ..LayoutParts::default()
         };
-        let root = replay_layout(&joints, parts, [0.0; 3]);
+        let mut root = replay_layout(&joints, parts, [0.0; 3]);
         assert!(matches!(root, Node::Container { window_s: Some(x), .. } if x == w));
+        // Fitted to data of −20…130 W: the per-trial plots open on it, the linked plots carry
+        // no y range (the viewer fits them to the window), their legends kept.
+        root.fit(&|_, _| Some([-20.0, 130.0]));
+        let mut ranges = Vec::new();
+        root.for_each_view(&mut |v| {
+            if let Node::View {
+                class: "TimeSeries",
+                name,
+                y_range,
+                whole,
+                legend,
+                ..
+            } = v
+            {
+                ranges.push((name.clone(), *whole, y_range.is_some(), *legend));
+            }
+        });
+        assert!(ranges.iter().all(|r| r.1 == r.2), "{ranges:?}");
+        assert!(ranges.iter().any(|r| !r.1 && r.3 == Some(Legend::LeftTop)));
         let v = views(&root);
         let whole: Vec<&str> = v
             .iter()
-            .filter(|x| x.1 && !x.0.starts_with("Mean per trial"))
+            .filter(|x| x.1 && !x.0.starts_with("Share of each trial"))
             .map(|x| x.0.as_str())
             .collect();
         assert_eq!(whole.len(), 4, "{whole:?}");
@@ -1490,7 +1540,7 @@ mod tests {
         let per_trial = |root: &Node| -> Vec<(String, bool)> {
             views(root)
                 .into_iter()
-                .filter(|(n, _)| n.starts_with("Mean per trial"))
+                .filter(|(n, _)| n.starts_with("Share of each trial"))
                 .collect()
         };
         let long = per_trial(&root);

@@ -378,41 +378,57 @@ pub(super) fn log_breakdown_data(
 /// time stamp, so an edge needs two stamps).
 const EDGE_S: f64 = 0.01;
 
-/// Per-trial bars keyed by trial index: the mean power of each joint (terms summed) and of each
-/// term (joints summed) over each trial's window, as static bar charts (one per joint or term,
-/// in its colour) whose bars sit side by side around the trial's index on the x axis, so they
-/// keep their width whatever the time zoom.
+/// Per-trial bars keyed by trial index: each joint's and each term's share of the trial's
+/// predicted energy ([`TrialMean::shares`]; no bar where the trial's net is a small difference
+/// of large parts), as static bar charts (one per joint or term, in its colour) whose bars sit
+/// side by side around the trial's index on the x axis, so they keep their width whatever the
+/// time zoom.
 ///
 /// Past [`super::blueprint::WINDOWED_ABOVE_TRIALS`] trials a bar is narrower than a pixel, so
-/// each joint's and term's means are points on the session's time axis instead, one per trial
+/// each joint's and term's shares are points on the session's time axis instead, one per trial
 /// at its start (the layout plots them over the whole session).
 fn log_bars(w: &mut ChunkWriter<'_>, joints: &[String], means: &[TrialMean]) -> Result<()> {
+    let shares: Vec<_> = means.iter().map(TrialMean::shares).collect();
+    let joint_share = |j: usize| move |s: &Shares| s.1[j];
+    let term_share = |k: usize| move |s: &Shares| s.0[k];
     if means.len() > super::blueprint::WINDOWED_ABOVE_TRIALS {
-        let t: Vec<f64> = means.iter().map(|m| m.t).collect();
-        let mut points = |path: &str, name: &str, colour, v: Vec<f64>| -> Result<()> {
+        let mut points = |path: &str, name: &str, colour, pick: &dyn Fn(&Shares) -> f64| {
             style::points(w, path, name, colour, MarkerShape::Circle, 1.5)?;
+            let (t, v): (Vec<f64>, Vec<f64>) = (means.iter().zip(&shares))
+                .filter_map(|(m, s)| s.as_ref().map(|s| (m.t, pick(s))))
+                .unzip();
             scalars(w, path, &t, v.into_iter())
         };
         for (j, name) in joints.iter().enumerate() {
-            let v = means.iter().map(|m| m.by_joint[j]).collect();
-            points(&paths::bar_by_joint(name), name, style::joint(j), v)?;
+            points(
+                &paths::bar_by_joint(name),
+                name,
+                style::joint(j),
+                &joint_share(j),
+            )?;
         }
         for (k, name) in paths::TERMS
             .iter()
             .chain(["interaction"].iter())
             .enumerate()
         {
-            let v = means.iter().map(|m| m.by_term[k]).collect();
-            points(&paths::bar_by_term(name), name, style::TERMS[k], v)?;
+            points(
+                &paths::bar_by_term(name),
+                name,
+                style::TERMS[k],
+                &term_share(k),
+            )?;
         }
         return Ok(());
     }
-    let joint_values = means.iter().flat_map(|m| m.by_joint);
+    let known = || shares.iter().flatten();
+    let joint_values = known().flat_map(|s| s.1.clone());
     bar_axis_anchors(w, paths::BARS_BY_JOINT, means, joint_values)?;
-    let term_values = means.iter().flat_map(|m| m.by_term);
+    let term_values = known().flat_map(|s| s.0.clone());
     bar_axis_anchors(w, paths::BARS_BY_TERM, means, term_values)?;
+    let value = |i: usize, pick: &dyn Fn(&Shares) -> f64| shares[i].as_ref().map_or(f64::NAN, pick);
     for (j, name) in joints.iter().enumerate() {
-        let (x, v) = bar_slots(means, j, joints.len(), |m| m.by_joint[j]);
+        let (x, v) = bar_slots(means, j, joints.len(), |i| value(i, &joint_share(j)));
         bar_chart(
             w,
             &paths::bar_by_joint(name),
@@ -428,7 +444,7 @@ fn log_bars(w: &mut ChunkWriter<'_>, joints: &[String], means: &[TrialMean]) -> 
         .chain(["interaction"].iter())
         .enumerate()
     {
-        let (x, v) = bar_slots(means, k, n_terms, |m| m.by_term[k]);
+        let (x, v) = bar_slots(means, k, n_terms, |i| value(i, &term_share(k)));
         bar_chart(
             w,
             &paths::bar_by_term(name),
@@ -485,21 +501,18 @@ pub(super) fn bar_width(slots: usize) -> f64 {
 
 /// Where bar `slot` of `slots` goes for each trial and its height: x is the bar's left edge (the
 /// viewer draws a bar from its abscissa to abscissa + width), trial index − 0.4 + slot × width,
-/// so the group is centred on the trial's index; trials without a finite value are left out.
+/// so the group is centred on the trial's index; `value(i)` is the height of `means[i]`'s bar,
+/// and trials without a finite value are left out.
 pub(super) fn bar_slots(
     means: &[TrialMean],
     slot: usize,
     slots: usize,
-    value: impl Fn(&TrialMean) -> f64,
+    value: impl Fn(usize) -> f64,
 ) -> (Vec<f64>, Vec<f64>) {
     let width = bar_width(slots);
-    means
-        .iter()
-        .filter(|m| value(m).is_finite())
-        .map(|m| {
-            let x = m.index as f64 - 0.4 + slot as f64 * width;
-            (x, value(m))
-        })
+    (means.iter().enumerate())
+        .map(|(i, m)| (m.index as f64 - 0.4 + slot as f64 * width, value(i)))
+        .filter(|(_, v)| v.is_finite())
         .unzip()
 }
 
@@ -572,10 +585,24 @@ impl TrialMean {
     }
 }
 
+/// Each term's and each joint's share [%] of a trial's predicted energy ([`energy_shares`]
+/// order: terms, joints).
+type Shares = (Vec<f64>, Vec<f64>);
+
+impl TrialMean {
+    /// This trial's [`Shares`] ([`energy_shares`] of the trial alone), or `None` where its net
+    /// energy is a small difference of large parts (|net| under half the parts' absolute sum:
+    /// a share of a net near zero runs to ±1000 %).
+    pub(super) fn shares(&self) -> Option<Shares> {
+        let net: f64 = self.by_term.iter().sum();
+        let gross: f64 = self.by_term.iter().map(|v| v.abs()).sum();
+        (gross > 0.0 && net.abs() >= 0.5 * gross).then(|| energy_shares(std::slice::from_ref(self)))
+    }
+}
+
 /// `trials` with each one's label followed by its two largest terms and its largest joint:
-/// their shares of the trial's energy ([`energy_shares`] of the trial alone) where its net
-/// energy is not a small difference of large parts (|net| at least half the parts' absolute
-/// sum), else their mean power [W] and the net (a share of a net near zero runs to ±1000 %).
+/// their shares of the trial's energy ([`TrialMean::shares`]) where it has them, else their
+/// mean power [W] and the net.
 fn with_shares(trials: &[TrialMark], means: &[TrialMean], joints: &[String]) -> Vec<TrialMark> {
     let largest = |v: &[f64], n: usize| {
         let mut k: Vec<usize> = (0..v.len()).collect();
@@ -592,24 +619,19 @@ fn with_shares(trials: &[TrialMark], means: &[TrialMean], joints: &[String]) -> 
                 return m;
             };
             let net: f64 = mean.by_term.iter().sum();
-            let gross: f64 = mean.by_term.iter().map(|v| v.abs()).sum();
-            let (terms, by_joint) = energy_shares(std::slice::from_ref(mean));
-            let shares = net.abs() >= 0.5 * gross && gross > 0.0;
-            let show = |v: f64, w: f64| {
-                if shares {
-                    format!("{v:.0} %")
-                } else {
-                    format!("{w:+.2} W")
-                }
+            let shares = mean.shares();
+            let show = |pick: &dyn Fn(&Shares) -> f64, w: f64| match &shares {
+                Some(s) => format!("{:.0} %", pick(s)),
+                None => format!("{w:+.2} W"),
             };
             let t: Vec<String> = largest(&mean.by_term, 2)
                 .into_iter()
-                .map(|k| format!("{} {}", names[k], show(terms[k], mean.by_term[k])))
+                .map(|k| format!("{} {}", names[k], show(&|s| s.0[k], mean.by_term[k])))
                 .collect();
             if let Some(&j) = largest(&mean.by_joint, 1).first() {
                 let name = joints.get(j).map_or("", String::as_str);
-                let joint = show(by_joint[j], mean.by_joint[j]);
-                m.label = if shares {
+                let joint = show(&|s| s.1[j], mean.by_joint[j]);
+                m.label = if shares.is_some() {
                     format!("{} · energy {}; {name} {joint}", m.label, t.join(", "))
                 } else {
                     format!(
@@ -709,13 +731,17 @@ pub(super) fn breakdown_note(joints: &[String], colour_scale: f64, means: &[Tria
          **The copper term is relative to the holding torque τ̄0**: τ̄0_i² is joint *i*'s mean τ² \
          in the trial's pre-idle (the arm at rest), so the term is negative whenever the arm \
          holds less torque than it did at rest — not regeneration.\n\n\
-         Per-trial bars: the mean over each trial's window, a group of bars at each trial's \
-         index on the x axis, one bar per joint, left to right {}, or per term, left to right \
+         **Per trial**: each joint's and each term's share of the trial's own energy, a group \
+         of bars at each trial's index on the x axis (past 20 trials one point per trial at \
+         its start), one bar per joint, left to right {}, or per term, left to right \
          mechanical, copper, Coulomb, viscous, interaction (coloured as in the plots over time; \
-         hover a bar for its series).\n\n\
+         hover a bar for its series); {} of the {} trials have none, their net energy being a \
+         small difference of large parts (under half their absolute sum).\n\n\
          In 3D each arm link is coloured by its joint's predicted power: grey at 0 W, red at \
          {colour_scale:.1} W and above, blue when negative.",
-        list
+        list,
+        means.iter().filter(|m| m.shares().is_none()).count(),
+        means.len(),
     )
 }
 
