@@ -11,7 +11,7 @@
 //! [`ReplayOptions::chunk_rows`] samples, so memory stays bounded whatever the session length.
 
 use anyhow::{Context, Result, bail};
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use indicatif::{ProgressBar, ProgressStyle};
 use rerun::{AnyValues, RecordingInfo, RecordingStream, Scalars};
 
 use super::blueprint::{self, LayoutParts};
@@ -1211,7 +1211,7 @@ fn progress_bar(enabled: bool, len: u64) -> ProgressBar {
     if !enabled || !std::io::IsTerminal::is_terminal(&std::io::stderr()) {
         return ProgressBar::hidden();
     }
-    let bar = ProgressBar::with_draw_target(Some(len), ProgressDrawTarget::stderr());
+    let bar = crate::util::progress_lines().add(ProgressBar::new(len));
     if let Ok(style) = ProgressStyle::with_template("replay {bar:40} {pos}/{len} samples ({eta})") {
         bar.set_style(style);
     }
