@@ -1304,7 +1304,7 @@ fn diagnosis_tab(parts: LayoutParts) -> Node {
         diag.push(
             Node::view(
                 "TimeSeries",
-                "Rest power of each trial [W]",
+                "Rest power of each trial [W]: measured blue, with the loads found on it red",
                 paths::DIAG_REST,
                 vec![],
             )
@@ -1397,10 +1397,10 @@ fn breakdown_tab(joints: &[String], ranges: PlotRanges, long: bool) -> Node {
     );
     let bars = |what: &str, tree: &str| {
         if long {
-            let name = format!("Share of each trial's energy by {what} [%], one point per trial");
+            let name = format!("Trial energy by {what} [%], a point per trial");
             plot(name, vec![paths::include_tree(tree)]).whole_session()
         } else {
-            let name = format!("Share of each trial's energy by {what} [%], x: trial");
+            let name = format!("Trial energy by {what} [%], x: trial");
             Node::view("BarChart", name, "/", vec![paths::include_tree(tree)])
                 .with_legend(Legend::Hidden)
         }
@@ -1522,7 +1522,7 @@ mod tests {
         let v = views(&root);
         let whole: Vec<&str> = v
             .iter()
-            .filter(|x| x.1 && !x.0.starts_with("Share of each trial"))
+            .filter(|x| x.1 && !x.0.starts_with("Trial energy by"))
             .map(|x| x.0.as_str())
             .collect();
         assert_eq!(whole.len(), 4, "{whole:?}");
@@ -1540,14 +1540,14 @@ mod tests {
         let per_trial = |root: &Node| -> Vec<(String, bool)> {
             views(root)
                 .into_iter()
-                .filter(|(n, _)| n.starts_with("Share of each trial"))
+                .filter(|(n, _)| n.starts_with("Trial energy by"))
                 .collect()
         };
         let long = per_trial(&root);
         assert_eq!(long.len(), 2, "{long:?}");
         assert!(
             long.iter()
-                .all(|(n, whole)| *whole && n.ends_with("one point per trial"))
+                .all(|(n, whole)| *whole && n.ends_with("a point per trial"))
         );
         let short = replay_layout(
             &joints,

@@ -591,12 +591,16 @@ type Shares = (Vec<f64>, Vec<f64>);
 
 impl TrialMean {
     /// This trial's [`Shares`] ([`energy_shares`] of the trial alone), or `None` where its net
-    /// energy is a small difference of large parts (|net| under half the parts' absolute sum:
-    /// a share of a net near zero runs to ±1000 %).
+    /// energy, over the terms or over the joints, is a small difference of large parts (|net|
+    /// under half the parts' absolute sum: a share of a net near zero runs to ±1000 %; so every
+    /// share lies within ±200 %).
     pub(super) fn shares(&self) -> Option<Shares> {
-        let net: f64 = self.by_term.iter().sum();
-        let gross: f64 = self.by_term.iter().map(|v| v.abs()).sum();
-        (gross > 0.0 && net.abs() >= 0.5 * gross).then(|| energy_shares(std::slice::from_ref(self)))
+        let clear = |parts: &[f64]| {
+            let gross: f64 = parts.iter().map(|v| v.abs()).sum();
+            gross > 0.0 && parts.iter().sum::<f64>().abs() >= 0.5 * gross
+        };
+        (clear(&self.by_term) && clear(&self.by_joint))
+            .then(|| energy_shares(std::slice::from_ref(self)))
     }
 }
 
@@ -735,8 +739,9 @@ pub(super) fn breakdown_note(joints: &[String], colour_scale: f64, means: &[Tria
          of bars at each trial's index on the x axis (past 20 trials one point per trial at \
          its start), one bar per joint, left to right {}, or per term, left to right \
          mechanical, copper, Coulomb, viscous, interaction (coloured as in the plots over time; \
-         hover a bar for its series); {} of the {} trials have none, their net energy being a \
-         small difference of large parts (under half their absolute sum).\n\n\
+         hover a bar for its series); {} of the {} trials have none, their net energy (over the \
+         terms or over the joints) being a small difference of large parts (under half their \
+         absolute sum).\n\n\
          In 3D each arm link is coloured by its joint's predicted power: grey at 0 W, red at \
          {colour_scale:.1} W and above, blue when negative.",
         list,
@@ -1018,7 +1023,7 @@ fn log_diagnosis(
             w,
             paths::DIAG_REST_MEASURED,
             "rest power of the trial (pre-idle mean)",
-            style::MBS,
+            style::MEASURED,
             1.5,
         )?;
         style::line(
