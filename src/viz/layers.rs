@@ -280,15 +280,7 @@ pub(super) fn log_term_data(
     chunk: usize,
 ) -> Result<()> {
     for (j, name) in joints.iter().enumerate() {
-        for (k, data) in [
-            &terms.mechanical,
-            &terms.copper,
-            &terms.coulomb,
-            &terms.viscous,
-        ]
-        .into_iter()
-        .enumerate()
-        {
+        for (k, data) in terms.fields().into_iter().enumerate() {
             let path = paths::term(name, paths::TERMS[k]);
             let n = terms.t.len().min(data.len());
             for start in (0..n).step_by(chunk) {
@@ -341,18 +333,8 @@ pub(super) fn log_breakdown_data(
     terms: &TermSeries,
     chunk: usize,
 ) -> Result<()> {
-    let fields = [
-        &terms.mechanical,
-        &terms.copper,
-        &terms.coulomb,
-        &terms.viscous,
-    ];
-    let n = fields
-        .iter()
-        .map(|f| f.len())
-        .chain([terms.t.len(), terms.interaction.len()])
-        .min()
-        .unwrap_or(0);
+    let fields = terms.fields();
+    let n = terms.len();
     for start in (0..n).step_by(chunk) {
         let end = (start + chunk).min(n);
         let t = &terms.t[start..end];
@@ -378,81 +360,54 @@ pub(super) fn log_breakdown_data(
 /// time stamp, so an edge needs two stamps).
 const EDGE_S: f64 = 0.01;
 
-/// Per-trial bars keyed by trial index: each joint's and each term's share of the trial's
-/// predicted energy ([`TrialMean::shares`]; no bar where the trial's net is a small difference
-/// of large parts), as static bar charts (one per joint or term, in its colour) whose bars sit
-/// side by side around the trial's index on the x axis, so they keep their width whatever the
-/// time zoom.
-///
-/// Past [`super::blueprint::WINDOWED_ABOVE_TRIALS`] trials a bar is narrower than a pixel, so
-/// each joint's and term's shares are points on the session's time axis instead, one per trial
-/// at its start (the layout plots them over the whole session).
+/// Per-trial bars keyed by trial index: each joint's and term's signed share of the trial's
+/// energy turnover ([`TrialMean::turnover`]), one static bar chart per joint or term in its
+/// colour, the bars side by side around the trial's index (their width kept at any time zoom).
+/// Past [`super::blueprint::WINDOWED_ABOVE_TRIALS`] trials (a bar narrower than a pixel): one
+/// point per trial at its start on the session's time axis instead.
 fn log_bars(w: &mut ChunkWriter<'_>, joints: &[String], means: &[TrialMean]) -> Result<()> {
-    let shares: Vec<_> = means.iter().map(TrialMean::shares).collect();
-    let joint_share = |j: usize| move |s: &Shares| s.1[j];
-    let term_share = |k: usize| move |s: &Shares| s.0[k];
-    if means.len() > super::blueprint::WINDOWED_ABOVE_TRIALS {
-        let mut points = |path: &str, name: &str, colour, pick: &dyn Fn(&Shares) -> f64| {
-            style::points(w, path, name, colour, MarkerShape::Circle, 1.5)?;
-            let (t, v): (Vec<f64>, Vec<f64>) = (means.iter().zip(&shares))
-                .filter_map(|(m, s)| s.as_ref().map(|s| (m.t, pick(s))))
-                .unzip();
-            scalars(w, path, &t, v.into_iter())
-        };
-        for (j, name) in joints.iter().enumerate() {
-            points(
-                &paths::bar_by_joint(name),
-                name,
-                style::joint(j),
-                &joint_share(j),
-            )?;
-        }
-        for (k, name) in paths::TERMS
+    let shares: Vec<Shares> = means.iter().map(TrialMean::turnover).collect();
+    let pick = |term: bool, k: usize| {
+        shares
             .iter()
-            .chain(["interaction"].iter())
-            .enumerate()
-        {
-            points(
-                &paths::bar_by_term(name),
-                name,
-                style::TERMS[k],
-                &term_share(k),
-            )?;
-        }
-        return Ok(());
+            .map(move |s| [&s.1, &s.0][usize::from(term)][k])
+    };
+    let long = means.len() > super::blueprint::WINDOWED_ABOVE_TRIALS;
+    if !long {
+        let all = |term: bool| {
+            shares
+                .iter()
+                .flat_map(move |s| [&s.1, &s.0][usize::from(term)].clone())
+        };
+        bar_axis_anchors(w, paths::BARS_BY_JOINT, means, all(false))?;
+        bar_axis_anchors(w, paths::BARS_BY_TERM, means, all(true))?;
     }
-    let known = || shares.iter().flatten();
-    let joint_values = known().flat_map(|s| s.1.clone());
-    bar_axis_anchors(w, paths::BARS_BY_JOINT, means, joint_values)?;
-    let term_values = known().flat_map(|s| s.0.clone());
-    bar_axis_anchors(w, paths::BARS_BY_TERM, means, term_values)?;
-    let value = |i: usize, pick: &dyn Fn(&Shares) -> f64| shares[i].as_ref().map_or(f64::NAN, pick);
-    for (j, name) in joints.iter().enumerate() {
-        let (x, v) = bar_slots(means, j, joints.len(), |i| value(i, &joint_share(j)));
-        bar_chart(
-            w,
-            &paths::bar_by_joint(name),
-            &x,
-            &v,
-            bar_width(joints.len()),
-            style::joint(j),
-        )?;
-    }
-    let n_terms = style::TERMS.len();
-    for (k, name) in paths::TERMS
+    let joint_series = joints.iter().map(String::as_str).enumerate();
+    let term_series = paths::TERMS
         .iter()
         .chain(["interaction"].iter())
-        .enumerate()
-    {
-        let (x, v) = bar_slots(means, k, n_terms, |i| value(i, &term_share(k)));
-        bar_chart(
-            w,
-            &paths::bar_by_term(name),
-            &x,
-            &v,
-            bar_width(n_terms),
-            style::TERMS[k],
-        )?;
+        .copied()
+        .enumerate();
+    let series =
+        (joint_series.map(|(k, n)| (false, k, n))).chain(term_series.map(|(k, n)| (true, k, n)));
+    for (term, k, name) in series {
+        let (path, colour, slots) = if term {
+            (
+                paths::bar_by_term(name),
+                style::TERMS[k],
+                style::TERMS.len(),
+            )
+        } else {
+            (paths::bar_by_joint(name), style::joint(k), joints.len())
+        };
+        if long {
+            style::points(w, &path, name, colour, MarkerShape::Circle, 1.5)?;
+            let t: Vec<f64> = means.iter().map(|m| m.t).collect();
+            scalars(w, &path, &t, pick(term, k))?;
+        } else {
+            let (x, v) = bar_slots(means, k, slots, pick(term, k).collect());
+            bar_chart(w, &path, &x, &v, bar_width(slots), colour)?;
+        }
     }
     Ok(())
 }
@@ -501,17 +456,16 @@ pub(super) fn bar_width(slots: usize) -> f64 {
 
 /// Where bar `slot` of `slots` goes for each trial and its height: x is the bar's left edge (the
 /// viewer draws a bar from its abscissa to abscissa + width), trial index − 0.4 + slot × width,
-/// so the group is centred on the trial's index; `value(i)` is the height of `means[i]`'s bar,
-/// and trials without a finite value are left out.
+/// so the group is centred on the trial's index; `values`: the heights (not finite: no bar).
 pub(super) fn bar_slots(
     means: &[TrialMean],
     slot: usize,
     slots: usize,
-    value: impl Fn(usize) -> f64,
+    values: Vec<f64>,
 ) -> (Vec<f64>, Vec<f64>) {
     let width = bar_width(slots);
-    (means.iter().enumerate())
-        .map(|(i, m)| (m.index as f64 - 0.4 + slot as f64 * width, value(i)))
+    (means.iter().zip(values))
+        .map(|(m, v)| (m.index as f64 - 0.4 + slot as f64 * width, v))
         .filter(|(_, v)| v.is_finite())
         .unzip()
 }
@@ -537,6 +491,9 @@ fn bar_chart(
     )
 }
 
+/// Each term's and each joint's share [%] of a trial's energy ([`energy_shares`] order).
+type Shares = (Vec<f64>, Vec<f64>);
+
 /// The mean predicted power of one trial over its window.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TrialMean {
@@ -559,12 +516,7 @@ impl TrialMean {
             return None;
         }
         let count = idx.len() as f64;
-        let fields = [
-            &terms.mechanical,
-            &terms.copper,
-            &terms.coulomb,
-            &terms.viscous,
-        ];
+        let fields = terms.fields();
         let mut mean = TrialMean {
             index,
             t: terms.t.get(idx[0]).copied().unwrap_or(f64::NAN),
@@ -583,13 +535,7 @@ impl TrialMean {
         }
         Some(mean)
     }
-}
 
-/// Each term's and each joint's share [%] of a trial's predicted energy ([`energy_shares`]
-/// order: terms, joints).
-type Shares = (Vec<f64>, Vec<f64>);
-
-impl TrialMean {
     /// This trial's [`Shares`] ([`energy_shares`] of the trial alone), or `None` where its net
     /// energy, over the terms or over the joints, is a small difference of large parts (|net|
     /// under half the parts' absolute sum: a share of a net near zero runs to ±1000 %; so every
@@ -601,6 +547,17 @@ impl TrialMean {
         };
         (clear(&self.by_term) && clear(&self.by_joint))
             .then(|| energy_shares(std::slice::from_ref(self)))
+    }
+
+    /// Each term's and each joint's signed share [%] of the trial's energy turnover (the parts'
+    /// absolute sum): defined for every trial, within ±100 %, even where the parts nearly
+    /// cancel (copper below the holding torque, a braking joint) and a share of the net is not.
+    pub(super) fn turnover(&self) -> Shares {
+        let of = |p: &[f64]| {
+            let gross: f64 = p.iter().map(|v| v.abs()).sum();
+            p.iter().map(|v| 100.0 * v / gross).collect()
+        };
+        (of(&self.by_term), of(&self.by_joint))
     }
 }
 
@@ -676,18 +633,7 @@ pub(super) fn energy_shares(means: &[TrialMean]) -> (Vec<f64>, Vec<f64>) {
 /// Mean predicted power per joint and per term over each trial's window, in time order
 /// (trials without samples are left out).
 pub(super) fn trial_means(terms: &TermSeries, trials: &[TrialMark]) -> Vec<TrialMean> {
-    let fields = [
-        &terms.mechanical,
-        &terms.copper,
-        &terms.coulomb,
-        &terms.viscous,
-    ];
-    let n = fields
-        .iter()
-        .map(|f| f.len())
-        .chain([terms.t.len(), terms.interaction.len()])
-        .min()
-        .unwrap_or(0);
+    let n = terms.len();
     // Samples in time order (trial windows may overlap at their idle edges).
     let mut order: Vec<usize> = (0..n).collect();
     order.sort_by(|&a, &b| terms.t[a].total_cmp(&terms.t[b]));
@@ -735,18 +681,18 @@ pub(super) fn breakdown_note(joints: &[String], colour_scale: f64, means: &[Tria
          **The copper term is relative to the holding torque τ̄0**: τ̄0_i² is joint *i*'s mean τ² \
          in the trial's pre-idle (the arm at rest), so the term is negative whenever the arm \
          holds less torque than it did at rest — not regeneration.\n\n\
-         **Per trial**: each joint's and each term's share of the trial's own energy, a group \
-         of bars at each trial's index on the x axis (past 20 trials one point per trial at \
-         its start), one bar per joint, left to right {}, or per term, left to right \
-         mechanical, copper, Coulomb, viscous, interaction (coloured as in the plots over time; \
-         hover a bar for its series); {} of the {} trials have none, their net energy (over the \
-         terms or over the joints) being a small difference of large parts (under half their \
-         absolute sum).\n\n\
+         **Per trial**: each joint's and each term's signed share of the trial's energy \
+         turnover (the parts' absolute sum, so the shares stay within ±100 % where the parts \
+         nearly cancel and a share of the net would run to ±1000 %; {} of the {} trials have \
+         such a net, their log lines give watts), a group of bars at each trial's index on the \
+         x axis (past 20 trials one point per trial at its start), one bar per joint, left to \
+         right {}, or per term, left to right mechanical, copper, Coulomb, viscous, \
+         interaction (coloured as in the plots over time; hover a bar for its series).\n\n\
          In 3D each arm link is coloured by its joint's predicted power: grey at 0 W, red at \
          {colour_scale:.1} W and above, blue when negative.",
-        list,
         means.iter().filter(|m| m.shares().is_none()).count(),
         means.len(),
+        list,
     )
 }
 
@@ -1066,18 +1012,8 @@ fn log_diagnosis(
 
 /// Per-joint predicted power (the joint's four terms summed) of every sample, in time order.
 fn joint_power(terms: &TermSeries) -> Vec<(f64, [f64; N_JOINTS])> {
-    let fields = [
-        &terms.mechanical,
-        &terms.copper,
-        &terms.coulomb,
-        &terms.viscous,
-    ];
-    let n = fields
-        .iter()
-        .map(|f| f.len())
-        .chain([terms.t.len()])
-        .min()
-        .unwrap_or(0);
+    let fields = terms.fields();
+    let n = terms.len();
     let mut out: Vec<(f64, [f64; N_JOINTS])> = (0..n)
         .map(|i| {
             (

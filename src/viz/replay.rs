@@ -138,6 +138,23 @@ pub struct TermSeries {
     pub interaction: Vec<f64>,
 }
 
+impl TermSeries {
+    /// The four per-joint terms: mechanical, copper, Coulomb, viscous ([`super::paths::TERMS`]).
+    pub(super) fn fields(&self) -> [&Vec<[f64; N_JOINTS]>; 4] {
+        [&self.mechanical, &self.copper, &self.coulomb, &self.viscous]
+    }
+
+    /// Samples every series holds (the shortest one's length).
+    pub(super) fn len(&self) -> usize {
+        let lens = self.fields().map(|f| f.len());
+        (lens
+            .into_iter()
+            .chain([self.t.len(), self.interaction.len()])
+            .min())
+        .unwrap_or(0)
+    }
+}
+
 /// A trial's time window and status.
 #[derive(Debug, Clone)]
 pub struct TrialMark {
@@ -415,12 +432,7 @@ fn plot_ranges(
         r.imu = data_range(stats.gyro.into_iter().flatten().chain(imu));
         r.raw_power = range(stats.raw_power);
     } else if let Some(terms) = &extras.terms {
-        let fields = [
-            &terms.mechanical,
-            &terms.copper,
-            &terms.coulomb,
-            &terms.viscous,
-        ];
+        let fields = terms.fields();
         let by_term = fields
             .iter()
             .flat_map(|f| f.iter().map(|v| v.iter().sum::<f64>()))
