@@ -1382,7 +1382,7 @@ fn breakdown_tab(joints: &[String], ranges: PlotRanges, long: bool) -> Node {
     );
     let bars = |what: &str, tree: &str| {
         if long {
-            let name = format!("Trial energy turnover by {what} [%], a point per trial");
+            let name = format!("Trial energy turnover by {what} [%]");
             plot(name, vec![paths::include_tree(tree)]).whole_session()
         } else {
             let name = format!("Trial energy turnover by {what} [%], x: trial");
@@ -1528,7 +1528,7 @@ mod tests {
         assert_eq!(long.len(), 2, "{long:?}");
         assert!(
             long.iter()
-                .all(|(n, whole)| *whole && n.ends_with("a point per trial"))
+                .all(|(n, whole)| *whole && !n.ends_with("x: trial"))
         );
         let short = replay_layout(
             &joints,
