@@ -8,6 +8,15 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result, bail};
 
+/// The one set of progress lines on stderr that every bar and spinner joins: lines shown at
+/// once (a command's stage spinner and a pass's reading bar) stack instead of overwriting each
+/// other's line.
+pub fn progress_lines() -> &'static indicatif::MultiProgress {
+    static LINES: std::sync::LazyLock<indicatif::MultiProgress> =
+        std::sync::LazyLock::new(indicatif::MultiProgress::new);
+    &LINES
+}
+
 /// Write `bytes` to `path` atomically: write a temporary file beside it, then rename.
 /// A reader never sees a half-written file and a failed write leaves the old file intact.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {

@@ -1635,8 +1635,8 @@ fn diagnosis_rrd_has_the_located_fields_tab() {
 
 /// The arm links of a model replay change colour with their joint's power: their colour is on
 /// the timeline (no static colour, which would override it), grey at the session start, and
-/// reddens during a trial; the per-trial bars' heights are each trial's mean of the per-joint
-/// power series (recomputed here from the decoded loss-term series); the trial log names a
+/// reddens during a trial; the per-trial bars' heights are each trial's share of the per-joint
+/// power (recomputed here from the decoded loss-term series); the trial log names a
 /// rejected trial's statistic once, without the "session 0 trial N" of the rejection's own text.
 #[test]
 fn model_replay_colours_links_draws_trial_bars_and_logs_rejections() {
@@ -1695,7 +1695,7 @@ fn model_replay_colours_links_draws_trial_bars_and_logs_rejections() {
         distinct.len()
     );
 
-    assert_bars_are_trial_means(&c, &extras, rec.start_ns);
+    assert_bars_are_trial_shares(&c, &extras, rec.start_ns);
 
     // Trial log: a rejected trial's line names it once.
     let rejected: Vec<&TrialMark> = extras
@@ -1987,8 +1987,8 @@ fn legends_never_cover_data() {
         "Trials (index",
         "sh_roll [W]",
         "Interaction",
-        "Mean per trial by joint",
-        "Mean per trial by term",
+        "Trial energy turnover by joint",
+        "Trial energy turnover by term",
         "Motor temperature",
     ] {
         assert_eq!(
@@ -2501,17 +2501,28 @@ fn recording_properties_hold_paths_as_given() {
 }
 
 /// Bars, keyed by trial index: for every trial, the elbow's bar sits in the elbow's slot (4th of
-/// 7) of the group around the trial's index, and its height is the mean of the decoded per-joint
-/// sum of its four terms over the trial's window; the seven joints' bars never overlap.
-fn assert_bars_are_trial_means(c: &Contents, extras: &ReplayExtras, start_ns: u64) {
-    // Bars, keyed by trial index: for every trial, the elbow's bar sits in the elbow's slot
-    // (4th of 7) of the group centred on the trial's index (the abscissa is a bar's left edge:
-    // the viewer draws it from there to abscissa + width), and its height is the mean of the
-    // decoded per-joint sum of its four terms over the trial's window.
-    let terms: Vec<Vec<(i64, f64)>> = ["mechanical", "copper", "coulomb", "viscous"]
+/// 7) of the group around the trial's index, and its height is the elbow's signed share [%] of
+/// the trial's energy turnover: the mean of the decoded per-joint sum of its four terms over
+/// the trial's window, over the absolute values of the same sum for all seven joints; the
+/// copper bar likewise over the terms (with the interaction). Every trial has both. The seven
+/// joints' bars never overlap.
+fn assert_bars_are_trial_shares(c: &Contents, extras: &ReplayExtras, start_ns: u64) {
+    let joints: Vec<String> = ARM
         .iter()
-        .map(|t| series(c, &format!("/model/terms/elbow/{t}")))
+        .map(|j| g1viz::viz::short_joint_name(j).to_string())
         .collect();
+    let names = ["mechanical", "copper", "coulomb", "viscous"];
+    let series_of = |p: String| series(c, &p);
+    // [joint][term] series, and the interaction.
+    let terms: Vec<Vec<Vec<(i64, f64)>>> = joints
+        .iter()
+        .map(|j| {
+            (names.iter())
+                .map(|t| series_of(format!("/model/terms/{j}/{t}")))
+                .collect()
+        })
+        .collect();
+    let interaction = series_of("/model/terms/interaction/total".to_string());
     let (x, heights, widths) = bar_chart(c, "/model/bars/by_joint/elbow");
     assert_eq!(x.len(), heights.len());
     assert_eq!(widths.len(), heights.len());
@@ -2526,28 +2537,38 @@ fn assert_bars_are_trial_means(c: &Contents, extras: &ReplayExtras, start_ns: u6
             start + (m.t_start * 1e9).round() as i64,
             start + (m.t_end * 1e9).round() as i64,
         );
-        let inside: Vec<usize> = (0..terms[0].len())
-            .filter(|&i| terms[0][i].0 >= a && terms[0][i].0 <= b)
+        let inside: Vec<usize> = (0..interaction.len())
+            .filter(|&i| interaction[i].0 >= a && interaction[i].0 <= b)
             .collect();
         if inside.is_empty() {
             continue;
         }
-        let mean = inside
+        let mean =
+            |s: &[(i64, f64)]| inside.iter().map(|&i| s[i].1).sum::<f64>() / inside.len() as f64;
+        let by_joint: Vec<f64> = terms
             .iter()
-            .map(|&i| terms.iter().map(|s| s[i].1).sum::<f64>())
-            .sum::<f64>()
-            / inside.len() as f64;
-        let slot = m.index as f64 - 0.4 + 3.0 * width;
-        let k = x
-            .iter()
-            .position(|&xi| (xi - slot).abs() < 1e-9)
-            .unwrap_or_else(|| panic!("trial {}: no elbow bar at {slot} in {x:?}", m.index));
-        assert!(
-            (heights[k] - mean).abs() < 1e-6,
-            "trial {}: bar {} vs mean {mean}",
-            m.index,
-            heights[k]
-        );
+            .map(|j| j.iter().map(|s| mean(s)).sum())
+            .collect();
+        let mut by_term: Vec<f64> = (0..4)
+            .map(|k| terms.iter().map(|j| mean(&j[k])).sum())
+            .collect();
+        by_term.push(mean(&interaction));
+        let turnover = |v: &[f64], k: usize| 100.0 * v[k] / v.iter().map(|x| x.abs()).sum::<f64>();
+        for (path, slot, slots, share) in [
+            ("by_joint/elbow", 3.0, 7.0, turnover(&by_joint, 3)),
+            ("by_term/copper", 1.0, 5.0, turnover(&by_term, 1)),
+        ] {
+            let (x, heights, _) = bar_chart(c, &format!("/model/bars/{path}"));
+            let at = m.index as f64 - 0.4 + slot * 0.8 / slots;
+            let k = (x.iter().position(|&xi| (xi - at).abs() < 1e-9))
+                .unwrap_or_else(|| panic!("trial {}: no {path} bar at {at} in {x:?}", m.index));
+            assert!(
+                (heights[k] - share).abs() < 1e-4,
+                "trial {} {path}: bar {} vs share {share}",
+                m.index,
+                heights[k]
+            );
+        }
         checked += 1;
     }
     assert!(checked >= 3, "{checked} trials checked");

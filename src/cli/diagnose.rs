@@ -127,8 +127,18 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
         .collect();
     let busy = super::spinner("diagnosing");
     let bar = busy.clone();
-    diagnose::on_stage(Some(Box::new(move |k, n, name| {
-        bar.set_message(format!("diagnosing, stage {k} of {n}: {name}"));
+    let stage = std::sync::Mutex::new(String::new());
+    diagnose::on_stage(Some(Box::new(move |p| {
+        let Ok(mut stage) = stage.lock() else { return };
+        match p {
+            diagnose::Progress::Stage { k, of, name } => {
+                *stage = format!("diagnosing, stage {k} of {of}: {name}");
+                bar.set_message(stage.clone());
+            }
+            diagnose::Progress::Trials { done, total } => {
+                bar.set_message(format!("{stage} — trial {done} of {total}"));
+            }
+        }
     })));
     let d = diagnose::diagnose_files(&files, &opts, JOIN_GAP_S);
     diagnose::on_stage(None);

@@ -163,27 +163,80 @@ pub fn diagnose_files(
     )
 }
 
-/// A reporter of the diagnosis' stages ([`on_stage`]).
-type StageReporter = Box<dyn Fn(usize, usize, &str) + Send>;
+/// What a diagnosis tells of where it is ([`on_stage`]).
+#[derive(Debug, Clone, Copy)]
+pub enum Progress<'a> {
+    /// Stage `k` of `of`, named `name`, begins.
+    Stage {
+        /// Its number, from 1.
+        k: usize,
+        /// Stages in all.
+        of: usize,
+        /// What it does.
+        name: &'a str,
+    },
+    /// In the stage's pass over the file, `done` of its `total` trials are read.
+    Trials {
+        /// Trials read so far.
+        done: usize,
+        /// Trials the pass reads.
+        total: usize,
+    },
+}
+
+/// A reporter of the diagnosis' progress ([`on_stage`]).
+type StageReporter = Box<dyn Fn(Progress<'_>) + Send>;
 static STAGE: std::sync::Mutex<Option<StageReporter>> = std::sync::Mutex::new(None);
 /// Stages [`stage`] counts.
 const STAGES: usize = 6;
 
-/// Sets (or clears) what is told of each stage a diagnosis enters: its number, the number of
-/// stages and its name (the CLI shows them on its spinner; a paper-scale diagnosis runs tens
-/// of seconds).
+/// Sets (or clears) what is told of the diagnosis' progress: each stage it enters, and the
+/// trials read in each pass over the file (the CLI shows them on its spinner; a paper-scale
+/// diagnosis runs tens of seconds).
 pub fn on_stage(reporter: Option<StageReporter>) {
     if let Ok(mut s) = STAGE.lock() {
         *s = reporter;
     }
 }
 
-/// Tells the reporter, if any, that stage `k` of [`STAGES`] begins.
-fn stage(k: usize, name: &str) {
+/// Tells the reporter, if any, of `p`.
+fn report(p: Progress<'_>) {
     if let Ok(s) = STAGE.lock()
         && let Some(f) = s.as_ref()
     {
-        f(k, STAGES, name);
+        f(p);
+    }
+}
+
+/// Tells the reporter, if any, that stage `k` of [`STAGES`] begins.
+fn stage(k: usize, name: &str) {
+    report(Progress::Stage {
+        k,
+        of: STAGES,
+        name,
+    });
+}
+
+/// A trial source that tells `report` each pass's progress ([`Progress::Trials`]).
+struct Counted<'a> {
+    inner: &'a mut dyn TrialSource,
+    report: &'a dyn Fn(Progress<'_>),
+}
+
+impl TrialSource for Counted<'_> {
+    fn for_each(
+        &mut self,
+        trials: &[crate::trial::TrialWindow],
+        f: &mut dyn FnMut(&Recording, &crate::trial::TrialWindow) -> Result<()>,
+    ) -> Result<()> {
+        let (total, mut done) = (trials.len(), 0);
+        let report = self.report;
+        self.inner.for_each(trials, &mut |rec, t| {
+            let r = f(rec, t);
+            done += 1;
+            report(Progress::Trials { done, total });
+            r
+        })
     }
 }
 
@@ -224,6 +277,10 @@ fn run(
     arm: Option<&dyn ArmModel>,
     opts: &DiagnoseOptions,
 ) -> Result<Diagnosis> {
+    let samples = &mut Counted {
+        inner: samples,
+        report: &report,
+    };
     let power = &info.power;
     if power.t.is_empty() {
         bail!(
@@ -378,4 +435,38 @@ fn run(
     show_rest(&mut diag, &fields, data.rows0(), &metas);
     diag.summary = summary::summarise(&diag);
     Ok(diag)
+}
+
+#[cfg(test)]
+mod progress_tests {
+    use super::*;
+
+    /// Each pass over the trials tells its progress trial by trial, up to the pass's total,
+    /// and the trials reach the pass's own function unchanged.
+    #[test]
+    fn a_pass_over_the_trials_reports_each_trial_read() {
+        let (rec, windows) = testkit::session(5, 1, testkit::Effects::default());
+        let seen = std::sync::Mutex::new(Vec::new());
+        let note = |p: Progress<'_>| {
+            if let Progress::Trials { done, total } = p {
+                seen.lock().unwrap().push((done, total));
+            }
+        };
+        let mut counted = Counted {
+            inner: &mut Memory(&rec),
+            report: &note,
+        };
+        let mut indices = Vec::new();
+        counted
+            .for_each(&windows[1..4], &mut |_, t| {
+                indices.push(t.index);
+                Ok(())
+            })
+            .unwrap();
+        assert_eq!(
+            indices,
+            vec![windows[1].index, windows[2].index, windows[3].index]
+        );
+        assert_eq!(*seen.lock().unwrap(), vec![(1, 3), (2, 3), (3, 3)]);
+    }
 }

@@ -527,7 +527,7 @@ fn progress_bar(session: &mut Session) -> Option<indicatif::ProgressBar> {
     {
         pb.set_style(style);
     }
-    Some(pb)
+    Some(crate::util::progress_lines().add(pb))
 }
 
 fn joints(row: &[f64], block: usize) -> [f64; N_JOINTS] {

@@ -106,10 +106,6 @@ pub enum Fit {
 pub enum Legend {
     /// In the top-left corner.
     LeftTop,
-    /// In the top-right corner.
-    RightTop,
-    /// In the bottom-left corner.
-    LeftBottom,
     /// Not shown (hovering still names the series).
     Hidden,
 }
@@ -177,12 +173,26 @@ impl Node {
     }
 
     /// Sets the window [s] the linked plots open on, centred on the time cursor (the root's;
-    /// `None`: the whole session).
+    /// `None`: the whole session). With a window the linked plots carry no y range: the viewer
+    /// fits each to the data in the window as it moves (a whole-session range flattened it).
     pub fn with_window(mut self, window: Option<f64>) -> Node {
         if let Node::Container { window_s, .. } = &mut self {
             *window_s = window;
         }
+        if window.is_some() {
+            self.for_each_view(&mut Node::drop_linked_y_range);
+        }
         self
+    }
+
+    /// Calls `f` on every view of this tree.
+    fn for_each_view(&mut self, f: &mut dyn FnMut(&mut Node)) {
+        match self {
+            Node::Container { children, .. } => {
+                children.iter_mut().for_each(|c| c.for_each_view(f))
+            }
+            Node::View { .. } => f(self),
+        }
     }
 
     /// Sets how [`Node::fit`] fits this plot, in a plot area at least `plot_px` high.
@@ -197,37 +207,51 @@ impl Node {
     /// Sets every fitted plot's legend and y range from its data range: `range_of(queries,
     /// origin)` is the range [min, max] of the values the view's entity queries take in (`None`:
     /// no data). Plots without data keep what they have.
+    /// In a layout with a window ([`Node::with_window`]) the linked plots get their legends
+    /// only: the viewer fits their y axes to the window.
     pub fn fit(&mut self, range_of: &RangeOf<'_>) {
+        let windowed = self.window().is_some();
+        self.for_each_view(&mut |v| v.fit_view(range_of, windowed));
+    }
+
+    /// The window [s] the linked plots open on (the root's; `None`: the whole session).
+    fn window(&self) -> Option<f64> {
         match self {
-            Node::Container { children, .. } => {
-                for c in children {
-                    c.fit(range_of);
-                }
-            }
-            Node::View {
-                class,
-                origin,
-                contents,
-                legend,
-                y_range,
-                fit,
-                plot_px,
-                ..
-            } => {
-                if *class != "TimeSeries" || *fit == Fit::Free {
-                    return;
-                }
-                let Some(data) = range_of(contents, origin) else {
-                    return;
-                };
-                let (shown, range) = fitted_range(data, *fit, *plot_px);
-                *legend = Some(if shown {
-                    Legend::LeftTop
-                } else {
-                    Legend::Hidden
-                });
-                *y_range = Some(range);
-            }
+            Node::Container { window_s, .. } => *window_s,
+            Node::View { .. } => None,
+        }
+    }
+
+    fn fit_view(&mut self, range_of: &RangeOf<'_>, windowed: bool) {
+        let Node::View {
+            class,
+            origin,
+            contents,
+            legend,
+            y_range,
+            fit,
+            plot_px,
+            whole,
+            ..
+        } = self
+        else {
+            return;
+        };
+        if *class != "TimeSeries" || *fit == Fit::Free {
+            return;
+        }
+        let Some(data) = range_of(contents, origin) else {
+            return;
+        };
+        let (shown, range) = fitted_range(data, *fit, *plot_px);
+        *legend = Some([Legend::Hidden, Legend::LeftTop][usize::from(shown)]);
+        *y_range = (*whole || !windowed).then_some(range);
+    }
+
+    /// Drops a linked view's y range (the viewer then fits it to the window).
+    fn drop_linked_y_range(&mut self) {
+        if let Node::View { whole, y_range, .. } = self {
+            *y_range = y_range.filter(|_| *whole);
         }
     }
 
@@ -552,12 +576,6 @@ impl BlueprintChunks {
                         Legend::LeftTop => PlotLegend::new()
                             .with_corner(Corner2D::LeftTop)
                             .with_visible(true),
-                        Legend::RightTop => PlotLegend::new()
-                            .with_corner(Corner2D::RightTop)
-                            .with_visible(true),
-                        Legend::LeftBottom => PlotLegend::new()
-                            .with_corner(Corner2D::LeftBottom)
-                            .with_visible(true),
                         Legend::Hidden => PlotLegend::new().with_visible(false),
                     };
                     self.log(&format!("{path}/PlotLegend"), &arch)?;
@@ -657,13 +675,9 @@ fn send_blueprint_generation(stream: &RecordingStream, root: &Node, generation: 
         },
     };
     chunks.node(root)?;
-    let window = match root {
-        Node::Container { window_s, .. } => *window_s,
-        Node::View { .. } => None,
-    };
     chunks.log(
         &format!("{GLOBAL_VIEW}/TimeAxis"),
-        &TimeAxis::new().with_view_range(session_range(window)),
+        &TimeAxis::new().with_view_range(session_range(root.window())),
     )?;
     chunks.log(
         "time_panel",
@@ -1064,7 +1078,9 @@ fn session_overview(arm: Node, parts: LayoutParts, window_s: f64) -> (Vec<Node>,
     let mut overview = vec![arm, power_view(parts).renamed_with(&around)];
     let mut shares = vec![1.0, 1.0];
     if parts.model || parts.diagnosis {
-        overview.push(error_view(parts).renamed_with(&around));
+        // The same window as the power plot above (its title says so): a title short enough
+        // to show whole.
+        overview.push(error_view(parts));
         shares.push(0.8);
     }
     let c = parts.trial_counts;
@@ -1143,9 +1159,9 @@ fn error_view(parts: LayoutParts) -> Node {
         name.push_str(if parts.model { "; " } else { ": " });
         // The accepted hypotheses' error is drawn over the base model's (the same when none was
         // accepted); the found terms' in red when there are any.
-        name.push_str("base model grey, with accepted hypotheses teal");
+        name.push_str("base model grey, hypotheses teal");
         if parts.diagnosis_power_series > 3 + usize::from(parts.counterpart) {
-            name.push_str(", with the found terms red");
+            name.push_str(", found terms red");
         }
     }
     plot(name, error)
@@ -1273,7 +1289,7 @@ fn diagnosis_tab(parts: LayoutParts) -> Node {
         diag.push(
             Node::view(
                 "TimeSeries",
-                "Rest power of each trial [W]",
+                "Rest power [W]: measured blue, with found loads red",
                 paths::DIAG_REST,
                 vec![],
             )
@@ -1366,10 +1382,10 @@ fn breakdown_tab(joints: &[String], ranges: PlotRanges, long: bool) -> Node {
     );
     let bars = |what: &str, tree: &str| {
         if long {
-            let name = format!("Mean per trial by {what} [W], one point per trial");
+            let name = format!("Trial energy turnover by {what} [%]");
             plot(name, vec![paths::include_tree(tree)]).whole_session()
         } else {
-            let name = format!("Mean per trial by {what} [W], x: trial");
+            let name = format!("Trial energy turnover by {what} [%], x: trial");
             Node::view("BarChart", name, "/", vec![paths::include_tree(tree)])
                 .with_legend(Legend::Hidden)
         }
@@ -1467,12 +1483,27 @@ mod tests {
             trial_rest: true,
             ..LayoutParts::default()
         };
-        let root = replay_layout(&joints, parts, [0.0; 3]);
+        let mut root = replay_layout(&joints, parts, [0.0; 3]);
         assert!(matches!(root, Node::Container { window_s: Some(x), .. } if x == w));
+        // Fitted to data of −20…130 W: the per-trial plots open on it, the linked plots carry
+        // no y range (the viewer fits them to the window).
+        root.fit(&|_, _| Some([-20.0, 130.0]));
+        root.for_each_view(&mut |v| {
+            if let Node::View {
+                class: "TimeSeries",
+                name,
+                y_range,
+                whole,
+                ..
+            } = v
+            {
+                assert_eq!(*whole, y_range.is_some(), "{name}");
+            }
+        });
         let v = views(&root);
         let whole: Vec<&str> = v
             .iter()
-            .filter(|x| x.1 && !x.0.starts_with("Mean per trial"))
+            .filter(|x| x.1 && !x.0.starts_with("Trial energy turnover"))
             .map(|x| x.0.as_str())
             .collect();
         assert_eq!(whole.len(), 4, "{whole:?}");
@@ -1490,14 +1521,14 @@ mod tests {
         let per_trial = |root: &Node| -> Vec<(String, bool)> {
             views(root)
                 .into_iter()
-                .filter(|(n, _)| n.starts_with("Mean per trial"))
+                .filter(|(n, _)| n.starts_with("Trial energy turnover"))
                 .collect()
         };
         let long = per_trial(&root);
         assert_eq!(long.len(), 2, "{long:?}");
         assert!(
             long.iter()
-                .all(|(n, whole)| *whole && n.ends_with("one point per trial"))
+                .all(|(n, whole)| *whole && !n.ends_with("x: trial"))
         );
         let short = replay_layout(
             &joints,

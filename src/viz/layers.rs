@@ -280,15 +280,7 @@ pub(super) fn log_term_data(
     chunk: usize,
 ) -> Result<()> {
     for (j, name) in joints.iter().enumerate() {
-        for (k, data) in [
-            &terms.mechanical,
-            &terms.copper,
-            &terms.coulomb,
-            &terms.viscous,
-        ]
-        .into_iter()
-        .enumerate()
-        {
+        for (k, data) in terms.fields().into_iter().enumerate() {
             let path = paths::term(name, paths::TERMS[k]);
             let n = terms.t.len().min(data.len());
             for start in (0..n).step_by(chunk) {
@@ -341,18 +333,8 @@ pub(super) fn log_breakdown_data(
     terms: &TermSeries,
     chunk: usize,
 ) -> Result<()> {
-    let fields = [
-        &terms.mechanical,
-        &terms.copper,
-        &terms.coulomb,
-        &terms.viscous,
-    ];
-    let n = fields
-        .iter()
-        .map(|f| f.len())
-        .chain([terms.t.len(), terms.interaction.len()])
-        .min()
-        .unwrap_or(0);
+    let fields = terms.fields();
+    let n = terms.len();
     for start in (0..n).step_by(chunk) {
         let end = (start + chunk).min(n);
         let t = &terms.t[start..end];
@@ -378,65 +360,54 @@ pub(super) fn log_breakdown_data(
 /// time stamp, so an edge needs two stamps).
 const EDGE_S: f64 = 0.01;
 
-/// Per-trial bars keyed by trial index: the mean power of each joint (terms summed) and of each
-/// term (joints summed) over each trial's window, as static bar charts (one per joint or term,
-/// in its colour) whose bars sit side by side around the trial's index on the x axis, so they
-/// keep their width whatever the time zoom.
-///
-/// Past [`super::blueprint::WINDOWED_ABOVE_TRIALS`] trials a bar is narrower than a pixel, so
-/// each joint's and term's means are points on the session's time axis instead, one per trial
-/// at its start (the layout plots them over the whole session).
+/// Per-trial bars keyed by trial index: each joint's and term's signed share of the trial's
+/// energy turnover ([`TrialMean::turnover`]), one static bar chart per joint or term in its
+/// colour, the bars side by side around the trial's index (their width kept at any time zoom).
+/// Past [`super::blueprint::WINDOWED_ABOVE_TRIALS`] trials (a bar narrower than a pixel): one
+/// point per trial at its start on the session's time axis instead.
 fn log_bars(w: &mut ChunkWriter<'_>, joints: &[String], means: &[TrialMean]) -> Result<()> {
-    if means.len() > super::blueprint::WINDOWED_ABOVE_TRIALS {
-        let t: Vec<f64> = means.iter().map(|m| m.t).collect();
-        let mut points = |path: &str, name: &str, colour, v: Vec<f64>| -> Result<()> {
-            style::points(w, path, name, colour, MarkerShape::Circle, 1.5)?;
-            scalars(w, path, &t, v.into_iter())
-        };
-        for (j, name) in joints.iter().enumerate() {
-            let v = means.iter().map(|m| m.by_joint[j]).collect();
-            points(&paths::bar_by_joint(name), name, style::joint(j), v)?;
-        }
-        for (k, name) in paths::TERMS
+    let shares: Vec<Shares> = means.iter().map(TrialMean::turnover).collect();
+    let pick = |term: bool, k: usize| {
+        shares
             .iter()
-            .chain(["interaction"].iter())
-            .enumerate()
-        {
-            let v = means.iter().map(|m| m.by_term[k]).collect();
-            points(&paths::bar_by_term(name), name, style::TERMS[k], v)?;
-        }
-        return Ok(());
+            .map(move |s| [&s.1, &s.0][usize::from(term)][k])
+    };
+    let long = means.len() > super::blueprint::WINDOWED_ABOVE_TRIALS;
+    if !long {
+        let all = |term: bool| {
+            shares
+                .iter()
+                .flat_map(move |s| [&s.1, &s.0][usize::from(term)].clone())
+        };
+        bar_axis_anchors(w, paths::BARS_BY_JOINT, means, all(false))?;
+        bar_axis_anchors(w, paths::BARS_BY_TERM, means, all(true))?;
     }
-    let joint_values = means.iter().flat_map(|m| m.by_joint);
-    bar_axis_anchors(w, paths::BARS_BY_JOINT, means, joint_values)?;
-    let term_values = means.iter().flat_map(|m| m.by_term);
-    bar_axis_anchors(w, paths::BARS_BY_TERM, means, term_values)?;
-    for (j, name) in joints.iter().enumerate() {
-        let (x, v) = bar_slots(means, j, joints.len(), |m| m.by_joint[j]);
-        bar_chart(
-            w,
-            &paths::bar_by_joint(name),
-            &x,
-            &v,
-            bar_width(joints.len()),
-            style::joint(j),
-        )?;
-    }
-    let n_terms = style::TERMS.len();
-    for (k, name) in paths::TERMS
+    let joint_series = joints.iter().map(String::as_str).enumerate();
+    let term_series = paths::TERMS
         .iter()
         .chain(["interaction"].iter())
-        .enumerate()
-    {
-        let (x, v) = bar_slots(means, k, n_terms, |m| m.by_term[k]);
-        bar_chart(
-            w,
-            &paths::bar_by_term(name),
-            &x,
-            &v,
-            bar_width(n_terms),
-            style::TERMS[k],
-        )?;
+        .copied()
+        .enumerate();
+    let series =
+        (joint_series.map(|(k, n)| (false, k, n))).chain(term_series.map(|(k, n)| (true, k, n)));
+    for (term, k, name) in series {
+        let (path, colour, slots) = if term {
+            (
+                paths::bar_by_term(name),
+                style::TERMS[k],
+                style::TERMS.len(),
+            )
+        } else {
+            (paths::bar_by_joint(name), style::joint(k), joints.len())
+        };
+        if long {
+            style::points(w, &path, name, colour, MarkerShape::Circle, 1.5)?;
+            let t: Vec<f64> = means.iter().map(|m| m.t).collect();
+            scalars(w, &path, &t, pick(term, k))?;
+        } else {
+            let (x, v) = bar_slots(means, k, slots, pick(term, k).collect());
+            bar_chart(w, &path, &x, &v, bar_width(slots), colour)?;
+        }
     }
     Ok(())
 }
@@ -485,21 +456,17 @@ pub(super) fn bar_width(slots: usize) -> f64 {
 
 /// Where bar `slot` of `slots` goes for each trial and its height: x is the bar's left edge (the
 /// viewer draws a bar from its abscissa to abscissa + width), trial index − 0.4 + slot × width,
-/// so the group is centred on the trial's index; trials without a finite value are left out.
+/// so the group is centred on the trial's index; `values`: the heights (not finite: no bar).
 pub(super) fn bar_slots(
     means: &[TrialMean],
     slot: usize,
     slots: usize,
-    value: impl Fn(&TrialMean) -> f64,
+    values: Vec<f64>,
 ) -> (Vec<f64>, Vec<f64>) {
     let width = bar_width(slots);
-    means
-        .iter()
-        .filter(|m| value(m).is_finite())
-        .map(|m| {
-            let x = m.index as f64 - 0.4 + slot as f64 * width;
-            (x, value(m))
-        })
+    (means.iter().zip(values))
+        .map(|(m, v)| (m.index as f64 - 0.4 + slot as f64 * width, v))
+        .filter(|(_, v)| v.is_finite())
         .unzip()
 }
 
@@ -524,6 +491,9 @@ fn bar_chart(
     )
 }
 
+/// Each term's and each joint's share [%] of a trial's energy ([`energy_shares`] order).
+type Shares = (Vec<f64>, Vec<f64>);
+
 /// The mean predicted power of one trial over its window.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TrialMean {
@@ -546,12 +516,7 @@ impl TrialMean {
             return None;
         }
         let count = idx.len() as f64;
-        let fields = [
-            &terms.mechanical,
-            &terms.copper,
-            &terms.coulomb,
-            &terms.viscous,
-        ];
+        let fields = terms.fields();
         let mut mean = TrialMean {
             index,
             t: terms.t.get(idx[0]).copied().unwrap_or(f64::NAN),
@@ -570,12 +535,35 @@ impl TrialMean {
         }
         Some(mean)
     }
+
+    /// This trial's [`Shares`] ([`energy_shares`] of the trial alone), or `None` where its net
+    /// energy, over the terms or over the joints, is a small difference of large parts (|net|
+    /// under half the parts' absolute sum: a share of a net near zero runs to ±1000 %; so every
+    /// share lies within ±200 %).
+    pub(super) fn shares(&self) -> Option<Shares> {
+        let clear = |parts: &[f64]| {
+            let gross: f64 = parts.iter().map(|v| v.abs()).sum();
+            gross > 0.0 && parts.iter().sum::<f64>().abs() >= 0.5 * gross
+        };
+        (clear(&self.by_term) && clear(&self.by_joint))
+            .then(|| energy_shares(std::slice::from_ref(self)))
+    }
+
+    /// Each term's and each joint's signed share [%] of the trial's energy turnover (the parts'
+    /// absolute sum): defined for every trial, within ±100 %, even where the parts nearly
+    /// cancel (copper below the holding torque, a braking joint) and a share of the net is not.
+    pub(super) fn turnover(&self) -> Shares {
+        let of = |p: &[f64]| {
+            let gross: f64 = p.iter().map(|v| v.abs()).sum();
+            p.iter().map(|v| 100.0 * v / gross).collect()
+        };
+        (of(&self.by_term), of(&self.by_joint))
+    }
 }
 
 /// `trials` with each one's label followed by its two largest terms and its largest joint:
-/// their shares of the trial's energy ([`energy_shares`] of the trial alone) where its net
-/// energy is not a small difference of large parts (|net| at least half the parts' absolute
-/// sum), else their mean power [W] and the net (a share of a net near zero runs to ±1000 %).
+/// their shares of the trial's energy ([`TrialMean::shares`]) where it has them, else their
+/// mean power [W] and the net.
 fn with_shares(trials: &[TrialMark], means: &[TrialMean], joints: &[String]) -> Vec<TrialMark> {
     let largest = |v: &[f64], n: usize| {
         let mut k: Vec<usize> = (0..v.len()).collect();
@@ -592,24 +580,19 @@ fn with_shares(trials: &[TrialMark], means: &[TrialMean], joints: &[String]) -> 
                 return m;
             };
             let net: f64 = mean.by_term.iter().sum();
-            let gross: f64 = mean.by_term.iter().map(|v| v.abs()).sum();
-            let (terms, by_joint) = energy_shares(std::slice::from_ref(mean));
-            let shares = net.abs() >= 0.5 * gross && gross > 0.0;
-            let show = |v: f64, w: f64| {
-                if shares {
-                    format!("{v:.0} %")
-                } else {
-                    format!("{w:+.2} W")
-                }
+            let shares = mean.shares();
+            let show = |pick: &dyn Fn(&Shares) -> f64, w: f64| match &shares {
+                Some(s) => format!("{:.0} %", pick(s)),
+                None => format!("{w:+.2} W"),
             };
             let t: Vec<String> = largest(&mean.by_term, 2)
                 .into_iter()
-                .map(|k| format!("{} {}", names[k], show(terms[k], mean.by_term[k])))
+                .map(|k| format!("{} {}", names[k], show(&|s| s.0[k], mean.by_term[k])))
                 .collect();
             if let Some(&j) = largest(&mean.by_joint, 1).first() {
                 let name = joints.get(j).map_or("", String::as_str);
-                let joint = show(by_joint[j], mean.by_joint[j]);
-                m.label = if shares {
+                let joint = show(&|s| s.1[j], mean.by_joint[j]);
+                m.label = if shares.is_some() {
                     format!("{} · energy {}; {name} {joint}", m.label, t.join(", "))
                 } else {
                     format!(
@@ -650,18 +633,7 @@ pub(super) fn energy_shares(means: &[TrialMean]) -> (Vec<f64>, Vec<f64>) {
 /// Mean predicted power per joint and per term over each trial's window, in time order
 /// (trials without samples are left out).
 pub(super) fn trial_means(terms: &TermSeries, trials: &[TrialMark]) -> Vec<TrialMean> {
-    let fields = [
-        &terms.mechanical,
-        &terms.copper,
-        &terms.coulomb,
-        &terms.viscous,
-    ];
-    let n = fields
-        .iter()
-        .map(|f| f.len())
-        .chain([terms.t.len(), terms.interaction.len()])
-        .min()
-        .unwrap_or(0);
+    let n = terms.len();
     // Samples in time order (trial windows may overlap at their idle edges).
     let mut order: Vec<usize> = (0..n).collect();
     order.sort_by(|&a, &b| terms.t[a].total_cmp(&terms.t[b]));
@@ -709,13 +681,18 @@ pub(super) fn breakdown_note(joints: &[String], colour_scale: f64, means: &[Tria
          **The copper term is relative to the holding torque τ̄0**: τ̄0_i² is joint *i*'s mean τ² \
          in the trial's pre-idle (the arm at rest), so the term is negative whenever the arm \
          holds less torque than it did at rest — not regeneration.\n\n\
-         Per-trial bars: the mean over each trial's window, a group of bars at each trial's \
-         index on the x axis, one bar per joint, left to right {}, or per term, left to right \
-         mechanical, copper, Coulomb, viscous, interaction (coloured as in the plots over time; \
-         hover a bar for its series).\n\n\
+         **Per trial**: each joint's and each term's signed share of the trial's energy \
+         turnover (the parts' absolute sum, so the shares stay within ±100 % where the parts \
+         nearly cancel and a share of the net would run to ±1000 %; {} of the {} trials have \
+         such a net, their log lines give watts), a group of bars at each trial's index on the \
+         x axis (past 20 trials one point per trial at its start), one bar per joint, left to \
+         right {}, or per term, left to right mechanical, copper, Coulomb, viscous, \
+         interaction (coloured as in the plots over time; hover a bar for its series).\n\n\
          In 3D each arm link is coloured by its joint's predicted power: grey at 0 W, red at \
          {colour_scale:.1} W and above, blue when negative.",
-        list
+        means.iter().filter(|m| m.shares().is_none()).count(),
+        means.len(),
+        list,
     )
 }
 
@@ -992,7 +969,7 @@ fn log_diagnosis(
             w,
             paths::DIAG_REST_MEASURED,
             "rest power of the trial (pre-idle mean)",
-            style::MBS,
+            style::MEASURED,
             1.5,
         )?;
         style::line(
@@ -1035,18 +1012,8 @@ fn log_diagnosis(
 
 /// Per-joint predicted power (the joint's four terms summed) of every sample, in time order.
 fn joint_power(terms: &TermSeries) -> Vec<(f64, [f64; N_JOINTS])> {
-    let fields = [
-        &terms.mechanical,
-        &terms.copper,
-        &terms.coulomb,
-        &terms.viscous,
-    ];
-    let n = fields
-        .iter()
-        .map(|f| f.len())
-        .chain([terms.t.len()])
-        .min()
-        .unwrap_or(0);
+    let fields = terms.fields();
+    let n = terms.len();
     let mut out: Vec<(f64, [f64; N_JOINTS])> = (0..n)
         .map(|i| {
             (

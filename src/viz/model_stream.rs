@@ -82,12 +82,7 @@ fn sliced_series(
 
 /// Per-joint power of sample `i` (the joint's four terms summed, as the in-memory replay sums).
 fn joint_power(terms: &TermSeries, i: usize) -> [f64; N_JOINTS] {
-    let fields = [
-        &terms.mechanical,
-        &terms.copper,
-        &terms.coulomb,
-        &terms.viscous,
-    ];
+    let fields = terms.fields();
     std::array::from_fn(|j| fields.iter().map(|f| f[i][j]).sum())
 }
 
@@ -165,12 +160,7 @@ impl Accumulator {
         for &v in &p.predicted {
             self.instant.add(v);
         }
-        let fields = [
-            &terms.mechanical,
-            &terms.copper,
-            &terms.coulomb,
-            &terms.viscous,
-        ];
+        let fields = terms.fields();
         for i in 0..terms.t.len() {
             for f in &fields {
                 self.by_term.add(f[i].iter().sum::<f64>());

@@ -11,7 +11,7 @@
 //! [`ReplayOptions::chunk_rows`] samples, so memory stays bounded whatever the session length.
 
 use anyhow::{Context, Result, bail};
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use indicatif::{ProgressBar, ProgressStyle};
 use rerun::{AnyValues, RecordingInfo, RecordingStream, Scalars};
 
 use super::blueprint::{self, LayoutParts};
@@ -136,6 +136,23 @@ pub struct TermSeries {
     pub viscous: Vec<[f64; N_JOINTS]>,
     /// Σ e_ij |q̇_i||q̇_j|.
     pub interaction: Vec<f64>,
+}
+
+impl TermSeries {
+    /// The four per-joint terms: mechanical, copper, Coulomb, viscous ([`super::paths::TERMS`]).
+    pub(super) fn fields(&self) -> [&Vec<[f64; N_JOINTS]>; 4] {
+        [&self.mechanical, &self.copper, &self.coulomb, &self.viscous]
+    }
+
+    /// Samples every series holds (the shortest one's length).
+    pub(super) fn len(&self) -> usize {
+        let lens = self.fields().map(|f| f.len());
+        (lens
+            .into_iter()
+            .chain([self.t.len(), self.interaction.len()])
+            .min())
+        .unwrap_or(0)
+    }
 }
 
 /// A trial's time window and status.
@@ -415,12 +432,7 @@ fn plot_ranges(
         r.imu = data_range(stats.gyro.into_iter().flatten().chain(imu));
         r.raw_power = range(stats.raw_power);
     } else if let Some(terms) = &extras.terms {
-        let fields = [
-            &terms.mechanical,
-            &terms.copper,
-            &terms.coulomb,
-            &terms.viscous,
-        ];
+        let fields = terms.fields();
         let by_term = fields
             .iter()
             .flat_map(|f| f.iter().map(|v| v.iter().sum::<f64>()))
@@ -1211,7 +1223,7 @@ fn progress_bar(enabled: bool, len: u64) -> ProgressBar {
     if !enabled || !std::io::IsTerminal::is_terminal(&std::io::stderr()) {
         return ProgressBar::hidden();
     }
-    let bar = ProgressBar::with_draw_target(Some(len), ProgressDrawTarget::stderr());
+    let bar = crate::util::progress_lines().add(ProgressBar::new(len));
     if let Ok(style) = ProgressStyle::with_template("replay {bar:40} {pos}/{len} samples ({eta})") {
         bar.set_style(style);
     }
