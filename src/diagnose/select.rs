@@ -782,6 +782,11 @@ pub struct MechanismForms {
     /// left open ("form: confounded — X or Y"), not the winning form.
     #[serde(default)]
     pub confounded: bool,
+    /// The runner-up is a form of ANOTHER mechanism that the winner does not beat significantly
+    /// (`mechanism` then reads "X or Y"): the structure is located, no mechanism is named — the
+    /// winner stays in the model (its structure explained) but is not claimed.
+    #[serde(default)]
+    pub unnamed: bool,
 }
 
 impl MechanismForms {
@@ -874,26 +879,70 @@ fn compare_forms(
         }
         // `scored` is sorted best first.
         let ((wi, w), (ri, r)) = (forms[0], forms[1]);
-        // Every lag's rows are the same readings: y and trial are the lag-0 rows'.
-        let y = &data.rows0().y;
-        let trial = &data.rows0().trial;
-        let ew = trial_sse(y, &w.next.cv.pred, trial, data.n_trials);
-        let er = trial_sse(y, &r.next.cv.pred, trial, data.n_trials);
-        let d: Vec<f64> = er.iter().zip(&ew).map(|(a, b)| a - b).collect();
-        let p_value = improvement_p_value(&d);
-        decided.push(MechanismForms {
-            mechanism: m.into(),
-            winner: w.score.id.clone(),
-            runner_up: r.score.id.clone(),
-            rmse_w: [w.score.rmse_after, r.score.rmse_after],
-            margin: 1.0 - w.score.rmse_after / r.score.rmse_after.max(1e-300),
-            p_value,
-            accepted: w.score.accepted,
-            form_words: [form_words(&remaining[wi]), form_words(&remaining[ri])],
-            params: [w.score.params.clone(), r.score.params.clone()],
-            confounded: w.score.accepted && (p_value >= alpha || p_value.is_nan()),
-        });
+        let words = [form_words(&remaining[wi]), form_words(&remaining[ri])];
+        decided.push(versus(data, m.into(), (w, r), words, alpha));
     }
+}
+
+/// The winner `w` against the runner-up `r`: the paired held-out test by trial, their scores and
+/// parameters; confounded when the winner was accepted but its margin is not significant.
+fn versus(
+    data: &PowerData,
+    mechanism: String,
+    (w, r): (&Candidate, &Candidate),
+    form_words: [String; 2],
+    alpha: f64,
+) -> MechanismForms {
+    // Every lag's rows are the same readings: y and trial are the lag-0 rows'.
+    let y = &data.rows0().y;
+    let trial = &data.rows0().trial;
+    let ew = trial_sse(y, &w.next.cv.pred, trial, data.n_trials);
+    let er = trial_sse(y, &r.next.cv.pred, trial, data.n_trials);
+    let d: Vec<f64> = er.iter().zip(&ew).map(|(a, b)| a - b).collect();
+    let p_value = improvement_p_value(&d);
+    MechanismForms {
+        mechanism,
+        winner: w.score.id.clone(),
+        runner_up: r.score.id.clone(),
+        rmse_w: [w.score.rmse_after, r.score.rmse_after],
+        margin: 1.0 - w.score.rmse_after / r.score.rmse_after.max(1e-300),
+        p_value,
+        accepted: w.score.accepted,
+        form_words,
+        params: [w.score.params.clone(), r.score.params.clone()],
+        confounded: w.score.accepted && (p_value >= alpha || p_value.is_nan()),
+        unnamed: false,
+    }
+}
+
+/// The step's winner (`scored[0]`, accepted) against the best candidate of another library
+/// mechanism that also passes the rule: when the winner does not fit the held-out trials
+/// significantly better, the data locate the structure but do not tell which mechanism it is
+/// (a per-joint drive-electronics loss was named the DC-bus loss, a gear friction above a
+/// threshold of |τq̇| the braking asymmetry, each by a margin of 0.2–0.3 % before this rule).
+/// Latency is no rival: it shifts the window, it adds no regressor.
+fn rival_mechanism(
+    data: &PowerData,
+    scored: &[(usize, Candidate)],
+    remaining: &[Option<&'static Hypothesis>],
+    alpha: f64,
+) -> Option<MechanismForms> {
+    let (wi, w) = scored.first().filter(|(_, c)| c.score.accepted)?;
+    let wh = remaining[*wi]?;
+    let (ri, r) = scored.iter().skip(1).find(|(i, c)| {
+        c.score.accepted && remaining[*i].is_some_and(|h| h.mechanism != wh.mechanism)
+    })?;
+    let rh = remaining[*ri]?;
+    let words = [wh.mechanism.to_string(), rh.mechanism.to_string()];
+    let mut f = versus(
+        data,
+        format!("{} or {}", words[0], words[1]),
+        (w, r),
+        words,
+        alpha,
+    );
+    f.unnamed = f.confounded;
+    f.unnamed.then_some(f)
 }
 
 /// Greedy forward selection: at each step score every remaining candidate against the current
@@ -955,6 +1004,7 @@ pub(crate) fn select(
         } else if step == 1 {
             compare_forms(data, &scored, &remaining, rule.alpha, &mut forms);
         }
+        let unnamed = rival_mechanism(data, &scored, &remaining, rule.alpha);
         let Some((idx, best)) = scored.into_iter().next().filter(|(_, c)| c.score.accepted) else {
             break;
         };
@@ -962,6 +1012,11 @@ pub(crate) fn select(
         accepted.push(best.score);
         cur = best.next;
         remaining.retain(|c| mechanism(c) != m);
+        if let Some(f) = unnamed {
+            // Neither mechanism is tried again: the located structure is in the model.
+            remaining.retain(|c| c.is_none_or(|h| h.mechanism != f.form_words[1]));
+            forms.push(f);
+        }
         if remaining.is_empty() {
             break;
         }
@@ -974,7 +1029,8 @@ pub(crate) fn select(
             f.confounded = false;
         }
     }
-    for f in forms.iter().filter(|f| f.confounded) {
+    unname(&mut forms, &mut accepted, &mut first_step);
+    for f in forms.iter().filter(|f| f.confounded && !f.unnamed) {
         for s in accepted.iter_mut().chain(first_step.iter_mut()) {
             if s.id == f.winner {
                 s.verdict = format!(
@@ -995,6 +1051,46 @@ pub(crate) fn select(
         base,
         last: cur,
     })
+}
+
+/// A winner another mechanism ties with ([`rival_mechanism`]) is not claimed: it leaves
+/// `accepted` (it stays in the model) and its first-step score says why.
+fn unname(
+    forms: &mut [MechanismForms],
+    accepted: &mut Vec<HypothesisScore>,
+    first_step: &mut [HypothesisScore],
+) {
+    let unnamed: Vec<MechanismForms> = forms
+        .iter()
+        .filter(|f| f.unnamed && accepted.iter().any(|s| s.id == f.winner))
+        .cloned()
+        .collect();
+    for f in &unnamed {
+        accepted.retain(|s| s.id != f.winner);
+        // Neither mechanism is claimed in any form.
+        for g in forms.iter_mut().filter(|g| g.winner == f.winner) {
+            g.accepted = false;
+        }
+        let of_either = |id: &str| {
+            super::hypotheses::power_hypothesis(id)
+                .is_some_and(|h| f.form_words.iter().any(|m| m == h.mechanism))
+        };
+        for s in first_step.iter_mut().filter(|s| of_either(&s.id)) {
+            s.accepted = false;
+            s.verdict = format!(
+                "located, not named: {} — form not identified ({} vs {}: held-out RMSE {:.3} vs \
+                 {:.3} W, p = {:.2} that {} fits better); {}",
+                f.mechanism,
+                f.winner,
+                f.runner_up,
+                f.rmse_w[0],
+                f.rmse_w[1],
+                f.p_value,
+                f.winner,
+                s.verdict
+            );
+        }
+    }
 }
 
 /// The regressor of hypothesis `h` on row `r` (pooled terms weighted by `theta`).
