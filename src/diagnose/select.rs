@@ -915,18 +915,26 @@ fn versus(
     }
 }
 
+/// Level of the paired test by which a library mechanism must beat another that also passes at
+/// its step. Measured: the project's own 72-trial bus-loss, drive-loss and per-Nm sessions beat
+/// their rival mechanism at p = 0.002–0.02 (margins 7–11 %); the campaign's two wrong names were
+/// ahead by p = 0.79 and 0.15 (margins 0.2 %, 0.5 %). At the rule's 0.001 the true ones would be
+/// left unnamed.
+const RIVAL_ALPHA: f64 = 0.05;
+
 /// The step's winner (`scored[0]`, accepted) against the best candidate of another library
 /// mechanism that also passes the rule: when the winner does not fit the held-out trials
 /// significantly better, the data locate the structure but do not tell which mechanism it is
 /// (a per-joint drive-electronics loss was named the DC-bus loss, a gear friction above a
 /// threshold of |τq̇| the braking asymmetry, each by a margin of 0.2–0.3 % before this rule).
-/// Latency is no rival: it shifts the window, it adds no regressor.
+/// Latency is no rival: it shifts the window, it adds no regressor. Both already passed the rule:
+/// this chooses between two supported mechanisms, at [`RIVAL_ALPHA`].
 fn rival_mechanism(
     data: &PowerData,
     scored: &[(usize, Candidate)],
     remaining: &[Option<&'static Hypothesis>],
-    alpha: f64,
 ) -> Option<MechanismForms> {
+    let alpha = RIVAL_ALPHA;
     let (wi, w) = scored.first().filter(|(_, c)| c.score.accepted)?;
     let wh = remaining[*wi]?;
     let (ri, r) = scored.iter().skip(1).find(|(i, c)| {
@@ -1004,7 +1012,7 @@ pub(crate) fn select(
         } else if step == 1 {
             compare_forms(data, &scored, &remaining, rule.alpha, &mut forms);
         }
-        let unnamed = rival_mechanism(data, &scored, &remaining, rule.alpha);
+        let unnamed = rival_mechanism(data, &scored, &remaining);
         let Some((idx, best)) = scored.into_iter().next().filter(|(_, c)| c.score.accepted) else {
             break;
         };
@@ -1079,7 +1087,7 @@ fn unname(
             s.accepted = false;
             s.verdict = format!(
                 "located, not named: {} — form not identified ({} vs {}: held-out RMSE {:.3} vs \
-                 {:.3} W, p = {:.2} that {} fits better); {}",
+                 {:.3} W, p = {:.3} that {} fits better); {}",
                 f.mechanism,
                 f.winner,
                 f.runner_up,
@@ -1315,6 +1323,35 @@ mod tests {
         );
         let sel = select(&synth(3, 120, &weak), &all(), &RULE).unwrap();
         assert!(sel.accepted[0].verdict.contains("form: confounded — "));
+    }
+
+    /// Issue 28's class of wrong claims, on data this module did not write the form of: a
+    /// mechanism in a form the library does not fit, which two library mechanisms approximate
+    /// about equally. Neither may be named; the structure is located with both.
+    #[test]
+    fn a_mechanism_another_fits_as_well_is_located_not_named() {
+        // Gear friction only above a threshold of |τq̇| (campaign seed 275145867 was named the
+        // braking asymmetry).
+        let gear = |s: &Sample| {
+            0.2 * (0..7)
+                .map(|i| (s.tau[i] * s.dq[i]).abs())
+                .filter(|p| *p > 3.0)
+                .sum::<f64>()
+        };
+        // A drive-electronics loss with per-joint weights (seed 791979931: named the bus loss).
+        let k = crate::power::JOINT_TORQUE_CONSTANT;
+        let w = [0.0, 0.4, 1.9, 1.5, 1.0, 1.4, 0.9];
+        let drive = move |s: &Sample| (0..7).map(|j| 0.3 * w[j] * s.tau[j].abs() / k[j]).sum();
+        for (what, effect, wrong) in [
+            ("gear", &gear as &dyn Fn(&Sample) -> f64, "braking"),
+            ("drive", &drive, "bus_loss"),
+        ] {
+            let sel = select(&synth(5, 60, effect), &all(), &RULE).unwrap();
+            let ids: Vec<&str> = sel.accepted.iter().map(|s| s.id.as_str()).collect();
+            let unnamed: Vec<&MechanismForms> = sel.forms.iter().filter(|f| f.unnamed).collect();
+            eprintln!("{what}: accepted {ids:?}, unnamed {unnamed:?}");
+            assert!(!ids.contains(&wrong), "{what}: named {ids:?}");
+        }
     }
 
     #[test]
