@@ -2,7 +2,8 @@
 
 Claims are read from the diagnosis' public output only: accepted library hypotheses (by id),
 terms found beyond the library (name, fields and the fields of their named ties) and rest-power
-terms (field and ties). Each claim is scored
+terms (field and ties) and the meters' comparison (`discovery.meter_drift`: a change over the
+session of one meter's offset or gain relative to the other). Each claim is scored
 
 * right: names an effect's mechanism (a library id of it — an accepted hypothesis, or a found term
   that says which library mechanism it is a form of, `mechanism` in diagnosis.json; or a found term on a field the effect
@@ -29,6 +30,9 @@ def claims(d):
             f += r.get("fields", [])
         # a found form of a library mechanism (one-sided, switched by a state) names its id
         out.append({"kind": "found", "id": t.get("mechanism"), "name": t.get("name", ""), "fields": f})
+    m = disc.get("meter_drift")
+    if m:
+        out.append({"kind": "meter", "id": None, "name": m.get("name", ""), "fields": []})
     for r in disc.get("rest", []) or []:
         for t in r.get("found", []):
             out.append({"kind": "rest", "id": None, "name": t.get("name", ""),
