@@ -782,6 +782,11 @@ pub struct MechanismForms {
     /// left open ("form: confounded — X or Y"), not the winning form.
     #[serde(default)]
     pub confounded: bool,
+    /// The runner-up is a form of ANOTHER mechanism that the winner does not beat significantly
+    /// (`mechanism` then reads "X or Y"): the structure is located, no mechanism is named — the
+    /// winner stays in the model (its structure explained) but is not claimed.
+    #[serde(default)]
+    pub unnamed: bool,
 }
 
 impl MechanismForms {
@@ -874,26 +879,78 @@ fn compare_forms(
         }
         // `scored` is sorted best first.
         let ((wi, w), (ri, r)) = (forms[0], forms[1]);
-        // Every lag's rows are the same readings: y and trial are the lag-0 rows'.
-        let y = &data.rows0().y;
-        let trial = &data.rows0().trial;
-        let ew = trial_sse(y, &w.next.cv.pred, trial, data.n_trials);
-        let er = trial_sse(y, &r.next.cv.pred, trial, data.n_trials);
-        let d: Vec<f64> = er.iter().zip(&ew).map(|(a, b)| a - b).collect();
-        let p_value = improvement_p_value(&d);
-        decided.push(MechanismForms {
-            mechanism: m.into(),
-            winner: w.score.id.clone(),
-            runner_up: r.score.id.clone(),
-            rmse_w: [w.score.rmse_after, r.score.rmse_after],
-            margin: 1.0 - w.score.rmse_after / r.score.rmse_after.max(1e-300),
-            p_value,
-            accepted: w.score.accepted,
-            form_words: [form_words(&remaining[wi]), form_words(&remaining[ri])],
-            params: [w.score.params.clone(), r.score.params.clone()],
-            confounded: w.score.accepted && (p_value >= alpha || p_value.is_nan()),
-        });
+        let words = [form_words(&remaining[wi]), form_words(&remaining[ri])];
+        decided.push(versus(data, m.into(), (w, r), words, alpha));
     }
+}
+
+/// The winner `w` against the runner-up `r`: the paired held-out test by trial, their scores and
+/// parameters; confounded when the winner was accepted but its margin is not significant.
+fn versus(
+    data: &PowerData,
+    mechanism: String,
+    (w, r): (&Candidate, &Candidate),
+    form_words: [String; 2],
+    alpha: f64,
+) -> MechanismForms {
+    // Every lag's rows are the same readings: y and trial are the lag-0 rows'.
+    let y = &data.rows0().y;
+    let trial = &data.rows0().trial;
+    let ew = trial_sse(y, &w.next.cv.pred, trial, data.n_trials);
+    let er = trial_sse(y, &r.next.cv.pred, trial, data.n_trials);
+    let d: Vec<f64> = er.iter().zip(&ew).map(|(a, b)| a - b).collect();
+    let p_value = improvement_p_value(&d);
+    MechanismForms {
+        mechanism,
+        winner: w.score.id.clone(),
+        runner_up: r.score.id.clone(),
+        rmse_w: [w.score.rmse_after, r.score.rmse_after],
+        margin: 1.0 - w.score.rmse_after / r.score.rmse_after.max(1e-300),
+        p_value,
+        accepted: w.score.accepted,
+        form_words,
+        params: [w.score.params.clone(), r.score.params.clone()],
+        confounded: w.score.accepted && (p_value >= alpha || p_value.is_nan()),
+        unnamed: false,
+    }
+}
+
+/// Level of the paired test by which a library mechanism must beat another that also passes at
+/// its step. Measured: the project's own 72-trial bus-loss, drive-loss and per-Nm sessions beat
+/// their rival mechanism at p = 0.002–0.02 (margins 7–11 %); the campaign's two wrong names were
+/// ahead by p = 0.79 and 0.15 (margins 0.2 %, 0.5 %). At the rule's 0.001 the true ones would be
+/// left unnamed.
+const RIVAL_ALPHA: f64 = 0.05;
+
+/// The step's winner (`scored[0]`, accepted) against the best candidate of another library
+/// mechanism that also passes the rule: when the winner does not fit the held-out trials
+/// significantly better, the data locate the structure but do not tell which mechanism it is
+/// (a per-joint drive-electronics loss was named the DC-bus loss, a gear friction above a
+/// threshold of |τq̇| the braking asymmetry, each by a margin of 0.2–0.3 % before this rule).
+/// Latency is no rival: it shifts the window, it adds no regressor. Both already passed the rule:
+/// this chooses between two supported mechanisms, at [`RIVAL_ALPHA`].
+fn rival_mechanism(
+    data: &PowerData,
+    scored: &[(usize, Candidate)],
+    remaining: &[Option<&'static Hypothesis>],
+) -> Option<MechanismForms> {
+    let alpha = RIVAL_ALPHA;
+    let (wi, w) = scored.first().filter(|(_, c)| c.score.accepted)?;
+    let wh = remaining[*wi]?;
+    let (ri, r) = scored.iter().skip(1).find(|(i, c)| {
+        c.score.accepted && remaining[*i].is_some_and(|h| h.mechanism != wh.mechanism)
+    })?;
+    let rh = remaining[*ri]?;
+    let words = [wh.mechanism.to_string(), rh.mechanism.to_string()];
+    let mut f = versus(
+        data,
+        format!("{} or {}", words[0], words[1]),
+        (w, r),
+        words,
+        alpha,
+    );
+    f.unnamed = f.confounded;
+    f.unnamed.then_some(f)
 }
 
 /// Greedy forward selection: at each step score every remaining candidate against the current
@@ -955,6 +1012,7 @@ pub(crate) fn select(
         } else if step == 1 {
             compare_forms(data, &scored, &remaining, rule.alpha, &mut forms);
         }
+        let unnamed = rival_mechanism(data, &scored, &remaining);
         let Some((idx, best)) = scored.into_iter().next().filter(|(_, c)| c.score.accepted) else {
             break;
         };
@@ -962,6 +1020,11 @@ pub(crate) fn select(
         accepted.push(best.score);
         cur = best.next;
         remaining.retain(|c| mechanism(c) != m);
+        if let Some(f) = unnamed {
+            // Neither mechanism is tried again: the located structure is in the model.
+            remaining.retain(|c| c.is_none_or(|h| h.mechanism != f.form_words[1]));
+            forms.push(f);
+        }
         if remaining.is_empty() {
             break;
         }
@@ -974,7 +1037,8 @@ pub(crate) fn select(
             f.confounded = false;
         }
     }
-    for f in forms.iter().filter(|f| f.confounded) {
+    unname(&mut forms, &mut accepted, &mut first_step);
+    for f in forms.iter().filter(|f| f.confounded && !f.unnamed) {
         for s in accepted.iter_mut().chain(first_step.iter_mut()) {
             if s.id == f.winner {
                 s.verdict = format!(
@@ -995,6 +1059,46 @@ pub(crate) fn select(
         base,
         last: cur,
     })
+}
+
+/// A winner another mechanism ties with ([`rival_mechanism`]) is not claimed: it leaves
+/// `accepted` (it stays in the model) and its first-step score says why.
+fn unname(
+    forms: &mut [MechanismForms],
+    accepted: &mut Vec<HypothesisScore>,
+    first_step: &mut [HypothesisScore],
+) {
+    let unnamed: Vec<MechanismForms> = forms
+        .iter()
+        .filter(|f| f.unnamed && accepted.iter().any(|s| s.id == f.winner))
+        .cloned()
+        .collect();
+    for f in &unnamed {
+        accepted.retain(|s| s.id != f.winner);
+        // Neither mechanism is claimed in any form.
+        for g in forms.iter_mut().filter(|g| g.winner == f.winner) {
+            g.accepted = false;
+        }
+        let of_either = |id: &str| {
+            super::hypotheses::power_hypothesis(id)
+                .is_some_and(|h| f.form_words.iter().any(|m| m == h.mechanism))
+        };
+        for s in first_step.iter_mut().filter(|s| of_either(&s.id)) {
+            s.accepted = false;
+            s.verdict = format!(
+                "located, not named: {} — form not identified ({} vs {}: held-out RMSE {:.3} vs \
+                 {:.3} W, p = {:.3} that {} fits better); {}",
+                f.mechanism,
+                f.winner,
+                f.runner_up,
+                f.rmse_w[0],
+                f.rmse_w[1],
+                f.p_value,
+                f.winner,
+                s.verdict
+            );
+        }
+    }
 }
 
 /// The regressor of hypothesis `h` on row `r` (pooled terms weighted by `theta`).
@@ -1219,6 +1323,35 @@ mod tests {
         );
         let sel = select(&synth(3, 120, &weak), &all(), &RULE).unwrap();
         assert!(sel.accepted[0].verdict.contains("form: confounded — "));
+    }
+
+    /// Issue 28's class of wrong claims, on data this module did not write the form of: a
+    /// mechanism in a form the library does not fit, which two library mechanisms approximate
+    /// about equally. Neither may be named; the structure is located with both.
+    #[test]
+    fn a_mechanism_another_fits_as_well_is_located_not_named() {
+        // Gear friction only above a threshold of |τq̇| (campaign seed 275145867 was named the
+        // braking asymmetry).
+        let gear = |s: &Sample| {
+            0.2 * (0..7)
+                .map(|i| (s.tau[i] * s.dq[i]).abs())
+                .filter(|p| *p > 3.0)
+                .sum::<f64>()
+        };
+        // A drive-electronics loss with per-joint weights (seed 791979931: named the bus loss).
+        let k = crate::power::JOINT_TORQUE_CONSTANT;
+        let w = [0.0, 0.4, 1.9, 1.5, 1.0, 1.4, 0.9];
+        let drive = move |s: &Sample| (0..7).map(|j| 0.3 * w[j] * s.tau[j].abs() / k[j]).sum();
+        for (what, effect, wrong) in [
+            ("gear", &gear as &dyn Fn(&Sample) -> f64, "braking"),
+            ("drive", &drive, "bus_loss"),
+        ] {
+            let sel = select(&synth(5, 60, effect), &all(), &RULE).unwrap();
+            let ids: Vec<&str> = sel.accepted.iter().map(|s| s.id.as_str()).collect();
+            let unnamed: Vec<&MechanismForms> = sel.forms.iter().filter(|f| f.unnamed).collect();
+            eprintln!("{what}: accepted {ids:?}, unnamed {unnamed:?}");
+            assert!(!ids.contains(&wrong), "{what}: named {ids:?}");
+        }
     }
 
     #[test]

@@ -129,6 +129,7 @@ pub fn sections(d: &Diagnosis) -> [(&'static str, String); 4] {
     }
     let mut located_ = String::new();
     located(d, &mut located_);
+    unnamed_lines(d, &mut located_);
     [
         ("Found", found),
         ("Located, not identified", located_),
@@ -203,6 +204,24 @@ fn located(d: &Diagnosis, s: &mut String) {
     }
 }
 
+/// Library structure whose mechanism the data do not tell ([`MechanismForms::unnamed`]).
+fn unnamed_lines(d: &Diagnosis, s: &mut String) {
+    for f in d.forms.iter().filter(|f| f.unnamed) {
+        let _ = writeln!(
+            s,
+            "Located: the power follows the {} — mechanism not identified: {} vs {}: held-out RMSE {:.3} vs {:.3} W (p = {:.3} that {} fits better, needed < 0.05); neither is claimed, {} is kept in the model as the best approximation.",
+            f.mechanism,
+            f.winner,
+            f.runner_up,
+            f.rmse_w[0],
+            f.rmse_w[1],
+            f.p_value,
+            f.winner,
+            f.winner
+        );
+    }
+}
+
 /// The estimated sensor window and the base model's best sensor lag.
 fn sensor_lines(d: &Diagnosis, s: &mut String) {
     let sw = &d.sensor_window;
@@ -240,6 +259,12 @@ fn sensor_lines(d: &Diagnosis, s: &mut String) {
 fn not_named(d: &Diagnosis, s: &mut String) {
     if d.accepted.is_empty() {
         match d.hypotheses.first() {
+            Some(_) if d.forms.iter().any(|f| f.unnamed) => {
+                let _ = writeln!(
+                    s,
+                    "Named: no mechanism of the library is identified (located above: two mechanisms fit as well); no missing physics is claimed."
+                );
+            }
             Some(h) => {
                 let _ = writeln!(
                     s,
