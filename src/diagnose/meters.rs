@@ -18,8 +18,8 @@
 use serde::{Deserialize, Serialize};
 
 use super::data::{Rows, TrialMeta, baseline_readings};
-use super::stats::t_upper_tail;
 use super::discover::DiscoveryReport;
+use super::stats::t_upper_tail;
 use crate::lsq::Gram;
 use crate::signals::{PowerSeries, Target};
 
@@ -236,7 +236,10 @@ pub(crate) fn compare(
     let mut forms = vec![("linearly over the session".to_string(), u.clone())];
     for s in STEPS {
         let x = u.iter().map(|&u| f64::from(u8::from(u > s))).collect();
-        forms.push((format!("in a step {:.0} s after the first trial", s * span), x));
+        forms.push((
+            format!("in a step {:.0} s after the first trial", s * span),
+            x,
+        ));
     }
     let m = forms.len() as f64;
     let (form, x, (b, se, _)) = forms
@@ -245,14 +248,14 @@ pub(crate) fn compare(
         .min_by(|a, b| a.2.2.total_cmp(&b.2.2))?;
     let df = y.len().saturating_sub(2).max(1) as f64;
     let p = 2.0 * t_upper_tail((b / se).abs(), df);
-    if !(p < alpha / m) {
+    if p.is_nan() || p >= alpha / m {
         return None;
     }
     // The other meter: diff = other − target regressed on the change; share = 1 + slope.
     let col: Vec<f64> = x.iter().map(|x| b * x).collect();
     let (k, k_se, _) = slope(&col, &diff)?;
     let (share, share_se) = (1.0 + k, k_se);
-    if !(share + Z * share_se < 1.0) {
+    if share.is_nan() || share + Z * share_se >= 1.0 {
         return None;
     }
     let (meter, other) = (meter_name(target), meter_name(self::other(target)));
