@@ -189,6 +189,10 @@ pub struct DiscoveryReport {
     /// The trials' rest power explained with the fields at rest (absent with too few trials).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rest: Option<super::rest::RestPower>,
+    /// A change over the session of the diagnosed meter's rest reading that the rail's other
+    /// meter does not show: a meter artefact (see `meters::compare`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub meter_drift: Option<super::meters::MeterDrift>,
     /// Notes (fields left out as meters of the power, unreadable files).
     pub notes: Vec<String>,
     /// Fields left out by a rule on their own data (constant, counter or clock, hash-/CRC-like),

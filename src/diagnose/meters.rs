@@ -9,11 +9,17 @@
 //! difference, so a load leaves a slope of 0 (the other meter shows all of it: share 1) and an
 //! artefact of the target meter a slope of −1 (share 0). An artefact is renamed a correction of
 //! that meter's reading, not a load on the rail; its fitted form is kept as the correction.
+//!
+//! The meters are also compared directly ([`compare`]): a gain or offset of one meter that drifts
+//! over the session (or steps) changes the difference of the two meters' readings, in which every
+//! real load cancels. It is invisible to the arm's model (each trial's power is taken net of its
+//! own rest), so this comparison is the only place it can be found.
 
 use serde::{Deserialize, Serialize};
 
 use super::data::{Rows, TrialMeta, baseline_readings};
 use super::discover::DiscoveryReport;
+use super::stats::t_upper_tail;
 use crate::lsq::Gram;
 use crate::signals::{PowerSeries, Target};
 
@@ -145,6 +151,140 @@ fn checks(target: Target, diff: &[f64], cols: &[Vec<f64>]) -> Vec<Option<MeterCh
             })
         })
         .collect()
+}
+
+/// A change over the session of the diagnosed meter's rest reading that the rail's other meter
+/// does not show: an artefact of that meter (a drifting or stepping offset, or gain).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MeterDrift {
+    /// The meter diagnosed ("main-board" or "battery").
+    pub meter: String,
+    /// How its rest reading changes: "linearly over the session" or "in a step … s after the
+    /// first trial".
+    pub form: String,
+    /// Change of its rest reading over the session [W].
+    pub change_w: f64,
+    /// Standard error of `change_w` (widened for the trials' serial correlation).
+    pub std_err_w: f64,
+    /// Its mean rest reading [W] (a gain change of `change_w / rest_w`).
+    pub rest_w: f64,
+    /// p-value of the change on the meter itself, and the level it had to beat (α / forms tried).
+    pub p_value: f64,
+    /// Level (α / forms tried).
+    pub alpha: f64,
+    /// What the other meter shows of it (share 1: a real change of the rail's power).
+    pub check: MeterCheck,
+    /// One sentence naming it.
+    pub name: String,
+}
+
+/// Steps of the rest reading tried, as shares of the session (the instant chosen from the data).
+const STEPS: [f64; 13] = [
+    0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.6, 0.65, 0.7, 0.75, 0.8,
+];
+
+/// √((1+ρ)/(1−ρ)), ρ the lag-1 correlation of a residual in time order (clamped to [0, 0.9]):
+/// how much a slow regressor's standard error grows under serial correlation.
+fn serial_widening(resid: &[f64]) -> f64 {
+    let (num, den) = resid
+        .windows(2)
+        .fold((0.0, 0.0), |(n, d), w| (n + w[0] * w[1], d + w[0] * w[0]));
+    let rho = (num / den.max(1e-300)).clamp(0.0, 0.9);
+    ((1.0 + rho) / (1.0 - rho)).sqrt()
+}
+
+/// Slope of `y` on `x` (with a constant), its serially widened standard error and the SSE.
+fn slope(x: &[f64], y: &[f64]) -> Option<(f64, f64, f64)> {
+    let mut g = Gram::zeros(2);
+    for (x, y) in x.iter().zip(y) {
+        g.add_row(&[1.0, *x], *y);
+    }
+    let (b, se) = g.solve_with_se()?;
+    let resid: Vec<f64> = x.iter().zip(y).map(|(x, y)| y - b[0] - b[1] * x).collect();
+    let sse = resid.iter().map(|r| r * r).sum();
+    Some((b[1], se[1] * serial_widening(&resid), sse))
+}
+
+/// The meters compared over the session: the target meter's rest reading (each trial's pre-idle
+/// mean) is fitted with a linear drift and with a step at each of [`STEPS`]; the best form, if it
+/// beats `alpha` over the forms tried, is checked against the other meter (the slope of
+/// other − target on it, serially widened). It is claimed an artefact of the target meter when
+/// the other meter shows significantly less than all of it (share + 3 s.e. < 1): a change of the
+/// rail's power, a load, shows on both.
+pub(crate) fn compare(
+    target: Target,
+    power: &PowerSeries,
+    other_power: &PowerSeries,
+    metas: &[TrialMeta],
+    lag: f64,
+    w: f64,
+    alpha: f64,
+) -> Option<MeterDrift> {
+    if other_power.t.is_empty() || metas.len() < 12 {
+        return None;
+    }
+    let (rest1, _) = per_trial(power, metas, lag, w);
+    let (rest2, _) = per_trial(other_power, metas, lag, w);
+    let t: Vec<f64> = metas.iter().map(|m| m.window.t_traj_start).collect();
+    let span = (t[t.len() - 1] - t[0]).max(1e-9);
+    let keep: Vec<usize> = (0..metas.len())
+        .filter(|&i| rest1[i].is_finite() && rest2[i].is_finite())
+        .collect();
+    let u: Vec<f64> = keep.iter().map(|&i| (t[i] - t[0]) / span).collect();
+    let y: Vec<f64> = keep.iter().map(|&i| rest1[i]).collect();
+    let diff: Vec<f64> = keep.iter().map(|&i| rest2[i] - rest1[i]).collect();
+    let mut forms = vec![("linearly over the session".to_string(), u.clone())];
+    for s in STEPS {
+        let x = u.iter().map(|&u| f64::from(u8::from(u > s))).collect();
+        forms.push((
+            format!("in a step {:.0} s after the first trial", s * span),
+            x,
+        ));
+    }
+    let m = forms.len() as f64;
+    let (form, x, (b, se, _)) = forms
+        .into_iter()
+        .filter_map(|(f, x)| slope(&x, &y).map(|s| (f, x, s)))
+        .min_by(|a, b| a.2.2.total_cmp(&b.2.2))?;
+    let df = y.len().saturating_sub(2).max(1) as f64;
+    let p = 2.0 * t_upper_tail((b / se).abs(), df);
+    if p.is_nan() || p >= alpha / m {
+        return None;
+    }
+    // The other meter: diff = other − target regressed on the change; share = 1 + slope.
+    let col: Vec<f64> = x.iter().map(|x| b * x).collect();
+    let (k, k_se, _) = slope(&col, &diff)?;
+    let (share, share_se) = (1.0 + k, k_se);
+    if share.is_nan() || share + Z * share_se >= 1.0 {
+        return None;
+    }
+    let (meter, other) = (meter_name(target), meter_name(self::other(target)));
+    let rest_w = y.iter().sum::<f64>() / y.len() as f64;
+    let check = MeterCheck {
+        meter: meter.into(),
+        other: other.into(),
+        share,
+        std_err: share_se,
+        n_trials: y.len(),
+        verdict: "meter artefact".into(),
+    };
+    let name = format!(
+        "an artefact of the {meter} meter: its reading changes by {b:+.2} ± {se:.2} W {form} (an offset, or a gain change of {:+.2} % at its rest reading of {rest_w:.1} W), which the {other} meter does not show (it shows {:.0} ± {:.0} % of it; a change of the rail's power shows on both) — a correction of that meter's reading, not physics of the arm",
+        100.0 * b / rest_w,
+        (100.0 * share).round() + 0.0,
+        100.0 * share_se
+    );
+    Some(MeterDrift {
+        meter: meter.into(),
+        form,
+        change_w: b,
+        std_err_w: se,
+        rest_w,
+        p_value: p,
+        alpha: alpha / m,
+        check,
+        name,
+    })
 }
 
 fn other(t: Target) -> Target {

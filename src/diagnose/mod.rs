@@ -47,7 +47,7 @@ pub use counterpart::{
 pub use discover::{Discovery, DiscoveryReport, TiedTerm};
 pub use fields::{ExcludedField, FieldSource};
 pub use locate::{Breakdown, Correlate, Group, TrialResidual};
-pub use meters::MeterCheck;
+pub use meters::{MeterCheck, MeterDrift};
 pub use options::DiagnoseOptions;
 pub use replay::{HighlightedTrial, LocatedField, ReplayData};
 pub use report::{FIGURES as REPORT_FIGURES, write_report};
@@ -374,6 +374,7 @@ fn run(
         let (rows, lag) = (data.rows(sel.last.lag)?, data.lags[sel.last.lag]);
         let (power, other) = (&info.power, &info.other);
         meters::check_findings(r, info.target, power, other, &metas, rows, lag, w);
+        r.meter_drift = meters::compare(info.target, power, other, &metas, lag, w, rule.alpha);
     }
 
     // Torque level.

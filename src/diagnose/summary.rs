@@ -466,6 +466,13 @@ fn found_lines(r: &super::DiscoveryReport, s: &mut String) {
     if let Some(rest) = &r.rest {
         rest_found(rest, s);
     }
+    if let Some(d) = &r.meter_drift {
+        let _ = writeln!(
+            s,
+            "Meters: {} (p = {:.1e} < {:.1e}).",
+            d.name, d.p_value, d.alpha
+        );
+    }
 }
 
 /// What discovery and the rest power tried without finding anything.

@@ -2,7 +2,8 @@
 
 Claims are read from the diagnosis' public output only: accepted library hypotheses (by id),
 terms found beyond the library (name, fields and the fields of their named ties) and rest-power
-terms (field and ties). Each claim is scored
+terms (field and ties) and the meters' comparison (`discovery.meter_drift`: a change over the
+session of one meter's offset or gain relative to the other). Each claim is scored
 
 * right: names an effect's mechanism (a library id of it — an accepted hypothesis, or a found term
   that says which library mechanism it is a form of, `mechanism` in diagnosis.json; or a found term on a field the effect
@@ -29,6 +30,9 @@ def claims(d):
             f += r.get("fields", [])
         # a found form of a library mechanism (one-sided, switched by a state) names its id
         out.append({"kind": "found", "id": t.get("mechanism"), "name": t.get("name", ""), "fields": f})
+    m = disc.get("meter_drift")
+    if m:
+        out.append({"kind": "meter", "id": None, "name": m.get("name", ""), "fields": []})
     rest = disc.get("rest") or []
     for r in [rest] if isinstance(rest, dict) else rest:  # one rest-power stage: an object
         for t in r.get("found", []):
@@ -56,7 +60,7 @@ def relation(c, e):
     on_field = bool(set(c["fields"]) & set(x["fields"]))
     names_term = bool(x["terms"]) and _words(c["name"], x["terms"])
     if e["kind"] == "meter":
-        if _words(c["name"], x["meter_words"]) and not x.get("ids"):
+        if _words(c["name"], x["meter_words"]) and not x.get("ids") and _meter_named(c["name"]) in (None, x.get("meter")):
             return "right"
         return "located" if on_field else None
     if e["kind"] == "modulated":
@@ -69,6 +73,13 @@ def relation(c, e):
         return None
     # library mechanism: a found term that names its loss term is located
     return "located" if (on_field or names_term) else None
+
+
+def _meter_named(name):
+    """The meter a claim is about: the first of main board ("mbs") or battery ("bms") it names."""
+    n = name.lower()
+    at = {m: n.find(w) for m, w in (("mbs", "main-board"), ("bms", "battery")) if w in n}
+    return min(at, key=at.get) if at else None
 
 
 _TERM_WORDS = [["copper", "τ²"], ["coulomb", "|q̇|"], ["viscous", "q̇²"], ["transmitted", "efficien"]]

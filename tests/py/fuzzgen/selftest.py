@@ -57,6 +57,11 @@ def check_scorer():
         ([gain], [F("a gain error of the main-board meter", "/lf/mainboardstate.temperature[0]")],
          ["right"], ["named"]),
         ([gain, lib], [L("stribeck")], ["wrong"], ["missed", "missed"]),
+        # a meter artefact is right only on the meter it is on
+        ([gain], [{"kind": "meter", "id": None, "fields": [], "name": "an artefact of the battery meter: "
+                   "its reading changes, which the main-board meter does not show"}], ["wrong"], ["missed"]),
+        ([gain], [{"kind": "meter", "id": None, "fields": [], "name": "an artefact of the main-board meter: "
+                   "its reading changes, which the battery meter does not show"}], ["right"], ["named"]),
     ]
     bad = []
     for effs, cl, want_c, want_e in cases:
