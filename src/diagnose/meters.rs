@@ -209,8 +209,9 @@ fn slope(x: &[f64], y: &[f64]) -> Option<(f64, f64, f64)> {
 /// mean) is fitted with a linear drift and with a step at each of [`STEPS`]; the best form, if it
 /// beats `alpha` over the forms tried, is checked against the other meter (the slope of
 /// other − target on it, serially widened). It is claimed an artefact of the target meter when
-/// the other meter shows significantly less than all of it (share + 3 s.e. < 1): a change of the
-/// rail's power, a load, shows on both.
+/// the other meter shows significantly less than all of it (share + 3 s.e. < 1) and can tell
+/// "none" from "all" at all (3 s.e. < 1): a change of the rail's power, a load, shows on both,
+/// and a battery meter that wanders by watts cannot say which it is (then nothing is claimed).
 pub(crate) fn compare(
     target: Target,
     power: &PowerSeries,
@@ -255,7 +256,7 @@ pub(crate) fn compare(
     let col: Vec<f64> = x.iter().map(|x| b * x).collect();
     let (k, k_se, _) = slope(&col, &diff)?;
     let (share, share_se) = (1.0 + k, k_se);
-    if share.is_nan() || share + Z * share_se >= 1.0 {
+    if share.is_nan() || share + Z * share_se >= 1.0 || Z * share_se >= 1.0 {
         return None;
     }
     let (meter, other) = (meter_name(target), meter_name(self::other(target)));
