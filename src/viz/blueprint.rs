@@ -789,6 +789,9 @@ pub struct PlotRanges {
     pub tau: Option<[f64; 2]>,
     /// IMU |ω| with the filter's statistic and threshold [rad/s].
     pub imu: Option<[f64; 2]>,
+    /// σ|ω| per trial in the overview: 0 to 4× the threshold, so the kept trials' bars and the
+    /// threshold stay visible beside rejected trials of 10–50× the threshold (those clip, red).
+    pub imu_per_trial: Option<[f64; 2]>,
     /// Raw MBS/BMS readings [W].
     pub raw_power: Option<[f64; 2]>,
     /// Errors at the readings (per reading and per trajectory) [W].
@@ -1131,14 +1134,22 @@ fn session_overview(arm: Node, parts: LayoutParts, window_s: f64) -> (Vec<Node>,
         shares.push(0.8);
     }
     if parts.imu_filter {
-        overview.push(per_trial(
-            "IMU σ|ω| per trial [rad/s] (above the black threshold: rejected, red)",
-            include(&[
-                paths::IMU_SIGMA,
-                paths::IMU_SIGMA_REJECTED,
-                paths::IMU_THRESHOLD,
-            ]),
-        ));
+        overview.push(
+            per_trial(
+                "IMU σ|ω| per trial [rad/s] (above the black threshold: rejected, red; axis to 4× it)",
+                include(&[
+                    paths::IMU_SIGMA,
+                    paths::IMU_SIGMA_REJECTED,
+                    paths::IMU_THRESHOLD,
+                ]),
+            )
+            // A set range is not refitted to the data (whose rejected trials reach 10–50×).
+            .with_y_range(parts.ranges.imu_per_trial)
+            .with_fit(
+                [Fit::Ticks, Fit::Free][usize::from(parts.ranges.imu_per_trial.is_some())],
+                ERROR_PLOT_PX,
+            ),
+        );
         shares.push(0.8);
     }
     (overview, shares)

@@ -394,6 +394,11 @@ fn plot_ranges(
     let mut r = blueprint::PlotRanges {
         trials,
         error: data_range(per_reading.chain(per_trajectory).chain(diagnosis)),
+        imu_per_trial: extras
+            .imu_filter
+            .as_ref()
+            .map(|f| [0.0, 4.0 * f.threshold])
+            .filter(|r| r[1].is_finite() && r[1] > 0.0),
         ..Default::default()
     };
     if let Some(rd) = &extras.readings {
