@@ -188,7 +188,9 @@ fn assert_same_replay_of(a: &Path, b: &Path, what: &str, marked: &[&str], min_ma
     );
     let blueprint = |d: &Decoded| d.rows.keys().filter(|k| k.0).count();
     assert_eq!(blueprint(&a), blueprint(&b), "{what}: layout");
-    assert!(a.axes.len() >= 5, "{what}: {} plot ranges", a.axes.len());
+    // A long session's layout leaves its linked plots unranged (the viewer fits them to the
+    // window); its whole-session plots carry theirs, so at least two ranges are compared.
+    assert!(a.axes.len() >= 2, "{what}: {} plot ranges", a.axes.len());
     assert_eq!(a.axes, b.axes, "{what}: plot ranges");
     let temporal: Vec<&String> = a
         .rows
