@@ -790,6 +790,18 @@ pub struct MechanismForms {
 }
 
 impl MechanismForms {
+    /// "W vs R: held-out RMSE a vs b W, p = … that W fits better": the evidence of the pairing.
+    pub fn evidence(&self) -> String {
+        format!(
+            "{w} vs {r}: held-out RMSE {:.3} vs {:.3} W, p = {:.3} that {w} fits better",
+            self.rmse_w[0],
+            self.rmse_w[1],
+            self.p_value,
+            w = self.winner,
+            r = self.runner_up,
+        )
+    }
+
     /// "per-Nm or per-ampere" (winner first).
     pub fn either(&self) -> String {
         let w = |i: usize, id: &str| {
@@ -920,7 +932,7 @@ fn versus(
 /// their rival mechanism at p = 0.002–0.02 (margins 7–11 %); the campaign's two wrong names were
 /// ahead by p = 0.79 and 0.15 (margins 0.2 %, 0.5 %). At the rule's 0.001 the true ones would be
 /// left unnamed.
-const RIVAL_ALPHA: f64 = 0.05;
+pub(crate) const RIVAL_ALPHA: f64 = 0.05;
 
 /// The step's winner (`scored[0]`, accepted) against the best candidate of another library
 /// mechanism that also passes the rule: when the winner does not fit the held-out trials
@@ -1086,15 +1098,9 @@ fn unname(
         for s in first_step.iter_mut().filter(|s| of_either(&s.id)) {
             s.accepted = false;
             s.verdict = format!(
-                "located, not named: {} — form not identified ({} vs {}: held-out RMSE {:.3} vs \
-                 {:.3} W, p = {:.3} that {} fits better); {}",
+                "located, not named: {} — form not identified ({}); {}",
                 f.mechanism,
-                f.winner,
-                f.runner_up,
-                f.rmse_w[0],
-                f.rmse_w[1],
-                f.p_value,
-                f.winner,
+                f.evidence(),
                 s.verdict
             );
         }

@@ -209,14 +209,10 @@ fn unnamed_lines(d: &Diagnosis, s: &mut String) {
     for f in d.forms.iter().filter(|f| f.unnamed) {
         let _ = writeln!(
             s,
-            "Located: the power follows the {} — mechanism not identified: {} vs {}: held-out RMSE {:.3} vs {:.3} W (p = {:.3} that {} fits better, needed < 0.05); neither is claimed, {} is kept in the model as the best approximation.",
+            "Located: the power follows the {} — mechanism not identified: {} (needed < {}); neither is claimed, {} is kept in the model as the best approximation.",
             f.mechanism,
-            f.winner,
-            f.runner_up,
-            f.rmse_w[0],
-            f.rmse_w[1],
-            f.p_value,
-            f.winner,
+            f.evidence(),
+            super::select::RIVAL_ALPHA,
             f.winner
         );
     }
