@@ -387,6 +387,15 @@ pub(crate) struct Rule {
 
 impl Rule {
     /// Apply the rule: accepted or not, and why.
+    /// Whether the data support `s` — the statistical gates of [`Rule::judge`] without the
+    /// plausibility of its parameter. A rival mechanism that fits as well is a rival even at an
+    /// implausible value: the form, not the size, is what the pairing decides.
+    pub fn supports(&self, s: &HypothesisScore) -> bool {
+        s.p_value < self.alpha
+            && s.delta_bic < self.bic_threshold
+            && s.rel_improvement >= self.min_improvement
+    }
+
     pub fn judge(&self, s: &HypothesisScore) -> (bool, String) {
         let mut fails = Vec::new();
         if s.p_value >= self.alpha {
@@ -787,19 +796,32 @@ pub struct MechanismForms {
     /// winner stays in the model (its structure explained) but is not claimed.
     #[serde(default)]
     pub unnamed: bool,
+    /// For a pairing of two mechanisms: the correlation of their regressors over the readings
+    /// once the refitted base model's columns are projected out ([`partial_correlation`]); at
+    /// or above [`SAME_BY_REFIT_R`] the refit itself makes them one and the pairing is unnamed
+    /// whatever the held-out test says.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub partial_r: Option<f64>,
 }
 
 impl MechanismForms {
     /// "W vs R: held-out RMSE a vs b W, p = … that W fits better": the evidence of the pairing.
     pub fn evidence(&self) -> String {
-        format!(
+        let test = format!(
             "{w} vs {r}: held-out RMSE {:.3} vs {:.3} W, p = {:.3} that {w} fits better",
             self.rmse_w[0],
             self.rmse_w[1],
             self.p_value,
             w = self.winner,
             r = self.runner_up,
-        )
+        );
+        match self.partial_r.filter(|r| r.abs() >= SAME_BY_REFIT_R) {
+            Some(r) => format!(
+                "{test}; beyond the refitted base model their regressors correlate r = {r:.3} \
+                 (≥ {SAME_BY_REFIT_R}): the data cannot tell them apart"
+            ),
+            None => format!("{test} (needed < {RIVAL_ALPHA})"),
+        }
     }
 
     /// "per-Nm or per-ampere" (winner first).
@@ -924,6 +946,7 @@ fn versus(
         params: [w.score.params.clone(), r.score.params.clone()],
         confounded: w.score.accepted && (p_value >= alpha || p_value.is_nan()),
         unnamed: false,
+        partial_r: None,
     }
 }
 
@@ -934,8 +957,41 @@ fn versus(
 /// left unnamed.
 pub(crate) const RIVAL_ALPHA: f64 = 0.05;
 
+/// Partial correlation of two mechanisms' regressors at and above which the refitted base model
+/// makes them one mechanism ([`partial_correlation`]). μ·Σ|τ_i q̇_i| is μ·Σ τ_i q̇_i — a change of
+/// every a_i — plus 2μ of the braking power, so with the a_i refitted, gear friction and the
+/// braking asymmetry differ only in how the braking power is weighted across the joints; the
+/// paired test then picks between them by the form's small details (three campaigns named
+/// gear friction the braking asymmetry, at p < 0.05).
+pub(crate) const SAME_BY_REFIT_R: f64 = 0.97;
+
+/// Correlation over the readings of the regressors of `pair` (pooled terms weighted by
+/// `weights`) after the base model's columns are projected out — none against a twin, whose base
+/// is held. Uncentred, as the fit has no intercept. NaN when undefined.
+fn partial_correlation(
+    data: &PowerData,
+    pair: [&'static Hypothesis; 2],
+    weights: &[f64],
+    lag: usize,
+) -> f64 {
+    let m = design_map(&pair, weights);
+    let c = m.transpose() * &data.grams[lag].total.g * &m;
+    let mut s = c.view((N_PARAMS, N_PARAMS), (2, 2)).into_owned();
+    if data.reference.is_none() {
+        let bb = c.view((0, 0), (N_PARAMS, N_PARAMS)).into_owned();
+        let bt = c.view((0, N_PARAMS), (N_PARAMS, 2)).into_owned();
+        let Some(x) = crate::lsq::solve_normal(&bb, &bt, 0.0) else {
+            return f64::NAN;
+        };
+        s -= bt.transpose() * x;
+    }
+    s[(0, 1)] / (s[(0, 0)] * s[(1, 1)]).sqrt()
+}
+
 /// The step's winner (`scored[0]`, accepted) against the best candidate of another library
-/// mechanism that also passes the rule: when the winner does not fit the held-out trials
+/// mechanism that the data also support ([`Rule::supports`]: at any value of its parameter —
+/// a one-sided gear friction of implausible size fitted better than the braking asymmetry the
+/// rule accepted, and was not its rival before): when the winner does not fit the held-out trials
 /// significantly better, the data locate the structure but do not tell which mechanism it is
 /// (a per-joint drive-electronics loss was named the DC-bus loss, a gear friction above a
 /// threshold of |τq̇| the braking asymmetry, each by a margin of 0.2–0.3 % before this rule).
@@ -945,12 +1001,13 @@ fn rival_mechanism(
     data: &PowerData,
     scored: &[(usize, Candidate)],
     remaining: &[Option<&'static Hypothesis>],
+    rule: &Rule,
 ) -> Option<MechanismForms> {
     let alpha = RIVAL_ALPHA;
     let (wi, w) = scored.first().filter(|(_, c)| c.score.accepted)?;
     let wh = remaining[*wi]?;
     let (ri, r) = scored.iter().skip(1).find(|(i, c)| {
-        c.score.accepted && remaining[*i].is_some_and(|h| h.mechanism != wh.mechanism)
+        rule.supports(&c.score) && remaining[*i].is_some_and(|h| h.mechanism != wh.mechanism)
     })?;
     let rh = remaining[*ri]?;
     let words = [wh.mechanism.to_string(), rh.mechanism.to_string()];
@@ -961,7 +1018,15 @@ fn rival_mechanism(
         words,
         alpha,
     );
-    f.unnamed = f.confounded;
+    let r = partial_correlation(data, [wh, rh], &w.next.full.theta, w.next.lag);
+    if std::env::var_os("G1VIZ_DEBUG_RIVAL").is_some() {
+        eprintln!(
+            "rival {} vs {}: partial r = {r:.4}, p = {:.4}",
+            wh.id, rh.id, f.p_value
+        );
+    }
+    f.partial_r = Some(r);
+    f.unnamed = f.confounded || (w.score.accepted && r.abs() >= SAME_BY_REFIT_R);
     f.unnamed.then_some(f)
 }
 
@@ -1024,7 +1089,7 @@ pub(crate) fn select(
         } else if step == 1 {
             compare_forms(data, &scored, &remaining, rule.alpha, &mut forms);
         }
-        let unnamed = rival_mechanism(data, &scored, &remaining);
+        let unnamed = rival_mechanism(data, &scored, &remaining, rule);
         let Some((idx, best)) = scored.into_iter().next().filter(|(_, c)| c.score.accepted) else {
             break;
         };

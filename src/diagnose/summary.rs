@@ -209,10 +209,9 @@ fn unnamed_lines(d: &Diagnosis, s: &mut String) {
     for f in d.forms.iter().filter(|f| f.unnamed) {
         let _ = writeln!(
             s,
-            "Located: the power follows the {} — mechanism not identified: {} (needed < {}); neither is claimed, {} is kept in the model as the best approximation.",
+            "Located: the power follows the {} — mechanism not identified: {}; neither is claimed, {} is kept in the model as the best approximation.",
             f.mechanism,
             f.evidence(),
-            super::select::RIVAL_ALPHA,
             f.winner
         );
     }
