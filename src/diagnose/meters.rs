@@ -14,6 +14,9 @@
 //! over the session (or steps) changes the difference of the two meters' readings, in which every
 //! real load cancels. It is invisible to the arm's model (each trial's power is taken net of its
 //! own rest), so this comparison is the only place it can be found.
+//!
+//! Both are one regression ([`slopes`]): the trials are in time order and their rest readings
+//! drift slowly, so every standard error here is widened for the residuals' serial correlation.
 
 use serde::{Deserialize, Serialize};
 
@@ -103,33 +106,44 @@ fn per_trial(p: &PowerSeries, metas: &[TrialMeta], lag: f64, w: f64) -> (Vec<f64
         .unzip()
 }
 
-/// Share of each column (what a term adds, per trial) that the other meter shows, with its
-/// standard error, from the slope of `diff` = other − target on the columns (with a constant).
-fn shares(diff: &[f64], cols: &[Vec<f64>]) -> Option<(Vec<(f64, f64)>, usize)> {
+/// The one inference rule of the meter comparisons: the slopes of `y` on `cols` (with a constant;
+/// rows with a non-finite value left out), their standard errors widened for the serial
+/// correlation of the residuals in trial order ([`serial_widening`]: the rest power and the
+/// meters' difference drift slowly, so neighbouring trials are not independent), the SSE and
+/// the rows used.
+fn slopes(y: &[f64], cols: &[&[f64]]) -> Option<(Vec<(f64, f64)>, f64, usize)> {
     let mut g = Gram::zeros(cols.len() + 1);
-    let mut row = vec![1.0; cols.len() + 1];
-    for (t, &d) in diff.iter().enumerate() {
-        for (c, col) in cols.iter().enumerate() {
-            row[c + 1] = col[t];
-        }
+    let mut rows = Vec::new();
+    for (t, &d) in y.iter().enumerate() {
+        let row: Vec<f64> = std::iter::once(1.0)
+            .chain(cols.iter().map(|c| c[t]))
+            .collect();
         if d.is_finite() && row.iter().all(|v| v.is_finite()) {
             g.add_row(&row, d);
+            rows.push((row, d));
         }
     }
     let (beta, se) = g.solve_with_se()?;
-    Some((
-        (1..=cols.len()).map(|c| (1.0 + beta[c], se[c])).collect(),
-        g.n,
-    ))
+    let resid: Vec<f64> = rows
+        .iter()
+        .map(|(x, y)| y - x.iter().zip(beta.iter()).map(|(x, b)| x * b).sum::<f64>())
+        .collect();
+    let widen = serial_widening(&resid);
+    let sse = resid.iter().map(|r| r * r).sum();
+    let b = (1..=cols.len()).map(|c| (beta[c], se[c] * widen)).collect();
+    Some((b, sse, g.n))
 }
 
 /// The check of each column, `None` where the other meter has too few trials.
 fn checks(target: Target, diff: &[f64], cols: &[Vec<f64>]) -> Vec<Option<MeterCheck>> {
-    let Some((s, n)) = shares(diff, cols) else {
+    let cols: Vec<&[f64]> = cols.iter().map(Vec::as_slice).collect();
+    let Some((s, _, n)) = slopes(diff, &cols) else {
         return vec![None; cols.len()];
     };
     s.into_iter()
-        .map(|(share, se)| {
+        .map(|(k, se)| {
+            // The other meter shows 1 + slope of what the term adds (other − target).
+            let share = 1.0 + k;
             // A verdict only where the comparison tells 0 from 1 (Z·se ≤ ½); an artefact's
             // share is consistent with 0 (a load's is diluted below 1 where the other meter's
             // readings fall at other instants than the fields' windows follow).
@@ -193,18 +207,6 @@ fn serial_widening(resid: &[f64]) -> f64 {
     ((1.0 + rho) / (1.0 - rho)).sqrt()
 }
 
-/// Slope of `y` on `x` (with a constant), its serially widened standard error and the SSE.
-fn slope(x: &[f64], y: &[f64]) -> Option<(f64, f64, f64)> {
-    let mut g = Gram::zeros(2);
-    for (x, y) in x.iter().zip(y) {
-        g.add_row(&[1.0, *x], *y);
-    }
-    let (b, se) = g.solve_with_se()?;
-    let resid: Vec<f64> = x.iter().zip(y).map(|(x, y)| y - b[0] - b[1] * x).collect();
-    let sse = resid.iter().map(|r| r * r).sum();
-    Some((b[1], se[1] * serial_widening(&resid), sse))
-}
-
 /// The meters compared over the session: the target meter's rest reading (each trial's pre-idle
 /// mean) is fitted with a linear drift and with a step at each of [`STEPS`]; the best form, if it
 /// beats `alpha` over the forms tried, is checked against the other meter (the slope of
@@ -243,10 +245,11 @@ pub(crate) fn compare(
         ));
     }
     let m = forms.len() as f64;
-    let (form, x, (b, se, _)) = forms
+    let (form, x, (b, se)) = forms
         .into_iter()
-        .filter_map(|(f, x)| slope(&x, &y).map(|s| (f, x, s)))
-        .min_by(|a, b| a.2.2.total_cmp(&b.2.2))?;
+        .filter_map(|(f, x)| slopes(&y, &[&x]).map(|(b, sse, _)| (f, x, (b[0], sse))))
+        .min_by(|a, b| a.2.1.total_cmp(&b.2.1))
+        .map(|(f, x, (b, _))| (f, x, b))?;
     let df = y.len().saturating_sub(2).max(1) as f64;
     let p = 2.0 * t_upper_tail((b / se).abs(), df);
     if p.is_nan() || p >= alpha / m {
@@ -254,8 +257,8 @@ pub(crate) fn compare(
     }
     // The other meter: diff = other − target regressed on the change; share = 1 + slope.
     let col: Vec<f64> = x.iter().map(|x| b * x).collect();
-    let (k, k_se, _) = slope(&col, &diff)?;
-    let (share, share_se) = (1.0 + k, k_se);
+    let (k, _, _) = slopes(&diff, &[&col])?;
+    let (share, share_se) = (1.0 + k[0].0, k[0].1);
     if share.is_nan() || share + Z * share_se >= 1.0 || Z * share_se >= 1.0 {
         return None;
     }

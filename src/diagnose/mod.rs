@@ -66,7 +66,7 @@ use reduce::SessionInfo;
 use replay::{replay_data, show_found, show_rest};
 use select::Rule;
 use select_discover::select_and_discover;
-use stages::{coarse_lags, filter_trials, lag_scan, remove_trials, scan_lags, trial_rows};
+use stages::{Usable, lag_scan, scan_lags, usable_trials};
 use window::sensor_window;
 
 /// [`crate::signals::join_recordings`], plus where each part's file lies on the joined time line (for
@@ -310,30 +310,14 @@ fn run(
     };
     let opts = &resolved;
     let reference: Option<Vec<f64>> = opts.reference.map(|m| m.to_vector().to_vec());
-    // Rows of every trial at lag 0 and Gram matrices at every coarse lag (one pass), then the
-    // usable trials, and the others' rows taken out of the Gram matrices (one short pass).
-    let lags = coarse_lags(opts);
     stage(3, "rows at the coarse lags, filters");
-    let first = trial_rows(samples, power, &all_metas, &lags, w)?;
-    let (metas, rejected, kept) =
-        filter_trials(&all_metas, skipped, &first.rows0, opts, reference.clone())?;
-    if metas.len() < 2 * opts.folds.max(2) {
-        bail!(
-            "{}: only {} usable trials (need at least {} for {}-fold cross-validation by trial)",
-            info.source.display(),
-            metas.len(),
-            2 * opts.folds.max(2),
-            opts.folds
-        );
-    }
-    let gone: Vec<usize> = (0..all_metas.len())
-        .filter(|i| kept.binary_search(i).is_err())
-        .collect();
-    let mut totals = first.totals;
-    remove_trials(samples, power, &all_metas, &gone, &lags, w, &mut totals)?;
-    let rejected_windows = replay::rejected_windows(&all_metas, &rejected);
-    drop(all_metas);
-    let rows0 = first.rows0.keep(&kept);
+    let Usable {
+        metas,
+        rejected,
+        rejected_windows,
+        rows0,
+        totals,
+    } = usable_trials(info, samples, all_metas, skipped, opts)?;
     // Every lag's Gram matrices, the fine lags and the torque rows (one more pass).
     let stride = torque::stride(&metas, opts.max_torque_samples);
     let mut torque_rows = Vec::new();
@@ -384,19 +368,52 @@ fn run(
     };
     drop(torque_rows);
     stage(6, "ranking, final refit, locating the residual");
-    let ranking = rank_hypotheses(&sel, torque.as_ref(), &rule);
+    let judged = Judged {
+        sel: &sel,
+        discovery,
+        torque,
+        rule: &rule,
+        sensor,
+        rejected,
+        rejected_windows,
+    };
+    assemble(info, opts, &metas, &data, &fields, judged)
+}
+
+/// What the selection stages leave for the last one ([`assemble`]).
+struct Judged<'a> {
+    sel: &'a select::Selection,
+    discovery: Option<DiscoveryReport>,
+    torque: Option<torque::TorqueLevel>,
+    rule: &'a Rule,
+    sensor: SensorWindow,
+    rejected: Vec<crate::trial::Rejection>,
+    rejected_windows: Vec<HighlightedTrial>,
+}
+
+/// The last stage: ranking, final refit, locating the residual, the lag scan, the replay data
+/// and the summary, assembled into the [`Diagnosis`].
+fn assemble(
+    info: &SessionInfo,
+    opts: &DiagnoseOptions,
+    metas: &[data::TrialMeta],
+    data: &select::PowerData,
+    fields: &select_discover::RowFields,
+    j: Judged,
+) -> Result<Diagnosis> {
+    let sel = j.sel;
+    let ranking = rank_hypotheses(sel, j.torque.as_ref(), j.rule);
     let final_model = refit_final(
-        &sel,
+        sel,
         &ranking.accepted,
-        torque.as_ref(),
+        j.torque.as_ref(),
         data.rows0(),
         metas.len(),
     );
-    let located = locate_residuals(&info.joint_names, &metas, &data, &sel, discovery.as_ref());
-    let lag_scan = lag_scan(&data)?;
+    let located = locate_residuals(&info.joint_names, metas, data, sel, j.discovery.as_ref());
     let replay = ReplayData {
-        rejected: rejected_windows,
-        ..replay_data(&metas, data.rows0(), &sel, &located)
+        rejected: j.rejected_windows,
+        ..replay_data(metas, data.rows0(), sel, &located)
     };
     let mut diag = Diagnosis {
         schema_version: SCHEMA_VERSION,
@@ -405,14 +422,14 @@ fn run(
         joint_names: info.joint_names.clone(),
         n_trials: metas.len(),
         n_readings: data.rows0().len(),
-        rejected,
-        torque: torque.map(|t| t.comparison),
+        rejected: j.rejected,
+        torque: j.torque.map(|t| t.comparison),
         base_model: if data.reference.is_some() {
             "reference".into()
         } else {
             "refit".into()
         },
-        lag_scan,
+        lag_scan: lag_scan(data)?,
         breakdowns: located.breakdowns,
         worst: located.worst,
         worst_trials: located.worst_trials,
@@ -422,18 +439,18 @@ fn run(
         unexplained: located.unexplained,
         forms: sel.forms.clone(),
         confounded: sel.confounded.clone(),
-        discovery,
+        discovery: j.discovery,
         bus_volts: fields
             .table
             .bus_volts
             .unwrap_or(hypotheses::NOMINAL_BUS_VOLTS),
-        sensor_window: sensor,
+        sensor_window: j.sensor,
         summary: String::new(),
         replay,
         counterpart: None,
     };
-    show_found(&mut diag, &fields, data.rows0(), &metas);
-    show_rest(&mut diag, &fields, data.rows0(), &metas);
+    show_found(&mut diag, fields, data.rows0(), metas);
+    show_rest(&mut diag, fields, data.rows0(), metas);
     diag.summary = summary::summarise(&diag);
     Ok(diag)
 }

@@ -205,6 +205,60 @@ pub(crate) fn filter_trials(
     Ok((metas, rejected, kept))
 }
 
+/// The usable trials and what the later stages need of them ([`usable_trials`]).
+pub(crate) struct Usable {
+    /// The usable trials.
+    pub(crate) metas: Vec<TrialMeta>,
+    /// Every rejection (unusable trials, filters).
+    pub(crate) rejected: Vec<Rejection>,
+    /// The rejected trials' windows, for the replay.
+    pub(crate) rejected_windows: Vec<super::HighlightedTrial>,
+    /// The usable trials' rows at lag 0.
+    pub(crate) rows0: Rows,
+    /// Their Gram matrices at the [`coarse_lags`].
+    pub(crate) totals: Vec<Gram>,
+}
+
+/// Stage: rows of every trial at lag 0 and Gram matrices at every coarse lag (one pass), then
+/// the usable trials ([`filter_trials`]), and the others' rows taken out of the Gram matrices
+/// (one short pass over them only). `opts` has its sensor window resolved.
+pub(crate) fn usable_trials(
+    info: &super::reduce::SessionInfo,
+    samples: &mut dyn TrialSource,
+    all_metas: Vec<TrialMeta>,
+    skipped: Vec<(usize, String)>,
+    opts: &DiagnoseOptions,
+) -> Result<Usable> {
+    let power = &info.power;
+    let w = (opts.sensor_window_s).unwrap_or(crate::timing::Alignment::NOMINAL.window_s);
+    let reference: Option<Vec<f64>> = opts.reference.map(|m| m.to_vector().to_vec());
+    let lags = coarse_lags(opts);
+    let first = trial_rows(samples, power, &all_metas, &lags, w)?;
+    let (metas, rejected, kept) =
+        filter_trials(&all_metas, skipped, &first.rows0, opts, reference)?;
+    if metas.len() < 2 * opts.folds.max(2) {
+        anyhow::bail!(
+            "{}: only {} usable trials (need at least {} for {}-fold cross-validation by trial)",
+            info.source.display(),
+            metas.len(),
+            2 * opts.folds.max(2),
+            opts.folds
+        );
+    }
+    let gone: Vec<usize> = (0..all_metas.len())
+        .filter(|i| kept.binary_search(i).is_err())
+        .collect();
+    let mut totals = first.totals;
+    remove_trials(samples, power, &all_metas, &gone, &lags, w, &mut totals)?;
+    Ok(Usable {
+        rejected_windows: super::replay::rejected_windows(&all_metas, &rejected),
+        metas,
+        rejected,
+        rows0: first.rows0.keep(&kept),
+        totals,
+    })
+}
+
 /// Per-trial mean in-sample residual of the base model fitted to `rows`.
 pub(crate) fn base_trial_residuals(
     rows: &Rows,
