@@ -26,6 +26,17 @@ fn md_cell(text: &str) -> String {
     text.replace('|', "\\|")
 }
 
+/// A markdown table: the header's cells, then one line per row of cells.
+fn table(md: &mut String, head: &[&str], rows: impl IntoIterator<Item = Vec<String>>) {
+    let line = |cells: &[String]| format!("| {} |\n", cells.join(" | "));
+    let head: Vec<String> = head.iter().map(|h| h.to_string()).collect();
+    md.push_str(&line(&head));
+    md.push_str(&format!("|{}|\n", vec!["---"; head.len()].join("|")));
+    for r in rows {
+        md.push_str(&line(&r));
+    }
+}
+
 fn sig(v: f64) -> String {
     if v.abs() >= 0.01 && v.abs() < 1e4 {
         format!("{v:.3}")
@@ -93,23 +104,24 @@ fn header_section(md: &mut String, d: &Diagnosis) {
 fn torque_section(md: &mut String, t: &super::TorqueComparison) {
     let _ = writeln!(md, "## Torque level (tau_est vs URDF inverse dynamics)\n");
     let _ = writeln!(md, "{} samples.\n", t.n_samples);
-    let _ = writeln!(
-        md,
-        "| joint | bias [Nm] | RMS [Nm] | RMS after friction [Nm] | Fc [Nm] | Fv [Nm·s/rad] |"
-    );
-    let _ = writeln!(md, "|---|---|---|---|---|---|");
-    for j in 0..t.rmse_urdf.len() {
-        let _ = writeln!(
-            md,
-            "| {} | {:+.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
+    let head = [
+        "joint",
+        "bias [Nm]",
+        "RMS [Nm]",
+        "RMS after friction [Nm]",
+        "Fc [Nm]",
+    ];
+    let rows = (0..t.rmse_urdf.len()).map(|j| {
+        vec![
             t.joints.get(j).cloned().unwrap_or_default(),
-            t.bias_urdf[j],
-            t.rmse_urdf[j],
-            t.rmse_with_friction[j],
-            t.coulomb_nm[j],
-            t.viscous_nms[j]
-        );
-    }
+            format!("{:+.3}", t.bias_urdf[j]),
+            format!("{:.3}", t.rmse_urdf[j]),
+            format!("{:.3}", t.rmse_with_friction[j]),
+            format!("{:.3}", t.coulomb_nm[j]),
+            format!("{:.3}", t.viscous_nms[j]),
+        ]
+    });
+    table(md, &[&head[..], &["Fv [Nm·s/rad]"]].concat(), rows);
     md.push('\n');
 }
 
@@ -135,23 +147,26 @@ fn where_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()> {
         );
     }
     for b in &d.breakdowns {
-        let _ = writeln!(
-            md,
-            "**{}**\n\n| group | readings | trials | mean residual [W] | RMS [W] | p |\n|---|---|---|---|---|---|",
-            b.by
-        );
-        for g in &b.groups {
-            let _ = writeln!(
-                md,
-                "| {} | {} | {} | {:+.3} | {:.3} | {} |",
+        let _ = writeln!(md, "**{}**\n", b.by);
+        let head = [
+            "group",
+            "readings",
+            "trials",
+            "mean residual [W]",
+            "RMS [W]",
+            "p",
+        ];
+        let rows = b.groups.iter().map(|g| {
+            vec![
                 md_cell(&g.label),
-                g.n_rows,
-                g.n_trials,
-                g.bias_w,
-                g.rmse_w,
-                sig(g.p_value)
-            );
-        }
+                g.n_rows.to_string(),
+                g.n_trials.to_string(),
+                format!("{:+.3}", g.bias_w),
+                format!("{:.3}", g.rmse_w),
+                sig(g.p_value),
+            ]
+        });
+        table(md, &head, rows);
         md.push('\n');
     }
     write_png(&dir.join(FIGURES[0]), (900, 500), |a| draw_regime(a, d))?;
@@ -174,30 +189,26 @@ fn hypotheses_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()> 
         md,
         "## Hypotheses (scored against the base model; accepted first)\n"
     );
-    let _ = writeln!(
-        md,
-        "| rank | hypothesis | level | parameter | p | ΔBIC | held-out RMSE before → after | verdict |"
-    );
-    let _ = writeln!(md, "|---|---|---|---|---|---|---|---|");
-    for h in &d.hypotheses {
-        let p = param_cells(&h.params[..h.params.len().min(1)])
-            .pop()
-            .unwrap_or_default();
-        let _ = writeln!(
-            md,
-            "| {} | {} | {} | {} | {} | {:.1} | {:.4} → {:.4} ({:+.1} %) | {} |",
-            h.rank,
-            h.id,
-            h.level,
-            p,
+    let head = ["rank", "hypothesis", "level", "parameter", "p", "ΔBIC"];
+    let rows = d.hypotheses.iter().map(|h| {
+        vec![
+            h.rank.to_string(),
+            h.id.clone(),
+            h.level.to_string(),
+            param_cells(&h.params[..h.params.len().min(1)]).join(""),
             sig(h.p_value),
-            h.delta_bic,
-            h.rmse_before,
-            h.rmse_after,
-            -100.0 * h.rel_improvement,
-            h.verdict
-        );
-    }
+            format!("{:.1}", h.delta_bic),
+            format!(
+                "{:.4} → {:.4} ({:+.1} %)",
+                h.rmse_before,
+                h.rmse_after,
+                -100.0 * h.rel_improvement
+            ),
+            h.verdict.clone(),
+        ]
+    });
+    let more = ["held-out RMSE before → after", "verdict"];
+    table(md, &[&head[..], &more].concat(), rows);
     md.push('\n');
     write_png(&dir.join(FIGURES[1]), (900, 450), |a| draw_hypotheses(a, d))?;
     let _ = writeln!(
@@ -215,21 +226,11 @@ fn final_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()> {
     if f.hypotheses.is_empty() {
         let _ = writeln!(md, "No hypothesis accepted: the model is unchanged.\n");
     } else {
-        let _ = writeln!(
-            md,
-            "| parameter | value | std. error | unit |\n|---|---|---|---|"
-        );
-        for p in &f.params {
-            let _ = writeln!(
-                md,
-                "| {} ({}) | {} | {} | {} |",
-                p.name,
-                p.symbol,
-                sig(p.value),
-                sig(p.std_err),
-                p.unit
-            );
-        }
+        let rows = f.params.iter().map(|p| {
+            let name = format!("{} ({})", p.name, p.symbol);
+            vec![name, sig(p.value), sig(p.std_err), p.unit.clone()]
+        });
+        table(md, &["parameter", "value", "std. error", "unit"], rows);
         md.push('\n');
     }
     let _ = writeln!(
@@ -270,32 +271,33 @@ fn unexplained_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()>
         md,
         "Per-trial mean residual of the final model vs per-trial mean feature (feature made orthogonal to the base regressors), Bonferroni-adjusted.\n"
     );
-    let _ = writeln!(
-        md,
-        "| feature | r | adjusted p | significant | trials carrying it |\n|---|---|---|---|---|"
-    );
-    for c in &d.unexplained {
+    let rows = d.unexplained.iter().map(|c| {
         let trials: Vec<String> = c.trials.iter().map(|t| t.to_string()).collect();
-        let _ = writeln!(
-            md,
-            "| {} | {:+.3} | {} | {} | {} |",
+        vec![
             md_cell(&c.feature),
-            c.r,
+            format!("{:+.3}", c.r),
             sig(c.p_adjusted),
-            if c.significant { "yes" } else { "no" },
-            trials.join(", ")
-        );
-    }
+            (if c.significant { "yes" } else { "no" }).into(),
+            trials.join(", "),
+        ]
+    });
+    let head = [
+        "feature",
+        "r",
+        "adjusted p",
+        "significant",
+        "trials carrying it",
+    ];
+    table(md, &head, rows);
     md.push('\n');
     if d.lag_scan.len() > 1 {
         write_png(&dir.join(FIGURES[4]), (800, 420), |a| draw_lag_scan(a, d))?;
         let _ = writeln!(md, "![Sensor-lag scan of the base model]({})\n", FIGURES[4]);
     }
     if !d.rejected.is_empty() {
-        let _ = writeln!(md, "## Trials left out\n\n| trial | reason |\n|---|---|");
-        for r in &d.rejected {
-            let _ = writeln!(md, "| {} | {} |", r.trial, md_cell(&r.to_string()));
-        }
+        let _ = writeln!(md, "## Trials left out\n");
+        let rows = (d.rejected.iter()).map(|r| vec![r.trial.to_string(), md_cell(&r.to_string())]);
+        table(md, &["trial", "reason"], rows);
         md.push('\n');
     }
     Ok(())
@@ -572,28 +574,36 @@ fn counterpart_section(md: &mut String, c: &super::counterpart::CounterpartCompa
          {:.2} W rms, {:+.2} W on average; R² of the twin's power {:.3}.\n",
         c.matched_samples, c.matched_readings, c.power_rms_w, c.power_bias_w, c.power_r2
     );
-    let _ = writeln!(md, "| joint | τ RMS [Nm] | τ bias [Nm] | q RMS [rad] |");
-    let _ = writeln!(md, "|---|---:|---:|---:|");
-    for j in &c.joints {
-        let _ = writeln!(
-            md,
-            "| {} | {:.3} | {:+.3} | {:.4} |",
-            j.joint, j.tau_rms_nm, j.tau_bias_nm, j.q_rms_rad
-        );
-    }
+    let rows = c.joints.iter().map(|j| {
+        vec![
+            j.joint.clone(),
+            format!("{:.3}", j.tau_rms_nm),
+            format!("{:+.3}", j.tau_bias_nm),
+            format!("{:.4}", j.q_rms_rad),
+        ]
+    });
+    table(
+        md,
+        &["joint", "τ RMS [Nm]", "τ bias [Nm]", "q RMS [rad]"],
+        rows,
+    );
     if !c.worst_trials.is_empty() {
-        let _ = writeln!(
+        md.push('\n');
+        let rows = c.worst_trials.iter().map(|t| {
+            vec![
+                t.trial.to_string(),
+                t.readings.to_string(),
+                format!("{:.1}", t.t_start),
+                format!("{:.1}", t.t_end),
+                format!("{:+.2}", t.power_mean_w),
+            ]
+        });
+        let head = ["trial", "readings", "from [s]", "to [s]"];
+        table(
             md,
-            "\n| trial | readings | from [s] | to [s] | mean net power difference [W] |"
+            &[&head[..], &["mean net power difference [W]"]].concat(),
+            rows,
         );
-        let _ = writeln!(md, "|---:|---:|---:|---:|---:|");
-        for t in &c.worst_trials {
-            let _ = writeln!(
-                md,
-                "| {} | {} | {:.1} | {:.1} | {:+.2} |",
-                t.trial, t.readings, t.t_start, t.t_end, t.power_mean_w
-            );
-        }
     }
     let _ = writeln!(md);
 }
@@ -603,49 +613,47 @@ fn beyond_section(md: &mut String, d: &Diagnosis) {
     if !d.forms.is_empty() {
         let _ = writeln!(
             md,
-            "## Mechanisms with several forms (same cross-validation)\n\n| mechanism | winning form | runner-up | held-out RMSE [W] | margin | p | accepted |\n|---|---|---|---|---|---|---|"
+            "## Mechanisms with several forms (same cross-validation)\n"
         );
-        for f in &d.forms {
-            let _ = writeln!(
-                md,
-                "| {} | {} | {} | {:.3} vs {:.3} | {:.1} % | {} | {} |",
-                f.mechanism,
-                f.winner,
-                f.runner_up,
-                f.rmse_w[0],
-                f.rmse_w[1],
-                100.0 * f.margin,
+        let rows = d.forms.iter().map(|f| {
+            vec![
+                f.mechanism.clone(),
+                f.winner.clone(),
+                f.runner_up.clone(),
+                format!("{:.3} vs {:.3}", f.rmse_w[0], f.rmse_w[1]),
+                format!("{:.1} %", 100.0 * f.margin),
                 sig(f.p_value),
                 match (f.accepted, f.confounded) {
                     (true, true) => format!("mechanism only — form: confounded, {}", f.either()),
                     (true, false) => "yes".into(),
                     _ => "no".into(),
-                }
-            );
-        }
+                },
+            ]
+        });
+        let head = [
+            "mechanism",
+            "winning form",
+            "runner-up",
+            "held-out RMSE [W]",
+            "margin",
+        ];
+        table(md, &[&head[..], &["p", "accepted"]].concat(), rows);
         md.push('\n');
     }
     if !d.confounded.is_empty() {
-        let _ = writeln!(
-            md,
-            "## Confounded\n\n| kept | dropped | regressor r | p of dropped given kept | RMSE change |\n|---|---|---|---|---|"
-        );
-        for c in &d.confounded {
-            let _ = writeln!(
-                md,
-                "| {}{} | {} | {:+.2} | {} | {:+.2} % |",
-                c.kept,
-                if c.tied {
-                    " (not told apart: the dropped column's library term stays claimed)"
-                } else {
-                    ""
-                },
-                c.dropped,
-                c.correlation,
+        let _ = writeln!(md, "## Confounded\n");
+        let tied = " (not told apart: the dropped column's library term stays claimed)";
+        let rows = d.confounded.iter().map(|c| {
+            vec![
+                format!("{}{}", c.kept, if c.tied { tied } else { "" }),
+                c.dropped.clone(),
+                format!("{:+.2}", c.correlation),
                 sig(c.p_value),
-                -100.0 * c.rel_change
-            );
-        }
+                format!("{:+.2} %", -100.0 * c.rel_change),
+            ]
+        });
+        let head = ["kept", "dropped", "regressor r", "p of dropped given kept"];
+        table(md, &[&head[..], &["RMSE change"]].concat(), rows);
         md.push('\n');
     }
     let Some(r) = &d.discovery else {
@@ -659,26 +667,21 @@ fn beyond_section(md: &mut String, d: &Diagnosis) {
         r.n_candidates,
         sig(r.alpha)
     );
-    let _ = writeln!(
-        md,
-        "| step | found | form | field(s) | parameter(s) | held-out R² before → after | p | verdict |\n|---|---|---|---|---|---|---|---|"
-    );
-    for t in r.accepted.iter().chain(r.best_rejected.iter()) {
-        let params = param_cells(&t.params);
-        let _ = writeln!(
-            md,
-            "| {} | {} | {} | {} | {} | {:.3} → {:.3} | {} | {} |",
-            t.step,
-            t.name,
-            t.form,
+    let rows = r.accepted.iter().chain(r.best_rejected.iter()).map(|t| {
+        vec![
+            t.step.to_string(),
+            t.name.clone(),
+            t.form.clone(),
             t.fields.join(", "),
-            params.join("; "),
-            t.before.r2,
-            t.after.r2,
+            param_cells(&t.params).join("; "),
+            format!("{:.3} → {:.3}", t.before.r2, t.after.r2),
             sig(t.p_value),
-            t.verdict
-        );
-    }
+            t.verdict.clone(),
+        ]
+    });
+    let head = ["step", "found", "form", "field(s)", "parameter(s)"];
+    let more = ["held-out R² before → after", "p", "verdict"];
+    table(md, &[&head[..], &more].concat(), rows);
     tied_terms(md, r);
     for n in &r.notes {
         let _ = writeln!(md, "\n- {n}");
@@ -705,23 +708,18 @@ Each trial's pre-idle power (mean {:.2} W; the net-power model subtracts it, so 
         r.rmse_before_w,
         r.rmse_after_w
     );
-    let _ = writeln!(
-        md,
-        "| found | form | parameter(s) | p | verdict | not told apart from it |\n|---|---|---|---|---|---|"
-    );
-    for t in r.found.iter().chain(r.best_rejected.iter()) {
-        let params = param_cells(&t.params);
-        let _ = writeln!(
-            md,
-            "| {} | {} | {} | {} | {} | {} |",
-            t.name,
-            t.form,
-            params.join("; "),
+    let rows = r.found.iter().chain(r.best_rejected.iter()).map(|t| {
+        vec![
+            t.name.clone(),
+            t.form.clone(),
+            param_cells(&t.params).join("; "),
             sig(t.p_value),
-            t.verdict,
-            t.tied.join(", ")
-        );
-    }
+            t.verdict.clone(),
+            t.tied.join(", "),
+        ]
+    });
+    let head = ["found", "form", "parameter(s)", "p", "verdict"];
+    table(md, &[&head[..], &["not told apart from it"]].concat(), rows);
     md.push('\n');
 }
 
@@ -734,31 +732,35 @@ fn tied_terms(md: &mut String, r: &super::DiscoveryReport) {
     }
     let _ = writeln!(
         md,
-        "\n### Not told apart from a found term (confounded: claimed as one mechanism, the field in doubt)\n\n| step | candidate | form | field(s) | parameter(s) | held-out RMSE [W] found vs candidate | p (found fits better) | r of contributions | why a rival |\n|---|---|---|---|---|---|---|---|---|"
+        "\n### Not told apart from a found term (confounded: claimed as one mechanism, the field in doubt)\n"
     );
-    for t in &r.accepted {
-        for o in &t.tied {
-            let params = param_cells(&o.params);
-            let _ = writeln!(
-                md,
-                "| {} | {} | {} | {} | {} | {:.3} vs {:.3} | {} | {:+.3} | {} |",
-                t.step,
-                o.name,
-                o.form,
-                o.fields.join(", "),
-                params.join("; "),
-                o.rmse_w[0],
-                o.rmse_w[1],
-                sig(o.p_value),
-                o.correlation,
-                if o.same_structure {
-                    "same term, another field"
-                } else {
-                    "collinear contribution"
-                }
-            );
-        }
-    }
+    let rows = (r.accepted.iter()).flat_map(|t| t.tied.iter().map(move |o| (t.step, o)));
+    let rows = rows.map(|(step, o)| {
+        vec![
+            step.to_string(),
+            o.name.clone(),
+            o.form.clone(),
+            o.fields.join(", "),
+            param_cells(&o.params).join("; "),
+            format!("{:.3} vs {:.3}", o.rmse_w[0], o.rmse_w[1]),
+            sig(o.p_value),
+            format!("{:+.3}", o.correlation),
+            (if o.same_structure {
+                "same term, another field"
+            } else {
+                "collinear contribution"
+            })
+            .into(),
+        ]
+    });
+    let head = ["step", "candidate", "form", "field(s)", "parameter(s)"];
+    let more = [
+        "held-out RMSE [W] found vs candidate",
+        "p (found fits better)",
+        "r of contributions",
+        "why a rival",
+    ];
+    table(md, &[&head[..], &more].concat(), rows);
 }
 
 /// The fields discovery left out by a rule on their own data, with the reason.
@@ -768,12 +770,11 @@ fn excluded_fields(md: &mut String, r: &super::DiscoveryReport) {
     }
     let _ = writeln!(
         md,
-        "### Fields left out of discovery ({})\n\n| field | reason |\n|---|---|",
+        "### Fields left out of discovery ({})\n",
         r.excluded.len()
     );
-    for e in &r.excluded {
-        let _ = writeln!(md, "| `{}` | {} |", e.name, e.reason.replace('|', "\\|"));
-    }
+    let rows = (r.excluded.iter()).map(|e| vec![format!("`{}`", e.name), md_cell(&e.reason)]);
+    table(md, &["field", "reason"], rows);
     md.push('\n');
 }
 
