@@ -33,9 +33,9 @@ use anyhow::Result;
 use nalgebra::{DMatrix, DVector};
 
 use super::Quality;
-use super::data::Rows;
 use super::family::{Shape, Term};
 use super::fields::FieldTable;
+use super::reading_rows::Rows;
 use super::select::{
     Param, PowerData, Rule, State, bic, bounds_for, design_map_for, jackknife_se, r2_rmse,
     solve_bounded_for, trial_sse,

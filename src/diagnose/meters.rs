@@ -20,8 +20,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::data::{Rows, TrialMeta, baseline_readings};
 use super::discover::DiscoveryReport;
+use super::reading_rows::{Rows, TrialMeta, baseline_readings};
 use super::stats::t_upper_tail;
 use crate::lsq::Gram;
 use crate::signals::{PowerSeries, Target};

@@ -10,23 +10,22 @@
 //! the held-out residuals ([`locate`]) → plain-language summary ([`summary`]).
 
 pub(crate) mod counterpart;
-pub(crate) mod data;
+mod diagnosis;
 pub(crate) mod discover;
 pub(crate) mod family;
+pub(crate) mod field_rules;
 pub(crate) mod fields;
 pub(crate) mod hypotheses;
+mod lags;
 pub(crate) mod locate;
 pub(crate) mod meters;
 mod options;
-mod outcome;
-mod reduce;
-mod replay;
+pub(crate) mod reading_rows;
+mod refit;
 pub(crate) mod report;
 pub(crate) mod rest;
-mod result;
 pub(crate) mod select;
 mod select_discover;
-mod stages;
 pub(crate) mod stats;
 pub(crate) mod summary;
 #[cfg(test)]
@@ -34,6 +33,8 @@ mod testkit;
 #[cfg(test)]
 mod tests;
 pub(crate) mod torque;
+mod trials;
+mod viewer_data;
 mod window;
 
 use anyhow::{Result, bail};
@@ -44,29 +45,29 @@ pub use counterpart::{
     CounterpartComparison, CounterpartSeries, JointDifference, TrialDifference,
     compare as compare_counterpart, compare_files as compare_counterpart_files,
 };
+pub use diagnosis::{Diagnosis, FinalModel, LagPoint, Quality, SCHEMA_VERSION, SensorWindow};
 pub use discover::{Discovery, DiscoveryReport, TiedTerm};
 pub use fields::{ExcludedField, FieldSource};
 pub use locate::{Breakdown, Correlate, Group, TrialResidual};
 pub use meters::{MeterCheck, MeterDrift};
 pub use options::DiagnoseOptions;
-pub use replay::{HighlightedTrial, LocatedField, ReplayData};
 pub use report::{FIGURES as REPORT_FIGURES, write_report};
 pub use rest::{RestPower, RestTerm};
-pub use result::{Diagnosis, FinalModel, LagPoint, Quality, SCHEMA_VERSION, SensorWindow};
 pub use select::{Confounded, HypothesisScore, MechanismForms, Param};
 pub use torque::{ArmModel, TorqueComparison};
+pub use viewer_data::{HighlightedTrial, LocatedField, ReplayData};
 
 use crate::N_PARAMS;
 use crate::power::PowerModel;
 use crate::robot::{ArmDynamics, RobotModel};
 use crate::session::{Memory, SessionFile, TrialSource};
 use crate::signals::Recording;
-use outcome::{locate_residuals, rank_hypotheses, refit_final};
-use reduce::SessionInfo;
-use replay::{replay_data, show_found, show_rest};
+use lags::{Usable, lag_scan, scan_lags, usable_trials};
+use refit::{locate_residuals, rank_hypotheses, refit_final};
 use select::Rule;
 use select_discover::select_and_discover;
-use stages::{Usable, lag_scan, scan_lags, usable_trials};
+use trials::SessionInfo;
+use viewer_data::{replay_data, show_found, show_rest};
 use window::sensor_window;
 
 /// [`crate::signals::join_recordings`], plus where each part's file lies on the joined time line (for
@@ -148,7 +149,7 @@ pub fn diagnose_files(
         1,
         "reading the file: segmentation and per-trial reductions (1st pass)",
     );
-    let (mut samples, s) = reduce::open_streamed(files, opts.target, bus_model(opts), gap_s)?;
+    let (mut samples, s) = trials::open_streamed(files, opts.target, bus_model(opts), gap_s)?;
     let arm = arm_model(opts, s.has_torque, &s.info.joint_names)?;
     let opts = DiagnoseOptions {
         field_sources: s.field_sources,
@@ -241,8 +242,8 @@ impl TrialSource for Counted<'_> {
 }
 
 /// The bus-current feature's model: the twin's power model at the nominal supply voltage.
-fn bus_model(opts: &DiagnoseOptions) -> data::BusModel {
-    data::BusModel {
+fn bus_model(opts: &DiagnoseOptions) -> reading_rows::BusModel {
+    reading_rows::BusModel {
         model: opts.reference.unwrap_or(PowerModel::PAPER),
         volts: hypotheses::NOMINAL_BUS_VOLTS,
     }
@@ -264,7 +265,7 @@ pub fn diagnose_trials(
 ) -> Result<Diagnosis> {
     let info = SessionInfo::of(rec, opts.target);
     let mut samples = Memory(rec);
-    let metas = reduce::trial_metas(&mut samples, windows, bus_model(opts))?;
+    let metas = trials::trial_metas(&mut samples, windows, bus_model(opts))?;
     run(&info, &mut samples, metas, arm, opts)
 }
 
@@ -273,7 +274,7 @@ pub fn diagnose_trials(
 fn run(
     info: &SessionInfo,
     samples: &mut dyn TrialSource,
-    (all_metas, skipped): (Vec<data::TrialMeta>, data::Skipped),
+    (all_metas, skipped): (Vec<reading_rows::TrialMeta>, reading_rows::Skipped),
     arm: Option<&dyn ArmModel>,
     opts: &DiagnoseOptions,
 ) -> Result<Diagnosis> {
@@ -396,7 +397,7 @@ struct Judged<'a> {
 fn assemble(
     info: &SessionInfo,
     opts: &DiagnoseOptions,
-    metas: &[data::TrialMeta],
+    metas: &[reading_rows::TrialMeta],
     data: &select::PowerData,
     fields: &select_discover::RowFields,
     j: Judged,

@@ -37,9 +37,9 @@ use anyhow::{Context, Result};
 use crate::timing::{Alignment, AlignmentEstimate, ScanGrid, ridge_r2, scan_alignment};
 use crate::trial::{Cascade, TrialStat, TrialWindow, is_rejected};
 
-use super::data::{Rows, TrialMeta, build_rows};
-use super::reduce::{SessionInfo, hold};
-use super::stages::base_trial_residuals;
+use super::lags::base_trial_residuals;
+use super::reading_rows::{Rows, TrialMeta, build_rows};
+use super::trials::{SessionInfo, hold};
 use super::{DiagnoseOptions, SensorWindow};
 use crate::session::TrialSource;
 

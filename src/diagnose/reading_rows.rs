@@ -192,7 +192,7 @@ pub(crate) fn trial_meta(
 }
 
 /// Mean of φ and the extras (and optionally the descriptors) over state samples in (a, b], the
-/// window cut at the trial's span ([`super::reduce::span`]: a window never reaches into samples
+/// window cut at the trial's span ([`super::trials::span`]: a window never reaches into samples
 /// that belong to no trial's span, so a streamed read sees the same samples as one in memory).
 /// `None` when the window holds fewer than [`MIN_WINDOW_SAMPLES`] (a gap in the joint stream).
 fn window_mean(
@@ -203,7 +203,7 @@ fn window_mean(
     x: &mut [f64; N_RAW],
     loc: Option<&mut [f64; N_LOCATE]>,
 ) -> Option<()> {
-    let a = a.max(super::reduce::span(&meta.window).0);
+    let a = a.max(super::trials::span(&meta.window).0);
     let range = samples_in(&rec.state.t, a, b);
     if range.len() < MIN_WINDOW_SAMPLES {
         return None;
@@ -258,7 +258,7 @@ impl TrialFeatures {
     }
 
     pub(crate) fn new(rec: &Recording, meta: &TrialMeta) -> TrialFeatures {
-        let a = super::reduce::span(&meta.window).0;
+        let a = super::trials::span(&meta.window).0;
         let range = samples_in(&rec.state.t, a, meta.window.t_return_end + 1e-6);
         let mut phi = [0.0; crate::N_PARAMS];
         let mut ex = [0.0; N_EXTRA];
@@ -291,7 +291,7 @@ impl TrialFeatures {
         b: f64,
         x: &mut [f64; N_RAW],
     ) -> Option<Option<()>> {
-        let a = a.max(super::reduce::span(&meta.window).0);
+        let a = a.max(super::trials::span(&meta.window).0);
         let range = samples_in(&rec.state.t, a, b);
         if range.len() < MIN_WINDOW_SAMPLES {
             return Some(None);

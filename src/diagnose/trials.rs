@@ -19,7 +19,7 @@ use crate::signals::{PowerSeries, Recording, Target};
 use crate::trial::{SegmentOptions, TrialWindow};
 
 use super::FieldSource;
-use super::data::{BusModel, TrialMeta, trial_meta};
+use super::reading_rows::{BusModel, TrialMeta, trial_meta};
 
 /// Margin before a trial's pre-idle start whose samples belong to the trial [s]: a window
 /// reaching further back is cut there. The streamed reader keeps at least 0.5 s before the
@@ -80,7 +80,7 @@ pub(crate) fn trial_metas(
     samples: &mut dyn TrialSource,
     windows: &[TrialWindow],
     bus: BusModel,
-) -> Result<(Vec<TrialMeta>, super::data::Skipped)> {
+) -> Result<(Vec<TrialMeta>, super::reading_rows::Skipped)> {
     let mut metas = Vec::new();
     let mut skipped = Vec::new();
     samples.for_each(windows, &mut |rec, w| {

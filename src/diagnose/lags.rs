@@ -9,8 +9,8 @@ use crate::lsq::Gram;
 use crate::signals::{PowerSeries, Recording};
 use crate::trial::{Cascade, Rejection, TrialStat, TrialWindow};
 
-use super::data::{Rows, TrialFeatures, TrialMeta, trial_rows_into};
 use super::hypotheses::N_RAW;
+use super::reading_rows::{Rows, TrialFeatures, TrialMeta, trial_rows_into};
 use super::select::{FOLD_SEED, FoldGramsBuilder, Folds, PowerData, fit};
 use super::{DiagnoseOptions, LagPoint};
 use crate::session::TrialSource;
@@ -223,7 +223,7 @@ pub(crate) struct Usable {
 /// the usable trials ([`filter_trials`]), and the others' rows taken out of the Gram matrices
 /// (one short pass over them only). `opts` has its sensor window resolved.
 pub(crate) fn usable_trials(
-    info: &super::reduce::SessionInfo,
+    info: &super::trials::SessionInfo,
     samples: &mut dyn TrialSource,
     all_metas: Vec<TrialMeta>,
     skipped: Vec<(usize, String)>,
@@ -251,7 +251,7 @@ pub(crate) fn usable_trials(
     let mut totals = first.totals;
     remove_trials(samples, power, &all_metas, &gone, &lags, w, &mut totals)?;
     Ok(Usable {
-        rejected_windows: super::replay::rejected_windows(&all_metas, &rejected),
+        rejected_windows: super::viewer_data::rejected_windows(&all_metas, &rejected),
         metas,
         rejected,
         rows0: first.rows0.keep(&kept),

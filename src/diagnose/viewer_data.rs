@@ -1,8 +1,8 @@
 //! Per-reading data for the replay of a diagnosis: measured and predicted power, the trials to
 //! point the user to, and the recorded fields the terms found beyond the library follow.
 
-use super::data::{Rows, TrialMeta};
-use super::outcome::Located;
+use super::reading_rows::{Rows, TrialMeta};
+use super::refit::Located;
 use super::select_discover::RowFields;
 use super::{Diagnosis, TrialWindow, select};
 
