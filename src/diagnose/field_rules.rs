@@ -2,7 +2,8 @@
 //! file ([`MsgStats`]) and the rules that leave out counters, clocks, hash- or CRC-like values
 //! and constants ([`junk_reason`]).
 
-use super::fields::{CLOCK_REASON, Window};
+/// First word of the clock rule's reason (discovery names these fields beside session time).
+pub(crate) const CLOCK_REASON: &str = "clock";
 
 /// Smallest range of an integer field that can be hash-like (a 16-bit counter's span).
 const HASH_MIN_RANGE: f64 = 65_536.0;
@@ -175,13 +176,12 @@ pub(crate) fn constant_value(vals: &[f64]) -> Option<f64> {
     (hi - lo <= 1e-9 * hi.abs().max(lo.abs()).max(1e-300)).then_some(lo)
 }
 
-/// Pearson correlation of the finite window values with the windows' end times (≥ 10 windows).
-pub(crate) fn clock_correlation(windows: &[Window], vals: &[f64]) -> Option<f64> {
-    let pts: Vec<(f64, f64)> = windows
-        .iter()
+/// Pearson correlation of the finite window values with the windows' end times `ends` (≥ 10 windows).
+pub(crate) fn clock_correlation(ends: impl Iterator<Item = f64>, vals: &[f64]) -> Option<f64> {
+    let pts: Vec<(f64, f64)> = ends
         .zip(vals)
         .filter(|(_, v)| v.is_finite())
-        .map(|(w, v)| (w.end, *v))
+        .map(|(t, v)| (t, *v))
         .collect();
     if pts.len() < 10 {
         return None;
@@ -271,17 +271,13 @@ mod tests {
 
     #[test]
     fn clock_correlation_of_window_values() {
-        let windows: Vec<Window> = (0..20)
-            .map(|i| Window {
-                start: i as f64,
-                end: i as f64 + 0.2,
-            })
-            .collect();
-        let t: Vec<f64> = windows.iter().map(|w| 1e3 * w.end + 5.0).collect();
-        assert!(clock_correlation(&windows, &t).unwrap() > 0.999_999);
+        let ends: Vec<f64> = (0..20).map(|i| i as f64 + 0.2).collect();
+        let windows = || ends.iter().copied();
+        let t: Vec<f64> = ends.iter().map(|e| 1e3 * e + 5.0).collect();
+        assert!(clock_correlation(windows(), &t).unwrap() > 0.999_999);
         let mut temp: Vec<f64> = (0..20).map(|i| 30.0 + (i / 7) as f64).collect();
         temp[3] = f64::NAN;
-        assert!(clock_correlation(&windows, &temp).unwrap() < CLOCK_MIN_R);
-        assert_eq!(clock_correlation(&windows[..5], &t[..5]), None);
+        assert!(clock_correlation(windows(), &temp).unwrap() < CLOCK_MIN_R);
+        assert_eq!(clock_correlation(windows().take(5), &t[..5]), None);
     }
 }

@@ -17,9 +17,6 @@ use crate::read::{FieldExtractor, FieldPath, OpenOptions, ReadError, Session, Va
 
 use super::field_rules::{MsgStats, clock_correlation, constant_value, junk_reason};
 
-/// First word of the clock rule's reason (discovery names these fields beside session time).
-pub(crate) const CLOCK_REASON: &str = "clock";
-
 /// One recording file joined into the diagnosed recording.
 #[derive(Debug, Clone)]
 pub struct FieldSource {
@@ -473,7 +470,7 @@ fn read_one(src: &FieldSource, windows: &[Window], summarise: bool) -> Result<Ve
                     *v = f64::NAN;
                 }
             }
-            let clock_r = clock_correlation(windows, &vals);
+            let clock_r = clock_correlation(windows.iter().map(|w| w.end), &vals);
             // A field that never changed is left out as constant by `read_fields` (unless a
             // junk rule takes it first): its windows need not be kept. The supply voltages
             // are kept: their mean is the bus voltage.

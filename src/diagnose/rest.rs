@@ -8,9 +8,8 @@
 //! minimum gain. The rest power drifts slowly, so neighbouring trials are not independent: the
 //! folds are contiguous blocks of trials and the paired test is by block.
 
-use super::discover::{span, step_threshold};
 use super::select::{Param, Rule, jackknife_se};
-use super::stats::improvement_p_value;
+use super::stats::{improvement_p_value, span, step_threshold};
 use crate::lsq::Gram;
 
 /// Trials per block of the held-out test (≈ 4–5 minutes of the protocol).

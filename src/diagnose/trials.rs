@@ -19,21 +19,10 @@ use crate::signals::{PowerSeries, Recording, Target};
 use crate::trial::{SegmentOptions, TrialWindow};
 
 use super::FieldSource;
-use super::reading_rows::{BusModel, TrialMeta, trial_meta};
-
-/// Margin before a trial's pre-idle start whose samples belong to the trial [s]: a window
-/// reaching further back is cut there. The streamed reader keeps at least 0.5 s before the
-/// pre-idle of the trial it is reading; this stays inside it.
-pub(crate) const SPAN_MARGIN_S: f64 = 0.4;
+use super::reading_rows::{BusModel, TrialMeta, span, trial_meta};
 
 /// Samples per decoded batch of the streamed passes.
 const BATCH_SAMPLES: usize = 4096;
-
-/// Time span of `w` whose joint states the per-trial reductions look at: from
-/// [`SPAN_MARGIN_S`] before the pre-idle to the end of the return home.
-pub(crate) fn span(w: &TrialWindow) -> (f64, f64) {
-    (w.t_pre_start - SPAN_MARGIN_S, w.t_return_end)
-}
 
 /// What the diagnosis knows about the session besides the trials' samples.
 pub(crate) struct SessionInfo {
