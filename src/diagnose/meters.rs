@@ -190,6 +190,28 @@ pub struct MeterDrift {
     pub check: MeterCheck,
     /// One sentence naming it.
     pub name: String,
+    /// Its form in time: first trial's start [s], the span of the trials' starts [s], and the
+    /// step's place as a share of that span (`None`: linear).
+    #[serde(skip)]
+    pub(crate) form_at: (f64, f64, Option<f64>),
+}
+
+impl MeterDrift {
+    /// `power` (the diagnosed meter's readings) with this artefact taken out: what every stage
+    /// after the comparison reads.
+    pub(crate) fn corrected(&self, power: &PowerSeries) -> PowerSeries {
+        let (t0, span, step) = self.form_at;
+        let x = |t: f64| {
+            let u = (t - t0) / span;
+            step.map_or(u, |s| f64::from(u8::from(u > s)))
+        };
+        PowerSeries {
+            t: power.t.clone(),
+            watts: (power.t.iter().zip(&power.watts))
+                .map(|(&t, &w)| w - self.change_w * x(t))
+                .collect(),
+        }
+    }
 }
 
 /// Steps of the rest reading tried, as shares of the session (the instant chosen from the data).
@@ -236,20 +258,22 @@ pub(crate) fn compare(
     let u: Vec<f64> = keep.iter().map(|&i| (t[i] - t[0]) / span).collect();
     let y: Vec<f64> = keep.iter().map(|&i| rest1[i]).collect();
     let diff: Vec<f64> = keep.iter().map(|&i| rest2[i] - rest1[i]).collect();
-    let mut forms = vec![("linearly over the session".to_string(), u.clone())];
+    let mut forms = vec![(None, u.clone())];
     for s in STEPS {
-        let x = u.iter().map(|&u| f64::from(u8::from(u > s))).collect();
         forms.push((
-            format!("in a step {:.0} s after the first trial", s * span),
-            x,
+            Some(s),
+            u.iter().map(|&u| f64::from(u8::from(u > s))).collect(),
         ));
     }
     let m = forms.len() as f64;
-    let (form, x, (b, se)) = forms
+    let (step, x, (b, se)) = forms
         .into_iter()
         .filter_map(|(f, x)| slopes(&y, &[&x]).map(|(b, sse, _)| (f, x, (b[0], sse))))
         .min_by(|a, b| a.2.1.total_cmp(&b.2.1))
         .map(|(f, x, (b, _))| (f, x, b))?;
+    let form = step.map_or("linearly over the session".to_string(), |s| {
+        format!("in a step {:.0} s after the first trial", s * span)
+    });
     let df = y.len().saturating_sub(2).max(1) as f64;
     let p = 2.0 * t_upper_tail((b / se).abs(), df);
     if p.is_nan() || p >= alpha / m {
@@ -288,6 +312,7 @@ pub(crate) fn compare(
         alpha: alpha / m,
         check,
         name,
+        form_at: (t[0], span, step),
     })
 }
 

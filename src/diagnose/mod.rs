@@ -354,12 +354,34 @@ fn run(
         5,
         "hypotheses and discovery (reads the recorded fields: the file's 2nd pass)",
     );
+    // One truth across stages: an artefact of the diagnosed meter that the other meter does not
+    // show (a drifting or stepping offset) is taken out of its readings before every stage that
+    // reads them after this one (rest power, discovery, the meter checks, the replay). The rows
+    // built so far are net of each trial's own rest, which such an artefact does not reach.
+    let lag = if sensor.lag_demanded {
+        sensor.scan_lag_s
+    } else {
+        0.0
+    };
+    let (power, other) = (&info.power, &info.other);
+    let drift = meters::compare(info.target, power, other, &metas, lag, w, rule.alpha);
+    let corrected;
+    let info = match &drift {
+        Some(d) => {
+            corrected = SessionInfo {
+                power: d.corrected(power),
+                ..info.clone()
+            };
+            &corrected
+        }
+        None => info,
+    };
     let (sel, mut discovery, fields) = select_and_discover(info, &metas, &data, &rule, opts)?;
     if let Some(r) = discovery.as_mut() {
         let (rows, lag) = (data.rows(sel.last.lag)?, data.lags[sel.last.lag]);
         let (power, other) = (&info.power, &info.other);
         meters::check_findings(r, info.target, power, other, &metas, rows, lag, w);
-        r.meter_drift = meters::compare(info.target, power, other, &metas, lag, w, rule.alpha);
+        r.meter_drift = drift;
     }
 
     // Torque level.

@@ -25,6 +25,7 @@ use super::reading_rows::{BusModel, TrialMeta, span, trial_meta};
 const BATCH_SAMPLES: usize = 4096;
 
 /// What the diagnosis knows about the session besides the trials' samples.
+#[derive(Clone)]
 pub(crate) struct SessionInfo {
     /// File (or first file) diagnosed.
     pub source: std::path::PathBuf,
