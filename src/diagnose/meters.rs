@@ -106,12 +106,15 @@ fn per_trial(p: &PowerSeries, metas: &[TrialMeta], lag: f64, w: f64) -> (Vec<f64
         .unzip()
 }
 
+/// Each column's (slope, widened s.e.), the SSE and the rows used ([`slopes`]).
+type Slopes = (Vec<(f64, f64)>, f64, usize);
+
 /// The one inference rule of the meter comparisons: the slopes of `y` on `cols` (with a constant;
 /// rows with a non-finite value left out), their standard errors widened for the serial
 /// correlation of the residuals in trial order ([`serial_widening`]: the rest power and the
 /// meters' difference drift slowly, so neighbouring trials are not independent), the SSE and
 /// the rows used.
-fn slopes(y: &[f64], cols: &[&[f64]]) -> Option<(Vec<(f64, f64)>, f64, usize)> {
+fn slopes(y: &[f64], cols: &[&[f64]]) -> Option<Slopes> {
     let mut g = Gram::zeros(cols.len() + 1);
     let mut rows = Vec::new();
     for (t, &d) in y.iter().enumerate() {
