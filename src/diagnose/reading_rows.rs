@@ -97,6 +97,16 @@ impl Rows {
         self.shrink_to_fit();
     }
 
+    /// Append `part`'s rows, numbered as trial `ti`.
+    pub fn append(&mut self, part: Rows, ti: usize) {
+        self.trial.extend(std::iter::repeat_n(ti, part.len()));
+        self.t.extend(part.t);
+        self.phase.extend(part.phase);
+        self.y.extend(part.y);
+        self.x.extend(part.x);
+        self.locate.extend(part.locate);
+    }
+
     /// Give back the spare capacity of every column.
     pub fn shrink_to_fit(&mut self) {
         self.trial.shrink_to_fit();
