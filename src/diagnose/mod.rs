@@ -354,28 +354,8 @@ fn run(
         5,
         "hypotheses and discovery (reads the recorded fields: the file's 2nd pass)",
     );
-    // One truth across stages: an artefact of the diagnosed meter that the other meter does not
-    // show (a drifting or stepping offset) is taken out of its readings before every stage that
-    // reads them after this one (rest power, discovery, the meter checks, the replay). The rows
-    // built so far are net of each trial's own rest, which such an artefact does not reach.
-    let lag = if sensor.lag_demanded {
-        sensor.scan_lag_s
-    } else {
-        0.0
-    };
-    let (power, other) = (&info.power, &info.other);
-    let drift = meters::compare(info.target, power, other, &metas, lag, w, rule.alpha);
-    let corrected;
-    let info = match &drift {
-        Some(d) => {
-            corrected = SessionInfo {
-                power: d.corrected(power),
-                ..info.clone()
-            };
-            &corrected
-        }
-        None => info,
-    };
+    let (drift, corrected) = meter_corrected(info, &metas, &sensor, rule.alpha);
+    let info = corrected.as_ref().unwrap_or(info);
     let (sel, mut discovery, fields) = select_and_discover(info, &metas, &data, &rule, opts)?;
     if let Some(r) = discovery.as_mut() {
         let (rows, lag) = (data.rows(sel.last.lag)?, data.lags[sel.last.lag]);
@@ -401,6 +381,31 @@ fn run(
         rejected_windows,
     };
     assemble(info, opts, &metas, &data, &fields, judged)
+}
+
+/// One truth across stages: an artefact of the diagnosed meter that the other meter does not
+/// show (a drifting or stepping offset, [`meters::compare`]) and the session with it taken out
+/// of the readings, which every stage after this one reads (rest power, discovery, the meter
+/// checks, the replay). The rows built before are net of each trial's own rest, which such an
+/// artefact does not reach.
+fn meter_corrected(
+    info: &SessionInfo,
+    metas: &[reading_rows::TrialMeta],
+    sensor: &SensorWindow,
+    alpha: f64,
+) -> (Option<MeterDrift>, Option<SessionInfo>) {
+    let lag = if sensor.lag_demanded {
+        sensor.scan_lag_s
+    } else {
+        0.0
+    };
+    let (power, other, w) = (&info.power, &info.other, sensor.window_s);
+    let drift = meters::compare(info.target, power, other, metas, lag, w, alpha);
+    let corrected = drift.as_ref().map(|d| SessionInfo {
+        power: d.corrected(power),
+        ..info.clone()
+    });
+    (drift, corrected)
 }
 
 /// What the selection stages leave for the last one ([`assemble`]).

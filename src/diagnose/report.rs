@@ -37,6 +37,19 @@ fn table(md: &mut String, head: &[&str], rows: impl IntoIterator<Item = Vec<Stri
     }
 }
 
+/// Draw figure `FIGURES[i]` at `size` into `dir` and link it from `md` under `caption`.
+fn figure(
+    md: &mut String,
+    dir: &Path,
+    (i, size): (usize, (u32, u32)),
+    caption: &str,
+    draw: impl FnOnce(&Area) -> Result<()>,
+) -> Result<()> {
+    write_png(&dir.join(FIGURES[i]), size, draw)?;
+    let _ = writeln!(md, "![{caption}]({})\n", FIGURES[i]);
+    Ok(())
+}
+
 fn sig(v: f64) -> String {
     if v.abs() >= 0.01 && v.abs() < 1e4 {
         format!("{v:.3}")
@@ -169,8 +182,8 @@ fn where_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()> {
         table(md, &head, rows);
         md.push('\n');
     }
-    write_png(&dir.join(FIGURES[0]), (900, 500), |a| draw_regime(a, d))?;
-    let _ = writeln!(md, "![Residual by the located regime]({})\n", FIGURES[0]);
+    let caption = "Residual by the located regime";
+    figure(md, dir, (0, (900, 500)), caption, |a| draw_regime(a, d))?;
     let _ = writeln!(
         md,
         "Worst trials: {}\n",
@@ -210,12 +223,8 @@ fn hypotheses_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()> 
     let more = ["held-out RMSE before → after", "verdict"];
     table(md, &[&head[..], &more].concat(), rows);
     md.push('\n');
-    write_png(&dir.join(FIGURES[1]), (900, 450), |a| draw_hypotheses(a, d))?;
-    let _ = writeln!(
-        md,
-        "![Held-out improvement per hypothesis]({})\n",
-        FIGURES[1]
-    );
+    let caption = "Held-out improvement per hypothesis";
+    figure(md, dir, (1, (900, 450)), caption, |a| draw_hypotheses(a, d))?;
     Ok(())
 }
 
@@ -245,22 +254,14 @@ fn final_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()> {
         f.before_per_trial.rmse_w,
         f.after_per_trial.rmse_w
     );
-    write_png(&dir.join(FIGURES[2]), (1000, 520), |a| {
+    let caption = "Per-trial net power, measured vs predicted before and after";
+    figure(md, dir, (2, (1000, 520)), caption, |a| {
         draw_before_after(a, d)
     })?;
-    let _ = writeln!(
-        md,
-        "![Per-trial net power, measured vs predicted before and after]({})\n",
-        FIGURES[2]
-    );
-    write_png(&dir.join(FIGURES[3]), (1000, 420), |a| {
+    let caption = "Held-out residual over the session, before and after";
+    figure(md, dir, (3, (1000, 420)), caption, |a| {
         draw_residual_time(a, d)
     })?;
-    let _ = writeln!(
-        md,
-        "![Held-out residual over the session, before and after]({})\n",
-        FIGURES[3]
-    );
     Ok(())
 }
 
@@ -291,8 +292,8 @@ fn unexplained_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()>
     table(md, &head, rows);
     md.push('\n');
     if d.lag_scan.len() > 1 {
-        write_png(&dir.join(FIGURES[4]), (800, 420), |a| draw_lag_scan(a, d))?;
-        let _ = writeln!(md, "![Sensor-lag scan of the base model]({})\n", FIGURES[4]);
+        let caption = "Sensor-lag scan of the base model";
+        figure(md, dir, (4, (800, 420)), caption, |a| draw_lag_scan(a, d))?;
     }
     if !d.rejected.is_empty() {
         let _ = writeln!(md, "## Trials left out\n");
