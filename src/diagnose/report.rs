@@ -7,6 +7,7 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use anyhow::{Context, Result};
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
 use super::Diagnosis;
@@ -308,6 +309,46 @@ fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
     padded_range(values, 0.08)
 }
 
+/// A chart of the report's x–y figures on `a`: caption, axes over `x` and `y`, labelled mesh.
+type XyChart<'a, 'b> =
+    ChartContext<'a, BitMapBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+fn xy_chart<'a, 'b>(
+    a: &'a Area<'b>,
+    caption: &str,
+    (x, y): ((f64, f64), (f64, f64)),
+    (x_desc, y_desc): (&str, &str),
+) -> Result<XyChart<'a, 'b>> {
+    let mut chart = ChartBuilder::on(a)
+        .caption(caption, (FONT, 18))
+        .margin(10)
+        .x_label_area_size(36)
+        .y_label_area_size(60)
+        .build_cartesian_2d(x.0..x.1, y.0..y.1)
+        .map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .x_desc(x_desc)
+        .y_desc(y_desc)
+        .label_style((FONT, 13))
+        .draw()
+        .map_err(plot_err)?;
+    Ok(chart)
+}
+
+/// The series' legend, framed on a light background (upper left or the default corner).
+fn legend<'a, 'b: 'a>(chart: &mut XyChart<'a, 'b>, upper_left: bool) -> Result<()> {
+    let mut labels = chart.configure_series_labels();
+    if upper_left {
+        labels.position(SeriesLabelPosition::UpperLeft);
+    }
+    labels
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font((FONT, 14))
+        .draw()
+        .map_err(plot_err)
+}
+
 /// Horizontal bars, one per labelled category (top to bottom in the given order): the labels sit
 /// left of the axis at full length, where vertical bars' labels overlapped or were cut.
 fn draw_bars(a: &Area, caption: &str, x_desc: &str, bars: &[(String, f64, bool)]) -> Result<()> {
@@ -424,29 +465,16 @@ fn draw_before_after(a: &Area, d: &Diagnosis) -> Result<()> {
     let n = v.len();
     let (lo, hi) = range(v.iter().flat_map(|p| [p.0, p.1, p.2]));
     let f = &d.final_model;
-    let mut chart = ChartBuilder::on(a)
-        .caption(
-            format!(
-                "Per-trial net power, held out: R² {:.3} → {:.3}, RMSE {:.2} → {:.2} W",
-                f.before_per_trial.r2,
-                f.after_per_trial.r2,
-                f.before_per_trial.rmse_w,
-                f.after_per_trial.rmse_w
-            ),
-            (FONT, 18),
-        )
-        .margin(10)
-        .x_label_area_size(36)
-        .y_label_area_size(60)
-        .build_cartesian_2d(-0.5..(n as f64 - 0.5).max(0.5), lo..hi)
-        .map_err(plot_err)?;
-    chart
-        .configure_mesh()
-        .x_desc("trial (sorted by measured)")
-        .y_desc("net power [W]")
-        .label_style((FONT, 13))
-        .draw()
-        .map_err(plot_err)?;
+    let caption = format!(
+        "Per-trial net power, held out: R² {:.3} → {:.3}, RMSE {:.2} → {:.2} W",
+        f.before_per_trial.r2,
+        f.after_per_trial.r2,
+        f.before_per_trial.rmse_w,
+        f.after_per_trial.rmse_w
+    );
+    let x = (-0.5, (n as f64 - 0.5).max(0.5));
+    let descs = ("trial (sorted by measured)", "net power [W]");
+    let mut chart = xy_chart(a, &caption, (x, (lo, hi)), descs)?;
     chart
         .draw_series(
             v.iter()
@@ -473,15 +501,7 @@ fn draw_before_after(a: &Area, d: &Diagnosis) -> Result<()> {
         .map_err(plot_err)?
         .label("after")
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED.stroke_width(2)));
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperLeft)
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .label_font((FONT, 14))
-        .draw()
-        .map_err(plot_err)?;
-    Ok(())
+    legend(&mut chart, true)
 }
 
 fn draw_residual_time(a: &Area, d: &Diagnosis) -> Result<()> {
@@ -494,20 +514,9 @@ fn draw_residual_time(a: &Area, d: &Diagnosis) -> Result<()> {
         .collect();
     let (t0, t1) = range(r.t.iter().copied());
     let (lo, hi) = range(before.iter().chain(&after).map(|p| p.1));
-    let mut chart = ChartBuilder::on(a)
-        .caption("Held-out residual per reading over the session", (FONT, 18))
-        .margin(10)
-        .x_label_area_size(36)
-        .y_label_area_size(60)
-        .build_cartesian_2d(t0..t1, lo..hi)
-        .map_err(plot_err)?;
-    chart
-        .configure_mesh()
-        .x_desc("session time [s]")
-        .y_desc("measured − predicted [W]")
-        .label_style((FONT, 13))
-        .draw()
-        .map_err(plot_err)?;
+    let caption = "Held-out residual per reading over the session";
+    let descs = ("session time [s]", "measured − predicted [W]");
+    let mut chart = xy_chart(a, caption, ((t0, t1), (lo, hi)), descs)?;
     chart
         .draw_series(
             before
@@ -522,37 +531,17 @@ fn draw_residual_time(a: &Area, d: &Diagnosis) -> Result<()> {
         .map_err(plot_err)?
         .label("after")
         .legend(|(x, y)| Circle::new((x + 10, y), 3, RED.filled()));
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .label_font((FONT, 14))
-        .draw()
-        .map_err(plot_err)?;
-    Ok(())
+    legend(&mut chart, false)
 }
 
 fn draw_lag_scan(a: &Area, d: &Diagnosis) -> Result<()> {
     let pts: Vec<(f64, f64)> = d.lag_scan.iter().map(|p| (p.lag_s, p.rmse_w)).collect();
-    let (x0, x1) = range(pts.iter().map(|p| p.0));
-    let (y0, y1) = range(pts.iter().map(|p| p.1));
-    let mut chart = ChartBuilder::on(a)
-        .caption(
-            "Base-model RMSE vs assumed power-sensor latency",
-            (FONT, 18),
-        )
-        .margin(10)
-        .x_label_area_size(36)
-        .y_label_area_size(60)
-        .build_cartesian_2d(x0..x1, y0..y1)
-        .map_err(plot_err)?;
-    chart
-        .configure_mesh()
-        .x_desc("latency [s]")
-        .y_desc("RMSE [W]")
-        .label_style((FONT, 13))
-        .draw()
-        .map_err(plot_err)?;
+    let xy = (
+        range(pts.iter().map(|p| p.0)),
+        range(pts.iter().map(|p| p.1)),
+    );
+    let caption = "Base-model RMSE vs assumed power-sensor latency";
+    let mut chart = xy_chart(a, caption, xy, ("latency [s]", "RMSE [W]"))?;
     chart
         .draw_series(LineSeries::new(pts.iter().copied(), BLUE.stroke_width(2)))
         .map_err(plot_err)?;
