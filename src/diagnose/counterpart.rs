@@ -312,34 +312,32 @@ fn finish(
 }
 
 /// Compare `real` (the diagnosed recording) with `sim`, its counterpart, on the diagnosis'
-/// power target; trials are those of `d` (their readings in `d.replay`).
+/// power target; trials are those of `d` (their readings in `d.replay`). The same merge as
+/// [`compare_files`], over each recording as one batch.
 pub fn compare(real: &Recording, sim: &Recording, d: &Diagnosis) -> Result<CounterpartComparison> {
-    let (rs, ss) = (&real.state, &sim.state);
-    let pairs = match_times(real.start_ns, &rs.t, sim.start_ns, &ss.t);
-    let mut sums = JointSums::new(true);
-    for &(a, b) in &pairs {
-        sums.add(rs.t[a], (&rs.q[a], &rs.tau[a]), (&ss.q[b], &ss.tau[b]));
-    }
-    let mut moved = MotionStart::default();
-    for (t, q) in rs.t.iter().zip(&rs.q) {
-        moved.add(*t, q);
-        if moved.at.is_some() {
-            break;
-        }
-    }
-    fn side<'a>(r: &'a Recording, d: &Diagnosis) -> Side<'a> {
+    let mut once = Some(SimBatch::of(sim, d.target));
+    let mut m = Merge::new(true, Box::new(move || once.take()));
+    let (real_power, names) = (d.target.series(real), &real.joint_names);
+    m.add_real(real.start_ns, &real.state)?;
+    m.drain()?;
+    let (real, sim) = (
         Side {
-            source: &r.source,
-            start_ns: r.start_ns,
-            power: d.target.series(r),
-        }
-    }
+            source: &real.source,
+            start_ns: real.start_ns,
+            power: real_power,
+        },
+        Side {
+            source: &sim.source,
+            start_ns: sim.start_ns,
+            power: &m.sim_power,
+        },
+    );
     finish(
-        sums,
-        rs.t.len(),
-        &real.joint_names,
-        (side(real, d), side(sim, d)),
-        moved.time(),
+        m.sums,
+        m.real_samples,
+        names,
+        (real, sim),
+        m.moved.time(),
         d,
     )
 }
@@ -352,26 +350,113 @@ struct SimBatch {
     power: PowerSeries,
 }
 
+impl SimBatch {
+    /// The batch of recording `b` (`target`: the diagnosis' power target).
+    fn of(b: &Recording, target: crate::signals::Target) -> SimBatch {
+        let st = &b.state;
+        SimBatch {
+            ns: st.t.iter().map(|&t| abs_ns(b.start_ns, t)).collect(),
+            q: st.q.clone(),
+            tau: st.tau.clone(),
+            power: target.series(b).clone(),
+        }
+    }
+}
+
 /// The counterpart's samples not yet passed by the recording: (absolute time, q, τ).
 type SimQueue = std::collections::VecDeque<(i128, [f64; N_JOINTS], [f64; N_JOINTS])>;
 
-/// Queue a counterpart batch's samples and keep its readings.
-fn take_sim(
-    b: SimBatch,
-    pending: &mut SimQueue,
-    last: &mut i128,
-    power: &mut PowerSeries,
-) -> Result<()> {
-    power.t.extend_from_slice(&b.power.t);
-    power.watts.extend_from_slice(&b.power.watts);
-    for ((ns, q), tau) in b.ns.into_iter().zip(b.q).zip(b.tau) {
-        if ns < *last {
-            return Err(OutOfOrder.into());
+/// The recording's joint samples merged with the counterpart's in time order, batch by batch:
+/// each recording sample is paired with the counterpart's sample within the tolerance, if any.
+struct Merge<'a> {
+    sums: JointSums,
+    moved: MotionStart,
+    sim_power: PowerSeries,
+    /// The counterpart's samples not yet passed by the recording.
+    pending: SimQueue,
+    /// The counterpart's next batch (`None`: its stream ended).
+    next: Box<dyn FnMut() -> Option<SimBatch> + 'a>,
+    sim_done: bool,
+    last_sim: i128,
+    last_real: f64,
+    real_samples: usize,
+}
+
+impl<'a> Merge<'a> {
+    fn new(keep_series: bool, next: Box<dyn FnMut() -> Option<SimBatch> + 'a>) -> Merge<'a> {
+        Merge {
+            sums: JointSums::new(keep_series),
+            moved: MotionStart::default(),
+            sim_power: PowerSeries::default(),
+            pending: SimQueue::new(),
+            next,
+            sim_done: false,
+            last_sim: i128::MIN,
+            last_real: f64::NEG_INFINITY,
+            real_samples: 0,
         }
-        *last = ns;
-        pending.push_back((ns, q, tau));
     }
-    Ok(())
+
+    /// Queue a counterpart batch's samples and keep its readings.
+    fn take_sim(&mut self, b: SimBatch) -> Result<()> {
+        self.sim_power.t.extend_from_slice(&b.power.t);
+        self.sim_power.watts.extend_from_slice(&b.power.watts);
+        for ((ns, q), tau) in b.ns.into_iter().zip(b.q).zip(b.tau) {
+            if ns < self.last_sim {
+                return Err(OutOfOrder.into());
+            }
+            self.last_sim = ns;
+            self.pending.push_back((ns, q, tau));
+        }
+        Ok(())
+    }
+
+    /// The recording's samples `st` (clock from `start_ns`), in time order.
+    fn add_real(&mut self, start_ns: u64, st: &crate::signals::StateSeries) -> Result<()> {
+        for k in 0..st.t.len().min(st.q.len()).min(st.tau.len()) {
+            let t = st.t[k];
+            if t < self.last_real {
+                return Err(OutOfOrder.into());
+            }
+            self.last_real = t;
+            self.real_samples += 1;
+            self.moved.add(t, &st.q[k]);
+            let x = abs_ns(start_ns, t);
+            loop {
+                while (self.pending.front()).is_some_and(|p| p.0 < x - MATCH_TOLERANCE_NS) {
+                    self.pending.pop_front();
+                }
+                if !self.pending.is_empty() || self.sim_done {
+                    break;
+                }
+                match (self.next)() {
+                    Some(sb) => self.take_sim(sb)?,
+                    None => self.sim_done = true,
+                }
+            }
+            if let Some(p) = self.pending.front()
+                && (p.0 - x).abs() <= MATCH_TOLERANCE_NS
+            {
+                let (q, tau) = (p.1, p.2);
+                self.sums.add(t, (&st.q[k], &st.tau[k]), (&q, &tau));
+                self.pending.pop_front();
+            }
+        }
+        Ok(())
+    }
+
+    /// The counterpart's remaining readings (its samples are no longer needed).
+    fn drain(&mut self) -> Result<()> {
+        while !self.sim_done {
+            self.pending.clear();
+            match (self.next)() {
+                Some(sb) => self.take_sim(sb)?,
+                None => self.sim_done = true,
+            }
+        }
+        self.sim_power.sort_by_time();
+        Ok(())
+    }
 }
 
 /// Samples in batch order went back in time: the file has no index (its batches are sorted
@@ -424,88 +509,33 @@ fn compare_streamed(
     let (tx, rx) = std::sync::mpsc::sync_channel::<SimBatch>(2);
     let sim_file = sim.clone();
     let reader = std::thread::spawn(move || -> Result<u64> {
-        let summary = stream_recording(
-            &sim_file.path,
-            &sim_file.map,
-            &sim_file.read,
-            BATCH,
-            &mut |b| {
-                let st = &b.state;
-                let batch = SimBatch {
-                    ns: st.t.iter().map(|&t| abs_ns(b.start_ns, t)).collect(),
-                    q: st.q.clone(),
-                    tau: st.tau.clone(),
-                    power: target.series(b).clone(),
-                };
-                tx.send(batch)
-                    .map_err(|_| anyhow::anyhow!("the comparison stopped"))
-            },
-        )
+        let (path, map, read) = (&sim_file.path, &sim_file.map, &sim_file.read);
+        let summary = stream_recording(path, map, read, BATCH, &mut |b| {
+            tx.send(SimBatch::of(b, target))
+                .map_err(|_| anyhow::anyhow!("the comparison stopped"))
+        })
         .with_context(|| format!("reading the counterpart {}", sim_file.path.display()))?;
         Ok(summary.start_ns)
     });
-
-    let mut sums = JointSums::new(keep_series);
-    let mut moved = MotionStart::default();
+    let mut m = Merge::new(keep_series, Box::new(move || rx.recv().ok()));
     let mut real_power = PowerSeries::default();
-    let mut sim_power = PowerSeries::default();
-    // The counterpart's samples not yet passed by the recording, and whether its stream ended.
-    let mut pending = SimQueue::new();
-    let mut sim_done = false;
-    let mut last_sim = i128::MIN;
-    let mut last_real = f64::NEG_INFINITY;
-    let mut real_samples = 0usize;
     let streamed = stream_recording(&real.path, &real.map, &real.read, BATCH, &mut |b| {
         let tp = target.series(b);
         real_power.t.extend_from_slice(&tp.t);
         real_power.watts.extend_from_slice(&tp.watts);
-        let st = &b.state;
-        for k in 0..st.t.len().min(st.q.len()).min(st.tau.len()) {
-            let t = st.t[k];
-            if t < last_real {
-                return Err(OutOfOrder.into());
-            }
-            last_real = t;
-            real_samples += 1;
-            moved.add(t, &st.q[k]);
-            let x = abs_ns(b.start_ns, t);
-            loop {
-                while pending
-                    .front()
-                    .is_some_and(|p| p.0 < x - MATCH_TOLERANCE_NS)
-                {
-                    pending.pop_front();
-                }
-                if !pending.is_empty() || sim_done {
-                    break;
-                }
-                match rx.recv() {
-                    Ok(sb) => take_sim(sb, &mut pending, &mut last_sim, &mut sim_power)?,
-                    Err(_) => sim_done = true,
-                }
-            }
-            if let Some(p) = pending.front()
-                && (p.0 - x).abs() <= MATCH_TOLERANCE_NS
-            {
-                sums.add(t, (&st.q[k], &st.tau[k]), (&p.1, &p.2));
-                pending.pop_front();
-            }
-        }
-        Ok(())
+        m.add_real(b.start_ns, &b.state)
     })
     .with_context(|| format!("reading {}", real.path.display()));
-    // The counterpart's remaining readings (its samples are no longer needed).
-    let mut drained = Ok(());
-    if streamed.is_ok() {
-        while let Ok(sb) = rx.recv() {
-            pending.clear();
-            if let Err(e) = take_sim(sb, &mut pending, &mut last_sim, &mut sim_power) {
-                drained = Err(e);
-                break;
-            }
-        }
-    }
-    drop(rx);
+    let drained = if streamed.is_ok() { m.drain() } else { Ok(()) };
+    // The channel's receiver dropped: the reader thread ends.
+    m.next = Box::new(|| None);
+    let Merge {
+        sums,
+        moved,
+        sim_power,
+        real_samples,
+        ..
+    } = m;
     let joined = reader
         .join()
         .map_err(|_| anyhow::anyhow!("the counterpart's reader thread panicked"))?;
@@ -513,26 +543,20 @@ fn compare_streamed(
     drained?;
     let sim_start_ns = joined?;
     real_power.sort_by_time();
-    sim_power.sort_by_time();
-    finish(
-        sums,
-        real_samples,
-        &real.map.joint_names,
-        (
-            Side {
-                source: &real.path,
-                start_ns: real_summary.start_ns,
-                power: &real_power,
-            },
-            Side {
-                source: &sim.path,
-                start_ns: sim_start_ns,
-                power: &sim_power,
-            },
-        ),
-        moved.time(),
-        d,
-    )
+    let sides = (
+        Side {
+            source: &real.path,
+            start_ns: real_summary.start_ns,
+            power: &real_power,
+        },
+        Side {
+            source: &sim.path,
+            start_ns: sim_start_ns,
+            power: &sim_power,
+        },
+    );
+    let names = &real.map.joint_names;
+    finish(sums, real_samples, names, sides, moved.time(), d)
 }
 
 /// Plain-language paragraph for the terminal summary and the report.

@@ -33,14 +33,16 @@ use anyhow::Result;
 use nalgebra::{DMatrix, DVector};
 
 use super::Quality;
-use super::data::Rows;
 use super::family::{Shape, Term};
 use super::fields::FieldTable;
+use super::reading_rows::Rows;
 use super::select::{
     Param, PowerData, Rule, State, bic, bounds_for, design_map_for, jackknife_se, r2_rmse,
     solve_bounded_for, trial_sse,
 };
-use super::stats::{STABILITY_DRAWS, improvement_p_value, pearson, resampled_stability};
+use super::stats::{
+    STABILITY_DRAWS, improvement_p_value, pearson, resampled_stability, span, step_threshold,
+};
 use crate::lsq::{Gram, solve_normal};
 use crate::{N_JOINTS, N_PARAMS};
 
@@ -444,31 +446,6 @@ fn within_share(v: &[f64], trial: &[usize], n_trials: usize) -> f64 {
         total += (x - mean).powi(2);
     }
     within / total.max(1e-300)
-}
-
-/// 5–95 % span of a field's values.
-pub(super) fn span(v: &[f64]) -> f64 {
-    let mut s: Vec<f64> = v.to_vec();
-    s.sort_by(f64::total_cmp);
-    let q = |p: f64| s[((s.len() - 1) as f64 * p).round() as usize];
-    if s.is_empty() { 0.0 } else { q(0.95) - q(0.05) }
-}
-
-/// Threshold of a field that switches between levels: the midpoint of its 5–95 % range when
-/// fewer than 10 % of the values lie in the middle third of it.
-pub(super) fn step_threshold(v: &[f64]) -> Option<f64> {
-    let mut s: Vec<f64> = v.to_vec();
-    s.sort_by(f64::total_cmp);
-    let q = |p: f64| s[((s.len() - 1) as f64 * p).round() as usize];
-    let (lo, hi) = (q(0.05), q(0.95));
-    if hi - lo <= 0.0 {
-        return None;
-    }
-    let mid = v
-        .iter()
-        .filter(|&&x| x > lo + (hi - lo) / 3.0 && x < hi - (hi - lo) / 3.0)
-        .count();
-    (mid * 10 < v.len()).then_some(0.5 * (lo + hi))
 }
 
 /// Per-motor families: fields `…motor_state[k].rest` present for every arm motor.
@@ -1743,7 +1720,7 @@ pub(crate) fn rival_of(
 fn clock_stand_ins(excluded: &[super::fields::ExcludedField]) -> Option<String> {
     let names: Vec<&str> = excluded
         .iter()
-        .filter(|e| e.reason.starts_with(super::fields::CLOCK_REASON))
+        .filter(|e| e.reason.starts_with(super::field_rules::CLOCK_REASON))
         .map(|e| e.name.as_str())
         .collect();
     (!names.is_empty()).then(|| {
@@ -2001,7 +1978,7 @@ mod tests {
             "counter: steps the same way in 100.0 %",
         )];
         assert_eq!(clock_stand_ins(&counter_only), None);
-        let clock = format!("{}: r = +0.99995", super::super::fields::CLOCK_REASON);
+        let clock = format!("{}: r = +0.99995", super::super::field_rules::CLOCK_REASON);
         let note = clock_stand_ins(&[
             ex("/lf/bmsstate.bmsvoltage[0]", &clock),
             ex("/lowstate.tick", "counter: steps the same way in 100.0 %"),

@@ -6,8 +6,8 @@
 //! Groups are tested at trial level (each trial contributes the mean residual of its rows in
 //! the group), because readings of one trial share the trial's baseline and are not independent.
 
-use super::data::{Rows, TrialMeta};
 use super::hypotheses::{N_LOCATE, locate_name};
+use super::reading_rows::{Rows, TrialMeta};
 use super::stats::{pearson, t_upper_tail};
 use crate::lsq::solve_normal;
 use crate::trial::Phase;

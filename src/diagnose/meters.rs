@@ -14,11 +14,14 @@
 //! over the session (or steps) changes the difference of the two meters' readings, in which every
 //! real load cancels. It is invisible to the arm's model (each trial's power is taken net of its
 //! own rest), so this comparison is the only place it can be found.
+//!
+//! Both are one regression ([`slopes`]): the trials are in time order and their rest readings
+//! drift slowly, so every standard error here is widened for the residuals' serial correlation.
 
 use serde::{Deserialize, Serialize};
 
-use super::data::{Rows, TrialMeta, baseline_readings};
 use super::discover::DiscoveryReport;
+use super::reading_rows::{Rows, TrialMeta, baseline_readings};
 use super::stats::t_upper_tail;
 use crate::lsq::Gram;
 use crate::signals::{PowerSeries, Target};
@@ -103,33 +106,47 @@ fn per_trial(p: &PowerSeries, metas: &[TrialMeta], lag: f64, w: f64) -> (Vec<f64
         .unzip()
 }
 
-/// Share of each column (what a term adds, per trial) that the other meter shows, with its
-/// standard error, from the slope of `diff` = other − target on the columns (with a constant).
-fn shares(diff: &[f64], cols: &[Vec<f64>]) -> Option<(Vec<(f64, f64)>, usize)> {
+/// Each column's (slope, widened s.e.), the SSE and the rows used ([`slopes`]).
+type Slopes = (Vec<(f64, f64)>, f64, usize);
+
+/// The one inference rule of the meter comparisons: the slopes of `y` on `cols` (with a constant;
+/// rows with a non-finite value left out), their standard errors widened for the serial
+/// correlation of the residuals in trial order ([`serial_widening`]: the rest power and the
+/// meters' difference drift slowly, so neighbouring trials are not independent), the SSE and
+/// the rows used.
+fn slopes(y: &[f64], cols: &[&[f64]]) -> Option<Slopes> {
     let mut g = Gram::zeros(cols.len() + 1);
-    let mut row = vec![1.0; cols.len() + 1];
-    for (t, &d) in diff.iter().enumerate() {
-        for (c, col) in cols.iter().enumerate() {
-            row[c + 1] = col[t];
-        }
+    let mut rows = Vec::new();
+    for (t, &d) in y.iter().enumerate() {
+        let row: Vec<f64> = std::iter::once(1.0)
+            .chain(cols.iter().map(|c| c[t]))
+            .collect();
         if d.is_finite() && row.iter().all(|v| v.is_finite()) {
             g.add_row(&row, d);
+            rows.push((row, d));
         }
     }
     let (beta, se) = g.solve_with_se()?;
-    Some((
-        (1..=cols.len()).map(|c| (1.0 + beta[c], se[c])).collect(),
-        g.n,
-    ))
+    let resid: Vec<f64> = rows
+        .iter()
+        .map(|(x, y)| y - x.iter().zip(beta.iter()).map(|(x, b)| x * b).sum::<f64>())
+        .collect();
+    let widen = serial_widening(&resid);
+    let sse = resid.iter().map(|r| r * r).sum();
+    let b = (1..=cols.len()).map(|c| (beta[c], se[c] * widen)).collect();
+    Some((b, sse, g.n))
 }
 
 /// The check of each column, `None` where the other meter has too few trials.
 fn checks(target: Target, diff: &[f64], cols: &[Vec<f64>]) -> Vec<Option<MeterCheck>> {
-    let Some((s, n)) = shares(diff, cols) else {
+    let cols: Vec<&[f64]> = cols.iter().map(Vec::as_slice).collect();
+    let Some((s, _, n)) = slopes(diff, &cols) else {
         return vec![None; cols.len()];
     };
     s.into_iter()
-        .map(|(share, se)| {
+        .map(|(k, se)| {
+            // The other meter shows 1 + slope of what the term adds (other − target).
+            let share = 1.0 + k;
             // A verdict only where the comparison tells 0 from 1 (Z·se ≤ ½); an artefact's
             // share is consistent with 0 (a load's is diluted below 1 where the other meter's
             // readings fall at other instants than the fields' windows follow).
@@ -176,6 +193,28 @@ pub struct MeterDrift {
     pub check: MeterCheck,
     /// One sentence naming it.
     pub name: String,
+    /// Its form in time: first trial's start [s], the span of the trials' starts [s], and the
+    /// step's place as a share of that span (`None`: linear).
+    #[serde(skip)]
+    pub(crate) form_at: (f64, f64, Option<f64>),
+}
+
+impl MeterDrift {
+    /// `power` (the diagnosed meter's readings) with this artefact taken out: what every stage
+    /// after the comparison reads.
+    pub(crate) fn corrected(&self, power: &PowerSeries) -> PowerSeries {
+        let (t0, span, step) = self.form_at;
+        let x = |t: f64| {
+            let u = (t - t0) / span;
+            step.map_or(u, |s| f64::from(u8::from(u > s)))
+        };
+        PowerSeries {
+            t: power.t.clone(),
+            watts: (power.t.iter().zip(&power.watts))
+                .map(|(&t, &w)| w - self.change_w * x(t))
+                .collect(),
+        }
+    }
 }
 
 /// Steps of the rest reading tried, as shares of the session (the instant chosen from the data).
@@ -191,18 +230,6 @@ fn serial_widening(resid: &[f64]) -> f64 {
         .fold((0.0, 0.0), |(n, d), w| (n + w[0] * w[1], d + w[0] * w[0]));
     let rho = (num / den.max(1e-300)).clamp(0.0, 0.9);
     ((1.0 + rho) / (1.0 - rho)).sqrt()
-}
-
-/// Slope of `y` on `x` (with a constant), its serially widened standard error and the SSE.
-fn slope(x: &[f64], y: &[f64]) -> Option<(f64, f64, f64)> {
-    let mut g = Gram::zeros(2);
-    for (x, y) in x.iter().zip(y) {
-        g.add_row(&[1.0, *x], *y);
-    }
-    let (b, se) = g.solve_with_se()?;
-    let resid: Vec<f64> = x.iter().zip(y).map(|(x, y)| y - b[0] - b[1] * x).collect();
-    let sse = resid.iter().map(|r| r * r).sum();
-    Some((b[1], se[1] * serial_widening(&resid), sse))
 }
 
 /// The meters compared over the session: the target meter's rest reading (each trial's pre-idle
@@ -234,19 +261,22 @@ pub(crate) fn compare(
     let u: Vec<f64> = keep.iter().map(|&i| (t[i] - t[0]) / span).collect();
     let y: Vec<f64> = keep.iter().map(|&i| rest1[i]).collect();
     let diff: Vec<f64> = keep.iter().map(|&i| rest2[i] - rest1[i]).collect();
-    let mut forms = vec![("linearly over the session".to_string(), u.clone())];
+    let mut forms = vec![(None, u.clone())];
     for s in STEPS {
-        let x = u.iter().map(|&u| f64::from(u8::from(u > s))).collect();
         forms.push((
-            format!("in a step {:.0} s after the first trial", s * span),
-            x,
+            Some(s),
+            u.iter().map(|&u| f64::from(u8::from(u > s))).collect(),
         ));
     }
     let m = forms.len() as f64;
-    let (form, x, (b, se, _)) = forms
+    let (step, x, (b, se)) = forms
         .into_iter()
-        .filter_map(|(f, x)| slope(&x, &y).map(|s| (f, x, s)))
-        .min_by(|a, b| a.2.2.total_cmp(&b.2.2))?;
+        .filter_map(|(f, x)| slopes(&y, &[&x]).map(|(b, sse, _)| (f, x, (b[0], sse))))
+        .min_by(|a, b| a.2.1.total_cmp(&b.2.1))
+        .map(|(f, x, (b, _))| (f, x, b))?;
+    let form = step.map_or("linearly over the session".to_string(), |s| {
+        format!("in a step {:.0} s after the first trial", s * span)
+    });
     let df = y.len().saturating_sub(2).max(1) as f64;
     let p = 2.0 * t_upper_tail((b / se).abs(), df);
     if p.is_nan() || p >= alpha / m {
@@ -254,8 +284,8 @@ pub(crate) fn compare(
     }
     // The other meter: diff = other − target regressed on the change; share = 1 + slope.
     let col: Vec<f64> = x.iter().map(|x| b * x).collect();
-    let (k, k_se, _) = slope(&col, &diff)?;
-    let (share, share_se) = (1.0 + k, k_se);
+    let (k, _, _) = slopes(&diff, &[&col])?;
+    let (share, share_se) = (1.0 + k[0].0, k[0].1);
     if share.is_nan() || share + Z * share_se >= 1.0 || Z * share_se >= 1.0 {
         return None;
     }
@@ -285,6 +315,7 @@ pub(crate) fn compare(
         alpha: alpha / m,
         check,
         name,
+        form_at: (t[0], span, step),
     })
 }
 

@@ -10,23 +10,22 @@
 //! the held-out residuals ([`locate`]) → plain-language summary ([`summary`]).
 
 pub(crate) mod counterpart;
-pub(crate) mod data;
+mod diagnosis;
 pub(crate) mod discover;
 pub(crate) mod family;
+pub(crate) mod field_rules;
 pub(crate) mod fields;
 pub(crate) mod hypotheses;
+mod lags;
 pub(crate) mod locate;
 pub(crate) mod meters;
 mod options;
-mod outcome;
-mod reduce;
-mod replay;
+pub(crate) mod reading_rows;
+mod refit;
 pub(crate) mod report;
 pub(crate) mod rest;
-mod result;
 pub(crate) mod select;
 mod select_discover;
-mod stages;
 pub(crate) mod stats;
 pub(crate) mod summary;
 #[cfg(test)]
@@ -34,6 +33,8 @@ mod testkit;
 #[cfg(test)]
 mod tests;
 pub(crate) mod torque;
+mod trials;
+mod viewer_data;
 mod window;
 
 use anyhow::{Result, bail};
@@ -44,29 +45,29 @@ pub use counterpart::{
     CounterpartComparison, CounterpartSeries, JointDifference, TrialDifference,
     compare as compare_counterpart, compare_files as compare_counterpart_files,
 };
+pub use diagnosis::{Diagnosis, FinalModel, LagPoint, Quality, SCHEMA_VERSION, SensorWindow};
 pub use discover::{Discovery, DiscoveryReport, TiedTerm};
 pub use fields::{ExcludedField, FieldSource};
 pub use locate::{Breakdown, Correlate, Group, TrialResidual};
 pub use meters::{MeterCheck, MeterDrift};
 pub use options::DiagnoseOptions;
-pub use replay::{HighlightedTrial, LocatedField, ReplayData};
 pub use report::{FIGURES as REPORT_FIGURES, write_report};
 pub use rest::{RestPower, RestTerm};
-pub use result::{Diagnosis, FinalModel, LagPoint, Quality, SCHEMA_VERSION, SensorWindow};
 pub use select::{Confounded, HypothesisScore, MechanismForms, Param};
 pub use torque::{ArmModel, TorqueComparison};
+pub use viewer_data::{HighlightedTrial, LocatedField, ReplayData};
 
 use crate::N_PARAMS;
 use crate::power::PowerModel;
 use crate::robot::{ArmDynamics, RobotModel};
 use crate::session::{Memory, SessionFile, TrialSource};
 use crate::signals::Recording;
-use outcome::{locate_residuals, rank_hypotheses, refit_final};
-use reduce::SessionInfo;
-use replay::{replay_data, show_found, show_rest};
+use lags::{Usable, lag_scan, scan_lags, usable_trials};
+use refit::{locate_residuals, rank_hypotheses, refit_final};
 use select::Rule;
 use select_discover::select_and_discover;
-use stages::{coarse_lags, filter_trials, lag_scan, remove_trials, scan_lags, trial_rows};
+use trials::SessionInfo;
+use viewer_data::{replay_data, show_found, show_rest};
 use window::sensor_window;
 
 /// [`crate::signals::join_recordings`], plus where each part's file lies on the joined time line (for
@@ -148,7 +149,7 @@ pub fn diagnose_files(
         1,
         "reading the file: segmentation and per-trial reductions (1st pass)",
     );
-    let (mut samples, s) = reduce::open_streamed(files, opts.target, bus_model(opts), gap_s)?;
+    let (mut samples, s) = trials::open_streamed(files, opts.target, bus_model(opts), gap_s)?;
     let arm = arm_model(opts, s.has_torque, &s.info.joint_names)?;
     let opts = DiagnoseOptions {
         field_sources: s.field_sources,
@@ -241,8 +242,8 @@ impl TrialSource for Counted<'_> {
 }
 
 /// The bus-current feature's model: the twin's power model at the nominal supply voltage.
-fn bus_model(opts: &DiagnoseOptions) -> data::BusModel {
-    data::BusModel {
+fn bus_model(opts: &DiagnoseOptions) -> reading_rows::BusModel {
+    reading_rows::BusModel {
         model: opts.reference.unwrap_or(PowerModel::PAPER),
         volts: hypotheses::NOMINAL_BUS_VOLTS,
     }
@@ -264,7 +265,7 @@ pub fn diagnose_trials(
 ) -> Result<Diagnosis> {
     let info = SessionInfo::of(rec, opts.target);
     let mut samples = Memory(rec);
-    let metas = reduce::trial_metas(&mut samples, windows, bus_model(opts))?;
+    let metas = trials::trial_metas(&mut samples, windows, bus_model(opts))?;
     run(&info, &mut samples, metas, arm, opts)
 }
 
@@ -273,7 +274,7 @@ pub fn diagnose_trials(
 fn run(
     info: &SessionInfo,
     samples: &mut dyn TrialSource,
-    (all_metas, skipped): (Vec<data::TrialMeta>, data::Skipped),
+    (all_metas, skipped): (Vec<reading_rows::TrialMeta>, reading_rows::Skipped),
     arm: Option<&dyn ArmModel>,
     opts: &DiagnoseOptions,
 ) -> Result<Diagnosis> {
@@ -310,30 +311,14 @@ fn run(
     };
     let opts = &resolved;
     let reference: Option<Vec<f64>> = opts.reference.map(|m| m.to_vector().to_vec());
-    // Rows of every trial at lag 0 and Gram matrices at every coarse lag (one pass), then the
-    // usable trials, and the others' rows taken out of the Gram matrices (one short pass).
-    let lags = coarse_lags(opts);
     stage(3, "rows at the coarse lags, filters");
-    let first = trial_rows(samples, power, &all_metas, &lags, w)?;
-    let (metas, rejected, kept) =
-        filter_trials(&all_metas, skipped, &first.rows0, opts, reference.clone())?;
-    if metas.len() < 2 * opts.folds.max(2) {
-        bail!(
-            "{}: only {} usable trials (need at least {} for {}-fold cross-validation by trial)",
-            info.source.display(),
-            metas.len(),
-            2 * opts.folds.max(2),
-            opts.folds
-        );
-    }
-    let gone: Vec<usize> = (0..all_metas.len())
-        .filter(|i| kept.binary_search(i).is_err())
-        .collect();
-    let mut totals = first.totals;
-    remove_trials(samples, power, &all_metas, &gone, &lags, w, &mut totals)?;
-    let rejected_windows = replay::rejected_windows(&all_metas, &rejected);
-    drop(all_metas);
-    let rows0 = first.rows0.keep(&kept);
+    let Usable {
+        metas,
+        rejected,
+        rejected_windows,
+        rows0,
+        totals,
+    } = usable_trials(info, samples, all_metas, skipped, opts)?;
     // Every lag's Gram matrices, the fine lags and the torque rows (one more pass).
     let stride = torque::stride(&metas, opts.max_torque_samples);
     let mut torque_rows = Vec::new();
@@ -369,12 +354,14 @@ fn run(
         5,
         "hypotheses and discovery (reads the recorded fields: the file's 2nd pass)",
     );
+    let (drift, corrected) = meter_corrected(info, &metas, &sensor, rule.alpha);
+    let info = corrected.as_ref().unwrap_or(info);
     let (sel, mut discovery, fields) = select_and_discover(info, &metas, &data, &rule, opts)?;
     if let Some(r) = discovery.as_mut() {
         let (rows, lag) = (data.rows(sel.last.lag)?, data.lags[sel.last.lag]);
         let (power, other) = (&info.power, &info.other);
         meters::check_findings(r, info.target, power, other, &metas, rows, lag, w);
-        r.meter_drift = meters::compare(info.target, power, other, &metas, lag, w, rule.alpha);
+        r.meter_drift = drift;
     }
 
     // Torque level.
@@ -384,19 +371,77 @@ fn run(
     };
     drop(torque_rows);
     stage(6, "ranking, final refit, locating the residual");
-    let ranking = rank_hypotheses(&sel, torque.as_ref(), &rule);
+    let judged = Judged {
+        sel: &sel,
+        discovery,
+        torque,
+        rule: &rule,
+        sensor,
+        rejected,
+        rejected_windows,
+    };
+    assemble(info, opts, &metas, &data, &fields, judged)
+}
+
+/// One truth across stages: an artefact of the diagnosed meter that the other meter does not
+/// show (a drifting or stepping offset, [`meters::compare`]) and the session with it taken out
+/// of the readings, which every stage after this one reads (rest power, discovery, the meter
+/// checks, the replay). The rows built before are net of each trial's own rest, which such an
+/// artefact does not reach.
+fn meter_corrected(
+    info: &SessionInfo,
+    metas: &[reading_rows::TrialMeta],
+    sensor: &SensorWindow,
+    alpha: f64,
+) -> (Option<MeterDrift>, Option<SessionInfo>) {
+    let lag = if sensor.lag_demanded {
+        sensor.scan_lag_s
+    } else {
+        0.0
+    };
+    let (power, other, w) = (&info.power, &info.other, sensor.window_s);
+    let drift = meters::compare(info.target, power, other, metas, lag, w, alpha);
+    let corrected = drift.as_ref().map(|d| SessionInfo {
+        power: d.corrected(power),
+        ..info.clone()
+    });
+    (drift, corrected)
+}
+
+/// What the selection stages leave for the last one ([`assemble`]).
+struct Judged<'a> {
+    sel: &'a select::Selection,
+    discovery: Option<DiscoveryReport>,
+    torque: Option<torque::TorqueLevel>,
+    rule: &'a Rule,
+    sensor: SensorWindow,
+    rejected: Vec<crate::trial::Rejection>,
+    rejected_windows: Vec<HighlightedTrial>,
+}
+
+/// The last stage: ranking, final refit, locating the residual, the lag scan, the replay data
+/// and the summary, assembled into the [`Diagnosis`].
+fn assemble(
+    info: &SessionInfo,
+    opts: &DiagnoseOptions,
+    metas: &[reading_rows::TrialMeta],
+    data: &select::PowerData,
+    fields: &select_discover::RowFields,
+    j: Judged,
+) -> Result<Diagnosis> {
+    let sel = j.sel;
+    let ranking = rank_hypotheses(sel, j.torque.as_ref(), j.rule);
     let final_model = refit_final(
-        &sel,
+        sel,
         &ranking.accepted,
-        torque.as_ref(),
+        j.torque.as_ref(),
         data.rows0(),
         metas.len(),
     );
-    let located = locate_residuals(&info.joint_names, &metas, &data, &sel, discovery.as_ref());
-    let lag_scan = lag_scan(&data)?;
+    let located = locate_residuals(&info.joint_names, metas, data, sel, j.discovery.as_ref());
     let replay = ReplayData {
-        rejected: rejected_windows,
-        ..replay_data(&metas, data.rows0(), &sel, &located)
+        rejected: j.rejected_windows,
+        ..replay_data(metas, data.rows0(), sel, &located)
     };
     let mut diag = Diagnosis {
         schema_version: SCHEMA_VERSION,
@@ -405,14 +450,14 @@ fn run(
         joint_names: info.joint_names.clone(),
         n_trials: metas.len(),
         n_readings: data.rows0().len(),
-        rejected,
-        torque: torque.map(|t| t.comparison),
+        rejected: j.rejected,
+        torque: j.torque.map(|t| t.comparison),
         base_model: if data.reference.is_some() {
             "reference".into()
         } else {
             "refit".into()
         },
-        lag_scan,
+        lag_scan: lag_scan(data)?,
         breakdowns: located.breakdowns,
         worst: located.worst,
         worst_trials: located.worst_trials,
@@ -422,18 +467,18 @@ fn run(
         unexplained: located.unexplained,
         forms: sel.forms.clone(),
         confounded: sel.confounded.clone(),
-        discovery,
+        discovery: j.discovery,
         bus_volts: fields
             .table
             .bus_volts
             .unwrap_or(hypotheses::NOMINAL_BUS_VOLTS),
-        sensor_window: sensor,
+        sensor_window: j.sensor,
         summary: String::new(),
         replay,
         counterpart: None,
     };
-    show_found(&mut diag, &fields, data.rows0(), &metas);
-    show_rest(&mut diag, &fields, data.rows0(), &metas);
+    show_found(&mut diag, fields, data.rows0(), metas);
+    show_rest(&mut diag, fields, data.rows0(), metas);
     diag.summary = summary::summarise(&diag);
     Ok(diag)
 }

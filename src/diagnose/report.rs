@@ -7,6 +7,7 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use anyhow::{Context, Result};
+use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
 use super::Diagnosis;
@@ -24,6 +25,30 @@ pub const FIGURES: [&str; 5] = [
 /// `text` safe inside a markdown table cell: the `|` of `|q̇|`, `|τ|`, `|ω|` would end the cell.
 fn md_cell(text: &str) -> String {
     text.replace('|', "\\|")
+}
+
+/// A markdown table: the header's cells, then one line per row of cells.
+fn table(md: &mut String, head: &[&str], rows: impl IntoIterator<Item = Vec<String>>) {
+    let line = |cells: &[String]| format!("| {} |\n", cells.join(" | "));
+    let head: Vec<String> = head.iter().map(|h| h.to_string()).collect();
+    md.push_str(&line(&head));
+    md.push_str(&format!("|{}|\n", vec!["---"; head.len()].join("|")));
+    for r in rows {
+        md.push_str(&line(&r));
+    }
+}
+
+/// Draw figure `FIGURES[i]` at `size` into `dir` and link it from `md` under `caption`.
+fn figure(
+    md: &mut String,
+    dir: &Path,
+    (i, size): (usize, (u32, u32)),
+    caption: &str,
+    draw: impl FnOnce(&Area) -> Result<()>,
+) -> Result<()> {
+    write_png(&dir.join(FIGURES[i]), size, draw)?;
+    let _ = writeln!(md, "![{caption}]({})\n", FIGURES[i]);
+    Ok(())
 }
 
 fn sig(v: f64) -> String {
@@ -93,23 +118,24 @@ fn header_section(md: &mut String, d: &Diagnosis) {
 fn torque_section(md: &mut String, t: &super::TorqueComparison) {
     let _ = writeln!(md, "## Torque level (tau_est vs URDF inverse dynamics)\n");
     let _ = writeln!(md, "{} samples.\n", t.n_samples);
-    let _ = writeln!(
-        md,
-        "| joint | bias [Nm] | RMS [Nm] | RMS after friction [Nm] | Fc [Nm] | Fv [Nm·s/rad] |"
-    );
-    let _ = writeln!(md, "|---|---|---|---|---|---|");
-    for j in 0..t.rmse_urdf.len() {
-        let _ = writeln!(
-            md,
-            "| {} | {:+.3} | {:.3} | {:.3} | {:.3} | {:.3} |",
+    let head = [
+        "joint",
+        "bias [Nm]",
+        "RMS [Nm]",
+        "RMS after friction [Nm]",
+        "Fc [Nm]",
+    ];
+    let rows = (0..t.rmse_urdf.len()).map(|j| {
+        vec![
             t.joints.get(j).cloned().unwrap_or_default(),
-            t.bias_urdf[j],
-            t.rmse_urdf[j],
-            t.rmse_with_friction[j],
-            t.coulomb_nm[j],
-            t.viscous_nms[j]
-        );
-    }
+            format!("{:+.3}", t.bias_urdf[j]),
+            format!("{:.3}", t.rmse_urdf[j]),
+            format!("{:.3}", t.rmse_with_friction[j]),
+            format!("{:.3}", t.coulomb_nm[j]),
+            format!("{:.3}", t.viscous_nms[j]),
+        ]
+    });
+    table(md, &[&head[..], &["Fv [Nm·s/rad]"]].concat(), rows);
     md.push('\n');
 }
 
@@ -135,27 +161,30 @@ fn where_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()> {
         );
     }
     for b in &d.breakdowns {
-        let _ = writeln!(
-            md,
-            "**{}**\n\n| group | readings | trials | mean residual [W] | RMS [W] | p |\n|---|---|---|---|---|---|",
-            b.by
-        );
-        for g in &b.groups {
-            let _ = writeln!(
-                md,
-                "| {} | {} | {} | {:+.3} | {:.3} | {} |",
+        let _ = writeln!(md, "**{}**\n", b.by);
+        let head = [
+            "group",
+            "readings",
+            "trials",
+            "mean residual [W]",
+            "RMS [W]",
+            "p",
+        ];
+        let rows = b.groups.iter().map(|g| {
+            vec![
                 md_cell(&g.label),
-                g.n_rows,
-                g.n_trials,
-                g.bias_w,
-                g.rmse_w,
-                sig(g.p_value)
-            );
-        }
+                g.n_rows.to_string(),
+                g.n_trials.to_string(),
+                format!("{:+.3}", g.bias_w),
+                format!("{:.3}", g.rmse_w),
+                sig(g.p_value),
+            ]
+        });
+        table(md, &head, rows);
         md.push('\n');
     }
-    write_png(&dir.join(FIGURES[0]), (900, 500), |a| draw_regime(a, d))?;
-    let _ = writeln!(md, "![Residual by the located regime]({})\n", FIGURES[0]);
+    let caption = "Residual by the located regime";
+    figure(md, dir, (0, (900, 500)), caption, |a| draw_regime(a, d))?;
     let _ = writeln!(
         md,
         "Worst trials: {}\n",
@@ -174,37 +203,29 @@ fn hypotheses_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()> 
         md,
         "## Hypotheses (scored against the base model; accepted first)\n"
     );
-    let _ = writeln!(
-        md,
-        "| rank | hypothesis | level | parameter | p | ΔBIC | held-out RMSE before → after | verdict |"
-    );
-    let _ = writeln!(md, "|---|---|---|---|---|---|---|---|");
-    for h in &d.hypotheses {
-        let p = param_cells(&h.params[..h.params.len().min(1)])
-            .pop()
-            .unwrap_or_default();
-        let _ = writeln!(
-            md,
-            "| {} | {} | {} | {} | {} | {:.1} | {:.4} → {:.4} ({:+.1} %) | {} |",
-            h.rank,
-            h.id,
-            h.level,
-            p,
+    let head = ["rank", "hypothesis", "level", "parameter", "p", "ΔBIC"];
+    let rows = d.hypotheses.iter().map(|h| {
+        vec![
+            h.rank.to_string(),
+            h.id.clone(),
+            h.level.to_string(),
+            param_cells(&h.params[..h.params.len().min(1)]).join(""),
             sig(h.p_value),
-            h.delta_bic,
-            h.rmse_before,
-            h.rmse_after,
-            -100.0 * h.rel_improvement,
-            h.verdict
-        );
-    }
+            format!("{:.1}", h.delta_bic),
+            format!(
+                "{:.4} → {:.4} ({:+.1} %)",
+                h.rmse_before,
+                h.rmse_after,
+                -100.0 * h.rel_improvement
+            ),
+            h.verdict.clone(),
+        ]
+    });
+    let more = ["held-out RMSE before → after", "verdict"];
+    table(md, &[&head[..], &more].concat(), rows);
     md.push('\n');
-    write_png(&dir.join(FIGURES[1]), (900, 450), |a| draw_hypotheses(a, d))?;
-    let _ = writeln!(
-        md,
-        "![Held-out improvement per hypothesis]({})\n",
-        FIGURES[1]
-    );
+    let caption = "Held-out improvement per hypothesis";
+    figure(md, dir, (1, (900, 450)), caption, |a| draw_hypotheses(a, d))?;
     Ok(())
 }
 
@@ -215,21 +236,11 @@ fn final_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()> {
     if f.hypotheses.is_empty() {
         let _ = writeln!(md, "No hypothesis accepted: the model is unchanged.\n");
     } else {
-        let _ = writeln!(
-            md,
-            "| parameter | value | std. error | unit |\n|---|---|---|---|"
-        );
-        for p in &f.params {
-            let _ = writeln!(
-                md,
-                "| {} ({}) | {} | {} | {} |",
-                p.name,
-                p.symbol,
-                sig(p.value),
-                sig(p.std_err),
-                p.unit
-            );
-        }
+        let rows = f.params.iter().map(|p| {
+            let name = format!("{} ({})", p.name, p.symbol);
+            vec![name, sig(p.value), sig(p.std_err), p.unit.clone()]
+        });
+        table(md, &["parameter", "value", "std. error", "unit"], rows);
         md.push('\n');
     }
     let _ = writeln!(
@@ -244,22 +255,14 @@ fn final_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()> {
         f.before_per_trial.rmse_w,
         f.after_per_trial.rmse_w
     );
-    write_png(&dir.join(FIGURES[2]), (1000, 520), |a| {
+    let caption = "Per-trial net power, measured vs predicted before and after";
+    figure(md, dir, (2, (1000, 520)), caption, |a| {
         draw_before_after(a, d)
     })?;
-    let _ = writeln!(
-        md,
-        "![Per-trial net power, measured vs predicted before and after]({})\n",
-        FIGURES[2]
-    );
-    write_png(&dir.join(FIGURES[3]), (1000, 420), |a| {
+    let caption = "Held-out residual over the session, before and after";
+    figure(md, dir, (3, (1000, 420)), caption, |a| {
         draw_residual_time(a, d)
     })?;
-    let _ = writeln!(
-        md,
-        "![Held-out residual over the session, before and after]({})\n",
-        FIGURES[3]
-    );
     Ok(())
 }
 
@@ -270,32 +273,33 @@ fn unexplained_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()>
         md,
         "Per-trial mean residual of the final model vs per-trial mean feature (feature made orthogonal to the base regressors), Bonferroni-adjusted.\n"
     );
-    let _ = writeln!(
-        md,
-        "| feature | r | adjusted p | significant | trials carrying it |\n|---|---|---|---|---|"
-    );
-    for c in &d.unexplained {
+    let rows = d.unexplained.iter().map(|c| {
         let trials: Vec<String> = c.trials.iter().map(|t| t.to_string()).collect();
-        let _ = writeln!(
-            md,
-            "| {} | {:+.3} | {} | {} | {} |",
+        vec![
             md_cell(&c.feature),
-            c.r,
+            format!("{:+.3}", c.r),
             sig(c.p_adjusted),
-            if c.significant { "yes" } else { "no" },
-            trials.join(", ")
-        );
-    }
+            (if c.significant { "yes" } else { "no" }).into(),
+            trials.join(", "),
+        ]
+    });
+    let head = [
+        "feature",
+        "r",
+        "adjusted p",
+        "significant",
+        "trials carrying it",
+    ];
+    table(md, &head, rows);
     md.push('\n');
     if d.lag_scan.len() > 1 {
-        write_png(&dir.join(FIGURES[4]), (800, 420), |a| draw_lag_scan(a, d))?;
-        let _ = writeln!(md, "![Sensor-lag scan of the base model]({})\n", FIGURES[4]);
+        let caption = "Sensor-lag scan of the base model";
+        figure(md, dir, (4, (800, 420)), caption, |a| draw_lag_scan(a, d))?;
     }
     if !d.rejected.is_empty() {
-        let _ = writeln!(md, "## Trials left out\n\n| trial | reason |\n|---|---|");
-        for r in &d.rejected {
-            let _ = writeln!(md, "| {} | {} |", r.trial, md_cell(&r.to_string()));
-        }
+        let _ = writeln!(md, "## Trials left out\n");
+        let rows = (d.rejected.iter()).map(|r| vec![r.trial.to_string(), md_cell(&r.to_string())]);
+        table(md, &["trial", "reason"], rows);
         md.push('\n');
     }
     Ok(())
@@ -303,6 +307,46 @@ fn unexplained_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()>
 
 fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
     padded_range(values, 0.08)
+}
+
+/// A chart of the report's x–y figures on `a`: caption, axes over `x` and `y`, labelled mesh.
+type XyChart<'a, 'b> =
+    ChartContext<'a, BitMapBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+fn xy_chart<'a, 'b>(
+    a: &'a Area<'b>,
+    caption: &str,
+    (x, y): ((f64, f64), (f64, f64)),
+    (x_desc, y_desc): (&str, &str),
+) -> Result<XyChart<'a, 'b>> {
+    let mut chart = ChartBuilder::on(a)
+        .caption(caption, (FONT, 18))
+        .margin(10)
+        .x_label_area_size(36)
+        .y_label_area_size(60)
+        .build_cartesian_2d(x.0..x.1, y.0..y.1)
+        .map_err(plot_err)?;
+    chart
+        .configure_mesh()
+        .x_desc(x_desc)
+        .y_desc(y_desc)
+        .label_style((FONT, 13))
+        .draw()
+        .map_err(plot_err)?;
+    Ok(chart)
+}
+
+/// The series' legend, framed on a light background (upper left or the default corner).
+fn legend<'a, 'b: 'a>(chart: &mut XyChart<'a, 'b>, upper_left: bool) -> Result<()> {
+    let mut labels = chart.configure_series_labels();
+    if upper_left {
+        labels.position(SeriesLabelPosition::UpperLeft);
+    }
+    labels
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font((FONT, 14))
+        .draw()
+        .map_err(plot_err)
 }
 
 /// Horizontal bars, one per labelled category (top to bottom in the given order): the labels sit
@@ -421,29 +465,16 @@ fn draw_before_after(a: &Area, d: &Diagnosis) -> Result<()> {
     let n = v.len();
     let (lo, hi) = range(v.iter().flat_map(|p| [p.0, p.1, p.2]));
     let f = &d.final_model;
-    let mut chart = ChartBuilder::on(a)
-        .caption(
-            format!(
-                "Per-trial net power, held out: R² {:.3} → {:.3}, RMSE {:.2} → {:.2} W",
-                f.before_per_trial.r2,
-                f.after_per_trial.r2,
-                f.before_per_trial.rmse_w,
-                f.after_per_trial.rmse_w
-            ),
-            (FONT, 18),
-        )
-        .margin(10)
-        .x_label_area_size(36)
-        .y_label_area_size(60)
-        .build_cartesian_2d(-0.5..(n as f64 - 0.5).max(0.5), lo..hi)
-        .map_err(plot_err)?;
-    chart
-        .configure_mesh()
-        .x_desc("trial (sorted by measured)")
-        .y_desc("net power [W]")
-        .label_style((FONT, 13))
-        .draw()
-        .map_err(plot_err)?;
+    let caption = format!(
+        "Per-trial net power, held out: R² {:.3} → {:.3}, RMSE {:.2} → {:.2} W",
+        f.before_per_trial.r2,
+        f.after_per_trial.r2,
+        f.before_per_trial.rmse_w,
+        f.after_per_trial.rmse_w
+    );
+    let x = (-0.5, (n as f64 - 0.5).max(0.5));
+    let descs = ("trial (sorted by measured)", "net power [W]");
+    let mut chart = xy_chart(a, &caption, (x, (lo, hi)), descs)?;
     chart
         .draw_series(
             v.iter()
@@ -470,15 +501,7 @@ fn draw_before_after(a: &Area, d: &Diagnosis) -> Result<()> {
         .map_err(plot_err)?
         .label("after")
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED.stroke_width(2)));
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperLeft)
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .label_font((FONT, 14))
-        .draw()
-        .map_err(plot_err)?;
-    Ok(())
+    legend(&mut chart, true)
 }
 
 fn draw_residual_time(a: &Area, d: &Diagnosis) -> Result<()> {
@@ -491,20 +514,9 @@ fn draw_residual_time(a: &Area, d: &Diagnosis) -> Result<()> {
         .collect();
     let (t0, t1) = range(r.t.iter().copied());
     let (lo, hi) = range(before.iter().chain(&after).map(|p| p.1));
-    let mut chart = ChartBuilder::on(a)
-        .caption("Held-out residual per reading over the session", (FONT, 18))
-        .margin(10)
-        .x_label_area_size(36)
-        .y_label_area_size(60)
-        .build_cartesian_2d(t0..t1, lo..hi)
-        .map_err(plot_err)?;
-    chart
-        .configure_mesh()
-        .x_desc("session time [s]")
-        .y_desc("measured − predicted [W]")
-        .label_style((FONT, 13))
-        .draw()
-        .map_err(plot_err)?;
+    let caption = "Held-out residual per reading over the session";
+    let descs = ("session time [s]", "measured − predicted [W]");
+    let mut chart = xy_chart(a, caption, ((t0, t1), (lo, hi)), descs)?;
     chart
         .draw_series(
             before
@@ -519,37 +531,17 @@ fn draw_residual_time(a: &Area, d: &Diagnosis) -> Result<()> {
         .map_err(plot_err)?
         .label("after")
         .legend(|(x, y)| Circle::new((x + 10, y), 3, RED.filled()));
-    chart
-        .configure_series_labels()
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .label_font((FONT, 14))
-        .draw()
-        .map_err(plot_err)?;
-    Ok(())
+    legend(&mut chart, false)
 }
 
 fn draw_lag_scan(a: &Area, d: &Diagnosis) -> Result<()> {
     let pts: Vec<(f64, f64)> = d.lag_scan.iter().map(|p| (p.lag_s, p.rmse_w)).collect();
-    let (x0, x1) = range(pts.iter().map(|p| p.0));
-    let (y0, y1) = range(pts.iter().map(|p| p.1));
-    let mut chart = ChartBuilder::on(a)
-        .caption(
-            "Base-model RMSE vs assumed power-sensor latency",
-            (FONT, 18),
-        )
-        .margin(10)
-        .x_label_area_size(36)
-        .y_label_area_size(60)
-        .build_cartesian_2d(x0..x1, y0..y1)
-        .map_err(plot_err)?;
-    chart
-        .configure_mesh()
-        .x_desc("latency [s]")
-        .y_desc("RMSE [W]")
-        .label_style((FONT, 13))
-        .draw()
-        .map_err(plot_err)?;
+    let xy = (
+        range(pts.iter().map(|p| p.0)),
+        range(pts.iter().map(|p| p.1)),
+    );
+    let caption = "Base-model RMSE vs assumed power-sensor latency";
+    let mut chart = xy_chart(a, caption, xy, ("latency [s]", "RMSE [W]"))?;
     chart
         .draw_series(LineSeries::new(pts.iter().copied(), BLUE.stroke_width(2)))
         .map_err(plot_err)?;
@@ -572,28 +564,36 @@ fn counterpart_section(md: &mut String, c: &super::counterpart::CounterpartCompa
          {:.2} W rms, {:+.2} W on average; R² of the twin's power {:.3}.\n",
         c.matched_samples, c.matched_readings, c.power_rms_w, c.power_bias_w, c.power_r2
     );
-    let _ = writeln!(md, "| joint | τ RMS [Nm] | τ bias [Nm] | q RMS [rad] |");
-    let _ = writeln!(md, "|---|---:|---:|---:|");
-    for j in &c.joints {
-        let _ = writeln!(
-            md,
-            "| {} | {:.3} | {:+.3} | {:.4} |",
-            j.joint, j.tau_rms_nm, j.tau_bias_nm, j.q_rms_rad
-        );
-    }
+    let rows = c.joints.iter().map(|j| {
+        vec![
+            j.joint.clone(),
+            format!("{:.3}", j.tau_rms_nm),
+            format!("{:+.3}", j.tau_bias_nm),
+            format!("{:.4}", j.q_rms_rad),
+        ]
+    });
+    table(
+        md,
+        &["joint", "τ RMS [Nm]", "τ bias [Nm]", "q RMS [rad]"],
+        rows,
+    );
     if !c.worst_trials.is_empty() {
-        let _ = writeln!(
+        md.push('\n');
+        let rows = c.worst_trials.iter().map(|t| {
+            vec![
+                t.trial.to_string(),
+                t.readings.to_string(),
+                format!("{:.1}", t.t_start),
+                format!("{:.1}", t.t_end),
+                format!("{:+.2}", t.power_mean_w),
+            ]
+        });
+        let head = ["trial", "readings", "from [s]", "to [s]"];
+        table(
             md,
-            "\n| trial | readings | from [s] | to [s] | mean net power difference [W] |"
+            &[&head[..], &["mean net power difference [W]"]].concat(),
+            rows,
         );
-        let _ = writeln!(md, "|---:|---:|---:|---:|---:|");
-        for t in &c.worst_trials {
-            let _ = writeln!(
-                md,
-                "| {} | {} | {:.1} | {:.1} | {:+.2} |",
-                t.trial, t.readings, t.t_start, t.t_end, t.power_mean_w
-            );
-        }
     }
     let _ = writeln!(md);
 }
@@ -603,49 +603,47 @@ fn beyond_section(md: &mut String, d: &Diagnosis) {
     if !d.forms.is_empty() {
         let _ = writeln!(
             md,
-            "## Mechanisms with several forms (same cross-validation)\n\n| mechanism | winning form | runner-up | held-out RMSE [W] | margin | p | accepted |\n|---|---|---|---|---|---|---|"
+            "## Mechanisms with several forms (same cross-validation)\n"
         );
-        for f in &d.forms {
-            let _ = writeln!(
-                md,
-                "| {} | {} | {} | {:.3} vs {:.3} | {:.1} % | {} | {} |",
-                f.mechanism,
-                f.winner,
-                f.runner_up,
-                f.rmse_w[0],
-                f.rmse_w[1],
-                100.0 * f.margin,
+        let rows = d.forms.iter().map(|f| {
+            vec![
+                f.mechanism.clone(),
+                f.winner.clone(),
+                f.runner_up.clone(),
+                format!("{:.3} vs {:.3}", f.rmse_w[0], f.rmse_w[1]),
+                format!("{:.1} %", 100.0 * f.margin),
                 sig(f.p_value),
                 match (f.accepted, f.confounded) {
                     (true, true) => format!("mechanism only — form: confounded, {}", f.either()),
                     (true, false) => "yes".into(),
                     _ => "no".into(),
-                }
-            );
-        }
+                },
+            ]
+        });
+        let head = [
+            "mechanism",
+            "winning form",
+            "runner-up",
+            "held-out RMSE [W]",
+            "margin",
+        ];
+        table(md, &[&head[..], &["p", "accepted"]].concat(), rows);
         md.push('\n');
     }
     if !d.confounded.is_empty() {
-        let _ = writeln!(
-            md,
-            "## Confounded\n\n| kept | dropped | regressor r | p of dropped given kept | RMSE change |\n|---|---|---|---|---|"
-        );
-        for c in &d.confounded {
-            let _ = writeln!(
-                md,
-                "| {}{} | {} | {:+.2} | {} | {:+.2} % |",
-                c.kept,
-                if c.tied {
-                    " (not told apart: the dropped column's library term stays claimed)"
-                } else {
-                    ""
-                },
-                c.dropped,
-                c.correlation,
+        let _ = writeln!(md, "## Confounded\n");
+        let tied = " (not told apart: the dropped column's library term stays claimed)";
+        let rows = d.confounded.iter().map(|c| {
+            vec![
+                format!("{}{}", c.kept, if c.tied { tied } else { "" }),
+                c.dropped.clone(),
+                format!("{:+.2}", c.correlation),
                 sig(c.p_value),
-                -100.0 * c.rel_change
-            );
-        }
+                format!("{:+.2} %", -100.0 * c.rel_change),
+            ]
+        });
+        let head = ["kept", "dropped", "regressor r", "p of dropped given kept"];
+        table(md, &[&head[..], &["RMSE change"]].concat(), rows);
         md.push('\n');
     }
     let Some(r) = &d.discovery else {
@@ -659,26 +657,21 @@ fn beyond_section(md: &mut String, d: &Diagnosis) {
         r.n_candidates,
         sig(r.alpha)
     );
-    let _ = writeln!(
-        md,
-        "| step | found | form | field(s) | parameter(s) | held-out R² before → after | p | verdict |\n|---|---|---|---|---|---|---|---|"
-    );
-    for t in r.accepted.iter().chain(r.best_rejected.iter()) {
-        let params = param_cells(&t.params);
-        let _ = writeln!(
-            md,
-            "| {} | {} | {} | {} | {} | {:.3} → {:.3} | {} | {} |",
-            t.step,
-            t.name,
-            t.form,
+    let rows = r.accepted.iter().chain(r.best_rejected.iter()).map(|t| {
+        vec![
+            t.step.to_string(),
+            t.name.clone(),
+            t.form.clone(),
             t.fields.join(", "),
-            params.join("; "),
-            t.before.r2,
-            t.after.r2,
+            param_cells(&t.params).join("; "),
+            format!("{:.3} → {:.3}", t.before.r2, t.after.r2),
             sig(t.p_value),
-            t.verdict
-        );
-    }
+            t.verdict.clone(),
+        ]
+    });
+    let head = ["step", "found", "form", "field(s)", "parameter(s)"];
+    let more = ["held-out R² before → after", "p", "verdict"];
+    table(md, &[&head[..], &more].concat(), rows);
     tied_terms(md, r);
     for n in &r.notes {
         let _ = writeln!(md, "\n- {n}");
@@ -705,23 +698,18 @@ Each trial's pre-idle power (mean {:.2} W; the net-power model subtracts it, so 
         r.rmse_before_w,
         r.rmse_after_w
     );
-    let _ = writeln!(
-        md,
-        "| found | form | parameter(s) | p | verdict | not told apart from it |\n|---|---|---|---|---|---|"
-    );
-    for t in r.found.iter().chain(r.best_rejected.iter()) {
-        let params = param_cells(&t.params);
-        let _ = writeln!(
-            md,
-            "| {} | {} | {} | {} | {} | {} |",
-            t.name,
-            t.form,
-            params.join("; "),
+    let rows = r.found.iter().chain(r.best_rejected.iter()).map(|t| {
+        vec![
+            t.name.clone(),
+            t.form.clone(),
+            param_cells(&t.params).join("; "),
             sig(t.p_value),
-            t.verdict,
-            t.tied.join(", ")
-        );
-    }
+            t.verdict.clone(),
+            t.tied.join(", "),
+        ]
+    });
+    let head = ["found", "form", "parameter(s)", "p", "verdict"];
+    table(md, &[&head[..], &["not told apart from it"]].concat(), rows);
     md.push('\n');
 }
 
@@ -734,31 +722,35 @@ fn tied_terms(md: &mut String, r: &super::DiscoveryReport) {
     }
     let _ = writeln!(
         md,
-        "\n### Not told apart from a found term (confounded: claimed as one mechanism, the field in doubt)\n\n| step | candidate | form | field(s) | parameter(s) | held-out RMSE [W] found vs candidate | p (found fits better) | r of contributions | why a rival |\n|---|---|---|---|---|---|---|---|---|"
+        "\n### Not told apart from a found term (confounded: claimed as one mechanism, the field in doubt)\n"
     );
-    for t in &r.accepted {
-        for o in &t.tied {
-            let params = param_cells(&o.params);
-            let _ = writeln!(
-                md,
-                "| {} | {} | {} | {} | {} | {:.3} vs {:.3} | {} | {:+.3} | {} |",
-                t.step,
-                o.name,
-                o.form,
-                o.fields.join(", "),
-                params.join("; "),
-                o.rmse_w[0],
-                o.rmse_w[1],
-                sig(o.p_value),
-                o.correlation,
-                if o.same_structure {
-                    "same term, another field"
-                } else {
-                    "collinear contribution"
-                }
-            );
-        }
-    }
+    let rows = (r.accepted.iter()).flat_map(|t| t.tied.iter().map(move |o| (t.step, o)));
+    let rows = rows.map(|(step, o)| {
+        vec![
+            step.to_string(),
+            o.name.clone(),
+            o.form.clone(),
+            o.fields.join(", "),
+            param_cells(&o.params).join("; "),
+            format!("{:.3} vs {:.3}", o.rmse_w[0], o.rmse_w[1]),
+            sig(o.p_value),
+            format!("{:+.3}", o.correlation),
+            (if o.same_structure {
+                "same term, another field"
+            } else {
+                "collinear contribution"
+            })
+            .into(),
+        ]
+    });
+    let head = ["step", "candidate", "form", "field(s)", "parameter(s)"];
+    let more = [
+        "held-out RMSE [W] found vs candidate",
+        "p (found fits better)",
+        "r of contributions",
+        "why a rival",
+    ];
+    table(md, &[&head[..], &more].concat(), rows);
 }
 
 /// The fields discovery left out by a rule on their own data, with the reason.
@@ -768,12 +760,11 @@ fn excluded_fields(md: &mut String, r: &super::DiscoveryReport) {
     }
     let _ = writeln!(
         md,
-        "### Fields left out of discovery ({})\n\n| field | reason |\n|---|---|",
+        "### Fields left out of discovery ({})\n",
         r.excluded.len()
     );
-    for e in &r.excluded {
-        let _ = writeln!(md, "| `{}` | {} |", e.name, e.reason.replace('|', "\\|"));
-    }
+    let rows = (r.excluded.iter()).map(|e| vec![format!("`{}`", e.name), md_cell(&e.reason)]);
+    table(md, &["field", "reason"], rows);
     md.push('\n');
 }
 

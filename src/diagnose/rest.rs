@@ -8,9 +8,8 @@
 //! minimum gain. The rest power drifts slowly, so neighbouring trials are not independent: the
 //! folds are contiguous blocks of trials and the paired test is by block.
 
-use super::discover::{span, step_threshold};
 use super::select::{Param, Rule, jackknife_se};
-use super::stats::improvement_p_value;
+use super::stats::{improvement_p_value, span, step_threshold};
 use crate::lsq::Gram;
 
 /// Trials per block of the held-out test (≈ 4–5 minutes of the protocol).
@@ -104,6 +103,7 @@ pub(crate) struct RestInputs<'a> {
     pub usable: Vec<bool>,
 }
 
+#[derive(Clone)]
 struct Fit {
     /// Held-out prediction per trial.
     pred: Vec<f64>,
@@ -289,20 +289,9 @@ impl Search<'_> {
     }
 }
 
-/// Explain the trials' rest power with the fields at rest; `None` when there are too few trials
-/// with a baseline for the block test.
-pub(crate) fn rest_power(inp: &RestInputs, rule: &Rule) -> Option<RestPower> {
-    let trials: Vec<usize> = (0..inp.power.len())
-        .filter(|&t| inp.power[t].is_finite() && inp.start[t].is_finite())
-        .collect();
-    let n_blocks = trials.len() / BLOCK_TRIALS;
-    if n_blocks < MIN_BLOCKS {
-        return None;
-    }
-    let n = n_blocks * BLOCK_TRIALS;
-    let trials = &trials[..n];
-    let y: Vec<f64> = trials.iter().map(|&t| inp.power[t]).collect();
-    let block: Vec<usize> = (0..n).map(|r| r / BLOCK_TRIALS).collect();
+/// The candidate columns over `trials`: each usable field linear and, where it has two levels,
+/// as a step; then session time.
+fn candidates(inp: &RestInputs, trials: &[usize]) -> (Vec<Vec<f64>>, Vec<Cand>) {
     let mut cols = Vec::new();
     let mut cands = Vec::new();
     for (f, vals) in inp.fields.iter().enumerate() {
@@ -322,9 +311,28 @@ pub(crate) fn rest_power(inp: &RestInputs, rule: &Rule) -> Option<RestPower> {
     }
     cols.push(trials.iter().map(|&t| inp.start[t] / 3600.0).collect());
     cands.push(Cand::Time);
+    (cols, cands)
+}
+
+/// One accepted step of the forward search: the winner, its Holm level and its rivals' fields.
+type Step = (Scored, f64, Vec<String>);
+
+/// Explain the trials' rest power with the fields at rest; `None` when there are too few trials
+/// with a baseline for the block test.
+pub(crate) fn rest_power(inp: &RestInputs, rule: &Rule) -> Option<RestPower> {
+    let trials: Vec<usize> = (0..inp.power.len())
+        .filter(|&t| inp.power[t].is_finite() && inp.start[t].is_finite())
+        .collect();
+    let n_blocks = trials.len() / BLOCK_TRIALS;
+    if n_blocks < MIN_BLOCKS {
+        return None;
+    }
+    let n = n_blocks * BLOCK_TRIALS;
+    let trials = &trials[..n];
+    let (cols, cands) = candidates(inp, trials);
     let search = Search {
-        y,
-        block,
+        y: trials.iter().map(|&t| inp.power[t]).collect(),
+        block: (0..n).map(|r| r / BLOCK_TRIALS).collect(),
         n_blocks,
         cols,
         cands,
@@ -338,80 +346,11 @@ pub(crate) fn rest_power(inp: &RestInputs, rule: &Rule) -> Option<RestPower> {
         n_candidates: search.cands.len(),
         mean_w: search.y.iter().sum::<f64>() / n as f64,
         rmse_before_w: search.rmse(&base.pred),
-        rmse_after_w: search.rmse(&base.pred),
         ..Default::default()
     };
-    let mut chosen: Vec<usize> = Vec::new();
-    let mut steps: Vec<(Scored, f64, Vec<String>)> = Vec::new();
-    let mut cur = base;
-    // The fields a candidate follows: its step and linear forms are one group.
-    let field_of = |i: usize| search.field_name(search.cands[i]);
-    for step in 1..=MAX_TERMS {
-        let level = search.level(step);
-        let mut passing = Vec::new();
-        let mut best_fail: Option<Scored> = None;
-        for i in 0..search.cands.len() {
-            if chosen.iter().any(|&c| field_of(c) == field_of(i)) {
-                continue;
-            }
-            let Some(s) = search.score(i, &chosen, &cur) else {
-                continue;
-            };
-            if search.passes(&s, level) {
-                passing.push(s);
-            } else if best_fail.as_ref().is_none_or(|b| s.rel > b.rel) {
-                best_fail = Some(s);
-            }
-        }
-        let best = (0..passing.len()).max_by(|&a, &b| passing[a].rel.total_cmp(&passing[b].rel));
-        if step == 1
-            && best.is_none()
-            && let Some(f) = &best_fail
-        {
-            let verdict = format!(
-                "rejected: p = {:.1e} {} {:.1e} (Holm); ΔBIC = {:.1}; held-out RMSE improves by {:.1} %",
-                f.p,
-                if f.p < level { "<" } else { "≥" },
-                level,
-                f.d_bic,
-                100.0 * f.rel
-            );
-            let j = f.fit.coef.len() - 1;
-            let k = f.fit.coef[j];
-            let se = jackknife_se(&f.fit.fold_coef.iter().map(|c| c[j]).collect::<Vec<_>>());
-            out.best_rejected = Some(search.term(f, level, verdict, (k, se)));
-        }
-        let Some(b) = best else { break };
-        let b = passing.swap_remove(b);
-        // Rivals: other fields that pass here and do not fit significantly worse. They stay
-        // open (tried beside it at the next step: a second load passes there, a stand-in not).
-        let mut tied: Vec<(f64, String)> = passing
-            .iter()
-            .filter(|s| field_of(s.cand) != field_of(b.cand))
-            .filter(|s| {
-                let p = improvement_p_value(&search.block_gain(&s.fit.pred, &b.fit.pred));
-                p >= rule.alpha || p.is_nan()
-            })
-            .map(|s| (search.rmse(&s.fit.pred), field_of(s.cand)))
-            .collect();
-        tied.sort_by(|a, b| a.0.total_cmp(&b.0));
-        let mut names: Vec<String> = Vec::new();
-        for (_, f) in tied {
-            if !names.contains(&f) {
-                names.push(f);
-            }
-        }
-        chosen.push(b.cand);
-        cur = Fit {
-            pred: b.fit.pred.clone(),
-            fold_coef: b.fit.fold_coef.clone(),
-            coef: b.fit.coef.clone(),
-            bic: b.fit.bic,
-        };
-        steps.push((b, level, names));
-    }
+    let (chosen, steps, cur) = search.forward(base, &mut out.best_rejected);
     // A rival found later as a term of its own is not a tie of the earlier ones.
-    let found_fields: Vec<String> = chosen.iter().map(|&c| field_of(c)).collect();
+    let found_fields: Vec<String> = chosen.iter().map(|&c| search.field_of(c)).collect();
     for (k, (s, level, tied)) in steps.iter().enumerate() {
         let coef = cur.coef[k + 1];
         let se = jackknife_se(&cur.fold_coef.iter().map(|c| c[k + 1]).collect::<Vec<_>>());
@@ -433,37 +372,133 @@ pub(crate) fn rest_power(inp: &RestInputs, rule: &Rule) -> Option<RestPower> {
     }
     out.rmse_after_w = search.rmse(&cur.pred);
     if !out.found.is_empty() {
-        out.trial_pred = vec![f64::NAN; inp.power.len()];
-        // Trials past the last whole block were not in the test: the fit on all trials.
-        let x_of = |c: usize, t: usize| match search.cands[c] {
+        search.per_trial(inp, trials, &chosen, &cur, &mut out);
+    }
+    Some(out)
+}
+
+impl Search<'_> {
+    /// The field a candidate follows: its step and linear forms are one group.
+    fn field_of(&self, i: usize) -> String {
+        self.field_name(self.cands[i])
+    }
+
+    /// Forward selection from `base`: at each step the best candidate that passes the rule, its
+    /// rivals (other fields that pass and do not fit significantly worse) named; the best
+    /// failing candidate of the first step goes to `best_rejected` when none passes there.
+    fn forward(
+        &self,
+        base: Fit,
+        best_rejected: &mut Option<RestTerm>,
+    ) -> (Vec<usize>, Vec<Step>, Fit) {
+        let mut chosen: Vec<usize> = Vec::new();
+        let mut steps: Vec<Step> = Vec::new();
+        let mut cur = base;
+        for step in 1..=MAX_TERMS {
+            let level = self.level(step);
+            let mut passing = Vec::new();
+            let mut best_fail: Option<Scored> = None;
+            for i in 0..self.cands.len() {
+                if chosen.iter().any(|&c| self.field_of(c) == self.field_of(i)) {
+                    continue;
+                }
+                let Some(s) = self.score(i, &chosen, &cur) else {
+                    continue;
+                };
+                if self.passes(&s, level) {
+                    passing.push(s);
+                } else if best_fail.as_ref().is_none_or(|b| s.rel > b.rel) {
+                    best_fail = Some(s);
+                }
+            }
+            let best =
+                (0..passing.len()).max_by(|&a, &b| passing[a].rel.total_cmp(&passing[b].rel));
+            if step == 1
+                && best.is_none()
+                && let Some(f) = &best_fail
+            {
+                *best_rejected = Some(self.rejected(f, level));
+            }
+            let Some(b) = best else { break };
+            let b = passing.swap_remove(b);
+            let names = self.rivals(&b, &passing);
+            chosen.push(b.cand);
+            cur = b.fit.clone();
+            steps.push((b, level, names));
+        }
+        (chosen, steps, cur)
+    }
+
+    /// The first step's best candidate, rejected, with why.
+    fn rejected(&self, f: &Scored, level: f64) -> RestTerm {
+        let verdict = format!(
+            "rejected: p = {:.1e} {} {:.1e} (Holm); ΔBIC = {:.1}; held-out RMSE improves by {:.1} %",
+            f.p,
+            if f.p < level { "<" } else { "≥" },
+            level,
+            f.d_bic,
+            100.0 * f.rel
+        );
+        let j = f.fit.coef.len() - 1;
+        let se = jackknife_se(&f.fit.fold_coef.iter().map(|c| c[j]).collect::<Vec<_>>());
+        self.term(f, level, verdict, (f.fit.coef[j], se))
+    }
+
+    /// Rivals of the step's winner `b`: other fields that pass here and do not fit significantly
+    /// worse, best first. They stay open (tried beside it at the next step: a second load
+    /// passes there, a stand-in not).
+    fn rivals(&self, b: &Scored, passing: &[Scored]) -> Vec<String> {
+        let mut tied: Vec<(f64, String)> = passing
+            .iter()
+            .filter(|s| self.field_of(s.cand) != self.field_of(b.cand))
+            .filter(|s| {
+                let p = improvement_p_value(&self.block_gain(&s.fit.pred, &b.fit.pred));
+                p >= self.rule.alpha || p.is_nan()
+            })
+            .map(|s| (self.rmse(&s.fit.pred), self.field_of(s.cand)))
+            .collect();
+        tied.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut names: Vec<String> = Vec::new();
+        for (_, f) in tied {
+            if !names.contains(&f) {
+                names.push(f);
+            }
+        }
+        names
+    }
+
+    /// Per trial of the stage's input: the held-out rest power (`trial_pred`; trials past the
+    /// last whole block were not in the test: the fit on all trials) and what each found term
+    /// adds (`term_cols`).
+    fn per_trial(
+        &self,
+        inp: &RestInputs,
+        trials: &[usize],
+        chosen: &[usize],
+        cur: &Fit,
+        out: &mut RestPower,
+    ) {
+        let x_of = |c: usize, t: usize| match self.cands[c] {
             Cand::Linear(f) => inp.fields[f][t],
             Cand::Step(f, thr) => f64::from(u8::from(inp.fields[f][t] > thr)),
             Cand::Time => inp.start[t] / 3600.0,
         };
+        let all = 0..inp.power.len();
         out.term_cols = chosen
             .iter()
             .enumerate()
-            .map(|(k, &c)| {
-                (0..inp.power.len())
-                    .map(|t| cur.coef[k + 1] * x_of(c, t))
-                    .collect()
+            .map(|(k, &c)| all.clone().map(|t| cur.coef[k + 1] * x_of(c, t)).collect())
+            .collect();
+        out.trial_pred = all
+            .map(|t| {
+                let terms = chosen.iter().zip(&cur.coef[1..]);
+                cur.coef[0] + terms.map(|(&c, k)| x_of(c, t) * k).sum::<f64>()
             })
             .collect();
-        for t in 0..inp.power.len() {
-            let x: Vec<f64> = chosen.iter().map(|&c| x_of(c, t)).collect();
-            if x.iter().all(|v| v.is_finite()) {
-                out.trial_pred[t] = cur.coef[0]
-                    + x.iter()
-                        .zip(&cur.coef[1..])
-                        .map(|(a, k)| a * k)
-                        .sum::<f64>();
-            }
-        }
         for (r, &t) in trials.iter().enumerate() {
             out.trial_pred[t] = cur.pred[r];
         }
     }
-    Some(out)
 }
 
 #[cfg(test)]

@@ -11,8 +11,8 @@ use nalgebra::{DMatrix, DVector};
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
 
-use super::data::Rows;
 use super::hypotheses::{Combine, Hypothesis, LATENCY_ID, N_RAW};
+use super::reading_rows::Rows;
 use super::stats::improvement_p_value;
 use crate::lsq::{Gram, Metrics, bounded_quadratic};
 use crate::power::PowerModel;

@@ -372,37 +372,35 @@ fn either_params(f: &MechanismForms, shown: Option<&Param>) -> String {
 
 /// Mechanism forms (winner, runner-up, margin) and confounded pairs.
 fn forms_and_confounding(d: &Diagnosis, s: &mut String) {
-    for f in d.forms.iter().filter(|f| f.accepted && f.confounded) {
-        let _ = writeln!(
-            s,
-            "Form: {}: confounded — {}: the data do not tell them apart ({} vs {}: held-out RMSE {:.3} vs {:.3} W, margin {:.1} %, p = {:.2}); the mechanism is claimed, not the form.",
-            f.mechanism,
-            f.either(),
-            f.winner,
-            f.runner_up,
+    // The confounded forms first.
+    let forms = (d.forms.iter()).filter(|f| f.accepted && f.confounded);
+    for f in forms.chain(d.forms.iter().filter(|f| f.accepted && !f.confounded)) {
+        let evidence = format!(
+            "held-out RMSE {:.3} vs {:.3} W, margin {:.1} %",
             f.rmse_w[0],
             f.rmse_w[1],
-            100.0 * f.margin,
-            f.p_value
+            100.0 * f.margin
         );
+        let _ = if f.confounded {
+            writeln!(
+                s,
+                "Form: {}: confounded — {}: the data do not tell them apart ({} vs {}: {evidence}, p = {:.2}); the mechanism is claimed, not the form.",
+                f.mechanism,
+                f.either(),
+                f.winner,
+                f.runner_up,
+                f.p_value
+            )
+        } else {
+            writeln!(
+                s,
+                "Form: {}: {} fits better than {} ({evidence}, p = {:.1e}).",
+                f.mechanism, f.winner, f.runner_up, f.p_value
+            )
+        };
     }
-    for f in d.forms.iter().filter(|f| f.accepted && !f.confounded) {
-        let _ = writeln!(
-            s,
-            "Form: {}: {} fits better than {} (held-out RMSE {:.3} vs {:.3} W, margin {:.1} %, p = {:.1e}).",
-            f.mechanism,
-            f.winner,
-            f.runner_up,
-            f.rmse_w[0],
-            f.rmse_w[1],
-            100.0 * f.margin,
-            f.p_value
-        );
-    }
-    for c in d.confounded.iter().filter(|c| c.tied) {
-        let _ = writeln!(s, "{}", confounded_line(c));
-    }
-    for c in d.confounded.iter().filter(|c| !c.tied) {
+    let tied = d.confounded.iter().filter(|c| c.tied);
+    for c in tied.chain(d.confounded.iter().filter(|c| !c.tied)) {
         let _ = writeln!(s, "{}", confounded_line(c));
     }
 }

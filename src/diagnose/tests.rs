@@ -212,3 +212,46 @@ mod torque_tests {
         assert!(!p.accepted, "{p:?}");
     }
 }
+
+#[cfg(test)]
+mod stage_tests {
+    use crate::diagnose::testkit::{Effects, session};
+    use crate::diagnose::*;
+    use crate::signals::PowerSeries;
+    use rand::{RngExt, SeedableRng};
+
+    /// One truth across stages: a step of the main-board meter's offset that the battery meter
+    /// does not show is found by the meter comparison and taken out of the readings before the
+    /// rest power reads them, so the rest power claims no change of the rail's power for it.
+    #[test]
+    fn a_meter_step_is_corrected_before_the_rest_power_reads_it() {
+        let (mut rec, windows) = session(240, 9, Effects::default());
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        // The battery meter: the same rail plus the rest of the robot, its own noise.
+        rec.bms = PowerSeries {
+            t: rec.mbs.t.clone(),
+            watts: (rec.mbs.watts.iter())
+                .map(|w| w + 35.0 + 0.3 * (rng.random::<f64>() - 0.5))
+                .collect(),
+        };
+        // The main-board meter's offset steps by 3 W halfway between the trials' starts.
+        let (first, last) = (windows[0].t_traj_start, windows[239].t_traj_start);
+        let at = first + 0.5 * (last - first);
+        for (t, w) in rec.mbs.t.iter().zip(rec.mbs.watts.iter_mut()) {
+            if *t > at {
+                *w += 3.0;
+            }
+        }
+        let d = diagnose_trials(&rec, &windows, None, &DiagnoseOptions::default()).unwrap();
+        eprintln!("{}", d.summary);
+        let r = d.discovery.as_ref().expect("discovery ran");
+        let drift = r.meter_drift.as_ref().expect("the meter's step is found");
+        assert!(
+            drift.form.contains("step") && (drift.change_w - 3.0).abs() < 0.3,
+            "{drift:?}"
+        );
+        let rest = r.rest.as_ref().expect("the rest power ran");
+        assert!(rest.found.is_empty(), "{:?}", rest.found);
+        assert!(rest.rmse_before_w < 0.5, "{rest:?}");
+    }
+}

@@ -7,7 +7,7 @@
 use anyhow::Result;
 use nalgebra::{DVector, SMatrix};
 
-use super::data::TrialMeta;
+use super::reading_rows::TrialMeta;
 use super::select::{Folds, HypothesisScore, Param, bic, jackknife_se, r2_rmse, trial_sse};
 use super::stats::improvement_p_value;
 use crate::N_JOINTS;

@@ -34,12 +34,12 @@
 
 use anyhow::{Context, Result};
 
-use crate::timing::{Alignment, ScanGrid, ridge_r2, scan_alignment};
+use crate::timing::{Alignment, AlignmentEstimate, ScanGrid, ridge_r2, scan_alignment};
 use crate::trial::{Cascade, TrialStat, TrialWindow, is_rejected};
 
-use super::data::{Rows, TrialMeta, build_rows};
-use super::reduce::{SessionInfo, hold};
-use super::stages::base_trial_residuals;
+use super::lags::base_trial_residuals;
+use super::reading_rows::{Rows, TrialMeta, build_rows};
+use super::trials::{SessionInfo, hold};
 use super::{DiagnoseOptions, SensorWindow};
 use crate::session::TrialSource;
 
@@ -106,6 +106,19 @@ pub(crate) fn sensor_window(
             metas.len()
         )
     })?;
+    Ok(SensorWindow {
+        scan_trials: metas.len(),
+        ..judge(&est, &score, opts.bic_threshold)
+    })
+}
+
+/// The window and whether a lag is demanded, judged from the scan `est` (`score`: an alignment's
+/// (readings, R²) on the fixed reading set), as the module docs say.
+fn judge(
+    est: &AlignmentEstimate,
+    score: &dyn Fn(Alignment) -> Option<(usize, f64)>,
+    bic_threshold: f64,
+) -> SensorWindow {
     let best = est.best;
     let centre = best.lag_s + 0.5 * best.window_s;
     // ΔBIC of one more free parameter: same readings and targets, so the SSE ratio is the R²
@@ -162,7 +175,7 @@ pub(crate) fn sensor_window(
             (Some((a, n, r2)), Some((_, _, r2_0))) if a.lag_s > min_lag + 1e-9 => {
                 let n = n as f64;
                 n * ((1.0 - r2).max(1e-300) / (1.0 - r2_0).max(1e-300)).ln() + extra * n.ln()
-                    < opts.bic_threshold
+                    < bic_threshold
             }
             (Some((a, _, _)), None) => a.lag_s > min_lag + 1e-9,
             _ => false,
@@ -177,7 +190,7 @@ pub(crate) fn sensor_window(
         .find(|g| g.alignment == best)
         .map(|g| (g.alignment, g.rows, g.r2));
     let lag_demanded = beats(nominal, 0.0, STEP) || beats(scanned, 1.0, 0.0);
-    let nominal_kept = window_delta_bic >= opts.bic_threshold;
+    let nominal_kept = window_delta_bic >= bic_threshold;
     let window_s = match (lag_demanded, nominal) {
         (true, _) if nominal_kept => nominal_w,
         (true, _) => best.window_s,
@@ -185,7 +198,7 @@ pub(crate) fn sensor_window(
         (false, Some((a, _, _))) if nominal_kept && a.lag_s <= STEP + 1e-9 => nominal_w,
         (false, _) => lag0.map_or(best.window_s, |(a, _, _)| a.window_s),
     };
-    Ok(SensorWindow {
+    SensorWindow {
         window_s,
         estimated: true,
         scan_window_s: best.window_s,
@@ -198,8 +211,8 @@ pub(crate) fn sensor_window(
         },
         lag_delta_bic,
         lag_demanded,
-        scan_trials: metas.len(),
-    })
+        scan_trials: 0,
+    }
 }
 
 /// At most [`WINDOW_SCAN_TRIALS`] trials evenly spread over the session, without those the IMU

@@ -9,8 +9,8 @@ use crate::lsq::Gram;
 use crate::signals::{PowerSeries, Recording};
 use crate::trial::{Cascade, Rejection, TrialStat, TrialWindow};
 
-use super::data::{Rows, TrialFeatures, TrialMeta, trial_rows_into};
 use super::hypotheses::N_RAW;
+use super::reading_rows::{Rows, TrialFeatures, TrialMeta, trial_rows_into};
 use super::select::{FOLD_SEED, FoldGramsBuilder, Folds, PowerData, fit};
 use super::{DiagnoseOptions, LagPoint};
 use crate::session::TrialSource;
@@ -79,47 +79,59 @@ pub(crate) fn trial_rows(
     lags: &[f64],
     w: f64,
 ) -> Result<FirstPass> {
-    let windows: Vec<TrialWindow> = metas.iter().map(|m| m.window.clone()).collect();
+    let all: Vec<usize> = (0..metas.len()).collect();
+    let (totals, rows0) = lag_grams(samples, (power, w), metas, &all, lags, true)?;
+    Ok(FirstPass { rows0, totals })
+}
+
+/// One pass over the trials of `metas` at positions `which`: the Gram matrix of their rows at
+/// each of `lags` and, with `keep`, their rows at `lags[0]` with the descriptor features
+/// (numbered by position).
+fn lag_grams(
+    samples: &mut dyn TrialSource,
+    (power, w): (&PowerSeries, f64),
+    metas: &[TrialMeta],
+    which: &[usize],
+    lags: &[f64],
+    keep: bool,
+) -> Result<(Vec<Gram>, TrialRows)> {
+    let windows: Vec<TrialWindow> = which.iter().map(|&i| metas[i].window.clone()).collect();
     let mut rows = Rows::default();
-    let mut spans = Vec::with_capacity(metas.len());
-    let mut totals: Vec<Gram> = lags.iter().map(|_| Gram::zeros(N_RAW)).collect();
-    let mut ti = 0usize;
+    let mut spans = Vec::with_capacity(which.len());
+    let mut grams: Vec<Gram> = lags.iter().map(|_| Gram::zeros(N_RAW)).collect();
+    let mut k = 0usize;
     samples.for_each(&windows, &mut |rec, _| {
-        let feats = TrialFeatures::new(rec, &metas[ti]);
+        let (ti, meta) = (which[k], &metas[which[k]]);
+        let feats = TrialFeatures::new(rec, meta);
         for (l, &lag) in lags.iter().enumerate() {
-            let mut part = Rows::default();
-            trial_rows_into(
-                &mut part,
-                rec,
-                power,
-                &metas[ti],
-                ti,
-                &feats,
-                lag,
-                w,
-                l == 0,
-            );
+            let part = rows_at(rec, power, meta, &feats, (lag, w), keep && l == 0);
             for (x, y) in part.x.iter().zip(&part.y) {
-                totals[l].add_row(x, *y);
+                grams[l].add_row(x, *y);
             }
-            if l == 0 {
+            if keep && l == 0 {
                 let start = rows.len();
-                rows.trial.extend(std::iter::repeat_n(ti, part.len()));
-                rows.t.extend(part.t);
-                rows.phase.extend(part.phase);
-                rows.y.extend(part.y);
-                rows.x.extend(part.x);
-                rows.locate.extend(part.locate);
+                rows.append(part, ti);
                 spans.push(start..rows.len());
             }
         }
-        ti += 1;
+        k += 1;
         Ok(())
     })?;
-    Ok(FirstPass {
-        rows0: TrialRows { rows, spans },
-        totals,
-    })
+    Ok((grams, TrialRows { rows, spans }))
+}
+
+/// One trial's rows at sensor `lag` and window `w` (`locate`: with the descriptor features).
+fn rows_at(
+    rec: &Recording,
+    power: &PowerSeries,
+    meta: &TrialMeta,
+    feats: &TrialFeatures,
+    (lag, w): (f64, f64),
+    locate: bool,
+) -> Rows {
+    let mut part = Rows::default();
+    trial_rows_into(&mut part, rec, power, meta, 0, feats, lag, w, locate);
+    part
 }
 
 /// Remove from `totals` (Gram matrices at `lags` of every trial of `metas`) the rows of the
@@ -136,22 +148,7 @@ pub(crate) fn remove_trials(
     if gone.is_empty() {
         return Ok(());
     }
-    let windows: Vec<TrialWindow> = gone.iter().map(|&i| metas[i].window.clone()).collect();
-    let mut removed: Vec<Gram> = lags.iter().map(|_| Gram::zeros(N_RAW)).collect();
-    let mut k = 0usize;
-    samples.for_each(&windows, &mut |rec, _| {
-        let meta = &metas[gone[k]];
-        let feats = TrialFeatures::new(rec, meta);
-        for (l, &lag) in lags.iter().enumerate() {
-            let mut part = Rows::default();
-            trial_rows_into(&mut part, rec, power, meta, 0, &feats, lag, w, false);
-            for (x, y) in part.x.iter().zip(&part.y) {
-                removed[l].add_row(x, *y);
-            }
-        }
-        k += 1;
-        Ok(())
-    })?;
+    let (removed, _) = lag_grams(samples, (power, w), metas, gone, lags, false)?;
     for (t, r) in totals.iter_mut().zip(&removed) {
         *t = t.minus(r);
     }
@@ -205,6 +202,60 @@ pub(crate) fn filter_trials(
     Ok((metas, rejected, kept))
 }
 
+/// The usable trials and what the later stages need of them ([`usable_trials`]).
+pub(crate) struct Usable {
+    /// The usable trials.
+    pub(crate) metas: Vec<TrialMeta>,
+    /// Every rejection (unusable trials, filters).
+    pub(crate) rejected: Vec<Rejection>,
+    /// The rejected trials' windows, for the replay.
+    pub(crate) rejected_windows: Vec<super::HighlightedTrial>,
+    /// The usable trials' rows at lag 0.
+    pub(crate) rows0: Rows,
+    /// Their Gram matrices at the [`coarse_lags`].
+    pub(crate) totals: Vec<Gram>,
+}
+
+/// Stage: rows of every trial at lag 0 and Gram matrices at every coarse lag (one pass), then
+/// the usable trials ([`filter_trials`]), and the others' rows taken out of the Gram matrices
+/// (one short pass over them only). `opts` has its sensor window resolved.
+pub(crate) fn usable_trials(
+    info: &super::trials::SessionInfo,
+    samples: &mut dyn TrialSource,
+    all_metas: Vec<TrialMeta>,
+    skipped: Vec<(usize, String)>,
+    opts: &DiagnoseOptions,
+) -> Result<Usable> {
+    let power = &info.power;
+    let w = (opts.sensor_window_s).unwrap_or(crate::timing::Alignment::NOMINAL.window_s);
+    let reference: Option<Vec<f64>> = opts.reference.map(|m| m.to_vector().to_vec());
+    let lags = coarse_lags(opts);
+    let first = trial_rows(samples, power, &all_metas, &lags, w)?;
+    let (metas, rejected, kept) =
+        filter_trials(&all_metas, skipped, &first.rows0, opts, reference)?;
+    if metas.len() < 2 * opts.folds.max(2) {
+        anyhow::bail!(
+            "{}: only {} usable trials (need at least {} for {}-fold cross-validation by trial)",
+            info.source.display(),
+            metas.len(),
+            2 * opts.folds.max(2),
+            opts.folds
+        );
+    }
+    let gone: Vec<usize> = (0..all_metas.len())
+        .filter(|i| kept.binary_search(i).is_err())
+        .collect();
+    let mut totals = first.totals;
+    remove_trials(samples, power, &all_metas, &gone, &lags, w, &mut totals)?;
+    Ok(Usable {
+        rejected_windows: super::viewer_data::rejected_windows(&all_metas, &rejected),
+        metas,
+        rejected,
+        rows0: first.rows0.keep(&kept),
+        totals,
+    })
+}
+
 /// Per-trial mean in-sample residual of the base model fitted to `rows`.
 pub(crate) fn base_trial_residuals(
     rows: &Rows,
@@ -249,11 +300,7 @@ fn append_common(to: &mut Rows, mut part: Rows, common: &HashSet<u64>, ti: usize
         .map(|t| common.contains(&t.to_bits()))
         .collect();
     part.retain(|r, _| keep[r].then_some(ti));
-    to.trial.extend(part.trial);
-    to.t.extend(part.t);
-    to.phase.extend(part.phase);
-    to.y.extend(part.y);
-    to.x.extend(part.x);
+    to.append(part, ti);
 }
 
 /// Stage: the power data of the usable trials `metas` at every scanned sensor lag.
@@ -312,11 +359,7 @@ pub(crate) fn scan_lags<'a>(
         let feats = TrialFeatures::new(rec, &metas[ti]);
         let parts: Vec<Rows> = lags
             .iter()
-            .map(|&l| {
-                let mut part = Rows::default();
-                trial_rows_into(&mut part, rec, power, &metas[ti], 0, &feats, l, w, false);
-                part
-            })
+            .map(|&l| rows_at(rec, power, &metas[ti], &feats, (l, w), false))
             .collect();
         // The readings present at every lag (a handful per trial).
         let here: HashSet<u64> = parts[0]
@@ -353,10 +396,7 @@ pub(crate) fn scan_lags<'a>(
         samples.for_each(&windows, &mut |rec, _| {
             let feats = TrialFeatures::new(rec, &metas[ti]);
             for (to, &l) in out.iter_mut().zip(want) {
-                let mut part = Rows::default();
-                trial_rows_into(
-                    &mut part, rec, power, &metas[ti], 0, &feats, at[l], w, false,
-                );
+                let part = rows_at(rec, power, &metas[ti], &feats, (at[l], w), false);
                 append_common(to, part, &common, ti);
             }
             ti += 1;

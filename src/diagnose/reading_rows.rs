@@ -15,6 +15,17 @@ use crate::trial::{
 
 use super::hypotheses::{N_EXTRA, N_LOCATE, N_RAW, Sample, extras_into, locate_into};
 
+/// Margin before a trial's pre-idle start whose samples belong to the trial [s]: a window
+/// reaching further back is cut there. The streamed reader keeps at least 0.5 s before the
+/// pre-idle of the trial it is reading; this stays inside it.
+pub(crate) const SPAN_MARGIN_S: f64 = 0.4;
+
+/// Time span of `w` whose joint states the per-trial reductions look at: from
+/// [`SPAN_MARGIN_S`] before the pre-idle to the end of the return home.
+pub(crate) fn span(w: &TrialWindow) -> (f64, f64) {
+    (w.t_pre_start - SPAN_MARGIN_S, w.t_return_end)
+}
+
 /// Per-trial quantities computed once from the kinematic side.
 #[derive(Debug, Clone)]
 pub(crate) struct TrialMeta {
@@ -84,6 +95,16 @@ impl Rows {
             self.locate.truncate(w);
         }
         self.shrink_to_fit();
+    }
+
+    /// Append `part`'s rows, numbered as trial `ti`.
+    pub fn append(&mut self, part: Rows, ti: usize) {
+        self.trial.extend(std::iter::repeat_n(ti, part.len()));
+        self.t.extend(part.t);
+        self.phase.extend(part.phase);
+        self.y.extend(part.y);
+        self.x.extend(part.x);
+        self.locate.extend(part.locate);
     }
 
     /// Give back the spare capacity of every column.
@@ -192,7 +213,7 @@ pub(crate) fn trial_meta(
 }
 
 /// Mean of φ and the extras (and optionally the descriptors) over state samples in (a, b], the
-/// window cut at the trial's span ([`super::reduce::span`]: a window never reaches into samples
+/// window cut at the trial's span ([`span`]: a window never reaches into samples
 /// that belong to no trial's span, so a streamed read sees the same samples as one in memory).
 /// `None` when the window holds fewer than [`MIN_WINDOW_SAMPLES`] (a gap in the joint stream).
 fn window_mean(
@@ -203,7 +224,7 @@ fn window_mean(
     x: &mut [f64; N_RAW],
     loc: Option<&mut [f64; N_LOCATE]>,
 ) -> Option<()> {
-    let a = a.max(super::reduce::span(&meta.window).0);
+    let a = a.max(span(&meta.window).0);
     let range = samples_in(&rec.state.t, a, b);
     if range.len() < MIN_WINDOW_SAMPLES {
         return None;
@@ -258,7 +279,7 @@ impl TrialFeatures {
     }
 
     pub(crate) fn new(rec: &Recording, meta: &TrialMeta) -> TrialFeatures {
-        let a = super::reduce::span(&meta.window).0;
+        let a = span(&meta.window).0;
         let range = samples_in(&rec.state.t, a, meta.window.t_return_end + 1e-6);
         let mut phi = [0.0; crate::N_PARAMS];
         let mut ex = [0.0; N_EXTRA];
@@ -291,7 +312,7 @@ impl TrialFeatures {
         b: f64,
         x: &mut [f64; N_RAW],
     ) -> Option<Option<()>> {
-        let a = a.max(super::reduce::span(&meta.window).0);
+        let a = a.max(span(&meta.window).0);
         let range = samples_in(&rec.state.t, a, b);
         if range.len() < MIN_WINDOW_SAMPLES {
             return Some(None);

@@ -19,23 +19,13 @@ use crate::signals::{PowerSeries, Recording, Target};
 use crate::trial::{SegmentOptions, TrialWindow};
 
 use super::FieldSource;
-use super::data::{BusModel, TrialMeta, trial_meta};
-
-/// Margin before a trial's pre-idle start whose samples belong to the trial [s]: a window
-/// reaching further back is cut there. The streamed reader keeps at least 0.5 s before the
-/// pre-idle of the trial it is reading; this stays inside it.
-pub(crate) const SPAN_MARGIN_S: f64 = 0.4;
+use super::reading_rows::{BusModel, TrialMeta, span, trial_meta};
 
 /// Samples per decoded batch of the streamed passes.
 const BATCH_SAMPLES: usize = 4096;
 
-/// Time span of `w` whose joint states the per-trial reductions look at: from
-/// [`SPAN_MARGIN_S`] before the pre-idle to the end of the return home.
-pub(crate) fn span(w: &TrialWindow) -> (f64, f64) {
-    (w.t_pre_start - SPAN_MARGIN_S, w.t_return_end)
-}
-
 /// What the diagnosis knows about the session besides the trials' samples.
+#[derive(Clone)]
 pub(crate) struct SessionInfo {
     /// File (or first file) diagnosed.
     pub source: std::path::PathBuf,
@@ -80,7 +70,7 @@ pub(crate) fn trial_metas(
     samples: &mut dyn TrialSource,
     windows: &[TrialWindow],
     bus: BusModel,
-) -> Result<(Vec<TrialMeta>, super::data::Skipped)> {
+) -> Result<(Vec<TrialMeta>, super::reading_rows::Skipped)> {
     let mut metas = Vec::new();
     let mut skipped = Vec::new();
     samples.for_each(windows, &mut |rec, w| {

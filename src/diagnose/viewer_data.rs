@@ -1,10 +1,10 @@
 //! Per-reading data for the replay of a diagnosis: measured and predicted power, the trials to
 //! point the user to, and the recorded fields the terms found beyond the library follow.
 
-use super::data::{Rows, TrialMeta};
-use super::outcome::Located;
+use super::reading_rows::{Rows, TrialMeta};
+use super::refit::Located;
 use super::select_discover::RowFields;
-use super::{Diagnosis, select};
+use super::{Diagnosis, TrialWindow, select};
 
 /// Data for the replay: per power reading, measured and predicted net power.
 #[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
@@ -160,14 +160,8 @@ pub(crate) fn show_rest(d: &mut Diagnosis, f: &RowFields, rows: &Rows, metas: &[
     d.replay.rest_w = at(&f.base_power);
     d.replay.rest_found_w = at(&rest.trial_pred);
     for t in &rest.found {
-        if let Some(k) = f.table.names.iter().position(|n| n == &t.field)
-            && !d.replay.located.iter().any(|l| l.name == t.field)
-        {
-            let vals = &f.table.values[k];
-            d.replay.located.push(LocatedField {
-                name: t.field.clone(),
-                values: f.row_window.iter().map(|&w| vals[w]).collect(),
-            });
+        if !d.replay.located.iter().any(|l| l.name == t.field) {
+            locate_field(&mut d.replay, f, &t.field);
         }
     }
     // Steps of the predicted rest power between consecutive trials that have one.
@@ -186,17 +180,33 @@ pub(crate) fn show_rest(d: &mut Diagnosis, f: &RowFields, rows: &Rows, metas: &[
     let names: Vec<&str> = rest.found.iter().map(|t| t.field.as_str()).collect();
     for &(t, step) in steps.iter().take(REST_MARKED) {
         let w = &metas[t].window;
-        if d.replay.highlighted.iter().any(|h| h.trial == w.index) {
-            continue;
-        }
-        d.replay.highlighted.push(HighlightedTrial {
+        let reason = format!(
+            "rest power steps {step:+.2} W from the trial before, with {}",
+            names.join(", ")
+        );
+        highlight(&mut d.replay, w, (w.t_pre_start, w.t_traj_start), reason);
+    }
+}
+
+/// The recorded field `name`'s value over each row's window, beside the residual.
+fn locate_field(replay: &mut ReplayData, f: &RowFields, name: &str) {
+    if let Some(k) = f.table.names.iter().position(|n| n == name) {
+        let vals = &f.table.values[k];
+        replay.located.push(LocatedField {
+            name: name.to_string(),
+            values: f.row_window.iter().map(|&w| vals[w]).collect(),
+        });
+    }
+}
+
+/// Point the user to trial `w` over `span` for `reason`, unless it is pointed to already.
+fn highlight(replay: &mut ReplayData, w: &TrialWindow, span: (f64, f64), reason: String) {
+    if !replay.highlighted.iter().any(|h| h.trial == w.index) {
+        replay.highlighted.push(HighlightedTrial {
             trial: w.index,
-            t_start: w.t_pre_start,
-            t_end: w.t_traj_start,
-            reason: format!(
-                "rest power steps {step:+.2} W from the trial before, with {}",
-                names.join(", ")
-            ),
+            t_start: span.0,
+            t_end: span.1,
+            reason,
         });
     }
 }
@@ -210,16 +220,8 @@ pub(crate) fn show_found(d: &mut Diagnosis, f: &RowFields, rows: &Rows, metas: &
     if r.accepted.is_empty() || r.pred.len() != rows.len() {
         return;
     }
-    for t in &r.accepted {
-        for name in &t.fields {
-            if let Some(k) = f.table.names.iter().position(|n| n == name) {
-                let vals = &f.table.values[k];
-                d.replay.located.push(LocatedField {
-                    name: name.clone(),
-                    values: f.row_window.iter().map(|&w| vals[w]).collect(),
-                });
-            }
-        }
+    for name in r.accepted.iter().flat_map(|t| t.fields.clone()) {
+        locate_field(&mut d.replay, f, &name);
     }
     d.replay.found_w = r.pred.clone();
     let n = metas.len();
@@ -230,17 +232,10 @@ pub(crate) fn show_found(d: &mut Diagnosis, f: &RowFields, rows: &Rows, metas: &
     let names: Vec<&str> = r.accepted.iter().map(|t| t.name.as_str()).collect();
     for &(t, g) in gain.iter().take(5).filter(|(_, g)| *g > 0.0) {
         let w = &metas[t].window;
-        if d.replay.highlighted.iter().any(|h| h.trial == w.index) {
-            continue;
-        }
-        d.replay.highlighted.push(HighlightedTrial {
-            trial: w.index,
-            t_start: w.t_traj_start,
-            t_end: w.t_return_end,
-            reason: format!(
-                "carries what was found beyond the library ({}): held-out squared error −{g:.2} W²",
-                names.join("; ")
-            ),
-        });
+        let reason = format!(
+            "carries what was found beyond the library ({}): held-out squared error −{g:.2} W²",
+            names.join("; ")
+        );
+        highlight(&mut d.replay, w, (w.t_traj_start, w.t_return_end), reason);
     }
 }

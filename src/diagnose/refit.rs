@@ -4,8 +4,8 @@
 
 use crate::N_PARAMS;
 
-use super::data::{Rows, TrialMeta};
 use super::hypotheses::LATENCY_ID;
+use super::reading_rows::{Rows, TrialMeta};
 use super::select::{self, PowerData, Rule, r2_rmse};
 use super::{
     Breakdown, Confounded, Correlate, DiscoveryReport, FinalModel, Group, HypothesisScore, Param,
