@@ -138,6 +138,11 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
             diagnose::Progress::Trials { done, total } => {
                 bar.set_message(format!("{stage} — trial {done} of {total}"));
             }
+            diagnose::Progress::Candidates { step, done, total } => {
+                bar.set_message(format!(
+                    "{stage} — discovery, term {step}: candidate {done} of {total}"
+                ));
+            }
         }
     })));
     let d = diagnose::diagnose_files(&files, &opts, JOIN_GAP_S);

@@ -175,6 +175,15 @@ pub enum Progress<'a> {
         /// What it does.
         name: &'a str,
     },
+    /// Discovery's search at its `step`-th term: `done` of its `total` candidate terms scored.
+    Candidates {
+        /// The term being searched for, from 1.
+        step: usize,
+        /// Candidates scored so far at this step.
+        done: usize,
+        /// Candidates at this step.
+        total: usize,
+    },
     /// In the stage's pass over the file, `done` of its `total` trials are read.
     Trials {
         /// Trials read so far.
