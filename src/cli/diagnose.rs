@@ -138,6 +138,14 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
             diagnose::Progress::Trials { done, total } => {
                 bar.set_message(format!("{stage} — trial {done} of {total}"));
             }
+            diagnose::Progress::Seconds { done_s, total_s } => {
+                bar.set_message(format!("{stage} — {done_s:.0} s of {total_s:.0} s read"));
+            }
+            diagnose::Progress::Candidates { step, done, total } => {
+                bar.set_message(format!(
+                    "{stage} — discovery, term {step}: candidate {done} of {total}"
+                ));
+            }
         }
     })));
     let d = diagnose::diagnose_files(&files, &opts, JOIN_GAP_S);

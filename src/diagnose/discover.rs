@@ -1022,7 +1022,13 @@ pub(crate) fn discover(
         let level = search.level(step);
         let mut best_fail: Option<Scored> = None;
         let mut passing: Vec<Scored> = Vec::new();
-        for i in 0..search.cands.len() {
+        let total = search.cands.len();
+        for i in 0..total {
+            super::report(super::Progress::Candidates {
+                step,
+                done: i + 1,
+                total,
+            });
             if chosen.contains(&i) || closed.contains(&search.cands[i].group) {
                 continue;
             }

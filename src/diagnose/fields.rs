@@ -411,10 +411,20 @@ fn read_one(src: &FieldSource, windows: &[Window], summarise: bool) -> Result<Ve
     let mut topic_order: Vec<String> = Vec::new();
     let mut t_first = f64::INFINITY;
     let mut t_last = f64::NEG_INFINITY;
+    // Progress: told each 1/200 of the span the windows cover.
+    let total_s = windows.iter().map(|w| w.end).fold(0.0, f64::max);
+    let mut next_report = 0.0;
     session
         .read(None, &mut |msg| {
             let topic = msg.channel.topic.as_str();
             let t = (msg.log_time_ns as i128 - src.start_ns as i128) as f64 * 1e-9 + src.offset_s;
+            if t >= next_report {
+                next_report = t + total_s / 200.0;
+                super::report(super::Progress::Seconds {
+                    done_s: t.min(total_s),
+                    total_s,
+                });
+            }
             t_first = t_first.min(t);
             t_last = t_last.max(t);
             if !topics.contains_key(topic) {

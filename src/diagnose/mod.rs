@@ -176,6 +176,23 @@ pub enum Progress<'a> {
         /// What it does.
         name: &'a str,
     },
+    /// Discovery's search at its `step`-th term: `done` of its `total` candidate terms scored.
+    Candidates {
+        /// The term being searched for, from 1.
+        step: usize,
+        /// Candidates scored so far at this step.
+        done: usize,
+        /// Candidates at this step.
+        total: usize,
+    },
+    /// In the field pass over the file, the messages up to `done_s` of the `total_s` seconds
+    /// the diagnosis reads fields over are read.
+    Seconds {
+        /// Seconds of the session read.
+        done_s: f64,
+        /// Seconds to read.
+        total_s: f64,
+    },
     /// In the stage's pass over the file, `done` of its `total` trials are read.
     Trials {
         /// Trials read so far.

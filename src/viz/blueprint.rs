@@ -455,17 +455,7 @@ impl BlueprintChunks {
         self.counter += 1;
         let row_id = RowId::from_tuid(Tuid::from_nanos_and_inc(BLUEPRINT_NAMESPACE, self.counter));
         let timeline = TimeColumn::new_sequence("blueprint", [0]);
-        // One row holding each component's whole batch: the row's length must be the batch's
-        // length (`partitioned` does not check it; `[1]` silently cut every list to its first
-        // element, e.g. a container's contents to its first child).
-        let components = data
-            .as_serialized_batches()
-            .into_iter()
-            .map(|b| {
-                let n = b.array.len();
-                b.partitioned([n]).map(|c| (c.descriptor, c.list_array))
-            })
-            .collect::<Result<_, _>>()?;
+        let components = super::whole_row(data)?;
         let chunk = Chunk::from_native_row_ids(
             chunk_id,
             path.into(),

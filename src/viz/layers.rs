@@ -3,7 +3,7 @@
 //! the IMU filter's statistic and threshold, the trial track and log, the diagnosis overlay.
 
 use anyhow::Result;
-use rerun::components::{InterpolationMode, MarkerShape, TextLogLevel};
+use rerun::components::{AggregationPolicy, InterpolationMode, MarkerShape, TextLogLevel};
 use rerun::{SeriesLines, TextDocument, TextLog};
 
 use super::replay::{
@@ -729,7 +729,7 @@ fn log_imu_filter(w: &mut ChunkWriter<'_>, imu: &ImuFilterMarks) -> Result<()> {
         if t.is_empty() {
             continue;
         }
-        style::line_exact(w, path, name, colour, 2.0)?;
+        style::line_with(w, path, (name, colour, 2.0), AggregationPolicy::Off)?;
         scalars(w, path, &t, v.into_iter())?;
     }
     let first = imu.spans.iter().map(|s| s.0).fold(f64::INFINITY, f64::min);

@@ -372,16 +372,7 @@ impl<'a> ChunkWriter<'a> {
     pub fn send_static(&mut self, path: &str, data: &dyn AsComponents) -> Result<()> {
         let chunk_id = ChunkId::from_tuid(self.next_tuid());
         let row_ids = self.row_ids(1);
-        let components: ChunkComponents = data
-            .as_serialized_batches()
-            .into_iter()
-            .map(|b| {
-                // One row holding the whole batch (`[1]` would keep only its first element,
-                // e.g. one bar of a bar chart's widths).
-                let n = b.array.len();
-                b.partitioned([n]).map(|c| (c.descriptor, c.list_array))
-            })
-            .collect::<Result<_, _>>()?;
+        let components = whole_row(data)?;
         let chunk = Chunk::from_native_row_ids(
             chunk_id,
             path.into(),
@@ -394,6 +385,17 @@ impl<'a> ChunkWriter<'a> {
         self.stream.send_chunk(chunk);
         Ok(())
     }
+}
+
+/// `data` as one row holding each component's whole batch: the row's length must be the batch's
+/// length (`partitioned` does not check it; `[1]` silently keeps only the first element, e.g.
+/// one bar of a bar chart's widths or a container's first child).
+fn whole_row(data: &dyn AsComponents) -> Result<ChunkComponents> {
+    let components = data.as_serialized_batches().into_iter().map(|b| {
+        let n = b.array.len();
+        b.partitioned([n]).map(|c| (c.descriptor, c.list_array))
+    });
+    Ok(components.collect::<Result<_, _>>()?)
 }
 
 /// Short, path-friendly joint name: side prefix and `_joint` dropped, `shoulder` → `sh`,

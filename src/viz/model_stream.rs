@@ -19,8 +19,8 @@ use rerun::RecordingStream;
 use super::TrialMean;
 use super::overlay::trial_series;
 use super::replay::{
-    LINK_COLOUR_RATE_HZ, PowerPrediction, ReplayExtras, ReplayLogger, ReplayOptions, ReplaySummary,
-    STREAMED_CHUNK_ROWS, SampleStats, TermSeries,
+    LINK_COLOUR_RATE_HZ, PowerPrediction, ReplayExtras, ReplayOptions, ReplaySummary,
+    STREAMED_CHUNK_ROWS, SampleStats, StreamedReplay, TermSeries,
 };
 use super::slice::{Decimator, Slice};
 use crate::N_JOINTS;
@@ -28,7 +28,7 @@ use crate::identify::Validation;
 use crate::power::PowerModel;
 use crate::robot::{ArmJoints, RobotModel};
 use crate::session::{SessionFile, for_each_trial_with_batches};
-use crate::signals::{Recording, RecordingSink, StateSeries, StreamHeader, StreamSummary};
+use crate::signals::{Recording, StateSeries};
 use crate::trial::TrialWindow;
 
 /// The usable trials of a validation (those with a copper baseline), in session order, with it.
@@ -298,16 +298,7 @@ impl StreamedModel<'_> {
             chunk_rows: self.opts.chunk_rows.max(STREAMED_CHUNK_ROWS),
             ..self.opts.clone()
         };
-        let mut sink = Sink {
-            stream,
-            robot,
-            arm,
-            opts: &quiet,
-            extras: &extras,
-            logger: None,
-            warnings: Vec::new(),
-            unflushed: 0,
-        };
+        let mut sink = StreamedReplay::new(stream, robot, arm, &quiet, &extras);
         crate::signals::stream_into(
             &self.file.path,
             &self.file.map,
@@ -341,50 +332,5 @@ impl StreamedModel<'_> {
         warnings.append(&mut summary.warnings);
         summary.warnings = warnings;
         Ok(summary)
-    }
-}
-
-/// The replay pass as a [`RecordingSink`]: the logger is begun with the header and kept open
-/// for the model's series after the last batch.
-struct Sink<'a, 'e> {
-    stream: &'a RecordingStream,
-    robot: &'a RobotModel,
-    arm: &'a ArmJoints,
-    opts: &'a ReplayOptions,
-    extras: &'e ReplayExtras,
-    logger: Option<ReplayLogger<'a>>,
-    warnings: Vec<String>,
-    /// Samples logged since the stream was last waited for.
-    unflushed: usize,
-}
-
-impl RecordingSink for Sink<'_, '_> {
-    fn begin(&mut self, header: &StreamHeader<'_>) -> Result<()> {
-        self.logger = Some(ReplayLogger::begin(
-            self.stream,
-            self.robot,
-            self.arm,
-            header.source,
-            header.joint_names,
-            header.start_ns,
-            self.extras,
-            self.opts,
-            None,
-        )?);
-        Ok(())
-    }
-
-    fn batch(&mut self, batch: &Recording) -> Result<()> {
-        super::replay::log_streamed_batch(
-            self.logger.as_mut(),
-            self.stream,
-            &mut self.unflushed,
-            batch,
-        )
-    }
-
-    fn finish(&mut self, read: &StreamSummary, _begun: bool) -> Result<()> {
-        self.warnings = read.warnings.clone();
-        Ok(())
     }
 }

@@ -579,18 +579,13 @@ fn streamed_replay(
         chunk_rows: opts.chunk_rows.max(STREAMED_CHUNK_ROWS),
         ..opts.clone()
     };
-    let mut sink = StreamedReplay {
-        stream,
-        robot,
-        arm,
-        opts: &quiet,
-        extras,
-        logger: None,
-        summary: None,
-        unflushed: 0,
-    };
+    let mut sink = StreamedReplay::new(stream, robot, arm, &quiet, &extras);
     read(&mut sink)?;
-    sink.summary.context("the recording delivered no samples")
+    let logger = sink.logger.context("the recording delivered no samples")?;
+    let mut summary = logger.finish(&extras)?;
+    sink.warnings.append(&mut summary.warnings);
+    summary.warnings = sink.warnings;
+    Ok(summary)
 }
 
 /// [`replay_file_with`] of several files joined end to end into one session, each part starting
@@ -624,42 +619,48 @@ pub fn replay_files_with(
     })
 }
 
-/// Log one batch of a streamed replay, waiting for the sink every [`REPLAY_FLUSH_SAMPLES`]
-/// samples (`unflushed`: the samples logged since the last wait).
-pub(crate) fn log_streamed_batch(
-    logger: Option<&mut ReplayLogger<'_>>,
-    stream: &RecordingStream,
-    unflushed: &mut usize,
-    batch: &Recording,
-) -> Result<()> {
-    match logger {
-        Some(l) => l.add(batch)?,
-        None => bail!("a batch came before the session header"),
-    }
-    *unflushed += batch.state.t.len() + batch.command.t.len();
-    if *unflushed >= REPLAY_FLUSH_SAMPLES {
-        *unflushed = 0;
-        stream.flush_blocking().context("writing the recording")?;
-    }
-    Ok(())
-}
-
 /// The streamed replay as a [`crate::signals::RecordingSink`]: `begin` sends the layout and the
-/// static robot (the header gives the clock origin and joints), `batch` logs each stretch,
-/// `finish` the power series; the reader's warnings join the replay's.
-struct StreamedReplay<'a> {
+/// static robot (the header gives the clock origin and joints), `batch` logs each stretch;
+/// the logger is left open for the caller to finish (or to log the model's series first), and
+/// the reader's warnings are kept.
+pub(super) struct StreamedReplay<'a, 'e> {
     stream: &'a RecordingStream,
     robot: &'a RobotModel,
     arm: &'a ArmJoints,
     opts: &'a ReplayOptions,
-    extras: ReplayExtras,
-    logger: Option<ReplayLogger<'a>>,
-    summary: Option<ReplaySummary>,
+    extras: &'e ReplayExtras,
+    /// The logger, once the header came.
+    pub(super) logger: Option<ReplayLogger<'a>>,
+    /// The reader's warnings.
+    pub(super) warnings: Vec<String>,
     /// Samples logged since the stream was last waited for.
     unflushed: usize,
 }
 
-impl crate::signals::RecordingSink for StreamedReplay<'_> {
+impl<'a, 'e> StreamedReplay<'a, 'e> {
+    /// A sink replaying into `stream` with `opts` and the overlays `extras`.
+    pub(super) fn new(
+        stream: &'a RecordingStream,
+        robot: &'a RobotModel,
+        arm: &'a ArmJoints,
+        opts: &'a ReplayOptions,
+        extras: &'e ReplayExtras,
+    ) -> Self {
+        let (logger, warnings, unflushed) = (None, Vec::new(), 0);
+        StreamedReplay {
+            stream,
+            robot,
+            arm,
+            opts,
+            extras,
+            logger,
+            warnings,
+            unflushed,
+        }
+    }
+}
+
+impl crate::signals::RecordingSink for StreamedReplay<'_, '_> {
     fn begin(&mut self, header: &crate::signals::StreamHeader<'_>) -> Result<()> {
         self.logger = Some(ReplayLogger::begin(
             self.stream,
@@ -668,7 +669,7 @@ impl crate::signals::RecordingSink for StreamedReplay<'_> {
             header.source,
             header.joint_names,
             header.start_ns,
-            &self.extras,
+            self.extras,
             self.opts,
             None,
         )?);
@@ -676,23 +677,22 @@ impl crate::signals::RecordingSink for StreamedReplay<'_> {
     }
 
     fn batch(&mut self, batch: &Recording) -> Result<()> {
-        log_streamed_batch(
-            self.logger.as_mut(),
-            self.stream,
-            &mut self.unflushed,
-            batch,
-        )
+        match self.logger.as_mut() {
+            Some(l) => l.add(batch)?,
+            None => bail!("a batch came before the session header"),
+        }
+        self.unflushed += batch.state.t.len() + batch.command.t.len();
+        if self.unflushed >= REPLAY_FLUSH_SAMPLES {
+            self.unflushed = 0;
+            self.stream
+                .flush_blocking()
+                .context("writing the recording")?;
+        }
+        Ok(())
     }
 
     fn finish(&mut self, read: &crate::signals::StreamSummary, _begun: bool) -> Result<()> {
-        let Some(logger) = self.logger.take() else {
-            return Ok(()); // nothing was read: replay_file reports it
-        };
-        let mut summary = logger.finish(&self.extras)?;
-        let mut warnings = read.warnings.clone();
-        warnings.append(&mut summary.warnings);
-        summary.warnings = warnings;
-        self.summary = Some(summary);
+        self.warnings = read.warnings.clone();
         Ok(())
     }
 }

@@ -70,7 +70,8 @@ pub(super) fn rgb([r, g, b]: [u8; 3]) -> Color {
     Color::from_rgb(r, g, b)
 }
 
-/// A named line of colour `c` and width `width` [ui points].
+/// A named line of colour `c` and width `width` [ui points]; min-max decimation keeps spikes
+/// visible when zoomed out.
 pub(super) fn line(
     w: &mut ChunkWriter<'_>,
     path: &str,
@@ -78,14 +79,24 @@ pub(super) fn line(
     c: [u8; 3],
     width: f32,
 ) -> Result<()> {
+    line_with(w, path, (name, c, width), AggregationPolicy::MinMax)
+}
+
+/// A line's name, colour and width sent with the aggregation `policy` (`Off`: drawn point by
+/// point at any zoom, e.g. narrow bar outlines that min-max decimation turns into zigzags).
+pub(super) fn line_with(
+    w: &mut ChunkWriter<'_>,
+    path: &str,
+    (name, c, width): (&str, [u8; 3], f32),
+    policy: AggregationPolicy,
+) -> Result<()> {
     w.send_static(
         path,
         &SeriesLines::new()
             .with_names([name])
             .with_colors([rgb(c)])
             .with_widths([width])
-            // Min-max decimation keeps spikes visible when zoomed out.
-            .with_aggregation_policy(AggregationPolicy::MinMax),
+            .with_aggregation_policy(policy),
     )
 }
 
@@ -105,24 +116,5 @@ pub(super) fn points(
             .with_colors([rgb(c)])
             .with_markers([shape])
             .with_marker_sizes([size]),
-    )
-}
-
-/// A named line like [`line`], drawn point by point at any zoom (no min-max decimation, which
-/// turns narrow bar outlines into zigzags when zoomed out).
-pub(super) fn line_exact(
-    w: &mut ChunkWriter<'_>,
-    path: &str,
-    name: &str,
-    c: [u8; 3],
-    width: f32,
-) -> Result<()> {
-    w.send_static(
-        path,
-        &SeriesLines::new()
-            .with_names([name])
-            .with_colors([rgb(c)])
-            .with_widths([width])
-            .with_aggregation_policy(AggregationPolicy::Off),
     )
 }
