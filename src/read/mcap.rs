@@ -494,7 +494,15 @@ impl<R: Read + Seek> McapSource<R> {
             let scanned = raw.chunks.into_iter().try_for_each(|raw| {
                 let buf = inflater.entry(raw, Vec::new())?;
                 let (at, registry) = (ci.chunk_start_offset, &mut self.registry);
-                scan_records(&buf, at, 0, registry, &mut routes, Some(&[]), &mut Vec::new())
+                scan_records(
+                    &buf,
+                    at,
+                    0,
+                    registry,
+                    &mut routes,
+                    Some(&[]),
+                    &mut Vec::new(),
+                )
             });
             if let Err(d) = scanned {
                 damage = Some(d);
@@ -800,8 +808,7 @@ impl<R: Read + Seek> McapSource<R> {
                         damage = Some(d);
                         break;
                     }
-                    mismatched +=
-                        self.check_chunk_channels(ci, &routes.seen, mismatched, warnings);
+                    mismatched += self.check_chunk_channels(ci, &routes.seen, mismatched, warnings);
                 }
                 msgs.sort_by_key(|m| m.log_time);
                 for m in &msgs {
