@@ -1095,11 +1095,18 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
 /// Right-clicking any of those moves the time cursor, and the window with it, to that trial.
 fn session_overview(arm: Node, parts: LayoutParts, window_s: f64) -> (Vec<Node>, Vec<f32>) {
     // No legend on a window the viewer fits (it would cover the data): the title names the series.
-    let key = if parts.model {
-        "measured blue, predicted orange, instant brown"
+    let mut key = String::from("measured blue, ");
+    if parts.model {
+        key.push_str("predicted orange, instant brown");
     } else {
-        "measured blue, base grey, hyp. orange, found red"
-    };
+        key.push_str("base grey, hyp. orange");
+        if parts.diagnosis_power_series > 3 + usize::from(parts.counterpart) {
+            key.push_str(", found red");
+        }
+        if parts.counterpart {
+            key.push_str(", twin cyan");
+        }
+    }
     let name = format!("Net power [W], {window_s:.0} s at cursor: {key}");
     let mut overview = vec![arm, power_view(parts).renamed(name)];
     let mut shares = vec![1.0, 1.0];
@@ -1563,33 +1570,30 @@ mod tests {
             }
         });
         // With the errors' typical size known, the windowed error plot keeps a range about
-        // zero that the viewer labels at 0 and ±10^k (its own fit labelled a single 0).
-        let mut ranges = PlotRanges {
-            error_typical: Some([-0.7, 0.7]),
-            ..PlotRanges::default()
-        };
-        let with_error = |ranges| replay_layout(&joints, LayoutParts { ranges, ..parts }, [0.0; 3]);
-        let error_range = |root: &Node| {
-            let mut r = None;
-            let mut root = root.clone();
+        // zero that the viewer labels at 0 and ±10^k (its own fit labelled a single 0); ±2.5
+        // would label only 0 in the low plot, so a typical 2 W widens further.
+        for (typical, bound) in [(Some(0.7), Some(1.2)), (Some(2.0), None), (None, None)] {
+            let error_typical = typical.map(|e| [-e, e]);
+            let ranges = PlotRanges {
+                error_typical,
+                ..PlotRanges::default()
+            };
+            let mut root = replay_layout(&joints, LayoutParts { ranges, ..parts }, [0.0; 3]);
+            let mut range = None;
             root.for_each_view(&mut |v| match v {
                 Node::View { name, y_range, .. } if name.starts_with("Error measured") => {
-                    r = *y_range
+                    range = *y_range
                 }
                 _ => {}
             });
-            r
-        };
-        let range = error_range(&with_error(ranges)).expect("a fixed range");
-        assert_eq!(range, [-1.2, 1.2]);
-        assert!(labelled_ticks(range, WINDOWED_ERROR_PLOT_PX, Y_LABEL_PX).len() >= 2);
-        // ±2.5 would label only 0 in the low plot: widened until two ticks are labelled.
-        ranges.error_typical = Some([-2.0, 2.0]);
-        let range = error_range(&with_error(ranges)).expect("a fixed range");
-        assert!(range[0] <= -2.0 && range[1] >= 2.0, "{range:?}");
-        assert!(labelled_ticks(range, WINDOWED_ERROR_PLOT_PX, Y_LABEL_PX).len() >= 2);
-        ranges.error_typical = None;
-        assert_eq!(error_range(&with_error(ranges)), None);
+            assert_eq!(range.is_some(), typical.is_some());
+            let (Some(e), Some(r)) = (typical, range) else {
+                continue;
+            };
+            assert!(r[0] == -r[1] && r[1] >= e, "{r:?}");
+            assert!(bound.is_none_or(|b| (r[1] - b).abs() < 1e-9), "{r:?}");
+            assert!(labelled_ticks(r, WINDOWED_ERROR_PLOT_PX, Y_LABEL_PX).len() >= 2);
+        }
         let v = views(&root);
         let whole: Vec<&str> = v
             .iter()

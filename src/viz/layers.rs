@@ -310,16 +310,9 @@ fn log_breakdown(
     terms: &TermSeries,
     chunk: usize,
 ) -> Result<()> {
-    for (k, term) in paths::TERMS.iter().enumerate() {
+    for (k, term) in paths::TERMS.iter().chain(&["interaction"]).enumerate() {
         style::line(w, &paths::by_term(term), term, style::TERMS[k], 1.5)?;
     }
-    style::line(
-        w,
-        &paths::by_term("interaction"),
-        "interaction",
-        style::TERMS[4],
-        1.5,
-    )?;
     for (j, name) in joints.iter().enumerate() {
         style::line(w, &paths::by_joint(name), name, style::joint(j), 1.5)?;
     }

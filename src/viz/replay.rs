@@ -431,17 +431,18 @@ fn plot_ranges(
                 .copied(),
         );
     }
+    // The IMU plot's filter series: each trial's statistic and the threshold.
+    let imu_marks = || {
+        let f = extras.imu_filter.iter();
+        f.flat_map(|f| f.spans.iter().map(|s| s.2).chain([f.threshold]))
+    };
     if let Some(stats) = &extras.sample_stats {
         let range = |x: Option<[f64; 2]>| x.and_then(data_range);
         r.by_term = range(stats.by_term);
         r.by_joint = range(stats.by_joint);
         r.first_joint_terms = range(stats.first_joint_terms);
         r.tau = range(stats.tau);
-        let imu = extras
-            .imu_filter
-            .iter()
-            .flat_map(|f| f.spans.iter().map(|s| s.2).chain([f.threshold]));
-        r.imu = data_range(stats.gyro.into_iter().flatten().chain(imu));
+        r.imu = data_range(stats.gyro.into_iter().flatten().chain(imu_marks()));
         r.raw_power = range(stats.raw_power);
     } else if let Some(terms) = &extras.terms {
         let fields = terms.fields();
@@ -465,11 +466,7 @@ fn plot_ranges(
             .iter()
             .filter_map(|&i| st.gyro.get(i))
             .map(|g| (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt());
-        let imu = extras
-            .imu_filter
-            .iter()
-            .flat_map(|f| f.spans.iter().map(|s| s.2).chain([f.threshold]));
-        r.imu = data_range(gyro.chain(imu));
+        r.imu = data_range(gyro.chain(imu_marks()));
         let raw = [&rec.mbs, &rec.bms].into_iter().flat_map(|p| {
             p.t.iter()
                 .zip(&p.watts)
