@@ -84,7 +84,13 @@ impl Rejection {
 /// trials of a second or later session are prefixed with the session index.
 impl fmt::Display for Rejection {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "session {} trial {}: {}", self.session, self.trial, self.why())
+        write!(
+            f,
+            "session {} trial {}: {}",
+            self.session,
+            self.trial,
+            self.why()
+        )
     }
 }
 

@@ -1067,11 +1067,9 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
             vec![plot("Raw power [W]: MBS cyan, BMS olive", raw_power)],
             vec![],
         ),
-        None => plot(raw_name, raw_power).with_legend_room(
-            parts.ranges.raw_power,
-            2,
-            DETAIL_PLOT_PX,
-        ),
+        None => {
+            plot(raw_name, raw_power).with_legend_room(parts.ranges.raw_power, 2, DETAIL_PLOT_PX)
+        }
     });
     if parts.diagnosis {
         tabs.push(diagnosis_tab(parts));
@@ -1298,11 +1296,7 @@ fn imu_tab(parts: LayoutParts) -> Node {
         } else {
             "IMU |ω| [rad/s] and the balance filter"
         };
-        plot(name, imu).with_legend_room(
-            parts.ranges.imu,
-            4,
-            DETAIL_PLOT_PX,
-        )
+        plot(name, imu).with_legend_room(parts.ranges.imu, 4, DETAIL_PLOT_PX)
     } else {
         plot("IMU |ω| of the body [rad/s]", imu).with_legend(Legend::Hidden)
     };

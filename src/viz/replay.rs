@@ -321,7 +321,11 @@ pub fn layout(
 /// The 95th percentile of the finite values' size (`None` without any): of the kept trials'
 /// errors, the windowed error plot's bound (the rejected trials' run off it).
 fn typical_size(values: &[f64]) -> Option<f64> {
-    let mut size: Vec<f64> = values.iter().filter(|v| v.is_finite()).map(|v| v.abs()).collect();
+    let mut size: Vec<f64> = values
+        .iter()
+        .filter(|v| v.is_finite())
+        .map(|v| v.abs())
+        .collect();
     size.sort_by(f64::total_cmp);
     size.get(size.len() * 95 / 100).or(size.last()).copied()
 }
