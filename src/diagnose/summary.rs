@@ -281,6 +281,13 @@ fn not_named(d: &Diagnosis, s: &mut String) {
                     "Named: no mechanism of the library is identified (located above: two mechanisms fit as well); no missing physics is claimed."
                 );
             }
+            Some(h) if h.only_implausible() => {
+                let _ = writeln!(
+                    s,
+                    "Named: no mechanism of the library is identified (located above: the best candidate, {}, fits only at an implausible size); no missing physics is claimed.",
+                    h.id
+                );
+            }
             Some(h) => {
                 let _ = writeln!(
                     s,
