@@ -481,17 +481,7 @@ mod tests {
             mbs: PowerSeries { t, watts },
             ..Recording::default()
         };
-        let trial = TrialWindow {
-            index: 0,
-            t_pre_start: 0.5,
-            t_traj_start: 3.0,
-            t_traj_end: 12.0,
-            t_post_end: 14.0,
-            t_return_end: 18.0,
-            joints_moved: vec![0],
-            qdot_max_cmd: 1.0,
-            qdot_max_meas: 1.0,
-        };
+        let trial = TrialWindow::for_test(0, [0.5, 3.0, 12.0, 14.0, 18.0]);
         (rec, trial)
     }
 

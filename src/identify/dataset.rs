@@ -18,11 +18,12 @@
 
 use anyhow::{Result, bail};
 
+use crate::lsq::GramSum;
 use crate::power::regressor_into;
 pub use crate::signals::Target;
 use crate::signals::{PowerSeries, Recording};
 pub use crate::timing::{Alignment, AlignmentEstimate, AlignmentScore};
-use crate::timing::{ScanGrid, ridge_r2, scan_alignment};
+use crate::timing::{ScanGrid, ridge_r2_of, scan_alignment_batch};
 use crate::trial::{MIN_WINDOW_SAMPLES, TrialWindow, samples_in, sigma_omega};
 use crate::{N_JOINTS, N_PARAMS};
 
@@ -193,23 +194,14 @@ fn reading_values(p: &PowerSeries, r: std::ops::Range<usize>) -> impl Iterator<I
         .zip(p.watts[r].iter().copied())
 }
 
-/// Baseline and statistics of one trial; Err(reason) when the trial cannot give rows.
-fn trial_basis(
-    rec: &Recording,
-    trial: &TrialWindow,
-    target: Target,
-    align: &Alignment,
-) -> Result<TrialBasis, String> {
-    trial_basis_cached(rec, trial, target, align, None)
-}
-
 /// What [`trial_basis`] computes from the joint states alone (the pre-idle τ̄0² and σ_ω): the
 /// same for every alignment, so the timing search keeps it per trial (keyed by trial index).
 type StateBasis = std::collections::HashMap<usize, Result<([f64; N_JOINTS], f64), String>>;
 
-/// [`trial_basis`], taking the alignment-independent part from `cache` when given (and
-/// keeping it there): the same values, computed once per trial instead of once per alignment.
-fn trial_basis_cached(
+/// Baseline and statistics of one trial; Err(reason) when the trial cannot give rows. The
+/// alignment-independent part comes from `cache` when given (and is kept there): the same
+/// values, computed once per trial instead of once per alignment.
+fn trial_basis(
     rec: &Recording,
     trial: &TrialWindow,
     target: Target,
@@ -262,17 +254,6 @@ fn push_finite(rows: &mut Vec<Row>, row: Row) {
 
 /// Build the rows of one recording's trials.
 pub fn build(rec: &Recording, trials: &[TrialWindow], opts: &DatasetOptions) -> Dataset {
-    build_cached(rec, trials, opts, None)
-}
-
-/// [`build`] with the trials' alignment-independent basis kept in `cache` across calls (the
-/// timing search builds the same trials' rows at every candidate alignment).
-fn build_cached(
-    rec: &Recording,
-    trials: &[TrialWindow],
-    opts: &DatasetOptions,
-    mut cache: Option<&mut StateBasis>,
-) -> Dataset {
     let mut out = Dataset {
         mode: opts.mode,
         target: opts.target,
@@ -283,13 +264,7 @@ fn build_cached(
     };
     let power = opts.target.series(rec);
     for trial in trials {
-        let basis = match trial_basis_cached(
-            rec,
-            trial,
-            opts.target,
-            &opts.alignment,
-            cache.as_deref_mut(),
-        ) {
+        let basis = match trial_basis(rec, trial, opts.target, &opts.alignment, None) {
             Ok(b) => b,
             Err(reason) => {
                 out.skipped.push(Skipped {
@@ -409,7 +384,7 @@ pub(crate) fn sample_rows_thinned(
     every: usize,
 ) -> Vec<Row> {
     let mut rows = Vec::new();
-    if let Ok(basis) = trial_basis(rec, trial, opts.target, &opts.alignment) {
+    if let Ok(basis) = trial_basis(rec, trial, opts.target, &opts.alignment, None) {
         sample_rows(
             rec,
             opts.target.series(rec),
@@ -422,6 +397,118 @@ pub(crate) fn sample_rows_thinned(
     rows
 }
 
+/// The (rows, R²) of each candidate timing's per-reading rows (those [`build`] makes, fitted by
+/// [`crate::timing::ridge_r2`]), every candidate in one pass over the trials: each trial's
+/// per-sample regressors are computed once into running sums ([`RunningSums`]), shared by all
+/// candidates, and each row's Gram update touches the upper triangle only ([`GramSum`]).
+fn search_scores(
+    sessions: &[(&Recording, &[TrialWindow])],
+    target: Target,
+    cands: &[Alignment],
+    caches: &mut [StateBasis],
+) -> Vec<Option<(usize, f64)>> {
+    let mut acc: Vec<(GramSum, Vec<f64>)> = cands
+        .iter()
+        .map(|_| (GramSum::zeros(N_PARAMS), Vec::new()))
+        .collect();
+    let mut sums = RunningSums::default();
+    for ((rec, trials), cache) in sessions.iter().zip(caches) {
+        let power = target.series(rec);
+        for trial in trials.iter() {
+            let (a, b) = trial.analysis_window();
+            sums.fill(rec, a, b);
+            for (align, (gram, ys)) in cands.iter().zip(&mut acc) {
+                let Ok(basis) = trial_basis(rec, trial, target, align, Some(cache)) else {
+                    continue;
+                };
+                for (t, w) in readings_within(power, align, a, b) {
+                    let (t0, t1) = align.window_of(t);
+                    let Some(phi) = sums.mean(rec, t0, t1, &basis.tau0_sq) else {
+                        continue;
+                    };
+                    let y = w - basis.baseline_w;
+                    if y.is_finite() && phi.iter().all(|v| v.is_finite()) {
+                        gram.add_row(&phi, y);
+                        ys.push(y);
+                    }
+                }
+            }
+        }
+    }
+    acc.iter()
+        .map(|(gram, ys)| Some((ys.len(), ridge_r2_of(&gram.finish(), ys)?)))
+        .collect()
+}
+
+/// Running sums of the per-sample regressors (Δτ² against zero) over one span of joint-state
+/// samples, and a running count of the samples whose regressor is not finite: the mean over any
+/// window inside the span is a difference of two entries. It equals [`phi_mean`] up to the
+/// rounding of the running sums (the sums restart with every span, a trial), and is not finite
+/// exactly when [`phi_mean`]'s is not (a non-finite sample inside).
+#[derive(Default)]
+struct RunningSums {
+    /// Index of the span's first sample.
+    start: usize,
+    /// Σφ over the span's first k samples, k = 0..=len (non-finite regressors left out).
+    sums: Vec<[f64; N_PARAMS]>,
+    /// How many of the span's first k samples have a non-finite regressor.
+    bad: Vec<usize>,
+}
+
+impl RunningSums {
+    /// Restart over the samples in (a, b] of `rec`.
+    fn fill(&mut self, rec: &Recording, a: f64, b: f64) {
+        let span = samples_in(state_times(rec), a, b);
+        let s = &rec.state;
+        self.start = span.start;
+        self.sums.clear();
+        self.bad.clear();
+        let (mut run, mut bad) = ([0.0; N_PARAMS], 0);
+        self.sums.push(run);
+        self.bad.push(bad);
+        let mut phi = [0.0; N_PARAMS];
+        for k in span {
+            regressor_into(&s.tau[k], &s.dq[k], &[0.0; N_JOINTS], &mut phi);
+            if phi.iter().all(|v| v.is_finite()) {
+                run.iter_mut().zip(&phi).for_each(|(r, v)| *r += v);
+            } else {
+                bad += 1;
+            }
+            self.sums.push(run);
+            self.bad.push(bad);
+        }
+    }
+
+    /// [`phi_mean`] over (t0, t1] from the running sums ([`phi_mean`] itself for a window
+    /// reaching outside the span).
+    fn mean(
+        &self,
+        rec: &Recording,
+        t0: f64,
+        t1: f64,
+        tau0_sq: &[f64; N_JOINTS],
+    ) -> Option<[f64; N_PARAMS]> {
+        let r = samples_in(state_times(rec), t0, t1);
+        if r.start < self.start || r.end >= self.start + self.sums.len() {
+            return phi_mean(rec, t0, t1, tau0_sq);
+        }
+        if r.len() < MIN_WINDOW_SAMPLES {
+            return None;
+        }
+        let (i, j) = (r.start - self.start, r.end - self.start);
+        if self.bad[j] != self.bad[i] {
+            return Some([f64::NAN; N_PARAMS]);
+        }
+        let n = r.len() as f64;
+        let mut phi: [f64; N_PARAMS] =
+            std::array::from_fn(|c| (self.sums[j][c] - self.sums[i][c]) / n);
+        for (v, t0) in phi[N_JOINTS..2 * N_JOINTS].iter_mut().zip(tau0_sq) {
+            *v -= t0;
+        }
+        Some(phi)
+    }
+}
+
 /// Estimate the sensor's averaging window W and lag from the data: the per-reading rows are
 /// built for each candidate (W, lag) and fitted by (lightly ridge-regularised) least squares; the
 /// candidate with the highest R² wins ([`crate::timing::scan_alignment`] on the identification's
@@ -432,20 +519,8 @@ pub fn estimate_alignment(
 ) -> Result<AlignmentEstimate> {
     // Each trial's pre-idle τ̄0² and σ_ω do not depend on the alignment: computed once.
     let mut caches: Vec<StateBasis> = sessions.iter().map(|_| StateBasis::new()).collect();
-    let est = scan_alignment(&ScanGrid::IDENTIFY, |alignment| {
-        let opts = DatasetOptions {
-            mode: Mode::Reading,
-            target,
-            alignment,
-        };
-        let rows: Vec<Row> = sessions
-            .iter()
-            .zip(caches.iter_mut())
-            .flat_map(|((rec, trials), cache)| build_cached(rec, trials, &opts, Some(cache)).rows)
-            .collect();
-        let y: Vec<f64> = rows.iter().map(|r| r.y).collect();
-        let r2 = ridge_r2(rows.iter().map(|r| r.phi.as_slice()), &y)?;
-        Some((rows.len(), r2))
+    let est = scan_alignment_batch(&ScanGrid::IDENTIFY, |cands| {
+        search_scores(sessions, target, cands, &mut caches)
     });
     let Some(est) = est else {
         let nominal = DatasetOptions {
@@ -503,17 +578,7 @@ mod tests {
             mbs,
             ..Recording::default()
         };
-        let trial = TrialWindow {
-            index: 4,
-            t_pre_start: 0.0,
-            t_traj_start: 3.0,
-            t_traj_end: 9.0,
-            t_post_end: 11.0,
-            t_return_end: 11.9,
-            joints_moved: vec![0],
-            qdot_max_cmd: 1.0,
-            qdot_max_meas: 1.0,
-        };
+        let trial = TrialWindow::for_test(4, [0.0, 3.0, 9.0, 11.0, 11.9]);
         let opts = DatasetOptions {
             mode: Mode::Sample,
             target: Target::Mbs,
@@ -530,37 +595,80 @@ mod tests {
             let expected: Vec<Row> = all.iter().step_by(every).cloned().collect();
             assert_eq!(thin, expected, "every {every}");
         }
-        // The timing search's cache of each trial's alignment-independent basis gives the same
-        // rows and bases at every alignment as building without it, also for a trial without
-        // a pre-idle reading (index 5: its pre-idle ends before the first reading).
-        let early = TrialWindow {
-            index: 5,
-            t_pre_start: 0.0,
-            t_traj_start: 0.1,
-            ..trial.clone()
+    }
+
+    /// The timing search's scores (running sums shared by every candidate, one pass) equal a
+    /// ridge fit of the rows [`build`] makes at each candidate, one candidate at a time — also
+    /// with a non-finite sample inside some windows and a trial without a pre-idle reading.
+    #[test]
+    fn search_scores_equal_the_fit_of_the_built_rows() {
+        let n = 9000;
+        let t: Vec<f64> = (0..n).map(|k| k as f64 * 0.01).collect();
+        let wave = |k: usize, j: usize| ((k * (j + 3)) as f64 * 0.0071).sin();
+        let mut tau: Vec<[f64; N_JOINTS]> = (0..n)
+            .map(|k| std::array::from_fn(|j| 1.5 + wave(k, j)))
+            .collect();
+        tau[4321][2] = f64::NAN;
+        let dq: Vec<[f64; N_JOINTS]> = (0..n)
+            .map(|k| std::array::from_fn(|j| if k % 3000 > 500 { wave(k, j + 4) } else { 0.0 }))
+            .collect();
+        let (pt, watts): (Vec<f64>, Vec<f64>) = (0..360)
+            .map(|k| {
+                let s = k as f64 * 0.25 + 0.01;
+                let i = ((s - 0.1) * 100.0) as usize;
+                let p: f64 = (0..N_JOINTS)
+                    .map(|j| tau[i][j] * dq[i][j] + dq[i][j].abs())
+                    .sum();
+                (s, 30.0 + p + 0.1 * (k as f64 * 1.7).sin())
+            })
+            .unzip();
+        let rec = Recording {
+            state: StateSeries {
+                t,
+                tau,
+                dq,
+                ..StateSeries::default()
+            },
+            mbs: PowerSeries { t: pt, watts },
+            ..Recording::default()
         };
-        let trials = [trial, early];
-        let mut cache = StateBasis::new();
-        for (w, lag) in [(0.2, 0.0), (0.5, 0.1), (0.05, 0.3), (0.2, 0.0)] {
+        let trial = |index: usize, s: f64, pre: f64| {
+            TrialWindow::for_test(index, [s, s + pre, s + 25.0, s + 29.0, s + 29.9])
+        };
+        // Trial 2's pre-idle ends before its first reading window can fit: no baseline.
+        let trials = [
+            trial(0, 0.0, 5.0),
+            trial(1, 30.0, 5.0),
+            trial(2, 60.0, 0.05),
+        ];
+        let cands: Vec<Alignment> = [(0.2, 0.0), (0.5, 0.1), (0.05, -0.2), (1.0, 0.3), (0.3, 0.5)]
+            .iter()
+            .map(|&(window_s, lag_s)| Alignment { window_s, lag_s })
+            .collect();
+        let mut caches = vec![StateBasis::new()];
+        let got = search_scores(&[(&rec, &trials[..])], Target::Mbs, &cands, &mut caches);
+        for (alignment, got) in cands.iter().zip(got) {
             let opts = DatasetOptions {
                 mode: Mode::Reading,
                 target: Target::Mbs,
-                alignment: Alignment {
-                    window_s: w,
-                    lag_s: lag,
-                },
+                alignment: *alignment,
             };
-            let plain = build(&rec, &trials, &opts);
-            let cached = build_cached(&rec, &trials, &opts, Some(&mut cache));
-            assert!(!plain.rows.is_empty());
-            assert_eq!(plain.rows, cached.rows, "W {w}, lag {lag}");
-            assert_eq!(plain.trials, cached.trials, "W {w}, lag {lag}");
-            assert_eq!(plain.skipped, cached.skipped, "W {w}, lag {lag}");
+            let d = build(&rec, &trials, &opts);
+            assert_eq!(d.skipped.first().map(|s| s.trial), Some(2), "{alignment:?}");
+            let y: Vec<f64> = d.rows.iter().map(|r| r.y).collect();
+            let r2 = crate::timing::ridge_r2(d.rows.iter().map(|r| r.phi.as_slice()), &y)
+                .expect("enough rows");
+            let (rows, got_r2) = got.expect("scored");
+            assert_eq!(rows, d.rows.len(), "{alignment:?}");
+            assert!(
+                (got_r2 - r2).abs() < 1e-9,
+                "{alignment:?}: {got_r2} vs {r2}"
+            );
         }
         assert_eq!(
-            cache.len(),
-            1,
-            "only the trial with a pre-idle reading reaches the cache"
+            caches[0].len(),
+            2,
+            "the trial without a baseline is not cached"
         );
     }
 }

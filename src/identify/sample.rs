@@ -12,28 +12,19 @@ use std::collections::HashSet;
 use super::dataset::{Dataset, Row, Skipped, TrialBasis};
 use super::fit::predict;
 use crate::N_PARAMS;
-use crate::lsq::{Gram, MetricsAccumulator};
-
-/// Entries of the upper triangle of ΦᵀΦ.
-const UPPER: usize = N_PARAMS * (N_PARAMS + 1) / 2;
+use crate::lsq::{Gram, GramSum, MetricsAccumulator};
 
 /// The sufficient statistics of one trial's sample rows.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct TrialSums {
     /// Trial index.
     pub trial: usize,
-    /// Upper triangle of ΦᵀΦ, column by column (entry (r, c), r ≤ c, at c(c+1)/2 + r).
-    upper: Box<[f64]>,
-    /// Φᵀy.
-    h: [f64; N_PARAMS],
-    /// yᵀy.
-    yy: f64,
+    /// ΦᵀΦ (upper triangle), Φᵀy, yᵀy and n.
+    gram: GramSum,
     /// Σφ over the rows.
     sum_phi: [f64; N_PARAMS],
     /// Σy.
     sum_y: f64,
-    /// Rows.
-    n: usize,
 }
 
 impl TrialSums {
@@ -41,59 +32,28 @@ impl TrialSums {
     pub(crate) fn from_rows(trial: usize, rows: &[Row]) -> TrialSums {
         let mut s = TrialSums {
             trial,
-            upper: vec![0.0; UPPER].into_boxed_slice(),
-            h: [0.0; N_PARAMS],
-            yy: 0.0,
+            gram: GramSum::zeros(N_PARAMS),
             sum_phi: [0.0; N_PARAMS],
             sum_y: 0.0,
-            n: 0,
         };
         for row in rows {
-            s.add_row(&row.phi, row.y);
+            s.gram.add_row(&row.phi, row.y);
+            for (s, &x) in s.sum_phi.iter_mut().zip(&row.phi) {
+                *s += x;
+            }
+            s.sum_y += row.y;
         }
         s
     }
 
-    fn add_row(&mut self, phi: &[f64; N_PARAMS], y: f64) {
-        for (c, &xc) in phi.iter().enumerate() {
-            if xc == 0.0 {
-                continue;
-            }
-            let col = &mut self.upper[c * (c + 1) / 2..=c * (c + 1) / 2 + c];
-            for (g, &xr) in col.iter_mut().zip(phi) {
-                *g += xr * xc;
-            }
-        }
-        for ((h, s), &x) in self.h.iter_mut().zip(&mut self.sum_phi).zip(phi) {
-            *h += x * y;
-            *s += x;
-        }
-        self.yy += y * y;
-        self.sum_y += y;
-        self.n += 1;
-    }
-
-    /// Add these statistics to `g` (ΦᵀΦ made whole from its upper triangle).
+    /// Add these statistics to `g`.
     pub(crate) fn add_to(&self, g: &mut Gram) {
-        for c in 0..N_PARAMS {
-            for r in 0..=c {
-                let v = self.upper[c * (c + 1) / 2 + r];
-                g.g[(r, c)] += v;
-                if r != c {
-                    g.g[(c, r)] += v;
-                }
-            }
-        }
-        for (a, b) in g.h.iter_mut().zip(&self.h) {
-            *a += b;
-        }
-        g.yy += self.yy;
-        g.n += self.n;
+        self.gram.add_to(g);
     }
 
     /// The trial's mean residual y − θᵀφ over its rows (NaN without rows).
     pub(crate) fn mean_residual(&self, theta: &[f64; N_PARAMS]) -> f64 {
-        (self.sum_y - predict(theta, &self.sum_phi)) / self.n as f64
+        (self.sum_y - predict(theta, &self.sum_phi)) / self.gram.rows() as f64
     }
 }
 

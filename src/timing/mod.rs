@@ -7,7 +7,7 @@
 //! (`identify::estimate_alignment`), diagnosis its own.
 
 use crate::N_PARAMS;
-use crate::lsq::Gram;
+use crate::lsq::{Gram, GramSum};
 
 /// Timing of a power reading: it is the average power over [t − lag − window, t − lag].
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -89,46 +89,43 @@ pub fn scan_alignment(
     grid: &ScanGrid,
     mut score: impl FnMut(Alignment) -> Option<(usize, f64)>,
 ) -> Option<AlignmentEstimate> {
+    scan_alignment_batch(grid, |cands| cands.iter().map(|&a| score(a)).collect())
+}
+
+/// [`scan_alignment`] with the candidates of each stage (the coarse grid, then the fine grid
+/// around its best) scored together: `score(candidates)` returns one entry per candidate, so a
+/// caller can read its data once per stage for all of them.
+pub fn scan_alignment_batch(
+    grid: &ScanGrid,
+    mut score: impl FnMut(&[Alignment]) -> Vec<Option<(usize, f64)>>,
+) -> Option<AlignmentEstimate> {
     let mut scores = Vec::new();
-    let mut try_one = |alignment: Alignment, scores: &mut Vec<AlignmentScore>| {
-        if let Some((rows, r2)) = score(alignment) {
-            scores.push(AlignmentScore {
-                alignment,
-                rows,
-                r2,
-            });
+    let mut run = |cands: Vec<Alignment>, scores: &mut Vec<AlignmentScore>| {
+        for (&alignment, s) in cands.iter().zip(score(&cands)) {
+            if let Some((rows, r2)) = s {
+                scores.push(AlignmentScore {
+                    alignment,
+                    rows,
+                    r2,
+                });
+            }
         }
     };
     let best_of = |g: &[AlignmentScore]| g.iter().copied().max_by(|a, b| a.r2.total_cmp(&b.r2));
-    for &w in grid.windows {
-        for &lag in grid.lags {
-            try_one(
-                Alignment {
-                    window_s: w,
-                    lag_s: lag,
-                },
-                &mut scores,
-            );
-        }
-    }
+    let at = |window_s, lag_s| Alignment { window_s, lag_s };
+    let coarse_grid = grid
+        .windows
+        .iter()
+        .flat_map(|&w| grid.lags.iter().map(move |&l| at(w, l)));
+    run(coarse_grid.collect(), &mut scores);
     let coarse = best_of(&scores)?;
-    for dw in -4..=4 {
-        for dl in -4..=4 {
-            let (w, lag) = (
-                coarse.alignment.window_s + dw as f64 * grid.step,
-                coarse.alignment.lag_s + dl as f64 * grid.step,
-            );
-            if w > 0.0 && lag >= grid.min_lag - 1e-9 && (dw != 0 || dl != 0) {
-                try_one(
-                    Alignment {
-                        window_s: w,
-                        lag_s: lag,
-                    },
-                    &mut scores,
-                );
-            }
-        }
-    }
+    let (w0, l0) = (coarse.alignment.window_s, coarse.alignment.lag_s);
+    let fine = (-4..=4i32)
+        .flat_map(|dw| (-4..=4i32).map(move |dl| (dw, dl)))
+        .filter(|&(dw, dl)| dw != 0 || dl != 0)
+        .map(|(dw, dl)| at(w0 + dw as f64 * grid.step, l0 + dl as f64 * grid.step))
+        .filter(|a| a.window_s > 0.0 && a.lag_s >= grid.min_lag - 1e-9);
+    run(fine.collect(), &mut scores);
     let best = best_of(&scores).unwrap_or(coarse);
     Some(AlignmentEstimate {
         best: best.alignment,
@@ -142,13 +139,21 @@ pub fn scan_alignment(
 /// with a tiny ridge (unexcited columns, e.g. joint pairs that never move together, make ΦᵀΦ
 /// singular). None with no more rows than parameters.
 pub fn ridge_r2<'a>(phi: impl ExactSizeIterator<Item = &'a [f64]>, y: &[f64]) -> Option<f64> {
-    let n = y.len();
-    if n <= N_PARAMS || phi.len() != n {
+    if y.len() <= N_PARAMS || phi.len() != y.len() {
         return None;
     }
-    let mut gram = Gram::zeros(N_PARAMS);
+    let mut gram = GramSum::zeros(N_PARAMS);
     for (row, &yv) in phi.zip(y) {
         gram.add_row(row.get(..N_PARAMS)?, yv);
+    }
+    ridge_r2_of(&gram.finish(), y)
+}
+
+/// [`ridge_r2`] from the normal equations of the rows and their targets `y` (in row order).
+pub fn ridge_r2_of(gram: &Gram, y: &[f64]) -> Option<f64> {
+    let n = y.len();
+    if n <= N_PARAMS {
+        return None;
     }
     let theta = gram.solve(1e-9)?;
     let mean = y.iter().sum::<f64>() / n as f64;

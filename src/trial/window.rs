@@ -69,6 +69,24 @@ pub enum Phase {
 }
 
 impl TrialWindow {
+    /// A test trial with the five boundaries `times` (pre-idle start, trajectory start and end,
+    /// post-idle end, return end) that moved joint 0 at 1 rad/s.
+    #[cfg(test)]
+    pub(crate) fn for_test(index: usize, times: [f64; 5]) -> TrialWindow {
+        let [t_pre_start, t_traj_start, t_traj_end, t_post_end, t_return_end] = times;
+        TrialWindow {
+            index,
+            t_pre_start,
+            t_traj_start,
+            t_traj_end,
+            t_post_end,
+            t_return_end,
+            joints_moved: vec![0],
+            qdot_max_cmd: 1.0,
+            qdot_max_meas: 1.0,
+        }
+    }
+
     /// The trial's speed level [rad/s]: the commanded peak when known, else the measured one.
     pub fn speed_level(&self) -> f64 {
         if self.qdot_max_cmd.is_finite() {
