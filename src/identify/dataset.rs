@@ -18,7 +18,7 @@
 
 use anyhow::{Result, bail};
 
-use crate::lsq::GramSum;
+use crate::lsq::Gram;
 use crate::power::regressor_into;
 pub use crate::signals::Target;
 use crate::signals::{PowerSeries, Recording};
@@ -400,24 +400,32 @@ pub(crate) fn sample_rows_thinned(
 /// The (rows, R²) of each candidate timing's per-reading rows (those [`build`] makes, fitted by
 /// [`crate::timing::ridge_r2`]), every candidate in one pass over the trials: each trial's
 /// per-sample regressors are computed once into running sums ([`RunningSums`]), shared by all
-/// candidates, and each row's Gram update touches the upper triangle only ([`GramSum`]).
+/// candidates, and each candidate's rows enter its normal equations in blocks
+/// ([`Gram::add_rows`]). The same figures up to rounding.
 fn search_scores(
     sessions: &[(&Recording, &[TrialWindow])],
     target: Target,
     cands: &[Alignment],
     caches: &mut [StateBasis],
 ) -> Vec<Option<(usize, f64)>> {
-    let mut acc: Vec<(GramSum, Vec<f64>)> = cands
+    /// Rows a candidate holds before they enter its normal equations.
+    const BLOCK: usize = 256;
+    // Per candidate: normal equations, rows not yet in them, every row's target.
+    let mut acc: Vec<(Gram, Vec<f64>, Vec<f64>)> = cands
         .iter()
-        .map(|_| (GramSum::zeros(N_PARAMS), Vec::new()))
+        .map(|_| (Gram::zeros(N_PARAMS), Vec::new(), Vec::new()))
         .collect();
+    let flush = |(gram, rows, ys): &mut (Gram, Vec<f64>, Vec<f64>)| {
+        gram.add_rows(rows, &ys[gram.n..]);
+        rows.clear();
+    };
     let mut sums = RunningSums::default();
     for ((rec, trials), cache) in sessions.iter().zip(caches) {
         let power = target.series(rec);
         for trial in trials.iter() {
             let (a, b) = trial.analysis_window();
             sums.fill(rec, a, b);
-            for (align, (gram, ys)) in cands.iter().zip(&mut acc) {
+            for (align, c) in cands.iter().zip(&mut acc) {
                 let Ok(basis) = trial_basis(rec, trial, target, align, Some(cache)) else {
                     continue;
                 };
@@ -428,15 +436,21 @@ fn search_scores(
                     };
                     let y = w - basis.baseline_w;
                     if y.is_finite() && phi.iter().all(|v| v.is_finite()) {
-                        gram.add_row(&phi, y);
-                        ys.push(y);
+                        c.1.extend_from_slice(&phi);
+                        c.2.push(y);
                     }
+                }
+                if c.1.len() >= BLOCK * N_PARAMS {
+                    flush(c);
                 }
             }
         }
     }
-    acc.iter()
-        .map(|(gram, ys)| Some((ys.len(), ridge_r2_of(&gram.finish(), ys)?)))
+    acc.iter_mut()
+        .map(|c| {
+            flush(c);
+            Some((c.2.len(), ridge_r2_of(&c.0, &c.2)?))
+        })
         .collect()
 }
 
@@ -550,25 +564,36 @@ mod tests {
     use super::*;
     use crate::signals::StateSeries;
 
+    /// `n` joint-state samples at 100 Hz: τ_j = `tau` + w(k, j), q̇_j = w(k, j + 2) where
+    /// `moving(k)` (else 0), w(k, j) = sin(k (j + 1) `f`); τ not finite at (sample, joint) `nan`.
+    fn waves(
+        n: usize,
+        f: f64,
+        tau: f64,
+        moving: fn(usize) -> bool,
+        nan: (usize, usize),
+    ) -> StateSeries {
+        let w = |k: usize, j: usize| ((k * (j + 1)) as f64 * f).sin();
+        let mut s = StateSeries {
+            t: (0..n).map(|k| k as f64 * 0.01).collect(),
+            tau: (0..n)
+                .map(|k| std::array::from_fn(|j| tau + w(k, j)))
+                .collect(),
+            dq: (0..n)
+                .map(|k| std::array::from_fn(|j| if moving(k) { w(k, j + 2) } else { 0.0 }))
+                .collect(),
+            ..StateSeries::default()
+        };
+        s.tau[nan.0][nan.1] = f64::NAN;
+        s
+    }
+
     /// Thinned sample rows are every n-th of the rows `build` makes, including when a
     /// non-finite sample is dropped in between (the count is over rows produced, not samples).
     #[test]
     fn thinned_sample_rows_are_every_nth_built_row() {
-        let n = 1200;
-        let t: Vec<f64> = (0..n).map(|k| k as f64 * 0.01).collect();
-        let wave = |k: usize, j: usize| ((k * (j + 1)) as f64 * 0.013).sin();
-        let mut tau: Vec<[f64; N_JOINTS]> = (0..n)
-            .map(|k| std::array::from_fn(|j| 2.0 + wave(k, j)))
-            .collect();
-        tau[700][3] = f64::NAN;
-        let state = StateSeries {
-            dq: (0..n)
-                .map(|k| std::array::from_fn(|j| if k > 300 { wave(k, j + 2) } else { 0.0 }))
-                .collect(),
-            tau,
-            t: t.clone(),
-            ..StateSeries::default()
-        };
+        let state = waves(1200, 0.013, 2.0, |k| k > 300, (700, 3));
+        let t = state.t.clone();
         let mbs = PowerSeries {
             t: (0..12).map(|k| k as f64 + 0.5).collect(),
             watts: (0..12).map(|k| 20.0 + k as f64).collect(),
@@ -602,16 +627,8 @@ mod tests {
     /// with a non-finite sample inside some windows and a trial without a pre-idle reading.
     #[test]
     fn search_scores_equal_the_fit_of_the_built_rows() {
-        let n = 9000;
-        let t: Vec<f64> = (0..n).map(|k| k as f64 * 0.01).collect();
-        let wave = |k: usize, j: usize| ((k * (j + 3)) as f64 * 0.0071).sin();
-        let mut tau: Vec<[f64; N_JOINTS]> = (0..n)
-            .map(|k| std::array::from_fn(|j| 1.5 + wave(k, j)))
-            .collect();
-        tau[4321][2] = f64::NAN;
-        let dq: Vec<[f64; N_JOINTS]> = (0..n)
-            .map(|k| std::array::from_fn(|j| if k % 3000 > 500 { wave(k, j + 4) } else { 0.0 }))
-            .collect();
+        let state = waves(9000, 0.0071, 1.5, |k| k % 3000 > 500, (4321, 2));
+        let (tau, dq) = (&state.tau, &state.dq);
         let (pt, watts): (Vec<f64>, Vec<f64>) = (0..360)
             .map(|k| {
                 let s = k as f64 * 0.25 + 0.01;
@@ -623,12 +640,7 @@ mod tests {
             })
             .unzip();
         let rec = Recording {
-            state: StateSeries {
-                t,
-                tau,
-                dq,
-                ..StateSeries::default()
-            },
+            state,
             mbs: PowerSeries { t: pt, watts },
             ..Recording::default()
         };

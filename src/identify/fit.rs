@@ -5,7 +5,7 @@ use anyhow::Result;
 
 use super::dataset::Row;
 use crate::N_PARAMS;
-use crate::lsq::{self, Gram, GramSum, Metrics};
+use crate::lsq::{self, Gram, Metrics};
 use crate::power::{PowerModel, TermMeans};
 use crate::trial::TrialStat;
 
@@ -16,11 +16,11 @@ pub(crate) fn predict(theta: &[f64; N_PARAMS], phi: &[f64; N_PARAMS]) -> f64 {
 
 /// Normal equations of the rows.
 fn gram(rows: &[Row]) -> Gram {
-    let mut g = GramSum::zeros(N_PARAMS);
+    let mut g = Gram::zeros(N_PARAMS);
     for row in rows {
         g.add_row(&row.phi, row.y);
     }
-    g.finish()
+    g
 }
 
 /// κ(ΦᵀΦ) of the rows' raw (unscaled) regressors; ∞ when singular.

@@ -198,11 +198,6 @@ impl TermBreakdown {
         self.interaction.iter().sum()
     }
 
-    /// Sum of one joint's own four terms [W] (interaction excluded).
-    pub fn joint_total(&self, joint: usize) -> f64 {
-        self.mechanical[joint] + self.copper[joint] + self.coulomb[joint] + self.viscous[joint]
-    }
-
     /// Per-category totals over joints: [mechanical, copper, Coulomb, viscous, interaction] ([`TERM_NAMES`]).
     pub fn categories(&self) -> [f64; 5] {
         [

@@ -242,7 +242,8 @@ impl Batcher {
         }
         on_batch(&mut self.batch)?;
         let b = &mut self.batch;
-        b.state = Default::default();
+        // Emptied, not replaced: the next batch reuses the columns' memory.
+        b.state.drain_front(usize::MAX);
         b.command = Default::default();
         b.mbs = Default::default();
         b.bms = Default::default();

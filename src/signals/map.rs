@@ -143,11 +143,6 @@ impl SignalMap {
         Self::g1_arm("left", G1_LEFT_ARM_BASE)
     }
 
-    /// The same mapping for the right arm (SDK indices 22–28, `right_*` joints).
-    pub fn g1_right_arm() -> SignalMap {
-        Self::g1_arm("right", G1_RIGHT_ARM_BASE)
-    }
-
     /// G1 mapping with the arm's joints at SDK indices `base..base+7` and URDF names `side_*`.
     pub fn g1_arm(side: &str, base: usize) -> SignalMap {
         let mut signals = BTreeMap::new();

@@ -73,7 +73,13 @@ impl TrialWindow {
     /// post-idle end, return end) that moved joint 0 at 1 rad/s.
     #[cfg(test)]
     pub(crate) fn for_test(index: usize, times: [f64; 5]) -> TrialWindow {
-        let [t_pre_start, t_traj_start, t_traj_end, t_post_end, t_return_end] = times;
+        let [
+            t_pre_start,
+            t_traj_start,
+            t_traj_end,
+            t_post_end,
+            t_return_end,
+        ] = times;
         TrialWindow {
             index,
             t_pre_start,
