@@ -664,7 +664,7 @@ fn fit_with_rejection(
             FitInput::Rows(_) => {
                 let rows = input.rows_kept(rej);
                 check(rows.len())?;
-                let fit = fit_rows(&rows).context("constrained least squares")?;
+                let (fit, _) = fit_rows(&rows).context("constrained least squares")?;
                 let n = rows.len();
                 Ok((fit, rows, n))
             }
@@ -768,10 +768,11 @@ fn compare_pairings(
             continue;
         }
         let rows = mode_rows(mode);
-        let theta = fit_rows(&rows)?.theta49()?;
+        let (fit, kappa) = fit_rows(&rows)?;
+        let theta = fit.theta49()?;
         modes.push(ModeFit {
             mode,
-            kappa: kappa(&rows),
+            kappa,
             quality: quality(&theta, &rows),
         });
         if mode == Mode::Trial {
@@ -953,12 +954,12 @@ pub fn fit_given_rows(rows: &[Row]) -> Result<RowsFit> {
             rows.len()
         );
     }
-    let fit = fit_rows(rows).context("constrained least squares")?;
+    let (fit, kappa) = fit_rows(rows).context("constrained least squares")?;
     let theta = fit.theta49()?;
     Ok(RowsFit {
         model: PowerModel::from_vector(&theta),
         fit: quality(&theta, rows),
-        kappa: kappa(rows),
+        kappa,
         std_err: fit.std_err.clone(),
         solver: fit.solver,
     })
