@@ -1723,10 +1723,16 @@ fn model_replay_colours_links_draws_trial_bars_and_logs_rejections() {
     for line in &log {
         assert!(!line.contains("session 0"), "{line}");
     }
-    // Each log line is stamped at its trial's start rounded to 0.1 s, so the narrow session-time
-    // column shows it in full ("+39.1s").
+    // Each log line is stamped at its trial's start rounded to 0.1 s, and its text opens with
+    // that stamp (the viewer's session-time column, hidden, cut stamps past 1000 s).
     let stamps = session_stamps(&c, "/trials/log");
     assert_eq!(stamps.len(), extras.trials.len());
+    for (line, s) in log.iter().zip(&stamps) {
+        assert!(
+            line.starts_with(&format!("{s:.1} s  trial ")),
+            "{line} at {s}"
+        );
+    }
     let mut starts: Vec<f64> = extras.trials.iter().map(|m| m.t_start).collect();
     starts.sort_by(f64::total_cmp);
     for (s, t) in stamps.iter().zip(&starts) {
@@ -1736,7 +1742,7 @@ fn model_replay_colours_links_draws_trial_bars_and_logs_rejections() {
     for m in rejected {
         let line = log
             .iter()
-            .find(|l| l.starts_with(&format!("trial {} ", m.index)))
+            .find(|l| l.contains(&format!(" s  trial {} ", m.index)))
             .expect("a log line per trial");
         assert!(line.contains("REJECTED"), "{line}");
         assert_eq!(

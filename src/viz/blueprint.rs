@@ -336,10 +336,10 @@ impl Node {
         }
     }
 
-    /// Sets a view's title.
-    fn renamed(mut self, new_name: String) -> Node {
-        if let Node::View { name, .. } = &mut self {
-            *name = new_name;
+    /// Sets a view's title or a container's name.
+    fn renamed(mut self, new_name: impl Into<String>) -> Node {
+        match &mut self {
+            Node::View { name, .. } | Node::Container { name, .. } => *name = new_name.into(),
         }
         self
     }
@@ -592,8 +592,9 @@ impl BlueprintChunks {
     }
 }
 
-/// The trial log's columns: the `session` time, the level and the text (the wall-clock `time`
-/// column and the entity path are hidden, so the text gets the width).
+/// The trial log's columns: the level and the text, which opens with the entry's session time
+/// (the viewer's `session` column is cut past 1000 s; it, the wall-clock `time` column and the
+/// entity path are hidden, so the text gets the width).
 fn text_log_columns() -> TextLogColumns {
     let timeline = |name: &str, visible: bool| TimelineColumn {
         visible: visible.into(),
@@ -606,7 +607,7 @@ fn text_log_columns() -> TextLogColumns {
         })
     };
     TextLogColumns::new()
-        .with_timeline_columns([timeline("session", true), timeline("time", false)])
+        .with_timeline_columns([timeline("session", false), timeline("time", false)])
         .with_text_log_columns([
             column(TextLogColumnKind::EntityPath, false),
             column(TextLogColumnKind::LogLevel, true),
@@ -1047,15 +1048,17 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
         }
     };
     let mut tabs = Vec::new();
+    // A long session's plots show no legend: its Joints and Loss terms tabs get a colour key.
+    let key = parts.model && parts.window_s.is_some();
     if parts.model {
         tabs.push(breakdown_tab(
             joints,
             parts.ranges,
             parts.window_s.is_some(),
         ));
-        tabs.push(loss_terms_tab(joints, parts.ranges));
+        tabs.push(loss_terms_tab(joints, parts.ranges, key));
     }
-    tabs.push(joints_tab(joints, parts.ranges));
+    tabs.push(joints_tab(joints, parts.ranges, key));
     tabs.push(imu_tab(parts));
     let raw_power = include(&[&paths::power_raw("mbs"), &paths::power_raw("bms")]);
     let raw_name = "Raw power MBS/BMS [W]";
@@ -1245,8 +1248,9 @@ fn trial_track(indices: Option<[f64; 2]>) -> Node {
 }
 
 /// The joint signals in one grid (one colour per joint everywhere); the joints' legend on τ
-/// when its range is known (a replay from memory), none otherwise.
-fn joints_tab(joints: &[String], ranges: PlotRanges) -> Node {
+/// when its range is known (a replay from memory), none otherwise; `key`: a long session's
+/// colour key beside the grid ([`with_key`]).
+fn joints_tab(joints: &[String], ranges: PlotRanges, key: bool) -> Node {
     let each = |signal: &str| -> Vec<String> {
         joints
             .iter()
@@ -1260,9 +1264,9 @@ fn joints_tab(joints: &[String], ranges: PlotRanges) -> Node {
         joints.len(),
         DETAIL_PLOT_PX,
     );
-    Node::container(
+    let grid = Node::container(
         ContainerKind::Grid,
-        "Joints",
+        "Joint signals",
         vec![
             plot("Joint position q [rad] (command: lighter)", q).with_legend_room(
                 None,
@@ -1279,7 +1283,43 @@ fn joints_tab(joints: &[String], ranges: PlotRanges) -> Node {
         ],
         vec![],
     )
-    .with_columns(2)
+    .with_columns(2);
+    let key = key.then(|| {
+        share_points(
+            "Key: joints' energy [%]",
+            paths::BARS_BY_JOINT,
+            joints.len(),
+            KEY_PLOT_PX,
+        )
+    });
+    with_key("Joints", grid, key)
+}
+
+/// The plot area [px] of a colour key beside a tab's grid (the tab's height, less its title).
+const KEY_PLOT_PX: f64 = 800.0;
+
+/// A tab's `grid` with a long session's colour `key` in a narrow column beside it (its plots show
+/// no legend: the viewer fits them to the window, so every corner holds data); the grid alone
+/// without one.
+fn with_key(tab: &str, grid: Node, key: Option<Node>) -> Node {
+    match key {
+        Some(key) => Node::container(
+            ContainerKind::Horizontal,
+            tab,
+            vec![grid, key],
+            vec![1.0, 0.3],
+        ),
+        None => grid.renamed(tab),
+    }
+}
+
+/// Each joint's or term's share of each trial's energy turnover [%] (`tree`: the per-trial points
+/// a long session logs), over the whole session with its legend of `entries` lines above the
+/// data: a colour key that covers nothing.
+fn share_points(name: impl Into<String>, tree: &str, entries: usize, plot_px: f64) -> Node {
+    plot(name, vec![paths::include_tree(tree)])
+        .whole_session()
+        .with_legend_room(None, entries, plot_px)
 }
 
 /// |ω| with the IMU filter's statistic and threshold, and the trial log.
@@ -1436,8 +1476,9 @@ fn breakdown_tab(joints: &[String], ranges: PlotRanges, long: bool) -> Node {
     );
     let bars = |what: &str, tree: &str| {
         if long {
+            let entries = [paths::TERMS.len() + 1, joints.len()][usize::from(what == "joint")];
             let name = format!("Trial energy turnover by {what} [%]");
-            plot(name, vec![paths::include_tree(tree)]).whole_session()
+            share_points(name, tree, entries, DETAIL_PLOT_PX)
         } else {
             let name = format!("Trial energy turnover by {what} [%], x: trial");
             Node::view("BarChart", name, "/", vec![paths::include_tree(tree)])
@@ -1468,8 +1509,8 @@ fn breakdown_tab(joints: &[String], ranges: PlotRanges, long: bool) -> Node {
 }
 
 /// One grid: the four loss terms of each joint, and the interaction; the terms' legend on the
-/// first cell (the same colours in every cell).
-fn loss_terms_tab(joints: &[String], ranges: PlotRanges) -> Node {
+/// first cell (the same colours in every cell); `key`: a long session's colour key beside it.
+fn loss_terms_tab(joints: &[String], ranges: PlotRanges, key: bool) -> Node {
     let mut views: Vec<Node> = joints
         .iter()
         .enumerate()
@@ -1496,7 +1537,17 @@ fn loss_terms_tab(joints: &[String], ranges: PlotRanges) -> Node {
         )
         .with_legend(Legend::Hidden),
     );
-    Node::container(ContainerKind::Grid, "Loss terms per joint", views, vec![]).with_columns(4)
+    let grid = Node::container(ContainerKind::Grid, "Loss terms grid", views, vec![]);
+    let entries = paths::TERMS.len() + 1;
+    let key = key.then(|| {
+        share_points(
+            "Key: terms' energy [%]",
+            paths::BARS_BY_TERM,
+            entries,
+            KEY_PLOT_PX,
+        )
+    });
+    with_key("Loss terms per joint", grid.with_columns(4), key)
 }
 
 #[cfg(test)]

@@ -826,10 +826,14 @@ fn log_trials(
     let mut order: Vec<&TrialMark> = trials.iter().collect();
     order.sort_by(|a, b| a.t_start.total_cmp(&b.t_start).then(a.index.cmp(&b.index)));
     let t: Vec<f64> = order.iter().map(|m| m.t_start).collect();
-    // The log's session-time column is narrow: stamped at the start rounded to 0.1 s, its time
-    // reads "+39.1s" in full (the trial track keeps the exact start).
+    // Stamped at the start rounded to 0.1 s (the trial track keeps the exact start); the viewer
+    // sizes the log's time column for short stamps and cuts those past 1000 s, so the layout
+    // hides it and each entry opens with its session time.
     let t_log: Vec<f64> = t.iter().map(|&x| log_stamp(x)).collect();
-    let texts: Vec<String> = order.iter().map(|m| trial_text(m)).collect();
+    let texts = order.iter().zip(&t_log);
+    let texts: Vec<String> = texts
+        .map(|(m, s)| format!("{s:.1} s  {}", trial_text(m)))
+        .collect();
     let levels: Vec<TextLogLevel> = order
         .iter()
         .map(|m| {
