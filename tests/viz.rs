@@ -1576,7 +1576,12 @@ fn static_strings(c: &Contents, path: &str, component: &str) -> Vec<String> {
 /// the field, with the field's value at every reading (the values given here, read back).
 #[test]
 fn diagnosis_rrd_has_the_located_fields_tab() {
+    use g1viz::diagnose::{LocatedField, ReplayData};
     use g1viz::viz::DiagnosisOverlay;
+    let located = |name: &str, values: &[f64]| LocatedField {
+        name: name.into(),
+        values: values.to_vec(),
+    };
     let dir = tempfile::tempdir().unwrap();
     let rec = synthetic(&input_file(dir.path()));
     let t: Vec<f64> = vec![0.5, 1.5, 2.5, 3.5, 4.5];
@@ -1584,15 +1589,18 @@ fn diagnosis_rrd_has_the_located_fields_tab() {
     let temp = vec![31.0, 31.5, 32.0, 32.4, 32.9];
     let extras = ReplayExtras {
         diagnosis: Some(DiagnosisOverlay {
-            t: t.clone(),
-            measured: vec![1.0, 2.0, 3.0, 2.0, 1.0],
-            before: vec![1.1, 1.8, 2.5, 1.9, 1.0],
-            after: vec![1.0, 2.0, 2.9, 2.0, 1.0],
-            found: vec![1.0, 2.0, 3.0, 2.0, 1.0],
-            located: vec![
-                ("/lowstate.motor_state[3].dq".into(), speed.clone()),
-                ("/lowstate.motor_state[3].temperature".into(), temp.clone()),
-            ],
+            data: ReplayData {
+                t: t.clone(),
+                measured_w: vec![1.0, 2.0, 3.0, 2.0, 1.0],
+                before_w: vec![1.1, 1.8, 2.5, 1.9, 1.0],
+                after_w: vec![1.0, 2.0, 2.9, 2.0, 1.0],
+                found_w: vec![1.0, 2.0, 3.0, 2.0, 1.0],
+                located: vec![
+                    located("/lowstate.motor_state[3].dq", &speed),
+                    located("/lowstate.motor_state[3].temperature", &temp),
+                ],
+                ..Default::default()
+            },
             summary: "found: a term following the elbow speed".into(),
             ..Default::default()
         }),

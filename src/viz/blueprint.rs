@@ -336,10 +336,10 @@ impl Node {
         }
     }
 
-    /// Sets a view's title or a container's name.
-    fn renamed(mut self, new_name: impl Into<String>) -> Node {
-        match &mut self {
-            Node::View { name, .. } | Node::Container { name, .. } => *name = new_name.into(),
+    /// Sets a view's title.
+    fn renamed(mut self, new_name: String) -> Node {
+        if let Node::View { name, .. } = &mut self {
+            *name = new_name;
         }
         self
     }
@@ -407,6 +407,14 @@ impl Node {
                 }
                 out
             }
+        }
+    }
+
+    /// A container's children (none for a view).
+    pub fn children(&self) -> &[Node] {
+        match self {
+            Node::Container { children, .. } => children,
+            Node::View { .. } => &[],
         }
     }
 
@@ -1248,9 +1256,10 @@ fn trial_track(indices: Option<[f64; 2]>) -> Node {
 }
 
 /// The joint signals in one grid (one colour per joint everywhere); the joints' legend on τ
-/// when its range is known (a replay from memory), none otherwise; `key`: a long session's
-/// colour key beside the grid ([`with_key`]).
-fn joints_tab(joints: &[String], ranges: PlotRanges, key: bool) -> Node {
+/// when its range is known (a replay from memory), none otherwise; `with_key`: a long session's
+/// colour key ([`share_points`]) in a cell of its own (its plots show no legend: the viewer fits
+/// them to the window, so every corner holds data).
+fn joints_tab(joints: &[String], ranges: PlotRanges, with_key: bool) -> Node {
     let each = |signal: &str| -> Vec<String> {
         joints
             .iter()
@@ -1264,54 +1273,29 @@ fn joints_tab(joints: &[String], ranges: PlotRanges, key: bool) -> Node {
         joints.len(),
         DETAIL_PLOT_PX,
     );
-    let grid = Node::container(
-        ContainerKind::Grid,
-        "Joint signals",
-        vec![
-            plot("Joint position q [rad] (command: lighter)", q).with_legend_room(
-                None,
-                joints.len(),
-                DETAIL_PLOT_PX,
-            ),
-            plot("Joint velocity q̇ [rad/s]", each("dq")).with_legend_room(
-                None,
-                joints.len(),
-                DETAIL_PLOT_PX,
-            ),
-            tau,
-            plot("Motor temperature [°C]", each("temperature")).with_legend(Legend::Hidden),
-        ],
-        vec![],
-    )
-    .with_columns(2);
-    let key = key.then(|| {
-        share_points(
-            "Key: joints' energy [%]",
-            paths::BARS_BY_JOINT,
+    let mut views = vec![
+        plot("Joint position q [rad] (command: lighter)", q).with_legend_room(
+            None,
             joints.len(),
-            KEY_PLOT_PX,
-        )
-    });
-    with_key("Joints", grid, key)
-}
-
-/// The plot area [px] of a colour key beside a tab's grid (the tab's height, less its title).
-const KEY_PLOT_PX: f64 = 800.0;
-
-/// A tab's `grid` with a long session's colour `key` in a narrow column beside it (its plots show
-/// no legend: the viewer fits them to the window, so every corner holds data); the grid alone
-/// without one.
-fn with_key(tab: &str, grid: Node, key: Option<Node>) -> Node {
-    match key {
-        Some(key) => Node::container(
-            ContainerKind::Horizontal,
-            tab,
-            vec![grid, key],
-            vec![1.0, 0.3],
+            DETAIL_PLOT_PX,
         ),
-        None => grid.renamed(tab),
-    }
+        plot("Joint velocity q̇ [rad/s]", each("dq")).with_legend_room(
+            None,
+            joints.len(),
+            DETAIL_PLOT_PX,
+        ),
+        tau,
+        plot("Motor temperature [°C]", each("temperature")).with_legend(Legend::Hidden),
+    ];
+    let name = "Key: joints' energy [%]";
+    let key = share_points(name, paths::BARS_BY_JOINT, joints.len(), DETAIL_PLOT_PX);
+    views.extend(with_key.then_some(key));
+    Node::container(ContainerKind::Grid, "Joints", views, vec![])
+        .with_columns(2 + u32::from(with_key))
 }
+
+/// The plot area [px] of a cell in a grid of three rows (1920×1080 window).
+const THIRD_PLOT_PX: f64 = 240.0;
 
 /// Each joint's or term's share of each trial's energy turnover [%] (`tree`: the per-trial points
 /// a long session logs), over the whole session with its legend of `entries` lines above the
@@ -1509,8 +1493,9 @@ fn breakdown_tab(joints: &[String], ranges: PlotRanges, long: bool) -> Node {
 }
 
 /// One grid: the four loss terms of each joint, and the interaction; the terms' legend on the
-/// first cell (the same colours in every cell); `key`: a long session's colour key beside it.
-fn loss_terms_tab(joints: &[String], ranges: PlotRanges, key: bool) -> Node {
+/// first cell (the same colours in every cell); `with_key`: a long session's colour key in a
+/// ninth cell (three columns).
+fn loss_terms_tab(joints: &[String], ranges: PlotRanges, with_key: bool) -> Node {
     let mut views: Vec<Node> = joints
         .iter()
         .enumerate()
@@ -1537,17 +1522,12 @@ fn loss_terms_tab(joints: &[String], ranges: PlotRanges, key: bool) -> Node {
         )
         .with_legend(Legend::Hidden),
     );
-    let grid = Node::container(ContainerKind::Grid, "Loss terms grid", views, vec![]);
+    let name = "Key: terms' energy [%]";
     let entries = paths::TERMS.len() + 1;
-    let key = key.then(|| {
-        share_points(
-            "Key: terms' energy [%]",
-            paths::BARS_BY_TERM,
-            entries,
-            KEY_PLOT_PX,
-        )
-    });
-    with_key("Loss terms per joint", grid.with_columns(4), key)
+    let key = share_points(name, paths::BARS_BY_TERM, entries, THIRD_PLOT_PX);
+    views.extend(with_key.then_some(key));
+    Node::container(ContainerKind::Grid, "Loss terms per joint", views, vec![])
+        .with_columns(4 - u32::from(with_key))
 }
 
 #[cfg(test)]
@@ -1642,7 +1622,7 @@ mod tests {
         let v = views(&root);
         let whole: Vec<&str> = v
             .iter()
-            .filter(|x| x.1 && !x.0.starts_with("Trial energy turnover"))
+            .filter(|x| x.1 && !x.0.starts_with("Trial energy turnover") && !x.0.starts_with("Key"))
             .map(|x| x.0.as_str())
             .collect();
         assert_eq!(whole.len(), 4, "{whole:?}");
@@ -1685,6 +1665,60 @@ mod tests {
                 .iter()
                 .any(|(n, _)| n.starts_with("Trials (index"))
         );
+    }
+
+    /// A long session's Joints and Loss terms tabs (their plots show no legend) carry a colour
+    /// key beside their grid: the per-trial shares over the whole session, the legend's lines
+    /// above the data. The example's tabs are the grids alone.
+    #[test]
+    fn a_long_sessions_joints_and_terms_tabs_carry_a_colour_key() {
+        let joints: Vec<String> = (0..7).map(|j| format!("j{j}")).collect();
+        let parts = |window_s| LayoutParts {
+            model: true,
+            window_s,
+            ..LayoutParts::default()
+        };
+        for (tab, tree, entries, px) in [
+            ("Joints", "by_joint", 7, 330.0),
+            ("Loss terms per joint", "by_term", 5, 240.0),
+        ] {
+            let mut root = replay_layout(&joints, parts(Some(40.0)), [0.0; 3]);
+            root.fit(&|_, _| Some([-40.0, 90.0]));
+            let tab_of = |root: &Node| {
+                let tabs = root.children()[1].children().iter();
+                tabs.filter(|c| c.name() == tab).cloned().next().expect(tab)
+            };
+            let Node::Container {
+                kind: ContainerKind::Grid,
+                children,
+                columns: Some(3),
+                ..
+            } = tab_of(&root)
+            else {
+                panic!("{tab}: not a grid of three columns");
+            };
+            let Some(Node::View {
+                contents,
+                whole: true,
+                legend,
+                y_range: Some([lo, hi]),
+                ..
+            }) = children.last()
+            else {
+                panic!("{tab}: no key in the grid");
+            };
+            assert_eq!(contents, &[format!("+ /model/bars/{tree}/**")], "{tab}");
+            assert_eq!(*legend, Some(Legend::LeftTop), "{tab}");
+            // 18 px above the first of `entries` lines of 23 px, in a plot of 240 px or more.
+            let room = (18.0 + 23.0 * entries as f64) / px;
+            assert!((hi - 90.0) / (hi - lo) >= room - 1e-9, "{tab}: {lo}..{hi}");
+            let grid = tab_of(&replay_layout(&joints, parts(None), [0.0; 3]));
+            let keys = grid
+                .children()
+                .iter()
+                .filter(|v| v.name().starts_with("Key"));
+            assert_eq!(keys.count(), 0, "{tab}");
+        }
     }
 
     #[test]

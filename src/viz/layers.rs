@@ -84,22 +84,23 @@ pub(super) fn per_trial_mean(t: &[f64], trial: &[usize], v: &[f64]) -> (Vec<f64>
 /// The diagnosis' error per trial (the mean over its readings) of the base model, with the
 /// accepted hypotheses and with the found terms: the whole-session overview of a long session.
 fn log_diagnosis_per_trial(w: &mut ChunkWriter<'_>, d: &DiagnosisOverlay) -> Result<()> {
+    let d = &d.data;
     for (which, p, name, colour) in [
         (
             "before",
-            &d.before,
+            &d.before_w,
             "error per trial, base model",
             style::NEUTRAL,
         ),
         (
             "after",
-            &d.after,
+            &d.after_w,
             "error per trial, with hypotheses",
             style::ERROR,
         ),
         (
             "found",
-            &d.found,
+            &d.found_w,
             "error per trial, with found terms",
             style::WARNING,
         ),
@@ -107,7 +108,7 @@ fn log_diagnosis_per_trial(w: &mut ChunkWriter<'_>, d: &DiagnosisOverlay) -> Res
         if p.len() != d.t.len() || p.is_empty() {
             continue;
         }
-        let err: Vec<f64> = d.measured.iter().zip(p).map(|(m, p)| m - p).collect();
+        let err: Vec<f64> = d.measured_w.iter().zip(p).map(|(m, p)| m - p).collect();
         let (t, e) = per_trial_mean(&d.t, &d.trial, &err);
         let path = paths::diag_trial_error(which);
         style::points(w, &path, name, colour, MarkerShape::Diamond, 3.0)?;
@@ -116,13 +117,13 @@ fn log_diagnosis_per_trial(w: &mut ChunkWriter<'_>, d: &DiagnosisOverlay) -> Res
     for (which, v, name, colour) in [
         (
             "measured",
-            &d.rest[0],
+            &d.rest_w,
             "rest power of the trial",
             style::MEASURED,
         ),
         (
             "found",
-            &d.rest[1],
+            &d.rest_found_w,
             "with the loads found on it (held out)",
             style::WARNING,
         ),
@@ -884,6 +885,7 @@ fn log_diagnosis(
     d: &DiagnosisOverlay,
     chunk: usize,
 ) -> Result<()> {
+    let (r, marks) = (&d.data, &d.highlighted);
     style::points(
         w,
         paths::DIAG_MEASURED,
@@ -916,14 +918,14 @@ fn log_diagnosis(
         MarkerShape::Circle,
         2.5,
     )?;
-    scalars_chunked(w, paths::DIAG_MEASURED, &d.t, &d.measured, chunk)?;
-    scalars_chunked(w, paths::DIAG_BEFORE, &d.t, &d.before, chunk)?;
-    scalars_chunked(w, paths::DIAG_AFTER, &d.t, &d.after, chunk)?;
-    let err = |p: &[f64]| -> Vec<f64> { d.measured.iter().zip(p).map(|(m, p)| m - p).collect() };
-    scalars_chunked(w, paths::DIAG_ERROR_BEFORE, &d.t, &err(&d.before), chunk)?;
-    scalars_chunked(w, paths::DIAG_ERROR_AFTER, &d.t, &err(&d.after), chunk)?;
-    log_trials(w, paths::DIAG_TRIALS, &d.highlighted, "located", false)?;
-    if d.found.len() == d.t.len() && !d.found.is_empty() {
+    scalars_chunked(w, paths::DIAG_MEASURED, &r.t, &r.measured_w, chunk)?;
+    scalars_chunked(w, paths::DIAG_BEFORE, &r.t, &r.before_w, chunk)?;
+    scalars_chunked(w, paths::DIAG_AFTER, &r.t, &r.after_w, chunk)?;
+    let err = |p: &[f64]| -> Vec<f64> { r.measured_w.iter().zip(p).map(|(m, p)| m - p).collect() };
+    scalars_chunked(w, paths::DIAG_ERROR_BEFORE, &r.t, &err(&r.before_w), chunk)?;
+    scalars_chunked(w, paths::DIAG_ERROR_AFTER, &r.t, &err(&r.after_w), chunk)?;
+    log_trials(w, paths::DIAG_TRIALS, marks, "located", false)?;
+    if r.found_w.len() == r.t.len() && !r.found_w.is_empty() {
         style::line(
             w,
             paths::DIAG_FOUND,
@@ -939,16 +941,16 @@ fn log_diagnosis(
             MarkerShape::Circle,
             2.5,
         )?;
-        scalars_chunked(w, paths::DIAG_FOUND, &d.t, &d.found, chunk)?;
-        scalars_chunked(w, paths::DIAG_ERROR_FOUND, &d.t, &err(&d.found), chunk)?;
+        scalars_chunked(w, paths::DIAG_FOUND, &r.t, &r.found_w, chunk)?;
+        scalars_chunked(w, paths::DIAG_ERROR_FOUND, &r.t, &err(&r.found_w), chunk)?;
     }
-    for (k, (name, values)) in d.located.iter().enumerate() {
+    for (k, field) in r.located.iter().enumerate() {
         let path = paths::diag_located(k);
-        style::line(w, &path, name, style::joint(k), 1.5)?;
-        scalars_chunked(w, &path, &d.t, values, chunk)?;
+        style::line(w, &path, &field.name, style::joint(k), 1.5)?;
+        scalars_chunked(w, &path, &r.t, &field.values, chunk)?;
     }
-    let [rest, rest_found] = &d.rest;
-    if rest.len() == d.t.len() && rest_found.len() == d.t.len() && !rest.is_empty() {
+    let (rest, rest_found) = (&r.rest_w, &r.rest_found_w);
+    if rest.len() == r.t.len() && rest_found.len() == r.t.len() && !rest.is_empty() {
         style::line(
             w,
             paths::DIAG_REST_MEASURED,
@@ -963,8 +965,8 @@ fn log_diagnosis(
             style::WARNING,
             1.5,
         )?;
-        scalars_chunked(w, paths::DIAG_REST_MEASURED, &d.t, rest, chunk)?;
-        scalars_chunked(w, paths::DIAG_REST_FOUND, &d.t, rest_found, chunk)?;
+        scalars_chunked(w, paths::DIAG_REST_MEASURED, &r.t, rest, chunk)?;
+        scalars_chunked(w, paths::DIAG_REST_FOUND, &r.t, rest_found, chunk)?;
     }
     if let Some(cp) = &d.counterpart {
         style::line(
