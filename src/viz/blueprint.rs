@@ -1685,8 +1685,8 @@ mod tests {
             let mut root = replay_layout(&joints, parts(Some(40.0)), [0.0; 3]);
             root.fit(&|_, _| Some([-40.0, 90.0]));
             let tab_of = |root: &Node| {
-                let tabs = root.children()[1].children().iter();
-                tabs.filter(|c| c.name() == tab).cloned().next().expect(tab)
+                let mut tabs = root.children()[1].children().iter();
+                tabs.find(|c| c.name() == tab).cloned().expect(tab)
             };
             let Node::Container {
                 kind: ContainerKind::Grid,
