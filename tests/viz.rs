@@ -1576,7 +1576,12 @@ fn static_strings(c: &Contents, path: &str, component: &str) -> Vec<String> {
 /// the field, with the field's value at every reading (the values given here, read back).
 #[test]
 fn diagnosis_rrd_has_the_located_fields_tab() {
+    use g1viz::diagnose::{LocatedField, ReplayData};
     use g1viz::viz::DiagnosisOverlay;
+    let located = |name: &str, values: &[f64]| LocatedField {
+        name: name.into(),
+        values: values.to_vec(),
+    };
     let dir = tempfile::tempdir().unwrap();
     let rec = synthetic(&input_file(dir.path()));
     let t: Vec<f64> = vec![0.5, 1.5, 2.5, 3.5, 4.5];
@@ -1584,15 +1589,18 @@ fn diagnosis_rrd_has_the_located_fields_tab() {
     let temp = vec![31.0, 31.5, 32.0, 32.4, 32.9];
     let extras = ReplayExtras {
         diagnosis: Some(DiagnosisOverlay {
-            t: t.clone(),
-            measured: vec![1.0, 2.0, 3.0, 2.0, 1.0],
-            before: vec![1.1, 1.8, 2.5, 1.9, 1.0],
-            after: vec![1.0, 2.0, 2.9, 2.0, 1.0],
-            found: vec![1.0, 2.0, 3.0, 2.0, 1.0],
-            located: vec![
-                ("/lowstate.motor_state[3].dq".into(), speed.clone()),
-                ("/lowstate.motor_state[3].temperature".into(), temp.clone()),
-            ],
+            data: ReplayData {
+                t: t.clone(),
+                measured_w: vec![1.0, 2.0, 3.0, 2.0, 1.0],
+                before_w: vec![1.1, 1.8, 2.5, 1.9, 1.0],
+                after_w: vec![1.0, 2.0, 2.9, 2.0, 1.0],
+                found_w: vec![1.0, 2.0, 3.0, 2.0, 1.0],
+                located: vec![
+                    located("/lowstate.motor_state[3].dq", &speed),
+                    located("/lowstate.motor_state[3].temperature", &temp),
+                ],
+                ..Default::default()
+            },
             summary: "found: a term following the elbow speed".into(),
             ..Default::default()
         }),
@@ -1723,10 +1731,16 @@ fn model_replay_colours_links_draws_trial_bars_and_logs_rejections() {
     for line in &log {
         assert!(!line.contains("session 0"), "{line}");
     }
-    // Each log line is stamped at its trial's start rounded to 0.1 s, so the narrow session-time
-    // column shows it in full ("+39.1s").
+    // Each log line is stamped at its trial's start rounded to 0.1 s, and its text opens with
+    // that stamp (the viewer's session-time column, hidden, cut stamps past 1000 s).
     let stamps = session_stamps(&c, "/trials/log");
     assert_eq!(stamps.len(), extras.trials.len());
+    for (line, s) in log.iter().zip(&stamps) {
+        assert!(
+            line.starts_with(&format!("{s:.1} s  trial ")),
+            "{line} at {s}"
+        );
+    }
     let mut starts: Vec<f64> = extras.trials.iter().map(|m| m.t_start).collect();
     starts.sort_by(f64::total_cmp);
     for (s, t) in stamps.iter().zip(&starts) {
@@ -1736,7 +1750,7 @@ fn model_replay_colours_links_draws_trial_bars_and_logs_rejections() {
     for m in rejected {
         let line = log
             .iter()
-            .find(|l| l.starts_with(&format!("trial {} ", m.index)))
+            .find(|l| l.contains(&format!(" s  trial {} ", m.index)))
             .expect("a log line per trial");
         assert!(line.contains("REJECTED"), "{line}");
         assert_eq!(

@@ -410,6 +410,14 @@ impl Node {
         }
     }
 
+    /// A container's children (none for a view).
+    pub fn children(&self) -> &[Node] {
+        match self {
+            Node::Container { children, .. } => children,
+            Node::View { .. } => &[],
+        }
+    }
+
     /// Display name.
     pub fn name(&self) -> &str {
         match self {
@@ -592,8 +600,9 @@ impl BlueprintChunks {
     }
 }
 
-/// The trial log's columns: the `session` time, the level and the text (the wall-clock `time`
-/// column and the entity path are hidden, so the text gets the width).
+/// The trial log's columns: the level and the text, which opens with the entry's session time
+/// (the viewer's `session` column is cut past 1000 s; it, the wall-clock `time` column and the
+/// entity path are hidden, so the text gets the width).
 fn text_log_columns() -> TextLogColumns {
     let timeline = |name: &str, visible: bool| TimelineColumn {
         visible: visible.into(),
@@ -606,7 +615,7 @@ fn text_log_columns() -> TextLogColumns {
         })
     };
     TextLogColumns::new()
-        .with_timeline_columns([timeline("session", true), timeline("time", false)])
+        .with_timeline_columns([timeline("session", false), timeline("time", false)])
         .with_text_log_columns([
             column(TextLogColumnKind::EntityPath, false),
             column(TextLogColumnKind::LogLevel, true),
@@ -1047,15 +1056,17 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
         }
     };
     let mut tabs = Vec::new();
+    // A long session's plots show no legend: its Joints and Loss terms tabs get a colour key.
+    let key = parts.model && parts.window_s.is_some();
     if parts.model {
         tabs.push(breakdown_tab(
             joints,
             parts.ranges,
             parts.window_s.is_some(),
         ));
-        tabs.push(loss_terms_tab(joints, parts.ranges));
+        tabs.push(loss_terms_tab(joints, parts.ranges, key));
     }
-    tabs.push(joints_tab(joints, parts.ranges));
+    tabs.push(joints_tab(joints, parts.ranges, key));
     tabs.push(imu_tab(parts));
     let raw_power = include(&[&paths::power_raw("mbs"), &paths::power_raw("bms")]);
     let raw_name = "Raw power MBS/BMS [W]";
@@ -1245,8 +1256,10 @@ fn trial_track(indices: Option<[f64; 2]>) -> Node {
 }
 
 /// The joint signals in one grid (one colour per joint everywhere); the joints' legend on τ
-/// when its range is known (a replay from memory), none otherwise.
-fn joints_tab(joints: &[String], ranges: PlotRanges) -> Node {
+/// when its range is known (a replay from memory), none otherwise; `with_key`: a long session's
+/// colour key ([`share_points`]) in a cell of its own (its plots show no legend: the viewer fits
+/// them to the window, so every corner holds data).
+fn joints_tab(joints: &[String], ranges: PlotRanges, with_key: bool) -> Node {
     let each = |signal: &str| -> Vec<String> {
         joints
             .iter()
@@ -1260,26 +1273,37 @@ fn joints_tab(joints: &[String], ranges: PlotRanges) -> Node {
         joints.len(),
         DETAIL_PLOT_PX,
     );
-    Node::container(
-        ContainerKind::Grid,
-        "Joints",
-        vec![
-            plot("Joint position q [rad] (command: lighter)", q).with_legend_room(
-                None,
-                joints.len(),
-                DETAIL_PLOT_PX,
-            ),
-            plot("Joint velocity q̇ [rad/s]", each("dq")).with_legend_room(
-                None,
-                joints.len(),
-                DETAIL_PLOT_PX,
-            ),
-            tau,
-            plot("Motor temperature [°C]", each("temperature")).with_legend(Legend::Hidden),
-        ],
-        vec![],
-    )
-    .with_columns(2)
+    let mut views = vec![
+        plot("Joint position q [rad] (command: lighter)", q).with_legend_room(
+            None,
+            joints.len(),
+            DETAIL_PLOT_PX,
+        ),
+        plot("Joint velocity q̇ [rad/s]", each("dq")).with_legend_room(
+            None,
+            joints.len(),
+            DETAIL_PLOT_PX,
+        ),
+        tau,
+        plot("Motor temperature [°C]", each("temperature")).with_legend(Legend::Hidden),
+    ];
+    let name = "Key: joints' energy [%]";
+    let key = share_points(name, paths::BARS_BY_JOINT, joints.len(), DETAIL_PLOT_PX);
+    views.extend(with_key.then_some(key));
+    Node::container(ContainerKind::Grid, "Joints", views, vec![])
+        .with_columns(2 + u32::from(with_key))
+}
+
+/// The plot area [px] of a cell in a grid of three rows (1920×1080 window).
+const THIRD_PLOT_PX: f64 = 240.0;
+
+/// Each joint's or term's share of each trial's energy turnover [%] (`tree`: the per-trial points
+/// a long session logs), over the whole session with its legend of `entries` lines above the
+/// data: a colour key that covers nothing.
+fn share_points(name: impl Into<String>, tree: &str, entries: usize, plot_px: f64) -> Node {
+    plot(name, vec![paths::include_tree(tree)])
+        .whole_session()
+        .with_legend_room(None, entries, plot_px)
 }
 
 /// |ω| with the IMU filter's statistic and threshold, and the trial log.
@@ -1436,8 +1460,9 @@ fn breakdown_tab(joints: &[String], ranges: PlotRanges, long: bool) -> Node {
     );
     let bars = |what: &str, tree: &str| {
         if long {
+            let entries = [paths::TERMS.len() + 1, joints.len()][usize::from(what == "joint")];
             let name = format!("Trial energy turnover by {what} [%]");
-            plot(name, vec![paths::include_tree(tree)]).whole_session()
+            share_points(name, tree, entries, DETAIL_PLOT_PX)
         } else {
             let name = format!("Trial energy turnover by {what} [%], x: trial");
             Node::view("BarChart", name, "/", vec![paths::include_tree(tree)])
@@ -1468,8 +1493,9 @@ fn breakdown_tab(joints: &[String], ranges: PlotRanges, long: bool) -> Node {
 }
 
 /// One grid: the four loss terms of each joint, and the interaction; the terms' legend on the
-/// first cell (the same colours in every cell).
-fn loss_terms_tab(joints: &[String], ranges: PlotRanges) -> Node {
+/// first cell (the same colours in every cell); `with_key`: a long session's colour key in a
+/// ninth cell (three columns).
+fn loss_terms_tab(joints: &[String], ranges: PlotRanges, with_key: bool) -> Node {
     let mut views: Vec<Node> = joints
         .iter()
         .enumerate()
@@ -1496,7 +1522,12 @@ fn loss_terms_tab(joints: &[String], ranges: PlotRanges) -> Node {
         )
         .with_legend(Legend::Hidden),
     );
-    Node::container(ContainerKind::Grid, "Loss terms per joint", views, vec![]).with_columns(4)
+    let name = "Key: terms' energy [%]";
+    let entries = paths::TERMS.len() + 1;
+    let key = share_points(name, paths::BARS_BY_TERM, entries, THIRD_PLOT_PX);
+    views.extend(with_key.then_some(key));
+    Node::container(ContainerKind::Grid, "Loss terms per joint", views, vec![])
+        .with_columns(4 - u32::from(with_key))
 }
 
 #[cfg(test)]
@@ -1591,7 +1622,7 @@ mod tests {
         let v = views(&root);
         let whole: Vec<&str> = v
             .iter()
-            .filter(|x| x.1 && !x.0.starts_with("Trial energy turnover"))
+            .filter(|x| x.1 && !x.0.starts_with("Trial energy turnover") && !x.0.starts_with("Key"))
             .map(|x| x.0.as_str())
             .collect();
         assert_eq!(whole.len(), 4, "{whole:?}");
@@ -1634,6 +1665,60 @@ mod tests {
                 .iter()
                 .any(|(n, _)| n.starts_with("Trials (index"))
         );
+    }
+
+    /// A long session's Joints and Loss terms tabs (their plots show no legend) carry a colour
+    /// key beside their grid: the per-trial shares over the whole session, the legend's lines
+    /// above the data. The example's tabs are the grids alone.
+    #[test]
+    fn a_long_sessions_joints_and_terms_tabs_carry_a_colour_key() {
+        let joints: Vec<String> = (0..7).map(|j| format!("j{j}")).collect();
+        let parts = |window_s| LayoutParts {
+            model: true,
+            window_s,
+            ..LayoutParts::default()
+        };
+        for (tab, tree, entries, px) in [
+            ("Joints", "by_joint", 7, 330.0),
+            ("Loss terms per joint", "by_term", 5, 240.0),
+        ] {
+            let mut root = replay_layout(&joints, parts(Some(40.0)), [0.0; 3]);
+            root.fit(&|_, _| Some([-40.0, 90.0]));
+            let tab_of = |root: &Node| {
+                let mut tabs = root.children()[1].children().iter();
+                tabs.find(|c| c.name() == tab).cloned().expect(tab)
+            };
+            let Node::Container {
+                kind: ContainerKind::Grid,
+                children,
+                columns: Some(3),
+                ..
+            } = tab_of(&root)
+            else {
+                panic!("{tab}: not a grid of three columns");
+            };
+            let Some(Node::View {
+                contents,
+                whole: true,
+                legend,
+                y_range: Some([lo, hi]),
+                ..
+            }) = children.last()
+            else {
+                panic!("{tab}: no key in the grid");
+            };
+            assert_eq!(contents, &[format!("+ /model/bars/{tree}/**")], "{tab}");
+            assert_eq!(*legend, Some(Legend::LeftTop), "{tab}");
+            // 18 px above the first of `entries` lines of 23 px, in a plot of 240 px or more.
+            let room = (18.0 + 23.0 * entries as f64) / px;
+            assert!((hi - 90.0) / (hi - lo) >= room - 1e-9, "{tab}: {lo}..{hi}");
+            let grid = tab_of(&replay_layout(&joints, parts(None), [0.0; 3]));
+            let keys = grid
+                .children()
+                .iter()
+                .filter(|v| v.name().starts_with("Key"));
+            assert_eq!(keys.count(), 0, "{tab}");
+        }
     }
 
     #[test]

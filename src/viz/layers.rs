@@ -84,49 +84,34 @@ pub(super) fn per_trial_mean(t: &[f64], trial: &[usize], v: &[f64]) -> (Vec<f64>
 /// The diagnosis' error per trial (the mean over its readings) of the base model, with the
 /// accepted hypotheses and with the found terms: the whole-session overview of a long session.
 fn log_diagnosis_per_trial(w: &mut ChunkWriter<'_>, d: &DiagnosisOverlay) -> Result<()> {
-    for (which, p, name, colour) in [
-        (
-            "before",
-            &d.before,
-            "error per trial, base model",
-            style::NEUTRAL,
-        ),
-        (
-            "after",
-            &d.after,
-            "error per trial, with hypotheses",
-            style::ERROR,
-        ),
-        (
-            "found",
-            &d.found,
-            "error per trial, with found terms",
-            style::WARNING,
-        ),
-    ] {
+    let d = &d.data;
+    let errors = [
+        ("before", &d.before_w, "base model", style::NEUTRAL),
+        ("after", &d.after_w, "with hypotheses", style::ERROR),
+        ("found", &d.found_w, "with found terms", style::WARNING),
+    ];
+    for (which, p, name, colour) in errors {
         if p.len() != d.t.len() || p.is_empty() {
             continue;
         }
-        let err: Vec<f64> = d.measured.iter().zip(p).map(|(m, p)| m - p).collect();
+        let err: Vec<f64> = d.measured_w.iter().zip(p).map(|(m, p)| m - p).collect();
         let (t, e) = per_trial_mean(&d.t, &d.trial, &err);
         let path = paths::diag_trial_error(which);
-        style::points(w, &path, name, colour, MarkerShape::Diamond, 3.0)?;
+        let name = format!("error per trial, {name}");
+        style::points(w, &path, &name, colour, MarkerShape::Diamond, 3.0)?;
         scalars(w, &path, &t, e.into_iter())?;
     }
-    for (which, v, name, colour) in [
+    let found = "with the loads found on it (held out)";
+    let rest = [
         (
             "measured",
-            &d.rest[0],
+            &d.rest_w,
             "rest power of the trial",
             style::MEASURED,
         ),
-        (
-            "found",
-            &d.rest[1],
-            "with the loads found on it (held out)",
-            style::WARNING,
-        ),
-    ] {
+        ("found", &d.rest_found_w, found, style::WARNING),
+    ];
+    for (which, v, name, colour) in rest {
         if v.len() != d.t.len() || v.is_empty() {
             continue;
         }
@@ -149,27 +134,24 @@ fn split(t: &[f64], v: &[f64], keep: impl Fn(usize) -> bool) -> (Vec<f64>, Vec<f
 /// Readings: measured and like-for-like predicted at the reading stamps, and their error
 /// (readings of rejected trials in the warning colour).
 fn log_readings(w: &mut ChunkWriter<'_>, r: &ReadingPrediction, chunk: usize) -> Result<()> {
+    use MarkerShape::{Circle, Diamond};
+    let (measured, predicted) = (
+        paths::MODEL_READING_MEASURED,
+        paths::MODEL_READING_PREDICTED,
+    );
     style::points(
         w,
-        paths::MODEL_READING_MEASURED,
+        measured,
         "measured reading",
         style::MEASURED,
-        MarkerShape::Circle,
+        Circle,
         4.0,
     )?;
-    style::points(
-        w,
-        paths::MODEL_READING_PREDICTED,
-        &format!(
-            "predicted, reading window ({:.2} s, lag {:.2} s)",
-            r.window_s, r.lag_s
-        ),
-        style::PREDICTED,
-        MarkerShape::Diamond,
-        4.0,
-    )?;
-    scalars_chunked(w, paths::MODEL_READING_MEASURED, &r.t, &r.measured, chunk)?;
-    scalars_chunked(w, paths::MODEL_READING_PREDICTED, &r.t, &r.predicted, chunk)?;
+    let (window, lag) = (r.window_s, r.lag_s);
+    let name = format!("predicted, reading window ({window:.2} s, lag {lag:.2} s)");
+    style::points(w, predicted, &name, style::PREDICTED, Diamond, 4.0)?;
+    scalars_chunked(w, measured, &r.t, &r.measured, chunk)?;
+    scalars_chunked(w, predicted, &r.t, &r.predicted, chunk)?;
     let err: Vec<f64> = r
         .measured
         .iter()
@@ -179,47 +161,32 @@ fn log_readings(w: &mut ChunkWriter<'_>, r: &ReadingPrediction, chunk: usize) ->
     let rejected = |i: usize| r.rejected.get(i).copied().unwrap_or(false);
     let (kt, kv) = split(&r.t, &err, |i| !rejected(i));
     let (rt, rv) = split(&r.t, &err, rejected);
-    style::points(
-        w,
-        paths::MODEL_ERROR_READING,
-        "per reading",
-        style::ERROR,
-        MarkerShape::Circle,
-        2.5,
-    )?;
-    scalars_chunked(w, paths::MODEL_ERROR_READING, &kt, &kv, chunk)?;
+    let path = paths::MODEL_ERROR_READING;
+    style::points(w, path, "per reading", style::ERROR, Circle, 2.5)?;
+    scalars_chunked(w, path, &kt, &kv, chunk)?;
     if !rt.is_empty() {
-        style::points(
-            w,
-            paths::MODEL_ERROR_READING_REJECTED,
-            "per reading, rejected trial",
-            style::WARNING,
-            MarkerShape::Circle,
-            2.5,
-        )?;
-        scalars_chunked(w, paths::MODEL_ERROR_READING_REJECTED, &rt, &rv, chunk)?;
+        let path = paths::MODEL_ERROR_READING_REJECTED;
+        let name = "per reading, rejected trial";
+        style::points(w, path, name, style::WARNING, Circle, 2.5)?;
+        scalars_chunked(w, path, &rt, &rv, chunk)?;
     }
     Ok(())
 }
 
 /// Per-trajectory errors (mean reading − mean like-for-like prediction), at the trajectory end.
 fn log_trajectories(w: &mut ChunkWriter<'_>, points: &[TrajectoryPoint]) -> Result<()> {
-    for (rejected, path, name, colour, shape) in [
-        (
-            false,
-            paths::MODEL_ERROR_TRAJECTORY,
-            "per trajectory",
-            style::ERROR_TRAJECTORY,
-            MarkerShape::Diamond,
-        ),
-        (
-            true,
-            paths::MODEL_ERROR_TRAJECTORY_REJECTED,
-            "per trajectory, rejected trial",
-            style::WARNING,
-            MarkerShape::Cross,
-        ),
-    ] {
+    use MarkerShape::{Cross, Diamond};
+    let (kept, dropped) = (
+        paths::MODEL_ERROR_TRAJECTORY,
+        paths::MODEL_ERROR_TRAJECTORY_REJECTED,
+    );
+    let (ok, bad) = (style::ERROR_TRAJECTORY, style::WARNING);
+    let kinds = [
+        (false, kept, "", ok, Diamond),
+        (true, dropped, ", rejected trial", bad, Cross),
+    ];
+    for (rejected, path, tail, colour, shape) in kinds {
+        let name = format!("per trajectory{tail}");
         let (t, e): (Vec<f64>, Vec<f64>) = points
             .iter()
             .filter(|p| p.rejected == rejected)
@@ -228,7 +195,7 @@ fn log_trajectories(w: &mut ChunkWriter<'_>, points: &[TrajectoryPoint]) -> Resu
         if t.is_empty() {
             continue;
         }
-        style::points(w, path, name, colour, shape, 6.0)?;
+        style::points(w, path, &name, colour, shape, 6.0)?;
         scalars(w, path, &t, e.into_iter())?;
     }
     let (t, rest): (Vec<f64>, Vec<f64>) = points
@@ -237,10 +204,11 @@ fn log_trajectories(w: &mut ChunkWriter<'_>, points: &[TrajectoryPoint]) -> Resu
         .map(|p| (p.t, p.rest_w))
         .unzip();
     if !t.is_empty() {
+        let name = "rest power (pre-idle mean)";
         style::points(
             w,
             paths::TRIAL_REST,
-            "rest power (pre-idle mean)",
+            name,
             style::MBS,
             MarkerShape::Circle,
             2.5,
@@ -826,10 +794,14 @@ fn log_trials(
     let mut order: Vec<&TrialMark> = trials.iter().collect();
     order.sort_by(|a, b| a.t_start.total_cmp(&b.t_start).then(a.index.cmp(&b.index)));
     let t: Vec<f64> = order.iter().map(|m| m.t_start).collect();
-    // The log's session-time column is narrow: stamped at the start rounded to 0.1 s, its time
-    // reads "+39.1s" in full (the trial track keeps the exact start).
+    // Stamped at the start rounded to 0.1 s (the trial track keeps the exact start); the viewer
+    // sizes the log's time column for short stamps and cuts those past 1000 s, so the layout
+    // hides it and each entry opens with its session time.
     let t_log: Vec<f64> = t.iter().map(|&x| log_stamp(x)).collect();
-    let texts: Vec<String> = order.iter().map(|m| trial_text(m)).collect();
+    let texts = order.iter().zip(&t_log);
+    let texts: Vec<String> = texts
+        .map(|(m, s)| format!("{s:.1} s  {}", trial_text(m)))
+        .collect();
     let levels: Vec<TextLogLevel> = order
         .iter()
         .map(|m| {
@@ -880,106 +852,69 @@ fn log_diagnosis(
     d: &DiagnosisOverlay,
     chunk: usize,
 ) -> Result<()> {
+    let (r, marks) = (&d.data, &d.highlighted);
+    let circle = MarkerShape::Circle;
+    let measured = "measured reading (net)";
     style::points(
         w,
         paths::DIAG_MEASURED,
-        "measured reading (net)",
+        measured,
         style::MEASURED,
-        MarkerShape::Circle,
+        circle,
         3.0,
     )?;
     style::line(w, paths::DIAG_BEFORE, "base model", style::NEUTRAL, 1.5)?;
-    style::line(
-        w,
-        paths::DIAG_AFTER,
-        "with accepted hypotheses",
-        style::PREDICTED,
-        1.5,
-    )?;
-    style::points(
-        w,
-        paths::DIAG_ERROR_BEFORE,
-        "error, base model",
-        style::NEUTRAL,
-        MarkerShape::Circle,
-        2.5,
-    )?;
-    style::points(
-        w,
-        paths::DIAG_ERROR_AFTER,
-        "error, with hypotheses",
-        style::ERROR,
-        MarkerShape::Circle,
-        2.5,
-    )?;
-    scalars_chunked(w, paths::DIAG_MEASURED, &d.t, &d.measured, chunk)?;
-    scalars_chunked(w, paths::DIAG_BEFORE, &d.t, &d.before, chunk)?;
-    scalars_chunked(w, paths::DIAG_AFTER, &d.t, &d.after, chunk)?;
-    let err = |p: &[f64]| -> Vec<f64> { d.measured.iter().zip(p).map(|(m, p)| m - p).collect() };
-    scalars_chunked(w, paths::DIAG_ERROR_BEFORE, &d.t, &err(&d.before), chunk)?;
-    scalars_chunked(w, paths::DIAG_ERROR_AFTER, &d.t, &err(&d.after), chunk)?;
-    log_trials(w, paths::DIAG_TRIALS, &d.highlighted, "located", false)?;
-    if d.found.len() == d.t.len() && !d.found.is_empty() {
-        style::line(
-            w,
-            paths::DIAG_FOUND,
-            "with terms found beyond the library",
-            style::WARNING,
-            1.5,
-        )?;
+    let after = "with accepted hypotheses";
+    style::line(w, paths::DIAG_AFTER, after, style::PREDICTED, 1.5)?;
+    let before = (paths::DIAG_ERROR_BEFORE, "base model", style::NEUTRAL);
+    let after = (paths::DIAG_ERROR_AFTER, "with hypotheses", style::ERROR);
+    for (path, name, colour) in [before, after] {
+        style::points(w, path, &format!("error, {name}"), colour, circle, 2.5)?;
+    }
+    scalars_chunked(w, paths::DIAG_MEASURED, &r.t, &r.measured_w, chunk)?;
+    scalars_chunked(w, paths::DIAG_BEFORE, &r.t, &r.before_w, chunk)?;
+    scalars_chunked(w, paths::DIAG_AFTER, &r.t, &r.after_w, chunk)?;
+    let err = |p: &[f64]| -> Vec<f64> { r.measured_w.iter().zip(p).map(|(m, p)| m - p).collect() };
+    scalars_chunked(w, paths::DIAG_ERROR_BEFORE, &r.t, &err(&r.before_w), chunk)?;
+    scalars_chunked(w, paths::DIAG_ERROR_AFTER, &r.t, &err(&r.after_w), chunk)?;
+    log_trials(w, paths::DIAG_TRIALS, marks, "located", false)?;
+    if r.found_w.len() == r.t.len() && !r.found_w.is_empty() {
+        let found = "with terms found beyond the library";
+        style::line(w, paths::DIAG_FOUND, found, style::WARNING, 1.5)?;
+        let error = "error with found terms";
         style::points(
             w,
             paths::DIAG_ERROR_FOUND,
-            "error with found terms",
+            error,
             style::WARNING,
-            MarkerShape::Circle,
+            circle,
             2.5,
         )?;
-        scalars_chunked(w, paths::DIAG_FOUND, &d.t, &d.found, chunk)?;
-        scalars_chunked(w, paths::DIAG_ERROR_FOUND, &d.t, &err(&d.found), chunk)?;
+        scalars_chunked(w, paths::DIAG_FOUND, &r.t, &r.found_w, chunk)?;
+        scalars_chunked(w, paths::DIAG_ERROR_FOUND, &r.t, &err(&r.found_w), chunk)?;
     }
-    for (k, (name, values)) in d.located.iter().enumerate() {
+    for (k, field) in r.located.iter().enumerate() {
         let path = paths::diag_located(k);
-        style::line(w, &path, name, style::joint(k), 1.5)?;
-        scalars_chunked(w, &path, &d.t, values, chunk)?;
+        style::line(w, &path, &field.name, style::joint(k), 1.5)?;
+        scalars_chunked(w, &path, &r.t, &field.values, chunk)?;
     }
-    let [rest, rest_found] = &d.rest;
-    if rest.len() == d.t.len() && rest_found.len() == d.t.len() && !rest.is_empty() {
-        style::line(
-            w,
-            paths::DIAG_REST_MEASURED,
-            "rest power of the trial (pre-idle mean)",
-            style::MEASURED,
-            1.5,
-        )?;
-        style::line(
-            w,
-            paths::DIAG_REST_FOUND,
-            "with the loads found on it (held out)",
-            style::WARNING,
-            1.5,
-        )?;
-        scalars_chunked(w, paths::DIAG_REST_MEASURED, &d.t, rest, chunk)?;
-        scalars_chunked(w, paths::DIAG_REST_FOUND, &d.t, rest_found, chunk)?;
+    let (rest, rest_found) = (&r.rest_w, &r.rest_found_w);
+    if rest.len() == r.t.len() && rest_found.len() == r.t.len() && !rest.is_empty() {
+        let measured = "rest power of the trial (pre-idle mean)";
+        style::line(w, paths::DIAG_REST_MEASURED, measured, style::MEASURED, 1.5)?;
+        let found = "with the loads found on it (held out)";
+        style::line(w, paths::DIAG_REST_FOUND, found, style::WARNING, 1.5)?;
+        scalars_chunked(w, paths::DIAG_REST_MEASURED, &r.t, rest, chunk)?;
+        scalars_chunked(w, paths::DIAG_REST_FOUND, &r.t, rest_found, chunk)?;
     }
     if let Some(cp) = &d.counterpart {
-        style::line(
-            w,
-            paths::DIAG_TWIN,
-            "twin on the same commands",
-            style::MBS,
-            1.5,
-        )?;
+        let twin = "twin on the same commands";
+        style::line(w, paths::DIAG_TWIN, twin, style::MBS, 1.5)?;
         scalars_chunked(w, paths::DIAG_TWIN, &cp.power_t, &cp.power_w, chunk)?;
         for (j, name) in joints.iter().enumerate() {
             let path = paths::diag_torque(name);
-            style::line(
-                w,
-                &path,
-                &format!("{name} τ recording − twin"),
-                style::joint(j),
-                1.5,
-            )?;
+            let label = format!("{name} τ recording − twin");
+            style::line(w, &path, &label, style::joint(j), 1.5)?;
             let v: Vec<f64> = cp.tau_diff.iter().map(|x| x[j]).collect();
             scalars_chunked(w, &path, &cp.tau_t, &v, chunk)?;
         }

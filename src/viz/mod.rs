@@ -62,10 +62,6 @@ pub enum Sink {
     },
 }
 
-/// Default viewer memory limit for [`Sink::Spawn`]: a quarter of RAM leaves room for the rest
-/// of the desktop while holding several hours of 100 Hz arm data.
-pub const DEFAULT_SPAWN_MEMORY_LIMIT: &str = "25%";
-
 /// An open Rerun output. Call [`VizStream::finish`] when done: it flushes and, for
 /// [`Sink::Save`], moves the finished file into place. Dropping it without `finish` leaves no
 /// output file (the temporary file is removed).

@@ -191,21 +191,10 @@ pub fn diagnosis_extras(d: &crate::diagnose::Diagnosis) -> ReplayExtras {
         .collect();
     ReplayExtras {
         diagnosis: Some(super::replay::DiagnosisOverlay {
-            t: r.t.clone(),
-            trial: r.trial.clone(),
-            measured: r.measured_w.clone(),
-            before: r.before_w.clone(),
-            after: r.after_w.clone(),
+            data: r.clone(),
             highlighted,
             summary: crate::diagnose::summary::summary_markdown(d),
             counterpart: d.counterpart.as_ref().map(|c| c.series.clone()),
-            found: r.found_w.clone(),
-            located: r
-                .located
-                .iter()
-                .map(|l| (l.name.clone(), l.values.clone()))
-                .collect(),
-            rest: [r.rest_w.clone(), r.rest_found_w.clone()],
         }),
         imu_filter: r.imu.clone(),
         ..ReplayExtras::default()

@@ -163,32 +163,19 @@ pub struct TrialMark {
     pub highlight: Option<String>,
 }
 
-/// Diagnosis overlay: the power prediction before and after adding the accepted hypotheses.
+/// Diagnosis overlay: the diagnosis' per-reading data (measured, the predictions before and
+/// after the accepted hypotheses and with the found terms, the fields those follow, the rest
+/// power), its trial marks, its summary and the twin.
 #[derive(Debug, Clone, Default)]
 pub struct DiagnosisOverlay {
-    /// Time [s since recording start].
-    pub t: Vec<f64>,
-    /// Trial index of each reading.
-    pub trial: Vec<usize>,
-    /// Measured net power [W].
-    pub measured: Vec<f64>,
-    /// Base-model prediction [W].
-    pub before: Vec<f64>,
-    /// Prediction with the accepted hypotheses [W].
-    pub after: Vec<f64>,
-    /// Trials where the mismatch is located (shown as WARN lines).
+    /// Per reading, as the diagnosis holds it (its own marks and IMU filter are not read here).
+    pub data: crate::diagnose::ReplayData,
+    /// Trials where the mismatch is located (shown as WARN lines) and trials a filter rejected.
     pub highlighted: Vec<TrialMark>,
     /// Plain-language summary (markdown).
     pub summary: String,
     /// The twin re-run on the recording's commands (`diagnose --counterpart`).
     pub counterpart: Option<crate::diagnose::counterpart::CounterpartSeries>,
-    /// Prediction with the terms found beyond the library [W], per reading (empty when none).
-    pub found: Vec<f64>,
-    /// The recorded fields the found terms follow, per reading: (field name, values).
-    pub located: Vec<(String, Vec<f64>)>,
-    /// Rest power of each reading's trial and its prediction with the loads found on it [W]
-    /// (both empty when none was found).
-    pub rest: [Vec<f64>; 2],
 }
 
 /// What later stages add to a replay. Plain data so identify/diagnose need no Rerun types.
@@ -287,7 +274,7 @@ pub fn layout(
     whole: Option<(&Recording, &Slice)>,
 ) -> blueprint::Node {
     let diagnosis_power_series = extras.diagnosis.as_ref().map_or(0, |d| {
-        3 + usize::from(!d.found.is_empty()) + usize::from(d.counterpart.is_some())
+        3 + usize::from(!d.data.found_w.is_empty()) + usize::from(d.counterpart.is_some())
     });
     let parts = LayoutParts {
         model: extras.prediction.is_some()
@@ -304,11 +291,11 @@ pub fn layout(
         located: extras
             .diagnosis
             .as_ref()
-            .is_some_and(|d| !d.located.is_empty()),
+            .is_some_and(|d| !d.data.located.is_empty()),
         rest: extras
             .diagnosis
             .as_ref()
-            .is_some_and(|d| !d.rest[0].is_empty()),
+            .is_some_and(|d| !d.data.rest_w.is_empty()),
         diagnosis_power_series,
         ranges: plot_ranges(extras, whole),
         window_s: blueprint::opening_window(&trial_starts(extras)),
@@ -339,7 +326,7 @@ fn trial_starts(extras: &ReplayExtras) -> Vec<f64> {
     extras
         .diagnosis
         .iter()
-        .flat_map(|d| layers::per_trial_mean(&d.t, &d.trial, &d.measured).0)
+        .flat_map(|d| layers::per_trial_mean(&d.data.t, &d.data.trial, &d.data.measured_w).0)
         .collect()
 }
 
@@ -353,7 +340,7 @@ fn trial_counts(extras: &ReplayExtras) -> blueprint::TrialCounts {
             located: 0,
         },
         Some(d) => {
-            let mut all: Vec<usize> = d.trial.clone();
+            let mut all: Vec<usize> = d.data.trial.clone();
             all.extend(d.highlighted.iter().map(|m| m.index));
             all.sort_unstable();
             all.dedup();
@@ -395,9 +382,10 @@ fn plot_ranges(
         .iter()
         .map(|p| (p.measured - p.predicted, !p.rejected));
     let diagnosis = extras.diagnosis.iter().flat_map(|d| {
-        [&d.before, &d.after, &d.found]
+        let d = &d.data;
+        [&d.before_w, &d.after_w, &d.found_w]
             .into_iter()
-            .flat_map(|p| d.measured.iter().zip(p).map(|(m, p)| (m - p, true)))
+            .flat_map(|p| d.measured_w.iter().zip(p).map(|(m, p)| (m - p, true)))
     });
     let errors: Vec<(f64, bool)> = per_reading.chain(per_trajectory).chain(diagnosis).collect();
     let kept: Vec<f64> = errors.iter().filter(|e| e.1).map(|e| e.0).collect();
@@ -426,11 +414,10 @@ fn plot_ranges(
     } else if let Some(d) = &extras.diagnosis {
         let twin = d.counterpart.iter().flat_map(|c| c.power_w.iter());
         r.power = data_range(
-            d.measured
-                .iter()
-                .chain(&d.before)
-                .chain(&d.after)
-                .chain(&d.found)
+            (d.data.measured_w.iter())
+                .chain(&d.data.before_w)
+                .chain(&d.data.after_w)
+                .chain(&d.data.found_w)
                 .chain(twin)
                 .copied(),
         );

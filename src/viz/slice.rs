@@ -7,6 +7,7 @@ use crate::signals::Recording;
 use super::replay::{
     DiagnosisOverlay, ImuFilterMarks, PowerPrediction, ReadingPrediction, ReplayExtras, TermSeries,
 };
+use crate::diagnose::LocatedField;
 
 /// Which part of a session a replay logs.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -194,27 +195,33 @@ impl Slice {
     }
 
     fn diagnosis(&self, d: &DiagnosisOverlay) -> DiagnosisOverlay {
-        let k = self.keep(&d.t, &mut Decimator::default());
+        let r = &d.data;
+        let k = self.keep(&r.t, &mut Decimator::default());
         let same = |v: &Vec<f64>| {
-            if v.len() == d.t.len() {
+            if v.len() == r.t.len() {
                 pick(v, &k)
             } else {
                 v.clone()
             }
         };
         DiagnosisOverlay {
-            t: pick(&d.t, &k),
-            trial: pick(&d.trial, &k),
-            measured: same(&d.measured),
-            before: same(&d.before),
-            after: same(&d.after),
-            found: same(&d.found),
-            located: d
-                .located
-                .iter()
-                .map(|(n, v)| (n.clone(), same(v)))
-                .collect(),
-            rest: [same(&d.rest[0]), same(&d.rest[1])],
+            data: crate::diagnose::ReplayData {
+                t: pick(&r.t, &k),
+                trial: pick(&r.trial, &k),
+                measured_w: same(&r.measured_w),
+                before_w: same(&r.before_w),
+                after_w: same(&r.after_w),
+                found_w: same(&r.found_w),
+                located: (r.located.iter())
+                    .map(|l| LocatedField {
+                        name: l.name.clone(),
+                        values: same(&l.values),
+                    })
+                    .collect(),
+                rest_w: same(&r.rest_w),
+                rest_found_w: same(&r.rest_found_w),
+                ..Default::default()
+            },
             highlighted: d
                 .highlighted
                 .iter()
