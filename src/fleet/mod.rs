@@ -380,6 +380,26 @@ fn trial_sums(
     Ok(out)
 }
 
+/// The free parameters' (`free`: the bounded fit's standard errors) standard errors from the
+/// unconstrained covariance of the excited columns. The bounded fit's own are conditional on
+/// its active set: where a correlated neighbour sits at its bound they take it as known, and
+/// come out too small. Projecting onto the bounds moves θ no farther from the truth (in ΦᵀΦ's
+/// metric) than the unconstrained estimate is, so these bound its error (docs/fleet.md, Drift).
+fn widened_se(g: &Gram, free: &[Option<f64>]) -> Vec<Option<f64>> {
+    let cols: Vec<usize> = (0..g.columns()).filter(|&j| g.g[(j, j)] > 0.0).collect();
+    let mut sub = g.clone();
+    (sub.g, sub.h) = (
+        g.g.select_rows(&cols).select_columns(&cols),
+        g.h.select_rows(&cols),
+    );
+    let se = sub.solve_with_se().map(|(_, se)| se);
+    let mut out = vec![None; g.columns()];
+    for (k, &j) in cols.iter().enumerate() {
+        out[j] = free[j].and(se.as_ref().map(|se| se[k]));
+    }
+    out
+}
+
 /// Fit every group of the tables' rows: one scan for the per-trial moments and the groups'
 /// normal equations, the IMU filter, then per residual pass the normal equations of the trials
 /// rejected (one scan each), final fit. `progress` hears each stage.
@@ -577,7 +597,7 @@ pub fn fit_fleet(
                         out.r2 = 1.0 - sse / (g.yy - sy * sy / n);
                         out.rmse = (sse / n).sqrt();
                         out.theta = fit.theta;
-                        out.std_err = fit.std_err;
+                        out.std_err = widened_se(&g, &fit.std_err);
                     }
                     Err(e) => out.error = Some(format!("{e:#}")),
                 }
