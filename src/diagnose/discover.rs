@@ -38,7 +38,7 @@ use super::fields::FieldTable;
 use super::reading_rows::Rows;
 use super::select::{
     Param, PowerData, Rule, State, bic, bounds_for, design_map_for, jackknife_se, r2_rmse,
-    solve_bounded_for, trial_sse,
+    regressor, solve_bounded_for, trial_sse,
 };
 use super::stats::{
     STABILITY_DRAWS, improvement_p_value, pearson, resampled_stability, span, step_threshold,
@@ -1717,6 +1717,58 @@ pub(crate) fn rival_of(
         correlation: c.r,
         blocked,
     }))
+}
+
+/// Held-out prediction of the model `without` plus the flexible variant of library hypothesis
+/// `h`: each of its per-joint features with its own coefficient (a pooled one as itself), and its
+/// regressor g (pooled by `theta`) also as g·ln(|g|/ḡ) (a free exponent, to first order), as its
+/// excess over ḡ (a threshold, one-sided) and times session time (a drift), ḡ its mean |g|.
+/// Each column is scaled to unit RMS.
+pub(crate) fn flexible_pred(
+    data: &PowerData,
+    without: &State,
+    h: &super::hypotheses::Hypothesis,
+    theta: &[f64],
+) -> Result<Vec<f64>> {
+    let base = Base::new(data, without)?;
+    let rows = base.rows;
+    let (off, len) = h.raw;
+    let g: Vec<f64> = rows.x.iter().map(|x| regressor(h, x, theta)).collect();
+    let n = g.len().max(1) as f64;
+    let g_bar = g.iter().map(|v| v.abs()).sum::<f64>() / n;
+    let sign = g.iter().sum::<f64>().signum();
+    let t_mid = rows.t.iter().sum::<f64>() / n;
+    let mut cols: Vec<Vec<f64>> = (0..len)
+        .map(|i| rows.x.iter().map(|x| x[N_PARAMS + off + i]).collect())
+        .collect();
+    cols.push(
+        g.iter()
+            .map(|&v| match v.abs() / g_bar {
+                r if r > 0.0 && r.is_finite() => v * r.ln(),
+                _ => 0.0,
+            })
+            .collect(),
+    );
+    cols.push(
+        g.iter()
+            .map(|v| sign * (v.abs() - g_bar).max(0.0))
+            .collect(),
+    );
+    cols.push(
+        g.iter()
+            .zip(&rows.t)
+            .map(|(v, t)| v * (t - t_mid))
+            .collect(),
+    );
+    for c in cols.iter_mut() {
+        let rms = (c.iter().map(|v| v * v).sum::<f64>() / n).sqrt();
+        if rms > 0.0 {
+            c.iter_mut().for_each(|v| *v /= rms);
+        }
+    }
+    cols.retain(|c| c.iter().any(|v| *v != 0.0));
+    let refs: Vec<&Vec<f64>> = cols.iter().collect();
+    Ok(base.fit(&refs)?.pred)
 }
 
 /// A note naming the recorded fields left out because they follow session time (the clock
