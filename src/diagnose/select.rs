@@ -989,21 +989,16 @@ fn partial_correlation(
     s[(0, 1)] / (s[(0, 0)] * s[(1, 1)]).sqrt()
 }
 
-/// The step's winner (`scored[0]`, accepted) against the mechanisms the data could name instead:
-/// first the best candidate of another library mechanism that the data also support
-/// ([`Rule::supports`]: at any value of its parameter — a one-sided gear friction of implausible
-/// size fitted better than the braking asymmetry the rule accepted), then the flexible variant
-/// ([`discover::flexible_pred`]) of every mechanism whose best form gains the rule's minimum
-/// held-out improvement (supported or not: a power-law bus loss failed p < 0.001 in its plain
-/// form) beside the current model; that one stays in the race. When the winner does not fit the
-/// held-out trials better than the plain rival at [`RIVAL_ALPHA`], or a flexible variant fits
-/// significantly better than it ([`versus_pred`]), the data locate the structure but do not tell
-/// which mechanism it is (a per-joint drive-electronics loss was named the DC-bus loss, a gear
-/// friction above a threshold of |τq̇| the braking asymmetry, each by a margin of 0.2–0.3 %
-/// before this rule). Latency is paired only with flexible variants (it adds no regressor).
+/// The step's winner (`scored[0]`, accepted) against the best candidate of another library
+/// mechanism that the data also support ([`Rule::supports`]: at any value of its parameter — a
+/// one-sided gear friction of implausible size fitted better than the braking asymmetry the rule
+/// accepted): when the winner does not fit the held-out trials significantly better, the data
+/// locate the structure but do not tell which mechanism it is (a per-joint drive-electronics loss
+/// was named the DC-bus loss, a gear friction above a threshold of |τq̇| the braking asymmetry,
+/// each by a margin of 0.2–0.3 % before this rule). Latency is no rival: it adds no regressor.
+/// Flexible variants are paired with the final model's claims ([`remainders`]).
 fn rival_mechanism(
     data: &PowerData,
-    cur: &State,
     scored: &[(usize, Candidate)],
     remaining: &[Option<&'static Hypothesis>],
     rule: &Rule,
@@ -1012,11 +1007,6 @@ fn rival_mechanism(
         return Ok(None);
     };
     let wm = mechanism(&remaining[*wi]);
-    let rivals: Vec<&'static Hypothesis> = scored[1..]
-        .iter()
-        .filter(|(_, c)| c.score.rel_improvement >= rule.min_improvement)
-        .filter_map(|(i, _)| remaining[*i].filter(|h| h.mechanism != wm))
-        .collect();
     let plain = scored[1..]
         .iter()
         .find(|(i, c)| rule.supports(&c.score) && remaining[*i].is_some_and(|h| h.mechanism != wm));
@@ -1037,44 +1027,52 @@ fn rival_mechanism(
             return Ok(Some(f));
         }
     }
-    let mut tried: Vec<&str> = Vec::new();
-    for h in rivals {
-        if tried.contains(&h.mechanism) {
-            continue;
-        }
-        tried.push(h.mechanism);
-        let pred = discover::flexible_pred(data, cur, h, &cur.full.theta)?;
-        let id = format!("{}, flexible", h.id);
-        let words = format!("{} in a flexible form", h.mechanism);
-        let f = versus_pred(data, (&w.score, &w.next.cv.pred), (id, words), &pred, false);
-        if f.unnamed {
-            return Ok(Some(f));
-        }
-    }
     Ok(None)
 }
 
-/// Every claim of the final model `cur` against the flexible variants of its other terms: a term
-/// claimed beside another must fit the held-out trials significantly better (at
-/// [`RIVAL_ALPHA`]) than the model without it in which the other term takes its flexible form
-/// ([`discover::flexible_pred`]) — the remainder of an effect whose form the library does not
-/// fit must not become a second claim (a per-joint DC-bus loss was named the bus loss AND sensor
-/// latency, whichever came first). One that does not is located, not named.
+/// Every claim of the final model `cur` against flexible variants ([`discover::flexible_pred`])
+/// in its place, by [`versus_pred`]: a claim beside another term must fit the held-out trials
+/// significantly better than the model without it in which the other term takes its flexible
+/// form — the remainder of an effect whose form the library does not fit must not become a second
+/// claim —, and no flexible variant of another mechanism whose best form gained the rule's
+/// minimum at the first step (`first`, supported or not: a power-law bus loss failed p < 0.001 in
+/// its plain form) may fit significantly better than it. Paired with the final model, not at the
+/// step, so that a variant's drift column cannot take an effect not yet modelled (a true bus loss
+/// lost to the drive loss's variant beside an unmodelled thermal drift). A claim that fails is
+/// located, not named.
 fn remainders(
     data: &PowerData,
     cur: &State,
     accepted: &[HypothesisScore],
+    first: &[HypothesisScore],
+    rule: &Rule,
 ) -> Result<Vec<MechanismForms>> {
+    let rivals: Vec<&'static Hypothesis> = first
+        .iter()
+        .filter(|s| s.rel_improvement >= rule.min_improvement)
+        .filter_map(|s| super::hypotheses::power_hypothesis(&s.id))
+        .collect();
     let mut out = Vec::new();
     for s in accepted {
         let spec: Spec = cur.spec.iter().copied().filter(|h| h.id != s.id).collect();
         let lag = if s.id == LATENCY_ID { 0 } else { cur.lag };
-        for a in &spec {
-            let rest: Spec = spec.iter().copied().filter(|h| h.id != a.id).collect();
+        let mech = |h: &Hypothesis| Some(h.mechanism) == mechanism_of(&s.id);
+        let others = spec.iter().map(|a| (*a, true));
+        let in_model = |r: &Hypothesis| cur.spec.iter().any(|h| h.mechanism == r.mechanism);
+        let beside = rivals.iter().filter(|r| !mech(r) && !in_model(r));
+        for (a, replaces) in others.chain(beside.map(|r| (*r, false))) {
+            let rest: Spec = spec
+                .iter()
+                .copied()
+                .filter(|h| !replaces || h.id != a.id)
+                .collect();
             let pred = discover::flexible_pred(data, &state(data, rest, lag)?, a, &cur.full.theta)?;
             let id = format!("{}, flexible", a.id);
-            let words = format!("the rest of {}'s form", a.mechanism);
-            let f = versus_pred(data, (s, &cur.cv.pred), (id, words), &pred, true);
+            let words = match replaces {
+                true => format!("the rest of {}'s form", a.mechanism),
+                false => format!("{} in a flexible form", a.mechanism),
+            };
+            let f = versus_pred(data, (s, &cur.cv.pred), (id, words), &pred, replaces);
             if f.unnamed {
                 out.push(f);
                 break;
@@ -1082,6 +1080,14 @@ fn remainders(
         }
     }
     Ok(out)
+}
+
+/// The mechanism of hypothesis `id` (latency's own; `None` for an unknown id).
+fn mechanism_of(id: &str) -> Option<&'static str> {
+    match id {
+        LATENCY_ID => Some(LATENCY_ID),
+        _ => super::hypotheses::power_hypothesis(id).map(|h| h.mechanism),
+    }
 }
 
 /// Claim `w` (its score and the held-out prediction of a model with it) against a flexible
@@ -1186,7 +1192,7 @@ pub(crate) fn select(
         } else if step == 1 {
             compare_forms(data, &scored, &remaining, rule.alpha, &mut forms);
         }
-        let unnamed = rival_mechanism(data, &cur, &scored, &remaining, rule)?;
+        let unnamed = rival_mechanism(data, &scored, &remaining, rule)?;
         let Some((idx, best)) = scored.into_iter().next().filter(|(_, c)| c.score.accepted) else {
             break;
         };
@@ -1204,7 +1210,7 @@ pub(crate) fn select(
         }
     }
     let (cur, mut accepted, confounded) = backward(data, cur, accepted, rule)?;
-    forms.extend(remainders(data, &cur, &accepted)?);
+    forms.extend(remainders(data, &cur, &accepted, &first_step, rule)?);
     // A winner backward elimination dropped is no longer claimed in any form.
     for f in forms.iter_mut() {
         if !accepted.iter().any(|a| a.id == f.winner) {
