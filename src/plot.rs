@@ -1,5 +1,5 @@
-//! Figure output shared by the identification and diagnosis reports: the bundled font and
-//! atomic PNG writing with plotters.
+//! What the identification, diagnosis and fleet reports share: markdown tables, the bundled
+//! font and atomic PNG writing with plotters.
 
 use std::path::Path;
 use std::sync::Once;
@@ -52,6 +52,22 @@ pub(crate) fn write_png(
             .with_context(|| format!("renaming {shown} to {}", path.display()))
     })();
     result.with_context(|| format!("drawing {}", path.display()))
+}
+
+/// `text` safe inside a markdown table cell: the `|` of `|q̇|`, `|τ|`, `|ω|` would end the cell.
+pub(crate) fn md_cell(text: &str) -> String {
+    text.replace('|', "\\|")
+}
+
+/// A markdown table: the header's cells, then one line per row of cells.
+pub(crate) fn table(md: &mut String, head: &[&str], rows: impl IntoIterator<Item = Vec<String>>) {
+    let line = |cells: &[String]| format!("| {} |\n", cells.join(" | "));
+    let head: Vec<String> = head.iter().map(|h| h.to_string()).collect();
+    md.push_str(&line(&head));
+    md.push_str(&format!("|{}|\n", vec!["---"; head.len()].join("|")));
+    for r in rows {
+        md.push_str(&line(&r));
+    }
 }
 
 /// Axis range of the finite `values`, padded by `pad` of the span; (−1, 1) when there are none.

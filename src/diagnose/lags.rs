@@ -210,6 +210,8 @@ pub(crate) struct Usable {
     pub(crate) rejected: Vec<Rejection>,
     /// The rejected trials' windows, for the replay.
     pub(crate) rejected_windows: Vec<super::HighlightedTrial>,
+    /// The IMU filter's statistic of every trial and its threshold, for the replay.
+    pub(crate) imu: Option<crate::trial::ImuFilterMarks>,
     /// The usable trials' rows at lag 0.
     pub(crate) rows0: Rows,
     /// Their Gram matrices at the [`coarse_lags`].
@@ -247,7 +249,12 @@ pub(crate) fn usable_trials(
         .collect();
     let mut totals = first.totals;
     remove_trials(samples, power, &all_metas, &gone, &lags, w, &mut totals)?;
+    let spans = all_metas.iter().map(|m| {
+        let w = &m.window;
+        (w.t_traj_start, w.t_post_end, m.sigma_omega)
+    });
     Ok(Usable {
+        imu: crate::trial::ImuFilterMarks::new(Some(opts.imu_threshold), spans.collect()),
         rejected_windows: super::viewer_data::rejected_windows(&all_metas, &rejected),
         metas,
         rejected,

@@ -333,6 +333,7 @@ fn run(
         metas,
         rejected,
         rejected_windows,
+        imu,
         rows0,
         totals,
     } = usable_trials(info, samples, all_metas, skipped, opts)?;
@@ -396,6 +397,7 @@ fn run(
         sensor,
         rejected,
         rejected_windows,
+        imu,
     };
     assemble(info, opts, &metas, &data, &fields, judged)
 }
@@ -434,6 +436,7 @@ struct Judged<'a> {
     sensor: SensorWindow,
     rejected: Vec<crate::trial::Rejection>,
     rejected_windows: Vec<HighlightedTrial>,
+    imu: Option<crate::trial::ImuFilterMarks>,
 }
 
 /// The last stage: ranking, final refit, locating the residual, the lag scan, the replay data
@@ -458,6 +461,7 @@ fn assemble(
     let located = locate_residuals(&info.joint_names, metas, data, sel, j.discovery.as_ref());
     let replay = ReplayData {
         rejected: j.rejected_windows,
+        imu: j.imu,
         ..replay_data(metas, data.rows0(), sel, &located)
     };
     let mut diag = Diagnosis {

@@ -11,7 +11,9 @@ use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
 use super::Diagnosis;
-use crate::plot::{Area, FONT, padded_range, plot_err, register_font, tick_label, write_png};
+use crate::plot::{
+    Area, FONT, md_cell, padded_range, plot_err, register_font, table, tick_label, write_png,
+};
 
 /// Figure file names, relative to the report directory.
 pub const FIGURES: [&str; 5] = [
@@ -21,22 +23,6 @@ pub const FIGURES: [&str; 5] = [
     "residual_time.png",
     "lag_scan.png",
 ];
-
-/// `text` safe inside a markdown table cell: the `|` of `|q̇|`, `|τ|`, `|ω|` would end the cell.
-fn md_cell(text: &str) -> String {
-    text.replace('|', "\\|")
-}
-
-/// A markdown table: the header's cells, then one line per row of cells.
-fn table(md: &mut String, head: &[&str], rows: impl IntoIterator<Item = Vec<String>>) {
-    let line = |cells: &[String]| format!("| {} |\n", cells.join(" | "));
-    let head: Vec<String> = head.iter().map(|h| h.to_string()).collect();
-    md.push_str(&line(&head));
-    md.push_str(&format!("|{}|\n", vec!["---"; head.len()].join("|")));
-    for r in rows {
-        md.push_str(&line(&r));
-    }
-}
 
 /// Draw figure `FIGURES[i]` at `size` into `dir` and link it from `md` under `caption`.
 fn figure(
@@ -124,6 +110,7 @@ fn torque_section(md: &mut String, t: &super::TorqueComparison) {
         "RMS [Nm]",
         "RMS after friction [Nm]",
         "Fc [Nm]",
+        "Fv [Nm·s/rad]",
     ];
     let rows = (0..t.rmse_urdf.len()).map(|j| {
         vec![
@@ -135,7 +122,7 @@ fn torque_section(md: &mut String, t: &super::TorqueComparison) {
             format!("{:.3}", t.viscous_nms[j]),
         ]
     });
-    table(md, &[&head[..], &["Fv [Nm·s/rad]"]].concat(), rows);
+    table(md, &head, rows);
     md.push('\n');
 }
 
@@ -305,6 +292,7 @@ fn unexplained_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()>
     Ok(())
 }
 
+/// The report figures' axis range: the values' padded by 8 %.
 fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
     padded_range(values, 0.08)
 }

@@ -378,6 +378,17 @@ pub struct HypothesisScore {
     pub verdict: String,
 }
 
+impl HypothesisScore {
+    /// Rejected only for its size: every statistical gate passed, the parameter is implausible.
+    pub fn only_implausible(&self) -> bool {
+        !self.accepted && self.verdict.strip_prefix("rejected: ") == Some(IMPLAUSIBLE)
+    }
+}
+
+/// The rule's words for a parameter outside its plausible range: a verdict that is only this is
+/// a structure the data support in a size no such mechanism has ([`HypothesisScore::only_implausible`]).
+pub(crate) const IMPLAUSIBLE: &str = "parameter outside its physically plausible range";
+
 /// Thresholds of the significance rule.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Rule {
@@ -419,7 +430,7 @@ impl Rule {
             ));
         }
         if !s.plausible {
-            fails.push("parameter outside its physically plausible range".into());
+            fails.push(IMPLAUSIBLE.into());
         }
         if fails.is_empty() {
             (
@@ -1446,6 +1457,38 @@ mod tests {
                 sel.accepted.iter().map(|s| &s.id).collect::<Vec<_>>()
             );
         }
+    }
+
+    /// A score that passes every statistical gate at an implausible size is "only implausible"
+    /// (the summary locates it); one that also fails a gate, or is plausible, is not.
+    #[test]
+    fn only_an_implausible_size_is_told_from_a_failed_gate() {
+        let judged = |p_value: f64, plausible: bool| {
+            let mut s = HypothesisScore {
+                id: "stribeck".into(),
+                title: String::new(),
+                level: "power".into(),
+                params: Vec::new(),
+                p_value,
+                delta_bic: -700.0,
+                rmse_before: 1.0,
+                rmse_after: 0.6,
+                r2_before: 0.9,
+                r2_after: 0.95,
+                rel_improvement: 0.4,
+                plausible,
+                accepted: false,
+                rank: 0,
+                step: 1,
+                verdict: String::new(),
+            };
+            let (ok, why) = RULE.judge(&s);
+            (s.accepted, s.verdict) = (ok, why);
+            s
+        };
+        assert!(judged(1e-11, false).only_implausible());
+        assert!(!judged(0.5, false).only_implausible(), "a failed gate too");
+        assert!(!judged(1e-11, true).only_implausible(), "accepted");
     }
 
     #[test]

@@ -130,6 +130,7 @@ pub fn sections(d: &Diagnosis) -> [(&'static str, String); 4] {
     let mut located_ = String::new();
     located(d, &mut located_);
     unnamed_lines(d, &mut located_);
+    implausible_lines(d, &mut located_);
     [
         ("Found", found),
         ("Located, not identified", located_),
@@ -217,6 +218,26 @@ fn unnamed_lines(d: &Diagnosis, s: &mut String) {
     }
 }
 
+/// Library forms the data support at a size no such mechanism has: located, not a mechanism (a
+/// 54 Nm Stribeck friction that improves the held-out power by 40 % is structure of that shape,
+/// not Stribeck friction — and not nothing).
+fn implausible_lines(d: &Diagnosis, s: &mut String) {
+    for h in d.hypotheses.iter().filter(|h| h.only_implausible()) {
+        let size: Vec<String> = (h.params.iter())
+            .map(|p| format!("{} = {:.3} {}", p.symbol, p.value, p.unit))
+            .collect();
+        let _ = writeln!(
+            s,
+            "Located: the power follows the form of the {} (held-out RMSE {:+.1} %, p = {:.1e}, ΔBIC = {:.1}), but at {} — outside the physically plausible range: structure of this form, mechanism not identified; not claimed.",
+            h.title,
+            -100.0 * h.rel_improvement,
+            h.p_value,
+            h.delta_bic,
+            size.join(", ")
+        );
+    }
+}
+
 /// The estimated sensor window and the base model's best sensor lag.
 fn sensor_lines(d: &Diagnosis, s: &mut String) {
     let sw = &d.sensor_window;
@@ -258,6 +279,13 @@ fn not_named(d: &Diagnosis, s: &mut String) {
                 let _ = writeln!(
                     s,
                     "Named: no mechanism of the library is identified (located above: two mechanisms fit as well); no missing physics is claimed."
+                );
+            }
+            Some(h) if h.only_implausible() => {
+                let _ = writeln!(
+                    s,
+                    "Named: no mechanism of the library is identified (located above: the best candidate, {}, fits only at an implausible size); no missing physics is claimed.",
+                    h.id
                 );
             }
             Some(h) => {

@@ -40,6 +40,9 @@ pub struct ReplayData {
     /// the rejections in `rejected`).
     #[serde(skip)]
     pub rejected: Vec<HighlightedTrial>,
+    /// The IMU filter over every trial, as a model replay shows it (viewer only).
+    #[serde(skip)]
+    pub imu: Option<crate::trial::ImuFilterMarks>,
 }
 
 /// A recorded field a found term follows, sampled on the readings' windows.

@@ -16,7 +16,7 @@ use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use crate::N_JOINTS;
 use crate::lsq::Metrics;
-use crate::plot::{FONT, padded_range, plot_err, register_font, write_png};
+use crate::plot::{FONT, padded_range, plot_err, register_font, table, write_png};
 use crate::power::{DatasetMetrics, ModelFile, N_PAIRS, PAIRS, PowerModel, TERM_NAMES, TermMeans};
 
 /// Everything the report shows. Fill what you have; absent parts are left out of the report.
@@ -321,54 +321,58 @@ fn write_result(md: &mut String, r: &ReportInput, names: &[String]) {
     }
 }
 
-fn metrics_row(md: &mut String, name: &str, d: &DatasetMetrics) {
+/// One dataset's line of the fit-quality table.
+fn metrics_row(name: &str, d: &DatasetMetrics) -> Vec<String> {
     let f = &d.fit;
-    let _ = writeln!(
-        md,
-        "| {name} ({}) | {} | {} | {} | {} | {} | {} | {} | {} |",
-        d.dataset,
-        f.n,
+    vec![
+        format!("{name} ({})", d.dataset),
+        f.n.to_string(),
         fmt_num(f.r2, 3),
         fmt_num(f.rmse, 2),
         fmt_num(f.mae, 2),
         fmt_num(f.bias, 2),
         fmt_num(f.skewness, 2),
         fmt_num(f.kurtosis, 2),
-        fmt_sci(d.condition_number)
-    );
+        fmt_sci(d.condition_number),
+    ]
 }
 
 fn write_metrics(md: &mut String, r: &ReportInput) {
     let _ = writeln!(md, "## Fit quality\n");
-    let _ = writeln!(
-        md,
-        "| dataset | n | R² | RMSE [W] | MAE [W] | bias [W] | skewness | kurtosis | κ(ΦᵀΦ) |\n|---|---:|---:|---:|---:|---:|---:|---:|---:|"
-    );
-    if let Some(d) = &r.model.metrics.identification {
-        metrics_row(md, "identification", d);
-    }
-    if let Some(d) = &r.model.metrics.validation {
-        metrics_row(md, "validation", d);
-    }
+    let m = &r.model.metrics;
+    let head = [
+        "dataset",
+        "n",
+        "R²",
+        "RMSE [W]",
+        "MAE [W]",
+        "bias [W]",
+        "skewness",
+        "kurtosis",
+        "κ(ΦᵀΦ)",
+    ];
+    let rows = [
+        ("identification", &m.identification),
+        ("validation", &m.validation),
+    ]
+    .into_iter()
+    .filter_map(|(name, d)| d.as_ref().map(|d| metrics_row(name, d)));
+    table(md, &head, rows);
     let _ = writeln!(
         md,
         "\nbias = mean(predicted − measured); kurtosis is Pearson's (3 for a normal distribution).\n"
     );
     if !r.aggregation.is_empty() {
-        let _ = writeln!(
-            md,
-            "### Per-sample vs aggregated rows\n\n| rows | n | κ(ΦᵀΦ) | R² |\n|---|---:|---:|---:|"
-        );
-        for a in &r.aggregation {
-            let _ = writeln!(
-                md,
-                "| {} | {} | {} | {} |",
-                a.rows,
-                a.n,
+        let _ = writeln!(md, "### Per-sample vs aggregated rows\n");
+        let rows = r.aggregation.iter().map(|a| {
+            let (n, k, r2) = (
+                a.n.to_string(),
                 fmt_sci(a.condition_number),
-                fmt_num(a.r2, 3)
+                fmt_num(a.r2, 3),
             );
-        }
+            vec![a.rows.clone(), n, k, r2]
+        });
+        table(md, &["rows", "n", "κ(ΦᵀΦ)", "R²"], rows);
         md.push('\n');
     }
 }
@@ -389,59 +393,53 @@ fn write_parameters(md: &mut String, r: &ReportInput, names: &[String]) {
             .and_then(|v| v.get(p).copied().flatten())
     };
     let _ = writeln!(md, "## Identified parameters\n");
-    let _ = writeln!(
-        md,
-        "| joint | a | b [W/(N·m)²] | c [W·s/rad] | d [W·s²/rad²] | dominant |\n|---|---:|---:|---:|---:|---|"
-    );
-    for i in 0..N_JOINTS {
-        let dom = m.dominant_term(i).map_or("–", |t| t.name());
-        let _ = writeln!(
-            md,
-            "| {i} {} | {} | {} | {} | {} | {dom} |",
-            names.get(i).map_or("", |s| s.as_str()),
-            with_se(m.a[i], se(i)),
-            with_se(m.b[i], se(N_JOINTS + i)),
-            with_se(m.c[i], se(2 * N_JOINTS + i)),
-            with_se(m.d[i], se(3 * N_JOINTS + i))
-        );
-    }
+    let head = [
+        "joint",
+        "a",
+        "b [W/(N·m)²]",
+        "c [W·s/rad]",
+        "d [W·s²/rad²]",
+        "dominant",
+    ];
+    let rows = (0..N_JOINTS).map(|i| {
+        let joint = format!("{i} {}", names.get(i).map_or("", |s| s.as_str()));
+        let coefs = [m.a[i], m.b[i], m.c[i], m.d[i]];
+        let cells = (coefs.iter().enumerate()).map(|(k, &v)| with_se(v, se(k * N_JOINTS + i)));
+        let dom = m.dominant_term(i).map_or("–", |t| t.name()).to_string();
+        std::iter::once(joint).chain(cells).chain([dom]).collect()
+    });
+    table(md, &head, rows);
     let _ = writeln!(
         md,
         "\nPairwise interaction e_ij [W·s²/rad²] (± standard error when estimated):\n"
     );
-    let _ = writeln!(
-        md,
-        "| pair | e_ij | pair | e_ij | pair | e_ij |\n|---|---:|---|---:|---|---:|"
-    );
     let per_col = N_PAIRS.div_ceil(3);
-    for row in 0..per_col {
-        let cells: Vec<String> = (0..3)
+    let rows = (0..per_col).map(|row| {
+        (0..3)
             .filter_map(|col| {
                 let k = col * per_col + row;
-                PAIRS
-                    .get(k)
-                    .map(|&(i, j)| format!("({i},{j}) | {}", with_se(m.e[k], se(4 * N_JOINTS + k))))
+                let (i, j) = PAIRS.get(k)?;
+                Some([format!("({i},{j})"), with_se(m.e[k], se(4 * N_JOINTS + k))])
             })
-            .collect();
-        let _ = writeln!(md, "| {} |", cells.join(" | "));
-    }
+            .flatten()
+            .collect()
+    });
+    table(md, &["pair", "e_ij", "pair", "e_ij", "pair", "e_ij"], rows);
     md.push('\n');
     if let Some(truth) = &r.truth {
         let (est, tv) = (m.to_vector(), truth.to_vector());
-        let _ = writeln!(
-            md,
-            "### Recovery of the truth parameters\n\n| parameter | truth | estimate | error |\n|---|---:|---:|---:|"
-        );
-        for p in 0..est.len() {
-            let _ = writeln!(
-                md,
-                "| {} | {:.4} | {:.4} | {:+.4} |",
-                PowerModel::param_name(p),
-                tv[p],
-                est[p],
-                est[p] - tv[p]
-            );
-        }
+        let _ = writeln!(md, "### Recovery of the truth parameters\n");
+        let rows = (0..est.len()).map(|p| {
+            let name = PowerModel::param_name(p).to_string();
+            let (t, e) = (tv[p], est[p]);
+            vec![
+                name,
+                format!("{t:.4}"),
+                format!("{e:.4}"),
+                format!("{:+.4}", e - t),
+            ]
+        });
+        table(md, &["parameter", "truth", "estimate", "error"], rows);
         let worst = est
             .iter()
             .zip(&tv)
@@ -457,14 +455,13 @@ fn write_terms(md: &mut String, t: &TermContributions) {
         "## Term contributions ({}, {} rows)\n",
         t.dataset, t.rows
     );
-    let _ = writeln!(md, "| term | mean [W] | share [%] |\n|---|---:|---:|");
-    for (k, name) in TERM_NAMES.iter().enumerate() {
+    let rows = TERM_NAMES.iter().enumerate().map(|(k, name)| {
         let mean = t
             .means_w
             .map_or("–".to_string(), |m| format!("{:.3}", m[k]));
-        let share = fmt_num(t.shares_percent[k], 1);
-        let _ = writeln!(md, "| {name} | {mean} | {share} |");
-    }
+        vec![name.to_string(), mean, fmt_num(t.shares_percent[k], 1)]
+    });
+    table(md, &["term", "mean [W]", "share [%]"], rows);
     md.push('\n');
 }
 
@@ -474,36 +471,37 @@ fn write_rejected(md: &mut String, m: &ModelFile) {
         return;
     }
     let _ = writeln!(md, "## Rejected trials ({})\n", rej.len());
-    if rej.len() > FOLD_ROWS {
+    let fold = rej.len() > FOLD_ROWS;
+    if fold {
         let _ = writeln!(
             md,
             "<details><summary>{} rejected trials</summary>\n",
             rej.len()
         );
     }
-    let _ = writeln!(
-        md,
-        "| session | trial | filter | statistic | threshold | reason |\n|---|---:|---|---:|---:|---|"
-    );
-    for t in rej {
-        let session = m
-            .provenance
-            .sessions
-            .get(t.session)
+    let rows = rej.iter().map(|t| {
+        let session = (m.provenance.sessions.get(t.session))
             .map_or_else(|| t.session.to_string(), |s| s.path.clone());
-        let _ = writeln!(
-            md,
-            "| `{}` | {} | {} | {} | {} | {} |",
-            session,
-            t.trial,
-            t.reason.name(),
+        vec![
+            format!("`{session}`"),
+            t.trial.to_string(),
+            t.reason.name().to_string(),
             fmt_num(t.statistic, 3),
             fmt_num(t.threshold, 3),
-            t
-        );
-    }
+            t.to_string(),
+        ]
+    });
+    let head = [
+        "session",
+        "trial",
+        "filter",
+        "statistic",
+        "threshold",
+        "reason",
+    ];
+    table(md, &head, rows);
     md.push('\n');
-    if rej.len() > FOLD_ROWS {
+    if fold {
         md.push_str("</details>\n\n");
     }
 }
@@ -610,10 +608,6 @@ fn centered_above(size: u32) -> TextStyle<'static> {
     TextStyle::from((FONT, size).into_font()).pos(Pos::new(HPos::Center, VPos::Bottom))
 }
 
-fn range_of(values: impl Iterator<Item = f64>) -> (f64, f64) {
-    padded_range(values, 0.05)
-}
-
 /// Most points a parity plot labels with their trial ids.
 const MAX_LABELLED_POINTS: usize = 80;
 
@@ -625,7 +619,7 @@ fn draw_parity(
     set: &PredictionSet,
     m: &Metrics,
 ) -> Result<()> {
-    let (lo, hi) = range_of(set.measured.iter().chain(&set.predicted).copied());
+    let (lo, hi) = padded_range(set.measured.iter().chain(&set.predicted).copied(), 0.05);
     let n = set.measured.len();
     let caption = format!(
         "{}: {} rows — R² = {}, RMSE = {} W",
@@ -723,10 +717,11 @@ fn draw_residuals(
     let sd = (res.iter().map(|r| (r - mean).powi(2)).sum::<f64>() / n)
         .sqrt()
         .max(1e-9);
-    let (lo, hi) = range_of(
+    let (lo, hi) = padded_range(
         res.iter()
             .copied()
             .chain([mean - 3.5 * sd, mean + 3.5 * sd]),
+        0.05,
     );
     let bins = ((n.sqrt().ceil() as usize).clamp(8, 50)) as f64;
     let width = (hi - lo) / bins;
@@ -796,7 +791,7 @@ fn draw_residuals(
 
 fn draw_terms(root: &DrawingArea<BitMapBackend<'_>, Shift>, t: &TermContributions) -> Result<()> {
     let shares = t.shares_percent;
-    let (lo, hi) = range_of(shares.iter().copied().chain([0.0]));
+    let (lo, hi) = padded_range(shares.iter().copied().chain([0.0]), 0.05);
     let (lo, hi) = (lo.min(0.0), hi * 1.1);
     let colors = [
         RGBColor(150, 150, 150),

@@ -81,29 +81,36 @@ pub(crate) fn per_session_markdown(id: &Identification) -> Option<String> {
     if id.per_session.len() < 2 {
         return None;
     }
-    let mut md = String::from(
-        "## Per session\n\n| session | trials | used | rejected | without rows | readings | RMSE [W] | R² | start winding T per joint [°C] |\n|---|---|---|---|---|---|---|---|---|\n",
-    );
-    for b in &id.per_session {
+    let mut md = String::from("## Per session\n\n");
+    let head = [
+        "session",
+        "trials",
+        "used",
+        "rejected",
+        "without rows",
+        "readings",
+        "RMSE [W]",
+        "R²",
+        "start winding T per joint [°C]",
+    ];
+    let rows = id.per_session.iter().map(|b| {
         let temps = b.first_temp_c.map_or("–".into(), |t| {
             t.iter()
                 .map(|v| format!("{v:.1}"))
                 .collect::<Vec<_>>()
                 .join(", ")
         });
-        md.push_str(&format!(
-            "| {} | {} | {} | {} | {} | {} | {:.3} | {:.4} | {} |\n",
-            b.source.display(),
-            b.trials,
-            b.used,
-            b.rejected,
-            b.without_rows,
-            b.reading.n,
-            b.reading.rmse,
-            b.reading.r2,
-            temps
-        ));
-    }
+        let counts = [b.trials, b.used, b.rejected, b.without_rows, b.reading.n];
+        std::iter::once(b.source.display().to_string())
+            .chain(counts.iter().map(usize::to_string))
+            .chain([
+                format!("{:.3}", b.reading.rmse),
+                format!("{:.4}", b.reading.r2),
+                temps,
+            ])
+            .collect()
+    });
+    crate::plot::table(&mut md, &head, rows);
     Some(md)
 }
 

@@ -84,8 +84,66 @@ struct Registry {
     channels: HashMap<u16, ChannelRec>,
     /// Channel id → (messages skipped, byte offset of the first).
     orphans: BTreeMap<u16, (u64, u64)>,
-    /// Channel ids of the messages met since last cleared (to check a chunk index against its chunk).
+}
+
+/// What a scan does with one channel id's messages.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Route {
+    /// Not met yet in this walk, or its channel record just changed: decide on the next message.
+    Undecided,
+    /// No channel record: counted as an orphan.
+    Orphan,
+    /// A topic the read does not want.
+    Skip,
+    /// Delivered.
+    Keep,
+}
+
+/// Per channel id, what one walk does with its messages, decided on the id's first message
+/// (and again after a channel record for it), so a message costs one vector index instead of
+/// map lookups and topic comparisons; and the ids met in the current chunk.
+struct Routes {
+    route: Vec<Route>,
+    /// Per channel id: the number of the last chunk that held one of its messages.
+    met_in: Vec<u32>,
+    chunk: u32,
+    /// Channel ids of the messages in the current chunk (to check a chunk index against it).
     seen: BTreeSet<u16>,
+}
+
+impl Routes {
+    fn new() -> Routes {
+        let ids = usize::from(u16::MAX) + 1;
+        Routes {
+            route: vec![Route::Undecided; ids],
+            met_in: vec![0; ids],
+            chunk: 1,
+            seen: BTreeSet::new(),
+        }
+    }
+
+    /// Start noting the channel ids of a new chunk.
+    fn next_chunk(&mut self) {
+        self.seen.clear();
+        self.chunk = self.chunk.wrapping_add(1).max(1);
+    }
+
+    /// The route of `id`'s messages, noting the id as met in this chunk.
+    fn of(&mut self, id: u16, registry: &Registry, topics: Option<&[&str]>) -> Route {
+        let i = usize::from(id);
+        if self.met_in[i] != self.chunk {
+            self.met_in[i] = self.chunk;
+            self.seen.insert(id);
+        }
+        if self.route[i] == Route::Undecided {
+            self.route[i] = match registry.channels.contains_key(&id) {
+                false => Route::Orphan,
+                true if registry.wanted(id, topics) => Route::Keep,
+                true => Route::Skip,
+            };
+        }
+        self.route[i]
+    }
 }
 
 impl Registry {
@@ -196,7 +254,7 @@ pub struct McapSource<R = File> {
     /// Problems met while opening (e.g. an unreadable summary), repeated in every read's summary.
     open_warnings: Vec<String>,
     /// Decoded channels by id, built when first needed.
-    resolved: HashMap<u16, Arc<Channel>>,
+    resolved: Vec<Option<Arc<Channel>>>,
     /// Log-time ranges the next reads need ([`MessageSource::set_time_ranges`]): indexed
     /// chunks wholly outside them are skipped.
     time_ranges: Option<Vec<(u64, u64)>>,
@@ -270,7 +328,7 @@ impl<R: Read + Seek> McapSource<R> {
             registry: Registry::default(),
             summary: None,
             open_warnings: Vec::new(),
-            resolved: HashMap::new(),
+            resolved: Vec::new(),
             time_ranges: None,
             unindexed: Vec::new(),
             scan_damage: None,
@@ -422,6 +480,7 @@ impl<R: Read + Seek> McapSource<R> {
             return;
         }
         let mut inflater = Inflater::default();
+        let mut routes = Routes::new();
         let (layout, mut damage) = self.scan_layout();
         for ci in layout {
             if needed
@@ -435,7 +494,15 @@ impl<R: Read + Seek> McapSource<R> {
             let scanned = raw.chunks.into_iter().try_for_each(|raw| {
                 let buf = inflater.entry(raw, Vec::new())?;
                 let (at, registry) = (ci.chunk_start_offset, &mut self.registry);
-                scan_records(&buf, at, 0, registry, Some(&[]), &mut Vec::new())
+                scan_records(
+                    &buf,
+                    at,
+                    0,
+                    registry,
+                    &mut routes,
+                    Some(&[]),
+                    &mut Vec::new(),
+                )
             });
             if let Err(d) = scanned {
                 damage = Some(d);
@@ -564,11 +631,15 @@ impl<R: Read + Seek> McapSource<R> {
 
     /// The decoded channel for `id`, parsing its schema on first use.
     fn channel(&mut self, id: u16) -> Result<Arc<Channel>, ReadError> {
-        if let Some(c) = self.resolved.get(&id) {
+        let i = usize::from(id);
+        if let Some(Some(c)) = self.resolved.get(i) {
             return Ok(c.clone());
         }
         let c = Arc::new(resolve_channel(&self.path, &self.registry, &self.opts, id)?);
-        self.resolved.insert(id, c.clone());
+        if self.resolved.len() <= i {
+            self.resolved.resize(i + 1, None);
+        }
+        self.resolved[i] = Some(c.clone());
         Ok(c)
     }
 
@@ -682,6 +753,8 @@ impl<R: Read + Seek> McapSource<R> {
             return Ok(Ok(()));
         }
         let mut mismatched = 0u64;
+        let mut routes = Routes::new();
+        let mut msgs = Vec::new();
         std::thread::scope(|scope| {
             // A pool of decompression workers, group g going to worker g % INFLATE_WORKERS: each
             // worker inflates one group while this thread reads the next and delivers the last.
@@ -710,16 +783,17 @@ impl<R: Read + Seek> McapSource<R> {
                         return Ok(Err(worker_gone(group)));
                     }
                 }
-                let mut msgs = Vec::new();
+                msgs.clear();
                 let mut damage = None;
                 for (k, (ci, buf)) in group.iter().zip(&buffers).enumerate() {
-                    self.registry.seen.clear();
+                    routes.next_chunk();
                     let loaded = buf.as_ref().map_err(Damage::clone).and_then(|b| {
                         scan_records(
                             b,
                             ci.chunk_start_offset,
                             k,
                             &mut self.registry,
+                            &mut routes,
                             topics,
                             &mut msgs,
                         )
@@ -734,7 +808,7 @@ impl<R: Read + Seek> McapSource<R> {
                         damage = Some(d);
                         break;
                     }
-                    mismatched += self.check_chunk_channels(ci, mismatched, warnings);
+                    mismatched += self.check_chunk_channels(ci, &routes.seen, mismatched, warnings);
                 }
                 msgs.sort_by_key(|m| m.log_time);
                 for m in &msgs {
@@ -767,12 +841,13 @@ impl<R: Read + Seek> McapSource<R> {
     fn check_chunk_channels(
         &self,
         ci: &ChunkIndex,
+        seen: &BTreeSet<u16>,
         before: u64,
         warnings: &mut Vec<String>,
     ) -> u64 {
         let listed: BTreeSet<u16> = ci.message_index_offsets.keys().copied().collect();
         // An index without message indexes makes no claim about the chunk's channels.
-        if listed.is_empty() || listed == self.registry.seen {
+        if listed.is_empty() || listed == *seen {
             return 0;
         }
         if before < MAX_DETAILED {
@@ -784,7 +859,7 @@ impl<R: Read + Seek> McapSource<R> {
                 ci.record_offset,
                 listed,
                 ci.chunk_start_offset,
-                self.registry.seen
+                seen
             ));
         }
         1
@@ -1260,6 +1335,7 @@ fn scan_records(
     file_offset: u64,
     buf_index: usize,
     registry: &mut Registry,
+    routes: &mut Routes,
     topics: Option<&[&str]>,
     msgs: &mut Vec<RawMsg>,
 ) -> Result<(), Damage> {
@@ -1278,17 +1354,16 @@ fn scan_records(
                     return Err(damage("message record shorter than its header".into()));
                 };
                 let channel_id = u16::from_le_bytes([h[0], h[1]]);
-                registry.seen.insert(channel_id);
-                if !registry.channels.contains_key(&channel_id) {
-                    let e = registry
-                        .orphans
-                        .entry(channel_id)
-                        .or_insert((0, file_offset));
-                    e.0 += 1;
-                    continue;
-                }
-                if !registry.wanted(channel_id, topics) {
-                    continue;
+                match routes.of(channel_id, registry, topics) {
+                    Route::Keep => {}
+                    Route::Skip | Route::Undecided => continue,
+                    Route::Orphan => {
+                        let e = (registry.orphans)
+                            .entry(channel_id)
+                            .or_insert((0, file_offset));
+                        e.0 += 1;
+                        continue;
+                    }
                 }
                 msgs.push(RawMsg {
                     channel_id,
@@ -1300,9 +1375,15 @@ fn scan_records(
                     file_offset,
                 });
             }
-            op::SCHEMA | op::CHANNEL => registry
-                .add(opcode, body)
-                .map_err(|e| damage(format!("bad schema/channel record: {e}")))?,
+            op::SCHEMA | op::CHANNEL => {
+                registry
+                    .add(opcode, body)
+                    .map_err(|e| damage(format!("bad schema/channel record: {e}")))?;
+                if let (op::CHANNEL, Some(id)) = (opcode, body.get(..2)) {
+                    routes.route[usize::from(u16::from_le_bytes([id[0], id[1]]))] =
+                        Route::Undecided;
+                }
+            }
             _ => {}
         }
     }

@@ -1,7 +1,6 @@
 //! Stream a recording once and fill a [`Recording`] from a [`SignalMap`]: one compiled
 //! [`FieldExtractor`] per channel, non-finite samples dropped with a warning.
 
-use std::collections::HashMap;
 use std::io::IsTerminal;
 use std::path::Path;
 
@@ -279,37 +278,56 @@ type Compiled = (String, Vec<(usize, FieldExtractor)>);
 /// again when a topic's type changes), samples scaled, bad ones counted and warned about.
 struct Decoder {
     file: String,
-    extractors: HashMap<String, Compiled>,
+    /// Per topic (a handful): searched in a line, cheaper per message than hashing the name.
+    extractors: Vec<(String, Compiled)>,
     row: Vec<f64>,
     warnings: Vec<String>,
     plausible: super::plausible::Plausible,
 }
 
 impl Decoder {
+    /// Compile the extractors of every group reading `msg`'s topic (replacing entry `at`, when
+    /// the topic's type changed); returns their index in `extractors`.
+    fn compile(
+        &mut self,
+        b: &Batcher,
+        msg: &MessageRef<'_>,
+        at: Option<usize>,
+    ) -> Result<usize, ReadError> {
+        let topic = msg.channel.topic.as_str();
+        let mut list = Vec::new();
+        for (gi, plan) in b.plans.iter().enumerate().filter(|(_, p)| p.topic == topic) {
+            let ex = FieldExtractor::compile(&msg.channel.schema, msg.channel.encoding, &plan.paths).map_err(|e| {
+                ReadError::Other(format!(
+                    "{}: topic {topic} ({}): schema does not match the signal map ({:?} signals): {e}",
+                    self.file, msg.channel.type_name, plan.group
+                ))
+            })?;
+            list.push((gi, ex));
+        }
+        let entry = (topic.to_string(), (msg.channel.type_name.clone(), list));
+        Ok(match at {
+            Some(i) => {
+                self.extractors[i] = entry;
+                i
+            }
+            None => {
+                self.extractors.push(entry);
+                self.extractors.len() - 1
+            }
+        })
+    }
+
     /// Decode one message into every group that reads its topic.
     fn decode(&mut self, b: &mut Batcher, msg: &MessageRef<'_>) -> Result<(), ReadError> {
         let topic = msg.channel.topic.as_str();
-        let known = self
-            .extractors
-            .get(topic)
-            .is_some_and(|(ty, _)| *ty == msg.channel.type_name);
-        if !known {
-            let mut list = Vec::new();
-            for (gi, plan) in b.plans.iter().enumerate().filter(|(_, p)| p.topic == topic) {
-                let ex = FieldExtractor::compile(&msg.channel.schema, msg.channel.encoding, &plan.paths).map_err(|e| {
-                    ReadError::Other(format!(
-                        "{}: topic {topic} ({}): schema does not match the signal map ({:?} signals): {e}",
-                        self.file, msg.channel.type_name, plan.group
-                    ))
-                })?;
-                list.push((gi, ex));
-            }
-            self.extractors
-                .insert(topic.to_string(), (msg.channel.type_name.clone(), list));
-        }
-        let Some((_, list)) = self.extractors.get(topic) else {
-            return Ok(());
+        let at = self.extractors.iter().position(|(t, _)| t == topic);
+        let known = at.filter(|&i| self.extractors[i].1.0 == msg.channel.type_name);
+        let i = match known {
+            Some(i) => i,
+            None => self.compile(b, msg, at)?,
         };
+        let (_, list) = &self.extractors[i].1;
         for (gi, ex) in list {
             let plan = &mut b.plans[*gi];
             self.row.resize(ex.len(), 0.0);
@@ -386,7 +404,7 @@ fn read_batches(
     let progress = progress_bar(&mut session);
     let mut decoder = Decoder {
         file: path.display().to_string(),
-        extractors: HashMap::new(),
+        extractors: Vec::new(),
         row: Vec::new(),
         warnings: Vec::new(),
         plausible: super::plausible::Plausible::new(&path.display().to_string(), map, &mut session),

@@ -84,19 +84,29 @@ impl Rejection {
 /// trials of a second or later session are prefixed with the session index.
 impl fmt::Display for Rejection {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "session {} trial {}: ", self.session, self.trial)?;
+        write!(
+            f,
+            "session {} trial {}: {}",
+            self.session,
+            self.trial,
+            self.why()
+        )
+    }
+}
+
+impl Rejection {
+    /// Why the trial was rejected, without the session/trial prefix of `Display`.
+    pub fn why(&self) -> String {
         match self.reason {
-            RejectReason::ImuSway => write!(
-                f,
+            RejectReason::ImuSway => format!(
                 "IMU sway σ_ω = {:.4} rad/s > {:.4} (k × median)",
                 self.statistic, self.threshold
             ),
-            RejectReason::Residual => write!(
-                f,
+            RejectReason::Residual => format!(
                 "residual {:+.3} W beyond {:.3} W (pass {})",
                 self.statistic, self.threshold, self.pass
             ),
-            RejectReason::Unusable => write!(f, "unusable: {}", self.detail),
+            RejectReason::Unusable => format!("unusable: {}", self.detail),
         }
     }
 }
@@ -258,6 +268,33 @@ fn median(v: &[f64]) -> f64 {
         s[m]
     } else {
         0.5 * (s[m - 1] + s[m])
+    }
+}
+
+/// The IMU balance filter as the viewer shows it: its statistic per trial and its threshold.
+#[derive(Debug, Clone, Default)]
+pub struct ImuFilterMarks {
+    /// The threshold factor k (threshold = k × median σ|ω|).
+    pub k: f64,
+    /// The threshold [rad/s].
+    pub threshold: f64,
+    /// Per trial: window start, end [s] and σ|ω| over it [rad/s].
+    pub spans: Vec<(f64, f64, f64)>,
+}
+
+impl ImuFilterMarks {
+    /// The marks of a filter of factor `k` over the trials' `spans` (window start, end, σ|ω|),
+    /// its threshold the one [`imu_sway`] applies; `None` when the filter is off (`k` `None`)
+    /// or the threshold is not finite.
+    pub fn new(k: Option<f64>, spans: Vec<(f64, f64, f64)>) -> Option<ImuFilterMarks> {
+        let k = k?;
+        let sigmas: Vec<TrialStat> = spans.iter().map(|s| TrialStat::new(0, 0, s.2)).collect();
+        let threshold = imu_threshold(&sigmas, k);
+        threshold.is_finite().then_some(ImuFilterMarks {
+            k,
+            threshold,
+            spans,
+        })
     }
 }
 

@@ -11,7 +11,8 @@ mod segment;
 mod window;
 
 pub use filter::{
-    Cascade, RejectReason, Rejection, TrialStat, imu_sway, is_rejected, sigma_omega, three_sigma,
+    Cascade, ImuFilterMarks, RejectReason, Rejection, TrialStat, imu_sway, is_rejected,
+    sigma_omega, three_sigma,
 };
 pub use segment::{SegmentOptions, SegmentSource, Segmentation, Stretch, segment};
 pub use window::{

@@ -180,7 +180,7 @@ impl Node {
             *window_s = window;
         }
         if window.is_some() {
-            self.for_each_view(&mut Node::drop_linked_y_range);
+            self.for_each_view(&mut Node::unfit_linked);
         }
         self
     }
@@ -244,14 +244,27 @@ impl Node {
             return;
         };
         let (shown, range) = fitted_range(data, *fit, *plot_px);
-        *legend = Some([Legend::Hidden, Legend::LeftTop][usize::from(shown)]);
-        *y_range = (*whole || !windowed).then_some(range);
+        let fitted = *whole || !windowed;
+        *legend = Some([Legend::Hidden, Legend::LeftTop][usize::from(shown && fitted)]);
+        *y_range = fitted.then_some(range);
     }
 
-    /// Drops a linked view's y range (the viewer then fits it to the window).
-    fn drop_linked_y_range(&mut self) {
-        if let Node::View { whole, y_range, .. } = self {
-            *y_range = y_range.filter(|_| *whole);
+    /// Drops a linked view's fitted y range (the viewer then fits it to the window; a range set
+    /// by hand, [`Fit::Free`], stays) and its legend: nothing keeps a legend off data the viewer
+    /// fits to the plot's edges, so the title or hovering names the series.
+    fn unfit_linked(&mut self) {
+        if let Node::View {
+            class,
+            whole: false,
+            y_range,
+            fit,
+            legend,
+            ..
+        } = self
+            && *class == "TimeSeries"
+        {
+            *y_range = y_range.filter(|_| *fit == Fit::Free);
+            *legend = Some(Legend::Hidden);
         }
     }
 
@@ -323,10 +336,10 @@ impl Node {
         }
     }
 
-    /// Appends `suffix` to a view's title.
-    fn renamed_with(mut self, suffix: &str) -> Node {
+    /// Sets a view's title.
+    fn renamed(mut self, new_name: String) -> Node {
         if let Node::View { name, .. } = &mut self {
-            name.push_str(suffix);
+            *name = new_name;
         }
         self
     }
@@ -786,6 +799,9 @@ pub struct PlotRanges {
     pub raw_power: Option<[f64; 2]>,
     /// Errors at the readings (per reading and per trajectory) [W].
     pub error: Option<[f64; 2]>,
+    /// ± the 95th percentile of the kept trials' errors' size [W]: the windowed error plot's
+    /// range.
+    pub error_typical: Option<[f64; 2]>,
     /// Trial indices (first, last).
     pub trials: Option<[f64; 2]>,
 }
@@ -856,6 +872,8 @@ fn plot(name: impl Into<String>, contents: Vec<String>) -> Node {
 pub const TRACK_PLOT_PX: f64 = 40.0;
 /// The smallest plot area [px] of the overview's error plot in a 1920×1080 browser window.
 pub const ERROR_PLOT_PX: f64 = 150.0;
+/// The same in a long session's overview (measured on its screenshots: 83 px).
+pub const WINDOWED_ERROR_PLOT_PX: f64 = 80.0;
 /// The smallest plot area [px] of a per-trial bar chart: width, height (1920×1080 window).
 pub const BAR_PLOT_PX: [f64; 2] = [300.0, 200.0];
 /// The spacing [px] above which the stock viewer labels a tick of the y axis (egui_plot's
@@ -1039,13 +1057,20 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
     }
     tabs.push(joints_tab(joints, parts.ranges));
     tabs.push(imu_tab(parts));
-    tabs.push(
-        plot(
-            "Raw power MBS/BMS [W]",
-            include(&[&paths::power_raw("mbs"), &paths::power_raw("bms")]),
-        )
-        .with_legend_room(parts.ranges.raw_power, 2, DETAIL_PLOT_PX),
-    );
+    let raw_power = include(&[&paths::power_raw("mbs"), &paths::power_raw("bms")]);
+    let raw_name = "Raw power MBS/BMS [W]";
+    tabs.push(match parts.window_s {
+        // Without a legend the title names the series; the tab keeps its short name.
+        Some(_) => Node::container(
+            Vertical,
+            raw_name,
+            vec![plot("Raw power [W]: MBS cyan, BMS olive", raw_power)],
+            vec![],
+        ),
+        None => {
+            plot(raw_name, raw_power).with_legend_room(parts.ranges.raw_power, 2, DETAIL_PLOT_PX)
+        }
+    });
     if parts.diagnosis {
         tabs.push(diagnosis_tab(parts));
     }
@@ -1067,8 +1092,21 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
 /// their count, each trial's error, its rest power and the IMU statistic with its threshold.
 /// Right-clicking any of those moves the time cursor, and the window with it, to that trial.
 fn session_overview(arm: Node, parts: LayoutParts, window_s: f64) -> (Vec<Node>, Vec<f32>) {
-    let around = format!(" · {window_s:.0} s at the time cursor");
-    let mut overview = vec![arm, power_view(parts).renamed_with(&around)];
+    // No legend on a window the viewer fits (it would cover the data): the title names the series.
+    let mut key = String::from("measured blue, ");
+    if parts.model {
+        key.push_str("predicted orange, instant brown");
+    } else {
+        key.push_str("base grey, hyp. orange");
+        if parts.diagnosis_power_series > 3 + usize::from(parts.counterpart) {
+            key.push_str(", found red");
+        }
+        if parts.counterpart {
+            key.push_str(", twin cyan");
+        }
+    }
+    let name = format!("Net power [W], {window_s:.0} s at cursor: {key}");
+    let mut overview = vec![arm, power_view(parts).renamed(name)];
     let mut shares = vec![1.0, 1.0];
     if parts.model || parts.diagnosis {
         // The same window as the power plot above (its title says so): a title short enough
@@ -1090,7 +1128,14 @@ fn session_overview(arm: Node, parts: LayoutParts, window_s: f64) -> (Vec<Node>,
             .with_fit(Fit::Ticks, ERROR_PLOT_PX)
             .with_legend(Legend::Hidden)
     };
-    overview.push(per_trial(&strip, strip_paths));
+    // A fixed range half a step around its rows (1: rejected, 2: located): the data alone
+    // ([1, 1]) was widened to ticks 0.999…1.001, whose labels overlapped on the low strip.
+    let rows = 1.0 + f64::from(u8::from(parts.diagnosis));
+    overview.push(
+        per_trial(&strip, strip_paths)
+            .with_fit(Fit::Free, TRACK_PLOT_PX)
+            .with_y_range(Some([0.5, rows + 0.5])),
+    );
     shares.push(0.45);
     if parts.model {
         overview.push(per_trial(
@@ -1165,15 +1210,22 @@ fn error_view(parts: LayoutParts) -> Node {
             name.push_str(", found terms red");
         }
     }
-    plot(name, error)
-        .with_fit(Fit::Symmetric, ERROR_PLOT_PX)
-        .with_legend(Legend::Hidden)
-        .with_y_range(
+    let view = plot(name, error).with_legend(Legend::Hidden);
+    match (parts.window_s, parts.ranges.error_typical) {
+        // A window the viewer fitted labelled a single tick (0) where its errors were small:
+        // a fixed range about zero over most of the session's errors keeps 0 and ±10^k.
+        (Some(_), Some(typical)) => view
+            .with_fit(Fit::Free, WINDOWED_ERROR_PLOT_PX)
+            .with_y_range(Some(
+                fitted_range(typical, Fit::Symmetric, WINDOWED_ERROR_PLOT_PX).1,
+            )),
+        _ => view.with_fit(Fit::Symmetric, ERROR_PLOT_PX).with_y_range(
             parts
                 .ranges
                 .error
                 .map(|d| fitted_range(d, Fit::Symmetric, ERROR_PLOT_PX).1),
-        )
+        ),
+    }
 }
 
 /// The trial track: the trial under way, rejected (or located) trials as thick red segments;
@@ -1239,11 +1291,12 @@ fn imu_tab(parts: LayoutParts) -> Node {
             paths::IMU_SIGMA_REJECTED,
             paths::IMU_THRESHOLD,
         ]));
-        plot("IMU |ω| [rad/s] and the balance filter", imu).with_legend_room(
-            parts.ranges.imu,
-            4,
-            DETAIL_PLOT_PX,
-        )
+        let name = if parts.window_s.is_some() {
+            "IMU [rad/s]: |ω| grey, σ|ω| per trial blue (rejected red), threshold black"
+        } else {
+            "IMU |ω| [rad/s] and the balance filter"
+        };
+        plot(name, imu).with_legend_room(parts.ranges.imu, 4, DETAIL_PLOT_PX)
     } else {
         plot("IMU |ω| of the body [rad/s]", imu).with_legend(Legend::Hidden)
     };
@@ -1488,6 +1541,8 @@ mod tests {
         assert!(matches!(root, Node::Container { window_s: Some(x), .. } if x == w));
         // Fitted to data of −20…130 W: the per-trial plots open on it, the linked plots carry
         // no y range (the viewer fits them to the window).
+        // The linked plots show no legend (nothing keeps it off data the viewer fits); the
+        // strip opens on its rows, half a step spare.
         root.fit(&|_, _| Some([-20.0, 130.0]));
         root.for_each_view(&mut |v| {
             if let Node::View {
@@ -1495,12 +1550,44 @@ mod tests {
                 name,
                 y_range,
                 whole,
+                legend,
                 ..
             } = v
             {
                 assert_eq!(*whole, y_range.is_some(), "{name}");
+                if name.starts_with("Rejected trials") {
+                    assert_eq!(*y_range, Some([0.5, 1.5]), "{name}");
+                }
+                if !*whole {
+                    assert_eq!(*legend, Some(Legend::Hidden), "{name}");
+                }
             }
         });
+        // With the errors' typical size known, the windowed error plot keeps a range about
+        // zero that the viewer labels at 0 and ±10^k (its own fit labelled a single 0); ±2.5
+        // would label only 0 in the low plot, so a typical 2 W widens further.
+        for (typical, bound) in [(Some(0.7), Some(1.2)), (Some(2.0), None), (None, None)] {
+            let error_typical = typical.map(|e| [-e, e]);
+            let ranges = PlotRanges {
+                error_typical,
+                ..PlotRanges::default()
+            };
+            let mut root = replay_layout(&joints, LayoutParts { ranges, ..parts }, [0.0; 3]);
+            let mut range = None;
+            root.for_each_view(&mut |v| match v {
+                Node::View { name, y_range, .. } if name.starts_with("Error measured") => {
+                    range = *y_range
+                }
+                _ => {}
+            });
+            assert_eq!(range.is_some(), typical.is_some());
+            let (Some(e), Some(r)) = (typical, range) else {
+                continue;
+            };
+            assert!(r[0] == -r[1] && r[1] >= e, "{r:?}");
+            assert!(bound.is_none_or(|b| (r[1] - b).abs() < 1e-9), "{r:?}");
+            assert!(labelled_ticks(r, WINDOWED_ERROR_PLOT_PX, Y_LABEL_PX).len() >= 2);
+        }
         let v = views(&root);
         let whole: Vec<&str> = v
             .iter()
@@ -1514,8 +1601,7 @@ mod tests {
         );
         assert!(whole.iter().any(|n| n.starts_with("Rest power per trial")));
         assert!(v.iter().any(|(n, wh)| !wh
-            && n.starts_with("Net power at the readings")
-            && n.contains("40 s at the time cursor")));
+            && n.starts_with("Net power [W], 40 s at cursor: measured blue")));
         assert!(!v.iter().any(|(n, _)| n.starts_with("Trials (index")));
         // Bars a thousand groups wide are sub-pixel: the per-trial means are points over the
         // whole session instead (the example keeps its bar charts, below).

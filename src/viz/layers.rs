@@ -310,16 +310,9 @@ fn log_breakdown(
     terms: &TermSeries,
     chunk: usize,
 ) -> Result<()> {
-    for (k, term) in paths::TERMS.iter().enumerate() {
+    for (k, term) in paths::TERMS.iter().chain(&["interaction"]).enumerate() {
         style::line(w, &paths::by_term(term), term, style::TERMS[k], 1.5)?;
     }
-    style::line(
-        w,
-        &paths::by_term("interaction"),
-        "interaction",
-        style::TERMS[4],
-        1.5,
-    )?;
     for (j, name) in joints.iter().enumerate() {
         style::line(w, &paths::by_joint(name), name, style::joint(j), 1.5)?;
     }
@@ -561,7 +554,8 @@ impl TrialMean {
     }
 }
 
-/// `trials` with each one's label followed by its two largest terms and its largest joint:
+/// `trials` with each one's label followed, on a line of its own, by its two largest terms and
+/// its largest joint:
 /// their shares of the trial's energy ([`TrialMean::shares`]) where it has them, else their
 /// mean power [W] and the net.
 fn with_shares(trials: &[TrialMark], means: &[TrialMean], joints: &[String]) -> Vec<TrialMark> {
@@ -593,10 +587,10 @@ fn with_shares(trials: &[TrialMark], means: &[TrialMean], joints: &[String]) -> 
                 let name = joints.get(j).map_or("", String::as_str);
                 let joint = show(&|s| s.1[j], mean.by_joint[j]);
                 m.label = if shares.is_some() {
-                    format!("{} · energy {}; {name} {joint}", m.label, t.join(", "))
+                    format!("{}\n  energy {}; {name} {joint}", m.label, t.join(", "))
                 } else {
                     format!(
-                        "{} · net {net:+.2} W: {}; {name} {joint}",
+                        "{}\n  net {net:+.2} W: {}; {name} {joint}",
                         m.label,
                         t.join(", ")
                     )
@@ -665,12 +659,14 @@ pub(super) fn breakdown_note(joints: &[String], colour_scale: f64, means: &[Tria
         cells.join(" · ")
     };
     format!(
-        "**Share of the arm's predicted energy over the {} trials** (each trial's mean × its \
+        "**Colours** (the same in every tab): {}.\n\n\
+         **Share of the arm's predicted energy over the {} trials** (each trial's mean × its \
          length, summed; a share is negative where the term returns energy: mechanical while \
          the arm brakes, copper while it holds less torque than at rest — the shares still \
          sum to 100 %):\n\n\
          by term: {}\n\n\
          by joint: {}\n\n",
+        style::colour_key(joints),
         means.len(),
         row(&mut crate::power::TERM_NAMES.iter().copied(), &by_term),
         row(&mut joints.iter().map(String::as_str), &by_joint),
@@ -759,30 +755,14 @@ fn log_imu_filter(w: &mut ChunkWriter<'_>, imu: &ImuFilterMarks) -> Result<()> {
     Ok(())
 }
 
-/// The text of a trial's log line: its label, and why it was rejected (filter, statistic,
-/// threshold) or where a diagnosis located its mismatch.
+/// The text of a trial's log entry: its label, and on a line of its own why it was rejected
+/// (filter, statistic, threshold) or where a diagnosis located its mismatch (the log's rows
+/// grow with their lines, so no line runs past the right edge of the tab).
 fn trial_text(m: &TrialMark) -> String {
     match (&m.rejected, &m.highlight) {
-        (Some(r), _) => format!("{} — REJECTED: {}", m.label, rejection_text(r)),
-        (None, Some(why)) => format!("{} — {why}", m.label),
+        (Some(r), _) => format!("{}\n  REJECTED: {}", m.label, r.why()),
+        (None, Some(why)) => format!("{}\n  {why}", m.label),
         (None, None) => m.label.clone(),
-    }
-}
-
-/// Why a filter rejected a trial, without the session/trial prefix of the rejection's own
-/// `Display` (the log line already names the trial).
-fn rejection_text(r: &crate::trial::Rejection) -> String {
-    use crate::trial::RejectReason;
-    match r.reason {
-        RejectReason::ImuSway => format!(
-            "IMU sway σ|ω| = {:.4} rad/s > threshold {:.4} rad/s (k × median)",
-            r.statistic, r.threshold
-        ),
-        RejectReason::Residual => format!(
-            "residual {:+.3} W beyond {:.3} W (n·σ filter, pass {})",
-            r.statistic, r.threshold, r.pass
-        ),
-        RejectReason::Unusable => format!("unusable: {}", r.detail),
     }
 }
 

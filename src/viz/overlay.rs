@@ -14,7 +14,7 @@ use super::replay::{
 use crate::identify::{IdentifyOptions, Validation, validate};
 use crate::power::PowerModel;
 use crate::signals::{Recording, StateSeries};
-use crate::trial::{TrialStat, TrialWindow};
+use crate::trial::TrialWindow;
 
 /// Replay extras of `model` applied to `rec` (segmented and filtered as `opts` says), plus the
 /// hold-out validation it is built on. The whole session is in memory; the streamed replay
@@ -158,27 +158,11 @@ pub fn validation_extras(
 }
 
 /// The IMU filter's statistic per trial (over its trajectory window) and its threshold, as the
-/// filter cascade computes it from the same statistics ([`crate::trial::Cascade::imu_threshold`]).
+/// filter cascade computes it from the same statistics.
 fn imu_marks(v: &Validation, opts: &IdentifyOptions) -> Option<ImuFilterMarks> {
-    let k = opts.filters.imu_k?;
-    let sigmas: Vec<TrialStat> = v
-        .per_trial
-        .iter()
-        .map(|p| TrialStat::new(0, p.trial, p.sigma_omega))
-        .collect();
-    let threshold = opts.filters.imu_threshold(&sigmas)?;
-    if !threshold.is_finite() {
-        return None;
-    }
-    Some(ImuFilterMarks {
-        k,
-        threshold,
-        spans: v
-            .per_trial
-            .iter()
-            .map(|p| (p.window.0, p.window.1, p.sigma_omega))
-            .collect(),
-    })
+    let spans = v.per_trial.iter();
+    let spans = spans.map(|p| (p.window.0, p.window.1, p.sigma_omega));
+    ImuFilterMarks::new(opts.filters.imu_k, spans.collect())
 }
 
 /// Replay extras of a diagnosis: measured vs before/after predictions per reading, and the trials
@@ -223,6 +207,7 @@ pub fn diagnosis_extras(d: &crate::diagnose::Diagnosis) -> ReplayExtras {
                 .collect(),
             rest: [r.rest_w.clone(), r.rest_found_w.clone()],
         }),
+        imu_filter: r.imu.clone(),
         ..ReplayExtras::default()
     }
 }

@@ -93,16 +93,7 @@ pub struct ReadingPrediction {
     pub lag_s: f64,
 }
 
-/// The IMU balance filter as the viewer shows it: its statistic per trial and its threshold.
-#[derive(Debug, Clone, Default)]
-pub struct ImuFilterMarks {
-    /// The threshold factor k (threshold = k × median σ|ω|).
-    pub k: f64,
-    /// The threshold [rad/s].
-    pub threshold: f64,
-    /// Per trial: trajectory window start, end [s] and σ|ω| over it [rad/s].
-    pub spans: Vec<(f64, f64, f64)>,
-}
+pub use crate::trial::ImuFilterMarks;
 
 /// Per-trajectory (aggregated) prediction, one per trial.
 #[derive(Debug, Clone)]
@@ -327,6 +318,18 @@ pub fn layout(
     blueprint::replay_layout(joints, parts, arm_center(robot, arm))
 }
 
+/// The 95th percentile of the finite values' size (`None` without any): of the kept trials'
+/// errors, the windowed error plot's bound (the rejected trials' run off it).
+fn typical_size(values: &[f64]) -> Option<f64> {
+    let mut size: Vec<f64> = values
+        .iter()
+        .filter(|v| v.is_finite())
+        .map(|v| v.abs())
+        .collect();
+    size.sort_by(f64::total_cmp);
+    size.get(size.len() * 95 / 100).or(size.last()).copied()
+}
+
 /// When each trial starts: the trial marks of a model replay, else each trial's first reading
 /// in a diagnosis.
 fn trial_starts(extras: &ReplayExtras) -> Vec<f64> {
@@ -380,20 +383,28 @@ fn plot_ranges(
             .chain(extras.diagnosis.iter().flat_map(|d| d.highlighted.iter()))
             .map(|m| m.index as f64),
     );
-    // The error plot's series: the model's per reading and per trajectory, the diagnosis'.
-    let per_reading = extras
-        .readings
+    // The error plot's series: the model's per reading and per trajectory, the diagnosis'
+    // (each error with whether its trial was kept).
+    let per_reading = extras.readings.iter().flat_map(|rd| {
+        let kept = |i: usize| !rd.rejected.get(i).copied().unwrap_or(false);
+        let errors = rd.measured.iter().zip(&rd.predicted).map(|(m, p)| m - p);
+        errors.enumerate().map(move |(i, e)| (e, kept(i)))
+    });
+    let per_trajectory = extras
+        .trajectories
         .iter()
-        .flat_map(|rd| rd.measured.iter().zip(&rd.predicted).map(|(m, p)| m - p));
-    let per_trajectory = extras.trajectories.iter().map(|p| p.measured - p.predicted);
+        .map(|p| (p.measured - p.predicted, !p.rejected));
     let diagnosis = extras.diagnosis.iter().flat_map(|d| {
         [&d.before, &d.after, &d.found]
             .into_iter()
-            .flat_map(|p| d.measured.iter().zip(p).map(|(m, p)| m - p))
+            .flat_map(|p| d.measured.iter().zip(p).map(|(m, p)| (m - p, true)))
     });
+    let errors: Vec<(f64, bool)> = per_reading.chain(per_trajectory).chain(diagnosis).collect();
+    let kept: Vec<f64> = errors.iter().filter(|e| e.1).map(|e| e.0).collect();
     let mut r = blueprint::PlotRanges {
         trials,
-        error: data_range(per_reading.chain(per_trajectory).chain(diagnosis)),
+        error: data_range(errors.iter().map(|e| e.0)),
+        error_typical: typical_size(&kept).map(|e| [-e, e]),
         imu_per_trial: extras
             .imu_filter
             .as_ref()
@@ -424,17 +435,18 @@ fn plot_ranges(
                 .copied(),
         );
     }
+    // The IMU plot's filter series: each trial's statistic and the threshold.
+    let imu_marks = || {
+        let f = extras.imu_filter.iter();
+        f.flat_map(|f| f.spans.iter().map(|s| s.2).chain([f.threshold]))
+    };
     if let Some(stats) = &extras.sample_stats {
         let range = |x: Option<[f64; 2]>| x.and_then(data_range);
         r.by_term = range(stats.by_term);
         r.by_joint = range(stats.by_joint);
         r.first_joint_terms = range(stats.first_joint_terms);
         r.tau = range(stats.tau);
-        let imu = extras
-            .imu_filter
-            .iter()
-            .flat_map(|f| f.spans.iter().map(|s| s.2).chain([f.threshold]));
-        r.imu = data_range(stats.gyro.into_iter().flatten().chain(imu));
+        r.imu = data_range(stats.gyro.into_iter().flatten().chain(imu_marks()));
         r.raw_power = range(stats.raw_power);
     } else if let Some(terms) = &extras.terms {
         let fields = terms.fields();
@@ -458,11 +470,7 @@ fn plot_ranges(
             .iter()
             .filter_map(|&i| st.gyro.get(i))
             .map(|g| (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt());
-        let imu = extras
-            .imu_filter
-            .iter()
-            .flat_map(|f| f.spans.iter().map(|s| s.2).chain([f.threshold]));
-        r.imu = data_range(gyro.chain(imu));
+        r.imu = data_range(gyro.chain(imu_marks()));
         let raw = [&rec.mbs, &rec.bms].into_iter().flat_map(|p| {
             p.t.iter()
                 .zip(&p.watts)

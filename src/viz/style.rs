@@ -20,6 +20,22 @@ const JOINTS: [[u8; 3]; 7] = [
     [227, 119, 194],
 ];
 
+/// The colours of [`JOINTS`] and [`TERMS`] in words.
+const JOINT_HUES: [&str; 7] = ["blue", "orange", "green", "red", "purple", "brown", "pink"];
+const TERM_HUES: [&str; 5] = ["black", "olive", "cyan", "grey", "gold"];
+
+/// The joints' and the terms' colours in words (`joints` in arm order), for plots whose legend
+/// would cover the data.
+pub(super) fn colour_key(joints: &[String]) -> String {
+    let joints = joints.iter().enumerate();
+    let joints: Vec<String> = joints
+        .map(|(j, n)| format!("{n} {}", JOINT_HUES[j % JOINT_HUES.len()]))
+        .collect();
+    let terms = crate::power::TERM_NAMES.iter().zip(TERM_HUES);
+    let terms: Vec<String> = terms.map(|(n, h)| format!("{n} {h}")).collect();
+    format!("joints {}; terms {}", joints.join(", "), terms.join(", "))
+}
+
 /// Colour of arm joint `j`.
 pub(super) fn joint(j: usize) -> [u8; 3] {
     JOINTS[j % JOINTS.len()]
