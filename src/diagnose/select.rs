@@ -11,7 +11,6 @@ use nalgebra::{DMatrix, DVector};
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
 
-use super::discover;
 use super::hypotheses::{Combine, Hypothesis, LATENCY_ID, N_RAW};
 use super::reading_rows::Rows;
 use super::stats::improvement_p_value;
@@ -1007,7 +1006,7 @@ fn partial_correlation(
 /// locate the structure but do not tell which mechanism it is (a per-joint drive-electronics loss
 /// was named the DC-bus loss, a gear friction above a threshold of |τq̇| the braking asymmetry,
 /// each by a margin of 0.2–0.3 % before this rule). Latency is no rival: it adds no regressor.
-/// Flexible variants are paired with the final model's claims ([`remainders`]).
+/// Flexible variants are paired with the final model's claims ([`super::parsimony`]).
 fn rival_mechanism(
     data: &PowerData,
     scored: &[(usize, Candidate)],
@@ -1039,109 +1038,6 @@ fn rival_mechanism(
         }
     }
     Ok(None)
-}
-
-/// Every claim of the final model `cur` against flexible variants ([`discover::flexible_pred`])
-/// in its place, by [`versus_pred`]: a claim beside another term must fit the held-out trials
-/// significantly better than the model without it in which the other term takes its flexible
-/// form — the remainder of an effect whose form the library does not fit must not become a second
-/// claim —, and no flexible variant of another mechanism whose best form gained the rule's
-/// minimum at the first step (`first`, supported or not: a power-law bus loss failed p < 0.001 in
-/// its plain form) may fit significantly better than it. Paired with the final model, not at the
-/// step, so that a variant's drift column cannot take an effect not yet modelled (a true bus loss
-/// lost to the drive loss's variant beside an unmodelled thermal drift). A claim that fails is
-/// located, not named.
-fn remainders(
-    data: &PowerData,
-    cur: &State,
-    accepted: &[HypothesisScore],
-    first: &[HypothesisScore],
-    rule: &Rule,
-) -> Result<Vec<MechanismForms>> {
-    let rivals: Vec<&'static Hypothesis> = first
-        .iter()
-        .filter(|s| s.rel_improvement >= rule.min_improvement)
-        .filter_map(|s| super::hypotheses::power_hypothesis(&s.id))
-        .collect();
-    let mut out = Vec::new();
-    for s in accepted {
-        let spec: Spec = cur.spec.iter().copied().filter(|h| h.id != s.id).collect();
-        let lag = if s.id == LATENCY_ID { 0 } else { cur.lag };
-        let mech = |h: &Hypothesis| Some(h.mechanism) == mechanism_of(&s.id);
-        let others = spec.iter().map(|a| (*a, true));
-        let in_model = |r: &Hypothesis| cur.spec.iter().any(|h| h.mechanism == r.mechanism);
-        let beside = rivals.iter().filter(|r| !mech(r) && !in_model(r));
-        for (a, replaces) in others.chain(beside.map(|r| (*r, false))) {
-            let rest: Spec = spec
-                .iter()
-                .copied()
-                .filter(|h| !replaces || h.id != a.id)
-                .collect();
-            let pred = discover::flexible_pred(data, &state(data, rest, lag)?, a, &cur.full.theta)?;
-            let id = format!("{}, flexible", a.id);
-            let words = match replaces {
-                true => format!("the rest of {}'s form", a.mechanism),
-                false => format!("{} in a flexible form", a.mechanism),
-            };
-            let f = versus_pred(data, (s, &cur.cv.pred), (id, words), &pred, replaces);
-            if f.unnamed {
-                out.push(f);
-                break;
-            }
-        }
-    }
-    Ok(out)
-}
-
-/// The mechanism of hypothesis `id` (latency's own; `None` for an unknown id).
-fn mechanism_of(id: &str) -> Option<&'static str> {
-    match id {
-        LATENCY_ID => Some(LATENCY_ID),
-        _ => super::hypotheses::power_hypothesis(id).map(|h| h.mechanism),
-    }
-}
-
-/// Claim `w` (its score and the held-out prediction of a model with it) against a flexible
-/// variant `(id, words)` with held-out prediction `pred`, by the paired test by trial at
-/// [`RIVAL_ALPHA`]: unnamed when the claim does not fit significantly better than the variant
-/// of a term it is claimed beside (`must_beat`), or when another mechanism's variant fits
-/// significantly better than it. That variant is not required to lose: a free exponent makes a
-/// loss per ampere and one per ampere² one family, so the true DC-bus and drive-electronics
-/// losses of the project's tests tied with their rival's variant (p = 0.28).
-fn versus_pred(
-    data: &PowerData,
-    (w, w_pred): (&HypothesisScore, &[f64]),
-    (id, words): (String, String),
-    pred: &[f64],
-    must_beat: bool,
-) -> MechanismForms {
-    let wm = super::hypotheses::power_hypothesis(&w.id).map_or(LATENCY_ID, |h| h.mechanism);
-    let y = &data.rows0().y;
-    let trial = &data.rows0().trial;
-    let ew = trial_sse(y, w_pred, trial, data.n_trials);
-    let er = trial_sse(y, pred, trial, data.n_trials);
-    let d: Vec<f64> = er.iter().zip(&ew).map(|(a, b)| a - b).collect();
-    let p_value = improvement_p_value(&d);
-    let rmse = r2_rmse(y, pred).1;
-    let unnamed = match must_beat {
-        true => p_value >= RIVAL_ALPHA || p_value.is_nan(),
-        false => improvement_p_value(&d.iter().map(|v| -v).collect::<Vec<_>>()) < RIVAL_ALPHA,
-    };
-    let rmse_w = r2_rmse(y, w_pred).1;
-    MechanismForms {
-        mechanism: format!("{wm} or {words}"),
-        winner: w.id.clone(),
-        runner_up: id,
-        rmse_w: [rmse_w, rmse],
-        margin: 1.0 - rmse_w / rmse.max(1e-300),
-        p_value,
-        accepted: w.accepted,
-        form_words: [wm.to_string(), words],
-        params: [w.params.clone(), Vec::new()],
-        confounded: unnamed,
-        unnamed,
-        partial_r: None,
-    }
 }
 
 /// Greedy forward selection: at each step score every remaining candidate against the current
@@ -1221,7 +1117,6 @@ pub(crate) fn select(
         }
     }
     let (cur, mut accepted, confounded) = backward(data, cur, accepted, rule)?;
-    forms.extend(remainders(data, &cur, &accepted, &first_step, rule)?);
     // A winner backward elimination dropped is no longer claimed in any form.
     for f in forms.iter_mut() {
         if !accepted.iter().any(|a| a.id == f.winner) {
@@ -1251,6 +1146,11 @@ pub(crate) fn select(
         base,
         last: cur,
     })
+}
+
+/// [`unname`] on a selection's own forms, claims and first-step scores.
+pub(crate) fn unname_all(sel: &mut Selection) {
+    unname(&mut sel.forms, &mut sel.accepted, &mut sel.first_step);
 }
 
 /// A winner another mechanism ties with ([`rival_mechanism`]) is not claimed: it leaves
