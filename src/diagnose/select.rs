@@ -1274,7 +1274,7 @@ fn backward(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::diagnose::hypotheses::{POWER_HYPOTHESES, Sample, extras_into, power_hypothesis};
     use crate::power::{PowerModel, regressor_into};
@@ -1283,7 +1283,7 @@ mod tests {
 
     /// Synthetic rows: each row one random arm state of 1–3 moving joints; the truth is the
     /// paper's model plus `effect(sample)`; trials heat up from 30 to 60 °C.
-    pub(super) fn synth(
+    pub(crate) fn synth(
         seed: u64,
         n_trials: usize,
         effect: &dyn Fn(&Sample) -> f64,
@@ -1337,7 +1337,7 @@ mod tests {
         PowerData::new(vec![0.0], vec![rows], n_trials, 5, None)
     }
 
-    pub(super) const RULE: Rule = Rule {
+    pub(crate) const RULE: Rule = Rule {
         alpha: 1e-3,
         bic_threshold: -10.0,
         min_improvement: 0.01,
@@ -1485,7 +1485,10 @@ mod tests {
                 .sum();
             rb * i * i + thermal
         };
-        let sel = select(&synth(11, 80, &effect), &all(), &RULE).unwrap();
+        let data = synth(11, 80, &effect);
+        let mut sel = select(&data, &all(), &RULE).unwrap();
+        // Each beats the other in flexible form (the rule after all stages).
+        super::super::parsimony::apply(&data, &mut sel, None).unwrap();
         let ids: Vec<&str> = sel.accepted.iter().map(|s| s.id.as_str()).collect();
         assert!(
             ids.contains(&"bus_loss") && ids.contains(&"thermal"),
