@@ -55,13 +55,18 @@ pub(crate) fn shape_cols(g: &[f64], driving: Vec<f64>, s: &[f64]) -> Vec<Vec<f64
     cols
 }
 
-/// The midpoint of state `s`'s range and its [`KNOTS`]; `None` for a constant state.
+/// The midpoint of state `s`'s range and its distinct [`KNOTS`] strictly inside it (a knot at
+/// an end would repeat the linear column); `None` for a constant state.
 pub(crate) fn knots(s: &[f64]) -> Option<(f64, Vec<f64>)> {
     let mut sorted: Vec<f64> = s.iter().copied().filter(|v| v.is_finite()).collect();
     sorted.sort_by(f64::total_cmp);
-    let (lo, hi) = (sorted.first()?, sorted.last()?);
-    let at = |q: f64| sorted[((sorted.len() - 1) as f64 * q) as usize];
-    (hi > lo).then(|| (0.5 * (lo + hi), KNOTS.map(at).to_vec()))
+    let (&lo, &hi) = (sorted.first()?, sorted.last()?);
+    let mut k: Vec<f64> = KNOTS
+        .map(|q| sorted[((sorted.len() - 1) as f64 * q) as usize])
+        .to_vec();
+    k.retain(|&v| v > lo && v < hi);
+    k.dedup();
+    (hi > lo).then_some((0.5 * (lo + hi), k))
 }
 
 /// Scale each column to unit RMS (non-finite values set to 0); columns zero everywhere are

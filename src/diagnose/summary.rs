@@ -220,6 +220,10 @@ fn unnamed_lines(d: &Diagnosis, s: &mut String) {
     for t in d.discovery.iter().flat_map(|r| &r.located) {
         let _ = writeln!(s, "Located: {} — {}.", t.name, t.verdict);
     }
+    let rest = d.discovery.iter().flat_map(|r| &r.rest);
+    for t in rest.flat_map(|r| &r.located) {
+        let _ = writeln!(s, "Located: {} — {}.", t.name, t.verdict);
+    }
 }
 
 /// Library forms the data support at a size no such mechanism has: located, not a mechanism (a
