@@ -117,7 +117,7 @@ fn library_flexible(
 pub(crate) fn apply(
     data: &PowerData,
     sel: &mut Selection,
-    mut report: Option<&mut DiscoveryReport>,
+    report: Option<&mut DiscoveryReport>,
 ) -> Result<()> {
     let (spec, lag) = (sel.last.spec.clone(), sel.last.lag);
     let found: &[super::Discovery] = report.as_deref().map_or(&[], |r| &r.accepted);
@@ -167,7 +167,7 @@ pub(crate) fn apply(
         sel.forms.push(test.form(&sel.accepted, spec[*k].id));
     }
     super::select::unname_all(sel);
-    if let Some(r) = report.as_deref_mut() {
+    if let Some(r) = report {
         for (k, test) in located.iter().rev().filter(|(k, _)| *k >= n_lib) {
             let mut d = r.accepted.remove(k - n_lib);
             d.verdict = format!("{}; {}", test.words(), d.verdict);
