@@ -35,6 +35,7 @@ use nalgebra::{DMatrix, DVector};
 use super::Quality;
 use super::family::{Shape, Term};
 use super::fields::FieldTable;
+use super::parsimony::{arm_drives, drives, knots, shape_cols, unit_rms};
 use super::reading_rows::Rows;
 use super::select::{
     Param, PowerData, Rule, State, bic, bounds_for, design_map_for, jackknife_se, r2_rmse,
@@ -137,6 +138,9 @@ pub struct Discovery {
     /// What it adds to the power, per reading (the final joint fit's coefficients).
     #[serde(skip)]
     pub contribution: Vec<f64>,
+    /// Its flexible variant's columns, per reading ([`super::parsimony`]).
+    #[serde(skip)]
+    pub flexible: Vec<Vec<f64>>,
 }
 
 /// A candidate on other field(s) that fits as well as a found term (see [`Discovery::tied`]).
@@ -178,6 +182,10 @@ pub struct DiscoveryReport {
     pub accepted: Vec<Discovery>,
     /// The best candidate that was not accepted (for the report), if any was tried.
     pub best_rejected: Option<Discovery>,
+    /// Terms found but located, not claimed: the remainder of another term's form (kept in the
+    /// model as the best approximation; [`super::parsimony`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub located: Vec<Discovery>,
     /// Held-out quality before discovery (the library model) and after it.
     pub before: Option<Quality>,
     /// After the discovered terms.
@@ -264,8 +272,9 @@ struct Cand {
 }
 
 /// Result of fitting the current model plus extra columns.
-struct ExtFit {
-    pred: Vec<f64>,
+pub(crate) struct ExtFit {
+    /// Held-out prediction per reading.
+    pub(crate) pred: Vec<f64>,
     /// Coefficients of the extra columns per fold.
     fold_gamma: Vec<Vec<f64>>,
     /// Coefficients of the extra columns on all data.
@@ -274,7 +283,7 @@ struct ExtFit {
 }
 
 /// The library model's design on each row (x_raw · M), fold Grams of it, and the data.
-struct Base<'a, 'd> {
+pub(crate) struct Base<'a, 'd> {
     data: &'a PowerData<'d>,
     cur: &'a State,
     rows: &'a Rows,
@@ -306,7 +315,8 @@ impl<'a, 'd> Base<'a, 'd> {
             .collect()
     }
 
-    fn new(data: &'a PowerData<'d>, cur: &'a State) -> Result<Base<'a, 'd>> {
+    /// The design of model `cur` on its rows.
+    pub(crate) fn new(data: &'a PowerData<'d>, cur: &'a State) -> Result<Base<'a, 'd>> {
         let rows = data.rows(cur.lag)?;
         let m = design_map_for(&cur.spec, &cur.full.theta);
         let p = m.ncols();
@@ -335,7 +345,7 @@ impl<'a, 'd> Base<'a, 'd> {
     }
 
     /// Cross-validated and full fit of the library model plus `cols`.
-    fn fit(&self, cols: &[&Vec<f64>]) -> Result<ExtFit> {
+    pub(crate) fn fit(&self, cols: &[&Vec<f64>]) -> Result<ExtFit> {
         let (p, q, k) = (self.p, cols.len(), self.data.folds.k);
         let n = p + q;
         // Per fold Gram of the extended design.
@@ -955,6 +965,53 @@ impl Search<'_, '_> {
             STABILITY_DRAWS,
             ((step as u64) << 32) | chosen.idx as u64,
         )
+    }
+
+    /// The flexible variant of candidate `i` ([`super::parsimony`]): its own columns, then for
+    /// a loss term its value per joint and [`shape_cols`] of it over the signal it follows
+    /// (session time for none; a family's mean over the joints), for a rail load a
+    /// piecewise-linear function of its field (net of the trial's pre-idle value).
+    fn flexible(&self, i: usize) -> Vec<Vec<f64>> {
+        let (rows, rv) = (self.base.rows, &self.rv);
+        let mut cols = self.cols(i);
+        let (t, s) = match &self.cands[i].kind {
+            Kind::Additive(f, _) | Kind::Step(f, _) => {
+                let (raw, base) = (&rv.raw[*f], &rv.baseline[*f]);
+                let Some((_, knots)) = knots(raw) else {
+                    return cols;
+                };
+                let hinge = |k: f64| {
+                    raw.iter()
+                        .zip(base)
+                        .map(move |(a, b)| (a - k).max(0.0) - (b - k).max(0.0))
+                };
+                cols.push(raw.iter().zip(base).map(|(a, b)| a - b).collect());
+                cols.extend(knots.into_iter().map(|k| hinge(k).collect()));
+                unit_rms(&mut cols);
+                return cols;
+            }
+            Kind::Product(t, Signal::Family(_, fs), _) => {
+                let mean = (0..rows.len())
+                    .map(|r| fs.iter().map(|&f| rv.raw[f][r]).sum::<f64>() / N_JOINTS as f64);
+                (*t, mean.collect())
+            }
+            Kind::Product(t, sig, _) => (*t, signal_values(sig, rv)),
+            Kind::PerJoint(t) | Kind::Pooled(t) => (*t, rv.hours.clone()),
+        };
+        let g: Vec<f64> = rows.x.iter().map(|x| t.sum(x, &|_| 1.0)).collect();
+        let driving = rows.x.iter().zip(&g).map(|(x, v)| match t.per_joint() {
+            true => (0..N_JOINTS)
+                .filter(|&i| drives(x, i))
+                .map(|i| t.value(x, i))
+                .sum(),
+            false => v * f64::from(u8::from(arm_drives(x))),
+        });
+        if t.per_joint() {
+            cols.extend((0..N_JOINTS).map(|i| rows.x.iter().map(|x| t.value(x, i)).collect()));
+        }
+        cols.extend(shape_cols(&g, driving.collect(), &s));
+        unit_rms(&mut cols);
+        cols
     }
 
     fn passes(&self, s: &Scored, level: f64) -> bool {
@@ -1850,6 +1907,7 @@ fn finish(
             .3;
         }
         off += ncols;
+        d.flexible = search.flexible(k);
         if let Some((_, ties)) = tied.iter_mut().find(|(i, _)| *i == k) {
             d.name = name_with_ties(&d.name, ties);
             d.tied = ties.drain(..).map(|t| t.term).collect();
@@ -1965,6 +2023,7 @@ fn to_discovery(
             _ => None,
         },
         contribution: Vec::new(),
+        flexible: Vec::new(),
     }
 }
 

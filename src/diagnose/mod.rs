@@ -20,6 +20,7 @@ mod lags;
 pub(crate) mod locate;
 pub(crate) mod meters;
 mod options;
+mod parsimony;
 pub(crate) mod reading_rows;
 mod refit;
 pub(crate) mod report;

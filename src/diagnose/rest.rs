@@ -8,7 +8,7 @@
 //! minimum gain. The rest power drifts slowly, so neighbouring trials are not independent: the
 //! folds are contiguous blocks of trials and the paired test is by block.
 
-use super::select::{Param, Rule, jackknife_se};
+use super::select::{Param, RIVAL_ALPHA, Rule, jackknife_se};
 use super::stats::{improvement_p_value, span, step_threshold};
 use crate::lsq::Gram;
 
@@ -40,6 +40,10 @@ pub struct RestPower {
     pub rmse_after_w: f64,
     /// Terms found, in the order accepted.
     pub found: Vec<RestTerm>,
+    /// Terms found but located, not claimed: the remainder of the other terms' form (kept in
+    /// the model as the best approximation; [`super::parsimony`]'s rule within these rows).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub located: Vec<RestTerm>,
     /// The best candidate not accepted at the first step.
     pub best_rejected: Option<RestTerm>,
     /// Held-out rest power with the terms found, per trial of the stage's input (NaN for the
@@ -374,6 +378,19 @@ pub(crate) fn rest_power(inp: &RestInputs, rule: &Rule) -> Option<RestPower> {
     if !out.found.is_empty() {
         search.per_trial(inp, trials, &chosen, &cur, &mut out);
     }
+    for (k, p) in search.remainders(&chosen, &cur).into_iter().rev() {
+        let mut t = out.found.remove(k);
+        if k < out.term_cols.len() {
+            out.term_cols.remove(k);
+        }
+        t.verdict = format!(
+            "located — the remainder of the other rest-power terms' form, not claimed: without it, \
+             with them piecewise-linear in their fields, the held-out rest power fits as well \
+             (p = {p:.2} ≥ {RIVAL_ALPHA}); {}",
+            t.verdict
+        );
+        out.located.insert(0, t);
+    }
     Some(out)
 }
 
@@ -427,6 +444,42 @@ impl Search<'_> {
             steps.push((b, level, names));
         }
         (chosen, steps, cur)
+    }
+
+    /// [`super::parsimony`]'s rule within the rest power's rows: the positions in `chosen` (with
+    /// the p-value) of terms that the model without them, every other term also as a
+    /// piecewise-linear function of its field, fits as well as `cur` by the paired block test.
+    fn remainders(&self, chosen: &[usize], cur: &Fit) -> Vec<(usize, f64)> {
+        let flex = |c: usize| -> Vec<Vec<f64>> {
+            let v = match self.cands[c] {
+                Cand::Step(f, _) => (self.cands.iter())
+                    .position(|d| *d == Cand::Linear(f))
+                    .map_or(&self.cols[c], |i| &self.cols[i]),
+                _ => &self.cols[c],
+            };
+            let mut out = vec![v.clone()];
+            if v != &self.cols[c] {
+                out.push(self.cols[c].clone());
+            }
+            let knots = super::parsimony::knots(v).map_or(Vec::new(), |k| k.1);
+            out.extend(
+                knots
+                    .iter()
+                    .map(|k| v.iter().map(|x| (x - k).max(0.0)).collect()),
+            );
+            out
+        };
+        let claims = (0..chosen.len()).filter(|_| chosen.len() >= 2);
+        claims
+            .filter_map(|k| {
+                let others = chosen.iter().enumerate().filter(|(j, _)| *j != k);
+                let cols: Vec<Vec<f64>> = others.flat_map(|(_, &c)| flex(c)).collect();
+                let x: Vec<&[f64]> = cols.iter().map(Vec::as_slice).collect();
+                let without = self.fit(&x)?;
+                let p = improvement_p_value(&self.block_gain(&without.pred, &cur.pred));
+                (p >= RIVAL_ALPHA || p.is_nan()).then_some((k, p))
+            })
+            .collect()
     }
 
     /// The first step's best candidate, rejected, with why.

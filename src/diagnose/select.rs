@@ -1000,39 +1000,44 @@ fn partial_correlation(
 }
 
 /// The step's winner (`scored[0]`, accepted) against the best candidate of another library
-/// mechanism that the data also support ([`Rule::supports`]: at any value of its parameter —
-/// a one-sided gear friction of implausible size fitted better than the braking asymmetry the
-/// rule accepted, and was not its rival before): when the winner does not fit the held-out trials
-/// significantly better, the data locate the structure but do not tell which mechanism it is
-/// (a per-joint drive-electronics loss was named the DC-bus loss, a gear friction above a
-/// threshold of |τq̇| the braking asymmetry, each by a margin of 0.2–0.3 % before this rule).
-/// Latency is no rival: it shifts the window, it adds no regressor. Both already passed the rule:
-/// this chooses between two supported mechanisms, at [`RIVAL_ALPHA`].
+/// mechanism that the data also support ([`Rule::supports`]: at any value of its parameter — a
+/// one-sided gear friction of implausible size fitted better than the braking asymmetry the rule
+/// accepted): when the winner does not fit the held-out trials significantly better, the data
+/// locate the structure but do not tell which mechanism it is (a per-joint drive-electronics loss
+/// was named the DC-bus loss, a gear friction above a threshold of |τq̇| the braking asymmetry,
+/// each by a margin of 0.2–0.3 % before this rule). Latency is no rival: it adds no regressor.
+/// Flexible variants are paired with the final model's claims ([`super::parsimony`]).
 fn rival_mechanism(
     data: &PowerData,
     scored: &[(usize, Candidate)],
     remaining: &[Option<&'static Hypothesis>],
     rule: &Rule,
-) -> Option<MechanismForms> {
-    let alpha = RIVAL_ALPHA;
-    let (wi, w) = scored.first().filter(|(_, c)| c.score.accepted)?;
-    let wh = remaining[*wi]?;
-    let (ri, r) = scored.iter().skip(1).find(|(i, c)| {
-        rule.supports(&c.score) && remaining[*i].is_some_and(|h| h.mechanism != wh.mechanism)
-    })?;
-    let rh = remaining[*ri]?;
-    let words = [wh.mechanism.to_string(), rh.mechanism.to_string()];
-    let mut f = versus(
-        data,
-        format!("{} or {}", words[0], words[1]),
-        (w, r),
-        words,
-        alpha,
-    );
-    let r = partial_correlation(data, [wh, rh], &w.next.full.theta, w.next.lag);
-    f.partial_r = Some(r);
-    f.unnamed = f.confounded;
-    f.unnamed.then_some(f)
+) -> Result<Option<MechanismForms>> {
+    let Some((wi, w)) = scored.first().filter(|(_, c)| c.score.accepted) else {
+        return Ok(None);
+    };
+    let wm = mechanism(&remaining[*wi]);
+    let plain = scored[1..]
+        .iter()
+        .find(|(i, c)| rule.supports(&c.score) && remaining[*i].is_some_and(|h| h.mechanism != wm));
+    if let (Some(wh), Some((ri, r))) = (remaining[*wi], plain)
+        && let Some(rh) = remaining[*ri]
+    {
+        let words = [wh.mechanism.to_string(), rh.mechanism.to_string()];
+        let mechanism = format!("{} or {}", words[0], words[1]);
+        let mut f = versus(data, mechanism, (w, r), words, RIVAL_ALPHA);
+        f.partial_r = Some(partial_correlation(
+            data,
+            [wh, rh],
+            &w.next.full.theta,
+            w.next.lag,
+        ));
+        if f.confounded {
+            f.unnamed = true;
+            return Ok(Some(f));
+        }
+    }
+    Ok(None)
 }
 
 /// Greedy forward selection: at each step score every remaining candidate against the current
@@ -1094,7 +1099,7 @@ pub(crate) fn select(
         } else if step == 1 {
             compare_forms(data, &scored, &remaining, rule.alpha, &mut forms);
         }
-        let unnamed = rival_mechanism(data, &scored, &remaining, rule);
+        let unnamed = rival_mechanism(data, &scored, &remaining, rule)?;
         let Some((idx, best)) = scored.into_iter().next().filter(|(_, c)| c.score.accepted) else {
             break;
         };
@@ -1143,6 +1148,11 @@ pub(crate) fn select(
     })
 }
 
+/// [`unname`] on a selection's own forms, claims and first-step scores.
+pub(crate) fn unname_all(sel: &mut Selection) {
+    unname(&mut sel.forms, &mut sel.accepted, &mut sel.first_step);
+}
+
 /// A winner another mechanism ties with ([`rival_mechanism`]) is not claimed: it leaves
 /// `accepted` (it stays in the model) and its first-step score says why.
 fn unname(
@@ -1162,8 +1172,9 @@ fn unname(
             g.accepted = false;
         }
         let of_either = |id: &str| {
-            super::hypotheses::power_hypothesis(id)
-                .is_some_and(|h| f.form_words.iter().any(|m| m == h.mechanism))
+            id == f.winner
+                || super::hypotheses::power_hypothesis(id)
+                    .is_some_and(|h| f.form_words.iter().any(|m| m == h.mechanism))
         };
         for s in first_step.iter_mut().filter(|s| of_either(&s.id)) {
             s.accepted = false;
@@ -1263,7 +1274,7 @@ fn backward(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::diagnose::hypotheses::{POWER_HYPOTHESES, Sample, extras_into, power_hypothesis};
     use crate::power::{PowerModel, regressor_into};
@@ -1272,7 +1283,7 @@ mod tests {
 
     /// Synthetic rows: each row one random arm state of 1–3 moving joints; the truth is the
     /// paper's model plus `effect(sample)`; trials heat up from 30 to 60 °C.
-    pub(super) fn synth(
+    pub(crate) fn synth(
         seed: u64,
         n_trials: usize,
         effect: &dyn Fn(&Sample) -> f64,
@@ -1326,7 +1337,7 @@ mod tests {
         PowerData::new(vec![0.0], vec![rows], n_trials, 5, None)
     }
 
-    pub(super) const RULE: Rule = Rule {
+    pub(crate) const RULE: Rule = Rule {
         alpha: 1e-3,
         bic_threshold: -10.0,
         min_improvement: 0.01,
@@ -1474,7 +1485,10 @@ mod tests {
                 .sum();
             rb * i * i + thermal
         };
-        let sel = select(&synth(11, 80, &effect), &all(), &RULE).unwrap();
+        let data = synth(11, 80, &effect);
+        let mut sel = select(&data, &all(), &RULE).unwrap();
+        // Each beats the other in flexible form (the rule after all stages).
+        super::super::parsimony::apply(&data, &mut sel, None).unwrap();
         let ids: Vec<&str> = sel.accepted.iter().map(|s| s.id.as_str()).collect();
         assert!(
             ids.contains(&"bus_loss") && ids.contains(&"thermal"),

@@ -49,11 +49,12 @@ pub(crate) fn select_and_discover(
             }
         };
         if !opts.discover {
+            super::parsimony::apply(data, &mut sel, None)?;
             return Ok((sel, None, f));
         }
         let f = &fields.insert((lag, f)).1;
         let inputs = field_inputs(f, opts);
-        let report =
+        let mut report =
             discover::discover(data, &sel.last, &inputs, rule, &info.joint_names, &blocked)?;
         let mut dropped = library_given_found(data, &sel.last, &report, rule)?;
         let mut ties = Vec::new();
@@ -74,6 +75,7 @@ pub(crate) fn select_and_discover(
             );
             sel.confounded.extend(confounded);
             sel.accepted.retain(|a| !excluded.contains(&a.id.as_str()));
+            super::parsimony::apply(data, &mut sel, Some(&mut report))?;
             let f = fields.map(|f| f.1).unwrap_or_default();
             return Ok((sel, Some(report), f));
         }

@@ -205,7 +205,8 @@ fn located(d: &Diagnosis, s: &mut String) {
     }
 }
 
-/// Library structure whose mechanism the data do not tell ([`MechanismForms::unnamed`]).
+/// Structure whose mechanism the data do not tell: library forms ([`MechanismForms::unnamed`])
+/// and found terms located as another term's remainder.
 fn unnamed_lines(d: &Diagnosis, s: &mut String) {
     for f in d.forms.iter().filter(|f| f.unnamed) {
         let _ = writeln!(
@@ -215,6 +216,13 @@ fn unnamed_lines(d: &Diagnosis, s: &mut String) {
             f.evidence(),
             f.winner
         );
+    }
+    for t in d.discovery.iter().flat_map(|r| &r.located) {
+        let _ = writeln!(s, "Located: {} — {}.", t.name, t.verdict);
+    }
+    let rest = d.discovery.iter().flat_map(|r| &r.rest);
+    for t in rest.flat_map(|r| &r.located) {
+        let _ = writeln!(s, "Located: {} — {}.", t.name, t.verdict);
     }
 }
 
