@@ -53,8 +53,8 @@ pub struct DiagnoseArgs {
     #[arg(long, value_name = "HZ", default_value_t = 30.0, value_parser = super::non_negative, requires = "save")]
     pose_rate: f64,
     /// With --save: at most this many samples per second of every joint and IMU series (default:
-    /// all of a short session's samples, and 2 000 per series of a longer one —
-    /// 0.16 Hz for 3.4 h, an .rrd the web viewer opens in under a minute; 0 = every sample).
+    /// all of a short session's samples, and 1 000 per series of a longer one —
+    /// 0.08 Hz for 3.4 h, an .rrd the web viewer opens in about a minute; 0 = every sample).
     /// The diagnosis' per-reading series are always kept whole.
     #[arg(long, value_name = "HZ", value_parser = super::non_negative, requires = "save")]
     max_rate: Option<f64>,
@@ -189,7 +189,7 @@ fn write_outputs(a: &DiagnoseArgs, d: &g1viz::diagnose::Diagnosis) -> Result<()>
 
 /// Samples per joint and IMU series (and arm poses) of a diagnosis `.rrd` by default
 /// ([`default_max_rate`]): a paper-scale diagnosis at 8 000 (562 404 rows) took over 150 s to
-/// open in the web viewer at load average 12.
+/// open in the web viewer at load average 12; at 1 000 (198 352 rows), 55–68 s at 10–12.
 const SAMPLES_PER_SERIES: f64 = 1_000.0;
 
 /// The default rate cap of a diagnosis `.rrd` for a session of `duration_s`: every sample of a
