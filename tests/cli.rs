@@ -796,6 +796,21 @@ fn simulate_help_lists_every_effect() {
     }
 }
 
+/// `diagnose --save` draws the arm at replay's pose rate by default, 30 Hz (issue 30: it kept
+/// every sample), and both `--help`s give that default.
+#[test]
+fn diagnose_and_replay_share_the_pose_rate_default() {
+    let default_of = |command: &str| {
+        let (out, _) = ok(&crate_dir(), &[command, "--help"]);
+        let option = out.split("--pose-rate <HZ>").nth(1).unwrap_or_default();
+        let option = option.split("\n  -").next().unwrap_or_default();
+        let default = option.split("[default: ").nth(1).unwrap_or_default();
+        default.split(']').next().unwrap_or_default().to_owned()
+    };
+    assert_eq!(default_of("replay"), "30");
+    assert_eq!(default_of("diagnose"), "30");
+}
+
 /// A missing input gives the operating system's reason, whichever command reads it.
 #[test]
 fn a_missing_file_gives_the_os_reason() {

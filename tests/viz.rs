@@ -1983,7 +1983,7 @@ fn legends_never_cover_data() {
         ("Predicted power by term, all joints [W]", 5),
         ("Predicted power by joint, all terms [W]", 7),
         ("sh_pitch [W]", 4),
-        ("Joint position q [rad] (command: lighter)", 7),
+        ("q [rad], command pale", 7),
         ("Joint velocity q̇ [rad/s]", 7),
         ("Joint torque τ [Nm]", 7),
         ("IMU |ω| [rad/s] and the balance filter", 4),
@@ -2027,7 +2027,7 @@ fn legends_never_cover_data() {
                 "Net power [W]: MBS cyan, BMS olive (minus the idle baseline before the arm moves)",
                 2,
             ),
-            ("Joint position q [rad] (command: lighter)", 7),
+            ("q [rad], command pale", 7),
             ("Joint velocity q̇ [rad/s]", 7),
             ("Joint torque τ [Nm]", 7),
             ("Raw power MBS/BMS [W]", 2),
@@ -2038,7 +2038,7 @@ fn legends_never_cover_data() {
         assert_eq!(shown.len(), expect.len(), "{shown:?}");
         // The entries are the joints' names (each joint's q and command share one).
         let views = blueprint_views(&msgs);
-        let q = view_named(&views, "Joint position q");
+        let q = view_named(&views, "q [rad], command pale");
         let names: std::collections::BTreeSet<String> = view_series(&c, q)
             .iter()
             .map(|s| legend_name(&c, &s.0))

@@ -48,12 +48,13 @@ pub struct DiagnoseArgs {
         requires = "save"
     )]
     open_tab: String,
-    /// With --save: arm poses per second in the 3D view (0 = every sample kept), as replay.
+    /// With --save: arm poses per second in the 3D view, 30 Hz by default as in replay (0 =
+    /// every sample kept).
     #[arg(long, value_name = "HZ", default_value_t = 30.0, value_parser = super::non_negative, requires = "save")]
     pose_rate: f64,
     /// With --save: at most this many samples per second of every joint and IMU series (default:
-    /// all of a short session's samples, and 8 000 per series of a longer one —
-    /// 0.5 Hz for 4.4 h, an .rrd the web viewer loads in about a minute; 0 = every sample).
+    /// all of a short session's samples, and 1 000 per series of a longer one —
+    /// 0.08 Hz for 3.4 h, an .rrd the web viewer opens in about a minute; 0 = every sample).
     /// The diagnosis' per-reading series are always kept whole.
     #[arg(long, value_name = "HZ", value_parser = super::non_negative, requires = "save")]
     max_rate: Option<f64>,
@@ -127,26 +128,26 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
         .collect();
     let busy = super::spinner("diagnosing");
     let bar = busy.clone();
-    let stage = std::sync::Mutex::new(String::new());
+    // The stage's number and name; each progress message goes between them, so a terminal
+    // narrower than a long stage name cuts the name, never the progress.
+    let stage = std::sync::Mutex::new((String::new(), String::new()));
     diagnose::on_stage(Some(Box::new(move |p| {
         let Ok(mut stage) = stage.lock() else { return };
-        match p {
+        let progress = match p {
             diagnose::Progress::Stage { k, of, name } => {
-                *stage = format!("diagnosing, stage {k} of {of}: {name}");
-                bar.set_message(stage.clone());
+                *stage = (format!("diagnosing, stage {k} of {of}"), name.to_owned());
+                bar.set_message(format!("{}: {}", stage.0, stage.1));
+                return;
             }
-            diagnose::Progress::Trials { done, total } => {
-                bar.set_message(format!("{stage} — trial {done} of {total}"));
-            }
+            diagnose::Progress::Trials { done, total } => format!("trial {done} of {total}"),
             diagnose::Progress::Seconds { done_s, total_s } => {
-                bar.set_message(format!("{stage} — {done_s:.0} s of {total_s:.0} s read"));
+                format!("{done_s:.0} s of {total_s:.0} s read")
             }
             diagnose::Progress::Candidates { step, done, total } => {
-                bar.set_message(format!(
-                    "{stage} — discovery, term {step}: candidate {done} of {total}"
-                ));
+                format!("discovery, term {step}: candidate {done} of {total}")
             }
-        }
+        };
+        bar.set_message(format!("{}: {progress} — {}", stage.0, stage.1));
     })));
     let d = diagnose::diagnose_files(&files, &opts, JOIN_GAP_S);
     diagnose::on_stage(None);
@@ -186,8 +187,10 @@ fn write_outputs(a: &DiagnoseArgs, d: &g1viz::diagnose::Diagnosis) -> Result<()>
     Ok(())
 }
 
-/// Samples per joint and IMU series of a diagnosis `.rrd` by default ([`default_max_rate`]).
-const SAMPLES_PER_SERIES: f64 = 8_000.0;
+/// Samples per joint and IMU series (and arm poses) of a diagnosis `.rrd` by default
+/// ([`default_max_rate`]): a paper-scale diagnosis at 8 000 (562 404 rows) took over 150 s to
+/// open in the web viewer at load average 12; at 1 000 (198 352 rows), 55–68 s at 10–12.
+const SAMPLES_PER_SERIES: f64 = 1_000.0;
 
 /// The default rate cap of a diagnosis `.rrd` for a session of `duration_s`: every sample of a
 /// short session, [`SAMPLES_PER_SERIES`] per series of a long one (`None`: no cap).

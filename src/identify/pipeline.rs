@@ -150,7 +150,8 @@ pub struct Identification {
     /// Mean term contributions on the retained trials' trajectory windows.
     #[serde(skip)]
     pub terms: TermMeans,
-    /// The same as % of the mean total predicted power (mechanical, copper, Coulomb, viscous, interaction).
+    /// Their signed shares [%] of the energy turnover ([`crate::power::shares_percent`]; mechanical,
+    /// copper, Coulomb, viscous, interaction).
     pub shares_percent: [f64; 5],
     /// Standard error of each parameter of the final fit (None: at a bound or not excited).
     pub std_err: Vec<Option<f64>>,

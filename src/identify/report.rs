@@ -61,7 +61,7 @@ pub struct TermContributions {
     pub dataset: String,
     /// Rows averaged.
     pub rows: usize,
-    /// Share of each category in the mean total predicted power [%].
+    /// Each category's signed share of the energy turnover [%] ([`crate::power::shares_percent`]).
     pub shares_percent: [f64; 5],
     /// Mean of each category [W], when known.
     pub means_w: Option<[f64; 5]>,
@@ -287,8 +287,9 @@ fn write_result(md: &mut String, r: &ReportInput, names: &[String]) {
             .collect();
         let _ = writeln!(
             md,
-            "Where the power goes ({}): {}. A negative share is energy the term returns (the \
-             arm braking; copper below the holding torque at rest).\n",
+            "Where the power goes ({}), each term's share of the energy turnover (the terms' \
+             absolute sum): {}. A negative share is energy the term returns (the arm braking; \
+             copper below the holding torque at rest).\n",
             t.dataset,
             shares.join(", ")
         );
@@ -821,7 +822,7 @@ fn draw_terms(root: &DrawingArea<BitMapBackend<'_>, Shift>, t: &TermContribution
                 .unwrap_or_default(),
             _ => String::new(),
         })
-        .y_desc("share of mean predicted power [%]")
+        .y_desc("share of the energy turnover [%]")
         .label_style((FONT, 14))
         .draw()
         .map_err(plot_err)?;

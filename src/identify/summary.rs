@@ -18,7 +18,10 @@ fn shares_line(shares: &[f64; 5]) -> String {
         .zip(shares)
         .map(|(name, v)| format!("{name} {v:.1} %"))
         .collect();
-    format!("term shares: {}", parts.join(", "))
+    format!(
+        "term shares of the energy turnover (− returns energy): {}",
+        parts.join(", ")
+    )
 }
 
 fn segmentation_lines(out: &mut Vec<String>, s: &SessionSummary) {

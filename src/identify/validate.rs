@@ -42,7 +42,7 @@ pub struct Validation {
     /// Mean term contributions on the session's trajectory windows.
     #[serde(skip)]
     pub terms: TermMeans,
-    /// The same as % of the mean total predicted power.
+    /// Their signed shares [%] of the energy turnover ([`crate::power::shares_percent`]).
     pub shares_percent: [f64; 5],
     /// Every reading of the usable trials with its like-for-like prediction (the rows
     /// `reading_level` scores), in session order.

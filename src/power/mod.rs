@@ -242,21 +242,23 @@ impl TermMeans {
         self.sums.map(|s| s / n)
     }
 
-    /// Each category's mean as a percentage of the mean total predicted power (the paper's "mean
-    /// contribution": copper 42.4 %, viscous 38.2 %, … on its hold-out set). Signed terms (mechanical power
-    /// while braking, copper below the home-posture load) can make a share negative. NaN when the mean total
-    /// is zero.
+    /// Each category's signed share [%] of the energy turnover, the categories' absolute sum
+    /// ([`shares_percent`]): the paper's "mean contribution" (copper 42.4 %, viscous 38.2 %, … on
+    /// its hold-out set, where every term is positive). A term that returns energy (mechanical
+    /// power while braking, copper below the home-posture load) has a negative share.
     pub fn shares_percent(&self) -> [f64; 5] {
         let s = shares_percent(&self.means());
         std::array::from_fn(|k| s[k])
     }
 }
 
-/// Each of `parts` as a percentage of their sum: the share of a total, signed where a part is
-/// negative (the shares still sum to 100 %). NaN when the sum is zero. The one share
-/// computation of `identify`'s term shares and the viewer's term and joint shares.
+/// Each of `parts` as a signed share [%] of the turnover, their absolute sum: within ±100 %
+/// even where the parts nearly cancel (a share of the net sum would then run to ±1000 %); where
+/// every part is positive, the share of the total. NaN when every part is zero. The one share
+/// computation of `identify`'s term shares and the viewer's term and joint shares (per session
+/// and per trial).
 pub fn shares_percent(parts: &[f64]) -> Vec<f64> {
-    let total: f64 = parts.iter().sum();
+    let total: f64 = parts.iter().map(|p| p.abs()).sum();
     parts
         .iter()
         .map(|p| {

@@ -82,6 +82,8 @@ pub enum Node {
         /// A time series on its own time axis, always the whole session (the per-trial plots
         /// of a long session); `false`: linked to the other plots.
         whole: bool,
+        /// On a whole-session axis: the time range [s] it opens on (`None`: the data's).
+        x_range: Option<[f64; 2]>,
     },
 }
 
@@ -106,6 +108,8 @@ pub enum Fit {
 pub enum Legend {
     /// In the top-left corner.
     LeftTop,
+    /// In the top-right corner.
+    RightTop,
     /// Not shown (hovering still names the series).
     Hidden,
 }
@@ -142,7 +146,36 @@ impl Eye {
 /// `None` without data: what [`Node::fit`] fits each plot to.
 pub type RangeOf<'a> = dyn Fn(&[String], &str) -> Option<[f64; 2]> + 'a;
 
+/// Builder methods that set fields of a view (no effect on a container).
+macro_rules! view_setters {
+    ($($(#[$doc:meta])* $name:ident($($arg:ident: $ty:ty),*) { $($field:ident = $value:expr),* })*) => {
+        $($(#[$doc])* pub fn $name(mut self, $($arg: $ty),*) -> Node {
+            if let Node::View { $($field,)* .. } = &mut self {
+                $(*$field = $value;)*
+            }
+            self
+        })*
+    };
+}
+
 impl Node {
+    view_setters! {
+        /// Puts a time series on its own axis over the whole session, unlinked from the others.
+        whole_session() { whole = true }
+        /// Sets how [`Node::fit`] fits this plot, in a plot area at least `px` high.
+        with_fit(new_fit: Fit, px: f64) { fit = new_fit, plot_px = px }
+        /// Sets the y range a plot opens on (time series only; ignored when `None`).
+        with_y_range(range: Option<[f64; 2]>) { y_range = range.or(*y_range) }
+        /// Sets the time range a whole-session plot opens on ([`Node::whole_session`]).
+        with_x_range(range: [f64; 2]) { x_range = Some(range) }
+        /// Sets where a plot's legend goes (time series only).
+        with_legend(new_legend: Legend) { legend = Some(new_legend) }
+        /// Sets the initial camera (3D views only).
+        with_eye(new_eye: Eye) { eye = Some(new_eye) }
+        /// Sets a view's title.
+        renamed(new_name: String) { name = new_name }
+    }
+
     /// A view node.
     pub fn view(
         class: &'static str,
@@ -161,15 +194,8 @@ impl Node {
             fit: Fit::Free,
             plot_px: DETAIL_PLOT_PX,
             whole: false,
+            x_range: None,
         }
-    }
-
-    /// Puts a time series on its own axis over the whole session, unlinked from the others.
-    pub fn whole_session(mut self) -> Node {
-        if let Node::View { whole, .. } = &mut self {
-            *whole = true;
-        }
-        self
     }
 
     /// Sets the window [s] the linked plots open on, centred on the time cursor (the root's;
@@ -193,15 +219,6 @@ impl Node {
             }
             Node::View { .. } => f(self),
         }
-    }
-
-    /// Sets how [`Node::fit`] fits this plot, in a plot area at least `plot_px` high.
-    pub fn with_fit(mut self, new_fit: Fit, px: f64) -> Node {
-        if let Node::View { fit, plot_px, .. } = &mut self {
-            *fit = new_fit;
-            *plot_px = px;
-        }
-        self
     }
 
     /// Sets every fitted plot's legend and y range from its data range: `range_of(queries,
@@ -268,14 +285,6 @@ impl Node {
         }
     }
 
-    /// Sets the y range a plot opens on (time series only; ignored when `None`).
-    pub fn with_y_range(mut self, range: Option<[f64; 2]>) -> Node {
-        if let Node::View { y_range, .. } = &mut self {
-            *y_range = range.or(*y_range);
-        }
-        self
-    }
-
     /// A legend of `entries` lines in the top-left corner with the y range opening so that it
     /// cannot cover `data` (a plot at least `plot_px` high); without a known range, or where the
     /// legend would take most of the plot, no legend (the title names the series, hovering
@@ -286,14 +295,6 @@ impl Node {
             Some((true, range)) => node.with_legend(Legend::LeftTop).with_y_range(Some(range)),
             _ => node.with_legend(Legend::Hidden),
         }
-    }
-
-    /// Sets where a plot's legend goes (time series only).
-    pub fn with_legend(mut self, new_legend: Legend) -> Node {
-        if let Node::View { legend, .. } = &mut self {
-            *legend = Some(new_legend);
-        }
-        self
     }
 
     /// `children` in a container, or the only child itself when there is just one (a container
@@ -308,14 +309,6 @@ impl Node {
             return children.remove(0);
         }
         Node::container(kind, name, children, shares)
-    }
-
-    /// Sets the initial camera (3D views only; no effect on containers).
-    pub fn with_eye(mut self, new_eye: Eye) -> Node {
-        if let Node::View { eye, .. } = &mut self {
-            *eye = Some(new_eye);
-        }
-        self
     }
 
     /// A container node.
@@ -334,14 +327,6 @@ impl Node {
             columns: None,
             window_s: None,
         }
-    }
-
-    /// Sets a view's title.
-    fn renamed(mut self, new_name: String) -> Node {
-        if let Node::View { name, .. } = &mut self {
-            *name = new_name;
-        }
-        self
     }
 
     /// Sets the number of columns of a grid container.
@@ -426,7 +411,9 @@ impl Node {
     }
 
     fn blueprint_path(&self) -> String {
-        let id = uuid_string(&stable_uuid(self.name()));
+        let id = Uuid {
+            bytes: stable_uuid(self.name()),
+        };
         match self {
             Node::Container { .. } => format!("container/{id}"),
             Node::View { .. } => format!("view/{id}"),
@@ -444,18 +431,6 @@ fn stable_uuid(name: &str) -> [u8; 16] {
     b[6] = (b[6] & 0x0f) | 0x40;
     b[8] = (b[8] & 0x3f) | 0x80;
     b
-}
-
-fn uuid_string(b: &[u8; 16]) -> String {
-    let hex: String = b.iter().map(|x| format!("{x:02x}")).collect();
-    format!(
-        "{}-{}-{}-{}-{}",
-        &hex[0..8],
-        &hex[8..12],
-        &hex[12..16],
-        &hex[16..20],
-        &hex[20..32]
-    )
 }
 
 /// Collects blueprint chunks with deterministic ids.
@@ -543,6 +518,7 @@ impl BlueprintChunks {
                 legend,
                 y_range,
                 whole,
+                x_range,
                 ..
             } => {
                 let queries: Vec<QueryExpression> = if contents.is_empty() {
@@ -567,7 +543,7 @@ impl BlueprintChunks {
                     let axis = if *whole {
                         TimeAxis::new()
                             .with_link(LinkAxis::Independent)
-                            .with_view_range(session_range(None))
+                            .with_view_range(time_range(*x_range))
                     } else {
                         TimeAxis::new().with_link(LinkAxis::LinkToGlobal)
                     };
@@ -584,8 +560,11 @@ impl BlueprintChunks {
                     let arch = match legend {
                         // `visible` set either way: a later send of the layout replaces an
                         // earlier hidden legend.
-                        Legend::LeftTop => PlotLegend::new()
-                            .with_corner(Corner2D::LeftTop)
+                        Legend::LeftTop | Legend::RightTop => PlotLegend::new()
+                            .with_corner(
+                                [Corner2D::LeftTop, Corner2D::RightTop]
+                                    [usize::from(*legend == Legend::RightTop)],
+                            )
                             .with_visible(true),
                         Legend::Hidden => PlotLegend::new().with_visible(false),
                     };
@@ -646,6 +625,19 @@ fn session_range(window: Option<f64>) -> TimeRange {
                 end: CursorRelative(ns(0.9)),
             }
         }
+    })
+}
+
+/// The time range [s] `range` as the view range of a whole-session axis (`None`: the data's).
+fn time_range(range: Option<[f64; 2]>) -> TimeRange {
+    use rr_data::TimeRangeBoundary::Absolute;
+    let Some([a, b]) = range else {
+        return session_range(None);
+    };
+    let ns = |s: f64| Absolute(((s * 1e9).round() as i64).into());
+    TimeRange(rr_data::TimeRange {
+        start: ns(a),
+        end: ns(b),
     })
 }
 
@@ -750,6 +742,11 @@ pub struct LayoutParts {
     pub trial_counts: TrialCounts,
     /// Each trial's rest power (pre-idle mean) is logged ([`paths::TRIAL_REST`]).
     pub trial_rest: bool,
+    /// The joints' per-trial shares of the energy turnover are logged
+    /// ([`paths::BARS_BY_JOINT`]; a long session's Joints tab gets its colour key from them).
+    pub shares: bool,
+    /// The first trial's start and the session's end [s] (the whole-session keys' time axis).
+    pub span_s: Option<[f64; 2]>,
 }
 
 /// How many trials a session has and how many are marked (the per-trial strip's title).
@@ -845,10 +842,15 @@ pub fn data_range(values: impl IntoIterator<Item = f64>) -> Option<[f64; 2]> {
 const LEGEND_TOP_PX: f64 = 18.0;
 /// Height of each legend entry [px].
 const LEGEND_LINE_PX: f64 = 23.0;
+/// Width of a legend entry's marker and margins [px], and of each character of its name.
+const LEGEND_MARKER_PX: f64 = 40.0;
+const LEGEND_CHAR_PX: f64 = 7.5;
 /// The smallest plot area [px] the overview's power plot gets in a 1920×1080 browser window.
 pub const OVERVIEW_PLOT_PX: f64 = 190.0;
 /// The smallest plot area [px] of a legend-carrying plot in the tabs (a half-height cell).
 pub const DETAIL_PLOT_PX: f64 = 330.0;
+/// The smallest plot width [px] of a plot in half the tabs' width (1920×1080, side panels open).
+const HALF_PLOT_PX: f64 = 300.0;
 /// Above this fraction of the plot's height a legend would squash the data: hide it instead.
 const MAX_LEGEND_FRACTION: f64 = 0.6;
 
@@ -1039,34 +1041,35 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
         vec!["+ /".to_owned(), paths::include_tree(paths::ROBOT)],
     )
     .with_eye(Eye::looking_at(arm_center, [1.0, 0.8, 0.45], 0.75));
-    let (overview, shares) = match parts.window_s {
+    let (overview, shares): (Vec<Node>, Vec<f32>) = match parts.window_s {
         Some(w) => session_overview(arm, parts, w),
         None => {
-            let mut overview = vec![arm, power_view(parts)];
-            let mut shares = vec![1.5, 1.1];
-            if parts.trials || parts.diagnosis {
-                overview.push(trial_track(parts.ranges.trials));
-                shares.push(0.4);
-            }
-            if parts.model || parts.diagnosis {
-                overview.push(error_view(parts));
-                shares.push(1.0);
-            }
-            (overview, shares)
+            let track = (parts.trials || parts.diagnosis).then(|| trial_track(parts.ranges.trials));
+            let error = (parts.model || parts.diagnosis).then(|| error_view(parts));
+            let mut overview = vec![(arm, 1.5), (power_view(parts), 1.1)];
+            overview.extend(
+                track
+                    .map(|t| (t, 0.4))
+                    .into_iter()
+                    .chain(error.map(|e| (e, 1.0))),
+            );
+            overview
         }
-    };
+    }
+    .into_iter()
+    .unzip();
     let mut tabs = Vec::new();
     // A long session's plots show no legend: its Joints and Loss terms tabs get a colour key.
-    let key = parts.model && parts.window_s.is_some();
+    let key = parts.span_s.filter(|_| parts.window_s.is_some());
     if parts.model {
-        tabs.push(breakdown_tab(
-            joints,
-            parts.ranges,
-            parts.window_s.is_some(),
-        ));
+        tabs.push(breakdown_tab(joints, parts.ranges, key));
         tabs.push(loss_terms_tab(joints, parts.ranges, key));
     }
-    tabs.push(joints_tab(joints, parts.ranges, key));
+    tabs.push(joints_tab(
+        joints,
+        parts.ranges,
+        key.filter(|_| parts.shares),
+    ));
     tabs.push(imu_tab(parts));
     let raw_power = include(&[&paths::power_raw("mbs"), &paths::power_raw("bms")]);
     let raw_name = "Raw power MBS/BMS [W]";
@@ -1102,7 +1105,7 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
 /// own axes, one value per trial: the rejected (and located) trials as a strip titled with
 /// their count, each trial's error, its rest power and the IMU statistic with its threshold.
 /// Right-clicking any of those moves the time cursor, and the window with it, to that trial.
-fn session_overview(arm: Node, parts: LayoutParts, window_s: f64) -> (Vec<Node>, Vec<f32>) {
+fn session_overview(arm: Node, parts: LayoutParts, window_s: f64) -> Vec<(Node, f32)> {
     // No legend on a window the viewer fits (it would cover the data): the title names the series.
     let mut key = String::from("measured blue, ");
     if parts.model {
@@ -1117,13 +1120,11 @@ fn session_overview(arm: Node, parts: LayoutParts, window_s: f64) -> (Vec<Node>,
         }
     }
     let name = format!("Net power [W], {window_s:.0} s at cursor: {key}");
-    let mut overview = vec![arm, power_view(parts).renamed(name)];
-    let mut shares = vec![1.0, 1.0];
+    let mut overview = vec![(arm, 1.0), (power_view(parts).renamed(name), 1.0)];
     if parts.model || parts.diagnosis {
         // The same window as the power plot above (its title says so): a title short enough
         // to show whole.
-        overview.push(error_view(parts));
-        shares.push(0.8);
+        overview.push((error_view(parts), 0.8));
     }
     let c = parts.trial_counts;
     let mut strip = format!("Rejected trials: {} of {} (red)", c.rejected, c.total);
@@ -1142,28 +1143,24 @@ fn session_overview(arm: Node, parts: LayoutParts, window_s: f64) -> (Vec<Node>,
     // A fixed range half a step around its rows (1: rejected, 2: located): the data alone
     // ([1, 1]) was widened to ticks 0.999…1.001, whose labels overlapped on the low strip.
     let rows = 1.0 + f64::from(u8::from(parts.diagnosis));
-    overview.push(
-        per_trial(&strip, strip_paths)
-            .with_fit(Fit::Free, TRACK_PLOT_PX)
-            .with_y_range(Some([0.5, rows + 0.5])),
-    );
-    shares.push(0.45);
-    if parts.model {
-        overview.push(per_trial(
+    let strip = per_trial(&strip, strip_paths).with_fit(Fit::Free, TRACK_PLOT_PX);
+    overview.push((strip.with_y_range(Some([0.5, rows + 0.5])), 0.45));
+    let error = if parts.model {
+        let error = [
+            paths::MODEL_ERROR_TRAJECTORY,
+            paths::MODEL_ERROR_TRAJECTORY_REJECTED,
+        ];
+        per_trial(
             "Error per trial [W] (rejected: red crosses)",
-            include(&[
-                paths::MODEL_ERROR_TRAJECTORY,
-                paths::MODEL_ERROR_TRAJECTORY_REJECTED,
-            ]),
-        ));
-        shares.push(0.8);
-    } else if parts.diagnosis {
-        overview.push(per_trial(
+            include(&error),
+        )
+    } else {
+        per_trial(
             "Error per trial [W]: base model grey, with hypotheses teal, with found terms red",
             vec![paths::include_tree("diagnosis/per_trial")],
-        ));
-        shares.push(0.8);
-    }
+        )
+    };
+    overview.extend((parts.model || parts.diagnosis).then_some((error, 0.8)));
     if parts.trial_rest || parts.rest {
         let (name, rest) = if parts.trial_rest {
             (
@@ -1176,11 +1173,10 @@ fn session_overview(arm: Node, parts: LayoutParts, window_s: f64) -> (Vec<Node>,
                 paths::include_tree(&paths::diag_trial_rest("")),
             )
         };
-        overview.push(per_trial(name, vec![rest]));
-        shares.push(0.8);
+        overview.push((per_trial(name, vec![rest]), 0.8));
     }
     if parts.imu_filter {
-        overview.push(
+        overview.push((
             per_trial(
                 "IMU σ|ω| per trial [rad/s] (above the black threshold: rejected, red; axis to 4× it)",
                 include(&[
@@ -1195,10 +1191,10 @@ fn session_overview(arm: Node, parts: LayoutParts, window_s: f64) -> (Vec<Node>,
                 [Fit::Ticks, Fit::Free][usize::from(parts.ranges.imu_per_trial.is_some())],
                 ERROR_PLOT_PX,
             ),
-        );
-        shares.push(0.8);
+            0.8,
+        ));
     }
-    (overview, shares)
+    overview
 }
 
 /// The error at the readings: dots per reading, diamonds per trajectory, rejected trials in red
@@ -1256,10 +1252,10 @@ fn trial_track(indices: Option<[f64; 2]>) -> Node {
 }
 
 /// The joint signals in one grid (one colour per joint everywhere); the joints' legend on τ
-/// when its range is known (a replay from memory), none otherwise; `with_key`: a long session's
-/// colour key ([`share_points`]) in a cell of its own (its plots show no legend: the viewer fits
-/// them to the window, so every corner holds data).
-fn joints_tab(joints: &[String], ranges: PlotRanges, with_key: bool) -> Node {
+/// when its range is known (a replay from memory), none otherwise; `key` (the session's span):
+/// a long session's colour key ([`share_points`]) in a cell of its own (its plots show no
+/// legend: the viewer fits them to the window, so every corner holds data).
+fn joints_tab(joints: &[String], ranges: PlotRanges, key: Option<[f64; 2]>) -> Node {
     let each = |signal: &str| -> Vec<String> {
         joints
             .iter()
@@ -1268,42 +1264,68 @@ fn joints_tab(joints: &[String], ranges: PlotRanges, with_key: bool) -> Node {
     };
     let mut q = each("q");
     q.extend(each("q_cmd"));
-    let tau = plot("Joint torque τ [Nm]", each("tau")).with_legend_room(
-        ranges.tau,
-        joints.len(),
-        DETAIL_PLOT_PX,
-    );
-    let mut views = vec![
-        plot("Joint position q [rad] (command: lighter)", q).with_legend_room(
-            None,
-            joints.len(),
-            DETAIL_PLOT_PX,
-        ),
-        plot("Joint velocity q̇ [rad/s]", each("dq")).with_legend_room(
-            None,
-            joints.len(),
-            DETAIL_PLOT_PX,
-        ),
-        tau,
-        plot("Motor temperature [°C]", each("temperature")).with_legend(Legend::Hidden),
-    ];
-    let name = "Key: joints' energy [%]";
-    let key = share_points(name, paths::BARS_BY_JOINT, joints.len(), DETAIL_PLOT_PX);
-    views.extend(with_key.then_some(key));
-    Node::container(ContainerKind::Grid, "Joints", views, vec![])
-        .with_columns(2 + u32::from(with_key))
+    let mut views: Vec<Node> = [
+        ("q [rad], command pale", q, None),
+        ("Joint velocity q̇ [rad/s]", each("dq"), None),
+        ("Joint torque τ [Nm]", each("tau"), ranges.tau),
+    ]
+    .into_iter()
+    .map(|(name, c, r)| plot(name, c).with_legend_room(r, joints.len(), DETAIL_PLOT_PX))
+    .collect();
+    views.push(plot("Motor temperature [°C]", each("temperature")).with_legend(Legend::Hidden));
+    let names = joint_names(joints);
+    let key = key.map(|s| {
+        share_points(
+            "Key: joint shares [%]",
+            paths::BARS_BY_JOINT,
+            &names,
+            [THIRD_PLOT_PX[0], DETAIL_PLOT_PX],
+            s,
+        )
+    });
+    let columns = 2 + u32::from(key.is_some());
+    views.extend(key);
+    Node::container(ContainerKind::Grid, "Joints", views, vec![]).with_columns(columns)
 }
 
-/// The plot area [px] of a cell in a grid of three rows (1920×1080 window).
-const THIRD_PLOT_PX: f64 = 240.0;
+/// The joints' names, as the keys' legends list them.
+fn joint_names(joints: &[String]) -> Vec<&str> {
+    joints.iter().map(String::as_str).collect()
+}
+
+/// The terms' names (the interaction last), as the keys' legends list them.
+fn term_names() -> Vec<&'static str> {
+    paths::TERMS
+        .iter()
+        .copied()
+        .chain(["interaction"])
+        .collect()
+}
+
+/// The plot area [px] of a cell in a grid of three columns and rows (1920×1080 window, the
+/// side panels open): width, height.
+const THIRD_PLOT_PX: [f64; 2] = [200.0, 240.0];
+/// The y range of the per-trial shares [%]: the viewer labels −100, 0 and 100 only (a step of
+/// 10 would need a plot over 440 px high), so the axis reads as shares within ±100 %.
+pub const SHARE_RANGE: [f64; 2] = [-110.0, 110.0];
 
 /// Each joint's or term's share of each trial's energy turnover [%] (`tree`: the per-trial points
-/// a long session logs), over the whole session with its legend of `entries` lines above the
-/// data: a colour key that covers nothing.
-fn share_points(name: impl Into<String>, tree: &str, entries: usize, plot_px: f64) -> Node {
+/// a long session logs) over the whole session, on [`SHARE_RANGE`], with the legend of `names`
+/// top right over time after the session's end: `span` (the first trial's start and the
+/// session's end) is stretched until the legend, about as wide as its longest name, clears the
+/// data in a plot area `plot_px` (width, height). A colour key that covers nothing, on an axis
+/// that does not run past 100 %.
+fn share_points(name: &str, tree: &str, names: &[&str], plot_px: [f64; 2], span: [f64; 2]) -> Node {
+    let chars = names.iter().map(|n| n.chars().count()).max().unwrap_or(0);
+    let legend = (LEGEND_MARKER_PX + LEGEND_CHAR_PX * chars as f64) / plot_px[0];
+    let [a, b] = span;
+    let width = (b - a).max(1e-3) * (1.0 + 2.0 * AUTO_MARGIN) / (1.0 - legend.min(0.7));
     plot(name, vec![paths::include_tree(tree)])
         .whole_session()
-        .with_legend_room(None, entries, plot_px)
+        .with_x_range([a - AUTO_MARGIN * (b - a), a + width])
+        .with_fit(Fit::Free, plot_px[1])
+        .with_y_range(Some(SHARE_RANGE))
+        .with_legend(Legend::RightTop)
 }
 
 /// |ω| with the IMU filter's statistic and threshold, and the trial log.
@@ -1350,57 +1372,41 @@ fn diagnosis_tab(parts: LayoutParts) -> Node {
         paths::DIAG_SUMMARY,
         vec![],
     );
-    let mut diag = Vec::new();
-    if parts.located {
-        diag.push(
-            Node::view(
-                "TimeSeries",
-                "Fields the found terms follow",
-                paths::DIAG_LOCATED,
-                vec![],
-            )
-            .with_fit(Fit::Ticks, DETAIL_PLOT_PX)
-            .with_legend(Legend::Hidden),
-        );
-    }
-    if parts.rest {
-        diag.push(
-            Node::view(
-                "TimeSeries",
-                "Rest power [W]: measured blue, with found loads red",
-                paths::DIAG_REST,
-                vec![],
-            )
-            .with_fit(Fit::Ticks, DETAIL_PLOT_PX),
-        );
-    }
-    if parts.counterpart {
-        diag.push(
-            Node::view(
-                "TimeSeries",
-                "Torque recording − twin [Nm]",
-                paths::DIAG_TORQUE,
-                vec![],
-            )
-            .with_fit(Fit::Ticks, DETAIL_PLOT_PX)
-            .with_legend(Legend::Hidden),
-        );
-    }
-    if diag.is_empty() {
-        return Node::container(
-            ContainerKind::Horizontal,
-            "Diagnosis",
-            vec![summary],
-            vec![],
-        );
-    }
-    let plots = Node::group(ContainerKind::Vertical, "Diagnosis plots", diag, vec![]);
-    Node::container(
-        ContainerKind::Horizontal,
-        "Diagnosis",
-        vec![summary, plots],
-        vec![1.0, 1.4],
-    )
+    // No legend: the titles name the series, hovering names a line.
+    let plot_of = |(shown, name, origin): (bool, &str, &str)| {
+        let view = Node::view("TimeSeries", name, origin, vec![]);
+        shown.then(|| {
+            view.with_fit(Fit::Ticks, DETAIL_PLOT_PX)
+                .with_legend(Legend::Hidden)
+        })
+    };
+    let diag: Vec<Node> = [
+        (
+            parts.located,
+            "Fields the found terms follow",
+            paths::DIAG_LOCATED,
+        ),
+        (
+            parts.rest,
+            "Rest power [W]: measured blue, with found loads red",
+            paths::DIAG_REST,
+        ),
+        (
+            parts.counterpart,
+            "Torque recording − twin [Nm]",
+            paths::DIAG_TORQUE,
+        ),
+    ]
+    .into_iter()
+    .filter_map(plot_of)
+    .collect();
+    let mut children = vec![summary];
+    children.extend(
+        (!diag.is_empty())
+            .then(|| Node::group(ContainerKind::Vertical, "Diagnosis plots", diag, vec![])),
+    );
+    let shares = [vec![], vec![1.0, 1.4]][children.len() - 1].clone();
+    Node::container(ContainerKind::Horizontal, "Diagnosis", children, shares)
 }
 
 /// The main power plot: readings vs like-for-like prediction (with a model), the sensors' net
@@ -1433,9 +1439,10 @@ fn power_view(parts: LayoutParts) -> Node {
 }
 
 /// Where the power goes: per term and per joint over time (each with its legend: the colours
-/// of the bars), per-trial bars keyed by trial index (`long`: per-trial points over the whole
-/// session, as [`super::layers`] logs them past [`WINDOWED_ABOVE_TRIALS`]), and the note.
-fn breakdown_tab(joints: &[String], ranges: PlotRanges, long: bool) -> Node {
+/// of the bars), per-trial bars keyed by trial index (`long`: the session's span, per-trial
+/// points over the whole session, as [`super::layers`] logs them past
+/// [`WINDOWED_ABOVE_TRIALS`]), and the note.
+fn breakdown_tab(joints: &[String], ranges: PlotRanges, long: Option<[f64; 2]>) -> Node {
     use ContainerKind::{Horizontal, Vertical};
     let by_joint: Vec<String> = joints
         .iter()
@@ -1459,10 +1466,14 @@ fn breakdown_tab(joints: &[String], ranges: PlotRanges, long: bool) -> Node {
         vec![],
     );
     let bars = |what: &str, tree: &str| {
-        if long {
-            let entries = [paths::TERMS.len() + 1, joints.len()][usize::from(what == "joint")];
+        if let Some(span) = long {
+            let names = if what == "joint" {
+                joint_names(joints)
+            } else {
+                term_names()
+            };
             let name = format!("Trial energy turnover by {what} [%]");
-            share_points(name, tree, entries, DETAIL_PLOT_PX)
+            share_points(&name, tree, &names, [HALF_PLOT_PX, DETAIL_PLOT_PX], span)
         } else {
             let name = format!("Trial energy turnover by {what} [%], x: trial");
             Node::view("BarChart", name, "/", vec![paths::include_tree(tree)])
@@ -1493,9 +1504,9 @@ fn breakdown_tab(joints: &[String], ranges: PlotRanges, long: bool) -> Node {
 }
 
 /// One grid: the four loss terms of each joint, and the interaction; the terms' legend on the
-/// first cell (the same colours in every cell); `with_key`: a long session's colour key in a
-/// ninth cell (three columns).
-fn loss_terms_tab(joints: &[String], ranges: PlotRanges, with_key: bool) -> Node {
+/// first cell (the same colours in every cell); `key` (the session's span): a long session's
+/// colour key in a ninth cell (three columns).
+fn loss_terms_tab(joints: &[String], ranges: PlotRanges, key: Option<[f64; 2]>) -> Node {
     let mut views: Vec<Node> = joints
         .iter()
         .enumerate()
@@ -1522,12 +1533,12 @@ fn loss_terms_tab(joints: &[String], ranges: PlotRanges, with_key: bool) -> Node
         )
         .with_legend(Legend::Hidden),
     );
-    let name = "Key: terms' energy [%]";
-    let entries = paths::TERMS.len() + 1;
-    let key = share_points(name, paths::BARS_BY_TERM, entries, THIRD_PLOT_PX);
-    views.extend(with_key.then_some(key));
+    let name = "Key: term shares [%]";
+    let key = key.map(|s| share_points(name, paths::BARS_BY_TERM, &term_names(), THIRD_PLOT_PX, s));
+    let columns = 4 - u32::from(key.is_some());
+    views.extend(key);
     Node::container(ContainerKind::Grid, "Loss terms per joint", views, vec![])
-        .with_columns(4 - u32::from(with_key))
+        .with_columns(columns)
 }
 
 #[cfg(test)]
@@ -1566,6 +1577,7 @@ mod tests {
                 located: 0,
             },
             trial_rest: true,
+            span_s: Some([0.0, 300.0]),
             ..LayoutParts::default()
         };
         let mut root = replay_layout(&joints, parts, [0.0; 3]);
@@ -1668,19 +1680,30 @@ mod tests {
     }
 
     /// A long session's Joints and Loss terms tabs (their plots show no legend) carry a colour
-    /// key beside their grid: the per-trial shares over the whole session, the legend's lines
-    /// above the data. The example's tabs are the grids alone.
+    /// key beside their grid: the per-trial shares over the whole session on −110…110 % (the
+    /// viewer labels −100, 0 and 100: a step of 10 spans 15 px of a 330 px plot, under the 20 px
+    /// a label needs), the legend top right over time after the session's end, as wide as its
+    /// longest name (40 px + 7.5 px a character) in a 200 px wide plot. The example's tabs are
+    /// the grids alone.
     #[test]
     fn a_long_sessions_joints_and_terms_tabs_carry_a_colour_key() {
-        let joints: Vec<String> = (0..7).map(|j| format!("j{j}")).collect();
+        let joints: Vec<String> = (0..7).map(|j| format!("joint_{j}")).collect();
         let parts = |window_s| LayoutParts {
             model: true,
+            shares: true,
             window_s,
+            span_s: Some([100.0, 1100.0]),
             ..LayoutParts::default()
         };
-        for (tab, tree, entries, px) in [
-            ("Joints", "by_joint", 7, 330.0),
-            ("Loss terms per joint", "by_term", 5, 240.0),
+        for px in [240.0, 330.0, 440.0] {
+            assert_eq!(
+                labelled_ticks(SHARE_RANGE, px, Y_LABEL_PX),
+                [-100.0, 0.0, 100.0]
+            );
+        }
+        for (tab, tree, longest) in [
+            ("Joints", "by_joint", "joint_0"),
+            ("Loss terms per joint", "by_term", "interaction"),
         ] {
             let mut root = replay_layout(&joints, parts(Some(40.0)), [0.0; 3]);
             root.fit(&|_, _| Some([-40.0, 90.0]));
@@ -1701,17 +1724,19 @@ mod tests {
                 contents,
                 whole: true,
                 legend,
-                y_range: Some([lo, hi]),
+                y_range,
+                x_range: Some([a, b]),
                 ..
             }) = children.last()
             else {
                 panic!("{tab}: no key in the grid");
             };
             assert_eq!(contents, &[format!("+ /model/bars/{tree}/**")], "{tab}");
-            assert_eq!(*legend, Some(Legend::LeftTop), "{tab}");
-            // 18 px above the first of `entries` lines of 23 px, in a plot of 240 px or more.
-            let room = (18.0 + 23.0 * entries as f64) / px;
-            assert!((hi - 90.0) / (hi - lo) >= room - 1e-9, "{tab}: {lo}..{hi}");
+            assert_eq!(*legend, Some(Legend::RightTop), "{tab}");
+            assert_eq!(*y_range, Some([-110.0, 110.0]), "{tab}: not refitted");
+            let after = (b - 1100.0) / (b - a);
+            let legend = (40.0 + 7.5 * longest.len() as f64) / 200.0;
+            assert!(*a < 100.0 && after >= legend, "{tab}: {a}..{b}");
             let grid = tab_of(&replay_layout(&joints, parts(None), [0.0; 3]));
             let keys = grid
                 .children()

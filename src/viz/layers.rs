@@ -23,14 +23,9 @@ pub(super) fn log_extras(
     colour_scale: f64,
 ) -> Result<()> {
     if let Some(p) = &extras.prediction {
-        style::line(
-            w,
-            paths::MODEL_PREDICTED,
-            "predicted, instantaneous",
-            style::PREDICTED_CONTEXT,
-            0.75,
-        )?;
-        scalars_chunked(w, paths::MODEL_PREDICTED, &p.t, &p.predicted, chunk)?;
+        let (path, name) = (paths::MODEL_PREDICTED, "predicted, instantaneous");
+        style::line(w, path, name, style::PREDICTED_CONTEXT, 0.75)?;
+        scalars_chunked(w, path, &p.t, &p.predicted, chunk)?;
     }
     if let Some(r) = &extras.readings {
         log_readings(w, r, chunk)?;
@@ -139,14 +134,8 @@ fn log_readings(w: &mut ChunkWriter<'_>, r: &ReadingPrediction, chunk: usize) ->
         paths::MODEL_READING_MEASURED,
         paths::MODEL_READING_PREDICTED,
     );
-    style::points(
-        w,
-        measured,
-        "measured reading",
-        style::MEASURED,
-        Circle,
-        4.0,
-    )?;
+    let name = "measured reading";
+    style::points(w, measured, name, style::MEASURED, Circle, 4.0)?;
     let (window, lag) = (r.window_s, r.lag_s);
     let name = format!("predicted, reading window ({window:.2} s, lag {lag:.2} s)");
     style::points(w, predicted, &name, style::PREDICTED, Diamond, 4.0)?;
@@ -204,16 +193,9 @@ fn log_trajectories(w: &mut ChunkWriter<'_>, points: &[TrajectoryPoint]) -> Resu
         .map(|p| (p.t, p.rest_w))
         .unzip();
     if !t.is_empty() {
-        let name = "rest power (pre-idle mean)";
-        style::points(
-            w,
-            paths::TRIAL_REST,
-            name,
-            style::MBS,
-            MarkerShape::Circle,
-            2.5,
-        )?;
-        scalars(w, paths::TRIAL_REST, &t, rest.into_iter())?;
+        let (path, name) = (paths::TRIAL_REST, "rest power (pre-idle mean)");
+        style::points(w, path, name, style::MBS, MarkerShape::Circle, 2.5)?;
+        scalars(w, path, &t, rest.into_iter())?;
     }
     Ok(())
 }
@@ -230,13 +212,8 @@ fn log_terms(
             style::line(w, &paths::term(name, term), term, style::TERMS[k], 1.5)?;
         }
     }
-    style::line(
-        w,
-        paths::TERM_INTERACTION,
-        "interaction Σ e_ij |q̇_i||q̇_j|",
-        style::TERMS[4],
-        1.5,
-    )?;
+    let name = "interaction Σ e_ij |q̇_i||q̇_j|";
+    style::line(w, paths::TERM_INTERACTION, name, style::TERMS[4], 1.5)?;
     log_term_data(w, joints, terms, chunk)
 }
 
@@ -303,12 +280,8 @@ pub(super) fn log_breakdown_data(
             let sums = field[start..end].iter().map(|v| v.iter().sum::<f64>());
             scalars(w, &paths::by_term(paths::TERMS[k]), t, sums)?;
         }
-        scalars(
-            w,
-            &paths::by_term("interaction"),
-            t,
-            terms.interaction[start..end].iter().copied(),
-        )?;
+        let interaction = terms.interaction[start..end].iter().copied();
+        scalars(w, &paths::by_term("interaction"), t, interaction)?;
         for (j, name) in joints.iter().enumerate() {
             let sums = (start..end).map(|i| fields.iter().map(|f| f[i][j]).sum::<f64>());
             scalars(w, &paths::by_joint(name), t, sums)?;
@@ -452,7 +425,7 @@ fn bar_chart(
     )
 }
 
-/// Each term's and each joint's share [%] of a trial's energy ([`energy_shares`] order).
+/// Each term's and each joint's share [%] of an energy turnover ([`energy_shares`] order).
 type Shares = (Vec<f64>, Vec<f64>);
 
 /// The mean predicted power of one trial over its window.
@@ -497,35 +470,17 @@ impl TrialMean {
         Some(mean)
     }
 
-    /// This trial's [`Shares`] ([`energy_shares`] of the trial alone), or `None` where its net
-    /// energy, over the terms or over the joints, is a small difference of large parts (|net|
-    /// under half the parts' absolute sum: a share of a net near zero runs to ±1000 %; so every
-    /// share lies within ±200 %).
-    pub(super) fn shares(&self) -> Option<Shares> {
-        let clear = |parts: &[f64]| {
-            let gross: f64 = parts.iter().map(|v| v.abs()).sum();
-            gross > 0.0 && parts.iter().sum::<f64>().abs() >= 0.5 * gross
-        };
-        (clear(&self.by_term) && clear(&self.by_joint))
-            .then(|| energy_shares(std::slice::from_ref(self)))
-    }
-
-    /// Each term's and each joint's signed share [%] of the trial's energy turnover (the parts'
-    /// absolute sum): defined for every trial, within ±100 %, even where the parts nearly
-    /// cancel (copper below the holding torque, a braking joint) and a share of the net is not.
+    /// Each term's and each joint's signed share [%] of the trial's energy turnover
+    /// ([`energy_shares`] of the trial alone): within ±100 %, defined for every trial.
     pub(super) fn turnover(&self) -> Shares {
-        let of = |p: &[f64]| {
-            let gross: f64 = p.iter().map(|v| v.abs()).sum();
-            p.iter().map(|v| 100.0 * v / gross).collect()
-        };
-        (of(&self.by_term), of(&self.by_joint))
+        energy_shares(std::slice::from_ref(self))
     }
 }
 
 /// `trials` with each one's label followed, on a line of its own, by its two largest terms and
-/// its largest joint:
-/// their shares of the trial's energy ([`TrialMean::shares`]) where it has them, else their
-/// mean power [W] and the net.
+/// its largest joint with their shares of the trial's energy turnover ([`TrialMean::turnover`],
+/// the same shares as the per-trial plots and the note's), saying what a negative one means
+/// where there is one.
 fn with_shares(trials: &[TrialMark], means: &[TrialMean], joints: &[String]) -> Vec<TrialMark> {
     let largest = |v: &[f64], n: usize| {
         let mut k: Vec<usize> = (0..v.len()).collect();
@@ -541,37 +496,36 @@ fn with_shares(trials: &[TrialMark], means: &[TrialMean], joints: &[String]) -> 
             let Some(mean) = means.iter().find(|x| x.index == m.index) else {
                 return m;
             };
-            let net: f64 = mean.by_term.iter().sum();
-            let shares = mean.shares();
-            let show = |pick: &dyn Fn(&Shares) -> f64, w: f64| match &shares {
-                Some(s) => format!("{:.0} %", pick(s)),
-                None => format!("{w:+.2} W"),
-            };
-            let t: Vec<String> = largest(&mean.by_term, 2)
-                .into_iter()
-                .map(|k| format!("{} {}", names[k], show(&|s| s.0[k], mean.by_term[k])))
+            let (terms, by_joint) = mean.turnover();
+            let mut cells: Vec<(&str, f64)> = (largest(&terms, 2).into_iter())
+                .map(|k| (names[k], terms[k]))
                 .collect();
-            if let Some(&j) = largest(&mean.by_joint, 1).first() {
-                let name = joints.get(j).map_or("", String::as_str);
-                let joint = show(&|s| s.1[j], mean.by_joint[j]);
-                m.label = if shares.is_some() {
-                    format!("{}\n  energy {}; {name} {joint}", m.label, t.join(", "))
-                } else {
-                    format!(
-                        "{}\n  net {net:+.2} W: {}; {name} {joint}",
-                        m.label,
-                        t.join(", ")
-                    )
-                };
-            }
+            let j = largest(&by_joint, 1);
+            cells.extend(
+                j.iter()
+                    .map(|&j| (joints.get(j).map_or("", String::as_str), by_joint[j])),
+            );
+            let text: Vec<String> = cells.iter().map(|(n, s)| format!("{n} {s:.0} %")).collect();
+            let returned = if cells.iter().any(|c| c.1 < 0.0) {
+                " (negative: energy returned)"
+            } else {
+                ""
+            };
+            m.label = format!(
+                "{}\n  share of the energy turnover{returned}: {}; {}",
+                m.label,
+                text[..text.len().min(2)].join(", "),
+                text[2..].join(""),
+            );
             m
         })
         .collect()
 }
 
-/// Each term's and each joint's share [%] of the arm's predicted energy over `means` (the
-/// trials' means weighted by their samples): ([`crate::power::TERM_NAMES`] order, joint order), by the
-/// same computation as `identify`'s shares ([`crate::power::shares_percent`]).
+/// Each term's and each joint's signed share [%] of the arm's predicted energy turnover over
+/// `means` (the trials' means weighted by their samples; [`crate::power::TERM_NAMES`] order,
+/// joint order), by the same computation as `identify`'s shares
+/// ([`crate::power::shares_percent`]).
 pub(super) fn energy_shares(means: &[TrialMean]) -> (Vec<f64>, Vec<f64>) {
     let mut terms = [0.0; 5];
     let mut joints = [0.0; N_JOINTS];
@@ -628,10 +582,11 @@ pub(super) fn breakdown_note(joints: &[String], colour_scale: f64, means: &[Tria
     };
     format!(
         "**Colours** (the same in every tab): {}.\n\n\
-         **Share of the arm's predicted energy over the {} trials** (each trial's mean × its \
-         length, summed; a share is negative where the term returns energy: mechanical while \
-         the arm brakes, copper while it holds less torque than at rest — the shares still \
-         sum to 100 %):\n\n\
+         **Shares** (here, in the per-trial plots and in the trial log alike): a term's or a \
+         joint's energy over the energy turnover, the absolute sum of all the terms' or joints' \
+         energies — within ±100 %, negative where the part returns energy (mechanical while \
+         the arm brakes, copper while it holds less torque than at rest).\n\n\
+         **Over the {} trials** (each trial's mean × its length, summed):\n\n\
          by term: {}\n\n\
          by joint: {}\n\n",
         style::colour_key(joints),
@@ -645,18 +600,13 @@ pub(super) fn breakdown_note(joints: &[String], colour_scale: f64, means: &[Tria
          **The copper term is relative to the holding torque τ̄0**: τ̄0_i² is joint *i*'s mean τ² \
          in the trial's pre-idle (the arm at rest), so the term is negative whenever the arm \
          holds less torque than it did at rest — not regeneration.\n\n\
-         **Per trial**: each joint's and each term's signed share of the trial's energy \
-         turnover (the parts' absolute sum, so the shares stay within ±100 % where the parts \
-         nearly cancel and a share of the net would run to ±1000 %; {} of the {} trials have \
-         such a net, their log lines give watts), a group of bars at each trial's index on the \
-         x axis (past 20 trials one point per trial at its start), one bar per joint, left to \
-         right {}, or per term, left to right mechanical, copper, Coulomb, viscous, \
-         interaction (coloured as in the plots over time; hover a bar for its series).\n\n\
+         **Per trial**: each joint's and each term's share of the trial's energy turnover, a \
+         group of bars at each trial's index on the x axis (past 20 trials one point per trial \
+         at its start), one bar per joint, left to right {list}, or per term, left to right \
+         mechanical, copper, Coulomb, viscous, interaction (coloured as in the plots over time; \
+         hover a bar for its series).\n\n\
          In 3D each arm link is coloured by its joint's predicted power: grey at 0 W, red at \
          {colour_scale:.1} W and above, blue when negative.",
-        means.iter().filter(|m| m.shares().is_none()).count(),
-        means.len(),
-        list,
     )
 }
 
@@ -703,22 +653,10 @@ fn log_imu_filter(w: &mut ChunkWriter<'_>, imu: &ImuFilterMarks) -> Result<()> {
         .map(|s| s.1)
         .fold(f64::NEG_INFINITY, f64::max);
     if first.is_finite() && last.is_finite() {
-        style::line(
-            w,
-            paths::IMU_THRESHOLD,
-            &format!(
-                "threshold {} × median σ|ω| = {:.4} rad/s",
-                imu.k, imu.threshold
-            ),
-            style::THRESHOLD,
-            2.0,
-        )?;
-        scalars(
-            w,
-            paths::IMU_THRESHOLD,
-            &[first, last],
-            [imu.threshold; 2].into_iter(),
-        )?;
+        let (path, k) = (paths::IMU_THRESHOLD, imu.k);
+        let name = format!("threshold {k} × median σ|ω| = {:.4} rad/s", imu.threshold);
+        style::line(w, path, &name, style::THRESHOLD, 2.0)?;
+        scalars(w, path, &[first, last], [imu.threshold; 2].into_iter())?;
     }
     Ok(())
 }
@@ -760,14 +698,8 @@ fn log_strip(w: &mut ChunkWriter<'_>, prefix: &str, order: &[&TrialMark]) -> Res
             continue;
         }
         let path = format!("{strip}/{kind}");
-        style::points(
-            w,
-            &path,
-            &format!("{kind} trial"),
-            colour,
-            MarkerShape::Asterisk,
-            4.0,
-        )?;
+        let name = format!("{kind} trial");
+        style::points(w, &path, &name, colour, MarkerShape::Asterisk, 4.0)?;
         scalars(w, &path, &t, std::iter::repeat_n(y, t.len()))?;
     }
     Ok(())
@@ -802,16 +734,8 @@ fn log_trials(
     let texts: Vec<String> = texts
         .map(|(m, s)| format!("{s:.1} s  {}", trial_text(m)))
         .collect();
-    let levels: Vec<TextLogLevel> = order
-        .iter()
-        .map(|m| {
-            if marked(m) {
-                TextLogLevel::WARN.into()
-            } else {
-                TextLogLevel::INFO.into()
-            }
-        })
-        .collect();
+    let level = |m: &&TrialMark| [TextLogLevel::INFO, TextLogLevel::WARN][usize::from(marked(m))];
+    let levels: Vec<TextLogLevel> = order.iter().map(|m| level(m).into()).collect();
     let columns = TextLog::update_fields()
         .with_many_text(texts)
         .with_many_level(levels)
@@ -834,12 +758,8 @@ fn log_trials(
     for m in order.iter().filter(|m| marked(m)) {
         let path = paths::trial_span(prefix, kind, m.index);
         style::line(w, &path, &trial_text(m), style::WARNING, 6.0)?;
-        scalars(
-            w,
-            &path,
-            &[m.t_start, m.t_end],
-            [m.index as f64; 2].into_iter(),
-        )?;
+        let index = [m.index as f64; 2].into_iter();
+        scalars(w, &path, &[m.t_start, m.t_end], index)?;
     }
     Ok(())
 }
@@ -854,15 +774,8 @@ fn log_diagnosis(
 ) -> Result<()> {
     let (r, marks) = (&d.data, &d.highlighted);
     let circle = MarkerShape::Circle;
-    let measured = "measured reading (net)";
-    style::points(
-        w,
-        paths::DIAG_MEASURED,
-        measured,
-        style::MEASURED,
-        circle,
-        3.0,
-    )?;
+    let (path, measured) = (paths::DIAG_MEASURED, "measured reading (net)");
+    style::points(w, path, measured, style::MEASURED, circle, 3.0)?;
     style::line(w, paths::DIAG_BEFORE, "base model", style::NEUTRAL, 1.5)?;
     let after = "with accepted hypotheses";
     style::line(w, paths::DIAG_AFTER, after, style::PREDICTED, 1.5)?;
@@ -881,15 +794,8 @@ fn log_diagnosis(
     if r.found_w.len() == r.t.len() && !r.found_w.is_empty() {
         let found = "with terms found beyond the library";
         style::line(w, paths::DIAG_FOUND, found, style::WARNING, 1.5)?;
-        let error = "error with found terms";
-        style::points(
-            w,
-            paths::DIAG_ERROR_FOUND,
-            error,
-            style::WARNING,
-            circle,
-            2.5,
-        )?;
+        let (path, error) = (paths::DIAG_ERROR_FOUND, "error with found terms");
+        style::points(w, path, error, style::WARNING, circle, 2.5)?;
         scalars_chunked(w, paths::DIAG_FOUND, &r.t, &r.found_w, chunk)?;
         scalars_chunked(w, paths::DIAG_ERROR_FOUND, &r.t, &err(&r.found_w), chunk)?;
     }

@@ -276,6 +276,8 @@ pub fn layout(
     let diagnosis_power_series = extras.diagnosis.as_ref().map_or(0, |d| {
         3 + usize::from(!d.data.found_w.is_empty()) + usize::from(d.counterpart.is_some())
     });
+    let starts = trial_starts(extras);
+    let window_s = blueprint::opening_window(&starts);
     let parts = LayoutParts {
         model: extras.prediction.is_some()
             || extras.readings.is_some()
@@ -298,9 +300,14 @@ pub fn layout(
             .is_some_and(|d| !d.data.rest_w.is_empty()),
         diagnosis_power_series,
         ranges: plot_ranges(extras, whole),
-        window_s: blueprint::opening_window(&trial_starts(extras)),
+        window_s,
         trial_counts: trial_counts(extras),
         trial_rest: extras.trajectories.iter().any(|p| p.rest_w.is_finite()),
+        shares: extras.terms.is_some(),
+        // The last trial ends about one spacing after it starts.
+        span_s: window_s
+            .zip(super::data_range(starts))
+            .map(|(w, [a, b])| [a, b + w / blueprint::WINDOW_TRIALS]),
     };
     blueprint::replay_layout(joints, parts, arm_center(robot, arm))
 }
