@@ -507,7 +507,7 @@ fn with_shares(trials: &[TrialMark], means: &[TrialMean], joints: &[String]) -> 
             );
             let text: Vec<String> = cells.iter().map(|(n, s)| format!("{n} {s:.0} %")).collect();
             let returned = if cells.iter().any(|c| c.1 < 0.0) {
-                " (negative: energy returned)"
+                " (negative: below the rest baseline, or energy returned)"
             } else {
                 ""
             };
