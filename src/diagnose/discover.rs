@@ -23,7 +23,8 @@
 //! rivals at its step — candidates on other fields it does not fit significantly better than,
 //! of the same structure or with a collinear contribution ([`tie_of`]) — are named with it as
 //! confounded and never claimed. Fields that track
-//! the measured power itself (|r| ≥ 0.5 with the readings: another meter of the same flow) are
+//! the measured power itself (the rail's current meters named by the signal map, and any field
+//! with |r| ≥ 0.5 with the readings: another meter of the same flow) are
 //! consequences of the power, not causes, and are left out with a note; those that fall as the
 //! power rises (a battery voltage sagging under the load) are still slow state signals at rest
 //! (their mean over each trial's pre-idle readings: the charge). Names come from the
@@ -225,6 +226,8 @@ pub(crate) struct Inputs<'a> {
     pub trial_start: &'a [f64],
     /// Per joint: the motor index whose fields belong to it (`motor_state[k]`).
     pub arm_motors: [usize; N_JOINTS],
+    /// Fields that meter the rail's current ([`super::DiagnoseOptions::meter_flows`]).
+    pub meter_flows: &'a [String],
 }
 
 /// Field values on the rows: raw window value and the mean over the row's trial baseline.
@@ -555,9 +558,13 @@ fn generate(
             .map(|r| rv.raw[f][r] - rv.baseline[f][r])
             .collect();
         let (r, _) = pearson(&net, &rows.y);
-        if r.abs() >= METER_CORRELATION {
+        // A current meter of the rail is left out whatever its correlation: sampled on its own
+        // clock, or beside a large unmodelled effect, it can track the readings loosely and
+        // still follow every residual the rail carries.
+        let flow = inp.meter_flows.contains(&names[f]);
+        if flow || r.abs() >= METER_CORRELATION {
             usable[f] = false;
-            sags[f] = r < 0.0;
+            sags[f] = !flow && r < 0.0;
             if single[f] {
                 meters.push(format!("{} (r = {r:+.2})", names[f]));
             }
@@ -565,7 +572,7 @@ fn generate(
     }
     if !meters.is_empty() {
         notes.push(format!(
-            "left out as meters of the power itself (|r| ≥ {METER_CORRELATION} with the readings): {}; those that fall as it rises (a supply sagging under the load) are tried at rest (their mean over each trial's pre-idle readings) as slow state signals",
+            "left out as meters of the power itself (the rail's current meters, and fields with |r| ≥ {METER_CORRELATION} with the readings): {}; those that fall as it rises (a supply sagging under the load) are tried at rest (their mean over each trial's pre-idle readings) as slow state signals",
             meters.join(", ")
         ));
     }

@@ -49,6 +49,10 @@ pub struct DiagnoseOptions {
     pub field_sources: Vec<FieldSource>,
     /// SDK motor index of each arm joint (whose `motor_state[k]` fields belong to joint i).
     pub arm_motors: [usize; crate::N_JOINTS],
+    /// The fields that meter the rail's current (`topic.field`: the main board's and the
+    /// battery's, from the G1 signal map): consequences of every load on the rail, never a
+    /// cause, so discovery and the rest-power stage never try them.
+    pub meter_flows: Vec<String>,
 }
 
 impl Default for DiagnoseOptions {
@@ -70,6 +74,14 @@ impl Default for DiagnoseOptions {
             discover: true,
             field_sources: Vec::new(),
             arm_motors: std::array::from_fn(|i| crate::signals::G1_LEFT_ARM_BASE + i),
+            meter_flows: {
+                let map = crate::signals::SignalMap::g1_left_arm();
+                ["mbs.current", "bms.current"]
+                    .iter()
+                    .filter_map(|k| map.signals.get(*k))
+                    .map(|s| format!("{}.{}", s.topic, s.field))
+                    .collect()
+            },
         }
     }
 }

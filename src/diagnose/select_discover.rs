@@ -259,7 +259,10 @@ pub(crate) fn run_fields(
 }
 
 /// Stage: discovery inputs (the field table and where the rows' and baselines' windows are).
-pub(crate) fn field_inputs<'a>(f: &'a RowFields, opts: &DiagnoseOptions) -> discover::Inputs<'a> {
+pub(crate) fn field_inputs<'a>(
+    f: &'a RowFields,
+    opts: &'a DiagnoseOptions,
+) -> discover::Inputs<'a> {
     discover::Inputs {
         fields: &f.table,
         row_window: &f.row_window,
@@ -267,5 +270,6 @@ pub(crate) fn field_inputs<'a>(f: &'a RowFields, opts: &DiagnoseOptions) -> disc
         base_power: &f.base_power,
         trial_start: &f.trial_start,
         arm_motors: opts.arm_motors,
+        meter_flows: &opts.meter_flows,
     }
 }
