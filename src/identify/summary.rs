@@ -19,7 +19,7 @@ fn shares_line(shares: &[f64; 5]) -> String {
         .map(|(name, v)| format!("{name} {v:.1} %"))
         .collect();
     format!(
-        "term shares of the energy turnover (− returns energy): {}",
+        "term shares of the energy turnover (−: below rest, or returned): {}",
         parts.join(", ")
     )
 }
