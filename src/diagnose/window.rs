@@ -36,7 +36,7 @@ use anyhow::{Context, Result};
 
 use crate::signals::{PowerSeries, Recording};
 use crate::timing::{
-    Alignment, AlignmentEstimate, ScanGrid, SearchFits, SearchRow, scan_alignment,
+    Alignment, AlignmentEstimate, ScanGrid, Scores, SearchFits, SearchRow, scan_alignment,
 };
 use crate::trial::{Cascade, TrialStat, TrialWindow, is_rejected, samples_in};
 
@@ -116,7 +116,7 @@ pub(crate) fn sensor_window(
 /// (readings, R²) on the fixed reading set), as the module docs say.
 fn judge(
     est: &AlignmentEstimate,
-    score: &mut dyn FnMut(&[Alignment]) -> Vec<Option<(usize, f64)>>,
+    score: &mut dyn FnMut(&[Alignment]) -> Scores,
     bic_threshold: f64,
 ) -> SensorWindow {
     let best = est.best;
@@ -296,7 +296,7 @@ fn fixed_set_scores(
     metas: &[TrialMeta],
     reference: &Rows,
     cands: &[Alignment],
-) -> Vec<Option<(usize, f64)>> {
+) -> Scores {
     let mut fits = SearchFits::new(cands.len());
     let (mut rows, mut first) = (Vec::new(), 0);
     for (ti, meta) in metas.iter().enumerate() {

@@ -93,7 +93,7 @@ impl ScanGrid<'static> {
 /// scored.
 pub fn scan_alignment(
     grid: &ScanGrid,
-    mut score: impl FnMut(&[Alignment]) -> Vec<Option<(usize, f64)>>,
+    mut score: impl FnMut(&[Alignment]) -> Scores,
 ) -> Option<AlignmentEstimate> {
     let mut scores = Vec::new();
     let mut run = |cands: Vec<Alignment>, scores: &mut Vec<AlignmentScore>| {
@@ -129,6 +129,9 @@ pub fn scan_alignment(
         grid: scores,
     })
 }
+
+/// Each candidate's (rows, R²), None where it could not be fitted.
+pub type Scores = Vec<Option<(usize, f64)>>;
 
 /// One reading of a search: the candidate it is scored for, the samples its window averages
 /// (indices into the caller's joint-state samples) and its target.
@@ -226,7 +229,7 @@ impl SearchFits {
     }
 
     /// Each candidate's (rows, R²) ([`ridge_r2_of`]), None where it cannot be fitted.
-    pub fn scores(mut self) -> Vec<Option<(usize, f64)>> {
+    pub fn scores(mut self) -> Scores {
         self.acc
             .iter_mut()
             .map(|c| {
