@@ -302,6 +302,14 @@ impl TrialFeatures {
         }
     }
 
+    /// Sample `k`'s base regressors; `None` where its features are missing or not finite.
+    pub(crate) fn phi(&self, k: usize) -> Option<[f64; crate::N_PARAMS]> {
+        let f = self.feats.get(k.checked_sub(self.first)?)?.as_ref()?;
+        f.iter()
+            .all(|v| v.is_finite())
+            .then(|| std::array::from_fn(|c| f[c]))
+    }
+
     /// [`window_mean`] without descriptors, from the cached features (`None` when the window
     /// reaches outside them: the caller computes it from the samples).
     fn window_mean(

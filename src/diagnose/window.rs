@@ -34,11 +34,14 @@
 
 use anyhow::{Context, Result};
 
-use crate::timing::{Alignment, AlignmentEstimate, ScanGrid, ridge_r2, scan_alignment};
-use crate::trial::{Cascade, TrialStat, TrialWindow, is_rejected};
+use crate::signals::{PowerSeries, Recording};
+use crate::timing::{
+    Alignment, AlignmentEstimate, ScanGrid, Scores, SearchFits, SearchRow, scan_alignment,
+};
+use crate::trial::{Cascade, TrialStat, TrialWindow, is_rejected, samples_in};
 
 use super::lags::base_trial_residuals;
-use super::reading_rows::{Rows, TrialMeta, build_rows};
+use super::reading_rows::{Rows, TrialFeatures, TrialMeta, build_rows, span};
 use super::trials::{SessionInfo, hold};
 use super::{DiagnoseOptions, SensorWindow};
 use crate::session::TrialSource;
@@ -86,17 +89,14 @@ pub(crate) fn sensor_window(
     let all_rows = build_rows(rec, power, &metas, 0.0, nominal.window_s, false);
     let metas = without_outliers(metas, all_rows, opts)?;
     let reference = build_rows(rec, power, &metas, 0.0, nominal.window_s, false);
-    let score = |a: Alignment| {
-        let rows = build_rows(rec, power, &metas, a.lag_s, a.window_s, false);
-        fixed_set_r2(&rows, &reference, &metas)
-    };
+    let mut score = |cands: &[Alignment]| fixed_set_scores(rec, power, &metas, &reference, cands);
     let grid = ScanGrid {
         windows: &WINDOWS,
         lags: &LAGS,
         step: STEP,
         min_lag: 0.0,
     };
-    let est = scan_alignment(&grid, &score).with_context(|| {
+    let est = scan_alignment(&grid, &mut score).with_context(|| {
         format!(
             "{}: estimating the power sensor's window: fewer than {} {} readings inside the {} \
              scanned trials; give the window (--sensor-window SECONDS)",
@@ -108,15 +108,15 @@ pub(crate) fn sensor_window(
     })?;
     Ok(SensorWindow {
         scan_trials: metas.len(),
-        ..judge(&est, &score, opts.bic_threshold)
+        ..judge(&est, &mut score, opts.bic_threshold)
     })
 }
 
-/// The window and whether a lag is demanded, judged from the scan `est` (`score`: an alignment's
+/// The window and whether a lag is demanded, judged from the scan `est` (`score`: alignments'
 /// (readings, R²) on the fixed reading set), as the module docs say.
 fn judge(
     est: &AlignmentEstimate,
-    score: &dyn Fn(Alignment) -> Option<(usize, f64)>,
+    score: &mut dyn FnMut(&[Alignment]) -> Scores,
     bic_threshold: f64,
 ) -> SensorWindow {
     let best = est.best;
@@ -127,11 +127,10 @@ fn judge(
         let n = n as f64;
         n * ((1.0 - r2_free).max(1e-300) / (1.0 - r2_fixed).max(1e-300)).ln() + n.ln()
     };
-    // Best of `cands` (alignments scored on the fixed reading set).
-    let best_of = |cands: Vec<Alignment>| {
-        cands
-            .into_iter()
-            .filter_map(|a| score(a).map(|(n, r2)| (a, n, r2)))
+    // Best of scored alignments.
+    let best_of = |scored: &[(Alignment, Option<(usize, f64)>)]| {
+        (scored.iter())
+            .filter_map(|&(a, s)| s.map(|(n, r2)| (a, n, r2)))
             .max_by(|a, b| a.2.total_cmp(&b.2))
     };
     let nominal_w = Alignment::NOMINAL.window_s;
@@ -144,19 +143,23 @@ fn judge(
             .filter(|a| a.lag_s >= 0.0)
             .collect::<Vec<_>>()
     };
-    // 1. The sensor's nominal window at the lag that puts its centre where the data put it.
-    let nominal = best_of(near(nominal_w, (centre - 0.5 * nominal_w).max(0.0)));
+    // 1. The sensor's nominal window at the lag that puts its centre where the data put it;
+    // 2. the best window at lag 0: every lag-0 window the scan scored, and those of the data's
+    //    centre (2c ± 2 steps). Both sets scored together.
+    let mut cands = near(nominal_w, (centre - 0.5 * nominal_w).max(0.0));
+    let n_near = cands.len();
+    cands.extend(
+        (-2..=2)
+            .map(|k| Alignment {
+                window_s: 2.0 * centre + k as f64 * STEP,
+                lag_s: 0.0,
+            })
+            .filter(|a| a.window_s > 0.0),
+    );
+    let scored: Vec<_> = cands.iter().copied().zip(score(&cands)).collect();
+    let nominal = best_of(&scored[..n_near]);
     let window_delta_bic = nominal.map_or(f64::NEG_INFINITY, |(_, n, r2)| delta_bic(est.r2, n, r2));
-    // 2. The best window at lag 0: every lag-0 window the scan scored, and those of the data's
-    //    centre (2c ± 2 steps).
-    let at_centre: Vec<Alignment> = (-2..=2)
-        .map(|k| Alignment {
-            window_s: 2.0 * centre + k as f64 * STEP,
-            lag_s: 0.0,
-        })
-        .filter(|a| a.window_s > 0.0)
-        .collect();
-    let lag0 = best_of(at_centre).into_iter().chain(
+    let lag0 = best_of(&scored[n_near..]).into_iter().chain(
         est.grid
             .iter()
             .filter(|g| g.alignment.lag_s.abs() < 1e-9)
@@ -282,29 +285,84 @@ fn without_outliers(
         .collect())
 }
 
-/// (rows, R²) of the base regressors' least-squares fit of one candidate's rows, restricted to
-/// the fixed reading set (stamps ≥ trajectory start + [`FIXED_SET_S`], present in `reference`)
-/// with the reference rows' targets.
-fn fixed_set_r2(rows: &Rows, reference: &Rows, metas: &[TrialMeta]) -> Option<(usize, f64)> {
-    use std::collections::HashMap;
-    let target: HashMap<u64, f64> = reference
-        .t
-        .iter()
-        .zip(&reference.y)
-        .map(|(t, y)| (t.to_bits(), *y))
-        .collect();
-    let mut x = Vec::new();
-    let mut y = Vec::new();
-    for r in 0..rows.len() {
-        let start = metas.get(rows.trial[r])?.window.t_traj_start;
-        if rows.t[r] < start + FIXED_SET_S {
-            continue;
+/// Each candidate's (rows, R²) of the base regressors' least-squares fit of its rows, restricted
+/// to the fixed reading set (stamps ≥ trajectory start + [`FIXED_SET_S`] among the `reference`
+/// rows) with the reference rows' targets, in one pass over the trials ([`SearchFits`]). A
+/// candidate's rows are the readings [`build_rows`] gives it: a trial without its baseline
+/// readings gives none, a window is cut at the trial's [`span`] and needs its samples' data.
+fn fixed_set_scores(
+    rec: &Recording,
+    power: &PowerSeries,
+    metas: &[TrialMeta],
+    reference: &Rows,
+    cands: &[Alignment],
+) -> Scores {
+    let mut fits = SearchFits::new(cands.len());
+    let (mut rows, mut first) = (Vec::new(), 0);
+    for (ti, meta) in metas.iter().enumerate() {
+        let w = &meta.window;
+        let end = first + reference.trial[first..].partition_point(|&t| t == ti);
+        rows.clear();
+        for (cand, a) in cands.iter().enumerate() {
+            let mut base = w.baseline_readings(&power.t, a.lag_s, a.window_s);
+            if !base.any(|k| power.watts.get(k).is_some_and(|v| v.is_finite())) {
+                continue;
+            }
+            let from = w.t_traj_start + FIXED_SET_S.max(a.window_s);
+            for k in (first..end).filter(|&k| reference.t[k] >= from) {
+                let b = reference.t[k] - a.lag_s;
+                let samples = samples_in(&rec.state.t, (b - a.window_s).max(span(w).0), b);
+                let y = reference.y[k];
+                rows.push(SearchRow { cand, samples, y });
+            }
         }
-        if let Some(v) = target.get(&rows.t[r].to_bits()) {
-            x.push(rows.x[r].as_slice());
-            y.push(*v);
+        let feats = TrialFeatures::new(rec, meta);
+        fits.add_trial(&rows, |k| feats.phi(k));
+        first = end;
+    }
+    fits.scores()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::diagnose::reading_rows::trial_meta;
+    use crate::diagnose::testkit::{Effects, session};
+
+    /// The one-pass scores (running sums shared by every candidate) equal a fit of the rows
+    /// [`build_rows`] gives each candidate on its own, restricted to the fixed reading set —
+    /// on a session whose trial 3 lost a reading's worth of joint states (no row there).
+    #[test]
+    fn fixed_set_scores_equal_the_fit_of_each_candidates_built_rows() {
+        let (mut rec, windows) = session(30, 7, Effects::default());
+        let k = rec
+            .state
+            .t
+            .partition_point(|&t| t < windows[3].t_traj_start + 5.0);
+        rec.state.tau[k][2] = f64::NAN;
+        let bus = super::super::bus_model(&DiagnoseOptions::default());
+        let (metas, _) = trial_meta(&rec, &windows, bus);
+        let reference = build_rows(&rec, &rec.mbs, &metas, 0.0, 0.2, false);
+        let cands: Vec<Alignment> = [(0.2, 0.0), (0.5, 0.1), (0.05, 0.3), (1.0, 1.0), (1.5, 0.0)]
+            .map(|(window_s, lag_s)| Alignment { window_s, lag_s })
+            .to_vec();
+        let got = fixed_set_scores(&rec, &rec.mbs, &metas, &reference, &cands);
+        for (a, got) in cands.iter().zip(got) {
+            let rows = build_rows(&rec, &rec.mbs, &metas, a.lag_s, a.window_s, false);
+            let mut gram = crate::lsq::Gram::zeros(crate::N_PARAMS);
+            let mut y = Vec::new();
+            for r in 0..rows.len() {
+                let start = metas[rows.trial[r]].window.t_traj_start;
+                let at = reference.t.iter().position(|&t| t == rows.t[r]);
+                if let (true, Some(k)) = (rows.t[r] >= start + FIXED_SET_S, at) {
+                    gram.add_row(&rows.x[r][..crate::N_PARAMS], reference.y[k]);
+                    y.push(reference.y[k]);
+                }
+            }
+            let want = crate::timing::ridge_r2_of(&gram, &y).map(|r2| (y.len(), r2));
+            let ((n, r2), (m, w)) = (got.expect("scored"), want.expect("fitted"));
+            assert_eq!(n, m, "{a:?}");
+            assert!((r2 - w).abs() < 1e-9, "{a:?}: {r2} vs {w}");
         }
     }
-    let r2 = ridge_r2(x.into_iter(), &y)?;
-    Some((y.len(), r2))
 }

@@ -218,12 +218,11 @@ pub struct FleetFit {
     pub queries: Vec<(String, String, String)>,
 }
 
+#[derive(Default)]
 struct Work {
     trials: Vec<TrialMoments>,
     sessions: Vec<(String, String)>,
-    total: Gram,
-    sy: f64,
-    t_ns: (i64, i64),
+    total: Sums,
     /// Normal equations (and Σy) of the rejected trials, subtracted from `total`.
     removed: Vec<(TrialId, Gram, f64)>,
     rejections: Vec<Rejection>,
@@ -245,8 +244,7 @@ impl Work {
     }
 
     fn kept(&self) -> (Gram, f64) {
-        let mut g = self.total.clone();
-        let mut sy = self.sy;
+        let (mut g, mut sy) = (self.total.gram.clone(), self.total.sy);
         for (_, r, s) in &self.removed {
             g = g.minus(r);
             sy -= s;
@@ -283,23 +281,27 @@ struct Sums {
     t_ns: (i64, i64),
 }
 
-impl Sums {
-    fn new() -> Sums {
+impl Default for Sums {
+    fn default() -> Sums {
         Sums {
             gram: Gram::zeros(N_PARAMS),
             sy: 0.0,
             t_ns: (i64::MAX, i64::MIN),
         }
     }
+}
 
+impl Sums {
     fn add(&mut self, r: &ScanRow) {
         self.gram.add_row(&r.phi, r.y);
         self.sy += r.y;
         self.t_ns = (self.t_ns.0.min(r.t_ns), self.t_ns.1.max(r.t_ns));
     }
 
-    /// CSV cells as [`sql::normal_equations`] names them (n, t_min, t_max, sy, yy, h_i, g_i_j).
-    fn csv(&self, out: &mut String) {
+    /// A CSV line: the key cells, then as [`sql::normal_equations`] names them (n, t_min, t_max,
+    /// sy, yy, h_i, g_i_j).
+    fn csv(&self, key: &[String], trial: Option<&TrialId>, out: &mut String) {
+        csv_key(key, trial, out);
         let g = &self.gram;
         let _ = write!(
             out,
@@ -314,6 +316,7 @@ impl Sums {
                 let _ = write!(out, ",{}", g.g[(i, j)]);
             }
         }
+        out.push('\n');
     }
 }
 
@@ -370,12 +373,8 @@ fn trial_sums(
         if !wanted.contains(&(r.robot, r.session, r.trial)) {
             return;
         }
-        let key: Vec<String> = by
-            .iter()
-            .map(|k| k.value(r.robot, r.session, r.t_ns))
-            .collect();
         let id = (r.robot.to_string(), r.session.to_string(), r.trial);
-        out.entry((key, id)).or_insert_with(Sums::new).add(r);
+        out.entry((key_of(by, r), id)).or_default().add(r);
     })?;
     Ok(out)
 }
@@ -400,30 +399,25 @@ fn widened_se(g: &Gram, free: &[Option<f64>]) -> Vec<Option<f64>> {
     out
 }
 
-/// Fit every group of the tables' rows: one scan for the per-trial moments and the groups'
-/// normal equations, the IMU filter, then per residual pass the normal equations of the trials
-/// rejected (one scan each), final fit. `progress` hears each stage.
-pub fn fit_fleet(
+/// The groups' keys of a row (the values of the `--by` keys, in their order).
+fn key_of(by: &[Key], r: &ScanRow) -> Vec<String> {
+    by.iter()
+        .map(|k| k.value(r.robot, r.session, r.t_ns))
+        .collect()
+}
+
+/// Step 1, one scan: the groups with their trials' moments and normal equations (and the two
+/// queries that compute them), their sessions, and the IMU filter's rejections.
+fn scan_groups(
     tables: &Tables,
     opts: &FleetOptions,
-    progress: &mut dyn FnMut(&str),
-) -> Result<FleetFit> {
-    let by = &opts.by;
-    let target = opts.target.as_str();
-    let mut queries = Vec::new();
-
-    progress(&format!(
-        "scanning {} files: moments and normal equations",
-        tables.files.len()
-    ));
+    queries: &mut Vec<(String, String, String)>,
+) -> Result<BTreeMap<Vec<String>, Work>> {
+    let (by, target) = (&opts.by, opts.target.as_str());
     let mut groups: BTreeMap<Vec<String>, Work> = BTreeMap::new();
     let mut moments: BTreeMap<(Vec<String>, TrialId), TrialMoments> = BTreeMap::new();
-    let mut totals: BTreeMap<Vec<String>, Sums> = BTreeMap::new();
     tables.scan(target, &mut |r| {
-        let key: Vec<String> = by
-            .iter()
-            .map(|k| k.value(r.robot, r.session, r.t_ns))
-            .collect();
+        let key = key_of(by, r);
         let id = (r.robot.to_string(), r.session.to_string(), r.trial);
         let m = moments
             .entry((key.clone(), id.clone()))
@@ -440,9 +434,9 @@ pub fn fit_fleet(
             *a += v;
         }
         m.sigma_omega = m.sigma_omega.max(r.sigma_omega);
-        totals.entry(key).or_insert_with(Sums::new).add(r);
+        groups.entry(key).or_default().total.add(r);
     })?;
-    if totals.is_empty() {
+    if groups.is_empty() {
         bail!("no rows of target {target} in the tables");
     }
     let mut csv = csv_header(by, true, &{
@@ -460,36 +454,13 @@ pub fn fit_fleet(
     }
     queries.push(("moments".to_string(), sql::moments(by, target), csv));
     let mut csv = csv_header(by, false, &normal_columns());
-    for (key, t) in &totals {
-        csv_key(key, None, &mut csv);
-        t.csv(&mut csv);
-        csv.push('\n');
+    for (key, w) in &groups {
+        w.total.csv(key, None, &mut csv);
     }
-    queries.push((
-        "normal_equations".to_string(),
-        sql::normal_equations(by, false, Pick::All, target),
-        csv,
-    ));
-    for (key, t) in totals {
-        groups.insert(
-            key,
-            Work {
-                trials: Vec::new(),
-                sessions: Vec::new(),
-                total: t.gram,
-                sy: t.sy,
-                t_ns: t.t_ns,
-                removed: Vec::new(),
-                rejections: Vec::new(),
-                error: None,
-                done: false,
-            },
-        );
-    }
+    let q = sql::normal_equations(by, false, Pick::All, target);
+    queries.push(("normal_equations".to_string(), q, csv));
     for ((key, _), m) in moments {
-        let w = groups
-            .get_mut(&key)
-            .context("a trial outside every group")?;
+        let w = groups.entry(key).or_default();
         let id = &m.id;
         if !w.sessions.iter().any(|(x, y)| *x == id.0 && *y == id.1) {
             w.sessions.push((id.0.clone(), id.1.clone()));
@@ -505,7 +476,87 @@ pub fn fit_fleet(
             .collect();
         w.rejections = opts.cascade.imu(&sigmas);
     }
+    Ok(groups)
+}
 
+/// Step 2, residual pass `pass` of one group: fit its kept trials, reject by mean residual;
+/// the group is done when nothing more is rejected (or its fit fails).
+fn residual_pass(w: &mut Work, pass: usize, opts: &FleetOptions) {
+    let theta = match w.fit().and_then(|f| f.theta49()) {
+        Ok(t) => t,
+        Err(e) => {
+            w.error = Some(format!("{e:#}"));
+            w.done = true;
+            return;
+        }
+    };
+    let residuals: Vec<TrialStat> = w
+        .trials
+        .iter()
+        .filter(|t| {
+            let s = w.session_index(&t.id);
+            !crate::trial::is_rejected(&w.rejections, s, t.id.2 as usize)
+        })
+        .map(|t| {
+            let predicted: f64 = theta.iter().zip(&t.s).map(|(a, b)| a * b).sum();
+            let mean = (t.sy - predicted) / t.n;
+            TrialStat::new(w.session_index(&t.id), t.id.2 as usize, mean)
+        })
+        .collect();
+    let mut rejections = std::mem::take(&mut w.rejections);
+    w.done = !opts.cascade.residual_pass(pass, &mut rejections, residuals);
+    w.rejections = rejections;
+}
+
+/// Step 3: a group's final fit on its kept trials.
+fn final_fit(key: Vec<String>, w: Work) -> GroupFit {
+    let (g, sy) = w.kept();
+    let mut out = GroupFit {
+        key,
+        rows: w.total.gram.n,
+        rows_used: g.n,
+        trials: w.trials.len(),
+        rejections: w.rejections.clone(),
+        sessions: w.sessions.clone(),
+        t_ns: w.total.t_ns,
+        theta: Vec::new(),
+        std_err: Vec::new(),
+        r2: f64::NAN,
+        rmse: f64::NAN,
+        error: w.error.clone(),
+    };
+    if out.error.is_none() {
+        match w.fit() {
+            Ok(fit) => {
+                let beta = nalgebra::DVector::from_column_slice(&fit.theta);
+                let sse = g.sse(&beta);
+                let n = g.n as f64;
+                out.r2 = 1.0 - sse / (g.yy - sy * sy / n);
+                out.rmse = (sse / n).sqrt();
+                out.theta = fit.theta;
+                out.std_err = widened_se(&g, &fit.std_err);
+            }
+            Err(e) => out.error = Some(format!("{e:#}")),
+        }
+    }
+    out
+}
+
+/// Fit every group of the tables' rows: one scan for the per-trial moments and the groups'
+/// normal equations, the IMU filter, then per residual pass the normal equations of the trials
+/// rejected (one scan each), final fit. `progress` hears each stage.
+pub fn fit_fleet(
+    tables: &Tables,
+    opts: &FleetOptions,
+    progress: &mut dyn FnMut(&str),
+) -> Result<FleetFit> {
+    let (by, target) = (&opts.by, opts.target.as_str());
+    let mut queries = Vec::new();
+    progress(&format!(
+        "scanning {} files: moments and normal equations",
+        tables.files.len()
+    ));
+    let mut groups = scan_groups(tables, opts, &mut queries)?;
     let mut pass = 0;
     loop {
         // The normal equations of every trial rejected so far and not yet removed, one scan.
@@ -515,23 +566,17 @@ pub fn fit_fleet(
                 "scanning: normal equations of {} rejected trials",
                 pending.len()
             ));
-            let sums = trial_sums(tables, by, target, &pending)?;
             let mut csv = csv_header(by, true, &normal_columns());
-            for ((key, id), t) in sums {
-                csv_key(&key, Some(&id), &mut csv);
-                t.csv(&mut csv);
-                csv.push('\n');
+            for ((key, id), t) in trial_sums(tables, by, target, &pending)? {
+                t.csv(&key, Some(&id), &mut csv);
                 if let Some(w) = groups.get_mut(&key)
                     && w.pending().contains(&id)
                 {
                     w.removed.push((id, t.gram, t.sy));
                 }
             }
-            queries.push((
-                format!("rejected_{pass}"),
-                sql::normal_equations(by, true, Pick::Only(&pending), target),
-                csv,
-            ));
+            let q = sql::normal_equations(by, true, Pick::Only(&pending), target);
+            queries.push((format!("rejected_{pass}"), q, csv));
         }
         pass += 1;
         if pass > opts.cascade.passes || groups.values().all(|w| w.done) {
@@ -542,69 +587,11 @@ pub fn fit_fleet(
             groups.len()
         ));
         for w in groups.values_mut().filter(|w| !w.done) {
-            let theta = match w.fit().and_then(|f| f.theta49()) {
-                Ok(t) => t,
-                Err(e) => {
-                    w.error = Some(format!("{e:#}"));
-                    w.done = true;
-                    continue;
-                }
-            };
-            let residuals: Vec<TrialStat> = w
-                .trials
-                .iter()
-                .filter(|t| {
-                    let s = w.session_index(&t.id);
-                    !crate::trial::is_rejected(&w.rejections, s, t.id.2 as usize)
-                })
-                .map(|t| {
-                    let predicted: f64 = theta.iter().zip(&t.s).map(|(a, b)| a * b).sum();
-                    let mean = (t.sy - predicted) / t.n;
-                    TrialStat::new(w.session_index(&t.id), t.id.2 as usize, mean)
-                })
-                .collect();
-            let mut rejections = std::mem::take(&mut w.rejections);
-            w.done = !opts.cascade.residual_pass(pass, &mut rejections, residuals);
-            w.rejections = rejections;
+            residual_pass(w, pass, opts);
         }
     }
-
     progress("final fits");
-    let groups = groups
-        .into_iter()
-        .map(|(key, w)| {
-            let (g, sy) = w.kept();
-            let mut out = GroupFit {
-                key,
-                rows: w.total.n,
-                rows_used: g.n,
-                trials: w.trials.len(),
-                rejections: w.rejections.clone(),
-                sessions: w.sessions.clone(),
-                t_ns: w.t_ns,
-                theta: Vec::new(),
-                std_err: Vec::new(),
-                r2: f64::NAN,
-                rmse: f64::NAN,
-                error: w.error.clone(),
-            };
-            if out.error.is_none() {
-                match w.fit() {
-                    Ok(fit) => {
-                        let beta = nalgebra::DVector::from_column_slice(&fit.theta);
-                        let sse = g.sse(&beta);
-                        let n = g.n as f64;
-                        out.r2 = 1.0 - sse / (g.yy - sy * sy / n);
-                        out.rmse = (sse / n).sqrt();
-                        out.theta = fit.theta;
-                        out.std_err = widened_se(&g, &fit.std_err);
-                    }
-                    Err(e) => out.error = Some(format!("{e:#}")),
-                }
-            }
-            out
-        })
-        .collect();
+    let groups = groups.into_iter().map(|(k, w)| final_fit(k, w)).collect();
     Ok(FleetFit {
         by: by.clone(),
         groups,

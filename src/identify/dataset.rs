@@ -18,12 +18,11 @@
 
 use anyhow::{Result, bail};
 
-use crate::lsq::Gram;
 use crate::power::regressor_into;
 pub use crate::signals::Target;
 use crate::signals::{PowerSeries, Recording};
 pub use crate::timing::{Alignment, AlignmentEstimate, AlignmentScore};
-use crate::timing::{ScanGrid, ridge_r2_of, scan_alignment_batch};
+use crate::timing::{ScanGrid, SearchFits, SearchRow, scan_alignment};
 use crate::trial::{MIN_WINDOW_SAMPLES, TrialWindow, samples_in, sigma_omega};
 use crate::{N_JOINTS, N_PARAMS};
 
@@ -397,135 +396,48 @@ pub(crate) fn sample_rows_thinned(
     rows
 }
 
-/// The (rows, R²) of each candidate timing's per-reading rows (those [`build`] makes, fitted by
-/// [`crate::timing::ridge_r2`]), every candidate in one pass over the trials: each trial's
-/// per-sample regressors are computed once into running sums ([`RunningSums`]), shared by all
-/// candidates, and each candidate's rows enter its normal equations in blocks
-/// ([`Gram::add_rows`]). The same figures up to rounding.
+/// The (rows, R²) of each candidate timing's per-reading rows (those [`build`] makes), every
+/// candidate in one pass over the trials ([`SearchFits`]: a trial's per-sample regressors are
+/// computed once, shared by all candidates). The same figures up to rounding.
 fn search_scores(
     sessions: &[(&Recording, &[TrialWindow])],
     target: Target,
     cands: &[Alignment],
     caches: &mut [StateBasis],
 ) -> Vec<Option<(usize, f64)>> {
-    /// Rows a candidate holds before they enter its normal equations.
-    const BLOCK: usize = 256;
-    // Per candidate: normal equations, rows not yet in them, every row's target.
-    let mut acc: Vec<(Gram, Vec<f64>, Vec<f64>)> = cands
-        .iter()
-        .map(|_| (Gram::zeros(N_PARAMS), Vec::new(), Vec::new()))
-        .collect();
-    let flush = |(gram, rows, ys): &mut (Gram, Vec<f64>, Vec<f64>)| {
-        gram.add_rows(rows, &ys[gram.n..]);
-        rows.clear();
-    };
-    let mut sums = RunningSums::default();
+    let mut fits = SearchFits::new(cands.len());
+    let mut rows = Vec::new();
     for ((rec, trials), cache) in sessions.iter().zip(caches) {
-        let power = target.series(rec);
+        let (power, times, s) = (target.series(rec), state_times(rec), &rec.state);
         for trial in trials.iter() {
             let (a, b) = trial.analysis_window();
-            sums.fill(rec, a, b);
-            for (align, c) in cands.iter().zip(&mut acc) {
+            let mut tau0_sq = None;
+            rows.clear();
+            for (cand, align) in cands.iter().enumerate() {
                 let Ok(basis) = trial_basis(rec, trial, target, align, Some(cache)) else {
                     continue;
                 };
-                for (t, w) in readings_within(power, align, a, b) {
+                tau0_sq = Some(basis.tau0_sq);
+                rows.extend(readings_within(power, align, a, b).map(|(t, w)| {
                     let (t0, t1) = align.window_of(t);
-                    let Some(phi) = sums.mean(rec, t0, t1, &basis.tau0_sq) else {
-                        continue;
-                    };
-                    let y = w - basis.baseline_w;
-                    if y.is_finite() && phi.iter().all(|v| v.is_finite()) {
-                        c.1.extend_from_slice(&phi);
-                        c.2.push(y);
-                    }
-                }
-                if c.1.len() >= BLOCK * N_PARAMS {
-                    flush(c);
-                }
+                    let (samples, y) = (samples_in(times, t0, t1), w - basis.baseline_w);
+                    SearchRow { cand, samples, y }
+                }));
             }
+            let Some(tau0_sq) = tau0_sq else { continue };
+            fits.add_trial(&rows, |k| {
+                let mut phi = [0.0; N_PARAMS];
+                regressor_into(&s.tau[k], &s.dq[k], &tau0_sq, &mut phi);
+                Some(phi)
+            });
         }
     }
-    acc.iter_mut()
-        .map(|c| {
-            flush(c);
-            Some((c.2.len(), ridge_r2_of(&c.0, &c.2)?))
-        })
-        .collect()
-}
-
-/// Running sums of the per-sample regressors (Δτ² against zero) over one span of joint-state
-/// samples, and a running count of the samples whose regressor is not finite: the mean over any
-/// window inside the span is a difference of two entries. It equals [`phi_mean`] up to the
-/// rounding of the running sums (the sums restart with every span, a trial), and is not finite
-/// exactly when [`phi_mean`]'s is not (a non-finite sample inside).
-#[derive(Default)]
-struct RunningSums {
-    /// Index of the span's first sample.
-    start: usize,
-    /// Σφ over the span's first k samples, k = 0..=len (non-finite regressors left out).
-    sums: Vec<[f64; N_PARAMS]>,
-    /// How many of the span's first k samples have a non-finite regressor.
-    bad: Vec<usize>,
-}
-
-impl RunningSums {
-    /// Restart over the samples in (a, b] of `rec`.
-    fn fill(&mut self, rec: &Recording, a: f64, b: f64) {
-        let span = samples_in(state_times(rec), a, b);
-        let s = &rec.state;
-        self.start = span.start;
-        self.sums.clear();
-        self.bad.clear();
-        let (mut run, mut bad) = ([0.0; N_PARAMS], 0);
-        self.sums.push(run);
-        self.bad.push(bad);
-        let mut phi = [0.0; N_PARAMS];
-        for k in span {
-            regressor_into(&s.tau[k], &s.dq[k], &[0.0; N_JOINTS], &mut phi);
-            if phi.iter().all(|v| v.is_finite()) {
-                run.iter_mut().zip(&phi).for_each(|(r, v)| *r += v);
-            } else {
-                bad += 1;
-            }
-            self.sums.push(run);
-            self.bad.push(bad);
-        }
-    }
-
-    /// [`phi_mean`] over (t0, t1] from the running sums ([`phi_mean`] itself for a window
-    /// reaching outside the span).
-    fn mean(
-        &self,
-        rec: &Recording,
-        t0: f64,
-        t1: f64,
-        tau0_sq: &[f64; N_JOINTS],
-    ) -> Option<[f64; N_PARAMS]> {
-        let r = samples_in(state_times(rec), t0, t1);
-        if r.start < self.start || r.end >= self.start + self.sums.len() {
-            return phi_mean(rec, t0, t1, tau0_sq);
-        }
-        if r.len() < MIN_WINDOW_SAMPLES {
-            return None;
-        }
-        let (i, j) = (r.start - self.start, r.end - self.start);
-        if self.bad[j] != self.bad[i] {
-            return Some([f64::NAN; N_PARAMS]);
-        }
-        let n = r.len() as f64;
-        let mut phi: [f64; N_PARAMS] =
-            std::array::from_fn(|c| (self.sums[j][c] - self.sums[i][c]) / n);
-        for (v, t0) in phi[N_JOINTS..2 * N_JOINTS].iter_mut().zip(tau0_sq) {
-            *v -= t0;
-        }
-        Some(phi)
-    }
+    fits.scores()
 }
 
 /// Estimate the sensor's averaging window W and lag from the data: the per-reading rows are
 /// built for each candidate (W, lag) and fitted by (lightly ridge-regularised) least squares; the
-/// candidate with the highest R² wins ([`crate::timing::scan_alignment`] on the identification's
+/// candidate with the highest R² wins ([`scan_alignment`] on the identification's
 /// grid: W 0.05–1.0 s, lag −0.3–0.5 s, then a 0.025 s grid around the best).
 pub fn estimate_alignment(
     sessions: &[(&Recording, &[TrialWindow])],
@@ -533,7 +445,7 @@ pub fn estimate_alignment(
 ) -> Result<AlignmentEstimate> {
     // Each trial's pre-idle τ̄0² and σ_ω do not depend on the alignment: computed once.
     let mut caches: Vec<StateBasis> = sessions.iter().map(|_| StateBasis::new()).collect();
-    let est = scan_alignment_batch(&ScanGrid::IDENTIFY, |cands| {
+    let est = scan_alignment(&ScanGrid::IDENTIFY, |cands| {
         search_scores(sessions, target, cands, &mut caches)
     });
     let Some(est) = est else {
@@ -668,8 +580,9 @@ mod tests {
             let d = build(&rec, &trials, &opts);
             assert_eq!(d.skipped.first().map(|s| s.trial), Some(2), "{alignment:?}");
             let y: Vec<f64> = d.rows.iter().map(|r| r.y).collect();
-            let r2 = crate::timing::ridge_r2(d.rows.iter().map(|r| r.phi.as_slice()), &y)
-                .expect("enough rows");
+            let mut gram = crate::lsq::Gram::zeros(N_PARAMS);
+            d.rows.iter().for_each(|r| gram.add_row(&r.phi, r.y));
+            let r2 = crate::timing::ridge_r2_of(&gram, &y).expect("enough rows");
             let (rows, got_r2) = got.expect("scored");
             assert_eq!(rows, d.rows.len(), "{alignment:?}");
             assert!(

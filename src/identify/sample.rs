@@ -2,7 +2,7 @@
 //! as soon as they are built, to their sufficient statistics — ΦᵀΦ, Φᵀy, yᵀy, n and the sums Σφ,
 //! Σy — which is all the constrained fit (from the normal equations, [`crate::lsq::fit_gram`]) and
 //! the rejection by trial (a trial's mean residual is (Σy − θ·Σφ)/n) need. A paper-scale session
-//! has ~1e6 sample rows (~0.5 GB as rows); its statistics take ~10 kB per trial. The fit's quality
+//! has ~1e6 sample rows (~0.5 GB as rows); its statistics take ~20 kB per trial. The fit's quality
 //! (residual moments, mean absolute residual) needs the final θ, so the sample rows of the
 //! retained trials are built once more and scored one at a time
 //! ([`crate::lsq::MetricsAccumulator`]).
@@ -12,15 +12,15 @@ use std::collections::HashSet;
 use super::dataset::{Dataset, Row, Skipped, TrialBasis};
 use super::fit::predict;
 use crate::N_PARAMS;
-use crate::lsq::{Gram, GramSum, MetricsAccumulator};
+use crate::lsq::{Gram, MetricsAccumulator};
 
 /// The sufficient statistics of one trial's sample rows.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct TrialSums {
     /// Trial index.
     pub trial: usize,
-    /// ΦᵀΦ (upper triangle), Φᵀy, yᵀy and n.
-    gram: GramSum,
+    /// ΦᵀΦ, Φᵀy, yᵀy and n.
+    gram: Gram,
     /// Σφ over the rows.
     sum_phi: [f64; N_PARAMS],
     /// Σy.
@@ -32,7 +32,7 @@ impl TrialSums {
     pub(crate) fn from_rows(trial: usize, rows: &[Row]) -> TrialSums {
         let mut s = TrialSums {
             trial,
-            gram: GramSum::zeros(N_PARAMS),
+            gram: Gram::zeros(N_PARAMS),
             sum_phi: [0.0; N_PARAMS],
             sum_y: 0.0,
         };
@@ -48,12 +48,12 @@ impl TrialSums {
 
     /// Add these statistics to `g`.
     pub(crate) fn add_to(&self, g: &mut Gram) {
-        self.gram.add_to(g);
+        g.add(&self.gram);
     }
 
     /// The trial's mean residual y − θᵀφ over its rows (NaN without rows).
     pub(crate) fn mean_residual(&self, theta: &[f64; N_PARAMS]) -> f64 {
-        (self.sum_y - predict(theta, &self.sum_phi)) / self.gram.rows() as f64
+        (self.sum_y - predict(theta, &self.sum_phi)) / self.gram.n as f64
     }
 }
 

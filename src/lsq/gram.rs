@@ -136,79 +136,6 @@ impl Gram {
     }
 }
 
-/// A [`Gram`] accumulated row by row on the upper triangle of ΦᵀΦ only, packed column by column
-/// (entry (r, c), r ≤ c, at c(c+1)/2 + r): half the products of [`Gram::add_row`]. Every entry
-/// receives the same products in the same order as there, so [`GramSum::finish`] equals the
-/// [`Gram`] of the same rows bit for bit.
-#[derive(Debug, Clone, PartialEq)]
-pub struct GramSum {
-    upper: Box<[f64]>,
-    h: Box<[f64]>,
-    yy: f64,
-    n: usize,
-}
-
-impl GramSum {
-    /// The statistics of no rows with `p` columns.
-    pub fn zeros(p: usize) -> GramSum {
-        GramSum {
-            upper: vec![0.0; p * (p + 1) / 2].into_boxed_slice(),
-            h: vec![0.0; p].into_boxed_slice(),
-            yy: 0.0,
-            n: 0,
-        }
-    }
-
-    /// Add one row `x` with target `y` (x.len() = p; zero entries are skipped).
-    pub fn add_row(&mut self, x: &[f64], y: f64) {
-        for (c, &xc) in x.iter().enumerate() {
-            if xc == 0.0 {
-                continue;
-            }
-            let start = c * (c + 1) / 2;
-            for (g, &xr) in self.upper[start..=start + c].iter_mut().zip(x) {
-                *g += xr * xc;
-            }
-        }
-        for (hv, &xr) in self.h.iter_mut().zip(x) {
-            *hv += xr * y;
-        }
-        self.yy += y * y;
-        self.n += 1;
-    }
-
-    /// Rows accumulated.
-    pub fn rows(&self) -> usize {
-        self.n
-    }
-
-    /// Add these statistics to `g` (same columns; ΦᵀΦ made whole from its upper triangle).
-    pub fn add_to(&self, g: &mut Gram) {
-        let p = self.h.len();
-        for c in 0..p {
-            for r in 0..=c {
-                let v = self.upper[c * (c + 1) / 2 + r];
-                g.g[(r, c)] += v;
-                if r != c {
-                    g.g[(c, r)] += v;
-                }
-            }
-        }
-        for (a, b) in g.h.iter_mut().zip(&self.h) {
-            *a += b;
-        }
-        g.yy += self.yy;
-        g.n += self.n;
-    }
-
-    /// The whole [`Gram`].
-    pub fn finish(&self) -> Gram {
-        let mut g = Gram::zeros(self.h.len());
-        self.add_to(&mut g);
-        g
-    }
-}
-
 /// The one unconstrained solve of the crate: `(G + ridge·max diag(G)·I) β = rhs` by Cholesky,
 /// and by SVD (least-norm) when the system is singular. `rhs` may have several columns. None
 /// only when the result is not finite.
@@ -247,10 +174,8 @@ mod tests {
         ];
         let mut all = Gram::zeros(3);
         let mut first = Gram::zeros(3);
-        let mut upper = GramSum::zeros(3);
         for (k, (x, y)) in rows.iter().enumerate() {
             all.add_row(x, *y);
-            upper.add_row(x, *y);
             if k == 0 {
                 first.add_row(x, *y);
             }
@@ -258,9 +183,7 @@ mod tests {
         let phi = DMatrix::from_fn(3, 3, |r, c| rows[r].0[c]);
         let y = DVector::from_fn(3, |r, _| rows[r].1);
         assert!((&all.g - phi.transpose() * &phi).norm() < 1e-12);
-        // The upper-triangle accumulation gives the same statistics bit for bit, the block
-        // product the same up to rounding.
-        assert_eq!(upper.finish(), all);
+        // The block product gives the same statistics up to rounding.
         let mut block = Gram::zeros(3);
         let flat: Vec<f64> = rows.iter().flat_map(|(x, _)| *x).collect();
         block.add_rows(&flat, &rows.map(|(_, y)| y));

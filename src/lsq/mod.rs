@@ -10,7 +10,7 @@ mod metrics;
 mod qp;
 mod solve;
 
-pub use gram::{Gram, GramSum, solve_normal};
+pub use gram::{Gram, solve_normal};
 pub use metrics::{
     Metrics, MetricsAccumulator, condition_number, condition_number_gram, condition_number_matrix,
 };

@@ -1,13 +1,16 @@
 //! The power sensors' timing: each reading is the average power over its own window
-//! [t − lag − W, t − lag] ([`Alignment`]), and the (W, lag) scan that estimates that timing from
-//! the data ([`scan_alignment`]) by how well per-reading regressors averaged over each candidate
-//! window explain the readings ([`ridge_r2`]).
+//! [t − lag − W, t − lag] ([`Alignment`]), and the (W, lag) search that estimates that timing
+//! from the data ([`scan_alignment`]) by how well per-reading regressors averaged over each
+//! candidate window explain the readings ([`SearchFits`], [`ridge_r2_of`]).
 //!
-//! The scan knows nothing of how rows are built: identification scores its own per-reading rows
-//! (`identify::estimate_alignment`), diagnosis its own.
+//! The search knows nothing of how rows are built: identification gives its own per-reading rows
+//! (`identify::estimate_alignment`), diagnosis its own (`diagnose/window.rs`).
 
 use crate::N_PARAMS;
-use crate::lsq::{Gram, GramSum};
+use std::ops::Range;
+
+use crate::lsq::Gram;
+use crate::trial::MIN_WINDOW_SAMPLES;
 
 /// Timing of a power reading: it is the average power over [t − lag − window, t − lag].
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -81,23 +84,16 @@ impl ScanGrid<'static> {
     };
 }
 
-/// Scan the timing on `grid`: `score(alignment)` fits the rows built for that candidate and
-/// returns (rows, R²), or None when it cannot (too few rows); the candidate with the highest
-/// R² wins. Regressors averaged over the wrong window are a noisy version of the right ones, so
-/// the fit degrades away from the true timing. None when no coarse candidate could be scored.
+/// Scan the timing on `grid`, the candidates of each stage (the coarse grid, then the fine grid
+/// around its best) scored together: `score(candidates)` returns one entry per candidate, (rows,
+/// R²) of the fit of the rows built for it ([`SearchFits`]), or None when it cannot (too few
+/// rows), so a caller reads its data once per stage for all of them. The candidate with the
+/// highest R² wins: regressors averaged over the wrong window are a noisy version of the right
+/// ones, so the fit degrades away from the true timing. None when no coarse candidate could be
+/// scored.
 pub fn scan_alignment(
     grid: &ScanGrid,
-    mut score: impl FnMut(Alignment) -> Option<(usize, f64)>,
-) -> Option<AlignmentEstimate> {
-    scan_alignment_batch(grid, |cands| cands.iter().map(|&a| score(a)).collect())
-}
-
-/// [`scan_alignment`] with the candidates of each stage (the coarse grid, then the fine grid
-/// around its best) scored together: `score(candidates)` returns one entry per candidate, so a
-/// caller can read its data once per stage for all of them.
-pub fn scan_alignment_batch(
-    grid: &ScanGrid,
-    mut score: impl FnMut(&[Alignment]) -> Vec<Option<(usize, f64)>>,
+    mut score: impl FnMut(&[Alignment]) -> Scores,
 ) -> Option<AlignmentEstimate> {
     let mut scores = Vec::new();
     let mut run = |cands: Vec<Alignment>, scores: &mut Vec<AlignmentScore>| {
@@ -134,22 +130,119 @@ pub fn scan_alignment_batch(
     })
 }
 
-/// R² of an unconstrained least-squares fit of `y` on the 49 regressors (the first
-/// [`N_PARAMS`] values of each row of `phi`)
-/// with a tiny ridge (unexcited columns, e.g. joint pairs that never move together, make ΦᵀΦ
-/// singular). None with no more rows than parameters.
-pub fn ridge_r2<'a>(phi: impl ExactSizeIterator<Item = &'a [f64]>, y: &[f64]) -> Option<f64> {
-    if y.len() <= N_PARAMS || phi.len() != y.len() {
-        return None;
-    }
-    let mut gram = GramSum::zeros(N_PARAMS);
-    for (row, &yv) in phi.zip(y) {
-        gram.add_row(row.get(..N_PARAMS)?, yv);
-    }
-    ridge_r2_of(&gram.finish(), y)
+/// Each candidate's (rows, R²), None where it could not be fitted.
+pub type Scores = Vec<Option<(usize, f64)>>;
+
+/// One reading of a search: the candidate it is scored for, the samples its window averages
+/// (indices into the caller's joint-state samples) and its target.
+#[derive(Debug, Clone)]
+pub struct SearchRow {
+    /// Position of the candidate in the scored list.
+    pub cand: usize,
+    /// The samples in the reading's window.
+    pub samples: Range<usize>,
+    /// The reading's target (net power).
+    pub y: f64,
 }
 
-/// [`ridge_r2`] from the normal equations of the rows and their targets `y` (in row order).
+/// Rows a candidate holds before they enter its normal equations.
+const BLOCK: usize = 256;
+
+/// The normal equations of every candidate's per-reading rows, built trial by trial: a trial's
+/// per-sample regressors are computed once, over the span every window of its rows covers, into
+/// running sums shared by all candidates (a window's mean is the difference of two), and each
+/// candidate's rows enter its normal equations [`BLOCK`] at a time ([`Gram::add_rows`]). The
+/// window means equal the samples' own means up to the rounding of the running sums.
+pub struct SearchFits {
+    /// Per candidate: normal equations, rows not yet in them, every row's target.
+    acc: Vec<(Gram, Vec<f64>, Vec<f64>)>,
+    /// Σφ over the span's first k samples, k = 0..=len (samples without a regressor left out).
+    sums: Vec<[f64; N_PARAMS]>,
+    /// How many of the span's first k samples have no (finite) regressor.
+    bad: Vec<usize>,
+}
+
+impl SearchFits {
+    /// No rows yet for `candidates` candidates.
+    pub fn new(candidates: usize) -> SearchFits {
+        SearchFits {
+            acc: (0..candidates)
+                .map(|_| (Gram::zeros(N_PARAMS), Vec::new(), Vec::new()))
+                .collect(),
+            sums: Vec::new(),
+            bad: Vec::new(),
+        }
+    }
+
+    /// Add one trial's `rows`; `phi(k)` is sample k's regressor row (None, or not finite: missing
+    /// data, and no window holding the sample gives a row). A window with fewer than
+    /// [`MIN_WINDOW_SAMPLES`] gives no row, nor does a target or window mean that is not finite.
+    pub fn add_trial(
+        &mut self,
+        rows: &[SearchRow],
+        mut phi: impl FnMut(usize) -> Option<[f64; N_PARAMS]>,
+    ) {
+        let live = || {
+            rows.iter()
+                .filter(|r| r.samples.len() >= MIN_WINDOW_SAMPLES)
+        };
+        let (Some(start), Some(end)) = (
+            live().map(|r| r.samples.start).min(),
+            live().map(|r| r.samples.end).max(),
+        ) else {
+            return;
+        };
+        let (mut run, mut bad) = ([0.0; N_PARAMS], 0);
+        self.sums.clear();
+        self.bad.clear();
+        self.sums.push(run);
+        self.bad.push(bad);
+        for k in start..end {
+            match phi(k).filter(|p| p.iter().all(|v| v.is_finite())) {
+                Some(p) => run.iter_mut().zip(&p).for_each(|(r, v)| *r += v),
+                None => bad += 1,
+            }
+            self.sums.push(run);
+            self.bad.push(bad);
+        }
+        for r in live() {
+            let (i, j) = (r.samples.start - start, r.samples.end - start);
+            let n = r.samples.len() as f64;
+            let mean: [f64; N_PARAMS] =
+                std::array::from_fn(|c| (self.sums[j][c] - self.sums[i][c]) / n);
+            if self.bad[j] != self.bad[i] || !r.y.is_finite() || mean.iter().any(|v| !v.is_finite())
+            {
+                continue;
+            }
+            let c = &mut self.acc[r.cand];
+            c.1.extend_from_slice(&mean);
+            c.2.push(r.y);
+            if c.1.len() >= BLOCK * N_PARAMS {
+                Self::flush(c);
+            }
+        }
+    }
+
+    fn flush((gram, rows, ys): &mut (Gram, Vec<f64>, Vec<f64>)) {
+        gram.add_rows(rows, &ys[gram.n..]);
+        rows.clear();
+    }
+
+    /// Each candidate's (rows, R²) ([`ridge_r2_of`]), None where it cannot be fitted.
+    pub fn scores(mut self) -> Scores {
+        self.acc
+            .iter_mut()
+            .map(|c| {
+                Self::flush(c);
+                Some((c.2.len(), ridge_r2_of(&c.0, &c.2)?))
+            })
+            .collect()
+    }
+}
+
+/// R² of an unconstrained least-squares fit of the rows' targets `y` (in row order) on the 49
+/// regressors from their normal equations, with a tiny ridge (unexcited columns, e.g. joint
+/// pairs that never move together, make ΦᵀΦ singular). None with no more rows than parameters.
 pub fn ridge_r2_of(gram: &Gram, y: &[f64]) -> Option<f64> {
     let n = y.len();
     if n <= N_PARAMS {
