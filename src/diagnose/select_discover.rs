@@ -1,6 +1,6 @@
 //! Library selection, then discovery beyond the library over every numeric field the
 //! recording's files carry: reading those fields over the rows' windows, and dropping a library
-//! term that is not significant given what discovery found (confounded with it).
+//! term a term beyond the library does better than; then [`super::parsimony`]'s rule.
 
 use anyhow::Result;
 
@@ -12,9 +12,9 @@ use super::{
     Confounded, DiagnoseOptions, DiscoveryReport, FieldSource, HypothesisScore, discover, fields,
 };
 
-/// Stage: library selection, then discovery beyond it; a library term that is not significant
-/// given what discovery found is confounded with it: it is dropped, reported, and the library
-/// selection re-run without it.
+/// Stage: library selection, then discovery beyond it; a library term that a term beyond the
+/// library fits significantly better than ([`library_rivals`]) is dropped, reported, and the
+/// library selection re-run without it; then every claim faces [`super::parsimony`]'s rule.
 pub(crate) fn select_and_discover(
     info: &SessionInfo,
     metas: &[TrialMeta],
@@ -56,12 +56,8 @@ pub(crate) fn select_and_discover(
         let inputs = field_inputs(f, opts);
         let mut report =
             discover::discover(data, &sel.last, &inputs, rule, &info.joint_names, &blocked)?;
-        let mut dropped = library_given_found(data, &sel.last, &report, rule)?;
-        let mut ties = Vec::new();
-        if dropped.is_empty() {
-            let rivals = library_rivals(data, &sel.last, &inputs, rule, info, &mut blocked)?;
-            (ties, dropped) = rivals.into_iter().partition(|c| c.tied);
-        }
+        let rivals = library_rivals(data, &sel.last, &inputs, rule, info, &mut blocked)?;
+        let (ties, dropped): (Vec<_>, Vec<_>) = rivals.into_iter().partition(|c| c.tied);
         if dropped.is_empty() {
             // A library term tied with a rival stays claimed (its form comes from physics, the
             // rival's from a search), the rival named beside it; the selection is not re-run
@@ -126,45 +122,6 @@ pub(crate) fn library_rivals(
         ties.push(c);
     }
     Ok(ties)
-}
-
-/// Library terms of `cur` that are not significant given the found terms (all at once).
-pub(crate) fn library_given_found(
-    data: &PowerData,
-    cur: &select::State,
-    report: &DiscoveryReport,
-    rule: &Rule,
-) -> Result<Vec<Confounded>> {
-    let mut out = Vec::new();
-    if report.cols.is_empty() {
-        return Ok(out);
-    }
-    let found: Vec<&str> = report.accepted.iter().map(|t| t.name.as_str()).collect();
-    let rows = data.rows(cur.lag)?;
-    for (j, h) in cur.spec.iter().enumerate() {
-        let mut spec = cur.spec.clone();
-        spec.remove(j);
-        let without = select::state(data, spec, cur.lag)?;
-        let (p, rel, d_bic) =
-            discover::library_term_given_found(data, cur, &without, &report.cols)?;
-        if p < rule.alpha && d_bic < rule.bic_threshold && rel >= rule.min_improvement {
-            continue;
-        }
-        let mine: Vec<f64> = rows
-            .x
-            .iter()
-            .map(|x| select::regressor(h, x, &cur.full.theta))
-            .collect();
-        out.push(Confounded {
-            kept: found.join("; "),
-            dropped: h.id.into(),
-            correlation: select::correlation(&mine, &report.cols[0]),
-            p_value: p,
-            rel_change: rel,
-            tied: false,
-        });
-    }
-    Ok(out)
 }
 
 /// The recorded fields over the final rows' windows and every trial's baseline windows.
