@@ -3,8 +3,8 @@
 //! the final model fits the held-out trials significantly better (the paired test by trial at
 //! [`RIVAL_ALPHA`]) than the model without it in which EVERY other term takes its flexible
 //! variant — and, for a library claim, its rival mechanism (the best other mechanism the data
-//! supported at its step) stands in its place, also flexible — and only if that test passes in at
-//! least [`STABLE`] of bootstrap resamples of the trials. Otherwise it is located ("X or Y"), kept
+//! supported at its step) stands in its place —, by the held-out gain every candidate must show,
+//! and only if that test passes in at least [`STABLE`] of bootstrap resamples of the trials. Otherwise it is located ("X or Y"), kept
 //! in the model as the best approximation, and not claimed. One test so answers "a second
 //! mechanism beside a first?", "which of two mechanisms?" and "stable?"; each claim's share of
 //! resamples is reported as its stability.
@@ -18,7 +18,9 @@
 use anyhow::Result;
 
 use super::hypotheses::{Hypothesis, LATENCY_ID};
-use super::select::{PowerData, RIVAL_ALPHA, Selection, r2_rmse, regressor, state, trial_sse};
+use super::select::{
+    PowerData, RIVAL_ALPHA, Rule, Selection, r2_rmse, regressor, state, trial_sse,
+};
 use super::stats::{STABILITY_DRAWS, improvement_p_value, resampled_stability};
 use super::{DiscoveryReport, HypothesisScore, MechanismForms};
 use crate::{N_JOINTS, N_PARAMS};
@@ -121,12 +123,15 @@ pub(crate) const STABLE: f64 = 0.8;
 /// Apply the rule to `sel`'s library claims (latency included) and `report`'s found terms, and
 /// record each claim's stability: a located library claim leaves `sel.accepted` (a
 /// [`super::MechanismForms`] entry says why); a located found term moves from `report.accepted`
-/// to `report.located` with the test in its verdict.
+/// to `report.located` with the test in its verdict. Returns the library claims that failed the
+/// test beside found terms (not their rival pairing): the caller drops them and selects again.
 pub(crate) fn apply(
     data: &PowerData,
     sel: &mut Selection,
     mut report: Option<&mut DiscoveryReport>,
-) -> Result<()> {
+    rule: &Rule,
+) -> Result<Vec<(&'static Hypothesis, f64, f64)>> {
+    let min_gain = rule.min_improvement;
     let (spec, lag) = (sel.last.spec.clone(), sel.last.lag);
     let theta = sel.last.full.theta.clone();
     let found: &[super::Discovery] = report.as_deref().map_or(&[], |r| &r.accepted);
@@ -148,16 +153,19 @@ pub(crate) fn apply(
     let rmse = |pred: &[f64]| r2_rmse(&rows.y, pred).1;
     let e_full = sse(&full_pred);
     // The test of one claim: the final model against `alt`, the model without it.
-    let test = |alt: &[f64], of: String, rival: Option<&'static str>, k: usize| {
+    let test = |alt: &[f64], of: String, rival: Option<&'static str>, k: usize, level: f64| {
         let e = sse(alt);
         let d: Vec<f64> = e.iter().zip(&e_full).map(|(a, b)| a - b).collect();
         let seed = 0x5eed_0000 + k as u64;
+        let gate = (RIVAL_ALPHA, min_gain);
         Remainder {
             of,
             rival,
             rmse: [rmse(&full_pred), rmse(alt)],
             p_value: improvement_p_value(&d),
-            held: resampled_stability(&e, &e_full, (RIVAL_ALPHA, 0.0), STABILITY_DRAWS, seed),
+            held: resampled_stability(&e, &e_full, gate, STABILITY_DRAWS, seed),
+            min_gain,
+            level,
         }
     };
     let claimed = |id: &str| sel.accepted.iter().any(|a| a.id == id);
@@ -169,32 +177,31 @@ pub(crate) fn apply(
         .chain(n_lib..n_terms)
     {
         let others: Vec<usize> = (0..n_terms).filter(|&o| o != k).collect();
-        let mut cols: Vec<&Vec<f64>> = others.iter().flat_map(|&o| &flex[o]).collect();
-        let mut of: Vec<String> = Vec::new();
-        // A library claim's rival mechanism, flexible, in its place.
+        let cols: Vec<&Vec<f64>> = others.iter().flat_map(|&o| &flex[o]).collect();
+        let words: Vec<&str> = others.iter().map(|&o| names[o].as_str()).collect();
+        let of = match words.is_empty() {
+            true => String::new(),
+            false => format!("the remainder of the form of {}", words.join(" and ")),
+        };
+        let t = test(&base.fit(&cols)?.pred, of, None, k, rule.alpha);
+        // A library claim's rival mechanism in its place: which mechanism, at RIVAL_ALPHA.
         let rival = (sel.rivals.iter())
             .find(|(id, r)| {
                 k < n_lib && id == spec[k].id && !spec.iter().any(|h| h.mechanism == r.mechanism)
             })
             .map(|r| r.1);
-        let rival_cols = match rival {
-            Some(r) => library_flexible(data, r, &theta, lag)?,
-            None => Vec::new(),
-        };
-        cols.extend(&rival_cols);
-        of.extend(rival.map(|r| format!("the {}", r.mechanism)));
-        if !others.is_empty() {
-            let words: Vec<&str> = others.iter().map(|&o| names[o].as_str()).collect();
-            of.push(format!(
-                "the remainder of the form of {}",
-                words.join(" and ")
-            ));
+        if let (Some(r), true) = (rival, t.claimed()) {
+            let col: Vec<f64> = rows.x.iter().map(|x| regressor(r, x, &theta)).collect();
+            let alt = base.fit(&cols.iter().copied().chain([&col]).collect::<Vec<_>>())?;
+            let of = format!("the {}", r.mechanism);
+            let mut v = test(&alt.pred, of, Some(r.mechanism), k, RIVAL_ALPHA);
+            (v.held, v.min_gain) = (t.held, 0.0);
+            if !v.claimed() {
+                tests.push((k, v));
+                continue;
+            }
         }
-        let alt = base.fit(&cols)?.pred;
-        tests.push((
-            k,
-            test(&alt, of.join(" or "), rival.map(|r| r.mechanism), k),
-        ));
+        tests.push((k, t));
     }
     // Latency adds no regressor: the model without it is the same terms at no lag.
     if claimed(LATENCY_ID) && lag > 0 {
@@ -206,7 +213,7 @@ pub(crate) fn apply(
         let cols: Vec<&Vec<f64>> = flex0.iter().chain(flex[n_lib..].iter().flatten()).collect();
         let alt = super::discover::Base::new(data, &bare0)?.fit(&cols)?.pred;
         let of = "the same terms at no lag, in flexible form".to_string();
-        tests.push((usize::MAX, test(&alt, of, None, n_terms)));
+        tests.push((usize::MAX, test(&alt, of, None, n_terms, rule.alpha)));
     }
     for (k, t) in &tests {
         let id = if *k == usize::MAX {
@@ -227,6 +234,11 @@ pub(crate) fn apply(
             sel.forms.push(t.form(&sel.accepted, id));
         }
     }
+    // Library claims a found term leaves without support (not their rival pairing).
+    let by_found = (tests.iter())
+        .filter(|(k, t)| *k < n_lib && n_terms > n_lib && !t.claimed() && t.rival.is_none())
+        .map(|(k, t)| (spec[*k], t.p_value, 1.0 - t.rmse[0] / t.rmse[1].max(1e-300)))
+        .collect();
     super::select::unname_all(sel);
     if let Some(r) = report.as_deref_mut() {
         for (k, t) in tests
@@ -243,7 +255,7 @@ pub(crate) fn apply(
             }
         }
     }
-    Ok(())
+    Ok(by_found)
 }
 
 /// The test of a claim against the model without it, every other term flexible.
@@ -256,14 +268,19 @@ struct Remainder {
     rmse: [f64; 2],
     /// One-sided paired p-value that the final model fits better.
     p_value: f64,
-    /// Share of trial resamples in which that p-value stays below [`RIVAL_ALPHA`].
+    /// Share of trial resamples in which the test passes.
     held: f64,
+    /// Held-out RMSE gain over the model without it that the claim must show.
+    min_gain: f64,
+    /// Level of the test.
+    level: f64,
 }
 
 impl Remainder {
     /// Whether the claim passes: significant and stable under resampling of the trials.
     fn claimed(&self) -> bool {
-        self.p_value < RIVAL_ALPHA && self.held >= STABLE
+        let gain = 1.0 - self.rmse[0] / self.rmse[1].max(1e-300);
+        self.p_value < self.level && gain >= self.min_gain && self.held >= STABLE
     }
 
     /// "X or Y": the claim's mechanism `m` or what stands in its place; an unstable claim
@@ -278,8 +295,8 @@ impl Remainder {
     fn words(&self) -> String {
         format!(
             "located — not claimed: without it, {} fits the held-out trials at RMSE {:.3} W \
-             against {:.3} W (p = {:.2}, needed < {RIVAL_ALPHA}; held in {:.0} % of {STABILITY_DRAWS} \
-             resamples of the trials, needed ≥ {:.0} %)",
+             against {:.3} W (p = {:.1e}, needed < {:.0e} and a {:.0} % gain; held in {:.0} % \
+             of {STABILITY_DRAWS} resamples of the trials, needed ≥ {:.0} %)",
             if self.of.is_empty() {
                 "the model"
             } else {
@@ -288,6 +305,8 @@ impl Remainder {
             self.rmse[1],
             self.rmse[0],
             self.p_value,
+            self.level,
+            100.0 * self.min_gain,
             100.0 * self.held,
             100.0 * STABLE
         )
@@ -300,7 +319,7 @@ impl Remainder {
         MechanismForms {
             mechanism: self.either(mechanism),
             winner: id.to_string(),
-            runner_up: format!("{}, flexible", self.of),
+            runner_up: self.of.clone(),
             rmse_w: self.rmse,
             margin: 1.0 - self.rmse[0] / self.rmse[1].max(1e-300),
             p_value: self.p_value,
@@ -343,7 +362,7 @@ mod tests {
                 2,
                 "the case: two claims before the rule"
             );
-            apply(&data, &mut sel, None).unwrap();
+            apply(&data, &mut sel, None, &RULE).unwrap();
             assert!(sel.accepted.len() < 2, "{:?}", sel.accepted);
             let located = sel.forms.iter().filter(|f| f.unnamed);
             assert!(

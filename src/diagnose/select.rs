@@ -1329,7 +1329,7 @@ pub(crate) mod tests {
         ] {
             let data = synth(5, 60, effect);
             let mut sel = select(&data, &all(), &RULE).unwrap();
-            super::super::parsimony::apply(&data, &mut sel, None).unwrap();
+            super::super::parsimony::apply(&data, &mut sel, None, &RULE).unwrap();
             let ids: Vec<&str> = sel.accepted.iter().map(|s| s.id.as_str()).collect();
             let unnamed: Vec<&MechanismForms> = sel.forms.iter().filter(|f| f.unnamed).collect();
             eprintln!("{what}: accepted {ids:?}, unnamed {unnamed:?}");
@@ -1352,7 +1352,7 @@ pub(crate) mod tests {
         let data = synth(11, 80, &effect);
         let mut sel = select(&data, &all(), &RULE).unwrap();
         // Each beats the other in flexible form (the rule after all stages).
-        super::super::parsimony::apply(&data, &mut sel, None).unwrap();
+        super::super::parsimony::apply(&data, &mut sel, None, &RULE).unwrap();
         let ids: Vec<&str> = sel.accepted.iter().map(|s| s.id.as_str()).collect();
         assert!(
             ids.contains(&"bus_loss") && ids.contains(&"thermal"),

@@ -49,7 +49,7 @@ pub(crate) fn select_and_discover(
             }
         };
         if !opts.discover {
-            super::parsimony::apply(data, &mut sel, None)?;
+            super::parsimony::apply(data, &mut sel, None, rule)?;
             return Ok((sel, None, f));
         }
         let f = &fields.insert((lag, f)).1;
@@ -57,7 +57,30 @@ pub(crate) fn select_and_discover(
         let mut report =
             discover::discover(data, &sel.last, &inputs, rule, &info.joint_names, &blocked)?;
         let rivals = library_rivals(data, &sel.last, &inputs, rule, info, &mut blocked)?;
-        let (ties, dropped): (Vec<_>, Vec<_>) = rivals.into_iter().partition(|c| c.tied);
+        let (ties, mut dropped): (Vec<_>, Vec<_>) = rivals.into_iter().partition(|c| c.tied);
+        if dropped.is_empty() {
+            // The rule; library terms the found terms leave without support are dropped and
+            // the selection is run again without them.
+            let kept: Vec<String> = report.accepted.iter().map(|t| t.name.clone()).collect();
+            let col = report.cols.first().cloned().unwrap_or_default();
+            let rows = data.rows(sel.last.lag)?;
+            let theta = sel.last.full.theta.clone();
+            for (h, p_value, rel_change) in
+                super::parsimony::apply(data, &mut sel, Some(&mut report), rule)?
+            {
+                let mine: Vec<f64> = (rows.x.iter())
+                    .map(|x| select::regressor(h, x, &theta))
+                    .collect();
+                dropped.push(Confounded {
+                    kept: kept.join("; "),
+                    dropped: h.id.into(),
+                    correlation: super::stats::pearson(&mine, &col).0,
+                    p_value,
+                    rel_change,
+                    tied: false,
+                });
+            }
+        }
         if dropped.is_empty() {
             // A library term tied with a rival stays claimed (its form comes from physics, the
             // rival's from a search), the rival named beside it; the selection is not re-run
@@ -71,7 +94,6 @@ pub(crate) fn select_and_discover(
             );
             sel.confounded.extend(confounded);
             sel.accepted.retain(|a| !excluded.contains(&a.id.as_str()));
-            super::parsimony::apply(data, &mut sel, Some(&mut report))?;
             let f = fields.map(|f| f.1).unwrap_or_default();
             return Ok((sel, Some(report), f));
         }
