@@ -128,7 +128,7 @@ pub(crate) const STABLE: f64 = 0.8;
 pub(crate) fn apply(
     data: &PowerData,
     sel: &mut Selection,
-    mut report: Option<&mut DiscoveryReport>,
+    report: Option<&mut DiscoveryReport>,
     rule: &Rule,
 ) -> Result<Vec<(&'static Hypothesis, f64, f64)>> {
     let min_gain = rule.min_improvement;
@@ -240,7 +240,7 @@ pub(crate) fn apply(
         .map(|(k, t)| (spec[*k], t.p_value, 1.0 - t.rmse[0] / t.rmse[1].max(1e-300)))
         .collect();
     super::select::unname_all(sel);
-    if let Some(r) = report.as_deref_mut() {
+    if let Some(r) = report {
         for (k, t) in tests
             .iter()
             .rev()
