@@ -18,8 +18,8 @@
 //!   pooled (one coefficient): a friction or efficiency the twin has wrong.
 //!
 //! Selection: forward (best held-out improvement that passes every gate at the Holm-corrected
-//! level α/(m − j), m = candidates tried), then backward elimination (every accepted term stays
-//! significant given the others), never more terms than one per 20 trials. A chosen term's
+//! level α/(m − j), m = candidates tried), never more terms than one per 20 trials; whether each
+//! is claimed beside the others is [`super::parsimony`]'s rule. A chosen term's
 //! rivals at its step — candidates on other fields it does not fit significantly better than,
 //! of the same structure or with a collinear contribution ([`tie_of`]) — are named with it as
 //! confounded and never claimed. Fields that track
@@ -31,7 +31,6 @@
 //! term's structure only ([`describe`]).
 
 use anyhow::Result;
-use nalgebra::{DMatrix, DVector};
 
 use super::Quality;
 use super::family::{Shape, Term};
@@ -42,10 +41,8 @@ use super::select::{
     Param, PowerData, Rule, State, bic, bounds_for, design_map_for, jackknife_se, r2_rmse,
     solve_bounded_for, trial_sse,
 };
-use super::stats::{
-    STABILITY_DRAWS, improvement_p_value, pearson, resampled_stability, span, step_threshold,
-};
-use crate::lsq::{Gram, solve_normal};
+use super::stats::{improvement_p_value, pearson, span, step_threshold};
+use crate::lsq::Gram;
 use crate::{N_JOINTS, N_PARAMS};
 
 /// Correlation with the readings above which a field counts as a meter of the power itself.
@@ -128,8 +125,8 @@ pub struct Discovery {
     /// found on ([`super::meters`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub meter: Option<super::meters::MeterCheck>,
-    /// Share of resamples of the trials (with replacement) in which it still passed its test
-    /// at its step (absent: not measured).
+    /// Share of resamples of the trials (with replacement) in which it passed
+    /// [`super::parsimony`]'s test (absent: not measured).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stability: Option<f64>,
     /// The library mechanism this term is a form of (its hypothesis id: a one-sided or
@@ -179,7 +176,7 @@ pub struct DiscoveryReport {
     pub n_candidates: usize,
     /// Family-wise false-discovery level across all candidates.
     pub alpha: f64,
-    /// Terms found, in the order accepted (backward elimination applied).
+    /// Terms found, in the order accepted.
     pub accepted: Vec<Discovery>,
     /// The best candidate that was not accepted (for the report), if any was tried.
     pub best_rejected: Option<Discovery>,
@@ -297,27 +294,6 @@ pub(crate) struct Base<'a, 'd> {
 }
 
 impl<'a, 'd> Base<'a, 'd> {
-    /// `c` with its least-squares projection on the library design removed (full data).
-    fn residualise(&self, c: &[f64]) -> Vec<f64> {
-        let p = self.p;
-        let mut g = DMatrix::zeros(p, p);
-        for gf in &self.fold {
-            g += &gf.g;
-        }
-        let mut h = DVector::zeros(p);
-        for (x, v) in self.xm.iter().zip(c) {
-            for a in 0..p {
-                h[a] += x[a] * v;
-            }
-        }
-        let beta = solve_normal(&g, &h, 1e-9).unwrap_or_else(|| DVector::zeros(p));
-        self.xm
-            .iter()
-            .zip(c)
-            .map(|(x, v)| v - x.iter().zip(beta.iter()).map(|(a, b)| a * b).sum::<f64>())
-            .collect()
-    }
-
     /// The design of model `cur` on its rows.
     pub(crate) fn new(data: &'a PowerData<'d>, cur: &'a State) -> Result<Base<'a, 'd>> {
         let rows = data.rows(cur.lag)?;
@@ -892,9 +868,6 @@ struct Scored {
     before: Quality,
     after: Quality,
     plausible: bool,
-    /// Share of trial resamples in which it still passes its test (NaN: not measured;
-    /// [`Search::stability`]).
-    stability: f64,
 }
 
 /// Forward selection over the candidates at the Holm level; returns the accepted (step,
@@ -955,23 +928,7 @@ impl Search<'_, '_> {
             before,
             after,
             plausible,
-            stability: f64::NAN,
         })
-    }
-
-    /// [`resampled_stability`] of `chosen` over the current predictions `cur` at `step` (its
-    /// gate at `level`).
-    fn stability(&self, chosen: &Scored, cur: &[f64], level: f64, step: usize) -> f64 {
-        let rows = self.base.rows;
-        let nt = self.base.data.n_trials;
-        let sse = |pred: &[f64]| trial_sse(&rows.y, pred, &rows.trial, nt);
-        resampled_stability(
-            &sse(cur),
-            &sse(&chosen.fit.pred),
-            (level, self.rule.min_improvement),
-            STABILITY_DRAWS,
-            ((step as u64) << 32) | chosen.idx as u64,
-        )
     }
 
     /// The flexible variant of candidate `i` ([`super::parsimony`]): its own columns, then for
@@ -1124,13 +1081,7 @@ pub(crate) fn discover(
             let d = to_discovery(f, &search, joint_names, lv, step, verdict);
             report.best_rejected = Some(d);
         }
-        let Some(mut b) = best else { break };
-        if let Some(note) = confounded_with(&search, &chosen, b.idx) {
-            // The data cannot tell this term from one already found: report, do not claim.
-            report.notes.push(note);
-            closed.push(search.cands[b.idx].group.clone());
-            continue;
-        }
+        let Some(b) = best else { break };
         let lv = level * search.cands[b.idx].weight;
         // A term × signal says the loss changes with the signal: that needs its dependence
         // k resolved, not only the term's gain (a slow signal nearly constant over the session
@@ -1153,10 +1104,6 @@ pub(crate) fn discover(
             closed.push(search.cands[b.idx].group.clone());
             continue;
         }
-        // Reported, not a gate: how often it still passes its test when the trials are
-        // resampled (a gate at 80 % drops true effects whose p lies within 10× of the Holm
-        // level, e.g. the housing friction and rail-load tests at 72 trials).
-        b.stability = search.stability(&b, &cur_pred, lv, step);
         // Rivals on other fields the data cannot tell from it: named with it, never claimed.
         let ties = ties_at_step(&search, &b, &passing, &cur_pred, joint_names, level);
         for t in &ties {
@@ -1179,7 +1126,6 @@ pub(crate) fn discover(
         cur_bic = b.fit.bic;
         accepted.push((step, b));
     }
-    backward(&search, &mut chosen, &mut accepted, &mut report.notes)?;
     claim_rivals_found_beside(&search, &chosen, &mut tied, &mut report.notes);
     let on_time = chosen
         .iter()
@@ -1241,9 +1187,8 @@ fn stays_open(t: &TiedTerm) -> bool {
     t.same_structure && t.correlation < CONFOUNDED_R
 }
 
-/// Rivals that were tried beside the term they tied with and were accepted themselves (and kept
-/// by backward elimination) are second effects, not ties: taken out of the tie lists, with a
-/// note.
+/// Rivals that were tried beside the term they tied with and were accepted themselves are second
+/// effects, not ties: taken out of the tie lists, with a note.
 fn claim_rivals_found_beside(
     search: &Search,
     chosen: &[usize],
@@ -1801,65 +1746,6 @@ fn clock_stand_ins(excluded: &[super::fields::ExcludedField]) -> Option<String> 
     })
 }
 
-/// A note when candidate `i` is confounded with an already chosen term (partial correlation of
-/// their first regressors given the library design ≥ [`CONFOUNDED_R`]).
-fn confounded_with(search: &Search, chosen: &[usize], i: usize) -> Option<String> {
-    let mine = search.base.residualise(&search.cols(i)[0]);
-    chosen.iter().find_map(|&k| {
-        let other = search.base.residualise(&search.cols(k)[0]);
-        let (r, _) = pearson(&mine, &other);
-        (r.abs() >= CONFOUNDED_R).then(|| {
-            format!(
-                "confounded: {} or {} (partial correlation of their regressors r = {r:+.3}); only the first is claimed",
-                search.cands[k].group, search.cands[i].group
-            )
-        })
-    })
-}
-
-/// Backward elimination at the final Holm level: every kept term stays significant given the
-/// others; the least significant failing one is dropped, repeatedly.
-fn backward(
-    search: &Search,
-    chosen: &mut Vec<usize>,
-    accepted: &mut Vec<(usize, Scored)>,
-    notes: &mut Vec<String>,
-) -> Result<()> {
-    let level = search.level(chosen.len().max(1));
-    while chosen.len() >= 2 {
-        let cols_of = |skip: Option<usize>| -> Vec<Vec<f64>> {
-            chosen
-                .iter()
-                .enumerate()
-                .filter(|(l, _)| Some(*l) != skip)
-                .flat_map(|(_, &k)| search.cols(k))
-                .collect()
-        };
-        let all = cols_of(None);
-        let full = search.base.fit(&all.iter().collect::<Vec<_>>())?;
-        let mut drop: Option<(usize, f64)> = None;
-        for j in 0..chosen.len() {
-            let rest = cols_of(Some(j));
-            let without = search.base.fit(&rest.iter().collect::<Vec<_>>())?;
-            let (p, rel, _, _) = search.base.compare(&without.pred, &full.pred);
-            let ok = p < level
-                && full.bic - without.bic < search.rule.bic_threshold
-                && rel >= search.rule.min_improvement;
-            if !ok && drop.is_none_or(|(_, pw)| p > pw) {
-                drop = Some((j, p));
-            }
-        }
-        let Some((j, p)) = drop else { break };
-        let k = chosen.remove(j);
-        accepted.retain(|(_, s)| s.idx != k);
-        notes.push(format!(
-            "dropped in backward elimination (p = {p:.1e} given the others): {}",
-            search.cands[k].group
-        ));
-    }
-    Ok(())
-}
-
 /// Parameters of the kept terms fitted together, their ties named with them, and the final
 /// held-out predictions.
 fn finish(
@@ -1925,22 +1811,6 @@ fn finish(
     report.pred = final_fit.map_or_else(|| cur.cv.pred.clone(), |f| f.pred);
     report.after = Some(search.base.compare(&cur.cv.pred, &report.pred).3);
     Ok(())
-}
-
-/// Whether library term `j` of `cur` stays significant given the found terms `cols`:
-/// (p-value, relative held-out change, ΔBIC) of the full model against the one without it.
-pub(crate) fn library_term_given_found(
-    data: &PowerData,
-    cur: &State,
-    without: &State,
-    cols: &[Vec<f64>],
-) -> Result<(f64, f64, f64)> {
-    let refs: Vec<&Vec<f64>> = cols.iter().collect();
-    let full_base = Base::new(data, cur)?;
-    let full = full_base.fit(&refs)?;
-    let wo = Base::new(data, without)?.fit(&refs)?;
-    let (p, rel, _, _) = full_base.compare(&wo.pred, &full.pred);
-    Ok((p, rel, full.bic - wo.bic))
 }
 
 /// Standard errors its dependence coefficient must clear for a term × signal to be claimed.
@@ -2024,7 +1894,7 @@ fn to_discovery(
         verdict,
         tied: Vec::new(),
         meter: None,
-        stability: s.stability.is_finite().then_some(s.stability),
+        stability: None,
         mechanism: match &search.cands[s.idx].kind {
             Kind::Product(t, ..) | Kind::Pooled(t) => t.library_id().map(String::from),
             _ => None,

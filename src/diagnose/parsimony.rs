@@ -1,10 +1,13 @@
-//! One parsimony rule for every claim beside another (issue 28 item 4), applied once after all
-//! stages to the final claim set (library hypotheses and terms found beyond the library): a
-//! claim is kept only if the final model fits the held-out trials significantly better (the
-//! paired test by trial at [`RIVAL_ALPHA`]) than the model without it in which EVERY other term
-//! takes its flexible variant. Otherwise it is located — the remainder of the others' form —,
-//! kept in the model as the best approximation, and not claimed. A true effect whose form
-//! differs a little from its fitted one then leaves no remainder for a second mechanism to take.
+//! One rule for every claim (issue 28 item 4), applied once after all stages to the final claim
+//! set (library hypotheses, latency, terms found beyond the library): a claim is kept only if
+//! the final model fits the held-out trials significantly better (the paired test by trial at
+//! [`RIVAL_ALPHA`]) than the model without it in which EVERY other term takes its flexible
+//! variant — and, for a library claim, its rival mechanism (the best other mechanism the data
+//! supported at its step) stands in its place —, by the held-out gain every candidate must show,
+//! and only if that test passes in at least [`STABLE`] of bootstrap resamples of the trials. Otherwise it is located ("X or Y"), kept
+//! in the model as the best approximation, and not claimed. One test so answers "a second
+//! mechanism beside a first?", "which of two mechanisms?" and "stable?"; each claim's share of
+//! resamples is reported as its stability.
 //!
 //! The flexible variant of a term with regressor g is the same for every term: g's per-joint
 //! features each with its own coefficient, its driving share (g on joints that drive), a free
@@ -14,9 +17,12 @@
 
 use anyhow::Result;
 
-use super::select::{PowerData, RIVAL_ALPHA, Selection, r2_rmse, regressor, state, trial_sse};
-use super::stats::improvement_p_value;
-use super::{DiscoveryReport, HypothesisScore, MechanismForms, hypotheses::Hypothesis};
+use super::hypotheses::{Hypothesis, LATENCY_ID};
+use super::select::{
+    PowerData, RIVAL_ALPHA, Rule, Selection, r2_rmse, regressor, state, trial_sse,
+};
+use super::stats::{STABILITY_DRAWS, improvement_p_value, resampled_stability};
+use super::{DiscoveryReport, HypothesisScore, MechanismForms};
 use crate::{N_JOINTS, N_PARAMS};
 
 /// Quantiles of a state at which its piecewise-linear function may bend.
@@ -111,88 +117,198 @@ fn library_flexible(
     Ok(cols)
 }
 
-/// Apply the rule to `sel`'s library claims and `report`'s found terms: a located library claim
-/// leaves `sel.accepted` (a [`super::MechanismForms`] entry says why); a located found term moves
-/// from `report.accepted` to `report.located` with the test in its verdict.
+/// Share of the trial resamples in which a claim must pass the rule's test to be claimed.
+pub(crate) const STABLE: f64 = 0.8;
+
+/// Apply the rule to `sel`'s library claims (latency included) and `report`'s found terms, and
+/// record each claim's stability: a located library claim leaves `sel.accepted` (a
+/// [`super::MechanismForms`] entry says why); a located found term moves from `report.accepted`
+/// to `report.located` with the test in its verdict. Returns the library claims that failed the
+/// test beside found terms (not their rival pairing): the caller drops them and selects again.
 pub(crate) fn apply(
     data: &PowerData,
     sel: &mut Selection,
     report: Option<&mut DiscoveryReport>,
-) -> Result<()> {
+    rule: &Rule,
+) -> Result<Vec<(&'static Hypothesis, f64, f64)>> {
+    let min_gain = rule.min_improvement;
     let (spec, lag) = (sel.last.spec.clone(), sel.last.lag);
+    let theta = sel.last.full.theta.clone();
     let found: &[super::Discovery] = report.as_deref().map_or(&[], |r| &r.accepted);
-    let n_lib = spec.len();
-    let n_terms = n_lib + found.len();
-    if n_terms < 2 {
-        return Ok(());
-    }
+    let (n_lib, n_terms) = (spec.len(), spec.len() + found.len());
     let full_pred = match report.as_deref() {
         Some(r) if !r.pred.is_empty() => r.pred.clone(),
         _ => sel.last.cv.pred.clone(),
     };
     let mut flex = Vec::with_capacity(n_terms);
     for h in &spec {
-        flex.push(library_flexible(data, h, &sel.last.full.theta, lag)?);
+        flex.push(library_flexible(data, h, &theta, lag)?);
     }
     flex.extend(found.iter().map(|d| d.flexible.clone()));
     let names: Vec<String> = (spec.iter().map(|h| h.mechanism.to_string()))
         .chain(found.iter().map(|d| d.name.clone()))
         .collect();
-    let bare = state(data, Vec::new(), lag)?;
-    let base = super::discover::Base::new(data, &bare)?;
     let rows = data.rows(lag)?;
     let sse = |pred: &[f64]| trial_sse(&rows.y, pred, &rows.trial, data.n_trials);
     let rmse = |pred: &[f64]| r2_rmse(&rows.y, pred).1;
     let e_full = sse(&full_pred);
-    let claimed = (0..n_lib).filter(|&j| sel.accepted.iter().any(|a| a.id == spec[j].id));
-    let mut located = Vec::new();
-    for k in claimed.chain(n_lib..n_terms) {
+    // The test of one claim: the final model against `alt`, the model without it.
+    let test = |alt: &[f64], of: String, rival: Option<&'static str>, k: usize, level: f64| {
+        let e = sse(alt);
+        let d: Vec<f64> = e.iter().zip(&e_full).map(|(a, b)| a - b).collect();
+        let seed = 0x5eed_0000 + k as u64;
+        let gate = (RIVAL_ALPHA, min_gain);
+        Remainder {
+            of,
+            rival,
+            rmse: [rmse(&full_pred), rmse(alt)],
+            p_value: improvement_p_value(&d),
+            held: resampled_stability(&e, &e_full, gate, STABILITY_DRAWS, seed),
+            min_gain,
+            level,
+        }
+    };
+    let claimed = |id: &str| sel.accepted.iter().any(|a| a.id == id);
+    let bare = state(data, Vec::new(), lag)?;
+    let base = super::discover::Base::new(data, &bare)?;
+    let mut tests: Vec<(usize, Remainder)> = Vec::new();
+    for k in (0..n_lib)
+        .filter(|&j| claimed(spec[j].id))
+        .chain(n_lib..n_terms)
+    {
         let others: Vec<usize> = (0..n_terms).filter(|&o| o != k).collect();
         let cols: Vec<&Vec<f64>> = others.iter().flat_map(|&o| &flex[o]).collect();
-        let pred = base.fit(&cols)?.pred;
-        let d: Vec<f64> = sse(&pred).iter().zip(&e_full).map(|(a, b)| a - b).collect();
-        let p_value = improvement_p_value(&d);
-        if p_value < RIVAL_ALPHA {
+        let words: Vec<&str> = others.iter().map(|&o| names[o].as_str()).collect();
+        let of = match words.is_empty() {
+            true => String::new(),
+            false => format!("the remainder of the form of {}", words.join(" and ")),
+        };
+        let t = test(&base.fit(&cols)?.pred, of, None, k, rule.alpha);
+        // A library claim's rival mechanism in its place: which mechanism, at RIVAL_ALPHA.
+        let rival = (sel.rivals.iter())
+            .find(|(id, r)| {
+                k < n_lib && id == spec[k].id && !spec.iter().any(|h| h.mechanism == r.mechanism)
+            })
+            .map(|r| r.1);
+        if let (Some(r), true) = (rival, t.claimed()) {
+            let col: Vec<f64> = rows.x.iter().map(|x| regressor(r, x, &theta)).collect();
+            let alt = base.fit(&cols.iter().copied().chain([&col]).collect::<Vec<_>>())?;
+            let of = format!("the {}", r.mechanism);
+            let mut v = test(&alt.pred, of, Some(r.mechanism), k, RIVAL_ALPHA);
+            (v.held, v.min_gain) = (t.held, 0.0);
+            if !v.claimed() {
+                tests.push((k, v));
+                continue;
+            }
+        }
+        tests.push((k, t));
+    }
+    // Latency adds no regressor: the model without it is the same terms at no lag.
+    if claimed(LATENCY_ID) && lag > 0 {
+        let bare0 = state(data, Vec::new(), 0)?;
+        let mut flex0 = Vec::new();
+        for h in &spec {
+            flex0.extend(library_flexible(data, h, &theta, 0)?);
+        }
+        let cols: Vec<&Vec<f64>> = flex0.iter().chain(flex[n_lib..].iter().flatten()).collect();
+        let alt = super::discover::Base::new(data, &bare0)?.fit(&cols)?.pred;
+        let of = "the same terms at no lag, in flexible form".to_string();
+        tests.push((usize::MAX, test(&alt, of, None, n_terms, rule.alpha)));
+    }
+    for (k, t) in &tests {
+        let id = if *k == usize::MAX {
+            LATENCY_ID
+        } else {
+            spec.get(*k).map_or("", |h| h.id)
+        };
+        if let Some(a) = (*k < n_lib || *k == usize::MAX)
+            .then(|| sel.accepted.iter_mut().find(|a| a.id == id))
+            .flatten()
+        {
+            a.stability = Some(t.held);
+        }
+        if t.claimed() {
             continue;
         }
-        let words: Vec<&str> = others.iter().map(|&o| names[o].as_str()).collect();
-        let test = Remainder {
-            of: words.join(" and "),
-            rmse: [rmse(&full_pred), rmse(&pred)],
-            p_value,
-        };
-        located.push((k, test));
-    }
-    for (k, test) in located.iter().filter(|(k, _)| *k < n_lib) {
-        sel.forms.push(test.form(&sel.accepted, spec[*k].id));
-    }
-    super::select::unname_all(sel);
-    if let Some(r) = report {
-        for (k, test) in located.iter().rev().filter(|(k, _)| *k >= n_lib) {
-            let mut d = r.accepted.remove(k - n_lib);
-            d.verdict = format!("{}; {}", test.words(), d.verdict);
-            r.located.insert(0, d);
+        if *k < n_lib || *k == usize::MAX {
+            sel.forms.push(t.form(&sel.accepted, id));
         }
     }
-    Ok(())
+    // Library claims a found term leaves without support (not their rival pairing).
+    let by_found = (tests.iter())
+        .filter(|(k, t)| *k < n_lib && n_terms > n_lib && !t.claimed() && t.rival.is_none())
+        .map(|(k, t)| (spec[*k], t.p_value, 1.0 - t.rmse[0] / t.rmse[1].max(1e-300)))
+        .collect();
+    super::select::unname_all(sel);
+    if let Some(r) = report {
+        for (k, t) in tests
+            .iter()
+            .rev()
+            .filter(|(k, _)| (n_lib..n_terms).contains(k))
+        {
+            let d = &mut r.accepted[k - n_lib];
+            d.stability = Some(t.held);
+            if !t.claimed() {
+                let mut d = r.accepted.remove(k - n_lib);
+                d.verdict = format!("{}; {}", t.words(), d.verdict);
+                r.located.insert(0, d);
+            }
+        }
+    }
+    Ok(by_found)
 }
 
-/// The test that located a claim as the remainder of other terms' form.
+/// The test of a claim against the model without it, every other term flexible.
 struct Remainder {
-    /// The other terms, in words.
+    /// What stands in its place, in words (empty: nothing).
     of: String,
-    /// Held-out RMSE [W] of the final model and of the one without the claim, others flexible.
+    /// The rival mechanism among it, if any.
+    rival: Option<&'static str>,
+    /// Held-out RMSE [W] of the final model and of the one without the claim.
     rmse: [f64; 2],
     /// One-sided paired p-value that the final model fits better.
     p_value: f64,
+    /// Share of trial resamples in which the test passes.
+    held: f64,
+    /// Held-out RMSE gain over the model without it that the claim must show.
+    min_gain: f64,
+    /// Level of the test.
+    level: f64,
 }
 
 impl Remainder {
+    /// Whether the claim passes: significant and stable under resampling of the trials.
+    fn claimed(&self) -> bool {
+        let gain = 1.0 - self.rmse[0] / self.rmse[1].max(1e-300);
+        self.p_value < self.level && gain >= self.min_gain && self.held >= STABLE
+    }
+
+    /// "X or Y": the claim's mechanism `m` or what stands in its place; an unstable claim
+    /// without any is only its form.
+    fn either(&self, m: &str) -> String {
+        match self.of.is_empty() {
+            true => format!("form of {m}, not stable under resampling of the trials"),
+            false => format!("{m} or {}", self.of),
+        }
+    }
+
     fn words(&self) -> String {
         format!(
-            "located — the remainder of the form of {}, not claimed: without it, with {} in \
-             flexible form, the held-out RMSE is {:.3} W against {:.3} W (p = {:.2} ≥ {RIVAL_ALPHA})",
-            self.of, self.of, self.rmse[1], self.rmse[0], self.p_value
+            "located — not claimed: without it, {} fits the held-out trials at RMSE {:.3} W \
+             against {:.3} W (p = {:.1e}, needed < {:.0e} and a {:.0} % gain; held in {:.0} % \
+             of {STABILITY_DRAWS} resamples of the trials, needed ≥ {:.0} %)",
+            if self.of.is_empty() {
+                "the model"
+            } else {
+                &self.of
+            },
+            self.rmse[1],
+            self.rmse[0],
+            self.p_value,
+            self.level,
+            100.0 * self.min_gain,
+            100.0 * self.held,
+            100.0 * STABLE
         )
     }
 
@@ -200,20 +316,22 @@ impl Remainder {
     fn form(&self, accepted: &[HypothesisScore], id: &str) -> MechanismForms {
         let s = accepted.iter().find(|a| a.id == id);
         let mechanism = super::hypotheses::power_hypothesis(id).map_or(id, |h| h.mechanism);
-        let words = format!("the remainder of the form of {}", self.of);
         MechanismForms {
-            mechanism: format!("{mechanism} or {words}"),
+            mechanism: self.either(mechanism),
             winner: id.to_string(),
-            runner_up: format!("{}, flexible", self.of),
+            runner_up: self.of.clone(),
             rmse_w: self.rmse,
             margin: 1.0 - self.rmse[0] / self.rmse[1].max(1e-300),
             p_value: self.p_value,
             accepted: true,
-            form_words: [mechanism.to_string(), words],
+            form_words: [
+                mechanism.to_string(),
+                self.rival.unwrap_or(&self.of).to_string(),
+            ],
             params: [s.map(|s| s.params.clone()).unwrap_or_default(), Vec::new()],
             confounded: true,
             unnamed: true,
-            partial_r: None,
+            stability: Some(self.held),
         }
     }
 }
@@ -244,7 +362,7 @@ mod tests {
                 2,
                 "the case: two claims before the rule"
             );
-            apply(&data, &mut sel, None).unwrap();
+            apply(&data, &mut sel, None, &RULE).unwrap();
             assert!(sel.accepted.len() < 2, "{:?}", sel.accepted);
             let located = sel.forms.iter().filter(|f| f.unnamed);
             assert!(

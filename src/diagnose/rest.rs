@@ -9,7 +9,9 @@
 //! folds are contiguous blocks of trials and the paired test is by block.
 
 use super::select::{Param, RIVAL_ALPHA, Rule, jackknife_se};
-use super::stats::{improvement_p_value, span, step_threshold};
+use super::stats::{
+    STABILITY_DRAWS, improvement_p_value, resampled_stability, span, step_threshold,
+};
 use crate::lsq::Gram;
 
 /// Trials per block of the held-out test (≈ 4–5 minutes of the protocol).
@@ -83,6 +85,10 @@ pub struct RestTerm {
     /// What the rail's other meter shows of it ([`super::meters`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub meter: Option<super::meters::MeterCheck>,
+    /// For a term found: the share of block resamples in which [`super::parsimony`]'s test
+    /// passed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stability: Option<f64>,
 }
 
 /// A candidate column: a field linear, a field as a step, or session time.
@@ -289,6 +295,7 @@ impl Search<'_> {
             tied: Vec::new(),
             verdict,
             meter: None,
+            stability: None,
         }
     }
 }
@@ -378,15 +385,24 @@ pub(crate) fn rest_power(inp: &RestInputs, rule: &Rule) -> Option<RestPower> {
     if !out.found.is_empty() {
         search.per_trial(inp, trials, &chosen, &cur, &mut out);
     }
-    for (k, p) in search.remainders(&chosen, &cur).into_iter().rev() {
+    let tests = search.remainders(&chosen, &cur);
+    for (k, &(p, held)) in tests.iter().enumerate().rev() {
+        out.found[k].stability = Some(held);
+        if p < RIVAL_ALPHA && held >= super::parsimony::STABLE {
+            continue;
+        }
         let mut t = out.found.remove(k);
         if k < out.term_cols.len() {
             out.term_cols.remove(k);
         }
         t.verdict = format!(
-            "located — the remainder of the other rest-power terms' form, not claimed: without it, \
-             with them piecewise-linear in their fields, the held-out rest power fits as well \
-             (p = {p:.2} ≥ {RIVAL_ALPHA}); {}",
+            "located — not claimed: without it (the other rest-power terms piecewise-linear in \
+             their fields) the held-out rest power fits at p = {p:.2} (needed < {RIVAL_ALPHA} with a \
+             {:.0} % gain), held in {:.0} % of {STABILITY_DRAWS} resamples of the blocks (needed \
+             ≥ {:.0} %); {}",
+            100.0 * rule.min_improvement,
+            100.0 * held,
+            100.0 * super::parsimony::STABLE,
             t.verdict
         );
         out.located.insert(0, t);
@@ -446,10 +462,10 @@ impl Search<'_> {
         (chosen, steps, cur)
     }
 
-    /// [`super::parsimony`]'s rule within the rest power's rows: the positions in `chosen` (with
-    /// the p-value) of terms that the model without them, every other term also as a
-    /// piecewise-linear function of its field, fits as well as `cur` by the paired block test.
-    fn remainders(&self, chosen: &[usize], cur: &Fit) -> Vec<(usize, f64)> {
+    /// [`super::parsimony`]'s rule within the rest power's rows: per term in `chosen`, the
+    /// paired block test of `cur` against the model without it, every other term as a
+    /// piecewise-linear function of its field — (p-value, share of block resamples it passes).
+    fn remainders(&self, chosen: &[usize], cur: &Fit) -> Vec<(f64, f64)> {
         let flex = |c: usize| -> Vec<Vec<f64>> {
             let v = match self.cands[c] {
                 Cand::Step(f, _) => (self.cands.iter())
@@ -469,15 +485,29 @@ impl Search<'_> {
             );
             out
         };
-        let claims = (0..chosen.len()).filter(|_| chosen.len() >= 2);
-        claims
-            .filter_map(|k| {
+        let block_sse = |pred: &[f64]| {
+            let mut e = vec![0.0; self.n_blocks];
+            (0..self.y.len()).for_each(|r| e[self.block[r]] += (self.y[r] - pred[r]).powi(2));
+            e
+        };
+        let e_cur = block_sse(&cur.pred);
+        let sum = |e: &[f64]| e.iter().sum::<f64>();
+        (0..chosen.len())
+            .map(|k| {
                 let others = chosen.iter().enumerate().filter(|(j, _)| *j != k);
                 let cols: Vec<Vec<f64>> = others.flat_map(|(_, &c)| flex(c)).collect();
                 let x: Vec<&[f64]> = cols.iter().map(Vec::as_slice).collect();
-                let without = self.fit(&x)?;
-                let p = improvement_p_value(&self.block_gain(&without.pred, &cur.pred));
-                (p >= RIVAL_ALPHA || p.is_nan()).then_some((k, p))
+                let Some(without) = self.fit(&x) else {
+                    return (f64::NAN, 0.0);
+                };
+                let e = block_sse(&without.pred);
+                let d: Vec<f64> = e.iter().zip(&e_cur).map(|(a, b)| a - b).collect();
+                let seed = 0x5eed_0000 + k as u64;
+                let level = (RIVAL_ALPHA, self.rule.min_improvement);
+                let held = resampled_stability(&e, &e_cur, level, STABILITY_DRAWS, seed);
+                let gain = 1.0 - (sum(&e_cur) / sum(&e).max(1e-300)).sqrt();
+                let p = improvement_p_value(&d);
+                (if gain >= level.1 { p } else { 1.0 }, held)
             })
             .collect()
     }

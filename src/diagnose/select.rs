@@ -375,6 +375,9 @@ pub struct HypothesisScore {
     pub step: usize,
     /// Why it was accepted or rejected.
     pub verdict: String,
+    /// For a claim: the share of trial resamples in which [`super::parsimony`]'s test passed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stability: Option<f64>,
 }
 
 impl HypothesisScore {
@@ -696,6 +699,7 @@ fn score_term(
         rank: 0,
         step,
         verdict: String::new(),
+        stability: None,
     };
     Ok(Candidate { score, next })
 }
@@ -769,6 +773,7 @@ fn score_latency(data: &PowerData, cur: &State, step: usize) -> Result<Candidate
         rank: 0,
         step,
         verdict: String::new(),
+        stability: None,
     };
     Ok(Candidate { score, next })
 }
@@ -807,11 +812,10 @@ pub struct MechanismForms {
     /// winner stays in the model (its structure explained) but is not claimed.
     #[serde(default)]
     pub unnamed: bool,
-    /// For a pairing of two mechanisms: the correlation of their regressors over the readings
-    /// once the refitted base model's columns are projected out ([`partial_correlation`]),
-    /// named in the evidence at or above [`SAME_BY_REFIT_R`].
+    /// For a claim [`super::parsimony`]'s rule located: the share of trial resamples in which
+    /// its test passed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub partial_r: Option<f64>,
+    pub stability: Option<f64>,
 }
 
 impl MechanismForms {
@@ -825,10 +829,11 @@ impl MechanismForms {
             w = self.winner,
             r = self.runner_up,
         );
-        match self.partial_r.filter(|r| r.abs() >= SAME_BY_REFIT_R) {
-            Some(r) => format!(
-                "{test} (needed < {RIVAL_ALPHA}); their regressors correlate r = {r:.3} given \
-                 the base model's free columns"
+        match self.stability {
+            Some(s) => format!(
+                "{test} (needed < {RIVAL_ALPHA}); held in {:.0} % of trial resamples (needed ≥ {:.0} %)",
+                100.0 * s,
+                100.0 * super::parsimony::STABLE
             ),
             None => format!("{test} (needed < {RIVAL_ALPHA})"),
         }
@@ -853,7 +858,7 @@ impl MechanismForms {
 pub struct Confounded {
     /// The one kept (significant given the other).
     pub kept: String,
-    /// The one dropped in backward elimination.
+    /// The library term dropped in its place.
     pub dropped: String,
     /// Correlation of their regressors over the readings.
     pub correlation: f64,
@@ -879,12 +884,16 @@ pub(crate) struct Selection {
     pub accepted: Vec<HypothesisScore>,
     /// Forms of each mechanism with more than one, compared where they were decided.
     pub forms: Vec<MechanismForms>,
-    /// Pairs forward selection accepted but backward elimination separated.
+    /// Library terms and the terms beyond the library that do their work
+    /// ([`super::select_discover::library_rivals`]).
     pub confounded: Vec<Confounded>,
     /// Base model state (no hypothesis, no lag).
     pub base: State,
     /// Final model state.
     pub last: State,
+    /// Per accepted hypothesis id: the best other library mechanism the data also supported at
+    /// its step ([`Rule::supports`]) — its rival in [`super::parsimony`]'s rule.
+    pub rivals: Vec<(String, &'static Hypothesis)>,
 }
 
 /// Mechanism of a candidate (`None` = latency).
@@ -956,7 +965,7 @@ fn versus(
         params: [w.score.params.clone(), r.score.params.clone()],
         confounded: w.score.accepted && (p_value >= alpha || p_value.is_nan()),
         unnamed: false,
-        partial_r: None,
+        stability: None,
     }
 }
 
@@ -967,82 +976,10 @@ fn versus(
 /// left unnamed.
 pub(crate) const RIVAL_ALPHA: f64 = 0.05;
 
-/// Partial correlation of two mechanisms' regressors at and above which the refitted base model
-/// makes them one structure ([`partial_correlation`]), said in the evidence. μ·Σ|τ_i q̇_i| is
-/// μ·Σ τ_i q̇_i — a change of every a_i — plus 2μ of the braking power, so with the a_i refitted,
-/// gear friction and the braking asymmetry are one regressor at equal a_i. It is reported, not a
-/// verdict: the bound a ≥ 1 is one-sided (braking with a larger a_i stands in for gear
-/// friction; gear friction would need a smaller one), so the paired held-out test still
-/// separates a true braking asymmetry from gear friction, and decides.
-pub(crate) const SAME_BY_REFIT_R: f64 = 0.97;
-
-/// Correlation over the readings of the regressors of `pair` (pooled terms weighted by
-/// `weights`) after the base model's columns are projected out — none against a twin, whose base
-/// is held. Uncentred, as the fit has no intercept. NaN when undefined.
-fn partial_correlation(
-    data: &PowerData,
-    pair: [&'static Hypothesis; 2],
-    weights: &[f64],
-    lag: usize,
-) -> f64 {
-    let m = design_map(&pair, weights);
-    let c = m.transpose() * &data.grams[lag].total.g * &m;
-    let mut s = c.view((N_PARAMS, N_PARAMS), (2, 2)).into_owned();
-    if data.reference.is_none() {
-        let bb = c.view((0, 0), (N_PARAMS, N_PARAMS)).into_owned();
-        let bt = c.view((0, N_PARAMS), (N_PARAMS, 2)).into_owned();
-        let Some(x) = crate::lsq::solve_normal(&bb, &bt, 0.0) else {
-            return f64::NAN;
-        };
-        s -= bt.transpose() * x;
-    }
-    s[(0, 1)] / (s[(0, 0)] * s[(1, 1)]).sqrt()
-}
-
-/// The step's winner (`scored[0]`, accepted) against the best candidate of another library
-/// mechanism that the data also support ([`Rule::supports`]: at any value of its parameter — a
-/// one-sided gear friction of implausible size fitted better than the braking asymmetry the rule
-/// accepted): when the winner does not fit the held-out trials significantly better, the data
-/// locate the structure but do not tell which mechanism it is (a per-joint drive-electronics loss
-/// was named the DC-bus loss, a gear friction above a threshold of |τq̇| the braking asymmetry,
-/// each by a margin of 0.2–0.3 % before this rule). Latency is no rival: it adds no regressor.
-/// Flexible variants are paired with the final model's claims ([`super::parsimony`]).
-fn rival_mechanism(
-    data: &PowerData,
-    scored: &[(usize, Candidate)],
-    remaining: &[Option<&'static Hypothesis>],
-    rule: &Rule,
-) -> Result<Option<MechanismForms>> {
-    let Some((wi, w)) = scored.first().filter(|(_, c)| c.score.accepted) else {
-        return Ok(None);
-    };
-    let wm = mechanism(&remaining[*wi]);
-    let plain = scored[1..]
-        .iter()
-        .find(|(i, c)| rule.supports(&c.score) && remaining[*i].is_some_and(|h| h.mechanism != wm));
-    if let (Some(wh), Some((ri, r))) = (remaining[*wi], plain)
-        && let Some(rh) = remaining[*ri]
-    {
-        let words = [wh.mechanism.to_string(), rh.mechanism.to_string()];
-        let mechanism = format!("{} or {}", words[0], words[1]);
-        let mut f = versus(data, mechanism, (w, r), words, RIVAL_ALPHA);
-        f.partial_r = Some(partial_correlation(
-            data,
-            [wh, rh],
-            &w.next.full.theta,
-            w.next.lag,
-        ));
-        if f.confounded {
-            f.unnamed = true;
-            return Ok(Some(f));
-        }
-    }
-    Ok(None)
-}
-
 /// Greedy forward selection: at each step score every remaining candidate against the current
 /// model, add the best one that passes the rule (the other forms of its mechanism leave the
-/// race), stop when none passes; then backward elimination ([`backward`]).
+/// race), stop when none passes. Whether each is claimed beside the others and against its rival
+/// mechanism is [`super::parsimony`]'s rule, applied after every stage.
 pub(crate) fn select(
     data: &PowerData,
     candidates: &[&'static Hypothesis],
@@ -1058,6 +995,7 @@ pub(crate) fn select(
     let mut first_step: Vec<HypothesisScore> = Vec::new();
     let mut accepted = Vec::new();
     let mut forms: Vec<MechanismForms> = Vec::new();
+    let mut rivals = Vec::new();
     for step in 1.. {
         let mut scored: Vec<(usize, Candidate)> = Vec::new();
         for (i, c) in remaining.iter().enumerate() {
@@ -1099,33 +1037,26 @@ pub(crate) fn select(
         } else if step == 1 {
             compare_forms(data, &scored, &remaining, rule.alpha, &mut forms);
         }
-        let unnamed = rival_mechanism(data, &scored, &remaining, rule)?;
-        let Some((idx, best)) = scored.into_iter().next().filter(|(_, c)| c.score.accepted) else {
+        let Some((idx, best)) = scored.first().filter(|(_, c)| c.score.accepted) else {
             break;
         };
-        let m = mechanism(&remaining[idx]);
-        accepted.push(best.score);
-        cur = best.next;
-        remaining.retain(|c| mechanism(c) != m);
-        if let Some(f) = unnamed {
-            // Neither mechanism is tried again: the located structure is in the model.
-            remaining.retain(|c| c.is_none_or(|h| h.mechanism != f.form_words[1]));
-            forms.push(f);
+        let m = mechanism(&remaining[*idx]);
+        // Its rival: the best candidate of another library mechanism the data also support, at
+        // any value of its parameter (the form, not the size, is what the rule pairs).
+        let rival = scored.iter().find_map(|(i, c)| {
+            remaining[*i].filter(|h| h.mechanism != m && rule.supports(&c.score))
+        });
+        if let Some(r) = rival {
+            rivals.push((best.score.id.clone(), r));
         }
+        accepted.push(best.score.clone());
+        cur = best.next.clone();
+        remaining.retain(|c| mechanism(c) != m);
         if remaining.is_empty() {
             break;
         }
     }
-    let (cur, mut accepted, confounded) = backward(data, cur, accepted, rule)?;
-    // A winner backward elimination dropped is no longer claimed in any form.
-    for f in forms.iter_mut() {
-        if !accepted.iter().any(|a| a.id == f.winner) {
-            f.accepted = false;
-            f.confounded = false;
-        }
-    }
-    unname(&mut forms, &mut accepted, &mut first_step);
-    for f in forms.iter().filter(|f| f.confounded && !f.unnamed) {
+    for f in forms.iter().filter(|f| f.confounded) {
         for s in accepted.iter_mut().chain(first_step.iter_mut()) {
             if s.id == f.winner {
                 s.verdict = format!(
@@ -1142,9 +1073,10 @@ pub(crate) fn select(
         first_step,
         accepted,
         forms,
-        confounded,
+        confounded: Vec::new(),
         base,
         last: cur,
+        rivals,
     })
 }
 
@@ -1153,7 +1085,7 @@ pub(crate) fn unname_all(sel: &mut Selection) {
     unname(&mut sel.forms, &mut sel.accepted, &mut sel.first_step);
 }
 
-/// A winner another mechanism ties with ([`rival_mechanism`]) is not claimed: it leaves
+/// A winner [`super::parsimony`]'s rule locates is not claimed: it leaves
 /// `accepted` (it stays in the model) and its first-step score says why.
 fn unname(
     forms: &mut [MechanismForms],
@@ -1200,77 +1132,6 @@ pub(crate) fn regressor(h: &Hypothesis, x: &[f64; N_RAW], theta: &[f64]) -> f64 
             w * x[N_PARAMS + off + i]
         })
         .sum()
-}
-
-/// Pearson correlation.
-pub(crate) fn correlation(a: &[f64], b: &[f64]) -> f64 {
-    let n = a.len().max(1) as f64;
-    let (ma, mb) = (a.iter().sum::<f64>() / n, b.iter().sum::<f64>() / n);
-    let (mut sab, mut saa, mut sbb) = (0.0, 0.0, 0.0);
-    for (x, y) in a.iter().zip(b) {
-        sab += (x - ma) * (y - mb);
-        saa += (x - ma) * (x - ma);
-        sbb += (y - mb) * (y - mb);
-    }
-    sab / (saa * sbb).sqrt().max(1e-300)
-}
-
-/// Backward elimination: every accepted power hypothesis must stay significant (same rule)
-/// given all the others; the least significant one that fails is dropped, repeatedly. A dropped
-/// term is reported as confounded with the kept term its regressor correlates with most.
-fn backward(
-    data: &PowerData,
-    mut cur: State,
-    mut accepted: Vec<HypothesisScore>,
-    rule: &Rule,
-) -> Result<(State, Vec<HypothesisScore>, Vec<Confounded>)> {
-    let mut confounded = Vec::new();
-    while cur.spec.len() >= 2 {
-        let mut worst: Option<(usize, State, f64, f64, f64)> = None;
-        for j in 0..cur.spec.len() {
-            let mut spec = cur.spec.clone();
-            spec.remove(j);
-            let without = state(data, spec, cur.lag)?;
-            // Score the full model against the one without term j.
-            let (p, _, _, _, _, rel) = compare(data, &without, &cur.cv.pred);
-            let d_bic = cur.bic - without.bic;
-            let ok = p < rule.alpha && d_bic < rule.bic_threshold && rel >= rule.min_improvement;
-            if !ok && worst.as_ref().is_none_or(|w| p > w.2) {
-                worst = Some((j, without, p, rel, d_bic));
-            }
-        }
-        let Some((j, without, p, rel, _)) = worst else {
-            break;
-        };
-        let h = cur.spec[j];
-        let rows = data.rows(cur.lag)?;
-        let col = |g: &Hypothesis| -> Vec<f64> {
-            rows.x
-                .iter()
-                .map(|x| regressor(g, x, &cur.full.theta))
-                .collect()
-        };
-        let mine = col(h);
-        let kept = cur
-            .spec
-            .iter()
-            .filter(|g| g.id != h.id)
-            .map(|g| (g.id, correlation(&mine, &col(g))))
-            .max_by(|a, b| a.1.abs().total_cmp(&b.1.abs()));
-        if let Some((k, r)) = kept {
-            confounded.push(Confounded {
-                kept: k.into(),
-                dropped: h.id.into(),
-                correlation: r,
-                p_value: p,
-                rel_change: rel,
-                tied: false,
-            });
-        }
-        accepted.retain(|s| s.id != h.id);
-        cur = without;
-    }
-    Ok((cur, accepted, confounded))
 }
 
 #[cfg(test)]
@@ -1381,6 +1242,7 @@ pub(crate) mod tests {
                 rank: 0,
                 step: 1,
                 verdict: String::new(),
+                stability: None,
             };
             let (ok, why) = RULE.judge(&s);
             (s.accepted, s.verdict) = (ok, why);
@@ -1465,7 +1327,9 @@ pub(crate) mod tests {
             ("gear", &gear as &dyn Fn(&Sample) -> f64, "braking"),
             ("drive", &drive, "bus_loss"),
         ] {
-            let sel = select(&synth(5, 60, effect), &all(), &RULE).unwrap();
+            let data = synth(5, 60, effect);
+            let mut sel = select(&data, &all(), &RULE).unwrap();
+            super::super::parsimony::apply(&data, &mut sel, None, &RULE).unwrap();
             let ids: Vec<&str> = sel.accepted.iter().map(|s| s.id.as_str()).collect();
             let unnamed: Vec<&MechanismForms> = sel.forms.iter().filter(|f| f.unnamed).collect();
             eprintln!("{what}: accepted {ids:?}, unnamed {unnamed:?}");
@@ -1488,11 +1352,18 @@ pub(crate) mod tests {
         let data = synth(11, 80, &effect);
         let mut sel = select(&data, &all(), &RULE).unwrap();
         // Each beats the other in flexible form (the rule after all stages).
-        super::super::parsimony::apply(&data, &mut sel, None).unwrap();
+        super::super::parsimony::apply(&data, &mut sel, None, &RULE).unwrap();
         let ids: Vec<&str> = sel.accepted.iter().map(|s| s.id.as_str()).collect();
         assert!(
             ids.contains(&"bus_loss") && ids.contains(&"thermal"),
             "accepted {ids:?}"
+        );
+        // Every claim carries its stability, at or above the gate.
+        let stable = super::super::parsimony::STABLE;
+        assert!(
+            (sel.accepted.iter()).all(|a| a.stability.is_some_and(|s| s >= stable)),
+            "{:?}",
+            sel.accepted.iter().map(|a| a.stability).collect::<Vec<_>>()
         );
         let final_theta = &sel.last.full.theta;
         let pos = |id: &str| sel.last.spec.iter().position(|h| h.id == id).unwrap() + N_PARAMS;

@@ -1,6 +1,6 @@
 //! Library selection, then discovery beyond the library over every numeric field the
 //! recording's files carry: reading those fields over the rows' windows, and dropping a library
-//! term that is not significant given what discovery found (confounded with it).
+//! term a term beyond the library does better than; then [`super::parsimony`]'s rule.
 
 use anyhow::Result;
 
@@ -12,9 +12,9 @@ use super::{
     Confounded, DiagnoseOptions, DiscoveryReport, FieldSource, HypothesisScore, discover, fields,
 };
 
-/// Stage: library selection, then discovery beyond it; a library term that is not significant
-/// given what discovery found is confounded with it: it is dropped, reported, and the library
-/// selection re-run without it.
+/// Stage: library selection, then discovery beyond it; a library term that a term beyond the
+/// library fits significantly better than ([`library_rivals`]) is dropped, reported, and the
+/// library selection re-run without it; then every claim faces [`super::parsimony`]'s rule.
 pub(crate) fn select_and_discover(
     info: &SessionInfo,
     metas: &[TrialMeta],
@@ -49,18 +49,37 @@ pub(crate) fn select_and_discover(
             }
         };
         if !opts.discover {
-            super::parsimony::apply(data, &mut sel, None)?;
+            super::parsimony::apply(data, &mut sel, None, rule)?;
             return Ok((sel, None, f));
         }
         let f = &fields.insert((lag, f)).1;
         let inputs = field_inputs(f, opts);
         let mut report =
             discover::discover(data, &sel.last, &inputs, rule, &info.joint_names, &blocked)?;
-        let mut dropped = library_given_found(data, &sel.last, &report, rule)?;
-        let mut ties = Vec::new();
+        let rivals = library_rivals(data, &sel.last, &inputs, rule, info, &mut blocked)?;
+        let (ties, mut dropped): (Vec<_>, Vec<_>) = rivals.into_iter().partition(|c| c.tied);
         if dropped.is_empty() {
-            let rivals = library_rivals(data, &sel.last, &inputs, rule, info, &mut blocked)?;
-            (ties, dropped) = rivals.into_iter().partition(|c| c.tied);
+            // The rule; library terms the found terms leave without support are dropped and
+            // the selection is run again without them.
+            let kept: Vec<String> = report.accepted.iter().map(|t| t.name.clone()).collect();
+            let col = report.cols.first().cloned().unwrap_or_default();
+            let rows = data.rows(sel.last.lag)?;
+            let theta = sel.last.full.theta.clone();
+            for (h, p_value, rel_change) in
+                super::parsimony::apply(data, &mut sel, Some(&mut report), rule)?
+            {
+                let mine: Vec<f64> = (rows.x.iter())
+                    .map(|x| select::regressor(h, x, &theta))
+                    .collect();
+                dropped.push(Confounded {
+                    kept: kept.join("; "),
+                    dropped: h.id.into(),
+                    correlation: super::stats::pearson(&mine, &col).0,
+                    p_value,
+                    rel_change,
+                    tied: false,
+                });
+            }
         }
         if dropped.is_empty() {
             // A library term tied with a rival stays claimed (its form comes from physics, the
@@ -75,7 +94,6 @@ pub(crate) fn select_and_discover(
             );
             sel.confounded.extend(confounded);
             sel.accepted.retain(|a| !excluded.contains(&a.id.as_str()));
-            super::parsimony::apply(data, &mut sel, Some(&mut report))?;
             let f = fields.map(|f| f.1).unwrap_or_default();
             return Ok((sel, Some(report), f));
         }
@@ -126,45 +144,6 @@ pub(crate) fn library_rivals(
         ties.push(c);
     }
     Ok(ties)
-}
-
-/// Library terms of `cur` that are not significant given the found terms (all at once).
-pub(crate) fn library_given_found(
-    data: &PowerData,
-    cur: &select::State,
-    report: &DiscoveryReport,
-    rule: &Rule,
-) -> Result<Vec<Confounded>> {
-    let mut out = Vec::new();
-    if report.cols.is_empty() {
-        return Ok(out);
-    }
-    let found: Vec<&str> = report.accepted.iter().map(|t| t.name.as_str()).collect();
-    let rows = data.rows(cur.lag)?;
-    for (j, h) in cur.spec.iter().enumerate() {
-        let mut spec = cur.spec.clone();
-        spec.remove(j);
-        let without = select::state(data, spec, cur.lag)?;
-        let (p, rel, d_bic) =
-            discover::library_term_given_found(data, cur, &without, &report.cols)?;
-        if p < rule.alpha && d_bic < rule.bic_threshold && rel >= rule.min_improvement {
-            continue;
-        }
-        let mine: Vec<f64> = rows
-            .x
-            .iter()
-            .map(|x| select::regressor(h, x, &cur.full.theta))
-            .collect();
-        out.push(Confounded {
-            kept: found.join("; "),
-            dropped: h.id.into(),
-            correlation: select::correlation(&mine, &report.cols[0]),
-            p_value: p,
-            rel_change: rel,
-            tied: false,
-        });
-    }
-    Ok(out)
 }
 
 /// The recorded fields over the final rows' windows and every trial's baseline windows.

@@ -333,7 +333,7 @@ fn named(d: &Diagnosis, s: &mut String) {
         };
         let _ = writeln!(
             s,
-            "Named: {}; adding {} with {} improves held-out {} R² from {:.3} to {:.3} (RMSE {:.3} → {:.3} {}).",
+            "Named: {}; adding {} with {} improves held-out {} R² from {:.3} to {:.3} (RMSE {:.3} → {:.3} {}{}).",
             assumption(h),
             title,
             param,
@@ -342,7 +342,8 @@ fn named(d: &Diagnosis, s: &mut String) {
             h.r2_after,
             h.rmse_before,
             h.rmse_after,
-            if h.level == "torque" { "Nm" } else { "W" }
+            if h.level == "torque" { "Nm" } else { "W" },
+            held(h.stability)
         );
         if h.id == PAYLOAD_ID {
             let com: Vec<String> = h.params.iter().skip(1).map(fmt_param).collect();
@@ -467,6 +468,17 @@ fn confounded_line(c: &super::Confounded) -> String {
     }
 }
 
+/// "; stable in x % of N resamples": a claim's stability ([`super::parsimony`]), if measured.
+fn held(stability: Option<f64>) -> String {
+    stability.map_or(String::new(), |f| {
+        format!(
+            "; stable in {:.0} % of {} resamples",
+            100.0 * f,
+            super::stats::STABILITY_DRAWS
+        )
+    })
+}
+
 /// Terms found beyond the library and on the rest power.
 fn found_lines(r: &super::DiscoveryReport, s: &mut String) {
     for t in &r.accepted {
@@ -483,11 +495,7 @@ fn found_lines(r: &super::DiscoveryReport, s: &mut String) {
             t.after.rmse_w,
             t.p_value,
             t.alpha,
-            t.stability.map_or(String::new(), |f| format!(
-                "; held in {:.0} % of {} resamples of the trials",
-                100.0 * f,
-                super::stats::STABILITY_DRAWS
-            ))
+            held(t.stability)
         );
         meter_line(t.meter.as_ref(), s);
         tied_lines(t, s);
@@ -592,7 +600,7 @@ fn rest_found(r: &super::RestPower, s: &mut String) {
         };
         let _ = writeln!(
             s,
-            "Rest power (each trial's pre-idle mean, {:.1} W on average, which the net-power model subtracts): {}; {} with {}; held-out RMSE over {} trials {:.3} → {:.3} W (p = {:.1e} < {:.1e} by blocks of {} trials).{ties}",
+            "Rest power (each trial's pre-idle mean, {:.1} W on average, which the net-power model subtracts): {}; {} with {}; held-out RMSE over {} trials {:.3} → {:.3} W (p = {:.1e} < {:.1e} by blocks of {} trials{}).{ties}",
             r.mean_w,
             t.name,
             t.form,
@@ -602,7 +610,8 @@ fn rest_found(r: &super::RestPower, s: &mut String) {
             r.rmse_after_w,
             t.p_value,
             t.alpha,
-            super::rest::BLOCK_TRIALS
+            super::rest::BLOCK_TRIALS,
+            held(t.stability)
         );
         meter_line(t.meter.as_ref(), s);
     }

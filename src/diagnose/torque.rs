@@ -305,6 +305,7 @@ fn payload_score(rows: &[TorqueRow], cv: &TorqueCv, n_trials: usize) -> Hypothes
         rank: 0,
         step: 1,
         verdict: String::new(),
+        stability: None,
     }
 }
 
