@@ -319,17 +319,22 @@ impl Remainder {
     fn form(&self, accepted: &[HypothesisScore], id: &str) -> MechanismForms {
         let s = accepted.iter().find(|a| a.id == id);
         let mechanism = super::hypotheses::power_hypothesis(id).map_or(id, |h| h.mechanism);
+        // A claim beside no other term is tested against the model without it.
+        let without = match self.of.is_empty() {
+            true => "the model without it".to_string(),
+            false => self.of.clone(),
+        };
         MechanismForms {
             mechanism: self.either(mechanism),
             winner: id.to_string(),
-            runner_up: self.of.clone(),
+            runner_up: without.clone(),
             rmse_w: self.rmse,
             margin: 1.0 - self.rmse[0] / self.rmse[1].max(1e-300),
             p_value: self.p_value,
             accepted: true,
             form_words: [
                 mechanism.to_string(),
-                self.rival.unwrap_or(&self.of).to_string(),
+                self.rival.map_or(without, str::to_string),
             ],
             params: [s.map(|s| s.params.clone()).unwrap_or_default(), Vec::new()],
             confounded: true,
