@@ -240,7 +240,7 @@ pub(crate) fn apply(
     // Library claims a found term leaves without support (not their rival pairing).
     let by_found = (tests.iter())
         .filter(|(k, t)| *k < n_lib && n_terms > n_lib && !t.claimed() && t.rival.is_none())
-        .map(|(k, t)| (spec[*k], t.p_value, 1.0 - t.rmse[0] / t.rmse[1].max(1e-300)))
+        .map(|(k, t)| (spec[*k], t.p_value, t.gain()))
         .collect();
     super::select::unname_all(sel);
     if let Some(r) = report {
@@ -280,10 +280,14 @@ struct Remainder {
 }
 
 impl Remainder {
+    /// Held-out RMSE gain of the final model over the one without the claim.
+    fn gain(&self) -> f64 {
+        1.0 - self.rmse[0] / self.rmse[1].max(1e-300)
+    }
+
     /// Whether the claim passes: significant and stable under resampling of the trials.
     fn claimed(&self) -> bool {
-        let gain = 1.0 - self.rmse[0] / self.rmse[1].max(1e-300);
-        self.p_value < self.level && gain >= self.min_gain && self.held >= STABLE
+        self.p_value < self.level && self.gain() >= self.min_gain && self.held >= STABLE
     }
 
     /// "X or Y": the claim's mechanism `m` or what stands in its place; an unstable claim
@@ -329,7 +333,7 @@ impl Remainder {
             winner: id.to_string(),
             runner_up: without.clone(),
             rmse_w: self.rmse,
-            margin: 1.0 - self.rmse[0] / self.rmse[1].max(1e-300),
+            margin: self.gain(),
             p_value: self.p_value,
             accepted: true,
             form_words: [
