@@ -2430,6 +2430,50 @@ fn measured_readings_are_distinct_markers_in_the_power_plot() {
         dist(colours[0], context[0]) > 150.0,
         "measured vs context line colours"
     );
+    // Terms and joints sit side by side (Where the power goes): no two terms alike and no term
+    // like a joint, by CIE76 ΔE in L*a*b* (sRGB, D65). The earlier gold interaction beside the
+    // olive copper was ΔE 20; Tableau's closest joints (purple, pink) are 28.
+    let lab = |c: u32| {
+        let lin = |u: f64| {
+            let u = u / 255.0;
+            if u > 0.04045 {
+                ((u + 0.055) / 1.055).powf(2.4)
+            } else {
+                u / 12.92
+            }
+        };
+        let [r, g, b] = rgb(c).map(lin);
+        let f = |t: f64| {
+            if t > 0.008856 {
+                t.cbrt()
+            } else {
+                7.787 * t + 16.0 / 116.0
+            }
+        };
+        let x = f((0.4124 * r + 0.3576 * g + 0.1805 * b) / 0.95047);
+        let y = f(0.2126 * r + 0.7152 * g + 0.0722 * b);
+        let z = f((0.0193 * r + 0.1192 * g + 0.9505 * b) / 1.08883);
+        [116.0 * y - 16.0, 500.0 * (x - y), 200.0 * (y - z)]
+    };
+    let delta_e = |a: u32, b: u32| {
+        let (a, b) = (lab(a), lab(b));
+        (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f64>().sqrt()
+    };
+    let under = |prefix: &str| -> BTreeMap<String, u32> {
+        (c.chunks.iter())
+            .map(|ch| ch.entity_path().to_string())
+            .filter(|p| p.starts_with(prefix))
+            .filter_map(|p| Some((p.clone(), *style(&p, "SeriesLines:colors").first()?)))
+            .collect()
+    };
+    let (terms, joints) = (under("/model/by_term/"), under("/model/by_joint/"));
+    assert_eq!((terms.len(), joints.len()), (5, 7), "{terms:?} {joints:?}");
+    for (a, ca) in &terms {
+        for (b, cb) in terms.iter().filter(|x| x.0 > a).chain(&joints) {
+            let e = delta_e(*ca, *cb);
+            assert!(e >= 30.0, "{a} and {b}: ΔE {e:.1}");
+        }
+    }
 }
 
 /// The recording's text properties (name, input, command, …) and start time [ns] in `rrd`.

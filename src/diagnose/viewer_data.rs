@@ -43,6 +43,22 @@ pub struct ReplayData {
     /// The IMU filter over every trial, as a model replay shows it (viewer only).
     #[serde(skip)]
     pub imu: Option<crate::trial::ImuFilterMarks>,
+    /// The final refit's base terms at each reading [W]: per joint mechanical, copper, Coulomb
+    /// and viscous, and the interaction (viewer only: each trial's shares, as a model replay's).
+    #[serde(skip)]
+    pub terms_w: Vec<([[f64; crate::N_JOINTS]; 4], f64)>,
+}
+
+/// Each row's base terms under `theta` ([`ReplayData::terms_w`]; θ and the regressors in
+/// [`crate::power::regressor_into`]'s order).
+fn base_terms(theta: &[f64], rows: &Rows) -> Vec<([[f64; crate::N_JOINTS]; 4], f64)> {
+    let n = crate::N_JOINTS;
+    let term = |x: &[f64], k: usize| std::array::from_fn(|j| theta[k * n + j] * x[k * n + j]);
+    let pairs = 4 * n..crate::N_PARAMS;
+    let e = |x: &[f64]| pairs.clone().map(|c| theta[c] * x[c]).sum();
+    let rows = rows.x.iter().filter(|_| theta.len() >= crate::N_PARAMS);
+    rows.map(|x| (std::array::from_fn(|k| term(x, k)), e(x)))
+        .collect()
 }
 
 /// A recorded field a found term follows, sampled on the readings' windows.
@@ -137,6 +153,7 @@ pub(crate) fn replay_data(
         before_w: sel.base.cv.pred.clone(),
         after_w: sel.last.cv.pred.clone(),
         highlighted,
+        terms_w: base_terms(&sel.last.full.theta, rows0),
         ..ReplayData::default()
     }
 }

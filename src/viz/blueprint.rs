@@ -1553,6 +1553,24 @@ mod tests {
         }
     }
 
+    /// The parts of a replay of 1000 trials (125 rejected) opening on `window_s` around the cursor.
+    fn long_parts(window_s: f64) -> LayoutParts {
+        LayoutParts {
+            model: true,
+            trials: true,
+            imu_filter: true,
+            window_s: Some(window_s),
+            trial_counts: TrialCounts {
+                total: 1000,
+                rejected: 125,
+                located: 0,
+            },
+            trial_rest: true,
+            span_s: Some([0.0, 300.0]),
+            ..LayoutParts::default()
+        }
+    }
+
     /// Past 20 trials the linked plots open on 4 trials' spacing around the cursor; the
     /// overview's per-trial plots keep the whole session, the strip names the counts, and the
     /// trial track (one diagonal over a long session) is gone. The example's 7 trials: as before.
@@ -1566,20 +1584,7 @@ mod tests {
         let w = opening_window(&starts).unwrap();
         assert!((w - 40.0).abs() < 1.0, "{w}");
         let joints: Vec<String> = (0..7).map(|j| format!("j{j}")).collect();
-        let parts = LayoutParts {
-            model: true,
-            trials: true,
-            imu_filter: true,
-            window_s: Some(w),
-            trial_counts: TrialCounts {
-                total: 1000,
-                rejected: 125,
-                located: 0,
-            },
-            trial_rest: true,
-            span_s: Some([0.0, 300.0]),
-            ..LayoutParts::default()
-        };
+        let parts = long_parts(w);
         let mut root = replay_layout(&joints, parts, [0.0; 3]);
         assert!(matches!(root, Node::Container { window_s: Some(x), .. } if x == w));
         // Fitted to data of −20…130 W: the per-trial plots open on it, the linked plots carry
@@ -1606,31 +1611,6 @@ mod tests {
                 }
             }
         });
-        // With the errors' typical size known, the windowed error plot keeps a range about
-        // zero that the viewer labels at 0 and ±10^k (its own fit labelled a single 0); ±2.5
-        // would label only 0 in the low plot, so a typical 2 W widens further.
-        for (typical, bound) in [(Some(0.7), Some(1.2)), (Some(2.0), None), (None, None)] {
-            let error_typical = typical.map(|e| [-e, e]);
-            let ranges = PlotRanges {
-                error_typical,
-                ..PlotRanges::default()
-            };
-            let mut root = replay_layout(&joints, LayoutParts { ranges, ..parts }, [0.0; 3]);
-            let mut range = None;
-            root.for_each_view(&mut |v| match v {
-                Node::View { name, y_range, .. } if name.starts_with("Error measured") => {
-                    range = *y_range
-                }
-                _ => {}
-            });
-            assert_eq!(range.is_some(), typical.is_some());
-            let (Some(e), Some(r)) = (typical, range) else {
-                continue;
-            };
-            assert!(r[0] == -r[1] && r[1] >= e, "{r:?}");
-            assert!(bound.is_none_or(|b| (r[1] - b).abs() < 1e-9), "{r:?}");
-            assert!(labelled_ticks(r, WINDOWED_ERROR_PLOT_PX, Y_LABEL_PX).len() >= 2);
-        }
         let v = views(&root);
         let whole: Vec<&str> = v
             .iter()
@@ -1677,6 +1657,37 @@ mod tests {
                 .iter()
                 .any(|(n, _)| n.starts_with("Trials (index"))
         );
+    }
+
+    /// With the errors' typical size known, a long session's windowed error plot keeps a range
+    /// about zero that the viewer labels at 0 and ±10^k (its own fit labelled a single 0); ±2.5
+    /// would label only 0 in the low plot, so a typical 2 W widens further.
+    #[test]
+    fn a_long_sessions_error_window_is_labelled() {
+        let joints: Vec<String> = (0..7).map(|j| format!("j{j}")).collect();
+        let parts = long_parts(40.0);
+        for (typical, bound) in [(Some(0.7), Some(1.2)), (Some(2.0), None), (None, None)] {
+            let error_typical = typical.map(|e| [-e, e]);
+            let ranges = PlotRanges {
+                error_typical,
+                ..PlotRanges::default()
+            };
+            let mut root = replay_layout(&joints, LayoutParts { ranges, ..parts }, [0.0; 3]);
+            let mut range = None;
+            root.for_each_view(&mut |v| match v {
+                Node::View { name, y_range, .. } if name.starts_with("Error measured") => {
+                    range = *y_range
+                }
+                _ => {}
+            });
+            assert_eq!(range.is_some(), typical.is_some());
+            let (Some(e), Some(r)) = (typical, range) else {
+                continue;
+            };
+            assert!(r[0] == -r[1] && r[1] >= e, "{r:?}");
+            assert!(bound.is_none_or(|b| (r[1] - b).abs() < 1e-9), "{r:?}");
+            assert!(labelled_ticks(r, WINDOWED_ERROR_PLOT_PX, Y_LABEL_PX).len() >= 2);
+        }
     }
 
     /// A long session's Joints and Loss terms tabs (their plots show no legend) carry a colour

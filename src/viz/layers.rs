@@ -56,7 +56,7 @@ pub(super) fn log_extras(
     log_trials(w, paths::TRIALS, &marks, "rejected", true)?;
     if let Some(d) = &extras.diagnosis {
         log_diagnosis(w, joints, d, chunk)?;
-        log_diagnosis_per_trial(w, d)?;
+        log_diagnosis_per_trial(w, joints, d)?;
     }
     Ok(())
 }
@@ -65,21 +65,57 @@ pub(super) fn log_extras(
 /// `v` per reading, in session order).
 pub(super) fn per_trial_mean(t: &[f64], trial: &[usize], v: &[f64]) -> (Vec<f64>, Vec<f64>) {
     let n = t.len().min(trial.len()).min(v.len());
-    let (mut starts, mut means) = (Vec::new(), Vec::new());
+    let mean = |r: std::ops::Range<usize>| v[r.clone()].iter().sum::<f64>() / r.len() as f64;
+    runs(trial, n).map(|r| (t[r.start], mean(r))).unzip()
+}
+
+/// The runs of the first `n` readings that belong to one trial (`trial` per reading).
+fn runs(trial: &[usize], n: usize) -> impl Iterator<Item = std::ops::Range<usize>> + '_ {
     let mut k = 0;
-    while k < n {
-        let end = k + trial[k..n].iter().take_while(|&&x| x == trial[k]).count();
-        starts.push(t[k]);
-        means.push(v[k..end].iter().sum::<f64>() / (end - k) as f64);
-        k = end;
-    }
-    (starts, means)
+    std::iter::from_fn(move || {
+        let start = k;
+        k += trial[start..n]
+            .iter()
+            .take_while(|&&x| x == trial[start])
+            .count();
+        (k > start).then_some(start..k)
+    })
+}
+
+/// A diagnosis' [`TrialMean`]s: each trial's base terms ([`crate::diagnose::ReplayData::terms_w`])
+/// averaged over its readings, so its shares come out of the model replay's computation.
+fn reading_means(d: &crate::diagnose::ReplayData) -> Vec<TrialMean> {
+    let col = |k: usize| d.terms_w.iter().map(|x| x.0[k]).collect();
+    let terms = TermSeries {
+        t: d.t.clone(),
+        mechanical: col(0),
+        copper: col(1),
+        coulomb: col(2),
+        viscous: col(3),
+        interaction: d.terms_w.iter().map(|x| x.1).collect(),
+    };
+    let n = terms.len().min(d.trial.len());
+    let idx = |r: std::ops::Range<usize>| (d.trial[r.start], r.collect::<Vec<_>>());
+    let means = runs(&d.trial, n).map(idx);
+    means
+        .filter_map(|(k, i)| TrialMean::over(k, &terms, &i))
+        .collect()
 }
 
 /// The diagnosis' error per trial (the mean over its readings) of the base model, with the
-/// accepted hypotheses and with the found terms: the whole-session overview of a long session.
-fn log_diagnosis_per_trial(w: &mut ChunkWriter<'_>, d: &DiagnosisOverlay) -> Result<()> {
+/// accepted hypotheses and with the found terms: the whole-session overview of a long session;
+/// past [`super::blueprint::WINDOWED_ABOVE_TRIALS`] trials, each trial's shares as a model
+/// replay logs them (a long session's Joints tab takes its colour key from them).
+fn log_diagnosis_per_trial(
+    w: &mut ChunkWriter<'_>,
+    joints: &[String],
+    d: &DiagnosisOverlay,
+) -> Result<()> {
     let d = &d.data;
+    let means = reading_means(d);
+    if means.len() > super::blueprint::WINDOWED_ABOVE_TRIALS {
+        log_bars(w, joints, &means)?;
+    }
     let errors = [
         ("before", &d.before_w, "base model", style::NEUTRAL),
         ("after", &d.after_w, "with hypotheses", style::ERROR),
@@ -506,16 +542,19 @@ fn with_shares(trials: &[TrialMark], means: &[TrialMean], joints: &[String]) -> 
                     .map(|&j| (joints.get(j).map_or("", String::as_str), by_joint[j])),
             );
             let text: Vec<String> = cells.iter().map(|(n, s)| format!("{n} {s:.0} %")).collect();
-            let returned = if cells.iter().any(|c| c.1 < 0.0) {
-                " (negative: below the rest baseline, or energy returned)"
-            } else {
-                ""
-            };
+            // What a negative share means, on a line of its own: one line held both and ran
+            // past the tab's right edge.
+            let negative = cells.iter().any(|c| c.1 < 0.0);
+            let returned = [
+                "",
+                "\n  negative: below the rest baseline, or energy returned",
+            ];
             m.label = format!(
-                "{}\n  share of the energy turnover{returned}: {}; {}",
+                "{}\n  share of the energy turnover: {}; {}{}",
                 m.label,
                 text[..text.len().min(2)].join(", "),
                 text[2..].join(""),
+                returned[usize::from(negative)],
             );
             m
         })
@@ -772,7 +811,9 @@ fn log_diagnosis(
     d: &DiagnosisOverlay,
     chunk: usize,
 ) -> Result<()> {
-    let (r, marks) = (&d.data, &d.highlighted);
+    let r = &d.data;
+    // Each marked trial's energy shares in the log, as in a model replay's.
+    let marks = &with_shares(&d.highlighted, &reading_means(r), joints);
     let circle = MarkerShape::Circle;
     let (path, measured) = (paths::DIAG_MEASURED, "measured reading (net)");
     style::points(w, path, measured, style::MEASURED, circle, 3.0)?;

@@ -169,25 +169,20 @@ fn imu_marks(v: &Validation, opts: &IdentifyOptions) -> Option<ImuFilterMarks> {
 /// where the mismatch was located, highlighted with the reason.
 pub fn diagnosis_extras(d: &crate::diagnose::Diagnosis) -> ReplayExtras {
     let r = &d.replay;
-    let highlighted = r
-        .highlighted
-        .iter()
-        .map(|h| TrialMark {
+    // Located trials with their reason, rejected ones with their rejection.
+    let marks =
+        (r.highlighted.iter().map(|h| (h, true))).chain(r.rejected.iter().map(|h| (h, false)));
+    let highlighted = marks
+        .map(|(h, located)| TrialMark {
             index: h.trial,
             t_start: h.t_start,
             t_end: h.t_end,
             label: format!("trial {}", h.trial),
-            rejected: None,
-            highlight: Some(h.reason.clone()),
+            rejected: (!located)
+                .then(|| d.rejected.iter().find(|x| x.trial == h.trial).cloned())
+                .flatten(),
+            highlight: located.then(|| h.reason.clone()),
         })
-        .chain(r.rejected.iter().map(|h| TrialMark {
-            index: h.trial,
-            t_start: h.t_start,
-            t_end: h.t_end,
-            label: format!("trial {}", h.trial),
-            rejected: d.rejected.iter().find(|x| x.trial == h.trial).cloned(),
-            highlight: None,
-        }))
         .collect();
     ReplayExtras {
         diagnosis: Some(super::replay::DiagnosisOverlay {

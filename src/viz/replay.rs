@@ -303,7 +303,8 @@ pub fn layout(
         window_s,
         trial_counts: trial_counts(extras),
         trial_rest: extras.trajectories.iter().any(|p| p.rest_w.is_finite()),
-        shares: extras.terms.is_some(),
+        shares: extras.terms.is_some()
+            || (extras.diagnosis.as_ref()).is_some_and(|d| !d.data.terms_w.is_empty()),
         // The last trial ends about one spacing after it starts.
         span_s: window_s
             .zip(super::data_range(starts))

@@ -22,7 +22,7 @@ const JOINTS: [[u8; 3]; 7] = [
 
 /// The colours of [`JOINTS`] and [`TERMS`] in words.
 const JOINT_HUES: [&str; 7] = ["blue", "orange", "green", "red", "purple", "brown", "pink"];
-const TERM_HUES: [&str; 5] = ["black", "olive", "cyan", "grey", "gold"];
+const TERM_HUES: [&str; 5] = ["black", "olive", "cyan", "grey", "teal"];
 
 /// The joints' and the terms' colours in words (`joints` in arm order), for plots whose legend
 /// would cover the data.
@@ -69,14 +69,15 @@ pub(super) const NEUTRAL: [u8; 3] = [150, 150, 150];
 pub(super) const IMU_SIGMA: [u8; 3] = [120, 200, 255];
 
 /// Colours of the loss terms: mechanical, copper, Coulomb, viscous, interaction — a scheme of
-/// their own (near-black, olive, cyan, grey, gold), none of them a joint's hue, since the
-/// per-term and per-joint plots sit side by side.
+/// their own (near-black, olive, cyan, grey, dark teal), none of them a joint's hue, since the
+/// per-term and per-joint plots sit side by side; no two alike in both hue and lightness (the
+/// earlier gold interaction beside the olive copper read as one colour).
 pub(super) const TERMS: [[u8; 3]; 5] = [
     [40, 40, 40],
     [188, 189, 34],
     [23, 190, 207],
     [150, 150, 150],
-    [230, 190, 0],
+    [0, 110, 110],
 ];
 /// The IMU filter's threshold: a dark line above the noise band, not the rejected trials' red.
 pub(super) const THRESHOLD: [u8; 3] = [20, 20, 20];
