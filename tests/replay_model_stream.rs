@@ -383,8 +383,9 @@ fn streamed_diagnosis_replay_equals_in_memory() {
         &[path.as_path()],
     )
     .unwrap();
-    g1viz::viz::replay_file_with(
-        &path,
+    g1viz::viz::replay_files_with(
+        &[path.as_path()],
+        0.0,
         &map,
         &Default::default(),
         &robot,

@@ -1641,6 +1641,77 @@ fn diagnosis_rrd_has_the_located_fields_tab() {
     assert_eq!(rows(&c, "/diagnosis/error/found"), t.len());
 }
 
+/// A long diagnosis (more than 20 trials) gets the model replay's colour key on its Joints tab:
+/// the per-trial joint shares logged from its per-reading base terms. Each point is checked
+/// against the shares recomputed here from those terms (each joint's four terms summed,
+/// averaged over the trial's readings, over the absolute sum of the joints' means, in %).
+#[test]
+fn long_diagnosis_joints_tab_has_the_replays_colour_key() {
+    use g1viz::diagnose::ReplayData;
+    use g1viz::viz::DiagnosisOverlay;
+    let dir = tempfile::tempdir().unwrap();
+    let rec = synthetic(&input_file(dir.path()));
+    let (n_trials, per_trial) = (25, 3);
+    let n = n_trials * per_trial;
+    let t: Vec<f64> = (0..n).map(|i| 0.05 * i as f64).collect();
+    let trial: Vec<usize> = (0..n).map(|i| i / per_trial).collect();
+    let term = |i: usize, k: usize, j: usize| ((i * 7 + k * 3 + j * 11) as f64 * 0.37).sin();
+    let terms_w: Vec<([[f64; N_JOINTS]; 4], f64)> = (0..n)
+        .map(|i| {
+            (
+                std::array::from_fn(|k| std::array::from_fn(|j| term(i, k, j))),
+                0.1,
+            )
+        })
+        .collect();
+    let extras = ReplayExtras {
+        diagnosis: Some(DiagnosisOverlay {
+            data: ReplayData {
+                measured_w: vec![1.0; n],
+                before_w: vec![0.9; n],
+                after_w: vec![1.0; n],
+                t: t.clone(),
+                trial,
+                terms_w: terms_w.clone(),
+                ..Default::default()
+            },
+            summary: "nothing found".into(),
+            ..Default::default()
+        }),
+        ..Default::default()
+    };
+    let out = dir.path().join("long_diagnosis.rrd");
+    save_replay(&rec, &extras, &out, &rec.source);
+    let msgs = decode(&out);
+    let c = contents(&msgs);
+    let views = blueprint_views(&msgs);
+    let key = view_named(&views, "Key: joint shares [%]");
+    assert!(
+        view_includes(key, "/model/bars/by_joint/sh_pitch"),
+        "{key:?}"
+    );
+    for (j, name) in rec.joint_names.iter().enumerate() {
+        let path = format!(
+            "/model/bars/by_joint/{}",
+            g1viz::viz::short_joint_name(name)
+        );
+        let got: Vec<f64> = series(&c, &path).into_iter().map(|p| p.1).collect();
+        assert_eq!(got.len(), n_trials, "{path}");
+        for (k, g) in got.iter().enumerate() {
+            let mean = |jj: usize| {
+                let rows = k * per_trial..(k + 1) * per_trial;
+                let sum: f64 = rows
+                    .map(|i| (0..4).map(|kk| terms_w[i].0[kk][jj]).sum::<f64>())
+                    .sum();
+                sum / per_trial as f64
+            };
+            let turnover: f64 = (0..N_JOINTS).map(|jj| mean(jj).abs()).sum();
+            let want = 100.0 * mean(j) / turnover;
+            assert!((g - want).abs() < 1e-9, "{path} trial {k}: {g} vs {want}");
+        }
+    }
+}
+
 /// The arm links of a model replay change colour with their joint's power: their colour is on
 /// the timeline (no static colour, which would override it), grey at the session start, and
 /// reddens during a trial; the per-trial bars' heights are each trial's share of the per-joint
@@ -2000,7 +2071,7 @@ fn legends_never_cover_data() {
         "Error measured − predicted",
         "Trials (index",
         "sh_roll [W]",
-        "Interaction",
+        "Pairwise [W]",
         "Trial energy turnover by joint",
         "Trial energy turnover by term",
         "Motor temperature",

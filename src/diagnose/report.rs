@@ -284,10 +284,14 @@ fn unexplained_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()>
         figure(md, dir, (4, (800, 420)), caption, |a| draw_lag_scan(a, d))?;
     }
     if !d.rejected.is_empty() {
-        let _ = writeln!(md, "## Trials left out\n");
+        let n = d.rejected.len();
+        let _ = writeln!(
+            md,
+            "## Trials left out\n\n<details><summary>{n} trials</summary>\n"
+        );
         let rows = (d.rejected.iter()).map(|r| vec![r.trial.to_string(), md_cell(&r.to_string())]);
         table(md, &["trial", "reason"], rows);
-        md.push('\n');
+        md.push_str("\n</details>\n\n");
     }
     Ok(())
 }
@@ -746,14 +750,14 @@ fn excluded_fields(md: &mut String, r: &super::DiscoveryReport) {
     if r.excluded.is_empty() {
         return;
     }
+    let n = r.excluded.len();
     let _ = writeln!(
         md,
-        "### Fields left out of discovery ({})\n",
-        r.excluded.len()
+        "### Fields left out of discovery ({n})\n\n<details><summary>{n} fields, each with its reason</summary>\n"
     );
     let rows = (r.excluded.iter()).map(|e| vec![format!("`{}`", e.name), md_cell(&e.reason)]);
     table(md, &["field", "reason"], rows);
-    md.push('\n');
+    md.push_str("\n</details>\n\n");
 }
 
 /// A table cell's parameters: `symbol = value ± s.e. unit` each.

@@ -1526,13 +1526,9 @@ fn loss_terms_tab(joints: &[String], ranges: PlotRanges, key: Option<[f64; 2]>) 
             }
         })
         .collect();
-    views.push(
-        plot(
-            "Interaction [W]",
-            vec![paths::include(paths::TERM_INTERACTION)],
-        )
-        .with_legend(Legend::Hidden),
-    );
+    // A title short enough to show whole in a cell of four columns ("Interaction [W]" was cut).
+    let interaction = vec![paths::include(paths::TERM_INTERACTION)];
+    views.push(plot("Pairwise [W]", interaction).with_legend(Legend::Hidden));
     let name = "Key: term shares [%]";
     let key = key.map(|s| share_points(name, paths::BARS_BY_TERM, &term_names(), THIRD_PLOT_PX, s));
     let columns = 4 - u32::from(key.is_some());
@@ -1553,24 +1549,6 @@ mod tests {
         }
     }
 
-    /// The parts of a replay of 1000 trials (125 rejected) opening on `window_s` around the cursor.
-    fn long_parts(window_s: f64) -> LayoutParts {
-        LayoutParts {
-            model: true,
-            trials: true,
-            imu_filter: true,
-            window_s: Some(window_s),
-            trial_counts: TrialCounts {
-                total: 1000,
-                rejected: 125,
-                located: 0,
-            },
-            trial_rest: true,
-            span_s: Some([0.0, 300.0]),
-            ..LayoutParts::default()
-        }
-    }
-
     /// Past 20 trials the linked plots open on 4 trials' spacing around the cursor; the
     /// overview's per-trial plots keep the whole session, the strip names the counts, and the
     /// trial track (one diagonal over a long session) is gone. The example's 7 trials: as before.
@@ -1584,13 +1562,25 @@ mod tests {
         let w = opening_window(&starts).unwrap();
         assert!((w - 40.0).abs() < 1.0, "{w}");
         let joints: Vec<String> = (0..7).map(|j| format!("j{j}")).collect();
-        let parts = long_parts(w);
+        let parts = LayoutParts {
+            model: true,
+            trials: true,
+            imu_filter: true,
+            window_s: Some(w),
+            trial_counts: TrialCounts {
+                total: 1000,
+                rejected: 125,
+                ..Default::default()
+            },
+            trial_rest: true,
+            span_s: Some([0.0, 300.0]),
+            ..LayoutParts::default()
+        };
         let mut root = replay_layout(&joints, parts, [0.0; 3]);
         assert!(matches!(root, Node::Container { window_s: Some(x), .. } if x == w));
         // Fitted to data of −20…130 W: the per-trial plots open on it, the linked plots carry
-        // no y range (the viewer fits them to the window).
-        // The linked plots show no legend (nothing keeps it off data the viewer fits); the
-        // strip opens on its rows, half a step spare.
+        // no y range and no legend (the viewer fits them to the window); the strip opens on its
+        // rows, half a step spare.
         root.fit(&|_, _| Some([-20.0, 130.0]));
         root.for_each_view(&mut |v| {
             if let Node::View {
@@ -1611,6 +1601,31 @@ mod tests {
                 }
             }
         });
+        // With the errors' typical size known, the windowed error plot keeps a range about
+        // zero that the viewer labels at 0 and ±10^k (its own fit labelled a single 0); ±2.5
+        // would label only 0 in the low plot, so a typical 2 W widens further.
+        for (typical, bound) in [(Some(0.7), Some(1.2)), (Some(2.0), None), (None, None)] {
+            let (error_typical, ranges) = (typical.map(|e| [-e, e]), PlotRanges::default());
+            let ranges = PlotRanges {
+                error_typical,
+                ..ranges
+            };
+            let mut root = replay_layout(&joints, LayoutParts { ranges, ..parts }, [0.0; 3]);
+            let mut range = None;
+            root.for_each_view(&mut |v| match v {
+                Node::View { name, y_range, .. } if name.starts_with("Error measured") => {
+                    range = *y_range
+                }
+                _ => {}
+            });
+            assert_eq!(range.is_some(), typical.is_some());
+            let (Some(e), Some(r)) = (typical, range) else {
+                continue;
+            };
+            assert!(r[0] == -r[1] && r[1] >= e, "{r:?}");
+            assert!(bound.is_none_or(|b| (r[1] - b).abs() < 1e-9), "{r:?}");
+            assert!(labelled_ticks(r, WINDOWED_ERROR_PLOT_PX, Y_LABEL_PX).len() >= 2);
+        }
         let v = views(&root);
         let whole: Vec<&str> = v
             .iter()
@@ -1640,54 +1655,14 @@ mod tests {
             long.iter()
                 .all(|(n, whole)| *whole && !n.ends_with("x: trial"))
         );
-        let short = replay_layout(
-            &joints,
-            LayoutParts {
-                window_s: None,
-                ..parts
-            },
-            [0.0; 3],
-        );
+        let (window_s, origin) = (None, [0.0; 3]);
+        let short = replay_layout(&joints, LayoutParts { window_s, ..parts }, origin);
         assert!(matches!(short, Node::Container { window_s: None, .. }));
         assert!(views(&short).iter().all(|(_, wh)| !wh));
         let bars = per_trial(&short);
         assert!(bars.len() == 2 && bars.iter().all(|(n, _)| n.ends_with("x: trial")));
-        assert!(
-            views(&short)
-                .iter()
-                .any(|(n, _)| n.starts_with("Trials (index"))
-        );
-    }
-
-    /// With the errors' typical size known, a long session's windowed error plot keeps a range
-    /// about zero that the viewer labels at 0 and ±10^k (its own fit labelled a single 0); ±2.5
-    /// would label only 0 in the low plot, so a typical 2 W widens further.
-    #[test]
-    fn a_long_sessions_error_window_is_labelled() {
-        let joints: Vec<String> = (0..7).map(|j| format!("j{j}")).collect();
-        let parts = long_parts(40.0);
-        for (typical, bound) in [(Some(0.7), Some(1.2)), (Some(2.0), None), (None, None)] {
-            let error_typical = typical.map(|e| [-e, e]);
-            let ranges = PlotRanges {
-                error_typical,
-                ..PlotRanges::default()
-            };
-            let mut root = replay_layout(&joints, LayoutParts { ranges, ..parts }, [0.0; 3]);
-            let mut range = None;
-            root.for_each_view(&mut |v| match v {
-                Node::View { name, y_range, .. } if name.starts_with("Error measured") => {
-                    range = *y_range
-                }
-                _ => {}
-            });
-            assert_eq!(range.is_some(), typical.is_some());
-            let (Some(e), Some(r)) = (typical, range) else {
-                continue;
-            };
-            assert!(r[0] == -r[1] && r[1] >= e, "{r:?}");
-            assert!(bound.is_none_or(|b| (r[1] - b).abs() < 1e-9), "{r:?}");
-            assert!(labelled_ticks(r, WINDOWED_ERROR_PLOT_PX, Y_LABEL_PX).len() >= 2);
-        }
+        let track = |v: &(String, bool)| v.0.starts_with("Trials (index");
+        assert!(views(&short).iter().any(track));
     }
 
     /// A long session's Joints and Loss terms tabs (their plots show no legend) carry a colour

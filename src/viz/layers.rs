@@ -95,11 +95,9 @@ fn reading_means(d: &crate::diagnose::ReplayData) -> Vec<TrialMean> {
         interaction: d.terms_w.iter().map(|x| x.1).collect(),
     };
     let n = terms.len().min(d.trial.len());
-    let idx = |r: std::ops::Range<usize>| (d.trial[r.start], r.collect::<Vec<_>>());
-    let means = runs(&d.trial, n).map(idx);
-    means
-        .filter_map(|(k, i)| TrialMean::over(k, &terms, &i))
-        .collect()
+    let over =
+        |r: std::ops::Range<usize>| TrialMean::over(d.trial[r.start], &terms, &Vec::from_iter(r));
+    runs(&d.trial, n).filter_map(over).collect()
 }
 
 /// The diagnosis' error per trial (the mean over its readings) of the base model, with the
@@ -262,26 +260,12 @@ pub(super) fn log_term_data(
 ) -> Result<()> {
     for (j, name) in joints.iter().enumerate() {
         for (k, data) in terms.fields().into_iter().enumerate() {
-            let path = paths::term(name, paths::TERMS[k]);
-            let n = terms.t.len().min(data.len());
-            for start in (0..n).step_by(chunk) {
-                let end = (start + chunk).min(n);
-                scalars(
-                    w,
-                    &path,
-                    &terms.t[start..end],
-                    data[start..end].iter().map(|v| v[j]),
-                )?;
-            }
+            let v: Vec<f64> = data.iter().map(|v| v[j]).collect();
+            scalars_chunked(w, &paths::term(name, paths::TERMS[k]), &terms.t, &v, chunk)?;
         }
     }
-    scalars_chunked(
-        w,
-        paths::TERM_INTERACTION,
-        &terms.t,
-        &terms.interaction,
-        chunk,
-    )
+    let (t, interaction) = (&terms.t, &terms.interaction);
+    scalars_chunked(w, paths::TERM_INTERACTION, t, interaction, chunk)
 }
 
 /// Per sample: each term summed over the joints, and each joint's terms summed.
@@ -307,21 +291,19 @@ pub(super) fn log_breakdown_data(
     terms: &TermSeries,
     chunk: usize,
 ) -> Result<()> {
-    let fields = terms.fields();
-    let n = terms.len();
-    for start in (0..n).step_by(chunk) {
-        let end = (start + chunk).min(n);
-        let t = &terms.t[start..end];
-        for (k, field) in fields.iter().enumerate() {
-            let sums = field[start..end].iter().map(|v| v.iter().sum::<f64>());
-            scalars(w, &paths::by_term(paths::TERMS[k]), t, sums)?;
-        }
-        let interaction = terms.interaction[start..end].iter().copied();
-        scalars(w, &paths::by_term("interaction"), t, interaction)?;
-        for (j, name) in joints.iter().enumerate() {
-            let sums = (start..end).map(|i| fields.iter().map(|f| f[i][j]).sum::<f64>());
-            scalars(w, &paths::by_joint(name), t, sums)?;
-        }
+    let (fields, n) = (terms.fields(), terms.len());
+    let t = &terms.t[..n];
+    for (k, field) in fields.iter().enumerate() {
+        let sums: Vec<f64> = field[..n].iter().map(|v| v.iter().sum()).collect();
+        scalars_chunked(w, &paths::by_term(paths::TERMS[k]), t, &sums, chunk)?;
+    }
+    let interaction = &terms.interaction[..n];
+    scalars_chunked(w, &paths::by_term("interaction"), t, interaction, chunk)?;
+    for (j, name) in joints.iter().enumerate() {
+        let sums: Vec<f64> = (0..n)
+            .map(|i| fields.iter().map(|f| f[i][j]).sum())
+            .collect();
+        scalars_chunked(w, &paths::by_joint(name), t, &sums, chunk)?;
     }
     Ok(())
 }

@@ -61,23 +61,7 @@ fn sliced_series(
         return (p, terms);
     }
     let k = slice.keep(&p.t, dec);
-    fn pick<T: Copy>(v: &[T], k: &[usize]) -> Vec<T> {
-        k.iter().map(|&i| v[i]).collect()
-    }
-    (
-        PowerPrediction {
-            t: pick(&p.t, &k),
-            predicted: pick(&p.predicted, &k),
-        },
-        TermSeries {
-            t: pick(&terms.t, &k),
-            mechanical: pick(&terms.mechanical, &k),
-            copper: pick(&terms.copper, &k),
-            coulomb: pick(&terms.coulomb, &k),
-            viscous: pick(&terms.viscous, &k),
-            interaction: pick(&terms.interaction, &k),
-        },
-    )
+    (p.pick(&k), terms.pick(&k))
 }
 
 /// Per-joint power of sample `i` (the joint's four terms summed, as the in-memory replay sums).

@@ -535,34 +535,18 @@ pub fn replay_file(
     opts: &ReplayOptions,
     stream: &RecordingStream,
 ) -> Result<ReplaySummary> {
-    replay_file_with(
-        path,
+    let extras = ReplayExtras::default();
+    replay_files_with(
+        &[path],
+        0.0,
         map,
         read_opts,
         robot,
         arm,
-        ReplayExtras::default(),
+        extras,
         opts,
         stream,
     )
-}
-
-/// [`replay_file`] with overlays known before the file is read (a diagnosis': they hold per
-/// reading and per trial values, not per sample series, so they need not the whole session).
-#[allow(clippy::too_many_arguments)]
-pub fn replay_file_with(
-    path: &std::path::Path,
-    map: &crate::signals::SignalMap,
-    read_opts: &crate::read::OpenOptions,
-    robot: &RobotModel,
-    arm: &ArmJoints,
-    extras: ReplayExtras,
-    opts: &ReplayOptions,
-    stream: &RecordingStream,
-) -> Result<ReplaySummary> {
-    streamed_replay(robot, arm, extras, opts, stream, &mut |sink| {
-        crate::signals::stream_into(path, map, read_opts, opts.chunk_rows.max(1), sink)
-    })
 }
 
 /// A streamed replay into `stream`: `read` drives the sink over the recording(s).
@@ -591,10 +575,12 @@ fn streamed_replay(
     Ok(summary)
 }
 
-/// [`replay_file_with`] of several files joined end to end into one session, each part starting
-/// `gap_s` after the previous one ends, as [`crate::signals::join_recordings`] joins them loaded
-/// (the clock and header are the first file's): the replay of a diagnosis of several sessions,
-/// streamed part by part. One path is [`replay_file_with`].
+/// [`replay_file`] with overlays known before the files are read (a diagnosis': they hold per
+/// reading and per trial values, not per sample series, so they need not the whole session), of
+/// several files joined end to end into one session, each part starting `gap_s` after the
+/// previous one ends, as [`crate::signals::join_recordings`] joins them loaded (the clock and
+/// header are the first file's): the replay of a diagnosis of several sessions, streamed part
+/// by part.
 #[allow(clippy::too_many_arguments)]
 pub fn replay_files_with(
     paths: &[&std::path::Path],
@@ -607,18 +593,10 @@ pub fn replay_files_with(
     opts: &ReplayOptions,
     stream: &RecordingStream,
 ) -> Result<ReplaySummary> {
-    if let [path] = paths {
-        return replay_file_with(path, map, read_opts, robot, arm, extras, opts, stream);
-    }
-    streamed_replay(robot, arm, extras, opts, stream, &mut |sink| {
-        crate::signals::stream_joined_into(
-            paths,
-            map,
-            read_opts,
-            opts.chunk_rows.max(1),
-            gap_s,
-            sink,
-        )
+    let rows = opts.chunk_rows.max(1);
+    streamed_replay(robot, arm, extras, opts, stream, &mut |sink| match paths {
+        [path] => crate::signals::stream_into(path, map, read_opts, rows, sink),
+        _ => crate::signals::stream_joined_into(paths, map, read_opts, rows, gap_s, sink),
     })
 }
 

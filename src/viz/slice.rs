@@ -134,14 +134,9 @@ impl Slice {
             diagnosis,
             sample_stats,
         } = e;
+        let keep = |t: &[f64]| self.keep(t, &mut Decimator::default());
         ReplayExtras {
-            prediction: prediction.as_ref().map(|p| {
-                let k = self.keep(&p.t, &mut Decimator::default());
-                PowerPrediction {
-                    t: pick(&p.t, &k),
-                    predicted: pick(&p.predicted, &k),
-                }
-            }),
+            prediction: prediction.as_ref().map(|p| p.pick(&keep(&p.t))),
             readings: readings.as_ref().map(|r| {
                 let k = all.keep(&r.t, &mut Decimator::default());
                 ReadingPrediction {
@@ -158,17 +153,7 @@ impl Slice {
                 .filter(|p| self.contains(p.t))
                 .cloned()
                 .collect(),
-            terms: terms.as_ref().map(|t| {
-                let k = self.keep(&t.t, &mut Decimator::default());
-                TermSeries {
-                    t: pick(&t.t, &k),
-                    mechanical: pick(&t.mechanical, &k),
-                    copper: pick(&t.copper, &k),
-                    coulomb: pick(&t.coulomb, &k),
-                    viscous: pick(&t.viscous, &k),
-                    interaction: pick(&t.interaction, &k),
-                }
-            }),
+            terms: terms.as_ref().map(|t| t.pick(&keep(&t.t))),
             trials: trials
                 .iter()
                 .filter(|m| self.overlaps(m.t_start, m.t_end))
@@ -196,7 +181,8 @@ impl Slice {
 
     fn diagnosis(&self, d: &DiagnosisOverlay) -> DiagnosisOverlay {
         let r = &d.data;
-        let k = self.keep(&r.t, &mut Decimator::default());
+        let keep = |t: &[f64]| self.keep(t, &mut Decimator::default());
+        let k = keep(&r.t);
         let same = |v: &Vec<f64>| {
             if v.len() == r.t.len() {
                 pick(v, &k)
@@ -229,8 +215,8 @@ impl Slice {
                 .cloned()
                 .collect(),
             counterpart: d.counterpart.as_ref().map(|c| {
-                let kp = self.keep(&c.power_t, &mut Decimator::default());
-                let kt = self.keep(&c.tau_t, &mut Decimator::default());
+                let kp = keep(&c.power_t);
+                let kt = keep(&c.tau_t);
                 crate::diagnose::counterpart::CounterpartSeries {
                     power_t: pick(&c.power_t, &kp),
                     power_w: pick(&c.power_w, &kp),
@@ -246,4 +232,28 @@ impl Slice {
 /// The elements of `v` at `k` (indices past its end skipped).
 fn pick<T: Clone>(v: &[T], k: &[usize]) -> Vec<T> {
     k.iter().filter_map(|&i| v.get(i).cloned()).collect()
+}
+
+impl PowerPrediction {
+    /// The samples at `k`.
+    pub(super) fn pick(&self, k: &[usize]) -> PowerPrediction {
+        let (t, predicted) = (pick(&self.t, k), pick(&self.predicted, k));
+        PowerPrediction { t, predicted }
+    }
+}
+
+impl TermSeries {
+    /// The samples at `k`.
+    pub(super) fn pick(&self, k: &[usize]) -> TermSeries {
+        let [mechanical, copper, coulomb, viscous] = self.fields().map(|f| pick(f, k));
+        let (t, interaction) = (pick(&self.t, k), pick(&self.interaction, k));
+        TermSeries {
+            t,
+            mechanical,
+            copper,
+            coulomb,
+            viscous,
+            interaction,
+        }
+    }
 }
