@@ -81,7 +81,7 @@ fn streamed(session: &std::path::Path, keep: Option<std::path::PathBuf>) -> anyh
     use g1viz::read::OpenOptions;
     use g1viz::signals::SignalMap;
     use g1viz::viz::recording_id_for_source;
-    use g1viz::viz::replay_file;
+    use g1viz::viz::replay_files_with;
     let out = keep.clone().unwrap_or_else(|| {
         std::env::temp_dir().join(format!("g1viz_bench_{}.rrd", std::process::id()))
     });
@@ -95,12 +95,14 @@ fn streamed(session: &std::path::Path, keep: Option<std::path::PathBuf>) -> anyh
         progress: false,
         ..Default::default()
     };
-    let summary = replay_file(
-        session,
+    let summary = replay_files_with(
+        &[session],
+        0.0,
         &map,
         &OpenOptions::default(),
         &robot,
         &arm,
+        Default::default(),
         &opts,
         viz.stream(),
     )?;

@@ -901,12 +901,14 @@ fn stream_replay(mcap: &Path, out: &Path, chunk_rows: usize) -> g1viz::viz::Repl
         progress: false,
         ..Default::default()
     };
-    let summary = g1viz::viz::replay_file(
-        mcap,
+    let summary = g1viz::viz::replay_files_with(
+        &[mcap],
+        0.0,
         &map,
         &OpenOptions::default(),
         &robot,
         &arm,
+        Default::default(),
         &opts,
         viz.stream(),
     )
@@ -919,7 +921,7 @@ fn example_session() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/g1_example.mcap")
 }
 
-/// `g1viz replay` without a model streams the file (`replay_file`, bounded memory): in many small
+/// `g1viz replay` without a model streams the file (`replay_files_with`, bounded memory): in many small
 /// batches it logs the same rows and values as the in-memory replay of the whole recording.
 #[test]
 fn streamed_replay_matches_the_in_memory_replay() {
@@ -1710,6 +1712,22 @@ fn long_diagnosis_joints_tab_has_the_replays_colour_key() {
             assert!((g - want).abs() < 1e-9, "{path} trial {k}: {g} vs {want}");
         }
     }
+    // The titles name the hypotheses' series only where it shows: with none accepted (the
+    // same prediction as the base model's) it lies under the base model's.
+    let per_trial_title = |extras: &ReplayExtras| {
+        save_replay(&rec, extras, &out, &rec.source);
+        let views = blueprint_views(&decode(&out));
+        view_named(&views, "Error per trial [W]").name.clone()
+    };
+    let title = "Error per trial [W]: base model grey";
+    assert_eq!(
+        per_trial_title(&extras),
+        format!("{title}, with hypotheses teal")
+    );
+    let mut none = extras.clone();
+    let d = &mut none.diagnosis.as_mut().unwrap().data;
+    d.after_w = d.before_w.clone();
+    assert_eq!(per_trial_title(&none), title);
 }
 
 /// The arm links of a model replay change colour with their joint's power: their colour is on

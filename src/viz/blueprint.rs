@@ -732,6 +732,8 @@ pub struct LayoutParts {
     /// Series in the diagnosis' power plot (measured, before, after, and the found terms'
     /// prediction and the twin when present).
     pub diagnosis_power_series: usize,
+    /// The diagnosis accepted hypotheses (else their series lies under the base model's, unnamed).
+    pub hypotheses: bool,
     /// The plots' data ranges, where the data is known up front (legends get room above them).
     pub ranges: PlotRanges,
     /// A long session ([`opening_window`]): the linked plots open on this many seconds around
@@ -1111,7 +1113,7 @@ fn session_overview(arm: Node, parts: LayoutParts, window_s: f64) -> Vec<(Node, 
     if parts.model {
         key.push_str("predicted orange, instant brown");
     } else {
-        key.push_str("base grey, hyp. orange");
+        key.push_str(["base grey", "base grey, hyp. orange"][usize::from(parts.hypotheses)]);
         if parts.diagnosis_power_series > 3 + usize::from(parts.counterpart) {
             key.push_str(", found red");
         }
@@ -1155,10 +1157,17 @@ fn session_overview(arm: Node, parts: LayoutParts, window_s: f64) -> Vec<(Node, 
             include(&error),
         )
     } else {
-        per_trial(
-            "Error per trial [W]: base model grey, with hypotheses teal, with found terms red",
-            vec![paths::include_tree("diagnosis/per_trial")],
-        )
+        // Only the series that show (no accepted hypothesis: theirs lies under the base model's).
+        let found = parts.diagnosis_power_series > 3 + usize::from(parts.counterpart);
+        let named = [
+            (true, "base model grey"),
+            (parts.hypotheses, "with hypotheses teal"),
+        ];
+        let named: Vec<&str> = (named.into_iter().chain([(found, "with found terms red")]))
+            .filter_map(|(shown, name)| shown.then_some(name))
+            .collect();
+        let name = format!("Error per trial [W]: {}", named.join(", "));
+        per_trial(&name, vec![paths::include_tree("diagnosis/per_trial")])
     };
     overview.extend((parts.model || parts.diagnosis).then_some((error, 0.8)));
     if parts.trial_rest || parts.rest {
@@ -1202,7 +1211,10 @@ fn session_overview(arm: Node, parts: LayoutParts, window_s: f64) -> Vec<(Node, 
 /// the hypotheses). Small and dense: no legend, the title names the markers.
 fn error_view(parts: LayoutParts) -> Node {
     let mut error = Vec::new();
-    let mut name = String::from("Error measured − predicted [W]");
+    let (mut name, hyp) = (
+        String::from("Error measured − predicted [W]"),
+        usize::from(parts.hypotheses),
+    );
     if parts.model {
         error.push(paths::include_tree("model/error"));
         name.push_str(": dots per reading, diamonds per trial");
@@ -1212,7 +1224,7 @@ fn error_view(parts: LayoutParts) -> Node {
         name.push_str(if parts.model { "; " } else { ": " });
         // The accepted hypotheses' error is drawn over the base model's (the same when none was
         // accepted); the found terms' in red when there are any.
-        name.push_str("base model grey, hypotheses teal");
+        name.push_str(["base model grey", "base model grey, hypotheses teal"][hyp]);
         if parts.diagnosis_power_series > 3 + usize::from(parts.counterpart) {
             name.push_str(", found terms red");
         }

@@ -33,7 +33,7 @@ pub use overlay::{diagnosis_extras, model_extras, trial_series, validation_extra
 pub use replay::{
     DiagnosisOverlay, ImuFilterMarks, PowerPrediction, ReadingPrediction, ReplayExtras,
     ReplayLogger, ReplayOptions, ReplaySummary, SampleStats, TermSeries, TrajectoryPoint,
-    TrialMark, idle_baseline, layout, log_replay, replay_file, replay_files_with,
+    TrialMark, idle_baseline, layout, log_replay, replay_files_with,
 };
 pub use session::{
     BYTES_FIXED, BYTES_PER_CHUNK, BYTES_PER_LINK_POSE, BYTES_PER_SCALAR, Notice, SessionReplay,

@@ -299,6 +299,7 @@ pub fn layout(
             .as_ref()
             .is_some_and(|d| !d.data.rest_w.is_empty()),
         diagnosis_power_series,
+        hypotheses: (extras.diagnosis.as_ref()).is_some_and(|d| d.data.after_w != d.data.before_w),
         ranges: plot_ranges(extras, whole),
         window_s,
         trial_counts: trial_counts(extras),
@@ -479,7 +480,7 @@ fn plot_ranges(
 
 /// Logs `rec` (and `extras`) to `stream`: arm animation, joint and power series, model/diagnosis
 /// overlays, and the viewer layout. The recording is already in memory; to replay a file of any
-/// length in bounded memory use [`replay_file`].
+/// length in bounded memory use [`replay_files_with`].
 pub fn log_replay(
     rec: &Recording,
     robot: &RobotModel,
@@ -522,33 +523,6 @@ pub(crate) const STREAMED_CHUNK_ROWS: usize = 16_384;
 /// them, ~5 % longer).
 pub(crate) const REPLAY_FLUSH_SAMPLES: usize = 60_000;
 
-/// Streams the recording at `path` into `stream` in batches of [`ReplayOptions::chunk_rows`]
-/// samples: memory stays bounded whatever the file length (the ~1 Hz power readings are kept
-/// until the end, where the idle baseline is known). No model or diagnosis overlay (those need
-/// the whole session; see [`log_replay`]). Returns the replay summary with the reader's warnings.
-pub fn replay_file(
-    path: &std::path::Path,
-    map: &crate::signals::SignalMap,
-    read_opts: &crate::read::OpenOptions,
-    robot: &RobotModel,
-    arm: &ArmJoints,
-    opts: &ReplayOptions,
-    stream: &RecordingStream,
-) -> Result<ReplaySummary> {
-    let extras = ReplayExtras::default();
-    replay_files_with(
-        &[path],
-        0.0,
-        map,
-        read_opts,
-        robot,
-        arm,
-        extras,
-        opts,
-        stream,
-    )
-}
-
 /// A streamed replay into `stream`: `read` drives the sink over the recording(s).
 fn streamed_replay(
     robot: &RobotModel,
@@ -575,12 +549,15 @@ fn streamed_replay(
     Ok(summary)
 }
 
-/// [`replay_file`] with overlays known before the files are read (a diagnosis': they hold per
-/// reading and per trial values, not per sample series, so they need not the whole session), of
-/// several files joined end to end into one session, each part starting `gap_s` after the
-/// previous one ends, as [`crate::signals::join_recordings`] joins them loaded (the clock and
-/// header are the first file's): the replay of a diagnosis of several sessions, streamed part
-/// by part.
+/// Streams the recording(s) at `paths` into `stream` in batches of [`ReplayOptions::chunk_rows`]
+/// samples: memory stays bounded whatever the file length (the ~1 Hz power readings are kept
+/// until the end, where the idle baseline is known). Returns the replay summary with the
+/// reader's warnings. `extras`: overlays known before the files are read (a diagnosis': they
+/// hold per reading and per trial values, not per sample series, so they need not the whole
+/// session; none for a plain replay). Several files are joined end to end into one session, each
+/// part starting `gap_s` after the previous one ends, as [`crate::signals::join_recordings`]
+/// joins them loaded (the clock and header are the first file's): the replay of a diagnosis of
+/// several sessions, streamed part by part.
 #[allow(clippy::too_many_arguments)]
 pub fn replay_files_with(
     paths: &[&std::path::Path],

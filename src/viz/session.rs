@@ -10,7 +10,7 @@ use std::path::Path;
 use anyhow::{Context, Result, bail};
 
 use super::model_stream::{StreamedModel, planned};
-use super::replay::{ReplayOptions, ReplaySummary, replay_file};
+use super::replay::{ReplayOptions, ReplaySummary, replay_files_with};
 use super::slice::Slice;
 use super::{OutputKind, Sink, open_stream, recording_id_or_reason};
 use crate::identify::{IdentifyOptions, validate_file};
@@ -311,8 +311,19 @@ fn streamed_replay(r: &SessionReplay<'_>, notify: &mut dyn FnMut(Notice)) -> Res
         slice,
         ..r.opts.clone()
     };
-    let summary = replay_file(r.session, r.map, r.read, r.robot, &arm, &opts, out.stream())
-        .with_context(|| format!("replaying {}", r.session.display()))?;
+    let (session, none) = ([r.session], Default::default());
+    let summary = replay_files_with(
+        &session,
+        0.0,
+        r.map,
+        r.read,
+        r.robot,
+        &arm,
+        none,
+        &opts,
+        out.stream(),
+    )
+    .with_context(|| format!("replaying {}", r.session.display()))?;
     out.finish()?;
     Ok(summary)
 }
