@@ -9,7 +9,6 @@ use anyhow::Result;
 use rerun::{Color, Scalars, SeriesPoints, TextDocument, TextLog};
 
 use super::drift::Drift;
-use super::report::param_label;
 use crate::power::PowerModel;
 use crate::viz::{ChunkWriter, Sink, open_stream};
 
