@@ -209,9 +209,7 @@ pub(crate) fn apply(
         let others: Vec<usize> = (0..n_terms).filter(|&o| o != k).collect();
         let cols: Vec<&Vec<f64>> = others.iter().flat_map(|&o| &flex[o]).collect();
         let words: Vec<&str> = others.iter().map(|&o| names[o].as_str()).collect();
-        let of = (!words.is_empty())
-            .then(|| format!("the remainder of the form of {}", words.join(" and ")))
-            .unwrap_or_default();
+        let of = remainder_of(&words);
         let mut t = test(&base.fit(&cols)?.pred, of, None, k, rule.alpha);
         // A library claim's rivals in its place, at RIVAL_ALPHA: the best other mechanism the
         // data supported at its step, then the efficiency split by side changing over time.
@@ -273,6 +271,15 @@ pub(crate) fn apply(
         }
     }
     Ok(by_found)
+}
+
+/// What stands in a claim's place when the other terms `words` take their flexible variants
+/// (empty: nothing).
+fn remainder_of(words: &[&str]) -> String {
+    match words {
+        [] => String::new(),
+        w => format!("the remainder of the form of {}", w.join(" and ")),
+    }
 }
 
 /// The held-out prediction of the final model's terms at no lag, in flexible form: the model
