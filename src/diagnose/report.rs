@@ -686,7 +686,7 @@ Each trial's pre-idle power (mean {:.2} W; the net-power model subtracts it, so 
         r.n_candidates,
         r.n_trials,
         r.n_blocks,
-        super::rest::BLOCK_TRIALS,
+        r.block_trials(),
         r.rmse_before_w,
         r.rmse_after_w
     );

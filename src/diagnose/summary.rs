@@ -610,7 +610,7 @@ fn rest_found(r: &super::RestPower, s: &mut String) {
             r.rmse_after_w,
             t.p_value,
             t.alpha,
-            super::rest::BLOCK_TRIALS,
+            r.block_trials(),
             held(t.stability)
         );
         meter_line(t.meter.as_ref(), s);

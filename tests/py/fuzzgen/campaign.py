@@ -63,13 +63,13 @@ def run_session(args):
         if not keep and os.path.exists(base + ".mcap"):
             os.remove(base + ".mcap")
     effects = truth["fuzz"]["effects"]
-    cl = score.claims(d)
-    cstate, estate = score.score(effects, [e["detectability"] for e in effects], cl)
+    cl, loc = score.claims(d), score.locations(d)
+    cstate, estate = score.score(effects, [e["detectability"] for e in effects], cl, located=loc)
     return {"seed": seed, "minutes": minutes, "n_trials": d.get("n_trials"), "gen_s": round(t_gen, 1),
             "diagnose_s": round(t_diag, 1),
             "effects": [{k: v for k, v in e.items() if k != "expect"} | {"expect": e["expect"], "result": s}
                         for e, s in zip(effects, estate)],
-            "claims": [c | {"result": s} for c, s in zip(cl, cstate)]}
+            "claims": [c | {"result": s} for c, s in zip(cl, cstate)], "locations": loc}
 
 
 def seeds_for(seed, n):
@@ -107,7 +107,8 @@ def load(out_dir):
     for r in rs:
         if "error" in r:
             continue
-        cs, es = score.score(r["effects"], [e["detectability"] for e in r["effects"]], r["claims"])
+        cs, es = score.score(r["effects"], [e["detectability"] for e in r["effects"]], r["claims"],
+                             located=r.get("locations", ()))
         for c, s in zip(r["claims"], cs):
             c["result"] = s
         for e, s in zip(r["effects"], es):

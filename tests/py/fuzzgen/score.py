@@ -15,7 +15,8 @@ session of one meter's offset or gain relative to the other). Each claim is scor
   `SEEN`) is left unnamed (a wrong story for it);
 * spurious: none of these and every visible effect already accounted for (or a null session).
 
-Each effect is named (a right claim), located (a located claim) or missed.
+Each effect is named (a right claim), located (a located claim, or a location the diagnosis
+prints and does not claim — see `locations`) or missed.
 """
 
 
@@ -38,6 +39,21 @@ def claims(d):
         for t in r.get("found", []):
             out.append({"kind": "rest", "id": None, "name": t.get("name", ""),
                         "fields": [t.get("field", "")] + list(t.get("tied", []))})
+    return out
+
+
+def locations(d):
+    """What a diagnosis locates without claiming it, in the form of `claims` (never scored as
+    claims): a library form the data support at a size no such mechanism has ("Located: the power
+    follows the form of X … outside the physically plausible range"), a library mechanism left
+    as "X or Y — mechanism not identified", and found terms the parsimony rule located."""
+    out = [{"kind": "library", "id": h["id"], "name": h.get("title", h["id"]), "fields": []}
+           for h in d.get("hypotheses", [])
+           if h.get("verdict", "").startswith("located")
+           or h.get("verdict") == "rejected: parameter outside its physically plausible range"]
+    for t in (d.get("discovery") or {}).get("located", []):
+        f = list(t.get("fields", [])) + [x for r in t.get("tied", []) for x in r.get("fields", [])]
+        out.append({"kind": "found", "id": t.get("mechanism"), "name": t.get("name", ""), "fields": f})
     return out
 
 
@@ -88,8 +104,9 @@ _TERM_WORDS = [["copper", "τ²"], ["coulomb", "|q̇|"], ["viscous", "q̇²"], [
 SEEN = 0.01  # held-out RMSE gain below which an effect cannot be what a claim is about
 
 
-def score(truth_effects, detect, claim_list, gate=SEEN):
-    """Score claims and effects. truth_effects: the drawn effects; detect: oracle gain per effect."""
+def score(truth_effects, detect, claim_list, gate=SEEN, located=()):
+    """Score claims and effects. truth_effects: the drawn effects; detect: oracle gain per effect;
+    located: the diagnosis' `locations` (they can only make a missed effect located)."""
     rel = [[relation(c, e) for e in truth_effects] for c in claim_list]
     eff_state = ["missed"] * len(truth_effects)
     claim_state = [None] * len(claim_list)
@@ -102,6 +119,9 @@ def score(truth_effects, detect, claim_list, gate=SEEN):
                     claim_state[ci] = want
                     eff_state[ei] = "named" if want == "right" else "located"
                     break
+    for ei, e in enumerate(truth_effects):
+        if eff_state[ei] == "missed" and any(relation(c, e) for c in located):
+            eff_state[ei] = "located"
     # a second claim of an effect already named counts as spurious (one mechanism, one claim)
     unnamed = [ei for ei in range(len(truth_effects)) if eff_state[ei] == "missed" and detect[ei] >= gate]
     for ci in range(len(claim_list)):

@@ -73,6 +73,13 @@ def check_scorer():
         {"name": "the rail's rest power rises with it", "field": "/lf/mainboardstate.fan_state[1]", "tied": []}]}}}
     if [c["fields"] for c in score.claims(rest)] != [["/lf/mainboardstate.fan_state[1]"]]:
         bad.append(("rest object", score.claims(rest)))
+    # a form located at an implausible size makes its effect located, and is no claim
+    d = {"hypotheses": [{"id": "braking", "verdict": "rejected: parameter outside its physically plausible range"},
+                        {"id": "stribeck", "verdict": "rejected: held-out improvement not significant"}]}
+    loc = score.locations(d)
+    if score.claims(d) or score.score([lib], [1.0], [], located=loc) != ([], ["located"]) \
+            or score.score([lib], [1.0], [], located=loc[1:]) != ([], ["missed"]):
+        bad.append(("implausible form", loc))
     if score.claims({"discovery": {"rest": None}}):
         bad.append(("rest null", "claims"))
     return {"scorer cases": not bad}, {"scorer_failures": bad}
