@@ -43,7 +43,7 @@ mod words;
 use anyhow::Result;
 
 pub(crate) use candidates::Inputs;
-use candidates::{Kind, TIME_NAME, base_mean, generate};
+use candidates::{Kind, TIME_NAME, base_mean};
 pub(crate) use fit::Base;
 pub use found::{Discovery, DiscoveryReport, TiedTerm};
 pub(crate) use rival::rival_of;
@@ -51,7 +51,7 @@ use search::{Scored, Search, simpler_nested, to_discovery};
 use ties::{Tie, claim_rivals_found_beside, name_with_ties, stays_open, ties_at_step};
 use words::describe;
 
-use super::select::{Param, PowerData, Rule, State, jackknife_se};
+use super::select::{PowerData, Rule, State, jackknife_se};
 
 /// At most one discovered term per this many trials.
 const TRIALS_PER_TERM: usize = 20;
@@ -70,9 +70,6 @@ pub(crate) fn discover(
     joint_names: &[String],
     blocked: &[String],
 ) -> Result<DiscoveryReport> {
-    let base = Base::new(data, cur)?;
-    let rows = base.rows;
-    let twin = data.reference.is_some();
     let mut report = DiscoveryReport {
         fields_read: inp.fields.n_read,
         fields_used: inp.fields.names.len(),
@@ -81,38 +78,86 @@ pub(crate) fn discover(
         excluded: inp.fields.excluded.clone(),
         ..Default::default()
     };
-    let resid: Vec<f64> = rows
-        .y
-        .iter()
-        .zip(&cur.cv.pred)
-        .map(|(y, p)| y - p)
-        .collect();
-    let (cands, rv, usable, holm) =
-        generate(inp, rows, data.n_trials, twin, &resid, &mut report.notes);
+    let (search, usable) = Search::new(data, cur, inp, rule, &mut report.notes)?;
     report.rest = rest_power_of(inp, usable, rule);
-    report.n_candidates = holm.m;
+    report.n_candidates = search.holm.m;
     report.fields_used = (0..inp.fields.names.len())
         .filter(|&f| !inp.fields.duplicate.get(f).copied().unwrap_or(false))
         .count();
-    let search = Search {
-        base,
-        cands,
-        rv,
-        inp,
-        rule: *rule,
-        holm,
+    let y_rms = search.y_rms();
+    let mut fw = Forward {
+        chosen: Vec::new(),
+        cols: Vec::new(),
+        pred: cur.cv.pred.clone(),
+        bic: cur.bic,
+        closed: blocked.to_vec(),
+        accepted: Vec::new(),
+        tied: Vec::new(),
     };
-    let y_rms = (rows.y.iter().map(|v| v * v).sum::<f64>() / rows.len().max(1) as f64).sqrt();
-    let max_terms = MAX_TERMS.min(data.n_trials / TRIALS_PER_TERM);
-    let mut chosen: Vec<usize> = Vec::new();
-    let mut chosen_cols: Vec<Vec<f64>> = Vec::new();
-    let mut cur_pred = cur.cv.pred.clone();
-    let mut cur_bic = cur.bic;
-    let mut closed: Vec<String> = blocked.to_vec();
-    report.before = Some(search.base.compare(&cur_pred, &cur_pred).2);
-    let mut accepted: Vec<(usize, Scored)> = Vec::new();
-    let mut tied: Vec<(usize, Vec<Tie>)> = Vec::new();
-    for step in 1..=max_terms {
+    report.before = Some(search.base.compare(&fw.pred, &fw.pred).2);
+    for step in 1..=MAX_TERMS.min(data.n_trials / TRIALS_PER_TERM) {
+        let level = search.level(step);
+        let (mut passing, best_fail) = fw.score_step(&search, step, y_rms);
+        let best = take_best(&search, &mut passing);
+        if step == 1
+            && let Some(f) = &best_fail
+            && best.as_ref().is_none_or(|b| f.rel > b.rel)
+        {
+            let lv = level * search.cands[f.idx].weight;
+            let verdict = verdict_of(f, lv, rule);
+            report.best_rejected = Some(to_discovery(f, &search, joint_names, lv, step, verdict));
+        }
+        let Some(b) = best else { break };
+        let lv = level * search.cands[b.idx].weight;
+        if dependence_unresolved(&search, &b, joint_names, lv, step, &mut report) {
+            fw.closed.push(search.cands[b.idx].group.clone());
+            continue;
+        }
+        // Rivals on other fields the data cannot tell from it: named with it, never claimed.
+        let ties = ties_at_step(&search, &b, &passing, &fw.pred, joint_names, level);
+        fw.accept(&search, step, b, ties);
+    }
+    claim_rivals_found_beside(&search, &fw.chosen, &mut fw.tied, &mut report.notes);
+    let on_time = fw
+        .chosen
+        .iter()
+        .any(|&i| search.cands[i].group.contains(TIME_NAME));
+    if let Some(note) = on_time
+        .then(|| clock_stand_ins(&search.inp.fields.excluded))
+        .flatten()
+    {
+        report.notes.push(note);
+    }
+    finish(&search, &mut fw, cur, joint_names, &mut report)?;
+    Ok(report)
+}
+
+/// Forward selection's state: the terms chosen so far and the model they make.
+struct Forward {
+    /// Candidates accepted, in order.
+    chosen: Vec<usize>,
+    /// Their columns.
+    cols: Vec<Vec<f64>>,
+    /// Held-out prediction and BIC of the model with them.
+    pred: Vec<f64>,
+    bic: f64,
+    /// Groups no longer tried: blocked, chosen, or tied with a chosen term.
+    closed: Vec<String>,
+    /// Each accepted candidate's step and score.
+    accepted: Vec<(usize, Scored)>,
+    /// Each chosen candidate's ties.
+    tied: Vec<(usize, Vec<Tie>)>,
+}
+
+impl Forward {
+    /// Score every open candidate on top of the chosen terms at `step`: those that pass the
+    /// gates at their level, and the best (by held-out gain) of those that do not.
+    fn score_step(
+        &self,
+        search: &Search,
+        step: usize,
+        y_rms: f64,
+    ) -> (Vec<Scored>, Option<Scored>) {
         let level = search.level(step);
         let mut best_fail: Option<Scored> = None;
         let mut passing: Vec<Scored> = Vec::new();
@@ -123,10 +168,10 @@ pub(crate) fn discover(
                 done: i + 1,
                 total,
             });
-            if chosen.contains(&i) || closed.contains(&search.cands[i].group) {
+            if self.chosen.contains(&i) || self.closed.contains(&search.cands[i].group) {
                 continue;
             }
-            let Some(s) = search.score(i, &chosen_cols, (&cur_pred, cur_bic), y_rms) else {
+            let Some(s) = search.score(i, &self.cols, (&self.pred, self.bic), y_rms) else {
                 continue;
             };
             if search.passes(&s, level * search.cands[i].weight) {
@@ -135,50 +180,12 @@ pub(crate) fn discover(
                 best_fail = Some(s);
             }
         }
-        let best = (0..passing.len())
-            .max_by(|&a, &b| passing[a].rel.total_cmp(&passing[b].rel))
-            .map(|k| {
-                let b = &passing[k];
-                let refs: Vec<&Scored> = passing.iter().collect();
-                // The plain pooled term when the term × signal containing it is not
-                // significantly better: the signal is not what the data support.
-                let k = simpler_nested(&search, b, &refs).unwrap_or(k);
-                passing.swap_remove(k)
-            });
-        if step == 1
-            && let Some(f) = &best_fail
-            && best.as_ref().is_none_or(|b| f.rel > b.rel)
-        {
-            let lv = level * search.cands[f.idx].weight;
-            let verdict = verdict_of(f, lv, rule);
-            let d = to_discovery(f, &search, joint_names, lv, step, verdict);
-            report.best_rejected = Some(d);
-        }
-        let Some(b) = best else { break };
-        let lv = level * search.cands[b.idx].weight;
-        // A term × signal says the loss changes with the signal: that needs its dependence
-        // k resolved, not only the term's gain (a slow signal nearly constant over the session
-        // lets k·s + k0 act as a free level, e.g. an efficiency below the base model's a ≥ 1).
-        if let Some((d, k)) = unresolved_dependence(&search, &b, joint_names, lv, step) {
-            let verdict = format!(
-                "not claimed: it improves the held-out RMSE by {:.1} % (p = {:.1e}), but its \
-                 dependence on the signal is not resolved (k = {:.3} ± {:.3}, under {} standard \
-                 errors): unexplained structure, best approximation this term, form not identified",
-                100.0 * b.rel,
-                b.p,
-                k.value,
-                k.std_err,
-                DEPENDENCE_Z
-            );
-            report.notes.push(format!("{}: {verdict}", d.name));
-            if report.best_rejected.is_none() || step == 1 {
-                report.best_rejected = Some(Discovery { verdict, ..d });
-            }
-            closed.push(search.cands[b.idx].group.clone());
-            continue;
-        }
-        // Rivals on other fields the data cannot tell from it: named with it, never claimed.
-        let ties = ties_at_step(&search, &b, &passing, &cur_pred, joint_names, level);
+        (passing, best_fail)
+    }
+
+    /// Take `b` into the model at `step` with its `ties`, closing its group and those of the
+    /// ties that do not stay open.
+    fn accept(&mut self, search: &Search, step: usize, b: Scored, ties: Vec<Tie>) {
         for t in &ties {
             // A rival of the same structure whose contribution is not collinear with the chosen
             // one's may be a second effect of the same kind: it stays open and is tried beside
@@ -187,38 +194,28 @@ pub(crate) fn discover(
                 continue;
             }
             let g = &search.cands[t.idx].group;
-            if !closed.contains(g) {
-                closed.push(g.clone());
+            if !self.closed.contains(g) {
+                self.closed.push(g.clone());
             }
         }
-        tied.push((b.idx, ties));
-        chosen.push(b.idx);
-        chosen_cols.extend(search.cols(b.idx));
-        closed.push(search.cands[b.idx].group.clone());
-        cur_pred = b.fit.pred.clone();
-        cur_bic = b.fit.bic;
-        accepted.push((step, b));
+        self.tied.push((b.idx, ties));
+        self.chosen.push(b.idx);
+        self.cols.extend(search.cols(b.idx));
+        self.closed.push(search.cands[b.idx].group.clone());
+        self.pred = b.fit.pred.clone();
+        self.bic = b.fit.bic;
+        self.accepted.push((step, b));
     }
-    claim_rivals_found_beside(&search, &chosen, &mut tied, &mut report.notes);
-    let on_time = chosen
-        .iter()
-        .any(|&i| search.cands[i].group.contains(TIME_NAME));
-    if let Some(note) = on_time
-        .then(|| clock_stand_ins(&search.inp.fields.excluded))
-        .flatten()
-    {
-        report.notes.push(note);
-    }
-    finish(
-        &search,
-        &chosen,
-        &accepted,
-        &mut tied,
-        cur,
-        joint_names,
-        &mut report,
-    )?;
-    Ok(report)
+}
+
+/// The best of the `passing` candidates by held-out gain, taken out of them — or, when it is
+/// a term × signal not significantly better than the plain pooled term it contains, that
+/// pooled term: the signal is not what the data support.
+fn take_best(search: &Search, passing: &mut Vec<Scored>) -> Option<Scored> {
+    let k = (0..passing.len()).max_by(|&a, &b| passing[a].rel.total_cmp(&passing[b].rel))?;
+    let refs: Vec<&Scored> = passing.iter().collect();
+    let k = simpler_nested(search, &passing[k], &refs).unwrap_or(k);
+    Some(passing.swap_remove(k))
 }
 
 /// The rest-power stage on the fields discovery may try (not meters of the power, not
@@ -273,13 +270,12 @@ fn clock_stand_ins(excluded: &[super::fields::ExcludedField]) -> Option<String> 
 /// held-out predictions.
 fn finish(
     search: &Search,
-    chosen: &[usize],
-    accepted: &[(usize, Scored)],
-    tied: &mut [(usize, Vec<Tie>)],
+    fw: &mut Forward,
     cur: &State,
     joint_names: &[String],
     report: &mut DiscoveryReport,
 ) -> Result<()> {
+    let (chosen, accepted, tied) = (&fw.chosen, &fw.accepted, &mut fw.tied);
     let all: Vec<Vec<f64>> = chosen.iter().flat_map(|&k| search.cols(k)).collect();
     let final_fit = if chosen.is_empty() {
         None
@@ -339,22 +335,46 @@ fn finish(
 /// Standard errors its dependence coefficient must clear for a term × signal to be claimed.
 const DEPENDENCE_Z: f64 = 3.0;
 
-/// A term × signal candidate whose dependence coefficient k is not resolved (|k| <
-/// [`DEPENDENCE_Z`] s.e.): its description (at `level`, `step`) and k; `None` for other
-/// candidates or a resolved k.
-fn unresolved_dependence(
+/// Whether `b`, the best candidate at `step` (at `level`), is a term × signal whose dependence
+/// coefficient k is not resolved (|k| < [`DEPENDENCE_Z`] s.e.): a term × signal says the loss
+/// changes with the signal, which needs k resolved, not only the term's gain (a slow signal
+/// nearly constant over the session lets k·s + k0 act as a free level, e.g. an efficiency below
+/// the base model's a ≥ 1). Such a term is not claimed: why is noted in `report`, and it is the
+/// best rejected at step 1 or when there is none.
+fn dependence_unresolved(
     search: &Search,
-    s: &Scored,
+    b: &Scored,
     joint_names: &[String],
     level: f64,
     step: usize,
-) -> Option<(Discovery, Param)> {
-    if !matches!(search.cands[s.idx].kind, Kind::Product(..)) {
-        return None;
+    report: &mut DiscoveryReport,
+) -> bool {
+    if !matches!(search.cands[b.idx].kind, Kind::Product(..)) {
+        return false;
     }
-    let d = to_discovery(s, search, joint_names, level, step, String::new());
-    let k = d.params.first()?.clone();
-    (k.value.abs() < DEPENDENCE_Z * k.std_err || !k.std_err.is_finite()).then_some((d, k))
+    let d = to_discovery(b, search, joint_names, level, step, String::new());
+    let Some(k) = d.params.first().cloned() else {
+        return false;
+    };
+    let unresolved = k.value.abs() < DEPENDENCE_Z * k.std_err || !k.std_err.is_finite();
+    if !unresolved {
+        return false;
+    }
+    let verdict = format!(
+        "not claimed: it improves the held-out RMSE by {:.1} % (p = {:.1e}), but its \
+         dependence on the signal is not resolved (k = {:.3} ± {:.3}, under {} standard \
+         errors): unexplained structure, best approximation this term, form not identified",
+        100.0 * b.rel,
+        b.p,
+        k.value,
+        k.std_err,
+        DEPENDENCE_Z
+    );
+    report.notes.push(format!("{}: {verdict}", d.name));
+    if report.best_rejected.is_none() || step == 1 {
+        report.best_rejected = Some(Discovery { verdict, ..d });
+    }
+    true
 }
 
 fn verdict_of(s: &Scored, level: f64, rule: &Rule) -> String {

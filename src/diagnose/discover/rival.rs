@@ -3,7 +3,7 @@
 
 use anyhow::Result;
 
-use super::candidates::{Inputs, Kind, Signal, generate};
+use super::candidates::{Inputs, Kind, Signal};
 use super::fit::Base;
 use super::search::{Scored, Search, p_better, simpler_nested, to_discovery};
 use super::ties::CONFOUNDED_R;
@@ -96,38 +96,56 @@ pub(crate) fn rival_of(
     rule: &Rule,
     joint_names: &[String],
 ) -> Result<Option<Rival>> {
-    let base = Base::new(data, without)?;
-    let rows = base.rows;
-    let twin = data.reference.is_some();
-    let mut notes = Vec::new();
-    let resid: Vec<f64> = rows
-        .y
-        .iter()
-        .zip(&without.cv.pred)
-        .map(|(y, p)| y - p)
-        .collect();
-    let (cands, rv, _, holm) = generate(inp, rows, data.n_trials, twin, &resid, &mut notes);
-    let m = cands.len();
-    let search = Search {
-        base,
-        cands,
-        rv,
-        inp,
-        rule: *rule,
-        holm,
-    };
+    let (search, _) = Search::new(data, without, inp, rule, &mut Vec::new())?;
     let names = &inp.fields.names;
-    if !(0..m).any(|i| may_rival(&search.cands[i].kind, names, &inp.arm_motors)) {
+    if !(search.cands.iter()).any(|c| may_rival(&c.kind, names, &inp.arm_motors)) {
         return Ok(None);
     }
-    let y_rms = (rows.y.iter().map(|v| v * v).sum::<f64>() / rows.len().max(1) as f64).sqrt();
-    let level = search.level(1);
-    let nt = data.n_trials;
-    let e_with = trial_sse(&rows.y, &with.cv.pred, &rows.trial, nt);
+    let same = explaining_same(&search, with, without)?;
+    let Some((k, tied)) = pick(&search, &same, with, without) else {
+        return Ok(None);
+    };
+    let c = &same[k];
+    let mut blocked: Vec<String> = Vec::new();
+    if tied {
+        for o in &same {
+            let group = &search.cands[o.s.idx].group;
+            if !blocked.contains(group) {
+                blocked.push(group.clone());
+            }
+        }
+    }
+    let rows = search.base.rows;
     let (_, rmse_with) = r2_rmse(&rows.y, &with.cv.pred);
+    let (_, rmse_riv) = r2_rmse(&rows.y, &c.s.fit.pred);
+    let d = to_discovery(
+        &c.s,
+        &search,
+        joint_names,
+        search.level(1),
+        1,
+        String::new(),
+    );
+    Ok(Some(Rival {
+        name: format!("{} ({})", d.name, d.form),
+        tied,
+        p_library: c.p_lib,
+        rmse: [rmse_with, rmse_riv],
+        correlation: c.r,
+        blocked,
+    }))
+}
+
+/// The candidates that explain what the term explains: scored on `without` (the search's
+/// model), they pass discovery's gates at the first Holm step, and beside the term (on `with`)
+/// they no longer pass.
+fn explaining_same(search: &Search, with: &State, without: &State) -> Result<Vec<Same>> {
+    let (rows, rule) = (search.base.rows, &search.rule);
+    let (y_rms, level, nt) = (search.y_rms(), search.level(1), search.base.data.n_trials);
+    let e_with = trial_sse(&rows.y, &with.cv.pred, &rows.trial, nt);
     // What a candidate still adds beside the term: one that no longer passes there explains
     // the same.
-    let beside = Base::new(data, with)?;
+    let beside = Base::new(search.base.data, with)?;
     let explains_same = |i: usize| {
         let cols = search.cols(i);
         let refs: Vec<&Vec<f64>> = cols.iter().collect();
@@ -147,7 +165,7 @@ pub(crate) fn rival_of(
         .map(|(a, b)| a - b)
         .collect();
     let mut same: Vec<Same> = Vec::new();
-    for i in 0..m {
+    for i in 0..search.cands.len() {
         let Some(s) = search.score(i, &[], (&without.cv.pred, without.bic), y_rms) else {
             continue;
         };
@@ -173,38 +191,35 @@ pub(crate) fn rival_of(
             s,
         });
     }
+    Ok(same)
+}
+
+/// Of the candidates in `same`, the one that beats the term (`Some((k, false))`) or, when none
+/// does, the one that ties with it (`Some((k, true))`), by the rules of [`rival_of`].
+fn pick(search: &Search, same: &[Same], with: &State, without: &State) -> Option<(usize, bool)> {
+    let (rule, names, arm) = (
+        &search.rule,
+        &search.inp.fields.names,
+        &search.inp.arm_motors,
+    );
     let correction = |c: &Same| {
         matches!(
             search.cands[c.s.idx].kind,
             Kind::PerJoint(_) | Kind::Pooled(_)
         )
     };
-    // A loss term × signal carries its field only when it fits significantly better than its
-    // level alone (the plain pooled term with a free coefficient): otherwise any slow signal
-    // would do, and the field names nothing.
-    let mut level_pred: Vec<(Term, Vec<f64>)> = Vec::new();
-    for c in &same {
-        if let Kind::Product(t, ..) = search.cands[c.s.idx].kind
-            && !level_pred.iter().any(|(u, _)| *u == t)
-        {
-            let level = search.cols(c.s.idx).swap_remove(1);
-            if let Ok(fit) = search.base.fit(&[&level]) {
-                level_pred.push((t, fit.pred));
-            }
-        }
-    }
+    let level_pred = level_predictions(search, same);
     let carried = |c: &Same| match search.cands[c.s.idx].kind {
         Kind::Product(t, ..) => level_pred
             .iter()
-            .any(|(u, pred)| *u == t && p_better(&search, &c.s.fit.pred, pred) < rule.alpha),
+            .any(|(u, pred)| *u == t && p_better(search, &c.s.fit.pred, pred) < rule.alpha),
         _ => true,
     };
-    let field =
-        |c: &Same| may_rival(&search.cands[c.s.idx].kind, names, &inp.arm_motors) && carried(c);
+    let field = |c: &Same| may_rival(&search.cands[c.s.idx].kind, names, arm) && carried(c);
     // A product whose pooled term fits as well is that pooled term.
     let simpler = |k: usize| {
         let refs: Vec<&Scored> = same.iter().map(|c| &c.s).collect();
-        simpler_nested(&search, &same[k].s, &refs).unwrap_or(k)
+        simpler_nested(search, &same[k].s, &refs).unwrap_or(k)
     };
     let best_of = |pick: &dyn Fn(&Same) -> bool| {
         (0..same.len())
@@ -240,29 +255,27 @@ pub(crate) fn rival_of(
         best_of(&|c| field(c) && (c.p_lib >= rule.alpha || c.p_lib.is_nan()) && c.r >= CONFOUNDED_R)
             .filter(|&k| field(&same[k]))
     };
-    let tied = better.is_none();
-    let Some(k) = better.or_else(tie) else {
-        return Ok(None);
-    };
-    let c = &same[k];
-    let mut blocked: Vec<String> = Vec::new();
-    if tied {
-        for o in &same {
-            let group = &search.cands[o.s.idx].group;
-            if !blocked.contains(group) {
-                blocked.push(group.clone());
+    match better {
+        Some(k) => Some((k, false)),
+        None => tie().map(|k| (k, true)),
+    }
+}
+
+/// For each loss term among the products in `same`, the held-out prediction with its level
+/// alone (the plain pooled term with a free coefficient): a loss term × signal carries its
+/// field only when it fits significantly better than that — otherwise any slow signal would
+/// do, and the field names nothing.
+fn level_predictions(search: &Search, same: &[Same]) -> Vec<(Term, Vec<f64>)> {
+    let mut level_pred: Vec<(Term, Vec<f64>)> = Vec::new();
+    for c in same {
+        if let Kind::Product(t, ..) = search.cands[c.s.idx].kind
+            && !level_pred.iter().any(|(u, _)| *u == t)
+        {
+            let level = search.cols(c.s.idx).swap_remove(1);
+            if let Ok(fit) = search.base.fit(&[&level]) {
+                level_pred.push((t, fit.pred));
             }
         }
     }
-    let (_, rmse_riv) = r2_rmse(&rows.y, &c.s.fit.pred);
-    let s = &c.s;
-    let d = to_discovery(s, &search, joint_names, level, 1, String::new());
-    Ok(Some(Rival {
-        name: format!("{} ({})", d.name, d.form),
-        tied,
-        p_library: c.p_lib,
-        rmse: [rmse_with, rmse_riv],
-        correlation: c.r,
-        blocked,
-    }))
+    level_pred
 }

@@ -2,14 +2,18 @@
 //! the hypotheses at its weighted Holm level, and a scored candidate turned into a
 //! [`Discovery`].
 
-use super::candidates::{Cand, Holm, Inputs, Kind, RowValues, Signal, columns, signal_values};
+use anyhow::Result;
+
+use super::candidates::{
+    Cand, Holm, Inputs, Kind, RowValues, Signal, columns, generate, signal_values,
+};
 use super::fit::{Base, ExtFit};
 use super::found::Discovery;
 use super::words::describe;
 use crate::N_JOINTS;
 use crate::diagnose::Quality;
 use crate::diagnose::parsimony::{arm_drives, drives, knots, shape_cols, unit_rms};
-use crate::diagnose::select::{Rule, jackknife_se, trial_sse};
+use crate::diagnose::select::{PowerData, Rule, State, jackknife_se, trial_sse};
 use crate::diagnose::stats::improvement_p_value;
 
 /// A scored candidate.
@@ -35,7 +39,44 @@ pub(super) struct Search<'a, 'd> {
     pub(super) holm: Holm,
 }
 
-impl Search<'_, '_> {
+impl<'a, 'd> Search<'a, 'd> {
+    /// The search on model `cur`: its design, and the candidates generated and screened on its
+    /// residual ([`generate`]; notes on fields left out go to `notes`); also which fields are
+    /// tried (not meters of the power, not duplicates).
+    pub(super) fn new(
+        data: &'a PowerData<'d>,
+        cur: &'a State,
+        inp: &'a Inputs<'a>,
+        rule: &Rule,
+        notes: &mut Vec<String>,
+    ) -> Result<(Self, Vec<bool>)> {
+        let base = Base::new(data, cur)?;
+        let rows = base.rows;
+        let resid: Vec<f64> = rows
+            .y
+            .iter()
+            .zip(&cur.cv.pred)
+            .map(|(y, p)| y - p)
+            .collect();
+        let twin = data.reference.is_some();
+        let (cands, rv, usable, holm) = generate(inp, rows, data.n_trials, twin, &resid, notes);
+        let search = Search {
+            base,
+            cands,
+            rv,
+            inp,
+            rule: *rule,
+            holm,
+        };
+        Ok((search, usable))
+    }
+
+    /// RMS of the readings: what no candidate may explain more than.
+    pub(super) fn y_rms(&self) -> f64 {
+        let y = &self.base.rows.y;
+        (y.iter().map(|v| v * v).sum::<f64>() / y.len().max(1) as f64).sqrt()
+    }
+
     pub(super) fn cols(&self, i: usize) -> Vec<Vec<f64>> {
         columns(&self.cands[i].kind, self.inp, &self.rv, self.base.rows)
     }
