@@ -380,6 +380,18 @@ pub struct HypothesisScore {
     pub stability: Option<f64>,
 }
 
+impl super::stepwise::Gated for HypothesisScore {
+    fn p_value(&self) -> f64 {
+        self.p_value
+    }
+    fn delta_bic(&self) -> f64 {
+        self.delta_bic
+    }
+    fn gain(&self) -> f64 {
+        self.rel_improvement
+    }
+}
+
 impl HypothesisScore {
     /// Rejected only for its size: every statistical gate passed, the parameter is implausible.
     pub fn only_implausible(&self) -> bool {
@@ -405,9 +417,7 @@ impl Rule {
     /// plausibility of its parameter. A rival mechanism that fits as well is a rival even at an
     /// implausible value: the form, not the size, is what the pairing decides.
     pub fn supports(&self, s: &HypothesisScore) -> bool {
-        s.p_value < self.alpha
-            && s.delta_bic < self.bic_threshold
-            && s.rel_improvement >= self.min_improvement
+        super::stepwise::passes(self, s, self.alpha)
     }
 
     pub fn judge(&self, s: &HypothesisScore) -> (bool, String) {

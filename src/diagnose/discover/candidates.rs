@@ -7,6 +7,7 @@ use crate::diagnose::family::{Shape, Term};
 use crate::diagnose::fields::FieldTable;
 use crate::diagnose::reading_rows::Rows;
 use crate::diagnose::stats::{pearson, span, step_threshold};
+use crate::diagnose::stepwise::Holm;
 
 /// Correlation with the readings above which a field counts as a meter of the power itself.
 pub(super) const METER_CORRELATION: f64 = 0.5;
@@ -324,17 +325,6 @@ pub(super) fn generate(
         .collect();
     let tried: Vec<bool> = (0..names.len()).map(|f| usable[f] && single[f]).collect();
     (cands, rv, tried, holm)
-}
-
-/// The weighted Holm correction over every candidate generated.
-#[derive(Debug, Clone, Copy)]
-pub(super) struct Holm {
-    /// Candidates generated.
-    pub(super) m: usize,
-    /// Their total weight.
-    pub(super) total: f64,
-    /// The smallest weight (what an accepted term removes at least).
-    pub(super) w_min: f64,
 }
 
 pub(super) fn signal_name(s: &Signal, names: &[String]) -> String {

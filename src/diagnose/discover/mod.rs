@@ -52,6 +52,7 @@ use ties::{Tie, claim_rivals_found_beside, name_with_ties, stays_open, ties_at_s
 use words::describe;
 
 use super::select::{PowerData, Rule, State, jackknife_se};
+use super::stepwise;
 
 /// At most one discovered term per this many trials.
 const TRIALS_PER_TERM: usize = 20;
@@ -159,28 +160,21 @@ impl Forward {
         y_rms: f64,
     ) -> (Vec<Scored>, Option<Scored>) {
         let level = search.level(step);
-        let mut best_fail: Option<Scored> = None;
-        let mut passing: Vec<Scored> = Vec::new();
         let total = search.cands.len();
-        for i in 0..total {
+        let score = |i: usize| {
             super::report(super::Progress::Candidates {
                 step,
                 done: i + 1,
                 total,
             });
             if self.chosen.contains(&i) || self.closed.contains(&search.cands[i].group) {
-                continue;
+                return None;
             }
-            let Some(s) = search.score(i, &self.cols, (&self.pred, self.bic), y_rms) else {
-                continue;
-            };
-            if search.passes(&s, level * search.cands[i].weight) {
-                passing.push(s);
-            } else if best_fail.as_ref().is_none_or(|b| s.rel > b.rel) {
-                best_fail = Some(s);
-            }
-        }
-        (passing, best_fail)
+            search.score(i, &self.cols, (&self.pred, self.bic), y_rms)
+        };
+        stepwise::step(total, score, |i, s| {
+            search.passes(s, level * search.cands[i].weight)
+        })
     }
 
     /// Take `b` into the model at `step` with its `ties`, closing its group and those of the
@@ -212,7 +206,7 @@ impl Forward {
 /// a term × signal not significantly better than the plain pooled term it contains, that
 /// pooled term: the signal is not what the data support.
 fn take_best(search: &Search, passing: &mut Vec<Scored>) -> Option<Scored> {
-    let k = (0..passing.len()).max_by(|&a, &b| passing[a].rel.total_cmp(&passing[b].rel))?;
+    let k = stepwise::best(passing)?;
     let refs: Vec<&Scored> = passing.iter().collect();
     let k = simpler_nested(search, &passing[k], &refs).unwrap_or(k);
     Some(passing.swap_remove(k))

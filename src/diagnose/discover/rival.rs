@@ -11,6 +11,7 @@ use crate::N_JOINTS;
 use crate::diagnose::family::Term;
 use crate::diagnose::select::{PowerData, Rule, State, r2_rmse, trial_sse};
 use crate::diagnose::stats::{improvement_p_value, pearson};
+use crate::diagnose::stepwise::not_significant;
 
 /// A candidate beyond the library that explains what an accepted library term explains, on the
 /// model without that term ([`rival_of`]).
@@ -252,7 +253,7 @@ fn pick(search: &Search, same: &[Same], with: &State, without: &State) -> Option
     // A tie: a term on such a field, not significantly worse, whose contribution is collinear
     // with the term's — another mechanism the data cannot tell apart.
     let tie = || {
-        best_of(&|c| field(c) && (c.p_lib >= rule.alpha || c.p_lib.is_nan()) && c.r >= CONFOUNDED_R)
+        best_of(&|c| field(c) && not_significant(c.p_lib, rule.alpha) && c.r >= CONFOUNDED_R)
             .filter(|&k| field(&same[k]))
     };
     match better {

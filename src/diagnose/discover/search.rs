@@ -4,9 +4,7 @@
 
 use anyhow::Result;
 
-use super::candidates::{
-    Cand, Holm, Inputs, Kind, RowValues, Signal, columns, generate, signal_values,
-};
+use super::candidates::{Cand, Inputs, Kind, RowValues, Signal, columns, generate, signal_values};
 use super::fit::{Base, ExtFit};
 use super::found::Discovery;
 use super::words::describe;
@@ -15,6 +13,7 @@ use crate::diagnose::Quality;
 use crate::diagnose::parsimony::{arm_drives, drives, knots, shape_cols, unit_rms};
 use crate::diagnose::select::{PowerData, Rule, State, jackknife_se, trial_sse};
 use crate::diagnose::stats::improvement_p_value;
+use crate::diagnose::stepwise::{self, Gated, Holm, not_significant};
 
 /// A scored candidate.
 pub(super) struct Scored {
@@ -26,6 +25,18 @@ pub(super) struct Scored {
     pub(super) before: Quality,
     pub(super) after: Quality,
     pub(super) plausible: bool,
+}
+
+impl Gated for Scored {
+    fn p_value(&self) -> f64 {
+        self.p
+    }
+    fn delta_bic(&self) -> f64 {
+        self.d_bic
+    }
+    fn gain(&self) -> f64 {
+        self.rel
+    }
 }
 
 /// Forward selection over the candidates at the Holm level; returns the accepted (step,
@@ -84,8 +95,7 @@ impl<'a, 'd> Search<'a, 'd> {
     /// The weighted Holm level of a candidate of weight 1 at `step` (a candidate's own level is
     /// this times its weight).
     pub(super) fn level(&self, step: usize) -> f64 {
-        let h = self.holm;
-        self.rule.alpha / (h.total - (step - 1) as f64 * h.w_min).max(1.0)
+        self.holm.level(self.rule.alpha, step)
     }
 
     /// Score candidate `i` on top of the chosen columns `prev` (current predictions and BIC).
@@ -180,10 +190,7 @@ impl<'a, 'd> Search<'a, 'd> {
     }
 
     pub(super) fn passes(&self, s: &Scored, level: f64) -> bool {
-        s.p < level
-            && s.d_bic < self.rule.bic_threshold
-            && s.rel >= self.rule.min_improvement
-            && s.plausible
+        stepwise::passes(&self.rule, s, level) && s.plausible
     }
 }
 
@@ -207,7 +214,7 @@ pub(super) fn simpler_nested(search: &Search, b: &Scored, among: &[&Scored]) -> 
     among.iter().position(|o| {
         matches!(search.cands[o.idx].kind, Kind::Pooled(u) if u == t) && {
             let p = p_better(search, &b.fit.pred, &o.fit.pred);
-            p >= search.rule.alpha || p.is_nan()
+            not_significant(p, search.rule.alpha)
         }
     })
 }

@@ -8,6 +8,7 @@ use super::words::predicate;
 use crate::N_JOINTS;
 use crate::diagnose::select::r2_rmse;
 use crate::diagnose::stats::pearson;
+use crate::diagnose::stepwise::not_significant;
 
 /// Partial correlation (given the library design) above which two terms are confounded.
 pub(super) const CONFOUNDED_R: f64 = 0.9;
@@ -80,7 +81,7 @@ pub(super) fn tie_of(
         return None;
     }
     let same = same_structure(chosen, rival);
-    let not_worse = p_chosen_better >= alpha || p_chosen_better.is_nan();
+    let not_worse = not_significant(p_chosen_better, alpha);
     (not_worse && (same || r >= CONFOUNDED_R)).then_some(same)
 }
 
