@@ -7,17 +7,20 @@ use super::select::Rule;
 
 /// What the gates read of a scored candidate.
 pub(crate) trait Gated {
-    /// Paired one-sided p-value of its held-out improvement.
-    fn p_value(&self) -> f64;
-    /// ΔBIC of adding it.
-    fn delta_bic(&self) -> f64;
-    /// 1 − held-out RMSE after / before.
-    fn gain(&self) -> f64;
+    /// The paired one-sided p-value of its held-out improvement, the ΔBIC of adding it, and its
+    /// held-out gain (1 − RMSE after / before).
+    fn gated(&self) -> (f64, f64, f64);
+
+    /// Its held-out gain.
+    fn gain(&self) -> f64 {
+        self.gated().2
+    }
 }
 
 /// Whether `s` passes `rule`'s gates with its p-value below `level`.
 pub(crate) fn passes(rule: &Rule, s: &impl Gated, level: f64) -> bool {
-    s.p_value() < level && s.delta_bic() < rule.bic_threshold && s.gain() >= rule.min_improvement
+    let (p, d_bic, gain) = s.gated();
+    p < level && d_bic < rule.bic_threshold && gain >= rule.min_improvement
 }
 
 /// The weighted Holm correction over every candidate generated: at step j a candidate of

@@ -7,9 +7,8 @@ use crate::N_PARAMS;
 use crate::diagnose::Quality;
 use crate::diagnose::reading_rows::Rows;
 use crate::diagnose::select::{
-    PowerData, State, bic, bounds_for, design_map_for, r2_rmse, solve_bounded_for, trial_sse,
+    Held, PowerData, State, bic, bounds_for, design_map_for, solve_bounded_for,
 };
-use crate::diagnose::stats::improvement_p_value;
 use crate::lsq::Gram;
 
 /// Result of fitting the current model plus extra columns.
@@ -138,24 +137,8 @@ impl<'a, 'd> Base<'a, 'd> {
 
     /// Compare predictions `after` with `before`: (p, rel improvement, before, after quality).
     pub(super) fn compare(&self, before: &[f64], after: &[f64]) -> (f64, f64, Quality, Quality) {
-        let y = &self.rows.y;
-        let nt = self.data.n_trials;
-        let eb = trial_sse(y, before, &self.rows.trial, nt);
-        let ea = trial_sse(y, after, &self.rows.trial, nt);
-        let d: Vec<f64> = eb.iter().zip(&ea).map(|(a, b)| a - b).collect();
-        let (r2b, rb) = r2_rmse(y, before);
-        let (r2a, ra) = r2_rmse(y, after);
-        (
-            improvement_p_value(&d),
-            1.0 - ra / rb.max(1e-300),
-            Quality {
-                r2: r2b,
-                rmse_w: rb,
-            },
-            Quality {
-                r2: r2a,
-                rmse_w: ra,
-            },
-        )
+        let (rows, nt) = (self.rows, self.data.n_trials);
+        let h = Held::new(&rows.y, before, after, &rows.trial, nt);
+        (h.p_value, h.gain(), h.before, h.after)
     }
 }

@@ -28,14 +28,8 @@ pub(super) struct Scored {
 }
 
 impl Gated for Scored {
-    fn p_value(&self) -> f64 {
-        self.p
-    }
-    fn delta_bic(&self) -> f64 {
-        self.d_bic
-    }
-    fn gain(&self) -> f64 {
-        self.rel
+    fn gated(&self) -> (f64, f64, f64) {
+        (self.p, self.d_bic, self.rel)
     }
 }
 
