@@ -28,6 +28,7 @@ pub(crate) mod rest;
 pub(crate) mod select;
 mod select_discover;
 pub(crate) mod stats;
+mod stepwise;
 pub(crate) mod summary;
 #[cfg(test)]
 mod testkit;

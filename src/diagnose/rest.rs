@@ -12,6 +12,7 @@ use super::select::{Param, RIVAL_ALPHA, Rule, jackknife_se};
 use super::stats::{
     STABILITY_DRAWS, improvement_p_value, resampled_stability, span, step_threshold,
 };
+use super::stepwise::{self, Gated, Holm, not_significant};
 use crate::lsq::Gram;
 
 /// Most trials per block of the held-out test (≈ 4–5 minutes of the protocol); a shorter session
@@ -142,6 +143,12 @@ struct Scored {
     d_bic: f64,
 }
 
+impl Gated for Scored {
+    fn gated(&self) -> (f64, f64, f64) {
+        (self.p, self.d_bic, self.rel)
+    }
+}
+
 struct Search<'a> {
     y: Vec<f64>,
     block: Vec<usize>,
@@ -231,12 +238,8 @@ impl Search<'_> {
         })
     }
 
-    fn passes(&self, s: &Scored, level: f64) -> bool {
-        s.p < level && s.d_bic < self.rule.bic_threshold && s.rel >= self.rule.min_improvement
-    }
-
     fn level(&self, step: usize) -> f64 {
-        self.rule.alpha / (self.cands.len() + 1).saturating_sub(step).max(1) as f64
+        Holm::equal(self.cands.len()).level(self.rule.alpha, step)
     }
 
     fn field_name(&self, c: Cand) -> String {
@@ -440,23 +443,14 @@ impl Search<'_> {
         let mut cur = base;
         for step in 1..=MAX_TERMS {
             let level = self.level(step);
-            let mut passing = Vec::new();
-            let mut best_fail: Option<Scored> = None;
-            for i in 0..self.cands.len() {
-                if chosen.iter().any(|&c| self.field_of(c) == self.field_of(i)) {
-                    continue;
-                }
-                let Some(s) = self.score(i, &chosen, &cur) else {
-                    continue;
-                };
-                if self.passes(&s, level) {
-                    passing.push(s);
-                } else if best_fail.as_ref().is_none_or(|b| s.rel > b.rel) {
-                    best_fail = Some(s);
-                }
-            }
-            let best =
-                (0..passing.len()).max_by(|&a, &b| passing[a].rel.total_cmp(&passing[b].rel));
+            let score = |i: usize| {
+                let open = chosen.iter().all(|&c| self.field_of(c) != self.field_of(i));
+                open.then(|| self.score(i, &chosen, &cur)).flatten()
+            };
+            let (mut passing, best_fail) = stepwise::step(self.cands.len(), score, |_, s| {
+                stepwise::passes(&self.rule, s, level)
+            });
+            let best = stepwise::best(&passing);
             if step == 1
                 && best.is_none()
                 && let Some(f) = &best_fail
@@ -547,7 +541,7 @@ impl Search<'_> {
             .filter(|s| self.field_of(s.cand) != self.field_of(b.cand))
             .filter(|s| {
                 let p = improvement_p_value(&self.block_gain(&s.fit.pred, &b.fit.pred));
-                p >= self.rule.alpha || p.is_nan()
+                not_significant(p, self.rule.alpha)
             })
             .map(|s| (self.rmse(&s.fit.pred), self.field_of(s.cand)))
             .collect();

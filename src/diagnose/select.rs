@@ -11,6 +11,7 @@ use nalgebra::{DMatrix, DVector};
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
 
+use super::Quality;
 use super::hypotheses::{Combine, Hypothesis, LATENCY_ID, N_RAW};
 use super::reading_rows::Rows;
 use super::stats::improvement_p_value;
@@ -380,6 +381,12 @@ pub struct HypothesisScore {
     pub stability: Option<f64>,
 }
 
+impl super::stepwise::Gated for HypothesisScore {
+    fn gated(&self) -> (f64, f64, f64) {
+        (self.p_value, self.delta_bic, self.rel_improvement)
+    }
+}
+
 impl HypothesisScore {
     /// Rejected only for its size: every statistical gate passed, the parameter is implausible.
     pub fn only_implausible(&self) -> bool {
@@ -405,9 +412,7 @@ impl Rule {
     /// plausibility of its parameter. A rival mechanism that fits as well is a rival even at an
     /// implausible value: the form, not the size, is what the pairing decides.
     pub fn supports(&self, s: &HypothesisScore) -> bool {
-        s.p_value < self.alpha
-            && s.delta_bic < self.bic_threshold
-            && s.rel_improvement >= self.min_improvement
+        super::stepwise::passes(self, s, self.alpha)
     }
 
     pub fn judge(&self, s: &HypothesisScore) -> (bool, String) {
@@ -644,17 +649,66 @@ struct Candidate {
     next: State,
 }
 
-fn compare(data: &PowerData, cur: &State, next_pred: &[f64]) -> (f64, f64, f64, f64, f64, f64) {
+fn compare(data: &PowerData, cur: &State, next_pred: &[f64]) -> Held {
     // Every lag's rows are the same readings: y and trial are the lag-0 rows'.
-    let y = &data.rows0().y;
-    let trial = &data.rows0().trial;
-    let before = trial_sse(y, &cur.cv.pred, trial, data.n_trials);
-    let after = trial_sse(y, next_pred, trial, data.n_trials);
-    let d: Vec<f64> = before.iter().zip(&after).map(|(a, b)| a - b).collect();
-    let p = improvement_p_value(&d);
-    let (r2b, rmseb) = r2_rmse(y, &cur.cv.pred);
-    let (r2a, rmsea) = r2_rmse(y, next_pred);
-    (p, r2b, r2a, rmseb, rmsea, 1.0 - rmsea / rmseb.max(1e-300))
+    let rows = data.rows0();
+    Held::new(&rows.y, &cur.cv.pred, next_pred, &rows.trial, data.n_trials)
+}
+
+/// Held-out predictions `after` compared with `before`: the paired one-sided p-value by trial
+/// that `after` fits better, and each one's quality.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Held {
+    pub p_value: f64,
+    pub before: Quality,
+    pub after: Quality,
+}
+
+impl Held {
+    /// Compare `after` with `before` on readings `y` of trials `trial` (of `n_trials`).
+    pub fn new(y: &[f64], before: &[f64], after: &[f64], trial: &[usize], n_trials: usize) -> Held {
+        let eb = trial_sse(y, before, trial, n_trials);
+        let ea = trial_sse(y, after, trial, n_trials);
+        let d: Vec<f64> = eb.iter().zip(&ea).map(|(a, b)| a - b).collect();
+        let quality = |pred: &[f64]| {
+            let (r2, rmse_w) = r2_rmse(y, pred);
+            Quality { r2, rmse_w }
+        };
+        Held {
+            p_value: improvement_p_value(&d),
+            before: quality(before),
+            after: quality(after),
+        }
+    }
+
+    /// 1 − held-out RMSE after / before.
+    pub fn gain(&self) -> f64 {
+        1.0 - self.after.rmse_w / self.before.rmse_w.max(1e-300)
+    }
+
+    /// An unjudged score of candidate `id` (`title`) at `level` ("power", "torque") with
+    /// `params`: not accepted, not ranked, no verdict; ΔBIC, plausibility and step unset.
+    pub fn score(&self, id: &str, title: &str, level: &str, params: Vec<Param>) -> HypothesisScore {
+        HypothesisScore {
+            id: id.into(),
+            title: title.into(),
+            level: level.into(),
+            params,
+            p_value: self.p_value,
+            delta_bic: 0.0,
+            rmse_before: self.before.rmse_w,
+            rmse_after: self.after.rmse_w,
+            r2_before: self.before.r2,
+            r2_after: self.after.r2,
+            rel_improvement: self.gain(),
+            plausible: false,
+            accepted: false,
+            rank: 0,
+            step: 0,
+            verdict: String::new(),
+            stability: None,
+        }
+    }
 }
 
 fn score_term(
@@ -674,32 +728,19 @@ fn score_term(
         .iter()
         .map(|t| (h.to_physical)(t[j]))
         .collect();
-    let (p_value, r2_before, r2_after, rmse_before, rmse_after, rel) =
-        compare(data, cur, &next.cv.pred);
+    let param = Param {
+        name: h.title.into(),
+        symbol: h.symbol.into(),
+        value,
+        std_err: jackknife_se(&per_fold),
+        unit: h.unit.into(),
+    };
+    let held = compare(data, cur, &next.cv.pred);
     let score = HypothesisScore {
-        id: h.id.into(),
-        title: h.title.into(),
-        level: "power".into(),
-        params: vec![Param {
-            name: h.title.into(),
-            symbol: h.symbol.into(),
-            value,
-            std_err: jackknife_se(&per_fold),
-            unit: h.unit.into(),
-        }],
-        p_value,
         delta_bic: next.bic - cur.bic,
-        rmse_before,
-        rmse_after,
-        r2_before,
-        r2_after,
-        rel_improvement: rel,
         plausible: value >= h.plausible.0 && value <= h.plausible.1,
-        accepted: false,
-        rank: 0,
         step,
-        verdict: String::new(),
-        stability: None,
+        ..held.score(h.id, h.title, "power", vec![param])
     };
     Ok(Candidate { score, next })
 }
@@ -749,31 +790,19 @@ fn score_latency(data: &PowerData, cur: &State, step: usize) -> Result<Candidate
     }
     let next = state(data, cur.spec.clone(), best)?;
     // Rows are the same readings at every lag, so per-trial errors compare directly.
-    let (p_value, r2_before, r2_after, rmse_before, rmse_after, rel) = compare(data, cur, &pred);
+    let param = Param {
+        name: "sensor latency".into(),
+        symbol: "L".into(),
+        value: lag,
+        std_err: jackknife_se(&fold_lag),
+        unit: "s".into(),
+    };
+    let title = "power-sensor latency (reading averages an earlier window)";
     let score = HypothesisScore {
-        id: LATENCY_ID.into(),
-        title: "power-sensor latency (reading averages an earlier window)".into(),
-        level: "power".into(),
-        params: vec![Param {
-            name: "sensor latency".into(),
-            symbol: "L".into(),
-            value: lag,
-            std_err: jackknife_se(&fold_lag),
-            unit: "s".into(),
-        }],
-        p_value,
         delta_bic: next.bic - cur.bic,
-        rmse_before,
-        rmse_after,
-        r2_before,
-        r2_after,
-        rel_improvement: rel,
         plausible: best > 0 && lag <= 2.0,
-        accepted: false,
-        rank: 0,
         step,
-        verdict: String::new(),
-        stability: None,
+        ..compare(data, cur, &pred).score(LATENCY_ID, title, "power", vec![param])
     };
     Ok(Candidate { score, next })
 }

@@ -8,8 +8,7 @@ use anyhow::Result;
 use nalgebra::{DVector, SMatrix};
 
 use super::reading_rows::TrialMeta;
-use super::select::{Folds, HypothesisScore, Param, bic, jackknife_se, r2_rmse, trial_sse};
-use super::stats::improvement_p_value;
+use super::select::{Folds, Held, HypothesisScore, Param, bic, jackknife_se};
 use crate::N_JOINTS;
 use crate::lsq::Gram;
 use crate::signals::Recording;
@@ -254,12 +253,7 @@ fn payload_score(rows: &[TorqueRow], cv: &TorqueCv, n_trials: usize) -> Hypothes
         .flat_map(|r| std::iter::repeat_n(r.trial, N_JOINTS))
         .collect();
     let (pb, pp) = (flat(pred_base), flat(pred_pay));
-    let before = trial_sse(&y, &pb, &trial_of, n_trials);
-    let after = trial_sse(&y, &pp, &trial_of, n_trials);
-    let d: Vec<f64> = before.iter().zip(&after).map(|(a, b)| a - b).collect();
-    let p_value = improvement_p_value(&d);
-    let (r2_before, rmse_before) = r2_rmse(&y, &pb);
-    let (r2_after, rmse_after) = r2_rmse(&y, &pp);
+    let held = Held::new(&y, &pb, &pp, &trial_of, n_trials);
 
     let b0 = solve(total, N_FRICTION);
     let b1 = solve(total, N_TORQUE);
@@ -288,24 +282,12 @@ fn payload_score(rows: &[TorqueRow], cv: &TorqueCv, n_trials: usize) -> Hypothes
             unit: "m".into(),
         });
     }
+    let title = "payload at the hand the URDF lacks (point mass)";
     HypothesisScore {
-        id: super::hypotheses::PAYLOAD_ID.into(),
-        title: "payload at the hand the URDF lacks (point mass)".into(),
-        level: "torque".into(),
-        params,
-        p_value,
         delta_bic,
-        rmse_before,
-        rmse_after,
-        r2_before,
-        r2_after,
-        rel_improvement: 1.0 - rmse_after / rmse_before.max(1e-300),
         plausible,
-        accepted: false,
-        rank: 0,
         step: 1,
-        verdict: String::new(),
-        stability: None,
+        ..held.score(super::hypotheses::PAYLOAD_ID, title, "torque", params)
     }
 }
 

@@ -1,0 +1,355 @@
+//! The candidates discovery tries: every recorded field as a rail load (linear, and a step
+//! for a field that switches between levels), each loss term × each slow state signal, and
+//! the base-term corrections; fields that meter the power itself left out with a note.
+
+use crate::N_JOINTS;
+use crate::diagnose::family::{Shape, Term};
+use crate::diagnose::fields::FieldTable;
+use crate::diagnose::reading_rows::Rows;
+use crate::diagnose::stats::{pearson, span, step_threshold};
+use crate::diagnose::stepwise::Holm;
+
+/// Correlation with the readings above which a field counts as a meter of the power itself.
+pub(super) const METER_CORRELATION: f64 = 0.5;
+
+/// Within-trial share of a field's variance below which it is a slow state signal.
+pub(super) const SLOW_SHARE: f64 = 0.1;
+
+/// How candidate names call session time.
+pub(super) const TIME_NAME: &str = "session time";
+
+/// A slow state signal a loss term may depend on.
+#[derive(Debug, Clone)]
+pub(crate) enum Signal {
+    /// One field for all joints.
+    Field(usize),
+    /// A field of each joint's own motor (field indices per joint).
+    Family(String, [usize; N_JOINTS]),
+    /// Session time [h].
+    Time,
+    /// A field left out as a meter of the power that falls as the power rises (a supply
+    /// voltage sagging under the load's current), at rest: its mean over the trial's pre-idle
+    /// readings, where it reads the state it stands at (the charge).
+    Rest(usize),
+}
+
+/// A generated candidate term.
+#[derive(Debug, Clone)]
+pub(crate) enum Kind {
+    /// W per unit of the field (and the field's 5–95 % span, to state the load it swings).
+    Additive(usize, f64),
+    /// W while the field is above `threshold`.
+    Step(usize, f64),
+    /// Σ_i term_i · g(signal_i), beside the term's level (a family member, [`crate::diagnose::family`]).
+    Product(Term, Signal, Shape),
+    /// One coefficient per joint on term_i (held base model only).
+    PerJoint(Term),
+    /// One coefficient on Σ_i term_i (held base model only).
+    Pooled(Term),
+}
+
+/// Everything discovery needs about the recording beyond the power data.
+pub(crate) struct Inputs<'a> {
+    /// Field table over the rows' and the baseline readings' windows.
+    pub fields: &'a FieldTable,
+    /// Window of each row in the table.
+    pub row_window: &'a [usize],
+    /// Baseline (pre-idle) reading windows of each trial (position in the trial list).
+    pub base_windows: &'a [Vec<usize>],
+    /// Rest power of each trial: the mean of its baseline readings [W] (NaN without any).
+    pub base_power: &'a [f64],
+    /// Start of each trial on the session clock [s].
+    pub trial_start: &'a [f64],
+    /// Per joint: the motor index whose fields belong to it (`motor_state[k]`).
+    pub arm_motors: [usize; N_JOINTS],
+    /// Fields that meter the rail's current ([`crate::diagnose::DiagnoseOptions::meter_flows`]).
+    pub meter_flows: &'a [String],
+}
+
+/// Field values on the rows: raw window value and the mean over the row's trial baseline.
+pub(super) struct RowValues {
+    pub(super) raw: Vec<Vec<f64>>,
+    pub(super) baseline: Vec<Vec<f64>>,
+    pub(super) hours: Vec<f64>,
+}
+
+impl RowValues {
+    pub(super) fn new(inp: &Inputs, rows: &Rows) -> RowValues {
+        let mut raw = Vec::new();
+        let mut baseline = Vec::new();
+        for vals in &inp.fields.values {
+            raw.push((0..rows.len()).map(|r| vals[inp.row_window[r]]).collect());
+            baseline.push(
+                rows.trial
+                    .iter()
+                    .map(|&ti| base_mean(&inp.base_windows[ti], |w| vals[w]))
+                    .collect(),
+            );
+        }
+        RowValues {
+            raw,
+            baseline,
+            hours: rows.t.iter().map(|t| t / 3600.0).collect(),
+        }
+    }
+}
+
+/// Mean of `f` over a trial's baseline windows (0 without any).
+pub(super) fn base_mean(windows: &[usize], f: impl Fn(usize) -> f64) -> f64 {
+    if windows.is_empty() {
+        return 0.0;
+    }
+    windows.iter().map(|&w| f(w)).sum::<f64>() / windows.len() as f64
+}
+
+/// A candidate and the group it competes in (forms of one mechanism: at most one accepted).
+pub(super) struct Cand {
+    pub(super) kind: Kind,
+    pub(super) group: String,
+    /// Its weight in the weighted Holm correction ([`crate::diagnose::family::weights`]).
+    pub(super) weight: f64,
+}
+
+/// Share of a series' variance that lies within trials.
+pub(super) fn within_share(v: &[f64], trial: &[usize], n_trials: usize) -> f64 {
+    let mut s = vec![0.0; n_trials];
+    let mut c = vec![0usize; n_trials];
+    for (x, &t) in v.iter().zip(trial) {
+        s[t] += x;
+        c[t] += 1;
+    }
+    let mean = v.iter().sum::<f64>() / v.len().max(1) as f64;
+    let (mut within, mut total) = (0.0, 0.0);
+    for (x, &t) in v.iter().zip(trial) {
+        let m = s[t] / c[t] as f64;
+        within += (x - m).powi(2);
+        total += (x - mean).powi(2);
+    }
+    within / total.max(1e-300)
+}
+
+/// Per-motor families: fields `…motor_state[k].rest` present for every arm motor.
+pub(super) fn families(
+    names: &[String],
+    arm: &[usize; N_JOINTS],
+) -> Vec<(String, [usize; N_JOINTS])> {
+    use std::collections::BTreeMap;
+    let mut by_key: BTreeMap<String, [Option<usize>; N_JOINTS]> = BTreeMap::new();
+    for (f, name) in names.iter().enumerate() {
+        for (j, &k) in arm.iter().enumerate() {
+            let tag = format!("[{k}].");
+            if let Some(pos) = name.find(&tag) {
+                let key = format!("{}[*].{}", &name[..pos], &name[pos + tag.len()..]);
+                by_key.entry(key).or_insert([None; N_JOINTS])[j] = Some(f);
+            }
+        }
+    }
+    by_key
+        .into_iter()
+        .filter_map(|(k, v)| {
+            let all: Option<Vec<usize>> = v.iter().copied().collect();
+            all.map(|a| (k, std::array::from_fn(|j| a[j])))
+        })
+        .collect()
+}
+
+/// Columns of a candidate on the rows.
+pub(super) fn columns(kind: &Kind, inp: &Inputs, rv: &RowValues, rows: &Rows) -> Vec<Vec<f64>> {
+    let n = rows.len();
+    match kind {
+        Kind::Additive(f, _) => vec![(0..n).map(|r| rv.raw[*f][r] - rv.baseline[*f][r]).collect()],
+        Kind::Step(f, thr) => {
+            let vals = &inp.fields.values[*f];
+            let on = |v: f64| f64::from(u8::from(v > *thr));
+            vec![
+                (0..n)
+                    .map(|r| {
+                        on(rv.raw[*f][r])
+                            - base_mean(&inp.base_windows[rows.trial[r]], |w| on(vals[w]))
+                    })
+                    .collect(),
+            ]
+        }
+        Kind::Product(t, sig, shape) => {
+            let s = |r: usize, i: usize| match sig {
+                Signal::Field(f) => rv.raw[*f][r],
+                Signal::Family(_, fs) => rv.raw[fs[i]][r],
+                Signal::Time => rv.hours[r],
+                Signal::Rest(f) => rv.baseline[*f][r],
+            };
+            // The level column lets the term's coefficient at signal 0 take any sign (the base
+            // coefficients it would otherwise shift are bounded at 0).
+            vec![
+                (0..n)
+                    .map(|r| t.sum(&rows.x[r], &|i| shape.g(s(r, i))))
+                    .collect(),
+                (0..n).map(|r| t.sum(&rows.x[r], &|_| 1.0)).collect(),
+            ]
+        }
+        Kind::PerJoint(t) => (0..N_JOINTS)
+            .map(|i| (0..n).map(|r| t.value(&rows.x[r], i)).collect())
+            .collect(),
+        Kind::Pooled(t) => vec![(0..n).map(|r| t.sum(&rows.x[r], &|_| 1.0)).collect()],
+    }
+}
+
+/// A signal's values on the rows (every member's, for a family).
+pub(super) fn signal_values(s: &Signal, rv: &RowValues) -> Vec<f64> {
+    match s {
+        Signal::Field(f) => rv.raw[*f].clone(),
+        Signal::Family(_, fs) => fs.iter().flat_map(|&f| rv.raw[f].iter().copied()).collect(),
+        Signal::Time => rv.hours.clone(),
+        Signal::Rest(f) => rv.baseline[*f].clone(),
+    }
+}
+
+/// Generate every candidate, fields that meter the power itself left out (noted), and keep
+/// those [`crate::diagnose::family::screen`] passes on the current model's residual `resid`; the
+/// weighted Holm correction over all generated is returned last.
+pub(super) fn generate(
+    inp: &Inputs,
+    rows: &Rows,
+    n_trials: usize,
+    twin: bool,
+    resid: &[f64],
+    notes: &mut Vec<String>,
+) -> (Vec<Cand>, RowValues, Vec<bool>, Holm) {
+    let names = &inp.fields.names;
+    let rv = RowValues::new(inp, rows);
+    let mut meters = Vec::new();
+    let mut usable = vec![true; names.len()];
+    // Meters that fall as the power rises: a supply sagging under the load.
+    let mut sags = vec![false; names.len()];
+    let single: Vec<bool> = (0..names.len())
+        .map(|f| !inp.fields.duplicate.get(f).copied().unwrap_or(false))
+        .collect();
+    for f in 0..names.len() {
+        let net: Vec<f64> = (0..rows.len())
+            .map(|r| rv.raw[f][r] - rv.baseline[f][r])
+            .collect();
+        let (r, _) = pearson(&net, &rows.y);
+        // A current meter of the rail is left out whatever its correlation: sampled on its own
+        // clock, or beside a large unmodelled effect, it can track the readings loosely and
+        // still follow every residual the rail carries.
+        let flow = inp.meter_flows.contains(&names[f]);
+        if flow || r.abs() >= METER_CORRELATION {
+            usable[f] = false;
+            sags[f] = !flow && r < 0.0;
+            if single[f] {
+                meters.push(format!("{} (r = {r:+.2})", names[f]));
+            }
+        }
+    }
+    if !meters.is_empty() {
+        notes.push(format!(
+            "left out as meters of the power itself (the rail's current meters, and fields with |r| ≥ {METER_CORRELATION} with the readings): {}; those that fall as it rises (a supply sagging under the load) are tried at rest (their mean over each trial's pre-idle readings) as slow state signals",
+            meters.join(", ")
+        ));
+    }
+    let mut kinds: Vec<(Kind, String)> = Vec::new();
+    let mut slow = vec![Signal::Time];
+    // A meter that falls as the power rises is the supply sagging under the load (a battery
+    // voltage): at rest it reads the source's state (the charge), a slow state signal when it
+    // changes from trial to trial. One that rises with the power is the flow itself, at rest
+    // the rest load: not a state.
+    for f in (0..names.len()).filter(|&f| sags[f] && single[f]) {
+        let rest = &rv.baseline[f];
+        let first = rest.first().copied().unwrap_or(0.0);
+        if rest.iter().all(|v| v.is_finite()) && rest.iter().any(|&v| v != first) {
+            slow.push(Signal::Rest(f));
+        }
+    }
+    for f in (0..names.len()).filter(|&f| usable[f] && single[f]) {
+        kinds.push((
+            Kind::Additive(f, span(&rv.raw[f])),
+            format!("field {}", names[f]),
+        ));
+        if let Some(thr) = step_threshold(&rv.raw[f]) {
+            kinds.push((Kind::Step(f, thr), format!("field {}", names[f])));
+        }
+        if within_share(&rv.raw[f], &rows.trial, n_trials) < SLOW_SHARE {
+            slow.push(Signal::Field(f));
+        }
+    }
+    for (key, fs) in families(names, &inp.arm_motors) {
+        let ok = fs.iter().all(|&f| usable[f])
+            && fs
+                .iter()
+                .all(|&f| within_share(&rv.raw[f], &rows.trial, n_trials) < SLOW_SHARE);
+        if ok {
+            slow.push(Signal::Family(key, fs));
+        }
+    }
+    // The family: every term × every slow signal it can pair with × every shape; the linear
+    // forms of the base terms and the drive current always scored, the rest screened.
+    let mut family: Vec<Option<Term>> = vec![None; kinds.len()];
+    for t in Term::ALL {
+        for s in slow
+            .iter()
+            .filter(|s| t.per_joint() || !matches!(s, Signal::Family(..)))
+        {
+            let g = format!("{t:?} × {}", signal_name(s, names));
+            for shape in Shape::all_for(&signal_values(s, &rv)) {
+                family.push(crate::diagnose::family::screened(t, shape).then_some(t));
+                kinds.push((Kind::Product(t, s.clone(), shape), g.clone()));
+            }
+        }
+        // A one-sided form of a library mechanism the library does not hold, on its own.
+        if t.level_is_new() || (twin && Term::BASE.contains(&t)) {
+            family.push(None);
+            kinds.push((Kind::Pooled(t), format!("{t:?} correction")));
+        }
+        if twin && Term::BASE.contains(&t) {
+            family.push(None);
+            kinds.push((Kind::PerJoint(t), format!("{t:?} correction")));
+        }
+    }
+    let m = kinds.len();
+    let is_screened: Vec<bool> = family.iter().map(Option::is_some).collect();
+    let weights = crate::diagnose::family::weights(&is_screened);
+    let keep =
+        crate::diagnose::family::screen(&family, &|i| columns(&kinds[i].0, inp, &rv, rows), resid);
+    let w_min = weights.iter().copied().fold(1.0, f64::min);
+    let holm = Holm {
+        m,
+        total: weights.iter().sum(),
+        w_min,
+    };
+    let cands = keep
+        .into_iter()
+        .map(|i| Cand {
+            kind: kinds[i].0.clone(),
+            group: kinds[i].1.clone(),
+            weight: weights[i],
+        })
+        .collect();
+    let tried: Vec<bool> = (0..names.len()).map(|f| usable[f] && single[f]).collect();
+    (cands, rv, tried, holm)
+}
+
+pub(super) fn signal_name(s: &Signal, names: &[String]) -> String {
+    match s {
+        Signal::Field(f) => names[*f].clone(),
+        Signal::Family(k, _) => format!("{k} (each joint's own motor)"),
+        Signal::Time => TIME_NAME.into(),
+        Signal::Rest(f) => format!("{} at rest", names[*f]),
+    }
+}
+
+/// The signal(s) a candidate follows, by name: its recorded field(s), or session time; empty
+/// for a correction of a base loss term (it follows no signal).
+pub(super) fn followed(kind: &Kind, names: &[String]) -> Vec<String> {
+    match kind {
+        Kind::Additive(f, _)
+        | Kind::Step(f, _)
+        | Kind::Product(_, Signal::Field(f), _)
+        | Kind::Product(_, Signal::Rest(f), _) => {
+            vec![names[*f].clone()]
+        }
+        Kind::Product(_, Signal::Family(_, fs), _) => {
+            fs.iter().map(|&f| names[f].clone()).collect()
+        }
+        Kind::Product(_, Signal::Time, _) => vec![TIME_NAME.into()],
+        Kind::PerJoint(_) | Kind::Pooled(_) => Vec::new(),
+    }
+}

@@ -1,0 +1,126 @@
+//! What discovery reports: the terms found (with their ties), the best rejected, and what
+//! was tried.
+
+use crate::diagnose::Quality;
+use crate::diagnose::select::Param;
+
+/// A term found beyond the library.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct Discovery {
+    /// What it is, in physical words (from the term's structure).
+    pub name: String,
+    /// Its form as a formula.
+    pub form: String,
+    /// The recorded field(s) it follows (empty for a base-term correction).
+    pub fields: Vec<String>,
+    /// Its parameter(s) with standard errors (delete-a-fold jackknife).
+    pub params: Vec<Param>,
+    /// One-sided paired p-value of the held-out improvement by trial.
+    pub p_value: f64,
+    /// Level it had to beat (Holm over the candidates tried).
+    pub alpha: f64,
+    /// ΔBIC of adding it.
+    pub delta_bic: f64,
+    /// 1 − held-out RMSE after / before.
+    pub rel_improvement: f64,
+    /// Held-out quality before adding it (per reading).
+    pub before: Quality,
+    /// Held-out quality after adding it.
+    pub after: Quality,
+    /// Selection step (1 = first term found).
+    pub step: usize,
+    /// Why accepted or rejected.
+    pub verdict: String,
+    /// Candidates on other recorded fields that the data cannot tell from this one at its step
+    /// (not significantly worse by the paired held-out test, and of the same structure or with
+    /// a collinear contribution): the term is claimed as a mechanism with its field confounded,
+    /// and none of them is claimed as a term of its own.
+    #[serde(default)]
+    pub tied: Vec<TiedTerm>,
+    /// What the rail's other meter shows of it: a load or an artefact of the meter it was
+    /// found on ([`crate::diagnose::meters`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub meter: Option<crate::diagnose::meters::MeterCheck>,
+    /// Share of resamples of the trials (with replacement) in which it passed
+    /// [`crate::diagnose::parsimony`]'s test (absent: not measured).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stability: Option<f64>,
+    /// The library mechanism this term is a form of (its hypothesis id: a one-sided or
+    /// state-switched braking asymmetry, drive-electronics loss, …), if any.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub mechanism: Option<String>,
+    /// What it adds to the power, per reading (the final joint fit's coefficients).
+    #[serde(skip)]
+    pub contribution: Vec<f64>,
+    /// Its flexible variant's columns, per reading ([`crate::diagnose::parsimony`]).
+    #[serde(skip)]
+    pub flexible: Vec<Vec<f64>>,
+}
+
+/// A candidate on other field(s) that fits as well as a found term (see [`Discovery::tied`]).
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct TiedTerm {
+    /// What it is, in physical words (from the term's structure).
+    pub name: String,
+    /// Its form as a formula.
+    pub form: String,
+    /// The recorded field(s) it follows (empty for session time).
+    pub fields: Vec<String>,
+    /// Its parameter(s) fitted in the found term's place, with standard errors.
+    pub params: Vec<Param>,
+    /// Held-out RMSE (W) with the found term and with this one in its place.
+    pub rmse_w: [f64; 2],
+    /// One-sided paired p-value (held-out error by trial) that the found term fits better:
+    /// at least the acceptance α, so not significantly.
+    pub p_value: f64,
+    /// Correlation over the readings of what each adds to the held-out prediction.
+    pub correlation: f64,
+    /// The same structure as the found term (the same base loss term × a signal, or the same
+    /// kind of rail load) on another field; otherwise a term whose contribution is collinear
+    /// with the found term's (r ≥ 0.9).
+    pub same_structure: bool,
+}
+
+/// What discovery tried and found.
+#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
+pub struct DiscoveryReport {
+    /// Numeric fields read / kept as candidates (non-constant, complete, distinct, not a meter).
+    pub fields_read: usize,
+    /// Fields kept.
+    pub fields_used: usize,
+    /// Candidate terms tried (m of the Holm correction).
+    pub n_candidates: usize,
+    /// Family-wise false-discovery level across all candidates.
+    pub alpha: f64,
+    /// Terms found, in the order accepted.
+    pub accepted: Vec<Discovery>,
+    /// The best candidate that was not accepted (for the report), if any was tried.
+    pub best_rejected: Option<Discovery>,
+    /// Terms found but located, not claimed: the remainder of another term's form (kept in the
+    /// model as the best approximation; [`crate::diagnose::parsimony`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub located: Vec<Discovery>,
+    /// Held-out quality before discovery (the library model) and after it.
+    pub before: Option<Quality>,
+    /// After the discovered terms.
+    pub after: Option<Quality>,
+    /// Held-out predictions with the discovered terms (per reading, same order as the rows).
+    #[serde(skip)]
+    pub pred: Vec<f64>,
+    /// Regressor columns of the kept terms (per reading), to test library terms given them.
+    #[serde(skip)]
+    pub cols: Vec<Vec<f64>>,
+    /// The trials' rest power explained with the fields at rest (absent with too few trials).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rest: Option<crate::diagnose::rest::RestPower>,
+    /// A change over the session of the diagnosed meter's rest reading that the rail's other
+    /// meter does not show: a meter artefact (see `meters::compare`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub meter_drift: Option<crate::diagnose::meters::MeterDrift>,
+    /// Notes (fields left out as meters of the power, unreadable files).
+    pub notes: Vec<String>,
+    /// Fields left out by a rule on their own data (constant, counter or clock, hash-/CRC-like),
+    /// each with its reason.
+    #[serde(default)]
+    pub excluded: Vec<crate::diagnose::fields::ExcludedField>,
+}

@@ -1,0 +1,267 @@
+//! The search over the candidates: each scored on top of the chosen terms with the gates of
+//! the hypotheses at its weighted Holm level, and a scored candidate turned into a
+//! [`Discovery`].
+
+use anyhow::Result;
+
+use super::candidates::{Cand, Inputs, Kind, RowValues, Signal, columns, generate, signal_values};
+use super::fit::{Base, ExtFit};
+use super::found::Discovery;
+use super::words::describe;
+use crate::N_JOINTS;
+use crate::diagnose::Quality;
+use crate::diagnose::parsimony::{arm_drives, drives, knots, shape_cols, unit_rms};
+use crate::diagnose::select::{PowerData, Rule, State, jackknife_se, trial_sse};
+use crate::diagnose::stats::improvement_p_value;
+use crate::diagnose::stepwise::{self, Gated, Holm, not_significant};
+
+/// A scored candidate.
+pub(super) struct Scored {
+    pub(super) idx: usize,
+    pub(super) fit: ExtFit,
+    pub(super) p: f64,
+    pub(super) rel: f64,
+    pub(super) d_bic: f64,
+    pub(super) before: Quality,
+    pub(super) after: Quality,
+    pub(super) plausible: bool,
+}
+
+impl Gated for Scored {
+    fn gated(&self) -> (f64, f64, f64) {
+        (self.p, self.d_bic, self.rel)
+    }
+}
+
+/// Forward selection over the candidates at the Holm level; returns the accepted (step,
+/// score) pairs and the best rejected candidate of the first step.
+pub(super) struct Search<'a, 'd> {
+    pub(super) base: Base<'a, 'd>,
+    pub(super) cands: Vec<Cand>,
+    pub(super) rv: RowValues,
+    pub(super) inp: &'a Inputs<'a>,
+    pub(super) rule: Rule,
+    pub(super) holm: Holm,
+}
+
+impl<'a, 'd> Search<'a, 'd> {
+    /// The search on model `cur`: its design, and the candidates generated and screened on its
+    /// residual ([`generate`]; notes on fields left out go to `notes`); also which fields are
+    /// tried (not meters of the power, not duplicates).
+    pub(super) fn new(
+        data: &'a PowerData<'d>,
+        cur: &'a State,
+        inp: &'a Inputs<'a>,
+        rule: &Rule,
+        notes: &mut Vec<String>,
+    ) -> Result<(Self, Vec<bool>)> {
+        let base = Base::new(data, cur)?;
+        let rows = base.rows;
+        let resid: Vec<f64> = rows
+            .y
+            .iter()
+            .zip(&cur.cv.pred)
+            .map(|(y, p)| y - p)
+            .collect();
+        let twin = data.reference.is_some();
+        let (cands, rv, usable, holm) = generate(inp, rows, data.n_trials, twin, &resid, notes);
+        let search = Search {
+            base,
+            cands,
+            rv,
+            inp,
+            rule: *rule,
+            holm,
+        };
+        Ok((search, usable))
+    }
+
+    /// RMS of the readings: what no candidate may explain more than.
+    pub(super) fn y_rms(&self) -> f64 {
+        let y = &self.base.rows.y;
+        (y.iter().map(|v| v * v).sum::<f64>() / y.len().max(1) as f64).sqrt()
+    }
+
+    pub(super) fn cols(&self, i: usize) -> Vec<Vec<f64>> {
+        columns(&self.cands[i].kind, self.inp, &self.rv, self.base.rows)
+    }
+
+    /// The weighted Holm level of a candidate of weight 1 at `step` (a candidate's own level is
+    /// this times its weight).
+    pub(super) fn level(&self, step: usize) -> f64 {
+        self.holm.level(self.rule.alpha, step)
+    }
+
+    /// Score candidate `i` on top of the chosen columns `prev` (current predictions and BIC).
+    pub(super) fn score(
+        &self,
+        i: usize,
+        prev: &[Vec<f64>],
+        cur: (&[f64], f64),
+        y_rms: f64,
+    ) -> Option<Scored> {
+        let own = self.cols(i);
+        let mut cols: Vec<&Vec<f64>> = prev.iter().collect();
+        cols.extend(own.iter());
+        // A candidate whose fit fails (a degenerate column) is not a discovery.
+        let fit = self.base.fit(&cols).ok()?;
+        let (p, rel, before, after) = self.base.compare(cur.0, &fit.pred);
+        let n = self.base.rows.len().max(1) as f64;
+        let contrib: f64 = (0..self.base.rows.len())
+            .map(|r| {
+                own.iter()
+                    .enumerate()
+                    .map(|(j, c)| c[r] * fit.gamma[prev.len() + j])
+                    .sum::<f64>()
+                    .powi(2)
+            })
+            .sum();
+        // A loss the model lacks (a one-sided form of a library mechanism, on its own) draws
+        // power: a negative coefficient is another term's remainder, not that loss.
+        let loss_sign = match self.cands[i].kind {
+            Kind::Pooled(t) if t.level_is_new() => fit.gamma[prev.len()] > 0.0,
+            _ => true,
+        };
+        let plausible =
+            fit.gamma.iter().all(|g| g.is_finite()) && (contrib / n).sqrt() <= y_rms && loss_sign;
+        Some(Scored {
+            idx: i,
+            d_bic: fit.bic - cur.1,
+            fit,
+            p,
+            rel,
+            before,
+            after,
+            plausible,
+        })
+    }
+
+    /// The flexible variant of candidate `i` ([`crate::diagnose::parsimony`]): its own columns, then for
+    /// a loss term its value per joint and [`shape_cols`] of it over the signal it follows
+    /// (session time for none; a family's mean over the joints), for a rail load a
+    /// piecewise-linear function of its field (net of the trial's pre-idle value).
+    pub(super) fn flexible(&self, i: usize) -> Vec<Vec<f64>> {
+        let (rows, rv) = (self.base.rows, &self.rv);
+        let mut cols = self.cols(i);
+        let (t, s) = match &self.cands[i].kind {
+            Kind::Additive(f, _) | Kind::Step(f, _) => {
+                let (raw, base) = (&rv.raw[*f], &rv.baseline[*f]);
+                let Some((_, knots)) = knots(raw) else {
+                    return cols;
+                };
+                let hinge = |k: f64| {
+                    raw.iter()
+                        .zip(base)
+                        .map(move |(a, b)| (a - k).max(0.0) - (b - k).max(0.0))
+                };
+                cols.push(raw.iter().zip(base).map(|(a, b)| a - b).collect());
+                cols.extend(knots.into_iter().map(|k| hinge(k).collect()));
+                unit_rms(&mut cols);
+                return cols;
+            }
+            Kind::Product(t, Signal::Family(_, fs), _) => {
+                let mean = (0..rows.len())
+                    .map(|r| fs.iter().map(|&f| rv.raw[f][r]).sum::<f64>() / N_JOINTS as f64);
+                (*t, mean.collect())
+            }
+            Kind::Product(t, sig, _) => (*t, signal_values(sig, rv)),
+            Kind::PerJoint(t) | Kind::Pooled(t) => (*t, rv.hours.clone()),
+        };
+        let g: Vec<f64> = rows.x.iter().map(|x| t.sum(x, &|_| 1.0)).collect();
+        let driving = rows.x.iter().zip(&g).map(|(x, v)| match t.per_joint() {
+            true => (0..N_JOINTS)
+                .filter(|&i| drives(x, i))
+                .map(|i| t.value(x, i))
+                .sum(),
+            false => v * f64::from(u8::from(arm_drives(x))),
+        });
+        if t.per_joint() {
+            cols.extend((0..N_JOINTS).map(|i| rows.x.iter().map(|x| t.value(x, i)).collect()));
+        }
+        cols.extend(shape_cols(&g, driving.collect(), &s));
+        unit_rms(&mut cols);
+        cols
+    }
+
+    pub(super) fn passes(&self, s: &Scored, level: f64) -> bool {
+        stepwise::passes(&self.rule, s, level) && s.plausible
+    }
+}
+
+/// Paired one-sided p-value (held-out error by trial) that predictions `a` fit better than `b`.
+pub(super) fn p_better(search: &Search, a: &[f64], b: &[f64]) -> f64 {
+    let rows = search.base.rows;
+    let nt = search.base.data.n_trials;
+    let ea = trial_sse(&rows.y, a, &rows.trial, nt);
+    let eb = trial_sse(&rows.y, b, &rows.trial, nt);
+    let d: Vec<f64> = eb.iter().zip(&ea).map(|(x, y)| x - y).collect();
+    improvement_p_value(&d)
+}
+
+/// A base loss term times a signal (with its level) contains the plain pooled term: when it
+/// does not fit significantly better than that pooled term (paired held-out test by trial at the
+/// rule's α), the simpler one is what the data support — its position in `among`.
+pub(super) fn simpler_nested(search: &Search, b: &Scored, among: &[&Scored]) -> Option<usize> {
+    let Kind::Product(t, ..) = search.cands[b.idx].kind else {
+        return None;
+    };
+    among.iter().position(|o| {
+        matches!(search.cands[o.idx].kind, Kind::Pooled(u) if u == t) && {
+            let p = p_better(search, &b.fit.pred, &o.fit.pred);
+            not_significant(p, search.rule.alpha)
+        }
+    })
+}
+
+pub(super) fn to_discovery(
+    s: &Scored,
+    search: &Search,
+    joint_names: &[String],
+    level: f64,
+    step: usize,
+    verdict: String,
+) -> Discovery {
+    let n = search.cols(s.idx).len();
+    let g: Vec<f64> = s.fit.gamma.iter().rev().take(n).rev().copied().collect();
+    let se: Vec<f64> = (0..n)
+        .map(|j| {
+            let per: Vec<f64> = s
+                .fit
+                .fold_gamma
+                .iter()
+                .map(|t| t[t.len() - n + j])
+                .collect();
+            jackknife_se(&per)
+        })
+        .collect();
+    let (name, form, fields, params) = describe(
+        &search.cands[s.idx].kind,
+        &search.inp.fields.names,
+        joint_names,
+        &g,
+        &se,
+    );
+    Discovery {
+        name,
+        form,
+        fields,
+        params,
+        p_value: s.p,
+        alpha: level,
+        delta_bic: s.d_bic,
+        rel_improvement: s.rel,
+        before: s.before,
+        after: s.after,
+        step,
+        verdict,
+        tied: Vec::new(),
+        meter: None,
+        stability: None,
+        mechanism: match &search.cands[s.idx].kind {
+            Kind::Product(t, ..) | Kind::Pooled(t) => t.library_id().map(String::from),
+            _ => None,
+        },
+        contribution: Vec::new(),
+        flexible: Vec::new(),
+    }
+}

@@ -1,0 +1,237 @@
+//! A found term in words: its name, formula, fields and named parameters, from its
+//! structure only.
+
+use super::candidates::{Kind, Signal};
+use crate::N_JOINTS;
+use crate::diagnose::family::{Shape, Term};
+use crate::diagnose::select::Param;
+
+/// Fitted coefficients of a candidate and their standard errors, turned into named parameters.
+pub(super) struct Fitted<'a> {
+    pub(super) gamma: &'a [f64],
+    pub(super) se: &'a [f64],
+}
+
+impl Fitted<'_> {
+    pub(super) fn param(&self, name: String, symbol: &str, j: usize, unit: String) -> Param {
+        Param {
+            name,
+            symbol: symbol.into(),
+            value: self.gamma.get(j).copied().unwrap_or(f64::NAN),
+            std_err: self.se.get(j).copied().unwrap_or(f64::NAN),
+            unit,
+        }
+    }
+
+    /// `up` when the first coefficient is ≥ 0, `down` otherwise.
+    pub(super) fn sign(&self, up: &str, down: &str) -> String {
+        if self.gamma.first().copied().unwrap_or(0.0) >= 0.0 {
+            up.to_string()
+        } else {
+            down.to_string()
+        }
+    }
+}
+
+/// Name, formula, fields and parameters of a fitted candidate, from its structure only.
+pub(crate) fn describe(
+    kind: &Kind,
+    names: &[String],
+    joint_names: &[String],
+    gamma: &[f64],
+    se: &[f64],
+) -> (String, String, Vec<String>, Vec<Param>) {
+    let fit = Fitted { gamma, se };
+    match kind {
+        Kind::Additive(f, sp) => {
+            let mut swing = fit.param(
+                "load change over the field's 5–95 % range".into(),
+                "ΔP",
+                0,
+                "W".into(),
+            );
+            swing.value *= sp;
+            swing.std_err *= sp;
+            (
+                format!(
+                    "a load on the power rail that {} {}",
+                    fit.sign("rises with", "falls as it rises:"),
+                    names[*f]
+                ),
+                format!("P += k·{}", names[*f]),
+                vec![names[*f].clone()],
+                vec![
+                    swing,
+                    fit.param(
+                        "load per unit of the field".into(),
+                        "k",
+                        0,
+                        "W per unit".into(),
+                    ),
+                ],
+            )
+        }
+        Kind::Step(f, thr) => (
+            format!(
+                "a rail load that switches with {} (drawn while it reads above {thr:.4})",
+                names[*f]
+            ),
+            format!("P += P_on·[{} > {thr:.4}]", names[*f]),
+            vec![names[*f].clone()],
+            vec![fit.param("power while on".into(), "P_on", 0, "W".into())],
+        ),
+        Kind::Product(t, s, shape) => describe_product(*t, s, *shape, names, &fit),
+        Kind::PerJoint(t) => (
+            format!(
+                "{} differs joint by joint from the model",
+                capitalise(t.words())
+            ),
+            format!("P += Σ_i k_i·{}", t.symbol()),
+            Vec::new(),
+            identified_or_pooled(
+                (0..N_JOINTS)
+                    .map(|i| {
+                        let j = joint_names
+                            .get(i)
+                            .cloned()
+                            .unwrap_or_else(|| format!("joint {i}"));
+                        fit.param(
+                            format!("excess on {j}"),
+                            &format!("k_{i}"),
+                            i,
+                            t.unit().into(),
+                        )
+                    })
+                    .collect(),
+            ),
+        ),
+        Kind::Pooled(t) if t.level_is_new() => (
+            format!("{} is missing from the model", capitalise(t.words())),
+            format!("P += k·Σ_i {}", t.symbol()),
+            Vec::new(),
+            vec![fit.param("coefficient".into(), "k", 0, t.unit().into())],
+        ),
+        Kind::Pooled(t) => (
+            format!(
+                "{} of all joints is {} than the model's",
+                capitalise(t.words()),
+                fit.sign("larger", "smaller")
+            ),
+            format!("P += k·Σ_i {}", t.symbol()),
+            Vec::new(),
+            vec![fit.param("common excess".into(), "k", 0, t.unit().into())],
+        ),
+    }
+}
+
+/// [`describe`] of a loss term or library mechanism times a slow state signal in a shape.
+pub(super) fn describe_product(
+    t: Term,
+    s: &Signal,
+    shape: Shape,
+    names: &[String],
+    fit: &Fitted,
+) -> (String, String, Vec<String>, Vec<Param>) {
+    let fields = match s {
+        Signal::Field(f) | Signal::Rest(f) => vec![names[*f].clone()],
+        Signal::Family(_, fs) => fs.iter().map(|&f| names[f].clone()).collect(),
+        Signal::Time => Vec::new(),
+    };
+    let sname = match s {
+        Signal::Rest(f) => format!(
+            "{} at rest (its mean over each trial's pre-idle readings)",
+            names[*f]
+        ),
+        _ => signal_words(s, names),
+    };
+    let mut ps = vec![fit.param(
+        format!("change of {} per unit of the signal", t.words()),
+        "k",
+        0,
+        format!("{} per unit", t.unit()),
+    )];
+    if fit.gamma.len() > 1 {
+        ps.push(fit.param("level at signal 0".into(), "k0", 1, t.unit().into()));
+    }
+    (
+        format!(
+            "{} of the arm's joints {}",
+            capitalise(t.words()),
+            shape.predicate(&sname, fit.gamma.first().copied().unwrap_or(0.0))
+        ),
+        format!(
+            "P += Σ_i {}·(k·{}{})",
+            t.symbol(),
+            shape.formula(),
+            if fit.gamma.len() > 1 { " + k0" } else { "" }
+        ),
+        fields,
+        ps,
+    )
+}
+
+/// Largest standard error, as a fraction of |k_i|, of a per-joint coefficient reported on its
+/// own: at 4 % a 10 % error is 2.5 standard errors.
+pub const IDENTIFIED_REL_SE: f64 = 0.04;
+
+/// Per-joint coefficients: those the data identify (s.e. ≤ [`IDENTIFIED_REL_SE`]·|k_i|) are
+/// reported one by one; the others are pooled into one inverse-variance weighted coefficient
+/// `k_pooled` (named after the joints it covers), since the data do not tell them apart.
+pub(super) fn identified_or_pooled(params: Vec<Param>) -> Vec<Param> {
+    let ok = |p: &Param| p.std_err.is_finite() && p.std_err <= IDENTIFIED_REL_SE * p.value.abs();
+    let (mut out, rest): (Vec<Param>, Vec<Param>) = params.into_iter().partition(ok);
+    let w: Vec<f64> = rest
+        .iter()
+        .map(|p| 1.0 / p.std_err.max(1e-12).powi(2))
+        .collect();
+    let sw: f64 = w.iter().sum();
+    if let Some(first) = rest.first() {
+        let joints: Vec<&str> = rest
+            .iter()
+            .map(|p| p.name.trim_start_matches("excess on "))
+            .collect();
+        out.push(Param {
+            name: format!(
+                "common excess on {} (not identified joint by joint: s.e. > {:.0} % of the value)",
+                joints.join(", "),
+                100.0 * IDENTIFIED_REL_SE
+            ),
+            symbol: "k_pooled".into(),
+            value: rest.iter().zip(&w).map(|(p, w)| p.value * w).sum::<f64>() / sw,
+            std_err: 1.0 / sw.sqrt(),
+            unit: first.unit.clone(),
+        });
+    }
+    out
+}
+
+pub(super) fn capitalise(s: &str) -> String {
+    let mut c = s.chars();
+    c.next()
+        .map(|f| f.to_uppercase().collect::<String>() + c.as_str())
+        .unwrap_or_default()
+}
+
+/// How a candidate's signal enters its name (the words after the subject): "rises with X",
+/// "falls as it rises: X", "switches with X (…)". Empty for a correction.
+pub(super) fn predicate(kind: &Kind, names: &[String], gamma0: f64) -> String {
+    match kind {
+        Kind::Additive(f, _) => Shape::Linear.predicate(&names[*f], gamma0),
+        Kind::Product(_, s, shape) => shape.predicate(&signal_words(s, names), gamma0),
+        Kind::Step(f, thr) => format!(
+            "switches with {} (drawn while it reads above {thr:.4})",
+            names[*f]
+        ),
+        Kind::PerJoint(_) | Kind::Pooled(_) => String::new(),
+    }
+}
+
+/// How a signal reads in a name.
+pub(super) fn signal_words(s: &Signal, names: &[String]) -> String {
+    match s {
+        Signal::Field(f) => names[*f].clone(),
+        Signal::Rest(f) => format!("{} at rest", names[*f]),
+        Signal::Family(k, _) => format!("{k} of each joint's own motor"),
+        Signal::Time => "session time [h]".into(),
+    }
+}
