@@ -270,10 +270,7 @@ impl McapSource<File> {
     /// Open `path`: checks the magic and header record, and loads the summary section when the
     /// footer points to a readable one. A file that is not MCAP → [`ReadError::Format`].
     pub fn open(path: &Path, opts: &OpenOptions) -> Result<McapSource<File>, ReadError> {
-        let file = File::open(path).map_err(|source| ReadError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let file = File::open(path).map_err(ReadError::io(path))?;
         McapSource::from_reader(file, path, opts)
     }
 }
@@ -291,17 +288,10 @@ impl<R: Read + Seek> McapSource<R> {
         name: &Path,
         opts: &OpenOptions,
     ) -> Result<McapSource<R>, ReadError> {
-        let io = |source| ReadError::Io {
-            path: name.to_path_buf(),
-            source,
-        };
-        let file_len = reader.seek(SeekFrom::End(0)).map_err(io)?;
-        reader.seek(SeekFrom::Start(0)).map_err(io)?;
-        let format = |offset, what: &str| ReadError::Format {
-            path: name.to_path_buf(),
-            offset,
-            what: what.to_string(),
-        };
+        let io = ReadError::io(name);
+        let file_len = reader.seek(SeekFrom::End(0)).map_err(&io)?;
+        reader.seek(SeekFrom::Start(0)).map_err(&io)?;
+        let format = |offset, what: &str| ReadError::format(name, offset, what);
         let mut magic = [0u8; 8];
         if reader.read_exact(&mut magic).is_err() || &magic != MAGIC {
             return Err(format(0, "not an MCAP file (bad magic bytes)"));

@@ -11,7 +11,7 @@
 //! [`ReplayOptions::chunk_rows`] samples, so memory stays bounded whatever the session length.
 
 use anyhow::{Context, Result, bail};
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::ProgressBar;
 use rerun::{AnyValues, RecordingInfo, RecordingStream, Scalars};
 
 use super::blueprint::{self, LayoutParts};
@@ -759,11 +759,9 @@ impl<'a> ReplayLogger<'a> {
         )?;
         log_styles(&mut w, &joints)?;
         let expected_samples = whole.map_or(0, |r| r.state.t.len() as u64);
-        let progress = if expected_samples > 0 {
-            progress_bar(opts.progress, expected_samples)
-        } else {
-            ProgressBar::hidden()
-        };
+        let template = "replay {bar:40} {pos}/{len} samples ({eta})";
+        let shown = opts.progress && expected_samples > 0;
+        let progress = crate::util::progress_bar(shown, template, || expected_samples);
         Ok(ReplayLogger {
             w,
             robot,
@@ -1180,15 +1178,4 @@ fn log_recording_info(
         values = values.with_component::<rerun::components::Text>(field, [text.as_str()]);
     }
     w.send_static(&format!("{}/g1viz", paths::PROPERTIES), &values)
-}
-
-fn progress_bar(enabled: bool, len: u64) -> ProgressBar {
-    if !enabled || !std::io::IsTerminal::is_terminal(&std::io::stderr()) {
-        return ProgressBar::hidden();
-    }
-    let bar = crate::util::progress_lines().add(ProgressBar::new(len));
-    if let Ok(style) = ProgressStyle::with_template("replay {bar:40} {pos}/{len} samples ({eta})") {
-        bar.set_style(style);
-    }
-    bar
 }
