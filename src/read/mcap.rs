@@ -915,37 +915,24 @@ impl<R: Read + Seek> McapSource<R> {
             .collect();
         let mut spans = HashMap::new();
         for id in ids {
+            let has = |c: &&ChunkIndex| c.message_index_offsets.contains_key(&id);
+            let mut bounds = |c: &ChunkIndex| {
+                let offset = c.message_index_offsets.get(&id)?;
+                self.index_bounds(*offset)
+            };
             let mut first = u64::MAX;
-            for c in by_start
-                .iter()
-                .filter(|c| c.message_index_offsets.contains_key(&id))
-            {
+            for c in by_start.iter().filter(has) {
                 if c.message_start_time > first {
                     break;
                 }
-                if let Some((lo, _)) = c
-                    .message_index_offsets
-                    .get(&id)
-                    .and_then(|o| self.index_bounds(*o))
-                {
-                    first = first.min(lo);
-                }
+                first = bounds(c).map_or(first, |(lo, _)| first.min(lo));
             }
             let mut last = 0u64;
-            for c in by_end
-                .iter()
-                .filter(|c| c.message_index_offsets.contains_key(&id))
-            {
+            for c in by_end.iter().filter(has) {
                 if c.message_end_time < last {
                     break;
                 }
-                if let Some((_, hi)) = c
-                    .message_index_offsets
-                    .get(&id)
-                    .and_then(|o| self.index_bounds(*o))
-                {
-                    last = last.max(hi);
-                }
+                last = bounds(c).map_or(last, |(_, hi)| last.max(hi));
             }
             if first <= last {
                 spans.insert(id, (first, last));

@@ -85,12 +85,8 @@ impl Default for Artefacts {
     fn default() -> Self {
         Artefacts {
             contamination_fraction: 0.1,
-            sway_amplitude_rad_s: [0.05, 0.3],
-            sway_freq_hz: [1.0, 2.0],
-            k_leak: 500.0 / 9.0,
             outlier_fraction: 0.015,
-            outlier_step_w: [10.0, 20.0],
-            outlier_duration_s: [2.0, 5.0],
+            ..Artefacts::NONE
         }
     }
 }

@@ -278,34 +278,25 @@ pub fn layout(
     });
     let starts = trial_starts(extras);
     let window_s = blueprint::opening_window(&starts);
+    let diagnosis = |f: fn(&DiagnosisOverlay) -> bool| extras.diagnosis.as_ref().is_some_and(f);
     let parts = LayoutParts {
         model: extras.prediction.is_some()
             || extras.readings.is_some()
             || extras.terms.is_some()
             || !extras.trajectories.is_empty(),
         diagnosis: extras.diagnosis.is_some(),
-        counterpart: extras
-            .diagnosis
-            .as_ref()
-            .is_some_and(|d| d.counterpart.is_some()),
+        counterpart: diagnosis(|d| d.counterpart.is_some()),
         trials: !extras.trials.is_empty(),
         imu_filter: extras.imu_filter.is_some(),
-        located: extras
-            .diagnosis
-            .as_ref()
-            .is_some_and(|d| !d.data.located.is_empty()),
-        rest: extras
-            .diagnosis
-            .as_ref()
-            .is_some_and(|d| !d.data.rest_w.is_empty()),
+        located: diagnosis(|d| !d.data.located.is_empty()),
+        rest: diagnosis(|d| !d.data.rest_w.is_empty()),
         diagnosis_power_series,
-        hypotheses: (extras.diagnosis.as_ref()).is_some_and(|d| d.data.after_w != d.data.before_w),
+        hypotheses: diagnosis(|d| d.data.after_w != d.data.before_w),
         ranges: plot_ranges(extras, whole),
         window_s,
         trial_counts: trial_counts(extras),
         trial_rest: extras.trajectories.iter().any(|p| p.rest_w.is_finite()),
-        shares: extras.terms.is_some()
-            || (extras.diagnosis.as_ref()).is_some_and(|d| !d.data.terms_w.is_empty()),
+        shares: extras.terms.is_some() || diagnosis(|d| !d.data.terms_w.is_empty()),
         // The last trial ends about one spacing after it starts.
         span_s: window_s
             .zip(super::data_range(starts))
