@@ -17,6 +17,23 @@ pub fn progress_lines() -> &'static indicatif::MultiProgress {
     &LINES
 }
 
+/// A bar `len()` steps long with `template` on the [`progress_lines`]; hidden when `shown` is
+/// false or stderr is not a terminal (`len` is then not called).
+pub fn progress_bar(
+    shown: bool,
+    template: &str,
+    len: impl FnOnce() -> u64,
+) -> indicatif::ProgressBar {
+    if !shown || !std::io::IsTerminal::is_terminal(&std::io::stderr()) {
+        return indicatif::ProgressBar::hidden();
+    }
+    let bar = progress_lines().add(indicatif::ProgressBar::new(len()));
+    if let Ok(style) = indicatif::ProgressStyle::with_template(template) {
+        bar.set_style(style);
+    }
+    bar
+}
+
 /// Write `bytes` to `path` atomically: write a temporary file beside it, then rename.
 /// A reader never sees a half-written file and a failed write leaves the old file intact.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {

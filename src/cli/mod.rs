@@ -270,36 +270,30 @@ impl FitArgs {
     }
 }
 
+/// `s` as a number `ok` accepts, else the error "`s` is not `what`" (the value parsers below).
+fn number(s: &str, ok: impl Fn(f64) -> bool, what: &str) -> Result<f64, String> {
+    (s.parse::<f64>().ok().filter(|v| ok(*v))).ok_or_else(|| format!("{s:?} is not {what}"))
+}
+
 /// A finite number > 0 (clap value parser).
 pub fn positive(s: &str) -> Result<f64, String> {
-    match s.parse::<f64>() {
-        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
-        _ => Err(format!("{s:?} is not a finite number > 0")),
-    }
+    number(s, |v| v.is_finite() && v > 0.0, "a finite number > 0")
 }
 
 /// A finite number (clap value parser).
 pub fn finite(s: &str) -> Result<f64, String> {
-    match s.parse::<f64>() {
-        Ok(v) if v.is_finite() => Ok(v),
-        _ => Err(format!("{s:?} is not a finite number")),
-    }
+    number(s, f64::is_finite, "a finite number")
 }
 
 /// A finite number ≥ 0 (clap value parser).
 pub fn non_negative(s: &str) -> Result<f64, String> {
-    match s.parse::<f64>() {
-        Ok(v) if v.is_finite() && v >= 0.0 => Ok(v),
-        _ => Err(format!("{s:?} is not a finite number ≥ 0")),
-    }
+    number(s, |v| v.is_finite() && v >= 0.0, "a finite number ≥ 0")
 }
 
 /// A motor winding temperature a robot can start a session at [°C] (clap value parser).
 pub fn winding_temperature(s: &str) -> Result<f64, String> {
-    match s.parse::<f64>() {
-        Ok(v) if (-40.0..=150.0).contains(&v) => Ok(v),
-        _ => Err(format!("{s:?} is not a temperature between -40 and 150 °C")),
-    }
+    let ok = |v| (-40.0..=150.0).contains(&v);
+    number(s, ok, "a temperature between -40 and 150 °C")
 }
 
 /// The recordings named on the command line: a file or a bag folder as given; any other folder

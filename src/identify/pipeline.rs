@@ -288,11 +288,7 @@ impl<'a> Prepared<'a> {
             }
             Input::File(..) => {
                 let keep: HashSet<usize> = retained.iter().map(|t| t.index).collect();
-                sets.sample_thin
-                    .iter()
-                    .filter(|r| keep.contains(&r.trial))
-                    .cloned()
-                    .collect()
+                sample::of_trials(&sets.sample_thin, &keep, |r| r.trial)
             }
         }
     }
@@ -318,24 +314,9 @@ pub(crate) fn restrict(d: &Dataset, trials: &[TrialWindow]) -> Dataset {
         mode: d.mode,
         target: d.target,
         alignment: d.alignment,
-        rows: d
-            .rows
-            .iter()
-            .filter(|r| keep.contains(&r.trial))
-            .cloned()
-            .collect(),
-        trials: d
-            .trials
-            .iter()
-            .filter(|b| keep.contains(&b.trial))
-            .cloned()
-            .collect(),
-        skipped: d
-            .skipped
-            .iter()
-            .filter(|s| keep.contains(&s.trial))
-            .cloned()
-            .collect(),
+        rows: sample::of_trials(&d.rows, &keep, |r| r.trial),
+        trials: sample::of_trials(&d.trials, &keep, |b| b.trial),
+        skipped: sample::of_trials(&d.skipped, &keep, |s| s.trial),
     }
 }
 

@@ -65,15 +65,8 @@ impl Identification {
         let filters = self.filter_records();
         let rejected_trials = self.rejections.clone();
         let mut notes = vec![format!(
-            "power readings treated as averages over [t − {:.3} s − {:.3} s, t − {:.3} s]{}",
-            self.alignment.lag_s,
-            self.alignment.window_s,
-            self.alignment.lag_s,
-            if self.alignment_estimate.is_some() {
-                " (window and lag estimated from the data)"
-            } else {
-                ""
-            }
+            "power readings treated as averages over {}",
+            self.reading_window(" (window and lag estimated from the data)")
         )];
         notes.extend(self.modes.iter().map(|m| {
             format!(

@@ -81,26 +81,21 @@ impl SampleSums {
     /// The part that belongs to the trials with the given indices.
     pub(crate) fn restrict(&self, keep: &HashSet<usize>) -> SampleSums {
         SampleSums {
-            sums: self
-                .sums
-                .iter()
-                .filter(|s| keep.contains(&s.trial))
-                .cloned()
-                .collect(),
-            trials: self
-                .trials
-                .iter()
-                .filter(|b| keep.contains(&b.trial))
-                .cloned()
-                .collect(),
-            skipped: self
-                .skipped
-                .iter()
-                .filter(|s| keep.contains(&s.trial))
-                .cloned()
-                .collect(),
+            sums: of_trials(&self.sums, keep, |s| s.trial),
+            trials: of_trials(&self.trials, keep, |b| b.trial),
+            skipped: of_trials(&self.skipped, keep, |s| s.trial),
         }
     }
+}
+
+/// The items of `items` whose trial (`trial_of`) is in `keep`.
+pub(crate) fn of_trials<T: Clone>(
+    items: &[T],
+    keep: &HashSet<usize>,
+    trial_of: impl Fn(&T) -> usize,
+) -> Vec<T> {
+    let kept = items.iter().filter(|x| keep.contains(&trial_of(x)));
+    kept.cloned().collect()
 }
 
 /// Score `theta` on sample rows handed over trial by trial.

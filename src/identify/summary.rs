@@ -128,15 +128,8 @@ impl Identification {
         out.extend(self.rejections.iter().map(|r| format!("rejected {r}")));
         per_session_lines(&mut out, self);
         out.push(format!(
-            "power readings = averages over [t − {:.3} s − {:.3} s, t − {:.3} s]{}",
-            self.alignment.lag_s,
-            self.alignment.window_s,
-            self.alignment.lag_s,
-            if self.alignment_estimate.is_some() {
-                " (estimated)"
-            } else {
-                ""
-            }
+            "power readings = averages over {}",
+            self.reading_window(" (estimated)")
         ));
         out.push(format!(
             "{} trials used, target {}, {} rows",
@@ -179,6 +172,20 @@ impl Identification {
         out.push(format!("dominant term per joint: {}", dominant.join(", ")));
         out.push(shares_line(&self.shares_percent));
         out.join("\n")
+    }
+}
+
+impl Identification {
+    /// The window each power reading averages, `[t − lag − window, t − lag]`, followed by
+    /// `estimated` when the timing was estimated from the data.
+    pub(super) fn reading_window(&self, estimated: &str) -> String {
+        let (lag, window) = (self.alignment.lag_s, self.alignment.window_s);
+        let note = if self.alignment_estimate.is_some() {
+            estimated
+        } else {
+            ""
+        };
+        format!("[t − {lag:.3} s − {window:.3} s, t − {lag:.3} s]{note}")
     }
 }
 

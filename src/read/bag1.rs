@@ -17,10 +17,11 @@ use std::sync::Arc;
 use super::msgdef::MsgSchema;
 use super::{
     Channel, Encoding, MessageRef, MessageSource, OpenOptions, ReadError, ReadSummary, SessionInfo,
-    TopicInfo, rate_hz, session_info,
+    TopicInfo, rate_hz, read_up_to, session_info,
 };
 
-const MAGIC: &[u8] = b"#ROSBAG V2.0\n";
+/// First bytes of a ROS 1 bag (format 2.0).
+pub(crate) const MAGIC: &[u8] = b"#ROSBAG V2.0\n";
 const OP_MESSAGE_DATA: u8 = 0x02;
 const OP_BAG_HEADER: u8 = 0x03;
 const OP_INDEX_DATA: u8 = 0x04;
@@ -211,10 +212,7 @@ impl Ros1BagSource<File> {
     /// Open a ROS 1 bag (format 2.0). Fails only when the file is not a bag or its bag header
     /// is unreadable; later damage becomes warnings.
     pub fn open(path: &Path, opts: &OpenOptions) -> Result<Ros1BagSource<File>, ReadError> {
-        let file = File::open(path).map_err(|source| ReadError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let file = File::open(path).map_err(ReadError::io(path))?;
         Ros1BagSource::from_reader(file, path, opts)
     }
 }
@@ -227,14 +225,11 @@ impl<R: Read + Seek> Ros1BagSource<R> {
         path: &Path,
         opts: &OpenOptions,
     ) -> Result<Ros1BagSource<R>, ReadError> {
-        let io = |source| ReadError::Io {
-            path: path.to_path_buf(),
-            source,
-        };
-        let file_len = file.seek(SeekFrom::End(0)).map_err(io)?;
-        file.seek(SeekFrom::Start(0)).map_err(io)?;
+        let io = ReadError::io(path);
+        let file_len = file.seek(SeekFrom::End(0)).map_err(&io)?;
+        file.seek(SeekFrom::Start(0)).map_err(&io)?;
         let mut magic = [0u8; 13];
-        let got = read_up_to(&mut file, &mut magic).map_err(io)?;
+        let got = read_up_to(&mut file, &mut magic).map_err(&io)?;
         if magic[..got] != *MAGIC {
             let what = if magic.starts_with(b"#ROSBAG V") {
                 let version = String::from_utf8_lossy(&magic[9..got]).trim().to_string();
@@ -242,11 +237,7 @@ impl<R: Read + Seek> Ros1BagSource<R> {
             } else {
                 "not a ROS 1 bag (no `#ROSBAG V2.0` line)".to_string()
             };
-            return Err(ReadError::Format {
-                path: path.to_path_buf(),
-                offset: 0,
-                what,
-            });
+            return Err(ReadError::format(path, 0, what));
         }
         let mut bag = Ros1BagSource {
             path: path.to_path_buf(),
@@ -260,11 +251,7 @@ impl<R: Read + Seek> Ros1BagSource<R> {
             opts: opts.clone(),
         };
         let header_pos = MAGIC.len() as u64;
-        let format_error = |what: String| ReadError::Format {
-            path: path.to_path_buf(),
-            offset: header_pos,
-            what,
-        };
+        let format_error = |what: String| ReadError::format(path, header_pos, what);
         let header = match bag.record_at(header_pos) {
             Ok(r) => r,
             Err(RecordError::Io(e)) => return Err(io(e)),
@@ -322,7 +309,7 @@ impl<R: Read + Seek> Ros1BagSource<R> {
             }
         };
         if !indexed {
-            bag.scan(first_record).map_err(io)?;
+            bag.scan(first_record).map_err(&io)?;
         }
         bag.chunks.sort_by_key(|c| (c.start_ns, c.pos));
         Ok(bag)
@@ -1078,18 +1065,6 @@ fn record_error_text(e: RecordError, offset: u64) -> String {
         }
         RecordError::Io(e) => format!("read error at offset {offset}: {e}"),
     }
-}
-
-/// Like `read_exact` but returns how much was read when the file is shorter.
-fn read_up_to(file: &mut impl Read, buf: &mut [u8]) -> std::io::Result<usize> {
-    let mut got = 0;
-    while got < buf.len() {
-        match file.read(&mut buf[got..])? {
-            0 => break,
-            n => got += n,
-        }
-    }
-    Ok(got)
 }
 
 impl<R: Read + Seek> MessageSource for Ros1BagSource<R> {

@@ -98,10 +98,7 @@ impl Ros2BagSource {
             let dir = dir_or_yaml.parent().unwrap_or(Path::new(".")).to_path_buf();
             (dir, dir_or_yaml.to_path_buf())
         };
-        let text = crate::util::read_text_input(&yaml_path).map_err(|source| ReadError::Io {
-            path: yaml_path.clone(),
-            source,
-        })?;
+        let text = crate::util::read_text_input(&yaml_path).map_err(ReadError::io(&yaml_path))?;
         let meta = BagMetadata::parse(&text)
             .map_err(|what| ReadError::Other(format!("{}: {what}", yaml_path.display())))?;
         if meta.relative_file_paths.is_empty() {
@@ -157,13 +154,10 @@ impl Ros2BagSource {
     /// A bag folder without `metadata.yaml` (lost, or a recorder that died): its `.db3` files
     /// in name order, which is rosbag2's split order (`name_0.db3`, `name_1.db3`, …).
     fn open_without_metadata(dir: &Path, opts: &OpenOptions) -> Result<Ros2BagSource, ReadError> {
-        let io = |source| ReadError::Io {
-            path: dir.to_path_buf(),
-            source,
-        };
+        let io = ReadError::io(dir);
         let mut files = Vec::new();
-        for entry in std::fs::read_dir(dir).map_err(io)? {
-            let path = entry.map_err(io)?.path();
+        for entry in std::fs::read_dir(dir).map_err(&io)? {
+            let path = entry.map_err(&io)?.path();
             if path.extension().and_then(|e| e.to_str()) == Some("db3") {
                 files.push(path);
             }
@@ -346,24 +340,22 @@ impl Compression {
             return Ok(Compression::None);
         }
         if format != "zstd" {
-            return Err(ReadError::Format {
-                path: yaml_path.to_path_buf(),
-                offset: 0,
-                what: format!(
-                    "unsupported rosbag2 compression format {format:?} (supported: zstd)"
-                ),
-            });
+            return Err(ReadError::format(
+                yaml_path,
+                0,
+                format!("unsupported rosbag2 compression format {format:?} (supported: zstd)"),
+            ));
         }
         match mode.as_str() {
             "file" => Ok(Compression::FileZstd),
             "message" => Ok(Compression::MessageZstd),
-            other => Err(ReadError::Format {
-                path: yaml_path.to_path_buf(),
-                offset: 0,
-                what: format!(
+            other => Err(ReadError::format(
+                yaml_path,
+                0,
+                format!(
                     "unsupported rosbag2 compression mode {other:?} (supported: file, message)"
                 ),
-            }),
+            )),
         }
     }
 }
@@ -375,10 +367,7 @@ fn sql_error(path: &Path, e: rusqlite::Error) -> ReadError {
 /// Open a database strictly read-only: the `immutable` URI flag also keeps sqlite from
 /// creating journal files beside it or taking locks.
 fn open_db(path: &Path) -> Result<Connection, ReadError> {
-    let abs = std::path::absolute(path).map_err(|source| ReadError::Io {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let abs = std::path::absolute(path).map_err(ReadError::io(path))?;
     let mut uri = String::from("file:");
     for b in abs.to_string_lossy().bytes() {
         match b {
@@ -993,16 +982,12 @@ const MAX_MESSAGE_BYTES: u64 = 64 << 20;
 /// Decompress a `compression_mode: FILE` storage file (one zstd stream) to `out`, refusing to
 /// write more than [`MAX_FILE_RATIO`] × its size (+ [`FILE_SLACK_BYTES`]) of scratch file.
 fn decompress_file(path: &Path, out: &Path) -> Result<PathBuf, ReadError> {
-    let io = |p: &Path| {
-        let p = p.to_path_buf();
-        move |source| ReadError::Io { path: p, source }
-    };
-    let input = std::fs::File::open(path).map_err(io(path))?;
-    let compressed = input.metadata().map_err(io(path))?.len();
+    let input = std::fs::File::open(path).map_err(ReadError::io(path))?;
+    let compressed = input.metadata().map_err(ReadError::io(path))?.len();
     let cap = compressed
         .saturating_mul(MAX_FILE_RATIO)
         .saturating_add(FILE_SLACK_BYTES);
-    let output = std::fs::File::create(out).map_err(io(out))?;
+    let output = std::fs::File::create(out).map_err(ReadError::io(out))?;
     let mut writer = std::io::BufWriter::new(output);
     let bad = |e: std::io::Error| {
         ReadError::Other(format!(
@@ -1024,7 +1009,7 @@ fn decompress_file(path: &Path, out: &Path) -> Result<PathBuf, ReadError> {
             FILE_SLACK_BYTES >> 20
         )));
     }
-    std::io::Write::flush(&mut writer).map_err(io(out))?;
+    std::io::Write::flush(&mut writer).map_err(ReadError::io(out))?;
     Ok(out.to_path_buf())
 }
 
@@ -1072,10 +1057,7 @@ fn open_mcap_storage(
         let source = match &scratch {
             Some(tmp) => {
                 let copy = decompress_file(f, &tmp.path().join(format!("{index}.mcap")))?;
-                let file = std::fs::File::open(&copy).map_err(|source| ReadError::Io {
-                    path: copy.clone(),
-                    source,
-                })?;
+                let file = std::fs::File::open(&copy).map_err(ReadError::io(&copy))?;
                 McapSource::from_reader(file, f, opts)?
             }
             None => McapSource::open(f, opts)?,
@@ -1095,10 +1077,7 @@ fn scratch_dir(compression: Compression) -> Result<Option<Scratch>, ReadError> {
     if compression != Compression::FileZstd {
         return Ok(None);
     }
-    let dir = tempfile::tempdir().map_err(|source| ReadError::Io {
-        path: std::env::temp_dir(),
-        source,
-    })?;
+    let dir = tempfile::tempdir().map_err(ReadError::io(&std::env::temp_dir()))?;
     let guard = crate::util::temp::TempPath::register(dir.path().to_path_buf());
     Ok(Some(Scratch { dir, _guard: guard }))
 }

@@ -205,7 +205,18 @@ struct Walker<'s, 'a> {
     src: Src<'a>,
 }
 
-impl Walker<'_, '_> {
+impl<'s, 'a> Walker<'s, 'a> {
+    /// A walker over `src` under `rules` (payload offsets start after the rules' header).
+    fn new(schema: &'s MsgSchema, rules: Rules, src: Src<'a>) -> Self {
+        let base = rules.header_len();
+        Walker {
+            schema,
+            rules,
+            base,
+            src,
+        }
+    }
+
     fn align(&self, pos: usize, prim: Primitive) -> usize {
         self.base + self.rules.align(pos - self.base, prim)
     }
@@ -572,23 +583,18 @@ impl Walker<'_, '_> {
 /// Decode a whole payload into a [`Value`] tree.
 pub fn decode(schema: &MsgSchema, encoding: Encoding, data: &[u8]) -> Result<Value, DecodeError> {
     if encoding == Encoding::Json {
-        let json: serde_json::Value = serde_json::from_slice(data)
-            .map_err(|e| DecodeError::Invalid(format!("bad JSON: {e}")))?;
-        return Ok(Value::from_json(&json));
+        return Ok(Value::from_json(&parse_json(data)?));
     }
-    let rules = rules_for(encoding, data)?;
-    let base = rules.header_len();
-    let walker = Walker {
-        schema,
-        rules,
-        base,
-        src: Src::Payload(data),
-    };
+    let walker = Walker::new(schema, rules_for(encoding, data)?, Src::Payload(data));
     let root = FieldType::Message(schema.root.clone());
     schema
         .root_type()
         .map_err(|e| DecodeError::Invalid(e.to_string()))?;
-    Ok(walker.decode_one(&root, base, &schema.root)?.0)
+    Ok(walker.decode_one(&root, walker.base, &schema.root)?.0)
+}
+
+fn parse_json(data: &[u8]) -> Result<serde_json::Value, DecodeError> {
+    serde_json::from_slice(data).map_err(|e| DecodeError::Invalid(format!("bad JSON: {e}")))
 }
 
 impl Value {
@@ -778,13 +784,8 @@ impl FieldExtractor {
             Encoding::Ros1 => Rules::Ros1,
             _ => Rules::Cdr { le: true }, // offsets do not depend on byte order
         };
-        let base = rules.header_len();
-        let layout = Walker {
-            schema,
-            rules,
-            base,
-            src: Src::Layout,
-        };
+        let layout = Walker::new(schema, rules, Src::Layout);
+        let base = layout.base;
         let mut leaves = Vec::with_capacity(paths.len());
         let mut min_len = base;
         let mut needs_schema = false;
@@ -893,16 +894,10 @@ impl FieldExtractor {
                         .schema
                         .as_ref()
                         .ok_or_else(|| DecodeError::Invalid("extractor has no schema".into()))?;
-                    let base = rules.header_len();
-                    let walker = Walker {
-                        schema,
-                        rules,
-                        base,
-                        src: Src::Payload(data),
-                    };
+                    let walker = Walker::new(schema, rules, Src::Payload(data));
                     let what = || name.clone();
                     let pos = walker
-                        .follow(steps, base, &what)?
+                        .follow(steps, walker.base, &what)?
                         .ok_or_else(|| DecodeError::Invalid("walk failed".into()))?;
                     walker
                         .read_prim(*prim, pos, &what)?
@@ -919,25 +914,20 @@ impl FieldExtractor {
     }
 
     fn extract_json(&self, data: &[u8], out: &mut [f64]) -> Result<(), DecodeError> {
-        let json: serde_json::Value = serde_json::from_slice(data)
-            .map_err(|e| DecodeError::Invalid(format!("bad JSON: {e}")))?;
+        let json = parse_json(data)?;
         for ((leaf, slot), name) in self.leaves.iter().zip(out.iter_mut()).zip(&self.names) {
             let Leaf::Json(path) = leaf else {
                 return Err(DecodeError::Invalid("binary path on a JSON channel".into()));
             };
+            let missing = || DecodeError::NoSuchField {
+                path: name.clone(),
+                type_name: "JSON message".into(),
+            };
             let mut v = &json;
             for (field, index) in &path.segments {
-                v = v
-                    .get(field.as_str())
-                    .ok_or_else(|| DecodeError::NoSuchField {
-                        path: name.clone(),
-                        type_name: "JSON message".into(),
-                    })?;
+                v = v.get(field.as_str()).ok_or_else(missing)?;
                 if let Some(i) = index {
-                    v = v.get(*i).ok_or_else(|| DecodeError::NoSuchField {
-                        path: name.clone(),
-                        type_name: "JSON message".into(),
-                    })?;
+                    v = v.get(*i).ok_or_else(missing)?;
                 }
             }
             *slot = match v {

@@ -270,10 +270,7 @@ impl McapSource<File> {
     /// Open `path`: checks the magic and header record, and loads the summary section when the
     /// footer points to a readable one. A file that is not MCAP → [`ReadError::Format`].
     pub fn open(path: &Path, opts: &OpenOptions) -> Result<McapSource<File>, ReadError> {
-        let file = File::open(path).map_err(|source| ReadError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
+        let file = File::open(path).map_err(ReadError::io(path))?;
         McapSource::from_reader(file, path, opts)
     }
 }
@@ -291,17 +288,10 @@ impl<R: Read + Seek> McapSource<R> {
         name: &Path,
         opts: &OpenOptions,
     ) -> Result<McapSource<R>, ReadError> {
-        let io = |source| ReadError::Io {
-            path: name.to_path_buf(),
-            source,
-        };
-        let file_len = reader.seek(SeekFrom::End(0)).map_err(io)?;
-        reader.seek(SeekFrom::Start(0)).map_err(io)?;
-        let format = |offset, what: &str| ReadError::Format {
-            path: name.to_path_buf(),
-            offset,
-            what: what.to_string(),
-        };
+        let io = ReadError::io(name);
+        let file_len = reader.seek(SeekFrom::End(0)).map_err(&io)?;
+        reader.seek(SeekFrom::Start(0)).map_err(&io)?;
+        let format = |offset, what: &str| ReadError::format(name, offset, what);
         let mut magic = [0u8; 8];
         if reader.read_exact(&mut magic).is_err() || &magic != MAGIC {
             return Err(format(0, "not an MCAP file (bad magic bytes)"));
@@ -925,37 +915,24 @@ impl<R: Read + Seek> McapSource<R> {
             .collect();
         let mut spans = HashMap::new();
         for id in ids {
+            let has = |c: &&ChunkIndex| c.message_index_offsets.contains_key(&id);
+            let mut bounds = |c: &ChunkIndex| {
+                let offset = c.message_index_offsets.get(&id)?;
+                self.index_bounds(*offset)
+            };
             let mut first = u64::MAX;
-            for c in by_start
-                .iter()
-                .filter(|c| c.message_index_offsets.contains_key(&id))
-            {
+            for c in by_start.iter().filter(has) {
                 if c.message_start_time > first {
                     break;
                 }
-                if let Some((lo, _)) = c
-                    .message_index_offsets
-                    .get(&id)
-                    .and_then(|o| self.index_bounds(*o))
-                {
-                    first = first.min(lo);
-                }
+                first = bounds(c).map_or(first, |(lo, _)| first.min(lo));
             }
             let mut last = 0u64;
-            for c in by_end
-                .iter()
-                .filter(|c| c.message_index_offsets.contains_key(&id))
-            {
+            for c in by_end.iter().filter(has) {
                 if c.message_end_time < last {
                     break;
                 }
-                if let Some((_, hi)) = c
-                    .message_index_offsets
-                    .get(&id)
-                    .and_then(|o| self.index_bounds(*o))
-                {
-                    last = last.max(hi);
-                }
+                last = bounds(c).map_or(last, |(_, hi)| last.max(hi));
             }
             if first <= last {
                 spans.insert(id, (first, last));

@@ -186,6 +186,26 @@ pub enum ReadError {
     Other(String),
 }
 
+impl ReadError {
+    /// The [`ReadError::Io`] of reading `path`, for `map_err`.
+    pub(crate) fn io(path: &Path) -> impl Fn(std::io::Error) -> ReadError + use<> {
+        let path = path.to_path_buf();
+        move |source| ReadError::Io {
+            path: path.clone(),
+            source,
+        }
+    }
+
+    /// A [`ReadError::Format`]: `what` is wrong in `path` at byte `offset`.
+    pub(crate) fn format(path: &Path, offset: u64, what: impl Into<String>) -> ReadError {
+        ReadError::Format {
+            path: path.to_path_buf(),
+            offset,
+            what: what.into(),
+        }
+    }
+}
+
 /// Mean rate [Hz] of `count` messages over a topic's own span [first, last] ns; 0 when it has
 /// fewer than two messages.
 pub(crate) fn rate_hz(count: u64, first_ns: u64, last_ns: u64) -> f64 {
@@ -230,6 +250,18 @@ pub(crate) fn read_capped(
     use std::io::Read;
     out.reserve(size);
     reader.take(size as u64 + 1).read_to_end(out).map(|_| ())
+}
+
+/// Like `read_exact` but returns how much was read when the file is shorter.
+pub(crate) fn read_up_to(file: &mut impl std::io::Read, buf: &mut [u8]) -> std::io::Result<usize> {
+    let mut got = 0;
+    while got < buf.len() {
+        match file.read(&mut buf[got..])? {
+            0 => break,
+            n => got += n,
+        }
+    }
+    Ok(got)
 }
 
 /// The message definition of `type_name` from, in order: the definition the recording carries

@@ -2,14 +2,13 @@
 //! bytes, extension, `metadata.yaml`) and boxes the matching [`MessageSource`].
 
 use std::fs::File;
-use std::io::Read;
 use std::path::{Path, PathBuf};
 
+use super::bag1::MAGIC as ROS1_MAGIC;
 use super::mcap::{MAGIC as MCAP_MAGIC, McapSource};
-use super::{MessageRef, MessageSource, OpenOptions, ReadError, ReadSummary, SessionInfo};
-
-/// First bytes of a ROS 1 bag (format 2.0).
-const ROS1_MAGIC: &[u8] = b"#ROSBAG V2.0\n";
+use super::{
+    MessageRef, MessageSource, OpenOptions, ReadError, ReadSummary, SessionInfo, read_up_to,
+};
 
 /// Container formats [`Session::open`] recognises.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -39,10 +38,7 @@ impl std::fmt::Debug for Session {
 
 /// Decide the container format of `path` from magic bytes, extension or directory contents.
 pub fn detect_format(path: &Path) -> Result<Format, ReadError> {
-    let io = |source| ReadError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
+    let io = ReadError::io(path);
     if path.is_dir() {
         if path.join("metadata.yaml").is_file() {
             return Ok(Format::Ros2Bag);
@@ -53,15 +49,15 @@ pub fn detect_format(path: &Path) -> Result<Format, ReadError> {
         )));
     }
     // A FIFO or device would block or never end: recordings are regular files.
-    if !std::fs::metadata(path).map_err(io)?.is_file() {
+    if !std::fs::metadata(path).map_err(&io)?.is_file() {
         return Err(ReadError::Other(format!(
             "{}: not a regular file (a recording is an MCAP, .db3 or .bag file, or a bag directory)",
             path.display()
         )));
     }
     let mut head = [0u8; 16];
-    let mut file = File::open(path).map_err(io)?;
-    let n = read_up_to(&mut file, &mut head).map_err(io)?;
+    let mut file = File::open(path).map_err(&io)?;
+    let n = read_up_to(&mut file, &mut head).map_err(&io)?;
     let head = &head[..n];
     if head.starts_with(MCAP_MAGIC) {
         return Ok(Format::Mcap);
@@ -74,34 +70,22 @@ pub fn detect_format(path: &Path) -> Result<Format, ReadError> {
     }
     match path.extension().and_then(|e| e.to_str()) {
         Some("yaml" | "yml" | "db3") => Ok(Format::Ros2Bag),
-        Some("mcap") => Err(ReadError::Format {
-            path: path.to_path_buf(),
-            offset: 0,
-            what: "not an MCAP file (bad magic bytes)".into(),
-        }),
-        Some("bag") => Err(ReadError::Format {
-            path: path.to_path_buf(),
-            offset: 0,
-            what: "not a ROS 1 bag (expected `#ROSBAG V2.0`)".into(),
-        }),
-        _ => Err(ReadError::Format {
-            path: path.to_path_buf(),
-            offset: 0,
-            what: "unknown recording format (expected MCAP, a ROS 1 .bag or a ROS 2 bag directory)"
-                .into(),
-        }),
+        Some("mcap") => Err(ReadError::format(
+            path,
+            0,
+            "not an MCAP file (bad magic bytes)",
+        )),
+        Some("bag") => Err(ReadError::format(
+            path,
+            0,
+            "not a ROS 1 bag (expected `#ROSBAG V2.0`)",
+        )),
+        _ => Err(ReadError::format(
+            path,
+            0,
+            "unknown recording format (expected MCAP, a ROS 1 .bag or a ROS 2 bag directory)",
+        )),
     }
-}
-
-fn read_up_to(file: &mut File, buf: &mut [u8]) -> std::io::Result<usize> {
-    let mut n = 0;
-    while n < buf.len() {
-        match file.read(&mut buf[n..])? {
-            0 => break,
-            k => n += k,
-        }
-    }
-    Ok(n)
 }
 
 impl Session {

@@ -1,7 +1,6 @@
 //! Stream a recording once and fill a [`Recording`] from a [`SignalMap`]: one compiled
 //! [`FieldExtractor`] per channel, non-finite samples dropped with a warning.
 
-use std::io::IsTerminal;
 use std::path::Path;
 
 use anyhow::bail;
@@ -402,7 +401,9 @@ fn read_batches(
     topic_names.dedup();
     let topics: Vec<&str> = topic_names.iter().map(String::as_str).collect();
 
-    let progress = progress_bar(&mut session);
+    let template = "reading {bar:40} {pos}/{len} messages ({eta})";
+    let total = || session.info().map(|i| i.messages).unwrap_or(0);
+    let progress = crate::util::progress_bar(true, template, total);
     let mut decoder = Decoder {
         file: path.display().to_string(),
         extractors: Vec::new(),
@@ -436,10 +437,8 @@ fn read_batches(
             return Ok(());
         }
         count += 1;
-        if count.is_multiple_of(4096)
-            && let Some(pb) = &progress
-        {
-            pb.set_position(count);
+        if count.is_multiple_of(4096) {
+            progress.set_position(count);
         }
         decoder.decode(&mut b, &msg)?;
         if b.len() >= batch_samples
@@ -450,9 +449,7 @@ fn read_batches(
         }
         Ok(())
     });
-    if let Some(pb) = progress {
-        pb.finish_and_clear();
-    }
+    progress.finish_and_clear();
     if let Some(e) = sink_error {
         return Err(e);
     }
@@ -533,20 +530,6 @@ fn group_index(group: Group) -> usize {
         Group::Mbs => 2,
         Group::Bms => 3,
     }
-}
-
-fn progress_bar(session: &mut Session) -> Option<indicatif::ProgressBar> {
-    if !std::io::stderr().is_terminal() {
-        return None;
-    }
-    let total = session.info().map(|i| i.messages).unwrap_or(0);
-    let pb = indicatif::ProgressBar::new(total);
-    if let Ok(style) =
-        indicatif::ProgressStyle::with_template("reading {bar:40} {pos}/{len} messages ({eta})")
-    {
-        pb.set_style(style);
-    }
-    Some(crate::util::progress_lines().add(pb))
 }
 
 fn joints(row: &[f64], block: usize) -> [f64; N_JOINTS] {

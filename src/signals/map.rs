@@ -146,66 +146,42 @@ impl SignalMap {
     /// G1 mapping with the arm's joints at SDK indices `base..base+7` and URDF names `side_*`.
     pub fn g1_arm(side: &str, base: usize) -> SignalMap {
         let mut signals = BTreeMap::new();
+        // Signal, topic, the array of motors, the field of a motor.
+        let per_joint = [
+            ("q", "/lowstate", "motor_state", "q"),
+            ("dq", "/lowstate", "motor_state", "dq"),
+            ("tau", "/lowstate", "motor_state", "tau_est"),
+            ("temp", "/lowstate", "motor_state", "temperature[0]"),
+            ("cmd_q", "/arm_sdk", "motor_cmd", "q"),
+            ("cmd_dq", "/arm_sdk", "motor_cmd", "dq"),
+        ];
         for (i, j) in JOINT_SHORT.iter().enumerate() {
             let k = base + i;
-            signals.insert(
-                format!("q.{j}"),
-                spec("/lowstate", &format!("motor_state[{k}].q"), 1.0),
-            );
-            signals.insert(
-                format!("dq.{j}"),
-                spec("/lowstate", &format!("motor_state[{k}].dq"), 1.0),
-            );
-            signals.insert(
-                format!("tau.{j}"),
-                spec("/lowstate", &format!("motor_state[{k}].tau_est"), 1.0),
-            );
-            signals.insert(
-                format!("temp.{j}"),
-                spec(
-                    "/lowstate",
-                    &format!("motor_state[{k}].temperature[0]"),
-                    1.0,
-                ),
-            );
-            signals.insert(
-                format!("cmd_q.{j}"),
-                spec("/arm_sdk", &format!("motor_cmd[{k}].q"), 1.0),
-            );
-            signals.insert(
-                format!("cmd_dq.{j}"),
-                spec("/arm_sdk", &format!("motor_cmd[{k}].dq"), 1.0),
-            );
+            for (signal, topic, motors, field) in per_joint {
+                let path = format!("{motors}[{k}].{field}");
+                signals.insert(format!("{signal}.{j}"), spec(topic, &path, 1.0));
+            }
         }
-        for (i, axis) in ["x", "y", "z"].iter().enumerate() {
-            signals.insert(
-                format!("gyro.{axis}"),
-                spec("/lowstate", &format!("imu_state.gyroscope[{i}]"), 1.0),
-            );
+        let imu = [
+            ("gyro", "gyroscope", &["x", "y", "z"][..]),
+            ("quat", "quaternion", &["w", "x", "y", "z"][..]),
+        ];
+        for (signal, field, axes) in imu {
+            for (i, axis) in axes.iter().enumerate() {
+                let path = format!("imu_state.{field}[{i}]");
+                signals.insert(format!("{signal}.{axis}"), spec("/lowstate", &path, 1.0));
+            }
         }
-        for (i, c) in ["w", "x", "y", "z"].iter().enumerate() {
-            signals.insert(
-                format!("quat.{c}"),
-                spec("/lowstate", &format!("imu_state.quaternion[{i}]"), 1.0),
-            );
+        let bus = format!("motor_state[{base}].vol");
+        for (signal, topic, path, scale) in [
+            ("bus.voltage", "/lowstate", bus.as_str(), 1.0),
+            ("mbs.voltage", "/lf/mainboardstate", "value[0]", 1.0),
+            ("mbs.current", "/lf/mainboardstate", "value[1]", 1.0),
+            ("bms.voltage", "/lf/bmsstate", "bmsvoltage[0]", 1e-3),
+            ("bms.current", "/lf/bmsstate", "current", 1e-3),
+        ] {
+            signals.insert(signal.into(), spec(topic, path, scale));
         }
-        signals.insert(
-            "bus.voltage".into(),
-            spec("/lowstate", &format!("motor_state[{base}].vol"), 1.0),
-        );
-        signals.insert(
-            "mbs.voltage".into(),
-            spec("/lf/mainboardstate", "value[0]", 1.0),
-        );
-        signals.insert(
-            "mbs.current".into(),
-            spec("/lf/mainboardstate", "value[1]", 1.0),
-        );
-        signals.insert(
-            "bms.voltage".into(),
-            spec("/lf/bmsstate", "bmsvoltage[0]", 1e-3),
-        );
-        signals.insert("bms.current".into(), spec("/lf/bmsstate", "current", 1e-3));
         let joint_names = JOINT_URDF.iter().map(|j| format!("{side}_{j}")).collect();
         SignalMap {
             joint_names,

@@ -241,112 +241,52 @@ pub struct Effects {
     pub fan_meter: Option<MeterOffset>,
 }
 
-/// Names accepted by [`Effects::enable`], in documentation order.
-pub const EFFECT_NAMES: [&str; 19] = [
-    "thermal",
-    "braking",
-    "bus_loss",
-    "payload",
-    "latency",
-    "gear_friction",
-    "drive_loss",
-    "stribeck",
-    "balance_leak",
-    "harness_drag",
-    "bus_power",
-    "electronics_nm",
-    "joint_friction",
-    "housing_friction",
-    "fan_load",
-    "fan0_load",
-    "switching",
-    "fan_meter",
-    "driving_loss",
-];
+/// The effects by name: [`EFFECT_NAMES`] and switching one on by its name (each name is the
+/// field of [`Effects`] it sets).
+macro_rules! effect_names {
+    ($($name:ident),*) => {
+        /// Names accepted by [`Effects::enable`], in documentation order.
+        pub const EFFECT_NAMES: [&str; [$(stringify!($name)),*].len()] = [$(stringify!($name)),*];
 
-impl ThermalDrift {
-    /// Copper's temperature coefficient.
-    pub const DEFAULT: ThermalDrift = ThermalDrift {
-        alpha_per_k: 0.00393,
+        impl Effects {
+            /// Switch on effect `name` at strength `value` (its default without one); false
+            /// when no effect has that name.
+            fn set_named(&mut self, name: &str, value: Option<f64>) -> bool {
+                fn set<E: Strength>(slot: &mut Option<E>, value: Option<f64>) {
+                    *slot = Some(value.map_or(E::DEFAULT, E::with));
+                }
+                match name {
+                    $(stringify!($name) => set(&mut self.$name, value),)*
+                    _ => return false,
+                }
+                true
+            }
+        }
     };
 }
-impl BrakingAsymmetry {
-    /// A quarter of the regenerated power comes back (drive and gear losses eat the rest).
-    pub const DEFAULT: BrakingAsymmetry = BrakingAsymmetry {
-        return_fraction: 0.25,
-    };
-}
-impl BusLoss {
-    /// 50 mΩ: battery internal resistance share plus harness and connectors of the arm rail.
-    pub const DEFAULT: BusLoss = BusLoss {
-        resistance_ohm: 0.05,
-    };
-}
-impl SensorLatency {
-    /// 0.3 s: a slow sensor pipeline (several 100 ms buffers are common on BMS/MBS links).
-    pub const DEFAULT: SensorLatency = SensorLatency { seconds: 0.3 };
-}
-impl HarnessDrag {
-    /// 4 W·s/rad: a drag torque of k·(1 − cos q) = 1.8 Nm at 1 rad elbow flexion
-    /// (1.8 W at 1 rad/s) — a stiff cable bundle.
-    pub const DEFAULT: HarnessDrag = HarnessDrag { w_per_rad_s: 4.0 };
-}
-impl GearFriction {
-    /// 15 % of the transmitted power: a harmonic stage of ≈ 85 % efficiency on top of the paper's
-    /// loss terms (smaller fractions are within the noise of 1 Hz readings on a short session).
-    pub const DEFAULT: GearFriction = GearFriction { mu: 0.15 };
-}
-impl DriveLoss {
-    /// 0.5 V: a MOSFET bridge's conduction plus dead-time diode drop at a few amperes.
-    pub const DEFAULT: DriveLoss = DriveLoss { volts: 0.5 };
-}
-impl StribeckFriction {
-    /// 10 Nm of breakaway excess at the joint output: a deliberately strong effect. The paper's
-    /// protocol never moves slower than 0.5 rad/s, so the low-speed band only shows during
-    /// accelerations; 5 Nm is resolved to ≈ 15–25 % on ≈ 140 trials (docs/diagnosis-results.md).
-    pub const DEFAULT: StribeckFriction = StribeckFriction { newton_m: 10.0 };
-}
-impl BalanceLeak {
-    /// The contamination artefact's leak (500/9 W per (rad/s)²: 5 W at 0.3 rad/s of sway) with a
-    /// continuous 0.05 rad/s sway per axis.
-    pub const DEFAULT: BalanceLeak = BalanceLeak {
-        w_per_rad2_s2: 500.0 / 9.0,
-        sway_rad_s: 0.05,
-    };
-}
-impl BusPowerLoss {
-    /// 50 mΩ, as [`BusLoss::DEFAULT`].
-    pub const DEFAULT: BusPowerLoss = BusPowerLoss {
-        resistance_ohm: 0.05,
-    };
-}
-impl ElectronicsLoss {
-    /// 0.5 W/Nm: about [`DriveLoss::DEFAULT`] at the arm's torque constants.
-    pub const DEFAULT: ElectronicsLoss = ElectronicsLoss { w_per_nm: 0.5 };
-}
-impl JointFrictionExcess {
-    /// 1 Nm at the shoulder pitch (1.5 Nm at the elbow, 0.2 Nm at the wrist roll).
-    pub const DEFAULT: JointFrictionExcess = JointFrictionExcess { newton_m: 1.0 };
-}
-impl HousingFriction {
-    /// 0.05 W/(K·rad/s): 1 W more per rad/s at a housing 20 K above 25 °C.
-    pub const DEFAULT: HousingFriction = HousingFriction {
-        w_per_k_rad_s: 0.05,
-    };
-}
-impl SwitchingLoss {
-    /// 0.01 W/(V·A): 0.5 W per ampere of phase current at a 50 V bus, about
-    /// [`DriveLoss::DEFAULT`] (a slow bridge; fast ones switch for a few thousandths).
-    pub const DEFAULT: SwitchingLoss = SwitchingLoss { per_volt_amp: 0.01 };
-}
-impl RailLoad {
-    /// A 3 W fan.
-    pub const DEFAULT: RailLoad = RailLoad { watts: 3.0 };
-}
-impl MeterOffset {
-    /// The shift of a 3 W fan's load ([`RailLoad::DEFAULT`]).
-    pub const DEFAULT: MeterOffset = MeterOffset { watts: 3.0 };
-}
+
+effect_names!(
+    thermal,
+    braking,
+    bus_loss,
+    payload,
+    latency,
+    gear_friction,
+    drive_loss,
+    stribeck,
+    balance_leak,
+    harness_drag,
+    bus_power,
+    electronics_nm,
+    joint_friction,
+    housing_friction,
+    fan_load,
+    fan0_load,
+    switching,
+    fan_meter,
+    driving_loss
+);
+
 /// Default payload: a 0.5 kg tool held 10 cm beyond the wrist-yaw link origin.
 pub const DEFAULT_PAYLOAD: Payload = Payload {
     mass_kg: 0.5,
@@ -361,34 +301,64 @@ trait Strength: Sized {
     fn with(v: f64) -> Self;
 }
 
+/// Each effect set by one number: its `DEFAULT` strength (documented) and its [`Strength`]
+/// (the first field is the number).
 macro_rules! strength {
-    ($($ty:ty => $field:ident $(, ..$rest:ident)?;)*) => {$(
+    ($($(#[$doc:meta])* $ty:ident { $field:ident: $value:expr $(, $other:ident: $v:expr)* };)*) => {$(
+        impl $ty {
+            $(#[$doc])*
+            pub const DEFAULT: $ty = $ty { $field: $value $(, $other: $v)* };
+        }
         impl Strength for $ty {
             const DEFAULT: Self = <$ty>::DEFAULT;
             fn with(v: f64) -> Self {
-                Self { $field: v $(, ..<$ty>::$rest)? }
+                let mut effect = <$ty>::DEFAULT;
+                effect.$field = v;
+                effect
             }
         }
     )*};
 }
 
 strength! {
-    ThermalDrift => alpha_per_k;
-    BrakingAsymmetry => return_fraction;
-    BusLoss => resistance_ohm;
-    SensorLatency => seconds;
-    HarnessDrag => w_per_rad_s;
-    GearFriction => mu;
-    DriveLoss => volts;
-    StribeckFriction => newton_m;
-    BalanceLeak => w_per_rad2_s2, ..DEFAULT;
-    BusPowerLoss => resistance_ohm;
-    ElectronicsLoss => w_per_nm;
-    JointFrictionExcess => newton_m;
-    HousingFriction => w_per_k_rad_s;
-    SwitchingLoss => per_volt_amp;
-    RailLoad => watts;
-    MeterOffset => watts;
+    /// Copper's temperature coefficient.
+    ThermalDrift { alpha_per_k: 0.00393 };
+    /// A quarter of the regenerated power comes back (drive and gear losses eat the rest).
+    BrakingAsymmetry { return_fraction: 0.25 };
+    /// 50 mΩ: battery internal resistance share plus harness and connectors of the arm rail.
+    BusLoss { resistance_ohm: 0.05 };
+    /// 0.3 s: a slow sensor pipeline (several 100 ms buffers are common on BMS/MBS links).
+    SensorLatency { seconds: 0.3 };
+    /// 4 W·s/rad: a drag torque of k·(1 − cos q) = 1.8 Nm at 1 rad elbow flexion
+    /// (1.8 W at 1 rad/s) — a stiff cable bundle.
+    HarnessDrag { w_per_rad_s: 4.0 };
+    /// 15 % of the transmitted power: a harmonic stage of ≈ 85 % efficiency on top of the paper's
+    /// loss terms (smaller fractions are within the noise of 1 Hz readings on a short session).
+    GearFriction { mu: 0.15 };
+    /// 0.5 V: a MOSFET bridge's conduction plus dead-time diode drop at a few amperes.
+    DriveLoss { volts: 0.5 };
+    /// 10 Nm of breakaway excess at the joint output: a deliberately strong effect. The paper's
+    /// protocol never moves slower than 0.5 rad/s, so the low-speed band only shows during
+    /// accelerations; 5 Nm is resolved to ≈ 15–25 % on ≈ 140 trials (docs/diagnosis-results.md).
+    StribeckFriction { newton_m: 10.0 };
+    /// The contamination artefact's leak (500/9 W per (rad/s)²: 5 W at 0.3 rad/s of sway) with a
+    /// continuous 0.05 rad/s sway per axis.
+    BalanceLeak { w_per_rad2_s2: 500.0 / 9.0, sway_rad_s: 0.05 };
+    /// 50 mΩ, as [`BusLoss::DEFAULT`].
+    BusPowerLoss { resistance_ohm: 0.05 };
+    /// 0.5 W/Nm: about [`DriveLoss::DEFAULT`] at the arm's torque constants.
+    ElectronicsLoss { w_per_nm: 0.5 };
+    /// 1 Nm at the shoulder pitch (1.5 Nm at the elbow, 0.2 Nm at the wrist roll).
+    JointFrictionExcess { newton_m: 1.0 };
+    /// 0.05 W/(K·rad/s): 1 W more per rad/s at a housing 20 K above 25 °C.
+    HousingFriction { w_per_k_rad_s: 0.05 };
+    /// 0.01 W/(V·A): 0.5 W per ampere of phase current at a 50 V bus, about
+    /// [`DriveLoss::DEFAULT`] (a slow bridge; fast ones switch for a few thousandths).
+    SwitchingLoss { per_volt_amp: 0.01 };
+    /// A 3 W fan.
+    RailLoad { watts: 3.0 };
+    /// The shift of a 3 W fan's load ([`RailLoad::DEFAULT`]).
+    MeterOffset { watts: 3.0 };
 }
 
 impl Strength for Payload {
@@ -423,40 +393,15 @@ impl Effects {
             }
             None => (spec.trim(), None),
         };
-        fn set<E: Strength>(slot: &mut Option<E>, value: Option<f64>) {
-            *slot = Some(value.map_or(E::DEFAULT, E::with));
-        }
-        match name {
-            "thermal" => set(&mut self.thermal, value),
-            "braking" => {
-                anyhow::ensure!(
-                    value.is_none_or(|v| v <= 1.0),
-                    "effect {spec:?}: the braking fraction is at most 1"
-                );
-                set(&mut self.braking, value)
-            }
-            "bus_loss" => set(&mut self.bus_loss, value),
-            "payload" => set(&mut self.payload, value),
-            "latency" => set(&mut self.latency, value),
-            "gear_friction" => set(&mut self.gear_friction, value),
-            "drive_loss" => set(&mut self.drive_loss, value),
-            "driving_loss" => set(&mut self.driving_loss, value),
-            "stribeck" => set(&mut self.stribeck, value),
-            "balance_leak" => set(&mut self.balance_leak, value),
-            "harness_drag" => set(&mut self.harness_drag, value),
-            "bus_power" => set(&mut self.bus_power, value),
-            "electronics_nm" => set(&mut self.electronics_nm, value),
-            "joint_friction" => set(&mut self.joint_friction, value),
-            "housing_friction" => set(&mut self.housing_friction, value),
-            "fan_load" => set(&mut self.fan_load, value),
-            "fan0_load" => set(&mut self.fan0_load, value),
-            "fan_meter" => set(&mut self.fan_meter, value),
-            "switching" => set(&mut self.switching, value),
-            _ => anyhow::bail!(
-                "unknown effect {name:?} (known: {})",
-                EFFECT_NAMES.join(", ")
-            ),
-        }
+        anyhow::ensure!(
+            name != "braking" || value.is_none_or(|v| v <= 1.0),
+            "effect {spec:?}: the braking fraction is at most 1"
+        );
+        anyhow::ensure!(
+            self.set_named(name, value),
+            "unknown effect {name:?} (known: {})",
+            EFFECT_NAMES.join(", ")
+        );
         Ok(())
     }
 

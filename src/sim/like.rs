@@ -13,9 +13,8 @@ use std::sync::mpsc::{Receiver, sync_channel};
 
 use anyhow::{Context, Result};
 
-use super::plant::{Engine, Reference, Sampled, Timeline};
+use super::plant::{Engine, Motion, Reference, Sampled, Timeline};
 use super::{MAX_LIKE_GAP_S, SimConfig, Truth};
-use crate::N_JOINTS;
 use crate::read::OpenOptions;
 use crate::signals::{Recording, SignalMap, load_recording, stream_recording};
 
@@ -211,11 +210,7 @@ impl StreamedSampled {
 
     /// [`Sampled::eval`] of the whole trajectory at `t` (`hint` a global cursor), for queries
     /// that move forward in time (up to [`RETAIN_S`] back).
-    pub fn eval(
-        &self,
-        t: f64,
-        hint: &mut usize,
-    ) -> ([f64; N_JOINTS], [f64; N_JOINTS], [f64; N_JOINTS]) {
+    pub fn eval(&self, t: f64, hint: &mut usize) -> Motion {
         let mut w = self.inner.borrow_mut();
         w.latest = w.latest.max(t);
         // Every sample at or before t is in the window once one after it is (or none is left).

@@ -22,7 +22,6 @@ mod truth;
 pub(crate) mod writer;
 
 use std::collections::BTreeMap;
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
@@ -86,12 +85,8 @@ impl Default for Artefacts {
     fn default() -> Self {
         Artefacts {
             contamination_fraction: 0.1,
-            sway_amplitude_rad_s: [0.05, 0.3],
-            sway_freq_hz: [1.0, 2.0],
-            k_leak: 500.0 / 9.0,
             outlier_fraction: 0.015,
-            outlier_step_w: [10.0, 20.0],
-            outlier_duration_s: [2.0, 5.0],
+            ..Artefacts::NONE
         }
     }
 }
@@ -217,19 +212,6 @@ fn dynamics(cfg: &SimConfig) -> Result<(ArmDynamics, Option<ArmDynamics>)> {
         Some(p) => (urdf.with_payload(p), Some(urdf)),
         None => (urdf, None),
     })
-}
-
-fn progress_bar(cfg: &SimConfig, len: u64) -> indicatif::ProgressBar {
-    if cfg.progress && std::io::stderr().is_terminal() {
-        let pb = indicatif::ProgressBar::new(len);
-        pb.set_style(
-            indicatif::ProgressStyle::with_template("simulating {bar:40} {percent}% ({eta} left)")
-                .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-        );
-        pb
-    } else {
-        indicatif::ProgressBar::hidden()
-    }
 }
 
 /// Each trial's artefacts: contamination with a probability growing with speed^1.5 and joint
@@ -406,7 +388,9 @@ fn run_to_file(
     rng: &mut ChaCha8Rng,
     out: &Path,
 ) -> Result<plant::RunStats> {
-    let pb = progress_bar(cfg, engine.timeline.lowstate.len() as u64);
+    let template = "simulating {bar:40} {percent}% ({eta} left)";
+    let len = || engine.timeline.lowstate.len() as u64;
+    let pb = crate::util::progress_bar(cfg.progress, template, len);
     let mut stats = None;
     crate::util::write_atomic_with(out, |w| {
         let mut mcap = writer::McapOut::new(&mut *w)?;
@@ -435,24 +419,9 @@ fn build_truth(
     trials: Vec<truth::TrialTruth>,
     out: &Path,
 ) -> Truth {
-    let first = [
-        tl.lowstate.first(),
-        tl.arm_sdk.first(),
-        tl.mbs.first(),
-        tl.bms.first(),
-    ]
-    .into_iter()
-    .flatten()
-    .min();
-    let last = [
-        tl.lowstate.last(),
-        tl.arm_sdk.last(),
-        tl.mbs.last(),
-        tl.bms.last(),
-    ]
-    .into_iter()
-    .flatten()
-    .max();
+    let topics = [&tl.lowstate, &tl.arm_sdk, &tl.mbs, &tl.bms];
+    let first = topics.iter().filter_map(|t| t.first()).min();
+    let last = topics.iter().filter_map(|t| t.last()).max();
     let start_ns = first.copied().unwrap_or(tl.start_ns);
     let end_ns = last.copied().unwrap_or(tl.start_ns);
     let m = &cfg.truth;

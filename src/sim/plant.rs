@@ -84,6 +84,9 @@ pub struct Timeline {
     pub bms: Vec<u64>,
 }
 
+/// Joint positions, velocities and accelerations at one instant (q, q̇, q̈).
+pub type Motion = ([f64; N_JOINTS], [f64; N_JOINTS], [f64; N_JOINTS]);
+
 /// Sampled joint reference (a recording's command or measured trajectory), linearly interpolated.
 #[derive(Debug, Clone, Default)]
 pub struct Sampled {
@@ -107,11 +110,7 @@ pub enum Reference<'a> {
 
 impl Reference<'_> {
     /// q, q̇, q̈ at `t`; `hint` is a cursor for monotone queries.
-    pub fn eval(
-        &self,
-        t: f64,
-        hint: &mut usize,
-    ) -> ([f64; N_JOINTS], [f64; N_JOINTS], [f64; N_JOINTS]) {
+    pub fn eval(&self, t: f64, hint: &mut usize) -> Motion {
         match self {
             Reference::Protocol(s) => s.eval(t, hint),
             Reference::Sampled(s) => s.eval(t, hint),
@@ -123,11 +122,7 @@ impl Reference<'_> {
 impl Sampled {
     /// q, q̇, q̈ at `t`, linearly interpolated (q̈ the slope of q̇ between the two samples); held
     /// at the first and the last sample outside them. `hint` is a cursor for monotone queries.
-    pub fn eval(
-        &self,
-        t: f64,
-        hint: &mut usize,
-    ) -> ([f64; N_JOINTS], [f64; N_JOINTS], [f64; N_JOINTS]) {
+    pub fn eval(&self, t: f64, hint: &mut usize) -> Motion {
         let s = self;
         let zero = [0.0; N_JOINTS];
         let n = s.t.len();

@@ -8,6 +8,7 @@ use rand::{RngExt, SeedableRng, seq::SliceRandom};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use super::plant::Motion;
 use crate::N_JOINTS;
 use crate::trial::TrialWindow;
 
@@ -365,11 +366,7 @@ impl Schedule {
 
     /// Commanded position, velocity and acceleration at time `t` [s]. `hint` is a segment cursor
     /// for monotone queries (start at 0).
-    pub fn eval(
-        &self,
-        t: f64,
-        hint: &mut usize,
-    ) -> ([f64; N_JOINTS], [f64; N_JOINTS], [f64; N_JOINTS]) {
+    pub fn eval(&self, t: f64, hint: &mut usize) -> Motion {
         while *hint < self.segments.len() && self.segments[*hint].t0 + self.segments[*hint].dur <= t
         {
             *hint += 1;

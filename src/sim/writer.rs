@@ -51,6 +51,17 @@ impl Default for Cdr {
     }
 }
 
+/// `fn T(&mut self, v: T)` for each number type `T`: `v` little-endian at its own alignment.
+macro_rules! aligned_putters {
+    ($($t:ident),*) => {$(
+        #[inline(always)]
+        fn $t(&mut self, v: $t) {
+            self.align(std::mem::size_of::<$t>());
+            self.put(v.to_le_bytes());
+        }
+    )*};
+}
+
 impl Cdr {
     const HEADER: [u8; 4] = [0x00, 0x01, 0x00, 0x00];
     const CAPACITY: usize = 4096;
@@ -74,31 +85,7 @@ impl Cdr {
     fn u8(&mut self, v: u8) {
         self.put([v]);
     }
-    #[inline(always)]
-    fn u16(&mut self, v: u16) {
-        self.align(2);
-        self.put(v.to_le_bytes());
-    }
-    #[inline(always)]
-    fn i16(&mut self, v: i16) {
-        self.align(2);
-        self.put(v.to_le_bytes());
-    }
-    #[inline(always)]
-    fn u32(&mut self, v: u32) {
-        self.align(4);
-        self.put(v.to_le_bytes());
-    }
-    #[inline(always)]
-    fn i32(&mut self, v: i32) {
-        self.align(4);
-        self.put(v.to_le_bytes());
-    }
-    #[inline(always)]
-    fn f32(&mut self, v: f32) {
-        self.align(4);
-        self.put(v.to_le_bytes());
-    }
+    aligned_putters!(u16, i16, u32, i32, f32);
     /// Append the CRC field: zlib CRC-32 of the body before it (the shared files' convention).
     fn crc(&mut self) {
         self.align(4);

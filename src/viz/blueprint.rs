@@ -751,6 +751,14 @@ pub struct LayoutParts {
     pub span_s: Option<[f64; 2]>,
 }
 
+impl LayoutParts {
+    /// The diagnosis plots its found terms' prediction (a power series beyond measured,
+    /// before, after and the twin).
+    fn found_terms(&self) -> bool {
+        self.diagnosis_power_series > 3 + usize::from(self.counterpart)
+    }
+}
+
 /// How many trials a session has and how many are marked (the per-trial strip's title).
 #[derive(Debug, Clone, Copy, Default)]
 pub struct TrialCounts {
@@ -1018,6 +1026,13 @@ pub fn query_includes(query: &str, origin: &str, path: &str) -> bool {
     }
 }
 
+/// The IMU filter's series: σ|ω| per trial, of the rejected trials, and the threshold.
+const IMU_FILTER: [&str; 3] = [
+    paths::IMU_SIGMA,
+    paths::IMU_SIGMA_REJECTED,
+    paths::IMU_THRESHOLD,
+];
+
 fn include(paths: &[&str]) -> Vec<String> {
     paths.iter().map(|p| paths::include(p)).collect()
 }
@@ -1114,7 +1129,7 @@ fn session_overview(arm: Node, parts: LayoutParts, window_s: f64) -> Vec<(Node, 
         key.push_str("predicted orange, instant brown");
     } else {
         key.push_str(["base grey", "base grey, hyp. orange"][usize::from(parts.hypotheses)]);
-        if parts.diagnosis_power_series > 3 + usize::from(parts.counterpart) {
+        if parts.found_terms() {
             key.push_str(", found red");
         }
         if parts.counterpart {
@@ -1158,7 +1173,7 @@ fn session_overview(arm: Node, parts: LayoutParts, window_s: f64) -> Vec<(Node, 
         )
     } else {
         // Only the series that show (no accepted hypothesis: theirs lies under the base model's).
-        let found = parts.diagnosis_power_series > 3 + usize::from(parts.counterpart);
+        let found = parts.found_terms();
         let named = [
             (true, "base model grey"),
             (parts.hypotheses, "with hypotheses teal"),
@@ -1188,11 +1203,7 @@ fn session_overview(arm: Node, parts: LayoutParts, window_s: f64) -> Vec<(Node, 
         overview.push((
             per_trial(
                 "IMU σ|ω| per trial [rad/s] (above the black threshold: rejected, red; axis to 4× it)",
-                include(&[
-                    paths::IMU_SIGMA,
-                    paths::IMU_SIGMA_REJECTED,
-                    paths::IMU_THRESHOLD,
-                ]),
+                include(&IMU_FILTER),
             )
             // A set range is not refitted to the data (whose rejected trials reach 10–50×).
             .with_y_range(parts.ranges.imu_per_trial)
@@ -1225,7 +1236,7 @@ fn error_view(parts: LayoutParts) -> Node {
         // The accepted hypotheses' error is drawn over the base model's (the same when none was
         // accepted); the found terms' in red when there are any.
         name.push_str(["base model grey", "base model grey, hypotheses teal"][hyp]);
-        if parts.diagnosis_power_series > 3 + usize::from(parts.counterpart) {
+        if parts.found_terms() {
             name.push_str(", found terms red");
         }
     }
@@ -1344,11 +1355,7 @@ fn share_points(name: &str, tree: &str, names: &[&str], plot_px: [f64; 2], span:
 fn imu_tab(parts: LayoutParts) -> Node {
     let mut imu = vec![paths::include(paths::IMU_GYRO_NORM)];
     let plot_view = if parts.imu_filter {
-        imu.extend(include(&[
-            paths::IMU_SIGMA,
-            paths::IMU_SIGMA_REJECTED,
-            paths::IMU_THRESHOLD,
-        ]));
+        imu.extend(include(&IMU_FILTER));
         let name = if parts.window_s.is_some() {
             "IMU [rad/s]: |ω| grey, σ|ω| per trial blue (rejected red), threshold black"
         } else {

@@ -11,7 +11,7 @@
 //! [`ReplayOptions::chunk_rows`] samples, so memory stays bounded whatever the session length.
 
 use anyhow::{Context, Result, bail};
-use indicatif::{ProgressBar, ProgressStyle};
+use indicatif::ProgressBar;
 use rerun::{AnyValues, RecordingInfo, RecordingStream, Scalars};
 
 use super::blueprint::{self, LayoutParts};
@@ -278,34 +278,25 @@ pub fn layout(
     });
     let starts = trial_starts(extras);
     let window_s = blueprint::opening_window(&starts);
+    let diagnosis = |f: fn(&DiagnosisOverlay) -> bool| extras.diagnosis.as_ref().is_some_and(f);
     let parts = LayoutParts {
         model: extras.prediction.is_some()
             || extras.readings.is_some()
             || extras.terms.is_some()
             || !extras.trajectories.is_empty(),
         diagnosis: extras.diagnosis.is_some(),
-        counterpart: extras
-            .diagnosis
-            .as_ref()
-            .is_some_and(|d| d.counterpart.is_some()),
+        counterpart: diagnosis(|d| d.counterpart.is_some()),
         trials: !extras.trials.is_empty(),
         imu_filter: extras.imu_filter.is_some(),
-        located: extras
-            .diagnosis
-            .as_ref()
-            .is_some_and(|d| !d.data.located.is_empty()),
-        rest: extras
-            .diagnosis
-            .as_ref()
-            .is_some_and(|d| !d.data.rest_w.is_empty()),
+        located: diagnosis(|d| !d.data.located.is_empty()),
+        rest: diagnosis(|d| !d.data.rest_w.is_empty()),
         diagnosis_power_series,
-        hypotheses: (extras.diagnosis.as_ref()).is_some_and(|d| d.data.after_w != d.data.before_w),
+        hypotheses: diagnosis(|d| d.data.after_w != d.data.before_w),
         ranges: plot_ranges(extras, whole),
         window_s,
         trial_counts: trial_counts(extras),
         trial_rest: extras.trajectories.iter().any(|p| p.rest_w.is_finite()),
-        shares: extras.terms.is_some()
-            || (extras.diagnosis.as_ref()).is_some_and(|d| !d.data.terms_w.is_empty()),
+        shares: extras.terms.is_some() || diagnosis(|d| !d.data.terms_w.is_empty()),
         // The last trial ends about one spacing after it starts.
         span_s: window_s
             .zip(super::data_range(starts))
@@ -759,11 +750,9 @@ impl<'a> ReplayLogger<'a> {
         )?;
         log_styles(&mut w, &joints)?;
         let expected_samples = whole.map_or(0, |r| r.state.t.len() as u64);
-        let progress = if expected_samples > 0 {
-            progress_bar(opts.progress, expected_samples)
-        } else {
-            ProgressBar::hidden()
-        };
+        let template = "replay {bar:40} {pos}/{len} samples ({eta})";
+        let shown = opts.progress && expected_samples > 0;
+        let progress = crate::util::progress_bar(shown, template, || expected_samples);
         Ok(ReplayLogger {
             w,
             robot,
@@ -1180,15 +1169,4 @@ fn log_recording_info(
         values = values.with_component::<rerun::components::Text>(field, [text.as_str()]);
     }
     w.send_static(&format!("{}/g1viz", paths::PROPERTIES), &values)
-}
-
-fn progress_bar(enabled: bool, len: u64) -> ProgressBar {
-    if !enabled || !std::io::IsTerminal::is_terminal(&std::io::stderr()) {
-        return ProgressBar::hidden();
-    }
-    let bar = crate::util::progress_lines().add(ProgressBar::new(len));
-    if let Ok(style) = ProgressStyle::with_template("replay {bar:40} {pos}/{len} samples ({eta})") {
-        bar.set_style(style);
-    }
-    bar
 }
