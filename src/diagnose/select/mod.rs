@@ -16,7 +16,6 @@ pub use score::{HypothesisScore, Param};
 use anyhow::Result;
 
 use super::hypotheses::{Combine, Hypothesis, LATENCY_ID, N_RAW};
-use super::stats::improvement_p_value;
 use crate::N_PARAMS;
 
 /// How the forms of one mechanism compared at the selection step that decided between them.
@@ -190,10 +189,7 @@ fn versus(
     // Every lag's rows are the same readings: y and trial are the lag-0 rows'.
     let y = &data.rows0().y;
     let trial = &data.rows0().trial;
-    let ew = trial_sse(y, &w.next.cv.pred, trial, data.n_trials);
-    let er = trial_sse(y, &r.next.cv.pred, trial, data.n_trials);
-    let d: Vec<f64> = er.iter().zip(&ew).map(|(a, b)| a - b).collect();
-    let p_value = improvement_p_value(&d);
+    let p_value = p_better(y, &w.next.cv.pred, &r.next.cv.pred, trial, data.n_trials);
     MechanismForms {
         mechanism,
         winner: w.score.id.clone(),

@@ -8,7 +8,6 @@ use super::fit::*;
 use crate::N_PARAMS;
 use crate::diagnose::Quality;
 use crate::diagnose::hypotheses::{Hypothesis, LATENCY_ID};
-use crate::diagnose::stats::improvement_p_value;
 
 /// A named physical parameter with its uncertainty.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
@@ -189,15 +188,12 @@ pub(crate) struct Held {
 impl Held {
     /// Compare `after` with `before` on readings `y` of trials `trial` (of `n_trials`).
     pub fn new(y: &[f64], before: &[f64], after: &[f64], trial: &[usize], n_trials: usize) -> Held {
-        let eb = trial_sse(y, before, trial, n_trials);
-        let ea = trial_sse(y, after, trial, n_trials);
-        let d: Vec<f64> = eb.iter().zip(&ea).map(|(a, b)| a - b).collect();
         let quality = |pred: &[f64]| {
             let (r2, rmse_w) = r2_rmse(y, pred);
             Quality { r2, rmse_w }
         };
         Held {
-            p_value: improvement_p_value(&d),
+            p_value: p_better(y, after, before, trial, n_trials),
             before: quality(before),
             after: quality(after),
         }
