@@ -20,8 +20,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use super::discover::DiscoveryReport;
-use super::reading_rows::{Rows, TrialMeta, baseline_readings};
+use super::reading_rows::{TrialMeta, baseline_readings};
 use super::stats::t_upper_tail;
 use crate::lsq::Gram;
 use crate::signals::{PowerSeries, Target};
@@ -82,7 +81,12 @@ fn meter_name(t: Target) -> &'static str {
 
 /// One meter's power per trial: the rest power (mean of its baseline readings) and the net power
 /// of the moving part (readings stamped in [t_traj_start + W, t_return_end], minus the rest).
-fn per_trial(p: &PowerSeries, metas: &[TrialMeta], lag: f64, w: f64) -> (Vec<f64>, Vec<f64>) {
+pub(crate) fn per_trial(
+    p: &PowerSeries,
+    metas: &[TrialMeta],
+    lag: f64,
+    w: f64,
+) -> (Vec<f64>, Vec<f64>) {
     let mean = |r: std::ops::Range<usize>| {
         let v: Vec<f64> = p.watts[r]
             .iter()
@@ -138,7 +142,7 @@ fn slopes(y: &[f64], cols: &[&[f64]]) -> Option<Slopes> {
 }
 
 /// The check of each column, `None` where the other meter has too few trials.
-fn checks(target: Target, diff: &[f64], cols: &[Vec<f64>]) -> Vec<Option<MeterCheck>> {
+pub(crate) fn checks(target: Target, diff: &[f64], cols: &[Vec<f64>]) -> Vec<Option<MeterCheck>> {
     let cols: Vec<&[f64]> = cols.iter().map(Vec::as_slice).collect();
     let Some((s, _, n)) = slopes(diff, &cols) else {
         return vec![None; cols.len()];
@@ -327,77 +331,11 @@ fn other(t: Target) -> Target {
 }
 
 /// The name of a finding on `fields` that is an artefact of the meter it was found on.
-fn artefact_name(c: &MeterCheck, fields: &str) -> String {
+pub(crate) fn artefact_name(c: &MeterCheck, fields: &str) -> String {
     format!(
         "the {} meter's reading follows {fields}, which the {} meter does not show: a correction of that meter, not a load on the rail",
         c.meter, c.other
     )
-}
-
-/// Stage: check every term discovery and the rest power found against the other meter
-/// (`rows`: the rows discovery's terms are per reading of; `lag`, `w`: the sensor's).
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn check_findings(
-    report: &mut DiscoveryReport,
-    target: Target,
-    power: &PowerSeries,
-    other_power: &PowerSeries,
-    metas: &[TrialMeta],
-    rows: &Rows,
-    lag: f64,
-    w: f64,
-) {
-    if other_power.t.is_empty() {
-        return;
-    }
-    let (rest1, net1) = per_trial(power, metas, lag, w);
-    let (rest2, net2) = per_trial(other_power, metas, lag, w);
-    let diff = |a: &[f64], b: &[f64]| -> Vec<f64> { b.iter().zip(a).map(|(b, a)| b - a).collect() };
-    // Discovery's terms: what each adds, averaged over its trial's readings.
-    let n = metas.len();
-    let cols: Vec<Vec<f64>> = report
-        .accepted
-        .iter()
-        .filter(|t| t.contribution.len() == rows.len())
-        .map(|t| {
-            let (mut sum, mut cnt) = (vec![0.0; n], vec![0usize; n]);
-            for (r, &ti) in rows.trial.iter().enumerate() {
-                sum[ti] += t.contribution[r];
-                cnt[ti] += 1;
-            }
-            (0..n)
-                .map(|i| {
-                    if cnt[i] > 0 {
-                        sum[i] / cnt[i] as f64
-                    } else {
-                        f64::NAN
-                    }
-                })
-                .collect()
-        })
-        .collect();
-    if cols.len() == report.accepted.len() && !cols.is_empty() {
-        let found = checks(target, &diff(&net1, &net2), &cols);
-        for (t, c) in report.accepted.iter_mut().zip(found) {
-            if let Some(c) = c.as_ref().filter(|c| c.artefact()) {
-                t.name = artefact_name(c, &t.fields.join(", "));
-            }
-            t.meter = c;
-        }
-    }
-    let Some(rest) = report.rest.as_mut() else {
-        return;
-    };
-    if rest.term_cols.len() != rest.found.len() || rest.found.is_empty() {
-        return;
-    }
-    let found = checks(target, &diff(&rest1, &rest2), &rest.term_cols);
-    for (t, c) in rest.found.iter_mut().zip(found) {
-        if let Some(c) = c.as_ref().filter(|c| c.artefact()) {
-            t.name = artefact_name(c, &t.field);
-        }
-        t.meter = c;
-    }
 }
 
 #[cfg(test)]

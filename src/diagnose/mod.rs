@@ -380,7 +380,7 @@ fn run(
     if let Some(r) = discovery.as_mut() {
         let (rows, lag) = (data.rows(sel.last.lag)?, data.lags[sel.last.lag]);
         let (power, other) = (&info.power, &info.other);
-        meters::check_findings(r, info.target, power, other, &metas, rows, lag, w);
+        r.check_meters(info.target, power, other, &metas, rows, lag, w);
         r.meter_drift = drift;
     }
 

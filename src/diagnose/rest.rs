@@ -627,7 +627,7 @@ mod tests {
 
     #[test]
     fn a_fan_stepping_between_trials_is_found_and_nothing_on_a_quiet_rail() {
-        let run = |fan_w: f64, seed: u64, n: usize| {
+        let rest = |fan_w: f64, seed: u64, n: usize| {
             let (p, t, fields, names) = inputs(fan_w, seed, n);
             let inp = RestInputs {
                 power: &p,
@@ -636,7 +636,10 @@ mod tests {
                 names: &names,
                 usable: vec![true; 3],
             };
-            let r = rest_power(&inp, &rule()).unwrap();
+            rest_power(&inp, &rule())
+        };
+        let run = |fan_w: f64, seed: u64, n: usize| {
+            let r = rest(fan_w, seed, n).unwrap();
             // diagnosis.json reads back (a NaN would be written as null).
             let back: RestPower =
                 serde_json::from_str(&serde_json::to_string(&r).unwrap()).unwrap();
@@ -666,18 +669,6 @@ mod tests {
             }
         }
         assert!(tried >= 12, "the fan changed in {tried} sessions");
-        let (p, t, fields, names) = inputs(0.0, 1, 39);
-        let usable = vec![true; 3];
-        let inp = RestInputs {
-            power: &p,
-            start: &t,
-            fields,
-            names: &names,
-            usable,
-        };
-        assert!(
-            rest_power(&inp, &rule()).is_none(),
-            "fewer than 10 blocks of 4"
-        );
+        assert!(rest(0.0, 1, 39).is_none(), "fewer than 10 blocks of 4");
     }
 }

@@ -110,52 +110,31 @@ pub(crate) fn replay_data(
     sel: &select::Selection,
     located: &Located,
 ) -> ReplayData {
-    let mark = |trial: usize, reason: String| {
-        let w = metas
-            .iter()
-            .find(|m| m.window.index == trial)
-            .map(|m| &m.window);
-        HighlightedTrial {
-            trial,
-            t_start: w.map_or(0.0, |w| w.t_traj_start),
-            t_end: w.map_or(0.0, |w| w.t_return_end),
-            reason,
-        }
-    };
-    let mut highlighted: Vec<HighlightedTrial> = located
-        .worst_trials
-        .iter()
-        .take(5)
-        .map(|t| {
-            mark(
-                t.trial,
-                format!(
-                    "largest held-out residual of the base model: {:+.2} W",
-                    t.mean_w
-                ),
-            )
-        })
-        .collect();
-    for c in located.unexplained.iter().filter(|c| c.significant) {
-        for &t in &c.trials {
-            if !highlighted.iter().any(|h| h.trial == t) {
-                highlighted.push(mark(
-                    t,
-                    format!("carries unexplained structure ({})", c.feature),
-                ));
-            }
-        }
-    }
-    ReplayData {
+    let mut replay = ReplayData {
         t: rows0.t.clone(),
         trial: rows0.trial.iter().map(|&t| metas[t].window.index).collect(),
         measured_w: rows0.y.clone(),
         before_w: sel.base.cv.pred.clone(),
         after_w: sel.last.cv.pred.clone(),
-        highlighted,
         terms_w: base_terms(&sel.last.full.theta, rows0),
         ..ReplayData::default()
+    };
+    let mut mark = |trial: usize, reason: String| {
+        if let Some(m) = metas.iter().find(|m| m.window.index == trial) {
+            let w = &m.window;
+            highlight(&mut replay, w, (w.t_traj_start, w.t_return_end), reason);
+        }
+    };
+    for t in located.worst_trials.iter().take(5) {
+        let why = "largest held-out residual of the base model";
+        mark(t.trial, format!("{why}: {:+.2} W", t.mean_w));
     }
+    for c in located.unexplained.iter().filter(|c| c.significant) {
+        for &t in &c.trials {
+            mark(t, format!("carries unexplained structure ({})", c.feature));
+        }
+    }
+    replay
 }
 
 /// Trials marked where the rest power steps most with its found terms.

@@ -43,7 +43,7 @@ pub(super) fn log_extras(
                 &computed
             }
         };
-        log_bars(w, joints, means)?;
+        log_bars(w, joints, means, true)?;
         w.send_static(
             paths::BREAKDOWN_NOTE,
             &TextDocument::from_markdown(breakdown_note(joints, colour_scale, means)),
@@ -102,7 +102,7 @@ fn reading_means(d: &crate::diagnose::ReplayData) -> Vec<TrialMean> {
 
 /// The diagnosis' error per trial (the mean over its readings) of the base model, with the
 /// accepted hypotheses and with the found terms: the whole-session overview of a long session;
-/// past [`super::blueprint::WINDOWED_ABOVE_TRIALS`] trials, each trial's shares as a model
+/// past [`super::blueprint::WINDOWED_ABOVE_TRIALS`] trials, each trial's joint shares as a model
 /// replay logs them (a long session's Joints tab takes its colour key from them).
 fn log_diagnosis_per_trial(
     w: &mut ChunkWriter<'_>,
@@ -112,7 +112,7 @@ fn log_diagnosis_per_trial(
     let d = &d.data;
     let means = reading_means(d);
     if means.len() > super::blueprint::WINDOWED_ABOVE_TRIALS {
-        log_bars(w, joints, &means)?;
+        log_bars(w, joints, &means, false)?;
     }
     let errors = [
         ("before", &d.before_w, "base model", style::NEUTRAL),
@@ -316,8 +316,14 @@ const EDGE_S: f64 = 0.01;
 /// energy turnover ([`TrialMean::turnover`]), one static bar chart per joint or term in its
 /// colour, the bars side by side around the trial's index (their width kept at any time zoom).
 /// Past [`super::blueprint::WINDOWED_ABOVE_TRIALS`] trials (a bar narrower than a pixel): one
-/// point per trial at its start on the session's time axis instead.
-fn log_bars(w: &mut ChunkWriter<'_>, joints: &[String], means: &[TrialMean]) -> Result<()> {
+/// point per trial at its start on the session's time axis instead. `terms`: the terms' bars too
+/// (a diagnosis logs the joints' only: no view of it shows the terms').
+fn log_bars(
+    w: &mut ChunkWriter<'_>,
+    joints: &[String],
+    means: &[TrialMean],
+    terms: bool,
+) -> Result<()> {
     let shares: Vec<Shares> = means.iter().map(TrialMean::turnover).collect();
     let pick = |term: bool, k: usize| {
         shares
@@ -340,8 +346,8 @@ fn log_bars(w: &mut ChunkWriter<'_>, joints: &[String], means: &[TrialMean]) -> 
         .chain(["interaction"].iter())
         .copied()
         .enumerate();
-    let series =
-        (joint_series.map(|(k, n)| (false, k, n))).chain(term_series.map(|(k, n)| (true, k, n)));
+    let term_series = term_series.filter(|_| terms).map(|(k, n)| (true, k, n));
+    let series = (joint_series.map(|(k, n)| (false, k, n))).chain(term_series);
     for (term, k, name) in series {
         let (path, colour, slots) = if term {
             (

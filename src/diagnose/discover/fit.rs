@@ -6,9 +6,7 @@ use anyhow::Result;
 use crate::N_PARAMS;
 use crate::diagnose::Quality;
 use crate::diagnose::reading_rows::Rows;
-use crate::diagnose::select::{
-    Held, PowerData, State, bic, bounds_for, design_map_for, solve_bounded_for,
-};
+use crate::diagnose::select::{Held, PowerData, State, bic, bounds, design_map, solve_bounded};
 use crate::lsq::Gram;
 
 /// Result of fitting the current model plus extra columns.
@@ -37,7 +35,7 @@ impl<'a, 'd> Base<'a, 'd> {
     /// The design of model `cur` on its rows.
     pub(crate) fn new(data: &'a PowerData<'d>, cur: &'a State) -> Result<Base<'a, 'd>> {
         let rows = data.rows(cur.lag)?;
-        let m = design_map_for(&cur.spec, &cur.full.theta);
+        let m = design_map(&cur.spec, &cur.full.theta);
         let p = m.ncols();
         let xm: Vec<Vec<f64>> = rows
             .x
@@ -98,13 +96,13 @@ impl<'a, 'd> Base<'a, 'd> {
         for g in &fg {
             total.add(g);
         }
-        let (lo, hi) = bounds_for(n, self.data.reference.as_deref());
+        let (lo, hi) = bounds(n, self.data.reference.as_deref());
         let mut fold_theta = Vec::with_capacity(k);
         for g in &fg {
             let train = total.minus(g);
-            fold_theta.push(solve_bounded_for(&train.g, &train.h, &lo, &hi)?);
+            fold_theta.push(solve_bounded(&train.g, &train.h, &lo, &hi)?);
         }
-        let full = solve_bounded_for(&total.g, &total.h, &lo, &hi)?;
+        let full = solve_bounded(&total.g, &total.h, &lo, &hi)?;
         let pred = (0..self.rows.len())
             .map(|r| {
                 let th = &fold_theta[self.data.folds.of_trial[self.rows.trial[r]]];

@@ -2,7 +2,10 @@
 //! was tried.
 
 use crate::diagnose::Quality;
+use crate::diagnose::meters::{artefact_name, checks, per_trial};
+use crate::diagnose::reading_rows::{Rows, TrialMeta};
 use crate::diagnose::select::Param;
+use crate::signals::{PowerSeries, Target};
 
 /// A term found beyond the library.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
@@ -123,4 +126,73 @@ pub struct DiscoveryReport {
     /// each with its reason.
     #[serde(default)]
     pub excluded: Vec<crate::diagnose::fields::ExcludedField>,
+}
+
+impl DiscoveryReport {
+    /// Stage: check every term discovery and the rest power found against the other meter
+    /// (`rows`: the rows discovery's terms are per reading of; `lag`, `w`: the sensor's).
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn check_meters(
+        &mut self,
+        target: Target,
+        power: &PowerSeries,
+        other_power: &PowerSeries,
+        metas: &[TrialMeta],
+        rows: &Rows,
+        lag: f64,
+        w: f64,
+    ) {
+        if other_power.t.is_empty() {
+            return;
+        }
+        let (rest1, net1) = per_trial(power, metas, lag, w);
+        let (rest2, net2) = per_trial(other_power, metas, lag, w);
+        let diff =
+            |a: &[f64], b: &[f64]| -> Vec<f64> { b.iter().zip(a).map(|(b, a)| b - a).collect() };
+        // Discovery's terms: what each adds, averaged over its trial's readings.
+        let n = metas.len();
+        let cols: Vec<Vec<f64>> = self
+            .accepted
+            .iter()
+            .filter(|t| t.contribution.len() == rows.len())
+            .map(|t| {
+                let (mut sum, mut cnt) = (vec![0.0; n], vec![0usize; n]);
+                for (r, &ti) in rows.trial.iter().enumerate() {
+                    sum[ti] += t.contribution[r];
+                    cnt[ti] += 1;
+                }
+                (0..n)
+                    .map(|i| {
+                        if cnt[i] > 0 {
+                            sum[i] / cnt[i] as f64
+                        } else {
+                            f64::NAN
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
+        if cols.len() == self.accepted.len() && !cols.is_empty() {
+            let found = checks(target, &diff(&net1, &net2), &cols);
+            for (t, c) in self.accepted.iter_mut().zip(found) {
+                if let Some(c) = c.as_ref().filter(|c| c.artefact()) {
+                    t.name = artefact_name(c, &t.fields.join(", "));
+                }
+                t.meter = c;
+            }
+        }
+        let Some(rest) = self.rest.as_mut() else {
+            return;
+        };
+        if rest.term_cols.len() != rest.found.len() || rest.found.is_empty() {
+            return;
+        }
+        let found = checks(target, &diff(&rest1, &rest2), &rest.term_cols);
+        for (t, c) in rest.found.iter_mut().zip(found) {
+            if let Some(c) = c.as_ref().filter(|c| c.artefact()) {
+                t.name = artefact_name(c, &t.field);
+            }
+            t.meter = c;
+        }
+    }
 }

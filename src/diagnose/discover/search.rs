@@ -11,8 +11,7 @@ use super::words::describe;
 use crate::N_JOINTS;
 use crate::diagnose::Quality;
 use crate::diagnose::parsimony::{arm_drives, drives, knots, shape_cols, unit_rms};
-use crate::diagnose::select::{PowerData, Rule, State, jackknife_se, trial_sse};
-use crate::diagnose::stats::improvement_p_value;
+use crate::diagnose::select::{self, PowerData, Rule, State, jackknife_se};
 use crate::diagnose::stepwise::{self, Gated, Holm, not_significant};
 
 /// A scored candidate.
@@ -191,11 +190,7 @@ impl<'a, 'd> Search<'a, 'd> {
 /// Paired one-sided p-value (held-out error by trial) that predictions `a` fit better than `b`.
 pub(super) fn p_better(search: &Search, a: &[f64], b: &[f64]) -> f64 {
     let rows = search.base.rows;
-    let nt = search.base.data.n_trials;
-    let ea = trial_sse(&rows.y, a, &rows.trial, nt);
-    let eb = trial_sse(&rows.y, b, &rows.trial, nt);
-    let d: Vec<f64> = eb.iter().zip(&ea).map(|(x, y)| x - y).collect();
-    improvement_p_value(&d)
+    select::p_better(&rows.y, a, b, &rows.trial, search.base.data.n_trials)
 }
 
 /// A base loss term times a signal (with its level) contains the plain pooled term: when it

@@ -1,0 +1,375 @@
+//! Scoring and greedy selection of hypotheses with validation that adding parameters cannot game:
+//! k-fold cross-validation by TRIAL (all readings of a trial are held out together), a one-sided
+//! paired test (t and signed-rank) of the per-trial held-out squared error (base vs base + hypothesis), the
+//! Bayesian information criterion on the full data, and a physical-plausibility check.
+//!
+//! All fits of all subsets of hypotheses come from one Gram matrix per fold (the extra regressors
+//! are linear maps of the pre-computed raw features), so scoring the whole library is cheap.
+
+mod fit;
+mod score;
+
+pub(crate) use fit::*;
+pub(crate) use score::*;
+pub use score::{HypothesisScore, Param};
+
+use anyhow::Result;
+
+use super::hypotheses::{Combine, Hypothesis, LATENCY_ID, N_RAW};
+use crate::N_PARAMS;
+
+/// How the forms of one mechanism compared at the selection step that decided between them.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct MechanismForms {
+    /// The mechanism.
+    pub mechanism: String,
+    /// Identifier of the best-scoring form.
+    pub winner: String,
+    /// Identifier of the second-best form.
+    pub runner_up: String,
+    /// Held-out RMSE with the winner and with the runner-up [W].
+    pub rmse_w: [f64; 2],
+    /// Margin: 1 − RMSE(winner)/RMSE(runner-up).
+    pub margin: f64,
+    /// One-sided paired p-value that the winner's per-trial held-out error is below the
+    /// runner-up's.
+    pub p_value: f64,
+    /// Whether the winning form was accepted.
+    pub accepted: bool,
+    /// The winner's and the runner-up's form in words (e.g. `per-Nm`, `per-ampere`).
+    #[serde(default)]
+    pub form_words: [String; 2],
+    /// The parameter(s) of the winner and of the runner-up, each fitted in its own form.
+    #[serde(default)]
+    pub params: [Vec<Param>; 2],
+    /// The data do not tell the forms apart: the winner's margin is not significant (p at or
+    /// above the significance level of the rule). The mechanism is then claimed with its form
+    /// left open ("form: confounded — X or Y"), not the winning form.
+    #[serde(default)]
+    pub confounded: bool,
+    /// The runner-up is a form of ANOTHER mechanism that the winner does not beat significantly
+    /// (`mechanism` then reads "X or Y"): the structure is located, no mechanism is named — the
+    /// winner stays in the model (its structure explained) but is not claimed.
+    #[serde(default)]
+    pub unnamed: bool,
+    /// For a claim [`super::parsimony`]'s rule located: the share of trial resamples in which
+    /// its test passed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stability: Option<f64>,
+}
+
+impl MechanismForms {
+    /// "W vs R: held-out RMSE a vs b W, p = … that W fits better": the evidence of the pairing.
+    pub fn evidence(&self) -> String {
+        let test = format!(
+            "{w} vs {r}: held-out RMSE {:.3} vs {:.3} W, p = {:.3} that {w} fits better",
+            self.rmse_w[0],
+            self.rmse_w[1],
+            self.p_value,
+            w = self.winner,
+            r = self.runner_up,
+        );
+        match self.stability {
+            Some(s) => format!(
+                "{test} (needed < {RIVAL_ALPHA}); held in {:.0} % of trial resamples (needed ≥ {:.0} %)",
+                100.0 * s,
+                100.0 * super::parsimony::STABLE
+            ),
+            None => format!("{test} (needed < {RIVAL_ALPHA})"),
+        }
+    }
+
+    /// "per-Nm or per-ampere" (winner first).
+    pub fn either(&self) -> String {
+        let w = |i: usize, id: &str| {
+            if self.form_words[i].is_empty() {
+                id.to_string()
+            } else {
+                self.form_words[i].clone()
+            }
+        };
+        format!("{} or {}", w(0, &self.winner), w(1, &self.runner_up))
+    }
+}
+
+/// Two hypotheses the data cannot tell apart: forward selection accepted both, but one is not
+/// significant given the other.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct Confounded {
+    /// The one kept (significant given the other).
+    pub kept: String,
+    /// The library term dropped in its place.
+    pub dropped: String,
+    /// Correlation of their regressors over the readings.
+    pub correlation: f64,
+    /// p-value of the dropped one given all the others (paired held-out test).
+    pub p_value: f64,
+    /// Relative held-out RMSE change from dropping it.
+    pub rel_change: f64,
+    /// The data do not tell the two apart in either direction (a library term, `dropped`, and a
+    /// term beyond the library, `kept`, on a recorded field the library does not read, that
+    /// explains the same part of the power). The library term — a mechanism written from physics
+    /// — stays claimed, and the other is named beside it as an explanation the data cannot
+    /// exclude. Then `p_value` is that of the library term fitting the held-out trials better
+    /// than the other, and `rel_change` is 1 − its held-out RMSE / the other's.
+    #[serde(default)]
+    pub tied: bool,
+}
+
+/// The result of greedy forward selection at the power level.
+pub(crate) struct Selection {
+    /// Every candidate scored against the base model (step 1), ranked.
+    pub first_step: Vec<HypothesisScore>,
+    /// The accepted hypotheses in the order they were added, with their score at that step.
+    pub accepted: Vec<HypothesisScore>,
+    /// Forms of each mechanism with more than one, compared where they were decided.
+    pub forms: Vec<MechanismForms>,
+    /// Library terms and the terms beyond the library that do their work
+    /// ([`super::select_discover::library_rivals`]).
+    pub confounded: Vec<Confounded>,
+    /// Base model state (no hypothesis, no lag).
+    pub base: State,
+    /// Final model state.
+    pub last: State,
+    /// Per accepted hypothesis id: the best other library mechanism the data also supported at
+    /// its step ([`Rule::supports`]) — its rival in [`super::parsimony`]'s rule.
+    pub rivals: Vec<(String, &'static Hypothesis)>,
+}
+
+/// Mechanism of a candidate (`None` = latency).
+fn mechanism(c: &Option<&'static Hypothesis>) -> &'static str {
+    c.map_or(LATENCY_ID, |h| h.mechanism)
+}
+
+/// Form of a candidate in words (empty for latency).
+fn form_words(c: &Option<&'static Hypothesis>) -> String {
+    c.map_or(String::new(), |h| h.form.to_string())
+}
+
+/// Compare the two best forms of every mechanism with more than one form among `scored`; the
+/// forms are confounded when the winner's per-trial margin is not significant at `alpha`.
+fn compare_forms(
+    data: &PowerData,
+    scored: &[(usize, Candidate)],
+    remaining: &[Option<&'static Hypothesis>],
+    alpha: f64,
+    decided: &mut Vec<MechanismForms>,
+) {
+    let mut mechs: Vec<&str> = remaining.iter().map(mechanism).collect();
+    mechs.sort_unstable();
+    mechs.dedup();
+    for m in mechs {
+        if decided.iter().any(|d| d.mechanism == m) {
+            continue;
+        }
+        let forms: Vec<(usize, &Candidate)> = scored
+            .iter()
+            .filter(|(i, _)| mechanism(&remaining[*i]) == m)
+            .map(|(i, c)| (*i, c))
+            .collect();
+        if forms.len() < 2 {
+            continue;
+        }
+        // `scored` is sorted best first.
+        let ((wi, w), (ri, r)) = (forms[0], forms[1]);
+        let words = [form_words(&remaining[wi]), form_words(&remaining[ri])];
+        decided.push(versus(data, m.into(), (w, r), words, alpha));
+    }
+}
+
+/// The winner `w` against the runner-up `r`: the paired held-out test by trial, their scores and
+/// parameters; confounded when the winner was accepted but its margin is not significant.
+fn versus(
+    data: &PowerData,
+    mechanism: String,
+    (w, r): (&Candidate, &Candidate),
+    form_words: [String; 2],
+    alpha: f64,
+) -> MechanismForms {
+    // Every lag's rows are the same readings: y and trial are the lag-0 rows'.
+    let y = &data.rows0().y;
+    let trial = &data.rows0().trial;
+    let p_value = p_better(y, &w.next.cv.pred, &r.next.cv.pred, trial, data.n_trials);
+    MechanismForms {
+        mechanism,
+        winner: w.score.id.clone(),
+        runner_up: r.score.id.clone(),
+        rmse_w: [w.score.rmse_after, r.score.rmse_after],
+        margin: 1.0 - w.score.rmse_after / r.score.rmse_after.max(1e-300),
+        p_value,
+        accepted: w.score.accepted,
+        form_words,
+        params: [w.score.params.clone(), r.score.params.clone()],
+        confounded: w.score.accepted && (p_value >= alpha || p_value.is_nan()),
+        unnamed: false,
+        stability: None,
+    }
+}
+
+/// Level of the paired test by which a library mechanism must beat another that also passes at
+/// its step. Measured: the project's own 72-trial bus-loss, drive-loss and per-Nm sessions beat
+/// their rival mechanism at p = 0.002–0.02 (margins 7–11 %); the campaign's two wrong names were
+/// ahead by p = 0.79 and 0.15 (margins 0.2 %, 0.5 %). At the rule's 0.001 the true ones would be
+/// left unnamed.
+pub(crate) const RIVAL_ALPHA: f64 = 0.05;
+
+/// Greedy forward selection: at each step score every remaining candidate against the current
+/// model, add the best one that passes the rule (the other forms of its mechanism leave the
+/// race), stop when none passes. Whether each is claimed beside the others and against its rival
+/// mechanism is [`super::parsimony`]'s rule, applied after every stage.
+pub(crate) fn select(
+    data: &PowerData,
+    candidates: &[&'static Hypothesis],
+    rule: &Rule,
+) -> Result<Selection> {
+    let base = state(data, Vec::new(), 0)?;
+    let mut cur = base.clone();
+    let mut remaining: Vec<Option<&'static Hypothesis>> =
+        candidates.iter().map(|&h| Some(h)).collect();
+    if data.lags.len() >= 3 {
+        remaining.push(None); // None = latency
+    }
+    let mut first_step: Vec<HypothesisScore> = Vec::new();
+    let mut accepted = Vec::new();
+    let mut forms: Vec<MechanismForms> = Vec::new();
+    let mut rivals = Vec::new();
+    for step in 1.. {
+        let mut scored: Vec<(usize, Candidate)> = Vec::new();
+        for (i, c) in remaining.iter().enumerate() {
+            let mut cand = match c {
+                Some(h) => score_term(data, &cur, h, step)?,
+                None => score_latency(data, &cur, step)?,
+            };
+            let (mut ok, mut why) = rule.judge(&cand.score);
+            if c.is_none() && !data.lag_claimable {
+                why = format!(
+                    "not claimed: the sensor-window scan finds no lag that beats every window at \
+                     lag 0 ({why})"
+                );
+                ok = false;
+            }
+            cand.score.accepted = ok;
+            cand.score.verdict = why;
+            scored.push((i, cand));
+        }
+        scored.sort_by(|a, b| {
+            (b.1.score.accepted, b.1.score.rel_improvement)
+                .partial_cmp(&(a.1.score.accepted, a.1.score.rel_improvement))
+                .unwrap_or(std::cmp::Ordering::Equal)
+        });
+        if step == 1 {
+            first_step = scored.iter().map(|(_, c)| c.score.clone()).collect();
+        }
+        let winner = scored
+            .first()
+            .filter(|(_, c)| c.score.accepted)
+            .map(|(i, _)| mechanism(&remaining[*i]));
+        // A mechanism's forms are compared at the step that accepts one of them (or at the
+        // first step when none is ever accepted: replaced below).
+        if let Some(m) = winner {
+            let mut here = Vec::new();
+            compare_forms(data, &scored, &remaining, rule.alpha, &mut here);
+            forms.retain(|f: &MechanismForms| f.mechanism != m);
+            forms.extend(here.into_iter().filter(|f| f.mechanism == m));
+        } else if step == 1 {
+            compare_forms(data, &scored, &remaining, rule.alpha, &mut forms);
+        }
+        let Some((idx, best)) = scored.first().filter(|(_, c)| c.score.accepted) else {
+            break;
+        };
+        let m = mechanism(&remaining[*idx]);
+        // Its rival: the best candidate of another library mechanism the data also support, at
+        // any value of its parameter (the form, not the size, is what the rule pairs).
+        let rival = scored.iter().find_map(|(i, c)| {
+            remaining[*i].filter(|h| h.mechanism != m && rule.supports(&c.score))
+        });
+        if let Some(r) = rival {
+            rivals.push((best.score.id.clone(), r));
+        }
+        accepted.push(best.score.clone());
+        cur = best.next.clone();
+        remaining.retain(|c| mechanism(c) != m);
+        if remaining.is_empty() {
+            break;
+        }
+    }
+    for f in forms.iter().filter(|f| f.confounded) {
+        for s in accepted.iter_mut().chain(first_step.iter_mut()) {
+            if s.id == f.winner {
+                s.verdict = format!(
+                    "{}; form: confounded — {} (margin {:.1} %, p = {:.2})",
+                    s.verdict,
+                    f.either(),
+                    100.0 * f.margin,
+                    f.p_value
+                );
+            }
+        }
+    }
+    Ok(Selection {
+        first_step,
+        accepted,
+        forms,
+        confounded: Vec::new(),
+        base,
+        last: cur,
+        rivals,
+    })
+}
+
+/// [`unname`] on a selection's own forms, claims and first-step scores.
+pub(crate) fn unname_all(sel: &mut Selection) {
+    unname(&mut sel.forms, &mut sel.accepted, &mut sel.first_step);
+}
+
+/// A winner [`super::parsimony`]'s rule locates is not claimed: it leaves
+/// `accepted` (it stays in the model) and its first-step score says why.
+fn unname(
+    forms: &mut [MechanismForms],
+    accepted: &mut Vec<HypothesisScore>,
+    first_step: &mut [HypothesisScore],
+) {
+    let unnamed: Vec<MechanismForms> = forms
+        .iter()
+        .filter(|f| f.unnamed && accepted.iter().any(|s| s.id == f.winner))
+        .cloned()
+        .collect();
+    for f in &unnamed {
+        accepted.retain(|s| s.id != f.winner);
+        // Neither mechanism is claimed in any form.
+        for g in forms.iter_mut().filter(|g| g.winner == f.winner) {
+            g.accepted = false;
+        }
+        let of_either = |id: &str| {
+            id == f.winner
+                || super::hypotheses::power_hypothesis(id)
+                    .is_some_and(|h| f.form_words.iter().any(|m| m == h.mechanism))
+        };
+        for s in first_step.iter_mut().filter(|s| of_either(&s.id)) {
+            s.accepted = false;
+            s.verdict = format!(
+                "located, not named: {} — form not identified ({}); {}",
+                f.mechanism,
+                f.evidence(),
+                s.verdict
+            );
+        }
+    }
+}
+
+/// The regressor of hypothesis `h` on row `r` (pooled terms weighted by `theta`).
+pub(crate) fn regressor(h: &Hypothesis, x: &[f64; N_RAW], theta: &[f64]) -> f64 {
+    let (off, len) = h.raw;
+    (0..len)
+        .map(|i| {
+            let w = match h.combine {
+                Combine::Single => 1.0,
+                Combine::WeightedByBase(b) => theta.get(b + i).copied().unwrap_or(1.0),
+            };
+            w * x[N_PARAMS + off + i]
+        })
+        .sum()
+}
+
+#[cfg(test)]
+pub(crate) mod tests;
