@@ -2,22 +2,26 @@
 //! set (library hypotheses, latency, terms found beyond the library): a claim is kept only if
 //! the final model fits the held-out trials significantly better (the paired test by trial at
 //! [`RIVAL_ALPHA`]) than the model without it in which EVERY other term takes its flexible
-//! variant — and, for a library claim, its rival mechanism (the best other mechanism the data
-//! supported at its step) stands in its place —, by the held-out gain every candidate must show,
-//! and only if that test passes in at least [`STABLE`] of bootstrap resamples of the trials. Otherwise it is located ("X or Y"), kept
-//! in the model as the best approximation, and not claimed. One test so answers "a second
-//! mechanism beside a first?", "which of two mechanisms?" and "stable?"; each claim's share of
-//! resamples is reported as its stability.
+//! variant, by the held-out gain every candidate must show, and only if that test passes in at
+//! least [`STABLE`] of bootstrap resamples of the trials. A claim that passes must also beat, in
+//! its place, each of its rivals: the flexible variant of every other library mechanism,
+//! modulated by the state the claim follows (session time for a library claim or a latency; a
+//! found loss term's own signal) — a neighbouring mechanism otherwise absorbs a form the
+//! library does not fit exactly (a per-joint gear friction told as braking, a one-sided copper
+//! drift as drive electronics). Otherwise it is located ("X or Y"), kept in the model as the
+//! best approximation, and not claimed. One test so answers "a second mechanism beside a
+//! first?", "which mechanism?" and "stable?"; each claim's share of resamples is reported as its
+//! stability.
 //!
 //! The flexible variant of a term with regressor g is the same for every term: g's per-joint
-//! features each with its own coefficient, its driving share (g on joints that drive), a free
-//! exponent (g·ln(|g|/ḡ), to first order), a threshold (the excess of |g| over ḡ) and a
-//! piecewise-linear function of the state it follows (g·s and g·(s − k)₊ at the quartiles k of
-//! s; session time for a term that follows none).
+//! features each with its own coefficient (and on each joint's driving side), its driving share
+//! (g on joints that drive), a free exponent (g·ln(|g|/ḡ), to first order), a threshold (the
+//! excess of |g| over ḡ) and a piecewise-linear function of the state it follows (g·s and
+//! g·(s − k)₊ at the quartiles k of s; session time for a term that follows none).
 
 use anyhow::Result;
 
-use super::hypotheses::{Hypothesis, LATENCY_ID};
+use super::hypotheses::{Combine, Hypothesis, LATENCY_ID, POWER_HYPOTHESES, RAW_THERMAL_DRIVING};
 use super::select::{
     PowerData, RIVAL_ALPHA, Rule, Selection, r2_rmse, regressor, state, trial_sse,
 };
@@ -100,12 +104,16 @@ pub(crate) fn unit_rms(cols: &mut Vec<Vec<f64>>) {
 }
 
 /// The flexible variant of library hypothesis `h` on the rows of `lag` (pooled by `theta`): its
-/// per-joint features, then [`shape_cols`] of its regressor over session time.
+/// per-joint features (for the gear friction |τ_i q̇_i|) and, for a per-joint mechanism, each
+/// on the joint's driving side (for the winding-resistance drift also its whole-τ² one-sided
+/// form, [`RAW_THERMAL_DRIVING`]), then [`shape_cols`] of its regressor over the state `s` (per
+/// reading).
 fn library_flexible(
     data: &PowerData,
     h: &Hypothesis,
     theta: &[f64],
     lag: usize,
+    s: &[f64],
 ) -> Result<Vec<Vec<f64>>> {
     let rows = data.rows(lag)?;
     let (off, len) = h.raw;
@@ -113,33 +121,98 @@ fn library_flexible(
     let mut cols: Vec<Vec<f64>> = (0..len)
         .map(|i| rows.x.iter().map(|x| feature(x, i)).collect())
         .collect();
+    if len == N_JOINTS {
+        let on_drive = |i| {
+            rows.x
+                .iter()
+                .map(move |x| feature(x, i) * f64::from(u8::from(drives(x, i))))
+        };
+        cols.extend((0..N_JOINTS).map(|i| on_drive(i).collect()));
+    }
+    match h.id {
+        "gear_friction" => {
+            cols.extend((0..N_JOINTS).map(|i| rows.x.iter().map(|x| x[i].abs()).collect()))
+        }
+        "thermal" => cols.push(rows.x.iter().map(|x| x[RAW_THERMAL_DRIVING]).collect()),
+        _ => {}
+    }
     let g: Vec<f64> = rows.x.iter().map(|x| regressor(h, x, theta)).collect();
+    let w = |i: usize| match h.combine {
+        Combine::WeightedByBase(b) => theta.get(b + i).copied().unwrap_or(1.0),
+        Combine::Single => 1.0,
+    };
     let driving = rows.x.iter().zip(&g).map(|(x, v)| match len {
         N_JOINTS => (0..N_JOINTS)
             .filter(|&i| drives(x, i))
-            .map(|i| feature(x, i) * theta.get(i).copied().unwrap_or(1.0))
+            .map(|i| feature(x, i) * w(i))
             .sum(),
         _ => v * f64::from(u8::from(arm_drives(x))),
     });
-    cols.extend(shape_cols(&g, driving.collect(), &rows.t));
+    cols.extend(shape_cols(&g, driving.collect(), s));
     Ok(cols)
 }
 
-/// The rival every library claim must beat: the transmitted power's efficiency on its driving
-/// side changing with a slow state — a form no library mechanism has, which a constant braking
-/// asymmetry would otherwise stand in for (issue 28 item 4). The braking side changing is not a
-/// rival: it is the braking asymmetry's own flexible form.
-const SPLIT: &str = "transmitted power's driving efficiency changing over the session";
+/// A rival no library mechanism has: the transmitted power's efficiency on its driving side
+/// changing with the claim's state, which a constant braking asymmetry would otherwise stand in
+/// for (issue 28 item 4). The braking side changing is not a rival: it is the braking
+/// asymmetry's own flexible form.
+const SPLIT: &str = "transmitted power's driving efficiency changing with the same state";
 
 /// [`SPLIT`]'s columns: the driving share of Σ τ_i q̇_i times the piecewise-linear function of
-/// session time `t` without its constant (a constant split is the braking asymmetry itself).
-fn split_by_time(x: &[[f64; super::hypotheses::N_RAW]], t: &[f64]) -> Vec<Vec<f64>> {
+/// the state `s` without its constant (a constant split is the braking asymmetry itself).
+fn split_by(x: &[[f64; super::hypotheses::N_RAW]], s: &[f64]) -> Vec<Vec<f64>> {
     let g: Vec<f64> = (x.iter())
         .map(|x| (0..N_JOINTS).map(|i| x[i].max(0.0)).sum())
         .collect();
-    let mut cols = state_cols(&g, t);
+    let mut cols = state_cols(&g, s);
     unit_rms(&mut cols);
     cols
+}
+
+/// The rivals a claim of mechanism `own` must beat in its place: every other library mechanism
+/// but those of `skip`, each with its forms (`first`, the one the data supported beside it,
+/// leads), then, when `split`, [`SPLIT`] (no forms).
+fn rivals(
+    own: &str,
+    skip: &[&'static Hypothesis],
+    first: Option<&str>,
+    split: bool,
+) -> Vec<(&'static str, Vec<&'static Hypothesis>)> {
+    let mut out: Vec<(&'static str, Vec<&'static Hypothesis>)> = Vec::new();
+    for h in POWER_HYPOTHESES.iter() {
+        if h.mechanism == own || skip.iter().any(|k| k.mechanism == h.mechanism) {
+            continue;
+        }
+        match out.iter_mut().find(|(m, _)| *m == h.mechanism) {
+            Some((_, forms)) => forms.push(h),
+            None => out.push((h.mechanism, vec![h])),
+        }
+    }
+    out.sort_by_key(|(m, _)| Some(*m) != first);
+    if split {
+        out.push((SPLIT, Vec::new()));
+    }
+    out
+}
+
+/// A rival's columns on the rows of `lag`: its forms' flexible variants modulated by the state
+/// `s` the claim follows ([`SPLIT`]'s for none).
+fn rival_cols(
+    data: &PowerData,
+    forms: &[&'static Hypothesis],
+    theta: &[f64],
+    lag: usize,
+    s: &[f64],
+) -> Result<Vec<Vec<f64>>> {
+    if forms.is_empty() {
+        return Ok(split_by(&data.rows(lag)?.x, s));
+    }
+    let mut cols = Vec::new();
+    for h in forms {
+        cols.extend(library_flexible(data, h, theta, lag, s)?);
+    }
+    unit_rms(&mut cols);
+    Ok(cols)
 }
 
 /// Share of the trial resamples in which a claim must pass the rule's test to be claimed.
@@ -165,15 +238,15 @@ pub(crate) fn apply(
         Some(r) if !r.pred.is_empty() => r.pred.clone(),
         _ => sel.last.cv.pred.clone(),
     };
+    let rows = data.rows(lag)?;
     let mut flex = Vec::with_capacity(n_terms);
     for h in &spec {
-        flex.push(library_flexible(data, h, &theta, lag)?);
+        flex.push(library_flexible(data, h, &theta, lag, &rows.t)?);
     }
     flex.extend(found.iter().map(|d| d.flexible.clone()));
     let names: Vec<String> = (spec.iter().map(|h| h.mechanism.to_string()))
         .chain(found.iter().map(|d| d.name.clone()))
         .collect();
-    let rows = data.rows(lag)?;
     let sse = |pred: &[f64]| trial_sse(&rows.y, pred, &rows.trial, data.n_trials);
     let rmse = |pred: &[f64]| r2_rmse(&rows.y, pred).1;
     let e_full = sse(&full_pred);
@@ -193,9 +266,30 @@ pub(crate) fn apply(
         }
     };
     let claimed = |id: &str| sel.accepted.iter().any(|a| a.id == id);
+    // A claim that passes must also beat each rival in its place (others flexible, on `base`
+    // with columns `cols`), at RIVAL_ALPHA: the first it does not beat makes it "X or Y".
+    let against = |mut t: Remainder,
+                   base: &super::discover::Base,
+                   cols: &[&Vec<f64>],
+                   list: Vec<(&'static str, Vec<&'static Hypothesis>)>,
+                   (l, s, k): (usize, &[f64], usize)|
+     -> Result<Remainder> {
+        for (name, forms) in list.iter().take_while(|_| !s.is_empty()) {
+            if !t.claimed() {
+                break;
+            }
+            let extra = rival_cols(data, forms, &theta, l, s)?;
+            let alt = base.fit(&cols.iter().copied().chain(&extra).collect::<Vec<_>>())?;
+            let mut v = test(&alt.pred, format!("the {name}"), Some(name), k, RIVAL_ALPHA);
+            (v.held, v.min_gain) = (t.held, 0.0);
+            if !v.claimed() {
+                t = v;
+            }
+        }
+        Ok(t)
+    };
     let bare = state(data, Vec::new(), lag)?;
     let base = super::discover::Base::new(data, &bare)?;
-    let split = split_by_time(&rows.x, &rows.t);
     let mut tests: Vec<(usize, Remainder)> = Vec::new();
     for k in (0..n_lib)
         .filter(|&j| claimed(spec[j].id))
@@ -204,35 +298,52 @@ pub(crate) fn apply(
         let others: Vec<usize> = (0..n_terms).filter(|&o| o != k).collect();
         let cols: Vec<&Vec<f64>> = others.iter().flat_map(|&o| &flex[o]).collect();
         let words: Vec<&str> = others.iter().map(|&o| names[o].as_str()).collect();
-        let of = remainder_of(&words);
-        let mut t = test(&base.fit(&cols)?.pred, of, None, k, rule.alpha);
-        // A library claim's rivals in its place, at RIVAL_ALPHA: the best other mechanism the
-        // data supported at its step, then the efficiency split by side changing over time.
-        let rival = (sel.rivals.iter()).find(|(id, r)| {
-            k < n_lib && id == spec[k].id && !spec.iter().any(|h| h.mechanism == r.mechanism)
-        });
-        let rival = rival.map(|(_, r)| {
-            let col = rows.x.iter().map(|x| regressor(r, x, &theta)).collect();
-            (vec![col], r.mechanism)
-        });
-        for (extra, name) in rival
-            .into_iter()
-            .chain((k < n_lib).then(|| (split.clone(), SPLIT)))
-        {
-            let alt = base.fit(&cols.iter().copied().chain(&extra).collect::<Vec<_>>())?;
-            let mut v = test(&alt.pred, format!("the {name}"), Some(name), k, RIVAL_ALPHA);
-            (v.held, v.min_gain) = (t.held, 0.0);
-            if !t.claimed() || !v.claimed() {
-                t = if t.claimed() { v } else { t };
-                break;
+        let t = test(
+            &base.fit(&cols)?.pred,
+            remainder_of(&words),
+            None,
+            k,
+            rule.alpha,
+        );
+        // Its rivals: every other library mechanism in flexible form, modulated by the state
+        // the claim follows (session time for a library claim, the one the data supported
+        // beside it first, then the driving efficiency changing; a found loss term's own
+        // signal — a rail load has none).
+        let (list, s) = match k < n_lib {
+            true => {
+                let first = (sel.rivals.iter())
+                    .find(|(id, _)| id == spec[k].id)
+                    .map(|(_, r)| r.mechanism);
+                (rivals(spec[k].mechanism, &spec, first, true), &rows.t)
             }
-        }
-        tests.push((k, t));
+            false => {
+                let d = &found[k - n_lib];
+                let own = (d.mechanism.as_deref())
+                    .and_then(super::hypotheses::power_hypothesis)
+                    .map_or("", |h| h.mechanism);
+                (rivals(own, &[], None, false), &d.follows)
+            }
+        };
+        tests.push((k, against(t, &base, &cols, list, (lag, s, k))?));
     }
+    // A latency must beat the same terms at no lag in flexible form, and beside them each
+    // other library mechanism's flexible variant (a misfitted loss's remainder lags its cause).
     if claimed(LATENCY_ID) && lag > 0 {
-        let alt = at_no_lag(data, &spec, &theta, &flex[n_lib..])?;
+        let t0 = &data.rows(0)?.t;
+        let mut flex0 = Vec::new();
+        for h in &spec {
+            flex0.extend(library_flexible(data, h, &theta, 0, t0)?);
+        }
+        let cols: Vec<&Vec<f64>> = flex0.iter().chain(flex[n_lib..].iter().flatten()).collect();
+        let bare0 = state(data, Vec::new(), 0)?;
+        let base0 = super::discover::Base::new(data, &bare0)?;
         let of = "the same terms at no lag, in flexible form".to_string();
-        tests.push((usize::MAX, test(&alt, of, None, n_terms, rule.alpha)));
+        let t = test(&base0.fit(&cols)?.pred, of, None, n_terms, rule.alpha);
+        let list = rivals(LATENCY_ID, &spec, None, false);
+        tests.push((
+            usize::MAX,
+            against(t, &base0, &cols, list, (0, t0, n_terms))?,
+        ));
     }
     for (k, t) in &tests {
         let lib = *k < n_lib || *k == usize::MAX;
@@ -275,23 +386,6 @@ fn remainder_of(words: &[&str]) -> String {
         [] => String::new(),
         w => format!("the remainder of the form of {}", w.join(" and ")),
     }
-}
-
-/// The held-out prediction of the final model's terms at no lag, in flexible form: the model
-/// without a latency claim (a latency adds no regressor).
-fn at_no_lag(
-    data: &PowerData,
-    spec: &[&'static Hypothesis],
-    theta: &[f64],
-    found: &[Vec<Vec<f64>>],
-) -> Result<Vec<f64>> {
-    let mut flex0 = Vec::new();
-    for h in spec {
-        flex0.extend(library_flexible(data, h, theta, 0)?);
-    }
-    let cols: Vec<&Vec<f64>> = flex0.iter().chain(found.iter().flatten()).collect();
-    let bare0 = state(data, Vec::new(), 0)?;
-    Ok(super::discover::Base::new(data, &bare0)?.fit(&cols)?.pred)
 }
 
 /// The test of a claim against the model without it, every other term flexible. Its resamples
