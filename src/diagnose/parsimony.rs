@@ -169,15 +169,30 @@ fn split_by(x: &[[f64; super::hypotheses::N_RAW]], s: &[f64]) -> Vec<Vec<f64>> {
     cols
 }
 
-/// The rivals a claim of mechanism `own` must beat in its place: every other library mechanism
-/// but those of `skip`, each with its forms (`first`, the one the data supported beside it,
-/// leads), then, when `split`, [`SPLIT`] (no forms).
+/// A rival a claim must answer in its place.
+enum Rival {
+    /// The best other library mechanism the data supported beside a library claim at its step,
+    /// in its library form: the claim must fit significantly better.
+    Plain(&'static Hypothesis),
+    /// Another library mechanism's forms in flexible variant, modulated by the state the claim
+    /// follows: it must not fit significantly better than the claim. A tie keeps the claim: a
+    /// flexible variant may contain the claim's own form (with each joint's efficiency refitted,
+    /// the per-joint gear friction and braking asymmetry span the same columns), and many more
+    /// parameters that fit no better are no evidence for their mechanism.
+    Flexible(&'static str, Vec<&'static Hypothesis>),
+    /// [`SPLIT`]: the claim must fit significantly better.
+    Split,
+}
+
+/// The rivals of a claim of mechanism `own`: `plain` (the library's supported rival), every
+/// other library mechanism but those of `skip` in flexible form (`plain`'s first), then, when
+/// `split`, [`SPLIT`].
 fn rivals(
     own: &str,
     skip: &[&'static Hypothesis],
-    first: Option<&str>,
+    plain: Option<&'static Hypothesis>,
     split: bool,
-) -> Vec<(&'static str, Vec<&'static Hypothesis>)> {
+) -> Vec<Rival> {
     let mut out: Vec<(&'static str, Vec<&'static Hypothesis>)> = Vec::new();
     for h in POWER_HYPOTHESES.iter() {
         if h.mechanism == own || skip.iter().any(|k| k.mechanism == h.mechanism) {
@@ -188,11 +203,12 @@ fn rivals(
             None => out.push((h.mechanism, vec![h])),
         }
     }
-    out.sort_by_key(|(m, _)| Some(*m) != first);
-    if split {
-        out.push((SPLIT, Vec::new()));
-    }
-    out
+    out.sort_by_key(|(m, _)| plain.is_none_or(|p| p.mechanism != *m));
+    let flexible = out.into_iter().map(|(m, f)| Rival::Flexible(m, f));
+    (plain.map(Rival::Plain).into_iter())
+        .chain(flexible)
+        .chain(split.then_some(Rival::Split))
+        .collect()
 }
 
 /// A rival's columns on the rows of `lag`: its forms' flexible variants modulated by the state
@@ -255,11 +271,14 @@ pub(crate) fn apply(
         let e = sse(alt);
         let d: Vec<f64> = e.iter().zip(&e_full).map(|(a, b)| a - b).collect();
         let (seed, gate) = (0x5eed_0000 + k as u64, (RIVAL_ALPHA, 0.0));
+        let worse: Vec<f64> = d.iter().map(|v| -v).collect();
         Remainder {
             of,
             rival,
             rmse: [rmse(&full_pred), rmse(alt)],
             p_value: improvement_p_value(&d),
+            p_rival: improvement_p_value(&worse),
+            beaten: false,
             held: resampled_stability(&e, &e_full, gate, STABILITY_DRAWS, seed),
             min_gain,
             level,
@@ -271,17 +290,26 @@ pub(crate) fn apply(
     let against = |mut t: Remainder,
                    base: &super::discover::Base,
                    cols: &[&Vec<f64>],
-                   list: Vec<(&'static str, Vec<&'static Hypothesis>)>,
+                   list: Vec<Rival>,
                    (l, s, k): (usize, &[f64], usize)|
      -> Result<Remainder> {
-        for (name, forms) in list.iter().take_while(|_| !s.is_empty()) {
-            if !t.claimed() {
+        let x = &data.rows(l)?.x;
+        for r in &list {
+            if !t.claimed() || s.is_empty() {
                 break;
             }
-            let extra = rival_cols(data, forms, &theta, l, s)?;
+            let (name, extra) = match r {
+                Rival::Plain(h) => {
+                    let col = x.iter().map(|x| regressor(h, x, &theta)).collect();
+                    (h.mechanism, vec![col])
+                }
+                Rival::Flexible(m, forms) => (*m, rival_cols(data, forms, &theta, l, s)?),
+                Rival::Split => (SPLIT, split_by(x, s)),
+            };
             let alt = base.fit(&cols.iter().copied().chain(&extra).collect::<Vec<_>>())?;
             let mut v = test(&alt.pred, format!("the {name}"), Some(name), k, RIVAL_ALPHA);
             (v.held, v.min_gain) = (t.held, 0.0);
+            v.beaten = matches!(r, Rival::Flexible(..));
             if !v.claimed() {
                 t = v;
             }
@@ -311,10 +339,12 @@ pub(crate) fn apply(
         // signal — a rail load has none).
         let (list, s) = match k < n_lib {
             true => {
-                let first = (sel.rivals.iter())
-                    .find(|(id, _)| id == spec[k].id)
-                    .map(|(_, r)| r.mechanism);
-                (rivals(spec[k].mechanism, &spec, first, true), &rows.t)
+                let plain = (sel.rivals.iter())
+                    .find(|(id, r)| {
+                        id == spec[k].id && !spec.iter().any(|h| h.mechanism == r.mechanism)
+                    })
+                    .map(|(_, r)| *r);
+                (rivals(spec[k].mechanism, &spec, plain, true), &rows.t)
             }
             false => {
                 let d = &found[k - n_lib];
@@ -401,6 +431,11 @@ struct Remainder {
     rmse: [f64; 2],
     /// One-sided paired p-value that the final model fits better.
     p_value: f64,
+    /// The same, that the model without the claim fits better.
+    p_rival: f64,
+    /// The claim is lost only if the model without it fits significantly better (a flexible
+    /// rival, [`Rival::Flexible`]).
+    beaten: bool,
     /// Share of trial resamples in which the test passes.
     held: f64,
     /// Held-out RMSE gain over the model without it that the claim must show.
@@ -417,7 +452,12 @@ impl Remainder {
 
     /// Whether the claim passes: significant and stable under resampling of the trials.
     fn claimed(&self) -> bool {
-        self.p_value < self.level && self.gain() >= self.min_gain && self.held >= STABLE
+        match self.beaten {
+            true => self.p_rival >= self.level,
+            false => {
+                self.p_value < self.level && self.gain() >= self.min_gain && self.held >= STABLE
+            }
+        }
     }
 
     /// "X or Y": the claim's mechanism `m` or what stands in its place; an unstable claim
@@ -430,6 +470,13 @@ impl Remainder {
     }
 
     fn words(&self) -> String {
+        if self.beaten {
+            return format!(
+                "located — not claimed: without it, {} fits the held-out trials better, at RMSE \
+                 {:.3} W against {:.3} W (p = {:.1e} < {:.0e})",
+                self.of, self.rmse[1], self.rmse[0], self.p_rival, self.level
+            );
+        }
         format!(
             "located — not claimed: without it, {} fits the held-out trials at RMSE {:.3} W \
              against {:.3} W (p = {:.1e}, needed < {:.0e} and a {:.0} % gain; held in {:.0} % \
