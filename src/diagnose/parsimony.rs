@@ -175,10 +175,11 @@ enum Rival {
     /// in its library form: the claim must fit significantly better.
     Plain(&'static Hypothesis),
     /// Another library mechanism's forms in flexible variant, modulated by the state the claim
-    /// follows: it must not fit significantly better than the claim. A tie keeps the claim: a
-    /// flexible variant may contain the claim's own form (with each joint's efficiency refitted,
-    /// the per-joint gear friction and braking asymmetry span the same columns), and many more
-    /// parameters that fit no better are no evidence for their mechanism.
+    /// follows: the claim must fit significantly better — unless the variant contains the
+    /// claim's own form (with each joint's efficiency refitted, the per-joint gear friction and
+    /// braking asymmetry span the same columns), which cannot be beaten: then it must not fit
+    /// significantly better (many more parameters that fit no better are no evidence for their
+    /// mechanism).
     Flexible(&'static str, Vec<&'static Hypothesis>),
     /// [`SPLIT`]: the claim must fit significantly better.
     Split,
@@ -230,6 +231,10 @@ fn rival_cols(
     unit_rms(&mut cols);
     Ok(cols)
 }
+
+/// Relative change of a rival's held-out RMSE below which adding the claim's own column to it
+/// changes nothing: the rival's flexible variant contains the claim's form.
+const NESTED: f64 = 1e-4;
 
 /// Share of the trial resamples in which a claim must pass the rule's test to be claimed.
 pub(crate) const STABLE: f64 = 0.8;
@@ -291,7 +296,7 @@ pub(crate) fn apply(
                    base: &super::discover::Base,
                    cols: &[&Vec<f64>],
                    list: Vec<Rival>,
-                   (l, s, k): (usize, &[f64], usize)|
+                   (l, s, k, own): (usize, &[f64], usize, Option<Vec<f64>>)|
      -> Result<Remainder> {
         let x = &data.rows(l)?.x;
         for r in &list {
@@ -306,10 +311,18 @@ pub(crate) fn apply(
                 Rival::Flexible(m, forms) => (*m, rival_cols(data, forms, &theta, l, s)?),
                 Rival::Split => (SPLIT, split_by(x, s)),
             };
-            let alt = base.fit(&cols.iter().copied().chain(&extra).collect::<Vec<_>>())?;
+            let mut alt_cols: Vec<&Vec<f64>> = cols.iter().copied().chain(&extra).collect();
+            let alt = base.fit(&alt_cols)?;
             let mut v = test(&alt.pred, format!("the {name}"), Some(name), k, RIVAL_ALPHA);
             (v.held, v.min_gain) = (t.held, 0.0);
-            v.beaten = matches!(r, Rival::Flexible(..));
+            // A flexible variant that contains the claim's form (adding the claim changes its
+            // fit by nothing) cannot be beaten: there the claim is lost only if it fits
+            // significantly better.
+            if let (Rival::Flexible(..), Some(own)) = (r, &own) {
+                alt_cols.push(own);
+                let with_own = rmse(&base.fit(&alt_cols)?.pred);
+                v.beaten = (1.0 - with_own / rmse(&alt.pred)).abs() < NESTED;
+            }
             if !v.claimed() {
                 t = v;
             }
@@ -344,17 +357,33 @@ pub(crate) fn apply(
                         id == spec[k].id && !spec.iter().any(|h| h.mechanism == r.mechanism)
                     })
                     .map(|(_, r)| *r);
-                (rivals(spec[k].mechanism, &spec, plain, true), &rows.t)
+                (
+                    rivals(spec[k].mechanism, &spec, plain, true),
+                    rows.t.as_slice(),
+                )
             }
             false => {
                 let d = &found[k - n_lib];
                 let own = (d.mechanism.as_deref())
                     .and_then(super::hypotheses::power_hypothesis)
                     .map_or("", |h| h.mechanism);
-                (rivals(own, &[], None, false), &d.follows)
+                let s = match d.follows.len() == rows.len() {
+                    true => d.follows.as_slice(),
+                    false => &[],
+                };
+                (rivals(own, &[], None, false), s)
             }
         };
-        tests.push((k, against(t, &base, &cols, list, (lag, s, k))?));
+        let own = match k < n_lib {
+            true => rows
+                .x
+                .iter()
+                .map(|x| regressor(spec[k], x, &theta))
+                .collect(),
+            false => found[k - n_lib].contribution.clone(),
+        };
+        let own = (own.len() == rows.len()).then_some(own);
+        tests.push((k, against(t, &base, &cols, list, (lag, s, k, own))?));
     }
     // A latency must beat the same terms at no lag in flexible form, and beside them each
     // other library mechanism's flexible variant (a misfitted loss's remainder lags its cause).
@@ -372,7 +401,7 @@ pub(crate) fn apply(
         let list = rivals(LATENCY_ID, &spec, None, false);
         tests.push((
             usize::MAX,
-            against(t, &base0, &cols, list, (0, t0, n_terms))?,
+            against(t, &base0, &cols, list, (0, t0, n_terms, None))?,
         ));
     }
     for (k, t) in &tests {
@@ -434,7 +463,7 @@ struct Remainder {
     /// The same, that the model without the claim fits better.
     p_rival: f64,
     /// The claim is lost only if the model without it fits significantly better (a flexible
-    /// rival, [`Rival::Flexible`]).
+    /// rival that contains the claim's form, [`Rival::Flexible`]).
     beaten: bool,
     /// Share of trial resamples in which the test passes.
     held: f64,
