@@ -104,10 +104,18 @@ fn assert_same(what: &str, memory: &Diagnosis, stream: &Diagnosis, rel: f64) {
 }
 
 /// Everything a diagnosis claims: accepted hypotheses and terms found beyond the library.
+/// What a diagnosis claims, and what it locates without claiming ("X or Y").
 fn claims(d: &Diagnosis) -> Vec<String> {
     let mut c: Vec<String> = d.accepted.iter().map(|h| h.id.clone()).collect();
+    c.extend(
+        d.forms
+            .iter()
+            .filter(|f| f.unnamed)
+            .map(|f| format!("located: {}", f.mechanism)),
+    );
     if let Some(r) = &d.discovery {
         c.extend(r.accepted.iter().map(|t| format!("found: {}", t.form)));
+        c.extend(r.located.iter().map(|t| format!("located: {}", t.form)));
     }
     c
 }
@@ -172,7 +180,11 @@ fn simulated_effect_session_streamed_equals_in_memory() {
     let paths = [path];
     let m = in_memory(&paths, &twin).unwrap();
     let s = streamed(&paths, &twin).unwrap();
-    assert!(!claims(&m).is_empty(), "nothing claimed:\n{}", m.summary);
+    assert!(
+        !claims(&m).is_empty(),
+        "nothing claimed or located:\n{}",
+        m.summary
+    );
     assert_eq!(claims(&m), claims(&s));
     assert!(m.torque.is_some(), "the torque level ran");
     assert_same("bus loss + thermal, twin", &m, &s, 1e-9);

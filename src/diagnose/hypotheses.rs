@@ -48,9 +48,10 @@ const BUS_POWER: usize = LEAK + 1;
 const DRIVE_NM: usize = BUS_POWER + 1;
 const DRIVING_CURRENT: usize = DRIVE_NM + 1;
 const DRIVING_TORQUE: usize = DRIVING_CURRENT + 1;
+const THERMAL_DRIVING: usize = DRIVING_TORQUE + 1;
 
 /// Number of per-sample extra features of the power-level hypotheses.
-pub const N_EXTRA: usize = DRIVING_TORQUE + 1;
+pub const N_EXTRA: usize = THERMAL_DRIVING + 1;
 
 /// Position in a raw row of the drive current Σ_i |τ_i| / K_i [A] (the drive-electronics
 /// loss's feature), for discovery's loss-term products.
@@ -71,6 +72,10 @@ pub(crate) const RAW_STRIBECK: usize = N_PARAMS + STRIBECK;
 pub(crate) const RAW_BUS_POWER: usize = N_PARAMS + BUS_POWER;
 /// See [`RAW_DRIVING_CURRENT`].
 pub(crate) const RAW_BRAKING: usize = N_PARAMS + BRAKING;
+/// Position in a raw row of the winding-resistance drift on the joints that drive,
+/// Σ_i (T_i − 25 °C)·τ_i² over τ_i q̇_i > 0 (moving): its one-sided form, whole τ² (no pre-idle
+/// reference — a driving joint does not drive at rest).
+pub(crate) const RAW_THERMAL_DRIVING: usize = N_PARAMS + THERMAL_DRIVING;
 
 /// Speed [rad/s] above which a joint moves (below it, velocity noise decides the sign of τq̇):
 /// a holding joint counts with the braking ones in the driving/braking split.
@@ -91,6 +96,7 @@ pub fn extras_into(s: &Sample, out: &mut [f64; N_EXTRA]) {
     let mut torque = 0.0;
     let mut driving = 0.0;
     let mut driving_nm = 0.0;
+    let mut thermal_driving = 0.0;
     for i in 0..N_JOINTS {
         let p = s.tau[i] * s.dq[i];
         out[THERMAL + i] = (s.temp[i] - T_REF_C) * (s.tau[i] * s.tau[i] - s.tau0_sq[i]);
@@ -100,6 +106,7 @@ pub fn extras_into(s: &Sample, out: &mut [f64; N_EXTRA]) {
         if p > 0.0 && s.dq[i].abs() > MOVING {
             driving += amps;
             driving_nm += s.tau[i].abs();
+            thermal_driving += (s.temp[i] - T_REF_C) * s.tau[i] * s.tau[i];
         }
         torque += s.tau[i].abs();
         gear += p.abs();
@@ -115,6 +122,7 @@ pub fn extras_into(s: &Sample, out: &mut [f64; N_EXTRA]) {
     out[DRIVE_NM] = torque;
     out[DRIVING_CURRENT] = driving;
     out[DRIVING_TORQUE] = driving_nm;
+    out[THERMAL_DRIVING] = thermal_driving;
 }
 
 /// How a hypothesis' raw features enter the model.

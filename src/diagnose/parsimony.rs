@@ -2,22 +2,26 @@
 //! set (library hypotheses, latency, terms found beyond the library): a claim is kept only if
 //! the final model fits the held-out trials significantly better (the paired test by trial at
 //! [`RIVAL_ALPHA`]) than the model without it in which EVERY other term takes its flexible
-//! variant — and, for a library claim, its rival mechanism (the best other mechanism the data
-//! supported at its step) stands in its place —, by the held-out gain every candidate must show,
-//! and only if that test passes in at least [`STABLE`] of bootstrap resamples of the trials. Otherwise it is located ("X or Y"), kept
-//! in the model as the best approximation, and not claimed. One test so answers "a second
-//! mechanism beside a first?", "which of two mechanisms?" and "stable?"; each claim's share of
-//! resamples is reported as its stability.
+//! variant, by the held-out gain every candidate must show, and only if that test passes in at
+//! least [`STABLE`] of bootstrap resamples of the trials. A claim that passes must also beat, in
+//! its place, each of its rivals: the flexible variant of every other library mechanism,
+//! modulated by the state the claim follows (session time for a library claim or a latency; a
+//! found loss term's own signal) — a neighbouring mechanism otherwise absorbs a form the
+//! library does not fit exactly (a per-joint gear friction told as braking, a one-sided copper
+//! drift as drive electronics). Otherwise it is located ("X or Y"), kept in the model as the
+//! best approximation, and not claimed. One test so answers "a second mechanism beside a
+//! first?", "which mechanism?" and "stable?"; each claim's share of resamples is reported as its
+//! stability.
 //!
 //! The flexible variant of a term with regressor g is the same for every term: g's per-joint
-//! features each with its own coefficient, its driving share (g on joints that drive), a free
-//! exponent (g·ln(|g|/ḡ), to first order), a threshold (the excess of |g| over ḡ) and a
-//! piecewise-linear function of the state it follows (g·s and g·(s − k)₊ at the quartiles k of
-//! s; session time for a term that follows none).
+//! features each with its own coefficient (and on each joint's driving side), its driving share
+//! (g on joints that drive), a free exponent (g·ln(|g|/ḡ), to first order), a threshold (the
+//! excess of |g| over ḡ) and a piecewise-linear function of the state it follows (g·s and
+//! g·(s − k)₊ at the quartiles k of s; session time for a term that follows none).
 
 use anyhow::Result;
 
-use super::hypotheses::{Hypothesis, LATENCY_ID};
+use super::hypotheses::{Combine, Hypothesis, LATENCY_ID, POWER_HYPOTHESES, RAW_THERMAL_DRIVING};
 use super::select::{
     PowerData, RIVAL_ALPHA, Rule, Selection, r2_rmse, regressor, state, trial_sse,
 };
@@ -100,12 +104,16 @@ pub(crate) fn unit_rms(cols: &mut Vec<Vec<f64>>) {
 }
 
 /// The flexible variant of library hypothesis `h` on the rows of `lag` (pooled by `theta`): its
-/// per-joint features, then [`shape_cols`] of its regressor over session time.
+/// per-joint features (for the gear friction |τ_i q̇_i|) and, for a per-joint mechanism, each
+/// on the joint's driving side (for the winding-resistance drift also its whole-τ² one-sided
+/// form, [`RAW_THERMAL_DRIVING`]), then [`shape_cols`] of its regressor over the state `s` (per
+/// reading).
 fn library_flexible(
     data: &PowerData,
     h: &Hypothesis,
     theta: &[f64],
     lag: usize,
+    s: &[f64],
 ) -> Result<Vec<Vec<f64>>> {
     let rows = data.rows(lag)?;
     let (off, len) = h.raw;
@@ -113,34 +121,120 @@ fn library_flexible(
     let mut cols: Vec<Vec<f64>> = (0..len)
         .map(|i| rows.x.iter().map(|x| feature(x, i)).collect())
         .collect();
+    if len == N_JOINTS {
+        let on_drive = |i| {
+            rows.x
+                .iter()
+                .map(move |x| feature(x, i) * f64::from(u8::from(drives(x, i))))
+        };
+        cols.extend((0..N_JOINTS).map(|i| on_drive(i).collect()));
+    }
+    match h.id {
+        "gear_friction" => {
+            cols.extend((0..N_JOINTS).map(|i| rows.x.iter().map(|x| x[i].abs()).collect()))
+        }
+        "thermal" => cols.push(rows.x.iter().map(|x| x[RAW_THERMAL_DRIVING]).collect()),
+        _ => {}
+    }
     let g: Vec<f64> = rows.x.iter().map(|x| regressor(h, x, theta)).collect();
+    let w = |i: usize| match h.combine {
+        Combine::WeightedByBase(b) => theta.get(b + i).copied().unwrap_or(1.0),
+        Combine::Single => 1.0,
+    };
     let driving = rows.x.iter().zip(&g).map(|(x, v)| match len {
         N_JOINTS => (0..N_JOINTS)
             .filter(|&i| drives(x, i))
-            .map(|i| feature(x, i) * theta.get(i).copied().unwrap_or(1.0))
+            .map(|i| feature(x, i) * w(i))
             .sum(),
         _ => v * f64::from(u8::from(arm_drives(x))),
     });
-    cols.extend(shape_cols(&g, driving.collect(), &rows.t));
+    cols.extend(shape_cols(&g, driving.collect(), s));
     Ok(cols)
 }
 
-/// The rival every library claim must beat: the transmitted power's efficiency on its driving
-/// side changing with a slow state — a form no library mechanism has, which a constant braking
-/// asymmetry would otherwise stand in for (issue 28 item 4). The braking side changing is not a
-/// rival: it is the braking asymmetry's own flexible form.
-const SPLIT: &str = "transmitted power's driving efficiency changing over the session";
+/// A rival no library mechanism has: the transmitted power's efficiency on its driving side
+/// changing with the claim's state, which a constant braking asymmetry would otherwise stand in
+/// for (issue 28 item 4). The braking side changing is not a rival: it is the braking
+/// asymmetry's own flexible form.
+const SPLIT: &str = "transmitted power's driving efficiency changing with the same state";
 
 /// [`SPLIT`]'s columns: the driving share of Σ τ_i q̇_i times the piecewise-linear function of
-/// session time `t` without its constant (a constant split is the braking asymmetry itself).
-fn split_by_time(x: &[[f64; super::hypotheses::N_RAW]], t: &[f64]) -> Vec<Vec<f64>> {
+/// the state `s` without its constant (a constant split is the braking asymmetry itself).
+fn split_by(x: &[[f64; super::hypotheses::N_RAW]], s: &[f64]) -> Vec<Vec<f64>> {
     let g: Vec<f64> = (x.iter())
         .map(|x| (0..N_JOINTS).map(|i| x[i].max(0.0)).sum())
         .collect();
-    let mut cols = state_cols(&g, t);
+    let mut cols = state_cols(&g, s);
     unit_rms(&mut cols);
     cols
 }
+
+/// A rival a claim must answer in its place.
+enum Rival {
+    /// The best other library mechanism the data supported beside a library claim at its step,
+    /// in its library form: the claim must fit significantly better.
+    Plain(&'static Hypothesis),
+    /// Another library mechanism's forms in flexible variant, modulated by the state the claim
+    /// follows: the claim must fit significantly better — unless the variant contains the
+    /// claim's own form (with each joint's efficiency refitted, the per-joint gear friction and
+    /// braking asymmetry span the same columns), which cannot be beaten: then it must not fit
+    /// significantly better (many more parameters that fit no better are no evidence for their
+    /// mechanism).
+    Flexible(&'static str, Vec<&'static Hypothesis>),
+    /// [`SPLIT`]: the claim must fit significantly better.
+    Split,
+}
+
+/// The rivals of a claim of mechanism `own`: `plain` (the library's supported rival), every
+/// other library mechanism but those of `skip` in flexible form (`plain`'s first), then, when
+/// `split`, [`SPLIT`].
+fn rivals(
+    own: &str,
+    skip: &[&'static Hypothesis],
+    plain: Option<&'static Hypothesis>,
+    split: bool,
+) -> Vec<Rival> {
+    let mut out: Vec<(&'static str, Vec<&'static Hypothesis>)> = Vec::new();
+    for h in POWER_HYPOTHESES.iter() {
+        if h.mechanism == own || skip.iter().any(|k| k.mechanism == h.mechanism) {
+            continue;
+        }
+        match out.iter_mut().find(|(m, _)| *m == h.mechanism) {
+            Some((_, forms)) => forms.push(h),
+            None => out.push((h.mechanism, vec![h])),
+        }
+    }
+    out.sort_by_key(|(m, _)| plain.is_none_or(|p| p.mechanism != *m));
+    let flexible = out.into_iter().map(|(m, f)| Rival::Flexible(m, f));
+    (plain.map(Rival::Plain).into_iter())
+        .chain(flexible)
+        .chain(split.then_some(Rival::Split))
+        .collect()
+}
+
+/// A rival's columns on the rows of `lag`: its forms' flexible variants modulated by the state
+/// `s` the claim follows ([`SPLIT`]'s for none).
+fn rival_cols(
+    data: &PowerData,
+    forms: &[&'static Hypothesis],
+    theta: &[f64],
+    lag: usize,
+    s: &[f64],
+) -> Result<Vec<Vec<f64>>> {
+    if forms.is_empty() {
+        return Ok(split_by(&data.rows(lag)?.x, s));
+    }
+    let mut cols = Vec::new();
+    for h in forms {
+        cols.extend(library_flexible(data, h, theta, lag, s)?);
+    }
+    unit_rms(&mut cols);
+    Ok(cols)
+}
+
+/// Relative change of a rival's held-out RMSE below which adding the claim's own column to it
+/// changes nothing: the rival's flexible variant contains the claim's form.
+const NESTED: f64 = 1e-4;
 
 /// Share of the trial resamples in which a claim must pass the rule's test to be claimed.
 pub(crate) const STABLE: f64 = 0.8;
@@ -165,15 +259,15 @@ pub(crate) fn apply(
         Some(r) if !r.pred.is_empty() => r.pred.clone(),
         _ => sel.last.cv.pred.clone(),
     };
+    let rows = data.rows(lag)?;
     let mut flex = Vec::with_capacity(n_terms);
     for h in &spec {
-        flex.push(library_flexible(data, h, &theta, lag)?);
+        flex.push(library_flexible(data, h, &theta, lag, &rows.t)?);
     }
     flex.extend(found.iter().map(|d| d.flexible.clone()));
     let names: Vec<String> = (spec.iter().map(|h| h.mechanism.to_string()))
         .chain(found.iter().map(|d| d.name.clone()))
         .collect();
-    let rows = data.rows(lag)?;
     let sse = |pred: &[f64]| trial_sse(&rows.y, pred, &rows.trial, data.n_trials);
     let rmse = |pred: &[f64]| r2_rmse(&rows.y, pred).1;
     let e_full = sse(&full_pred);
@@ -182,20 +276,61 @@ pub(crate) fn apply(
         let e = sse(alt);
         let d: Vec<f64> = e.iter().zip(&e_full).map(|(a, b)| a - b).collect();
         let (seed, gate) = (0x5eed_0000 + k as u64, (RIVAL_ALPHA, 0.0));
+        let worse: Vec<f64> = d.iter().map(|v| -v).collect();
         Remainder {
             of,
             rival,
             rmse: [rmse(&full_pred), rmse(alt)],
             p_value: improvement_p_value(&d),
+            p_rival: improvement_p_value(&worse),
+            beaten: false,
             held: resampled_stability(&e, &e_full, gate, STABILITY_DRAWS, seed),
             min_gain,
             level,
         }
     };
     let claimed = |id: &str| sel.accepted.iter().any(|a| a.id == id);
+    // A claim that passes must also beat each rival in its place (others flexible, on `base`
+    // with columns `cols`), at RIVAL_ALPHA: the first it does not beat makes it "X or Y".
+    let against = |mut t: Remainder,
+                   base: &super::discover::Base,
+                   cols: &[&Vec<f64>],
+                   list: Vec<Rival>,
+                   (l, s, k, own): (usize, &[f64], usize, Option<Vec<f64>>)|
+     -> Result<Remainder> {
+        let x = &data.rows(l)?.x;
+        for r in &list {
+            if !t.claimed() || s.is_empty() {
+                break;
+            }
+            let (name, extra) = match r {
+                Rival::Plain(h) => {
+                    let col = x.iter().map(|x| regressor(h, x, &theta)).collect();
+                    (h.mechanism, vec![col])
+                }
+                Rival::Flexible(m, forms) => (*m, rival_cols(data, forms, &theta, l, s)?),
+                Rival::Split => (SPLIT, split_by(x, s)),
+            };
+            let mut alt_cols: Vec<&Vec<f64>> = cols.iter().copied().chain(&extra).collect();
+            let alt = base.fit(&alt_cols)?;
+            let mut v = test(&alt.pred, format!("the {name}"), Some(name), k, RIVAL_ALPHA);
+            (v.held, v.min_gain) = (t.held, 0.0);
+            // A flexible variant that contains the claim's form (adding the claim changes its
+            // fit by nothing) cannot be beaten: there the claim is lost only if it fits
+            // significantly better.
+            if let (Rival::Flexible(..), Some(own)) = (r, &own) {
+                alt_cols.push(own);
+                let with_own = rmse(&base.fit(&alt_cols)?.pred);
+                v.beaten = (1.0 - with_own / rmse(&alt.pred)).abs() < NESTED;
+            }
+            if !v.claimed() {
+                t = v;
+            }
+        }
+        Ok(t)
+    };
     let bare = state(data, Vec::new(), lag)?;
     let base = super::discover::Base::new(data, &bare)?;
-    let split = split_by_time(&rows.x, &rows.t);
     let mut tests: Vec<(usize, Remainder)> = Vec::new();
     for k in (0..n_lib)
         .filter(|&j| claimed(spec[j].id))
@@ -204,35 +339,70 @@ pub(crate) fn apply(
         let others: Vec<usize> = (0..n_terms).filter(|&o| o != k).collect();
         let cols: Vec<&Vec<f64>> = others.iter().flat_map(|&o| &flex[o]).collect();
         let words: Vec<&str> = others.iter().map(|&o| names[o].as_str()).collect();
-        let of = remainder_of(&words);
-        let mut t = test(&base.fit(&cols)?.pred, of, None, k, rule.alpha);
-        // A library claim's rivals in its place, at RIVAL_ALPHA: the best other mechanism the
-        // data supported at its step, then the efficiency split by side changing over time.
-        let rival = (sel.rivals.iter()).find(|(id, r)| {
-            k < n_lib && id == spec[k].id && !spec.iter().any(|h| h.mechanism == r.mechanism)
-        });
-        let rival = rival.map(|(_, r)| {
-            let col = rows.x.iter().map(|x| regressor(r, x, &theta)).collect();
-            (vec![col], r.mechanism)
-        });
-        for (extra, name) in rival
-            .into_iter()
-            .chain((k < n_lib).then(|| (split.clone(), SPLIT)))
-        {
-            let alt = base.fit(&cols.iter().copied().chain(&extra).collect::<Vec<_>>())?;
-            let mut v = test(&alt.pred, format!("the {name}"), Some(name), k, RIVAL_ALPHA);
-            (v.held, v.min_gain) = (t.held, 0.0);
-            if !t.claimed() || !v.claimed() {
-                t = if t.claimed() { v } else { t };
-                break;
+        let t = test(
+            &base.fit(&cols)?.pred,
+            remainder_of(&words),
+            None,
+            k,
+            rule.alpha,
+        );
+        // Its rivals: every other library mechanism in flexible form, modulated by the state
+        // the claim follows (session time for a library claim, the one the data supported
+        // beside it first, then the driving efficiency changing; a found loss term's own
+        // signal — a rail load has none).
+        let (list, s) = match k < n_lib {
+            true => {
+                let plain = (sel.rivals.iter())
+                    .find(|(id, r)| {
+                        id == spec[k].id && !spec.iter().any(|h| h.mechanism == r.mechanism)
+                    })
+                    .map(|(_, r)| *r);
+                (
+                    rivals(spec[k].mechanism, &spec, plain, true),
+                    rows.t.as_slice(),
+                )
             }
-        }
-        tests.push((k, t));
+            false => {
+                let d = &found[k - n_lib];
+                let own = (d.mechanism.as_deref())
+                    .and_then(super::hypotheses::power_hypothesis)
+                    .map_or("", |h| h.mechanism);
+                let s = match d.follows.len() == rows.len() {
+                    true => d.follows.as_slice(),
+                    false => &[],
+                };
+                (rivals(own, &[], None, false), s)
+            }
+        };
+        let own = match k < n_lib {
+            true => rows
+                .x
+                .iter()
+                .map(|x| regressor(spec[k], x, &theta))
+                .collect(),
+            false => found[k - n_lib].contribution.clone(),
+        };
+        let own = (own.len() == rows.len()).then_some(own);
+        tests.push((k, against(t, &base, &cols, list, (lag, s, k, own))?));
     }
+    // A latency must beat the same terms at no lag in flexible form, and beside them each
+    // other library mechanism's flexible variant (a misfitted loss's remainder lags its cause).
     if claimed(LATENCY_ID) && lag > 0 {
-        let alt = at_no_lag(data, &spec, &theta, &flex[n_lib..])?;
+        let t0 = &data.rows(0)?.t;
+        let mut flex0 = Vec::new();
+        for h in &spec {
+            flex0.extend(library_flexible(data, h, &theta, 0, t0)?);
+        }
+        let cols: Vec<&Vec<f64>> = flex0.iter().chain(flex[n_lib..].iter().flatten()).collect();
+        let bare0 = state(data, Vec::new(), 0)?;
+        let base0 = super::discover::Base::new(data, &bare0)?;
         let of = "the same terms at no lag, in flexible form".to_string();
-        tests.push((usize::MAX, test(&alt, of, None, n_terms, rule.alpha)));
+        let t = test(&base0.fit(&cols)?.pred, of, None, n_terms, rule.alpha);
+        let list = rivals(LATENCY_ID, &spec, None, false);
+        tests.push((
+            usize::MAX,
+            against(t, &base0, &cols, list, (0, t0, n_terms, None))?,
+        ));
     }
     for (k, t) in &tests {
         let lib = *k < n_lib || *k == usize::MAX;
@@ -277,23 +447,6 @@ fn remainder_of(words: &[&str]) -> String {
     }
 }
 
-/// The held-out prediction of the final model's terms at no lag, in flexible form: the model
-/// without a latency claim (a latency adds no regressor).
-fn at_no_lag(
-    data: &PowerData,
-    spec: &[&'static Hypothesis],
-    theta: &[f64],
-    found: &[Vec<Vec<f64>>],
-) -> Result<Vec<f64>> {
-    let mut flex0 = Vec::new();
-    for h in spec {
-        flex0.extend(library_flexible(data, h, theta, 0)?);
-    }
-    let cols: Vec<&Vec<f64>> = flex0.iter().chain(found.iter().flatten()).collect();
-    let bare0 = state(data, Vec::new(), 0)?;
-    Ok(super::discover::Base::new(data, &bare0)?.fit(&cols)?.pred)
-}
-
 /// The test of a claim against the model without it, every other term flexible. Its resamples
 /// ask whether the evidence holds, not whether the size stays above the gain gate: a claim whose
 /// whole-data gain sits at the gate would pass about half of them by construction (the
@@ -307,6 +460,11 @@ struct Remainder {
     rmse: [f64; 2],
     /// One-sided paired p-value that the final model fits better.
     p_value: f64,
+    /// The same, that the model without the claim fits better.
+    p_rival: f64,
+    /// The claim is lost only if the model without it fits significantly better (a flexible
+    /// rival that contains the claim's form, [`Rival::Flexible`]).
+    beaten: bool,
     /// Share of trial resamples in which the test passes.
     held: f64,
     /// Held-out RMSE gain over the model without it that the claim must show.
@@ -323,7 +481,12 @@ impl Remainder {
 
     /// Whether the claim passes: significant and stable under resampling of the trials.
     fn claimed(&self) -> bool {
-        self.p_value < self.level && self.gain() >= self.min_gain && self.held >= STABLE
+        match self.beaten {
+            true => self.p_rival >= self.level,
+            false => {
+                self.p_value < self.level && self.gain() >= self.min_gain && self.held >= STABLE
+            }
+        }
     }
 
     /// "X or Y": the claim's mechanism `m` or what stands in its place; an unstable claim
@@ -336,6 +499,13 @@ impl Remainder {
     }
 
     fn words(&self) -> String {
+        if self.beaten {
+            return format!(
+                "located — not claimed: without it, {} fits the held-out trials better, at RMSE \
+                 {:.3} W against {:.3} W (p = {:.1e} < {:.0e})",
+                self.of, self.rmse[1], self.rmse[0], self.p_rival, self.level
+            );
+        }
         format!(
             "located — not claimed: without it, {} fits the held-out trials at RMSE {:.3} W \
              against {:.3} W (p = {:.1e}, needed < {:.0e} and a {:.0} % gain; held in {:.0} % \

@@ -58,6 +58,10 @@ pub struct Discovery {
     /// Its flexible variant's columns, per reading ([`crate::diagnose::parsimony`]).
     #[serde(skip)]
     pub flexible: Vec<Vec<f64>>,
+    /// The slow state a loss term follows, per reading (session time for none; empty for a rail
+    /// load): the other mechanisms' rivals in its place follow the same.
+    #[serde(skip)]
+    pub follows: Vec<f64>,
 }
 
 /// A candidate on other field(s) that fits as well as a found term (see [`Discovery::tied`]).

@@ -313,7 +313,7 @@ fn finish(
             .3;
         }
         off += ncols;
-        d.flexible = search.flexible(k);
+        (d.flexible, d.follows) = search.flexible(k);
         if let Some((_, ties)) = tied.iter_mut().find(|(i, _)| *i == k) {
             d.name = name_with_ties(&d.name, ties);
             d.tied = ties.drain(..).map(|t| t.term).collect();

@@ -138,15 +138,16 @@ impl<'a, 'd> Search<'a, 'd> {
     /// The flexible variant of candidate `i` ([`crate::diagnose::parsimony`]): its own columns, then for
     /// a loss term its value per joint and [`shape_cols`] of it over the signal it follows
     /// (session time for none; a family's mean over the joints), for a rail load a
-    /// piecewise-linear function of its field (net of the trial's pre-idle value).
-    pub(super) fn flexible(&self, i: usize) -> Vec<Vec<f64>> {
+    /// piecewise-linear function of its field (net of the trial's pre-idle value). Also the
+    /// state a loss term follows (empty for a rail load).
+    pub(super) fn flexible(&self, i: usize) -> (Vec<Vec<f64>>, Vec<f64>) {
         let (rows, rv) = (self.base.rows, &self.rv);
         let mut cols = self.cols(i);
         let (t, s) = match &self.cands[i].kind {
             Kind::Additive(f, _) | Kind::Step(f, _) => {
                 let (raw, base) = (&rv.raw[*f], &rv.baseline[*f]);
                 let Some((_, knots)) = knots(raw) else {
-                    return cols;
+                    return (cols, Vec::new());
                 };
                 let hinge = |k: f64| {
                     raw.iter()
@@ -156,7 +157,7 @@ impl<'a, 'd> Search<'a, 'd> {
                 cols.push(raw.iter().zip(base).map(|(a, b)| a - b).collect());
                 cols.extend(knots.into_iter().map(|k| hinge(k).collect()));
                 unit_rms(&mut cols);
-                return cols;
+                return (cols, Vec::new());
             }
             Kind::Product(t, Signal::Family(_, fs), _) => {
                 let mean = (0..rows.len())
@@ -179,7 +180,7 @@ impl<'a, 'd> Search<'a, 'd> {
         }
         cols.extend(shape_cols(&g, driving.collect(), &s));
         unit_rms(&mut cols);
-        cols
+        (cols, s)
     }
 
     pub(super) fn passes(&self, s: &Scored, level: f64) -> bool {
@@ -258,5 +259,6 @@ pub(super) fn to_discovery(
         },
         contribution: Vec::new(),
         flexible: Vec::new(),
+        follows: Vec::new(),
     }
 }

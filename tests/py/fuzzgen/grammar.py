@@ -79,6 +79,9 @@ def draw_effect(rng):
             if mech == "stribeck":
                 e["v_s"] = _lu(rng, 0.03, 0.3)
         e["expect"] = {"ids": LIBRARY[mech], "fields": [], "terms": []}
+        if mech == "thermal":  # the copper loss changing with the winding temperatures
+            e["expect"].update(fields=[f for k in range(7) for f in STATES["winding_temp"][0](k)],
+                               terms=TERMS["copper"])
     elif kind == "load":
         state = str(rng.choice([s for s in STATES if s not in ("ambient", "hidden_ou", "hidden_mode")]))
         e.update(mechanism="rail_load", state=state, joint=j, form=str(rng.choice(FORMS_SHAPE)),

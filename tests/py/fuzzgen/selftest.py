@@ -37,6 +37,8 @@ def check_scorer():
     gain = {"kind": "meter", "mechanism": "meter_gain", "expect": {
         "ids": [], "fields": ["/lf/mainboardstate.temperature[0]"], "terms": [], "meter": "mbs",
         "meter_words": grammar.METER_WORDS}}
+    rng = __import__("numpy").random.default_rng(28)
+    thermal = next(e for e in iter(lambda: grammar.draw_effect(rng), None) if e.get("mechanism") == "thermal")
     L = lambda i: {"kind": "library", "id": i, "name": i, "fields": []}
     F = lambda name, *f: {"kind": "found", "id": None, "name": name, "fields": list(f)}
     cases = [
@@ -57,6 +59,11 @@ def check_scorer():
         ([gain], [F("a gain error of the main-board meter", "/lf/mainboardstate.temperature[0]")],
          ["right"], ["named"]),
         ([gain, lib], [L("stribeck")], ["wrong"], ["missed", "missed"]),
+        # a found term on a winding temperature locates a thermal drift (another loss named)
+        ([thermal], [F("the drive-electronics loss per Nm of the driving joints rises with it",
+                       "/lowstate.motor_state[17].temperature[0]")], ["located"], ["located"]),
+        ([thermal], [F("the drive-electronics loss per Nm of the driving joints rises with it",
+                       "/lowstate.motor_state[17].temperature[1]")], ["wrong"], ["missed"]),
         # a meter artefact is right only on the meter it is on
         ([gain], [{"kind": "meter", "id": None, "fields": [], "name": "an artefact of the battery meter: "
                    "its reading changes, which the main-board meter does not show"}], ["wrong"], ["missed"]),
