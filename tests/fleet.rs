@@ -215,4 +215,49 @@ fn a_synthetic_fleet_shows_exactly_its_introduced_drifts() {
     assert!(dir.path().join("rep/fleet.png").metadata().unwrap().len() > 10_000);
     assert!(dir.path().join("fleet.rrd").metadata().unwrap().len() > 10_000);
     assert!(dir.path().join("sql/01_normal_equations.sql").exists());
+
+    // `--where` on one robot: its groups alone, each the same model as in the whole fleet's
+    // fit, and the engine reads about a quarter of the data (the other robots' files are
+    // pruned by their column statistics, only their footers read).
+    let picked = g1viz(
+        &[
+            "fleet",
+            "rows",
+            "--by",
+            "robot,day",
+            "--where",
+            "robot = 'g1_01'",
+            "--report",
+            "picked",
+        ],
+        dir.path(),
+    );
+    let mb_read = |out: &str| -> f64 {
+        let end = out
+            .find(" MB of Parquet data read")
+            .expect("data read in the summary");
+        let start = out[..end].rfind('(').unwrap() + 1;
+        out[start..end].parse().unwrap()
+    };
+    let (all, one) = (mb_read(&out), mb_read(&picked));
+    assert!(
+        one > 0.0 && one < 0.3 * all,
+        "{one} MB of {all} MB read:\n{picked}"
+    );
+    let picked = json(&dir.path().join("picked/fleet.json"));
+    let picked = picked["groups"].as_array().unwrap();
+    assert_eq!(picked.len(), 21);
+    for g in picked {
+        assert_eq!(g["key"][0], robot_name(1));
+        let same = groups.iter().find(|x| x["key"] == g["key"]).unwrap();
+        let theta = |g: &serde_json::Value| -> Vec<f64> {
+            serde_json::from_value(g["theta"].clone()).unwrap()
+        };
+        let (a, b) = (theta(g), theta(same));
+        let scale = b.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        assert!(
+            a.iter().zip(&b).all(|(x, y)| (x - y).abs() <= 1e-9 * scale),
+            "{a:?} vs {b:?}"
+        );
+    }
 }

@@ -22,6 +22,23 @@ pub fn param_label(p: usize, joints: &[String]) -> String {
     }
 }
 
+/// A markdown section `title` with a table of `rows` under `header` (a row "none" when empty).
+fn table(s: &mut String, title: &str, header: &[&str], rows: impl Iterator<Item = String>) {
+    let _ = writeln!(
+        s,
+        "\n## {title}\n\n| {} |\n|{}",
+        header.join(" | "),
+        "---|".repeat(header.len())
+    );
+    let before = s.len();
+    rows.for_each(|r| {
+        let _ = writeln!(s, "{r}");
+    });
+    if s.len() == before {
+        let _ = writeln!(s, "| none |{}", " |".repeat(header.len() - 1));
+    }
+}
+
 /// The markdown report.
 pub fn markdown(fit: &FleetFit, drift: Option<&Drift>, joints: &[String]) -> String {
     let mut s = String::from("# Fleet power models\n\n");
@@ -57,18 +74,10 @@ pub fn markdown(fit: &FleetFit, drift: Option<&Drift>, joints: &[String]) -> Str
         s.push_str("\nNo drift analysis: it needs `--by` with robot and a period (day, week or session).\n");
         return s;
     };
-    let _ = writeln!(
-        s,
-        "\n## Drifts (slope beyond {} standard errors)\n\n| robot | parameter | level at start | slope per week | z | change over the periods |\n|---|---|---|---|---|---|",
-        d.z
-    );
-    let mut any = false;
-    for t in d.drifting() {
-        any = true;
-        let span = t.points.last().map(|p| p.t_weeks).unwrap_or(0.0)
-            - t.points.first().map(|p| p.t_weeks).unwrap_or(0.0);
-        let _ = writeln!(
-            s,
+    let drifts = d.drifting().map(|t| {
+        let span = t.points.last().map_or(0.0, |p| p.t_weeks)
+            - t.points.first().map_or(0.0, |p| p.t_weeks);
+        format!(
             "| {} | {} | {:.4} ± {:.4} | {:+.4} ± {:.4} | {:+.1} | {:+.1} % |",
             t.robot,
             param_label(t.param, joints),
@@ -78,30 +87,38 @@ pub fn markdown(fit: &FleetFit, drift: Option<&Drift>, joints: &[String]) -> Str
             t.slope_se,
             t.z,
             100.0 * t.slope * span / t.level
-        );
-    }
-    if !any {
-        s.push_str("| none | | | | | |\n");
-    }
-    let _ = writeln!(
-        s,
-        "\n## Robots differing from the fleet (level at start beyond {} combined standard errors)\n\n| robot | parameter | level | other robots | z |\n|---|---|---|---|---|",
-        d.z
-    );
-    for o in &d.outliers {
-        let _ = writeln!(
-            s,
+        )
+    });
+    let title = format!("Drifts (slope beyond {} standard errors)", d.z);
+    let header = [
+        "robot",
+        "parameter",
+        "level at start",
+        "slope per week",
+        "z",
+        "change over the periods",
+    ];
+    table(&mut s, &title, &header, drifts);
+    let levels = d.outliers.iter().map(|o| {
+        format!(
             "| {} | {} | {:.4} | {:.4} | {:+.1} |",
             o.robot,
             param_label(o.param, joints),
             o.level,
             o.fleet_level,
             o.z
-        );
-    }
-    if d.outliers.is_empty() {
-        s.push_str("| none | | | | |\n");
-    }
+        )
+    });
+    let title = format!(
+        "Robots differing from the fleet (level at start beyond {} combined standard errors)",
+        d.z
+    );
+    table(
+        &mut s,
+        &title,
+        &["robot", "parameter", "level", "other robots", "z"],
+        levels,
+    );
     s.push_str("\n![flagged parameters per robot over time](fleet.png)\n");
     s
 }

@@ -9,7 +9,6 @@ use anyhow::Result;
 use rerun::{Color, Scalars, SeriesPoints, TextDocument, TextLog};
 
 use super::drift::Drift;
-use super::report::param_label;
 use crate::power::PowerModel;
 use crate::viz::{ChunkWriter, Sink, open_stream};
 
@@ -53,37 +52,10 @@ pub fn write_rrd(path: &Path, drift: &Drift, joints: &[String], markdown: &str) 
             &times,
             Scalars::new(values).columns_of_unit_batches()?,
         )?;
-        if t.drifting {
-            let last = times.last().copied().unwrap_or(0.0);
-            w.send_row(
-                "fleet/flags",
-                last,
-                &TextLog::new(format!(
-                    "{} {}: drift {:+.4} ± {:.4} per week (z {:+.1})",
-                    t.robot,
-                    param_label(t.param, joints),
-                    t.slope,
-                    t.slope_se,
-                    t.z
-                ))
-                .with_level("WARN"),
-            )?;
-        }
     }
-    for o in &drift.outliers {
-        w.send_row(
-            "fleet/flags",
-            0.0,
-            &TextLog::new(format!(
-                "{} {}: level {:.4}, other robots {:.4} (z {:+.1})",
-                o.robot,
-                param_label(o.param, joints),
-                o.level,
-                o.fleet_level,
-                o.z
-            ))
-            .with_level("WARN"),
-        )?;
+    for (t_weeks, text) in drift.flags(joints) {
+        let log = TextLog::new(text).with_level("WARN");
+        w.send_row("fleet/flags", t_weeks * WEEK_S, &log)?;
     }
     w.send_static("fleet/report", &TextDocument::from_markdown(markdown))?;
     out.finish()
