@@ -104,6 +104,13 @@ impl Drift {
         drifts.chain(levels).collect()
     }
 
+    /// Whether `robot`'s parameter `param` drifts or differs from the fleet.
+    pub fn is_flagged(&self, param: usize, robot: &str) -> bool {
+        let of = |p: usize, r: &str| p == param && r == robot;
+        self.drifting().any(|t| of(t.param, &t.robot))
+            || self.outliers.iter().any(|o| of(o.param, &o.robot))
+    }
+
     /// The drifting trends.
     pub fn drifting(&self) -> impl Iterator<Item = &Trend> {
         self.trends.iter().filter(|t| t.drifting)

@@ -24,7 +24,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{Context, Result, bail};
-use datafusion::arrow::array::{Array, Float64Array, StringArray};
+use datafusion::arrow::array::{Array, Float64Array, Int64Array, StringArray};
 use datafusion::arrow::compute::cast;
 use datafusion::arrow::datatypes::DataType;
 use datafusion::arrow::record_batch::RecordBatch;
@@ -71,53 +71,103 @@ fn bytes_scanned(plan: &dyn ExecutionPlan) -> usize {
         .sum::<usize>()
 }
 
+/// The columns the queries read, and whether each holds text (else numbers).
+fn read_columns() -> impl Iterator<Item = (String, bool)> {
+    let text = ["robot", "session", "target"].map(|c| (c.to_string(), true));
+    let numbers = ["trial", "t_ns", "y_w", "sigma_omega"].map(|c| (c.to_string(), false));
+    (text.into_iter().chain(numbers))
+        .chain((0..N_PARAMS).map(|p| (crate::rows::phi_column(p), false)))
+}
+
+/// Check from its footer that `path` is a row table with every column the queries read, of a
+/// usable type; its joint names.
+fn check_table(path: &Path) -> Result<Option<Vec<String>>> {
+    let table = crate::rows::open_table(path)?;
+    let schema = table.schema();
+    for (name, text) in read_columns() {
+        let Ok(field) = schema.field_with_name(&name) else {
+            bail!(
+                "{}: no column `{name}` (not a table of `g1viz export rows`)",
+                path.display()
+            );
+        };
+        let t = field.data_type();
+        let usable = match text {
+            true => matches!(t, DataType::Utf8 | DataType::LargeUtf8 | DataType::Utf8View),
+            false => t.is_numeric(),
+        };
+        if !usable {
+            let want = if text { "text" } else { "numbers" };
+            bail!(
+                "{}: column `{name}` has type {t}, expected {want}",
+                path.display()
+            );
+        }
+    }
+    crate::rows::joint_names_of(&table, path)
+}
+
 impl Engine {
     /// Register `paths` (Parquet files, or folders searched recursively for `*.parquet`, e.g. a
     /// dataset partitioned as ROBOT/DAY.parquet) as one listing table `rows`. Every path must
-    /// exist and hold at least one file; the files must share the row table's schema.
+    /// exist and hold at least one file; each file's footer must hold every column the queries
+    /// read, and all name the same joints.
     pub fn open(paths: &[PathBuf]) -> Result<Engine> {
         let mut files = Vec::new();
-        let mut urls = Vec::new();
         for p in paths {
             let before = files.len();
             if p.is_dir() {
                 parquet_files(p, &mut files)?;
+                if files.len() == before {
+                    bail!(
+                        "{}: no .parquet files in the folder or below it",
+                        p.display()
+                    );
+                }
             } else if p.exists() {
                 files.push(p.clone());
             } else {
                 bail!("{}: no such file or folder", p.display());
             }
-            if files.len() == before {
-                bail!("{}: no .parquet files in the folder", p.display());
-            }
-            let mut url = std::path::absolute(p)?.display().to_string();
-            if p.is_dir() && !url.ends_with('/') {
-                url.push('/');
-            }
-            urls.push(url);
         }
         files.sort();
-        let Some(first) = files.first() else {
+        files.dedup();
+        if files.is_empty() {
             bail!("no row tables given");
-        };
-        let joint_names = crate::rows::table_joint_names(first)?;
+        }
+        let mut joint_names = None;
+        for (k, f) in files.iter().enumerate() {
+            let names = check_table(f)?;
+            if k == 0 {
+                joint_names = names;
+            } else if names != joint_names {
+                bail!(
+                    "{}: joint names {names:?} differ from {}'s {joint_names:?}",
+                    f.display(),
+                    files[0].display()
+                );
+            }
+        }
+        let urls = (files.iter()).map(|f| Ok(std::path::absolute(f)?.display().to_string()));
+        let urls: Vec<String> = urls.collect::<Result<_>>()?;
         let runtime = tokio::runtime::Builder::new_multi_thread()
             .build()
             .context("starting the query engine's runtime")?;
         let ctx = SessionContext::new_with_config(
             SessionConfig::new().set_bool("datafusion.execution.parquet.pushdown_filters", true),
         );
-        let shown = paths.iter().map(|p| p.display().to_string());
-        let shown = shown.collect::<Vec<_>>().join(", ");
+        // The files are listed here, so none is skipped for its name.
+        let options = ParquetReadOptions {
+            file_extension: "",
+            ..Default::default()
+        };
         runtime
             .block_on(async {
-                let df = ctx
-                    .read_parquet(urls, ParquetReadOptions::default())
-                    .await?;
+                let df = ctx.read_parquet(urls, options).await?;
                 ctx.register_table("rows", df.into_view())?;
                 anyhow::Ok(())
             })
-            .with_context(|| format!("reading the row tables {shown}"))?;
+            .with_context(|| format!("reading the row tables under {}", paths[0].display()))?;
         Ok(Engine {
             ctx,
             runtime,
@@ -137,28 +187,16 @@ impl Engine {
     }
 }
 
-/// One result column as numbers (any numeric type the engine returned).
-fn numbers(b: &RecordBatch, name: &str) -> Result<Float64Array> {
-    let c = b
-        .column_by_name(name)
-        .context(format!("query result has no column {name}"))?;
-    Ok(cast(c, &DataType::Float64)?
-        .as_any()
-        .downcast_ref::<Float64Array>()
-        .context("cast to Float64")?
-        .clone())
+/// One result column cast to `to` (the engine may return any numeric type; keys as text).
+fn column_as<A: Array + Clone + 'static>(b: &RecordBatch, name: &str, to: DataType) -> Result<A> {
+    let c =
+        (b.column_by_name(name)).with_context(|| format!("query result has no column {name}"))?;
+    let c = cast(c, &to).with_context(|| format!("query result column {name} as {to}"))?;
+    (c.as_any().downcast_ref::<A>().cloned()).with_context(|| format!("column {name} as {to}"))
 }
 
-/// One result column as text (keys: strings and integers).
-fn texts(b: &RecordBatch, name: &str) -> Result<StringArray> {
-    let c = b
-        .column_by_name(name)
-        .context(format!("query result has no column {name}"))?;
-    Ok(cast(c, &DataType::Utf8)?
-        .as_any()
-        .downcast_ref::<StringArray>()
-        .context("cast to text")?
-        .clone())
+fn numbers(b: &RecordBatch, name: &str) -> Result<Float64Array> {
+    column_as(b, name, DataType::Float64)
 }
 
 /// A query's result as CSV (arrow's writer: a header, then one line per row).
@@ -323,14 +361,14 @@ fn grams(b: &RecordBatch) -> Result<Vec<(Gram, f64)>> {
 fn result_rows(b: &RecordBatch, by: &[Key]) -> Result<Vec<(Vec<String>, Option<TrialId>)>> {
     let keys: Vec<StringArray> = by
         .iter()
-        .map(|k| texts(b, k.name()))
+        .map(|k| column_as(b, k.name(), DataType::Utf8))
         .collect::<Result<_>>()?;
     let trial: Option<Vec<StringArray>> = b
         .column_by_name("trial_trial")
         .map(|_| {
             sql::TRIAL_COLUMNS
                 .iter()
-                .map(|c| texts(b, &format!("trial_{c}")))
+                .map(|c| column_as(b, &format!("trial_{c}"), DataType::Utf8))
                 .collect::<Result<_>>()
         })
         .transpose()?;
@@ -441,14 +479,16 @@ fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<Str
     }
     let q = sql::normal_equations(by, false, Pick::All, target, filter);
     for b in run.run("normal_equations", q)? {
-        let (t0, t1) = (numbers(&b, "t_min")?, numbers(&b, "t_max")?);
+        // Reading times stay integer nanoseconds (an f64 rounds them by up to 256 ns).
+        let time = |name| column_as::<Int64Array>(&b, name, DataType::Int64);
+        let (t0, t1) = (time("t_min")?, time("t_max")?);
         let sums = grams(&b)?;
         for (r, (key, _)) in result_rows(&b, by)?.into_iter().enumerate() {
             let w = groups
                 .get_mut(&key)
                 .context(format!("group {key:?} has no trials"))?;
             w.total = sums[r].clone();
-            w.t_ns = (t0.value(r) as i64, t1.value(r) as i64);
+            w.t_ns = (t0.value(r), t1.value(r));
         }
     }
     Ok(groups)

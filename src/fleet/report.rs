@@ -123,12 +123,16 @@ pub fn markdown(fit: &FleetFit, drift: Option<&Drift>, joints: &[String]) -> Str
     s
 }
 
-/// The figure: one panel per flagged parameter (up to 6; the first trend's when none is
-/// flagged), every robot's periods with ±1 s.e. bars, its fitted line; flagged robots in red.
-pub fn figure(path: &Path, drift: &Drift, joints: &[String]) -> Result<()> {
-    let mut params: Vec<usize> = drift
-        .drifting()
-        .map(|t| t.param)
+/// The parameters the figure and the recording show: each flagged one (up to 6), else the
+/// first trend's; with the robots flagged on each.
+pub fn shown_params(drift: &Drift) -> Vec<(usize, Vec<&str>)> {
+    let flagged = |p: usize| -> Vec<&str> {
+        let of = drift.trends.iter().filter(|t| t.param == p);
+        of.filter(|t| drift.is_flagged(p, &t.robot))
+            .map(|t| t.robot.as_str())
+            .collect()
+    };
+    let mut params: Vec<usize> = (drift.drifting().map(|t| t.param))
         .chain(drift.outliers.iter().map(|o| o.param))
         .collect();
     params.sort();
@@ -137,6 +141,13 @@ pub fn figure(path: &Path, drift: &Drift, joints: &[String]) -> Result<()> {
         params.extend(drift.trends.first().map(|t| t.param));
     }
     params.truncate(6);
+    params.into_iter().map(|p| (p, flagged(p))).collect()
+}
+
+/// The figure: one panel per [`shown_params`], every robot's periods with ±1 s.e. bars, its
+/// fitted line; flagged robots in red.
+pub fn figure(path: &Path, drift: &Drift, joints: &[String]) -> Result<()> {
+    let params: Vec<usize> = shown_params(drift).iter().map(|(p, _)| *p).collect();
     let cols = params.len().clamp(1, 3);
     let rows = params.len().div_ceil(cols).max(1);
     write_png(path, (480 * cols as u32, 360 * rows as u32), |root| {
@@ -163,11 +174,7 @@ pub fn figure(path: &Path, drift: &Drift, joints: &[String]) -> Result<()> {
                 .draw()
                 .map_err(plot_err)?;
             for t in &of {
-                let flagged = t.drifting
-                    || drift
-                        .outliers
-                        .iter()
-                        .any(|o| o.param == p && o.robot == t.robot);
+                let flagged = drift.is_flagged(p, &t.robot);
                 let colour = if flagged {
                     RED
                 } else {
@@ -207,7 +214,7 @@ pub fn figure(path: &Path, drift: &Drift, joints: &[String]) -> Result<()> {
                     });
                 }
             }
-            if of.iter().any(|t| t.drifting) || drift.outliers.iter().any(|o| o.param == p) {
+            if of.iter().any(|t| drift.is_flagged(p, &t.robot)) {
                 chart
                     .configure_series_labels()
                     .label_font((FONT, 12))
