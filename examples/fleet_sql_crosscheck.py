@@ -4,11 +4,14 @@ their results with the embedded engine's (DataFusion) CSVs beside each query.
 
     g1viz fleet ROWS_DIR --by robot,week --save-sql sql/
     python3 examples/fleet_sql_crosscheck.py sql/ ROWS_DIR            # DuckDB
-    python3 examples/fleet_sql_crosscheck.py sql/ ROWS_DIR --spark    # + Spark SQL, local[2]
+    python3 examples/fleet_sql_crosscheck.py sql/ ROWS_DIR --spark    # + Spark SQL
 
-Needs `pip install duckdb` (and `pyspark` with Java 17 for --spark). The only engine-specific
-line is the registration of the Parquet files as the view `rows`; the queries are the files'
-text. Each result row is matched by its key columns (robot, session, day, week, trial_*); every
+Needs `pip install duckdb` (and `pyspark` with Java 17 for --spark). Spark runs as a
+multi-process cluster on this machine, `local-cluster[2,1,1024]`: a master, two worker JVMs of
+one core and 1 GB each, the query's tasks scheduled across them by Spark (set
+G1VIZ_SPARK_MASTER to another master URL, e.g. spark://host:7077, to use a real cluster). The
+only engine-specific line is the registration of the Parquet files as the view `rows`; the
+queries are the files' text. Each result row is matched by its key columns (robot, session, day, week, trial_*); every
 number must agree to 1e-9 relative (sums in another order round differently).
 """
 
@@ -78,7 +81,7 @@ def main():
         from pyspark.sql import SparkSession
 
         spark = (
-            SparkSession.builder.master("local[2]")
+            SparkSession.builder.master(os.environ.get("G1VIZ_SPARK_MASTER", "local-cluster[2,1,1024]"))
             .appName("g1viz-fleet-crosscheck")
             .config("spark.ui.enabled", "false")
             .getOrCreate()
@@ -90,7 +93,7 @@ def main():
             df = spark.sql(q)
             return df.columns, [tuple(r) for r in df.collect()]
 
-        engines.append(("Spark " + spark.version + " local[2]", run_spark))
+        engines.append(("Spark " + spark.version + " " + spark.sparkContext.master, run_spark))
 
     for engine, run in engines:
         for path in files:

@@ -1,5 +1,6 @@
-//! `g1viz fleet`: per-group power models of row tables (their sums streamed from Parquet), the
-//! drift of each robot's parameters, a report and a Rerun recording.
+//! `g1viz fleet`: per-group power models of row tables (their sums run as SQL by an embedded
+//! engine over the Parquet files), the drift of each robot's parameters, a report and a Rerun
+//! recording.
 
 use std::path::PathBuf;
 
@@ -7,7 +8,7 @@ use anyhow::Result;
 use clap::Args;
 
 use super::FitArgs;
-use g1viz::fleet::{self, FleetOptions, Key, Tables};
+use g1viz::fleet::{self, Engine, FleetOptions, Key};
 
 #[derive(Args)]
 pub struct FleetArgs {
@@ -19,6 +20,11 @@ pub struct FleetArgs {
     /// Drift needs robot and a period (day, week or session).
     #[arg(long, default_value = "robot,week", value_name = "KEYS")]
     by: String,
+    /// Only the rows where this SQL predicate over the row table's columns holds, e.g.
+    /// `robot = 'g1_03' AND t_ns >= 1767225600e9`; pushed down to the Parquet scan, so row
+    /// groups (and files) its column statistics exclude are not read.
+    #[arg(long = "where", value_name = "SQL")]
+    filter: Option<String>,
     /// A drift or a difference from the fleet is flagged beyond this many standard errors.
     #[arg(long, default_value_t = 4.0, value_name = "Z")]
     z: f64,
@@ -28,8 +34,8 @@ pub struct FleetArgs {
     /// Write a Rerun recording of the fleet on a time axis (`rerun FILE` opens it).
     #[arg(long, value_name = "FILE")]
     save: Option<PathBuf>,
-    /// Write each sum as SQL (NN_name.sql) with our result (NN_name.csv) into DIR, to run the
-    /// same SQL on an engine (examples/fleet_sql_crosscheck.py: DuckDB, Spark).
+    /// Write each query the engine ran (NN_name.sql) with its result (NN_name.csv) into DIR, to
+    /// run the same SQL on another engine (examples/fleet_sql_crosscheck.py: DuckDB, Spark).
     #[arg(long, value_name = "DIR")]
     save_sql: Option<PathBuf>,
     /// The filters and target of identification (--mode, --window and --lag are the export's
@@ -44,16 +50,17 @@ pub fn run(a: FleetArgs) -> Result<()> {
     let options = FleetOptions {
         by: Key::parse_list(&a.by)?,
         target: opts.target.name().to_string(),
+        filter: a.filter.clone(),
         cascade: opts.filters,
     };
     let started = std::time::Instant::now();
     let bar = super::spinner("opening the row tables");
-    let tables = Tables::open(&a.rows)?;
-    let fit = fleet::fit_fleet(&tables, &options, &mut |stage| {
+    let engine = Engine::open(&a.rows)?;
+    let fit = fleet::fit_fleet(&engine, &options, &mut |stage| {
         bar.set_message(stage.to_string())
     })?;
     bar.finish_and_clear();
-    let joints = tables
+    let joints = engine
         .joint_names
         .clone()
         .unwrap_or_else(|| g1viz::signals::SignalMap::g1_left_arm().joint_names);
@@ -61,9 +68,12 @@ pub fn run(a: FleetArgs) -> Result<()> {
     let rows: usize = fit.groups.iter().map(|g| g.rows).sum();
     let failed = fit.groups.iter().filter(|g| g.error.is_some()).count();
     println!(
-        "{} groups ({failed} without a model) from {rows} rows in {:.1} s",
+        "{} groups ({failed} without a model) from {rows} rows of {} files in {:.1} s \
+         ({:.1} MB of Parquet data read)",
         fit.groups.len(),
-        started.elapsed().as_secs_f64()
+        engine.files,
+        started.elapsed().as_secs_f64(),
+        fit.bytes_scanned as f64 / 1e6
     );
     for g in fit.groups.iter().filter(|g| g.error.is_some()) {
         println!(
@@ -74,28 +84,11 @@ pub fn run(a: FleetArgs) -> Result<()> {
     }
     match &drift {
         Some(d) => {
-            for t in d.drifting() {
-                println!(
-                    "drift: {} {} {:+.4} ± {:.4} per week (z {:+.1}), level {:.4}",
-                    t.robot,
-                    fleet::report::param_label(t.param, &joints),
-                    t.slope,
-                    t.slope_se,
-                    t.z,
-                    t.level
-                );
+            let flags = d.flags(&joints);
+            for (_, text) in &flags {
+                println!("flagged: {text}");
             }
-            for o in &d.outliers {
-                println!(
-                    "differs from the fleet: {} {} level {:.4}, other robots {:.4} (z {:+.1})",
-                    o.robot,
-                    fleet::report::param_label(o.param, &joints),
-                    o.level,
-                    o.fleet_level,
-                    o.z
-                );
-            }
-            if d.drifting().next().is_none() && d.outliers.is_empty() {
+            if flags.is_empty() {
                 println!(
                     "no drift and no robot differing from the fleet beyond {} s.e.",
                     a.z

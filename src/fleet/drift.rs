@@ -75,6 +75,42 @@ pub struct Drift {
 }
 
 impl Drift {
+    /// Each flag as a line of text (drifts, then robots differing from the fleet) with the time
+    /// it refers to [weeks since the fleet's first reading]: a drift's last period, 0 for a level.
+    pub fn flags(&self, joints: &[String]) -> Vec<(f64, String)> {
+        let label = |p| super::report::param_label(p, joints);
+        let drifts = self.drifting().map(|t| {
+            let last = t.points.last().map_or(0.0, |p| p.t_weeks);
+            let (slope, se, z) = (t.slope, t.slope_se, t.z);
+            let text = format!(
+                "{} {}: drift {slope:+.4} ± {se:.4} per week (z {z:+.1}), level {:.4}",
+                t.robot,
+                label(t.param),
+                t.level
+            );
+            (last, text)
+        });
+        let levels = self.outliers.iter().map(|o| {
+            let text = format!(
+                "{} {}: level {:.4}, other robots {:.4} (z {:+.1})",
+                o.robot,
+                label(o.param),
+                o.level,
+                o.fleet_level,
+                o.z
+            );
+            (0.0, text)
+        });
+        drifts.chain(levels).collect()
+    }
+
+    /// Whether `robot`'s parameter `param` drifts or differs from the fleet.
+    pub fn is_flagged(&self, param: usize, robot: &str) -> bool {
+        let of = |p: usize, r: &str| p == param && r == robot;
+        self.drifting().any(|t| of(t.param, &t.robot))
+            || self.outliers.iter().any(|o| of(o.param, &o.robot))
+    }
+
     /// The drifting trends.
     pub fn drifting(&self) -> impl Iterator<Item = &Trend> {
         self.trends.iter().filter(|t| t.drifting)

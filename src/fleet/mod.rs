@@ -1,16 +1,16 @@
 //! `g1viz fleet`: per-robot, per-period power models of many sessions' row tables (Parquet, as
 //! `g1viz export rows` writes them), and their drift.
 //!
-//! The heavy part — sums over millions of rows — is a streamed scan of the Parquet files
-//! ([`Tables`], only the needed columns read): per group of `--by` keys the trials' first
-//! moments (Σy, Σφ, σ_ω) and the group's normal equations ΦᵀΦ, Φᵀy, yᵀy, n. The same sums are
-//! written as portable SQL ([`sql`]; `--save-sql` writes each query beside our result, and
-//! `examples/fleet_sql_crosscheck.py` runs them unchanged on DuckDB and Spark). Each group is
-//! then solved here, with identification's own filters ([`crate::trial::Cascade`]): the IMU
-//! filter over the group's trials, then the 3σ residual passes, the groups in step so that each
-//! pass costs one scan (the normal equations of the trials a pass rejects, subtracted from the
-//! group's). Memory holds per-trial moments and per-group normal equations, never rows.
-//! [`drift`] then follows each robot's parameters over the periods.
+//! The heavy part — sums over millions of rows — is SQL ([`sql`]) run by an embedded engine made
+//! for Arrow and Parquet (Apache DataFusion, [`Engine`]) over the files: per group of `--by` keys
+//! the trials' first moments (Σy, Σφ, σ_ω), then the group's normal equations ΦᵀΦ, Φᵀy, yᵀy, n.
+//! `--save-sql` writes each query with the engine's result; `examples/fleet_sql_crosscheck.py`
+//! runs them unchanged on DuckDB and Spark. Each group is then solved here, with identification's
+//! own filters ([`crate::trial::Cascade`]): the IMU filter over the group's trials, then the 3σ
+//! residual passes, the groups in step so that each pass costs one scan (the normal equations of
+//! the trials a pass rejects, subtracted from the group's). Memory holds per-trial moments and
+//! per-group normal equations, never rows. [`drift`] then follows each robot's parameters over
+//! the periods.
 
 pub mod drift;
 pub mod report;
@@ -19,26 +19,29 @@ pub mod synth;
 #[cfg(feature = "viz")]
 pub mod viz;
 
-use std::collections::{BTreeMap, HashSet};
-use std::fmt::Write as _;
-use std::fs::File;
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use anyhow::{Context, Result, bail};
-use arrow_array::{Float64Array, Int64Array, StringArray, UInt32Array};
-use parquet::arrow::ProjectionMask;
-use parquet::arrow::arrow_reader::ParquetRecordBatchReaderBuilder;
+use datafusion::arrow::array::{Array, Float64Array, Int64Array, StringArray};
+use datafusion::arrow::compute::cast;
+use datafusion::arrow::datatypes::DataType;
+use datafusion::arrow::record_batch::RecordBatch;
+use datafusion::physical_plan::ExecutionPlan;
+use datafusion::prelude::{ParquetReadOptions, SessionConfig, SessionContext};
 
 use crate::N_PARAMS;
 use crate::lsq::Gram;
-use crate::rows::{column, phi_column};
 use crate::trial::{Cascade, RejectReason, Rejection, TrialStat};
 pub use sql::{Key, Pick, TrialId};
 
-/// The row tables of a fleet: Parquet files from `g1viz export rows`.
-pub struct Tables {
-    /// The files, in path order.
-    pub files: Vec<PathBuf>,
+/// An embedded SQL engine (DataFusion) with the row tables registered as the table `rows`.
+pub struct Engine {
+    ctx: SessionContext,
+    runtime: tokio::runtime::Runtime,
+    /// The Parquet files under the given paths.
+    pub files: usize,
     /// The arm's joint names from the first file's metadata (None: it names none).
     pub joint_names: Option<Vec<String>>,
 }
@@ -55,28 +58,71 @@ fn parquet_files(dir: &Path, out: &mut Vec<PathBuf>) -> Result<()> {
     Ok(())
 }
 
-/// One row as the scan sees it.
-struct ScanRow<'a> {
-    robot: &'a str,
-    session: &'a str,
-    trial: u32,
-    t_ns: i64,
-    y: f64,
-    phi: [f64; N_PARAMS],
-    sigma_omega: f64,
+/// Bytes of Parquet data the plan's scans read (the engine's `bytes_scanned` metric).
+fn bytes_scanned(plan: &dyn ExecutionPlan) -> usize {
+    let own = plan
+        .metrics()
+        .and_then(|m| m.sum_by_name("bytes_scanned"))
+        .map_or(0, |v| v.as_usize());
+    own + plan
+        .children()
+        .iter()
+        .map(|c| bytes_scanned(c.as_ref()))
+        .sum::<usize>()
 }
 
-impl Tables {
-    /// `paths`: Parquet files, or folders searched recursively for `*.parquet` (a dataset
-    /// partitioned as ROBOT/DAY.parquet). Every path must exist and hold at least one file.
-    pub fn open(paths: &[PathBuf]) -> Result<Tables> {
+/// The columns the queries read, and whether each holds text (else numbers).
+fn read_columns() -> impl Iterator<Item = (String, bool)> {
+    let text = ["robot", "session", "target"].map(|c| (c.to_string(), true));
+    let numbers = ["trial", "t_ns", "y_w", "sigma_omega"].map(|c| (c.to_string(), false));
+    (text.into_iter().chain(numbers))
+        .chain((0..N_PARAMS).map(|p| (crate::rows::phi_column(p), false)))
+}
+
+/// Check from its footer that `path` is a row table with every column the queries read, of a
+/// usable type; its joint names.
+fn check_table(path: &Path) -> Result<Option<Vec<String>>> {
+    let table = crate::rows::open_table(path)?;
+    let schema = table.schema();
+    for (name, text) in read_columns() {
+        let Ok(field) = schema.field_with_name(&name) else {
+            bail!(
+                "{}: no column `{name}` (not a table of `g1viz export rows`)",
+                path.display()
+            );
+        };
+        let t = field.data_type();
+        let usable = match text {
+            true => matches!(t, DataType::Utf8 | DataType::LargeUtf8 | DataType::Utf8View),
+            false => t.is_numeric(),
+        };
+        if !usable {
+            let want = if text { "text" } else { "numbers" };
+            bail!(
+                "{}: column `{name}` has type {t}, expected {want}",
+                path.display()
+            );
+        }
+    }
+    crate::rows::joint_names_of(&table, path)
+}
+
+impl Engine {
+    /// Register `paths` (Parquet files, or folders searched recursively for `*.parquet`, e.g. a
+    /// dataset partitioned as ROBOT/DAY.parquet) as one listing table `rows`. Every path must
+    /// exist and hold at least one file; each file's footer must hold every column the queries
+    /// read, and all name the same joints.
+    pub fn open(paths: &[PathBuf]) -> Result<Engine> {
         let mut files = Vec::new();
         for p in paths {
+            let before = files.len();
             if p.is_dir() {
-                let before = files.len();
                 parquet_files(p, &mut files)?;
                 if files.len() == before {
-                    bail!("{}: no .parquet files in the folder", p.display());
+                    bail!(
+                        "{}: no .parquet files in the folder or below it",
+                        p.display()
+                    );
                 }
             } else if p.exists() {
                 files.push(p.clone());
@@ -86,75 +132,97 @@ impl Tables {
         }
         files.sort();
         files.dedup();
-        let Some(first) = files.first() else {
+        if files.is_empty() {
             bail!("no row tables given");
-        };
-        let joint_names = crate::rows::table_joint_names(first)?;
-        Ok(Tables { files, joint_names })
-    }
-
-    /// Every row of `target`, file by file, batch by batch (only the needed columns decoded).
-    fn scan(&self, target: &str, f: &mut dyn FnMut(&ScanRow)) -> Result<()> {
-        for path in &self.files {
-            let file = File::open(path).with_context(|| format!("opening {}", path.display()))?;
-            let builder = ParquetRecordBatchReaderBuilder::try_new(file)
-                .with_context(|| format!("{}: not a Parquet file", path.display()))?;
-            let mut names: Vec<String> = [
-                "robot",
-                "session",
-                "trial",
-                "t_ns",
-                "target",
-                "y_w",
-                "sigma_omega",
-            ]
-            .map(String::from)
-            .to_vec();
-            names.extend((0..N_PARAMS).map(phi_column));
-            let mask =
-                ProjectionMask::columns(builder.parquet_schema(), names.iter().map(String::as_str));
-            let reader = builder
-                .with_projection(mask)
-                .with_batch_size(8192)
-                .build()
-                .with_context(|| format!("reading {}", path.display()))?;
-            for batch in reader {
-                let b = batch.with_context(|| format!("reading {}", path.display()))?;
-                let cols = (|| {
-                    let num = |n: &str| column::<Float64Array>(&b, n);
-                    anyhow::Ok((
-                        column::<StringArray>(&b, "robot")?,
-                        column::<StringArray>(&b, "session")?,
-                        column::<UInt32Array>(&b, "trial")?,
-                        column::<Int64Array>(&b, "t_ns")?,
-                        column::<StringArray>(&b, "target")?,
-                        num("y_w")?,
-                        num("sigma_omega")?,
-                        (0..N_PARAMS)
-                            .map(|p| num(&phi_column(p)))
-                            .collect::<Result<Vec<_>>>()?,
-                    ))
-                })()
-                .with_context(|| format!("in {}", path.display()))?;
-                let (robot, session, trial, t_ns, tgt, y, sigma, phi) = cols;
-                for k in 0..b.num_rows() {
-                    if tgt.value(k) != target {
-                        continue;
-                    }
-                    f(&ScanRow {
-                        robot: robot.value(k),
-                        session: session.value(k),
-                        trial: trial.value(k),
-                        t_ns: t_ns.value(k),
-                        y: y.value(k),
-                        phi: std::array::from_fn(|p| phi[p].value(k)),
-                        sigma_omega: sigma.value(k),
-                    });
-                }
+        }
+        let mut joint_names = None;
+        for (k, f) in files.iter().enumerate() {
+            let names = check_table(f)?;
+            if k == 0 {
+                joint_names = names;
+            } else if names != joint_names {
+                bail!(
+                    "{}: joint names {names:?} differ from {}'s {joint_names:?}",
+                    f.display(),
+                    files[0].display()
+                );
             }
         }
-        Ok(())
+        let urls = (files.iter()).map(|f| Ok(std::path::absolute(f)?.display().to_string()));
+        let urls: Vec<String> = urls.collect::<Result<_>>()?;
+        let runtime = tokio::runtime::Builder::new_multi_thread()
+            .build()
+            .context("starting the query engine's runtime")?;
+        let config =
+            SessionConfig::new().set_bool("datafusion.execution.parquet.pushdown_filters", true);
+        // The sums' ~1,300 aggregate expressions have no common subexpression worth sharing
+        // (each product appears once), and the rule that looks for them hashes every expression
+        // of every pass: most of a query's time before the first row is read.
+        let rules = datafusion::optimizer::Optimizer::new().rules;
+        let rules = rules
+            .into_iter()
+            .filter(|r| r.name() != "common_sub_expression_eliminate");
+        let state = datafusion::execution::SessionStateBuilder::new()
+            .with_config(config)
+            .with_default_features()
+            .with_optimizer_rules(rules.collect())
+            .build();
+        let ctx = SessionContext::new_with_state(state);
+        // The files are listed here, so none is skipped for its name.
+        let options = ParquetReadOptions {
+            file_extension: "",
+            ..Default::default()
+        };
+        runtime
+            .block_on(async {
+                let df = ctx.read_parquet(urls, options).await?;
+                ctx.register_table("rows", df.into_view())?;
+                anyhow::Ok(())
+            })
+            .with_context(|| format!("reading the row tables under {}", paths[0].display()))?;
+        Ok(Engine {
+            ctx,
+            runtime,
+            files: files.len(),
+            joint_names,
+        })
     }
+
+    /// Run one query: its result and the bytes of Parquet data it read.
+    pub fn query(&self, sql: &str) -> Result<(Vec<RecordBatch>, usize)> {
+        self.runtime.block_on(async {
+            let plan = self.ctx.sql(sql).await?.create_physical_plan().await?;
+            let out =
+                datafusion::physical_plan::collect(Arc::clone(&plan), self.ctx.task_ctx()).await?;
+            Ok((out, bytes_scanned(plan.as_ref())))
+        })
+    }
+}
+
+/// One result column cast to `to` (the engine may return any numeric type; keys as text).
+fn column_as<A: Array + Clone + 'static>(b: &RecordBatch, name: &str, to: DataType) -> Result<A> {
+    let c =
+        (b.column_by_name(name)).with_context(|| format!("query result has no column {name}"))?;
+    let c = cast(c, &to).with_context(|| format!("query result column {name} as {to}"))?;
+    (c.as_any().downcast_ref::<A>().cloned()).with_context(|| format!("column {name} as {to}"))
+}
+
+fn numbers(b: &RecordBatch, name: &str) -> Result<Float64Array> {
+    column_as(b, name, DataType::Float64)
+}
+
+/// A query's result as CSV (arrow's writer: a header, then one line per row).
+pub fn to_csv(batches: &[RecordBatch]) -> Result<String> {
+    let mut buf = Vec::new();
+    {
+        let mut w = datafusion::arrow::csv::WriterBuilder::new()
+            .with_header(true)
+            .build(&mut buf);
+        for b in batches {
+            w.write(b)?;
+        }
+    }
+    Ok(String::from_utf8(buf)?)
 }
 
 /// What `g1viz fleet` groups and filters.
@@ -164,6 +232,8 @@ pub struct FleetOptions {
     pub by: Vec<Key>,
     /// Power target of the rows used (`mbs` / `bms`).
     pub target: String,
+    /// An extra SQL predicate on the rows (`--where`), pushed down to the Parquet scan.
+    pub filter: Option<String>,
     /// Identification's filter cascade, applied per group.
     pub cascade: Cascade,
 }
@@ -216,13 +286,16 @@ pub struct FleetFit {
     pub groups: Vec<GroupFit>,
     /// Each query run, with its name, text and result as CSV (for `--save-sql`).
     pub queries: Vec<(String, String, String)>,
+    /// Bytes of Parquet data the engine read over all queries.
+    pub bytes_scanned: usize,
 }
 
-#[derive(Default)]
 struct Work {
     trials: Vec<TrialMoments>,
     sessions: Vec<(String, String)>,
-    total: Sums,
+    /// The group's normal equations, Σy and first and last reading time [ns].
+    total: (Gram, f64),
+    t_ns: (i64, i64),
     /// Normal equations (and Σy) of the rejected trials, subtracted from `total`.
     removed: Vec<(TrialId, Gram, f64)>,
     rejections: Vec<Rejection>,
@@ -244,7 +317,7 @@ impl Work {
     }
 
     fn kept(&self) -> (Gram, f64) {
-        let (mut g, mut sy) = (self.total.gram.clone(), self.total.sy);
+        let (mut g, mut sy) = self.total.clone();
         for (_, r, s) in &self.removed {
             g = g.minus(r);
             sy -= s;
@@ -273,110 +346,59 @@ impl Work {
     }
 }
 
-/// Sums of one (group, trial) or one group: the normal equations, Σy, the reading times.
-#[derive(Clone)]
-struct Sums {
-    gram: Gram,
-    sy: f64,
-    t_ns: (i64, i64),
-}
-
-impl Default for Sums {
-    fn default() -> Sums {
-        Sums {
-            gram: Gram::zeros(N_PARAMS),
-            sy: 0.0,
-            t_ns: (i64::MAX, i64::MIN),
-        }
-    }
-}
-
-impl Sums {
-    fn add(&mut self, r: &ScanRow) {
-        self.gram.add_row(&r.phi, r.y);
-        self.sy += r.y;
-        self.t_ns = (self.t_ns.0.min(r.t_ns), self.t_ns.1.max(r.t_ns));
-    }
-
-    /// A CSV line: the key cells, then as [`sql::normal_equations`] names them (n, t_min, t_max,
-    /// sy, yy, h_i, g_i_j).
-    fn csv(&self, key: &[String], trial: Option<&TrialId>, out: &mut String) {
-        csv_key(key, trial, out);
-        let g = &self.gram;
-        let _ = write!(
-            out,
-            "{},{},{},{},{}",
-            g.n, self.t_ns.0, self.t_ns.1, self.sy, g.yy
-        );
-        for i in 0..N_PARAMS {
-            let _ = write!(out, ",{}", g.h[i]);
-        }
-        for i in 0..N_PARAMS {
-            for j in i..N_PARAMS {
-                let _ = write!(out, ",{}", g.g[(i, j)]);
-            }
-        }
-        out.push('\n');
-    }
-}
-
-fn csv_header(by: &[Key], per_trial: bool, values: &[String]) -> String {
-    let mut h: Vec<String> = by.iter().map(|k| k.name().to_string()).collect();
-    if per_trial {
-        h.extend(sql::TRIAL_COLUMNS.map(|c| format!("trial_{c}")));
-    }
-    h.extend(values.iter().cloned());
-    h.join(",") + "\n"
-}
-
-fn csv_text(v: &str) -> String {
-    if v.contains([',', '"', '\n']) {
-        format!("\"{}\"", v.replace('"', "\"\""))
-    } else {
-        v.to_string()
-    }
-}
-
-fn csv_key(key: &[String], trial: Option<&TrialId>, out: &mut String) {
-    let mut cells: Vec<String> = key.iter().map(|k| csv_text(k)).collect();
-    if let Some((r, s, t)) = trial {
-        cells.extend([csv_text(r), csv_text(s), t.to_string()]);
-    }
-    out.push_str(&cells.join(","));
-    out.push(',');
-}
-
-fn normal_columns() -> Vec<String> {
-    let mut v: Vec<String> = ["n", "t_min", "t_max", "sy", "yy"]
-        .map(String::from)
-        .to_vec();
-    v.extend((0..N_PARAMS).map(|i| format!("h_{i}")));
+/// The normal equations and Σy of each row of a [`sql::normal_equations`] result.
+fn grams(b: &RecordBatch) -> Result<Vec<(Gram, f64)>> {
+    let mut out = vec![(Gram::zeros(N_PARAMS), 0.0); b.num_rows()];
+    let mut column = |name: String, set: &dyn Fn(&mut (Gram, f64), f64)| {
+        let c = numbers(b, &name)?;
+        out.iter_mut().zip(c.values()).for_each(|(g, &v)| set(g, v));
+        anyhow::Ok(())
+    };
     for i in 0..N_PARAMS {
-        v.extend((i..N_PARAMS).map(|j| format!("g_{i}_{j}")));
+        column(format!("h_{i}"), &|g, v| g.0.h[i] = v)?;
+        for j in i..N_PARAMS {
+            column(format!("g_{i}_{j}"), &|g, v| {
+                (g.0.g[(i, j)], g.0.g[(j, i)]) = (v, v)
+            })?;
+        }
     }
-    v
+    column("yy".into(), &|g, v| g.0.yy = v)?;
+    column("n".into(), &|g, v| g.0.n = v as usize)?;
+    column("sy".into(), &|g, v| g.1 = v)?;
+    Ok(out)
 }
 
-/// The normal equations of the picked trials, per (group, trial): one scan.
-fn trial_sums(
-    tables: &Tables,
-    by: &[Key],
-    target: &str,
-    only: &[TrialId],
-) -> Result<BTreeMap<(Vec<String>, TrialId), Sums>> {
-    let wanted: HashSet<(&str, &str, u32)> = only
+/// Each row of a result with its group key (the `--by` columns) and, when the result is per
+/// trial, its trial (the `trial_*` columns).
+fn result_rows(b: &RecordBatch, by: &[Key]) -> Result<Vec<(Vec<String>, Option<TrialId>)>> {
+    let keys: Vec<StringArray> = by
         .iter()
-        .map(|(r, s, t)| (r.as_str(), s.as_str(), *t))
-        .collect();
-    let mut out: BTreeMap<(Vec<String>, TrialId), Sums> = BTreeMap::new();
-    tables.scan(target, &mut |r| {
-        if !wanted.contains(&(r.robot, r.session, r.trial)) {
-            return;
-        }
-        let id = (r.robot.to_string(), r.session.to_string(), r.trial);
-        out.entry((key_of(by, r), id)).or_default().add(r);
-    })?;
-    Ok(out)
+        .map(|k| column_as(b, k.name(), DataType::Utf8))
+        .collect::<Result<_>>()?;
+    let trial: Option<Vec<StringArray>> = b
+        .column_by_name("trial_trial")
+        .map(|_| {
+            sql::TRIAL_COLUMNS
+                .iter()
+                .map(|c| column_as(b, &format!("trial_{c}"), DataType::Utf8))
+                .collect::<Result<_>>()
+        })
+        .transpose()?;
+    (0..b.num_rows())
+        .map(|r| {
+            let id = match &trial {
+                Some(t) => Some((
+                    t[0].value(r).to_string(),
+                    t[1].value(r).to_string(),
+                    t[2].value(r)
+                        .parse()
+                        .context("trial index is not a number")?,
+                )),
+                None => None,
+            };
+            Ok((keys.iter().map(|k| k.value(r).to_string()).collect(), id))
+        })
+        .collect()
 }
 
 /// The free parameters' (`free`: the bounded fit's standard errors) standard errors from the
@@ -399,73 +421,64 @@ fn widened_se(g: &Gram, free: &[Option<f64>]) -> Vec<Option<f64>> {
     out
 }
 
-/// The groups' keys of a row (the values of the `--by` keys, in their order).
-fn key_of(by: &[Key], r: &ScanRow) -> Vec<String> {
-    by.iter()
-        .map(|k| k.value(r.robot, r.session, r.t_ns))
-        .collect()
+/// Runs the queries, keeping each with its result (for `--save-sql`) and the bytes read.
+struct Runner<'a> {
+    engine: &'a Engine,
+    queries: Vec<(String, String, String)>,
+    bytes_scanned: usize,
 }
 
-/// Step 1, one scan: the groups with their trials' moments and normal equations (and the two
-/// queries that compute them), their sessions, and the IMU filter's rejections.
-fn scan_groups(
-    tables: &Tables,
-    opts: &FleetOptions,
-    queries: &mut Vec<(String, String, String)>,
-) -> Result<BTreeMap<Vec<String>, Work>> {
-    let (by, target) = (&opts.by, opts.target.as_str());
+impl Runner<'_> {
+    fn run(&mut self, name: &str, q: String) -> Result<Vec<RecordBatch>> {
+        let (out, bytes) =
+            (self.engine.query(&q)).with_context(|| format!("running the {name} query"))?;
+        self.queries.push((name.to_string(), q, to_csv(&out)?));
+        self.bytes_scanned += bytes;
+        Ok(out)
+    }
+}
+
+/// Step 1, two scans: the groups with their trials' moments and normal equations, their
+/// sessions, and the IMU filter's rejections.
+fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<String>, Work>> {
+    let (by, target, filter) = (&opts.by, opts.target.as_str(), opts.filter.as_deref());
     let mut groups: BTreeMap<Vec<String>, Work> = BTreeMap::new();
-    let mut moments: BTreeMap<(Vec<String>, TrialId), TrialMoments> = BTreeMap::new();
-    tables.scan(target, &mut |r| {
-        let key = key_of(by, r);
-        let id = (r.robot.to_string(), r.session.to_string(), r.trial);
-        let m = moments
-            .entry((key.clone(), id.clone()))
-            .or_insert_with(|| TrialMoments {
-                id,
-                n: 0.0,
-                sy: 0.0,
-                s: [0.0; N_PARAMS],
-                sigma_omega: f64::NEG_INFINITY,
+    for b in run.run("moments", sql::moments(by, target, filter))? {
+        let (n, sy, sigma) = (
+            numbers(&b, "n")?,
+            numbers(&b, "sy")?,
+            numbers(&b, "sigma_omega")?,
+        );
+        let s: Vec<Float64Array> = (0..N_PARAMS)
+            .map(|p| numbers(&b, &format!("s_{p}")))
+            .collect::<Result<_>>()?;
+        for (r, (key, id)) in result_rows(&b, by)?.into_iter().enumerate() {
+            let id = id.context("moments without trial columns")?;
+            let w = groups.entry(key).or_insert_with(|| Work {
+                trials: Vec::new(),
+                sessions: Vec::new(),
+                total: (Gram::zeros(N_PARAMS), 0.0),
+                t_ns: (0, 0),
+                removed: Vec::new(),
+                rejections: Vec::new(),
+                error: None,
+                done: false,
             });
-        m.n += 1.0;
-        m.sy += r.y;
-        for (a, v) in m.s.iter_mut().zip(&r.phi) {
-            *a += v;
+            if !w.sessions.iter().any(|(x, y)| *x == id.0 && *y == id.1) {
+                w.sessions.push((id.0.clone(), id.1.clone()));
+            }
+            w.trials.push(TrialMoments {
+                id,
+                n: n.value(r),
+                sy: sy.value(r),
+                s: std::array::from_fn(|p| s[p].value(r)),
+                sigma_omega: sigma.value(r),
+            });
         }
-        m.sigma_omega = m.sigma_omega.max(r.sigma_omega);
-        groups.entry(key).or_default().total.add(r);
-    })?;
+    }
     if groups.is_empty() {
-        bail!("no rows of target {target} in the tables");
-    }
-    let mut csv = csv_header(by, true, &{
-        let mut v: Vec<String> = ["n", "sigma_omega", "sy"].map(String::from).to_vec();
-        v.extend((0..N_PARAMS).map(|p| format!("s_{p}")));
-        v
-    });
-    for ((key, id), m) in &moments {
-        csv_key(key, Some(id), &mut csv);
-        let _ = write!(csv, "{},{},{}", m.n, m.sigma_omega, m.sy);
-        for v in &m.s {
-            let _ = write!(csv, ",{v}");
-        }
-        csv.push('\n');
-    }
-    queries.push(("moments".to_string(), sql::moments(by, target), csv));
-    let mut csv = csv_header(by, false, &normal_columns());
-    for (key, w) in &groups {
-        w.total.csv(key, None, &mut csv);
-    }
-    let q = sql::normal_equations(by, false, Pick::All, target);
-    queries.push(("normal_equations".to_string(), q, csv));
-    for ((key, _), m) in moments {
-        let w = groups.entry(key).or_default();
-        let id = &m.id;
-        if !w.sessions.iter().any(|(x, y)| *x == id.0 && *y == id.1) {
-            w.sessions.push((id.0.clone(), id.1.clone()));
-        }
-        w.trials.push(m);
+        let picked = filter.map(|f| format!(" where {f}")).unwrap_or_default();
+        bail!("no rows of target {target} in the tables{picked}");
     }
     for w in groups.values_mut() {
         w.sessions.sort();
@@ -475,6 +488,20 @@ fn scan_groups(
             .map(|t| TrialStat::new(w.session_index(&t.id), t.id.2 as usize, t.sigma_omega))
             .collect();
         w.rejections = opts.cascade.imu(&sigmas);
+    }
+    let q = sql::normal_equations(by, false, Pick::All, target, filter);
+    for b in run.run("normal_equations", q)? {
+        // Reading times stay integer nanoseconds (an f64 rounds them by up to 256 ns).
+        let time = |name| column_as::<Int64Array>(&b, name, DataType::Int64);
+        let (t0, t1) = (time("t_min")?, time("t_max")?);
+        let sums = grams(&b)?;
+        for (r, (key, _)) in result_rows(&b, by)?.into_iter().enumerate() {
+            let w = groups
+                .get_mut(&key)
+                .context(format!("group {key:?} has no trials"))?;
+            w.total = sums[r].clone();
+            w.t_ns = (t0.value(r), t1.value(r));
+        }
     }
     Ok(groups)
 }
@@ -513,12 +540,12 @@ fn final_fit(key: Vec<String>, w: Work) -> GroupFit {
     let (g, sy) = w.kept();
     let mut out = GroupFit {
         key,
-        rows: w.total.gram.n,
+        rows: w.total.0.n,
         rows_used: g.n,
         trials: w.trials.len(),
         rejections: w.rejections.clone(),
         sessions: w.sessions.clone(),
-        t_ns: w.total.t_ns,
+        t_ns: w.t_ns,
         theta: Vec::new(),
         std_err: Vec::new(),
         r2: f64::NAN,
@@ -542,21 +569,25 @@ fn final_fit(key: Vec<String>, w: Work) -> GroupFit {
     out
 }
 
-/// Fit every group of the tables' rows: one scan for the per-trial moments and the groups'
-/// normal equations, the IMU filter, then per residual pass the normal equations of the trials
-/// rejected (one scan each), final fit. `progress` hears each stage.
+/// Fit every group of the engine's rows: moments, IMU filter, normal equations, then per
+/// residual pass the normal equations of the trials it rejected (one scan each), final fit.
+/// `progress` hears each stage.
 pub fn fit_fleet(
-    tables: &Tables,
+    engine: &Engine,
     opts: &FleetOptions,
     progress: &mut dyn FnMut(&str),
 ) -> Result<FleetFit> {
-    let (by, target) = (&opts.by, opts.target.as_str());
-    let mut queries = Vec::new();
+    let (by, target, filter) = (&opts.by, opts.target.as_str(), opts.filter.as_deref());
+    let mut run = Runner {
+        engine,
+        queries: Vec::new(),
+        bytes_scanned: 0,
+    };
     progress(&format!(
         "scanning {} files: moments and normal equations",
-        tables.files.len()
+        engine.files
     ));
-    let mut groups = scan_groups(tables, opts, &mut queries)?;
+    let mut groups = scan_groups(&mut run, opts)?;
     let mut pass = 0;
     loop {
         // The normal equations of every trial rejected so far and not yet removed, one scan.
@@ -566,17 +597,16 @@ pub fn fit_fleet(
                 "scanning: normal equations of {} rejected trials",
                 pending.len()
             ));
-            let mut csv = csv_header(by, true, &normal_columns());
-            for ((key, id), t) in trial_sums(tables, by, target, &pending)? {
-                t.csv(&key, Some(&id), &mut csv);
-                if let Some(w) = groups.get_mut(&key)
-                    && w.pending().contains(&id)
-                {
-                    w.removed.push((id, t.gram, t.sy));
+            let q = sql::normal_equations(by, true, Pick::Only(&pending), target, filter);
+            for b in run.run(&format!("rejected_{pass}"), q)? {
+                for ((key, id), (g, sy)) in result_rows(&b, by)?.into_iter().zip(grams(&b)?) {
+                    if let (Some(w), Some(id)) = (groups.get_mut(&key), id)
+                        && w.pending().contains(&id)
+                    {
+                        w.removed.push((id, g, sy));
+                    }
                 }
             }
-            let q = sql::normal_equations(by, true, Pick::Only(&pending), target);
-            queries.push((format!("rejected_{pass}"), q, csv));
         }
         pass += 1;
         if pass > opts.cascade.passes || groups.values().all(|w| w.done) {
@@ -595,7 +625,8 @@ pub fn fit_fleet(
     Ok(FleetFit {
         by: by.clone(),
         groups,
-        queries,
+        queries: run.queries,
+        bytes_scanned: run.bytes_scanned,
     })
 }
 

@@ -22,6 +22,23 @@ pub fn param_label(p: usize, joints: &[String]) -> String {
     }
 }
 
+/// A markdown section `title` with a table of `rows` under `header` (a row "none" when empty).
+fn table(s: &mut String, title: &str, header: &[&str], rows: impl Iterator<Item = String>) {
+    let _ = writeln!(
+        s,
+        "\n## {title}\n\n| {} |\n|{}",
+        header.join(" | "),
+        "---|".repeat(header.len())
+    );
+    let before = s.len();
+    rows.for_each(|r| {
+        let _ = writeln!(s, "{r}");
+    });
+    if s.len() == before {
+        let _ = writeln!(s, "| none |{}", " |".repeat(header.len() - 1));
+    }
+}
+
 /// The markdown report.
 pub fn markdown(fit: &FleetFit, drift: Option<&Drift>, joints: &[String]) -> String {
     let mut s = String::from("# Fleet power models\n\n");
@@ -57,18 +74,10 @@ pub fn markdown(fit: &FleetFit, drift: Option<&Drift>, joints: &[String]) -> Str
         s.push_str("\nNo drift analysis: it needs `--by` with robot and a period (day, week or session).\n");
         return s;
     };
-    let _ = writeln!(
-        s,
-        "\n## Drifts (slope beyond {} standard errors)\n\n| robot | parameter | level at start | slope per week | z | change over the periods |\n|---|---|---|---|---|---|",
-        d.z
-    );
-    let mut any = false;
-    for t in d.drifting() {
-        any = true;
-        let span = t.points.last().map(|p| p.t_weeks).unwrap_or(0.0)
-            - t.points.first().map(|p| p.t_weeks).unwrap_or(0.0);
-        let _ = writeln!(
-            s,
+    let drifts = d.drifting().map(|t| {
+        let span = t.points.last().map_or(0.0, |p| p.t_weeks)
+            - t.points.first().map_or(0.0, |p| p.t_weeks);
+        format!(
             "| {} | {} | {:.4} ± {:.4} | {:+.4} ± {:.4} | {:+.1} | {:+.1} % |",
             t.robot,
             param_label(t.param, joints),
@@ -78,40 +87,52 @@ pub fn markdown(fit: &FleetFit, drift: Option<&Drift>, joints: &[String]) -> Str
             t.slope_se,
             t.z,
             100.0 * t.slope * span / t.level
-        );
-    }
-    if !any {
-        s.push_str("| none | | | | | |\n");
-    }
-    let _ = writeln!(
-        s,
-        "\n## Robots differing from the fleet (level at start beyond {} combined standard errors)\n\n| robot | parameter | level | other robots | z |\n|---|---|---|---|---|",
-        d.z
-    );
-    for o in &d.outliers {
-        let _ = writeln!(
-            s,
+        )
+    });
+    let title = format!("Drifts (slope beyond {} standard errors)", d.z);
+    let header = [
+        "robot",
+        "parameter",
+        "level at start",
+        "slope per week",
+        "z",
+        "change over the periods",
+    ];
+    table(&mut s, &title, &header, drifts);
+    let levels = d.outliers.iter().map(|o| {
+        format!(
             "| {} | {} | {:.4} | {:.4} | {:+.1} |",
             o.robot,
             param_label(o.param, joints),
             o.level,
             o.fleet_level,
             o.z
-        );
-    }
-    if d.outliers.is_empty() {
-        s.push_str("| none | | | | |\n");
-    }
+        )
+    });
+    let title = format!(
+        "Robots differing from the fleet (level at start beyond {} combined standard errors)",
+        d.z
+    );
+    table(
+        &mut s,
+        &title,
+        &["robot", "parameter", "level", "other robots", "z"],
+        levels,
+    );
     s.push_str("\n![flagged parameters per robot over time](fleet.png)\n");
     s
 }
 
-/// The figure: one panel per flagged parameter (up to 6; the first trend's when none is
-/// flagged), every robot's periods with ±1 s.e. bars, its fitted line; flagged robots in red.
-pub fn figure(path: &Path, drift: &Drift, joints: &[String]) -> Result<()> {
-    let mut params: Vec<usize> = drift
-        .drifting()
-        .map(|t| t.param)
+/// The parameters the figure and the recording show: each flagged one (up to 6), else the
+/// first trend's; with the robots flagged on each.
+pub fn shown_params(drift: &Drift) -> Vec<(usize, Vec<&str>)> {
+    let flagged = |p: usize| -> Vec<&str> {
+        let of = drift.trends.iter().filter(|t| t.param == p);
+        of.filter(|t| drift.is_flagged(p, &t.robot))
+            .map(|t| t.robot.as_str())
+            .collect()
+    };
+    let mut params: Vec<usize> = (drift.drifting().map(|t| t.param))
         .chain(drift.outliers.iter().map(|o| o.param))
         .collect();
     params.sort();
@@ -120,6 +141,13 @@ pub fn figure(path: &Path, drift: &Drift, joints: &[String]) -> Result<()> {
         params.extend(drift.trends.first().map(|t| t.param));
     }
     params.truncate(6);
+    params.into_iter().map(|p| (p, flagged(p))).collect()
+}
+
+/// The figure: one panel per [`shown_params`], every robot's periods with ±1 s.e. bars, its
+/// fitted line; flagged robots in red.
+pub fn figure(path: &Path, drift: &Drift, joints: &[String]) -> Result<()> {
+    let params: Vec<usize> = shown_params(drift).iter().map(|(p, _)| *p).collect();
     let cols = params.len().clamp(1, 3);
     let rows = params.len().div_ceil(cols).max(1);
     write_png(path, (480 * cols as u32, 360 * rows as u32), |root| {
@@ -146,11 +174,7 @@ pub fn figure(path: &Path, drift: &Drift, joints: &[String]) -> Result<()> {
                 .draw()
                 .map_err(plot_err)?;
             for t in &of {
-                let flagged = t.drifting
-                    || drift
-                        .outliers
-                        .iter()
-                        .any(|o| o.param == p && o.robot == t.robot);
+                let flagged = drift.is_flagged(p, &t.robot);
                 let colour = if flagged {
                     RED
                 } else {
@@ -190,7 +214,7 @@ pub fn figure(path: &Path, drift: &Drift, joints: &[String]) -> Result<()> {
                     });
                 }
             }
-            if of.iter().any(|t| t.drifting) || drift.outliers.iter().any(|o| o.param == p) {
+            if of.iter().any(|t| drift.is_flagged(p, &t.robot)) {
                 chart
                     .configure_series_labels()
                     .label_font((FONT, 12))

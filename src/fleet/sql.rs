@@ -1,7 +1,6 @@
-//! The fleet's sums as SQL: what [`super::scan`] computes, as text any SQL engine runs over the
-//! Parquet rows registered as the table `rows` (DuckDB and Spark SQL unchanged, see
-//! `examples/fleet_sql_crosscheck.py`, which compares their results with ours). Only portable
-//! SQL: `COUNT`/`SUM`/`MIN`/`MAX`, `CAST`, `FLOOR`, an inline `VALUES` table joined.
+//! The fleet's SQL: the text every engine runs (DataFusion here; DuckDB or Spark SQL unchanged,
+//! see `examples/fleet_sql_crosscheck.py`). Only portable SQL: `COUNT`/`SUM`/`MIN`/`MAX`, `CAST`,
+//! `FLOOR`, an inline `VALUES` table joined; the row table is called `rows`.
 
 use crate::N_PARAMS;
 use crate::rows::phi_column;
@@ -38,17 +37,6 @@ impl Key {
             // 8.64e13 ns a day; 1970-01-01 was a Thursday, so +3 days starts weeks on Mondays.
             Key::Day => "CAST(FLOOR(t_ns / 8.64e13) AS BIGINT)",
             Key::Week => "CAST(FLOOR((t_ns / 8.64e13 + 3) / 7) AS BIGINT)",
-        }
-    }
-
-    /// The key's value for a row (as the SQL expression computes it: t_ns as a double).
-    pub fn value(self, robot: &str, session: &str, t_ns: i64) -> String {
-        let days = t_ns as f64 / 8.64e13;
-        match self {
-            Key::Robot => robot.to_string(),
-            Key::Session => session.to_string(),
-            Key::Day => (days.floor() as i64).to_string(),
-            Key::Week => (((days + 3.0) / 7.0).floor() as i64).to_string(),
         }
     }
 
@@ -98,8 +86,12 @@ fn quote(s: &str) -> String {
     format!("'{}'", s.replace('\'', "''"))
 }
 
-/// `FROM rows …` with the pick's join and the `WHERE` clause on the target.
-fn from_where(pick: Pick, target: &str) -> String {
+/// `FROM rows …` with the pick's join and the `WHERE` clause (`target`, the user's filter).
+fn from_where(pick: Pick, target: &str, filter: Option<&str>) -> String {
+    let mut conditions = vec![format!("target = {}", quote(target))];
+    if let Some(f) = filter {
+        conditions.push(format!("({f})"));
+    }
     let from = match pick {
         Pick::All => "rows".to_string(),
         Pick::Only(list) => {
@@ -118,7 +110,7 @@ fn from_where(pick: Pick, target: &str) -> String {
             )
         }
     };
-    format!("FROM {from}\nWHERE rows.target = {}", quote(target))
+    format!("FROM {from}\nWHERE {}", conditions.join(" AND "))
 }
 
 /// `SELECT` key expressions and the `GROUP BY` list, with the trial columns when `per_trial`.
@@ -149,7 +141,7 @@ fn qualify(expr: &str) -> String {
 
 /// Per trial of each group: rows `n`, Σy `sy`, Σφ_p `s_p` and σ_ω (the trial's IMU statistic,
 /// the same on each of its rows). Everything the IMU filter and the residual passes need.
-pub fn moments(keys: &[Key], target: &str) -> String {
+pub fn moments(keys: &[Key], target: &str, filter: Option<&str>) -> String {
     let (mut select, group) = grouping(keys, true);
     select.push("COUNT(*) AS n".into());
     select.push("MAX(rows.sigma_omega) AS sigma_omega".into());
@@ -160,7 +152,7 @@ pub fn moments(keys: &[Key], target: &str) -> String {
     format!(
         "SELECT {}\n{}\nGROUP BY {}",
         select.join(", "),
-        from_where(Pick::All, target),
+        from_where(Pick::All, target, filter),
         group.join(", ")
     )
 }
@@ -168,7 +160,13 @@ pub fn moments(keys: &[Key], target: &str) -> String {
 /// The normal equations of each group's picked rows (per trial too when `per_trial`): `n`,
 /// Σy `sy`, yᵀy `yy`, Φᵀy `h_p`, the upper triangle of ΦᵀΦ `g_i_j` (i ≤ j), and the first and
 /// last reading time `t_min`/`t_max` [ns].
-pub fn normal_equations(keys: &[Key], per_trial: bool, pick: Pick, target: &str) -> String {
+pub fn normal_equations(
+    keys: &[Key],
+    per_trial: bool,
+    pick: Pick,
+    target: &str,
+    filter: Option<&str>,
+) -> String {
     let (mut select, group) = grouping(keys, per_trial);
     select.push("COUNT(*) AS n".into());
     select.push("MIN(rows.t_ns) AS t_min".into());
@@ -190,7 +188,7 @@ pub fn normal_equations(keys: &[Key], per_trial: bool, pick: Pick, target: &str)
     format!(
         "SELECT {}\n{}\nGROUP BY {}",
         select.join(", "),
-        from_where(pick, target),
+        from_where(pick, target, filter),
         group.join(", ")
     )
 }
@@ -208,7 +206,7 @@ mod tests {
         assert!(Key::parse_list("robot,robot").is_err());
         assert!(Key::parse_list("month").is_err());
         let picked = [("r'1".to_string(), "a.mcap".to_string(), 3)];
-        let q = normal_equations(&[Key::Robot], true, Pick::Only(&picked), "mbs");
+        let q = normal_equations(&[Key::Robot], true, Pick::Only(&picked), "mbs", None);
         assert!(q.contains("('r''1', 'a.mcap', 3)"), "{q}");
         assert!(q.contains("g_48_48") && !q.contains("g_1_0"));
         assert!(q.contains("GROUP BY rows.robot, rows.session, rows.trial"));

@@ -184,7 +184,7 @@ pub fn read_parquet(path: &Path) -> Result<Vec<TableRow>> {
     Ok(read_table(path)?.rows)
 }
 
-fn open_table(path: &Path) -> Result<ParquetRecordBatchReaderBuilder<File>> {
+pub(crate) fn open_table(path: &Path) -> Result<ParquetRecordBatchReaderBuilder<File>> {
     let file = File::open(path).with_context(|| format!("opening {}", path.display()))?;
     ParquetRecordBatchReaderBuilder::try_new(file)
         .with_context(|| format!("{}: not a Parquet file", path.display()))
@@ -196,7 +196,7 @@ pub fn table_joint_names(path: &Path) -> Result<Option<Vec<String>>> {
     joint_names_of(&open_table(path)?, path)
 }
 
-fn joint_names_of(
+pub(crate) fn joint_names_of(
     builder: &ParquetRecordBatchReaderBuilder<File>,
     path: &Path,
 ) -> Result<Option<Vec<String>>> {

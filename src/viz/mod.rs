@@ -26,7 +26,7 @@ mod style;
 
 pub use blueprint::{
     DETAIL_PLOT_PX, Eye, LayoutParts, Legend, Node, OVERVIEW_PLOT_PX, PlotRanges, data_range,
-    legend_fraction, legend_room,
+    legend_fraction, legend_room, send_blueprint,
 };
 pub use layers::TrialMean;
 pub use overlay::{diagnosis_extras, model_extras, trial_series, validation_extras};
