@@ -103,8 +103,8 @@ fn assert_same(what: &str, memory: &Diagnosis, stream: &Diagnosis, rel: f64) {
     );
 }
 
-/// Everything a diagnosis claims: accepted hypotheses and terms found beyond the library.
-/// What a diagnosis claims, and what it locates without claiming ("X or Y").
+/// Everything a diagnosis claims (accepted hypotheses, terms found beyond the library) and what it
+/// locates without claiming ("X or Y").
 fn claims(d: &Diagnosis) -> Vec<String> {
     let mut c: Vec<String> = d.accepted.iter().map(|h| h.id.clone()).collect();
     c.extend(
