@@ -339,50 +339,9 @@ pub(crate) fn apply(
         let others: Vec<usize> = (0..n_terms).filter(|&o| o != k).collect();
         let cols: Vec<&Vec<f64>> = others.iter().flat_map(|&o| &flex[o]).collect();
         let words: Vec<&str> = others.iter().map(|&o| names[o].as_str()).collect();
-        let t = test(
-            &base.fit(&cols)?.pred,
-            remainder_of(&words),
-            None,
-            k,
-            rule.alpha,
-        );
-        // Its rivals: every other library mechanism in flexible form, modulated by the state
-        // the claim follows (session time for a library claim, the one the data supported
-        // beside it first, then the driving efficiency changing; a found loss term's own
-        // signal — a rail load has none).
-        let (list, s) = match k < n_lib {
-            true => {
-                let plain = (sel.rivals.iter())
-                    .find(|(id, r)| {
-                        id == spec[k].id && !spec.iter().any(|h| h.mechanism == r.mechanism)
-                    })
-                    .map(|(_, r)| *r);
-                (
-                    rivals(spec[k].mechanism, &spec, plain, true),
-                    rows.t.as_slice(),
-                )
-            }
-            false => {
-                let d = &found[k - n_lib];
-                let own = (d.mechanism.as_deref())
-                    .and_then(super::hypotheses::power_hypothesis)
-                    .map_or("", |h| h.mechanism);
-                let s = match d.follows.len() == rows.len() {
-                    true => d.follows.as_slice(),
-                    false => &[],
-                };
-                (rivals(own, &[], None, false), s)
-            }
-        };
-        let own = match k < n_lib {
-            true => rows
-                .x
-                .iter()
-                .map(|x| regressor(spec[k], x, &theta))
-                .collect(),
-            false => found[k - n_lib].contribution.clone(),
-        };
-        let own = (own.len() == rows.len()).then_some(own);
+        let pred = base.fit(&cols)?.pred;
+        let t = test(&pred, remainder_of(&words), None, k, rule.alpha);
+        let (list, s, own) = claim_rivals(sel, &spec, found, k, &rows, &theta);
         tests.push((k, against(t, &base, &cols, list, (lag, s, k, own))?));
     }
     // A latency must beat the same terms at no lag in flexible form, and beside them each
@@ -399,12 +358,72 @@ pub(crate) fn apply(
         let of = "the same terms at no lag, in flexible form".to_string();
         let t = test(&base0.fit(&cols)?.pred, of, None, n_terms, rule.alpha);
         let list = rivals(LATENCY_ID, &spec, None, false);
-        tests.push((
-            usize::MAX,
-            against(t, &base0, &cols, list, (0, t0, n_terms, None))?,
-        ));
+        let t = against(t, &base0, &cols, list, (0, t0, n_terms, None))?;
+        tests.push((usize::MAX, t));
     }
-    for (k, t) in &tests {
+    let by_found = record(sel, report, &tests, &spec, n_lib, n_terms);
+    Ok(by_found)
+}
+
+/// The rivals of claim `k` (library claims first, then found terms), the state their flexible
+/// variants follow and the claim's own contribution per reading (`None` if unknown): every other
+/// library mechanism in flexible form, modulated by the state the claim follows — session time
+/// for a library claim (after the one the data supported beside it first, then the driving
+/// efficiency changing), a found loss term's own signal (a rail load has none).
+fn claim_rivals<'a>(
+    sel: &Selection,
+    spec: &[&'static Hypothesis],
+    found: &'a [super::Discovery],
+    k: usize,
+    rows: &'a super::reading_rows::Rows,
+    theta: &[f64],
+) -> (Vec<Rival>, &'a [f64], Option<Vec<f64>>) {
+    let n_lib = spec.len();
+    let (list, s) = match k < n_lib {
+        true => {
+            let plain = (sel.rivals.iter())
+                .find(|(id, r)| {
+                    id == spec[k].id && !spec.iter().any(|h| h.mechanism == r.mechanism)
+                })
+                .map(|(_, r)| *r);
+            (
+                rivals(spec[k].mechanism, spec, plain, true),
+                rows.t.as_slice(),
+            )
+        }
+        false => {
+            let d = &found[k - n_lib];
+            let own = (d.mechanism.as_deref())
+                .and_then(super::hypotheses::power_hypothesis)
+                .map_or("", |h| h.mechanism);
+            let s = match d.follows.len() == rows.len() {
+                true => d.follows.as_slice(),
+                false => &[],
+            };
+            (rivals(own, &[], None, false), s)
+        }
+    };
+    let own: Vec<f64> = match k < n_lib {
+        true => (rows.x.iter())
+            .map(|x| regressor(spec[k], x, theta))
+            .collect(),
+        false => found[k - n_lib].contribution.clone(),
+    };
+    (list, s, (own.len() == rows.len()).then_some(own))
+}
+
+/// Record each test's outcome: stability on every claim, a located library claim's form (it leaves
+/// the accepted list), a located found term moved to `report.located`. Returns the library claims
+/// a found term leaves without support (not their rival pairing).
+fn record(
+    sel: &mut Selection,
+    report: Option<&mut DiscoveryReport>,
+    tests: &[(usize, Remainder)],
+    spec: &[&'static Hypothesis],
+    n_lib: usize,
+    n_terms: usize,
+) -> Vec<(&'static Hypothesis, f64, f64)> {
+    for (k, t) in tests {
         let lib = *k < n_lib || *k == usize::MAX;
         let id = spec.get(*k).map_or(LATENCY_ID, |h| h.id);
         if let Some(a) = sel.accepted.iter_mut().find(|a| lib && a.id == id) {
@@ -414,7 +433,6 @@ pub(crate) fn apply(
             sel.forms.push(t.form(&sel.accepted, id));
         }
     }
-    // Library claims a found term leaves without support (not their rival pairing).
     let by_found = (tests.iter())
         .filter(|(k, t)| *k < n_lib && n_terms > n_lib && !t.claimed() && t.rival.is_none())
         .map(|(k, t)| (spec[*k], t.p_value, t.gain()))
@@ -435,7 +453,7 @@ pub(crate) fn apply(
             }
         }
     }
-    Ok(by_found)
+    by_found
 }
 
 /// What stands in a claim's place when the other terms `words` take their flexible variants
