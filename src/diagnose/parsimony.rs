@@ -341,7 +341,7 @@ pub(crate) fn apply(
         let words: Vec<&str> = others.iter().map(|&o| names[o].as_str()).collect();
         let pred = base.fit(&cols)?.pred;
         let t = test(&pred, remainder_of(&words), None, k, rule.alpha);
-        let (list, s, own) = claim_rivals(sel, &spec, found, k, &rows, &theta);
+        let (list, s, own) = claim_rivals(sel, &spec, found, k, rows, &theta);
         tests.push((k, against(t, &base, &cols, list, (lag, s, k, own))?));
     }
     // A latency must beat the same terms at no lag in flexible form, and beside them each
