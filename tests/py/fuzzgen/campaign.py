@@ -86,7 +86,14 @@ def campaign(n, seed, minutes, out_dir, binary, workdir, jobs=2, keep=False):
     if os.path.exists(lines):
         with open(lines) as f:
             done = {json.loads(x)["seed"] for x in f if x.strip()}
-    todo = [(s, minutes, workdir, binary, keep) for s in seeds_for(seed, n) if s not in done]
+    wanted = seeds_for(seed, n)
+    foreign = done - set(wanted)
+    if foreign:
+        # A resume continues the SAME campaign; records of another one would be summarised with it.
+        raise SystemExit(f"{lines} holds {len(foreign)} session(s) not drawn by campaign seed {seed} "
+                         f"(e.g. seed {min(foreign)}): give an empty --out, or the campaign seed and "
+                         "--sessions it was started with to resume it")
+    todo = [(s, minutes, workdir, binary, keep) for s in wanted if s not in done]
     t0 = time.time()
     with Pool(min(2, jobs)) as pool, open(lines, "a") as f:
         for k, r in enumerate(pool.imap_unordered(run_session, todo), 1):
