@@ -15,9 +15,10 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use super::msgdef::MsgSchema;
+use super::shared::{Orphans, TopicStat, capped, select_topics};
 use super::{
     Channel, Encoding, MessageRef, MessageSource, OpenOptions, ReadError, ReadSummary, SessionInfo,
-    TopicInfo, rate_hz, read_up_to, session_info,
+    read_up_to, session_info,
 };
 
 /// First bytes of a ROS 1 bag (format 2.0).
@@ -69,31 +70,6 @@ struct ChunkMeta {
     available: Option<u64>,
     /// Offset of the chunk info record that lists this chunk (0 for a chunk found by a scan).
     info_pos: u64,
-}
-
-#[derive(Debug, Clone, Copy)]
-struct TopicStat {
-    count: u64,
-    first_ns: u64,
-    last_ns: u64,
-}
-
-impl TopicStat {
-    fn add(&mut self, t: u64, n: u64) {
-        self.count += n;
-        self.first_ns = self.first_ns.min(t);
-        self.last_ns = self.last_ns.max(t);
-    }
-}
-
-impl Default for TopicStat {
-    fn default() -> Self {
-        TopicStat {
-            count: 0,
-            first_ns: u64::MAX,
-            last_ns: 0,
-        }
-    }
 }
 
 /// What the index data records after one chunk say (see `Ros1BagSource::chunk_index`).
@@ -438,14 +414,7 @@ impl<R: Read + Seek> Ros1BagSource<R> {
         let embedded = (!definition.trim().is_empty())
             .then(|| MsgSchema::parse_ros1msg(&type_name, &definition));
         let channel = super::resolve_schema(&self.path, &topic, &type_name, embedded, &self.opts)
-            .map(|schema| {
-                Arc::new(Channel {
-                    topic: topic.clone(),
-                    type_name: type_name.clone(),
-                    encoding: Encoding::Ros1,
-                    schema: Arc::new(schema),
-                })
-            });
+            .map(|schema| Channel::new(&topic, &type_name, Encoding::Ros1, schema));
         self.connections.insert(
             id,
             Connection {
@@ -461,7 +430,7 @@ impl<R: Read + Seek> Ros1BagSource<R> {
     /// chunk time ranges and per-connection statistics; stop at the first damage with a warning.
     fn scan(&mut self, mut offset: u64) -> Result<(), std::io::Error> {
         let mut stats: BTreeMap<u32, TopicStat> = BTreeMap::new();
-        let mut orphans = BTreeMap::new();
+        let mut orphans = Orphans::default();
         while offset < self.file_len {
             let record = match self.record_at(offset) {
                 Ok(r) => r,
@@ -497,7 +466,7 @@ impl<R: Read + Seek> Ros1BagSource<R> {
                             self.damaged |= !loaded.damage.is_empty();
                             let warnings = self.chunk_warnings(offset, &loaded);
                             self.open_warnings.extend(warnings);
-                            merge_orphans(&mut orphans, &loaded.orphans);
+                            orphans.merge(&loaded.orphans);
                             let mut meta = chunk;
                             for m in &loaded.messages {
                                 meta.start_ns = meta.start_ns.min(m.time_ns);
@@ -577,17 +546,8 @@ impl<R: Read + Seek> Ros1BagSource<R> {
     }
 
     /// One warning per unknown connection id that carried messages.
-    fn orphan_warnings(&self, orphans: &BTreeMap<u32, (u64, u64)>) -> Vec<String> {
-        orphans
-            .iter()
-            .map(|(conn, (n, first))| {
-                format!(
-                    "{}: {n} messages on connection id {conn}, which has no connection record, \
-                     were skipped (the first at byte offset {first})",
-                    self.path.display()
-                )
-            })
-            .collect()
+    fn orphan_warnings(&self, orphans: &Orphans) -> Vec<String> {
+        orphans.warnings(&self.path, "connection", "at byte offset")
     }
 
     /// Load chunk `c` for a read and queue it with its warnings; on damage warn and return
@@ -609,7 +569,7 @@ impl<R: Read + Seek> Ros1BagSource<R> {
                         state.summary.warnings.push(w);
                     }
                 }
-                merge_orphans(&mut state.orphans, &chunk.orphans);
+                state.orphans.merge(&chunk.orphans);
                 let first = chunk.messages.iter().map(|m| m.time_ns).min();
                 if let Some(t) = first.filter(|&t| t < c.start_ns) {
                     state.summary.warnings.push(format!(
@@ -728,7 +688,7 @@ impl<R: Read + Seek> Ros1BagSource<R> {
             next: 0,
             parsed: 0,
             damage: Vec::new(),
-            orphans: BTreeMap::new(),
+            orphans: Orphans::default(),
         };
         let mut at = 0usize;
         let mut resync: Option<Vec<usize>> = None;
@@ -802,7 +762,7 @@ impl<R: Read + Seek> Ros1BagSource<R> {
                     chunk.parsed += 1;
                     let file_offset = base.map_or(meta.pos, |b| b + at as u64);
                     if !self.connections.contains_key(&conn) {
-                        chunk.orphans.entry(conn).or_insert((0, file_offset)).0 += 1;
+                        chunk.orphans.add(conn, file_offset);
                     } else if wanted.is_none_or(|w| w.contains(&conn)) {
                         chunk.messages.push(ChunkMessage {
                             time_ns,
@@ -876,7 +836,7 @@ impl<R: Read + Seek> Ros1BagSource<R> {
     /// `warnings`.
     fn counted_stats(&mut self, warnings: &mut Vec<String>) -> BTreeMap<u32, TopicStat> {
         let mut stats: BTreeMap<u32, TopicStat> = BTreeMap::new();
-        let mut orphans = BTreeMap::new();
+        let mut orphans = Orphans::default();
         let mut differ = Vec::new();
         let path = self.path.display().to_string();
         for meta in self.chunks.clone() {
@@ -891,13 +851,13 @@ impl<R: Read + Seek> Ros1BagSource<R> {
                 }
             };
             warnings.extend(self.chunk_warnings(meta.pos, &chunk));
-            merge_orphans(&mut orphans, &chunk.orphans);
+            orphans.merge(&chunk.orphans);
             let mut read: BTreeMap<u32, u64> = BTreeMap::new();
             for m in &chunk.messages {
                 *read.entry(m.conn).or_default() += 1;
                 stats.entry(m.conn).or_default().add(m.time_ns, 1);
             }
-            for (conn, (n, _)) in &chunk.orphans {
+            for (conn, (n, _)) in &chunk.orphans.0 {
                 *read.entry(*conn).or_default() += n;
             }
             if !chunk.damage.is_empty() {
@@ -933,13 +893,9 @@ impl<R: Read + Seek> Ros1BagSource<R> {
                 ));
             }
         }
-        let more = differ.len().saturating_sub(10);
-        warnings.extend(differ.into_iter().take(10));
-        if more > 0 {
-            warnings.push(format!(
-                "{path}: {more} more index records disagree with their chunks"
-            ));
-        }
+        capped(warnings, differ, |more| {
+            format!("{path}: {more} more index records disagree with their chunks")
+        });
         warnings.extend(self.orphan_warnings(&orphans));
         stats
     }
@@ -969,23 +925,10 @@ impl<R: Read + Seek> Ros1BagSource<R> {
         wanted: Option<&[&str]>,
         warnings: &mut Vec<String>,
     ) -> Result<Vec<u32>, ReadError> {
-        let mut ids = Vec::new();
-        for (id, c) in &self.connections {
-            if !wanted.is_none_or(|w| w.contains(&c.topic.as_str())) {
-                continue;
-            }
-            match &c.channel {
-                Ok(_) => ids.push(*id),
-                Err(e) if wanted.is_some() => return Err(ReadError::Other(e.clone())),
-                Err(e) => {
-                    let w = format!("{e}; topic skipped");
-                    if !warnings.contains(&w) {
-                        warnings.push(w);
-                    }
-                }
-            }
-        }
-        Ok(ids)
+        let topics = (self.connections.values()).map(|c| (c.topic.as_str(), &c.channel));
+        let selected = select_topics(topics, wanted, warnings)?;
+        let ids = self.connections.keys().zip(selected);
+        Ok(ids.filter(|(_, s)| *s).map(|(id, _)| *id).collect())
     }
 }
 
@@ -994,15 +937,8 @@ struct ReadState {
     summary: ReadSummary,
     /// Warnings already given when the bag was opened (not repeated).
     known: std::collections::HashSet<String>,
-    /// Messages on unknown connection ids: id → (count, first offset).
-    orphans: BTreeMap<u32, (u64, u64)>,
-}
-
-fn merge_orphans(into: &mut BTreeMap<u32, (u64, u64)>, from: &BTreeMap<u32, (u64, u64)>) {
-    for (conn, (n, first)) in from {
-        let e = into.entry(*conn).or_insert((0, *first));
-        e.0 += n;
-    }
+    /// Messages on unknown connection ids.
+    orphans: Orphans,
 }
 
 struct ChunkMessage {
@@ -1021,8 +957,8 @@ struct LoadedChunk {
     parsed: u64,
     /// Bad records inside the chunk: (byte in the chunk, what); at most one summary entry.
     damage: Vec<(usize, String)>,
-    /// Messages on connection ids without a connection record: id → (count, first offset).
-    orphans: BTreeMap<u32, (u64, u64)>,
+    /// Messages on connection ids without a connection record.
+    orphans: Orphans,
 }
 
 impl LoadedChunk {
@@ -1087,24 +1023,11 @@ impl<R: Read + Seek> MessageSource for Ros1BagSource<R> {
                 .entry(&c.topic)
                 .or_insert((&c.type_name, TopicStat::default()));
             if let Some(s) = stats.get(id) {
-                entry.1.add(s.first_ns, s.count);
-                entry.1.add(s.last_ns, 0);
+                entry.1.merge(s);
             }
         }
-        let topics = by_topic
-            .into_iter()
-            .map(|(topic, (type_name, s))| {
-                let first = if s.count == 0 { 0 } else { s.first_ns };
-                TopicInfo {
-                    topic: topic.to_string(),
-                    type_name: type_name.to_string(),
-                    encoding: "ros1".into(),
-                    count: s.count,
-                    first_ns: first,
-                    last_ns: s.last_ns,
-                    rate_hz: rate_hz(s.count, first, s.last_ns),
-                }
-            })
+        let topics = (by_topic.into_iter())
+            .map(|(topic, (type_name, s))| s.info(topic, type_name, "ros1"))
             .collect();
         Ok(session_info(&self.path, "ros1-bag", topics, warnings))
     }
@@ -1114,11 +1037,7 @@ impl<R: Read + Seek> MessageSource for Ros1BagSource<R> {
         topics: Option<&[&str]>,
         visit: &mut dyn FnMut(MessageRef<'_>) -> Result<(), ReadError>,
     ) -> Result<ReadSummary, ReadError> {
-        let mut summary = ReadSummary {
-            warnings: self.open_warnings.clone(),
-            complete: !self.damaged,
-            messages: 0,
-        };
+        let mut summary = ReadSummary::starting(&self.open_warnings, !self.damaged);
         let wanted = self.select(topics, &mut summary.warnings)?;
         // Every chunk is read: the chunk info counts are not taken on their word (no checksum).
         let chunks = self.chunks.clone();
@@ -1128,7 +1047,7 @@ impl<R: Read + Seek> MessageSource for Ros1BagSource<R> {
         let mut state = ReadState {
             known: self.open_warnings.iter().cloned().collect(),
             summary,
-            orphans: BTreeMap::new(),
+            orphans: Orphans::default(),
         };
         loop {
             // The loaded chunk with the earliest pending message.

@@ -16,9 +16,10 @@ use rusqlite::{Connection, OpenFlags};
 
 use super::mcap::McapSource;
 use super::msgdef::MsgSchema;
+use super::shared::{TopicStat, select_topics};
 use super::{
     Channel, Encoding, MessageRef, MessageSource, OpenOptions, ReadError, ReadSummary, SessionInfo,
-    TopicInfo, rate_hz, session_info,
+    session_info,
 };
 
 /// A ROS 2 bag (sqlite3 storage, or MCAP storage delegated to the MCAP reader).
@@ -300,25 +301,27 @@ impl Skipped {
 
 /// Combine the infos of consecutive split files into one.
 fn merge_infos(path: &Path, format: &str, infos: Vec<SessionInfo>) -> SessionInfo {
-    let mut by_topic: HashMap<String, TopicInfo> = HashMap::new();
+    let mut by_topic: HashMap<String, (String, String, TopicStat)> = HashMap::new();
     let mut warnings = Vec::new();
     for info in infos {
         warnings.extend(info.warnings);
         for t in info.topics {
-            by_topic
-                .entry(t.topic.clone())
-                .and_modify(|m| {
-                    m.count += t.count;
-                    m.first_ns = m.first_ns.min(t.first_ns);
-                    m.last_ns = m.last_ns.max(t.last_ns);
-                })
-                .or_insert(t);
+            let (count, first_ns, last_ns) = (t.count, t.first_ns, t.last_ns);
+            let e = (by_topic.entry(t.topic)).or_insert((
+                t.type_name,
+                t.encoding,
+                TopicStat::default(),
+            ));
+            e.2.merge(&TopicStat {
+                count,
+                first_ns,
+                last_ns,
+            });
         }
     }
-    let mut topics: Vec<TopicInfo> = by_topic.into_values().collect();
-    for t in &mut topics {
-        t.rate_hz = rate_hz(t.count, t.first_ns, t.last_ns);
-    }
+    let topics = (by_topic.iter())
+        .map(|(topic, (type_name, encoding, s))| s.info(topic, type_name, encoding))
+        .collect();
     session_info(path, format, topics, warnings)
 }
 
@@ -464,7 +467,7 @@ impl SqliteBag {
     }
 
     fn info(&mut self) -> Result<SessionInfo, ReadError> {
-        let mut stats: Vec<(u64, u64, u64)> = vec![(0, u64::MAX, 0); self.topics.len()];
+        let mut stats = vec![TopicStat::default(); self.topics.len()];
         let mut notes = self.notes.clone();
         for f in &self.files {
             let conn = open_db(&f.db_path)?;
@@ -486,56 +489,21 @@ impl SqliteBag {
                     ));
                     continue;
                 };
-                let s = &mut stats[t];
-                s.0 += n.max(0) as u64;
-                s.1 = s.1.min(first.max(0) as u64);
-                s.2 = s.2.max(last.max(0) as u64);
+                stats[t].add(first.max(0) as u64, n.max(0) as u64);
+                stats[t].add(last.max(0) as u64, 0);
             }
         }
         let mut warnings = Vec::new();
-        let topics = self
-            .topics
-            .iter()
-            .zip(stats)
-            .map(|(t, (count, first, last))| {
-                let first = if count == 0 { 0 } else { first };
+        let topics = (self.topics.iter().zip(stats))
+            .map(|(t, s)| {
                 if let Err(e) = &t.channel {
                     warnings.push(e.clone());
                 }
-                TopicInfo {
-                    topic: t.name.clone(),
-                    type_name: t.type_name.clone(),
-                    encoding: "cdr".into(),
-                    count,
-                    first_ns: first,
-                    last_ns: last,
-                    rate_hz: rate_hz(count, first, last),
-                }
+                s.info(&t.name, &t.type_name, "cdr")
             })
             .collect();
         warnings.extend(notes);
         Ok(session_info(&self.bag, "ros2-sqlite3", topics, warnings))
-    }
-
-    /// Which topics to deliver; an explicitly requested topic without a definition is an
-    /// error, one that only comes along with "all topics" is skipped with a warning.
-    fn select(
-        &self,
-        wanted: Option<&[&str]>,
-        warnings: &mut Vec<String>,
-    ) -> Result<Vec<bool>, ReadError> {
-        let mut selected = vec![false; self.topics.len()];
-        for (i, t) in self.topics.iter().enumerate() {
-            if !wanted.is_none_or(|w| w.contains(&t.name.as_str())) {
-                continue;
-            }
-            match &t.channel {
-                Ok(_) => selected[i] = true,
-                Err(e) if wanted.is_some() => return Err(ReadError::Other(e.clone())),
-                Err(e) => warnings.push(format!("{e}; topic skipped")),
-            }
-        }
-        Ok(selected)
     }
 
     fn read(
@@ -543,12 +511,9 @@ impl SqliteBag {
         wanted: Option<&[&str]>,
         visit: &mut dyn FnMut(MessageRef<'_>) -> Result<(), ReadError>,
     ) -> Result<ReadSummary, ReadError> {
-        let mut summary = ReadSummary {
-            complete: self.notes.is_empty(),
-            warnings: self.notes.clone(),
-            ..ReadSummary::default()
-        };
-        let selected = self.select(wanted, &mut summary.warnings)?;
+        let mut summary = ReadSummary::starting(&self.notes, self.notes.is_empty());
+        let topics = self.topics.iter().map(|t| (t.name.as_str(), &t.channel));
+        let selected = select_topics(topics, wanted, &mut summary.warnings)?;
         let conns = self
             .files
             .iter()
@@ -961,14 +926,8 @@ fn topic_channel(
             "ros2idl" => Some(MsgSchema::parse_idl(type_name, text)),
             _ => None,
         });
-    super::resolve_schema(path, name, type_name, embedded, opts).map(|schema| {
-        Arc::new(Channel {
-            topic: name.to_string(),
-            type_name: type_name.to_string(),
-            encoding: Encoding::Cdr,
-            schema: Arc::new(schema),
-        })
-    })
+    super::resolve_schema(path, name, type_name, embedded, opts)
+        .map(|schema| Channel::new(name, type_name, Encoding::Cdr, schema))
 }
 
 /// Largest inflation accepted for a `compression_mode: FILE` storage file: its decompressed

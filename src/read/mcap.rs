@@ -20,6 +20,7 @@ use std::sync::Arc;
 
 use super::mcap_records::{self as rec, ChunkIndex, Statistics};
 use super::msgdef::MsgType;
+use super::shared::{MAX_DETAILED, Orphans, TopicStat, capped};
 use super::{
     Channel, Encoding, MessageRef, MessageSource, MsgSchema, OpenOptions, ReadError, ReadSummary,
     SessionInfo, TopicInfo,
@@ -49,8 +50,6 @@ const FOOTER_TOTAL: u64 = RECORD_PREFIX + 20 + 8;
 /// Chunks (compressed or not, and after decompression) larger than this are treated as damage
 /// rather than allocated.
 const MAX_CHUNK_BYTES: u64 = 64 << 20;
-/// Index disagreements of one kind reported in detail before they are only counted.
-const MAX_DETAILED: u64 = 10;
 /// Summary sections larger than this are ignored (linear scan instead).
 const MAX_SUMMARY_BYTES: u64 = 64 << 20;
 /// Records stored outside chunks are read in spans of at most this many bytes.
@@ -82,8 +81,8 @@ struct ChannelRec {
 struct Registry {
     schemas: HashMap<u16, SchemaRec>,
     channels: HashMap<u16, ChannelRec>,
-    /// Channel id → (messages skipped, byte offset of the first).
-    orphans: BTreeMap<u16, (u64, u64)>,
+    /// Messages on channel ids without a channel record.
+    orphans: Orphans,
 }
 
 /// What a scan does with one channel id's messages.
@@ -183,20 +182,6 @@ impl Registry {
             (Some(t), Some(c)) => t.contains(&c.topic.as_str()),
             (Some(_), None) => false,
         }
-    }
-
-    /// Warnings for the messages skipped because their channel id has no channel record.
-    fn orphan_warnings(&self, path: &Path) -> Vec<String> {
-        self.orphans
-            .iter()
-            .map(|(id, (n, first))| {
-                format!(
-                    "{}: {n} messages on channel id {id}, which has no channel record, were skipped \
-                     (the first in the record at byte offset {first})",
-                    path.display()
-                )
-            })
-            .collect()
     }
 }
 
@@ -499,7 +484,7 @@ impl<R: Read + Seek> McapSource<R> {
                 break;
             }
         }
-        self.registry.orphans.clear();
+        self.registry.orphans = Orphans::default();
         if let Some(d) = damage {
             self.open_warnings.push(format!(
                 "{}: looking for channel records in the data section: damaged at byte offset {}: {}",
@@ -535,23 +520,22 @@ impl<R: Read + Seek> McapSource<R> {
         self.unindexed = (layout.into_iter())
             .filter(|c| !indexed.contains(&c.chunk_start_offset))
             .collect();
-        for c in self.unindexed.iter().take(MAX_DETAILED as usize) {
+        let detailed = self.unindexed.iter().map(|c| {
             let (at, end) = (c.chunk_start_offset, c.chunk_start_offset + c.chunk_length);
             let what = match c.loose {
                 true => format!("the records at byte offsets {at}..{end} lie outside every chunk"),
                 false => format!("the chunk at byte offset {at} is missing from the chunk index"),
             };
-            self.open_warnings.push(format!(
+            format!(
                 "{path}: {what} (the summary has no CRC to vouch for the index); read from the \
                  data section"
-            ));
-        }
-        if self.unindexed.len() > MAX_DETAILED as usize {
-            self.open_warnings.push(format!(
-                "{path}: {} more chunks or spans of records are missing from the chunk index",
-                self.unindexed.len() - MAX_DETAILED as usize
-            ));
-        }
+            )
+        });
+        capped(&mut self.open_warnings, detailed.collect(), |more| {
+            format!(
+                "{path}: {more} more chunks or spans of records are missing from the chunk index"
+            )
+        });
     }
 
     /// The data section in file order: its chunks (times and sizes from their headers) and
@@ -625,7 +609,7 @@ impl<R: Read + Seek> McapSource<R> {
         if let Some(Some(c)) = self.resolved.get(i) {
             return Ok(c.clone());
         }
-        let c = Arc::new(resolve_channel(&self.path, &self.registry, &self.opts, id)?);
+        let c = resolve_channel(&self.path, &self.registry, &self.opts, id)?;
         if self.resolved.len() <= i {
             self.resolved.resize(i + 1, None);
         }
@@ -640,19 +624,17 @@ impl<R: Read + Seek> McapSource<R> {
         topics: Option<&[&str]>,
         sink: &mut RawSink<'_, R>,
     ) -> Result<ReadSummary, ReadError> {
-        let mut summary = ReadSummary {
-            messages: 0,
-            warnings: self.open_warnings.clone(),
-            complete: true,
-        };
-        self.registry.orphans.clear();
+        let mut summary = ReadSummary::starting(&self.open_warnings, true);
+        self.registry.orphans = Orphans::default();
         let mut result = self.walk_indexed(topics, sink, &mut summary.warnings)?;
         if let (Ok(()), Some(d)) = (&result, &self.scan_damage) {
             result = Err(d.clone());
         }
-        summary
-            .warnings
-            .extend(self.registry.orphan_warnings(&self.path));
+        let orphans =
+            self.registry
+                .orphans
+                .warnings(&self.path, "channel", "in the record at byte offset");
+        summary.warnings.extend(orphans);
         if let Err(d) = result {
             summary.complete = false;
             summary.warnings.push(format!(
@@ -742,7 +724,7 @@ impl<R: Read + Seek> McapSource<R> {
         if groups.is_empty() {
             return Ok(Ok(()));
         }
-        let mut mismatched = 0u64;
+        let mut mismatched = 0usize;
         let mut routes = Routes::new();
         let mut msgs = Vec::new();
         std::thread::scope(|scope| {
@@ -832,9 +814,9 @@ impl<R: Read + Seek> McapSource<R> {
         &self,
         ci: &ChunkIndex,
         seen: &BTreeSet<u16>,
-        before: u64,
+        before: usize,
         warnings: &mut Vec<String>,
-    ) -> u64 {
+    ) -> usize {
         let listed: BTreeSet<u16> = ci.message_index_offsets.keys().copied().collect();
         // An index without message indexes makes no claim about the chunk's channels.
         if listed.is_empty() || listed == *seen {
@@ -964,38 +946,20 @@ impl<R: Read + Seek> McapSource<R> {
             })
     }
 
-    fn topic_info(&self, id: u16, count: u64, first: u64, last: u64) -> TopicInfo {
-        let (topic, type_name, encoding) = match self.registry.channels.get(&id) {
-            Some(c) => (
-                c.topic.clone(),
-                self.registry
-                    .schemas
-                    .get(&c.schema_id)
-                    .map(|s| s.name.clone())
-                    .unwrap_or_default(),
-                c.message_encoding.clone(),
-            ),
-            None => (format!("<channel {id}>"), String::new(), String::new()),
+    fn topic_info(&self, id: u16, stat: &TopicStat) -> TopicInfo {
+        let Some(c) = self.registry.channels.get(&id) else {
+            return stat.info(&format!("<channel {id}>"), "", "");
         };
-        TopicInfo {
-            topic,
-            type_name,
-            encoding,
-            count,
-            first_ns: first,
-            last_ns: last,
-            rate_hz: super::rate_hz(count, first, last),
-        }
+        let schema = self.registry.schemas.get(&c.schema_id);
+        let type_name = schema.map_or("", |s| s.name.as_str());
+        stat.info(&c.topic, type_name, &c.message_encoding)
     }
 
     /// Per-channel (count, first, last) from the statistics and message indexes, when the
     /// summary's CRC vouches for them and they cover every channel; `None` when the messages
     /// must be counted (no statistics, no CRC, no chunk or message index for some channel, or
     /// counts that cannot be true: a warning says which).
-    fn indexed_counts(
-        &mut self,
-        warnings: &mut Vec<String>,
-    ) -> Option<BTreeMap<u16, (u64, u64, u64)>> {
+    fn indexed_counts(&mut self, warnings: &mut Vec<String>) -> Option<BTreeMap<u16, TopicStat>> {
         let summary = self.summary.as_ref().filter(|s| s.verified)?;
         let stats = summary.stats.clone()?;
         let stats_offset = summary.stats_offset;
@@ -1028,7 +992,15 @@ impl<R: Read + Seek> McapSource<R> {
                 continue;
             }
             let (first, last) = spans.get(id).copied()?;
-            per_channel.insert(*id, (*count, first, last));
+            let (count, first_ns, last_ns) = (*count, first, last);
+            per_channel.insert(
+                *id,
+                TopicStat {
+                    count,
+                    first_ns,
+                    last_ns,
+                },
+            );
         }
         Some(per_channel)
     }
@@ -1037,7 +1009,7 @@ impl<R: Read + Seek> McapSource<R> {
     /// channel id → count, first, last); `complete` is whether the whole file was read.
     fn check_statistics(
         &self,
-        read: &BTreeMap<u16, (u64, u64, u64)>,
+        read: &BTreeMap<u16, TopicStat>,
         complete: bool,
         warnings: &mut Vec<String>,
     ) {
@@ -1050,9 +1022,9 @@ impl<R: Read + Seek> McapSource<R> {
             .chain(stats.channel_message_counts.keys())
             .copied()
             .collect();
-        let mut differ = 0u64;
+        let mut differ = 0usize;
         for id in ids {
-            let got = read.get(&id).map_or(0, |r| r.0);
+            let got = read.get(&id).map_or(0, |r| r.count);
             let listed = stats.channel_message_counts.get(&id).copied();
             match listed {
                 Some(n) if n == got => continue,
@@ -1067,7 +1039,7 @@ impl<R: Read + Seek> McapSource<R> {
                 warnings.push(format!(
                     "{path}: the statistics record at byte offset {at} lists {listed} messages on \
                      channel {id} ({}) but {got} were read; the counts shown are the ones read",
-                    self.topic_info(id, 0, 0, 0).topic
+                    self.topic_info(id, &TopicStat::default()).topic
                 ));
             }
         }
@@ -1077,7 +1049,7 @@ impl<R: Read + Seek> McapSource<R> {
                 differ - MAX_DETAILED
             ));
         }
-        let total = read.values().fold(0u64, |a, r| a.saturating_add(r.0));
+        let total = read.values().fold(0u64, |a, r| a.saturating_add(r.count));
         if complete && stats.message_count != total {
             warnings.push(format!(
                 "{path}: the statistics record at byte offset {at} lists {} messages in all but \
@@ -1335,10 +1307,7 @@ fn scan_records(
                     Route::Keep => {}
                     Route::Skip | Route::Undecided => continue,
                     Route::Orphan => {
-                        let e = (registry.orphans)
-                            .entry(channel_id)
-                            .or_insert((0, file_offset));
-                        e.0 += 1;
+                        registry.orphans.add(channel_id.into(), file_offset);
                         continue;
                     }
                 }
@@ -1373,7 +1342,7 @@ fn resolve_channel(
     registry: &Registry,
     opts: &OpenOptions,
     id: u16,
-) -> Result<Channel, ReadError> {
+) -> Result<Arc<Channel>, ReadError> {
     let rec = registry.channels.get(&id).ok_or_else(|| {
         ReadError::Other(format!(
             "{}: message on channel {id}, which has no channel record",
@@ -1428,12 +1397,7 @@ fn resolve_channel(
             )));
         }
     };
-    Ok(Channel {
-        topic: rec.topic.clone(),
-        type_name,
-        encoding,
-        schema: Arc::new(schema),
-    })
+    Ok(Channel::new(&rec.topic, &type_name, encoding, schema))
 }
 
 /// A schema without fields, for JSON channels that carry no message definition: fields are
@@ -1473,10 +1437,12 @@ impl<R: Read + Seek> MessageSource for McapSource<R> {
         let per_channel = match self.indexed_counts(&mut warnings) {
             Some(p) => p,
             None => {
-                let mut per_channel: BTreeMap<u16, (u64, u64, u64)> = BTreeMap::new();
+                let mut per_channel: BTreeMap<u16, TopicStat> = BTreeMap::new();
                 let summary = self.walk(None, &mut |_, m, _| {
-                    let e = per_channel.entry(m.channel_id).or_insert((0, u64::MAX, 0));
-                    *e = (e.0 + 1, e.1.min(m.log_time), e.2.max(m.log_time));
+                    per_channel
+                        .entry(m.channel_id)
+                        .or_default()
+                        .add(m.log_time, 1);
                     Ok(())
                 })?;
                 warnings.extend(
@@ -1491,8 +1457,8 @@ impl<R: Read + Seek> MessageSource for McapSource<R> {
         };
         let topics: Vec<TopicInfo> = per_channel
             .iter()
-            .filter(|(_, (count, _, _))| *count > 0)
-            .map(|(id, (count, first, last))| self.topic_info(*id, *count, *first, *last))
+            .filter(|(_, s)| s.count > 0)
+            .map(|(id, s)| self.topic_info(*id, s))
             .collect();
         Ok(super::session_info(&self.path, "mcap", topics, warnings))
     }

@@ -19,6 +19,7 @@ pub(crate) mod mcap;
 mod mcap_records;
 pub(crate) mod msgdef;
 pub(crate) mod session;
+mod shared;
 mod yaml;
 
 pub use bag1::Ros1BagSource;
