@@ -80,6 +80,11 @@ pub struct FieldExtractor {
     fixed_len: Option<(usize, usize)>,
     /// Root type name, for messages.
     root: String,
+    /// The `float32` leaves at constant offsets as (offset, output slot), and the other leaves'
+    /// indices: a little-endian payload reads the first without a per-leaf dispatch (the bulk of
+    /// every unitree_hg message).
+    f32_leaves: Vec<(usize, usize)>,
+    other_leaves: Vec<usize>,
 }
 
 #[derive(Debug, Clone)]
@@ -770,6 +775,7 @@ impl FieldExtractor {
                 }
             }
             let leaves = paths.iter().cloned().map(Leaf::Json).collect();
+            let other_leaves = (0..paths.len()).collect();
             return Ok(FieldExtractor {
                 encoding,
                 leaves,
@@ -778,6 +784,8 @@ impl FieldExtractor {
                 schema: None,
                 fixed_len: None,
                 root: schema.root.clone(),
+                f32_leaves: Vec::new(),
+                other_leaves,
             });
         }
         let rules = match encoding {
@@ -812,6 +820,13 @@ impl FieldExtractor {
             Ok(Some(end)) => Some((end, end)),
             _ => None,
         };
+        let (mut f32_leaves, mut other_leaves) = (Vec::new(), Vec::new());
+        for (slot, leaf) in leaves.iter().enumerate() {
+            match leaf {
+                Leaf::Offset(off, Primitive::F32) => f32_leaves.push((*off, slot)),
+                _ => other_leaves.push(slot),
+            }
+        }
         Ok(FieldExtractor {
             encoding,
             leaves,
@@ -820,6 +835,8 @@ impl FieldExtractor {
             schema: needs_schema.then(|| schema.clone()),
             fixed_len,
             root: schema.root.clone(),
+            f32_leaves,
+            other_leaves,
         })
     }
 
@@ -880,7 +897,24 @@ impl FieldExtractor {
             });
         }
         let le = rules.little_endian();
-        for ((leaf, slot), name) in self.leaves.iter().zip(out.iter_mut()).zip(&self.names) {
+        // Within `min_len` (checked above): these reads cannot fail.
+        if le && !self.f32_leaves.is_empty() {
+            for &(off, slot) in &self.f32_leaves {
+                let b = data.get(off..off + 4).and_then(|b| b.try_into().ok());
+                if let (Some(b), Some(v)) = (b, out.get_mut(slot)) {
+                    *v = f64::from(f32::from_le_bytes(b));
+                }
+            }
+        }
+        let all: Vec<usize>;
+        let slow = if le {
+            &self.other_leaves
+        } else {
+            all = (0..self.leaves.len()).collect();
+            &all
+        };
+        for &i in slow {
+            let (leaf, name, slot) = (&self.leaves[i], &self.names[i], &mut out[i]);
             *slot = match leaf {
                 Leaf::Offset(off, prim) => {
                     read_number(data, *off, *prim, le).ok_or_else(|| DecodeError::Truncated {

@@ -83,27 +83,19 @@ impl SpillWriter {
             "joint state columns of unequal length"
         );
         let mut wide = 0u64;
-        let mut col = vec![0.0f64; n];
-        let mut bytes: Vec<u8> = Vec::with_capacity(n * (8 + COLUMNS * 4));
-        for &t in &s.t {
-            bytes.extend_from_slice(&t.to_le_bytes());
-        }
+        let mut col = Vec::with_capacity(n);
+        let mut bytes: Vec<u8> = Vec::with_capacity(n * (8 + COLUMNS * 8));
+        bytes.extend(s.t.iter().flat_map(|t| t.to_le_bytes()));
         for c in 0..COLUMNS {
-            for (i, v) in col.iter_mut().enumerate() {
-                *v = value(s, i, c);
-            }
-            if col
-                .iter()
-                .all(|&v| f64::from(v as f32).to_bits() == v.to_bits())
-            {
-                for &v in &col {
-                    bytes.extend_from_slice(&(v as f32).to_le_bytes());
-                }
+            let (flat, stride, at) = column(s, c);
+            col.clear();
+            col.extend(flat.iter().skip(at).step_by(stride).take(n));
+            col.resize(n, f64::NAN);
+            if col.iter().all(|&v| f64::from(v as f32).to_bits() == v.to_bits()) {
+                bytes.extend(col.iter().flat_map(|&v| (v as f32).to_le_bytes()));
             } else {
                 wide |= 1 << c;
-                for &v in &col {
-                    bytes.extend_from_slice(&v.to_le_bytes());
-                }
+                bytes.extend(col.iter().flat_map(|v| v.to_le_bytes()));
             }
         }
         self.out
@@ -141,31 +133,40 @@ impl SpillWriter {
     }
 }
 
-/// Column `c` of sample `i` in the spill's column order.
-fn value(s: &StateSeries, i: usize, c: usize) -> f64 {
+/// Where column `c` (in the spill's column order) lies in `s`: (the field's values flattened
+/// sample by sample, values per sample, position in a sample).
+fn column(s: &StateSeries, c: usize) -> (&[f64], usize, usize) {
     const J: usize = N_JOINTS;
     match c {
-        c if c < J => s.q[i][c],
-        c if c < 2 * J => s.dq[i][c - J],
-        c if c < 3 * J => s.tau[i][c - 2 * J],
-        c if c < 4 * J => s.temp[i][c - 3 * J],
-        c if c < 4 * J + 3 => s.gyro[i][c - 4 * J],
-        c if c < 4 * J + 7 => s.quat[i][c - 4 * J - 3],
-        _ => s.volts.get(i).copied().unwrap_or(f64::NAN),
+        c if c < J => (s.q.as_flattened(), J, c),
+        c if c < 2 * J => (s.dq.as_flattened(), J, c - J),
+        c if c < 3 * J => (s.tau.as_flattened(), J, c - 2 * J),
+        c if c < 4 * J => (s.temp.as_flattened(), J, c - 3 * J),
+        c if c < 4 * J + 3 => (s.gyro.as_flattened(), 3, c - 4 * J),
+        c if c < 4 * J + 7 => (s.quat.as_flattened(), 4, c - 4 * J - 3),
+        _ => (&s.volts, 1, 0),
     }
 }
 
-fn set_value(s: &mut StateSeries, i: usize, c: usize, v: f64) {
+/// [`column`], writable.
+fn column_mut(s: &mut StateSeries, c: usize) -> (&mut [f64], usize, usize) {
     const J: usize = N_JOINTS;
     match c {
-        c if c < J => s.q[i][c] = v,
-        c if c < 2 * J => s.dq[i][c - J] = v,
-        c if c < 3 * J => s.tau[i][c - 2 * J] = v,
-        c if c < 4 * J => s.temp[i][c - 3 * J] = v,
-        c if c < 4 * J + 3 => s.gyro[i][c - 4 * J] = v,
-        c if c < 4 * J + 7 => s.quat[i][c - 4 * J - 3] = v,
-        _ => s.volts[i] = v,
+        c if c < J => (s.q.as_flattened_mut(), J, c),
+        c if c < 2 * J => (s.dq.as_flattened_mut(), J, c - J),
+        c if c < 3 * J => (s.tau.as_flattened_mut(), J, c - 2 * J),
+        c if c < 4 * J => (s.temp.as_flattened_mut(), J, c - 3 * J),
+        c if c < 4 * J + 3 => (s.gyro.as_flattened_mut(), 3, c - 4 * J),
+        c if c < 4 * J + 7 => (s.quat.as_flattened_mut(), 4, c - 4 * J - 3),
+        _ => (&mut s.volts, 1, 0),
     }
+}
+
+/// Column `c` of sample `i` in the spill's column order.
+#[cfg(test)]
+fn value(s: &StateSeries, i: usize, c: usize) -> f64 {
+    let (flat, stride, at) = column(s, c);
+    flat.get(i * stride + at).copied().unwrap_or(f64::NAN)
 }
 
 impl StateSpill {
@@ -213,20 +214,19 @@ impl StateSpill {
                 quat: vec![[0.0; 4]; b.n],
                 volts: vec![0.0; b.n],
             };
-            let mut at = 0;
-            for _ in 0..b.n {
-                s.t.push(f64::from_le_bytes(raw[at..at + 8].try_into()?));
-                at += 8;
-            }
+            let (times, mut rest) = raw.split_at(b.n * 8);
+            s.t.extend(times.chunks_exact(8).map(|x| f64::from_le_bytes(array(x))));
             for c in 0..COLUMNS {
-                for i in 0..b.n {
-                    let v = if width(c) == 8 {
-                        f64::from_le_bytes(raw[at..at + 8].try_into()?)
-                    } else {
-                        f64::from(f32::from_le_bytes(raw[at..at + 4].try_into()?))
-                    };
-                    at += width(c);
-                    set_value(&mut s, i, c, v);
+                let (values, after) = rest.split_at(b.n * width(c));
+                rest = after;
+                let (flat, stride, at) = column_mut(&mut s, c);
+                let slots = flat.iter_mut().skip(at).step_by(stride);
+                if width(c) == 8 {
+                    let read = values.chunks_exact(8).map(|x| f64::from_le_bytes(array(x)));
+                    slots.zip(read).for_each(|(v, x)| *v = x);
+                } else {
+                    let read = values.chunks_exact(4).map(|x| f32::from_le_bytes(array(x)));
+                    slots.zip(read).for_each(|(v, x)| *v = f64::from(x));
                 }
             }
             if ranges_ns.is_some() {
@@ -241,6 +241,11 @@ impl StateSpill {
         }
         Ok(())
     }
+}
+
+/// The first `N` bytes of `x` (a chunk of exactly `N`).
+fn array<const N: usize>(x: &[u8]) -> [u8; N] {
+    x.try_into().unwrap_or([0; N])
 }
 
 /// A session's spill, shared by the copies of its file handle: empty until a first full pass
