@@ -89,9 +89,12 @@ impl SpillWriter {
         for c in 0..COLUMNS {
             let (flat, stride, at) = column(s, c);
             col.clear();
-            col.extend(flat.iter().skip(at).step_by(stride).take(n));
+            col.extend(flat.chunks_exact(stride).take(n).map(|r| r[at]));
             col.resize(n, f64::NAN);
-            if col.iter().all(|&v| f64::from(v as f32).to_bits() == v.to_bits()) {
+            if col
+                .iter()
+                .all(|&v| f64::from(v as f32).to_bits() == v.to_bits())
+            {
                 bytes.extend(col.iter().flat_map(|&v| (v as f32).to_le_bytes()));
             } else {
                 wide |= 1 << c;
@@ -220,7 +223,7 @@ impl StateSpill {
                 let (values, after) = rest.split_at(b.n * width(c));
                 rest = after;
                 let (flat, stride, at) = column_mut(&mut s, c);
-                let slots = flat.iter_mut().skip(at).step_by(stride);
+                let slots = flat.chunks_exact_mut(stride).map(|r| &mut r[at]);
                 if width(c) == 8 {
                     let read = values.chunks_exact(8).map(|x| f64::from_le_bytes(array(x)));
                     slots.zip(read).for_each(|(v, x)| *v = x);
