@@ -4,7 +4,9 @@
 //! Every container yields the same [`MessageRef`]s through [`Session`], so everything
 //! downstream is format-blind. Readers stream: memory does not grow with file length.
 //! A damaged file is read up to the damage; what was lost is reported in
-//! [`ReadSummary::warnings`] with the file and byte offset.
+//! [`ReadSummary::warnings`] with the file and byte offset. What the three container readers
+//! share (topic statistics, topic selection, messages on unknown ids, the cap on detailed
+//! warnings) is in `shared.rs`.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
