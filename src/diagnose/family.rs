@@ -122,70 +122,40 @@ impl Term {
 
     /// The library mechanism this term is a form of (its hypothesis id), if any.
     pub(crate) fn library_id(self) -> Option<&'static str> {
-        match self {
-            Term::Braking => Some("braking"),
-            Term::Current | Term::DrivingCurrent | Term::BrakingCurrent => Some("drive_loss"),
-            Term::DrivingTorque | Term::BrakingTorque => Some("electronics_nm"),
-            Term::Stribeck => Some("stribeck"),
-            Term::BusPower => Some("bus_power"),
-            Term::Mech | Term::Copper | Term::Coulomb | Term::Viscous => None,
-        }
+        self.table().0
     }
 
     /// What it is, in words.
     pub(crate) fn words(self) -> &'static str {
-        match self {
-            Term::Mech => "the transmitted mechanical power τq̇ (efficiency)",
-            Term::Copper => "the copper loss Δτ²",
-            Term::Coulomb => "the Coulomb friction loss |q̇|",
-            Term::Viscous => "the viscous friction loss q̇²",
-            Term::Braking => "the braking asymmetry (regenerated power τq̇ < 0 not returned)",
-            Term::Current => "the drive-electronics loss per ampere of phase current |τ|/K",
-            Term::DrivingCurrent => {
-                "the drive-electronics loss per ampere of the driving joints' current (τq̇ > 0)"
-            }
-            Term::BrakingCurrent => {
-                "the drive-electronics loss per ampere of the braking or holding joints' current (τq̇ ≤ 0)"
-            }
-            Term::DrivingTorque => {
-                "the drive-electronics loss per Nm of the driving joints (τq̇ > 0)"
-            }
-            Term::BrakingTorque => {
-                "the drive-electronics loss per Nm of the braking or holding joints (τq̇ ≤ 0)"
-            }
-            Term::Stribeck => "the Stribeck friction Σ|q̇|·exp(−(q̇/v_s)²)",
-            Term::BusPower => "the shared DC-bus loss (P_elec/V_bus)²",
-        }
+        self.table().1
     }
 
     /// Its symbol in a formula.
     pub(crate) fn symbol(self) -> &'static str {
-        match self {
-            Term::Mech => "τ_i q̇_i",
-            Term::Copper => "Δτ_i²",
-            Term::Coulomb => "|q̇_i|",
-            Term::Viscous => "q̇_i²",
-            Term::Braking => "min(τ_i q̇_i, 0)",
-            Term::Current => "|τ_i|/K_i",
-            Term::DrivingCurrent => "|τ_i|/K_i·[τ_i q̇_i > 0]",
-            Term::BrakingCurrent => "|τ_i|/K_i·[τ_i q̇_i ≤ 0]",
-            Term::DrivingTorque => "|τ_i|·[τ_i q̇_i > 0]",
-            Term::BrakingTorque => "|τ_i|·[τ_i q̇_i ≤ 0]",
-            Term::Stribeck => "|q̇_i|·exp(−(q̇_i/v_s)²)",
-            Term::BusPower => "(P_elec/V_bus)²",
-        }
+        self.table().2
     }
 
     /// Unit of its coefficient.
     pub(crate) fn unit(self) -> &'static str {
+        self.table().3
+    }
+
+    /// (library mechanism, words, symbol, unit), one row per term.
+    #[rustfmt::skip]
+    fn table(self) -> (Option<&'static str>, &'static str, &'static str, &'static str) {
         match self {
-            Term::Mech | Term::Braking => "-",
-            Term::Copper => "W/Nm²",
-            Term::Coulomb | Term::Stribeck => "W·s/rad",
-            Term::Viscous => "W·s²/rad²",
-            Term::Current | Term::DrivingCurrent | Term::BrakingCurrent => "V",
-            Term::DrivingTorque | Term::BrakingTorque => "W/Nm",
-            Term::BusPower => "Ω",
+            Term::Mech => (None, "the transmitted mechanical power τq̇ (efficiency)", "τ_i q̇_i", "-"),
+            Term::Copper => (None, "the copper loss Δτ²", "Δτ_i²", "W/Nm²"),
+            Term::Coulomb => (None, "the Coulomb friction loss |q̇|", "|q̇_i|", "W·s/rad"),
+            Term::Viscous => (None, "the viscous friction loss q̇²", "q̇_i²", "W·s²/rad²"),
+            Term::Braking => (Some("braking"), "the braking asymmetry (regenerated power τq̇ < 0 not returned)", "min(τ_i q̇_i, 0)", "-"),
+            Term::Current => (Some("drive_loss"), "the drive-electronics loss per ampere of phase current |τ|/K", "|τ_i|/K_i", "V"),
+            Term::DrivingCurrent => (Some("drive_loss"), "the drive-electronics loss per ampere of the driving joints' current (τq̇ > 0)", "|τ_i|/K_i·[τ_i q̇_i > 0]", "V"),
+            Term::BrakingCurrent => (Some("drive_loss"), "the drive-electronics loss per ampere of the braking or holding joints' current (τq̇ ≤ 0)", "|τ_i|/K_i·[τ_i q̇_i ≤ 0]", "V"),
+            Term::DrivingTorque => (Some("electronics_nm"), "the drive-electronics loss per Nm of the driving joints (τq̇ > 0)", "|τ_i|·[τ_i q̇_i > 0]", "W/Nm"),
+            Term::BrakingTorque => (Some("electronics_nm"), "the drive-electronics loss per Nm of the braking or holding joints (τq̇ ≤ 0)", "|τ_i|·[τ_i q̇_i ≤ 0]", "W/Nm"),
+            Term::Stribeck => (Some("stribeck"), "the Stribeck friction Σ|q̇|·exp(−(q̇/v_s)²)", "|q̇_i|·exp(−(q̇_i/v_s)²)", "W·s/rad"),
+            Term::BusPower => (Some("bus_power"), "the shared DC-bus loss (P_elec/V_bus)²", "(P_elec/V_bus)²", "Ω"),
         }
     }
 }

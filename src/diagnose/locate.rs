@@ -67,6 +67,16 @@ pub struct Correlate {
     pub trials: Vec<usize>,
 }
 
+impl Correlate {
+    /// Whether it is a slow state — a motor temperature or session time: what a loss term that
+    /// changes with a slow state leaves in the residual per trial (a joint's position or speed
+    /// is also where the base model's own misfit shows: in a null fuzz session, 1894880942, the
+    /// residual followed a wrist position at p = 1.6e-3).
+    pub(crate) fn slow(&self) -> bool {
+        self.feature == "session time" || self.feature.ends_with("motor temperature T")
+    }
+}
+
 /// A row's selectors for the breakdowns.
 fn group_stats(
     label: String,

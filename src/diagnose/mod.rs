@@ -461,6 +461,10 @@ fn assemble(
         metas.len(),
     );
     let located = locate_residuals(&info.joint_names, metas, data, sel, j.discovery.as_ref());
+    let mut discovery = j.discovery;
+    if let Some(r) = discovery.as_mut() {
+        r.locate_unexplained(&located.unexplained);
+    }
     let replay = ReplayData {
         rejected: j.rejected_windows,
         imu: j.imu,
@@ -490,7 +494,7 @@ fn assemble(
         unexplained: located.unexplained,
         forms: sel.forms.clone(),
         confounded: sel.confounded.clone(),
-        discovery: j.discovery,
+        discovery,
         bus_volts: fields
             .table
             .bus_volts

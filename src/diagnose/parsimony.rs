@@ -449,6 +449,10 @@ fn record(
             if !t.claimed() {
                 let mut d = r.accepted.remove(k - n_lib);
                 d.verdict = format!("{}; {}", t.words(), d.verdict);
+                // "X or Y": a rival mechanism that fits as well is named beside it.
+                if let Some(rival) = t.rival {
+                    d.name = format!("{} — or the {rival}: not told apart", d.name);
+                }
                 r.located.insert(0, d);
             }
         }

@@ -302,12 +302,15 @@ impl TrialFeatures {
         }
     }
 
-    /// Sample `k`'s base regressors; `None` where its features are missing or not finite.
-    pub(crate) fn phi(&self, k: usize) -> Option<[f64; crate::N_PARAMS]> {
+    /// Sample `k`'s base regressors and every library mechanism's features, the latter net of
+    /// the trial's pre-idle level (as a row's are); `None` where missing or not finite.
+    pub(crate) fn raw(&self, k: usize, meta: &TrialMeta) -> Option<[f64; N_RAW]> {
         let f = self.feats.get(k.checked_sub(self.first)?)?.as_ref()?;
-        f.iter()
-            .all(|v| v.is_finite())
-            .then(|| std::array::from_fn(|c| f[c]))
+        let mut x = *f;
+        for (v, b0) in x[crate::N_PARAMS..].iter_mut().zip(&meta.extra0) {
+            *v -= b0;
+        }
+        x.iter().all(|v| v.is_finite()).then_some(x)
     }
 
     /// [`window_mean`] without descriptors, from the cached features (`None` when the window

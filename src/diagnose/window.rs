@@ -26,6 +26,12 @@
 //! is the latency hypothesis' to judge (a real 0.3 s latency behind a 0.2 s window keeps the
 //! nominal window at lag ≈ 0.3 s).
 //!
+//! Every candidate is fitted with the base regressors AND every library mechanism's features,
+//! each net of its trial's pre-idle level (the rows' own columns): a mechanism the base model
+//! lacks leaves a remainder that a shifted or resized window fits in part, so the scan would
+//! judge the sensor's timing by the model's misfit (a 0.3 s window beside a DC-bus loss read as
+//! 0.2 s + a 0.05 s latency, fuzz seed 1213589933).
+//!
 //! Candidates are compared on one set of readings (stamps at least the largest scanned window
 //! after the trajectory start) with one target (net of the pre-idle baseline at the nominal
 //! window), over the IMU-kept trials without those the diagnosis' residual passes reject: one
@@ -40,6 +46,7 @@ use crate::timing::{
 };
 use crate::trial::{Cascade, TrialStat, TrialWindow, is_rejected, samples_in};
 
+use super::hypotheses::N_RAW;
 use super::lags::base_trial_residuals;
 use super::reading_rows::{Rows, TrialFeatures, TrialMeta, build_rows, span};
 use super::trials::{SessionInfo, hold};
@@ -285,7 +292,10 @@ fn without_outliers(
         .collect())
 }
 
-/// Each candidate's (rows, R²) of the base regressors' least-squares fit of its rows, restricted
+/// Each candidate's (rows, R²) of the least-squares fit of its rows on the base regressors and
+/// every library mechanism's features (one truth across stages: a mechanism missing from the
+/// base model cannot move the window or demand a lag — a 0.3 s sensor beside a DC-bus loss was
+/// read as 0.2 s + a 0.05 s latency, fuzz seed 1213589933), restricted
 /// to the fixed reading set (stamps ≥ trajectory start + [`FIXED_SET_S`] among the `reference`
 /// rows) with the reference rows' targets, in one pass over the trials ([`SearchFits`]). A
 /// candidate's rows are the readings [`build_rows`] gives it: a trial without its baseline
@@ -297,7 +307,7 @@ fn fixed_set_scores(
     reference: &Rows,
     cands: &[Alignment],
 ) -> Scores {
-    let mut fits = SearchFits::new(cands.len());
+    let mut fits = SearchFits::<N_RAW>::new(cands.len());
     let (mut rows, mut first) = (Vec::new(), 0);
     for (ti, meta) in metas.iter().enumerate() {
         let w = &meta.window;
@@ -317,7 +327,7 @@ fn fixed_set_scores(
             }
         }
         let feats = TrialFeatures::new(rec, meta);
-        fits.add_trial(&rows, |k| feats.phi(k));
+        fits.add_trial(&rows, |k| feats.raw(k, meta));
         first = end;
     }
     fits.scores()
@@ -349,13 +359,13 @@ mod tests {
         let got = fixed_set_scores(&rec, &rec.mbs, &metas, &reference, &cands);
         for (a, got) in cands.iter().zip(got) {
             let rows = build_rows(&rec, &rec.mbs, &metas, a.lag_s, a.window_s, false);
-            let mut gram = crate::lsq::Gram::zeros(crate::N_PARAMS);
+            let mut gram = crate::lsq::Gram::zeros(N_RAW);
             let mut y = Vec::new();
             for r in 0..rows.len() {
                 let start = metas[rows.trial[r]].window.t_traj_start;
                 let at = reference.t.iter().position(|&t| t == rows.t[r]);
                 if let (true, Some(k)) = (rows.t[r] >= start + FIXED_SET_S, at) {
-                    gram.add_row(&rows.x[r][..crate::N_PARAMS], reference.y[k]);
+                    gram.add_row(&rows.x[r], reference.y[k]);
                     y.push(reference.y[k]);
                 }
             }

@@ -152,22 +152,24 @@ const BLOCK: usize = 256;
 /// per-sample regressors are computed once, over the span every window of its rows covers, into
 /// running sums shared by all candidates (a window's mean is the difference of two), and each
 /// candidate's rows enter its normal equations [`BLOCK`] at a time ([`Gram::add_rows`]). The
-/// window means equal the samples' own means up to the rounding of the running sums.
-pub struct SearchFits {
+/// window means equal the samples' own means up to the rounding of the running sums. `W`
+/// regressors per sample: the paper's 49 by default; the diagnosis scans with every library
+/// mechanism's regressor beside them.
+pub struct SearchFits<const W: usize = N_PARAMS> {
     /// Per candidate: normal equations, rows not yet in them, every row's target.
     acc: Vec<(Gram, Vec<f64>, Vec<f64>)>,
     /// Σφ over the span's first k samples, k = 0..=len (samples without a regressor left out).
-    sums: Vec<[f64; N_PARAMS]>,
+    sums: Vec<[f64; W]>,
     /// How many of the span's first k samples have no (finite) regressor.
     bad: Vec<usize>,
 }
 
-impl SearchFits {
+impl<const W: usize> SearchFits<W> {
     /// No rows yet for `candidates` candidates.
-    pub fn new(candidates: usize) -> SearchFits {
+    pub fn new(candidates: usize) -> SearchFits<W> {
         SearchFits {
             acc: (0..candidates)
-                .map(|_| (Gram::zeros(N_PARAMS), Vec::new(), Vec::new()))
+                .map(|_| (Gram::zeros(W), Vec::new(), Vec::new()))
                 .collect(),
             sums: Vec::new(),
             bad: Vec::new(),
@@ -180,7 +182,7 @@ impl SearchFits {
     pub fn add_trial(
         &mut self,
         rows: &[SearchRow],
-        mut phi: impl FnMut(usize) -> Option<[f64; N_PARAMS]>,
+        mut phi: impl FnMut(usize) -> Option<[f64; W]>,
     ) {
         let live = || {
             rows.iter()
@@ -192,7 +194,7 @@ impl SearchFits {
         ) else {
             return;
         };
-        let (mut run, mut bad) = ([0.0; N_PARAMS], 0);
+        let (mut run, mut bad) = ([0.0; W], 0);
         self.sums.clear();
         self.bad.clear();
         self.sums.push(run);
@@ -208,8 +210,7 @@ impl SearchFits {
         for r in live() {
             let (i, j) = (r.samples.start - start, r.samples.end - start);
             let n = r.samples.len() as f64;
-            let mean: [f64; N_PARAMS] =
-                std::array::from_fn(|c| (self.sums[j][c] - self.sums[i][c]) / n);
+            let mean: [f64; W] = std::array::from_fn(|c| (self.sums[j][c] - self.sums[i][c]) / n);
             if self.bad[j] != self.bad[i] || !r.y.is_finite() || mean.iter().any(|v| !v.is_finite())
             {
                 continue;
@@ -217,7 +218,7 @@ impl SearchFits {
             let c = &mut self.acc[r.cand];
             c.1.extend_from_slice(&mean);
             c.2.push(r.y);
-            if c.1.len() >= BLOCK * N_PARAMS {
+            if c.1.len() >= BLOCK * W {
                 Self::flush(c);
             }
         }
@@ -240,12 +241,12 @@ impl SearchFits {
     }
 }
 
-/// R² of an unconstrained least-squares fit of the rows' targets `y` (in row order) on the 49
+/// R² of an unconstrained least-squares fit of the rows' targets `y` (in row order) on the
 /// regressors from their normal equations, with a tiny ridge (unexcited columns, e.g. joint
 /// pairs that never move together, make ΦᵀΦ singular). None with no more rows than parameters.
 pub fn ridge_r2_of(gram: &Gram, y: &[f64]) -> Option<f64> {
     let n = y.len();
-    if n <= N_PARAMS {
+    if n <= gram.g.nrows() {
         return None;
     }
     let theta = gram.solve(1e-9)?;

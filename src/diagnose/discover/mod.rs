@@ -333,8 +333,8 @@ const DEPENDENCE_Z: f64 = 3.0;
 /// coefficient k is not resolved (|k| < [`DEPENDENCE_Z`] s.e.): a term × signal says the loss
 /// changes with the signal, which needs k resolved, not only the term's gain (a slow signal
 /// nearly constant over the session lets k·s + k0 act as a free level, e.g. an efficiency below
-/// the base model's a ≥ 1). Such a term is not claimed: why is noted in `report`, and it is the
-/// best rejected at step 1 or when there is none.
+/// the base model's a ≥ 1). Such a term is not claimed: it is located (its verdict says why)
+/// and it is the best rejected at step 1 or when there is none.
 fn dependence_unresolved(
     search: &Search,
     b: &Scored,
@@ -364,9 +364,11 @@ fn dependence_unresolved(
         k.std_err,
         DEPENDENCE_Z
     );
-    report.notes.push(format!("{}: {verdict}", d.name));
+    // It passed every gate: significant structure, located (never dropped), not claimed.
+    let d = Discovery { verdict, ..d };
+    report.located.push(d.clone());
     if report.best_rejected.is_none() || step == 1 {
-        report.best_rejected = Some(Discovery { verdict, ..d });
+        report.best_rejected = Some(d);
     }
     true
 }

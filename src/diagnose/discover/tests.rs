@@ -193,3 +193,54 @@ fn within_share_of_a_slow_and_a_fast_signal() {
     assert!(within_share(&slow, &trial, 4) < 1e-12);
     assert!(within_share(&fast, &trial, 4) > 0.9);
 }
+
+/// Structure that stays in the final residual per trial and follows a slow state is located
+/// with discovery's best rejected candidate as its best approximation, and never claimed; a
+/// correlate with a joint's position (where the base model's own misfit shows), one that is not
+/// significant, or a term already found leaves the report as it was.
+#[test]
+fn slow_structure_no_candidate_passes_is_located_not_claimed() {
+    let q = serde_json::json!({"r2": 0.9, "rmse_w": 1.0});
+    let best: super::Discovery = serde_json::from_value(serde_json::json!({
+        "name": "The copper loss Δτ² of the arm's joints rises with /m[16].temperature[1]",
+        "form": "k·Σ Δτ_i²·s_i", "fields": ["/m[16].temperature[1]"], "params": [],
+        "p_value": 1e-2, "alpha": 1e-7, "delta_bic": -20.0, "rel_improvement": 0.05,
+        "before": q, "after": q, "step": 1, "verdict": "rejected: p = 1.0e-2 ≥ 1.0e-7 (Holm)"
+    }))
+    .unwrap();
+    let corr = |feature: &str, significant| crate::diagnose::Correlate {
+        feature: feature.into(),
+        r: 0.5,
+        p_adjusted: 4.8e-3,
+        significant,
+        trials: Vec::new(),
+    };
+    let mut r = super::DiscoveryReport {
+        best_rejected: Some(best.clone()),
+        ..Default::default()
+    };
+    r.locate_unexplained(&[corr("left_wrist_roll_joint position q", true)]);
+    r.locate_unexplained(&[corr("session time", false)]);
+    assert!(r.located.is_empty());
+    let t = "left_shoulder_roll_joint motor temperature T";
+    r.locate_unexplained(&[
+        corr("left_wrist_roll_joint position q", true),
+        corr(t, true),
+    ]);
+    assert_eq!(r.located.len(), 1);
+    let l = &r.located[0];
+    assert!(
+        l.name.contains(t) && l.name.contains(&best.name),
+        "{}",
+        l.name
+    );
+    assert!(l.name.contains("form not identified") && r.accepted.is_empty());
+    assert_eq!(l.fields, best.fields);
+    let mut found = super::DiscoveryReport {
+        accepted: vec![best.clone()],
+        best_rejected: Some(best),
+        ..Default::default()
+    };
+    found.locate_unexplained(&[corr(t, true)]);
+    assert!(found.located.is_empty());
+}
