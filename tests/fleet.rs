@@ -181,6 +181,17 @@ fn a_synthetic_fleet_shows_exactly_its_introduced_drifts() {
     let report = json(&dir.path().join("rep/fleet.json"));
     let groups = report["groups"].as_array().unwrap();
     assert_eq!(groups.len(), 4 * 21, "{out}");
+    // Days are keyed by their ISO date: the simulator's day 0 is 2026-03-14, day 40 2026-04-23
+    // (Python's datetime).
+    let days: Vec<&str> = (groups.iter())
+        .filter(|g| g["key"][0] == "g1_00")
+        .map(|g| g["key"][1].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        (days.len(), days[0], days[20]),
+        (21, "2026-03-14", "2026-04-23"),
+        "{days:?}"
+    );
     let mut drifts: Vec<(String, usize)> = report["drift"]["trends"]
         .as_array()
         .unwrap()
