@@ -379,12 +379,9 @@ fn normal_sums(batches: &[RecordBatch], by: &[Key]) -> Result<BTreeMap<Vec<Strin
     Ok(out)
 }
 
-/// A result row's group key and, when the result is per trial, its trial.
-type GroupRow = (Vec<String>, Option<TrialId>);
-
 /// Each row of a result with its group key (the `--by` columns) and, when the result is per
 /// trial, its trial (the `trial_*` columns).
-fn result_rows(b: &RecordBatch, by: &[Key]) -> Result<Vec<GroupRow>> {
+fn result_rows(b: &RecordBatch, by: &[Key]) -> Result<Vec<(Vec<String>, Option<TrialId>)>> {
     let keys: Vec<StringArray> = by
         .iter()
         .map(|k| column_as(b, k.name(), DataType::Utf8))
