@@ -52,6 +52,7 @@ pub fn run(a: FleetArgs) -> Result<()> {
         target: opts.target.name().to_string(),
         filter: a.filter.clone(),
         cascade: opts.filters,
+        keep_results: a.save_sql.is_some(),
     };
     let started = std::time::Instant::now();
     let bar = super::spinner("opening the row tables");

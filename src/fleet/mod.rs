@@ -236,6 +236,8 @@ pub struct FleetOptions {
     pub filter: Option<String>,
     /// Identification's filter cascade, applied per group.
     pub cascade: Cascade,
+    /// Keep each query's result as CSV in [`FleetFit::queries`] (for `--save-sql`; else empty).
+    pub keep_results: bool,
 }
 
 /// One trial's first moments in one group.
@@ -251,7 +253,7 @@ struct TrialMoments {
 /// The fitted model of one group.
 #[derive(Debug, Clone, serde::Serialize)]
 pub struct GroupFit {
-    /// Values of the `--by` keys, in their order.
+    /// Values of the `--by` keys, in their order (a day or week as its ISO date).
     pub key: Vec<String>,
     /// Rows in the group / used in the final fit.
     pub rows: usize,
@@ -284,7 +286,8 @@ pub struct FleetFit {
     pub by: Vec<Key>,
     /// Groups in key order.
     pub groups: Vec<GroupFit>,
-    /// Each query run, with its name, text and result as CSV (for `--save-sql`).
+    /// Each query run, with its name, text and result as CSV (empty unless
+    /// [`FleetOptions::keep_results`]).
     pub queries: Vec<(String, String, String)>,
     /// Bytes of Parquet data the engine read over all queries.
     pub bytes_scanned: usize,
@@ -293,11 +296,14 @@ pub struct FleetFit {
 struct Work {
     trials: Vec<TrialMoments>,
     sessions: Vec<(String, String)>,
-    /// The group's normal equations, Σy and first and last reading time [ns].
-    total: (Gram, f64),
+    /// Rows of the group.
+    rows: usize,
+    /// The normal equations and Σy of the group's rows less those of the trials in `removed`.
+    kept: (Gram, f64),
+    /// First and last reading time [ns].
     t_ns: (i64, i64),
-    /// Normal equations (and Σy) of the rejected trials, subtracted from `total`.
-    removed: Vec<(TrialId, Gram, f64)>,
+    /// Rejected trials whose rows are taken out of `kept`.
+    removed: Vec<TrialId>,
     rejections: Vec<Rejection>,
     error: Option<String>,
     done: bool,
@@ -316,55 +322,60 @@ impl Work {
         (robot, session, r.trial as u32)
     }
 
-    fn kept(&self) -> (Gram, f64) {
-        let (mut g, mut sy) = self.total.clone();
-        for (_, r, s) in &self.removed {
-            g = g.minus(r);
-            sy -= s;
-        }
-        (g, sy)
-    }
-
     /// Rejected trials whose normal equations are not yet removed.
     fn pending(&self) -> Vec<TrialId> {
         self.rejections
             .iter()
             .map(|r| self.id_of(r))
-            .filter(|id| !self.removed.iter().any(|(x, _, _)| x == id))
+            .filter(|id| !self.removed.contains(id))
             .collect()
     }
 
     fn fit(&self) -> Result<crate::lsq::Fit> {
-        let (g, _) = self.kept();
+        let g = &self.kept.0;
         if g.n < N_PARAMS {
             bail!(
                 "{} rows left after filtering, fewer than the {N_PARAMS} parameters",
                 g.n
             );
         }
-        crate::identify::fit_normal(&g).context("constrained least squares")
+        crate::identify::fit_normal(g).context("constrained least squares")
     }
 }
 
-/// The normal equations and Σy of each row of a [`sql::normal_equations`] result.
-fn grams(b: &RecordBatch) -> Result<Vec<(Gram, f64)>> {
-    let mut out = vec![(Gram::zeros(N_PARAMS), 0.0); b.num_rows()];
-    let mut column = |name: String, set: &dyn Fn(&mut (Gram, f64), f64)| {
-        let c = numbers(b, &name)?;
-        out.iter_mut().zip(c.values()).for_each(|(g, &v)| set(g, v));
-        anyhow::Ok(())
-    };
-    for i in 0..N_PARAMS {
-        column(format!("h_{i}"), &|g, v| g.0.h[i] = v)?;
-        for j in i..N_PARAMS {
-            column(format!("g_{i}_{j}"), &|g, v| {
-                (g.0.g[(i, j)], g.0.g[(j, i)]) = (v, v)
-            })?;
+/// A group's normal equations, Σy and first and last reading time [ns].
+type Sums = (Gram, f64, (i64, i64));
+
+/// The sums of a [`sql::normal_equations`] result by group key, its blocks of matrix
+/// rows put together. Reading times stay integer nanoseconds (an f64 rounds them by up to 256 ns).
+fn normal_sums(batches: &[RecordBatch], by: &[Key]) -> Result<BTreeMap<Vec<String>, Sums>> {
+    let mut out: BTreeMap<Vec<String>, Sums> = BTreeMap::new();
+    for b in batches {
+        let int = |name| column_as::<Int64Array>(b, name, DataType::Int64);
+        let (t0, t1, block) = (int("t_min")?, int("t_max")?, int("b")?);
+        let (n, sy) = (numbers(b, "n")?, numbers(b, "sy")?);
+        let mut g = Vec::new();
+        for a in 0..sql::BLOCK {
+            for j in 0..=N_PARAMS {
+                g.push(numbers(b, &format!("g_{a}_{j}"))?);
+            }
+        }
+        for (r, (key, _)) in result_rows(b, by)?.into_iter().enumerate() {
+            let s = (out.entry(key)).or_insert_with(|| (Gram::zeros(N_PARAMS), 0.0, (0, 0)));
+            (s.0.n, s.1, s.2) = (n.value(r) as usize, sy.value(r), (t0.value(r), t1.value(r)));
+            for a in 0..sql::BLOCK {
+                let i = block.value(r) as usize * sql::BLOCK + a;
+                for j in i..=N_PARAMS {
+                    let v = g[a * (N_PARAMS + 1) + j].value(r);
+                    match (i, j) {
+                        (N_PARAMS, _) => s.0.yy = v,
+                        (_, N_PARAMS) => s.0.h[i] = v,
+                        _ => (s.0.g[(i, j)], s.0.g[(j, i)]) = (v, v),
+                    }
+                }
+            }
         }
     }
-    column("yy".into(), &|g, v| g.0.yy = v)?;
-    column("n".into(), &|g, v| g.0.n = v as usize)?;
-    column("sy".into(), &|g, v| g.1 = v)?;
     Ok(out)
 }
 
@@ -396,7 +407,8 @@ fn result_rows(b: &RecordBatch, by: &[Key]) -> Result<Vec<(Vec<String>, Option<T
                 )),
                 None => None,
             };
-            Ok((keys.iter().map(|k| k.value(r).to_string()).collect(), id))
+            let key = by.iter().zip(&keys).map(|(k, c)| k.show(c.value(r)));
+            Ok((key.collect(), id))
         })
         .collect()
 }
@@ -426,13 +438,19 @@ struct Runner<'a> {
     engine: &'a Engine,
     queries: Vec<(String, String, String)>,
     bytes_scanned: usize,
+    keep: bool,
 }
 
 impl Runner<'_> {
     fn run(&mut self, name: &str, q: String) -> Result<Vec<RecordBatch>> {
         let (out, bytes) =
             (self.engine.query(&q)).with_context(|| format!("running the {name} query"))?;
-        self.queries.push((name.to_string(), q, to_csv(&out)?));
+        let csv = if self.keep {
+            to_csv(&out)?
+        } else {
+            String::new()
+        };
+        self.queries.push((name.to_string(), q, csv));
         self.bytes_scanned += bytes;
         Ok(out)
     }
@@ -457,7 +475,8 @@ fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<Str
             let w = groups.entry(key).or_insert_with(|| Work {
                 trials: Vec::new(),
                 sessions: Vec::new(),
-                total: (Gram::zeros(N_PARAMS), 0.0),
+                rows: 0,
+                kept: (Gram::zeros(N_PARAMS), 0.0),
                 t_ns: (0, 0),
                 removed: Vec::new(),
                 rejections: Vec::new(),
@@ -489,19 +508,10 @@ fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<Str
             .collect();
         w.rejections = opts.cascade.imu(&sigmas);
     }
-    let q = sql::normal_equations(by, false, Pick::All, target, filter);
-    for b in run.run("normal_equations", q)? {
-        // Reading times stay integer nanoseconds (an f64 rounds them by up to 256 ns).
-        let time = |name| column_as::<Int64Array>(&b, name, DataType::Int64);
-        let (t0, t1) = (time("t_min")?, time("t_max")?);
-        let sums = grams(&b)?;
-        for (r, (key, _)) in result_rows(&b, by)?.into_iter().enumerate() {
-            let w = groups
-                .get_mut(&key)
-                .context(format!("group {key:?} has no trials"))?;
-            w.total = sums[r].clone();
-            w.t_ns = (t0.value(r), t1.value(r));
-        }
+    let q = sql::normal_equations(by, Pick::All, target, filter);
+    for (key, (g, sy, t)) in normal_sums(&run.run("normal_equations", q)?, by)? {
+        let w = (groups.get_mut(&key)).context(format!("group {key:?} has no trials"))?;
+        (w.rows, w.kept, w.t_ns) = (g.n, (g, sy), t);
     }
     Ok(groups)
 }
@@ -537,10 +547,10 @@ fn residual_pass(w: &mut Work, pass: usize, opts: &FleetOptions) {
 
 /// Step 3: a group's final fit on its kept trials.
 fn final_fit(key: Vec<String>, w: Work) -> GroupFit {
-    let (g, sy) = w.kept();
+    let (g, sy) = w.kept.clone();
     let mut out = GroupFit {
         key,
-        rows: w.total.0.n,
+        rows: w.rows,
         rows_used: g.n,
         trials: w.trials.len(),
         rejections: w.rejections.clone(),
@@ -582,6 +592,7 @@ pub fn fit_fleet(
         engine,
         queries: Vec::new(),
         bytes_scanned: 0,
+        keep: opts.keep_results,
     };
     progress(&format!(
         "scanning {} files: moments and normal equations",
@@ -597,14 +608,14 @@ pub fn fit_fleet(
                 "scanning: normal equations of {} rejected trials",
                 pending.len()
             ));
-            let q = sql::normal_equations(by, true, Pick::Only(&pending), target, filter);
-            for b in run.run(&format!("rejected_{pass}"), q)? {
-                for ((key, id), (g, sy)) in result_rows(&b, by)?.into_iter().zip(grams(&b)?) {
-                    if let (Some(w), Some(id)) = (groups.get_mut(&key), id)
-                        && w.pending().contains(&id)
-                    {
-                        w.removed.push((id, g, sy));
-                    }
+            // Summed by group, not by trial: memory stays per group however many are rejected.
+            let q = sql::normal_equations(by, Pick::Only(&pending), target, filter);
+            let sums = normal_sums(&run.run(&format!("rejected_{pass}"), q)?, by)?;
+            for (key, w) in groups.iter_mut() {
+                let ids = w.pending();
+                if let Some((g, sy, _)) = sums.get(key).filter(|_| !ids.is_empty()) {
+                    w.kept = (w.kept.0.minus(g), w.kept.1 - sy);
+                    w.removed.extend(ids);
                 }
             }
         }
@@ -631,7 +642,7 @@ pub fn fit_fleet(
 }
 
 impl GroupFit {
-    /// The group's key as `robot=r1 week=2917`.
+    /// The group's key as `robot=r1 week=2026-11-23`.
     pub fn label(&self, by: &[Key]) -> String {
         by.iter()
             .zip(&self.key)

@@ -12,9 +12,10 @@ pub enum Key {
     Robot,
     /// The session file.
     Session,
-    /// UTC day of the reading (days since 1970-01-01).
+    /// UTC day of the reading (days since 1970-01-01 in SQL, shown as its ISO date).
     Day,
-    /// Week of the reading, Monday to Sunday (weeks since Monday 1969-12-29).
+    /// Week of the reading, Monday to Sunday (weeks since Monday 1969-12-29 in SQL, shown as
+    /// its Monday's ISO date).
     Week,
 }
 
@@ -38,6 +39,20 @@ impl Key {
             Key::Day => "CAST(FLOOR(t_ns / 8.64e13) AS BIGINT)",
             Key::Week => "CAST(FLOOR((t_ns / 8.64e13 + 3) / 7) AS BIGINT)",
         }
+    }
+
+    /// A result's key value as shown: a day or week as the ISO date it starts on (`2026-11-23`),
+    /// the others as they are. The SQL keeps the integer (portable across engines).
+    pub fn show(self, v: &str) -> String {
+        let per = match self {
+            Key::Day => 1,
+            Key::Week => 7,
+            _ => return v.to_string(),
+        };
+        // Weeks count from Monday 1969-12-29, three days before the epoch.
+        v.parse::<i64>().map_or(v.to_string(), |n| {
+            iso_date(n * per - if per == 7 { 3 } else { 0 })
+        })
     }
 
     /// Whether the key is a time period (day, week).
@@ -65,6 +80,21 @@ impl Key {
         }
         Ok(out)
     }
+}
+
+/// Days since 1970-01-01 as an ISO date (proleptic Gregorian; H. Hinnant's `civil_from_days`).
+fn iso_date(days: i64) -> String {
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let (d, m) = (
+        doy - (153 * mp + 2) / 5 + 1,
+        if mp < 10 { mp + 3 } else { mp - 9 },
+    );
+    format!("{:04}-{m:02}-{d:02}", era * 400 + yoe + i64::from(m <= 2))
 }
 
 /// The columns a trial is identified by (robot, session file, trial index in that session).
@@ -157,39 +187,56 @@ pub fn moments(keys: &[Key], target: &str, filter: Option<&str>) -> String {
     )
 }
 
-/// The normal equations of each group's picked rows (per trial too when `per_trial`): `n`,
-/// Σy `sy`, yᵀy `yy`, Φᵀy `h_p`, the upper triangle of ΦᵀΦ `g_i_j` (i ≤ j), and the first and
-/// last reading time `t_min`/`t_max` [ns].
-pub fn normal_equations(
-    keys: &[Key],
-    per_trial: bool,
-    pick: Pick,
-    target: &str,
-    filter: Option<&str>,
-) -> String {
-    let (mut select, group) = grouping(keys, per_trial);
-    select.push("COUNT(*) AS n".into());
-    select.push("MIN(rows.t_ns) AS t_min".into());
-    select.push("MAX(rows.t_ns) AS t_max".into());
-    select.push("SUM(rows.y_w) AS sy".into());
-    select.push("SUM(rows.y_w * rows.y_w) AS yy".into());
-    for i in 0..N_PARAMS {
-        select.push(format!("SUM(rows.{} * rows.y_w) AS h_{i}", phi_column(i)));
+/// Entries of the row vector (φ_0 … φ_48, y) each row of a [`normal_equations`] result holds.
+/// The engine's SQL planner costs about the square of a query's aggregate count (≈ 1 s for the
+/// 1,275 sums of the triangle), so the rows are unnested into `BLOCKS` copies, copy `b` holding
+/// `BLOCK` rows of the matrix: `BLOCK` × 50 sums (docs/fleet.md, How the fit runs).
+pub const BLOCK: usize = 10;
+
+/// The number of row blocks: 50 entries of (φ, y) in blocks of [`BLOCK`].
+pub const BLOCKS: usize = (N_PARAMS + 1).div_ceil(BLOCK);
+
+/// The normal equations of each group's picked rows, as one result row per group and block `b`: `n`, Σy `sy`, the first and last reading time
+/// `t_min`/`t_max` [ns] (the same in each block), and `g_a_j` = Σ x_i·x_j for i = b·BLOCK + a,
+/// j = 0…49, over x = (φ_0 … φ_48, y): ΦᵀΦ, Φᵀy (j = 49) and yᵀy (i = j = 49).
+pub fn normal_equations(keys: &[Key], pick: Pick, target: &str, filter: Option<&str>) -> String {
+    let (mut inner, _) = grouping(keys, false);
+    let x: Vec<String> = (0..N_PARAMS)
+        .map(phi_column)
+        .chain(["y_w".into()])
+        .collect();
+    inner.push("b.b AS b".into());
+    inner.extend(x.iter().map(|c| format!("rows.{c} AS {c}")));
+    inner.push("rows.t_ns AS t_ns".into());
+    for a in 0..BLOCK {
+        let whens: String = (0..BLOCKS)
+            .filter_map(|b| {
+                x.get(b * BLOCK + a)
+                    .map(|c| format!(" WHEN {b} THEN rows.{c}"))
+            })
+            .collect();
+        inner.push(format!("CASE b.b{whens} ELSE 0 END AS v_{a}"));
     }
-    for i in 0..N_PARAMS {
-        for j in i..N_PARAMS {
-            select.push(format!(
-                "SUM(rows.{} * rows.{}) AS g_{i}_{j}",
-                phi_column(i),
-                phi_column(j)
-            ));
-        }
+    let group: Vec<&str> = keys.iter().map(|k| k.name()).collect();
+    let group = group.join(", ");
+    let mut select = vec![
+        format!("{group}, b"),
+        "COUNT(*) AS n, MIN(t_ns) AS t_min, MAX(t_ns) AS t_max, SUM(y_w) AS sy".into(),
+    ];
+    for a in 0..BLOCK {
+        select
+            .extend((x.iter().enumerate()).map(|(j, c)| format!("SUM(v_{a} * {c}) AS g_{a}_{j}")));
     }
+    let blocks: Vec<String> = (0..BLOCKS).map(|b| format!("({b})")).collect();
+    let from = from_where(pick, target, filter).replacen(
+        "\nWHERE",
+        &format!(" CROSS JOIN (VALUES {}) AS b(b)\nWHERE", blocks.join(", ")),
+        1,
+    );
     format!(
-        "SELECT {}\n{}\nGROUP BY {}",
+        "SELECT {}\nFROM (SELECT {}\n{from}) AS r\nGROUP BY {group}, b",
         select.join(", "),
-        from_where(pick, target, filter),
-        group.join(", ")
+        inner.join(", "),
     )
 }
 
@@ -205,10 +252,16 @@ mod tests {
         );
         assert!(Key::parse_list("robot,robot").is_err());
         assert!(Key::parse_list("month").is_err());
+        // Expected dates from Python's datetime.
+        assert_eq!(Key::Week.show("2932"), "2026-03-09");
+        assert_eq!(Key::Week.show("-1"), "1969-12-22");
+        assert_eq!(Key::Day.show("20526"), "2026-03-14");
+        assert_eq!(Key::Day.show("-1"), "1969-12-31");
+        assert_eq!(Key::Robot.show("g1_00"), "g1_00");
         let picked = [("r'1".to_string(), "a.mcap".to_string(), 3)];
-        let q = normal_equations(&[Key::Robot], true, Pick::Only(&picked), "mbs", None);
+        let q = normal_equations(&[Key::Robot], Pick::Only(&picked), "mbs", None);
         assert!(q.contains("('r''1', 'a.mcap', 3)"), "{q}");
-        assert!(q.contains("g_48_48") && !q.contains("g_1_0"));
-        assert!(q.contains("GROUP BY rows.robot, rows.session, rows.trial"));
+        assert!(q.contains("g_9_49") && !q.contains("g_10_0"));
+        assert!(q.contains("GROUP BY robot, b"));
     }
 }
