@@ -197,6 +197,10 @@ pub struct MeterDrift {
     pub check: MeterCheck,
     /// One sentence naming it.
     pub name: String,
+    /// For a located change (not an artefact): the recorded fields the rest power follows best,
+    /// which the data cannot tell apart ([`MeterDrift::follows`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub fields: Vec<String>,
     /// Its form in time: first trial's start [s], the span of the trials' starts [s], and the
     /// step's place as a share of that span (`None`: linear).
     #[serde(skip)]
@@ -204,6 +208,21 @@ pub struct MeterDrift {
 }
 
 impl MeterDrift {
+    /// A located change named with the fields the rest power follows best (`fields`: the best
+    /// first, then those it cannot be told from; at most [`FIELDS_NAMED`] in the name).
+    pub(crate) fn follows(&mut self, fields: Vec<String>) {
+        if fields.is_empty() || self.check.artefact() {
+            return;
+        }
+        let more = fields.len().saturating_sub(FIELDS_NAMED);
+        let mut named = fields[..fields.len() - more].join(" or ");
+        if more > 0 {
+            named += &format!(" or {more} more");
+        }
+        self.name += &format!("; of the recorded fields the rest power follows {named} best (not told apart)");
+        self.fields = fields;
+    }
+
     /// `power` (the diagnosed meter's readings) with this artefact taken out: what every stage
     /// after the comparison reads.
     pub(crate) fn corrected(&self, power: &PowerSeries) -> PowerSeries {
@@ -220,6 +239,9 @@ impl MeterDrift {
         }
     }
 }
+
+/// Most fields named in a located change's sentence (the JSON lists all).
+const FIELDS_NAMED: usize = 4;
 
 /// Steps of the rest reading tried, as shares of the session (the instant chosen from the data).
 const STEPS: [f64; 13] = [
@@ -283,6 +305,7 @@ pub(crate) fn compare(
     });
     let df = y.len().saturating_sub(2).max(1) as f64;
     let p = 2.0 * t_upper_tail((b / se).abs(), df);
+    eprintln!("DBG15 own p={p:.3e} alpha={:.3e} b={b:.3} se={se:.3}", alpha / m);
     if p.is_nan() || p >= alpha / m {
         return None;
     }
@@ -290,9 +313,20 @@ pub(crate) fn compare(
     let col: Vec<f64> = x.iter().map(|x| b * x).collect();
     let (k, _, _) = slopes(&diff, &[&col])?;
     let (share, share_se) = (1.0 + k[0].0, k[0].1);
-    if share.is_nan() || share + Z * share_se >= 1.0 || Z * share_se >= 1.0 {
+    if share.is_nan() {
         return None;
     }
+    // An artefact where the other meter shows significantly less than all of it and can tell
+    // none from all; otherwise the change is located on this meter, not claimed: a load
+    // where the other meter resolves it as one, undecided where it cannot tell.
+    let verdict = if share + Z * share_se < 1.0 && Z * share_se < 1.0 {
+        "meter artefact"
+    } else if Z * share_se <= 0.5 && share - Z * share_se > 0.5 {
+        "load"
+    } else {
+        "undecided"
+    };
+    eprintln!("DBG15 compare p={p:.3e} alpha={:.3e} b={b:.3} se={se:.3} share={share:.3} sse={share_se:.3} {verdict} {form}", alpha / m);
     let (meter, other) = (meter_name(target), meter_name(self::other(target)));
     let rest_w = y.iter().sum::<f64>() / y.len() as f64;
     let check = MeterCheck {
@@ -301,14 +335,26 @@ pub(crate) fn compare(
         share,
         std_err: share_se,
         n_trials: y.len(),
-        verdict: "meter artefact".into(),
+        verdict: verdict.into(),
     };
-    let name = format!(
-        "an artefact of the {meter} meter: its reading changes by {b:+.2} ± {se:.2} W {form} (an offset, or a gain change of {:+.2} % at its rest reading of {rest_w:.1} W), which the {other} meter does not show (it shows {:.0} ± {:.0} % of it; a change of the rail's power shows on both) — a correction of that meter's reading, not physics of the arm",
-        100.0 * b / rest_w,
+    let change = format!("its reading changes by {b:+.2} ± {se:.2} W {form}");
+    let shown = format!(
+        "it shows {:.0} ± {:.0} % of it",
         (100.0 * share).round() + 0.0,
         100.0 * share_se
     );
+    let name = match verdict {
+        "meter artefact" => format!(
+            "an artefact of the {meter} meter: {change} (an offset, or a gain change of {:+.2} % at its rest reading of {rest_w:.1} W), which the {other} meter does not show ({shown}; a change of the rail's power shows on both) — a correction of that meter's reading, not physics of the arm",
+            100.0 * b / rest_w,
+        ),
+        "load" => format!(
+            "the {meter} meter's rest reading: {change}, and the {other} meter shows it too ({shown}): a change of the rail's power — located, its cause not identified; not claimed"
+        ),
+        _ => format!(
+            "the {meter} meter's rest reading: {change}; the {other} meter cannot tell a change of the rail's power from an artefact of the {meter} meter ({shown}) — located, not claimed"
+        ),
+    };
     Some(MeterDrift {
         meter: meter.into(),
         form,
@@ -319,6 +365,7 @@ pub(crate) fn compare(
         alpha: alpha / m,
         check,
         name,
+        fields: Vec::new(),
         form_at: (t[0], span, step),
     })
 }
