@@ -389,7 +389,9 @@ fn run(
         if let (Some(m), Some(rest)) = (r.meter_located.as_mut(), r.rest.as_ref()) {
             let best = rest.found.first().or(rest.best_rejected.as_ref());
             m.follows(best.map_or(Vec::new(), |t| {
-                std::iter::once(t.field.clone()).chain(t.tied.iter().cloned()).collect()
+                std::iter::once(t.field.clone())
+                    .chain(t.tied.iter().cloned())
+                    .collect()
             }));
         }
     }
@@ -432,10 +434,13 @@ fn meter_corrected(
     };
     let (power, other, w) = (&info.power, &info.other, sensor.window_s);
     let drift = meters::compare(info.target, power, other, metas, lag, w, alpha);
-    let corrected = drift.as_ref().filter(|d| d.check.artefact()).map(|d| SessionInfo {
-        power: d.corrected(power),
-        ..info.clone()
-    });
+    let corrected = drift
+        .as_ref()
+        .filter(|d| d.check.artefact())
+        .map(|d| SessionInfo {
+            power: d.corrected(power),
+            ..info.clone()
+        });
     (drift, corrected)
 }
 

@@ -225,7 +225,11 @@ fn unnamed_lines(d: &Diagnosis, s: &mut String) {
         let _ = writeln!(s, "Located: {} — {}.", t.name, t.verdict);
     }
     for m in d.discovery.iter().flat_map(|r| &r.meter_located) {
-        let _ = writeln!(s, "Located: {} (p = {:.1e} < {:.1e}).", m.name, m.p_value, m.alpha);
+        let _ = writeln!(
+            s,
+            "Located: {} (p = {:.1e} < {:.1e}).",
+            m.name, m.p_value, m.alpha
+        );
     }
 }
 

@@ -254,7 +254,10 @@ mod stage_tests {
                 watts: (rec.mbs.t.iter().zip(&rec.mbs.watts))
                     .map(|(&t, w)| {
                         let own = if on_both || t <= at { 0.0 } else { -3.0 };
-                        w + own + 35.0 + levels[(t / 20.0) as usize] + 0.3 * (rng.random::<f64>() - 0.5)
+                        w + own
+                            + 35.0
+                            + levels[(t / 20.0) as usize]
+                            + 0.3 * (rng.random::<f64>() - 0.5)
                     })
                     .collect(),
             };
@@ -275,7 +278,10 @@ mod stage_tests {
                 assert!(rest.found.is_empty(), "{:?}", rest.found);
                 assert!(rest.rmse_before_w < 0.5, "{rest:?}");
             } else {
-                assert!(d.summary.contains("Located: the main-board meter's rest reading"));
+                assert!(
+                    d.summary
+                        .contains("Located: the main-board meter's rest reading")
+                );
             }
         }
     }
