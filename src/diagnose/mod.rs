@@ -381,7 +381,19 @@ fn run(
         let (rows, lag) = (data.rows(sel.last.lag)?, data.lags[sel.last.lag]);
         let (power, other) = (&info.power, &info.other);
         r.check_meters(info.target, power, other, &metas, rows, lag, w);
-        r.meter_drift = drift;
+        (r.meter_drift, r.meter_located) = match drift {
+            Some(d) if d.check.artefact() => (Some(d), None),
+            d => (None, d),
+        };
+        // A located change of the rail's rest reading names what the rest power follows.
+        if let (Some(m), Some(rest)) = (r.meter_located.as_mut(), r.rest.as_ref()) {
+            let best = rest.found.first().or(rest.best_rejected.as_ref());
+            m.follows(best.map_or(Vec::new(), |t| {
+                std::iter::once(t.field.clone())
+                    .chain(t.tied.iter().cloned())
+                    .collect()
+            }));
+        }
     }
 
     // Torque level.
@@ -422,10 +434,13 @@ fn meter_corrected(
     };
     let (power, other, w) = (&info.power, &info.other, sensor.window_s);
     let drift = meters::compare(info.target, power, other, metas, lag, w, alpha);
-    let corrected = drift.as_ref().map(|d| SessionInfo {
-        power: d.corrected(power),
-        ..info.clone()
-    });
+    let corrected = drift
+        .as_ref()
+        .filter(|d| d.check.artefact())
+        .map(|d| SessionInfo {
+            power: d.corrected(power),
+            ..info.clone()
+        });
     (drift, corrected)
 }
 

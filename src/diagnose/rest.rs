@@ -455,11 +455,13 @@ impl Search<'_> {
                 && best.is_none()
                 && let Some(f) = &best_fail
             {
-                *best_rejected = Some(self.rejected(f, level));
+                let mut r = self.rejected(f, level);
+                r.tied = self.ties_of_rejected(f, &cur);
+                *best_rejected = Some(r);
             }
             let Some(b) = best else { break };
             let b = passing.swap_remove(b);
-            let names = self.rivals(&b, &passing);
+            let names = self.rivals(&b, &passing, self.rule.alpha);
             chosen.push(b.cand);
             cur = b.fit.clone();
             steps.push((b, level, names));
@@ -532,16 +534,27 @@ impl Search<'_> {
         self.term(f, level, verdict, (f.fit.coef[j], se))
     }
 
-    /// Rivals of the step's winner `b`: other fields that pass here and do not fit significantly
-    /// worse, best first. They stay open (tried beside it at the next step: a second load
+    /// The fields the first step's best candidate `b`, rejected, cannot be told from: every
+    /// other candidate that meets the BIC and minimum-gain gates and that `b` does not beat at
+    /// [`RIVAL_ALPHA`] (what a location of the rest power names as "X or Y").
+    fn ties_of_rejected(&self, b: &Scored, cur: &Fit) -> Vec<String> {
+        let gated: Vec<Scored> = (0..self.cands.len())
+            .filter_map(|i| self.score(i, &[], cur))
+            .filter(|s| s.d_bic < self.rule.bic_threshold && s.rel >= self.rule.min_improvement)
+            .collect();
+        self.rivals(b, &gated, RIVAL_ALPHA)
+    }
+
+    /// Rivals of the step's winner `b`: other fields of `passing` that `b` does not beat at
+    /// `alpha`, best first. They stay open (tried beside it at the next step: a second load
     /// passes there, a stand-in not).
-    fn rivals(&self, b: &Scored, passing: &[Scored]) -> Vec<String> {
+    fn rivals(&self, b: &Scored, passing: &[Scored], alpha: f64) -> Vec<String> {
         let mut tied: Vec<(f64, String)> = passing
             .iter()
             .filter(|s| self.field_of(s.cand) != self.field_of(b.cand))
             .filter(|s| {
                 let p = improvement_p_value(&self.block_gain(&s.fit.pred, &b.fit.pred));
-                not_significant(p, self.rule.alpha)
+                not_significant(p, alpha)
             })
             .map(|s| (self.rmse(&s.fit.pred), self.field_of(s.cand)))
             .collect();

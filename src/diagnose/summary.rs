@@ -224,6 +224,13 @@ fn unnamed_lines(d: &Diagnosis, s: &mut String) {
     for t in rest.flat_map(|r| &r.located) {
         let _ = writeln!(s, "Located: {} — {}.", t.name, t.verdict);
     }
+    for m in d.discovery.iter().flat_map(|r| &r.meter_located) {
+        let _ = writeln!(
+            s,
+            "Located: {} (p = {:.1e} < {:.1e}).",
+            m.name, m.p_value, m.alpha
+        );
+    }
 }
 
 /// Library forms the data support at a size no such mechanism has: located, not a mechanism (a

@@ -124,6 +124,11 @@ pub struct DiscoveryReport {
     /// meter does not show: a meter artefact (see `meters::compare`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub meter_drift: Option<crate::diagnose::meters::MeterDrift>,
+    /// A change over the session of the diagnosed meter's rest reading, significant on that
+    /// meter, that the other meter shows too or cannot tell from an artefact: located, not
+    /// claimed, and not corrected (see `meters::compare`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub meter_located: Option<crate::diagnose::meters::MeterDrift>,
     /// Notes (fields left out as meters of the power, unreadable files).
     pub notes: Vec<String>,
     /// Fields left out by a rule on their own data (constant, counter or clock, hash-/CRC-like),

@@ -51,9 +51,19 @@ def locations(d):
            for h in d.get("hypotheses", [])
            if h.get("verdict", "").startswith("located")
            or h.get("verdict") == "rejected: parameter outside its physically plausible range"]
-    for t in (d.get("discovery") or {}).get("located", []):
+    disc = d.get("discovery") or {}
+    for t in disc.get("located", []):
         f = list(t.get("fields", [])) + [x for r in t.get("tied", []) for x in r.get("fields", [])]
         out.append({"kind": "found", "id": t.get("mechanism"), "name": t.get("name", ""), "fields": f})
+    # rest-power terms the parsimony rule located, and a change of one meter's rest reading the
+    # other meter cannot tell from a load (`meter_located`)
+    rest = disc.get("rest") or []
+    for t in [x for r in ([rest] if isinstance(rest, dict) else rest) for x in r.get("located", [])]:
+        out.append({"kind": "rest", "id": None, "name": t.get("name", ""),
+                    "fields": [t.get("field", "")] + list(t.get("tied", []))})
+    if disc.get("meter_located"):
+        m = disc["meter_located"]
+        out.append({"kind": "meter", "id": None, "name": m.get("name", ""), "fields": list(m.get("fields", []))})
     return out
 
 

@@ -87,6 +87,17 @@ def check_scorer():
     if score.claims(d) or score.score([lib], [1.0], [], located=loc) != ([], ["located"]) \
             or score.score([lib], [1.0], [], located=loc[1:]) != ([], ["missed"]):
         bad.append(("implausible form", loc))
+    # a meter change the other meter cannot tell from a load locates that meter's artefact only
+    d = {"discovery": {"meter_located": {"name": "the main-board meter's rest reading: its reading changes by "
+                                                 "+1.97 W; the battery meter cannot tell — located, not claimed"}}}
+    loc = score.locations(d)
+    if score.claims(d) or score.score([gain], [1.0], [], located=loc) != ([], ["located"]) \
+            or score.score([load], [1.0], [], located=loc) != ([], ["missed"]):
+        bad.append(("meter located", loc))
+    # ... and a load on a field it names as what the rest power follows
+    d["discovery"]["meter_located"]["fields"] = ["/lf/bmsstate.soc", "/lf/mainboardstate.fan_state[1]"]
+    if score.score([load], [1.0], [], located=score.locations(d)) != ([], ["located"]):
+        bad.append(("meter located on a field", score.locations(d)))
     if score.claims({"discovery": {"rest": None}}):
         bad.append(("rest null", "claims"))
     return {"scorer cases": not bad}, {"scorer_failures": bad}
