@@ -379,21 +379,7 @@ fn run(
     let (sel, mut discovery, fields) = select_and_discover(info, &metas, &data, &rule, opts)?;
     if let Some(r) = discovery.as_mut() {
         let (rows, lag) = (data.rows(sel.last.lag)?, data.lags[sel.last.lag]);
-        let (power, other) = (&info.power, &info.other);
-        r.check_meters(info.target, power, other, &metas, rows, lag, w);
-        (r.meter_drift, r.meter_located) = match drift {
-            Some(d) if d.check.artefact() => (Some(d), None),
-            d => (None, d),
-        };
-        // A located change of the rail's rest reading names what the rest power follows.
-        if let (Some(m), Some(rest)) = (r.meter_located.as_mut(), r.rest.as_ref()) {
-            let best = rest.found.first().or(rest.best_rejected.as_ref());
-            m.follows(best.map_or(Vec::new(), |t| {
-                std::iter::once(t.field.clone())
-                    .chain(t.tied.iter().cloned())
-                    .collect()
-            }));
-        }
+        settle_meters(r, info, &metas, rows, lag, w, drift);
     }
 
     // Torque level.
@@ -414,6 +400,42 @@ fn run(
         imu,
     };
     assemble(info, opts, &metas, &data, &fields, judged)
+}
+
+/// Meter or load for what discovery found: every finding checked against the other meter, and
+/// the diagnosed meter's own rest-reading change either claimed as its artefact (corrected) or
+/// located beside the fields the rest power follows.
+fn settle_meters(
+    r: &mut discover::DiscoveryReport,
+    info: &SessionInfo,
+    metas: &[reading_rows::TrialMeta],
+    rows: &reading_rows::Rows,
+    lag: f64,
+    window_s: f64,
+    drift: Option<MeterDrift>,
+) {
+    r.check_meters(
+        info.target,
+        &info.power,
+        &info.other,
+        metas,
+        rows,
+        lag,
+        window_s,
+    );
+    (r.meter_drift, r.meter_located) = match drift {
+        Some(d) if d.check.artefact() => (Some(d), None),
+        d => (None, d),
+    };
+    // A located change of the rail's rest reading names what the rest power follows.
+    if let (Some(m), Some(rest)) = (r.meter_located.as_mut(), r.rest.as_ref()) {
+        let best = rest.found.first().or(rest.best_rejected.as_ref());
+        m.follows(best.map_or(Vec::new(), |t| {
+            std::iter::once(t.field.clone())
+                .chain(t.tied.iter().cloned())
+                .collect()
+        }));
+    }
 }
 
 /// One truth across stages: an artefact of the diagnosed meter that the other meter does not
