@@ -468,12 +468,10 @@ impl<R: Read + Seek> Ros1BagSource<R> {
                             self.open_warnings.extend(warnings);
                             orphans.merge(&loaded.orphans);
                             let mut meta = chunk;
+                            let mut counts: BTreeMap<u32, u32> = BTreeMap::new();
                             for m in &loaded.messages {
                                 meta.start_ns = meta.start_ns.min(m.time_ns);
                                 meta.end_ns = meta.end_ns.max(m.time_ns);
-                            }
-                            let mut counts: BTreeMap<u32, u32> = BTreeMap::new();
-                            for m in &loaded.messages {
                                 *counts.entry(m.conn).or_default() += 1;
                                 stats.entry(m.conn).or_default().add(m.time_ns, 1);
                             }

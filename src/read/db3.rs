@@ -306,17 +306,13 @@ fn merge_infos(path: &Path, format: &str, infos: Vec<SessionInfo>) -> SessionInf
     for info in infos {
         warnings.extend(info.warnings);
         for t in info.topics {
-            let (count, first_ns, last_ns) = (t.count, t.first_ns, t.last_ns);
             let e = (by_topic.entry(t.topic)).or_insert((
                 t.type_name,
                 t.encoding,
                 TopicStat::default(),
             ));
-            e.2.merge(&TopicStat {
-                count,
-                first_ns,
-                last_ns,
-            });
+            e.2.add(t.first_ns, t.count);
+            e.2.last_ns = e.2.last_ns.max(t.last_ns);
         }
     }
     let topics = (by_topic.iter())

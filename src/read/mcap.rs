@@ -61,26 +61,12 @@ const MAX_CHUNKS: usize = 1 << 20;
 /// chunk bytes and three groups in flight, hostile input stays under 512 MB.
 const GROUP_BUDGET_BYTES: u64 = 64 << 20;
 
-#[derive(Debug, Clone)]
-struct SchemaRec {
-    name: String,
-    encoding: String,
-    data: Vec<u8>,
-}
-
-#[derive(Debug, Clone)]
-struct ChannelRec {
-    topic: String,
-    schema_id: u16,
-    message_encoding: String,
-}
-
 /// Schemas and channels seen so far (from the summary or the data section), and messages met on
 /// channel ids that have no channel record.
 #[derive(Debug, Default)]
 struct Registry {
-    schemas: HashMap<u16, SchemaRec>,
-    channels: HashMap<u16, ChannelRec>,
+    schemas: HashMap<u16, rec::SchemaRecord>,
+    channels: HashMap<u16, rec::ChannelRecord>,
     /// Messages on channel ids without a channel record.
     orphans: Orphans,
 }
@@ -151,25 +137,11 @@ impl Registry {
         match opcode {
             op::SCHEMA => {
                 let s = rec::schema(body)?;
-                self.schemas.insert(
-                    s.id,
-                    SchemaRec {
-                        name: s.name,
-                        encoding: s.encoding,
-                        data: s.data,
-                    },
-                );
+                self.schemas.insert(s.id, s);
             }
             op::CHANNEL => {
                 let c = rec::channel(body)?;
-                self.channels.insert(
-                    c.id,
-                    ChannelRec {
-                        topic: c.topic,
-                        schema_id: c.schema_id,
-                        message_encoding: c.message_encoding,
-                    },
-                );
+                self.channels.insert(c.id, c);
             }
             _ => {}
         }

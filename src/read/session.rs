@@ -6,9 +6,7 @@ use std::path::{Path, PathBuf};
 
 use super::bag1::MAGIC as ROS1_MAGIC;
 use super::mcap::{MAGIC as MCAP_MAGIC, McapSource};
-use super::{
-    MessageRef, MessageSource, OpenOptions, ReadError, ReadSummary, SessionInfo, read_up_to,
-};
+use super::{MessageSource, OpenOptions, ReadError, read_up_to};
 
 /// Container formats [`Session::open`] recognises.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -92,10 +90,14 @@ impl Session {
     /// Open a recording: an MCAP file, a ROS 2 bag (directory, its `metadata.yaml` or a `.db3`)
     /// or a ROS 1 `.bag`.
     pub fn open(path: &Path, opts: &OpenOptions) -> Result<Session, ReadError> {
-        let format = detect_format(path)?;
+        let source: Box<dyn MessageSource> = match detect_format(path)? {
+            Format::Mcap => Box::new(McapSource::open(path, opts)?),
+            Format::Ros2Bag => Box::new(super::db3::Ros2BagSource::open(path, opts)?),
+            Format::Ros1Bag => Box::new(super::bag1::Ros1BagSource::open(path, opts)?),
+        };
         Ok(Session {
             path: path.to_path_buf(),
-            source: open_source(format, path, opts)?,
+            source,
         })
     }
 
@@ -103,53 +105,19 @@ impl Session {
     pub fn path(&self) -> &Path {
         &self.path
     }
+}
 
-    /// Container format name (`mcap`, `ros2-sqlite3`, `ros1-bag`).
-    pub fn format(&self) -> &'static str {
-        self.source.format()
-    }
-
-    /// Topics, types, counts, rates, duration and time range.
-    pub fn info(&mut self) -> Result<SessionInfo, ReadError> {
-        self.source.info()
-    }
-
-    /// Whether [`Session::info`] is cheap (summary, index, or a scan already done when opening).
-    pub fn info_is_cheap(&self) -> bool {
-        self.source.info_is_cheap()
-    }
-
-    /// The latest log time claimed by headers read when opening (see
-    /// [`super::MessageSource::latest_time_hint`]).
-    pub fn latest_time_hint(&self) -> Option<u64> {
-        self.source.latest_time_hint()
-    }
-
-    /// Only messages in these log-time ranges are needed by the next reads (a hint: see
-    /// [`MessageSource::set_time_ranges`]).
-    pub fn set_time_ranges(&mut self, ranges: Option<Vec<(u64, u64)>>) {
-        self.source.set_time_ranges(ranges);
-    }
-
-    /// Stream messages (all, or those of `topics`) in log-time order to `visit`.
-    pub fn read(
-        &mut self,
-        topics: Option<&[&str]>,
-        visit: &mut dyn FnMut(MessageRef<'_>) -> Result<(), ReadError>,
-    ) -> Result<ReadSummary, ReadError> {
-        self.source.read(topics, visit)
+/// Everything else a [`Session`] does is its reader's: [`MessageSource::read`],
+/// [`MessageSource::info`], [`MessageSource::set_time_ranges`], …
+impl std::ops::Deref for Session {
+    type Target = dyn MessageSource;
+    fn deref(&self) -> &Self::Target {
+        self.source.as_ref()
     }
 }
 
-/// The one place that maps a format to its reader.
-fn open_source(
-    format: Format,
-    path: &Path,
-    opts: &OpenOptions,
-) -> Result<Box<dyn MessageSource>, ReadError> {
-    match format {
-        Format::Mcap => Ok(Box::new(McapSource::open(path, opts)?)),
-        Format::Ros2Bag => Ok(Box::new(super::db3::Ros2BagSource::open(path, opts)?)),
-        Format::Ros1Bag => Ok(Box::new(super::bag1::Ros1BagSource::open(path, opts)?)),
+impl std::ops::DerefMut for Session {
+    fn deref_mut(&mut self) -> &mut Self::Target {
+        self.source.as_mut()
     }
 }

@@ -38,17 +38,6 @@ impl Yaml {
 /// Deepest nesting of mappings and sequences accepted (rosbag2 metadata uses 6).
 const MAX_DEPTH: usize = 64;
 
-/// Refuse nesting deeper than [`MAX_DEPTH`] (the parser recurses once per level).
-fn too_deep(lines: &[Line], i: usize, depth: usize) -> Result<(), String> {
-    if depth > MAX_DEPTH {
-        let line = lines.get(i).map_or(0, |l| l.number);
-        return Err(format!(
-            "line {line}: mappings/sequences nested more than {MAX_DEPTH} levels deep"
-        ));
-    }
-    Ok(())
-}
-
 /// One non-empty, non-comment line.
 struct Line {
     indent: usize,
@@ -77,114 +66,123 @@ pub fn parse(text: &str) -> Result<Yaml, String> {
             number: n + 1,
         });
     }
-    let mut i = 0;
     let indent = lines.first().map_or(0, |l| l.indent);
-    let node = parse_node(&mut lines, &mut i, indent, 0)?;
-    if let Some(l) = lines.get(i) {
+    let mut p = Parser { lines, i: 0 };
+    let node = p.node(indent, 0)?;
+    if let Some(l) = p.lines.get(p.i) {
         return Err(format!("line {}: unexpected indentation", l.number));
     }
     Ok(node)
-}
-
-fn parse_node(
-    lines: &mut [Line],
-    i: &mut usize,
-    indent: usize,
-    depth: usize,
-) -> Result<Yaml, String> {
-    let Some(line) = lines.get(*i) else {
-        return Ok(Yaml::Null);
-    };
-    if line.indent < indent {
-        return Ok(Yaml::Null);
-    }
-    if is_seq_item(&line.text) {
-        parse_seq(lines, i, line.indent, depth + 1)
-    } else if split_key(&line.text).is_some() {
-        parse_map(lines, i, line.indent, depth + 1)
-    } else {
-        let first = line.text.clone();
-        let parent = line.indent.saturating_sub(1);
-        let number = line.number;
-        *i += 1;
-        scalar(&first, lines, i, parent).map_err(|e| format!("line {number}: {e}"))
-    }
 }
 
 fn is_seq_item(text: &str) -> bool {
     text == "-" || text.starts_with("- ")
 }
 
-fn parse_seq(
-    lines: &mut [Line],
-    i: &mut usize,
-    indent: usize,
-    depth: usize,
-) -> Result<Yaml, String> {
-    too_deep(lines, *i, depth)?;
-    let mut items = Vec::new();
-    while let Some(line) = lines.get_mut(*i) {
-        if line.indent != indent || !is_seq_item(&line.text) {
-            break;
-        }
-        let rest = line.text[1..].trim_start().to_string();
-        if rest.is_empty() {
-            *i += 1;
-            let child = lines.get(*i).map_or(indent + 1, |l| l.indent);
-            items.push(if child > indent {
-                parse_node(lines, i, child, depth)?
-            } else {
-                Yaml::Null
-            });
-        } else {
-            // `- key: value` opens a mapping whose keys sit at the column after "- ".
-            let column = indent + (line.text.len() - rest.len());
-            line.indent = column;
-            line.text = rest;
-            items.push(parse_node(lines, i, column, depth)?);
-        }
-    }
-    Ok(Yaml::Seq(items))
+/// The document's lines and the next one to read.
+struct Parser {
+    lines: Vec<Line>,
+    i: usize,
 }
 
-fn parse_map(
-    lines: &mut [Line],
-    i: &mut usize,
-    indent: usize,
-    depth: usize,
-) -> Result<Yaml, String> {
-    too_deep(lines, *i, depth)?;
-    let mut entries = Vec::new();
-    while let Some(line) = lines.get(*i) {
-        if line.indent != indent {
-            if line.indent > indent {
-                return Err(format!("line {}: unexpected indentation", line.number));
-            }
-            break;
+impl Parser {
+    /// Refuse nesting deeper than [`MAX_DEPTH`] (the parser recurses once per level).
+    fn too_deep(&self, depth: usize) -> Result<(), String> {
+        if depth > MAX_DEPTH {
+            let line = self.lines.get(self.i).map_or(0, |l| l.number);
+            return Err(format!(
+                "line {line}: mappings/sequences nested more than {MAX_DEPTH} levels deep"
+            ));
         }
-        let Some((key, rest)) = split_key(&line.text) else {
-            return Err(format!("line {}: expected `key: value`", line.number));
+        Ok(())
+    }
+
+    fn node(&mut self, indent: usize, depth: usize) -> Result<Yaml, String> {
+        let Some(line) = self.lines.get(self.i) else {
+            return Ok(Yaml::Null);
         };
-        *i += 1;
-        let value = if rest.is_empty() {
-            match lines.get(*i) {
-                Some(next) if next.indent > indent => {
-                    let child = next.indent;
-                    parse_node(lines, i, child, depth)?
+        if line.indent < indent {
+            return Ok(Yaml::Null);
+        }
+        if is_seq_item(&line.text) {
+            self.seq(line.indent, depth + 1)
+        } else if split_key(&line.text).is_some() {
+            self.map(line.indent, depth + 1)
+        } else {
+            let (first, number) = (line.text.clone(), line.number);
+            let parent = line.indent.saturating_sub(1);
+            self.i += 1;
+            self.scalar(&first, parent)
+                .map_err(|e| format!("line {number}: {e}"))
+        }
+    }
+
+    fn seq(&mut self, indent: usize, depth: usize) -> Result<Yaml, String> {
+        self.too_deep(depth)?;
+        let mut items = Vec::new();
+        while let Some(line) = self.lines.get_mut(self.i) {
+            if line.indent != indent || !is_seq_item(&line.text) {
+                break;
+            }
+            let rest = line.text[1..].trim_start().to_string();
+            if rest.is_empty() {
+                self.i += 1;
+                let child = self.lines.get(self.i).map_or(indent + 1, |l| l.indent);
+                items.push(if child > indent {
+                    self.node(child, depth)?
+                } else {
+                    Yaml::Null
+                });
+            } else {
+                // `- key: value` opens a mapping whose keys sit at the column after "- ".
+                let column = indent + (line.text.len() - rest.len());
+                line.indent = column;
+                line.text = rest;
+                items.push(self.node(column, depth)?);
+            }
+        }
+        Ok(Yaml::Seq(items))
+    }
+
+    fn map(&mut self, indent: usize, depth: usize) -> Result<Yaml, String> {
+        self.too_deep(depth)?;
+        let mut entries = Vec::new();
+        while let Some(line) = self.lines.get(self.i) {
+            if line.indent != indent {
+                if line.indent > indent {
+                    return Err(format!("line {}: unexpected indentation", line.number));
                 }
+                break;
+            }
+            let Some((key, rest)) = split_key(&line.text) else {
+                return Err(format!("line {}: expected `key: value`", line.number));
+            };
+            let number = line.number;
+            self.i += 1;
+            let value = match self.lines.get(self.i) {
+                _ if !rest.is_empty() => (self.scalar(&rest, indent))
+                    .map_err(|e| format!("line {number}: {e}"))?,
+                Some(next) if next.indent > indent => self.node(next.indent, depth)?,
                 // A sequence may sit at the same indentation as its key.
                 Some(next) if next.indent == indent && is_seq_item(&next.text) => {
-                    parse_seq(lines, i, indent, depth + 1)?
+                    self.seq(indent, depth + 1)?
                 }
                 _ => Yaml::Null,
-            }
-        } else {
-            let number = line.number;
-            scalar(&rest, lines, i, indent).map_err(|e| format!("line {number}: {e}"))?
-        };
-        entries.push((key, value));
+            };
+            entries.push((key, value));
+        }
+        Ok(Yaml::Map(entries))
     }
-    Ok(Yaml::Map(entries))
+
+    /// A scalar starting with `first`, continued on following lines indented deeper than `parent`.
+    fn scalar(&mut self, first: &str, parent: usize) -> Result<Yaml, String> {
+        let mut continuation = Vec::new();
+        while let Some(l) = self.lines.get(self.i).filter(|l| l.indent > parent) {
+            continuation.push(l.text.as_str());
+            self.i += 1;
+        }
+        scalar_text(first, &continuation)
+    }
 }
 
 /// `key: rest` (key possibly quoted) or `key:` at the end of the line.
@@ -218,18 +216,10 @@ fn strip_comment(text: &str) -> &str {
     }
 }
 
-/// A scalar starting with `first`, continued on following lines indented deeper than `parent`.
-fn scalar(first: &str, lines: &[Line], i: &mut usize, parent: usize) -> Result<Yaml, String> {
+/// The scalar of the text `first` and its continuation lines.
+fn scalar_text(first: &str, continuation: &[&str]) -> Result<Yaml, String> {
     let mut text = first.to_string();
     let block = text.starts_with('|') || text.starts_with('>');
-    let mut continuation = Vec::new();
-    while let Some(l) = lines.get(*i) {
-        if l.indent <= parent {
-            break;
-        }
-        continuation.push(l.text.as_str());
-        *i += 1;
-    }
     if block {
         let sep = if text.starts_with('|') { "\n" } else { " " };
         return Ok(Yaml::Str(continuation.join(sep)));

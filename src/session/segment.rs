@@ -124,17 +124,7 @@ impl Chunker<'_> {
         c.t.extend_from_slice(&batch.command.t);
         c.q.extend_from_slice(&batch.command.q);
         c.dq.extend_from_slice(&batch.command.dq);
-        if !c.t.is_sorted() {
-            let mut o: Vec<usize> = (0..c.t.len()).collect();
-            o.sort_by(|&a, &b| c.t[a].total_cmp(&c.t[b]));
-            c.t = o.iter().map(|&i| c.t[i]).collect();
-            if c.q.len() == o.len() {
-                c.q = o.iter().map(|&i| c.q[i]).collect();
-            }
-            if c.dq.len() == o.len() {
-                c.dq = o.iter().map(|&i| c.dq[i]).collect();
-            }
-        }
+        c.sort_by_time();
     }
 
     /// Segment the buffer, keep the trials it completes (all of them when `last`), and cut the

@@ -5,7 +5,7 @@ use std::path::Path;
 
 use anyhow::bail;
 
-use super::Recording;
+use super::{Recording, permute};
 use super::map::{GROUPS, Group, SignalMap, group_signals};
 use crate::N_JOINTS;
 use crate::read::{FieldExtractor, FieldPath, MessageRef, OpenOptions, ReadError, Session};
@@ -560,50 +560,36 @@ fn push_row(rec: &mut Recording, group: Group, r: &[f64]) {
     }
 }
 
-/// Reorder `v` by `order` (when the source delivered samples out of time order).
-fn permute<T: Copy>(v: &mut Vec<T>, order: Option<&[usize]>) {
-    if let Some(o) = order {
-        *v = o.iter().filter_map(|&i| v.get(i).copied()).collect();
-    }
-}
-
 /// Set a group's time axis (seconds since `rec.start_ns`), sorting its samples by time when
 /// the source delivered them out of order (files without an index).
 fn set_times(rec: &mut Recording, group: Group, t_ns: &[u64]) {
     let start = rec.start_ns;
     // Signed: a later batch of an unindexed file may hold samples earlier than the origin.
-    let mut t: Vec<f64> = t_ns
-        .iter()
+    let t = (t_ns.iter())
         .map(|&t| (i128::from(t) - i128::from(start)) as f64 * 1e-9)
         .collect();
-    let order: Option<Vec<usize>> = (!t_ns.is_sorted()).then(|| {
-        let mut o: Vec<usize> = (0..t_ns.len()).collect();
-        o.sort_by_key(|&i| t_ns.get(i).copied().unwrap_or(0));
-        o
-    });
-    let order = order.as_deref();
-    if group == Group::State {
-        rec.state.t = t;
-        if let Some(o) = order {
-            rec.state.permute(o);
-        }
+    match group {
+        Group::State => rec.state.t = t,
+        Group::Command => rec.command.t = t,
+        Group::Mbs => rec.mbs.t = t,
+        Group::Bms => rec.bms.t = t,
+    }
+    if t_ns.is_sorted() {
         return;
     }
-    permute(&mut t, order);
+    let mut o: Vec<usize> = (0..t_ns.len()).collect();
+    o.sort_by_key(|&i| t_ns[i]);
     match group {
-        Group::State => {}
+        Group::State => rec.state.permute(&o),
         Group::Command => {
-            rec.command.t = t;
-            permute(&mut rec.command.q, order);
-            permute(&mut rec.command.dq, order);
+            permute(&mut rec.command.t, &o);
+            permute(&mut rec.command.q, &o);
+            permute(&mut rec.command.dq, &o);
         }
-        Group::Mbs => {
-            rec.mbs.t = t;
-            permute(&mut rec.mbs.watts, order);
-        }
-        Group::Bms => {
-            rec.bms.t = t;
-            permute(&mut rec.bms.watts, order);
+        Group::Mbs | Group::Bms => {
+            let p = if group == Group::Mbs { &mut rec.mbs } else { &mut rec.bms };
+            permute(&mut p.t, &o);
+            permute(&mut p.watts, &o);
         }
     }
 }

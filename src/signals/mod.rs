@@ -81,9 +81,7 @@ impl StateSeries {
         struct Permute<'a>(&'a [usize]);
         impl ColumnOp for Permute<'_> {
             fn apply<T: Copy>(&mut self, v: &mut Vec<T>, _: &[T]) {
-                if v.len() == self.0.len() {
-                    *v = self.0.iter().map(|&i| v[i]).collect();
-                }
+                permute(v, self.0);
             }
         }
         self.for_each_column(&mut Permute(order));
@@ -91,12 +89,9 @@ impl StateSeries {
 
     /// Sort the samples by time (a file without an index may deliver them out of order).
     pub(crate) fn sort_by_time(&mut self) {
-        if self.t.is_sorted() {
-            return;
+        if let Some(order) = time_order(&self.t) {
+            self.permute(&order);
         }
-        let mut order: Vec<usize> = (0..self.t.len()).collect();
-        order.sort_by(|&a, &b| self.t[a].total_cmp(&self.t[b]));
-        self.permute(&order);
     }
 
     /// The samples whose `keep` is true.
@@ -134,18 +129,40 @@ pub struct PowerSeries {
     pub watts: Vec<f64>,
 }
 
+impl CommandSeries {
+    /// Sort the commands by time (a file without an index may deliver a batch out of order).
+    pub(crate) fn sort_by_time(&mut self) {
+        if let Some(o) = time_order(&self.t) {
+            permute(&mut self.t, &o);
+            permute(&mut self.q, &o);
+            permute(&mut self.dq, &o);
+        }
+    }
+}
+
 impl PowerSeries {
     /// Sort the readings by time (a file without an index may deliver a batch out of order).
     pub fn sort_by_time(&mut self) {
-        if self.t.is_sorted() {
-            return;
+        if let Some(o) = time_order(&self.t) {
+            permute(&mut self.t, &o);
+            permute(&mut self.watts, &o);
         }
-        let mut o: Vec<usize> = (0..self.t.len()).collect();
-        o.sort_by(|&a, &b| self.t[a].total_cmp(&self.t[b]));
-        self.t = o.iter().map(|&i| self.t[i]).collect();
-        if self.watts.len() == o.len() {
-            self.watts = o.iter().map(|&i| self.watts[i]).collect();
-        }
+    }
+}
+
+/// The order (stable) that sorts the times `t`; `None` when they are sorted already.
+fn time_order(t: &[f64]) -> Option<Vec<usize>> {
+    (!t.is_sorted()).then(|| {
+        let mut order: Vec<usize> = (0..t.len()).collect();
+        order.sort_by(|&a, &b| t[a].total_cmp(&t[b]));
+        order
+    })
+}
+
+/// Reorder `v` by `order` (sample indices) when it is a full column (as long as `order`).
+pub(crate) fn permute<T: Copy>(v: &mut Vec<T>, order: &[usize]) {
+    if v.len() == order.len() {
+        *v = order.iter().map(|&i| v[i]).collect();
     }
 }
 

@@ -21,6 +21,24 @@ use crate::N_JOINTS;
 /// Values per sample besides the time: q, q̇, τ, T (7 each), gyro (3), quaternion (4).
 const COLUMNS: usize = 4 * N_JOINTS + 3 + 4 + 1;
 
+/// Where column `c` (in the spill's column order) lies in a [`StateSeries`]: (the field's values
+/// flattened sample by sample, values per sample, position in a sample); `$flat` and `$one` pick
+/// shared or writable slices.
+macro_rules! column {
+    ($s:expr, $c:expr, $flat:ident, $one:ident) => {{
+        const J: usize = N_JOINTS;
+        match $c {
+            c if c < J => ($s.q.$flat(), J, c),
+            c if c < 2 * J => ($s.dq.$flat(), J, c - J),
+            c if c < 3 * J => ($s.tau.$flat(), J, c - 2 * J),
+            c if c < 4 * J => ($s.temp.$flat(), J, c - 3 * J),
+            c if c < 4 * J + 3 => ($s.gyro.$flat(), 3, c - 4 * J),
+            c if c < 4 * J + 7 => ($s.quat.$flat(), 4, c - 4 * J - 3),
+            _ => ($s.volts.$one(), 1, 0),
+        }
+    }};
+}
+
 /// One written batch: its time span, where it starts in the file, its length, and which
 /// columns are stored wide (`f64`).
 #[derive(Debug, Clone, Copy)]
@@ -87,7 +105,7 @@ impl SpillWriter {
         let mut bytes: Vec<u8> = Vec::with_capacity(n * (8 + COLUMNS * 8));
         bytes.extend(s.t.iter().flat_map(|t| t.to_le_bytes()));
         for c in 0..COLUMNS {
-            let (flat, stride, at) = column(s, c);
+            let (flat, stride, at) = column!(s, c, as_flattened, as_slice);
             col.clear();
             col.extend(flat.chunks_exact(stride).take(n).map(|r| r[at]));
             col.resize(n, f64::NAN);
@@ -136,39 +154,10 @@ impl SpillWriter {
     }
 }
 
-/// Where column `c` (in the spill's column order) lies in `s`: (the field's values flattened
-/// sample by sample, values per sample, position in a sample).
-fn column(s: &StateSeries, c: usize) -> (&[f64], usize, usize) {
-    const J: usize = N_JOINTS;
-    match c {
-        c if c < J => (s.q.as_flattened(), J, c),
-        c if c < 2 * J => (s.dq.as_flattened(), J, c - J),
-        c if c < 3 * J => (s.tau.as_flattened(), J, c - 2 * J),
-        c if c < 4 * J => (s.temp.as_flattened(), J, c - 3 * J),
-        c if c < 4 * J + 3 => (s.gyro.as_flattened(), 3, c - 4 * J),
-        c if c < 4 * J + 7 => (s.quat.as_flattened(), 4, c - 4 * J - 3),
-        _ => (&s.volts, 1, 0),
-    }
-}
-
-/// [`column`], writable.
-fn column_mut(s: &mut StateSeries, c: usize) -> (&mut [f64], usize, usize) {
-    const J: usize = N_JOINTS;
-    match c {
-        c if c < J => (s.q.as_flattened_mut(), J, c),
-        c if c < 2 * J => (s.dq.as_flattened_mut(), J, c - J),
-        c if c < 3 * J => (s.tau.as_flattened_mut(), J, c - 2 * J),
-        c if c < 4 * J => (s.temp.as_flattened_mut(), J, c - 3 * J),
-        c if c < 4 * J + 3 => (s.gyro.as_flattened_mut(), 3, c - 4 * J),
-        c if c < 4 * J + 7 => (s.quat.as_flattened_mut(), 4, c - 4 * J - 3),
-        _ => (&mut s.volts, 1, 0),
-    }
-}
-
 /// Column `c` of sample `i` in the spill's column order.
 #[cfg(test)]
 fn value(s: &StateSeries, i: usize, c: usize) -> f64 {
-    let (flat, stride, at) = column(s, c);
+    let (flat, stride, at) = column!(s, c, as_flattened, as_slice);
     flat.get(i * stride + at).copied().unwrap_or(f64::NAN)
 }
 
@@ -222,7 +211,7 @@ impl StateSpill {
             for c in 0..COLUMNS {
                 let (values, after) = rest.split_at(b.n * width(c));
                 rest = after;
-                let (flat, stride, at) = column_mut(&mut s, c);
+                let (flat, stride, at) = column!(s, c, as_flattened_mut, as_mut_slice);
                 let slots = flat.chunks_exact_mut(stride).map(|r| &mut r[at]);
                 if width(c) == 8 {
                     let read = values.chunks_exact(8).map(|x| f64::from_le_bytes(array(x)));
