@@ -51,6 +51,18 @@ impl Handover<'_> {
     }
 }
 
+/// An empty recording of `file` on `clock`'s origin, with its power series.
+fn on_clock(file: &SessionFile, clock: &Recording) -> Recording {
+    Recording {
+        source: file.path.clone(),
+        start_ns: clock.start_ns,
+        joint_names: file.map.joint_names.clone(),
+        mbs: clock.mbs.clone(),
+        bms: clock.bms.clone(),
+        ..Recording::default()
+    }
+}
+
 /// Stream `file`'s joint states (all columns) inside `trials`' windows (± the margin, merged where
 /// they touch) and hand each of `trials` (in time order) to `on_trial` once its whole window has
 /// been read, with `clock`'s origin and power series. Samples no later trial needs are dropped.
@@ -72,14 +84,7 @@ pub(super) fn trial_windows(
             _ => ranges.push((a, b)),
         }
     }
-    let mut buf = Recording {
-        source: file.path.clone(),
-        start_ns: clock.start_ns,
-        joint_names: file.map.joint_names.clone(),
-        mbs: clock.mbs.clone(),
-        bms: clock.bms.clone(),
-        ..Recording::default()
-    };
+    let mut buf = on_clock(file, clock);
     let mut walk = Handover {
         trials,
         next: 0,
@@ -115,14 +120,7 @@ pub(crate) fn hold_pass(
     power: &Recording,
     trials: &[TrialWindow],
 ) -> Result<Recording> {
-    let mut held = Recording {
-        source: file.path.clone(),
-        start_ns: power.start_ns,
-        joint_names: file.map.joint_names.clone(),
-        mbs: power.mbs.clone(),
-        bms: power.bms.clone(),
-        ..Recording::default()
-    };
+    let mut held = on_clock(file, power);
     trial_windows(file, power, trials, &mut |buf, t| {
         copy_window(&mut held.state, &buf.state, t);
         Ok(())

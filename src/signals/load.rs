@@ -161,12 +161,9 @@ impl SeriesStats {
             self.last_ns = Some(self.last_ns.map_or(ns, |l| l.max(ns)));
         }
         self.count += t.len();
-        self.rate_hz = match (self.first_ns, self.last_ns) {
-            (Some(a), Some(b)) if self.count > 1 && b > a => {
-                (self.count - 1) as f64 / ((b - a) as f64 * 1e-9)
-            }
-            _ => 0.0,
-        };
+        let span = self.first_ns.zip(self.last_ns).map(|(a, b)| b - a);
+        let span = span.and_then(|s| u64::try_from(s).ok()).unwrap_or(0);
+        self.rate_hz = crate::read::rate_hz(self.count as u64, 0, span);
     }
 }
 
