@@ -160,8 +160,9 @@ impl Parser {
             let number = line.number;
             self.i += 1;
             let value = match self.lines.get(self.i) {
-                _ if !rest.is_empty() => (self.scalar(&rest, indent))
-                    .map_err(|e| format!("line {number}: {e}"))?,
+                _ if !rest.is_empty() => {
+                    (self.scalar(&rest, indent)).map_err(|e| format!("line {number}: {e}"))?
+                }
                 Some(next) if next.indent > indent => self.node(next.indent, depth)?,
                 // A sequence may sit at the same indentation as its key.
                 Some(next) if next.indent == indent && is_seq_item(&next.text) => {

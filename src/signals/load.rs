@@ -5,8 +5,8 @@ use std::path::Path;
 
 use anyhow::bail;
 
-use super::{Recording, permute};
 use super::map::{GROUPS, Group, SignalMap, group_signals};
+use super::{Recording, permute};
 use crate::N_JOINTS;
 use crate::read::{FieldExtractor, FieldPath, MessageRef, OpenOptions, ReadError, Session};
 
@@ -584,7 +584,11 @@ fn set_times(rec: &mut Recording, group: Group, t_ns: &[u64]) {
             permute(&mut rec.command.dq, &o);
         }
         Group::Mbs | Group::Bms => {
-            let p = if group == Group::Mbs { &mut rec.mbs } else { &mut rec.bms };
+            let p = if group == Group::Mbs {
+                &mut rec.mbs
+            } else {
+                &mut rec.bms
+            };
             permute(&mut p.t, &o);
             permute(&mut p.watts, &o);
         }
