@@ -298,12 +298,16 @@ class Physics:
                     if unmod is None:
                         self.coef[i] = 1.0
                     else:  # `magnitude` W = the unmodulated term's RMS over the first block
-                        # in which it is at least a milliwatt: a block where the joint barely
-                        # moves would scale the effect by thousands (seed 2064211334 drained
-                        # the battery below empty in 15 minutes)
+                        # in which it is at least a milliwatt and its joint(s) move: a block
+                        # where the joint barely moves would scale the effect by thousands (seed
+                        # 2064211334 drained the battery below empty in 15 minutes; in 2004355341
+                        # and 769228587 a braking term on a joint that only held in the first
+                        # block, 1 mW of sensor noise, made a 4.4 W effect 44 W, and 25,000x)
                         unmod = unmod.sum(1)
                         rms = float(np.sqrt(np.mean(unmod * unmod)))
-                        if rms > 1e-3:
+                        js = [e["joint"]] if e["kind"] == "modulated" and not e["pooled"] else list(range(7))
+                        moves = float(np.mean(np.abs(ctx["qd"][:, js]).max(1) > 0.1))
+                        if rms > 1e-3 and moves >= 0.05:
                             self.coef[i] = 1.0 / rms
                             e["coef_W_per_unit"] = self.coef[i] * e["magnitude"]
                 c = e["magnitude"] * (self.coef[i] or 0.0) * r

@@ -61,3 +61,101 @@ def detectability(table, truth, n_effects):
         gains.append(1.0 - r_full / r_wo)
         rms.append(float(np.std(E[:, i])))
     return gains, r_full, rms
+
+
+# ---- the yardstick the data allow (net rows and rest rows, the rail's drift fitted) -------------
+#
+# The diagnoser never sees absolute power: it fits each reading of a trial's trajectory window net
+# of the mean of the trial's pre-idle readings (its rest level), and it explains the trials' rest
+# levels separately (the rest-power stage). And the rail drifts (indgen: OU σ 0.3 W, τ 300 s), so
+# a slow change of the rest level is only evidence where a drift cannot make it. `detectability`
+# measures that: the held-out RMSE gain of knowing the effect's true contribution beside a drift
+# (a linear spline in session time, knots every KNOT_S) on
+#   * net rows: each trajectory reading minus its trial's pre-idle mean, base = the 49 regressors
+#     (also net, ridge toward θ as above) + the spline; folds by trial as above;
+#   * rest rows: each trial's pre-idle mean, base = the spline; folds are contiguous blocks of
+#     trials, as the rest-power stage's, since neighbouring trials share the drift;
+# and takes the larger (the data allow finding it at either level). The other effects are taken off
+# with their known contributions.
+
+KNOT_S = 150.0  # the drift spline's knot spacing: half the rail drift's time constant
+
+
+def drift_basis(t, t0, t1):
+    """Hat functions (linear B-spline) in session time, knots every KNOT_S over [t0, t1]."""
+    knots = np.linspace(t0, t1, max(2, int(np.ceil((t1 - t0) / KNOT_S)) + 1))
+    eye = np.eye(len(knots))
+    return np.column_stack([np.interp(t, knots, eye[k]) for k in range(len(knots))])
+
+
+def net_and_rest_rows(table, truth, W=0.3):
+    """(net, rest): net = (t, trial, [y, features...]) per trajectory reading minus its trial's
+    pre-idle mean; rest = (t, trial, [y, features...]) per trial, the mean of the readings whose
+    window [t - W, t] lies in its pre-idle. Trials with sway or an outlier step, or without a
+    pre-idle reading, are left out."""
+    t, V = table[:, 0], table[:, 1:]
+    s0 = truth["session"]["start_ns"]
+    sec = lambda k: np.array([(tr[k] - s0) / 1e9 for tr in truth["trials"]])
+    a, b, c = sec("t_trial_start_ns"), sec("t_traj_start_ns"), sec("t_post_idle_end_ns")
+    bad = np.array([tr["contaminated"] or tr["outlier"] for tr in truth["trials"]])
+    ti = np.clip(np.searchsorted(a, t, side="right") - 1, 0, len(a) - 1)
+    ok = ~bad[ti] & (t >= a[0])
+    pre = ok & (t - W >= a[ti]) & (t <= b[ti])
+    traj = ok & (t >= b[ti]) & (t <= c[ti])
+    n = np.bincount(ti[pre], minlength=len(a))
+    sums = np.stack([np.bincount(ti[pre], V[pre, k], len(a)) for k in range(V.shape[1])], 1)
+    tsum = np.bincount(ti[pre], t[pre], len(a))
+    has = n > 0
+    rest = sums[has] / n[has, None]
+    traj &= has[ti]
+    lvl = np.zeros_like(sums)
+    lvl[has] = rest
+    net = V[traj] - lvl[ti[traj]]
+    idx = np.flatnonzero(has)
+    return (t[traj], ti[traj], net), (tsum[has] / n[has], idx, rest)
+
+
+def _cv(X, y, folds, ridge_cols):
+    """Held-out residuals of y on X, 5 folds; `ridge_cols` (bool per column) shrunk toward 0."""
+    err = np.empty(len(y))
+    for f in range(5):
+        te = folds == f
+        A = X[~te]
+        R = np.diag(np.where(ridge_cols, RIDGE * len(A), 1e-9 * len(A)))
+        beta = np.linalg.solve(A.T @ A + R, A.T @ y[~te])
+        err[te] = y[te] - X[te] @ beta
+    return float(np.sqrt(np.mean(err * err)))
+
+
+def _gain(X, ridge_cols, y, e, folds):
+    """1 - RMSE(y - e) / RMSE(y), each held out beside X: what knowing the effect (its true
+    contribution e, coefficient known) adds to a model that has the drift. The coefficient is not
+    refitted: a free one would let a slow state that follows the drift (the board temperature
+    heats with the rail's power) be credited with the drift itself."""
+    if len(y) < 10 or float(np.std(e)) < 1e-9 or len(np.unique(folds)) < 5:
+        return 0.0
+    base = _cv(X, y, folds, ridge_cols)
+    return max(0.0, 1.0 - _cv(X, y - e, folds, ridge_cols) / base) if base > 0 else 0.0
+
+
+def detectability_net(table, truth, n_effects, W=0.3):
+    """[gain per effect] on the rows the diagnoser fits, the drift fitted: (net, rest, max)."""
+    (tn, tin, N), (tr, tir, Rr) = net_and_rest_rows(table, truth, W)
+    theta = np.array(truth["theta"]["vector"], float)
+    t0, t1 = float(table[0, 0]), float(table[-1, 0])
+    yn, Fn, En = N[:, 0] - N[:, 1:50] @ theta, N[:, 1:50], N[:, 50:50 + n_effects]
+    sd = Fn.std(0)
+    sd[sd == 0] = 1.0
+    Xn = np.column_stack([drift_basis(tn, t0, t1), Fn / sd])
+    rn = np.r_[np.zeros(Xn.shape[1] - 49, bool), np.ones(49, bool)]
+    yr, Er = Rr[:, 0] - Rr[:, 1:50] @ theta, Rr[:, 50:50 + n_effects]
+    Xr = drift_basis(tr, t0, t1)
+    block = max(4, min(20, len(yr) // 10))
+    fr = (np.arange(len(yr)) // block) % 5
+    out = []
+    for i in range(n_effects):
+        others = [k for k in range(n_effects) if k != i]
+        g_net = _gain(Xn, rn, yn - En[:, others].sum(1), En[:, i], tin % 5)
+        g_rest = _gain(Xr, np.zeros(Xr.shape[1], bool), yr - Er[:, others].sum(1), Er[:, i], fr)
+        out.append((g_net, g_rest, max(g_net, g_rest)))
+    return out

@@ -118,8 +118,43 @@ def check_oracle():
         table = np.column_stack([t, y, F, k * E])
         out[k] = oracle.detectability(table, truth, 1)[0][0]
     # an effect of RMS 1 W over 0.3 W noise: 1 - 0.3/sqrt(0.3^2 + 1) = 0.71
-    return {"oracle: 0.01 W over 0.3 W ~ 0": abs(out[0.01]) < 0.01, "oracle: 1 W over 0.3 W ~ 0.71": abs(out[1.0] - 0.71) < 0.03}, \
-        {"oracle_gain_none": out[0.01], "oracle_gain_1W": out[1.0]}
+    checks = {"oracle: 0.01 W over 0.3 W ~ 0": abs(out[0.01]) < 0.01,
+              "oracle: 1 W over 0.3 W ~ 0.71": abs(out[1.0] - 0.71) < 0.03}
+    info = {"oracle_gain_none": out[0.01], "oracle_gain_1W": out[1.0]}
+    # the yardstick the data allow: trials of 10 s (2 s at rest, then 8 s of motion), one reading
+    # a second; the rail flat, or drifting as indgen's (OU σ 0.3 W, τ 300 s)
+    n_tr = 90
+    t = np.arange(n_tr * 10) + 0.5
+    moving = (t % 10) > 2.0
+    F = rng.normal(0, 1, (len(t), 49)) * moving[:, None]
+    trials = [{"t_trial_start_ns": int(i * 10e9), "t_traj_start_ns": int((i * 10 + 2) * 1e9),
+               "t_post_idle_end_ns": int((i * 10 + 10) * 1e9), "contaminated": False, "outlier": False}
+              for i in range(n_tr)]
+    truth = {"session": {"start_ns": 0}, "trials": trials, "theta": {"vector": theta.tolist()}}
+    a = np.exp(-1.0 / 300.0)
+    ou = np.zeros(len(t))
+    w = rng.normal(0, 0.3 * np.sqrt(1 - a * a), len(t))
+    for i in range(1, len(t)):
+        ou[i] = a * ou[i - 1] + w[i]
+    # (the step off the spline's knots: at a knot the spline takes most of it on either rail)
+    effects = {"slow load: 2 W step at 0.37 of the session": 2.0 * (t > 0.37 * t[-1]),
+               "slow load: 2 W linear in time": 2.0 * t / t[-1],
+               "arm effect: 1 W while moving": moving * rng.normal(0, 1.0, len(t))}
+    got = {}
+    for name, e in effects.items():
+        for rail, d in (("flat", 0.0 * ou), ("drifting", ou)):
+            y = 120 + d + F @ theta + rng.normal(0, 0.3, len(t)) + e
+            table = np.column_stack([t, y, F, e])
+            got[name, rail] = oracle.detectability_net(table, truth, 1)[0][2]
+            info[f"oracle_net: {name}, {rail} rail"] = round(got[name, rail], 3)
+    step, lin, arm = effects
+    checks.update({
+        "oracle_net: a slow load scores lower on a drifting rail": got[step, "drifting"] < got[step, "flat"] - 0.05,
+        "oracle_net: a load linear in time is a drift (~0)": got[lin, "flat"] < 0.02 and got[lin, "drifting"] < 0.02,
+        "oracle_net: an arm effect scores the same on both":
+            abs(got[arm, "drifting"] - got[arm, "flat"]) < 0.02 and got[arm, "flat"] > 0.5,
+    })
+    return checks, info
 
 
 def main():
