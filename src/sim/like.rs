@@ -62,6 +62,9 @@ pub fn simulate_like(rec: &Recording, cfg: &SimConfig, out: &Path) -> Result<Tru
     run_twin(&rec.source, &stamps, cfg, out, &|emit| emit(rec))
 }
 
+/// Hands a recording's batches, in time order, to the callback.
+type ReadBatches<'a> = dyn Fn(&mut dyn FnMut(&Recording) -> Result<()>) -> Result<()> + Sync + 'a;
+
 /// The twin on the timeline `stamps` of the recording `source`, its reference trajectory handed
 /// over batch by batch by `read` (on a reader thread) as the engine reaches it.
 fn run_twin(
@@ -69,7 +72,7 @@ fn run_twin(
     stamps: &Stamps,
     cfg: &SimConfig,
     out: &Path,
-    read: &(dyn Fn(&mut dyn FnMut(&Recording) -> Result<()>) -> Result<()> + Sync),
+    read: &ReadBatches<'_>,
 ) -> Result<Truth> {
     super::check_config(cfg)?;
     anyhow::ensure!(
