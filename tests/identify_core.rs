@@ -1,9 +1,9 @@
-//! Tests of the identification core: the constrained solvers (clarabel vs the independent active-set BVLS and
+//! Tests of the identification core: the constrained solver (clarabel vs the independent active-set method and
 //! the KKT conditions), fit metrics against hand-computed values, the model file and the report.
 
 use g1viz::lsq::{
-    Bounds, Method, Metrics, condition_number, condition_number_matrix, fit_bvls, fit_constrained,
-    fit_constrained_general, fit_general, kkt_check, paper_lower_bounds, rows_to_matrix,
+    Bounds, Method, Metrics, bounded_quadratic, condition_number, condition_number_matrix,
+    fit_constrained, fit_general, kkt_check, paper_lower_bounds, rows_to_matrix,
 };
 use g1viz::power::{PowerModel, regressor_into};
 use g1viz::{N_JOINTS, N_PARAMS};
@@ -109,35 +109,48 @@ fn random_problem(rows: usize, cols: usize, seed: u64) -> (DMatrix<f64>, DVector
     (phi, y)
 }
 
+/// The same problem solved by the exact active-set method on its normal equations
+/// (ΦᵀΦ + λ·diag‖φ_j‖², Φᵀy), independent of clarabel and of the row scaling.
+fn active_set(phi: &DMatrix<f64>, y: &DVector<f64>, bounds: &Bounds) -> Vec<f64> {
+    let mut g = phi.transpose() * phi;
+    for j in 0..phi.ncols() {
+        g[(j, j)] += bounds.ridge * phi.column(j).norm_squared();
+    }
+    bounded_quadratic(&g, &(phi.transpose() * y), &bounds.lower, &bounds.upper).unwrap()
+}
+
 fn assert_agree(phi: &DMatrix<f64>, y: &DVector<f64>, bounds: &Bounds, what: &str) -> usize {
-    let c = fit_general(phi, y, bounds, Method::Clarabel).unwrap();
-    let b = fit_general(phi, y, bounds, Method::Bvls).unwrap();
-    let scale = b.theta.iter().fold(1.0f64, |m, v| m.max(v.abs()));
+    let c = fit_general(phi, y, bounds).unwrap();
+    let b = active_set(phi, y, bounds);
+    let scale = b.iter().fold(1.0f64, |m, v| m.max(v.abs()));
     let max_diff = c
         .theta
         .iter()
-        .zip(&b.theta)
+        .zip(&b)
         .fold(0.0f64, |m, (x, z)| m.max((x - z).abs()));
     assert!(
         max_diff <= 1e-6 * scale,
-        "{what}: clarabel and BVLS differ by {max_diff:e} (scale {scale})"
+        "{what}: clarabel and the active-set method differ by {max_diff:e} (scale {scale})"
     );
+    let b_rss = (phi * DVector::from_column_slice(&b) - y).norm_squared();
     assert!(
-        close(c.rss, b.rss, 1e-8),
-        "{what}: objectives {} vs {}",
-        c.rss,
-        b.rss
+        close(c.rss, b_rss, 1e-8),
+        "{what}: objectives {} vs {b_rss}",
+        c.rss
     );
-    let kb = kkt_check(phi, y, &b.theta, bounds).unwrap();
-    assert!(kb.max_violation() < 1e-9, "{what}: BVLS KKT {kb:?}");
+    let kb = kkt_check(phi, y, &b, bounds).unwrap();
+    assert!(kb.max_violation() < 1e-9, "{what}: active-set KKT {kb:?}");
     let kc = kkt_check(phi, y, &c.theta, bounds).unwrap();
     assert!(kc.max_violation() < 1e-6, "{what}: clarabel KKT {kc:?}");
-    assert_eq!(c.at_bound, b.at_bound, "{what}: active sets differ");
-    b.at_bound.iter().filter(|&&a| a).count()
+    let b_at_bound: Vec<bool> = (0..b.len())
+        .map(|j| b[j] == bounds.lower[j] || b[j] == bounds.upper[j])
+        .collect();
+    assert_eq!(c.at_bound, b_at_bound, "{what}: active sets differ");
+    b_at_bound.iter().filter(|&&a| a).count()
 }
 
 #[test]
-fn clarabel_and_bvls_agree_on_random_lower_bounded_problems() {
+fn clarabel_and_the_active_set_method_agree_on_random_lower_bounded_problems() {
     for seed in 0..8 {
         let (phi, y) = random_problem(120, N_PARAMS, seed);
         let bounds = Bounds::lower(&paper_lower_bounds());
@@ -150,7 +163,7 @@ fn clarabel_and_bvls_agree_on_random_lower_bounded_problems() {
 }
 
 #[test]
-fn clarabel_and_bvls_agree_with_upper_bounds_free_columns_and_ridge() {
+fn clarabel_and_the_active_set_method_agree_with_upper_bounds_free_columns_and_ridge() {
     for seed in 10..16 {
         let (phi, y) = random_problem(60, 12, seed);
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
@@ -180,7 +193,12 @@ fn clarabel_and_bvls_agree_with_upper_bounds_free_columns_and_ridge() {
 fn unconstrained_fit_equals_normal_equations() {
     let (phi, y) = random_problem(50, 6, 99);
     let free = vec![f64::NEG_INFINITY; 6];
-    let theta = fit_constrained_general(&phi, &y, &free, &[f64::INFINITY; 6]).unwrap();
+    let bounds = Bounds {
+        lower: free,
+        upper: vec![f64::INFINITY; 6],
+        ridge: 0.0,
+    };
+    let theta = fit_general(&phi, &y, &bounds).unwrap().theta;
     // Independent: solve ΦᵀΦθ = Φᵀy by Cholesky.
     let normal = (phi.transpose() * &phi)
         .cholesky()
@@ -203,17 +221,20 @@ fn hand_solved_bound_problem() {
     // gradient wrt θ0 at (0, 1.5): 2(1) + 2(0.5) = 3 > 0, so the bound is active: θ = (0, 1.5), RSS = 1 + 0.5.
     let phi = DMatrix::from_row_slice(3, 2, &[1.0, 0.0, 0.0, 1.0, 1.0, 1.0]);
     let y = DVector::from_vec(vec![-1.0, 2.0, 1.0]);
-    for method in [Method::Clarabel, Method::Bvls] {
-        let fit = fit_general(&phi, &y, &Bounds::lower(&[0.0, 0.0]), method).unwrap();
-        assert!(
-            fit.theta[0].abs() < 1e-9 && (fit.theta[1] - 1.5).abs() < 1e-9,
-            "{method:?}: {:?}",
-            fit.theta
-        );
-        assert!((fit.rss - 1.5).abs() < 1e-9);
-        assert_eq!(fit.at_bound, vec![true, false]);
-        assert!(fit.std_err[0].is_none() && fit.std_err[1].is_some());
-    }
+    let fit = fit_general(&phi, &y, &Bounds::lower(&[0.0, 0.0])).unwrap();
+    assert!(
+        fit.theta[0].abs() < 1e-9 && (fit.theta[1] - 1.5).abs() < 1e-9,
+        "{:?}",
+        fit.theta
+    );
+    assert!((fit.rss - 1.5).abs() < 1e-9);
+    assert_eq!(fit.at_bound, vec![true, false]);
+    assert!(fit.std_err[0].is_none() && fit.std_err[1].is_some());
+    let exact = active_set(&phi, &y, &Bounds::lower(&[0.0, 0.0]));
+    assert!(
+        exact[0] == 0.0 && (exact[1] - 1.5).abs() < 1e-12,
+        "{exact:?}"
+    );
 }
 
 #[test]
@@ -235,8 +256,13 @@ fn standard_errors_match_textbook_simple_regression() {
     let s = (rss / 3.0).sqrt();
     let phi = DMatrix::from_fn(5, 2, |i, j| if j == 0 { 1.0 } else { x[i] });
     let bounds = Bounds::lower(&[f64::NEG_INFINITY, 0.0]);
-    let fit = fit_general(&phi, &DVector::from_column_slice(&y), &bounds, Method::Bvls).unwrap();
-    assert!((fit.theta[1] - beta).abs() < 1e-12 && (fit.theta[0] - alpha).abs() < 1e-12);
+    let fit = fit_general(&phi, &DVector::from_column_slice(&y), &bounds).unwrap();
+    // An interior-point solution: exact to the solver's tolerance, not to rounding.
+    assert!(
+        (fit.theta[1] - beta).abs() < 1e-8 && (fit.theta[0] - alpha).abs() < 1e-8,
+        "θ {:?} vs ({alpha}, {beta})",
+        fit.theta
+    );
     assert!(close(fit.std_err[1].unwrap(), s / 10f64.sqrt(), 1e-9));
     assert!(close(
         fit.std_err[0].unwrap(),
@@ -250,7 +276,6 @@ fn paper_shaped_fit_recovers_paper_parameters_and_solvers_agree() {
     let (rows, y) = paper_shaped(897, 0.02, &PowerModel::PAPER, 7);
     let lower = paper_lower_bounds();
     let c = fit_constrained(&rows, &y, &lower).unwrap();
-    let b = fit_bvls(&rows, &y, &lower).unwrap();
     let truth = PowerModel::PAPER.to_vector();
     let mut worst = (0, 0.0f64);
     for p in 0..N_PARAMS {
@@ -275,7 +300,6 @@ fn paper_shaped_fit_recovers_paper_parameters_and_solvers_agree() {
     let phi = rows_to_matrix(&rows);
     let yv = DVector::from_column_slice(&y);
     assert_agree(&phi, &yv, &Bounds::lower(&lower), "paper-shaped");
-    assert!(close(c.rss, b.rss, 1e-8));
     // The fit is at least as good as the truth on its own data.
     let truth_rss: f64 = rows
         .iter()
@@ -294,24 +318,22 @@ fn zero_columns_are_pinned_and_reported() {
         upper: vec![f64::INFINITY; 5],
         ridge: 0.0,
     };
-    for method in [Method::Clarabel, Method::Bvls] {
-        let fit = fit_general(&phi, &y, &bounds, method).unwrap();
-        assert_eq!(fit.unidentifiable, vec![2]);
-        assert_eq!(fit.theta[2], 1.0);
-        assert!(fit.std_err[2].is_none());
-    }
+    let fit = fit_general(&phi, &y, &bounds).unwrap();
+    assert_eq!(fit.unidentifiable, vec![2]);
+    assert_eq!(fit.theta[2], 1.0);
+    assert!(fit.std_err[2].is_none());
 }
 
 #[test]
 fn bad_solver_input_is_a_clear_error() {
     let (mut phi, y) = random_problem(10, 3, 1);
     phi[(4, 1)] = f64::NAN;
-    let err = fit_general(&phi, &y, &Bounds::lower(&[0.0; 3]), Method::Clarabel)
+    let err = fit_general(&phi, &y, &Bounds::lower(&[0.0; 3]))
         .unwrap_err()
         .to_string();
     assert!(err.contains("Φ[4][1]"), "{err}");
     let (phi, y) = random_problem(10, 3, 1);
-    let err = fit_general(&phi, &y, &Bounds::lower(&[0.0; 2]), Method::Bvls)
+    let err = fit_general(&phi, &y, &Bounds::lower(&[0.0; 2]))
         .unwrap_err()
         .to_string();
     assert!(err.contains("3 columns"), "{err}");
@@ -321,13 +343,13 @@ fn bad_solver_input_is_a_clear_error() {
         ridge: 0.0,
     };
     assert!(
-        fit_general(&phi, &y, &bad, Method::Bvls)
+        fit_general(&phi, &y, &bad)
             .unwrap_err()
             .to_string()
             .contains("column 0")
     );
     let short = DVector::from_vec(vec![1.0; 9]);
-    assert!(fit_general(&phi, &short, &Bounds::lower(&[0.0; 3]), Method::Clarabel).is_err());
+    assert!(fit_general(&phi, &short, &Bounds::lower(&[0.0; 3])).is_err());
 }
 
 #[test]
@@ -673,25 +695,23 @@ fn report_writes_markdown_and_readable_pngs() {
 #[test]
 fn collinear_columns_reach_the_same_objective() {
     // The paper's collinearity: when two joints share a velocity profile, |q̇_i||q̇_j| ≡ q̇_i² (up to scale), so
-    // θ is not unique. Both solvers must still terminate at the same minimum and satisfy the KKT conditions.
+    // θ is not unique. The solver must still terminate at the minimum and satisfy the KKT conditions: with
+    // φ7 = 2φ3 and both ≥ 0, the problem without column 7 has the same minimum at θ3' = θ3 + 2θ7.
     let (mut phi, y) = random_problem(80, 10, 21);
     let dup = phi.column(3).clone_owned() * 2.0;
     phi.column_mut(7).copy_from(&dup);
     let bounds = Bounds::lower(&[0.0; 10]);
-    let c = fit_general(&phi, &y, &bounds, Method::Clarabel).unwrap();
-    let b = fit_general(&phi, &y, &bounds, Method::Bvls).unwrap();
+    let c = fit_general(&phi, &y, &bounds).unwrap();
+    let reduced = phi.clone().remove_column(7);
+    let b = active_set(&reduced, &y, &Bounds::lower(&[0.0; 9]));
+    let b_rss = (&reduced * DVector::from_column_slice(&b) - &y).norm_squared();
+    assert!(close(c.rss, b_rss, 1e-7), "objectives {} vs {b_rss}", c.rss);
     assert!(
-        close(c.rss, b.rss, 1e-7),
-        "objectives {} vs {}",
-        c.rss,
-        b.rss
-    );
-    assert!(
-        kkt_check(&phi, &y, &b.theta, &bounds)
+        kkt_check(&phi, &y, &c.theta, &bounds)
             .unwrap()
             .max_violation()
-            < 1e-8
+            < 1e-6
     );
     // The identifiable combination θ3 + 2θ7 agrees.
-    assert!((c.theta[3] + 2.0 * c.theta[7] - b.theta[3] - 2.0 * b.theta[7]).abs() < 1e-5);
+    assert!((c.theta[3] + 2.0 * c.theta[7] - b[3]).abs() < 1e-5);
 }

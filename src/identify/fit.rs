@@ -50,11 +50,7 @@ pub(crate) fn fit_rows(rows: &[Row]) -> Result<(lsq::Fit, f64)> {
 /// The paper's constrained fit from the normal equations of the rows ([`lsq::fit_gram`]: the
 /// same minimiser; the residual sum of squares and standard errors are those of the rows).
 pub(crate) fn fit_normal(normal: &Gram) -> Result<lsq::Fit> {
-    lsq::fit_gram(
-        normal,
-        &lsq::Bounds::lower(&lsq::paper_lower_bounds()),
-        lsq::Method::Clarabel,
-    )
+    lsq::fit_gram(normal, &lsq::Bounds::lower(&lsq::paper_lower_bounds()))
 }
 
 /// Fit quality of θ on the rows.

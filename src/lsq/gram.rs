@@ -102,9 +102,13 @@ impl Gram {
         beta.iter().all(|v| v.is_finite()).then_some((beta, se))
     }
 
-    /// κ(ΦᵀΦ) = λ_max/λ_min; ∞ when singular (see [`super::condition_number_gram`]).
+    /// κ(ΦᵀΦ) = λ_max/λ_min of the eigenvalues; ∞ when singular.
     pub fn condition_number(&self) -> f64 {
-        super::condition_number_gram(&self.g)
+        if self.g.nrows() == 0 {
+            return f64::INFINITY;
+        }
+        let eig = nalgebra::SymmetricEigen::new(self.g.clone()).eigenvalues;
+        super::metrics::ratio(eig.max(), eig.min())
     }
 
     /// The same rows with `extra` more columns, all zero for now (a design being extended:

@@ -6,7 +6,7 @@
 //! population (biased) moment ratios of the residuals, m3/m2^{3/2} and m4/m2² — Pearson's kurtosis, 3 for a
 //! normal distribution (the paper's 2.97), the same as `scipy.stats.kurtosis(e, fisher=False, bias=True)`.
 
-use nalgebra::{DMatrix, SymmetricEigen};
+use nalgebra::DMatrix;
 use serde::{Deserialize, Serialize};
 
 use crate::N_PARAMS;
@@ -131,19 +131,11 @@ impl MetricsAccumulator {
 /// row, so millions of per-sample rows need no big matrix. `f64::INFINITY` when ΦᵀΦ is singular. Values
 /// above ~1e13 are at the limit of double precision (λ_min is then rounding noise) and mean "degenerate".
 pub fn condition_number(phi: &[[f64; N_PARAMS]]) -> f64 {
-    let mut gram = DMatrix::<f64>::zeros(N_PARAMS, N_PARAMS);
+    let mut gram = super::Gram::zeros(N_PARAMS);
     for row in phi {
-        for i in 0..N_PARAMS {
-            if row[i] == 0.0 {
-                continue;
-            }
-            for j in i..N_PARAMS {
-                gram[(i, j)] += row[i] * row[j];
-            }
-        }
+        gram.add_row(row, 0.0);
     }
-    gram.fill_lower_triangle_with_upper_triangle();
-    condition_number_gram(&gram)
+    gram.condition_number()
 }
 
 /// κ(ΦᵀΦ) of any matrix Φ (from its singular values, κ = (σ_max/σ_min)²; fewer rows than columns → ∞).
@@ -155,16 +147,7 @@ pub fn condition_number_matrix(phi: &DMatrix<f64>) -> f64 {
     ratio(sv.max(), sv.min()).powi(2)
 }
 
-/// κ of a symmetric positive semi-definite matrix (λ_max/λ_min of its eigenvalues).
-pub fn condition_number_gram(gram: &DMatrix<f64>) -> f64 {
-    if gram.nrows() == 0 {
-        return f64::INFINITY;
-    }
-    let eig = SymmetricEigen::new(gram.clone()).eigenvalues;
-    ratio(eig.max(), eig.min())
-}
-
-fn ratio(max: f64, min: f64) -> f64 {
+pub(super) fn ratio(max: f64, min: f64) -> f64 {
     if !(max.is_finite() && min.is_finite()) || min <= 0.0 {
         f64::INFINITY
     } else {

@@ -1,12 +1,10 @@
 //! Bound-constrained linear least squares: min ‖Φθ − y‖² subject to lower ≤ θ ≤ upper.
 //!
-//! Two independent solvers share one problem preparation:
-//! - [`Method::Clarabel`]: the interior-point QP solver clarabel on P = ΦᵀΦ, q = −Φᵀy with the bounds as a
-//!   nonnegative cone (the paper solved the same QP with IPOPT);
-//! - [`Method::Bvls`]: an exact active-set method (Stark–Parker BVLS, which is Lawson–Hanson NNLS on the
-//!   shifted variable θ − lower when only lower bounds are finite), written here to cross-check clarabel.
+//! Solved by the interior-point QP solver clarabel on P = ΦᵀΦ, q = −Φᵀy with the bounds as a
+//! nonnegative cone (the paper solved the same QP with IPOPT); the tests cross-check it against
+//! the exact active-set method of [`super::bounded_quadratic`].
 //!
-//! Both solve in scaled variables: every column of Φ is scaled to unit norm and y to unit norm, so solver
+//! It solves in scaled variables: every column of Φ is scaled to unit norm and y to unit norm, so solver
 //! tolerances mean the same thing whatever the units of the regressors. Columns that are identically zero
 //! carry no information; their parameter is pinned to the feasible value closest to 0 and reported as
 //! unidentifiable. [`kkt_check`] verifies any solution against the optimality conditions.
@@ -19,29 +17,17 @@ use nalgebra::{DMatrix, DVector};
 use super::Gram;
 use crate::N_PARAMS;
 
-/// Which solver to use.
+/// The solver a fit used (recorded in model files).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Method {
     /// clarabel interior-point QP.
     Clarabel,
-    /// Exact active-set bounded-variable least squares (this module's own implementation).
-    Bvls,
-}
-
-impl Method {
-    /// `clarabel` or `bvls`.
-    pub fn name(self) -> &'static str {
-        match self {
-            Method::Clarabel => "clarabel",
-            Method::Bvls => "bvls",
-        }
-    }
 }
 
 impl std::fmt::Display for Method {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(self.name())
+        f.write_str("clarabel")
     }
 }
 
@@ -92,9 +78,9 @@ impl Bounds {
 pub struct SolverInfo {
     /// Solver.
     pub method: Method,
-    /// Final status (`Solved` for BVLS).
+    /// Final status.
     pub status: Status,
-    /// Interior-point iterations (clarabel) or least-squares subproblem solves (BVLS).
+    /// Interior-point iterations.
     pub iterations: u32,
     /// Wall time of the whole fit including preparation [s].
     pub time_s: f64,
@@ -144,53 +130,20 @@ pub fn rows_to_matrix(phi: &[[f64; N_PARAMS]]) -> DMatrix<f64> {
     DMatrix::from_fn(phi.len(), N_PARAMS, |i, j| phi[i][j])
 }
 
-/// The paper's fit: min ‖Φθ − y‖² s.t. θ ≥ lower, solved with clarabel.
+/// The paper's fit: min ‖Φθ − y‖² s.t. θ ≥ lower.
 pub fn fit_constrained(phi: &[[f64; N_PARAMS]], y: &[f64], lower: &[f64; N_PARAMS]) -> Result<Fit> {
     fit_general(
         &rows_to_matrix(phi),
         &DVector::from_column_slice(y),
         &Bounds::lower(lower),
-        Method::Clarabel,
     )
 }
 
-/// The same problem as [`fit_constrained`] solved by the independent exact active-set method.
-pub fn fit_bvls(phi: &[[f64; N_PARAMS]], y: &[f64], lower: &[f64; N_PARAMS]) -> Result<Fit> {
-    fit_general(
-        &rows_to_matrix(phi),
-        &DVector::from_column_slice(y),
-        &Bounds::lower(lower),
-        Method::Bvls,
-    )
-}
-
-/// Any number of columns with lower/upper bounds (infinite = free), solved with clarabel; returns θ only.
-pub fn fit_constrained_general(
-    phi: &DMatrix<f64>,
-    y: &DVector<f64>,
-    lower: &[f64],
-    upper: &[f64],
-) -> Result<DVector<f64>> {
-    let bounds = Bounds {
-        lower: lower.to_vec(),
-        upper: upper.to_vec(),
-        ridge: 0.0,
-    };
-    Ok(DVector::from_vec(
-        fit_general(phi, y, &bounds, Method::Clarabel)?.theta,
-    ))
-}
-
-/// The general fit: any number of columns, lower/upper bounds, optional ridge, either solver.
-pub fn fit_general(
-    phi: &DMatrix<f64>,
-    y: &DVector<f64>,
-    bounds: &Bounds,
-    method: Method,
-) -> Result<Fit> {
+/// The general fit: any number of columns, lower/upper bounds, optional ridge.
+pub fn fit_general(phi: &DMatrix<f64>, y: &DVector<f64>, bounds: &Bounds) -> Result<Fit> {
     let start = Instant::now();
     let prep = Prepared::new(phi, y, bounds)?;
-    let (x, free, status, iterations) = solve(&prep, method)?;
+    let (x, free, status, iterations) = solve_clarabel(&prep)?;
     let theta = prep.unscale(&x);
     let rss = (phi * DVector::from_column_slice(&theta) - y).norm_squared();
     let sigma2_scaled = |dof: usize| prep.rss_scaled(&x) / dof as f64;
@@ -199,7 +152,6 @@ pub fn fit_general(
         bounds,
         (theta, free, status, iterations),
         (rss, phi.nrows(), &sigma2_scaled),
-        method,
         start,
     ))
 }
@@ -210,7 +162,7 @@ pub fn fit_general(
 /// eigen-decomposition; eigenvalues below 1e-14 of the largest are dropped) and those are solved;
 /// the residual sum of squares, the row count and the standard errors are those of the original
 /// rows (from yᵀy and n), not of the compressed ones.
-pub fn fit_gram(gram: &Gram, bounds: &Bounds, method: Method) -> Result<Fit> {
+pub fn fit_gram(gram: &Gram, bounds: &Bounds) -> Result<Fit> {
     let start = Instant::now();
     let p = gram.columns();
     ensure!(
@@ -219,7 +171,7 @@ pub fn fit_gram(gram: &Gram, bounds: &Bounds, method: Method) -> Result<Fit> {
     );
     let (phi, y) = compress_gram(gram);
     let prep = Prepared::new(&phi, &y, bounds)?;
-    let (x, free, status, iterations) = solve(&prep, method)?;
+    let (x, free, status, iterations) = solve_clarabel(&prep)?;
     let theta = prep.unscale(&x);
     let rss = gram.sse(&DVector::from_column_slice(&theta));
     // Scaled residual variance of the original rows: rss in the compressed problem's y scale.
@@ -229,7 +181,6 @@ pub fn fit_gram(gram: &Gram, bounds: &Bounds, method: Method) -> Result<Fit> {
         bounds,
         (theta, free, status, iterations),
         (rss, gram.n, &sigma2_scaled),
-        method,
         start,
     ))
 }
@@ -257,17 +208,6 @@ fn compress_gram(gram: &Gram) -> (DMatrix<f64>, DVector<f64>) {
     (phi, y)
 }
 
-/// Run `method` on a prepared problem: (x, free set, status, iterations).
-fn solve(prep: &Prepared, method: Method) -> Result<(Vec<f64>, Vec<bool>, Status, u32)> {
-    Ok(match method {
-        Method::Clarabel => solve_clarabel(prep)?,
-        Method::Bvls => {
-            let (x, free, it) = solve_bvls(&prep.r, &prep.c, &prep.lo, &prep.hi)?;
-            (x, free, Status::Solved, it)
-        }
-    })
-}
-
 /// The [`Fit`] of a solved problem: `solved` = (θ, free set, status, iterations); `data` = (the
 /// rows' residual sum of squares, their number, the scaled residual variance for a number of
 /// degrees of freedom).
@@ -276,7 +216,6 @@ fn finish_fit(
     bounds: &Bounds,
     solved: (Vec<f64>, Vec<bool>, Status, u32),
     data: (f64, usize, &dyn Fn(usize) -> f64),
-    method: Method,
     start: Instant,
 ) -> Fit {
     let (theta, free, status, iterations) = solved;
@@ -310,7 +249,7 @@ fn finish_fit(
         rss,
         n_rows,
         solver: SolverInfo {
-            method,
+            method: Method::Clarabel,
             status,
             iterations,
             time_s: start.elapsed().as_secs_f64(),
@@ -552,142 +491,6 @@ fn solve_clarabel(p: &Prepared) -> Result<(Vec<f64>, Vec<bool>, Status, u32)> {
     Ok((x, free, status, sol.iterations))
 }
 
-/// Stark–Parker bounded-variable least squares on min ‖R x − c‖, lo ≤ x ≤ hi.
-/// Returns x, the free set and the number of least-squares subproblem solves.
-fn solve_bvls(
-    r: &DMatrix<f64>,
-    c: &DVector<f64>,
-    lo: &[f64],
-    hi: &[f64],
-) -> Result<(Vec<f64>, Vec<bool>, u32)> {
-    let n = r.ncols();
-    // Gradient components below this (in unit-scaled variables) count as zero.
-    let tol = 1e-12 * c.norm().max(1e-300);
-    let mut x = vec![0.0; n];
-    let mut free = vec![false; n];
-    for j in 0..n {
-        if lo[j].is_finite() {
-            x[j] = lo[j];
-        } else if hi[j].is_finite() {
-            x[j] = hi[j];
-        } else {
-            free[j] = true;
-        }
-    }
-    let max_solves = 100 * n as u32 + 100;
-    let mut solves = 0u32;
-    let mut blocked = vec![false; n];
-    let mut just_freed: Option<usize> = None;
-    let mut settle = free.iter().any(|&f| f);
-    loop {
-        while settle {
-            solves += 1;
-            if solves > max_solves {
-                bail!("BVLS did not converge within {max_solves} subproblem solves");
-            }
-            let z = solve_free_subproblem(r, c, &x, &free)?;
-            if let Some(j) = just_freed.take() {
-                // The variable just released must move into the interior; if rounding says otherwise,
-                // keep it bound and try the next candidate (Lawson–Hanson's safeguard against cycling).
-                let moves_inward = if x[j] == lo[j] {
-                    z[j] > lo[j]
-                } else {
-                    z[j] < hi[j]
-                };
-                if !moves_inward {
-                    free[j] = false;
-                    blocked[j] = true;
-                    break;
-                }
-            }
-            let mut alpha = 1.0;
-            let mut blocking = None;
-            for j in (0..n).filter(|&j| free[j]) {
-                let step = if z[j] < lo[j] {
-                    (lo[j] - x[j]) / (z[j] - x[j])
-                } else if z[j] > hi[j] {
-                    (hi[j] - x[j]) / (z[j] - x[j])
-                } else {
-                    continue;
-                };
-                if step < alpha {
-                    alpha = step.max(0.0);
-                    blocking = Some(j);
-                }
-            }
-            match blocking {
-                None => {
-                    for j in (0..n).filter(|&j| free[j]) {
-                        x[j] = z[j];
-                    }
-                    blocked.fill(false);
-                    settle = false;
-                }
-                Some(jb) => {
-                    let free_idx: Vec<usize> = (0..n).filter(|&j| free[j]).collect();
-                    for j in free_idx {
-                        x[j] += alpha * (z[j] - x[j]);
-                        let span = 1e-14 * (1.0 + x[j].abs());
-                        if j == jb || x[j] <= lo[j] + span || x[j] >= hi[j] - span {
-                            free[j] = false;
-                            x[j] = if z[j] < lo[j] || x[j] <= lo[j] + span {
-                                lo[j]
-                            } else {
-                                hi[j]
-                            };
-                        }
-                    }
-                }
-            }
-        }
-        // Optimality: w = Rᵀ(c − Rx) is minus half the gradient; a bound variable may leave its lower
-        // bound only if w_j > 0 and its upper bound only if w_j < 0.
-        let xv = DVector::from_column_slice(&x);
-        let w = r.transpose() * (c - r * xv);
-        let mut best: Option<(usize, f64)> = None;
-        for j in (0..n).filter(|&j| !free[j] && !blocked[j] && lo[j] < hi[j]) {
-            let score = if x[j] == lo[j] { w[j] } else { -w[j] };
-            if score > tol && best.is_none_or(|(_, s)| score > s) {
-                best = Some((j, score));
-            }
-        }
-        match best {
-            None => return Ok((x, free, solves)),
-            Some((j, _)) => {
-                free[j] = true;
-                just_freed = Some(j);
-                settle = true;
-            }
-        }
-    }
-}
-
-/// Least squares over the free variables with the bound ones held: min ‖R_F z_F − (c − R_B x_B)‖.
-/// Returns the full vector (bound entries copied from x).
-fn solve_free_subproblem(
-    r: &DMatrix<f64>,
-    c: &DVector<f64>,
-    x: &[f64],
-    free: &[bool],
-) -> Result<Vec<f64>> {
-    let free_idx: Vec<usize> = (0..x.len()).filter(|&j| free[j]).collect();
-    let mut rhs = c.clone();
-    for j in (0..x.len()).filter(|&j| !free[j]) {
-        rhs.axpy(-x[j], &r.column(j), 1.0);
-    }
-    let rf = r.select_columns(free_idx.iter());
-    let svd = rf.svd(true, true);
-    let eps = 1e-13 * svd.singular_values.max();
-    let zf = svd
-        .solve(&rhs, eps)
-        .map_err(|e| anyhow!("BVLS subproblem: {e}"))?;
-    let mut z = x.to_vec();
-    for (k, &j) in free_idx.iter().enumerate() {
-        z[j] = zf[k];
-    }
-    Ok(z)
-}
-
 /// Standard errors of the free variables in scaled units: sqrt(σ² [(R_FᵀR_F)⁻¹]_jj). `None` per variable when
 /// the free columns are rank deficient (that parameter is not identifiable from these rows).
 fn std_errors_scaled(r: &DMatrix<f64>, free: &[bool], sigma2: f64) -> Option<Vec<Option<f64>>> {
@@ -831,38 +634,33 @@ mod tests {
             gram.add_row(&row, y[i]);
         }
         let bounds = Bounds::lower(&[1.0, 0.0, 0.0, 0.0, 0.0]);
-        for method in [Method::Clarabel, Method::Bvls] {
-            let rows = fit_general(&phi, &y, &bounds, method).unwrap();
-            let normal = fit_gram(&gram, &bounds, method).unwrap();
-            assert_eq!(normal.n_rows, phi.nrows());
-            assert_eq!(normal.unidentifiable, vec![3]);
-            assert_eq!(normal.at_bound, rows.at_bound, "{method}");
-            assert!(
-                rows.at_bound[1],
-                "the second parameter is held at its bound"
-            );
-            for (a, b) in rows.theta.iter().zip(&normal.theta) {
-                assert!((a - b).abs() < 1e-6, "{method}: θ {a} vs {b}");
-            }
-            assert!(
-                (rows.rss - normal.rss).abs() < 1e-9 * rows.rss,
-                "{method}: rss"
-            );
-            for (a, b) in rows.std_err.iter().zip(&normal.std_err) {
-                match (a, b) {
-                    (Some(a), Some(b)) => {
-                        assert!((a - b).abs() < 1e-6 * a, "{method}: std err {a} vs {b}")
-                    }
-                    _ => assert_eq!(a.is_some(), b.is_some(), "{method}: std err"),
-                }
-            }
-            assert!(normal.std_err[0].is_some() && normal.std_err[1].is_none());
+        let rows = fit_general(&phi, &y, &bounds).unwrap();
+        let normal = fit_gram(&gram, &bounds).unwrap();
+        assert_eq!(normal.n_rows, phi.nrows());
+        assert_eq!(normal.unidentifiable, vec![3]);
+        assert_eq!(normal.at_bound, rows.at_bound);
+        assert!(
+            rows.at_bound[1],
+            "the second parameter is held at its bound"
+        );
+        for (a, b) in rows.theta.iter().zip(&normal.theta) {
+            assert!((a - b).abs() < 1e-6, "θ {a} vs {b}");
         }
+        assert!((rows.rss - normal.rss).abs() < 1e-9 * rows.rss, "rss");
+        for (a, b) in rows.std_err.iter().zip(&normal.std_err) {
+            match (a, b) {
+                (Some(a), Some(b)) => {
+                    assert!((a - b).abs() < 1e-6 * a, "std err {a} vs {b}")
+                }
+                _ => assert_eq!(a.is_some(), b.is_some(), "std err"),
+            }
+        }
+        assert!(normal.std_err[0].is_some() && normal.std_err[1].is_none());
     }
 
     #[test]
     fn fit_from_empty_normal_equations_is_an_error() {
-        let err = fit_gram(&Gram::zeros(3), &Bounds::lower(&[0.0; 3]), Method::Clarabel);
+        let err = fit_gram(&Gram::zeros(3), &Bounds::lower(&[0.0; 3]));
         assert!(err.unwrap_err().to_string().contains("0 rows"));
     }
 }

@@ -266,6 +266,22 @@ fn field(name: impl Into<String>, value: impl std::fmt::Display, message: String
     }
 }
 
+/// The problem of a list field `name` of `n` entries (`unit`) whose length is not `wanted`
+/// (how the message says what was expected), or none.
+fn length(
+    name: &str,
+    n: usize,
+    wanted: usize,
+    unit: &str,
+    expected: &str,
+) -> Result<(), ModelProblem> {
+    if n == wanted {
+        return Ok(());
+    }
+    let message = format!("field `{name}` has {n} {unit}, {expected}");
+    Err(field(name, format!("{n} {unit}"), message))
+}
+
 /// One filter and its settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct FilterRecord {
@@ -291,7 +307,7 @@ pub struct TrialCounts {
 /// The solver run that produced θ (no timings: they would make the file non-reproducible).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SolverRecord {
-    /// Solver (`clarabel` or `bvls`).
+    /// Solver (`clarabel`).
     pub method: Method,
     /// Final status (`Solved`, `AlmostSolved`, …).
     pub status: Status,
@@ -427,16 +443,8 @@ impl ModelFile {
     }
 
     fn validate(&self) -> Result<(), ModelProblem> {
-        if self.theta.len() != N_PARAMS {
-            return Err(field(
-                "theta",
-                format!("{} values", self.theta.len()),
-                format!(
-                    "field `theta` has {} values, the power model has {N_PARAMS}",
-                    self.theta.len()
-                ),
-            ));
-        }
+        let model_has = format!("the power model has {N_PARAMS}");
+        length("theta", self.theta.len(), N_PARAMS, "values", &model_has)?;
         if let Some(p) = self.theta.iter().position(|v| !v.is_finite()) {
             return Err(field(
                 format!("theta[{p}]"),
@@ -448,16 +456,14 @@ impl ModelFile {
             ));
         }
         check_magnitudes(&self.theta)?;
-        if self.joint_names.len() != N_JOINTS {
-            return Err(field(
-                "joint_names",
-                format!("{} names", self.joint_names.len()),
-                format!(
-                    "field `joint_names` has {} names, the arm has {N_JOINTS} joints",
-                    self.joint_names.len()
-                ),
-            ));
-        }
+        let arm_has = format!("the arm has {N_JOINTS} joints");
+        length(
+            "joint_names",
+            self.joint_names.len(),
+            N_JOINTS,
+            "names",
+            &arm_has,
+        )?;
         let expected = self.model();
         for (name, named, from_theta) in [
             ("a", &self.a, &expected.a),
@@ -478,16 +484,8 @@ impl ModelFile {
                 }
             }
         }
-        if self.e.len() != N_PAIRS {
-            return Err(field(
-                "e",
-                format!("{} entries", self.e.len()),
-                format!(
-                    "field `e` has {} entries, expected {N_PAIRS} pairs \"i,j\" with i<j",
-                    self.e.len()
-                ),
-            ));
-        }
+        let pairs = format!("expected {N_PAIRS} pairs \"i,j\" with i<j");
+        length("e", self.e.len(), N_PAIRS, "entries", &pairs)?;
         for (k, &(i, j)) in PAIRS.iter().enumerate() {
             let key = pair_key(i, j);
             match self.e.get(&key) {
@@ -507,19 +505,14 @@ impl ModelFile {
                 Some(_) => {}
             }
         }
-        if let Some(se) = &self.theta_std_err
-            && se.len() != N_PARAMS
-        {
-            return Err(field(
-                "theta_std_err",
-                format!("{} values", se.len()),
-                format!(
-                    "field `theta_std_err` has {} values, expected {N_PARAMS}",
-                    se.len()
-                ),
-            ));
-        }
-        Ok(())
+        let n = self.theta_std_err.as_ref().map_or(N_PARAMS, Vec::len);
+        length(
+            "theta_std_err",
+            n,
+            N_PARAMS,
+            "values",
+            &format!("expected {N_PARAMS}"),
+        )
     }
 
     /// Check the model fits a session before it is used on it: the same 7 joints in the same

@@ -1,11 +1,11 @@
-//! Re-running a recording through the twin streamed from its file ([`simulate_like_file`]): the
-//! same twin as [`super::simulate_like`] of the loaded recording, in memory bounded by the
-//! message stamps (16 bytes per joint-state sample) instead of the whole recording.
+//! Re-running a recording through the twin, loaded ([`simulate_like`]) or streamed from its file
+//! ([`simulate_like_file`], in memory bounded by the message stamps, 16 bytes per joint-state
+//! sample, instead of the whole recording): one path for both.
 //!
-//! Two passes: the first reads every message's stamp (the twin's timeline) and checks the joint
-//! states for clock jumps; the second, on a reader thread, hands the reference trajectory (the
-//! command, or the measured states without one) to the engine as it reaches it, keeping only a
-//! sliding window of it.
+//! The stamps of every message make the twin's timeline, checked for clock jumps; then a reader
+//! thread hands the reference trajectory (the command, or the measured states without one) to
+//! the engine as it reaches it, batch by batch (the loaded recording is one batch), keeping only
+//! a sliding window of it.
 
 use std::cell::RefCell;
 use std::path::Path;
@@ -25,7 +25,7 @@ const BATCH_SAMPLES: usize = 20_000;
 /// lag (tens of ms) behind its clock.
 const RETAIN_S: f64 = 60.0;
 
-/// [`super::simulate_like`] of the recording at `path`, streamed: the same twin, byte for byte,
+/// [`simulate_like`] of the recording at `path`, streamed: the same twin, byte for byte,
 /// without loading the recording. A file whose messages are not in time order (an unindexed file
 /// written out of order) is loaded instead. Returns the truth and the reader's warnings.
 pub fn simulate_like_file(
@@ -35,21 +35,56 @@ pub fn simulate_like_file(
     cfg: &SimConfig,
     out: &Path,
 ) -> Result<(Truth, Vec<String>)> {
-    let stamps = read_stamps(path, map, opts)?;
+    let mut stamps = Stamps::default();
+    let summary = stream_recording(path, map, opts, BATCH_SAMPLES, &mut |b: &Recording| {
+        stamps.add(b);
+        Ok(())
+    })?;
     if !stamps.in_order {
         let rec = load_recording(path, map, opts)?;
-        let warnings = rec.warnings.clone();
-        return Ok((super::simulate_like(&rec, cfg, out)?, warnings));
+        return Ok((simulate_like(&rec, cfg, out)?, rec.warnings));
     }
+    stamps.timeline.start_ns = stamps.start_ns.unwrap_or(summary.start_ns);
+    let truth = run_twin(path, &stamps, cfg, out, &|emit| {
+        stream_recording(path, map, opts, BATCH_SAMPLES, emit).map(|_| ())
+    })?;
+    Ok((truth, summary.warnings))
+}
+
+/// Re-run a recording's trajectory through the twin on the same timeline (same start and message
+/// times): the commanded `/arm_sdk` trajectory when the recording has one (the twin's arm then lags
+/// it like the robot's), otherwise the measured one (no extra lag). Artefacts tied to trials
+/// (contamination, outliers) are not added: the recording's trials are not known here.
+pub fn simulate_like(rec: &Recording, cfg: &SimConfig, out: &Path) -> Result<Truth> {
+    let mut stamps = Stamps::default();
+    stamps.add(rec);
+    stamps.timeline.start_ns = rec.start_ns;
+    run_twin(&rec.source, &stamps, cfg, out, &|emit| emit(rec))
+}
+
+/// Hands a recording's batches, in time order, to the callback.
+type ReadBatches<'a> = dyn Fn(&mut dyn FnMut(&Recording) -> Result<()>) -> Result<()> + Sync + 'a;
+
+/// The twin on the timeline `stamps` of the recording `source`, its reference trajectory handed
+/// over batch by batch by `read` (on a reader thread) as the engine reaches it.
+fn run_twin(
+    source: &Path,
+    stamps: &Stamps,
+    cfg: &SimConfig,
+    out: &Path,
+    read: &ReadBatches<'_>,
+) -> Result<Truth> {
+    super::check_config(cfg)?;
     anyhow::ensure!(
         !stamps.timeline.lowstate.is_empty(),
         "{}: the recording has no joint states to re-run",
-        path.display()
+        source.display()
     );
+    // A clock jump (one message stamped at 0, a reset) would make the twin simulate the gap.
     if let Some((k, gap, t)) = stamps.worst_gap.filter(|g| g.1 > MAX_LIKE_GAP_S) {
         anyhow::bail!(
             "{}: joint states jump by {gap:.0} s after sample {k} (t = {t:.3} s): a bad timestamp or a clock reset; cut the recording there before re-running it",
-            path.display()
+            source.display()
         );
     }
     let commanded = !stamps.timeline.arm_sdk.is_empty();
@@ -62,18 +97,19 @@ pub fn simulate_like_file(
     let (tx, rx) = sync_channel::<Sampled>(2);
     std::thread::scope(|scope| {
         let reader = scope.spawn(move || {
-            stream_recording(path, map, opts, BATCH_SAMPLES, &mut |b: &Recording| {
+            read(&mut |b: &Recording| {
+                let (c, m) = (&b.command, &b.state);
                 let s = if commanded {
                     Sampled {
-                        t: b.command.t.clone(),
-                        q: b.command.q.clone(),
-                        dq: b.command.dq.clone(),
+                        t: c.t.clone(),
+                        q: c.q.clone(),
+                        dq: c.dq.clone(),
                     }
                 } else {
                     Sampled {
-                        t: b.state.t.clone(),
-                        q: b.state.q.clone(),
-                        dq: b.state.dq.clone(),
+                        t: m.t.clone(),
+                        q: m.q.clone(),
+                        dq: m.dq.clone(),
                     }
                 };
                 // The twin is done with the trajectory (or failed): stop reading.
@@ -103,10 +139,10 @@ pub fn simulate_like_file(
         match read {
             Err(e) if e.chain().any(|c| c.is::<TwinStopped>()) => {}
             r => {
-                r.with_context(|| format!("reading {} a second time", path.display()))?;
+                r.with_context(|| format!("reading {} a second time", source.display()))?;
             }
         }
-        Ok((truth, stamps.warnings))
+        Ok(truth)
     })
 }
 
@@ -130,52 +166,57 @@ struct Stamps {
     /// Whether every group's times came non-decreasing and non-negative (as one loaded batch
     /// would order them).
     in_order: bool,
-    warnings: Vec<String>,
+    /// The first batch's start.
+    start_ns: Option<u64>,
+    /// Each group's latest time [s].
+    last: [f64; 4],
 }
 
-fn read_stamps(path: &Path, map: &SignalMap, opts: &OpenOptions) -> Result<Stamps> {
-    let mut tl = Timeline {
-        start_ns: 0,
-        lowstate: Vec::new(),
-        arm_sdk: Vec::new(),
-        mbs: Vec::new(),
-        bms: Vec::new(),
-    };
-    let mut last = [f64::NEG_INFINITY; 4];
-    let mut in_order = true;
-    let mut worst_gap: Option<(usize, f64, f64)> = None;
-    let mut start_ns = None;
-    let summary = stream_recording(path, map, opts, BATCH_SAMPLES, &mut |b: &Recording| {
-        let start = *start_ns.get_or_insert(b.start_ns);
+impl Default for Stamps {
+    fn default() -> Self {
+        Stamps {
+            timeline: Timeline {
+                start_ns: 0,
+                lowstate: Vec::new(),
+                arm_sdk: Vec::new(),
+                mbs: Vec::new(),
+                bms: Vec::new(),
+            },
+            worst_gap: None,
+            in_order: true,
+            start_ns: None,
+            last: [f64::NEG_INFINITY; 4],
+        }
+    }
+}
+
+impl Stamps {
+    /// Take the stamps of the next batch of the recording.
+    fn add(&mut self, b: &Recording) {
+        let start = *self.start_ns.get_or_insert(b.start_ns);
         let to_ns = |t: &f64| (start as i128 + (t * 1e9).round() as i128).max(0) as u64;
+        let tl = &mut self.timeline;
         let groups: [(&[f64], &mut Vec<u64>); 4] = [
             (&b.state.t, &mut tl.lowstate),
             (&b.command.t, &mut tl.arm_sdk),
             (&b.mbs.t, &mut tl.mbs),
             (&b.bms.t, &mut tl.bms),
         ];
+        let last = &mut self.last;
         for (g, (t, ns)) in groups.into_iter().enumerate() {
             for &x in t {
                 if g == 0 && last[0].is_finite() {
                     let gap = x - last[0];
-                    if worst_gap.is_none_or(|w| gap >= w.1) {
-                        worst_gap = Some((ns.len() - 1, gap, last[0]));
+                    if self.worst_gap.is_none_or(|w| gap >= w.1) {
+                        self.worst_gap = Some((ns.len() - 1, gap, last[0]));
                     }
                 }
-                in_order &= x >= last[g] && x >= 0.0;
+                self.in_order &= x >= last[g] && x >= 0.0;
                 last[g] = x;
                 ns.push(to_ns(&x));
             }
         }
-        Ok(())
-    })?;
-    tl.start_ns = start_ns.unwrap_or(summary.start_ns);
-    Ok(Stamps {
-        timeline: tl,
-        worst_gap,
-        in_order,
-        warnings: summary.warnings,
-    })
+    }
 }
 
 /// A sampled reference read from a channel as queries reach it: a window of

@@ -36,7 +36,7 @@ pub use effects::{
     JOINT_FRICTION_PATTERN, JointFrictionExcess, MeterOffset, RailLoad, SWAY_CORRELATION_S,
     SensorLatency, StribeckFriction, SwitchingLoss, THERMAL_REFERENCE_C, ThermalDrift,
 };
-pub use like::simulate_like_file;
+pub use like::{simulate_like, simulate_like_file};
 pub use protocol::Preset;
 pub use thermal::ThermalModel;
 pub use truth::{
@@ -48,8 +48,7 @@ pub use truth::{
 use crate::N_JOINTS;
 use crate::power::{PAIRS, PowerModel};
 use crate::robot::{ArmDynamics, JointFriction, RobotModel};
-use crate::signals::Recording;
-use plant::{Engine, OutlierStep, Reference, Sampled, Sway, Timeline, TrialArtefacts};
+use plant::{Engine, OutlierStep, Reference, Sway, Timeline, TrialArtefacts};
 use protocol::Schedule;
 
 /// URDF joint names of the left arm, model order.
@@ -593,78 +592,6 @@ fn protocol_truth() -> truth::ProtocolTruth {
 
 /// Longest pause between joint states a `simulate_like` recording may have [s].
 const MAX_LIKE_GAP_S: f64 = 3600.0;
-
-/// Re-run a recording's trajectory through the twin on the same timeline (same start and message
-/// times): the commanded `/arm_sdk` trajectory when the recording has one (the twin's arm then lags
-/// it like the robot's), otherwise the measured one (no extra lag). Artefacts tied to trials
-/// (contamination, outliers) are not added: the recording's trials are not known here.
-pub fn simulate_like(rec: &Recording, cfg: &SimConfig, out: &Path) -> Result<Truth> {
-    check_config(cfg)?;
-    anyhow::ensure!(
-        !rec.state.t.is_empty(),
-        "{}: the recording has no joint states to re-run",
-        rec.source.display()
-    );
-    // A clock jump (one message stamped at 0, a reset) would make the twin simulate the gap.
-    if let Some((k, gap)) = rec
-        .state
-        .t
-        .windows(2)
-        .map(|w| w[1] - w[0])
-        .enumerate()
-        .max_by(|a, b| a.1.total_cmp(&b.1))
-        .filter(|(_, gap)| *gap > MAX_LIKE_GAP_S)
-    {
-        anyhow::bail!(
-            "{}: joint states jump by {gap:.0} s after sample {k} (t = {:.3} s): a bad timestamp or a clock reset; cut the recording there before re-running it",
-            rec.source.display(),
-            rec.state.t[k]
-        );
-    }
-    let (sampled, lag) = if rec.command.t.is_empty() {
-        (
-            Sampled {
-                t: rec.state.t.clone(),
-                q: rec.state.q.clone(),
-                dq: rec.state.dq.clone(),
-            },
-            0.0,
-        )
-    } else {
-        (
-            Sampled {
-                t: rec.command.t.clone(),
-                q: rec.command.q.clone(),
-                dq: rec.command.dq.clone(),
-            },
-            cfg.tracking_lag_s,
-        )
-    };
-    let to_ns = |t: &f64| (rec.start_ns as i128 + (t * 1e9).round() as i128).max(0) as u64;
-    let timeline = Timeline {
-        start_ns: rec.start_ns,
-        lowstate: rec.state.t.iter().map(to_ns).collect(),
-        arm_sdk: rec.command.t.iter().map(to_ns).collect(),
-        mbs: rec.mbs.t.iter().map(to_ns).collect(),
-        bms: rec.bms.t.iter().map(to_ns).collect(),
-    };
-    let cfg_like = SimConfig {
-        tracking_lag_s: lag,
-        ..cfg.clone()
-    };
-    let (dyn_true, dyn_urdf) = dynamics(&cfg_like)?;
-    let engine = Engine {
-        cfg: &cfg_like,
-        dyn_true: &dyn_true,
-        dyn_urdf: dyn_urdf.as_ref(),
-        friction: &cfg.friction,
-        timeline: &timeline,
-        reference: Reference::Sampled(&sampled),
-        trials: &[],
-        artefacts: &[],
-    };
-    run_like(&cfg_like, &engine, out)
-}
 
 /// The run of a re-recorded twin (`engine` on the recording's timeline and reference, no
 /// trials): the session file and its truth.

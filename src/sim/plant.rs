@@ -102,8 +102,6 @@ pub struct Sampled {
 pub enum Reference<'a> {
     /// The protocol's analytic smooth steps.
     Protocol(&'a Schedule),
-    /// A sampled trajectory.
-    Sampled(&'a Sampled),
     /// A sampled trajectory read from a file as the engine reaches it.
     Streamed(&'a super::like::StreamedSampled),
 }
@@ -113,7 +111,6 @@ impl Reference<'_> {
     pub fn eval(&self, t: f64, hint: &mut usize) -> Motion {
         match self {
             Reference::Protocol(s) => s.eval(t, hint),
-            Reference::Sampled(s) => s.eval(t, hint),
             Reference::Streamed(s) => s.eval(t, hint),
         }
     }

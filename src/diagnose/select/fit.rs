@@ -150,7 +150,7 @@ const BASE_PRIOR_WEIGHT: f64 = 0.25;
 /// Bounded least squares on normal equations: minimise θᵀGθ − 2θᵀh subject to lo ≤ θ ≤ hi,
 /// with the weak Gaussian prior (mean: the paper's θ) on the first [`N_PARAMS`] (base) coefficients. Solved in Gram space
 /// by [`bounded_quadratic`] (thousands of small fits per diagnosis; checked against the
-/// identification's row-space BVLS in the tests).
+/// identification's clarabel fit in the tests).
 pub(crate) fn solve_bounded(
     g: &DMatrix<f64>,
     h: &DVector<f64>,
