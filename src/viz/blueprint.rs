@@ -1025,7 +1025,7 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
     let (overview, shares): (Vec<Node>, Vec<f32>) = match parts.window_s {
         Some(w) => session_overview(arm, parts, w),
         None => {
-            let track = (parts.trials || parts.diagnosis).then(|| trial_track());
+            let track = (parts.trials || parts.diagnosis).then(trial_track);
             let error = (parts.model || parts.diagnosis).then(|| error_view(parts));
             let mut overview = vec![(arm, 1.5), (power_view(parts), 1.1)];
             overview.extend(
