@@ -44,7 +44,7 @@ fn main() -> Result<()> {
         .iter()
         .map(|n| short_joint_name(n))
         .collect();
-    let layout = g1viz::viz::layout(&robot, &arm, &joints, &extras, None);
+    let layout = g1viz::viz::layout(&robot, &arm, &joints, &extras);
     tabs.extend(layout.tab_names().into_iter().map(Some));
     for (n, tab) in tabs.iter().enumerate() {
         // The layout opens on its first tab: that view is the default one, already taken.

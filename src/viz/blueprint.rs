@@ -285,16 +285,11 @@ impl Node {
         }
     }
 
-    /// A legend of `entries` lines in the top-left corner with the y range opening so that it
-    /// cannot cover `data` (a plot at least `plot_px` high); without a known range, or where the
-    /// legend would take most of the plot, no legend (the title names the series, hovering
-    /// names a line).
-    pub fn with_legend_room(self, data: Option<[f64; 2]>, entries: usize, plot_px: f64) -> Node {
-        let node = self.with_fit(Fit::Legend(entries), plot_px);
-        match data.map(|d| fitted_range(d, Fit::Legend(entries), plot_px)) {
-            Some((true, range)) => node.with_legend(Legend::LeftTop).with_y_range(Some(range)),
-            _ => node.with_legend(Legend::Hidden),
-        }
+    /// A plot fitted with room for a legend of `entries` lines above its data ([`Node::fit`],
+    /// once the data is logged); until then no legend (nothing keeps it off data of unknown range).
+    pub fn with_legend_room(self, entries: usize, plot_px: f64) -> Node {
+        self.with_fit(Fit::Legend(entries), plot_px)
+            .with_legend(Legend::Hidden)
     }
 
     /// `children` in a container, or the only child itself when there is just one (a container
@@ -646,15 +641,16 @@ pub fn send_blueprint(stream: &RecordingStream, root: &Node) -> Result<()> {
     send_blueprint_generation(stream, root, 0)
 }
 
-/// Sends `root` again, once the data is logged (e.g. with the plots fitted to it): the same
-/// blueprint store and entities, rows with later ids (the viewer's latest-at query takes the
-/// later row at the same blueprint time), then the activation again, so the viewer replaces its
-/// active copy of the layout with this one. `generation` (1, 2, …) orders the sends.
-pub fn resend_blueprint(stream: &RecordingStream, root: &Node, generation: u32) -> Result<()> {
-    send_blueprint_generation(stream, root, generation.max(1))
-}
-
-fn send_blueprint_generation(stream: &RecordingStream, root: &Node, generation: u32) -> Result<()> {
+/// Sends `root` as generation `generation` of the layout: 0 declares the store; a later one
+/// (once the data is logged, e.g. with the plots fitted to it) sends the same blueprint store and
+/// entities with rows of later ids (the viewer's latest-at query takes the later row at the same
+/// blueprint time), then the activation again, so the viewer replaces its active copy of the
+/// layout with this one.
+pub(super) fn send_blueprint_generation(
+    stream: &RecordingStream,
+    root: &Node,
+    generation: u32,
+) -> Result<()> {
     let Some(info) = stream.store_info() else {
         return Ok(()); // disabled stream: nothing to configure
     };
@@ -734,8 +730,12 @@ pub struct LayoutParts {
     pub diagnosis_power_series: usize,
     /// The diagnosis accepted hypotheses (else their series lies under the base model's, unnamed).
     pub hypotheses: bool,
-    /// The plots' data ranges, where the data is known up front (legends get room above them).
-    pub ranges: PlotRanges,
+    /// ± the 95th percentile of the kept trials' errors' size [W]: the windowed error plot's
+    /// range.
+    pub error_typical: Option<[f64; 2]>,
+    /// σ|ω| per trial in the overview: 0 to 4× the threshold, so the kept trials' bars and the
+    /// threshold stay visible beside rejected trials of 10–50× the threshold (those clip, red).
+    pub imu_per_trial: Option<[f64; 2]>,
     /// A long session ([`opening_window`]): the linked plots open on this many seconds around
     /// the time cursor, and the overview shows per-trial plots over the whole session instead
     /// of the trial track (`None`: everything over the whole session).
@@ -791,37 +791,6 @@ pub fn opening_window(starts: &[f64]) -> Option<f64> {
     (median.is_finite() && median > 0.0).then_some(WINDOW_TRIALS * median)
 }
 
-/// The data ranges [min, max] of the plots whose data is known when the layout is built (`None`:
-/// unknown, e.g. the joint signals of a streamed replay; such a plot shows no legend, since
-/// nothing keeps a legend off data of unknown range).
-#[derive(Debug, Clone, Copy, Default)]
-pub struct PlotRanges {
-    /// Net power at the readings (or the diagnosis' before/after) [W].
-    pub power: Option<[f64; 2]>,
-    /// Predicted power by term [W].
-    pub by_term: Option<[f64; 2]>,
-    /// Predicted power by joint [W].
-    pub by_joint: Option<[f64; 2]>,
-    /// The loss terms of the first joint (the cell that carries the grid's legend) [W].
-    pub first_joint_terms: Option<[f64; 2]>,
-    /// Joint torques [Nm].
-    pub tau: Option<[f64; 2]>,
-    /// IMU |ω| with the filter's statistic and threshold [rad/s].
-    pub imu: Option<[f64; 2]>,
-    /// σ|ω| per trial in the overview: 0 to 4× the threshold, so the kept trials' bars and the
-    /// threshold stay visible beside rejected trials of 10–50× the threshold (those clip, red).
-    pub imu_per_trial: Option<[f64; 2]>,
-    /// Raw MBS/BMS readings [W].
-    pub raw_power: Option<[f64; 2]>,
-    /// Errors at the readings (per reading and per trajectory) [W].
-    pub error: Option<[f64; 2]>,
-    /// ± the 95th percentile of the kept trials' errors' size [W]: the windowed error plot's
-    /// range.
-    pub error_typical: Option<[f64; 2]>,
-    /// Trial indices (first, last).
-    pub trials: Option<[f64; 2]>,
-}
-
 /// A y range symmetric about zero that holds `data` with 5 % to spare, its bound 1.2, 2.5 or
 /// 12 × 10^k: the viewer labels ticks at powers of ten, so the ticks at zero and at ±10^k lie
 /// inside it, at most five steps across (a fitted range of a short plot showed a single "0").
@@ -864,16 +833,11 @@ const HALF_PLOT_PX: f64 = 300.0;
 /// Above this fraction of the plot's height a legend would squash the data: hide it instead.
 const MAX_LEGEND_FRACTION: f64 = 0.6;
 
-/// The fraction of a plot `plot_px` high that a legend of `entries` lines covers.
-pub fn legend_fraction(entries: usize, plot_px: f64) -> f64 {
-    (LEGEND_TOP_PX + LEGEND_LINE_PX * entries as f64) / plot_px
-}
-
 /// The y range that keeps `data` below a legend of `entries` lines in the plot's top corner:
 /// the span above the data is the legend's share of the plot's height (and 5 % below the data).
 /// `None` when the legend would take more than [`MAX_LEGEND_FRACTION`] of the plot.
-pub fn legend_room(data: [f64; 2], entries: usize, plot_px: f64) -> Option<[f64; 2]> {
-    let f = legend_fraction(entries, plot_px);
+fn legend_room(data: [f64; 2], entries: usize, plot_px: f64) -> Option<[f64; 2]> {
+    let f = (LEGEND_TOP_PX + LEGEND_LINE_PX * entries as f64) / plot_px;
     if f > MAX_LEGEND_FRACTION {
         return None;
     }
@@ -1047,7 +1011,7 @@ fn include(paths: &[&str]) -> Vec<String> {
 /// power, diagnosis. The 3D view's camera starts on the front left of the arm, 0.75 m from
 /// `arm_center` (a point on the arm in the `/robot` frame, X forward, Y left, Z up).
 ///
-/// Legends: a plot shows one only where its data range is known and the legend fits above the
+/// Legends: a plot shows one only once its data is logged and where the legend fits above the
 /// data ([`Node::with_legend_room`]); elsewhere the title names the series.
 pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]) -> Node {
     use ContainerKind::{Horizontal, Tabs, Vertical};
@@ -1061,7 +1025,7 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
     let (overview, shares): (Vec<Node>, Vec<f32>) = match parts.window_s {
         Some(w) => session_overview(arm, parts, w),
         None => {
-            let track = (parts.trials || parts.diagnosis).then(|| trial_track(parts.ranges.trials));
+            let track = (parts.trials || parts.diagnosis).then(trial_track);
             let error = (parts.model || parts.diagnosis).then(|| error_view(parts));
             let mut overview = vec![(arm, 1.5), (power_view(parts), 1.1)];
             overview.extend(
@@ -1079,14 +1043,10 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
     // A long session's plots show no legend: its Joints and Loss terms tabs get a colour key.
     let key = parts.span_s.filter(|_| parts.window_s.is_some());
     if parts.model {
-        tabs.push(breakdown_tab(joints, parts.ranges, key));
-        tabs.push(loss_terms_tab(joints, parts.ranges, key));
+        tabs.push(breakdown_tab(joints, key));
+        tabs.push(loss_terms_tab(joints, key));
     }
-    tabs.push(joints_tab(
-        joints,
-        parts.ranges,
-        key.filter(|_| parts.shares),
-    ));
+    tabs.push(joints_tab(joints, key.filter(|_| parts.shares)));
     tabs.push(imu_tab(parts));
     let raw_power = include(&[&paths::power_raw("mbs"), &paths::power_raw("bms")]);
     let raw_name = "Raw power MBS/BMS [W]";
@@ -1098,9 +1058,7 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
             vec![plot("Raw power [W]: MBS cyan, BMS olive", raw_power)],
             vec![],
         ),
-        None => {
-            plot(raw_name, raw_power).with_legend_room(parts.ranges.raw_power, 2, DETAIL_PLOT_PX)
-        }
+        None => plot(raw_name, raw_power).with_legend_room(2, DETAIL_PLOT_PX),
     });
     if parts.diagnosis {
         tabs.push(diagnosis_tab(parts));
@@ -1206,9 +1164,9 @@ fn session_overview(arm: Node, parts: LayoutParts, window_s: f64) -> Vec<(Node, 
                 include(&IMU_FILTER),
             )
             // A set range is not refitted to the data (whose rejected trials reach 10–50×).
-            .with_y_range(parts.ranges.imu_per_trial)
+            .with_y_range(parts.imu_per_trial)
             .with_fit(
-                [Fit::Ticks, Fit::Free][usize::from(parts.ranges.imu_per_trial.is_some())],
+                [Fit::Ticks, Fit::Free][usize::from(parts.imu_per_trial.is_some())],
                 ERROR_PLOT_PX,
             ),
             0.8,
@@ -1241,7 +1199,7 @@ fn error_view(parts: LayoutParts) -> Node {
         }
     }
     let view = plot(name, error).with_legend(Legend::Hidden);
-    match (parts.window_s, parts.ranges.error_typical) {
+    match (parts.window_s, parts.error_typical) {
         // A window the viewer fitted labelled a single tick (0) where its errors were small:
         // a fixed range about zero over most of the session's errors keeps 0 and ±10^k.
         (Some(_), Some(typical)) => view
@@ -1249,18 +1207,13 @@ fn error_view(parts: LayoutParts) -> Node {
             .with_y_range(Some(
                 fitted_range(typical, Fit::Symmetric, WINDOWED_ERROR_PLOT_PX).1,
             )),
-        _ => view.with_fit(Fit::Symmetric, ERROR_PLOT_PX).with_y_range(
-            parts
-                .ranges
-                .error
-                .map(|d| fitted_range(d, Fit::Symmetric, ERROR_PLOT_PX).1),
-        ),
+        _ => view.with_fit(Fit::Symmetric, ERROR_PLOT_PX),
     }
 }
 
-/// The trial track: the trial under way, rejected (or located) trials as thick red segments;
-/// `indices`: the first and last trial index (the y range then holds them, half a step spare).
-fn trial_track(indices: Option<[f64; 2]>) -> Node {
+/// The trial track: the trial under way, rejected (or located) trials as thick red segments
+/// (fitted to the trial indices, half a step spare).
+fn trial_track() -> Node {
     plot(
         "Trials (index; red: rejected or located)",
         vec![
@@ -1271,14 +1224,13 @@ fn trial_track(indices: Option<[f64; 2]>) -> Node {
     )
     .with_fit(Fit::Indices, TRACK_PLOT_PX)
     .with_legend(Legend::Hidden)
-    .with_y_range(indices.map(|d| fitted_range(d, Fit::Indices, TRACK_PLOT_PX).1))
 }
 
-/// The joint signals in one grid (one colour per joint everywhere); the joints' legend on τ
-/// when its range is known (a replay from memory), none otherwise; `key` (the session's span):
-/// a long session's colour key ([`share_points`]) in a cell of its own (its plots show no
-/// legend: the viewer fits them to the window, so every corner holds data).
-fn joints_tab(joints: &[String], ranges: PlotRanges, key: Option<[f64; 2]>) -> Node {
+/// The joint signals in one grid (one colour per joint everywhere), q, q̇ and τ with the joints'
+/// legend where it fits; `key` (the session's span): a long session's colour key
+/// ([`share_points`]) in a cell of its own (its plots show no legend: the viewer fits them to
+/// the window, so every corner holds data).
+fn joints_tab(joints: &[String], key: Option<[f64; 2]>) -> Node {
     let each = |signal: &str| -> Vec<String> {
         joints
             .iter()
@@ -1288,12 +1240,12 @@ fn joints_tab(joints: &[String], ranges: PlotRanges, key: Option<[f64; 2]>) -> N
     let mut q = each("q");
     q.extend(each("q_cmd"));
     let mut views: Vec<Node> = [
-        ("q [rad], command pale", q, None),
-        ("Joint velocity q̇ [rad/s]", each("dq"), None),
-        ("Joint torque τ [Nm]", each("tau"), ranges.tau),
+        ("q [rad], command pale", q),
+        ("Joint velocity q̇ [rad/s]", each("dq")),
+        ("Joint torque τ [Nm]", each("tau")),
     ]
     .into_iter()
-    .map(|(name, c, r)| plot(name, c).with_legend_room(r, joints.len(), DETAIL_PLOT_PX))
+    .map(|(name, c)| plot(name, c).with_legend_room(joints.len(), DETAIL_PLOT_PX))
     .collect();
     views.push(plot("Motor temperature [°C]", each("temperature")).with_legend(Legend::Hidden));
     let names = joint_names(joints);
@@ -1361,7 +1313,7 @@ fn imu_tab(parts: LayoutParts) -> Node {
         } else {
             "IMU |ω| [rad/s] and the balance filter"
         };
-        plot(name, imu).with_legend_room(parts.ranges.imu, 4, DETAIL_PLOT_PX)
+        plot(name, imu).with_legend_room(4, DETAIL_PLOT_PX)
     } else {
         plot("IMU |ω| of the body [rad/s]", imu).with_legend(Legend::Hidden)
     };
@@ -1454,14 +1406,14 @@ fn power_view(parts: LayoutParts) -> Node {
             2,
         )
     };
-    plot(name, contents).with_legend_room(parts.ranges.power, entries, OVERVIEW_PLOT_PX)
+    plot(name, contents).with_legend_room(entries, OVERVIEW_PLOT_PX)
 }
 
 /// Where the power goes: per term and per joint over time (each with its legend: the colours
 /// of the bars), per-trial bars keyed by trial index (`long`: the session's span, per-trial
 /// points over the whole session, as [`super::layers`] logs them past
 /// [`WINDOWED_ABOVE_TRIALS`]), and the note.
-fn breakdown_tab(joints: &[String], ranges: PlotRanges, long: Option<[f64; 2]>) -> Node {
+fn breakdown_tab(joints: &[String], long: Option<[f64; 2]>) -> Node {
     use ContainerKind::{Horizontal, Vertical};
     let by_joint: Vec<String> = joints
         .iter()
@@ -1475,12 +1427,9 @@ fn breakdown_tab(joints: &[String], ranges: PlotRanges, long: Option<[f64; 2]>) 
                 "Predicted power by term, all joints [W]",
                 vec![paths::include_tree(paths::BY_TERM)],
             )
-            .with_legend_room(ranges.by_term, paths::TERMS.len() + 1, DETAIL_PLOT_PX),
-            plot("Predicted power by joint, all terms [W]", by_joint).with_legend_room(
-                ranges.by_joint,
-                joints.len(),
-                DETAIL_PLOT_PX,
-            ),
+            .with_legend_room(paths::TERMS.len() + 1, DETAIL_PLOT_PX),
+            plot("Predicted power by joint, all terms [W]", by_joint)
+                .with_legend_room(joints.len(), DETAIL_PLOT_PX),
         ],
         vec![],
     );
@@ -1525,7 +1474,7 @@ fn breakdown_tab(joints: &[String], ranges: PlotRanges, long: Option<[f64; 2]>) 
 /// One grid: the four loss terms of each joint, and the interaction; the terms' legend on the
 /// first cell (the same colours in every cell); `key` (the session's span): a long session's
 /// colour key in a ninth cell (three columns).
-fn loss_terms_tab(joints: &[String], ranges: PlotRanges, key: Option<[f64; 2]>) -> Node {
+fn loss_terms_tab(joints: &[String], key: Option<[f64; 2]>) -> Node {
     let mut views: Vec<Node> = joints
         .iter()
         .enumerate()
@@ -1535,11 +1484,7 @@ fn loss_terms_tab(joints: &[String], ranges: PlotRanges, key: Option<[f64; 2]>) 
                 .map(|t| paths::include(&paths::term(j, t)))
                 .collect();
             if k == 0 {
-                plot(format!("{j} [W]"), terms).with_legend_room(
-                    ranges.first_joint_terms,
-                    paths::TERMS.len(),
-                    DETAIL_PLOT_PX,
-                )
+                plot(format!("{j} [W]"), terms).with_legend_room(paths::TERMS.len(), DETAIL_PLOT_PX)
             } else {
                 plot(format!("{j} [W]"), terms).with_legend(Legend::Hidden)
             }
@@ -1624,12 +1569,12 @@ mod tests {
         // zero that the viewer labels at 0 and ±10^k (its own fit labelled a single 0); ±2.5
         // would label only 0 in the low plot, so a typical 2 W widens further.
         for (typical, bound) in [(Some(0.7), Some(1.2)), (Some(2.0), None), (None, None)] {
-            let (error_typical, ranges) = (typical.map(|e| [-e, e]), PlotRanges::default());
-            let ranges = PlotRanges {
+            let error_typical = typical.map(|e| [-e, e]);
+            let parts = LayoutParts {
                 error_typical,
-                ..ranges
+                ..parts
             };
-            let mut root = replay_layout(&joints, LayoutParts { ranges, ..parts }, [0.0; 3]);
+            let mut root = replay_layout(&joints, parts, [0.0; 3]);
             let mut range = None;
             root.for_each_view(&mut |v| match v {
                 Node::View { name, y_range, .. } if name.starts_with("Error measured") => {

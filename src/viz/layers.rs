@@ -88,10 +88,7 @@ fn reading_means(d: &crate::diagnose::ReplayData) -> Vec<TrialMean> {
     let col = |k: usize| d.terms_w.iter().map(|x| x.0[k]).collect();
     let terms = TermSeries {
         t: d.t.clone(),
-        mechanical: col(0),
-        copper: col(1),
-        coulomb: col(2),
-        viscous: col(3),
+        per_joint: std::array::from_fn(col),
         interaction: d.terms_w.iter().map(|x| x.1).collect(),
     };
     let n = terms.len().min(d.trial.len());
@@ -259,7 +256,7 @@ pub(super) fn log_term_data(
     chunk: usize,
 ) -> Result<()> {
     for (j, name) in joints.iter().enumerate() {
-        for (k, data) in terms.fields().into_iter().enumerate() {
+        for (k, data) in terms.fields().iter().enumerate() {
             let v: Vec<f64> = data.iter().map(|v| v[j]).collect();
             scalars_chunked(w, &paths::term(name, paths::TERMS[k]), &terms.t, &v, chunk)?;
         }
@@ -363,8 +360,19 @@ fn log_bars(
             let t: Vec<f64> = means.iter().map(|m| m.t).collect();
             scalars(w, &path, &t, pick(term, k))?;
         } else {
-            let (x, v) = bar_slots(means, k, slots, pick(term, k).collect());
-            bar_chart(w, &path, &x, &v, bar_width(slots), colour)?;
+            // Bar `k` of `slots` around each trial's index, the group 0.8 wide and centred on
+            // it: x is the bar's left edge (the viewer draws it from x to x + width); heights
+            // that are not finite get no bar.
+            let width = 0.8 / slots.max(1) as f64;
+            let (x, v): (Vec<f64>, Vec<f64>) = (means.iter().zip(pick(term, k)))
+                .map(|(m, v)| (m.index as f64 - 0.4 + k as f64 * width, v))
+                .filter(|(_, v)| v.is_finite())
+                .unzip();
+            if !x.is_empty() {
+                let bars = rerun::BarChart::new(v).with_widths(vec![width as f32; x.len()]);
+                let bars = bars.with_abscissa(x).with_color(style::rgb(colour));
+                w.send_static(&path, &bars)?;
+            }
         }
     }
     Ok(())
@@ -404,48 +412,6 @@ fn bar_axis_anchors(
             .with_abscissa(vec![x[0], x[1] - width])
             .with_widths(vec![width as f32; 2])
             .with_color(rerun::Color::from_unmultiplied_rgba(0, 0, 0, 0)),
-    )
-}
-
-/// Width of one bar of a group of `slots` around a trial index (the group spans 0.8).
-pub(super) fn bar_width(slots: usize) -> f64 {
-    0.8 / slots.max(1) as f64
-}
-
-/// Where bar `slot` of `slots` goes for each trial and its height: x is the bar's left edge (the
-/// viewer draws a bar from its abscissa to abscissa + width), trial index − 0.4 + slot × width,
-/// so the group is centred on the trial's index; `values`: the heights (not finite: no bar).
-pub(super) fn bar_slots(
-    means: &[TrialMean],
-    slot: usize,
-    slots: usize,
-    values: Vec<f64>,
-) -> (Vec<f64>, Vec<f64>) {
-    let width = bar_width(slots);
-    (means.iter().zip(values))
-        .map(|(m, v)| (m.index as f64 - 0.4 + slot as f64 * width, v))
-        .filter(|(_, v)| v.is_finite())
-        .unzip()
-}
-
-/// A static bar chart at `path`: bars of `width` at `x` with heights `v`, in `colour`.
-fn bar_chart(
-    w: &mut ChunkWriter<'_>,
-    path: &str,
-    x: &[f64],
-    v: &[f64],
-    width: f64,
-    colour: [u8; 3],
-) -> Result<()> {
-    if x.is_empty() {
-        return Ok(());
-    }
-    w.send_static(
-        path,
-        &rerun::BarChart::new(v.to_vec())
-            .with_abscissa(x.to_vec())
-            .with_widths(vec![width as f32; x.len()])
-            .with_color(style::rgb(colour)),
     )
 }
 

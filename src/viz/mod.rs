@@ -24,10 +24,8 @@ mod session;
 mod slice;
 mod style;
 
-pub use blueprint::{
-    DETAIL_PLOT_PX, Eye, LayoutParts, Legend, Node, OVERVIEW_PLOT_PX, PlotRanges, data_range,
-    legend_fraction, legend_room, send_blueprint,
-};
+use blueprint::data_range;
+pub use blueprint::{Legend, Node, send_blueprint};
 pub use layers::TrialMean;
 pub use overlay::{diagnosis_extras, model_extras, trial_series, validation_extras};
 pub use replay::{

@@ -2,7 +2,7 @@
 //! comes from the streamed validation ([`crate::identify::validate_file`]: readings, trials,
 //! rejections, each trial's copper baseline), and the per-sample series (instantaneous
 //! prediction, loss terms) are never held whole. The file is read once more for their
-//! statistics (plot ranges for the layout, per-trial bars, the link colours at 10 Hz and the
+//! statistics (per-trial bars, the link colours at 10 Hz and the
 //! histogram behind the colour scale), once for the replay itself, and once to log the series
 //! trial by trial ([`crate::session::for_each_trial_with_batches`]). Every figure equals the one of
 //! the in-memory replay ([`super::overlay::model_extras`]) computed from the whole series.
@@ -81,32 +81,9 @@ fn counts(x: f64) -> bool {
     x.is_finite() && x > 0.0
 }
 
-/// Smallest and largest finite value seen.
-#[derive(Default)]
-struct Extremes(Option<[f64; 2]>);
-
-impl Extremes {
-    fn add(&mut self, v: f64) {
-        if !v.is_finite() {
-            return;
-        }
-        self.0 = Some(match self.0 {
-            Some([lo, hi]) => [lo.min(v), hi.max(v)],
-            None => [v, v],
-        });
-    }
-}
-
 /// Statistics of the sliced series, accumulated trial by trial.
 #[derive(Default)]
 struct Accumulator {
-    instant: Extremes,
-    tau: Extremes,
-    gyro: Extremes,
-    raw_power: Extremes,
-    by_term: Extremes,
-    by_joint: Extremes,
-    first_joint: Extremes,
     means: Vec<TrialMean>,
     histogram: BTreeMap<u64, u64>,
     link_t: Vec<f64>,
@@ -115,48 +92,11 @@ struct Accumulator {
 }
 
 impl Accumulator {
-    /// The extremes of the recorded series inside the slice (τ, |ω|, raw power), which the
-    /// in-memory replay takes from the whole recording.
-    fn add_batch(&mut self, batch: &Recording, slice: &Slice) {
-        let st = &batch.state;
-        for (i, &t) in st.t.iter().enumerate() {
-            if !slice.contains(t) {
-                continue;
-            }
-            for &x in st.tau.get(i).into_iter().flatten() {
-                self.tau.add(x);
-            }
-            if let Some(g) = st.gyro.get(i) {
-                self.gyro
-                    .add((g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt());
-            }
-        }
-        for p in [&batch.mbs, &batch.bms] {
-            for (t, w) in p.t.iter().zip(&p.watts) {
-                if slice.contains(*t) {
-                    self.raw_power.add(*w);
-                }
-            }
-        }
-    }
-
-    fn add(&mut self, trial: &TrialWindow, p: &PowerPrediction, terms: &TermSeries) {
-        for &v in &p.predicted {
-            self.instant.add(v);
-        }
-        let fields = terms.fields();
+    fn add(&mut self, trial: &TrialWindow, terms: &TermSeries) {
         for i in 0..terms.t.len() {
-            for f in &fields {
-                self.by_term.add(f[i].iter().sum::<f64>());
-                self.first_joint.add(f[i][0]);
-            }
-            self.by_term.add(terms.interaction[i]);
             let power = joint_power(terms, i);
-            for &x in &power {
-                self.by_joint.add(x);
-                if counts(x) {
-                    *self.histogram.entry(bucket(x)).or_default() += 1;
-                }
+            for &x in power.iter().filter(|&&x| counts(x)) {
+                *self.histogram.entry(bucket(x)).or_default() += 1;
             }
             let t = terms.t[i];
             if self.next_link.is_none_or(|next| t >= next) {
@@ -199,13 +139,6 @@ impl Accumulator {
         link_t.shrink_to_fit();
         link_power.shrink_to_fit();
         let stats = SampleStats {
-            instant: self.instant.0,
-            by_term: self.by_term.0,
-            by_joint: self.by_joint.0,
-            first_joint_terms: self.first_joint.0,
-            tau: self.tau.0,
-            gyro: self.gyro.0,
-            raw_power: self.raw_power.0,
             means: self.means,
             colour_scale: 1.0,
             link_power: (link_t, link_power),
@@ -230,7 +163,6 @@ impl StreamedModel<'_> {
     /// Read the file once, calling `each` with every planned trial's sliced series.
     fn pass(
         &self,
-        on_batch: &mut dyn FnMut(&Recording),
         each: &mut dyn FnMut(&TrialWindow, &PowerPrediction, &TermSeries) -> Result<()>,
     ) -> Result<()> {
         let windows: Vec<TrialWindow> = self.plan.iter().map(|(t, _)| t.clone()).collect();
@@ -240,7 +172,7 @@ impl StreamedModel<'_> {
             self.file,
             &windows,
             self.opts.stream.batch_samples,
-            on_batch,
+            &mut |_| {},
             &mut |rec: &Recording, t: &TrialWindow| {
                 // The trials come in plan order.
                 let tau0 = self.plan[next].1;
@@ -253,17 +185,14 @@ impl StreamedModel<'_> {
         .with_context(|| format!("reading {}", self.file.path.display()))
     }
 
-    /// The statistics pass: what the layout, the bars and the link colours need.
+    /// The statistics pass: what the bars and the link colours need.
     pub(super) fn stats(&self) -> Result<(SampleStats, Option<(u64, usize)>)> {
-        let acc = std::cell::RefCell::new(Accumulator::default());
-        self.pass(
-            &mut |batch| acc.borrow_mut().add_batch(batch, &self.opts.slice),
-            &mut |t, p, terms| {
-                acc.borrow_mut().add(t, p, terms);
-                Ok(())
-            },
-        )?;
-        Ok(acc.into_inner().finish())
+        let mut acc = Accumulator::default();
+        self.pass(&mut |t, _, terms| {
+            acc.add(t, terms);
+            Ok(())
+        })?;
+        Ok(acc.finish())
     }
 
     /// The replay: the session's samples, then the model's series trial by trial, then the
@@ -294,7 +223,7 @@ impl StreamedModel<'_> {
         let mut warnings = std::mem::take(&mut sink.warnings);
         let mut logger = sink.logger.context("the recording delivered no samples")?;
         let mut in_bucket = Vec::new();
-        self.pass(&mut |_| {}, &mut |_, p, terms| {
+        self.pass(&mut |_, p, terms| {
             if let Some((b, _)) = colour {
                 for i in 0..terms.t.len() {
                     in_bucket.extend(

@@ -72,10 +72,10 @@ pub fn trial_series(
             .predicted
             .push(model.predict(&state.tau[k], &state.dq[k], tau0_sq));
         terms.t.push(t);
-        terms.mechanical.push(b.mechanical);
-        terms.copper.push(b.copper);
-        terms.coulomb.push(b.coulomb);
-        terms.viscous.push(b.viscous);
+        let per_joint = [b.mechanical, b.copper, b.coulomb, b.viscous];
+        for (series, v) in terms.per_joint.iter_mut().zip(per_joint) {
+            series.push(v);
+        }
         terms.interaction.push(b.interaction_total());
     }
 }

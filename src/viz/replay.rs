@@ -117,32 +117,41 @@ pub struct TrajectoryPoint {
 pub struct TermSeries {
     /// Time [s since recording start].
     pub t: Vec<f64>,
-    /// a_i τ_i q̇_i.
-    pub mechanical: Vec<[f64; N_JOINTS]>,
-    /// b_i (τ_i² − τ̄0_i²).
-    pub copper: Vec<[f64; N_JOINTS]>,
-    /// c_i |q̇_i|.
-    pub coulomb: Vec<[f64; N_JOINTS]>,
-    /// d_i q̇_i².
-    pub viscous: Vec<[f64; N_JOINTS]>,
+    /// Per sample, each joint's mechanical a_i τ_i q̇_i, copper b_i (τ_i² − τ̄0_i²), Coulomb
+    /// c_i |q̇_i| and viscous d_i q̇_i² ([`super::paths::TERMS`] order).
+    pub per_joint: [Vec<[f64; N_JOINTS]>; 4],
     /// Σ e_ij |q̇_i||q̇_j|.
     pub interaction: Vec<f64>,
 }
 
 impl TermSeries {
     /// The four per-joint terms: mechanical, copper, Coulomb, viscous ([`super::paths::TERMS`]).
-    pub(super) fn fields(&self) -> [&Vec<[f64; N_JOINTS]>; 4] {
-        [&self.mechanical, &self.copper, &self.coulomb, &self.viscous]
+    pub(super) fn fields(&self) -> &[Vec<[f64; N_JOINTS]>; 4] {
+        &self.per_joint
     }
 
     /// Samples every series holds (the shortest one's length).
     pub(super) fn len(&self) -> usize {
-        let lens = self.fields().map(|f| f.len());
-        (lens
-            .into_iter()
-            .chain([self.t.len(), self.interaction.len()])
-            .min())
-        .unwrap_or(0)
+        let lens = self.per_joint.iter().map(Vec::len);
+        (lens.chain([self.t.len(), self.interaction.len()]).min()).unwrap_or(0)
+    }
+
+    /// Appends the samples of `other`.
+    fn extend(&mut self, other: &TermSeries) {
+        self.t.extend_from_slice(&other.t);
+        for (mine, theirs) in self.per_joint.iter_mut().zip(&other.per_joint) {
+            mine.extend_from_slice(theirs);
+        }
+        self.interaction.extend_from_slice(&other.interaction);
+    }
+
+    /// The first `n` samples, taken out.
+    fn take_head(&mut self, n: usize) -> TermSeries {
+        TermSeries {
+            t: self.t.drain(..n).collect(),
+            per_joint: self.per_joint.each_mut().map(|f| f.drain(..n).collect()),
+            interaction: self.interaction.drain(..n).collect(),
+        }
     }
 }
 
@@ -200,26 +209,12 @@ pub struct ReplayExtras {
     pub sample_stats: Option<SampleStats>,
 }
 
-/// What the layout, the per-trial bars and the link colours need of the per-sample series
-/// when those are streamed instead of held (the streamed model replay): their extremes, the
-/// per-trial means and the colour scale (computed as from the whole series), and the joints'
-/// power decimated to the link-colour rate.
+/// What the per-trial bars and the link colours need of the per-sample series when those are
+/// streamed instead of held (the streamed model replay): the per-trial means and the colour
+/// scale (computed as from the whole series), and the joints' power decimated to the
+/// link-colour rate.
 #[derive(Debug, Clone, Default)]
 pub struct SampleStats {
-    /// Extremes of the instantaneous prediction [W].
-    pub instant: Option<[f64; 2]>,
-    /// Extremes of each term summed over the joints, and of the interaction [W].
-    pub by_term: Option<[f64; 2]>,
-    /// Extremes of each joint's four terms summed [W].
-    pub by_joint: Option<[f64; 2]>,
-    /// Extremes of the first joint's four terms [W].
-    pub first_joint_terms: Option<[f64; 2]>,
-    /// Extremes of the joint torques in the slice [N·m].
-    pub tau: Option<[f64; 2]>,
-    /// Extremes of |ω| in the slice [rad/s].
-    pub gyro: Option<[f64; 2]>,
-    /// Extremes of the raw power readings in the slice [W].
-    pub raw_power: Option<[f64; 2]>,
     /// Mean power per joint and per term over each trial's window, in time order.
     pub means: Vec<layers::TrialMean>,
     /// Power [W] at which a link is drawn fully red.
@@ -263,15 +258,13 @@ fn arm_center(robot: &RobotModel, arm: &ArmJoints) -> [f32; 3] {
     [mean.x as f32, mean.y as f32, mean.z as f32]
 }
 
-/// The viewer layout of a replay with `extras` (`joints`: the short joint names). `whole`: the
-/// recording when it is in memory (its joint, IMU and power ranges give those plots room for
-/// their legends; a streamed replay does not know them up front), with the part to be logged.
+/// The viewer layout of a replay with `extras` (`joints`: the short joint names); its plots are
+/// fitted to their data once it is logged ([`blueprint::Node::fit`]).
 pub fn layout(
     robot: &RobotModel,
     arm: &ArmJoints,
     joints: &[String],
     extras: &ReplayExtras,
-    whole: Option<(&Recording, &Slice)>,
 ) -> blueprint::Node {
     let diagnosis_power_series = extras.diagnosis.as_ref().map_or(0, |d| {
         3 + usize::from(!d.data.found_w.is_empty()) + usize::from(d.counterpart.is_some())
@@ -292,7 +285,12 @@ pub fn layout(
         rest: diagnosis(|d| !d.data.rest_w.is_empty()),
         diagnosis_power_series,
         hypotheses: diagnosis(|d| d.data.after_w != d.data.before_w),
-        ranges: plot_ranges(extras, whole),
+        error_typical: error_typical(extras),
+        imu_per_trial: extras
+            .imu_filter
+            .as_ref()
+            .map(|f| [0.0, 4.0 * f.threshold])
+            .filter(|r| r[1].is_finite() && r[1] > 0.0),
         window_s,
         trial_counts: trial_counts(extras),
         trial_rest: extras.trajectories.iter().any(|p| p.rest_w.is_finite()),
@@ -357,116 +355,28 @@ fn trial_counts(extras: &ReplayExtras) -> blueprint::TrialCounts {
     }
 }
 
-/// The data ranges of the plots whose data `extras` (and the in-memory recording) hold.
-fn plot_ranges(
-    extras: &ReplayExtras,
-    whole: Option<(&Recording, &Slice)>,
-) -> blueprint::PlotRanges {
-    use blueprint::data_range;
-    let trials = data_range(
-        extras
-            .trials
-            .iter()
-            .chain(extras.diagnosis.iter().flat_map(|d| d.highlighted.iter()))
-            .map(|m| m.index as f64),
-    );
-    // The error plot's series: the model's per reading and per trajectory, the diagnosis'
-    // (each error with whether its trial was kept).
+/// ± the 95th percentile of the size of the kept trials' errors (the model's per reading and per
+/// trajectory, the diagnosis'): the windowed error plot's range.
+fn error_typical(extras: &ReplayExtras) -> Option<[f64; 2]> {
     let per_reading = extras.readings.iter().flat_map(|rd| {
         let kept = |i: usize| !rd.rejected.get(i).copied().unwrap_or(false);
         let errors = rd.measured.iter().zip(&rd.predicted).map(|(m, p)| m - p);
-        errors.enumerate().map(move |(i, e)| (e, kept(i)))
+        errors
+            .enumerate()
+            .filter(move |(i, _)| kept(*i))
+            .map(|e| e.1)
     });
-    let per_trajectory = extras
-        .trajectories
-        .iter()
-        .map(|p| (p.measured - p.predicted, !p.rejected));
+    let per_trajectory = (extras.trajectories.iter())
+        .filter(|p| !p.rejected)
+        .map(|p| p.measured - p.predicted);
     let diagnosis = extras.diagnosis.iter().flat_map(|d| {
         let d = &d.data;
         [&d.before_w, &d.after_w, &d.found_w]
             .into_iter()
-            .flat_map(|p| d.measured_w.iter().zip(p).map(|(m, p)| (m - p, true)))
+            .flat_map(|p| d.measured_w.iter().zip(p).map(|(m, p)| m - p))
     });
-    let errors: Vec<(f64, bool)> = per_reading.chain(per_trajectory).chain(diagnosis).collect();
-    let kept: Vec<f64> = errors.iter().filter(|e| e.1).map(|e| e.0).collect();
-    let mut r = blueprint::PlotRanges {
-        trials,
-        error: data_range(errors.iter().map(|e| e.0)),
-        error_typical: typical_size(&kept).map(|e| [-e, e]),
-        imu_per_trial: extras
-            .imu_filter
-            .as_ref()
-            .map(|f| [0.0, 4.0 * f.threshold])
-            .filter(|r| r[1].is_finite() && r[1] > 0.0),
-        ..Default::default()
-    };
-    if let Some(rd) = &extras.readings {
-        let instant = extras.prediction.iter().flat_map(|p| p.predicted.iter());
-        let streamed = extras.sample_stats.iter().flat_map(|s| s.instant);
-        r.power = data_range(
-            rd.measured
-                .iter()
-                .chain(&rd.predicted)
-                .chain(instant)
-                .copied()
-                .chain(streamed.flatten()),
-        );
-    } else if let Some(d) = &extras.diagnosis {
-        let twin = d.counterpart.iter().flat_map(|c| c.power_w.iter());
-        r.power = data_range(
-            (d.data.measured_w.iter())
-                .chain(&d.data.before_w)
-                .chain(&d.data.after_w)
-                .chain(&d.data.found_w)
-                .chain(twin)
-                .copied(),
-        );
-    }
-    // The IMU plot's filter series: each trial's statistic and the threshold.
-    let imu_marks = || {
-        let f = extras.imu_filter.iter();
-        f.flat_map(|f| f.spans.iter().map(|s| s.2).chain([f.threshold]))
-    };
-    if let Some(stats) = &extras.sample_stats {
-        let range = |x: Option<[f64; 2]>| x.and_then(data_range);
-        r.by_term = range(stats.by_term);
-        r.by_joint = range(stats.by_joint);
-        r.first_joint_terms = range(stats.first_joint_terms);
-        r.tau = range(stats.tau);
-        r.imu = data_range(stats.gyro.into_iter().flatten().chain(imu_marks()));
-        r.raw_power = range(stats.raw_power);
-    } else if let Some(terms) = &extras.terms {
-        let fields = terms.fields();
-        let by_term = fields
-            .iter()
-            .flat_map(|f| f.iter().map(|v| v.iter().sum::<f64>()))
-            .chain(terms.interaction.iter().copied());
-        r.by_term = data_range(by_term);
-        let n = fields.iter().map(|f| f.len()).min().unwrap_or(0);
-        let by_joint = (0..n)
-            .flat_map(|i| (0..N_JOINTS).map(move |j| fields.iter().map(|f| f[i][j]).sum::<f64>()));
-        r.by_joint = data_range(by_joint);
-        r.first_joint_terms = data_range(fields.iter().flat_map(|f| f.iter().map(|v| v[0])));
-    }
-    if let Some((rec, slice)) = whole {
-        let st = &rec.state;
-        let kept = |i: &usize| slice.contains(st.t[i.to_owned()]);
-        let idx: Vec<usize> = (0..st.t.len()).filter(kept).collect();
-        r.tau = data_range(idx.iter().filter_map(|&i| st.tau.get(i)).flatten().copied());
-        let gyro = idx
-            .iter()
-            .filter_map(|&i| st.gyro.get(i))
-            .map(|g| (g[0] * g[0] + g[1] * g[1] + g[2] * g[2]).sqrt());
-        r.imu = data_range(gyro.chain(imu_marks()));
-        let raw = [&rec.mbs, &rec.bms].into_iter().flat_map(|p| {
-            p.t.iter()
-                .zip(&p.watts)
-                .filter(|(t, _)| slice.contains(**t))
-                .map(|(_, w)| *w)
-        });
-        r.raw_power = data_range(raw);
-    }
-    r
+    let kept: Vec<f64> = per_reading.chain(per_trajectory).chain(diagnosis).collect();
+    typical_size(&kept).map(|e| [-e, e])
 }
 
 /// Logs `rec` (and `extras`) to `stream`: arm animation, joint and power series, model/diagnosis
@@ -721,7 +631,7 @@ impl<'a> ReplayLogger<'a> {
         let mut summary = ReplaySummary::default();
         let mut w = ChunkWriter::new(stream, REPLAY_NAMESPACE, start_ns);
         if opts.blueprint {
-            let mut layout = layout(robot, arm, &joints, extras, whole.map(|r| (r, &opts.slice)));
+            let mut layout = layout(robot, arm, &joints, extras);
             if let Some(tab) = &opts.open_tab
                 && !layout
                     .resolve_tab(tab)
@@ -929,12 +839,7 @@ impl<'a> ReplayLogger<'a> {
         let (p, tm) = &mut self.pending;
         p.t.extend_from_slice(&prediction.t);
         p.predicted.extend_from_slice(&prediction.predicted);
-        tm.t.extend_from_slice(&terms.t);
-        tm.mechanical.extend_from_slice(&terms.mechanical);
-        tm.copper.extend_from_slice(&terms.copper);
-        tm.coulomb.extend_from_slice(&terms.coulomb);
-        tm.viscous.extend_from_slice(&terms.viscous);
-        tm.interaction.extend_from_slice(&terms.interaction);
+        tm.extend(terms);
         let full = tm.t.len().min(p.t.len()) / self.chunk * self.chunk;
         if full > 0 {
             self.write_pending(full)?;
@@ -949,22 +854,10 @@ impl<'a> ReplayLogger<'a> {
             t: p.t.drain(..n).collect(),
             predicted: p.predicted.drain(..n).collect(),
         };
-        let head = TermSeries {
-            t: tm.t.drain(..n).collect(),
-            mechanical: tm.mechanical.drain(..n).collect(),
-            copper: tm.copper.drain(..n).collect(),
-            coulomb: tm.coulomb.drain(..n).collect(),
-            viscous: tm.viscous.drain(..n).collect(),
-            interaction: tm.interaction.drain(..n).collect(),
-        };
+        let head = tm.take_head(n);
         let w = &mut self.w;
-        scalars_chunked(
-            w,
-            paths::MODEL_PREDICTED,
-            &head_p.t,
-            &head_p.predicted,
-            self.chunk,
-        )?;
+        let (t, predicted) = (&head_p.t, &head_p.predicted);
+        scalars_chunked(w, paths::MODEL_PREDICTED, t, predicted, self.chunk)?;
         layers::log_term_data(w, &self.joints, &head, self.chunk)?;
         layers::log_breakdown_data(w, &self.joints, &head, self.chunk)?;
         // These are computed far faster than the sink writes them: wait for it now and then.
@@ -1034,12 +927,12 @@ impl<'a> ReplayLogger<'a> {
             robot3d::log_link_colors(w, self.robot, self.arm, &self.scene, &t, &power, scale)?;
         }
         if let Some(mut layout) = self.layout.take() {
-            // Now every plot's data range is known (a streamed replay knows none up front):
+            // Now every plot's data range is known:
             // the layout again, each plot opening on its data with readable ticks and, where
             // it fits, its legend above the data. After the data, in a fixed message order.
             w.flush()?;
             layout.fit(&|queries, origin| w.range_of(queries, origin));
-            blueprint::resend_blueprint(w.stream(), &layout, 1)?;
+            blueprint::send_blueprint_generation(w.stream(), &layout, 1)?;
             w.flush().context("sending the fitted viewer layout")?;
         }
         Ok(self.summary)
@@ -1048,34 +941,21 @@ impl<'a> ReplayLogger<'a> {
 
 /// Every per-sample vector of a series must be as long as its time vector.
 fn check_lengths(rec: &Recording) -> Result<()> {
-    let s = &rec.state;
+    let (s, c) = (&rec.state, &rec.command);
     let n = s.t.len();
-    for (field, len) in [
-        ("q", s.q.len()),
-        ("dq", s.dq.len()),
-        ("tau", s.tau.len()),
-        ("temp", s.temp.len()),
-        ("gyro", s.gyro.len()),
+    for (field, len, stamps) in [
+        ("state.q", s.q.len(), n),
+        ("state.dq", s.dq.len(), n),
+        ("state.tau", s.tau.len(), n),
+        ("state.temp", s.temp.len(), n),
+        ("state.gyro", s.gyro.len(), n),
+        ("command.q", c.q.len(), c.t.len()),
+        ("mbs.watts", rec.mbs.watts.len(), rec.mbs.t.len()),
+        ("bms.watts", rec.bms.watts.len(), rec.bms.t.len()),
     ] {
-        if len != n {
-            bail!(
-                "{}: state.{field} has {len} samples but state.t has {n}",
-                rec.source.display()
-            );
-        }
-    }
-    if rec.command.q.len() != rec.command.t.len() {
-        bail!(
-            "{}: command.q and command.t differ in length",
-            rec.source.display()
-        );
-    }
-    for (label, p) in [("mbs", &rec.mbs), ("bms", &rec.bms)] {
-        if p.watts.len() != p.t.len() {
-            bail!(
-                "{}: {label}.watts and {label}.t differ in length",
-                rec.source.display()
-            );
+        if len != stamps {
+            let source = rec.source.display();
+            bail!("{source}: {field} has {len} samples but {stamps} time stamps");
         }
     }
     Ok(())

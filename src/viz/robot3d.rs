@@ -289,30 +289,23 @@ fn log_primitive(
     geometry: &Geometry,
     colour: Option<Color>,
 ) -> Result<()> {
+    // Each shape solid, with its static colour when it has one.
+    macro_rules! send {
+        ($shape:expr) => {{
+            let shape = $shape.with_fill_mode(FillMode::Solid);
+            match colour {
+                Some(c) => w.send_static(vpath, &shape.with_colors([c])),
+                None => w.send_static(vpath, &shape),
+            }
+        }};
+    }
     match geometry {
-        Geometry::Box { size } => {
-            let mut shape = box_as_capsule(size).with_fill_mode(FillMode::Solid);
-            if let Some(c) = colour {
-                shape = shape.with_colors([c]);
-            }
-            w.send_static(vpath, &shape)
-        }
-        Geometry::Cylinder { radius, length } => {
-            let mut shape = Cylinders3D::from_lengths_and_radii([*length as f32], [*radius as f32])
-                .with_fill_mode(FillMode::Solid);
-            if let Some(c) = colour {
-                shape = shape.with_colors([c]);
-            }
-            w.send_static(vpath, &shape)
-        }
-        Geometry::Sphere { radius } => {
-            let mut shape =
-                Ellipsoids3D::from_radii([*radius as f32]).with_fill_mode(FillMode::Solid);
-            if let Some(c) = colour {
-                shape = shape.with_colors([c]);
-            }
-            w.send_static(vpath, &shape)
-        }
+        Geometry::Box { size } => send!(box_as_capsule(size)),
+        Geometry::Cylinder { radius, length } => send!(Cylinders3D::from_lengths_and_radii(
+            [*length as f32],
+            [*radius as f32]
+        )),
+        Geometry::Sphere { radius } => send!(Ellipsoids3D::from_radii([*radius as f32])),
         Geometry::Mesh { .. } => Ok(()),
     }
 }
@@ -323,22 +316,17 @@ fn colour_columns(
     colours: &[Color],
 ) -> Result<Vec<rerun::SerializedComponentColumn>> {
     let colours = colours.to_vec();
+    macro_rules! columns {
+        ($fields:expr) => {
+            $fields.columns_of_unit_batches()?.collect()
+        };
+    }
     Ok(match geometry {
-        Geometry::Box { .. } => Capsules3D::update_fields()
-            .with_colors(colours)
-            .columns_of_unit_batches()?
-            .collect(),
-        Geometry::Cylinder { .. } => Cylinders3D::update_fields()
-            .with_colors(colours)
-            .columns_of_unit_batches()?
-            .collect(),
-        Geometry::Sphere { .. } => Ellipsoids3D::update_fields()
-            .with_colors(colours)
-            .columns_of_unit_batches()?
-            .collect(),
-        Geometry::Mesh { .. } => Asset3D::update_fields()
-            .with_many_albedo_factor(colours.iter().map(|c| c.0))
-            .columns_of_unit_batches()?
-            .collect(),
+        Geometry::Box { .. } => columns!(Capsules3D::update_fields().with_colors(colours)),
+        Geometry::Cylinder { .. } => columns!(Cylinders3D::update_fields().with_colors(colours)),
+        Geometry::Sphere { .. } => columns!(Ellipsoids3D::update_fields().with_colors(colours)),
+        Geometry::Mesh { .. } => {
+            columns!(Asset3D::update_fields().with_many_albedo_factor(colours.iter().map(|c| c.0)))
+        }
     })
 }

@@ -4,10 +4,7 @@
 
 use crate::signals::Recording;
 
-use super::replay::{
-    DiagnosisOverlay, ImuFilterMarks, PowerPrediction, ReadingPrediction, ReplayExtras, TermSeries,
-};
-use crate::diagnose::LocatedField;
+use super::replay::{ImuFilterMarks, PowerPrediction, ReadingPrediction, ReplayExtras, TermSeries};
 
 /// Which part of a session a replay logs.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -168,7 +165,8 @@ impl Slice {
                     .collect(),
                 ..*f
             }),
-            diagnosis: diagnosis.as_ref().map(|d| self.diagnosis(d)),
+            // Per reading, as `diagnose --save` streams it: left whole.
+            diagnosis: diagnosis.clone(),
             // Computed from the series as sliced (see `SampleStats`).
             sample_stats: sample_stats.clone(),
         }
@@ -177,55 +175,6 @@ impl Slice {
     /// Whether [a, b] overlaps the window.
     pub fn overlaps(&self, a: f64, b: f64) -> bool {
         b >= self.from_s && a <= self.to_s
-    }
-
-    fn diagnosis(&self, d: &DiagnosisOverlay) -> DiagnosisOverlay {
-        let r = &d.data;
-        let keep = |t: &[f64]| self.keep(t, &mut Decimator::default());
-        let k = keep(&r.t);
-        let same = |v: &Vec<f64>| {
-            if v.len() == r.t.len() {
-                pick(v, &k)
-            } else {
-                v.clone()
-            }
-        };
-        DiagnosisOverlay {
-            data: crate::diagnose::ReplayData {
-                t: pick(&r.t, &k),
-                trial: pick(&r.trial, &k),
-                measured_w: same(&r.measured_w),
-                before_w: same(&r.before_w),
-                after_w: same(&r.after_w),
-                found_w: same(&r.found_w),
-                located: (r.located.iter())
-                    .map(|l| LocatedField {
-                        name: l.name.clone(),
-                        values: same(&l.values),
-                    })
-                    .collect(),
-                rest_w: same(&r.rest_w),
-                rest_found_w: same(&r.rest_found_w),
-                ..Default::default()
-            },
-            highlighted: d
-                .highlighted
-                .iter()
-                .filter(|m| self.overlaps(m.t_start, m.t_end))
-                .cloned()
-                .collect(),
-            counterpart: d.counterpart.as_ref().map(|c| {
-                let kp = keep(&c.power_t);
-                let kt = keep(&c.tau_t);
-                crate::diagnose::counterpart::CounterpartSeries {
-                    power_t: pick(&c.power_t, &kp),
-                    power_w: pick(&c.power_w, &kp),
-                    tau_t: pick(&c.tau_t, &kt),
-                    tau_diff: pick(&c.tau_diff, &kt),
-                }
-            }),
-            summary: d.summary.clone(),
-        }
     }
 }
 
@@ -245,15 +194,10 @@ impl PowerPrediction {
 impl TermSeries {
     /// The samples at `k`.
     pub(super) fn pick(&self, k: &[usize]) -> TermSeries {
-        let [mechanical, copper, coulomb, viscous] = self.fields().map(|f| pick(f, k));
-        let (t, interaction) = (pick(&self.t, k), pick(&self.interaction, k));
         TermSeries {
-            t,
-            mechanical,
-            copper,
-            coulomb,
-            viscous,
-            interaction,
+            t: pick(&self.t, k),
+            per_joint: self.per_joint.each_ref().map(|f| pick(f, k)),
+            interaction: pick(&self.interaction, k),
         }
     }
 }
