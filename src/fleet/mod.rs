@@ -379,8 +379,8 @@ fn normal_sums(batches: &[RecordBatch], by: &[Key]) -> Result<BTreeMap<Vec<Strin
     Ok(out)
 }
 
-/// Each row of a result with its group key (the `--by` columns) and, when the result is per
-/// trial, its trial (the `trial_*` columns).
+/// Each row of a result with its group key (the `--by` columns' SQL values) and, when the
+/// result is per trial, its trial (the `trial_*` columns).
 fn result_rows(b: &RecordBatch, by: &[Key]) -> Result<Vec<(Vec<String>, Option<TrialId>)>> {
     let keys: Vec<StringArray> = by
         .iter()
@@ -407,8 +407,7 @@ fn result_rows(b: &RecordBatch, by: &[Key]) -> Result<Vec<(Vec<String>, Option<T
                 )),
                 None => None,
             };
-            let key = by.iter().zip(&keys).map(|(k, c)| k.show(c.value(r)));
-            Ok((key.collect(), id))
+            Ok((keys.iter().map(|c| c.value(r).to_string()).collect(), id))
         })
         .collect()
 }
@@ -602,13 +601,17 @@ pub fn fit_fleet(
     let mut pass = 0;
     loop {
         // The normal equations of every trial rejected so far and not yet removed, one scan.
-        let pending: Vec<TrialId> = groups.values().flat_map(Work::pending).collect();
+        let pending: Vec<(Vec<String>, TrialId)> = (groups.iter())
+            .flat_map(|(k, w)| w.pending().into_iter().map(|id| (k.clone(), id)))
+            .collect();
         if !pending.is_empty() {
             progress(&format!(
                 "scanning: normal equations of {} rejected trials",
                 pending.len()
             ));
             // Summed by group, not by trial: memory stays per group however many are rejected.
+            // Each group's own rejected trials only: a trial in two groups (a session across
+            // midnight by day) may be rejected in one and kept in the other.
             let q = sql::normal_equations(by, Pick::Only(&pending), target, filter);
             let sums = normal_sums(&run.run(&format!("rejected_{pass}"), q)?, by)?;
             for (key, w) in groups.iter_mut() {
@@ -632,7 +635,10 @@ pub fn fit_fleet(
         }
     }
     progress("final fits");
-    let groups = groups.into_iter().map(|(k, w)| final_fit(k, w)).collect();
+    let mut groups: Vec<GroupFit> = (groups.into_iter())
+        .map(|(k, w)| final_fit(by.iter().zip(&k).map(|(k, v)| k.show(v)).collect(), w))
+        .collect();
+    groups.sort_by(|a, b| a.key.cmp(&b.key));
     Ok(FleetFit {
         by: by.clone(),
         groups,

@@ -108,8 +108,10 @@ pub type TrialId = (String, String, u32);
 pub enum Pick<'a> {
     /// Every row.
     All,
-    /// Only the rows of these trials.
-    Only(&'a [TrialId]),
+    /// Only the rows of these trials in these groups (the `--by` keys' SQL values, as the
+    /// queries return them): a trial that spans two groups (a session across midnight by day) is
+    /// picked in the group that rejected it alone.
+    Only(&'a [(Vec<String>, TrialId)]),
 }
 
 fn quote(s: &str) -> String {
@@ -117,27 +119,36 @@ fn quote(s: &str) -> String {
 }
 
 /// `FROM rows …` with the pick's join and the `WHERE` clause (`target`, the user's filter).
-fn from_where(pick: Pick, target: &str, filter: Option<&str>) -> String {
+fn from_where(keys: &[Key], pick: Pick, target: &str, filter: Option<&str>) -> String {
     let mut conditions = vec![format!("target = {}", quote(target))];
     if let Some(f) = filter {
         conditions.push(format!("({f})"));
     }
-    let from = match pick {
-        Pick::All => "rows".to_string(),
+    let mut from = "rows".to_string();
+    match pick {
+        Pick::All => {}
+        Pick::Only([]) => conditions.push("1 = 0".into()),
         Pick::Only(list) => {
             let values: Vec<String> = list
                 .iter()
-                .map(|(r, s, t)| format!("({}, {}, {t})", quote(r), quote(s)))
+                .map(|(key, (r, s, t))| {
+                    let key = keys.iter().zip(key).map(|(k, v)| match k.is_period() {
+                        true => v.parse::<i64>().map_or("NULL".into(), |n| n.to_string()),
+                        false => quote(v),
+                    });
+                    let key: String = key.map(|v| v + ", ").collect();
+                    format!("({key}{}, {}, {t})", quote(r), quote(s))
+                })
                 .collect();
-            format!(
-                "rows JOIN (VALUES {}) AS x(x_robot, x_session, x_trial) ON rows.robot = x.x_robot \
-                 AND rows.session = x.x_session AND CAST(rows.trial AS BIGINT) = x.x_trial",
-                if values.is_empty() {
-                    "('', '', -1)".to_string()
-                } else {
-                    values.join(", ")
-                }
-            )
+            let names: String = (0..keys.len()).map(|i| format!("x_k{i}, ")).collect();
+            let on: String = (keys.iter().enumerate())
+                .map(|(i, k)| format!("{} = x.x_k{i} AND ", qualify(k.expr())))
+                .collect();
+            from = format!(
+                "rows JOIN (VALUES {}) AS x({names}x_robot, x_session, x_trial) ON {on}rows.robot = \
+                 x.x_robot AND rows.session = x.x_session AND CAST(rows.trial AS BIGINT) = x.x_trial",
+                values.join(", ")
+            );
         }
     };
     format!("FROM {from}\nWHERE {}", conditions.join(" AND "))
@@ -182,7 +193,7 @@ pub fn moments(keys: &[Key], target: &str, filter: Option<&str>) -> String {
     format!(
         "SELECT {}\n{}\nGROUP BY {}",
         select.join(", "),
-        from_where(Pick::All, target, filter),
+        from_where(keys, Pick::All, target, filter),
         group.join(", ")
     )
 }
@@ -228,7 +239,7 @@ pub fn normal_equations(keys: &[Key], pick: Pick, target: &str, filter: Option<&
             .extend((x.iter().enumerate()).map(|(j, c)| format!("SUM(v_{a} * {c}) AS g_{a}_{j}")));
     }
     let blocks: Vec<String> = (0..BLOCKS).map(|b| format!("({b})")).collect();
-    let from = from_where(pick, target, filter).replacen(
+    let from = from_where(keys, pick, target, filter).replacen(
         "\nWHERE",
         &format!(" CROSS JOIN (VALUES {}) AS b(b)\nWHERE", blocks.join(", ")),
         1,
@@ -258,10 +269,17 @@ mod tests {
         assert_eq!(Key::Day.show("20526"), "2026-03-14");
         assert_eq!(Key::Day.show("-1"), "1969-12-31");
         assert_eq!(Key::Robot.show("g1_00"), "g1_00");
-        let picked = [("r'1".to_string(), "a.mcap".to_string(), 3)];
-        let q = normal_equations(&[Key::Robot], Pick::Only(&picked), "mbs", None);
-        assert!(q.contains("('r''1', 'a.mcap', 3)"), "{q}");
+        let picked = [(
+            vec!["r'1".to_string(), "20526".to_string()],
+            ("r'1".to_string(), "a.mcap".to_string(), 3),
+        )];
+        let q = normal_equations(&[Key::Robot, Key::Day], Pick::Only(&picked), "mbs", None);
+        assert!(q.contains("('r''1', 20526, 'r''1', 'a.mcap', 3)"), "{q}");
+        assert!(
+            q.contains("CAST(FLOOR(rows.t_ns / 8.64e13) AS BIGINT) = x.x_k1"),
+            "{q}"
+        );
         assert!(q.contains("g_9_49") && !q.contains("g_10_0"));
-        assert!(q.contains("GROUP BY robot, b"));
+        assert!(q.contains("GROUP BY robot, day, b"));
     }
 }
