@@ -302,8 +302,8 @@ struct Work {
     kept: (Gram, f64),
     /// First and last reading time [ns].
     t_ns: (i64, i64),
-    /// Rejected trials whose rows are taken out of `kept`.
-    removed: Vec<TrialId>,
+    /// The first `removed` rejections' rows are taken out of `kept` (rejections only grow).
+    removed: usize,
     rejections: Vec<Rejection>,
     error: Option<String>,
     done: bool,
@@ -317,18 +317,12 @@ impl Work {
             .unwrap_or(usize::MAX)
     }
 
-    fn id_of(&self, r: &Rejection) -> TrialId {
-        let (robot, session) = self.sessions[r.session].clone();
-        (robot, session, r.trial as u32)
-    }
-
     /// Rejected trials whose normal equations are not yet removed.
-    fn pending(&self) -> Vec<TrialId> {
-        self.rejections
-            .iter()
-            .map(|r| self.id_of(r))
-            .filter(|id| !self.removed.contains(id))
-            .collect()
+    fn pending(&self) -> impl Iterator<Item = TrialId> {
+        self.rejections[self.removed..].iter().map(|r| {
+            let (robot, session) = self.sessions[r.session].clone();
+            (robot, session, r.trial as u32)
+        })
     }
 
     fn fit(&self) -> Result<crate::lsq::Fit> {
@@ -477,14 +471,12 @@ fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<Str
                 rows: 0,
                 kept: (Gram::zeros(N_PARAMS), 0.0),
                 t_ns: (0, 0),
-                removed: Vec::new(),
+                removed: 0,
                 rejections: Vec::new(),
                 error: None,
                 done: false,
             });
-            if !w.sessions.iter().any(|(x, y)| *x == id.0 && *y == id.1) {
-                w.sessions.push((id.0.clone(), id.1.clone()));
-            }
+            w.sessions.push((id.0.clone(), id.1.clone()));
             w.trials.push(TrialMoments {
                 id,
                 n: n.value(r),
@@ -500,6 +492,7 @@ fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<Str
     }
     for w in groups.values_mut() {
         w.sessions.sort();
+        w.sessions.dedup();
         let sigmas: Vec<TrialStat> = w
             .trials
             .iter()
@@ -602,7 +595,7 @@ pub fn fit_fleet(
     loop {
         // The normal equations of every trial rejected so far and not yet removed, one scan.
         let pending: Vec<(Vec<String>, TrialId)> = (groups.iter())
-            .flat_map(|(k, w)| w.pending().into_iter().map(|id| (k.clone(), id)))
+            .flat_map(|(k, w)| w.pending().map(|id| (k.clone(), id)))
             .collect();
         if !pending.is_empty() {
             progress(&format!(
@@ -615,11 +608,10 @@ pub fn fit_fleet(
             let q = sql::normal_equations(by, Pick::Only(&pending), target, filter);
             let sums = normal_sums(&run.run(&format!("rejected_{pass}"), q)?, by)?;
             for (key, w) in groups.iter_mut() {
-                let ids = w.pending();
-                if let Some((g, sy, _)) = sums.get(key).filter(|_| !ids.is_empty()) {
+                if let Some((g, sy, _)) = sums.get(key) {
                     w.kept = (w.kept.0.minus(g), w.kept.1 - sy);
-                    w.removed.extend(ids);
                 }
+                w.removed = w.rejections.len();
             }
         }
         pass += 1;

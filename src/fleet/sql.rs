@@ -50,9 +50,10 @@ impl Key {
             _ => return v.to_string(),
         };
         // Weeks count from Monday 1969-12-29, three days before the epoch.
-        v.parse::<i64>().map_or(v.to_string(), |n| {
-            iso_date(n * per - if per == 7 { 3 } else { 0 })
-        })
+        let day = |n: i64| i32::try_from(n * per - if per == 7 { 3 } else { 0 }).ok();
+        let date = v.parse().ok().and_then(day);
+        let date = date.and_then(arrow_array::temporal_conversions::date32_to_datetime);
+        date.map_or(v.to_string(), |d| d.date().to_string())
     }
 
     /// Whether the key is a time period (day, week).
@@ -82,21 +83,6 @@ impl Key {
     }
 }
 
-/// Days since 1970-01-01 as an ISO date (proleptic Gregorian; H. Hinnant's `civil_from_days`).
-fn iso_date(days: i64) -> String {
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let (d, m) = (
-        doy - (153 * mp + 2) / 5 + 1,
-        if mp < 10 { mp + 3 } else { mp - 9 },
-    );
-    format!("{:04}-{m:02}-{d:02}", era * 400 + yoe + i64::from(m <= 2))
-}
-
 /// The columns a trial is identified by (robot, session file, trial index in that session).
 pub const TRIAL_COLUMNS: [&str; 3] = ["robot", "session", "trial"];
 
@@ -108,7 +94,7 @@ pub type TrialId = (String, String, u32);
 pub enum Pick<'a> {
     /// Every row.
     All,
-    /// Only the rows of these trials in these groups (the `--by` keys' SQL values, as the
+    /// Only the rows of these trials (not none) in these groups (the `--by` keys' SQL values, as the
     /// queries return them): a trial that spans two groups (a session across midnight by day) is
     /// picked in the group that rejected it alone.
     Only(&'a [(Vec<String>, TrialId)]),
@@ -127,7 +113,6 @@ fn from_where(keys: &[Key], pick: Pick, target: &str, filter: Option<&str>) -> S
     let mut from = "rows".to_string();
     match pick {
         Pick::All => {}
-        Pick::Only([]) => conditions.push("1 = 0".into()),
         Pick::Only(list) => {
             let values: Vec<String> = list
                 .iter()
