@@ -134,7 +134,7 @@ fn main() -> Result<()> {
             peak / mrows,
             fit.bytes_scanned as f64 / 1e6
         );
-        if let Some(d) = drift::analyse(&fit, 4.0, 3) {
+        if let Some(d) = drift::analyse(&fit, 4.0, 4) {
             for t in d.drifting() {
                 println!(
                     "  drift {} θ{} {:+.4}/week (z {:+.1})",

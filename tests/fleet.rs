@@ -360,3 +360,120 @@ fn unusable_tables_are_named() {
         "{err}"
     );
 }
+
+/// A trial that spans midnight is in two groups by day, and each group judges its own part: a
+/// power-meter glitch (+100 W) on the first day's part of the trial rejects it there, and the
+/// second day's part stays in that day's model. The second day's group equals the fleet fit of
+/// that day's rows alone (`--where`), rows used, rejected trials and θ.
+#[test]
+fn a_trial_across_midnight_is_judged_in_each_day_alone() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for (seed, name) in [("7", "s1"), ("8", "s2")] {
+        let mcap = format!("{name}.mcap");
+        g1viz(
+            &["simulate", "--preset", "smoke", "--seed", seed, "-o", &mcap],
+            d,
+        );
+        let out = format!("{name}.parquet");
+        g1viz(&["export", "rows", &mcap, "-o", &out, "--robot", "r1"], d);
+    }
+    let read = |name: &str| g1viz::rows::read_parquet(&d.join(name)).unwrap();
+    let (mut s1, mut s2) = (read("s1.parquet"), read("s2.parquet"));
+    // Midnight (2026-03-15 00:00 UTC) falls in the middle of s1's last trial; s2 follows it
+    // a minute after s1 ends, all on the second day.
+    let midnight: i64 = 1_773_532_800_000_000_000;
+    let last = s1.iter().map(|r| r.row.trial).max().unwrap();
+    let mut t_last: Vec<i64> = s1
+        .iter()
+        .filter(|r| r.row.trial == last && r.target == "mbs")
+        .map(|r| r.t_ns)
+        .collect();
+    t_last.sort();
+    assert!(
+        t_last.len() >= 4,
+        "{} readings in the last trial",
+        t_last.len()
+    );
+    let shift = midnight - t_last[t_last.len() / 2];
+    s1.iter_mut().for_each(|r| r.t_ns += shift);
+    let s1_end = s1.iter().map(|r| r.t_ns).max().unwrap();
+    let s2_start = s2.iter().map(|r| r.t_ns).min().unwrap();
+    s2.iter_mut()
+        .for_each(|r| r.t_ns += s1_end + 60_000_000_000 - s2_start);
+    // The glitches: s1's last trial before midnight, and s2's trial 5.
+    for r in s1
+        .iter_mut()
+        .filter(|r| r.row.trial == last && r.t_ns < midnight)
+    {
+        r.row.y += 100.0;
+    }
+    for r in s2.iter_mut().filter(|r| r.row.trial == 5) {
+        r.row.y += 100.0;
+    }
+    let joints = g1viz::signals::SignalMap::g1_left_arm().joint_names;
+    std::fs::create_dir_all(d.join("rows")).unwrap();
+    g1viz::rows::write_parquet(&d.join("rows/s1.parquet"), &s1, &joints).unwrap();
+    g1viz::rows::write_parquet(&d.join("rows/s2.parquet"), &s2, &joints).unwrap();
+
+    g1viz(
+        &["fleet", "rows", "--by", "robot,day", "--report", "all"],
+        d,
+    );
+    let second_day = format!("t_ns >= {midnight}");
+    g1viz(
+        &[
+            "fleet",
+            "rows",
+            "--by",
+            "robot,day",
+            "--where",
+            &second_day,
+            "--report",
+            "alone",
+        ],
+        d,
+    );
+    let all = json(&d.join("all/fleet.json"));
+    let all = all["groups"].as_array().unwrap();
+    assert_eq!(all.len(), 2);
+    let rejected = |g: &serde_json::Value| -> Vec<(String, u64)> {
+        let sessions = g["sessions"].as_array().unwrap();
+        let r = g["rejections"].as_array().unwrap().iter();
+        let mut r: Vec<(String, u64)> = r
+            .map(|r| {
+                let s = &sessions[r["session"].as_u64().unwrap() as usize];
+                (
+                    s[1].as_str().unwrap().to_string(),
+                    r["trial"].as_u64().unwrap(),
+                )
+            })
+            .collect();
+        r.sort();
+        r
+    };
+    let (first, second) = (&all[0], &all[1]);
+    assert_eq!(first["key"][1], "2026-03-14");
+    // The setup bites: the glitched part is rejected on the first day, s2's trial 5 on the
+    // second, and the second day keeps its part of s1's last trial.
+    let s1_last = ("s1.mcap".to_string(), last as u64);
+    assert!(rejected(first).contains(&s1_last), "{:?}", rejected(first));
+    assert!(rejected(second).contains(&("s2.mcap".to_string(), 5)));
+    assert!(!rejected(second).contains(&s1_last));
+    let alone = json(&d.join("alone/fleet.json"));
+    let alone = &alone["groups"].as_array().unwrap()[0];
+    assert_eq!(alone["key"], second["key"]);
+    assert_eq!(
+        (&alone["rows"], &alone["rows_used"]),
+        (&second["rows"], &second["rows_used"])
+    );
+    assert_eq!(rejected(alone), rejected(second));
+    let theta =
+        |g: &serde_json::Value| -> Vec<f64> { serde_json::from_value(g["theta"].clone()).unwrap() };
+    let (a, b) = (theta(alone), theta(second));
+    let scale = a.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    assert!(
+        a.iter().zip(&b).all(|(x, y)| (x - y).abs() <= 1e-7 * scale),
+        "{a:?} vs {b:?}"
+    );
+}

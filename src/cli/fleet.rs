@@ -65,7 +65,7 @@ pub fn run(a: FleetArgs) -> Result<()> {
         .joint_names
         .clone()
         .unwrap_or_else(|| g1viz::signals::SignalMap::g1_left_arm().joint_names);
-    let drift = fleet::drift::analyse(&fit, a.z, 3);
+    let drift = fleet::drift::analyse(&fit, a.z, 4);
     let rows: usize = fit.groups.iter().map(|g| g.rows).sum();
     let failed = fit.groups.iter().filter(|g| g.error.is_some()).count();
     println!(
@@ -90,8 +90,9 @@ pub fn run(a: FleetArgs) -> Result<()> {
                 println!("flagged: {text}");
             }
             if flags.is_empty() {
+                let n = d.trends.len();
                 println!(
-                    "no drift and no robot differing from the fleet beyond {} s.e.",
+                    "no drift and no robot differing from the fleet beyond {} s.e. ({n} robot parameters free in ≥ 4 periods)",
                     a.z
                 );
             }
@@ -122,14 +123,7 @@ pub fn run(a: FleetArgs) -> Result<()> {
 }
 
 #[cfg(feature = "viz")]
-fn save_rrd(
-    path: &std::path::Path,
-    d: &fleet::drift::Drift,
-    joints: &[String],
-    md: &str,
-) -> Result<()> {
-    fleet::viz::write_rrd(path, d, joints, md)
-}
+use fleet::viz::write_rrd as save_rrd;
 
 #[cfg(not(feature = "viz"))]
 fn save_rrd(_: &std::path::Path, _: &fleet::drift::Drift, _: &[String], _: &str) -> Result<()> {

@@ -4,7 +4,11 @@
 //! Per robot and parameter, a weighted straight line θ(t) = level + slope·(t − t₀) through the
 //! periods where the parameter is free (weights 1/s.e.², t in weeks from the fleet's first
 //! reading); its standard errors are widened by the Birge ratio √(χ²/(k − 2)) when the periods
-//! scatter more than their own errors say. A slope beyond `z` of its standard error is a drift.
+//! scatter more than their own errors say. Its z (slope / standard error) is then calibrated on
+//! the fleet's own empirical null: divided by the spread of the other robots' z for the same
+//! parameter (1.4826 × median |z|, at least 0.7; 1 with fewer than three others), since the
+//! periods' errors are neither exact nor independent (bounded parameters, shared conditions).
+//! A calibrated |z| beyond `z` is a drift.
 //! A robot whose level at t₀ lies beyond `z` combined standard errors from the median of the
 //! other robots' levels differs from the fleet.
 
@@ -40,7 +44,9 @@ pub struct Trend {
     pub slope: f64,
     /// Its standard error (Birge-widened).
     pub slope_se: f64,
-    /// slope / slope_se.
+    /// The other robots' spread of slope / slope_se for this parameter (the empirical null).
+    pub null_scale: f64,
+    /// slope / (slope_se · null_scale).
     pub z: f64,
     /// Whether |z| exceeds the threshold.
     pub drifting: bool,
@@ -68,7 +74,7 @@ pub struct Drift {
     pub z: f64,
     /// The fleet's first reading [ns since the epoch] (t = 0 of the trends).
     pub t0_ns: i64,
-    /// Every (robot, parameter) with at least `min_periods` free periods.
+    /// Every (robot, parameter) free in at least `min_periods` (and 4) periods and half the robot's.
     pub trends: Vec<Trend>,
     /// Robots differing from the fleet.
     pub outliers: Vec<Outlier>,
@@ -81,13 +87,9 @@ impl Drift {
         let label = |p| super::report::param_label(p, joints);
         let drifts = self.drifting().map(|t| {
             let last = t.points.last().map_or(0.0, |p| p.t_weeks);
-            let (slope, se, z) = (t.slope, t.slope_se, t.z);
-            let text = format!(
-                "{} {}: drift {slope:+.4} ± {se:.4} per week (z {z:+.1}), level {:.4}",
-                t.robot,
-                label(t.param),
-                t.level
-            );
+            let (slope, se, z, level) = (t.slope, t.slope_se, t.z, t.level);
+            let (robot, param) = (&t.robot, label(t.param));
+            let text = format!("{robot} {param}: drift {slope:+.4} ± {se:.4} per week (z {z:+.1}), level {level:.4}");
             (last, text)
         });
         let levels = self.outliers.iter().map(|o| {
@@ -119,6 +121,13 @@ impl Drift {
 
 const NS_PER_WEEK: f64 = 7.0 * 86_400e9;
 
+/// The median of a non-empty list.
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let m = v.len();
+    0.5 * (v[(m - 1) / 2] + v[m / 2])
+}
+
 /// Weighted straight line through the points: (level, level s.e., slope, slope s.e.).
 fn line(points: &[Point]) -> Option<(f64, f64, f64, f64)> {
     let (mut s, mut sx, mut sy, mut sxx, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
@@ -131,7 +140,7 @@ fn line(points: &[Point]) -> Option<(f64, f64, f64, f64)> {
         sxy += w * p.t_weeks * p.value;
     }
     let det = s * sxx - sx * sx;
-    if det.is_nan() || det <= 0.0 || points.len() < 3 {
+    if det.is_nan() || det <= 0.0 || points.len() < 4 {
         return None;
     }
     let slope = (s * sxy - sx * sy) / det;
@@ -178,13 +187,16 @@ pub fn analyse(fit: &FleetFit, z: f64, min_periods: usize) -> Option<Drift> {
                     })
                 })
                 .collect();
-            if points.len() < min_periods.max(3) {
+            // Free in four periods at least (a line through three has one degree of freedom to
+            // check its scatter with) and in half the robot's: else the periods where it left
+            // its bound, a biased subset, make the trend (docs/fleet.md, Drift).
+            let all = ok.iter().filter(|g| g.key[robot_at] == *robot).count();
+            if points.len() < min_periods.max(4) || 2 * points.len() < all {
                 continue;
             }
             let Some((level, level_se, slope, slope_se)) = line(&points) else {
                 continue;
             };
-            let zs = slope / slope_se;
             trends.push(Trend {
                 robot: robot.to_string(),
                 param,
@@ -193,10 +205,23 @@ pub fn analyse(fit: &FleetFit, z: f64, min_periods: usize) -> Option<Drift> {
                 level_se,
                 slope,
                 slope_se,
-                z: zs,
-                drifting: zs.abs() > z,
+                null_scale: 1.0,
+                z: slope / slope_se,
+                drifting: false,
             });
         }
+    }
+    let raw: Vec<(usize, f64)> = trends.iter().map(|t| (t.param, t.z.abs())).collect();
+    for (k, t) in trends.iter_mut().enumerate() {
+        let others = (raw.iter().enumerate()).filter(|&(i, &(p, _))| i != k && p == t.param);
+        let others: Vec<f64> = others.map(|(_, &(_, z))| z).collect();
+        if others.len() >= 3 {
+            // A median of |z| of a normal is 0.6745 σ; the floor keeps a few quiet robots from
+            // shrinking the others' errors more than 1/0.7.
+            t.null_scale = (1.4826 * median(others)).max(0.7);
+        }
+        t.z /= t.null_scale;
+        t.drifting = t.z.abs() > z;
     }
     let mut outliers = Vec::new();
     for param in 0..N_PARAMS {
@@ -207,18 +232,8 @@ pub fn analyse(fit: &FleetFit, z: f64, min_periods: usize) -> Option<Drift> {
         for t in &of {
             // The others' median level (robust to another robot that differs too), its
             // standard error taken as the weighted mean's × √(π/2).
-            let mut others: Vec<f64> = of
-                .iter()
-                .filter(|o| o.robot != t.robot)
-                .map(|o| o.level)
-                .collect();
-            others.sort_by(f64::total_cmp);
-            let m = others.len();
-            let fleet_level = if m % 2 == 1 {
-                others[m / 2]
-            } else {
-                0.5 * (others[m / 2 - 1] + others[m / 2])
-            };
+            let others = of.iter().filter(|o| o.robot != t.robot).map(|o| o.level);
+            let fleet_level = median(others.collect());
             let sw: f64 = of
                 .iter()
                 .filter(|o| o.robot != t.robot)

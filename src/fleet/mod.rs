@@ -302,8 +302,8 @@ struct Work {
     kept: (Gram, f64),
     /// First and last reading time [ns].
     t_ns: (i64, i64),
-    /// Rejected trials whose rows are taken out of `kept`.
-    removed: Vec<TrialId>,
+    /// The first `removed` rejections' rows are taken out of `kept` (rejections only grow).
+    removed: usize,
     rejections: Vec<Rejection>,
     error: Option<String>,
     done: bool,
@@ -317,18 +317,12 @@ impl Work {
             .unwrap_or(usize::MAX)
     }
 
-    fn id_of(&self, r: &Rejection) -> TrialId {
-        let (robot, session) = self.sessions[r.session].clone();
-        (robot, session, r.trial as u32)
-    }
-
     /// Rejected trials whose normal equations are not yet removed.
-    fn pending(&self) -> Vec<TrialId> {
-        self.rejections
-            .iter()
-            .map(|r| self.id_of(r))
-            .filter(|id| !self.removed.contains(id))
-            .collect()
+    fn pending(&self) -> impl Iterator<Item = TrialId> {
+        self.rejections[self.removed..].iter().map(|r| {
+            let (robot, session) = self.sessions[r.session].clone();
+            (robot, session, r.trial as u32)
+        })
     }
 
     fn fit(&self) -> Result<crate::lsq::Fit> {
@@ -379,8 +373,8 @@ fn normal_sums(batches: &[RecordBatch], by: &[Key]) -> Result<BTreeMap<Vec<Strin
     Ok(out)
 }
 
-/// Each row of a result with its group key (the `--by` columns) and, when the result is per
-/// trial, its trial (the `trial_*` columns).
+/// Each row of a result with its group key (the `--by` columns' SQL values) and, when the
+/// result is per trial, its trial (the `trial_*` columns).
 fn result_rows(b: &RecordBatch, by: &[Key]) -> Result<Vec<(Vec<String>, Option<TrialId>)>> {
     let keys: Vec<StringArray> = by
         .iter()
@@ -407,8 +401,7 @@ fn result_rows(b: &RecordBatch, by: &[Key]) -> Result<Vec<(Vec<String>, Option<T
                 )),
                 None => None,
             };
-            let key = by.iter().zip(&keys).map(|(k, c)| k.show(c.value(r)));
-            Ok((key.collect(), id))
+            Ok((keys.iter().map(|c| c.value(r).to_string()).collect(), id))
         })
         .collect()
 }
@@ -478,14 +471,12 @@ fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<Str
                 rows: 0,
                 kept: (Gram::zeros(N_PARAMS), 0.0),
                 t_ns: (0, 0),
-                removed: Vec::new(),
+                removed: 0,
                 rejections: Vec::new(),
                 error: None,
                 done: false,
             });
-            if !w.sessions.iter().any(|(x, y)| *x == id.0 && *y == id.1) {
-                w.sessions.push((id.0.clone(), id.1.clone()));
-            }
+            w.sessions.push((id.0.clone(), id.1.clone()));
             w.trials.push(TrialMoments {
                 id,
                 n: n.value(r),
@@ -501,6 +492,7 @@ fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<Str
     }
     for w in groups.values_mut() {
         w.sessions.sort();
+        w.sessions.dedup();
         let sigmas: Vec<TrialStat> = w
             .trials
             .iter()
@@ -602,21 +594,24 @@ pub fn fit_fleet(
     let mut pass = 0;
     loop {
         // The normal equations of every trial rejected so far and not yet removed, one scan.
-        let pending: Vec<TrialId> = groups.values().flat_map(Work::pending).collect();
+        let pending: Vec<(Vec<String>, TrialId)> = (groups.iter())
+            .flat_map(|(k, w)| w.pending().map(|id| (k.clone(), id)))
+            .collect();
         if !pending.is_empty() {
             progress(&format!(
                 "scanning: normal equations of {} rejected trials",
                 pending.len()
             ));
             // Summed by group, not by trial: memory stays per group however many are rejected.
+            // Each group's own rejected trials only: a trial in two groups (a session across
+            // midnight by day) may be rejected in one and kept in the other.
             let q = sql::normal_equations(by, Pick::Only(&pending), target, filter);
             let sums = normal_sums(&run.run(&format!("rejected_{pass}"), q)?, by)?;
             for (key, w) in groups.iter_mut() {
-                let ids = w.pending();
-                if let Some((g, sy, _)) = sums.get(key).filter(|_| !ids.is_empty()) {
+                if let Some((g, sy, _)) = sums.get(key) {
                     w.kept = (w.kept.0.minus(g), w.kept.1 - sy);
-                    w.removed.extend(ids);
                 }
+                w.removed = w.rejections.len();
             }
         }
         pass += 1;
@@ -632,7 +627,10 @@ pub fn fit_fleet(
         }
     }
     progress("final fits");
-    let groups = groups.into_iter().map(|(k, w)| final_fit(k, w)).collect();
+    let mut groups: Vec<GroupFit> = (groups.into_iter())
+        .map(|(k, w)| final_fit(by.iter().zip(&k).map(|(k, v)| k.show(v)).collect(), w))
+        .collect();
+    groups.sort_by(|a, b| a.key.cmp(&b.key));
     Ok(FleetFit {
         by: by.clone(),
         groups,

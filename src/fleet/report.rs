@@ -49,27 +49,17 @@ pub fn markdown(fit: &FleetFit, drift: Option<&Drift>, joints: &[String]) -> Str
         fit.groups.len(),
         by.join(", ")
     );
-    let _ = writeln!(
-        s,
-        "| {} | rows | used | trials | rejected IMU / 3σ | R² | RMSE [W] | note |\n|{}---|---|---|---|---|---|---|",
-        by.join(" | "),
-        "---|".repeat(by.len())
-    );
-    for g in &fit.groups {
+    let mut header = by.clone();
+    header.extend("rows,used,trials,rejected IMU / 3σ,R²,RMSE [W],note".split(','));
+    let groups = fit.groups.iter().map(|g| {
         let (imu, res, unusable) = g.rejected_by();
-        let _ = writeln!(
-            s,
-            "| {} | {} | {} | {} | {imu} / {} | {:.4} | {:.3} | {} |",
-            g.key.join(" | "),
-            g.rows,
-            g.rows_used,
-            g.trials,
-            res + unusable,
-            g.r2,
-            g.rmse,
-            g.error.as_deref().unwrap_or("")
-        );
-    }
+        let (key, note) = (g.key.join(" | "), g.error.as_deref().unwrap_or(""));
+        let (rows, used, trials) = (g.rows, g.rows_used, g.trials);
+        let (r2, rmse) = (g.r2, g.rmse);
+        let rejected = res + unusable;
+        format!("| {key} | {rows} | {used} | {trials} | {imu} / {rejected} | {r2:.4} | {rmse:.3} | {note} |")
+    });
+    table(&mut s, "Groups", &header, groups);
     let Some(d) = drift else {
         s.push_str("\nNo drift analysis: it needs `--by` with robot and a period (day, week or session).\n");
         return s;
@@ -89,7 +79,7 @@ pub fn markdown(fit: &FleetFit, drift: Option<&Drift>, joints: &[String]) -> Str
             100.0 * t.slope * span / t.level
         )
     });
-    let title = format!("Drifts (slope beyond {} standard errors)", d.z);
+    let title = format!("Drifts (slope beyond {} calibrated standard errors)", d.z);
     let header = [
         "robot",
         "parameter",

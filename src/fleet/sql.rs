@@ -50,9 +50,10 @@ impl Key {
             _ => return v.to_string(),
         };
         // Weeks count from Monday 1969-12-29, three days before the epoch.
-        v.parse::<i64>().map_or(v.to_string(), |n| {
-            iso_date(n * per - if per == 7 { 3 } else { 0 })
-        })
+        let day = |n: i64| i32::try_from(n * per - if per == 7 { 3 } else { 0 }).ok();
+        let date = v.parse().ok().and_then(day);
+        let date = date.and_then(arrow_array::temporal_conversions::date32_to_datetime);
+        date.map_or(v.to_string(), |d| d.date().to_string())
     }
 
     /// Whether the key is a time period (day, week).
@@ -82,21 +83,6 @@ impl Key {
     }
 }
 
-/// Days since 1970-01-01 as an ISO date (proleptic Gregorian; H. Hinnant's `civil_from_days`).
-fn iso_date(days: i64) -> String {
-    let z = days + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z - era * 146_097;
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let (d, m) = (
-        doy - (153 * mp + 2) / 5 + 1,
-        if mp < 10 { mp + 3 } else { mp - 9 },
-    );
-    format!("{:04}-{m:02}-{d:02}", era * 400 + yoe + i64::from(m <= 2))
-}
-
 /// The columns a trial is identified by (robot, session file, trial index in that session).
 pub const TRIAL_COLUMNS: [&str; 3] = ["robot", "session", "trial"];
 
@@ -108,8 +94,10 @@ pub type TrialId = (String, String, u32);
 pub enum Pick<'a> {
     /// Every row.
     All,
-    /// Only the rows of these trials.
-    Only(&'a [TrialId]),
+    /// Only the rows of these trials (not none) in these groups (the `--by` keys' SQL values, as the
+    /// queries return them): a trial that spans two groups (a session across midnight by day) is
+    /// picked in the group that rejected it alone.
+    Only(&'a [(Vec<String>, TrialId)]),
 }
 
 fn quote(s: &str) -> String {
@@ -117,27 +105,35 @@ fn quote(s: &str) -> String {
 }
 
 /// `FROM rows …` with the pick's join and the `WHERE` clause (`target`, the user's filter).
-fn from_where(pick: Pick, target: &str, filter: Option<&str>) -> String {
+fn from_where(keys: &[Key], pick: Pick, target: &str, filter: Option<&str>) -> String {
     let mut conditions = vec![format!("target = {}", quote(target))];
     if let Some(f) = filter {
         conditions.push(format!("({f})"));
     }
-    let from = match pick {
-        Pick::All => "rows".to_string(),
+    let mut from = "rows".to_string();
+    match pick {
+        Pick::All => {}
         Pick::Only(list) => {
             let values: Vec<String> = list
                 .iter()
-                .map(|(r, s, t)| format!("({}, {}, {t})", quote(r), quote(s)))
+                .map(|(key, (r, s, t))| {
+                    let key = keys.iter().zip(key).map(|(k, v)| match k.is_period() {
+                        true => v.parse::<i64>().map_or("NULL".into(), |n| n.to_string()),
+                        false => quote(v),
+                    });
+                    let key: String = key.map(|v| v + ", ").collect();
+                    format!("({key}{}, {}, {t})", quote(r), quote(s))
+                })
                 .collect();
-            format!(
-                "rows JOIN (VALUES {}) AS x(x_robot, x_session, x_trial) ON rows.robot = x.x_robot \
-                 AND rows.session = x.x_session AND CAST(rows.trial AS BIGINT) = x.x_trial",
-                if values.is_empty() {
-                    "('', '', -1)".to_string()
-                } else {
-                    values.join(", ")
-                }
-            )
+            let names: String = (0..keys.len()).map(|i| format!("x_k{i}, ")).collect();
+            let on: String = (keys.iter().enumerate())
+                .map(|(i, k)| format!("{} = x.x_k{i} AND ", qualify(k.expr())))
+                .collect();
+            from = format!(
+                "rows JOIN (VALUES {}) AS x({names}x_robot, x_session, x_trial) ON {on}rows.robot = \
+                 x.x_robot AND rows.session = x.x_session AND CAST(rows.trial AS BIGINT) = x.x_trial",
+                values.join(", ")
+            );
         }
     };
     format!("FROM {from}\nWHERE {}", conditions.join(" AND "))
@@ -182,7 +178,7 @@ pub fn moments(keys: &[Key], target: &str, filter: Option<&str>) -> String {
     format!(
         "SELECT {}\n{}\nGROUP BY {}",
         select.join(", "),
-        from_where(Pick::All, target, filter),
+        from_where(keys, Pick::All, target, filter),
         group.join(", ")
     )
 }
@@ -228,7 +224,7 @@ pub fn normal_equations(keys: &[Key], pick: Pick, target: &str, filter: Option<&
             .extend((x.iter().enumerate()).map(|(j, c)| format!("SUM(v_{a} * {c}) AS g_{a}_{j}")));
     }
     let blocks: Vec<String> = (0..BLOCKS).map(|b| format!("({b})")).collect();
-    let from = from_where(pick, target, filter).replacen(
+    let from = from_where(keys, pick, target, filter).replacen(
         "\nWHERE",
         &format!(" CROSS JOIN (VALUES {}) AS b(b)\nWHERE", blocks.join(", ")),
         1,
@@ -258,10 +254,17 @@ mod tests {
         assert_eq!(Key::Day.show("20526"), "2026-03-14");
         assert_eq!(Key::Day.show("-1"), "1969-12-31");
         assert_eq!(Key::Robot.show("g1_00"), "g1_00");
-        let picked = [("r'1".to_string(), "a.mcap".to_string(), 3)];
-        let q = normal_equations(&[Key::Robot], Pick::Only(&picked), "mbs", None);
-        assert!(q.contains("('r''1', 'a.mcap', 3)"), "{q}");
+        let picked = [(
+            vec!["r'1".to_string(), "20526".to_string()],
+            ("r'1".to_string(), "a.mcap".to_string(), 3),
+        )];
+        let q = normal_equations(&[Key::Robot, Key::Day], Pick::Only(&picked), "mbs", None);
+        assert!(q.contains("('r''1', 20526, 'r''1', 'a.mcap', 3)"), "{q}");
+        assert!(
+            q.contains("CAST(FLOOR(rows.t_ns / 8.64e13) AS BIGINT) = x.x_k1"),
+            "{q}"
+        );
         assert!(q.contains("g_9_49") && !q.contains("g_10_0"));
-        assert!(q.contains("GROUP BY robot, b"));
+        assert!(q.contains("GROUP BY robot, day, b"));
     }
 }
