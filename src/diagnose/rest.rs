@@ -380,7 +380,7 @@ pub(crate) fn rest_power(inp: &RestInputs, rule: &Rule) -> Option<RestPower> {
         cur: base,
         best_rejected: None,
     };
-    stepwise::forward(&mut fw, MAX_TERMS);
+    stepwise::forward(&mut fw, search.cands.len(), MAX_TERMS);
     let (chosen, steps, cur) = (fw.chosen, fw.steps, fw.cur);
     out.best_rejected = fw.best_rejected;
     // A rival found later as a term of its own is not a tie of the earlier ones.
@@ -446,10 +446,6 @@ struct Forward<'s, 'a> {
 
 impl stepwise::Stage for Forward<'_, '_> {
     type Scored = Scored;
-
-    fn count(&self) -> usize {
-        self.search.cands.len()
-    }
 
     fn score(&self, i: usize, _: usize) -> Option<Scored> {
         let s = self.search;

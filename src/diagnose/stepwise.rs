@@ -69,8 +69,6 @@ impl Holm {
 pub(crate) trait Stage {
     /// A scored candidate.
     type Scored: Gated;
-    /// Candidates in all.
-    fn count(&self) -> usize;
     /// Candidate `i` scored on the current model at `step` (`None`: closed, or no fit).
     fn score(&self, i: usize, step: usize) -> Option<Self::Scored>;
     /// Whether `s`, candidate `i`, passes the gates at `step`'s Holm level.
@@ -87,15 +85,15 @@ pub(crate) trait Stage {
 }
 
 /// The stepwise search of discovery and the rest power: at each step up to `max_steps`, every
-/// open candidate scored on top of the terms chosen so far and gated at the step's Holm level;
+/// open candidate of `0..n` scored on top of the terms chosen so far and gated at the step's Holm level;
 /// the winner among those that pass taken in with its rivals; stop when none passes. (The
 /// library selection runs the same gates ([`passes`], [`Holm`]) in its own loop, which also
 /// compares the forms of each mechanism; backward elimination is [`super::parsimony`]'s rule.)
-pub(crate) fn forward(stage: &mut impl Stage, max_steps: usize) {
+pub(crate) fn forward(stage: &mut impl Stage, n: usize, max_steps: usize) {
     for k in 1..=max_steps {
         let mut passing = Vec::new();
         let mut failed: Option<_> = None;
-        for i in 0..stage.count() {
+        for i in 0..n {
             let Some(s) = stage.score(i, k) else {
                 continue;
             };

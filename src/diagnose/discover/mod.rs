@@ -104,6 +104,7 @@ pub(crate) fn discover(
             joint_names,
             y_rms,
         },
+        search.cands.len(),
         MAX_TERMS.min(data.n_trials / TRIALS_PER_TERM),
     );
     claim_rivals_found_beside(&search, &fw.chosen, &mut fw.tied, &mut report.notes);
@@ -149,10 +150,6 @@ struct Stepping<'s, 'a, 'd> {
 
 impl stepwise::Stage for Stepping<'_, '_, '_> {
     type Scored = Scored;
-
-    fn count(&self) -> usize {
-        self.search.cands.len()
-    }
 
     fn score(&self, i: usize, step: usize) -> Option<Scored> {
         let (search, fw) = (self.search, &self.fw);
