@@ -488,7 +488,7 @@ fn paper_scale_fan_load_is_found_on_the_board_field() {
     // A load on the rail: the battery meter shows it too.
     for m in [&t.meter, &rest.found[0].meter] {
         let m = m.as_ref().expect("checked against the battery meter");
-        assert_eq!(m.verdict, "load", "{m:?}");
+        assert_eq!(m.verdict, diagnose::MeterVerdict::Load, "{m:?}");
     }
 }
 
@@ -507,7 +507,7 @@ fn paper_scale_one_meter_artefact_is_named_a_correction_of_that_meter() {
     assert_eq!(rest.len(), 1, "{rest:?}");
     for (name, m) in [(&t.name, &t.meter), (&rest[0].name, &rest[0].meter)] {
         let m = m.as_ref().expect("checked against the battery meter");
-        assert_eq!(m.verdict, "meter artefact", "{m:?}");
+        assert_eq!(m.verdict, diagnose::MeterVerdict::Artefact, "{m:?}");
         assert!(m.share.abs() < 0.25, "{m:?}");
         assert!(
             name.contains("main-board meter") && !name.contains("rail load"),

@@ -65,16 +65,12 @@ pub struct Correlate {
     pub significant: bool,
     /// Trials that carry it most (largest contribution to the correlation), segmentation numbering.
     pub trials: Vec<usize>,
-}
-
-impl Correlate {
     /// Whether it is a slow state — a motor temperature or session time: what a loss term that
     /// changes with a slow state leaves in the residual per trial (a joint's position or speed
     /// is also where the base model's own misfit shows: in a null fuzz session, 1894880942, the
     /// residual followed a wrist position at p = 1.6e-3).
-    pub(crate) fn slow(&self) -> bool {
-        self.feature == "session time" || self.feature.ends_with("motor temperature T")
-    }
+    #[serde(skip)]
+    pub slow: bool,
 }
 
 /// A row's selectors for the breakdowns.
@@ -492,6 +488,7 @@ pub(crate) fn correlates(
                 p_adjusted,
                 significant: p_adjusted < level,
                 trials: trials_carrying,
+                slow: k == N_LOCATE || (k < 5 * N_JOINTS && k % 5 == 3),
             }
         })
         .collect();

@@ -46,32 +46,73 @@ pub struct MeterCheck {
     pub std_err: f64,
     /// Trials compared.
     pub n_trials: usize,
-    /// "load", "meter artefact" or "undecided".
-    pub verdict: String,
+    /// Load, meter artefact or undecided.
+    pub verdict: MeterVerdict,
+}
+
+/// What the other meter makes of a finding.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum MeterVerdict {
+    /// Both meters show it: a load on the rail.
+    #[serde(rename = "load")]
+    Load,
+    /// Only the meter it was found on shows it.
+    #[serde(rename = "meter artefact")]
+    Artefact,
+    /// The other meter cannot tell which.
+    #[serde(rename = "undecided")]
+    Undecided,
 }
 
 impl MeterCheck {
+    /// The check of a finding on `target`'s meter: the other meter shows `share` ± `std_err` of it
+    /// over `n_trials` trials.
+    fn new(
+        target: Target,
+        (share, std_err): (f64, f64),
+        n_trials: usize,
+        verdict: MeterVerdict,
+    ) -> Self {
+        MeterCheck {
+            meter: meter_name(target).into(),
+            other: meter_name(match target {
+                Target::Mbs => Target::Bms,
+                Target::Bms => Target::Mbs,
+            })
+            .into(),
+            share,
+            std_err,
+            n_trials,
+            verdict,
+        }
+    }
+
     /// Whether the finding is an artefact of the meter it was found on.
     pub fn artefact(&self) -> bool {
-        self.verdict == "meter artefact"
+        self.verdict == MeterVerdict::Artefact
+    }
+
+    /// "it shows 95 ± 12 % of it" (rounded first: no "-0").
+    fn shown(&self) -> String {
+        format!(
+            "{:.0} ± {:.0} % of it",
+            (100.0 * self.share).round() + 0.0,
+            100.0 * self.std_err
+        )
     }
 
     /// One sentence for the summary.
     pub fn words(&self) -> String {
-        let shown = format!(
-            "the {} meter shows {:.0} ± {:.0} % of it",
-            self.other,
-            // (rounded first: no "-0")
-            (100.0 * self.share).round() + 0.0,
-            100.0 * self.std_err
-        );
-        match self.verdict.as_str() {
-            "load" => format!("Both meters see it ({shown}): a load on the rail."),
-            "meter artefact" => format!(
+        let shown = format!("the {} meter shows {}", self.other, self.shown());
+        match self.verdict {
+            MeterVerdict::Load => format!("Both meters see it ({shown}): a load on the rail."),
+            MeterVerdict::Artefact => format!(
                 "One meter only ({shown}): an artefact of the {} meter, modelled as a correction of its reading.",
                 self.meter
             ),
-            _ => format!("The other meter cannot tell load from artefact ({shown})."),
+            MeterVerdict::Undecided => {
+                format!("The other meter cannot tell load from artefact ({shown}).")
+            }
         }
     }
 }
@@ -160,27 +201,20 @@ pub(crate) fn checks(target: Target, diff: &[f64], cols: &[Vec<f64>]) -> Vec<Opt
             // readings fall at other instants than the fields' windows follow).
             let resolved = Z * se <= 0.5;
             let verdict = if resolved && share - Z * se > 0.5 {
-                "load"
+                MeterVerdict::Load
             } else if resolved && share + Z * se < 0.5 && share + Z * se >= 0.0 {
-                "meter artefact"
+                MeterVerdict::Artefact
             } else {
-                "undecided"
+                MeterVerdict::Undecided
             };
-            Some(MeterCheck {
-                meter: meter_name(target).into(),
-                other: meter_name(other(target)).into(),
-                share,
-                std_err: se,
-                n_trials: n,
-                verdict: verdict.into(),
-            })
+            Some(MeterCheck::new(target, (share, se), n, verdict))
         })
         .collect()
 }
 
 /// A change over the session of the diagnosed meter's rest reading: an artefact of that meter (a
 /// drifting or stepping offset, or gain) where the rail's other meter does not show it, else
-/// located ([`MeterCheck::verdict`] "load" or "undecided").
+/// located ([`MeterCheck::verdict`] load or undecided).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct MeterDrift {
     /// The meter diagnosed ("main-board" or "battery").
@@ -336,18 +370,18 @@ pub(crate) fn compare(
     // none from all; otherwise the change is located on this meter, not claimed: a load
     // where the other meter resolves it as one, undecided where it cannot tell.
     let verdict = if share + Z * share_se < 1.0 && Z * share_se < 1.0 {
-        "meter artefact"
+        MeterVerdict::Artefact
     } else if Z * share_se <= 0.5 && share - Z * share_se > 0.5 {
-        "load"
+        MeterVerdict::Load
     } else {
-        "undecided"
+        MeterVerdict::Undecided
     };
     // A location is judged against a slow drift of the rail's rest power: with the standard
     // error widened for the residuals WITHOUT the change (under "no change" a drift keeps them
     // correlated; a step fitted at the best of 14 places takes the drift's largest swing and
     // leaves white residuals — that widening located sub-watt changes in 3 of 8 null sessions
     // of a 15-minute fuzz slice).
-    if verdict != "meter artefact" {
+    if verdict != MeterVerdict::Artefact {
         let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
         let (my, mx) = (mean(&y), mean(&x));
         let fitted: Vec<f64> = (y.iter().zip(&x))
@@ -359,36 +393,25 @@ pub(crate) fn compare(
             return None;
         }
     }
-    let (meter, other) = (meter_name(target), meter_name(self::other(target)));
     let rest_w = y.iter().sum::<f64>() / y.len() as f64;
-    let check = MeterCheck {
-        meter: meter.into(),
-        other: other.into(),
-        share,
-        std_err: share_se,
-        n_trials: y.len(),
-        verdict: verdict.into(),
-    };
+    let check = MeterCheck::new(target, (share, share_se), y.len(), verdict);
+    let (meter, other) = (&check.meter, &check.other);
     let change = format!("its reading changes by {b:+.2} ± {se:.2} W {form}");
-    let shown = format!(
-        "it shows {:.0} ± {:.0} % of it",
-        (100.0 * share).round() + 0.0,
-        100.0 * share_se
-    );
+    let shown = format!("it shows {}", check.shown());
     let name = match verdict {
-        "meter artefact" => format!(
+        MeterVerdict::Artefact => format!(
             "an artefact of the {meter} meter: {change} (an offset, or a gain change of {:+.2} % at its rest reading of {rest_w:.1} W), which the {other} meter does not show ({shown}; a change of the rail's power shows on both) — a correction of that meter's reading, not physics of the arm",
             100.0 * b / rest_w,
         ),
-        "load" => format!(
+        MeterVerdict::Load => format!(
             "the {meter} meter's rest reading: {change}, and the {other} meter shows it too ({shown}): a change of the rail's power — located, its cause not identified; not claimed"
         ),
-        _ => format!(
+        MeterVerdict::Undecided => format!(
             "the {meter} meter's rest reading: {change}; the {other} meter cannot tell a change of the rail's power from an artefact of the {meter} meter ({shown}) — located, not claimed"
         ),
     };
     Some(MeterDrift {
-        meter: meter.into(),
+        meter: check.meter.clone(),
         form,
         change_w: b,
         std_err_w: se,
@@ -400,13 +423,6 @@ pub(crate) fn compare(
         fields: Vec::new(),
         form_at: (t[0], span, step),
     })
-}
-
-fn other(t: Target) -> Target {
-    match t {
-        Target::Mbs => Target::Bms,
-        Target::Bms => Target::Mbs,
-    }
 }
 
 /// The name of a finding on `fields` that is an artefact of the meter it was found on.
@@ -437,11 +453,11 @@ mod tests {
         let art: Vec<f64> = noise.iter().zip(&z).map(|(e, z)| e - z).collect();
         let c = checks(Target::Mbs, &load, std::slice::from_ref(&z));
         let c = c[0].as_ref().unwrap();
-        assert_eq!(c.verdict, "load", "{c:?}");
+        assert_eq!(c.verdict, MeterVerdict::Load, "{c:?}");
         assert!((c.share - 1.0).abs() < 0.1, "{c:?}");
         let c = checks(Target::Mbs, &art, std::slice::from_ref(&z));
         let c = c[0].as_ref().unwrap();
-        assert_eq!(c.verdict, "meter artefact", "{c:?}");
+        assert_eq!(c.verdict, MeterVerdict::Artefact, "{c:?}");
         assert!(c.share.abs() < 0.1 && c.other == "battery", "{c:?}");
     }
 }

@@ -15,6 +15,7 @@ pub(crate) mod discover;
 pub(crate) mod family;
 pub(crate) mod field_rules;
 pub(crate) mod fields;
+mod flexible;
 pub(crate) mod hypotheses;
 mod lags;
 pub(crate) mod locate;
@@ -51,7 +52,7 @@ pub use diagnosis::{Diagnosis, FinalModel, LagPoint, Quality, SCHEMA_VERSION, Se
 pub use discover::{Discovery, DiscoveryReport, TiedTerm};
 pub use fields::{ExcludedField, FieldSource};
 pub use locate::{Breakdown, Correlate, Group, TrialResidual};
-pub use meters::{MeterCheck, MeterDrift};
+pub use meters::{MeterCheck, MeterDrift, MeterVerdict};
 pub use options::DiagnoseOptions;
 pub use report::{FIGURES as REPORT_FIGURES, write_report};
 pub use rest::{RestPower, RestTerm};

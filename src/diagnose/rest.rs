@@ -373,7 +373,16 @@ pub(crate) fn rest_power(inp: &RestInputs, rule: &Rule) -> Option<RestPower> {
         rmse_before_w: search.rmse(&base.pred),
         ..Default::default()
     };
-    let (chosen, steps, cur) = search.forward(base, &mut out.best_rejected);
+    let mut fw = Forward {
+        search: &search,
+        chosen: Vec::new(),
+        steps: Vec::new(),
+        cur: base,
+        best_rejected: None,
+    };
+    stepwise::forward(&mut fw, search.cands.len(), MAX_TERMS);
+    let (chosen, steps, cur) = (fw.chosen, fw.steps, fw.cur);
+    out.best_rejected = fw.best_rejected;
     // A rival found later as a term of its own is not a tie of the earlier ones.
     let found_fields: Vec<String> = chosen.iter().map(|&c| search.field_of(c)).collect();
     for (k, (s, level, tied)) in steps.iter().enumerate() {
@@ -402,7 +411,7 @@ pub(crate) fn rest_power(inp: &RestInputs, rule: &Rule) -> Option<RestPower> {
     let tests = search.remainders(&chosen, &cur);
     for (k, &(p, held)) in tests.iter().enumerate().rev() {
         out.found[k].stability = Some(held);
-        if p < RIVAL_ALPHA && held >= super::parsimony::STABLE {
+        if p < RIVAL_ALPHA && held >= stepwise::STABLE {
             continue;
         }
         let mut t = out.found.remove(k);
@@ -416,7 +425,7 @@ pub(crate) fn rest_power(inp: &RestInputs, rule: &Rule) -> Option<RestPower> {
              ≥ {:.0} %); {}",
             100.0 * rule.min_improvement,
             100.0 * held,
-            100.0 * super::parsimony::STABLE,
+            100.0 * stepwise::STABLE,
             t.verdict
         );
         out.located.insert(0, t);
@@ -424,49 +433,50 @@ pub(crate) fn rest_power(inp: &RestInputs, rule: &Rule) -> Option<RestPower> {
     Some(out)
 }
 
+/// The rest power's side of the stepwise search: the fields chosen, each step's winner with its
+/// level and rivals (other fields that pass and do not fit significantly worse), the model they
+/// make, and the first step's best failing candidate when none passes there.
+struct Forward<'s, 'a> {
+    search: &'s Search<'a>,
+    chosen: Vec<usize>,
+    steps: Vec<Step>,
+    cur: Fit,
+    best_rejected: Option<RestTerm>,
+}
+
+impl stepwise::Stage for Forward<'_, '_> {
+    type Scored = Scored;
+
+    fn score(&self, i: usize, _: usize) -> Option<Scored> {
+        let s = self.search;
+        let open = self.chosen.iter().all(|&c| s.field_of(c) != s.field_of(i));
+        open.then(|| s.score(i, &self.chosen, &self.cur)).flatten()
+    }
+
+    fn passes(&self, _: usize, s: &Scored, step: usize) -> bool {
+        stepwise::passes(&self.search.rule, s, self.search.level(step))
+    }
+
+    fn rejected(&mut self, f: &Scored, winner: Option<&Scored>) {
+        if winner.is_none() {
+            let mut r = self.search.rejected(f, self.search.level(1));
+            r.tied = self.search.ties_of_rejected(f, &self.cur);
+            self.best_rejected = Some(r);
+        }
+    }
+
+    fn accept(&mut self, step: usize, b: Scored, passing: Vec<Scored>) {
+        let names = self.search.rivals(&b, &passing, self.search.rule.alpha);
+        self.chosen.push(b.cand);
+        self.cur = b.fit.clone();
+        self.steps.push((b, self.search.level(step), names));
+    }
+}
+
 impl Search<'_> {
     /// The field a candidate follows: its step and linear forms are one group.
     fn field_of(&self, i: usize) -> String {
         self.field_name(self.cands[i])
-    }
-
-    /// Forward selection from `base`: at each step the best candidate that passes the rule, its
-    /// rivals (other fields that pass and do not fit significantly worse) named; the best
-    /// failing candidate of the first step goes to `best_rejected` when none passes there.
-    fn forward(
-        &self,
-        base: Fit,
-        best_rejected: &mut Option<RestTerm>,
-    ) -> (Vec<usize>, Vec<Step>, Fit) {
-        let mut chosen: Vec<usize> = Vec::new();
-        let mut steps: Vec<Step> = Vec::new();
-        let mut cur = base;
-        for step in 1..=MAX_TERMS {
-            let level = self.level(step);
-            let score = |i: usize| {
-                let open = chosen.iter().all(|&c| self.field_of(c) != self.field_of(i));
-                open.then(|| self.score(i, &chosen, &cur)).flatten()
-            };
-            let (mut passing, best_fail) = stepwise::step(self.cands.len(), score, |_, s| {
-                stepwise::passes(&self.rule, s, level)
-            });
-            let best = stepwise::best(&passing);
-            if step == 1
-                && best.is_none()
-                && let Some(f) = &best_fail
-            {
-                let mut r = self.rejected(f, level);
-                r.tied = self.ties_of_rejected(f, &cur);
-                *best_rejected = Some(r);
-            }
-            let Some(b) = best else { break };
-            let b = passing.swap_remove(b);
-            let names = self.rivals(&b, &passing, self.rule.alpha);
-            chosen.push(b.cand);
-            cur = b.fit.clone();
-            steps.push((b, level, names));
-        }
-        (chosen, steps, cur)
     }
 
     /// [`super::parsimony`]'s rule within the rest power's rows: per term in `chosen`, the
@@ -484,7 +494,7 @@ impl Search<'_> {
             if v != &self.cols[c] {
                 out.push(self.cols[c].clone());
             }
-            let knots = super::parsimony::knots(v).map_or(Vec::new(), |k| k.1);
+            let knots = super::flexible::knots(v).map_or(Vec::new(), |k| k.1);
             out.extend(
                 knots
                     .iter()

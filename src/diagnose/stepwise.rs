@@ -3,7 +3,19 @@
 //! chosen so far, gated (significant held-out improvement at its weighted Holm level, BIC, a
 //! minimum gain), and the best passing one by held-out gain taken.
 
-use super::select::Rule;
+/// Thresholds of the significance rule: the gates every candidate of every stage passes.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Rule {
+    /// Significance level before the Holm correction.
+    pub alpha: f64,
+    /// Largest ΔBIC of adding a candidate.
+    pub bic_threshold: f64,
+    /// Smallest held-out gain (1 − RMSE after / before).
+    pub min_improvement: f64,
+}
+
+/// Share of the trial resamples in which a claim must pass the rule's test to be claimed.
+pub(crate) const STABLE: f64 = 0.8;
 
 /// What the gates read of a scored candidate.
 pub(crate) trait Gated {
@@ -52,26 +64,57 @@ impl Holm {
     }
 }
 
-/// One step over candidates `0..n`: each one `score` returns (`None`: closed, or no fit)
-/// either passes (`pass`) or fails; the passing ones, and the best failing one by gain.
-pub(crate) fn step<S: Gated>(
-    n: usize,
-    mut score: impl FnMut(usize) -> Option<S>,
-    pass: impl Fn(usize, &S) -> bool,
-) -> (Vec<S>, Option<S>) {
-    let mut passing = Vec::new();
-    let mut best_fail: Option<S> = None;
-    for i in 0..n {
-        let Some(s) = score(i) else {
-            continue;
-        };
-        if pass(i, &s) {
-            passing.push(s);
-        } else if best_fail.as_ref().is_none_or(|b| s.gain() > b.gain()) {
-            best_fail = Some(s);
-        }
+/// A stage's side of the one stepwise search ([`forward`]): its candidates, how one is scored on
+/// the model so far and gated, and what taking one in does.
+pub(crate) trait Stage {
+    /// A scored candidate.
+    type Scored: Gated;
+    /// Candidate `i` scored on the current model at `step` (`None`: closed, or no fit).
+    fn score(&self, i: usize, step: usize) -> Option<Self::Scored>;
+    /// Whether `s`, candidate `i`, passes the gates at `step`'s Holm level.
+    fn passes(&self, i: usize, s: &Self::Scored, step: usize) -> bool;
+    /// The step's winner, taken out of `passing`: the best by held-out gain (the last of equals).
+    fn take(&self, passing: &mut Vec<Self::Scored>) -> Option<Self::Scored> {
+        best(passing).map(|k| passing.swap_remove(k))
     }
-    (passing, best_fail)
+    /// At step 1: the best candidate by gain that failed the gates, beside the winner if any.
+    fn rejected(&mut self, failed: &Self::Scored, winner: Option<&Self::Scored>);
+    /// Take `winner` into the model at `step` (or close it); `passing` holds the other
+    /// candidates that passed, among which its rivals are.
+    fn accept(&mut self, step: usize, winner: Self::Scored, passing: Vec<Self::Scored>);
+}
+
+/// The stepwise search of discovery and the rest power: at each step up to `max_steps`, every
+/// open candidate of `0..n` scored on top of the terms chosen so far and gated at the step's Holm level;
+/// the winner among those that pass taken in with its rivals; stop when none passes. (The
+/// library selection runs the same gates ([`passes`], [`Holm`]) in its own loop, which also
+/// compares the forms of each mechanism; backward elimination is [`super::parsimony`]'s rule.)
+pub(crate) fn forward(stage: &mut impl Stage, n: usize, max_steps: usize) {
+    for k in 1..=max_steps {
+        let mut passing = Vec::new();
+        let mut failed: Option<_> = None;
+        for i in 0..n {
+            let Some(s) = stage.score(i, k) else {
+                continue;
+            };
+            if stage.passes(i, &s, k) {
+                passing.push(s);
+            } else if failed
+                .as_ref()
+                .is_none_or(|b: &_| s.gain() > Gated::gain(b))
+            {
+                failed = Some(s);
+            }
+        }
+        let winner = stage.take(&mut passing);
+        if k == 1
+            && let Some(f) = &failed
+        {
+            stage.rejected(f, winner.as_ref());
+        }
+        let Some(w) = winner else { break };
+        stage.accept(k, w, passing);
+    }
 }
 
 /// The best of `passing` by held-out gain (the last of equals).

@@ -230,9 +230,9 @@ mod stage_tests {
     fn a_meter_step_is_corrected_before_the_rest_power_reads_it() {
         // (battery meter's slow wander [W], step on the battery meter too, verdict)
         for (wander, on_both, verdict) in [
-            (0.0, false, "meter artefact"),
-            (30.0, false, "undecided"),
-            (0.0, true, "load"),
+            (0.0, false, MeterVerdict::Artefact),
+            (30.0, false, MeterVerdict::Undecided),
+            (0.0, true, MeterVerdict::Load),
         ] {
             let (mut rec, windows) = session(240, 9, Effects::default());
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
@@ -271,9 +271,9 @@ mod stage_tests {
                 "{m:?}"
             );
             assert_eq!(m.check.verdict, verdict, "{m:?}");
-            assert_eq!(r.meter_drift.is_some(), verdict == "meter artefact");
+            assert_eq!(r.meter_drift.is_some(), verdict == MeterVerdict::Artefact);
             let rest = r.rest.as_ref().expect("the rest power ran");
-            if verdict == "meter artefact" {
+            if verdict == MeterVerdict::Artefact {
                 // corrected before the rest power reads it
                 assert!(rest.found.is_empty(), "{:?}", rest.found);
                 assert!(rest.rmse_before_w < 0.5, "{rest:?}");

@@ -153,7 +153,7 @@ impl DiscoveryReport {
             return;
         }
         let (Some(c), Some(best)) = (
-            unexplained.iter().find(|c| c.significant && c.slow()),
+            unexplained.iter().find(|c| c.significant && c.slow),
             self.best_rejected.as_ref(),
         ) else {
             return;

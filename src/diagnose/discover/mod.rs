@@ -97,28 +97,17 @@ pub(crate) fn discover(
         tied: Vec::new(),
     };
     report.before = Some(search.base.compare(&fw.pred, &fw.pred).2);
-    for step in 1..=MAX_TERMS.min(data.n_trials / TRIALS_PER_TERM) {
-        let level = search.level(step);
-        let (mut passing, best_fail) = fw.score_step(&search, step, y_rms);
-        let best = take_best(&search, &mut passing);
-        if step == 1
-            && let Some(f) = &best_fail
-            && best.as_ref().is_none_or(|b| f.rel > b.rel)
-        {
-            let lv = level * search.cands[f.idx].weight;
-            let verdict = verdict_of(f, lv, rule);
-            report.best_rejected = Some(to_discovery(f, &search, joint_names, lv, step, verdict));
-        }
-        let Some(b) = best else { break };
-        let lv = level * search.cands[b.idx].weight;
-        if dependence_unresolved(&search, &b, joint_names, lv, step, &mut report) {
-            fw.closed.push(search.cands[b.idx].group.clone());
-            continue;
-        }
-        // Rivals on other fields the data cannot tell from it: named with it, never claimed.
-        let ties = ties_at_step(&search, &b, &passing, &fw.pred, joint_names, level);
-        fw.accept(&search, step, b, ties);
-    }
+    stepwise::forward(
+        &mut Stepping {
+            search: &search,
+            fw: &mut fw,
+            report: &mut report,
+            joint_names,
+            y_rms,
+        },
+        search.cands.len(),
+        MAX_TERMS.min(data.n_trials / TRIALS_PER_TERM),
+    );
     claim_rivals_found_beside(&search, &fw.chosen, &mut fw.tied, &mut report.notes);
     let on_time = fw
         .chosen
@@ -239,36 +228,70 @@ struct Forward {
     tied: Vec<(usize, Vec<Tie>)>,
 }
 
-impl Forward {
-    /// Score every open candidate on top of the chosen terms at `step`: those that pass the
-    /// gates at their level, and the best (by held-out gain) of those that do not.
-    fn score_step(
-        &self,
-        search: &Search,
-        step: usize,
-        y_rms: f64,
-    ) -> (Vec<Scored>, Option<Scored>) {
-        let level = search.level(step);
-        let total = search.cands.len();
-        let score = |i: usize| {
-            super::report(super::Progress::Candidates {
-                step,
-                done: i + 1,
-                total,
-            });
-            if self.chosen.contains(&i) || self.closed.contains(&search.cands[i].group) {
-                return None;
-            }
-            search.score(i, &self.cols, (&self.pred, self.bic), y_rms)
-        };
-        stepwise::step(total, score, |i, s| {
-            search.passes(s, level * search.cands[i].weight)
-        })
+/// Discovery's side of the stepwise search ([`stepwise::forward`]).
+struct Stepping<'s, 'a, 'd> {
+    search: &'s Search<'a, 'd>,
+    fw: &'s mut Forward,
+    report: &'s mut DiscoveryReport,
+    joint_names: &'s [String],
+    y_rms: f64,
+}
+
+impl stepwise::Stage for Stepping<'_, '_, '_> {
+    type Scored = Scored;
+
+    fn score(&self, i: usize, step: usize) -> Option<Scored> {
+        let (search, fw) = (self.search, &self.fw);
+        super::report(super::Progress::Candidates {
+            step,
+            done: i + 1,
+            total: search.cands.len(),
+        });
+        if fw.chosen.contains(&i) || fw.closed.contains(&search.cands[i].group) {
+            return None;
+        }
+        search.score(i, &fw.cols, (&fw.pred, fw.bic), self.y_rms)
     }
 
-    /// Take `b` into the model at `step` with its `ties`, closing its group and those of the
-    /// ties that do not stay open.
-    fn accept(&mut self, search: &Search, step: usize, b: Scored, ties: Vec<Tie>) {
+    fn passes(&self, i: usize, s: &Scored, step: usize) -> bool {
+        let search = self.search;
+        search.passes(s, search.level(step) * search.cands[i].weight)
+    }
+
+    /// The best of the `passing` candidates by held-out gain, taken out of them — or, when it
+    /// is a term × signal not significantly better than the plain pooled term it contains,
+    /// that pooled term: the signal is not what the data support.
+    fn take(&self, passing: &mut Vec<Scored>) -> Option<Scored> {
+        let k = stepwise::best(passing)?;
+        let refs: Vec<&Scored> = passing.iter().collect();
+        let k = simpler_nested(self.search, &passing[k], &refs).unwrap_or(k);
+        Some(passing.swap_remove(k))
+    }
+
+    fn rejected(&mut self, f: &Scored, winner: Option<&Scored>) {
+        if winner.is_none_or(|b| f.rel > b.rel) {
+            let search = self.search;
+            let lv = search.level(1) * search.cands[f.idx].weight;
+            let verdict = verdict_of(f, lv, &search.rule);
+            let d = to_discovery(f, search, self.joint_names, lv, 1, verdict);
+            self.report.best_rejected = Some(d);
+        }
+    }
+
+    /// Take `b` into the model at `step` with its ties — rivals on other fields the data cannot
+    /// tell from it, named with it and never claimed — closing its group and those of the ties
+    /// that do not stay open; a term × signal whose dependence is not resolved is located and
+    /// closed instead.
+    fn accept(&mut self, step: usize, b: Scored, passing: Vec<Scored>) {
+        let (search, names) = (self.search, self.joint_names);
+        let level = search.level(step);
+        let lv = level * search.cands[b.idx].weight;
+        if dependence_unresolved(search, &b, names, lv, step, self.report) {
+            self.fw.closed.push(search.cands[b.idx].group.clone());
+            return;
+        }
+        let ties = ties_at_step(search, &b, &passing, &self.fw.pred, names, level);
+        let fw = &mut *self.fw;
         for t in &ties {
             // A rival of the same structure whose contribution is not collinear with the chosen
             // one's may be a second effect of the same kind: it stays open and is tried beside
@@ -277,28 +300,18 @@ impl Forward {
                 continue;
             }
             let g = &search.cands[t.idx].group;
-            if !self.closed.contains(g) {
-                self.closed.push(g.clone());
+            if !fw.closed.contains(g) {
+                fw.closed.push(g.clone());
             }
         }
-        self.tied.push((b.idx, ties));
-        self.chosen.push(b.idx);
-        self.cols.extend(search.cols(b.idx));
-        self.closed.push(search.cands[b.idx].group.clone());
-        self.pred = b.fit.pred.clone();
-        self.bic = b.fit.bic;
-        self.accepted.push((step, b));
+        fw.tied.push((b.idx, ties));
+        fw.chosen.push(b.idx);
+        fw.cols.extend(search.cols(b.idx));
+        fw.closed.push(search.cands[b.idx].group.clone());
+        fw.pred = b.fit.pred.clone();
+        fw.bic = b.fit.bic;
+        fw.accepted.push((step, b));
     }
-}
-
-/// The best of the `passing` candidates by held-out gain, taken out of them — or, when it is
-/// a term × signal not significantly better than the plain pooled term it contains, that
-/// pooled term: the signal is not what the data support.
-fn take_best(search: &Search, passing: &mut Vec<Scored>) -> Option<Scored> {
-    let k = stepwise::best(passing)?;
-    let refs: Vec<&Scored> = passing.iter().collect();
-    let k = simpler_nested(search, &passing[k], &refs).unwrap_or(k);
-    Some(passing.swap_remove(k))
 }
 
 /// The rest-power stage on the fields discovery may try (not meters of the power, not

@@ -10,7 +10,7 @@ use super::found::Discovery;
 use super::words::describe;
 use crate::N_JOINTS;
 use crate::diagnose::Quality;
-use crate::diagnose::parsimony::{arm_drives, drives, knots, shape_cols, unit_rms};
+use crate::diagnose::flexible::{arm_drives, drives, knots, shape_cols, unit_rms};
 use crate::diagnose::select::{self, PowerData, Rule, State, jackknife_se};
 use crate::diagnose::stepwise::{self, Gated, Holm, not_significant};
 

@@ -214,6 +214,7 @@ fn slow_structure_no_candidate_passes_is_located_not_claimed() {
         p_adjusted: 4.8e-3,
         significant,
         trials: Vec::new(),
+        slow: !feature.ends_with("position q"),
     };
     let mut r = super::DiscoveryReport {
         best_rejected: Some(best.clone()),

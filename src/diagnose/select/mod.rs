@@ -9,6 +9,7 @@
 mod fit;
 mod score;
 
+pub(crate) use super::stepwise::Rule;
 pub(crate) use fit::*;
 pub(crate) use score::*;
 pub use score::{HypothesisScore, Param};
@@ -73,7 +74,7 @@ impl MechanismForms {
             Some(s) => format!(
                 "{test} (needed < {RIVAL_ALPHA}); held in {:.0} % of trial resamples (needed ≥ {:.0} %)",
                 100.0 * s,
-                100.0 * super::parsimony::STABLE
+                100.0 * super::stepwise::STABLE
             ),
             None => format!("{test} (needed < {RIVAL_ALPHA})"),
         }

@@ -8,6 +8,7 @@ use super::fit::*;
 use crate::N_PARAMS;
 use crate::diagnose::Quality;
 use crate::diagnose::hypotheses::{Hypothesis, LATENCY_ID};
+use crate::diagnose::stepwise::Rule;
 
 /// A named physical parameter with its uncertainty.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
@@ -80,14 +81,6 @@ impl HypothesisScore {
 /// The rule's words for a parameter outside its plausible range: a verdict that is only this is
 /// a structure the data support in a size no such mechanism has ([`HypothesisScore::only_implausible`]).
 pub(crate) const IMPLAUSIBLE: &str = "parameter outside its physically plausible range";
-
-/// Thresholds of the significance rule.
-#[derive(Debug, Clone, Copy)]
-pub(crate) struct Rule {
-    pub alpha: f64,
-    pub bic_threshold: f64,
-    pub min_improvement: f64,
-}
 
 impl Rule {
     /// Apply the rule: accepted or not, and why.

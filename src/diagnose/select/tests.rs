@@ -222,7 +222,7 @@ fn bus_loss_and_thermal_together_are_both_found() {
         "accepted {ids:?}"
     );
     // Every claim carries its stability, at or above the gate.
-    let stable = super::super::parsimony::STABLE;
+    let stable = super::super::stepwise::STABLE;
     assert!(
         (sel.accepted.iter()).all(|a| a.stability.is_some_and(|s| s >= stable)),
         "{:?}",
