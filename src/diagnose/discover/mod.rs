@@ -135,7 +135,7 @@ pub(crate) fn discover(
 /// the model's held-out prediction without it.
 fn changing_term(search: &Search, pred: &[f64]) -> Option<Discovery> {
     let (rule, hours) = (&search.rule, &search.rv.hours);
-    let (mid, knots) = crate::diagnose::parsimony::knots(hours)?;
+    let (mid, knots) = crate::diagnose::flexible::knots(hours)?;
     let level = rule.alpha / Term::ALL.len() as f64;
     let mut best: Option<(Term, Scored)> = None;
     for t in Term::ALL {
