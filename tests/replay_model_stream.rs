@@ -1,9 +1,13 @@
-//! `replay --model` streamed (the validation read in two passes, the model's series computed
-//! trial by trial while the file is read again) against the in-memory model replay of the whole
-//! recording (`overlay::model_extras` + `log_replay`): the decoded `.rrd` files hold the same
-//! rows and the same values, on the shipped example and on a simulated session read in pieces,
-//! whole and sliced (`--from/--to`, `--max-rate`). `diagnose --save` of one session streams its
-//! replay too: checked the same way against the replay of the loaded session.
+//! `replay --model` of a file (the validation streamed, the model's series computed trial by
+//! trial from the file read again in pieces) against the replay of the whole recording loaded in
+//! memory (`overlay::model_extras` + `log_replay`, the same series fed from the loaded samples):
+//! both log the model's series through one computation (`ReplayLogger::log_model_trial`), so
+//! these tests hold the file's trial-by-trial reading to the loaded recording — the decoded
+//! `.rrd` files hold the same rows and the same values, on the shipped example and on a
+//! simulated session read in pieces, whole and sliced (`--from/--to`, `--max-rate`). What the
+//! series give (the bars, the colour scale) is checked against the decoded series themselves in
+//! tests/viz.rs. `diagnose --save` of one session streams its replay too: checked the same way
+//! against the replay of the loaded session.
 
 use std::collections::BTreeMap;
 use std::io::BufReader;

@@ -817,13 +817,29 @@ fn model_overlay_marks_contaminated_trials_and_logs_loss_terms() {
     let r2 = 1.0 - ss_res / ss_tot;
     assert!(r2 > 0.95, "per-trajectory R² of the true model {r2}");
 
-    let terms = extras.terms.as_ref().unwrap();
+    // One model sample per state sample inside each trial with a copper baseline, counted here
+    // from the recording's stamps and the validation's trial windows.
+    let samples: usize = (validation.baselines.iter())
+        .filter_map(|b| {
+            validation
+                .session
+                .segmentation
+                .trials
+                .iter()
+                .find(|t| t.index == b.trial)
+        })
+        .map(|t| {
+            let inside = |x: &&f64| **x >= t.t_pre_start && **x <= t.t_return_end;
+            rec.state.t.iter().filter(inside).count()
+        })
+        .sum();
+    assert!(samples > 1000, "{samples} model samples");
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("smoke_model.rrd");
     save_replay(&rec, &extras, &out, &mcap);
     let c = contents(&decode(&out));
-    assert_eq!(rows(&c, "/model/terms/elbow/copper"), terms.t.len());
-    assert_eq!(rows(&c, "/model/power/predicted"), terms.t.len());
+    assert_eq!(rows(&c, "/model/terms/elbow/copper"), samples);
+    assert_eq!(rows(&c, "/model/power/predicted"), samples);
     assert_eq!(
         rows(&c, "/model/error/trajectory") + rows(&c, "/model/error/trajectory_rejected"),
         extras.trajectories.len()
@@ -1793,6 +1809,24 @@ fn model_replay_colours_links_draws_trial_bars_and_logs_rejections() {
     );
 
     assert_bars_are_trial_shares(&c, &extras, rec.start_ns);
+
+    // The colour scale the note states: the 98th percentile of the joints' positive predicted
+    // power, rounded up to 0.5 W (at least 1 W), recomputed here from the decoded per-joint
+    // series by a sort (the replay counts them by 0.5 W step as it logs them).
+    let mut power: Vec<f64> = (ARM.iter())
+        .map(|j| format!("/model/by_joint/{}", g1viz::viz::short_joint_name(j)))
+        .flat_map(|p| series(&c, &p).into_iter().map(|x| x.1))
+        .filter(|x| x.is_finite() && *x > 0.0)
+        .collect();
+    power.sort_by(f64::total_cmp);
+    assert!(power.len() > 1000, "{} positive joint powers", power.len());
+    let q = power[((power.len() - 1) as f64 * 0.98) as usize];
+    let scale = ((q * 2.0).ceil() / 2.0).max(1.0);
+    let note = static_strings(&c, "/model/note", "TextDocument:text").join("");
+    assert!(
+        note.contains(&format!("red at {scale:.1} W")),
+        "{scale} W: {note}"
+    );
 
     // Trial log: a rejected trial's line names it once.
     let rejected: Vec<&TrialMark> = extras

@@ -6,6 +6,7 @@ use anyhow::Result;
 use rerun::components::{AggregationPolicy, InterpolationMode, MarkerShape, TextLogLevel};
 use rerun::{SeriesLines, TextDocument, TextLog};
 
+use super::replay::LINK_COLOUR_RATE_HZ;
 use super::replay::{
     DiagnosisOverlay, ImuFilterMarks, ReadingPrediction, ReplayExtras, TermSeries, TrajectoryPoint,
     TrialMark, scalars, scalars_chunked,
@@ -13,41 +14,30 @@ use super::replay::{
 use super::{ChunkWriter, paths, style};
 use crate::N_JOINTS;
 
-/// Logs everything `extras` holds.
-/// `colour_scale`: the power [W] at which an arm link is drawn fully red (stated in the note).
+/// Logs everything `extras` holds; `stats`: what the model's series (logged trial by trial,
+/// [`super::ReplayLogger::log_model_trial`]) give the bars, the note and the trial log.
 pub(super) fn log_extras(
     w: &mut ChunkWriter<'_>,
     joints: &[String],
     extras: &ReplayExtras,
     chunk: usize,
-    colour_scale: f64,
+    stats: &ModelStats,
 ) -> Result<()> {
-    if let Some(p) = &extras.prediction {
+    if extras.model.is_some() {
         let (path, name) = (paths::MODEL_PREDICTED, "predicted, instantaneous");
         style::line(w, path, name, style::PREDICTED_CONTEXT, 0.75)?;
-        scalars_chunked(w, path, &p.t, &p.predicted, chunk)?;
     }
     if let Some(r) = &extras.readings {
         log_readings(w, r, chunk)?;
     }
     log_trajectories(w, &extras.trajectories)?;
     let mut marks = std::borrow::Cow::Borrowed(&extras.trials[..]);
-    if let Some(terms) = &extras.terms {
-        log_terms(w, joints, terms, chunk)?;
-        log_breakdown(w, joints, terms, chunk)?;
-        let computed;
-        let means: &[TrialMean] = match &extras.sample_stats {
-            Some(s) => &s.means,
-            None => {
-                computed = trial_means(terms, &extras.trials);
-                &computed
-            }
-        };
+    if extras.model.is_some() {
+        log_term_styles(w, joints)?;
+        let means = &stats.means;
         log_bars(w, joints, means, true)?;
-        w.send_static(
-            paths::BREAKDOWN_NOTE,
-            &TextDocument::from_markdown(breakdown_note(joints, colour_scale, means)),
-        )?;
+        let note = breakdown_note(joints, stats.colour_scale(), means);
+        w.send_static(paths::BREAKDOWN_NOTE, &TextDocument::from_markdown(note))?;
         marks = std::borrow::Cow::Owned(with_shares(&extras.trials, means, joints));
     }
     if let Some(imu) = &extras.imu_filter {
@@ -88,6 +78,7 @@ fn reading_means(d: &crate::diagnose::ReplayData) -> Vec<TrialMean> {
     let col = |k: usize| d.terms_w.iter().map(|x| x.0[k]).collect();
     let terms = TermSeries {
         t: d.t.clone(),
+        predicted: Vec::new(),
         per_joint: std::array::from_fn(col),
         interaction: d.terms_w.iter().map(|x| x.1).collect(),
     };
@@ -231,13 +222,10 @@ fn log_trajectories(w: &mut ChunkWriter<'_>, points: &[TrajectoryPoint]) -> Resu
     Ok(())
 }
 
-/// One series per joint and term, and the interaction.
-fn log_terms(
-    w: &mut ChunkWriter<'_>,
-    joints: &[String],
-    terms: &TermSeries,
-    chunk: usize,
-) -> Result<()> {
+/// The styles of the model's series: one per joint and term and the interaction
+/// ([`log_term_data`]), each term summed over the joints and each joint's terms summed
+/// ([`log_breakdown_data`]).
+fn log_term_styles(w: &mut ChunkWriter<'_>, joints: &[String]) -> Result<()> {
     for name in joints {
         for (k, term) in paths::TERMS.iter().enumerate() {
             style::line(w, &paths::term(name, term), term, style::TERMS[k], 1.5)?;
@@ -245,10 +233,16 @@ fn log_terms(
     }
     let name = "interaction Σ e_ij |q̇_i||q̇_j|";
     style::line(w, paths::TERM_INTERACTION, name, style::TERMS[4], 1.5)?;
-    log_term_data(w, joints, terms, chunk)
+    for (k, term) in paths::TERMS.iter().chain(&["interaction"]).enumerate() {
+        style::line(w, &paths::by_term(term), term, style::TERMS[k], 1.5)?;
+    }
+    for (j, name) in joints.iter().enumerate() {
+        style::line(w, &paths::by_joint(name), name, style::joint(j), 1.5)?;
+    }
+    Ok(())
 }
 
-/// The values of [`log_terms`]' series (their styles sent once, by it).
+/// One series per joint and term, and the interaction (styles: [`log_term_styles`]).
 pub(super) fn log_term_data(
     w: &mut ChunkWriter<'_>,
     joints: &[String],
@@ -265,23 +259,8 @@ pub(super) fn log_term_data(
     scalars_chunked(w, paths::TERM_INTERACTION, t, interaction, chunk)
 }
 
-/// Per sample: each term summed over the joints, and each joint's terms summed.
-fn log_breakdown(
-    w: &mut ChunkWriter<'_>,
-    joints: &[String],
-    terms: &TermSeries,
-    chunk: usize,
-) -> Result<()> {
-    for (k, term) in paths::TERMS.iter().chain(&["interaction"]).enumerate() {
-        style::line(w, &paths::by_term(term), term, style::TERMS[k], 1.5)?;
-    }
-    for (j, name) in joints.iter().enumerate() {
-        style::line(w, &paths::by_joint(name), name, style::joint(j), 1.5)?;
-    }
-    log_breakdown_data(w, joints, terms, chunk)
-}
-
-/// The values of [`log_breakdown`]'s series (their styles sent once, by it).
+/// Per sample: each term summed over the joints, and each joint's terms summed (styles:
+/// [`log_term_styles`]).
 pub(super) fn log_breakdown_data(
     w: &mut ChunkWriter<'_>,
     joints: &[String],
@@ -467,6 +446,63 @@ impl TrialMean {
     }
 }
 
+/// What the bars, the note, the trial log and the link colours take of the model's series,
+/// gathered trial by trial as they are logged, in memory bounded whatever the session's length.
+#[derive(Debug, Default)]
+pub(super) struct ModelStats {
+    /// Each trial's mean over its mark's window (trajectory start to post-idle end), in order.
+    pub means: Vec<TrialMean>,
+    /// The joints' positive powers counted by 0.5 W step (⌈2 P⌉): the colour scale is their
+    /// 98th percentile rounded up to 0.5 W, so the counts give it exactly.
+    steps: std::collections::BTreeMap<u64, u64>,
+    /// The joints' power at most [`LINK_COLOUR_RATE_HZ`] times a second: times and values.
+    pub link_t: Vec<f64>,
+    pub link_power: Vec<[f64; N_JOINTS]>,
+}
+
+impl ModelStats {
+    /// Adds one trial's series (sliced as logged).
+    pub fn add(&mut self, trial: &crate::trial::TrialWindow, terms: &TermSeries) {
+        let fields = terms.fields();
+        for (i, &t) in terms.t.iter().enumerate().take(terms.len()) {
+            let power: [f64; N_JOINTS] =
+                std::array::from_fn(|j| fields.iter().map(|f| f[i][j]).sum());
+            for &x in power.iter().filter(|x| x.is_finite() && **x > 0.0) {
+                *self.steps.entry((x * 2.0).ceil() as u64).or_default() += 1;
+            }
+            if self
+                .link_t
+                .last()
+                .is_none_or(|&last| t >= last + 1.0 / LINK_COLOUR_RATE_HZ)
+            {
+                self.link_t.push(t);
+                self.link_power.push(power);
+            }
+        }
+        let (t0, t1) = (trial.t_traj_start, trial.t_post_end);
+        let inside: Vec<usize> = (0..terms.len())
+            .filter(|&i| terms.t[i] >= t0 && terms.t[i] <= t1)
+            .collect();
+        self.means
+            .extend(TrialMean::over(trial.index, terms, &inside));
+    }
+
+    /// The power [W] at which an arm link is drawn fully red: the 98th percentile of the joints'
+    /// positive predicted power, rounded up to 0.5 W, at least 1 W.
+    pub fn colour_scale(&self) -> f64 {
+        let total: u64 = self.steps.values().sum();
+        let rank = (total.saturating_sub(1) as f64 * 0.98) as u64;
+        let mut below = 0;
+        for (&step, &n) in &self.steps {
+            if rank < below + n {
+                return (step as f64 / 2.0).max(1.0);
+            }
+            below += n;
+        }
+        1.0
+    }
+}
+
 /// `trials` with each one's label followed, on a line of its own, by its two largest terms and
 /// its largest joint with their shares of the trial's energy turnover ([`TrialMean::turnover`],
 /// the same shares as the per-trial plots and the note's), saying what a negative one means
@@ -537,28 +573,6 @@ pub(super) fn energy_shares(means: &[TrialMean]) -> (Vec<f64>, Vec<f64>) {
         crate::power::shares_percent(&terms),
         crate::power::shares_percent(&joints),
     )
-}
-
-/// Mean predicted power per joint and per term over each trial's window, in time order
-/// (trials without samples are left out).
-pub(super) fn trial_means(terms: &TermSeries, trials: &[TrialMark]) -> Vec<TrialMean> {
-    let n = terms.len();
-    // Samples in time order (trial windows may overlap at their idle edges).
-    let mut order: Vec<usize> = (0..n).collect();
-    order.sort_by(|&a, &b| terms.t[a].total_cmp(&terms.t[b]));
-    let sorted_t: Vec<f64> = order.iter().map(|&i| terms.t[i]).collect();
-    let mut sorted: Vec<&TrialMark> = trials.iter().collect();
-    sorted.sort_by(|a, b| a.t_start.total_cmp(&b.t_start));
-    let mut out = Vec::new();
-    for m in sorted {
-        let lo = sorted_t.partition_point(|&t| t < m.t_start);
-        let hi = sorted_t.partition_point(|&t| t <= m.t_end);
-        if hi <= lo {
-            continue;
-        }
-        out.extend(TrialMean::over(m.index, terms, &order[lo..hi]));
-    }
-    out
 }
 
 /// The note shown beside the breakdown: what the terms are, what the copper term is relative to.
@@ -824,54 +838,4 @@ fn log_diagnosis(
         paths::DIAG_SUMMARY,
         &TextDocument::from_markdown(d.summary.clone()),
     )
-}
-
-/// Per-joint predicted power (the joint's four terms summed) of every sample, in time order.
-fn joint_power(terms: &TermSeries) -> Vec<(f64, [f64; N_JOINTS])> {
-    let fields = terms.fields();
-    let n = terms.len();
-    let mut out: Vec<(f64, [f64; N_JOINTS])> = (0..n)
-        .map(|i| {
-            (
-                terms.t[i],
-                std::array::from_fn(|j| fields.iter().map(|f| f[i][j]).sum()),
-            )
-        })
-        .collect();
-    out.sort_by(|a, b| a.0.total_cmp(&b.0));
-    out
-}
-
-/// The colour scale of the arm links: the 98th percentile of the joints' positive predicted
-/// power (at least 1 W), rounded up to 0.5 W.
-pub(super) fn colour_scale(terms: &TermSeries) -> f64 {
-    let mut p: Vec<f64> = joint_power(terms)
-        .iter()
-        .flat_map(|(_, v)| v.iter().copied())
-        .filter(|x| x.is_finite() && *x > 0.0)
-        .collect();
-    if p.is_empty() {
-        return 1.0;
-    }
-    p.sort_by(f64::total_cmp);
-    let q = p[((p.len() - 1) as f64 * 0.98) as usize];
-    ((q * 2.0).ceil() / 2.0).max(1.0)
-}
-
-/// Per-joint predicted power at most `rate_hz` times a second, in time order.
-pub(super) fn decimated_joint_power(
-    terms: &TermSeries,
-    rate_hz: f64,
-) -> (Vec<f64>, Vec<[f64; N_JOINTS]>) {
-    let mut next = f64::NEG_INFINITY;
-    let mut t = Vec::new();
-    let mut p = Vec::new();
-    for (ti, v) in joint_power(terms) {
-        if ti >= next {
-            t.push(ti);
-            p.push(v);
-            next = ti + 1.0 / rate_hz;
-        }
-    }
-    (t, p)
 }

@@ -14,7 +14,6 @@
 
 mod blueprint;
 mod layers;
-mod model_stream;
 mod overlay;
 mod paths;
 mod replay;
@@ -27,11 +26,11 @@ mod style;
 use blueprint::data_range;
 pub use blueprint::{Legend, Node, send_blueprint};
 pub use layers::TrialMean;
-pub use overlay::{diagnosis_extras, model_extras, trial_series, validation_extras};
+pub use overlay::{diagnosis_extras, model_extras, validation_extras};
 pub use replay::{
-    DiagnosisOverlay, ImuFilterMarks, PowerPrediction, ReadingPrediction, ReplayExtras,
-    ReplayLogger, ReplayOptions, ReplaySummary, SampleStats, TermSeries, TrajectoryPoint,
-    TrialMark, idle_baseline, layout, log_replay, replay_files_with,
+    DiagnosisOverlay, ImuFilterMarks, ModelSeries, ReadingPrediction, ReplayExtras, ReplayLogger,
+    ReplayOptions, ReplaySummary, TermSeries, TrajectoryPoint, TrialMark, idle_baseline, layout,
+    log_replay, replay_files_with,
 };
 pub use session::{
     BYTES_FIXED, BYTES_PER_CHUNK, BYTES_PER_LINK_POSE, BYTES_PER_SCALAR, Notice, SessionReplay,

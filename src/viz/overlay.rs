@@ -7,8 +7,10 @@
 
 use anyhow::Result;
 
+use std::collections::BTreeMap;
+
 use super::replay::{
-    ImuFilterMarks, PowerPrediction, ReadingPrediction, ReplayExtras, TermSeries, TrajectoryPoint,
+    ImuFilterMarks, ModelSeries, ReadingPrediction, ReplayExtras, TermSeries, TrajectoryPoint,
     TrialMark,
 };
 use crate::identify::{IdentifyOptions, Validation, validate};
@@ -18,7 +20,7 @@ use crate::trial::TrialWindow;
 
 /// Replay extras of `model` applied to `rec` (segmented and filtered as `opts` says), plus the
 /// hold-out validation it is built on. The whole session is in memory; the streamed replay
-/// builds the same extras from [`crate::identify::validate_file`] and [`trial_series`].
+/// builds the same extras from [`crate::identify::validate_file`].
 pub fn model_extras(
     rec: &Recording,
     model: &PowerModel,
@@ -26,64 +28,56 @@ pub fn model_extras(
 ) -> Result<(ReplayExtras, Validation)> {
     let v = validate(model, rec, opts)?;
     let mut extras = validation_extras(&v, opts, &rec.joint_names);
-    let mut prediction = PowerPrediction::default();
-    let mut terms = TermSeries::default();
-    for b in &v.baselines {
-        if let Some(trial) = v
-            .session
-            .segmentation
-            .trials
-            .iter()
-            .find(|t| t.index == b.trial)
-        {
-            trial_series(
-                &rec.state,
-                trial,
-                &b.tau0_sq,
-                model,
-                &mut prediction,
-                &mut terms,
-            );
-        }
-    }
-    extras.prediction = Some(prediction);
-    extras.terms = Some(terms);
+    extras.model = Some(ModelSeries {
+        model: *model,
+        plan: planned(&v),
+    });
     Ok((extras, v))
 }
 
-/// Appends the model's instantaneous prediction and loss terms at every sample of `state` in
-/// `trial`'s window (pre-idle start to return end), with the trial's copper baseline `tau0_sq`.
-pub fn trial_series(
+/// The usable trials of a validation (those with a copper baseline), in session order, with it.
+pub(super) fn planned(v: &Validation) -> Vec<(TrialWindow, [f64; crate::N_JOINTS])> {
+    // Indexed once: a linear search per baseline is quadratic in trials (~1e6 steps at paper scale).
+    let mut by_index: BTreeMap<_, &TrialWindow> = BTreeMap::new();
+    for t in &v.session.segmentation.trials {
+        by_index.entry(t.index).or_insert(t); // the first, as a search would find
+    }
+    v.baselines
+        .iter()
+        .filter_map(|b| Some(((*by_index.get(&b.trial)?).clone(), b.tau0_sq)))
+        .collect()
+}
+
+/// The model's instantaneous prediction and loss terms at every sample of `state` in `trial`'s
+/// window (pre-idle start to return end), with the trial's copper baseline `tau0_sq`.
+pub(super) fn trial_series(
     state: &StateSeries,
     trial: &TrialWindow,
     tau0_sq: &[f64; crate::N_JOINTS],
     model: &PowerModel,
-    prediction: &mut PowerPrediction,
-    terms: &mut TermSeries,
-) {
+) -> TermSeries {
     let n = state.t.len().min(state.tau.len()).min(state.dq.len());
     let first = state.t[..n].partition_point(|&t| t < trial.t_pre_start);
     let last = state.t[..n].partition_point(|&t| t <= trial.t_return_end);
+    let mut terms = TermSeries::default();
     for k in first..last.max(first) {
-        let t = state.t[k];
-        let b = model.breakdown(&state.tau[k], &state.dq[k], tau0_sq);
-        prediction.t.push(t);
-        prediction
-            .predicted
-            .push(model.predict(&state.tau[k], &state.dq[k], tau0_sq));
-        terms.t.push(t);
+        let (tau, dq) = (&state.tau[k], &state.dq[k]);
+        let b = model.breakdown(tau, dq, tau0_sq);
+        terms.t.push(state.t[k]);
+        terms.predicted.push(model.predict(tau, dq, tau0_sq));
         let per_joint = [b.mechanical, b.copper, b.coulomb, b.viscous];
         for (series, v) in terms.per_joint.iter_mut().zip(per_joint) {
             series.push(v);
         }
         terms.interaction.push(b.interaction_total());
     }
+    terms
 }
 
 /// The extras a validation gives without the samples: each reading with its like-for-like
 /// prediction, per-trajectory errors, the IMU filter marks and the trial marks (with the
-/// rejections `validate` records). `joint_names` label the trials. The per-sample series
-/// (`prediction`, `terms`) are left to [`trial_series`].
+/// rejections `validate` records). `joint_names` label the trials. The per-sample series are
+/// left to [`trial_series`].
 pub fn validation_extras(
     v: &Validation,
     opts: &IdentifyOptions,
@@ -146,14 +140,12 @@ pub fn validation_extras(
         })
         .collect();
     ReplayExtras {
-        prediction: None,
+        model: None,
         readings: Some(readings),
         trajectories,
-        terms: None,
         trials,
         imu_filter: imu_marks(v, opts),
         diagnosis: None,
-        sample_stats: None,
     }
 }
 

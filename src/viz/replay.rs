@@ -63,16 +63,6 @@ impl Default for ReplayOptions {
     }
 }
 
-/// Instantaneous per-sample predictions of the identified power model: context only, since a
-/// power reading is a window average and compares with [`ReadingPrediction`].
-#[derive(Debug, Clone, Default)]
-pub struct PowerPrediction {
-    /// Time [s since recording start].
-    pub t: Vec<f64>,
-    /// Predicted net power [W].
-    pub predicted: Vec<f64>,
-}
-
 /// Each power reading next to the model's prediction averaged over the reading's own window
 /// [t − lag − window, t − lag]: like for like, the error `validate` reports per reading.
 #[derive(Debug, Clone, Default)]
@@ -112,11 +102,15 @@ pub struct TrajectoryPoint {
     pub rest_w: f64,
 }
 
-/// Per-joint loss-term time series [W] (the model's breakdown per sample).
+/// The model's series [W] per sample: its breakdown into loss terms per joint, and its
+/// instantaneous prediction.
 #[derive(Debug, Clone, Default)]
 pub struct TermSeries {
     /// Time [s since recording start].
     pub t: Vec<f64>,
+    /// Predicted net power: context only, since a power reading is a window average and
+    /// compares with [`ReadingPrediction`] (empty where only the terms are known).
+    pub predicted: Vec<f64>,
     /// Per sample, each joint's mechanical a_i τ_i q̇_i, copper b_i (τ_i² − τ̄0_i²), Coulomb
     /// c_i |q̇_i| and viscous d_i q̇_i² ([`super::paths::TERMS`] order).
     pub per_joint: [Vec<[f64; N_JOINTS]>; 4],
@@ -137,8 +131,9 @@ impl TermSeries {
     }
 
     /// Appends the samples of `other`.
-    fn extend(&mut self, other: &TermSeries) {
+    pub(super) fn extend(&mut self, other: &TermSeries) {
         self.t.extend_from_slice(&other.t);
+        self.predicted.extend_from_slice(&other.predicted);
         for (mine, theirs) in self.per_joint.iter_mut().zip(&other.per_joint) {
             mine.extend_from_slice(theirs);
         }
@@ -149,6 +144,7 @@ impl TermSeries {
     fn take_head(&mut self, n: usize) -> TermSeries {
         TermSeries {
             t: self.t.drain(..n).collect(),
+            predicted: self.predicted.drain(..n).collect(),
             per_joint: self.per_joint.each_mut().map(|f| f.drain(..n).collect()),
             interaction: self.interaction.drain(..n).collect(),
         }
@@ -190,37 +186,28 @@ pub struct DiagnosisOverlay {
 /// What later stages add to a replay. Plain data so identify/diagnose need no Rerun types.
 #[derive(Debug, Clone, Default)]
 pub struct ReplayExtras {
-    /// Identified-model predictions per sample (context).
-    pub prediction: Option<PowerPrediction>,
+    /// The identified model, whose per-sample series the replay computes trial by trial.
+    pub model: Option<ModelSeries>,
     /// Identified-model predictions at the power readings, like for like.
     pub readings: Option<ReadingPrediction>,
     /// Identified-model predictions per trajectory.
     pub trajectories: Vec<TrajectoryPoint>,
-    /// Loss terms per joint.
-    pub terms: Option<TermSeries>,
     /// Trial windows with rejection marks.
     pub trials: Vec<TrialMark>,
     /// The IMU filter's statistic and threshold.
     pub imu_filter: Option<ImuFilterMarks>,
     /// Diagnosis before/after.
     pub diagnosis: Option<DiagnosisOverlay>,
-    /// Statistics of per-sample series that are not held here but logged while the session is
-    /// streamed (`prediction`/`terms` are then present and empty): the streamed model replay.
-    pub sample_stats: Option<SampleStats>,
 }
 
-/// What the per-trial bars and the link colours need of the per-sample series when those are
-/// streamed instead of held (the streamed model replay): the per-trial means and the colour
-/// scale (computed as from the whole series), and the joints' power decimated to the
-/// link-colour rate.
-#[derive(Debug, Clone, Default)]
-pub struct SampleStats {
-    /// Mean power per joint and per term over each trial's window, in time order.
-    pub means: Vec<layers::TrialMean>,
-    /// Power [W] at which a link is drawn fully red.
-    pub colour_scale: f64,
-    /// Per-joint power at most 10 times a second (the link-colour rate): times and values.
-    pub link_power: (Vec<f64>, Vec<[f64; N_JOINTS]>),
+/// An identified model's per-sample series, never held whole: the replay computes them trial by
+/// trial ([`ReplayLogger::log_model_trial`]) from the session in memory or as it is read again.
+#[derive(Debug, Clone)]
+pub struct ModelSeries {
+    /// The model.
+    pub model: crate::power::PowerModel,
+    /// The usable trials (those with a copper baseline), in session order, with it.
+    pub plan: Vec<(crate::trial::TrialWindow, [f64; N_JOINTS])>,
 }
 
 /// What a replay logged.
@@ -244,17 +231,12 @@ const REPLAY_NAMESPACE: u64 = 0x0001_0000_0000_0000;
 /// zero pose (the model root if none moves).
 fn arm_center(robot: &RobotModel, arm: &ArmJoints) -> [f32; 3] {
     let home = robot.link_poses(arm, &[0.0; N_JOINTS]);
-    let probe = robot.link_poses(arm, &[0.5, -0.4, 0.3, -0.6, 0.7, -0.5, 0.4]);
-    let moving: Vec<_> = home
-        .iter()
-        .zip(&probe)
-        .filter(|(a, b)| (a.translation.vector - b.translation.vector).norm() > 1e-6)
-        .map(|(a, _)| a.translation.vector)
-        .collect();
+    let moving = robot3d::moving_links(robot, arm);
     if moving.is_empty() {
         return [0.0; 3];
     }
-    let mean = moving.iter().sum::<nalgebra::Vector3<f64>>() / moving.len() as f64;
+    let sum: nalgebra::Vector3<f64> = moving.iter().map(|&i| home[i].translation.vector).sum();
+    let mean = sum / moving.len() as f64;
     [mean.x as f32, mean.y as f32, mean.z as f32]
 }
 
@@ -273,9 +255,8 @@ pub fn layout(
     let window_s = blueprint::opening_window(&starts);
     let diagnosis = |f: fn(&DiagnosisOverlay) -> bool| extras.diagnosis.as_ref().is_some_and(f);
     let parts = LayoutParts {
-        model: extras.prediction.is_some()
+        model: extras.model.is_some()
             || extras.readings.is_some()
-            || extras.terms.is_some()
             || !extras.trajectories.is_empty(),
         diagnosis: extras.diagnosis.is_some(),
         counterpart: diagnosis(|d| d.counterpart.is_some()),
@@ -294,7 +275,7 @@ pub fn layout(
         window_s,
         trial_counts: trial_counts(extras),
         trial_rest: extras.trajectories.iter().any(|p| p.rest_w.is_finite()),
-        shares: extras.terms.is_some() || diagnosis(|d| !d.data.terms_w.is_empty()),
+        shares: extras.model.is_some() || diagnosis(|d| !d.data.terms_w.is_empty()),
         // The last trial ends about one spacing after it starts.
         span_s: window_s
             .zip(super::data_range(starts))
@@ -409,6 +390,9 @@ pub fn log_replay(
         Some(rec),
     )?;
     logger.add(rec)?;
+    for _ in extras.model.iter().flat_map(|m| &m.plan) {
+        logger.log_model_trial(&rec.state)?;
+    }
     logger.finish(extras)
 }
 
@@ -424,16 +408,15 @@ pub(crate) const STREAMED_CHUNK_ROWS: usize = 16_384;
 /// them, ~5 % longer).
 pub(crate) const REPLAY_FLUSH_SAMPLES: usize = 60_000;
 
-/// A streamed replay into `stream`: `read` drives the sink over the recording(s).
-fn streamed_replay(
+/// A streamed replay into `stream`: `read` drives the sink over the recording(s) (and, with a
+/// model, logs its series trial by trial into the sink's logger).
+pub(super) fn streamed_replay(
     robot: &RobotModel,
     arm: &ArmJoints,
     extras: ReplayExtras,
     opts: &ReplayOptions,
     stream: &RecordingStream,
-    read: &mut dyn FnMut(
-        &mut dyn crate::signals::RecordingSink,
-    ) -> Result<crate::signals::StreamSummary>,
+    read: &mut dyn FnMut(&mut StreamedReplay<'_, '_>) -> Result<()>,
 ) -> Result<ReplaySummary> {
     // The reader shows its own progress bar (messages read); one bar is enough.
     let quiet = ReplayOptions {
@@ -473,8 +456,8 @@ pub fn replay_files_with(
 ) -> Result<ReplaySummary> {
     let rows = opts.chunk_rows.max(1);
     streamed_replay(robot, arm, extras, opts, stream, &mut |sink| match paths {
-        [path] => crate::signals::stream_into(path, map, read_opts, rows, sink),
-        _ => crate::signals::stream_joined_into(paths, map, read_opts, rows, gap_s, sink),
+        [path] => crate::signals::stream_into(path, map, read_opts, rows, sink).map(drop),
+        _ => crate::signals::stream_joined_into(paths, map, read_opts, rows, gap_s, sink).map(drop),
     })
 }
 
@@ -498,7 +481,7 @@ pub(super) struct StreamedReplay<'a, 'e> {
 
 impl<'a, 'e> StreamedReplay<'a, 'e> {
     /// A sink replaying into `stream` with `opts` and the overlays `extras`.
-    pub(super) fn new(
+    fn new(
         stream: &'a RecordingStream,
         robot: &'a RobotModel,
         arm: &'a ArmJoints,
@@ -516,6 +499,13 @@ impl<'a, 'e> StreamedReplay<'a, 'e> {
             warnings,
             unflushed,
         }
+    }
+}
+
+impl StreamedReplay<'_, '_> {
+    /// Samples per chunk the replay logs.
+    pub(super) fn chunk_rows(&self) -> usize {
+        self.opts.chunk_rows
     }
 }
 
@@ -585,10 +575,16 @@ pub struct ReplayLogger<'a> {
     slice: Slice,
     /// Rate caps of the state and command series, across batches.
     decimators: [Decimator; 2],
-    /// Model samples logged since the last flush ([`Self::log_model_samples`]).
+    /// The model whose series [`Self::log_model_trial`] logs, and its next trial.
+    model: Option<(ModelSeries, usize)>,
+    /// The rate cap of the model's series, across trials.
+    model_decimator: Decimator,
+    /// What the bars, the note and the link colours take of the model's series.
+    stats: layers::ModelStats,
+    /// Model samples logged since the last flush ([`Self::log_model_trial`]).
     unflushed: usize,
-    /// Model samples gathered into the next chunk ([`Self::log_model_samples`]).
-    pending: (PowerPrediction, TermSeries),
+    /// Model samples gathered into the next chunk ([`Self::log_model_trial`]).
+    pending: TermSeries,
     /// Samples a slice kept, gathered into chunks of [`Self::chunk`] (a rate cap keeps a few
     /// samples of each of the reader's batches: logged batch by batch, a paper-scale session
     /// became 16 000 chunks of a dozen rows, which the web viewer ingests slowly).
@@ -599,7 +595,7 @@ pub struct ReplayLogger<'a> {
 }
 
 /// Model samples (≈ 42 scalar rows each) between waits for the sink in
-/// [`ReplayLogger::log_model_samples`].
+/// [`ReplayLogger::log_model_trial`].
 const MODEL_FLUSH_SAMPLES: usize = 20_000;
 
 impl<'a> ReplayLogger<'a> {
@@ -655,7 +651,7 @@ impl<'a> ReplayLogger<'a> {
             &mut w,
             robot,
             arm,
-            extras.terms.is_some(),
+            extras.model.is_some(),
             &mut summary.warnings,
         )?;
         log_styles(&mut w, &joints)?;
@@ -684,6 +680,9 @@ impl<'a> ReplayLogger<'a> {
             summary,
             slice: opts.slice,
             decimators: [Decimator::default(); 2],
+            model: extras.model.clone().map(|m| (m, 0)),
+            model_decimator: Decimator::default(),
+            stats: Default::default(),
             unflushed: 0,
             pending: Default::default(),
             kept: Recording::default(),
@@ -826,21 +825,28 @@ impl<'a> ReplayLogger<'a> {
         Ok(())
     }
 
-    /// Logs the model's instantaneous prediction and loss terms of one stretch of samples
-    /// (already sliced; their styles are sent by [`Self::finish`] with `prediction`/`terms`
-    /// present in the extras): how the streamed model replay logs the series it does not hold.
-    /// Stretches are gathered into chunks of [`ReplayOptions::chunk_rows`] samples, as the
-    /// in-memory replay cuts the whole series (few large chunks keep the file's index small).
-    pub fn log_model_samples(
-        &mut self,
-        prediction: &PowerPrediction,
-        terms: &TermSeries,
-    ) -> Result<()> {
-        let (p, tm) = &mut self.pending;
-        p.t.extend_from_slice(&prediction.t);
-        p.predicted.extend_from_slice(&prediction.predicted);
-        tm.extend(terms);
-        let full = tm.t.len().min(p.t.len()) / self.chunk * self.chunk;
+    /// Logs the model's series over its next planned trial (its instantaneous prediction and
+    /// loss terms at the samples of `state` in the trial's window, sliced as the replay is) and
+    /// adds them to the statistics the bars, the note and the link colours are drawn from: how
+    /// every model replay logs them, whether the session is held whole or read trial by trial.
+    /// Stretches are gathered into chunks of [`ReplayOptions::chunk_rows`] samples (few large
+    /// chunks keep the file's index small).
+    pub fn log_model_trial(&mut self, state: &crate::signals::StateSeries) -> Result<()> {
+        let Some((m, next)) = &mut self.model else {
+            bail!("a model trial was logged without a model");
+        };
+        let (trial, tau0_sq) = m
+            .plan
+            .get(*next)
+            .context("more model trials than planned")?;
+        *next += 1;
+        let mut s = super::overlay::trial_series(state, trial, tau0_sq, &m.model);
+        if !self.slice.is_all() {
+            s = s.pick(&self.slice.keep(&s.t, &mut self.model_decimator));
+        }
+        self.stats.add(trial, &s);
+        self.pending.extend(&s);
+        let full = self.pending.len() / self.chunk * self.chunk;
         if full > 0 {
             self.write_pending(full)?;
         }
@@ -849,14 +855,9 @@ impl<'a> ReplayLogger<'a> {
 
     /// Logs the first `n` gathered model samples and drops them from the gathering buffer.
     fn write_pending(&mut self, n: usize) -> Result<()> {
-        let (p, tm) = &mut self.pending;
-        let head_p = PowerPrediction {
-            t: p.t.drain(..n).collect(),
-            predicted: p.predicted.drain(..n).collect(),
-        };
-        let head = tm.take_head(n);
+        let head = self.pending.take_head(n);
         let w = &mut self.w;
-        let (t, predicted) = (&head_p.t, &head_p.predicted);
+        let (t, predicted) = (&head.t, &head.predicted);
         scalars_chunked(w, paths::MODEL_PREDICTED, t, predicted, self.chunk)?;
         layers::log_term_data(w, &self.joints, &head, self.chunk)?;
         layers::log_breakdown_data(w, &self.joints, &head, self.chunk)?;
@@ -874,11 +875,11 @@ impl<'a> ReplayLogger<'a> {
     pub fn finish(mut self, extras: &ReplayExtras) -> Result<ReplaySummary> {
         self.add_kept()?;
         self.progress.finish_and_clear();
-        let rest = self.pending.1.t.len();
+        let rest = self.pending.t.len();
         if rest > 0 {
             self.write_pending(rest)?;
         }
-        if extras.sample_stats.is_some() {
+        if extras.model.is_some() {
             self.w.flush()?;
         }
         let w = &mut self.w;
@@ -910,21 +911,15 @@ impl<'a> ReplayLogger<'a> {
                 )),
             }
         }
-        let scale = match &extras.sample_stats {
-            Some(s) => s.colour_scale,
-            None => extras.terms.as_ref().map_or(1.0, layers::colour_scale),
-        };
-        layers::log_extras(w, &self.joints, extras, self.chunk, scale)?;
-        if let Some(s) = &extras.sample_stats {
+        let scale = self.stats.colour_scale();
+        layers::log_extras(w, &self.joints, extras, self.chunk, &self.stats)?;
+        if extras.model.is_some() {
             // In chunks (a long session has hundreds of thousands of colours per link).
-            let (t, power) = &s.link_power;
+            let (t, power) = (&self.stats.link_t, &self.stats.link_power);
             for (t, power) in t.chunks(self.chunk).zip(power.chunks(self.chunk)) {
                 robot3d::log_link_colors(w, self.robot, self.arm, &self.scene, t, power, scale)?;
                 w.flush()?;
             }
-        } else if let Some(terms) = &extras.terms {
-            let (t, power) = layers::decimated_joint_power(terms, LINK_COLOUR_RATE_HZ);
-            robot3d::log_link_colors(w, self.robot, self.arm, &self.scene, &t, &power, scale)?;
         }
         if let Some(mut layout) = self.layout.take() {
             // Now every plot's data range is known:

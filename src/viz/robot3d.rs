@@ -38,9 +38,23 @@ fn to_transform(pose: &Isometry3<f64>) -> Transform3D {
     )
 }
 
-fn poses_differ(a: &Isometry3<f64>, b: &Isometry3<f64>) -> bool {
-    (a.translation.vector - b.translation.vector).norm() > 1e-9
-        || a.rotation.angle_to(&b.rotation) > 1e-9
+/// The links whose pose depends on the arm joints, by index in `RobotModel::links`: those
+/// whose pose at two different joint vectors differs (exact for the tree-structured kinematics:
+/// no joint maps both vectors to the same pose) by more than 1e-9 m or 1e-9 rad — far above the
+/// rounding of a metre-long chain (~1e-15) and far below any motion of a 0.3–0.7 rad probe
+/// (millimetres at least). The one answer to "does this link move": the poses logged, the
+/// size estimate and the camera's target all take it.
+pub(super) fn moving_links(robot: &RobotModel, arm: &ArmJoints) -> Vec<usize> {
+    let home = robot.link_poses(arm, &[0.0; N_JOINTS]);
+    let probe = robot.link_poses(arm, &[0.5, -0.4, 0.3, -0.6, 0.7, -0.5, 0.4]);
+    let differ = |(a, b): &(&Isometry3<f64>, &Isometry3<f64>)| {
+        (a.translation.vector - b.translation.vector).norm() > 1e-9
+            || a.rotation.angle_to(&b.rotation) > 1e-9
+    };
+    (home.iter().zip(&probe).enumerate())
+        .filter(|(_, pair)| differ(pair))
+        .map(|(i, _)| i)
+        .collect()
 }
 
 /// Entity-path-safe link name.
@@ -70,10 +84,7 @@ pub(super) fn log_static_robot(
     warnings: &mut Vec<String>,
 ) -> Result<ArmScene> {
     w.send_static("/", &ViewCoordinates::RIGHT_HAND_Z_UP())?;
-    // Two different joint vectors: a link moves with the arm iff its pose changes between them
-    // (exact for the tree-structured FK; no joint happens to map both vectors to the same pose).
     let home = robot.link_poses(arm, &[0.0; N_JOINTS]);
-    let probe = robot.link_poses(arm, &[0.5, -0.4, 0.3, -0.6, 0.7, -0.5, 0.4]);
     let arm_links: Vec<usize> = arm
         .joints
         .iter()
@@ -81,16 +92,11 @@ pub(super) fn log_static_robot(
         .collect();
     let mut scene = ArmScene {
         paths: Vec::new(),
-        moving: Vec::new(),
+        moving: moving_links(robot, arm),
     };
     for (i, link) in robot.links().iter().enumerate() {
         let path = link_path(&link.name);
-        let moving = match (home.get(i), probe.get(i)) {
-            (Some(a), Some(b)) => poses_differ(a, b),
-            _ => false,
-        };
-        if moving {
-            scene.moving.push(i);
+        if scene.moving.contains(&i) {
             if arm_links.contains(&i) {
                 // The joint frame: short axes at the arm link's origin (its joint).
                 w.send_static(&path, &TransformAxes3D::new(0.06))?;

@@ -1,6 +1,6 @@
 //! Replaying a session file, the way `g1viz replay` does: the plain replay (the file read in
-//! batches) or the model replay (the streamed validation, then the file read again for the
-//! model's series; see [`super::model_stream`]) — memory bounded whatever the session's length
+//! batches) or the model replay (the streamed validation, then the file replayed and read again
+//! trial by trial for the model's series) — memory bounded whatever the session's length
 //! either way — the part of the session
 //! to log (`--from/--to` in session seconds, `--trials A-B`, `--max-rate` for the series), and
 //! the size estimate printed before anything is written.
@@ -9,17 +9,18 @@ use std::path::Path;
 
 use anyhow::{Context, Result, bail};
 
-use super::model_stream::{StreamedModel, planned};
-use super::replay::{ReplayOptions, ReplaySummary, replay_files_with};
+use super::replay::{
+    ModelSeries, ReplayOptions, ReplaySummary, replay_files_with, streamed_replay,
+};
 use super::slice::Slice;
 use super::{OutputKind, Sink, open_stream, recording_id_or_reason};
 use crate::identify::{IdentifyOptions, validate_file};
 use crate::power::PowerModel;
 use crate::read::OpenOptions;
 use crate::robot::RobotModel;
-use crate::session::SessionFile;
-use crate::signals::{Group, SignalMap};
-use crate::trial::Segmentation;
+use crate::session::{SessionFile, for_each_trial_with_batches};
+use crate::signals::{Group, Recording, SignalMap};
+use crate::trial::{Segmentation, TrialWindow};
 
 /// The part of the session to replay, as the user asks for it.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -219,13 +220,13 @@ pub fn replay_session(
 ) -> Result<ReplaySummary> {
     match r.model {
         Some((_, model)) => model_replay(r, model, notify),
-        None => streamed_replay(r, notify),
+        None => plain_replay(r, notify),
     }
 }
 
 /// With a model: the streamed validation gives the overlay (readings, trials, rejections) and
-/// the trials for `--trials`; the model's per-sample series are computed trial by trial while
-/// the file is read again (see [`super::model_stream`]).
+/// the trials for `--trials`; the file is then replayed, and read once more trial by trial for
+/// the model's series ([`super::ReplayLogger::log_model_trial`]), never held whole.
 fn model_replay(
     r: &SessionReplay<'_>,
     model: &PowerModel,
@@ -248,29 +249,36 @@ fn model_replay(
         slice,
         ..r.opts.clone()
     };
-    let plan = planned(&v);
-    let streamed = StreamedModel {
-        file: &file,
-        model,
-        plan: &plan,
-        opts: &opts,
-    };
-    let (stats, colour) = streamed.stats()?;
     let mut extras = super::overlay::validation_extras(&v, &r.fit, &r.map.joint_names);
     if !slice.is_all() {
         extras = slice.extras(&extras);
     }
-    extras.prediction = Some(Default::default());
-    extras.terms = Some(Default::default());
-    extras.sample_stats = Some(stats);
-    let links = moving_links(r.robot, &arm);
+    let plan = super::overlay::planned(&v);
+    let windows: Vec<TrialWindow> = plan.iter().map(|(t, _)| t.clone()).collect();
+    extras.model = Some(ModelSeries {
+        model: *model,
+        plan,
+    });
+    let links = super::robot3d::moving_links(r.robot, &arm).len();
     if let Some(e) = topic_estimate(r, &slice, links, true) {
         notify(Notice::Estimate(e));
     }
     let kind = OutputKind::ModelReplay;
     let id = recording_id_or_reason(r.session)?;
     let out = open_stream(&kind.app_id(), &kind.recording_id(&id), r.sink, r.inputs)?;
-    let summary = streamed.replay(r.robot, &arm, extras, colour, out.stream())?;
+    let (path, batch) = (r.session, opts.stream.batch_samples);
+    let summary = streamed_replay(r.robot, &arm, extras, &opts, out.stream(), &mut |sink| {
+        let rows = sink.chunk_rows();
+        crate::signals::stream_into(path, r.map, r.read, rows, sink)
+            .with_context(|| format!("replaying {}", path.display()))?;
+        let logger = sink
+            .logger
+            .as_mut()
+            .context("the recording delivered no samples")?;
+        let each = &mut |rec: &Recording, _: &TrialWindow| logger.log_model_trial(&rec.state);
+        for_each_trial_with_batches(&file, &windows, batch, &mut |_| {}, each)
+            .with_context(|| format!("reading {}", path.display()))
+    })?;
     out.finish()?;
     Ok(summary)
 }
@@ -287,7 +295,7 @@ fn session_file(r: &SessionReplay<'_>) -> SessionFile {
 
 /// Without a model: the file is streamed (memory does not grow with its length); `--trials`
 /// reads it once more first, in a streamed segmentation pass, to find the trials.
-fn streamed_replay(r: &SessionReplay<'_>, notify: &mut dyn FnMut(Notice)) -> Result<ReplaySummary> {
+fn plain_replay(r: &SessionReplay<'_>, notify: &mut dyn FnMut(Notice)) -> Result<ReplaySummary> {
     let arm = r.robot.arm(&r.map.joint_names)?;
     let slice = if r.window.trials.is_some() {
         // Only the trials are wanted of this pass: no joint states are kept for later ones.
@@ -301,7 +309,12 @@ fn streamed_replay(r: &SessionReplay<'_>, notify: &mut dyn FnMut(Notice)) -> Res
     } else {
         r.window.resolve(None, r.session)?
     };
-    if let Some(e) = topic_estimate(r, &slice, moving_links(r.robot, &arm), false) {
+    if let Some(e) = topic_estimate(
+        r,
+        &slice,
+        super::robot3d::moving_links(r.robot, &arm).len(),
+        false,
+    ) {
         notify(Notice::Estimate(e));
     }
     let kind = OutputKind::Replay;
@@ -369,14 +382,4 @@ fn topic_estimate(
         links,
         model,
     ))
-}
-
-/// Links whose pose depends on the arm joints (one pose row each per logged pose).
-fn moving_links(robot: &RobotModel, arm: &crate::robot::ArmJoints) -> usize {
-    let home = robot.link_poses(arm, &[0.0; crate::N_JOINTS]);
-    let probe = robot.link_poses(arm, &[0.5, -0.4, 0.3, -0.6, 0.7, -0.5, 0.4]);
-    home.iter()
-        .zip(&probe)
-        .filter(|(a, b)| (a.translation.vector - b.translation.vector).norm() > 1e-9)
-        .count()
 }

@@ -4,7 +4,7 @@
 
 use crate::signals::Recording;
 
-use super::replay::{ImuFilterMarks, PowerPrediction, ReadingPrediction, ReplayExtras, TermSeries};
+use super::replay::{ImuFilterMarks, ReadingPrediction, ReplayExtras, TermSeries};
 
 /// Which part of a session a replay logs.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -114,26 +114,23 @@ impl Slice {
         out
     }
 
-    /// What `extras` hold inside the window; per-sample series (instantaneous prediction, loss
-    /// terms) also rate-capped. Trials are kept when they overlap the window.
+    /// What `extras` hold inside the window (the model's per-sample series are sliced as they
+    /// are logged). Trials are kept when they overlap the window.
     pub fn extras(&self, e: &ReplayExtras) -> ReplayExtras {
         let all = Slice {
             max_rate_hz: None,
             ..*self
         };
         let ReplayExtras {
-            prediction,
+            model,
             readings,
             trajectories,
-            terms,
             trials,
             imu_filter,
             diagnosis,
-            sample_stats,
         } = e;
-        let keep = |t: &[f64]| self.keep(t, &mut Decimator::default());
         ReplayExtras {
-            prediction: prediction.as_ref().map(|p| p.pick(&keep(&p.t))),
+            model: model.clone(),
             readings: readings.as_ref().map(|r| {
                 let k = all.keep(&r.t, &mut Decimator::default());
                 ReadingPrediction {
@@ -150,7 +147,6 @@ impl Slice {
                 .filter(|p| self.contains(p.t))
                 .cloned()
                 .collect(),
-            terms: terms.as_ref().map(|t| t.pick(&keep(&t.t))),
             trials: trials
                 .iter()
                 .filter(|m| self.overlaps(m.t_start, m.t_end))
@@ -167,8 +163,6 @@ impl Slice {
             }),
             // Per reading, as `diagnose --save` streams it: left whole.
             diagnosis: diagnosis.clone(),
-            // Computed from the series as sliced (see `SampleStats`).
-            sample_stats: sample_stats.clone(),
         }
     }
 
@@ -183,19 +177,12 @@ fn pick<T: Clone>(v: &[T], k: &[usize]) -> Vec<T> {
     k.iter().filter_map(|&i| v.get(i).cloned()).collect()
 }
 
-impl PowerPrediction {
-    /// The samples at `k`.
-    pub(super) fn pick(&self, k: &[usize]) -> PowerPrediction {
-        let (t, predicted) = (pick(&self.t, k), pick(&self.predicted, k));
-        PowerPrediction { t, predicted }
-    }
-}
-
 impl TermSeries {
     /// The samples at `k`.
     pub(super) fn pick(&self, k: &[usize]) -> TermSeries {
         TermSeries {
             t: pick(&self.t, k),
+            predicted: pick(&self.predicted, k),
             per_joint: self.per_joint.each_ref().map(|f| pick(f, k)),
             interaction: pick(&self.interaction, k),
         }
