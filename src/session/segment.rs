@@ -286,6 +286,10 @@ pub(crate) fn segment_recording(
     })
 }
 
+/// A read of a session: hands each batch to the callback, returns the read's summary.
+type ReadBatches<'a> =
+    dyn FnMut(&mut dyn FnMut(&Recording) -> Result<()>) -> Result<StreamSummary> + 'a;
+
 /// The segmentation pass over the batches `read` hands its callback (returning the read's
 /// summary): the session of `source` with the arm's `joint_names`.
 fn pass(
@@ -293,7 +297,7 @@ fn pass(
     so: &StreamOptions,
     source: &Path,
     joint_names: &[String],
-    read: &mut dyn FnMut(&mut dyn FnMut(&Recording) -> Result<()>) -> Result<StreamSummary>,
+    read: &mut ReadBatches,
 ) -> Result<Pass1> {
     let mut ch = Chunker {
         opts,
