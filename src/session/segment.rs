@@ -236,49 +236,15 @@ pub(crate) fn segmentation_pass(
     Ok(p1)
 }
 
-/// Pass 1 over a recording in memory: the same pass, fed the recording in the batches a read of
-/// its file delivers (`batch_samples` joint states with the commands and readings up to the
-/// last of them).
+/// Pass 1 over a recording in memory: the same pass, fed the recording as one batch (as
+/// [`crate::signals::load_recording`] reads a file).
 pub(crate) fn segment_recording(
     rec: &Recording,
     opts: &SegmentOptions,
     so: &StreamOptions,
 ) -> Result<Pass1> {
     pass(opts, so, &rec.source, &rec.joint_names, &mut |on_batch| {
-        let s = &rec.state;
-        let (mut i, mut from) = (0, [0usize; 3]);
-        loop {
-            let j = (i + so.batch_samples.max(1)).min(s.t.len());
-            let last = j == s.t.len();
-            let upto = |t: &[f64], k: usize| match last {
-                true => t.len(),
-                false => k + t[k..].partition_point(|&x| x <= s.t[j - 1]),
-            };
-            let mut b = Recording {
-                start_ns: rec.start_ns,
-                ..Recording::default()
-            };
-            b.state.extend_range(s, i..j);
-            let (c, e) = (&rec.command, upto(&rec.command.t, from[0]));
-            let cut = |v: &[[f64; N_JOINTS]]| v[from[0].min(v.len())..e.min(v.len())].to_vec();
-            (b.command.t, b.command.q, b.command.dq) =
-                (c.t[from[0]..e].to_vec(), cut(&c.q), cut(&c.dq));
-            from[0] = e;
-            for (k, (to, p)) in [(&mut b.mbs, &rec.mbs), (&mut b.bms, &rec.bms)]
-                .into_iter()
-                .enumerate()
-            {
-                let e = upto(&p.t, from[k + 1]);
-                to.t.extend_from_slice(&p.t[from[k + 1]..e]);
-                to.watts.extend_from_slice(&p.watts[from[k + 1]..e]);
-                from[k + 1] = e;
-            }
-            on_batch(&b)?;
-            if last {
-                break;
-            }
-            i = j;
-        }
+        on_batch(rec)?;
         Ok(StreamSummary {
             start_ns: rec.start_ns,
             ..StreamSummary::default()
