@@ -136,16 +136,16 @@ fn deep_nesting_is_refused_instead_of_overflowing_the_stack() {
     ] {
         check(&dir, name, &["nested more than 64 levels deep"]);
     }
-    for name in [
-        "probe-db3-yaml-deep-sequence-stack-overflow-1.db3",
+    check(
+        &dir,
         "db3-struct-stack-overflow-1.db3",
-    ] {
-        check(&dir, name, &["metadata.yaml", "line "]);
-    }
+        &["metadata.yaml", "line "],
+    );
+    // Its deep block sequence sits in a field the metadata reader skips: the bag reads.
     check(
         &dir,
         "probe-db3-yaml-deep-sequence-stack-overflow-1.db3",
-        &["nested more than 64 levels deep"],
+        &["ros2-sqlite3"],
     );
     // The definitions alone, through the library: `ENCODING\nTYPE\nTEXT`.
     for name in [

@@ -1,6 +1,7 @@
 //! The streamed identification and validation (two passes over the file, memory bounded by the
-//! piece length) against the in-memory pipeline on the loaded recording: same trials, same
-//! sensor timing, same θ, including when the session is segmented in many short pieces.
+//! piece length) against the same pipeline over the loaded recording in memory (`identify()`,
+//! `validate()`: default pieces, samples from memory): same trials, same sensor timing, same θ,
+//! including when the file is segmented in many short pieces.
 
 mod common;
 
@@ -300,7 +301,7 @@ fn streamed_row_export_equals_in_memory() {
 
 /// The shared smoke recording as a ROS 1 bag and as a rosbag2 (sqlite) folder, written by other
 /// tools than this crate: identify and validate streamed in 15 s pieces (the readers' streamed
-/// path on both containers) equal the in-memory pipeline on the loaded recording.
+/// path on both containers) equal the pipeline over the loaded recording in memory.
 #[test]
 fn streamed_identify_and_validate_on_bag_and_db3() {
     let (Some(bag), Some(db3)) = (

@@ -133,8 +133,55 @@ fn prerelease_rosbag2_and_doubly_listed_files_are_refused_clearly() {
     )
     .unwrap();
     let err = open_err(&twice);
-    assert!(err.contains("metadata.yaml: line 3: unterminated"), "{err}");
+    assert!(err.contains("metadata.yaml: "), "{err}");
+    assert!(err.contains("quoted scalar at line 3"), "{err}");
     assert!(!err.contains("byte offset"), "{err}");
+}
+
+/// A metadata.yaml that is valid YAML but holds a field of the wrong type, or nests flow
+/// collections deeper than any writer does: the error names the file, the field and the line.
+#[test]
+fn malformed_metadata_fields_are_named_with_their_line() {
+    let tmp = tempfile::tempdir().unwrap();
+    let bag = tmp.path().join("bag");
+    std::fs::create_dir(&bag).unwrap();
+    std::fs::write(bag.join("bag.db3"), b"").unwrap();
+    let head = "rosbag2_bagfile_information:\n  storage_identifier: sqlite3\n";
+    for (body, needles) in [
+        (
+            "  version: five\n  relative_file_paths:\n  - bag.db3\n".to_string(),
+            &[
+                "rosbag2_bagfile_information.version: invalid type: string \"five\"",
+                "line 3",
+            ][..],
+        ),
+        (
+            "  version: 5\n  relative_file_paths:\n    a: bag.db3\n".to_string(),
+            &[
+                "rosbag2_bagfile_information.relative_file_paths: invalid type: map",
+                "line 5",
+            ],
+        ),
+        (
+            "  version: 12\n  relative_file_paths: [bag.db3]\n".to_string(),
+            &["metadata version 12 is not supported"],
+        ),
+        (
+            format!(
+                "  version: 5\n  custom_data: {}{}\n",
+                "[".repeat(65),
+                "]".repeat(65)
+            ),
+            &["nested more than 64 levels deep"],
+        ),
+    ] {
+        std::fs::write(bag.join("metadata.yaml"), format!("{head}{body}")).unwrap();
+        let err = open_err(&bag);
+        assert!(err.contains("bag/metadata.yaml: "), "{err}");
+        for n in needles {
+            assert!(err.contains(n), "{body}: {err}");
+        }
+    }
 }
 
 #[test]

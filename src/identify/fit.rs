@@ -28,23 +28,11 @@ pub fn kappa(rows: &[Row]) -> f64 {
     gram(rows).condition_number()
 }
 
-/// The paper's constrained fit (a ≥ 1, the rest ≥ 0) of any number of rows, and κ(ΦᵀΦ)
-/// ([`kappa`]) from the same normal equations. Large row sets are fitted from those
-/// ([`fit_normal`]; only the degenerate sample-row comparison and very long sessions are that
-/// large).
+/// The paper's constrained fit (a ≥ 1, the rest ≥ 0) of any number of rows, from their normal
+/// equations ([`fit_normal`]), and κ(ΦᵀΦ) ([`kappa`]) from the same.
 pub(crate) fn fit_rows(rows: &[Row]) -> Result<(lsq::Fit, f64)> {
-    const COMPRESS_ABOVE: usize = 20_000;
     let normal = gram(rows);
-    let kappa = normal.condition_number();
-    if rows.len() <= COMPRESS_ABOVE {
-        let phi: Vec<[f64; N_PARAMS]> = rows.iter().map(|r| r.phi).collect();
-        let y: Vec<f64> = rows.iter().map(|r| r.y).collect();
-        return Ok((
-            lsq::fit_constrained(&phi, &y, &lsq::paper_lower_bounds())?,
-            kappa,
-        ));
-    }
-    Ok((fit_normal(&normal)?, kappa))
+    Ok((fit_normal(&normal)?, normal.condition_number()))
 }
 
 /// The paper's constrained fit from the normal equations of the rows ([`lsq::fit_gram`]: the

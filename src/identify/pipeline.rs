@@ -7,7 +7,7 @@
 //! and sample pairings are also fitted on the same retained trials, with κ(ΦᵀΦ) and R² of each,
 //! reproducing the paper's case for aggregation.
 
-use std::borrow::Cow;
+use std::cell::RefCell;
 use std::collections::HashSet;
 use std::path::{Path, PathBuf};
 
@@ -163,16 +163,8 @@ pub struct Identification {
     pub per_session: Vec<SessionBreakdown>,
 }
 
-/// Where a session's samples come from.
-pub(crate) enum Input<'a> {
-    /// A recording in memory.
-    Memory(&'a Recording),
-    /// A file: its segmentation pass, then its trials from the spill ([`crate::session`]).
-    File(SessionFile),
-}
-
-/// One session segmented: its trials, σ_ω of each, the joint states the sensor-timing search
-/// reads, and where its rows are built from.
+/// One session segmented by the segmentation pass ([`crate::session`]): its trials, σ_ω of each,
+/// the joint states the sensor-timing search reads, and the source of each trial's samples.
 pub(crate) struct Prepared<'a> {
     pub source: PathBuf,
     pub seg: Segmentation,
@@ -182,38 +174,39 @@ pub(crate) struct Prepared<'a> {
     pub has_state: bool,
     /// Winding temperatures of the first joint-state sample.
     pub first_temp_c: Option<[f64; N_JOINTS]>,
-    /// Problems met while reading (streamed input only; a recording carries its own).
+    /// Problems met while reading a file.
     pub warnings: Vec<String>,
-    /// Joint states (and the power series) of `subset_trials` at least.
-    pub subset: Cow<'a, Recording>,
-    /// The trials the timing search may use (every trial in memory; a bounded set streamed).
+    /// Joint states (and the power series) of `subset_trials`.
+    pub subset: Recording,
+    /// The trials the segmentation pass held for the timing search (every n-th).
     pub subset_trials: Vec<TrialWindow>,
-    pub input: Input<'a>,
+    /// Each trial's samples: the file (its spill, else a ranged read) or the recording in memory.
+    trials: RefCell<Box<dyn TrialSource + 'a>>,
 }
 
 impl<'a> Prepared<'a> {
-    /// Segment a recording in memory.
-    pub(crate) fn from_memory(rec: &'a Recording, opts: &SegmentOptions) -> Prepared<'a> {
-        let seg = trial::segment(rec, opts);
-        let sigmas = seg
-            .trials
-            .iter()
-            .map(|t| {
-                let (a, b) = t.analysis_window();
-                trial::sigma_omega(rec, a, b)
-            })
-            .collect();
+    fn new(p1: session::Pass1, trials: Box<dyn TrialSource + 'a>) -> Prepared<'a> {
         Prepared {
-            source: rec.source.clone(),
-            subset_trials: seg.trials.clone(),
-            seg,
-            sigmas,
-            has_state: !rec.state.t.is_empty(),
-            first_temp_c: rec.state.temp.first().copied(),
-            warnings: Vec::new(),
-            subset: Cow::Borrowed(rec),
-            input: Input::Memory(rec),
+            source: p1.source,
+            seg: p1.seg,
+            sigmas: p1.sigmas,
+            has_state: p1.has_state,
+            first_temp_c: p1.first_temp_c,
+            warnings: p1.warnings,
+            subset: p1.held,
+            subset_trials: p1.held_trials,
+            trials: RefCell::new(trials),
         }
+    }
+
+    /// Segment a recording in memory (the segmentation pass fed its batches).
+    pub(crate) fn from_recording(
+        rec: &'a Recording,
+        opts: &SegmentOptions,
+        so: StreamOptions,
+    ) -> Result<Prepared<'a>> {
+        let p1 = session::segment_recording(rec, opts, &so)?;
+        Ok(Prepared::new(p1, Box::new(Memory(rec))))
     }
 
     /// Segment a file in one streamed pass.
@@ -224,17 +217,8 @@ impl<'a> Prepared<'a> {
     ) -> Result<Prepared<'static>> {
         let p1 = session::segmentation_pass(&file, opts, &so)
             .with_context(|| format!("reading {}", file.path.display()))?;
-        Ok(Prepared {
-            source: p1.source,
-            seg: p1.seg,
-            sigmas: p1.sigmas,
-            has_state: true,
-            first_temp_c: p1.first_temp_c,
-            warnings: p1.warnings,
-            subset: Cow::Owned(p1.held),
-            subset_trials: p1.held_trials,
-            input: Input::File(file),
-        })
+        let clock = session::clock_of(&p1.held);
+        Ok(Prepared::new(p1, Box::new(FileTrials { file, clock })))
     }
 
     /// The planned rows of this session (a second streamed pass for a file).
@@ -248,57 +232,24 @@ impl<'a> Prepared<'a> {
     }
 
     /// Call `on_trial` for each of `trials` (in time order) with a recording holding at least
-    /// that trial's window and the power series, from the session's [`TrialSource`]: the whole
-    /// recording in memory, or the file's spill holding about one trial at a time (`what` names
-    /// the pass in an error).
+    /// that trial's window and the power series, from the session's [`TrialSource`] (`what`
+    /// names the pass in an error).
     fn for_each_trial(
         &self,
         trials: &[TrialWindow],
         what: &str,
         on_trial: &mut dyn FnMut(&Recording, &TrialWindow) -> Result<()>,
     ) -> Result<()> {
-        let mut source: Box<dyn TrialSource + '_> = match &self.input {
-            Input::Memory(rec) => Box::new(Memory(rec)),
-            Input::File(file) => Box::new(FileTrials {
-                file,
-                clock: &self.subset,
-            }),
-        };
-        source
+        self.trials
+            .borrow_mut()
             .for_each(trials, on_trial)
             .with_context(|| format!("{} ({what})", self.source.display()))
-    }
-
-    /// Sample rows of the `retained` trials thinned by `stride` (in memory: built now, exactly;
-    /// streamed: those pass 2 kept, thinned by the stride planned from the IMU-kept trials).
-    fn sample_rows(
-        &self,
-        sets: &SessionSets,
-        retained: &[TrialWindow],
-        stride: usize,
-        dopts: &DatasetOptions,
-    ) -> Vec<Row> {
-        match &self.input {
-            Input::Memory(rec) => {
-                let mut rows = Vec::new();
-                for trial in retained {
-                    rows.extend(dataset::sample_rows_thinned(rec, trial, dopts, stride));
-                }
-                rows
-            }
-            Input::File(..) => {
-                let keep: HashSet<usize> = retained.iter().map(|t| t.index).collect();
-                sample::of_trials(&sets.sample_thin, &keep, |r| r.trial)
-            }
-        }
     }
 
     /// After the timing search: a streamed session keeps only the power series and the clock of
     /// its held joint states.
     pub(crate) fn release_subset(&mut self) {
-        if let Cow::Owned(held) = &mut self.subset {
-            held.state = Default::default();
-        }
+        self.subset.state = Default::default();
     }
 
     pub(crate) fn no_usable_trials(&self, skipped: &[Skipped]) -> anyhow::Error {
@@ -401,10 +352,9 @@ fn trials_kept(sessions: &[Prepared], rejections: &[Rejection]) -> Vec<Vec<Trial
 
 /// Stage 3: the power sensor's window and lag, given or estimated from at most
 /// [`IdentifyOptions::search_trials`] trials: every s-th trial of each session
-/// ([`search_stride`]) that the IMU filter keeps. A streamed session's first pass holds those
-/// trials' samples; if it could not ([`StreamOptions::hold_trials`] below the search's cap),
-/// they are read in one more streamed pass ([`session::hold_pass`]). Either way the estimate
-/// equals the in-memory one.
+/// ([`search_stride`]) that the IMU filter keeps. The segmentation pass holds those trials'
+/// samples; if it could not ([`StreamOptions::hold_trials`] below the search's cap), they are
+/// read in one more pass over the trial source ([`session::hold_pass`]).
 pub(crate) fn resolve_alignment(
     sessions: &[Prepared],
     kept: &[Vec<TrialWindow>],
@@ -427,20 +377,21 @@ pub(crate) fn resolve_alignment(
             let mut loaded: Vec<Option<Recording>> = Vec::new();
             for (p, t) in sessions.iter().zip(&thinned) {
                 let held: HashSet<usize> = p.subset_trials.iter().map(|t| t.index).collect();
-                loaded.push(match &p.input {
-                    Input::File(file) if !t.iter().all(|t| held.contains(&t.index)) => {
-                        Some(session::hold_pass(file, &p.subset, t).with_context(|| {
-                            format!("reading {} (timing search)", file.path.display())
-                        })?)
-                    }
-                    _ => None,
+                loaded.push(match t.iter().all(|t| held.contains(&t.index)) {
+                    true => None,
+                    false => Some(
+                        session::hold_pass(&mut **p.trials.borrow_mut(), &p.subset, t)
+                            .with_context(|| {
+                                format!("reading {} (timing search)", p.source.display())
+                            })?,
+                    ),
                 });
             }
             let pairs: Vec<(&Recording, &[TrialWindow])> = sessions
                 .iter()
                 .zip(&thinned)
                 .zip(&loaded)
-                .map(|((p, t), l)| (l.as_ref().unwrap_or(p.subset.as_ref()), t.as_slice()))
+                .map(|((p, t), l)| (l.as_ref().unwrap_or(&p.subset), t.as_slice()))
                 .collect();
             let est = dataset::estimate_alignment(&pairs, opts.target)?;
             Ok((est.best, Some(est)))
@@ -481,9 +432,9 @@ fn session_rows(
                 target: opts.target,
                 alignment,
                 trials: &p.seg.trials,
-                // The sample pairing's comparison (streamed: thinned now; in memory: built when
-                // compared); a per-sample fit scores its own rows instead.
-                sample_trials: if matches!(p.input, Input::File(..)) && opts.mode != Mode::Sample {
+                // The sample pairing's comparison, thinned now; a per-sample fit scores its own
+                // rows instead.
+                sample_trials: if opts.mode != Mode::Sample {
                     &kept_idx
                 } else {
                     &[]
@@ -710,27 +661,23 @@ fn final_scores(
 /// own constrained fit (the options' pairing reuses the final fit and its `scores`, κ and
 /// quality). Also returns the trial rows.
 fn compare_pairings(
-    sessions: &[Prepared],
     rows: &[SessionSets],
     retained: &[Vec<TrialWindow>],
     opts: &IdentifyOptions,
-    alignment: Alignment,
     final_fit: &FinalFit,
     scores: (f64, Metrics),
 ) -> Result<(Vec<ModeFit>, Vec<Row>)> {
-    let stride = sample_stride(retained);
     let mode_rows = |mode: Mode| -> Vec<Row> {
-        let dopts = DatasetOptions {
-            mode,
-            target: opts.target,
-            alignment,
-        };
         let mut out = Vec::new();
-        for ((p, r), ts) in sessions.iter().zip(rows).zip(retained) {
+        for (r, ts) in rows.iter().zip(retained) {
             match mode {
                 Mode::Trial => out.extend(restrict(&r.trial, ts).rows),
                 Mode::Reading => out.extend(restrict(&r.reading, ts).rows),
-                Mode::Sample => out.extend(p.sample_rows(r, ts, stride, &dopts)),
+                // Those the rows pass kept, thinned by the stride planned from the IMU-kept trials.
+                Mode::Sample => {
+                    let keep: HashSet<usize> = ts.iter().map(|t| t.index).collect();
+                    out.extend(sample::of_trials(&r.sample_thin, &keep, |r| r.trial))
+                }
             }
         }
         out
@@ -792,14 +739,13 @@ pub fn identify(recs: &[Recording], opts: &IdentifyOptions) -> Result<Identifica
     }
     let sessions = recs
         .iter()
-        .map(|r| Prepared::from_memory(r, &opts.segment))
-        .collect();
+        .map(|r| Prepared::from_recording(r, &opts.segment, StreamOptions::default()))
+        .collect::<Result<Vec<_>>>()?;
     identify_prepared(sessions, opts)
 }
 
 /// Identify the power model from one or more session files, reading each in two streamed passes
-/// (memory bounded whatever the sessions' length). The trials and θ equal those of [`identify`]
-/// on the loaded recordings when every session has a command stream.
+/// (memory bounded whatever the sessions' length): [`identify`] over the files.
 pub fn identify_files(
     files: &[SessionFile],
     opts: &IdentifyOptions,
@@ -835,9 +781,7 @@ fn identify_prepared(sessions: Vec<Prepared>, opts: &IdentifyOptions) -> Result<
         opts,
         alignment,
     )?;
-    let (modes, trial_rows) = compare_pairings(
-        &sessions, &rows, &retained, opts, alignment, &final_fit, scores,
-    )?;
+    let (modes, trial_rows) = compare_pairings(&rows, &retained, opts, &final_fit, scores)?;
     let per_trial = per_trial_table(&sessions, &rows, &final_fit.theta, &rejections);
 
     let per_session = session_breakdown(&sessions, &rows, &retained, &rejections, &final_fit.theta);

@@ -59,7 +59,11 @@ pub struct Validation {
 /// Apply `model` to a hold-out session in memory. No filter removes trials (the paper's hold-out
 /// set is unfiltered); the filters are evaluated and reported separately.
 pub fn validate(model: &PowerModel, rec: &Recording, opts: &IdentifyOptions) -> Result<Validation> {
-    validate_prepared(model, Prepared::from_memory(rec, &opts.segment), opts)
+    validate_prepared(
+        model,
+        Prepared::from_recording(rec, &opts.segment, StreamOptions::default())?,
+        opts,
+    )
 }
 
 /// [`validate`] on a session file read in two streamed passes (memory bounded whatever the

@@ -22,7 +22,6 @@ mod mcap_records;
 pub(crate) mod msgdef;
 pub(crate) mod session;
 mod shared;
-mod yaml;
 
 pub use bag1::Ros1BagSource;
 pub use db3::Ros2BagSource;

@@ -52,8 +52,8 @@ impl TrialSource for Joined {
                 .collect();
             let mut k = 0usize;
             let mut source = FileTrials {
-                file: &part.file,
-                clock: &part.clock,
+                file: part.file.clone(),
+                clock: part.clock.clone(),
             };
             source.for_each(&local, &mut |buf, _| {
                 let g = mine[k];

@@ -26,7 +26,7 @@ use crate::trial::TrialWindow;
 
 pub(crate) use joined::{Joined, JoinedPart, global, shift};
 pub use segment::segment_file;
-pub(crate) use segment::segmentation_pass;
+pub(crate) use segment::{Pass1, segment_recording, segmentation_pass};
 pub use walk::for_each_trial_with_batches;
 pub(crate) use walk::hold_pass;
 
@@ -109,6 +109,18 @@ pub(crate) trait TrialSource {
     ) -> Result<()>;
 }
 
+/// `rec` without its joint states and commands: its clock, joint names and power series.
+pub(crate) fn clock_of(rec: &Recording) -> Recording {
+    Recording {
+        source: rec.source.clone(),
+        start_ns: rec.start_ns,
+        joint_names: rec.joint_names.clone(),
+        mbs: rec.mbs.clone(),
+        bms: rec.bms.clone(),
+        ..Recording::default()
+    }
+}
+
 /// A whole recording in memory: every trial sees all of it.
 pub(crate) struct Memory<'a>(pub &'a Recording);
 
@@ -125,20 +137,20 @@ impl TrialSource for Memory<'_> {
 /// One session file read trial by trial: from its spill when the segmentation pass made one on
 /// this clock, else by a read of the file limited to the trials' windows (an indexed MCAP skips
 /// the chunks between them). Holds about one trial's samples at a time.
-pub(crate) struct FileTrials<'a> {
-    pub file: &'a SessionFile,
+pub(crate) struct FileTrials {
+    pub file: SessionFile,
     /// The clock (`start_ns`, that of the segmentation pass) and the power series every trial's
     /// recording carries (empty when the caller needs joint states only).
-    pub clock: &'a Recording,
+    pub clock: Recording,
 }
 
-impl TrialSource for FileTrials<'_> {
+impl TrialSource for FileTrials {
     fn for_each(
         &mut self,
         trials: &[TrialWindow],
         f: &mut dyn FnMut(&Recording, &TrialWindow) -> Result<()>,
     ) -> Result<()> {
-        walk::trial_windows(self.file, self.clock, trials, f)
+        walk::trial_windows(&self.file, &self.clock, trials, f)
             .with_context(|| format!("reading {}", self.file.path.display()))
     }
 }

@@ -12,7 +12,7 @@
 //! Only with `hold_trials` below the search's cap are the search's trials read in an extra
 //! streamed pass ([`super::hold_pass`]).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 
@@ -20,7 +20,7 @@ use anyhow::Result;
 use super::search_stride;
 use super::{MARGIN_S, SessionFile, StreamOptions};
 use crate::N_JOINTS;
-use crate::signals::{PowerSeries, Recording, SpillWriter, StateSeries, stream_recording};
+use crate::signals::{Recording, SpillWriter, StateSeries, StreamSummary, stream_recording};
 use crate::trial::{self, SegmentOptions, Segmentation, TrialWindow};
 
 /// What the segmentation pass found.
@@ -34,6 +34,8 @@ pub(crate) struct Pass1 {
     pub held_trials: Vec<TrialWindow>,
     /// Winding temperatures of the first joint-state sample.
     pub first_temp_c: Option<[f64; N_JOINTS]>,
+    /// The session has joint-state samples.
+    pub has_state: bool,
     pub warnings: Vec<String>,
 }
 
@@ -191,11 +193,77 @@ impl Chunker<'_> {
     }
 }
 
-/// Pass 1: segment `file` piece by piece, σ_ω per trial, the held samples and the power series.
+/// Pass 1 over a session file: segment it piece by piece, σ_ω per trial, the held samples and
+/// the power series, spilling its joint states ([`StreamOptions::spill_states`]).
 pub(crate) fn segmentation_pass(
     file: &SessionFile,
     opts: &SegmentOptions,
     so: &StreamOptions,
+) -> Result<Pass1> {
+    let mut spill = if so.spill_states && file.spill.get().is_none() {
+        // Without a temporary file the later passes read the recording again.
+        SpillWriter::new().ok()
+    } else {
+        None
+    };
+    let p1 = pass(
+        opts,
+        so,
+        &file.path,
+        &file.map.joint_names,
+        &mut |on_batch| {
+            stream_recording(
+                &file.path,
+                &file.map,
+                &file.read,
+                so.batch_samples,
+                &mut |batch| {
+                    // A full disk drops the spill, not the read: the later passes read the file.
+                    if let Some(w) = &mut spill
+                        && w.push(&batch.state).is_err()
+                    {
+                        spill = None;
+                    }
+                    on_batch(batch)
+                },
+            )
+        },
+    )?;
+    if let Some(mut s) = spill.and_then(|w| w.finish(p1.held.start_ns).ok()) {
+        s.power = Some([p1.held.mbs.clone(), p1.held.bms.clone()]);
+        file.spill.fill(s);
+    }
+    Ok(p1)
+}
+
+/// Pass 1 over a recording in memory: the same pass, fed the recording as one batch (as
+/// [`crate::signals::load_recording`] reads a file).
+pub(crate) fn segment_recording(
+    rec: &Recording,
+    opts: &SegmentOptions,
+    so: &StreamOptions,
+) -> Result<Pass1> {
+    pass(opts, so, &rec.source, &rec.joint_names, &mut |on_batch| {
+        on_batch(rec)?;
+        Ok(StreamSummary {
+            start_ns: rec.start_ns,
+            ..StreamSummary::default()
+        })
+    })
+}
+
+/// A read of a session: hands each batch to the callback, returns the read's summary.
+type ReadBatches<'a> =
+    dyn FnMut(&mut dyn FnMut(&Recording) -> Result<()>) -> Result<StreamSummary> + 'a;
+
+/// The segmentation pass over the batches `read` hands its callback (returning the read's
+/// summary): the session of `source` with the arm's `joint_names`.
+fn pass(
+    opts: &SegmentOptions,
+    so: &StreamOptions,
+    source: &Path,
+    joint_names: &[String],
+    read: &mut ReadBatches,
 ) -> Result<Pass1> {
     let mut ch = Chunker {
         opts,
@@ -207,61 +275,40 @@ pub(crate) fn segmentation_pass(
         sigmas: Vec::new(),
         hold: Holder::new(so.hold_trials),
     };
-    let mut mbs = PowerSeries::default();
-    let mut bms = PowerSeries::default();
-    let mut first_temp_c = None;
-    let mut spill = if so.spill_states && file.spill.get().is_none() {
-        // Without a temporary file the later passes read the recording again.
-        SpillWriter::new().ok()
-    } else {
-        None
+    let mut held = Recording {
+        source: source.to_path_buf(),
+        joint_names: joint_names.to_vec(),
+        ..Recording::default()
     };
-    let summary = stream_recording(
-        &file.path,
-        &file.map,
-        &file.read,
-        so.batch_samples,
-        &mut |batch| {
-            // A full disk drops the spill, not the read: the later passes read the file.
-            if let Some(w) = &mut spill
-                && w.push(&batch.state).is_err()
-            {
-                spill = None;
-            }
-            if first_temp_c.is_none() {
-                first_temp_c = batch.state.temp.first().copied();
-            }
-            mbs.t.extend_from_slice(&batch.mbs.t);
-            mbs.watts.extend_from_slice(&batch.mbs.watts);
-            bms.t.extend_from_slice(&batch.bms.t);
-            bms.watts.extend_from_slice(&batch.bms.watts);
-            ch.push(batch);
-            if ch.span() >= ch.chunk_s {
-                ch.process(false);
-            }
-            Ok(())
-        },
-    )?;
+    let (mut first_temp_c, mut has_state) = (None, false);
+    let summary = read(&mut |batch| {
+        if first_temp_c.is_none() {
+            first_temp_c = batch.state.temp.first().copied();
+        }
+        has_state |= !batch.state.t.is_empty();
+        for (to, from) in [(&mut held.mbs, &batch.mbs), (&mut held.bms, &batch.bms)] {
+            to.t.extend_from_slice(&from.t);
+            to.watts.extend_from_slice(&from.watts);
+        }
+        ch.push(batch);
+        if ch.span() >= ch.chunk_s {
+            ch.process(false);
+        }
+        Ok(())
+    })?;
     ch.process(true);
-    mbs.sort_by_time();
-    bms.sort_by_time();
-    if let Some(mut s) = spill.and_then(|w| w.finish(summary.start_ns).ok()) {
-        s.power = Some([mbs.clone(), bms.clone()]);
-        file.spill.fill(s);
-    }
-    let mut held = ch.hold.rec;
-    held.source = file.path.clone();
+    held.mbs.sort_by_time();
+    held.bms.sort_by_time();
     held.start_ns = summary.start_ns;
-    held.joint_names = file.map.joint_names.clone();
-    held.mbs = mbs;
-    held.bms = bms;
+    held.state = ch.hold.rec.state;
     Ok(Pass1 {
-        source: file.path.clone(),
+        source: source.to_path_buf(),
         seg: ch.seg,
         sigmas: ch.sigmas,
         held,
         held_trials: ch.hold.trials,
         first_temp_c,
+        has_state,
         warnings: summary.warnings,
     })
 }

@@ -7,7 +7,7 @@
 use anyhow::Result;
 
 use super::segment::copy_window;
-use super::{MARGIN_S, SessionFile};
+use super::{MARGIN_S, SessionFile, TrialSource};
 use crate::signals::{Recording, StateSeries, stream_recording};
 use crate::trial::TrialWindow;
 
@@ -113,15 +113,15 @@ pub(super) fn trial_windows(
 }
 
 /// The joint states (t, τ, q̇) of `trials`' windows (in time order), read in one walk over
-/// `file`, with the clock and power series of `power` (those of the segmentation pass): the
+/// `source`, with the clock and power series of `power` (those of the segmentation pass): the
 /// sensor-timing search's trials when the segmentation pass could not hold every trial.
 pub(crate) fn hold_pass(
-    file: &SessionFile,
+    source: &mut dyn TrialSource,
     power: &Recording,
     trials: &[TrialWindow],
 ) -> Result<Recording> {
-    let mut held = on_clock(file, power);
-    trial_windows(file, power, trials, &mut |buf, t| {
+    let mut held = super::clock_of(power);
+    source.for_each(trials, &mut |buf, t| {
         copy_window(&mut held.state, &buf.state, t);
         Ok(())
     })?;
