@@ -69,6 +69,8 @@ impl Holm {
 pub(crate) trait Stage {
     /// A scored candidate.
     type Scored: Gated;
+    /// Called before `step`'s candidates are scored (discovery's family tests run here).
+    fn begin(&mut self, _step: usize) {}
     /// Candidate `i` scored on the current model at `step` (`None`: closed, or no fit).
     fn score(&self, i: usize, step: usize) -> Option<Self::Scored>;
     /// Whether `s`, candidate `i`, passes the gates at `step`'s Holm level.
@@ -91,6 +93,7 @@ pub(crate) trait Stage {
 /// compares the forms of each mechanism; backward elimination is [`super::parsimony`]'s rule.)
 pub(crate) fn forward(stage: &mut impl Stage, n: usize, max_steps: usize) {
     for k in 1..=max_steps {
+        stage.begin(k);
         let mut passing = Vec::new();
         let mut failed: Option<_> = None;
         for i in 0..n {
