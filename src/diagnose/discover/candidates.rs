@@ -7,7 +7,6 @@ use crate::diagnose::family::{Shape, Term};
 use crate::diagnose::fields::FieldTable;
 use crate::diagnose::reading_rows::Rows;
 use crate::diagnose::stats::{pearson, span, step_threshold};
-use crate::diagnose::stepwise::Holm;
 
 /// Correlation with the readings above which a field counts as a meter of the power itself.
 pub(super) const METER_CORRELATION: f64 = 0.5;
@@ -221,7 +220,7 @@ pub(super) fn signal_values(s: &Signal, rv: &RowValues) -> Vec<f64> {
 
 /// Generate every candidate, fields that meter the power itself left out (noted), and keep
 /// those [`crate::diagnose::family::screen`] passes on the current model's residual `resid`; the
-/// weighted Holm correction over all generated, and each family's total weight, returned last.
+/// number generated and each family's total weight ([`super::candidates::family_of`]) returned last.
 pub(super) fn generate(
     inp: &Inputs,
     rows: &Rows,
@@ -229,7 +228,7 @@ pub(super) fn generate(
     twin: bool,
     resid: &[f64],
     notes: &mut Vec<String>,
-) -> (Vec<Cand>, RowValues, Vec<bool>, Holm, Vec<f64>) {
+) -> (Vec<Cand>, RowValues, Vec<bool>, usize, Vec<f64>) {
     let names = &inp.fields.names;
     let rv = RowValues::new(inp, rows);
     let mut meters = Vec::new();
@@ -325,12 +324,6 @@ pub(super) fn generate(
     let weights = crate::diagnose::family::weights(&is_screened);
     let keep =
         crate::diagnose::family::screen(&family, &|i| columns(&kinds[i].0, inp, &rv, rows), resid);
-    let w_min = weights.iter().copied().fold(1.0, f64::min);
-    let holm = Holm {
-        m,
-        total: weights.iter().sum(),
-        w_min,
-    };
     let mut fam_total = vec![0.0; LOADS + 1];
     for (k, w) in kinds.iter().zip(&weights) {
         fam_total[family_of(&k.0)] += w;
@@ -345,7 +338,7 @@ pub(super) fn generate(
         })
         .collect();
     let tried: Vec<bool> = (0..names.len()).map(|f| usable[f] && single[f]).collect();
-    (cands, rv, tried, holm, fam_total)
+    (cands, rv, tried, m, fam_total)
 }
 
 pub(super) fn signal_name(s: &Signal, names: &[String]) -> String {

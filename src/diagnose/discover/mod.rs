@@ -17,8 +17,9 @@
 //! - against a held base model, each base loss term per joint (one coefficient per joint) and
 //!   pooled (one coefficient): a friction or efficiency the twin has wrong.
 //!
-//! Selection: forward (best held-out improvement that passes every gate at the Holm-corrected
-//! level α/(m − j), m = candidates tried), never more terms than one per 20 trials; whether each
+//! Selection: forward (best held-out improvement that passes every gate at its family-first
+//! level, [`Search::member_level`]: Holm over the mechanism families, each loss term's block
+//! test opening its family), never more terms than one per 20 trials; whether each
 //! is claimed beside the others is [`super::parsimony`]'s rule. A chosen term's
 //! rivals at its step — candidates on other fields it does not fit significantly better than,
 //! of the same structure or with a collinear contribution ([`tie_of`]) — are named with it as
@@ -82,7 +83,7 @@ pub(crate) fn discover(
     };
     let (search, usable) = Search::new(data, cur, inp, rule, &mut report.notes)?;
     report.rest = rest_power_of(inp, usable, rule);
-    report.n_candidates = search.holm.m;
+    report.n_candidates = search.m;
     report.fields_used = (0..inp.fields.names.len())
         .filter(|&f| !inp.fields.duplicate.get(f).copied().unwrap_or(false))
         .count();
@@ -399,7 +400,7 @@ fn finish(
             s.p,
             level,
             search.n_families(),
-            search.holm.m,
+            search.m,
             s.d_bic
         );
         let mut d = to_discovery(s, search, joint_names, level, step, verdict);

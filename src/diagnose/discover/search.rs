@@ -1,5 +1,5 @@
 //! The search over the candidates: each scored on top of the chosen terms with the gates of
-//! the hypotheses at its weighted Holm level, and a scored candidate turned into a
+//! the hypotheses at its family-first level, and a scored candidate turned into a
 //! [`Discovery`].
 
 use anyhow::Result;
@@ -15,7 +15,7 @@ use crate::diagnose::Quality;
 use crate::diagnose::family::Term;
 use crate::diagnose::flexible::{arm_drives, drives, knots, shape_cols, unit_rms};
 use crate::diagnose::select::{self, PowerData, Rule, State, jackknife_se};
-use crate::diagnose::stepwise::{self, Gated, Holm, not_significant};
+use crate::diagnose::stepwise::{self, Gated, holm_level, not_significant};
 
 /// A scored candidate.
 pub(super) struct Scored {
@@ -43,7 +43,8 @@ pub(super) struct Search<'a, 'd> {
     pub(super) rv: RowValues,
     pub(super) inp: &'a Inputs<'a>,
     pub(super) rule: Rule,
-    pub(super) holm: Holm,
+    /// Candidates generated (screened out or not).
+    pub(super) m: usize,
     /// Total Holm weight of each mechanism family's generated candidates ([`super::candidates::family_of`]).
     pub(super) fam_total: Vec<f64>,
 }
@@ -68,7 +69,7 @@ impl<'a, 'd> Search<'a, 'd> {
             .map(|(y, p)| y - p)
             .collect();
         let twin = data.reference.is_some();
-        let (cands, rv, usable, holm, fam_total) =
+        let (cands, rv, usable, m, fam_total) =
             generate(inp, rows, data.n_trials, twin, &resid, notes);
         let search = Search {
             base,
@@ -76,7 +77,7 @@ impl<'a, 'd> Search<'a, 'd> {
             rv,
             inp,
             rule: *rule,
-            holm,
+            m,
             fam_total,
         };
         Ok((search, usable))
@@ -92,10 +93,10 @@ impl<'a, 'd> Search<'a, 'd> {
         columns(&self.cands[i].kind, self.inp, &self.rv, self.base.rows)
     }
 
-    /// The weighted Holm level of a candidate of weight 1 at `step` (a candidate's own level is
-    /// this times its weight).
-    pub(super) fn level(&self, step: usize) -> f64 {
-        self.holm.level(self.rule.alpha, step)
+    /// Candidate `i`'s level in one weighted Bonferroni over every candidate generated (the
+    /// library rivals' test, [`super::rival_of`]).
+    pub(super) fn flat_level(&self, i: usize) -> f64 {
+        self.rule.alpha * self.cands[i].weight / self.fam_total.iter().sum::<f64>()
     }
 
     /// Mechanism families with candidates: what the family-first Holm runs over.
@@ -105,7 +106,7 @@ impl<'a, 'd> Search<'a, 'd> {
 
     /// Holm over the families: the level of the best remaining family at `step`.
     pub(super) fn family_level(&self, step: usize) -> f64 {
-        Holm::equal(self.n_families()).level(self.rule.alpha, step)
+        holm_level(self.rule.alpha, self.n_families(), step)
     }
 
     /// Candidate `i`'s level at `step`, family first. A loss-term family has two tests at half
