@@ -12,7 +12,7 @@ use super::select::{Param, RIVAL_ALPHA, Rule, jackknife_se};
 use super::stats::{
     STABILITY_DRAWS, improvement_p_value, resampled_stability, span, step_threshold,
 };
-use super::stepwise::{self, Gated, Holm, not_significant};
+use super::stepwise::{self, Gated, holm_level, not_significant};
 use crate::lsq::Gram;
 
 /// Most trials per block of the held-out test (≈ 4–5 minutes of the protocol); a shorter session
@@ -211,15 +211,7 @@ impl Search<'_> {
     }
 
     fn rmse(&self, pred: &[f64]) -> f64 {
-        let n = self.y.len().max(1) as f64;
-        (self
-            .y
-            .iter()
-            .zip(pred)
-            .map(|(y, p)| (y - p).powi(2))
-            .sum::<f64>()
-            / n)
-            .sqrt()
+        super::select::r2_rmse(&self.y, pred).1
     }
 
     fn score(&self, i: usize, chosen: &[usize], cur: &Fit) -> Option<Scored> {
@@ -239,7 +231,7 @@ impl Search<'_> {
     }
 
     fn level(&self, step: usize) -> f64 {
-        Holm::equal(self.cands.len()).level(self.rule.alpha, step)
+        holm_level(self.rule.alpha, self.cands.len(), step)
     }
 
     fn field_name(&self, c: Cand) -> String {

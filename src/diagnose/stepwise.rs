@@ -1,6 +1,6 @@
 //! The stepwise search of every selection stage — the library's hypotheses, discovery's
 //! candidates and the rest power's fields: each open candidate scored on top of the terms
-//! chosen so far, gated (significant held-out improvement at its weighted Holm level, BIC, a
+//! chosen so far, gated (significant held-out improvement at its Holm level, BIC, a
 //! minimum gain), and the best passing one by held-out gain taken.
 
 /// Thresholds of the significance rule: the gates every candidate of every stage passes.
@@ -35,33 +35,9 @@ pub(crate) fn passes(rule: &Rule, s: &impl Gated, level: f64) -> bool {
     p < level && d_bic < rule.bic_threshold && gain >= rule.min_improvement
 }
 
-/// The weighted Holm correction over every candidate generated: at step j a candidate of
-/// weight w is judged at α·w / (W − (j − 1)·w_min), W the total weight.
-#[derive(Debug, Clone, Copy)]
-pub(crate) struct Holm {
-    /// Candidates generated.
-    pub m: usize,
-    /// Their total weight.
-    pub total: f64,
-    /// The smallest weight (what an accepted term removes at least).
-    pub w_min: f64,
-}
-
-impl Holm {
-    /// Plain Holm over `m` candidates (every weight 1).
-    pub fn equal(m: usize) -> Holm {
-        Holm {
-            m,
-            total: m as f64,
-            w_min: 1.0,
-        }
-    }
-
-    /// The level of a candidate of weight 1 at `step` (a candidate's own level is this times
-    /// its weight).
-    pub fn level(&self, alpha: f64, step: usize) -> f64 {
-        alpha / (self.total - (step - 1) as f64 * self.w_min).max(1.0)
-    }
+/// Holm's level at `step` over `m` tests: α / (m − (step − 1)).
+pub(crate) fn holm_level(alpha: f64, m: usize, step: usize) -> f64 {
+    alpha / (m as f64 - (step - 1) as f64).max(1.0)
 }
 
 /// A stage's side of the one stepwise search ([`forward`]): its candidates, how one is scored on
@@ -69,6 +45,8 @@ impl Holm {
 pub(crate) trait Stage {
     /// A scored candidate.
     type Scored: Gated;
+    /// Called before `step`'s candidates are scored (discovery's family tests run here).
+    fn begin(&mut self, _step: usize) {}
     /// Candidate `i` scored on the current model at `step` (`None`: closed, or no fit).
     fn score(&self, i: usize, step: usize) -> Option<Self::Scored>;
     /// Whether `s`, candidate `i`, passes the gates at `step`'s Holm level.
@@ -87,10 +65,11 @@ pub(crate) trait Stage {
 /// The stepwise search of discovery and the rest power: at each step up to `max_steps`, every
 /// open candidate of `0..n` scored on top of the terms chosen so far and gated at the step's Holm level;
 /// the winner among those that pass taken in with its rivals; stop when none passes. (The
-/// library selection runs the same gates ([`passes`], [`Holm`]) in its own loop, which also
+/// library selection runs the same gates ([`passes`], [`holm_level`]) in its own loop, which also
 /// compares the forms of each mechanism; backward elimination is [`super::parsimony`]'s rule.)
 pub(crate) fn forward(stage: &mut impl Stage, n: usize, max_steps: usize) {
     for k in 1..=max_steps {
+        stage.begin(k);
         let mut passing = Vec::new();
         let mut failed: Option<_> = None;
         for i in 0..n {

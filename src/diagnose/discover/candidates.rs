@@ -7,7 +7,6 @@ use crate::diagnose::family::{Shape, Term};
 use crate::diagnose::fields::FieldTable;
 use crate::diagnose::reading_rows::Rows;
 use crate::diagnose::stats::{pearson, span, step_threshold};
-use crate::diagnose::stepwise::Holm;
 
 /// Correlation with the readings above which a field counts as a meter of the power itself.
 pub(super) const METER_CORRELATION: f64 = 0.5;
@@ -108,7 +107,23 @@ pub(super) struct Cand {
     pub(super) group: String,
     /// Its weight in the weighted Holm correction ([`crate::diagnose::family::weights`]).
     pub(super) weight: f64,
+    /// Its mechanism family ([`family_of`]).
+    pub(super) family: usize,
 }
+
+/// The mechanism family of a candidate, the unit the search's Holm runs over: the position in
+/// [`Term::ALL`] of the loss term it changes, or [`LOADS`] for a load on a recorded field.
+pub(super) fn family_of(kind: &Kind) -> usize {
+    match kind {
+        Kind::Product(t, ..) | Kind::PerJoint(t) | Kind::Pooled(t) => {
+            Term::ALL.iter().position(|u| u == t).unwrap_or(LOADS)
+        }
+        Kind::Additive(..) | Kind::Step(..) => LOADS,
+    }
+}
+
+/// The family of the rail loads on recorded fields.
+pub(super) const LOADS: usize = Term::ALL.len();
 
 /// Share of a series' variance that lies within trials.
 pub(super) fn within_share(v: &[f64], trial: &[usize], n_trials: usize) -> f64 {
@@ -205,7 +220,7 @@ pub(super) fn signal_values(s: &Signal, rv: &RowValues) -> Vec<f64> {
 
 /// Generate every candidate, fields that meter the power itself left out (noted), and keep
 /// those [`crate::diagnose::family::screen`] passes on the current model's residual `resid`; the
-/// weighted Holm correction over all generated is returned last.
+/// number generated and each family's total weight ([`super::candidates::family_of`]) returned last.
 pub(super) fn generate(
     inp: &Inputs,
     rows: &Rows,
@@ -213,7 +228,7 @@ pub(super) fn generate(
     twin: bool,
     resid: &[f64],
     notes: &mut Vec<String>,
-) -> (Vec<Cand>, RowValues, Vec<bool>, Holm) {
+) -> (Vec<Cand>, RowValues, Vec<bool>, usize, Vec<f64>) {
     let names = &inp.fields.names;
     let rv = RowValues::new(inp, rows);
     let mut meters = Vec::new();
@@ -309,22 +324,21 @@ pub(super) fn generate(
     let weights = crate::diagnose::family::weights(&is_screened);
     let keep =
         crate::diagnose::family::screen(&family, &|i| columns(&kinds[i].0, inp, &rv, rows), resid);
-    let w_min = weights.iter().copied().fold(1.0, f64::min);
-    let holm = Holm {
-        m,
-        total: weights.iter().sum(),
-        w_min,
-    };
+    let mut fam_total = vec![0.0; LOADS + 1];
+    for (k, w) in kinds.iter().zip(&weights) {
+        fam_total[family_of(&k.0)] += w;
+    }
     let cands = keep
         .into_iter()
         .map(|i| Cand {
             kind: kinds[i].0.clone(),
             group: kinds[i].1.clone(),
             weight: weights[i],
+            family: family_of(&kinds[i].0),
         })
         .collect();
     let tried: Vec<bool> = (0..names.len()).map(|f| usable[f] && single[f]).collect();
-    (cands, rv, tried, holm)
+    (cands, rv, tried, m, fam_total)
 }
 
 pub(super) fn signal_name(s: &Signal, names: &[String]) -> String {

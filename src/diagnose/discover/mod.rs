@@ -17,8 +17,9 @@
 //! - against a held base model, each base loss term per joint (one coefficient per joint) and
 //!   pooled (one coefficient): a friction or efficiency the twin has wrong.
 //!
-//! Selection: forward (best held-out improvement that passes every gate at the Holm-corrected
-//! level α/(m − j), m = candidates tried), never more terms than one per 20 trials; whether each
+//! Selection: forward (best held-out improvement that passes every gate at its family-first
+//! level, [`Search::member_level`]: Holm over the mechanism families, each loss term's block
+//! test opening its family), never more terms than one per 20 trials; whether each
 //! is claimed beside the others is [`super::parsimony`]'s rule. A chosen term's
 //! rivals at its step — candidates on other fields it does not fit significantly better than,
 //! of the same structure or with a collinear contribution ([`tie_of`]) — are named with it as
@@ -82,7 +83,7 @@ pub(crate) fn discover(
     };
     let (search, usable) = Search::new(data, cur, inp, rule, &mut report.notes)?;
     report.rest = rest_power_of(inp, usable, rule);
-    report.n_candidates = search.holm.m;
+    report.n_candidates = search.m;
     report.fields_used = (0..inp.fields.names.len())
         .filter(|&f| !inp.fields.duplicate.get(f).copied().unwrap_or(false))
         .count();
@@ -95,6 +96,8 @@ pub(crate) fn discover(
         closed: blocked.to_vec(),
         accepted: Vec::new(),
         tied: Vec::new(),
+        open: Vec::new(),
+        changing: None,
     };
     report.before = Some(search.base.compare(&fw.pred, &fw.pred).2);
     stepwise::forward(
@@ -121,58 +124,21 @@ pub(crate) fn discover(
     }
     finish(&search, &mut fw, cur, joint_names, &mut report)?;
     if report.accepted.is_empty() && report.located.is_empty() {
-        report.located.extend(changing_term(&search, &cur.cv.pred));
+        report
+            .located
+            .extend(changing_term(&search, fw.changing, &cur.cv.pred));
     }
     Ok(report)
 }
 
 /// A loss term whose coefficient changes during the session, following a state no candidate
-/// named (an unrecorded one, or a recorded one the Holm level over thousands of candidates
-/// left unclaimed): each term of the family, pooled, times a piecewise-linear function of
-/// session time (knots at its quartiles) beside the term alone, paired held-out by trial
-/// against the term alone, at α over the family's terms (Bonferroni: a test family of its own,
-/// outside the candidates' Holm). The best that passes is located, never claimed; `pred` is
-/// the model's held-out prediction without it.
-fn changing_term(search: &Search, pred: &[f64]) -> Option<Discovery> {
-    let (rule, hours) = (&search.rule, &search.rv.hours);
-    let (mid, knots) = crate::diagnose::flexible::knots(hours)?;
-    let level = rule.alpha / Term::ALL.len() as f64;
-    let mut best: Option<(Term, Scored)> = None;
-    for t in Term::ALL {
-        let g: Vec<f64> = search
-            .base
-            .rows
-            .x
-            .iter()
-            .map(|x| t.sum(x, &|_| 1.0))
-            .collect();
-        let hinge = |k: f64, lo: f64| g.iter().zip(hours).map(move |(v, h)| v * (h - k).max(lo));
-        let mut cols = vec![g.clone(), hinge(mid, f64::NEG_INFINITY).collect()];
-        cols.extend(knots.iter().map(|&k| hinge(k, 0.0).collect()));
-        let (Ok(alone), Ok(fit)) = (
-            search.base.fit(&[&cols[0]]),
-            search.base.fit(&cols.iter().collect::<Vec<_>>()),
-        ) else {
-            continue;
-        };
-        let (p, rel, before, after) = search.base.compare(&alone.pred, &fit.pred);
-        let d_bic = fit.bic - alone.bic;
-        let pass = p < level && d_bic < rule.bic_threshold && rel >= rule.min_improvement;
-        if pass && best.as_ref().is_none_or(|(_, b)| rel > b.rel) {
-            let s = Scored {
-                idx: 0,
-                fit,
-                p,
-                rel,
-                d_bic,
-                before,
-                after,
-                plausible: true,
-            };
-            best = Some((t, s));
-        }
-    }
+/// named (an unrecorded one, or a recorded one no member of its family reached the level with):
+/// the family's block test at step 1 ([`Search::block`], at its family-first level) with the
+/// gates of a claim, the best that passes located, never claimed; `pred` is the model's
+/// held-out prediction without it.
+fn changing_term(search: &Search, best: Option<(Term, Scored)>, pred: &[f64]) -> Option<Discovery> {
     let (t, s) = best?;
+    let level = search.family_level(1) / 2.0;
     let (_, _, all_before, all_after) = search.base.compare(pred, &s.fit.pred);
     let words = t.words();
     Some(Discovery {
@@ -195,10 +161,10 @@ fn changing_term(search: &Search, pred: &[f64]) -> Option<Discovery> {
         step: 1,
         verdict: format!(
             "located — not claimed: beside the term alone, held-out RMSE −{:.1} % (p = {:.1e} < \
-             {level:.1e}, α over the {} terms of the family), ΔBIC = {:.1}",
+             {level:.1e}, the family's block test, Holm over {} mechanism families), ΔBIC = {:.1}",
             100.0 * s.rel,
             s.p,
-            Term::ALL.len(),
+            search.n_families(),
             s.d_bic
         ),
         tied: Vec::new(),
@@ -222,8 +188,12 @@ struct Forward {
     bic: f64,
     /// Groups no longer tried: blocked, chosen, or tied with a chosen term.
     closed: Vec<String>,
-    /// Each accepted candidate's step and score.
-    accepted: Vec<(usize, Scored)>,
+    /// Each accepted candidate's step, level and score.
+    accepted: Vec<(usize, f64, Scored)>,
+    /// At the current step, per mechanism family: whether its block test passed.
+    open: Vec<bool>,
+    /// At step 1, the best block test that passed with a claim's gates ([`changing_term`]).
+    changing: Option<(Term, Scored)>,
     /// Each chosen candidate's ties.
     tied: Vec<(usize, Vec<Tie>)>,
 }
@@ -237,8 +207,49 @@ struct Stepping<'s, 'a, 'd> {
     y_rms: f64,
 }
 
+impl Stepping<'_, '_, '_> {
+    /// Candidate `i`'s level at `step` ([`Search::member_level`]).
+    fn level(&self, i: usize, step: usize) -> f64 {
+        let open = self.fw.open.get(self.search.cands[i].family) == Some(&true);
+        self.search.member_level(i, step, open)
+    }
+}
+
 impl stepwise::Stage for Stepping<'_, '_, '_> {
     type Scored = Scored;
+
+    /// Each loss-term family's block test on the model so far, at half the family's Holm level.
+    fn begin(&mut self, step: usize) {
+        let (search, fw) = (self.search, &mut *self.fw);
+        let level = search.family_level(step) / 2.0;
+        let mut blocks: Vec<(Term, Scored)> = (Term::ALL.iter().enumerate())
+            .filter(|&(f, _)| search.fam_total[f] > 0.0)
+            .filter_map(|(_, &t)| Some((t, search.block(t, &fw.cols)?)))
+            .collect();
+        fw.open = Term::ALL
+            .iter()
+            .map(|t| blocks.iter().any(|(u, s)| u == t && s.p < level))
+            .collect();
+        if step > 1 {
+            return;
+        }
+        blocks.sort_by(|a, b| a.1.p.total_cmp(&b.1.p));
+        let smallest: Vec<String> = (blocks.iter().take(3))
+            .map(|(t, s)| format!("{} p = {:.1e}", t.words(), s.p))
+            .collect();
+        self.report.notes.push(format!(
+            "family first: Holm over {} mechanism families at α = {}; each loss term's block test \
+             (the term × a piecewise-linear function of session time, against the term alone) at \
+             {level:.1e}, smallest p: {}",
+            search.n_families(),
+            search.rule.alpha,
+            smallest.join(", ")
+        ));
+        blocks.retain(|(_, s)| stepwise::passes(&search.rule, s, level));
+        fw.changing = blocks
+            .into_iter()
+            .max_by(|a, b| a.1.rel.total_cmp(&b.1.rel));
+    }
 
     fn score(&self, i: usize, step: usize) -> Option<Scored> {
         let (search, fw) = (self.search, &self.fw);
@@ -254,8 +265,7 @@ impl stepwise::Stage for Stepping<'_, '_, '_> {
     }
 
     fn passes(&self, i: usize, s: &Scored, step: usize) -> bool {
-        let search = self.search;
-        search.passes(s, search.level(step) * search.cands[i].weight)
+        self.search.passes(s, self.level(i, step))
     }
 
     /// The best of the `passing` candidates by held-out gain, taken out of them — or, when it
@@ -271,7 +281,7 @@ impl stepwise::Stage for Stepping<'_, '_, '_> {
     fn rejected(&mut self, f: &Scored, winner: Option<&Scored>) {
         if winner.is_none_or(|b| f.rel > b.rel) {
             let search = self.search;
-            let lv = search.level(1) * search.cands[f.idx].weight;
+            let lv = self.level(f.idx, 1);
             let verdict = verdict_of(f, lv, &search.rule);
             let d = to_discovery(f, search, self.joint_names, lv, 1, verdict);
             self.report.best_rejected = Some(d);
@@ -284,13 +294,12 @@ impl stepwise::Stage for Stepping<'_, '_, '_> {
     /// closed instead.
     fn accept(&mut self, step: usize, b: Scored, passing: Vec<Scored>) {
         let (search, names) = (self.search, self.joint_names);
-        let level = search.level(step);
-        let lv = level * search.cands[b.idx].weight;
+        let lv = self.level(b.idx, step);
         if dependence_unresolved(search, &b, names, lv, step, self.report) {
             self.fw.closed.push(search.cands[b.idx].group.clone());
             return;
         }
-        let ties = ties_at_step(search, &b, &passing, &self.fw.pred, names, level);
+        let ties = ties_at_step(search, &b, &passing, &self.fw.pred, names, lv);
         let fw = &mut *self.fw;
         for t in &ties {
             // A rival of the same structure whose contribution is not collinear with the chosen
@@ -310,7 +319,7 @@ impl stepwise::Stage for Stepping<'_, '_, '_> {
         fw.closed.push(search.cands[b.idx].group.clone());
         fw.pred = b.fit.pred.clone();
         fw.bic = b.fit.bic;
-        fw.accepted.push((step, b));
+        fw.accepted.push((step, lv, b));
     }
 }
 
@@ -380,20 +389,21 @@ fn finish(
     };
     let mut off = 0;
     for &k in chosen {
-        let Some((step, s)) = accepted.iter().find(|(_, s)| s.idx == k) else {
+        let Some(&(step, level, ref s)) = accepted.iter().find(|(.., s)| s.idx == k) else {
             continue;
         };
         let ncols = search.cols(k).len();
-        let level = search.level(*step) * search.cands[k].weight;
         let verdict = format!(
-            "accepted: held-out RMSE −{:.1} % (p = {:.1e} < {:.1e}, weighted Holm over {} candidates), ΔBIC = {:.1}",
+            "accepted: held-out RMSE −{:.1} % (p = {:.1e} < {:.1e}, family first: Holm over {} \
+             mechanism families of {} candidates), ΔBIC = {:.1}",
             100.0 * s.rel,
             s.p,
             level,
-            search.holm.m,
+            search.n_families(),
+            search.m,
             s.d_bic
         );
-        let mut d = to_discovery(s, search, joint_names, level, *step, verdict);
+        let mut d = to_discovery(s, search, joint_names, level, step, verdict);
         if let Some(f) = &final_fit {
             let g: Vec<f64> = f.gamma[off..off + ncols].to_vec();
             let se: Vec<f64> = (0..ncols)

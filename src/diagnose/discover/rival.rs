@@ -123,7 +123,7 @@ pub(crate) fn rival_of(
         &c.s,
         &search,
         joint_names,
-        search.level(1),
+        search.flat_level(c.s.idx),
         1,
         String::new(),
     );
@@ -142,7 +142,7 @@ pub(crate) fn rival_of(
 /// they no longer pass.
 fn explaining_same(search: &Search, with: &State, without: &State) -> Result<Vec<Same>> {
     let (rows, rule) = (search.base.rows, &search.rule);
-    let (y_rms, level, nt) = (search.y_rms(), search.level(1), search.base.data.n_trials);
+    let (y_rms, nt) = (search.y_rms(), search.base.data.n_trials);
     let e_with = trial_sse(&rows.y, &with.cv.pred, &rows.trial, nt);
     // What a candidate still adds beside the term: one that no longer passes there explains
     // the same.
@@ -152,7 +152,7 @@ fn explaining_same(search: &Search, with: &State, without: &State) -> Result<Vec
         let refs: Vec<&Vec<f64>> = cols.iter().collect();
         !beside.fit(&refs).ok().is_some_and(|fit| {
             let (p, rel, _, _) = beside.compare(&with.cv.pred, &fit.pred);
-            p < level * search.cands[i].weight
+            p < search.flat_level(i)
                 && fit.bic - with.bic < rule.bic_threshold
                 && rel >= rule.min_improvement
         })
@@ -170,7 +170,7 @@ fn explaining_same(search: &Search, with: &State, without: &State) -> Result<Vec
         let Some(s) = search.score(i, &[], (&without.cv.pred, without.bic), y_rms) else {
             continue;
         };
-        if !search.passes(&s, level * search.cands[i].weight) || !explains_same(i) {
+        if !search.passes(&s, search.flat_level(i)) || !explains_same(i) {
             continue;
         }
         let e_riv = trial_sse(&rows.y, &s.fit.pred, &rows.trial, nt);

@@ -1,18 +1,21 @@
 //! The search over the candidates: each scored on top of the chosen terms with the gates of
-//! the hypotheses at its weighted Holm level, and a scored candidate turned into a
+//! the hypotheses at its family-first level, and a scored candidate turned into a
 //! [`Discovery`].
 
 use anyhow::Result;
 
-use super::candidates::{Cand, Inputs, Kind, RowValues, Signal, columns, generate, signal_values};
+use super::candidates::{
+    Cand, Inputs, Kind, LOADS, RowValues, Signal, columns, generate, signal_values,
+};
 use super::fit::{Base, ExtFit};
 use super::found::Discovery;
 use super::words::describe;
 use crate::N_JOINTS;
 use crate::diagnose::Quality;
+use crate::diagnose::family::Term;
 use crate::diagnose::flexible::{arm_drives, drives, knots, shape_cols, unit_rms};
 use crate::diagnose::select::{self, PowerData, Rule, State, jackknife_se};
-use crate::diagnose::stepwise::{self, Gated, Holm, not_significant};
+use crate::diagnose::stepwise::{self, Gated, holm_level, not_significant};
 
 /// A scored candidate.
 pub(super) struct Scored {
@@ -40,7 +43,10 @@ pub(super) struct Search<'a, 'd> {
     pub(super) rv: RowValues,
     pub(super) inp: &'a Inputs<'a>,
     pub(super) rule: Rule,
-    pub(super) holm: Holm,
+    /// Candidates generated (screened out or not).
+    pub(super) m: usize,
+    /// Total Holm weight of each mechanism family's generated candidates ([`super::candidates::family_of`]).
+    pub(super) fam_total: Vec<f64>,
 }
 
 impl<'a, 'd> Search<'a, 'd> {
@@ -63,14 +69,16 @@ impl<'a, 'd> Search<'a, 'd> {
             .map(|(y, p)| y - p)
             .collect();
         let twin = data.reference.is_some();
-        let (cands, rv, usable, holm) = generate(inp, rows, data.n_trials, twin, &resid, notes);
+        let (cands, rv, usable, m, fam_total) =
+            generate(inp, rows, data.n_trials, twin, &resid, notes);
         let search = Search {
             base,
             cands,
             rv,
             inp,
             rule: *rule,
-            holm,
+            m,
+            fam_total,
         };
         Ok((search, usable))
     }
@@ -85,10 +93,71 @@ impl<'a, 'd> Search<'a, 'd> {
         columns(&self.cands[i].kind, self.inp, &self.rv, self.base.rows)
     }
 
-    /// The weighted Holm level of a candidate of weight 1 at `step` (a candidate's own level is
-    /// this times its weight).
-    pub(super) fn level(&self, step: usize) -> f64 {
-        self.holm.level(self.rule.alpha, step)
+    /// Candidate `i`'s level in one weighted Bonferroni over every candidate generated (the
+    /// library rivals' test, [`super::rival_of`]).
+    pub(super) fn flat_level(&self, i: usize) -> f64 {
+        self.rule.alpha * self.cands[i].weight / self.fam_total.iter().sum::<f64>()
+    }
+
+    /// Mechanism families with candidates: what the family-first Holm runs over.
+    pub(super) fn n_families(&self) -> usize {
+        self.fam_total.iter().filter(|&&w| w > 0.0).count()
+    }
+
+    /// Holm over the families: the level of the best remaining family at `step`.
+    pub(super) fn family_level(&self, step: usize) -> f64 {
+        holm_level(self.rule.alpha, self.n_families(), step)
+    }
+
+    /// Candidate `i`'s level at `step`, family first. A loss-term family has two tests at half
+    /// its Holm level each: its block test ([`Self::block`]; `open` when it passed) and its best
+    /// member against a Bonferroni over the family's weight; the rail loads have the second only,
+    /// at the whole level. In an open family a member on a recorded state is judged at the
+    /// family's level (which state and form is a selection within a family shown to act, guarded
+    /// by the other gates); a member on session time, or in a family not open, at its Bonferroni
+    /// share.
+    pub(super) fn member_level(&self, i: usize, step: usize, open: bool) -> f64 {
+        let c = &self.cands[i];
+        let level = self.family_level(step);
+        if open && !matches!(c.kind, Kind::Product(_, Signal::Time, _)) {
+            return level;
+        }
+        let share = if c.family == LOADS { 1.0 } else { 0.5 };
+        level * share * c.weight / self.fam_total[c.family].max(c.weight)
+    }
+
+    /// The family test of loss term `t` on the model so far (its columns `prev`): the term
+    /// pooled times a piecewise-linear function of session time (knots at its quartiles) beside
+    /// the term alone, paired held-out by trial.
+    pub(super) fn block(&self, t: Term, prev: &[Vec<f64>]) -> Option<Scored> {
+        let hours = &self.rv.hours;
+        let (mid, knots) = knots(hours)?;
+        let g: Vec<f64> = self
+            .base
+            .rows
+            .x
+            .iter()
+            .map(|x| t.sum(x, &|_| 1.0))
+            .collect();
+        let hinge = |k: f64, lo: f64| g.iter().zip(hours).map(move |(v, h)| v * (h - k).max(lo));
+        let mut own = vec![g.clone(), hinge(mid, f64::NEG_INFINITY).collect()];
+        own.extend(knots.iter().map(|&k| hinge(k, 0.0).collect()));
+        let fit = |n: usize| {
+            let cols: Vec<&Vec<f64>> = prev.iter().chain(&own[..n]).collect();
+            self.base.fit(&cols).ok()
+        };
+        let (alone, fit) = (fit(1)?, fit(own.len())?);
+        let (p, rel, before, after) = self.base.compare(&alone.pred, &fit.pred);
+        Some(Scored {
+            idx: 0,
+            d_bic: fit.bic - alone.bic,
+            fit,
+            p,
+            rel,
+            before,
+            after,
+            plausible: true,
+        })
     }
 
     /// Score candidate `i` on top of the chosen columns `prev` (current predictions and BIC).

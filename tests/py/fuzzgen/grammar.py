@@ -166,6 +166,7 @@ class Physics:
 
     def __init__(self, effects, seed, duration_s):
         self.effects = effects
+        self.seed = seed
         self.rng = np.random.default_rng([seed, 2802])
         self.T = duration_s
         self.coef = [None] * len(effects)
@@ -285,6 +286,23 @@ class Physics:
             g = np.stack([shape(e["form"], self.state(e["state"], k, ctx), e) for k in range(7)], 1)
         return term * g, term
 
+    REL_CAP = 1.0  # a modulated loss term changes by at most 100 % of itself (see `_cap`)
+
+    def _cap(self, i, e, rms):
+        """Bound a modulated term's change: |magnitude| / rms (the term's relative change at g = 1,
+        the state's nominal range over the session) <= REL_CAP. Below 0 a loss would turn into a
+        source, and a doubling is the most a slow state does to a loss over a session (grease
+        viscosity over ~20 K, copper resistance over ~250 K). A draw above the cap is drawn again,
+        log-uniform over [lo, cap] from its own stream (the truncated log-uniform draw is the same
+        distribution), so effects below the cap, and every other draw, are unchanged."""
+        cap = self.REL_CAP * rms
+        if abs(e["magnitude"]) <= cap:
+            return
+        lo = min(0.03, cap / 10.0)
+        r = np.random.default_rng([self.seed, 2803, i])
+        e["magnitude_drawn"] = e["magnitude"]
+        e["magnitude"] = math.copysign(_lu(r, lo, cap), e["magnitude"])
+
     def power(self, ctx):
         n = len(ctx["t"])
         total = np.zeros(n)
@@ -309,6 +327,8 @@ class Physics:
                         moves = float(np.mean(np.abs(ctx["qd"][:, js]).max(1) > 0.1))
                         if rms > 1e-3 and moves >= 0.05:
                             self.coef[i] = 1.0 / rms
+                            if e["kind"] == "modulated":
+                                self._cap(i, e, rms)
                             e["coef_W_per_unit"] = self.coef[i] * e["magnitude"]
                 c = e["magnitude"] * (self.coef[i] or 0.0) * r
                 total += c

@@ -16,7 +16,15 @@ def check_grammar(n=2000):
     states = {e["state"] for e in effects if "state" in e}
     meters = {(e["meter"], e["artefact"]) for e in effects if e["kind"] == "meter"}
     mags = [abs(e["magnitude"]) for e in effects if e.get("unit") == "W"]
+    # the cap on a modulated term's change: a 5 W draw on a 0.1 W term is drawn again below
+    # 0.1 W (same sign); a 0.05 W draw on it is kept
+    ph = grammar.Physics([], 7, 900.0)
+    big, small = {"magnitude": -5.0}, {"magnitude": 0.05}
+    ph._cap(0, big, 0.1)
+    ph._cap(1, small, 0.1)
     checks = {
+        "cap: a draw above it is redrawn below it": -0.1 <= big["magnitude"] < 0 and big["magnitude_drawn"] == -5.0,
+        "cap: a draw below it is kept": small == {"magnitude": 0.05},
         "nulls >= 20 %": nulls >= 0.2,
         "every library mechanism": lib == set(grammar.LIBRARY),
         "every form": set(grammar.FORMS_SHAPE) <= forms,
