@@ -223,6 +223,17 @@ pub fn analyse(fit: &FleetFit, z: f64, min_periods: usize) -> Option<Drift> {
         t.z /= t.null_scale;
         t.drifting = t.z.abs() > z;
     }
+    let outliers = outliers(&trends, z);
+    Some(Drift {
+        z,
+        t0_ns,
+        trends,
+        outliers,
+    })
+}
+
+/// The robots whose level differs from the other robots'.
+fn outliers(trends: &[Trend], z: f64) -> Vec<Outlier> {
     let mut outliers = Vec::new();
     for param in 0..N_PARAMS {
         let of: Vec<&Trend> = trends.iter().filter(|t| t.param == param).collect();
@@ -252,12 +263,7 @@ pub fn analyse(fit: &FleetFit, z: f64, min_periods: usize) -> Option<Drift> {
             }
         }
     }
-    Some(Drift {
-        z,
-        t0_ns,
-        trends,
-        outliers,
-    })
+    outliers
 }
 
 #[cfg(test)]
@@ -281,5 +287,43 @@ mod tests {
         noisy[2].value += 1.0;
         let (_, _, _, wide) = line(&noisy).unwrap();
         assert!(wide > 3.0 * se, "{wide} vs {se}");
+    }
+
+    /// A robot at `level` ± `se` on parameter `param` (its periods are not looked at).
+    fn level(robot: usize, param: usize, level: f64, se: f64) -> Trend {
+        Trend {
+            robot: format!("r{robot:02}"),
+            param,
+            points: Vec::new(),
+            level,
+            level_se: se,
+            slope: 0.0,
+            slope_se: 1.0,
+            null_scale: 1.0,
+            z: 0.0,
+            drifting: false,
+        }
+    }
+
+    /// Eleven robots whose levels scatter three times their own standard errors (robots differ,
+    /// or the errors are too small: the fleet's spread is the yardstick), at the normal quantiles
+    /// (Blom) of that spread. A twelfth robot 5 own s.e. off (1.7 spreads) is not flagged; one
+    /// 10 spreads off is, as is one 6 s.e. off where the fleet scatters as its errors say.
+    #[test]
+    fn a_level_differs_only_beyond_the_fleets_own_spread() {
+        let q = [
+            -1.59, -1.06, -0.73, -0.46, -0.22, 0.0, 0.22, 0.46, 0.73, 1.06, 1.59,
+        ];
+        let (se, wide) = (0.01, 0.03);
+        let mut trends = Vec::new();
+        for (param, spread, odd) in [(0, wide, 0.05), (1, wide, 0.3), (2, se, 0.06)] {
+            trends
+                .extend((q.iter().enumerate()).map(|(r, x)| level(r, param, 1.0 + spread * x, se)));
+            trends.push(level(11, param, 1.0 + odd, se));
+        }
+        let flagged: Vec<(String, usize)> = (outliers(&trends, 4.0).into_iter())
+            .map(|o| (o.robot, o.param))
+            .collect();
+        assert_eq!(flagged, [("r11".to_string(), 1), ("r11".to_string(), 2)]);
     }
 }
