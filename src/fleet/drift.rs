@@ -9,8 +9,10 @@
 //! parameter (1.4826 × median |z|, at least 0.7; 1 with fewer than three others), since the
 //! periods' errors are neither exact nor independent (bounded parameters, shared conditions).
 //! A calibrated |z| beyond `z` is a drift.
-//! A robot whose level at t₀ lies beyond `z` combined standard errors from the median of the
-//! other robots' levels differs from the fleet.
+//! A robot's level at t₀ against the median of the other robots' levels, in combined standard
+//! errors, is calibrated the same way (by the other robots' spread of that distance for the
+//! parameter): beyond `z`, the robot differs from the fleet. Each followed (robot, parameter) is
+//! thus tested twice, against a null drawn from the same fleet.
 
 use crate::N_PARAMS;
 
@@ -63,7 +65,9 @@ pub struct Outlier {
     pub level: f64,
     /// The other robots' median level.
     pub fleet_level: f64,
-    /// (level − fleet_level) / combined standard error.
+    /// The other robots' spread of their own distance from the fleet (the empirical null).
+    pub null_scale: f64,
+    /// (level − fleet_level) / (combined standard error · null_scale).
     pub z: f64,
 }
 
@@ -211,16 +215,9 @@ pub fn analyse(fit: &FleetFit, z: f64, min_periods: usize) -> Option<Drift> {
             });
         }
     }
-    let raw: Vec<(usize, f64)> = trends.iter().map(|t| (t.param, t.z.abs())).collect();
-    for (k, t) in trends.iter_mut().enumerate() {
-        let others = (raw.iter().enumerate()).filter(|&(i, &(p, _))| i != k && p == t.param);
-        let others: Vec<f64> = others.map(|(_, &(_, z))| z).collect();
-        if others.len() >= 3 {
-            // A median of |z| of a normal is 0.6745 σ; the floor keeps a few quiet robots from
-            // shrinking the others' errors more than 1/0.7.
-            t.null_scale = (1.4826 * median(others)).max(0.7);
-        }
-        t.z /= t.null_scale;
+    let raw: Vec<(usize, f64)> = trends.iter().map(|t| (t.param, t.z)).collect();
+    for (t, scale) in trends.iter_mut().zip(null_scales(&raw)) {
+        (t.null_scale, t.z) = (scale, t.z / scale);
         t.drifting = t.z.abs() > z;
     }
     let outliers = outliers(&trends, z);
@@ -232,38 +229,56 @@ pub fn analyse(fit: &FleetFit, z: f64, min_periods: usize) -> Option<Drift> {
     })
 }
 
-/// The robots whose level differs from the other robots'.
+/// For each `(parameter, z)` of `raw`, the spread of the other robots' z of that parameter (the
+/// fleet's own empirical null): 1.4826 × median |z| (σ for a normal), at least 0.7 so that a few
+/// quiet robots do not shrink the others' errors more than 1/0.7; 1 with fewer than three others.
+fn null_scales(raw: &[(usize, f64)]) -> Vec<f64> {
+    let of = |k: usize, p: usize| {
+        raw.iter()
+            .enumerate()
+            .filter(move |&(i, q)| i != k && q.0 == p)
+    };
+    let scale = |k: usize, p: usize| {
+        let others: Vec<f64> = of(k, p).map(|(_, q)| q.1.abs()).collect();
+        match others.len() {
+            ..3 => 1.0,
+            _ => (1.4826 * median(others)).max(0.7),
+        }
+    };
+    (raw.iter().enumerate())
+        .map(|(k, q)| scale(k, q.0))
+        .collect()
+}
+
+/// The robots whose level differs from the other robots': its distance from their median level in
+/// combined standard errors (theirs as the weighted mean's × √(π/2)), calibrated like the drift z
+/// by [`null_scales`] — the other robots' spread of the same distance for that parameter.
 fn outliers(trends: &[Trend], z: f64) -> Vec<Outlier> {
-    let mut outliers = Vec::new();
-    for param in 0..N_PARAMS {
-        let of: Vec<&Trend> = trends.iter().filter(|t| t.param == param).collect();
-        if of.len() < 3 {
+    let mut nominal = Vec::new();
+    for t in trends {
+        let others: Vec<&Trend> = (trends.iter())
+            .filter(|o| o.param == t.param && o.robot != t.robot)
+            .collect();
+        if others.len() < 2 {
             continue;
         }
-        for t in &of {
-            // The others' median level (robust to another robot that differs too), its
-            // standard error taken as the weighted mean's × √(π/2).
-            let others = of.iter().filter(|o| o.robot != t.robot).map(|o| o.level);
-            let fleet_level = median(others.collect());
-            let sw: f64 = of
-                .iter()
-                .filter(|o| o.robot != t.robot)
-                .map(|o| 1.0 / (o.level_se * o.level_se))
-                .sum();
-            let se_ref = (std::f64::consts::FRAC_PI_2 / sw).sqrt();
-            let zd = (t.level - fleet_level) / (t.level_se * t.level_se + se_ref * se_ref).sqrt();
-            if zd.abs() > z {
-                outliers.push(Outlier {
-                    robot: t.robot.clone(),
-                    param,
-                    level: t.level,
-                    fleet_level,
-                    z: zd,
-                });
-            }
-        }
+        let fleet_level = median(others.iter().map(|o| o.level).collect());
+        let sw: f64 = others.iter().map(|o| o.level_se.powi(-2)).sum();
+        let se = (t.level_se.powi(2) + std::f64::consts::FRAC_PI_2 / sw).sqrt();
+        nominal.push((t, fleet_level, (t.level - fleet_level) / se));
     }
-    outliers
+    let raw: Vec<(usize, f64)> = nominal.iter().map(|(t, _, zd)| (t.param, *zd)).collect();
+    (nominal.into_iter().zip(null_scales(&raw)))
+        .filter(|((_, _, zd), scale)| (zd / scale).abs() > z)
+        .map(|((t, fleet_level, zd), null_scale)| Outlier {
+            robot: t.robot.clone(),
+            param: t.param,
+            level: t.level,
+            fleet_level,
+            null_scale,
+            z: zd / null_scale,
+        })
+        .collect()
 }
 
 #[cfg(test)]

@@ -100,7 +100,7 @@ pub fn markdown(fit: &FleetFit, drift: Option<&Drift>, joints: &[String]) -> Str
         )
     });
     let title = format!(
-        "Robots differing from the fleet (level at start beyond {} combined standard errors)",
+        "Robots differing from the fleet (level at start beyond {} calibrated standard errors)",
         d.z
     );
     table(
