@@ -30,7 +30,7 @@ pub struct Point {
 }
 
 /// A robot's parameter over the periods, with its straight-line fit.
-#[derive(Debug, Clone, serde::Serialize)]
+#[derive(Debug, Clone, Default, serde::Serialize)]
 pub struct Trend {
     /// Robot.
     pub robot: String,
@@ -97,15 +97,12 @@ impl Drift {
             (last, text)
         });
         let levels = self.outliers.iter().map(|o| {
-            let text = format!(
-                "{} {}: level {:.4}, other robots {:.4} (z {:+.1})",
-                o.robot,
-                label(o.param),
-                o.level,
-                o.fleet_level,
-                o.z
-            );
-            (0.0, text)
+            let (robot, param, level, fleet, z) =
+                (&o.robot, label(o.param), o.level, o.fleet_level, o.z);
+            (
+                0.0,
+                format!("{robot} {param}: level {level:.4}, other robots {fleet:.4} (z {z:+.1})"),
+            )
         });
         drifts.chain(levels).collect()
     }
@@ -172,9 +169,8 @@ pub fn analyse(fit: &FleetFit, z: f64, min_periods: usize) -> Option<Drift> {
         .then_some(())?;
     let ok: Vec<_> = fit.groups.iter().filter(|g| g.error.is_none()).collect();
     let t0_ns = ok.iter().map(|g| g.t_ns.0).min()?;
-    let mut robots: Vec<&str> = ok.iter().map(|g| g.key[robot_at].as_str()).collect();
-    robots.sort();
-    robots.dedup();
+    let robots: std::collections::BTreeSet<&str> =
+        ok.iter().map(|g| g.key[robot_at].as_str()).collect();
     let mut trends = Vec::new();
     for robot in &robots {
         for param in 0..N_PARAMS {
@@ -209,15 +205,16 @@ pub fn analyse(fit: &FleetFit, z: f64, min_periods: usize) -> Option<Drift> {
                 level_se,
                 slope,
                 slope_se,
-                null_scale: 1.0,
-                z: slope / slope_se,
-                drifting: false,
+                ..Default::default()
             });
         }
     }
-    let raw: Vec<(usize, f64)> = trends.iter().map(|t| (t.param, t.z)).collect();
+    let raw: Vec<(usize, f64)> = trends
+        .iter()
+        .map(|t| (t.param, t.slope / t.slope_se))
+        .collect();
     for (t, scale) in trends.iter_mut().zip(null_scales(&raw)) {
-        (t.null_scale, t.z) = (scale, t.z / scale);
+        (t.null_scale, t.z) = (scale, t.slope / t.slope_se / scale);
         t.drifting = t.z.abs() > z;
     }
     let outliers = outliers(&trends, z);
@@ -233,21 +230,15 @@ pub fn analyse(fit: &FleetFit, z: f64, min_periods: usize) -> Option<Drift> {
 /// fleet's own empirical null): 1.4826 × median |z| (σ for a normal), at least 0.7 so that a few
 /// quiet robots do not shrink the others' errors more than 1/0.7; 1 with fewer than three others.
 fn null_scales(raw: &[(usize, f64)]) -> Vec<f64> {
-    let of = |k: usize, p: usize| {
-        raw.iter()
-            .enumerate()
-            .filter(move |&(i, q)| i != k && q.0 == p)
-    };
-    let scale = |k: usize, p: usize| {
-        let others: Vec<f64> = of(k, p).map(|(_, q)| q.1.abs()).collect();
+    let scale = |k: usize| {
+        let others = (raw.iter().enumerate()).filter(|&(i, q)| i != k && q.0 == raw[k].0);
+        let others: Vec<f64> = others.map(|(_, q)| q.1.abs()).collect();
         match others.len() {
             ..3 => 1.0,
             _ => (1.4826 * median(others)).max(0.7),
         }
     };
-    (raw.iter().enumerate())
-        .map(|(k, q)| scale(k, q.0))
-        .collect()
+    (0..raw.len()).map(scale).collect()
 }
 
 /// The robots whose level differs from the other robots': its distance from their median level in
@@ -305,18 +296,14 @@ mod tests {
     }
 
     /// A robot at `level` ± `se` on parameter `param` (its periods are not looked at).
-    fn level(robot: usize, param: usize, level: f64, se: f64) -> Trend {
+    fn level(robot: usize, param: usize, level: f64, level_se: f64) -> Trend {
+        let robot = format!("r{robot:02}");
         Trend {
-            robot: format!("r{robot:02}"),
+            robot,
             param,
-            points: Vec::new(),
             level,
-            level_se: se,
-            slope: 0.0,
-            slope_se: 1.0,
-            null_scale: 1.0,
-            z: 0.0,
-            drifting: false,
+            level_se,
+            ..Default::default()
         }
     }
 

@@ -9,7 +9,7 @@ use anyhow::Result;
 use plotters::prelude::*;
 
 use super::FleetFit;
-use super::drift::{Drift, Trend};
+use super::drift::{Drift, Point, Trend};
 use crate::plot::{FONT, padded_range, plot_err, write_png};
 use crate::power::PowerModel;
 
@@ -80,14 +80,10 @@ pub fn markdown(fit: &FleetFit, drift: Option<&Drift>, joints: &[String]) -> Str
         )
     });
     let title = format!("Drifts (slope beyond {} calibrated standard errors)", d.z);
-    let header = [
-        "robot",
-        "parameter",
-        "level at start",
-        "slope per week",
-        "z",
-        "change over the periods",
-    ];
+    let header: Vec<&str> =
+        "robot,parameter,level at start,slope per week,z,change over the periods"
+            .split(',')
+            .collect();
     table(&mut s, &title, &header, drifts);
     let levels = d.outliers.iter().map(|o| {
         format!(
@@ -165,22 +161,13 @@ pub fn figure(path: &Path, drift: &Drift, joints: &[String]) -> Result<()> {
                 .map_err(plot_err)?;
             for t in &of {
                 let flagged = drift.is_flagged(p, &t.robot);
-                let colour = if flagged {
-                    RED
-                } else {
-                    RGBColor(120, 120, 120)
-                };
-                for q in &t.points {
-                    chart
-                        .draw_series(std::iter::once(PathElement::new(
-                            vec![
-                                (q.t_weeks, q.value - q.std_err),
-                                (q.t_weeks, q.value + q.std_err),
-                            ],
-                            colour.mix(0.5),
-                        )))
-                        .map_err(plot_err)?;
-                }
+                let colour = [RGBColor(120, 120, 120), RED][flagged as usize];
+                let bar = |q: &Point| [-1.0, 1.0].map(|k| (q.t_weeks, q.value + k * q.std_err));
+                let bars = t
+                    .points
+                    .iter()
+                    .map(|q| PathElement::new(bar(q), colour.mix(0.5)));
+                chart.draw_series(bars).map_err(plot_err)?;
                 chart
                     .draw_series(
                         t.points
