@@ -226,50 +226,70 @@ pub fn analyse(fit: &FleetFit, z: f64, min_periods: usize) -> Option<Drift> {
     })
 }
 
-/// For each `(parameter, z)` of `raw`, the spread of the other robots' z of that parameter (the
-/// fleet's own empirical null): 1.4826 × median |z| (σ for a normal), at least 0.7 so that a few
-/// quiet robots do not shrink the others' errors more than 1/0.7; 1 with fewer than three others.
+/// The spread of a null's |z| (σ for a normal: 1.4826 × the median), at least 0.7 so that a few
+/// quiet robots do not shrink the others' errors more than 1/0.7; 1 with fewer than `min`.
+fn spread(abs_z: Vec<f64>, min: usize) -> f64 {
+    match abs_z.len() >= min {
+        false => 1.0,
+        true => (1.4826 * median(abs_z)).max(0.7),
+    }
+}
+
+/// For each `(parameter, z)` of `raw`, the spread of the other robots' z of that parameter: the
+/// fleet's own empirical null.
 fn null_scales(raw: &[(usize, f64)]) -> Vec<f64> {
     let scale = |k: usize| {
         let others = (raw.iter().enumerate()).filter(|&(i, q)| i != k && q.0 == raw[k].0);
-        let others: Vec<f64> = others.map(|(_, q)| q.1.abs()).collect();
-        match others.len() {
-            ..3 => 1.0,
-            _ => (1.4826 * median(others)).max(0.7),
-        }
+        spread(others.map(|(_, q)| q.1.abs()).collect(), 3)
     };
     (0..raw.len()).map(scale).collect()
 }
 
-/// The robots whose level differs from the other robots': its distance from their median level in
-/// combined standard errors (theirs as the weighted mean's × √(π/2)), calibrated like the drift z
-/// by [`null_scales`] — the other robots' spread of the same distance for that parameter.
+/// `t`'s level against the median of `others`' levels (at least two): that median, and the
+/// distance in combined standard errors (the median's taken as the weighted mean's × √(π/2)).
+fn distance(t: &Trend, others: &[&Trend]) -> Option<(f64, f64)> {
+    (others.len() >= 2).then_some(())?;
+    let fleet_level = median(others.iter().map(|o| o.level).collect());
+    let sw: f64 = others.iter().map(|o| o.level_se.powi(-2)).sum();
+    let se = (t.level_se.powi(2) + std::f64::consts::FRAC_PI_2 / sw).sqrt();
+    Some((fleet_level, (t.level - fleet_level) / se))
+}
+
+/// The robots whose level differs from the other robots': its [`distance`] from them, calibrated
+/// like the drift z by the [`spread`] of the other robots' distances from the rest of them for
+/// that parameter (the robot itself left out, so that it does not widen its own yardstick); with
+/// fewer than five other robots, the nominal distance.
 fn outliers(trends: &[Trend], z: f64) -> Vec<Outlier> {
-    let mut nominal = Vec::new();
-    for t in trends {
-        let others: Vec<&Trend> = (trends.iter())
-            .filter(|o| o.param == t.param && o.robot != t.robot)
-            .collect();
-        if others.len() < 2 {
-            continue;
-        }
-        let fleet_level = median(others.iter().map(|o| o.level).collect());
-        let sw: f64 = others.iter().map(|o| o.level_se.powi(-2)).sum();
-        let se = (t.level_se.powi(2) + std::f64::consts::FRAC_PI_2 / sw).sqrt();
-        nominal.push((t, fleet_level, (t.level - fleet_level) / se));
+    fn others<'a>(t: &Trend, of: &[&'a Trend]) -> Vec<&'a Trend> {
+        let of = of
+            .iter()
+            .filter(|o| o.param == t.param && o.robot != t.robot);
+        of.copied().collect()
     }
-    let raw: Vec<(usize, f64)> = nominal.iter().map(|(t, _, zd)| (t.param, *zd)).collect();
-    (nominal.into_iter().zip(null_scales(&raw)))
-        .filter(|((_, _, zd), scale)| (zd / scale).abs() > z)
-        .map(|((t, fleet_level, zd), null_scale)| Outlier {
-            robot: t.robot.clone(),
-            param: t.param,
-            level: t.level,
-            fleet_level,
-            null_scale,
-            z: zd / null_scale,
-        })
-        .collect()
+    let mut out = Vec::new();
+    let all: Vec<&Trend> = trends.iter().collect();
+    for t in trends {
+        let rest = others(t, &all);
+        let Some((fleet_level, zd)) = distance(t, &rest) else {
+            continue;
+        };
+        let null = rest.iter().filter_map(|o| distance(o, &others(o, &rest)));
+        // Five at least: each of these distances is from a median of the few left.
+        let null_scale = spread(null.map(|(_, d)| d.abs()).collect(), 5);
+        if (zd / null_scale).abs() > z {
+            let (robot, param, level) = (t.robot.clone(), t.param, t.level);
+            let z = zd / null_scale;
+            out.push(Outlier {
+                robot,
+                param,
+                level,
+                fleet_level,
+                null_scale,
+                z,
+            });
+        }
+    }
+    out
 }
 
 #[cfg(test)]

@@ -22,8 +22,10 @@ pub fn param_label(p: usize, joints: &[String]) -> String {
     }
 }
 
-/// A markdown section `title` with a table of `rows` under `header` (a row "none" when empty).
-fn table(s: &mut String, title: &str, header: &[&str], rows: impl Iterator<Item = String>) {
+/// A markdown section `title` with a table of `rows` under `header` (comma-separated; a row
+/// "none" when empty).
+fn table(s: &mut String, title: &str, header: &str, rows: impl Iterator<Item = String>) {
+    let header: Vec<&str> = header.split(',').collect();
     let _ = writeln!(
         s,
         "\n## {title}\n\n| {} |\n|{}",
@@ -49,8 +51,7 @@ pub fn markdown(fit: &FleetFit, drift: Option<&Drift>, joints: &[String]) -> Str
         fit.groups.len(),
         by.join(", ")
     );
-    let mut header = by.clone();
-    header.extend("rows,used,trials,rejected IMU / 3σ,R²,RMSE [W],note".split(','));
+    let header = by.join(",") + ",rows,used,trials,rejected IMU / 3σ,R²,RMSE [W],note";
     let groups = fit.groups.iter().map(|g| {
         let (imu, res, unusable) = g.rejected_by();
         let (key, note) = (g.key.join(" | "), g.error.as_deref().unwrap_or(""));
@@ -65,35 +66,20 @@ pub fn markdown(fit: &FleetFit, drift: Option<&Drift>, joints: &[String]) -> Str
         return s;
     };
     let drifts = d.drifting().map(|t| {
-        let span = t.points.last().map_or(0.0, |p| p.t_weeks)
-            - t.points.first().map_or(0.0, |p| p.t_weeks);
-        format!(
-            "| {} | {} | {:.4} ± {:.4} | {:+.4} ± {:.4} | {:+.1} | {:+.1} % |",
-            t.robot,
-            param_label(t.param, joints),
-            t.level,
-            t.level_se,
-            t.slope,
-            t.slope_se,
-            t.z,
-            100.0 * t.slope * span / t.level
-        )
+        let (first, last) = (t.points.first(), t.points.last());
+        let span = last.map_or(0.0, |p| p.t_weeks) - first.map_or(0.0, |p| p.t_weeks);
+        let (robot, param) = (&t.robot, param_label(t.param, joints));
+        let (level, level_se, slope, slope_se, z) = (t.level, t.level_se, t.slope, t.slope_se, t.z);
+        let change = 100.0 * slope * span / level;
+        format!("| {robot} | {param} | {level:.4} ± {level_se:.4} | {slope:+.4} ± {slope_se:.4} | {z:+.1} | {change:+.1} % |")
     });
     let title = format!("Drifts (slope beyond {} calibrated standard errors)", d.z);
-    let header: Vec<&str> =
-        "robot,parameter,level at start,slope per week,z,change over the periods"
-            .split(',')
-            .collect();
-    table(&mut s, &title, &header, drifts);
+    let header = "robot,parameter,level at start,slope per week,z,change over the periods";
+    table(&mut s, &title, header, drifts);
     let levels = d.outliers.iter().map(|o| {
-        format!(
-            "| {} | {} | {:.4} | {:.4} | {:+.1} |",
-            o.robot,
-            param_label(o.param, joints),
-            o.level,
-            o.fleet_level,
-            o.z
-        )
+        let (robot, param) = (&o.robot, param_label(o.param, joints));
+        let (level, fleet, z) = (o.level, o.fleet_level, o.z);
+        format!("| {robot} | {param} | {level:.4} | {fleet:.4} | {z:+.1} |")
     });
     let title = format!(
         "Robots differing from the fleet (level at start beyond {} calibrated standard errors)",
@@ -102,7 +88,7 @@ pub fn markdown(fit: &FleetFit, drift: Option<&Drift>, joints: &[String]) -> Str
     table(
         &mut s,
         &title,
-        &["robot", "parameter", "level", "other robots", "z"],
+        "robot,parameter,level,other robots,z",
         levels,
     );
     s.push_str("\n![flagged parameters per robot over time](fleet.png)\n");
