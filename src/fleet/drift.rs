@@ -151,22 +151,16 @@ fn line(points: &[Point]) -> Option<(f64, f64, f64, f64)> {
         .map(|p| ((p.value - level - slope * p.t_weeks) / p.std_err).powi(2))
         .sum();
     let birge = (chi2 / (points.len() - 2) as f64).sqrt().max(1.0);
-    Some((
-        level,
-        (sxx / det).sqrt() * birge,
-        slope,
-        (s / det).sqrt() * birge,
-    ))
+    let se = |v: f64| (v / det).sqrt() * birge;
+    Some((level, se(sxx), slope, se(s)))
 }
 
 /// Trends and outliers of a fit grouped by robot and a period (day, week or session); `None`
 /// when `--by` has no robot key or no period key.
 pub fn analyse(fit: &FleetFit, z: f64, min_periods: usize) -> Option<Drift> {
     let robot_at = fit.by.iter().position(|k| *k == Key::Robot)?;
-    fit.by
-        .iter()
-        .any(|k| k.is_period() || *k == Key::Session)
-        .then_some(())?;
+    let periods = fit.by.iter().any(|k| k.is_period() || *k == Key::Session);
+    periods.then_some(())?;
     let ok: Vec<_> = fit.groups.iter().filter(|g| g.error.is_none()).collect();
     let t0_ns = ok.iter().map(|g| g.t_ns.0).min()?;
     let robots: std::collections::BTreeSet<&str> =

@@ -457,17 +457,13 @@ fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<Str
     let (by, target, filter) = (&opts.by, opts.target.as_str(), opts.filter.as_deref());
     let mut groups: BTreeMap<Vec<String>, Work> = BTreeMap::new();
     for b in run.run("moments", sql::moments(by, target, filter))? {
-        let (n, sy, sigma) = (
-            numbers(&b, "n")?,
-            numbers(&b, "sy")?,
-            numbers(&b, "sigma_omega")?,
-        );
+        let num = |c: &str| numbers(&b, c);
+        let (n, sy, sigma) = (num("n")?, num("sy")?, num("sigma_omega")?);
         // Reading times stay integer nanoseconds (an f64 rounds them by up to 256 ns).
         let int = |name| column_as::<Int64Array>(&b, name, DataType::Int64);
         let (t0, t1) = (int("t_min")?, int("t_max")?);
-        let s: Vec<Float64Array> = (0..N_PARAMS)
-            .map(|p| numbers(&b, &format!("s_{p}")))
-            .collect::<Result<_>>()?;
+        let s: Result<Vec<_>> = (0..N_PARAMS).map(|p| num(&format!("s_{p}"))).collect();
+        let s = s?;
         for (r, (key, id)) in result_rows(&b, by)?.into_iter().enumerate() {
             let id = id.context("moments without trial columns")?;
             let w = groups.entry(key).or_insert_with(|| Work {
@@ -500,11 +496,10 @@ fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<Str
     for w in groups.values_mut() {
         w.sessions.sort();
         w.sessions.dedup();
-        let sigmas: Vec<TrialStat> = w
-            .trials
-            .iter()
-            .map(|t| TrialStat::new(w.session_index(&t.id), t.id.2 as usize, t.sigma_omega))
-            .collect();
+        let stat = |t: &TrialMoments| {
+            TrialStat::new(w.session_index(&t.id), t.id.2 as usize, t.sigma_omega)
+        };
+        let sigmas: Vec<TrialStat> = w.trials.iter().map(stat).collect();
         w.rejections = opts.cascade.imu(&sigmas);
     }
     // The IMU filter's rejections are left out in the scan, not subtracted after another.
