@@ -89,13 +89,13 @@ pub fn run(a: FleetArgs) -> Result<()> {
             for (_, text) in &flags {
                 println!("flagged: {text}");
             }
-            if flags.is_empty() {
-                let n = d.trends.len();
-                println!(
-                    "no drift and no robot differing from the fleet beyond {} s.e. ({n} robot parameters free in ≥ 4 periods)",
-                    a.z
-                );
-            }
+            // The multiplicity: each followed robot parameter is tested for drift and level.
+            println!(
+                "{} flags at |z| > {} from {} robot parameters free in ≥ 4 periods, each tested for drift and for level",
+                flags.len(),
+                a.z,
+                d.trends.len()
+            );
         }
         None => println!("no drift analysis (--by needs robot and day, week or session)"),
     }

@@ -9,8 +9,10 @@
 //! parameter (1.4826 × median |z|, at least 0.7; 1 with fewer than three others), since the
 //! periods' errors are neither exact nor independent (bounded parameters, shared conditions).
 //! A calibrated |z| beyond `z` is a drift.
-//! A robot whose level at t₀ lies beyond `z` combined standard errors from the median of the
-//! other robots' levels differs from the fleet.
+//! A robot's level at t₀ against the median of the other robots' levels, in combined standard
+//! errors, is calibrated the same way (by the other robots' spread of that distance for the
+//! parameter, but only ever widened: at least 1): beyond `z`, the robot differs from the fleet. Each followed (robot, parameter) is
+//! thus tested twice, against a null drawn from the same fleet.
 
 use crate::N_PARAMS;
 
@@ -28,7 +30,7 @@ pub struct Point {
 }
 
 /// A robot's parameter over the periods, with its straight-line fit.
-#[derive(Debug, Clone, serde::Serialize)]
+#[derive(Debug, Clone, Default, serde::Serialize)]
 pub struct Trend {
     /// Robot.
     pub robot: String,
@@ -63,7 +65,9 @@ pub struct Outlier {
     pub level: f64,
     /// The other robots' median level.
     pub fleet_level: f64,
-    /// (level − fleet_level) / combined standard error.
+    /// The other robots' spread of their own distance from the fleet (the empirical null).
+    pub null_scale: f64,
+    /// (level − fleet_level) / (combined standard error · null_scale).
     pub z: f64,
 }
 
@@ -93,15 +97,12 @@ impl Drift {
             (last, text)
         });
         let levels = self.outliers.iter().map(|o| {
-            let text = format!(
-                "{} {}: level {:.4}, other robots {:.4} (z {:+.1})",
-                o.robot,
-                label(o.param),
-                o.level,
-                o.fleet_level,
-                o.z
-            );
-            (0.0, text)
+            let (robot, param, level, fleet, z) =
+                (&o.robot, label(o.param), o.level, o.fleet_level, o.z);
+            (
+                0.0,
+                format!("{robot} {param}: level {level:.4}, other robots {fleet:.4} (z {z:+.1})"),
+            )
         });
         drifts.chain(levels).collect()
     }
@@ -150,27 +151,20 @@ fn line(points: &[Point]) -> Option<(f64, f64, f64, f64)> {
         .map(|p| ((p.value - level - slope * p.t_weeks) / p.std_err).powi(2))
         .sum();
     let birge = (chi2 / (points.len() - 2) as f64).sqrt().max(1.0);
-    Some((
-        level,
-        (sxx / det).sqrt() * birge,
-        slope,
-        (s / det).sqrt() * birge,
-    ))
+    let se = |v: f64| (v / det).sqrt() * birge;
+    Some((level, se(sxx), slope, se(s)))
 }
 
 /// Trends and outliers of a fit grouped by robot and a period (day, week or session); `None`
 /// when `--by` has no robot key or no period key.
 pub fn analyse(fit: &FleetFit, z: f64, min_periods: usize) -> Option<Drift> {
     let robot_at = fit.by.iter().position(|k| *k == Key::Robot)?;
-    fit.by
-        .iter()
-        .any(|k| k.is_period() || *k == Key::Session)
-        .then_some(())?;
+    let periods = fit.by.iter().any(|k| k.is_period() || *k == Key::Session);
+    periods.then_some(())?;
     let ok: Vec<_> = fit.groups.iter().filter(|g| g.error.is_none()).collect();
     let t0_ns = ok.iter().map(|g| g.t_ns.0).min()?;
-    let mut robots: Vec<&str> = ok.iter().map(|g| g.key[robot_at].as_str()).collect();
-    robots.sort();
-    robots.dedup();
+    let robots: std::collections::BTreeSet<&str> =
+        ok.iter().map(|g| g.key[robot_at].as_str()).collect();
     let mut trends = Vec::new();
     for robot in &robots {
         for param in 0..N_PARAMS {
@@ -205,59 +199,93 @@ pub fn analyse(fit: &FleetFit, z: f64, min_periods: usize) -> Option<Drift> {
                 level_se,
                 slope,
                 slope_se,
-                null_scale: 1.0,
-                z: slope / slope_se,
-                drifting: false,
+                ..Default::default()
             });
         }
     }
-    let raw: Vec<(usize, f64)> = trends.iter().map(|t| (t.param, t.z.abs())).collect();
-    for (k, t) in trends.iter_mut().enumerate() {
-        let others = (raw.iter().enumerate()).filter(|&(i, &(p, _))| i != k && p == t.param);
-        let others: Vec<f64> = others.map(|(_, &(_, z))| z).collect();
-        if others.len() >= 3 {
-            // A median of |z| of a normal is 0.6745 σ; the floor keeps a few quiet robots from
-            // shrinking the others' errors more than 1/0.7.
-            t.null_scale = (1.4826 * median(others)).max(0.7);
-        }
-        t.z /= t.null_scale;
+    let raw: Vec<(usize, f64)> = trends
+        .iter()
+        .map(|t| (t.param, t.slope / t.slope_se))
+        .collect();
+    for (t, scale) in trends.iter_mut().zip(null_scales(&raw)) {
+        (t.null_scale, t.z) = (scale, t.slope / t.slope_se / scale);
         t.drifting = t.z.abs() > z;
     }
-    let mut outliers = Vec::new();
-    for param in 0..N_PARAMS {
-        let of: Vec<&Trend> = trends.iter().filter(|t| t.param == param).collect();
-        if of.len() < 3 {
-            continue;
-        }
-        for t in &of {
-            // The others' median level (robust to another robot that differs too), its
-            // standard error taken as the weighted mean's × √(π/2).
-            let others = of.iter().filter(|o| o.robot != t.robot).map(|o| o.level);
-            let fleet_level = median(others.collect());
-            let sw: f64 = of
-                .iter()
-                .filter(|o| o.robot != t.robot)
-                .map(|o| 1.0 / (o.level_se * o.level_se))
-                .sum();
-            let se_ref = (std::f64::consts::FRAC_PI_2 / sw).sqrt();
-            let zd = (t.level - fleet_level) / (t.level_se * t.level_se + se_ref * se_ref).sqrt();
-            if zd.abs() > z {
-                outliers.push(Outlier {
-                    robot: t.robot.clone(),
-                    param,
-                    level: t.level,
-                    fleet_level,
-                    z: zd,
-                });
-            }
-        }
-    }
+    let outliers = outliers(&trends, z);
     Some(Drift {
         z,
         t0_ns,
         trends,
         outliers,
     })
+}
+
+/// The spread of a null's |z| (σ for a normal: 1.4826 × the median), at least `floor` so that a
+/// few quiet robots do not shrink the others' errors more than 1/`floor`; 1 with fewer than `min`.
+fn spread(abs_z: Vec<f64>, min: usize, floor: f64) -> f64 {
+    match abs_z.len() >= min {
+        false => 1.0,
+        true => (1.4826 * median(abs_z)).max(floor),
+    }
+}
+
+/// For each `(parameter, z)` of `raw`, the spread of the other robots' z of that parameter: the
+/// fleet's own empirical null.
+fn null_scales(raw: &[(usize, f64)]) -> Vec<f64> {
+    let scale = |k: usize| {
+        let others = (raw.iter().enumerate()).filter(|&(i, q)| i != k && q.0 == raw[k].0);
+        spread(others.map(|(_, q)| q.1.abs()).collect(), 3, 0.7)
+    };
+    (0..raw.len()).map(scale).collect()
+}
+
+/// `t`'s level against the median of `others`' levels (at least two): that median, and the
+/// distance in combined standard errors (the median's taken as the weighted mean's × √(π/2)).
+fn distance(t: &Trend, others: &[&Trend]) -> Option<(f64, f64)> {
+    (others.len() >= 2).then_some(())?;
+    let fleet_level = median(others.iter().map(|o| o.level).collect());
+    let sw: f64 = others.iter().map(|o| o.level_se.powi(-2)).sum();
+    let se = (t.level_se.powi(2) + std::f64::consts::FRAC_PI_2 / sw).sqrt();
+    Some((fleet_level, (t.level - fleet_level) / se))
+}
+
+/// The robots whose level differs from the other robots': its [`distance`] from them, calibrated
+/// like the drift z by the [`spread`] of the other robots' distances from the rest of them for
+/// that parameter (the robot itself left out, so that it does not widen its own yardstick); with
+/// fewer than five other robots, the nominal distance.
+fn outliers(trends: &[Trend], z: f64) -> Vec<Outlier> {
+    fn others<'a>(t: &Trend, of: &[&'a Trend]) -> Vec<&'a Trend> {
+        let of = of
+            .iter()
+            .filter(|o| o.param == t.param && o.robot != t.robot);
+        of.copied().collect()
+    }
+    let mut out = Vec::new();
+    let all: Vec<&Trend> = trends.iter().collect();
+    for t in trends {
+        let rest = others(t, &all);
+        let Some((fleet_level, zd)) = distance(t, &rest) else {
+            continue;
+        };
+        let null = rest.iter().filter_map(|o| distance(o, &others(o, &rest)));
+        // Five at least: each of these distances is from a median of the few left. The null only
+        // widens the yardstick (floor 1): the levels' tails are heavier than their median says,
+        // and a floor of 0.7 gave 5 false flags in four runs on two 20 × 30 fleets.
+        let null_scale = spread(null.map(|(_, d)| d.abs()).collect(), 5, 1.0);
+        if (zd / null_scale).abs() > z {
+            let (robot, param, level) = (t.robot.clone(), t.param, t.level);
+            let z = zd / null_scale;
+            out.push(Outlier {
+                robot,
+                param,
+                level,
+                fleet_level,
+                null_scale,
+                z,
+            });
+        }
+    }
+    out
 }
 
 #[cfg(test)]
@@ -281,5 +309,39 @@ mod tests {
         noisy[2].value += 1.0;
         let (_, _, _, wide) = line(&noisy).unwrap();
         assert!(wide > 3.0 * se, "{wide} vs {se}");
+    }
+
+    /// A robot at `level` ± `se` on parameter `param` (its periods are not looked at).
+    fn level(robot: usize, param: usize, level: f64, level_se: f64) -> Trend {
+        let robot = format!("r{robot:02}");
+        Trend {
+            robot,
+            param,
+            level,
+            level_se,
+            ..Default::default()
+        }
+    }
+
+    /// Eleven robots whose levels scatter three times their own standard errors (robots differ,
+    /// or the errors are too small: the fleet's spread is the yardstick), at the normal quantiles
+    /// (Blom) of that spread. A twelfth robot 5 own s.e. off (1.7 spreads) is not flagged; one
+    /// 10 spreads off is, as is one 6 s.e. off where the fleet scatters as its errors say.
+    #[test]
+    fn a_level_differs_only_beyond_the_fleets_own_spread() {
+        let q = [
+            -1.59, -1.06, -0.73, -0.46, -0.22, 0.0, 0.22, 0.46, 0.73, 1.06, 1.59,
+        ];
+        let (se, wide) = (0.01, 0.03);
+        let mut trends = Vec::new();
+        for (param, spread, odd) in [(0, wide, 0.05), (1, wide, 0.3), (2, se, 0.06)] {
+            trends
+                .extend((q.iter().enumerate()).map(|(r, x)| level(r, param, 1.0 + spread * x, se)));
+            trends.push(level(11, param, 1.0 + odd, se));
+        }
+        let flagged: Vec<(String, usize)> = (outliers(&trends, 4.0).into_iter())
+            .map(|o| (o.robot, o.param))
+            .collect();
+        assert_eq!(flagged, [("r11".to_string(), 1), ("r11".to_string(), 2)]);
     }
 }

@@ -317,14 +317,6 @@ impl Work {
             .unwrap_or(usize::MAX)
     }
 
-    /// Rejected trials whose normal equations are not yet removed.
-    fn pending(&self) -> impl Iterator<Item = TrialId> {
-        self.rejections[self.removed..].iter().map(|r| {
-            let (robot, session) = self.sessions[r.session].clone();
-            (robot, session, r.trial as u32)
-        })
-    }
-
     fn fit(&self) -> Result<crate::lsq::Fit> {
         let g = &self.kept.0;
         if g.n < N_PARAMS {
@@ -337,16 +329,12 @@ impl Work {
     }
 }
 
-/// A group's normal equations, Σy and first and last reading time [ns].
-type Sums = (Gram, f64, (i64, i64));
-
-/// The sums of a [`sql::normal_equations`] result by group key, its blocks of matrix
-/// rows put together. Reading times stay integer nanoseconds (an f64 rounds them by up to 256 ns).
-fn normal_sums(batches: &[RecordBatch], by: &[Key]) -> Result<BTreeMap<Vec<String>, Sums>> {
-    let mut out: BTreeMap<Vec<String>, Sums> = BTreeMap::new();
+/// The normal equations and Σy of each group of a [`sql::normal_equations`] result, its blocks
+/// of matrix rows put together.
+fn normal_sums(batches: &[RecordBatch], by: &[Key]) -> Result<BTreeMap<Vec<String>, (Gram, f64)>> {
+    let mut out: BTreeMap<Vec<String>, (Gram, f64)> = BTreeMap::new();
     for b in batches {
-        let int = |name| column_as::<Int64Array>(b, name, DataType::Int64);
-        let (t0, t1, block) = (int("t_min")?, int("t_max")?, int("b")?);
+        let block = column_as::<Int64Array>(b, "b", DataType::Int64)?;
         let (n, sy) = (numbers(b, "n")?, numbers(b, "sy")?);
         let mut g = Vec::new();
         for a in 0..sql::BLOCK {
@@ -355,8 +343,8 @@ fn normal_sums(batches: &[RecordBatch], by: &[Key]) -> Result<BTreeMap<Vec<Strin
             }
         }
         for (r, (key, _)) in result_rows(b, by)?.into_iter().enumerate() {
-            let s = (out.entry(key)).or_insert_with(|| (Gram::zeros(N_PARAMS), 0.0, (0, 0)));
-            (s.0.n, s.1, s.2) = (n.value(r) as usize, sy.value(r), (t0.value(r), t1.value(r)));
+            let s = (out.entry(key)).or_insert_with(|| (Gram::zeros(N_PARAMS), 0.0));
+            (s.0.n, s.1) = (n.value(r) as usize, sy.value(r));
             for a in 0..sql::BLOCK {
                 let i = block.value(r) as usize * sql::BLOCK + a;
                 for j in i..=N_PARAMS {
@@ -426,6 +414,20 @@ fn widened_se(g: &Gram, free: &[Option<f64>]) -> Vec<Option<f64>> {
     out
 }
 
+/// Every group's rejected trials whose rows are not yet out of its sums, with the group's key;
+/// they are taken as out from here on.
+fn pending(groups: &mut BTreeMap<Vec<String>, Work>) -> Vec<(Vec<String>, TrialId)> {
+    let mut out = Vec::new();
+    for (key, w) in groups.iter_mut() {
+        for r in &w.rejections[w.removed..] {
+            let (robot, session) = w.sessions[r.session].clone();
+            out.push((key.clone(), (robot, session, r.trial as u32)));
+        }
+        w.removed = w.rejections.len();
+    }
+    out
+}
+
 /// Runs the queries, keeping each with its result (for `--save-sql`) and the bytes read.
 struct Runner<'a> {
     engine: &'a Engine,
@@ -449,20 +451,19 @@ impl Runner<'_> {
     }
 }
 
-/// Step 1, two scans: the groups with their trials' moments and normal equations, their
-/// sessions, and the IMU filter's rejections.
+/// Step 1, two scans: the groups with their trials' moments, sessions and the IMU filter's
+/// rejections; then the normal equations of the trials the IMU filter kept.
 fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<String>, Work>> {
     let (by, target, filter) = (&opts.by, opts.target.as_str(), opts.filter.as_deref());
     let mut groups: BTreeMap<Vec<String>, Work> = BTreeMap::new();
     for b in run.run("moments", sql::moments(by, target, filter))? {
-        let (n, sy, sigma) = (
-            numbers(&b, "n")?,
-            numbers(&b, "sy")?,
-            numbers(&b, "sigma_omega")?,
-        );
-        let s: Vec<Float64Array> = (0..N_PARAMS)
-            .map(|p| numbers(&b, &format!("s_{p}")))
-            .collect::<Result<_>>()?;
+        let num = |c: &str| numbers(&b, c);
+        let (n, sy, sigma) = (num("n")?, num("sy")?, num("sigma_omega")?);
+        // Reading times stay integer nanoseconds (an f64 rounds them by up to 256 ns).
+        let int = |name| column_as::<Int64Array>(&b, name, DataType::Int64);
+        let (t0, t1) = (int("t_min")?, int("t_max")?);
+        let s: Result<Vec<_>> = (0..N_PARAMS).map(|p| num(&format!("s_{p}"))).collect();
+        let s = s?;
         for (r, (key, id)) in result_rows(&b, by)?.into_iter().enumerate() {
             let id = id.context("moments without trial columns")?;
             let w = groups.entry(key).or_insert_with(|| Work {
@@ -470,13 +471,15 @@ fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<Str
                 sessions: Vec::new(),
                 rows: 0,
                 kept: (Gram::zeros(N_PARAMS), 0.0),
-                t_ns: (0, 0),
+                t_ns: (i64::MAX, i64::MIN),
                 removed: 0,
                 rejections: Vec::new(),
                 error: None,
                 done: false,
             });
             w.sessions.push((id.0.clone(), id.1.clone()));
+            w.rows += n.value(r) as usize;
+            w.t_ns = (w.t_ns.0.min(t0.value(r)), w.t_ns.1.max(t1.value(r)));
             w.trials.push(TrialMoments {
                 id,
                 n: n.value(r),
@@ -493,17 +496,18 @@ fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<Str
     for w in groups.values_mut() {
         w.sessions.sort();
         w.sessions.dedup();
-        let sigmas: Vec<TrialStat> = w
-            .trials
-            .iter()
-            .map(|t| TrialStat::new(w.session_index(&t.id), t.id.2 as usize, t.sigma_omega))
-            .collect();
+        let stat = |t: &TrialMoments| {
+            TrialStat::new(w.session_index(&t.id), t.id.2 as usize, t.sigma_omega)
+        };
+        let sigmas: Vec<TrialStat> = w.trials.iter().map(stat).collect();
         w.rejections = opts.cascade.imu(&sigmas);
     }
-    let q = sql::normal_equations(by, Pick::All, target, filter);
-    for (key, (g, sy, t)) in normal_sums(&run.run("normal_equations", q)?, by)? {
+    // The IMU filter's rejections are left out in the scan, not subtracted after another.
+    let imu = pending(&mut groups);
+    let q = sql::normal_equations(by, Pick::Except(&imu), target, filter);
+    for (key, kept) in normal_sums(&run.run("normal_equations", q)?, by)? {
         let w = (groups.get_mut(&key)).context(format!("group {key:?} has no trials"))?;
-        (w.rows, w.kept, w.t_ns) = (g.n, (g, sy), t);
+        w.kept = kept;
     }
     Ok(groups)
 }
@@ -594,9 +598,7 @@ pub fn fit_fleet(
     let mut pass = 0;
     loop {
         // The normal equations of every trial rejected so far and not yet removed, one scan.
-        let pending: Vec<(Vec<String>, TrialId)> = (groups.iter())
-            .flat_map(|(k, w)| w.pending().map(|id| (k.clone(), id)))
-            .collect();
+        let pending = pending(&mut groups);
         if !pending.is_empty() {
             progress(&format!(
                 "scanning: normal equations of {} rejected trials",
@@ -607,11 +609,9 @@ pub fn fit_fleet(
             // midnight by day) may be rejected in one and kept in the other.
             let q = sql::normal_equations(by, Pick::Only(&pending), target, filter);
             let sums = normal_sums(&run.run(&format!("rejected_{pass}"), q)?, by)?;
-            for (key, w) in groups.iter_mut() {
-                if let Some((g, sy, _)) = sums.get(key) {
-                    w.kept = (w.kept.0.minus(g), w.kept.1 - sy);
-                }
-                w.removed = w.rejections.len();
+            for (key, (g, sy)) in sums {
+                let w = (groups.get_mut(&key)).context(format!("group {key:?} has no trials"))?;
+                w.kept = (w.kept.0.minus(&g), w.kept.1 - sy);
             }
         }
         pass += 1;

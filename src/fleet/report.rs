@@ -9,7 +9,7 @@ use anyhow::Result;
 use plotters::prelude::*;
 
 use super::FleetFit;
-use super::drift::{Drift, Trend};
+use super::drift::{Drift, Point, Trend};
 use crate::plot::{FONT, padded_range, plot_err, write_png};
 use crate::power::PowerModel;
 
@@ -22,8 +22,10 @@ pub fn param_label(p: usize, joints: &[String]) -> String {
     }
 }
 
-/// A markdown section `title` with a table of `rows` under `header` (a row "none" when empty).
-fn table(s: &mut String, title: &str, header: &[&str], rows: impl Iterator<Item = String>) {
+/// A markdown section `title` with a table of `rows` under `header` (comma-separated; a row
+/// "none" when empty).
+fn table(s: &mut String, title: &str, header: &str, rows: impl Iterator<Item = String>) {
+    let header: Vec<&str> = header.split(',').collect();
     let _ = writeln!(
         s,
         "\n## {title}\n\n| {} |\n|{}",
@@ -49,8 +51,7 @@ pub fn markdown(fit: &FleetFit, drift: Option<&Drift>, joints: &[String]) -> Str
         fit.groups.len(),
         by.join(", ")
     );
-    let mut header = by.clone();
-    header.extend("rows,used,trials,rejected IMU / 3σ,R²,RMSE [W],note".split(','));
+    let header = by.join(",") + ",rows,used,trials,rejected IMU / 3σ,R²,RMSE [W],note";
     let groups = fit.groups.iter().map(|g| {
         let (imu, res, unusable) = g.rejected_by();
         let (key, note) = (g.key.join(" | "), g.error.as_deref().unwrap_or(""));
@@ -65,48 +66,29 @@ pub fn markdown(fit: &FleetFit, drift: Option<&Drift>, joints: &[String]) -> Str
         return s;
     };
     let drifts = d.drifting().map(|t| {
-        let span = t.points.last().map_or(0.0, |p| p.t_weeks)
-            - t.points.first().map_or(0.0, |p| p.t_weeks);
-        format!(
-            "| {} | {} | {:.4} ± {:.4} | {:+.4} ± {:.4} | {:+.1} | {:+.1} % |",
-            t.robot,
-            param_label(t.param, joints),
-            t.level,
-            t.level_se,
-            t.slope,
-            t.slope_se,
-            t.z,
-            100.0 * t.slope * span / t.level
-        )
+        let (first, last) = (t.points.first(), t.points.last());
+        let span = last.map_or(0.0, |p| p.t_weeks) - first.map_or(0.0, |p| p.t_weeks);
+        let (robot, param) = (&t.robot, param_label(t.param, joints));
+        let (level, level_se, slope, slope_se, z) = (t.level, t.level_se, t.slope, t.slope_se, t.z);
+        let change = 100.0 * slope * span / level;
+        format!("| {robot} | {param} | {level:.4} ± {level_se:.4} | {slope:+.4} ± {slope_se:.4} | {z:+.1} | {change:+.1} % |")
     });
     let title = format!("Drifts (slope beyond {} calibrated standard errors)", d.z);
-    let header = [
-        "robot",
-        "parameter",
-        "level at start",
-        "slope per week",
-        "z",
-        "change over the periods",
-    ];
-    table(&mut s, &title, &header, drifts);
+    let header = "robot,parameter,level at start,slope per week,z,change over the periods";
+    table(&mut s, &title, header, drifts);
     let levels = d.outliers.iter().map(|o| {
-        format!(
-            "| {} | {} | {:.4} | {:.4} | {:+.1} |",
-            o.robot,
-            param_label(o.param, joints),
-            o.level,
-            o.fleet_level,
-            o.z
-        )
+        let (robot, param) = (&o.robot, param_label(o.param, joints));
+        let (level, fleet, z) = (o.level, o.fleet_level, o.z);
+        format!("| {robot} | {param} | {level:.4} | {fleet:.4} | {z:+.1} |")
     });
     let title = format!(
-        "Robots differing from the fleet (level at start beyond {} combined standard errors)",
+        "Robots differing from the fleet (level at start beyond {} calibrated standard errors)",
         d.z
     );
     table(
         &mut s,
         &title,
-        &["robot", "parameter", "level", "other robots", "z"],
+        "robot,parameter,level,other robots,z",
         levels,
     );
     s.push_str("\n![flagged parameters per robot over time](fleet.png)\n");
@@ -165,22 +147,13 @@ pub fn figure(path: &Path, drift: &Drift, joints: &[String]) -> Result<()> {
                 .map_err(plot_err)?;
             for t in &of {
                 let flagged = drift.is_flagged(p, &t.robot);
-                let colour = if flagged {
-                    RED
-                } else {
-                    RGBColor(120, 120, 120)
-                };
-                for q in &t.points {
-                    chart
-                        .draw_series(std::iter::once(PathElement::new(
-                            vec![
-                                (q.t_weeks, q.value - q.std_err),
-                                (q.t_weeks, q.value + q.std_err),
-                            ],
-                            colour.mix(0.5),
-                        )))
-                        .map_err(plot_err)?;
-                }
+                let colour = [RGBColor(120, 120, 120), RED][flagged as usize];
+                let bar = |q: &Point| [-1.0, 1.0].map(|k| (q.t_weeks, q.value + k * q.std_err));
+                let bars = t
+                    .points
+                    .iter()
+                    .map(|q| PathElement::new(bar(q), colour.mix(0.5)));
+                chart.draw_series(bars).map_err(plot_err)?;
                 chart
                     .draw_series(
                         t.points

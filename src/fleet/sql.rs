@@ -92,50 +92,58 @@ pub type TrialId = (String, String, u32);
 /// Which rows a query reads.
 #[derive(Debug, Clone, Copy)]
 pub enum Pick<'a> {
-    /// Every row.
-    All,
     /// Only the rows of these trials (not none) in these groups (the `--by` keys' SQL values, as the
     /// queries return them): a trial that spans two groups (a session across midnight by day) is
     /// picked in the group that rejected it alone.
     Only(&'a [(Vec<String>, TrialId)]),
+    /// Every row but those of these trials in these groups (none: every row).
+    Except(&'a [(Vec<String>, TrialId)]),
 }
+
+/// Every row.
+pub const ALL: Pick<'static> = Pick::Except(&[]);
 
 fn quote(s: &str) -> String {
     format!("'{}'", s.replace('\'', "''"))
 }
 
-/// `FROM rows …` with the pick's join and the `WHERE` clause (`target`, the user's filter).
+/// `FROM rows …` with the pick's join (`LEFT JOIN` and no match for [`Pick::Except`]) and the
+/// `WHERE` clause (`target`, the user's filter).
 fn from_where(keys: &[Key], pick: Pick, target: &str, filter: Option<&str>) -> String {
     let mut conditions = vec![format!("target = {}", quote(target))];
     if let Some(f) = filter {
         conditions.push(format!("({f})"));
     }
-    let mut from = "rows".to_string();
-    match pick {
-        Pick::All => {}
-        Pick::Only(list) => {
-            let values: Vec<String> = list
-                .iter()
-                .map(|(key, (r, s, t))| {
-                    let key = keys.iter().zip(key).map(|(k, v)| match k.is_period() {
-                        true => v.parse::<i64>().map_or("NULL".into(), |n| n.to_string()),
-                        false => quote(v),
-                    });
-                    let key: String = key.map(|v| v + ", ").collect();
-                    format!("({key}{}, {}, {t})", quote(r), quote(s))
-                })
-                .collect();
-            let names: String = (0..keys.len()).map(|i| format!("x_k{i}, ")).collect();
-            let on: String = (keys.iter().enumerate())
-                .map(|(i, k)| format!("{} = x.x_k{i} AND ", qualify(k.expr())))
-                .collect();
-            from = format!(
-                "rows JOIN (VALUES {}) AS x({names}x_robot, x_session, x_trial) ON {on}rows.robot = \
-                 x.x_robot AND rows.session = x.x_session AND CAST(rows.trial AS BIGINT) = x.x_trial",
-                values.join(", ")
-            );
-        }
+    let (join, list) = match pick {
+        Pick::Only(list) => ("JOIN", list),
+        Pick::Except(list) => ("LEFT JOIN", list),
     };
+    let mut from = "rows".to_string();
+    if !list.is_empty() {
+        let values: Vec<String> = list
+            .iter()
+            .map(|(key, (r, s, t))| {
+                let key = keys.iter().zip(key).map(|(k, v)| match k.is_period() {
+                    true => v.parse::<i64>().map_or("NULL".into(), |n| n.to_string()),
+                    false => quote(v),
+                });
+                let key: String = key.map(|v| v + ", ").collect();
+                format!("({key}{}, {}, {t})", quote(r), quote(s))
+            })
+            .collect();
+        let names: String = (0..keys.len()).map(|i| format!("x_k{i}, ")).collect();
+        let on: String = (keys.iter().enumerate())
+            .map(|(i, k)| format!("{} = x.x_k{i} AND ", qualify(k.expr())))
+            .collect();
+        from = format!(
+            "rows {join} (VALUES {}) AS x({names}x_robot, x_session, x_trial) ON {on}rows.robot = \
+             x.x_robot AND rows.session = x.x_session AND CAST(rows.trial AS BIGINT) = x.x_trial",
+            values.join(", ")
+        );
+        if join == "LEFT JOIN" {
+            conditions.push("x.x_trial IS NULL".into());
+        }
+    }
     format!("FROM {from}\nWHERE {}", conditions.join(" AND "))
 }
 
@@ -165,11 +173,12 @@ fn qualify(expr: &str) -> String {
     }
 }
 
-/// Per trial of each group: rows `n`, Σy `sy`, Σφ_p `s_p` and σ_ω (the trial's IMU statistic,
-/// the same on each of its rows). Everything the IMU filter and the residual passes need.
+/// Per trial of each group: rows `n`, its first and last reading time `t_min`/`t_max` [ns], Σy
+/// `sy`, Σφ_p `s_p` and σ_ω (the trial's IMU statistic, the same on each of its rows). Everything
+/// the IMU filter and the residual passes need.
 pub fn moments(keys: &[Key], target: &str, filter: Option<&str>) -> String {
     let (mut select, group) = grouping(keys, true);
-    select.push("COUNT(*) AS n".into());
+    select.push("COUNT(*) AS n, MIN(rows.t_ns) AS t_min, MAX(rows.t_ns) AS t_max".into());
     select.push("MAX(rows.sigma_omega) AS sigma_omega".into());
     select.push("SUM(rows.y_w) AS sy".into());
     for p in 0..N_PARAMS {
@@ -178,7 +187,7 @@ pub fn moments(keys: &[Key], target: &str, filter: Option<&str>) -> String {
     format!(
         "SELECT {}\n{}\nGROUP BY {}",
         select.join(", "),
-        from_where(keys, Pick::All, target, filter),
+        from_where(keys, ALL, target, filter),
         group.join(", ")
     )
 }
@@ -192,9 +201,9 @@ pub const BLOCK: usize = 10;
 /// The number of row blocks: 50 entries of (φ, y) in blocks of [`BLOCK`].
 pub const BLOCKS: usize = (N_PARAMS + 1).div_ceil(BLOCK);
 
-/// The normal equations of each group's picked rows, as one result row per group and block `b`: `n`, Σy `sy`, the first and last reading time
-/// `t_min`/`t_max` [ns] (the same in each block), and `g_a_j` = Σ x_i·x_j for i = b·BLOCK + a,
-/// j = 0…49, over x = (φ_0 … φ_48, y): ΦᵀΦ, Φᵀy (j = 49) and yᵀy (i = j = 49).
+/// The normal equations of each group's picked rows, as one result row per group and block `b`:
+/// `n`, Σy `sy` (the same in each block) and `g_a_j` = Σ x_i·x_j for i = b·BLOCK + a, j = 0…49,
+/// over x = (φ_0 … φ_48, y): ΦᵀΦ, Φᵀy (j = 49) and yᵀy (i = j = 49).
 pub fn normal_equations(keys: &[Key], pick: Pick, target: &str, filter: Option<&str>) -> String {
     let (mut inner, _) = grouping(keys, false);
     let x: Vec<String> = (0..N_PARAMS)
@@ -203,7 +212,6 @@ pub fn normal_equations(keys: &[Key], pick: Pick, target: &str, filter: Option<&
         .collect();
     inner.push("b.b AS b".into());
     inner.extend(x.iter().map(|c| format!("rows.{c} AS {c}")));
-    inner.push("rows.t_ns AS t_ns".into());
     for a in 0..BLOCK {
         let whens: String = (0..BLOCKS)
             .filter_map(|b| {
@@ -217,7 +225,7 @@ pub fn normal_equations(keys: &[Key], pick: Pick, target: &str, filter: Option<&
     let group = group.join(", ");
     let mut select = vec![
         format!("{group}, b"),
-        "COUNT(*) AS n, MIN(t_ns) AS t_min, MAX(t_ns) AS t_max, SUM(y_w) AS sy".into(),
+        "COUNT(*) AS n, SUM(y_w) AS sy".into(),
     ];
     for a in 0..BLOCK {
         select
@@ -266,5 +274,12 @@ mod tests {
         );
         assert!(q.contains("g_9_49") && !q.contains("g_10_0"));
         assert!(q.contains("GROUP BY robot, day, b"));
+        let q = normal_equations(&[Key::Robot], Pick::Except(&picked[..1]), "mbs", None);
+        assert!(
+            q.contains("rows LEFT JOIN (VALUES ('r''1', 'r''1', 'a.mcap', 3))"),
+            "{q}"
+        );
+        assert!(q.contains("x.x_trial IS NULL"));
+        assert!(!normal_equations(&[Key::Robot], ALL, "mbs", None).contains("x_trial"));
     }
 }

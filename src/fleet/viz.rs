@@ -82,10 +82,8 @@ pub fn write_rrd(path: &Path, drift: &Drift, joints: &[String], markdown: &str) 
     for t in &drift.trends {
         let flagged = drift.is_flagged(t.param, &t.robot);
         let entity = format!("fleet/{}/{}", PowerModel::param_name(t.param), t.robot);
-        let colour = match flagged {
-            true => Color::from_rgb(220, 40, 40),
-            false => Color::from_rgb(110, 110, 110),
-        };
+        let colour =
+            [Color::from_rgb(110, 110, 110), Color::from_rgb(220, 40, 40)][flagged as usize];
         w.send_static(
             &entity,
             &SeriesPoints::new()
