@@ -10,7 +10,7 @@
 
 use super::select::{Param, RIVAL_ALPHA, Rule, jackknife_se};
 use super::stats::{
-    STABILITY_DRAWS, improvement_p_value, resampled_stability, span, step_threshold,
+    EXTENDS, STABILITY_DRAWS, encompassing, improvement_p_value, resampled_stability, span, step_threshold,
 };
 use super::stepwise::{self, Gated, holm_level, not_significant};
 use crate::lsq::Gram;
@@ -210,6 +210,11 @@ impl Search<'_> {
         d
     }
 
+    /// Per block: the [`encompassing`] evidence that `a`, extending `b`, improves on it.
+    fn block_enc(&self, a: &[f64], b: &[f64]) -> Vec<f64> {
+        encompassing(&self.y, (a, b), &self.block, self.n_blocks, EXTENDS)
+    }
+
     fn rmse(&self, pred: &[f64]) -> f64 {
         super::select::r2_rmse(&self.y, pred).1
     }
@@ -218,7 +223,8 @@ impl Search<'_> {
         let mut x: Vec<&[f64]> = chosen.iter().map(|&c| self.cols[c].as_slice()).collect();
         x.push(&self.cols[i]);
         let fit = self.fit(&x)?;
-        let p = improvement_p_value(&self.block_gain(&cur.pred, &fit.pred));
+        let p = improvement_p_value(&self.block_enc(&fit.pred, &cur.pred));
+        crate::diagnose::stats::log_p("rest", &self.y, &fit.pred, &cur.pred, &self.block, self.n_blocks);
         let rel = 1.0 - self.rmse(&fit.pred) / self.rmse(&cur.pred).max(1e-300);
         let d_bic = fit.bic - cur.bic;
         Some(Scored {
@@ -513,7 +519,7 @@ impl Search<'_> {
                 let d: Vec<f64> = e.iter().zip(&e_cur).map(|(a, b)| a - b).collect();
                 let seed = 0x5eed_0000 + k as u64;
                 let level = (RIVAL_ALPHA, self.rule.min_improvement);
-                let held = resampled_stability(&e, &e_cur, level, STABILITY_DRAWS, seed);
+                let held = resampled_stability((&e, &e_cur, &d), level, STABILITY_DRAWS, seed);
                 let gain = 1.0 - (sum(&e_cur) / sum(&e).max(1e-300)).sqrt();
                 let p = improvement_p_value(&d);
                 (if gain >= level.1 { p } else { 1.0 }, held)

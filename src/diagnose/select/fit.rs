@@ -9,7 +9,7 @@ use rand::seq::SliceRandom;
 
 use crate::diagnose::hypotheses::{Combine, Hypothesis, N_RAW};
 use crate::diagnose::reading_rows::Rows;
-use crate::diagnose::stats::improvement_p_value;
+use crate::diagnose::stats::{EXTENDS, encompassing, improvement_p_value};
 use crate::lsq::{Gram, Metrics, bounded_quadratic};
 use crate::power::PowerModel;
 use crate::{N_JOINTS, N_PARAMS};
@@ -279,8 +279,14 @@ pub(crate) fn trial_sse(y: &[f64], pred: &[f64], trial: &[usize], n_trials: usiz
     out
 }
 
+/// The paired one-sided p-value by trial that predictions `a` of a model extending `b`'s
+/// improve on `b` ([`improvement_p_value`] of the per-trial [`encompassing`] evidence).
+pub(crate) fn p_extends(y: &[f64], a: &[f64], b: &[f64], trial: &[usize], n_trials: usize) -> f64 {
+    improvement_p_value(&encompassing(y, (a, b), trial, n_trials, EXTENDS))
+}
+
 /// The paired one-sided p-value by trial ([`improvement_p_value`] of the per-trial squared
-/// errors) that predictions `a` fit readings `y` better than `b`.
+/// errors) that predictions `a` fit readings `y` better than `b`, an alternative.
 pub(crate) fn p_better(y: &[f64], a: &[f64], b: &[f64], trial: &[usize], n_trials: usize) -> f64 {
     let ea = trial_sse(y, a, trial, n_trials);
     let eb = trial_sse(y, b, trial, n_trials);

@@ -166,6 +166,7 @@ pub(super) struct Candidate {
 fn compare(data: &PowerData, cur: &State, next_pred: &[f64]) -> Held {
     // Every lag's rows are the same readings: y and trial are the lag-0 rows'.
     let rows = data.rows0();
+    crate::diagnose::stats::log_p("library", &rows.y, next_pred, &cur.cv.pred, &rows.trial, data.n_trials);
     Held::new(&rows.y, &cur.cv.pred, next_pred, &rows.trial, data.n_trials)
 }
 
@@ -186,7 +187,7 @@ impl Held {
             Quality { r2, rmse_w }
         };
         Held {
-            p_value: p_better(y, after, before, trial, n_trials),
+            p_value: p_extends(y, after, before, trial, n_trials),
             before: quality(before),
             after: quality(after),
         }
