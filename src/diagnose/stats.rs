@@ -21,33 +21,24 @@ fn ln_gamma(x: f64) -> f64 {
 
 /// Continued fraction of the incomplete beta function (modified Lentz).
 fn beta_cf(a: f64, b: f64, x: f64) -> f64 {
-    const TINY: f64 = 1e-300;
+    let tiny = |v: f64| if v.abs() < 1e-300 { 1e-300 } else { v };
     let (qab, qap, qam) = (a + b, a + 1.0, a - 1.0);
-    let mut c = 1.0;
-    let mut d = 1.0 - qab * x / qap;
-    if d.abs() < TINY {
-        d = TINY;
-    }
-    d = 1.0 / d;
+    let (mut c, mut d) = (1.0, 1.0 / tiny(1.0 - qab * x / qap));
     let mut h = d;
     for m in 1..300 {
         let m = m as f64;
         let m2 = 2.0 * m;
-        let aa = m * (b - m) * x / ((qam + m2) * (a + m2));
-        d = 1.0 + aa * d;
-        d = if d.abs() < TINY { TINY } else { d };
-        c = 1.0 + aa / c;
-        c = if c.abs() < TINY { TINY } else { c };
-        d = 1.0 / d;
-        h *= d * c;
-        let aa = -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2));
-        d = 1.0 + aa * d;
-        d = if d.abs() < TINY { TINY } else { d };
-        c = 1.0 + aa / c;
-        c = if c.abs() < TINY { TINY } else { c };
-        d = 1.0 / d;
-        let del = d * c;
-        h *= del;
+        let mut del = 1.0;
+        // The even and the odd step of the fraction.
+        for aa in [
+            m * (b - m) * x / ((qam + m2) * (a + m2)),
+            -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2)),
+        ] {
+            d = 1.0 / tiny(1.0 + aa * d);
+            c = tiny(1.0 + aa / c);
+            del = d * c;
+            h *= del;
+        }
         if (del - 1.0).abs() < 1e-14 {
             break;
         }
@@ -179,9 +170,9 @@ pub const EXTENDS: f64 = 0.25;
 /// improve on `b`: Σ (y − b)(a − b) − λ (a − b)². With λ = ½ it is half the squared-error
 /// difference (the test of two alternatives). λ = 0 is the forecast-encompassing statistic,
 /// the covariance of `b`'s held-out error with the change `a` predicts: when `a` extends `b`
-/// by a true term its mean is the same as at λ = ½ at about half the spread (the squared-error
-/// difference also carries the fold fits' noise), but fold fits that share trials skew it
-/// upward under no effect; [`EXTENDS`] lies between.
+/// by a true term its mean is (1 − λ) Σ (a − b)², twice that at λ = ½, at about the same
+/// spread; but under no effect fold fits that share trials skew it upward (its p-values fall
+/// below their level several times too often, docs/diagnosis.md). [`EXTENDS`] lies between.
 pub fn encompassing(
     y: &[f64],
     (a, b): (&[f64], &[f64]),
@@ -203,14 +194,16 @@ pub(crate) fn log_p(stage: &str, y: &[f64], a: &[f64], b: &[f64], group: &[usize
     let Some(path) = std::env::var_os("G1VIZ_P_LOG") else {
         return;
     };
-    let mut line = stage.to_string();
-    for l in [0.0, 0.125, 0.25, 0.375, 0.5] {
-        line += &format!(" {:e}", improvement_p_value(&encompassing(y, (a, b), group, n, l)));
-    }
-    use std::io::Write;
-    if let Ok(mut f) = std::fs::OpenOptions::new().append(true).create(true).open(path) {
-        let _ = writeln!(f, "{line}");
-    }
+    let p = |l| improvement_p_value(&encompassing(y, (a, b), group, n, l));
+    let ps = [0.0, 0.125, 0.25, 0.375, 0.5]
+        .map(|l| format!("{:e}", p(l)))
+        .join(" ");
+    let f = std::fs::OpenOptions::new()
+        .append(true)
+        .create(true)
+        .open(path);
+    let _ =
+        f.and_then(|mut f| std::io::Write::write_all(&mut f, format!("{stage} {ps}\n").as_bytes()));
 }
 
 /// Resamples of the trials [`resampled_stability`] draws.

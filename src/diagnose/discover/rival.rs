@@ -157,14 +157,10 @@ fn explaining_same(search: &Search, with: &State, without: &State) -> Result<Vec
                 && rel >= rule.min_improvement
         })
     };
-    // What the term adds to the held-out prediction.
-    let lib_add: Vec<f64> = with
-        .cv
-        .pred
-        .iter()
-        .zip(&without.cv.pred)
-        .map(|(a, b)| a - b)
-        .collect();
+    // What the term (a candidate) adds to the held-out prediction.
+    let add =
+        |p: &[f64]| -> Vec<f64> { p.iter().zip(&without.cv.pred).map(|(a, b)| a - b).collect() };
+    let lib_add = add(&with.cv.pred);
     let mut same: Vec<Same> = Vec::new();
     for i in 0..search.cands.len() {
         let Some(s) = search.score(i, &[], (&without.cv.pred, without.bic), y_rms) else {
@@ -176,13 +172,7 @@ fn explaining_same(search: &Search, with: &State, without: &State) -> Result<Vec
         let e_riv = trial_sse(&rows.y, &s.fit.pred, &rows.trial, nt);
         let d_lib: Vec<f64> = e_riv.iter().zip(&e_with).map(|(a, b)| a - b).collect();
         let d_riv: Vec<f64> = d_lib.iter().map(|v| -v).collect();
-        let riv_add: Vec<f64> = s
-            .fit
-            .pred
-            .iter()
-            .zip(&without.cv.pred)
-            .map(|(a, b)| a - b)
-            .collect();
+        let riv_add = add(&s.fit.pred);
         let sse = |e: &[f64]| e.iter().sum::<f64>();
         same.push(Same {
             p_lib: improvement_p_value(&d_lib),
