@@ -145,13 +145,15 @@ fn explaining_same(search: &Search, with: &State, without: &State) -> Result<Vec
     let (y_rms, nt) = (search.y_rms(), search.base.data.n_trials);
     let e_with = trial_sse(&rows.y, &with.cv.pred, &rows.trial, nt);
     // What a candidate still adds beside the term: one that no longer passes there explains
-    // the same.
+    // the same — by the squared-error test (λ = ½): whether it still fits better, not whether
+    // it still carries something (the encompassing test finds a rival's remainder).
     let beside = Base::new(search.base.data, with)?;
     let explains_same = |i: usize| {
         let cols = search.cols(i);
         let refs: Vec<&Vec<f64>> = cols.iter().collect();
         !beside.fit(&refs).ok().is_some_and(|fit| {
-            let (p, rel, _, _) = beside.compare(&with.cv.pred, &fit.pred);
+            let (_, rel, _, _) = beside.compare(&with.cv.pred, &fit.pred);
+            let p = p_better(search, &fit.pred, &with.cv.pred);
             p < search.flat_level(i)
                 && fit.bic - with.bic < rule.bic_threshold
                 && rel >= rule.min_improvement
