@@ -209,7 +209,7 @@ pub(crate) fn apply(
             p_value: improvement_p_value(&d),
             p_rival: improvement_p_value(&worse),
             beaten: false,
-            held: resampled_stability(&e, &e_full, gate, STABILITY_DRAWS, seed),
+            held: resampled_stability((&e, &e_full, &d), gate, STABILITY_DRAWS, seed),
             min_gain,
             level,
         }

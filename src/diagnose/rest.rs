@@ -10,7 +10,8 @@
 
 use super::select::{Param, RIVAL_ALPHA, Rule, jackknife_se};
 use super::stats::{
-    STABILITY_DRAWS, improvement_p_value, resampled_stability, span, step_threshold,
+    EXTENDS, STABILITY_DRAWS, encompassing, improvement_p_value, resampled_stability, span,
+    step_threshold,
 };
 use super::stepwise::{self, Gated, holm_level, not_significant};
 use crate::lsq::Gram;
@@ -201,13 +202,9 @@ impl Search<'_> {
         })
     }
 
-    /// Per block: held-out squared error of `a` minus that of `b`.
-    fn block_gain(&self, a: &[f64], b: &[f64]) -> Vec<f64> {
-        let mut d = vec![0.0; self.n_blocks];
-        for r in 0..self.y.len() {
-            d[self.block[r]] += (self.y[r] - a[r]).powi(2) - (self.y[r] - b[r]).powi(2);
-        }
-        d
+    /// Per block: the [`encompassing`] evidence at `lambda` that `a` improves on `b`.
+    fn block_enc(&self, a: &[f64], b: &[f64], lambda: f64) -> Vec<f64> {
+        encompassing(&self.y, (a, b), &self.block, self.n_blocks, lambda)
     }
 
     fn rmse(&self, pred: &[f64]) -> f64 {
@@ -218,7 +215,15 @@ impl Search<'_> {
         let mut x: Vec<&[f64]> = chosen.iter().map(|&c| self.cols[c].as_slice()).collect();
         x.push(&self.cols[i]);
         let fit = self.fit(&x)?;
-        let p = improvement_p_value(&self.block_gain(&cur.pred, &fit.pred));
+        let p = improvement_p_value(&self.block_enc(&fit.pred, &cur.pred, EXTENDS));
+        crate::diagnose::stats::log_p(
+            "rest",
+            &self.y,
+            &fit.pred,
+            &cur.pred,
+            &self.block,
+            self.n_blocks,
+        );
         let rel = 1.0 - self.rmse(&fit.pred) / self.rmse(&cur.pred).max(1e-300);
         let d_bic = fit.bic - cur.bic;
         Some(Scored {
@@ -513,7 +518,7 @@ impl Search<'_> {
                 let d: Vec<f64> = e.iter().zip(&e_cur).map(|(a, b)| a - b).collect();
                 let seed = 0x5eed_0000 + k as u64;
                 let level = (RIVAL_ALPHA, self.rule.min_improvement);
-                let held = resampled_stability(&e, &e_cur, level, STABILITY_DRAWS, seed);
+                let held = resampled_stability((&e, &e_cur, &d), level, STABILITY_DRAWS, seed);
                 let gain = 1.0 - (sum(&e_cur) / sum(&e).max(1e-300)).sqrt();
                 let p = improvement_p_value(&d);
                 (if gain >= level.1 { p } else { 1.0 }, held)
@@ -555,7 +560,7 @@ impl Search<'_> {
             .iter()
             .filter(|s| self.field_of(s.cand) != self.field_of(b.cand))
             .filter(|s| {
-                let p = improvement_p_value(&self.block_gain(&s.fit.pred, &b.fit.pred));
+                let p = improvement_p_value(&self.block_enc(&b.fit.pred, &s.fit.pred, 0.5));
                 not_significant(p, alpha)
             })
             .map(|s| (self.rmse(&s.fit.pred), self.field_of(s.cand)))

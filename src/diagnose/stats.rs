@@ -21,33 +21,24 @@ fn ln_gamma(x: f64) -> f64 {
 
 /// Continued fraction of the incomplete beta function (modified Lentz).
 fn beta_cf(a: f64, b: f64, x: f64) -> f64 {
-    const TINY: f64 = 1e-300;
+    let tiny = |v: f64| if v.abs() < 1e-300 { 1e-300 } else { v };
     let (qab, qap, qam) = (a + b, a + 1.0, a - 1.0);
-    let mut c = 1.0;
-    let mut d = 1.0 - qab * x / qap;
-    if d.abs() < TINY {
-        d = TINY;
-    }
-    d = 1.0 / d;
+    let (mut c, mut d) = (1.0, 1.0 / tiny(1.0 - qab * x / qap));
     let mut h = d;
     for m in 1..300 {
         let m = m as f64;
         let m2 = 2.0 * m;
-        let aa = m * (b - m) * x / ((qam + m2) * (a + m2));
-        d = 1.0 + aa * d;
-        d = if d.abs() < TINY { TINY } else { d };
-        c = 1.0 + aa / c;
-        c = if c.abs() < TINY { TINY } else { c };
-        d = 1.0 / d;
-        h *= d * c;
-        let aa = -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2));
-        d = 1.0 + aa * d;
-        d = if d.abs() < TINY { TINY } else { d };
-        c = 1.0 + aa / c;
-        c = if c.abs() < TINY { TINY } else { c };
-        d = 1.0 / d;
-        let del = d * c;
-        h *= del;
+        let mut del = 1.0;
+        // The even and the odd step of the fraction.
+        for aa in [
+            m * (b - m) * x / ((qam + m2) * (a + m2)),
+            -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2)),
+        ] {
+            d = 1.0 / tiny(1.0 + aa * d);
+            c = tiny(1.0 + aa / c);
+            del = d * c;
+            h *= del;
+        }
         if (del - 1.0).abs() < 1e-14 {
             break;
         }
@@ -162,11 +153,57 @@ pub fn paired_t_positive(d: &[f64]) -> (f64, f64) {
     (t, t_upper_tail(t, (n - 1) as f64))
 }
 
-/// p-value that per-trial held-out improvements `d` are positive: the smaller of the paired
+/// p-value that per-trial held-out evidence `d` is positive: the smaller of the paired
 /// t-test (efficient when the evidence is spread thinly over many trials) and the signed-rank
 /// test (robust when a few trials carry huge improvements), Bonferroni-corrected for taking two.
+/// The evidence is [`encompassing`] when a model is tested against one it extends, per-trial
+/// squared-error differences when two alternatives are compared.
 pub fn improvement_p_value(d: &[f64]) -> f64 {
     (2.0 * paired_t_positive(d).1.min(signed_rank_positive(d).1)).min(1.0)
+}
+
+/// Weight of the squared predicted change in [`encompassing`]'s evidence for a model against
+/// one it extends (½ is the squared-error difference).
+pub const EXTENDS: f64 = 0.25;
+
+/// Per group (trial or block), the held-out evidence that predictions `a` of readings `y`
+/// improve on `b`: Σ (y − b)(a − b) − λ (a − b)². With λ = ½ it is half the squared-error
+/// difference (the test of two alternatives). λ = 0 is the forecast-encompassing statistic,
+/// the covariance of `b`'s held-out error with the change `a` predicts: when `a` extends `b`
+/// by a true term its mean is (1 − λ) Σ (a − b)², twice that at λ = ½, at about the same
+/// spread; but under no effect fold fits that share trials skew it upward (its p-values fall
+/// below their level several times too often, docs/diagnosis.md). [`EXTENDS`] lies between.
+pub fn encompassing(
+    y: &[f64],
+    (a, b): (&[f64], &[f64]),
+    group: &[usize],
+    n: usize,
+    lambda: f64,
+) -> Vec<f64> {
+    let mut s = vec![0.0; n];
+    for r in 0..y.len().min(group.len()) {
+        let d = a[r] - b[r];
+        s[group[r]] += (y[r] - b[r]) * d - lambda * d * d;
+    }
+    s
+}
+
+/// Calibration log: with `G1VIZ_P_LOG` set to a file, appends the stage and the candidate's
+/// p-values at λ = 0, ⅛, ¼, ⅜ and ½ of [`encompassing`].
+pub(crate) fn log_p(stage: &str, y: &[f64], a: &[f64], b: &[f64], group: &[usize], n: usize) {
+    let Some(path) = std::env::var_os("G1VIZ_P_LOG") else {
+        return;
+    };
+    let p = |l| improvement_p_value(&encompassing(y, (a, b), group, n, l));
+    let ps = [0.0, 0.125, 0.25, 0.375, 0.5]
+        .map(|l| format!("{:e}", p(l)))
+        .join(" ");
+    let f = std::fs::OpenOptions::new()
+        .append(true)
+        .create(true)
+        .open(path);
+    let _ =
+        f.and_then(|mut f| std::io::Write::write_all(&mut f, format!("{stage} {ps}\n").as_bytes()));
 }
 
 /// Resamples of the trials [`resampled_stability`] draws.
@@ -174,11 +211,11 @@ pub const STABILITY_DRAWS: usize = 200;
 
 /// How stable a finding is under resampling of the trials: the fraction of `draws` bootstrap
 /// resamples (trials drawn with replacement, seeded by `seed`) in which `after` still passes
-/// its gate over `before` — [`improvement_p_value`] below `level` and a held-out RMSE gain of
-/// at least `min_gain`. Both are per-trial held-out squared errors, in the same trial order.
+/// its gate over `before` — [`improvement_p_value`] of the resampled evidence `ev` below
+/// `level` and a held-out RMSE gain of at least `min_gain`. `before` and `after` are per-trial
+/// held-out squared errors, `ev` the per-trial [`encompassing`] evidence, in the same order.
 pub fn resampled_stability(
-    before: &[f64],
-    after: &[f64],
+    (before, after, ev): (&[f64], &[f64], &[f64]),
     (level, min_gain): (f64, f64),
     draws: usize,
     seed: u64,
@@ -197,7 +234,7 @@ pub fn resampled_stability(
             let k = rng.random_range(0..n);
             sb += before[k];
             sa += after[k];
-            *slot = before[k] - after[k];
+            *slot = ev[k];
         }
         let gain = 1.0 - (sa / sb.max(1e-300)).sqrt();
         if gain >= min_gain && improvement_p_value(&d) < level {
@@ -262,7 +299,10 @@ mod tests {
     /// p-value sits at its level; the same seed gives the same figure.
     #[test]
     fn stability_separates_a_steady_gain_from_a_lucky_one() {
-        use super::resampled_stability as stab;
+        let stab = |b: &[f64], a: &[f64], gate, draws, seed| {
+            let d: Vec<f64> = b.iter().zip(a).map(|(x, z)| x - z).collect();
+            super::resampled_stability((b, a, &d), gate, draws, seed)
+        };
         let n = 60;
         let before: Vec<f64> = (0..n).map(|k| 10.0 + (k % 7) as f64).collect();
         let steady: Vec<f64> = before.iter().map(|b| 0.8 * b).collect();
@@ -312,6 +352,17 @@ mod tests {
         assert!((t - 3.0 * 2f64.sqrt()).abs() < 1e-12);
         assert!((p - t_upper_tail(t, 4.0)).abs() < 1e-15 && p < 0.01 && p > 0.001);
         assert!((improvement_p_value(&[1.0, 2.0, 3.0, 4.0, 5.0]) - 2.0 * p).abs() < 1e-15);
+    }
+
+    #[test]
+    fn encompassing_matches_hand_computed_evidence() {
+        // y = 1, 2 (groups 0, 1), b = 0, a = 1: (y − b)(a − b) − λ(a − b)² = 1 − λ, 2 − λ; at
+        // λ = ½ half the squared-error differences 1 − 0 and 4 − 1.
+        let (y, a, b) = ([1.0, 2.0], [1.0, 1.0], [0.0, 0.0]);
+        let e = |l| encompassing(&y, (&a, &b), &[0, 1], 2, l);
+        assert_eq!(e(0.0), vec![1.0, 2.0]);
+        assert_eq!(e(0.25), vec![0.75, 1.75]);
+        assert_eq!(e(0.5), vec![0.5, 1.5]);
     }
 
     #[test]

@@ -136,6 +136,7 @@ impl<'a, 'd> Base<'a, 'd> {
     /// Compare predictions `after` with `before`: (p, rel improvement, before, after quality).
     pub(super) fn compare(&self, before: &[f64], after: &[f64]) -> (f64, f64, Quality, Quality) {
         let (rows, nt) = (self.rows, self.data.n_trials);
+        crate::diagnose::stats::log_p("discovery", &rows.y, after, before, &rows.trial, nt);
         let h = Held::new(&rows.y, before, after, &rows.trial, nt);
         (h.p_value, h.gain(), h.before, h.after)
     }

@@ -145,26 +145,24 @@ fn explaining_same(search: &Search, with: &State, without: &State) -> Result<Vec
     let (y_rms, nt) = (search.y_rms(), search.base.data.n_trials);
     let e_with = trial_sse(&rows.y, &with.cv.pred, &rows.trial, nt);
     // What a candidate still adds beside the term: one that no longer passes there explains
-    // the same.
+    // the same — by the squared-error test (λ = ½): whether it still fits better, not whether
+    // it still carries something (the encompassing test finds a rival's remainder).
     let beside = Base::new(search.base.data, with)?;
     let explains_same = |i: usize| {
         let cols = search.cols(i);
         let refs: Vec<&Vec<f64>> = cols.iter().collect();
         !beside.fit(&refs).ok().is_some_and(|fit| {
-            let (p, rel, _, _) = beside.compare(&with.cv.pred, &fit.pred);
+            let (_, rel, _, _) = beside.compare(&with.cv.pred, &fit.pred);
+            let p = p_better(search, &fit.pred, &with.cv.pred);
             p < search.flat_level(i)
                 && fit.bic - with.bic < rule.bic_threshold
                 && rel >= rule.min_improvement
         })
     };
-    // What the term adds to the held-out prediction.
-    let lib_add: Vec<f64> = with
-        .cv
-        .pred
-        .iter()
-        .zip(&without.cv.pred)
-        .map(|(a, b)| a - b)
-        .collect();
+    // What the term (a candidate) adds to the held-out prediction.
+    let add =
+        |p: &[f64]| -> Vec<f64> { p.iter().zip(&without.cv.pred).map(|(a, b)| a - b).collect() };
+    let lib_add = add(&with.cv.pred);
     let mut same: Vec<Same> = Vec::new();
     for i in 0..search.cands.len() {
         let Some(s) = search.score(i, &[], (&without.cv.pred, without.bic), y_rms) else {
@@ -176,13 +174,7 @@ fn explaining_same(search: &Search, with: &State, without: &State) -> Result<Vec
         let e_riv = trial_sse(&rows.y, &s.fit.pred, &rows.trial, nt);
         let d_lib: Vec<f64> = e_riv.iter().zip(&e_with).map(|(a, b)| a - b).collect();
         let d_riv: Vec<f64> = d_lib.iter().map(|v| -v).collect();
-        let riv_add: Vec<f64> = s
-            .fit
-            .pred
-            .iter()
-            .zip(&without.cv.pred)
-            .map(|(a, b)| a - b)
-            .collect();
+        let riv_add = add(&s.fit.pred);
         let sse = |e: &[f64]| e.iter().sum::<f64>();
         same.push(Same {
             p_lib: improvement_p_value(&d_lib),

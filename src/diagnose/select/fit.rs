@@ -9,7 +9,7 @@ use rand::seq::SliceRandom;
 
 use crate::diagnose::hypotheses::{Combine, Hypothesis, N_RAW};
 use crate::diagnose::reading_rows::Rows;
-use crate::diagnose::stats::improvement_p_value;
+use crate::diagnose::stats::{encompassing, improvement_p_value};
 use crate::lsq::{Gram, Metrics, bounded_quadratic};
 use crate::power::PowerModel;
 use crate::{N_JOINTS, N_PARAMS};
@@ -279,13 +279,23 @@ pub(crate) fn trial_sse(y: &[f64], pred: &[f64], trial: &[usize], n_trials: usiz
     out
 }
 
-/// The paired one-sided p-value by trial ([`improvement_p_value`] of the per-trial squared
-/// errors) that predictions `a` fit readings `y` better than `b`.
+/// The paired one-sided p-value by trial ([`improvement_p_value`] of the per-trial
+/// [`encompassing`] evidence at `lambda`) that predictions `a` of readings `y` improve on `b`:
+/// `lambda` [`EXTENDS`](crate::diagnose::stats::EXTENDS) when `a`'s model extends `b`'s, ½ (the squared-error difference) when
+/// they are alternatives ([`p_better`]).
+pub(crate) fn p_improves(
+    y: &[f64],
+    (a, b): (&[f64], &[f64]),
+    trial: &[usize],
+    n: usize,
+    lambda: f64,
+) -> f64 {
+    improvement_p_value(&encompassing(y, (a, b), trial, n, lambda))
+}
+
+/// [`p_improves`] of two alternatives: that predictions `a` fit readings `y` better than `b`.
 pub(crate) fn p_better(y: &[f64], a: &[f64], b: &[f64], trial: &[usize], n_trials: usize) -> f64 {
-    let ea = trial_sse(y, a, trial, n_trials);
-    let eb = trial_sse(y, b, trial, n_trials);
-    let d: Vec<f64> = eb.iter().zip(&ea).map(|(x, y)| x - y).collect();
-    improvement_p_value(&d)
+    p_improves(y, (a, b), trial, n_trials, 0.5)
 }
 
 /// R² and RMSE of predictions (the identification's metrics).

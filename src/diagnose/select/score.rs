@@ -8,6 +8,7 @@ use super::fit::*;
 use crate::N_PARAMS;
 use crate::diagnose::Quality;
 use crate::diagnose::hypotheses::{Hypothesis, LATENCY_ID};
+use crate::diagnose::stats::EXTENDS;
 use crate::diagnose::stepwise::Rule;
 
 /// A named physical parameter with its uncertainty.
@@ -166,11 +167,20 @@ pub(super) struct Candidate {
 fn compare(data: &PowerData, cur: &State, next_pred: &[f64]) -> Held {
     // Every lag's rows are the same readings: y and trial are the lag-0 rows'.
     let rows = data.rows0();
+    crate::diagnose::stats::log_p(
+        "library",
+        &rows.y,
+        next_pred,
+        &cur.cv.pred,
+        &rows.trial,
+        data.n_trials,
+    );
     Held::new(&rows.y, &cur.cv.pred, next_pred, &rows.trial, data.n_trials)
 }
 
-/// Held-out predictions `after` compared with `before`: the paired one-sided p-value by trial
-/// that `after` fits better, and each one's quality.
+/// Held-out predictions `after` of a model extending `before`'s, compared with `before`: the
+/// paired one-sided p-value by trial that `after` improves on it ([`p_improves`] at
+/// [`EXTENDS`]), and each one's quality.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Held {
     pub p_value: f64,
@@ -186,7 +196,7 @@ impl Held {
             Quality { r2, rmse_w }
         };
         Held {
-            p_value: p_better(y, after, before, trial, n_trials),
+            p_value: p_improves(y, (after, before), trial, n_trials, EXTENDS),
             before: quality(before),
             after: quality(after),
         }
