@@ -45,10 +45,7 @@ fn main() -> anyhow::Result<()> {
         &Sink::Save(out.clone()),
         &[],
     )?;
-    let opts = ReplayOptions {
-        progress: false,
-        ..Default::default()
-    };
+    let opts = ReplayOptions::default();
     log_replay(
         &rec,
         &robot,
@@ -91,10 +88,7 @@ fn streamed(session: &std::path::Path, keep: Option<std::path::PathBuf>) -> anyh
     let t0 = Instant::now();
     let id = recording_id_for_source(session).context("unreadable session")?;
     let viz = open_stream("g1viz_bench", &id, &Sink::Save(out.clone()), &[session])?;
-    let opts = ReplayOptions {
-        progress: false,
-        ..Default::default()
-    };
+    let opts = ReplayOptions::default();
     let summary = replay_files_with(
         &[session],
         0.0,

@@ -60,7 +60,6 @@ fn main() -> Result<()> {
             &[&session],
         )?;
         let opts = ReplayOptions {
-            progress: false,
             // `replay --max-rate 25 --pose-rate 25`: the same views for an 82 s session, a
             // quarter of the data for the web viewer to ingest before the screenshot.
             pose_rate_hz: Some(25.0),

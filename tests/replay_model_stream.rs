@@ -230,7 +230,6 @@ fn assert_same_replay_of(a: &Path, b: &Path, what: &str, marked: &[&str], min_ma
 
 fn replay_options(stream: StreamOptions, slice: g1viz::viz::Slice) -> ReplayOptions {
     ReplayOptions {
-        progress: false,
         pose_rate_hz: Some(30.0),
         slice,
         stream,
@@ -363,10 +362,7 @@ fn streamed_diagnosis_replay_equals_in_memory() {
     let extras = g1viz::viz::diagnosis_extras(&d);
     let robot = RobotModel::builtin();
     let arm = robot.arm(&map.joint_names).unwrap();
-    let ro = ReplayOptions {
-        progress: false,
-        ..Default::default()
-    };
+    let ro = ReplayOptions::default();
     let kind = g1viz::viz::OutputKind::Diagnosis;
     let (a, b) = (dir.path().join("mem.rrd"), dir.path().join("str.rrd"));
     let rec = load_recording(&path, &map, &Default::default()).unwrap();
@@ -456,10 +452,7 @@ fn streamed_joined_diagnosis_replay_equals_in_memory() {
     let extras = g1viz::viz::diagnosis_extras(&d);
     let robot = RobotModel::builtin();
     let arm = robot.arm(&map.joint_names).unwrap();
-    let ro = ReplayOptions {
-        progress: false,
-        ..Default::default()
-    };
+    let ro = ReplayOptions::default();
     let kind = g1viz::viz::OutputKind::Diagnosis;
     let (a, b) = (dir.path().join("mem.rrd"), dir.path().join("str.rrd"));
     let inputs: Vec<&Path> = paths.iter().map(PathBuf::as_path).collect();

@@ -123,7 +123,6 @@ fn write_rrd(rec: &Recording, out: &Path) -> anyhow::Result<()> {
     )?;
     let opts = ReplayOptions {
         chunk_rows: 128,
-        progress: false,
         ..Default::default()
     };
     log_replay(rec, &robot, &arm, &extras(), &opts, viz.stream())?;
@@ -235,10 +234,7 @@ fn save_replay(rec: &Recording, extras: &ReplayExtras, out: &Path, input: &Path)
         &[input],
     )
     .unwrap();
-    let opts = ReplayOptions {
-        progress: false,
-        ..Default::default()
-    };
+    let opts = ReplayOptions::default();
     log_replay(rec, &robot, &arm, extras, &opts, viz.stream()).unwrap();
     viz.finish().unwrap();
 }
@@ -369,7 +365,6 @@ fn recording_identifies_itself() {
     let arm = robot.arm(&rec.joint_names).unwrap();
     let viz = open_stream("g1viz_test", "id", &Sink::Save(out.clone()), &[]).unwrap();
     let opts = ReplayOptions {
-        progress: false,
         properties: vec![
             ("command".into(), "replay".into()),
             ("model".into(), "paper".into()),
@@ -706,7 +701,6 @@ fn official_urdf_meshes_become_assets() {
     let out = dir.path().join("mesh.rrd");
     let viz = open_stream("g1viz_test", "mesh", &Sink::Save(out.clone()), &[]).unwrap();
     let opts = ReplayOptions {
-        progress: false,
         blueprint: false,
         ..Default::default()
     };
@@ -914,7 +908,6 @@ fn stream_replay(mcap: &Path, out: &Path, chunk_rows: usize) -> g1viz::viz::Repl
     let viz = open_stream("g1viz_test", &id, &Sink::Save(out.to_path_buf()), &[mcap]).unwrap();
     let opts = ReplayOptions {
         chunk_rows,
-        progress: false,
         ..Default::default()
     };
     let summary = g1viz::viz::replay_files_with(
@@ -1335,7 +1328,6 @@ fn replay_window(
         inputs: &inputs,
         window,
         opts: ReplayOptions {
-            progress: false,
             pose_rate_hz: Some(30.0),
             ..Default::default()
         },

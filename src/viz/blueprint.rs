@@ -172,8 +172,6 @@ impl Node {
         with_legend(new_legend: Legend) { legend = Some(new_legend) }
         /// Sets the initial camera (3D views only).
         with_eye(new_eye: Eye) { eye = Some(new_eye) }
-        /// Sets a view's title.
-        renamed(new_name: String) { name = new_name }
     }
 
     /// A view node.
@@ -285,13 +283,6 @@ impl Node {
         }
     }
 
-    /// A plot fitted with room for a legend of `entries` lines above its data ([`Node::fit`],
-    /// once the data is logged); until then no legend (nothing keeps it off data of unknown range).
-    pub fn with_legend_room(self, entries: usize, plot_px: f64) -> Node {
-        self.with_fit(Fit::Legend(entries), plot_px)
-            .with_legend(Legend::Hidden)
-    }
-
     /// `children` in a container, or the only child itself when there is just one (a container
     /// of one view adds a tab strip and nothing else).
     pub fn group(
@@ -322,14 +313,6 @@ impl Node {
             columns: None,
             window_s: None,
         }
-    }
-
-    /// Sets the number of columns of a grid container.
-    pub fn with_columns(mut self, n: u32) -> Node {
-        if let Node::Container { columns, .. } = &mut self {
-            *columns = Some(n);
-        }
-        self
     }
 
     /// Makes the tab named `tab` the one its tab container opens on; false when no tab
@@ -848,11 +831,6 @@ fn legend_room(data: [f64; 2], entries: usize, plot_px: f64) -> Option<[f64; 2]>
     Some([lo - 0.05 * span, hi + headroom * span])
 }
 
-/// A time-series plot of `contents`, fitted for readable ticks in a half-height cell of the tabs.
-fn plot(name: impl Into<String>, contents: Vec<String>) -> Node {
-    Node::view("TimeSeries", name, "/", contents).with_fit(Fit::Ticks, DETAIL_PLOT_PX)
-}
-
 /// The smallest plot area [px] of the overview's trial track in a 1920×1080 browser window.
 pub const TRACK_PLOT_PX: f64 = 40.0;
 /// The smallest plot area [px] of the overview's error plot in a 1920×1080 browser window.
@@ -1001,266 +979,413 @@ fn include(paths: &[&str]) -> Vec<String> {
     paths.iter().map(|p| paths::include(p)).collect()
 }
 
-/// The replay layout. Left, the overview, top to bottom: the 3D arm (body oriented by the IMU),
-/// power at the readings (measured vs the prediction averaged over each reading's window, the
-/// instantaneous prediction as a thin context line), the trial track (rejected trials as red
-/// bars), the error at the readings. Right, at most six full-height tabs: where the power goes
-/// (per term, per joint, per-trial bars keyed by trial index, what the copper term is relative
-/// to), the loss terms per joint (one grid), the joints (q with its command, q̇, τ,
-/// temperature), IMU and trials (|ω|, the filter's statistic and threshold, the trial log), raw
-/// power, diagnosis. The 3D view's camera starts on the front left of the arm, 0.75 m from
-/// `arm_center` (a point on the arm in the `/robot` frame, X forward, Y left, Z up).
-///
-/// Legends: a plot shows one only once its data is logged and where the legend fits above the
-/// data ([`Node::with_legend_room`]); elsewhere the title names the series.
-pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]) -> Node {
-    use ContainerKind::{Horizontal, Tabs, Vertical};
-    let arm = Node::view(
-        "3D",
-        "Arm",
-        "/",
-        vec!["+ /".to_owned(), paths::include_tree(paths::ROBOT)],
-    )
-    .with_eye(Eye::looking_at(arm_center, [1.0, 0.8, 0.45], 0.75));
-    let (overview, shares): (Vec<Node>, Vec<f32>) = match parts.window_s {
-        Some(w) => session_overview(arm, parts, w),
-        None => {
-            let track = (parts.trials || parts.diagnosis).then(trial_track);
-            let error = (parts.model || parts.diagnosis).then(|| error_view(parts));
-            let mut overview = vec![(arm, 1.5), (power_view(parts), 1.1)];
-            overview.extend(
-                track
-                    .map(|t| (t, 0.4))
-                    .into_iter()
-                    .chain(error.map(|e| (e, 1.0))),
-            );
-            overview
-        }
-    }
-    .into_iter()
-    .unzip();
-    let mut tabs = Vec::new();
-    // A long session's plots show no legend: its Joints and Loss terms tabs get a colour key.
-    let key = parts.span_s.filter(|_| parts.window_s.is_some());
-    if parts.model {
-        tabs.push(breakdown_tab(joints, key));
-        tabs.push(loss_terms_tab(joints, key));
-    }
-    tabs.push(joints_tab(joints, key.filter(|_| parts.shares)));
-    tabs.push(imu_tab(parts));
-    let raw_power = include(&[&paths::power_raw("mbs"), &paths::power_raw("bms")]);
-    let raw_name = "Raw power MBS/BMS [W]";
-    tabs.push(match parts.window_s {
-        // Without a legend the title names the series; the tab keeps its short name.
-        Some(_) => Node::container(
-            Vertical,
-            raw_name,
-            vec![plot("Raw power [W]: MBS cyan, BMS olive", raw_power)],
-            vec![],
-        ),
-        None => plot(raw_name, raw_power).with_legend_room(2, DETAIL_PLOT_PX),
-    });
-    if parts.diagnosis {
-        tabs.push(diagnosis_tab(parts));
-    }
-    Node::container(
-        Horizontal,
-        "g1viz replay",
-        vec![
-            Node::container(Vertical, "Overview", overview, shares),
-            Node::container(Tabs, "Details", tabs, vec![]),
-        ],
-        vec![1.0, 1.25],
-    )
-    .with_window(parts.window_s)
+/// What the rows of [`VIEWS`] read: the parts shown, the joints' short names and where the 3D
+/// camera looks.
+struct Ctx<'a> {
+    p: &'a LayoutParts,
+    joints: &'a [String],
+    arm_center: [f32; 3],
 }
 
-/// The overview of a long session: the arm; the readings and their error on a window of a
-/// few trials around the time cursor (`window_s`); below them, over the whole session on their
-/// own axes, one value per trial: the rejected (and located) trials as a strip titled with
-/// their count, each trial's error, its rest power and the IMU statistic with its threshold.
-/// Right-clicking any of those moves the time cursor, and the window with it, to that trial.
-fn session_overview(arm: Node, parts: LayoutParts, window_s: f64) -> Vec<(Node, f32)> {
-    // No legend on a window the viewer fits (it would cover the data): the title names the series.
+impl Ctx<'_> {
+    /// The query of `path(j)` for each joint `j`.
+    fn each(&self, path: impl Fn(&str) -> String) -> Vec<String> {
+        self.joints
+            .iter()
+            .map(|j| paths::include(&path(j)))
+            .collect()
+    }
+
+    /// A long session's span ([`LayoutParts::span_s`]): its tabs get colour keys.
+    fn keyed(p: &LayoutParts) -> bool {
+        p.span_s.is_some() && p.window_s.is_some()
+    }
+}
+
+/// A view's title: as written (`{j}`: one view per joint, named after it), or made from the layout.
+enum Title {
+    Is(&'static str),
+    Of(fn(&Ctx) -> String),
+}
+
+/// How a view is fitted ([`Node::fit`]): the rule, the plot height [px] it is fitted for, the
+/// legend it opens with, and whether it is a time series on its own whole-session axis.
+#[derive(Clone, Copy)]
+struct Look(Fit, f64, Option<Legend>, bool);
+
+const HIDDEN: Option<Legend> = Some(Legend::Hidden);
+/// Left as built (3D, text).
+const FREE: Look = Look(Fit::Free, DETAIL_PLOT_PX, None, false);
+/// A plot of the tabs, fitted for ticks, no legend.
+const TICKS: Look = Look(Fit::Ticks, DETAIL_PLOT_PX, HIDDEN, false);
+/// One value per trial over the whole session (a long session's overview).
+const PER_TRIAL: Look = Look(Fit::Ticks, ERROR_PLOT_PX, HIDDEN, true);
+/// A long session's colour key ([`key`]).
+const KEY: Look = Look(Fit::Free, DETAIL_PLOT_PX, Some(Legend::RightTop), true);
+
+/// Fitted with room for a legend of `entries` lines above the data once it is logged; until
+/// then no legend (nothing keeps it off data of unknown range).
+const fn room(entries: usize, px: f64) -> Look {
+    Look(Fit::Legend(entries), px, HIDDEN, false)
+}
+
+/// One view of the replay layout: the container it goes in ([`BOXES`]), when it is shown, its
+/// class, title, origin and entity queries (for joint `j` of a per-joint view), how it is
+/// fitted, its share of the container (a short session's, a long one's) and what else it sets.
+struct Row(
+    &'static str,
+    fn(&LayoutParts) -> bool,
+    &'static str,
+    Title,
+    &'static str,
+    fn(&Ctx, &str) -> Vec<String>,
+    Look,
+    [f32; 2],
+    fn(Node, &Ctx) -> Node,
+);
+
+fn all(_: &LayoutParts) -> bool {
+    true
+}
+fn none(_: &Ctx, _: &str) -> Vec<String> {
+    Vec::new()
+}
+fn same(v: Node, _: &Ctx) -> Node {
+    v
+}
+
+const TS: &str = "TimeSeries";
+const ROOT: &str = "g1viz replay";
+const OVERVIEW: &str = "Overview";
+const RAW: &str = "Raw power MBS/BMS [W]";
+const PLOTS: &str = "Diagnosis plots";
+
+/// A container: name, parent, kind, share of the parent, kept with one child (else the child
+/// takes its place), and a grid's columns (beyond this many children: the second count).
+type Frame = (
+    &'static str,
+    &'static str,
+    ContainerKind,
+    f32,
+    bool,
+    Option<(usize, [u32; 2])>,
+);
+
+/// The layout's containers ([`Frame`]), the root first.
+#[rustfmt::skip]
+const BOXES: &[Frame] = {
+    use ContainerKind::{Grid, Horizontal, Tabs, Vertical};
+    &[
+        (ROOT, "", Horizontal, 0.0, true, None),
+        (OVERVIEW, ROOT, Vertical, 1.0, true, None),
+        ("Details", ROOT, Tabs, 1.25, true, None),
+        ("Where the power goes", "Details", Horizontal, 0.0, true, None),
+        ("Power over time", "Where the power goes", Vertical, 1.0, true, None),
+        ("Per trial", "Where the power goes", Vertical, 1.0, true, None),
+        ("Loss terms per joint", "Details", Grid, 0.0, true, Some((8, [4, 3]))),
+        ("Joints", "Details", Grid, 0.0, true, Some((4, [2, 3]))),
+        ("IMU and trials", "Details", Vertical, 0.0, false, None),
+        (RAW, "Details", Vertical, 0.0, true, None),
+        ("Diagnosis", "Details", Horizontal, 0.0, true, None),
+        (PLOTS, "Diagnosis", Vertical, 1.4, false, None),
+    ]
+};
+
+/// The replay layout, view by view. Left, the overview, top to bottom: the 3D arm (body
+/// oriented by the IMU), power at the readings (measured vs the prediction averaged over each
+/// reading's window, the instantaneous prediction as a thin context line), the trial track
+/// (rejected trials as red bars), the error at the readings; a long session's ([`opening_window`])
+/// readings and error on a window of a few trials around the time cursor, and below them one
+/// value per trial over the whole session on their own axes (right-clicking one moves the
+/// cursor, and the window, there): the rejected (and located) trials as a strip, each trial's
+/// error, rest power and IMU statistic. Right, full-height tabs: where the power goes (per term,
+/// per joint, per-trial bars keyed by trial index, or a long session's per-trial points, and
+/// what the terms are), the loss terms per joint (one grid, the terms' legend on the first
+/// cell), the joints (q with its command, q̇, τ, temperature), IMU and trials (|ω|, the filter's
+/// statistic and threshold, the trial log), raw power, the diagnosis (summary; the fields its
+/// found terms follow, the rest power, the torque differences). A long session's plots show no
+/// legend (the viewer fits them to the window): the titles name the series, and the Joints and
+/// Loss terms tabs get a colour key ([`key`]).
+#[rustfmt::skip]
+const VIEWS: &[Row] = {
+    use Title::{Is, Of};
+    use paths::{include as one, include_tree as tree};
+    const OV: f64 = OVERVIEW_PLOT_PX;
+    const D: f64 = DETAIL_PLOT_PX;
+    &[
+    Row(OVERVIEW, all, "3D", Is("Arm"), "/", |_, _| vec!["+ /".into(), tree(paths::ROBOT)], FREE, [1.5, 1.0],
+        |v, c| v.with_eye(Eye::looking_at(c.arm_center, [1.0, 0.8, 0.45], 0.75))),
+    Row(OVERVIEW, |p| p.model, TS, Of(power_title), "/", |_, _| include(&[paths::MODEL_READING_MEASURED,
+        paths::MODEL_READING_PREDICTED, paths::MODEL_PREDICTED]), room(3, OV), [1.1, 1.0], same),
+    Row(OVERVIEW, |p| p.diagnosis && !p.model, TS, Of(power_title), "/", |_, _| vec![tree("diagnosis/power")],
+        room(3, OV), [1.1, 1.0], |v, c| v.with_fit(Fit::Legend(c.p.diagnosis_power_series), OV)),
+    Row(OVERVIEW, |p| !p.model && !p.diagnosis, TS, Of(power_title), "/",
+        |_, _| include(&[&paths::power_net("mbs"), &paths::power_net("bms")]), room(2, OV), [1.1, 1.0], same),
+    Row(OVERVIEW, |p| p.window_s.is_none() && (p.trials || p.diagnosis), TS,
+        Is("Trials (index; red: rejected or located)"), "/", |_, _| vec![one(paths::TRIAL_INDEX),
+        tree(&paths::trial_spans(paths::TRIALS, "rejected")), tree(&paths::trial_spans(paths::DIAG_TRIALS, "located"))],
+        Look(Fit::Indices, TRACK_PLOT_PX, HIDDEN, false), [0.4; 2], same),
+    Row(OVERVIEW, |p| p.model || p.diagnosis, TS, Of(error_title), "/", |c, _| {
+        let trees = [(c.p.model, "model/error"), (c.p.diagnosis, "diagnosis/error")];
+        trees.into_iter().filter(|t| t.0).map(|t| tree(t.1)).collect()
+    }, Look(Fit::Symmetric, ERROR_PLOT_PX, HIDDEN, false), [1.0, 0.8], |v, c| match (c.p.window_s, c.p.error_typical) {
+        // A window the viewer fitted labelled a single tick (0) where its errors were small:
+        // a fixed range about zero over most of the session's errors keeps 0 and ±10^k.
+        (Some(_), Some(e)) => v.with_fit(Fit::Free, WINDOWED_ERROR_PLOT_PX)
+            .with_y_range(Some(fitted_range(e, Fit::Symmetric, WINDOWED_ERROR_PLOT_PX).1)),
+        _ => v,
+    }),
+    // A fixed range half a step around its rows (1: rejected, 2: located): the data alone
+    // ([1, 1]) was widened to ticks 0.999…1.001, whose labels overlapped on the low strip.
+    Row(OVERVIEW, |p| p.window_s.is_some(), TS, Of(strip_title), "/", |c, _| {
+        let strips = [(true, paths::TRIALS), (c.p.diagnosis, paths::DIAG_TRIALS)];
+        strips.into_iter().filter(|s| s.0).map(|s| tree(&paths::trial_strip(s.1))).collect()
+    }, Look(Fit::Free, TRACK_PLOT_PX, HIDDEN, true), [0.45; 2],
+        |v, c| v.with_y_range(Some([0.5, 1.5 + f64::from(u8::from(c.p.diagnosis))]))),
+    Row(OVERVIEW, |p| p.window_s.is_some() && (p.model || p.diagnosis), TS, Of(trial_error_title), "/", |c, _| match c.p.model {
+        true => include(&[paths::MODEL_ERROR_TRAJECTORY, paths::MODEL_ERROR_TRAJECTORY_REJECTED]),
+        false => vec![tree("diagnosis/per_trial")],
+    }, PER_TRIAL, [0.8; 2], same),
+    Row(OVERVIEW, |p| p.window_s.is_some() && p.trial_rest, TS, Is("Rest power per trial [W] (pre-idle mean)"), "/",
+        |_, _| vec![one(paths::TRIAL_REST)], PER_TRIAL, [0.8; 2], same),
+    Row(OVERVIEW, |p| p.window_s.is_some() && !p.trial_rest && p.rest, TS,
+        Is("Rest power per trial [W]: measured blue, with the loads found on it red"), "/",
+        |_, _| vec![tree(&paths::diag_trial_rest(""))], PER_TRIAL, [0.8; 2], same),
+    // A set range is not refitted to the data (whose rejected trials reach 10–50× it).
+    Row(OVERVIEW, |p| p.window_s.is_some() && p.imu_filter, TS,
+        Is("IMU σ|ω| per trial [rad/s] (above the black threshold: rejected, red; axis to 4× it)"), "/",
+        |_, _| include(&IMU_FILTER), PER_TRIAL, [0.8; 2], |v, c| match c.p.imu_per_trial {
+            Some(r) => v.with_fit(Fit::Free, ERROR_PLOT_PX).with_y_range(Some(r)),
+            None => v,
+        }),
+    Row("Power over time", |p| p.model, TS, Is("Predicted power by term, all joints [W]"), "/",
+        |_, _| vec![tree(paths::BY_TERM)], room(paths::TERMS.len() + 1, D), [0.0; 2], same),
+    Row("Power over time", |p| p.model, TS, Is("Predicted power by joint, all terms [W]"), "/",
+        |c, _| c.each(paths::by_joint), room(crate::N_JOINTS, D), [0.0; 2], same),
+    Row("Per trial", |p| p.model && !Ctx::keyed(p), "BarChart", Is("Trial energy turnover by joint [%], x: trial"), "/",
+        |_, _| vec![tree(paths::BARS_BY_JOINT)], Look(Fit::Free, D, HIDDEN, false), [1.0; 2], same),
+    Row("Per trial", |p| p.model && Ctx::keyed(p), TS, Is("Trial energy turnover by joint [%]"), "/",
+        |_, _| vec![tree(paths::BARS_BY_JOINT)], KEY, [1.0; 2], |v, c| key(v, c, &joint_names(c.joints), [HALF_PLOT_PX, D])),
+    Row("Per trial", |p| p.model && !Ctx::keyed(p), "BarChart", Is("Trial energy turnover by term [%], x: trial"), "/",
+        |_, _| vec![tree(paths::BARS_BY_TERM)], Look(Fit::Free, D, HIDDEN, false), [1.0; 2], same),
+    Row("Per trial", |p| p.model && Ctx::keyed(p), TS, Is("Trial energy turnover by term [%]"), "/",
+        |_, _| vec![tree(paths::BARS_BY_TERM)], KEY, [1.0; 2], |v, c| key(v, c, &term_names(), [HALF_PLOT_PX, D])),
+    Row("Per trial", |p| p.model, "TextDocument", Is("What the terms are"), paths::BREAKDOWN_NOTE, none, FREE, [0.8; 2], same),
+    Row("Loss terms per joint", |p| p.model, TS, Is("{j} [W]"), "/",
+        |_, j| paths::TERMS.iter().map(|t| one(&paths::term(j, t))).collect(), room(paths::TERMS.len(), D), [0.0; 2], same),
+    // A title short enough to show whole in a cell of four columns ("Interaction [W]" was cut).
+    Row("Loss terms per joint", |p| p.model, TS, Is("Pairwise [W]"), "/", |_, _| vec![one(paths::TERM_INTERACTION)],
+        TICKS, [0.0; 2], same),
+    Row("Loss terms per joint", |p| p.model && Ctx::keyed(p), TS, Is("Key: term shares [%]"), "/",
+        |_, _| vec![tree(paths::BARS_BY_TERM)], KEY, [0.0; 2], |v, c| key(v, c, &term_names(), THIRD_PLOT_PX)),
+    Row("Joints", all, TS, Is("q [rad], command pale"), "/", |c, _| {
+        let mut q = c.each(|j| paths::joint(j, "q"));
+        q.extend(c.each(|j| paths::joint(j, "q_cmd")));
+        q
+    }, room(crate::N_JOINTS, D), [0.0; 2], same),
+    Row("Joints", all, TS, Is("Joint velocity q̇ [rad/s]"), "/", |c, _| c.each(|j| paths::joint(j, "dq")),
+        room(crate::N_JOINTS, D), [0.0; 2], same),
+    Row("Joints", all, TS, Is("Joint torque τ [Nm]"), "/", |c, _| c.each(|j| paths::joint(j, "tau")),
+        room(crate::N_JOINTS, D), [0.0; 2], same),
+    Row("Joints", all, TS, Is("Motor temperature [°C]"), "/", |c, _| c.each(|j| paths::joint(j, "temperature")),
+        TICKS, [0.0; 2], same),
+    Row("Joints", |p| p.shares && Ctx::keyed(p), TS, Is("Key: joint shares [%]"), "/",
+        |_, _| vec![tree(paths::BARS_BY_JOINT)], KEY, [0.0; 2],
+        |v, c| key(v, c, &joint_names(c.joints), [THIRD_PLOT_PX[0], D])),
+    Row("IMU and trials", |p| p.imu_filter, TS, Of(|c| match c.p.window_s {
+        Some(_) => "IMU [rad/s]: |ω| grey, σ|ω| per trial blue (rejected red), threshold black",
+        None => "IMU |ω| [rad/s] and the balance filter",
+    }.into()), "/", |_, _| include(&[paths::IMU_GYRO_NORM, IMU_FILTER[0], IMU_FILTER[1], IMU_FILTER[2]]),
+        room(4, D), [1.5; 2], same),
+    Row("IMU and trials", |p| !p.imu_filter, TS, Is("IMU |ω| of the body [rad/s]"), "/",
+        |_, _| vec![one(paths::IMU_GYRO_NORM)], TICKS, [1.5; 2], same),
+    Row("IMU and trials", |p| p.trials || p.diagnosis, "TextLog", Is("Trial log"), "/", |c, _| {
+        let logs = [(true, paths::TRIALS), (c.p.diagnosis, paths::DIAG_TRIALS)];
+        logs.into_iter().filter(|l| l.0).map(|l| one(&paths::trials_log(l.1))).collect()
+    }, FREE, [1.0; 2], same),
+    Row("Details", |p| p.window_s.is_none(), TS, Is(RAW), "/", raw_power, room(2, D), [0.0; 2], same),
+    // Without a legend the title names the series; the tab keeps its short name.
+    Row(RAW, |p| p.window_s.is_some(), TS, Is("Raw power [W]: MBS cyan, BMS olive"), "/", raw_power,
+        Look(Fit::Ticks, D, None, false), [0.0; 2], same),
+    Row("Diagnosis", |p| p.diagnosis, "TextDocument", Is("Diagnosis summary"), paths::DIAG_SUMMARY, none, FREE,
+        [1.0; 2], same),
+    Row(PLOTS, |p| p.located, TS, Is("Fields the found terms follow"), paths::DIAG_LOCATED, none, TICKS, [0.0; 2], same),
+    Row(PLOTS, |p| p.rest, TS, Is("Rest power [W]: measured blue, with found loads red"), paths::DIAG_REST, none,
+        TICKS, [0.0; 2], same),
+    Row(PLOTS, |p| p.counterpart, TS, Is("Torque recording − twin [Nm]"), paths::DIAG_TORQUE, none, TICKS, [0.0; 2], same),
+    ]
+};
+
+fn raw_power(_: &Ctx, _: &str) -> Vec<String> {
+    include(&[&paths::power_raw("mbs"), &paths::power_raw("bms")])
+}
+
+/// The overview's power plot: without a legend on a long session's window (the viewer fits it,
+/// so the legend would cover the data) the title names the series.
+fn power_title(c: &Ctx) -> String {
+    let p = c.p;
+    let Some(window_s) = p.window_s else {
+        return match p.model || p.diagnosis {
+            true => "Net power at the readings [W]",
+            false => {
+                "Net power [W]: MBS cyan, BMS olive (minus the idle baseline before the arm moves)"
+            }
+        }
+        .into();
+    };
     let mut key = String::from("measured blue, ");
-    if parts.model {
+    if p.model {
         key.push_str("predicted orange, instant brown");
     } else {
-        key.push_str(["base grey", "base grey, hyp. orange"][usize::from(parts.hypotheses)]);
-        if parts.found_terms() {
+        key.push_str(["base grey", "base grey, hyp. orange"][usize::from(p.hypotheses)]);
+        if p.found_terms() {
             key.push_str(", found red");
         }
-        if parts.counterpart {
+        if p.counterpart {
             key.push_str(", twin cyan");
         }
     }
-    let name = format!("Net power [W], {window_s:.0} s at cursor: {key}");
-    let mut overview = vec![(arm, 1.0), (power_view(parts).renamed(name), 1.0)];
-    if parts.model || parts.diagnosis {
-        // The same window as the power plot above (its title says so): a title short enough
-        // to show whole.
-        overview.push((error_view(parts), 0.8));
-    }
-    let c = parts.trial_counts;
-    let mut strip = format!("Rejected trials: {} of {} (red)", c.rejected, c.total);
-    let mut strip_paths = vec![paths::include_tree(&paths::trial_strip(paths::TRIALS))];
-    if parts.diagnosis {
-        strip.push_str(&format!("; located: {} (orange)", c.located));
-        strip_paths.push(paths::include_tree(&paths::trial_strip(paths::DIAG_TRIALS)));
-    }
-    strip.push_str(" · right-click one to see it above");
-    let per_trial = |name: &str, contents: Vec<String>| {
-        plot(name, contents)
-            .whole_session()
-            .with_fit(Fit::Ticks, ERROR_PLOT_PX)
-            .with_legend(Legend::Hidden)
-    };
-    // A fixed range half a step around its rows (1: rejected, 2: located): the data alone
-    // ([1, 1]) was widened to ticks 0.999…1.001, whose labels overlapped on the low strip.
-    let rows = 1.0 + f64::from(u8::from(parts.diagnosis));
-    let strip = per_trial(&strip, strip_paths).with_fit(Fit::Free, TRACK_PLOT_PX);
-    overview.push((strip.with_y_range(Some([0.5, rows + 0.5])), 0.45));
-    let error = if parts.model {
-        let error = [
-            paths::MODEL_ERROR_TRAJECTORY,
-            paths::MODEL_ERROR_TRAJECTORY_REJECTED,
-        ];
-        per_trial(
-            "Error per trial [W] (rejected: red crosses)",
-            include(&error),
-        )
-    } else {
-        // Only the series that show (no accepted hypothesis: theirs lies under the base model's).
-        let found = parts.found_terms();
-        let named = [
-            (true, "base model grey"),
-            (parts.hypotheses, "with hypotheses teal"),
-        ];
-        let named: Vec<&str> = (named.into_iter().chain([(found, "with found terms red")]))
-            .filter_map(|(shown, name)| shown.then_some(name))
-            .collect();
-        let name = format!("Error per trial [W]: {}", named.join(", "));
-        per_trial(&name, vec![paths::include_tree("diagnosis/per_trial")])
-    };
-    overview.extend((parts.model || parts.diagnosis).then_some((error, 0.8)));
-    if parts.trial_rest || parts.rest {
-        let (name, rest) = if parts.trial_rest {
-            (
-                "Rest power per trial [W] (pre-idle mean)",
-                paths::include(paths::TRIAL_REST),
-            )
-        } else {
-            (
-                "Rest power per trial [W]: measured blue, with the loads found on it red",
-                paths::include_tree(&paths::diag_trial_rest("")),
-            )
-        };
-        overview.push((per_trial(name, vec![rest]), 0.8));
-    }
-    if parts.imu_filter {
-        overview.push((
-            per_trial(
-                "IMU σ|ω| per trial [rad/s] (above the black threshold: rejected, red; axis to 4× it)",
-                include(&IMU_FILTER),
-            )
-            // A set range is not refitted to the data (whose rejected trials reach 10–50×).
-            .with_y_range(parts.imu_per_trial)
-            .with_fit(
-                [Fit::Ticks, Fit::Free][usize::from(parts.imu_per_trial.is_some())],
-                ERROR_PLOT_PX,
-            ),
-            0.8,
-        ));
-    }
-    overview
+    format!("Net power [W], {window_s:.0} s at cursor: {key}")
 }
 
 /// The error at the readings: dots per reading, diamonds per trajectory, rejected trials in red
 /// (the trial track above says so; with a diagnosis: the base model's error and the error with
-/// the hypotheses). Small and dense: no legend, the title names the markers.
-fn error_view(parts: LayoutParts) -> Node {
-    let mut error = Vec::new();
-    let (mut name, hyp) = (
-        String::from("Error measured − predicted [W]"),
-        usize::from(parts.hypotheses),
-    );
-    if parts.model {
-        error.push(paths::include_tree("model/error"));
+/// the hypotheses, drawn over it, the found terms' in red). Small and dense: the title names
+/// the markers.
+fn error_title(c: &Ctx) -> String {
+    let p = c.p;
+    let mut name = String::from("Error measured − predicted [W]");
+    if p.model {
         name.push_str(": dots per reading, diamonds per trial");
     }
-    if parts.diagnosis {
-        error.push(paths::include_tree("diagnosis/error"));
-        name.push_str(if parts.model { "; " } else { ": " });
-        // The accepted hypotheses' error is drawn over the base model's (the same when none was
-        // accepted); the found terms' in red when there are any.
-        name.push_str(["base model grey", "base model grey, hypotheses teal"][hyp]);
-        if parts.found_terms() {
+    if p.diagnosis {
+        name.push_str(if p.model { "; " } else { ": " });
+        name.push_str(
+            ["base model grey", "base model grey, hypotheses teal"][usize::from(p.hypotheses)],
+        );
+        if p.found_terms() {
             name.push_str(", found terms red");
         }
     }
-    let view = plot(name, error).with_legend(Legend::Hidden);
-    match (parts.window_s, parts.error_typical) {
-        // A window the viewer fitted labelled a single tick (0) where its errors were small:
-        // a fixed range about zero over most of the session's errors keeps 0 and ±10^k.
-        (Some(_), Some(typical)) => view
-            .with_fit(Fit::Free, WINDOWED_ERROR_PLOT_PX)
-            .with_y_range(Some(
-                fitted_range(typical, Fit::Symmetric, WINDOWED_ERROR_PLOT_PX).1,
-            )),
-        _ => view.with_fit(Fit::Symmetric, ERROR_PLOT_PX),
+    name
+}
+
+/// A long session's strip of rejected (and located) trials, titled with their counts.
+fn strip_title(c: &Ctx) -> String {
+    let n = c.p.trial_counts;
+    let mut strip = format!("Rejected trials: {} of {} (red)", n.rejected, n.total);
+    if c.p.diagnosis {
+        strip.push_str(&format!("; located: {} (orange)", n.located));
     }
+    strip + " · right-click one to see it above"
 }
 
-/// The trial track: the trial under way, rejected (or located) trials as thick red segments
-/// (fitted to the trial indices, half a step spare).
-fn trial_track() -> Node {
-    plot(
-        "Trials (index; red: rejected or located)",
-        vec![
-            paths::include(paths::TRIAL_INDEX),
-            paths::include_tree(&paths::trial_spans(paths::TRIALS, "rejected")),
-            paths::include_tree(&paths::trial_spans(paths::DIAG_TRIALS, "located")),
-        ],
-    )
-    .with_fit(Fit::Indices, TRACK_PLOT_PX)
-    .with_legend(Legend::Hidden)
+/// Each trial's error: the model's, or the diagnosis' series that show (no accepted
+/// hypothesis: theirs lies under the base model's).
+fn trial_error_title(c: &Ctx) -> String {
+    if c.p.model {
+        return "Error per trial [W] (rejected: red crosses)".into();
+    }
+    let named = [
+        (true, "base model grey"),
+        (c.p.hypotheses, "with hypotheses teal"),
+        (c.p.found_terms(), "with found terms red"),
+    ];
+    let named: Vec<&str> = named.iter().filter(|n| n.0).map(|n| n.1).collect();
+    format!("Error per trial [W]: {}", named.join(", "))
 }
 
-/// The joint signals in one grid (one colour per joint everywhere), q, q̇ and τ with the joints'
-/// legend where it fits; `key` (the session's span): a long session's colour key
-/// ([`share_points`]) in a cell of its own (its plots show no legend: the viewer fits them to
-/// the window, so every corner holds data).
-fn joints_tab(joints: &[String], key: Option<[f64; 2]>) -> Node {
-    let each = |signal: &str| -> Vec<String> {
-        joints
-            .iter()
-            .map(|j| paths::include(&paths::joint(j, signal)))
-            .collect()
+/// The replay layout ([`VIEWS`]) for `parts`: `joints` the short joint names, `arm_center` a
+/// point on the arm in the `/robot` frame (X forward, Y left, Z up) the 3D camera starts 0.75 m
+/// from, on the front left.
+pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]) -> Node {
+    let c = Ctx {
+        p: &parts,
+        joints,
+        arm_center,
     };
-    let mut q = each("q");
-    q.extend(each("q_cmd"));
-    let mut views: Vec<Node> = [
-        ("q [rad], command pale", q),
-        ("Joint velocity q̇ [rad/s]", each("dq")),
-        ("Joint torque τ [Nm]", each("tau")),
-    ]
-    .into_iter()
-    .map(|(name, c)| plot(name, c).with_legend_room(joints.len(), DETAIL_PLOT_PX))
-    .collect();
-    views.push(plot("Motor temperature [°C]", each("temperature")).with_legend(Legend::Hidden));
-    let names = joint_names(joints);
-    let key = key.map(|s| {
-        share_points(
-            "Key: joint shares [%]",
-            paths::BARS_BY_JOINT,
-            &names,
-            [THIRD_PLOT_PX[0], DETAIL_PLOT_PX],
-            s,
-        )
-    });
-    let columns = 2 + u32::from(key.is_some());
-    views.extend(key);
-    Node::container(ContainerKind::Grid, "Joints", views, vec![]).with_columns(columns)
+    let mut root = Draft(&BOXES[0], Vec::new());
+    for Row(at, when, class, title, origin, contents, look, share, tune) in VIEWS {
+        if !when(&parts) {
+            continue;
+        }
+        let name = match title {
+            Title::Is(name) => name.to_string(),
+            Title::Of(f) => f(&c),
+        };
+        let each = match name.contains("{j}") {
+            true => joints.iter().map(String::as_str).collect(),
+            false => vec![""],
+        };
+        for (k, j) in each.into_iter().enumerate() {
+            // A per-joint view's legend is the first's (the same colours in every cell).
+            let Look(fit, plot_px, legend, whole) = [*look, TICKS][usize::from(k > 0)];
+            let view = Node::View {
+                class: *class,
+                name: name.replace("{j}", j),
+                origin: origin.to_string(),
+                contents: contents(&c, j),
+                eye: None,
+                legend,
+                y_range: None,
+                fit,
+                plot_px,
+                whole,
+                x_range: None,
+            };
+            let mut path: Vec<&Frame> = Vec::new();
+            let mut at = *at;
+            while let Some(b) = BOXES[1..].iter().find(|b| b.0 == at) {
+                path.insert(0, b);
+                at = b.1;
+            }
+            root.insert(
+                &path,
+                tune(view, &c),
+                share[usize::from(parts.window_s.is_some())],
+            );
+        }
+    }
+    root.node().with_window(parts.window_s)
+}
+
+/// A container being filled: its frame and its views and containers, each with its share.
+struct Draft(&'static Frame, Vec<(Result<Node, Draft>, f32)>);
+
+impl Draft {
+    /// Adds `view` to the container at `path` below this one, making the containers on the way.
+    fn insert(&mut self, path: &[&'static Frame], view: Node, share: f32) {
+        let Some((&first, rest)) = path.split_first() else {
+            return self.1.push((Ok(view), share));
+        };
+        let found = (self.1.iter()).position(|i| matches!(&i.0, Err(d) if d.0.0 == first.0));
+        let k = found.unwrap_or_else(|| {
+            self.1.push((Err(Draft(first, Vec::new())), first.3));
+            self.1.len() - 1
+        });
+        if let Err(d) = &mut self.1[k].0 {
+            d.insert(rest, view, share);
+        }
+    }
+
+    /// The container (or its only child, where its frame says so); shares where every child has one.
+    fn node(self) -> Node {
+        let Draft(&(name, _, kind, _, keep, grid), items) = self;
+        let (mut children, shares): (Vec<Node>, Vec<f32>) = (items.into_iter())
+            .map(|(i, s)| (i.unwrap_or_else(Draft::node), s))
+            .unzip();
+        if children.len() == 1 && !keep {
+            return children.remove(0);
+        }
+        let shared = children.len() > 1 && shares.iter().all(|s| *s > 0.0);
+        let columns = grid.map(|(full, n)| n[usize::from(children.len() > full)]);
+        let shares = if shared { shares } else { Vec::new() };
+        let mut node = Node::container(kind, name, children, shares);
+        if let Node::Container { columns: c, .. } = &mut node {
+            *c = columns;
+        }
+        node
+    }
 }
 
 /// The joints' names, as the keys' legends list them.
@@ -1284,221 +1409,19 @@ const THIRD_PLOT_PX: [f64; 2] = [200.0, 240.0];
 /// 10 would need a plot over 440 px high), so the axis reads as shares within ±100 %.
 pub const SHARE_RANGE: [f64; 2] = [-110.0, 110.0];
 
-/// Each joint's or term's share of each trial's energy turnover [%] (`tree`: the per-trial points
-/// a long session logs) over the whole session, on [`SHARE_RANGE`], with the legend of `names`
-/// top right over time after the session's end: `span` (the first trial's start and the
-/// session's end) is stretched until the legend, about as wide as its longest name, clears the
-/// data in a plot area `plot_px` (width, height). A colour key that covers nothing, on an axis
-/// that does not run past 100 %.
-fn share_points(name: &str, tree: &str, names: &[&str], plot_px: [f64; 2], span: [f64; 2]) -> Node {
+/// Each joint's or term's share of each trial's energy turnover [%] (the per-trial points a long
+/// session logs) over the whole session, on [`SHARE_RANGE`], with the legend of `names` top right
+/// over time after the session's end: the session's span ([`LayoutParts::span_s`]) is stretched
+/// until the legend, about as wide as its longest name, clears the data in a plot area `plot_px`
+/// (width, height). A colour key that covers nothing, on an axis that does not run past 100 %.
+fn key(view: Node, c: &Ctx, names: &[&str], plot_px: [f64; 2]) -> Node {
     let chars = names.iter().map(|n| n.chars().count()).max().unwrap_or(0);
     let legend = (LEGEND_MARKER_PX + LEGEND_CHAR_PX * chars as f64) / plot_px[0];
-    let [a, b] = span;
+    let [a, b] = c.p.span_s.unwrap_or_default();
     let width = (b - a).max(1e-3) * (1.0 + 2.0 * AUTO_MARGIN) / (1.0 - legend.min(0.7));
-    plot(name, vec![paths::include_tree(tree)])
-        .whole_session()
-        .with_x_range([a - AUTO_MARGIN * (b - a), a + width])
+    view.with_x_range([a - AUTO_MARGIN * (b - a), a + width])
         .with_fit(Fit::Free, plot_px[1])
         .with_y_range(Some(SHARE_RANGE))
-        .with_legend(Legend::RightTop)
-}
-
-/// |ω| with the IMU filter's statistic and threshold, and the trial log.
-fn imu_tab(parts: LayoutParts) -> Node {
-    let mut imu = vec![paths::include(paths::IMU_GYRO_NORM)];
-    let plot_view = if parts.imu_filter {
-        imu.extend(include(&IMU_FILTER));
-        let name = if parts.window_s.is_some() {
-            "IMU [rad/s]: |ω| grey, σ|ω| per trial blue (rejected red), threshold black"
-        } else {
-            "IMU |ω| [rad/s] and the balance filter"
-        };
-        plot(name, imu).with_legend_room(4, DETAIL_PLOT_PX)
-    } else {
-        plot("IMU |ω| of the body [rad/s]", imu).with_legend(Legend::Hidden)
-    };
-    let mut views = vec![plot_view];
-    if parts.trials || parts.diagnosis {
-        let mut logs = vec![paths::include(&paths::trials_log(paths::TRIALS))];
-        if parts.diagnosis {
-            logs.push(paths::include(&paths::trials_log(paths::DIAG_TRIALS)));
-        }
-        views.push(Node::view("TextLog", "Trial log", "/", logs));
-    }
-    Node::group(
-        ContainerKind::Vertical,
-        "IMU and trials",
-        views,
-        vec![1.5, 1.0],
-    )
-}
-
-/// The diagnosis: its summary (verdict first) on the left; on the right, one above the other at
-/// the tab's full height, the fields its found terms follow, the rest power of each trial and
-/// the torque differences.
-fn diagnosis_tab(parts: LayoutParts) -> Node {
-    let summary = Node::view(
-        "TextDocument",
-        "Diagnosis summary",
-        paths::DIAG_SUMMARY,
-        vec![],
-    );
-    // No legend: the titles name the series, hovering names a line.
-    let plot_of = |(shown, name, origin): (bool, &str, &str)| {
-        let view = Node::view("TimeSeries", name, origin, vec![]);
-        shown.then(|| {
-            view.with_fit(Fit::Ticks, DETAIL_PLOT_PX)
-                .with_legend(Legend::Hidden)
-        })
-    };
-    let diag: Vec<Node> = [
-        (
-            parts.located,
-            "Fields the found terms follow",
-            paths::DIAG_LOCATED,
-        ),
-        (
-            parts.rest,
-            "Rest power [W]: measured blue, with found loads red",
-            paths::DIAG_REST,
-        ),
-        (
-            parts.counterpart,
-            "Torque recording − twin [Nm]",
-            paths::DIAG_TORQUE,
-        ),
-    ]
-    .into_iter()
-    .filter_map(plot_of)
-    .collect();
-    let mut children = vec![summary];
-    children.extend(
-        (!diag.is_empty())
-            .then(|| Node::group(ContainerKind::Vertical, "Diagnosis plots", diag, vec![])),
-    );
-    let shares = [vec![], vec![1.0, 1.4]][children.len() - 1].clone();
-    Node::container(ContainerKind::Horizontal, "Diagnosis", children, shares)
-}
-
-/// The main power plot: readings vs like-for-like prediction (with a model), the sensors' net
-/// power (without), the diagnosis' before/after.
-fn power_view(parts: LayoutParts) -> Node {
-    let (name, contents, entries) = if parts.model {
-        (
-            "Net power at the readings [W]",
-            include(&[
-                paths::MODEL_READING_MEASURED,
-                paths::MODEL_READING_PREDICTED,
-                paths::MODEL_PREDICTED,
-            ]),
-            3,
-        )
-    } else if parts.diagnosis {
-        (
-            "Net power at the readings [W]",
-            vec![paths::include_tree("diagnosis/power")],
-            parts.diagnosis_power_series,
-        )
-    } else {
-        (
-            "Net power [W]: MBS cyan, BMS olive (minus the idle baseline before the arm moves)",
-            include(&[&paths::power_net("mbs"), &paths::power_net("bms")]),
-            2,
-        )
-    };
-    plot(name, contents).with_legend_room(entries, OVERVIEW_PLOT_PX)
-}
-
-/// Where the power goes: per term and per joint over time (each with its legend: the colours
-/// of the bars), per-trial bars keyed by trial index (`long`: the session's span, per-trial
-/// points over the whole session, as [`super::layers`] logs them past
-/// [`WINDOWED_ABOVE_TRIALS`]), and the note.
-fn breakdown_tab(joints: &[String], long: Option<[f64; 2]>) -> Node {
-    use ContainerKind::{Horizontal, Vertical};
-    let by_joint: Vec<String> = joints
-        .iter()
-        .map(|j| paths::include(&paths::by_joint(j)))
-        .collect();
-    let over_time = Node::container(
-        Vertical,
-        "Power over time",
-        vec![
-            plot(
-                "Predicted power by term, all joints [W]",
-                vec![paths::include_tree(paths::BY_TERM)],
-            )
-            .with_legend_room(paths::TERMS.len() + 1, DETAIL_PLOT_PX),
-            plot("Predicted power by joint, all terms [W]", by_joint)
-                .with_legend_room(joints.len(), DETAIL_PLOT_PX),
-        ],
-        vec![],
-    );
-    let bars = |what: &str, tree: &str| {
-        if let Some(span) = long {
-            let names = if what == "joint" {
-                joint_names(joints)
-            } else {
-                term_names()
-            };
-            let name = format!("Trial energy turnover by {what} [%]");
-            share_points(&name, tree, &names, [HALF_PLOT_PX, DETAIL_PLOT_PX], span)
-        } else {
-            let name = format!("Trial energy turnover by {what} [%], x: trial");
-            Node::view("BarChart", name, "/", vec![paths::include_tree(tree)])
-                .with_legend(Legend::Hidden)
-        }
-    };
-    let per_trial = Node::container(
-        Vertical,
-        "Per trial",
-        vec![
-            bars("joint", paths::BARS_BY_JOINT),
-            bars("term", paths::BARS_BY_TERM),
-            Node::view(
-                "TextDocument",
-                "What the terms are",
-                paths::BREAKDOWN_NOTE,
-                vec![],
-            ),
-        ],
-        vec![1.0, 1.0, 0.8],
-    );
-    Node::container(
-        Horizontal,
-        "Where the power goes",
-        vec![over_time, per_trial],
-        vec![1.0, 1.0],
-    )
-}
-
-/// One grid: the four loss terms of each joint, and the interaction; the terms' legend on the
-/// first cell (the same colours in every cell); `key` (the session's span): a long session's
-/// colour key in a ninth cell (three columns).
-fn loss_terms_tab(joints: &[String], key: Option<[f64; 2]>) -> Node {
-    let mut views: Vec<Node> = joints
-        .iter()
-        .enumerate()
-        .map(|(k, j)| {
-            let terms = paths::TERMS
-                .iter()
-                .map(|t| paths::include(&paths::term(j, t)))
-                .collect();
-            if k == 0 {
-                plot(format!("{j} [W]"), terms).with_legend_room(paths::TERMS.len(), DETAIL_PLOT_PX)
-            } else {
-                plot(format!("{j} [W]"), terms).with_legend(Legend::Hidden)
-            }
-        })
-        .collect();
-    // A title short enough to show whole in a cell of four columns ("Interaction [W]" was cut).
-    let interaction = vec![paths::include(paths::TERM_INTERACTION)];
-    views.push(plot("Pairwise [W]", interaction).with_legend(Legend::Hidden));
-    let name = "Key: term shares [%]";
-    let key = key.map(|s| share_points(name, paths::BARS_BY_TERM, &term_names(), THIRD_PLOT_PX, s));
-    let columns = 4 - u32::from(key.is_some());
-    views.extend(key);
-    Node::container(ContainerKind::Grid, "Loss terms per joint", views, vec![])
-        .with_columns(columns)
 }
 
 #[cfg(test)]

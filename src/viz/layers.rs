@@ -250,7 +250,7 @@ pub(super) fn log_term_data(
     chunk: usize,
 ) -> Result<()> {
     for (j, name) in joints.iter().enumerate() {
-        for (k, data) in terms.fields().iter().enumerate() {
+        for (k, data) in terms.per_joint.iter().enumerate() {
             let v: Vec<f64> = data.iter().map(|v| v[j]).collect();
             scalars_chunked(w, &paths::term(name, paths::TERMS[k]), &terms.t, &v, chunk)?;
         }
@@ -267,7 +267,7 @@ pub(super) fn log_breakdown_data(
     terms: &TermSeries,
     chunk: usize,
 ) -> Result<()> {
-    let (fields, n) = (terms.fields(), terms.len());
+    let (fields, n) = (&terms.per_joint, terms.len());
     let t = &terms.t[..n];
     for (k, field) in fields.iter().enumerate() {
         let sums: Vec<f64> = field[..n].iter().map(|v| v.iter().sum()).collect();
@@ -419,7 +419,7 @@ impl TrialMean {
             return None;
         }
         let count = idx.len() as f64;
-        let fields = terms.fields();
+        let fields = &terms.per_joint;
         let mut mean = TrialMean {
             index,
             t: terms.t.get(idx[0]).copied().unwrap_or(f64::NAN),
@@ -463,7 +463,7 @@ pub(super) struct ModelStats {
 impl ModelStats {
     /// Adds one trial's series (sliced as logged).
     pub fn add(&mut self, trial: &crate::trial::TrialWindow, terms: &TermSeries) {
-        let fields = terms.fields();
+        let fields = &terms.per_joint;
         for (i, &t) in terms.t.iter().enumerate().take(terms.len()) {
             let power: [f64; N_JOINTS] =
                 std::array::from_fn(|j| fields.iter().map(|f| f[i][j]).sum());

@@ -26,7 +26,7 @@ mod style;
 use blueprint::data_range;
 pub use blueprint::{Legend, Node, send_blueprint};
 pub use layers::TrialMean;
-pub use overlay::{diagnosis_extras, model_extras, validation_extras};
+pub use overlay::{diagnosis_extras, model_extras};
 pub use replay::{
     DiagnosisOverlay, ImuFilterMarks, ModelSeries, ReadingPrediction, ReplayExtras, ReplayLogger,
     ReplayOptions, ReplaySummary, TermSeries, TrajectoryPoint, TrialMark, idle_baseline, layout,
@@ -108,7 +108,7 @@ pub fn open_stream(
         .send_properties(false);
     match sink {
         Sink::Save(path) => {
-            refuse_overwrite(path, inputs)?;
+            crate::util::refuse_to_overwrite_inputs("Rerun output", path, inputs)?;
             let (sink, file) = rrd_sink::RrdFileSink::create(path)?;
             let (_enabled, store_info, _props, batcher, hooks, _blueprint) = builder.into_args();
             let stream = RecordingStream::new(store_info, None, batcher, hooks, Box::new(sink))
@@ -138,12 +138,6 @@ pub fn open_stream(
             Ok(VizStream { stream, file: None })
         }
     }
-}
-
-/// Refuses a target that is (after resolving symlinks and `..`) one of the input files or lies
-/// inside an input folder.
-fn refuse_overwrite(target: &Path, inputs: &[&Path]) -> Result<()> {
-    crate::util::refuse_to_overwrite_inputs("Rerun output", target, inputs)
 }
 
 /// What an output shows. Each kind has its own application id (so its own default layout in

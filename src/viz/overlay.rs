@@ -27,25 +27,7 @@ pub fn model_extras(
     opts: &IdentifyOptions,
 ) -> Result<(ReplayExtras, Validation)> {
     let v = validate(model, rec, opts)?;
-    let mut extras = validation_extras(&v, opts, &rec.joint_names);
-    extras.model = Some(ModelSeries {
-        model: *model,
-        plan: planned(&v),
-    });
-    Ok((extras, v))
-}
-
-/// The usable trials of a validation (those with a copper baseline), in session order, with it.
-pub(super) fn planned(v: &Validation) -> Vec<(TrialWindow, [f64; crate::N_JOINTS])> {
-    // Indexed once: a linear search per baseline is quadratic in trials (~1e6 steps at paper scale).
-    let mut by_index: BTreeMap<_, &TrialWindow> = BTreeMap::new();
-    for t in &v.session.segmentation.trials {
-        by_index.entry(t.index).or_insert(t); // the first, as a search would find
-    }
-    v.baselines
-        .iter()
-        .filter_map(|b| Some(((*by_index.get(&b.trial)?).clone(), b.tau0_sq)))
-        .collect()
+    Ok((validation_extras(&v, opts, &rec.joint_names, model), v))
 }
 
 /// The model's instantaneous prediction and loss terms at every sample of `state` in `trial`'s
@@ -74,15 +56,25 @@ pub(super) fn trial_series(
     terms
 }
 
-/// The extras a validation gives without the samples: each reading with its like-for-like
-/// prediction, per-trajectory errors, the IMU filter marks and the trial marks (with the
-/// rejections `validate` records). `joint_names` label the trials. The per-sample series are
-/// left to [`trial_series`].
-pub fn validation_extras(
+/// The extras a validation of `model` gives without the samples: each reading with its
+/// like-for-like prediction, per-trajectory errors, the IMU filter marks and the trial marks
+/// (with the rejections `validate` records; `joint_names` label the trials), and the model with
+/// the usable trials (those with a copper baseline), in session order, whose per-sample series
+/// the replay computes ([`trial_series`]).
+pub(super) fn validation_extras(
     v: &Validation,
     opts: &IdentifyOptions,
     joint_names: &[String],
+    model: &PowerModel,
 ) -> ReplayExtras {
+    // Indexed once: a linear search per baseline is quadratic in trials (~1e6 steps at paper scale).
+    let mut by_index: BTreeMap<_, &TrialWindow> = BTreeMap::new();
+    for t in &v.session.segmentation.trials {
+        by_index.entry(t.index).or_insert(t); // the first, as a search would find
+    }
+    let plan = (v.baselines.iter())
+        .filter_map(|b| Some(((*by_index.get(&b.trial)?).clone(), b.tau0_sq)))
+        .collect();
     let is_rejected = |trial: usize| crate::trial::is_rejected(&v.rejections, 0, trial);
     let mut readings = ReadingPrediction {
         window_s: v.alignment.window_s,
@@ -140,7 +132,10 @@ pub fn validation_extras(
         })
         .collect();
     ReplayExtras {
-        model: None,
+        model: Some(ModelSeries {
+            model: *model,
+            plan,
+        }),
         readings: Some(readings),
         trajectories,
         trials,

@@ -11,7 +11,6 @@
 //! [`ReplayOptions::chunk_rows`] samples, so memory stays bounded whatever the session length.
 
 use anyhow::{Context, Result, bail};
-use indicatif::ProgressBar;
 use rerun::{AnyValues, RecordingInfo, RecordingStream, Scalars};
 
 use super::blueprint::{self, LayoutParts};
@@ -31,8 +30,6 @@ pub struct ReplayOptions {
     /// The arm counts as moving once any joint is this far [rad] from its first sample; power
     /// readings before that are the idle baseline.
     pub motion_threshold_rad: f64,
-    /// Progress bar on stderr (shown only when stderr is a terminal).
-    pub progress: bool,
     /// Also send the viewer layout (blueprint).
     pub blueprint: bool,
     /// Recording properties beside the input and g1viz version, e.g. `("command", "replay")`,
@@ -53,7 +50,6 @@ impl Default for ReplayOptions {
             chunk_rows: 4096,
             pose_rate_hz: None,
             motion_threshold_rad: 0.02,
-            progress: true,
             blueprint: true,
             properties: Vec::new(),
             open_tab: None,
@@ -119,11 +115,6 @@ pub struct TermSeries {
 }
 
 impl TermSeries {
-    /// The four per-joint terms: mechanical, copper, Coulomb, viscous ([`super::paths::TERMS`]).
-    pub(super) fn fields(&self) -> &[Vec<[f64; N_JOINTS]>; 4] {
-        &self.per_joint
-    }
-
     /// Samples every series holds (the shortest one's length).
     pub(super) fn len(&self) -> usize {
         let lens = self.per_joint.iter().map(Vec::len);
@@ -371,13 +362,6 @@ pub fn log_replay(
     opts: &ReplayOptions,
     stream: &RecordingStream,
 ) -> Result<ReplaySummary> {
-    let sliced;
-    let extras = if opts.slice.is_all() {
-        extras
-    } else {
-        sliced = opts.slice.extras(extras);
-        &sliced
-    };
     let mut logger = ReplayLogger::begin(
         stream,
         robot,
@@ -387,13 +371,12 @@ pub fn log_replay(
         rec.start_ns,
         extras,
         opts,
-        Some(rec),
     )?;
     logger.add(rec)?;
     for _ in extras.model.iter().flat_map(|m| &m.plan) {
         logger.log_model_trial(&rec.state)?;
     }
-    logger.finish(extras)
+    logger.finish()
 }
 
 /// Samples per Rerun chunk of a streamed replay (plain or with a model), at least (the replay's own
@@ -418,16 +401,25 @@ pub(super) fn streamed_replay(
     stream: &RecordingStream,
     read: &mut dyn FnMut(&mut StreamedReplay<'_, '_>) -> Result<()>,
 ) -> Result<ReplaySummary> {
-    // The reader shows its own progress bar (messages read); one bar is enough.
-    let quiet = ReplayOptions {
-        progress: false,
+    let opts = ReplayOptions {
         chunk_rows: opts.chunk_rows.max(STREAMED_CHUNK_ROWS),
         ..opts.clone()
     };
-    let mut sink = StreamedReplay::new(stream, robot, arm, &quiet, &extras);
+    let (opts, extras) = (&opts, &extras);
+    let (logger, warnings, unflushed) = (None, Vec::new(), 0);
+    let mut sink = StreamedReplay {
+        stream,
+        robot,
+        arm,
+        opts,
+        extras,
+        logger,
+        warnings,
+        unflushed,
+    };
     read(&mut sink)?;
     let logger = sink.logger.context("the recording delivered no samples")?;
-    let mut summary = logger.finish(&extras)?;
+    let mut summary = logger.finish()?;
     sink.warnings.append(&mut summary.warnings);
     summary.warnings = sink.warnings;
     Ok(summary)
@@ -479,29 +471,6 @@ pub(super) struct StreamedReplay<'a, 'e> {
     unflushed: usize,
 }
 
-impl<'a, 'e> StreamedReplay<'a, 'e> {
-    /// A sink replaying into `stream` with `opts` and the overlays `extras`.
-    fn new(
-        stream: &'a RecordingStream,
-        robot: &'a RobotModel,
-        arm: &'a ArmJoints,
-        opts: &'a ReplayOptions,
-        extras: &'e ReplayExtras,
-    ) -> Self {
-        let (logger, warnings, unflushed) = (None, Vec::new(), 0);
-        StreamedReplay {
-            stream,
-            robot,
-            arm,
-            opts,
-            extras,
-            logger,
-            warnings,
-            unflushed,
-        }
-    }
-}
-
 impl StreamedReplay<'_, '_> {
     /// Samples per chunk the replay logs.
     pub(super) fn chunk_rows(&self) -> usize {
@@ -520,7 +489,6 @@ impl crate::signals::RecordingSink for StreamedReplay<'_, '_> {
             header.start_ns,
             self.extras,
             self.opts,
-            None,
         )?);
         Ok(())
     }
@@ -570,7 +538,6 @@ pub struct ReplayLogger<'a> {
     /// The ~1 Hz power readings (≈ 60 kB per hour), logged by `finish`.
     mbs: PowerSeries,
     bms: PowerSeries,
-    progress: ProgressBar,
     summary: ReplaySummary,
     slice: Slice,
     /// Rate caps of the state and command series, across batches.
@@ -592,6 +559,8 @@ pub struct ReplayLogger<'a> {
     /// The layout sent by [`Self::begin`] (when it sends one): [`Self::finish`] sends it again
     /// with every plot fitted to the data logged.
     layout: Option<blueprint::Node>,
+    /// What later stages add, inside the slice ([`Slice::extras`]): logged by [`Self::finish`].
+    extras: ReplayExtras,
 }
 
 /// Model samples (≈ 42 scalar rows each) between waits for the sink in
@@ -600,9 +569,8 @@ const MODEL_FLUSH_SAMPLES: usize = 20_000;
 
 impl<'a> ReplayLogger<'a> {
     /// Sends the viewer layout (when [`ReplayOptions::blueprint`]), the static robot and the
-    /// series styles. `joint_names` are the 7 arm joints' URDF names; `whole`: the whole recording
-    /// when it is in memory (it sizes the progress bar and gives plots their ranges; `None`: a
-    /// streamed replay, no bar).
+    /// series styles. `joint_names` are the 7 arm joints' URDF names; `extras` are sliced as the
+    /// session is ([`ReplayOptions::slice`]), once, here.
     #[allow(clippy::too_many_arguments)]
     pub fn begin(
         stream: &'a RecordingStream,
@@ -613,7 +581,6 @@ impl<'a> ReplayLogger<'a> {
         start_ns: u64,
         extras: &ReplayExtras,
         opts: &ReplayOptions,
-        whole: Option<&Recording>,
     ) -> Result<Self> {
         let joints: Vec<String> = joint_names.iter().map(|n| short_joint_name(n)).collect();
         let mut sent_layout = None;
@@ -626,8 +593,9 @@ impl<'a> ReplayLogger<'a> {
         }
         let mut summary = ReplaySummary::default();
         let mut w = ChunkWriter::new(stream, REPLAY_NAMESPACE, start_ns);
+        let extras = opts.slice.extras(extras);
         if opts.blueprint {
-            let mut layout = layout(robot, arm, &joints, extras);
+            let mut layout = layout(robot, arm, &joints, &extras);
             if let Some(tab) = &opts.open_tab
                 && !layout
                     .resolve_tab(tab)
@@ -655,10 +623,6 @@ impl<'a> ReplayLogger<'a> {
             &mut summary.warnings,
         )?;
         log_styles(&mut w, &joints)?;
-        let expected_samples = whole.map_or(0, |r| r.state.t.len() as u64);
-        let template = "replay {bar:40} {pos}/{len} samples ({eta})";
-        let shown = opts.progress && expected_samples > 0;
-        let progress = crate::util::progress_bar(shown, template, || expected_samples);
         Ok(ReplayLogger {
             w,
             robot,
@@ -676,7 +640,6 @@ impl<'a> ReplayLogger<'a> {
             yaw0: None,
             mbs: PowerSeries::default(),
             bms: PowerSeries::default(),
-            progress,
             summary,
             slice: opts.slice,
             decimators: [Decimator::default(); 2],
@@ -687,6 +650,7 @@ impl<'a> ReplayLogger<'a> {
             pending: Default::default(),
             kept: Recording::default(),
             layout: sent_layout,
+            extras,
         })
     }
 
@@ -792,7 +756,6 @@ impl<'a> ReplayLogger<'a> {
                 let quats: Vec<[f64; 4]> = pose_idx.iter().map(|&i| st.quat[i]).collect();
                 robot3d::log_body_orientation(&mut self.w, &mut self.yaw0, &pose_t, &quats)?;
             }
-            self.progress.inc((end - start) as u64);
         }
         self.summary.samples += n;
 
@@ -871,10 +834,10 @@ impl<'a> ReplayLogger<'a> {
     }
 
     /// Logs the power series (raw, and net of the readings before the arm first moved) and
-    /// `extras`; returns what was logged.
-    pub fn finish(mut self, extras: &ReplayExtras) -> Result<ReplaySummary> {
+    /// the extras; returns what was logged.
+    pub fn finish(mut self) -> Result<ReplaySummary> {
+        let extras = &std::mem::take(&mut self.extras);
         self.add_kept()?;
-        self.progress.finish_and_clear();
         let rest = self.pending.t.len();
         if rest > 0 {
             self.write_pending(rest)?;

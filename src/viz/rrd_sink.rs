@@ -44,7 +44,6 @@ pub(super) struct PendingFile {
     /// Registers `tmp` for removal on drop or on a termination signal (`util::temp`).
     guard: Option<crate::util::temp::TempPath>,
     target: PathBuf,
-    committed: bool,
 }
 
 impl RrdFileSink {
@@ -67,16 +66,9 @@ impl RrdFileSink {
             EncodingOptions::PROTOBUF_COMPRESSED,
             BufWriter::with_capacity(1 << 20, file),
         );
-        let encoder = match encoder {
-            Ok(e) => e,
-            Err(err) => {
-                let _ = std::fs::remove_file(&tmp);
-                return Err(anyhow!(
-                    "writing the RRD header to {}: {err}",
-                    tmp.display()
-                ));
-            }
-        };
+        // On an error the guard, dropped, removes the file.
+        let encoder =
+            encoder.map_err(|e| anyhow!("writing the RRD header to {}: {e}", tmp.display()))?;
         let state = Arc::new(Mutex::new(State {
             encoder: Some(encoder),
             error: None,
@@ -86,7 +78,6 @@ impl RrdFileSink {
             tmp,
             guard: Some(guard),
             target: target.to_path_buf(),
-            committed: false,
         };
         Ok((RrdFileSink { state }, pending))
     }
@@ -134,14 +125,6 @@ impl LogSink for RrdFileSink {
 impl PendingFile {
     /// Writes the footer, syncs, and renames the temporary file to the target.
     pub(super) fn commit(mut self) -> Result<()> {
-        let result = self.finish_file();
-        if result.is_ok() {
-            self.committed = true;
-        }
-        result
-    }
-
-    fn finish_file(&mut self) -> Result<()> {
         let mut state = lock(&self.state);
         if let Some(err) = state.error.take() {
             return Err(anyhow!("writing {}: {err}", self.tmp.display()));
@@ -179,10 +162,9 @@ impl PendingFile {
 
 impl Drop for PendingFile {
     fn drop(&mut self) {
-        if !self.committed {
-            // Unfinished or failed: never leave a partial file behind.
+        if self.guard.is_some() {
+            // Unfinished or failed: close the file; the guard, dropped next, removes it.
             lock(&self.state).encoder = None;
-            let _ = std::fs::remove_file(&self.tmp);
         }
     }
 }

@@ -9,9 +9,7 @@ use std::path::Path;
 
 use anyhow::{Context, Result, bail};
 
-use super::replay::{
-    ModelSeries, ReplayOptions, ReplaySummary, replay_files_with, streamed_replay,
-};
+use super::replay::{ReplayExtras, ReplayOptions, ReplaySummary, streamed_replay};
 use super::slice::Slice;
 use super::{OutputKind, Sink, open_stream, recording_id_or_reason};
 use crate::identify::{IdentifyOptions, validate_file};
@@ -213,72 +211,78 @@ impl Window {
 }
 
 /// Replays `r.session` as `g1viz replay` does; `notify` hears the notes, the model's fit and
-/// the size estimate (before the output is opened).
+/// the size estimate (before the output is opened). With a model, the streamed validation gives
+/// the overlay (readings, trials, rejections) and the trials for `--trials`; the file is then
+/// replayed, and read once more trial by trial for the model's series
+/// ([`super::ReplayLogger::log_model_trial`]), never held whole. Without, the file is streamed;
+/// `--trials` reads it once more first, in a streamed segmentation pass, to find the trials.
 pub fn replay_session(
     r: &SessionReplay<'_>,
     notify: &mut dyn FnMut(Notice),
 ) -> Result<ReplaySummary> {
-    match r.model {
-        Some((_, model)) => model_replay(r, model, notify),
-        None => plain_replay(r, notify),
-    }
-}
-
-/// With a model: the streamed validation gives the overlay (readings, trials, rejections) and
-/// the trials for `--trials`; the file is then replayed, and read once more trial by trial for
-/// the model's series ([`super::ReplayLogger::log_model_trial`]), never held whole.
-fn model_replay(
-    r: &SessionReplay<'_>,
-    model: &PowerModel,
-    notify: &mut dyn FnMut(Notice),
-) -> Result<ReplaySummary> {
     let arm = r.robot.arm(&r.map.joint_names)?;
     let file = session_file(r);
-    let v = validate_file(model, &file, &r.fit, &r.opts.stream)
-        .with_context(|| format!("reading {}", r.session.display()))?;
-    for n in &v.notes {
-        notify(Notice::Note(n.clone()));
+    let reading = || format!("reading {}", r.session.display());
+    let (slice, extras) = match r.model {
+        Some((_, model)) => {
+            let v = validate_file(model, &file, &r.fit, &r.opts.stream).with_context(reading)?;
+            for n in &v.notes {
+                notify(Notice::Note(n.clone()));
+            }
+            notify(Notice::ModelFit {
+                r2: v.trial_level_aligned.r2,
+                rmse: v.trial_level_aligned.rmse,
+                trials: v.per_trial.len(),
+            });
+            let slice = r.window.resolve(Some(&v.session.segmentation), r.session)?;
+            let joints = &r.map.joint_names;
+            (
+                slice,
+                super::overlay::validation_extras(&v, &r.fit, joints, model),
+            )
+        }
+        None if r.window.trials.is_some() => {
+            // Only the trials are wanted of this pass: no joint states are kept for later ones.
+            let so = crate::session::StreamOptions {
+                spill_states: false,
+                ..r.opts.stream
+            };
+            let seg =
+                crate::session::segment_file(&file, &r.fit.segment, &so).with_context(reading)?;
+            (
+                r.window.resolve(Some(&seg), r.session)?,
+                ReplayExtras::default(),
+            )
+        }
+        None => (r.window.resolve(None, r.session)?, ReplayExtras::default()),
+    };
+    let windows: Vec<TrialWindow> = (extras.model.iter().flat_map(|m| &m.plan))
+        .map(|(t, _)| t.clone())
+        .collect();
+    let model = extras.model.is_some();
+    let links = super::robot3d::moving_links(r.robot, &arm).len();
+    if let Some(e) = topic_estimate(r, &slice, links, model) {
+        notify(Notice::Estimate(e));
     }
-    notify(Notice::ModelFit {
-        r2: v.trial_level_aligned.r2,
-        rmse: v.trial_level_aligned.rmse,
-        trials: v.per_trial.len(),
-    });
-    let slice = r.window.resolve(Some(&v.session.segmentation), r.session)?;
+    let kind = [OutputKind::Replay, OutputKind::ModelReplay][usize::from(model)];
+    let id = recording_id_or_reason(r.session)?;
+    let out = open_stream(&kind.app_id(), &kind.recording_id(&id), r.sink, r.inputs)?;
     let opts = ReplayOptions {
         slice,
         ..r.opts.clone()
     };
-    let mut extras = super::overlay::validation_extras(&v, &r.fit, &r.map.joint_names);
-    if !slice.is_all() {
-        extras = slice.extras(&extras);
-    }
-    let plan = super::overlay::planned(&v);
-    let windows: Vec<TrialWindow> = plan.iter().map(|(t, _)| t.clone()).collect();
-    extras.model = Some(ModelSeries {
-        model: *model,
-        plan,
-    });
-    let links = super::robot3d::moving_links(r.robot, &arm).len();
-    if let Some(e) = topic_estimate(r, &slice, links, true) {
-        notify(Notice::Estimate(e));
-    }
-    let kind = OutputKind::ModelReplay;
-    let id = recording_id_or_reason(r.session)?;
-    let out = open_stream(&kind.app_id(), &kind.recording_id(&id), r.sink, r.inputs)?;
     let (path, batch) = (r.session, opts.stream.batch_samples);
     let summary = streamed_replay(r.robot, &arm, extras, &opts, out.stream(), &mut |sink| {
-        let rows = sink.chunk_rows();
-        crate::signals::stream_into(path, r.map, r.read, rows, sink)
-            .with_context(|| format!("replaying {}", path.display()))?;
-        let logger = sink
-            .logger
-            .as_mut()
-            .context("the recording delivered no samples")?;
+        // A plain replay reads in batches of the caller's chunk size, as `replay_files_with`.
+        let rows = [r.opts.chunk_rows.max(1), sink.chunk_rows()][usize::from(model)];
+        crate::signals::stream_into(path, r.map, r.read, rows, sink)?;
+        let Some(logger) = sink.logger.as_mut().filter(|_| model) else {
+            return Ok(());
+        };
         let each = &mut |rec: &Recording, _: &TrialWindow| logger.log_model_trial(&rec.state);
-        for_each_trial_with_batches(&file, &windows, batch, &mut |_| {}, each)
-            .with_context(|| format!("reading {}", path.display()))
-    })?;
+        for_each_trial_with_batches(&file, &windows, batch, &mut |_| {}, each).with_context(reading)
+    })
+    .with_context(|| format!("replaying {}", path.display()))?;
     out.finish()?;
     Ok(summary)
 }
@@ -291,54 +295,6 @@ fn session_file(r: &SessionReplay<'_>) -> SessionFile {
         read: r.read.clone(),
         spill: Default::default(),
     }
-}
-
-/// Without a model: the file is streamed (memory does not grow with its length); `--trials`
-/// reads it once more first, in a streamed segmentation pass, to find the trials.
-fn plain_replay(r: &SessionReplay<'_>, notify: &mut dyn FnMut(Notice)) -> Result<ReplaySummary> {
-    let arm = r.robot.arm(&r.map.joint_names)?;
-    let slice = if r.window.trials.is_some() {
-        // Only the trials are wanted of this pass: no joint states are kept for later ones.
-        let so = crate::session::StreamOptions {
-            spill_states: false,
-            ..r.opts.stream
-        };
-        let seg = crate::session::segment_file(&session_file(r), &r.fit.segment, &so)
-            .with_context(|| format!("reading {}", r.session.display()))?;
-        r.window.resolve(Some(&seg), r.session)?
-    } else {
-        r.window.resolve(None, r.session)?
-    };
-    if let Some(e) = topic_estimate(
-        r,
-        &slice,
-        super::robot3d::moving_links(r.robot, &arm).len(),
-        false,
-    ) {
-        notify(Notice::Estimate(e));
-    }
-    let kind = OutputKind::Replay;
-    let id = recording_id_or_reason(r.session)?;
-    let out = open_stream(&kind.app_id(), &kind.recording_id(&id), r.sink, r.inputs)?;
-    let opts = ReplayOptions {
-        slice,
-        ..r.opts.clone()
-    };
-    let (session, none) = ([r.session], Default::default());
-    let summary = replay_files_with(
-        &session,
-        0.0,
-        r.map,
-        r.read,
-        r.robot,
-        &arm,
-        none,
-        &opts,
-        out.stream(),
-    )
-    .with_context(|| format!("replaying {}", r.session.display()))?;
-    out.finish()?;
-    Ok(summary)
 }
 
 /// The estimate from the file's topic statistics (summary or index when the container has

@@ -82,11 +82,8 @@ impl Slice {
         state: &mut Decimator,
         cmd: &mut Decimator,
     ) -> Recording {
-        let s = &part.state;
-        let ks = self.keep(&s.t, state);
-        let pick = |v: &[[f64; 7]]| -> Vec<[f64; 7]> {
-            ks.iter().filter_map(|&i| v.get(i).copied()).collect()
-        };
+        let (s, c) = (&part.state, &part.command);
+        let (ks, kc) = (self.keep(&s.t, state), self.keep(&c.t, cmd));
         let mut out = Recording {
             source: part.source.clone(),
             start_ns: part.start_ns,
@@ -95,21 +92,19 @@ impl Slice {
             bms: part.bms.clone(),
             ..Recording::default()
         };
-        out.state.t = ks.iter().map(|&i| s.t[i]).collect();
-        out.state.q = pick(&s.q);
-        out.state.dq = pick(&s.dq);
-        out.state.tau = pick(&s.tau);
-        out.state.temp = pick(&s.temp);
-        out.state.gyro = ks.iter().filter_map(|&i| s.gyro.get(i).copied()).collect();
+        out.state.t = pick(&s.t, &ks);
+        out.state.q = pick(&s.q, &ks);
+        out.state.dq = pick(&s.dq, &ks);
+        out.state.tau = pick(&s.tau, &ks);
+        out.state.temp = pick(&s.temp, &ks);
+        out.state.gyro = pick(&s.gyro, &ks);
         if s.quat.len() == s.t.len() {
-            out.state.quat = ks.iter().map(|&i| s.quat[i]).collect();
+            out.state.quat = pick(&s.quat, &ks);
         }
-        let c = &part.command;
-        let kc = self.keep(&c.t, cmd);
-        out.command.t = kc.iter().map(|&i| c.t[i]).collect();
-        out.command.q = kc.iter().filter_map(|&i| c.q.get(i).copied()).collect();
+        out.command.t = pick(&c.t, &kc);
+        out.command.q = pick(&c.q, &kc);
         if c.dq.len() == c.t.len() {
-            out.command.dq = kc.iter().map(|&i| c.dq[i]).collect();
+            out.command.dq = pick(&c.dq, &kc);
         }
         out
     }
