@@ -129,8 +129,9 @@ fn median(mut v: Vec<f64>) -> f64 {
     0.5 * (v[(m - 1) / 2] + v[m / 2])
 }
 
-/// Weighted straight line through the points: (level, level s.e., slope, slope s.e.).
-fn line(points: &[Point]) -> Option<(f64, f64, f64, f64)> {
+/// Weighted straight line through the points: level, its s.e., slope, its s.e. (nominal, from
+/// the points' errors) and the points' scatter about it in their own errors, √(χ²/(k − 2)).
+fn line(points: &[Point]) -> Option<[f64; 5]> {
     let (mut s, mut sx, mut sy, mut sxx, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
     for p in points {
         let w = 1.0 / (p.std_err * p.std_err);
@@ -150,9 +151,8 @@ fn line(points: &[Point]) -> Option<(f64, f64, f64, f64)> {
         .iter()
         .map(|p| ((p.value - level - slope * p.t_weeks) / p.std_err).powi(2))
         .sum();
-    let birge = (chi2 / (points.len() - 2) as f64).sqrt().max(1.0);
-    let se = |v: f64| (v / det).sqrt() * birge;
-    Some((level, se(sxx), slope, se(s)))
+    let scatter = (chi2 / (points.len() - 2) as f64).sqrt();
+    Some([level, (sxx / det).sqrt(), slope, (s / det).sqrt(), scatter])
 }
 
 /// Trends and outliers of a fit grouped by robot and a period (day, week or session); `None`
@@ -188,29 +188,24 @@ pub fn analyse(fit: &FleetFit, z: f64, min_periods: usize) -> Option<Drift> {
             if points.len() < min_periods.max(4) || 2 * points.len() < all {
                 continue;
             }
-            let Some((level, level_se, slope, slope_se)) = line(&points) else {
+            let Some([level, level_se, slope, slope_se, scatter]) = line(&points) else {
                 continue;
             };
+            let (robot, level_se) = (robot.to_string(), level_se * scatter.max(1.0));
             trends.push(Trend {
-                robot: robot.to_string(),
+                robot,
                 param,
                 points,
                 level,
                 level_se,
                 slope,
                 slope_se,
+                null_scale: scatter,
                 ..Default::default()
             });
         }
     }
-    let raw: Vec<(usize, f64)> = trends
-        .iter()
-        .map(|t| (t.param, t.slope / t.slope_se))
-        .collect();
-    for (t, scale) in trends.iter_mut().zip(null_scales(&raw)) {
-        (t.null_scale, t.z) = (scale, t.slope / t.slope_se / scale);
-        t.drifting = t.z.abs() > z;
-    }
+    calibrate(&mut trends, z);
     let outliers = outliers(&trends, z);
     Some(Drift {
         z,
@@ -226,6 +221,22 @@ fn spread(abs_z: Vec<f64>, min: usize, floor: f64) -> f64 {
     match abs_z.len() >= min {
         false => 1.0,
         true => (1.4826 * median(abs_z)).max(floor),
+    }
+}
+
+/// The slopes' z on the fleet's own empirical null (`null_scale` holds each trend's own scatter
+/// on entry, the scale of its nominal s.e. on return).
+fn calibrate(trends: &mut [Trend], z: f64) {
+    for t in trends.iter_mut() {
+        t.slope_se *= t.null_scale.max(1.0);
+    }
+    let raw: Vec<(usize, f64)> = trends
+        .iter()
+        .map(|t| (t.param, t.slope / t.slope_se))
+        .collect();
+    for (t, scale) in trends.iter_mut().zip(null_scales(&raw)) {
+        (t.null_scale, t.z) = (scale, t.slope / t.slope_se / scale);
+        t.drifting = t.z.abs() > z;
     }
 }
 
@@ -301,14 +312,62 @@ mod tests {
                 std_err: 0.1,
             })
             .collect();
-        let (level, _, slope, se) = line(&exact).unwrap();
+        let [level, _, slope, se, _] = line(&exact).unwrap();
         assert!((level - 2.0).abs() < 1e-12 && (slope - 0.5).abs() < 1e-12);
         // Unweighted: se(slope) = σ/√Σ(t − t̄)² = 0.1/√10.
         assert!((se - 0.1 / 10f64.sqrt()).abs() < 1e-12);
         let mut noisy = exact.clone();
         noisy[2].value += 1.0;
-        let (_, _, _, wide) = line(&noisy).unwrap();
-        assert!(wide > 3.0 * se, "{wide} vs {se}");
+        let [.., scatter] = line(&noisy).unwrap();
+        assert!(scatter > 3.0, "{scatter}");
+    }
+
+    /// A robot's exact line (no scatter) through five weekly points of s.e. 0.1 whose slope is
+    /// `z` nominal standard errors.
+    fn sloped(robot: usize, param: usize, z: f64) -> Trend {
+        let slope = z * 0.1 / 10f64.sqrt();
+        let (t_weeks, std_err) = (0.0, 0.1);
+        let at = |k: usize| Point {
+            t_weeks: t_weeks + k as f64,
+            value: 1.0 + slope * k as f64,
+            std_err,
+        };
+        let points: Vec<Point> = (0..5).map(at).collect();
+        let [level, level_se, slope, slope_se, null_scale] = line(&points).unwrap();
+        let robot = format!("r{robot:02}");
+        Trend {
+            robot,
+            param,
+            points,
+            level,
+            level_se,
+            slope,
+            slope_se,
+            null_scale,
+            ..Default::default()
+        }
+    }
+
+    /// Twenty robots whose slopes scatter as their errors say on eight parameters, and 0.55 of
+    /// that on a ninth (its nominal errors too wide for most robots). A robot 3.3 nominal errors
+    /// off on the ninth is not a drift: a parameter's yardstick is never narrower than the
+    /// fleet's (the false drifts of three 20 × 30 fleets by week had their parameter's scale at
+    /// the old fixed floor, 0.7). One 6 errors off on the first parameter is.
+    #[test]
+    fn a_drift_is_judged_on_no_narrower_a_null_than_the_fleets() {
+        let z = |r: usize| 1.35 * (r as f64 - 9.5) / 9.5;
+        let mut trends: Vec<Trend> = (0..9)
+            .flat_map(|p| (0..19).map(move |r| (p, r)))
+            .map(|(p, r)| sloped(r, p, z(r) * if p == 8 { 0.55 } else { 1.0 }))
+            .collect();
+        trends.extend((0..8).map(|p| sloped(19, p, z(19))));
+        trends.push(sloped(19, 8, 3.3));
+        trends[2] = sloped(2, 0, 6.0);
+        calibrate(&mut trends, 4.0);
+        let flagged: Vec<(&str, usize)> = (trends.iter().filter(|t| t.drifting))
+            .map(|t| (t.robot.as_str(), t.param))
+            .collect();
+        assert_eq!(flagged, [("r02", 0)]);
     }
 
     /// A robot at `level` ± `se` on parameter `param` (its periods are not looked at).
