@@ -3,11 +3,11 @@
 //!
 //! Per robot and parameter, a weighted straight line θ(t) = level + slope·(t − t₀) through the
 //! periods where the parameter is free (weights 1/s.e.², t in weeks from the fleet's first
-//! reading); its standard errors are widened by the Birge ratio √(χ²/(k − 2)) when the periods
-//! scatter more than their own errors say. Its z (slope / standard error) is then calibrated on
-//! the fleet's own empirical null: divided by the spread of the other robots' z for the same
-//! parameter (1.4826 × median |z|, at least 0.7; 1 with fewer than three others), since the
-//! periods' errors are neither exact nor independent (bounded parameters, shared conditions).
+//! reading). The slope's nominal standard error is calibrated on the fleet's own empirical null,
+//! since the periods' errors are neither exact nor independent (bounded parameters, shared
+//! conditions): multiplied by the largest of the fleet's spread of the nominal z over every
+//! parameter, the other robots' spread of it for the same parameter (1.4826 × median |z|; 1 with
+//! fewer than three others) and the robot's own scatter about its line, √(χ²/(k − 2)).
 //! A calibrated |z| beyond `z` is a drift.
 //! A robot's level at t₀ against the median of the other robots' levels, in combined standard
 //! errors, is calibrated the same way (by the other robots' spread of that distance for the
@@ -44,9 +44,9 @@ pub struct Trend {
     pub level_se: f64,
     /// Slope [per week].
     pub slope: f64,
-    /// Its standard error (Birge-widened).
+    /// Its standard error (calibrated: the nominal one × `null_scale`).
     pub slope_se: f64,
-    /// The other robots' spread of slope / slope_se for this parameter (the empirical null).
+    /// The scale of the nominal slope error (the empirical null, or the robot's own scatter).
     pub null_scale: f64,
     /// slope / (slope_se · null_scale).
     pub z: f64,
@@ -224,30 +224,22 @@ fn spread(abs_z: Vec<f64>, min: usize, floor: f64) -> f64 {
     }
 }
 
-/// The slopes' z on the fleet's own empirical null (`null_scale` holds each trend's own scatter
-/// on entry, the scale of its nominal s.e. on return).
+/// The slopes' z on the fleet's own empirical null: each nominal s.e. times the largest of the
+/// fleet's spread of the nominal z (every parameter), the other robots' spread of it for the same
+/// parameter (1 with fewer than three) and the trend's own scatter (`null_scale` on entry).
 fn calibrate(trends: &mut [Trend], z: f64) {
-    for t in trends.iter_mut() {
-        t.slope_se *= t.null_scale.max(1.0);
-    }
-    let raw: Vec<(usize, f64)> = trends
-        .iter()
+    let raw: Vec<(usize, f64)> = (trends.iter())
         .map(|t| (t.param, t.slope / t.slope_se))
         .collect();
-    for (t, scale) in trends.iter_mut().zip(null_scales(&raw)) {
-        (t.null_scale, t.z) = (scale, t.slope / t.slope_se / scale);
+    let fleet = spread(raw.iter().map(|q| q.1.abs()).collect(), 3, 0.0);
+    for (k, t) in trends.iter_mut().enumerate() {
+        let others = (raw.iter().enumerate()).filter(|&(i, q)| i != k && q.0 == t.param);
+        let param = spread(others.map(|(_, q)| q.1.abs()).collect(), 3, fleet);
+        t.null_scale = t.null_scale.max(param).max(fleet);
+        t.slope_se *= t.null_scale;
+        t.z = t.slope / t.slope_se;
         t.drifting = t.z.abs() > z;
     }
-}
-
-/// For each `(parameter, z)` of `raw`, the spread of the other robots' z of that parameter: the
-/// fleet's own empirical null.
-fn null_scales(raw: &[(usize, f64)]) -> Vec<f64> {
-    let scale = |k: usize| {
-        let others = (raw.iter().enumerate()).filter(|&(i, q)| i != k && q.0 == raw[k].0);
-        spread(others.map(|(_, q)| q.1.abs()).collect(), 3, 0.7)
-    };
-    (0..raw.len()).map(scale).collect()
 }
 
 /// `t`'s level against the median of `others`' levels (at least two): that median, and the
