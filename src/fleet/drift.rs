@@ -48,7 +48,7 @@ pub struct Trend {
     pub slope_se: f64,
     /// The scale of the nominal slope error (the empirical null, or the robot's own scatter).
     pub null_scale: f64,
-    /// slope / (slope_se · null_scale).
+    /// slope / slope_se.
     pub z: f64,
     /// Whether |z| exceeds the threshold.
     pub drifting: bool,
@@ -155,6 +155,27 @@ fn line(points: &[Point]) -> Option<[f64; 5]> {
     Some([level, (sxx / det).sqrt(), slope, (s / det).sqrt(), scatter])
 }
 
+impl Trend {
+    /// The line through `points`; `null_scale` is their scatter about it until [`calibrate`].
+    fn new(robot: &str, param: usize, points: Vec<Point>) -> Option<Trend> {
+        let [level, level_se, slope, slope_se, scatter] = line(&points)?;
+        let (robot, level_se) = (robot.to_string(), level_se * scatter.max(1.0));
+        let (null_scale, z, drifting) = (scatter, 0.0, false);
+        Some(Trend {
+            robot,
+            param,
+            points,
+            level,
+            level_se,
+            slope,
+            slope_se,
+            null_scale,
+            z,
+            drifting,
+        })
+    }
+}
+
 /// Trends and outliers of a fit grouped by robot and a period (day, week or session); `None`
 /// when `--by` has no robot key or no period key.
 pub fn analyse(fit: &FleetFit, z: f64, min_periods: usize) -> Option<Drift> {
@@ -188,21 +209,7 @@ pub fn analyse(fit: &FleetFit, z: f64, min_periods: usize) -> Option<Drift> {
             if points.len() < min_periods.max(4) || 2 * points.len() < all {
                 continue;
             }
-            let Some([level, level_se, slope, slope_se, scatter]) = line(&points) else {
-                continue;
-            };
-            let (robot, level_se) = (robot.to_string(), level_se * scatter.max(1.0));
-            trends.push(Trend {
-                robot,
-                param,
-                points,
-                level,
-                level_se,
-                slope,
-                slope_se,
-                null_scale: scatter,
-                ..Default::default()
-            });
+            trends.extend(Trend::new(robot, param, points));
         }
     }
     calibrate(&mut trends, z);
@@ -318,26 +325,13 @@ mod tests {
     /// `z` nominal standard errors.
     fn sloped(robot: usize, param: usize, z: f64) -> Trend {
         let slope = z * 0.1 / 10f64.sqrt();
-        let (t_weeks, std_err) = (0.0, 0.1);
         let at = |k: usize| Point {
-            t_weeks: t_weeks + k as f64,
+            t_weeks: k as f64,
             value: 1.0 + slope * k as f64,
-            std_err,
+            std_err: 0.1,
         };
         let points: Vec<Point> = (0..5).map(at).collect();
-        let [level, level_se, slope, slope_se, null_scale] = line(&points).unwrap();
-        let robot = format!("r{robot:02}");
-        Trend {
-            robot,
-            param,
-            points,
-            level,
-            level_se,
-            slope,
-            slope_se,
-            null_scale,
-            ..Default::default()
-        }
+        Trend::new(&format!("r{robot:02}"), param, points).unwrap()
     }
 
     /// Twenty robots whose slopes scatter as their errors say on eight parameters, and 0.55 of
