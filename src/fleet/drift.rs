@@ -3,11 +3,11 @@
 //!
 //! Per robot and parameter, a weighted straight line θ(t) = level + slope·(t − t₀) through the
 //! periods where the parameter is free (weights 1/s.e.², t in weeks from the fleet's first
-//! reading); its standard errors are widened by the Birge ratio √(χ²/(k − 2)) when the periods
-//! scatter more than their own errors say. Its z (slope / standard error) is then calibrated on
-//! the fleet's own empirical null: divided by the spread of the other robots' z for the same
-//! parameter (1.4826 × median |z|, at least 0.7; 1 with fewer than three others), since the
-//! periods' errors are neither exact nor independent (bounded parameters, shared conditions).
+//! reading). The slope's nominal standard error is calibrated on the fleet's own empirical null,
+//! since the periods' errors are neither exact nor independent (bounded parameters, shared
+//! conditions): multiplied by the largest of the fleet's spread of the nominal z over every
+//! parameter, the other robots' spread of it for the same parameter (1.4826 × median |z|; 1 with
+//! fewer than three others) and the robot's own scatter about its line, √(χ²/(k − 2)).
 //! A calibrated |z| beyond `z` is a drift.
 //! A robot's level at t₀ against the median of the other robots' levels, in combined standard
 //! errors, is calibrated the same way (by the other robots' spread of that distance for the
@@ -44,11 +44,11 @@ pub struct Trend {
     pub level_se: f64,
     /// Slope [per week].
     pub slope: f64,
-    /// Its standard error (Birge-widened).
+    /// Its standard error (calibrated: the nominal one × `null_scale`).
     pub slope_se: f64,
-    /// The other robots' spread of slope / slope_se for this parameter (the empirical null).
+    /// The scale of the nominal slope error (the empirical null, or the robot's own scatter).
     pub null_scale: f64,
-    /// slope / (slope_se · null_scale).
+    /// slope / slope_se.
     pub z: f64,
     /// Whether |z| exceeds the threshold.
     pub drifting: bool,
@@ -129,8 +129,9 @@ fn median(mut v: Vec<f64>) -> f64 {
     0.5 * (v[(m - 1) / 2] + v[m / 2])
 }
 
-/// Weighted straight line through the points: (level, level s.e., slope, slope s.e.).
-fn line(points: &[Point]) -> Option<(f64, f64, f64, f64)> {
+/// Weighted straight line through the points: level, its s.e., slope, its s.e. (nominal, from
+/// the points' errors) and the points' scatter about it in their own errors, √(χ²/(k − 2)).
+fn line(points: &[Point]) -> Option<[f64; 5]> {
     let (mut s, mut sx, mut sy, mut sxx, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
     for p in points {
         let w = 1.0 / (p.std_err * p.std_err);
@@ -150,9 +151,29 @@ fn line(points: &[Point]) -> Option<(f64, f64, f64, f64)> {
         .iter()
         .map(|p| ((p.value - level - slope * p.t_weeks) / p.std_err).powi(2))
         .sum();
-    let birge = (chi2 / (points.len() - 2) as f64).sqrt().max(1.0);
-    let se = |v: f64| (v / det).sqrt() * birge;
-    Some((level, se(sxx), slope, se(s)))
+    let scatter = (chi2 / (points.len() - 2) as f64).sqrt();
+    Some([level, (sxx / det).sqrt(), slope, (s / det).sqrt(), scatter])
+}
+
+impl Trend {
+    /// The line through `points`; `null_scale` is their scatter about it until [`calibrate`].
+    fn new(robot: &str, param: usize, points: Vec<Point>) -> Option<Trend> {
+        let [level, level_se, slope, slope_se, scatter] = line(&points)?;
+        let (robot, level_se) = (robot.to_string(), level_se * scatter.max(1.0));
+        let (null_scale, z, drifting) = (scatter, 0.0, false);
+        Some(Trend {
+            robot,
+            param,
+            points,
+            level,
+            level_se,
+            slope,
+            slope_se,
+            null_scale,
+            z,
+            drifting,
+        })
+    }
 }
 
 /// Trends and outliers of a fit grouped by robot and a period (day, week or session); `None`
@@ -188,29 +209,10 @@ pub fn analyse(fit: &FleetFit, z: f64, min_periods: usize) -> Option<Drift> {
             if points.len() < min_periods.max(4) || 2 * points.len() < all {
                 continue;
             }
-            let Some((level, level_se, slope, slope_se)) = line(&points) else {
-                continue;
-            };
-            trends.push(Trend {
-                robot: robot.to_string(),
-                param,
-                points,
-                level,
-                level_se,
-                slope,
-                slope_se,
-                ..Default::default()
-            });
+            trends.extend(Trend::new(robot, param, points));
         }
     }
-    let raw: Vec<(usize, f64)> = trends
-        .iter()
-        .map(|t| (t.param, t.slope / t.slope_se))
-        .collect();
-    for (t, scale) in trends.iter_mut().zip(null_scales(&raw)) {
-        (t.null_scale, t.z) = (scale, t.slope / t.slope_se / scale);
-        t.drifting = t.z.abs() > z;
-    }
+    calibrate(&mut trends, z);
     let outliers = outliers(&trends, z);
     Some(Drift {
         z,
@@ -229,14 +231,22 @@ fn spread(abs_z: Vec<f64>, min: usize, floor: f64) -> f64 {
     }
 }
 
-/// For each `(parameter, z)` of `raw`, the spread of the other robots' z of that parameter: the
-/// fleet's own empirical null.
-fn null_scales(raw: &[(usize, f64)]) -> Vec<f64> {
-    let scale = |k: usize| {
-        let others = (raw.iter().enumerate()).filter(|&(i, q)| i != k && q.0 == raw[k].0);
-        spread(others.map(|(_, q)| q.1.abs()).collect(), 3, 0.7)
-    };
-    (0..raw.len()).map(scale).collect()
+/// The slopes' z on the fleet's own empirical null: each nominal s.e. times the largest of the
+/// fleet's spread of the nominal z (every parameter), the other robots' spread of it for the same
+/// parameter (1 with fewer than three) and the trend's own scatter (`null_scale` on entry).
+fn calibrate(trends: &mut [Trend], z: f64) {
+    let raw: Vec<(usize, f64)> = (trends.iter())
+        .map(|t| (t.param, t.slope / t.slope_se))
+        .collect();
+    let fleet = spread(raw.iter().map(|q| q.1.abs()).collect(), 3, 0.0);
+    for (k, t) in trends.iter_mut().enumerate() {
+        let others = (raw.iter().enumerate()).filter(|&(i, q)| i != k && q.0 == t.param);
+        let param = spread(others.map(|(_, q)| q.1.abs()).collect(), 3, fleet);
+        t.null_scale = t.null_scale.max(param).max(fleet);
+        t.slope_se *= t.null_scale;
+        t.z = t.slope / t.slope_se;
+        t.drifting = t.z.abs() > z;
+    }
 }
 
 /// `t`'s level against the median of `others`' levels (at least two): that median, and the
@@ -301,14 +311,49 @@ mod tests {
                 std_err: 0.1,
             })
             .collect();
-        let (level, _, slope, se) = line(&exact).unwrap();
+        let [level, _, slope, se, _] = line(&exact).unwrap();
         assert!((level - 2.0).abs() < 1e-12 && (slope - 0.5).abs() < 1e-12);
         // Unweighted: se(slope) = σ/√Σ(t − t̄)² = 0.1/√10.
         assert!((se - 0.1 / 10f64.sqrt()).abs() < 1e-12);
         let mut noisy = exact.clone();
         noisy[2].value += 1.0;
-        let (_, _, _, wide) = line(&noisy).unwrap();
-        assert!(wide > 3.0 * se, "{wide} vs {se}");
+        let [.., scatter] = line(&noisy).unwrap();
+        assert!(scatter > 3.0, "{scatter}");
+    }
+
+    /// A robot's exact line (no scatter) through five weekly points of s.e. 0.1 whose slope is
+    /// `z` nominal standard errors.
+    fn sloped(robot: usize, param: usize, z: f64) -> Trend {
+        let slope = z * 0.1 / 10f64.sqrt();
+        let at = |k: usize| Point {
+            t_weeks: k as f64,
+            value: 1.0 + slope * k as f64,
+            std_err: 0.1,
+        };
+        let points: Vec<Point> = (0..5).map(at).collect();
+        Trend::new(&format!("r{robot:02}"), param, points).unwrap()
+    }
+
+    /// Twenty robots whose slopes scatter as their errors say on eight parameters, and 0.55 of
+    /// that on a ninth (its nominal errors too wide for most robots). A robot 3.3 nominal errors
+    /// off on the ninth is not a drift: a parameter's yardstick is never narrower than the
+    /// fleet's (the false drifts of three 20 × 30 fleets by week had their parameter's scale at
+    /// the old fixed floor, 0.7). One 6 errors off on the first parameter is.
+    #[test]
+    fn a_drift_is_judged_on_no_narrower_a_null_than_the_fleets() {
+        let z = |r: usize| 1.35 * (r as f64 - 9.5) / 9.5;
+        let mut trends: Vec<Trend> = (0..9)
+            .flat_map(|p| (0..19).map(move |r| (p, r)))
+            .map(|(p, r)| sloped(r, p, z(r) * if p == 8 { 0.55 } else { 1.0 }))
+            .collect();
+        trends.extend((0..8).map(|p| sloped(19, p, z(19))));
+        trends.push(sloped(19, 8, 3.3));
+        trends[2] = sloped(2, 0, 6.0);
+        calibrate(&mut trends, 4.0);
+        let flagged: Vec<(&str, usize)> = (trends.iter().filter(|t| t.drifting))
+            .map(|t| (t.robot.as_str(), t.param))
+            .collect();
+        assert_eq!(flagged, [("r02", 0)]);
     }
 
     /// A robot at `level` ± `se` on parameter `param` (its periods are not looked at).
