@@ -112,32 +112,6 @@ fn match_times(a: u64, ta: &[f64], b: u64, tb: &[f64]) -> Vec<(usize, usize)> {
     out
 }
 
-/// First time [s] the arm moves: a sample this far from the first one (`+∞` if never).
-#[derive(Default)]
-struct MotionStart {
-    q0: Option<[f64; N_JOINTS]>,
-    at: Option<f64>,
-}
-
-impl MotionStart {
-    fn add(&mut self, t: f64, q: &[f64; N_JOINTS]) {
-        if self.at.is_some() {
-            return;
-        }
-        let q0 = self.q0.get_or_insert(*q);
-        if q.iter()
-            .zip(q0.iter())
-            .any(|(a, b)| (a - b).abs() > MOTION_THRESHOLD_RAD)
-        {
-            self.at = Some(t);
-        }
-    }
-
-    fn time(&self) -> f64 {
-        self.at.unwrap_or(f64::INFINITY)
-    }
-}
-
 fn idle_mean(p: &PowerSeries, before: f64) -> Option<f64> {
     let v: Vec<f64> =
         p.t.iter()
@@ -332,14 +306,7 @@ pub fn compare(real: &Recording, sim: &Recording, d: &Diagnosis) -> Result<Count
             power: &m.sim_power,
         },
     );
-    finish(
-        m.sums,
-        m.real_samples,
-        names,
-        (real, sim),
-        m.moved.time(),
-        d,
-    )
+    finish(m.sums, m.real_samples, names, (real, sim), m.moved, d)
 }
 
 /// One batch of the counterpart's joint samples (absolute times) and target power readings.
@@ -370,7 +337,10 @@ type SimQueue = std::collections::VecDeque<(i128, [f64; N_JOINTS], [f64; N_JOINT
 /// each recording sample is paired with the counterpart's sample within the tolerance, if any.
 struct Merge<'a> {
     sums: JointSums,
-    moved: MotionStart,
+    /// The recording's first sample, and the first time [s] the arm is this far from it
+    /// (`+∞` while it has not moved).
+    q0: Option<[f64; N_JOINTS]>,
+    moved: f64,
     sim_power: PowerSeries,
     /// The counterpart's samples not yet passed by the recording.
     pending: SimQueue,
@@ -386,7 +356,8 @@ impl<'a> Merge<'a> {
     fn new(keep_series: bool, next: Box<dyn FnMut() -> Option<SimBatch> + 'a>) -> Merge<'a> {
         Merge {
             sums: JointSums::new(keep_series),
-            moved: MotionStart::default(),
+            q0: None,
+            moved: f64::INFINITY,
             sim_power: PowerSeries::default(),
             pending: SimQueue::new(),
             next,
@@ -420,7 +391,11 @@ impl<'a> Merge<'a> {
             }
             self.last_real = t;
             self.real_samples += 1;
-            self.moved.add(t, &st.q[k]);
+            let q0 = self.q0.get_or_insert(st.q[k]);
+            let far = |(a, b): (&f64, &f64)| (a - b).abs() > MOTION_THRESHOLD_RAD;
+            if self.moved == f64::INFINITY && st.q[k].iter().zip(q0.iter()).any(far) {
+                self.moved = t;
+            }
             let x = abs_ns(start_ns, t);
             loop {
                 while (self.pending.front()).is_some_and(|p| p.0 < x - MATCH_TOLERANCE_NS) {
@@ -556,7 +531,7 @@ fn compare_streamed(
         },
     );
     let names = &real.map.joint_names;
-    finish(sums, real_samples, names, sides, moved.time(), d)
+    finish(sums, real_samples, names, sides, moved, d)
 }
 
 /// Plain-language paragraph for the terminal summary and the report.

@@ -63,27 +63,6 @@ impl TrialRows {
     }
 }
 
-/// Every trial's rows at lag 0 (with the descriptor features) and, for each coarse lag, the
-/// Gram matrix of every trial's rows there (the rows themselves are not kept: at 10 h the rows
-/// of all lags were most of the diagnosis' memory).
-pub(crate) struct FirstPass {
-    pub(crate) rows0: TrialRows,
-    pub(crate) totals: Vec<Gram>,
-}
-
-/// One pass over `metas`' trials: [`FirstPass`] at `lags` (`lags[0]` = 0).
-pub(crate) fn trial_rows(
-    samples: &mut dyn TrialSource,
-    power: &PowerSeries,
-    metas: &[TrialMeta],
-    lags: &[f64],
-    w: f64,
-) -> Result<FirstPass> {
-    let all: Vec<usize> = (0..metas.len()).collect();
-    let (totals, rows0) = lag_grams(samples, (power, w), metas, &all, lags, true)?;
-    Ok(FirstPass { rows0, totals })
-}
-
 /// One pass over the trials of `metas` at positions `which`: the Gram matrix of their rows at
 /// each of `lags` and, with `keep`, their rows at `lags[0]` with the descriptor features
 /// (numbered by position).
@@ -132,27 +111,6 @@ fn rows_at(
     let mut part = Rows::default();
     trial_rows_into(&mut part, rec, power, meta, 0, feats, lag, w, locate);
     part
-}
-
-/// Remove from `totals` (Gram matrices at `lags` of every trial of `metas`) the rows of the
-/// trials at positions `gone`: one pass over those trials only.
-pub(crate) fn remove_trials(
-    samples: &mut dyn TrialSource,
-    power: &PowerSeries,
-    metas: &[TrialMeta],
-    gone: &[usize],
-    lags: &[f64],
-    w: f64,
-    totals: &mut [Gram],
-) -> Result<()> {
-    if gone.is_empty() {
-        return Ok(());
-    }
-    let (removed, _) = lag_grams(samples, (power, w), metas, gone, lags, false)?;
-    for (t, r) in totals.iter_mut().zip(&removed) {
-        *t = t.minus(r);
-    }
-    Ok(())
 }
 
 /// Stage: the trials usable for the diagnosis — trials without a pre-idle are unusable
@@ -232,9 +190,9 @@ pub(crate) fn usable_trials(
     let w = (opts.sensor_window_s).unwrap_or(crate::timing::Alignment::NOMINAL.window_s);
     let reference: Option<Vec<f64>> = opts.reference.map(|m| m.to_vector().to_vec());
     let lags = coarse_lags(opts);
-    let first = trial_rows(samples, power, &all_metas, &lags, w)?;
-    let (metas, rejected, kept) =
-        filter_trials(&all_metas, skipped, &first.rows0, opts, reference)?;
+    let all: Vec<usize> = (0..all_metas.len()).collect();
+    let (mut totals, rows0) = lag_grams(samples, (power, w), &all_metas, &all, &lags, true)?;
+    let (metas, rejected, kept) = filter_trials(&all_metas, skipped, &rows0, opts, reference)?;
     if metas.len() < 2 * opts.folds.max(2) {
         anyhow::bail!(
             "{}: only {} usable trials (need at least {} for {}-fold cross-validation by trial)",
@@ -247,8 +205,13 @@ pub(crate) fn usable_trials(
     let gone: Vec<usize> = (0..all_metas.len())
         .filter(|i| kept.binary_search(i).is_err())
         .collect();
-    let mut totals = first.totals;
-    remove_trials(samples, power, &all_metas, &gone, &lags, w, &mut totals)?;
+    // The others' rows taken out of the Gram matrices: one pass over those trials only.
+    if !gone.is_empty() {
+        let (removed, _) = lag_grams(samples, (power, w), &all_metas, &gone, &lags, false)?;
+        for (t, r) in totals.iter_mut().zip(&removed) {
+            *t = t.minus(r);
+        }
+    }
     let spans = all_metas.iter().map(|m| {
         let w = &m.window;
         (w.t_traj_start, w.t_post_end, m.sigma_omega)
@@ -258,7 +221,7 @@ pub(crate) fn usable_trials(
         rejected_windows: super::viewer_data::rejected_windows(&all_metas, &rejected),
         metas,
         rejected,
-        rows0: first.rows0.keep(&kept),
+        rows0: rows0.keep(&kept),
         totals,
     })
 }
@@ -272,17 +235,15 @@ pub(crate) fn base_trial_residuals(
 ) -> Result<Vec<Option<f64>>> {
     let data = PowerData::new(vec![0.0], vec![rows.clone()], n_trials, folds, reference);
     let fit = data.fit_all(&[], 0)?;
-    let mut sum = vec![0.0; n_trials];
-    let mut cnt = vec![0usize; n_trials];
-    for r in 0..rows.len() {
+    let resid = (0..rows.len()).map(|r| {
         let p: f64 = rows.x[r]
             .iter()
             .zip(fit.beta.iter())
             .map(|(a, b)| a * b)
             .sum();
-        sum[rows.trial[r]] += rows.y[r] - p;
-        cnt[rows.trial[r]] += 1;
-    }
+        (rows.trial[r], rows.y[r] - p)
+    });
+    let (sum, cnt) = super::locate::trial_sums(resid, n_trials);
     Ok((0..n_trials)
         .map(|t| (cnt[t] > 0).then(|| sum[t] / cnt[t] as f64))
         .collect())

@@ -73,7 +73,20 @@ pub struct Correlate {
     pub slow: bool,
 }
 
-/// A row's selectors for the breakdowns.
+/// Per-trial sums of `(trial, value)` pairs (trials < `n`) and the values counted.
+pub(crate) fn trial_sums(
+    pairs: impl Iterator<Item = (usize, f64)>,
+    n: usize,
+) -> (Vec<f64>, Vec<usize>) {
+    let (mut sum, mut cnt) = (vec![0.0; n], vec![0usize; n]);
+    for (t, v) in pairs {
+        sum[t] += v;
+        cnt[t] += 1;
+    }
+    (sum, cnt)
+}
+
+/// The residual statistics of the readings `members` of `rows`.
 fn group_stats(
     label: String,
     rows: &Rows,
@@ -81,14 +94,8 @@ fn group_stats(
     members: &[usize],
     n_trials: usize,
 ) -> Group {
-    let mut sum = vec![0.0; n_trials];
-    let mut cnt = vec![0usize; n_trials];
-    let mut sq = 0.0;
-    for &r in members {
-        sum[rows.trial[r]] += resid[r];
-        cnt[rows.trial[r]] += 1;
-        sq += resid[r] * resid[r];
-    }
+    let (sum, cnt) = trial_sums(members.iter().map(|&r| (rows.trial[r], resid[r])), n_trials);
+    let sq: f64 = members.iter().map(|&r| resid[r] * resid[r]).sum();
     let means: Vec<f64> = sum
         .iter()
         .zip(&cnt)
@@ -129,232 +136,122 @@ fn terciles(values: &[f64]) -> (f64, f64) {
     (v[v.len() / 3], v[2 * v.len() / 3])
 }
 
-fn split3(
-    by: &str,
-    names: [&str; 3],
-    unit: &str,
-    value: &[f64],
-    rows: &Rows,
-    resid: &[f64],
-    n_trials: usize,
-) -> Breakdown {
-    let (a, b) = terciles(value);
-    let mut members = [Vec::new(), Vec::new(), Vec::new()];
-    for (r, v) in value.iter().enumerate() {
-        members[if *v < a {
-            0
-        } else if *v < b {
-            1
-        } else {
-            2
-        }]
-        .push(r);
-    }
-    let labels = [
-        format!("{} (< {a:.1} {unit})", names[0]),
-        format!("{} ({a:.1}–{b:.1} {unit})", names[1]),
-        format!("{} (≥ {b:.1} {unit})", names[2]),
-    ];
-    Breakdown {
-        by: by.into(),
-        groups: labels
-            .into_iter()
-            .zip(&members)
-            .map(|(l, m)| group_stats(l, rows, resid, m, n_trials))
-            .collect(),
-    }
-}
-
 /// All breakdowns of the residuals `resid` (measured − predicted, held out) of `rows`: by what
-/// moved ([`motion_breakdowns`]), then by the conditions it moved in ([`condition_breakdowns`]).
+/// moved (joint moved, phase, driving/braking/holding regime, braking joint), then by the
+/// conditions it moved in (temperature, speed, number of joints moving, body sway (IMU),
+/// session time).
 pub(crate) fn breakdowns(
     rows: &Rows,
     trials: &[TrialMeta],
     resid: &[f64],
     joint_names: &[String],
 ) -> Vec<Breakdown> {
-    let mut out = motion_breakdowns(rows, trials, resid, joint_names);
-    out.extend(condition_breakdowns(rows, trials, resid));
-    out
-}
-
-/// Breakdowns by joint moved, phase, driving/braking/holding regime and braking joint.
-fn motion_breakdowns(
-    rows: &Rows,
-    trials: &[TrialMeta],
-    resid: &[f64],
-    joint_names: &[String],
-) -> Vec<Breakdown> {
     let n_trials = trials.len();
-    let n = rows.len();
     let name = |j: usize| {
         joint_names
             .get(j)
             .cloned()
             .unwrap_or_else(|| format!("joint {j}"))
     };
-    let mut out = Vec::new();
-
-    let joint_groups = (0..N_JOINTS)
-        .map(|j| {
-            let m: Vec<usize> = (0..n)
-                .filter(|&r| trials[rows.trial[r]].window.joints_moved.contains(&j))
-                .collect();
-            group_stats(format!("{} moved", name(j)), rows, resid, &m, n_trials)
-        })
-        .collect();
-    out.push(Breakdown {
-        by: "joint".into(),
-        groups: joint_groups,
-    });
-
+    let group = |label: String, f: &dyn Fn(usize) -> bool| {
+        let m: Vec<usize> = (0..rows.len()).filter(|&r| f(r)).collect();
+        group_stats(label, rows, resid, &m, n_trials)
+    };
+    let by = |by: &str, groups: Vec<Group>| Breakdown {
+        by: by.into(),
+        groups,
+    };
+    let split3 = |name: &str, labels: [&str; 3], unit: &str, value: &[f64]| {
+        let (a, b) = terciles(value);
+        // The tercile of `v` (NaN in the last, as a value not below either cut).
+        let which = |v: f64| [a, b].iter().filter(|&&c| v >= c || v.is_nan()).count();
+        let labels = [
+            format!("{} (< {a:.1} {unit})", labels[0]),
+            format!("{} ({a:.1}–{b:.1} {unit})", labels[1]),
+            format!("{} (≥ {b:.1} {unit})", labels[2]),
+        ];
+        let groups = labels.into_iter().enumerate();
+        by(
+            name,
+            groups
+                .map(|(k, l)| group(l, &|r| which(value[r]) == k))
+                .collect(),
+        )
+    };
+    let moved = |r: usize| &trials[rows.trial[r]].window.joints_moved;
+    let mut out = vec![by(
+        "joint",
+        (0..N_JOINTS)
+            .map(|j| group(format!("{} moved", name(j)), &|r| moved(r).contains(&j)))
+            .collect(),
+    )];
     let phases = [
         (Phase::Trajectory, "trajectory"),
         (Phase::PostIdle, "post-idle"),
         (Phase::Return, "return"),
     ];
-    out.push(Breakdown {
-        by: "phase".into(),
-        groups: phases
-            .iter()
-            .map(|(p, l)| {
-                let m: Vec<usize> = (0..n).filter(|&r| rows.phase[r] == *p).collect();
-                group_stats((*l).into(), rows, resid, &m, n_trials)
-            })
-            .collect(),
-    });
-
+    let phases = phases
+        .iter()
+        .map(|(p, l)| group((*l).into(), &|r| rows.phase[r] == *p));
+    out.push(by("phase", phases.collect()));
     // Driving vs braking by the sign of the window's total mechanical power Σ τ_i q̇_i.
     let mech: Vec<f64> = rows.x.iter().map(|x| x[..N_JOINTS].iter().sum()).collect();
-    let moving: Vec<bool> = rows
-        .x
-        .iter()
+    let moving: Vec<bool> = (rows.x.iter())
         .map(|x| x[2 * N_JOINTS..3 * N_JOINTS].iter().sum::<f64>() > 0.05)
         .collect();
-    let sel = |f: &dyn Fn(usize) -> bool| -> Vec<usize> { (0..n).filter(|&r| f(r)).collect() };
-    out.push(Breakdown {
-        by: "regime".into(),
-        groups: vec![
-            group_stats(
-                "driving (Σ τq̇ > 0)".into(),
-                rows,
-                resid,
-                &sel(&|r| moving[r] && mech[r] > 0.0),
-                n_trials,
-            ),
-            group_stats(
-                "braking (Σ τq̇ < 0)".into(),
-                rows,
-                resid,
-                &sel(&|r| moving[r] && mech[r] <= 0.0),
-                n_trials,
-            ),
-            group_stats(
-                "holding (no motion)".into(),
-                rows,
-                resid,
-                &sel(&|r| !moving[r]),
-                n_trials,
-            ),
+    out.push(by(
+        "regime",
+        vec![
+            group("driving (Σ τq̇ > 0)".into(), &|r| {
+                moving[r] && mech[r] > 0.0
+            }),
+            group("braking (Σ τq̇ < 0)".into(), &|r| {
+                moving[r] && mech[r] <= 0.0
+            }),
+            group("holding (no motion)".into(), &|r| !moving[r]),
         ],
-    });
-    out.push(Breakdown {
-        by: "braking joint".into(),
-        groups: (0..N_JOINTS)
-            .map(|j| {
-                group_stats(
-                    format!("{} braking", name(j)),
-                    rows,
-                    resid,
-                    &sel(&|r| rows.x[r][j] < -0.2),
-                    n_trials,
-                )
-            })
-            .collect(),
-    });
-    out
-}
-
-/// Breakdowns by temperature, speed, number of joints moving, body sway (IMU) and session time.
-fn condition_breakdowns(rows: &Rows, trials: &[TrialMeta], resid: &[f64]) -> Vec<Breakdown> {
-    let n_trials = trials.len();
-    let n = rows.len();
-    let sel = |f: &dyn Fn(usize) -> bool| -> Vec<usize> { (0..n).filter(|&r| f(r)).collect() };
-    let mut out = Vec::new();
+    ));
+    let braking =
+        (0..N_JOINTS).map(|j| group(format!("{} braking", name(j)), &|r| rows.x[r][j] < -0.2));
+    out.push(by("braking joint", braking.collect()));
     if !rows.locate.is_empty() {
-        let temp: Vec<f64> = rows
-            .locate
-            .iter()
+        let temp: Vec<f64> = (rows.locate.iter())
             .map(|l| (0..N_JOINTS).map(|j| l[5 * j + 3]).sum::<f64>() / N_JOINTS as f64)
             .collect();
-        out.push(split3(
-            "temperature",
-            ["cold", "warm", "hot"],
-            "°C",
-            &temp,
-            rows,
-            resid,
-            n_trials,
-        ));
+        out.push(split3("temperature", ["cold", "warm", "hot"], "°C", &temp));
     }
-    let speed: Vec<f64> = rows
-        .trial
-        .iter()
+    let speed: Vec<f64> = (rows.trial.iter())
         .map(|&t| trials[t].window.speed_level())
         .collect();
-    out.push(split3(
-        "speed",
-        ["slow", "medium", "fast"],
-        "rad/s",
-        &speed,
-        rows,
-        resid,
-        n_trials,
-    ));
-    out.push(Breakdown {
-        by: "joints moving".into(),
-        groups: [
-            (1usize, 1usize, "single joint"),
-            (2, 2, "two joints"),
-            (3, N_JOINTS, "three or more joints"),
-        ]
+    out.push(split3("speed", ["slow", "medium", "fast"], "rad/s", &speed));
+    let counts = [
+        (1usize, 1usize, "single joint"),
+        (2, 2, "two joints"),
+        (3, N_JOINTS, "three or more joints"),
+    ];
+    let counts = counts
         .iter()
-        .map(|&(lo, hi, l)| {
-            let m = sel(&|r| (lo..=hi).contains(&trials[rows.trial[r]].window.joints_moved.len()));
-            group_stats(l.into(), rows, resid, &m, n_trials)
-        })
-        .collect(),
-    });
+        .map(|&(lo, hi, l)| group(l.into(), &|r| (lo..=hi).contains(&moved(r).len())));
+    out.push(by("joints moving", counts.collect()));
     let mut sig: Vec<f64> = trials.iter().map(|t| t.sigma_omega).collect();
     sig.sort_by(f64::total_cmp);
-    let med = sig.get(sig.len() / 2).copied().unwrap_or(0.0);
-    out.push(Breakdown {
-        by: "body (IMU)".into(),
-        groups: vec![
-            group_stats(
-                format!("calm (σ_ω ≤ 1.5 × median = {:.3} rad/s)", 1.5 * med),
-                rows,
-                resid,
-                &sel(&|r| trials[rows.trial[r]].sigma_omega <= 1.5 * med),
-                n_trials,
+    let calm = 1.5 * sig.get(sig.len() / 2).copied().unwrap_or(0.0);
+    let sigma = |r: usize| trials[rows.trial[r]].sigma_omega;
+    out.push(by(
+        "body (IMU)",
+        vec![
+            group(
+                format!("calm (σ_ω ≤ 1.5 × median = {calm:.3} rad/s)"),
+                &|r| sigma(r) <= calm,
             ),
-            group_stats(
-                "swaying (σ_ω above)".into(),
-                rows,
-                resid,
-                &sel(&|r| trials[rows.trial[r]].sigma_omega > 1.5 * med),
-                n_trials,
-            ),
+            group("swaying (σ_ω above)".into(), &|r| sigma(r) > calm),
         ],
-    });
+    ));
     out.push(split3(
         "session time",
         ["early", "middle", "late"],
         "s",
         &rows.t,
-        rows,
-        resid,
-        n_trials,
     ));
     out
 }
@@ -379,12 +276,8 @@ pub(crate) fn trial_residuals(
     trials: &[TrialMeta],
     resid: &[f64],
 ) -> Vec<TrialResidual> {
-    let mut sum = vec![0.0; trials.len()];
-    let mut cnt = vec![0usize; trials.len()];
-    for (r, e) in resid.iter().enumerate() {
-        sum[rows.trial[r]] += e;
-        cnt[rows.trial[r]] += 1;
-    }
+    let pairs = rows.trial.iter().copied().zip(resid.iter().copied());
+    let (sum, cnt) = trial_sums(pairs, trials.len());
     let mut out: Vec<TrialResidual> = (0..trials.len())
         .filter(|&t| cnt[t] > 0)
         .map(|t| TrialResidual {

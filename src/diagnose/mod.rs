@@ -57,7 +57,7 @@ pub use options::DiagnoseOptions;
 pub use report::{FIGURES as REPORT_FIGURES, write_report};
 pub use rest::{RestPower, RestTerm};
 pub use select::{Confounded, HypothesisScore, MechanismForms, Param};
-pub use torque::{ArmModel, TorqueComparison};
+pub use torque::TorqueComparison;
 pub use viewer_data::{HighlightedTrial, LocatedField, ReplayData};
 
 use crate::N_PARAMS;
@@ -115,12 +115,7 @@ pub fn diagnose(rec: &Recording, opts: &DiagnoseOptions) -> Result<Diagnosis> {
     }
     let has_torque = rec.state.tau.iter().any(|t| t.iter().any(|v| *v != 0.0));
     let arm = arm_model(opts, has_torque, &rec.joint_names)?;
-    diagnose_trials(
-        rec,
-        &seg.trials,
-        arm.as_ref().map(|a| a as &dyn ArmModel),
-        opts,
-    )
+    diagnose_trials(rec, &seg.trials, arm.as_ref(), opts)
 }
 
 /// The URDF arm for the torque level, when it is asked for and the session recorded torques.
@@ -162,7 +157,7 @@ pub fn diagnose_files(
         &s.info,
         &mut samples,
         (s.metas, s.skipped),
-        arm.as_ref().map(|a| a as &dyn ArmModel),
+        arm.as_ref(),
         &opts,
     )
 }
@@ -280,7 +275,7 @@ fn bus_model(opts: &DiagnoseOptions) -> reading_rows::BusModel {
 pub fn diagnose_trials(
     rec: &Recording,
     windows: &[TrialWindow],
-    arm: Option<&dyn ArmModel>,
+    arm: Option<&ArmDynamics>,
     opts: &DiagnoseOptions,
 ) -> Result<Diagnosis> {
     let info = SessionInfo::of(rec, opts.target);
@@ -295,7 +290,7 @@ fn run(
     info: &SessionInfo,
     samples: &mut dyn TrialSource,
     (all_metas, skipped): (Vec<reading_rows::TrialMeta>, reading_rows::Skipped),
-    arm: Option<&dyn ArmModel>,
+    arm: Option<&ArmDynamics>,
     opts: &DiagnoseOptions,
 ) -> Result<Diagnosis> {
     let samples = &mut Counted {

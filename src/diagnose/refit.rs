@@ -89,15 +89,11 @@ pub(crate) fn refit_final(
         Quality { r2, rmse_w }
     };
     let per_trial = |pred: &[f64]| {
-        let n = n_trials;
-        let (mut ys, mut ps, mut c) = (vec![0.0; n], vec![0.0; n], vec![0usize; n]);
-        for r in 0..y.len() {
-            let t = rows0.trial[r];
-            ys[t] += y[r];
-            ps[t] += pred[r];
-            c[t] += 1;
-        }
-        let keep: Vec<usize> = (0..n).filter(|&t| c[t] > 0).collect();
+        let sums = |v: &[f64]| {
+            locate::trial_sums(rows0.trial.iter().copied().zip(v.iter().copied()), n_trials)
+        };
+        let ((ys, c), (ps, _)) = (sums(y), sums(pred));
+        let keep: Vec<usize> = (0..n_trials).filter(|&t| c[t] > 0).collect();
         let yt: Vec<f64> = keep.iter().map(|&t| ys[t] / c[t] as f64).collect();
         let pt: Vec<f64> = keep.iter().map(|&t| ps[t] / c[t] as f64).collect();
         let (r2, rmse_w) = r2_rmse(&yt, &pt);

@@ -436,17 +436,14 @@ fn draw_hypotheses(a: &Area, d: &Diagnosis) -> Result<()> {
 /// Per-trial means of measured, before and after (replay data), sorted by measured.
 fn per_trial(d: &Diagnosis) -> Vec<(f64, f64, f64)> {
     let r = &d.replay;
-    let mut acc: std::collections::BTreeMap<usize, (f64, f64, f64, usize)> = Default::default();
-    for k in 0..r.t.len() {
-        let e = acc.entry(r.trial[k]).or_default();
-        e.0 += r.measured_w[k];
-        e.1 += r.before_w[k];
-        e.2 += r.after_w[k];
-        e.3 += 1;
-    }
-    let mut v: Vec<(f64, f64, f64)> = acc
-        .values()
-        .map(|e| (e.0 / e.3 as f64, e.1 / e.3 as f64, e.2 / e.3 as f64))
+    let n = r.trial.iter().max().map_or(0, |t| t + 1);
+    let sums =
+        |v: &[f64]| super::locate::trial_sums(r.trial.iter().copied().zip(v.iter().copied()), n);
+    let ((m, c), (b, _), (a, _)) = (sums(&r.measured_w), sums(&r.before_w), sums(&r.after_w));
+    let mean = |s: &[f64], t: usize| s[t] / c[t] as f64;
+    let mut v: Vec<(f64, f64, f64)> = (0..n)
+        .filter(|&t| c[t] > 0)
+        .map(|t| (mean(&m, t), mean(&b, t), mean(&a, t)))
         .collect();
     v.sort_by(|a, b| a.0.total_cmp(&b.0));
     v

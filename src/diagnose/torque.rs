@@ -5,12 +5,13 @@
 //! all joints. Scored like the power hypotheses: cross-validation by trial, paired test, BIC.
 
 use anyhow::Result;
-use nalgebra::{DVector, SMatrix};
+use nalgebra::DVector;
 
 use super::reading_rows::TrialMeta;
 use super::select::{Folds, Held, HypothesisScore, Param, bic, jackknife_se};
 use crate::N_JOINTS;
 use crate::lsq::Gram;
+use crate::robot::ArmDynamics;
 use crate::signals::Recording;
 
 /// Velocity scale [rad/s] of the smooth Coulomb friction sign (the form of `robot::JointFriction`).
@@ -18,44 +19,6 @@ const COULOMB_VELOCITY: f64 = 0.01;
 /// Friction columns (Coulomb, viscous per joint) then the 4 payload columns.
 const N_FRICTION: usize = 2 * N_JOINTS;
 const N_TORQUE: usize = N_FRICTION + 4;
-
-/// Rigid-body model used at the torque level.
-pub trait ArmModel {
-    /// Inverse dynamics τ(q, q̇, q̈) of the URDF arm [Nm].
-    fn inverse_dynamics(
-        &self,
-        q: &[f64; N_JOINTS],
-        dq: &[f64; N_JOINTS],
-        ddq: &[f64; N_JOINTS],
-    ) -> [f64; N_JOINTS];
-    /// ∂τ/∂[m, m·cx, m·cy, m·cz] of a point payload at the hand.
-    fn payload_regressor(
-        &self,
-        q: &[f64; N_JOINTS],
-        dq: &[f64; N_JOINTS],
-        ddq: &[f64; N_JOINTS],
-    ) -> SMatrix<f64, N_JOINTS, 4>;
-}
-
-impl ArmModel for crate::robot::ArmDynamics {
-    fn inverse_dynamics(
-        &self,
-        q: &[f64; N_JOINTS],
-        dq: &[f64; N_JOINTS],
-        ddq: &[f64; N_JOINTS],
-    ) -> [f64; N_JOINTS] {
-        crate::robot::ArmDynamics::inverse_dynamics(self, q, dq, ddq)
-    }
-
-    fn payload_regressor(
-        &self,
-        q: &[f64; N_JOINTS],
-        dq: &[f64; N_JOINTS],
-        ddq: &[f64; N_JOINTS],
-    ) -> SMatrix<f64, N_JOINTS, 4> {
-        crate::robot::ArmDynamics::payload_regressor(self, q, dq, ddq)
-    }
-}
 
 /// Per-joint agreement of recorded and modelled torque.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
@@ -96,7 +59,7 @@ pub(crate) fn trial_rows(
     rec: &Recording,
     ti: usize,
     meta: &TrialMeta,
-    model: &dyn ArmModel,
+    model: &ArmDynamics,
     stride: usize,
     out: &mut Vec<TorqueRow>,
 ) {
