@@ -118,7 +118,7 @@ fn paper_scale_bus_loss_detection_limit() {
             stated.2,
         );
         if r == 0.005 {
-            common::assert_figure(PAGE, "R_bus 0.005 p", h.p_value, "2.6e-8");
+            common::assert_figure(PAGE, "R_bus 0.005 p", h.p_value, "1.4e-13");
         }
         outcome.push((r, ids));
     }

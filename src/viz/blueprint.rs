@@ -1321,7 +1321,7 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
             // A per-joint view's legend is the first's (the same colours in every cell).
             let Look(fit, plot_px, legend, whole) = [*look, TICKS][usize::from(k > 0)];
             let view = Node::View {
-                class: *class,
+                class,
                 name: name.replace("{j}", j),
                 origin: origin.to_string(),
                 contents: contents(&c, j),
