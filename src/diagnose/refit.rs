@@ -60,23 +60,9 @@ pub(crate) fn refit_final(
     n_trials: usize,
 ) -> FinalModel {
     let last = &sel.last;
-    let mut params = Vec::new();
-    for (j, h) in last.spec.iter().enumerate() {
-        let c = N_PARAMS + j;
-        let per_fold: Vec<f64> = last
-            .cv
-            .fold_theta
-            .iter()
-            .map(|t| (h.to_physical)(t[c]))
-            .collect();
-        params.push(Param {
-            name: h.title.into(),
-            symbol: h.symbol.into(),
-            value: (h.to_physical)(last.full.theta[c]),
-            std_err: select::jackknife_se(&per_fold),
-            unit: h.unit.into(),
-        });
-    }
+    let mut params: Vec<Param> = (0..last.spec.len())
+        .map(|k| select::term_param(last, k))
+        .collect();
     if let Some(lat) = accepted.iter().find(|s| s.id == LATENCY_ID) {
         params.extend(lat.params.iter().cloned());
     }

@@ -30,5 +30,5 @@ pub use report::{
     AggregationRow, FIGURES as REPORT_FIGURES, PredictionSet, ReportInput, TermContributions,
     write_report,
 };
-pub use table::{ReadingFit, TrialBaseline, TrialPrediction};
+pub use table::{ReadingFit, TrialPrediction};
 pub use validate::{Validation, validate, validate_file};

@@ -4,9 +4,9 @@
 
 use super::dataset::{Dataset, Row};
 use super::fit::predict;
+use crate::N_PARAMS;
 use crate::lsq::Metrics;
 use crate::trial::Segmentation;
-use crate::{N_JOINTS, N_PARAMS};
 
 /// Per-trial measured vs predicted mean net power over the trajectory window.
 #[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -48,16 +48,6 @@ pub struct ReadingFit {
     pub measured_w: f64,
     /// Prediction averaged over the reading's window [W].
     pub predicted_w: f64,
-}
-
-/// What a per-sample prediction of one usable trial needs besides the samples: the mean τ² of
-/// its pre-idle (the copper term's baseline).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct TrialBaseline {
-    /// Trial index.
-    pub trial: usize,
-    /// Mean τ² per joint over the trial's pre-idle [N²m²].
-    pub tau0_sq: [f64; N_JOINTS],
 }
 
 /// Per-trial measured vs predicted from a trial's reading rows (like for like) and its trial row

@@ -9,7 +9,7 @@ use super::fit::predict;
 use super::fit::{quality, term_means};
 use super::pipeline::{IdentifyOptions, Prepared, SessionSummary, resolve_alignment};
 use super::sets::RowPlan;
-use super::table::{ReadingFit, TrialBaseline, TrialPrediction, trial_metrics, trial_predictions};
+use super::table::{ReadingFit, TrialPrediction, trial_metrics, trial_predictions};
 use crate::lsq::Metrics;
 use crate::power::{PowerModel, TermMeans};
 use crate::session::{SessionFile, StreamOptions};
@@ -51,7 +51,7 @@ pub struct Validation {
     /// The copper-term baseline of every usable trial, in session order (what a per-sample
     /// prediction over the trial's samples needs).
     #[serde(skip)]
-    pub baselines: Vec<TrialBaseline>,
+    pub baselines: Vec<super::TrialBasis>,
     /// Remarks on how the validation was done (e.g. nominal sensor timing for a short session).
     pub notes: Vec<String>,
 }
@@ -151,17 +151,9 @@ fn validate_prepared(
             predicted_w: predict(&theta, &r.phi),
         })
         .collect();
-    let baselines = trial_set
-        .trials
-        .iter()
-        .map(|b| TrialBaseline {
-            trial: b.trial,
-            tau0_sq: b.tau0_sq,
-        })
-        .collect();
     Ok(Validation {
         readings,
-        baselines,
+        baselines: trial_set.trials.clone(),
         notes,
         trial_level: trial_metrics(&all, |p| p.predicted_window_w),
         trial_level_aligned: trial_metrics(&all, |p| p.predicted_w),

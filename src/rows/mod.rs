@@ -192,10 +192,6 @@ pub(crate) fn open_table(path: &Path) -> Result<ParquetRecordBatchReaderBuilder<
 
 /// The joint names of a row table's [`JOINT_NAMES_KEY`] metadata (None when absent; an error
 /// when present but not a JSON array of 7 names).
-pub fn table_joint_names(path: &Path) -> Result<Option<Vec<String>>> {
-    joint_names_of(&open_table(path)?, path)
-}
-
 pub(crate) fn joint_names_of(
     builder: &ParquetRecordBatchReaderBuilder<File>,
     path: &Path,

@@ -384,8 +384,8 @@ impl Engine<'_> {
                     }
                 }
                 1 => self.arm_sdk(&mut st, out, ns, t)?,
-                2 => self.bms(&mut st, out, rng, ns, t)?,
-                _ => self.mbs(&mut st, out, rng, ns, t)?,
+                2 => out.write(Topic::Bms, ns, self.bms(&mut st, rng, t))?,
+                _ => out.write(Topic::Mbs, ns, self.mbs(&mut st, rng, t))?,
             }
         }
         let n = st.i_ls.max(1) as f64;
@@ -498,7 +498,8 @@ impl Engine<'_> {
         }
         st.drift = ou_step(st.drift, dt, REST_DRIFT, rng);
         self.account(st, t, dt, &plant, eff, leak, &art);
-        self.write_lowstate(st, out, rng, ns, t, dt, &plant, rate)
+        let msg = self.lowstate_msg(st, rng, t, dt, &plant, rate);
+        out.write(Topic::LowState, ns, msg)
     }
 
     /// Stage: the arm tracks the command; true torques, winding temperatures and the arm's
@@ -666,20 +667,17 @@ impl Engine<'_> {
         }
     }
 
-    /// Stage: the `/lowstate` message — every motor (the standing rest of the robot quantised,
+    /// Stage: the `/lowstate` message's payload — every motor (the standing rest of the robot quantised,
     /// the arm with sensor noise) and the pelvis IMU.
-    #[allow(clippy::too_many_arguments)]
-    fn write_lowstate<W: Write + Seek>(
+    fn lowstate_msg<'a>(
         &self,
-        st: &mut RunState,
-        out: &mut McapOut<W>,
+        st: &'a mut RunState,
         rng: &mut ChaCha8Rng,
-        ns: u64,
         t: f64,
         dt: f64,
         plant: &PlantStep,
         rate: [f64; 2],
-    ) -> Result<()> {
+    ) -> &'a [u8] {
         let noise: Noise = self.cfg.noise;
         let (q, dq, tau) = (&plant.q, &plant.dq, &plant.tau);
         let vol = quant(self.pack_volts(st) - 0.15 + 0.03 * gauss(rng), 0.1) as f32;
@@ -715,13 +713,9 @@ impl Engine<'_> {
             }
         }
         let imu = imu_state(t, st.yaw0, rate, st.sway_angle, noise.gyro_rad_s, rng);
-        out.write(
-            Topic::LowState,
-            ns,
-            st.cdr.low_state(st.tick, &imu, &st.motors),
-        )?;
-        st.tick = st.tick.wrapping_add(10);
-        Ok(())
+        let tick = st.tick;
+        st.tick = tick.wrapping_add(10);
+        st.cdr.low_state(tick, &imu, &st.motors)
     }
 
     /// Stage (one `/arm_sdk` message): the command.
@@ -741,16 +735,9 @@ impl Engine<'_> {
         )
     }
 
-    /// Stage (one `/lf/bmsstate` reading): the battery's view of the rail power plus the rest
+    /// Stage (one `/lf/bmsstate` reading, its payload): the battery's view of the rail power plus the rest
     /// of the robot.
-    fn bms<W: Write + Seek>(
-        &self,
-        st: &mut RunState,
-        out: &mut McapOut<W>,
-        rng: &mut ChaCha8Rng,
-        ns: u64,
-        t: f64,
-    ) -> Result<()> {
+    fn bms<'a>(&self, st: &'a mut RunState, rng: &mut ChaCha8Rng, t: f64) -> &'a [u8] {
         let noise: Noise = self.cfg.noise;
         st.i_bms += 1;
         let p = window_mean(&st.power_hist, t - st.latency, self.cfg.sensor_window_s);
@@ -776,18 +763,11 @@ impl Engine<'_> {
             ],
             cell_mv,
         };
-        out.write(Topic::Bms, ns, st.cdr.bms_state(&b))
+        st.cdr.bms_state(&b)
     }
 
-    /// Stage (one `/lf/mainboardstate` reading): the arm rail's sensor and the fans.
-    fn mbs<W: Write + Seek>(
-        &self,
-        st: &mut RunState,
-        out: &mut McapOut<W>,
-        rng: &mut ChaCha8Rng,
-        ns: u64,
-        t: f64,
-    ) -> Result<()> {
+    /// Stage (one `/lf/mainboardstate` reading, its payload): the arm rail's sensor and the fans.
+    fn mbs<'a>(&self, st: &'a mut RunState, rng: &mut ChaCha8Rng, t: f64) -> &'a [u8] {
         let noise: Noise = self.cfg.noise;
         st.i_mbs += 1;
         let artefact = match (self.cfg.effects.fan_meter, &st.fan) {
@@ -805,16 +785,9 @@ impl Engine<'_> {
             Some(f) => f.rpm(),
         };
         let rpm = st.fan0.as_mut().map_or(rpm, |f| f.rpm());
-        out.write(
-            Topic::Mbs,
-            ns,
-            st.cdr.main_board_state(
-                volts as f32,
-                amps as f32,
-                [rpm as u16, rpm2 as u16],
-                [39, 36],
-            ),
-        )
+        let fans = [rpm as u16, rpm2 as u16];
+        st.cdr
+            .main_board_state(volts as f32, amps as f32, fans, [39, 36])
     }
 }
 

@@ -241,21 +241,8 @@ pub(super) fn score_term(
     let mut spec = cur.spec.clone();
     spec.push(h);
     let next = state(data, spec, cur.lag)?;
-    let j = N_PARAMS + next.spec.len() - 1;
-    let value = (h.to_physical)(next.full.theta[j]);
-    let per_fold: Vec<f64> = next
-        .cv
-        .fold_theta
-        .iter()
-        .map(|t| (h.to_physical)(t[j]))
-        .collect();
-    let param = Param {
-        name: h.title.into(),
-        symbol: h.symbol.into(),
-        value,
-        std_err: jackknife_se(&per_fold),
-        unit: h.unit.into(),
-    };
+    let param = term_param(&next, next.spec.len() - 1);
+    let value = param.value;
     let held = compare(data, cur, &next.cv.pred);
     let score = HypothesisScore {
         delta_bic: next.bic - cur.bic,
@@ -264,6 +251,19 @@ pub(super) fn score_term(
         ..held.score(h.id, h.title, "power", vec![param])
     };
     Ok(Candidate { score, next })
+}
+
+/// The physical parameter of `st`'s `k`-th term, with its jackknife standard error over the folds.
+pub(crate) fn term_param(st: &State, k: usize) -> Param {
+    let h = st.spec[k];
+    let phys = |t: &[f64]| (h.to_physical)(t[N_PARAMS + k]);
+    Param {
+        name: h.title.into(),
+        symbol: h.symbol.into(),
+        value: phys(&st.full.theta),
+        std_err: jackknife_se(&st.cv.fold_theta.iter().map(|t| phys(t)).collect::<Vec<_>>()),
+        unit: h.unit.into(),
+    }
 }
 
 /// Latency: in each fold the lag is chosen on the training trials only (nested), then judged on
