@@ -192,7 +192,7 @@ pub struct ReplayExtras {
 }
 
 /// An identified model's per-sample series, never held whole: the replay computes them trial by
-/// trial ([`ReplayLogger::log_model_trial`]) from the session in memory or as it is read again.
+/// trial ([`ReplayLogger::log_model_trial`]) from the session in memory or as the replay reads it.
 #[derive(Debug, Clone)]
 pub struct ModelSeries {
     /// The model.

@@ -213,7 +213,7 @@ impl Window {
 /// Replays `r.session` as `g1viz replay` does; `notify` hears the notes, the model's fit and
 /// the size estimate (before the output is opened). With a model, the streamed validation gives
 /// the overlay (readings, trials, rejections) and the trials for `--trials`; the file is then
-/// replayed, and read once more trial by trial for the model's series
+/// replayed, the model's series logged trial by trial as the replay reads each trial
 /// ([`super::ReplayLogger::log_model_trial`]), never held whole. Without, the file is streamed;
 /// `--trials` reads it once more first, in a streamed segmentation pass, to find the trials.
 pub fn replay_session(
