@@ -9,8 +9,9 @@
 //!   return end): [`Memory`] (a whole recording in memory), [`FileTrials`] (one file, from its
 //!   spill or, without one, a ranged read of the file) and [`Joined`] (files end to end on one
 //!   clock). The stages after the source are one code path whatever it is.
-//! * [`for_each_trial_with_batches`] walks the whole session once more (from the spill when
-//!   there is one), showing every batch (whole-session statistics) and each trial.
+//! * [`TrialWalk`] hands over trials as a session's batches go by (a streamed replay's model
+//!   series); [`for_each_trial_with_batches`] walks the whole session once more with
+//!   one (from the spill when there is one), showing every batch too.
 
 mod joined;
 mod segment;
@@ -27,8 +28,8 @@ use crate::trial::TrialWindow;
 pub(crate) use joined::{Joined, JoinedPart, global, shift};
 pub use segment::segment_file;
 pub(crate) use segment::{Pass1, segment_recording, segmentation_pass};
-pub use walk::for_each_trial_with_batches;
 pub(crate) use walk::hold_pass;
+pub use walk::{TrialWalk, for_each_trial_with_batches};
 
 /// Default of the identification's `search_trials` and of [`StreamOptions::hold_trials`]: the
 /// timing search's cost grows with its trials, and ~300 trials pin the window and lag to the fine

@@ -1,8 +1,10 @@
 //! Walks over a session file after its segmentation pass, holding about one trial's samples:
 //! the trials' windows only ([`trial_windows`], behind [`super::FileTrials`]), the held trials of
 //! the sensor-timing search ([`hold_pass`]), and the whole session with its batches
-//! ([`for_each_trial_with_batches`]). Each reads the spill when the segmentation pass made one,
+//! ([`for_each_trial_with_batches`], [`TrialWalk`]). Each reads the spill when the segmentation pass made one,
 //! else the file.
+
+use std::path::PathBuf;
 
 use anyhow::Result;
 
@@ -16,23 +18,83 @@ fn trial_end(t: &TrialWindow) -> f64 {
     t.t_post_end.max(t.t_return_end)
 }
 
-/// The trials of a walk not yet handed over, and how long after a trial's end the walk waits.
-struct Handover<'a> {
-    trials: &'a [TrialWindow],
+/// Trials handed over as a session's samples go by: [`Self::push`] each batch (in time order, on
+/// one clock), and each of the planned trials (in time order) reaches `on_trial` with a recording
+/// holding at least its joint states (all columns, pre-idle start − [`MARGIN_S`] to its end) and
+/// the power readings pushed so far; [`Self::finish`] hands over the rest. Earlier samples are
+/// dropped, so memory stays about one trial's. A streamed replay logs its model's series through
+/// one as it reads.
+pub struct TrialWalk {
+    buf: Recording,
+    trials: Vec<TrialWindow>,
     next: usize,
     /// Samples (or readings) up to this long after a trial's end still belong to it [s].
     after_s: f64,
 }
 
-impl Handover<'_> {
-    /// Hand `on_trial` every trial whose window `buf` now holds whole (all that are left when
-    /// `done`), then drop the samples no later trial needs.
+impl TrialWalk {
+    /// A walk over `trials` (in time order) that hands a trial over once a sample 2 s past its
+    /// end has come (a reading stamped that late can still belong to it: sensor lag).
+    pub fn new(source: PathBuf, joint_names: &[String], trials: Vec<TrialWindow>) -> Self {
+        let buf = Recording {
+            source,
+            joint_names: joint_names.to_vec(),
+            ..Recording::default()
+        };
+        TrialWalk {
+            buf,
+            trials,
+            next: 0,
+            after_s: 2.0,
+        }
+    }
+
+    /// Takes in the next batch's joint states and power readings; hands over every trial it
+    /// completes.
+    pub fn push(
+        &mut self,
+        batch: &Recording,
+        on_trial: &mut dyn FnMut(&Recording, &TrialWindow) -> Result<()>,
+    ) -> Result<()> {
+        self.buf.start_ns = batch.start_ns;
+        for (to, from) in [
+            (&mut self.buf.mbs, &batch.mbs),
+            (&mut self.buf.bms, &batch.bms),
+        ] {
+            to.t.extend_from_slice(&from.t);
+            to.watts.extend_from_slice(&from.watts);
+            to.sort_by_time();
+        }
+        self.push_state(&batch.state, on_trial)
+    }
+
+    /// Takes in joint states only.
+    fn push_state(
+        &mut self,
+        state: &StateSeries,
+        on_trial: &mut dyn FnMut(&Recording, &TrialWindow) -> Result<()>,
+    ) -> Result<()> {
+        self.buf.state.extend_range(state, 0..usize::MAX);
+        self.buf.state.sort_by_time();
+        self.step(false, on_trial)
+    }
+
+    /// Hands over the trials left, once the session has ended.
+    pub fn finish(
+        mut self,
+        on_trial: &mut dyn FnMut(&Recording, &TrialWindow) -> Result<()>,
+    ) -> Result<()> {
+        self.step(true, on_trial)
+    }
+
+    /// Hand `on_trial` every trial whose window the buffer now holds whole (all that are left
+    /// when `done`), then drop the samples no later trial needs.
     fn step(
         &mut self,
-        buf: &mut Recording,
         done: bool,
         on_trial: &mut dyn FnMut(&Recording, &TrialWindow) -> Result<()>,
     ) -> Result<()> {
+        let buf = &mut self.buf;
         let last_t = buf.state.t.last().copied().unwrap_or(f64::NEG_INFINITY);
         while let Some(t) = self.trials.get(self.next) {
             if !done && last_t <= trial_end(t) + self.after_s {
@@ -48,18 +110,6 @@ impl Handover<'_> {
         let i = buf.state.t.partition_point(|&x| x < keep_from);
         buf.state.drain_front(i);
         Ok(())
-    }
-}
-
-/// An empty recording of `file` on `clock`'s origin, with its power series.
-fn on_clock(file: &SessionFile, clock: &Recording) -> Recording {
-    Recording {
-        source: file.path.clone(),
-        start_ns: clock.start_ns,
-        joint_names: file.map.joint_names.clone(),
-        mbs: clock.mbs.clone(),
-        bms: clock.bms.clone(),
-        ..Recording::default()
     }
 }
 
@@ -84,17 +134,11 @@ pub(super) fn trial_windows(
             _ => ranges.push((a, b)),
         }
     }
-    let mut buf = on_clock(file, clock);
-    let mut walk = Handover {
-        trials,
-        next: 0,
-        after_s: MARGIN_S,
-    };
-    let mut on_state = |state: &StateSeries| {
-        buf.state.extend_range(state, 0..usize::MAX);
-        buf.state.sort_by_time();
-        walk.step(&mut buf, false, on_trial)
-    };
+    let mut walk = TrialWalk::new(file.path.clone(), &file.map.joint_names, trials.to_vec());
+    walk.after_s = MARGIN_S;
+    (walk.buf.start_ns, walk.buf.mbs, walk.buf.bms) =
+        (clock.start_ns, clock.mbs.clone(), clock.bms.clone());
+    let mut on_state = |state: &StateSeries| walk.push_state(state, on_trial);
     match file.spill.get().filter(|s| s.origin_ns == clock.start_ns) {
         Some(spill) => spill.stream(Some(&ranges), &mut on_state)?,
         None => {
@@ -109,7 +153,7 @@ pub(super) fn trial_windows(
             )?;
         }
     }
-    walk.step(&mut buf, true, on_trial)
+    walk.finish(on_trial)
 }
 
 /// The joint states (t, τ, q̇) of `trials`' windows (in time order), read in one walk over
@@ -131,10 +175,8 @@ pub(crate) fn hold_pass(
 /// Walk the whole session once more — from the spill when the segmentation pass made one with
 /// the power readings, else by reading every arm topic of the file (`batch_samples` per batch) —
 /// showing `on_batch` every batch as it arrives (every joint-state sample and power reading of
-/// the session, on the segmentation pass's clock; no commands) and `on_trial` each of `trials`
-/// (in time order) with a recording holding at least its joint states (all columns, pre-idle
-/// start to return end) and every power reading up to a few seconds past it. Earlier samples
-/// are dropped, so memory stays bounded.
+/// the session, on the segmentation pass's clock; no commands) and handing `on_trial` each of
+/// `trials` (in time order) as a [`TrialWalk`] does.
 pub fn for_each_trial_with_batches(
     file: &SessionFile,
     trials: &[TrialWindow],
@@ -142,28 +184,10 @@ pub fn for_each_trial_with_batches(
     on_batch: &mut dyn FnMut(&Recording),
     on_trial: &mut dyn FnMut(&Recording, &TrialWindow) -> Result<()>,
 ) -> Result<()> {
-    let mut buf = Recording {
-        source: file.path.clone(),
-        joint_names: file.map.joint_names.clone(),
-        ..Recording::default()
-    };
-    let mut walk = Handover {
-        trials,
-        next: 0,
-        // A reading stamped up to this long after the window can still belong to it (sensor lag).
-        after_s: 2.0,
-    };
+    let mut walk = TrialWalk::new(file.path.clone(), &file.map.joint_names, trials.to_vec());
     let mut on_recording = |batch: &Recording| {
         on_batch(batch);
-        buf.start_ns = batch.start_ns;
-        buf.state.extend_range(&batch.state, 0..usize::MAX);
-        buf.state.sort_by_time();
-        for (to, from) in [(&mut buf.mbs, &batch.mbs), (&mut buf.bms, &batch.bms)] {
-            to.t.extend_from_slice(&from.t);
-            to.watts.extend_from_slice(&from.watts);
-            to.sort_by_time();
-        }
-        walk.step(&mut buf, false, on_trial)
+        walk.push(batch, on_trial)
     };
     match file.spill.get() {
         Some(spill) if spill.power.is_some() => {
@@ -179,7 +203,7 @@ pub fn for_each_trial_with_batches(
             )?;
         }
     }
-    walk.step(&mut buf, true, on_trial)
+    walk.finish(on_trial)
 }
 
 /// The batches of a spilled session ([`SessionFile::spill`]) as the recording's full read

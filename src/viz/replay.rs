@@ -192,7 +192,7 @@ pub struct ReplayExtras {
 }
 
 /// An identified model's per-sample series, never held whole: the replay computes them trial by
-/// trial ([`ReplayLogger::log_model_trial`]) from the session in memory or as it is read again.
+/// trial ([`ReplayLogger::log_model_trial`]) from the session in memory or as the replay reads it.
 #[derive(Debug, Clone)]
 pub struct ModelSeries {
     /// The model.
@@ -391,8 +391,9 @@ pub(crate) const STREAMED_CHUNK_ROWS: usize = 16_384;
 /// them, ~5 % longer).
 pub(crate) const REPLAY_FLUSH_SAMPLES: usize = 60_000;
 
-/// A streamed replay into `stream`: `read` drives the sink over the recording(s) (and, with a
-/// model, logs its series trial by trial into the sink's logger).
+/// A streamed replay into `stream`: `read` drives the sink over the recording(s); with a model,
+/// its series are logged trial by trial as the reading completes each trial, beside the trial's
+/// joint signals in the file (so a viewer loading it shows the session's start whole first).
 pub(super) fn streamed_replay(
     robot: &RobotModel,
     arm: &ArmJoints,
@@ -414,11 +415,15 @@ pub(super) fn streamed_replay(
         opts,
         extras,
         logger,
+        model_trials: None,
         warnings,
         unflushed,
     };
     read(&mut sink)?;
-    let logger = sink.logger.context("the recording delivered no samples")?;
+    let mut logger = sink.logger.context("the recording delivered no samples")?;
+    if let Some(walk) = sink.model_trials {
+        walk.finish(&mut |rec, _| logger.log_model_trial(&rec.state))?;
+    }
     let mut summary = logger.finish()?;
     sink.warnings.append(&mut summary.warnings);
     summary.warnings = sink.warnings;
@@ -454,9 +459,9 @@ pub fn replay_files_with(
 }
 
 /// The streamed replay as a [`crate::signals::RecordingSink`]: `begin` sends the layout and the
-/// static robot (the header gives the clock origin and joints), `batch` logs each stretch;
-/// the logger is left open for the caller to finish (or to log the model's series first), and
-/// the reader's warnings are kept.
+/// static robot (the header gives the clock origin and joints), `batch` logs each stretch and,
+/// with a model, the series of every trial it completes; the logger is left open for the caller
+/// to finish, and the reader's warnings are kept.
 pub(super) struct StreamedReplay<'a, 'e> {
     stream: &'a RecordingStream,
     robot: &'a RobotModel,
@@ -465,6 +470,8 @@ pub(super) struct StreamedReplay<'a, 'e> {
     extras: &'e ReplayExtras,
     /// The logger, once the header came.
     pub(super) logger: Option<ReplayLogger<'a>>,
+    /// The model's planned trials, handed over as the batches complete them.
+    model_trials: Option<crate::session::TrialWalk>,
     /// The reader's warnings.
     pub(super) warnings: Vec<String>,
     /// Samples logged since the stream was last waited for.
@@ -490,13 +497,20 @@ impl crate::signals::RecordingSink for StreamedReplay<'_, '_> {
             self.extras,
             self.opts,
         )?);
+        self.model_trials = self.extras.model.as_ref().map(|m| {
+            let plan = m.plan.iter().map(|(t, _)| t.clone()).collect();
+            crate::session::TrialWalk::new(header.source.to_path_buf(), header.joint_names, plan)
+        });
         Ok(())
     }
 
     fn batch(&mut self, batch: &Recording) -> Result<()> {
-        match self.logger.as_mut() {
-            Some(l) => l.add(batch)?,
-            None => bail!("a batch came before the session header"),
+        let Some(logger) = self.logger.as_mut() else {
+            bail!("a batch came before the session header");
+        };
+        logger.add(batch)?;
+        if let Some(walk) = self.model_trials.as_mut() {
+            walk.push(batch, &mut |rec, _| logger.log_model_trial(&rec.state))?;
         }
         self.unflushed += batch.state.t.len() + batch.command.t.len();
         if self.unflushed >= REPLAY_FLUSH_SAMPLES {

@@ -1,6 +1,6 @@
 //! Replaying a session file, the way `g1viz replay` does: the plain replay (the file read in
-//! batches) or the model replay (the streamed validation, then the file replayed and read again
-//! trial by trial for the model's series) — memory bounded whatever the session's length
+//! batches) or the model replay (the streamed validation, then the file replayed, the model's
+//! series logged trial by trial as it is read) — memory bounded whatever the session's length
 //! either way — the part of the session
 //! to log (`--from/--to` in session seconds, `--trials A-B`, `--max-rate` for the series), and
 //! the size estimate printed before anything is written.
@@ -16,9 +16,9 @@ use crate::identify::{IdentifyOptions, validate_file};
 use crate::power::PowerModel;
 use crate::read::OpenOptions;
 use crate::robot::RobotModel;
-use crate::session::{SessionFile, for_each_trial_with_batches};
-use crate::signals::{Group, Recording, SignalMap};
-use crate::trial::{Segmentation, TrialWindow};
+use crate::session::SessionFile;
+use crate::signals::{Group, SignalMap};
+use crate::trial::Segmentation;
 
 /// The part of the session to replay, as the user asks for it.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -213,7 +213,7 @@ impl Window {
 /// Replays `r.session` as `g1viz replay` does; `notify` hears the notes, the model's fit and
 /// the size estimate (before the output is opened). With a model, the streamed validation gives
 /// the overlay (readings, trials, rejections) and the trials for `--trials`; the file is then
-/// replayed, and read once more trial by trial for the model's series
+/// replayed, the model's series logged trial by trial as the replay reads each trial
 /// ([`super::ReplayLogger::log_model_trial`]), never held whole. Without, the file is streamed;
 /// `--trials` reads it once more first, in a streamed segmentation pass, to find the trials.
 pub fn replay_session(
@@ -256,9 +256,6 @@ pub fn replay_session(
         }
         None => (r.window.resolve(None, r.session)?, ReplayExtras::default()),
     };
-    let windows: Vec<TrialWindow> = (extras.model.iter().flat_map(|m| &m.plan))
-        .map(|(t, _)| t.clone())
-        .collect();
     let model = extras.model.is_some();
     let links = super::robot3d::moving_links(r.robot, &arm).len();
     if let Some(e) = topic_estimate(r, &slice, links, model) {
@@ -271,16 +268,11 @@ pub fn replay_session(
         slice,
         ..r.opts.clone()
     };
-    let (path, batch) = (r.session, opts.stream.batch_samples);
+    let path = r.session;
     let summary = streamed_replay(r.robot, &arm, extras, &opts, out.stream(), &mut |sink| {
         // A plain replay reads in batches of the caller's chunk size, as `replay_files_with`.
         let rows = [r.opts.chunk_rows.max(1), sink.chunk_rows()][usize::from(model)];
-        crate::signals::stream_into(path, r.map, r.read, rows, sink)?;
-        let Some(logger) = sink.logger.as_mut().filter(|_| model) else {
-            return Ok(());
-        };
-        let each = &mut |rec: &Recording, _: &TrialWindow| logger.log_model_trial(&rec.state);
-        for_each_trial_with_batches(&file, &windows, batch, &mut |_| {}, each).with_context(reading)
+        crate::signals::stream_into(path, r.map, r.read, rows, sink).map(drop)
     })
     .with_context(|| format!("replaying {}", path.display()))?;
     out.finish()?;
