@@ -716,9 +716,10 @@ impl<R: Read + Seek> McapSource<R> {
             let (mut sent, mut ahead) = (0usize, 0u64);
             let mut spare: Vec<Vec<u8>> = Vec::new();
             for (g, group) in groups.iter().enumerate() {
-                while let Some(next) = groups.get(sent).filter(|n| {
-                    sent < g + workers.len() || ahead + bytes(n) <= AHEAD_BYTES
-                }) {
+                while let Some(next) = groups
+                    .get(sent)
+                    .filter(|n| sent < g + workers.len() || ahead + bytes(n) <= AHEAD_BYTES)
+                {
                     let keep = spare.len().saturating_sub(next.len());
                     let job = self.read_group(next, spare.split_off(keep));
                     if workers[sent % workers.len()].0.send(job).is_err() {

@@ -6,7 +6,6 @@
 
 use anyhow::Result;
 
-use super::segment::copy_window;
 use super::{MARGIN_S, SessionFile, TrialSource};
 use crate::signals::{Recording, StateSeries, stream_recording};
 use crate::trial::TrialWindow;
@@ -51,18 +50,6 @@ impl Handover<'_> {
     }
 }
 
-/// An empty recording of `file` on `clock`'s origin, with its power series.
-fn on_clock(file: &SessionFile, clock: &Recording) -> Recording {
-    Recording {
-        source: file.path.clone(),
-        start_ns: clock.start_ns,
-        joint_names: file.map.joint_names.clone(),
-        mbs: clock.mbs.clone(),
-        bms: clock.bms.clone(),
-        ..Recording::default()
-    }
-}
-
 /// Stream `file`'s joint states (all columns) inside `trials`' windows (± the margin, merged where
 /// they touch) and hand each of `trials` (in time order) to `on_trial` once its whole window has
 /// been read, with `clock`'s origin and power series. Samples no later trial needs are dropped.
@@ -84,7 +71,11 @@ pub(super) fn trial_windows(
             _ => ranges.push((a, b)),
         }
     }
-    let mut buf = on_clock(file, clock);
+    let mut buf = Recording {
+        source: file.path.clone(),
+        joint_names: file.map.joint_names.clone(),
+        ..super::clock_of(clock)
+    };
     let mut walk = Handover {
         trials,
         next: 0,
@@ -112,17 +103,17 @@ pub(super) fn trial_windows(
     walk.step(&mut buf, true, on_trial)
 }
 
-/// The joint states (t, τ, q̇) of `trials`' windows (in time order), read in one walk over
-/// `source`, with the clock and power series of `power` (those of the segmentation pass): the
-/// sensor-timing search's trials when the segmentation pass could not hold every trial.
+/// `held` with the joint states of `trials`' windows (in time order) appended by `copy`, read in
+/// one walk over `source`: the sensor-timing search's trials ([`super::copy_window`]) when the
+/// segmentation pass could not hold every trial, and the diagnosis' sensor-window scan's.
 pub(crate) fn hold_pass(
     source: &mut dyn TrialSource,
-    power: &Recording,
+    mut held: Recording,
     trials: &[TrialWindow],
+    copy: fn(&mut StateSeries, &StateSeries, &TrialWindow),
 ) -> Result<Recording> {
-    let mut held = super::clock_of(power);
     source.for_each(trials, &mut |buf, t| {
-        copy_window(&mut held.state, &buf.state, t);
+        copy(&mut held.state, &buf.state, t);
         Ok(())
     })?;
     Ok(held)
