@@ -12,15 +12,19 @@
 //! previous one ends, written as one zstd-chunked MCAP.
 //!
 //! ```text
-//! cargo build && cargo run --example bench_scale -- [SCRATCH_DIR] [HOURS,…] [COMMAND,…]
+//! cargo build && cargo run --example bench_scale -- [SCRATCH_DIR] [HOURS|FILE,…] [COMMAND,…]
 //! # e.g. cargo run --example bench_scale -- /tmp/g1viz-scale 1,4.4 info,identify
+//! #      cargo run --example bench_scale -- /tmp/x /tmp/x/session.mcap decompress,identify
 //! ```
+//!
+//! An existing `.mcap` file may stand in for a session length (the twin and outputs are then
+//! named after the file).
 //!
 //! Peak RSS is the child's own `ru_maxrss` and CPU its user + system time (from `wait4`), wall
 //! time from spawn to exit. Each command has a 60 min limit. The machine's load average is printed
 //! with the table. The command `decompress` runs `bench_decompress` (built beside this example:
 //! `cargo build --examples`) on the same file, the one-core floor every other command's CPU is
-//! given as a multiple of (the `× CPU` column).
+//! given as a multiple of (the `× CPU` column), and its wall time the `× wall` column's.
 
 use std::collections::BTreeMap;
 use std::fs::File;
@@ -270,12 +274,12 @@ fn main() -> Result<()> {
             .display()
             .to_string()
     }));
-    let hours: Vec<f64> = args
+    let hours: Vec<String> = args
         .get(1)
         .map_or("1,4.4,10", String::as_str)
         .split(',')
-        .map(str::parse)
-        .collect::<Result<_, _>>()?;
+        .map(String::from)
+        .collect();
     let wanted: Vec<String> = args
         .get(2)
         .map_or(
@@ -289,29 +293,35 @@ fn main() -> Result<()> {
     let bin = g1viz_bin()?;
     println!("binary {}, scratch {}", bin.display(), dir.display());
     println!(
-        "| session | MCAP | command | wall [s] | CPU [s] | × CPU | peak RSS [MB] | .rrd | load avg (1/5/15 min) |"
+        "| session | MCAP | command | wall [s] | CPU [s] | × CPU | × wall | peak RSS [MB] | .rrd | load avg (1/5/15 min) |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|");
     let decompress = std::env::current_exe()?.with_file_name("bench_decompress");
-    for &h in &hours {
-        let s = dir.join(format!("session_{h}h.mcap"));
+    for arg in &hours {
+        let (s, h) = match arg.parse::<f64>() {
+            Ok(_) => (dir.join(format!("session_{arg}h.mcap")), format!("{arg} h")),
+            Err(_) => (PathBuf::from(arg), arg.clone()),
+        };
+        let tag = s
+            .file_stem()
+            .map_or(h.clone(), |n| n.to_string_lossy().into_owned());
         if !s.exists() {
             let ok = Command::new(std::env::current_exe()?)
-                .args(["--make", &dir.display().to_string(), &h.to_string()])
+                .args(["--make", &dir.display().to_string(), arg])
                 .status()?;
             if !ok.success() {
-                bail!("building the {h} h session failed");
+                bail!("building the {h} session failed");
             }
         }
         let mcap_mb = std::fs::metadata(&s)?.len() as f64 / 1e6;
-        let model = dir.join(format!("model_{h}h.json"));
-        let rrd = dir.join(format!("replay_{h}h.rrd"));
+        let model = dir.join(format!("model_{tag}.json"));
+        let rrd = dir.join(format!("replay_{tag}.rrd"));
         let sp = s.display().to_string();
-        let like = dir.join(format!("like_{h}h.mcap"));
+        let like = dir.join(format!("like_{tag}.mcap"));
         let lp = like.display().to_string();
         let (mp, rp) = (model.display().to_string(), rrd.display().to_string());
         // The twin on the session's own commands and timeline (`diagnose --counterpart`).
-        let twin = dir.join(format!("session_{h}h_twin.mcap"));
+        let twin = dir.join(format!("{tag}_twin.mcap"));
         let tp = twin.display().to_string();
         if wanted.iter().any(|w| w == "diagnose-counterpart") && !twin.exists() {
             let ok = Command::new(&bin)
@@ -322,7 +332,7 @@ fn main() -> Result<()> {
                 bail!("simulate --like {sp} failed");
             }
         }
-        let mut floor = None::<f64>;
+        let mut floor = None::<(f64, f64)>;
         let commands = commands([&sp, &mp, &rp, &tp, &lp]);
         for (name, argv) in commands {
             if !wanted.iter().any(|w| w == name) {
@@ -339,15 +349,20 @@ fn main() -> Result<()> {
                 Duration::from_secs(3600),
             )?;
             if name == "decompress" {
-                floor = Some(u.cpu);
+                floor = Some((u.cpu, u.wall));
             }
-            let ratio = floor.map_or("–".into(), |f| format!("{:.2}", u.cpu / f));
+            let ratio =
+                |x: f64, f: Option<f64>| f.map_or("–".into(), |f| format!("{:.2}", x / f));
+            let (cpu_x, wall_x) = (
+                ratio(u.cpu, floor.map(|f| f.0)),
+                ratio(u.wall, floor.map(|f| f.1)),
+            );
             let size = std::fs::metadata(&rrd)
                 .map(|m| format!("{:.0} MB", m.len() as f64 / 1e6))
                 .unwrap_or_else(|_| "–".into());
             let label = label(name);
             println!(
-                "| {h} h | {mcap_mb:.0} MB | `{label}` | {:.1}{} | {:.1} | {ratio} | {:.0} | {size} | {} |",
+                "| {h} | {mcap_mb:.0} MB | `{label}` | {:.2}{} | {:.2} | {cpu_x} | {wall_x} | {:.0} | {size} | {} |",
                 u.wall,
                 if u.ok { "" } else { " (failed)" },
                 u.cpu,

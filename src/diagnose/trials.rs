@@ -15,7 +15,7 @@ use crate::session::{
     Joined, JoinedPart, SessionFile, StreamOptions, TrialSource, for_each_trial_with_batches,
     segment_file,
 };
-use crate::signals::{PowerSeries, Recording, Target};
+use crate::signals::{PowerSeries, Recording, StateSeries, Target};
 use crate::trial::{SegmentOptions, TrialWindow};
 
 use super::FieldSource;
@@ -82,24 +82,17 @@ pub(crate) fn trial_metas(
     Ok((metas, skipped))
 }
 
-/// The joint states of `trials`' spans (with two samples either side), copied into one
-/// recording (the sensor-window scan's trials).
-pub(crate) fn hold(samples: &mut dyn TrialSource, trials: &[TrialWindow]) -> Result<Recording> {
-    let mut held = Recording::default();
-    samples.for_each(trials, &mut |rec, w| {
-        let (a, b) = span(w);
-        let s = &rec.state;
-        let n = s.t.len();
-        let after = held.state.t.last().copied().unwrap_or(f64::NEG_INFINITY);
-        let i0 = s.t.partition_point(|&x| x < a).saturating_sub(2);
-        let i0 = i0.max(s.t.partition_point(|&x| x <= after));
-        let i1 = (s.t.partition_point(|&x| x < b) + 2).min(n);
-        if i0 < i1 {
-            held.state.extend_range(s, i0..i1);
-        }
-        Ok(())
-    })?;
-    Ok(held)
+/// Append `from`'s samples (every column) of `w`'s span ([`span`]), with two samples either
+/// side, that are later than the last sample of `to`: the sensor-window scan's trials.
+pub(crate) fn copy_span(to: &mut StateSeries, from: &StateSeries, w: &TrialWindow) {
+    let (a, b) = span(w);
+    let after = to.t.last().copied().unwrap_or(f64::NEG_INFINITY);
+    let i0 = from.t.partition_point(|&x| x < a).saturating_sub(2);
+    let i0 = i0.max(from.t.partition_point(|&x| x <= after));
+    let i1 = (from.t.partition_point(|&x| x < b) + 2).min(from.t.len());
+    if i0 < i1 {
+        to.extend_range(from, i0..i1);
+    }
 }
 
 /// What the first streamed pass over every file finds besides the per-trial quantities.

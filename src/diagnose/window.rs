@@ -49,7 +49,7 @@ use crate::trial::{Cascade, TrialStat, TrialWindow, is_rejected, samples_in};
 use super::hypotheses::N_RAW;
 use super::lags::base_trial_residuals;
 use super::reading_rows::{Rows, TrialFeatures, TrialMeta, build_rows, span};
-use super::trials::{SessionInfo, hold};
+use super::trials::{SessionInfo, copy_span};
 use super::{DiagnoseOptions, SensorWindow};
 use crate::session::TrialSource;
 
@@ -89,7 +89,7 @@ pub(crate) fn sensor_window(
     }
     let metas = scan_trials(all, opts);
     let windows: Vec<TrialWindow> = metas.iter().map(|m| m.window.clone()).collect();
-    let held = hold(samples, &windows)?;
+    let held = crate::session::hold_pass(samples, Recording::default(), &windows, copy_span)?;
     let rec = &held;
     let power = &info.power;
     let nominal = Alignment::NOMINAL;

@@ -380,10 +380,15 @@ pub(crate) fn resolve_alignment(
                 loaded.push(match t.iter().all(|t| held.contains(&t.index)) {
                     true => None,
                     false => Some(
-                        session::hold_pass(&mut **p.trials.borrow_mut(), &p.subset, t)
-                            .with_context(|| {
-                                format!("reading {} (timing search)", p.source.display())
-                            })?,
+                        session::hold_pass(
+                            &mut **p.trials.borrow_mut(),
+                            session::clock_of(&p.subset),
+                            t,
+                            session::copy_window,
+                        )
+                        .with_context(|| {
+                            format!("reading {} (timing search)", p.source.display())
+                        })?,
                     ),
                 });
             }

@@ -8,9 +8,9 @@
 //! warning can name its byte offset.
 //!
 //! Indexed chunks are decompressed by a pool of two worker threads while the caller's thread
-//! reads the next raw chunks and decodes the last. Memory holds at most four groups of chunks
-//! whose time ranges overlap (normally four chunks: one being read, two being decompressed, one
-//! being delivered), never the file.
+//! reads the next raw chunks and decodes the last. Memory holds the groups of chunks (whose time
+//! ranges overlap) sent ahead to the workers, up to 2 MiB of them decompressed or one per
+//! worker, and the group being delivered, never the file.
 
 use std::collections::{BTreeMap, BTreeSet, HashMap, HashSet};
 use std::fs::File;
@@ -58,7 +58,7 @@ const SPAN_BYTES: u64 = 4 << 20;
 const MAX_CHUNKS: usize = 1 << 20;
 /// Most decompressed bytes held at once for chunks whose time ranges overlap; beyond it the
 /// chunks are delivered one after the other (with a warning) instead of merged. With the raw
-/// chunk bytes and three groups in flight, hostile input stays under 512 MB.
+/// chunk bytes and three groups in flight (and [`AHEAD_BYTES`] more), hostile input stays under 512 MB.
 const GROUP_BUDGET_BYTES: u64 = 64 << 20;
 
 /// Schemas and channels seen so far (from the summary or the data section), and messages met on
@@ -681,11 +681,9 @@ impl<R: Read + Seek> McapSource<R> {
         groups
     }
 
-    /// Deliver the indexed chunks group by group. Decompression runs on a second thread one
-    /// group ahead of the scan and delivery here (on two cores reading then costs about as
-    /// much as decompressing alone); the raw chunk bytes are read here, in file order, so the
-    /// byte source needs no sharing. Memory: at most three groups' buffers (normally three
-    /// chunks).
+    /// Deliver the indexed chunks group by group. Decompression runs on the worker pool, ahead
+    /// of the scan and delivery here by up to [`AHEAD_BYTES`] (at least one group per worker);
+    /// the raw chunk bytes are read here, in file order, so the byte source needs no sharing.
     fn walk_indexed(
         &mut self,
         topics: Option<&[&str]>,
@@ -699,34 +697,41 @@ impl<R: Read + Seek> McapSource<R> {
         let mut mismatched = 0usize;
         let mut routes = Routes::new();
         let mut msgs = Vec::new();
+        let bytes = |g: &[ChunkIndex]| -> u64 {
+            g.iter()
+                .map(|c| c.uncompressed_size.min(MAX_CHUNK_BYTES))
+                .sum()
+        };
         std::thread::scope(|scope| {
-            // A pool of decompression workers, group g going to worker g % INFLATE_WORKERS: each
-            // worker inflates one group while this thread reads the next and delivers the last.
+            // A pool of decompression workers, group g going to worker g % INFLATE_WORKERS. The
+            // groups are sent ahead of delivery up to AHEAD_BYTES (at least one per worker), so
+            // no worker waits for this thread between two groups.
             let mut workers = Vec::new();
             for _ in 0..INFLATE_WORKERS.min(groups.len()) {
-                let (jobs, job_rx) = std::sync::mpsc::sync_channel::<InflateJob>(1);
-                let (done_tx, done) = std::sync::mpsc::sync_channel::<Inflated>(1);
+                let (jobs, job_rx) = std::sync::mpsc::channel::<InflateJob>();
+                let (done_tx, done) = std::sync::mpsc::channel::<Inflated>();
                 scope.spawn(move || inflate_jobs(job_rx, done_tx));
                 workers.push((jobs, done));
             }
-            let mut spare = Vec::new();
-            for (g, group) in groups.iter().enumerate().take(workers.len()) {
-                let job = self.read_group(group, Vec::new());
-                if workers[g].0.send(job).is_err() {
-                    return Ok(Err(worker_gone(group)));
-                }
-            }
+            let (mut sent, mut ahead) = (0usize, 0u64);
+            let mut spare: Vec<Vec<u8>> = Vec::new();
             for (g, group) in groups.iter().enumerate() {
-                let (jobs, done) = &workers[g % workers.len()];
-                let Ok(buffers) = done.recv() else {
+                while let Some(next) = groups
+                    .get(sent)
+                    .filter(|n| sent < g + workers.len() || ahead + bytes(n) <= AHEAD_BYTES)
+                {
+                    let keep = spare.len().saturating_sub(next.len());
+                    let job = self.read_group(next, spare.split_off(keep));
+                    if workers[sent % workers.len()].0.send(job).is_err() {
+                        return Ok(Err(worker_gone(next)));
+                    }
+                    ahead += bytes(next);
+                    sent += 1;
+                }
+                let Ok(buffers) = workers[g % workers.len()].1.recv() else {
                     return Ok(Err(worker_gone(group)));
                 };
-                if let Some(next) = groups.get(g + workers.len()) {
-                    let job = self.read_group(next, std::mem::take(&mut spare));
-                    if jobs.send(job).is_err() {
-                        return Ok(Err(worker_gone(group)));
-                    }
-                }
+                ahead -= bytes(group);
                 msgs.clear();
                 let mut damage = None;
                 for (k, (ci, buf)) in group.iter().zip(&buffers).enumerate() {
@@ -766,7 +771,7 @@ impl<R: Read + Seek> McapSource<R> {
                 if let Some(d) = damage {
                     return Ok(Err(d));
                 }
-                spare = buffers.into_iter().filter_map(Result::ok).collect();
+                spare.extend(buffers.into_iter().filter_map(Result::ok));
             }
             if mismatched > MAX_DETAILED {
                 warnings.push(format!(
@@ -1119,6 +1124,12 @@ struct InflateJob {
     spare: Vec<Vec<u8>>,
 }
 
+/// Most decompressed bytes of the groups sent to the workers and not yet delivered, beyond one
+/// group per worker: enough that a worker never waits for the next group while this thread
+/// delivers, few enough that a group is still in the cache when it is delivered (16 MiB ahead
+/// made the delivery's reads of the decompressed bytes 3× slower).
+const AHEAD_BYTES: u64 = 2 << 20;
+
 /// Decompression workers of an indexed read (the machine this was tuned on has two cores; the
 /// caller's thread reads the raw chunks and decodes the messages).
 const INFLATE_WORKERS: usize = 2;
@@ -1130,7 +1141,7 @@ type Inflated = Vec<Result<Vec<u8>, Damage>>;
 /// channel closes (the reader stopped on damage or a sink error).
 fn inflate_jobs(
     jobs: std::sync::mpsc::Receiver<InflateJob>,
-    done: std::sync::mpsc::SyncSender<Inflated>,
+    done: std::sync::mpsc::Sender<Inflated>,
 ) {
     let mut inflater = Inflater::default();
     for mut job in jobs {

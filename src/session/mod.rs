@@ -27,7 +27,7 @@ use crate::trial::TrialWindow;
 
 pub(crate) use joined::{Joined, JoinedPart, global, shift};
 pub use segment::segment_file;
-pub(crate) use segment::{Pass1, segment_recording, segmentation_pass};
+pub(crate) use segment::{Pass1, copy_window, segment_recording, segmentation_pass};
 pub(crate) use walk::hold_pass;
 pub use walk::{TrialWalk, for_each_trial_with_batches};
 

@@ -10,7 +10,7 @@
 //! of two that doubles whenever more than [`StreamOptions::hold_trials`] would be held, which is
 //! the search's own choice of trials without knowing the session's length ([`search_stride`]).
 //! Only with `hold_trials` below the search's cap are the search's trials read in an extra
-//! streamed pass ([`super::hold_pass`]).
+//! streamed pass ([`super::hold_pass`] with [`copy_window`]).
 
 use std::path::{Path, PathBuf};
 

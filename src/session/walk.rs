@@ -8,7 +8,6 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 
-use super::segment::copy_window;
 use super::{MARGIN_S, SessionFile, TrialSource};
 use crate::signals::{Recording, StateSeries, stream_recording};
 use crate::trial::TrialWindow;
@@ -156,17 +155,17 @@ pub(super) fn trial_windows(
     walk.finish(on_trial)
 }
 
-/// The joint states (t, τ, q̇) of `trials`' windows (in time order), read in one walk over
-/// `source`, with the clock and power series of `power` (those of the segmentation pass): the
-/// sensor-timing search's trials when the segmentation pass could not hold every trial.
+/// `held` with the joint states of `trials`' windows (in time order) appended by `copy`, read in
+/// one walk over `source`: the sensor-timing search's trials ([`super::copy_window`]) when the
+/// segmentation pass could not hold every trial, and the diagnosis' sensor-window scan's.
 pub(crate) fn hold_pass(
     source: &mut dyn TrialSource,
-    power: &Recording,
+    mut held: Recording,
     trials: &[TrialWindow],
+    copy: fn(&mut StateSeries, &StateSeries, &TrialWindow),
 ) -> Result<Recording> {
-    let mut held = super::clock_of(power);
     source.for_each(trials, &mut |buf, t| {
-        copy_window(&mut held.state, &buf.state, t);
+        copy(&mut held.state, &buf.state, t);
         Ok(())
     })?;
     Ok(held)
