@@ -189,9 +189,10 @@ pub fn encompassing(
 }
 
 /// Calibration log: with `G1VIZ_P_LOG` set to a file, appends the stage and the candidate's
-/// p-values at λ = 0, ⅛, ¼, ⅜ and ½ of [`encompassing`].
+/// p-values at λ = 0, ⅛, ¼, ⅜ and ½ of [`encompassing`] (the variable is read once).
 pub(crate) fn log_p(stage: &str, y: &[f64], a: &[f64], b: &[f64], group: &[usize], n: usize) {
-    let Some(path) = std::env::var_os("G1VIZ_P_LOG") else {
+    static PATH: std::sync::OnceLock<Option<std::ffi::OsString>> = std::sync::OnceLock::new();
+    let Some(path) = PATH.get_or_init(|| std::env::var_os("G1VIZ_P_LOG")) else {
         return;
     };
     let p = |l| improvement_p_value(&encompassing(y, (a, b), group, n, l));
