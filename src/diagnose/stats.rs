@@ -189,21 +189,20 @@ pub fn encompassing(
 }
 
 /// Calibration log: with `G1VIZ_P_LOG` set to a file, appends the stage and the candidate's
-/// p-values at λ = 0, ⅛, ¼, ⅜ and ½ of [`encompassing`].
+/// p-values at λ = 0, ⅛, ¼, ⅜ and ½ of [`encompassing`] (the variable is read once).
 pub(crate) fn log_p(stage: &str, y: &[f64], a: &[f64], b: &[f64], group: &[usize], n: usize) {
-    let Some(path) = std::env::var_os("G1VIZ_P_LOG") else {
+    static PATH: std::sync::OnceLock<Option<std::ffi::OsString>> = std::sync::OnceLock::new();
+    let Some(path) = PATH.get_or_init(|| std::env::var_os("G1VIZ_P_LOG")) else {
         return;
     };
     let p = |l| improvement_p_value(&encompassing(y, (a, b), group, n, l));
-    let ps = [0.0, 0.125, 0.25, 0.375, 0.5]
-        .map(|l| format!("{:e}", p(l)))
-        .join(" ");
+    let ps = [0.0, 0.125, 0.25, 0.375, 0.5].map(|l| format!("{:e}", p(l)));
+    let line = format!("{stage} {}\n", ps.join(" "));
     let f = std::fs::OpenOptions::new()
         .append(true)
         .create(true)
         .open(path);
-    let _ =
-        f.and_then(|mut f| std::io::Write::write_all(&mut f, format!("{stage} {ps}\n").as_bytes()));
+    let _ = f.and_then(|mut f| std::io::Write::write_all(&mut f, line.as_bytes()));
 }
 
 /// Resamples of the trials [`resampled_stability`] draws.
