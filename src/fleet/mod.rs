@@ -492,6 +492,9 @@ fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<Str
         bail!("no rows of target {target} in the tables{picked}");
     }
     for w in groups.values_mut() {
+        // The engine returns rows in no fixed order: trials by id, so the filters see the same
+        // sequence (and list their rejections in the same order) on every run.
+        w.trials.sort_by(|a, b| a.id.cmp(&b.id));
         w.sessions.sort();
         w.sessions.dedup();
         let stat = |t: &TrialMoments| {
