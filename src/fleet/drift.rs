@@ -262,7 +262,8 @@ fn distance(t: &Trend, others: &[&Trend]) -> Option<(f64, f64)> {
 /// The robots whose level differs from the other robots': its [`distance`] from them, calibrated
 /// like the drift z by the [`spread`] of the other robots' distances from the rest of them for
 /// that parameter (the robot itself left out, so that it does not widen its own yardstick); with
-/// fewer than five other robots, the nominal distance.
+/// fewer than five other robots, the nominal distance. Only parameters that more than half of
+/// the fleet's robots follow are tested.
 fn outliers(trends: &[Trend], z: f64) -> Vec<Outlier> {
     fn others<'a>(t: &Trend, of: &[&'a Trend]) -> Vec<&'a Trend> {
         let of = of
@@ -272,8 +273,17 @@ fn outliers(trends: &[Trend], z: f64) -> Vec<Outlier> {
     }
     let mut out = Vec::new();
     let all: Vec<&Trend> = trends.iter().collect();
+    let mut robots: Vec<&str> = trends.iter().map(|t| t.robot.as_str()).collect();
+    robots.sort_unstable();
+    robots.dedup();
     for t in trends {
         let rest = others(t, &all);
+        // A parameter most robots' fits leave at its bound has no fleet level: the few where it
+        // is free are a selection, not the fleet (a 20-robot fleet flagged two of the three
+        // robots following θ28, each against the mean of the other two).
+        if 2 * (rest.len() + 1) <= robots.len() {
+            continue;
+        }
         let Some((fleet_level, zd)) = distance(t, &rest) else {
             continue;
         };
@@ -388,5 +398,26 @@ mod tests {
             .map(|o| (o.robot, o.param))
             .collect();
         assert_eq!(flagged, [("r11".to_string(), 1), ("r11".to_string(), 2)]);
+    }
+
+    /// Twenty robots follow parameter 0 at one level; only three follow parameter 1 (the rest of
+    /// the fleet's fits leave it at its bound), one of them 10 s.e. from the mean of the other
+    /// two. Parameter 1 has no fleet level to differ from: nothing is flagged on it, while a robot
+    /// 10 s.e. off on parameter 0 is.
+    #[test]
+    fn a_level_is_tested_only_where_most_of_the_fleet_follows_it() {
+        let mut trends: Vec<Trend> = (0..19)
+            .map(|r| level(r, 0, 1.0 + 0.01 * (r as f64 - 9.0) / 9.0, 0.01))
+            .collect();
+        trends.push(level(19, 0, 1.1, 0.01));
+        trends.extend([
+            level(0, 1, 0.5, 0.01),
+            level(1, 1, 0.52, 0.01),
+            level(2, 1, 0.7, 0.01),
+        ]);
+        let flagged: Vec<(String, usize)> = (outliers(&trends, 4.0).into_iter())
+            .map(|o| (o.robot, o.param))
+            .collect();
+        assert_eq!(flagged, [("r19".to_string(), 0)]);
     }
 }
