@@ -89,9 +89,10 @@ pub fn run(a: FleetArgs) -> Result<()> {
             for (_, text) in &flags {
                 println!("flagged: {text}");
             }
-            // The multiplicity: each followed robot parameter is tested for drift and level.
+            // The multiplicity: each followed robot parameter is tested for drift, and for level where
+            // most robots follow it.
             println!(
-                "{} flags at |z| > {} from {} robot parameters free in ≥ 4 periods, each tested for drift and for level",
+                "{} flags at |z| > {} from {} robot parameters free in ≥ 4 periods, tested for drift and, where most robots follow them, for level",
                 flags.len(),
                 a.z,
                 d.trends.len()

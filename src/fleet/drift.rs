@@ -11,8 +11,10 @@
 //! A calibrated |z| beyond `z` is a drift.
 //! A robot's level at t₀ against the median of the other robots' levels, in combined standard
 //! errors, is calibrated the same way (by the other robots' spread of that distance for the
-//! parameter, but only ever widened: at least 1): beyond `z`, the robot differs from the fleet. Each followed (robot, parameter) is
-//! thus tested twice, against a null drawn from the same fleet.
+//! parameter, but only ever widened: at least 1): beyond `z`, the robot differs from the fleet —
+//! on parameters that more than half of the fleet's robots follow (elsewhere there is no fleet
+//! level). Each followed (robot, parameter) is thus tested up to twice, against a null drawn from
+//! the same fleet.
 
 use crate::N_PARAMS;
 
