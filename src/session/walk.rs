@@ -1,8 +1,8 @@
 //! Walks over a session file after its segmentation pass, holding about one trial's samples:
 //! the trials' windows only ([`trial_windows`], behind [`super::FileTrials`]), the held trials of
 //! the sensor-timing search ([`hold_pass`]), and the whole session with its batches
-//! ([`for_each_trial_with_batches`], [`TrialWalk`]). Each reads the spill when the segmentation pass made one,
-//! else the file.
+//! ([`for_each_trial_with_batches`], [`TrialWalk`]). Each reads the spill when the segmentation
+//! pass made one, else the file.
 
 use std::path::PathBuf;
 
@@ -133,10 +133,19 @@ pub(super) fn trial_windows(
             _ => ranges.push((a, b)),
         }
     }
-    let mut walk = TrialWalk::new(file.path.clone(), &file.map.joint_names, trials.to_vec());
-    walk.after_s = MARGIN_S;
-    (walk.buf.start_ns, walk.buf.mbs, walk.buf.bms) =
-        (clock.start_ns, clock.mbs.clone(), clock.bms.clone());
+    // On `clock`'s origin, with its power series; a sample within the margin still belongs.
+    let buf = Recording {
+        source: file.path.clone(),
+        joint_names: file.map.joint_names.clone(),
+        ..super::clock_of(clock)
+    };
+    let (trials, next, after_s) = (trials.to_vec(), 0, MARGIN_S);
+    let mut walk = TrialWalk {
+        buf,
+        trials,
+        next,
+        after_s,
+    };
     let mut on_state = |state: &StateSeries| walk.push_state(state, on_trial);
     match file.spill.get().filter(|s| s.origin_ns == clock.start_ns) {
         Some(spill) => spill.stream(Some(&ranges), &mut on_state)?,
