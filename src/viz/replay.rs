@@ -352,8 +352,8 @@ fn error_typical(extras: &ReplayExtras) -> Option<[f64; 2]> {
 }
 
 /// Logs `rec` (and `extras`) to `stream`: arm animation, joint and power series, model/diagnosis
-/// overlays, and the viewer layout. The recording is already in memory; to replay a file of any
-/// length in bounded memory use [`replay_files_with`].
+/// overlays, and the viewer layout — the streamed replay of [`replay_files_with`] fed the
+/// recording, already in memory, as one batch.
 pub fn log_replay(
     rec: &Recording,
     robot: &RobotModel,
@@ -362,21 +362,15 @@ pub fn log_replay(
     opts: &ReplayOptions,
     stream: &RecordingStream,
 ) -> Result<ReplaySummary> {
-    let mut logger = ReplayLogger::begin(
-        stream,
-        robot,
-        arm,
-        &rec.source,
-        &rec.joint_names,
-        rec.start_ns,
-        extras,
-        opts,
-    )?;
-    logger.add(rec)?;
-    for _ in extras.model.iter().flat_map(|m| &m.plan) {
-        logger.log_model_trial(&rec.state)?;
-    }
-    logger.finish()
+    use crate::signals::RecordingSink;
+    streamed_replay(robot, arm, extras, opts, stream, &mut |sink| {
+        sink.begin(&crate::signals::StreamHeader {
+            source: &rec.source,
+            start_ns: rec.start_ns,
+            joint_names: &rec.joint_names,
+        })?;
+        sink.batch(rec)
+    })
 }
 
 /// Samples per Rerun chunk of a streamed replay (plain or with a model), at least (the replay's own
@@ -384,6 +378,14 @@ pub fn log_replay(
 /// until the file is finished, and is built at the end: at 4096 rows that took ~100 MB at the
 /// end of a 10 h session's model replay (peak 286 MB); at 16384 the peak was 182 MB.
 pub(crate) const STREAMED_CHUNK_ROWS: usize = 16_384;
+
+/// `opts` for a replay streamed from a file: chunks of at least [`STREAMED_CHUNK_ROWS`] rows.
+pub(super) fn file_replay_options(opts: &ReplayOptions) -> ReplayOptions {
+    ReplayOptions {
+        chunk_rows: opts.chunk_rows.max(STREAMED_CHUNK_ROWS),
+        ..opts.clone()
+    }
+}
 
 /// Samples (state and command) a streamed replay logs between waits for the sink: the samples
 /// are turned into chunks far faster than the sink encodes and writes them, and without a wait
@@ -397,16 +399,11 @@ pub(crate) const REPLAY_FLUSH_SAMPLES: usize = 60_000;
 pub(super) fn streamed_replay(
     robot: &RobotModel,
     arm: &ArmJoints,
-    extras: ReplayExtras,
+    extras: &ReplayExtras,
     opts: &ReplayOptions,
     stream: &RecordingStream,
     read: &mut dyn FnMut(&mut StreamedReplay<'_, '_>) -> Result<()>,
 ) -> Result<ReplaySummary> {
-    let opts = ReplayOptions {
-        chunk_rows: opts.chunk_rows.max(STREAMED_CHUNK_ROWS),
-        ..opts.clone()
-    };
-    let (opts, extras) = (&opts, &extras);
     let (logger, warnings, unflushed) = (None, Vec::new(), 0);
     let mut sink = StreamedReplay {
         stream,
@@ -452,7 +449,8 @@ pub fn replay_files_with(
     stream: &RecordingStream,
 ) -> Result<ReplaySummary> {
     let rows = opts.chunk_rows.max(1);
-    streamed_replay(robot, arm, extras, opts, stream, &mut |sink| match paths {
+    let opts = &file_replay_options(opts);
+    streamed_replay(robot, arm, &extras, opts, stream, &mut |sink| match paths {
         [path] => crate::signals::stream_into(path, map, read_opts, rows, sink).map(drop),
         _ => crate::signals::stream_joined_into(paths, map, read_opts, rows, gap_s, sink).map(drop),
     })

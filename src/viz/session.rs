@@ -9,7 +9,9 @@ use std::path::Path;
 
 use anyhow::{Context, Result, bail};
 
-use super::replay::{ReplayExtras, ReplayOptions, ReplaySummary, streamed_replay};
+use super::replay::{
+    ReplayExtras, ReplayOptions, ReplaySummary, file_replay_options, streamed_replay,
+};
 use super::slice::Slice;
 use super::{OutputKind, Sink, open_stream, recording_id_or_reason};
 use crate::identify::{IdentifyOptions, validate_file};
@@ -264,12 +266,12 @@ pub fn replay_session(
     let kind = [OutputKind::Replay, OutputKind::ModelReplay][usize::from(model)];
     let id = recording_id_or_reason(r.session)?;
     let out = open_stream(&kind.app_id(), &kind.recording_id(&id), r.sink, r.inputs)?;
-    let opts = ReplayOptions {
+    let opts = file_replay_options(&ReplayOptions {
         slice,
         ..r.opts.clone()
-    };
+    });
     let path = r.session;
-    let summary = streamed_replay(r.robot, &arm, extras, &opts, out.stream(), &mut |sink| {
+    let summary = streamed_replay(r.robot, &arm, &extras, &opts, out.stream(), &mut |sink| {
         // A plain replay reads in batches of the caller's chunk size, as `replay_files_with`.
         let rows = [r.opts.chunk_rows.max(1), sink.chunk_rows()][usize::from(model)];
         crate::signals::stream_into(path, r.map, r.read, rows, sink).map(drop)
