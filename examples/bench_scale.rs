@@ -228,10 +228,23 @@ fn commands([sp, mp, rp, tp, lp]: [&str; 5]) -> Vec<(&'static str, Vec<&str>)> {
             "diagnose-counterpart",
             vec!["diagnose", "--model", "paper", sp, "--counterpart", tp],
         ),
-        ("replay", vec!["replay", sp, "--save", rp]),
+        // Every sample (`--max-rate 0`): the default caps long replays at 250 MB.
+        (
+            "replay",
+            vec!["replay", sp, "--max-rate", "0", "--save", rp],
+        ),
         (
             "replay-model",
-            vec!["replay", sp, "--model", "paper", "--save", rp],
+            vec![
+                "replay",
+                sp,
+                "--model",
+                "paper",
+                "--max-rate",
+                "0",
+                "--save",
+                rp,
+            ],
         ),
         ("simulate-like", vec!["simulate", "--like", sp, "-o", lp]),
     ]

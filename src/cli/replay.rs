@@ -52,8 +52,10 @@ pub struct ReplayArgs {
     /// Without --model the session is read once more first, to find the trials.
     #[arg(long, value_name = "A-B", value_parser = trial_range)]
     trials: Option<(usize, usize)>,
-    /// At most this many samples per second of every joint, IMU and model series (default: all
-    /// recorded samples). Shrinks long recordings; see the size estimate printed before writing.
+    /// At most this many samples per second of every joint, IMU and model series. Default: all
+    /// recorded samples, unless the replay would exceed 250 MB (a plain replay of more than about half an hour):
+    /// then the highest rate that fits, printed; 0 keeps every sample. See the size estimate
+    /// printed before writing.
     #[arg(long, value_name = "HZ", value_parser = non_negative)]
     max_rate: Option<f64>,
     #[command(flatten)]
@@ -132,6 +134,13 @@ pub fn run(a: ReplayArgs) -> Result<()> {
             eprintln!(
                 "model {}: per-trajectory R² {r2:.3}, RMSE {rmse:.2} W on {trials} trials",
                 model_name.as_deref().unwrap_or("")
+            )
+        }),
+        Notice::Capped(hz) => busy.suspend(|| {
+            eprintln!(
+                "replay: at most {hz} samples per second of every joint, IMU and model series, to \
+                 keep the recording near {:.0} MB (--max-rate 0 keeps every sample)",
+                viz::DEFAULT_REPLAY_BYTES / 1e6
             )
         }),
         Notice::Estimate(e) => {

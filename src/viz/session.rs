@@ -75,7 +75,21 @@ pub enum Notice {
     },
     /// The expected size of the output, before it is written.
     Estimate(SizeEstimate),
+    /// No `--max-rate` was given and the whole session at its recorded rate would exceed
+    /// [`DEFAULT_REPLAY_BYTES`]: every per-sample series is capped at this rate [Hz].
+    Capped(f64),
 }
+
+/// The largest replay a user gets without asking [bytes]: past it, a replay with no `--max-rate`
+/// caps its per-sample series at the highest rate that keeps the estimate within it. A paper-scale
+/// session (3–4 h) at the recorded rate is 1.5–4 GB, more than the web viewer holds; a file of
+/// this size opens in it whole (docs/viewer.md).
+pub const DEFAULT_REPLAY_BYTES: f64 = 250e6;
+
+/// The lowest rate the default cap goes to [Hz] (one sample per 10 s), even when the
+/// replay is then larger than [`DEFAULT_REPLAY_BYTES`] (its chunks alone can be, at 500 Hz over
+/// many hours: the estimate printed says so).
+const MIN_DEFAULT_HZ: f64 = 0.1;
 
 /// Expected size of a replay's `.rrd`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -96,8 +110,8 @@ pub const BYTES_PER_LINK_POSE: f64 = 41.7;
 pub const BYTES_PER_CHUNK: f64 = 2800.0;
 /// Fixed part: layout, robot geometry, properties, series styles (≈ 90 static chunks).
 pub const BYTES_FIXED: f64 = 300_000.0;
-/// Samples per batch (the replay's default chunk size): one chunk per entity and batch.
-const BATCH_SAMPLES: f64 = 4096.0;
+/// Samples per batch of a replayed file (its chunk size): one chunk per entity and batch.
+const BATCH_SAMPLES: f64 = super::replay::STREAMED_CHUNK_ROWS as f64;
 /// Scalar series per state sample (q, q̇, τ, temperature of 7 joints, |ω|).
 const STATE_SERIES: f64 = 29.0;
 /// Scalar series per command sample (q_cmd of 7 joints).
@@ -259,9 +273,16 @@ pub fn replay_session(
         None => (r.window.resolve(None, r.session)?, ReplayExtras::default()),
     };
     let model = extras.model.is_some();
+    let mut slice = slice;
     let links = super::robot3d::moving_links(r.robot, &arm).len();
-    if let Some(e) = topic_estimate(r, &slice, links, model) {
-        notify(Notice::Estimate(e));
+    if let Some(size) = topic_rates(r, &slice, links, model) {
+        if r.window.max_rate_hz.is_none()
+            && let Some(rate) = size.default_cap()
+        {
+            slice.max_rate_hz = Some(rate);
+            notify(Notice::Capped(rate));
+        }
+        notify(Notice::Estimate(size.estimate(slice.max_rate_hz)));
     }
     let kind = [OutputKind::Replay, OutputKind::ModelReplay][usize::from(model)];
     let id = recording_id_or_reason(r.session)?;
@@ -291,14 +312,61 @@ fn session_file(r: &SessionReplay<'_>) -> SessionFile {
     }
 }
 
-/// The estimate from the file's topic statistics (summary or index when the container has
-/// them); `None` when they cannot be read (the replay itself then reports the problem).
-fn topic_estimate(
+/// What a replay's size depends on: the part of the session logged and its rates.
+struct ReplaySize {
+    seconds: f64,
+    state_hz: f64,
+    command_hz: f64,
+    pose_hz: Option<f64>,
+    links: usize,
+    model: bool,
+}
+
+impl ReplaySize {
+    /// The expected size with every per-sample series capped at `max_rate_hz`.
+    fn estimate(&self, max_rate_hz: Option<f64>) -> SizeEstimate {
+        let (s, hz) = (self, max_rate_hz);
+        SizeEstimate::new(
+            s.seconds,
+            s.state_hz,
+            s.command_hz,
+            s.pose_hz,
+            hz,
+            s.links,
+            s.model,
+        )
+    }
+
+    /// The rate cap that keeps the replay within [`DEFAULT_REPLAY_BYTES`] (two significant
+    /// digits, rounded down), `None` when the recorded rate does.
+    fn default_cap(&self) -> Option<f64> {
+        if self.estimate(None).bytes <= DEFAULT_REPLAY_BYTES {
+            return None;
+        }
+        let fits = |hz: f64| self.estimate(Some(hz)).bytes <= DEFAULT_REPLAY_BYTES;
+        if !fits(MIN_DEFAULT_HZ) {
+            return Some(MIN_DEFAULT_HZ);
+        }
+        let (mut lo, mut hi) = (MIN_DEFAULT_HZ, self.state_hz);
+        for _ in 0..60 {
+            let mid = 0.5 * (lo + hi);
+            if fits(mid) { lo = mid } else { hi = mid }
+        }
+        let step = 10f64.powf(lo.log10().floor() - 1.0);
+        let hz = ((lo / step).floor() * step * 1e3).round() / 1e3; // 2.3, not 2.3000000000000003
+        Some(hz.max(MIN_DEFAULT_HZ))
+    }
+}
+
+/// The part of the session logged and its rates, from the file's topic statistics (summary or
+/// index when the container has them); `None` when they cannot be read (the replay itself then
+/// reports the problem).
+fn topic_rates(
     r: &SessionReplay<'_>,
     slice: &Slice,
     links: usize,
     model: bool,
-) -> Option<SizeEstimate> {
+) -> Option<ReplaySize> {
     let info = crate::read::Session::open(r.session, r.read)
         .ok()?
         .info()
@@ -323,13 +391,64 @@ fn topic_estimate(
     };
     let (state_hz, seconds) = rate_and_span(Group::State);
     let (command_hz, _) = rate_and_span(Group::Command);
-    Some(SizeEstimate::new(
+    Some(ReplaySize {
         seconds,
         state_hz,
         command_hz,
-        r.opts.pose_rate_hz,
-        slice.max_rate_hz,
+        pose_hz: r.opts.pose_rate_hz,
         links,
         model,
-    ))
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn size(seconds: f64, model: bool) -> ReplaySize {
+        let (state_hz, command_hz, pose_hz, links) = (100.0, 100.0, Some(30.0), 16);
+        ReplaySize {
+            seconds,
+            state_hz,
+            command_hz,
+            pose_hz,
+            links,
+            model,
+        }
+    }
+
+    /// A short session replays whole; a paper-scale one is capped at the highest two-digit rate
+    /// whose estimate fits the default size, and one step more would not fit.
+    #[test]
+    fn the_default_cap_keeps_a_replay_within_its_size() {
+        assert_eq!(size(82.5, true).default_cap(), None);
+        for (seconds, model) in [
+            (3_600.0, false),
+            (12_336.0, false),
+            (12_336.0, true),
+            (36_000.0, true),
+        ] {
+            let s = size(seconds, model);
+            let hz = s.default_cap().expect("a paper-scale replay is capped");
+            assert!(
+                s.estimate(Some(hz)).bytes <= DEFAULT_REPLAY_BYTES,
+                "{seconds} s: {hz} Hz: {:?} / {:?}",
+                s.estimate(Some(hz)),
+                s.estimate(Some(1.0))
+            );
+            let step = 10f64.powf(hz.log10().floor() - 1.0);
+            let more = s.estimate(Some(hz + step)).bytes;
+            assert!(
+                more > DEFAULT_REPLAY_BYTES,
+                "{seconds} s: {hz} Hz, {more} B at +{step}"
+            );
+        }
+        // 10 h at 500 Hz with the model: its chunks alone pass the size; the cap stops at its floor.
+        let long = ReplaySize {
+            state_hz: 500.0,
+            ..size(36_000.0, true)
+        };
+        assert!(long.estimate(Some(MIN_DEFAULT_HZ)).bytes > DEFAULT_REPLAY_BYTES);
+        assert_eq!(long.default_cap(), Some(MIN_DEFAULT_HZ));
+    }
 }
