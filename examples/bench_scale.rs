@@ -228,7 +228,7 @@ fn commands([sp, mp, rp, tp, lp]: [&str; 5]) -> Vec<(&'static str, Vec<&str>)> {
             "diagnose-counterpart",
             vec!["diagnose", "--model", "paper", sp, "--counterpart", tp],
         ),
-        // Every sample (`--max-rate 0`): the default caps long replays at 250 MB.
+        // Every sample (`--max-rate 0`): the default caps long replays at 150 MB.
         (
             "replay",
             vec!["replay", sp, "--max-rate", "0", "--save", rp],

@@ -53,9 +53,9 @@ pub struct ReplayArgs {
     #[arg(long, value_name = "A-B", value_parser = trial_range)]
     trials: Option<(usize, usize)>,
     /// At most this many samples per second of every joint, IMU and model series. Default: all
-    /// recorded samples, unless the replay would exceed 250 MB (a plain replay of more than about half an hour):
-    /// then the highest rate that fits, printed; 0 keeps every sample. See the size estimate
-    /// printed before writing.
+    /// recorded samples, unless the replay would exceed 150 MB (at 100 Hz, a plain replay of
+    /// over 20 min): then the highest rate that fits, printed; 0 keeps every sample. See the
+    /// size estimate printed before writing.
     #[arg(long, value_name = "HZ", value_parser = non_negative)]
     max_rate: Option<f64>,
     #[command(flatten)]

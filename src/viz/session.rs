@@ -84,7 +84,7 @@ pub enum Notice {
 /// caps its per-sample series at the highest rate that keeps the estimate within it. A paper-scale
 /// session (3–4 h) at the recorded rate is 1.5–4 GB, more than the web viewer holds; a file of
 /// this size opens in it whole (docs/viewer.md).
-pub const DEFAULT_REPLAY_BYTES: f64 = 250e6;
+pub const DEFAULT_REPLAY_BYTES: f64 = 150e6;
 
 /// The lowest rate the default cap goes to [Hz] (one sample per 10 s), even when the
 /// replay is then larger than [`DEFAULT_REPLAY_BYTES`] (its chunks alone can be, at 500 Hz over
