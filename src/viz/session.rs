@@ -124,44 +124,6 @@ const POWER_ENTITIES: f64 = 4.0;
 /// Temporal entities a model adds (its series, bars, readings, errors, trial marks, colours).
 const MODEL_ENTITIES: f64 = 80.0;
 
-impl SizeEstimate {
-    /// The size of a replay covering `seconds` of a session sampled at `state_hz` (commands at
-    /// `command_hz`, 0 when none), poses at `pose_hz` of `moving_links` links, per-sample series
-    /// capped at `max_rate_hz`, with or without a model.
-    pub fn new(
-        seconds: f64,
-        state_hz: f64,
-        command_hz: f64,
-        pose_hz: Option<f64>,
-        max_rate_hz: Option<f64>,
-        moving_links: usize,
-        model: bool,
-    ) -> SizeEstimate {
-        let cap = |hz: f64| max_rate_hz.map_or(hz, |m| hz.min(m));
-        let state = cap(state_hz) * seconds;
-        let command = cap(command_hz) * seconds;
-        let poses = pose_hz.map_or(cap(state_hz), |p| p.min(cap(state_hz))) * seconds;
-        let model_rows = if model { MODEL_SERIES * state } else { 0.0 };
-        let scalars = STATE_SERIES * state + COMMAND_SERIES * command + model_rows;
-        let links = moving_links as f64 + 1.0;
-        let entities = STATE_SERIES
-            + COMMAND_SERIES
-            + links
-            + POWER_ENTITIES
-            + if model { MODEL_ENTITIES } else { 0.0 };
-        // Batches are cut from the recorded samples, before the rate cap (+1: a window starts
-        // and ends inside batches).
-        let batches = (state_hz * seconds / BATCH_SAMPLES).ceil() + 1.0;
-        SizeEstimate {
-            seconds,
-            bytes: BYTES_FIXED
-                + BYTES_PER_CHUNK * entities * batches
-                + BYTES_PER_SCALAR * scalars
-                + BYTES_PER_LINK_POSE * links * poses,
-        }
-    }
-}
-
 impl std::fmt::Display for SizeEstimate {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         let mb = self.bytes / 1e6;
@@ -312,7 +274,8 @@ fn session_file(r: &SessionReplay<'_>) -> SessionFile {
     }
 }
 
-/// What a replay's size depends on: the part of the session logged and its rates.
+/// What a replay's size depends on: the seconds of session logged, the state and command rates
+/// (commands 0 when none), the pose rate of the moving links, and whether a model is shown.
 struct ReplaySize {
     seconds: f64,
     state_hz: f64,
@@ -325,16 +288,32 @@ struct ReplaySize {
 impl ReplaySize {
     /// The expected size with every per-sample series capped at `max_rate_hz`.
     fn estimate(&self, max_rate_hz: Option<f64>) -> SizeEstimate {
-        let (s, hz) = (self, max_rate_hz);
-        SizeEstimate::new(
-            s.seconds,
-            s.state_hz,
-            s.command_hz,
-            s.pose_hz,
-            hz,
-            s.links,
-            s.model,
-        )
+        let (seconds, model) = (self.seconds, self.model);
+        let cap = |hz: f64| max_rate_hz.map_or(hz, |m| hz.min(m));
+        let state = cap(self.state_hz) * seconds;
+        let command = cap(self.command_hz) * seconds;
+        let poses = self
+            .pose_hz
+            .map_or(cap(self.state_hz), |p| p.min(cap(self.state_hz)))
+            * seconds;
+        let model_rows = if model { MODEL_SERIES * state } else { 0.0 };
+        let scalars = STATE_SERIES * state + COMMAND_SERIES * command + model_rows;
+        let links = self.links as f64 + 1.0;
+        let entities = STATE_SERIES
+            + COMMAND_SERIES
+            + links
+            + POWER_ENTITIES
+            + if model { MODEL_ENTITIES } else { 0.0 };
+        // Batches are cut from the recorded samples, before the rate cap (+1: a window starts
+        // and ends inside batches).
+        let batches = (self.state_hz * seconds / BATCH_SAMPLES).ceil() + 1.0;
+        SizeEstimate {
+            seconds,
+            bytes: BYTES_FIXED
+                + BYTES_PER_CHUNK * entities * batches
+                + BYTES_PER_SCALAR * scalars
+                + BYTES_PER_LINK_POSE * links * poses,
+        }
     }
 
     /// The rate cap that keeps the replay within [`DEFAULT_REPLAY_BYTES`] (two significant
