@@ -171,34 +171,47 @@ fn return_fraction(c: f64) -> f64 {
     1.0 + c
 }
 
+/// The winding-resistance drift, pooled over the joints (its driving-side form shares its physics).
+const THERMAL_DRIFT: Hypothesis = Hypothesis {
+    id: "thermal",
+    mechanism: "winding-resistance temperature drift",
+    title: "winding-resistance temperature drift",
+    form: "per-joint copper loss × (T − 25 °C)",
+    symbol: "α",
+    unit: "1/K",
+    model_assumes: "the copper loss b_i·Δτ_i² does not depend on motor temperature",
+    raw: (THERMAL, N_JOINTS),
+    combine: Combine::WeightedByBase(N_JOINTS),
+    to_physical: identity,
+    plausible: (0.0005, 0.01),
+};
+
+/// The shared DC-bus loss in the phase current (its electrical-power form shares its physics).
+const BUS_LOSS: Hypothesis = Hypothesis {
+    id: "bus_loss",
+    mechanism: "shared DC-bus loss",
+    title: "shared DC-bus loss ∝ (total drive current)²",
+    form: "phase-current",
+    symbol: "R_bus",
+    unit: "Ω",
+    model_assumes: "joints share no resistive path: there is no loss in the total current",
+    raw: (BUS, 1),
+    combine: Combine::Single,
+    to_physical: identity,
+    plausible: (0.001, 2.0),
+};
+
 /// The power-level hypotheses (extra regressors).
 pub static POWER_HYPOTHESES: [Hypothesis; 10] = [
-    Hypothesis {
-        id: "thermal",
-        mechanism: "winding-resistance temperature drift",
-        title: "winding-resistance temperature drift",
-        form: "per-joint copper loss × (T − 25 °C)",
-        symbol: "α",
-        unit: "1/K",
-        model_assumes: "the copper loss b_i·Δτ_i² does not depend on motor temperature",
-        raw: (THERMAL, N_JOINTS),
-        combine: Combine::WeightedByBase(N_JOINTS),
-        to_physical: identity,
-        plausible: (0.0005, 0.01),
-    },
+    THERMAL_DRIFT,
     Hypothesis {
         id: "thermal_driving",
-        mechanism: "winding-resistance temperature drift",
         title: "winding-resistance temperature drift on the joints that drive",
         form: "driving side only",
-        symbol: "α",
-        unit: "1/K",
         model_assumes: "the copper loss b_i·τ_i² of a driving joint does not depend on its temperature",
         // (T_i − 25 °C)·τ_i² while τ_i q̇_i > 0 (moving), whole τ²: a joint drives only in motion.
         raw: (THERMAL_DRIVING, N_JOINTS),
-        combine: Combine::WeightedByBase(N_JOINTS),
-        to_physical: identity,
-        plausible: (0.0005, 0.01),
+        ..THERMAL_DRIFT
     },
     Hypothesis {
         id: "braking",
@@ -213,19 +226,7 @@ pub static POWER_HYPOTHESES: [Hypothesis; 10] = [
         to_physical: return_fraction,
         plausible: (0.0, 0.98),
     },
-    Hypothesis {
-        id: "bus_loss",
-        mechanism: "shared DC-bus loss",
-        title: "shared DC-bus loss ∝ (total drive current)²",
-        form: "phase-current",
-        symbol: "R_bus",
-        unit: "Ω",
-        model_assumes: "joints share no resistive path: there is no loss in the total current",
-        raw: (BUS, 1),
-        combine: Combine::Single,
-        to_physical: identity,
-        plausible: (0.001, 2.0),
-    },
+    BUS_LOSS,
     Hypothesis {
         id: "gear_friction",
         mechanism: "load-dependent gear friction",
@@ -280,16 +281,12 @@ pub static POWER_HYPOTHESES: [Hypothesis; 10] = [
     },
     Hypothesis {
         id: "bus_power",
-        mechanism: "shared DC-bus loss",
         title: "shared DC-bus loss ∝ (total electrical input power / V_bus)²",
         form: "electrical-power",
-        symbol: "R_bus",
-        unit: "Ω",
         model_assumes: "the drives' shared supply path has no resistance: there is no loss in the bus current P_elec/V_bus",
         raw: (BUS_POWER, 1),
-        combine: Combine::Single,
-        to_physical: identity,
         plausible: (0.001, 50.0),
+        ..BUS_LOSS
     },
     Hypothesis {
         id: "electronics_nm",
