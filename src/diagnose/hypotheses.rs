@@ -49,9 +49,10 @@ const DRIVE_NM: usize = BUS_POWER + 1;
 const DRIVING_CURRENT: usize = DRIVE_NM + 1;
 const DRIVING_TORQUE: usize = DRIVING_CURRENT + 1;
 const THERMAL_DRIVING: usize = DRIVING_TORQUE + 1;
+const DRIVING_COPPER: usize = THERMAL_DRIVING + N_JOINTS;
 
 /// Number of per-sample extra features of the power-level hypotheses.
-pub const N_EXTRA: usize = THERMAL_DRIVING + 1;
+pub const N_EXTRA: usize = DRIVING_COPPER + N_JOINTS;
 
 /// Position in a raw row of the drive current Σ_i |τ_i| / K_i [A] (the drive-electronics
 /// loss's feature), for discovery's loss-term products.
@@ -72,10 +73,9 @@ pub(crate) const RAW_STRIBECK: usize = N_PARAMS + STRIBECK;
 pub(crate) const RAW_BUS_POWER: usize = N_PARAMS + BUS_POWER;
 /// See [`RAW_DRIVING_CURRENT`].
 pub(crate) const RAW_BRAKING: usize = N_PARAMS + BRAKING;
-/// Position in a raw row of the winding-resistance drift on the joints that drive,
-/// Σ_i (T_i − 25 °C)·τ_i² over τ_i q̇_i > 0 (moving): its one-sided form, whole τ² (no pre-idle
-/// reference — a driving joint does not drive at rest).
-pub(crate) const RAW_THERMAL_DRIVING: usize = N_PARAMS + THERMAL_DRIVING;
+/// Position in a raw row of joint 0's τ_i² while it drives (τ_i q̇_i > 0, moving): the copper
+/// loss on the driving side, a temperature drift's form without its temperature.
+pub(crate) const RAW_DRIVING_COPPER: usize = N_PARAMS + DRIVING_COPPER;
 
 /// Speed [rad/s] above which a joint moves (below it, velocity noise decides the sign of τq̇):
 /// a holding joint counts with the braking ones in the driving/braking split.
@@ -96,17 +96,18 @@ pub fn extras_into(s: &Sample, out: &mut [f64; N_EXTRA]) {
     let mut torque = 0.0;
     let mut driving = 0.0;
     let mut driving_nm = 0.0;
-    let mut thermal_driving = 0.0;
     for i in 0..N_JOINTS {
         let p = s.tau[i] * s.dq[i];
         out[THERMAL + i] = (s.temp[i] - T_REF_C) * (s.tau[i] * s.tau[i] - s.tau0_sq[i]);
         out[BRAKING + i] = p.min(0.0);
+        (out[THERMAL_DRIVING + i], out[DRIVING_COPPER + i]) = (0.0, 0.0);
         let amps = s.tau[i].abs() / JOINT_TORQUE_CONSTANT[i];
         current += amps;
         if p > 0.0 && s.dq[i].abs() > MOVING {
             driving += amps;
             driving_nm += s.tau[i].abs();
-            thermal_driving += (s.temp[i] - T_REF_C) * s.tau[i] * s.tau[i];
+            out[DRIVING_COPPER + i] = s.tau[i] * s.tau[i];
+            out[THERMAL_DRIVING + i] = (s.temp[i] - T_REF_C) * out[DRIVING_COPPER + i];
         }
         torque += s.tau[i].abs();
         gear += p.abs();
@@ -122,7 +123,6 @@ pub fn extras_into(s: &Sample, out: &mut [f64; N_EXTRA]) {
     out[DRIVE_NM] = torque;
     out[DRIVING_CURRENT] = driving;
     out[DRIVING_TORQUE] = driving_nm;
-    out[THERMAL_DRIVING] = thermal_driving;
 }
 
 /// How a hypothesis' raw features enter the model.
@@ -171,20 +171,47 @@ fn return_fraction(c: f64) -> f64 {
     1.0 + c
 }
 
+/// The winding-resistance drift, pooled over the joints (its driving-side form shares its physics).
+const THERMAL_DRIFT: Hypothesis = Hypothesis {
+    id: "thermal",
+    mechanism: "winding-resistance temperature drift",
+    title: "winding-resistance temperature drift",
+    form: "per-joint copper loss × (T − 25 °C)",
+    symbol: "α",
+    unit: "1/K",
+    model_assumes: "the copper loss b_i·Δτ_i² does not depend on motor temperature",
+    raw: (THERMAL, N_JOINTS),
+    combine: Combine::WeightedByBase(N_JOINTS),
+    to_physical: identity,
+    plausible: (0.0005, 0.01),
+};
+
+/// The shared DC-bus loss in the phase current (its electrical-power form shares its physics).
+const BUS_LOSS: Hypothesis = Hypothesis {
+    id: "bus_loss",
+    mechanism: "shared DC-bus loss",
+    title: "shared DC-bus loss ∝ (total drive current)²",
+    form: "phase-current",
+    symbol: "R_bus",
+    unit: "Ω",
+    model_assumes: "joints share no resistive path: there is no loss in the total current",
+    raw: (BUS, 1),
+    combine: Combine::Single,
+    to_physical: identity,
+    plausible: (0.001, 2.0),
+};
+
 /// The power-level hypotheses (extra regressors).
-pub static POWER_HYPOTHESES: [Hypothesis; 9] = [
+pub static POWER_HYPOTHESES: [Hypothesis; 10] = [
+    THERMAL_DRIFT,
     Hypothesis {
-        id: "thermal",
-        mechanism: "winding-resistance temperature drift",
-        title: "winding-resistance temperature drift",
-        form: "per-joint copper loss × (T − 25 °C)",
-        symbol: "α",
-        unit: "1/K",
-        model_assumes: "the copper loss b_i·Δτ_i² does not depend on motor temperature",
-        raw: (THERMAL, N_JOINTS),
-        combine: Combine::WeightedByBase(N_JOINTS),
-        to_physical: identity,
-        plausible: (0.0005, 0.01),
+        id: "thermal_driving",
+        title: "winding-resistance temperature drift on the joints that drive",
+        form: "driving side only",
+        model_assumes: "the copper loss b_i·τ_i² of a driving joint does not depend on its temperature",
+        // (T_i − 25 °C)·τ_i² while τ_i q̇_i > 0 (moving), whole τ²: a joint drives only in motion.
+        raw: (THERMAL_DRIVING, N_JOINTS),
+        ..THERMAL_DRIFT
     },
     Hypothesis {
         id: "braking",
@@ -199,19 +226,7 @@ pub static POWER_HYPOTHESES: [Hypothesis; 9] = [
         to_physical: return_fraction,
         plausible: (0.0, 0.98),
     },
-    Hypothesis {
-        id: "bus_loss",
-        mechanism: "shared DC-bus loss",
-        title: "shared DC-bus loss ∝ (total drive current)²",
-        form: "phase-current",
-        symbol: "R_bus",
-        unit: "Ω",
-        model_assumes: "joints share no resistive path: there is no loss in the total current",
-        raw: (BUS, 1),
-        combine: Combine::Single,
-        to_physical: identity,
-        plausible: (0.001, 2.0),
-    },
+    BUS_LOSS,
     Hypothesis {
         id: "gear_friction",
         mechanism: "load-dependent gear friction",
@@ -266,16 +281,12 @@ pub static POWER_HYPOTHESES: [Hypothesis; 9] = [
     },
     Hypothesis {
         id: "bus_power",
-        mechanism: "shared DC-bus loss",
         title: "shared DC-bus loss ∝ (total electrical input power / V_bus)²",
         form: "electrical-power",
-        symbol: "R_bus",
-        unit: "Ω",
         model_assumes: "the drives' shared supply path has no resistance: there is no loss in the bus current P_elec/V_bus",
         raw: (BUS_POWER, 1),
-        combine: Combine::Single,
-        to_physical: identity,
         plausible: (0.001, 50.0),
+        ..BUS_LOSS
     },
     Hypothesis {
         id: "electronics_nm",

@@ -142,11 +142,6 @@ fn mechanism(c: &Option<&'static Hypothesis>) -> &'static str {
     c.map_or(LATENCY_ID, |h| h.mechanism)
 }
 
-/// Form of a candidate in words (empty for latency).
-fn form_words(c: &Option<&'static Hypothesis>) -> String {
-    c.map_or(String::new(), |h| h.form.to_string())
-}
-
 /// Compare the two best forms of every mechanism with more than one form among `scored`; the
 /// forms are confounded when the winner's per-trial margin is not significant at `alpha`.
 fn compare_forms(
@@ -173,7 +168,7 @@ fn compare_forms(
         }
         // `scored` is sorted best first.
         let ((wi, w), (ri, r)) = (forms[0], forms[1]);
-        let words = [form_words(&remaining[wi]), form_words(&remaining[ri])];
+        let words = [wi, ri].map(|i| remaining[i].map_or(String::new(), |h| h.form.to_string()));
         decided.push(versus(data, m.into(), (w, r), words, alpha));
     }
 }
@@ -318,14 +313,9 @@ pub(crate) fn select(
     })
 }
 
-/// [`unname`] on a selection's own forms, claims and first-step scores.
-pub(crate) fn unname_all(sel: &mut Selection) {
-    unname(&mut sel.forms, &mut sel.accepted, &mut sel.first_step);
-}
-
 /// A winner [`super::parsimony`]'s rule locates is not claimed: it leaves
 /// `accepted` (it stays in the model) and its first-step score says why.
-fn unname(
+pub(crate) fn unname(
     forms: &mut [MechanismForms],
     accepted: &mut Vec<HypothesisScore>,
     first_step: &mut [HypothesisScore],

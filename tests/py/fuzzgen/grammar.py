@@ -14,7 +14,7 @@ import numpy as np
 # two ids are forms of one mechanism.
 LIBRARY = {
     "braking": ["braking"], "gear_friction": ["gear_friction"], "electronics": ["electronics_nm", "drive_loss"],
-    "bus": ["bus_power", "bus_loss"], "thermal": ["thermal"], "stribeck": ["stribeck"],
+    "bus": ["bus_power", "bus_loss"], "thermal": ["thermal", "thermal_driving"], "stribeck": ["stribeck"],
     "balance_leak": ["balance_leak"], "latency": ["latency"], "payload": ["payload"],
 }
 ARM = list(range(15, 22))
