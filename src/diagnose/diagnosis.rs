@@ -47,6 +47,39 @@ pub struct SensorWindow {
     pub lag_demanded: bool,
     /// Trials the scan used.
     pub scan_trials: usize,
+    /// Change of the window over the session [s]: from the first scanned trial's start
+    /// (`drift_from_s`, session time) to the last's (`drift_to_s`), linear between, `window_s`
+    /// half-way; 0 when the window holds (see `diagnose/window.rs`).
+    #[serde(default)]
+    pub drift_s: f64,
+    /// Session time where the drift starts [s].
+    #[serde(default)]
+    pub drift_from_s: f64,
+    /// Session time where the drift ends [s].
+    #[serde(default)]
+    pub drift_to_s: f64,
+    /// ΔBIC of the drift against the best constant window on the diagnosed meter.
+    #[serde(default)]
+    pub drift_delta_bic: f64,
+    /// ΔBIC of the same drift against a constant window on the other meter (positive: the
+    /// other meter rejects it).
+    #[serde(default)]
+    pub drift_other_delta_bic: f64,
+    /// The drift is the diagnosed meter's artefact: the other meter rejects it.
+    #[serde(default)]
+    pub drift_artefact: bool,
+}
+
+impl SensorWindow {
+    /// The window [s] of a reading at session time `t` (the drift's line, held beyond its ends).
+    pub fn window_at(&self, t: f64) -> f64 {
+        let span = self.drift_to_s - self.drift_from_s;
+        if self.drift_s == 0.0 || span <= 0.0 {
+            return self.window_s;
+        }
+        let u = ((t - self.drift_from_s) / span).clamp(0.0, 1.0) - 0.5;
+        (self.window_s + self.drift_s * u).max(0.025)
+    }
 }
 
 /// Held-out quality of a model.
