@@ -68,13 +68,6 @@ pub struct SensorWindow {
     /// The drift is the diagnosed meter's artefact: the other meter rejects it.
     #[serde(default)]
     pub drift_artefact: bool,
-    /// The other meter's best window at lag 0 near this one [s] (0 when not compared).
-    #[serde(default)]
-    pub other_window_s: f64,
-    /// ΔBIC of this meter's window against `other_window_s` on the other meter (positive: the
-    /// other meter rejects this meter's timing; a shorter window there demands this meter's lag).
-    #[serde(default)]
-    pub other_delta_bic: f64,
 }
 
 impl SensorWindow {

@@ -130,57 +130,12 @@ pub(crate) fn sensor_window(
     let mut on_other =
         |cands: &[(Alignment, f64)]| fixed_set_scores(rec, &info.other, &metas, &other, cands);
     let (t0, t1) = drift_span(&metas);
-    let sw = drift(judged, &mut drifting, &mut on_other, opts.bic_threshold);
     Ok(SensorWindow {
         scan_trials: metas.len(),
         drift_from_s: t0,
         drift_to_s: t1,
-        ..other_meter(sw, &mut on_other, opts.bic_threshold)
+        ..drift(judged, &mut drifting, &mut on_other, opts.bic_threshold)
     })
-}
-
-/// The other meter's timing (module docs): where it reads the same rail with a shorter window
-/// at lag 0 and rejects this meter's window by the BIC rule, this meter's readings lag its
-/// own: the window is the other meter's and the latency hypothesis judges the lag (a lag
-/// shorter than the scan's resolution is otherwise read as a longer window at lag 0).
-fn other_meter(
-    sw: SensorWindow,
-    other: &mut dyn FnMut(&[(Alignment, f64)]) -> Scores,
-    bic_threshold: f64,
-) -> SensorWindow {
-    if sw.lag_demanded || sw.drift_s != 0.0 {
-        return sw;
-    }
-    let cands: Vec<(Alignment, f64)> = (-8..=4)
-        .map(|k| sw.window_s + k as f64 * 0.5 * STEP)
-        .filter(|&w| w > 0.0)
-        .map(|window_s| {
-            (
-                Alignment {
-                    window_s,
-                    lag_s: 0.0,
-                },
-                0.0,
-            )
-        })
-        .collect();
-    let scored: Vec<(f64, usize, f64)> = (cands.iter().zip(other(&cands)))
-        .filter_map(|(c, s)| s.map(|(n, r2)| (c.0.window_s, n, r2)))
-        .collect();
-    let own = scored.iter().find(|s| (s.0 - sw.window_s).abs() < 1e-9);
-    let best = scored.iter().max_by(|a, b| a.2.total_cmp(&b.2));
-    let (Some(&(_, n, r2_own)), Some(&(w, _, r2))) = (own, best) else {
-        return sw;
-    };
-    let delta_bic = n as f64 * ((1.0 - r2_own).max(1e-300) / (1.0 - r2).max(1e-300)).ln();
-    let lagged = w < sw.window_s && delta_bic > -bic_threshold;
-    SensorWindow {
-        window_s: if lagged { w } else { sw.window_s },
-        lag_demanded: lagged,
-        other_window_s: w,
-        other_delta_bic: delta_bic,
-        ..sw
-    }
 }
 
 /// `metas` with each trial's window where the window drifts (one truth across stages: every
