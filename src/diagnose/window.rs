@@ -433,9 +433,11 @@ fn fixed_set_scores(
         rows.clear();
         for (cand, &(a, d)) in cands.iter().enumerate() {
             // A drifting window at this trial, held inside the fixed reading set's reach.
-            let a = Alignment {
-                window_s: (a.window_s + d * u).clamp(STEP, FIXED_SET_S),
-                ..a
+            let window_s = (a.window_s + d * u).clamp(STEP, FIXED_SET_S);
+            let a = if d == 0.0 {
+                a
+            } else {
+                Alignment { window_s, ..a }
             };
             let mut base = w.baseline_readings(&power.t, a.lag_s, a.window_s);
             if !base.any(|k| power.watts.get(k).is_some_and(|v| v.is_finite())) {
