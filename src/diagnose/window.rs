@@ -161,6 +161,9 @@ fn drift_span(metas: &[TrialMeta]) -> (f64, f64) {
     (t(metas.first()), t(metas.last()))
 }
 
+/// Scores of alignments, each with a window change over the session (a drift, [s]).
+type Drifting<'a> = dyn FnMut(&[(Alignment, f64)]) -> Scores + 'a;
+
 /// Window changes over the session the drift scan tries [s] (both signs).
 const DRIFTS: [f64; 7] = [0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.6];
 
@@ -169,8 +172,8 @@ const DRIFTS: [f64; 7] = [0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.6];
 /// whether the other meter (`other`) rejects that drift (an artefact of the diagnosed meter).
 fn drift(
     sw: SensorWindow,
-    score: &mut dyn FnMut(&[(Alignment, f64)]) -> Scores,
-    other: &mut dyn FnMut(&[(Alignment, f64)]) -> Scores,
+    score: &mut Drifting<'_>,
+    other: &mut Drifting<'_>,
     bic_threshold: f64,
 ) -> SensorWindow {
     let lag_s = if sw.lag_demanded { sw.scan_lag_s } else { 0.0 };
