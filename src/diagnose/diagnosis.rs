@@ -14,15 +14,16 @@ use super::{
 /// Version of the `diagnosis.json` layout.
 pub const SCHEMA_VERSION: u32 = 1;
 
-/// The power sensor's averaging window the diagnosis used.
+/// The power sensor's averaging window the diagnosis used (a field missing from an older file
+/// reads as its default).
 #[derive(Debug, Clone, Copy, Default, serde::Serialize, serde::Deserialize)]
+#[serde(default)]
 pub struct SensorWindow {
     /// Window W [s].
     pub window_s: f64,
     /// Estimated from the data (true) or given (false).
     pub estimated: bool,
     /// W of the best (W, lag ≥ 0) point of the alignment scan [s] (0 when W was given).
-    #[serde(default)]
     pub scan_window_s: f64,
     /// Lag of that point [s] (the latency hypothesis judges a lag; this is only the scan's
     /// by-product). 0 when W was given.
@@ -33,20 +34,44 @@ pub struct SensorWindow {
     /// ΔBIC of freeing W against the nominal 0.2 s window at the same window centre (negative
     /// favours the free W; the nominal window is kept unless it beats the diagnosis' BIC
     /// threshold). 0 when W was given.
-    #[serde(default)]
     pub window_delta_bic: f64,
     /// ΔBIC of freeing the lag against the best window at lag 0 near the same window centre
     /// (negative favours the lag; used only when the nominal window is rejected). 0 when W was
     /// given or the scan's best lag is 0.
-    #[serde(default)]
     pub lag_delta_bic: f64,
     /// Whether a lagged point of the scan beats every window it scored at lag 0 (see
     /// `diagnose/window.rs`); only then may the latency hypothesis be claimed. True when W was
     /// given (the latency hypothesis alone judges the lag).
-    #[serde(default)]
     pub lag_demanded: bool,
     /// Trials the scan used.
     pub scan_trials: usize,
+    /// Change of the window over the session [s]: from the first scanned trial's start
+    /// (`drift_from_s`, session time) to the last's (`drift_to_s`), linear between, `window_s`
+    /// half-way; 0 when the window holds (see `diagnose/window.rs`).
+    pub drift_s: f64,
+    /// Session time where the drift starts [s].
+    pub drift_from_s: f64,
+    /// Session time where the drift ends [s].
+    pub drift_to_s: f64,
+    /// ΔBIC of the drift against the best constant window on the diagnosed meter.
+    pub drift_delta_bic: f64,
+    /// ΔBIC of the same drift against a constant window on the other meter (positive: the
+    /// other meter rejects it).
+    pub drift_other_delta_bic: f64,
+    /// The drift is the diagnosed meter's artefact: the other meter rejects it.
+    pub drift_artefact: bool,
+}
+
+impl SensorWindow {
+    /// The window [s] of a reading at session time `t` (the drift's line, held beyond its ends).
+    pub fn window_at(&self, t: f64) -> f64 {
+        let span = self.drift_to_s - self.drift_from_s;
+        if self.drift_s == 0.0 || span <= 0.0 {
+            return self.window_s;
+        }
+        let u = ((t - self.drift_from_s) / span).clamp(0.0, 1.0) - 0.5;
+        (self.window_s + self.drift_s * u).max(0.025)
+    }
 }
 
 /// Held-out quality of a model.

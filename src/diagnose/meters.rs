@@ -117,7 +117,8 @@ impl MeterCheck {
     }
 }
 
-fn meter_name(t: Target) -> &'static str {
+/// The meter's name in the report's sentences.
+pub(crate) fn meter_name(t: Target) -> &'static str {
     match t {
         Target::Mbs => "main-board",
         Target::Bms => "battery",
@@ -147,7 +148,7 @@ pub(crate) fn per_trial(
     metas
         .iter()
         .map(|m| {
-            let rest = mean(baseline_readings(&p.t, &m.window, lag, w));
+            let rest = mean(baseline_readings(&p.t, m, lag, w));
             let a = p.t.partition_point(|&x| x < m.window.t_traj_start + w);
             let b = p.t.partition_point(|&x| x < m.window.t_return_end + 1e-9);
             (rest, mean(a..b.max(a)) - rest)

@@ -319,6 +319,7 @@ fn run(
     }
     stage(2, "estimating the sensor window");
     let sensor = sensor_window(info, samples, &all_metas, opts)?;
+    let all_metas = window::with_widths(all_metas, &sensor);
     let w = sensor.window_s;
     let resolved = DiagnoseOptions {
         sensor_window_s: Some(w),

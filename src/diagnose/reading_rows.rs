@@ -41,6 +41,9 @@ pub(crate) struct TrialMeta {
     /// Joint-state samples from the pre-idle start to the return end (the torque level's
     /// thinning counts them).
     pub n_samples: usize,
+    /// The sensor window of this trial's readings where it drifts over the session (the
+    /// window stage's correction, [`super::SensorWindow::window_at`]); `None`: the session's.
+    pub width_s: Option<f64>,
 }
 
 /// Trials that cannot be used, each with its position and the reason (e.g. no pre-idle).
@@ -207,6 +210,7 @@ pub(crate) fn trial_meta(
             sigma_omega,
             bus,
             n_samples,
+            width_s: None,
         });
     }
     (out, skipped)
@@ -356,11 +360,11 @@ impl TrialFeatures {
 /// uses too ([`TrialWindow::baseline_readings`]), for every stage that reads a trial's rest power.
 pub(crate) fn baseline_readings(
     pt: &[f64],
-    w: &TrialWindow,
+    m: &TrialMeta,
     lag: f64,
     width: f64,
 ) -> std::ops::Range<usize> {
-    w.baseline_readings(pt, lag, width)
+    (m.window).baseline_readings(pt, lag, m.width_s.unwrap_or(width))
 }
 
 /// Build the rows for one sensor lag. Readings are assigned to trials by their stamps:
@@ -409,7 +413,8 @@ pub(crate) fn trial_rows_into(
     let mut x = [0.0; N_RAW];
     let mut loc = [0.0; N_LOCATE];
     let w = &meta.window;
-    let base = baseline_readings(pt, w, lag, width);
+    let width = meta.width_s.unwrap_or(width);
+    let base = baseline_readings(pt, meta, lag, width);
     let vals: Vec<f64> = base
         .filter_map(|k| power.watts.get(k).copied())
         .filter(|v| v.is_finite())

@@ -187,7 +187,7 @@ pub(crate) fn run_fields(
     let mut base_power = vec![f64::NAN; metas.len()];
     for (ti, m) in metas.iter().enumerate() {
         let (mut sum, mut n) = (0.0, 0usize);
-        for k in super::reading_rows::baseline_readings(&power.t, &m.window, lag, w) {
+        for k in super::reading_rows::baseline_readings(&power.t, m, lag, w) {
             if let Some(&v) = power.watts.get(k).filter(|v| v.is_finite()) {
                 all.push((window(power.t[k]), rows.len() + ti));
                 sum += v;

@@ -272,6 +272,27 @@ fn sensor_lines(d: &Diagnosis, s: &mut String) {
             }
         );
     }
+    if sw.drift_s != 0.0 {
+        let _ = writeln!(
+            s,
+            "{}: the {} meter's averaging window drifts over the session, {:.3} s → {:.3} s (ΔBIC = {:.1} against one window; on the other meter {:+.1}: {}); corrected: every stage reads each trial at its own window.",
+            if sw.drift_artefact {
+                "Meter artefact"
+            } else {
+                "Located"
+            },
+            super::meters::meter_name(d.target),
+            sw.window_at(sw.drift_from_s),
+            sw.window_at(sw.drift_to_s),
+            sw.drift_delta_bic,
+            sw.drift_other_delta_bic,
+            if sw.drift_artefact {
+                "it rejects the drift, so it is this meter's"
+            } else {
+                "it does not reject the drift: meter or the arm's clock, not decided"
+            }
+        );
+    }
     if let Some(best) = d
         .lag_scan
         .iter()

@@ -32,6 +32,16 @@
 //! judge the sensor's timing by the model's misfit (a 0.3 s window beside a DC-bus loss read as
 //! 0.2 s + a 0.05 s latency, fuzz seed 1213589933).
 //!
+//! A window can drift over the session (a meter whose averaging lengthens as it warms): with the
+//! window judged, windows changing linearly from the first scanned trial to the last (±0.05 …
+//! ±0.6 s, at the judged window ± 2 fine steps half-way) are scored on the same readings; a
+//! drift is kept where it beats the best constant window by the BIC rule (one more parameter).
+//! Every later stage then reads each trial at its own window (`TrialMeta::width_s`). The other
+//! meter of the rail decides whose it is: scored with the same drift against a constant window,
+//! if it rejects the drift (ΔBIC > −threshold) the drift is the diagnosed meter's artefact
+//! (claimed, "Meter artefact: …"); otherwise it is located (a drifting clock of the arm would
+//! show on both meters).
+//!
 //! Candidates are compared on one set of readings (stamps at least the largest scanned window
 //! after the trajectory start) with one target (net of the pre-idle baseline at the nominal
 //! window), over the IMU-kept trials without those the diagnosis' residual passes reject: one
@@ -96,7 +106,9 @@ pub(crate) fn sensor_window(
     let all_rows = build_rows(rec, power, &metas, 0.0, nominal.window_s, false);
     let metas = without_outliers(metas, all_rows, opts)?;
     let reference = build_rows(rec, power, &metas, 0.0, nominal.window_s, false);
-    let mut score = |cands: &[Alignment]| fixed_set_scores(rec, power, &metas, &reference, cands);
+    let mut drifting =
+        |cands: &[(Alignment, f64)]| fixed_set_scores(rec, power, &metas, &reference, cands);
+    let mut score = |cands: &[Alignment]| drifting(&still(cands));
     let grid = ScanGrid {
         windows: &WINDOWS,
         lags: &LAGS,
@@ -113,10 +125,117 @@ pub(crate) fn sensor_window(
             metas.len()
         )
     })?;
+    let judged = judge(&est, &mut score, opts.bic_threshold);
+    let other = build_rows(rec, &info.other, &metas, 0.0, nominal.window_s, false);
+    let mut on_other =
+        |cands: &[(Alignment, f64)]| fixed_set_scores(rec, &info.other, &metas, &other, cands);
+    let (t0, t1) = drift_span(&metas);
     Ok(SensorWindow {
         scan_trials: metas.len(),
-        ..judge(&est, &mut score, opts.bic_threshold)
+        drift_from_s: t0,
+        drift_to_s: t1,
+        ..drift(judged, &mut drifting, &mut on_other, opts.bic_threshold)
     })
+}
+
+/// `metas` with each trial's window where the window drifts (one truth across stages: every
+/// later stage builds the trial's rows and baseline at it).
+pub(crate) fn with_widths(mut metas: Vec<TrialMeta>, sw: &SensorWindow) -> Vec<TrialMeta> {
+    if sw.drift_s != 0.0 {
+        for m in &mut metas {
+            m.width_s = Some(sw.window_at(m.window.t_traj_start));
+        }
+    }
+    metas
+}
+
+/// Alignments without a drift.
+fn still(cands: &[Alignment]) -> Vec<(Alignment, f64)> {
+    cands.iter().map(|&a| (a, 0.0)).collect()
+}
+
+/// Session times of the first and last trajectory start of `metas`: the span a window drift is
+/// fitted over (linear between, held beyond).
+fn drift_span(metas: &[TrialMeta]) -> (f64, f64) {
+    let t = |m: Option<&TrialMeta>| m.map_or(0.0, |m| m.window.t_traj_start);
+    (t(metas.first()), t(metas.last()))
+}
+
+/// Scores of alignments, each with a window change over the session (a drift, [s]).
+type Drifting<'a> = dyn FnMut(&[(Alignment, f64)]) -> Scores + 'a;
+
+/// Window changes over the session the drift scan tries [s] (both signs).
+const DRIFTS: [f64; 7] = [0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.6];
+
+/// A window that drifts over the session (module docs): `sw` with its drift where one beats the
+/// best constant window near `sw`'s by the BIC rule on the diagnosed meter (`score`), and
+/// whether the other meter (`other`) rejects that drift (an artefact of the diagnosed meter).
+fn drift(
+    sw: SensorWindow,
+    score: &mut Drifting<'_>,
+    other: &mut Drifting<'_>,
+    bic_threshold: f64,
+) -> SensorWindow {
+    let lag_s = if sw.lag_demanded { sw.scan_lag_s } else { 0.0 };
+    let at = |window_s: f64, d: f64| {
+        (
+            Alignment {
+                window_s: window_s.max(STEP),
+                lag_s,
+            },
+            d,
+        )
+    };
+    let grid = |w: f64, ds: &[f64], k: i32| -> Vec<(Alignment, f64)> {
+        let ws = (-k..=k).map(|i| w + i as f64 * STEP);
+        ws.flat_map(|w| ds.iter().map(move |&d| at(w, d))).collect()
+    };
+    let best = |cands: &[(Alignment, f64)], scores: &Scores, moving: bool| {
+        (cands.iter().zip(scores))
+            .filter(|(c, _)| (c.1 != 0.0) == moving)
+            .filter_map(|(c, s)| s.map(|(n, r2)| (*c, n, r2)))
+            .max_by(|a, b| a.2.total_cmp(&b.2))
+    };
+    let mut ds: Vec<f64> = DRIFTS.iter().flat_map(|&d| [d, -d]).collect();
+    ds.push(0.0);
+    let cands = grid(sw.window_s, &ds, 2);
+    let scores = score(&cands);
+    let (Some(still), Some(coarse)) = (best(&cands, &scores, false), best(&cands, &scores, true))
+    else {
+        return sw;
+    };
+    // Finer around the best drift.
+    let d = coarse.0.1;
+    let fine = grid(coarse.0.0.window_s, &[d - 0.025, d, d + 0.025], 1);
+    let fine: Vec<_> = fine.into_iter().filter(|c| c.1 != 0.0).collect();
+    let moving = best(&fine, &score(&fine), true)
+        .map_or(coarse, |f| if f.2 > coarse.2 { f } else { coarse });
+    let ratio = |a: f64, b: f64| ((1.0 - a).max(1e-300) / (1.0 - b).max(1e-300)).ln();
+    let n = moving.1 as f64;
+    let delta_bic = n * ratio(moving.2, still.2) + n.ln();
+    if delta_bic >= bic_threshold {
+        return SensorWindow {
+            drift_delta_bic: delta_bic,
+            ..sw
+        };
+    }
+    // The other meter: the same drift against a constant window, each at its best window near
+    // the diagnosed meter's.
+    let (w, d) = (moving.0.0.window_s, moving.0.1);
+    let cands = grid(w, &[0.0, d], 4);
+    let scores = other(&cands);
+    let other_delta_bic = match (best(&cands, &scores, true), best(&cands, &scores, false)) {
+        (Some(m), Some(s)) => m.1 as f64 * ratio(m.2, s.2),
+        _ => 0.0,
+    };
+    SensorWindow {
+        window_s: w,
+        drift_s: d,
+        drift_delta_bic: delta_bic,
+        drift_other_delta_bic: other_delta_bic,
+        drift_artefact: other_delta_bic > -bic_threshold,
+        ..sw
+    }
 }
 
 /// The window and whether a lag is demanded, judged from the scan `est` (`score`: alignments'
@@ -221,7 +340,7 @@ fn judge(
         },
         lag_delta_bic,
         lag_demanded,
-        scan_trials: 0,
+        ..SensorWindow::default()
     }
 }
 
@@ -305,15 +424,24 @@ fn fixed_set_scores(
     power: &PowerSeries,
     metas: &[TrialMeta],
     reference: &Rows,
-    cands: &[Alignment],
+    cands: &[(Alignment, f64)],
 ) -> Scores {
     let mut fits = SearchFits::<N_RAW>::new(cands.len());
     let (mut rows, mut first) = (Vec::new(), 0);
+    let (t0, t1) = drift_span(metas);
     for (ti, meta) in metas.iter().enumerate() {
         let w = &meta.window;
         let end = first + reference.trial[first..].partition_point(|&t| t == ti);
+        let u = ((w.t_traj_start - t0) / (t1 - t0).max(1e-9)).clamp(0.0, 1.0) - 0.5;
         rows.clear();
-        for (cand, a) in cands.iter().enumerate() {
+        for (cand, &(a, d)) in cands.iter().enumerate() {
+            // A drifting window at this trial, held inside the fixed reading set's reach.
+            let window_s = (a.window_s + d * u).clamp(STEP, FIXED_SET_S);
+            let a = if d == 0.0 {
+                a
+            } else {
+                Alignment { window_s, ..a }
+            };
             let mut base = w.baseline_readings(&power.t, a.lag_s, a.window_s);
             if !base.any(|k| power.watts.get(k).is_some_and(|v| v.is_finite())) {
                 continue;
@@ -356,7 +484,7 @@ mod tests {
         let cands: Vec<Alignment> = [(0.2, 0.0), (0.5, 0.1), (0.05, 0.3), (1.0, 1.0), (1.5, 0.0)]
             .map(|(window_s, lag_s)| Alignment { window_s, lag_s })
             .to_vec();
-        let got = fixed_set_scores(&rec, &rec.mbs, &metas, &reference, &cands);
+        let got = fixed_set_scores(&rec, &rec.mbs, &metas, &reference, &still(&cands));
         for (a, got) in cands.iter().zip(got) {
             let rows = build_rows(&rec, &rec.mbs, &metas, a.lag_s, a.window_s, false);
             let mut gram = crate::lsq::Gram::zeros(N_RAW);

@@ -34,6 +34,11 @@ def claims(d):
     m = disc.get("meter_drift")
     if m:
         out.append({"kind": "meter", "id": None, "name": m.get("name", ""), "fields": []})
+    # a sensor window that drifts over the session, claimed as one meter's artefact (the
+    # summary's "Meter artefact: the … meter's averaging window drifts")
+    for line in d.get("summary", "").splitlines():
+        if line.startswith("Meter artefact:"):
+            out.append({"kind": "meter", "id": None, "name": line[len("Meter artefact:"):], "fields": []})
     rest = disc.get("rest") or []
     for r in [rest] if isinstance(rest, dict) else rest:  # one rest-power stage: an object
         for t in r.get("found", []):
@@ -64,6 +69,10 @@ def locations(d):
     if disc.get("meter_located"):
         m = disc["meter_located"]
         out.append({"kind": "meter", "id": None, "name": m.get("name", ""), "fields": list(m.get("fields", []))})
+    # a drifting sensor window the other meter cannot attribute (the summary's "Located: …")
+    for line in d.get("summary", "").splitlines():
+        if line.startswith("Located:") and "averaging window drifts" in line:
+            out.append({"kind": "meter", "id": None, "name": line[len("Located:"):], "fields": []})
     return out
 
 
