@@ -255,7 +255,7 @@ pub(super) fn generate(
         let flow = inp.meter_flows.contains(&names[f]);
         if flow || r.abs() >= METER_CORRELATION {
             usable[f] = false;
-            sags[f] = !flow && r < 0.0;
+            sags[f] = !flow && falls[f];
             if single[f] {
                 meters.push(format!("{} (r = {r:+.2})", names[f]));
             }
