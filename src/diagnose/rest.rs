@@ -250,7 +250,7 @@ impl Search<'_> {
         let df = self.y.len() as f64 - q.len() as f64 - 1.0;
         let sq = |e: &[f64]| e.iter().map(|v| v * v).collect::<Vec<_>>();
         let centred = residual(&self.drift[..1], x);
-        if !(xx > 1e-9 * dot(&centred, &centred)) || df < 1.0 {
+        if xx.is_nan() || xx <= 1e-9 * dot(&centred, &centred) || df < 1.0 {
             return (1.0, sq(&e0), sq(&e0));
         }
         let t = xe / (dot(&e1, &e1) / df * xx).sqrt();
