@@ -294,21 +294,34 @@ pub(crate) fn screen(
     keep
 }
 
-/// Sum of squares of `e` explained by least squares on `cols` (0 when they are degenerate).
+/// Sum of squares of `e` explained by least squares on `cols`.
 fn explained(cols: &[Vec<f64>], e: &[f64]) -> f64 {
-    let q = cols.len();
-    let mut g = nalgebra::DMatrix::<f64>::zeros(q, q);
-    let mut h = nalgebra::DVector::<f64>::zeros(q);
-    for (a, ca) in cols.iter().enumerate() {
-        h[a] = ca.iter().zip(e).map(|(x, y)| x * y).sum();
-        for (b, cb) in cols.iter().enumerate() {
-            g[(a, b)] = ca.iter().zip(cb).map(|(x, y)| x * y).sum();
-        }
+    let mut q = Vec::new();
+    cols.iter().for_each(|c| orthonormal_add(&mut q, c));
+    q.iter().map(|c| dot(c, e).powi(2)).sum()
+}
+
+pub(crate) fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// `x` less its projection on the orthonormal columns `q`.
+pub(crate) fn residual(q: &[Vec<f64>], x: &[f64]) -> Vec<f64> {
+    let mut r = x.to_vec();
+    for c in q {
+        let k = dot(c, &r);
+        r.iter_mut().zip(c).for_each(|(v, u)| *v -= k * u);
     }
-    crate::lsq::solve_normal(&g, &h, 1e-9)
-        .map(|beta| beta.dot(&h))
-        .filter(|v| v.is_finite())
-        .unwrap_or(0.0)
+    r
+}
+
+/// Adds `x` to the orthonormal columns `q` (Gram–Schmidt) unless it lies in their span.
+pub(crate) fn orthonormal_add(q: &mut Vec<Vec<f64>>, x: &[f64]) {
+    let r = residual(q, x);
+    let norm = dot(&r, &r).sqrt();
+    if norm > 1e-9 * dot(x, x).sqrt() {
+        q.push(r.iter().map(|v| v / norm).collect());
+    }
 }
 
 /// Weights of the weighted Holm correction, per generated candidate (`screened[i]`: a screened

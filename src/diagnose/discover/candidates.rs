@@ -10,6 +10,9 @@ use crate::diagnose::stats::{pearson, span, step_threshold};
 
 /// Correlation with the readings above which a field counts as a meter of the power itself.
 pub(super) const METER_CORRELATION: f64 = 0.5;
+/// Significance at which a field falling as the readings rise is a sag of the supply, left out
+/// of the rest power's candidates.
+const SAG_P: f64 = 1e-3;
 
 /// Within-trial share of a field's variance below which it is a slow state signal.
 pub(super) const SLOW_SHARE: f64 = 0.1;
@@ -233,8 +236,10 @@ pub(super) fn generate(
     let rv = RowValues::new(inp, rows);
     let mut meters = Vec::new();
     let mut usable = vec![true; names.len()];
-    // Meters that fall as the power rises: a supply sagging under the load.
+    // Meters that fall as the power rises: a supply sagging under the load; `falls`: any field
+    // that does so significantly (at rest it reads the rest load, it does not cause it).
     let mut sags = vec![false; names.len()];
+    let mut falls = vec![false; names.len()];
     let single: Vec<bool> = (0..names.len())
         .map(|f| !inp.fields.duplicate.get(f).copied().unwrap_or(false))
         .collect();
@@ -242,14 +247,15 @@ pub(super) fn generate(
         let net: Vec<f64> = (0..rows.len())
             .map(|r| rv.raw[f][r] - rv.baseline[f][r])
             .collect();
-        let (r, _) = pearson(&net, &rows.y);
+        let (r, p) = pearson(&net, &rows.y);
+        falls[f] = r < 0.0 && p < SAG_P;
         // A current meter of the rail is left out whatever its correlation: sampled on its own
         // clock, or beside a large unmodelled effect, it can track the readings loosely and
         // still follow every residual the rail carries.
         let flow = inp.meter_flows.contains(&names[f]);
         if flow || r.abs() >= METER_CORRELATION {
             usable[f] = false;
-            sags[f] = !flow && r < 0.0;
+            sags[f] = !flow && falls[f];
             if single[f] {
                 meters.push(format!("{} (r = {r:+.2})", names[f]));
             }
@@ -337,7 +343,9 @@ pub(super) fn generate(
             family: family_of(&kinds[i].0),
         })
         .collect();
-    let tried: Vec<bool> = (0..names.len()).map(|f| usable[f] && single[f]).collect();
+    let tried: Vec<bool> = (0..names.len())
+        .map(|f| usable[f] && single[f] && !falls[f])
+        .collect();
     (cands, rv, tried, m, fam_total)
 }
 
