@@ -678,12 +678,13 @@ fn rest_section(md: &mut String, r: &super::RestPower) {
         md,
         "### Rest power
 
-Each trial's pre-idle power (mean {:.2} W; the net-power model subtracts it, so a load that changes between trials never reaches it) against every field above at rest and session time: {} candidates, {} trials in {} blocks of {} (held out by block), Holm. Held-out RMSE {:.3} → {:.3} W.\n",
+Each trial's pre-idle power (mean {:.2} W; the net-power model subtracts it, so a load that changes between trials never reaches it) against every field above at rest, each in discovery's shapes: {} candidates, {} trials in {} blocks of {} (held out by block), each tested beside the rail's drift (piecewise linear over every {} trials), Holm. Held-out RMSE {:.3} → {:.3} W.\n",
         r.mean_w,
         r.n_candidates,
         r.n_trials,
         r.n_blocks,
         r.block_trials(),
+        super::rest::DRIFT_TRIALS,
         r.rmse_before_w,
         r.rmse_after_w
     );

@@ -8,7 +8,7 @@
 //! gates: held-out improvement, Holm over every candidate, BIC and a minimum gain. The rest
 //! power drifts slowly, so neighbouring trials are not independent: the folds are contiguous
 //! blocks of trials, and the test is of what a candidate adds beside the drift, fitted
-//! piecewise linear in time over every [`MIN_BLOCK_TRIALS`] trials (a step or a switching
+//! piecewise linear in time over every [`DRIFT_TRIALS`] trials (a step or a switching
 //! field is seen where it changes, a field that only follows the clock cannot be told from
 //! the drift). A field that falls as the power rises (a supply sagging under the load) reads
 //! the rest load and is not a candidate.
@@ -27,7 +27,7 @@ const BLOCK_TRIALS: usize = 20;
 /// Fewest trials per block (≈ 1 minute of the protocol).
 const MIN_BLOCK_TRIALS: usize = 4;
 /// Trials per segment of the rail's drift (≈ 2 minutes of the protocol).
-const DRIFT_TRIALS: usize = 8;
+pub(crate) const DRIFT_TRIALS: usize = 8;
 /// Cross-validation folds (blocks assigned round-robin).
 const FOLDS: usize = 10;
 /// Most terms found on the rest power.

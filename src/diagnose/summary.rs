@@ -628,7 +628,7 @@ fn rest_found(r: &super::RestPower, s: &mut String) {
         };
         let _ = writeln!(
             s,
-            "Rest power (each trial's pre-idle mean, {:.1} W on average, which the net-power model subtracts): {}; {} with {}; held-out RMSE over {} trials {:.3} → {:.3} W (p = {:.1e} < {:.1e} by blocks of {} trials{}).{ties}",
+            "Rest power (each trial's pre-idle mean, {:.1} W on average, which the net-power model subtracts): {}; {} with {}; held-out RMSE over {} trials {:.3} → {:.3} W (held out by blocks of {} trials; p = {:.1e} < {:.1e} beside the rail's drift, piecewise linear over every {} trials{}).{ties}",
             r.mean_w,
             t.name,
             t.form,
@@ -636,9 +636,10 @@ fn rest_found(r: &super::RestPower, s: &mut String) {
             r.n_trials,
             r.rmse_before_w,
             r.rmse_after_w,
+            r.block_trials(),
             t.p_value,
             t.alpha,
-            r.block_trials(),
+            super::rest::DRIFT_TRIALS,
             held(t.stability)
         );
         meter_line(t.meter.as_ref(), s);
