@@ -452,14 +452,12 @@ fn independent_generator_suite_is_diagnosed_as_the_readme_says() {
         "{fans:?}"
     );
     common::assert_figure(PAGE, "14 rest-power ΔP [W]", fans[0].1, "5");
-    // Named beside it: the other fan and the board temperatures (docs/diagnosis-results.md).
+    // Named beside it: the other fan (docs/diagnosis-results.md); the board temperatures, which
+    // rise with the fans but also with the session, are not told from the rail's drift.
     let tied = &fans[0].2;
     assert!(
         tied.iter()
-            .any(|f| f.starts_with("/lf/mainboardstate.fan_state["))
-            && tied
-                .iter()
-                .any(|f| f.starts_with("/lf/mainboardstate.temperature[")),
+            .any(|f| f.starts_with("/lf/mainboardstate.fan_state[")),
         "{tied:?}"
     );
     // The grease: the viscous loss, falling as a housing temperature rises (docs/diagnosis-results.md).
