@@ -128,6 +128,7 @@ pub fn sections(d: &Diagnosis) -> [(&'static str, String); 4] {
         left_out(r, &mut support);
     }
     let mut located_ = String::new();
+    window_drift(d, &mut found, &mut located_);
     located(d, &mut located_);
     unnamed_lines(d, &mut located_);
     implausible_lines(d, &mut located_);
@@ -253,25 +254,11 @@ fn implausible_lines(d: &Diagnosis, s: &mut String) {
     }
 }
 
-/// The estimated sensor window and the base model's best sensor lag.
-fn sensor_lines(d: &Diagnosis, s: &mut String) {
+/// A sensor window that drifts over the session ([`super::window`]): in *Found* when the other
+/// meter rejects the drift (this meter's artefact, corrected), else in *Located*.
+fn window_drift(d: &Diagnosis, found: &mut String, located: &mut String) {
     let sw = &d.sensor_window;
-    if sw.estimated {
-        let _ = writeln!(
-            s,
-            "Sensor window: each reading averages the {:.3} s before its stamp (estimated from {} trials by the (W, lag) alignment scan; best point W {:.3} s, lag {:.3} s, R² = {:.3}; {}).",
-            sw.window_s,
-            sw.scan_trials,
-            sw.scan_window_s,
-            sw.scan_lag_s,
-            sw.scan_r2,
-            if sw.lag_demanded {
-                "a lag beats every window at lag 0: the latency hypothesis judges it"
-            } else {
-                "no lag beats every window at lag 0: no latency is claimed"
-            }
-        );
-    }
+    let s = if sw.drift_artefact { found } else { located };
     if sw.drift_s != 0.0 {
         let _ = writeln!(
             s,
@@ -290,6 +277,32 @@ fn sensor_lines(d: &Diagnosis, s: &mut String) {
                 "it rejects the drift, so it is this meter's"
             } else {
                 "it does not reject the drift: meter or the arm's clock, not decided"
+            }
+        );
+    }
+}
+
+/// The estimated sensor window and the base model's best sensor lag.
+fn sensor_lines(d: &Diagnosis, s: &mut String) {
+    let sw = &d.sensor_window;
+    if sw.estimated {
+        let _ = writeln!(
+            s,
+            "Sensor window: each reading averages the {:.3} s before its stamp{} (estimated from {} trials by the (W, lag) alignment scan; best point W {:.3} s, lag {:.3} s, R² = {:.3}; {}).",
+            sw.window_s,
+            if sw.drift_s != 0.0 {
+                ", mid-session"
+            } else {
+                ""
+            },
+            sw.scan_trials,
+            sw.scan_window_s,
+            sw.scan_lag_s,
+            sw.scan_r2,
+            if sw.lag_demanded {
+                "a lag beats every window at lag 0: the latency hypothesis judges it"
+            } else {
+                "no lag beats every window at lag 0: no latency is claimed"
             }
         );
     }
