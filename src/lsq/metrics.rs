@@ -37,44 +37,19 @@ pub struct Metrics {
 }
 
 impl Metrics {
-    /// Compute the metrics of `yhat` against `y`. Uses the first min(len) pairs if the lengths differ
-    /// (callers pass equal lengths); everything is NaN when there are no rows.
+    /// Compute the metrics of `yhat` against `y` ([`MetricsAccumulator`] over the pairs). Uses
+    /// the first min(len) pairs if the lengths differ (callers pass equal lengths); everything is
+    /// NaN when there are no rows.
     pub fn compute(y: &[f64], yhat: &[f64]) -> Metrics {
-        let n = y.len().min(yhat.len());
-        let nf = n as f64;
-        let pairs = || y.iter().zip(yhat).take(n);
-        let mean_y = pairs().map(|(y, _)| y).sum::<f64>() / nf;
-        let mean_e = pairs().map(|(y, p)| y - p).sum::<f64>() / nf;
-        let (mut ss_res, mut ss_tot, mut abs_sum) = (0.0, 0.0, 0.0);
-        let (mut m2, mut m3, mut m4) = (0.0, 0.0, 0.0);
-        for (y, p) in pairs() {
-            let e = y - p;
-            ss_res += e * e;
-            ss_tot += (y - mean_y) * (y - mean_y);
-            abs_sum += e.abs();
-            let d = e - mean_e;
-            m2 += d * d;
-            m3 += d * d * d;
-            m4 += d * d * d * d;
-        }
-        let (m2, m3, m4) = (m2 / nf, m3 / nf, m4 / nf);
-        let nan_if_zero = |den: f64, v: f64| if den > 0.0 { v } else { f64::NAN };
-        Metrics {
-            n,
-            r2: nan_if_zero(ss_tot, 1.0 - ss_res / ss_tot),
-            rmse: (ss_res / nf).sqrt(),
-            mae: abs_sum / nf,
-            bias: -mean_e,
-            skewness: nan_if_zero(m2, m3 / m2.powf(1.5)),
-            kurtosis: nan_if_zero(m2, m4 / (m2 * m2)),
-        }
+        let mut acc = MetricsAccumulator::default();
+        y.iter().zip(yhat).for_each(|(&y, &p)| acc.add(y, p));
+        acc.finish()
     }
 }
 
 /// [`Metrics`] accumulated one (y, ŷ) pair at a time, so rows that are never held together can
 /// be scored: running means with Welford's update of the sum of squares and Pébay's of the third
-/// and fourth central moments of the residuals. Equal to [`Metrics::compute`] over the same pairs
-/// up to rounding.
+/// and fourth central moments of the residuals (the one computation of [`Metrics`]).
 #[derive(Debug, Clone, Default)]
 pub struct MetricsAccumulator {
     n: usize,
@@ -159,6 +134,38 @@ pub(super) fn ratio(max: f64, min: f64) -> f64 {
 mod tests {
     use super::*;
 
+    /// The textbook two-pass metrics, the reference the one-pass accumulator is checked against.
+    fn two_pass(y: &[f64], yhat: &[f64]) -> Metrics {
+        let n = y.len().min(yhat.len());
+        let nf = n as f64;
+        let pairs = || y.iter().zip(yhat).take(n);
+        let mean_y = pairs().map(|(y, _)| y).sum::<f64>() / nf;
+        let mean_e = pairs().map(|(y, p)| y - p).sum::<f64>() / nf;
+        let (mut ss_res, mut ss_tot, mut abs_sum) = (0.0, 0.0, 0.0);
+        let (mut m2, mut m3, mut m4) = (0.0, 0.0, 0.0);
+        for (y, p) in pairs() {
+            let e = y - p;
+            ss_res += e * e;
+            ss_tot += (y - mean_y) * (y - mean_y);
+            abs_sum += e.abs();
+            let d = e - mean_e;
+            m2 += d * d;
+            m3 += d * d * d;
+            m4 += d * d * d * d;
+        }
+        let (m2, m3, m4) = (m2 / nf, m3 / nf, m4 / nf);
+        let nan_if_zero = |den: f64, v: f64| if den > 0.0 { v } else { f64::NAN };
+        Metrics {
+            n,
+            r2: nan_if_zero(ss_tot, 1.0 - ss_res / ss_tot),
+            rmse: (ss_res / nf).sqrt(),
+            mae: abs_sum / nf,
+            bias: -mean_e,
+            skewness: nan_if_zero(m2, m3 / m2.powf(1.5)),
+            kurtosis: nan_if_zero(m2, m4 / (m2 * m2)),
+        }
+    }
+
     #[test]
     fn accumulated_metrics_equal_the_metrics_of_the_whole_set() {
         // Skewed residuals around a non-zero bias, y with a large offset (cancellation-prone).
@@ -170,7 +177,7 @@ mod tests {
             .enumerate()
             .map(|(i, v)| v - 0.8 - ((i as f64 * 1.3).cos() + 1.0).powi(3))
             .collect();
-        let whole = Metrics::compute(&y, &yhat);
+        let whole = two_pass(&y, &yhat);
         let mut acc = MetricsAccumulator::default();
         for (a, b) in y.iter().zip(&yhat) {
             acc.add(*a, *b);
@@ -201,7 +208,7 @@ mod tests {
         for _ in 0..4 {
             acc.add(2.0, 1.5);
         }
-        let (a, b) = (acc.finish(), Metrics::compute(&[2.0; 4], &[1.5; 4]));
+        let (a, b) = (acc.finish(), two_pass(&[2.0; 4], &[1.5; 4]));
         assert!(a.r2.is_nan() && b.r2.is_nan() && a.skewness.is_nan() && b.skewness.is_nan());
         assert_eq!((a.rmse, a.mae, a.bias), (b.rmse, b.mae, b.bias));
     }

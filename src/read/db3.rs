@@ -238,20 +238,15 @@ impl MessageSource for Ros2BagSource {
                 for f in files.iter_mut() {
                     let name = f.name().to_path_buf();
                     let mut skipped = Skipped::default();
-                    let mut inflate = |m: MessageRef<'_>| {
-                        if !compressed {
-                            return visit(m);
-                        }
-                        if let Err(e) = decompress_message(m.data, &mut scratch) {
-                            skipped.add(&name, || {
-                                format!("topic {}, {}: {e}", m.channel.topic, m.location())
-                            });
-                            return Ok(());
-                        }
-                        visit(MessageRef {
-                            data: &scratch,
-                            ..m
-                        })
+                    let mut inflate = |m: MessageRef<'_>| match inflated(
+                        m,
+                        compressed,
+                        &mut scratch,
+                        &name,
+                        &mut skipped,
+                    ) {
+                        Some(m) => visit(m),
+                        None => Ok(()),
                     };
                     let s = f.read(topics, &mut inflate)?;
                     total.messages += s.messages.saturating_sub(skipped.count());
@@ -297,6 +292,26 @@ impl Skipped {
             )
         })
     }
+}
+
+/// `m` as delivered: with its payload decompressed into `scratch` when the bag compresses each
+/// message (`compressed`); `None` (counted in `skipped` for `file`) when it does not decompress.
+fn inflated<'a>(
+    m: MessageRef<'a>,
+    compressed: bool,
+    scratch: &'a mut Vec<u8>,
+    file: &Path,
+    skipped: &mut Skipped,
+) -> Option<MessageRef<'a>> {
+    if !compressed {
+        return Some(m);
+    }
+    if let Err(e) = decompress_message(m.data, scratch) {
+        let first = || format!("topic {}, {}: {e}", m.channel.topic, m.location());
+        skipped.add(file, first);
+        return None;
+    }
+    Some(MessageRef { data: scratch, ..m })
 }
 
 /// Combine the infos of consecutive split files into one.
@@ -581,27 +596,20 @@ impl SqliteBag {
                 .map(|row| row.get_ref(2).and_then(|v| v.as_blob().map_err(Into::into)));
             match (channel, data) {
                 (Some(channel), Some(Ok(data))) => {
-                    let payload = if !self.message_compression {
-                        data
-                    } else if let Err(e) = decompress_message(data, &mut scratch) {
-                        skipped.add(&f.path, || {
-                            format!("topic {}, message row id {}: {e}", channel.topic, cur.rowid)
-                        });
-                        stream.advance(summary);
-                        continue;
-                    } else {
-                        &scratch[..]
-                    };
                     let time = ts.max(0) as u64;
-                    visit(MessageRef {
+                    let m = MessageRef {
                         channel,
                         log_time_ns: time,
                         publish_time_ns: time,
-                        data: payload,
+                        data,
                         file_offset: cur.rowid.max(0) as u64,
                         row_id: true,
-                    })?;
-                    summary.messages += 1;
+                    };
+                    let compressed = self.message_compression;
+                    if let Some(m) = inflated(m, compressed, &mut scratch, &f.path, &mut skipped) {
+                        visit(m)?;
+                        summary.messages += 1;
+                    }
                 }
                 (_, Some(Err(e))) => {
                     stream.damaged(&e, summary);

@@ -999,7 +999,7 @@ impl<R: Read + Seek> McapSource<R> {
             .chain(stats.channel_message_counts.keys())
             .copied()
             .collect();
-        let mut differ = 0usize;
+        let mut differ = Vec::new();
         for id in ids {
             let got = read.get(&id).map_or(0, |r| r.count);
             let listed = stats.channel_message_counts.get(&id).copied();
@@ -1010,22 +1010,18 @@ impl<R: Read + Seek> McapSource<R> {
                 None if got == 0 || stats.channel_message_counts.is_empty() => continue,
                 _ => {}
             }
-            differ += 1;
-            if differ <= MAX_DETAILED {
-                let listed = listed.map_or("no".to_string(), |n| n.to_string());
-                warnings.push(format!(
-                    "{path}: the statistics record at byte offset {at} lists {listed} messages on \
-                     channel {id} ({}) but {got} were read; the counts shown are the ones read",
-                    self.topic_info(id, &TopicStat::default()).topic
-                ));
-            }
-        }
-        if differ > MAX_DETAILED {
-            warnings.push(format!(
-                "{path}: the statistics record disagrees with the messages read on {} more channels",
-                differ - MAX_DETAILED
+            let listed = listed.map_or("no".to_string(), |n| n.to_string());
+            differ.push(format!(
+                "{path}: the statistics record at byte offset {at} lists {listed} messages on \
+                 channel {id} ({}) but {got} were read; the counts shown are the ones read",
+                self.topic_info(id, &TopicStat::default()).topic
             ));
         }
+        capped(warnings, differ, |more| {
+            format!(
+                "{path}: the statistics record disagrees with the messages read on {more} more channels"
+            )
+        });
         let total = read.values().fold(0u64, |a, r| a.saturating_add(r.count));
         if complete && stats.message_count != total {
             warnings.push(format!(

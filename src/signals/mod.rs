@@ -249,14 +249,6 @@ pub fn join_recordings(parts: Vec<Recording>, gap_s: f64) -> Recording {
     out
 }
 
-/// Mean rate [Hz] of a time stamp series: (n − 1) / span; 0 for fewer than two stamps.
-pub fn rate_hz(t: &[f64]) -> f64 {
-    match (t.first(), t.last()) {
-        (Some(a), Some(b)) if t.len() > 1 && b > a => (t.len() - 1) as f64 / (b - a),
-        _ => 0.0,
-    }
-}
-
 mod load;
 mod map;
 pub mod plausible;

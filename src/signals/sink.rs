@@ -39,20 +39,7 @@ pub fn stream_into(
     batch_samples: usize,
     sink: &mut dyn RecordingSink,
 ) -> anyhow::Result<StreamSummary> {
-    let mut begun = false;
-    let summary = stream_recording(path, map, opts, batch_samples, &mut |batch| {
-        if !begun {
-            sink.begin(&StreamHeader {
-                source: path,
-                start_ns: batch.start_ns,
-                joint_names: &batch.joint_names,
-            })?;
-            begun = true;
-        }
-        sink.batch(batch)
-    })?;
-    sink.finish(&summary, begun)?;
-    Ok(summary)
+    stream_joined_into(&[path], map, opts, batch_samples, 0.0, sink)
 }
 
 /// Streams several files into `sink` as one session joined end to end, exactly as
@@ -60,7 +47,6 @@ pub fn stream_into(
 /// joint sample comes `gap_s` after the previous part's last one; the header (source, clock origin,
 /// joints) is the first part's, and every batch is on its clock. [`RecordingSink::begin`] and
 /// [`RecordingSink::finish`] are called once (the summary adds the parts' counts and warnings).
-/// One path is [`stream_into`].
 pub fn stream_joined_into(
     paths: &[&Path],
     map: &SignalMap,
@@ -100,14 +86,14 @@ pub fn stream_joined_into(
             }
             let off = offset.unwrap_or(0.0);
             for b in waiting.drain(..) {
-                joined.batch(b, off)?;
+                joined.batch(&b, off)?;
             }
-            joined.batch(batch.clone(), off)
+            joined.batch(batch, off)
         })?;
         // A part without joint samples is shifted as if its first were at 0.
         let off = *offset.get_or_insert(end + gap_s);
         for b in waiting.drain(..) {
-            joined.batch(b, off)?;
+            joined.batch(&b, off)?;
         }
         if let Some(l) = last_state {
             end = l + off;
@@ -134,7 +120,7 @@ struct Joined<'s> {
 }
 
 impl Joined<'_> {
-    fn batch(&mut self, mut b: Recording, offset: f64) -> anyhow::Result<()> {
+    fn batch(&mut self, b: &Recording, offset: f64) -> anyhow::Result<()> {
         let start_ns = *self.start_ns.get_or_insert(b.start_ns);
         if !self.begun {
             self.sink.begin(&StreamHeader {
@@ -144,6 +130,10 @@ impl Joined<'_> {
             })?;
             self.begun = true;
         }
+        if offset == 0.0 && b.start_ns == start_ns {
+            return self.sink.batch(b);
+        }
+        let mut b = b.clone();
         if offset != 0.0 {
             for t in b
                 .state
