@@ -45,10 +45,7 @@ pub fn write_atomic_with(
     path: &Path,
     fill: impl FnOnce(&mut std::io::BufWriter<std::fs::File>) -> Result<()>,
 ) -> Result<()> {
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
+    let dir = folder_of(path);
     std::fs::create_dir_all(dir)
         .with_context(|| format!("creating directory {}", dir.display()))?;
     // Removed when dropped (an error, a panic) or on a termination signal; renamed on success.
@@ -72,11 +69,15 @@ pub fn canonical_target(path: &Path) -> Option<std::path::PathBuf> {
     if let Ok(p) = path.canonicalize() {
         return Some(p);
     }
-    let parent = match path.parent() {
+    Some(canonical_target(folder_of(path))?.join(path.file_name()?))
+}
+
+/// The folder `path` is in (`.` for a bare file name).
+pub fn folder_of(path: &Path) -> &Path {
+    match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
-    };
-    Some(canonical_target(parent)?.join(path.file_name()?))
+    }
 }
 
 /// Refuses an output `target` (a file, or a folder a report is written into) that would

@@ -190,18 +190,10 @@ fn fmt_sci(v: f64) -> String {
     }
 }
 
-fn write_provenance(md: &mut String, m: &ModelFile) {
+fn write_provenance<'a>(md: &mut String, m: &'a ModelFile) {
     let p = &m.provenance;
-    let _ = writeln!(
-        md,
-        "Tool: {}. Created: {}.\n",
-        p.tool,
-        if p.created.is_empty() {
-            "–"
-        } else {
-            &p.created
-        }
-    );
+    let or_dash = |s: &'a str| if s.is_empty() { "–" } else { s };
+    let _ = writeln!(md, "Tool: {}. Created: {}.\n", p.tool, or_dash(&p.created));
     if !p.sessions.is_empty() {
         let _ = writeln!(md, "| session | role | size [bytes] |\n|---|---|---:|");
         for s in &p.sessions {
@@ -212,12 +204,8 @@ fn write_provenance(md: &mut String, m: &ModelFile) {
     let _ = writeln!(
         md,
         "Target: {}. Rows: {}. Trials segmented {}, used {}, rejected {}.\n",
-        if p.target.is_empty() {
-            "–"
-        } else {
-            &p.target
-        },
-        if p.rows.is_empty() { "–" } else { &p.rows },
+        or_dash(&p.target),
+        or_dash(&p.rows),
         p.trials.segmented,
         p.trials.used,
         p.trials.rejected
@@ -387,12 +375,7 @@ fn with_se(v: f64, se: Option<f64>) -> String {
 
 fn write_parameters(md: &mut String, r: &ReportInput, names: &[String]) {
     let m = r.model.model();
-    let se = |p: usize| {
-        r.model
-            .theta_std_err
-            .as_ref()
-            .and_then(|v| v.get(p).copied().flatten())
-    };
+    let se = |p: usize| r.model.std_err(p);
     let _ = writeln!(md, "## Identified parameters\n");
     let head = [
         "joint",
@@ -516,13 +499,7 @@ fn draw_coefficients(
     names: &[String],
 ) -> Result<()> {
     let m = model.model();
-    let se = |p: usize| {
-        model
-            .theta_std_err
-            .as_ref()
-            .and_then(|v| v.get(p).copied().flatten())
-            .unwrap_or(0.0)
-    };
+    let se = |p: usize| model.std_err(p).unwrap_or(0.0);
     let panels = [
         (
             "b_i copper loss [W/(N·m)²]",

@@ -394,11 +394,14 @@ impl ModelFile {
 
     /// The power model (θ is authoritative; [`ModelFile::load`] has checked the named copies agree).
     pub fn model(&self) -> PowerModel {
-        let mut v = [0.0; N_PARAMS];
-        for (dst, src) in v.iter_mut().zip(&self.theta) {
-            *dst = *src;
-        }
-        PowerModel::from_vector(&v)
+        PowerModel::from_vector(&std::array::from_fn(|p| {
+            self.theta.get(p).copied().unwrap_or(0.0)
+        }))
+    }
+
+    /// The standard error of parameter `p`, when the file has one.
+    pub fn std_err(&self, p: usize) -> Option<f64> {
+        self.theta_std_err.as_ref()?.get(p).copied().flatten()
     }
 
     /// Read and validate a model file; errors name the file and the offending field.
@@ -520,7 +523,7 @@ impl ModelFile {
     /// sensor as `target`. Errors name the field and its value.
     pub fn check_use(&self, joints: &[String], target: Target) -> Result<(), ModelProblem> {
         check_joints(&self.joint_names, joints)?;
-        let wanted = target_name(target);
+        let wanted = target.name();
         let recorded = self.provenance.target.as_str();
         if !recorded.is_empty() && recorded != wanted {
             return Err(field(
@@ -592,14 +595,6 @@ fn check_magnitudes(theta: &[f64]) -> Result<(), ModelProblem> {
         }
     }
     Ok(())
-}
-
-/// The sensor name a model file records for `target`.
-fn target_name(target: Target) -> &'static str {
-    match target {
-        Target::Mbs => "mbs",
-        Target::Bms => "bms",
-    }
 }
 
 /// The arm side a URDF joint name belongs to (`left_…` / `right_…`).

@@ -157,31 +157,26 @@ impl<'a> Fields<'a> {
         }
     }
 
-    fn u32(&self, name: &str) -> Result<u32, String> {
+    /// The field `name`, exactly `N` bytes long.
+    fn array<const N: usize>(&self, name: &str) -> Result<[u8; N], String> {
         let b = self.bytes(name)?;
-        b.try_into()
-            .map(u32::from_le_bytes)
-            .map_err(|_| format!("field {name:?} has {} bytes, expected 4", b.len()))
+        (b.try_into()).map_err(|_| format!("field {name:?} has {} bytes, expected {N}", b.len()))
+    }
+
+    fn u32(&self, name: &str) -> Result<u32, String> {
+        self.array(name).map(u32::from_le_bytes)
     }
 
     fn u64(&self, name: &str) -> Result<u64, String> {
-        let b = self.bytes(name)?;
-        b.try_into()
-            .map(u64::from_le_bytes)
-            .map_err(|_| format!("field {name:?} has {} bytes, expected 8", b.len()))
+        self.array(name).map(u64::from_le_bytes)
     }
 
     /// A ROS 1 `time` (u32 seconds, u32 nanoseconds) as nanoseconds.
     fn time_ns(&self, name: &str) -> Result<u64, String> {
-        let b = self.bytes(name)?;
-        time_ns(b).ok_or_else(|| format!("field {name:?} has {} bytes, expected 8", b.len()))
+        let [s0, s1, s2, s3, n0, n1, n2, n3] = self.array(name)?;
+        let (sec, nsec) = ([s0, s1, s2, s3], [n0, n1, n2, n3]);
+        Ok(u32::from_le_bytes(sec) as u64 * 1_000_000_000 + u32::from_le_bytes(nsec) as u64)
     }
-}
-
-fn time_ns(b: &[u8]) -> Option<u64> {
-    let (sec, nsec) = b.split_first_chunk::<4>()?;
-    let nsec: [u8; 4] = nsec.try_into().ok()?;
-    Some(u32::from_le_bytes(*sec) as u64 * 1_000_000_000 + u32::from_le_bytes(nsec) as u64)
 }
 
 impl Ros1BagSource<File> {

@@ -948,32 +948,18 @@ impl FieldExtractor {
     }
 
     fn extract_json(&self, data: &[u8], out: &mut [f64]) -> Result<(), DecodeError> {
-        let json = parse_json(data)?;
+        let json = Value::from_json(&parse_json(data)?);
         for ((leaf, slot), name) in self.leaves.iter().zip(out.iter_mut()).zip(&self.names) {
             let Leaf::Json(path) = leaf else {
                 return Err(DecodeError::Invalid("binary path on a JSON channel".into()));
             };
-            let missing = || DecodeError::NoSuchField {
+            let v = json.get(path).ok_or_else(|| DecodeError::NoSuchField {
                 path: name.clone(),
                 type_name: "JSON message".into(),
-            };
-            let mut v = &json;
-            for (field, index) in &path.segments {
-                v = v.get(field.as_str()).ok_or_else(missing)?;
-                if let Some(i) = index {
-                    v = v.get(*i).ok_or_else(missing)?;
-                }
-            }
-            *slot = match v {
-                serde_json::Value::Null => f64::NAN,
-                serde_json::Value::Bool(b) => f64::from(u8::from(*b)),
-                serde_json::Value::Number(n) => n.as_f64().unwrap_or(f64::NAN),
-                _ => {
-                    return Err(DecodeError::Invalid(format!(
-                        "{name} is not a number in the JSON message"
-                    )));
-                }
-            };
+            })?;
+            *slot = v.as_f64().ok_or_else(|| {
+                DecodeError::Invalid(format!("{name} is not a number in the JSON message"))
+            })?;
         }
         Ok(())
     }

@@ -467,7 +467,7 @@ impl MsgSchema {
             root,
             types: parser.types,
         };
-        schema.resolve_missing(Dialect::Ros2)?;
+        schema.resolve_missing(Dialect::Ros2, &[])?;
         Ok(schema)
     }
 }

@@ -553,7 +553,14 @@ impl<R: Read + Seek> McapSource<R> {
                 let field = |at: usize| u64_at(&head[..n.min(size as usize)], 9 + at);
                 match opcode {
                     op::DATA_END | op::FOOTER => break Ok(()),
-                    op::CHUNK => out.push(found(pos, size, field(16), false, field(0), field(8))),
+                    op::CHUNK => out.push(ChunkIndex {
+                        message_start_time: field(0).unwrap_or(0),
+                        message_end_time: field(8).unwrap_or(0),
+                        chunk_start_offset: pos,
+                        chunk_length: size,
+                        uncompressed_size: field(16).unwrap_or(0),
+                        ..ChunkIndex::default()
+                    }),
                     op::MESSAGE | op::SCHEMA | op::CHANNEL => {
                         let time = field(6).filter(|_| opcode == op::MESSAGE);
                         extend_span(&mut out, pos, size, time);
@@ -1063,28 +1070,6 @@ fn u64_at(buf: &[u8], at: usize) -> Option<u64> {
     b.try_into().ok().map(u64::from_le_bytes)
 }
 
-/// An entry of the data section's layout: `size` bytes at `pos` (`loose`: records stored outside
-/// chunks), holding `uncompressed` bytes of records with log times from `start` to `end`.
-fn found(
-    pos: u64,
-    size: u64,
-    uncompressed: Option<u64>,
-    loose: bool,
-    start: Option<u64>,
-    end: Option<u64>,
-) -> ChunkIndex {
-    ChunkIndex {
-        message_start_time: start.unwrap_or(0),
-        message_end_time: end.unwrap_or(0),
-        chunk_start_offset: pos,
-        chunk_length: size,
-        message_index_offsets: BTreeMap::new(),
-        uncompressed_size: uncompressed.unwrap_or(0),
-        record_offset: 0,
-        loose,
-    }
-}
-
 /// Add the record of `size` bytes at `pos` (stored outside chunks; `time`: a message's log
 /// time) to the last span of `layout` when it ends there and has room, else start a span.
 fn extend_span(layout: &mut Vec<ChunkIndex>, pos: u64, size: u64, time: Option<u64>) {
@@ -1094,7 +1079,12 @@ fn extend_span(layout: &mut Vec<ChunkIndex>, pos: u64, size: u64, time: Option<u
             && s.chunk_length + size <= SPAN_BYTES
     });
     if !joins {
-        layout.push(found(pos, 0, Some(0), true, Some(u64::MAX), Some(0)));
+        layout.push(ChunkIndex {
+            message_start_time: u64::MAX,
+            chunk_start_offset: pos,
+            loose: true,
+            ..ChunkIndex::default()
+        });
     }
     if let Some(s) = layout.last_mut() {
         s.chunk_length += size;
@@ -1179,22 +1169,17 @@ impl Inflater {
         if raw.loose {
             return Ok(raw.bytes);
         }
-        (self.chunk_record(&raw.bytes, &mut buf)).map_err(|what| Damage {
+        let damage = |what: String| Damage {
             offset: raw.offset,
             what,
-        })?;
-        Ok(buf)
-    }
-
-    /// Decompress a whole chunk record (opcode, length, body) into `out`.
-    fn chunk_record(&mut self, bytes: &[u8], out: &mut Vec<u8>) -> Result<(), String> {
-        let (opcode, body, _) = frame(bytes, 0)?;
+        };
+        let (opcode, body, _) = frame(&raw.bytes, 0).map_err(damage)?;
         if opcode != op::CHUNK {
-            return Err(format!(
-                "expected a chunk record, found opcode 0x{opcode:02x}"
-            ));
+            let what = format!("expected a chunk record, found opcode 0x{opcode:02x}");
+            return Err(damage(what));
         }
-        self.chunk_body(body, out)
+        self.chunk_body(body, &mut buf).map_err(damage)?;
+        Ok(buf)
     }
 
     /// Decompress a chunk record body into `out`, checking sizes and the CRC. The output is

@@ -33,7 +33,7 @@ pub(crate) struct ChunkRecord<'a> {
 }
 
 /// A Chunk Index record (opcode 0x08).
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
 pub(crate) struct ChunkIndex {
     pub message_start_time: u64,
     pub message_end_time: u64,

@@ -249,26 +249,12 @@ impl MsgSchema {
         search_dirs: &[PathBuf],
     ) -> Result<MsgSchema, SchemaError> {
         let root = normalize_type_name(type_name, "");
+        let ty = definition(&root, Dialect::Ros2, search_dirs)?;
         let mut schema = MsgSchema {
             root: root.clone(),
-            types: HashMap::new(),
+            types: HashMap::from([(root, ty)]),
         };
-        let mut pending = vec![root];
-        while let Some(name) = pending.pop() {
-            if schema.types.contains_key(&name) {
-                continue;
-            }
-            let text = find_msg_file(&name, search_dirs)
-                .or_else(|| builtin_definition(&name).map(str::to_string))
-                .ok_or_else(|| SchemaError::MissingType(name.clone()))?;
-            let ty = parse_msg_section(&name, &text, 0, Dialect::Ros2)?;
-            pending.extend(ty.fields.iter().filter_map(|f| match &f.ty {
-                FieldType::Message(n) => Some(n.clone()),
-                FieldType::Primitive(_) => None,
-            }));
-            schema.types.insert(name, ty);
-        }
-        schema.check_acyclic()?;
+        schema.resolve_missing(Dialect::Ros2, search_dirs)?;
         Ok(schema)
     }
 
@@ -318,34 +304,30 @@ impl MsgSchema {
         let ty = parse_msg_section(&current, &section, section_line, dialect)?;
         types.insert(current, ty);
         let mut schema = MsgSchema { root, types };
-        schema.resolve_missing(dialect)?;
+        schema.resolve_missing(dialect, &[])?;
         Ok(schema)
     }
 
-    /// Add built-in definitions for referenced types the text did not carry; fail on the rest.
-    pub(super) fn resolve_missing(&mut self, dialect: Dialect) -> Result<(), SchemaError> {
+    /// Add the definitions of referenced types the schema does not carry (from `.msg` files
+    /// under `dirs`, else built in); fail on the rest.
+    pub(super) fn resolve_missing(
+        &mut self,
+        dialect: Dialect,
+        dirs: &[PathBuf],
+    ) -> Result<(), SchemaError> {
         if !self.types.contains_key(&self.root) {
             return Err(SchemaError::MissingType(self.root.clone()));
         }
         loop {
-            let missing: Vec<String> = self
-                .types
-                .values()
-                .flat_map(|t| t.fields.iter())
-                .filter_map(|f| match &f.ty {
+            let missing =
+                (self.types.values().flat_map(|t| t.fields.iter())).find_map(|f| match &f.ty {
                     FieldType::Message(n) if !self.types.contains_key(n) => Some(n.clone()),
                     _ => None,
-                })
-                .collect();
-            let Some(name) = missing.into_iter().next() else {
+                });
+            let Some(name) = missing else {
                 return self.check_acyclic();
             };
-            let text = if dialect == Dialect::Ros1 && name == "std_msgs/msg/Header" {
-                ROS1_HEADER
-            } else {
-                builtin_definition(&name).ok_or_else(|| SchemaError::MissingType(name.clone()))?
-            };
-            let ty = parse_msg_section(&name, text, 0, dialect)?;
+            let ty = definition(&name, dialect, dirs)?;
             self.types.insert(name, ty);
         }
     }
@@ -419,6 +401,18 @@ impl MsgSchema {
         }
         Ok(())
     }
+}
+
+/// The definition of type `name` (normalised) from its `.msg` file under `dirs`, else built in
+/// (ROS 1's own `Header` in that dialect).
+fn definition(name: &str, dialect: Dialect, dirs: &[PathBuf]) -> Result<MsgType, SchemaError> {
+    let text = if dialect == Dialect::Ros1 && name == "std_msgs/msg/Header" {
+        Some(ROS1_HEADER.to_string())
+    } else {
+        find_msg_file(name, dirs).or_else(|| builtin_definition(name).map(str::to_string))
+    };
+    let text = text.ok_or_else(|| SchemaError::MissingType(name.to_string()))?;
+    parse_msg_section(name, &text, 0, dialect)
 }
 
 fn find_msg_file(name: &str, dirs: &[PathBuf]) -> Option<String> {

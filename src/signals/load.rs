@@ -5,8 +5,8 @@ use std::path::Path;
 
 use anyhow::bail;
 
+use super::Recording;
 use super::map::{GROUPS, Group, SignalMap, group_signals};
-use super::{Recording, permute};
 use crate::N_JOINTS;
 use crate::read::{FieldExtractor, FieldPath, MessageRef, OpenOptions, ReadError, Session};
 
@@ -367,7 +367,7 @@ impl Decoder {
             plan.t_ns.push(msg.log_time_ns);
             let group = plan.group;
             push_row(&mut b.batch, group, &self.row);
-            b.samples[group_index(group)] += 1;
+            b.samples[group as usize] += 1;
         }
         Ok(())
     }
@@ -509,7 +509,7 @@ fn finish_warnings(
     }
     // A group left out of the read (empty topic) is not missing.
     for plan in b.plans.iter().skip(1).filter(|p| !p.topic.is_empty()) {
-        if b.samples[group_index(plan.group)] == 0 {
+        if b.samples[plan.group as usize] == 0 {
             warnings.push(format!(
                 "{file}: optional topic {} has no messages: {:?} series left empty",
                 plan.topic, plan.group
@@ -517,16 +517,6 @@ fn finish_warnings(
         }
     }
     Ok(())
-}
-
-/// Position of `group` in [`StreamSummary::samples`].
-fn group_index(group: Group) -> usize {
-    match group {
-        Group::State => 0,
-        Group::Command => 1,
-        Group::Mbs => 2,
-        Group::Bms => 3,
-    }
 }
 
 fn joints(row: &[f64], block: usize) -> [f64; N_JOINTS] {
@@ -566,31 +556,9 @@ fn set_times(rec: &mut Recording, group: Group, t_ns: &[u64]) {
         .map(|&t| (i128::from(t) - i128::from(start)) as f64 * 1e-9)
         .collect();
     match group {
-        Group::State => rec.state.t = t,
-        Group::Command => rec.command.t = t,
-        Group::Mbs => rec.mbs.t = t,
-        Group::Bms => rec.bms.t = t,
-    }
-    if t_ns.is_sorted() {
-        return;
-    }
-    let mut o: Vec<usize> = (0..t_ns.len()).collect();
-    o.sort_by_key(|&i| t_ns[i]);
-    match group {
-        Group::State => rec.state.permute(&o),
-        Group::Command => {
-            permute(&mut rec.command.t, &o);
-            permute(&mut rec.command.q, &o);
-            permute(&mut rec.command.dq, &o);
-        }
-        Group::Mbs | Group::Bms => {
-            let p = if group == Group::Mbs {
-                &mut rec.mbs
-            } else {
-                &mut rec.bms
-            };
-            permute(&mut p.t, &o);
-            permute(&mut p.watts, &o);
-        }
-    }
+        Group::State => (rec.state.t = t, rec.state.sort_by_time()),
+        Group::Command => (rec.command.t = t, rec.command.sort_by_time()),
+        Group::Mbs => (rec.mbs.t = t, rec.mbs.sort_by_time()),
+        Group::Bms => (rec.bms.t = t, rec.bms.sort_by_time()),
+    };
 }

@@ -40,7 +40,7 @@ pub fn simulate_like_file(
         stamps.add(b);
         Ok(())
     })?;
-    if !stamps.in_order {
+    if stamps.out_of_order {
         let rec = load_recording(path, map, opts)?;
         return Ok((simulate_like(&rec, cfg, out)?, rec.warnings));
     }
@@ -159,35 +159,18 @@ impl std::fmt::Display for TwinStopped {
 impl std::error::Error for TwinStopped {}
 
 /// What the first pass keeps: every message's stamp, the joint states' largest gap.
+#[derive(Default)]
 struct Stamps {
     timeline: Timeline,
     /// (sample index, gap [s], time [s]) of the largest gap between joint states.
     worst_gap: Option<(usize, f64, f64)>,
-    /// Whether every group's times came non-decreasing and non-negative (as one loaded batch
-    /// would order them).
-    in_order: bool,
+    /// Whether some group's times went backwards or below zero (one loaded batch would have
+    /// been ordered).
+    out_of_order: bool,
     /// The first batch's start.
     start_ns: Option<u64>,
     /// Each group's latest time [s].
-    last: [f64; 4],
-}
-
-impl Default for Stamps {
-    fn default() -> Self {
-        Stamps {
-            timeline: Timeline {
-                start_ns: 0,
-                lowstate: Vec::new(),
-                arm_sdk: Vec::new(),
-                mbs: Vec::new(),
-                bms: Vec::new(),
-            },
-            worst_gap: None,
-            in_order: true,
-            start_ns: None,
-            last: [f64::NEG_INFINITY; 4],
-        }
-    }
+    last: [Option<f64>; 4],
 }
 
 impl Stamps {
@@ -205,14 +188,14 @@ impl Stamps {
         let last = &mut self.last;
         for (g, (t, ns)) in groups.into_iter().enumerate() {
             for &x in t {
-                if g == 0 && last[0].is_finite() {
-                    let gap = x - last[0];
+                if let (0, Some(l)) = (g, last[0]) {
+                    let gap = x - l;
                     if self.worst_gap.is_none_or(|w| gap >= w.1) {
-                        self.worst_gap = Some((ns.len() - 1, gap, last[0]));
+                        self.worst_gap = Some((ns.len() - 1, gap, l));
                     }
                 }
-                self.in_order &= x >= last[g] && x >= 0.0;
-                last[g] = x;
+                self.out_of_order |= !(x >= 0.0 && last[g].is_none_or(|l| x >= l));
+                last[g] = Some(x);
                 ns.push(to_ns(&x));
             }
         }

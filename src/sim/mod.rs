@@ -326,20 +326,8 @@ pub fn simulate(cfg: &SimConfig, out: &Path) -> Result<Truth> {
         .zip(artefacts.iter().zip(&stats.trials))
         .enumerate()
         .map(|(index, ((pt, tt), (art, sums)))| {
-            let pre = |s: f64| {
-                if sums.n_pre > 0 {
-                    s / sums.n_pre as f64
-                } else {
-                    0.0
-                }
-            };
-            let traj = |s: f64| {
-                if sums.n_traj > 0 {
-                    s / sums.n_traj as f64
-                } else {
-                    0.0
-                }
-            };
+            let mean = |s: f64, n: u64| if n > 0 { s / n as f64 } else { 0.0 };
+            let (pre, traj) = (|s| mean(s, sums.n_pre), |s| mean(s, sums.n_traj));
             truth::TrialTruth {
                 index,
                 route_id: pt.route.id.clone(),

@@ -221,33 +221,22 @@ fn dist(a: &[f64; N_JOINTS], b: &[f64; N_JOINTS]) -> f64 {
         .sqrt()
 }
 
-/// Instant the reference leaves `rest` between samples k-1 (still at rest) and k (moving):
-/// near a smooth-step start the displacement is A·(t − t0)², so √d is linear in t.
-fn refine_onset(r: &Reference, k: usize, rest: &[f64; N_JOINTS]) -> f64 {
-    let mid = 0.5 * (r.t[k - 1] + r.t[k]);
-    if !r.exact || k + 1 >= r.t.len() {
+/// Instant the reference leaves or reaches `rest` between the moving sample `k` and its
+/// neighbour `rest_at` (k − 1 at an onset, k + 1 at an offset), from `k` and the next moving
+/// sample beyond it: near a smooth step's end the displacement is A·(t − t0)², so √d is
+/// linear in t.
+fn refine(r: &Reference, k: usize, rest_at: usize, rest: &[f64; N_JOINTS]) -> f64 {
+    let mid = 0.5 * (r.t[rest_at] + r.t[k]);
+    let far = (2 * k).wrapping_sub(rest_at);
+    if !r.exact || far >= r.t.len() {
         return mid;
     }
-    let (s1, s2) = (dist(&r.q[k], rest).sqrt(), dist(&r.q[k + 1], rest).sqrt());
+    let (s1, s2) = (dist(&r.q[k], rest).sqrt(), dist(&r.q[far], rest).sqrt());
     if s2 <= s1 || !s1.is_finite() || !s2.is_finite() {
         return mid;
     }
-    let t0 = r.t[k] - s1 * (r.t[k + 1] - r.t[k]) / (s2 - s1);
-    t0.clamp(r.t[k - 1], r.t[k])
-}
-
-/// Instant the reference reaches `rest` between samples k (last moving) and k+1 (at rest).
-fn refine_offset(r: &Reference, k: usize, rest: &[f64; N_JOINTS]) -> f64 {
-    let mid = 0.5 * (r.t[k] + r.t[k + 1]);
-    if !r.exact || k == 0 {
-        return mid;
-    }
-    let (s1, s0) = (dist(&r.q[k], rest).sqrt(), dist(&r.q[k - 1], rest).sqrt());
-    if s0 <= s1 || !s1.is_finite() || !s0.is_finite() {
-        return mid;
-    }
-    let t1 = r.t[k] + s1 * (r.t[k] - r.t[k - 1]) / (s0 - s1);
-    t1.clamp(r.t[k], r.t[k + 1])
+    let t = r.t[k] - s1 * (r.t[far] - r.t[k]) / (s2 - s1);
+    t.clamp(r.t[k].min(r.t[rest_at]), r.t[k].max(r.t[rest_at]))
 }
 
 fn mean_posture(q: &[[f64; N_JOINTS]]) -> [f64; N_JOINTS] {
@@ -282,10 +271,10 @@ fn build_runs(r: &Reference, opts: &SegmentOptions) -> Vec<Run> {
         let (a, b) = (runs[w], runs[w + 1]);
         let t = if a.moving {
             let rest = mean_posture(&r.q[b.i0..=b.i1]);
-            refine_offset(r, a.i1, &rest)
+            refine(r, a.i1, b.i0, &rest)
         } else {
             let rest = mean_posture(&r.q[a.i0..=a.i1]);
-            refine_onset(r, b.i0, &rest)
+            refine(r, b.i0, a.i1, &rest)
         };
         runs[w].t1 = t;
         runs[w + 1].t0 = t;

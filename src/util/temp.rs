@@ -51,10 +51,7 @@ impl TempPath {
 
     /// The temporary file beside `target` (`.NAME.tmpPID`, plus `suffix`), registered.
     pub fn beside(target: &Path, suffix: &str) -> TempPath {
-        let dir = match target.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p,
-            _ => Path::new("."),
-        };
+        let dir = super::folder_of(target);
         let name = target
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
