@@ -154,9 +154,14 @@ impl Engine {
             .build()
             .context("starting the query engine's runtime")?;
         // Batches of 2,048 rows, not 8,192: the block join makes five of each, and the IMU
-        // filter's join holds them; peak RSS at 20 × 30 281 → 217 MB, CPU the same (docs/fleet.md).
+        // filter's join holds them; peak RSS at 20 × 30 281 → 217 MB, CPU the same. No cache of
+        // the files' footers and statistics (50 + 20 MB by default, filled with every file): a
+        // footer is read again per query (docs/fleet.md, Memory).
         let config = (SessionConfig::new().with_batch_size(2048))
             .set_bool("datafusion.execution.parquet.pushdown_filters", true);
+        let cache = datafusion::execution::runtime_env::RuntimeEnvBuilder::new()
+            .with_metadata_cache_limit(0)
+            .with_file_statistics_cache_limit(0);
         // The sums' ~1,300 aggregate expressions have no common subexpression worth sharing
         // (each product appears once), and the rule that looks for them hashes every expression
         // of every pass: most of a query's time before the first row is read.
@@ -166,6 +171,7 @@ impl Engine {
             .filter(|r| r.name() != "common_sub_expression_eliminate");
         let state = datafusion::execution::SessionStateBuilder::new()
             .with_config(config)
+            .with_runtime_env(cache.build_arc()?)
             .with_default_features()
             .with_optimizer_rules(rules.collect())
             .build();
