@@ -13,9 +13,10 @@
 //! errors, is calibrated by the same rule: the larger of the other robots' spread of that
 //! distance for the parameter (at least 1) and the robot's own scatter. Beyond `z`, the robot
 //! differs from the fleet — on parameters that more than half of the fleet's robots follow
-//! (elsewhere there is no fleet level). A trend heading down to its bound while the parameter sits
-//! on the bound in some of the robot's periods is censored: its missing periods are the low ones,
-//! so neither its slope nor its level is tested (it stays in the null). Each followed (robot,
+//! (elsewhere there is no fleet level). A trend heading down to its bound, on the bound in some of
+//! the robot's periods and within one standard error of it in a free one, is censored: its
+//! missing periods are the low ones, so neither its slope nor its level is tested (it stays in
+//! the null). Each followed (robot,
 //! parameter) is thus tested up to twice, against a null drawn from the same fleet.
 
 use crate::N_PARAMS;
@@ -56,7 +57,8 @@ pub struct Trend {
     pub z: f64,
     /// Whether |z| exceeds the threshold (and the trend is not censored).
     pub drifting: bool,
-    /// Heading down to the bound, with periods on it: not tested (docs/fleet.md, Drift).
+    /// Heading down to the bound, on it in some periods and near it in a free one: not tested
+    /// (docs/fleet.md, Drift).
     pub censored: bool,
 }
 
@@ -163,24 +165,24 @@ fn line(points: &[Point]) -> Option<[f64; 5]> {
 }
 
 impl Trend {
-    /// The line through `points`; `null_scale` is their scatter about it until [`calibrate`];
-    /// `censored` when it heads down and the robot has periods with the parameter not free.
+    /// The line through `points`; `null_scale` is their scatter about it until [`calibrate`].
+    /// `censored` when it heads down, the parameter is not free in some of the robot's `periods`
+    /// and a free one lies within one standard error of the bound.
     fn new(robot: &str, param: usize, points: Vec<Point>, periods: usize) -> Option<Trend> {
         let [level, level_se, slope, slope_se, null_scale] = line(&points)?;
-        let (robot, z, drifting) = (robot.to_string(), 0.0, false);
-        let censored = slope < 0.0 && points.len() < periods;
+        let bound = crate::lsq::paper_lower_bounds()[param];
+        let near = points.iter().any(|p| p.value - bound < p.std_err);
         Some(Trend {
-            robot,
+            robot: robot.to_string(),
             param,
+            censored: slope < 0.0 && points.len() < periods && near,
             points,
             level,
             level_se,
             slope,
             slope_se,
             null_scale,
-            z,
-            drifting,
-            censored,
+            ..Default::default()
         })
     }
 }
@@ -344,15 +346,15 @@ mod tests {
     /// A robot's exact line (no scatter) through five weekly points of s.e. 0.1 whose slope is
     /// `z` nominal standard errors, the parameter free in all of the robot's five periods.
     fn sloped(robot: usize, param: usize, z: f64) -> Trend {
-        sloped_of(robot, param, z, 5)
+        sloped_of(robot, param, z, 5, 1.0)
     }
 
-    /// The same, free in five of the robot's `periods`.
-    fn sloped_of(robot: usize, param: usize, z: f64, periods: usize) -> Trend {
+    /// The same, free in five of the robot's `periods`, starting from `start`.
+    fn sloped_of(robot: usize, param: usize, z: f64, periods: usize, start: f64) -> Trend {
         let slope = z * 0.1 / 10f64.sqrt();
         let at = |k: usize| Point {
             t_weeks: k as f64,
-            value: 1.0 + slope * k as f64,
+            value: start + slope * k as f64,
             std_err: 0.1,
         };
         let points: Vec<Point> = (0..5).map(at).collect();
@@ -363,10 +365,10 @@ mod tests {
     /// that on a ninth (its nominal errors too wide for most robots). A robot 3.3 nominal errors
     /// off on the ninth is not a drift: a parameter's yardstick is never narrower than the
     /// fleet's (the false drifts of three 20 × 30 fleets by week had their parameter's scale at
-    /// the old fixed floor, 0.7). One 6 errors off on the first parameter is; one 6 errors down
-    /// on it with a sixth period at the bound is censored, not a drift (nor one 6 errors up and
-    /// a period at the bound: it heads away from the bound), as the fleet by week of seed
-    /// 977743138 needed (docs/fleet.md).
+    /// the old fixed floor, 0.7). One 6 errors off on the first parameter (a0, bound 1) is. One 6
+    /// errors down on it, not free in a sixth period, ending 0.4 errors above the bound is
+    /// censored, not a drift (the fleet by week of seed 977743138, docs/fleet.md); the same
+    /// ending far above the bound, or heading up, is a drift.
     #[test]
     fn a_drift_is_judged_on_no_narrower_a_null_than_the_fleets() {
         let z = |r: usize| 1.35 * (r as f64 - 9.5) / 9.5;
@@ -377,14 +379,15 @@ mod tests {
         trends.extend((0..8).map(|p| sloped(19, p, z(19))));
         trends.push(sloped(19, 8, 3.3));
         trends[2] = sloped(2, 0, 6.0);
-        trends[3] = sloped_of(3, 0, -6.0, 6);
-        trends[4] = sloped_of(4, 0, 6.0, 6);
+        trends[3] = sloped_of(3, 0, -6.0, 6, 1.8);
+        trends[4] = sloped_of(4, 0, 6.0, 6, 1.0);
+        trends[5] = sloped_of(5, 0, -6.0, 6, 3.0);
         calibrate(&mut trends, 4.0);
         let flagged: Vec<(&str, usize)> = (trends.iter().filter(|t| t.drifting))
             .map(|t| (t.robot.as_str(), t.param))
             .collect();
-        assert_eq!(flagged, [("r02", 0), ("r04", 0)]);
-        assert!(trends[3].censored && trends[3].z < -4.0 && !trends[4].censored);
+        assert_eq!(flagged, [("r02", 0), ("r04", 0), ("r05", 0)]);
+        assert!(trends[3].censored && trends[3].z < -4.0);
     }
 
     /// A robot at `level` ± `se` on parameter `param` (its periods are not looked at).

@@ -647,21 +647,15 @@ pub fn fit_fleet(
 impl GroupFit {
     /// The group's key as `robot=r1 week=2026-11-23`.
     pub fn label(&self, by: &[Key]) -> String {
-        by.iter()
-            .zip(&self.key)
-            .map(|(k, v)| format!("{}={v}", k.name()))
-            .collect::<Vec<_>>()
-            .join(" ")
+        let keys = (by.iter().zip(&self.key)).map(|(k, v)| format!("{}={v}", k.name()));
+        keys.collect::<Vec<_>>().join(" ")
     }
 
-    /// Rejected trials by filter: (IMU, residual, unusable).
-    pub fn rejected_by(&self) -> (usize, usize, usize) {
-        let count = |r: RejectReason| self.rejections.iter().filter(|x| x.reason == r).count();
-        (
-            count(RejectReason::ImuSway),
-            count(RejectReason::Residual),
-            count(RejectReason::Unusable),
-        )
+    /// Rejected trials: (by the IMU filter, by the residual passes or unusable).
+    pub fn rejected_by(&self) -> (usize, usize) {
+        let imu = (self.rejections.iter()).filter(|x| x.reason == RejectReason::ImuSway);
+        let imu = imu.count();
+        (imu, self.rejections.len() - imu)
     }
 }
 
