@@ -6,9 +6,9 @@
 //!
 //! Writes the fleet into DIR (once: an existing DIR is reused) with wear on three parameters of
 //! two robots, a 40 % offset on one and a payload on another, then fits it by robot and week on
-//! the first third of the days (`--where` on the reading time, pushed down to the Parquet scan)
-//! and on all of them, printing rows, time and peak memory (the process's resident high-water
-//! mark, reset before each fit) per million rows, the data read, and the flags.
+//! the files of its first day, its first 10 days and all of them, each fit in a process of its
+//! own (this program again, `--fit DIR DAYS`), printing rows, files, time and peak memory (the
+//! process's resident high-water mark), the data read, and the flags of the last.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -17,7 +17,7 @@ use anyhow::{Context, Result};
 use g1viz::fleet::synth::{FleetSpec, Wear, write_fleet};
 use g1viz::fleet::{Engine, FleetOptions, Key, drift, fit_fleet};
 
-/// Peak resident memory since the last reset [MB] (Linux), and a reset.
+/// Peak resident memory of this process [MB] (Linux).
 fn peak_mb() -> Option<f64> {
     let status = std::fs::read_to_string("/proc/self/status").ok()?;
     let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
@@ -25,13 +25,59 @@ fn peak_mb() -> Option<f64> {
     Some(kb / 1024.0)
 }
 
-fn reset_peak() {
-    // "5" resets the peak resident set size (Linux ≥ 4.0); harmless elsewhere.
-    std::fs::write("/proc/self/clear_refs", "5").ok();
+/// One fit, by robot and week, of the files of the fleet's first `days` days (`DIR/ROBOT/dayNNN.parquet`).
+fn fit(dir: &str, days: usize) -> Result<()> {
+    let t = Instant::now();
+    let mut files = Vec::new();
+    for robot in std::fs::read_dir(dir)? {
+        for f in std::fs::read_dir(robot?.path())? {
+            let p = f?.path();
+            let day = p
+                .file_stem()
+                .and_then(|s| s.to_str()?.strip_prefix("day")?.parse().ok());
+            if day.is_some_and(|d: usize| d < days) {
+                files.push(p);
+            }
+        }
+    }
+    let engine = Engine::open(&files)?;
+    let opts = FleetOptions {
+        by: vec![Key::Robot, Key::Week],
+        target: "mbs".into(),
+        filter: None,
+        cascade: g1viz::trial::Cascade::default(),
+        keep_results: false,
+    };
+    let fit = fit_fleet(&engine, &opts, &mut |_| {})?;
+    let secs = t.elapsed().as_secs_f64();
+    let rows: usize = fit.groups.iter().map(|g| g.rows).sum();
+    println!(
+        "{days} days: {rows} rows, {} files, {} groups, {secs:.2} s ({:.1} s per million rows), peak RSS {:.0} MB, {:.1} MB of Parquet data read",
+        engine.files,
+        fit.groups.len(),
+        secs / (rows as f64 / 1e6),
+        peak_mb().unwrap_or(f64::NAN),
+        fit.bytes_scanned as f64 / 1e6
+    );
+    if let Some(d) = drift::analyse(&fit, 4.0, 4) {
+        for t in d.drifting() {
+            let (r, p, s, z) = (&t.robot, t.param, t.slope, t.z);
+            println!("  drift {r} θ{p} {s:+.4}/week (z {z:+.1})");
+        }
+        for o in &d.outliers {
+            println!("  differs {} θ{} (z {:+.1})", o.robot, o.param, o.z);
+        }
+    }
+    Ok(())
 }
 
 fn main() -> Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
+    if let [flag, dir, days] = &args[..]
+        && flag == "--fit"
+    {
+        return fit(dir, days.parse()?);
+    }
     let dir = PathBuf::from(
         args.first()
             .context("usage: bench_fleet DIR [ROBOTS DAYS EVERY PRESET SEED]")?,
@@ -92,61 +138,22 @@ fn main() -> Result<()> {
             t.elapsed().as_secs_f64()
         );
     }
-    // The first third of the days, then all of them.
-    for third in [true, false] {
-        reset_peak();
-        let t = Instant::now();
-        let engine = Engine::open(std::slice::from_ref(&dir))?;
-        let filter = if third {
-            let (first, _) = engine.query("SELECT MIN(t_ns) AS t FROM rows")?;
-            let t0 = first[0].column(0).as_any();
-            let t0 = t0
-                .downcast_ref::<arrow_array::Int64Array>()
-                .context("MIN(t_ns) is not an integer")?
-                .value(0);
-            Some(format!(
-                "t_ns < {}",
-                t0 + (spec.days / 3) as i64 * 86_400_000_000_000
-            ))
-        } else {
-            None
-        };
-        let opts = FleetOptions {
-            by: vec![Key::Robot, Key::Week],
-            target: "mbs".into(),
-            filter,
-            cascade: g1viz::trial::Cascade::default(),
-            keep_results: false,
-        };
-        let fit = fit_fleet(&engine, &opts, &mut |_| {})?;
-        let secs = t.elapsed().as_secs_f64();
-        let rows: usize = fit.groups.iter().map(|g| g.rows).sum();
-        let mrows = rows as f64 / 1e6;
-        let peak = peak_mb().unwrap_or(f64::NAN);
-        println!(
-            "{}: {rows} rows, {} groups, {:.2} s ({:.1} s per million rows), peak RSS {peak:.0} MB ({:.0} MB per million rows), {:.1} MB of Parquet data read",
-            if third {
-                "first third of the days"
-            } else {
-                "all days"
-            },
-            fit.groups.len(),
-            secs,
-            secs / mrows,
-            peak / mrows,
-            fit.bytes_scanned as f64 / 1e6
+    // Each size in a process of its own: a process's peak memory does not go down again.
+    for days in [1, 10, spec.days] {
+        let out = std::process::Command::new(std::env::current_exe()?)
+            .args(["--fit", &dir.display().to_string(), &days.to_string()])
+            .output()?;
+        let text = String::from_utf8_lossy(&out.stdout);
+        // The flags of the full fit only.
+        let lines = text
+            .lines()
+            .filter(|l| days == spec.days || !l.starts_with("  "));
+        lines.for_each(|l| println!("{l}"));
+        anyhow::ensure!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
         );
-        if let Some(d) = drift::analyse(&fit, 4.0, 4) {
-            for t in d.drifting() {
-                println!(
-                    "  drift {} θ{} {:+.4}/week (z {:+.1})",
-                    t.robot, t.param, t.slope, t.z
-                );
-            }
-            for o in &d.outliers {
-                println!("  differs {} θ{} (z {:+.1})", o.robot, o.param, o.z);
-            }
-        }
     }
     Ok(())
 }

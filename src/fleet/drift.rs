@@ -10,11 +10,14 @@
 //! fewer than three others) and the robot's own scatter about its line, √(χ²/(k − 2)).
 //! A calibrated |z| beyond `z` is a drift.
 //! A robot's level at t₀ against the median of the other robots' levels, in combined standard
-//! errors, is calibrated the same way (by the other robots' spread of that distance for the
-//! parameter, but only ever widened: at least 1): beyond `z`, the robot differs from the fleet —
-//! on parameters that more than half of the fleet's robots follow (elsewhere there is no fleet
-//! level). Each followed (robot, parameter) is thus tested up to twice, against a null drawn from
-//! the same fleet.
+//! errors, is calibrated by the same rule: the larger of the other robots' spread of that
+//! distance for the parameter (at least 1) and the robot's own scatter. Beyond `z`, the robot
+//! differs from the fleet — on parameters that more than half of the fleet's robots follow
+//! (elsewhere there is no fleet level). A trend heading down to its bound, on the bound in some of
+//! the robot's periods and within one standard error of it in a free one, is censored: its
+//! missing periods are the low ones, so neither its slope nor its level is tested (it stays in
+//! the null). Each followed (robot,
+//! parameter) is thus tested up to twice, against a null drawn from the same fleet.
 
 use crate::N_PARAMS;
 
@@ -42,7 +45,7 @@ pub struct Trend {
     pub points: Vec<Point>,
     /// Level at the fleet's first reading.
     pub level: f64,
-    /// Its standard error (Birge-widened).
+    /// Its standard error (nominal).
     pub level_se: f64,
     /// Slope [per week].
     pub slope: f64,
@@ -52,8 +55,11 @@ pub struct Trend {
     pub null_scale: f64,
     /// slope / slope_se.
     pub z: f64,
-    /// Whether |z| exceeds the threshold.
+    /// Whether |z| exceeds the threshold (and the trend is not censored).
     pub drifting: bool,
+    /// Heading down to the bound, on it in some periods and near it in a free one: not tested
+    /// (docs/fleet.md, Drift).
+    pub censored: bool,
 }
 
 /// A robot's level that differs from the other robots'.
@@ -67,7 +73,8 @@ pub struct Outlier {
     pub level: f64,
     /// The other robots' median level.
     pub fleet_level: f64,
-    /// The other robots' spread of their own distance from the fleet (the empirical null).
+    /// The larger of the other robots' spread of their own distance from the fleet (the
+    /// empirical null) and the robot's own scatter.
     pub null_scale: f64,
     /// (level − fleet_level) / (combined standard error · null_scale).
     pub z: f64,
@@ -159,21 +166,23 @@ fn line(points: &[Point]) -> Option<[f64; 5]> {
 
 impl Trend {
     /// The line through `points`; `null_scale` is their scatter about it until [`calibrate`].
-    fn new(robot: &str, param: usize, points: Vec<Point>) -> Option<Trend> {
-        let [level, level_se, slope, slope_se, scatter] = line(&points)?;
-        let (robot, level_se) = (robot.to_string(), level_se * scatter.max(1.0));
-        let (null_scale, z, drifting) = (scatter, 0.0, false);
+    /// `censored` when it heads down, the parameter is not free in some of the robot's `periods`
+    /// and a free one lies within one standard error of the bound.
+    fn new(robot: &str, param: usize, points: Vec<Point>, periods: usize) -> Option<Trend> {
+        let [level, level_se, slope, slope_se, null_scale] = line(&points)?;
+        let bound = crate::lsq::paper_lower_bounds()[param];
+        let near = points.iter().any(|p| p.value - bound < p.std_err);
         Some(Trend {
-            robot,
+            robot: robot.to_string(),
             param,
+            censored: slope < 0.0 && points.len() < periods && near,
             points,
             level,
             level_se,
             slope,
             slope_se,
             null_scale,
-            z,
-            drifting,
+            ..Default::default()
         })
     }
 }
@@ -211,11 +220,12 @@ pub fn analyse(fit: &FleetFit, z: f64, min_periods: usize) -> Option<Drift> {
             if points.len() < min_periods.max(4) || 2 * points.len() < all {
                 continue;
             }
-            trends.extend(Trend::new(robot, param, points));
+            trends.extend(Trend::new(robot, param, points, all));
         }
     }
-    calibrate(&mut trends, z);
+    // Levels first: each trend's `null_scale` is still its own scatter.
     let outliers = outliers(&trends, z);
+    calibrate(&mut trends, z);
     Some(Drift {
         z,
         t0_ns,
@@ -247,7 +257,7 @@ fn calibrate(trends: &mut [Trend], z: f64) {
         t.null_scale = t.null_scale.max(param).max(fleet);
         t.slope_se *= t.null_scale;
         t.z = t.slope / t.slope_se;
-        t.drifting = t.z.abs() > z;
+        t.drifting = t.z.abs() > z && !t.censored;
     }
 }
 
@@ -262,10 +272,10 @@ fn distance(t: &Trend, others: &[&Trend]) -> Option<(f64, f64)> {
 }
 
 /// The robots whose level differs from the other robots': its [`distance`] from them, calibrated
-/// like the drift z by the [`spread`] of the other robots' distances from the rest of them for
-/// that parameter (the robot itself left out, so that it does not widen its own yardstick); with
-/// fewer than five other robots, the nominal distance. Only parameters that more than half of
-/// the fleet's robots follow are tested.
+/// like the drift z by the larger of the robot's own scatter (`null_scale` on entry) and the
+/// [`spread`] of the other robots' distances from the rest of them for that parameter (the robot
+/// itself left out, so that it does not widen its own yardstick; 1 with fewer than five). Only
+/// parameters that more than half of the fleet's robots follow are tested, censored trends not.
 fn outliers(trends: &[Trend], z: f64) -> Vec<Outlier> {
     fn others<'a>(t: &Trend, of: &[&'a Trend]) -> Vec<&'a Trend> {
         let of = of
@@ -283,7 +293,7 @@ fn outliers(trends: &[Trend], z: f64) -> Vec<Outlier> {
         // A parameter most robots' fits leave at its bound has no fleet level: the few where it
         // is free are a selection, not the fleet (a 20-robot fleet flagged two of the three
         // robots following θ28, each against the mean of the other two).
-        if 2 * (rest.len() + 1) <= robots.len() {
+        if 2 * (rest.len() + 1) <= robots.len() || t.censored {
             continue;
         }
         let Some((fleet_level, zd)) = distance(t, &rest) else {
@@ -293,7 +303,7 @@ fn outliers(trends: &[Trend], z: f64) -> Vec<Outlier> {
         // Five at least: each of these distances is from a median of the few left. The null only
         // widens the yardstick (floor 1): the levels' tails are heavier than their median says,
         // and a floor of 0.7 gave 5 false flags in four runs on two 20 × 30 fleets.
-        let null_scale = spread(null.map(|(_, d)| d.abs()).collect(), 5, 1.0);
+        let null_scale = spread(null.map(|(_, d)| d.abs()).collect(), 5, 1.0).max(t.null_scale);
         if (zd / null_scale).abs() > z {
             let (robot, param, level) = (t.robot.clone(), t.param, t.level);
             let z = zd / null_scale;
@@ -334,23 +344,31 @@ mod tests {
     }
 
     /// A robot's exact line (no scatter) through five weekly points of s.e. 0.1 whose slope is
-    /// `z` nominal standard errors.
+    /// `z` nominal standard errors, the parameter free in all of the robot's five periods.
     fn sloped(robot: usize, param: usize, z: f64) -> Trend {
+        sloped_of(robot, param, z, 5, 1.0)
+    }
+
+    /// The same, free in five of the robot's `periods`, starting from `start`.
+    fn sloped_of(robot: usize, param: usize, z: f64, periods: usize, start: f64) -> Trend {
         let slope = z * 0.1 / 10f64.sqrt();
         let at = |k: usize| Point {
             t_weeks: k as f64,
-            value: 1.0 + slope * k as f64,
+            value: start + slope * k as f64,
             std_err: 0.1,
         };
         let points: Vec<Point> = (0..5).map(at).collect();
-        Trend::new(&format!("r{robot:02}"), param, points).unwrap()
+        Trend::new(&format!("r{robot:02}"), param, points, periods).unwrap()
     }
 
     /// Twenty robots whose slopes scatter as their errors say on eight parameters, and 0.55 of
     /// that on a ninth (its nominal errors too wide for most robots). A robot 3.3 nominal errors
     /// off on the ninth is not a drift: a parameter's yardstick is never narrower than the
     /// fleet's (the false drifts of three 20 × 30 fleets by week had their parameter's scale at
-    /// the old fixed floor, 0.7). One 6 errors off on the first parameter is.
+    /// the old fixed floor, 0.7). One 6 errors off on the first parameter (a0, bound 1) is. One 6
+    /// errors down on it, not free in a sixth period, ending 0.4 errors above the bound is
+    /// censored, not a drift (the fleet by week of seed 977743138, docs/fleet.md); the same
+    /// ending far above the bound, or heading up, is a drift.
     #[test]
     fn a_drift_is_judged_on_no_narrower_a_null_than_the_fleets() {
         let z = |r: usize| 1.35 * (r as f64 - 9.5) / 9.5;
@@ -361,11 +379,15 @@ mod tests {
         trends.extend((0..8).map(|p| sloped(19, p, z(19))));
         trends.push(sloped(19, 8, 3.3));
         trends[2] = sloped(2, 0, 6.0);
+        trends[3] = sloped_of(3, 0, -6.0, 6, 1.8);
+        trends[4] = sloped_of(4, 0, 6.0, 6, 1.0);
+        trends[5] = sloped_of(5, 0, -6.0, 6, 3.0);
         calibrate(&mut trends, 4.0);
         let flagged: Vec<(&str, usize)> = (trends.iter().filter(|t| t.drifting))
             .map(|t| (t.robot.as_str(), t.param))
             .collect();
-        assert_eq!(flagged, [("r02", 0)]);
+        assert_eq!(flagged, [("r02", 0), ("r04", 0), ("r05", 0)]);
+        assert!(trends[3].censored && trends[3].z < -4.0);
     }
 
     /// A robot at `level` ± `se` on parameter `param` (its periods are not looked at).
@@ -384,6 +406,10 @@ mod tests {
     /// or the errors are too small: the fleet's spread is the yardstick), at the normal quantiles
     /// (Blom) of that spread. A twelfth robot 5 own s.e. off (1.7 spreads) is not flagged; one
     /// 10 spreads off is, as is one 6 s.e. off where the fleet scatters as its errors say.
+    /// Where the fleet scatters 1.5 s.e. (null spread 1.74), a robot 8.4 combined s.e. off whose
+    /// own periods scatter 1.8 times their errors is flagged (8.4 / 1.8: the larger factor, as
+    /// for slopes; their product, 3.1, missed g1_02's b2 by day on seed 615493558), one whose
+    /// periods scatter 3 times is not.
     #[test]
     fn a_level_differs_only_beyond_the_fleets_own_spread() {
         let q = [
@@ -391,15 +417,25 @@ mod tests {
         ];
         let (se, wide) = (0.01, 0.03);
         let mut trends = Vec::new();
-        for (param, spread, odd) in [(0, wide, 0.05), (1, wide, 0.3), (2, se, 0.06)] {
+        let odd = [
+            (0, wide, 0.05, 0.0),
+            (1, wide, 0.3, 0.0),
+            (2, se, 0.06, 0.0),
+        ];
+        let birge = [(3, 0.015, 0.09, 1.8), (4, 0.015, 0.09, 3.0)];
+        for (param, spread, odd, scatter) in odd.into_iter().chain(birge) {
             trends
                 .extend((q.iter().enumerate()).map(|(r, x)| level(r, param, 1.0 + spread * x, se)));
-            trends.push(level(11, param, 1.0 + odd, se));
+            trends.push(Trend {
+                null_scale: scatter,
+                ..level(11, param, 1.0 + odd, se)
+            });
         }
         let flagged: Vec<(String, usize)> = (outliers(&trends, 4.0).into_iter())
             .map(|o| (o.robot, o.param))
             .collect();
-        assert_eq!(flagged, [("r11".to_string(), 1), ("r11".to_string(), 2)]);
+        let r11 = |p| ("r11".to_string(), p);
+        assert_eq!(flagged, [r11(1), r11(2), r11(3)]);
     }
 
     /// Twenty robots follow parameter 0 at one level; only three follow parameter 1 (the rest of

@@ -53,11 +53,10 @@ pub fn markdown(fit: &FleetFit, drift: Option<&Drift>, joints: &[String]) -> Str
     );
     let header = by.join(",") + ",rows,used,trials,rejected IMU / 3σ,R²,RMSE [W],note";
     let groups = fit.groups.iter().map(|g| {
-        let (imu, res, unusable) = g.rejected_by();
+        let (imu, rejected) = g.rejected_by();
         let (key, note) = (g.key.join(" | "), g.error.as_deref().unwrap_or(""));
         let (rows, used, trials) = (g.rows, g.rows_used, g.trials);
         let (r2, rmse) = (g.r2, g.rmse);
-        let rejected = res + unusable;
         format!("| {key} | {rows} | {used} | {trials} | {imu} / {rejected} | {r2:.4} | {rmse:.3} | {note} |")
     });
     table(&mut s, "Groups", &header, groups);
