@@ -165,6 +165,16 @@ pub struct Hypothesis {
     pub plausible: (f64, f64),
 }
 
+impl Hypothesis {
+    /// Weight of raw feature `i` in the regressor: 1, or the base parameter it scales in `theta`.
+    pub fn weight(&self, theta: &[f64], i: usize) -> f64 {
+        match self.combine {
+            Combine::Single => 1.0,
+            Combine::WeightedByBase(b) => theta.get(b + i).copied().unwrap_or(1.0),
+        }
+    }
+}
+
 // Physical limits of the library's parameters (issue 28, branch diag24). A loss is never negative
 // (every lower bound is 0); the upper bounds:
 /// α [1/K]: the largest temperature coefficient of a winding metal (aluminium 0.0043/K; copper

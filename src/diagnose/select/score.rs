@@ -246,8 +246,8 @@ pub(super) fn score_term(
     let score = HypothesisScore {
         delta_bic: next.bic - cur.bic,
         // Outside the physical range only where the estimate is, by two standard errors.
-        plausible: param.value + 2.0 * param.std_err >= h.plausible.0
-            && param.value - 2.0 * param.std_err <= h.plausible.1,
+        plausible: param.value + 2.0 * param.std_err.max(0.0) >= h.plausible.0
+            && param.value - 2.0 * param.std_err.max(0.0) <= h.plausible.1,
         step,
         ..held.score(h.id, h.title, "power", vec![param])
     };

@@ -5,6 +5,11 @@ Written from physics and the diagnoser's *advertised* mechanism ids (the `hypoth
 `g1viz diagnose --json` prints), not from its formulas. Every effect also carries what a claim
 must say to name it (`expect`): library ids of its mechanism, recorded fields it follows, words
 of the loss term it changes, or the meter it is an artefact of.
+
+Magnitudes are log-uniform in watts from well below to well above detection, but never beyond
+physics: a modulated term changes by at most its own size (`Physics.REL_CAP`), and a library
+mechanism is at most its size at the physical limit `LIMITS` states from the robot's public
+figures (URDF efforts, torque constants, winding metals, energy), in this generator's own units.
 """
 import math
 
