@@ -55,8 +55,9 @@ FORMS_SHAPE = ["linear", "power", "exponential", "threshold", "one_sided"]
 # (`Physics.library_base`) at its physical limit, from public figures (decided on branch diag24,
 # issue 28; docs/diagnosis.md "How large a mechanism can be"). A drawn magnitude [W RMS] above
 # LIMITS × the regressor's RMS over the scaling block is drawn again below it (`Physics._cap`);
-# for a power, threshold, per-joint, one-sided or switched form the bound is on the RMS: no form
-# carries more power than its mechanism's linear form at the limit. Nothing beyond physics is drawn,
+# per joint, the joint with the largest weight is at most at the limit; for a power, threshold,
+# one-sided or switched form the bound is on the RMS: no form carries more power than its
+# mechanism's linear form at the limit. Nothing beyond physics is drawn,
 # so the scorer needs no rule for an "implausible" size.
 _URDF_EFFORT_NM = [25, 25, 25, 25, 25, 5, 5]   # urdf/g1_left_arm.urdf <limit effort>, shoulder..wrist
 _TORQUE_CONST = [1.3, 1.3, 1.3, 1.3, 0.7, 0.7, 0.7]  # joint torque constants [Nm/A], G1 arm nominal
@@ -374,9 +375,12 @@ class Physics:
                             self.coef[i] = 1.0 / rms
                             if e["kind"] == "modulated":
                                 self._cap(i, e, self.REL_CAP * rms)
-                            else:  # the mechanism at its physical limit, as RMS watts
+                            else:  # the mechanism at its physical limit, as RMS watts; per joint,
+                                # the joint with the largest weight at it
                                 lin = self.library_base(e["mechanism"], e, ctx).sum(1)
-                                e["limit_W"] = LIMITS[e["mechanism"]] * float(np.sqrt(np.mean(lin * lin)))
+                                lin_rms = rms / max(e["weights"]) if e["form"] == "per_joint" \
+                                    else float(np.sqrt(np.mean(lin * lin)))
+                                e["limit_W"] = LIMITS[e["mechanism"]] * lin_rms
                                 self._cap(i, e, e["limit_W"])
                             e["coef_W_per_unit"] = self.coef[i] * e["magnitude"]
                 c = e["magnitude"] * (self.coef[i] or 0.0) * r
