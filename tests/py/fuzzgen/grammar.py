@@ -9,7 +9,8 @@ of the loss term it changes, or the meter it is an artefact of.
 Magnitudes are log-uniform in watts from well below to well above detection, but never beyond
 physics: a modulated term changes by at most its own size (`Physics.REL_CAP`), and a library
 mechanism is at most its size at the physical limit `LIMITS` states from the robot's public
-figures (URDF efforts, torque constants, winding metals, energy), in this generator's own units.
+figures (URDF efforts, torque constants, winding metals, energy), in this generator's own units;
+a state changing the transmitted power only adds a loss to it.
 """
 import math
 
@@ -135,6 +136,11 @@ def draw_effect(rng):
         e.update(mechanism=f"{term}_x_state", term=term, state=state, joint=j,
                  pooled=bool(rng.random() < 0.5), form=str(rng.choice(FORMS_SHAPE)),
                  magnitude=_lu(rng, 0.03, 5.0) * float(rng.choice([-1, 1])), unit="W")
+        # The transmitted power at the session start is already at the plant's efficiency 1 (the
+        # paper's a >= 1) and full return: a state can only add a loss to it, never a gain (the
+        # sign is set after the draw, so every other draw is unchanged)
+        if term in ("mech_drive", "mech_brake"):
+            e["magnitude"] = abs(e["magnitude"]) * (1.0 if term == "mech_drive" else -1.0)
         _shape_params(rng, e)
         # the library mechanism that is this term changing: copper with the winding temperature is
         # the thermal drift; a braking loss changing with any state is still the braking asymmetry
