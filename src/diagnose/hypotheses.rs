@@ -157,19 +157,35 @@ pub struct Hypothesis {
     pub raw: (usize, usize),
     /// How the raw features become one regressor.
     pub combine: Combine,
-    /// Coefficient of the regressor → physical parameter.
-    pub to_physical: fn(f64) -> f64,
-    /// Physically plausible range of the parameter (inclusive).
+    /// The physical parameter is `offset` + the regressor's coefficient (1 for the braking return
+    /// fraction, 0 for the others).
+    pub offset: f64,
+    /// Physical range of the parameter (inclusive): the limits below, each from a public figure
+    /// (docs/diagnosis.md, "How large a mechanism can be").
     pub plausible: (f64, f64),
 }
 
-fn identity(c: f64) -> f64 {
-    c
+impl Hypothesis {
+    /// Weight of raw feature `i` in the regressor: 1, or the base parameter it scales in `theta`.
+    pub fn weight(&self, theta: &[f64], i: usize) -> f64 {
+        match self.combine {
+            Combine::Single => 1.0,
+            Combine::WeightedByBase(b) => theta.get(b + i).copied().unwrap_or(1.0),
+        }
+    }
 }
 
-fn return_fraction(c: f64) -> f64 {
-    1.0 + c
-}
+// Physical limits of the library's parameters (issue 28, branch diag24). A loss is never negative
+// (every lower bound is 0); the upper bounds:
+/// α [1/K]: the largest temperature coefficient of a winding metal (aluminium 0.0043/K; copper
+/// 0.00393/K at 20 °C, IEC 60028), read against the recorded winding temperature.
+const ALPHA_MAX: f64 = 0.0043;
+/// V_drop [V]: two bridge devices in the current path at ≤ 2.5 V each (an IGBT's saturation
+/// voltage at rated current; a MOSFET's drop is resistive, i.e. copper-like).
+const V_DROP_MAX: f64 = 5.0;
+/// F_s [Nm], one coefficient for every joint: a mix of per-joint breakaways, each below its
+/// joint's peak torque (else it could not start moving) — at most the largest URDF effort, 25 Nm.
+const F_S_MAX: f64 = 25.0;
 
 /// The winding-resistance drift, pooled over the joints (its driving-side form shares its physics).
 const THERMAL_DRIFT: Hypothesis = Hypothesis {
@@ -182,11 +198,12 @@ const THERMAL_DRIFT: Hypothesis = Hypothesis {
     model_assumes: "the copper loss b_i·Δτ_i² does not depend on motor temperature",
     raw: (THERMAL, N_JOINTS),
     combine: Combine::WeightedByBase(N_JOINTS),
-    to_physical: identity,
-    plausible: (0.0005, 0.01),
+    offset: 0.0,
+    plausible: (0.0, ALPHA_MAX),
 };
 
-/// The shared DC-bus loss in the phase current (its electrical-power form shares its physics).
+/// The shared DC-bus loss in the phase current (its electrical-power form shares its physics);
+/// the single-feature forms below take its `combine` and `offset`.
 const BUS_LOSS: Hypothesis = Hypothesis {
     id: "bus_loss",
     mechanism: "shared DC-bus loss",
@@ -197,7 +214,10 @@ const BUS_LOSS: Hypothesis = Hypothesis {
     model_assumes: "joints share no resistive path: there is no loss in the total current",
     raw: (BUS, 1),
     combine: Combine::Single,
-    to_physical: identity,
+    offset: 0.0,
+    // Not a physical limit: a path dropping the whole bus at the arm's peak current (every joint
+    // at its URDF effort, Σ effort_i/K_i = 127 A) has 0.39 Ω; the simulator's and the independent
+    // generator's bus sessions are drawn at 5–10 Ω, which a physical bound would reject.
     plausible: (0.001, 2.0),
 };
 
@@ -223,8 +243,9 @@ pub static POWER_HYPOTHESES: [Hypothesis; 10] = [
         model_assumes: "regenerated (braking) mechanical power is fully returned to the bus",
         raw: (BRAKING, N_JOINTS),
         combine: Combine::WeightedByBase(0),
-        to_physical: return_fraction,
-        plausible: (0.0, 0.98),
+        // A path returns at most what is regenerated (r ≤ 1) and, drawing nothing, at least 0.
+        offset: 1.0,
+        plausible: (0.0, 1.0),
     },
     BUS_LOSS,
     Hypothesis {
@@ -236,9 +257,9 @@ pub static POWER_HYPOTHESES: [Hypothesis; 10] = [
         unit: "-",
         model_assumes: "gear friction does not grow with the transmitted load",
         raw: (GEAR, 1),
-        combine: Combine::Single,
-        to_physical: identity,
-        plausible: (0.005, 1.0),
+        // The arm's gears are backdriven (torque control): efficiency > 50 %, loss < the power.
+        plausible: (0.0, 1.0),
+        ..BUS_LOSS
     },
     Hypothesis {
         id: "drive_loss",
@@ -249,9 +270,8 @@ pub static POWER_HYPOTHESES: [Hypothesis; 10] = [
         unit: "V",
         model_assumes: "the drives have no loss proportional to their current (switch/diode drop)",
         raw: (DRIVE, 1),
-        combine: Combine::Single,
-        to_physical: identity,
-        plausible: (0.01, 10.0),
+        plausible: (0.0, V_DROP_MAX),
+        ..BUS_LOSS
     },
     Hypothesis {
         id: "stribeck",
@@ -262,9 +282,8 @@ pub static POWER_HYPOTHESES: [Hypothesis; 10] = [
         unit: "Nm",
         model_assumes: "friction is pure Coulomb + viscous (no extra breakaway friction at low speed)",
         raw: (STRIBECK, 1),
-        combine: Combine::Single,
-        to_physical: identity,
-        plausible: (0.01, 20.0),
+        plausible: (0.0, F_S_MAX),
+        ..BUS_LOSS
     },
     Hypothesis {
         id: "balance_leak",
@@ -275,9 +294,9 @@ pub static POWER_HYPOTHESES: [Hypothesis; 10] = [
         unit: "W/(rad/s)²",
         model_assumes: "leg power for balance does not leak into the arm power reading",
         raw: (LEAK, 1),
-        combine: Combine::Single,
-        to_physical: identity,
+        // Not a physical limit: no public figure bounds the legs' balance power per sway.
         plausible: (0.1, 1.0e5),
+        ..BUS_LOSS
     },
     Hypothesis {
         id: "bus_power",
@@ -297,9 +316,9 @@ pub static POWER_HYPOTHESES: [Hypothesis; 10] = [
         unit: "W/Nm",
         model_assumes: "the drives have no loss proportional to their torque",
         raw: (DRIVE_NM, 1),
-        combine: Combine::Single,
-        to_physical: identity,
-        plausible: (0.01, 10.0),
+        // V_drop per Nm of the joint with the smallest torque constant (0.7 Nm/A): any mix.
+        plausible: (0.0, V_DROP_MAX / 0.7),
+        ..BUS_LOSS
     },
 ];
 

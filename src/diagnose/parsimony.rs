@@ -22,7 +22,7 @@
 use anyhow::Result;
 
 use super::flexible::{arm_drives, drives, shape_cols, state_cols, unit_rms};
-use super::hypotheses::{Combine, Hypothesis, LATENCY_ID, POWER_HYPOTHESES, RAW_DRIVING_COPPER};
+use super::hypotheses::{Hypothesis, LATENCY_ID, POWER_HYPOTHESES, RAW_DRIVING_COPPER};
 use super::select::{
     PowerData, RIVAL_ALPHA, Rule, Selection, r2_rmse, regressor, state, trial_sse,
 };
@@ -60,14 +60,10 @@ fn library_flexible(
         cols.extend((0..N_JOINTS).map(|i| rows.x.iter().map(|x| x[i].abs()).collect()));
     }
     let g: Vec<f64> = rows.x.iter().map(|x| regressor(h, x, theta)).collect();
-    let w = |i: usize| match h.combine {
-        Combine::WeightedByBase(b) => theta.get(b + i).copied().unwrap_or(1.0),
-        Combine::Single => 1.0,
-    };
     let driving = rows.x.iter().zip(&g).map(|(x, v)| match len {
         N_JOINTS => (0..N_JOINTS)
             .filter(|&i| drives(x, i))
-            .map(|i| feature(x, i) * w(i))
+            .map(|i| feature(x, i) * h.weight(theta, i))
             .sum(),
         _ => v * f64::from(u8::from(arm_drives(x))),
     });

@@ -267,24 +267,23 @@ pub fn pearson(x: &[f64], y: &[f64]) -> (f64, f64) {
     (r, 2.0 * t_upper_tail(t.abs(), df))
 }
 
-/// 5–95 % span of a field's values.
-pub(crate) fn span(v: &[f64]) -> f64 {
+/// The 5 % and 95 % quantiles of `v` (`None` when it is empty).
+fn q5_95(v: &[f64]) -> Option<(f64, f64)> {
     let mut s: Vec<f64> = v.to_vec();
     s.sort_by(f64::total_cmp);
     let q = |p: f64| s[((s.len() - 1) as f64 * p).round() as usize];
-    if s.is_empty() { 0.0 } else { q(0.95) - q(0.05) }
+    (!s.is_empty()).then(|| (q(0.05), q(0.95)))
+}
+
+/// 5–95 % span of a field's values.
+pub(crate) fn span(v: &[f64]) -> f64 {
+    q5_95(v).map_or(0.0, |(lo, hi)| hi - lo)
 }
 
 /// Threshold of a field that switches between levels: the midpoint of its 5–95 % range when
 /// fewer than 10 % of the values lie in the middle third of it.
 pub(crate) fn step_threshold(v: &[f64]) -> Option<f64> {
-    let mut s: Vec<f64> = v.to_vec();
-    s.sort_by(f64::total_cmp);
-    let q = |p: f64| s[((s.len() - 1) as f64 * p).round() as usize];
-    let (lo, hi) = (q(0.05), q(0.95));
-    if hi - lo <= 0.0 {
-        return None;
-    }
+    let (lo, hi) = q5_95(v).filter(|(lo, hi)| hi > lo)?;
     let mid = v
         .iter()
         .filter(|&&x| x > lo + (hi - lo) / 3.0 && x < hi - (hi - lo) / 3.0)

@@ -107,11 +107,7 @@ pub(crate) fn design_map(spec: &[&Hypothesis], theta: &[f64]) -> DMatrix<f64> {
     for (j, h) in spec.iter().enumerate() {
         let (off, len) = h.raw;
         for i in 0..len {
-            let w = match h.combine {
-                Combine::Single => 1.0,
-                Combine::WeightedByBase(base) => theta.get(base + i).copied().unwrap_or(1.0),
-            };
-            m[(N_PARAMS + off + i, N_PARAMS + j)] = w;
+            m[(N_PARAMS + off + i, N_PARAMS + j)] = h.weight(theta, i);
         }
     }
     m

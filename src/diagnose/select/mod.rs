@@ -16,7 +16,7 @@ pub use score::{HypothesisScore, Param};
 
 use anyhow::Result;
 
-use super::hypotheses::{Combine, Hypothesis, LATENCY_ID, N_RAW};
+use super::hypotheses::{Hypothesis, LATENCY_ID, N_RAW};
 use crate::N_PARAMS;
 
 /// How the forms of one mechanism compared at the selection step that decided between them.
@@ -352,13 +352,7 @@ pub(crate) fn unname(
 pub(crate) fn regressor(h: &Hypothesis, x: &[f64; N_RAW], theta: &[f64]) -> f64 {
     let (off, len) = h.raw;
     (0..len)
-        .map(|i| {
-            let w = match h.combine {
-                Combine::Single => 1.0,
-                Combine::WeightedByBase(b) => theta.get(b + i).copied().unwrap_or(1.0),
-            };
-            w * x[N_PARAMS + off + i]
-        })
+        .map(|i| h.weight(theta, i) * x[N_PARAMS + off + i])
         .sum()
 }
 

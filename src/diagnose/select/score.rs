@@ -242,11 +242,12 @@ pub(super) fn score_term(
     spec.push(h);
     let next = state(data, spec, cur.lag)?;
     let param = term_param(&next, next.spec.len() - 1);
-    let value = param.value;
     let held = compare(data, cur, &next.cv.pred);
     let score = HypothesisScore {
         delta_bic: next.bic - cur.bic,
-        plausible: value >= h.plausible.0 && value <= h.plausible.1,
+        // Outside the physical range only where the estimate is, by two standard errors.
+        plausible: param.value + 2.0 * param.std_err.max(0.0) >= h.plausible.0
+            && param.value - 2.0 * param.std_err.max(0.0) <= h.plausible.1,
         step,
         ..held.score(h.id, h.title, "power", vec![param])
     };
@@ -256,7 +257,7 @@ pub(super) fn score_term(
 /// The physical parameter of `st`'s `k`-th term, with its jackknife standard error over the folds.
 pub(crate) fn term_param(st: &State, k: usize) -> Param {
     let h = st.spec[k];
-    let phys = |t: &[f64]| (h.to_physical)(t[N_PARAMS + k]);
+    let phys = |t: &[f64]| h.offset + t[N_PARAMS + k];
     Param {
         name: h.title.into(),
         symbol: h.symbol.into(),

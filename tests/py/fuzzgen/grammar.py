@@ -5,6 +5,12 @@ Written from physics and the diagnoser's *advertised* mechanism ids (the `hypoth
 `g1viz diagnose --json` prints), not from its formulas. Every effect also carries what a claim
 must say to name it (`expect`): library ids of its mechanism, recorded fields it follows, words
 of the loss term it changes, or the meter it is an artefact of.
+
+Magnitudes are log-uniform in watts from well below to well above detection, but never beyond
+physics: a modulated term changes by at most its own size (`Physics.REL_CAP`), and a library
+mechanism is at most its size at the physical limit `LIMITS` states from the robot's public
+figures (URDF efforts, torque constants, winding metals, energy), in this generator's own units;
+a state changing the transmitted power only adds a loss to it.
 """
 import math
 
@@ -45,6 +51,42 @@ TERMS = {  # base loss terms a state may modulate, and words a claim naming them
 }
 METER_WORDS = ["meter", "sensor", "artefact", "artifact", "gain", "offset", "calibrat", "window"]
 FORMS_SHAPE = ["linear", "power", "exponential", "threshold", "one_sided"]
+
+# The largest size each library mechanism has on a G1 arm: the coefficient of its linear regressor
+# (`Physics.library_base`) at its physical limit, from public figures (decided on branch diag24,
+# issue 28; docs/diagnosis.md "How large a mechanism can be"). A drawn magnitude [W RMS] above
+# LIMITS × the regressor's RMS over the scaling block is drawn again below it (`Physics._cap`);
+# per joint, the joint with the largest weight is at most at the limit; for a power, threshold,
+# one-sided or switched form the bound is on the RMS: no form carries more power than its
+# mechanism's linear form at the limit. Nothing beyond physics is drawn,
+# so the scorer needs no rule for an "implausible" size.
+_URDF_EFFORT_NM = [25, 25, 25, 25, 25, 5, 5]   # urdf/g1_left_arm.urdf <limit effort>, shoulder..wrist
+_TORQUE_CONST = [1.3, 1.3, 1.3, 1.3, 0.7, 0.7, 0.7]  # joint torque constants [Nm/A], G1 arm nominal
+_BUS_V = 13 * 3.7  # 13 Li-ion cells in series at their nominal 3.7 V
+LIMITS = {
+    # W lost per W regenerated: at most all of it (return fraction r = 0); r < 0 would be a braking
+    # path that draws power, which is the copper loss's, not a return's
+    "braking": 1.0,
+    # W lost per W transmitted: the arm's gears are backdriven (torque control), so their efficiency
+    # is above 50 % and the load-dependent loss is below the transmitted power
+    "gear_friction": 1.0,
+    # W per Nm: a current-proportional drop of at most 5 V (two bridge devices at <= 2.5 V each,
+    # an IGBT's saturation voltage at rated current; a MOSFET's drop is resistive: copper-like)
+    # over the largest torque constant (every joint must obey it)
+    "electronics": 5.0 / max(_TORQUE_CONST),
+    # Ohm: a shared path that would drop the whole bus voltage at the arm's peak current
+    # (every joint at its URDF effort: sum of effort / K = 127 A) could not supply it
+    "bus": _BUS_V / sum(f / k for f, k in zip(_URDF_EFFORT_NM, _TORQUE_CONST)),
+    # 1/K: the largest temperature coefficient of a winding metal (aluminium 0.0043; copper
+    # 0.00393 at 20 C, IEC 60028), read against the recorded winding temperature
+    "thermal": 0.0043,
+    # Nm, one breakaway for every joint: above the weakest joint's peak torque (wrist pitch/yaw,
+    # URDF effort 5 Nm) that joint could not start moving
+    "stribeck": float(min(_URDF_EFFORT_NM)),
+    # W/(rad/s)^2: not a physical limit (the legs' balance power has no public figure per sway);
+    # ten times the reference twin's 55.6 (indgen CONTAM), the size this mechanism was written for
+    "balance_leak": 556.0,
+}
 
 
 def _lu(rng, lo, hi):
@@ -94,6 +136,11 @@ def draw_effect(rng):
         e.update(mechanism=f"{term}_x_state", term=term, state=state, joint=j,
                  pooled=bool(rng.random() < 0.5), form=str(rng.choice(FORMS_SHAPE)),
                  magnitude=_lu(rng, 0.03, 5.0) * float(rng.choice([-1, 1])), unit="W")
+        # The transmitted power at the session start is already at the plant's efficiency 1 (the
+        # paper's a >= 1) and full return: a state can only add a loss to it, never a gain (the
+        # sign is set after the draw, so every other draw is unchanged)
+        if term in ("mech_drive", "mech_brake"):
+            e["magnitude"] = abs(e["magnitude"]) * (1.0 if term == "mech_drive" else -1.0)
         _shape_params(rng, e)
         # the library mechanism that is this term changing: copper with the winding temperature is
         # the thermal drift; a braking loss changing with any state is still the braking asymmetry
@@ -237,19 +284,24 @@ class Physics:
         return out
 
     # -- power effects ------------------------------------------------------------------
+    def library_base(self, m, e, ctx):
+        """A library mechanism's linear regressor (n, 7): its coefficient is the parameter
+        `LIMITS` bounds."""
+        tau, qd, mech = ctx["tau"], ctx["qd"], ctx["mech"]
+        if m == "bus":
+            el = ctx["a"] * mech + ctx["b"] * tau * tau + ctx["c"] * np.abs(qd) + ctx["d"] * qd * qd
+            return ((np.maximum(el, 0.0).sum(1) / ctx["ocv"]) ** 2)[:, None] * np.ones((1, 7)) / 7.0
+        return {"braking": np.maximum(-mech, 0.0), "gear_friction": np.abs(mech), "electronics": np.abs(tau),
+                "thermal": ctx["b"] * tau * tau * (ctx["Tw"] - 25.0),
+                "stribeck": np.abs(qd) * np.exp(-(qd / e.get("v_s", 0.1)) ** 2),
+                "balance_leak": (ctx["sway"] ** 2)[:, None] * np.ones((1, 7)) / 7.0}[m]
+
     def regressor(self, e, ctx):
         """Per-sample, per-joint (n, 7) or pooled (n,) unscaled contribution of a rail effect."""
         tau, qd, mech = ctx["tau"], ctx["qd"], ctx["mech"]
         m = e.get("mechanism")
         if e["kind"] == "library":
-            base = {"braking": np.maximum(-mech, 0.0), "gear_friction": np.abs(mech), "electronics": np.abs(tau),
-                    "thermal": ctx["b"] * tau * tau * (ctx["Tw"] - 25.0),
-                    "stribeck": np.abs(qd) * np.exp(-(qd / e.get("v_s", 0.1)) ** 2),
-                    "balance_leak": (ctx["sway"] ** 2)[:, None] * np.ones((1, 7)) / 7.0}.get(m)
-            if m == "bus":
-                el = ctx["a"] * mech + ctx["b"] * tau * tau + ctx["c"] * np.abs(qd) + ctx["d"] * qd * qd
-                pin = np.maximum(el, 0.0).sum(1)
-                base = ((pin / ctx["ocv"]) ** 2)[:, None] * np.ones((1, 7)) / 7.0
+            base = self.library_base(m, e, ctx)
             f = e["form"]
             if f == "power":
                 base = base ** e["exponent"]
@@ -288,14 +340,14 @@ class Physics:
 
     REL_CAP = 1.0  # a modulated loss term changes by at most 100 % of itself (see `_cap`)
 
-    def _cap(self, i, e, rms):
-        """Bound a modulated term's change: |magnitude| / rms (the term's relative change at g = 1,
-        the state's nominal range over the session) <= REL_CAP. Below 0 a loss would turn into a
-        source, and a doubling is the most a slow state does to a loss over a session (grease
-        viscosity over ~20 K, copper resistance over ~250 K). A draw above the cap is drawn again,
+    def _cap(self, i, e, cap):
+        """Bound an effect's |magnitude| [W] by `cap`: a modulated term's by REL_CAP × its RMS (its
+        relative change at g = 1, the state's nominal range over the session; below 0 a loss would
+        turn into a source, and a doubling is the most a slow state does to a loss over a session:
+        grease viscosity over ~20 K, copper resistance over ~250 K), a library mechanism's by its
+        `LIMITS` × the RMS of its linear regressor. A draw above the cap is drawn again,
         log-uniform over [lo, cap] from its own stream (the truncated log-uniform draw is the same
         distribution), so effects below the cap, and every other draw, are unchanged."""
-        cap = self.REL_CAP * rms
         if abs(e["magnitude"]) <= cap:
             return
         lo = min(0.03, cap / 10.0)
@@ -328,7 +380,14 @@ class Physics:
                         if rms > 1e-3 and moves >= 0.05:
                             self.coef[i] = 1.0 / rms
                             if e["kind"] == "modulated":
-                                self._cap(i, e, rms)
+                                self._cap(i, e, self.REL_CAP * rms)
+                            else:  # the mechanism at its physical limit, as RMS watts; per joint,
+                                # the joint with the largest weight at it
+                                lin = self.library_base(e["mechanism"], e, ctx).sum(1)
+                                lin_rms = rms / max(e["weights"]) if e["form"] == "per_joint" \
+                                    else float(np.sqrt(np.mean(lin * lin)))
+                                e["limit_W"] = LIMITS[e["mechanism"]] * lin_rms
+                                self._cap(i, e, e["limit_W"])
                             e["coef_W_per_unit"] = self.coef[i] * e["magnitude"]
                 c = e["magnitude"] * (self.coef[i] or 0.0) * r
                 total += c

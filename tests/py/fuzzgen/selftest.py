@@ -25,6 +25,8 @@ def check_grammar(n=2000):
     checks = {
         "cap: a draw above it is redrawn below it": -0.1 <= big["magnitude"] < 0 and big["magnitude_drawn"] == -5.0,
         "cap: a draw below it is kept": small == {"magnitude": 0.05},
+        "every power mechanism of the library has a physical limit":
+            set(grammar.LIMITS) == set(grammar.LIBRARY) - {"latency", "payload"},
         "nulls >= 20 %": nulls >= 0.2,
         "every library mechanism": lib == set(grammar.LIBRARY),
         "every form": set(grammar.FORMS_SHAPE) <= forms,
