@@ -58,7 +58,7 @@ use crate::timing::{
 use crate::trial::{Cascade, TrialStat, TrialWindow, is_rejected, samples_in};
 
 use super::hypotheses::{Hypothesis, N_RAW, POWER_HYPOTHESES};
-use super::lags::base_trial_residuals;
+use super::lags::{TrialRows, filter_trials};
 use super::reading_rows::{Rows, TrialFeatures, TrialMeta, build_rows, span};
 use super::trials::{SessionInfo, copy_span};
 use super::{DiagnoseOptions, SensorWindow};
@@ -178,6 +178,25 @@ fn drift_span(metas: &[TrialMeta]) -> (f64, f64) {
     (t(metas.first()), t(metas.last()))
 }
 
+/// ΔBIC of a fit with R² `r2` against one with `r2_0` on the same `n` readings and targets (the
+/// SSE ratio is the R² complements'), with `extra` more parameters.
+fn delta_bic(n: usize, r2: f64, r2_0: f64, extra: f64) -> f64 {
+    let n = n as f64;
+    n * ((1.0 - r2).max(1e-300) / (1.0 - r2_0).max(1e-300)).ln() + extra * n.ln()
+}
+
+/// The best-scored of `cands` (with its readings and R²) among those `keep` keeps.
+fn best_of<T: Copy>(
+    cands: &[T],
+    scores: &[Option<(usize, f64)>],
+    keep: impl Fn(&T) -> bool,
+) -> Option<(T, usize, f64)> {
+    (cands.iter().zip(scores))
+        .filter(|(c, _)| keep(c))
+        .filter_map(|(c, s)| s.map(|(n, r2)| (*c, n, r2)))
+        .max_by(|a, b| a.2.total_cmp(&b.2))
+}
+
 /// Scores of alignments, each with a window change over the session (a drift, [s]).
 type Drifting<'a> = dyn FnMut(&[(Alignment, f64)]) -> Scores + 'a;
 
@@ -208,10 +227,7 @@ fn drift(
         ws.flat_map(|w| ds.iter().map(move |&d| at(w, d))).collect()
     };
     let best = |cands: &[(Alignment, f64)], scores: &Scores, moving: bool| {
-        (cands.iter().zip(scores))
-            .filter(|(c, _)| (c.1 != 0.0) == moving)
-            .filter_map(|(c, s)| s.map(|(n, r2)| (*c, n, r2)))
-            .max_by(|a, b| a.2.total_cmp(&b.2))
+        best_of(cands, scores, |c| (c.1 != 0.0) == moving)
     };
     let mut ds: Vec<f64> = DRIFTS.iter().flat_map(|&d| [d, -d]).collect();
     ds.push(0.0);
@@ -227,9 +243,7 @@ fn drift(
     let fine: Vec<_> = fine.into_iter().filter(|c| c.1 != 0.0).collect();
     let moving = best(&fine, &score(&fine), true)
         .map_or(coarse, |f| if f.2 > coarse.2 { f } else { coarse });
-    let ratio = |a: f64, b: f64| ((1.0 - a).max(1e-300) / (1.0 - b).max(1e-300)).ln();
-    let n = moving.1 as f64;
-    let delta_bic = n * ratio(moving.2, still.2) + n.ln();
+    let delta_bic = delta_bic(moving.1, moving.2, still.2, 1.0);
     if delta_bic >= bic_threshold {
         return SensorWindow {
             drift_delta_bic: delta_bic,
@@ -242,7 +256,7 @@ fn drift(
     let cands = grid(w, &[0.0, d], 4);
     let scores = other(&cands);
     let other_delta_bic = match (best(&cands, &scores, true), best(&cands, &scores, false)) {
-        (Some(m), Some(s)) => m.1 as f64 * ratio(m.2, s.2),
+        (Some(m), Some(s)) => self::delta_bic(m.1, m.2, s.2, 0.0),
         _ => 0.0,
     };
     SensorWindow {
@@ -264,18 +278,6 @@ fn judge(
 ) -> SensorWindow {
     let best = est.best;
     let centre = best.lag_s + 0.5 * best.window_s;
-    // ΔBIC of one more free parameter: same readings and targets, so the SSE ratio is the R²
-    // complement's ratio.
-    let delta_bic = |r2_free: f64, n: usize, r2_fixed: f64| {
-        let n = n as f64;
-        n * ((1.0 - r2_free).max(1e-300) / (1.0 - r2_fixed).max(1e-300)).ln() + n.ln()
-    };
-    // Best of scored alignments.
-    let best_of = |scored: &[(Alignment, Option<(usize, f64)>)]| {
-        (scored.iter())
-            .filter_map(|&(a, s)| s.map(|(n, r2)| (a, n, r2)))
-            .max_by(|a, b| a.2.total_cmp(&b.2))
-    };
     let nominal_w = Alignment::NOMINAL.window_s;
     let near = |w: f64, lag: f64| {
         (-2..=2)
@@ -299,15 +301,18 @@ fn judge(
             })
             .filter(|a| a.window_s > 0.0),
     );
-    let scored: Vec<_> = cands.iter().copied().zip(score(&cands)).collect();
-    let nominal = best_of(&scored[..n_near]);
-    let window_delta_bic = nominal.map_or(f64::NEG_INFINITY, |(_, n, r2)| delta_bic(est.r2, n, r2));
-    let lag0 = best_of(&scored[n_near..]).into_iter().chain(
-        est.grid
-            .iter()
-            .filter(|g| g.alignment.lag_s.abs() < 1e-9)
-            .map(|g| (g.alignment, g.rows, g.r2)),
-    );
+    let scores = score(&cands);
+    let (near_scores, lag0_scores) = scores.split_at(n_near);
+    let nominal = best_of(&cands[..n_near], near_scores, |_| true);
+    let window_delta_bic = nominal.map_or(0.0, |(_, n, r2)| delta_bic(n, est.r2, r2, 1.0));
+    let lag0 = best_of(&cands[n_near..], lag0_scores, |_| true)
+        .into_iter()
+        .chain(
+            est.grid
+                .iter()
+                .filter(|g| g.alignment.lag_s.abs() < 1e-9)
+                .map(|g| (g.alignment, g.rows, g.r2)),
+        );
     let lag0 = lag0.max_by(|a, b| a.2.total_cmp(&b.2));
     // 3. A lag is demanded only where a lagged point beats every window at lag 0 by the BIC
     //    rule: the nominal window's lag (one free parameter, as the lag-0 window's W), or the
@@ -319,15 +324,13 @@ fn judge(
     let beats =
         |lagged: Option<(Alignment, usize, f64)>, extra: f64, min_lag: f64| match (lagged, lag0) {
             (Some((a, n, r2)), Some((_, _, r2_0))) if a.lag_s > min_lag + 1e-9 => {
-                let n = n as f64;
-                n * ((1.0 - r2).max(1e-300) / (1.0 - r2_0).max(1e-300)).ln() + extra * n.ln()
-                    < bic_threshold
+                delta_bic(n, r2, r2_0, extra) < bic_threshold
             }
             (Some((a, _, _)), None) => a.lag_s > min_lag + 1e-9,
             _ => false,
         };
     let lag_delta_bic = match lag0 {
-        Some((_, n, r2)) if best.lag_s > 0.0 => delta_bic(est.r2, n, r2),
+        Some((_, n, r2)) if best.lag_s > 0.0 => delta_bic(n, est.r2, r2, 1.0),
         _ => 0.0,
     };
     let scanned = est
@@ -336,7 +339,7 @@ fn judge(
         .find(|g| g.alignment == best)
         .map(|g| (g.alignment, g.rows, g.r2));
     let lag_demanded = beats(nominal, 0.0, STEP) || beats(scanned, 1.0, 0.0);
-    let nominal_kept = window_delta_bic >= bic_threshold;
+    let nominal_kept = nominal.is_some() && window_delta_bic >= bic_threshold;
     let window_s = match (lag_demanded, nominal) {
         (true, _) if nominal_kept => nominal_w,
         (true, _) => best.window_s,
@@ -350,11 +353,7 @@ fn judge(
         scan_window_s: best.window_s,
         scan_lag_s: best.lag_s,
         scan_r2: est.r2,
-        window_delta_bic: if window_delta_bic.is_finite() {
-            window_delta_bic
-        } else {
-            0.0
-        },
+        window_delta_bic,
         lag_delta_bic,
         lag_demanded,
         ..SensorWindow::default()
@@ -370,12 +369,9 @@ fn scan_trials(metas: &[TrialMeta], opts: &DiagnoseOptions) -> Vec<TrialMeta> {
         .collect();
     let imu = Cascade {
         imu_k: Some(opts.imu_threshold),
-        passes: 0,
         ..Cascade::default()
     };
-    let rejected = imu
-        .run(&sigmas, |_| Ok::<_, std::convert::Infallible>(Vec::new()))
-        .unwrap_or_default();
+    let rejected = imu.imu(&sigmas);
     let kept: Vec<TrialMeta> = metas
         .iter()
         .filter(|m| !is_rejected(&rejected, 0, m.window.index))
@@ -385,47 +381,18 @@ fn scan_trials(metas: &[TrialMeta], opts: &DiagnoseOptions) -> Vec<TrialMeta> {
     kept.into_iter().step_by(step).collect()
 }
 
-/// `metas` without the trials the diagnosis' residual passes reject (3σ of the per-trial mean
-/// residual of the base model on `rows`, their rows at the nominal window): one contaminated
-/// trial's residual of several watts outweighs the rest of the scan's squared error and puts the
-/// window wherever that trial fits best (a 0.3 s sensor was read as 0.225 s + a 0.05 s lag).
+/// `metas` without the trials the diagnosis' residual passes reject ([`filter_trials`] without
+/// its IMU filter, on `rows`: theirs at the nominal window): one contaminated trial's residual of
+/// several watts outweighs the rest of the scan's squared error and puts the window wherever that
+/// trial fits best (a 0.3 s sensor was read as 0.225 s + a 0.05 s lag).
 fn without_outliers(
     metas: Vec<TrialMeta>,
     rows: Rows,
     opts: &DiagnoseOptions,
 ) -> Result<Vec<TrialMeta>> {
-    let cascade = Cascade {
-        imu_k: None,
-        passes: opts.outlier_passes,
-        n_sigma: 3.0,
-        min_trials: 10,
-    };
-    let reference: Option<Vec<f64>> = opts.reference.map(|m| m.to_vector().to_vec());
-    let mut rejected = Vec::new();
-    cascade.residual_passes(&mut rejected, |rej| {
-        let kept: Vec<usize> = (0..metas.len())
-            .filter(|&i| !is_rejected(rej, 0, i))
-            .collect();
-        let mut at = vec![None; metas.len()];
-        for (k, &i) in kept.iter().enumerate() {
-            at[i] = Some(k);
-        }
-        let mut sub = rows.clone();
-        sub.retain(|_, trial| at[trial]);
-        let res = base_trial_residuals(&sub, kept.len(), opts.folds, reference.clone())?;
-        Ok::<_, anyhow::Error>(
-            kept.iter()
-                .zip(res)
-                .map(|(&i, r)| TrialStat::new(0, i, r.unwrap_or(f64::NAN)))
-                .collect(),
-        )
-    })?;
-    Ok(metas
-        .into_iter()
-        .enumerate()
-        .filter(|(i, _)| !is_rejected(&rejected, 0, *i))
-        .map(|(_, m)| m)
-        .collect())
+    let rows = TrialRows::new(rows, metas.len());
+    let reference = opts.reference.map(|m| m.to_vector().to_vec());
+    Ok(filter_trials(&metas, Vec::new(), &rows, opts, reference, false)?.0)
 }
 
 /// The library mechanisms the window is judged beside, each one pooled column (its raw features
@@ -484,22 +451,24 @@ fn fixed_set_scores(
     let ranges = scan_ranges();
     let (mut rows, mut first) = (Vec::new(), 0);
     let (drift_from_s, drift_to_s) = drift_span(metas);
+    let line = SensorWindow {
+        drift_from_s,
+        drift_to_s,
+        ..SensorWindow::default()
+    };
     for (ti, meta) in metas.iter().enumerate() {
         let w = &meta.window;
         let end = first + reference.trial[first..].partition_point(|&t| t == ti);
         rows.clear();
         for (cand, &(a, drift_s)) in cands.iter().enumerate() {
-            let sw = SensorWindow {
-                window_s: a.window_s,
+            let (window_s, line) = (a.window_s, line);
+            let window_s = SensorWindow {
+                window_s,
                 drift_s,
-                drift_from_s,
-                drift_to_s,
-                ..SensorWindow::default()
-            };
-            let a = Alignment {
-                window_s: sw.window_at(w.t_traj_start),
-                ..a
-            };
+                ..line
+            }
+            .window_at(w.t_traj_start);
+            let a = Alignment { window_s, ..a };
             let mut base = w.baseline_readings(&power.t, a.lag_s, a.window_s);
             if !base.any(|k| power.watts.get(k).is_some_and(|v| v.is_finite())) {
                 continue;
