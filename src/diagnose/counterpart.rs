@@ -113,13 +113,8 @@ fn match_times(a: u64, ta: &[f64], b: u64, tb: &[f64]) -> Vec<(usize, usize)> {
 }
 
 fn idle_mean(p: &PowerSeries, before: f64) -> Option<f64> {
-    let v: Vec<f64> =
-        p.t.iter()
-            .zip(&p.watts)
-            .filter(|(t, w)| **t < before && w.is_finite())
-            .map(|(_, &w)| w)
-            .collect();
-    (!v.is_empty()).then(|| v.iter().sum::<f64>() / v.len() as f64)
+    let idle = p.t.iter().zip(&p.watts).filter(|(t, _)| **t < before);
+    Some(super::meters::finite_mean(idle.map(|(_, &w)| w))).filter(|m| m.is_finite())
 }
 
 /// Per-joint sums over the matched joint samples (recording − counterpart), in time order.

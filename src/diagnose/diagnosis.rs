@@ -62,18 +62,6 @@ pub struct SensorWindow {
     pub drift_artefact: bool,
 }
 
-impl SensorWindow {
-    /// The window [s] of a reading at session time `t` (the drift's line, held beyond its ends).
-    pub fn window_at(&self, t: f64) -> f64 {
-        let span = self.drift_to_s - self.drift_from_s;
-        if self.drift_s == 0.0 || span <= 0.0 {
-            return self.window_s;
-        }
-        let u = ((t - self.drift_from_s) / span).clamp(0.0, 1.0) - 0.5;
-        (self.window_s + self.drift_s * u).max(0.025)
-    }
-}
-
 /// Held-out quality of a model.
 #[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
 pub struct Quality {

@@ -16,39 +16,32 @@ use super::{DiagnoseOptions, LagPoint};
 use crate::session::TrialSource;
 
 /// The rows of every trial at lag 0 (trial = position in the trial list), appended in trial
-/// order, and where each trial's rows lie.
+/// order, and how many trials the list holds.
 pub(crate) struct TrialRows {
     rows: Rows,
-    /// `spans[trial]`: where each trial's rows lie in `rows`.
-    spans: Vec<std::ops::Range<usize>>,
+    n_trials: usize,
 }
 
 impl TrialRows {
-    /// The rows of the trials at positions `kept` (ascending), renumbered 0.., copied.
+    /// `rows` of a list of `n_trials` trials (numbered by position).
+    pub(crate) fn new(rows: Rows, n_trials: usize) -> TrialRows {
+        TrialRows { rows, n_trials }
+    }
+
+    /// The rows of the trials at positions `kept` (ascending), renumbered 0.., copied without the
+    /// descriptor features.
     pub(crate) fn subset(&self, kept: &[usize]) -> Rows {
-        let from = &self.rows;
-        let mut out = Rows::default();
-        for (k, &i) in kept.iter().enumerate() {
-            // A trial the samples never delivered (a read cut short) has no rows.
-            let Some(s) = self.spans.get(i).cloned() else {
-                continue;
-            };
-            out.trial.extend(std::iter::repeat_n(k, s.len()));
-            out.t.extend_from_slice(&from.t[s.clone()]);
-            out.phase.extend_from_slice(&from.phase[s.clone()]);
-            out.y.extend_from_slice(&from.y[s.clone()]);
-            out.x.extend_from_slice(&from.x[s.clone()]);
-            if !from.locate.is_empty() {
-                out.locate.extend_from_slice(&from.locate[s]);
-            }
-        }
-        out
+        let rows = Rows {
+            locate: Vec::new(),
+            ..self.rows.clone()
+        };
+        TrialRows::new(rows, self.n_trials).keep(kept)
     }
 
     /// Keep only the trials at positions `kept` (ascending), renumbered 0.., in place (no
     /// second copy of the rows).
     pub(crate) fn keep(self, kept: &[usize]) -> Rows {
-        let mut new_pos = vec![usize::MAX; self.spans.len()];
+        let mut new_pos = vec![usize::MAX; self.n_trials];
         for (k, &i) in kept.iter().enumerate() {
             if let Some(p) = new_pos.get_mut(i) {
                 *p = k;
@@ -76,7 +69,6 @@ fn lag_grams(
 ) -> Result<(Vec<Gram>, TrialRows)> {
     let windows: Vec<TrialWindow> = which.iter().map(|&i| metas[i].window.clone()).collect();
     let mut rows = Rows::default();
-    let mut spans = Vec::with_capacity(which.len());
     let mut grams: Vec<Gram> = lags.iter().map(|_| Gram::zeros(N_RAW)).collect();
     let mut k = 0usize;
     samples.for_each(&windows, &mut |rec, _| {
@@ -88,15 +80,13 @@ fn lag_grams(
                 grams[l].add_row(x, *y);
             }
             if keep && l == 0 {
-                let start = rows.len();
                 rows.append(part, ti);
-                spans.push(start..rows.len());
             }
         }
         k += 1;
         Ok(())
     })?;
-    Ok((grams, TrialRows { rows, spans }))
+    Ok((grams, TrialRows::new(rows, metas.len())))
 }
 
 /// One trial's rows at sensor `lag` and window `w` (`locate`: with the descriptor features).
@@ -114,7 +104,7 @@ fn rows_at(
 }
 
 /// Stage: the trials usable for the diagnosis — trials without a pre-idle are unusable
-/// (`skipped`), then the identification's IMU filter, then n·σ passes on the per-trial mean
+/// (`skipped`), then the identification's IMU filter (`imu`: with it), then n·σ passes on the per-trial mean
 /// residuals of the base model (hardware-event outliers) fitted on the rows at lag 0 (lag
 /// index 0 of `rows`). Returns the kept trials, the rejections and the kept trials' positions
 /// in `metas`.
@@ -124,9 +114,10 @@ pub(crate) fn filter_trials(
     rows: &TrialRows,
     opts: &DiagnoseOptions,
     reference: Option<Vec<f64>>,
+    imu: bool,
 ) -> Result<(Vec<TrialMeta>, Vec<Rejection>, Vec<usize>)> {
     let cascade = Cascade {
-        imu_k: Some(opts.imu_threshold),
+        imu_k: imu.then_some(opts.imu_threshold),
         passes: opts.outlier_passes,
         n_sigma: 3.0,
         min_trials: 10,
@@ -143,8 +134,7 @@ pub(crate) fn filter_trials(
         let kept: Vec<usize> = (0..metas.len())
             .filter(|&i| !crate::trial::is_rejected(rej, 0, metas[i].window.index))
             .collect();
-        let mut lag0 = rows.subset(&kept);
-        lag0.locate = Vec::new();
+        let lag0 = rows.subset(&kept);
         let res = base_trial_residuals(&lag0, kept.len(), opts.folds, reference.clone())?;
         Ok::<_, anyhow::Error>(
             kept.iter()
@@ -192,7 +182,8 @@ pub(crate) fn usable_trials(
     let lags = coarse_lags(opts);
     let all: Vec<usize> = (0..all_metas.len()).collect();
     let (mut totals, rows0) = lag_grams(samples, (power, w), &all_metas, &all, &lags, true)?;
-    let (metas, rejected, kept) = filter_trials(&all_metas, skipped, &rows0, opts, reference)?;
+    let (metas, rejected, kept) =
+        filter_trials(&all_metas, skipped, &rows0, opts, reference, true)?;
     if metas.len() < 2 * opts.folds.max(2) {
         anyhow::bail!(
             "{}: only {} usable trials (need at least {} for {}-fold cross-validation by trial)",

@@ -133,18 +133,7 @@ pub(crate) fn per_trial(
     lag: f64,
     w: f64,
 ) -> (Vec<f64>, Vec<f64>) {
-    let mean = |r: std::ops::Range<usize>| {
-        let v: Vec<f64> = p.watts[r]
-            .iter()
-            .copied()
-            .filter(|v| v.is_finite())
-            .collect();
-        if v.is_empty() {
-            f64::NAN
-        } else {
-            v.iter().sum::<f64>() / v.len() as f64
-        }
-    };
+    let mean = |r: std::ops::Range<usize>| finite_mean(p.watts[r].iter().copied());
     metas
         .iter()
         .map(|m| {
@@ -154,6 +143,14 @@ pub(crate) fn per_trial(
             (rest, mean(a..b.max(a)) - rest)
         })
         .unzip()
+}
+
+/// The mean of the finite values of `v` (NaN if none).
+pub(crate) fn finite_mean(v: impl Iterator<Item = f64>) -> f64 {
+    let (sum, n) = v
+        .filter(|v| v.is_finite())
+        .fold((0.0, 0), |(s, n), v| (s + v, n + 1));
+    if n == 0 { f64::NAN } else { sum / f64::from(n) }
 }
 
 /// Each column's (slope, widened s.e.), the SSE and the rows used ([`slopes`]).
@@ -383,8 +380,10 @@ pub(crate) fn compare(
     // leaves white residuals — that widening located sub-watt changes in 3 of 8 null sessions
     // of a 15-minute fuzz slice).
     if verdict != MeterVerdict::Artefact {
-        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
-        let (my, mx) = (mean(&y), mean(&x));
+        let (my, mx) = (
+            finite_mean(y.iter().copied()),
+            finite_mean(x.iter().copied()),
+        );
         let fitted: Vec<f64> = (y.iter().zip(&x))
             .map(|(y, x)| y - my - b * (x - mx))
             .collect();
@@ -394,7 +393,7 @@ pub(crate) fn compare(
             return None;
         }
     }
-    let rest_w = y.iter().sum::<f64>() / y.len() as f64;
+    let rest_w = finite_mean(y.iter().copied());
     let check = MeterCheck::new(target, (share, share_se), y.len(), verdict);
     let (meter, other) = (&check.meter, &check.other);
     let change = format!("its reading changes by {b:+.2} ± {se:.2} W {form}");

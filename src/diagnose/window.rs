@@ -26,11 +26,12 @@
 //! is the latency hypothesis' to judge (a real 0.3 s latency behind a 0.2 s window keeps the
 //! nominal window at lag ≈ 0.3 s).
 //!
-//! Every candidate is fitted with the base regressors AND every library mechanism's features,
-//! each net of its trial's pre-idle level (the rows' own columns): a mechanism the base model
-//! lacks leaves a remainder that a shifted or resized window fits in part, so the scan would
-//! judge the sensor's timing by the model's misfit (a 0.3 s window beside a DC-bus loss read as
-//! 0.2 s + a 0.05 s latency, fuzz seed 1213589933).
+//! Every candidate is fitted with the base regressors AND a fixed set of library mechanisms, one
+//! pooled column each, net of its trial's pre-idle level: a mechanism the base model lacks
+//! leaves a remainder that a shifted or resized window fits in part, so the scan would judge the
+//! sensor's timing by the model's misfit (a 0.3 s window beside a DC-bus loss read as 0.2 s + a
+//! 0.05 s latency, fuzz seed 1213589933). The set is fixed so that features the library or
+//! discovery gain do not move the window ([`SCAN_MECHANISMS`]).
 //!
 //! A window can drift over the session (a meter whose averaging lengthens as it warms): with the
 //! window judged, windows changing linearly from the first scanned trial to the last (±0.05 …
@@ -56,11 +57,12 @@ use crate::timing::{
 };
 use crate::trial::{Cascade, TrialStat, TrialWindow, is_rejected, samples_in};
 
-use super::hypotheses::N_RAW;
-use super::lags::base_trial_residuals;
+use super::hypotheses::{Hypothesis, N_RAW, POWER_HYPOTHESES};
+use super::lags::{TrialRows, filter_trials};
 use super::reading_rows::{Rows, TrialFeatures, TrialMeta, build_rows, span};
 use super::trials::{SessionInfo, copy_span};
 use super::{DiagnoseOptions, SensorWindow};
+use crate::N_PARAMS;
 use crate::session::TrialSource;
 
 /// Largest number of trials the sensor-window scan uses (evenly spread over the session): the
@@ -138,6 +140,21 @@ pub(crate) fn sensor_window(
     })
 }
 
+impl SensorWindow {
+    /// The window [s] of a trial starting at session time `t`: the drift's line (held beyond its
+    /// ends) inside [[`STEP`], [`FIXED_SET_S`]], the windows the scan can score. The one place a
+    /// trial's window is computed: the scan scores a drift at the windows every later stage
+    /// reads.
+    pub fn window_at(&self, t: f64) -> f64 {
+        let span = self.drift_to_s - self.drift_from_s;
+        if self.drift_s == 0.0 || span <= 0.0 {
+            return self.window_s;
+        }
+        let u = ((t - self.drift_from_s) / span).clamp(0.0, 1.0) - 0.5;
+        (self.window_s + self.drift_s * u).clamp(STEP, FIXED_SET_S)
+    }
+}
+
 /// `metas` with each trial's window where the window drifts (one truth across stages: every
 /// later stage builds the trial's rows and baseline at it).
 pub(crate) fn with_widths(mut metas: Vec<TrialMeta>, sw: &SensorWindow) -> Vec<TrialMeta> {
@@ -159,6 +176,25 @@ fn still(cands: &[Alignment]) -> Vec<(Alignment, f64)> {
 fn drift_span(metas: &[TrialMeta]) -> (f64, f64) {
     let t = |m: Option<&TrialMeta>| m.map_or(0.0, |m| m.window.t_traj_start);
     (t(metas.first()), t(metas.last()))
+}
+
+/// ΔBIC of a fit with R² `r2` against one with `r2_0` on the same `n` readings and targets (the
+/// SSE ratio is the R² complements'), with `extra` more parameters.
+fn delta_bic(n: usize, r2: f64, r2_0: f64, extra: f64) -> f64 {
+    let n = n as f64;
+    n * ((1.0 - r2).max(1e-300) / (1.0 - r2_0).max(1e-300)).ln() + extra * n.ln()
+}
+
+/// The best-scored of `cands` (with its readings and R²) among those `keep` keeps.
+fn best_of<T: Copy>(
+    cands: &[T],
+    scores: &[Option<(usize, f64)>],
+    keep: impl Fn(&T) -> bool,
+) -> Option<(T, usize, f64)> {
+    (cands.iter().zip(scores))
+        .filter(|(c, _)| keep(c))
+        .filter_map(|(c, s)| s.map(|(n, r2)| (*c, n, r2)))
+        .max_by(|a, b| a.2.total_cmp(&b.2))
 }
 
 /// Scores of alignments, each with a window change over the session (a drift, [s]).
@@ -191,10 +227,7 @@ fn drift(
         ws.flat_map(|w| ds.iter().map(move |&d| at(w, d))).collect()
     };
     let best = |cands: &[(Alignment, f64)], scores: &Scores, moving: bool| {
-        (cands.iter().zip(scores))
-            .filter(|(c, _)| (c.1 != 0.0) == moving)
-            .filter_map(|(c, s)| s.map(|(n, r2)| (*c, n, r2)))
-            .max_by(|a, b| a.2.total_cmp(&b.2))
+        best_of(cands, scores, |c| (c.1 != 0.0) == moving)
     };
     let mut ds: Vec<f64> = DRIFTS.iter().flat_map(|&d| [d, -d]).collect();
     ds.push(0.0);
@@ -210,9 +243,7 @@ fn drift(
     let fine: Vec<_> = fine.into_iter().filter(|c| c.1 != 0.0).collect();
     let moving = best(&fine, &score(&fine), true)
         .map_or(coarse, |f| if f.2 > coarse.2 { f } else { coarse });
-    let ratio = |a: f64, b: f64| ((1.0 - a).max(1e-300) / (1.0 - b).max(1e-300)).ln();
-    let n = moving.1 as f64;
-    let delta_bic = n * ratio(moving.2, still.2) + n.ln();
+    let delta_bic = delta_bic(moving.1, moving.2, still.2, 1.0);
     if delta_bic >= bic_threshold {
         return SensorWindow {
             drift_delta_bic: delta_bic,
@@ -225,7 +256,7 @@ fn drift(
     let cands = grid(w, &[0.0, d], 4);
     let scores = other(&cands);
     let other_delta_bic = match (best(&cands, &scores, true), best(&cands, &scores, false)) {
-        (Some(m), Some(s)) => m.1 as f64 * ratio(m.2, s.2),
+        (Some(m), Some(s)) => self::delta_bic(m.1, m.2, s.2, 0.0),
         _ => 0.0,
     };
     SensorWindow {
@@ -247,18 +278,6 @@ fn judge(
 ) -> SensorWindow {
     let best = est.best;
     let centre = best.lag_s + 0.5 * best.window_s;
-    // ΔBIC of one more free parameter: same readings and targets, so the SSE ratio is the R²
-    // complement's ratio.
-    let delta_bic = |r2_free: f64, n: usize, r2_fixed: f64| {
-        let n = n as f64;
-        n * ((1.0 - r2_free).max(1e-300) / (1.0 - r2_fixed).max(1e-300)).ln() + n.ln()
-    };
-    // Best of scored alignments.
-    let best_of = |scored: &[(Alignment, Option<(usize, f64)>)]| {
-        (scored.iter())
-            .filter_map(|&(a, s)| s.map(|(n, r2)| (a, n, r2)))
-            .max_by(|a, b| a.2.total_cmp(&b.2))
-    };
     let nominal_w = Alignment::NOMINAL.window_s;
     let near = |w: f64, lag: f64| {
         (-2..=2)
@@ -282,15 +301,18 @@ fn judge(
             })
             .filter(|a| a.window_s > 0.0),
     );
-    let scored: Vec<_> = cands.iter().copied().zip(score(&cands)).collect();
-    let nominal = best_of(&scored[..n_near]);
-    let window_delta_bic = nominal.map_or(f64::NEG_INFINITY, |(_, n, r2)| delta_bic(est.r2, n, r2));
-    let lag0 = best_of(&scored[n_near..]).into_iter().chain(
-        est.grid
-            .iter()
-            .filter(|g| g.alignment.lag_s.abs() < 1e-9)
-            .map(|g| (g.alignment, g.rows, g.r2)),
-    );
+    let scores = score(&cands);
+    let (near_scores, lag0_scores) = scores.split_at(n_near);
+    let nominal = best_of(&cands[..n_near], near_scores, |_| true);
+    let window_delta_bic = nominal.map_or(0.0, |(_, n, r2)| delta_bic(n, est.r2, r2, 1.0));
+    let lag0 = best_of(&cands[n_near..], lag0_scores, |_| true)
+        .into_iter()
+        .chain(
+            est.grid
+                .iter()
+                .filter(|g| g.alignment.lag_s.abs() < 1e-9)
+                .map(|g| (g.alignment, g.rows, g.r2)),
+        );
     let lag0 = lag0.max_by(|a, b| a.2.total_cmp(&b.2));
     // 3. A lag is demanded only where a lagged point beats every window at lag 0 by the BIC
     //    rule: the nominal window's lag (one free parameter, as the lag-0 window's W), or the
@@ -302,15 +324,13 @@ fn judge(
     let beats =
         |lagged: Option<(Alignment, usize, f64)>, extra: f64, min_lag: f64| match (lagged, lag0) {
             (Some((a, n, r2)), Some((_, _, r2_0))) if a.lag_s > min_lag + 1e-9 => {
-                let n = n as f64;
-                n * ((1.0 - r2).max(1e-300) / (1.0 - r2_0).max(1e-300)).ln() + extra * n.ln()
-                    < bic_threshold
+                delta_bic(n, r2, r2_0, extra) < bic_threshold
             }
             (Some((a, _, _)), None) => a.lag_s > min_lag + 1e-9,
             _ => false,
         };
     let lag_delta_bic = match lag0 {
-        Some((_, n, r2)) if best.lag_s > 0.0 => delta_bic(est.r2, n, r2),
+        Some((_, n, r2)) if best.lag_s > 0.0 => delta_bic(n, est.r2, r2, 1.0),
         _ => 0.0,
     };
     let scanned = est
@@ -319,7 +339,7 @@ fn judge(
         .find(|g| g.alignment == best)
         .map(|g| (g.alignment, g.rows, g.r2));
     let lag_demanded = beats(nominal, 0.0, STEP) || beats(scanned, 1.0, 0.0);
-    let nominal_kept = window_delta_bic >= bic_threshold;
+    let nominal_kept = nominal.is_some() && window_delta_bic >= bic_threshold;
     let window_s = match (lag_demanded, nominal) {
         (true, _) if nominal_kept => nominal_w,
         (true, _) => best.window_s,
@@ -333,11 +353,7 @@ fn judge(
         scan_window_s: best.window_s,
         scan_lag_s: best.lag_s,
         scan_r2: est.r2,
-        window_delta_bic: if window_delta_bic.is_finite() {
-            window_delta_bic
-        } else {
-            0.0
-        },
+        window_delta_bic,
         lag_delta_bic,
         lag_demanded,
         ..SensorWindow::default()
@@ -353,12 +369,9 @@ fn scan_trials(metas: &[TrialMeta], opts: &DiagnoseOptions) -> Vec<TrialMeta> {
         .collect();
     let imu = Cascade {
         imu_k: Some(opts.imu_threshold),
-        passes: 0,
         ..Cascade::default()
     };
-    let rejected = imu
-        .run(&sigmas, |_| Ok::<_, std::convert::Infallible>(Vec::new()))
-        .unwrap_or_default();
+    let rejected = imu.imu(&sigmas);
     let kept: Vec<TrialMeta> = metas
         .iter()
         .filter(|m| !is_rejected(&rejected, 0, m.window.index))
@@ -368,53 +381,61 @@ fn scan_trials(metas: &[TrialMeta], opts: &DiagnoseOptions) -> Vec<TrialMeta> {
     kept.into_iter().step_by(step).collect()
 }
 
-/// `metas` without the trials the diagnosis' residual passes reject (3σ of the per-trial mean
-/// residual of the base model on `rows`, their rows at the nominal window): one contaminated
-/// trial's residual of several watts outweighs the rest of the scan's squared error and puts the
-/// window wherever that trial fits best (a 0.3 s sensor was read as 0.225 s + a 0.05 s lag).
+/// `metas` without the trials the diagnosis' residual passes reject ([`filter_trials`] without
+/// its IMU filter, on `rows`: theirs at the nominal window): one contaminated trial's residual of
+/// several watts outweighs the rest of the scan's squared error and puts the window wherever that
+/// trial fits best (a 0.3 s sensor was read as 0.225 s + a 0.05 s lag).
 fn without_outliers(
     metas: Vec<TrialMeta>,
     rows: Rows,
     opts: &DiagnoseOptions,
 ) -> Result<Vec<TrialMeta>> {
-    let cascade = Cascade {
-        imu_k: None,
-        passes: opts.outlier_passes,
-        n_sigma: 3.0,
-        min_trials: 10,
-    };
-    let reference: Option<Vec<f64>> = opts.reference.map(|m| m.to_vector().to_vec());
-    let mut rejected = Vec::new();
-    cascade.residual_passes(&mut rejected, |rej| {
-        let kept: Vec<usize> = (0..metas.len())
-            .filter(|&i| !is_rejected(rej, 0, i))
-            .collect();
-        let mut at = vec![None; metas.len()];
-        for (k, &i) in kept.iter().enumerate() {
-            at[i] = Some(k);
-        }
-        let mut sub = rows.clone();
-        sub.retain(|_, trial| at[trial]);
-        let res = base_trial_residuals(&sub, kept.len(), opts.folds, reference.clone())?;
-        Ok::<_, anyhow::Error>(
-            kept.iter()
-                .zip(res)
-                .map(|(&i, r)| TrialStat::new(0, i, r.unwrap_or(f64::NAN)))
-                .collect(),
-        )
-    })?;
-    Ok(metas
-        .into_iter()
-        .enumerate()
-        .filter(|(i, _)| !is_rejected(&rejected, 0, *i))
-        .map(|(_, m)| m)
-        .collect())
+    let rows = TrialRows::new(rows, metas.len());
+    let reference = opts.reference.map(|m| m.to_vector().to_vec());
+    Ok(filter_trials(&metas, Vec::new(), &rows, opts, reference, false)?.0)
+}
+
+/// The library mechanisms the window is judged beside, each one pooled column (its raw features
+/// summed over the joints): a fixed set, so the window does not move when the library or
+/// discovery gain features (14 new per-joint features moved one session's window 0.3 → 0.325 s
+/// and lost a location, fuzz seed 8374588).
+const SCAN_MECHANISMS: [&str; 8] = [
+    "thermal",
+    "braking",
+    "bus_loss",
+    "gear_friction",
+    "drive_loss",
+    "stribeck",
+    "balance_leak",
+    "bus_power",
+];
+
+/// Columns of the window scan: the base regressors, then one per [`SCAN_MECHANISMS`].
+const N_SCAN: usize = N_PARAMS + SCAN_MECHANISMS.len();
+
+/// Where each of [`SCAN_MECHANISMS`]' raw features lie in a raw row (empty if not in the library).
+fn scan_ranges() -> Vec<std::ops::Range<usize>> {
+    let at = |id| POWER_HYPOTHESES.iter().find(|h| h.id == id);
+    let range = |h: &Hypothesis| N_PARAMS + h.raw.0..N_PARAMS + h.raw.0 + h.raw.1;
+    SCAN_MECHANISMS
+        .map(|id| at(id).map_or(0..0, range))
+        .to_vec()
+}
+
+/// A raw row's columns of the window scan (`ranges`: [`scan_ranges`]).
+fn scan_row(x: &[f64; N_RAW], ranges: &[std::ops::Range<usize>]) -> [f64; N_SCAN] {
+    let mut out = [0.0; N_SCAN];
+    out[..N_PARAMS].copy_from_slice(&x[..N_PARAMS]);
+    for (o, r) in out[N_PARAMS..].iter_mut().zip(ranges) {
+        *o = x[r.clone()].iter().sum();
+    }
+    out
 }
 
 /// Each candidate's (rows, R²) of the least-squares fit of its rows on the base regressors and
-/// every library mechanism's features (one truth across stages: a mechanism missing from the
-/// base model cannot move the window or demand a lag — a 0.3 s sensor beside a DC-bus loss was
-/// read as 0.2 s + a 0.05 s latency, fuzz seed 1213589933), restricted
+/// the pooled library mechanisms ([`SCAN_MECHANISMS`]; one truth across stages: a mechanism
+/// missing from the base model cannot move the window or demand a lag — a 0.3 s sensor beside a
+/// DC-bus loss was read as 0.2 s + a 0.05 s latency, fuzz seed 1213589933), restricted
 /// to the fixed reading set (stamps ≥ trajectory start + [`FIXED_SET_S`] among the `reference`
 /// rows) with the reference rows' targets, in one pass over the trials ([`SearchFits`]). A
 /// candidate's rows are the readings [`build_rows`] gives it: a trial without its baseline
@@ -426,22 +447,28 @@ fn fixed_set_scores(
     reference: &Rows,
     cands: &[(Alignment, f64)],
 ) -> Scores {
-    let mut fits = SearchFits::<N_RAW>::new(cands.len());
+    let mut fits = SearchFits::<N_SCAN>::new(cands.len());
+    let ranges = scan_ranges();
     let (mut rows, mut first) = (Vec::new(), 0);
-    let (t0, t1) = drift_span(metas);
+    let (drift_from_s, drift_to_s) = drift_span(metas);
+    let line = SensorWindow {
+        drift_from_s,
+        drift_to_s,
+        ..SensorWindow::default()
+    };
     for (ti, meta) in metas.iter().enumerate() {
         let w = &meta.window;
         let end = first + reference.trial[first..].partition_point(|&t| t == ti);
-        let u = ((w.t_traj_start - t0) / (t1 - t0).max(1e-9)).clamp(0.0, 1.0) - 0.5;
         rows.clear();
-        for (cand, &(a, d)) in cands.iter().enumerate() {
-            // A drifting window at this trial, held inside the fixed reading set's reach.
-            let window_s = (a.window_s + d * u).clamp(STEP, FIXED_SET_S);
-            let a = if d == 0.0 {
-                a
-            } else {
-                Alignment { window_s, ..a }
-            };
+        for (cand, &(a, drift_s)) in cands.iter().enumerate() {
+            let (window_s, line) = (a.window_s, line);
+            let window_s = SensorWindow {
+                window_s,
+                drift_s,
+                ..line
+            }
+            .window_at(w.t_traj_start);
+            let a = Alignment { window_s, ..a };
             let mut base = w.baseline_readings(&power.t, a.lag_s, a.window_s);
             if !base.any(|k| power.watts.get(k).is_some_and(|v| v.is_finite())) {
                 continue;
@@ -455,7 +482,7 @@ fn fixed_set_scores(
             }
         }
         let feats = TrialFeatures::new(rec, meta);
-        fits.add_trial(&rows, |k| feats.raw(k, meta));
+        fits.add_trial(&rows, |k| feats.raw(k, meta).map(|x| scan_row(&x, &ranges)));
         first = end;
     }
     fits.scores()
@@ -466,6 +493,7 @@ mod tests {
     use super::*;
     use crate::diagnose::reading_rows::trial_meta;
     use crate::diagnose::testkit::{Effects, session};
+    use crate::signals::{PowerSeries, Recording};
 
     /// The one-pass scores (running sums shared by every candidate) equal a fit of the rows
     /// [`build_rows`] gives each candidate on its own, restricted to the fixed reading set —
@@ -487,13 +515,13 @@ mod tests {
         let got = fixed_set_scores(&rec, &rec.mbs, &metas, &reference, &still(&cands));
         for (a, got) in cands.iter().zip(got) {
             let rows = build_rows(&rec, &rec.mbs, &metas, a.lag_s, a.window_s, false);
-            let mut gram = crate::lsq::Gram::zeros(N_RAW);
+            let mut gram = crate::lsq::Gram::zeros(N_SCAN);
             let mut y = Vec::new();
             for r in 0..rows.len() {
                 let start = metas[rows.trial[r]].window.t_traj_start;
                 let at = reference.t.iter().position(|&t| t == rows.t[r]);
                 if let (true, Some(k)) = (rows.t[r] >= start + FIXED_SET_S, at) {
-                    gram.add_row(&rows.x[r], reference.y[k]);
+                    gram.add_row(&scan_row(&rows.x[r], &scan_ranges()), reference.y[k]);
                     y.push(reference.y[k]);
                 }
             }
@@ -502,5 +530,76 @@ mod tests {
             assert_eq!(n, m, "{a:?}");
             assert!((r2 - w).abs() < 1e-9, "{a:?}: {r2} vs {w}");
         }
+    }
+
+    /// Readings of a rail meter, built here from the stated physics (not by the code under test):
+    /// the paper's power model plus 120 W (+ `offset_w`) on the recording's joint states, averaged
+    /// over the window `window(t)` ending at each stamp (1 s ± 30 ms apart from `first_s`), plus
+    /// uniform noise of ± `noise_w`.
+    fn meter(
+        rec: &Recording,
+        window: impl Fn(f64) -> f64,
+        (first_s, offset_w, noise_w): (f64, f64, f64),
+        seed: u64,
+    ) -> PowerSeries {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let st = &rec.state;
+        let p: Vec<f64> = (0..st.t.len())
+            .map(|k| {
+                120.0 + crate::power::PowerModel::PAPER.predict(&st.tau[k], &st.dq[k], &[0.0; 7])
+            })
+            .collect();
+        let mut out = PowerSeries::default();
+        let mut ts = first_s;
+        while ts < st.t[st.t.len() - 1] {
+            let k = samples_in(&st.t, ts - window(ts), ts);
+            if !k.is_empty() {
+                let mean = p[k.clone()].iter().sum::<f64>() / k.len() as f64;
+                out.t.push(ts);
+                out.watts
+                    .push(mean + offset_w + noise_w * (2.0 * rng.random::<f64>() - 1.0));
+            }
+            ts += 1.0 + 0.03 * (2.0 * rng.random::<f64>() - 1.0);
+        }
+        out
+    }
+
+    /// The drift scan on readings whose window drifts (a main-board window 0.15 → 0.45 s over the
+    /// session, linear between the first and last trial's start): the drift is recovered within
+    /// one coarse drift step (± 0.05 s) with the mid-session window within two fine steps, and it
+    /// is the main-board meter's artefact where the battery meter's window holds at 0.3 s; where
+    /// both meters drift (the arm's clock) it is not; a session whose window holds gets no drift.
+    #[test]
+    fn the_drift_scan_recovers_a_drifting_window_and_gives_none_to_a_steady_one() {
+        let (mut rec, windows) = session(40, 11, Effects::default());
+        let (t0, t1) = (windows[0].t_traj_start, windows[39].t_traj_start);
+        let drifting = move |t: f64| 0.3 + 0.3 * (((t - t0) / (t1 - t0)).clamp(0.0, 1.0) - 0.5);
+        let opts = DiagnoseOptions::default();
+        let bus = super::super::bus_model(&opts);
+        let mut run = |mbs: &dyn Fn(f64) -> f64, bms: &dyn Fn(f64) -> f64| {
+            rec.mbs = meter(&rec, mbs, (0.537, 0.0, 0.15), 1);
+            rec.bms = meter(&rec, bms, (0.811, 60.0, 0.5), 2);
+            let (metas, _) = trial_meta(&rec, &windows, bus);
+            let info = SessionInfo::of(&rec, crate::signals::Target::Mbs);
+            sensor_window(&info, &mut crate::session::Memory(&rec), &metas, &opts).expect("scan")
+        };
+        let steady = |_: f64| 0.3;
+        let sw = run(&drifting, &steady);
+        let mid = sw.window_at(0.5 * (t0 + t1));
+        assert!((sw.drift_s - 0.3).abs() <= 0.05 + 1e-9, "{sw:?}");
+        assert!((mid - 0.3).abs() <= 2.0 * STEP + 1e-9, "{mid} {sw:?}");
+        assert!(
+            sw.drift_delta_bic < opts.bic_threshold && sw.drift_artefact,
+            "{sw:?}"
+        );
+        let sw = run(&drifting, &drifting);
+        assert!(
+            (sw.drift_s - 0.3).abs() <= 0.05 + 1e-9 && !sw.drift_artefact,
+            "{sw:?}"
+        );
+        let sw = run(&steady, &steady);
+        assert_eq!(sw.drift_s, 0.0, "{sw:?}");
+        assert!((sw.window_s - 0.3).abs() <= STEP + 1e-9, "{sw:?}");
     }
 }
