@@ -75,7 +75,7 @@ impl SensorWindow {
 }
 
 /// Held-out quality of a model.
-#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, Copy, Default, serde::Serialize, serde::Deserialize)]
 pub struct Quality {
     /// Coefficient of determination.
     pub r2: f64,

@@ -245,10 +245,6 @@ impl Search<'_> {
         holm_level(self.rule.alpha, self.cands.len(), step)
     }
 
-    fn field_name(&self, c: Cand) -> String {
-        self.names[c.field].clone()
-    }
-
     /// The drift's basis with the columns `others` added, and the rest power's residual on it.
     fn projector(&self, others: &[Vec<f64>]) -> Projector {
         let mut q = self.drift.clone();
@@ -276,8 +272,7 @@ impl Search<'_> {
     }
 
     fn term(&self, s: &Scored, level: f64, verdict: String, coef: (f64, f64)) -> RestTerm {
-        let c = self.cands[s.cand];
-        let field = self.field_name(c);
+        let (c, field) = (self.cands[s.cand], self.field_of(s.cand));
         let (k, se) = coef;
         let step = matches!(c.shape, Shape::Above(_));
         let name = format!("the rail's rest power {}", c.shape.predicate(&field, k));
@@ -502,7 +497,7 @@ impl stepwise::Stage for Forward<'_, '_> {
 impl Search<'_> {
     /// The field a candidate follows: its step and linear forms are one group.
     fn field_of(&self, i: usize) -> String {
-        self.field_name(self.cands[i])
+        self.names[self.cands[i].field].clone()
     }
 
     /// [`super::parsimony`]'s rule within the rest power's rows: per term in `chosen`, the test
@@ -534,7 +529,8 @@ impl Search<'_> {
                 let others = chosen.iter().enumerate().filter(|(j, _)| *j != k);
                 let mut cols: Vec<Vec<f64>> = others.flat_map(|(_, &c)| flex(c)).collect();
                 cols.push(self.best_step(&cols));
-                let (p, e, e_cur) = self.beside_drift(&self.projector(&cols), &self.cols[chosen[k]]);
+                let (p, e, e_cur) =
+                    self.beside_drift(&self.projector(&cols), &self.cols[chosen[k]]);
                 let d: Vec<f64> = e.iter().zip(&e_cur).map(|(a, b)| a - b).collect();
                 let seed = 0x5eed_0000 + k as u64;
                 let level = (RIVAL_ALPHA, self.rule.min_improvement);

@@ -313,15 +313,10 @@ pub(super) fn to_discovery(
         after: s.after,
         step,
         verdict,
-        tied: Vec::new(),
-        meter: None,
-        stability: None,
         mechanism: match &search.cands[s.idx].kind {
             Kind::Product(t, ..) | Kind::Pooled(t) => t.library_id().map(String::from),
             _ => None,
         },
-        contribution: Vec::new(),
-        flexible: Vec::new(),
-        follows: Vec::new(),
+        ..Default::default()
     }
 }
