@@ -241,7 +241,7 @@ impl<'a, 'd> Search<'a, 'd> {
         if t.per_joint() {
             cols.extend((0..N_JOINTS).map(|i| rows.x.iter().map(|x| t.value(x, i)).collect()));
         }
-        cols.extend(shape_cols(&g, driving.collect(), &s));
+        cols.extend(shape_cols(g, driving.collect(), &s));
         unit_rms(&mut cols);
         (cols, s)
     }
