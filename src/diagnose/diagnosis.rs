@@ -63,7 +63,7 @@ pub struct SensorWindow {
 }
 
 /// Held-out quality of a model.
-#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, Copy, Default, serde::Serialize, serde::Deserialize)]
 pub struct Quality {
     /// Coefficient of determination.
     pub r2: f64,

@@ -164,7 +164,12 @@ struct Search<'a> {
     cands: Vec<Cand>,
     names: &'a [String],
     rule: Rule,
+    /// The projector of the last chosen set [`Search::score`] was called with.
+    beside: std::cell::RefCell<Option<(Vec<usize>, Projector)>>,
 }
+
+/// An orthonormal basis (the drift and other columns) and the rest power's residual on it.
+type Projector = (Vec<Vec<f64>>, Vec<f64>);
 
 fn predict(coef: &[f64], x: &[&[f64]], r: usize) -> f64 {
     coef[0] + x.iter().zip(&coef[1..]).map(|(c, k)| c[r] * k).sum::<f64>()
@@ -216,8 +221,15 @@ impl Search<'_> {
         let mut x: Vec<&[f64]> = chosen.iter().map(|&c| self.cols[c].as_slice()).collect();
         x.push(&self.cols[i]);
         let fit = self.fit(&x)?;
-        let others: Vec<Vec<f64>> = chosen.iter().map(|&c| self.cols[c].clone()).collect();
-        let p = self.beside_drift(&others, &self.cols[i]).0;
+        let mut memo = self.beside.borrow_mut();
+        if memo.as_ref().is_some_and(|m| m.0 != chosen) {
+            *memo = None;
+        }
+        let (_, proj) = memo.get_or_insert_with(|| {
+            let others: Vec<Vec<f64>> = chosen.iter().map(|&c| self.cols[c].clone()).collect();
+            (chosen.to_vec(), self.projector(&others))
+        });
+        let p = self.beside_drift(proj, &self.cols[i]).0;
         let rel = 1.0 - self.rmse(&fit.pred) / self.rmse(&cur.pred).max(1e-300);
         let d_bic = fit.bic - cur.bic;
         Some(Scored {
@@ -233,34 +245,34 @@ impl Search<'_> {
         holm_level(self.rule.alpha, self.cands.len(), step)
     }
 
-    fn field_name(&self, c: Cand) -> String {
-        self.names[c.field].clone()
-    }
-
-    /// What `x` adds to the rest power beside the drift and the columns `others`: (two-sided
-    /// p-value of its coefficient by the t test on the rows with all of them projected out,
-    /// squared residuals per trial without it, with it).
-    fn beside_drift(&self, others: &[Vec<f64>], x: &[f64]) -> (f64, Vec<f64>, Vec<f64>) {
+    /// The drift's basis with the columns `others` added, and the rest power's residual on it.
+    fn projector(&self, others: &[Vec<f64>]) -> Projector {
         let mut q = self.drift.clone();
         others.iter().for_each(|c| orthonormal_add(&mut q, c));
-        let e0 = residual(&q, &self.y);
-        let xr = residual(&q, x);
-        let (xx, xe) = (dot(&xr, &xr), dot(&xr, &e0));
+        let e = residual(&q, &self.y);
+        (q, e)
+    }
+
+    /// What `x` adds to the rest power beside the drift and other columns (`projector`): (two-sided
+    /// p-value of its coefficient by the t test on the rows with all of them projected out,
+    /// squared residuals per trial without it, with it).
+    fn beside_drift(&self, (q, e0): &Projector, x: &[f64]) -> (f64, Vec<f64>, Vec<f64>) {
+        let xr = residual(q, x);
+        let (xx, xe) = (dot(&xr, &xr), dot(&xr, e0));
         let e1: Vec<f64> = e0.iter().zip(&xr).map(|(e, v)| e - xe / xx * v).collect();
         let df = self.y.len() as f64 - q.len() as f64 - 1.0;
         let sq = |e: &[f64]| e.iter().map(|v| v * v).collect::<Vec<_>>();
         let centred = residual(&self.drift[..1], x);
         if xx.is_nan() || xx <= 1e-9 * dot(&centred, &centred) || df < 1.0 {
-            return (1.0, sq(&e0), sq(&e0));
+            return (1.0, sq(e0), sq(e0));
         }
         let t = xe / (dot(&e1, &e1) / df * xx).sqrt();
         let p = (2.0 * t_upper_tail(t.abs(), df)).min(1.0);
-        (p, sq(&e0), sq(&e1))
+        (p, sq(e0), sq(&e1))
     }
 
     fn term(&self, s: &Scored, level: f64, verdict: String, coef: (f64, f64)) -> RestTerm {
-        let c = self.cands[s.cand];
-        let field = self.field_name(c);
+        let (c, field) = (self.cands[s.cand], self.field_of(s.cand));
         let (k, se) = coef;
         let step = matches!(c.shape, Shape::Above(_));
         let name = format!("the rail's rest power {}", c.shape.predicate(&field, k));
@@ -371,6 +383,7 @@ pub(crate) fn rest_power(inp: &RestInputs, rule: &Rule) -> Option<RestPower> {
         cands,
         names: inp.names,
         rule: *rule,
+        beside: Default::default(),
     };
     let base = search.fit(&[])?;
     let mut out = RestPower {
@@ -484,7 +497,7 @@ impl stepwise::Stage for Forward<'_, '_> {
 impl Search<'_> {
     /// The field a candidate follows: its step and linear forms are one group.
     fn field_of(&self, i: usize) -> String {
-        self.field_name(self.cands[i])
+        self.names[self.cands[i].field].clone()
     }
 
     /// [`super::parsimony`]'s rule within the rest power's rows: per term in `chosen`, the test
@@ -516,7 +529,8 @@ impl Search<'_> {
                 let others = chosen.iter().enumerate().filter(|(j, _)| *j != k);
                 let mut cols: Vec<Vec<f64>> = others.flat_map(|(_, &c)| flex(c)).collect();
                 cols.push(self.best_step(&cols));
-                let (p, e, e_cur) = self.beside_drift(&cols, &self.cols[chosen[k]]);
+                let (p, e, e_cur) =
+                    self.beside_drift(&self.projector(&cols), &self.cols[chosen[k]]);
                 let d: Vec<f64> = e.iter().zip(&e_cur).map(|(a, b)| a - b).collect();
                 let seed = 0x5eed_0000 + k as u64;
                 let level = (RIVAL_ALPHA, self.rule.min_improvement);
@@ -531,9 +545,7 @@ impl Search<'_> {
     /// most of the rest power beside the drift and `others`.
     fn best_step(&self, others: &[Vec<f64>]) -> Vec<f64> {
         let n = self.y.len();
-        let mut q = self.drift.clone();
-        others.iter().for_each(|c| orthonormal_add(&mut q, c));
-        let e = residual(&q, &self.y);
+        let (q, e) = self.projector(others);
         let step = |b: usize| {
             (0..n)
                 .map(|r| f64::from(u8::from(r >= b)))
@@ -544,8 +556,9 @@ impl Search<'_> {
             dot(&x, &e).powi(2) / dot(&x, &x).max(1e-300)
         };
         let best = (MIN_BLOCK_TRIALS..n.saturating_sub(MIN_BLOCK_TRIALS))
-            .max_by(|&a, &b| explained(a).total_cmp(&explained(b)));
-        step(best.unwrap_or(0))
+            .map(|b| (b, explained(b)))
+            .max_by(|a, b| a.1.total_cmp(&b.1));
+        step(best.map_or(0, |b| b.0))
     }
 
     /// The first step's best candidate, rejected, with why.

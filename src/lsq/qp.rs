@@ -66,7 +66,7 @@ pub fn bounded_quadratic(
         }
         // Optimal on the free set: release the bound variable whose gradient most wants inside.
         let grad: Vec<f64> = (0..p)
-            .map(|i| (0..p).map(|j| g[(i, j)] * x[j]).sum::<f64>() - h[i])
+            .map(|i| g.row(i).iter().zip(&x).map(|(a, b)| a * b).sum::<f64>() - h[i])
             .collect();
         let scale = (0..p).map(|i| h[i].abs()).fold(0.0, f64::max).max(1e-300);
         let mut worst = None;

@@ -73,6 +73,8 @@ pub(super) struct RowValues {
     pub(super) raw: Vec<Vec<f64>>,
     pub(super) baseline: Vec<Vec<f64>>,
     pub(super) hours: Vec<f64>,
+    /// Per term of [`Term::ALL`]: its pooled value Σ_i term_i on each row.
+    pub(super) pooled: Vec<Vec<f64>>,
 }
 
 impl RowValues {
@@ -88,11 +90,20 @@ impl RowValues {
                     .collect(),
             );
         }
+        let pooled = (Term::ALL.iter())
+            .map(|t| rows.x.iter().map(|x| t.sum(x, &|_| 1.0)).collect())
+            .collect();
         RowValues {
             raw,
             baseline,
             hours: rows.t.iter().map(|t| t / 3600.0).collect(),
+            pooled,
         }
+    }
+
+    /// Term `t` pooled on each row.
+    pub(super) fn pooled(&self, t: Term) -> &Vec<f64> {
+        &self.pooled[Term::ALL.iter().position(|u| *u == t).unwrap_or(0)]
     }
 }
 
@@ -189,25 +200,27 @@ pub(super) fn columns(kind: &Kind, inp: &Inputs, rv: &RowValues, rows: &Rows) ->
             ]
         }
         Kind::Product(t, sig, shape) => {
-            let s = |r: usize, i: usize| match sig {
-                Signal::Field(f) => rv.raw[*f][r],
-                Signal::Family(_, fs) => rv.raw[fs[i]][r],
-                Signal::Time => rv.hours[r],
-                Signal::Rest(f) => rv.baseline[*f][r],
+            let g = |r: usize| {
+                let s = match sig {
+                    Signal::Family(_, fs) => {
+                        return t.sum(&rows.x[r], &|i| shape.g(rv.raw[fs[i]][r]));
+                    }
+                    Signal::Field(f) => rv.raw[*f][r],
+                    Signal::Time => rv.hours[r],
+                    Signal::Rest(f) => rv.baseline[*f][r],
+                };
+                // One signal for every joint: g(s) once.
+                let g = shape.g(s);
+                t.sum(&rows.x[r], &|_| g)
             };
             // The level column lets the term's coefficient at signal 0 take any sign (the base
             // coefficients it would otherwise shift are bounded at 0).
-            vec![
-                (0..n)
-                    .map(|r| t.sum(&rows.x[r], &|i| shape.g(s(r, i))))
-                    .collect(),
-                (0..n).map(|r| t.sum(&rows.x[r], &|_| 1.0)).collect(),
-            ]
+            vec![(0..n).map(g).collect(), rv.pooled(*t).clone()]
         }
         Kind::PerJoint(t) => (0..N_JOINTS)
             .map(|i| (0..n).map(|r| t.value(&rows.x[r], i)).collect())
             .collect(),
-        Kind::Pooled(t) => vec![(0..n).map(|r| t.sum(&rows.x[r], &|_| 1.0)).collect()],
+        Kind::Pooled(t) => vec![rv.pooled(*t).clone()],
     }
 }
 

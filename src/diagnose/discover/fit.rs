@@ -77,12 +77,11 @@ impl<'a, 'd> Base<'a, 'd> {
                     continue;
                 }
                 h[p + j] += e * y;
-                for a in 0..p {
-                    g[(a, p + j)] += x[a] * e;
-                }
-                for (l, c2) in cols.iter().enumerate() {
-                    g[(p + l, p + j)] += c2[r] * e;
-                }
+                // Column p + j of the (column-major) Gram: the base design, then the columns.
+                let col = &mut g.as_mut_slice()[(p + j) * n..(p + j + 1) * n];
+                let (base, ext) = col.split_at_mut(p);
+                base.iter_mut().zip(x).for_each(|(v, xa)| *v += xa * e);
+                ext.iter_mut().zip(cols).for_each(|(v, c2)| *v += c2[r] * e);
             }
         }
         for Gram { g, .. } in fg.iter_mut() {

@@ -8,7 +8,7 @@ use crate::diagnose::select::Param;
 use crate::signals::{PowerSeries, Target};
 
 /// A term found beyond the library.
-#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
 pub struct Discovery {
     /// What it is, in physical words (from the term's structure).
     pub name: String,

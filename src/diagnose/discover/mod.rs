@@ -150,8 +150,6 @@ fn changing_term(search: &Search, best: Option<(Term, Scored)>, pred: &[f64]) ->
             &words[1..]
         ),
         form: format!("Σ {} · (k0 + piecewise-linear(session time))", t.symbol()),
-        fields: Vec::new(),
-        params: Vec::new(),
         p_value: s.p,
         alpha: level,
         delta_bic: s.d_bic,
@@ -167,13 +165,8 @@ fn changing_term(search: &Search, best: Option<(Term, Scored)>, pred: &[f64]) ->
             search.n_families(),
             s.d_bic
         ),
-        tied: Vec::new(),
-        meter: None,
-        stability: None,
         mechanism: t.library_id().map(String::from),
-        contribution: Vec::new(),
-        flexible: Vec::new(),
-        follows: Vec::new(),
+        ..Default::default()
     })
 }
 

@@ -3,7 +3,7 @@
 
 use anyhow::Result;
 
-use super::candidates::{Inputs, Kind, Signal};
+use super::candidates::{Inputs, Kind, TIME_NAME, followed};
 use super::fit::Base;
 use super::search::{Scored, Search, p_better, simpler_nested, to_discovery};
 use super::ties::CONFOUNDED_R;
@@ -66,16 +66,8 @@ pub(super) fn library_reads(name: &str, arm_motors: &[usize; N_JOINTS]) -> bool 
 /// fields, none of which the library reads ([`library_reads`]). A term on session time or a
 /// correction of a base loss term is not another mechanism the data could name instead.
 pub(super) fn may_rival(kind: &Kind, names: &[String], arm_motors: &[usize; N_JOINTS]) -> bool {
-    let fields: Vec<usize> = match kind {
-        Kind::Additive(f, _) | Kind::Step(f, _) => vec![*f],
-        Kind::Product(_, Signal::Field(f) | Signal::Rest(f), _) => vec![*f],
-        Kind::Product(_, Signal::Family(_, fs), _) => fs.to_vec(),
-        Kind::Product(_, Signal::Time, _) | Kind::PerJoint(_) | Kind::Pooled(_) => Vec::new(),
-    };
-    !fields.is_empty()
-        && fields
-            .iter()
-            .all(|&f| !library_reads(&names[f], arm_motors))
+    let fields = followed(kind, names);
+    !fields.is_empty() && (fields.iter()).all(|f| f != TIME_NAME && !library_reads(f, arm_motors))
 }
 
 /// The best candidate beyond the library that does the library term's work: every candidate is

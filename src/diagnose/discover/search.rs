@@ -132,13 +132,7 @@ impl<'a, 'd> Search<'a, 'd> {
     pub(super) fn block(&self, t: Term, prev: &[Vec<f64>]) -> Option<Scored> {
         let hours = &self.rv.hours;
         let (mid, knots) = knots(hours)?;
-        let g: Vec<f64> = self
-            .base
-            .rows
-            .x
-            .iter()
-            .map(|x| t.sum(x, &|_| 1.0))
-            .collect();
+        let g = self.rv.pooled(t);
         let hinge = |k: f64, lo: f64| g.iter().zip(hours).map(move |(v, h)| v * (h - k).max(lo));
         let mut own = vec![g.clone(), hinge(mid, f64::NEG_INFINITY).collect()];
         own.extend(knots.iter().map(|&k| hinge(k, 0.0).collect()));
@@ -236,8 +230,8 @@ impl<'a, 'd> Search<'a, 'd> {
             Kind::Product(t, sig, _) => (*t, signal_values(sig, rv)),
             Kind::PerJoint(t) | Kind::Pooled(t) => (*t, rv.hours.clone()),
         };
-        let g: Vec<f64> = rows.x.iter().map(|x| t.sum(x, &|_| 1.0)).collect();
-        let driving = rows.x.iter().zip(&g).map(|(x, v)| match t.per_joint() {
+        let g = self.rv.pooled(t);
+        let driving = rows.x.iter().zip(g).map(|(x, v)| match t.per_joint() {
             true => (0..N_JOINTS)
                 .filter(|&i| drives(x, i))
                 .map(|i| t.value(x, i))
@@ -247,7 +241,7 @@ impl<'a, 'd> Search<'a, 'd> {
         if t.per_joint() {
             cols.extend((0..N_JOINTS).map(|i| rows.x.iter().map(|x| t.value(x, i)).collect()));
         }
-        cols.extend(shape_cols(&g, driving.collect(), &s));
+        cols.extend(shape_cols(g, driving.collect(), &s));
         unit_rms(&mut cols);
         (cols, s)
     }
@@ -319,15 +313,10 @@ pub(super) fn to_discovery(
         after: s.after,
         step,
         verdict,
-        tied: Vec::new(),
-        meter: None,
-        stability: None,
         mechanism: match &search.cands[s.idx].kind {
             Kind::Product(t, ..) | Kind::Pooled(t) => t.library_id().map(String::from),
             _ => None,
         },
-        contribution: Vec::new(),
-        flexible: Vec::new(),
-        follows: Vec::new(),
+        ..Default::default()
     }
 }
