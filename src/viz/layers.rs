@@ -14,14 +14,14 @@ use super::replay::{
 use super::{ChunkWriter, paths, style};
 use crate::N_JOINTS;
 
-/// Logs everything `extras` holds; `stats`: what the model's series (logged trial by trial,
-/// [`super::ReplayLogger::log_model_trial`]) give the bars, the note and the trial log.
-pub(super) fn log_extras(
+/// Logs what `extras` hold before any sample is read (the readings and their errors, each
+/// trial's error, rest power and IMU statistic, the trial track, a diagnosis): at the replay's
+/// start, so a viewer opening a long file shows the power plots and the per-trial plots first.
+pub(super) fn log_known(
     w: &mut ChunkWriter<'_>,
     joints: &[String],
     extras: &ReplayExtras,
     chunk: usize,
-    stats: &ModelStats,
 ) -> Result<()> {
     if extras.model.is_some() {
         let (path, name) = (paths::MODEL_PREDICTED, "predicted, instantaneous");
@@ -31,6 +31,26 @@ pub(super) fn log_extras(
         log_readings(w, r, chunk)?;
     }
     log_trajectories(w, &extras.trajectories)?;
+    if let Some(imu) = &extras.imu_filter {
+        log_imu_filter(w, imu)?;
+    }
+    log_trial_marks(w, paths::TRIALS, &sorted(&extras.trials), "rejected", true)?;
+    if let Some(d) = &extras.diagnosis {
+        log_diagnosis(w, joints, d, chunk)?;
+        log_diagnosis_per_trial(w, joints, d)?;
+    }
+    Ok(())
+}
+
+/// Logs what the model's series give once logged (`stats`, gathered trial by trial,
+/// [`super::ReplayLogger::log_model_trial`]): the terms' styles, the per-trial shares, the note,
+/// and the trial log with each trial's shares.
+pub(super) fn log_model_stats(
+    w: &mut ChunkWriter<'_>,
+    joints: &[String],
+    extras: &ReplayExtras,
+    stats: &ModelStats,
+) -> Result<()> {
     let mut marks = std::borrow::Cow::Borrowed(&extras.trials[..]);
     if extras.model.is_some() {
         log_term_styles(w, joints)?;
@@ -40,15 +60,7 @@ pub(super) fn log_extras(
         w.send_static(paths::BREAKDOWN_NOTE, &TextDocument::from_markdown(note))?;
         marks = std::borrow::Cow::Owned(with_shares(&extras.trials, means, joints));
     }
-    if let Some(imu) = &extras.imu_filter {
-        log_imu_filter(w, imu)?;
-    }
-    log_trials(w, paths::TRIALS, &marks, "rejected", true)?;
-    if let Some(d) = &extras.diagnosis {
-        log_diagnosis(w, joints, d, chunk)?;
-        log_diagnosis_per_trial(w, joints, d)?;
-    }
-    Ok(())
+    log_trial_log(w, paths::TRIALS, &sorted(&marks))
 }
 
 /// The first time and the mean of `v` of each run of readings of one trial (`t`, `trial` and
@@ -717,26 +729,22 @@ fn marked(m: &TrialMark) -> bool {
     m.rejected.is_some() || m.highlight.is_some()
 }
 
-/// A log line per trial at its start; with `index`, the trial track `trials/index` (the trial
-/// under way, held until the next one starts); a thick segment at the trial's index for every
-/// marked trial (`<prefix>/<kind>/<k>`, named with its reason and statistic).
-fn log_trials(
-    w: &mut ChunkWriter<'_>,
-    prefix: &str,
-    trials: &[TrialMark],
-    kind: &str,
-    index: bool,
-) -> Result<()> {
-    if trials.is_empty() {
-        return Ok(());
-    }
+/// `trials` by start (then index).
+fn sorted(trials: &[TrialMark]) -> Vec<&TrialMark> {
     let mut order: Vec<&TrialMark> = trials.iter().collect();
     order.sort_by(|a, b| a.t_start.total_cmp(&b.t_start).then(a.index.cmp(&b.index)));
-    let t: Vec<f64> = order.iter().map(|m| m.t_start).collect();
+    order
+}
+
+/// A log line per trial of `order` (by start) at its start, under `prefix`.
+fn log_trial_log(w: &mut ChunkWriter<'_>, prefix: &str, order: &[&TrialMark]) -> Result<()> {
+    if order.is_empty() {
+        return Ok(());
+    }
     // Stamped at the start rounded to 0.1 s (the trial track keeps the exact start); the viewer
     // sizes the log's time column for short stamps and cuts those past 1000 s, so the layout
     // hides it and each entry opens with its session time.
-    let t_log: Vec<f64> = t.iter().map(|&x| log_stamp(x)).collect();
+    let t_log: Vec<f64> = order.iter().map(|m| log_stamp(m.t_start)).collect();
     let texts = order.iter().zip(&t_log);
     let texts: Vec<String> = texts
         .map(|(m, s)| format!("{s:.1} s  {}", trial_text(m)))
@@ -747,8 +755,23 @@ fn log_trials(
         .with_many_text(texts)
         .with_many_level(levels)
         .columns_of_unit_batches()?;
-    w.send_columns(&paths::trials_log(prefix), &t_log, columns)?;
+    w.send_columns(&paths::trials_log(prefix), &t_log, columns)
+}
 
+/// The marks of the trials of `order` (by start): with `index`, the trial track `trials/index`
+/// (the trial under way, held until the next one starts); a long session's strip; a thick
+/// segment at the trial's index for every marked trial (`<prefix>/<kind>/<k>`, named with its
+/// reason and statistic).
+fn log_trial_marks(
+    w: &mut ChunkWriter<'_>,
+    prefix: &str,
+    order: &[&TrialMark],
+    kind: &str,
+    index: bool,
+) -> Result<()> {
+    if order.is_empty() {
+        return Ok(());
+    }
     if index {
         w.send_static(
             paths::TRIAL_INDEX,
@@ -758,10 +781,15 @@ fn log_trials(
                 .with_widths([1.0])
                 .with_interpolation_mode(InterpolationMode::StepAfter),
         )?;
-        let idx = order.iter().map(|m| m.index as f64);
-        scalars(w, paths::TRIAL_INDEX, &t, idx)?;
+        let t: Vec<f64> = order.iter().map(|m| m.t_start).collect();
+        scalars(
+            w,
+            paths::TRIAL_INDEX,
+            &t,
+            order.iter().map(|m| m.index as f64),
+        )?;
     }
-    log_strip(w, prefix, &order)?;
+    log_strip(w, prefix, order)?;
     for m in order.iter().filter(|m| marked(m)) {
         let path = paths::trial_span(prefix, kind, m.index);
         style::line(w, &path, &trial_text(m), style::WARNING, 6.0)?;
@@ -799,7 +827,9 @@ fn log_diagnosis(
     let err = |p: &[f64]| -> Vec<f64> { r.measured_w.iter().zip(p).map(|(m, p)| m - p).collect() };
     scalars_chunked(w, paths::DIAG_ERROR_BEFORE, &r.t, &err(&r.before_w), chunk)?;
     scalars_chunked(w, paths::DIAG_ERROR_AFTER, &r.t, &err(&r.after_w), chunk)?;
-    log_trials(w, paths::DIAG_TRIALS, marks, "located", false)?;
+    let order = sorted(marks);
+    log_trial_log(w, paths::DIAG_TRIALS, &order)?;
+    log_trial_marks(w, paths::DIAG_TRIALS, &order, "located", false)?;
     if r.found_w.len() == r.t.len() && !r.found_w.is_empty() {
         let found = "with terms found beyond the library";
         style::line(w, paths::DIAG_FOUND, found, style::WARNING, 1.5)?;

@@ -33,8 +33,8 @@ pub use replay::{
     log_replay, replay_files_with,
 };
 pub use session::{
-    BYTES_FIXED, BYTES_PER_CHUNK, BYTES_PER_LINK_POSE, BYTES_PER_SCALAR, DEFAULT_REPLAY_BYTES,
-    Notice, SessionReplay, SizeEstimate, Window, replay_session,
+    DEFAULT_DIAGNOSIS_BYTES, DEFAULT_REPLAY_BYTES, Notice, SessionReplay, SizeEstimate, Window,
+    replay_diagnosis, replay_session,
 };
 pub use slice::{Decimator, Slice};
 
