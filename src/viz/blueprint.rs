@@ -708,6 +708,8 @@ pub struct LayoutParts {
     /// The diagnosis found loads on the rest power (each trial's rest power and its prediction
     /// are plotted beside the fields).
     pub rest: bool,
+    /// The diagnosis found the meter's averaging window drifting (plotted over the session).
+    pub window_drift: bool,
     /// Series in the diagnosis' power plot (measured, before, after, and the found terms'
     /// prediction and the twin when present).
     pub diagnosis_power_series: usize,
@@ -1212,6 +1214,8 @@ const VIEWS: &[Row] = {
     Row(PLOTS, |p| p.located, TS, Is("Fields the found terms follow"), paths::DIAG_LOCATED, none, TICKS, [0.0; 2], same),
     Row(PLOTS, |p| p.rest, TS, Is("Rest power [W]: measured blue, with found loads red"), paths::DIAG_REST, none,
         TICKS, [0.0; 2], same),
+    Row(PLOTS, |p| p.window_drift, TS, Is("Meter window [s]: drifting red, one window grey"), paths::DIAG_WINDOW,
+        none, TICKS, [0.0; 2], same),
     Row(PLOTS, |p| p.counterpart, TS, Is("Torque recording − twin [Nm]"), paths::DIAG_TORQUE, none, TICKS, [0.0; 2], same),
     ]
 };
@@ -1320,19 +1324,17 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
         for (k, j) in each.into_iter().enumerate() {
             // A per-joint view's legend is the first's (the same colours in every cell).
             let Look(fit, plot_px, legend, whole) = [*look, TICKS][usize::from(k > 0)];
-            let view = Node::View {
-                class,
-                name: name.replace("{j}", j),
-                origin: origin.to_string(),
-                contents: contents(&c, j),
-                eye: None,
-                legend,
-                y_range: None,
-                fit,
-                plot_px,
-                whole,
-                x_range: None,
-            };
+            let mut view = Node::view(class, name.replace("{j}", j), *origin, contents(&c, j));
+            if let Node::View {
+                legend: l,
+                fit: f,
+                plot_px: px,
+                whole: wh,
+                ..
+            } = &mut view
+            {
+                (*l, *f, *px, *wh) = (legend, fit, plot_px, whole);
+            }
             let mut path: Vec<&Frame> = Vec::new();
             let mut at = *at;
             while let Some(b) = BOXES[1..].iter().find(|b| b.0 == at) {

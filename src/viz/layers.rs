@@ -799,6 +799,26 @@ fn log_trial_marks(
     Ok(())
 }
 
+/// A series to log: its path, name, colour, `Some(size)` for circles of that size (`None`: a
+/// line), and its values.
+type Styled = (String, String, [u8; 3], Option<f32>, Vec<f64>);
+
+/// Logs each of `series` with its style at `t`, in chunks; one that is empty or not as long as
+/// `t` is left out.
+fn log_styled(w: &mut ChunkWriter<'_>, t: &[f64], series: Vec<Styled>, chunk: usize) -> Result<()> {
+    for (path, name, colour, dots, v) in series {
+        if v.len() != t.len() || v.is_empty() {
+            continue;
+        }
+        match dots {
+            Some(size) => style::points(w, &path, &name, colour, MarkerShape::Circle, size)?,
+            None => style::line(w, &path, &name, colour, 1.5)?,
+        }
+        scalars_chunked(w, &path, t, &v, chunk)?;
+    }
+    Ok(())
+}
+
 /// The diagnosis: measured vs before/after (and the twin), their errors, the located trials,
 /// the torque differences and the summary.
 fn log_diagnosis(
@@ -810,59 +830,66 @@ fn log_diagnosis(
     let r = &d.data;
     // Each marked trial's energy shares in the log, as in a model replay's.
     let marks = &with_shares(&d.highlighted, &reading_means(r), joints);
-    let circle = MarkerShape::Circle;
-    let (path, measured) = (paths::DIAG_MEASURED, "measured reading (net)");
-    style::points(w, path, measured, style::MEASURED, circle, 3.0)?;
-    style::line(w, paths::DIAG_BEFORE, "base model", style::NEUTRAL, 1.5)?;
-    let after = "with accepted hypotheses";
-    style::line(w, paths::DIAG_AFTER, after, style::PREDICTED, 1.5)?;
-    let before = (paths::DIAG_ERROR_BEFORE, "base model", style::NEUTRAL);
-    let after = (paths::DIAG_ERROR_AFTER, "with hypotheses", style::ERROR);
-    for (path, name, colour) in [before, after] {
-        style::points(w, path, &format!("error, {name}"), colour, circle, 2.5)?;
-    }
-    scalars_chunked(w, paths::DIAG_MEASURED, &r.t, &r.measured_w, chunk)?;
-    scalars_chunked(w, paths::DIAG_BEFORE, &r.t, &r.before_w, chunk)?;
-    scalars_chunked(w, paths::DIAG_AFTER, &r.t, &r.after_w, chunk)?;
-    let err = |p: &[f64]| -> Vec<f64> { r.measured_w.iter().zip(p).map(|(m, p)| m - p).collect() };
-    scalars_chunked(w, paths::DIAG_ERROR_BEFORE, &r.t, &err(&r.before_w), chunk)?;
-    scalars_chunked(w, paths::DIAG_ERROR_AFTER, &r.t, &err(&r.after_w), chunk)?;
     let order = sorted(marks);
     log_trial_log(w, paths::DIAG_TRIALS, &order)?;
     log_trial_marks(w, paths::DIAG_TRIALS, &order, "located", false)?;
-    if r.found_w.len() == r.t.len() && !r.found_w.is_empty() {
-        let found = "with terms found beyond the library";
-        style::line(w, paths::DIAG_FOUND, found, style::WARNING, 1.5)?;
-        let (path, error) = (paths::DIAG_ERROR_FOUND, "error with found terms");
-        style::points(w, path, error, style::WARNING, circle, 2.5)?;
-        scalars_chunked(w, paths::DIAG_FOUND, &r.t, &r.found_w, chunk)?;
-        scalars_chunked(w, paths::DIAG_ERROR_FOUND, &r.t, &err(&r.found_w), chunk)?;
-    }
-    for (k, field) in r.located.iter().enumerate() {
+    let err = |p: &[f64]| -> Vec<f64> { r.measured_w.iter().zip(p).map(|(m, p)| m - p).collect() };
+    let s = |path: &str, name: &str, colour, dots, v: Vec<f64>| {
+        (path.into(), name.into(), colour, dots, v)
+    };
+    #[rustfmt::skip]
+    let mut series: Vec<Styled> = vec![
+        s(paths::DIAG_MEASURED, "measured reading (net)", style::MEASURED, Some(3.0), r.measured_w.clone()),
+        s(paths::DIAG_BEFORE, "base model", style::NEUTRAL, None, r.before_w.clone()),
+        s(paths::DIAG_AFTER, "with accepted hypotheses", style::PREDICTED, None, r.after_w.clone()),
+        s(paths::DIAG_ERROR_BEFORE, "error, base model", style::NEUTRAL, Some(2.5), err(&r.before_w)),
+        s(paths::DIAG_ERROR_AFTER, "error, with hypotheses", style::ERROR, Some(2.5), err(&r.after_w)),
+        s(paths::DIAG_FOUND, "with terms found beyond the library", style::WARNING, None, r.found_w.clone()),
+        s(paths::DIAG_ERROR_FOUND, "error with found terms", style::WARNING, Some(2.5), err(&r.found_w)),
+        s(paths::DIAG_REST_MEASURED, "rest power of the trial (pre-idle mean)", style::MEASURED, None, r.rest_w.clone()),
+        s(paths::DIAG_REST_FOUND, "with the loads found on it (held out)", style::WARNING, None, r.rest_found_w.clone()),
+    ];
+    for (k, f) in r.located.iter().enumerate() {
         let path = paths::diag_located(k);
-        style::line(w, &path, &field.name, style::joint(k), 1.5)?;
-        scalars_chunked(w, &path, &r.t, &field.values, chunk)?;
+        series.push(s(&path, &f.name, style::joint(k), None, f.values.clone()));
     }
-    let (rest, rest_found) = (&r.rest_w, &r.rest_found_w);
-    if rest.len() == r.t.len() && rest_found.len() == r.t.len() && !rest.is_empty() {
-        let measured = "rest power of the trial (pre-idle mean)";
-        style::line(w, paths::DIAG_REST_MEASURED, measured, style::MEASURED, 1.5)?;
-        let found = "with the loads found on it (held out)";
-        style::line(w, paths::DIAG_REST_FOUND, found, style::WARNING, 1.5)?;
-        scalars_chunked(w, paths::DIAG_REST_MEASURED, &r.t, rest, chunk)?;
-        scalars_chunked(w, paths::DIAG_REST_FOUND, &r.t, rest_found, chunk)?;
+    // A drifting meter window: its width at each reading beside the scan's one window.
+    if let Some(sw) = &d.window {
+        let [drifting, fixed] =
+            ["drifting", "fixed"].map(|k| format!("{}/{k}", paths::DIAG_WINDOW));
+        let name = format!("the meter's window, {:+.3} s over the session", sw.drift_s);
+        let widths = r.t.iter().map(|&t| sw.window_at(t)).collect();
+        series.push(s(&drifting, &name, style::WARNING, None, widths));
+        let one = "one window (the alignment scan's)";
+        series.push(s(
+            &fixed,
+            one,
+            style::NEUTRAL,
+            None,
+            vec![sw.scan_window_s; r.t.len()],
+        ));
     }
+    log_styled(w, &r.t, series, chunk)?;
     if let Some(cp) = &d.counterpart {
-        let twin = "twin on the same commands";
-        style::line(w, paths::DIAG_TWIN, twin, style::MBS, 1.5)?;
-        scalars_chunked(w, paths::DIAG_TWIN, &cp.power_t, &cp.power_w, chunk)?;
-        for (j, name) in joints.iter().enumerate() {
-            let path = paths::diag_torque(name);
-            let label = format!("{name} τ recording − twin");
-            style::line(w, &path, &label, style::joint(j), 1.5)?;
-            let v: Vec<f64> = cp.tau_diff.iter().map(|x| x[j]).collect();
-            scalars_chunked(w, &path, &cp.tau_t, &v, chunk)?;
-        }
+        let twin = s(
+            paths::DIAG_TWIN,
+            "twin on the same commands",
+            style::MBS,
+            None,
+            cp.power_w.clone(),
+        );
+        log_styled(w, &cp.power_t, vec![twin], chunk)?;
+        let torque = joints.iter().enumerate().map(|(j, name)| {
+            let v = cp.tau_diff.iter().map(|x| x[j]).collect();
+            s(
+                &paths::diag_torque(name),
+                &format!("{name} τ recording − twin"),
+                style::joint(j),
+                None,
+                v,
+            )
+        });
+        log_styled(w, &cp.tau_t, torque.collect(), chunk)?;
     }
     w.send_static(
         paths::DIAG_SUMMARY,

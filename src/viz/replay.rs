@@ -172,6 +172,8 @@ pub struct DiagnosisOverlay {
     pub summary: String,
     /// The twin re-run on the recording's commands (`diagnose --counterpart`).
     pub counterpart: Option<crate::diagnose::counterpart::CounterpartSeries>,
+    /// The meter's averaging window, where the diagnosis found it drifting.
+    pub window: Option<crate::diagnose::SensorWindow>,
 }
 
 /// What later stages add to a replay. Plain data so identify/diagnose need no Rerun types.
@@ -255,6 +257,7 @@ pub fn layout(
         imu_filter: extras.imu_filter.is_some(),
         located: diagnosis(|d| !d.data.located.is_empty()),
         rest: diagnosis(|d| !d.data.rest_w.is_empty()),
+        window_drift: diagnosis(|d| d.window.is_some()),
         diagnosis_power_series,
         hypotheses: diagnosis(|d| d.data.after_w != d.data.before_w),
         error_typical: error_typical(extras),
@@ -387,12 +390,6 @@ pub(super) fn file_replay_options(opts: &ReplayOptions) -> ReplayOptions {
     }
 }
 
-/// Samples (state and command) a streamed replay logs between waits for the sink: the samples
-/// are turned into chunks far faster than the sink encodes and writes them, and without a wait
-/// the chunks in flight pile up (1 h session: peak RSS 175 MB without the waits, 79 MB with
-/// them, ~5 % longer).
-pub(crate) const REPLAY_FLUSH_SAMPLES: usize = 60_000;
-
 /// A streamed replay into `stream`: `read` drives the sink over the recording(s); with a model,
 /// its series are logged trial by trial as the reading completes each trial, beside the trial's
 /// joint signals in the file (so a viewer loading it shows the session's start whole first).
@@ -404,7 +401,7 @@ pub(super) fn streamed_replay(
     stream: &RecordingStream,
     read: &mut dyn FnMut(&mut StreamedReplay<'_, '_>) -> Result<()>,
 ) -> Result<ReplaySummary> {
-    let (logger, warnings, unflushed) = (None, Vec::new(), 0);
+    let (logger, warnings, model_trials) = (None, Vec::new(), None);
     let mut sink = StreamedReplay {
         stream,
         robot,
@@ -412,9 +409,8 @@ pub(super) fn streamed_replay(
         opts,
         extras,
         logger,
-        model_trials: None,
+        model_trials,
         warnings,
-        unflushed,
     };
     read(&mut sink)?;
     let mut logger = sink.logger.context("the recording delivered no samples")?;
@@ -472,8 +468,6 @@ pub(super) struct StreamedReplay<'a, 'e> {
     model_trials: Option<crate::session::TrialWalk>,
     /// The reader's warnings.
     pub(super) warnings: Vec<String>,
-    /// Samples logged since the stream was last waited for.
-    unflushed: usize,
 }
 
 impl crate::signals::RecordingSink for StreamedReplay<'_, '_> {
@@ -502,13 +496,6 @@ impl crate::signals::RecordingSink for StreamedReplay<'_, '_> {
         logger.add(batch)?;
         if let Some(walk) = self.model_trials.as_mut() {
             walk.push(batch, &mut |rec, _| logger.log_model_trial(&rec.state))?;
-        }
-        self.unflushed += batch.state.t.len() + batch.command.t.len();
-        if self.unflushed >= REPLAY_FLUSH_SAMPLES {
-            self.unflushed = 0;
-            self.stream
-                .flush_blocking()
-                .context("writing the recording")?;
         }
         Ok(())
     }
@@ -554,8 +541,6 @@ pub struct ReplayLogger<'a> {
     model_decimator: Decimator,
     /// What the bars, the note and the link colours take of the model's series.
     stats: layers::ModelStats,
-    /// Model samples logged since the last flush ([`Self::log_model_trial`]).
-    unflushed: usize,
     /// Model samples gathered into the next chunk ([`Self::log_model_trial`]).
     pending: TermSeries,
     /// Samples kept, gathered into chunks of [`Self::chunk`] ([`Self::add`]).
@@ -570,10 +555,6 @@ pub struct ReplayLogger<'a> {
 
 /// Power readings per chunk of a sensor's series (≈ 17 min at 1 Hz; [`ReplayLogger::log_power`]).
 const POWER_ROWS: usize = 1024;
-
-/// Model samples (≈ 42 scalar rows each) between waits for the sink in
-/// [`ReplayLogger::log_model_trial`].
-const MODEL_FLUSH_SAMPLES: usize = 20_000;
 
 impl<'a> ReplayLogger<'a> {
     /// Sends the viewer layout (when [`ReplayOptions::blueprint`]), the static robot and the
@@ -655,7 +636,6 @@ impl<'a> ReplayLogger<'a> {
             model: extras.model.clone().map(|m| (m, 0)),
             model_decimator: Decimator::default(),
             stats: Default::default(),
-            unflushed: 0,
             pending: Default::default(),
             kept: Recording::default(),
             layout: sent_layout,
@@ -714,10 +694,13 @@ impl<'a> ReplayLogger<'a> {
         Ok(())
     }
 
-    /// Logs the gathered kept samples ([`Self::kept`]).
+    /// Logs the gathered kept samples ([`Self::kept`]), then waits for the sink: the samples are
+    /// turned into chunks far faster than it encodes and writes them, and without a wait the
+    /// chunks in flight pile up (1 h session: peak RSS 175 MB without the waits, 79 MB with them).
     fn add_kept(&mut self) -> Result<()> {
         let kept = std::mem::take(&mut self.kept);
-        self.add_samples(&kept)
+        self.add_samples(&kept)?;
+        self.w.flush()
     }
 
     /// Motion start: the first sample any joint is more than the threshold from the first (over
@@ -861,13 +844,8 @@ impl<'a> ReplayLogger<'a> {
         scalars_chunked(w, paths::MODEL_PREDICTED, t, predicted, self.chunk)?;
         layers::log_term_data(w, &self.joints, &head, self.chunk)?;
         layers::log_breakdown_data(w, &self.joints, &head, self.chunk)?;
-        // These are computed far faster than the sink writes them: wait for it now and then.
-        self.unflushed += n;
-        if self.unflushed >= MODEL_FLUSH_SAMPLES {
-            self.unflushed = 0;
-            w.flush()?;
-        }
-        Ok(())
+        // Computed far faster than the sink writes them: wait for it.
+        w.flush()
     }
 
     /// Logs the power readings left, what the model's series give (shares, note, trial log, link

@@ -11,7 +11,7 @@ use anyhow::{Context, Result, bail};
 
 use super::replay::{ReplayExtras, ReplayOptions, ReplaySummary};
 use super::slice::Slice;
-use super::{OutputKind, Sink, open_stream, recording_id_or_reason};
+use super::{OutputKind, Sink, open_stream, recording_id_for_source};
 use crate::identify::{IdentifyOptions, validate_file};
 use crate::power::PowerModel;
 use crate::read::OpenOptions;
@@ -86,7 +86,7 @@ pub enum Notice {
 pub const DEFAULT_REPLAY_BYTES: f64 = 150e6;
 /// The same for a diagnosis' `.rrd`, an overview of its per-reading findings: small enough that
 /// a paper-scale one opens in the web viewer within a minute (docs/benchmarks.md).
-pub const DEFAULT_DIAGNOSIS_BYTES: f64 = 10e6;
+pub const DEFAULT_DIAGNOSIS_BYTES: f64 = 15e6;
 
 impl OutputKind {
     /// The default size of this kind of output [bytes] (the cap's budget, [`Notice::Capped`]).
@@ -99,7 +99,8 @@ impl OutputKind {
 }
 
 /// The lowest rate the default cap goes to [Hz] (one sample per 10 s), even when the output is
-/// then larger than its budget (hundreds of hours: the estimate printed says so).
+/// then larger than its budget (its chunks alone can be, at 500 Hz over many hours: the
+/// estimate printed says so).
 const MIN_DEFAULT_HZ: f64 = 0.1;
 
 /// Expected size of a replay's `.rrd`.
@@ -121,7 +122,7 @@ const BYTES_PER_LINK_POSE: f64 = 41.7;
 const BYTES_PER_CHUNK: f64 = 2800.0;
 /// Fixed part: layout, robot geometry, properties, series styles (≈ 90 static chunks).
 const BYTES_FIXED: f64 = 300_000.0;
-/// Kept samples per chunk of a replayed file: one chunk per entity and batch of them.
+/// Samples per batch of a replayed file (its chunk size): one chunk per entity and batch.
 const BATCH_SAMPLES: f64 = super::replay::STREAMED_CHUNK_ROWS as f64;
 /// Scalar series per state sample (q, q̇, τ, temperature of 7 joints, |ω|).
 const STATE_SERIES: f64 = 29.0;
@@ -295,7 +296,7 @@ fn write_replay(
         notify(Notice::Estimate(size.estimate(slice.max_rate_hz)));
     }
     let first = paths.first().context("no session to replay")?;
-    let id = recording_id_or_reason(first)?;
+    let id = recording_id_for_source(first)?;
     let out = open_stream(&kind.app_id(), &kind.recording_id(&id), r.sink, r.inputs)?;
     let opts = ReplayOptions {
         slice,
@@ -350,8 +351,11 @@ impl ReplaySize {
             + links
             + POWER_ENTITIES
             + if model { MODEL_ENTITIES } else { 0.0 };
-        // Kept samples are gathered into chunks (+1: the last one is partial).
-        let batches = (state / BATCH_SAMPLES).ceil() + 1.0;
+        // Counted per recorded batch, as if each were a chunk (+1: a window starts and ends
+        // inside batches). Capped, fewer chunks are written (kept samples are gathered), but a
+        // decimated row costs more than the example's (irregular stamps compress worse): counted
+        // so, the capped paper replay (3.4 h at 3.7 Hz) is estimated at 149 MB, written 157 MB.
+        let batches = (self.state_hz * seconds / BATCH_SAMPLES).ceil() + 1.0;
         SizeEstimate {
             seconds,
             bytes: BYTES_FIXED
@@ -471,8 +475,11 @@ mod tests {
                 "{seconds} s: {hz} Hz, {more} B at +{step}"
             );
         }
-        // 1000 h with the model passes the size even at the floor; the cap stops there.
-        let long = size(3.6e6, true);
+        // 10 h at 500 Hz with the model: its chunks alone pass the size; the cap stops at its floor.
+        let long = ReplaySize {
+            state_hz: 500.0,
+            ..size(36_000.0, true)
+        };
         assert!(long.estimate(Some(MIN_DEFAULT_HZ)).bytes > DEFAULT_REPLAY_BYTES);
         assert_eq!(long.default_cap(DEFAULT_REPLAY_BYTES), Some(MIN_DEFAULT_HZ));
     }
