@@ -52,7 +52,7 @@ pub struct DiagnoseArgs {
     #[arg(long, value_name = "HZ", default_value_t = 30.0, value_parser = super::non_negative, requires = "save")]
     pose_rate: f64,
     /// With --save: at most this many samples per second of every joint and IMU series (default:
-    /// every sample, unless the .rrd would exceed 15 MB — at 100 Hz, a session of over 2 min:
+    /// every sample, unless the .rrd would exceed 15 MB — at 100 Hz, a session of over about 90 s:
     /// then the highest rate that fits, printed, so that the web viewer opens it within about a
     /// minute; 0 = every sample). The diagnosis' per-reading series are always kept whole.
     #[arg(long, value_name = "HZ", value_parser = super::non_negative, requires = "save")]

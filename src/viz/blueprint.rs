@@ -1214,8 +1214,9 @@ const VIEWS: &[Row] = {
     Row(PLOTS, |p| p.located, TS, Is("Fields the found terms follow"), paths::DIAG_LOCATED, none, TICKS, [0.0; 2], same),
     Row(PLOTS, |p| p.rest, TS, Is("Rest power [W]: measured blue, with found loads red"), paths::DIAG_REST, none,
         TICKS, [0.0; 2], same),
-    Row(PLOTS, |p| p.window_drift, TS, Is("Meter window [s]: drifting red, one window grey"), paths::DIAG_WINDOW,
-        none, TICKS, [0.0; 2], same),
+    // Over the whole session (the drift spans it), on its own axis.
+    Row(PLOTS, |p| p.window_drift, TS, Is("Meter window [s] over the session: drifting red, one window grey"),
+        paths::DIAG_WINDOW, none, Look(Fit::Ticks, D, HIDDEN, true), [0.0; 2], same),
     Row(PLOTS, |p| p.counterpart, TS, Is("Torque recording − twin [Nm]"), paths::DIAG_TORQUE, none, TICKS, [0.0; 2], same),
     ]
 };
@@ -1619,6 +1620,25 @@ mod tests {
                 .filter(|v| v.name().starts_with("Key"));
             assert_eq!(keys.count(), 0, "{tab}");
         }
+    }
+
+    /// A diagnosis that found the meter's window drifting plots it in its Diagnosis tab, over
+    /// the whole session on its own axis (the linked plots open on a few trials).
+    #[test]
+    fn a_drifting_meter_window_is_plotted_over_the_session() {
+        let joints: Vec<String> = (0..7).map(|j| format!("j{j}")).collect();
+        let window = |window_drift| {
+            let parts = LayoutParts {
+                diagnosis: true,
+                window_drift,
+                window_s: Some(40.0),
+                ..LayoutParts::default()
+            };
+            let v = views(&replay_layout(&joints, parts, [0.0; 3]));
+            v.into_iter().find(|v| v.0.starts_with("Meter window"))
+        };
+        assert_eq!(window(false), None);
+        assert!(window(true).is_some_and(|(_, whole)| whole), "{:?}", window(true));
     }
 
     #[test]
