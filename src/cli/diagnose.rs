@@ -194,9 +194,11 @@ fn save_streamed_rrd(
         opts: super::replay::options(a.pose_rate, Some(a.open_tab.clone()), a.model.as_deref()),
     };
     let extras = viz::diagnosis_extras(d);
-    super::replay::write("writing the replay", None, Some(out), &mut |n| {
+    let wrote = super::replay::write("writing the replay", None, Some(out), &mut |n| {
         viz::replay_diagnosis(&replay, &paths, JOIN_GAP_S, extras.clone(), n)
-    })
+    })?;
+    println!("{wrote}");
+    Ok(())
 }
 
 #[cfg(not(feature = "viz"))]

@@ -114,9 +114,14 @@ pub fn run(a: ReplayArgs) -> Result<()> {
         Some(_) => "reading the session and applying the model",
         None => "opening the session",
     };
-    write(busy, name.as_deref(), a.save.as_deref(), &mut |n| {
+    let save = a.save.as_deref();
+    let wrote = write(busy, name.as_deref(), save, &mut |n| {
         replay_session(&replay, n)
-    })
+    })?;
+    if save.is_some() {
+        eprintln!("{wrote}");
+    }
+    Ok(())
 }
 
 /// A replay's options: `pose_rate` [Hz] (0: every sample), the tab it opens on, and the
@@ -138,15 +143,15 @@ pub(super) fn options(
 }
 
 /// Writes a replay with `write`, telling the user what it says while it runs (the notes and
-/// fit of the `model`, the default cap, the expected size of a file `save`d), its warnings and
-/// what it wrote.
+/// fit of the `model`, the default cap, the expected size of a file `save`d) and its warnings;
+/// returns the line that says what it wrote (empty without `save`).
 #[cfg(feature = "viz")]
 pub(super) fn write(
     busy: &str,
     model: Option<&str>,
     save: Option<&Path>,
     write: &mut dyn FnMut(&mut dyn FnMut(g1viz::viz::Notice)) -> Result<g1viz::viz::ReplaySummary>,
-) -> Result<()> {
+) -> Result<String> {
     use g1viz::viz::Notice;
     let busy = super::spinner(busy);
     let summary = write(&mut |notice| match notice {
@@ -173,12 +178,11 @@ pub(super) fn write(
     busy.finish_and_clear();
     let summary = summary?;
     super::warn(&summary.warnings);
-    if let Some(path) = save {
+    Ok(save.map_or(String::new(), |path| {
         let size = std::fs::metadata(path).map_or(0, |m| m.len());
         let (samples, mb) = (summary.samples, size as f64 / 1e6);
-        println!("wrote {} ({samples} samples, {mb:.1} MB)", path.display());
-    }
-    Ok(())
+        format!("wrote {} ({samples} samples, {mb:.1} MB)", path.display())
+    }))
 }
 
 /// `A-B` or `A` (trial indices, A ≤ B) for `--trials`.

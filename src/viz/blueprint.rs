@@ -1638,7 +1638,11 @@ mod tests {
             v.into_iter().find(|v| v.0.starts_with("Meter window"))
         };
         assert_eq!(window(false), None);
-        assert!(window(true).is_some_and(|(_, whole)| whole), "{:?}", window(true));
+        assert!(
+            window(true).is_some_and(|(_, whole)| whole),
+            "{:?}",
+            window(true)
+        );
     }
 
     #[test]

@@ -84,7 +84,9 @@ impl Slice {
     ) -> Recording {
         let (s, c) = (&part.state, &part.command);
         let mut keep = vec![false; s.t.len()];
-        self.keep(&s.t, state).into_iter().for_each(|i| keep[i] = true);
+        self.keep(&s.t, state)
+            .into_iter()
+            .for_each(|i| keep[i] = true);
         let kc = self.keep(&c.t, cmd);
         Recording {
             source: part.source.clone(),
