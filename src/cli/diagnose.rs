@@ -194,7 +194,7 @@ fn save_streamed_rrd(
         opts: super::replay::options(a.pose_rate, Some(a.open_tab.clone()), a.model.as_deref()),
     };
     let extras = viz::diagnosis_extras(d);
-    let wrote = super::replay::write("writing the replay", None, Some(out), &mut |n| {
+    let wrote = super::replay::write("writing the replay", None, Some(out), |n| {
         viz::replay_diagnosis(&replay, &paths, JOIN_GAP_S, extras.clone(), n)
     })?;
     println!("{wrote}");

@@ -115,9 +115,7 @@ pub fn run(a: ReplayArgs) -> Result<()> {
         None => "opening the session",
     };
     let save = a.save.as_deref();
-    let wrote = write(busy, name.as_deref(), save, &mut |n| {
-        replay_session(&replay, n)
-    })?;
+    let wrote = write(busy, name.as_deref(), save, |n| replay_session(&replay, n))?;
     if save.is_some() {
         eprintln!("{wrote}");
     }
@@ -142,6 +140,10 @@ pub(super) fn options(
     }
 }
 
+/// Where a replay tells what it says while it runs.
+#[cfg(feature = "viz")]
+type Notify<'a> = &'a mut dyn FnMut(g1viz::viz::Notice);
+
 /// Writes a replay with `write`, telling the user what it says while it runs (the notes and
 /// fit of the `model`, the default cap, the expected size of a file `save`d) and its warnings;
 /// returns the line that says what it wrote (empty without `save`).
@@ -150,7 +152,7 @@ pub(super) fn write(
     busy: &str,
     model: Option<&str>,
     save: Option<&Path>,
-    write: &mut dyn FnMut(&mut dyn FnMut(g1viz::viz::Notice)) -> Result<g1viz::viz::ReplaySummary>,
+    write: impl FnOnce(Notify<'_>) -> Result<g1viz::viz::ReplaySummary>,
 ) -> Result<String> {
     use g1viz::viz::Notice;
     let busy = super::spinner(busy);
