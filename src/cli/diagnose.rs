@@ -6,9 +6,8 @@ use std::path::{Path, PathBuf};
 use anyhow::{Result, bail};
 use clap::Args;
 
-use super::{ReadArgs, TargetArg, expand_sessions};
+use super::{ReadArgs, TargetArg};
 use g1viz::power::load_model_for;
-use g1viz::util::{check_distinct_sessions, check_outputs};
 
 #[derive(Args)]
 pub struct DiagnoseArgs {
@@ -53,9 +52,9 @@ pub struct DiagnoseArgs {
     #[arg(long, value_name = "HZ", default_value_t = 30.0, value_parser = super::non_negative, requires = "save")]
     pose_rate: f64,
     /// With --save: at most this many samples per second of every joint and IMU series (default:
-    /// all of a short session's samples, and 1 000 per series of a longer one —
-    /// 0.08 Hz for 3.4 h, an .rrd the web viewer opens in about a minute; 0 = every sample).
-    /// The diagnosis' per-reading series are always kept whole.
+    /// every sample, unless the .rrd would exceed 15 MB — at 100 Hz, a session of over about 90 s:
+    /// then the highest rate that fits, printed, so that the web viewer opens it within about a
+    /// minute; 0 = every sample). The diagnosis' per-reading series are always kept whole.
     #[arg(long, value_name = "HZ", value_parser = super::non_negative, requires = "save")]
     max_rate: Option<f64>,
     /// Also compare sample by sample with the twin driven by the same commands on the same
@@ -69,46 +68,33 @@ pub struct DiagnoseArgs {
 /// Diagnose and write what was asked for.
 pub fn run(a: DiagnoseArgs) -> Result<()> {
     use g1viz::diagnose::{self, DiagnoseOptions};
-    let sessions = expand_sessions(&a.sessions)?;
-    let mut all: Vec<&Path> = sessions.iter().map(PathBuf::as_path).collect();
-    check_distinct_sessions(&all, "its trials would count twice")?;
-    if let Some(c) = &a.counterpart {
-        if sessions.len() > 1 {
-            bail!("--counterpart compares one session with its twin; give one session");
-        }
-        all.push(c);
-        check_distinct_sessions(
-            &all,
-            "the counterpart must be its twin (`g1viz simulate --like`)",
-        )?;
-    }
-    check_outputs(
-        &[
-            ("diagnosis JSON", a.json.as_deref()),
-            ("report folder", a.report.as_deref()),
-            ("Rerun output", a.save.as_deref()),
-        ],
-        &[
-            sessions
-                .iter()
-                .map(|p| Some(p.as_path()))
-                .collect::<Vec<_>>(),
-            vec![
-                a.model.as_deref(),
-                a.counterpart.as_deref(),
-                a.urdf.as_deref(),
-                a.read.signals.as_deref(),
-            ],
-        ]
-        .concat(),
+    let outputs = [
+        ("diagnosis JSON", a.json.as_deref()),
+        ("report folder", a.report.as_deref()),
+        ("Rerun output", a.save.as_deref()),
+    ];
+    let why = "its trials would count twice (and the counterpart must be its twin)";
+    let inputs = [a.model.as_deref(), a.urdf.as_deref()];
+    // Streamed: the sessions are read trial by trial, never held whole; the .rrd is streamed too
+    // (the diagnosis' overlays are per reading and per trial; several sessions are replayed part
+    // by part on the diagnosis' joined clock), and the counterpart is read beside the session
+    // sample by sample.
+    let (files, map) = (a.read).sessions(
+        &a.sessions,
+        a.counterpart.as_deref(),
+        why,
+        &outputs,
+        &inputs,
     )?;
+    if a.counterpart.is_some() && files.len() > 1 {
+        bail!("--counterpart compares one session with its twin; give one session");
+    }
     let sensor_window_s = match a.sensor_window.as_str() {
         "auto" => None,
         w => Some(w.parse::<f64>().ok().filter(|w| *w > 0.0).ok_or_else(|| {
             anyhow::anyhow!("--sensor-window {w}: expected a positive number of seconds or `auto`")
         })?),
     };
-    let map = a.read.signal_map()?;
     let opts = DiagnoseOptions {
         reference: (a.model.as_deref())
             .map(|m| load_model_for(m, &map.joint_names, a.target.into()))
@@ -118,14 +104,6 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
         sensor_window_s,
         ..DiagnoseOptions::default()
     };
-    // Streamed: the sessions are read trial by trial, never held whole; the .rrd is streamed too
-    // (the diagnosis' overlays are per reading and per trial; several sessions are replayed part
-    // by part on the diagnosis' joined clock), and the counterpart is read beside the session
-    // sample by sample.
-    let files: Vec<g1viz::session::SessionFile> = sessions
-        .iter()
-        .map(|p| a.read.session_file(p, &map))
-        .collect();
     let busy = super::spinner("diagnosing");
     let bar = busy.clone();
     // The stage's number and name; each progress message goes between them, so a terminal
@@ -164,7 +142,6 @@ pub fn run(a: DiagnoseArgs) -> Result<()> {
     write_outputs(&a, &d)?;
     if let Some(out) = &a.save {
         save_streamed_rrd(&files, &a, &d, out)?;
-        println!("wrote {}", out.display());
     }
     Ok(())
 }
@@ -187,40 +164,6 @@ fn write_outputs(a: &DiagnoseArgs, d: &g1viz::diagnose::Diagnosis) -> Result<()>
     Ok(())
 }
 
-/// Samples per joint and IMU series (and arm poses) of a diagnosis `.rrd` by default
-/// ([`default_max_rate`]): a paper-scale diagnosis at 8 000 (562 404 rows) took over 150 s to
-/// open in the web viewer at load average 12; at 1 000 (198 352 rows), 55–68 s at 10–12.
-const SAMPLES_PER_SERIES: f64 = 1_000.0;
-
-/// The default rate cap of a diagnosis `.rrd` for a session of `duration_s`: every sample of a
-/// short session, [`SAMPLES_PER_SERIES`] per series of a long one (`None`: no cap).
-fn default_max_rate(duration_s: f64) -> Option<f64> {
-    let rate = SAMPLES_PER_SERIES / duration_s.max(1.0);
-    (rate < 100.0).then_some(rate)
-}
-
-/// The diagnosis replay's options: the recording's properties name the command and the model.
-#[cfg(feature = "viz")]
-fn replay_options(a: &DiagnoseArgs, d: &g1viz::diagnose::Diagnosis) -> g1viz::viz::ReplayOptions {
-    let mut properties = vec![("command".to_owned(), super::command_line())];
-    if let Some(m) = &a.model {
-        properties.push(("model".to_owned(), m.display().to_string()));
-    }
-    g1viz::viz::ReplayOptions {
-        properties,
-        open_tab: Some(a.open_tab.clone()),
-        pose_rate_hz: (a.pose_rate > 0.0).then_some(a.pose_rate),
-        slice: g1viz::viz::Slice {
-            max_rate_hz: match a.max_rate {
-                Some(r) => (r > 0.0).then_some(r),
-                None => default_max_rate(d.replay.t.last().copied().unwrap_or(0.0)),
-            },
-            ..Default::default()
-        },
-        ..Default::default()
-    }
-}
-
 /// The `.rrd` of a diagnosis, the sessions streamed from their files (several joined end to end
 /// on the diagnosis' clock; the recording id is the first file's).
 #[cfg(feature = "viz")]
@@ -230,46 +173,32 @@ fn save_streamed_rrd(
     d: &g1viz::diagnose::Diagnosis,
     out: &Path,
 ) -> Result<()> {
-    use g1viz::robot::RobotModel;
-    use g1viz::viz::{self, OutputKind, Sink};
+    use g1viz::viz::{self, Sink, Window};
+    let paths: Vec<&Path> = files.iter().map(|f| f.path.as_path()).collect();
     let [first, ..] = files else {
         bail!("no session to replay");
     };
-    let robot = RobotModel::load(a.urdf.as_deref())?;
-    let arm = robot.arm(&first.map.joint_names)?;
+    let replay = viz::SessionReplay {
+        session: &first.path,
+        map: &first.map,
+        read: &first.read,
+        robot: &g1viz::robot::RobotModel::load(a.urdf.as_deref())?,
+        model: None,
+        fit: Default::default(),
+        sink: &Sink::Save(out.to_path_buf()),
+        inputs: &paths,
+        window: Window {
+            max_rate_hz: a.max_rate,
+            ..Window::default()
+        },
+        opts: super::replay::options(a.pose_rate, Some(a.open_tab.clone()), a.model.as_deref()),
+    };
     let extras = viz::diagnosis_extras(d);
-    let kind = OutputKind::Diagnosis;
-    let id = viz::recording_id_or_reason(&first.path)?;
-    let paths: Vec<&Path> = files.iter().map(|f| f.path.as_path()).collect();
-    let stream = viz::open_stream(
-        &kind.app_id(),
-        &kind.recording_id(&id),
-        &Sink::Save(out.to_path_buf()),
-        &paths,
-    )?;
-    let opts = replay_options(a, d);
-    if let Some(r) = opts.slice.max_rate_hz {
-        eprintln!(
-            "replay: at most {r:.2} samples per second of every joint and IMU series (--max-rate)"
-        );
-    }
-    let busy = super::spinner("writing the replay");
-    let summary = viz::replay_files_with(
-        &paths,
-        JOIN_GAP_S,
-        &first.map,
-        &first.read,
-        &robot,
-        &arm,
-        extras,
-        &opts,
-        stream.stream(),
-    );
-    busy.finish_and_clear();
-    for w in &summary?.warnings {
-        eprintln!("warning: {w}");
-    }
-    stream.finish()
+    let wrote = super::replay::write("writing the replay", None, Some(out), |n| {
+        viz::replay_diagnosis(&replay, &paths, JOIN_GAP_S, extras.clone(), n)
+    })?;
+    println!("{wrote}");
+    Ok(())
 }
 
 #[cfg(not(feature = "viz"))]

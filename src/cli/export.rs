@@ -1,13 +1,12 @@
 //! `g1viz export rows`: the per-reading rows of one or more sessions as a Parquet table, for
 //! DataFusion / DuckDB / Polars across sessions and robots (`identify --rows` fits from it).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use anyhow::Result;
 use clap::{Args, Subcommand};
 
-use super::{FitArgs, ReadArgs, expand_sessions};
-use g1viz::util::{check_distinct_sessions, check_outputs};
+use super::{FitArgs, ReadArgs};
 
 /// What to export.
 #[derive(Args)]
@@ -52,14 +51,9 @@ pub fn run(a: ExportArgs) -> Result<()> {
 }
 
 fn rows(a: RowsArgs) -> Result<()> {
-    let sessions = expand_sessions(&a.sessions)?;
-    let paths: Vec<&Path> = sessions.iter().map(PathBuf::as_path).collect();
-    check_distinct_sessions(&paths, "its rows would count twice")?;
-    let mut inputs: Vec<Option<&Path>> = paths.iter().map(|p| Some(*p)).collect();
-    inputs.push(a.read.signals.as_deref());
-    check_outputs(&[("row table", Some(&a.output))], &inputs)?;
-    let map = a.read.signal_map()?;
-    let files: Vec<_> = paths.iter().map(|p| a.read.session_file(p, &map)).collect();
+    let outputs = [("row table", Some(&*a.output))];
+    let why = "its rows would count twice";
+    let (files, map) = a.read.sessions(&a.sessions, None, why, &outputs, &[])?;
     // The identification decides the sensor timing and which trials its filters reject. Every
     // session is streamed (memory bounded whatever its length): twice for the identification,
     // once more for the rows.
@@ -68,11 +62,10 @@ fn rows(a: RowsArgs) -> Result<()> {
         &a.fit.options(),
         &g1viz::session::StreamOptions::default(),
     )?;
-    for w in id.sessions.iter().flat_map(|s| &s.warnings) {
-        eprintln!("warning: {w}");
-    }
+    super::warn(id.sessions.iter().flat_map(|s| &s.warnings));
     let robot = a.robot.clone().unwrap_or_else(|| {
-        sessions[0]
+        files[0]
+            .path
             .canonicalize()
             .ok()
             .and_then(|p| {
@@ -89,7 +82,7 @@ fn rows(a: RowsArgs) -> Result<()> {
         "wrote {} ({} rows of {} sessions, robot {robot}; {rejected} rows in rejected trials, flagged)",
         a.output.display(),
         table.len(),
-        sessions.len()
+        files.len()
     );
     Ok(())
 }

@@ -6,9 +6,9 @@ use std::path::{Path, PathBuf};
 use anyhow::Result;
 use clap::Args;
 
-use super::{FitArgs, ReadArgs, expand_sessions};
+use super::{FitArgs, ReadArgs};
 use g1viz::identify;
-use g1viz::util::{check_distinct_sessions, check_outputs};
+use g1viz::util::check_outputs;
 
 #[derive(Args)]
 pub struct IdentifyArgs {
@@ -41,43 +41,23 @@ pub fn run(a: IdentifyArgs) -> Result<()> {
         return from_rows(&a, table);
     }
     let opts = a.fit.options();
-    let fit_sessions = expand_sessions(&a.sessions)?;
-    let mut sessions: Vec<&Path> = fit_sessions.iter().map(PathBuf::as_path).collect();
-    if let Some(h) = &a.holdout {
-        sessions.push(h);
-    }
-    check_distinct_sessions(
-        &sessions,
-        "its trials would count twice (or be validated on themselves)",
-    )?;
-    let mut inputs: Vec<Option<&Path>> = sessions.iter().map(|p| Some(*p)).collect();
-    inputs.push(a.read.signals.as_deref());
-    check_outputs(
-        &[
-            ("model file", Some(&a.output)),
-            ("report folder", a.report.as_deref()),
-        ],
-        &inputs,
-    )?;
+    let outputs = [
+        ("model file", Some(&*a.output)),
+        ("report folder", a.report.as_deref()),
+    ];
+    let why = "its trials would count twice (or be validated on themselves)";
+    let holdout = a.holdout.as_deref();
     // Each session is streamed twice (segmentation, then rows): memory stays bounded whatever
     // the sessions' length.
-    let map = a.read.signal_map()?;
-    let files: Vec<g1viz::session::SessionFile> = fit_sessions
-        .iter()
-        .map(|p| a.read.session_file(p, &map))
-        .collect();
+    let (files, map) = a.read.sessions(&a.sessions, holdout, why, &outputs, &[])?;
     let stream = g1viz::session::StreamOptions::default();
     let id = identify::identify_files(&files, &opts, &stream)?;
-    for w in id.sessions.iter().flat_map(|s| &s.warnings) {
-        eprintln!("warning: {w}");
-    }
-    let validation = match &a.holdout {
+    super::warn(id.sessions.iter().flat_map(|s| &s.warnings));
+    let validation = match holdout {
         Some(p) => {
             let v =
                 identify::validate_file(&id.model, &a.read.session_file(p, &map), &opts, &stream)?;
-            for w in &v.session.warnings {
-                eprintln!("warning: {w}");
-            }
+            super::warn(&v.session.warnings);
             Some(v)
         }
         None => None,
@@ -92,9 +72,7 @@ pub fn run(a: IdentifyArgs) -> Result<()> {
     }
     println!("wrote {}", a.output.display());
     if let Some(dir) = &a.report {
-        let truth = fit_sessions
-            .first()
-            .and_then(|p| g1viz::sim::truth_model(p));
+        let truth = files.first().and_then(|f| g1viz::sim::truth_model(&f.path));
         let input = id.report_input(file, validation.as_ref(), truth);
         g1viz::identify::write_report(dir, &input)?;
         println!("wrote {}", dir.join("report.md").display());

@@ -31,9 +31,7 @@ pub fn run(a: InfoArgs) -> Result<()> {
             .with_context(|| format!("reading {}", a.session.display()))
     });
     if let Ok(s) = &stats {
-        for w in &s.warnings {
-            eprintln!("warning: {w}");
-        }
+        super::warn(&s.warnings);
     }
     if a.json {
         let (signals, why) = match &stats {

@@ -128,6 +128,13 @@ pub fn spinner(message: &str) -> indicatif::ProgressBar {
     bar
 }
 
+/// Prints each of `warnings` on stderr.
+pub fn warn<'a>(warnings: impl IntoIterator<Item = &'a String>) {
+    for w in warnings {
+        eprintln!("warning: {w}");
+    }
+}
+
 /// The command line as typed (program name first), for provenance in outputs.
 pub fn command_line() -> String {
     // The program by its file name: its directory is the machine's, not part of the command.
@@ -173,6 +180,33 @@ impl ReadArgs {
             Some(path) => SignalMap::from_toml_file(path),
             None => Ok(SignalMap::g1_left_arm()),
         }
+    }
+
+    /// The recordings `named` ([`expand_sessions`]) as files to stream, with the signal map,
+    /// after refusing one given twice among them and `more` (`why`: what that would spoil) and
+    /// `outputs` that would overwrite them, the signal map's file or the other `inputs`.
+    pub fn sessions(
+        &self,
+        named: &[PathBuf],
+        more: Option<&Path>,
+        why: &str,
+        outputs: &[(&str, Option<&Path>)],
+        inputs: &[Option<&Path>],
+    ) -> Result<(Vec<g1viz::session::SessionFile>, SignalMap)> {
+        let sessions = expand_sessions(named)?;
+        let all: Vec<&Path> = sessions.iter().map(PathBuf::as_path).chain(more).collect();
+        g1viz::util::check_distinct_sessions(&all, why)?;
+        let read = all.into_iter().chain(self.signals.as_deref()).map(Some);
+        g1viz::util::check_outputs(
+            outputs,
+            &read.chain(inputs.iter().copied()).collect::<Vec<_>>(),
+        )?;
+        let map = self.signal_map()?;
+        let files = sessions
+            .iter()
+            .map(|p| self.session_file(p, &map))
+            .collect();
+        Ok((files, map))
     }
 
     /// `path` with this signal map and these reader options, for a streamed read.

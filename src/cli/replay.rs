@@ -1,7 +1,7 @@
 //! `g1viz replay`: a session in the Rerun viewer (or an .rrd file) — the animated arm, joint
 //! signals and power; with `--model` the model's prediction, error and loss terms.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::{Result, bail};
 use clap::Args;
@@ -69,11 +69,7 @@ pub struct ReplayArgs {
 pub fn run(a: ReplayArgs) -> Result<()> {
     use g1viz::power::load_model_for;
     use g1viz::robot::RobotModel;
-    use g1viz::viz::{self, Sink};
-    use g1viz::viz::{Notice, SessionReplay, Window, replay_session};
-    use std::path::Path;
-
-    let robot = RobotModel::load(a.urdf.as_deref())?;
+    use g1viz::viz::{self, SessionReplay, Sink, Window, replay_session};
     let sink = if let Some(out) = &a.save {
         Sink::Save(out.clone())
     } else if let Some(addr) = &a.connect {
@@ -85,27 +81,21 @@ pub fn run(a: ReplayArgs) -> Result<()> {
     } else {
         bail!("say where the replay goes: --save OUT.rrd, --connect [ADDR] or --spawn");
     };
-    let mut inputs: Vec<&Path> = vec![&a.session];
-    if let Some(m) = a.model.as_deref().filter(|m| m.exists()) {
-        inputs.push(m);
-    }
-    let mut properties = vec![("command".to_owned(), super::command_line())];
+    let model_path = a.model.as_deref();
+    let inputs: Vec<&Path> = [Some(a.session.as_path()), model_path.filter(|m| m.exists())]
+        .into_iter()
+        .flatten()
+        .collect();
     let map = a.read.signal_map()?;
-    let model = match &a.model {
-        Some(m) => {
-            properties.push(("model".to_owned(), m.display().to_string()));
-            Some(load_model_for(m, &map.joint_names, a.fit.options().target)?)
-        }
-        None => None,
-    };
-    let model_name = a.model.as_ref().map(|m| m.display().to_string());
-    let read = a.read.open_options();
+    let target = a.fit.options().target;
+    let model = (model_path.map(|m| load_model_for(m, &map.joint_names, target))).transpose()?;
+    let name = model_path.map(|m| m.display().to_string());
     let replay = SessionReplay {
         session: &a.session,
         map: &map,
-        read: &read,
-        robot: &robot,
-        model: model_name.as_deref().zip(model.as_ref()),
+        read: &a.read.open_options(),
+        robot: &RobotModel::load(a.urdf.as_deref())?,
+        model: name.as_deref().zip(model.as_ref()),
         fit: a.fit.options(),
         sink: &sink,
         inputs: &inputs,
@@ -116,55 +106,85 @@ pub fn run(a: ReplayArgs) -> Result<()> {
             max_rate_hz: a.max_rate,
         },
         opts: viz::ReplayOptions {
-            pose_rate_hz: (a.pose_rate > 0.0).then_some(a.pose_rate),
             blueprint: !a.no_blueprint,
-            properties,
-            open_tab: a.open_tab.clone(),
-            ..Default::default()
+            ..options(a.pose_rate, a.open_tab.clone(), model_path)
         },
     };
-    let busy = super::spinner(if model.is_some() {
-        "reading the session and applying the model"
-    } else {
-        "opening the session"
-    });
-    let summary = replay_session(&replay, &mut |notice| match notice {
+    let busy = match model {
+        Some(_) => "reading the session and applying the model",
+        None => "opening the session",
+    };
+    let save = a.save.as_deref();
+    let wrote = write(busy, name.as_deref(), save, |n| replay_session(&replay, n))?;
+    if save.is_some() {
+        eprintln!("{wrote}");
+    }
+    Ok(())
+}
+
+/// A replay's options: `pose_rate` [Hz] (0: every sample), the tab it opens on, and the
+/// recording's properties naming the command and the `model`.
+#[cfg(feature = "viz")]
+pub(super) fn options(
+    pose_rate: f64,
+    open_tab: Option<String>,
+    model: Option<&Path>,
+) -> g1viz::viz::ReplayOptions {
+    let mut properties = vec![("command".to_owned(), super::command_line())];
+    properties.extend(model.map(|m| ("model".to_owned(), m.display().to_string())));
+    g1viz::viz::ReplayOptions {
+        pose_rate_hz: (pose_rate > 0.0).then_some(pose_rate),
+        properties,
+        open_tab,
+        ..Default::default()
+    }
+}
+
+/// Where a replay tells what it says while it runs.
+#[cfg(feature = "viz")]
+type Notify<'a> = &'a mut dyn FnMut(g1viz::viz::Notice);
+
+/// Writes a replay with `write`, telling the user what it says while it runs (the notes and
+/// fit of the `model`, the default cap, the expected size of a file `save`d) and its warnings;
+/// returns the line that says what it wrote (empty without `save`).
+#[cfg(feature = "viz")]
+pub(super) fn write(
+    busy: &str,
+    model: Option<&str>,
+    save: Option<&Path>,
+    write: impl FnOnce(Notify<'_>) -> Result<g1viz::viz::ReplaySummary>,
+) -> Result<String> {
+    use g1viz::viz::Notice;
+    let busy = super::spinner(busy);
+    let summary = write(&mut |notice| match notice {
         Notice::Note(n) => busy.suspend(|| eprintln!("note: {n}")),
         Notice::ModelFit { r2, rmse, trials } => busy.suspend(|| {
             eprintln!(
                 "model {}: per-trajectory R² {r2:.3}, RMSE {rmse:.2} W on {trials} trials",
-                model_name.as_deref().unwrap_or("")
+                model.unwrap_or("")
             )
         }),
-        Notice::Capped(hz) => busy.suspend(|| {
+        Notice::Capped(hz, budget) => busy.suspend(|| {
             eprintln!(
                 "replay: at most {hz} samples per second of every joint, IMU and model series, to \
                  keep the recording near {:.0} MB (--max-rate 0 keeps every sample)",
-                viz::DEFAULT_REPLAY_BYTES / 1e6
+                budget / 1e6
             )
         }),
-        Notice::Estimate(e) => {
-            busy.finish_and_clear();
-            if a.save.is_some() {
+        Notice::Estimate(e) => busy.suspend(|| {
+            if save.is_some() {
                 eprintln!("expected size: {e}");
             }
-        }
+        }),
     });
     busy.finish_and_clear();
     let summary = summary?;
-    for w in &summary.warnings {
-        eprintln!("warning: {w}");
-    }
-    if let Some(path) = &a.save {
-        let size = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
-        eprintln!(
-            "wrote {} ({} samples, {:.1} MB)",
-            path.display(),
-            summary.samples,
-            size as f64 / 1e6
-        );
-    }
-    Ok(())
+    super::warn(&summary.warnings);
+    Ok(save.map_or(String::new(), |path| {
+        let size = std::fs::metadata(path).map_or(0, |m| m.len());
+        let (samples, mb) = (summary.samples, size as f64 / 1e6);
+        format!("wrote {} ({samples} samples, {mb:.1} MB)", path.display())
+    }))
 }
 
 /// `A-B` or `A` (trial indices, A ≤ B) for `--trials`.

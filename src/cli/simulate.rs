@@ -116,9 +116,7 @@ pub fn run(a: SimulateArgs) -> Result<()> {
                 &cfg,
                 &a.output,
             )?;
-            for w in &warnings {
-                eprintln!("warning: {w}");
-            }
+            super::warn(&warnings);
             truth
         }
         None => g1viz::sim::simulate(&cfg, &a.output)?,

@@ -38,9 +38,7 @@ pub fn run(a: ValidateArgs) -> Result<()> {
     );
     busy.finish_and_clear();
     let v = v?;
-    for w in &v.session.warnings {
-        eprintln!("warning: {w}");
-    }
+    super::warn(&v.session.warnings);
     for n in &v.notes {
         eprintln!("note: {n}");
     }

@@ -708,6 +708,8 @@ pub struct LayoutParts {
     /// The diagnosis found loads on the rest power (each trial's rest power and its prediction
     /// are plotted beside the fields).
     pub rest: bool,
+    /// The diagnosis found the meter's averaging window drifting (plotted over the session).
+    pub window_drift: bool,
     /// Series in the diagnosis' power plot (measured, before, after, and the found terms'
     /// prediction and the twin when present).
     pub diagnosis_power_series: usize,
@@ -1212,6 +1214,9 @@ const VIEWS: &[Row] = {
     Row(PLOTS, |p| p.located, TS, Is("Fields the found terms follow"), paths::DIAG_LOCATED, none, TICKS, [0.0; 2], same),
     Row(PLOTS, |p| p.rest, TS, Is("Rest power [W]: measured blue, with found loads red"), paths::DIAG_REST, none,
         TICKS, [0.0; 2], same),
+    // Over the whole session (the drift spans it), on its own axis.
+    Row(PLOTS, |p| p.window_drift, TS, Is("Meter window [s] over the session: drifting red, one window grey"),
+        paths::DIAG_WINDOW, none, Look(Fit::Ticks, D, HIDDEN, true), [0.0; 2], same),
     Row(PLOTS, |p| p.counterpart, TS, Is("Torque recording − twin [Nm]"), paths::DIAG_TORQUE, none, TICKS, [0.0; 2], same),
     ]
 };
@@ -1320,19 +1325,17 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
         for (k, j) in each.into_iter().enumerate() {
             // A per-joint view's legend is the first's (the same colours in every cell).
             let Look(fit, plot_px, legend, whole) = [*look, TICKS][usize::from(k > 0)];
-            let view = Node::View {
-                class,
-                name: name.replace("{j}", j),
-                origin: origin.to_string(),
-                contents: contents(&c, j),
-                eye: None,
-                legend,
-                y_range: None,
-                fit,
-                plot_px,
-                whole,
-                x_range: None,
-            };
+            let mut view = Node::view(class, name.replace("{j}", j), *origin, contents(&c, j));
+            if let Node::View {
+                legend: l,
+                fit: f,
+                plot_px: px,
+                whole: wh,
+                ..
+            } = &mut view
+            {
+                (*l, *f, *px, *wh) = (legend, fit, plot_px, whole);
+            }
             let mut path: Vec<&Frame> = Vec::new();
             let mut at = *at;
             while let Some(b) = BOXES[1..].iter().find(|b| b.0 == at) {
@@ -1617,6 +1620,29 @@ mod tests {
                 .filter(|v| v.name().starts_with("Key"));
             assert_eq!(keys.count(), 0, "{tab}");
         }
+    }
+
+    /// A diagnosis that found the meter's window drifting plots it in its Diagnosis tab, over
+    /// the whole session on its own axis (the linked plots open on a few trials).
+    #[test]
+    fn a_drifting_meter_window_is_plotted_over_the_session() {
+        let joints: Vec<String> = (0..7).map(|j| format!("j{j}")).collect();
+        let window = |window_drift| {
+            let parts = LayoutParts {
+                diagnosis: true,
+                window_drift,
+                window_s: Some(40.0),
+                ..LayoutParts::default()
+            };
+            let v = views(&replay_layout(&joints, parts, [0.0; 3]));
+            v.into_iter().find(|v| v.0.starts_with("Meter window"))
+        };
+        assert_eq!(window(false), None);
+        assert!(
+            window(true).is_some_and(|(_, whole)| whole),
+            "{:?}",
+            window(true)
+        );
     }
 
     #[test]

@@ -14,14 +14,14 @@ use super::replay::{
 use super::{ChunkWriter, paths, style};
 use crate::N_JOINTS;
 
-/// Logs everything `extras` holds; `stats`: what the model's series (logged trial by trial,
-/// [`super::ReplayLogger::log_model_trial`]) give the bars, the note and the trial log.
-pub(super) fn log_extras(
+/// Logs what `extras` hold before any sample is read (the readings and their errors, each
+/// trial's error, rest power and IMU statistic, the trial track, a diagnosis): at the replay's
+/// start, so a viewer opening a long file shows the power plots and the per-trial plots first.
+pub(super) fn log_known(
     w: &mut ChunkWriter<'_>,
     joints: &[String],
     extras: &ReplayExtras,
     chunk: usize,
-    stats: &ModelStats,
 ) -> Result<()> {
     if extras.model.is_some() {
         let (path, name) = (paths::MODEL_PREDICTED, "predicted, instantaneous");
@@ -31,6 +31,26 @@ pub(super) fn log_extras(
         log_readings(w, r, chunk)?;
     }
     log_trajectories(w, &extras.trajectories)?;
+    if let Some(imu) = &extras.imu_filter {
+        log_imu_filter(w, imu)?;
+    }
+    log_trial_marks(w, paths::TRIALS, &sorted(&extras.trials), "rejected", true)?;
+    if let Some(d) = &extras.diagnosis {
+        log_diagnosis(w, joints, d, chunk)?;
+        log_diagnosis_per_trial(w, joints, d)?;
+    }
+    Ok(())
+}
+
+/// Logs what the model's series give once logged (`stats`, gathered trial by trial,
+/// [`super::ReplayLogger::log_model_trial`]): the terms' styles, the per-trial shares, the note,
+/// and the trial log with each trial's shares.
+pub(super) fn log_model_stats(
+    w: &mut ChunkWriter<'_>,
+    joints: &[String],
+    extras: &ReplayExtras,
+    stats: &ModelStats,
+) -> Result<()> {
     let mut marks = std::borrow::Cow::Borrowed(&extras.trials[..]);
     if extras.model.is_some() {
         log_term_styles(w, joints)?;
@@ -40,15 +60,7 @@ pub(super) fn log_extras(
         w.send_static(paths::BREAKDOWN_NOTE, &TextDocument::from_markdown(note))?;
         marks = std::borrow::Cow::Owned(with_shares(&extras.trials, means, joints));
     }
-    if let Some(imu) = &extras.imu_filter {
-        log_imu_filter(w, imu)?;
-    }
-    log_trials(w, paths::TRIALS, &marks, "rejected", true)?;
-    if let Some(d) = &extras.diagnosis {
-        log_diagnosis(w, joints, d, chunk)?;
-        log_diagnosis_per_trial(w, joints, d)?;
-    }
-    Ok(())
+    log_trial_log(w, paths::TRIALS, &sorted(&marks))
 }
 
 /// The first time and the mean of `v` of each run of readings of one trial (`t`, `trial` and
@@ -717,26 +729,22 @@ fn marked(m: &TrialMark) -> bool {
     m.rejected.is_some() || m.highlight.is_some()
 }
 
-/// A log line per trial at its start; with `index`, the trial track `trials/index` (the trial
-/// under way, held until the next one starts); a thick segment at the trial's index for every
-/// marked trial (`<prefix>/<kind>/<k>`, named with its reason and statistic).
-fn log_trials(
-    w: &mut ChunkWriter<'_>,
-    prefix: &str,
-    trials: &[TrialMark],
-    kind: &str,
-    index: bool,
-) -> Result<()> {
-    if trials.is_empty() {
-        return Ok(());
-    }
+/// `trials` by start (then index).
+fn sorted(trials: &[TrialMark]) -> Vec<&TrialMark> {
     let mut order: Vec<&TrialMark> = trials.iter().collect();
     order.sort_by(|a, b| a.t_start.total_cmp(&b.t_start).then(a.index.cmp(&b.index)));
-    let t: Vec<f64> = order.iter().map(|m| m.t_start).collect();
+    order
+}
+
+/// A log line per trial of `order` (by start) at its start, under `prefix`.
+fn log_trial_log(w: &mut ChunkWriter<'_>, prefix: &str, order: &[&TrialMark]) -> Result<()> {
+    if order.is_empty() {
+        return Ok(());
+    }
     // Stamped at the start rounded to 0.1 s (the trial track keeps the exact start); the viewer
     // sizes the log's time column for short stamps and cuts those past 1000 s, so the layout
     // hides it and each entry opens with its session time.
-    let t_log: Vec<f64> = t.iter().map(|&x| log_stamp(x)).collect();
+    let t_log: Vec<f64> = order.iter().map(|m| log_stamp(m.t_start)).collect();
     let texts = order.iter().zip(&t_log);
     let texts: Vec<String> = texts
         .map(|(m, s)| format!("{s:.1} s  {}", trial_text(m)))
@@ -747,8 +755,23 @@ fn log_trials(
         .with_many_text(texts)
         .with_many_level(levels)
         .columns_of_unit_batches()?;
-    w.send_columns(&paths::trials_log(prefix), &t_log, columns)?;
+    w.send_columns(&paths::trials_log(prefix), &t_log, columns)
+}
 
+/// The marks of the trials of `order` (by start): with `index`, the trial track `trials/index`
+/// (the trial under way, held until the next one starts); a long session's strip; a thick
+/// segment at the trial's index for every marked trial (`<prefix>/<kind>/<k>`, named with its
+/// reason and statistic).
+fn log_trial_marks(
+    w: &mut ChunkWriter<'_>,
+    prefix: &str,
+    order: &[&TrialMark],
+    kind: &str,
+    index: bool,
+) -> Result<()> {
+    if order.is_empty() {
+        return Ok(());
+    }
     if index {
         w.send_static(
             paths::TRIAL_INDEX,
@@ -758,15 +781,40 @@ fn log_trials(
                 .with_widths([1.0])
                 .with_interpolation_mode(InterpolationMode::StepAfter),
         )?;
-        let idx = order.iter().map(|m| m.index as f64);
-        scalars(w, paths::TRIAL_INDEX, &t, idx)?;
+        let t: Vec<f64> = order.iter().map(|m| m.t_start).collect();
+        scalars(
+            w,
+            paths::TRIAL_INDEX,
+            &t,
+            order.iter().map(|m| m.index as f64),
+        )?;
     }
-    log_strip(w, prefix, &order)?;
+    log_strip(w, prefix, order)?;
     for m in order.iter().filter(|m| marked(m)) {
         let path = paths::trial_span(prefix, kind, m.index);
         style::line(w, &path, &trial_text(m), style::WARNING, 6.0)?;
         let index = [m.index as f64; 2].into_iter();
         scalars(w, &path, &[m.t_start, m.t_end], index)?;
+    }
+    Ok(())
+}
+
+/// A series to log: its path, name, colour, `Some(size)` for circles of that size (`None`: a
+/// line), and its values.
+type Styled = (String, String, [u8; 3], Option<f32>, Vec<f64>);
+
+/// Logs each of `series` with its style at `t`, in chunks; one that is empty or not as long as
+/// `t` is left out.
+fn log_styled(w: &mut ChunkWriter<'_>, t: &[f64], series: Vec<Styled>, chunk: usize) -> Result<()> {
+    for (path, name, colour, dots, v) in series {
+        if v.len() != t.len() || v.is_empty() {
+            continue;
+        }
+        match dots {
+            Some(size) => style::points(w, &path, &name, colour, MarkerShape::Circle, size)?,
+            None => style::line(w, &path, &name, colour, 1.5)?,
+        }
+        scalars_chunked(w, &path, t, &v, chunk)?;
     }
     Ok(())
 }
@@ -782,57 +830,66 @@ fn log_diagnosis(
     let r = &d.data;
     // Each marked trial's energy shares in the log, as in a model replay's.
     let marks = &with_shares(&d.highlighted, &reading_means(r), joints);
-    let circle = MarkerShape::Circle;
-    let (path, measured) = (paths::DIAG_MEASURED, "measured reading (net)");
-    style::points(w, path, measured, style::MEASURED, circle, 3.0)?;
-    style::line(w, paths::DIAG_BEFORE, "base model", style::NEUTRAL, 1.5)?;
-    let after = "with accepted hypotheses";
-    style::line(w, paths::DIAG_AFTER, after, style::PREDICTED, 1.5)?;
-    let before = (paths::DIAG_ERROR_BEFORE, "base model", style::NEUTRAL);
-    let after = (paths::DIAG_ERROR_AFTER, "with hypotheses", style::ERROR);
-    for (path, name, colour) in [before, after] {
-        style::points(w, path, &format!("error, {name}"), colour, circle, 2.5)?;
-    }
-    scalars_chunked(w, paths::DIAG_MEASURED, &r.t, &r.measured_w, chunk)?;
-    scalars_chunked(w, paths::DIAG_BEFORE, &r.t, &r.before_w, chunk)?;
-    scalars_chunked(w, paths::DIAG_AFTER, &r.t, &r.after_w, chunk)?;
+    let order = sorted(marks);
+    log_trial_log(w, paths::DIAG_TRIALS, &order)?;
+    log_trial_marks(w, paths::DIAG_TRIALS, &order, "located", false)?;
     let err = |p: &[f64]| -> Vec<f64> { r.measured_w.iter().zip(p).map(|(m, p)| m - p).collect() };
-    scalars_chunked(w, paths::DIAG_ERROR_BEFORE, &r.t, &err(&r.before_w), chunk)?;
-    scalars_chunked(w, paths::DIAG_ERROR_AFTER, &r.t, &err(&r.after_w), chunk)?;
-    log_trials(w, paths::DIAG_TRIALS, marks, "located", false)?;
-    if r.found_w.len() == r.t.len() && !r.found_w.is_empty() {
-        let found = "with terms found beyond the library";
-        style::line(w, paths::DIAG_FOUND, found, style::WARNING, 1.5)?;
-        let (path, error) = (paths::DIAG_ERROR_FOUND, "error with found terms");
-        style::points(w, path, error, style::WARNING, circle, 2.5)?;
-        scalars_chunked(w, paths::DIAG_FOUND, &r.t, &r.found_w, chunk)?;
-        scalars_chunked(w, paths::DIAG_ERROR_FOUND, &r.t, &err(&r.found_w), chunk)?;
-    }
-    for (k, field) in r.located.iter().enumerate() {
+    let s = |path: &str, name: &str, colour, dots, v: Vec<f64>| {
+        (path.into(), name.into(), colour, dots, v)
+    };
+    #[rustfmt::skip]
+    let mut series: Vec<Styled> = vec![
+        s(paths::DIAG_MEASURED, "measured reading (net)", style::MEASURED, Some(3.0), r.measured_w.clone()),
+        s(paths::DIAG_BEFORE, "base model", style::NEUTRAL, None, r.before_w.clone()),
+        s(paths::DIAG_AFTER, "with accepted hypotheses", style::PREDICTED, None, r.after_w.clone()),
+        s(paths::DIAG_ERROR_BEFORE, "error, base model", style::NEUTRAL, Some(2.5), err(&r.before_w)),
+        s(paths::DIAG_ERROR_AFTER, "error, with hypotheses", style::ERROR, Some(2.5), err(&r.after_w)),
+        s(paths::DIAG_FOUND, "with terms found beyond the library", style::WARNING, None, r.found_w.clone()),
+        s(paths::DIAG_ERROR_FOUND, "error with found terms", style::WARNING, Some(2.5), err(&r.found_w)),
+        s(paths::DIAG_REST_MEASURED, "rest power of the trial (pre-idle mean)", style::MEASURED, None, r.rest_w.clone()),
+        s(paths::DIAG_REST_FOUND, "with the loads found on it (held out)", style::WARNING, None, r.rest_found_w.clone()),
+    ];
+    for (k, f) in r.located.iter().enumerate() {
         let path = paths::diag_located(k);
-        style::line(w, &path, &field.name, style::joint(k), 1.5)?;
-        scalars_chunked(w, &path, &r.t, &field.values, chunk)?;
+        series.push(s(&path, &f.name, style::joint(k), None, f.values.clone()));
     }
-    let (rest, rest_found) = (&r.rest_w, &r.rest_found_w);
-    if rest.len() == r.t.len() && rest_found.len() == r.t.len() && !rest.is_empty() {
-        let measured = "rest power of the trial (pre-idle mean)";
-        style::line(w, paths::DIAG_REST_MEASURED, measured, style::MEASURED, 1.5)?;
-        let found = "with the loads found on it (held out)";
-        style::line(w, paths::DIAG_REST_FOUND, found, style::WARNING, 1.5)?;
-        scalars_chunked(w, paths::DIAG_REST_MEASURED, &r.t, rest, chunk)?;
-        scalars_chunked(w, paths::DIAG_REST_FOUND, &r.t, rest_found, chunk)?;
+    // A drifting meter window: its width at each reading beside the scan's one window.
+    if let Some(sw) = &d.window {
+        let [drifting, fixed] =
+            ["drifting", "fixed"].map(|k| format!("{}/{k}", paths::DIAG_WINDOW));
+        let name = format!("the meter's window, {:+.3} s over the session", sw.drift_s);
+        let widths = r.t.iter().map(|&t| sw.window_at(t)).collect();
+        series.push(s(&drifting, &name, style::WARNING, None, widths));
+        let one = "one window (the alignment scan's)";
+        series.push(s(
+            &fixed,
+            one,
+            style::NEUTRAL,
+            None,
+            vec![sw.scan_window_s; r.t.len()],
+        ));
     }
+    log_styled(w, &r.t, series, chunk)?;
     if let Some(cp) = &d.counterpart {
-        let twin = "twin on the same commands";
-        style::line(w, paths::DIAG_TWIN, twin, style::MBS, 1.5)?;
-        scalars_chunked(w, paths::DIAG_TWIN, &cp.power_t, &cp.power_w, chunk)?;
-        for (j, name) in joints.iter().enumerate() {
-            let path = paths::diag_torque(name);
-            let label = format!("{name} τ recording − twin");
-            style::line(w, &path, &label, style::joint(j), 1.5)?;
-            let v: Vec<f64> = cp.tau_diff.iter().map(|x| x[j]).collect();
-            scalars_chunked(w, &path, &cp.tau_t, &v, chunk)?;
-        }
+        let twin = s(
+            paths::DIAG_TWIN,
+            "twin on the same commands",
+            style::MBS,
+            None,
+            cp.power_w.clone(),
+        );
+        log_styled(w, &cp.power_t, vec![twin], chunk)?;
+        let torque = joints.iter().enumerate().map(|(j, name)| {
+            let v = cp.tau_diff.iter().map(|x| x[j]).collect();
+            s(
+                &paths::diag_torque(name),
+                &format!("{name} τ recording − twin"),
+                style::joint(j),
+                None,
+                v,
+            )
+        });
+        log_styled(w, &cp.tau_t, torque.collect(), chunk)?;
     }
     w.send_static(
         paths::DIAG_SUMMARY,

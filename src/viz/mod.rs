@@ -33,8 +33,8 @@ pub use replay::{
     log_replay, replay_files_with,
 };
 pub use session::{
-    BYTES_FIXED, BYTES_PER_CHUNK, BYTES_PER_LINK_POSE, BYTES_PER_SCALAR, DEFAULT_REPLAY_BYTES,
-    Notice, SessionReplay, SizeEstimate, Window, replay_session,
+    DEFAULT_DIAGNOSIS_BYTES, DEFAULT_REPLAY_BYTES, Notice, SessionReplay, SizeEstimate, Window,
+    replay_diagnosis, replay_session,
 };
 pub use slice::{Decimator, Slice};
 
@@ -179,7 +179,7 @@ impl OutputKind {
 /// A recording that does not come from a readable file (synthetic, in tests and benchmarks) is
 /// identified by its name, start time and sample count instead.
 pub fn recording_id_for(rec: &crate::signals::Recording) -> String {
-    if let Some(id) = recording_id_for_source(&rec.source) {
+    if let Ok(id) = recording_id_for_source(&rec.source) {
         return id;
     }
     let name = rec.source.to_string_lossy();
@@ -194,15 +194,11 @@ pub fn recording_id_for(rec: &crate::signals::Recording) -> String {
 /// Recording id of the session at `path`, known before reading it (so a streamed replay can
 /// open its output first): `g1viz-` and the session's [`crate::read::fingerprint::fingerprint`].
 /// The same input gives the same id, so repeated runs produce comparable files, and a copied
-/// file replays the same; `None` when the path cannot be read.
-pub fn recording_id_for_source(path: &Path) -> Option<String> {
-    crate::read::fingerprint::fingerprint(path).map(|h| format!("g1viz-{h:016x}"))
-}
-
-/// [`recording_id_for_source`], or an error naming the path and the operating system's reason it
-/// cannot be read.
-pub fn recording_id_or_reason(path: &Path) -> anyhow::Result<String> {
-    recording_id_for_source(path).ok_or_else(|| {
+/// file replays the same; an error names the path and the operating system's reason it cannot
+/// be read.
+pub fn recording_id_for_source(path: &Path) -> Result<String> {
+    let id = crate::read::fingerprint::fingerprint(path).map(|h| format!("g1viz-{h:016x}"));
+    id.ok_or_else(|| {
         let open = std::fs::metadata(path).and_then(|m| match m.is_dir() {
             true => std::fs::read_dir(path).map(drop),
             false => std::fs::File::open(path).map(drop),

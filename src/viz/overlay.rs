@@ -177,6 +177,7 @@ pub fn diagnosis_extras(d: &crate::diagnose::Diagnosis) -> ReplayExtras {
             highlighted,
             summary: crate::diagnose::summary::summary_markdown(d),
             counterpart: d.counterpart.as_ref().map(|c| c.series.clone()),
+            window: Some(d.sensor_window).filter(|w| w.drift_s != 0.0),
         }),
         imu_filter: r.imu.clone(),
         ..ReplayExtras::default()

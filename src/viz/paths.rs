@@ -121,6 +121,9 @@ pub const DIAG_LOCATED: &str = "diagnosis/located";
 pub fn diag_located(k: usize) -> String {
     format!("diagnosis/located/{k}")
 }
+/// Below this: the meter's averaging window at each reading, where it drifts (`drifting`), and
+/// the alignment scan's one window (`fixed`) [s].
+pub const DIAG_WINDOW: &str = "diagnosis/window";
 /// Below this: the rest power of each reading's trial and its prediction.
 pub const DIAG_REST: &str = "diagnosis/rest";
 /// Rest power of each reading's trial (its pre-idle mean) [W].

@@ -172,6 +172,8 @@ pub struct DiagnosisOverlay {
     pub summary: String,
     /// The twin re-run on the recording's commands (`diagnose --counterpart`).
     pub counterpart: Option<crate::diagnose::counterpart::CounterpartSeries>,
+    /// The meter's averaging window, where the diagnosis found it drifting.
+    pub window: Option<crate::diagnose::SensorWindow>,
 }
 
 /// What later stages add to a replay. Plain data so identify/diagnose need no Rerun types.
@@ -255,6 +257,7 @@ pub fn layout(
         imu_filter: extras.imu_filter.is_some(),
         located: diagnosis(|d| !d.data.located.is_empty()),
         rest: diagnosis(|d| !d.data.rest_w.is_empty()),
+        window_drift: diagnosis(|d| d.window.is_some()),
         diagnosis_power_series,
         hypotheses: diagnosis(|d| d.data.after_w != d.data.before_w),
         error_typical: error_typical(extras),
@@ -387,12 +390,6 @@ pub(super) fn file_replay_options(opts: &ReplayOptions) -> ReplayOptions {
     }
 }
 
-/// Samples (state and command) a streamed replay logs between waits for the sink: the samples
-/// are turned into chunks far faster than the sink encodes and writes them, and without a wait
-/// the chunks in flight pile up (1 h session: peak RSS 175 MB without the waits, 79 MB with
-/// them, ~5 % longer).
-pub(crate) const REPLAY_FLUSH_SAMPLES: usize = 60_000;
-
 /// A streamed replay into `stream`: `read` drives the sink over the recording(s); with a model,
 /// its series are logged trial by trial as the reading completes each trial, beside the trial's
 /// joint signals in the file (so a viewer loading it shows the session's start whole first).
@@ -404,7 +401,7 @@ pub(super) fn streamed_replay(
     stream: &RecordingStream,
     read: &mut dyn FnMut(&mut StreamedReplay<'_, '_>) -> Result<()>,
 ) -> Result<ReplaySummary> {
-    let (logger, warnings, unflushed) = (None, Vec::new(), 0);
+    let (logger, warnings, model_trials) = (None, Vec::new(), None);
     let mut sink = StreamedReplay {
         stream,
         robot,
@@ -412,9 +409,8 @@ pub(super) fn streamed_replay(
         opts,
         extras,
         logger,
-        model_trials: None,
+        model_trials,
         warnings,
-        unflushed,
     };
     read(&mut sink)?;
     let mut logger = sink.logger.context("the recording delivered no samples")?;
@@ -472,15 +468,6 @@ pub(super) struct StreamedReplay<'a, 'e> {
     model_trials: Option<crate::session::TrialWalk>,
     /// The reader's warnings.
     pub(super) warnings: Vec<String>,
-    /// Samples logged since the stream was last waited for.
-    unflushed: usize,
-}
-
-impl StreamedReplay<'_, '_> {
-    /// Samples per chunk the replay logs.
-    pub(super) fn chunk_rows(&self) -> usize {
-        self.opts.chunk_rows
-    }
 }
 
 impl crate::signals::RecordingSink for StreamedReplay<'_, '_> {
@@ -509,13 +496,6 @@ impl crate::signals::RecordingSink for StreamedReplay<'_, '_> {
         logger.add(batch)?;
         if let Some(walk) = self.model_trials.as_mut() {
             walk.push(batch, &mut |rec, _| logger.log_model_trial(&rec.state))?;
-        }
-        self.unflushed += batch.state.t.len() + batch.command.t.len();
-        if self.unflushed >= REPLAY_FLUSH_SAMPLES {
-            self.unflushed = 0;
-            self.stream
-                .flush_blocking()
-                .context("writing the recording")?;
         }
         Ok(())
     }
@@ -547,9 +527,10 @@ pub struct ReplayLogger<'a> {
     command_style_sent: bool,
     /// Yaw of the first IMU orientation (removed, so the body starts facing +X).
     yaw0: Option<f64>,
-    /// The ~1 Hz power readings (≈ 60 kB per hour), logged by `finish`.
-    mbs: PowerSeries,
-    bms: PowerSeries,
+    /// The ~1 Hz power readings of MBS and BMS not yet logged ([`Self::log_power`]).
+    power: [PowerSeries; 2],
+    /// Each sensor's idle baseline once known (`Some(None)`: no reading before the motion).
+    baseline: [Option<Option<f64>>; 2],
     summary: ReplaySummary,
     slice: Slice,
     /// Rate caps of the state and command series, across batches.
@@ -560,24 +541,20 @@ pub struct ReplayLogger<'a> {
     model_decimator: Decimator,
     /// What the bars, the note and the link colours take of the model's series.
     stats: layers::ModelStats,
-    /// Model samples logged since the last flush ([`Self::log_model_trial`]).
-    unflushed: usize,
     /// Model samples gathered into the next chunk ([`Self::log_model_trial`]).
     pending: TermSeries,
-    /// Samples a slice kept, gathered into chunks of [`Self::chunk`] (a rate cap keeps a few
-    /// samples of each of the reader's batches: logged batch by batch, a paper-scale session
-    /// became 16 000 chunks of a dozen rows, which the web viewer ingests slowly).
+    /// Samples kept, gathered into chunks of [`Self::chunk`] ([`Self::add`]).
     kept: Recording,
     /// The layout sent by [`Self::begin`] (when it sends one): [`Self::finish`] sends it again
     /// with every plot fitted to the data logged.
     layout: Option<blueprint::Node>,
-    /// What later stages add, inside the slice ([`Slice::extras`]): logged by [`Self::finish`].
+    /// What later stages add, inside the slice ([`Slice::extras`]): logged by [`Self::begin`],
+    /// but for what the model's series give, logged by [`Self::finish`].
     extras: ReplayExtras,
 }
 
-/// Model samples (≈ 42 scalar rows each) between waits for the sink in
-/// [`ReplayLogger::log_model_trial`].
-const MODEL_FLUSH_SAMPLES: usize = 20_000;
+/// Power readings per chunk of a sensor's series (≈ 17 min at 1 Hz; [`ReplayLogger::log_power`]).
+const POWER_ROWS: usize = 1024;
 
 impl<'a> ReplayLogger<'a> {
     /// Sends the viewer layout (when [`ReplayOptions::blueprint`]), the static robot and the
@@ -635,6 +612,7 @@ impl<'a> ReplayLogger<'a> {
             &mut summary.warnings,
         )?;
         log_styles(&mut w, &joints)?;
+        layers::log_known(&mut w, &joints, &extras, opts.chunk_rows.max(1))?;
         Ok(ReplayLogger {
             w,
             robot,
@@ -650,15 +628,14 @@ impl<'a> ReplayLogger<'a> {
             motion_t: f64::INFINITY,
             command_style_sent: false,
             yaw0: None,
-            mbs: PowerSeries::default(),
-            bms: PowerSeries::default(),
+            power: Default::default(),
+            baseline: [None; 2],
             summary,
             slice: opts.slice,
             decimators: [Decimator::default(); 2],
             model: extras.model.clone().map(|m| (m, 0)),
             model_decimator: Decimator::default(),
             stats: Default::default(),
-            unflushed: 0,
             pending: Default::default(),
             kept: Recording::default(),
             layout: sent_layout,
@@ -667,32 +644,63 @@ impl<'a> ReplayLogger<'a> {
     }
 
     /// Logs the joint, IMU, pose and command samples of `part` (the next stretch of the session,
-    /// times relative to the same start) and keeps its power readings for [`Self::finish`].
+    /// times relative to the same start), gathered into chunks of [`Self::chunk`] samples (a rate
+    /// cap keeps a few samples of each of the reader's batches: logged batch by batch, a
+    /// paper-scale session became 16 000 chunks of a dozen rows, which the web viewer ingests
+    /// slowly), and its power readings once the idle baseline is known ([`Self::log_power`]).
     /// Series of unequal lengths are an error naming the field.
     pub fn add(&mut self, part: &Recording) -> Result<()> {
         check_lengths(part)?;
         self.track_motion(part);
-        for (mine, theirs) in [(&mut self.mbs, &part.mbs), (&mut self.bms, &part.bms)] {
+        for (mine, theirs) in self.power.iter_mut().zip([&part.mbs, &part.bms]) {
             mine.t.extend_from_slice(&theirs.t);
             mine.watts.extend_from_slice(&theirs.watts);
         }
-        if self.slice.is_all() {
-            self.add_samples(part)
-        } else {
-            let [state, cmd] = &mut self.decimators;
-            let kept = self.slice.recording(part, state, cmd);
-            self.kept.append(kept, 0.0);
-            if self.kept.state.t.len().max(self.kept.command.t.len()) >= self.chunk {
-                self.add_kept()?;
-            }
-            Ok(())
+        self.log_power(false)?;
+        let [state, cmd] = &mut self.decimators;
+        let kept = self.slice.recording(part, state, cmd);
+        self.kept.append(kept, 0.0);
+        if self.kept.state.t.len().max(self.kept.command.t.len()) >= self.chunk {
+            self.add_kept()?;
         }
+        Ok(())
     }
 
-    /// Logs the gathered kept samples ([`Self::kept`]).
+    /// Logs the power readings gathered so far, raw and net of the idle baseline (the mean of
+    /// the readings before the arm first moves), once the baseline is known: as soon as the arm
+    /// has moved, or at the `end` — so a viewer opening a long file shows the power from its
+    /// start. A sensor without readings before the motion gets a warning and no net power.
+    fn log_power(&mut self, end: bool) -> Result<()> {
+        for (k, label) in ["mbs", "bms"].into_iter().enumerate() {
+            // Known once a reading at or past the motion came (readings arrive in time order).
+            let last = self.power[k].t.last().copied();
+            let known = end || self.baseline[k].is_some() || last >= Some(self.motion_t);
+            if last.is_none() || !known || !end && self.power[k].t.len() < POWER_ROWS {
+                continue;
+            }
+            let series = std::mem::take(&mut self.power[k]);
+            let base =
+                *self.baseline[k].get_or_insert_with(|| idle_baseline(&series, self.motion_t));
+            let (t, watts): (Vec<f64>, Vec<f64>) = (series.t.iter().zip(&series.watts))
+                .filter(|(t, _)| self.slice.contains(**t))
+                .unzip();
+            let w = &mut self.w;
+            scalars_chunked(w, &paths::power_raw(label), &t, &watts, self.chunk)?;
+            if let Some(base) = base {
+                let net: Vec<f64> = watts.iter().map(|p| p - base).collect();
+                scalars_chunked(w, &paths::power_net(label), &t, &net, self.chunk)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Logs the gathered kept samples ([`Self::kept`]), then waits for the sink: the samples are
+    /// turned into chunks far faster than it encodes and writes them, and without a wait the
+    /// chunks in flight pile up (1 h session: peak RSS 175 MB without the waits, 79 MB with them).
     fn add_kept(&mut self) -> Result<()> {
         let kept = std::mem::take(&mut self.kept);
-        self.add_samples(&kept)
+        self.add_samples(&kept)?;
+        self.w.flush()
     }
 
     /// Motion start: the first sample any joint is more than the threshold from the first (over
@@ -836,17 +844,12 @@ impl<'a> ReplayLogger<'a> {
         scalars_chunked(w, paths::MODEL_PREDICTED, t, predicted, self.chunk)?;
         layers::log_term_data(w, &self.joints, &head, self.chunk)?;
         layers::log_breakdown_data(w, &self.joints, &head, self.chunk)?;
-        // These are computed far faster than the sink writes them: wait for it now and then.
-        self.unflushed += n;
-        if self.unflushed >= MODEL_FLUSH_SAMPLES {
-            self.unflushed = 0;
-            w.flush()?;
-        }
-        Ok(())
+        // Computed far faster than the sink writes them: wait for it.
+        w.flush()
     }
 
-    /// Logs the power series (raw, and net of the readings before the arm first moved) and
-    /// the extras; returns what was logged.
+    /// Logs the power readings left, what the model's series give (shares, note, trial log, link
+    /// colours) and the fitted layout; returns what was logged.
     pub fn finish(mut self) -> Result<ReplaySummary> {
         let extras = &std::mem::take(&mut self.extras);
         self.add_kept()?;
@@ -857,37 +860,20 @@ impl<'a> ReplayLogger<'a> {
         if extras.model.is_some() {
             self.w.flush()?;
         }
-        let w = &mut self.w;
-        for (k, (label, series)) in [("mbs", &self.mbs), ("bms", &self.bms)]
-            .into_iter()
-            .enumerate()
-        {
-            if series.t.is_empty() {
-                continue;
-            }
-            let (t, watts): (Vec<f64>, Vec<f64>) = series
-                .t
-                .iter()
-                .zip(&series.watts)
-                .filter(|(t, _)| self.slice.contains(**t))
-                .unzip();
-            scalars_chunked(w, &paths::power_raw(label), &t, &watts, self.chunk)?;
-            match idle_baseline(series, self.motion_t) {
-                Some(base) => {
-                    self.summary.baseline_w[k] = Some(base);
-                    let net: Vec<f64> = watts.iter().map(|p| p - base).collect();
-                    scalars_chunked(w, &paths::power_net(label), &t, &net, self.chunk)?;
-                }
-                None => self.summary.warnings.push(format!(
-                    "{}: no {} power reading before the arm first moves (t = {:.2} s); net power not logged",
+        self.log_power(true)?;
+        for (k, label) in ["MBS", "BMS"].into_iter().enumerate() {
+            match self.baseline[k] {
+                Some(None) => self.summary.warnings.push(format!(
+                    "{}: no {label} power reading before the arm first moves (t = {:.2} s); net power not logged",
                     self.source.display(),
-                    label.to_uppercase(),
                     self.motion_t
                 )),
+                base => self.summary.baseline_w[k] = base.flatten(),
             }
         }
+        let w = &mut self.w;
         let scale = self.stats.colour_scale();
-        layers::log_extras(w, &self.joints, extras, self.chunk, &self.stats)?;
+        layers::log_model_stats(w, &self.joints, extras, &self.stats)?;
         if extras.model.is_some() {
             // In chunks (a long session has hundreds of thousands of colours per link).
             let (t, power) = (&self.stats.link_t, &self.stats.link_power);

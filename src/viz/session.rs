@@ -9,11 +9,9 @@ use std::path::Path;
 
 use anyhow::{Context, Result, bail};
 
-use super::replay::{
-    ReplayExtras, ReplayOptions, ReplaySummary, file_replay_options, streamed_replay,
-};
+use super::replay::{ReplayExtras, ReplayOptions, ReplaySummary};
 use super::slice::Slice;
-use super::{OutputKind, Sink, open_stream, recording_id_or_reason};
+use super::{OutputKind, Sink, open_stream, recording_id_for_source};
 use crate::identify::{IdentifyOptions, validate_file};
 use crate::power::PowerModel;
 use crate::read::OpenOptions;
@@ -75,9 +73,10 @@ pub enum Notice {
     },
     /// The expected size of the output, before it is written.
     Estimate(SizeEstimate),
-    /// No `--max-rate` was given and the whole session at its recorded rate would exceed
-    /// [`DEFAULT_REPLAY_BYTES`]: every per-sample series is capped at this rate [Hz].
-    Capped(f64),
+    /// No `--max-rate` was given and the whole session at its recorded rate would exceed the
+    /// output's budget ([`OutputKind::budget`], bytes, the second value): every per-sample series
+    /// is capped at this rate [Hz].
+    Capped(f64, f64),
 }
 
 /// The largest replay a user gets without asking [bytes]: past it, a replay with no `--max-rate`
@@ -85,10 +84,23 @@ pub enum Notice {
 /// session (3–4 h) at the recorded rate is 1.5–4 GB, more than the web viewer holds; a file of
 /// this size opens in it whole (docs/viewer.md).
 pub const DEFAULT_REPLAY_BYTES: f64 = 150e6;
+/// The same for a diagnosis' `.rrd`, an overview of its per-reading findings: small enough that
+/// a paper-scale one opens in the web viewer within a minute (docs/benchmarks.md).
+pub const DEFAULT_DIAGNOSIS_BYTES: f64 = 15e6;
 
-/// The lowest rate the default cap goes to [Hz] (one sample per 10 s), even when the
-/// replay is then larger than [`DEFAULT_REPLAY_BYTES`] (its chunks alone can be, at 500 Hz over
-/// many hours: the estimate printed says so).
+impl OutputKind {
+    /// The default size of this kind of output [bytes] (the cap's budget, [`Notice::Capped`]).
+    pub fn budget(self) -> f64 {
+        match self {
+            OutputKind::Diagnosis => DEFAULT_DIAGNOSIS_BYTES,
+            _ => DEFAULT_REPLAY_BYTES,
+        }
+    }
+}
+
+/// The lowest rate the default cap goes to [Hz] (one sample per 10 s), even when the output is
+/// then larger than its budget (its chunks alone can be, at 500 Hz over many hours: the
+/// estimate printed says so).
 const MIN_DEFAULT_HZ: f64 = 0.1;
 
 /// Expected size of a replay's `.rrd`.
@@ -103,13 +115,13 @@ pub struct SizeEstimate {
 /// Bytes per logged scalar row (one value of one series: row id, two time stamps, the value),
 /// measured on the shipped example (82.5 s, 8248 state and command samples: 8.37 MB with poses
 /// at 1 Hz, 9.96 MB at 30 Hz; 237 chunks for 21 s of it at 20 Hz, 1.3 MB).
-pub const BYTES_PER_SCALAR: f64 = 24.9;
+const BYTES_PER_SCALAR: f64 = 24.9;
 /// Bytes per logged pose of one moving link (translation + rotation, two time stamps).
-pub const BYTES_PER_LINK_POSE: f64 = 41.7;
+const BYTES_PER_LINK_POSE: f64 = 41.7;
 /// Bytes per chunk (one entity's rows of one batch: its schema and index), same measurement.
-pub const BYTES_PER_CHUNK: f64 = 2800.0;
+const BYTES_PER_CHUNK: f64 = 2800.0;
 /// Fixed part: layout, robot geometry, properties, series styles (≈ 90 static chunks).
-pub const BYTES_FIXED: f64 = 300_000.0;
+const BYTES_FIXED: f64 = 300_000.0;
 /// Samples per batch of a replayed file (its chunk size): one chunk per entity and batch.
 const BATCH_SAMPLES: f64 = super::replay::STREAMED_CHUNK_ROWS as f64;
 /// Scalar series per state sample (q, q̇, τ, temperature of 7 joints, |ω|).
@@ -198,7 +210,6 @@ pub fn replay_session(
     r: &SessionReplay<'_>,
     notify: &mut dyn FnMut(Notice),
 ) -> Result<ReplaySummary> {
-    let arm = r.robot.arm(&r.map.joint_names)?;
     let file = session_file(r);
     let reading = || format!("reading {}", r.session.display());
     let (slice, extras) = match r.model {
@@ -234,32 +245,68 @@ pub fn replay_session(
         }
         None => (r.window.resolve(None, r.session)?, ReplayExtras::default()),
     };
-    let model = extras.model.is_some();
-    let mut slice = slice;
+    let kind = [OutputKind::Replay, OutputKind::ModelReplay][usize::from(extras.model.is_some())];
+    write_replay(r, &[r.session], 0.0, extras, slice, kind, notify)
+}
+
+/// Replays the sessions at `paths` with a diagnosis' overlay `extras`, as `g1viz diagnose
+/// --save` does: joined end to end on the first one's clock, each part starting `gap_s` after the
+/// previous one ends, streamed part by part; `r` gives the rest (`r.model` and `r.fit` unused).
+pub fn replay_diagnosis(
+    r: &SessionReplay<'_>,
+    paths: &[&Path],
+    gap_s: f64,
+    extras: ReplayExtras,
+    notify: &mut dyn FnMut(Notice),
+) -> Result<ReplaySummary> {
+    let slice = r.window.resolve(None, r.session)?;
+    write_replay(
+        r,
+        paths,
+        gap_s,
+        extras,
+        slice,
+        OutputKind::Diagnosis,
+        notify,
+    )
+}
+
+/// Writes the replay of `paths` (one session, or several joined `gap_s` apart) with `extras`,
+/// `slice` of it, as a `kind` output: the one size rule (without `--max-rate`, the highest rate
+/// that keeps the estimate within the kind's budget, [`OutputKind::budget`]), the estimate, and
+/// the one streamed replay ([`super::replay_files_with`]).
+fn write_replay(
+    r: &SessionReplay<'_>,
+    paths: &[&Path],
+    gap_s: f64,
+    extras: ReplayExtras,
+    mut slice: Slice,
+    kind: OutputKind,
+    notify: &mut dyn FnMut(Notice),
+) -> Result<ReplaySummary> {
+    let arm = r.robot.arm(&r.map.joint_names)?;
     let links = super::robot3d::moving_links(r.robot, &arm).len();
-    if let Some(size) = topic_rates(r, &slice, links, model) {
+    if let Some(size) = topic_rates(r, paths, &slice, links, extras.model.is_some()) {
         if r.window.max_rate_hz.is_none()
-            && let Some(rate) = size.default_cap()
+            && let Some(rate) = size.default_cap(kind.budget())
         {
             slice.max_rate_hz = Some(rate);
-            notify(Notice::Capped(rate));
+            notify(Notice::Capped(rate, kind.budget()));
         }
         notify(Notice::Estimate(size.estimate(slice.max_rate_hz)));
     }
-    let kind = [OutputKind::Replay, OutputKind::ModelReplay][usize::from(model)];
-    let id = recording_id_or_reason(r.session)?;
+    let first = paths.first().context("no session to replay")?;
+    let id = recording_id_for_source(first)?;
     let out = open_stream(&kind.app_id(), &kind.recording_id(&id), r.sink, r.inputs)?;
-    let opts = file_replay_options(&ReplayOptions {
+    let opts = ReplayOptions {
         slice,
         ..r.opts.clone()
-    });
-    let path = r.session;
-    let summary = streamed_replay(r.robot, &arm, &extras, &opts, out.stream(), &mut |sink| {
-        // A plain replay reads in batches of the caller's chunk size, as `replay_files_with`.
-        let rows = [r.opts.chunk_rows.max(1), sink.chunk_rows()][usize::from(model)];
-        crate::signals::stream_into(path, r.map, r.read, rows, sink).map(drop)
-    })
-    .with_context(|| format!("replaying {}", path.display()))?;
+    };
+    let stream = out.stream();
+    let (map, read, robot) = (r.map, r.read, r.robot);
+    let summary =
+        super::replay_files_with(paths, gap_s, map, read, robot, &arm, extras, &opts, stream)
+            .with_context(|| format!("replaying {}", first.display()))?;
     out.finish()?;
     Ok(summary)
 }
@@ -304,8 +351,10 @@ impl ReplaySize {
             + links
             + POWER_ENTITIES
             + if model { MODEL_ENTITIES } else { 0.0 };
-        // Batches are cut from the recorded samples, before the rate cap (+1: a window starts
-        // and ends inside batches).
+        // Counted per recorded batch, as if each were a chunk (+1: a window starts and ends
+        // inside batches). Capped, fewer chunks are written (kept samples are gathered), but a
+        // decimated row costs more than the example's (irregular stamps compress worse): counted
+        // so, the capped paper replay (3.4 h at 3.7 Hz) is estimated at 149 MB, written 157 MB.
         let batches = (self.state_hz * seconds / BATCH_SAMPLES).ceil() + 1.0;
         SizeEstimate {
             seconds,
@@ -316,13 +365,13 @@ impl ReplaySize {
         }
     }
 
-    /// The rate cap that keeps the replay within [`DEFAULT_REPLAY_BYTES`] (two significant
-    /// digits, rounded down), `None` when the recorded rate does.
-    fn default_cap(&self) -> Option<f64> {
-        if self.estimate(None).bytes <= DEFAULT_REPLAY_BYTES {
+    /// The rate cap that keeps the replay within `budget` bytes (two significant digits, rounded
+    /// down), `None` when the recorded rate does.
+    fn default_cap(&self, budget: f64) -> Option<f64> {
+        let fits = |hz: f64| self.estimate(Some(hz)).bytes <= budget;
+        if self.estimate(None).bytes <= budget {
             return None;
         }
-        let fits = |hz: f64| self.estimate(Some(hz)).bytes <= DEFAULT_REPLAY_BYTES;
         if !fits(MIN_DEFAULT_HZ) {
             return Some(MIN_DEFAULT_HZ);
         }
@@ -337,47 +386,49 @@ impl ReplaySize {
     }
 }
 
-/// The part of the session logged and its rates, from the file's topic statistics (summary or
-/// index when the container has them); `None` when they cannot be read (the replay itself then
-/// reports the problem).
+/// The part of the sessions at `paths` logged and their rates, from the files' topic statistics
+/// (summary or index when the container has them; the rates are the first file's, the seconds
+/// summed over the files, each clipped to `slice`); `None` when they cannot be read (the replay
+/// itself then reports the problem).
 fn topic_rates(
     r: &SessionReplay<'_>,
+    paths: &[&Path],
     slice: &Slice,
     links: usize,
     model: bool,
 ) -> Option<ReplaySize> {
-    let info = crate::read::Session::open(r.session, r.read)
-        .ok()?
-        .info()
-        .ok()?;
-    let topic_of = |g: Group| -> Option<String> {
-        let name = crate::signals::group_signals(g).into_iter().next()?;
-        r.map.signals.get(&name).map(|s| s.topic.clone())
+    let topic = |g: Group| {
+        let name = crate::signals::group_signals(g).into_iter().next();
+        name.and_then(|n| r.map.signals.get(&n))
+            .map(|s| s.topic.clone())
     };
-    let rate_and_span = |g: Group| -> (f64, f64) {
-        let Some(topic) = topic_of(g) else {
-            return (0.0, 0.0);
-        };
-        info.topics
-            .iter()
-            .find(|t| t.topic == topic)
-            .map_or((0.0, 0.0), |t| {
-                let first = (t.first_ns.saturating_sub(info.start_ns)) as f64 * 1e-9;
-                let last = (t.last_ns.saturating_sub(info.start_ns)) as f64 * 1e-9;
-                let seconds = (last.min(slice.to_s) - first.max(slice.from_s)).max(0.0);
-                (t.rate_hz, seconds)
-            })
-    };
-    let (state_hz, seconds) = rate_and_span(Group::State);
-    let (command_hz, _) = rate_and_span(Group::Command);
-    Some(ReplaySize {
-        seconds,
-        state_hz,
-        command_hz,
+    let (state, command) = (topic(Group::State), topic(Group::Command));
+    let mut size = ReplaySize {
+        seconds: 0.0,
+        state_hz: 0.0,
+        command_hz: 0.0,
         pose_hz: r.opts.pose_rate_hz,
         links,
         model,
-    })
+    };
+    for (k, path) in paths.iter().enumerate() {
+        let info = crate::read::Session::open(path, r.read).ok()?.info().ok()?;
+        let of = |topic: &Option<String>| {
+            info.topics
+                .iter()
+                .find(|t| Some(&t.topic) == topic.as_ref())
+        };
+        if let Some(t) = of(&state) {
+            let s = |ns: u64| ns.saturating_sub(info.start_ns) as f64 * 1e-9;
+            size.seconds +=
+                (s(t.last_ns).min(slice.to_s) - s(t.first_ns).max(slice.from_s)).max(0.0);
+            size.state_hz = [t.rate_hz, size.state_hz][usize::from(k > 0)];
+        }
+        if k == 0 {
+            size.command_hz = of(&command).map_or(0.0, |t| t.rate_hz);
+        }
+    }
+    Some(size)
 }
 
 #[cfg(test)]
@@ -400,7 +451,7 @@ mod tests {
     /// whose estimate fits the default size, and one step more would not fit.
     #[test]
     fn the_default_cap_keeps_a_replay_within_its_size() {
-        assert_eq!(size(82.5, true).default_cap(), None);
+        assert_eq!(size(82.5, true).default_cap(DEFAULT_REPLAY_BYTES), None);
         for (seconds, model) in [
             (3_600.0, false),
             (12_336.0, false),
@@ -408,7 +459,9 @@ mod tests {
             (36_000.0, true),
         ] {
             let s = size(seconds, model);
-            let hz = s.default_cap().expect("a paper-scale replay is capped");
+            let hz = s
+                .default_cap(DEFAULT_REPLAY_BYTES)
+                .expect("a paper-scale replay is capped");
             assert!(
                 s.estimate(Some(hz)).bytes <= DEFAULT_REPLAY_BYTES,
                 "{seconds} s: {hz} Hz: {:?} / {:?}",
@@ -428,6 +481,6 @@ mod tests {
             ..size(36_000.0, true)
         };
         assert!(long.estimate(Some(MIN_DEFAULT_HZ)).bytes > DEFAULT_REPLAY_BYTES);
-        assert_eq!(long.default_cap(), Some(MIN_DEFAULT_HZ));
+        assert_eq!(long.default_cap(DEFAULT_REPLAY_BYTES), Some(MIN_DEFAULT_HZ));
     }
 }

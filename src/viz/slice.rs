@@ -74,8 +74,8 @@ impl Slice {
         out
     }
 
-    /// The state and command samples of `part` this slice logs (power readings untouched: the
-    /// replay keeps them all for the idle baseline and logs those in the window).
+    /// The state and command samples of `part` this slice logs (no power readings: the replay
+    /// keeps them all for the idle baseline and logs those in the window).
     pub fn recording(
         &self,
         part: &Recording,
@@ -83,30 +83,23 @@ impl Slice {
         cmd: &mut Decimator,
     ) -> Recording {
         let (s, c) = (&part.state, &part.command);
-        let (ks, kc) = (self.keep(&s.t, state), self.keep(&c.t, cmd));
-        let mut out = Recording {
+        let mut keep = vec![false; s.t.len()];
+        self.keep(&s.t, state)
+            .into_iter()
+            .for_each(|i| keep[i] = true);
+        let kc = self.keep(&c.t, cmd);
+        Recording {
             source: part.source.clone(),
             start_ns: part.start_ns,
             joint_names: part.joint_names.clone(),
-            mbs: part.mbs.clone(),
-            bms: part.bms.clone(),
+            state: s.select(&keep),
+            command: crate::signals::CommandSeries {
+                t: pick(&c.t, &kc),
+                q: pick(&c.q, &kc),
+                dq: pick(&c.dq, &kc),
+            },
             ..Recording::default()
-        };
-        out.state.t = pick(&s.t, &ks);
-        out.state.q = pick(&s.q, &ks);
-        out.state.dq = pick(&s.dq, &ks);
-        out.state.tau = pick(&s.tau, &ks);
-        out.state.temp = pick(&s.temp, &ks);
-        out.state.gyro = pick(&s.gyro, &ks);
-        if s.quat.len() == s.t.len() {
-            out.state.quat = pick(&s.quat, &ks);
         }
-        out.command.t = pick(&c.t, &kc);
-        out.command.q = pick(&c.q, &kc);
-        if c.dq.len() == c.t.len() {
-            out.command.dq = pick(&c.dq, &kc);
-        }
-        out
     }
 
     /// What `extras` hold inside the window (the model's per-sample series are sliced as they
