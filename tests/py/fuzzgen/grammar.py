@@ -56,9 +56,9 @@ FORMS_SHAPE = ["linear", "power", "exponential", "threshold", "one_sided"]
 # (`Physics.library_base`) at its physical limit, from public figures (decided on branch diag24,
 # issue 28; docs/diagnosis.md "How large a mechanism can be"). A drawn magnitude [W RMS] above
 # LIMITS × the regressor's RMS over the scaling block is drawn again below it (`Physics._cap`);
-# per joint, the joint with the largest weight is at most at the limit; for a power, threshold,
-# one-sided or switched form the bound is on the RMS: no form carries more power than its
-# mechanism's linear form at the limit. Nothing beyond physics is drawn,
+# per joint, the joint with the largest weight is at most at the limit; a threshold, one-sided or
+# switched form's coefficient is the mechanism's own (bounded the same); for a power form the bound
+# is on the RMS: it carries no more power than its mechanism's linear form at the limit. Nothing beyond physics is drawn,
 # so the scorer needs no rule for an "implausible" size.
 _URDF_EFFORT_NM = [25, 25, 25, 25, 25, 5, 5]   # urdf/g1_left_arm.urdf <limit effort>, shoulder..wrist
 _TORQUE_CONST = [1.3, 1.3, 1.3, 1.3, 0.7, 0.7, 0.7]  # joint torque constants [Nm/A], G1 arm nominal
@@ -383,9 +383,16 @@ class Physics:
                                 self._cap(i, e, self.REL_CAP * rms)
                             else:  # the mechanism at its physical limit, as RMS watts; per joint,
                                 # the joint with the largest weight at it
-                                lin = self.library_base(e["mechanism"], e, ctx).sum(1)
-                                lin_rms = rms / max(e["weights"]) if e["form"] == "per_joint" \
-                                    else float(np.sqrt(np.mean(lin * lin)))
+                                # (a threshold or one-sided form's own coefficient is the
+                                # parameter: its RMS at the limit, not the linear form's — 1720811909
+                                # drew a one-sided winding drift at α 0.017 1/K under the linear cap)
+                                if e["form"] == "per_joint":
+                                    lin_rms = rms / max(e["weights"])
+                                elif e["form"] == "power":
+                                    lin = self.library_base(e["mechanism"], e, ctx).sum(1)
+                                    lin_rms = float(np.sqrt(np.mean(lin * lin)))
+                                else:
+                                    lin_rms = rms
                                 e["limit_W"] = LIMITS[e["mechanism"]] * lin_rms
                                 self._cap(i, e, e["limit_W"])
                             e["coef_W_per_unit"] = self.coef[i] * e["magnitude"]
