@@ -234,28 +234,28 @@ pub(super) fn signal_values(s: &Signal, rv: &RowValues) -> Vec<f64> {
     }
 }
 
-/// Generate every candidate, fields that meter the power itself left out (noted), and keep
-/// those [`crate::diagnose::family::screen`] passes on the current model's residual `resid`; the
-/// number generated and each family's total weight ([`super::candidates::family_of`]) returned last.
-pub(super) fn generate(
+/// Which fields meter the power itself (left out of discovery, noted), which of those sag under
+/// the load, and which fall significantly as the power rises.
+struct Meters {
+    usable: Vec<bool>,
+    sags: Vec<bool>,
+    falls: Vec<bool>,
+}
+
+fn meters_of_the_power(
     inp: &Inputs,
     rows: &Rows,
-    n_trials: usize,
-    twin: bool,
-    resid: &[f64],
+    rv: &RowValues,
+    single: &[bool],
     notes: &mut Vec<String>,
-) -> (Vec<Cand>, RowValues, Vec<bool>, usize, Vec<f64>) {
+) -> Meters {
     let names = &inp.fields.names;
-    let rv = RowValues::new(inp, rows);
     let mut meters = Vec::new();
     let mut usable = vec![true; names.len()];
     // Meters that fall as the power rises: a supply sagging under the load; `falls`: any field
     // that does so significantly (at rest it reads the rest load, it does not cause it).
     let mut sags = vec![false; names.len()];
     let mut falls = vec![false; names.len()];
-    let single: Vec<bool> = (0..names.len())
-        .map(|f| !inp.fields.duplicate.get(f).copied().unwrap_or(false))
-        .collect();
     for f in 0..names.len() {
         let net: Vec<f64> = (0..rows.len())
             .map(|r| rv.raw[f][r] - rv.baseline[f][r])
@@ -280,6 +280,34 @@ pub(super) fn generate(
             meters.join(", ")
         ));
     }
+    Meters {
+        usable,
+        sags,
+        falls,
+    }
+}
+
+/// Generate every candidate, fields that meter the power itself left out (noted), and keep
+/// those [`crate::diagnose::family::screen`] passes on the current model's residual `resid`; the
+/// number generated and each family's total weight ([`super::candidates::family_of`]) returned last.
+pub(super) fn generate(
+    inp: &Inputs,
+    rows: &Rows,
+    n_trials: usize,
+    twin: bool,
+    resid: &[f64],
+    notes: &mut Vec<String>,
+) -> (Vec<Cand>, RowValues, Vec<bool>, usize, Vec<f64>) {
+    let names = &inp.fields.names;
+    let rv = RowValues::new(inp, rows);
+    let single: Vec<bool> = (0..names.len())
+        .map(|f| !inp.fields.duplicate.get(f).copied().unwrap_or(false))
+        .collect();
+    let Meters {
+        usable,
+        sags,
+        falls,
+    } = meters_of_the_power(inp, rows, &rv, &single, notes);
     let mut kinds: Vec<(Kind, String)> = Vec::new();
     let mut slow = vec![Signal::Time];
     // A meter that falls as the power rises is the supply sagging under the load (a battery
