@@ -6,11 +6,14 @@ Written from physics and the diagnoser's *advertised* mechanism ids (the `hypoth
 must say to name it (`expect`): library ids of its mechanism, recorded fields it follows, words
 of the loss term it changes, or the meter it is an artefact of.
 
-Magnitudes are log-uniform in watts from well below to well above detection, but never beyond
-physics: a modulated term changes by at most its own size (`Physics.REL_CAP`), and a library
-mechanism is at most its size at the physical limit `LIMITS` states from the robot's public
-figures (URDF efforts, torque constants, winding metals, energy), in this generator's own units;
-a state changing the transmitted power only adds a loss to it.
+Magnitudes are log-uniform in watts from well below to well above detection, bounded by physics
+where a bound is stated: a library mechanism's coefficient is at most the physical limit `LIMITS`
+states from the robot's public figures (URDF efforts, torque constants, winding metals, energy),
+in this generator's own units; a modulated term changes by at most its own size at the state's
+nominal change (`Physics.REL_CAP`, g = 1). Not bounded sample by sample (known, stated): a
+power-law library form is bounded on its RMS, not at its peaks; a modulated term's linear or
+exponential shape goes past g = 1 where the state moves past its nominal range (u > 1), and below
+0 where a state falls (u < 0) — there a state scaling the transmitted power can act as a gain.
 """
 import math
 
