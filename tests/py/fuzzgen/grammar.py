@@ -61,8 +61,9 @@ FORMS_SHAPE = ["linear", "power", "exponential", "threshold", "one_sided"]
 # LIMITS × the regressor's RMS over the scaling block is drawn again below it (`Physics._cap`);
 # per joint, the joint with the largest weight is at most at the limit; a threshold, one-sided or
 # switched form's coefficient is the mechanism's own (bounded the same); for a power form the bound
-# is on the RMS: it carries no more power than its mechanism's linear form at the limit. Nothing beyond physics is drawn,
-# so the scorer needs no rule for an "implausible" size.
+# is on the RMS: it carries no more power than its mechanism's linear form at the limit (its peaks
+# may pass it). No coefficient beyond its limit is drawn, so the scorer needs no rule for an
+# "implausible" size.
 _URDF_EFFORT_NM = [25, 25, 25, 25, 25, 5, 5]   # urdf/g1_left_arm.urdf <limit effort>, shoulder..wrist
 _TORQUE_CONST = [1.3, 1.3, 1.3, 1.3, 0.7, 0.7, 0.7]  # joint torque constants [Nm/A], G1 arm nominal
 _BUS_V = 13 * 3.7  # 13 Li-ion cells in series at their nominal 3.7 V
