@@ -156,9 +156,9 @@ impl Engine {
         // Batches of 2,048 rows, not 8,192: the block join makes five of each, and the IMU
         // filter's join holds them; peak RSS at 20 × 30 281 → 217 MB, CPU the same. No cache of
         // the files' footers and statistics (50 + 20 MB by default, filled with every file): a
-        // footer is read again per query (docs/fleet.md, Memory). Footers fetched one file at a
-        // time, with a 64 KiB first read (default 32 files at once, 512 KiB each: a row file's
-        // footer is ≈ 20 KiB): 30 days of 20 robots 176 → 150 MB, 1 day unchanged.
+        // footer is read again per query (docs/fleet.md, Memory). Footers are fetched one file
+        // at a time with a 64 KiB first read (default: 32 files at once, 512 KiB each, for
+        // footers of ≈ 20 KiB): 30 days of 20 robots 180 → 152 MB, 1 day unchanged.
         let config = (SessionConfig::new().with_batch_size(2048))
             .set_bool("datafusion.execution.parquet.pushdown_filters", true)
             .set_usize("datafusion.execution.meta_fetch_concurrency", 1)
@@ -200,22 +200,13 @@ impl Engine {
         })
     }
 
-    /// Run one query, handing each batch of its result to `each` as it arrives (a per-trial result
-    /// is never held whole); returns the bytes of Parquet data it read.
-    pub fn query(
-        &self,
-        sql: &str,
-        mut each: impl FnMut(&RecordBatch) -> Result<()>,
-    ) -> Result<usize> {
-        use futures::StreamExt;
+    /// Run one query: its result and the bytes of Parquet data it read.
+    pub fn query(&self, sql: &str) -> Result<(Vec<RecordBatch>, usize)> {
         self.runtime.block_on(async {
             let plan = self.ctx.sql(sql).await?.create_physical_plan().await?;
-            let task = self.ctx.task_ctx();
-            let mut stream = datafusion::physical_plan::execute_stream(Arc::clone(&plan), task)?;
-            while let Some(batch) = stream.next().await {
-                each(&batch?)?;
-            }
-            Ok(bytes_scanned(plan.as_ref()))
+            let out =
+                datafusion::physical_plan::collect(Arc::clone(&plan), self.ctx.task_ctx()).await?;
+            Ok((out, bytes_scanned(plan.as_ref())))
         })
     }
 }
@@ -230,6 +221,20 @@ fn column_as<A: Array + Clone + 'static>(b: &RecordBatch, name: &str, to: DataTy
 
 fn numbers(b: &RecordBatch, name: &str) -> Result<Float64Array> {
     column_as(b, name, DataType::Float64)
+}
+
+/// A query's result as CSV (arrow's writer: a header, then one line per row).
+pub fn to_csv(batches: &[RecordBatch]) -> Result<String> {
+    let mut buf = Vec::new();
+    {
+        let mut w = datafusion::arrow::csv::WriterBuilder::new()
+            .with_header(true)
+            .build(&mut buf);
+        for b in batches {
+            w.write(b)?;
+        }
+    }
+    Ok(String::from_utf8(buf)?)
 }
 
 /// What `g1viz fleet` groups and filters.
@@ -338,14 +343,9 @@ impl Work {
 
 /// The normal equations and Σy of each group of a [`sql::normal_equations`] result, its blocks
 /// of matrix rows put together.
-fn normal_sums(
-    run: &mut Runner,
-    name: &str,
-    q: String,
-    by: &[Key],
-) -> Result<BTreeMap<Vec<String>, (Gram, f64)>> {
+fn normal_sums(batches: &[RecordBatch], by: &[Key]) -> Result<BTreeMap<Vec<String>, (Gram, f64)>> {
     let mut out: BTreeMap<Vec<String>, (Gram, f64)> = BTreeMap::new();
-    run.run(name, q, |b| {
+    for b in batches {
         let block = column_as::<Int64Array>(b, "b", DataType::Int64)?;
         let (n, sy) = (numbers(b, "n")?, numbers(b, "sy")?);
         let mut g = Vec::new();
@@ -369,8 +369,7 @@ fn normal_sums(
                 }
             }
         }
-        Ok(())
-    })?;
+    }
     Ok(out)
 }
 
@@ -450,28 +449,13 @@ struct Runner<'a> {
 }
 
 impl Runner<'_> {
-    /// Run `q`, handing each result batch to `each` (and to a CSV copy when kept).
-    fn run(
-        &mut self,
-        name: &str,
-        q: String,
-        mut each: impl FnMut(&RecordBatch) -> Result<()>,
-    ) -> Result<()> {
-        let mut csv = self
-            .keep
-            .then(|| datafusion::arrow::csv::WriterBuilder::new().build(Vec::new()));
-        let bytes = (self.engine.query(&q, |b| {
-            if let Some(w) = csv.as_mut() {
-                w.write(b)?;
-            }
-            each(b)
-        }))
-        .with_context(|| format!("running the {name} query"))?;
-        let csv = csv.map(|w| String::from_utf8(w.into_inner())).transpose()?;
-        self.queries
-            .push((name.to_string(), q, csv.unwrap_or_default()));
+    fn run(&mut self, name: &str, q: String) -> Result<Vec<RecordBatch>> {
+        let (out, bytes) =
+            (self.engine.query(&q)).with_context(|| format!("running the {name} query"))?;
+        let csv = (self.keep.then(|| to_csv(&out)).transpose()?).unwrap_or_default();
+        self.queries.push((name.to_string(), q, csv));
         self.bytes_scanned += bytes;
-        Ok(())
+        Ok(out)
     }
 }
 
@@ -480,15 +464,15 @@ impl Runner<'_> {
 fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<String>, Work>> {
     let (by, target, filter) = (&opts.by, opts.target.as_str(), opts.filter.as_deref());
     let mut groups: BTreeMap<Vec<String>, Work> = BTreeMap::new();
-    run.run("moments", sql::moments(by, target, filter), |b| {
-        let num = |c: &str| numbers(b, c);
+    for b in run.run("moments", sql::moments(by, target, filter))? {
+        let num = |c: &str| numbers(&b, c);
         let (n, sy, sigma) = (num("n")?, num("sy")?, num("sigma_omega")?);
         // Reading times stay integer nanoseconds (an f64 rounds them by up to 256 ns).
-        let int = |name| column_as::<Int64Array>(b, name, DataType::Int64);
+        let int = |name| column_as::<Int64Array>(&b, name, DataType::Int64);
         let (t0, t1) = (int("t_min")?, int("t_max")?);
         let s: Result<Vec<_>> = (0..N_PARAMS).map(|p| num(&format!("s_{p}"))).collect();
         let s = s?;
-        for (r, (key, id)) in result_rows(b, by)?.into_iter().enumerate() {
+        for (r, (key, id)) in result_rows(&b, by)?.into_iter().enumerate() {
             let id = id.context("moments without trial columns")?;
             let w = groups.entry(key).or_insert_with(|| Work {
                 trials: Vec::new(),
@@ -512,8 +496,7 @@ fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<Str
                 sigma_omega: sigma.value(r),
             });
         }
-        Ok(())
-    })?;
+    }
     if groups.is_empty() {
         let picked = filter.map(|f| format!(" where {f}")).unwrap_or_default();
         bail!("no rows of target {target} in the tables{picked}");
@@ -533,7 +516,7 @@ fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<Str
     // The IMU filter's rejections are left out in the scan, not subtracted after another.
     let imu = pending(&mut groups);
     let q = sql::normal_equations(by, Pick::Except(&imu), target, filter);
-    for (key, kept) in normal_sums(run, "normal_equations", q, by)? {
+    for (key, kept) in normal_sums(&run.run("normal_equations", q)?, by)? {
         let w = (groups.get_mut(&key)).context(format!("group {key:?} has no trials"))?;
         w.kept = kept;
     }
@@ -636,7 +619,7 @@ pub fn fit_fleet(
             // Each group's own rejected trials only: a trial in two groups (a session across
             // midnight by day) may be rejected in one and kept in the other.
             let q = sql::normal_equations(by, Pick::Only(&pending), target, filter);
-            let sums = normal_sums(&mut run, &format!("rejected_{pass}"), q, by)?;
+            let sums = normal_sums(&run.run(&format!("rejected_{pass}"), q)?, by)?;
             for (key, (g, sy)) in sums {
                 let w = (groups.get_mut(&key)).context(format!("group {key:?} has no trials"))?;
                 w.kept = (w.kept.0.minus(&g), w.kept.1 - sy);
