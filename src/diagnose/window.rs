@@ -290,7 +290,9 @@ fn judge(
     };
     // 1. The sensor's nominal window at the lag that puts its centre where the data put it;
     // 2. the best window at lag 0: every lag-0 window the scan scored, and those of the data's
-    //    centre (2c ± 2 steps). Both sets scored together.
+    //    centre (2c ± 2 steps) the scan can score (≤ [`FIXED_SET_S`]: a 0.58 s latency's centre
+    //    made a 1.4 s lag-0 window "as good", and no reading was left inside it; fuzz seed
+    //    874010922). Both sets scored together.
     let mut cands = near(nominal_w, (centre - 0.5 * nominal_w).max(0.0));
     let n_near = cands.len();
     cands.extend(
@@ -299,7 +301,7 @@ fn judge(
                 window_s: 2.0 * centre + k as f64 * STEP,
                 lag_s: 0.0,
             })
-            .filter(|a| a.window_s > 0.0),
+            .filter(|a| a.window_s > 0.0 && a.window_s <= FIXED_SET_S + 1e-9),
     );
     let scores = score(&cands);
     let (near_scores, lag0_scores) = scores.split_at(n_near);
