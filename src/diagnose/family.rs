@@ -177,7 +177,7 @@ const STEP_QUANTILES: [f64; 3] = [0.25, 0.5, 0.75];
 /// Rates of the exponential forms (over the 5–95 % range of the signal).
 const EXP_RATES: [f64; 2] = [3.0, -3.0];
 /// Family members kept per term by the screen (beside the always-scored linear forms).
-const KEPT_PER_TERM: usize = 4;
+pub(crate) const KEPT_PER_TERM: usize = 4;
 
 impl Shape {
     /// g(s).
@@ -189,30 +189,14 @@ impl Shape {
         }
     }
 
-    /// Every shape tried for a signal with these values (steps with at least 5 % of the values
-    /// on each side, distinct levels only).
+    /// Every shape tried for a signal with these values (steps at [`STEP_QUANTILES`], exponentials
+    /// over its 5–95 % range).
     pub(crate) fn all_for(values: &[f64]) -> Vec<Shape> {
-        let mut s: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
-        s.sort_by(f64::total_cmp);
         let mut out = vec![Shape::Linear];
-        if s.len() < 20 {
+        let Some((levels, lo, hi)) = step_levels(values, &STEP_QUANTILES) else {
             return out;
-        }
-        let q = |p: f64| s[((s.len() - 1) as f64 * p).round() as usize];
-        let (lo, hi) = (q(0.05), q(0.95));
-        if hi - lo <= 0.0 {
-            return out;
-        }
-        let mut levels: Vec<f64> = Vec::new();
-        for p in STEP_QUANTILES {
-            let level = q(p);
-            let above = s.iter().filter(|&&v| v > level).count();
-            let share = above as f64 / s.len() as f64;
-            if (0.05..=0.95).contains(&share) && !levels.contains(&level) {
-                levels.push(level);
-                out.push(Shape::Above(level));
-            }
-        }
+        };
+        out.extend(levels.into_iter().map(Shape::Above));
         for rate in EXP_RATES {
             out.push(Shape::Exp {
                 rate,
@@ -262,33 +246,56 @@ impl Shape {
     }
 }
 
-/// Indices of the candidates to score: every candidate that is not a screened family member,
-/// and per term the [`KEPT_PER_TERM`] family members whose two columns (term × g(s), term)
+/// Levels at quantiles `at` of a signal's values, each with at least 5 % of the values on either
+/// side and distinct, and the signal's 5–95 % range; `None` for fewer than 20 values or no range.
+pub(crate) fn step_levels(values: &[f64], at: &[f64]) -> Option<(Vec<f64>, f64, f64)> {
+    let mut s: Vec<f64> = values.iter().copied().filter(|v| v.is_finite()).collect();
+    s.sort_by(f64::total_cmp);
+    if s.len() < 20 {
+        return None;
+    }
+    let q = |p: f64| s[((s.len() - 1) as f64 * p).round() as usize];
+    let (lo, hi) = (q(0.05), q(0.95));
+    if hi - lo <= 0.0 {
+        return None;
+    }
+    let mut levels: Vec<f64> = Vec::new();
+    for &p in at {
+        let level = q(p);
+        let share = s.iter().filter(|&&v| v > level).count() as f64 / s.len() as f64;
+        if (0.05..=0.95).contains(&share) && !levels.contains(&level) {
+            levels.push(level);
+        }
+    }
+    Some((levels, lo, hi))
+}
+
+/// Indices of the candidates to score: every candidate that is not a screened member, and per
+/// screening group the members (at most the group's cap) whose columns (e.g. term × g(s), term)
 /// explain most of the residual `resid` by least squares. `family` gives, per candidate, its
-/// term when it is a screened member (`None` for the rest), `cols` its columns.
+/// group and the group's cap when it is a screened member (`None` for the rest), `cols` its
+/// columns.
 pub(crate) fn screen(
-    family: &[Option<Term>],
+    family: &[Option<(usize, usize)>],
     cols: &dyn Fn(usize) -> Vec<Vec<f64>>,
     resid: &[f64],
 ) -> Vec<usize> {
     let mut keep: Vec<usize> = Vec::new();
-    let mut scored: Vec<(Term, f64, usize)> = Vec::new();
-    for (i, t) in family.iter().enumerate() {
-        let Some(t) = t else {
-            keep.push(i);
-            continue;
-        };
-        scored.push((*t, explained(&cols(i), resid), i));
+    let mut scored: Vec<((usize, usize), f64, usize)> = Vec::new();
+    for (i, f) in family.iter().enumerate() {
+        match f {
+            None => keep.push(i),
+            Some(f) => scored.push((*f, explained(&cols(i), resid), i)),
+        }
     }
     scored.sort_by(|a, b| b.1.total_cmp(&a.1));
-    for t in Term::ALL {
-        keep.extend(
-            scored
-                .iter()
-                .filter(|(u, ..)| *u == t)
-                .take(KEPT_PER_TERM)
-                .map(|s| s.2),
-        );
+    let mut taken = std::collections::HashMap::new();
+    for ((group, cap), _, i) in scored {
+        let n = taken.entry(group).or_insert(0usize);
+        if *n < cap {
+            *n += 1;
+            keep.push(i);
+        }
     }
     keep.sort_unstable();
     keep
@@ -393,17 +400,25 @@ mod tests {
         let e: Vec<f64> = (0..50).map(|k| f64::from(k % 7) - 3.0).collect();
         let fam = vec![
             None,
-            Some(Term::Stribeck),
-            Some(Term::Stribeck),
-            Some(Term::Stribeck),
+            Some((0, 2)),
+            Some((0, 2)),
+            Some((0, 2)),
+            Some((1, 1)),
+            Some((1, 1)),
         ];
         let cols = |i: usize| -> Vec<Vec<f64>> {
             match i {
-                1 => vec![e.clone()],
+                1 | 5 => vec![e.clone()],
+                2 => vec![
+                    e.iter()
+                        .zip(0..)
+                        .map(|(v, k)| v + f64::from(k % 3))
+                        .collect(),
+                ],
                 _ => vec![(0..50).map(f64::from).collect()],
             }
         };
-        let kept = screen(&fam, &cols, &e);
-        assert!(kept.contains(&0) && kept.contains(&1));
+        // Group 0 keeps its best two, group 1 its best one.
+        assert_eq!(screen(&fam, &cols, &e), vec![0, 1, 2, 5]);
     }
 }

@@ -26,7 +26,9 @@ use super::hypotheses::{Hypothesis, LATENCY_ID, POWER_HYPOTHESES, RAW_DRIVING_CO
 use super::select::{
     PowerData, RIVAL_ALPHA, Rule, Selection, r2_rmse, regressor, state, trial_sse,
 };
-use super::stats::{STABILITY_DRAWS, improvement_p_value, resampled_stability};
+use super::stats::{
+    EXTENDS, STABILITY_DRAWS, encompassing, improvement_p_value, resampled_stability,
+};
 use super::stepwise::STABLE;
 use super::{DiscoveryReport, HypothesisScore, MechanismForms};
 use crate::{N_JOINTS, N_PARAMS};
@@ -197,7 +199,18 @@ pub(crate) fn apply(
     // The test of one claim: the final model against `alt`, the model without it.
     let test = |alt: &[f64], of: String, rival: Option<&'static str>, k: usize, level: f64| {
         let e = sse(alt);
-        let d: Vec<f64> = e.iter().zip(&e_full).map(|(a, b)| a - b).collect();
+        // Against the model without it, which the final model extends, the evidence is the
+        // selection gate's (`EXTENDS`); between alternatives, the squared-error difference.
+        let d: Vec<f64> = match of.is_empty() {
+            true => encompassing(
+                &rows.y,
+                (&full_pred, alt),
+                &rows.trial,
+                data.n_trials,
+                EXTENDS,
+            ),
+            false => e.iter().zip(&e_full).map(|(a, b)| a - b).collect(),
+        };
         let (seed, gate) = (0x5eed_0000 + k as u64, (RIVAL_ALPHA, 0.0));
         let worse: Vec<f64> = d.iter().map(|v| -v).collect();
         Remainder {
@@ -434,11 +447,18 @@ impl Remainder {
         }
     }
 
-    /// "X or Y": the claim's mechanism `m` or what stands in its place; an unstable claim
-    /// without any is only its form.
+    /// "X or Y": the claim's mechanism `m` or what stands in its place; a claim without any is
+    /// only its form, with the gate it failed.
     fn either(&self, m: &str) -> String {
+        let failed = match () {
+            _ if self.p_value >= self.level || self.p_value.is_nan() => {
+                "not significant against the model without it"
+            }
+            _ if self.gain() < self.min_gain => "below the held-out gain a claim must show",
+            _ => "not stable under resampling of the trials",
+        };
         match self.of.is_empty() {
-            true => format!("form of {m}, not stable under resampling of the trials"),
+            true => format!("form of {m}, {failed}"),
             false => format!("{m} or {}", self.of),
         }
     }
@@ -495,6 +515,7 @@ impl Remainder {
             confounded: true,
             unnamed: true,
             stability: Some(self.held),
+            level: self.level,
         }
     }
 }

@@ -3,7 +3,7 @@
 //! the base-term corrections; fields that meter the power itself left out with a note.
 
 use crate::N_JOINTS;
-use crate::diagnose::family::{Shape, Term};
+use crate::diagnose::family::{KEPT_PER_TERM, Shape, Term, step_levels};
 use crate::diagnose::fields::FieldTable;
 use crate::diagnose::reading_rows::Rows;
 use crate::diagnose::stats::{pearson, span, step_threshold};
@@ -16,6 +16,10 @@ const SAG_P: f64 = 1e-3;
 
 /// Within-trial share of a field's variance below which it is a slow state signal.
 pub(super) const SLOW_SHARE: f64 = 0.1;
+
+/// Quantiles of a continuous field at which a rail load's step is tried (a load that switches on
+/// past a joint angle anywhere in its range is within a tenth of the readings of one).
+const LOAD_STEP_QUANTILES: [f64; 9] = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9];
 
 /// How candidate names call session time.
 pub(super) const TIME_NAME: &str = "session time";
@@ -309,6 +313,9 @@ pub(super) fn generate(
         falls,
     } = meters_of_the_power(inp, rows, &rv, &single, notes);
     let mut kinds: Vec<(Kind, String)> = Vec::new();
+    // Per candidate where it is a screened member, its screening group and how many of the
+    // group are scored (None: always scored).
+    let mut family: Vec<Option<(usize, usize)>> = Vec::new();
     let mut slow = vec![Signal::Time];
     // A meter that falls as the power rises is the supply sagging under the load (a battery
     // voltage): at rest it reads the source's state (the charge), a slow state signal when it
@@ -322,12 +329,25 @@ pub(super) fn generate(
         }
     }
     for f in (0..names.len()).filter(|&f| usable[f] && single[f]) {
-        kinds.push((
-            Kind::Additive(f, span(&rv.raw[f])),
-            format!("field {}", names[f]),
-        ));
-        if let Some(thr) = step_threshold(&rv.raw[f]) {
-            kinds.push((Kind::Step(f, thr), format!("field {}", names[f])));
+        let group = format!("field {}", names[f]);
+        kinds.push((Kind::Additive(f, span(&rv.raw[f])), group.clone()));
+        family.push(None);
+        // A field that switches between levels steps at its midpoint; any other at a level
+        // chosen from the data (a load that switches on past a joint angle or a temperature):
+        // each level a screened member, the best of each field's scored (so a step on one field
+        // meets its rivals on the others, a command and the position that follows it).
+        match step_threshold(&rv.raw[f]) {
+            Some(thr) => {
+                kinds.push((Kind::Step(f, thr), group));
+                family.push(None);
+            }
+            None => {
+                let levels = step_levels(&rv.raw[f], &LOAD_STEP_QUANTILES);
+                for level in levels.map(|l| l.0).unwrap_or_default() {
+                    kinds.push((Kind::Step(f, level), group.clone()));
+                    family.push(Some((LOADS + 1 + f, 1)));
+                }
+            }
         }
         if within_share(&rv.raw[f], &rows.trial, n_trials) < SLOW_SHARE {
             slow.push(Signal::Field(f));
@@ -344,15 +364,15 @@ pub(super) fn generate(
     }
     // The family: every term × every slow signal it can pair with × every shape; the linear
     // forms of the base terms and the drive current always scored, the rest screened.
-    let mut family: Vec<Option<Term>> = vec![None; kinds.len()];
-    for t in Term::ALL {
+    for (ti, t) in Term::ALL.into_iter().enumerate() {
         for s in slow
             .iter()
             .filter(|s| t.per_joint() || !matches!(s, Signal::Family(..)))
         {
             let g = format!("{t:?} × {}", signal_name(s, names));
             for shape in Shape::all_for(&signal_values(s, &rv)) {
-                family.push(crate::diagnose::family::screened(t, shape).then_some(t));
+                let screened = crate::diagnose::family::screened(t, shape);
+                family.push(screened.then_some((ti, KEPT_PER_TERM)));
                 kinds.push((Kind::Product(t, s.clone(), shape), g.clone()));
             }
         }

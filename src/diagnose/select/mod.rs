@@ -57,6 +57,14 @@ pub struct MechanismForms {
     /// its test passed.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stability: Option<f64>,
+    /// The level `p_value` had to fall below ([`RIVAL_ALPHA`] between mechanisms; the rule's
+    /// level for a claim tested against the model without it).
+    #[serde(default = "rival_alpha")]
+    pub level: f64,
+}
+
+fn rival_alpha() -> f64 {
+    RIVAL_ALPHA
 }
 
 impl MechanismForms {
@@ -72,11 +80,12 @@ impl MechanismForms {
         );
         match self.stability {
             Some(s) => format!(
-                "{test} (needed < {RIVAL_ALPHA}); held in {:.0} % of trial resamples (needed ≥ {:.0} %)",
+                "{test} (needed < {}); held in {:.0} % of trial resamples (needed ≥ {:.0} %)",
+                self.level,
                 100.0 * s,
                 100.0 * super::stepwise::STABLE
             ),
-            None => format!("{test} (needed < {RIVAL_ALPHA})"),
+            None => format!("{test} (needed < {})", self.level),
         }
     }
 
@@ -199,6 +208,7 @@ fn versus(
         confounded: w.score.accepted && (p_value >= alpha || p_value.is_nan()),
         unnamed: false,
         stability: None,
+        level: RIVAL_ALPHA,
     }
 }
 
