@@ -45,8 +45,8 @@ pub use sql::{Key, Pick, TrialId};
 pub struct Engine {
     ctx: SessionContext,
     runtime: tokio::runtime::Runtime,
-    /// The Parquet files (absolute paths) with their sizes in bytes.
-    paths: Vec<(PathBuf, u64)>,
+    /// The Parquet files, located for the engine.
+    paths: Vec<PartitionedFile>,
     /// The Parquet files under the given paths.
     pub files: usize,
     /// The arm's joint names from the first file's metadata (None: it names none).
@@ -155,17 +155,24 @@ impl Engine {
                 );
             }
         }
-        let sized = |f: &PathBuf| Ok((std::path::absolute(f)?, std::fs::metadata(f)?.len()));
-        let sized: Vec<(PathBuf, u64)> = files.iter().map(sized).collect::<Result<_>>()?;
+        let urls = (files.iter()).map(|f| Ok(std::path::absolute(f)?.display().to_string()));
+        let urls: Vec<String> = urls.collect::<Result<_>>()?;
+        let locate = |(f, url): (&PathBuf, &String)| {
+            let mut file = PartitionedFile::new(String::new(), std::fs::metadata(f)?.len());
+            file.object_meta.location = object_store::path::Path::from_absolute_path(url)?;
+            Ok(file)
+        };
+        let located = files.iter().zip(&urls).map(locate);
+        let located: Vec<PartitionedFile> = located.collect::<Result<_>>()?;
         let runtime = tokio::runtime::Builder::new_multi_thread()
             .build()
             .context("starting the query engine's runtime")?;
         // Batches of 2,048 rows, not 8,192: the block join makes five of each, and the IMU
         // filter's join holds them; peak RSS at 20 × 30 281 → 217 MB, CPU the same. No cache of
-        // the files' footers and statistics (50 + 20 MB by default, filled with every file): a
-        // footer is read again per query (docs/fleet.md, Memory). Footers are fetched one file
-        // at a time with a 64 KiB first read (default: 32 files at once, 512 KiB each, for
-        // footers of ≈ 20 KiB): 30 days of 20 robots 180 → 152 MB, 1 day unchanged.
+        // the files' footers (50 MB by default, filled with every file) and no file statistics
+        // (20 KB a file, even unknown ones): a footer is read again per query, with a 64 KiB
+        // first read (default 512 KiB, for footers of ≈ 20 KiB; docs/fleet.md, Memory). No
+        // dynamic filters from joins: their state would outlive the plan's chunks.
         let config = (SessionConfig::new().with_batch_size(2048))
             .set_bool("datafusion.execution.parquet.pushdown_filters", true)
             .set_bool("datafusion.execution.collect_statistics", false)
@@ -173,11 +180,9 @@ impl Engine {
                 "datafusion.optimizer.enable_join_dynamic_filter_pushdown",
                 false,
             )
-            .set_usize("datafusion.execution.meta_fetch_concurrency", 1)
             .set_usize("datafusion.execution.parquet.metadata_size_hint", 64 << 10);
         let cache = datafusion::execution::runtime_env::RuntimeEnvBuilder::new()
-            .with_metadata_cache_limit(0)
-            .with_file_statistics_cache_limit(0);
+            .with_metadata_cache_limit(0);
         // The sums' ~1,300 aggregate expressions have no common subexpression worth sharing
         // (each product appears once), and the rule that looks for them hashes every expression
         // of every pass: most of a query's time before the first row is read.
@@ -199,12 +204,11 @@ impl Engine {
             ..Default::default()
         };
         let parts = ctx.copied_config().target_partitions();
-        let urls: Vec<String> = (sized.iter().take(parts))
-            .map(|p| p.0.display().to_string())
-            .collect();
         runtime
             .block_on(async {
-                let df = ctx.read_parquet(urls, options).await?;
+                let df = ctx
+                    .read_parquet(urls[..parts.min(urls.len())].to_vec(), options)
+                    .await?;
                 ctx.register_table("rows", df.into_view())?;
                 anyhow::Ok(())
             })
@@ -212,7 +216,7 @@ impl Engine {
         Ok(Engine {
             ctx,
             runtime,
-            paths: sized,
+            paths: located,
             files: files.len(),
             joint_names,
         })
@@ -240,7 +244,7 @@ impl Engine {
 /// metrics (the engine keeps a few per file read): the chunk's files are its only per-file state.
 fn reading(
     plan: Arc<dyn ExecutionPlan>,
-    files: &[(PathBuf, u64)],
+    files: &[PartitionedFile],
 ) -> datafusion::error::Result<Transformed<Arc<dyn ExecutionPlan>>> {
     let scan = plan.downcast_ref::<DataSourceExec>();
     let Some(config) = scan.and_then(|s| s.data_source().downcast_ref::<FileScanConfig>()) else {
@@ -262,14 +266,8 @@ fn reading(
         None => Arc::new(source),
     };
     let mut groups = vec![Vec::new(); config.file_groups.len().max(1)];
-    for (k, (path, size)) in files.iter().enumerate() {
-        let location = object_store::path::Path::from_absolute_path(path)
-            .map_err(|e| datafusion::error::DataFusionError::External(e.into()))?;
-        let mut file = PartitionedFile::new(String::new(), *size);
-        file.object_meta.location = location;
-        let n = groups.len();
-        groups[k % n].push(file);
-    }
+    let n = groups.len();
+    (files.iter().enumerate()).for_each(|(k, f)| groups[k % n].push(f.clone()));
     config.file_groups = groups.into_iter().map(FileGroup::new).collect();
     Ok(Transformed::yes(DataSourceExec::from_data_source(config)))
 }
