@@ -563,7 +563,7 @@ fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<Str
         order.iter().enumerate().for_each(|(r, &s)| rank[s] = r);
         w.sessions = order.iter().map(|&s| w.sessions[s].clone()).collect();
         w.trials.iter_mut().for_each(|t| t.0 = rank[t.0]);
-        w.trials.sort_by(|a, b| (a.0, a.1).cmp(&(b.0, b.1)));
+        w.trials.sort_by_key(|t| (t.0, t.1));
         // A session in two files is a trial in two chunks (its σ_ω is the same on every row).
         w.trials.dedup_by_key(|t| (t.0, t.1));
         let stat = |&(s, t, sigma): &(usize, u32, f64)| TrialStat::new(s, t as usize, sigma);
@@ -601,8 +601,8 @@ fn residual_pass(
     }
     let (by, target, filter) = (&opts.by, opts.target.as_str(), opts.filter.as_deref());
     let q = sql::residuals(by, &thetas, target, filter);
-    // Each group's trials' mean residuals, by (session index, trial).
-    let mut sums: BTreeMap<Vec<String>, BTreeMap<(usize, u32), (f64, f64)>> = BTreeMap::new();
+    // Each fitted group's trials' residual sums and rows, in the order of its trials.
+    let mut sums: BTreeMap<Vec<String>, Vec<(f64, f64)>> = BTreeMap::new();
     for b in run.run(&format!("residuals_{pass}"), q)? {
         let (n, sum) = (numbers(&b, "n")?, numbers(&b, "s_resid")?);
         for (r, (key, id)) in result_rows(&b, by)?.into_iter().enumerate() {
@@ -613,17 +613,23 @@ fn residual_pass(
             let s = w
                 .session_index(&robot, &session)
                 .context("a trial of no session")?;
-            let t = sums.entry(key).or_default().entry((s, trial)).or_default();
+            let k = (w
+                .trials
+                .binary_search_by_key(&(s, trial), |t| (t.0, t.1))
+                .ok())
+            .context("a trial of no group")?;
+            let len = w.trials.len();
+            let t = &mut sums.entry(key).or_insert_with(|| vec![(0.0, 0.0); len])[k];
             (t.0, t.1) = (t.0 + sum.value(r), t.1 + n.value(r));
         }
     }
     for (key, _) in thetas {
         let w = groups.get_mut(&key).context("a fitted group")?;
         let m = sums.remove(&key).unwrap_or_default();
-        let residuals: Vec<TrialStat> = (w.trials.iter())
-            .filter(|&&(s, t, _)| !crate::trial::is_rejected(&w.rejections, s, t as usize))
-            .map(|&(s, t, _)| {
-                let (sum, n) = m.get(&(s, t)).copied().unwrap_or((f64::NAN, 0.0));
+        let residuals: Vec<TrialStat> = (w.trials.iter().enumerate())
+            .filter(|(_, (s, t, _))| !crate::trial::is_rejected(&w.rejections, *s, *t as usize))
+            .map(|(k, &(s, t, _))| {
+                let (sum, n) = m.get(k).copied().unwrap_or((f64::NAN, 0.0));
                 TrialStat::new(s, t as usize, sum / n)
             })
             .collect();
