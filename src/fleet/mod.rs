@@ -230,7 +230,10 @@ impl Engine {
             let plan = self.ctx.sql(sql).await?.create_physical_plan().await?;
             let (mut out, mut bytes) = (Vec::new(), 0);
             for files in self.paths.chunks(chunk.max(1)) {
-                let plan = Arc::clone(&plan).transform_up(|p| reading(p, files))?.data;
+                let plan = Arc::clone(&plan).transform_up(|p| reading(p, files))?;
+                // Else every chunk would read the files the query was planned on.
+                anyhow::ensure!(plan.transformed, "the query plan has no Parquet scan");
+                let plan = plan.data;
                 let task = self.ctx.task_ctx();
                 out.extend(datafusion::physical_plan::collect(Arc::clone(&plan), task).await?);
                 bytes += bytes_scanned(plan.as_ref());
