@@ -28,6 +28,11 @@ use datafusion::arrow::array::{Array, Float64Array, Int64Array, StringArray};
 use datafusion::arrow::compute::cast;
 use datafusion::arrow::datatypes::DataType;
 use datafusion::arrow::record_batch::RecordBatch;
+use datafusion::common::tree_node::{Transformed, TreeNode};
+use datafusion::datasource::listing::PartitionedFile;
+use datafusion::datasource::physical_plan::{FileGroup, FileScanConfig, FileSource, ParquetSource};
+use datafusion::datasource::source::DataSourceExec;
+use datafusion::object_store;
 use datafusion::physical_plan::ExecutionPlan;
 use datafusion::prelude::{ParquetReadOptions, SessionConfig, SessionContext};
 
@@ -40,6 +45,8 @@ pub use sql::{Key, Pick, TrialId};
 pub struct Engine {
     ctx: SessionContext,
     runtime: tokio::runtime::Runtime,
+    /// The Parquet files, located for the engine.
+    paths: Vec<PartitionedFile>,
     /// The Parquet files under the given paths.
     pub files: usize,
     /// The arm's joint names from the first file's metadata (None: it names none).
@@ -150,22 +157,32 @@ impl Engine {
         }
         let urls = (files.iter()).map(|f| Ok(std::path::absolute(f)?.display().to_string()));
         let urls: Vec<String> = urls.collect::<Result<_>>()?;
+        let locate = |(f, url): (&PathBuf, &String)| {
+            let mut file = PartitionedFile::new(String::new(), std::fs::metadata(f)?.len());
+            file.object_meta.location = object_store::path::Path::from_absolute_path(url)?;
+            Ok(file)
+        };
+        let located = files.iter().zip(&urls).map(locate);
+        let located: Vec<PartitionedFile> = located.collect::<Result<_>>()?;
         let runtime = tokio::runtime::Builder::new_multi_thread()
             .build()
             .context("starting the query engine's runtime")?;
         // Batches of 2,048 rows, not 8,192: the block join makes five of each, and the IMU
         // filter's join holds them; peak RSS at 20 × 30 281 → 217 MB, CPU the same. No cache of
-        // the files' footers and statistics (50 + 20 MB by default, filled with every file): a
-        // footer is read again per query (docs/fleet.md, Memory). Footers are fetched one file
-        // at a time with a 64 KiB first read (default: 32 files at once, 512 KiB each, for
-        // footers of ≈ 20 KiB): 30 days of 20 robots 180 → 152 MB, 1 day unchanged.
+        // the files' footers (50 MB by default, filled with every file) and no file statistics
+        // (20 KB a file, even unknown ones): a footer is read again per query, with a 64 KiB
+        // first read (default 512 KiB, for footers of ≈ 20 KiB; docs/fleet.md, Memory). No
+        // dynamic filters from joins: their state would outlive the plan's chunks.
         let config = (SessionConfig::new().with_batch_size(2048))
             .set_bool("datafusion.execution.parquet.pushdown_filters", true)
-            .set_usize("datafusion.execution.meta_fetch_concurrency", 1)
+            .set_bool("datafusion.execution.collect_statistics", false)
+            .set_bool(
+                "datafusion.optimizer.enable_join_dynamic_filter_pushdown",
+                false,
+            )
             .set_usize("datafusion.execution.parquet.metadata_size_hint", 64 << 10);
         let cache = datafusion::execution::runtime_env::RuntimeEnvBuilder::new()
-            .with_metadata_cache_limit(0)
-            .with_file_statistics_cache_limit(0);
+            .with_metadata_cache_limit(0);
         // The sums' ~1,300 aggregate expressions have no common subexpression worth sharing
         // (each product appears once), and the rule that looks for them hashes every expression
         // of every pass: most of a query's time before the first row is read.
@@ -180,14 +197,18 @@ impl Engine {
             .with_optimizer_rules(rules.collect())
             .build();
         let ctx = SessionContext::new_with_state(state);
-        // The files are listed here, so none is skipped for its name.
+        // The files are listed here, so none is skipped for its name. The table is one file per
+        // partition: each query is planned on it, then run on the files CHUNK at a time.
         let options = ParquetReadOptions {
             file_extension: "",
             ..Default::default()
         };
+        let parts = ctx.copied_config().target_partitions();
         runtime
             .block_on(async {
-                let df = ctx.read_parquet(urls, options).await?;
+                let df = ctx
+                    .read_parquet(urls[..parts.min(urls.len())].to_vec(), options)
+                    .await?;
                 ctx.register_table("rows", df.into_view())?;
                 anyhow::Ok(())
             })
@@ -195,20 +216,63 @@ impl Engine {
         Ok(Engine {
             ctx,
             runtime,
+            paths: located,
             files: files.len(),
             joint_names,
         })
     }
 
-    /// Run one query: its result and the bytes of Parquet data it read.
-    pub fn query(&self, sql: &str) -> Result<(Vec<RecordBatch>, usize)> {
+    /// Run one query: planned once, run on the files `chunk` at a time (the results of each
+    /// chunk follow each other: a group in two chunks has a result row in each); its result and
+    /// the bytes of Parquet data it read.
+    pub fn query(&self, sql: &str, chunk: usize) -> Result<(Vec<RecordBatch>, usize)> {
         self.runtime.block_on(async {
             let plan = self.ctx.sql(sql).await?.create_physical_plan().await?;
-            let out =
-                datafusion::physical_plan::collect(Arc::clone(&plan), self.ctx.task_ctx()).await?;
-            Ok((out, bytes_scanned(plan.as_ref())))
+            let (mut out, mut bytes) = (Vec::new(), 0);
+            for files in self.paths.chunks(chunk.max(1)) {
+                let plan = Arc::clone(&plan).transform_up(|p| reading(p, files))?;
+                // Else every chunk would read the files the query was planned on.
+                anyhow::ensure!(plan.transformed, "the query plan has no Parquet scan");
+                let plan = plan.data;
+                let task = self.ctx.task_ctx();
+                out.extend(datafusion::physical_plan::collect(Arc::clone(&plan), task).await?);
+                bytes += bytes_scanned(plan.as_ref());
+            }
+            Ok((out, bytes))
         })
     }
+}
+
+/// A plan's Parquet scan made to read `files` (dealt to its partitions in turn), with fresh
+/// metrics (the engine keeps a few per file read): the chunk's files are its only per-file state.
+fn reading(
+    plan: Arc<dyn ExecutionPlan>,
+    files: &[PartitionedFile],
+) -> datafusion::error::Result<Transformed<Arc<dyn ExecutionPlan>>> {
+    let scan = plan.downcast_ref::<DataSourceExec>();
+    let Some(config) = scan.and_then(|s| s.data_source().downcast_ref::<FileScanConfig>()) else {
+        return Ok(Transformed::no(plan));
+    };
+    let Some(old) = config.file_source.downcast_ref::<ParquetSource>() else {
+        return Ok(Transformed::no(plan));
+    };
+    let mut source = ParquetSource::new(old.table_schema().clone())
+        .with_table_parquet_options(old.table_parquet_options().clone());
+    if let Some(p) = old.filter() {
+        source = source.with_predicate(p);
+    }
+    let mut config = config.clone();
+    config.file_source = match old.projection() {
+        Some(p) => source
+            .try_pushdown_projection(p)?
+            .unwrap_or(Arc::new(source)),
+        None => Arc::new(source),
+    };
+    let mut groups = vec![Vec::new(); config.file_groups.len().max(1)];
+    let n = groups.len();
+    (files.iter().enumerate()).for_each(|(k, f)| groups[k % n].push(f.clone()));
+    config.file_groups = groups.into_iter().map(FileGroup::new).collect();
+    Ok(Transformed::yes(DataSourceExec::from_data_source(config)))
 }
 
 /// One result column cast to `to` (the engine may return any numeric type; keys as text).
@@ -250,16 +314,6 @@ pub struct FleetOptions {
     pub cascade: Cascade,
     /// Keep each query's result as CSV in [`FleetFit::queries`] (for `--save-sql`; else empty).
     pub keep_results: bool,
-}
-
-/// One trial's first moments in one group.
-#[derive(Debug, Clone)]
-struct TrialMoments {
-    id: TrialId,
-    n: f64,
-    sy: f64,
-    s: [f64; N_PARAMS],
-    sigma_omega: f64,
 }
 
 /// The fitted model of one group.
@@ -306,7 +360,8 @@ pub struct FleetFit {
 }
 
 struct Work {
-    trials: Vec<TrialMoments>,
+    /// The group's trials: index into `sessions`, trial index, σ_ω (sorted).
+    trials: Vec<(usize, u32, f64)>,
     sessions: Vec<(String, String)>,
     /// Rows of the group.
     rows: usize,
@@ -322,11 +377,8 @@ struct Work {
 }
 
 impl Work {
-    fn session_index(&self, id: &TrialId) -> usize {
-        self.sessions
-            .iter()
-            .position(|(r, s)| *r == id.0 && *s == id.1)
-            .unwrap_or(usize::MAX)
+    fn session_index(&self, robot: &str, session: &str) -> Option<usize> {
+        (self.sessions.iter()).position(|(r, s)| r == robot && s == session)
     }
 
     fn fit(&self) -> Result<crate::lsq::Fit> {
@@ -356,15 +408,19 @@ fn normal_sums(batches: &[RecordBatch], by: &[Key]) -> Result<BTreeMap<Vec<Strin
         }
         for (r, (key, _)) in result_rows(b, by)?.into_iter().enumerate() {
             let s = (out.entry(key)).or_insert_with(|| (Gram::zeros(N_PARAMS), 0.0));
-            (s.0.n, s.1) = (n.value(r) as usize, sy.value(r));
+            // Summed: a group's rows may come in several chunks of files.
+            if block.value(r) == 0 {
+                (s.0.n, s.1) = (s.0.n + n.value(r) as usize, s.1 + sy.value(r));
+            }
             for a in 0..sql::BLOCK {
                 let i = block.value(r) as usize * sql::BLOCK + a;
                 for j in i..=N_PARAMS {
                     let v = g[a * (N_PARAMS + 1) + j].value(r);
                     match (i, j) {
-                        (N_PARAMS, _) => s.0.yy = v,
-                        (_, N_PARAMS) => s.0.h[i] = v,
-                        _ => (s.0.g[(i, j)], s.0.g[(j, i)]) = (v, v),
+                        (N_PARAMS, _) => s.0.yy += v,
+                        (_, N_PARAMS) => s.0.h[i] += v,
+                        _ if i == j => s.0.g[(i, i)] += v,
+                        _ => (s.0.g[(i, j)] += v, s.0.g[(j, i)] += v).1,
                     }
                 }
             }
@@ -440,6 +496,9 @@ fn pending(groups: &mut BTreeMap<Vec<String>, Work>) -> Vec<(Vec<String>, TrialI
     out
 }
 
+/// Files a query reads at a time (all of them for `--save-sql`, whose results are whole).
+const CHUNK: usize = 50;
+
 /// Runs the queries, keeping each with its result (for `--save-sql`) and the bytes read.
 struct Runner<'a> {
     engine: &'a Engine,
@@ -450,8 +509,10 @@ struct Runner<'a> {
 
 impl Runner<'_> {
     fn run(&mut self, name: &str, q: String) -> Result<Vec<RecordBatch>> {
-        let (out, bytes) =
-            (self.engine.query(&q)).with_context(|| format!("running the {name} query"))?;
+        let (out, bytes) = (self
+            .engine
+            .query(&q, if self.keep { usize::MAX } else { CHUNK }))
+        .with_context(|| format!("running the {name} query"))?;
         let csv = (self.keep.then(|| to_csv(&out)).transpose()?).unwrap_or_default();
         self.queries.push((name.to_string(), q, csv));
         self.bytes_scanned += bytes;
@@ -459,21 +520,18 @@ impl Runner<'_> {
     }
 }
 
-/// Step 1, two scans: the groups with their trials' moments, sessions and the IMU filter's
-/// rejections; then the normal equations of the trials the IMU filter kept.
+/// Step 1, two scans: the groups with their trials, sessions and the IMU filter's rejections;
+/// then the normal equations of the trials the IMU filter kept.
 fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<String>, Work>> {
     let (by, target, filter) = (&opts.by, opts.target.as_str(), opts.filter.as_deref());
     let mut groups: BTreeMap<Vec<String>, Work> = BTreeMap::new();
     for b in run.run("moments", sql::moments(by, target, filter))? {
-        let num = |c: &str| numbers(&b, c);
-        let (n, sy, sigma) = (num("n")?, num("sy")?, num("sigma_omega")?);
+        let (n, sigma) = (numbers(&b, "n")?, numbers(&b, "sigma_omega")?);
         // Reading times stay integer nanoseconds (an f64 rounds them by up to 256 ns).
         let int = |name| column_as::<Int64Array>(&b, name, DataType::Int64);
         let (t0, t1) = (int("t_min")?, int("t_max")?);
-        let s: Result<Vec<_>> = (0..N_PARAMS).map(|p| num(&format!("s_{p}"))).collect();
-        let s = s?;
         for (r, (key, id)) in result_rows(&b, by)?.into_iter().enumerate() {
-            let id = id.context("moments without trial columns")?;
+            let (robot, session, trial) = id.context("moments without trial columns")?;
             let w = groups.entry(key).or_insert_with(|| Work {
                 trials: Vec::new(),
                 sessions: Vec::new(),
@@ -485,16 +543,13 @@ fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<Str
                 error: None,
                 done: false,
             });
-            w.sessions.push((id.0.clone(), id.1.clone()));
+            let s = w.session_index(&robot, &session).unwrap_or_else(|| {
+                w.sessions.push((robot, session));
+                w.sessions.len() - 1
+            });
             w.rows += n.value(r) as usize;
             w.t_ns = (w.t_ns.0.min(t0.value(r)), w.t_ns.1.max(t1.value(r)));
-            w.trials.push(TrialMoments {
-                id,
-                n: n.value(r),
-                sy: sy.value(r),
-                s: std::array::from_fn(|p| s[p].value(r)),
-                sigma_omega: sigma.value(r),
-            });
+            w.trials.push((s, trial, sigma.value(r)));
         }
     }
     if groups.is_empty() {
@@ -502,14 +557,19 @@ fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<Str
         bail!("no rows of target {target} in the tables{picked}");
     }
     for w in groups.values_mut() {
-        // The engine returns rows in no fixed order: trials by id, so the filters see the same
-        // sequence (and list their rejections in the same order) on every run.
-        w.trials.sort_by(|a, b| a.id.cmp(&b.id));
-        w.sessions.sort();
-        w.sessions.dedup();
-        let stat = |t: &TrialMoments| {
-            TrialStat::new(w.session_index(&t.id), t.id.2 as usize, t.sigma_omega)
-        };
+        // The engine returns rows in no fixed order: sessions by name and trials by session
+        // and index, so the filters see the same sequence (and list their rejections in the
+        // same order) on every run.
+        let mut order: Vec<usize> = (0..w.sessions.len()).collect();
+        order.sort_by(|&a, &b| w.sessions[a].cmp(&w.sessions[b]));
+        let mut rank = vec![0; order.len()];
+        order.iter().enumerate().for_each(|(r, &s)| rank[s] = r);
+        w.sessions = order.iter().map(|&s| w.sessions[s].clone()).collect();
+        w.trials.iter_mut().for_each(|t| t.0 = rank[t.0]);
+        w.trials.sort_by_key(|t| (t.0, t.1));
+        // A session in two files is a trial in two chunks (its σ_ω is the same on every row).
+        w.trials.dedup_by_key(|t| (t.0, t.1));
+        let stat = |&(s, t, sigma): &(usize, u32, f64)| TrialStat::new(s, t as usize, sigma);
         let sigmas: Vec<TrialStat> = w.trials.iter().map(stat).collect();
         w.rejections = opts.cascade.imu(&sigmas);
     }
@@ -523,33 +583,64 @@ fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<Str
     Ok(groups)
 }
 
-/// Step 2, residual pass `pass` of one group: fit its kept trials, reject by mean residual;
-/// the group is done when nothing more is rejected (or its fit fails).
-fn residual_pass(w: &mut Work, pass: usize, opts: &FleetOptions) {
-    let theta = match w.fit().and_then(|f| f.theta49()) {
-        Ok(t) => t,
-        Err(e) => {
-            w.error = Some(format!("{e:#}"));
-            w.done = true;
-            return;
+/// Step 2, residual pass `pass` of the groups not done: fit each on its kept trials, one scan
+/// for every trial's mean residual under its group's θ, reject by it; a group is done when
+/// nothing more is rejected (or its fit fails).
+fn residual_pass(
+    run: &mut Runner,
+    groups: &mut BTreeMap<Vec<String>, Work>,
+    pass: usize,
+    opts: &FleetOptions,
+) -> Result<()> {
+    let mut thetas = Vec::new();
+    for (key, w) in groups.iter_mut().filter(|(_, w)| !w.done) {
+        match w.fit().and_then(|f| f.theta49()) {
+            Ok(t) => thetas.push((key.clone(), t)),
+            Err(e) => (w.error, w.done) = (Some(format!("{e:#}")), true),
         }
-    };
-    let residuals: Vec<TrialStat> = w
-        .trials
-        .iter()
-        .filter(|t| {
-            let s = w.session_index(&t.id);
-            !crate::trial::is_rejected(&w.rejections, s, t.id.2 as usize)
-        })
-        .map(|t| {
-            let predicted: f64 = theta.iter().zip(&t.s).map(|(a, b)| a * b).sum();
-            let mean = (t.sy - predicted) / t.n;
-            TrialStat::new(w.session_index(&t.id), t.id.2 as usize, mean)
-        })
-        .collect();
-    let mut rejections = std::mem::take(&mut w.rejections);
-    w.done = !opts.cascade.residual_pass(pass, &mut rejections, residuals);
-    w.rejections = rejections;
+    }
+    if thetas.is_empty() {
+        return Ok(());
+    }
+    let (by, target, filter) = (&opts.by, opts.target.as_str(), opts.filter.as_deref());
+    let q = sql::residuals(by, &thetas, target, filter);
+    // Each fitted group's trials' residual sums and rows, in the order of its trials.
+    let mut sums: BTreeMap<Vec<String>, Vec<(f64, f64)>> = BTreeMap::new();
+    for b in run.run(&format!("residuals_{pass}"), q)? {
+        let (n, sum) = (numbers(&b, "n")?, numbers(&b, "s_resid")?);
+        for (r, (key, id)) in result_rows(&b, by)?.into_iter().enumerate() {
+            let (robot, session, trial) = id.context("residuals without trial columns")?;
+            let w = groups
+                .get(&key)
+                .context(format!("group {key:?} has no trials"))?;
+            let s = w
+                .session_index(&robot, &session)
+                .context("a trial of no session")?;
+            let k = (w
+                .trials
+                .binary_search_by_key(&(s, trial), |t| (t.0, t.1))
+                .ok())
+            .context("a trial of no group")?;
+            let len = w.trials.len();
+            let t = &mut sums.entry(key).or_insert_with(|| vec![(0.0, 0.0); len])[k];
+            (t.0, t.1) = (t.0 + sum.value(r), t.1 + n.value(r));
+        }
+    }
+    for (key, _) in thetas {
+        let w = groups.get_mut(&key).context("a fitted group")?;
+        let m = sums.remove(&key).unwrap_or_default();
+        let residuals: Vec<TrialStat> = (w.trials.iter().enumerate())
+            .filter(|(_, (s, t, _))| !crate::trial::is_rejected(&w.rejections, *s, *t as usize))
+            .map(|(k, &(s, t, _))| {
+                let (sum, n) = m.get(k).copied().unwrap_or((f64::NAN, 0.0));
+                TrialStat::new(s, t as usize, sum / n)
+            })
+            .collect();
+        w.done = !opts
+            .cascade
+            .residual_pass(pass, &mut w.rejections, residuals);
+    }
+    Ok(())
 }
 
 /// Step 3: a group's final fit on its kept trials.
@@ -629,11 +720,11 @@ pub fn fit_fleet(
         if pass > opts.cascade.passes || groups.values().all(|w| w.done) {
             break;
         }
-        let n = groups.len();
-        progress(&format!("residual pass {pass}: fitting {n} groups"));
-        for w in groups.values_mut().filter(|w| !w.done) {
-            residual_pass(w, pass, opts);
-        }
+        let n = groups.values().filter(|w| !w.done).count();
+        progress(&format!(
+            "residual pass {pass}: fitting {n} groups, scanning their residuals"
+        ));
+        residual_pass(&mut run, &mut groups, pass, opts)?;
     }
     progress("final fits");
     let mut groups: Vec<GroupFit> = (groups.into_iter())

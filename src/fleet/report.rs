@@ -23,22 +23,13 @@ pub fn param_label(p: usize, joints: &[String]) -> String {
 }
 
 /// A markdown section `title` with a table of `rows` under `header` (comma-separated; a row
-/// "none" when empty).
-fn table(s: &mut String, title: &str, header: &str, rows: impl Iterator<Item = String>) {
+/// "none" when empty). Each row is one cell of the row's cells joined by ` | `.
+fn table(s: &mut String, title: &str, header: &str, rows: impl Iterator<Item = Vec<String>>) {
     let header: Vec<&str> = header.split(',').collect();
-    let _ = writeln!(
-        s,
-        "\n## {title}\n\n| {} |\n|{}",
-        header.join(" | "),
-        "---|".repeat(header.len())
-    );
-    let before = s.len();
-    rows.for_each(|r| {
-        let _ = writeln!(s, "{r}");
-    });
-    if s.len() == before {
-        let _ = writeln!(s, "| none |{}", " |".repeat(header.len() - 1));
-    }
+    let _ = write!(s, "\n## {title}\n\n");
+    let mut rows = rows.peekable();
+    let none = rows.peek().is_none().then(|| vec!["none".to_string()]);
+    crate::plot::table(s, &header, rows.chain(none));
 }
 
 /// The markdown report.
@@ -57,7 +48,9 @@ pub fn markdown(fit: &FleetFit, drift: Option<&Drift>, joints: &[String]) -> Str
         let (key, note) = (g.key.join(" | "), g.error.as_deref().unwrap_or(""));
         let (rows, used, trials) = (g.rows, g.rows_used, g.trials);
         let (r2, rmse) = (g.r2, g.rmse);
-        format!("| {key} | {rows} | {used} | {trials} | {imu} / {rejected} | {r2:.4} | {rmse:.3} | {note} |")
+        vec![format!(
+            "{key} | {rows} | {used} | {trials} | {imu} / {rejected} | {r2:.4} | {rmse:.3} | {note}"
+        )]
     });
     table(&mut s, "Groups", &header, groups);
     let Some(d) = drift else {
@@ -70,7 +63,7 @@ pub fn markdown(fit: &FleetFit, drift: Option<&Drift>, joints: &[String]) -> Str
         let (robot, param) = (&t.robot, param_label(t.param, joints));
         let (level, level_se, slope, slope_se, z) = (t.level, t.level_se, t.slope, t.slope_se, t.z);
         let change = 100.0 * slope * span / level;
-        format!("| {robot} | {param} | {level:.4} ± {level_se:.4} | {slope:+.4} ± {slope_se:.4} | {z:+.1} | {change:+.1} % |")
+        vec![format!("{robot} | {param} | {level:.4} ± {level_se:.4} | {slope:+.4} ± {slope_se:.4} | {z:+.1} | {change:+.1} %")]
     });
     let title = format!("Drifts (slope beyond {} calibrated standard errors)", d.z);
     let header = "robot,parameter,level at start,slope per week,z,change over the periods";
@@ -78,7 +71,9 @@ pub fn markdown(fit: &FleetFit, drift: Option<&Drift>, joints: &[String]) -> Str
     let levels = d.outliers.iter().map(|o| {
         let (robot, param) = (&o.robot, param_label(o.param, joints));
         let (level, fleet, z) = (o.level, o.fleet_level, o.z);
-        format!("| {robot} | {param} | {level:.4} | {fleet:.4} | {z:+.1} |")
+        vec![format!(
+            "{robot} | {param} | {level:.4} | {fleet:.4} | {z:+.1}"
+        )]
     });
     let title = format!(
         "Robots differing from the fleet (level at start beyond {} calibrated standard errors)",

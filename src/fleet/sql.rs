@@ -100,51 +100,65 @@ pub enum Pick<'a> {
     Except(&'a [(Vec<String>, TrialId)]),
 }
 
-/// Every row.
-pub const ALL: Pick<'static> = Pick::Except(&[]);
-
 fn quote(s: &str) -> String {
     format!("'{}'", s.replace('\'', "''"))
 }
 
-/// `FROM rows …` with the pick's join (`LEFT JOIN` and no match for [`Pick::Except`]) and the
-/// `WHERE` clause (`target`, the user's filter).
-fn from_where(keys: &[Key], pick: Pick, target: &str, filter: Option<&str>) -> String {
+/// `FROM` the row table and the `WHERE` clause (`target`, the user's filter); with `x` =
+/// (join, rows of group key values and the rest as SQL, the rest's column names), the inline
+/// table `x` joined first on the group keys (and the trial when it names `x_trial`). The inline
+/// table comes first in the text: without file statistics the engine builds its joins' hash
+/// tables (and buffers a cross join) from the left side, so the row table must be the right one.
+fn from_where(keys: &[Key], x: Option<Inline>, target: &str, filter: Option<&str>) -> String {
     let mut conditions = vec![format!("target = {}", quote(target))];
     if let Some(f) = filter {
         conditions.push(format!("({f})"));
     }
+    let Some((join, list, names)) = x.filter(|x| !x.1.is_empty()) else {
+        return format!("FROM rows\nWHERE {}", conditions.join(" AND "));
+    };
+    let values: Vec<String> = (list.iter())
+        .map(|(key, rest)| {
+            let key = keys.iter().zip(*key).map(|(k, v)| match k.is_period() {
+                true => v.parse::<i64>().map_or("NULL".into(), |n| n.to_string()),
+                false => quote(v),
+            });
+            format!("({}{rest})", key.map(|v| v + ", ").collect::<String>())
+        })
+        .collect();
+    let cols: String = (0..keys.len()).map(|i| format!("x_k{i}, ")).collect();
+    let mut on: Vec<String> = (keys.iter().enumerate())
+        .map(|(i, k)| format!("{} = x.x_k{i}", qualify(k.expr())))
+        .collect();
+    if names.contains("x_trial") {
+        on.push("rows.robot = x.x_robot AND rows.session = x.x_session".into());
+        on.push("CAST(rows.trial AS BIGINT) = x.x_trial".into());
+    }
+    if join == "RIGHT JOIN" {
+        conditions.push("x.x_trial IS NULL".into());
+    }
+    format!(
+        "FROM (VALUES {}) AS x({cols}{names}) {join} rows ON {}\nWHERE {}",
+        values.join(", "),
+        on.join(" AND "),
+        conditions.join(" AND ")
+    )
+}
+
+/// An inline table for [`from_where`]: the join, its rows (group key, the rest as SQL) and the
+/// rest's column names.
+type Inline<'a> = (&'static str, Vec<(&'a [String], String)>, String);
+
+/// The pick's inline table of trials: joined to keep them, or right-joined to drop them.
+fn picked(pick: Pick) -> Inline {
     let (join, list) = match pick {
         Pick::Only(list) => ("JOIN", list),
-        Pick::Except(list) => ("LEFT JOIN", list),
+        Pick::Except(list) => ("RIGHT JOIN", list),
     };
-    let mut from = "rows".to_string();
-    if !list.is_empty() {
-        let values: Vec<String> = list
-            .iter()
-            .map(|(key, (r, s, t))| {
-                let key = keys.iter().zip(key).map(|(k, v)| match k.is_period() {
-                    true => v.parse::<i64>().map_or("NULL".into(), |n| n.to_string()),
-                    false => quote(v),
-                });
-                let key: String = key.map(|v| v + ", ").collect();
-                format!("({key}{}, {}, {t})", quote(r), quote(s))
-            })
-            .collect();
-        let names: String = (0..keys.len()).map(|i| format!("x_k{i}, ")).collect();
-        let on: String = (keys.iter().enumerate())
-            .map(|(i, k)| format!("{} = x.x_k{i} AND ", qualify(k.expr())))
-            .collect();
-        from = format!(
-            "rows {join} (VALUES {}) AS x({names}x_robot, x_session, x_trial) ON {on}rows.robot = \
-             x.x_robot AND rows.session = x.x_session AND CAST(rows.trial AS BIGINT) = x.x_trial",
-            values.join(", ")
-        );
-        if join == "LEFT JOIN" {
-            conditions.push("x.x_trial IS NULL".into());
-        }
-    }
-    format!("FROM {from}\nWHERE {}", conditions.join(" AND "))
+    let rows = (list.iter())
+        .map(|(key, (r, s, t))| (&key[..], format!("{}, {}, {t}", quote(r), quote(s))))
+        .collect();
+    (join, rows, "x_robot, x_session, x_trial".into())
 }
 
 /// `SELECT` key expressions and the `GROUP BY` list, with the trial columns when `per_trial`.
@@ -173,21 +187,49 @@ fn qualify(expr: &str) -> String {
     }
 }
 
-/// Per trial of each group: rows `n`, its first and last reading time `t_min`/`t_max` [ns], Σy
-/// `sy`, Σφ_p `s_p` and σ_ω (the trial's IMU statistic, the same on each of its rows). Everything
-/// the IMU filter and the residual passes need.
+/// Per trial of each group: rows `n`, its first and last reading time `t_min`/`t_max` [ns] and
+/// σ_ω (the trial's IMU statistic, the same on each of its rows): what the IMU filter needs.
 pub fn moments(keys: &[Key], target: &str, filter: Option<&str>) -> String {
     let (mut select, group) = grouping(keys, true);
     select.push("COUNT(*) AS n, MIN(rows.t_ns) AS t_min, MAX(rows.t_ns) AS t_max".into());
     select.push("MAX(rows.sigma_omega) AS sigma_omega".into());
-    select.push("SUM(rows.y_w) AS sy".into());
-    for p in 0..N_PARAMS {
-        select.push(format!("SUM(rows.{}) AS s_{p}", phi_column(p)));
-    }
     format!(
         "SELECT {}\n{}\nGROUP BY {}",
         select.join(", "),
-        from_where(keys, ALL, target, filter),
+        from_where(keys, None, target, filter),
+        group.join(", ")
+    )
+}
+
+/// Per trial of the groups in `thetas` (group key, θ): rows `n` and the sum of its residuals
+/// y − φ·θ under its group's θ, `s_resid` (what a residual pass needs). θ enters as double
+/// literals (`1.25e-1`; a plain `0.125` is a decimal to some engines).
+pub fn residuals(
+    keys: &[Key],
+    thetas: &[(Vec<String>, [f64; N_PARAMS])],
+    target: &str,
+    filter: Option<&str>,
+) -> String {
+    let (mut select, group) = grouping(keys, true);
+    let fit: Vec<String> = (0..N_PARAMS)
+        .map(|p| format!("x.t_{p} * rows.{}", phi_column(p)))
+        .collect();
+    select.push(format!(
+        "COUNT(*) AS n, SUM(rows.y_w - ({})) AS s_resid",
+        fit.join(" + ")
+    ));
+    let rows = (thetas.iter())
+        .map(|(key, t)| {
+            let t: Vec<String> = t.iter().map(|v| format!("{v:e}")).collect();
+            (&key[..], t.join(", "))
+        })
+        .collect();
+    let names: Vec<String> = (0..N_PARAMS).map(|p| format!("t_{p}")).collect();
+    let x = ("JOIN", rows, names.join(", "));
+    format!(
+        "SELECT {}\n{}\nGROUP BY {}",
+        select.join(", "),
+        from_where(keys, Some(x), target, filter),
         group.join(", ")
     )
 }
@@ -210,18 +252,20 @@ pub fn normal_equations(keys: &[Key], pick: Pick, target: &str, filter: Option<&
         .map(phi_column)
         .chain(["y_w".into()])
         .collect();
-    inner.push("b.b AS b".into());
     inner.extend(x.iter().map(|c| format!("rows.{c} AS {c}")));
+    let group: Vec<&str> = keys.iter().map(|k| k.name()).collect();
+    let mut blocked: Vec<String> = group.iter().map(|k| format!("r.{k} AS {k}")).collect();
+    blocked.push("b.b AS b".into());
+    blocked.extend(x.iter().map(|c| format!("r.{c} AS {c}")));
     for a in 0..BLOCK {
         let whens: String = (0..BLOCKS)
             .filter_map(|b| {
                 x.get(b * BLOCK + a)
-                    .map(|c| format!(" WHEN {b} THEN rows.{c}"))
+                    .map(|c| format!(" WHEN {b} THEN r.{c}"))
             })
             .collect();
-        inner.push(format!("CASE b.b{whens} ELSE 0 END AS v_{a}"));
+        blocked.push(format!("CASE b.b{whens} ELSE 0 END AS v_{a}"));
     }
-    let group: Vec<&str> = keys.iter().map(|k| k.name()).collect();
     let group = group.join(", ");
     let mut select = vec![
         format!("{group}, b"),
@@ -232,15 +276,13 @@ pub fn normal_equations(keys: &[Key], pick: Pick, target: &str, filter: Option<&
             .extend((x.iter().enumerate()).map(|(j, c)| format!("SUM(v_{a} * {c}) AS g_{a}_{j}")));
     }
     let blocks: Vec<String> = (0..BLOCKS).map(|b| format!("({b})")).collect();
-    let from = from_where(keys, pick, target, filter).replacen(
-        "\nWHERE",
-        &format!(" CROSS JOIN (VALUES {}) AS b(b)\nWHERE", blocks.join(", ")),
-        1,
-    );
     format!(
-        "SELECT {}\nFROM (SELECT {}\n{from}) AS r\nGROUP BY {group}, b",
+        "SELECT {}\nFROM (SELECT {}\nFROM (VALUES {}) AS b(b) CROSS JOIN (SELECT {}\n{}) AS r) AS e\nGROUP BY {group}, b",
         select.join(", "),
+        blocked.join(", "),
+        blocks.join(", "),
         inner.join(", "),
+        from_where(keys, Some(picked(pick)), target, filter),
     )
 }
 
@@ -276,10 +318,12 @@ mod tests {
         assert!(q.contains("GROUP BY robot, day, b"));
         let q = normal_equations(&[Key::Robot], Pick::Except(&picked[..1]), "mbs", None);
         assert!(
-            q.contains("rows LEFT JOIN (VALUES ('r''1', 'r''1', 'a.mcap', 3))"),
+            q.contains("FROM (VALUES ('r''1', 'r''1', 'a.mcap', 3)) AS x(x_k0, x_robot, x_session, x_trial) RIGHT JOIN rows"),
             "{q}"
         );
         assert!(q.contains("x.x_trial IS NULL"));
-        assert!(!normal_equations(&[Key::Robot], ALL, "mbs", None).contains("x_trial"));
+        assert!(
+            !normal_equations(&[Key::Robot], Pick::Except(&[]), "mbs", None).contains("x_trial")
+        );
     }
 }
