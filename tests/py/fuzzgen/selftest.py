@@ -108,6 +108,9 @@ def check_scorer():
     d["discovery"]["meter_located"]["fields"] = ["/lf/bmsstate.soc", "/lf/mainboardstate.fan_state[1]"]
     if score.score([load], [1.0], [], located=score.locations(d)) != ([], ["located"]):
         bad.append(("meter located on a field", score.locations(d)))
+    # one claim that fits two drawn forms of a mechanism names the one the data show most
+    if score.score([lib, dict(lib)], [0.0, 0.28], [L("braking")]) != (["right"], ["missed", "named"]):
+        bad.append(("two forms, one claim", score.score([lib, dict(lib)], [0.0, 0.28], [L("braking")])))
     if score.claims({"discovery": {"rest": None}}):
         bad.append(("rest null", "claims"))
     return {"scorer cases": not bad}, {"scorer_failures": bad}
