@@ -270,13 +270,17 @@ pub(crate) fn step_levels(values: &[f64], at: &[f64]) -> Option<(Vec<f64>, f64, 
     Some((levels, lo, hi))
 }
 
+/// A candidate's place in the screen: its screening group and how many of that group are scored;
+/// `None` for one always scored.
+pub(crate) type Screen = Option<(usize, usize)>;
+
 /// Indices of the candidates to score: every candidate that is not a screened member, and per
 /// screening group the members (at most the group's cap) whose columns (e.g. term × g(s), term)
 /// explain most of the residual `resid` by least squares. `family` gives, per candidate, its
 /// group and the group's cap when it is a screened member (`None` for the rest), `cols` its
 /// columns.
 pub(crate) fn screen(
-    family: &[Option<(usize, usize)>],
+    family: &[Screen],
     cols: &dyn Fn(usize) -> Vec<Vec<f64>>,
     resid: &[f64],
 ) -> Vec<usize> {

@@ -3,7 +3,7 @@
 //! the base-term corrections; fields that meter the power itself left out with a note.
 
 use crate::N_JOINTS;
-use crate::diagnose::family::{KEPT_PER_TERM, Shape, Term, step_levels};
+use crate::diagnose::family::{KEPT_PER_TERM, Screen, Shape, Term, step_levels};
 use crate::diagnose::fields::FieldTable;
 use crate::diagnose::reading_rows::Rows;
 use crate::diagnose::stats::{pearson, span, step_threshold};
@@ -312,10 +312,8 @@ pub(super) fn generate(
         sags,
         falls,
     } = meters_of_the_power(inp, rows, &rv, &single, notes);
-    let mut kinds: Vec<(Kind, String)> = Vec::new();
-    // Per candidate where it is a screened member, its screening group and how many of the
-    // group are scored (None: always scored).
-    let mut family: Vec<Option<(usize, usize)>> = Vec::new();
+    // Each candidate, its group name and its place in the screen.
+    let mut kinds: Vec<(Kind, String, Screen)> = Vec::new();
     let mut slow = vec![Signal::Time];
     // A meter that falls as the power rises is the supply sagging under the load (a battery
     // voltage): at rest it reads the source's state (the charge), a slow state signal when it
@@ -330,22 +328,20 @@ pub(super) fn generate(
     }
     for f in (0..names.len()).filter(|&f| usable[f] && single[f]) {
         let group = format!("field {}", names[f]);
-        kinds.push((Kind::Additive(f, span(&rv.raw[f])), group.clone()));
-        family.push(None);
+        kinds.push((Kind::Additive(f, span(&rv.raw[f])), group.clone(), None));
         // A field that switches between levels steps at its midpoint; any other at a level
         // chosen from the data (a load that switches on past a joint angle or a temperature):
         // each level a screened member, the best of each field's scored (so a step on one field
         // meets its rivals on the others, a command and the position that follows it).
         match step_threshold(&rv.raw[f]) {
             Some(thr) => {
-                kinds.push((Kind::Step(f, thr), group));
-                family.push(None);
+                kinds.push((Kind::Step(f, thr), group, None));
             }
             None => {
                 let levels = step_levels(&rv.raw[f], &LOAD_STEP_QUANTILES);
                 for level in levels.map(|l| l.0).unwrap_or_default() {
-                    kinds.push((Kind::Step(f, level), group.clone()));
-                    family.push(Some((LOADS + 1 + f, 1)));
+                    let screen = Some((LOADS + 1 + f, 1));
+                    kinds.push((Kind::Step(f, level), group.clone(), screen));
                 }
             }
         }
@@ -372,21 +368,20 @@ pub(super) fn generate(
             let g = format!("{t:?} × {}", signal_name(s, names));
             for shape in Shape::all_for(&signal_values(s, &rv)) {
                 let screened = crate::diagnose::family::screened(t, shape);
-                family.push(screened.then_some((ti, KEPT_PER_TERM)));
-                kinds.push((Kind::Product(t, s.clone(), shape), g.clone()));
+                let screen = screened.then_some((ti, KEPT_PER_TERM));
+                kinds.push((Kind::Product(t, s.clone(), shape), g.clone(), screen));
             }
         }
         // A one-sided form of a library mechanism the library does not hold, on its own.
         if t.level_is_new() || (twin && Term::BASE.contains(&t)) {
-            family.push(None);
-            kinds.push((Kind::Pooled(t), format!("{t:?} correction")));
+            kinds.push((Kind::Pooled(t), format!("{t:?} correction"), None));
         }
         if twin && Term::BASE.contains(&t) {
-            family.push(None);
-            kinds.push((Kind::PerJoint(t), format!("{t:?} correction")));
+            kinds.push((Kind::PerJoint(t), format!("{t:?} correction"), None));
         }
     }
     let m = kinds.len();
+    let family: Vec<Screen> = kinds.iter().map(|k| k.2).collect();
     let is_screened: Vec<bool> = family.iter().map(Option::is_some).collect();
     let weights = crate::diagnose::family::weights(&is_screened);
     let keep =
