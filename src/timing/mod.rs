@@ -224,6 +224,18 @@ impl<const W: usize> SearchFits<W> {
         }
     }
 
+    /// Each candidate's normal equations of the rows added since the last call, which leaves them
+    /// empty: one trial's fits, for per-trial held-out evidence.
+    pub fn take(&mut self) -> Vec<Gram> {
+        (self.acc.iter_mut())
+            .map(|c| {
+                Self::flush(c);
+                c.2.clear();
+                std::mem::replace(&mut c.0, Gram::zeros(W))
+            })
+            .collect()
+    }
+
     fn flush((gram, rows, ys): &mut (Gram, Vec<f64>, Vec<f64>)) {
         gram.add_rows(rows, &ys[gram.n..]);
         rows.clear();
