@@ -45,9 +45,9 @@ pub struct SensorWindow {
     pub lag_demanded: bool,
     /// Where the scan's readings demand a lag: p-value that the lagged point predicts held-out
     /// trials better than the best window at lag 0 (per-trial squared errors; a lag needs
-    /// p < 0.05, held in ≥ 80 % of resamples of the trials), and that fraction.
+    /// p < 0.05).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub lag_held_out: Option<(f64, f64)>,
+    pub lag_held_out: Option<f64>,
     /// Trials the scan used.
     pub scan_trials: usize,
     /// Change of the window over the session [s]: from the first scanned trial's start

@@ -308,20 +308,17 @@ fn sensor_lines(d: &Diagnosis, s: &mut String) {
             sw.scan_lag_s,
             sw.scan_r2,
             match (sw.lag_demanded, sw.lag_held_out) {
-                (true, Some((p, _))) => format!(
+                (true, Some(p)) => format!(
                     "a lag beats every window at lag 0, and the best of them on held-out trials \
                      (p = {p:.1e}): the latency hypothesis judges it"
                 ),
                 (true, None) => {
                     "a lag beats every window at lag 0: the latency hypothesis judges it".into()
                 }
-                (false, Some((p, held))) => format!(
+                (false, Some(p)) => format!(
                     "a lag beats every window at lag 0 on these readings, but not the best of them \
-                     on held-out trials (p = {p:.1e}, held in {:.0} % of resamples; needed \
-                     p < {} in ≥ {:.0} %): no latency is claimed",
-                    100.0 * held,
-                    super::select::RIVAL_ALPHA,
-                    100.0 * super::stepwise::STABLE
+                     on held-out trials (p = {p:.1e}, needed < {}): no latency is claimed",
+                    super::select::RIVAL_ALPHA
                 ),
                 (false, None) => "no lag beats every window at lag 0: no latency is claimed".into(),
             }

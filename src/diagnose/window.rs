@@ -63,8 +63,7 @@ use super::hypotheses::{Hypothesis, N_RAW, POWER_HYPOTHESES};
 use super::lags::{TrialRows, filter_trials};
 use super::reading_rows::{Rows, TrialFeatures, TrialMeta, build_rows, span};
 use super::select::{FOLD_SEED, Folds, RIVAL_ALPHA};
-use super::stats::{STABILITY_DRAWS, improvement_p_value, resampled_stability};
-use super::stepwise::STABLE;
+use super::stats::improvement_p_value;
 use super::trials::{SessionInfo, copy_span};
 use super::{DiagnoseOptions, SensorWindow};
 use crate::N_PARAMS;
@@ -298,7 +297,7 @@ fn drift(
 fn judge(
     est: &AlignmentEstimate,
     score: &mut dyn FnMut(&[Alignment]) -> Scores,
-    contest: &mut dyn FnMut(Alignment, Alignment) -> (f64, f64),
+    contest: &mut dyn FnMut(Alignment, Alignment) -> f64,
     bic_threshold: f64,
 ) -> (SensorWindow, f64) {
     let best = est.best;
@@ -366,18 +365,18 @@ fn judge(
         .find(|g| g.alignment == best)
         .map(|g| (g.alignment, g.rows, g.r2));
     let nominal_kept = nominal.is_some() && window_delta_bic >= bic_threshold;
-    // 4. ... and predicts held-out trials better than that lag-0 window: along the ridge of one
-    //    centre the in-sample ΔBIC of 42 trials read a 0.3 s window as 0.2 s + 0.05 s by 13.5
-    //    (fuzz seed 958623570; 113 trials of the same physics put 0.3 s ahead by 360).
+    // 4. ... and predicts held-out trials better than the best lag-0 window (p < RIVAL_ALPHA):
+    //    along the ridge of one centre the in-sample ΔBIC of 42 trials read a 0.3 s window as
+    //    0.2 s + 0.05 s by 13.5 (fuzz seed 958623570, held out p = 0.25; 113 trials of the same
+    //    physics put 0.3 s ahead by 360).
     let lagged = match nominal {
         Some((a, _, _)) if nominal_kept => a,
         _ => best,
     };
-    let lag_held_out = (beats(nominal, 0.0, STEP) || beats(scanned, 1.0, 0.0))
-        .then(|| lag0.map(|(rival, _, _)| contest(lagged, rival)))
-        .flatten();
-    let lag_demanded = (beats(nominal, 0.0, STEP) || beats(scanned, 1.0, 0.0))
-        && lag_held_out.is_none_or(|(p, held)| p < RIVAL_ALPHA && held >= STABLE);
+    let in_sample = beats(nominal, 0.0, STEP) || beats(scanned, 1.0, 0.0);
+    let lag_held_out =
+        (in_sample.then_some(lag0).flatten()).map(|(rival, _, _)| contest(lagged, rival));
+    let lag_demanded = in_sample && lag_held_out.is_none_or(|p| p < RIVAL_ALPHA);
     let (window_s, lag_s) = match (lag_demanded, nominal) {
         (true, Some((a, _, _))) if nominal_kept => (nominal_w, a.lag_s),
         (true, _) => (best.window_s, best.lag_s),
@@ -542,11 +541,13 @@ fn fixed_set_scores(
     fixed_set_fits(rec, power, metas, reference, cands, |_| {}).scores()
 }
 
-/// Whether the first of two candidates predicts held-out trials better than the second, from
-/// each trial's normal equations of both (`per_trial[t]`): each trial's squared error under the
-/// fit without its fold, the paired test of the two alternatives ([`improvement_p_value`]) and
-/// how often it holds under resampling of the trials at [`RIVAL_ALPHA`] — (p, held).
-fn held_out_contest(per_trial: &[Vec<Gram>], folds: &Folds) -> (f64, f64) {
+/// p-value that the first of two candidates predicts held-out trials better than the second,
+/// from each trial's normal equations of both (`per_trial[t]`): each trial's squared error under
+/// the fit without its fold, the paired test of two alternatives ([`improvement_p_value`]). A
+/// gate, not a claim: the latency a lag lets through faces the claims' own tests (stability
+/// included) — asking stability here too lost a true 0.019 s latency (fuzz seed 478772213:
+/// p = 0.038, held in 59 % of resamples).
+fn held_out_contest(per_trial: &[Vec<Gram>], folds: &Folds) -> f64 {
     let sse = |c: usize| {
         let mut fold = vec![Gram::zeros(N_SCAN); folds.k];
         for (t, g) in per_trial.iter().enumerate() {
@@ -565,13 +566,7 @@ fn held_out_contest(per_trial: &[Vec<Gram>], folds: &Folds) -> (f64, f64) {
     };
     let (lagged, rival) = (sse(0), sse(1));
     let d: Vec<f64> = rival.iter().zip(&lagged).map(|(r, l)| r - l).collect();
-    let held = resampled_stability(
-        (&rival, &lagged, &d),
-        (RIVAL_ALPHA, 0.0),
-        STABILITY_DRAWS,
-        0x1a6,
-    );
-    (improvement_p_value(&d), held)
+    improvement_p_value(&d)
 }
 
 #[cfg(test)]
@@ -652,21 +647,12 @@ mod tests {
                 .map(|g| vec![g[a].clone(), g[b].clone()])
                 .collect()
         };
-        let (p, held) = held_out_contest(&pick(0, 1), &folds);
-        assert!(
-            p < 1e-6 && held == 1.0,
-            "true vs blurred: p {p}, held {held}"
-        );
-        let (p, held) = held_out_contest(&pick(1, 0), &folds);
-        assert!(
-            p > 0.5 && held == 0.0,
-            "blurred vs true: p {p}, held {held}"
-        );
-        let (p, held) = held_out_contest(&pick(1, 2), &folds);
-        assert!(
-            p > RIVAL_ALPHA && held < STABLE,
-            "two blurred views: p {p}, held {held}"
-        );
+        let p = held_out_contest(&pick(0, 1), &folds);
+        assert!(p < 1e-6, "true vs blurred: p {p}");
+        let p = held_out_contest(&pick(1, 0), &folds);
+        assert!(p > 0.5, "blurred vs true: p {p}");
+        let p = held_out_contest(&pick(1, 2), &folds);
+        assert!(p > RIVAL_ALPHA, "two blurred views: p {p}");
     }
 
     /// Readings of a rail meter, built here from the stated physics (not by the code under test):
