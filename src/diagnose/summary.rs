@@ -308,19 +308,18 @@ fn sensor_lines(d: &Diagnosis, s: &mut String) {
             sw.scan_lag_s,
             sw.scan_r2,
             match (sw.lag_demanded, sw.lag_held_out) {
-                (true, Some(p)) => format!(
-                    "a lag beats every window at lag 0, and the best of them on held-out trials \
-                     (p = {p:.1e}): the latency hypothesis judges it"
-                ),
-                (true, None) => {
-                    "a lag beats every window at lag 0: the latency hypothesis judges it".into()
-                }
-                (false, Some(p)) => format!(
-                    "a lag beats every window at lag 0 on these readings, but not the best of them \
-                     on held-out trials (p = {p:.1e}, needed < {}): no latency is claimed",
-                    super::select::RIVAL_ALPHA
-                ),
                 (false, None) => "no lag beats every window at lag 0: no latency is claimed".into(),
+                (demanded, p) => format!(
+                    "a lag beats every window at lag 0{}: {}",
+                    p.map_or(String::new(), |p| format!(
+                        " in-sample, held out p = {p:.1e} against the best of them (needed < {})",
+                        super::select::RIVAL_ALPHA
+                    )),
+                    match demanded {
+                        true => "the latency hypothesis judges it",
+                        false => "no latency is claimed",
+                    }
+                ),
             }
         );
     }

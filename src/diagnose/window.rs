@@ -113,8 +113,9 @@ pub(crate) fn sensor_window(
     let all_rows = build_rows(rec, power, &metas, 0.0, nominal.window_s, false);
     let metas = without_outliers(metas, all_rows, opts)?;
     let reference = build_rows(rec, power, &metas, 0.0, nominal.window_s, false);
-    let mut drifting =
-        |cands: &[(Alignment, f64)]| fixed_set_scores(rec, power, &metas, &reference, cands);
+    let mut drifting = |cands: &[(Alignment, f64)]| {
+        fixed_set_fits(rec, power, &metas, &reference, cands, |_| {}).scores()
+    };
     let mut score = |cands: &[Alignment]| drifting(&still(cands));
     let grid = ScanGrid {
         windows: &WINDOWS,
@@ -143,8 +144,9 @@ pub(crate) fn sensor_window(
     };
     let (judged, lag_s) = judge(&est, &mut score, &mut contest, opts.bic_threshold);
     let other = build_rows(rec, &info.other, &metas, 0.0, nominal.window_s, false);
-    let mut on_other =
-        |cands: &[(Alignment, f64)]| fixed_set_scores(rec, &info.other, &metas, &other, cands);
+    let mut on_other = |cands: &[(Alignment, f64)]| {
+        fixed_set_fits(rec, &info.other, &metas, &other, cands, |_| {}).scores()
+    };
     let (t0, t1) = drift_span(&metas);
     Ok(SensorWindow {
         scan_trials: metas.len(),
@@ -530,17 +532,6 @@ fn fixed_set_fits(
     fits
 }
 
-/// Each candidate's (rows, R²) of the least-squares fit of [`fixed_set_fits`].
-fn fixed_set_scores(
-    rec: &Recording,
-    power: &PowerSeries,
-    metas: &[TrialMeta],
-    reference: &Rows,
-    cands: &[(Alignment, f64)],
-) -> Scores {
-    fixed_set_fits(rec, power, metas, reference, cands, |_| {}).scores()
-}
-
 /// p-value that the first of two candidates predicts held-out trials better than the second,
 /// from each trial's normal equations of both (`per_trial[t]`): each trial's squared error under
 /// the fit without its fold, the paired test of two alternatives ([`improvement_p_value`]). A
@@ -549,12 +540,11 @@ fn fixed_set_scores(
 /// p = 0.038, held in 59 % of resamples).
 fn held_out_contest(per_trial: &[Vec<Gram>], folds: &Folds) -> f64 {
     let sse = |c: usize| {
-        let mut fold = vec![Gram::zeros(N_SCAN); folds.k];
+        let (mut fold, mut total) = (vec![Gram::zeros(N_SCAN); folds.k], Gram::zeros(N_SCAN));
         for (t, g) in per_trial.iter().enumerate() {
             fold[folds.of_trial[t]].add(&g[c]);
+            total.add(&g[c]);
         }
-        let mut total = Gram::zeros(N_SCAN);
-        fold.iter().for_each(|g| total.add(g));
         let theta: Vec<_> = fold.iter().map(|g| total.minus(g).solve(1e-9)).collect();
         (per_trial.iter().enumerate())
             .map(|(t, g)| {
@@ -580,7 +570,7 @@ mod tests {
     /// [`build_rows`] gives each candidate on its own, restricted to the fixed reading set —
     /// on a session whose trial 3 lost a reading's worth of joint states (no row there).
     #[test]
-    fn fixed_set_scores_equal_the_fit_of_each_candidates_built_rows() {
+    fn fixed_set_fits_score_as_the_fit_of_each_candidates_built_rows() {
         let (mut rec, windows) = session(30, 7, Effects::default());
         let k = rec
             .state
@@ -593,7 +583,8 @@ mod tests {
         let cands: Vec<Alignment> = [(0.2, 0.0), (0.5, 0.1), (0.05, 0.3), (1.0, 1.0), (1.5, 0.0)]
             .map(|(window_s, lag_s)| Alignment { window_s, lag_s })
             .to_vec();
-        let got = fixed_set_scores(&rec, &rec.mbs, &metas, &reference, &still(&cands));
+        let got =
+            fixed_set_fits(&rec, &rec.mbs, &metas, &reference, &still(&cands), |_| {}).scores();
         for (a, got) in cands.iter().zip(got) {
             let rows = build_rows(&rec, &rec.mbs, &metas, a.lag_s, a.window_s, false);
             let mut gram = crate::lsq::Gram::zeros(N_SCAN);
