@@ -535,16 +535,13 @@ impl BlueprintChunks {
                     self.log(&format!("{path}/TextLogColumns"), &text_log_columns())?;
                 }
                 if let Some(legend) = legend {
+                    // `visible` set either way: a later send of the layout replaces an earlier
+                    // hidden legend.
+                    let arch = PlotLegend::new().with_visible(*legend != Legend::Hidden);
                     let arch = match legend {
-                        // `visible` set either way: a later send of the layout replaces an
-                        // earlier hidden legend.
-                        Legend::LeftTop | Legend::RightTop => PlotLegend::new()
-                            .with_corner(
-                                [Corner2D::LeftTop, Corner2D::RightTop]
-                                    [usize::from(*legend == Legend::RightTop)],
-                            )
-                            .with_visible(true),
-                        Legend::Hidden => PlotLegend::new().with_visible(false),
+                        Legend::LeftTop => arch.with_corner(Corner2D::LeftTop),
+                        Legend::RightTop => arch.with_corner(Corner2D::RightTop),
+                        Legend::Hidden => arch,
                     };
                     self.log(&format!("{path}/PlotLegend"), &arch)?;
                 }
