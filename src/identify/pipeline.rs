@@ -739,9 +739,6 @@ fn per_trial_table(
 
 /// Identify the power model from one or more recordings in memory.
 pub fn identify(recs: &[Recording], opts: &IdentifyOptions) -> Result<Identification> {
-    if recs.is_empty() {
-        bail!("identify needs at least one recording");
-    }
     let sessions = recs
         .iter()
         .map(|r| Prepared::from_recording(r, &opts.segment, StreamOptions::default()))
@@ -756,9 +753,6 @@ pub fn identify_files(
     opts: &IdentifyOptions,
     stream: &StreamOptions,
 ) -> Result<Identification> {
-    if files.is_empty() {
-        bail!("identify needs at least one recording");
-    }
     let sessions = files
         .iter()
         .map(|f| Prepared::from_file(f.clone(), &opts.segment, *stream))
@@ -767,6 +761,9 @@ pub fn identify_files(
 }
 
 fn identify_prepared(sessions: Vec<Prepared>, opts: &IdentifyOptions) -> Result<Identification> {
+    if sessions.is_empty() {
+        bail!("identify needs at least one recording");
+    }
     check_segmented(&sessions)?;
     let mut rejections = opts.filters.imu(&imu_statistics(&sessions));
     let kept = trials_kept(&sessions, &rejections);

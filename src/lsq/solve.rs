@@ -360,16 +360,9 @@ impl Prepared {
                 v
             }
         };
-        let lo = cols
-            .iter()
-            .enumerate()
-            .map(|(kk, &j)| scale(bounds.lower[j], kk))
-            .collect();
-        let hi = cols
-            .iter()
-            .enumerate()
-            .map(|(kk, &j)| scale(bounds.upper[j], kk))
-            .collect();
+        let scaled =
+            |b: &[f64]| (cols.iter().enumerate().map(|(kk, &j)| scale(b[j], kk))).collect();
+        let (lo, hi) = (scaled(&bounds.lower), scaled(&bounds.upper));
         let qr = a.qr();
         let c = qr.q().transpose() * &b;
         let r = qr.r();
@@ -432,19 +425,14 @@ fn solve_clarabel(p: &Prepared) -> Result<(Vec<f64>, Vec<bool>, Status, u32)> {
     let mut bvec = Vec::new();
     let mut rows = Vec::new();
     for j in 0..k {
-        if p.lo[j].is_finite() {
-            triplets.0.push(bvec.len());
-            triplets.1.push(j);
-            triplets.2.push(-1.0);
-            bvec.push(-p.lo[j]);
-            rows.push((j, true));
-        }
-        if p.hi[j].is_finite() {
-            triplets.0.push(bvec.len());
-            triplets.1.push(j);
-            triplets.2.push(1.0);
-            bvec.push(p.hi[j]);
-            rows.push((j, false));
+        for (bound, sign, is_lower) in [(p.lo[j], -1.0, true), (p.hi[j], 1.0, false)] {
+            if bound.is_finite() {
+                triplets.0.push(bvec.len());
+                triplets.1.push(j);
+                triplets.2.push(sign);
+                bvec.push(sign * bound);
+                rows.push((j, is_lower));
+            }
         }
     }
     let amat = CscMatrix::new_from_triplets(bvec.len(), k, triplets.0, triplets.1, triplets.2);
