@@ -311,14 +311,6 @@ pub(crate) fn no_usable_trials(
     )
 }
 
-/// Stage 1 check: a session without a single trial is an error.
-fn check_segmented(sessions: &[Prepared]) -> Result<()> {
-    match sessions.iter().find(|p| p.seg.trials.is_empty()) {
-        Some(p) => Err(p.no_usable_trials(&[])),
-        None => Ok(()),
-    }
-}
-
 /// σ_ω of every trial of every session, the IMU filter's statistic.
 fn imu_statistics(sessions: &[Prepared]) -> Vec<TrialStat> {
     sessions
@@ -764,7 +756,10 @@ fn identify_prepared(sessions: Vec<Prepared>, opts: &IdentifyOptions) -> Result<
     if sessions.is_empty() {
         bail!("identify needs at least one recording");
     }
-    check_segmented(&sessions)?;
+    // Stage 1 check: a session without a single trial is an error.
+    if let Some(p) = sessions.iter().find(|p| p.seg.trials.is_empty()) {
+        return Err(p.no_usable_trials(&[]));
+    }
     let mut rejections = opts.filters.imu(&imu_statistics(&sessions));
     let kept = trials_kept(&sessions, &rejections);
     let (alignment, alignment_estimate) = resolve_alignment(&sessions, &kept, opts)?;

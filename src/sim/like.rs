@@ -140,16 +140,9 @@ fn run_twin(
 }
 
 /// The reader's stop when the twin no longer takes the trajectory (not an error of the read).
-#[derive(Debug)]
+#[derive(Debug, thiserror::Error)]
+#[error("the twin stopped taking the trajectory")]
 struct TwinStopped;
-
-impl std::fmt::Display for TwinStopped {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("the twin stopped taking the trajectory")
-    }
-}
-
-impl std::error::Error for TwinStopped {}
 
 /// What the first pass keeps: every message's stamp, the joint states' largest gap.
 #[derive(Default)]
