@@ -465,33 +465,11 @@ impl FitInput {
         }
     }
 
-    /// The rows of the trials no rejection names (empty for statistics).
-    fn rows_kept(&self, rej: &[Rejection]) -> Vec<Row> {
-        let FitInput::Rows(sets) = self else {
-            return Vec::new();
-        };
-        sets.iter()
-            .enumerate()
-            .flat_map(|(s, d)| {
-                d.rows
-                    .iter()
-                    .filter(move |r| !trial::is_rejected(rej, s, r.trial))
-                    .cloned()
-            })
-            .collect()
-    }
-
     /// The normal equations of the trials no rejection names (statistics only).
     fn gram_kept(&self, rej: &[Rejection]) -> Gram {
         let mut g = Gram::zeros(N_PARAMS);
         if let FitInput::Sums(sets) = self {
-            for (s, d) in sets.iter().enumerate() {
-                for t in d.sums.iter() {
-                    if !trial::is_rejected(rej, s, t.trial) {
-                        t.add_to(&mut g);
-                    }
-                }
-            }
+            not_rejected(sets, |d| &d.sums, |t| t.trial, rej).for_each(|(_, t)| t.add_to(&mut g));
         }
         g
     }
@@ -499,27 +477,27 @@ impl FitInput {
     /// The mean residual of θ over each trial no rejection names, session by session.
     fn residuals(&self, theta: &[f64; N_PARAMS], rej: &[Rejection]) -> Vec<TrialStat> {
         match self {
-            FitInput::Rows(sets) => trial_residuals(
-                theta,
-                sets.iter().enumerate().flat_map(|(s, d)| {
-                    d.rows
-                        .iter()
-                        .filter(move |r| !trial::is_rejected(rej, s, r.trial))
-                        .map(move |r| (s, r))
-                }),
-            ),
-            FitInput::Sums(sets) => sets
-                .iter()
-                .enumerate()
-                .flat_map(|(s, d)| {
-                    d.sums
-                        .iter()
-                        .filter(move |t| !trial::is_rejected(rej, s, t.trial))
-                        .map(move |t| TrialStat::new(s, t.trial, t.mean_residual(theta)))
-                })
+            FitInput::Rows(sets) => {
+                trial_residuals(theta, not_rejected(sets, |d| &d.rows, |r| r.trial, rej))
+            }
+            FitInput::Sums(sets) => not_rejected(sets, |d| &d.sums, |t| t.trial, rej)
+                .map(|(s, t)| TrialStat::new(s, t.trial, t.mean_residual(theta)))
                 .collect(),
         }
     }
+}
+
+/// The items (`of` each session's set) of the trials no rejection names, with their session.
+fn not_rejected<'a, S, T: 'a>(
+    sets: &'a [S],
+    of: impl Fn(&'a S) -> &'a [T] + 'a,
+    trial_of: impl Fn(&T) -> usize + Copy + 'a,
+    rej: &'a [Rejection],
+) -> impl Iterator<Item = (usize, &'a T)> + 'a {
+    sets.iter().enumerate().flat_map(move |(s, set)| {
+        let kept = (of(set).iter()).filter(move |x| !trial::is_rejected(rej, s, trial_of(x)));
+        kept.map(move |x| (s, x))
+    })
 }
 
 /// Stage 4b: the rows of the options' pairing on the kept trials, one data set per session
@@ -591,8 +569,9 @@ fn fit_with_rejection(
             Ok(())
         };
         match input {
-            FitInput::Rows(_) => {
-                let rows = input.rows_kept(rej);
+            FitInput::Rows(sets) => {
+                let kept = not_rejected(sets, |d| &d.rows, |r| r.trial, rej);
+                let rows: Vec<Row> = kept.map(|(_, r)| r.clone()).collect();
                 check(rows.len())?;
                 let (fit, _) = fit_rows(&rows).context("constrained least squares")?;
                 let n = rows.len();
