@@ -126,7 +126,6 @@ fn from_rows(a: &IdentifyArgs, table: &Path) -> Result<()> {
         .iter()
         .map(|r| (r.robot.clone(), r.session.clone()))
         .collect();
-    sessions.dedup();
     sessions.sort();
     sessions.dedup();
     let provenance = Provenance {

@@ -194,13 +194,8 @@ fn trial_range(s: &str) -> Result<(usize, usize), String> {
             .parse::<usize>()
             .map_err(|_| format!("{s:?} is not a trial range like 3-7 or 5"))
     };
-    let (a, b) = match s.split_once('-') {
-        Some((a, b)) => (parse(a)?, parse(b)?),
-        None => {
-            let a = parse(s)?;
-            (a, a)
-        }
-    };
+    let (a, b) = s.split_once('-').unwrap_or((s, s));
+    let (a, b) = (parse(a)?, parse(b)?);
     if b < a {
         return Err(format!("{s:?}: the range ends before it starts"));
     }

@@ -129,7 +129,7 @@ pub fn run(a: SimulateArgs) -> Result<()> {
     println!(
         "wrote {} and {} ({what})",
         a.output.display(),
-        g1viz::sim::truth_path(&a.output).display(),
+        truth_out.display()
     );
     Ok(())
 }

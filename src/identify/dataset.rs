@@ -335,12 +335,10 @@ fn sample_rows(
     every: usize,
     out: &mut Vec<Row>,
 ) {
-    let s = &rec.state;
-    let (a, b) = basis.window;
-    let n = s.t.len().min(s.tau.len()).min(s.dq.len());
+    let (s, t, (a, b)) = (&rec.state, state_times(rec), basis.window);
     let (i0, i1) = (
-        s.t[..n].partition_point(|&x| x <= a),
-        s.t[..n].partition_point(|&x| x <= b),
+        t.partition_point(|&x| x <= a),
+        t.partition_point(|&x| x <= b),
     );
     let every = every.max(1);
     let mut produced = 0usize;

@@ -311,14 +311,6 @@ pub(crate) fn no_usable_trials(
     )
 }
 
-/// Stage 1 check: a session without a single trial is an error.
-fn check_segmented(sessions: &[Prepared]) -> Result<()> {
-    match sessions.iter().find(|p| p.seg.trials.is_empty()) {
-        Some(p) => Err(p.no_usable_trials(&[])),
-        None => Ok(()),
-    }
-}
-
 /// σ_ω of every trial of every session, the IMU filter's statistic.
 fn imu_statistics(sessions: &[Prepared]) -> Vec<TrialStat> {
     sessions
@@ -473,33 +465,11 @@ impl FitInput {
         }
     }
 
-    /// The rows of the trials no rejection names (empty for statistics).
-    fn rows_kept(&self, rej: &[Rejection]) -> Vec<Row> {
-        let FitInput::Rows(sets) = self else {
-            return Vec::new();
-        };
-        sets.iter()
-            .enumerate()
-            .flat_map(|(s, d)| {
-                d.rows
-                    .iter()
-                    .filter(move |r| !trial::is_rejected(rej, s, r.trial))
-                    .cloned()
-            })
-            .collect()
-    }
-
     /// The normal equations of the trials no rejection names (statistics only).
     fn gram_kept(&self, rej: &[Rejection]) -> Gram {
         let mut g = Gram::zeros(N_PARAMS);
         if let FitInput::Sums(sets) = self {
-            for (s, d) in sets.iter().enumerate() {
-                for t in d.sums.iter() {
-                    if !trial::is_rejected(rej, s, t.trial) {
-                        t.add_to(&mut g);
-                    }
-                }
-            }
+            not_rejected(sets, |d| &d.sums, |t| t.trial, rej).for_each(|(_, t)| t.add_to(&mut g));
         }
         g
     }
@@ -507,27 +477,27 @@ impl FitInput {
     /// The mean residual of θ over each trial no rejection names, session by session.
     fn residuals(&self, theta: &[f64; N_PARAMS], rej: &[Rejection]) -> Vec<TrialStat> {
         match self {
-            FitInput::Rows(sets) => trial_residuals(
-                theta,
-                sets.iter().enumerate().flat_map(|(s, d)| {
-                    d.rows
-                        .iter()
-                        .filter(move |r| !trial::is_rejected(rej, s, r.trial))
-                        .map(move |r| (s, r))
-                }),
-            ),
-            FitInput::Sums(sets) => sets
-                .iter()
-                .enumerate()
-                .flat_map(|(s, d)| {
-                    d.sums
-                        .iter()
-                        .filter(move |t| !trial::is_rejected(rej, s, t.trial))
-                        .map(move |t| TrialStat::new(s, t.trial, t.mean_residual(theta)))
-                })
+            FitInput::Rows(sets) => {
+                trial_residuals(theta, not_rejected(sets, |d| &d.rows, |r| r.trial, rej))
+            }
+            FitInput::Sums(sets) => not_rejected(sets, |d| &d.sums, |t| t.trial, rej)
+                .map(|(s, t)| TrialStat::new(s, t.trial, t.mean_residual(theta)))
                 .collect(),
         }
     }
+}
+
+/// The items (`of` each session's set) of the trials no rejection names, with their session.
+fn not_rejected<'a, S, T: 'a>(
+    sets: &'a [S],
+    of: impl Fn(&'a S) -> &'a [T] + 'a,
+    trial_of: impl Fn(&T) -> usize + Copy + 'a,
+    rej: &'a [Rejection],
+) -> impl Iterator<Item = (usize, &'a T)> + 'a {
+    sets.iter().enumerate().flat_map(move |(s, set)| {
+        let kept = (of(set).iter()).filter(move |x| !trial::is_rejected(rej, s, trial_of(x)));
+        kept.map(move |x| (s, x))
+    })
 }
 
 /// Stage 4b: the rows of the options' pairing on the kept trials, one data set per session
@@ -599,8 +569,9 @@ fn fit_with_rejection(
             Ok(())
         };
         match input {
-            FitInput::Rows(_) => {
-                let rows = input.rows_kept(rej);
+            FitInput::Rows(sets) => {
+                let kept = not_rejected(sets, |d| &d.rows, |r| r.trial, rej);
+                let rows: Vec<Row> = kept.map(|(_, r)| r.clone()).collect();
                 check(rows.len())?;
                 let (fit, _) = fit_rows(&rows).context("constrained least squares")?;
                 let n = rows.len();
@@ -739,9 +710,6 @@ fn per_trial_table(
 
 /// Identify the power model from one or more recordings in memory.
 pub fn identify(recs: &[Recording], opts: &IdentifyOptions) -> Result<Identification> {
-    if recs.is_empty() {
-        bail!("identify needs at least one recording");
-    }
     let sessions = recs
         .iter()
         .map(|r| Prepared::from_recording(r, &opts.segment, StreamOptions::default()))
@@ -756,9 +724,6 @@ pub fn identify_files(
     opts: &IdentifyOptions,
     stream: &StreamOptions,
 ) -> Result<Identification> {
-    if files.is_empty() {
-        bail!("identify needs at least one recording");
-    }
     let sessions = files
         .iter()
         .map(|f| Prepared::from_file(f.clone(), &opts.segment, *stream))
@@ -767,7 +732,13 @@ pub fn identify_files(
 }
 
 fn identify_prepared(sessions: Vec<Prepared>, opts: &IdentifyOptions) -> Result<Identification> {
-    check_segmented(&sessions)?;
+    if sessions.is_empty() {
+        bail!("identify needs at least one recording");
+    }
+    // Stage 1 check: a session without a single trial is an error.
+    if let Some(p) = sessions.iter().find(|p| p.seg.trials.is_empty()) {
+        return Err(p.no_usable_trials(&[]));
+    }
     let mut rejections = opts.filters.imu(&imu_statistics(&sessions));
     let kept = trials_kept(&sessions, &rejections);
     let (alignment, alignment_estimate) = resolve_alignment(&sessions, &kept, opts)?;

@@ -11,6 +11,8 @@ use std::path::Path;
 
 use anyhow::{Context, Result, ensure};
 use plotters::coord::Shift;
+use plotters::coord::ranged1d::SegmentedCoord;
+use plotters::coord::types::{RangedCoordf64, RangedCoordusize};
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
@@ -500,63 +502,24 @@ fn draw_coefficients(
 ) -> Result<()> {
     let m = model.model();
     let se = |p: usize| model.std_err(p).unwrap_or(0.0);
-    let panels = [
-        (
-            "b_i copper loss [W/(N·m)²]",
-            m.b,
-            N_JOINTS,
-            RGBColor(214, 96, 77),
-        ),
-        (
-            "c_i Coulomb friction [W·s/rad]",
-            m.c,
-            2 * N_JOINTS,
-            RGBColor(67, 147, 195),
-        ),
-        (
-            "d_i viscous friction [W·s²/rad²]",
-            m.d,
-            3 * N_JOINTS,
-            RGBColor(90, 174, 97),
-        ),
+    let titles = [
+        "b_i copper loss [W/(N·m)²]",
+        "c_i Coulomb friction [W·s/rad]",
+        "d_i viscous friction [W·s²/rad²]",
     ];
-    for (area, (title, values, offset, color)) in root.split_evenly((3, 1)).iter().zip(panels) {
+    let areas = root.split_evenly((3, 1));
+    for (k, (area, values)) in areas.iter().zip([m.b, m.c, m.d]).enumerate() {
+        let (offset, color) = ((k + 1) * N_JOINTS, TERM_COLORS[k + 1]);
         let top = (0..N_JOINTS)
             .map(|i| values[i] + se(offset + i))
             .fold(0.0f64, f64::max)
             .max(1e-3)
             * 1.15;
-        let mut chart = ChartBuilder::on(area)
-            .caption(title, (FONT, 20))
-            .margin(8)
-            .x_label_area_size(28)
-            .y_label_area_size(60)
-            .build_cartesian_2d((0..N_JOINTS - 1).into_segmented(), 0.0..top)
-            .map_err(plot_err)?;
-        chart
-            .configure_mesh()
-            .disable_x_mesh()
-            .x_labels(N_JOINTS)
-            .x_label_formatter(&|v| match v {
-                SegmentValue::CenterOf(i) => names.get(*i).cloned().unwrap_or_default(),
-                _ => String::new(),
-            })
-            .label_style((FONT, 13))
-            .draw()
-            .map_err(plot_err)?;
-        chart
-            .draw_series((0..N_JOINTS).map(|i| {
-                let mut bar = Rectangle::new(
-                    [
-                        (SegmentValue::Exact(i), 0.0),
-                        (SegmentValue::Exact(i + 1), values[i]),
-                    ],
-                    color.filled(),
-                );
-                bar.set_margin(0, 0, 18, 18);
-                bar
-            }))
-            .map_err(plot_err)?;
+        let bars: Vec<(&str, f64, RGBColor)> = (0..N_JOINTS)
+            .map(|i| (names.get(i).map_or("", String::as_str), values[i], color))
+            .collect();
+        let look = BarLook(20, 8, 28, 13, 18);
+        let mut chart = bar_chart(area, titles[k], look, 0.0..top, None, &bars)?;
         chart
             .draw_series((0..N_JOINTS).filter(|&i| se(offset + i) > 0.0).map(|i| {
                 let s = se(offset + i);
@@ -579,6 +542,67 @@ fn draw_coefficients(
             .map_err(plot_err)?;
     }
     Ok(())
+}
+
+/// The terms' colours ([`TERM_NAMES`] order): mechanical, copper, Coulomb, viscous, interaction.
+const TERM_COLORS: [RGBColor; 5] = [
+    RGBColor(150, 150, 150),
+    RGBColor(214, 96, 77),
+    RGBColor(67, 147, 195),
+    RGBColor(90, 174, 97),
+    RGBColor(153, 112, 171),
+];
+
+/// How a bar chart of the report is laid out: caption and tick label size [px], margin, height of
+/// the x label area, and each bar's gap to the edges of its slot [px].
+struct BarLook(u32, u32, u32, u32, u32);
+
+/// A chart over `y` with one bar per (name, height, colour) from zero, each named below its slot.
+type BarChart<'a, 'b> = ChartContext<
+    'a,
+    BitMapBackend<'b>,
+    Cartesian2d<SegmentedCoord<RangedCoordusize>, RangedCoordf64>,
+>;
+fn bar_chart<'a, 'b>(
+    area: &'a DrawingArea<BitMapBackend<'b>, Shift>,
+    caption: &str,
+    look: BarLook,
+    y: std::ops::Range<f64>,
+    y_desc: Option<&str>,
+    bars: &[(&str, f64, RGBColor)],
+) -> Result<BarChart<'a, 'b>> {
+    let (n, BarLook(caption_px, margin, x_area, label_px, gap)) = (bars.len(), look);
+    let mut chart = ChartBuilder::on(area)
+        .caption(caption, (FONT, caption_px))
+        .margin(margin)
+        .x_label_area_size(x_area)
+        .y_label_area_size(60)
+        .build_cartesian_2d((0..n - 1).into_segmented(), y)
+        .map_err(plot_err)?;
+    let name = |v: &SegmentValue<usize>| match v {
+        SegmentValue::CenterOf(i) => bars.get(*i).map_or("", |b| b.0).to_string(),
+        _ => String::new(),
+    };
+    let mut mesh = chart.configure_mesh();
+    (mesh.disable_x_mesh().x_labels(n))
+        .x_label_formatter(&name)
+        .label_style((FONT, label_px));
+    if let Some(desc) = y_desc {
+        mesh.y_desc(desc);
+    }
+    mesh.draw().map_err(plot_err)?;
+    chart
+        .draw_series(bars.iter().enumerate().map(|(i, &(_, v, color))| {
+            let span = [
+                (SegmentValue::Exact(i), 0.0),
+                (SegmentValue::Exact(i + 1), v),
+            ];
+            let mut bar = Rectangle::new(span, color.filled());
+            bar.set_margin(0, 0, gap, gap);
+            bar
+        }))
+        .map_err(plot_err)?;
+    Ok(chart)
 }
 
 /// Text anchored at its bottom centre, to label the top of a bar.
@@ -771,54 +795,13 @@ fn draw_terms(root: &DrawingArea<BitMapBackend<'_>, Shift>, t: &TermContribution
     let shares = t.shares_percent;
     let (lo, hi) = padded_range(shares.iter().copied().chain([0.0]), 0.05);
     let (lo, hi) = (lo.min(0.0), hi * 1.1);
-    let colors = [
-        RGBColor(150, 150, 150),
-        RGBColor(214, 96, 77),
-        RGBColor(67, 147, 195),
-        RGBColor(90, 174, 97),
-        RGBColor(153, 112, 171),
-    ];
-    let mut chart = ChartBuilder::on(root)
-        .caption(
-            format!("Mean term contributions ({}, {} rows)", t.dataset, t.rows),
-            (FONT, 18),
-        )
-        .margin(12)
-        .x_label_area_size(34)
-        .y_label_area_size(60)
-        .build_cartesian_2d((0..TERM_NAMES.len() - 1).into_segmented(), lo..hi)
-        .map_err(plot_err)?;
-    chart
-        .configure_mesh()
-        .disable_x_mesh()
-        .x_labels(TERM_NAMES.len())
-        .x_label_formatter(&|v| match v {
-            SegmentValue::CenterOf(i) => TERM_NAMES
-                .get(*i)
-                .map(|s| s.to_string())
-                .unwrap_or_default(),
-            _ => String::new(),
-        })
-        .y_desc("share of the energy turnover [%]")
-        .label_style((FONT, 14))
-        .draw()
-        .map_err(plot_err)?;
-    chart
-        .draw_series(shares.iter().enumerate().map(|(k, &s)| {
-            let mut bar = Rectangle::new(
-                [
-                    (SegmentValue::Exact(k), 0.0),
-                    (
-                        SegmentValue::Exact(k + 1),
-                        if s.is_finite() { s } else { 0.0 },
-                    ),
-                ],
-                colors[k].filled(),
-            );
-            bar.set_margin(0, 0, 25, 25);
-            bar
-        }))
-        .map_err(plot_err)?;
+    let bars: Vec<(&str, f64, RGBColor)> = (TERM_NAMES.iter().zip(shares).zip(TERM_COLORS))
+        .map(|((name, s), c)| (*name, if s.is_finite() { s } else { 0.0 }, c))
+        .collect();
+    let caption = format!("Mean term contributions ({}, {} rows)", t.dataset, t.rows);
+    let y_desc = Some("share of the energy turnover [%]");
+    let look = BarLook(18, 12, 34, 14, 25);
+    let mut chart = bar_chart(root, &caption, look, lo..hi, y_desc, &bars)?;
     chart
         .draw_series(shares.iter().enumerate().map(|(k, &s)| {
             let y = if s.is_finite() { s.max(0.0) } else { 0.0 };

@@ -143,17 +143,10 @@ pub fn fit_constrained(phi: &[[f64; N_PARAMS]], y: &[f64], lower: &[f64; N_PARAM
 pub fn fit_general(phi: &DMatrix<f64>, y: &DVector<f64>, bounds: &Bounds) -> Result<Fit> {
     let start = Instant::now();
     let prep = Prepared::new(phi, y, bounds)?;
-    let (x, free, status, iterations) = solve_clarabel(&prep)?;
-    let theta = prep.unscale(&x);
-    let rss = (phi * DVector::from_column_slice(&theta) - y).norm_squared();
-    let sigma2_scaled = |dof: usize| prep.rss_scaled(&x) / dof as f64;
-    Ok(finish_fit(
-        &prep,
-        bounds,
-        (theta, free, status, iterations),
-        (rss, phi.nrows(), &sigma2_scaled),
-        start,
-    ))
+    solve(&prep, bounds, phi.nrows(), start, |theta, x| {
+        let rss = (phi * DVector::from_column_slice(theta) - y).norm_squared();
+        (rss, prep.rss_scaled(x))
+    })
 }
 
 /// The same problem as [`fit_general`] given only the normal equations of the rows (ΦᵀΦ, Φᵀy,
@@ -171,18 +164,11 @@ pub fn fit_gram(gram: &Gram, bounds: &Bounds) -> Result<Fit> {
     );
     let (phi, y) = compress_gram(gram);
     let prep = Prepared::new(&phi, &y, bounds)?;
-    let (x, free, status, iterations) = solve_clarabel(&prep)?;
-    let theta = prep.unscale(&x);
-    let rss = gram.sse(&DVector::from_column_slice(&theta));
-    // Scaled residual variance of the original rows: rss in the compressed problem's y scale.
-    let sigma2_scaled = |dof: usize| rss / (prep.y_norm * prep.y_norm) / dof as f64;
-    Ok(finish_fit(
-        &prep,
-        bounds,
-        (theta, free, status, iterations),
-        (rss, gram.n, &sigma2_scaled),
-        start,
-    ))
+    solve(&prep, bounds, gram.n, start, |theta, _| {
+        let rss = gram.sse(&DVector::from_column_slice(theta));
+        // The original rows' residuals in the compressed problem's y scale.
+        (rss, rss / (prep.y_norm * prep.y_norm))
+    })
 }
 
 /// At most p rows (R, z) with RᵀR = ΦᵀΦ and Rᵀz = Φᵀy of the rows behind `gram`. A column that
@@ -208,24 +194,24 @@ fn compress_gram(gram: &Gram) -> (DMatrix<f64>, DVector<f64>) {
     (phi, y)
 }
 
-/// The [`Fit`] of a solved problem: `solved` = (θ, free set, status, iterations); `data` = (the
-/// rows' residual sum of squares, their number, the scaled residual variance for a number of
-/// degrees of freedom).
-fn finish_fit(
+/// The [`Fit`] of `prep` solved: `rss(θ, x)` gives the residual sum of squares of the `n_rows`
+/// rows behind it, as is and in the scaled variables x.
+fn solve(
     prep: &Prepared,
     bounds: &Bounds,
-    solved: (Vec<f64>, Vec<bool>, Status, u32),
-    data: (f64, usize, &dyn Fn(usize) -> f64),
+    n_rows: usize,
     start: Instant,
-) -> Fit {
-    let (theta, free, status, iterations) = solved;
-    let (rss, n_rows, sigma2_scaled) = data;
+    rss: impl FnOnce(&[f64], &[f64]) -> (f64, f64),
+) -> Result<Fit> {
+    let (x, free, status, iterations) = solve_clarabel(prep)?;
+    let theta = prep.unscale(&x);
+    let (rss, rss_scaled) = rss(&theta, &x);
     let n = theta.len();
     let mut at_bound = vec![false; n];
     let mut std_err = vec![None; n];
     let dof = n_rows.saturating_sub(free.iter().filter(|&&f| f).count());
     let se_scaled = if dof > 0 {
-        std_errors_scaled(&prep.r, &free, sigma2_scaled(dof))
+        std_errors_scaled(&prep.r, &free, rss_scaled / dof as f64)
     } else {
         None
     };
@@ -241,7 +227,7 @@ fn finish_fit(
     for &col in &prep.zero_cols {
         at_bound[col] = theta[col] == bounds.lower[col] || theta[col] == bounds.upper[col];
     }
-    Fit {
+    Ok(Fit {
         theta,
         std_err,
         at_bound,
@@ -254,7 +240,7 @@ fn finish_fit(
             iterations,
             time_s: start.elapsed().as_secs_f64(),
         },
-    }
+    })
 }
 
 /// The problem in scaled variables x_k = ‖φ_k‖ θ_k / ‖y‖ over the non-zero columns, reduced by a thin QR of
@@ -360,16 +346,9 @@ impl Prepared {
                 v
             }
         };
-        let lo = cols
-            .iter()
-            .enumerate()
-            .map(|(kk, &j)| scale(bounds.lower[j], kk))
-            .collect();
-        let hi = cols
-            .iter()
-            .enumerate()
-            .map(|(kk, &j)| scale(bounds.upper[j], kk))
-            .collect();
+        let scaled =
+            |b: &[f64]| (cols.iter().enumerate().map(|(kk, &j)| scale(b[j], kk))).collect();
+        let (lo, hi) = (scaled(&bounds.lower), scaled(&bounds.upper));
         let qr = a.qr();
         let c = qr.q().transpose() * &b;
         let r = qr.r();
@@ -432,19 +411,14 @@ fn solve_clarabel(p: &Prepared) -> Result<(Vec<f64>, Vec<bool>, Status, u32)> {
     let mut bvec = Vec::new();
     let mut rows = Vec::new();
     for j in 0..k {
-        if p.lo[j].is_finite() {
-            triplets.0.push(bvec.len());
-            triplets.1.push(j);
-            triplets.2.push(-1.0);
-            bvec.push(-p.lo[j]);
-            rows.push((j, true));
-        }
-        if p.hi[j].is_finite() {
-            triplets.0.push(bvec.len());
-            triplets.1.push(j);
-            triplets.2.push(1.0);
-            bvec.push(p.hi[j]);
-            rows.push((j, false));
+        for (bound, sign, is_lower) in [(p.lo[j], -1.0, true), (p.hi[j], 1.0, false)] {
+            if bound.is_finite() {
+                triplets.0.push(bvec.len());
+                triplets.1.push(j);
+                triplets.2.push(sign);
+                bvec.push(sign * bound);
+                rows.push((j, is_lower));
+            }
         }
     }
     let amat = CscMatrix::new_from_triplets(bvec.len(), k, triplets.0, triplets.1, triplets.2);

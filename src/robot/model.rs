@@ -257,25 +257,19 @@ fn build(robot: &urdf_rs::Robot, base_dir: &Path) -> anyhow::Result<RobotModel> 
     }
 
     let mut joints = Vec::with_capacity(robot.joints.len());
-    let mut joint_names: HashMap<&str, ()> = HashMap::new();
+    let mut joint_names = std::collections::HashSet::new();
     for (ji, j) in robot.joints.iter().enumerate() {
-        if joint_names.insert(j.name.as_str(), ()).is_some() {
+        if !joint_names.insert(j.name.as_str()) {
             bail!("joint '{}' is defined twice", j.name);
         }
-        let parent = *index.get(j.parent.link.as_str()).ok_or_else(|| {
-            anyhow!(
-                "joint '{}': parent link '{}' does not exist",
-                j.name,
-                j.parent.link
-            )
-        })?;
-        let child = *index.get(j.child.link.as_str()).ok_or_else(|| {
-            anyhow!(
-                "joint '{}': child link '{}' does not exist",
-                j.name,
-                j.child.link
-            )
-        })?;
+        let link = |role: &str, name: &str| {
+            let found = index.get(name).copied();
+            found.ok_or_else(|| anyhow!("joint '{}': {role} link '{name}' does not exist", j.name))
+        };
+        let (parent, child) = (
+            link("parent", &j.parent.link)?,
+            link("child", &j.child.link)?,
+        );
         if let Some(prev) = links[child].parent_joint {
             bail!(
                 "link '{}' is the child of two joints ('{}' and '{}')",

@@ -177,74 +177,19 @@ pub struct MeterOffset {
 /// Mean on and off durations of the [`RailLoad`] fan [s].
 pub const FAN_MEAN_ON_OFF_S: (f64, f64) = (8.0, 12.0);
 
-/// The set of switched-on effects (all off by default: the paper's plant).
-#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
-pub struct Effects {
-    /// Winding-resistance temperature drift.
-    #[serde(skip_serializing_if = "Option::is_none", default)]
-    pub thermal: Option<ThermalDrift>,
-    /// Braking asymmetry.
-    #[serde(skip_serializing_if = "Option::is_none", default)]
-    pub braking: Option<BrakingAsymmetry>,
-    /// Shared DC-bus loss.
-    #[serde(skip_serializing_if = "Option::is_none", default)]
-    pub bus_loss: Option<BusLoss>,
-    /// Point mass at the hand that the URDF lacks.
-    #[serde(skip_serializing_if = "Option::is_none", default)]
-    pub payload: Option<Payload>,
-    /// Power-sensor latency.
-    #[serde(skip_serializing_if = "Option::is_none", default)]
-    pub latency: Option<SensorLatency>,
-    /// Elbow cable-harness drag.
-    #[serde(skip_serializing_if = "Option::is_none", default)]
-    pub harness_drag: Option<HarnessDrag>,
-    /// Load-dependent gear friction.
-    #[serde(skip_serializing_if = "Option::is_none", default)]
-    pub gear_friction: Option<GearFriction>,
-    /// Current-proportional drive-electronics loss.
-    #[serde(skip_serializing_if = "Option::is_none", default)]
-    pub drive_loss: Option<DriveLoss>,
-    /// Stribeck friction.
-    #[serde(skip_serializing_if = "Option::is_none", default)]
-    pub stribeck: Option<StribeckFriction>,
-    /// Balance-compensation leakage (with ambient body sway).
-    #[serde(skip_serializing_if = "Option::is_none", default)]
-    pub balance_leak: Option<BalanceLeak>,
-    /// Bus loss from total electrical power.
-    #[serde(skip_serializing_if = "Option::is_none", default)]
-    pub bus_power: Option<BusPowerLoss>,
-    /// Electronics loss per Nm.
-    #[serde(skip_serializing_if = "Option::is_none", default)]
-    pub electronics_nm: Option<ElectronicsLoss>,
-    /// Per-joint Coulomb friction excess.
-    #[serde(skip_serializing_if = "Option::is_none", default)]
-    pub joint_friction: Option<JointFrictionExcess>,
-    /// Friction following the housing temperature.
-    #[serde(skip_serializing_if = "Option::is_none", default)]
-    pub housing_friction: Option<HousingFriction>,
-    /// Switching fan load on the main-board rail.
-    #[serde(skip_serializing_if = "Option::is_none", default)]
-    pub fan_load: Option<RailLoad>,
-    /// A second switching fan on the same rail, cycling independently of the first and reported
-    /// in `fan_state[0]`: a second load of the same kind on another field.
-    #[serde(skip_serializing_if = "Option::is_none", default)]
-    pub fan0_load: Option<RailLoad>,
-    /// Inverter switching loss following the supply voltage.
-    #[serde(skip_serializing_if = "Option::is_none", default)]
-    pub switching: Option<SwitchingLoss>,
-    /// A drive-electronics loss per ampere only while a joint drives (τq̇ > 0): the library's
-    /// mechanism in a one-sided form.
-    #[serde(skip_serializing_if = "Option::is_none", default)]
-    pub driving_loss: Option<DriveLoss>,
-    /// The main-board meter's reading shifted while fan 1 runs (no load; a one-meter artefact).
-    #[serde(skip_serializing_if = "Option::is_none", default)]
-    pub fan_meter: Option<MeterOffset>,
-}
+/// [`Effects`] (its fields in the truth JSON's order, each left out of it when off) and the
+/// effects by name: [`EFFECT_NAMES`] (in documentation order) and switching one on by its name
+/// (each name is the field of [`Effects`] it sets).
+macro_rules! effects {
+    ($($(#[$doc:meta])* $field:ident: $ty:ty,)* ; $($name:ident),*) => {
+        /// The set of switched-on effects (all off by default: the paper's plant).
+        #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
+        pub struct Effects {
+            $($(#[$doc])*
+            #[serde(skip_serializing_if = "Option::is_none", default)]
+            pub $field: Option<$ty>,)*
+        }
 
-/// The effects by name: [`EFFECT_NAMES`] and switching one on by its name (each name is the
-/// field of [`Effects`] it sets).
-macro_rules! effect_names {
-    ($($name:ident),*) => {
         /// Names accepted by [`Effects::enable`], in documentation order.
         pub const EFFECT_NAMES: [&str; [$(stringify!($name)),*].len()] = [$(stringify!($name)),*];
 
@@ -265,7 +210,48 @@ macro_rules! effect_names {
     };
 }
 
-effect_names!(
+effects!(
+    /// Winding-resistance temperature drift.
+    thermal: ThermalDrift,
+    /// Braking asymmetry.
+    braking: BrakingAsymmetry,
+    /// Shared DC-bus loss.
+    bus_loss: BusLoss,
+    /// Point mass at the hand that the URDF lacks.
+    payload: Payload,
+    /// Power-sensor latency.
+    latency: SensorLatency,
+    /// Elbow cable-harness drag.
+    harness_drag: HarnessDrag,
+    /// Load-dependent gear friction.
+    gear_friction: GearFriction,
+    /// Current-proportional drive-electronics loss.
+    drive_loss: DriveLoss,
+    /// Stribeck friction.
+    stribeck: StribeckFriction,
+    /// Balance-compensation leakage (with ambient body sway).
+    balance_leak: BalanceLeak,
+    /// Bus loss from total electrical power.
+    bus_power: BusPowerLoss,
+    /// Electronics loss per Nm.
+    electronics_nm: ElectronicsLoss,
+    /// Per-joint Coulomb friction excess.
+    joint_friction: JointFrictionExcess,
+    /// Friction following the housing temperature.
+    housing_friction: HousingFriction,
+    /// Switching fan load on the main-board rail.
+    fan_load: RailLoad,
+    /// A second switching fan on the same rail, cycling independently of the first and reported
+    /// in `fan_state[0]`: a second load of the same kind on another field.
+    fan0_load: RailLoad,
+    /// Inverter switching loss following the supply voltage.
+    switching: SwitchingLoss,
+    /// A drive-electronics loss per ampere only while a joint drives (τq̇ > 0): the library's
+    /// mechanism in a one-sided form.
+    driving_loss: DriveLoss,
+    /// The main-board meter's reading shifted while fan 1 runs (no load; a one-meter artefact).
+    fan_meter: MeterOffset,
+    ;
     thermal,
     braking,
     bus_loss,

@@ -99,19 +99,12 @@ fn run_twin(
         let reader = scope.spawn(move || {
             read(&mut |b: &Recording| {
                 let (c, m) = (&b.command, &b.state);
-                let s = if commanded {
-                    Sampled {
-                        t: c.t.clone(),
-                        q: c.q.clone(),
-                        dq: c.dq.clone(),
-                    }
-                } else {
-                    Sampled {
-                        t: m.t.clone(),
-                        q: m.q.clone(),
-                        dq: m.dq.clone(),
-                    }
+                let (t, q, dq) = match commanded {
+                    true => (&c.t, &c.q, &c.dq),
+                    false => (&m.t, &m.q, &m.dq),
                 };
+                let (t, q, dq) = (t.clone(), q.clone(), dq.clone());
+                let s = Sampled { t, q, dq };
                 // The twin is done with the trajectory (or failed): stop reading.
                 tx.send(s).map_err(|_| anyhow::Error::new(TwinStopped))
             })
@@ -147,16 +140,9 @@ fn run_twin(
 }
 
 /// The reader's stop when the twin no longer takes the trajectory (not an error of the read).
-#[derive(Debug)]
+#[derive(Debug, thiserror::Error)]
+#[error("the twin stopped taking the trajectory")]
 struct TwinStopped;
-
-impl std::fmt::Display for TwinStopped {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("the twin stopped taking the trajectory")
-    }
-}
-
-impl std::error::Error for TwinStopped {}
 
 /// What the first pass keeps: every message's stamp, the joint states' largest gap.
 #[derive(Default)]

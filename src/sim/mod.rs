@@ -443,21 +443,11 @@ fn build_truth(
             "mcap".to_string(),
             serde_json::json!({ "path": out.file_name().map(|n| n.to_string_lossy().into_owned()), "end_ns": null }),
         )]),
-        topics: BTreeMap::from([
-            (
-                "lowstate".into(),
-                topic("/lowstate", "unitree_hg/msg/LowState"),
-            ),
-            ("arm_sdk".into(), topic("/arm_sdk", "unitree_hg/msg/LowCmd")),
-            (
-                "bms".into(),
-                topic("/lf/bmsstate", "unitree_hg/msg/BmsState"),
-            ),
-            (
-                "mbs".into(),
-                topic("/lf/mainboardstate", "unitree_hg/msg/MainBoardState"),
-            ),
-        ]),
+        topics: (["lowstate", "arm_sdk", "bms", "mbs"]
+            .iter()
+            .zip(writer::TOPICS))
+        .map(|(key, (t, ty))| (key.to_string(), topic(t, ty)))
+        .collect(),
         joints: truth::Joints {
             names: JOINT_NAMES.iter().map(|s| s.to_string()).collect(),
             short: JOINT_SHORT.iter().map(|s| s.to_string()).collect(),

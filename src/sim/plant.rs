@@ -143,19 +143,16 @@ impl Sampled {
         } else {
             0.0
         };
-        let mut q = zero;
-        let mut dq = zero;
-        let mut ddq = zero;
-        for j in 0..N_JOINTS {
-            q[j] = s.q[k][j] + u * (s.q[k + 1][j] - s.q[k][j]);
-            dq[j] = s.dq[k][j] + u * (s.dq[k + 1][j] - s.dq[k][j]);
-            ddq[j] = if h > 0.0 {
+        let lerp =
+            |v: &[[f64; N_JOINTS]]| std::array::from_fn(|j| v[k][j] + u * (v[k + 1][j] - v[k][j]));
+        let slope = |j: usize| {
+            if h > 0.0 {
                 (s.dq[k + 1][j] - s.dq[k][j]) / h
             } else {
                 0.0
-            };
-        }
-        (q, dq, ddq)
+            }
+        };
+        (lerp(&s.q), lerp(&s.dq), std::array::from_fn(slope))
     }
 }
 
@@ -512,10 +509,7 @@ impl Engine<'_> {
             .eval(t - cfg.tracking_lag_s, &mut st.ref_hint);
         let fr = self.friction.torque(&dq);
         let rigid = self.dyn_true.inverse_dynamics(&q, &dq, &ddq);
-        let mut tau = [0.0; N_JOINTS];
-        for i in 0..N_JOINTS {
-            tau[i] = rigid[i] + fr[i];
-        }
+        let tau: [f64; N_JOINTS] = std::array::from_fn(|i| rigid[i] + fr[i]);
         let bus_volts = self.pack_volts(st) - 0.15;
         let thermal = &mut st.thermal;
         thermal.step(t, dt, &tau);
@@ -537,10 +531,7 @@ impl Engine<'_> {
         if let (Some(d), Some(th_u)) = (self.dyn_urdf, st.tau_home_urdf) {
             // The payload's share: the base model on true minus URDF-only torques.
             let rigid_u = d.inverse_dynamics(&q, &dq, &ddq);
-            let mut tau_u = [0.0; N_JOINTS];
-            for i in 0..N_JOINTS {
-                tau_u[i] = rigid_u[i] + fr[i];
-            }
+            let tau_u: [f64; N_JOINTS] = std::array::from_fn(|i| rigid_u[i] + fr[i]);
             eff += p.base - model.predict(&tau_u, &dq, &th_u.map(|v| v * v));
         }
         accumulate_terms(model, &tau, &dq, &st.tau0_sq, &mut st.term_sums);
@@ -912,11 +903,7 @@ fn imu_state(
             (rate[1] + gyro_noise * gauss(rng)) as f32,
             (gyro_noise * gauss(rng)) as f32,
         ],
-        accelerometer: [
-            (acc[0] + 0.02 * gauss(rng)) as f32,
-            (acc[1] + 0.02 * gauss(rng)) as f32,
-            (acc[2] + 0.02 * gauss(rng)) as f32,
-        ],
+        accelerometer: std::array::from_fn(|k| (acc[k] + 0.02 * gauss(rng)) as f32),
         rpy: [roll as f32, pitch as f32, yaw as f32],
         temperature: 38,
     }

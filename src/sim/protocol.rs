@@ -79,15 +79,12 @@ impl Preset {
 impl std::str::FromStr for Preset {
     type Err = anyhow::Error;
     fn from_str(s: &str) -> anyhow::Result<Self> {
-        Ok(match s {
-            "tiny" => Preset::Tiny,
-            "smoke" => Preset::Smoke,
-            "paper" => Preset::Paper,
-            "holdout" => Preset::Holdout,
-            "example" => Preset::Example,
-            _ => anyhow::bail!(
+        use Preset::{Example, Holdout, Paper, Smoke, Tiny};
+        let known = [Tiny, Smoke, Paper, Holdout, Example];
+        known.into_iter().find(|p| p.name() == s).ok_or_else(|| {
+            anyhow::anyhow!(
                 "unknown preset {s:?} (expected tiny, smoke, paper, holdout or example)"
-            ),
+            )
         })
     }
 }
@@ -201,16 +198,10 @@ pub fn plan(preset: Preset, seed: u64, route_seed: u64) -> Vec<PlannedTrial> {
             // more single/pair routes; speeds cycle through the identification levels.
             let mut routes: Vec<Route> = (0..N_JOINTS).map(|j| r(&[j], 0)).collect();
             let pairs = combinations(2);
-            let triples = combinations(3);
-            let quads = combinations(4);
-            for _ in 0..6 {
-                routes.push(r(&pairs[rng.random_range(0..pairs.len())], 0));
-            }
-            for _ in 0..4 {
-                routes.push(r(&triples[rng.random_range(0..triples.len())], 0));
-            }
-            for _ in 0..2 {
-                routes.push(r(&quads[rng.random_range(0..quads.len())], 0));
+            for (set, n) in [(&pairs, 6), (&combinations(3), 4), (&combinations(4), 2)] {
+                for _ in 0..n {
+                    routes.push(r(&set[rng.random_range(0..set.len())], 0));
+                }
             }
             routes.push(r(&[0, 1, 2, 3, 4, 5, 6], 0));
             routes.push(r(&[3], 1));
@@ -251,20 +242,20 @@ pub fn plan(preset: Preset, seed: u64, route_seed: u64) -> Vec<PlannedTrial> {
             // The paper's hold-out routes: single sweeps of shoulder pitch/roll/yaw, elbow and wrist
             // pitch (two variants for pitch, elbow, wrist pitch), wrist-only pairs and the wrist
             // triple; 12 routes × 4 speeds minus the slowest triple and one fastest pair = 46.
-            let routes = [
-                r(&[0], 0),
-                r(&[1], 0),
-                r(&[2], 0),
-                r(&[3], 0),
-                r(&[5], 0),
-                r(&[0], 1),
-                r(&[3], 1),
-                r(&[5], 1),
-                r(&[4, 5], 0),
-                r(&[4, 6], 0),
-                r(&[5, 6], 0),
-                r(&[4, 5, 6], 0),
+            let singles = [
+                (0, 0),
+                (1, 0),
+                (2, 0),
+                (3, 0),
+                (5, 0),
+                (0, 1),
+                (3, 1),
+                (5, 1),
             ];
+            let wrist: [&[usize]; 4] = [&[4, 5], &[4, 6], &[5, 6], &[4, 5, 6]];
+            let routes: Vec<Route> = (singles.iter().map(|&(j, v)| r(&[j], v)))
+                .chain(wrist.iter().map(|j| r(j, 0)))
+                .collect();
             let mut trials = Vec::new();
             for (k, &s) in HOLDOUT_SPEEDS.iter().enumerate() {
                 for (n, route) in routes.iter().enumerate() {

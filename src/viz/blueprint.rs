@@ -11,7 +11,7 @@
 //! panel opens on the `session` timeline (seconds since the session start, as the reports and
 //! the CLI count them).
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use rerun::blueprint::components::{
     ContainerKind, IncludedContent, QueryExpression, RootContainer, ViewClass,
 };
@@ -32,7 +32,7 @@ use rerun::external::re_sdk_types::blueprint::datatypes::{
     TextLogColumn as TextLogColumnData, TextLogColumnKind, TimelineColumn,
 };
 use rerun::external::re_sdk_types::datatypes::{self as rr_data, Uuid};
-use rerun::log::{Chunk, ChunkId, LogMsg, RowId};
+use rerun::log::{ChunkId, LogMsg, RowId};
 use rerun::{AsComponents, RecordingStream, TimeColumn};
 
 use super::paths;
@@ -429,16 +429,8 @@ impl BlueprintChunks {
         self.counter += 1;
         let row_id = RowId::from_tuid(Tuid::from_nanos_and_inc(BLUEPRINT_NAMESPACE, self.counter));
         let timeline = TimeColumn::new_sequence("blueprint", [0]);
-        let components = super::whole_row(data)?;
-        let chunk = Chunk::from_native_row_ids(
-            chunk_id,
-            path.into(),
-            Some(true),
-            &[row_id],
-            std::iter::once((*timeline.timeline().name(), timeline)).collect(),
-            components,
-        )
-        .with_context(|| format!("building blueprint chunk {path}"))?;
+        let timelines = std::iter::once((*timeline.timeline().name(), timeline)).collect();
+        let chunk = super::one_row((chunk_id, row_id), path, timelines, data)?;
         self.msgs.push(LogMsg::ArrowMsg(
             self.store_id.clone(),
             chunk.to_arrow_msg()?,
@@ -535,16 +527,13 @@ impl BlueprintChunks {
                     self.log(&format!("{path}/TextLogColumns"), &text_log_columns())?;
                 }
                 if let Some(legend) = legend {
+                    // `visible` set either way: a later send of the layout replaces an earlier
+                    // hidden legend.
+                    let arch = PlotLegend::new().with_visible(*legend != Legend::Hidden);
                     let arch = match legend {
-                        // `visible` set either way: a later send of the layout replaces an
-                        // earlier hidden legend.
-                        Legend::LeftTop | Legend::RightTop => PlotLegend::new()
-                            .with_corner(
-                                [Corner2D::LeftTop, Corner2D::RightTop]
-                                    [usize::from(*legend == Legend::RightTop)],
-                            )
-                            .with_visible(true),
-                        Legend::Hidden => PlotLegend::new().with_visible(false),
+                        Legend::LeftTop => arch.with_corner(Corner2D::LeftTop),
+                        Legend::RightTop => arch.with_corner(Corner2D::RightTop),
+                        Legend::Hidden => arch,
                     };
                     self.log(&format!("{path}/PlotLegend"), &arch)?;
                 }
@@ -1325,16 +1314,15 @@ pub fn replay_layout(joints: &[String], parts: LayoutParts, arm_center: [f32; 3]
         for (k, j) in each.into_iter().enumerate() {
             // A per-joint view's legend is the first's (the same colours in every cell).
             let Look(fit, plot_px, legend, whole) = [*look, TICKS][usize::from(k > 0)];
-            let mut view = Node::view(class, name.replace("{j}", j), *origin, contents(&c, j));
+            let view = Node::view(class, name.replace("{j}", j), *origin, contents(&c, j));
+            let mut view = view.with_fit(fit, plot_px);
             if let Node::View {
                 legend: l,
-                fit: f,
-                plot_px: px,
-                whole: wh,
+                whole: w,
                 ..
             } = &mut view
             {
-                (*l, *f, *px, *wh) = (legend, fit, plot_px, whole);
+                (*l, *w) = (legend, whole);
             }
             let mut path: Vec<&Frame> = Vec::new();
             let mut at = *at;

@@ -114,39 +114,29 @@ fn log_diagnosis_per_trial(
     if means.len() > super::blueprint::WINDOWED_ABOVE_TRIALS {
         log_bars(w, joints, &means, false)?;
     }
-    let errors = [
-        ("before", &d.before_w, "base model", style::NEUTRAL),
-        ("after", &d.after_w, "with hypotheses", style::ERROR),
-        ("found", &d.found_w, "with found terms", style::WARNING),
+    // Each reading's error, where the prediction has one per reading.
+    let err = |p: &[f64]| -> Vec<f64> {
+        let whole = p.len() == d.t.len();
+        (d.measured_w.iter().zip(p).filter(|_| whole))
+            .map(|(m, p)| m - p)
+            .collect()
+    };
+    let (error, rest) = (paths::diag_trial_error, paths::diag_trial_rest);
+    let (diamond, circle) = ((MarkerShape::Diamond, 3.0), (MarkerShape::Circle, 2.5));
+    #[rustfmt::skip]
+    let series = [
+        (error("before"), "error per trial, base model", style::NEUTRAL, diamond, err(&d.before_w)),
+        (error("after"), "error per trial, with hypotheses", style::ERROR, diamond, err(&d.after_w)),
+        (error("found"), "error per trial, with found terms", style::WARNING, diamond, err(&d.found_w)),
+        (rest("measured"), "rest power of the trial", style::MEASURED, circle, d.rest_w.clone()),
+        (rest("found"), "with the loads found on it (held out)", style::WARNING, circle, d.rest_found_w.clone()),
     ];
-    for (which, p, name, colour) in errors {
-        if p.len() != d.t.len() || p.is_empty() {
-            continue;
-        }
-        let err: Vec<f64> = d.measured_w.iter().zip(p).map(|(m, p)| m - p).collect();
-        let (t, e) = per_trial_mean(&d.t, &d.trial, &err);
-        let path = paths::diag_trial_error(which);
-        let name = format!("error per trial, {name}");
-        style::points(w, &path, &name, colour, MarkerShape::Diamond, 3.0)?;
-        scalars(w, &path, &t, e.into_iter())?;
-    }
-    let found = "with the loads found on it (held out)";
-    let rest = [
-        (
-            "measured",
-            &d.rest_w,
-            "rest power of the trial",
-            style::MEASURED,
-        ),
-        ("found", &d.rest_found_w, found, style::WARNING),
-    ];
-    for (which, v, name, colour) in rest {
+    for (path, name, colour, (shape, size), v) in series {
         if v.len() != d.t.len() || v.is_empty() {
             continue;
         }
-        let (t, m) = per_trial_mean(&d.t, &d.trial, v);
-        let path = paths::diag_trial_rest(which);
-        style::points(w, &path, name, colour, MarkerShape::Circle, 2.5)?;
+        let (t, m) = per_trial_mean(&d.t, &d.trial, &v);
+        style::points(w, &path, name, colour, shape, size)?;
         scalars(w, &path, &t, m.into_iter())?;
     }
     Ok(())

@@ -354,20 +354,31 @@ impl<'a> ChunkWriter<'a> {
     /// Sends `data` as static (timeless) on `path`.
     pub fn send_static(&mut self, path: &str, data: &dyn AsComponents) -> Result<()> {
         let chunk_id = ChunkId::from_tuid(self.next_tuid());
-        let row_ids = self.row_ids(1);
-        let components = whole_row(data)?;
-        let chunk = Chunk::from_native_row_ids(
-            chunk_id,
-            path.into(),
-            Some(true),
-            &row_ids,
-            Default::default(),
-            components,
-        )
-        .with_context(|| format!("building the static Rerun chunk for {path}"))?;
+        let row_id = RowId::from_tuid(self.next_tuid());
+        let chunk = one_row((chunk_id, row_id), path, Default::default(), data)?;
         self.stream.send_chunk(chunk);
         Ok(())
     }
+}
+
+/// A chunk of one sorted row of `data` (whole, [`whole_row`]) on `path` with the given ids, at
+/// `timelines` (none: static).
+fn one_row(
+    (chunk_id, row_id): (ChunkId, RowId),
+    path: &str,
+    timelines: rerun::external::nohash_hasher::IntMap<rerun::TimelineName, TimeColumn>,
+    data: &dyn AsComponents,
+) -> Result<Chunk> {
+    let components = whole_row(data)?;
+    Chunk::from_native_row_ids(
+        chunk_id,
+        path.into(),
+        Some(true),
+        &[row_id],
+        timelines,
+        components,
+    )
+    .with_context(|| format!("building the Rerun chunk for {path}"))
 }
 
 /// `data` as one row holding each component's whole batch: the row's length must be the batch's
@@ -392,14 +403,11 @@ pub fn short_joint_name(urdf_name: &str) -> String {
         }
     }
     let s = s.strip_suffix("_joint").unwrap_or(s);
-    let s = s.replace("shoulder", "sh").replace("wrist", "wr");
-    s.chars()
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || c == '_' {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect()
+    path_safe(&s.replace("shoulder", "sh").replace("wrist", "wr"), "_")
+}
+
+/// `s` with every character that is neither ASCII alphanumeric nor one of `keep` replaced by `_`.
+fn path_safe(s: &str, keep: &str) -> String {
+    let safe = |c: char| c.is_ascii_alphanumeric() || keep.contains(c);
+    s.chars().map(|c| if safe(c) { c } else { '_' }).collect()
 }

@@ -382,14 +382,6 @@ pub fn log_replay(
 /// end of a 10 h session's model replay (peak 286 MB); at 16384 the peak was 182 MB.
 pub(crate) const STREAMED_CHUNK_ROWS: usize = 16_384;
 
-/// `opts` for a replay streamed from a file: chunks of at least [`STREAMED_CHUNK_ROWS`] rows.
-pub(super) fn file_replay_options(opts: &ReplayOptions) -> ReplayOptions {
-    ReplayOptions {
-        chunk_rows: opts.chunk_rows.max(STREAMED_CHUNK_ROWS),
-        ..opts.clone()
-    }
-}
-
 /// A streamed replay into `stream`: `read` drives the sink over the recording(s); with a model,
 /// its series are logged trial by trial as the reading completes each trial, beside the trial's
 /// joint signals in the file (so a viewer loading it shows the session's start whole first).
@@ -401,16 +393,15 @@ pub(super) fn streamed_replay(
     stream: &RecordingStream,
     read: &mut dyn FnMut(&mut StreamedReplay<'_, '_>) -> Result<()>,
 ) -> Result<ReplaySummary> {
-    let (logger, warnings, model_trials) = (None, Vec::new(), None);
     let mut sink = StreamedReplay {
         stream,
         robot,
         arm,
         opts,
         extras,
-        logger,
-        model_trials,
-        warnings,
+        logger: None,
+        model_trials: None,
+        warnings: Vec::new(),
     };
     read(&mut sink)?;
     let mut logger = sink.logger.context("the recording delivered no samples")?;
@@ -445,7 +436,10 @@ pub fn replay_files_with(
     stream: &RecordingStream,
 ) -> Result<ReplaySummary> {
     let rows = opts.chunk_rows.max(1);
-    let opts = &file_replay_options(opts);
+    let opts = &ReplayOptions {
+        chunk_rows: opts.chunk_rows.max(STREAMED_CHUNK_ROWS),
+        ..opts.clone()
+    };
     streamed_replay(robot, arm, &extras, opts, stream, &mut |sink| match paths {
         [path] => crate::signals::stream_into(path, map, read_opts, rows, sink).map(drop),
         _ => crate::signals::stream_joined_into(paths, map, read_opts, rows, gap_s, sink).map(drop),

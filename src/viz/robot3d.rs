@@ -31,11 +31,16 @@ pub(super) struct ArmScene {
 
 fn to_transform(pose: &Isometry3<f64>) -> Transform3D {
     let t = pose.translation.vector;
-    let q = pose.rotation.quaternion();
     Transform3D::from_translation_rotation(
         [t.x as f32, t.y as f32, t.z as f32],
-        Quaternion::from_xyzw([q.i as f32, q.j as f32, q.k as f32, q.w as f32]),
+        quaternion(&pose.rotation),
     )
+}
+
+/// A rotation as Rerun's quaternion.
+fn quaternion(r: &nalgebra::UnitQuaternion<f64>) -> Quaternion {
+    let q = r.quaternion();
+    Quaternion::from_xyzw([q.i as f32, q.j as f32, q.k as f32, q.w as f32])
 }
 
 /// The links whose pose depends on the arm joints, by index in `RobotModel::links`: those
@@ -59,17 +64,7 @@ pub(super) fn moving_links(robot: &RobotModel, arm: &ArmJoints) -> Vec<usize> {
 
 /// Entity-path-safe link name.
 fn link_path(name: &str) -> String {
-    let clean: String = name
-        .chars()
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || c == '_' || c == '-' {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect();
-    format!("{}/{clean}", paths::ROBOT)
+    format!("{}/{}", paths::ROBOT, super::path_safe(name, "_-"))
 }
 
 /// Logs the static parts: view coordinates, geometry, the pose of every link that never moves.
@@ -172,11 +167,8 @@ pub(super) fn log_link_poses(
         for (k, &link) in scene.moving.iter().enumerate() {
             let Some(p) = poses.get(link) else { continue };
             let v = p.translation.vector;
-            let r = p.rotation.quaternion();
             translations[k].push([v.x as f32, v.y as f32, v.z as f32]);
-            rotations[k].push(Quaternion::from_xyzw([
-                r.i as f32, r.j as f32, r.k as f32, r.w as f32,
-            ]));
+            rotations[k].push(quaternion(&p.rotation));
         }
     }
     for (k, &link) in scene.moving.iter().enumerate() {
@@ -215,11 +207,7 @@ pub(super) fn log_body_orientation(
     let unyaw = UnitQuaternion::from_euler_angles(0.0, 0.0, -first);
     let rotations: Vec<Quaternion> = quat
         .iter()
-        .map(|q| {
-            let r = unyaw * unit(q);
-            let c = r.quaternion();
-            Quaternion::from_xyzw([c.i as f32, c.j as f32, c.k as f32, c.w as f32])
-        })
+        .map(|q| quaternion(&(unyaw * unit(q))))
         .collect();
     let columns = Transform3D::update_fields()
         .with_many_quaternion(rotations)

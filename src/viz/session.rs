@@ -210,7 +210,12 @@ pub fn replay_session(
     r: &SessionReplay<'_>,
     notify: &mut dyn FnMut(Notice),
 ) -> Result<ReplaySummary> {
-    let file = session_file(r);
+    let file = SessionFile {
+        path: r.session.to_path_buf(),
+        map: r.map.clone(),
+        read: r.read.clone(),
+        spill: Default::default(),
+    };
     let reading = || format!("reading {}", r.session.display());
     let (slice, extras) = match r.model {
         Some((_, model)) => {
@@ -309,16 +314,6 @@ fn write_replay(
             .with_context(|| format!("replaying {}", first.display()))?;
     out.finish()?;
     Ok(summary)
-}
-
-/// The session file of a replay.
-fn session_file(r: &SessionReplay<'_>) -> SessionFile {
-    SessionFile {
-        path: r.session.to_path_buf(),
-        map: r.map.clone(),
-        read: r.read.clone(),
-        spill: Default::default(),
-    }
 }
 
 /// What a replay's size depends on: the seconds of session logged, the state and command rates
