@@ -963,11 +963,10 @@ impl LoadedChunk {
 /// Decompress a whole chunk, reading at most one byte more than its declared `size` (enough to
 /// tell a bomb from a valid chunk); for a chunk cut off by the end of the file keep what came out.
 fn decompress(reader: impl Read, size: usize, truncated: bool) -> Result<Vec<u8>, std::io::Error> {
-    let mut out = Vec::with_capacity(size.min(64 << 20));
-    match reader.take(size as u64 + 1).read_to_end(&mut out) {
-        Ok(_) => Ok(out),
-        Err(_) if truncated => Ok(out),
-        Err(e) => Err(e),
+    let mut out = Vec::new();
+    match super::read_capped(reader, size, &mut out) {
+        Err(e) if !truncated => Err(e),
+        _ => Ok(out),
     }
 }
 
