@@ -446,9 +446,8 @@ pub fn replay_files_with(
 ) -> Result<ReplaySummary> {
     let rows = opts.chunk_rows.max(1);
     let opts = &file_replay_options(opts);
-    streamed_replay(robot, arm, &extras, opts, stream, &mut |sink| match paths {
-        [path] => crate::signals::stream_into(path, map, read_opts, rows, sink).map(drop),
-        _ => crate::signals::stream_joined_into(paths, map, read_opts, rows, gap_s, sink).map(drop),
+    streamed_replay(robot, arm, &extras, opts, stream, &mut |sink| {
+        crate::signals::stream_joined_into(paths, map, read_opts, rows, gap_s, sink).map(drop)
     })
 }
 
