@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use super::msgdef::MsgSchema;
-use super::shared::{Orphans, TopicStat, capped, select_topics};
+use super::shared::{Orphans, TopicStat, by_topic, capped, select_topics};
 use super::{
     Channel, Encoding, MessageRef, MessageSource, OpenOptions, ReadError, ReadSummary, SessionInfo,
     read_up_to, session_info,
@@ -1006,21 +1006,15 @@ impl<R: Read + Seek> MessageSource for Ros1BagSource<R> {
             Some(s) => s.clone(),
             None => self.counted_stats(&mut warnings),
         };
-        let mut by_topic: BTreeMap<&str, (&str, TopicStat)> = BTreeMap::new();
-        for (id, c) in &self.connections {
-            if let Err(e) = &c.channel {
-                warnings.push(e.clone());
-            }
-            let entry = by_topic
-                .entry(&c.topic)
-                .or_insert((&c.type_name, TopicStat::default()));
-            if let Some(s) = stats.get(id) {
-                entry.1.merge(s);
-            }
-        }
-        let topics = (by_topic.into_iter())
-            .map(|(topic, (type_name, s))| s.info(topic, type_name, "ros1"))
-            .collect();
+        warnings.extend(
+            self.connections
+                .values()
+                .filter_map(|c| c.channel.clone().err()),
+        );
+        let topics = by_topic(self.connections.iter().map(|(id, c)| {
+            let s = stats.get(id).copied().unwrap_or_default();
+            (c.topic.as_str(), c.type_name.as_str(), "ros1", s)
+        }));
         Ok(session_info(&self.path, "ros1-bag", topics, warnings))
     }
 

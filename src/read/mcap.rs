@@ -647,7 +647,7 @@ impl<R: Read + Seek> McapSource<R> {
                     .any(|id| self.registry.wanted(*id, topics))
         });
         if let Some(ranges) = self.time_ranges.as_ref().filter(|_| trusted) {
-            chunks.retain(|c| overlaps(ranges, c.message_start_time, c.message_end_time));
+            chunks.retain(|c| super::overlaps(ranges, c.message_start_time, c.message_end_time));
         }
         chunks.sort_by_key(|c| (c.message_start_time, c.chunk_start_offset));
         let mut groups: Vec<Vec<ChunkIndex>> = Vec::new();
@@ -1094,13 +1094,6 @@ fn extend_span(layout: &mut Vec<ChunkIndex>, pos: u64, size: u64, time: Option<u
             s.message_end_time = s.message_end_time.max(t);
         }
     }
-}
-
-/// Whether [a, b] overlaps one of `ranges` (sorted, inclusive bounds).
-fn overlaps(ranges: &[(u64, u64)], a: u64, b: u64) -> bool {
-    // The first range that does not end before a.
-    let i = ranges.partition_point(|r| r.1 < a);
-    ranges.get(i).is_some_and(|r| r.0 <= b)
 }
 
 /// Raw chunk records of one group for the decompression thread (with the file offset each

@@ -59,6 +59,23 @@ impl TopicStat {
     }
 }
 
+/// One [`TopicInfo`] per topic name from the statistics of its connections (channels, files):
+/// (topic, type, encoding, statistics); the first type and encoding met are kept.
+pub(crate) fn by_topic<'a>(
+    stats: impl Iterator<Item = (&'a str, &'a str, &'a str, TopicStat)>,
+) -> Vec<TopicInfo> {
+    let mut by: BTreeMap<&str, (&str, &str, TopicStat)> = BTreeMap::new();
+    for (topic, type_name, encoding, s) in stats {
+        let e = by.entry(topic);
+        e.or_insert((type_name, encoding, TopicStat::default()))
+            .2
+            .merge(&s);
+    }
+    (by.into_iter())
+        .map(|(topic, (type_name, encoding, s))| s.info(topic, type_name, encoding))
+        .collect()
+}
+
 /// Which of a recording's topics (name, channel or why it has none) a read delivers: those in
 /// `wanted` (all when `None`). A requested topic without a definition is an error; one that
 /// only comes along with "all topics" is skipped with a warning (once).
