@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use super::msgdef::MsgSchema;
-use super::shared::{Orphans, TopicStat, by_topic, capped, select_topics};
+use super::shared::{Inflater, Orphans, TopicStat, by_topic, capped, select_topics};
 use super::{
     Channel, Encoding, MessageRef, MessageSource, OpenOptions, ReadError, ReadSummary, SessionInfo,
     read_up_to, session_info,
@@ -29,8 +29,6 @@ const OP_INDEX_DATA: u8 = 0x04;
 const OP_CHUNK: u8 = 0x05;
 const OP_CHUNK_INFO: u8 = 0x06;
 const OP_CONNECTION: u8 = 0x07;
-/// Chunks larger than this (declared uncompressed size) are treated as damage.
-const MAX_CHUNK_BYTES: u64 = 64 << 20;
 /// Most decompressed bytes held at once for chunks whose time ranges overlap; beyond it the
 /// next chunk waits until the loaded ones are delivered (with a warning: order may break).
 const OVERLAP_BUDGET_BYTES: usize = 128 << 20;
@@ -624,42 +622,14 @@ impl<R: Read + Seek> Ros1BagSource<R> {
             return Err(format!("record at offset {} is not a chunk", meta.pos));
         }
         let compression = fields.string("compression")?;
-        let size = fields.u32("size")? as u64;
-        if size > MAX_CHUNK_BYTES {
-            return Err(format!(
-                "chunk claims {size} uncompressed bytes (more than the {} MiB limit)",
-                MAX_CHUNK_BYTES >> 20
-            ));
-        }
-        let size = size as usize;
+        let size = fields.u32("size")?.into();
         let len = meta.available.unwrap_or(record.data_len);
         let raw = self
             .read_data(record.data_offset, len)
             .map_err(|e| record_error_text(e, record.data_offset))?;
-        let truncated = meta.available.is_some();
-        let data = match compression.as_str() {
-            "none" => raw,
-            "bz2" => decompress(bzip2::read::BzDecoder::new(&raw[..]), size, truncated)
-                .map_err(|e| format!("bz2 chunk does not decompress: {e}"))?,
-            "lz4" => decompress(
-                lz4_flex::frame::FrameDecoder::new(&raw[..]),
-                size,
-                truncated,
-            )
-            .map_err(|e| format!("lz4 chunk does not decompress: {e}"))?,
-            other => {
-                return Err(format!(
-                    "unsupported chunk compression {other:?} (supported: none, bz2, lz4)"
-                ));
-            }
-        };
-        if data.len() > size || (!truncated && data.len() != size) {
-            let more = if data.len() > size { "more than " } else { "" };
-            return Err(format!(
-                "chunk decompressed to {more}{} bytes, its header says {size}",
-                data.len()
-            ));
-        }
+        let mut data = Vec::new();
+        let partial = meta.available.is_some();
+        Inflater::default().chunk(&compression, &raw, size, partial, &mut data)?;
         Ok((data, compression, record.data_offset))
     }
 
@@ -957,16 +927,6 @@ struct LoadedChunk {
 impl LoadedChunk {
     fn head_time(&self) -> Option<u64> {
         self.messages.get(self.next).map(|m| m.time_ns)
-    }
-}
-
-/// Decompress a whole chunk, reading at most one byte more than its declared `size` (enough to
-/// tell a bomb from a valid chunk); for a chunk cut off by the end of the file keep what came out.
-fn decompress(reader: impl Read, size: usize, truncated: bool) -> Result<Vec<u8>, std::io::Error> {
-    let mut out = Vec::new();
-    match super::read_capped(reader, size, &mut out) {
-        Err(e) if !truncated => Err(e),
-        _ => Ok(out),
     }
 }
 
