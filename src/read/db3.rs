@@ -318,7 +318,8 @@ fn inflated<'a>(
 fn merge_infos(path: &Path, format: &str, infos: Vec<SessionInfo>) -> SessionInfo {
     let stats = infos.iter().flat_map(|i| &i.topics).map(|t| {
         let mut s = TopicStat::default();
-        (s.add(t.first_ns, t.count), s.add(t.last_ns, 0));
+        s.add(t.first_ns, t.count);
+        s.add(t.last_ns, 0);
         let [topic, type_name, encoding] =
             [&t.topic, &t.type_name, &t.encoding].map(String::as_str);
         (topic, type_name, encoding, s)
