@@ -134,18 +134,10 @@ pub(super) fn trial_windows(
         }
     }
     // On `clock`'s origin, with its power series; a sample within the margin still belongs.
-    let buf = Recording {
-        source: file.path.clone(),
-        joint_names: file.map.joint_names.clone(),
-        ..super::clock_of(clock)
-    };
-    let (trials, next, after_s) = (trials.to_vec(), 0, MARGIN_S);
-    let mut walk = TrialWalk {
-        buf,
-        trials,
-        next,
-        after_s,
-    };
+    let mut walk = TrialWalk::new(file.path.clone(), &file.map.joint_names, trials.to_vec());
+    let b = &mut walk.buf;
+    (b.start_ns, b.mbs, b.bms) = (clock.start_ns, clock.mbs.clone(), clock.bms.clone());
+    walk.after_s = MARGIN_S;
     let mut on_state = |state: &StateSeries| walk.push_state(state, on_trial);
     match file.spill.get().filter(|s| s.origin_ns == clock.start_ns) {
         Some(spill) => spill.stream(Some(&ranges), &mut on_state)?,
