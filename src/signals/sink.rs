@@ -123,20 +123,13 @@ impl Joined<'_> {
         if offset == 0.0 && b.start_ns == start_ns {
             return self.sink.batch(b);
         }
-        let mut b = b.clone();
-        if offset != 0.0 {
-            for t in b
-                .state
-                .t
-                .iter_mut()
-                .chain(&mut b.command.t)
-                .chain(&mut b.mbs.t)
-                .chain(&mut b.bms.t)
-            {
-                *t += offset;
-            }
-        }
-        b.start_ns = start_ns;
-        self.sink.batch(&b)
+        let mut shifted = Recording {
+            start_ns,
+            source: b.source.clone(),
+            joint_names: b.joint_names.clone(),
+            ..Recording::default()
+        };
+        shifted.append(b.clone(), offset);
+        self.sink.batch(&shifted)
     }
 }
