@@ -16,7 +16,7 @@ use rusqlite::{Connection, OpenFlags};
 
 use super::mcap::McapSource;
 use super::msgdef::MsgSchema;
-use super::shared::{TopicStat, select_topics};
+use super::shared::{TopicStat, by_topic, select_topics};
 use super::{
     Channel, Encoding, MessageRef, MessageSource, OpenOptions, ReadError, ReadSummary, SessionInfo,
     session_info,
@@ -316,23 +316,16 @@ fn inflated<'a>(
 
 /// Combine the infos of consecutive split files into one.
 fn merge_infos(path: &Path, format: &str, infos: Vec<SessionInfo>) -> SessionInfo {
-    let mut by_topic: HashMap<String, (String, String, TopicStat)> = HashMap::new();
-    let mut warnings = Vec::new();
-    for info in infos {
-        warnings.extend(info.warnings);
-        for t in info.topics {
-            let e = (by_topic.entry(t.topic)).or_insert((
-                t.type_name,
-                t.encoding,
-                TopicStat::default(),
-            ));
-            e.2.add(t.first_ns, t.count);
-            e.2.last_ns = e.2.last_ns.max(t.last_ns);
-        }
-    }
-    let topics = (by_topic.iter())
-        .map(|(topic, (type_name, encoding, s))| s.info(topic, type_name, encoding))
-        .collect();
+    let stats = infos.iter().flat_map(|i| &i.topics).map(|t| {
+        let mut s = TopicStat::default();
+        s.add(t.first_ns, t.count);
+        s.add(t.last_ns, 0);
+        let [topic, type_name, encoding] =
+            [&t.topic, &t.type_name, &t.encoding].map(String::as_str);
+        (topic, type_name, encoding, s)
+    });
+    let topics = by_topic(stats);
+    let warnings = infos.into_iter().flat_map(|i| i.warnings).collect();
     session_info(path, format, topics, warnings)
 }
 

@@ -39,12 +39,8 @@ fn tokenize_idl(type_name: &str, text: &str) -> Result<Vec<(Tok, usize)>, Schema
         }
         let starts_line = at_line_start;
         at_line_start = false;
-        if c == '#' && starts_line {
-            // Preprocessor line (#include, #pragma …): ignored.
-            while i < chars.len() && chars[i] != '\n' {
-                i += 1;
-            }
-        } else if c == '/' && chars.get(i + 1) == Some(&'/') {
+        if (c == '#' && starts_line) || (c == '/' && chars.get(i + 1) == Some(&'/')) {
+            // A preprocessor line (#include, #pragma …) or a line comment: ignored.
             while i < chars.len() && chars[i] != '\n' {
                 i += 1;
             }

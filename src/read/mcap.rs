@@ -20,7 +20,7 @@ use std::sync::Arc;
 
 use super::mcap_records::{self as rec, ChunkIndex, Statistics};
 use super::msgdef::MsgType;
-use super::shared::{MAX_DETAILED, Orphans, TopicStat, capped};
+use super::shared::{Inflater, MAX_CHUNK_BYTES, MAX_DETAILED, Orphans, TopicStat, capped};
 use super::{
     Channel, Encoding, MessageRef, MessageSource, MsgSchema, OpenOptions, ReadError, ReadSummary,
     SessionInfo, TopicInfo,
@@ -47,9 +47,6 @@ mod op {
 const RECORD_PREFIX: u64 = 9;
 /// Footer record plus the closing magic.
 const FOOTER_TOTAL: u64 = RECORD_PREFIX + 20 + 8;
-/// Chunks (compressed or not, and after decompression) larger than this are treated as damage
-/// rather than allocated.
-const MAX_CHUNK_BYTES: u64 = 64 << 20;
 /// Summary sections larger than this are ignored (linear scan instead).
 const MAX_SUMMARY_BYTES: u64 = 64 << 20;
 /// Records stored outside chunks are read in spans of at most this many bytes.
@@ -647,7 +644,7 @@ impl<R: Read + Seek> McapSource<R> {
                     .any(|id| self.registry.wanted(*id, topics))
         });
         if let Some(ranges) = self.time_ranges.as_ref().filter(|_| trusted) {
-            chunks.retain(|c| overlaps(ranges, c.message_start_time, c.message_end_time));
+            chunks.retain(|c| super::overlaps(ranges, c.message_start_time, c.message_end_time));
         }
         chunks.sort_by_key(|c| (c.message_start_time, c.chunk_start_offset));
         let mut groups: Vec<Vec<ChunkIndex>> = Vec::new();
@@ -1096,13 +1093,6 @@ fn extend_span(layout: &mut Vec<ChunkIndex>, pos: u64, size: u64, time: Option<u
     }
 }
 
-/// Whether [a, b] overlaps one of `ranges` (sorted, inclusive bounds).
-fn overlaps(ranges: &[(u64, u64)], a: u64, b: u64) -> bool {
-    // The first range that does not end before a.
-    let i = ranges.partition_point(|r| r.1 < a);
-    ranges.get(i).is_some_and(|r| r.0 <= b)
-}
-
 /// Raw chunk records of one group for the decompression thread (with the file offset each
 /// came from, or the damage met reading it), and spent buffers to decompress into.
 struct InflateJob {
@@ -1150,16 +1140,9 @@ fn worker_gone(group: &[ChunkIndex]) -> Damage {
     }
 }
 
-/// Chunk decompression, keeping one zstd context for every chunk (creating one per chunk cost
-/// a few per cent of a whole read).
-#[derive(Default)]
-struct Inflater {
-    zstd: Option<zstd::bulk::Decompressor<'static>>,
-}
-
 impl Inflater {
-    /// The records of one entry read from the file: a chunk decompressed into `buf`, or a span
-    /// of loose records as it is.
+    /// The records of one entry read from the file: a chunk decompressed into `buf` (sizes and
+    /// CRC checked), or a span of loose records as it is.
     fn entry(
         &mut self,
         raw: Result<RawChunk, Damage>,
@@ -1178,66 +1161,13 @@ impl Inflater {
             let what = format!("expected a chunk record, found opcode 0x{opcode:02x}");
             return Err(damage(what));
         }
-        self.chunk_body(body, &mut buf).map_err(damage)?;
+        let chunk = rec::chunk(body).map_err(damage)?;
+        let (compression, size) = (chunk.compression.as_str(), chunk.uncompressed_size);
+        (self.chunk(compression, chunk.records, size, false, &mut buf)).map_err(damage)?;
+        if chunk.uncompressed_crc != 0 && crc32fast::hash(&buf) != chunk.uncompressed_crc {
+            return Err(damage("chunk CRC mismatch (corrupted data)".into()));
+        }
         Ok(buf)
-    }
-
-    /// Decompress a chunk record body into `out`, checking sizes and the CRC. The output is
-    /// capped at the declared uncompressed size (itself at most [`MAX_CHUNK_BYTES`]): a chunk
-    /// that inflates beyond it is damage, whatever its compressed size.
-    fn chunk_body(&mut self, body: &[u8], out: &mut Vec<u8>) -> Result<(), String> {
-        let chunk = rec::chunk(body)?;
-        if chunk.uncompressed_size > MAX_CHUNK_BYTES {
-            return Err(format!(
-                "chunk claims {} uncompressed bytes (more than the {} MiB limit)",
-                chunk.uncompressed_size,
-                MAX_CHUNK_BYTES >> 20
-            ));
-        }
-        let size = chunk.uncompressed_size as usize;
-        out.clear();
-        let data = chunk.records;
-        match chunk.compression.as_str() {
-            "" => out.extend_from_slice(data),
-            "zstd" => {
-                let failed = |e: std::io::Error| {
-                    format!(
-                        "zstd decompression failed (or more than the declared {size} bytes): {e}"
-                    )
-                };
-                let d = match &mut self.zstd {
-                    Some(d) => d,
-                    empty => empty.insert(zstd::bulk::Decompressor::new().map_err(failed)?),
-                };
-                // The bulk decoder writes at most the Vec's capacity: the declared size.
-                out.reserve_exact(size);
-                if let Err(e) = d.decompress_to_buffer(data, out) {
-                    // A failed frame may leave the context mid-stream: start the next afresh.
-                    self.zstd = None;
-                    return Err(failed(e));
-                }
-            }
-            "lz4" => {
-                super::read_capped(lz4_flex::frame::FrameDecoder::new(data), size, out)
-                    .map_err(|e| format!("lz4 decompression failed: {e}"))?;
-            }
-            other => {
-                return Err(format!(
-                    "unsupported chunk compression {other:?} (supported: zstd, lz4, none)"
-                ));
-            }
-        }
-        if out.len() != size {
-            let more = if out.len() > size { "more than " } else { "" };
-            return Err(format!(
-                "chunk decompressed to {more}{} bytes, header says {size}",
-                out.len()
-            ));
-        }
-        if chunk.uncompressed_crc != 0 && crc32fast::hash(out) != chunk.uncompressed_crc {
-            return Err("chunk CRC mismatch (corrupted data)".into());
-        }
-        Ok(())
     }
 }
 

@@ -217,6 +217,13 @@ pub(crate) fn rate_hz(count: u64, first_ns: u64, last_ns: u64) -> f64 {
     (count - 1) as f64 / ((last_ns - first_ns) as f64 * 1e-9)
 }
 
+/// Whether [a, b] overlaps one of `ranges` (sorted, inclusive bounds).
+pub(crate) fn overlaps(ranges: &[(u64, u64)], a: u64, b: u64) -> bool {
+    // The first range that does not end before a.
+    let i = ranges.partition_point(|r| r.1 < a);
+    ranges.get(i).is_some_and(|r| r.0 <= b)
+}
+
 /// Assemble a [`SessionInfo`] from per-topic statistics (sorted by topic name here; start and
 /// end from the topics' own first and last messages).
 pub(crate) fn session_info(

@@ -336,70 +336,51 @@ impl MsgSchema {
     /// decoding it would recurse without end. Types nested deeper than [`MAX_NESTING`] are
     /// refused too: the decoders recurse once per level.
     fn check_acyclic(&self) -> Result<(), SchemaError> {
-        // Depth-first over the type graph with an explicit stack; 1 = on the path, 2 = done.
-        let mut state: HashMap<&str, u8> = HashMap::new();
-        // Nesting depth of each finished type (1 = only primitives).
-        let mut depth: HashMap<&str, usize> = HashMap::new();
         let mut names: Vec<&String> = self.types.keys().collect();
         names.sort();
-        for start in names {
-            if state.contains_key(start.as_str()) {
-                continue;
-            }
-            let mut path: Vec<(&str, usize)> = vec![(start.as_str(), 0)];
-            state.insert(start.as_str(), 1);
-            while let Some((name, next)) = path.last_mut() {
-                let name: &str = name;
-                let fields = self.types.get(name).map_or(&[][..], |t| &t.fields[..]);
-                let Some(field) = fields.get(*next) else {
-                    let d = 1 + fields
-                        .iter()
-                        .filter_map(|f| match &f.ty {
-                            FieldType::Message(c) => depth.get(c.as_str()).copied(),
-                            FieldType::Primitive(_) => None,
-                        })
-                        .max()
-                        .unwrap_or(0);
-                    if d > MAX_NESTING {
-                        return Err(SchemaError::Syntax {
-                            type_name: name.to_string(),
-                            line: 0,
-                            what: format!(
-                                "message types nested more than {MAX_NESTING} levels deep"
-                            ),
-                        });
-                    }
-                    depth.insert(name, d);
-                    state.insert(name, 2);
-                    path.pop();
-                    continue;
-                };
-                *next += 1;
-                let FieldType::Message(child) = &field.ty else {
-                    continue;
-                };
-                match state.get(child.as_str()) {
-                    Some(1) => {
-                        let from = path.iter().position(|(n, _)| *n == child).unwrap_or(0);
-                        let chain: Vec<&str> = path[from..].iter().map(|(n, _)| *n).collect();
-                        return Err(SchemaError::Syntax {
-                            type_name: child.clone(),
-                            line: 0,
-                            what: format!(
-                                "the message contains itself ({} → {child}): no finite layout",
-                                chain.join(" → ")
-                            ),
-                        });
-                    }
-                    Some(_) => {}
-                    None => {
-                        state.insert(child.as_str(), 1);
-                        path.push((child.as_str(), 0));
-                    }
-                }
-            }
+        let mut depth = HashMap::new();
+        for name in names {
+            self.nesting(name, &mut Vec::new(), &mut depth)?;
         }
         Ok(())
+    }
+
+    /// Nesting depth of type `name` (1 = only primitives) inside the types on `path`, memoised in
+    /// `depth`. The recursion stops at [`MAX_NESTING`] levels, so a hostile schema cannot
+    /// overflow the stack.
+    fn nesting<'a>(
+        &'a self,
+        name: &'a str,
+        path: &mut Vec<&'a str>,
+        depth: &mut HashMap<&'a str, usize>,
+    ) -> Result<usize, SchemaError> {
+        if let Some(&d) = depth.get(name) {
+            return Ok(d);
+        }
+        let refuse = |what: String| SchemaError::Syntax {
+            type_name: name.to_string(),
+            line: 0,
+            what,
+        };
+        if let Some(from) = path.iter().position(|n| *n == name) {
+            let chain = path[from..].join(" → ");
+            let what = format!("the message contains itself ({chain} → {name}): no finite layout");
+            return Err(refuse(what));
+        }
+        if path.len() >= MAX_NESTING {
+            let what = format!("message types nested more than {MAX_NESTING} levels deep");
+            return Err(refuse(what));
+        }
+        path.push(name);
+        let mut d = 1;
+        for f in self.types.get(name).map_or(&[][..], |t| &t.fields[..]) {
+            if let FieldType::Message(child) = &f.ty {
+                d = d.max(1 + self.nesting(child, path, depth)?);
+            }
+        }
+        path.pop();
+        depth.insert(name, d);
+        Ok(d)
     }
 }
 

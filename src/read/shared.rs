@@ -12,6 +12,83 @@ use super::{Channel, Encoding, MsgSchema, ReadError, ReadSummary, TopicInfo};
 /// Disagreements of one kind reported in detail before they are only counted.
 pub(crate) const MAX_DETAILED: usize = 10;
 
+/// Chunks (compressed or not, and after decompression) larger than this are treated as damage
+/// rather than allocated.
+pub(crate) const MAX_CHUNK_BYTES: u64 = 64 << 20;
+
+/// Chunk decompression for the MCAP and ROS 1 readers, keeping one zstd context for every chunk
+/// (creating one per chunk cost a few per cent of a whole read).
+#[derive(Default)]
+pub(crate) struct Inflater {
+    zstd: Option<zstd::bulk::Decompressor<'static>>,
+}
+
+impl Inflater {
+    /// Decompress one chunk's `data` (`compression` as the container names it) into `out`,
+    /// capped at its declared `size` (itself at most [`MAX_CHUNK_BYTES`]): a chunk that
+    /// inflates beyond it is damage whatever its compressed size, and so is one that inflates to
+    /// less, unless it is `partial` (cut off by the end of the file: what came out is kept).
+    pub fn chunk(
+        &mut self,
+        compression: &str,
+        data: &[u8],
+        size: u64,
+        partial: bool,
+        out: &mut Vec<u8>,
+    ) -> Result<(), String> {
+        if size > MAX_CHUNK_BYTES {
+            let limit = MAX_CHUNK_BYTES >> 20;
+            return Err(format!(
+                "chunk claims {size} uncompressed bytes (more than the {limit} MiB limit)"
+            ));
+        }
+        let size = size as usize;
+        out.clear();
+        let capped = |reader: &mut dyn std::io::Read, out: &mut Vec<u8>, name: &str| {
+            match super::read_capped(reader, size, out) {
+                Err(e) if !partial => Err(format!("{name} chunk does not decompress: {e}")),
+                _ => Ok(()),
+            }
+        };
+        match compression {
+            "" | "none" => out.extend_from_slice(data),
+            "lz4" => capped(&mut lz4_flex::frame::FrameDecoder::new(data), out, "lz4")?,
+            "bz2" => capped(&mut bzip2::read::BzDecoder::new(data), out, "bz2")?,
+            "zstd" => {
+                let failed = |e: std::io::Error| {
+                    format!(
+                        "zstd decompression failed (or more than the declared {size} bytes): {e}"
+                    )
+                };
+                let d = match &mut self.zstd {
+                    Some(d) => d,
+                    empty => empty.insert(zstd::bulk::Decompressor::new().map_err(failed)?),
+                };
+                // The bulk decoder writes at most the Vec's capacity: the declared size.
+                out.reserve_exact(size);
+                if let Err(e) = d.decompress_to_buffer(data, out) {
+                    // A failed frame may leave the context mid-stream: start the next afresh.
+                    self.zstd = None;
+                    return Err(failed(e));
+                }
+            }
+            other => {
+                return Err(format!(
+                    "unsupported chunk compression {other:?} (supported: zstd, lz4, bz2, none)"
+                ));
+            }
+        }
+        if out.len() > size || (!partial && out.len() != size) {
+            let more = if out.len() > size { "more than " } else { "" };
+            return Err(format!(
+                "chunk decompressed to {more}{} bytes, its header says {size}",
+                out.len()
+            ));
+        }
+        Ok(())
+    }
+}
+
 /// Count and first/last log time of one topic's (or connection's, channel's) messages.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct TopicStat {
@@ -57,6 +134,23 @@ impl TopicStat {
             rate_hz: super::rate_hz(self.count, first, self.last_ns),
         }
     }
+}
+
+/// One [`TopicInfo`] per topic name from the statistics of its connections (channels, files):
+/// (topic, type, encoding, statistics); the first type and encoding met are kept.
+pub(crate) fn by_topic<'a>(
+    stats: impl Iterator<Item = (&'a str, &'a str, &'a str, TopicStat)>,
+) -> Vec<TopicInfo> {
+    let mut by: BTreeMap<&str, (&str, &str, TopicStat)> = BTreeMap::new();
+    for (topic, type_name, encoding, s) in stats {
+        let e = by.entry(topic);
+        e.or_insert((type_name, encoding, TopicStat::default()))
+            .2
+            .merge(&s);
+    }
+    (by.into_iter())
+        .map(|(topic, (type_name, encoding, s))| s.info(topic, type_name, encoding))
+        .collect()
 }
 
 /// Which of a recording's topics (name, channel or why it has none) a read delivers: those in

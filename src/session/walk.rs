@@ -134,18 +134,10 @@ pub(super) fn trial_windows(
         }
     }
     // On `clock`'s origin, with its power series; a sample within the margin still belongs.
-    let buf = Recording {
-        source: file.path.clone(),
-        joint_names: file.map.joint_names.clone(),
-        ..super::clock_of(clock)
-    };
-    let (trials, next, after_s) = (trials.to_vec(), 0, MARGIN_S);
-    let mut walk = TrialWalk {
-        buf,
-        trials,
-        next,
-        after_s,
-    };
+    let mut walk = TrialWalk::new(file.path.clone(), &file.map.joint_names, trials.to_vec());
+    let b = &mut walk.buf;
+    (b.start_ns, b.mbs, b.bms) = (clock.start_ns, clock.mbs.clone(), clock.bms.clone());
+    walk.after_s = MARGIN_S;
     let mut on_state = |state: &StateSeries| walk.push_state(state, on_trial);
     match file.spill.get().filter(|s| s.origin_ns == clock.start_ns) {
         Some(spill) => spill.stream(Some(&ranges), &mut on_state)?,
@@ -197,9 +189,27 @@ pub fn for_each_trial_with_batches(
         on_batch(batch);
         walk.push(batch, on_trial)
     };
-    match file.spill.get() {
-        Some(spill) if spill.power.is_some() => {
-            replay_spill(spill, &file.map.joint_names, &mut on_recording)?
+    match file.spill.get().and_then(|s| Some((s, s.power.clone()?))) {
+        // The spill's blocks of joint states, the power readings (whole) with the first.
+        Some((spill, [mbs, bms])) => {
+            let (mut power, mut blocks) = (Some((mbs, bms)), 0);
+            let mut rec = Recording {
+                start_ns: spill.origin_ns,
+                joint_names: file.map.joint_names.clone(),
+                ..Recording::default()
+            };
+            let mut send = |state: StateSeries| {
+                rec.state = state;
+                (rec.mbs, rec.bms) = power.take().unwrap_or_default();
+                on_recording(&rec)
+            };
+            spill.stream(None, &mut |s| {
+                blocks += 1;
+                send(s.clone())
+            })?;
+            if blocks == 0 {
+                send(StateSeries::default())?;
+            }
         }
         _ => {
             stream_recording(
@@ -212,50 +222,4 @@ pub fn for_each_trial_with_batches(
         }
     }
     walk.finish(on_trial)
-}
-
-/// The batches of a spilled session ([`SessionFile::spill`]) as the recording's full read
-/// delivers them, without the commands: each block of joint states with the power readings
-/// stamped up to its last sample (the rest with the last block).
-fn replay_spill(
-    spill: &crate::signals::StateSpill,
-    joint_names: &[String],
-    on_batch: &mut dyn FnMut(&Recording) -> Result<()>,
-) -> Result<()> {
-    let Some([mbs, bms]) = &spill.power else {
-        anyhow::bail!("the spill holds no power readings");
-    };
-    let mut from = [0usize; 2];
-    let mut pending: Option<StateSeries> = None;
-    let mut emit = |state: StateSeries, last: bool, from: &mut [usize; 2]| {
-        let t_max = state.t.iter().copied().fold(f64::NEG_INFINITY, f64::max);
-        let mut rec = Recording {
-            start_ns: spill.origin_ns,
-            joint_names: joint_names.to_vec(),
-            state,
-            ..Recording::default()
-        };
-        for (k, (p, to)) in [(mbs, &mut rec.mbs), (bms, &mut rec.bms)]
-            .into_iter()
-            .enumerate()
-        {
-            let end = if last {
-                p.t.len()
-            } else {
-                from[k] + p.t[from[k]..].partition_point(|&t| t <= t_max)
-            };
-            to.t.extend_from_slice(&p.t[from[k]..end]);
-            to.watts.extend_from_slice(&p.watts[from[k]..end]);
-            from[k] = end;
-        }
-        on_batch(&rec)
-    };
-    // One block behind, so that the last one also takes the readings after it.
-    spill.stream(None, &mut |s| {
-        if let Some(prev) = pending.replace(s.clone()) {
-            emit(prev, false, &mut from)?;
-        }
-        Ok(())
-    })?;
-    emit(pending.unwrap_or_default(), true, &mut from)
 }

@@ -423,12 +423,7 @@ fn read_batches(
     let mut sink_error: Option<anyhow::Error> = None;
     let mut count = 0u64;
     session.set_time_ranges(plan.ranges.clone());
-    let wanted = |t: u64| {
-        plan.ranges.as_ref().is_none_or(|r| {
-            let i = r.partition_point(|x| x.1 < t);
-            r.get(i).is_some_and(|x| x.0 <= t)
-        })
-    };
+    let wanted = |t| (plan.ranges.as_ref()).is_none_or(|r| crate::read::overlaps(r, t, t));
     let read = session.read(Some(&topics), &mut |msg| {
         if !wanted(msg.log_time_ns) {
             return Ok(());

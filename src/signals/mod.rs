@@ -263,5 +263,5 @@ pub use map::{
     G1_LEFT_ARM_BASE, G1_RIGHT_ARM_BASE, GROUPS, Group, JOINT_SHORT, SignalMap, SignalSpec,
     group_signals,
 };
-pub use sink::{RecordingSink, StreamHeader, stream_into, stream_joined_into};
+pub use sink::{RecordingSink, StreamHeader, stream_joined_into};
 pub use spill::{SpillSlot, SpillWriter, StateSpill};

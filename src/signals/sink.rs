@@ -1,7 +1,7 @@
 //! A consumer's view of a streamed recording, with a lifecycle like ripgrep's `Sink`:
 //! [`RecordingSink::begin`] once with the session's header (source, clock origin, joints) before
 //! any samples, [`RecordingSink::batch`] per stretch of samples, [`RecordingSink::finish`] once
-//! with the read's summary. [`stream_into`] drives it over [`super::stream_recording`].
+//! with the read's summary. [`stream_joined_into`] drives it over [`super::stream_recording`].
 
 use std::path::Path;
 
@@ -30,20 +30,10 @@ pub trait RecordingSink {
     fn finish(&mut self, summary: &StreamSummary, begun: bool) -> anyhow::Result<()>;
 }
 
-/// Streams `path` into `sink` in batches of at most `batch_samples` samples (memory bounded as
-/// for [`stream_recording`]); errors of the read or of the sink stop it.
-pub fn stream_into(
-    path: &Path,
-    map: &SignalMap,
-    opts: &OpenOptions,
-    batch_samples: usize,
-    sink: &mut dyn RecordingSink,
-) -> anyhow::Result<StreamSummary> {
-    stream_joined_into(&[path], map, opts, batch_samples, 0.0, sink)
-}
-
-/// Streams several files into `sink` as one session joined end to end, exactly as
-/// [`super::join_recordings`] joins them loaded: each part's times are shifted so that its first
+/// Streams one file, or several joined end to end into one session exactly as
+/// [`super::join_recordings`] joins them loaded, into `sink` in batches of at most
+/// `batch_samples` samples (memory bounded as for [`stream_recording`]; errors of the read or of
+/// the sink stop it): each part's times are shifted so that its first
 /// joint sample comes `gap_s` after the previous part's last one; the header (source, clock origin,
 /// joints) is the first part's, and every batch is on its clock. [`RecordingSink::begin`] and
 /// [`RecordingSink::finish`] are called once (the summary adds the parts' counts and warnings).
@@ -133,20 +123,13 @@ impl Joined<'_> {
         if offset == 0.0 && b.start_ns == start_ns {
             return self.sink.batch(b);
         }
-        let mut b = b.clone();
-        if offset != 0.0 {
-            for t in b
-                .state
-                .t
-                .iter_mut()
-                .chain(&mut b.command.t)
-                .chain(&mut b.mbs.t)
-                .chain(&mut b.bms.t)
-            {
-                *t += offset;
-            }
-        }
-        b.start_ns = start_ns;
-        self.sink.batch(&b)
+        let mut shifted = Recording {
+            start_ns,
+            source: b.source.clone(),
+            joint_names: b.joint_names.clone(),
+            ..Recording::default()
+        };
+        shifted.append(b.clone(), offset);
+        self.sink.batch(&shifted)
     }
 }

@@ -440,9 +440,8 @@ pub fn replay_files_with(
         chunk_rows: opts.chunk_rows.max(STREAMED_CHUNK_ROWS),
         ..opts.clone()
     };
-    streamed_replay(robot, arm, &extras, opts, stream, &mut |sink| match paths {
-        [path] => crate::signals::stream_into(path, map, read_opts, rows, sink).map(drop),
-        _ => crate::signals::stream_joined_into(paths, map, read_opts, rows, gap_s, sink).map(drop),
+    streamed_replay(robot, arm, &extras, opts, stream, &mut |sink| {
+        crate::signals::stream_joined_into(paths, map, read_opts, rows, gap_s, sink).map(drop)
     })
 }
 
