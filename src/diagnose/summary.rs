@@ -317,11 +317,20 @@ fn sensor_lines(d: &Diagnosis, s: &mut String) {
                     )),
                     match demanded {
                         true => "the latency hypothesis judges it",
-                        false => "no latency is claimed",
+                        false => "no latency is claimed (located below)",
                     }
                 ),
             }
         );
+        // A lag the held-out trials cannot tell from a longer window: the timing is located,
+        // neither named (a latency at W or a window W′ at no lag, fuzz seed 1947408491).
+        if let (false, Some(p)) = (sw.lag_demanded, sw.lag_held_out) {
+            let _ = writeln!(
+                s,
+                "Located: the readings' timing — a latency of {:.3} s behind a {:.3} s window, or a {:.3} s window at no lag; the held-out trials do not tell them apart (p = {p:.1e}); neither is claimed.",
+                sw.scan_lag_s, sw.scan_window_s, sw.window_s
+            );
+        }
     }
     if let Some(best) = d
         .lag_scan

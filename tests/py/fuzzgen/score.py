@@ -69,10 +69,13 @@ def locations(d):
     if disc.get("meter_located"):
         m = disc["meter_located"]
         out.append({"kind": "meter", "id": None, "name": m.get("name", ""), "fields": list(m.get("fields", []))})
-    # a drifting sensor window the other meter cannot attribute (the summary's "Located: …")
+    # a drifting sensor window the other meter cannot attribute, and a lag the held-out trials
+    # cannot tell from a longer window (the summary's "Located: …")
     for line in d.get("summary", "").splitlines():
         if line.startswith("Located:") and "averaging window drifts" in line:
             out.append({"kind": "meter", "id": None, "name": line[len("Located:"):], "fields": []})
+        if line.startswith("Located: the readings' timing"):
+            out.append({"kind": "library", "id": "latency", "name": line[len("Located:"):], "fields": []})
     return out
 
 

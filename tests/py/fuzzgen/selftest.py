@@ -108,6 +108,15 @@ def check_scorer():
     d["discovery"]["meter_located"]["fields"] = ["/lf/bmsstate.soc", "/lf/mainboardstate.fan_state[1]"]
     if score.score([load], [1.0], [], located=score.locations(d)) != ([], ["located"]):
         bad.append(("meter located on a field", score.locations(d)))
+    # a lag the held-out trials cannot tell from a longer window locates a latency, and is no claim
+    d = {"summary": "Located: the readings' timing — a latency of 0.050 s behind a 0.300 s window, or a "
+                    "0.375 s window at no lag; the held-out trials do not tell them apart (p = 3.7e-1); "
+                    "neither is claimed."}
+    lat = {"kind": "library", "mechanism": "latency", "expect": {"ids": ["latency"], "fields": [], "terms": []}}
+    loc = score.locations(d)
+    if score.claims(d) or score.score([lat], [1.0], [], located=loc) != ([], ["located"]) \
+            or score.score([lib], [1.0], [], located=loc) != ([], ["missed"]):
+        bad.append(("timing located", loc))
     # one claim that fits two drawn forms of a mechanism names the one the data show most
     if score.score([lib, dict(lib)], [0.0, 0.28], [L("braking")]) != (["right"], ["missed", "named"]):
         bad.append(("two forms, one claim", score.score([lib, dict(lib)], [0.0, 0.28], [L("braking")])))
