@@ -129,6 +129,7 @@ pub fn sections(d: &Diagnosis) -> [(&'static str, String); 4] {
     }
     let mut located_ = String::new();
     window_drift(d, &mut found, &mut located_);
+    timing_located(d, &mut located_);
     located(d, &mut located_);
     unnamed_lines(d, &mut located_);
     implausible_lines(d, &mut located_);
@@ -173,6 +174,19 @@ fn quality(d: &Diagnosis, s: &mut String) {
         );
     }
     sensor_lines(d, s);
+}
+
+/// A lag the held-out trials cannot tell from a longer window: the timing is located, neither
+/// named (a latency at W or a window W′ at no lag, fuzz seed 1947408491).
+fn timing_located(d: &Diagnosis, s: &mut String) {
+    let sw = &d.sensor_window;
+    if let (false, Some(p)) = (sw.lag_demanded, sw.lag_held_out) {
+        let _ = writeln!(
+            s,
+            "Located: the readings' timing — a latency of {:.3} s behind a {:.3} s window, or a {:.3} s window at no lag; the held-out trials do not tell them apart (p = {p:.1e}); neither is claimed.",
+            sw.scan_lag_s, sw.scan_window_s, sw.window_s
+        );
+    }
 }
 
 /// Where the base model is most clearly wrong (located, not identified).
@@ -317,20 +331,11 @@ fn sensor_lines(d: &Diagnosis, s: &mut String) {
                     )),
                     match demanded {
                         true => "the latency hypothesis judges it",
-                        false => "no latency is claimed (located below)",
+                        false => "no latency is claimed (located above)",
                     }
                 ),
             }
         );
-        // A lag the held-out trials cannot tell from a longer window: the timing is located,
-        // neither named (a latency at W or a window W′ at no lag, fuzz seed 1947408491).
-        if let (false, Some(p)) = (sw.lag_demanded, sw.lag_held_out) {
-            let _ = writeln!(
-                s,
-                "Located: the readings' timing — a latency of {:.3} s behind a {:.3} s window, or a {:.3} s window at no lag; the held-out trials do not tell them apart (p = {p:.1e}); neither is claimed.",
-                sw.scan_lag_s, sw.scan_window_s, sw.window_s
-            );
-        }
     }
     if let Some(best) = d
         .lag_scan
