@@ -46,7 +46,7 @@ fn sig(v: f64) -> String {
 }
 
 /// A markdown table with a row per item, built column by column: each column's heading beside
-/// how it shows an item (`rows_of(items).col(…)….write(md)`).
+/// how it shows an item (`rows_of(items).col(…)….write(md)`), and a blank line after it.
 struct Columns<'a, I: IntoIterator> {
     items: I,
     cols: Vec<(&'a str, Cell<'a, I::Item>)>,
@@ -72,6 +72,7 @@ impl<'a, I: IntoIterator> Columns<'a, I> {
         let cols = &self.cols;
         let rows = (self.items.into_iter()).map(|x| cols.iter().map(|c| c.1(&x)).collect());
         table(md, &head, rows);
+        md.push('\n');
     }
 }
 
@@ -149,7 +150,6 @@ fn torque_section(md: &mut String, t: &super::TorqueComparison) {
         .col("Fc [Nm]", |&j| f(&t.coulomb_nm, j))
         .col("Fv [Nm·s/rad]", |&j| f(&t.viscous_nms, j))
         .write(md);
-    md.push('\n');
 }
 
 /// Residual breakdowns of the base model and the regime figure.
@@ -183,7 +183,6 @@ fn where_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()> {
             .col("RMS [W]", |g| format!("{:.3}", g.rmse_w))
             .col("p", |g| sig(g.p_value))
             .write(md);
-        md.push('\n');
     }
     let caption = "Residual by the located regime";
     figure(md, dir, (0, (900, 500)), caption, |a| draw_regime(a, d))?;
@@ -213,7 +212,6 @@ fn hypotheses_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()> 
         })
         .col("verdict", |h| h.verdict.clone())
         .write(md);
-    md.push('\n');
     let caption = "Held-out improvement per hypothesis";
     figure(md, dir, (1, (900, 450)), caption, |a| draw_hypotheses(a, d))?;
     Ok(())
@@ -232,7 +230,6 @@ fn final_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()> {
             .col("std. error", |p| sig(p.std_err))
             .col("unit", |p| p.unit.clone())
             .write(md);
-        md.push('\n');
     }
     let _ = writeln!(
         md,
@@ -273,7 +270,6 @@ fn unexplained_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()>
         })
         .col("trials carrying it", |c| joined(&c.trials))
         .write(md);
-    md.push('\n');
     if d.lag_scan.len() > 1 {
         let caption = "Sensor-lag scan of the base model";
         figure(md, dir, (4, (800, 420)), caption, |a| draw_lag_scan(a, d))?;
@@ -288,7 +284,7 @@ fn unexplained_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()>
             .col("trial", |r| r.trial.to_string())
             .col("reason", |r| md_cell(&r.to_string()))
             .write(md);
-        md.push_str("\n</details>\n\n");
+        md.push_str("</details>\n\n");
     }
     Ok(())
 }
@@ -557,7 +553,6 @@ fn counterpart_section(md: &mut String, c: &super::counterpart::CounterpartCompa
         .col("q RMS [rad]", |j| format!("{:.4}", j.q_rms_rad))
         .write(md);
     if !c.worst_trials.is_empty() {
-        md.push('\n');
         rows_of(&c.worst_trials)
             .col("trial", |t| t.trial.to_string())
             .col("readings", |t| t.readings.to_string())
@@ -568,7 +563,6 @@ fn counterpart_section(md: &mut String, c: &super::counterpart::CounterpartCompa
             })
             .write(md);
     }
-    let _ = writeln!(md);
 }
 
 /// Mechanism forms, confounded pairs and discovery beyond the library.
@@ -593,7 +587,6 @@ fn beyond_section(md: &mut String, d: &Diagnosis) {
                 _ => "no".into(),
             })
             .write(md);
-        md.push('\n');
     }
     if !d.confounded.is_empty() {
         let _ = writeln!(md, "## Confounded\n");
@@ -609,7 +602,6 @@ fn beyond_section(md: &mut String, d: &Diagnosis) {
                 format!("{:+.2} %", -100.0 * c.rel_change)
             })
             .write(md);
-        md.push('\n');
     }
     let Some(r) = &d.discovery else {
         return;
@@ -636,9 +628,8 @@ fn beyond_section(md: &mut String, d: &Diagnosis) {
         .write(md);
     tied_terms(md, r);
     for n in &r.notes {
-        let _ = writeln!(md, "\n- {n}");
+        let _ = writeln!(md, "- {n}\n");
     }
-    md.push('\n');
     if let Some(rest) = &r.rest {
         rest_section(md, rest);
     }
@@ -669,7 +660,6 @@ Each trial's pre-idle power (mean {:.2} W; the net-power model subtracts it, so 
         .col("verdict", |t| t.verdict.clone())
         .col("not told apart from it", |t| t.tied.join(", "))
         .write(md);
-    md.push('\n');
 }
 
 /// The candidates each found term was not told apart from (its field is confounded), with the
@@ -681,7 +671,7 @@ fn tied_terms(md: &mut String, r: &super::DiscoveryReport) {
     }
     let _ = writeln!(
         md,
-        "\n### Not told apart from a found term (confounded: claimed as one mechanism, the field in doubt)\n"
+        "### Not told apart from a found term (confounded: claimed as one mechanism, the field in doubt)\n"
     );
     let rows = (r.accepted.iter()).flat_map(|t| t.tied.iter().map(move |o| (t.step, o)));
     rows_of(rows)
@@ -718,7 +708,7 @@ fn excluded_fields(md: &mut String, r: &super::DiscoveryReport) {
         .col("field", |e| format!("`{}`", e.name))
         .col("reason", |e| md_cell(&e.reason))
         .write(md);
-    md.push_str("\n</details>\n\n");
+    md.push_str("</details>\n\n");
 }
 
 /// A table cell's parameters: `symbol = value ± s.e. unit` each, `; `-separated.
