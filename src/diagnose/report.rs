@@ -457,62 +457,55 @@ fn draw_before_after(a: &Area, d: &Diagnosis) -> Result<()> {
     let x = (-0.5, (n as f64 - 0.5).max(0.5));
     let descs = ("trial (sorted by measured)", "net power [W]");
     let mut chart = xy_chart(a, &caption, (x, (lo, hi)), descs)?;
-    chart
-        .draw_series(
-            v.iter()
-                .enumerate()
-                .map(|(k, p)| Circle::new((k as f64, p.0), 3, BLUE.stroke_width(1))),
-        )
-        .map_err(plot_err)?
+    let (blue, grey, red) = (
+        BLUE.stroke_width(1),
+        GREY.stroke_width(1),
+        RED.stroke_width(2),
+    );
+    let k = |k: usize| k as f64;
+    let measured = v
+        .iter()
+        .enumerate()
+        .map(|(i, p)| Circle::new((k(i), p.0), 3, blue));
+    (chart.draw_series(measured).map_err(plot_err)?)
         .label("measured")
-        .legend(|(x, y)| Circle::new((x + 10, y), 4, BLUE.stroke_width(1)));
-    chart
-        .draw_series(
-            v.iter().enumerate().map(|(k, p)| {
-                Cross::new((k as f64, p.1), 3, RGBColor(140, 140, 140).stroke_width(1))
-            }),
-        )
-        .map_err(plot_err)?
+        .legend(move |(x, y)| Circle::new((x + 10, y), 4, blue));
+    let before = v
+        .iter()
+        .enumerate()
+        .map(|(i, p)| Cross::new((k(i), p.1), 3, grey));
+    (chart.draw_series(before).map_err(plot_err)?)
         .label("before")
-        .legend(|(x, y)| Cross::new((x + 10, y), 4, RGBColor(140, 140, 140).stroke_width(1)));
-    chart
-        .draw_series(LineSeries::new(
-            v.iter().enumerate().map(|(k, p)| (k as f64, p.2)),
-            RED.stroke_width(2),
-        ))
-        .map_err(plot_err)?
+        .legend(move |(x, y)| Cross::new((x + 10, y), 4, grey));
+    let after = LineSeries::new(v.iter().enumerate().map(|(i, p)| (k(i), p.2)), red);
+    (chart.draw_series(after).map_err(plot_err)?)
         .label("after")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED.stroke_width(2)));
+        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], red));
     legend(&mut chart, true)
 }
 
+/// The "before" series' colour.
+const GREY: RGBColor = RGBColor(140, 140, 140);
+
 fn draw_residual_time(a: &Area, d: &Diagnosis) -> Result<()> {
     let r = &d.replay;
-    let before: Vec<(f64, f64)> = (0..r.t.len())
-        .map(|k| (r.t[k], r.measured_w[k] - r.before_w[k]))
-        .collect();
-    let after: Vec<(f64, f64)> = (0..r.t.len())
-        .map(|k| (r.t[k], r.measured_w[k] - r.after_w[k]))
-        .collect();
+    let resid = |p: &[f64]| -> Vec<(f64, f64)> {
+        (0..r.t.len())
+            .map(|k| (r.t[k], r.measured_w[k] - p[k]))
+            .collect()
+    };
+    let (before, after) = (resid(&r.before_w), resid(&r.after_w));
     let (t0, t1) = range(r.t.iter().copied());
     let (lo, hi) = range(before.iter().chain(&after).map(|p| p.1));
     let caption = "Held-out residual per reading over the session";
     let descs = ("session time [s]", "measured − predicted [W]");
     let mut chart = xy_chart(a, caption, ((t0, t1), (lo, hi)), descs)?;
-    chart
-        .draw_series(
-            before
-                .iter()
-                .map(|p| Circle::new(*p, 2, RGBColor(140, 140, 140).filled())),
-        )
-        .map_err(plot_err)?
-        .label("before")
-        .legend(|(x, y)| Circle::new((x + 10, y), 3, RGBColor(140, 140, 140).filled()));
-    chart
-        .draw_series(after.iter().map(|p| Circle::new(*p, 2, RED.filled())))
-        .map_err(plot_err)?
-        .label("after")
-        .legend(|(x, y)| Circle::new((x + 10, y), 3, RED.filled()));
+    for (pts, label, color) in [(before, "before", GREY), (after, "after", RED)] {
+        (chart.draw_series(pts.iter().map(|p| Circle::new(*p, 2, color.filled()))))
+            .map_err(plot_err)?
+            .label(label)
+            .legend(move |(x, y)| Circle::new((x + 10, y), 3, color.filled()));
+    }
     legend(&mut chart, false)
 }
 
