@@ -150,11 +150,7 @@ const STATS_MESSAGES: usize = 50_000;
 
 /// The sum of `c` messages all carrying `v`, added one by one as the accumulation does.
 fn repeated_sum(v: f64, c: u32) -> f64 {
-    let mut s = 0.0;
-    for _ in 0..c {
-        s += v;
-    }
-    s
+    (0..c).fold(0.0, |s, _| s + v)
 }
 
 impl TopicAcc {

@@ -82,10 +82,9 @@ pub fn join_recordings_with_sources(
     let mut sources = Vec::new();
     let mut end = None::<f64>;
     for r in &parts {
-        let offset = match end {
-            None => 0.0,
-            Some(e) => e + gap_s - r.state.t.first().copied().unwrap_or(0.0),
-        };
+        let offset = end.map_or(0.0, |e| {
+            e + gap_s - r.state.t.first().copied().unwrap_or(0.0)
+        });
         sources.push(FieldSource {
             path: r.source.clone(),
             start_ns: r.start_ns,
@@ -381,7 +380,7 @@ fn run(
     drop(torque_rows);
     stage(6, "ranking, final refit, locating the residual");
     let judged = (discovery, torque, sensor);
-    let mut diag = assemble(info, opts, metas, &data, &fields, (&sel, &rule), judged)?;
+    let mut diag = assemble(info, metas, &data, &fields, (&sel, &rule), judged)?;
     (diag.rejected, diag.replay.rejected) = (u.rejected, u.rejected_windows);
     diag.replay.imu = u.imu;
     diag.summary = summary::summarise(&diag);
@@ -420,7 +419,6 @@ fn meter_corrected(
 /// assembled into the [`Diagnosis`] (its caller adds the trials left out and the summary).
 fn assemble(
     info: &SessionInfo,
-    opts: &DiagnoseOptions,
     metas: &[reading_rows::TrialMeta],
     data: &select::PowerData,
     fields: &select_discover::RowFields,
@@ -448,7 +446,7 @@ fn assemble(
     let mut diag = Diagnosis {
         schema_version: SCHEMA_VERSION,
         source: info.source.display().to_string(),
-        target: opts.target,
+        target: info.target,
         joint_names: info.joint_names.clone(),
         n_trials: metas.len(),
         n_readings: data.rows0().len(),

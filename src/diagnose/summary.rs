@@ -156,18 +156,10 @@ fn quality(d: &Diagnosis, s: &mut String) {
         f.before.r2, f.before.rmse_w, f.before_per_trial.r2
     );
     if let Some(t) = &d.torque {
-        let worst = t
-            .rmse_with_friction
-            .iter()
-            .enumerate()
-            .max_by(|a, b| a.1.total_cmp(b.1))
-            .map(|(j, v)| {
-                format!(
-                    "{} ({v:.2} Nm)",
-                    t.joints.get(j).cloned().unwrap_or_default()
-                )
-            })
-            .unwrap_or_default();
+        let worst = (t.rmse_with_friction.iter().enumerate()).max_by(|a, b| a.1.total_cmp(b.1));
+        let worst = worst.map_or(String::new(), |(j, v)| {
+            format!("{} ({v:.2} Nm)", t.joints.get(j).map_or("", String::as_str))
+        });
         let _ = writeln!(
             s,
             "Torque: URDF inverse dynamics + fitted joint friction vs tau_est; worst joint {worst}."

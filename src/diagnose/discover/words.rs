@@ -1,7 +1,7 @@
 //! A found term in words: its name, formula, fields and named parameters, from its
 //! structure only.
 
-use super::candidates::{Kind, Signal};
+use super::candidates::{Kind, Signal, followed};
 use crate::N_JOINTS;
 use crate::diagnose::family::{Shape, Term};
 use crate::diagnose::select::Param;
@@ -40,7 +40,12 @@ pub(crate) fn describe(
 ) -> (String, String, Vec<String>, Vec<Param>) {
     let fit = Fitted { gamma, se };
     let gamma0 = gamma.first().copied().unwrap_or(0.0);
-    match kind {
+    // The fields it follows (session time is no recorded field).
+    let fields = match kind {
+        Kind::Product(_, Signal::Time, _) => Vec::new(),
+        _ => followed(kind, names),
+    };
+    let (name, form, params) = match kind {
         Kind::Additive(f, sp) => {
             let mut swing = fit.param("load change over the field's 5–95 % range", "ΔP", 0, "W");
             swing.value *= sp;
@@ -52,14 +57,12 @@ pub(crate) fn describe(
                     predicate(kind, names, gamma0)
                 ),
                 format!("P += k·{}", names[*f]),
-                vec![names[*f].clone()],
                 vec![swing, k],
             )
         }
         Kind::Step(f, thr) => (
             format!("a rail load that {}", predicate(kind, names, gamma0)),
             format!("P += P_on·[{} > {thr:.4}]", names[*f]),
-            vec![names[*f].clone()],
             vec![fit.param("power while on", "P_on", 0, "W")],
         ),
         Kind::Product(t, s, shape) => describe_product(*t, s, *shape, names, &fit),
@@ -84,14 +87,12 @@ pub(crate) fn describe(
                     capitalise(t.words())
                 ),
                 format!("P += Σ_i k_i·{}", t.symbol()),
-                Vec::new(),
                 identified_or_pooled(ks.collect()),
             )
         }
         Kind::Pooled(t) if t.level_is_new() => (
             format!("{} is missing from the model", capitalise(t.words())),
             format!("P += k·Σ_i {}", t.symbol()),
-            Vec::new(),
             vec![fit.param("coefficient", "k", 0, t.unit())],
         ),
         Kind::Pooled(t) => (
@@ -101,10 +102,10 @@ pub(crate) fn describe(
                 if gamma0 >= 0.0 { "larger" } else { "smaller" }
             ),
             format!("P += k·Σ_i {}", t.symbol()),
-            Vec::new(),
             vec![fit.param("common excess", "k", 0, t.unit())],
         ),
-    }
+    };
+    (name, form, fields, params)
 }
 
 /// [`describe`] of a loss term or library mechanism times a slow state signal in a shape.
@@ -114,12 +115,7 @@ pub(super) fn describe_product(
     shape: Shape,
     names: &[String],
     fit: &Fitted,
-) -> (String, String, Vec<String>, Vec<Param>) {
-    let fields = match s {
-        Signal::Field(f) | Signal::Rest(f) => vec![names[*f].clone()],
-        Signal::Family(_, fs) => fs.iter().map(|&f| names[f].clone()).collect(),
-        Signal::Time => Vec::new(),
-    };
+) -> (String, String, Vec<Param>) {
     let sname = match s {
         Signal::Rest(f) => format!(
             "{} at rest (its mean over each trial's pre-idle readings)",
@@ -144,7 +140,6 @@ pub(super) fn describe_product(
             shape.formula(),
             if fit.gamma.len() > 1 { " + k0" } else { "" }
         ),
-        fields,
         ps,
     )
 }
