@@ -437,7 +437,7 @@ fn read_one(src: &FieldSource, windows: &[Window], summarise: bool) -> Result<Ve
             if !topics.contains_key(topic) {
                 topic_order.push(topic.to_string());
                 let acc =
-                    numeric_fields(&msg.channel, msg.data).map(|(n, e)| TopicAcc::new(n, Some(e)));
+                    numeric_fields(msg.channel, msg.data).map(|(n, e)| TopicAcc::new(n, Some(e)));
                 topics.insert(topic.to_string(), acc);
             }
             if let Some(Some(acc)) = topics.get_mut(topic) {
