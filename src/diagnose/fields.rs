@@ -98,9 +98,23 @@ fn numeric_leaves(v: &Value, prefix: &str, out: &mut Vec<String>) {
     }
 }
 
+/// A topic's numeric fields (`topic.field.path`) and their extractor, from its first message.
+fn numeric_fields(ch: &crate::read::Channel, data: &[u8]) -> Option<(Vec<String>, FieldExtractor)> {
+    let v = crate::read::decode::decode(&ch.schema, ch.encoding, data).ok()?;
+    let mut leaves = Vec::new();
+    numeric_leaves(&v, "", &mut leaves);
+    let paths: Result<Vec<FieldPath>, _> = leaves.iter().map(|l| FieldPath::parse(l)).collect();
+    let ex = FieldExtractor::compile(&ch.schema, ch.encoding, &paths.ok()?).ok()?;
+    Some((
+        leaves.iter().map(|l| format!("{}.{l}", ch.topic)).collect(),
+        ex,
+    ))
+}
+
 /// Per-topic accumulation state.
 struct TopicAcc {
     names: Vec<String>,
+    /// `None` only in tests that add decoded rows themselves.
     extractor: Option<FieldExtractor>,
     /// Per field, per window: the sum of the values inside the window while it is open, its
     /// value once closed (the mean, or the held value when it got none; NaN before any message).
@@ -136,11 +150,7 @@ const STATS_MESSAGES: usize = 50_000;
 
 /// The sum of `c` messages all carrying `v`, added one by one as the accumulation does.
 fn repeated_sum(v: f64, c: u32) -> f64 {
-    let mut s = 0.0;
-    for _ in 0..c {
-        s += v;
-    }
-    s
+    (0..c).fold(0.0, |s, _| s + v)
 }
 
 impl TopicAcc {
@@ -289,46 +299,38 @@ impl TopicAcc {
 /// an earlier field are marked.
 pub fn read_fields(sources: &[FieldSource], windows: &[Window]) -> FieldTable {
     let mut table = FieldTable::default();
-    let mut merged: HashMap<String, Vec<f64>> = HashMap::new();
-    let mut stats: HashMap<String, (MsgStats, Option<f64>)> = HashMap::new();
+    // Each field over every file: statistics pooled, the clock rule's smallest |r| (the field
+    // must follow time in every file that has it), windows a later part fills where the
+    // earlier ones did not cover them.
+    let mut merged: HashMap<String, FieldRead> = HashMap::new();
     let mut order: Vec<String> = Vec::new();
-    // Fields constant over every window, by value (their windows are not kept).
-    let mut constants: HashMap<String, f64> = HashMap::new();
     for src in sources {
-        match read_one(src, windows, sources.len() == 1) {
-            Ok(topics) => {
-                for f in topics {
-                    let (st, clock) = stats
-                        .entry(f.name.clone())
-                        .or_insert((MsgStats::default(), None));
-                    st.merge(&f.stats);
-                    // The clock rule needs the field to follow time in every file that has it.
-                    if let Some(r) = f.clock_r {
-                        *clock =
-                            Some(clock.map_or(r, |c: f64| if c.abs() < r.abs() { c } else { r }));
-                    }
-                    match merged.get_mut(&f.name) {
-                        // A later part fills the windows the earlier ones did not cover.
-                        Some(old) => {
-                            for (o, v) in old.iter_mut().zip(f.vals) {
-                                if o.is_nan() {
-                                    *o = v;
-                                }
-                            }
-                        }
-                        None => {
-                            order.push(f.name.clone());
-                            if let Some(v) = f.constant {
-                                constants.insert(f.name.clone(), v);
-                            }
-                            merged.insert(f.name, f.vals);
-                        }
-                    }
+        let topics = match read_one(src, windows, sources.len() == 1) {
+            Ok(topics) => topics,
+            Err(e) => {
+                let note = format!("{}: fields not read: {e:#}", src.path.display());
+                table.notes.push(note);
+                continue;
+            }
+        };
+        for f in topics {
+            let Some(m) = merged.get_mut(&f.name) else {
+                order.push(f.name.clone());
+                merged.insert(f.name.clone(), f);
+                continue;
+            };
+            m.stats.merge(&f.stats);
+            if let Some(r) = f.clock_r {
+                m.clock_r = Some(
+                    m.clock_r
+                        .map_or(r, |c| if c.abs() < r.abs() { c } else { r }),
+                );
+            }
+            for (o, v) in m.vals.iter_mut().zip(f.vals) {
+                if o.is_nan() {
+                    *o = v;
                 }
             }
-            Err(e) => table
-                .notes
-                .push(format!("{}: fields not read: {e:#}", src.path.display())),
         }
     }
     table.n_read = order.len();
@@ -336,7 +338,7 @@ pub fn read_fields(sources: &[FieldSource], windows: &[Window]) -> FieldTable {
         .iter()
         .filter(|n| n.ends_with("].vol"))
         .filter_map(|n| merged.get(n))
-        .flat_map(|v| v.iter().copied().filter(|x| x.is_finite() && *x > 0.0))
+        .flat_map(|f| f.vals.iter().copied().filter(|x| x.is_finite() && *x > 0.0))
         .collect();
     if !vols.is_empty() {
         table.bus_volts = Some(vols.iter().sum::<f64>() / vols.len() as f64);
@@ -344,18 +346,22 @@ pub fn read_fields(sources: &[FieldSource], windows: &[Window]) -> FieldTable {
     // Exact duplicates, found by a hash of the values' bits (candidates compared bit by bit).
     let mut seen: HashMap<u64, Vec<usize>> = HashMap::new();
     for name in order {
-        let Some(vals) = merged.remove(&name) else {
+        let Some(FieldRead {
+            vals,
+            constant,
+            stats,
+            clock_r,
+            ..
+        }) = merged.remove(&name)
+        else {
             continue;
         };
-        if let Some(reason) = stats
-            .get(&name)
-            .and_then(|(st, clock)| junk_reason(st, *clock))
-        {
+        if let Some(reason) = junk_reason(&stats, clock_r) {
             table.excluded.push(ExcludedField { name, reason });
             continue;
         }
-        let lo = match constants.get(&name) {
-            Some(&lo) => Some(lo),
+        let lo = match constant {
+            Some(lo) => Some(lo),
             None if vals.iter().any(|v| !v.is_finite()) => continue,
             None => constant_value(&vals),
         };
@@ -407,7 +413,8 @@ struct FieldRead {
 fn read_one(src: &FieldSource, windows: &[Window], summarise: bool) -> Result<Vec<FieldRead>> {
     let mut session = Session::open(&src.path, &OpenOptions::default())
         .with_context(|| format!("opening {}", src.path.display()))?;
-    let mut topics: HashMap<String, TopicAcc> = HashMap::new();
+    // A topic whose first message does not decode is skipped (`None`).
+    let mut topics: HashMap<String, Option<TopicAcc>> = HashMap::new();
     let mut topic_order: Vec<String> = Vec::new();
     let mut t_first = f64::INFINITY;
     let mut t_last = f64::NEG_INFINITY;
@@ -428,34 +435,12 @@ fn read_one(src: &FieldSource, windows: &[Window], summarise: bool) -> Result<Ve
             t_first = t_first.min(t);
             t_last = t_last.max(t);
             if !topics.contains_key(topic) {
-                let mut names = Vec::new();
-                let mut extractor = None;
-                if let Ok(v) =
-                    crate::read::decode::decode(&msg.channel.schema, msg.channel.encoding, msg.data)
-                {
-                    let mut leaves = Vec::new();
-                    numeric_leaves(&v, "", &mut leaves);
-                    let paths: Vec<FieldPath> = leaves
-                        .iter()
-                        .filter_map(|l| FieldPath::parse(l).ok())
-                        .collect();
-                    if paths.len() == leaves.len()
-                        && let Ok(ex) = FieldExtractor::compile(
-                            &msg.channel.schema,
-                            msg.channel.encoding,
-                            &paths,
-                        )
-                    {
-                        names = leaves.iter().map(|l| format!("{topic}.{l}")).collect();
-                        extractor = Some(ex);
-                    }
-                }
                 topic_order.push(topic.to_string());
-                topics.insert(topic.to_string(), TopicAcc::new(names, extractor));
+                let acc =
+                    numeric_fields(msg.channel, msg.data).map(|(n, e)| TopicAcc::new(n, Some(e)));
+                topics.insert(topic.to_string(), acc);
             }
-            if let Some(acc) = topics.get_mut(topic)
-                && acc.extractor.is_some()
-            {
+            if let Some(Some(acc)) = topics.get_mut(topic) {
                 acc.offer(windows, t, msg.data);
             }
             Ok::<(), ReadError>(())
@@ -463,7 +448,7 @@ fn read_one(src: &FieldSource, windows: &[Window], summarise: bool) -> Result<Ve
         .with_context(|| format!("reading {}", src.path.display()))?;
     let mut out = Vec::new();
     for topic in topic_order {
-        let Some(mut acc) = topics.remove(&topic) else {
+        let Some(Some(mut acc)) = topics.remove(&topic) else {
             continue;
         };
         acc.flush(windows);

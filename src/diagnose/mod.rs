@@ -65,7 +65,7 @@ use crate::power::PowerModel;
 use crate::robot::{ArmDynamics, RobotModel};
 use crate::session::{Memory, SessionFile, TrialSource};
 use crate::signals::Recording;
-use lags::{Usable, lag_scan, scan_lags, usable_trials};
+use lags::{lag_scan, scan_lags, usable_trials};
 use refit::{locate_residuals, rank_hypotheses, refit_final};
 use select::Rule;
 use select_discover::select_and_discover;
@@ -82,10 +82,9 @@ pub fn join_recordings_with_sources(
     let mut sources = Vec::new();
     let mut end = None::<f64>;
     for r in &parts {
-        let offset = match end {
-            None => 0.0,
-            Some(e) => e + gap_s - r.state.t.first().copied().unwrap_or(0.0),
-        };
+        let offset = end.map_or(0.0, |e| {
+            e + gap_s - r.state.t.first().copied().unwrap_or(0.0)
+        });
         sources.push(FieldSource {
             path: r.source.clone(),
             start_ns: r.start_ns,
@@ -328,24 +327,18 @@ fn run(
     let opts = &resolved;
     let reference: Option<Vec<f64>> = opts.reference.map(|m| m.to_vector().to_vec());
     stage(3, "rows at the coarse lags, filters");
-    let Usable {
-        metas,
-        rejected,
-        rejected_windows,
-        imu,
-        rows0,
-        totals,
-    } = usable_trials(info, samples, all_metas, skipped, opts)?;
+    let u = usable_trials(info, samples, all_metas, skipped, opts)?;
+    let metas = &u.metas;
     // Every lag's Gram matrices, the fine lags and the torque rows (one more pass).
-    let stride = torque::stride(&metas, opts.max_torque_samples);
+    let stride = torque::stride(metas, opts.max_torque_samples);
     let mut torque_rows = Vec::new();
     stage(4, "fine lags and torque rows");
     let mut data = scan_lags(
         samples,
         power,
-        &metas,
-        rows0,
-        &totals,
+        metas,
+        u.rows0,
+        &u.totals,
         opts,
         reference,
         &mut |rec, ti, meta| {
@@ -371,12 +364,12 @@ fn run(
         5,
         "hypotheses and discovery (reads the recorded fields: the file's 2nd pass)",
     );
-    let (drift, corrected) = meter_corrected(info, &metas, &sensor, rule.alpha);
+    let (drift, corrected) = meter_corrected(info, metas, &sensor, rule.alpha);
     let info = corrected.as_ref().unwrap_or(info);
-    let (sel, mut discovery, fields) = select_and_discover(info, &metas, &data, &rule, opts)?;
+    let (sel, mut discovery, fields) = select_and_discover(info, metas, &data, &rule, opts)?;
     if let Some(r) = discovery.as_mut() {
         let (rows, lag) = (data.rows(sel.last.lag)?, data.lags[sel.last.lag]);
-        settle_meters(r, info, &metas, rows, lag, w, drift);
+        r.settle_meters(info, metas, rows, (lag, w), drift);
     }
 
     // Torque level.
@@ -386,53 +379,12 @@ fn run(
     };
     drop(torque_rows);
     stage(6, "ranking, final refit, locating the residual");
-    let judged = Judged {
-        sel: &sel,
-        discovery,
-        torque,
-        rule: &rule,
-        sensor,
-        rejected,
-        rejected_windows,
-        imu,
-    };
-    assemble(info, opts, &metas, &data, &fields, judged)
-}
-
-/// Meter or load for what discovery found: every finding checked against the other meter, and
-/// the diagnosed meter's own rest-reading change either claimed as its artefact (corrected) or
-/// located beside the fields the rest power follows.
-fn settle_meters(
-    r: &mut discover::DiscoveryReport,
-    info: &SessionInfo,
-    metas: &[reading_rows::TrialMeta],
-    rows: &reading_rows::Rows,
-    lag: f64,
-    window_s: f64,
-    drift: Option<MeterDrift>,
-) {
-    r.check_meters(
-        info.target,
-        &info.power,
-        &info.other,
-        metas,
-        rows,
-        lag,
-        window_s,
-    );
-    (r.meter_drift, r.meter_located) = match drift {
-        Some(d) if d.check.artefact() => (Some(d), None),
-        d => (None, d),
-    };
-    // A located change of the rail's rest reading names what the rest power follows.
-    if let (Some(m), Some(rest)) = (r.meter_located.as_mut(), r.rest.as_ref()) {
-        let best = rest.found.first().or(rest.best_rejected.as_ref());
-        m.follows(best.map_or(Vec::new(), |t| {
-            std::iter::once(t.field.clone())
-                .chain(t.tied.iter().cloned())
-                .collect()
-        }));
-    }
+    let judged = (discovery, torque, sensor);
+    let mut diag = assemble(info, metas, &data, &fields, (&sel, &rule), judged)?;
+    (diag.rejected, diag.replay.rejected) = (u.rejected, u.rejected_windows);
+    diag.replay.imu = u.imu;
+    diag.summary = summary::summarise(&diag);
+    Ok(diag)
 }
 
 /// One truth across stages: an artefact of the diagnosed meter that the other meter does not
@@ -463,56 +415,43 @@ fn meter_corrected(
     (drift, corrected)
 }
 
-/// What the selection stages leave for the last one ([`assemble`]).
-struct Judged<'a> {
-    sel: &'a select::Selection,
-    discovery: Option<DiscoveryReport>,
-    torque: Option<torque::TorqueLevel>,
-    rule: &'a Rule,
-    sensor: SensorWindow,
-    rejected: Vec<crate::trial::Rejection>,
-    rejected_windows: Vec<HighlightedTrial>,
-    imu: Option<crate::trial::ImuFilterMarks>,
-}
-
-/// The last stage: ranking, final refit, locating the residual, the lag scan, the replay data
-/// and the summary, assembled into the [`Diagnosis`].
+/// The last stage: ranking, final refit, locating the residual, the lag scan and the replay data,
+/// assembled into the [`Diagnosis`] (its caller adds the trials left out and the summary).
 fn assemble(
     info: &SessionInfo,
-    opts: &DiagnoseOptions,
     metas: &[reading_rows::TrialMeta],
     data: &select::PowerData,
     fields: &select_discover::RowFields,
-    j: Judged,
+    (sel, rule): (&select::Selection, &Rule),
+    j: (
+        Option<DiscoveryReport>,
+        Option<torque::TorqueLevel>,
+        SensorWindow,
+    ),
 ) -> Result<Diagnosis> {
-    let sel = j.sel;
-    let ranking = rank_hypotheses(sel, j.torque.as_ref(), j.rule);
+    let (mut discovery, torque, sensor) = j;
+    let ranking = rank_hypotheses(sel, torque.as_ref(), rule);
     let final_model = refit_final(
         sel,
         &ranking.accepted,
-        j.torque.as_ref(),
+        torque.as_ref(),
         data.rows0(),
         metas.len(),
     );
-    let located = locate_residuals(&info.joint_names, metas, data, sel, j.discovery.as_ref());
-    let mut discovery = j.discovery;
+    let located = locate_residuals(&info.joint_names, metas, data, sel, discovery.as_ref());
     if let Some(r) = discovery.as_mut() {
         r.locate_unexplained(&located.unexplained);
     }
-    let replay = ReplayData {
-        rejected: j.rejected_windows,
-        imu: j.imu,
-        ..replay_data(metas, data.rows0(), sel, &located)
-    };
+    let replay = replay_data(metas, data.rows0(), sel, &located);
     let mut diag = Diagnosis {
         schema_version: SCHEMA_VERSION,
         source: info.source.display().to_string(),
-        target: opts.target,
+        target: info.target,
         joint_names: info.joint_names.clone(),
         n_trials: metas.len(),
         n_readings: data.rows0().len(),
-        rejected: j.rejected,
-        torque: j.torque.map(|t| t.comparison),
+        rejected: Vec::new(),
+        torque: torque.map(|t| t.comparison),
         base_model: if data.reference.is_some() {
             "reference".into()
         } else {
@@ -533,14 +472,13 @@ fn assemble(
             .table
             .bus_volts
             .unwrap_or(hypotheses::NOMINAL_BUS_VOLTS),
-        sensor_window: j.sensor,
+        sensor_window: sensor,
         summary: String::new(),
         replay,
         counterpart: None,
     };
     show_found(&mut diag, fields, data.rows0(), metas);
     show_rest(&mut diag, fields, data.rows0(), metas);
-    diag.summary = summary::summarise(&diag);
     Ok(diag)
 }
 

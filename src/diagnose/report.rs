@@ -45,6 +45,43 @@ fn sig(v: f64) -> String {
     }
 }
 
+/// A markdown table with a row per item, built column by column: each column's heading beside
+/// how it shows an item (`rows_of(items).col(…)….write(md)`), and a blank line after it.
+struct Columns<'a, I: IntoIterator> {
+    items: I,
+    cols: Vec<(&'a str, Cell<'a, I::Item>)>,
+}
+
+/// How a column shows an item.
+type Cell<'a, T> = Box<dyn Fn(&T) -> String + 'a>;
+
+/// A table of `items`, no column yet.
+fn rows_of<'a, I: IntoIterator>(items: I) -> Columns<'a, I> {
+    let cols = Vec::new();
+    Columns { items, cols }
+}
+
+impl<'a, I: IntoIterator> Columns<'a, I> {
+    fn col(mut self, head: &'a str, cell: impl Fn(&I::Item) -> String + 'a) -> Self {
+        self.cols.push((head, Box::new(cell)));
+        self
+    }
+
+    fn write(self, md: &mut String) {
+        let head: Vec<&str> = self.cols.iter().map(|c| c.0).collect();
+        let cols = &self.cols;
+        let rows = (self.items.into_iter()).map(|x| cols.iter().map(|c| c.1(&x)).collect());
+        table(md, &head, rows);
+        md.push('\n');
+    }
+}
+
+/// The items' texts, comma-separated.
+pub(super) fn joined<T: std::fmt::Display>(items: impl IntoIterator<Item = T>) -> String {
+    let texts: Vec<String> = items.into_iter().map(|t| t.to_string()).collect();
+    texts.join(", ")
+}
+
 /// Write `dir/report.md`, its figures and `dir/diagnosis.json`.
 ///
 /// Sections in order: header, counterpart, torque level, where the model is wrong, hypotheses,
@@ -104,26 +141,15 @@ fn header_section(md: &mut String, d: &Diagnosis) {
 fn torque_section(md: &mut String, t: &super::TorqueComparison) {
     let _ = writeln!(md, "## Torque level (tau_est vs URDF inverse dynamics)\n");
     let _ = writeln!(md, "{} samples.\n", t.n_samples);
-    let head = [
-        "joint",
-        "bias [Nm]",
-        "RMS [Nm]",
-        "RMS after friction [Nm]",
-        "Fc [Nm]",
-        "Fv [Nm·s/rad]",
-    ];
-    let rows = (0..t.rmse_urdf.len()).map(|j| {
-        vec![
-            t.joints.get(j).cloned().unwrap_or_default(),
-            format!("{:+.3}", t.bias_urdf[j]),
-            format!("{:.3}", t.rmse_urdf[j]),
-            format!("{:.3}", t.rmse_with_friction[j]),
-            format!("{:.3}", t.coulomb_nm[j]),
-            format!("{:.3}", t.viscous_nms[j]),
-        ]
-    });
-    table(md, &head, rows);
-    md.push('\n');
+    let f = |v: &[f64], j: usize| format!("{:.3}", v[j]);
+    rows_of(0..t.rmse_urdf.len())
+        .col("joint", |&j| t.joints.get(j).cloned().unwrap_or_default())
+        .col("bias [Nm]", |&j| format!("{:+.3}", t.bias_urdf[j]))
+        .col("RMS [Nm]", |&j| f(&t.rmse_urdf, j))
+        .col("RMS after friction [Nm]", |&j| f(&t.rmse_with_friction, j))
+        .col("Fc [Nm]", |&j| f(&t.coulomb_nm, j))
+        .col("Fv [Nm·s/rad]", |&j| f(&t.viscous_nms, j))
+        .write(md);
 }
 
 /// Residual breakdowns of the base model and the regime figure.
@@ -149,38 +175,19 @@ fn where_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()> {
     }
     for b in &d.breakdowns {
         let _ = writeln!(md, "**{}**\n", b.by);
-        let head = [
-            "group",
-            "readings",
-            "trials",
-            "mean residual [W]",
-            "RMS [W]",
-            "p",
-        ];
-        let rows = b.groups.iter().map(|g| {
-            vec![
-                md_cell(&g.label),
-                g.n_rows.to_string(),
-                g.n_trials.to_string(),
-                format!("{:+.3}", g.bias_w),
-                format!("{:.3}", g.rmse_w),
-                sig(g.p_value),
-            ]
-        });
-        table(md, &head, rows);
-        md.push('\n');
+        rows_of(&b.groups)
+            .col("group", |g| md_cell(&g.label))
+            .col("readings", |g| g.n_rows.to_string())
+            .col("trials", |g| g.n_trials.to_string())
+            .col("mean residual [W]", |g| format!("{:+.3}", g.bias_w))
+            .col("RMS [W]", |g| format!("{:.3}", g.rmse_w))
+            .col("p", |g| sig(g.p_value))
+            .write(md);
     }
     let caption = "Residual by the located regime";
     figure(md, dir, (0, (900, 500)), caption, |a| draw_regime(a, d))?;
-    let _ = writeln!(
-        md,
-        "Worst trials: {}\n",
-        d.worst_trials
-            .iter()
-            .map(|t| format!("{} ({:+.2} W)", t.trial, t.mean_w))
-            .collect::<Vec<_>>()
-            .join(", ")
-    );
+    let worst = (d.worst_trials.iter()).map(|t| format!("{} ({:+.2} W)", t.trial, t.mean_w));
+    let _ = writeln!(md, "Worst trials: {}\n", joined(worst));
     Ok(())
 }
 
@@ -190,27 +197,21 @@ fn hypotheses_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()> 
         md,
         "## Hypotheses (scored against the base model; accepted first)\n"
     );
-    let head = ["rank", "hypothesis", "level", "parameter", "p", "ΔBIC"];
-    let rows = d.hypotheses.iter().map(|h| {
-        vec![
-            h.rank.to_string(),
-            h.id.clone(),
-            h.level.to_string(),
-            param_cells(&h.params[..h.params.len().min(1)]).join(""),
-            sig(h.p_value),
-            format!("{:.1}", h.delta_bic),
-            format!(
-                "{:.4} → {:.4} ({:+.1} %)",
-                h.rmse_before,
-                h.rmse_after,
-                -100.0 * h.rel_improvement
-            ),
-            h.verdict.clone(),
-        ]
-    });
-    let more = ["held-out RMSE before → after", "verdict"];
-    table(md, &[&head[..], &more].concat(), rows);
-    md.push('\n');
+    rows_of(&d.hypotheses)
+        .col("rank", |h| h.rank.to_string())
+        .col("hypothesis", |h| h.id.clone())
+        .col("level", |h| h.level.to_string())
+        .col("parameter", |h| {
+            params_cell(&h.params[..h.params.len().min(1)])
+        })
+        .col("p", |h| sig(h.p_value))
+        .col("ΔBIC", |h| format!("{:.1}", h.delta_bic))
+        .col("held-out RMSE before → after", |h| {
+            let (b, a, r) = (h.rmse_before, h.rmse_after, -100.0 * h.rel_improvement);
+            format!("{b:.4} → {a:.4} ({r:+.1} %)")
+        })
+        .col("verdict", |h| h.verdict.clone())
+        .write(md);
     let caption = "Held-out improvement per hypothesis";
     figure(md, dir, (1, (900, 450)), caption, |a| draw_hypotheses(a, d))?;
     Ok(())
@@ -223,12 +224,12 @@ fn final_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()> {
     if f.hypotheses.is_empty() {
         let _ = writeln!(md, "No hypothesis accepted: the model is unchanged.\n");
     } else {
-        let rows = f.params.iter().map(|p| {
-            let name = format!("{} ({})", p.name, p.symbol);
-            vec![name, sig(p.value), sig(p.std_err), p.unit.clone()]
-        });
-        table(md, &["parameter", "value", "std. error", "unit"], rows);
-        md.push('\n');
+        rows_of(&f.params)
+            .col("parameter", |p| format!("{} ({})", p.name, p.symbol))
+            .col("value", |p| sig(p.value))
+            .col("std. error", |p| sig(p.std_err))
+            .col("unit", |p| p.unit.clone())
+            .write(md);
     }
     let _ = writeln!(
         md,
@@ -260,25 +261,15 @@ fn unexplained_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()>
         md,
         "Per-trial mean residual of the final model vs per-trial mean feature (feature made orthogonal to the base regressors), Bonferroni-adjusted.\n"
     );
-    let rows = d.unexplained.iter().map(|c| {
-        let trials: Vec<String> = c.trials.iter().map(|t| t.to_string()).collect();
-        vec![
-            md_cell(&c.feature),
-            format!("{:+.3}", c.r),
-            sig(c.p_adjusted),
-            (if c.significant { "yes" } else { "no" }).into(),
-            trials.join(", "),
-        ]
-    });
-    let head = [
-        "feature",
-        "r",
-        "adjusted p",
-        "significant",
-        "trials carrying it",
-    ];
-    table(md, &head, rows);
-    md.push('\n');
+    rows_of(&d.unexplained)
+        .col("feature", |c| md_cell(&c.feature))
+        .col("r", |c| format!("{:+.3}", c.r))
+        .col("adjusted p", |c| sig(c.p_adjusted))
+        .col("significant", |c| {
+            (if c.significant { "yes" } else { "no" }).into()
+        })
+        .col("trials carrying it", |c| joined(&c.trials))
+        .write(md);
     if d.lag_scan.len() > 1 {
         let caption = "Sensor-lag scan of the base model";
         figure(md, dir, (4, (800, 420)), caption, |a| draw_lag_scan(a, d))?;
@@ -289,9 +280,11 @@ fn unexplained_section(md: &mut String, dir: &Path, d: &Diagnosis) -> Result<()>
             md,
             "## Trials left out\n\n<details><summary>{n} trials</summary>\n"
         );
-        let rows = (d.rejected.iter()).map(|r| vec![r.trial.to_string(), md_cell(&r.to_string())]);
-        table(md, &["trial", "reason"], rows);
-        md.push_str("\n</details>\n\n");
+        rows_of(&d.rejected)
+            .col("trial", |r| r.trial.to_string())
+            .col("reason", |r| md_cell(&r.to_string()))
+            .write(md);
+        md.push_str("</details>\n\n");
     }
     Ok(())
 }
@@ -464,62 +457,55 @@ fn draw_before_after(a: &Area, d: &Diagnosis) -> Result<()> {
     let x = (-0.5, (n as f64 - 0.5).max(0.5));
     let descs = ("trial (sorted by measured)", "net power [W]");
     let mut chart = xy_chart(a, &caption, (x, (lo, hi)), descs)?;
-    chart
-        .draw_series(
-            v.iter()
-                .enumerate()
-                .map(|(k, p)| Circle::new((k as f64, p.0), 3, BLUE.stroke_width(1))),
-        )
-        .map_err(plot_err)?
+    let (blue, grey, red) = (
+        BLUE.stroke_width(1),
+        GREY.stroke_width(1),
+        RED.stroke_width(2),
+    );
+    let k = |k: usize| k as f64;
+    let measured = v
+        .iter()
+        .enumerate()
+        .map(|(i, p)| Circle::new((k(i), p.0), 3, blue));
+    (chart.draw_series(measured).map_err(plot_err)?)
         .label("measured")
-        .legend(|(x, y)| Circle::new((x + 10, y), 4, BLUE.stroke_width(1)));
-    chart
-        .draw_series(
-            v.iter().enumerate().map(|(k, p)| {
-                Cross::new((k as f64, p.1), 3, RGBColor(140, 140, 140).stroke_width(1))
-            }),
-        )
-        .map_err(plot_err)?
+        .legend(move |(x, y)| Circle::new((x + 10, y), 4, blue));
+    let before = v
+        .iter()
+        .enumerate()
+        .map(|(i, p)| Cross::new((k(i), p.1), 3, grey));
+    (chart.draw_series(before).map_err(plot_err)?)
         .label("before")
-        .legend(|(x, y)| Cross::new((x + 10, y), 4, RGBColor(140, 140, 140).stroke_width(1)));
-    chart
-        .draw_series(LineSeries::new(
-            v.iter().enumerate().map(|(k, p)| (k as f64, p.2)),
-            RED.stroke_width(2),
-        ))
-        .map_err(plot_err)?
+        .legend(move |(x, y)| Cross::new((x + 10, y), 4, grey));
+    let after = LineSeries::new(v.iter().enumerate().map(|(i, p)| (k(i), p.2)), red);
+    (chart.draw_series(after).map_err(plot_err)?)
         .label("after")
-        .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED.stroke_width(2)));
+        .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], red));
     legend(&mut chart, true)
 }
 
+/// The "before" series' colour.
+const GREY: RGBColor = RGBColor(140, 140, 140);
+
 fn draw_residual_time(a: &Area, d: &Diagnosis) -> Result<()> {
     let r = &d.replay;
-    let before: Vec<(f64, f64)> = (0..r.t.len())
-        .map(|k| (r.t[k], r.measured_w[k] - r.before_w[k]))
-        .collect();
-    let after: Vec<(f64, f64)> = (0..r.t.len())
-        .map(|k| (r.t[k], r.measured_w[k] - r.after_w[k]))
-        .collect();
+    let resid = |p: &[f64]| -> Vec<(f64, f64)> {
+        (0..r.t.len())
+            .map(|k| (r.t[k], r.measured_w[k] - p[k]))
+            .collect()
+    };
+    let (before, after) = (resid(&r.before_w), resid(&r.after_w));
     let (t0, t1) = range(r.t.iter().copied());
     let (lo, hi) = range(before.iter().chain(&after).map(|p| p.1));
     let caption = "Held-out residual per reading over the session";
     let descs = ("session time [s]", "measured − predicted [W]");
     let mut chart = xy_chart(a, caption, ((t0, t1), (lo, hi)), descs)?;
-    chart
-        .draw_series(
-            before
-                .iter()
-                .map(|p| Circle::new(*p, 2, RGBColor(140, 140, 140).filled())),
-        )
-        .map_err(plot_err)?
-        .label("before")
-        .legend(|(x, y)| Circle::new((x + 10, y), 3, RGBColor(140, 140, 140).filled()));
-    chart
-        .draw_series(after.iter().map(|p| Circle::new(*p, 2, RED.filled())))
-        .map_err(plot_err)?
-        .label("after")
-        .legend(|(x, y)| Circle::new((x + 10, y), 3, RED.filled()));
+    for (pts, label, color) in [(before, "before", GREY), (after, "after", RED)] {
+        (chart.draw_series(pts.iter().map(|p| Circle::new(*p, 2, color.filled()))))
+            .map_err(plot_err)?
+            .label(label)
+            .legend(move |(x, y)| Circle::new((x + 10, y), 3, color.filled()));
+    }
     legend(&mut chart, false)
 }
 
@@ -553,38 +539,23 @@ fn counterpart_section(md: &mut String, c: &super::counterpart::CounterpartCompa
          {:.2} W rms, {:+.2} W on average; R² of the twin's power {:.3}.\n",
         c.matched_samples, c.matched_readings, c.power_rms_w, c.power_bias_w, c.power_r2
     );
-    let rows = c.joints.iter().map(|j| {
-        vec![
-            j.joint.clone(),
-            format!("{:.3}", j.tau_rms_nm),
-            format!("{:+.3}", j.tau_bias_nm),
-            format!("{:.4}", j.q_rms_rad),
-        ]
-    });
-    table(
-        md,
-        &["joint", "τ RMS [Nm]", "τ bias [Nm]", "q RMS [rad]"],
-        rows,
-    );
+    rows_of(&c.joints)
+        .col("joint", |j| j.joint.clone())
+        .col("τ RMS [Nm]", |j| format!("{:.3}", j.tau_rms_nm))
+        .col("τ bias [Nm]", |j| format!("{:+.3}", j.tau_bias_nm))
+        .col("q RMS [rad]", |j| format!("{:.4}", j.q_rms_rad))
+        .write(md);
     if !c.worst_trials.is_empty() {
-        md.push('\n');
-        let rows = c.worst_trials.iter().map(|t| {
-            vec![
-                t.trial.to_string(),
-                t.readings.to_string(),
-                format!("{:.1}", t.t_start),
-                format!("{:.1}", t.t_end),
-                format!("{:+.2}", t.power_mean_w),
-            ]
-        });
-        let head = ["trial", "readings", "from [s]", "to [s]"];
-        table(
-            md,
-            &[&head[..], &["mean net power difference [W]"]].concat(),
-            rows,
-        );
+        rows_of(&c.worst_trials)
+            .col("trial", |t| t.trial.to_string())
+            .col("readings", |t| t.readings.to_string())
+            .col("from [s]", |t| format!("{:.1}", t.t_start))
+            .col("to [s]", |t| format!("{:.1}", t.t_end))
+            .col("mean net power difference [W]", |t| {
+                format!("{:+.2}", t.power_mean_w)
+            })
+            .write(md);
     }
-    let _ = writeln!(md);
 }
 
 /// Mechanism forms, confounded pairs and discovery beyond the library.
@@ -594,46 +565,36 @@ fn beyond_section(md: &mut String, d: &Diagnosis) {
             md,
             "## Mechanisms with several forms (same cross-validation)\n"
         );
-        let rows = d.forms.iter().map(|f| {
-            vec![
-                f.mechanism.clone(),
-                f.winner.clone(),
-                f.runner_up.clone(),
-                format!("{:.3} vs {:.3}", f.rmse_w[0], f.rmse_w[1]),
-                format!("{:.1} %", 100.0 * f.margin),
-                sig(f.p_value),
-                match (f.accepted, f.confounded) {
-                    (true, true) => format!("mechanism only — form: confounded, {}", f.either()),
-                    (true, false) => "yes".into(),
-                    _ => "no".into(),
-                },
-            ]
-        });
-        let head = [
-            "mechanism",
-            "winning form",
-            "runner-up",
-            "held-out RMSE [W]",
-            "margin",
-        ];
-        table(md, &[&head[..], &["p", "accepted"]].concat(), rows);
-        md.push('\n');
+        rows_of(&d.forms)
+            .col("mechanism", |f| f.mechanism.clone())
+            .col("winning form", |f| f.winner.clone())
+            .col("runner-up", |f| f.runner_up.clone())
+            .col("held-out RMSE [W]", |f| {
+                format!("{:.3} vs {:.3}", f.rmse_w[0], f.rmse_w[1])
+            })
+            .col("margin", |f| format!("{:.1} %", 100.0 * f.margin))
+            .col("p", |f| sig(f.p_value))
+            .col("accepted", |f| match (f.accepted, f.confounded) {
+                (true, true) => format!("mechanism only — form: confounded, {}", f.either()),
+                (true, false) => "yes".into(),
+                _ => "no".into(),
+            })
+            .write(md);
     }
     if !d.confounded.is_empty() {
         let _ = writeln!(md, "## Confounded\n");
         let tied = " (not told apart: the dropped column's library term stays claimed)";
-        let rows = d.confounded.iter().map(|c| {
-            vec![
-                format!("{}{}", c.kept, if c.tied { tied } else { "" }),
-                c.dropped.clone(),
-                format!("{:+.2}", c.correlation),
-                sig(c.p_value),
-                format!("{:+.2} %", -100.0 * c.rel_change),
-            ]
-        });
-        let head = ["kept", "dropped", "regressor r", "p of dropped given kept"];
-        table(md, &[&head[..], &["RMSE change"]].concat(), rows);
-        md.push('\n');
+        rows_of(&d.confounded)
+            .col("kept", |c| {
+                format!("{}{}", c.kept, if c.tied { tied } else { "" })
+            })
+            .col("dropped", |c| c.dropped.clone())
+            .col("regressor r", |c| format!("{:+.2}", c.correlation))
+            .col("p of dropped given kept", |c| sig(c.p_value))
+            .col("RMSE change", |c| {
+                format!("{:+.2} %", -100.0 * c.rel_change)
+            })
+            .write(md);
     }
     let Some(r) = &d.discovery else {
         return;
@@ -646,26 +607,22 @@ fn beyond_section(md: &mut String, d: &Diagnosis) {
         r.n_candidates,
         sig(r.alpha)
     );
-    let rows = r.accepted.iter().chain(r.best_rejected.iter()).map(|t| {
-        vec![
-            t.step.to_string(),
-            t.name.clone(),
-            t.form.clone(),
-            t.fields.join(", "),
-            param_cells(&t.params).join("; "),
-            format!("{:.3} → {:.3}", t.before.r2, t.after.r2),
-            sig(t.p_value),
-            t.verdict.clone(),
-        ]
-    });
-    let head = ["step", "found", "form", "field(s)", "parameter(s)"];
-    let more = ["held-out R² before → after", "p", "verdict"];
-    table(md, &[&head[..], &more].concat(), rows);
+    rows_of(r.accepted.iter().chain(&r.best_rejected))
+        .col("step", |t| t.step.to_string())
+        .col("found", |t| t.name.clone())
+        .col("form", |t| t.form.clone())
+        .col("field(s)", |t| t.fields.join(", "))
+        .col("parameter(s)", |t| params_cell(&t.params))
+        .col("held-out R² before → after", |t| {
+            format!("{:.3} → {:.3}", t.before.r2, t.after.r2)
+        })
+        .col("p", |t| sig(t.p_value))
+        .col("verdict", |t| t.verdict.clone())
+        .write(md);
     tied_terms(md, r);
     for n in &r.notes {
-        let _ = writeln!(md, "\n- {n}");
+        let _ = writeln!(md, "- {n}\n");
     }
-    md.push('\n');
     if let Some(rest) = &r.rest {
         rest_section(md, rest);
     }
@@ -688,19 +645,14 @@ Each trial's pre-idle power (mean {:.2} W; the net-power model subtracts it, so 
         r.rmse_before_w,
         r.rmse_after_w
     );
-    let rows = r.found.iter().chain(r.best_rejected.iter()).map(|t| {
-        vec![
-            t.name.clone(),
-            t.form.clone(),
-            param_cells(&t.params).join("; "),
-            sig(t.p_value),
-            t.verdict.clone(),
-            t.tied.join(", "),
-        ]
-    });
-    let head = ["found", "form", "parameter(s)", "p", "verdict"];
-    table(md, &[&head[..], &["not told apart from it"]].concat(), rows);
-    md.push('\n');
+    rows_of(r.found.iter().chain(&r.best_rejected))
+        .col("found", |t| t.name.clone())
+        .col("form", |t| t.form.clone())
+        .col("parameter(s)", |t| params_cell(&t.params))
+        .col("p", |t| sig(t.p_value))
+        .col("verdict", |t| t.verdict.clone())
+        .col("not told apart from it", |t| t.tied.join(", "))
+        .write(md);
 }
 
 /// The candidates each found term was not told apart from (its field is confounded), with the
@@ -712,35 +664,27 @@ fn tied_terms(md: &mut String, r: &super::DiscoveryReport) {
     }
     let _ = writeln!(
         md,
-        "\n### Not told apart from a found term (confounded: claimed as one mechanism, the field in doubt)\n"
+        "### Not told apart from a found term (confounded: claimed as one mechanism, the field in doubt)\n"
     );
     let rows = (r.accepted.iter()).flat_map(|t| t.tied.iter().map(move |o| (t.step, o)));
-    let rows = rows.map(|(step, o)| {
-        vec![
-            step.to_string(),
-            o.name.clone(),
-            o.form.clone(),
-            o.fields.join(", "),
-            param_cells(&o.params).join("; "),
-            format!("{:.3} vs {:.3}", o.rmse_w[0], o.rmse_w[1]),
-            sig(o.p_value),
-            format!("{:+.3}", o.correlation),
-            (if o.same_structure {
-                "same term, another field"
-            } else {
-                "collinear contribution"
-            })
-            .into(),
-        ]
-    });
-    let head = ["step", "candidate", "form", "field(s)", "parameter(s)"];
-    let more = [
-        "held-out RMSE [W] found vs candidate",
-        "p (found fits better)",
-        "r of contributions",
-        "why a rival",
-    ];
-    table(md, &[&head[..], &more].concat(), rows);
+    rows_of(rows)
+        .col("step", |(step, _)| step.to_string())
+        .col("candidate", |(_, o)| o.name.clone())
+        .col("form", |(_, o)| o.form.clone())
+        .col("field(s)", |(_, o)| o.fields.join(", "))
+        .col("parameter(s)", |(_, o)| params_cell(&o.params))
+        .col("held-out RMSE [W] found vs candidate", |(_, o)| {
+            format!("{:.3} vs {:.3}", o.rmse_w[0], o.rmse_w[1])
+        })
+        .col("p (found fits better)", |(_, o)| sig(o.p_value))
+        .col("r of contributions", |(_, o)| {
+            format!("{:+.3}", o.correlation)
+        })
+        .col("why a rival", |(_, o)| match o.same_structure {
+            true => "same term, another field".into(),
+            false => "collinear contribution".into(),
+        })
+        .write(md);
 }
 
 /// The fields discovery left out by a rule on their own data, with the reason.
@@ -753,23 +697,18 @@ fn excluded_fields(md: &mut String, r: &super::DiscoveryReport) {
         md,
         "### Fields left out of discovery ({n})\n\n<details><summary>{n} fields, each with its reason</summary>\n"
     );
-    let rows = (r.excluded.iter()).map(|e| vec![format!("`{}`", e.name), md_cell(&e.reason)]);
-    table(md, &["field", "reason"], rows);
-    md.push_str("\n</details>\n\n");
+    rows_of(&r.excluded)
+        .col("field", |e| format!("`{}`", e.name))
+        .col("reason", |e| md_cell(&e.reason))
+        .write(md);
+    md.push_str("</details>\n\n");
 }
 
-/// A table cell's parameters: `symbol = value ± s.e. unit` each.
-fn param_cells(params: &[super::Param]) -> Vec<String> {
-    params
-        .iter()
-        .map(|p| {
-            format!(
-                "{} = {} ± {} {}",
-                p.symbol,
-                sig(p.value),
-                sig(p.std_err),
-                p.unit
-            )
-        })
-        .collect()
+/// A table cell's parameters: `symbol = value ± s.e. unit` each, `; `-separated.
+fn params_cell(params: &[super::Param]) -> String {
+    let cells = params.iter().map(|p| {
+        let (v, e) = (sig(p.value), sig(p.std_err));
+        format!("{} = {v} ± {e} {}", p.symbol, p.unit)
+    });
+    cells.collect::<Vec<_>>().join("; ")
 }

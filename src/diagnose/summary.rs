@@ -4,6 +4,7 @@
 use std::fmt::Write;
 
 use super::hypotheses::{LATENCY_ID, PAYLOAD_ID, power_hypothesis};
+use super::report::joined;
 use super::{Diagnosis, HypothesisScore, MechanismForms, Param};
 
 fn fmt_param(p: &Param) -> String {
@@ -77,20 +78,19 @@ pub fn verdict_markdown(d: &Diagnosis, heading: &str, fold: Option<usize>) -> St
     let mut md = String::new();
     for (title, text) in sections(d).iter().filter(|(_, t)| !t.is_empty()) {
         let _ = write!(md, "\n{heading} {title}\n");
-        let lines: Vec<&str> = text.lines().collect();
-        let shown = fold.unwrap_or(lines.len()).min(lines.len());
-        for line in &lines[..shown] {
+        let n = text.lines().count();
+        let shown = fold.unwrap_or(n).min(n);
+        for (i, line) in text.lines().enumerate() {
+            if i == shown {
+                let _ = write!(
+                    md,
+                    "\n<details><summary>{} more lines</summary>\n",
+                    n - shown
+                );
+            }
             let _ = write!(md, "\n{}\n", line.trim_start());
         }
-        if shown < lines.len() {
-            let _ = write!(
-                md,
-                "\n<details><summary>{} more lines</summary>\n",
-                lines.len() - shown
-            );
-            for line in &lines[shown..] {
-                let _ = write!(md, "\n{}\n", line.trim_start());
-            }
+        if shown < n {
             md.push_str("\n</details>\n");
         }
     }
@@ -156,18 +156,10 @@ fn quality(d: &Diagnosis, s: &mut String) {
         f.before.r2, f.before.rmse_w, f.before_per_trial.r2
     );
     if let Some(t) = &d.torque {
-        let worst = t
-            .rmse_with_friction
-            .iter()
-            .enumerate()
-            .max_by(|a, b| a.1.total_cmp(b.1))
-            .map(|(j, v)| {
-                format!(
-                    "{} ({v:.2} Nm)",
-                    t.joints.get(j).cloned().unwrap_or_default()
-                )
-            })
-            .unwrap_or_default();
+        let worst = (t.rmse_with_friction.iter().enumerate()).max_by(|a, b| a.1.total_cmp(b.1));
+        let worst = worst.map_or(String::new(), |(j, v)| {
+            format!("{} ({v:.2} Nm)", t.joints.get(j).map_or("", String::as_str))
+        });
         let _ = writeln!(
             s,
             "Torque: URDF inverse dynamics + fitted joint friction vs tau_est; worst joint {worst}."
@@ -240,12 +232,14 @@ fn unnamed_lines(d: &Diagnosis, s: &mut String) {
             f.winner
         );
     }
-    for t in d.discovery.iter().flat_map(|r| &r.located) {
-        let _ = writeln!(s, "Located: {} — {}.", t.name, t.verdict);
-    }
-    let rest = d.discovery.iter().flat_map(|r| &r.rest);
-    for t in rest.flat_map(|r| &r.located) {
-        let _ = writeln!(s, "Located: {} — {}.", t.name, t.verdict);
+    if let Some(r) = &d.discovery {
+        let rest = r
+            .rest
+            .iter()
+            .flat_map(|r| r.located.iter().map(|t| (&t.name, &t.verdict)));
+        for (name, verdict) in r.located.iter().map(|t| (&t.name, &t.verdict)).chain(rest) {
+            let _ = writeln!(s, "Located: {name} — {verdict}.");
+        }
     }
     for m in d.discovery.iter().flat_map(|r| &r.meter_located) {
         let _ = writeln!(
@@ -261,9 +255,11 @@ fn unnamed_lines(d: &Diagnosis, s: &mut String) {
 /// not Stribeck friction — and not nothing).
 fn implausible_lines(d: &Diagnosis, s: &mut String) {
     for h in d.hypotheses.iter().filter(|h| h.only_implausible()) {
-        let size: Vec<String> = (h.params.iter())
-            .map(|p| format!("{} = {:.3} {}", p.symbol, p.value, p.unit))
-            .collect();
+        let size = joined(
+            h.params
+                .iter()
+                .map(|p| format!("{} = {:.3} {}", p.symbol, p.value, p.unit)),
+        );
         let _ = writeln!(
             s,
             "Located: the power follows the form of the {} (held-out RMSE {:+.1} %, p = {:.1e}, ΔBIC = {:.1}), but at {} — outside the physically plausible range: structure of this form, mechanism not identified; not claimed.",
@@ -271,7 +267,7 @@ fn implausible_lines(d: &Diagnosis, s: &mut String) {
             -100.0 * h.rel_improvement,
             h.p_value,
             h.delta_bic,
-            size.join(", ")
+            size
         );
     }
 }
@@ -280,26 +276,27 @@ fn implausible_lines(d: &Diagnosis, s: &mut String) {
 /// meter rejects the drift (this meter's artefact, corrected), else in *Located*.
 fn window_drift(d: &Diagnosis, found: &mut String, located: &mut String) {
     let sw = &d.sensor_window;
-    let s = if sw.drift_artefact { found } else { located };
+    let (s, head, why) = match sw.drift_artefact {
+        true => (
+            found,
+            "Meter artefact",
+            "it rejects the drift, so it is this meter's",
+        ),
+        false => (
+            located,
+            "Located",
+            "it does not reject the drift: meter or the arm's clock, not decided",
+        ),
+    };
     if sw.drift_s != 0.0 {
         let _ = writeln!(
             s,
-            "{}: the {} meter's averaging window drifts over the session, {:.3} s → {:.3} s (ΔBIC = {:.1} against one window; on the other meter {:+.1}: {}); corrected: every stage reads each trial at its own window.",
-            if sw.drift_artefact {
-                "Meter artefact"
-            } else {
-                "Located"
-            },
+            "{head}: the {} meter's averaging window drifts over the session, {:.3} s → {:.3} s (ΔBIC = {:.1} against one window; on the other meter {:+.1}: {why}); corrected: every stage reads each trial at its own window.",
             super::meters::meter_name(d.target),
             sw.window_at(sw.drift_from_s),
             sw.window_at(sw.drift_to_s),
             sw.drift_delta_bic,
             sw.drift_other_delta_bic,
-            if sw.drift_artefact {
-                "it rejects the drift, so it is this meter's"
-            } else {
-                "it does not reject the drift: meter or the arm's clock, not decided"
-            }
         );
     }
 }
@@ -353,49 +350,36 @@ fn sensor_lines(d: &Diagnosis, s: &mut String) {
 
 /// Why no hypothesis of the library is accepted, when none is.
 fn not_named(d: &Diagnosis, s: &mut String) {
-    if d.accepted.is_empty() {
-        match d.hypotheses.first() {
-            Some(_) if d.forms.iter().any(|f| f.unnamed) => {
-                let _ = writeln!(
-                    s,
-                    "Named: no mechanism of the library is identified (located above); no missing physics is claimed."
-                );
-            }
-            Some(h) if h.only_implausible() => {
-                let _ = writeln!(
-                    s,
-                    "Named: no mechanism of the library is identified (located above: the best candidate, {}, fits only at an implausible size); no missing physics is claimed.",
-                    h.id
-                );
-            }
-            Some(h) => {
-                let _ = writeln!(
-                    s,
-                    "Named: no hypothesis in the library is supported (best candidate {}: held-out RMSE {:+.1} %, p = {:.1e}, ΔBIC = {:.1}); no missing physics is claimed.",
-                    h.id,
-                    -100.0 * h.rel_improvement,
-                    h.p_value,
-                    h.delta_bic
-                );
-            }
-            None => {
-                let _ = writeln!(s, "Named: no hypothesis was scored.");
-            }
-        }
+    if !d.accepted.is_empty() {
+        return;
     }
+    let line = match d.hypotheses.first() {
+        Some(_) if d.forms.iter().any(|f| f.unnamed) => {
+            "no mechanism of the library is identified (located above); no missing physics is claimed.".into()
+        }
+        Some(h) if h.only_implausible() => format!(
+            "no mechanism of the library is identified (located above: the best candidate, {}, fits only at an implausible size); no missing physics is claimed.",
+            h.id
+        ),
+        Some(h) => format!(
+            "no hypothesis in the library is supported (best candidate {}: held-out RMSE {:+.1} %, p = {:.1e}, ΔBIC = {:.1}); no missing physics is claimed.",
+            h.id,
+            -100.0 * h.rel_improvement,
+            h.p_value,
+            h.delta_bic
+        ),
+        None => "no hypothesis was scored.".to_string(),
+    };
+    let _ = writeln!(s, "Named: {line}");
 }
 
 /// The accepted hypotheses with their parameters, and the model with them.
 fn named(d: &Diagnosis, s: &mut String) {
     let f = &d.final_model;
     for h in &d.accepted {
-        let shown = d.final_model.params.iter().find(|p| {
-            h.params
-                .first()
-                .map(|q| q.symbol == p.symbol)
-                .unwrap_or(false)
-        });
-        let p = shown.or(h.params.first());
+        let first = h.params.first();
+        let shown = (f.params.iter()).find(|p| first.is_some_and(|q| q.symbol == p.symbol));
+        let p = shown.or(first);
         let (title, param) = match d.forms.iter().find(|f| f.confounded && f.winner == h.id) {
             Some(f) => (
                 format!("{} (form: confounded — {})", f.mechanism, f.either()),
@@ -418,8 +402,8 @@ fn named(d: &Diagnosis, s: &mut String) {
             held(h.stability)
         );
         if h.id == PAYLOAD_ID {
-            let com: Vec<String> = h.params.iter().skip(1).map(fmt_param).collect();
-            let _ = writeln!(s, "       payload centre of mass: {}.", com.join(", "));
+            let com = joined(h.params.iter().skip(1).map(fmt_param));
+            let _ = writeln!(s, "       payload centre of mass: {com}.");
         }
     }
     let power_accepted: Vec<&str> = d
@@ -453,14 +437,13 @@ fn unexplained(d: &Diagnosis, s: &mut String) {
         );
     } else {
         for c in sig.iter().take(3) {
-            let trials: Vec<String> = c.trials.iter().map(|t| t.to_string()).collect();
             let _ = writeln!(
                 s,
                 "Unexplained: the remaining residual correlates with {} (r = {:+.2}, p = {:.1e}); look at trials {}.",
                 c.feature,
                 c.r,
                 c.p_adjusted,
-                trials.join(", ")
+                joined(&c.trials)
             );
         }
     }
@@ -554,13 +537,12 @@ fn held(stability: Option<f64>) -> String {
 /// Terms found beyond the library and on the rest power.
 fn found_lines(r: &super::DiscoveryReport, s: &mut String) {
     for t in &r.accepted {
-        let params: Vec<String> = t.params.iter().map(fmt_param).collect();
         let _ = writeln!(
             s,
             "Found beyond the library: {}; {} with {} improves held-out power R² from {:.3} to {:.3} (RMSE {:.3} → {:.3} W, p = {:.1e} < {:.1e}{}).",
             t.name,
             t.form,
-            params.join(", "),
+            joined(t.params.iter().map(fmt_param)),
             t.before.r2,
             t.after.r2,
             t.before.rmse_w,
@@ -650,25 +632,15 @@ const REST_TIES_NAMED: usize = 4;
 /// subtracts).
 fn rest_found(r: &super::RestPower, s: &mut String) {
     for t in &r.found {
-        let params: Vec<String> = t.params.iter().map(fmt_param).collect();
-        let ties = if t.tied.is_empty() {
-            String::new()
-        } else {
-            let more = t.tied.len().saturating_sub(REST_TIES_NAMED);
-            let mut named: Vec<&str> = t
-                .tied
-                .iter()
-                .take(REST_TIES_NAMED)
-                .map(String::as_str)
-                .collect();
-            let tail = format!("{more} more");
-            if more > 0 {
-                named.push(&tail);
-            }
-            format!(
+        let more = t.tied.len().saturating_sub(REST_TIES_NAMED);
+        let named = (t.tied.iter().take(REST_TIES_NAMED).cloned())
+            .chain((more > 0).then(|| format!("{more} more")));
+        let ties = match t.tied.is_empty() {
+            true => String::new(),
+            false => format!(
                 " Not told apart from it (fit as well; not claimed): {}.",
-                named.join(", ")
-            )
+                joined(named)
+            ),
         };
         let _ = writeln!(
             s,
@@ -676,7 +648,7 @@ fn rest_found(r: &super::RestPower, s: &mut String) {
             r.mean_w,
             t.name,
             t.form,
-            params.join(", "),
+            joined(t.params.iter().map(fmt_param)),
             r.n_trials,
             r.rmse_before_w,
             r.rmse_after_w,
@@ -696,7 +668,6 @@ const TIED_LINES: usize = 3;
 /// The candidates a found term was not told apart from, with their evidence.
 fn tied_lines(t: &super::Discovery, s: &mut String) {
     for o in t.tied.iter().take(TIED_LINES) {
-        let params: Vec<String> = o.params.iter().map(fmt_param).collect();
         let fields = if o.fields.is_empty() {
             String::new()
         } else {
@@ -706,7 +677,7 @@ fn tied_lines(t: &super::Discovery, s: &mut String) {
             s,
             "  Not told apart from it: {}{fields} with {} fits as well (held-out RMSE {:.3} W vs {:.3} W, p = {:.1e} that the found term fits better; {}, r = {:+.2}); not claimed.",
             o.form,
-            params.join(", "),
+            joined(o.params.iter().map(fmt_param)),
             o.rmse_w[1],
             o.rmse_w[0],
             o.p_value,

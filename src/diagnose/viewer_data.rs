@@ -92,11 +92,13 @@ pub(crate) fn rejected_windows(
         .iter()
         .filter_map(|r| {
             let w = &metas.iter().find(|m| m.window.index == r.trial)?.window;
+            let (t_start, t_end) = (w.t_traj_start, w.t_return_end);
+            let (trial, reason) = (r.trial, r.to_string());
             Some(HighlightedTrial {
-                trial: r.trial,
-                t_start: w.t_traj_start,
-                t_end: w.t_return_end,
-                reason: r.to_string(),
+                trial,
+                t_start,
+                t_end,
+                reason,
             })
         })
         .collect()
@@ -164,17 +166,11 @@ pub(crate) fn show_rest(d: &mut Diagnosis, f: &RowFields, rows: &Rows, metas: &[
         }
     }
     // Steps of the predicted rest power between consecutive trials that have one.
-    let mut steps: Vec<(usize, f64)> = Vec::new();
-    let mut prev: Option<f64> = None;
-    for (t, &p) in rest.trial_pred.iter().enumerate() {
-        if !p.is_finite() {
-            continue;
-        }
-        if let Some(q) = prev {
-            steps.push((t, p - q));
-        }
-        prev = Some(p);
-    }
+    let preds = rest.trial_pred.iter().copied().enumerate();
+    let preds: Vec<(usize, f64)> = preds.filter(|(_, p)| p.is_finite()).collect();
+    let mut steps: Vec<_> = (preds.windows(2))
+        .map(|w| (w[1].0, w[1].1 - w[0].1))
+        .collect();
     steps.sort_by(|a, b| b.1.abs().total_cmp(&a.1.abs()));
     let names: Vec<&str> = rest.found.iter().map(|t| t.field.as_str()).collect();
     for &(t, step) in steps.iter().take(REST_MARKED) {

@@ -2,10 +2,11 @@
 //! was tried.
 
 use crate::diagnose::Quality;
-use crate::diagnose::meters::{artefact_name, checks, per_trial};
+use crate::diagnose::locate::trial_sums;
+use crate::diagnose::meters::{MeterDrift, artefact_name, checks, per_trial};
 use crate::diagnose::reading_rows::{Rows, TrialMeta};
 use crate::diagnose::select::Param;
-use crate::signals::{PowerSeries, Target};
+use crate::diagnose::trials::SessionInfo;
 
 /// A term found beyond the library.
 #[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
@@ -171,19 +172,33 @@ impl DiscoveryReport {
         self.located.push(d);
     }
 
-    /// Stage: check every term discovery and the rest power found against the other meter
-    /// (`rows`: the rows discovery's terms are per reading of; `lag`, `w`: the sensor's).
-    #[allow(clippy::too_many_arguments)]
-    pub(crate) fn check_meters(
+    /// Stage: meter or load for what discovery found. Every term discovery and the rest power
+    /// found is checked against the other meter (`rows`: the rows discovery's terms are per
+    /// reading of; `lag`, `w`: the sensor's), and the diagnosed meter's own rest-reading change
+    /// `drift` is either claimed as its artefact (corrected) or located beside the fields the
+    /// rest power follows.
+    pub(crate) fn settle_meters(
         &mut self,
-        target: Target,
-        power: &PowerSeries,
-        other_power: &PowerSeries,
+        info: &SessionInfo,
         metas: &[TrialMeta],
         rows: &Rows,
-        lag: f64,
-        w: f64,
+        (lag, w): (f64, f64),
+        drift: Option<MeterDrift>,
     ) {
+        (self.meter_drift, self.meter_located) = match drift {
+            Some(d) if d.check.artefact() => (Some(d), None),
+            d => (None, d),
+        };
+        // A located change of the rail's rest reading names what the rest power follows.
+        if let (Some(m), Some(rest)) = (self.meter_located.as_mut(), self.rest.as_ref()) {
+            let best = rest.found.first().or(rest.best_rejected.as_ref());
+            m.follows(best.map_or(Vec::new(), |t| {
+                std::iter::once(t.field.clone())
+                    .chain(t.tied.iter().cloned())
+                    .collect()
+            }));
+        }
+        let (target, power, other_power) = (info.target, &info.power, &info.other);
         if other_power.t.is_empty() {
             return;
         }
@@ -198,20 +213,14 @@ impl DiscoveryReport {
             .iter()
             .filter(|t| t.contribution.len() == rows.len())
             .map(|t| {
-                let (mut sum, mut cnt) = (vec![0.0; n], vec![0usize; n]);
-                for (r, &ti) in rows.trial.iter().enumerate() {
-                    sum[ti] += t.contribution[r];
-                    cnt[ti] += 1;
-                }
-                (0..n)
-                    .map(|i| {
-                        if cnt[i] > 0 {
-                            sum[i] / cnt[i] as f64
-                        } else {
-                            f64::NAN
-                        }
-                    })
-                    .collect()
+                let pairs = rows
+                    .trial
+                    .iter()
+                    .copied()
+                    .zip(t.contribution.iter().copied());
+                let (sum, cnt) = trial_sums(pairs, n);
+                let mean = |(s, &c): (&f64, &usize)| if c > 0 { s / c as f64 } else { f64::NAN };
+                sum.iter().zip(&cnt).map(mean).collect()
             })
             .collect();
         if cols.len() == self.accepted.len() && !cols.is_empty() {

@@ -1,7 +1,7 @@
 //! A found term in words: its name, formula, fields and named parameters, from its
 //! structure only.
 
-use super::candidates::{Kind, Signal};
+use super::candidates::{Kind, Signal, followed};
 use crate::N_JOINTS;
 use crate::diagnose::family::{Shape, Term};
 use crate::diagnose::select::Param;
@@ -13,22 +13,19 @@ pub(super) struct Fitted<'a> {
 }
 
 impl Fitted<'_> {
-    pub(super) fn param(&self, name: String, symbol: &str, j: usize, unit: String) -> Param {
+    pub(super) fn param(
+        &self,
+        name: impl Into<String>,
+        symbol: &str,
+        j: usize,
+        unit: impl Into<String>,
+    ) -> Param {
         Param {
-            name,
+            name: name.into(),
             symbol: symbol.into(),
             value: self.gamma.get(j).copied().unwrap_or(f64::NAN),
             std_err: self.se.get(j).copied().unwrap_or(f64::NAN),
-            unit,
-        }
-    }
-
-    /// `up` when the first coefficient is ≥ 0, `down` otherwise.
-    pub(super) fn sign(&self, up: &str, down: &str) -> String {
-        if self.gamma.first().copied().unwrap_or(0.0) >= 0.0 {
-            up.to_string()
-        } else {
-            down.to_string()
+            unit: unit.into(),
         }
     }
 }
@@ -42,86 +39,73 @@ pub(crate) fn describe(
     se: &[f64],
 ) -> (String, String, Vec<String>, Vec<Param>) {
     let fit = Fitted { gamma, se };
-    match kind {
+    let gamma0 = gamma.first().copied().unwrap_or(0.0);
+    // The fields it follows (session time is no recorded field).
+    let fields = match kind {
+        Kind::Product(_, Signal::Time, _) => Vec::new(),
+        _ => followed(kind, names),
+    };
+    let (name, form, params) = match kind {
         Kind::Additive(f, sp) => {
-            let mut swing = fit.param(
-                "load change over the field's 5–95 % range".into(),
-                "ΔP",
-                0,
-                "W".into(),
-            );
+            let mut swing = fit.param("load change over the field's 5–95 % range", "ΔP", 0, "W");
             swing.value *= sp;
             swing.std_err *= sp;
+            let k = fit.param("load per unit of the field", "k", 0, "W per unit");
             (
                 format!(
-                    "a load on the power rail that {} {}",
-                    fit.sign("rises with", "falls as it rises:"),
-                    names[*f]
+                    "a load on the power rail that {}",
+                    predicate(kind, names, gamma0)
                 ),
                 format!("P += k·{}", names[*f]),
-                vec![names[*f].clone()],
-                vec![
-                    swing,
-                    fit.param(
-                        "load per unit of the field".into(),
-                        "k",
-                        0,
-                        "W per unit".into(),
-                    ),
-                ],
+                vec![swing, k],
             )
         }
         Kind::Step(f, thr) => (
-            format!(
-                "a rail load that switches with {} (drawn while it reads above {thr:.4})",
-                names[*f]
-            ),
+            format!("a rail load that {}", predicate(kind, names, gamma0)),
             format!("P += P_on·[{} > {thr:.4}]", names[*f]),
-            vec![names[*f].clone()],
-            vec![fit.param("power while on".into(), "P_on", 0, "W".into())],
+            vec![fit.param("power while on", "P_on", 0, "W")],
         ),
         Kind::Product(t, s, shape) => describe_product(*t, s, *shape, names, &fit),
-        Kind::PerJoint(t) => (
-            format!(
-                "{} differs joint by joint from the model",
-                capitalise(t.words())
-            ),
-            format!("P += Σ_i k_i·{}", t.symbol()),
-            Vec::new(),
-            identified_or_pooled(
-                (0..N_JOINTS)
-                    .map(|i| {
-                        let j = joint_names
-                            .get(i)
-                            .cloned()
-                            .unwrap_or_else(|| format!("joint {i}"));
-                        fit.param(
-                            format!("excess on {j}"),
-                            &format!("k_{i}"),
-                            i,
-                            t.unit().into(),
-                        )
-                    })
-                    .collect(),
-            ),
-        ),
+        Kind::PerJoint(t) => {
+            let joint = |i: usize| {
+                joint_names
+                    .get(i)
+                    .cloned()
+                    .unwrap_or_else(|| format!("joint {i}"))
+            };
+            let ks = (0..N_JOINTS).map(|i| {
+                fit.param(
+                    format!("excess on {}", joint(i)),
+                    &format!("k_{i}"),
+                    i,
+                    t.unit(),
+                )
+            });
+            (
+                format!(
+                    "{} differs joint by joint from the model",
+                    capitalise(t.words())
+                ),
+                format!("P += Σ_i k_i·{}", t.symbol()),
+                identified_or_pooled(ks.collect()),
+            )
+        }
         Kind::Pooled(t) if t.level_is_new() => (
             format!("{} is missing from the model", capitalise(t.words())),
             format!("P += k·Σ_i {}", t.symbol()),
-            Vec::new(),
-            vec![fit.param("coefficient".into(), "k", 0, t.unit().into())],
+            vec![fit.param("coefficient", "k", 0, t.unit())],
         ),
         Kind::Pooled(t) => (
             format!(
                 "{} of all joints is {} than the model's",
                 capitalise(t.words()),
-                fit.sign("larger", "smaller")
+                if gamma0 >= 0.0 { "larger" } else { "smaller" }
             ),
             format!("P += k·Σ_i {}", t.symbol()),
-            Vec::new(),
-            vec![fit.param("common excess".into(), "k", 0, t.unit().into())],
+            vec![fit.param("common excess", "k", 0, t.unit())],
         ),
-    }
+    };
+    (name, form, fields, params)
 }
 
 /// [`describe`] of a loss term or library mechanism times a slow state signal in a shape.
@@ -131,12 +115,7 @@ pub(super) fn describe_product(
     shape: Shape,
     names: &[String],
     fit: &Fitted,
-) -> (String, String, Vec<String>, Vec<Param>) {
-    let fields = match s {
-        Signal::Field(f) | Signal::Rest(f) => vec![names[*f].clone()],
-        Signal::Family(_, fs) => fs.iter().map(|&f| names[f].clone()).collect(),
-        Signal::Time => Vec::new(),
-    };
+) -> (String, String, Vec<Param>) {
     let sname = match s {
         Signal::Rest(f) => format!(
             "{} at rest (its mean over each trial's pre-idle readings)",
@@ -144,14 +123,10 @@ pub(super) fn describe_product(
         ),
         _ => signal_words(s, names),
     };
-    let mut ps = vec![fit.param(
-        format!("change of {} per unit of the signal", t.words()),
-        "k",
-        0,
-        format!("{} per unit", t.unit()),
-    )];
+    let k = format!("change of {} per unit of the signal", t.words());
+    let mut ps = vec![fit.param(k, "k", 0, format!("{} per unit", t.unit()))];
     if fit.gamma.len() > 1 {
-        ps.push(fit.param("level at signal 0".into(), "k0", 1, t.unit().into()));
+        ps.push(fit.param("level at signal 0", "k0", 1, t.unit()));
     }
     (
         format!(
@@ -165,7 +140,6 @@ pub(super) fn describe_product(
             shape.formula(),
             if fit.gamma.len() > 1 { " + k0" } else { "" }
         ),
-        fields,
         ps,
     )
 }
