@@ -183,8 +183,8 @@ fn timing_located(d: &Diagnosis, s: &mut String) {
     if let (false, Some(p)) = (sw.lag_demanded, sw.lag_held_out) {
         let _ = writeln!(
             s,
-            "Located: the readings' timing — a latency of {:.3} s behind a {:.3} s window, or a {:.3} s window at no lag; the held-out trials do not tell them apart (p = {p:.1e}); neither is claimed.",
-            sw.scan_lag_s, sw.scan_window_s, sw.window_s
+            "Located: the readings' timing — a latency of {:.3} s behind a {:.3} s window, or a {:.3} s window at no lag; the data do not tell them apart (in-sample ΔBIC = {:.1}, held out p = {p:.1e}); neither is claimed.",
+            sw.scan_lag_s, sw.scan_window_s, sw.window_s, sw.lag_delta_bic
         );
     }
 }
@@ -323,6 +323,11 @@ fn sensor_lines(d: &Diagnosis, s: &mut String) {
             sw.scan_r2,
             match (sw.lag_demanded, sw.lag_held_out) {
                 (false, None) => "no lag beats every window at lag 0: no latency is claimed".into(),
+                (false, Some(p)) => format!(
+                    "the lag is not demanded (in-sample ΔBIC = {:.1} against the best window at lag 0, held out p = {p:.1e}; a lag needs the BIC rule and p < {}): no latency is claimed (located above)",
+                    sw.lag_delta_bic,
+                    super::select::RIVAL_ALPHA
+                ),
                 (demanded, p) => format!(
                     "a lag beats every window at lag 0{}: {}",
                     p.map_or(String::new(), |p| format!(
