@@ -358,25 +358,33 @@ fn sensor_lines(d: &Diagnosis, s: &mut String) {
 
 /// Why no hypothesis of the library is accepted, when none is.
 fn not_named(d: &Diagnosis, s: &mut String) {
+    // Terms found beyond the library, on the arm's power or at rest, are claims of their own.
+    let found = d.discovery.as_ref().is_some_and(|r| {
+        !r.accepted.is_empty() || r.rest.as_ref().is_some_and(|p| !p.found.is_empty())
+    });
+    let tail = match found {
+        true => "what is claimed was found beyond it (above)",
+        false => "no missing physics is claimed",
+    };
     if d.accepted.is_empty() {
         match d.hypotheses.first() {
             Some(_) if d.forms.iter().any(|f| f.unnamed) => {
                 let _ = writeln!(
                     s,
-                    "Named: no mechanism of the library is identified (located above); no missing physics is claimed."
+                    "Named: no mechanism of the library is identified (located above); {tail}."
                 );
             }
             Some(h) if h.only_implausible() => {
                 let _ = writeln!(
                     s,
-                    "Named: no mechanism of the library is identified (located above: the best candidate, {}, fits only at an implausible size); no missing physics is claimed.",
+                    "Named: no mechanism of the library is identified (located above: the best candidate, {}, fits only at an implausible size); {tail}.",
                     h.id
                 );
             }
             Some(h) => {
                 let _ = writeln!(
                     s,
-                    "Named: no hypothesis in the library is supported (best candidate {}: held-out RMSE {:+.1} %, p = {:.1e}, ΔBIC = {:.1}); no missing physics is claimed.",
+                    "Named: no hypothesis in the library is supported (best candidate {}: held-out RMSE {:+.1} %, p = {:.1e}, ΔBIC = {:.1}); {tail}.",
                     h.id,
                     -100.0 * h.rel_improvement,
                     h.p_value,
