@@ -117,6 +117,12 @@ def check_scorer():
     if score.claims(d) or score.score([lat], [1.0], [], located=loc) != ([], ["located"]) \
             or score.score([lib], [1.0], [], located=loc) != ([], ["missed"]):
         bad.append(("timing located", loc))
+    # two lags of the main-board meter are one delay: one latency claim names both
+    lag_claim = [{"kind": "library", "id": "latency", "name": "power-sensor latency", "fields": []}]
+    mlag = {"kind": "meter", "mechanism": "meter_lag", "meter": "mbs",
+            "expect": {"ids": ["latency"], "fields": [], "terms": [], "meter": "mbs", "meter_words": ["meter"]}}
+    if score.score([lat, mlag], [1.0, 0.5], lag_claim) != (["right"], ["named", "named"]):
+        bad.append(("one delay", score.score([lat, mlag], [1.0, 0.5], lag_claim)))
     # one claim that fits two drawn forms of a mechanism names the one the data show most
     if score.score([lib, dict(lib)], [0.0, 0.28], [L("braking")]) != (["right"], ["missed", "named"]):
         bad.append(("two forms, one claim", score.score([lib, dict(lib)], [0.0, 0.28], [L("braking")])))
