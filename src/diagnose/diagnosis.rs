@@ -43,9 +43,9 @@ pub struct SensorWindow {
     /// `diagnose/window.rs`); only then may the latency hypothesis be claimed. True when W was
     /// given (the latency hypothesis alone judges the lag).
     pub lag_demanded: bool,
-    /// Where the scan's readings demand a lag: p-value that the lagged point predicts held-out
-    /// trials better than the best window at lag 0 (per-trial squared errors; a lag needs
-    /// p < 0.05).
+    /// Where the scan's best point is lagged or its readings demand a lag in-sample: p-value
+    /// that the lagged point predicts held-out trials better than the best window at lag 0
+    /// (per-trial squared errors; a lag needs p < 0.05 beside the in-sample rule).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub lag_held_out: Option<f64>,
     /// Trials the scan used.

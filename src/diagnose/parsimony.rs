@@ -176,9 +176,7 @@ pub(crate) fn apply(
     report: Option<&mut DiscoveryReport>,
     rule: &Rule,
 ) -> Result<Vec<(&'static Hypothesis, f64, f64)>> {
-    let min_gain = rule.min_improvement;
     let (spec, lag) = (sel.last.spec.clone(), sel.last.lag);
-    let theta = sel.last.full.theta.clone();
     let found: &[super::Discovery] = report.as_deref().map_or(&[], |r| &r.accepted);
     let (n_lib, n_terms) = (spec.len(), spec.len() + found.len());
     let full_pred = match report.as_deref() {
@@ -186,85 +184,22 @@ pub(crate) fn apply(
         _ => sel.last.cv.pred.clone(),
     };
     let rows = data.rows(lag)?;
+    let judge = Judge {
+        data,
+        rows,
+        theta: sel.last.full.theta.clone(),
+        e_full: trial_sse(&rows.y, &full_pred, &rows.trial, data.n_trials),
+        full_pred,
+        min_gain: rule.min_improvement,
+    };
     let mut flex = (spec.iter())
-        .map(|h| rival_cols(data, &forms_of(h), &theta, lag, &rows.t))
+        .map(|h| rival_cols(data, &forms_of(h), &judge.theta, lag, &rows.t))
         .collect::<Result<Vec<_>>>()?;
     flex.extend(found.iter().map(|d| d.flexible.clone()));
     let names: Vec<String> = (spec.iter().map(|h| h.mechanism.to_string()))
         .chain(found.iter().map(|d| d.name.clone()))
         .collect();
-    let sse = |pred: &[f64]| trial_sse(&rows.y, pred, &rows.trial, data.n_trials);
-    let rmse = |pred: &[f64]| r2_rmse(&rows.y, pred).1;
-    let e_full = sse(&full_pred);
-    // The test of one claim: the final model against `alt`, the model without it.
-    let test = |alt: &[f64], of: String, rival: Option<&'static str>, k: usize, level: f64| {
-        let e = sse(alt);
-        // Against the model without it, which the final model extends, the evidence is the
-        // selection gate's (`EXTENDS`); between alternatives, the squared-error difference.
-        let d: Vec<f64> = match of.is_empty() {
-            true => encompassing(
-                &rows.y,
-                (&full_pred, alt),
-                &rows.trial,
-                data.n_trials,
-                EXTENDS,
-            ),
-            false => e.iter().zip(&e_full).map(|(a, b)| a - b).collect(),
-        };
-        let (seed, gate) = (0x5eed_0000 + k as u64, (RIVAL_ALPHA, 0.0));
-        let worse: Vec<f64> = d.iter().map(|v| -v).collect();
-        Remainder {
-            of,
-            rival,
-            rmse: [rmse(&full_pred), rmse(alt)],
-            p_value: improvement_p_value(&d),
-            p_rival: improvement_p_value(&worse),
-            beaten: false,
-            held: resampled_stability((&e, &e_full, &d), gate, STABILITY_DRAWS, seed),
-            min_gain,
-            level,
-        }
-    };
     let claimed = |id: &str| sel.accepted.iter().any(|a| a.id == id);
-    // A claim that passes must also beat each rival in its place (others flexible, on `base`
-    // with columns `cols`), at RIVAL_ALPHA: the first it does not beat makes it "X or Y".
-    let against = |mut t: Remainder,
-                   base: &super::discover::Base,
-                   cols: &[&Vec<f64>],
-                   list: Vec<Rival>,
-                   (l, s, k, own): (usize, &[f64], usize, Option<Vec<f64>>)|
-     -> Result<Remainder> {
-        let x = &data.rows(l)?.x;
-        for r in &list {
-            if !t.claimed() || s.is_empty() {
-                break;
-            }
-            let (name, extra) = match r {
-                Rival::Plain(h) => {
-                    let col = x.iter().map(|x| regressor(h, x, &theta)).collect();
-                    (h.mechanism, vec![col])
-                }
-                Rival::Flexible(m, forms) => (*m, rival_cols(data, forms, &theta, l, s)?),
-                Rival::Split => (SPLIT, split_by(x, s)),
-            };
-            let mut alt_cols: Vec<&Vec<f64>> = cols.iter().copied().chain(&extra).collect();
-            let alt = base.fit(&alt_cols)?;
-            let mut v = test(&alt.pred, format!("the {name}"), Some(name), k, RIVAL_ALPHA);
-            (v.held, v.min_gain) = (t.held, 0.0);
-            // A flexible variant that contains the claim's form (adding the claim changes its
-            // fit by nothing) cannot be beaten: there the claim is lost only if it fits
-            // significantly better.
-            if let (Rival::Flexible(..), Some(own)) = (r, &own) {
-                alt_cols.push(own);
-                let with_own = rmse(&base.fit(&alt_cols)?.pred);
-                v.beaten = (1.0 - with_own / rmse(&alt.pred)).abs() < NESTED;
-            }
-            if !v.claimed() {
-                t = v;
-            }
-        }
-        Ok(t)
-    };
     let bare = state(data, Vec::new(), lag)?;
     let base = super::discover::Base::new(data, &bare)?;
     let mut tests: Vec<(usize, Remainder)> = Vec::new();
@@ -276,9 +211,9 @@ pub(crate) fn apply(
         let cols: Vec<&Vec<f64>> = others.iter().flat_map(|&o| &flex[o]).collect();
         let words: Vec<&str> = others.iter().map(|&o| names[o].as_str()).collect();
         let pred = base.fit(&cols)?.pred;
-        let t = test(&pred, remainder_of(&words), None, k, rule.alpha);
-        let (list, s, own) = claim_rivals(sel, &spec, found, k, rows, &theta);
-        tests.push((k, against(t, &base, &cols, list, (lag, s, k, own))?));
+        let t = judge.test(&pred, remainder_of(&words), None, k, rule.alpha);
+        let (list, s, own) = claim_rivals(sel, &spec, found, k, rows, &judge.theta);
+        tests.push((k, judge.against(t, &base, &cols, list, (lag, s, k, own))?));
     }
     // A latency must beat the same terms at no lag in flexible form, and beside them each
     // other library mechanism's flexible variant (a misfitted loss's remainder lags its cause).
@@ -286,19 +221,117 @@ pub(crate) fn apply(
         let t0 = &data.rows(0)?.t;
         let mut flex0 = Vec::new();
         for h in &spec {
-            flex0.extend(rival_cols(data, &forms_of(h), &theta, 0, t0)?);
+            flex0.extend(rival_cols(data, &forms_of(h), &judge.theta, 0, t0)?);
         }
         let cols: Vec<&Vec<f64>> = flex0.iter().chain(flex[n_lib..].iter().flatten()).collect();
         let bare0 = state(data, Vec::new(), 0)?;
         let base0 = super::discover::Base::new(data, &bare0)?;
         let of = "the same terms at no lag, in flexible form".to_string();
-        let t = test(&base0.fit(&cols)?.pred, of, None, n_terms, rule.alpha);
+        let t = judge.test(&base0.fit(&cols)?.pred, of, None, n_terms, rule.alpha);
         let list = rivals(LATENCY_ID, &spec, None, false);
-        let t = against(t, &base0, &cols, list, (0, t0, n_terms, None))?;
+        let t = judge.against(t, &base0, &cols, list, (0, t0, n_terms, None))?;
         tests.push((usize::MAX, t));
     }
     let by_found = record(sel, report, &tests, &spec, n_lib, n_terms);
     Ok(by_found)
+}
+
+/// The final model's held-out fit, against which [`apply`] tests every claim.
+struct Judge<'a, 'd> {
+    data: &'a PowerData<'d>,
+    rows: &'a super::reading_rows::Rows,
+    theta: Vec<f64>,
+    /// The final model's held-out prediction and its squared error per trial.
+    full_pred: Vec<f64>,
+    e_full: Vec<f64>,
+    min_gain: f64,
+}
+
+impl Judge<'_, '_> {
+    fn rmse(&self, pred: &[f64]) -> f64 {
+        r2_rmse(&self.rows.y, pred).1
+    }
+
+    /// The test of claim `k`: the final model against `alt`, the model without it (`of` says
+    /// what stands in its place, `rival` the mechanism among it).
+    fn test(
+        &self,
+        alt: &[f64],
+        of: String,
+        rival: Option<&'static str>,
+        k: usize,
+        level: f64,
+    ) -> Remainder {
+        let rows = self.rows;
+        let e = trial_sse(&rows.y, alt, &rows.trial, self.data.n_trials);
+        // Against the model without it, which the final model extends, the evidence is the
+        // selection gate's (`EXTENDS`); between alternatives, the squared-error difference.
+        let d: Vec<f64> = match of.is_empty() {
+            true => encompassing(
+                &rows.y,
+                (&self.full_pred, alt),
+                &rows.trial,
+                self.data.n_trials,
+                EXTENDS,
+            ),
+            false => e.iter().zip(&self.e_full).map(|(a, b)| a - b).collect(),
+        };
+        let (seed, gate) = (0x5eed_0000 + k as u64, (RIVAL_ALPHA, 0.0));
+        let worse: Vec<f64> = d.iter().map(|v| -v).collect();
+        Remainder {
+            of,
+            rival,
+            rmse: [self.rmse(&self.full_pred), self.rmse(alt)],
+            p_value: improvement_p_value(&d),
+            p_rival: improvement_p_value(&worse),
+            beaten: false,
+            held: resampled_stability((&e, &self.e_full, &d), gate, STABILITY_DRAWS, seed),
+            min_gain: self.min_gain,
+            level,
+        }
+    }
+
+    /// A claim that passes must also beat each rival in its place (others flexible, on `base`
+    /// with columns `cols`), at RIVAL_ALPHA: the first it does not beat makes it "X or Y".
+    fn against(
+        &self,
+        mut t: Remainder,
+        base: &super::discover::Base,
+        cols: &[&Vec<f64>],
+        list: Vec<Rival>,
+        (l, s, k, own): (usize, &[f64], usize, Option<Vec<f64>>),
+    ) -> Result<Remainder> {
+        let x = &self.data.rows(l)?.x;
+        for r in &list {
+            if !t.claimed() || s.is_empty() {
+                break;
+            }
+            let (name, extra) = match r {
+                Rival::Plain(h) => {
+                    let col = x.iter().map(|x| regressor(h, x, &self.theta)).collect();
+                    (h.mechanism, vec![col])
+                }
+                Rival::Flexible(m, forms) => (*m, rival_cols(self.data, forms, &self.theta, l, s)?),
+                Rival::Split => (SPLIT, split_by(x, s)),
+            };
+            let mut alt_cols: Vec<&Vec<f64>> = cols.iter().copied().chain(&extra).collect();
+            let alt = base.fit(&alt_cols)?;
+            let mut v = self.test(&alt.pred, format!("the {name}"), Some(name), k, RIVAL_ALPHA);
+            (v.held, v.min_gain) = (t.held, 0.0);
+            // A flexible variant that contains the claim's form (adding the claim changes its
+            // fit by nothing) cannot be beaten: there the claim is lost only if it fits
+            // significantly better.
+            if let (Rival::Flexible(..), Some(own)) = (r, &own) {
+                alt_cols.push(own);
+                let with_own = self.rmse(&base.fit(&alt_cols)?.pred);
+                v.beaten = (1.0 - with_own / self.rmse(&alt.pred)).abs() < NESTED;
+            }
+            if !v.claimed() {
+                t = v;
+            }
+        }
+        Ok(t)
+    }
 }
 
 /// The rivals of claim `k` (library claims first, then found terms), the state their flexible

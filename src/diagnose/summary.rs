@@ -175,8 +175,8 @@ fn timing_located(d: &Diagnosis, s: &mut String) {
     if let (false, Some(p)) = (sw.lag_demanded, sw.lag_held_out) {
         let _ = writeln!(
             s,
-            "Located: the readings' timing — a latency of {:.3} s behind a {:.3} s window, or a {:.3} s window at no lag; the held-out trials do not tell them apart (p = {p:.1e}); neither is claimed.",
-            sw.scan_lag_s, sw.scan_window_s, sw.window_s
+            "Located: the readings' timing — a latency of {:.3} s behind a {:.3} s window, or a {:.3} s window at no lag; the data do not tell them apart (in-sample ΔBIC = {:.1}, held out p = {p:.1e}); neither is claimed.",
+            sw.scan_lag_s, sw.scan_window_s, sw.window_s, sw.lag_delta_bic
         );
     }
 }
@@ -320,6 +320,11 @@ fn sensor_lines(d: &Diagnosis, s: &mut String) {
             sw.scan_r2,
             match (sw.lag_demanded, sw.lag_held_out) {
                 (false, None) => "no lag beats every window at lag 0: no latency is claimed".into(),
+                (false, Some(p)) => format!(
+                    "the lag is not demanded (in-sample ΔBIC = {:.1} against the best window at lag 0, held out p = {p:.1e}; a lag needs the BIC rule and p < {}): no latency is claimed (located above)",
+                    sw.lag_delta_bic,
+                    super::select::RIVAL_ALPHA
+                ),
                 (demanded, p) => format!(
                     "a lag beats every window at lag 0{}: {}",
                     p.map_or(String::new(), |p| format!(
@@ -353,16 +358,24 @@ fn not_named(d: &Diagnosis, s: &mut String) {
     if !d.accepted.is_empty() {
         return;
     }
+    // Terms found beyond the library, on the arm's power or at rest, are claims of their own.
+    let found = d.discovery.as_ref().is_some_and(|r| {
+        !r.accepted.is_empty() || r.rest.as_ref().is_some_and(|p| !p.found.is_empty())
+    });
+    let tail = match found {
+        true => "what is claimed was found beyond it (above)",
+        false => "no missing physics is claimed",
+    };
     let line = match d.hypotheses.first() {
         Some(_) if d.forms.iter().any(|f| f.unnamed) => {
-            "no mechanism of the library is identified (located above); no missing physics is claimed.".into()
+            format!("no mechanism of the library is identified (located above); {tail}.")
         }
         Some(h) if h.only_implausible() => format!(
-            "no mechanism of the library is identified (located above: the best candidate, {}, fits only at an implausible size); no missing physics is claimed.",
+            "no mechanism of the library is identified (located above: the best candidate, {}, fits only at an implausible size); {tail}.",
             h.id
         ),
         Some(h) => format!(
-            "no hypothesis in the library is supported (best candidate {}: held-out RMSE {:+.1} %, p = {:.1e}, ΔBIC = {:.1}); no missing physics is claimed.",
+            "no hypothesis in the library is supported (best candidate {}: held-out RMSE {:+.1} %, p = {:.1e}, ΔBIC = {:.1}); {tail}.",
             h.id,
             -100.0 * h.rel_improvement,
             h.p_value,

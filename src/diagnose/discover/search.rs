@@ -169,19 +169,25 @@ impl<'a, 'd> Search<'a, 'd> {
         let fit = self.base.fit(&cols).ok()?;
         let (p, rel, before, after) = self.base.compare(cur.0, &fit.pred);
         let n = self.base.rows.len().max(1) as f64;
-        let contrib: f64 = (0..self.base.rows.len())
+        let added: Vec<f64> = (0..self.base.rows.len())
             .map(|r| {
-                own.iter()
-                    .enumerate()
+                (own.iter().enumerate())
                     .map(|(j, c)| c[r] * fit.gamma[prev.len() + j])
                     .sum::<f64>()
-                    .powi(2)
             })
-            .sum();
-        // A loss the model lacks (a one-sided form of a library mechanism, on its own) draws
-        // power: a negative coefficient is another term's remainder, not that loss.
+            .collect();
+        let contrib: f64 = added.iter().map(|a| a * a).sum();
+        // A loss the model lacks (a one-sided form of a library mechanism, on its own or
+        // changing with a signal) draws power: a negative coefficient — for a term × signal, a
+        // negative coefficient of the plain term that best reproduces what it adds — is another
+        // term's remainder, not that loss. A term × a nearly constant signal is a free level:
+        // the braking side's current times an IMU angle, its level negative, stood in for the
+        // driving side's loss (fuzz seed 1088541151).
         let loss_sign = match self.cands[i].kind {
-            Kind::Pooled(t) if t.level_is_new() => fit.gamma[prev.len()] > 0.0,
+            Kind::Pooled(t) | Kind::Product(t, ..) if t.level_is_new() => {
+                let level = self.rv.pooled(t);
+                added.iter().zip(level).map(|(a, g)| a * g).sum::<f64>() > 0.0
+            }
             _ => true,
         };
         let plausible =
