@@ -125,6 +125,17 @@ pub fn extras_into(s: &Sample, out: &mut [f64; N_EXTRA]) {
     out[DRIVING_TORQUE] = driving_nm;
 }
 
+/// A sample's raw row: the base regressors φ followed by the extra features.
+pub(crate) fn raw_row(s: &Sample) -> [f64; N_RAW] {
+    let (mut phi, mut ex) = ([0.0; N_PARAMS], [0.0; N_EXTRA]);
+    crate::power::regressor_into(s.tau, s.dq, s.tau0_sq, &mut phi);
+    extras_into(s, &mut ex);
+    let mut x = [0.0; N_RAW];
+    x[..N_PARAMS].copy_from_slice(&phi);
+    x[N_PARAMS..].copy_from_slice(&ex);
+    x
+}
+
 /// How a hypothesis' raw features enter the model.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Combine {

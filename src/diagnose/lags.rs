@@ -226,14 +226,7 @@ pub(crate) fn base_trial_residuals(
 ) -> Result<Vec<Option<f64>>> {
     let data = PowerData::new(vec![0.0], vec![rows.clone()], n_trials, folds, reference);
     let fit = data.fit_all(&[], 0)?;
-    let resid = (0..rows.len()).map(|r| {
-        let p: f64 = rows.x[r]
-            .iter()
-            .zip(fit.beta.iter())
-            .map(|(a, b)| a * b)
-            .sum();
-        (rows.trial[r], rows.y[r] - p)
-    });
+    let resid = (0..rows.len()).map(|r| (rows.trial[r], rows.y[r] - fit.predict(&rows.x[r])));
     let (sum, cnt) = super::locate::trial_sums(resid, n_trials);
     Ok((0..n_trials)
         .map(|t| (cnt[t] > 0).then(|| sum[t] / cnt[t] as f64))
@@ -309,7 +302,7 @@ pub(crate) fn scan_lags<'a>(
     let folds = Folds::new(metas.len(), opts.folds, FOLD_SEED);
     let mut grams: Vec<FoldGramsBuilder> = lags
         .iter()
-        .map(|_| FoldGramsBuilder::new(folds.k))
+        .map(|_| FoldGramsBuilder::new(N_RAW, folds.k))
         .collect();
     let mut common: HashSet<u64> = HashSet::new();
     let windows: Vec<TrialWindow> = metas.iter().map(|m| m.window.clone()).collect();

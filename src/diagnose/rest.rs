@@ -14,12 +14,11 @@
 //! the rest load and is not a candidate.
 
 use super::family::{Shape, dot, orthonormal_add, residual};
-use super::select::{Param, RIVAL_ALPHA, Rule, jackknife_se};
+use super::select::{FoldGramsBuilder, Param, RIVAL_ALPHA, Rule, bic, jackknife_se};
 use super::stats::{
     STABILITY_DRAWS, encompassing, improvement_p_value, resampled_stability, span, t_upper_tail,
 };
 use super::stepwise::{self, Gated, holm_level, not_significant};
-use crate::lsq::Gram;
 
 /// Most trials per block of the held-out test (≈ 4–5 minutes of the protocol); a shorter session
 /// has blocks of [`MIN_BLOCK_TRIALS`] or more, enough for [`MIN_BLOCKS`] of them.
@@ -180,31 +179,29 @@ impl Search<'_> {
         let n = self.y.len();
         let p = x.len() + 1;
         // Each fold's normal equations once; a fold's training set is the total minus it.
-        let mut folds = vec![Gram::zeros(p); FOLDS];
+        let mut b = FoldGramsBuilder::new(p, FOLDS);
         let mut row = vec![1.0; p];
         for r in 0..n {
             for (c, col) in x.iter().enumerate() {
                 row[c + 1] = col[r];
             }
-            folds[self.block[r] % FOLDS].add_row(&row, self.y[r]);
+            b.add(self.block[r] % FOLDS, &row, self.y[r]);
         }
-        let mut total = Gram::zeros(p);
-        folds.iter().for_each(|f| total.add(f));
+        let fg = b.finish();
         let mut pred = vec![f64::NAN; n];
         let mut fold_coef = Vec::new();
-        for (f, held) in folds.iter().enumerate() {
-            let coef: Vec<f64> = total.minus(held).solve(0.0)?.iter().copied().collect();
+        for f in 0..FOLDS {
+            let coef: Vec<f64> = fg.train(f).solve(0.0)?.iter().copied().collect();
             for r in (0..n).filter(|&r| self.block[r] % FOLDS == f) {
                 pred[r] = predict(&coef, x, r);
             }
             fold_coef.push(coef);
         }
-        let coef: Vec<f64> = total.solve(0.0)?.iter().copied().collect();
+        let coef: Vec<f64> = fg.total.solve(0.0)?.iter().copied().collect();
         let sse: f64 = (0..n)
             .map(|r| (self.y[r] - predict(&coef, x, r)).powi(2))
             .sum();
-        let k = (x.len() + 1) as f64;
-        let bic = n as f64 * (sse / n as f64).max(1e-300).ln() + k * (n as f64).ln();
+        let bic = bic(sse, n, p);
         Some(Fit {
             pred,
             fold_coef,

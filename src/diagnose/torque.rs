@@ -8,7 +8,7 @@ use anyhow::Result;
 use nalgebra::DVector;
 
 use super::reading_rows::TrialMeta;
-use super::select::{Folds, Held, HypothesisScore, Param, bic, jackknife_se};
+use super::select::{FoldGramsBuilder, Folds, Held, HypothesisScore, Param, bic, jackknife_se};
 use crate::N_JOINTS;
 use crate::lsq::Gram;
 use crate::robot::ArmDynamics;
@@ -164,22 +164,18 @@ struct TorqueCv {
 
 /// Stage: fit both models on each fold's training trials and predict its held-out rows.
 fn cross_validate_torque(rows: &[TorqueRow], folds: &Folds) -> TorqueCv {
-    let mut fold_grams: Vec<Gram> = (0..folds.k).map(|_| Gram::zeros(N_TORQUE)).collect();
+    let mut b = FoldGramsBuilder::new(N_TORQUE, folds.k);
     for row in rows {
-        let g = &mut fold_grams[folds.of_trial[row.trial]];
         for j in 0..N_JOINTS {
-            g.add_row(&row.x[j], row.r[j]);
+            b.add(folds.of_trial[row.trial], &row.x[j], row.r[j]);
         }
     }
-    let mut total = Gram::zeros(N_TORQUE);
-    for g in &fold_grams {
-        total.add(g);
-    }
+    let fg = b.finish();
     let mut pred_base = vec![[0.0; N_JOINTS]; rows.len()];
     let mut pred_pay = vec![[0.0; N_JOINTS]; rows.len()];
     let mut fold_pay: Vec<[f64; 4]> = Vec::new();
-    for (f, fold) in fold_grams.iter().enumerate() {
-        let train = total.minus(fold);
+    for f in 0..folds.k {
+        let train = fg.train(f);
         let b0 = solve(&train, N_FRICTION);
         let b1 = solve(&train, N_TORQUE);
         fold_pay.push(std::array::from_fn(|c| b1[N_FRICTION + c]));
@@ -191,7 +187,7 @@ fn cross_validate_torque(rows: &[TorqueRow], folds: &Folds) -> TorqueCv {
         }
     }
     TorqueCv {
-        total,
+        total: fg.total,
         pred_base,
         pred_pay,
         fold_pay,

@@ -304,11 +304,7 @@ pub(super) fn score_latency(data: &PowerData, cur: &State, step: usize) -> Resul
     for (r, p) in pred.iter_mut().enumerate() {
         let f = data.folds.of_trial[data.rows0().trial[r]];
         let l = chosen[f];
-        *p = data.rows(l)?.x[r]
-            .iter()
-            .zip(fold_fits[l][f].beta.iter())
-            .map(|(a, b)| a * b)
-            .sum();
+        *p = fold_fits[l][f].predict(&data.rows(l)?.x[r]);
     }
     let next = state(data, cur.spec.clone(), best)?;
     // Rows are the same readings at every lag, so per-trial errors compare directly.
