@@ -338,36 +338,25 @@ pub(crate) fn build_rows(
     with_locate: bool,
 ) -> Rows {
     let mut rows = Rows::default();
-    let feats = TrialFeatures::none();
     for (ti, meta) in trials.iter().enumerate() {
-        trial_rows_into(
-            &mut rows,
-            rec,
-            power,
-            meta,
-            ti,
-            &feats,
-            lag,
-            width,
-            with_locate,
-        );
+        let feats = TrialFeatures::none();
+        let part = trial_rows(rec, power, meta, &feats, (lag, width), with_locate);
+        rows.append(part, ti);
     }
     rows
 }
 
-/// One trial's rows (as trial `ti`) for one sensor lag, from its [`TrialFeatures`].
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn trial_rows_into(
-    rows: &mut Rows,
+/// One trial's rows (numbered trial 0) at sensor `lag` and window `width`, from its
+/// [`TrialFeatures`] (`with_locate`: with the descriptor features).
+pub(crate) fn trial_rows(
     rec: &Recording,
     power: &PowerSeries,
     meta: &TrialMeta,
-    ti: usize,
     feats: &TrialFeatures,
-    lag: f64,
-    width: f64,
+    (lag, width): (f64, f64),
     with_locate: bool,
-) {
+) -> Rows {
+    let mut rows = Rows::default();
     let pt = &power.t;
     let mut x = [0.0; N_RAW];
     let mut loc = [0.0; N_LOCATE];
@@ -379,7 +368,7 @@ pub(crate) fn trial_rows_into(
         .filter(|v| v.is_finite())
         .collect();
     if vals.is_empty() {
-        return;
+        return rows;
     }
     let baseline = vals.iter().sum::<f64>() / vals.len() as f64;
     // Readings whose window (at lag 0) lies inside the trajectory, post-idle and return: fixed
@@ -399,7 +388,7 @@ pub(crate) fn trial_rows_into(
         }
         let mid = tk - 0.5 * width;
         let phase = w.phase_at(mid).unwrap_or(Phase::Return);
-        rows.trial.push(ti);
+        rows.trial.push(0);
         rows.t.push(tk);
         rows.phase.push(phase);
         rows.y.push(p - baseline);
@@ -408,6 +397,7 @@ pub(crate) fn trial_rows_into(
             rows.locate.push(loc);
         }
     }
+    rows
 }
 
 #[cfg(test)]

@@ -268,9 +268,11 @@ impl Search<'_> {
         (p, sq(e0), sq(&e1))
     }
 
-    fn term(&self, s: &Scored, level: f64, verdict: String, coef: (f64, f64)) -> RestTerm {
+    /// Candidate `s` as a term: its coefficient the `j`-th of `fit` (± its jackknife s.e.).
+    fn term(&self, s: &Scored, level: f64, verdict: String, (fit, j): (&Fit, usize)) -> RestTerm {
         let (c, field) = (self.cands[s.cand], self.field_of(s.cand));
-        let (k, se) = coef;
+        let k = fit.coef[j];
+        let se = jackknife_se(&fit.fold_coef.iter().map(|c| c[j]).collect::<Vec<_>>());
         let step = matches!(c.shape, Shape::Above(_));
         let name = format!("the rail's rest power {}", c.shape.predicate(&field, k));
         let g = c.shape.formula().replace("s_i", &field);
@@ -404,8 +406,6 @@ pub(crate) fn rest_power(inp: &RestInputs, rule: &Rule) -> Option<RestPower> {
     // A rival found later as a term of its own is not a tie of the earlier ones.
     let found_fields: Vec<String> = chosen.iter().map(|&c| search.field_of(c)).collect();
     for (k, (s, level, tied)) in steps.iter().enumerate() {
-        let coef = cur.coef[k + 1];
-        let se = jackknife_se(&cur.fold_coef.iter().map(|c| c[k + 1]).collect::<Vec<_>>());
         let verdict = format!(
             "accepted: held-out RMSE −{:.1} % (p = {:.1e} < {:.1e} beside the rail's drift piecewise linear over every {DRIFT_TRIALS} trials, Holm over {} candidates), ΔBIC = {:.1}",
             100.0 * s.rel,
@@ -414,7 +414,7 @@ pub(crate) fn rest_power(inp: &RestInputs, rule: &Rule) -> Option<RestPower> {
             search.cands.len(),
             s.d_bic
         );
-        let mut t = search.term(s, *level, verdict, (coef, se));
+        let mut t = search.term(s, *level, verdict, (&cur, k + 1));
         t.tied = tied
             .iter()
             .filter(|f| !found_fields.contains(f))
@@ -568,9 +568,7 @@ impl Search<'_> {
             f.d_bic,
             100.0 * f.rel
         );
-        let j = f.fit.coef.len() - 1;
-        let se = jackknife_se(&f.fit.fold_coef.iter().map(|c| c[j]).collect::<Vec<_>>());
-        self.term(f, level, verdict, (f.fit.coef[j], se))
+        self.term(f, level, verdict, (&f.fit, f.fit.coef.len() - 1))
     }
 
     /// The fields the first step's best candidate `b`, rejected, cannot be told from: every
