@@ -74,29 +74,17 @@ impl Rows {
     /// Keep, in place and in order, the rows for which `f(row, trial)` gives a trial index
     /// (the row's new `trial`); the others are dropped.
     pub fn retain(&mut self, mut f: impl FnMut(usize, usize) -> Option<usize>) {
-        let mut w = 0;
-        for i in 0..self.len() {
-            let Some(p) = f(i, self.trial[i]) else {
-                continue;
-            };
-            self.trial[w] = p;
-            self.t[w] = self.t[i];
-            self.phase[w] = self.phase[i];
-            self.y[w] = self.y[i];
-            self.x[w] = self.x[i];
-            if !self.locate.is_empty() {
-                self.locate[w] = self.locate[i];
-            }
-            w += 1;
+        let new: Vec<Option<usize>> = (0..self.len()).map(|i| f(i, self.trial[i])).collect();
+        fn keep<T>(v: &mut Vec<T>, new: &[Option<usize>]) {
+            let mut i = 0..;
+            v.retain(|_| i.next().is_some_and(|i| new[i].is_some()));
         }
-        self.trial.truncate(w);
-        self.t.truncate(w);
-        self.phase.truncate(w);
-        self.y.truncate(w);
-        self.x.truncate(w);
-        if !self.locate.is_empty() {
-            self.locate.truncate(w);
-        }
+        keep(&mut self.t, &new);
+        keep(&mut self.phase, &new);
+        keep(&mut self.y, &new);
+        keep(&mut self.x, &new);
+        keep(&mut self.locate, &new);
+        self.trial = new.into_iter().flatten().collect();
         self.shrink_to_fit();
     }
 

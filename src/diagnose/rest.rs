@@ -277,12 +277,8 @@ impl Search<'_> {
         let name = format!("the rail's rest power {}", c.shape.predicate(&field, k));
         let g = c.shape.formula().replace("s_i", &field);
         let form = format!("P_rest += {}·{g}", if step { "P_on" } else { "k" });
-        let param = |name: &str, symbol: &str, scale: f64, unit: &str| Param {
-            name: name.into(),
-            symbol: symbol.into(),
-            value: k * scale,
-            std_err: se * scale,
-            unit: unit.into(),
+        let param = |name: &str, symbol: &str, scale: f64, unit: &str| {
+            Param::new(name, symbol, k * scale, se * scale, unit)
         };
         let params = if step {
             vec![param(

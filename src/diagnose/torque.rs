@@ -225,21 +225,10 @@ fn payload_score(rows: &[TorqueRow], cv: &TorqueCv, n_trials: usize) -> Hypothes
         .map(|c| jackknife_se(&fold_pay.iter().map(|p| p[1 + c] / p[0]).collect::<Vec<_>>()))
         .collect();
     let plausible = (0.02..=5.0).contains(&m) && com.iter().all(|c| c.abs() <= 0.3);
-    let mut params = vec![Param {
-        name: "payload mass at the hand".into(),
-        symbol: "m".into(),
-        value: m,
-        std_err: m_se,
-        unit: "kg".into(),
-    }];
+    let mut params = vec![Param::new("payload mass at the hand", "m", m, m_se, "kg")];
     for (c, axis) in ["x", "y", "z"].iter().enumerate() {
-        params.push(Param {
-            name: format!("payload centre of mass {axis} (wrist-yaw link frame)"),
-            symbol: format!("c{axis}"),
-            value: com[c],
-            std_err: com_se[c],
-            unit: "m".into(),
-        });
+        let name = format!("payload centre of mass {axis} (wrist-yaw link frame)");
+        params.push(Param::new(name, format!("c{axis}"), com[c], com_se[c], "m"));
     }
     let title = "payload at the hand the URDF lacks (point mass)";
     HypothesisScore {
