@@ -351,14 +351,10 @@ pub(crate) fn trial_rows(
     let w = &meta.window;
     let width = meta.width_s.unwrap_or(width);
     let base = baseline_readings(pt, meta, lag, width);
-    let vals: Vec<f64> = base
-        .filter_map(|k| power.watts.get(k).copied())
-        .filter(|v| v.is_finite())
-        .collect();
-    if vals.is_empty() {
+    let baseline = super::meters::finite_mean(base.filter_map(|k| power.watts.get(k).copied()));
+    if baseline.is_nan() {
         return rows;
     }
-    let baseline = vals.iter().sum::<f64>() / vals.len() as f64;
     // Readings whose window (at lag 0) lies inside the trajectory, post-idle and return: fixed
     // by their stamps, so the rows of every lag describe the same readings.
     for k in readings_within(pt, w.t_traj_start, w.t_return_end, 0.0, width) {

@@ -52,6 +52,17 @@ impl FoldGrams {
     pub(crate) fn train(&self, f: usize) -> Gram {
         self.total.minus(&self.fold[f])
     }
+
+    /// `spec` fitted on each fold's training rows (base refitted, or held at `reference`).
+    pub(crate) fn fits(
+        &self,
+        spec: &[&'static Hypothesis],
+        reference: Option<&[f64]>,
+    ) -> Result<Vec<Fitted>> {
+        (0..self.fold.len())
+            .map(|f| fit(spec, &self.train(f), reference))
+            .collect()
+    }
 }
 
 /// [`FoldGrams`] of `p` columns accumulated from rows given piece by piece (a trial at a time):
@@ -263,10 +274,7 @@ pub(crate) fn cross_validate(
     fg: &FoldGrams,
     reference: Option<&[f64]>,
 ) -> Result<CvOut> {
-    let mut fitted = Vec::with_capacity(folds.k);
-    for f in 0..folds.k {
-        fitted.push(fit(spec, &fg.train(f), reference)?);
-    }
+    let fitted = fg.fits(spec, reference)?;
     let pred = (0..rows.len())
         .map(|r| fitted[folds.of_trial[rows.trial[r]]].predict(&rows.x[r]))
         .collect();

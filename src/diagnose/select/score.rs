@@ -286,14 +286,9 @@ pub(crate) fn term_param(st: &State, k: usize) -> Param {
 /// the held-out trials, so the scan itself cannot buy a better held-out score.
 pub(super) fn score_latency(data: &PowerData, cur: &State, step: usize) -> Result<Candidate> {
     let nl = data.lags.len();
-    let mut fold_fits: Vec<Vec<Fitted>> = Vec::with_capacity(nl);
-    for fg in &data.grams {
-        let mut per = Vec::with_capacity(data.folds.k);
-        for f in 0..data.folds.k {
-            per.push(fit(&cur.spec, &fg.train(f), data.reference())?);
-        }
-        fold_fits.push(per);
-    }
+    let fold_fits: Vec<Vec<Fitted>> = (data.grams.iter())
+        .map(|fg| fg.fits(&cur.spec, data.reference()))
+        .collect::<Result<_>>()?;
     let mut pred = vec![0.0; data.rows0().len()];
     let mut fold_lag = Vec::with_capacity(data.folds.k);
     let mut chosen = vec![0usize; data.folds.k];
