@@ -169,12 +169,8 @@ pub(crate) fn trial_meta(
             continue;
         };
         let mut tau0_sq = [0.0; N_JOINTS];
-        for k in pre.clone() {
-            if let Some(tau) = rec.state.tau.get(k) {
-                for i in 0..N_JOINTS {
-                    tau0_sq[i] += tau[i] * tau[i];
-                }
-            }
+        for tau in pre.clone().filter_map(|k| rec.state.tau.get(k)) {
+            tau0_sq.iter_mut().zip(tau).for_each(|(a, t)| *a += t * t);
         }
         tau0_sq.iter_mut().for_each(|v| *v /= pre.len() as f64);
         let mut extra0 = [0.0; N_EXTRA];

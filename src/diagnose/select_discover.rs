@@ -204,16 +204,13 @@ pub(crate) fn run_fields(
         }
     }
     let windows: Vec<fields::Window> = all.iter().map(|a| a.0).collect();
+    let own = FieldSource {
+        path: info.source.clone(),
+        start_ns: info.start_ns,
+        offset_s: 0.0,
+    };
     let sources: Vec<FieldSource> = if opts.field_sources.is_empty() {
-        if info.source.exists() {
-            vec![FieldSource {
-                path: info.source.clone(),
-                start_ns: info.start_ns,
-                offset_s: 0.0,
-            }]
-        } else {
-            Vec::new()
-        }
+        info.source.exists().then_some(own).into_iter().collect()
     } else {
         opts.field_sources.clone()
     };
