@@ -168,16 +168,22 @@ struct Side<'a> {
     power: &'a PowerSeries,
 }
 
-/// The comparison from the joint sums and both sides' power (`real_samples` = the recording's
-/// joint samples, `moved` = the recording's first motion).
+/// The comparison from the merge `m` (its joint sums, the recording's joint samples and first
+/// motion, the counterpart's power) and the recording's side, with the counterpart's file and
+/// clock origin.
 fn finish(
-    sums: JointSums,
-    real_samples: usize,
+    m: Merge<'_>,
     joint_names: &[String],
-    (real, sim): (Side, Side),
-    moved: f64,
+    real: Side,
+    (sim_source, sim_start_ns): (&Path, u64),
     d: &Diagnosis,
 ) -> Result<CounterpartComparison> {
+    let (sums, real_samples, moved) = (m.sums, m.real_samples, m.moved);
+    let sim = Side {
+        source: sim_source,
+        start_ns: sim_start_ns,
+        power: &m.sim_power,
+    };
     let share = sums.matched as f64 / real_samples.max(1) as f64;
     if share < MIN_MATCHED_SHARE {
         bail!(
@@ -192,10 +198,7 @@ fn finish(
     let n = sums.matched as f64;
     let joints = (0..N_JOINTS)
         .map(|j| JointDifference {
-            joint: joint_names
-                .get(j)
-                .cloned()
-                .unwrap_or_else(|| format!("joint {j}")),
+            joint: super::hypotheses::joint_name(joint_names, j),
             tau_rms_nm: (sums.tau_sq[j] / n).sqrt(),
             tau_bias_nm: sums.tau[j] / n,
             q_rms_rad: (sums.q_sq[j] / n).sqrt(),
@@ -286,22 +289,14 @@ fn finish(
 pub fn compare(real: &Recording, sim: &Recording, d: &Diagnosis) -> Result<CounterpartComparison> {
     let mut once = Some(SimBatch::of(sim, d.target));
     let mut m = Merge::new(true, Box::new(move || once.take()));
-    let (real_power, names) = (d.target.series(real), &real.joint_names);
     m.add_real(real.start_ns, &real.state)?;
     m.drain()?;
-    let (real, sim) = (
-        Side {
-            source: &real.source,
-            start_ns: real.start_ns,
-            power: real_power,
-        },
-        Side {
-            source: &sim.source,
-            start_ns: sim.start_ns,
-            power: &m.sim_power,
-        },
-    );
-    finish(m.sums, m.real_samples, names, (real, sim), m.moved, d)
+    let side = Side {
+        source: &real.source,
+        start_ns: real.start_ns,
+        power: d.target.series(real),
+    };
+    finish(m, &real.joint_names, side, (&sim.source, sim.start_ns), d)
 }
 
 /// One batch of the counterpart's joint samples (absolute times) and target power readings.
@@ -499,13 +494,6 @@ fn compare_streamed(
     let drained = if streamed.is_ok() { m.drain() } else { Ok(()) };
     // The channel's receiver dropped: the reader thread ends.
     m.next = Box::new(|| None);
-    let Merge {
-        sums,
-        moved,
-        sim_power,
-        real_samples,
-        ..
-    } = m;
     let joined = reader
         .join()
         .map_err(|_| anyhow::anyhow!("the counterpart's reader thread panicked"))?;
@@ -513,20 +501,12 @@ fn compare_streamed(
     drained?;
     let sim_start_ns = joined?;
     real_power.sort_by_time();
-    let sides = (
-        Side {
-            source: &real.path,
-            start_ns: real_summary.start_ns,
-            power: &real_power,
-        },
-        Side {
-            source: &sim.path,
-            start_ns: sim_start_ns,
-            power: &sim_power,
-        },
-    );
-    let names = &real.map.joint_names;
-    finish(sums, real_samples, names, sides, moved, d)
+    let side = Side {
+        source: &real.path,
+        start_ns: real_summary.start_ns,
+        power: &real_power,
+    };
+    finish(m, &real.map.joint_names, side, (&sim.path, sim_start_ns), d)
 }
 
 /// Plain-language paragraph for the terminal summary and the report.

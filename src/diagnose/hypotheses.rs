@@ -125,6 +125,17 @@ pub fn extras_into(s: &Sample, out: &mut [f64; N_EXTRA]) {
     out[DRIVING_TORQUE] = driving_nm;
 }
 
+/// A sample's raw row: the base regressors φ followed by the extra features.
+pub(crate) fn raw_row(s: &Sample) -> [f64; N_RAW] {
+    let (mut phi, mut ex) = ([0.0; N_PARAMS], [0.0; N_EXTRA]);
+    crate::power::regressor_into(s.tau, s.dq, s.tau0_sq, &mut phi);
+    extras_into(s, &mut ex);
+    let mut x = [0.0; N_RAW];
+    x[..N_PARAMS].copy_from_slice(&phi);
+    x[N_PARAMS..].copy_from_slice(&ex);
+    x
+}
+
 /// How a hypothesis' raw features enter the model.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Combine {
@@ -347,16 +358,20 @@ pub fn locate_into(s: &Sample, out: &mut [f64; N_LOCATE]) {
     out[5 * N_JOINTS] = s.gyro.iter().map(|w| w * w).sum::<f64>().sqrt();
 }
 
+/// Joint `j`'s name in `joint_names` ("joint j" where there is none).
+pub(crate) fn joint_name(joint_names: &[String], j: usize) -> String {
+    joint_names
+        .get(j)
+        .cloned()
+        .unwrap_or_else(|| format!("joint {j}"))
+}
+
 /// Human-readable name of descriptor feature `k` given the arm's joint names.
 pub fn locate_name(k: usize, joint_names: &[String]) -> String {
     if k >= 5 * N_JOINTS {
         return "body angular velocity |ω| (IMU)".into();
     }
-    let j = k / 5;
-    let joint = joint_names
-        .get(j)
-        .cloned()
-        .unwrap_or_else(|| format!("joint {j}"));
+    let joint = joint_name(joint_names, k / 5);
     let what = match k % 5 {
         0 => "position q",
         1 => "speed |q̇|",

@@ -10,7 +10,7 @@ use crate::signals::{PowerSeries, Recording};
 use crate::trial::{Cascade, Rejection, TrialStat, TrialWindow};
 
 use super::hypotheses::N_RAW;
-use super::reading_rows::{Rows, TrialFeatures, TrialMeta, trial_rows_into};
+use super::reading_rows::{Rows, TrialFeatures, TrialMeta, trial_rows};
 use super::select::{FOLD_SEED, FoldGramsBuilder, Folds, PowerData, fit};
 use super::{DiagnoseOptions, LagPoint};
 use crate::session::TrialSource;
@@ -75,7 +75,7 @@ fn lag_grams(
         let (ti, meta) = (which[k], &metas[which[k]]);
         let feats = TrialFeatures::new(rec, meta);
         for (l, &lag) in lags.iter().enumerate() {
-            let part = rows_at(rec, power, meta, &feats, (lag, w), keep && l == 0);
+            let part = trial_rows(rec, power, meta, &feats, (lag, w), keep && l == 0);
             for (x, y) in part.x.iter().zip(&part.y) {
                 grams[l].add_row(x, *y);
             }
@@ -87,20 +87,6 @@ fn lag_grams(
         Ok(())
     })?;
     Ok((grams, TrialRows::new(rows, metas.len())))
-}
-
-/// One trial's rows at sensor `lag` and window `w` (`locate`: with the descriptor features).
-fn rows_at(
-    rec: &Recording,
-    power: &PowerSeries,
-    meta: &TrialMeta,
-    feats: &TrialFeatures,
-    (lag, w): (f64, f64),
-    locate: bool,
-) -> Rows {
-    let mut part = Rows::default();
-    trial_rows_into(&mut part, rec, power, meta, 0, feats, lag, w, locate);
-    part
 }
 
 /// Stage: the trials usable for the diagnosis — trials without a pre-idle are unusable
@@ -226,14 +212,7 @@ pub(crate) fn base_trial_residuals(
 ) -> Result<Vec<Option<f64>>> {
     let data = PowerData::new(vec![0.0], vec![rows.clone()], n_trials, folds, reference);
     let fit = data.fit_all(&[], 0)?;
-    let resid = (0..rows.len()).map(|r| {
-        let p: f64 = rows.x[r]
-            .iter()
-            .zip(fit.beta.iter())
-            .map(|(a, b)| a * b)
-            .sum();
-        (rows.trial[r], rows.y[r] - p)
-    });
+    let resid = (0..rows.len()).map(|r| (rows.trial[r], rows.y[r] - fit.predict(&rows.x[r])));
     let (sum, cnt) = super::locate::trial_sums(resid, n_trials);
     Ok((0..n_trials)
         .map(|t| (cnt[t] > 0).then(|| sum[t] / cnt[t] as f64))
@@ -309,7 +288,7 @@ pub(crate) fn scan_lags<'a>(
     let folds = Folds::new(metas.len(), opts.folds, FOLD_SEED);
     let mut grams: Vec<FoldGramsBuilder> = lags
         .iter()
-        .map(|_| FoldGramsBuilder::new(folds.k))
+        .map(|_| FoldGramsBuilder::new(N_RAW, folds.k))
         .collect();
     let mut common: HashSet<u64> = HashSet::new();
     let windows: Vec<TrialWindow> = metas.iter().map(|m| m.window.clone()).collect();
@@ -318,7 +297,7 @@ pub(crate) fn scan_lags<'a>(
         let feats = TrialFeatures::new(rec, &metas[ti]);
         let parts: Vec<Rows> = lags
             .iter()
-            .map(|&l| rows_at(rec, power, &metas[ti], &feats, (l, w), false))
+            .map(|&l| trial_rows(rec, power, &metas[ti], &feats, (l, w), false))
             .collect();
         // The readings present at every lag (a handful per trial).
         let here: HashSet<u64> = parts[0]
@@ -355,7 +334,7 @@ pub(crate) fn scan_lags<'a>(
         samples.for_each(&windows, &mut |rec, _| {
             let feats = TrialFeatures::new(rec, &metas[ti]);
             for (to, &l) in out.iter_mut().zip(want) {
-                let part = rows_at(rec, power, &metas[ti], &feats, (at[l], w), false);
+                let part = trial_rows(rec, power, &metas[ti], &feats, (at[l], w), false);
                 append_common(to, part, &common, ti);
             }
             ti += 1;

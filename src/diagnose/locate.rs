@@ -6,7 +6,7 @@
 //! Groups are tested at trial level (each trial contributes the mean residual of its rows in
 //! the group), because readings of one trial share the trial's baseline and are not independent.
 
-use super::hypotheses::{N_LOCATE, locate_name};
+use super::hypotheses::{N_LOCATE, joint_name, locate_name};
 use super::reading_rows::{Rows, TrialMeta};
 use super::stats::{pearson, t_upper_tail};
 use crate::lsq::solve_normal;
@@ -147,12 +147,7 @@ pub(crate) fn breakdowns(
     joint_names: &[String],
 ) -> Vec<Breakdown> {
     let n_trials = trials.len();
-    let name = |j: usize| {
-        joint_names
-            .get(j)
-            .cloned()
-            .unwrap_or_else(|| format!("joint {j}"))
-    };
+    let name = |j: usize| joint_name(joint_names, j);
     let group = |label: String, f: &dyn Fn(usize) -> bool| {
         let m: Vec<usize> = (0..rows.len()).filter(|&r| f(r)).collect();
         group_stats(label, rows, resid, &m, n_trials)
@@ -331,24 +326,18 @@ pub(crate) fn correlates(
     if let Some(b) = solve_normal(&(x.transpose() * &x), &(x.transpose() * &f), 1e-9) {
         f -= &x * b;
     }
+    let (res, cnt) = trial_sums(rows.trial.iter().copied().zip(resid.iter().copied()), nt);
     let mut feat = vec![vec![0.0; nf]; nt];
-    let mut res = vec![0.0; nt];
-    let mut cnt = vec![0usize; nt];
     for r in 0..n {
-        let t = rows.trial[r];
-        res[t] += resid[r];
-        cnt[t] += 1;
         for k in 0..nf {
-            feat[t][k] += f[(r, k)];
+            feat[rows.trial[r]][k] += f[(r, k)];
         }
     }
     let keep: Vec<usize> = (0..nt).filter(|&t| cnt[t] > 0).collect();
     for &t in &keep {
-        let c = cnt[t] as f64;
-        res[t] /= c;
-        feat[t].iter_mut().for_each(|v| *v /= c);
+        feat[t].iter_mut().for_each(|v| *v /= cnt[t] as f64);
     }
-    let y: Vec<f64> = keep.iter().map(|&t| res[t]).collect();
+    let y: Vec<f64> = keep.iter().map(|&t| res[t] / cnt[t] as f64).collect();
     let names = |k: usize| match k {
         k if k < N_LOCATE => locate_name(k, joint_names),
         k if k == N_LOCATE => "session time".to_string(),

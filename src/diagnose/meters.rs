@@ -374,16 +374,14 @@ pub(crate) fn compare(
     } else {
         MeterVerdict::Undecided
     };
+    let rest_w = finite_mean(y.iter().copied());
     // A location is judged against a slow drift of the rail's rest power: with the standard
     // error widened for the residuals WITHOUT the change (under "no change" a drift keeps them
     // correlated; a step fitted at the best of 14 places takes the drift's largest swing and
     // leaves white residuals — that widening located sub-watt changes in 3 of 8 null sessions
     // of a 15-minute fuzz slice).
     if verdict != MeterVerdict::Artefact {
-        let (my, mx) = (
-            finite_mean(y.iter().copied()),
-            finite_mean(x.iter().copied()),
-        );
+        let (my, mx) = (rest_w, finite_mean(x.iter().copied()));
         let fitted: Vec<f64> = (y.iter().zip(&x))
             .map(|(y, x)| y - my - b * (x - mx))
             .collect();
@@ -393,7 +391,6 @@ pub(crate) fn compare(
             return None;
         }
     }
-    let rest_w = finite_mean(y.iter().copied());
     let check = MeterCheck::new(target, (share, share_se), y.len(), verdict);
     let (meter, other) = (&check.meter, &check.other);
     let change = format!("its reading changes by {b:+.2} ± {se:.2} W {form}");

@@ -7,13 +7,13 @@
 //! lags describe the same readings and their errors can be compared trial by trial.
 
 use crate::N_JOINTS;
-use crate::power::{PowerModel, regressor_into};
+use crate::power::PowerModel;
 use crate::signals::{PowerSeries, Recording};
 use crate::trial::{
     MIN_WINDOW_SAMPLES, Phase, TrialWindow, readings_within, samples_in, sigma_omega,
 };
 
-use super::hypotheses::{N_EXTRA, N_LOCATE, N_RAW, Sample, extras_into, locate_into};
+use super::hypotheses::{N_EXTRA, N_LOCATE, N_RAW, Sample, extras_into, locate_into, raw_row};
 
 /// Margin before a trial's pre-idle start whose samples belong to the trial [s]: a window
 /// reaching further back is cut there. The streamed reader keeps at least 0.5 s before the
@@ -74,29 +74,17 @@ impl Rows {
     /// Keep, in place and in order, the rows for which `f(row, trial)` gives a trial index
     /// (the row's new `trial`); the others are dropped.
     pub fn retain(&mut self, mut f: impl FnMut(usize, usize) -> Option<usize>) {
-        let mut w = 0;
-        for i in 0..self.len() {
-            let Some(p) = f(i, self.trial[i]) else {
-                continue;
-            };
-            self.trial[w] = p;
-            self.t[w] = self.t[i];
-            self.phase[w] = self.phase[i];
-            self.y[w] = self.y[i];
-            self.x[w] = self.x[i];
-            if !self.locate.is_empty() {
-                self.locate[w] = self.locate[i];
-            }
-            w += 1;
+        let new: Vec<Option<usize>> = (0..self.len()).map(|i| f(i, self.trial[i])).collect();
+        fn keep<T>(v: &mut Vec<T>, new: &[Option<usize>]) {
+            let mut i = 0..;
+            v.retain(|_| i.next().is_some_and(|i| new[i].is_some()));
         }
-        self.trial.truncate(w);
-        self.t.truncate(w);
-        self.phase.truncate(w);
-        self.y.truncate(w);
-        self.x.truncate(w);
-        if !self.locate.is_empty() {
-            self.locate.truncate(w);
-        }
+        keep(&mut self.t, &new);
+        keep(&mut self.phase, &new);
+        keep(&mut self.y, &new);
+        keep(&mut self.x, &new);
+        keep(&mut self.locate, &new);
+        self.trial = new.into_iter().flatten().collect();
         self.shrink_to_fit();
     }
 
@@ -181,12 +169,8 @@ pub(crate) fn trial_meta(
             continue;
         };
         let mut tau0_sq = [0.0; N_JOINTS];
-        for k in pre.clone() {
-            if let Some(tau) = rec.state.tau.get(k) {
-                for i in 0..N_JOINTS {
-                    tau0_sq[i] += tau[i] * tau[i];
-                }
-            }
+        for tau in pre.clone().filter_map(|k| rec.state.tau.get(k)) {
+            tau0_sq.iter_mut().zip(tau).for_each(|(a, t)| *a += t * t);
         }
         tau0_sq.iter_mut().for_each(|v| *v /= pre.len() as f64);
         let mut extra0 = [0.0; N_EXTRA];
@@ -216,15 +200,28 @@ pub(crate) fn trial_meta(
     (out, skipped)
 }
 
+/// Sample `k`'s base regressors φ and extra features (`None` where its data are missing).
+fn features(rec: &Recording, k: usize, meta: &TrialMeta) -> Option<[f64; N_RAW]> {
+    Some(raw_row(&sample_at(rec, k, &meta.tau0_sq, &meta.bus)?))
+}
+
+/// `x`'s extra features net of the trial's pre-idle level (the target is net of it too).
+fn net_of_baseline(x: &mut [f64; N_RAW], meta: &TrialMeta) {
+    for (v, b0) in x[crate::N_PARAMS..].iter_mut().zip(&meta.extra0) {
+        *v -= b0;
+    }
+}
+
 /// Mean of φ and the extras (and optionally the descriptors) over state samples in (a, b], the
 /// window cut at the trial's span ([`span`]: a window never reaches into samples
 /// that belong to no trial's span, so a streamed read sees the same samples as one in memory).
-/// `None` when the window holds fewer than [`MIN_WINDOW_SAMPLES`] (a gap in the joint stream).
+/// `None` when the window holds fewer than [`MIN_WINDOW_SAMPLES`] (a gap in the joint stream)
+/// or a sample with missing data.
 fn window_mean(
     rec: &Recording,
     meta: &TrialMeta,
-    a: f64,
-    b: f64,
+    feats: &TrialFeatures,
+    (a, b): (f64, f64),
     x: &mut [f64; N_RAW],
     loc: Option<&mut [f64; N_LOCATE]>,
 ) -> Option<()> {
@@ -235,26 +232,20 @@ fn window_mean(
     }
     let n = range.len() as f64;
     x.fill(0.0);
-    let mut phi = [0.0; crate::N_PARAMS];
-    let mut ex = [0.0; N_EXTRA];
     let mut lbuf = [0.0; N_LOCATE];
     let mut lsum = [0.0; N_LOCATE];
     for k in range {
-        let s = sample_at(rec, k, &meta.tau0_sq, &meta.bus)?;
-        regressor_into(s.tau, s.dq, s.tau0_sq, &mut phi);
-        extras_into(&s, &mut ex);
-        for (xi, v) in x.iter_mut().zip(phi.iter().chain(ex.iter())) {
+        let f = feats.sample(rec, meta, k)?;
+        for (xi, v) in x.iter_mut().zip(&f) {
             *xi += v;
         }
         if loc.is_some() {
-            locate_into(&s, &mut lbuf);
+            locate_into(&sample_at(rec, k, &meta.tau0_sq, &meta.bus)?, &mut lbuf);
             lsum.iter_mut().zip(&lbuf).for_each(|(a, b)| *a += b);
         }
     }
     x.iter_mut().for_each(|v| *v /= n);
-    for (v, b0) in x[crate::N_PARAMS..].iter_mut().zip(&meta.extra0) {
-        *v -= b0;
-    }
+    net_of_baseline(x, meta);
     if let Some(l) = loc {
         for (o, s) in l.iter_mut().zip(&lsum) {
             *o = s / n;
@@ -285,74 +276,26 @@ impl TrialFeatures {
     pub(crate) fn new(rec: &Recording, meta: &TrialMeta) -> TrialFeatures {
         let a = span(&meta.window).0;
         let range = samples_in(&rec.state.t, a, meta.window.t_return_end + 1e-6);
-        let mut phi = [0.0; crate::N_PARAMS];
-        let mut ex = [0.0; N_EXTRA];
-        let feats = range
-            .clone()
-            .map(|k| {
-                let s = sample_at(rec, k, &meta.tau0_sq, &meta.bus)?;
-                regressor_into(s.tau, s.dq, s.tau0_sq, &mut phi);
-                extras_into(&s, &mut ex);
-                let mut x = [0.0; N_RAW];
-                for (xi, v) in x.iter_mut().zip(phi.iter().chain(ex.iter())) {
-                    *xi = *v;
-                }
-                Some(x)
-            })
-            .collect();
         TrialFeatures {
             first: range.start,
-            feats,
+            feats: range.map(|k| features(rec, k, meta)).collect(),
+        }
+    }
+
+    /// Sample `k`'s features: cached, or computed from the samples outside the cache.
+    fn sample(&self, rec: &Recording, meta: &TrialMeta, k: usize) -> Option<[f64; N_RAW]> {
+        match k.checked_sub(self.first).and_then(|i| self.feats.get(i)) {
+            Some(f) => *f,
+            None => features(rec, k, meta),
         }
     }
 
     /// Sample `k`'s base regressors and every library mechanism's features, the latter net of
     /// the trial's pre-idle level (as a row's are); `None` where missing or not finite.
     pub(crate) fn raw(&self, k: usize, meta: &TrialMeta) -> Option<[f64; N_RAW]> {
-        let f = self.feats.get(k.checked_sub(self.first)?)?.as_ref()?;
-        let mut x = *f;
-        for (v, b0) in x[crate::N_PARAMS..].iter_mut().zip(&meta.extra0) {
-            *v -= b0;
-        }
+        let mut x = (*self.feats.get(k.checked_sub(self.first)?)?)?;
+        net_of_baseline(&mut x, meta);
         x.iter().all(|v| v.is_finite()).then_some(x)
-    }
-
-    /// [`window_mean`] without descriptors, from the cached features (`None` when the window
-    /// reaches outside them: the caller computes it from the samples).
-    fn window_mean(
-        &self,
-        rec: &Recording,
-        meta: &TrialMeta,
-        a: f64,
-        b: f64,
-        x: &mut [f64; N_RAW],
-    ) -> Option<Option<()>> {
-        let a = a.max(span(&meta.window).0);
-        let range = samples_in(&rec.state.t, a, b);
-        if range.len() < MIN_WINDOW_SAMPLES {
-            return Some(None);
-        }
-        if self.feats.is_empty()
-            || range.start < self.first
-            || range.end > self.first + self.feats.len()
-        {
-            return None;
-        }
-        let n = range.len() as f64;
-        x.fill(0.0);
-        for k in range {
-            let Some(f) = &self.feats[k - self.first] else {
-                return Some(None);
-            };
-            for (xi, v) in x.iter_mut().zip(f) {
-                *xi += v;
-            }
-        }
-        x.iter_mut().for_each(|v| *v /= n);
-        for (v, b0) in x[crate::N_PARAMS..].iter_mut().zip(&meta.extra0) {
-            *v -= b0;
-        }
-        Some(Some(()))
     }
 }
 
@@ -379,50 +322,35 @@ pub(crate) fn build_rows(
     with_locate: bool,
 ) -> Rows {
     let mut rows = Rows::default();
-    let feats = TrialFeatures::none();
     for (ti, meta) in trials.iter().enumerate() {
-        trial_rows_into(
-            &mut rows,
-            rec,
-            power,
-            meta,
-            ti,
-            &feats,
-            lag,
-            width,
-            with_locate,
-        );
+        let feats = TrialFeatures::none();
+        let part = trial_rows(rec, power, meta, &feats, (lag, width), with_locate);
+        rows.append(part, ti);
     }
     rows
 }
 
-/// One trial's rows (as trial `ti`) for one sensor lag, from its [`TrialFeatures`].
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn trial_rows_into(
-    rows: &mut Rows,
+/// One trial's rows (numbered trial 0) at sensor `lag` and window `width`, from its
+/// [`TrialFeatures`] (`with_locate`: with the descriptor features).
+pub(crate) fn trial_rows(
     rec: &Recording,
     power: &PowerSeries,
     meta: &TrialMeta,
-    ti: usize,
     feats: &TrialFeatures,
-    lag: f64,
-    width: f64,
+    (lag, width): (f64, f64),
     with_locate: bool,
-) {
+) -> Rows {
+    let mut rows = Rows::default();
     let pt = &power.t;
     let mut x = [0.0; N_RAW];
     let mut loc = [0.0; N_LOCATE];
     let w = &meta.window;
     let width = meta.width_s.unwrap_or(width);
     let base = baseline_readings(pt, meta, lag, width);
-    let vals: Vec<f64> = base
-        .filter_map(|k| power.watts.get(k).copied())
-        .filter(|v| v.is_finite())
-        .collect();
-    if vals.is_empty() {
-        return;
+    let baseline = super::meters::finite_mean(base.filter_map(|k| power.watts.get(k).copied()));
+    if baseline.is_nan() {
+        return rows;
     }
-    let baseline = vals.iter().sum::<f64>() / vals.len() as f64;
     // Readings whose window (at lag 0) lies inside the trajectory, post-idle and return: fixed
     // by their stamps, so the rows of every lag describe the same readings.
     for k in readings_within(pt, w.t_traj_start, w.t_return_end, 0.0, width) {
@@ -432,21 +360,15 @@ pub(crate) fn trial_rows_into(
         if !p.is_finite() {
             continue;
         }
-        let (a, b) = (tk - lag - width, tk - lag);
-        let got = if with_locate {
-            window_mean(rec, meta, a, b, &mut x, Some(&mut loc))
-        } else {
-            feats
-                .window_mean(rec, meta, a, b, &mut x)
-                .unwrap_or_else(|| window_mean(rec, meta, a, b, &mut x, None))
-        };
+        let l = with_locate.then_some(&mut loc);
+        let got = window_mean(rec, meta, feats, (tk - lag - width, tk - lag), &mut x, l);
         // A gap in the joint stream, or non-finite samples (damaged file): no row.
         if got.is_none() || x.iter().any(|v| !v.is_finite()) {
             continue;
         }
         let mid = tk - 0.5 * width;
         let phase = w.phase_at(mid).unwrap_or(Phase::Return);
-        rows.trial.push(ti);
+        rows.trial.push(0);
         rows.t.push(tk);
         rows.phase.push(phase);
         rows.y.push(p - baseline);
@@ -455,6 +377,7 @@ pub(crate) fn trial_rows_into(
             rows.locate.push(loc);
         }
     }
+    rows
 }
 
 #[cfg(test)]

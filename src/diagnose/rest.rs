@@ -14,12 +14,11 @@
 //! the rest load and is not a candidate.
 
 use super::family::{Shape, dot, orthonormal_add, residual};
-use super::select::{Param, RIVAL_ALPHA, Rule, jackknife_se};
+use super::select::{FoldGramsBuilder, Param, RIVAL_ALPHA, Rule, bic, jackknife_se};
 use super::stats::{
     STABILITY_DRAWS, encompassing, improvement_p_value, resampled_stability, span, t_upper_tail,
 };
 use super::stepwise::{self, Gated, holm_level, not_significant};
-use crate::lsq::Gram;
 
 /// Most trials per block of the held-out test (≈ 4–5 minutes of the protocol); a shorter session
 /// has blocks of [`MIN_BLOCK_TRIALS`] or more, enough for [`MIN_BLOCKS`] of them.
@@ -180,31 +179,29 @@ impl Search<'_> {
         let n = self.y.len();
         let p = x.len() + 1;
         // Each fold's normal equations once; a fold's training set is the total minus it.
-        let mut folds = vec![Gram::zeros(p); FOLDS];
+        let mut b = FoldGramsBuilder::new(p, FOLDS);
         let mut row = vec![1.0; p];
         for r in 0..n {
             for (c, col) in x.iter().enumerate() {
                 row[c + 1] = col[r];
             }
-            folds[self.block[r] % FOLDS].add_row(&row, self.y[r]);
+            b.add(self.block[r] % FOLDS, &row, self.y[r]);
         }
-        let mut total = Gram::zeros(p);
-        folds.iter().for_each(|f| total.add(f));
+        let fg = b.finish();
         let mut pred = vec![f64::NAN; n];
         let mut fold_coef = Vec::new();
-        for (f, held) in folds.iter().enumerate() {
-            let coef: Vec<f64> = total.minus(held).solve(0.0)?.iter().copied().collect();
+        for f in 0..FOLDS {
+            let coef: Vec<f64> = fg.train(f).solve(0.0)?.iter().copied().collect();
             for r in (0..n).filter(|&r| self.block[r] % FOLDS == f) {
                 pred[r] = predict(&coef, x, r);
             }
             fold_coef.push(coef);
         }
-        let coef: Vec<f64> = total.solve(0.0)?.iter().copied().collect();
+        let coef: Vec<f64> = fg.total.solve(0.0)?.iter().copied().collect();
         let sse: f64 = (0..n)
             .map(|r| (self.y[r] - predict(&coef, x, r)).powi(2))
             .sum();
-        let k = (x.len() + 1) as f64;
-        let bic = n as f64 * (sse / n as f64).max(1e-300).ln() + k * (n as f64).ln();
+        let bic = bic(sse, n, p);
         Some(Fit {
             pred,
             fold_coef,
@@ -271,19 +268,17 @@ impl Search<'_> {
         (p, sq(e0), sq(&e1))
     }
 
-    fn term(&self, s: &Scored, level: f64, verdict: String, coef: (f64, f64)) -> RestTerm {
+    /// Candidate `s` as a term: its coefficient the `j`-th of `fit` (± its jackknife s.e.).
+    fn term(&self, s: &Scored, level: f64, verdict: String, (fit, j): (&Fit, usize)) -> RestTerm {
         let (c, field) = (self.cands[s.cand], self.field_of(s.cand));
-        let (k, se) = coef;
+        let k = fit.coef[j];
+        let se = jackknife_se(&fit.fold_coef.iter().map(|c| c[j]).collect::<Vec<_>>());
         let step = matches!(c.shape, Shape::Above(_));
         let name = format!("the rail's rest power {}", c.shape.predicate(&field, k));
         let g = c.shape.formula().replace("s_i", &field);
         let form = format!("P_rest += {}·{g}", if step { "P_on" } else { "k" });
-        let param = |name: &str, symbol: &str, scale: f64, unit: &str| Param {
-            name: name.into(),
-            symbol: symbol.into(),
-            value: k * scale,
-            std_err: se * scale,
-            unit: unit.into(),
+        let param = |name: &str, symbol: &str, scale: f64, unit: &str| {
+            Param::new(name, symbol, k * scale, se * scale, unit)
         };
         let params = if step {
             vec![param(
@@ -407,8 +402,6 @@ pub(crate) fn rest_power(inp: &RestInputs, rule: &Rule) -> Option<RestPower> {
     // A rival found later as a term of its own is not a tie of the earlier ones.
     let found_fields: Vec<String> = chosen.iter().map(|&c| search.field_of(c)).collect();
     for (k, (s, level, tied)) in steps.iter().enumerate() {
-        let coef = cur.coef[k + 1];
-        let se = jackknife_se(&cur.fold_coef.iter().map(|c| c[k + 1]).collect::<Vec<_>>());
         let verdict = format!(
             "accepted: held-out RMSE −{:.1} % (p = {:.1e} < {:.1e} beside the rail's drift piecewise linear over every {DRIFT_TRIALS} trials, Holm over {} candidates), ΔBIC = {:.1}",
             100.0 * s.rel,
@@ -417,7 +410,7 @@ pub(crate) fn rest_power(inp: &RestInputs, rule: &Rule) -> Option<RestPower> {
             search.cands.len(),
             s.d_bic
         );
-        let mut t = search.term(s, *level, verdict, (coef, se));
+        let mut t = search.term(s, *level, verdict, (&cur, k + 1));
         t.tied = tied
             .iter()
             .filter(|f| !found_fields.contains(f))
@@ -571,9 +564,7 @@ impl Search<'_> {
             f.d_bic,
             100.0 * f.rel
         );
-        let j = f.fit.coef.len() - 1;
-        let se = jackknife_se(&f.fit.fold_coef.iter().map(|c| c[j]).collect::<Vec<_>>());
-        self.term(f, level, verdict, (f.fit.coef[j], se))
+        self.term(f, level, verdict, (&f.fit, f.fit.coef.len() - 1))
     }
 
     /// The fields the first step's best candidate `b`, rejected, cannot be told from: every

@@ -184,20 +184,14 @@ pub(crate) fn run_fields(
         .enumerate()
         .map(|(r, &t)| (window(t), r))
         .collect();
-    let mut base_power = vec![f64::NAN; metas.len()];
     for (ti, m) in metas.iter().enumerate() {
-        let (mut sum, mut n) = (0.0, 0usize);
         for k in super::reading_rows::baseline_readings(&power.t, m, lag, w) {
-            if let Some(&v) = power.watts.get(k).filter(|v| v.is_finite()) {
+            if power.watts.get(k).is_some_and(|v| v.is_finite()) {
                 all.push((window(power.t[k]), rows.len() + ti));
-                sum += v;
-                n += 1;
             }
         }
-        if n > 0 {
-            base_power[ti] = sum / n as f64;
-        }
     }
+    let base_power = super::meters::per_trial(power, metas, lag, w).0;
     let trial_start: Vec<f64> = metas.iter().map(|m| m.window.t_pre_start).collect();
     all.sort_by(|a, b| a.0.start.total_cmp(&b.0.start));
     let mut row_window = vec![0; rows.len()];
@@ -210,16 +204,13 @@ pub(crate) fn run_fields(
         }
     }
     let windows: Vec<fields::Window> = all.iter().map(|a| a.0).collect();
+    let own = FieldSource {
+        path: info.source.clone(),
+        start_ns: info.start_ns,
+        offset_s: 0.0,
+    };
     let sources: Vec<FieldSource> = if opts.field_sources.is_empty() {
-        if info.source.exists() {
-            vec![FieldSource {
-                path: info.source.clone(),
-                start_ns: info.start_ns,
-                offset_s: 0.0,
-            }]
-        } else {
-            Vec::new()
-        }
+        info.source.exists().then_some(own).into_iter().collect()
     } else {
         opts.field_sources.clone()
     };

@@ -8,7 +8,7 @@ use anyhow::Result;
 use nalgebra::DVector;
 
 use super::reading_rows::TrialMeta;
-use super::select::{Folds, Held, HypothesisScore, Param, bic, jackknife_se};
+use super::select::{FoldGramsBuilder, Folds, Held, HypothesisScore, Param, bic, jackknife_se};
 use crate::N_JOINTS;
 use crate::lsq::Gram;
 use crate::robot::ArmDynamics;
@@ -164,22 +164,18 @@ struct TorqueCv {
 
 /// Stage: fit both models on each fold's training trials and predict its held-out rows.
 fn cross_validate_torque(rows: &[TorqueRow], folds: &Folds) -> TorqueCv {
-    let mut fold_grams: Vec<Gram> = (0..folds.k).map(|_| Gram::zeros(N_TORQUE)).collect();
+    let mut b = FoldGramsBuilder::new(N_TORQUE, folds.k);
     for row in rows {
-        let g = &mut fold_grams[folds.of_trial[row.trial]];
         for j in 0..N_JOINTS {
-            g.add_row(&row.x[j], row.r[j]);
+            b.add(folds.of_trial[row.trial], &row.x[j], row.r[j]);
         }
     }
-    let mut total = Gram::zeros(N_TORQUE);
-    for g in &fold_grams {
-        total.add(g);
-    }
+    let fg = b.finish();
     let mut pred_base = vec![[0.0; N_JOINTS]; rows.len()];
     let mut pred_pay = vec![[0.0; N_JOINTS]; rows.len()];
     let mut fold_pay: Vec<[f64; 4]> = Vec::new();
-    for (f, fold) in fold_grams.iter().enumerate() {
-        let train = total.minus(fold);
+    for f in 0..folds.k {
+        let train = fg.train(f);
         let b0 = solve(&train, N_FRICTION);
         let b1 = solve(&train, N_TORQUE);
         fold_pay.push(std::array::from_fn(|c| b1[N_FRICTION + c]));
@@ -191,7 +187,7 @@ fn cross_validate_torque(rows: &[TorqueRow], folds: &Folds) -> TorqueCv {
         }
     }
     TorqueCv {
-        total,
+        total: fg.total,
         pred_base,
         pred_pay,
         fold_pay,
@@ -229,21 +225,10 @@ fn payload_score(rows: &[TorqueRow], cv: &TorqueCv, n_trials: usize) -> Hypothes
         .map(|c| jackknife_se(&fold_pay.iter().map(|p| p[1 + c] / p[0]).collect::<Vec<_>>()))
         .collect();
     let plausible = (0.02..=5.0).contains(&m) && com.iter().all(|c| c.abs() <= 0.3);
-    let mut params = vec![Param {
-        name: "payload mass at the hand".into(),
-        symbol: "m".into(),
-        value: m,
-        std_err: m_se,
-        unit: "kg".into(),
-    }];
+    let mut params = vec![Param::new("payload mass at the hand", "m", m, m_se, "kg")];
     for (c, axis) in ["x", "y", "z"].iter().enumerate() {
-        params.push(Param {
-            name: format!("payload centre of mass {axis} (wrist-yaw link frame)"),
-            symbol: format!("c{axis}"),
-            value: com[c],
-            std_err: com_se[c],
-            unit: "m".into(),
-        });
+        let name = format!("payload centre of mass {axis} (wrist-yaw link frame)");
+        params.push(Param::new(name, format!("c{axis}"), com[c], com_se[c], "m"));
     }
     let title = "payload at the hand the URDF lacks (point mass)";
     HypothesisScore {

@@ -44,7 +44,7 @@ pub(crate) struct FoldGrams {
 
 impl FoldGrams {
     pub fn new(rows: &Rows, folds: &Folds) -> FoldGrams {
-        let mut b = FoldGramsBuilder::new(folds.k);
+        let mut b = FoldGramsBuilder::new(N_RAW, folds.k);
         b.add_rows(rows, folds);
         b.finish()
     }
@@ -52,30 +52,47 @@ impl FoldGrams {
     pub(crate) fn train(&self, f: usize) -> Gram {
         self.total.minus(&self.fold[f])
     }
+
+    /// `spec` fitted on each fold's training rows (base refitted, or held at `reference`).
+    pub(crate) fn fits(
+        &self,
+        spec: &[&'static Hypothesis],
+        reference: Option<&[f64]>,
+    ) -> Result<Vec<Fitted>> {
+        (0..self.fold.len())
+            .map(|f| fit(spec, &self.train(f), reference))
+            .collect()
+    }
 }
 
-/// [`FoldGrams`] accumulated from rows given piece by piece (a trial at a time): the same sums,
-/// in the same order, as [`FoldGrams::new`] on all the rows at once.
+/// [`FoldGrams`] of `p` columns accumulated from rows given piece by piece (a trial at a time):
+/// the same sums, in the same order, as [`FoldGrams::new`] on all the rows at once. Every
+/// held-out fit by folds (the power rows, the torque rows, the rest power's blocks) sums here.
 pub(crate) struct FoldGramsBuilder {
     fold: Vec<Gram>,
 }
 
 impl FoldGramsBuilder {
-    pub fn new(k: usize) -> FoldGramsBuilder {
+    pub fn new(p: usize, k: usize) -> FoldGramsBuilder {
         FoldGramsBuilder {
-            fold: (0..k).map(|_| Gram::zeros(N_RAW)).collect(),
+            fold: vec![Gram::zeros(p); k],
         }
+    }
+
+    /// Add row `x` with target `y` to fold `f`.
+    pub fn add(&mut self, f: usize, x: &[f64], y: f64) {
+        self.fold[f].add_row(x, y);
     }
 
     /// Add `rows` (their `trial` indexes `folds`).
     pub fn add_rows(&mut self, rows: &Rows, folds: &Folds) {
         for r in 0..rows.len() {
-            self.fold[folds.of_trial[rows.trial[r]]].add_row(&rows.x[r], rows.y[r]);
+            self.add(folds.of_trial[rows.trial[r]], &rows.x[r], rows.y[r]);
         }
     }
 
     pub fn finish(self) -> FoldGrams {
-        let mut total = Gram::zeros(N_RAW);
+        let mut total = Gram::zeros(self.fold[0].columns());
         for f in &self.fold {
             total.add(f);
         }
@@ -95,6 +112,13 @@ pub(crate) type Spec = Vec<&'static Hypothesis>;
 pub(crate) struct Fitted {
     pub theta: Vec<f64>,
     pub beta: DVector<f64>,
+}
+
+impl Fitted {
+    /// The prediction of raw row `x`.
+    pub fn predict(&self, x: &[f64]) -> f64 {
+        crate::diagnose::family::dot(x, self.beta.as_slice())
+    }
 }
 
 /// Raw layout → model coefficients map for `spec`, weights of pooled terms from `theta`.
@@ -250,15 +274,9 @@ pub(crate) fn cross_validate(
     fg: &FoldGrams,
     reference: Option<&[f64]>,
 ) -> Result<CvOut> {
-    let mut fitted = Vec::with_capacity(folds.k);
-    for f in 0..folds.k {
-        fitted.push(fit(spec, &fg.train(f), reference)?);
-    }
+    let fitted = fg.fits(spec, reference)?;
     let pred = (0..rows.len())
-        .map(|r| {
-            let beta = &fitted[folds.of_trial[rows.trial[r]]].beta;
-            rows.x[r].iter().zip(beta.iter()).map(|(a, b)| a * b).sum()
-        })
+        .map(|r| fitted[folds.of_trial[rows.trial[r]]].predict(&rows.x[r]))
         .collect();
     Ok(CvOut {
         pred,

@@ -26,6 +26,26 @@ pub struct Param {
     pub unit: String,
 }
 
+impl Param {
+    /// `name` (`symbol`) = `value` ± `std_err` `unit`.
+    pub fn new(
+        name: impl Into<String>,
+        symbol: impl Into<String>,
+        value: f64,
+        std_err: f64,
+        unit: &str,
+    ) -> Param {
+        let (name, symbol, unit) = (name.into(), symbol.into(), unit.into());
+        Param {
+            name,
+            symbol,
+            value,
+            std_err,
+            unit,
+        }
+    }
+}
+
 /// How one hypothesis scored.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct HypothesisScore {
@@ -258,27 +278,17 @@ pub(super) fn score_term(
 pub(crate) fn term_param(st: &State, k: usize) -> Param {
     let h = st.spec[k];
     let phys = |t: &[f64]| h.offset + t[N_PARAMS + k];
-    Param {
-        name: h.title.into(),
-        symbol: h.symbol.into(),
-        value: phys(&st.full.theta),
-        std_err: jackknife_se(&st.cv.fold_theta.iter().map(|t| phys(t)).collect::<Vec<_>>()),
-        unit: h.unit.into(),
-    }
+    let se = jackknife_se(&st.cv.fold_theta.iter().map(|t| phys(t)).collect::<Vec<_>>());
+    Param::new(h.title, h.symbol, phys(&st.full.theta), se, h.unit)
 }
 
 /// Latency: in each fold the lag is chosen on the training trials only (nested), then judged on
 /// the held-out trials, so the scan itself cannot buy a better held-out score.
 pub(super) fn score_latency(data: &PowerData, cur: &State, step: usize) -> Result<Candidate> {
     let nl = data.lags.len();
-    let mut fold_fits: Vec<Vec<Fitted>> = Vec::with_capacity(nl);
-    for fg in &data.grams {
-        let mut per = Vec::with_capacity(data.folds.k);
-        for f in 0..data.folds.k {
-            per.push(fit(&cur.spec, &fg.train(f), data.reference())?);
-        }
-        fold_fits.push(per);
-    }
+    let fold_fits: Vec<Vec<Fitted>> = (data.grams.iter())
+        .map(|fg| fg.fits(&cur.spec, data.reference()))
+        .collect::<Result<_>>()?;
     let mut pred = vec![0.0; data.rows0().len()];
     let mut fold_lag = Vec::with_capacity(data.folds.k);
     let mut chosen = vec![0usize; data.folds.k];
@@ -304,21 +314,11 @@ pub(super) fn score_latency(data: &PowerData, cur: &State, step: usize) -> Resul
     for (r, p) in pred.iter_mut().enumerate() {
         let f = data.folds.of_trial[data.rows0().trial[r]];
         let l = chosen[f];
-        *p = data.rows(l)?.x[r]
-            .iter()
-            .zip(fold_fits[l][f].beta.iter())
-            .map(|(a, b)| a * b)
-            .sum();
+        *p = fold_fits[l][f].predict(&data.rows(l)?.x[r]);
     }
     let next = state(data, cur.spec.clone(), best)?;
     // Rows are the same readings at every lag, so per-trial errors compare directly.
-    let param = Param {
-        name: "sensor latency".into(),
-        symbol: "L".into(),
-        value: lag,
-        std_err: jackknife_se(&fold_lag),
-        unit: "s".into(),
-    };
+    let param = Param::new("sensor latency", "L", lag, jackknife_se(&fold_lag), "s");
     let title = "power-sensor latency (reading averages an earlier window)";
     let score = HypothesisScore {
         delta_bic: next.bic - cur.bic,

@@ -1,7 +1,7 @@
 use super::*;
-use crate::diagnose::hypotheses::{POWER_HYPOTHESES, Sample, extras_into, power_hypothesis};
+use crate::diagnose::hypotheses::{POWER_HYPOTHESES, Sample, power_hypothesis, raw_row};
 use crate::diagnose::reading_rows::Rows;
-use crate::power::{PowerModel, regressor_into};
+use crate::power::PowerModel;
 use rand::RngExt;
 use rand::SeedableRng;
 use rand_distr::{Distribution, Normal};
@@ -42,13 +42,7 @@ pub(crate) fn synth(
                 tau0_sq: &tau0_sq,
                 bus_amps: PowerModel::PAPER.predict(&tau, &dq, &tau0_sq) / 50.0,
             };
-            let mut phi = [0.0; N_PARAMS];
-            regressor_into(&tau, &dq, &tau0_sq, &mut phi);
-            let mut ex = [0.0; super::super::hypotheses::N_EXTRA];
-            extras_into(&s, &mut ex);
-            let mut x = [0.0; N_RAW];
-            x[..N_PARAMS].copy_from_slice(&phi);
-            x[N_PARAMS..].copy_from_slice(&ex);
+            let x = raw_row(&s);
             let y = PowerModel::PAPER.predict(&tau, &dq, &tau0_sq)
                 + effect(&s)
                 + noise.sample(&mut rng);
