@@ -325,16 +325,12 @@ fn sensor_lines(d: &Diagnosis, s: &mut String) {
                     sw.lag_delta_bic,
                     super::select::RIVAL_ALPHA
                 ),
-                (demanded, p) => format!(
-                    "a lag beats every window at lag 0{}: {}",
+                (true, p) => format!(
+                    "a lag beats every window at lag 0{}: the latency hypothesis judges it",
                     p.map_or(String::new(), |p| format!(
                         " in-sample, held out p = {p:.1e} against the best of them (needed < {})",
                         super::select::RIVAL_ALPHA
                     )),
-                    match demanded {
-                        true => "the latency hypothesis judges it",
-                        false => "no latency is claimed (located above)",
-                    }
                 ),
             }
         );
