@@ -160,19 +160,6 @@ pub enum ReadError {
         /// What is wrong.
         what: String,
     },
-    /// A message could not be decoded with its definition.
-    // The inner error is part of the message, not a `source`: `{:#}` would print it twice.
-    #[error("{path}: topic {topic}: {error} (record at byte offset {offset})")]
-    Decode {
-        /// File.
-        path: PathBuf,
-        /// Topic.
-        topic: String,
-        /// Byte offset of the record.
-        offset: u64,
-        /// Decoder error.
-        error: DecodeError,
-    },
     /// A message definition could not be parsed or is missing.
     #[error("{path}: topic {topic}: {error}")]
     Schema {
