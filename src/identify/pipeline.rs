@@ -509,35 +509,26 @@ fn build_sets(
     opts: &IdentifyOptions,
 ) -> Result<FitInput> {
     let per_session = sessions.iter().zip(rows).zip(kept);
+    // A session whose kept trials give no row is an error naming why.
+    let usable = |p: &Prepared, trials: &[TrialWindow], none: bool, skipped: &[Skipped]| {
+        match none && !trials.is_empty() {
+            true => Err(p.no_usable_trials(skipped)),
+            false => Ok(()),
+        }
+    };
     if opts.mode == Mode::Sample {
-        let sets = per_session
-            .map(|((p, r), trials)| {
-                let keep: HashSet<usize> = trials.iter().map(|t| t.index).collect();
-                let d = r.sample_sums.restrict(&keep);
-                if d.sums.is_empty() && !trials.is_empty() {
-                    Err(p.no_usable_trials(&d.skipped))
-                } else {
-                    Ok(d)
-                }
-            })
-            .collect::<Result<Vec<_>>>()?;
-        return Ok(FitInput::Sums(sets));
+        let sets = per_session.map(|((p, r), trials)| {
+            let keep: HashSet<usize> = trials.iter().map(|t| t.index).collect();
+            let d = r.sample_sums.restrict(&keep);
+            usable(p, trials, d.sums.is_empty(), &d.skipped).map(|()| d)
+        });
+        return Ok(FitInput::Sums(sets.collect::<Result<_>>()?));
     }
-    let sets = per_session
-        .map(|((p, r), trials)| {
-            let all = match opts.mode {
-                Mode::Trial => &r.trial,
-                _ => &r.reading,
-            };
-            let d = restrict(all, trials);
-            if d.rows.is_empty() && !trials.is_empty() {
-                Err(p.no_usable_trials(&d.skipped))
-            } else {
-                Ok(d)
-            }
-        })
-        .collect::<Result<Vec<_>>>()?;
-    Ok(FitInput::Rows(sets))
+    let sets = per_session.map(|((p, r), trials)| {
+        let d = restrict([&r.reading, &r.trial][usize::from(opts.mode == Mode::Trial)], trials);
+        usable(p, trials, d.rows.is_empty(), &d.skipped).map(|()| d)
+    });
+    Ok(FitInput::Rows(sets.collect::<Result<_>>()?))
 }
 
 /// Result of stage 5.
