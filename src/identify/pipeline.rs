@@ -510,11 +510,11 @@ fn build_sets(
 ) -> Result<FitInput> {
     let per_session = sessions.iter().zip(rows).zip(kept);
     // A session whose kept trials give no row is an error naming why.
-    let usable = |p: &Prepared, trials: &[TrialWindow], none: bool, skipped: &[Skipped]| {
-        match none && !trials.is_empty() {
-            true => Err(p.no_usable_trials(skipped)),
-            false => Ok(()),
+    let usable = |p: &Prepared, trials: &[TrialWindow], rowless: bool, skipped: &[Skipped]| {
+        if rowless && !trials.is_empty() {
+            return Err(p.no_usable_trials(skipped));
         }
+        Ok(())
     };
     if opts.mode == Mode::Sample {
         let sets = per_session.map(|((p, r), trials)| {
@@ -525,7 +525,8 @@ fn build_sets(
         return Ok(FitInput::Sums(sets.collect::<Result<_>>()?));
     }
     let sets = per_session.map(|((p, r), trials)| {
-        let d = restrict([&r.reading, &r.trial][usize::from(opts.mode == Mode::Trial)], trials);
+        let all = [&r.reading, &r.trial][usize::from(opts.mode == Mode::Trial)];
+        let d = restrict(all, trials);
         usable(p, trials, d.rows.is_empty(), &d.skipped).map(|()| d)
     });
     Ok(FitInput::Rows(sets.collect::<Result<_>>()?))

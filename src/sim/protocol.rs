@@ -283,7 +283,9 @@ impl Segment {
     /// The move from `q0` to `q1` starting at `t0`, at peak speed `qdot_max`: the smooth step's
     /// peak speed is 1.5·Δq/T, so the joint that moves furthest peaks at `qdot_max`.
     fn new(t0: f64, q0: [f64; N_JOINTS], q1: [f64; N_JOINTS], qdot_max: f64) -> Segment {
-        let max_dq = (0..N_JOINTS).map(|j| (q1[j] - q0[j]).abs()).fold(0.0, f64::max);
+        let max_dq = (0..N_JOINTS)
+            .map(|j| (q1[j] - q0[j]).abs())
+            .fold(0.0, f64::max);
         let dur = MIN_SEGMENT_S.max(1.5 * max_dq / qdot_max);
         Segment { t0, dur, q0, q1 }
     }
