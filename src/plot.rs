@@ -47,9 +47,7 @@ pub(crate) fn write_png(
             draw(&root)?;
             root.present().map_err(plot_err)?;
         }
-        let shown = tmp.path().display().to_string();
         tmp.commit(path)
-            .with_context(|| format!("renaming {shown} to {}", path.display()))
     })();
     result.with_context(|| format!("drawing {}", path.display()))
 }
