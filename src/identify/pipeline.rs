@@ -223,7 +223,7 @@ impl<'a> Prepared<'a> {
 
     /// The planned rows of this session (a second streamed pass for a file).
     pub(crate) fn rows(&self, plan: &RowPlan) -> Result<SessionSets> {
-        let mut sets = SessionSets::new(plan);
+        let mut sets = SessionSets::default();
         self.for_each_trial(plan.trials, "rows", &mut |rec, t| {
             sets.add_trial(rec, t, plan);
             Ok(())
@@ -262,9 +262,6 @@ impl<'a> Prepared<'a> {
 pub(crate) fn restrict(d: &Dataset, trials: &[TrialWindow]) -> Dataset {
     let keep: HashSet<usize> = trials.iter().map(|t| t.index).collect();
     Dataset {
-        mode: d.mode,
-        target: d.target,
-        alignment: d.alignment,
         rows: sample::of_trials(&d.rows, &keep, |r| r.trial),
         trials: sample::of_trials(&d.trials, &keep, |b| b.trial),
         skipped: sample::of_trials(&d.skipped, &keep, |s| s.trial),
