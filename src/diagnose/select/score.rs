@@ -9,7 +9,7 @@ use crate::N_PARAMS;
 use crate::diagnose::Quality;
 use crate::diagnose::hypotheses::{Hypothesis, LATENCY_ID};
 use crate::diagnose::stats::EXTENDS;
-use crate::diagnose::stepwise::Rule;
+use crate::diagnose::stepwise::{Gated, Rule};
 
 /// A named physical parameter with its uncertainty.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
@@ -86,7 +86,7 @@ pub struct HypothesisScore {
     pub stability: Option<f64>,
 }
 
-impl crate::diagnose::stepwise::Gated for HypothesisScore {
+impl Gated for HypothesisScore {
     fn gated(&self) -> (f64, f64, f64) {
         (self.p_value, self.delta_bic, self.rel_improvement)
     }
@@ -182,6 +182,19 @@ fn refine_lag(lags: &[f64], sse: &[f64]) -> (usize, f64) {
 pub(super) struct Candidate {
     pub(super) score: HypothesisScore,
     pub(super) next: State,
+}
+
+impl Gated for Candidate {
+    fn gated(&self) -> (f64, f64, f64) {
+        self.score.gated()
+    }
+}
+
+impl Candidate {
+    /// Its hypothesis (`None`: latency).
+    pub(super) fn of(&self) -> Option<&'static Hypothesis> {
+        crate::diagnose::hypotheses::power_hypothesis(&self.score.id)
+    }
 }
 
 fn compare(data: &PowerData, cur: &State, next_pred: &[f64]) -> Held {
