@@ -18,7 +18,7 @@ use anyhow::Result;
 
 use super::stepwise;
 
-use super::hypotheses::{Hypothesis, LATENCY_ID, N_RAW};
+use super::hypotheses::{Hypothesis, LATENCY_ID, N_RAW, power_hypothesis};
 use crate::N_PARAMS;
 
 /// How the forms of one mechanism compared at the selection step that decided between them.
@@ -148,9 +148,9 @@ pub(crate) struct Selection {
     pub rivals: Vec<(String, &'static Hypothesis)>,
 }
 
-/// Mechanism of a candidate (`None` = latency).
-fn mechanism(c: &Option<&'static Hypothesis>) -> &'static str {
-    c.map_or(LATENCY_ID, |h| h.mechanism)
+/// Mechanism of candidate `id` (latency's own for none of the library's).
+fn mechanism(id: &str) -> &'static str {
+    power_hypothesis(id).map_or(LATENCY_ID, |h| h.mechanism)
 }
 
 /// Compare the two best forms of every mechanism with more than one form among `ranked` (of
@@ -162,17 +162,19 @@ fn compare_forms(
     alpha: f64,
     only: Option<&str>,
 ) -> Vec<MechanismForms> {
-    let mut mechs: Vec<&str> = ranked.iter().map(|c| mechanism(&c.1.of())).collect();
+    let mut mechs: Vec<&str> = ranked.iter().map(|c| mechanism(&c.1.score.id)).collect();
     mechs.sort_unstable();
     mechs.dedup();
     mechs.retain(|m| only.is_none_or(|o| o == *m));
     let mut decided = Vec::new();
     for m in mechs {
         let forms: Vec<&Candidate> = (ranked.iter().map(|c| c.1))
-            .filter(|c| mechanism(&c.of()) == m)
+            .filter(|c| mechanism(&c.score.id) == m)
             .collect();
         if let [w, r, ..] = forms[..] {
-            let words = [w, r].map(|c| c.of().map_or(String::new(), |h| h.form.to_string()));
+            let words = [w, r].map(|c| {
+                power_hypothesis(&c.score.id).map_or(String::new(), |h| h.form.to_string())
+            });
             decided.push(versus(data, m.into(), (w, r), words, alpha));
         }
     }
@@ -282,7 +284,7 @@ impl stepwise::Stage for Library<'_, '_> {
 
     fn score(&self, i: usize, step: usize) -> Result<Option<Candidate>> {
         let (c, data, cur) = (self.cands.get(i).copied(), self.data, &self.sel.last);
-        if self.closed.contains(&mechanism(&c)) {
+        if self.closed.contains(&c.map_or(LATENCY_ID, |h| h.mechanism)) {
             return Ok(None);
         }
         let mut cand = match c {
@@ -312,14 +314,17 @@ impl stepwise::Stage for Library<'_, '_> {
         if step == 1 {
             self.sel.first_step = ranked.iter().map(|c| c.1.score.clone()).collect();
         }
-        let winner = ranked.first().filter(|c| c.0).map(|c| mechanism(&c.1.of()));
+        let winner = ranked
+            .first()
+            .filter(|c| c.0)
+            .map(|c| mechanism(&c.1.score.id));
         if winner.is_some() || step == 1 {
             let forms = compare_forms(self.data, ranked, self.rule.alpha, winner);
             self.sel.forms.extend(forms);
         }
         self.rival = winner.and_then(|m| {
             let supported = |c: &Candidate| {
-                c.of()
+                power_hypothesis(&c.score.id)
                     .filter(|h| h.mechanism != m && self.rule.supports(&c.score))
             };
             ranked.iter().find_map(|c| supported(c.1))
@@ -330,7 +335,7 @@ impl stepwise::Stage for Library<'_, '_> {
         if let Some(r) = self.rival.take() {
             self.sel.rivals.push((w.score.id.clone(), r));
         }
-        self.closed.push(mechanism(&w.of()));
+        self.closed.push(mechanism(&w.score.id));
         self.sel.accepted.push(w.score);
         self.sel.last = w.next;
     }
@@ -356,7 +361,7 @@ pub(crate) fn unname(
         }
         let of_either = |id: &str| {
             id == f.winner
-                || super::hypotheses::power_hypothesis(id)
+                || power_hypothesis(id)
                     .is_some_and(|h| f.form_words.iter().any(|m| m == h.mechanism))
         };
         for s in first_step.iter_mut().filter(|s| of_either(&s.id)) {

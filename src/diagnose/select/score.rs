@@ -33,7 +33,7 @@ impl Param {
         symbol: impl Into<String>,
         value: f64,
         std_err: f64,
-        unit: &str,
+        unit: impl Into<String>,
     ) -> Param {
         let (name, symbol, unit) = (name.into(), symbol.into(), unit.into());
         Param {
@@ -187,13 +187,6 @@ pub(super) struct Candidate {
 impl Gated for Candidate {
     fn gated(&self) -> (f64, f64, f64) {
         self.score.gated()
-    }
-}
-
-impl Candidate {
-    /// Its hypothesis (`None`: latency).
-    pub(super) fn of(&self) -> Option<&'static Hypothesis> {
-        crate::diagnose::hypotheses::power_hypothesis(&self.score.id)
     }
 }
 
