@@ -172,22 +172,18 @@ fn compare_forms(
             .filter(|c| mechanism(&c.score.id) == m)
             .collect();
         if let [w, r, ..] = forms[..] {
-            let words = [w, r].map(|c| {
-                power_hypothesis(&c.score.id).map_or(String::new(), |h| h.form.to_string())
-            });
-            decided.push(versus(data, m.into(), (w, r), words, alpha));
+            decided.push(versus(data, m.into(), (w, r), alpha));
         }
     }
     decided
 }
 
-/// The winner `w` against the runner-up `r`: the paired held-out test by trial, their scores and
-/// parameters; confounded when the winner was accepted but its margin is not significant.
+/// The winner `w` against the runner-up `r`: the paired held-out test by trial, their scores,
+/// forms and parameters; confounded when the winner was accepted but its margin is not significant.
 fn versus(
     data: &PowerData,
     mechanism: String,
     (w, r): (&Candidate, &Candidate),
-    form_words: [String; 2],
     alpha: f64,
 ) -> MechanismForms {
     // Every lag's rows are the same readings: y and trial are the lag-0 rows'.
@@ -202,7 +198,7 @@ fn versus(
         margin: 1.0 - w.score.rmse_after / r.score.rmse_after.max(1e-300),
         p_value,
         accepted: w.score.accepted,
-        form_words,
+        form_words: [w, r].map(|c| power_hypothesis(&c.score.id).map_or("", |h| h.form).into()),
         params: [w.score.params.clone(), r.score.params.clone()],
         confounded: w.score.accepted && (p_value >= alpha || p_value.is_nan()),
         unnamed: false,
