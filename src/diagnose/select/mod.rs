@@ -231,8 +231,6 @@ pub(crate) fn select(
         data,
         rule,
         cands: candidates,
-        closed: Vec::new(),
-        rival: None,
         sel: Selection {
             first_step: Vec::new(),
             accepted: Vec::new(),
@@ -262,15 +260,11 @@ pub(crate) fn select(
 }
 
 /// The library's side of the stepwise search: every candidate (past `cands`: latency) scored and
-/// judged by the rule, the selection made so far, and the mechanisms taken in.
+/// judged by the rule, and the selection made so far.
 struct Library<'a, 'd> {
     data: &'a PowerData<'d>,
     rule: &'a Rule,
     cands: &'a [&'static Hypothesis],
-    closed: Vec<&'static str>,
-    /// The best candidate of another library mechanism the data also support at the current
-    /// step, at any value of its parameter (the form, not the size, is what the rule pairs).
-    rival: Option<&'static Hypothesis>,
     sel: Selection,
 }
 
@@ -280,7 +274,9 @@ impl stepwise::Stage for Library<'_, '_> {
 
     fn score(&self, i: usize, step: usize) -> Result<Option<Candidate>> {
         let (c, data, cur) = (self.cands.get(i).copied(), self.data, &self.sel.last);
-        if self.closed.contains(&c.map_or(LATENCY_ID, |h| h.mechanism)) {
+        // A mechanism taken in: its other forms have left the race.
+        let m = c.map_or(LATENCY_ID, |h| h.mechanism);
+        if self.sel.accepted.iter().any(|a| mechanism(&a.id) == m) {
             return Ok(None);
         }
         let mut cand = match c {
@@ -305,33 +301,33 @@ impl stepwise::Stage for Library<'_, '_> {
 
     /// The first step's ranking; the forms of the winner's mechanism compared at the step that
     /// accepts one of them (of every mechanism at the first step when none is accepted); the
-    /// winner's rival.
+    /// winner's rival ([`Selection::rivals`]).
     fn ranked(&mut self, step: usize, ranked: &[(bool, &Candidate)]) {
         if step == 1 {
             self.sel.first_step = ranked.iter().map(|c| c.1.score.clone()).collect();
         }
-        let winner = ranked
-            .first()
-            .filter(|c| c.0)
-            .map(|c| mechanism(&c.1.score.id));
+        // The winner: the first (of equal gains too: the stage's rule) if it passes.
+        let winner = ranked.first().filter(|c| c.0).map(|c| &c.1.score.id);
+        let m = winner.map(|id| mechanism(id));
         if winner.is_some() || step == 1 {
-            let forms = compare_forms(self.data, ranked, self.rule.alpha, winner);
+            let forms = compare_forms(self.data, ranked, self.rule.alpha, m);
             self.sel.forms.extend(forms);
         }
-        self.rival = winner.and_then(|m| {
-            let supported = |c: &Candidate| {
-                power_hypothesis(&c.score.id)
-                    .filter(|h| h.mechanism != m && self.rule.supports(&c.score))
-            };
-            ranked.iter().find_map(|c| supported(c.1))
-        });
+        // Its rival: the best candidate of another library mechanism the data also support, at
+        // any value of its parameter (the form, not the size, is what the rule pairs).
+        let (Some(id), Some(m)) = (winner, m) else {
+            return;
+        };
+        let supported = |c: &Candidate| {
+            power_hypothesis(&c.score.id)
+                .filter(|h| h.mechanism != m && self.rule.supports(&c.score))
+        };
+        if let Some(r) = ranked.iter().find_map(|c| supported(c.1)) {
+            self.sel.rivals.push((id.clone(), r));
+        }
     }
 
     fn accept(&mut self, _: usize, w: Candidate, _: Vec<Candidate>) {
-        if let Some(r) = self.rival.take() {
-            self.sel.rivals.push((w.score.id.clone(), r));
-        }
-        self.closed.push(mechanism(&w.score.id));
         self.sel.accepted.push(w.score);
         self.sel.last = w.next;
     }
