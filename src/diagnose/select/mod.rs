@@ -144,7 +144,7 @@ pub(crate) struct Selection {
     /// Final model state.
     pub last: State,
     /// Per accepted hypothesis id: the best other library mechanism the data also supported at
-    /// its step ([`Rule::supports`]) — its rival in [`super::parsimony`]'s rule.
+    /// its step (the rule's statistical gates, not the plausibility) — its rival in [`super::parsimony`]'s rule.
     pub rivals: Vec<(String, &'static Hypothesis)>,
 }
 
@@ -313,14 +313,16 @@ impl stepwise::Stage for Library<'_, '_> {
             let forms = compare_forms(self.data, ranked, self.rule.alpha, m);
             self.sel.forms.extend(forms);
         }
-        // Its rival: the best candidate of another library mechanism the data also support, at
-        // any value of its parameter (the form, not the size, is what the rule pairs).
+        // Its rival: the best candidate of another library mechanism the data also support (the
+        // statistical gates of the rule without the plausibility of its parameter: a rival
+        // mechanism that fits as well is a rival at any value, the form, not the size, is what
+        // the rule pairs).
         let (Some(id), Some(m)) = (winner, m) else {
             return;
         };
         let supported = |c: &Candidate| {
             power_hypothesis(&c.score.id)
-                .filter(|h| h.mechanism != m && self.rule.supports(&c.score))
+                .filter(|h| h.mechanism != m && stepwise::passes(self.rule, c, self.rule.alpha))
         };
         if let Some(r) = ranked.iter().find_map(|c| supported(c.1)) {
             self.sel.rivals.push((id.clone(), r));

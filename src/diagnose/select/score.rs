@@ -86,12 +86,6 @@ pub struct HypothesisScore {
     pub stability: Option<f64>,
 }
 
-impl Gated for HypothesisScore {
-    fn gated(&self) -> (f64, f64, f64) {
-        (self.p_value, self.delta_bic, self.rel_improvement)
-    }
-}
-
 impl HypothesisScore {
     /// Rejected only for its size: every statistical gate passed, the parameter is implausible.
     pub fn only_implausible(&self) -> bool {
@@ -105,13 +99,6 @@ pub(crate) const IMPLAUSIBLE: &str = "parameter outside its physically plausible
 
 impl Rule {
     /// Apply the rule: accepted or not, and why.
-    /// Whether the data support `s` — the statistical gates of [`Rule::judge`] without the
-    /// plausibility of its parameter. A rival mechanism that fits as well is a rival even at an
-    /// implausible value: the form, not the size, is what the pairing decides.
-    pub fn supports(&self, s: &HypothesisScore) -> bool {
-        crate::diagnose::stepwise::passes(self, s, self.alpha)
-    }
-
     pub fn judge(&self, s: &HypothesisScore) -> (bool, String) {
         let mut fails = Vec::new();
         if s.p_value >= self.alpha {
@@ -186,7 +173,8 @@ pub(super) struct Candidate {
 
 impl Gated for Candidate {
     fn gated(&self) -> (f64, f64, f64) {
-        self.score.gated()
+        let s = &self.score;
+        (s.p_value, s.delta_bic, s.rel_improvement)
     }
 }
 
