@@ -396,7 +396,7 @@ pub(crate) fn rest_power(inp: &RestInputs, rule: &Rule) -> Option<RestPower> {
         cur: base,
         best_rejected: None,
     };
-    stepwise::forward(&mut fw, search.cands.len(), MAX_TERMS);
+    stepwise::forward(&mut fw, search.cands.len(), MAX_TERMS).ok()?;
     let (chosen, steps, cur) = (fw.chosen, fw.steps, fw.cur);
     out.best_rejected = fw.best_rejected;
     // A rival found later as a term of its own is not a tie of the earlier ones.
@@ -461,10 +461,10 @@ struct Forward<'s, 'a> {
 impl stepwise::Stage for Forward<'_, '_> {
     type Scored = Scored;
 
-    fn score(&self, i: usize, _: usize) -> Option<Scored> {
+    fn score(&self, i: usize, _: usize) -> anyhow::Result<Option<Scored>> {
         let s = self.search;
         let open = self.chosen.iter().all(|&c| s.field_of(c) != s.field_of(i));
-        open.then(|| s.score(i, &self.chosen, &self.cur)).flatten()
+        Ok(open.then(|| s.score(i, &self.chosen, &self.cur)).flatten())
     }
 
     fn passes(&self, _: usize, s: &Scored, step: usize) -> bool {

@@ -3,6 +3,8 @@
 //! chosen so far, gated (significant held-out improvement at its Holm level, BIC, a
 //! minimum gain), and the best passing one by held-out gain taken.
 
+use anyhow::Result;
+
 /// Thresholds of the significance rule: the gates every candidate of every stage passes.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Rule {
@@ -45,42 +47,57 @@ pub(crate) fn holm_level(alpha: f64, m: usize, step: usize) -> f64 {
 pub(crate) trait Stage {
     /// A scored candidate.
     type Scored: Gated;
+    /// Of passing candidates of equal held-out gain, the first wins (the library selection)
+    /// rather than the last (discovery, the rest power).
+    const FIRST_OF_EQUALS: bool = false;
     /// Called before `step`'s candidates are scored (discovery's family tests run here).
     fn begin(&mut self, _step: usize) {}
     /// Candidate `i` scored on the current model at `step` (`None`: closed, or no fit).
-    fn score(&self, i: usize, step: usize) -> Option<Self::Scored>;
+    fn score(&self, i: usize, step: usize) -> Result<Option<Self::Scored>>;
     /// Whether `s`, candidate `i`, passes the gates at `step`'s Holm level.
     fn passes(&self, i: usize, s: &Self::Scored, step: usize) -> bool;
-    /// The step's winner, taken out of `passing`: the best by held-out gain (the last of equals).
+    /// Every candidate scored at `step` with whether it passes, best first: those that pass,
+    /// then by held-out gain, equals in candidate order (the library's ranking, its forms and
+    /// its rivals read them).
+    fn ranked(&mut self, _step: usize, _ranked: &[(bool, &Self::Scored)]) {}
+    /// The step's winner, taken out of `passing`: the best by held-out gain ([`best`]).
     fn take(&self, passing: &mut Vec<Self::Scored>) -> Option<Self::Scored> {
-        best(passing).map(|k| passing.swap_remove(k))
+        best(passing, Self::FIRST_OF_EQUALS).map(|k| passing.swap_remove(k))
     }
     /// At step 1: the best candidate by gain that failed the gates, beside the winner if any.
-    fn rejected(&mut self, failed: &Self::Scored, winner: Option<&Self::Scored>);
+    fn rejected(&mut self, _failed: &Self::Scored, _winner: Option<&Self::Scored>) {}
     /// Take `winner` into the model at `step` (or close it); `passing` holds the other
     /// candidates that passed, among which its rivals are.
     fn accept(&mut self, step: usize, winner: Self::Scored, passing: Vec<Self::Scored>);
 }
 
-/// The stepwise search of discovery and the rest power: at each step up to `max_steps`, every
-/// open candidate of `0..n` scored on top of the terms chosen so far and gated at the step's Holm level;
-/// the winner among those that pass taken in with its rivals; stop when none passes. (The
-/// library selection runs the same gates ([`passes`], [`holm_level`]) in its own loop, which also
-/// compares the forms of each mechanism; backward elimination is [`super::parsimony`]'s rule.)
-pub(crate) fn forward(stage: &mut impl Stage, n: usize, max_steps: usize) {
+/// The stepwise search of every selection stage: at each step up to `max_steps`, every open
+/// candidate of `0..n` scored on top of the terms chosen so far and gated at the step's Holm
+/// level; the winner among those that pass taken in with its rivals; stop when none passes.
+/// (Backward elimination is [`super::parsimony`]'s rule.)
+pub(crate) fn forward<S: Stage>(stage: &mut S, n: usize, max_steps: usize) -> Result<()> {
     for k in 1..=max_steps {
         stage.begin(k);
-        let mut passing = Vec::new();
-        let mut failed: Option<_> = None;
+        let mut scored = Vec::new();
         for i in 0..n {
-            let Some(s) = stage.score(i, k) else {
-                continue;
-            };
-            if stage.passes(i, &s, k) {
+            if let Some(s) = stage.score(i, k)? {
+                scored.push((stage.passes(i, &s, k), s));
+            }
+        }
+        let mut ranked: Vec<(bool, &S::Scored)> = scored.iter().map(|(ok, s)| (*ok, s)).collect();
+        ranked.sort_by(|a, b| {
+            (b.0, b.1.gain())
+                .partial_cmp(&(a.0, a.1.gain()))
+                .unwrap_or(std::cmp::Ordering::Equal)
+        });
+        stage.ranked(k, &ranked);
+        let (mut passing, mut failed) = (Vec::new(), None);
+        for (ok, s) in scored {
+            if ok {
                 passing.push(s);
             } else if failed
                 .as_ref()
-                .is_none_or(|b: &_| s.gain() > Gated::gain(b))
+                .is_none_or(|b: &S::Scored| s.gain() > b.gain())
             {
                 failed = Some(s);
             }
@@ -94,11 +111,16 @@ pub(crate) fn forward(stage: &mut impl Stage, n: usize, max_steps: usize) {
         let Some(w) = winner else { break };
         stage.accept(k, w, passing);
     }
+    Ok(())
 }
 
-/// The best of `passing` by held-out gain (the last of equals).
-pub(crate) fn best<S: Gated>(passing: &[S]) -> Option<usize> {
-    (0..passing.len()).max_by(|&a, &b| passing[a].gain().total_cmp(&passing[b].gain()))
+/// The best of `passing` by held-out gain: the last of equals, or the first with `first`.
+pub(crate) fn best<S: Gated>(passing: &[S], first: bool) -> Option<usize> {
+    let by_gain = |a: &usize, b: &usize| passing[*a].gain().total_cmp(&passing[*b].gain());
+    match first {
+        true => (0..passing.len()).rev().max_by(by_gain),
+        false => (0..passing.len()).max_by(by_gain),
+    }
 }
 
 /// Whether a paired p-value that one fit beats another leaves them tied: not significant at

@@ -2,9 +2,9 @@
 //! was tried.
 
 use crate::diagnose::Quality;
-use crate::diagnose::locate::trial_sums;
-use crate::diagnose::meters::{MeterDrift, artefact_name, checks, per_trial};
+use crate::diagnose::meters::{MeterCheck, MeterDrift, artefact_name, checks, per_trial};
 use crate::diagnose::reading_rows::{Rows, TrialMeta};
+use crate::diagnose::report::trial_means;
 use crate::diagnose::select::Param;
 use crate::diagnose::trials::SessionInfo;
 
@@ -208,28 +208,14 @@ impl DiscoveryReport {
             |a: &[f64], b: &[f64]| -> Vec<f64> { b.iter().zip(a).map(|(b, a)| b - a).collect() };
         // Discovery's terms: what each adds, averaged over its trial's readings.
         let n = metas.len();
-        let cols: Vec<Vec<f64>> = self
-            .accepted
-            .iter()
+        let cols: Vec<Vec<f64>> = (self.accepted.iter())
             .filter(|t| t.contribution.len() == rows.len())
-            .map(|t| {
-                let pairs = rows
-                    .trial
-                    .iter()
-                    .copied()
-                    .zip(t.contribution.iter().copied());
-                let (sum, cnt) = trial_sums(pairs, n);
-                let mean = |(s, &c): (&f64, &usize)| if c > 0 { s / c as f64 } else { f64::NAN };
-                sum.iter().zip(&cnt).map(mean).collect()
-            })
+            .map(|t| trial_means(&rows.trial, &t.contribution, n))
             .collect();
         if cols.len() == self.accepted.len() && !cols.is_empty() {
             let found = checks(target, &diff(&net1, &net2), &cols);
             for (t, c) in self.accepted.iter_mut().zip(found) {
-                if let Some(c) = c.as_ref().filter(|c| c.artefact()) {
-                    t.name = artefact_name(c, &t.fields.join(", "));
-                }
-                t.meter = c;
+                settle(c, (&mut t.name, &mut t.meter), &t.fields.join(", "));
             }
         }
         let Some(rest) = self.rest.as_mut() else {
@@ -240,10 +226,19 @@ impl DiscoveryReport {
         }
         let found = checks(target, &diff(&rest1, &rest2), &rest.term_cols);
         for (t, c) in rest.found.iter_mut().zip(found) {
-            if let Some(c) = c.as_ref().filter(|c| c.artefact()) {
-                t.name = artefact_name(c, &t.field);
-            }
-            t.meter = c;
+            settle(c, (&mut t.name, &mut t.meter), &t.field);
         }
     }
+}
+
+/// A found term's check `c` by the rail's other meter: an artefact renamed after its `fields`.
+fn settle(
+    c: Option<MeterCheck>,
+    (name, meter): (&mut String, &mut Option<MeterCheck>),
+    fields: &str,
+) {
+    if let Some(c) = c.as_ref().filter(|c| c.artefact()) {
+        *name = artefact_name(c, fields);
+    }
+    *meter = c;
 }

@@ -110,7 +110,7 @@ pub(crate) fn discover(
         },
         search.cands.len(),
         MAX_TERMS.min(data.n_trials / TRIALS_PER_TERM),
-    );
+    )?;
     claim_rivals_found_beside(&search, &fw.chosen, &mut fw.tied, &mut report.notes);
     let on_time = fw
         .chosen
@@ -244,7 +244,7 @@ impl stepwise::Stage for Stepping<'_, '_, '_> {
             .max_by(|a, b| a.1.rel.total_cmp(&b.1.rel));
     }
 
-    fn score(&self, i: usize, step: usize) -> Option<Scored> {
+    fn score(&self, i: usize, step: usize) -> Result<Option<Scored>> {
         let (search, fw) = (self.search, &self.fw);
         super::report(super::Progress::Candidates {
             step,
@@ -252,9 +252,9 @@ impl stepwise::Stage for Stepping<'_, '_, '_> {
             total: search.cands.len(),
         });
         if fw.chosen.contains(&i) || fw.closed.contains(&search.cands[i].group) {
-            return None;
+            return Ok(None);
         }
-        search.score(i, &fw.cols, (&fw.pred, fw.bic), self.y_rms)
+        Ok(search.score(i, &fw.cols, (&fw.pred, fw.bic), self.y_rms))
     }
 
     fn passes(&self, i: usize, s: &Scored, step: usize) -> bool {
@@ -265,7 +265,7 @@ impl stepwise::Stage for Stepping<'_, '_, '_> {
     /// is a term × signal not significantly better than the plain pooled term it contains,
     /// that pooled term: the signal is not what the data support.
     fn take(&self, passing: &mut Vec<Scored>) -> Option<Scored> {
-        let k = stepwise::best(passing)?;
+        let k = stepwise::best(passing, false)?;
         let refs: Vec<&Scored> = passing.iter().collect();
         let k = simpler_nested(self.search, &passing[k], &refs).unwrap_or(k);
         Some(passing.swap_remove(k))

@@ -4,6 +4,7 @@
 use super::candidates::{Kind, Signal, followed};
 use crate::N_JOINTS;
 use crate::diagnose::family::{Shape, Term};
+use crate::diagnose::hypotheses::joint_name;
 use crate::diagnose::select::Param;
 
 /// Fitted coefficients of a candidate and their standard errors, turned into named parameters.
@@ -20,13 +21,8 @@ impl Fitted<'_> {
         j: usize,
         unit: impl Into<String>,
     ) -> Param {
-        Param {
-            name: name.into(),
-            symbol: symbol.into(),
-            value: self.gamma.get(j).copied().unwrap_or(f64::NAN),
-            std_err: self.se.get(j).copied().unwrap_or(f64::NAN),
-            unit: unit.into(),
-        }
+        let at = |v: &[f64]| v.get(j).copied().unwrap_or(f64::NAN);
+        Param::new(name, symbol, at(self.gamma), at(self.se), unit)
     }
 }
 
@@ -67,15 +63,9 @@ pub(crate) fn describe(
         ),
         Kind::Product(t, s, shape) => describe_product(*t, s, *shape, names, &fit),
         Kind::PerJoint(t) => {
-            let joint = |i: usize| {
-                joint_names
-                    .get(i)
-                    .cloned()
-                    .unwrap_or_else(|| format!("joint {i}"))
-            };
             let ks = (0..N_JOINTS).map(|i| {
                 fit.param(
-                    format!("excess on {}", joint(i)),
+                    format!("excess on {}", joint_name(joint_names, i)),
                     &format!("k_{i}"),
                     i,
                     t.unit(),
@@ -164,17 +154,19 @@ pub(super) fn identified_or_pooled(params: Vec<Param>) -> Vec<Param> {
             .iter()
             .map(|p| p.name.trim_start_matches("excess on "))
             .collect();
-        out.push(Param {
-            name: format!(
-                "common excess on {} (not identified joint by joint: s.e. > {:.0} % of the value)",
-                joints.join(", "),
-                100.0 * IDENTIFIED_REL_SE
-            ),
-            symbol: "k_pooled".into(),
-            value: rest.iter().zip(&w).map(|(p, w)| p.value * w).sum::<f64>() / sw,
-            std_err: 1.0 / sw.sqrt(),
-            unit: first.unit.clone(),
-        });
+        let name = format!(
+            "common excess on {} (not identified joint by joint: s.e. > {:.0} % of the value)",
+            joints.join(", "),
+            100.0 * IDENTIFIED_REL_SE
+        );
+        let value = rest.iter().zip(&w).map(|(p, w)| p.value * w).sum::<f64>() / sw;
+        out.push(Param::new(
+            name,
+            "k_pooled",
+            value,
+            1.0 / sw.sqrt(),
+            &first.unit,
+        ));
     }
     out
 }

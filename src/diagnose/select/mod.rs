@@ -16,7 +16,9 @@ pub use score::{HypothesisScore, Param};
 
 use anyhow::Result;
 
-use super::hypotheses::{Hypothesis, LATENCY_ID, N_RAW};
+use super::stepwise;
+
+use super::hypotheses::{Hypothesis, LATENCY_ID, N_RAW, power_hypothesis};
 use crate::N_PARAMS;
 
 /// How the forms of one mechanism compared at the selection step that decided between them.
@@ -142,53 +144,46 @@ pub(crate) struct Selection {
     /// Final model state.
     pub last: State,
     /// Per accepted hypothesis id: the best other library mechanism the data also supported at
-    /// its step ([`Rule::supports`]) — its rival in [`super::parsimony`]'s rule.
+    /// its step (the rule's statistical gates, not the plausibility) — its rival in [`super::parsimony`]'s rule.
     pub rivals: Vec<(String, &'static Hypothesis)>,
 }
 
-/// Mechanism of a candidate (`None` = latency).
-fn mechanism(c: &Option<&'static Hypothesis>) -> &'static str {
-    c.map_or(LATENCY_ID, |h| h.mechanism)
+/// Mechanism of candidate `id` (latency's own for none of the library's).
+fn mechanism(id: &str) -> &'static str {
+    power_hypothesis(id).map_or(LATENCY_ID, |h| h.mechanism)
 }
 
-/// Compare the two best forms of every mechanism with more than one form among `scored`; the
-/// forms are confounded when the winner's per-trial margin is not significant at `alpha`.
+/// Compare the two best forms of every mechanism with more than one form among `ranked` (of
+/// `only`, if given); the forms are confounded when the winner's per-trial margin is not
+/// significant at `alpha`.
 fn compare_forms(
     data: &PowerData,
-    scored: &[(usize, Candidate)],
-    remaining: &[Option<&'static Hypothesis>],
+    ranked: &[(bool, &Candidate)],
     alpha: f64,
-    decided: &mut Vec<MechanismForms>,
-) {
-    let mut mechs: Vec<&str> = remaining.iter().map(mechanism).collect();
+    only: Option<&str>,
+) -> Vec<MechanismForms> {
+    let mut mechs: Vec<&str> = ranked.iter().map(|c| mechanism(&c.1.score.id)).collect();
     mechs.sort_unstable();
     mechs.dedup();
+    mechs.retain(|m| only.is_none_or(|o| o == *m));
+    let mut decided = Vec::new();
     for m in mechs {
-        if decided.iter().any(|d| d.mechanism == m) {
-            continue;
-        }
-        let forms: Vec<(usize, &Candidate)> = scored
-            .iter()
-            .filter(|(i, _)| mechanism(&remaining[*i]) == m)
-            .map(|(i, c)| (*i, c))
+        let forms: Vec<&Candidate> = (ranked.iter().map(|c| c.1))
+            .filter(|c| mechanism(&c.score.id) == m)
             .collect();
-        if forms.len() < 2 {
-            continue;
+        if let [w, r, ..] = forms[..] {
+            decided.push(versus(data, m.into(), (w, r), alpha));
         }
-        // `scored` is sorted best first.
-        let ((wi, w), (ri, r)) = (forms[0], forms[1]);
-        let words = [wi, ri].map(|i| remaining[i].map_or(String::new(), |h| h.form.to_string()));
-        decided.push(versus(data, m.into(), (w, r), words, alpha));
     }
+    decided
 }
 
-/// The winner `w` against the runner-up `r`: the paired held-out test by trial, their scores and
-/// parameters; confounded when the winner was accepted but its margin is not significant.
+/// The winner `w` against the runner-up `r`: the paired held-out test by trial, their scores,
+/// forms and parameters; confounded when the winner was accepted but its margin is not significant.
 fn versus(
     data: &PowerData,
     mechanism: String,
     (w, r): (&Candidate, &Candidate),
-    form_words: [String; 2],
     alpha: f64,
 ) -> MechanismForms {
     // Every lag's rows are the same readings: y and trial are the lag-0 rows'.
@@ -203,7 +198,7 @@ fn versus(
         margin: 1.0 - w.score.rmse_after / r.score.rmse_after.max(1e-300),
         p_value,
         accepted: w.score.accepted,
-        form_words,
+        form_words: [w, r].map(|c| power_hypothesis(&c.score.id).map_or("", |h| h.form).into()),
         params: [w.score.params.clone(), r.score.params.clone()],
         confounded: w.score.accepted && (p_value >= alpha || p_value.is_nan()),
         unnamed: false,
@@ -219,88 +214,37 @@ fn versus(
 /// left unnamed.
 pub(crate) const RIVAL_ALPHA: f64 = 0.05;
 
-/// Greedy forward selection: at each step score every remaining candidate against the current
-/// model, add the best one that passes the rule (the other forms of its mechanism leave the
-/// race), stop when none passes. Whether each is claimed beside the others and against its rival
-/// mechanism is [`super::parsimony`]'s rule, applied after every stage.
+/// Greedy forward selection ([`stepwise::forward`]): at each step score every remaining
+/// candidate against the current model, add the best one that passes the rule (the other forms
+/// of its mechanism leave the race), stop when none passes. Whether each is claimed beside the
+/// others and against its rival mechanism is [`super::parsimony`]'s rule, applied after every
+/// stage.
 pub(crate) fn select(
     data: &PowerData,
     candidates: &[&'static Hypothesis],
     rule: &Rule,
 ) -> Result<Selection> {
     let base = state(data, Vec::new(), 0)?;
-    let mut cur = base.clone();
-    let mut remaining: Vec<Option<&'static Hypothesis>> =
-        candidates.iter().map(|&h| Some(h)).collect();
-    if data.lags.len() >= 3 {
-        remaining.push(None); // None = latency
-    }
-    let mut first_step: Vec<HypothesisScore> = Vec::new();
-    let mut accepted = Vec::new();
-    let mut forms: Vec<MechanismForms> = Vec::new();
-    let mut rivals = Vec::new();
-    for step in 1.. {
-        let mut scored: Vec<(usize, Candidate)> = Vec::new();
-        for (i, c) in remaining.iter().enumerate() {
-            let mut cand = match c {
-                Some(h) => score_term(data, &cur, h, step)?,
-                None => score_latency(data, &cur, step)?,
-            };
-            let (mut ok, mut why) = rule.judge(&cand.score);
-            if c.is_none() && !data.lag_claimable {
-                why = format!(
-                    "not claimed: the sensor-window scan finds no lag that beats every window at \
-                     lag 0 ({why})"
-                );
-                ok = false;
-            }
-            cand.score.accepted = ok;
-            cand.score.verdict = why;
-            scored.push((i, cand));
-        }
-        scored.sort_by(|a, b| {
-            (b.1.score.accepted, b.1.score.rel_improvement)
-                .partial_cmp(&(a.1.score.accepted, a.1.score.rel_improvement))
-                .unwrap_or(std::cmp::Ordering::Equal)
-        });
-        if step == 1 {
-            first_step = scored.iter().map(|(_, c)| c.score.clone()).collect();
-        }
-        let winner = scored
-            .first()
-            .filter(|(_, c)| c.score.accepted)
-            .map(|(i, _)| mechanism(&remaining[*i]));
-        // A mechanism's forms are compared at the step that accepts one of them (or at the
-        // first step when none is ever accepted: replaced below).
-        if let Some(m) = winner {
-            let mut here = Vec::new();
-            compare_forms(data, &scored, &remaining, rule.alpha, &mut here);
-            forms.retain(|f: &MechanismForms| f.mechanism != m);
-            forms.extend(here.into_iter().filter(|f| f.mechanism == m));
-        } else if step == 1 {
-            compare_forms(data, &scored, &remaining, rule.alpha, &mut forms);
-        }
-        let Some((idx, best)) = scored.first().filter(|(_, c)| c.score.accepted) else {
-            break;
-        };
-        let m = mechanism(&remaining[*idx]);
-        // Its rival: the best candidate of another library mechanism the data also support, at
-        // any value of its parameter (the form, not the size, is what the rule pairs).
-        let rival = scored.iter().find_map(|(i, c)| {
-            remaining[*i].filter(|h| h.mechanism != m && rule.supports(&c.score))
-        });
-        if let Some(r) = rival {
-            rivals.push((best.score.id.clone(), r));
-        }
-        accepted.push(best.score.clone());
-        cur = best.next.clone();
-        remaining.retain(|c| mechanism(c) != m);
-        if remaining.is_empty() {
-            break;
-        }
-    }
-    for f in forms.iter().filter(|f| f.confounded) {
-        for s in accepted.iter_mut().chain(first_step.iter_mut()) {
+    // The last (past `candidates`) is latency.
+    let n = candidates.len() + usize::from(data.lags.len() >= 3);
+    let mut lib = Library {
+        data,
+        rule,
+        cands: candidates,
+        sel: Selection {
+            first_step: Vec::new(),
+            accepted: Vec::new(),
+            forms: Vec::new(),
+            confounded: Vec::new(),
+            base: base.clone(),
+            last: base,
+            rivals: Vec::new(),
+        },
+    };
+    stepwise::forward(&mut lib, n, n)?;
+    let mut sel = lib.sel;
+    for f in sel.forms.iter().filter(|f| f.confounded) {
+        for s in sel.accepted.iter_mut().chain(sel.first_step.iter_mut()) {
             if s.id == f.winner {
                 s.verdict = format!(
                     "{}; form: confounded — {} (margin {:.1} %, p = {:.2})",
@@ -312,15 +256,83 @@ pub(crate) fn select(
             }
         }
     }
-    Ok(Selection {
-        first_step,
-        accepted,
-        forms,
-        confounded: Vec::new(),
-        base,
-        last: cur,
-        rivals,
-    })
+    Ok(sel)
+}
+
+/// The library's side of the stepwise search: every candidate (past `cands`: latency) scored and
+/// judged by the rule, and the selection made so far.
+struct Library<'a, 'd> {
+    data: &'a PowerData<'d>,
+    rule: &'a Rule,
+    cands: &'a [&'static Hypothesis],
+    sel: Selection,
+}
+
+impl stepwise::Stage for Library<'_, '_> {
+    type Scored = Candidate;
+    const FIRST_OF_EQUALS: bool = true;
+
+    fn score(&self, i: usize, step: usize) -> Result<Option<Candidate>> {
+        let (c, data, cur) = (self.cands.get(i).copied(), self.data, &self.sel.last);
+        // A mechanism taken in: its other forms have left the race.
+        let m = c.map_or(LATENCY_ID, |h| h.mechanism);
+        if self.sel.accepted.iter().any(|a| mechanism(&a.id) == m) {
+            return Ok(None);
+        }
+        let mut cand = match c {
+            Some(h) => score_term(data, cur, h, step)?,
+            None => score_latency(data, cur, step)?,
+        };
+        let (mut ok, mut why) = self.rule.judge(&cand.score);
+        if c.is_none() && !data.lag_claimable {
+            why = format!(
+                "not claimed: the sensor-window scan finds no lag that beats every window at \
+                 lag 0 ({why})"
+            );
+            ok = false;
+        }
+        (cand.score.accepted, cand.score.verdict) = (ok, why);
+        Ok(Some(cand))
+    }
+
+    fn passes(&self, _: usize, c: &Candidate, _: usize) -> bool {
+        c.score.accepted
+    }
+
+    /// The first step's ranking; the forms of the winner's mechanism compared at the step that
+    /// accepts one of them (of every mechanism at the first step when none is accepted); the
+    /// winner's rival ([`Selection::rivals`]).
+    fn ranked(&mut self, step: usize, ranked: &[(bool, &Candidate)]) {
+        if step == 1 {
+            self.sel.first_step = ranked.iter().map(|c| c.1.score.clone()).collect();
+        }
+        // The winner: the first (of equal gains too: the stage's rule) if it passes.
+        let winner = ranked.first().filter(|c| c.0).map(|c| &c.1.score.id);
+        let m = winner.map(|id| mechanism(id));
+        if winner.is_some() || step == 1 {
+            let forms = compare_forms(self.data, ranked, self.rule.alpha, m);
+            self.sel.forms.extend(forms);
+        }
+        // Its rival: the best candidate of another library mechanism the data also support (the
+        // statistical gates of the rule without the plausibility of its parameter: a rival
+        // mechanism that fits as well is a rival at any value, the form, not the size, is what
+        // the rule pairs).
+        let (Some(id), Some(m)) = (winner, m) else {
+            return;
+        };
+        let supported = |c: &Candidate| {
+            power_hypothesis(&c.score.id)
+                .filter(|h| h.mechanism != m && stepwise::passes(self.rule, c, self.rule.alpha))
+        };
+        if let Some(r) = ranked.iter().find_map(|c| supported(c.1)) {
+            self.sel.rivals.push((id.clone(), r));
+        }
+    }
+
+    fn accept(&mut self, _: usize, w: Candidate, _: Vec<Candidate>) {
+        self.sel.accepted.push(w.score);
+        self.sel.last = w.next;
+    }
 }
 
 /// A winner [`super::parsimony`]'s rule locates is not claimed: it leaves
@@ -343,7 +355,7 @@ pub(crate) fn unname(
         }
         let of_either = |id: &str| {
             id == f.winner
-                || super::hypotheses::power_hypothesis(id)
+                || power_hypothesis(id)
                     .is_some_and(|h| f.form_words.iter().any(|m| m == h.mechanism))
         };
         for s in first_step.iter_mut().filter(|s| of_either(&s.id)) {

@@ -9,7 +9,7 @@ use crate::N_PARAMS;
 use crate::diagnose::Quality;
 use crate::diagnose::hypotheses::{Hypothesis, LATENCY_ID};
 use crate::diagnose::stats::EXTENDS;
-use crate::diagnose::stepwise::Rule;
+use crate::diagnose::stepwise::{Gated, Rule};
 
 /// A named physical parameter with its uncertainty.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
@@ -33,7 +33,7 @@ impl Param {
         symbol: impl Into<String>,
         value: f64,
         std_err: f64,
-        unit: &str,
+        unit: impl Into<String>,
     ) -> Param {
         let (name, symbol, unit) = (name.into(), symbol.into(), unit.into());
         Param {
@@ -86,12 +86,6 @@ pub struct HypothesisScore {
     pub stability: Option<f64>,
 }
 
-impl crate::diagnose::stepwise::Gated for HypothesisScore {
-    fn gated(&self) -> (f64, f64, f64) {
-        (self.p_value, self.delta_bic, self.rel_improvement)
-    }
-}
-
 impl HypothesisScore {
     /// Rejected only for its size: every statistical gate passed, the parameter is implausible.
     pub fn only_implausible(&self) -> bool {
@@ -105,13 +99,6 @@ pub(crate) const IMPLAUSIBLE: &str = "parameter outside its physically plausible
 
 impl Rule {
     /// Apply the rule: accepted or not, and why.
-    /// Whether the data support `s` — the statistical gates of [`Rule::judge`] without the
-    /// plausibility of its parameter. A rival mechanism that fits as well is a rival even at an
-    /// implausible value: the form, not the size, is what the pairing decides.
-    pub fn supports(&self, s: &HypothesisScore) -> bool {
-        crate::diagnose::stepwise::passes(self, s, self.alpha)
-    }
-
     pub fn judge(&self, s: &HypothesisScore) -> (bool, String) {
         let mut fails = Vec::new();
         if s.p_value >= self.alpha {
@@ -182,6 +169,13 @@ fn refine_lag(lags: &[f64], sse: &[f64]) -> (usize, f64) {
 pub(super) struct Candidate {
     pub(super) score: HypothesisScore,
     pub(super) next: State,
+}
+
+impl Gated for Candidate {
+    fn gated(&self) -> (f64, f64, f64) {
+        let s = &self.score;
+        (s.p_value, s.delta_bic, s.rel_improvement)
+    }
 }
 
 fn compare(data: &PowerData, cur: &State, next_pred: &[f64]) -> Held {

@@ -83,24 +83,18 @@ fn null_data_accepts_nothing() {
 #[test]
 fn only_an_implausible_size_is_told_from_a_failed_gate() {
     let judged = |p_value: f64, plausible: bool| {
-        let mut s = HypothesisScore {
-            id: "stribeck".into(),
-            title: String::new(),
-            level: "power".into(),
-            params: Vec::new(),
+        let quality = |r2: f64, rmse_w: f64| crate::diagnose::Quality { r2, rmse_w };
+        let (before, after) = (quality(0.9, 1.0), quality(0.95, 0.6));
+        let held = Held {
             p_value,
+            before,
+            after,
+        };
+        let mut s = HypothesisScore {
             delta_bic: -700.0,
-            rmse_before: 1.0,
-            rmse_after: 0.6,
-            r2_before: 0.9,
-            r2_after: 0.95,
-            rel_improvement: 0.4,
             plausible,
-            accepted: false,
-            rank: 0,
             step: 1,
-            verdict: String::new(),
-            stability: None,
+            ..held.score("stribeck", "", "power", Vec::new())
         };
         let (ok, why) = RULE.judge(&s);
         (s.accepted, s.verdict) = (ok, why);
