@@ -585,7 +585,8 @@ fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<Str
         let picked = filter.map(|f| format!(" where {f}")).unwrap_or_default();
         bail!("no rows of target {target} in the tables{picked}");
     }
-    for w in groups.values_mut() {
+    let mut imu = Vec::new();
+    for (key, w) in groups.iter_mut() {
         // The engine returns rows in no fixed order: sessions by name and trials by session
         // and index, so the filters see the same sequence (and list their rejections in the
         // same order) on every run.
@@ -601,10 +602,14 @@ fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<Str
         let stat = |&(s, t, sigma): &(usize, u32, f64)| TrialStat::new(s, t as usize, sigma);
         let sigmas: Vec<TrialStat> = w.trials.iter().map(stat).collect();
         w.rejections = opts.cascade.imu(&sigmas);
+        w.removed = w.rejections.len();
+        if let Some(t) = (opts.cascade.imu_threshold(&sigmas)).filter(|t| t.is_finite()) {
+            imu.push((key.clone(), t));
+        }
     }
-    // The IMU filter's rejections are left out in the scan, not subtracted after another.
-    let imu = pending(&mut groups);
-    let q = sql::normal_equations(by, Pick::Except(&imu), target, filter);
+    // The IMU filter's rejections are left out in the scan (by their group's threshold, one
+    // inline row a group), not subtracted after another.
+    let q = sql::normal_equations(by, Pick::ImuBelow(&imu), target, filter);
     for (key, kept) in normal_sums(run, "normal_equations", q, by)? {
         let w = (groups.get_mut(&key)).context(format!("group {key:?} has no trials"))?;
         w.kept = kept;
