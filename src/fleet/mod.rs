@@ -404,15 +404,16 @@ impl Work {
     }
 }
 
-/// The normal equations and Σy of each group of a [`sql::normal_equations`] result, its blocks
-/// of matrix rows put together.
-fn normal_sums(
+/// Adds `sign` × the normal equations and Σy of each group of a [`sql::normal_equations`]
+/// result (its blocks of matrix rows put together) to the group's kept sums: the only copy of a
+/// group's normal equations held, whether its rows are added or its rejected trials' taken out.
+fn add_normal_sums(
     run: &mut Runner,
-    name: &str,
-    q: String,
+    (name, q): (&str, String),
     by: &[Key],
-) -> Result<BTreeMap<Vec<String>, (Gram, f64)>> {
-    let mut out: BTreeMap<Vec<String>, (Gram, f64)> = BTreeMap::new();
+    groups: &mut BTreeMap<Vec<String>, Work>,
+    sign: f64,
+) -> Result<()> {
     run.run(name, q, |b| {
         let block = column_as::<Int64Array>(b, "b", DataType::Int64)?;
         let (n, sy) = (numbers(b, "n")?, numbers(b, "sy")?);
@@ -423,15 +424,22 @@ fn normal_sums(
             }
         }
         for (r, (key, _)) in result_rows(b, by)?.into_iter().enumerate() {
-            let s = (out.entry(key)).or_insert_with(|| (Gram::zeros(N_PARAMS), 0.0));
+            let w = (groups.get_mut(&key)).context(format!("group {key:?} has no trials"))?;
+            let s = &mut w.kept;
             // Summed: a group's rows may come in several chunks of files.
             if block.value(r) == 0 {
-                (s.0.n, s.1) = (s.0.n + n.value(r) as usize, s.1 + sy.value(r));
+                let n = n.value(r) as usize;
+                s.0.n = if sign > 0.0 {
+                    s.0.n + n
+                } else {
+                    s.0.n.saturating_sub(n)
+                };
+                s.1 += sign * sy.value(r);
             }
             for a in 0..sql::BLOCK {
                 let i = block.value(r) as usize * sql::BLOCK + a;
                 for j in i..=N_PARAMS {
-                    let v = g[a * (N_PARAMS + 1) + j].value(r);
+                    let v = sign * g[a * (N_PARAMS + 1) + j].value(r);
                     match (i, j) {
                         (N_PARAMS, _) => s.0.yy += v,
                         (_, N_PARAMS) => s.0.h[i] += v,
@@ -442,8 +450,7 @@ fn normal_sums(
             }
         }
         Ok(())
-    })?;
-    Ok(out)
+    })
 }
 
 /// Each row of a result with its group key (the `--by` columns' SQL values) and, when the
@@ -610,10 +617,7 @@ fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<Str
     // The IMU filter's rejections are left out in the scan (by their group's threshold, one
     // inline row a group), not subtracted after another.
     let q = sql::normal_equations(by, Pick::ImuBelow(&imu), target, filter);
-    for (key, kept) in normal_sums(run, "normal_equations", q, by)? {
-        let w = (groups.get_mut(&key)).context(format!("group {key:?} has no trials"))?;
-        w.kept = kept;
-    }
+    add_normal_sums(run, ("normal_equations", q), by, &mut groups, 1.0)?;
     Ok(groups)
 }
 
@@ -745,11 +749,8 @@ pub fn fit_fleet(
             // Each group's own rejected trials only: a trial in two groups (a session across
             // midnight by day) may be rejected in one and kept in the other.
             let q = sql::normal_equations(by, Pick::Only(&pending), target, filter);
-            let sums = normal_sums(&mut run, &format!("rejected_{pass}"), q, by)?;
-            for (key, (g, sy)) in sums {
-                let w = (groups.get_mut(&key)).context(format!("group {key:?} has no trials"))?;
-                w.kept = (w.kept.0.minus(&g), w.kept.1 - sy);
-            }
+            let name = format!("rejected_{pass}");
+            add_normal_sums(&mut run, (&name, q), by, &mut groups, -1.0)?;
         }
         pass += 1;
         if pass > opts.cascade.passes || groups.values().all(|w| w.done) {
