@@ -47,9 +47,7 @@ pub(crate) fn write_png(
             draw(&root)?;
             root.present().map_err(plot_err)?;
         }
-        let shown = tmp.path().display().to_string();
         tmp.commit(path)
-            .with_context(|| format!("renaming {shown} to {}", path.display()))
     })();
     result.with_context(|| format!("drawing {}", path.display()))
 }
@@ -70,16 +68,22 @@ pub(crate) fn table(md: &mut String, head: &[&str], rows: impl IntoIterator<Item
     }
 }
 
+/// The range [min, max] of the finite `values`; `None` when there are none.
+pub(crate) fn data_range(values: impl IntoIterator<Item = f64>) -> Option<[f64; 2]> {
+    let (lo, hi) = values
+        .into_iter()
+        .filter(|v| v.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+            (lo.min(v), hi.max(v))
+        });
+    lo.is_finite().then_some([lo, hi])
+}
+
 /// Axis range of the finite `values`, padded by `pad` of the span; (−1, 1) when there are none.
 pub(crate) fn padded_range(values: impl Iterator<Item = f64>, pad: f64) -> (f64, f64) {
-    let (lo, hi) = values
-        .filter(|v| v.is_finite())
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
-            (a.min(v), b.max(v))
-        });
-    if !lo.is_finite() {
+    let Some([lo, hi]) = data_range(values) else {
         return (-1.0, 1.0);
-    }
+    };
     let pad = ((hi - lo) * pad).max(1e-6);
     (lo - pad, hi + pad)
 }

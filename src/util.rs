@@ -59,9 +59,7 @@ pub fn write_atomic_with(
         .map_err(|e| e.into_error())
         .context("flushing output")?;
     file.sync_all().ok();
-    let shown = tmp.path().display().to_string();
     tmp.commit(path)
-        .with_context(|| format!("renaming {shown} to {}", path.display()))
 }
 
 /// Canonical form of a path that may not exist yet (canonical parent + file name).

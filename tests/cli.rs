@@ -1078,7 +1078,9 @@ fn exported_rows_are_read_by_pyarrow_and_refit_to_the_same_model() {
     let ours: Vec<(String, usize, f64)> = ["a", "b"]
         .iter()
         .map(|robot| {
-            let rows = g1viz::rows::read_parquet(&d.join(format!("{robot}.parquet"))).unwrap();
+            let rows = g1viz::rows::read_table(&d.join(format!("{robot}.parquet")))
+                .unwrap()
+                .rows;
             let kept: Vec<_> = rows.iter().filter(|r| r.rejected_by.is_none()).collect();
             let mean = kept.iter().map(|r| r.row.y).sum::<f64>() / kept.len() as f64;
             (robot.to_string(), kept.len(), mean)

@@ -91,7 +91,9 @@ fn a_group_equals_identification_on_the_same_rows() {
     let ours: Vec<f64> = serde_json::from_value(groups[0]["theta"].clone()).unwrap();
     let rejected = groups[0]["rejections"].as_array().unwrap().len();
     // The group's first and last reading, to the nanosecond, as the parquet crate reads them.
-    let rows = g1viz::rows::read_parquet(&d.join("rows.parquet")).unwrap();
+    let rows = g1viz::rows::read_table(&d.join("rows.parquet"))
+        .unwrap()
+        .rows;
     let t = rows.iter().filter(|r| r.target == "mbs").map(|r| r.t_ns);
     let (first, last) = (t.clone().min().unwrap(), t.max().unwrap());
     assert_eq!(groups[0]["t_ns"], serde_json::json!([first, last]));
@@ -419,7 +421,7 @@ fn a_trial_across_midnight_is_judged_in_each_day_alone() {
         let out = format!("{name}.parquet");
         g1viz(&["export", "rows", &mcap, "-o", &out, "--robot", "r1"], d);
     }
-    let read = |name: &str| g1viz::rows::read_parquet(&d.join(name)).unwrap();
+    let read = |name: &str| g1viz::rows::read_table(&d.join(name)).unwrap().rows;
     let (mut s1, mut s2) = (read("s1.parquet"), read("s2.parquet"));
     // Midnight (2026-03-15 00:00 UTC) falls in the middle of s1's last trial; s2 follows it
     // a minute after s1 ends, all on the second day.

@@ -83,27 +83,22 @@ pub fn run(a: SimulateArgs) -> Result<()> {
             a.read.signals.as_deref(),
         ],
     )?;
+    let defaults = SimConfig::default();
     let mut cfg = SimConfig {
         preset: a.preset.parse()?,
         seed: a.seed,
+        truth: (a.model.as_deref().map(load_model).transpose()?).unwrap_or(defaults.truth),
+        urdf: a.urdf.clone(),
         with_hand: !a.no_hand,
+        t_start_c: a.t_start.unwrap_or(defaults.t_start_c),
         battery: a.battery.parse()?,
         soc_start: a.soc_start,
+        artefacts: [defaults.artefacts, Artefacts::NONE][usize::from(a.clean)],
         start_day: a.day,
-        ..SimConfig::default()
+        ..defaults
     };
     for e in &a.effects {
         cfg.effects.enable(e)?;
-    }
-    if let Some(m) = &a.model {
-        cfg.truth = load_model(m)?;
-    }
-    cfg.urdf = a.urdf.clone();
-    if let Some(t) = a.t_start {
-        cfg.t_start_c = t;
-    }
-    if a.clean {
-        cfg.artefacts = Artefacts::NONE;
     }
     let truth = match &a.like {
         // Streamed: the recording is read twice (its stamps, then its trajectory as the twin

@@ -97,14 +97,8 @@ pub struct Skipped {
 }
 
 /// Rows of one recording.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Default)]
 pub struct Dataset {
-    /// Pairing used.
-    pub mode: Mode,
-    /// Power sensor used.
-    pub target: Target,
-    /// Reading timing used.
-    pub alignment: Alignment,
     /// The rows, grouped by trial in time order.
     pub rows: Vec<Row>,
     /// Per-trial baselines and statistics of every trial that has rows.
@@ -253,14 +247,7 @@ fn push_finite(rows: &mut Vec<Row>, row: Row) {
 
 /// Build the rows of one recording's trials.
 pub fn build(rec: &Recording, trials: &[TrialWindow], opts: &DatasetOptions) -> Dataset {
-    let mut out = Dataset {
-        mode: opts.mode,
-        target: opts.target,
-        alignment: opts.alignment,
-        rows: Vec::new(),
-        trials: Vec::new(),
-        skipped: Vec::new(),
-    };
+    let mut out = Dataset::default();
     let power = opts.target.series(rec);
     for trial in trials {
         let basis = match trial_basis(rec, trial, opts.target, &opts.alignment, None) {

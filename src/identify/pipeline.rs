@@ -223,7 +223,7 @@ impl<'a> Prepared<'a> {
 
     /// The planned rows of this session (a second streamed pass for a file).
     pub(crate) fn rows(&self, plan: &RowPlan) -> Result<SessionSets> {
-        let mut sets = SessionSets::new(plan);
+        let mut sets = SessionSets::default();
         self.for_each_trial(plan.trials, "rows", &mut |rec, t| {
             sets.add_trial(rec, t, plan);
             Ok(())
@@ -262,9 +262,6 @@ impl<'a> Prepared<'a> {
 pub(crate) fn restrict(d: &Dataset, trials: &[TrialWindow]) -> Dataset {
     let keep: HashSet<usize> = trials.iter().map(|t| t.index).collect();
     Dataset {
-        mode: d.mode,
-        target: d.target,
-        alignment: d.alignment,
         rows: sample::of_trials(&d.rows, &keep, |r| r.trial),
         trials: sample::of_trials(&d.trials, &keep, |b| b.trial),
         skipped: sample::of_trials(&d.skipped, &keep, |s| s.trial),
@@ -509,35 +506,27 @@ fn build_sets(
     opts: &IdentifyOptions,
 ) -> Result<FitInput> {
     let per_session = sessions.iter().zip(rows).zip(kept);
+    // A session whose kept trials give no row is an error naming why.
+    let usable = |p: &Prepared, trials: &[TrialWindow], rowless: bool, skipped: &[Skipped]| {
+        if rowless && !trials.is_empty() {
+            return Err(p.no_usable_trials(skipped));
+        }
+        Ok(())
+    };
     if opts.mode == Mode::Sample {
-        let sets = per_session
-            .map(|((p, r), trials)| {
-                let keep: HashSet<usize> = trials.iter().map(|t| t.index).collect();
-                let d = r.sample_sums.restrict(&keep);
-                if d.sums.is_empty() && !trials.is_empty() {
-                    Err(p.no_usable_trials(&d.skipped))
-                } else {
-                    Ok(d)
-                }
-            })
-            .collect::<Result<Vec<_>>>()?;
-        return Ok(FitInput::Sums(sets));
+        let sets = per_session.map(|((p, r), trials)| {
+            let keep: HashSet<usize> = trials.iter().map(|t| t.index).collect();
+            let d = r.sample_sums.restrict(&keep);
+            usable(p, trials, d.sums.is_empty(), &d.skipped).map(|()| d)
+        });
+        return Ok(FitInput::Sums(sets.collect::<Result<_>>()?));
     }
-    let sets = per_session
-        .map(|((p, r), trials)| {
-            let all = match opts.mode {
-                Mode::Trial => &r.trial,
-                _ => &r.reading,
-            };
-            let d = restrict(all, trials);
-            if d.rows.is_empty() && !trials.is_empty() {
-                Err(p.no_usable_trials(&d.skipped))
-            } else {
-                Ok(d)
-            }
-        })
-        .collect::<Result<Vec<_>>>()?;
-    Ok(FitInput::Rows(sets))
+    let sets = per_session.map(|((p, r), trials)| {
+        let all = [&r.reading, &r.trial][usize::from(opts.mode == Mode::Trial)];
+        let d = restrict(all, trials);
+        usable(p, trials, d.rows.is_empty(), &d.skipped).map(|()| d)
+    });
+    Ok(FitInput::Rows(sets.collect::<Result<_>>()?))
 }
 
 /// Result of stage 5.

@@ -22,6 +22,7 @@ pub(crate) struct RowPlan<'a> {
 }
 
 /// The rows of one session (every trial's reading and trial rows; sample rows as planned).
+#[derive(Default)]
 pub(crate) struct SessionSets {
     pub reading: Dataset,
     pub trial: Dataset,
@@ -32,17 +33,6 @@ pub(crate) struct SessionSets {
     pub sample_sums: SampleSums,
 }
 
-fn empty_set(mode: Mode, plan: &RowPlan) -> Dataset {
-    Dataset {
-        mode,
-        target: plan.target,
-        alignment: plan.alignment,
-        rows: Vec::new(),
-        trials: Vec::new(),
-        skipped: Vec::new(),
-    }
-}
-
 fn extend(to: &mut Dataset, from: Dataset) {
     to.rows.extend(from.rows);
     to.trials.extend(from.trials);
@@ -50,15 +40,6 @@ fn extend(to: &mut Dataset, from: Dataset) {
 }
 
 impl SessionSets {
-    pub(crate) fn new(plan: &RowPlan) -> SessionSets {
-        SessionSets {
-            reading: empty_set(Mode::Reading, plan),
-            trial: empty_set(Mode::Trial, plan),
-            sample_thin: Vec::new(),
-            sample_sums: SampleSums::default(),
-        }
-    }
-
     /// Add the rows of `trial` built on `rec` (which holds at least the trial's window).
     pub(crate) fn add_trial(&mut self, rec: &Recording, trial: &TrialWindow, plan: &RowPlan) {
         let opts = |mode| DatasetOptions {

@@ -51,6 +51,7 @@ use crate::signals::Target;
 use crate::trial::Rejection;
 use crate::util::nan_as_null;
 use crate::{N_JOINTS, N_PARAMS};
+use ModelProblem::Field;
 
 /// The schema version this code writes and reads.
 pub const SCHEMA_VERSION: u32 = 1;
@@ -246,24 +247,10 @@ pub enum ModelProblem {
     /// JSON that does not have the model file's shape (missing fields, wrong types, null θ).
     #[error("does not match the model.json schema: {0}")]
     Schema(String),
-    /// A field whose value is not acceptable.
-    #[error("{message}")]
-    Field {
-        /// The field, e.g. `theta`, `a[3]`, `e["0,1"]`.
-        field: String,
-        /// Its value as found (or a count of its entries).
-        value: String,
-        /// The whole explanation.
-        message: String,
-    },
-}
-
-fn field(name: impl Into<String>, value: impl std::fmt::Display, message: String) -> ModelProblem {
-    ModelProblem::Field {
-        field: name.into(),
-        value: value.to_string(),
-        message,
-    }
+    /// A field whose value is not acceptable: the message names the field (e.g. `theta`,
+    /// `a[3]`, `e["0,1"]`), its value and what was expected.
+    #[error("{0}")]
+    Field(String),
 }
 
 /// The problem of a list field `name` of `n` entries (`unit`) whose length is not `wanted`
@@ -278,8 +265,7 @@ fn length(
     if n == wanted {
         return Ok(());
     }
-    let message = format!("field `{name}` has {n} {unit}, {expected}");
-    Err(field(name, format!("{n} {unit}"), message))
+    Err(Field(format!("field `{name}` has {n} {unit}, {expected}")))
 }
 
 /// One filter and its settings.
@@ -422,21 +408,15 @@ impl ModelFile {
             serde_json::from_str(text).map_err(|e| ModelProblem::Json(e.to_string()))?;
         match value.get("schema_version") {
             None => {
-                return Err(field(
-                    "schema_version",
-                    "missing",
-                    format!("field `schema_version` is missing (expected {SCHEMA_VERSION})"),
-                ));
+                return Err(Field(format!(
+                    "field `schema_version` is missing (expected {SCHEMA_VERSION})"
+                )));
             }
             Some(v) if v.as_u64() == Some(SCHEMA_VERSION as u64) => {}
             Some(v) => {
-                return Err(field(
-                    "schema_version",
-                    v,
-                    format!(
-                        "field `schema_version` is {v}; this g1viz reads version {SCHEMA_VERSION}"
-                    ),
-                ));
+                return Err(Field(format!(
+                    "field `schema_version` is {v}; this g1viz reads version {SCHEMA_VERSION}"
+                )));
             }
         }
         let file: ModelFile =
@@ -449,14 +429,10 @@ impl ModelFile {
         let model_has = format!("the power model has {N_PARAMS}");
         length("theta", self.theta.len(), N_PARAMS, "values", &model_has)?;
         if let Some(p) = self.theta.iter().position(|v| !v.is_finite()) {
-            return Err(field(
-                format!("theta[{p}]"),
-                self.theta[p],
-                format!(
-                    "field `theta[{p}]` ({}) is not a finite number",
-                    PowerModel::param_name(p)
-                ),
-            ));
+            return Err(Field(format!(
+                "field `theta[{p}]` ({}) is not a finite number",
+                PowerModel::param_name(p)
+            )));
         }
         check_magnitudes(&self.theta)?;
         let arm_has = format!("the arm has {N_JOINTS} joints");
@@ -476,14 +452,10 @@ impl ModelFile {
         ] {
             for i in 0..N_JOINTS {
                 if named[i] != from_theta[i] {
-                    return Err(field(
-                        format!("{name}[{i}]"),
-                        named[i],
-                        format!(
-                            "field `{name}[{i}]` = {} disagrees with `theta` ({}) — edit both or only `theta` and the named copies",
-                            named[i], from_theta[i]
-                        ),
-                    ));
+                    return Err(Field(format!(
+                        "field `{name}[{i}]` = {} disagrees with `theta` ({}) — edit both or only `theta` and the named copies",
+                        named[i], from_theta[i]
+                    )));
                 }
             }
         }
@@ -493,17 +465,13 @@ impl ModelFile {
             let key = pair_key(i, j);
             match self.e.get(&key) {
                 None => {
-                    return Err(field("e", "", format!("field `e` has no entry \"{key}\"")));
+                    return Err(Field(format!("field `e` has no entry \"{key}\"")));
                 }
                 Some(&v) if v != expected.e[k] => {
-                    return Err(field(
-                        format!("e[\"{key}\"]"),
-                        v,
-                        format!(
-                            "field `e[\"{key}\"]` = {v} disagrees with `theta` ({})",
-                            expected.e[k]
-                        ),
-                    ));
+                    return Err(Field(format!(
+                        "field `e[\"{key}\"]` = {v} disagrees with `theta` ({})",
+                        expected.e[k]
+                    )));
                 }
                 Some(_) => {}
             }
@@ -526,15 +494,11 @@ impl ModelFile {
         let wanted = target.name();
         let recorded = self.provenance.target.as_str();
         if !recorded.is_empty() && recorded != wanted {
-            return Err(field(
-                "provenance.target",
-                recorded,
-                format!(
-                    "field `provenance.target` is {recorded:?}: the model was identified on the \
-                     {recorded} sensor but is used on the {wanted} sensor here (--target \
-                     {wanted}); pass --target {recorded} or use a model of the {wanted} sensor"
-                ),
-            ));
+            return Err(Field(format!(
+                "field `provenance.target` is {recorded:?}: the model was identified on the \
+                 {recorded} sensor but is used on the {wanted} sensor here (--target \
+                 {wanted}); pass --target {recorded} or use a model of the {wanted} sensor"
+            )));
         }
         Ok(())
     }
@@ -587,11 +551,7 @@ fn check_magnitudes(theta: &[f64]) -> Result<(), ModelProblem> {
             None
         };
         if let Some(why) = problem {
-            return Err(field(
-                format!("theta[{p}]"),
-                v,
-                format!("field `theta[{p}]` ({name}) = {v} {why}"),
-            ));
+            return Err(Field(format!("field `theta[{p}]` ({name}) = {v} {why}")));
         }
     }
     Ok(())
@@ -625,15 +585,11 @@ fn check_joints(model: &[String], session: &[String]) -> Result<(), ModelProblem
         }
         _ => "the model was identified on other joints".to_string(),
     };
-    Err(field(
-        format!("joint_names[{k}]"),
+    Err(Field(format!(
+        "field `joint_names[{k}]` is {}, but the session's joint {k} is {}: {why}",
         shown(m),
-        format!(
-            "field `joint_names[{k}]` is {}, but the session's joint {k} is {}: {why}",
-            shown(m),
-            shown(s)
-        ),
-    ))
+        shown(s)
+    )))
 }
 
 /// Load a model file for use on a session with these joints (URDF names, model order) and

@@ -1032,7 +1032,6 @@ impl<R: Read + Seek> MessageSource for Ros1BagSource<R> {
                 visit(MessageRef {
                     channel,
                     log_time_ns: m.time_ns,
-                    publish_time_ns: m.time_ns,
                     data: &chunk.data[m.start..m.end],
                     file_offset: m.file_offset,
                     row_id: false,

@@ -593,7 +593,6 @@ impl SqliteBag {
                     let m = MessageRef {
                         channel,
                         log_time_ns: time,
-                        publish_time_ns: time,
                         data,
                         file_offset: cur.rowid.max(0) as u64,
                         row_id: true,

@@ -186,7 +186,6 @@ struct RawChunk {
 struct RawMsg {
     channel_id: u16,
     log_time: u64,
-    publish_time: u64,
     /// Which buffer (chunk) holds it and where.
     buf: usize,
     start: usize,
@@ -1208,7 +1207,6 @@ fn scan_records(
                 msgs.push(RawMsg {
                     channel_id,
                     log_time: u64::from_le_bytes(h[6..14].try_into().unwrap_or_default()),
-                    publish_time: u64::from_le_bytes(h[14..22].try_into().unwrap_or_default()),
                     buf: buf_index,
                     start: body_start + 22,
                     end: next,
@@ -1243,10 +1241,8 @@ fn resolve_channel(
             path.display()
         ))
     })?;
-    let schema_err = |error| ReadError::Schema {
-        path: path.to_path_buf(),
-        topic: rec.topic.clone(),
-        error,
+    let schema_err = |error: super::SchemaError| {
+        ReadError::Other(format!("{}: topic {}: {error}", path.display(), rec.topic))
     };
     let encoding = match rec.message_encoding.as_str() {
         "cdr" => Encoding::Cdr,
@@ -1373,7 +1369,6 @@ impl<R: Read + Seek> MessageSource for McapSource<R> {
             visit(MessageRef {
                 channel: &channel,
                 log_time_ns: m.log_time,
-                publish_time_ns: m.publish_time,
                 data,
                 file_offset: m.file_offset,
                 row_id: false,

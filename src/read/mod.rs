@@ -65,8 +65,6 @@ pub struct MessageRef<'a> {
     pub channel: &'a Arc<Channel>,
     /// Recording (log) time in nanoseconds since the Unix epoch.
     pub log_time_ns: u64,
-    /// Publish time in nanoseconds since the Unix epoch (equal to log time where the format has only one).
-    pub publish_time_ns: u64,
     /// Serialised payload.
     pub data: &'a [u8],
     /// Byte offset in the file of the record holding this message, for error messages
@@ -159,29 +157,6 @@ pub enum ReadError {
         offset: u64,
         /// What is wrong.
         what: String,
-    },
-    /// A message could not be decoded with its definition.
-    // The inner error is part of the message, not a `source`: `{:#}` would print it twice.
-    #[error("{path}: topic {topic}: {error} (record at byte offset {offset})")]
-    Decode {
-        /// File.
-        path: PathBuf,
-        /// Topic.
-        topic: String,
-        /// Byte offset of the record.
-        offset: u64,
-        /// Decoder error.
-        error: DecodeError,
-    },
-    /// A message definition could not be parsed or is missing.
-    #[error("{path}: topic {topic}: {error}")]
-    Schema {
-        /// File.
-        path: PathBuf,
-        /// Topic.
-        topic: String,
-        /// Schema error.
-        error: SchemaError,
     },
     /// Anything else, already worded with its context.
     #[error("{0}")]

@@ -100,11 +100,6 @@ impl Session {
             source,
         })
     }
-
-    /// Path that was opened.
-    pub fn path(&self) -> &Path {
-        &self.path
-    }
 }
 
 /// Everything else a [`Session`] does is its reader's: [`MessageSource::read`],

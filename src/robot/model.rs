@@ -78,15 +78,6 @@ pub struct Inertial {
     pub inertia: Matrix3<f64>,
 }
 
-impl Inertial {
-    /// No mass (links without an `<inertial>`).
-    pub const ZERO: Inertial = Inertial {
-        mass: 0.0,
-        com: Vector3::new(0.0, 0.0, 0.0),
-        inertia: Matrix3::new(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
-    };
-}
-
 /// A link of the kinematic tree.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Link {

@@ -178,12 +178,6 @@ pub fn write_parquet(path: &Path, rows: &[TableRow], joint_names: &[String]) -> 
     .with_context(|| format!("writing {}", path.display()))
 }
 
-/// Read a row table written by [`write_parquet`] (or by any tool keeping its column names and
-/// types). Errors name the file and the missing or mistyped column.
-pub fn read_parquet(path: &Path) -> Result<Vec<TableRow>> {
-    Ok(read_table(path)?.rows)
-}
-
 pub(crate) fn open_table(path: &Path) -> Result<ParquetRecordBatchReaderBuilder<File>> {
     let file = File::open(path).with_context(|| format!("opening {}", path.display()))?;
     ParquetRecordBatchReaderBuilder::try_new(file)
@@ -222,8 +216,9 @@ pub(crate) fn joint_names_of(
         .transpose()
 }
 
-/// [`read_parquet`] plus the joint names of the file's [`JOINT_NAMES_KEY`] metadata (an error
-/// when present but not a JSON array of 7 names).
+/// Read a row table written by [`write_parquet`] (or by any tool keeping its column names and
+/// types), with the joint names of the file's [`JOINT_NAMES_KEY`] metadata. Errors name the
+/// file and the missing or mistyped column, or metadata that is not a JSON array of 7 names.
 pub fn read_table(path: &Path) -> Result<RowTable> {
     let builder = open_table(path)?;
     let joint_names = joint_names_of(&builder, path)?;

@@ -279,10 +279,16 @@ struct Segment {
     q1: [f64; N_JOINTS],
 }
 
-/// Segment duration for a move of `max|Δq|` at peak speed `qdot_max`: the smooth step's peak
-/// speed is 1.5·Δq/T, so the fastest joint peaks at `qdot_max`.
-pub fn segment_duration(max_dq: f64, qdot_max: f64) -> f64 {
-    MIN_SEGMENT_S.max(1.5 * max_dq / qdot_max)
+impl Segment {
+    /// The move from `q0` to `q1` starting at `t0`, at peak speed `qdot_max`: the smooth step's
+    /// peak speed is 1.5·Δq/T, so the joint that moves furthest peaks at `qdot_max`.
+    fn new(t0: f64, q0: [f64; N_JOINTS], q1: [f64; N_JOINTS], qdot_max: f64) -> Segment {
+        let max_dq = (0..N_JOINTS)
+            .map(|j| (q1[j] - q0[j]).abs())
+            .fold(0.0, f64::max);
+        let dur = MIN_SEGMENT_S.max(1.5 * max_dq / qdot_max);
+        Segment { t0, dur, q0, q1 }
+    }
 }
 
 /// The commanded joint trajectory of a whole session: piecewise smooth steps, at home elsewhere.
@@ -310,32 +316,19 @@ impl Schedule {
             t += PRE_IDLE_S;
             let traj_start = t;
             let mut q = [0.0; N_JOINTS];
+            let mut go = |t: &mut f64, q0, q1, speed| {
+                let s = Segment::new(*t, q0, q1, speed);
+                *t += s.dur;
+                segments.push(s);
+            };
             for wp in &tr.route.waypoints {
-                let max_dq = (0..N_JOINTS)
-                    .map(|j| (wp[j] - q[j]).abs())
-                    .fold(0.0, f64::max);
-                let dur = segment_duration(max_dq, tr.qdot_max);
-                segments.push(Segment {
-                    t0: t,
-                    dur,
-                    q0: q,
-                    q1: *wp,
-                });
-                t += dur;
+                go(&mut t, q, *wp, tr.qdot_max);
                 q = *wp;
             }
             let traj_end = t;
             t += POST_IDLE_S;
             let post_idle_end = t;
-            let max_q = q.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            let dur = segment_duration(max_q, RETURN_SPEED);
-            segments.push(Segment {
-                t0: t,
-                dur,
-                q0: q,
-                q1: [0.0; N_JOINTS],
-            });
-            t += dur;
+            go(&mut t, q, [0.0; N_JOINTS], RETURN_SPEED);
             times.push(TrialWindow {
                 index: k,
                 t_pre_start: trial_start,
@@ -395,6 +388,13 @@ impl Schedule {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The duration of a move of `dq` on one joint at peak speed `v`.
+    fn segment_duration(dq: f64, v: f64) -> f64 {
+        let mut q1 = [0.0; N_JOINTS];
+        q1[0] = dq;
+        Segment::new(0.0, [0.0; N_JOINTS], q1, v).dur
+    }
 
     #[test]
     fn segment_duration_matches_the_shared_truth_trial() {

@@ -143,12 +143,6 @@ pub fn is_rejected(rejections: &[Rejection], session: usize, trial: usize) -> bo
 }
 
 impl Cascade {
-    /// The IMU filter's threshold k × median σ_ω over `sigmas` (`None` when the filter is
-    /// disabled; NaN when no σ_ω is finite): the value [`Cascade::imu`] tests against.
-    pub fn imu_threshold(&self, sigmas: &[TrialStat]) -> Option<f64> {
-        self.imu_k.map(|k| imu_threshold(sigmas, k))
-    }
-
     /// The IMU filter alone over every trial's σ_ω (none when disabled).
     pub fn imu(&self, sigmas: &[TrialStat]) -> Vec<Rejection> {
         self.imu_k.map(|k| imu_sway(sigmas, k)).unwrap_or_default()

@@ -12,6 +12,8 @@
 use std::path::{Path, PathBuf};
 use std::sync::{Mutex, MutexGuard, Once};
 
+use anyhow::Context;
+
 /// The registered paths.
 static IN_FLIGHT: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
 
@@ -60,12 +62,13 @@ impl TempPath {
         TempPath::register(dir.join(format!(".{name}.tmp{}{suffix}", std::process::id())))
     }
 
-    /// Rename the temporary file to `target` and unregister it. Holds the registry lock, so a
-    /// termination signal either comes before (the temporary file is removed, `target` is not
-    /// touched) or after (`target` is complete).
-    pub fn commit(self, target: &Path) -> std::io::Result<()> {
+    /// Rename the temporary file to `target` and unregister it (an error names both). Holds the
+    /// registry lock, so a termination signal either comes before (the temporary file is
+    /// removed, `target` is not touched) or after (`target` is complete).
+    pub fn commit(self, target: &Path) -> anyhow::Result<()> {
         let mut list = registry();
-        std::fs::rename(&self.path, target)?;
+        let (from, to) = (self.path.display(), target.display());
+        std::fs::rename(&self.path, target).with_context(|| format!("renaming {from} to {to}"))?;
         list.retain(|p| p != &self.path);
         drop(list);
         std::mem::forget(self);

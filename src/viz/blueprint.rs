@@ -779,17 +779,6 @@ pub fn symmetric_range(data: [f64; 2]) -> [f64; 2] {
     [-bound, bound]
 }
 
-/// The range [min, max] of the finite `values`; `None` when there are none.
-pub fn data_range(values: impl IntoIterator<Item = f64>) -> Option<[f64; 2]> {
-    let (lo, hi) = values
-        .into_iter()
-        .filter(|v| v.is_finite())
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
-            (lo.min(v), hi.max(v))
-        });
-    lo.is_finite().then_some([lo, hi])
-}
-
 /// Legend geometry in the stock viewer (egui's default font, device pixel ratio 1): the space
 /// above its first entry [px].
 const LEGEND_TOP_PX: f64 = 18.0;

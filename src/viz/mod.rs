@@ -23,7 +23,7 @@ mod session;
 mod slice;
 mod style;
 
-use blueprint::data_range;
+use crate::plot::data_range;
 pub use blueprint::{Legend, Node, send_blueprint};
 pub use layers::TrialMean;
 pub use overlay::{diagnosis_extras, model_extras};

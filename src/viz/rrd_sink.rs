@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Duration;
 
-use anyhow::{Context, Result, anyhow};
+use anyhow::{Context, Result, anyhow, bail};
 use rerun::external::re_build_info::CrateVersion;
 use rerun::external::re_log_encoding::{Encoder, EncodingOptions};
 use rerun::external::re_log_types::external::re_tuid::Tuid;
@@ -49,16 +49,13 @@ pub(super) struct PendingFile {
 impl RrdFileSink {
     /// Creates the temporary file beside `target` and writes the RRD stream header.
     pub(super) fn create(target: &Path) -> Result<(RrdFileSink, PendingFile)> {
-        let dir = match target.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p,
-            _ => Path::new("."),
-        };
+        let dir = crate::util::folder_of(target);
         std::fs::create_dir_all(dir)
             .with_context(|| format!("creating directory {}", dir.display()))?;
-        let name = target
-            .file_name()
-            .ok_or_else(|| anyhow!("output path {} has no file name", target.display()))?;
-        let guard = crate::util::temp::TempPath::beside(&dir.join(name), "");
+        if target.file_name().is_none() {
+            bail!("output path {} has no file name", target.display());
+        }
+        let guard = crate::util::temp::TempPath::beside(target, "");
         let tmp = guard.path().to_path_buf();
         let file = File::create(&tmp).with_context(|| format!("creating {}", tmp.display()))?;
         let encoder = Encoder::new_eager(
@@ -150,13 +147,7 @@ impl PendingFile {
         file.sync_all()
             .with_context(|| format!("syncing {}", self.tmp.display()))?;
         let guard = self.guard.take().context("already committed")?;
-        guard.commit(&self.target).with_context(|| {
-            format!(
-                "renaming {} to {}",
-                self.tmp.display(),
-                self.target.display()
-            )
-        })
+        guard.commit(&self.target)
     }
 }
 

@@ -392,12 +392,10 @@ fn topic_rates(
     links: usize,
     model: bool,
 ) -> Option<ReplaySize> {
-    let topic = |g: Group| {
-        let name = crate::signals::group_signals(g).into_iter().next();
-        name.and_then(|n| r.map.signals.get(&n))
-            .map(|s| s.topic.clone())
-    };
-    let (state, command) = (topic(Group::State), topic(Group::Command));
+    let (state, command) = (
+        r.map.group_topic(Group::State),
+        r.map.group_topic(Group::Command),
+    );
     let mut size = ReplaySize {
         seconds: 0.0,
         state_hz: 0.0,
@@ -408,19 +406,15 @@ fn topic_rates(
     };
     for (k, path) in paths.iter().enumerate() {
         let info = crate::read::Session::open(path, r.read).ok()?.info().ok()?;
-        let of = |topic: &Option<String>| {
-            info.topics
-                .iter()
-                .find(|t| Some(&t.topic) == topic.as_ref())
-        };
-        if let Some(t) = of(&state) {
+        let of = |topic: Option<&str>| info.topics.iter().find(|t| Some(t.topic.as_str()) == topic);
+        if let Some(t) = of(state) {
             let s = |ns: u64| ns.saturating_sub(info.start_ns) as f64 * 1e-9;
             size.seconds +=
                 (s(t.last_ns).min(slice.to_s) - s(t.first_ns).max(slice.from_s)).max(0.0);
             size.state_hz = [t.rate_hz, size.state_hz][usize::from(k > 0)];
         }
         if k == 0 {
-            size.command_hz = of(&command).map_or(0.0, |t| t.rate_hz);
+            size.command_hz = of(command).map_or(0.0, |t| t.rate_hz);
         }
     }
     Some(size)
