@@ -610,8 +610,9 @@ fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<Str
         let sigmas: Vec<TrialStat> = w.trials.iter().map(stat).collect();
         w.rejections = opts.cascade.imu(&sigmas);
         w.removed = w.rejections.len();
-        if let Some(t) = (opts.cascade.imu_threshold(&sigmas)).filter(|t| t.is_finite()) {
-            imu.push((key.clone(), t));
+        // Every IMU rejection names the group's threshold; a group without one keeps every row.
+        if let Some(r) = w.rejections.first() {
+            imu.push((key.clone(), r.threshold));
         }
     }
     // The IMU filter's rejections are left out in the scan (by their group's threshold, one
