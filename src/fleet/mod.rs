@@ -34,6 +34,7 @@ use datafusion::datasource::physical_plan::{FileGroup, FileScanConfig, FileSourc
 use datafusion::datasource::source::DataSourceExec;
 use datafusion::object_store;
 use datafusion::physical_plan::ExecutionPlan;
+use datafusion::physical_plan::execution_plan::reset_plan_states;
 use datafusion::prelude::{ParquetReadOptions, SessionConfig, SessionContext};
 
 use crate::N_PARAMS;
@@ -222,23 +223,33 @@ impl Engine {
         })
     }
 
-    /// Run one query: planned once, run on the files `chunk` at a time (the results of each
-    /// chunk follow each other: a group in two chunks has a result row in each); its result and
-    /// the bytes of Parquet data it read.
-    pub fn query(&self, sql: &str, chunk: usize) -> Result<(Vec<RecordBatch>, usize)> {
+    /// Run one query: planned once, run on the files `chunk` at a time, each chunk's result
+    /// handed to `each` batch by batch and dropped (a group in two chunks has a result row in
+    /// each), so memory holds one chunk's result however many files there are; the bytes of
+    /// Parquet data it read.
+    pub fn query(
+        &self,
+        sql: &str,
+        chunk: usize,
+        mut each: impl FnMut(&RecordBatch) -> Result<()>,
+    ) -> Result<usize> {
         self.runtime.block_on(async {
             let plan = self.ctx.sql(sql).await?.create_physical_plan().await?;
-            let (mut out, mut bytes) = (Vec::new(), 0);
+            let mut bytes = 0;
             for files in self.paths.chunks(chunk.max(1)) {
                 let plan = Arc::clone(&plan).transform_up(|p| reading(p, files))?;
                 // Else every chunk would read the files the query was planned on.
                 anyhow::ensure!(plan.transformed, "the query plan has no Parquet scan");
-                let plan = plan.data;
+                // Every operator fresh, not only those above the scan: a repartition beside it
+                // (a partitioned join's build side) hands out each partition's stream once.
+                let plan = reset_plan_states(plan.data)?;
                 let task = self.ctx.task_ctx();
-                out.extend(datafusion::physical_plan::collect(Arc::clone(&plan), task).await?);
+                for b in datafusion::physical_plan::collect(Arc::clone(&plan), task).await? {
+                    each(&b)?;
+                }
                 bytes += bytes_scanned(plan.as_ref());
             }
-            Ok((out, bytes))
+            Ok(bytes)
         })
     }
 }
@@ -393,11 +404,17 @@ impl Work {
     }
 }
 
-/// The normal equations and Σy of each group of a [`sql::normal_equations`] result, its blocks
-/// of matrix rows put together.
-fn normal_sums(batches: &[RecordBatch], by: &[Key]) -> Result<BTreeMap<Vec<String>, (Gram, f64)>> {
-    let mut out: BTreeMap<Vec<String>, (Gram, f64)> = BTreeMap::new();
-    for b in batches {
+/// Adds `sign` × the normal equations and Σy of each group of a [`sql::normal_equations`]
+/// result (its blocks of matrix rows put together) to the group's kept sums: the only copy of a
+/// group's normal equations held, whether its rows are added or its rejected trials' taken out.
+fn add_normal_sums(
+    run: &mut Runner,
+    (name, q): (&str, String),
+    by: &[Key],
+    groups: &mut BTreeMap<Vec<String>, Work>,
+    sign: f64,
+) -> Result<()> {
+    run.run(name, q, |b| {
         let block = column_as::<Int64Array>(b, "b", DataType::Int64)?;
         let (n, sy) = (numbers(b, "n")?, numbers(b, "sy")?);
         let mut g = Vec::new();
@@ -407,15 +424,22 @@ fn normal_sums(batches: &[RecordBatch], by: &[Key]) -> Result<BTreeMap<Vec<Strin
             }
         }
         for (r, (key, _)) in result_rows(b, by)?.into_iter().enumerate() {
-            let s = (out.entry(key)).or_insert_with(|| (Gram::zeros(N_PARAMS), 0.0));
+            let w = (groups.get_mut(&key)).context(format!("group {key:?} has no trials"))?;
+            let s = &mut w.kept;
             // Summed: a group's rows may come in several chunks of files.
             if block.value(r) == 0 {
-                (s.0.n, s.1) = (s.0.n + n.value(r) as usize, s.1 + sy.value(r));
+                let n = n.value(r) as usize;
+                s.0.n = if sign > 0.0 {
+                    s.0.n + n
+                } else {
+                    s.0.n.saturating_sub(n)
+                };
+                s.1 += sign * sy.value(r);
             }
             for a in 0..sql::BLOCK {
                 let i = block.value(r) as usize * sql::BLOCK + a;
                 for j in i..=N_PARAMS {
-                    let v = g[a * (N_PARAMS + 1) + j].value(r);
+                    let v = sign * g[a * (N_PARAMS + 1) + j].value(r);
                     match (i, j) {
                         (N_PARAMS, _) => s.0.yy += v,
                         (_, N_PARAMS) => s.0.h[i] += v,
@@ -425,8 +449,8 @@ fn normal_sums(batches: &[RecordBatch], by: &[Key]) -> Result<BTreeMap<Vec<Strin
                 }
             }
         }
-    }
-    Ok(out)
+        Ok(())
+    })
 }
 
 /// Each row of a result with its group key (the `--by` columns' SQL values) and, when the
@@ -508,15 +532,26 @@ struct Runner<'a> {
 }
 
 impl Runner<'_> {
-    fn run(&mut self, name: &str, q: String) -> Result<Vec<RecordBatch>> {
-        let (out, bytes) = (self
-            .engine
-            .query(&q, if self.keep { usize::MAX } else { CHUNK }))
+    /// Run query `q` (named `name` in errors and `--save-sql`), its result batch by batch to `each`.
+    fn run(
+        &mut self,
+        name: &str,
+        q: String,
+        mut each: impl FnMut(&RecordBatch) -> Result<()>,
+    ) -> Result<()> {
+        let mut whole = Vec::new();
+        let chunk = if self.keep { usize::MAX } else { CHUNK };
+        let bytes = (self.engine.query(&q, chunk, |b| {
+            if self.keep {
+                whole.push(b.clone());
+            }
+            each(b)
+        }))
         .with_context(|| format!("running the {name} query"))?;
-        let csv = (self.keep.then(|| to_csv(&out)).transpose()?).unwrap_or_default();
+        let csv = (self.keep.then(|| to_csv(&whole)).transpose()?).unwrap_or_default();
         self.queries.push((name.to_string(), q, csv));
         self.bytes_scanned += bytes;
-        Ok(out)
+        Ok(())
     }
 }
 
@@ -525,12 +560,12 @@ impl Runner<'_> {
 fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<String>, Work>> {
     let (by, target, filter) = (&opts.by, opts.target.as_str(), opts.filter.as_deref());
     let mut groups: BTreeMap<Vec<String>, Work> = BTreeMap::new();
-    for b in run.run("moments", sql::moments(by, target, filter))? {
-        let (n, sigma) = (numbers(&b, "n")?, numbers(&b, "sigma_omega")?);
+    run.run("moments", sql::moments(by, target, filter), |b| {
+        let (n, sigma) = (numbers(b, "n")?, numbers(b, "sigma_omega")?);
         // Reading times stay integer nanoseconds (an f64 rounds them by up to 256 ns).
-        let int = |name| column_as::<Int64Array>(&b, name, DataType::Int64);
+        let int = |name| column_as::<Int64Array>(b, name, DataType::Int64);
         let (t0, t1) = (int("t_min")?, int("t_max")?);
-        for (r, (key, id)) in result_rows(&b, by)?.into_iter().enumerate() {
+        for (r, (key, id)) in result_rows(b, by)?.into_iter().enumerate() {
             let (robot, session, trial) = id.context("moments without trial columns")?;
             let w = groups.entry(key).or_insert_with(|| Work {
                 trials: Vec::new(),
@@ -551,12 +586,14 @@ fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<Str
             w.t_ns = (w.t_ns.0.min(t0.value(r)), w.t_ns.1.max(t1.value(r)));
             w.trials.push((s, trial, sigma.value(r)));
         }
-    }
+        Ok(())
+    })?;
     if groups.is_empty() {
         let picked = filter.map(|f| format!(" where {f}")).unwrap_or_default();
         bail!("no rows of target {target} in the tables{picked}");
     }
-    for w in groups.values_mut() {
+    let mut imu = Vec::new();
+    for (key, w) in groups.iter_mut() {
         // The engine returns rows in no fixed order: sessions by name and trials by session
         // and index, so the filters see the same sequence (and list their rejections in the
         // same order) on every run.
@@ -572,14 +609,16 @@ fn scan_groups(run: &mut Runner, opts: &FleetOptions) -> Result<BTreeMap<Vec<Str
         let stat = |&(s, t, sigma): &(usize, u32, f64)| TrialStat::new(s, t as usize, sigma);
         let sigmas: Vec<TrialStat> = w.trials.iter().map(stat).collect();
         w.rejections = opts.cascade.imu(&sigmas);
+        w.removed = w.rejections.len();
+        // Every IMU rejection names the group's threshold; a group without one keeps every row.
+        if let Some(r) = w.rejections.first() {
+            imu.push((key.clone(), r.threshold));
+        }
     }
-    // The IMU filter's rejections are left out in the scan, not subtracted after another.
-    let imu = pending(&mut groups);
-    let q = sql::normal_equations(by, Pick::Except(&imu), target, filter);
-    for (key, kept) in normal_sums(&run.run("normal_equations", q)?, by)? {
-        let w = (groups.get_mut(&key)).context(format!("group {key:?} has no trials"))?;
-        w.kept = kept;
-    }
+    // The IMU filter's rejections are left out in the scan (by their group's threshold, one
+    // inline row a group), not subtracted after another.
+    let q = sql::normal_equations(by, Pick::ImuBelow(&imu), target, filter);
+    add_normal_sums(run, ("normal_equations", q), by, &mut groups, 1.0)?;
     Ok(groups)
 }
 
@@ -606,9 +645,9 @@ fn residual_pass(
     let q = sql::residuals(by, &thetas, target, filter);
     // Each fitted group's trials' residual sums and rows, in the order of its trials.
     let mut sums: BTreeMap<Vec<String>, Vec<(f64, f64)>> = BTreeMap::new();
-    for b in run.run(&format!("residuals_{pass}"), q)? {
-        let (n, sum) = (numbers(&b, "n")?, numbers(&b, "s_resid")?);
-        for (r, (key, id)) in result_rows(&b, by)?.into_iter().enumerate() {
+    run.run(&format!("residuals_{pass}"), q, |b| {
+        let (n, sum) = (numbers(b, "n")?, numbers(b, "s_resid")?);
+        for (r, (key, id)) in result_rows(b, by)?.into_iter().enumerate() {
             let (robot, session, trial) = id.context("residuals without trial columns")?;
             let w = groups
                 .get(&key)
@@ -625,7 +664,8 @@ fn residual_pass(
             let t = &mut sums.entry(key).or_insert_with(|| vec![(0.0, 0.0); len])[k];
             (t.0, t.1) = (t.0 + sum.value(r), t.1 + n.value(r));
         }
-    }
+        Ok(())
+    })?;
     for (key, _) in thetas {
         let w = groups.get_mut(&key).context("a fitted group")?;
         let m = sums.remove(&key).unwrap_or_default();
@@ -710,11 +750,8 @@ pub fn fit_fleet(
             // Each group's own rejected trials only: a trial in two groups (a session across
             // midnight by day) may be rejected in one and kept in the other.
             let q = sql::normal_equations(by, Pick::Only(&pending), target, filter);
-            let sums = normal_sums(&run.run(&format!("rejected_{pass}"), q)?, by)?;
-            for (key, (g, sy)) in sums {
-                let w = (groups.get_mut(&key)).context(format!("group {key:?} has no trials"))?;
-                w.kept = (w.kept.0.minus(&g), w.kept.1 - sy);
-            }
+            let name = format!("rejected_{pass}");
+            add_normal_sums(&mut run, (&name, q), by, &mut groups, -1.0)?;
         }
         pass += 1;
         if pass > opts.cascade.passes || groups.values().all(|w| w.done) {

@@ -96,8 +96,11 @@ pub enum Pick<'a> {
     /// queries return them): a trial that spans two groups (a session across midnight by day) is
     /// picked in the group that rejected it alone.
     Only(&'a [(Vec<String>, TrialId)]),
-    /// Every row but those of these trials in these groups (none: every row).
-    Except(&'a [(Vec<String>, TrialId)]),
+    /// Every row but those whose σ_ω exceeds its group's IMU threshold (group key, threshold): a
+    /// trial's σ_ω is the same on each of its rows, so these are the IMU filter's rejected trials,
+    /// named in one inline row per group however many trials it rejects. A group not listed keeps
+    /// every row, and so does a row whose σ_ω is NaN (to the filter NaN exceeds nothing).
+    ImuBelow(&'a [(Vec<String>, f64)]),
 }
 
 fn quote(s: &str) -> String {
@@ -114,7 +117,7 @@ fn from_where(keys: &[Key], x: Option<Inline>, target: &str, filter: Option<&str
     if let Some(f) = filter {
         conditions.push(format!("({f})"));
     }
-    let Some((join, list, names)) = x.filter(|x| !x.1.is_empty()) else {
+    let Some((join, list, names, keep)) = x.filter(|x| !x.1.is_empty()) else {
         return format!("FROM rows\nWHERE {}", conditions.join(" AND "));
     };
     let values: Vec<String> = (list.iter())
@@ -134,9 +137,7 @@ fn from_where(keys: &[Key], x: Option<Inline>, target: &str, filter: Option<&str
         on.push("rows.robot = x.x_robot AND rows.session = x.x_session".into());
         on.push("CAST(rows.trial AS BIGINT) = x.x_trial".into());
     }
-    if join == "RIGHT JOIN" {
-        conditions.push("x.x_trial IS NULL".into());
-    }
+    conditions.extend(keep.map(String::from));
     format!(
         "FROM (VALUES {}) AS x({cols}{names}) {join} rows ON {}\nWHERE {}",
         values.join(", "),
@@ -145,20 +146,33 @@ fn from_where(keys: &[Key], x: Option<Inline>, target: &str, filter: Option<&str
     )
 }
 
-/// An inline table for [`from_where`]: the join, its rows (group key, the rest as SQL) and the
-/// rest's column names.
-type Inline<'a> = (&'static str, Vec<(&'a [String], String)>, String);
+/// An inline table for [`from_where`]: the join, its rows (group key, the rest as SQL), the
+/// rest's column names and the condition a row must meet.
+type Inline<'a> = (
+    &'static str,
+    Vec<(&'a [String], String)>,
+    String,
+    Option<&'static str>,
+);
 
-/// The pick's inline table of trials: joined to keep them, or right-joined to drop them.
+/// The pick's inline table: trials joined to keep them, or groups' IMU thresholds right-joined.
 fn picked(pick: Pick) -> Inline {
-    let (join, list) = match pick {
-        Pick::Only(list) => ("JOIN", list),
-        Pick::Except(list) => ("RIGHT JOIN", list),
-    };
-    let rows = (list.iter())
-        .map(|(key, (r, s, t))| (&key[..], format!("{}, {}, {t}", quote(r), quote(s))))
-        .collect();
-    (join, rows, "x_robot, x_session, x_trial".into())
+    match pick {
+        Pick::Only(list) => {
+            let rows = (list.iter())
+                .map(|(key, (r, s, t))| (&key[..], format!("{}, {}, {t}", quote(r), quote(s))))
+                .collect();
+            ("JOIN", rows, "x_robot, x_session, x_trial".into(), None)
+        }
+        Pick::ImuBelow(list) => {
+            let rows = (list.iter())
+                .map(|(key, t)| (&key[..], format!("{t:e}")))
+                .collect();
+            let keep =
+                "(x.x_imu IS NULL OR rows.sigma_omega <= x.x_imu OR isnan(rows.sigma_omega))";
+            ("RIGHT JOIN", rows, "x_imu".into(), Some(keep))
+        }
+    }
 }
 
 /// `SELECT` key expressions and the `GROUP BY` list, with the trial columns when `per_trial`.
@@ -225,7 +239,7 @@ pub fn residuals(
         })
         .collect();
     let names: Vec<String> = (0..N_PARAMS).map(|p| format!("t_{p}")).collect();
-    let x = ("JOIN", rows, names.join(", "));
+    let x = ("JOIN", rows, names.join(", "), None);
     format!(
         "SELECT {}\n{}\nGROUP BY {}",
         select.join(", "),
@@ -316,14 +330,13 @@ mod tests {
         );
         assert!(q.contains("g_9_49") && !q.contains("g_10_0"));
         assert!(q.contains("GROUP BY robot, day, b"));
-        let q = normal_equations(&[Key::Robot], Pick::Except(&picked[..1]), "mbs", None);
+        let imu = [(vec!["r'1".to_string()], 0.125)];
+        let q = normal_equations(&[Key::Robot], Pick::ImuBelow(&imu), "mbs", None);
         assert!(
-            q.contains("FROM (VALUES ('r''1', 'r''1', 'a.mcap', 3)) AS x(x_k0, x_robot, x_session, x_trial) RIGHT JOIN rows"),
+            q.contains("FROM (VALUES ('r''1', 1.25e-1)) AS x(x_k0, x_imu) RIGHT JOIN rows"),
             "{q}"
         );
-        assert!(q.contains("x.x_trial IS NULL"));
-        assert!(
-            !normal_equations(&[Key::Robot], Pick::Except(&[]), "mbs", None).contains("x_trial")
-        );
+        assert!(q.contains("rows.sigma_omega <= x.x_imu"), "{q}");
+        assert!(!normal_equations(&[Key::Robot], Pick::ImuBelow(&[]), "mbs", None).contains("x_"));
     }
 }
