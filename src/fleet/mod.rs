@@ -428,12 +428,7 @@ fn add_normal_sums(
             let s = &mut w.kept;
             // Summed: a group's rows may come in several chunks of files.
             if block.value(r) == 0 {
-                let n = n.value(r) as usize;
-                s.0.n = if sign > 0.0 {
-                    s.0.n + n
-                } else {
-                    s.0.n.saturating_sub(n)
-                };
+                s.0.n = (s.0.n as f64 + sign * n.value(r)) as usize;
                 s.1 += sign * sy.value(r);
             }
             for a in 0..sql::BLOCK {

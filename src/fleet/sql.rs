@@ -117,7 +117,7 @@ fn from_where(keys: &[Key], x: Option<Inline>, target: &str, filter: Option<&str
     if let Some(f) = filter {
         conditions.push(format!("({f})"));
     }
-    let Some((join, list, names, keep)) = x.filter(|x| !x.1.is_empty()) else {
+    let Some((join, list, names)) = x.filter(|x| !x.1.is_empty()) else {
         return format!("FROM rows\nWHERE {}", conditions.join(" AND "));
     };
     let values: Vec<String> = (list.iter())
@@ -137,7 +137,11 @@ fn from_where(keys: &[Key], x: Option<Inline>, target: &str, filter: Option<&str
         on.push("rows.robot = x.x_robot AND rows.session = x.x_session".into());
         on.push("CAST(rows.trial AS BIGINT) = x.x_trial".into());
     }
-    conditions.extend(keep.map(String::from));
+    if join == "RIGHT JOIN" {
+        // Only the IMU thresholds are right-joined: the rows of groups not listed are kept.
+        let keep = "(x.x_imu IS NULL OR rows.sigma_omega <= x.x_imu OR isnan(rows.sigma_omega))";
+        conditions.push(keep.into());
+    }
     format!(
         "FROM (VALUES {}) AS x({cols}{names}) {join} rows ON {}\nWHERE {}",
         values.join(", "),
@@ -146,14 +150,9 @@ fn from_where(keys: &[Key], x: Option<Inline>, target: &str, filter: Option<&str
     )
 }
 
-/// An inline table for [`from_where`]: the join, its rows (group key, the rest as SQL), the
-/// rest's column names and the condition a row must meet.
-type Inline<'a> = (
-    &'static str,
-    Vec<(&'a [String], String)>,
-    String,
-    Option<&'static str>,
-);
+/// An inline table for [`from_where`]: the join, its rows (group key, the rest as SQL) and the
+/// rest's column names.
+type Inline<'a> = (&'static str, Vec<(&'a [String], String)>, String);
 
 /// The pick's inline table: trials joined to keep them, or groups' IMU thresholds right-joined.
 fn picked(pick: Pick) -> Inline {
@@ -162,15 +161,13 @@ fn picked(pick: Pick) -> Inline {
             let rows = (list.iter())
                 .map(|(key, (r, s, t))| (&key[..], format!("{}, {}, {t}", quote(r), quote(s))))
                 .collect();
-            ("JOIN", rows, "x_robot, x_session, x_trial".into(), None)
+            ("JOIN", rows, "x_robot, x_session, x_trial".into())
         }
         Pick::ImuBelow(list) => {
             let rows = (list.iter())
                 .map(|(key, t)| (&key[..], format!("{t:e}")))
                 .collect();
-            let keep =
-                "(x.x_imu IS NULL OR rows.sigma_omega <= x.x_imu OR isnan(rows.sigma_omega))";
-            ("RIGHT JOIN", rows, "x_imu".into(), Some(keep))
+            ("RIGHT JOIN", rows, "x_imu".into())
         }
     }
 }
@@ -239,7 +236,7 @@ pub fn residuals(
         })
         .collect();
     let names: Vec<String> = (0..N_PARAMS).map(|p| format!("t_{p}")).collect();
-    let x = ("JOIN", rows, names.join(", "), None);
+    let x = ("JOIN", rows, names.join(", "));
     format!(
         "SELECT {}\n{}\nGROUP BY {}",
         select.join(", "),
