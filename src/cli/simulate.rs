@@ -93,7 +93,11 @@ pub fn run(a: SimulateArgs) -> Result<()> {
         t_start_c: a.t_start.unwrap_or(defaults.t_start_c),
         battery: a.battery.parse()?,
         soc_start: a.soc_start,
-        artefacts: [defaults.artefacts, Artefacts::NONE][usize::from(a.clean)],
+        artefacts: if a.clean {
+            Artefacts::NONE
+        } else {
+            defaults.artefacts
+        },
         start_day: a.day,
         ..defaults
     };

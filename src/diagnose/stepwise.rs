@@ -50,6 +50,9 @@ pub(crate) trait Stage {
     /// Of passing candidates of equal held-out gain, the first wins (the library selection)
     /// rather than the last (discovery, the rest power).
     const FIRST_OF_EQUALS: bool = false;
+    /// Whether [`Stage::ranked`] reads every scored candidate: otherwise a failing one is dropped
+    /// once scored (discovery scores thousands, each with a prediction per reading).
+    const RANKS: bool = false;
     /// Called before `step`'s candidates are scored (discovery's family tests run here).
     fn begin(&mut self, _step: usize) {}
     /// Candidate `i` scored on the current model at `step` (`None`: closed, or no fit).
@@ -78,28 +81,39 @@ pub(crate) trait Stage {
 pub(crate) fn forward<S: Stage>(stage: &mut S, n: usize, max_steps: usize) -> Result<()> {
     for k in 1..=max_steps {
         stage.begin(k);
-        let mut scored = Vec::new();
-        for i in 0..n {
-            if let Some(s) = stage.score(i, k)? {
-                scored.push((stage.passes(i, &s, k), s));
-            }
-        }
-        let mut ranked: Vec<(bool, &S::Scored)> = scored.iter().map(|(ok, s)| (*ok, s)).collect();
-        ranked.sort_by(|a, b| {
-            (b.0, b.1.gain())
-                .partial_cmp(&(a.0, a.1.gain()))
-                .unwrap_or(std::cmp::Ordering::Equal)
-        });
-        stage.ranked(k, &ranked);
-        let (mut passing, mut failed) = (Vec::new(), None);
-        for (ok, s) in scored {
-            if ok {
-                passing.push(s);
-            } else if failed
+        // The best failing candidate by gain, the first of equals in candidate order.
+        let (mut scored, mut failed) = (Vec::new(), None);
+        let mut fail = |s: S::Scored| {
+            if failed
                 .as_ref()
                 .is_none_or(|b: &S::Scored| s.gain() > b.gain())
             {
                 failed = Some(s);
+            }
+        };
+        for i in 0..n {
+            if let Some(s) = stage.score(i, k)? {
+                match stage.passes(i, &s, k) {
+                    false if !S::RANKS => fail(s),
+                    ok => scored.push((ok, s)),
+                }
+            }
+        }
+        if S::RANKS {
+            let mut ranked: Vec<(bool, &S::Scored)> =
+                scored.iter().map(|(ok, s)| (*ok, s)).collect();
+            ranked.sort_by(|a, b| {
+                (b.0, b.1.gain())
+                    .partial_cmp(&(a.0, a.1.gain()))
+                    .unwrap_or(std::cmp::Ordering::Equal)
+            });
+            stage.ranked(k, &ranked);
+        }
+        let mut passing = Vec::new();
+        for (ok, s) in scored {
+            match ok {
+                true => passing.push(s),
+                false => fail(s),
             }
         }
         let winner = stage.take(&mut passing);

@@ -522,7 +522,11 @@ fn build_sets(
         return Ok(FitInput::Sums(sets.collect::<Result<_>>()?));
     }
     let sets = per_session.map(|((p, r), trials)| {
-        let all = [&r.reading, &r.trial][usize::from(opts.mode == Mode::Trial)];
+        let all = if opts.mode == Mode::Trial {
+            &r.trial
+        } else {
+            &r.reading
+        };
         let d = restrict(all, trials);
         usable(p, trials, d.rows.is_empty(), &d.skipped).map(|()| d)
     });

@@ -271,6 +271,7 @@ struct Library<'a, 'd> {
 impl stepwise::Stage for Library<'_, '_> {
     type Scored = Candidate;
     const FIRST_OF_EQUALS: bool = true;
+    const RANKS: bool = true;
 
     fn score(&self, i: usize, step: usize) -> Result<Option<Candidate>> {
         let (c, data, cur) = (self.cands.get(i).copied(), self.data, &self.sel.last);
