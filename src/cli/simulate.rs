@@ -87,11 +87,12 @@ pub fn run(a: SimulateArgs) -> Result<()> {
     let mut cfg = SimConfig {
         preset: a.preset.parse()?,
         seed: a.seed,
+        // The cheap checks before the model's load.
+        battery: a.battery.parse()?,
         truth: (a.model.as_deref().map(load_model).transpose()?).unwrap_or(defaults.truth),
         urdf: a.urdf.clone(),
         with_hand: !a.no_hand,
         t_start_c: a.t_start.unwrap_or(defaults.t_start_c),
-        battery: a.battery.parse()?,
         soc_start: a.soc_start,
         artefacts: if a.clean {
             Artefacts::NONE

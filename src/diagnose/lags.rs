@@ -99,7 +99,6 @@ pub(crate) fn filter_trials(
     skipped: Vec<(usize, String)>,
     rows: &TrialRows,
     opts: &DiagnoseOptions,
-    reference: Option<Vec<f64>>,
     imu: bool,
 ) -> Result<(Vec<TrialMeta>, Vec<Rejection>, Vec<usize>)> {
     let cascade = Cascade {
@@ -121,7 +120,7 @@ pub(crate) fn filter_trials(
             .filter(|&i| !crate::trial::is_rejected(rej, 0, metas[i].window.index))
             .collect();
         let lag0 = rows.subset(&kept);
-        let res = base_trial_residuals(&lag0, kept.len(), opts.folds, reference.clone())?;
+        let res = base_trial_residuals(&lag0, kept.len(), opts)?;
         Ok::<_, anyhow::Error>(
             kept.iter()
                 .zip(&res)
@@ -164,12 +163,10 @@ pub(crate) fn usable_trials(
 ) -> Result<Usable> {
     let power = &info.power;
     let w = (opts.sensor_window_s).unwrap_or(crate::timing::Alignment::NOMINAL.window_s);
-    let reference: Option<Vec<f64>> = opts.reference.map(|m| m.to_vector().to_vec());
     let lags = coarse_lags(opts);
     let all: Vec<usize> = (0..all_metas.len()).collect();
     let (mut totals, rows0) = lag_grams(samples, (power, w), &all_metas, &all, &lags, true)?;
-    let (metas, rejected, kept) =
-        filter_trials(&all_metas, skipped, &rows0, opts, reference, true)?;
+    let (metas, rejected, kept) = filter_trials(&all_metas, skipped, &rows0, opts, true)?;
     if metas.len() < 2 * opts.folds.max(2) {
         anyhow::bail!(
             "{}: only {} usable trials (need at least {} for {}-fold cross-validation by trial)",
@@ -207,16 +204,13 @@ pub(crate) fn usable_trials(
 pub(crate) fn base_trial_residuals(
     rows: &Rows,
     n_trials: usize,
-    folds: usize,
-    reference: Option<Vec<f64>>,
+    opts: &DiagnoseOptions,
 ) -> Result<Vec<Option<f64>>> {
+    let (folds, reference) = (opts.folds, opts.reference_theta());
     let data = PowerData::new(vec![0.0], vec![rows.clone()], n_trials, folds, reference);
     let fit = data.fit_all(&[], 0)?;
     let resid = (0..rows.len()).map(|r| (rows.trial[r], rows.y[r] - fit.predict(&rows.x[r])));
-    let (sum, cnt) = super::locate::trial_sums(resid, n_trials);
-    Ok((0..n_trials)
-        .map(|t| (cnt[t] > 0).then(|| sum[t] / cnt[t] as f64))
-        .collect())
+    Ok(super::locate::trial_means(resid, n_trials))
 }
 
 /// Coarse lags of the scan: 0 and 0.05 s steps up to [`DiagnoseOptions::max_lag_s`].
@@ -229,15 +223,20 @@ pub(crate) fn coarse_lags(opts: &DiagnoseOptions) -> Vec<f64> {
     lags
 }
 
-/// Append `part` (one trial's rows) to `to`, keeping only the readings in `common` and
-/// numbering them as trial `ti`.
-fn append_common(to: &mut Rows, mut part: Rows, common: &HashSet<u64>, ti: usize) {
-    let keep: Vec<bool> = part
+/// Keep only the readings of `rows` whose stamps (their bits) are in `common`.
+fn retain_common(rows: &mut Rows, common: &HashSet<u64>) {
+    let keep: Vec<bool> = rows
         .t
         .iter()
         .map(|t| common.contains(&t.to_bits()))
         .collect();
-    part.retain(|r, _| keep[r].then_some(ti));
+    rows.retain(|r, trial| keep[r].then_some(trial));
+}
+
+/// Append `part` (one trial's rows) to `to`, keeping only the readings in `common` and
+/// numbering them as trial `ti`.
+fn append_common(to: &mut Rows, mut part: Rows, common: &HashSet<u64>, ti: usize) {
+    retain_common(&mut part, common);
     to.append(part, ti);
 }
 
@@ -250,7 +249,6 @@ fn append_common(to: &mut Rows, mut part: Rows, common: &HashSet<u64>, ti: usize
 /// trial to `extra` (the torque rows). Only the rows at lag 0 (`rows0`, with the descriptor
 /// features) are kept; another lag's rows are built again, in one more pass, when a stage
 /// needs them (on a 10 h session the rows of all ~29 lags took ~500 MB).
-#[allow(clippy::too_many_arguments)]
 pub(crate) fn scan_lags<'a>(
     samples: &'a mut dyn TrialSource,
     power: &'a PowerSeries,
@@ -258,9 +256,9 @@ pub(crate) fn scan_lags<'a>(
     mut rows0: Rows,
     totals: &[Gram],
     opts: &DiagnoseOptions,
-    reference: Option<Vec<f64>>,
     extra: &mut dyn FnMut(&Recording, usize, &TrialMeta),
 ) -> Result<PowerData<'a>> {
+    let reference = opts.reference_theta();
     // Resolved by `diagnose_trials` before the stages run.
     let w = opts
         .sensor_window_s
@@ -320,12 +318,7 @@ pub(crate) fn scan_lags<'a>(
         ti += 1;
         Ok(())
     })?;
-    let keep: Vec<bool> = rows0
-        .t
-        .iter()
-        .map(|t| common.contains(&t.to_bits()))
-        .collect();
-    rows0.retain(|r, trial| keep[r].then_some(trial));
+    retain_common(&mut rows0, &common);
     let grams = grams.into_iter().map(FoldGramsBuilder::finish).collect();
     let at = lags.clone();
     let source = Box::new(move |want: &[usize]| -> Result<Vec<Rows>> {

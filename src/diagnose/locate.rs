@@ -74,16 +74,20 @@ pub struct Correlate {
 }
 
 /// Per-trial sums of `(trial, value)` pairs (trials < `n`) and the values counted.
-pub(crate) fn trial_sums(
-    pairs: impl Iterator<Item = (usize, f64)>,
-    n: usize,
-) -> (Vec<f64>, Vec<usize>) {
+fn trial_sums(pairs: impl Iterator<Item = (usize, f64)>, n: usize) -> (Vec<f64>, Vec<usize>) {
     let (mut sum, mut cnt) = (vec![0.0; n], vec![0usize; n]);
     for (t, v) in pairs {
         sum[t] += v;
         cnt[t] += 1;
     }
     (sum, cnt)
+}
+
+/// Per-trial means of `(trial, value)` pairs (trials < `n`); `None` for a trial without any.
+pub(crate) fn trial_means(pairs: impl Iterator<Item = (usize, f64)>, n: usize) -> Vec<Option<f64>> {
+    let (sum, cnt) = trial_sums(pairs, n);
+    let mean = |(s, c): (f64, usize)| (c > 0).then(|| s / c as f64);
+    sum.into_iter().zip(cnt).map(mean).collect()
 }
 
 /// The residual statistics of the readings `members` of `rows`.
@@ -94,14 +98,9 @@ fn group_stats(
     members: &[usize],
     n_trials: usize,
 ) -> Group {
-    let (sum, cnt) = trial_sums(members.iter().map(|&r| (rows.trial[r], resid[r])), n_trials);
+    let pairs = members.iter().map(|&r| (rows.trial[r], resid[r]));
+    let means: Vec<f64> = trial_means(pairs, n_trials).into_iter().flatten().collect();
     let sq: f64 = members.iter().map(|&r| resid[r] * resid[r]).sum();
-    let means: Vec<f64> = sum
-        .iter()
-        .zip(&cnt)
-        .filter(|(_, c)| **c > 0)
-        .map(|(s, c)| s / *c as f64)
-        .collect();
     let n = members.len();
     let bias = if n > 0 {
         members.iter().map(|&r| resid[r]).sum::<f64>() / n as f64

@@ -325,7 +325,6 @@ fn run(
         ..opts.clone()
     };
     let opts = &resolved;
-    let reference: Option<Vec<f64>> = opts.reference.map(|m| m.to_vector().to_vec());
     stage(3, "rows at the coarse lags, filters");
     let u = usable_trials(info, samples, all_metas, skipped, opts)?;
     let metas = &u.metas;
@@ -340,7 +339,6 @@ fn run(
         u.rows0,
         &u.totals,
         opts,
-        reference,
         &mut |rec, ti, meta| {
             if let Some(a) = arm {
                 torque::trial_rows(rec, ti, meta, a, stride, &mut torque_rows);

@@ -55,6 +55,13 @@ pub struct DiagnoseOptions {
     pub meter_flows: Vec<String>,
 }
 
+impl DiagnoseOptions {
+    /// The reference model's parameter vector, when there is one.
+    pub(crate) fn reference_theta(&self) -> Option<Vec<f64>> {
+        self.reference.map(|m| m.to_vector().to_vec())
+    }
+}
+
 impl Default for DiagnoseOptions {
     fn default() -> Self {
         DiagnoseOptions {

@@ -319,12 +319,11 @@ pub(crate) fn build_rows(
     trials: &[TrialMeta],
     lag: f64,
     width: f64,
-    with_locate: bool,
 ) -> Rows {
     let mut rows = Rows::default();
     for (ti, meta) in trials.iter().enumerate() {
         let feats = TrialFeatures::none();
-        let part = trial_rows(rec, power, meta, &feats, (lag, width), with_locate);
+        let part = trial_rows(rec, power, meta, &feats, (lag, width), false);
         rows.append(part, ti);
     }
     rows
@@ -447,7 +446,7 @@ mod tests {
                 },
             };
             let id = build_dataset(&rec, std::slice::from_ref(&trial), &opts);
-            let rows = build_rows(&rec, &rec.mbs, &metas, lag, w, false);
+            let rows = build_rows(&rec, &rec.mbs, &metas, lag, w);
             assert!(
                 id.rows.len() > 30,
                 "W {w}, lag {lag}: {} rows",

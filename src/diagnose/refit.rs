@@ -75,13 +75,13 @@ pub(crate) fn refit_final(
         Quality { r2, rmse_w }
     };
     let per_trial = |pred: &[f64]| {
-        let sums = |v: &[f64]| {
-            locate::trial_sums(rows0.trial.iter().copied().zip(v.iter().copied()), n_trials)
+        let means = |v: &[f64]| {
+            locate::trial_means(rows0.trial.iter().copied().zip(v.iter().copied()), n_trials)
         };
-        let ((ys, c), (ps, _)) = (sums(y), sums(pred));
-        let keep: Vec<usize> = (0..n_trials).filter(|&t| c[t] > 0).collect();
-        let yt: Vec<f64> = keep.iter().map(|&t| ys[t] / c[t] as f64).collect();
-        let pt: Vec<f64> = keep.iter().map(|&t| ps[t] / c[t] as f64).collect();
+        // The trials with readings.
+        let (yt, pt): (Vec<f64>, Vec<f64>) = (means(y).into_iter().zip(means(pred)))
+            .filter_map(|(y, p)| y.zip(p))
+            .unzip();
         let (r2, rmse_w) = r2_rmse(&yt, &pt);
         Quality { r2, rmse_w }
     };

@@ -11,6 +11,7 @@ use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 
 use super::Diagnosis;
+use super::locate::trial_means;
 use crate::plot::{
     Area, FONT, md_cell, padded_range, plot_err, register_font, table, tick_label, write_png,
 };
@@ -430,23 +431,12 @@ fn draw_hypotheses(a: &Area, d: &Diagnosis) -> Result<()> {
 fn per_trial(d: &Diagnosis) -> Vec<(f64, f64, f64)> {
     let r = &d.replay;
     let n = r.trial.iter().max().map_or(0, |t| t + 1);
-    let mean = |v: &[f64]| trial_means(&r.trial, v, n);
+    let mean = |v: &[f64]| trial_means(r.trial.iter().copied().zip(v.iter().copied()), n);
     let (m, b, a) = (mean(&r.measured_w), mean(&r.before_w), mean(&r.after_w));
-    // The trials with readings (a reading's measured power is finite).
-    let mut v: Vec<(f64, f64, f64)> = (0..n)
-        .filter(|&t| !m[t].is_nan())
-        .map(|t| (m[t], b[t], a[t]))
-        .collect();
+    // The trials with readings.
+    let mut v: Vec<(f64, f64, f64)> = (0..n).filter_map(|t| Some((m[t]?, b[t]?, a[t]?))).collect();
     v.sort_by(|a, b| a.0.total_cmp(&b.0));
     v
-}
-
-/// The mean of `values` per trial of `n` (`trial`: each value's), NaN for a trial without any.
-pub(super) fn trial_means(trial: &[usize], values: &[f64], n: usize) -> Vec<f64> {
-    let (sum, cnt) =
-        super::locate::trial_sums(trial.iter().copied().zip(values.iter().copied()), n);
-    let mean = |(s, &c): (&f64, &usize)| if c > 0 { s / c as f64 } else { f64::NAN };
-    sum.iter().zip(&cnt).map(mean).collect()
 }
 
 fn draw_before_after(a: &Area, d: &Diagnosis) -> Result<()> {

@@ -60,12 +60,12 @@ pub(crate) trait Stage {
     /// Whether `s`, candidate `i`, passes the gates at `step`'s Holm level.
     fn passes(&self, i: usize, s: &Self::Scored, step: usize) -> bool;
     /// Every candidate scored at `step` with whether it passes, best first: those that pass,
-    /// then by held-out gain, equals in candidate order (the library's ranking, its forms and
-    /// its rivals read them).
-    fn ranked(&mut self, _step: usize, _ranked: &[(bool, &Self::Scored)]) {}
-    /// The step's winner, taken out of `passing`: the best by held-out gain ([`best`]).
-    fn take(&self, passing: &mut Vec<Self::Scored>) -> Option<Self::Scored> {
-        best(passing, Self::FIRST_OF_EQUALS).map(|k| passing.swap_remove(k))
+    /// then by held-out gain, equals in candidate order; and the step's winner (the library's
+    /// ranking, its forms and its rivals read them).
+    fn ranked(&mut self, _: usize, _: &[(bool, &Self::Scored)], _: Option<&Self::Scored>) {}
+    /// The step's winner among `passing`: the best by held-out gain ([`best`]).
+    fn choose(&self, passing: &[Self::Scored]) -> Option<usize> {
+        best(passing, Self::FIRST_OF_EQUALS)
     }
     /// At step 1: the best candidate by gain that failed the gates, beside the winner if any.
     fn rejected(&mut self, _failed: &Self::Scored, _winner: Option<&Self::Scored>) {}
@@ -82,7 +82,7 @@ pub(crate) fn forward<S: Stage>(stage: &mut S, n: usize, max_steps: usize) -> Re
     for k in 1..=max_steps {
         stage.begin(k);
         // The best failing candidate by gain, the first of equals in candidate order.
-        let (mut scored, mut failed) = (Vec::new(), None);
+        let (mut passing, mut failing, mut failed) = (Vec::new(), Vec::new(), None);
         let mut fail = |s: S::Scored| {
             if failed
                 .as_ref()
@@ -94,29 +94,27 @@ pub(crate) fn forward<S: Stage>(stage: &mut S, n: usize, max_steps: usize) -> Re
         for i in 0..n {
             if let Some(s) = stage.score(i, k)? {
                 match stage.passes(i, &s, k) {
-                    false if !S::RANKS => fail(s),
-                    ok => scored.push((ok, s)),
+                    true => passing.push(s),
+                    false if S::RANKS => failing.push(s),
+                    false => fail(s),
                 }
             }
         }
+        let w = stage.choose(&passing);
         if S::RANKS {
-            let mut ranked: Vec<(bool, &S::Scored)> =
-                scored.iter().map(|(ok, s)| (*ok, s)).collect();
+            // Each part in candidate order: the sort keeps equals so.
+            let mut ranked: Vec<(bool, &S::Scored)> = (passing.iter().map(|s| (true, s)))
+                .chain(failing.iter().map(|s| (false, s)))
+                .collect();
             ranked.sort_by(|a, b| {
                 (b.0, b.1.gain())
                     .partial_cmp(&(a.0, a.1.gain()))
                     .unwrap_or(std::cmp::Ordering::Equal)
             });
-            stage.ranked(k, &ranked);
+            stage.ranked(k, &ranked, w.map(|w| &passing[w]));
         }
-        let mut passing = Vec::new();
-        for (ok, s) in scored {
-            match ok {
-                true => passing.push(s),
-                false => fail(s),
-            }
-        }
-        let winner = stage.take(&mut passing);
+        failing.into_iter().for_each(fail);
+        let winner = w.map(|w| passing.swap_remove(w));
         if k == 1
             && let Some(f) = &failed
         {

@@ -110,9 +110,9 @@ pub(crate) fn sensor_window(
     let rec = &held;
     let power = &info.power;
     let nominal = Alignment::NOMINAL;
-    let all_rows = build_rows(rec, power, &metas, 0.0, nominal.window_s, false);
+    let all_rows = build_rows(rec, power, &metas, 0.0, nominal.window_s);
     let metas = without_outliers(metas, all_rows, opts)?;
-    let reference = build_rows(rec, power, &metas, 0.0, nominal.window_s, false);
+    let reference = build_rows(rec, power, &metas, 0.0, nominal.window_s);
     let mut drifting = |cands: &[(Alignment, f64)]| {
         fixed_set_fits(rec, power, &metas, &reference, cands, |_| {}).scores()
     };
@@ -143,7 +143,7 @@ pub(crate) fn sensor_window(
         held_out_contest(&per_trial, &folds)
     };
     let (judged, lag_s) = judge(&est, &mut score, &mut contest, opts.bic_threshold);
-    let other = build_rows(rec, &info.other, &metas, 0.0, nominal.window_s, false);
+    let other = build_rows(rec, &info.other, &metas, 0.0, nominal.window_s);
     let mut on_other = |cands: &[(Alignment, f64)]| {
         fixed_set_fits(rec, &info.other, &metas, &other, cands, |_| {}).scores()
     };
@@ -441,8 +441,7 @@ fn without_outliers(
     opts: &DiagnoseOptions,
 ) -> Result<Vec<TrialMeta>> {
     let rows = TrialRows::new(rows, metas.len());
-    let reference = opts.reference.map(|m| m.to_vector().to_vec());
-    Ok(filter_trials(&metas, Vec::new(), &rows, opts, reference, false)?.0)
+    Ok(filter_trials(&metas, Vec::new(), &rows, opts, false)?.0)
 }
 
 /// The library mechanisms the window is judged beside, each one pooled column (its raw features
@@ -588,14 +587,14 @@ mod tests {
         rec.state.tau[k][2] = f64::NAN;
         let bus = super::super::bus_model(&DiagnoseOptions::default());
         let (metas, _) = trial_meta(&rec, &windows, bus);
-        let reference = build_rows(&rec, &rec.mbs, &metas, 0.0, 0.2, false);
+        let reference = build_rows(&rec, &rec.mbs, &metas, 0.0, 0.2);
         let cands: Vec<Alignment> = [(0.2, 0.0), (0.5, 0.1), (0.05, 0.3), (1.0, 1.0), (1.5, 0.0)]
             .map(|(window_s, lag_s)| Alignment { window_s, lag_s })
             .to_vec();
         let got =
             fixed_set_fits(&rec, &rec.mbs, &metas, &reference, &still(&cands), |_| {}).scores();
         for (a, got) in cands.iter().zip(got) {
-            let rows = build_rows(&rec, &rec.mbs, &metas, a.lag_s, a.window_s, false);
+            let rows = build_rows(&rec, &rec.mbs, &metas, a.lag_s, a.window_s);
             let mut gram = crate::lsq::Gram::zeros(N_SCAN);
             let mut y = Vec::new();
             for r in 0..rows.len() {

@@ -166,37 +166,16 @@ pub struct Identification {
 /// One session segmented by the segmentation pass ([`crate::session`]): its trials, σ_ω of each,
 /// the joint states the sensor-timing search reads, and the source of each trial's samples.
 pub(crate) struct Prepared<'a> {
-    pub source: PathBuf,
-    pub seg: Segmentation,
-    /// σ_ω over each trial's analysis window, in `seg.trials` order.
-    pub sigmas: Vec<f64>,
-    /// The session has joint-state samples.
-    pub has_state: bool,
-    /// Winding temperatures of the first joint-state sample.
-    pub first_temp_c: Option<[f64; N_JOINTS]>,
-    /// Problems met while reading a file.
-    pub warnings: Vec<String>,
-    /// Joint states (and the power series) of `subset_trials`.
-    pub subset: Recording,
-    /// The trials the segmentation pass held for the timing search (every n-th).
-    pub subset_trials: Vec<TrialWindow>,
+    /// What the segmentation pass found (its held trials: the timing search's).
+    pub pass: session::Pass1,
     /// Each trial's samples: the file (its spill, else a ranged read) or the recording in memory.
     trials: RefCell<Box<dyn TrialSource + 'a>>,
 }
 
 impl<'a> Prepared<'a> {
-    fn new(p1: session::Pass1, trials: Box<dyn TrialSource + 'a>) -> Prepared<'a> {
-        Prepared {
-            source: p1.source,
-            seg: p1.seg,
-            sigmas: p1.sigmas,
-            has_state: p1.has_state,
-            first_temp_c: p1.first_temp_c,
-            warnings: p1.warnings,
-            subset: p1.held,
-            subset_trials: p1.held_trials,
-            trials: RefCell::new(trials),
-        }
+    fn new(pass: session::Pass1, trials: Box<dyn TrialSource + 'a>) -> Prepared<'a> {
+        let trials = RefCell::new(trials);
+        Prepared { pass, trials }
     }
 
     /// Segment a recording in memory (the segmentation pass fed its batches).
@@ -243,17 +222,30 @@ impl<'a> Prepared<'a> {
         self.trials
             .borrow_mut()
             .for_each(trials, on_trial)
-            .with_context(|| format!("{} ({what})", self.source.display()))
+            .with_context(|| format!("{} ({what})", self.pass.source.display()))
     }
 
     /// After the timing search: a streamed session keeps only the power series and the clock of
     /// its held joint states.
     pub(crate) fn release_subset(&mut self) {
-        self.subset.state = Default::default();
+        self.pass.held.state = Default::default();
     }
 
     pub(crate) fn no_usable_trials(&self, skipped: &[Skipped]) -> anyhow::Error {
-        no_usable_trials(&self.source, self.has_state, &self.seg, skipped)
+        let p = &self.pass;
+        no_usable_trials(&p.source, p.has_state, &p.seg, skipped)
+    }
+
+    /// The session's summary, with its trials without rows (`skipped`).
+    pub(crate) fn summary(self, skipped: Vec<Skipped>) -> SessionSummary {
+        let p = self.pass;
+        SessionSummary {
+            source: p.source,
+            segmentation: p.seg,
+            skipped,
+            first_temp_c: p.first_temp_c,
+            warnings: p.warnings,
+        }
     }
 }
 
@@ -314,10 +306,11 @@ fn imu_statistics(sessions: &[Prepared]) -> Vec<TrialStat> {
         .iter()
         .enumerate()
         .flat_map(|(s, p)| {
-            p.seg
+            p.pass
+                .seg
                 .trials
                 .iter()
-                .zip(&p.sigmas)
+                .zip(&p.pass.sigmas)
                 .map(move |(t, &sigma)| TrialStat::new(s, t.index, sigma))
         })
         .collect()
@@ -329,7 +322,8 @@ fn trials_kept(sessions: &[Prepared], rejections: &[Rejection]) -> Vec<Vec<Trial
         .iter()
         .enumerate()
         .map(|(s, p)| {
-            p.seg
+            p.pass
+                .seg
                 .trials
                 .iter()
                 .filter(|t| !trial::is_rejected(rejections, s, t.index))
@@ -352,7 +346,7 @@ pub(crate) fn resolve_alignment(
     match opts.alignment {
         AlignmentChoice::Given(a) => Ok((a, None)),
         AlignmentChoice::Auto => {
-            let counts: Vec<usize> = sessions.iter().map(|p| p.seg.trials.len()).collect();
+            let counts: Vec<usize> = sessions.iter().map(|p| p.pass.seg.trials.len()).collect();
             let stride = search_stride(&counts, opts.search_trials);
             let thinned: Vec<Vec<TrialWindow>> = kept
                 .iter()
@@ -365,18 +359,18 @@ pub(crate) fn resolve_alignment(
                 .collect();
             let mut loaded: Vec<Option<Recording>> = Vec::new();
             for (p, t) in sessions.iter().zip(&thinned) {
-                let held: HashSet<usize> = p.subset_trials.iter().map(|t| t.index).collect();
+                let held: HashSet<usize> = p.pass.held_trials.iter().map(|t| t.index).collect();
                 loaded.push(match t.iter().all(|t| held.contains(&t.index)) {
                     true => None,
                     false => Some(
                         session::hold_pass(
                             &mut **p.trials.borrow_mut(),
-                            session::clock_of(&p.subset),
+                            session::clock_of(&p.pass.held),
                             t,
                             session::copy_window,
                         )
                         .with_context(|| {
-                            format!("reading {} (timing search)", p.source.display())
+                            format!("reading {} (timing search)", p.pass.source.display())
                         })?,
                     ),
                 });
@@ -385,7 +379,7 @@ pub(crate) fn resolve_alignment(
                 .iter()
                 .zip(&thinned)
                 .zip(&loaded)
-                .map(|((p, t), l)| (l.as_ref().unwrap_or(&p.subset), t.as_slice()))
+                .map(|((p, t), l)| (l.as_ref().unwrap_or(&p.pass.held), t.as_slice()))
                 .collect();
             let est = dataset::estimate_alignment(&pairs, opts.target)?;
             Ok((est.best, Some(est)))
@@ -425,7 +419,7 @@ fn session_rows(
             let plan = RowPlan {
                 target: opts.target,
                 alignment,
-                trials: &p.seg.trials,
+                trials: &p.pass.seg.trials,
                 // The sample pairing's comparison, thinned now; a per-sample fit scores its own
                 // rows instead.
                 sample_trials: if opts.mode != Mode::Sample {
@@ -691,7 +685,7 @@ fn per_trial_table(
     for (s, (p, r)) in sessions.iter().zip(rows).enumerate() {
         per_trial.extend(trial_predictions(
             s,
-            &p.seg,
+            &p.pass.seg,
             &r.reading,
             &r.trial,
             theta,
@@ -729,7 +723,7 @@ fn identify_prepared(sessions: Vec<Prepared>, opts: &IdentifyOptions) -> Result<
         bail!("identify needs at least one recording");
     }
     // Stage 1 check: a session without a single trial is an error.
-    if let Some(p) = sessions.iter().find(|p| p.seg.trials.is_empty()) {
+    if let Some(p) = sessions.iter().find(|p| p.pass.seg.trials.is_empty()) {
         return Err(p.no_usable_trials(&[]));
     }
     let mut rejections = opts.filters.imu(&imu_statistics(&sessions));
@@ -760,13 +754,7 @@ fn identify_prepared(sessions: Vec<Prepared>, opts: &IdentifyOptions) -> Result<
     let sessions = sessions
         .into_iter()
         .zip(input.into_skipped())
-        .map(|(p, skipped)| SessionSummary {
-            source: p.source,
-            segmentation: p.seg,
-            skipped,
-            first_temp_c: p.first_temp_c,
-            warnings: p.warnings,
-        })
+        .map(|(p, skipped)| p.summary(skipped))
         .collect();
     Ok(Identification {
         model,
@@ -804,21 +792,19 @@ fn session_breakdown(
         .zip(retained)
         .enumerate()
         .map(|(s, ((p, r), kept))| {
-            let rejected = p
-                .seg
-                .trials
+            let rejected = (p.pass.seg.trials)
                 .iter()
                 .filter(|t| trial::is_rejected(rejections, s, t.index))
                 .count();
             let used = restrict(&r.reading, kept);
             SessionBreakdown {
-                source: p.source.clone(),
-                trials: p.seg.trials.len(),
+                source: p.pass.source.clone(),
+                trials: p.pass.seg.trials.len(),
                 used: used.trials.len(),
                 rejected,
                 without_rows: used.skipped.len(),
                 reading: quality(theta, &used.rows),
-                first_temp_c: p.first_temp_c,
+                first_temp_c: p.pass.first_temp_c,
             }
         })
         .collect()

@@ -86,14 +86,14 @@ fn validate_prepared(
     prepared: Prepared,
     opts: &IdentifyOptions,
 ) -> Result<Validation> {
-    if prepared.seg.trials.is_empty() {
+    if prepared.pass.seg.trials.is_empty() {
         return Err(prepared.no_usable_trials(&[]));
     }
     let prepared = [prepared];
     let mut notes = Vec::new();
     // A model is being applied, not fitted: a session too short to estimate the sensor timing
     // from still validates, at the sensor's nominal timing (said in the notes).
-    let all = std::slice::from_ref(&prepared[0].seg.trials);
+    let all = std::slice::from_ref(&prepared[0].pass.seg.trials);
     let alignment = match resolve_alignment(&prepared, all, opts) {
         Ok((a, _)) => a,
         Err(e) => {
@@ -110,7 +110,7 @@ fn validate_prepared(
     let sets = p.rows(&RowPlan {
         target: opts.target,
         alignment,
-        trials: &p.seg.trials,
+        trials: &p.pass.seg.trials,
         sample_trials: &[],
         sample_stride: 1,
         full_sample_trials: &[],
@@ -120,7 +120,7 @@ fn validate_prepared(
     if trial_set.rows.is_empty() {
         return Err(p.no_usable_trials(&trial_set.skipped));
     }
-    let seg = &p.seg;
+    let seg = &p.pass.seg;
     let mut per_trial = trial_predictions(0, seg, reading_set, trial_set, &theta, |_| false);
     let sigmas: Vec<TrialStat> = trial_set
         .trials
@@ -166,13 +166,7 @@ fn validate_prepared(
         terms,
         shares_percent: terms.shares_percent(),
         alignment,
-        session: SessionSummary {
-            skipped: sets.trial.skipped.clone(),
-            source: p.source,
-            segmentation: p.seg,
-            first_temp_c: p.first_temp_c,
-            warnings: p.warnings,
-        },
+        session: p.summary(sets.trial.skipped.clone()),
         per_trial,
     })
 }

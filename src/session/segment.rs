@@ -25,17 +25,20 @@ use crate::trial::{self, SegmentOptions, Segmentation, TrialWindow};
 
 /// What the segmentation pass found.
 pub(crate) struct Pass1 {
+    /// The session's file (its first, or the recording's source).
     pub source: PathBuf,
     pub seg: Segmentation,
     /// σ_ω over each trial's analysis window, in `seg.trials` order.
     pub sigmas: Vec<f64>,
     /// Joint states (t, τ, q̇) of `held_trials`' windows plus the whole power series.
     pub held: Recording,
+    /// The trials held (every n-th, [`Holder`]).
     pub held_trials: Vec<TrialWindow>,
     /// Winding temperatures of the first joint-state sample.
     pub first_temp_c: Option<[f64; N_JOINTS]>,
     /// The session has joint-state samples.
     pub has_state: bool,
+    /// Problems met while reading a file.
     pub warnings: Vec<String>,
 }
 

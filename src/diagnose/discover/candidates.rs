@@ -5,6 +5,7 @@
 use crate::N_JOINTS;
 use crate::diagnose::family::{KEPT_PER_TERM, Screen, Shape, Term, step_levels};
 use crate::diagnose::fields::FieldTable;
+use crate::diagnose::locate::trial_means;
 use crate::diagnose::reading_rows::Rows;
 use crate::diagnose::stats::{pearson, span, step_threshold};
 
@@ -145,16 +146,12 @@ pub(super) const LOADS: usize = Term::ALL.len();
 
 /// Share of a series' variance that lies within trials.
 pub(super) fn within_share(v: &[f64], trial: &[usize], n_trials: usize) -> f64 {
-    let mut s = vec![0.0; n_trials];
-    let mut c = vec![0usize; n_trials];
-    for (x, &t) in v.iter().zip(trial) {
-        s[t] += x;
-        c[t] += 1;
-    }
+    let means = trial_means(trial.iter().copied().zip(v.iter().copied()), n_trials);
     let mean = v.iter().sum::<f64>() / v.len().max(1) as f64;
     let (mut within, mut total) = (0.0, 0.0);
     for (x, &t) in v.iter().zip(trial) {
-        let m = s[t] / c[t] as f64;
+        // Some: trial t holds x.
+        let m = means[t].unwrap_or_default();
         within += (x - m).powi(2);
         total += (x - mean).powi(2);
     }

@@ -1,10 +1,12 @@
 //! What discovery reports: the terms found (with their ties), the best rejected, and what
 //! was tried.
 
+use std::iter::zip;
+
 use crate::diagnose::Quality;
+use crate::diagnose::locate::trial_means;
 use crate::diagnose::meters::{MeterCheck, MeterDrift, artefact_name, checks, per_trial};
 use crate::diagnose::reading_rows::{Rows, TrialMeta};
-use crate::diagnose::report::trial_means;
 use crate::diagnose::select::Param;
 use crate::diagnose::trials::SessionInfo;
 
@@ -210,7 +212,12 @@ impl DiscoveryReport {
         let n = metas.len();
         let cols: Vec<Vec<f64>> = (self.accepted.iter())
             .filter(|t| t.contribution.len() == rows.len())
-            .map(|t| trial_means(&rows.trial, &t.contribution, n))
+            .map(|t| {
+                let pairs = zip(rows.trial.iter().copied(), t.contribution.iter().copied());
+                // NaN for a trial without readings.
+                let means = trial_means(pairs, n).into_iter();
+                means.map(|m| m.unwrap_or(f64::NAN)).collect()
+            })
             .collect();
         if cols.len() == self.accepted.len() && !cols.is_empty() {
             let found = checks(target, &diff(&net1, &net2), &cols);

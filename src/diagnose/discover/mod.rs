@@ -261,14 +261,13 @@ impl stepwise::Stage for Stepping<'_, '_, '_> {
         self.search.passes(s, self.level(i, step))
     }
 
-    /// The best of the `passing` candidates by held-out gain, taken out of them — or, when it
-    /// is a term × signal not significantly better than the plain pooled term it contains,
-    /// that pooled term: the signal is not what the data support.
-    fn take(&self, passing: &mut Vec<Scored>) -> Option<Scored> {
+    /// The best of the `passing` candidates by held-out gain — or, when it is a term × signal
+    /// not significantly better than the plain pooled term it contains, that pooled term: the
+    /// signal is not what the data support.
+    fn choose(&self, passing: &[Scored]) -> Option<usize> {
         let k = stepwise::best(passing, false)?;
         let refs: Vec<&Scored> = passing.iter().collect();
-        let k = simpler_nested(self.search, &passing[k], &refs).unwrap_or(k);
-        Some(passing.swap_remove(k))
+        Some(simpler_nested(self.search, &passing[k], &refs).unwrap_or(k))
     }
 
     fn rejected(&mut self, f: &Scored, winner: Option<&Scored>) {

@@ -169,27 +169,26 @@ impl<'a, 'd> Search<'a, 'd> {
         let fit = self.base.fit(&cols).ok()?;
         let (p, rel, before, after) = self.base.compare(cur.0, &fit.pred);
         let n = self.base.rows.len().max(1) as f64;
-        let added: Vec<f64> = (0..self.base.rows.len())
-            .map(|r| {
-                (own.iter().enumerate())
-                    .map(|(j, c)| c[r] * fit.gamma[prev.len() + j])
-                    .sum::<f64>()
-            })
-            .collect();
-        let contrib: f64 = added.iter().map(|a| a * a).sum();
         // A loss the model lacks (a one-sided form of a library mechanism, on its own or
         // changing with a signal) draws power: a negative coefficient — for a term × signal, a
         // negative coefficient of the plain term that best reproduces what it adds — is another
         // term's remainder, not that loss. A term × a nearly constant signal is a free level:
         // the braking side's current times an IMU angle, its level negative, stood in for the
         // driving side's loss (fuzz seed 1088541151).
-        let loss_sign = match self.cands[i].kind {
-            Kind::Pooled(t) | Kind::Product(t, ..) if t.level_is_new() => {
-                let level = self.rv.pooled(t);
-                added.iter().zip(level).map(|(a, g)| a * g).sum::<f64>() > 0.0
-            }
-            _ => true,
+        let level = match self.cands[i].kind {
+            Kind::Pooled(t) | Kind::Product(t, ..) if t.level_is_new() => Some(self.rv.pooled(t)),
+            _ => None,
         };
+        // What it adds per reading: the sum of squares, and the projection on that level.
+        let (mut contrib, mut on_level) = (0.0, 0.0);
+        for r in 0..self.base.rows.len() {
+            let a: f64 = (own.iter().enumerate())
+                .map(|(j, c)| c[r] * fit.gamma[prev.len() + j])
+                .sum();
+            contrib += a * a;
+            on_level += level.map_or(0.0, |g| a * g[r]);
+        }
+        let loss_sign = level.is_none() || on_level > 0.0;
         let plausible =
             fit.gamma.iter().all(|g| g.is_finite()) && (contrib / n).sqrt() <= y_rms && loss_sign;
         Some(Scored {

@@ -303,12 +303,11 @@ impl stepwise::Stage for Library<'_, '_> {
     /// The first step's ranking; the forms of the winner's mechanism compared at the step that
     /// accepts one of them (of every mechanism at the first step when none is accepted); the
     /// winner's rival ([`Selection::rivals`]).
-    fn ranked(&mut self, step: usize, ranked: &[(bool, &Candidate)]) {
+    fn ranked(&mut self, step: usize, ranked: &[(bool, &Candidate)], w: Option<&Candidate>) {
         if step == 1 {
             self.sel.first_step = ranked.iter().map(|c| c.1.score.clone()).collect();
         }
-        // The winner: the first (of equal gains too: the stage's rule) if it passes.
-        let winner = ranked.first().filter(|c| c.0).map(|c| &c.1.score.id);
+        let winner = w.map(|c| &c.score.id);
         let m = winner.map(|id| mechanism(id));
         if winner.is_some() || step == 1 {
             let forms = compare_forms(self.data, ranked, self.rule.alpha, m);
