@@ -27,6 +27,13 @@ pub struct Param {
 }
 
 impl Param {
+    /// Inside the physical limits `(lo, hi)`: outside only where the estimate is, by two
+    /// standard errors (noise at a limit does not turn a true effect into a location).
+    pub(crate) fn within(&self, (lo, hi): (f64, f64)) -> bool {
+        let e = 2.0 * self.std_err.max(0.0);
+        self.value + e >= lo && self.value - e <= hi
+    }
+
     /// `name` (`symbol`) = `value` ± `std_err` `unit`.
     pub fn new(
         name: impl Into<String>,
@@ -259,9 +266,7 @@ pub(super) fn score_term(
     let held = compare(data, cur, &next.cv.pred);
     let score = HypothesisScore {
         delta_bic: next.bic - cur.bic,
-        // Outside the physical range only where the estimate is, by two standard errors.
-        plausible: param.value + 2.0 * param.std_err.max(0.0) >= h.plausible.0
-            && param.value - 2.0 * param.std_err.max(0.0) <= h.plausible.1,
+        plausible: param.within(h.plausible),
         step,
         ..held.score(h.id, h.title, "power", vec![param])
     };
