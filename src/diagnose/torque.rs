@@ -233,8 +233,8 @@ fn payload_score(rows: &[TorqueRow], cv: &TorqueCv, n_trials: usize) -> Hypothes
     // what the arm lifts (Unitree rates the G1 arm at 2–3 kg; 5 kg), held within a hand's reach
     // of the wrist (0.3 m). A lower bound above 0 (20 g until stop 53) called a 22 g object,
     // found at p = 6e-26, implausible (fuzz seed 373267248).
-    let plausible = params[0].within((0.0, 5.0))
-        && params[1..].iter().all(|p| p.within((-0.3, 0.3)));
+    let plausible =
+        params[0].within((0.0, 5.0)) && params[1..].iter().all(|p| p.within((-0.3, 0.3)));
     let title = "payload at the hand the URDF lacks (point mass)";
     HypothesisScore {
         delta_bic,
