@@ -24,7 +24,9 @@
 
 use serde::{Deserialize, Serialize};
 
+use super::family::{dot, residual};
 use super::reading_rows::{TrialMeta, baseline_readings};
+use super::rest::{DRIFT_TRIALS, drift_basis};
 use super::stats::t_upper_tail;
 use crate::lsq::Gram;
 use crate::signals::{PowerSeries, Target};
@@ -217,7 +219,7 @@ pub(crate) fn checks(target: Target, diff: &[f64], cols: &[Vec<f64>]) -> Vec<Opt
 pub struct MeterDrift {
     /// The meter diagnosed ("main-board" or "battery").
     pub meter: String,
-    /// How its rest reading changes: "linearly over the session" or "in a step … s after the
+    /// How its rest reading changes: "drifting over the session" or "in a step … s after the
     /// first trial".
     pub form: String,
     /// Change of its rest reading over the session [W].
@@ -239,7 +241,7 @@ pub struct MeterDrift {
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub fields: Vec<String>,
     /// Its form in time: first trial's start [s], the span of the trials' starts [s], and the
-    /// step's place as a share of that span (`None`: linear).
+    /// step's place as a share of that span (`None`: a linear trend).
     #[serde(skip)]
     pub(crate) form_at: (f64, f64, Option<f64>),
 }
@@ -251,15 +253,51 @@ impl MeterDrift {
         if fields.is_empty() || self.check.artefact() {
             return;
         }
-        let more = fields.len().saturating_sub(FIELDS_NAMED);
-        let mut named = fields[..fields.len() - more].join(" or ");
+        self.fields = fields;
+        self.name = self.describe();
+    }
+
+    /// One sentence naming it: a meter's artefact, or a location — a drift said first as the
+    /// recorded fields the rest power follows, where there are any.
+    fn describe(&self) -> String {
+        let (c, b, se) = (&self.check, self.change_w, self.std_err_w);
+        let (meter, other) = (&c.meter, &c.other);
+        let change = match self.form_at.2 {
+            Some(_) => format!("its reading changes by {b:+.2} ± {se:.2} W {}", self.form),
+            None => format!("its reading drifts by {b:+.2} ± {se:.2} W over the session"),
+        };
+        let shown = format!("it shows {}", c.shown());
+        let located = match c.verdict {
+            MeterVerdict::Artefact => {
+                return format!(
+                    "an artefact of the {meter} meter: {change} (an offset, or a gain change of {:+.2} % at its rest reading of {:.1} W), which the {other} meter does not show ({shown}; a change of the rail's power shows on both) — a correction of that meter's reading, not physics of the arm",
+                    100.0 * b / self.rest_w,
+                    self.rest_w,
+                );
+            }
+            MeterVerdict::Load => format!(
+                "the {meter} meter's rest reading: {change}, and the {other} meter shows it too ({shown}): a change of the rail's power — located, its cause not identified; not claimed"
+            ),
+            MeterVerdict::Undecided => format!(
+                "the {meter} meter's rest reading: {change}; the {other} meter cannot tell a change of the rail's power from an artefact of the {meter} meter ({shown}) — located, not claimed"
+            ),
+        };
+        if self.fields.is_empty() {
+            return located;
+        }
+        let more = self.fields.len().saturating_sub(FIELDS_NAMED);
+        let mut named = self.fields[..self.fields.len() - more].join(" or ");
         if more > 0 {
             named += &format!(" or {more} more");
         }
-        self.name += &format!(
-            "; of the recorded fields the rest power follows {named} best (not told apart)"
-        );
-        self.fields = fields;
+        match self.form_at.2 {
+            None => format!(
+                "the rail's rest power drifts with {named} (the recorded fields it follows best, not told apart) — {located}"
+            ),
+            Some(_) => format!(
+                "{located}; of the recorded fields the rest power follows {named} best (not told apart)"
+            ),
+        }
     }
 
     /// `power` (the diagnosed meter's readings) with this artefact taken out: what every stage
@@ -282,10 +320,10 @@ impl MeterDrift {
 /// Most fields named in a located change's sentence (the JSON lists all).
 const FIELDS_NAMED: usize = 4;
 
-/// Steps of the rest reading tried, as shares of the session (the instant chosen from the data).
-const STEPS: [f64; 13] = [
-    0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5, 0.55, 0.6, 0.65, 0.7, 0.75, 0.8,
-];
+/// Where a step of the rest reading is tried: every boundary between two trials in this middle
+/// share of the session (a step nearer an end has too few trials on one side to tell from the
+/// drift).
+const STEP_SPAN: (f64, f64) = (0.2, 0.8);
 
 /// √((1+ρ)/(1−ρ)), ρ the lag-1 correlation of a residual in time order (bias-corrected, clamped
 /// to [0, [`RHO_MAX`]]):
@@ -306,14 +344,15 @@ fn serial_widening(resid: &[f64]) -> f64 {
 const RHO_MAX: f64 = 0.98;
 
 /// The meters compared over the session: the target meter's rest reading (each trial's pre-idle
-/// mean) is fitted with a linear drift and with a step at each of [`STEPS`]; the best form, if it
-/// beats `alpha` over the forms tried, is checked against the other meter (the slope of
-/// other − target on it, serially widened). It is claimed an artefact of the target meter when
-/// the other meter shows significantly less than all of it (share + 3 s.e. < 1) and can tell
-/// "none" from "all" at all (3 s.e. < 1): a change of the rail's power, a load, shows on both,
-/// and a battery meter that wanders by watts cannot say which it is. Otherwise the change is
-/// returned with the verdict "load" (the other meter resolves it as one) or "undecided": a
-/// location, neither claimed nor corrected.
+/// mean) changes in a step where one stands out of the rail's slow drift
+/// ([`step_beside_drift`]), else it drifts (a trend over the session, [`trend`]); a step at every
+/// place and the trend are the forms tried, each at α over their number. A change is checked
+/// against the other meter (the slope of other − target on it, serially widened). It is claimed
+/// an artefact of the target meter when the other meter shows significantly less than all of it
+/// (share + 3 s.e. < 1) and can tell "none" from "all" at all (3 s.e. < 1): a change of the
+/// rail's power, a load, shows on both, and a battery meter that wanders by watts cannot say
+/// which it is. Otherwise the change is returned with the verdict "load" (the other meter
+/// resolves it as one) or "undecided": a location, neither claimed nor corrected.
 pub(crate) fn compare(
     target: Target,
     power: &PowerSeries,
@@ -336,29 +375,13 @@ pub(crate) fn compare(
     let u: Vec<f64> = keep.iter().map(|&i| (t[i] - t[0]) / span).collect();
     let y: Vec<f64> = keep.iter().map(|&i| rest1[i]).collect();
     let diff: Vec<f64> = keep.iter().map(|&i| rest2[i] - rest1[i]).collect();
-    let mut forms = vec![(None, u.clone())];
-    for s in STEPS {
-        forms.push((
-            Some(s),
-            u.iter().map(|&u| f64::from(u8::from(u > s))).collect(),
-        ));
-    }
-    let m = forms.len() as f64;
-    let (step, x, (b, se)) = forms
-        .into_iter()
-        .filter_map(|(f, x)| slopes(&y, &[&x]).map(|(b, sse, _)| (f, x, (b[0], sse))))
-        .min_by(|a, b| a.2.1.total_cmp(&b.2.1))
-        .map(|(f, x, (b, _))| (f, x, b))?;
-    let form = step.map_or("linearly over the session".to_string(), |s| {
-        format!("in a step {:.0} s after the first trial", s * span)
-    });
-    let df = y.len().saturating_sub(2).max(1) as f64;
-    let p = 2.0 * t_upper_tail((b / se).abs(), df);
-    if p.is_nan() || p >= alpha / m {
-        return None;
-    }
+    let places: Vec<f64> = (u.windows(2).map(|w| 0.5 * (w[0] + w[1])))
+        .filter(|s| (STEP_SPAN.0..=STEP_SPAN.1).contains(s))
+        .collect();
+    let level = alpha / (places.len() + 1) as f64;
+    let c = step_beside_drift(&u, &y, &places, level).or_else(|| trend(&u, &y, level))?;
     // The other meter: diff = other − target regressed on the change; share = 1 + slope.
-    let col: Vec<f64> = x.iter().map(|x| b * x).collect();
+    let col: Vec<f64> = c.x.iter().map(|x| c.b * x).collect();
     let (k, _, _) = slopes(&diff, &[&col])?;
     let (share, share_se) = (1.0 + k[0].0, k[0].1);
     if share.is_nan() {
@@ -375,50 +398,92 @@ pub(crate) fn compare(
         MeterVerdict::Undecided
     };
     let rest_w = finite_mean(y.iter().copied());
-    // A location is judged against a slow drift of the rail's rest power: with the standard
-    // error widened for the residuals WITHOUT the change (under "no change" a drift keeps them
-    // correlated; a step fitted at the best of 14 places takes the drift's largest swing and
-    // leaves white residuals — that widening located sub-watt changes in 3 of 8 null sessions
-    // of a 15-minute fuzz slice).
-    if verdict != MeterVerdict::Artefact {
-        let (my, mx) = (rest_w, finite_mean(x.iter().copied()));
-        let fitted: Vec<f64> = (y.iter().zip(&x))
-            .map(|(y, x)| y - my - b * (x - mx))
+    // A trend is located only against a slow drift of the rail's rest power: its standard error
+    // widened for the residuals WITHOUT it (under "no change" the drift keeps them correlated; a
+    // fitted trend takes part of the drift and leaves them whiter).
+    if verdict != MeterVerdict::Artefact && c.step.is_none() {
+        let (my, mx) = (rest_w, finite_mean(c.x.iter().copied()));
+        let fitted: Vec<f64> = (y.iter().zip(&c.x))
+            .map(|(y, x)| y - my - c.b * (x - mx))
             .collect();
         let h0: Vec<f64> = y.iter().map(|y| y - my).collect();
         let wider = (serial_widening(&h0) / serial_widening(&fitted)).max(1.0);
-        if 2.0 * t_upper_tail((b / (se * wider)).abs(), df) >= alpha / m {
+        let df = y.len().saturating_sub(2).max(1) as f64;
+        if 2.0 * t_upper_tail((c.b / (c.se * wider)).abs(), df) >= level {
             return None;
         }
     }
-    let check = MeterCheck::new(target, (share, share_se), y.len(), verdict);
-    let (meter, other) = (&check.meter, &check.other);
-    let change = format!("its reading changes by {b:+.2} ± {se:.2} W {form}");
-    let shown = format!("it shows {}", check.shown());
-    let name = match verdict {
-        MeterVerdict::Artefact => format!(
-            "an artefact of the {meter} meter: {change} (an offset, or a gain change of {:+.2} % at its rest reading of {rest_w:.1} W), which the {other} meter does not show ({shown}; a change of the rail's power shows on both) — a correction of that meter's reading, not physics of the arm",
-            100.0 * b / rest_w,
-        ),
-        MeterVerdict::Load => format!(
-            "the {meter} meter's rest reading: {change}, and the {other} meter shows it too ({shown}): a change of the rail's power — located, its cause not identified; not claimed"
-        ),
-        MeterVerdict::Undecided => format!(
-            "the {meter} meter's rest reading: {change}; the {other} meter cannot tell a change of the rail's power from an artefact of the {meter} meter ({shown}) — located, not claimed"
-        ),
-    };
-    Some(MeterDrift {
-        meter: check.meter.clone(),
+    let form = c.step.map_or("drifting over the session".to_string(), |s| {
+        format!("in a step {:.0} s after the first trial", s * span)
+    });
+    let mut d = MeterDrift {
+        meter: meter_name(target).into(),
         form,
-        change_w: b,
-        std_err_w: se,
+        change_w: c.b,
+        std_err_w: c.se,
         rest_w,
-        p_value: p,
-        alpha: alpha / m,
-        check,
-        name,
+        p_value: c.p,
+        alpha: level,
+        check: MeterCheck::new(target, (share, share_se), y.len(), verdict),
+        name: String::new(),
         fields: Vec::new(),
-        form_at: (t[0], span, step),
+        form_at: (t[0], span, c.step),
+    };
+    d.name = d.describe();
+    Some(d)
+}
+
+/// A change of the rest reading: its step's place as a share of the session (`None`: a trend),
+/// its regressor per trial, its size [W] with the widened s.e., and its p-value.
+struct Change {
+    step: Option<f64>,
+    x: Vec<f64>,
+    b: f64,
+    se: f64,
+    p: f64,
+}
+
+/// The best step of the rest reading `y` at `places` (shares of the session `u`) beside the
+/// rail's slow drift — the rest-power stage's, piecewise linear over every [`DRIFT_TRIALS`]
+/// trials: it follows a smooth change and not a step —, kept if it passes `level` (t test, the
+/// s.e. widened for the serial correlation of the residuals with the step). A step fitted
+/// alone takes a smooth drift's largest swing: a 15-minute null session was told "a step of
+/// −0.77 W 352 s after the first trial".
+fn step_beside_drift(u: &[f64], y: &[f64], places: &[f64], level: f64) -> Option<Change> {
+    let q = drift_basis(u, DRIFT_TRIALS);
+    let e0 = residual(&q, y);
+    let at = |s: f64| -> Vec<f64> { u.iter().map(|&u| f64::from(u8::from(u > s))).collect() };
+    let explained = |x: &[f64]| dot(x, &e0).powi(2) / dot(x, x);
+    let (s, x) = (places.iter())
+        .map(|&s| (s, residual(&q, &at(s))))
+        .filter(|(_, x)| dot(x, x) > 1e-9)
+        .max_by(|a, b| explained(&a.1).total_cmp(&explained(&b.1)))?;
+    let xx = dot(&x, &x);
+    let b = dot(&x, &e0) / xx;
+    let e1: Vec<f64> = e0.iter().zip(&x).map(|(e, x)| e - b * x).collect();
+    let df = y.len().checked_sub(q.len() + 1).filter(|&d| d > 0)? as f64;
+    let se = (dot(&e1, &e1) / df / xx).sqrt() * serial_widening(&e1);
+    let p = 2.0 * t_upper_tail((b / se).abs(), df);
+    (p < level).then(|| Change {
+        step: Some(s),
+        x: at(s),
+        b,
+        se,
+        p,
+    })
+}
+
+/// A linear trend of the rest reading `y` over the session `u`, kept if its slope passes
+/// `level` ([`slopes`]).
+fn trend(u: &[f64], y: &[f64], level: f64) -> Option<Change> {
+    let (b, se) = slopes(y, &[u])?.0[0];
+    let p = 2.0 * t_upper_tail((b / se).abs(), y.len().saturating_sub(2).max(1) as f64);
+    (p < level).then(|| Change {
+        step: None,
+        x: u.to_vec(),
+        b,
+        se,
+        p,
     })
 }
 
@@ -456,5 +521,97 @@ mod tests {
         let c = c[0].as_ref().unwrap();
         assert_eq!(c.verdict, MeterVerdict::Artefact, "{c:?}");
         assert!(c.share.abs() < 0.1 && c.other == "battery", "{c:?}");
+    }
+
+    /// A session of trials every 16 s with one reading of each meter in each pre-idle: the
+    /// diagnosed (main-board) meter's rest readings `target`, the other meter's `other`.
+    fn session(target: &[f64], other: &[f64]) -> (PowerSeries, PowerSeries, Vec<TrialMeta>) {
+        use crate::diagnose::hypotheses::N_EXTRA;
+        use crate::diagnose::reading_rows::BusModel;
+        let metas = (0..target.len())
+            .map(|i| {
+                let t0 = 16.0 * i as f64;
+                TrialMeta {
+                    window: crate::trial::TrialWindow {
+                        index: i,
+                        t_pre_start: t0,
+                        t_traj_start: t0 + 2.0,
+                        t_traj_end: t0 + 12.0,
+                        t_post_end: t0 + 14.0,
+                        t_return_end: t0 + 15.0,
+                        joints_moved: Vec::new(),
+                        qdot_max_cmd: f64::NAN,
+                        qdot_max_meas: f64::NAN,
+                    },
+                    tau0_sq: [0.0; crate::N_JOINTS],
+                    extra0: [0.0; N_EXTRA],
+                    sigma_omega: 0.0,
+                    bus: BusModel {
+                        model: crate::power::PowerModel::PAPER,
+                        volts: 48.0,
+                    },
+                    n_samples: 0,
+                    width_s: None,
+                }
+            })
+            .collect();
+        let t: Vec<f64> = (0..target.len()).map(|i| 16.0 * i as f64 + 1.5).collect();
+        let series = |w: &[f64]| PowerSeries {
+            t: t.clone(),
+            watts: w.to_vec(),
+        };
+        (series(target), series(other), metas)
+    }
+
+    /// Deterministic noise in [−½, ½) per trial (`k` picks the sequence).
+    fn noise(i: usize, k: usize) -> f64 {
+        ((i * 7919 + k * 104_729) % 97) as f64 / 97.0 - 0.5
+    }
+
+    /// A smooth drift of the rail's rest power (a slow swing of 0.3 W, both meters) is not told as
+    /// a step: the best of the steps fitted alone takes its swing (+0.40 W 528 s after the first
+    /// trial, located, before the step had to stand out of the rail's slow drift).
+    #[test]
+    fn a_smooth_drift_is_not_called_a_step() {
+        let n = 56;
+        let u = |i: usize| i as f64 / (n - 1) as f64;
+        let target: Vec<f64> = (0..n)
+            .map(|i| {
+                120.0 + 0.3 * (std::f64::consts::TAU * 0.9 * u(i) + 3.0).sin() + 0.6 * noise(i, 0)
+            })
+            .collect();
+        let other: Vec<f64> = (0..n)
+            .map(|i| target[i] + 15.0 + 3.0 * noise(i, 1))
+            .collect();
+        let (p1, p2, metas) = session(&target, &other);
+        let d = compare(Target::Mbs, &p1, &p2, &metas, 0.0, 0.3, 1e-3);
+        assert!(d.as_ref().is_none_or(|d| d.form_at.2.is_none()), "{d:?}");
+    }
+
+    /// A 1.5 W step of the main-board meter alone, 0.37 of the way through the session, beside a
+    /// smooth 1 W rise of the rail that both meters show, is that meter's artefact at its place
+    /// and size (the step fitted alone, or a line, took the rail's rise with it: a 3.3 W linear
+    /// "artefact").
+    #[test]
+    fn a_step_in_one_meter_is_named_its_artefact() {
+        let n = 56;
+        let u = |i: usize| i as f64 / (n - 1) as f64;
+        let rail = |i: usize| 0.5 * (1.0 + ((u(i) - 0.7) / 0.08).tanh());
+        let target: Vec<f64> = (0..n)
+            .map(|i| 120.0 + rail(i) + 1.5 * f64::from(u8::from(u(i) > 0.37)) + 0.3 * noise(i, 0))
+            .collect();
+        let other: Vec<f64> = (0..n).map(|i| 135.0 + rail(i) + noise(i, 1)).collect();
+        let (p1, p2, metas) = session(&target, &other);
+        let d = compare(Target::Mbs, &p1, &p2, &metas, 0.0, 0.3, 1e-3).expect("the step is found");
+        let (_, span, step) = d.form_at;
+        assert!(
+            d.check.artefact() && d.name.contains("artefact of the main-board meter"),
+            "{d:?}"
+        );
+        assert!(
+            step.is_some_and(|s| (s - 0.37).abs() < 1.0 / span * 16.0),
+            "{d:?}"
+        );
+        assert!((d.change_w - 1.5).abs() < 0.2, "{d:?}");
     }
 }

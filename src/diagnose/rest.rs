@@ -340,7 +340,7 @@ fn candidates(inp: &RestInputs, trials: &[usize]) -> (Vec<Vec<f64>>, Vec<Cand>) 
 
 /// Orthonormal basis of the rail's drift over trials starting at `start`: a constant, time, and
 /// a hinge at the start of every `seg`-th trial (piecewise linear, continuous).
-fn drift_basis(start: &[f64], seg: usize) -> Vec<Vec<f64>> {
+pub(crate) fn drift_basis(start: &[f64], seg: usize) -> Vec<Vec<f64>> {
     let mut q = Vec::new();
     orthonormal_add(&mut q, &vec![1.0; start.len()]);
     orthonormal_add(&mut q, start);
