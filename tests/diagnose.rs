@@ -838,9 +838,8 @@ fn a_rail_load_switching_with_a_board_status_field_is_discovered() {
 
 /// A library mechanism in a one-sided form (issue 28): a drive-electronics loss drawn only while
 /// a joint drives (τq̇ > 0). The library's two-sided drive-loss forms do not fit it (before the
-/// generated family nothing was claimed); its driving-side forms do (library forms since stop
-/// 53; before, discovery's driving-current split found it beyond the library): the mechanism is
-/// claimed in that form, with V_drop near the truth, and nothing else.
+/// generated family nothing was claimed); the family's driving-current split does, and the claim
+/// says which library mechanism it is a form of, with V_drop near the truth.
 #[test]
 fn a_one_sided_drive_loss_is_found_as_the_drive_loss_of_the_driving_joints() {
     let mut e = Effects::default();
@@ -848,8 +847,10 @@ fn a_one_sided_drive_loss_is_found_as_the_drive_loss_of_the_driving_joints() {
     let (rec, _, files) = session(&e, 3, 3, &[30.0]);
     let d = diagnose::diagnose(&rec, &files.opts(refit())).unwrap();
     show("driving_loss refit", &d);
-    assert_eq!(claims(&d), ["drive_loss_driving"]);
-    let k = param(&d, "V_drop");
+    let t = only_discovery("driving_loss", &d);
+    assert_eq!(t.mechanism.as_deref(), Some("drive_loss"), "{t:?}");
+    assert!(t.name.contains("driving joints"), "{}", t.name);
+    let k = t.params[0].value;
     assert!((k - 1.0).abs() <= 0.15, "V_drop = {k}");
 }
 

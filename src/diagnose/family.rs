@@ -87,7 +87,10 @@ impl Term {
     /// Whether its level alone is a candidate in a refitted model: a one-sided form of a library
     /// mechanism the library does not hold (the others are base terms or library hypotheses).
     pub(crate) fn level_is_new(self) -> bool {
-        matches!(self, Term::BrakingCurrent | Term::BrakingTorque)
+        matches!(
+            self,
+            Term::DrivingCurrent | Term::BrakingCurrent | Term::DrivingTorque | Term::BrakingTorque
+        )
     }
 
     /// Its value on a raw row for joint `i` (pooled terms ignore `i`).
@@ -147,9 +150,9 @@ impl Term {
             Term::Viscous => (None, "the viscous friction loss q̇²", "q̇_i²", "W·s²/rad²"),
             Term::Braking => (Some("braking"), "the braking asymmetry (regenerated power τq̇ < 0 not returned)", "min(τ_i q̇_i, 0)", "-"),
             Term::Current => (Some("drive_loss"), "the drive-electronics loss per ampere of phase current |τ|/K", "|τ_i|/K_i", "V"),
-            Term::DrivingCurrent => (Some("drive_loss_driving"), "the drive-electronics loss per ampere of the driving joints' current (τq̇ > 0)", "|τ_i|/K_i·[τ_i q̇_i > 0]", "V"),
+            Term::DrivingCurrent => (Some("drive_loss"), "the drive-electronics loss per ampere of the driving joints' current (τq̇ > 0)", "|τ_i|/K_i·[τ_i q̇_i > 0]", "V"),
             Term::BrakingCurrent => (Some("drive_loss"), "the drive-electronics loss per ampere of the braking or holding joints' current (τq̇ ≤ 0)", "|τ_i|/K_i·[τ_i q̇_i ≤ 0]", "V"),
-            Term::DrivingTorque => (Some("electronics_driving"), "the drive-electronics loss per Nm of the driving joints (τq̇ > 0)", "|τ_i|·[τ_i q̇_i > 0]", "W/Nm"),
+            Term::DrivingTorque => (Some("electronics_nm"), "the drive-electronics loss per Nm of the driving joints (τq̇ > 0)", "|τ_i|·[τ_i q̇_i > 0]", "W/Nm"),
             Term::BrakingTorque => (Some("electronics_nm"), "the drive-electronics loss per Nm of the braking or holding joints (τq̇ ≤ 0)", "|τ_i|·[τ_i q̇_i ≤ 0]", "W/Nm"),
             Term::Stribeck => (Some("stribeck"), "the Stribeck friction Σ|q̇|·exp(−(q̇/v_s)²)", "|q̇_i|·exp(−(q̇_i/v_s)²)", "W·s/rad"),
             Term::BusPower => (Some("bus_power"), "the shared DC-bus loss (P_elec/V_bus)²", "(P_elec/V_bus)²", "Ω"),

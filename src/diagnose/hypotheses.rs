@@ -232,38 +232,8 @@ const BUS_LOSS: Hypothesis = Hypothesis {
     plausible: (0.001, 2.0),
 };
 
-/// The drive-electronics loss per ampere (its per-Nm and driving-side forms share its physics:
-/// motoring and regenerating currents take different paths through a bridge, switch or diode).
-const DRIVE_LOSS: Hypothesis = Hypothesis {
-    id: "drive_loss",
-    mechanism: "drive-electronics loss",
-    title: "current-proportional drive-electronics loss ∝ Σ|τ_i|/K_i",
-    form: "per-ampere",
-    symbol: "V_drop",
-    unit: "V",
-    model_assumes: "the drives have no loss proportional to their current (switch/diode drop)",
-    raw: (DRIVE, 1),
-    plausible: (0.0, V_DROP_MAX),
-    ..BUS_LOSS
-};
-
-/// The drive-electronics loss per Nm.
-const ELECTRONICS_NM: Hypothesis = Hypothesis {
-    id: "electronics_nm",
-    mechanism: "drive-electronics loss",
-    title: "drive-electronics loss ∝ Σ|τ_i| (one coefficient per Nm)",
-    form: "per-Nm",
-    symbol: "k_el",
-    unit: "W/Nm",
-    model_assumes: "the drives have no loss proportional to their torque",
-    raw: (DRIVE_NM, 1),
-    // V_drop per Nm of the joint with the smallest torque constant (0.7 Nm/A): any mix.
-    plausible: (0.0, V_DROP_MAX / 0.7),
-    ..BUS_LOSS
-};
-
 /// The power-level hypotheses (extra regressors).
-pub static POWER_HYPOTHESES: [Hypothesis; 12] = [
+pub static POWER_HYPOTHESES: [Hypothesis; 10] = [
     THERMAL_DRIFT,
     Hypothesis {
         id: "thermal_driving",
@@ -302,7 +272,18 @@ pub static POWER_HYPOTHESES: [Hypothesis; 12] = [
         plausible: (0.0, 1.0),
         ..BUS_LOSS
     },
-    DRIVE_LOSS,
+    Hypothesis {
+        id: "drive_loss",
+        mechanism: "drive-electronics loss",
+        title: "current-proportional drive-electronics loss ∝ Σ|τ_i|/K_i",
+        form: "per-ampere",
+        symbol: "V_drop",
+        unit: "V",
+        model_assumes: "the drives have no loss proportional to their current (switch/diode drop)",
+        raw: (DRIVE, 1),
+        plausible: (0.0, V_DROP_MAX),
+        ..BUS_LOSS
+    },
     Hypothesis {
         id: "stribeck",
         mechanism: "Stribeck friction",
@@ -337,22 +318,18 @@ pub static POWER_HYPOTHESES: [Hypothesis; 12] = [
         plausible: (0.001, 50.0),
         ..BUS_LOSS
     },
-    ELECTRONICS_NM,
     Hypothesis {
-        id: "drive_loss_driving",
-        title: "drive-electronics loss per ampere of the driving joints' current ∝ Σ|τ_i|/K_i·[τ_i q̇_i > 0]",
-        form: "per-ampere, driving side only",
-        model_assumes: "the drives have no loss proportional to the current of the joints that drive",
-        raw: (DRIVING_CURRENT, 1),
-        ..DRIVE_LOSS
-    },
-    Hypothesis {
-        id: "electronics_driving",
-        title: "drive-electronics loss per Nm of the driving joints ∝ Σ|τ_i|·[τ_i q̇_i > 0]",
-        form: "per-Nm, driving side only",
-        model_assumes: "the drives have no loss proportional to the torque of the joints that drive",
-        raw: (DRIVING_TORQUE, 1),
-        ..ELECTRONICS_NM
+        id: "electronics_nm",
+        mechanism: "drive-electronics loss",
+        title: "drive-electronics loss ∝ Σ|τ_i| (one coefficient per Nm)",
+        form: "per-Nm",
+        symbol: "k_el",
+        unit: "W/Nm",
+        model_assumes: "the drives have no loss proportional to their torque",
+        raw: (DRIVE_NM, 1),
+        // V_drop per Nm of the joint with the smallest torque constant (0.7 Nm/A): any mix.
+        plausible: (0.0, V_DROP_MAX / 0.7),
+        ..BUS_LOSS
     },
 ];
 

@@ -22,7 +22,7 @@ import numpy as np
 # Library mechanisms the diagnoser advertises (ids as printed in diagnosis.json), grouped where
 # two ids are forms of one mechanism.
 LIBRARY = {
-    "braking": ["braking"], "gear_friction": ["gear_friction"], "electronics": ["electronics_nm", "drive_loss", "electronics_driving", "drive_loss_driving"],
+    "braking": ["braking"], "gear_friction": ["gear_friction"], "electronics": ["electronics_nm", "drive_loss"],
     "bus": ["bus_power", "bus_loss"], "thermal": ["thermal", "thermal_driving"], "stribeck": ["stribeck"],
     "balance_leak": ["balance_leak"], "latency": ["latency"], "payload": ["payload"],
 }
