@@ -25,16 +25,21 @@ def generate(base, seed, minutes):
                             hook=phys)
     table = phys.table()
     gains, rmse, rms = oracle.detectability(table, truth, len(effects))
-    for e, g, r, (gn, gr, gx) in zip(effects, gains, rms, oracle.detectability_net(table, truth, len(effects))):
-        # `detectability`: the yardstick the data allow (net and rest rows, the drift fitted);
+    known_window = oracle.detectability_net(table, truth, len(effects), window_free=False)
+    for e, g, r, (gn, gr, gx), (_, _, gw) in zip(effects, gains, rms, oracle.detectability_net(
+            table, truth, len(effects)), known_window):
+        # `detectability`: the yardstick the data allow (net and rest rows, the drift fitted, the
+        # sensor window estimated); `detectability_known_window`: the same with the true window
+        # known (the yardstick before stop 54; it differs for main-board lags and window drifts);
         # `detectability_abs`: the first oracle's (absolute power, one intercept), kept comparable
         e.update(detectability=round(gx, 5), detectability_net=round(gn, 5), detectability_rest=round(gr, 5),
-                 detectability_abs=round(g, 5), reading_rms_W=round(r, 4))
+                 detectability_known_window=round(gw, 5), detectability_abs=round(g, 5),
+                 reading_rms_W=round(r, 4))
         if e.get("mechanism") == "payload":
             g, r = phys.payload_detectability()
             e.update(detectability=round(g, 5), detectability_abs=round(g, 5), level="torque",
                      torque_rms_Nm=round(r, 4))
-            for k in ("reading_rms_W", "detectability_net", "detectability_rest"):
+            for k in ("reading_rms_W", "detectability_net", "detectability_rest", "detectability_known_window"):
                 del e[k]
     truth["fuzz"] = {"seed": seed, "effects": effects, "oracle_rmse_W": rmse,
                      "hidden_mode_switch_s": phys.mode_t}

@@ -226,7 +226,8 @@ class Physics:
         self.mode = 0
         self.mode_t = []
         self.tail = None
-        self.rows = []  # (t, reading, features..., contributions...)
+        self.rows = []  # (t, reading, features..., contributions..., window-free remainders...)
+        self.rest_cands = {}  # effect -> per block, its remainder beside each candidate window
         self.cur = None
         self.cache = {}
         self.tb_cur = np.zeros(0)
@@ -443,6 +444,10 @@ class Physics:
     def meter(self, mt, bt, avg, p_mbs, p_bms):
         out = {"mbs": p_mbs.copy(), "bms": p_bms.copy()}
         meter_c = np.zeros((len(mt), len(self.effects)))
+        # What a lag leaves beside the best window read at no lag, and a window drift beside the
+        # best steady window (`table`): the window is estimated from the data, so only this
+        # remainder tells a lag from a longer window, or a drift from a steady one
+        lag_rest = {}
         for i, e in enumerate(self.effects):
             if e.get("mechanism") == "latency":
                 e = dict(e, meter="mbs", artefact="lag")
@@ -462,12 +467,16 @@ class Physics:
                 new = clean + e["magnitude"] * g
             elif art == "lag":
                 new = avg(e["meter"], ts, e["magnitude"], self.W)
+                if e["meter"] == "mbs":
+                    lag_rest[i] = [new - avg("mbs", ts, 0.0, w) for w in self._lag0_windows(e)]
             else:
                 new = avg(e["meter"], ts, 0.0, self.W + e["magnitude"] * u_t)
+                if e["meter"] == "mbs":
+                    lag_rest[i] = [new - avg("mbs", ts, 0.0, w) for w in self._steady_windows(e)]
             out[e["meter"]] = out[e["meter"]] + (new - clean)
             if e["meter"] == "mbs":
                 meter_c[:, i] = new - clean
-        self._rows(mt, out["mbs"], meter_c)
+        self._rows(mt, out["mbs"], meter_c, lag_rest)
         return out["mbs"], out["bms"]
 
     def _board_u(self, ts):
@@ -478,7 +487,18 @@ class Physics:
             self.s0["board"] = float(tb[0]) if len(tb) else 0.0
         return (tb - self.s0["board"]) / 6.0
 
-    def _rows(self, mt, reading, meter_c):
+    STEPS = np.arange(-6, 7) * 0.01  # candidate windows around the nominal rival [s] (indgen's DT)
+
+    def _lag0_windows(self, e):
+        """Windows at no lag around the one of a lag's centre (W + 2·lag; ≤ 1.9 s: indgen keeps a
+        2 s tail)."""
+        return np.clip(self.W + 2.0 * e["magnitude"] + self.STEPS, 0.01, 1.9)
+
+    def _steady_windows(self, e):
+        """Steady windows around a drifting window's session mean."""
+        return np.clip(self.W + 0.5 * e["magnitude"] + self.STEPS, 0.01, 1.9)
+
+    def _rows(self, mt, reading, meter_c, lag_rest):
         t, F = self.cur
         if self.tail is not None:
             t = np.concatenate([self.tail[0], t])
@@ -490,9 +510,22 @@ class Physics:
         k = len(self.effects)
         if k:
             Fw[:, 49:] += meter_c
-        self.rows.append(np.column_stack([mt, reading, Fw]))
+        self.rows.append(np.column_stack([mt, reading, Fw, Fw[:, 49:]]))
+        for i, cands in lag_rest.items():
+            self.rest_cands.setdefault(i, []).append(np.column_stack(cands))
         self.tail = (t[-200:], F[-200:])
 
     def table(self):
-        """(n_readings, 2 + 49 + k): time [s], MBS reading [W], paper regressors, effect contributions."""
-        return np.vstack(self.rows) if self.rows else np.zeros((0, 51 + len(self.effects)))
+        """(n_readings, 2 + 49 + 2k): time [s], MBS reading [W], paper regressors, effect
+        contributions, and what of each contribution a sensor window estimated from the data cannot
+        absorb (a main-board lag's remainder beside the window of its centre; the contribution
+        itself for every other effect)."""
+        if not self.rows:
+            return np.zeros((0, 51 + 2 * len(self.effects)))
+        table = np.vstack(self.rows)
+        k = len(self.effects)
+        for i, blocks in self.rest_cands.items():
+            # the session's best window: the least remainder over every reading
+            c = np.vstack(blocks)
+            table[:, 51 + k + i] = c[:, int(np.argmin((c * c).sum(0)))]
+        return table

@@ -138,24 +138,39 @@ def _gain(X, ridge_cols, y, e, folds):
     return max(0.0, 1.0 - _cv(X, y - e, folds, ridge_cols) / base) if base > 0 else 0.0
 
 
-def detectability_net(table, truth, n_effects, W=0.3):
-    """[gain per effect] on the rows the diagnoser fits, the drift fitted: (net, rest, max)."""
+def detectability_net(table, truth, n_effects, W=0.3, window_free=True):
+    """[gain per effect] on the rows the diagnoser fits, the drift fitted: (net, rest, max).
+
+    With `window_free`, an effect is credited only with what a sensor window estimated from the
+    data cannot absorb: a main-board lag beside the window of the same centre read at no lag, a
+    window drift beside the session's mean window (the table's last k columns, `Physics.table`).
+    The part a window absorbs is taken off with the other effects. Without it (or for a table
+    without those columns), the true window is known, as in the first yardstick."""
+    k = n_effects
+    if table.shape[1] < 51 + 2 * k:
+        window_free = False
     (tn, tin, N), (tr, tir, Rr) = net_and_rest_rows(table, truth, W)
     theta = np.array(truth["theta"]["vector"], float)
     t0, t1 = float(table[0, 0]), float(table[-1, 0])
-    yn, Fn, En = N[:, 0] - N[:, 1:50] @ theta, N[:, 1:50], N[:, 50:50 + n_effects]
+    yn, Fn, En = N[:, 0] - N[:, 1:50] @ theta, N[:, 1:50], N[:, 50:50 + k]
+    # the remainder a window cannot absorb (the contribution itself where nothing can)
+    Qn = N[:, 50 + k:50 + 2 * k] if window_free else En
     sd = Fn.std(0)
     sd[sd == 0] = 1.0
     Xn = np.column_stack([drift_basis(tn, t0, t1), Fn / sd])
     rn = np.r_[np.zeros(Xn.shape[1] - 49, bool), np.ones(49, bool)]
-    yr, Er = Rr[:, 0] - Rr[:, 1:50] @ theta, Rr[:, 50:50 + n_effects]
+    yr, Er = Rr[:, 0] - Rr[:, 1:50] @ theta, Rr[:, 50:50 + k]
+    Qr = Rr[:, 50 + k:50 + 2 * k] if window_free else Er
     Xr = drift_basis(tr, t0, t1)
     block = max(4, min(20, len(yr) // 10))
     fr = (np.arange(len(yr)) // block) % 5
     out = []
     for i in range(n_effects):
-        others = [k for k in range(n_effects) if k != i]
-        g_net = _gain(Xn, rn, yn - En[:, others].sum(1), En[:, i], tin % 5)
-        g_rest = _gain(Xr, np.zeros(Xr.shape[1], bool), yr - Er[:, others].sum(1), Er[:, i], fr)
+        others = [j for j in range(n_effects) if j != i]
+        # the data less the other effects and the part of this one a window absorbs
+        y_n = yn - En[:, others].sum(1) - (En[:, i] - Qn[:, i])
+        y_r = yr - Er[:, others].sum(1) - (Er[:, i] - Qr[:, i])
+        g_net = _gain(Xn, rn, y_n, Qn[:, i], tin % 5)
+        g_rest = _gain(Xr, np.zeros(Xr.shape[1], bool), y_r, Qr[:, i], fr)
         out.append((g_net, g_rest, max(g_net, g_rest)))
     return out

@@ -176,6 +176,35 @@ def check_oracle():
             got[name, rail] = oracle.detectability_net(table, truth, 1)[0][2]
             info[f"oracle_net: {name}, {rail} rail"] = round(got[name, rail], 3)
     step, lin, arm = effects
+    # the window-free yardstick: what a lag leaves beside the best window read at no lag — nothing
+    # on a rail linear in time (a window of the same centre averages it the same), something on a
+    # rail that switches every second (the two windows' edges differ)
+    dt, lag = 0.01, 0.05
+    ts = np.arange(0.0, 120.0, dt)
+    rest_rms = {}
+    for rail_name, rail in (("linear", 100 + 1.0 * ts), ("switching", 100 + 5.0 * (np.floor(ts) % 2))):
+        phys = grammar.Physics([{"kind": "library", "mechanism": "latency", "form": "lag",
+                                 "magnitude": lag}], 1, duration_s=120.0)
+        phys.cur = (ts, np.zeros((len(ts), 50)))
+        cs = np.concatenate([[0.0], np.cumsum(rail)])
+
+        def avg(_m, at, lg, w, cs=cs):
+            i1 = np.searchsorted(ts, at - lg, side="right")
+            i0 = np.minimum(np.searchsorted(ts, at - lg - w, side="right"), i1 - 1)
+            return (cs[i1] - cs[i0]) / (i1 - i0)
+
+        mt = 3.0 + np.arange(110) * 1.037  # readings at every phase of the rail's seconds
+        phys.meter(mt, mt, avg, avg("mbs", mt, 0.0, 0.3), avg("bms", mt, 0.0, 0.3))
+        tab = phys.table()
+        rms = lambda x: float(np.sqrt(np.mean(x * x)))
+        rest_rms[rail_name] = (rms(tab[:, 52]), rms(tab[:, 51]))
+        info[f"oracle: a 0.05 s lag's remainder / contribution, {rail_name} rail"] = [round(v, 3) for v in rest_rms[rail_name]]
+    checks.update({
+        "oracle: a longer window absorbs a lag on a smooth rail":
+            rest_rms["linear"][0] < 0.05 * rest_rms["linear"][1],
+        "oracle: a lag on a switching rail keeps a remainder":
+            0.05 * rest_rms["switching"][1] < rest_rms["switching"][0] < rest_rms["switching"][1],
+    })
     checks.update({
         "oracle_net: a slow load scores lower on a drifting rail": got[step, "drifting"] < got[step, "flat"] - 0.05,
         "oracle_net: a load linear in time is a drift (~0)": got[lin, "flat"] < 0.02 and got[lin, "drifting"] < 0.02,
