@@ -41,6 +41,11 @@ def generate(base, seed, minutes):
                      torque_rms_Nm=round(r, 4))
             for k in ("reading_rms_W", "detectability_net", "detectability_rest", "detectability_known_window"):
                 del e[k]
+    own = [e["mechanism"] if e["kind"] == "library" else None for e in effects]
+    for e, d in zip(effects, oracle.distinguishability(table, truth, len(effects), own)):
+        if d is not None:  # the least held-out gain of knowing it beside another library mechanism
+            # (at most its detectability: the share of what the data see that no rival fits)
+            e.update(distinguishability=round(min(max(d[0], 0.0), e["detectability"]), 5), closest_rival=d[1])
     truth["fuzz"] = {"seed": seed, "effects": effects, "oracle_rmse_W": rmse,
                      "hidden_mode_switch_s": phys.mode_t}
     with open(base + ".truth.json", "w") as f:
@@ -152,6 +157,10 @@ def summarise(out_dir, planned, campaign_seed, minutes, binary):
                       "named": count(sel, "named"), "located": count(sel, "located"), "missed": count(sel, "missed")})
     above = [(s, e) for s, e in effects if e["detectability"] >= GATE]
     above_abs = [(s, e) for s, e in effects if e["detectability_abs"] >= GATE]
+    # library effects another library mechanism fits as well (`oracle.distinguishability` below the
+    # gate) can at most be located ("X or Y"); the rest, with every non-library effect, are distinct
+    distinct = [(s, e) for s, e in above if e.get("distinguishability", 1.0) >= GATE]
+    rival_twins = [(s, e) for s, e in above if e.get("distinguishability", 1.0) < GATE]
     net = all("detectability_net" in e or e.get("level") == "torque" for _, e in effects)
     rate = lambda xs, ks: (sum(count(xs, k) for k in ks) / len(xs)) if xs else None
     summary = {
@@ -172,6 +181,10 @@ def summarise(out_dir, planned, campaign_seed, minutes, binary):
         "recall_or_located_above_gate": rate(above, ["named", "located"]),
         "effects_above_gate_abs": len(above_abs), "recall_above_gate_abs": rate(above_abs, ["named"]),
         "recall_or_located_above_gate_abs": rate(above_abs, ["named", "located"]),
+        "effects_above_gate_distinct": len(distinct), "recall_above_gate_distinct": rate(distinct, ["named"]),
+        "recall_or_located_above_gate_distinct": rate(distinct, ["named", "located"]),
+        "effects_above_gate_rival_twins": len(rival_twins),
+        "rival_twins_named_or_located": rate(rival_twins, ["named", "located"]),
         "recall_curve": curve,
         "wrong_claims": [{"seed": s, "claim": c["id"] or c["name"], "fields": c["fields"][:4], "result": c["result"],
                           "concealed": [f"{e['mechanism']}/{e.get('form')}/{e.get('state', e.get('meter', ''))}"
@@ -183,14 +196,16 @@ def summarise(out_dir, planned, campaign_seed, minutes, binary):
     with open(os.path.join(out_dir, "results.json"), "w") as f:
         json.dump(summary, f, indent=1, ensure_ascii=False)
     with open(os.path.join(out_dir, "results.csv"), "w") as f:
-        f.write("seed,row,mechanism,form,state_or_meter,magnitude,detectability,result,detectability_abs\n")
+        f.write("seed,row,mechanism,form,state_or_meter,magnitude,detectability,result,detectability_abs,"
+                "distinguishability,closest_rival\n")
         for r in ok:
             for e in r["effects"]:
                 f.write(f"{r['seed']},effect,{e['mechanism']},{e.get('form')},{e.get('state', e.get('meter', ''))},"
-                        f"{e.get('magnitude')},{e['detectability']},{e['result']},{e['detectability_abs']}\n")
+                        f"{e.get('magnitude')},{e['detectability']},{e['result']},{e['detectability_abs']},"
+                        f"{e.get('distinguishability', '')},{e.get('closest_rival', '')}\n")
             for c in r["claims"]:
                 name = (c["id"] or c["name"]).replace(",", ";").replace("\n", " ")
-                f.write(f"{r['seed']},claim,{name},,{'|'.join(c['fields'][:3])},,,{c['result']},\n")
+                f.write(f"{r['seed']},claim,{name},,{'|'.join(c['fields'][:3])},,,{c['result']},,,\n")
     figure(summary, os.path.join(out_dir, "recall.png"))
     return summary
 
@@ -202,6 +217,8 @@ DOC_ROWS = [("sessions diagnosed", "sessions_done", 1, ""), ("null sessions", "n
             ("effects with detectability >= 5 %", "effects_above_gate", 1, ""),
             ("recall (named) above 5 %", "recall_above_gate", 100, " %"),
             ("recall (named or located) above 5 %", "recall_or_located_above_gate", 100, " %"),
+            ("effects above 5 % no other library mechanism fits as well", "effects_above_gate_distinct", 1, ""),
+            ("recall (named) above 5 % of those", "recall_above_gate_distinct", 100, " %"),
             ("effects with first-oracle detectability >= 5 %", "effects_above_gate_abs", 1, ""),
             ("recall (named) above 5 %, first oracle", "recall_above_gate_abs", 100, " %"),
             ("recall (named or located) above 5 %, first oracle", "recall_or_located_above_gate_abs", 100, " %")]

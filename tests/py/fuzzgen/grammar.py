@@ -26,6 +26,11 @@ LIBRARY = {
     "bus": ["bus_power", "bus_loss"], "thermal": ["thermal", "thermal_driving"], "stribeck": ["stribeck"],
     "balance_leak": ["balance_leak"], "latency": ["latency"], "payload": ["payload"],
 }
+# The library's power mechanisms in their linear form, for the oracle's question "could another
+# mechanism be it?" (`Physics.rivals`): per joint, or pooled where the mechanism is one term
+RIVALS = [("braking", 7), ("gear_friction", 7), ("electronics", 7), ("thermal", 7), ("stribeck", 7),
+          ("bus", 1), ("balance_leak", 1)]
+N_RIVAL_COLS = sum(n for _, n in RIVALS)
 ARM = list(range(15, 22))
 Q_RANGE = np.array([[-1.6, 0.8], [0.05, 1.4], [-1.2, 1.2], [-0.6, 1.6], [-1.4, 1.4], [-1.2, 1.2], [-1.2, 1.2]])
 
@@ -412,12 +417,21 @@ class Physics:
         tau, qd = ctx["tau"], ctx["qd"]
         aq = np.abs(qd)
         pairs = [aq[:, i] * aq[:, k] for i in range(7) for k in range(i + 1, 7)]
-        F = np.column_stack([tau * qd, tau * tau - ctx["tau_home"] ** 2, aq, qd * qd] + pairs + contrib) \
-            if contrib else np.column_stack([tau * qd, tau * tau - ctx["tau_home"] ** 2, aq, qd * qd] + pairs)
+        F = np.column_stack([tau * qd, tau * tau - ctx["tau_home"] ** 2, aq, qd * qd] + pairs + contrib
+                            + [self.rivals(ctx)])
         self.cur = (ctx["t"], F)
         self.tb_cur = ctx["Tb"]
         self.cache = {}
         return total
+
+    def rivals(self, ctx):
+        """(n, N_RIVAL_COLS): every power mechanism of the library in its linear form (`RIVALS`),
+        per joint or pooled — what a diagnoser could name instead of an effect."""
+        cols = []
+        for m, n in RIVALS:
+            base = self.library_base(m, {}, ctx)
+            cols.append(base if n == 7 else base.sum(1, keepdims=True))
+        return np.hstack(cols)
 
     def _payload_torque(self, ctx):
         from indgen.dynamics import ArmModel
@@ -509,23 +523,24 @@ class Physics:
         Fw = (cs[i1] - cs[i0]) / (i1 - i0)[:, None]
         k = len(self.effects)
         if k:
-            Fw[:, 49:] += meter_c
-        self.rows.append(np.column_stack([mt, reading, Fw, Fw[:, 49:]]))
+            Fw[:, 49:49 + k] += meter_c
+        self.rows.append(np.column_stack([mt, reading, Fw, Fw[:, 49:49 + k]]))
         for i, cands in lag_rest.items():
             self.rest_cands.setdefault(i, []).append(np.column_stack(cands))
         self.tail = (t[-200:], F[-200:])
 
     def table(self):
-        """(n_readings, 2 + 49 + 2k): time [s], MBS reading [W], paper regressors, effect
-        contributions, and what of each contribution a sensor window estimated from the data cannot
-        absorb (a main-board lag's remainder beside the window of its centre; the contribution
-        itself for every other effect)."""
-        if not self.rows:
-            return np.zeros((0, 51 + 2 * len(self.effects)))
-        table = np.vstack(self.rows)
+        """(n_readings, 2 + 49 + k + N_RIVAL_COLS + k): time [s], MBS reading [W], paper
+        regressors, effect contributions, the library's mechanisms in linear form (`rivals`), and
+        what of each contribution a sensor window estimated from the data cannot absorb (a
+        main-board lag's remainder beside the best window at no lag, a window drift's beside the
+        best steady window; the contribution itself for every other effect)."""
         k = len(self.effects)
+        if not self.rows:
+            return np.zeros((0, 51 + 2 * k + N_RIVAL_COLS))
+        table = np.vstack(self.rows)
         for i, blocks in self.rest_cands.items():
             # the session's best window: the least remainder over every reading
             c = np.vstack(blocks)
-            table[:, 51 + k + i] = c[:, int(np.argmin((c * c).sum(0)))]
+            table[:, 51 + k + N_RIVAL_COLS + i] = c[:, int(np.argmin((c * c).sum(0)))]
         return table

@@ -147,20 +147,20 @@ def detectability_net(table, truth, n_effects, W=0.3, window_free=True):
     The part a window absorbs is taken off with the other effects. Without it (or for a table
     without those columns), the true window is known, as in the first yardstick."""
     k = n_effects
-    if table.shape[1] < 51 + 2 * k:
-        window_free = False
+    q0 = _remainder_column(table, k)
+    window_free = window_free and q0 is not None
     (tn, tin, N), (tr, tir, Rr) = net_and_rest_rows(table, truth, W)
     theta = np.array(truth["theta"]["vector"], float)
     t0, t1 = float(table[0, 0]), float(table[-1, 0])
     yn, Fn, En = N[:, 0] - N[:, 1:50] @ theta, N[:, 1:50], N[:, 50:50 + k]
     # the remainder a window cannot absorb (the contribution itself where nothing can)
-    Qn = N[:, 50 + k:50 + 2 * k] if window_free else En
+    Qn = N[:, q0 - 1:q0 - 1 + k] if window_free else En
     sd = Fn.std(0)
     sd[sd == 0] = 1.0
     Xn = np.column_stack([drift_basis(tn, t0, t1), Fn / sd])
     rn = np.r_[np.zeros(Xn.shape[1] - 49, bool), np.ones(49, bool)]
     yr, Er = Rr[:, 0] - Rr[:, 1:50] @ theta, Rr[:, 50:50 + k]
-    Qr = Rr[:, 50 + k:50 + 2 * k] if window_free else Er
+    Qr = Rr[:, q0 - 1:q0 - 1 + k] if window_free else Er
     Xr = drift_basis(tr, t0, t1)
     block = max(4, min(20, len(yr) // 10))
     fr = (np.arange(len(yr)) // block) % 5
@@ -173,4 +173,98 @@ def detectability_net(table, truth, n_effects, W=0.3, window_free=True):
         g_net = _gain(Xn, rn, y_n, Qn[:, i], tin % 5)
         g_rest = _gain(Xr, np.zeros(Xr.shape[1], bool), y_r, Qr[:, i], fr)
         out.append((g_net, g_rest, max(g_net, g_rest)))
+    return out
+
+
+def _remainder_column(table, k):
+    """The first window-free remainder column of a `Physics.table` (None for a bare
+    [t, y, 49 regressors, k contributions] table, as the self-test builds)."""
+    from .grammar import N_RIVAL_COLS
+    return 51 + k + N_RIVAL_COLS if table.shape[1] == 51 + 2 * k + N_RIVAL_COLS else None
+
+
+# ---- could another mechanism be it? --------------------------------------------------------------
+#
+# Detectability says the data see an effect; it does not say they can tell *which* mechanism it is.
+# A gear friction k|τq̇| is k·τq̇ + 2k·max(−τq̇, 0): with each joint's efficiency refitted (the paper's
+# a ≥ 1, the plant's a = 1) it *is* a braking asymmetry of 2k, whatever the diagnoser does — while a
+# braking asymmetry is not a gear friction (that would need a < 1). `distinguishability` is the
+# held-out gain of knowing a library effect's true contribution beside the base model (each joint's
+# efficiency free to rise, as a refit under a ≥ 1 has it) and, in turn, each *other* library
+# mechanism in its linear form (per joint where it is per joint, coefficients ≥ 0: a loss): the
+# smallest over those rivals. Near 0, another mechanism fits the effect as well as its own — the
+# most a diagnosis can then say is "X or Y".
+
+
+def _bounded_cv(X, y, folds, ridge_cols, lower):
+    """As `_cv`, the coefficients with `lower` (bool per column) held ≥ 0 (projected coordinate
+    descent on the normal equations, from the unbounded solution clipped)."""
+    err = np.empty(len(y))
+    for f in range(5):
+        te = folds == f
+        A = X[~te]
+        G = A.T @ A + np.diag(np.where(ridge_cols, RIDGE * len(A), 1e-9 * len(A)))
+        h = A.T @ y[~te]
+        b = np.linalg.solve(G, h)
+        b[lower] = np.maximum(b[lower], 0.0)
+        for _ in range(300):
+            moved = 0.0
+            for j in np.flatnonzero(lower | (np.abs(G[:, lower]).sum(1) > 0)):
+                bj = b[j] + (h[j] - G[j] @ b) / G[j, j]
+                if lower[j]:
+                    bj = max(bj, 0.0)
+                moved = max(moved, abs(bj - b[j]) * np.sqrt(G[j, j]))
+                b[j] = bj
+            if moved < 1e-9 * np.sqrt(h @ h / len(A) + 1e-300):
+                break
+        err[te] = y[te] - X[te] @ b
+    return float(np.sqrt(np.mean(err * err)))
+
+
+def distinguishability(table, truth, n_effects, own, W=0.3):
+    """Per effect: (smallest gain over the rivals, that rival) on net rows, for effects whose
+    `own[i]` is a library mechanism of `grammar.RIVALS`; None for the others."""
+    from .grammar import RIVALS
+    k = n_effects
+    q0 = _remainder_column(table, k)
+    if q0 is None:
+        return [None] * k
+    (tn, tin, N), _ = net_and_rest_rows(table, truth, W)
+    theta = np.array(truth["theta"]["vector"], float)
+    t0, t1 = float(table[0, 0]), float(table[-1, 0])
+    yn, Fn, En = N[:, 0] - N[:, 1:50] @ theta, N[:, 1:50], N[:, 50:50 + k]
+    Qn = N[:, q0 - 1:q0 - 1 + k]
+    cols, start = {}, 50 + k
+    for m, n in RIVALS:
+        cols[m] = N[:, start:start + n]
+        start += n
+
+    def scaled(X):
+        sd = X.std(0)
+        sd[sd == 0] = 1.0
+        return X / sd
+
+    D = drift_basis(tn, t0, t1)
+    out = []
+    for i in range(k):
+        if own[i] not in cols:
+            out.append(None)
+            continue
+        others = [j for j in range(k) if j != i]
+        y = yn - En[:, others].sum(1) - (En[:, i] - Qn[:, i])
+        best = (np.inf, None)
+        for m, R in cols.items():
+            if m == own[i] or float(np.abs(R).max(initial=0.0)) == 0.0:
+                continue
+            X = np.column_stack([D, scaled(Fn), scaled(R)])
+            # the drift free; each joint's efficiency (the first 7 regressors) free to rise; the
+            # other 42 shrunk toward θ as in `detectability_net`; the rival a loss (≥ 0)
+            nd, nr = D.shape[1], R.shape[1]
+            ridge = np.r_[np.zeros(nd + 7, bool), np.ones(42, bool), np.zeros(nr, bool)]
+            lower = np.r_[np.zeros(nd, bool), np.ones(7, bool), np.zeros(42, bool), np.ones(nr, bool)]
+            base = _bounded_cv(X, y, tin % 5, ridge, lower)
+            g = max(0.0, 1.0 - _bounded_cv(X, y - Qn[:, i], tin % 5, ridge, lower) / base) if base > 0 else 0.0
+            if g < best[0]:
+                best = (g, m)
+        out.append(best if best[1] is not None else None)
     return out

@@ -176,6 +176,19 @@ def check_oracle():
             got[name, rail] = oracle.detectability_net(table, truth, 1)[0][2]
             info[f"oracle_net: {name}, {rail} rail"] = round(got[name, rail], 3)
     step, lin, arm = effects
+    # could another mechanism be it? A gear friction k|τq̇| is a braking asymmetry of 2k once each
+    # joint's efficiency may rise (a ≥ 1); a braking asymmetry is no gear friction (that needs a < 1)
+    mech = F[:, :7]
+    lib = {"braking": np.maximum(-mech, 0.0), "gear_friction": np.abs(mech)}
+    for own in ("gear_friction", "braking"):
+        e = 0.3 * lib[own].sum(1)
+        riv = np.hstack([lib.get(m, np.zeros((len(t), n))) if n == 7 else np.zeros((len(t), 1))
+                         for m, n in grammar.RIVALS])
+        y = 120 + F @ theta + rng.normal(0, 0.3, len(t)) + e
+        table = np.column_stack([t, y, F, e, riv, e])
+        d = oracle.distinguishability(table, truth, 1, [own])[0]
+        got[own] = d[0]
+        info[f"oracle: distinguishability of a {own}"] = [round(d[0], 3), d[1]]
     # the window-free yardstick: what a lag leaves beside the best window read at no lag — nothing
     # on a rail linear in time (a window of the same centre averages it the same), something on a
     # rail that switches every second (the two windows' edges differ)
@@ -185,7 +198,7 @@ def check_oracle():
     for rail_name, rail in (("linear", 100 + 1.0 * ts), ("switching", 100 + 5.0 * (np.floor(ts) % 2))):
         phys = grammar.Physics([{"kind": "library", "mechanism": "latency", "form": "lag",
                                  "magnitude": lag}], 1, duration_s=120.0)
-        phys.cur = (ts, np.zeros((len(ts), 50)))
+        phys.cur = (ts, np.zeros((len(ts), 50 + grammar.N_RIVAL_COLS)))
         cs = np.concatenate([[0.0], np.cumsum(rail)])
 
         def avg(_m, at, lg, w, cs=cs):
@@ -197,7 +210,7 @@ def check_oracle():
         phys.meter(mt, mt, avg, avg("mbs", mt, 0.0, 0.3), avg("bms", mt, 0.0, 0.3))
         tab = phys.table()
         rms = lambda x: float(np.sqrt(np.mean(x * x)))
-        rest_rms[rail_name] = (rms(tab[:, 52]), rms(tab[:, 51]))
+        rest_rms[rail_name] = (rms(tab[:, -1]), rms(tab[:, 51]))
         info[f"oracle: a 0.05 s lag's remainder / contribution, {rail_name} rail"] = [round(v, 3) for v in rest_rms[rail_name]]
     checks.update({
         "oracle: a longer window absorbs a lag on a smooth rail":
@@ -207,6 +220,8 @@ def check_oracle():
     })
     checks.update({
         "oracle_net: a slow load scores lower on a drifting rail": got[step, "drifting"] < got[step, "flat"] - 0.05,
+        "oracle: a gear friction is a braking asymmetry (~0)": got["gear_friction"] < 0.02,
+        "oracle: a braking asymmetry is no gear friction": got["braking"] > 0.2,
         "oracle_net: a load linear in time is a drift (~0)": got[lin, "flat"] < 0.02 and got[lin, "drifting"] < 0.02,
         "oracle_net: an arm effect scores the same on both":
             abs(got[arm, "drifting"] - got[arm, "flat"]) < 0.02 and got[arm, "flat"] > 0.5,
