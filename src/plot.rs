@@ -52,6 +52,25 @@ pub(crate) fn write_png(
     result.with_context(|| format!("drawing {}", path.display()))
 }
 
+/// The series' legend of a report figure, framed on a light background: at `at` (`None`: the
+/// plotters default corner), names in `font_px` text.
+pub(crate) fn legend<'a, 'b: 'a, CT: CoordTranslate>(
+    chart: &mut ChartContext<'a, BitMapBackend<'b>, CT>,
+    at: Option<SeriesLabelPosition>,
+    font_px: u32,
+) -> Result<()> {
+    let mut labels = chart.configure_series_labels();
+    if let Some(at) = at {
+        labels.position(at);
+    }
+    labels
+        .background_style(WHITE.mix(0.85))
+        .border_style(BLACK)
+        .label_font((FONT, font_px))
+        .draw()
+        .map_err(plot_err)
+}
+
 /// `text` safe inside a markdown table cell: the `|` of `|q̇|`, `|τ|`, `|ω|` would end the cell.
 pub(crate) fn md_cell(text: &str) -> String {
     text.replace('|', "\\|")

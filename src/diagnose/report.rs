@@ -13,7 +13,8 @@ use plotters::prelude::*;
 use super::Diagnosis;
 use super::locate::trial_means;
 use crate::plot::{
-    Area, FONT, md_cell, padded_range, plot_err, register_font, table, tick_label, write_png,
+    Area, FONT, legend, md_cell, padded_range, plot_err, register_font, table, tick_label,
+    write_png,
 };
 
 /// Figure file names, relative to the report directory.
@@ -321,20 +322,6 @@ fn xy_chart<'a, 'b>(
     Ok(chart)
 }
 
-/// The series' legend, framed on a light background (upper left or the default corner).
-fn legend<'a, 'b: 'a>(chart: &mut XyChart<'a, 'b>, upper_left: bool) -> Result<()> {
-    let mut labels = chart.configure_series_labels();
-    if upper_left {
-        labels.position(SeriesLabelPosition::UpperLeft);
-    }
-    labels
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .label_font((FONT, 14))
-        .draw()
-        .map_err(plot_err)
-}
-
 /// Horizontal bars, one per labelled category (top to bottom in the given order): the labels sit
 /// left of the axis at full length, where vertical bars' labels overlapped or were cut.
 fn draw_bars(a: &Area, caption: &str, x_desc: &str, bars: &[(String, f64, bool)]) -> Result<()> {
@@ -478,7 +465,7 @@ fn draw_before_after(a: &Area, d: &Diagnosis) -> Result<()> {
     (chart.draw_series(after).map_err(plot_err)?)
         .label("after")
         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], red));
-    legend(&mut chart, true)
+    legend(&mut chart, Some(SeriesLabelPosition::UpperLeft), 14)
 }
 
 /// The "before" series' colour.
@@ -503,7 +490,7 @@ fn draw_residual_time(a: &Area, d: &Diagnosis) -> Result<()> {
             .label(label)
             .legend(move |(x, y)| Circle::new((x + 10, y), 3, color.filled()));
     }
-    legend(&mut chart, false)
+    legend(&mut chart, None, 14)
 }
 
 fn draw_lag_scan(a: &Area, d: &Diagnosis) -> Result<()> {

@@ -18,7 +18,7 @@ use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use crate::N_JOINTS;
 use crate::lsq::Metrics;
-use crate::plot::{FONT, padded_range, plot_err, register_font, table, write_png};
+use crate::plot::{FONT, legend, padded_range, plot_err, register_font, table, write_png};
 use crate::power::{DatasetMetrics, ModelFile, N_PAIRS, PAIRS, PowerModel, TERM_NAMES, TermMeans};
 
 /// Everything the report shows. Fill what you have; absent parts are left out of the report.
@@ -691,15 +691,7 @@ fn draw_parity(
             )
             .map_err(plot_err)?;
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperLeft)
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .label_font((FONT, 15))
-        .draw()
-        .map_err(plot_err)?;
-    Ok(())
+    legend(&mut chart, Some(SeriesLabelPosition::UpperLeft), 15)
 }
 
 fn draw_residuals(
@@ -780,15 +772,7 @@ fn draw_residuals(
         .map_err(plot_err)?
         .label(format!("normal μ = {mean:.2} W, σ = {sd:.2} W"))
         .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], RED.stroke_width(2)));
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperRight)
-        .background_style(WHITE.mix(0.85))
-        .border_style(BLACK)
-        .label_font((FONT, 14))
-        .draw()
-        .map_err(plot_err)?;
-    Ok(())
+    legend(&mut chart, Some(SeriesLabelPosition::UpperRight), 14)
 }
 
 fn draw_terms(root: &DrawingArea<BitMapBackend<'_>, Shift>, t: &TermContributions) -> Result<()> {

@@ -78,6 +78,20 @@ impl Rejection {
             detail: detail.into(),
         }
     }
+
+    /// Trial `s` rejected by the filter `reason`: its statistic beyond `threshold` (in residual
+    /// pass `pass`, 0 for the other filters).
+    fn beyond(s: &TrialStat, reason: RejectReason, threshold: f64, pass: usize) -> Rejection {
+        Rejection {
+            session: s.session,
+            trial: s.trial,
+            reason,
+            statistic: s.value,
+            threshold,
+            pass,
+            detail: String::new(),
+        }
+    }
 }
 
 /// One line for humans, e.g. `trial 11: IMU sway σ_ω = 0.0810 rad/s > 0.0040 (k × median)`;
@@ -303,15 +317,7 @@ pub fn imu_sway(sigmas: &[TrialStat], k: f64) -> Vec<Rejection> {
     sigmas
         .iter()
         .filter(|s| s.value > threshold)
-        .map(|s| Rejection {
-            session: s.session,
-            trial: s.trial,
-            reason: RejectReason::ImuSway,
-            statistic: s.value,
-            threshold,
-            pass: 0,
-            detail: String::new(),
-        })
+        .map(|s| Rejection::beyond(s, RejectReason::ImuSway, threshold, 0))
         .collect()
 }
 
@@ -327,14 +333,6 @@ pub fn three_sigma(residuals: &[TrialStat], n_sigma: f64, pass: usize) -> Vec<Re
     residuals
         .iter()
         .filter(|r| (r.value - mean).abs() > threshold)
-        .map(|r| Rejection {
-            session: r.session,
-            trial: r.trial,
-            reason: RejectReason::Residual,
-            statistic: r.value,
-            threshold,
-            pass,
-            detail: String::new(),
-        })
+        .map(|r| Rejection::beyond(r, RejectReason::Residual, threshold, pass))
         .collect()
 }
