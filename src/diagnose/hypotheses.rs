@@ -77,6 +77,22 @@ pub(crate) const RAW_BRAKING: usize = N_PARAMS + BRAKING;
 /// loss on the driving side, a temperature drift's form without its temperature.
 pub(crate) const RAW_DRIVING_COPPER: usize = N_PARAMS + DRIVING_COPPER;
 
+/// Position in a raw row of a pooled hypothesis' feature on the driving joints only, each sample's
+/// driving joints (the drive-electronics loss's forms: its current or torque while τ_i q̇_i > 0);
+/// `None` where the library has no such feature.
+pub(crate) fn driving_side_raw(h: &Hypothesis) -> Option<usize> {
+    match h.raw {
+        (DRIVE, 1) => Some(RAW_DRIVING_CURRENT),
+        (DRIVE_NM, 1) => Some(RAW_DRIVING_TORQUE),
+        _ => None,
+    }
+}
+
+/// Whether `h` is a form on the driving joints alone (the winding-resistance drift's driving side).
+pub(crate) fn driving_side_only(h: &Hypothesis) -> bool {
+    h.raw.0 == THERMAL_DRIVING
+}
+
 /// Speed [rad/s] above which a joint moves (below it, velocity noise decides the sign of τq̇):
 /// a holding joint counts with the braking ones in the driving/braking split.
 const MOVING: f64 = 0.05;
