@@ -36,6 +36,9 @@ use super::stepwise::STABLE;
 use super::{DiscoveryReport, HypothesisScore, MechanismForms};
 use crate::{N_JOINTS, N_PARAMS};
 
+/// Columns of regressors, one value per reading each.
+type Cols = Vec<Vec<f64>>;
+
 /// The flexible variant of library hypothesis `h` on the rows of `lag` (pooled by `theta`): its
 /// per-joint features (for the gear friction |τ_i q̇_i|) and, for a per-joint mechanism, each
 /// on the joint's driving side, then [`shape_cols`] of its regressor over the state `s` (per
@@ -48,14 +51,14 @@ fn library_flexible(
     theta: &[f64],
     lag: usize,
     s: &[f64],
-) -> Result<(Vec<Vec<f64>>, Vec<Vec<Vec<f64>>>)> {
+) -> Result<(Cols, Vec<Cols>)> {
     let rows = data.rows(lag)?;
     let (off, len) = h.raw;
     let feature = |x: &[f64; super::hypotheses::N_RAW], i: usize| x[N_PARAMS + off + i];
     let mut cols: Vec<Vec<f64>> = (0..len)
         .map(|i| rows.x.iter().map(|x| feature(x, i)).collect())
         .collect();
-    let mut driving_side: Vec<Vec<Vec<f64>>> = Vec::new();
+    let mut driving_side: Vec<Cols> = Vec::new();
     if len == N_JOINTS {
         let on_drive = |i| {
             rows.x
@@ -182,7 +185,7 @@ fn rival_variants(
     theta: &[f64],
     (lag, s): (usize, &[f64]),
     one_sided: bool,
-) -> Result<Vec<Vec<Vec<f64>>>> {
+) -> Result<Vec<Cols>> {
     if forms.is_empty() {
         return Ok(vec![split_by(&data.rows(lag)?.x, s)]);
     }
