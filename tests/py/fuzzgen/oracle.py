@@ -209,7 +209,7 @@ def _bounded_cv(X, y, folds, ridge_cols, lower):
         b[lower] = np.maximum(b[lower], 0.0)
         for _ in range(300):
             moved = 0.0
-            for j in np.flatnonzero(lower | (np.abs(G[:, lower]).sum(1) > 0)):
+            for j in range(len(b)):
                 bj = b[j] + (h[j] - G[j] @ b) / G[j, j]
                 if lower[j]:
                     bj = max(bj, 0.0)
